@@ -1,0 +1,29 @@
+// Numbers a user checks before a run (`cfddem check`) and finds again in run.json: particle mass,
+// tau_p, dt, solid fraction, the Enskog collision frequency and Haff's cooling time (physics.md §1, §3).
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "core/particle_store.hpp"
+#include "core/scene.hpp"
+
+namespace cfddem::apps {
+
+struct DerivedNumbers {
+  std::size_t particles = 0;
+  double mean_diameter = 0, min_mass = 0, tau_p = 0, dt = 0, solid_fraction = 0;
+  double g0 = 0;                  // Carnahan-Starling contact value
+  double granular_temperature = 0;
+  double collision_frequency = 0; // per particle, Enskog [1/s]
+  double haff_time = 0;           // t_H [s] (no gas)
+  double contact_duration = 0;    // pi/omega_d for two of the lightest particles [s]
+  double dt_per_contact = 0;      // contact duration / dt
+  long long steps = 0;            // steps to run.end_time
+  std::vector<std::pair<std::string, std::string>> table() const;
+};
+
+DerivedNumbers derive(const Scene& scene, const ParticleStore& particles);
+
+} // namespace cfddem::apps

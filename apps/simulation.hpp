@@ -1,0 +1,27 @@
+// The time loop of a run: initial particles -> scheme -> diagnostics rows, progress, run.json.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "core/parallel_env.hpp"
+#include "core/scene.hpp"
+
+namespace cfddem::apps {
+
+struct RunOptions {
+  std::string out_dir;
+  bool quiet = false;
+  std::vector<std::pair<std::string, std::string>> config; // resolved keys for run.json
+};
+
+struct RunResult {
+  std::string out_dir;
+  double loop_seconds = 0.0;
+  long long steps = 0;
+  long long particle_steps = 0;
+};
+
+RunResult run_simulation(const Scene& scene, const RunOptions& options, const ParallelEnv& env);
+
+} // namespace cfddem::apps

@@ -1,0 +1,273 @@
+#include "core/initial_conditions.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <unordered_map>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+
+namespace cfddem {
+
+namespace {
+
+// Uniform bins over the domain for overlap queries (serial set-up work, not the hot loop).
+class PointGrid {
+public:
+  PointGrid(const DomainSpec& d, double cell) : d_(d) {
+    for (int a = 0; a < 3; ++a) {
+      n_[a] = std::max(1, static_cast<int>(std::floor(d.length(a) / cell)));
+      inv_[a] = n_[a] / d.length(a);
+    }
+    bins_.resize(static_cast<std::size_t>(n_[0]) * n_[1] * n_[2]);
+  }
+  std::array<int, 3> bin_of(double x, double y, double z) const {
+    const double p[3] = {x, y, z};
+    std::array<int, 3> b{};
+    for (int a = 0; a < 3; ++a)
+      b[a] = std::clamp(static_cast<int>(std::floor((p[a] - d_.lo[a]) * inv_[a])), 0, n_[a] - 1);
+    return b;
+  }
+  void insert(std::size_t i, double x, double y, double z) {
+    auto b = bin_of(x, y, z);
+    bins_[flat(b)].push_back(i);
+  }
+  // Visit every stored index in the 27 bins around (x, y, z), each bin once.
+  template <class F> void for_near(double x, double y, double z, F&& f) const {
+    auto b = bin_of(x, y, z);
+    std::array<std::vector<int>, 3> idx;
+    for (int a = 0; a < 3; ++a) {
+      for (int o = -1; o <= 1; ++o) {
+        int c = b[a] + o;
+        if (c < 0 || c >= n_[a]) {
+          if (!d_.periodic[a]) continue;
+          c = (c + n_[a]) % n_[a];
+        }
+        if (std::find(idx[a].begin(), idx[a].end(), c) == idx[a].end()) idx[a].push_back(c);
+      }
+    }
+    for (int i : idx[0])
+      for (int j : idx[1])
+        for (int k : idx[2])
+          for (std::size_t q : bins_[flat({i, j, k})]) f(q);
+  }
+
+private:
+  std::size_t flat(std::array<int, 3> b) const {
+    return (static_cast<std::size_t>(b[2]) * n_[1] + b[1]) * n_[0] + b[0];
+  }
+  DomainSpec d_;
+  std::array<int, 3> n_{};
+  std::array<double, 3> inv_{};
+  std::vector<std::vector<std::size_t>> bins_;
+};
+
+double min_image(double dx, double length, bool periodic) {
+  if (periodic) dx -= length * std::nearbyint(dx / length);
+  return dx;
+}
+
+double gap(const ParticleStore& p, std::size_t i, std::size_t j, const DomainSpec& d) {
+  const double dx = min_image(p.x[j] - p.x[i], d.length(0), d.periodic[0]);
+  const double dy = min_image(p.y[j] - p.y[i], d.length(1), d.periodic[1]);
+  const double dz = min_image(p.z[j] - p.z[i], d.length(2), d.periodic[2]);
+  return std::sqrt(dx * dx + dy * dy + dz * dz) - (p.radius[i] + p.radius[j]);
+}
+
+void place_random(ParticleStore& p, const Scene& s) {
+  const auto& ps = s.particles;
+  const double r = 0.5 * ps.diameter;
+  std::mt19937_64 rng(ps.seed);
+  // Centres keep a radius from non-periodic region faces so no particle starts in a wall.
+  std::array<std::uniform_real_distribution<double>, 3> u;
+  for (int a = 0; a < 3; ++a) {
+    const bool full_periodic = s.domain.periodic[a] && ps.region_lo[a] == s.domain.lo[a] &&
+                               ps.region_hi[a] == s.domain.hi[a];
+    const double m = full_periodic ? 0.0 : r;
+    if (ps.region_hi[a] - ps.region_lo[a] <= 2 * m)
+      throw ConfigError("scene key 'particles.region_hi'",
+                        fmt::format("region too thin for particles of diameter {} (axis {})",
+                                    ps.diameter, a));
+    u[a] = std::uniform_real_distribution<double>(ps.region_lo[a] + m, ps.region_hi[a] - m);
+  }
+  PointGrid grid(s.domain, ps.diameter);
+  const std::int64_t max_attempts = 1000 * ps.count + 100000;
+  std::int64_t attempts = 0;
+  while (static_cast<std::int64_t>(p.size()) < ps.count) {
+    if (++attempts > max_attempts)
+      throw ConfigError("scene key 'particles.count'",
+                        fmt::format("could place only {} of {} non-overlapping particles in the "
+                                    "region (random placement saturates near 38% solids; use "
+                                    "particles.placement = \"lattice\" or a larger region)",
+                                    p.size(), ps.count));
+    const double x = u[0](rng), y = u[1](rng), z = u[2](rng);
+    bool free = true;
+    const std::size_t cand = p.add(x, y, z, 0, 0, 0, r, ps.density,
+                                   static_cast<std::int64_t>(p.size()));
+    grid.for_near(x, y, z, [&](std::size_t q) {
+      if (free && gap(p, cand, q, s.domain) <= 0.0) free = false;
+    });
+    if (free) {
+      grid.insert(cand, x, y, z);
+    } else {
+      p.resize(cand);
+    }
+  }
+}
+
+void place_lattice(ParticleStore& p, const Scene& s) {
+  const auto& ps = s.particles;
+  const double d = ps.diameter;
+  std::array<int, 3> n{};
+  std::array<double, 3> spacing{};
+  // Simple cubic lattice with spacing >= d filling the region; particles fill it in x, y, z order.
+  for (int a = 0; a < 3; ++a) {
+    n[a] = static_cast<int>(std::floor((ps.region_hi[a] - ps.region_lo[a]) / (d * 1.0000001)));
+    if (n[a] < 1) n[a] = 0;
+  }
+  const std::int64_t capacity = static_cast<std::int64_t>(n[0]) * n[1] * n[2];
+  if (capacity < ps.count)
+    throw ConfigError("scene key 'particles.count'",
+                      fmt::format("a cubic lattice of spacing d fits {} particles in the region, "
+                                  "{} were asked for",
+                                  capacity, ps.count));
+  for (int a = 0; a < 3; ++a) spacing[a] = (ps.region_hi[a] - ps.region_lo[a]) / n[a];
+  std::int64_t k = 0;
+  for (int iz = 0; iz < n[2] && k < ps.count; ++iz)
+    for (int iy = 0; iy < n[1] && k < ps.count; ++iy)
+      for (int ix = 0; ix < n[0] && k < ps.count; ++ix, ++k)
+        p.add(ps.region_lo[0] + (ix + 0.5) * spacing[0], ps.region_lo[1] + (iy + 0.5) * spacing[1],
+              ps.region_lo[2] + (iz + 0.5) * spacing[2], 0, 0, 0, 0.5 * d, ps.density, k);
+}
+
+} // namespace
+
+void assign_thermal_velocities(ParticleStore& p, double temperature,
+                               const std::array<double, 3>& mean, std::uint64_t seed) {
+  const std::size_t n = p.size();
+  if (n == 0) return;
+  std::mt19937_64 rng(seed ^ 0x9e3779b97f4a7c15ULL);
+  std::normal_distribution<double> g(0.0, std::sqrt(std::max(temperature, 0.0)));
+  for (std::size_t i = 0; i < n; ++i) p.vx[i] = g(rng), p.vy[i] = g(rng), p.vz[i] = g(rng);
+  // Remove the mass-weighted mean, then rescale to T0 exactly (as the peers' generator does).
+  double mt = 0, px = 0, py = 0, pz = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    mt += p.mass[i], px += p.mass[i] * p.vx[i], py += p.mass[i] * p.vy[i], pz += p.mass[i] * p.vz[i];
+  double sq = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    p.vx[i] -= px / mt, p.vy[i] -= py / mt, p.vz[i] -= pz / mt;
+    sq += p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+  }
+  const double scale = (sq > 0 && n > 1) ? std::sqrt(temperature / (sq / (3.0 * n))) : 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    p.vx[i] = p.vx[i] * scale + mean[0];
+    p.vy[i] = p.vy[i] * scale + mean[1];
+    p.vz[i] = p.vz[i] * scale + mean[2];
+  }
+}
+
+ParticleStore read_particle_csv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError(path, "cannot open the particle file (scene key 'particles.file')");
+  std::string line;
+  if (!std::getline(in, line)) throw ConfigError(path, "empty file: expected a header row");
+  const std::vector<std::string> wanted = {"x", "y", "z", "vx", "vy", "vz", "diameter", "density"};
+  std::vector<int> col(wanted.size(), -1);
+  {
+    std::stringstream hs(line);
+    std::string name;
+    int c = 0;
+    while (std::getline(hs, name, ',')) {
+      name.erase(std::remove_if(name.begin(), name.end(), ::isspace), name.end());
+      auto it = std::find(wanted.begin(), wanted.end(), name);
+      if (it == wanted.end())
+        throw ConfigError(path + " line 1", fmt::format("unknown column '{}' (expected {})", name,
+                                                        "x,y,z,vx,vy,vz,diameter,density"));
+      col[it - wanted.begin()] = c++;
+    }
+    for (std::size_t k = 0; k < wanted.size(); ++k)
+      if (col[k] < 0)
+        throw ConfigError(path + " line 1", fmt::format("missing column '{}'", wanted[k]));
+  }
+  ParticleStore p;
+  int lineno = 1;
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    std::vector<double> v;
+    std::stringstream ls(line);
+    std::string cell;
+    while (std::getline(ls, cell, ',')) {
+      char* end = nullptr;
+      const double val = std::strtod(cell.c_str(), &end);
+      while (end && *end && std::isspace(static_cast<unsigned char>(*end))) ++end;
+      if (cell.empty() || !end || *end != '\0' || !std::isfinite(val))
+        throw ConfigError(fmt::format("{} line {}", path, lineno),
+                          fmt::format("'{}' is not a finite number", cell));
+      v.push_back(val);
+    }
+    if (v.size() != wanted.size())
+      throw ConfigError(fmt::format("{} line {}", path, lineno),
+                        fmt::format("expected {} values, got {}", wanted.size(), v.size()));
+    const double d = v[col[6]], rho = v[col[7]];
+    if (!(d > 0) || !(rho > 0))
+      throw ConfigError(fmt::format("{} line {}", path, lineno),
+                        "diameter and density must be > 0");
+    p.add(v[col[0]], v[col[1]], v[col[2]], v[col[3]], v[col[4]], v[col[5]], 0.5 * d, rho,
+          static_cast<std::int64_t>(p.size()));
+  }
+  return p;
+}
+
+void check_no_overlap(const ParticleStore& p, const DomainSpec& domain) {
+  if (p.size() < 2) return;
+  double dmax = 0;
+  for (double r : p.radius) dmax = std::max(dmax, 2 * r);
+  PointGrid grid(domain, dmax);
+  for (std::size_t i = 0; i < p.size(); ++i) grid.insert(i, p.x[i], p.y[i], p.z[i]);
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    grid.for_near(p.x[i], p.y[i], p.z[i], [&](std::size_t j) {
+      if (j <= i) return;
+      const double g = gap(p, i, j, domain);
+      if (g < 0.0)
+        throw ConfigError(
+            "initial particles",
+            fmt::format("particles {} at ({:.6g}, {:.6g}, {:.6g}) and {} at ({:.6g}, {:.6g}, "
+                        "{:.6g}) overlap by {:.3g} m (set particles.allow_overlap = true to "
+                        "accept it)",
+                        p.id[i], p.x[i], p.y[i], p.z[i], p.id[j], p.x[j], p.y[j], p.z[j], -g));
+    });
+  }
+}
+
+ParticleStore make_initial_particles(const Scene& s) {
+  ParticleStore p;
+  if (!s.particles.file.empty()) {
+    p = read_particle_csv(s.particles.file);
+  } else {
+    if (s.particles.placement == "lattice") {
+      place_lattice(p, s);
+    } else {
+      place_random(p, s);
+    }
+    assign_thermal_velocities(p, s.particles.temperature, s.particles.velocity, s.particles.seed);
+  }
+  // Every particle must start inside the domain (walls are at lo/hi of non-periodic axes).
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const double c[3] = {p.x[i], p.y[i], p.z[i]};
+    for (int a = 0; a < 3; ++a) {
+      if (!(c[a] >= s.domain.lo[a] && c[a] <= s.domain.hi[a]))
+        throw ConfigError(s.particles.file.empty() ? "particles" : s.particles.file,
+                          fmt::format("particle {} at ({}, {}, {}) lies outside the domain", p.id[i],
+                                      c[0], c[1], c[2]));
+    }
+  }
+  if (!s.particles.allow_overlap) check_no_overlap(p, s.domain);
+  return p;
+}
+
+} // namespace cfddem

@@ -1,0 +1,43 @@
+#include "core/parallel_env.hpp"
+
+#include <cstdlib>
+
+#include <mpi.h>
+#include <tbb/global_control.h>
+#include <tbb/info.h>
+
+namespace cfddem {
+
+int ParallelEnv::resolve_threads(int requested) {
+  if (requested > 0) return requested;
+  if (const char* omp = std::getenv("OMP_NUM_THREADS")) {
+    const int n = std::atoi(omp);
+    if (n > 0) return n;
+  }
+  // tbb::info respects the process affinity mask, so `--map-by ...:PE=n` gives n.
+  return tbb::info::default_concurrency();
+}
+
+ParallelEnv::ParallelEnv(int* argc, char*** argv, int threads) {
+  int initialised = 0;
+  MPI_Initialized(&initialised);
+  if (!initialised) {
+    int provided = 0;
+    MPI_Init_thread(argc, argv, MPI_THREAD_FUNNELED, &provided);
+    we_initialised_mpi_ = true;
+  }
+  MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
+  MPI_Comm_size(MPI_COMM_WORLD, &ranks_);
+  threads_ = resolve_threads(threads);
+  control_ = std::make_unique<tbb::global_control>(
+      tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(threads_));
+}
+
+ParallelEnv::~ParallelEnv() {
+  control_.reset();
+  int finalised = 0;
+  MPI_Finalized(&finalised);
+  if (we_initialised_mpi_ && !finalised) MPI_Finalize();
+}
+
+} // namespace cfddem

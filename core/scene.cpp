@@ -1,0 +1,185 @@
+#include "core/scene.hpp"
+
+#include <cmath>
+#include <filesystem>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+
+namespace cfddem {
+
+namespace {
+
+void require(bool ok, const std::string& key, const std::string& why) {
+  if (!ok) throw ConfigError(fmt::format("scene key '{}'", key), why);
+}
+
+double positive(SceneConfig& c, const std::string& key) {
+  const double v = c.require_double(key);
+  require(std::isfinite(v) && v > 0.0, key, fmt::format("must be > 0, got {}", v));
+  return v;
+}
+
+double unit_interval(SceneConfig& c, const std::string& key, double fallback) {
+  const double v = c.get_double(key, fallback);
+  require(std::isfinite(v) && v >= 0.0 && v <= 1.0, key,
+          fmt::format("must be in [0, 1], got {}", v));
+  return v;
+}
+
+double non_negative(SceneConfig& c, const std::string& key, double fallback) {
+  const double v = c.get_double(key, fallback);
+  require(std::isfinite(v) && v >= 0.0, key, fmt::format("must be >= 0, got {}", v));
+  return v;
+}
+
+} // namespace
+
+Scene read_scene(SceneConfig& c, const std::string& default_name) {
+  Scene s;
+  s.name = c.get_string("name", default_name);
+  require(!s.name.empty() && s.name.find('/') == std::string::npos, "name",
+          "must be a non-empty name without '/'");
+
+  // Domain.
+  s.domain.lo = c.require_vec3("domain.lo");
+  s.domain.hi = c.require_vec3("domain.hi");
+  s.domain.periodic = c.get_bool3("domain.periodic", {true, true, true});
+  for (int a = 0; a < 3; ++a)
+    require(std::isfinite(s.domain.lo[a]) && std::isfinite(s.domain.hi[a]) &&
+                s.domain.hi[a] > s.domain.lo[a],
+            "domain.hi", fmt::format("must exceed domain.lo on every axis (axis {}: {} <= {})", a,
+                                     s.domain.hi[a], s.domain.lo[a]));
+  s.gravity = c.get_vec3("gravity", {0, 0, 0});
+
+  // Particles: a CSV file or a generator.
+  auto& p = s.particles;
+  p.file = c.get_string("particles.file", "");
+  // A path in the scene file is relative to the scene's folder; one given on the command line,
+  // to the working directory.
+  if (!p.file.empty() && !c.overridden("particles.file") && !c.base_dir().empty() &&
+      std::filesystem::path(p.file).is_relative())
+    p.file = (std::filesystem::path(c.base_dir()) / p.file).string();
+  p.seed = static_cast<std::uint64_t>(c.get_int("particles.seed", 1));
+  p.allow_overlap = c.get_bool("particles.allow_overlap", false);
+  if (p.file.empty()) {
+    p.count = c.get_int("particles.count", 0);
+    require(p.count >= 0, "particles.count", fmt::format("must be >= 0, got {}", p.count));
+    p.diameter = positive(c, "particles.diameter");
+    p.density = positive(c, "particles.density");
+    p.temperature = non_negative(c, "particles.temperature", 0.0);
+    p.velocity = c.get_vec3("particles.velocity", {0, 0, 0});
+    p.placement = c.get_string("particles.placement", "random");
+    require(p.placement == "random" || p.placement == "lattice", "particles.placement",
+            fmt::format("must be \"random\" or \"lattice\", got \"{}\"", p.placement));
+    p.region_lo = c.get_vec3("particles.region_lo", s.domain.lo);
+    p.region_hi = c.get_vec3("particles.region_hi", s.domain.hi);
+    for (int a = 0; a < 3; ++a) {
+      require(p.region_lo[a] >= s.domain.lo[a] && p.region_hi[a] <= s.domain.hi[a] &&
+                  p.region_hi[a] > p.region_lo[a],
+              "particles.region_hi",
+              fmt::format("the region must be non-empty and inside the domain (axis {})", a));
+      require(p.diameter < s.domain.length(a), "particles.diameter",
+              fmt::format("{} m does not fit in the domain (axis {} is {} m long)", p.diameter,
+                          a, s.domain.length(a)));
+    }
+  } else {
+    for (const char* k : {"particles.count", "particles.diameter", "particles.density",
+                          "particles.temperature", "particles.placement"})
+      require(!c.has(k), k, "cannot be combined with particles.file");
+  }
+
+  // DEM contact model.
+  auto& d = s.dem;
+  d.scheme = c.get_string("dem.scheme", "explicit");
+  require(d.scheme == "explicit", "dem.scheme",
+          fmt::format("unknown scheme \"{}\" (available: \"explicit\")", d.scheme));
+  d.spring_constant = positive(c, "dem.spring_constant");
+  d.restitution = unit_interval(c, "dem.restitution", 0.0);
+  require(c.has("dem.restitution"), "dem.restitution", "is required but missing");
+  d.friction = non_negative(c, "dem.friction", 0.0);
+  d.tangential_stiffness_ratio = c.get_double("dem.tangential_stiffness_ratio", 2.0 / 7.0);
+  require(d.tangential_stiffness_ratio > 0.0, "dem.tangential_stiffness_ratio", "must be > 0");
+  d.tangential_damping_ratio = non_negative(c, "dem.tangential_damping_ratio", 0.5);
+  d.wall_spring_constant = c.get_double("dem.wall_spring_constant", d.spring_constant);
+  require(d.wall_spring_constant > 0.0, "dem.wall_spring_constant", "must be > 0");
+  d.wall_restitution = unit_interval(c, "dem.wall_restitution", d.restitution);
+  d.wall_friction = non_negative(c, "dem.wall_friction", d.friction);
+  d.dt_factor = c.get_double("dem.dt_factor", 0.02);
+  require(std::isfinite(d.dt_factor) && d.dt_factor > 0.0, "dem.dt_factor",
+          fmt::format("must be > 0, got {}", d.dt_factor));
+  d.neighbor_skin = c.get_double("dem.neighbor_skin", -1.0); // resolved once sizes are known
+  require(d.neighbor_skin == -1.0 || d.neighbor_skin > 0.0, "dem.neighbor_skin", "must be > 0");
+  d.max_overlap = c.get_double("dem.max_overlap", 0.3);
+  require(d.max_overlap > 0.0 && d.max_overlap < 1.0, "dem.max_overlap",
+          "must be in (0, 1) (a fraction of the smaller radius)");
+
+  // Run and output.
+  s.run.end_time = positive(c, "run.end_time");
+  s.output.interval = c.get_double("output.interval", s.run.end_time / 100.0);
+  require(s.output.interval > 0.0, "output.interval", "must be > 0");
+  s.output.progress_seconds = c.get_double("output.progress_seconds", 2.0);
+  require(s.output.progress_seconds > 0.0, "output.progress_seconds", "must be > 0");
+
+  c.check_all_used();
+  return s;
+}
+
+} // namespace cfddem
+
+namespace cfddem {
+
+namespace {
+std::string vec3(const std::array<double, 3>& v) {
+  return fmt::format("[{:.17g}, {:.17g}, {:.17g}]", v[0], v[1], v[2]);
+}
+std::string bool3(const std::array<bool, 3>& v) {
+  return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]);
+}
+std::string num(double v) { return fmt::format("{:.17g}", v); }
+std::string str(const std::string& s) { return fmt::format("\"{}\"", s); }
+} // namespace
+
+std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) {
+  std::vector<std::pair<std::string, std::string>> o;
+  o.emplace_back("name", str(s.name));
+  o.emplace_back("domain.lo", vec3(s.domain.lo));
+  o.emplace_back("domain.hi", vec3(s.domain.hi));
+  o.emplace_back("domain.periodic", bool3(s.domain.periodic));
+  o.emplace_back("gravity", vec3(s.gravity));
+  const auto& p = s.particles;
+  if (!p.file.empty()) {
+    o.emplace_back("particles.file", str(p.file));
+  } else {
+    o.emplace_back("particles.count", std::to_string(p.count));
+    o.emplace_back("particles.diameter", num(p.diameter));
+    o.emplace_back("particles.density", num(p.density));
+    o.emplace_back("particles.temperature", num(p.temperature));
+    o.emplace_back("particles.velocity", vec3(p.velocity));
+    o.emplace_back("particles.placement", str(p.placement));
+    o.emplace_back("particles.region_lo", vec3(p.region_lo));
+    o.emplace_back("particles.region_hi", vec3(p.region_hi));
+    o.emplace_back("particles.seed", std::to_string(p.seed));
+  }
+  o.emplace_back("particles.allow_overlap", p.allow_overlap ? "true" : "false");
+  const auto& d = s.dem;
+  o.emplace_back("dem.scheme", str(d.scheme));
+  o.emplace_back("dem.spring_constant", num(d.spring_constant));
+  o.emplace_back("dem.restitution", num(d.restitution));
+  o.emplace_back("dem.friction", num(d.friction));
+  o.emplace_back("dem.tangential_stiffness_ratio", num(d.tangential_stiffness_ratio));
+  o.emplace_back("dem.tangential_damping_ratio", num(d.tangential_damping_ratio));
+  o.emplace_back("dem.wall_spring_constant", num(d.wall_spring_constant));
+  o.emplace_back("dem.wall_restitution", num(d.wall_restitution));
+  o.emplace_back("dem.wall_friction", num(d.wall_friction));
+  o.emplace_back("dem.dt_factor", num(d.dt_factor));
+  o.emplace_back("dem.neighbor_skin", d.neighbor_skin > 0 ? num(d.neighbor_skin) : "\"auto\"");
+  o.emplace_back("dem.max_overlap", num(d.max_overlap));
+  o.emplace_back("run.end_time", num(s.run.end_time));
+  o.emplace_back("output.interval", num(s.output.interval));
+  o.emplace_back("output.progress_seconds", num(s.output.progress_seconds));
+  return o;
+}
+
+} // namespace cfddem

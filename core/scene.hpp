@@ -1,0 +1,78 @@
+// The resolved, validated scene: every key read once from SceneConfig, with defaults applied and
+// impossible values rejected (the error names the key). Physics modules read this, never TOML.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "core/scene_config.hpp"
+
+namespace cfddem {
+
+struct DomainSpec {
+  std::array<double, 3> lo{}, hi{};
+  std::array<bool, 3> periodic{true, true, true};
+  double length(int a) const { return hi[a] - lo[a]; }
+  double volume() const { return length(0) * length(1) * length(2); }
+};
+
+struct ParticleSpec {
+  std::string file;          // CSV x,y,z,vx,vy,vz,diameter,density; empty = generator
+  std::int64_t count = 0;    // generator: number of particles
+  double diameter = 0.0;     // [m]
+  double density = 0.0;      // [kg/m^3]
+  double temperature = 0.0;  // granular temperature T0 [m^2/s^2], Gaussian velocities
+  std::array<double, 3> velocity{0, 0, 0}; // mean velocity added to the Gaussian part
+  std::uint64_t seed = 1;
+  std::string placement = "random"; // "random" (non-overlapping) | "lattice"
+  std::array<double, 3> region_lo{}, region_hi{}; // where the generator places particles
+  bool allow_overlap = false;
+};
+
+struct DemSpec {
+  std::string scheme = "explicit";
+  double spring_constant = 0.0;   // k_n [N/m]
+  double restitution = 0.0;       // e
+  double friction = 0.0;          // Coulomb mu
+  double tangential_stiffness_ratio = 2.0 / 7.0; // k_t / k_n (MFIX, LIGGGHTS default)
+  double tangential_damping_ratio = 0.5;         // eta_t / eta_n (MFIX default)
+  double wall_spring_constant = 0.0;
+  double wall_restitution = 0.0;
+  double wall_friction = 0.0;
+  double dt_factor = 0.02;        // dt = tau_p * dt_factor
+  double neighbor_skin = 0.0;     // Verlet skin [m]
+  double max_overlap = 0.3;       // stop when overlap / smaller radius exceeds this
+};
+
+struct RunSpec {
+  double end_time = 0.0;
+};
+
+struct OutputSpec {
+  double interval = 0.0;        // simulated seconds between diagnostics rows
+  double progress_seconds = 2.0;// wall seconds between progress lines
+};
+
+struct Scene {
+  std::string name;
+  DomainSpec domain;
+  std::array<double, 3> gravity{0, 0, 0};
+  ParticleSpec particles;
+  DemSpec dem;
+  RunSpec run;
+  OutputSpec output;
+};
+
+// Read and validate every key; throws ConfigError naming the key. Unknown keys are errors.
+// `default_name` is used when the scene has no `name` key (the file's stem).
+Scene read_scene(SceneConfig& config, const std::string& default_name);
+
+} // namespace cfddem
+
+namespace cfddem {
+// Every scene key with its resolved value (defaults applied), in a stable order, as TOML text.
+std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& scene);
+} // namespace cfddem

@@ -1,0 +1,145 @@
+#include "dem/verlet_list.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "core/error.hpp"
+
+namespace cfddem::dem {
+
+namespace {
+
+struct CellGrid {
+  std::array<int, 3> n{};
+  std::array<double, 3> inv{};
+  std::size_t count() const { return static_cast<std::size_t>(n[0]) * n[1] * n[2]; }
+};
+
+// Cells at least as wide as the cutoff, but not many more cells than particles (a dilute box
+// would otherwise spend its build time visiting empty cells).
+CellGrid make_grid(const DomainGeometry& g, double cutoff, std::size_t particles) {
+  CellGrid c;
+  double cell = cutoff;
+  const double volume = g.length[0] * g.length[1] * g.length[2];
+  const double target = 32.0 * static_cast<double>(particles) + 64.0;
+  if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
+  for (int a = 0; a < 3; ++a) {
+    c.n[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
+    c.inv[a] = c.n[a] / g.length[a];
+  }
+  return c;
+}
+
+// The distinct cell indices along one axis around cell b (periodic images collapse when n < 3).
+int stencil_axis(int b, int n, bool periodic, int out[3]) {
+  int m = 0;
+  for (int o = -1; o <= 1; ++o) {
+    int c = b + o;
+    if (c < 0 || c >= n) {
+      if (!periodic) continue;
+      c = (c + n) % n;
+    }
+    bool seen = false;
+    for (int q = 0; q < m; ++q) seen = seen || out[q] == c;
+    if (!seen) out[m++] = c;
+  }
+  return m;
+}
+
+} // namespace
+
+void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
+  skin_ = skin;
+  const std::size_t n = p.size();
+  double rmax = 0.0;
+  for (double r : p.radius) rmax = std::max(rmax, r);
+  const double cutoff = 2.0 * rmax + skin;
+  for (int a = 0; a < 3; ++a)
+    if (g.periodic[a] && g.length[a] < 2.0 * cutoff)
+      throw RunError(fmt::format(
+          "periodic axis {} is {:.6g} m long, shorter than twice the neighbor cutoff {:.6g} m "
+          "(largest diameter + skin): enlarge the domain or reduce dem.neighbor_skin",
+          a, g.length[a], cutoff));
+
+  // Wrap into the periodic box; bin.
+  for (std::size_t i = 0; i < n; ++i) {
+    p.x[i] = g.wrap(p.x[i], 0), p.y[i] = g.wrap(p.y[i], 1), p.z[i] = g.wrap(p.z[i], 2);
+  }
+  const CellGrid grid = make_grid(g, cutoff, n);
+  const std::size_t ncell = grid.count();
+  cell_of_.resize(n);
+  auto cell_coord = [&](double v, int a) {
+    return std::clamp(static_cast<int>((v - g.lo[a]) * grid.inv[a]), 0, grid.n[a] - 1);
+  };
+  for (std::size_t i = 0; i < n; ++i) {
+    const int cx = cell_coord(p.x[i], 0), cy = cell_coord(p.y[i], 1), cz = cell_coord(p.z[i], 2);
+    cell_of_[i] = static_cast<std::uint32_t>((static_cast<std::size_t>(cz) * grid.n[1] + cy) *
+                                                 grid.n[0] + cx);
+  }
+  // Counting sort by cell (stable: ties keep their previous order, so the result is a pure
+  // function of the previous state).
+  cell_start_.assign(ncell + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) ++cell_start_[cell_of_[i] + 1];
+  for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
+  order_.resize(n);
+  {
+    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) order_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+  }
+  p.permute(order_);
+
+  // Count, then fill, each particle's row; rows are independent so the parallel build is
+  // deterministic.
+  offsets_.assign(n + 1, 0);
+  auto visit_row = [&](std::size_t i, auto&& emit) {
+    const int cx = cell_coord(p.x[i], 0), cy = cell_coord(p.y[i], 1), cz = cell_coord(p.z[i], 2);
+    int sx[3], sy[3], sz[3];
+    const int mx = stencil_axis(cx, grid.n[0], g.periodic[0], sx);
+    const int my = stencil_axis(cy, grid.n[1], g.periodic[1], sy);
+    const int mz = stencil_axis(cz, grid.n[2], g.periodic[2], sz);
+    const double xi = p.x[i], yi = p.y[i], zi = p.z[i], ri = p.radius[i];
+    for (int c = 0; c < mz; ++c)
+      for (int b = 0; b < my; ++b)
+        for (int a = 0; a < mx; ++a) {
+          const std::size_t cell =
+              (static_cast<std::size_t>(sz[c]) * grid.n[1] + sy[b]) * grid.n[0] + sx[a];
+          for (std::uint32_t j = cell_start_[cell]; j < cell_start_[cell + 1]; ++j) {
+            if (j == i) continue;
+            const double dx = g.image(p.x[j] - xi, 0), dy = g.image(p.y[j] - yi, 1),
+                         dz = g.image(p.z[j] - zi, 2);
+            const double rc = ri + p.radius[j] + skin;
+            if (dx * dx + dy * dy + dz * dz < rc * rc) emit(j);
+          }
+        }
+  };
+  // Rows are emitted cell by cell in stencil order; sort each row by j so the force sum order
+  // is canonical (independent of how cells were visited).
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+                        std::uint32_t cnt = 0;
+                        visit_row(i, [&](std::uint32_t) { ++cnt; });
+                        offsets_[i + 1] = cnt;
+                      }
+                    });
+  for (std::size_t i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
+  neighbors_.resize(offsets_[n]);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+                        std::uint32_t k = offsets_[i];
+                        visit_row(i, [&](std::uint32_t j) { neighbors_[k++] = j; });
+                        std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + k);
+                      }
+                    });
+  active_.clear();
+  for (std::size_t i = 0; i < n; ++i)
+    if (offsets_[i + 1] > offsets_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+  xr_ = p.x, yr_ = p.y, zr_ = p.z;
+}
+
+} // namespace cfddem::dem

@@ -1,0 +1,43 @@
+// Neighbor search: a cell list (counting sort of particles into cells) feeding a full Verlet list
+// in CSR form (every pair appears in both particles' rows). A full list lets each particle sum its
+// own forces in a fixed order, with no scatter to j: parallel without atomics and bitwise
+// independent of the thread count. The list holds pairs within r_i + r_j + skin; it stays valid
+// until some particle has moved more than skin/2 since the build (needs_rebuild).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "core/particle_store.hpp"
+#include "dem/domain_geometry.hpp"
+
+namespace cfddem::dem {
+
+class VerletList {
+public:
+  // Wrap positions into the periodic box, sort particles by cell (locality: neighbors are near
+  // in memory; the store is permuted and `order()` says how), and build the list.
+  // Throws RunError if a periodic length is shorter than twice the cutoff.
+  void build(ParticleStore& p, const DomainGeometry& g, double skin);
+
+  // Permutation applied to the store by the last build: new index k = old index order()[k].
+  std::span<const std::uint32_t> order() const { return order_; }
+  std::span<const std::uint32_t> offsets() const { return offsets_; }
+  std::span<const std::uint32_t> neighbors() const { return neighbors_; }
+  // Reference positions of the last build (for the displacement test).
+  std::span<const double> x_ref() const { return xr_; }
+  std::span<const double> y_ref() const { return yr_; }
+  std::span<const double> z_ref() const { return zr_; }
+  // Particles with a non-empty row (the only ones that can have a contact until the next build).
+  std::span<const std::uint32_t> active() const { return active_; }
+  double skin() const { return skin_; }
+  std::size_t pair_count() const { return neighbors_.size() / 2; }
+
+private:
+  std::vector<std::uint32_t> order_, offsets_, active_, neighbors_, cell_start_, cell_of_;
+  std::vector<double> xr_, yr_, zr_;
+  double skin_ = 0.0;
+};
+
+} // namespace cfddem::dem

@@ -68,6 +68,7 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   dem.wall_spring_constant, dem.wall_restitution, dem.wall_friction   (default: as particles)
   dem.tangential_stiffness_ratio (k_t/k_n, default 2/7), dem.tangential_damping_ratio (0.5)
   dem.dt_factor              dt = tau_p * dt_factor, tau_p = sqrt(m/k) (default 0.02 = tau_p/50)
+  dem.dt                     fixed step in s, overriding dt_factor (default 0: use dt_factor)
   dem.neighbor_skin          Verlet skin in m (default a quarter of the largest diameter)
   dem.max_overlap            stop when an overlap exceeds this fraction of the radius (0.3)
   run.end_time               simulated seconds

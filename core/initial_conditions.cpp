@@ -262,8 +262,14 @@ ParticleStore make_initial_particles(const Scene& s) {
     for (int a = 0; a < 3; ++a) {
       if (!(c[a] >= s.domain.lo[a] && c[a] <= s.domain.hi[a]))
         throw ConfigError(s.particles.file.empty() ? "particles" : s.particles.file,
-                          fmt::format("particle {} at ({}, {}, {}) lies outside the domain", p.id[i],
-                                      c[0], c[1], c[2]));
+                          fmt::format("particle {} at ({}, {}, {}) lies outside the domain "
+                                      "(domain.lo, domain.hi)",
+                                      p.id[i], c[0], c[1], c[2]));
+      if (!(2 * p.radius[i] < s.domain.length(a)))
+        throw ConfigError(s.particles.file.empty() ? "particles" : s.particles.file,
+                          fmt::format("particle {} of diameter {} does not fit in the domain "
+                                      "(axis {} is {} m long: domain.lo, domain.hi)",
+                                      p.id[i], 2 * p.radius[i], a, s.domain.length(a)));
     }
   }
   if (!s.particles.allow_overlap) check_no_overlap(p, s.domain);

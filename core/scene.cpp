@@ -109,6 +109,9 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   d.dt_factor = c.get_double("dem.dt_factor", 0.02);
   require(std::isfinite(d.dt_factor) && d.dt_factor > 0.0, "dem.dt_factor",
           fmt::format("must be > 0, got {}", d.dt_factor));
+  d.dt = c.get_double("dem.dt", 0.0);
+  require(std::isfinite(d.dt) && d.dt >= 0.0, "dem.dt",
+          fmt::format("must be > 0 (or 0 for dt = tau_p * dem.dt_factor), got {}", d.dt));
   d.neighbor_skin = c.get_double("dem.neighbor_skin", -1.0); // resolved once sizes are known
   require(d.neighbor_skin == -1.0 || d.neighbor_skin > 0.0, "dem.neighbor_skin", "must be > 0");
   d.max_overlap = c.get_double("dem.max_overlap", 0.3);
@@ -174,6 +177,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.wall_restitution", num(d.wall_restitution));
   o.emplace_back("dem.wall_friction", num(d.wall_friction));
   o.emplace_back("dem.dt_factor", num(d.dt_factor));
+  o.emplace_back("dem.dt", num(d.dt));
   o.emplace_back("dem.neighbor_skin", d.neighbor_skin > 0 ? num(d.neighbor_skin) : "\"auto\"");
   o.emplace_back("dem.max_overlap", num(d.max_overlap));
   o.emplace_back("run.end_time", num(s.run.end_time));

@@ -43,6 +43,7 @@ struct DemSpec {
   double wall_restitution = 0.0;
   double wall_friction = 0.0;
   double dt_factor = 0.02;        // dt = tau_p * dt_factor
+  double dt = 0.0;                // explicit step [s] (0 = from dt_factor), as LAMMPS `timestep`
   double neighbor_skin = 0.0;     // Verlet skin [m]
   double max_overlap = 0.3;       // stop when overlap / smaller radius exceeds this
 };

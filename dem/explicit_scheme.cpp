@@ -61,16 +61,16 @@ StepModel make_step_model(const Scene& s, const ParticleStore& p) {
   m.r_min = r_min;
   const double k_max = std::max(d.spring_constant, d.wall_spring_constant);
   const double tau_p = std::sqrt(m_min / k_max);
-  m.dt = tau_p * d.dt_factor;
+  m.dt = d.dt > 0.0 ? d.dt : tau_p * d.dt_factor;
   // Stiffest oscillator: two of the lightest particles (m_eff = m/2) or one against a wall.
   const double omega = std::max(std::sqrt(2.0 * d.spring_constant / m_min),
                                 std::sqrt(d.wall_spring_constant / m_min));
   if (omega * m.dt >= 2.0)
     throw RunError(fmt::format(
         "unstable time step: omega dt = {:.4g} >= 2 for the stiffest contact (dt = {:.4g} s, "
-        "dem.dt_factor = {}); velocity Verlet on a spring needs omega dt < 2, and accuracy "
-        "needs far less (dem.dt_factor = 0.02 gives 0.028)",
-        omega * m.dt, m.dt, d.dt_factor));
+        "dem.dt_factor = {}, dem.dt = {}); velocity Verlet on a spring needs omega dt < 2, and "
+        "accuracy needs far less (dem.dt_factor = 0.02 gives 0.028)",
+        omega * m.dt, m.dt, d.dt_factor, d.dt));
   m.skin = d.neighbor_skin > 0 ? d.neighbor_skin : 0.5 * r_max; // 0.25 d_max (the peers' skin)
   return m;
 }
@@ -282,10 +282,15 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
     double* __restrict fz = p_.fz.data();
     const double* __restrict im = p_.inv_mass.data();
     if constexpr (Walls) {
+      // A particle without a neighbor row keeps last step's total (contact + wall) in f: start
+      // it from zero. Rows are fixed between builds, so this is exact.
+      const std::uint32_t* __restrict off = list_.offsets().data();
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
-        double f[3] = {fx[i], fy[i], fz[i]};
+        const bool row = off[i + 1] > off[i];
+        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
         double tq[3] = {0, 0, 0};
-        if constexpr (Friction) tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
+        if constexpr (Friction)
+          if (row) tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
         add_wall_forces<Friction>(g, m, p_, i, f, tq, [&](double v) {
           acc.walls.flag(static_cast<std::uint32_t>(i), Fault::overlap, v);
         });

@@ -1,0 +1,437 @@
+// ORB build: level by level over one work array of point copies (x, y, z, index), so the whole
+// build allocates O(N + 2^L) once and costs O(N L) expected (nth_element per node).
+#include "partition/orb_tree.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace cfddem::partition {
+namespace {
+
+constexpr int kMaxLevels = 24;
+
+// A point as the build moves it: all three coordinates travel with the index, so no level has
+// to gather coordinates through the permutation (a cache miss per point).
+struct Keyed {
+  std::array<double, 3> p;
+  std::uint32_t i;
+};
+
+// Order along one axis. The index breaks ties so that the order is total and the median element
+// is the same whatever nth_element does with equal coordinates.
+struct KeyLess {
+  int axis;
+  bool operator()(const Keyed& a, const Keyed& b) const {
+    return a.p[axis] < b.p[axis] || (a.p[axis] == b.p[axis] && a.i < b.i);
+  }
+};
+
+struct PointSet {
+  std::array<std::span<const double>, 3> coord;
+  std::span<const double> weights;
+
+  [[nodiscard]] double weight(std::uint32_t i) const { return weights.empty() ? 1.0 : weights[i]; }
+};
+
+struct NodeWork {
+  Aabb box;
+  std::uint32_t begin;
+  std::uint32_t end;
+};
+
+// Faces origin + k*spacing strictly inside (lo, hi): [kmin, kmax], empty when kmin > kmax.
+struct FaceRange {
+  std::int64_t kmin;
+  std::int64_t kmax;
+  [[nodiscard]] bool empty() const { return kmin > kmax; }
+};
+
+FaceRange interior_faces(const Grid& g, int axis, double lo, double hi) {
+  const double s = g.spacing[axis];
+  // floor/ceil give a first guess; the loops fix rounding so the test is on the face value
+  // itself, which is what the cut will be.
+  auto kmin = static_cast<std::int64_t>(std::floor((lo - g.origin[axis]) / s));
+  while (g.face(axis, kmin) <= lo) {
+    ++kmin;
+  }
+  while (g.face(axis, kmin - 1) > lo) {
+    --kmin;
+  }
+  auto kmax = static_cast<std::int64_t>(std::ceil((hi - g.origin[axis]) / s));
+  while (g.face(axis, kmax) >= hi) {
+    --kmax;
+  }
+  while (g.face(axis, kmax + 1) < hi) {
+    ++kmax;
+  }
+  return {kmin, kmax};
+}
+
+// Interior face nearest to `target`, ties to the lower one.
+std::int64_t nearest_face(const Grid& g, int axis, FaceRange r, double target) {
+  auto k = static_cast<std::int64_t>(std::floor((target - g.origin[axis]) / g.spacing[axis]));
+  k = std::clamp(k, r.kmin, r.kmax);
+  const std::int64_t k1 = std::min(k + 1, r.kmax);
+  return std::abs(g.face(axis, k1) - target) < std::abs(g.face(axis, k) - target) ? k1 : k;
+}
+
+// A position strictly above `below` and at most `hi`, halfway when the doubles allow: used when
+// the natural cut (a point's coordinate) would leave a zero-width box.
+double gap_midpoint(double below, double hi) {
+  const double m = below + 0.5 * (hi - below);
+  return m > below ? m : hi;
+}
+
+// Position k in [b, e) of the weighted median in key order: weight before k < W/2 <= weight up
+// to and including k. Afterwards items[b, k) < items[k] <= items(k, e) in key order.
+std::uint32_t weighted_median(std::span<Keyed> items, int axis, std::uint32_t b, std::uint32_t e,
+                              double total, const PointSet& pts, bool unit) {
+  const KeyLess key_less{axis};
+  auto at = [&](std::uint32_t k) { return items.begin() + k; };
+  if (unit) {
+    const std::uint32_t n = e - b;
+    const std::uint32_t k = b + (n + 1) / 2 - 1;
+    std::nth_element(at(b), at(k), at(e), key_less);
+    return k;
+  }
+  // Quickselect by weight with nth_element as the partition step: each round halves the range,
+  // so the expected cost stays O(n).
+  const double half = 0.5 * total;
+  double acc = 0.0; // weight of everything before lo
+  std::uint32_t lo = b;
+  std::uint32_t hi = e;
+  while (hi - lo > 1) {
+    const std::uint32_t m = lo + (hi - lo) / 2;
+    std::nth_element(at(lo), at(m), at(hi), key_less);
+    double wl = 0.0;
+    for (std::uint32_t k = lo; k < m; ++k) {
+      wl += pts.weight(items[k].i);
+    }
+    const double wm = pts.weight(items[m].i);
+    if (acc + wl >= half) {
+      hi = m;
+    } else if (acc + wl + wm >= half) {
+      return m;
+    } else {
+      acc += wl + wm;
+      lo = m + 1;
+    }
+  }
+  // Every round left [lo, hi) between smaller and larger keys, so a one-element range is in
+  // place; an empty one means rounding missed W/2 by an ulp, and its left neighbour is the median.
+  return lo < hi ? lo : hi - 1;
+}
+
+struct Split {
+  OrbCut cut;
+  std::uint32_t mid; // first point of the upper child
+};
+
+// Chooses the cut of one node and partitions its points around it.
+Split split_node(std::span<Keyed> items, const NodeWork& node, const PointSet& pts,
+                 const std::optional<Grid>& snap) {
+  const Aabb& box = node.box;
+  const std::uint32_t b = node.begin;
+  const std::uint32_t e = node.end;
+
+  int axis = box.longest_axis();
+  FaceRange faces{0, -1};
+  if (snap) {
+    // Longest axis among those still at least two cells wide (ties to the lowest axis).
+    int best = -1;
+    for (int a = 0; a < 3; ++a) {
+      const FaceRange r = interior_faces(*snap, a, box.lo[a], box.hi[a]);
+      if (!r.empty() && (best < 0 || box.extent(a) > box.extent(best))) {
+        best = a;
+        faces = r;
+      }
+    }
+    if (best < 0) {
+      // No face to cut on: an empty lower sibling of zero width, every point goes up.
+      return {{axis, box.lo[axis]}, b};
+    }
+    axis = best;
+  }
+
+  double position = 0.0;
+  const double mid_box = box.lo[axis] + 0.5 * box.extent(axis);
+  if (b == e) {
+    // No points: halve the space so later particles find sensible boxes.
+    position = snap ? snap->face(axis, nearest_face(*snap, axis, faces, mid_box)) : mid_box;
+  } else {
+    double total = 0.0;
+    if (!pts.weights.empty()) {
+      for (std::uint32_t k = b; k < e; ++k) {
+        total += pts.weight(items[k].i);
+      }
+    }
+    // All-zero measured cost carries no information: balance the counts instead.
+    const bool unit = pts.weights.empty() || !(total > 0.0);
+    auto weight = [&](std::uint32_t k) { return unit ? 1.0 : pts.weight(items[k].i); };
+    if (unit) {
+      total = static_cast<double>(e - b);
+    }
+    const double half = 0.5 * total;
+
+    const std::uint32_t km = weighted_median(items, axis, b, e, total, pts, unit);
+    const double cm = items[km].p[axis];
+
+    if (!snap) {
+      // Two cuts bracket the median point: at it (it goes up) or just past it (it and its
+      // ties go down, the cut at the next larger coordinate). The one closer to W/2 keeps
+      // |lower - upper| <= the median point's weight.
+      double w_less = 0.0;
+      double w_eq = 0.0;
+      double prev = -std::numeric_limits<double>::infinity();
+      double next = std::numeric_limits<double>::infinity();
+      for (std::uint32_t k = b; k < e; ++k) {
+        const double c = items[k].p[axis];
+        if (c < cm) {
+          w_less += weight(k);
+          prev = std::max(prev, c);
+        } else if (c == cm) {
+          w_eq += weight(k);
+        } else {
+          next = std::min(next, c);
+        }
+      }
+      const double hi = box.hi[axis];
+      // A cut on the hi face would leave a zero-width upper box holding the hi-face points.
+      const double at_median = cm < hi ? cm : gap_midpoint(std::max(prev, box.lo[axis]), hi);
+      position = at_median;
+      if (cm < hi) {
+        const double past_median = std::isfinite(next) ? next : gap_midpoint(cm, hi);
+        if (std::abs(w_less + w_eq - half) < std::abs(w_less - half)) {
+          position = past_median;
+        }
+      }
+    } else {
+      // The two interior faces around the median; keep the better balanced, ties to the nearer.
+      auto k0 =
+          static_cast<std::int64_t>(std::floor((cm - snap->origin[axis]) / snap->spacing[axis]));
+      k0 = std::clamp(k0, faces.kmin, faces.kmax);
+      const std::int64_t k1 = std::min(k0 + 1, faces.kmax);
+      const double f0 = snap->face(axis, k0);
+      const double f1 = snap->face(axis, k1);
+      double w0 = 0.0;
+      double w1 = 0.0;
+      for (std::uint32_t k = b; k < e; ++k) {
+        const double c = items[k].p[axis];
+        if (c < f0) {
+          w0 += weight(k);
+        }
+        if (c < f1) {
+          w1 += weight(k);
+        }
+      }
+      const double d0 = std::abs(w0 - half);
+      const double d1 = std::abs(w1 - half);
+      const bool take1 = d1 < d0 || (d1 == d0 && std::abs(f1 - cm) < std::abs(f0 - cm));
+      position = take1 ? f1 : f0;
+    }
+  }
+
+  // Same comparison as locate(): strictly below the cut is lower, on or above is upper.
+  auto first_upper = std::partition(items.begin() + b, items.begin() + e,
+                                    [&](const Keyed& q) { return q.p[axis] < position; });
+  return {{axis, position}, static_cast<std::uint32_t>(first_upper - items.begin())};
+}
+
+void check_inputs(const PointSet& pts, std::size_t n, const Aabb& domain,
+                  const OrbOptions& options) {
+  if (pts.coord[1].size() != n || pts.coord[2].size() != n) {
+    throw std::invalid_argument("OrbTree::build: x, y, z must have the same size");
+  }
+  if (n >= std::numeric_limits<std::uint32_t>::max()) {
+    throw std::invalid_argument("OrbTree::build: more than 2^32-2 points");
+  }
+  if (!pts.weights.empty() && pts.weights.size() != n) {
+    throw std::invalid_argument("OrbTree::build: weights must be empty or one per point");
+  }
+  if (options.levels < 0 || options.levels > kMaxLevels) {
+    throw std::invalid_argument("OrbTree::build: levels must be in [0, 24], got " +
+                                std::to_string(options.levels));
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (!(domain.hi[a] > domain.lo[a]) || !std::isfinite(domain.extent(a))) {
+      throw std::invalid_argument("OrbTree::build: domain needs lo < hi on every axis");
+    }
+    if (options.snap && !(options.snap->spacing[a] > 0.0)) {
+      throw std::invalid_argument("OrbTree::build: snap spacing must be > 0");
+    }
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) {
+      const double c = pts.coord[a][i];
+      // Written so that NaN fails too.
+      if (!(domain.lo[a] <= c && c <= domain.hi[a])) {
+        throw std::invalid_argument("OrbTree::build: point " + std::to_string(i) +
+                                    " lies outside the domain");
+      }
+    }
+    if (!pts.weights.empty() && !(pts.weights[i] >= 0.0 && std::isfinite(pts.weights[i]))) {
+      throw std::invalid_argument("OrbTree::build: weight of point " + std::to_string(i) +
+                                  " is negative or not finite");
+    }
+  }
+}
+
+// Depth-first walk collecting the leaves whose box touches `q`.
+void collect_touching(const OrbTree& tree, const Aabb& q, int node, const Aabb& box,
+                      std::array<int, 3> shift, std::vector<LeafImage>& out) {
+  const int first_leaf = (1 << tree.levels()) - 1;
+  if (node >= first_leaf) {
+    out.push_back({node - first_leaf, shift});
+    return;
+  }
+  const OrbCut& cut = tree.cuts()[static_cast<std::size_t>(node)];
+  Aabb lower = box;
+  Aabb upper = box;
+  lower.hi[cut.axis] = cut.position;
+  upper.lo[cut.axis] = cut.position;
+  if (lower.touches(q)) {
+    collect_touching(tree, q, 2 * node + 1, lower, shift, out);
+  }
+  if (upper.touches(q)) {
+    collect_touching(tree, q, 2 * node + 2, upper, shift, out);
+  }
+}
+
+} // namespace
+
+OrbTree OrbTree::build(std::span<const double> x, std::span<const double> y,
+                       std::span<const double> z, std::span<const double> weights,
+                       const Aabb& domain, const OrbOptions& options) {
+  const PointSet pts{{x, y, z}, weights};
+  const std::size_t n = x.size();
+  check_inputs(pts, n, domain, options);
+  const auto n32 = static_cast<std::uint32_t>(n);
+
+  OrbTree tree;
+  tree.levels_ = options.levels;
+  tree.domain_ = domain;
+  const std::size_t n_leaves = std::size_t{1} << options.levels;
+  tree.cuts_.resize(n_leaves - 1);
+
+  std::vector<Keyed> items(n);
+  for (std::uint32_t i = 0; i < n32; ++i) {
+    items[i] = {{x[i], y[i], z[i]}, i};
+  }
+
+  std::vector<NodeWork> level{{domain, 0, n32}};
+  std::vector<NodeWork> next;
+  level.reserve(n_leaves);
+  next.reserve(n_leaves);
+  for (int l = 0; l < options.levels; ++l) {
+    next.resize(2 * level.size());
+    const std::size_t first = level.size() - 1; // heap index of the level's first node
+    for (std::size_t j = 0; j < level.size(); ++j) {
+      const NodeWork& node = level[j];
+      const Split s = split_node(items, node, pts, options.snap);
+      tree.cuts_[first + j] = s.cut;
+      NodeWork lower = node;
+      NodeWork upper = node;
+      lower.box.hi[s.cut.axis] = s.cut.position;
+      lower.end = s.mid;
+      upper.box.lo[s.cut.axis] = s.cut.position;
+      upper.begin = s.mid;
+      next[2 * j] = lower;
+      next[2 * j + 1] = upper;
+    }
+    level.swap(next);
+  }
+
+  // The leaf sets are fixed by the cuts; listing each leaf's points by original index (a stable
+  // counting sort) makes order() independent of how nth_element arranged them.
+  std::vector<std::uint32_t> leaf_of(n);
+  tree.leaves_.resize(n_leaves);
+  std::vector<std::uint32_t> cursor(n_leaves);
+  for (std::size_t j = 0; j < n_leaves; ++j) {
+    const NodeWork& node = level[j];
+    for (std::uint32_t k = node.begin; k < node.end; ++k) {
+      leaf_of[items[k].i] = static_cast<std::uint32_t>(j);
+    }
+    tree.leaves_[j] = {node.box, node.begin, node.end, static_cast<int>(j), 0.0};
+    cursor[j] = node.begin;
+  }
+  items = {}; // release before the order array is filled
+  tree.order_.resize(n);
+  for (std::uint32_t i = 0; i < n32; ++i) {
+    const std::uint32_t leaf = leaf_of[i];
+    tree.order_[cursor[leaf]++] = i;
+    tree.leaves_[leaf].weight += pts.weight(i);
+  }
+  return tree;
+}
+
+int OrbTree::locate(double x, double y, double z) const {
+  const std::array<double, 3> p{x, y, z};
+  if (!domain_.contains_closed(p)) {
+    return -1;
+  }
+  std::size_t node = 0;
+  const std::size_t first_leaf = cuts_.size();
+  while (node < first_leaf) {
+    const OrbCut& cut = cuts_[node];
+    node = 2 * node + (p[cut.axis] < cut.position ? 1 : 2);
+  }
+  return static_cast<int>(node - first_leaf);
+}
+
+std::vector<LeafImage> OrbTree::leaf_images_overlapping(const Aabb& query,
+                                                        std::array<bool, 3> periodic) const {
+  // Image s on axis a shifts the query by s * extent; keep the shifts that can reach the domain
+  // (more than +-1 when the query is wider than the domain). One extra shift each side absorbs
+  // the rounding of the division; the touch test below decides.
+  std::array<std::int64_t, 3> smin{0, 0, 0};
+  std::array<std::int64_t, 3> smax{0, 0, 0};
+  for (int a = 0; a < 3; ++a) {
+    if (!periodic[a]) {
+      continue;
+    }
+    const double len = domain_.extent(a);
+    const double from = std::ceil((domain_.lo[a] - query.hi[a]) / len) - 1.0;
+    const double to = std::floor((domain_.hi[a] - query.lo[a]) / len) + 1.0;
+    if (!(from <= to) || to - from > 1e6) {
+      throw std::invalid_argument("OrbTree: halo query is not finite or spans > 1e6 images");
+    }
+    smin[a] = static_cast<std::int64_t>(from);
+    smax[a] = static_cast<std::int64_t>(to);
+  }
+  std::vector<LeafImage> out;
+  for (std::int64_t sz = smin[2]; sz <= smax[2]; ++sz) {
+    for (std::int64_t sy = smin[1]; sy <= smax[1]; ++sy) {
+      for (std::int64_t sx = smin[0]; sx <= smax[0]; ++sx) {
+        const std::array<std::int64_t, 3> s{sx, sy, sz};
+        Aabb q = query;
+        for (int a = 0; a < 3; ++a) {
+          const double d = static_cast<double>(s[a]) * domain_.extent(a);
+          q.lo[a] += d;
+          q.hi[a] += d;
+        }
+        if (!q.touches(domain_)) {
+          continue;
+        }
+        collect_touching(*this, q, 0, domain_,
+                         {static_cast<int>(sx), static_cast<int>(sy), static_cast<int>(sz)}, out);
+      }
+    }
+  }
+  return out;
+}
+
+std::vector<int> OrbTree::leaves_overlapping(const Aabb& query,
+                                             std::array<bool, 3> periodic) const {
+  std::vector<int> ids;
+  for (const LeafImage& li : leaf_images_overlapping(query, periodic)) {
+    ids.push_back(li.leaf);
+  }
+  std::sort(ids.begin(), ids.end());
+  ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+  return ids;
+}
+
+} // namespace cfddem::partition

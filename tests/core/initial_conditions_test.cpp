@@ -1,0 +1,131 @@
+// Initial conditions: seeded placement, exact granular temperature, CSV reading and its errors.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "core/error.hpp"
+#include "core/initial_conditions.hpp"
+#include "core/scene_config.hpp"
+
+using namespace cfddem;
+
+namespace {
+
+Scene gas(std::initializer_list<std::string> overrides) {
+  auto c = SceneConfig::from_string(R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [2.0e-3, 2.0e-3, 2.0e-3]
+[particles]
+count = 500
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.01
+seed = 5
+[dem]
+spring_constant = 10.0
+restitution = 0.8
+[run]
+end_time = 1.0e-3
+)", "gas");
+  for (const auto& o : overrides) c.apply_override(o);
+  return read_scene(c, "gas");
+}
+
+std::string temp_file(const std::string& name, const std::string& text) {
+  const std::string path = ::testing::TempDir() + name;
+  std::ofstream(path) << text;
+  return path;
+}
+
+} // namespace
+
+TEST(InitialConditions, RandomPlacementSeededAndNonOverlapping) {
+  const Scene s = gas({});
+  const ParticleStore a = make_initial_particles(s), b = make_initial_particles(s);
+  ASSERT_EQ(a.size(), 500u);
+  EXPECT_EQ(a.x, b.x);
+  EXPECT_EQ(a.vz, b.vz);
+  EXPECT_NO_THROW(check_no_overlap(a, s.domain));
+  const ParticleStore c = make_initial_particles(gas({"particles.seed=6"}));
+  EXPECT_NE(a.x, c.x);
+}
+
+TEST(InitialConditions, ExactTemperatureAndZeroMomentum) {
+  const ParticleStore p = make_initial_particles(gas({}));
+  double px = 0, py = 0, pz = 0, sq = 0, scale = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    px += p.mass[i] * p.vx[i], py += p.mass[i] * p.vy[i], pz += p.mass[i] * p.vz[i];
+    sq += p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+    scale += p.mass[i] * std::sqrt(p.vx[i] * p.vx[i]);
+  }
+  EXPECT_LT(std::abs(px) + std::abs(py) + std::abs(pz), 1e-13 * scale);
+  EXPECT_NEAR(sq / (3.0 * p.size()), 0.01, 1e-14);
+}
+
+TEST(InitialConditions, LatticePlacementFillsRegion) {
+  const ParticleStore p =
+      make_initial_particles(gas({"particles.placement=lattice", "particles.count=6859"}));
+  EXPECT_EQ(p.size(), 6859u); // 19^3: the spacing is kept strictly above d
+  EXPECT_NO_THROW(check_no_overlap(p, gas({}).domain));
+  EXPECT_THROW(make_initial_particles(gas({"particles.placement=lattice", "particles.count=6860"})),
+               ConfigError);
+}
+
+TEST(InitialConditions, ImpossiblePackingIsAnError) {
+  // 40% solids by random sequential addition is above its jamming limit (38%).
+  EXPECT_THROW(make_initial_particles(gas({"particles.count=6200"})), ConfigError);
+}
+
+TEST(InitialConditions, CsvRoundTrip) {
+  const std::string f = temp_file("ok.csv", "x,y,z,vx,vy,vz,diameter,density\n"
+                                            "1e-4,2e-4,3e-4,0.1,0,0,1e-4,1000\n"
+                                            "5e-4,5e-4,5e-4,0,-0.1,0,2e-4,2500\n");
+  const ParticleStore p = read_particle_csv(f);
+  ASSERT_EQ(p.size(), 2u);
+  EXPECT_DOUBLE_EQ(p.radius[1], 1e-4);
+  EXPECT_DOUBLE_EQ(p.vy[1], -0.1);
+  EXPECT_NEAR(p.mass[1], 2500 * 4.0 / 3.0 * M_PI * 1e-12, 1e-22);
+}
+
+TEST(InitialConditions, CsvErrorsNameFileAndLine) {
+  auto message = [](const std::string& text) {
+    try {
+      read_particle_csv(temp_file("bad.csv", text));
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_NE(message("x,y,z,vx,vy,vz,diameter\n").find("missing column 'density'"), std::string::npos);
+  EXPECT_NE(message("x,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,7\n").find("line 2"),
+            std::string::npos);
+  EXPECT_NE(message("x,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,abc,1\n").find("'abc'"),
+            std::string::npos);
+  EXPECT_NE(message("x,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,-1,1\n").find("must be > 0"),
+            std::string::npos);
+  EXPECT_THROW(read_particle_csv("/nonexistent/file.csv"), ConfigError);
+}
+
+TEST(InitialConditions, OverlapNamesThePair) {
+  ParticleStore p;
+  p.add(1e-4, 1e-4, 1e-4, 0, 0, 0, 5e-5, 1000, 7);
+  p.add(1.5e-4, 1e-4, 1e-4, 0, 0, 0, 5e-5, 1000, 9);
+  DomainSpec d;
+  d.lo = {0, 0, 0}, d.hi = {1e-3, 1e-3, 1e-3};
+  try {
+    check_no_overlap(p, d);
+    FAIL();
+  } catch (const ConfigError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("particles 7"), std::string::npos) << m;
+    EXPECT_NE(m.find("and 9"), std::string::npos) << m;
+  }
+  // Across a periodic face too.
+  ParticleStore q;
+  q.add(0.2e-4, 5e-4, 5e-4, 0, 0, 0, 5e-5, 1000, 1);
+  q.add(9.9e-4, 5e-4, 5e-4, 0, 0, 0, 5e-5, 1000, 2);
+  EXPECT_THROW(check_no_overlap(q, d), ConfigError);
+}

@@ -61,7 +61,7 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   particles.region_lo/hi     where to place them (default: the domain)
   particles.seed             RNG seed (default 1)
   particles.allow_overlap    accept overlapping initial particles (default false)
-  dem.scheme                 "explicit"
+  dem.scheme                 "explicit" (one global step) | "orb" (adaptive steps per ORB leaf)
   dem.spring_constant        k_n in N/m
   dem.restitution            e in [0, 1]
   dem.friction               Coulomb coefficient (0 = frictionless, no rotation)
@@ -70,7 +70,14 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   dem.dt_factor              dt = tau_p * dt_factor, tau_p = sqrt(m/k) (default 0.02 = tau_p/50)
   dem.dt                     fixed step in s, overriding dt_factor (default 0: use dt_factor)
   dem.neighbor_skin          Verlet skin in m (default a quarter of the largest diameter)
-  dem.max_overlap            stop when an overlap exceeds this fraction of the radius (0.3)
+  dem.max_overlap            stop when an overlap exceeds this fraction of the radius (0.3;
+                             orb: counted and reported, not fatal)
+  dem.nsubit                 orb: sub-iterations per regrid interval (default 10)
+  dem.regrid_interval        orb: seconds between ORB rebuilds, dt_f (default 1e-4);
+                             sub-iteration dt_sp = dem.regrid_interval / dem.nsubit
+  dem.proximity_radii        orb: a leaf takes the fine step if a pair's centre distance is below
+                             this many radii, (r_i + r_j) / 2 each (default 3)
+  partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4)
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)

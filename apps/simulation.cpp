@@ -13,6 +13,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 
 namespace cfddem::apps {
@@ -29,10 +30,11 @@ const std::vector<std::string> kColumns = {
     "time",       "step",       "granular_temperature", "kinetic_energy", "mean_speed",
     "mean_x",     "mean_y",     "mean_z",               "momentum_x",     "momentum_y",
     "momentum_z", "particles",  "particle_steps",       "force_evaluations", "neighbor_builds",
-    "wall_seconds"};
+    "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction"};
 
+template <class Scheme>
 std::vector<double> row(double t, long long step, const dem::GranularState& s, std::size_t n,
-                        const dem::ExplicitScheme& scheme, double wall) {
+                        const Scheme& scheme, double wall, const dem::LeafStepStats& ls) {
   return {t,
           static_cast<double>(step),
           s.granular_temperature,
@@ -48,7 +50,11 @@ std::vector<double> row(double t, long long step, const dem::GranularState& s, s
           static_cast<double>(scheme.particle_steps()),
           static_cast<double>(scheme.pair_evaluations()),
           static_cast<double>(scheme.neighbor_builds()),
-          wall};
+          wall,
+          ls.steps_min,
+          ls.steps_mean,
+          ls.steps_max,
+          ls.fine_fraction};
 }
 
 std::string format_eta(double s) {
@@ -58,9 +64,12 @@ std::string format_eta(double s) {
   return fmt::format("{:.1f}h", s / 3600);
 }
 
+RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
+
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  if (scene.dem.scheme == "orb") return run_orb(scene, opt, env);
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   ParticleStore particles = make_initial_particles(scene);
@@ -94,10 +103,11 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     }
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, v0x, v0y, v0z,
                                   particles.mass});
-    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0));
+    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1}));
   }
 
   auto last_progress = clock::now();
+  long long k_last_row = 0;
   // The state at step K (x(K), v(K)) is known once step K+1 has evaluated the forces at K, so
   // the loop runs one step past the last row; rows every out_every steps and at the end.
   for (long long k = 0; k <= n_end && n_end > 0; ++k) {
@@ -107,8 +117,10 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
       PhaseTimer::Scope io(timer, Phase::io);
       const auto s = scheme.synchronised_previous();
       const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, particles.mass});
+      const auto steps = static_cast<double>(k - k_last_row);
+      k_last_row = k;
       diag.add_row(row(static_cast<double>(k) * scheme.dt(), k, st, particles.size(), scheme,
-                       seconds_since(t_loop)));
+                       seconds_since(t_loop), dem::LeafStepStats{steps, steps, steps, 1.0}));
     }
     if (!opt.quiet && (k & 63) == 0 &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=
@@ -170,5 +182,122 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   }
   return {opt.out_dir, loop_seconds, scheme.steps_taken(), scheme.particle_steps()};
 }
+
+namespace {
+
+// The orb scheme's loop: rows at multiples of output.interval rounded to whole sub-iterations.
+// As in the explicit loop, the state at sub-iteration K is recorded by sub-iteration K+1 (its
+// first local step evaluates the forces at K), so the loop runs one sub-iteration past the end.
+RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  namespace fs = std::filesystem;
+  const auto t_setup = clock::now();
+  ParticleStore particles = make_initial_particles(scene);
+  const DerivedNumbers derived = derive(scene, particles);
+  PhaseTimer timer;
+  dem::OrbScheme scheme(scene, particles, timer);
+
+  fs::create_directories(opt.out_dir);
+  const std::string diag_path = (fs::path(opt.out_dir) / "diagnostics.csv").string();
+  DiagnosticsFile diag(diag_path, kColumns);
+  const double dt_sp = scheme.dt_sub();
+  const long long n_end = std::max(1LL, std::llround(scene.run.end_time / dt_sp));
+  const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt_sp));
+  if (!opt.quiet)
+    fmt::print(stderr, "cfddem: scene '{}', {} particles, orb scheme: {} leaves, dt_sp = {:.4e} s "
+                       "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
+               scene.name, particles.size(), 1 << scene.partition.orb_levels, dt_sp,
+               scheme.dt_fine(), n_end, env.ranks(), env.threads());
+  scheme.start();
+  const auto t_loop = clock::now();
+  {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
+                                  particles.vy, particles.vz, particles.mass});
+    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{}));
+  }
+  auto last_progress = clock::now();
+  for (long long k = 0; k <= n_end; ++k) {
+    const bool record = k > 0 && (k % out_every == 0 || k == n_end);
+    const dem::LeafStepStats ls = record ? scheme.take_interval_stats() : dem::LeafStepStats{};
+    scheme.subiterate(record);
+    if (record) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      const auto s = scheme.synchronised_previous();
+      const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, s.mass});
+      diag.add_row(row(static_cast<double>(k) * dt_sp, k, st, particles.size(), scheme,
+                       seconds_since(t_loop), ls));
+    }
+    if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
+                          scene.output.progress_seconds) {
+      last_progress = clock::now();
+      const double wall = seconds_since(t_loop);
+      const double frac = static_cast<double>(k) / static_cast<double>(n_end);
+      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine leaves {:.2f}  ETA {}\n",
+                 k, scheme.time(), 100 * frac, scheme.last_fine_fraction(),
+                 format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
+    }
+  }
+  diag.flush();
+  const double loop_seconds = seconds_since(t_loop);
+
+  nlohmann::ordered_json j;
+  j["program"] = "cfddem";
+  j["version"] = CFDDEM_VERSION;
+  j["scene"] = scene.name;
+  nlohmann::ordered_json cfg;
+  for (const auto& [k, v] : describe_scene(scene)) cfg[k] = v;
+  j["configuration"] = cfg;
+  nlohmann::ordered_json der;
+  for (const auto& [k, v] : derived.table()) der[k] = v;
+  j["derived"] = der;
+  j["ranks"] = env.ranks();
+  j["threads"] = env.threads();
+  j["particles"] = particles.size();
+  j["scheme"] = "orb";
+  j["dt"] = scheme.dt_fine();
+  j["dt_sp"] = dt_sp;
+  j["leaves"] = scheme.leaf_count();
+  j["steps"] = scheme.subiterations();
+  j["steps_definition"] = "sub-iterations of dt_sp (one past the end, as the explicit loop)";
+  j["regrids"] = scheme.regrids();
+  j["end_time"] = static_cast<double>(n_end) * dt_sp;
+  j["loop_seconds"] = loop_seconds;
+  j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
+  nlohmann::ordered_json ph;
+  ph["neighbor"] = timer.seconds(Phase::neighbor);
+  ph["force"] = timer.seconds(Phase::force);
+  ph["integrate"] = 0.0;
+  ph["io"] = timer.seconds(Phase::io);
+  ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
+                timer.seconds(Phase::io);
+  ph["note"] = "neighbor: ORB regrid and re-sort; force: the leaves' tasks (ghosts, local lists, "
+               "force and update)";
+  j["phase_seconds"] = ph;
+  j["particle_steps"] = scheme.particle_steps();
+  j["force_evaluations"] = scheme.pair_evaluations();
+  j["force_evaluations_definition"] =
+      "local-list pairs evaluated (own-own and own-ghost pairs once each per local step)";
+  j["neighbor_builds"] = scheme.neighbor_builds();
+  j["max_overlap_ratio"] = scheme.max_overlap_ratio();
+  j["overlap_violations"] = scheme.overlap_violations();
+  j["particle_steps_per_second"] =
+      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+  write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
+
+  if (!opt.quiet) {
+    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
+                       "with {} particles\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), particles.size());
+    fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; regrid+resort "
+                       "{:.3g} s, leaves {:.3g} s, io {:.3g} s; max overlap {:.3g} r ({} "
+                       "beyond dem.max_overlap)\n",
+               j["particle_steps_per_second"].get<double>(), scheme.pair_evaluations(),
+               timer.seconds(Phase::neighbor), timer.seconds(Phase::force),
+               timer.seconds(Phase::io), scheme.max_overlap_ratio(), scheme.overlap_violations());
+  }
+  return {opt.out_dir, loop_seconds, scheme.subiterations(), scheme.particle_steps()};
+}
+
+} // namespace
 
 } // namespace cfddem::apps

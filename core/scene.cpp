@@ -93,8 +93,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   // DEM contact model.
   auto& d = s.dem;
   d.scheme = c.get_string("dem.scheme", "explicit");
-  require(d.scheme == "explicit", "dem.scheme",
-          fmt::format("unknown scheme \"{}\" (available: \"explicit\")", d.scheme));
+  require(d.scheme == "explicit" || d.scheme == "orb", "dem.scheme",
+          fmt::format("unknown scheme \"{}\" (available: \"explicit\", \"orb\")", d.scheme));
   d.spring_constant = positive(c, "dem.spring_constant");
   d.restitution = unit_interval(c, "dem.restitution", 0.0);
   require(c.has("dem.restitution"), "dem.restitution", "is required but missing");
@@ -117,6 +117,18 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   d.max_overlap = c.get_double("dem.max_overlap", 0.3);
   require(d.max_overlap > 0.0 && d.max_overlap < 1.0, "dem.max_overlap",
           "must be in (0, 1) (a fraction of the smaller radius)");
+  d.nsubit = c.get_int("dem.nsubit", 10);
+  require(d.nsubit >= 1, "dem.nsubit", fmt::format("must be >= 1, got {}", d.nsubit));
+  d.proximity_radii = c.get_double("dem.proximity_radii", 3.0);
+  require(std::isfinite(d.proximity_radii) && d.proximity_radii > 0.0, "dem.proximity_radii",
+          fmt::format("must be > 0, got {}", d.proximity_radii));
+  d.regrid_interval = c.get_double("dem.regrid_interval", 1e-4);
+  require(std::isfinite(d.regrid_interval) && d.regrid_interval > 0.0, "dem.regrid_interval",
+          fmt::format("must be > 0, got {}", d.regrid_interval));
+  const std::int64_t levels = c.get_int("partition.orb_levels", 4);
+  require(levels >= 0 && levels <= 20, "partition.orb_levels",
+          fmt::format("must be in 0..20, got {}", levels));
+  s.partition.orb_levels = static_cast<int>(levels);
 
   // Run and output.
   s.run.end_time = positive(c, "run.end_time");
@@ -180,6 +192,10 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.dt", num(d.dt));
   o.emplace_back("dem.neighbor_skin", d.neighbor_skin > 0 ? num(d.neighbor_skin) : "\"auto\"");
   o.emplace_back("dem.max_overlap", num(d.max_overlap));
+  o.emplace_back("dem.nsubit", std::to_string(d.nsubit));
+  o.emplace_back("dem.proximity_radii", num(d.proximity_radii));
+  o.emplace_back("dem.regrid_interval", num(d.regrid_interval));
+  o.emplace_back("partition.orb_levels", std::to_string(s.partition.orb_levels));
   o.emplace_back("run.end_time", num(s.run.end_time));
   o.emplace_back("output.interval", num(s.output.interval));
   o.emplace_back("output.progress_seconds", num(s.output.progress_seconds));

@@ -46,6 +46,14 @@ struct DemSpec {
   double dt = 0.0;                // explicit step [s] (0 = from dt_factor), as LAMMPS `timestep`
   double neighbor_skin = 0.0;     // Verlet skin [m]
   double max_overlap = 0.3;       // stop when overlap / smaller radius exceeds this
+  // The `orb` scheme (Sitaraman & Grout, Algorithm 2).
+  std::int64_t nsubit = 10;       // sub-iterations per regrid interval
+  double proximity_radii = 3.0;   // a pair is close if centre distance < this * (r_i + r_j) / 2
+  double regrid_interval = 1e-4;  // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
+};
+
+struct PartitionSpec {
+  int orb_levels = 4; // the ORB has 2^orb_levels leaves
 };
 
 struct RunSpec {
@@ -63,6 +71,7 @@ struct Scene {
   std::array<double, 3> gravity{0, 0, 0};
   ParticleSpec particles;
   DemSpec dem;
+  PartitionSpec partition;
   RunSpec run;
   OutputSpec output;
 };

@@ -1,0 +1,132 @@
+// Benchmarks of the explicit DEM kernels on homogeneous cooling gases like the peers' scenes:
+// d = 100 um, rho = 1000 kg/m^3, T0 = 0.01 m^2/s^2, k = 10 N/m, e = 0.8, frictionless, periodic
+// cube, skin 25 um, dt = tau/50. Arguments: {solid fraction in percent, particles}.
+//   BM_NeighborBuild  VerletList::build (wrap, cell sort, permute the store, full CSR list)
+//   BM_ExplicitStep   ExplicitScheme::step (contact pass + update; rebuilds when the skin is used
+//                     up, as in a run: the counter builds_per_step says how often)
+// items_per_second = particles processed per second (particle-steps/s for the step).
+// Threads: CFDDEM_BENCH_THREADS (default 1, to compare with the single-core peer figures).
+#include <cmath>
+#include <cstdlib>
+#include <map>
+#include <memory>
+#include <numbers>
+#include <utility>
+
+#include <benchmark/benchmark.h>
+#include <tbb/global_control.h>
+
+#include "core/initial_conditions.hpp"
+#include "core/phase_timer.hpp"
+#include "core/scene.hpp"
+#include "dem/domain_geometry.hpp"
+#include "dem/explicit_scheme.hpp"
+#include "dem/verlet_list.hpp"
+
+namespace {
+
+using namespace cfddem;
+
+constexpr double kDiameter = 100e-6, kDensity = 1000.0, kSkin = 25e-6;
+
+Scene gas_scene(double phi, std::int64_t n) {
+  Scene s;
+  s.name = "bench_gas";
+  const double box =
+      std::cbrt(static_cast<double>(n) * std::numbers::pi * kDiameter * kDiameter * kDiameter /
+                (6.0 * phi));
+  s.domain.lo = {0, 0, 0};
+  s.domain.hi = {box, box, box};
+  s.domain.periodic = {true, true, true};
+  auto& p = s.particles;
+  p.count = n;
+  p.diameter = kDiameter;
+  p.density = kDensity;
+  p.temperature = 0.01;
+  p.placement = "random"; // random sequential addition; fine up to phi ~0.35
+  p.region_lo = s.domain.lo;
+  p.region_hi = s.domain.hi;
+  p.seed = 7;
+  auto& d = s.dem;
+  d.spring_constant = d.wall_spring_constant = 10.0;
+  d.restitution = d.wall_restitution = 0.8;
+  d.friction = d.wall_friction = 0.0;
+  d.dt_factor = 0.02;
+  d.neighbor_skin = kSkin;
+  s.run.end_time = 1.0;
+  s.output.interval = 1.0;
+  return s;
+}
+
+// Initial gases are made once per (phi, n) and copied into each benchmark.
+struct Gas {
+  Scene scene;
+  ParticleStore particles;
+};
+const Gas& gas(int phi_percent, std::int64_t n) {
+  static std::map<std::pair<int, std::int64_t>, std::unique_ptr<Gas>> cache;
+  auto& g = cache[{phi_percent, n}];
+  if (!g) {
+    g = std::make_unique<Gas>();
+    g->scene = gas_scene(phi_percent / 100.0, n);
+    g->particles = make_initial_particles(g->scene);
+  }
+  return *g;
+}
+
+tbb::global_control threads_from_env() {
+  const char* t = std::getenv("CFDDEM_BENCH_THREADS");
+  const int n = t ? std::max(1, std::atoi(t)) : 1;
+  return tbb::global_control(tbb::global_control::max_allowed_parallelism,
+                             static_cast<std::size_t>(n));
+}
+
+void BM_NeighborBuild(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  ParticleStore p = g.particles;
+  const dem::DomainGeometry geom(g.scene.domain);
+  dem::VerletList list;
+  list.build(p, geom, kSkin); // first build sorts the store, as in a run
+  for (auto _ : state) {
+    list.build(p, geom, kSkin);
+    benchmark::DoNotOptimize(list.neighbors().data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(p.size()));
+  state.counters["pairs_per_particle"] =
+      static_cast<double>(list.pair_count()) / static_cast<double>(p.size());
+}
+
+void BM_ExplicitStep(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  ParticleStore p = g.particles;
+  PhaseTimer timer;
+  dem::ExplicitScheme scheme(g.scene, p, timer);
+  scheme.start();
+  timer = PhaseTimer{}; // count the loop only
+  const auto builds0 = scheme.neighbor_builds();
+  for (auto _ : state) {
+    scheme.step();
+    benchmark::DoNotOptimize(p.x.data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(p.size()));
+  state.counters["builds_per_step"] =
+      static_cast<double>(scheme.neighbor_builds() - builds0) /
+      static_cast<double>(std::max<std::int64_t>(1, state.iterations()));
+  state.counters["force_s_per_step"] = benchmark::Counter(
+      timer.seconds(Phase::force), benchmark::Counter::kAvgIterations);
+  state.counters["neighbor_s_per_step"] = benchmark::Counter(
+      timer.seconds(Phase::neighbor), benchmark::Counter::kAvgIterations);
+}
+
+void gases(benchmark::internal::Benchmark* b) {
+  for (int phi : {1, 30})
+    for (std::int64_t n : {1000, 10000, 100000}) b->Args({phi, n});
+  b->ArgNames({"phi_pct", "n"});
+}
+
+} // namespace
+
+BENCHMARK(BM_NeighborBuild)->Apply(gases)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ExplicitStep)->Apply(gases)->Unit(benchmark::kMicrosecond);

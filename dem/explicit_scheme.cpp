@@ -59,6 +59,12 @@ StepModel make_step_model(const Scene& s, const ParticleStore& p) {
   }
   if (p.size() == 0) m_min = 1.0, r_min = r_max = 1.0;
   m.r_min = r_min;
+  m.uniform_mass = p.size() > 0 && std::all_of(p.mass.begin(), p.mass.end(),
+                                                [&](double mi) { return mi == p.mass[0]; });
+  if (m.uniform_mass) {
+    m.uniform_meff = 0.5 * p.mass[0];
+    m.uniform_eta = m.pair.eta_coef * std::sqrt(m.uniform_meff); // physics.md §2: eta_n
+  }
   const double k_max = std::max(d.spring_constant, d.wall_spring_constant);
   const double tau_p = std::sqrt(m_min / k_max);
   m.dt = d.dt > 0.0 ? d.dt : tau_p * d.dt_factor;
@@ -167,8 +173,11 @@ template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& ou
         const double delta = rs - dist;
         const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
         const double vn = dvx * nx + dvy * ny + dvz * nz;
-        const double meff = mi * mass[j] / (mi + mass[j]);
-        const double fn = normal_force(m.pair, meff, delta, vn);
+        // Equal masses (the common case) skip the divide and square root of m_eff.
+        const double meff = m.uniform_mass ? m.uniform_meff : mi * mass[j] / (mi + mass[j]);
+        const double fn = m.uniform_mass
+                              ? m.pair.k * delta + m.uniform_eta * vn
+                              : normal_force(m.pair, meff, delta, vn);
         ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
         if (delta > m.max_overlap * std::min(ri, rad[j]))
           rep.flag(i, Fault::overlap, delta / std::min(ri, rad[j]), j);

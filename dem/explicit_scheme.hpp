@@ -29,6 +29,8 @@ struct StepModel {
   double max_overlap = 0.3; // fraction of the smaller radius
   double r_min = 0.0;       // smallest radius (the per-step displacement bound)
   double skin = 0.0;
+  bool uniform_mass = false;  // every particle has the same mass: m_eff and eta_n are constants
+  double uniform_meff = 0.0, uniform_eta = 0.0;
 };
 
 // Global dt = min over particles of tau_p * dt_factor, tau_p = sqrt(m / k) (physics.md §1), with

@@ -1,0 +1,136 @@
+#include "fluid/deposition.hpp"
+
+#include <numbers>
+#include <stdexcept>
+#include <string>
+
+#include "fluid/diffusion_smoothing.hpp"
+#include "fluid/trilinear_weights.hpp"
+
+namespace cfddem::fluid {
+
+DepositionKernel parse_deposition_kernel(std::string_view name) {
+  if (name == "trilinear") {
+    return DepositionKernel::trilinear;
+  }
+  if (name == "dpvm_cube") {
+    return DepositionKernel::dpvm_cube;
+  }
+  if (name == "dpvm_sphere") {
+    return DepositionKernel::dpvm_sphere;
+  }
+  throw std::invalid_argument("unknown deposition kernel \"" + std::string(name) +
+                              "\" (choose trilinear, dpvm_cube or dpvm_sphere)");
+}
+
+Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius)
+    : grid_(grid), settings_(settings) {
+  if (settings.kernel != DepositionKernel::trilinear && !(settings.width > 0.0)) {
+    throw std::invalid_argument("deposition width must be positive (particle diameters)");
+  }
+  if (settings.diffusion < 0.0) {
+    throw std::invalid_argument("deposition diffusion D must be >= 0 [m^2]");
+  }
+  std::size_t capacity = 8;
+  if (settings.kernel != DepositionKernel::trilinear) {
+    capacity = 1;
+    for (int a = 0; a < 3; ++a) {
+      capacity *=
+          static_cast<std::size_t>(dpvm_max_cells(settings.width * max_radius, grid.spacing(a)));
+    }
+  }
+  weights_.resize(capacity);
+}
+
+void Deposition::reserve_weights(double r) {
+  std::size_t needed = 1;
+  for (int a = 0; a < 3; ++a) {
+    needed *= static_cast<std::size_t>(dpvm_max_cells(r, grid_.spacing(a)));
+  }
+  if (needed > weights_.size()) {
+    weights_.resize(needed); // a particle larger than max_radius: grow once
+  }
+}
+
+int Deposition::fold(int axis, int i) const {
+  const int n = grid_.cells(axis);
+  if (grid_.periodic(axis)) {
+    return ((i % n) + n) % n;
+  }
+  // Mirror about the wall as often as needed (kernels wider than the domain still conserve).
+  const int period = 2 * n;
+  int m = ((i % period) + period) % period;
+  return m < n ? m : period - 1 - m;
+}
+
+template <class Visit>
+void Deposition::for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit) {
+  const std::array<double, 3> origin = {grid_.origin(0), grid_.origin(1), grid_.origin(2)};
+  const std::array<double, 3> dx = {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)};
+  CellStencil s;
+  switch (settings_.kernel) {
+  case DepositionKernel::trilinear:
+    s = trilinear_weights(x, origin, dx, std::span<double, 8>(weights_.data(), 8));
+    break;
+  case DepositionKernel::dpvm_cube:
+    reserve_weights(settings_.width * radius);
+    s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::cube, weights_);
+    break;
+  case DepositionKernel::dpvm_sphere:
+    reserve_weights(settings_.width * radius);
+    s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::sphere, weights_,
+                     settings_.sphere_samples);
+    break;
+  }
+  std::size_t m = 0; // weights are stored x fastest, as the loops run
+  for (int c = 0; c < s.size[2]; ++c) {
+    const int k = fold(2, s.lo[2] + c);
+    for (int b = 0; b < s.size[1]; ++b) {
+      const int j = fold(1, s.lo[1] + b);
+      for (int a = 0; a < s.size[0]; ++a) {
+        const double w = weights_[m++];
+        if (w != 0.0) {
+          visit(grid_.layout().index(fold(0, s.lo[0] + a), j, k), w);
+        }
+      }
+    }
+  }
+}
+
+void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,
+                         GridField& cell) {
+  const double inv_volume = 1.0 / grid_.cell_volume();
+  for (std::size_t n = 0; n < value.size(); ++n) {
+    const double q = value[n] * inv_volume;
+    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n],
+                    [&](std::size_t idx, double w) { cell[idx] += w * q; });
+  }
+}
+
+void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s) {
+  const double inv_volume = 1.0 / grid_.cell_volume();
+  for (std::size_t n = 0; n < p.radius.size(); ++n) {
+    const double r = p.radius[n];
+    const double q = 4.0 / 3.0 * std::numbers::pi * r * r * r * inv_volume;
+    for_each_weight({p.x[n], p.y[n], p.z[n]}, r,
+                    [&](std::size_t idx, double w) { eps_s[idx] += w * q; });
+  }
+}
+
+void Deposition::smooth(GridField& cell) const {
+  if (settings_.diffusion > 0.0) {
+    (void)smooth_implicit(grid_, settings_.diffusion, cell);
+  }
+}
+
+void Deposition::interpolate(const ParticlePositions& p, const GridField& field,
+                             std::span<double> out) {
+  for (std::size_t n = 0; n < out.size(); ++n) {
+    double sum = 0.0;
+    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n],
+                    [&](std::size_t idx, double w) { sum += w * field[idx]; });
+    out[n] = sum;
+  }
+}
+
+} // namespace cfddem::fluid

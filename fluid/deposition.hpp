@@ -1,0 +1,66 @@
+// Particle <-> cell transfer with one kernel (trilinear or dpvm): deposit per-particle values to
+// cells and interpolate cell fields to particles with the same weights, so exchanged momentum
+// is conserved (physics.md §5, §7). The loop layer above the weight kernels.
+#pragma once
+
+#include <array>
+#include <span>
+#include <string_view>
+#include <vector>
+
+#include "fluid/dpvm_weights.hpp"
+#include "fluid/grid_field.hpp"
+#include "fluid/mac_grid.hpp"
+
+namespace cfddem::fluid {
+
+enum class DepositionKernel { trilinear, dpvm_cube, dpvm_sphere };
+
+// Throws std::invalid_argument naming the value ("trilinear", "dpvm_cube", "dpvm_sphere").
+[[nodiscard]] DepositionKernel parse_deposition_kernel(std::string_view name);
+
+struct DepositionSettings {
+  DepositionKernel kernel = DepositionKernel::trilinear;
+  // dpvm: kernel width in particle diameters, 2 r* = s d_p, i.e. r* = s r_p.
+  double width = 2.0;
+  int sphere_samples = 16;
+  // Optional implicit smoothing (I - D lap) q_new = q_old of deposited fields; D [m^2], 0 = off.
+  double diffusion = 0.0;
+};
+
+// Particle positions and radii as spans (structure of arrays).
+struct ParticlePositions {
+  std::span<const double> x, y, z, radius;
+};
+
+class Deposition {
+public:
+  // max_radius sizes the weight buffer (larger particles grow it on first use).
+  Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius);
+
+  // cell += sum_p value_p W_p(cell) / V_cell over interior cells (a density: value per m^3).
+  // Stencil cells outside the grid wrap on periodic axes and fold back (mirror) at other
+  // boundaries, so the total sum_cells cell V_cell = sum_p value_p is conserved.
+  void deposit(const ParticlePositions& p, std::span<const double> value, GridField& cell);
+  // Solid volume fraction eps_s of the particles (sphere volumes; not smoothed).
+  void deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s);
+  // Applies the optional implicit diffusion (settings().diffusion > 0) to a deposited field;
+  // conserves its cell sum. No-op when diffusion = 0.
+  void smooth(GridField& cell) const;
+  // out_p = sum_cells W_p(cell) field(cell), with the same wrap/fold as deposit.
+  void interpolate(const ParticlePositions& p, const GridField& field, std::span<double> out);
+
+  [[nodiscard]] const DepositionSettings& settings() const { return settings_; }
+
+private:
+  template <class Visit>
+  void for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit);
+  [[nodiscard]] int fold(int axis, int i) const;
+  void reserve_weights(double kernel_radius);
+
+  MacGrid grid_;
+  DepositionSettings settings_;
+  std::vector<double> weights_;
+};
+
+} // namespace cfddem::fluid

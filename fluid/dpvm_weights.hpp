@@ -1,0 +1,102 @@
+// Divided-particle-volume weights: the fraction of a cube or sphere of radius r* = s r_p around
+// the particle lying in each cell, over as many cells as it covers (physics.md §7; unlike
+// MFIX-Exa's dpvm, r* is not capped at dx/2, so cells smaller than a particle work). Kernels.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cassert>
+#include <cmath>
+#include <span>
+
+#include "fluid/cell_stencil.hpp"
+
+namespace cfddem::fluid {
+
+enum class DpvmShape { cube, sphere };
+
+// Most cells a kernel of radius r covers along an axis of spacing dx.
+[[nodiscard]] inline int dpvm_max_cells(double r, double dx) {
+  return static_cast<int>(std::ceil(2.0 * r / dx)) + 1;
+}
+
+namespace detail {
+// Length of [c - h, c + h] inside [x0, x0 + dx].
+[[nodiscard]] inline double interval_overlap(double c, double h, double x0, double dx) {
+  return std::max(0.0, std::min(c + h, x0 + dx) - std::max(c - h, x0));
+}
+} // namespace detail
+
+// Stencil and weights (sum 1) of the kernel of radius r centred at x. weights must hold at least
+// prod_a dpvm_max_cells(r, dx[a]) values. Sphere: exact along x, midpoint rule with
+// `samples` x `samples` chords over (y, z); normalised by the sampled volume, so the weights
+// still sum to 1 exactly.
+[[nodiscard]] inline CellStencil dpvm_weights(const std::array<double, 3>& x, double r,
+                                              const std::array<double, 3>& origin,
+                                              const std::array<double, 3>& dx, DpvmShape shape,
+                                              std::span<double> weights, int samples = 16) {
+  CellStencil s;
+  std::array<double, 3> rel{};
+  for (int a = 0; a < 3; ++a) {
+    rel[a] = (x[a] - origin[a]) / dx[a];
+    const int first = static_cast<int>(std::floor(rel[a] - r / dx[a]));
+    const int last = static_cast<int>(std::floor(rel[a] + r / dx[a]));
+    s.lo[a] = first;
+    s.size[a] = last - first + 1;
+  }
+  assert(static_cast<std::size_t>(s.count()) <= weights.size());
+  const std::span<double> w = weights.first(static_cast<std::size_t>(s.count()));
+  if (shape == DpvmShape::cube) {
+    std::size_t m = 0; // x fastest
+    // Separable: the cube's overlap with a cell is a product of 1-D overlaps.
+    for (int c = 0; c < s.size[2]; ++c) {
+      const double wz =
+          detail::interval_overlap(x[2], r, origin[2] + (s.lo[2] + c) * dx[2], dx[2]) / (2 * r);
+      for (int b = 0; b < s.size[1]; ++b) {
+        const double wy =
+            detail::interval_overlap(x[1], r, origin[1] + (s.lo[1] + b) * dx[1], dx[1]) / (2 * r);
+        for (int a = 0; a < s.size[0]; ++a) {
+          const double wx =
+              detail::interval_overlap(x[0], r, origin[0] + (s.lo[0] + a) * dx[0], dx[0]) / (2 * r);
+          w[m++] = wx * wy * wz;
+        }
+      }
+    }
+    return s;
+  }
+  std::fill(w.begin(), w.end(), 0.0);
+  double total = 0.0;
+  const double h = 2.0 * r / samples;
+  for (int q = 0; q < samples; ++q) {
+    const double dz = -r + (q + 0.5) * h;
+    for (int p = 0; p < samples; ++p) {
+      const double dy = -r + (p + 0.5) * h;
+      const double half2 = r * r - dy * dy - dz * dz;
+      if (half2 <= 0.0) {
+        continue;
+      }
+      const double half = std::sqrt(half2);
+      const double yc = x[1] + dy;
+      const double zc = x[2] + dz;
+      const int b = std::clamp(static_cast<int>(std::floor((yc - origin[1]) / dx[1])) - s.lo[1], 0,
+                               s.size[1] - 1);
+      const int c = std::clamp(static_cast<int>(std::floor((zc - origin[2]) / dx[2])) - s.lo[2], 0,
+                               s.size[2] - 1);
+      const std::size_t row = static_cast<std::size_t>(s.size[0]) *
+                              (static_cast<std::size_t>(b) +
+                               static_cast<std::size_t>(s.size[1]) * static_cast<std::size_t>(c));
+      for (int a = 0; a < s.size[0]; ++a) {
+        const double len =
+            detail::interval_overlap(x[0], half, origin[0] + (s.lo[0] + a) * dx[0], dx[0]);
+        w[row + static_cast<std::size_t>(a)] += len;
+        total += len;
+      }
+    }
+  }
+  for (double& v : w) {
+    v /= total;
+  }
+  return s;
+}
+
+} // namespace cfddem::fluid

@@ -1,0 +1,299 @@
+#include "fluid/gas_solver.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include <fmt/format.h>
+
+#include "fluid/ghost_fill.hpp"
+
+namespace cfddem::fluid {
+
+GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings)
+    : grid_(grid), settings_(settings) {
+  const GasProperties& gas = settings.gas;
+  if (!(gas.density > 0.0) || gas.viscosity < 0.0) {
+    throw std::invalid_argument(
+        fmt::format("gas density must be > 0 and viscosity >= 0 (got {} kg/m^3, {} Pa s)",
+                    gas.density, gas.viscosity));
+  }
+  if (!(settings.cfl > 0.0 && settings.cfl <= kMaxStableCourant)) {
+    throw std::invalid_argument(
+        fmt::format("fluid cfl = {} is outside (0, {}]: the explicit predictor is unstable above "
+                    "{}",
+                    settings.cfl, kMaxStableCourant, kMaxStableCourant));
+  }
+  if (settings.fixed_dt < 0.0) {
+    throw std::invalid_argument("fluid fixed_dt must be >= 0 (0: adaptive)");
+  }
+  if (settings.time_order != 1 && settings.time_order != 2) {
+    throw std::invalid_argument(
+        fmt::format("fluid time_order = {} (choose 1 or 2)", settings.time_order));
+  }
+  const std::array<double, 3> gp0 = background_pressure_gradient();
+  for (int a = 0; a < 3; ++a) {
+    body_[a] = gas.gravity[a] - gp0[a] / gas.density;
+    u_[a] = grid.make_field();
+    u_start_[a] = grid.make_field();
+    rhs_[a] = grid.make_field();
+    rhs_stage_[a] = grid.make_field();
+    mobility_[a] = grid.make_field();
+    beta_v_[a] = grid.make_field();
+  }
+  p_ = grid.make_field();
+  eps_ = grid.make_field(1.0);
+  eps_old_ = grid.make_field(1.0);
+  beta_ = grid.make_field();
+  source_ = grid.make_field();
+  projection_ = std::make_unique<PressureProjection>(grid, settings.projection);
+  if (settings.implicit_viscosity && gas.viscosity > 0.0) {
+    viscosity_ = std::make_unique<ImplicitViscosity>(grid);
+    for (GridField& l : lap_start_) {
+      l = grid.make_field();
+    }
+    diag_ = grid.make_field();
+    vrhs_ = grid.make_field();
+  }
+}
+
+std::array<double, 3> GasSolver::background_pressure_gradient() const {
+  std::array<double, 3> gp0{};
+  for (int a = 0; a < 3; ++a) {
+    if (grid_.periodic(a)) {
+      gp0[a] = -grid_.pressure_drop(a) / grid_.length(a);
+    } else {
+      gp0[a] = settings_.gas.density * settings_.gas.gravity[a];
+    }
+  }
+  return gp0;
+}
+
+double GasSolver::courant_number(double dt) const {
+  const auto& n = grid_.cells();
+  double rate = 0.0;
+  const double nu = settings_.gas.viscosity / settings_.gas.density;
+  for (int a = 0; a < 3; ++a) {
+    double umax = 0.0;
+    std::array<int, 3> hi = n;
+    hi[a] = n[a] + 1;
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          umax = std::max(umax, std::abs(u_[a](i, j, k)));
+        }
+      }
+    }
+    const double dx = grid_.spacing(a);
+    rate += umax / dx + (settings_.implicit_viscosity ? 0.0 : 2.0 * nu / (dx * dx));
+  }
+  return dt * rate;
+}
+
+double GasSolver::dt_for_courant(double courant) const {
+  const double rate = courant_number(1.0);
+  return rate > 0.0 ? courant / rate : std::numeric_limits<double>::infinity();
+}
+
+GasStepReport GasSolver::step() {
+  return step(settings_.fixed_dt > 0.0 ? settings_.fixed_dt : dt_for_courant(settings_.cfl));
+}
+
+void GasSolver::stage(double dt, int order, GasStepReport& report) {
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  const double rho = settings_.gas.density;
+  // Point-implicit drag (physics.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
+  // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)).
+  for (int a = 0; a < 3; ++a) {
+    const std::ptrdiff_t s = layout.stride(a);
+    std::array<int, 3> hi = n;
+    hi[a] = n[a] + 1;
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          const std::size_t f = layout.index(i, j, k);
+          const std::size_t below = f - static_cast<std::size_t>(s);
+          const double eps_f = 0.5 * (eps_[f] + eps_[below]);
+          const double beta_f = 0.5 * (beta_[f] + beta_[below]);
+          const double beta_v_f = 0.5 * (beta_v_[a][f] + beta_v_[a][below]);
+          const double k_drag = dt / (rho * eps_f);
+          double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
+          if (viscosity_ && order == 2) {
+            rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
+          }
+          if (!viscosity_) {
+            u_[a][f] = (u_start_[a][f] + dt * rate + k_drag * beta_v_f) / (1.0 + k_drag * beta_f);
+            continue;
+          }
+          // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k (beta
+          // v)_f)
+          diag_[f] = eps_f * rho * (1.0 + k_drag * beta_f);
+          vrhs_[f] = eps_f * rho * (u_start_[a][f] + dt * rate + k_drag * beta_v_f);
+        }
+      }
+    }
+    if (viscosity_) {
+      const double theta = order == 1 ? 1.0 : 0.5;
+      const ViscousSolveReport vr =
+          viscosity_->solve(a, theta * dt * settings_.gas.viscosity, eps_, diag_, vrhs_, u_[a],
+                            settings_.viscous_tolerance, 1000);
+      report.viscous_iterations += vr.iterations;
+    }
+  }
+  fill_velocity_ghosts(grid_, u_);
+  const ProjectionReport pr = projection_->project(u_, eps_, mobility_, source_, p_);
+  fill_velocity_ghosts(grid_, u_);
+  report.projection_iterations += pr.iterations;
+  report.relative_residual = std::max(report.relative_residual, pr.relative_residual);
+  report.used_fallback = report.used_fallback || pr.used_fallback;
+}
+
+GasStepReport GasSolver::step(double dt) {
+  GasStepReport report;
+  report.dt = dt;
+  if (!(dt > 0.0) || !std::isfinite(dt)) {
+    throw std::runtime_error(fmt::format(
+        "fluid step: dt = {} is not a positive finite number (an inviscid gas at rest has no "
+        "CFL time step: set fixed_dt)",
+        dt));
+  }
+  fill_velocity_ghosts(grid_, u_);
+  report.courant = courant_number(dt);
+  if (report.courant > kMaxStableCourant * (1.0 + 1e-12)) {
+    throw std::runtime_error(fmt::format(
+        "fluid step: dt = {:g} s gives Courant number {:.3g} > {} (stable dt <= {:g} s)", dt,
+        report.courant, kMaxStableCourant, dt_for_courant(kMaxStableCourant)));
+  }
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  const double rho = settings_.gas.density;
+  fill_cell_ghosts(grid_, eps_, CellGhosts::zero_gradient);
+  fill_cell_ghosts(grid_, eps_old_, CellGhosts::zero_gradient);
+  fill_cell_ghosts(grid_, beta_, CellGhosts::zero_gradient);
+  for (int a = 0; a < 3; ++a) {
+    fill_cell_ghosts(grid_, beta_v_[a], CellGhosts::zero_gradient);
+  }
+  // Projection mobility dt/(rho + dt beta_f/eps_f): the pressure correction sees the same
+  // implicit drag factor as the predictor, so the corrected velocity is exactly constrained.
+  for (int a = 0; a < 3; ++a) {
+    const std::ptrdiff_t s = layout.stride(a);
+    std::array<int, 3> hi = n;
+    hi[a] = n[a] + 1;
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          const std::size_t f = layout.index(i, j, k);
+          const std::size_t below = f - static_cast<std::size_t>(s);
+          const double eps_f = 0.5 * (eps_[f] + eps_[below]);
+          const double beta_f = 0.5 * (beta_[f] + beta_[below]);
+          mobility_[a][f] = dt / (rho + dt * beta_f / eps_f);
+        }
+      }
+    }
+  }
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        source_(i, j, k) = (eps_(i, j, k) - eps_old_(i, j, k)) / dt;
+      }
+    }
+  }
+  // Predictor: u1 = P(u^n + dt R(u^n)). Corrector (time_order 2, MFIX-Exa's predictor-
+  // corrector, i.e. Heun): u^{n+1} = P(u^n + dt (R(u^n) + R(u1))/2). Each stage is projected,
+  // so the returned field satisfies the constraint whatever u^n did.
+  // With implicit viscosity the predictor is backward Euler and the corrector trapezoidal in
+  // the Laplacian part div(eps mu grad u).
+  const bool implicit = static_cast<bool>(viscosity_);
+  u_start_ = u_;
+  momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
+  if (implicit && settings_.time_order == 2) {
+    for (int a = 0; a < 3; ++a) {
+      viscosity_->laplacian(a, settings_.gas.viscosity, rho, eps_, u_start_[a], lap_start_[a]);
+    }
+  }
+  stage(dt, 1, report);
+  if (settings_.time_order == 2) {
+    momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_stage_, work_,
+                 implicit);
+    stage(dt, 2, report);
+  }
+  fill_cell_ghosts(grid_, p_, CellGhosts::pressure);
+  eps_old_ = eps_;
+  return report;
+}
+
+GasStepReport GasSolver::advance(double interval, int* substeps) {
+  if (!(interval > 0.0)) {
+    throw std::runtime_error(fmt::format("fluid advance: interval {} is not positive", interval));
+  }
+  const GridField target = eps_;
+  const GridField start = eps_old_;
+  GasStepReport total;
+  double t = 0.0;
+  int count = 0;
+  while (interval - t > 1e-12 * interval) {
+    fill_velocity_ghosts(grid_, u_);
+    double dt = std::min(interval - t, dt_for_courant(settings_.cfl));
+    // Do not leave a sliver of a step at the end.
+    const bool last = interval - t - dt < 1e-3 * dt;
+    if (last) {
+      dt = interval - t;
+    }
+    const double fraction = last ? 1.0 : (t + dt) / interval;
+    std::span<double> e = eps_.values();
+    std::span<const double> e0 = start.values();
+    std::span<const double> e1 = target.values();
+    for (std::size_t m = 0; m < e.size(); ++m) {
+      e[m] = e0[m] + fraction * (e1[m] - e0[m]);
+    }
+    const GasStepReport r = step(dt);
+    total.dt = r.dt;
+    total.courant = std::max(total.courant, r.courant);
+    total.projection_iterations += r.projection_iterations;
+    total.viscous_iterations += r.viscous_iterations;
+    total.relative_residual = std::max(total.relative_residual, r.relative_residual);
+    total.used_fallback = total.used_fallback || r.used_fallback;
+    t += dt;
+    ++count;
+  }
+  eps_ = target;
+  eps_old_ = target;
+  if (substeps != nullptr) {
+    *substeps = count;
+  }
+  return total;
+}
+
+void GasSolver::cell_pressure_gradient(int axis, GridField& out) const {
+  const std::ptrdiff_t s = grid_.layout().stride(axis);
+  const double gp0 = background_pressure_gradient()[static_cast<std::size_t>(axis)];
+  const double inv_2dx = 0.5 / grid_.spacing(axis);
+  const auto& n = grid_.cells();
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const std::size_t c = grid_.layout().index(i, j, k);
+        out[c] =
+            (p_[c + static_cast<std::size_t>(s)] - p_[c - static_cast<std::size_t>(s)]) * inv_2dx +
+            gp0;
+      }
+    }
+  }
+}
+
+void GasSolver::cell_centred_velocity(int axis, GridField& out) const {
+  const std::ptrdiff_t s = grid_.layout().stride(axis);
+  const auto& n = grid_.cells();
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const std::size_t c = grid_.layout().index(i, j, k);
+        out[c] = 0.5 * (u_[axis][c] + u_[axis][c + static_cast<std::size_t>(s)]);
+      }
+    }
+  }
+}
+
+} // namespace cfddem::fluid

@@ -1,0 +1,116 @@
+// The gas phase of MFIX's model A on one MAC grid (physics.md §5): explicit predictor (limited
+// MUSCL advection, viscous stress, body force; optionally the viscous Laplacian implicit),
+// point-implicit particle drag, and a hypre projection onto div(eps u) = -d(eps)/dt.
+// Single rank for now.
+#pragma once
+
+#include <array>
+#include <memory>
+#include <span>
+
+#include "fluid/grid_field.hpp"
+#include "fluid/implicit_viscosity.hpp"
+#include "fluid/mac_grid.hpp"
+#include "fluid/momentum_rhs.hpp"
+#include "fluid/muscl_kernels.hpp"
+#include "fluid/pressure_projection.hpp"
+
+namespace cfddem::fluid {
+
+// Stability bound on the Courant number C = dt (sum_a max|u_a|/dx_a + 2 nu sum_a 1/dx_a^2)
+// (the viscous part only when the viscosity is explicit):
+// 0.5 is the TVD limit of the limited MUSCL scheme with explicit (SSP) Euler stages; the
+// diffusion part alone would allow 1.
+inline constexpr double kMaxStableCourant = 0.5;
+
+struct GasSolverSettings {
+  GasProperties gas;
+  Limiter limiter = Limiter::van_leer;
+  ProjectionSettings projection;
+  double fixed_dt = 0.0; // > 0: step() uses it; 0: adaptive from cfl
+  double cfl = 0.4;      // target Courant number for the adaptive step, in (0, 0.5]
+  // Laplacian part of the viscous stress backward Euler (predictor) / trapezoidal (corrector),
+  // by CG: removes the viscous term from the Courant number (cells smaller than particles).
+  bool implicit_viscosity = false;
+  double viscous_tolerance = 1e-10;
+  int time_order = 2; // 1: Euler; 2: predictor-corrector (Heun), one projection per stage
+};
+
+struct GasStepReport {
+  double dt = 0.0;
+  double courant = 0.0;
+  int projection_iterations = 0;
+  int viscous_iterations = 0; // CG iterations of the implicit viscosity (all components)
+  double relative_residual = 0.0;
+  bool used_fallback = false;
+};
+
+class GasSolver {
+public:
+  // Throws std::invalid_argument for impossible settings (cfl above the stable limit, ...).
+  GasSolver(const MacGrid& grid, const GasSolverSettings& settings);
+
+  [[nodiscard]] const MacGrid& grid() const { return grid_; }
+  [[nodiscard]] const GasSolverSettings& settings() const { return settings_; }
+
+  // Face velocities u, v, w [m/s]; boundary faces are overwritten from the BCs on each step.
+  [[nodiscard]] std::array<GridField, 3>& velocity() { return u_; }
+  [[nodiscard]] const std::array<GridField, 3>& velocity() const { return u_; }
+  // p' at cell centres [Pa]; the full gradient is grad p' + background_pressure_gradient().
+  [[nodiscard]] GridField& pressure() { return p_; }
+  [[nodiscard]] const GridField& pressure() const { return p_; }
+  // eps_g at cell centres, set by the coupling before each step (d(eps)/dt is taken against the
+  // value at the previous step).
+  [[nodiscard]] GridField& volume_fraction() { return eps_; }
+  [[nodiscard]] const GridField& volume_fraction() const { return eps_; }
+  void reset_volume_fraction_history() { eps_old_ = eps_; }
+  // Deposited drag: beta_cell = sum_i beta_i W / V_cell [N s/m^4] and (beta v)_cell [N/m^3].
+  [[nodiscard]] GridField& drag_coefficient() { return beta_; }
+  [[nodiscard]] GridField& drag_velocity_sum(int axis) { return beta_v_[axis]; }
+
+  // MFIX-Exa's gp0: -delp/L along an axis with an imposed periodic drop, rho_g g along
+  // non-periodic axes (hydrostatic), 0 on other periodic axes (physics.md §4).
+  [[nodiscard]] std::array<double, 3> background_pressure_gradient() const;
+
+  [[nodiscard]] double courant_number(double dt) const;
+  // Largest dt whose Courant number is `courant` (inf for a still inviscid gas).
+  [[nodiscard]] double dt_for_courant(double courant) const;
+
+  // One step with the fixed or adaptive dt.
+  GasStepReport step();
+  // One step with a given dt; throws std::runtime_error if its Courant number exceeds
+  // kMaxStableCourant (message gives the largest stable dt).
+  GasStepReport step(double dt);
+  // Advances by `interval` (e.g. the coupling step dt_f) in as many equal-CFL sub-steps as
+  // stability needs (small cells make the explicit viscous limit shorter than dt_f); eps_g is
+  // interpolated linearly in time from its previous value to the current one, so d(eps)/dt is
+  // spread over the sub-steps. The report sums iterations and gives the last dt and the count.
+  GasStepReport advance(double interval, int* substeps = nullptr);
+
+  // Velocity component averaged to cell centres (for interpolation to particles).
+  void cell_centred_velocity(int axis, GridField& out) const;
+  // Full pressure gradient at cell centres, d p'/dx_a (central) + gp0_a, for the particles'
+  // pressure force -V_p grad p (physics.md §4).
+  void cell_pressure_gradient(int axis, GridField& out) const;
+
+private:
+  void stage(double dt, int order, GasStepReport& report);
+
+  MacGrid grid_;
+  GasSolverSettings settings_;
+  std::array<double, 3> body_{};
+  std::array<GridField, 3> u_;
+  std::array<GridField, 3> u_start_;
+  std::array<GridField, 3> rhs_;
+  std::array<GridField, 3> rhs_stage_;
+  MomentumWorkspace work_;
+  std::unique_ptr<ImplicitViscosity> viscosity_;
+  std::array<GridField, 3> lap_start_; // L(u^n) for the trapezoidal corrector
+  GridField diag_, vrhs_;
+  std::array<GridField, 3> mobility_;
+  std::array<GridField, 3> beta_v_;
+  GridField p_, eps_, eps_old_, beta_, source_;
+  std::unique_ptr<PressureProjection> projection_;
+};
+
+} // namespace cfddem::fluid

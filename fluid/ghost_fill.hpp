@@ -1,0 +1,26 @@
+// Ghost layers and boundary face values of MAC-grid fields from the face boundary conditions:
+// periodic wrap, no-slip wall, velocity inflow, pressure outflow.
+#pragma once
+
+#include <array>
+
+#include "fluid/grid_field.hpp"
+#include "fluid/mac_grid.hpp"
+
+namespace cfddem::fluid {
+
+enum class CellGhosts {
+  zero_gradient, // eps_g, drag fields: even reflection at every non-periodic face
+  pressure       // p': value p_out on outflow faces (odd reflection), zero gradient elsewhere
+};
+
+void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode);
+
+// Sets the prescribed boundary faces (wall: 0, inflow: the inflow velocity, periodic: face n is
+// face 0) and every ghost of the three face-velocity components. Tangential ghosts reflect so
+// that the wall (inflow) value holds on the face; outflow ghosts have zero gradient.
+void fill_velocity_ghosts(const MacGrid& grid, std::array<GridField, 3>& u);
+// The same for one component (comp = the axis of its faces).
+void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f);
+
+} // namespace cfddem::fluid

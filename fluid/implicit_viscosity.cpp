@@ -1,0 +1,176 @@
+#include "fluid/implicit_viscosity.hpp"
+
+#include <cmath>
+#include <stdexcept>
+
+#include <fmt/format.h>
+
+#include "fluid/ghost_fill.hpp"
+
+namespace cfddem::fluid {
+
+namespace {
+
+MacGridSpec homogeneous_spec(const MacGridSpec& spec) {
+  MacGridSpec h = spec;
+  for (BoundaryCondition& bc : h.bc) {
+    bc.velocity = {0.0, 0.0, 0.0};
+    bc.pressure = 0.0;
+  }
+  return h;
+}
+
+template <class F>
+void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::array<int, 3>& hi,
+             F&& f) {
+  for (int k = lo[2]; k <= hi[2]; ++k) {
+    for (int j = lo[1]; j <= hi[1]; ++j) {
+      const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+      for (std::ptrdiff_t p = row; p <= row + (hi[0] - lo[0]); ++p) {
+        f(p);
+      }
+    }
+  }
+}
+
+// eps on the low control-volume face of face p along b (cell p - 1 when b == a, else the
+// (a, b) edge average).
+double cv_face_eps(const double* ep, std::ptrdiff_t p, std::ptrdiff_t sa, std::ptrdiff_t sb,
+                   bool same) {
+  return same ? ep[p - sa] : 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
+}
+
+} // namespace
+
+ImplicitViscosity::ImplicitViscosity(const MacGrid& grid)
+    : grid_(grid), homogeneous_(homogeneous_spec(grid.spec())), r_(grid.layout()),
+      p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()) {}
+
+std::array<int, 3> ImplicitViscosity::unknown_lo(int comp) const {
+  std::array<int, 3> lo = {0, 0, 0};
+  const BoundaryKind kind = grid_.bc(comp, 0).kind;
+  lo[comp] = (kind == BoundaryKind::wall || kind == BoundaryKind::inflow) ? 1 : 0;
+  return lo;
+}
+
+std::array<int, 3> ImplicitViscosity::unknown_hi(int comp) const {
+  const auto& n = grid_.cells();
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[comp] = grid_.bc(comp, 1).kind == BoundaryKind::outflow ? n[comp] : n[comp] - 1;
+  return hi;
+}
+
+void ImplicitViscosity::laplacian(int comp, double mu, double rho, const GridField& eps,
+                                  const GridField& u, GridField& lap) const {
+  const GridLayout& layout = grid_.layout();
+  const double* ep = eps.values().data();
+  const double* q = u.values().data();
+  const std::ptrdiff_t sa = layout.stride(comp);
+  std::array<int, 3> hi = {grid_.cells(0) - 1, grid_.cells(1) - 1, grid_.cells(2) - 1};
+  hi[comp] = grid_.cells(comp);
+  for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+    double sum = 0.0;
+    for (int b = 0; b < 3; ++b) {
+      const std::ptrdiff_t sb = layout.stride(b);
+      const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp);
+      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp);
+      sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
+    }
+    lap[static_cast<std::size_t>(p)] = mu * sum / (rho * 0.5 * (ep[p] + ep[p - sa]));
+  });
+}
+
+void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const GridField& diag,
+                              const GridField& x, GridField& y) const {
+  const GridLayout& layout = grid_.layout();
+  const double* ep = eps.values().data();
+  const double* q = x.values().data();
+  const std::ptrdiff_t sa = layout.stride(comp);
+  for_box(layout, unknown_lo(comp), unknown_hi(comp), [&](std::ptrdiff_t p) {
+    double sum = 0.0;
+    for (int b = 0; b < 3; ++b) {
+      const std::ptrdiff_t sb = layout.stride(b);
+      const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp);
+      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp);
+      sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
+    }
+    y[static_cast<std::size_t>(p)] = diag[static_cast<std::size_t>(p)] * q[p] - c * sum;
+  });
+}
+
+ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField& eps,
+                                            const GridField& diag, const GridField& rhs,
+                                            GridField& u, double tolerance, int max_iterations) {
+  const GridLayout& layout = grid_.layout();
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  const auto dot = [&](const GridField& a, const GridField& b) {
+    double s = 0.0;
+    for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+      s += a[static_cast<std::size_t>(p)] * b[static_cast<std::size_t>(p)];
+    });
+    return s;
+  };
+  // r = rhs - A u with the true (inhomogeneous) boundary values in u's ghosts.
+  apply(comp, c, eps, diag, u, ap_);
+  double b_norm2 = 0.0;
+  for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+    const auto m = static_cast<std::size_t>(p);
+    r_[m] = rhs[m] - ap_[m];
+    b_norm2 += rhs[m] * rhs[m];
+  });
+  // Corrections satisfy homogeneous boundary conditions; Jacobi-preconditioned CG.
+  const auto precondition = [&](const GridField& in, GridField& out) {
+    for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+      double centre = diag[static_cast<std::size_t>(p)];
+      for (int b = 0; b < 3; ++b) {
+        const std::ptrdiff_t sb = layout.stride(b);
+        const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+        centre += c * inv_dx2 *
+                  (cv_face_eps(eps.values().data(), p, layout.stride(comp), sb, b == comp) +
+                   cv_face_eps(eps.values().data(), p + sb, layout.stride(comp), sb, b == comp));
+      }
+      out[static_cast<std::size_t>(p)] = in[static_cast<std::size_t>(p)] / centre;
+    });
+  };
+  z_.fill(0.0);
+  p_.fill(0.0);
+  precondition(r_, z_);
+  for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+    p_[static_cast<std::size_t>(p)] = z_[static_cast<std::size_t>(p)];
+  });
+  double rz = dot(r_, z_);
+  double rr = dot(r_, r_);
+  const double target = tolerance * tolerance * b_norm2;
+  ViscousSolveReport report;
+  while (rr > target && report.iterations < max_iterations) {
+    fill_velocity_ghosts(homogeneous_, comp, p_);
+    apply(comp, c, eps, diag, p_, ap_);
+    const double alpha = rz / dot(p_, ap_);
+    for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+      const auto m = static_cast<std::size_t>(p);
+      u[m] += alpha * p_[m];
+      r_[m] -= alpha * ap_[m];
+    });
+    precondition(r_, z_);
+    const double rz_new = dot(r_, z_);
+    for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+      const auto m = static_cast<std::size_t>(p);
+      p_[m] = z_[m] + rz_new / rz * p_[m];
+    });
+    rz = rz_new;
+    rr = dot(r_, r_);
+    ++report.iterations;
+  }
+  report.relative_residual = b_norm2 > 0.0 ? std::sqrt(rr / b_norm2) : 0.0;
+  if (rr > target) {
+    throw std::runtime_error(fmt::format("implicit viscosity: CG reached relative residual {:g} "
+                                         "after {} iterations (tolerance {:g})",
+                                         report.relative_residual, report.iterations, tolerance));
+  }
+  return report;
+}
+
+} // namespace cfddem::fluid

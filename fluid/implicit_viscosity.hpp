@@ -1,0 +1,49 @@
+// Implicit treatment of the Laplacian part of the viscous stress, div(eps mu grad u_a), for one
+// face-velocity component (with the point-implicit drag on the diagonal):
+//   eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho b,
+// solved matrix-free by conjugate gradients (the operator is SPD: it is weighted by eps_f rho).
+// Removes the explicit viscous limit 2 nu dt sum 1/dx^2 <= 1/2 (cells smaller than particles).
+#pragma once
+
+#include <array>
+
+#include "fluid/grid_field.hpp"
+#include "fluid/mac_grid.hpp"
+
+namespace cfddem::fluid {
+
+struct ViscousSolveReport {
+  int iterations = 0;
+  double relative_residual = 0.0;
+};
+
+class ImplicitViscosity {
+public:
+  explicit ImplicitViscosity(const MacGrid& grid);
+
+  // lap = div(eps mu grad u_comp) / (rho eps_f) on the faces the predictor updates; ghosts of
+  // u[comp] and eps filled.
+  void laplacian(int comp, double mu, double rho, const GridField& eps, const GridField& u,
+                 GridField& lap) const;
+
+  // Solves (diag - c div(eps grad)) u = rhs for u[comp] on its unknown faces (not the wall and
+  // inflow faces, nor the periodic copy of face 0), c = theta dt mu. diag = eps_f rho (1 + k
+  // beta_f), rhs = eps_f rho b. u: in, first guess with ghosts filled; out, the solution (the
+  // caller refills ghosts). Throws std::runtime_error if CG does not reach the tolerance.
+  ViscousSolveReport solve(int comp, double c, const GridField& eps, const GridField& diag,
+                           const GridField& rhs, GridField& u, double tolerance,
+                           int max_iterations);
+
+private:
+  // y = (diag - c div(eps grad)) x over the unknown faces; ghosts of x must be filled.
+  void apply(int comp, double c, const GridField& eps, const GridField& diag, const GridField& x,
+             GridField& y) const;
+  [[nodiscard]] std::array<int, 3> unknown_lo(int comp) const;
+  [[nodiscard]] std::array<int, 3> unknown_hi(int comp) const;
+
+  MacGrid grid_;
+  MacGrid homogeneous_; // same faces with zero inflow velocity: BCs of a correction
+  GridField r_, p_, ap_, z_;
+};
+
+} // namespace cfddem::fluid

@@ -1,0 +1,126 @@
+#include "fluid/mac_grid.hpp"
+
+#include <cmath>
+#include <stdexcept>
+
+#include <fmt/format.h>
+
+namespace cfddem::fluid {
+
+std::string_view face_name(int face) {
+  static constexpr std::array<std::string_view, kFaces> names = {"x_lo", "x_hi", "y_lo",
+                                                                 "y_hi", "z_lo", "z_hi"};
+  return names.at(static_cast<std::size_t>(face));
+}
+
+std::string_view boundary_kind_name(BoundaryKind kind) {
+  switch (kind) {
+  case BoundaryKind::periodic:
+    return "periodic";
+  case BoundaryKind::wall:
+    return "wall";
+  case BoundaryKind::inflow:
+    return "inflow";
+  case BoundaryKind::outflow:
+    break;
+  }
+  return "outflow";
+}
+
+std::vector<std::string> check_mac_grid(const MacGridSpec& spec) {
+  std::vector<std::string> problems;
+  static constexpr std::array<char, 3> axis_name = {'x', 'y', 'z'};
+  for (int a = 0; a < 3; ++a) {
+    const char name = axis_name[a];
+    if (spec.cells[a] < 1) {
+      problems.push_back(fmt::format("{}: {} cells (need at least 1)", name, spec.cells[a]));
+      continue;
+    }
+    if (!(spec.extent[a] > 0.0)) {
+      problems.push_back(
+          fmt::format("{}: domain length {} m is not positive", name, spec.extent[a]));
+      continue;
+    }
+    if (spec.spacing[a] < 0.0) {
+      problems.push_back(fmt::format("{}: cell size {} m is negative", name, spec.spacing[a]));
+    } else if (spec.spacing[a] > 0.0) {
+      const double covered = spec.cells[a] * spec.spacing[a];
+      if (std::abs(covered - spec.extent[a]) > 1e-9 * spec.extent[a]) {
+        problems.push_back(
+            fmt::format("{}: {} cells of {:g} m cover {:g} m but the domain is {:g} m long (cells "
+                        "must tile the domain)",
+                        name, spec.cells[a], spec.spacing[a], covered, spec.extent[a]));
+      }
+    }
+    const std::size_t lo_face = 2 * static_cast<std::size_t>(a);
+    const BoundaryKind lo = spec.bc[lo_face].kind;
+    const BoundaryKind hi = spec.bc[lo_face + 1].kind;
+    if ((lo == BoundaryKind::periodic) != (hi == BoundaryKind::periodic)) {
+      problems.push_back(fmt::format("{}: periodic on one side only ({} is {}, {} is {})", name,
+                                     face_name(2 * a), boundary_kind_name(lo), face_name(2 * a + 1),
+                                     boundary_kind_name(hi)));
+    }
+    if (spec.pressure_drop[a] != 0.0 && lo != BoundaryKind::periodic) {
+      problems.push_back(
+          fmt::format("{}: pressure drop {} Pa needs a periodic axis (faces are {} and {})", name,
+                      spec.pressure_drop[a], boundary_kind_name(lo), boundary_kind_name(hi)));
+    }
+  }
+  std::string inflows;
+  bool outlet = false;
+  for (int f = 0; f < kFaces; ++f) {
+    const BoundaryCondition& bc = spec.bc[f];
+    if (bc.kind == BoundaryKind::outflow) {
+      outlet = true;
+    }
+    if (bc.kind != BoundaryKind::inflow) {
+      continue;
+    }
+    inflows += (inflows.empty() ? "" : ", ") + std::string(face_name(f));
+    const int axis = f / 2;
+    const double inward = (f % 2 == 0) ? bc.velocity[axis] : -bc.velocity[axis];
+    if (inward < 0.0) {
+      problems.push_back(fmt::format("{}: inflow velocity {} m/s points out of the domain",
+                                     face_name(f), bc.velocity[axis]));
+    }
+  }
+  if (!inflows.empty() && !outlet) {
+    std::string others;
+    for (int f = 0; f < kFaces; ++f) {
+      if (spec.bc[f].kind != BoundaryKind::inflow) {
+        others += fmt::format("{}{} ({})", others.empty() ? "" : ", ", face_name(f),
+                              boundary_kind_name(spec.bc[f].kind));
+      }
+    }
+    problems.push_back(
+        fmt::format("inflow at {} has no outlet: the other faces are {}; make one an outflow",
+                    inflows, others.empty() ? std::string("none") : others));
+  }
+  return problems;
+}
+
+MacGrid::MacGrid(const MacGridSpec& spec) : spec_(spec) {
+  const std::vector<std::string> problems = check_mac_grid(spec);
+  if (!problems.empty()) {
+    std::string message = "invalid fluid grid:";
+    for (const std::string& p : problems) {
+      message += "\n  " + p;
+    }
+    throw std::invalid_argument(message);
+  }
+  for (int a = 0; a < 3; ++a) {
+    spacing_[a] = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
+  }
+  layout_ = GridLayout(spec.cells);
+}
+
+bool MacGrid::has_outflow() const {
+  for (const BoundaryCondition& bc : spec_.bc) {
+    if (bc.kind == BoundaryKind::outflow) {
+      return true;
+    }
+  }
+  return false;
+}
+
+} // namespace cfddem::fluid

@@ -1,0 +1,374 @@
+#include "fluid/pressure_projection.hpp"
+
+#include <cmath>
+#include <stdexcept>
+#include <utility>
+
+#include <HYPRE_struct_ls.h>
+#include <fmt/format.h>
+#include <mpi.h>
+
+namespace cfddem::fluid {
+
+struct PressureProjection::Hypre {
+  HYPRE_StructGrid grid = nullptr;
+  HYPRE_StructStencil stencil = nullptr;
+  HYPRE_StructMatrix matrix = nullptr;
+  HYPRE_StructVector b = nullptr;
+  HYPRE_StructVector x = nullptr;
+  HYPRE_StructSolver solver = nullptr;
+  HYPRE_StructSolver precond = nullptr;
+  PoissonPreconditioner precond_kind = PoissonPreconditioner::pfmg;
+  bool solver_ready = false;
+  std::array<HYPRE_Int, 3> lower{};
+  std::array<HYPRE_Int, 3> upper{};
+
+  void destroy_solver() {
+    if (solver != nullptr) {
+      HYPRE_StructPCGDestroy(solver);
+      solver = nullptr;
+    }
+    if (precond != nullptr) {
+      if (precond_kind == PoissonPreconditioner::pfmg) {
+        HYPRE_StructPFMGDestroy(precond);
+      } else {
+        HYPRE_StructSMGDestroy(precond);
+      }
+      precond = nullptr;
+    }
+    solver_ready = false;
+  }
+};
+
+namespace {
+
+constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
+
+// PFMG levels that keep every periodic axis at two or more cells. PFMG semicoarsens by 2 along
+// the axis of smallest dxyz (ties: lowest axis) and itself stops at an odd period; a period of
+// one cell couples a cell to itself, where red/black relaxation is wrong (PCG then stalls or
+// breaks down: seen on 4-cell periodic axes and on the riser grid). Mirrors the coarsening
+// loop of hypre 2.26's pfmg_setup.c with dxyz set explicitly.
+int pfmg_max_levels(const MacGrid& grid) {
+  std::array<int, 3> size = grid.cells();
+  std::array<double, 3> dxyz = {grid.spacing(0), grid.spacing(1), grid.spacing(2)};
+  int levels = 1;
+  for (;;) {
+    int dir = -1;
+    for (int d = 0; d < 3; ++d) {
+      if (size[d] > 1 && (dir < 0 || dxyz[d] < dxyz[dir])) {
+        dir = d;
+      }
+    }
+    if (dir < 0) {
+      break;
+    }
+    if (grid.periodic(dir) && (size[dir] % 2 == 1 || size[dir] == 2)) {
+      break;
+    }
+    size[dir] = (size[dir] + 1) / 2;
+    dxyz[dir] *= 2.0;
+    ++levels;
+  }
+  return levels;
+}
+
+double face_eps(const GridField& eps, std::size_t c, std::ptrdiff_t s) {
+  return 0.5 * (eps[c] + eps[c - static_cast<std::size_t>(s)]);
+}
+
+} // namespace
+
+void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,
+                     GridField& div) {
+  const GridLayout& layout = grid.layout();
+  const auto& n = grid.cells();
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const std::size_t c = layout.index(i, j, k);
+        double sum = 0.0;
+        for (int a = 0; a < 3; ++a) {
+          const std::ptrdiff_t s = layout.stride(a);
+          const std::size_t up = c + static_cast<std::size_t>(s);
+          sum +=
+              (face_eps(eps, up, s) * u[a][up] - face_eps(eps, c, s) * u[a][c]) / grid.spacing(a);
+        }
+        div[c] = sum;
+      }
+    }
+  }
+}
+
+PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings)
+    : grid_(grid), settings_(settings), hypre_(new Hypre) {
+  if (!(settings.tolerance > 0.0) || settings.max_iterations < 1) {
+    delete hypre_;
+    throw std::invalid_argument("projection tolerance must be > 0 and max_iterations >= 1");
+  }
+  Hypre& h = *hypre_;
+  const auto& n = grid.cells();
+  std::array<HYPRE_Int, 3> periodic{};
+  for (int a = 0; a < 3; ++a) {
+    h.upper[a] = n[a] - 1;
+    // A single periodic cell couples only to itself (no flux): leave the axis non-periodic.
+    periodic[a] = (grid.periodic(a) && n[a] > 1) ? n[a] : 0;
+  }
+  HYPRE_StructGridCreate(MPI_COMM_SELF, 3, &h.grid);
+  HYPRE_StructGridSetExtents(h.grid, h.lower.data(), h.upper.data());
+  HYPRE_StructGridSetPeriodic(h.grid, periodic.data());
+  HYPRE_StructGridAssemble(h.grid);
+  HYPRE_StructStencilCreate(3, kStencilSize, &h.stencil);
+  std::array<std::array<HYPRE_Int, 3>, kStencilSize> offsets = {
+      {{0, 0, 0}, {-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1}}};
+  for (int e = 0; e < kStencilSize; ++e) {
+    HYPRE_StructStencilSetElement(h.stencil, e, offsets[e].data());
+  }
+  HYPRE_StructMatrixCreate(MPI_COMM_SELF, h.grid, h.stencil, &h.matrix);
+  HYPRE_StructMatrixInitialize(h.matrix);
+  HYPRE_StructVectorCreate(MPI_COMM_SELF, h.grid, &h.b);
+  HYPRE_StructVectorInitialize(h.b);
+  HYPRE_StructVectorCreate(MPI_COMM_SELF, h.grid, &h.x);
+  HYPRE_StructVectorInitialize(h.x);
+  const std::size_t cells = static_cast<std::size_t>(n[0]) * n[1] * n[2];
+  rhs_.resize(cells);
+  solution_.resize(cells);
+  guess_.resize(cells);
+  div_ = grid.make_field();
+}
+
+PressureProjection::~PressureProjection() {
+  hypre_->destroy_solver();
+  HYPRE_StructVectorDestroy(hypre_->x);
+  HYPRE_StructVectorDestroy(hypre_->b);
+  HYPRE_StructMatrixDestroy(hypre_->matrix);
+  HYPRE_StructStencilDestroy(hypre_->stencil);
+  HYPRE_StructGridDestroy(hypre_->grid);
+  delete hypre_;
+}
+
+void PressureProjection::assemble(const std::vector<double>& stencil_values) {
+  Hypre& h = *hypre_;
+  std::array<HYPRE_Int, kStencilSize> entries = {0, 1, 2, 3, 4, 5, 6};
+  HYPRE_StructMatrixSetBoxValues(h.matrix, h.lower.data(), h.upper.data(), kStencilSize,
+                                 entries.data(), const_cast<double*>(stencil_values.data()));
+  HYPRE_StructMatrixAssemble(h.matrix);
+  h.destroy_solver();
+}
+
+bool PressureProjection::solve(PoissonPreconditioner pc, std::vector<double>& x,
+                               ProjectionReport& report) {
+  Hypre& h = *hypre_;
+  if (!h.solver_ready || h.precond_kind != pc) {
+    h.destroy_solver();
+    h.precond_kind = pc;
+    HYPRE_StructPCGCreate(MPI_COMM_SELF, &h.solver);
+    HYPRE_StructPCGSetTol(h.solver, settings_.tolerance);
+    HYPRE_StructPCGSetMaxIter(h.solver, settings_.max_iterations);
+    HYPRE_StructPCGSetTwoNorm(h.solver, 1);
+    HYPRE_StructPCGSetRelChange(h.solver, 0);
+    HYPRE_StructPCGSetLogging(h.solver, 1);
+    if (pc == PoissonPreconditioner::pfmg) {
+      HYPRE_StructPFMGCreate(MPI_COMM_SELF, &h.precond);
+      HYPRE_StructPFMGSetMaxIter(h.precond, 1);
+      HYPRE_StructPFMGSetTol(h.precond, 0.0);
+      HYPRE_StructPFMGSetZeroGuess(h.precond);
+      // Symmetric red/black Gauss-Seidel (hypre then builds non-Galerkin coarse operators).
+      HYPRE_StructPFMGSetRelaxType(h.precond, 2);
+      std::array<double, 3> dxyz = {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)};
+      HYPRE_StructPFMGSetDxyz(h.precond, dxyz.data());
+      HYPRE_StructPFMGSetMaxLevels(h.precond, pfmg_max_levels(grid_));
+      HYPRE_StructPFMGSetNumPreRelax(h.precond, 1);
+      HYPRE_StructPFMGSetNumPostRelax(h.precond, 1);
+      HYPRE_StructPCGSetPrecond(h.solver, HYPRE_StructPFMGSolve, HYPRE_StructPFMGSetup, h.precond);
+    } else {
+      HYPRE_StructSMGCreate(MPI_COMM_SELF, &h.precond);
+      HYPRE_StructSMGSetMemoryUse(h.precond, 0);
+      HYPRE_StructSMGSetMaxIter(h.precond, 1);
+      HYPRE_StructSMGSetTol(h.precond, 0.0);
+      HYPRE_StructSMGSetZeroGuess(h.precond);
+      HYPRE_StructSMGSetNumPreRelax(h.precond, 1);
+      HYPRE_StructSMGSetNumPostRelax(h.precond, 1);
+      HYPRE_StructPCGSetPrecond(h.solver, HYPRE_StructSMGSolve, HYPRE_StructSMGSetup, h.precond);
+    }
+    HYPRE_StructPCGSetup(h.solver, h.matrix, h.b, h.x);
+    h.solver_ready = true;
+  }
+  HYPRE_StructVectorSetBoxValues(h.x, h.lower.data(), h.upper.data(), x.data());
+  HYPRE_StructVectorAssemble(h.x);
+  HYPRE_StructPCGSolve(h.solver, h.matrix, h.b, h.x);
+  HYPRE_ClearAllErrors(); // non-convergence is judged from the residual below
+  HYPRE_Int iterations = 0;
+  double residual = 0.0;
+  HYPRE_StructPCGGetNumIterations(h.solver, &iterations);
+  HYPRE_StructPCGGetFinalRelativeResidualNorm(h.solver, &residual);
+  report.iterations += iterations;
+  report.relative_residual = residual;
+  if (!(residual <= settings_.tolerance)) {
+    return false;
+  }
+  HYPRE_StructVectorGetBoxValues(h.x, h.lower.data(), h.upper.data(), x.data());
+  return true;
+}
+
+ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const GridField& eps,
+                                             const std::array<GridField, 3>& mobility,
+                                             const GridField& source, GridField& phi) {
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  std::vector<double>& values = next_values_;
+  values.assign(rhs_.size() * kStencilSize, 0.0);
+  GridField& div = div_;
+  flux_divergence(grid_, u, eps, div);
+  const bool singular = !grid_.has_outflow();
+
+  std::size_t m = 0;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i, ++m) {
+        const std::array<int, 3> cell = {i, j, k};
+        const std::size_t c = layout.index(cell);
+        double* row = &values[m * kStencilSize];
+        double rhs = -(div[c] + source[c]);
+        for (int a = 0; a < 3; ++a) {
+          const std::ptrdiff_t s = layout.stride(a);
+          const double inv_dx2 = 1.0 / (grid_.spacing(a) * grid_.spacing(a));
+          for (int side = 0; side < 2; ++side) {
+            const bool boundary = side == 0 ? cell[a] == 0 : cell[a] == n[a] - 1;
+            std::size_t f = side == 0 ? c : c + static_cast<std::size_t>(s);
+            if (boundary && side == 1 && grid_.periodic(a)) {
+              f -= static_cast<std::size_t>(n[a] * s); // face n is face 0: one coefficient
+            }
+            const double coef = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+            if (!boundary) {
+              row[0] += coef;
+              row[1 + 2 * a + side] = -coef;
+              continue;
+            }
+            const BoundaryCondition& bc = grid_.bc(a, side);
+            if (bc.kind == BoundaryKind::periodic && n[a] > 1) {
+              row[0] += coef;
+              row[1 + 2 * a + side] = -coef;
+            } else if (bc.kind == BoundaryKind::outflow) {
+              // phi = p_out on the face: ghost 2 p_out - phi (physics.md §5 outflow).
+              row[0] += 2.0 * coef;
+              rhs += 2.0 * coef * bc.pressure;
+            }
+          }
+        }
+        rhs_[m] = rhs;
+        solution_[m] = phi[c];
+      }
+    }
+  }
+  if (singular) {
+    // Only gradients of phi are defined: make the right-hand side compatible (zero sum).
+    double mean = 0.0;
+    for (const double r : rhs_) {
+      mean += r;
+    }
+    mean /= static_cast<double>(rhs_.size());
+    for (double& r : rhs_) {
+      r -= mean;
+    }
+  }
+  if (values != stencil_values_) {
+    std::swap(stencil_values_, values);
+    assemble(stencil_values_);
+  }
+  Hypre& h = *hypre_;
+  HYPRE_StructVectorSetBoxValues(h.b, h.lower.data(), h.upper.data(), rhs_.data());
+  HYPRE_StructVectorAssemble(h.b);
+
+  ProjectionReport report;
+  guess_ = solution_;
+  if (!solve(settings_.preconditioner, solution_, report)) {
+    if (settings_.preconditioner == PoissonPreconditioner::smg) {
+      throw std::runtime_error(fmt::format(
+          "pressure projection: PCG/SMG reached relative residual {:g} after {} iterations "
+          "(tolerance {:g})",
+          report.relative_residual, report.iterations, settings_.tolerance));
+    }
+    solution_ = guess_;
+    report.used_fallback = true;
+    if (!solve(PoissonPreconditioner::smg, solution_, report)) {
+      throw std::runtime_error(
+          fmt::format("pressure projection: neither PCG/PFMG nor PCG/SMG reached tolerance {:g} "
+                      "(relative residual {:g} after {} iterations)",
+                      settings_.tolerance, report.relative_residual, report.iterations));
+    }
+  }
+  if (singular) {
+    double mean = 0.0;
+    for (const double x : solution_) {
+      mean += x;
+    }
+    mean /= static_cast<double>(solution_.size());
+    for (double& x : solution_) {
+      x -= mean;
+    }
+  }
+  m = 0;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        phi(i, j, k) = solution_[m++];
+      }
+    }
+  }
+
+  // u = u* - m_f grad phi on every face whose velocity is not prescribed.
+  for (int a = 0; a < 3; ++a) {
+    const std::ptrdiff_t s = layout.stride(a);
+    const double inv_dx = 1.0 / grid_.spacing(a);
+    std::array<int, 3> hi = n;
+    hi[a] = n[a] + 1;
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          const std::array<int, 3> face = {i, j, k};
+          const std::size_t f = layout.index(face);
+          const std::size_t below = f - static_cast<std::size_t>(s);
+          double grad = 0.0;
+          if (face[a] > 0 && face[a] < n[a]) {
+            grad = (phi[f] - phi[below]) * inv_dx;
+          } else {
+            const int side = face[a] == 0 ? 0 : 1;
+            const BoundaryCondition& bc = grid_.bc(a, side);
+            if (bc.kind == BoundaryKind::periodic) {
+              if (side == 1) {
+                continue; // face n is face 0, set below
+              }
+              std::array<int, 3> last = face;
+              last[a] = n[a] - 1;
+              grad = (phi[f] - phi(last[0], last[1], last[2])) * inv_dx;
+            } else if (bc.kind == BoundaryKind::outflow) {
+              grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
+                               : 2.0 * (bc.pressure - phi[below]) * inv_dx;
+            } else {
+              continue; // wall or inflow: prescribed
+            }
+          }
+          u[a][f] -= mobility[a][f] * grad;
+        }
+      }
+    }
+    if (grid_.periodic(a)) {
+      // Face n is face 0.
+      std::array<int, 3> hi_other = n;
+      hi_other[a] = 1;
+      for (int k = 0; k < hi_other[2]; ++k) {
+        for (int j = 0; j < hi_other[1]; ++j) {
+          for (int i = 0; i < hi_other[0]; ++i) {
+            std::array<int, 3> top = {i, j, k};
+            top[a] = n[a];
+            u[a][layout.index(top)] = u[a][layout.index(i, j, k)];
+          }
+        }
+      }
+    }
+  }
+  return report;
+}
+
+} // namespace cfddem::fluid

@@ -1,0 +1,326 @@
+// Interpolation and deposition (physics.md §7): weights, conservation, exactness for linear
+// fields, and eps_g in (0, 1] for cells smaller than a particle with the wide dpvm kernel.
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "fluid/deposition.hpp"
+#include "fluid/diffusion_smoothing.hpp"
+#include "fluid/dpvm_weights.hpp"
+#include "fluid/trilinear_weights.hpp"
+#include "test_grids.hpp"
+
+namespace cfddem::fluid {
+namespace {
+
+using test::box_spec;
+
+struct Cloud {
+  std::vector<double> x, y, z, r;
+  [[nodiscard]] ParticlePositions view() const { return {x, y, z, r}; }
+  [[nodiscard]] double volume() const {
+    double v = 0.0;
+    for (const double ri : r) {
+      v += 4.0 / 3.0 * std::numbers::pi * ri * ri * ri;
+    }
+    return v;
+  }
+};
+
+Cloud random_cloud(const MacGrid& grid, int count, double radius, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  Cloud c;
+  for (int n = 0; n < count; ++n) {
+    std::array<std::vector<double>*, 3> axes = {&c.x, &c.y, &c.z};
+    for (int a = 0; a < 3; ++a) {
+      std::uniform_real_distribution<double> u(grid.origin(a), grid.origin(a) + grid.length(a));
+      axes[a]->push_back(u(rng));
+    }
+    c.r.push_back(radius);
+  }
+  return c;
+}
+
+double interior_sum(const MacGrid& grid, const GridField& f) {
+  double s = 0.0;
+  for (int k = 0; k < grid.cells(2); ++k) {
+    for (int j = 0; j < grid.cells(1); ++j) {
+      for (int i = 0; i < grid.cells(0); ++i) {
+        s += f(i, j, k);
+      }
+    }
+  }
+  return s;
+}
+
+TEST(TrilinearWeights, SumToOneAndReproduceLinearPositions) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(0.0, 1e-3);
+  const std::array<double, 3> origin = {0.0, 0.0, 0.0};
+  const std::array<double, 3> dx = {1e-4, 2e-4, 5e-5};
+  std::array<double, 8> w{};
+  for (int n = 0; n < 100; ++n) {
+    const std::array<double, 3> x = {u(rng), u(rng), u(rng)};
+    const CellStencil s = trilinear_weights(x, origin, dx, w);
+    double sum = 0.0;
+    std::array<double, 3> centroid{};
+    std::size_t m = 0;
+    for (int c = 0; c < 2; ++c) {
+      for (int b = 0; b < 2; ++b) {
+        for (int a = 0; a < 2; ++a) {
+          const double wi = w[m++];
+          EXPECT_GE(wi, 0.0);
+          sum += wi;
+          const std::array<int, 3> cell = {s.lo[0] + a, s.lo[1] + b, s.lo[2] + c};
+          for (int ax = 0; ax < 3; ++ax) {
+            centroid[ax] += wi * (origin[ax] + (cell[ax] + 0.5) * dx[ax]);
+          }
+        }
+      }
+    }
+    EXPECT_NEAR(sum, 1.0, 1e-14);
+    for (int ax = 0; ax < 3; ++ax) {
+      EXPECT_NEAR(centroid[ax], x[ax], 1e-15);
+    }
+  }
+}
+
+TEST(DpvmWeights, SumToOneForCubeAndSphereSmallerAndLargerThanCells) {
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 1e-3);
+  const std::array<double, 3> origin = {0.0, 0.0, 0.0};
+  const std::array<double, 3> dx = {5e-5, 5e-5, 5e-5};
+  for (const double r : {2e-5, 5e-5, 1.3e-4}) {
+    std::vector<double> w(static_cast<std::size_t>(std::pow(dpvm_max_cells(r, 5e-5), 3)));
+    for (const DpvmShape shape : {DpvmShape::cube, DpvmShape::sphere}) {
+      for (int n = 0; n < 20; ++n) {
+        const std::array<double, 3> x = {u(rng), u(rng), u(rng)};
+        const CellStencil s = dpvm_weights(x, r, origin, dx, shape, w);
+        double sum = 0.0;
+        for (int m = 0; m < s.count(); ++m) {
+          EXPECT_GE(w[static_cast<std::size_t>(m)], 0.0);
+          sum += w[static_cast<std::size_t>(m)];
+        }
+        EXPECT_NEAR(sum, 1.0, 1e-13);
+      }
+    }
+  }
+}
+
+TEST(DpvmWeights, SphereFractionsApproachExactOctants) {
+  // A sphere centred on a cell corner puts 1/8 of its volume in each of the 8 cells.
+  const std::array<double, 3> origin = {0.0, 0.0, 0.0};
+  const std::array<double, 3> dx = {1e-4, 1e-4, 1e-4};
+  std::vector<double> w(27);
+  const CellStencil s =
+      dpvm_weights({1e-4, 1e-4, 1e-4}, 4e-5, origin, dx, DpvmShape::sphere, w, 32);
+  double inside = 0.0;
+  for (int m = 0; m < s.count(); ++m) {
+    const double wm = w[static_cast<std::size_t>(m)];
+    if (wm > 0.0) {
+      EXPECT_NEAR(wm, 0.125, 1e-12);
+      inside += wm;
+    }
+  }
+  EXPECT_NEAR(inside, 1.0, 1e-12);
+}
+
+class DepositionConservation : public ::testing::TestWithParam<DepositionKernel> {};
+
+TEST_P(DepositionConservation, SolidVolumeEqualsParticleVolume) {
+  for (const BoundaryKind kind : {BoundaryKind::periodic, BoundaryKind::wall}) {
+    const MacGrid grid(box_spec({6, 5, 4}, {6e-4, 5e-4, 4e-4}, kind));
+    const Cloud cloud = random_cloud(grid, 200, 5e-5, 3);
+    DepositionSettings settings;
+    settings.kernel = GetParam();
+    settings.width = 3.0; // r* = 3 r_p = 1.5 cells: wraps/folds at every boundary
+    Deposition deposition(grid, settings, 5e-5);
+    GridField eps_s = grid.make_field();
+    deposition.deposit_solid_fraction(cloud.view(), eps_s);
+    EXPECT_NEAR(interior_sum(grid, eps_s) * grid.cell_volume(), cloud.volume(),
+                1e-12 * cloud.volume());
+    // Smoothing keeps the total.
+    (void)smooth_implicit(grid, 1e-8, eps_s);
+    EXPECT_NEAR(interior_sum(grid, eps_s) * grid.cell_volume(), cloud.volume(),
+                1e-10 * cloud.volume());
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Kernels, DepositionConservation,
+                         ::testing::Values(DepositionKernel::trilinear, DepositionKernel::dpvm_cube,
+                                           DepositionKernel::dpvm_sphere),
+                         [](const ::testing::TestParamInfo<DepositionKernel>& param) {
+                           switch (param.param) {
+                           case DepositionKernel::trilinear:
+                             return std::string("trilinear");
+                           case DepositionKernel::dpvm_cube:
+                             return std::string("dpvm_cube");
+                           case DepositionKernel::dpvm_sphere:
+                             break;
+                           }
+                           return std::string("dpvm_sphere");
+                         });
+
+TEST(Deposition, ParticleLargerThanDeclaredMaxRadiusStillConserves) {
+  const MacGrid grid(box_spec({8, 8, 8}, {4e-4, 4e-4, 4e-4}, BoundaryKind::periodic));
+  const Cloud cloud = random_cloud(grid, 20, 1.2e-4, 13);
+  DepositionSettings settings;
+  settings.kernel = DepositionKernel::dpvm_sphere;
+  Deposition deposition(grid, settings, 1e-5); // declared far too small: the buffer grows
+  GridField eps_s = grid.make_field();
+  deposition.deposit_solid_fraction(cloud.view(), eps_s);
+  EXPECT_NEAR(interior_sum(grid, eps_s) * grid.cell_volume(), cloud.volume(),
+              1e-12 * cloud.volume());
+}
+
+// FCC lattice of 100 um spheres at phi = 0.6 (lattice constant (4 V_p/0.6)^(1/3) = 151.7 um,
+// neighbours 107 um apart: no overlap), jittered, in a periodic box of 4^3 unit cells with
+// 12^3 cells of 50.6 um: cells smaller than a particle (the paper's fluidized bed).
+Cloud dense_fcc_bed(const MacGrid& grid, double d) {
+  const double a = grid.length(0) / 4.0;
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> jitter(-3e-6, 3e-6);
+  const std::array<std::array<double, 3>, 4> basis = {
+      {{0.0, 0.0, 0.0}, {0.5, 0.5, 0.0}, {0.5, 0.0, 0.5}, {0.0, 0.5, 0.5}}};
+  Cloud c;
+  for (int k = 0; k < 4; ++k) {
+    for (int j = 0; j < 4; ++j) {
+      for (int i = 0; i < 4; ++i) {
+        for (const auto& b : basis) {
+          // Shift by an irrational-ish offset so particles do not sit on cell faces.
+          c.x.push_back((i + b[0] + 0.137) * a + jitter(rng));
+          c.y.push_back((j + b[1] + 0.291) * a + jitter(rng));
+          c.z.push_back((k + b[2] + 0.413) * a + jitter(rng));
+          c.r.push_back(0.5 * d);
+        }
+      }
+    }
+  }
+  return c;
+}
+
+std::pair<double, double> eps_gas_range(const MacGrid& grid, const GridField& eps_s) {
+  double lo = 1e300;
+  double hi = -1e300;
+  for (int k = 0; k < grid.cells(2); ++k) {
+    for (int j = 0; j < grid.cells(1); ++j) {
+      for (int i = 0; i < grid.cells(0); ++i) {
+        lo = std::min(lo, 1.0 - eps_s(i, j, k));
+        hi = std::max(hi, 1.0 - eps_s(i, j, k));
+      }
+    }
+  }
+  return {lo, hi};
+}
+
+TEST(DenseBedDeposition, WideKernelKeepsGasFractionInUnitIntervalWhereTrilinearFails) {
+  const double d = 100e-6;
+  const double vp = std::numbers::pi * d * d * d / 6.0;
+  const double a = std::cbrt(4.0 * vp / 0.6);
+  const MacGrid grid(box_spec({12, 12, 12}, {4 * a, 4 * a, 4 * a}, BoundaryKind::periodic));
+  ASSERT_LT(grid.spacing(0), d); // cells smaller than a particle
+  const Cloud bed = dense_fcc_bed(grid, d);
+  EXPECT_NEAR(bed.volume() / std::pow(4 * a, 3), 0.6, 1e-12);
+
+  DepositionSettings trilinear;
+  Deposition narrow(grid, trilinear, 0.5 * d);
+  GridField eps_s = grid.make_field();
+  narrow.deposit_solid_fraction(bed.view(), eps_s);
+  const auto [tri_lo, tri_hi] = eps_gas_range(grid, eps_s);
+  // One particle (5.2e-13 m^3) into 2x2x2 cells of 1.3e-13 m^3: eps_g goes negative.
+  EXPECT_LT(tri_lo, 0.0) << "trilinear min eps_g " << tri_lo << " max " << tri_hi;
+
+  // Trilinear followed by the implicit diffusion over sqrt(D) = d_p also stays in (0, 1].
+  DepositionSettings smoothed;
+  smoothed.diffusion = d * d;
+  Deposition diffused(grid, smoothed, 0.5 * d);
+  eps_s.fill(0.0);
+  diffused.deposit_solid_fraction(bed.view(), eps_s);
+  diffused.smooth(eps_s);
+  const auto [diff_lo, diff_hi] = eps_gas_range(grid, eps_s);
+  EXPECT_GT(diff_lo, 0.0);
+  EXPECT_LE(diff_hi, 1.0);
+  RecordProperty("eps_g_range_trilinear", std::to_string(tri_lo) + " " + std::to_string(tri_hi));
+  RecordProperty("eps_g_range_trilinear_diffused",
+                 std::to_string(diff_lo) + " " + std::to_string(diff_hi));
+
+  for (const DepositionKernel kernel :
+       {DepositionKernel::dpvm_cube, DepositionKernel::dpvm_sphere}) {
+    DepositionSettings wide;
+    wide.kernel = kernel;
+    wide.width = 2.0; // kernel diameter 2 d_p = 4 cells
+    Deposition deposition(grid, wide, 0.5 * d);
+    eps_s.fill(0.0);
+    deposition.deposit_solid_fraction(bed.view(), eps_s);
+    const auto [lo, hi] = eps_gas_range(grid, eps_s);
+    EXPECT_GT(lo, 0.0) << "kernel " << static_cast<int>(kernel);
+    EXPECT_LE(hi, 1.0) << "kernel " << static_cast<int>(kernel);
+    RecordProperty("eps_g_range_dpvm" + std::to_string(static_cast<int>(kernel)),
+                   std::to_string(lo) + " " + std::to_string(hi));
+  }
+}
+
+TEST(Interpolation, ExactForLinearFields) {
+  const MacGrid grid(box_spec({8, 6, 5}, {8e-4, 6e-4, 5e-4}, BoundaryKind::wall));
+  GridField f = grid.make_field();
+  const auto linear = [](double x, double y, double z) {
+    return 1.0 + 2e3 * x - 3e3 * y + 5e2 * z;
+  };
+  for (int k = 0; k < 5; ++k) {
+    for (int j = 0; j < 6; ++j) {
+      for (int i = 0; i < 8; ++i) {
+        f(i, j, k) = linear(grid.cell_centre(0, i), grid.cell_centre(1, j), grid.cell_centre(2, k));
+      }
+    }
+  }
+  // Particles at least r* + dx/2 away from the walls (folding is zero-gradient, not linear).
+  std::mt19937_64 rng(9);
+  Cloud c;
+  for (int n = 0; n < 50; ++n) {
+    c.x.push_back(std::uniform_real_distribution<double>(2.5e-4, 5.5e-4)(rng));
+    c.y.push_back(std::uniform_real_distribution<double>(2.5e-4, 3.5e-4)(rng));
+    c.z.push_back(std::uniform_real_distribution<double>(2.5e-4, 2.5e-4 + 1e-9)(rng));
+    c.r.push_back(5e-5);
+  }
+  // Trilinear is exact for linear fields; the dpvm cube is exact when its width 2 r* is a whole
+  // number of cells (here 2 r* = 2 dx), since the cell-centre staircase then averages out.
+  DepositionSettings tri;
+  DepositionSettings cube;
+  cube.kernel = DepositionKernel::dpvm_cube;
+  cube.width = 2.0;
+  for (const DepositionSettings& s : {tri, cube}) {
+    Deposition deposition(grid, s, 5e-5);
+    std::vector<double> out(c.x.size());
+    deposition.interpolate(c.view(), f, out);
+    for (std::size_t n = 0; n < out.size(); ++n) {
+      EXPECT_NEAR(out[n], linear(c.x[n], c.y[n], c.z[n]), 1e-12);
+    }
+  }
+}
+
+TEST(DiffusionSmoothing, ConservesSumAndDampsPeak) {
+  const MacGrid grid(box_spec({8, 8, 8}, {4e-4, 4e-4, 4e-4}, BoundaryKind::wall));
+  GridField q = grid.make_field();
+  q(3, 4, 5) = 1.0;
+  const SmoothingReport report = smooth_implicit(grid, 2.5e-9, q); // sqrt(D) = one cell
+  EXPECT_LE(report.relative_residual, 1e-12);
+  EXPECT_NEAR(interior_sum(grid, q), 1.0, 1e-11);
+  EXPECT_LT(q(3, 4, 5), 0.5);
+  double lo = 1.0;
+  for (int k = 0; k < 8; ++k) {
+    for (int j = 0; j < 8; ++j) {
+      for (int i = 0; i < 8; ++i) {
+        lo = std::min(lo, q(i, j, k));
+      }
+    }
+  }
+  EXPECT_GE(lo, -1e-12); // (I - D lap)^-1 is a positive operator (M-matrix inverse)
+}
+
+} // namespace
+} // namespace cfddem::fluid

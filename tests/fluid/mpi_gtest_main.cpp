@@ -1,0 +1,14 @@
+// GoogleTest main for tests that call hypre: MPI and hypre live for the whole test program.
+#include <HYPRE_utilities.h>
+#include <gtest/gtest.h>
+#include <mpi.h>
+
+int main(int argc, char** argv) {
+  MPI_Init(&argc, &argv);
+  HYPRE_Init();
+  ::testing::InitGoogleTest(&argc, argv);
+  const int result = RUN_ALL_TESTS();
+  HYPRE_Finalize();
+  MPI_Finalize();
+  return result;
+}

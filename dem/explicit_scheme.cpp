@@ -150,22 +150,27 @@ template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& ou
   const StepModel m = model_;
 
   // Forces on particle i from its row, summed in the row's (sorted) order.
+  const std::uint32_t* __restrict wrap = list_.wrap_begin().data();
   auto body = [&](const tbb::blocked_range<std::size_t>& r, Report rep) {
+    // Locals, not captures: the compiler keeps them in registers across the stores below.
+    const double* __restrict lx = x;
+    const double* __restrict ly = y;
+    const double* __restrict lz = z;
+    const double* __restrict lr = rad;
+    const std::uint32_t* __restrict lnb = nb;
     for (std::size_t q = r.begin(); q != r.end(); ++q) {
       const std::uint32_t i = act[q];
       const double xi = x[i], yi = y[i], zi = z[i];
       const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
       double ax = 0.0, ay = 0.0, az = 0.0;
       [[maybe_unused]] double tqx = 0.0, tqy = 0.0, tqz = 0.0;
-      for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-        const std::uint32_t j = nb[k];
-        const double dx = g.image(x[j] - xi, 0), dy = g.image(y[j] - yi, 1),
-                     dz = g.image(z[j] - zi, 2);
+      // One pair: the separation (dx, dy, dz) is already the minimum image.
+      auto pair = [&](std::uint32_t k, std::uint32_t j, double dx, double dy, double dz) {
         const double r2 = dx * dx + dy * dy + dz * dz;
-        const double rs = ri + rad[j];
+        const double rs = ri + lr[j];
         if (r2 >= rs * rs) {
           if constexpr (Friction) hx_[k] = hy_[k] = hz_[k] = 0.0;
-          continue;
+          return;
         }
         const double dist = std::sqrt(r2);
         const double inv = 1.0 / dist;
@@ -200,6 +205,16 @@ template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& ou
           tqy += ri * (nz * ft[0] - nx * ft[2]);
           tqz += ri * (nx * ft[1] - ny * ft[0]);
         }
+      };
+      // Pairs inside the box first (no periodic image needed), then those across a face.
+      const std::uint32_t kw = wrap[i];
+      for (std::uint32_t k = off[i]; k < kw; ++k) {
+        const std::uint32_t j = lnb[k];
+        pair(k, j, lx[j] - xi, ly[j] - yi, lz[j] - zi);
+      }
+      for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
+        const std::uint32_t j = lnb[k];
+        pair(k, j, g.image(lx[j] - xi, 0), g.image(ly[j] - yi, 1), g.image(lz[j] - zi, 2));
       }
       fx[i] = ax, fy[i] = ay, fz[i] = az;
       if constexpr (Friction) p_.tx[i] = tqx, p_.ty[i] = tqy, p_.tz[i] = tqz;

@@ -59,11 +59,13 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   for (double r : p.radius) rmax = std::max(rmax, r);
   const double cutoff = 2.0 * rmax + skin;
   for (int a = 0; a < 3; ++a)
-    if (g.periodic[a] && g.length[a] < 2.0 * cutoff)
+    // Raw separations of non-crossing pairs stay below L/2 while particles move less than
+    // skin/2 each: needs L > 2 (cutoff + skin).
+    if (g.periodic[a] && g.length[a] <= 2.0 * (cutoff + skin))
       throw RunError(fmt::format(
-          "periodic axis {} is {:.6g} m long, shorter than twice the neighbor cutoff {:.6g} m "
-          "(largest diameter + skin): enlarge the domain or reduce dem.neighbor_skin",
-          a, g.length[a], cutoff));
+          "periodic axis {} is {:.6g} m long, not more than twice the neighbor cutoff plus skin "
+          "{:.6g} m (largest diameter + 2 skins): enlarge the domain or reduce dem.neighbor_skin",
+          a, g.length[a], cutoff + skin));
 
   // Wrap into the periodic box; bin.
   for (std::size_t i = 0; i < n; ++i) {
@@ -128,12 +130,26 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
                     });
   for (std::size_t i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
   neighbors_.resize(offsets_[n]);
+  wrap_begin_.resize(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t i = r.begin(); i != r.end(); ++i) {
                         std::uint32_t k = offsets_[i];
                         visit_row(i, [&](std::uint32_t j) { neighbors_[k++] = j; });
-                        std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + k);
+                        // Non-crossing pairs first, each part in index order.
+                        auto crosses = [&](std::uint32_t j) {
+                          const double d[3] = {p.x[j] - p.x[i], p.y[j] - p.y[i], p.z[j] - p.z[i]};
+                          bool c = false;
+                          for (int a = 0; a < 3; ++a)
+                            c = c || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
+                          return c;
+                        };
+                        const auto first = neighbors_.begin() + offsets_[i];
+                        const auto last = neighbors_.begin() + k;
+                        std::sort(first, last);
+                        const auto mid = std::stable_partition(
+                            first, last, [&](std::uint32_t j) { return !crosses(j); });
+                        wrap_begin_[i] = static_cast<std::uint32_t>(mid - neighbors_.begin());
                       }
                     });
   active_.clear();

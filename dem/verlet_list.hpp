@@ -24,6 +24,10 @@ public:
   // Permutation applied to the store by the last build: new index k = old index order()[k].
   std::span<const std::uint32_t> order() const { return order_; }
   std::span<const std::uint32_t> offsets() const { return offsets_; }
+  // Each row lists first the pairs that do not cross a periodic face (their raw separation is
+  // already the minimum image for the list's lifetime), then, from wrap_begin()[i], those that do.
+  // The hot loop applies the periodic image only to the second part.
+  std::span<const std::uint32_t> wrap_begin() const { return wrap_begin_; }
   std::span<const std::uint32_t> neighbors() const { return neighbors_; }
   // Reference positions of the last build (for the displacement test).
   std::span<const double> x_ref() const { return xr_; }
@@ -35,7 +39,7 @@ public:
   std::size_t pair_count() const { return neighbors_.size() / 2; }
 
 private:
-  std::vector<std::uint32_t> order_, offsets_, active_, neighbors_, cell_start_, cell_of_;
+  std::vector<std::uint32_t> order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_;
   std::vector<double> xr_, yr_, zr_;
   double skin_ = 0.0;
 };

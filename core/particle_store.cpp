@@ -5,10 +5,13 @@
 namespace cfddem {
 
 namespace {
-template <class T> void permute_field(std::vector<T>& v, std::span<const std::uint32_t> order) {
-  std::vector<T> out(order.size());
-  for (std::size_t k = 0; k < order.size(); ++k) out[k] = v[order[k]];
-  v.swap(out);
+// Gather into `scratch`, then swap: the old array becomes the scratch of the next field, so a
+// whole permutation allocates nothing once the store has been permuted before.
+template <class T>
+void permute_field(std::vector<T>& v, std::span<const std::uint32_t> order, std::vector<T>& scratch) {
+  scratch.resize(order.size());
+  for (std::size_t k = 0; k < order.size(); ++k) scratch[k] = v[order[k]];
+  v.swap(scratch);
 }
 } // namespace
 
@@ -47,10 +50,10 @@ std::size_t ParticleStore::add(double px, double py, double pz, double pvx, doub
 
 void ParticleStore::permute(std::span<const std::uint32_t> order) {
   for (auto* v : {&x, &y, &z, &vx, &vy, &vz, &fx, &fy, &fz, &radius, &mass, &inv_mass})
-    permute_field(*v, order);
-  permute_field(id, order);
+    permute_field(*v, order, scratch_);
+  permute_field(id, order, scratch_id_);
   if (rotation)
-    for (auto* v : {&wx, &wy, &wz, &tx, &ty, &tz, &inv_inertia}) permute_field(*v, order);
+    for (auto* v : {&wx, &wy, &wz, &tx, &ty, &tz, &inv_inertia}) permute_field(*v, order, scratch_);
 }
 
 double ParticleStore::total_mass() const {

@@ -32,6 +32,10 @@ struct ParticleStore {
   // Reorder every field so that new index k holds old index order[k].
   void permute(std::span<const std::uint32_t> order);
   double total_mass() const;
+
+private:
+  std::vector<double> scratch_;         // permute() reuses these: no allocation per neighbor build
+  std::vector<std::int64_t> scratch_id_;
 };
 
 } // namespace cfddem

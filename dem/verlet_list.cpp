@@ -89,8 +89,8 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
   order_.resize(n);
   {
-    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
-    for (std::size_t i = 0; i < n; ++i) order_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+    fill_.assign(cell_start_.begin(), cell_start_.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) order_[fill_[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
   }
   p.permute(order_);
 

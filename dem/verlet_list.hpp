@@ -39,7 +39,7 @@ public:
   std::size_t pair_count() const { return neighbors_.size() / 2; }
 
 private:
-  std::vector<std::uint32_t> order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_;
+  std::vector<std::uint32_t> order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
   std::vector<double> xr_, yr_, zr_;
   double skin_ = 0.0;
 };

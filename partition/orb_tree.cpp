@@ -1,6 +1,7 @@
 // ORB build: level by level over one work array of point copies (x, y, z, index), so the whole
 // build allocates O(N + 2^L) once and costs O(N L) expected (nth_element per node).
 #include "partition/orb_tree.hpp"
+#include "partition/orb_cut_rules.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -10,6 +11,9 @@
 
 namespace cfddem::partition {
 namespace {
+
+using detail::FaceRange;
+using detail::MedianStats;
 
 constexpr int kMaxLevels = 24;
 
@@ -41,49 +45,6 @@ struct NodeWork {
   std::uint32_t begin;
   std::uint32_t end;
 };
-
-// Faces origin + k*spacing strictly inside (lo, hi): [kmin, kmax], empty when kmin > kmax.
-struct FaceRange {
-  std::int64_t kmin;
-  std::int64_t kmax;
-  [[nodiscard]] bool empty() const { return kmin > kmax; }
-};
-
-FaceRange interior_faces(const Grid& g, int axis, double lo, double hi) {
-  const double s = g.spacing[axis];
-  // floor/ceil give a first guess; the loops fix rounding so the test is on the face value
-  // itself, which is what the cut will be.
-  auto kmin = static_cast<std::int64_t>(std::floor((lo - g.origin[axis]) / s));
-  while (g.face(axis, kmin) <= lo) {
-    ++kmin;
-  }
-  while (g.face(axis, kmin - 1) > lo) {
-    --kmin;
-  }
-  auto kmax = static_cast<std::int64_t>(std::ceil((hi - g.origin[axis]) / s));
-  while (g.face(axis, kmax) >= hi) {
-    --kmax;
-  }
-  while (g.face(axis, kmax + 1) < hi) {
-    ++kmax;
-  }
-  return {kmin, kmax};
-}
-
-// Interior face nearest to `target`, ties to the lower one.
-std::int64_t nearest_face(const Grid& g, int axis, FaceRange r, double target) {
-  auto k = static_cast<std::int64_t>(std::floor((target - g.origin[axis]) / g.spacing[axis]));
-  k = std::clamp(k, r.kmin, r.kmax);
-  const std::int64_t k1 = std::min(k + 1, r.kmax);
-  return std::abs(g.face(axis, k1) - target) < std::abs(g.face(axis, k) - target) ? k1 : k;
-}
-
-// A position strictly above `below` and at most `hi`, halfway when the doubles allow: used when
-// the natural cut (a point's coordinate) would leave a zero-width box.
-double gap_midpoint(double below, double hi) {
-  const double m = below + 0.5 * (hi - below);
-  return m > below ? m : hi;
-}
 
 // Position k in [b, e) of the weighted median in key order: weight before k < W/2 <= weight up
 // to and including k. Afterwards items[b, k) < items[k] <= items(k, e) in key order.
@@ -137,30 +98,18 @@ Split split_node(std::span<Keyed> items, const NodeWork& node, const PointSet& p
   const std::uint32_t b = node.begin;
   const std::uint32_t e = node.end;
 
-  int axis = box.longest_axis();
   FaceRange faces{0, -1};
-  if (snap) {
-    // Longest axis among those still at least two cells wide (ties to the lowest axis).
-    int best = -1;
-    for (int a = 0; a < 3; ++a) {
-      const FaceRange r = interior_faces(*snap, a, box.lo[a], box.hi[a]);
-      if (!r.empty() && (best < 0 || box.extent(a) > box.extent(best))) {
-        best = a;
-        faces = r;
-      }
-    }
-    if (best < 0) {
-      // No face to cut on: an empty lower sibling of zero width, every point goes up.
-      return {{axis, box.lo[axis]}, b};
-    }
-    axis = best;
+  int axis = detail::cut_axis(box, snap, faces);
+  if (axis < 0) {
+    // No face to cut on: an empty lower sibling of zero width, every point goes up.
+    axis = box.longest_axis();
+    return {{axis, box.lo[axis]}, b};
   }
-
   double position = 0.0;
   const double mid_box = box.lo[axis] + 0.5 * box.extent(axis);
   if (b == e) {
     // No points: halve the space so later particles find sensible boxes.
-    position = snap ? snap->face(axis, nearest_face(*snap, axis, faces, mid_box)) : mid_box;
+    position = snap ? snap->face(axis, detail::nearest_face(*snap, axis, faces, mid_box)) : mid_box;
   } else {
     double total = 0.0;
     if (!pts.weights.empty()) {
@@ -180,40 +129,25 @@ Split split_node(std::span<Keyed> items, const NodeWork& node, const PointSet& p
     const double cm = items[km].p[axis];
 
     if (!snap) {
-      // Two cuts bracket the median point: at it (it goes up) or just past it (it and its
-      // ties go down, the cut at the next larger coordinate). The one closer to W/2 keeps
-      // |lower - upper| <= the median point's weight.
-      double w_less = 0.0;
-      double w_eq = 0.0;
-      double prev = -std::numeric_limits<double>::infinity();
-      double next = std::numeric_limits<double>::infinity();
+      MedianStats st;
+      st.cm = cm;
+      st.half = half;
       for (std::uint32_t k = b; k < e; ++k) {
         const double c = items[k].p[axis];
         if (c < cm) {
-          w_less += weight(k);
-          prev = std::max(prev, c);
+          st.w_less += weight(k);
+          st.prev = std::max(st.prev, c);
         } else if (c == cm) {
-          w_eq += weight(k);
+          st.w_eq += weight(k);
         } else {
-          next = std::min(next, c);
+          st.next = std::min(st.next, c);
         }
       }
-      const double hi = box.hi[axis];
-      // A cut on the hi face would leave a zero-width upper box holding the hi-face points.
-      const double at_median = cm < hi ? cm : gap_midpoint(std::max(prev, box.lo[axis]), hi);
-      position = at_median;
-      if (cm < hi) {
-        const double past_median = std::isfinite(next) ? next : gap_midpoint(cm, hi);
-        if (std::abs(w_less + w_eq - half) < std::abs(w_less - half)) {
-          position = past_median;
-        }
-      }
+      position = detail::free_cut(st, box.lo[axis], box.hi[axis]);
     } else {
-      // The two interior faces around the median; keep the better balanced, ties to the nearer.
-      auto k0 =
-          static_cast<std::int64_t>(std::floor((cm - snap->origin[axis]) / snap->spacing[axis]));
-      k0 = std::clamp(k0, faces.kmin, faces.kmax);
-      const std::int64_t k1 = std::min(k0 + 1, faces.kmax);
+      std::int64_t k0 = 0;
+      std::int64_t k1 = 0;
+      detail::faces_around(*snap, axis, faces, cm, k0, k1);
       const double f0 = snap->face(axis, k0);
       const double f1 = snap->face(axis, k1);
       double w0 = 0.0;
@@ -227,10 +161,7 @@ Split split_node(std::span<Keyed> items, const NodeWork& node, const PointSet& p
           w1 += weight(k);
         }
       }
-      const double d0 = std::abs(w0 - half);
-      const double d1 = std::abs(w1 - half);
-      const bool take1 = d1 < d0 || (d1 == d0 && std::abs(f1 - cm) < std::abs(f0 - cm));
-      position = take1 ? f1 : f0;
+      position = detail::snapped_cut(f0, f1, w0, w1, half, cm);
     }
   }
 
@@ -363,6 +294,54 @@ OrbTree OrbTree::build(std::span<const double> x, std::span<const double> y,
     const std::uint32_t leaf = leaf_of[i];
     tree.order_[cursor[leaf]++] = i;
     tree.leaves_[leaf].weight += pts.weight(i);
+  }
+  return tree;
+}
+
+OrbTree OrbTree::from_cuts(std::span<const double> x, std::span<const double> y,
+                           std::span<const double> z, const Aabb& domain, int levels,
+                           std::vector<OrbCut> cuts) {
+  if (levels < 0 || levels > kMaxLevels || cuts.size() != (std::size_t{1} << levels) - 1) {
+    throw std::invalid_argument("OrbTree::from_cuts: need 2^levels - 1 cuts");
+  }
+  OrbTree tree;
+  tree.levels_ = levels;
+  tree.domain_ = domain;
+  tree.cuts_ = std::move(cuts);
+  const std::size_t n_leaves = std::size_t{1} << levels;
+  // Leaf boxes: walk the heap, narrowing the box at each cut.
+  std::vector<Aabb> boxes(2 * n_leaves - 1);
+  boxes[0] = domain;
+  for (std::size_t node = 0; node + 1 < n_leaves; ++node) {
+    const OrbCut& cut = tree.cuts_[node];
+    boxes[2 * node + 1] = boxes[node];
+    boxes[2 * node + 1].hi[cut.axis] = cut.position;
+    boxes[2 * node + 2] = boxes[node];
+    boxes[2 * node + 2].lo[cut.axis] = cut.position;
+  }
+  const std::size_t n = x.size();
+  std::vector<std::uint32_t> leaf_of(n);
+  std::vector<std::uint32_t> count(n_leaves + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const int leaf = tree.locate(x[i], y[i], z[i]);
+    if (leaf < 0) {
+      throw std::invalid_argument("OrbTree::from_cuts: point " + std::to_string(i) +
+                                  " lies outside the domain");
+    }
+    leaf_of[i] = static_cast<std::uint32_t>(leaf);
+    ++count[static_cast<std::size_t>(leaf) + 1];
+  }
+  for (std::size_t j = 0; j < n_leaves; ++j) {
+    count[j + 1] += count[j];
+  }
+  tree.leaves_.resize(n_leaves);
+  for (std::size_t j = 0; j < n_leaves; ++j) {
+    tree.leaves_[j] = {boxes[n_leaves - 1 + j], count[j], count[j + 1], static_cast<int>(j),
+                       static_cast<double>(count[j + 1] - count[j])};
+  }
+  tree.order_.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    tree.order_[count[leaf_of[i]]++] = static_cast<std::uint32_t>(i);
   }
   return tree;
 }

@@ -68,6 +68,13 @@ public:
                        std::span<const double> z, std::span<const double> weights,
                        const Aabb& domain, const OrbOptions& options);
 
+  // The tree of given cuts (heap order, as cuts() returns them) over a local point set: what
+  // each rank builds from the cuts the parallel ORB agreed on (parallel_orb.hpp). Leaves own
+  // the local points that locate() puts in them, listed by increasing local index.
+  static OrbTree from_cuts(std::span<const double> x, std::span<const double> y,
+                           std::span<const double> z, const Aabb& domain, int levels,
+                           std::vector<OrbCut> cuts);
+
   [[nodiscard]] int levels() const { return levels_; }
   [[nodiscard]] const Aabb& domain() const { return domain_; }
   // Internal nodes in heap order: node n has children 2n+1 (lower) and 2n+2 (upper);

@@ -1,0 +1,109 @@
+// The parallel ORB gives every rank the serial tree of the union of all ranks' points (run under
+// mpirun with 1, 2 and 3 ranks by ctest).
+#include <cstring>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <mpi.h>
+
+#include "partition/parallel_orb.hpp"
+
+using namespace cfddem::partition;
+
+namespace {
+
+int rank() {
+  int r = 0;
+  MPI_Comm_rank(MPI_COMM_WORLD, &r);
+  return r;
+}
+int ranks() {
+  int r = 1;
+  MPI_Comm_size(MPI_COMM_WORLD, &r);
+  return r;
+}
+
+struct Points {
+  std::vector<double> x, y, z, w;
+};
+
+// The same global set on every rank (same seed); `clustered` puts half the points on one spot.
+Points global_points(std::size_t n, unsigned seed, bool clustered, bool weighted) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  Points p;
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool c = clustered && i % 2 == 0;
+    p.x.push_back(c ? 0.25 : u(rng) * 2.0);
+    p.y.push_back(c ? 0.5 : u(rng));
+    p.z.push_back(c ? 0.125 : u(rng) * 0.5);
+    if (weighted) p.w.push_back(static_cast<double>(1 + i % 7)); // integers: exact sums
+  }
+  return p;
+}
+
+// This rank's share: points i with i % ranks == rank (interleaved, so no rank holds a region).
+Points local_share(const Points& g) {
+  Points l;
+  for (std::size_t i = 0; i < g.x.size(); ++i) {
+    if (static_cast<int>(i % ranks()) != rank()) continue;
+    l.x.push_back(g.x[i]), l.y.push_back(g.y[i]), l.z.push_back(g.z[i]);
+    if (!g.w.empty()) l.w.push_back(g.w[i]);
+  }
+  return l;
+}
+
+void expect_same_tree(std::size_t n, unsigned seed, bool clustered, bool weighted,
+                      const OrbOptions& opt) {
+  const Aabb domain{{0.0, 0.0, 0.0}, {2.0, 1.0, 0.5}};
+  const Points g = global_points(n, seed, clustered, weighted);
+  const Points l = local_share(g);
+  const OrbTree serial = OrbTree::build(g.x, g.y, g.z, g.w, domain, opt);
+  const auto cuts = parallel_orb_cuts(MPI_COMM_WORLD, l.x, l.y, l.z, l.w, domain, opt);
+  ASSERT_EQ(cuts.size(), serial.cuts().size());
+  for (std::size_t k = 0; k < cuts.size(); ++k) {
+    EXPECT_EQ(cuts[k].axis, serial.cuts()[k].axis) << "cut " << k;
+    EXPECT_EQ(std::memcmp(&cuts[k].position, &serial.cuts()[k].position, sizeof(double)), 0)
+        << "cut " << k << ": " << cuts[k].position << " vs " << serial.cuts()[k].position;
+  }
+  // Every rank's points land in the leaf the serial tree gives them.
+  const OrbTree local = OrbTree::from_cuts(l.x, l.y, l.z, domain, opt.levels, cuts);
+  std::vector<double> counts(local.leaves().size());
+  for (std::size_t j = 0; j < counts.size(); ++j) counts[j] = local.leaves()[j].size();
+  MPI_Allreduce(MPI_IN_PLACE, counts.data(), static_cast<int>(counts.size()), MPI_DOUBLE, MPI_SUM,
+                MPI_COMM_WORLD);
+  for (std::size_t j = 0; j < counts.size(); ++j)
+    EXPECT_EQ(counts[j], serial.leaves()[j].size()) << "leaf " << j;
+}
+
+} // namespace
+
+TEST(ParallelOrb, SameCutsAsSerialUniform) { expect_same_tree(5000, 1, false, false, {6, {}}); }
+
+TEST(ParallelOrb, SameCutsAsSerialClusteredAndMoreLeavesThanPoints) {
+  expect_same_tree(4000, 2, true, false, {5, {}});
+  expect_same_tree(20, 3, false, false, {6, {}});
+  expect_same_tree(0, 4, false, false, {3, {}});
+}
+
+TEST(ParallelOrb, SameCutsAsSerialSnappedToCells) {
+  expect_same_tree(3000, 5, false, false, {5, Grid{{0.0, 0.0, 0.0}, {0.1, 0.05, 0.05}}});
+}
+
+TEST(ParallelOrb, SameCutsAsSerialWithIntegerWeights) {
+  expect_same_tree(3000, 6, false, true, {4, {}});
+}
+
+int main(int argc, char** argv) {
+  MPI_Init(&argc, &argv);
+  ::testing::InitGoogleTest(&argc, argv);
+  // Only rank 0 prints; every rank runs every test (the calls are collective).
+  if (rank() != 0) {
+    auto& listeners = ::testing::UnitTest::GetInstance()->listeners();
+    delete listeners.Release(listeners.default_result_printer());
+  }
+  int failed = RUN_ALL_TESTS();
+  MPI_Allreduce(MPI_IN_PLACE, &failed, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  MPI_Finalize();
+  return failed;
+}

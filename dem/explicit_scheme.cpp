@@ -1,6 +1,7 @@
 #include "dem/explicit_scheme.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <unordered_map>
@@ -24,7 +25,7 @@ enum class Fault { none = 0, nan, overlap, speed, left_domain };
 // index) particle that failed a check. Both combine order-independently (max, min), so the
 // report does not depend on how TBB split the range.
 struct ExplicitScheme::Report {
-  double max_disp2 = 0.0;
+  std::int64_t moved = 0; // particles farther than skin/2 from where the list was built
   std::uint32_t bad = kNone;
   std::uint32_t partner = kNone;
   Fault fault = Fault::none;
@@ -33,7 +34,7 @@ struct ExplicitScheme::Report {
     if (i < bad) bad = i, fault = f, value = v, partner = j;
   }
   void join(const Report& o) {
-    max_disp2 = std::max(max_disp2, o.max_disp2);
+    moved += o.moved;
     if (o.bad < bad) bad = o.bad, fault = o.fault, value = o.value, partner = o.partner;
   }
 };
@@ -275,6 +276,38 @@ static void add_wall_forces(const DomainGeometry& g, const StepModel& m, Particl
   }
 }
 
+// Velocity Verlet update of particles [0, n) of the given arrays: v += (F/m) dt + g dt,
+// x += v dt. Adds 1 to `moved` if some particle is now farther than skin/2 from its build
+// position, and to `fails` if some particle moves more than r_min per step (or is NaN).
+// The two checks are AND-reductions of sign bits (+-1.0 per particle): integer reductions that
+// vectorize with no floating-point reassociation and no in-order dependency chain (a max, a
+// floating-point count, or int64 counts of double compares all vectorize badly or not at all
+// on baseline x86-64).
+static void integrate_range(double* __restrict x, double* __restrict y, double* __restrict z,
+                            double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                            const double* __restrict fx, const double* __restrict fy,
+                            const double* __restrict fz, const double* __restrict im,
+                            const double* __restrict rx, const double* __restrict ry,
+                            const double* __restrict rz, std::size_t n, double h, double gx,
+                            double gy, double gz, double skin2, double lim2, double& moved,
+                            double& fails) {
+  std::uint64_t still = ~std::uint64_t{0}, slow = ~std::uint64_t{0}; // sign bit: all fine
+  for (std::size_t i = 0; i < n; ++i) {
+    const double s = im[i] * h;
+    const double ux = vx[i] + fx[i] * s + gx;
+    const double uy = vy[i] + fy[i] * s + gy;
+    const double uz = vz[i] + fz[i] * s + gz;
+    vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    const double px = x[i] + ux * h, py = y[i] + uy * h, pz = z[i] + uz * h;
+    x[i] = px, y[i] = py, z[i] = pz;
+    const double ex = px - rx[i], ey = py - ry[i], ez = pz - rz[i];
+    still &= std::bit_cast<std::uint64_t>(ex * ex + ey * ey + ez * ez > skin2 ? 1.0 : -1.0);
+    slow &= std::bit_cast<std::uint64_t>(ux * ux + uy * uy + uz * uz <= lim2 ? -1.0 : 1.0);
+  }
+  moved += (still >> 63) ? 0.0 : 1.0;
+  fails += (slow >> 63) ? 0.0 : 1.0; // a NaN compares false: it fails too
+}
+
 // v(n+1/2) = v(n-1/2) + (F/m + g) dt, x(n+1) = x(n) + v(n+1/2) dt over every particle. Without
 // walls the loop has no branch and vectorizes; the checks are folded into reductions and the
 // offending particle is searched for only when one fails.
@@ -285,13 +318,14 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
   const StepModel m = model_;
   const double gx = m.gravity[0] * dt, gy = m.gravity[1] * dt, gz = m.gravity[2] * dt;
   const double vmax2 = dt > 0 ? (m.r_min / dt) * (m.r_min / dt) : INFINITY;
+  const double half_skin2 = 0.25 * m.skin * m.skin;
   const double* __restrict xr = list_.x_ref().data();
   const double* __restrict yr = list_.y_ref().data();
   const double* __restrict zr = list_.z_ref().data();
 
   struct Partial {
-    double max_disp2 = 0.0;
-    int failures = 0;
+    std::int64_t moved = 0; // particles now farther than skin/2 from their build position
+    std::int64_t failures = 0;
     Report walls;
   };
   auto body = [&](const tbb::blocked_range<std::size_t>& r, Partial acc) {
@@ -322,21 +356,11 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
         if constexpr (Friction) p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
       }
     }
-    double md = acc.max_disp2;
-    int fails = 0;
-    for (std::size_t i = r.begin(); i != r.end(); ++i) {
-      const double s = im[i] * dt;
-      const double ux = vx[i] + fx[i] * s + gx;
-      const double uy = vy[i] + fy[i] * s + gy;
-      const double uz = vz[i] + fz[i] * s + gz;
-      vx[i] = ux, vy[i] = uy, vz[i] = uz;
-      const double px = x[i] + ux * dt, py = y[i] + uy * dt, pz = z[i] + uz * dt;
-      x[i] = px, y[i] = py, z[i] = pz;
-      const double ex = px - xr[i], ey = py - yr[i], ez = pz - zr[i];
-      const double d2 = ex * ex + ey * ey + ez * ez;
-      md = d2 > md ? d2 : md;
-      fails += !(ux * ux + uy * uy + uz * uz <= vmax2); // NaN fails too
-    }
+    const std::size_t b = r.begin(), e = r.end();
+    double moved = 0.0, fails = 0.0;
+    integrate_range(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b, im + b,
+                    xr + b, yr + b, zr + b, e - b, dt, gx, gy, gz, half_skin2, vmax2, moved,
+                    fails);
     if constexpr (Friction) {
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
         const double s = p_.inv_inertia[i] * dt;
@@ -350,14 +374,14 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
           fails += !g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]);
       }
     }
-    acc.max_disp2 = md;
-    acc.failures += fails;
+    acc.moved += static_cast<std::int64_t>(moved);
+    acc.failures += static_cast<std::int64_t>(fails);
     return acc;
   };
   const tbb::blocked_range<std::size_t> all(0, n, 4096);
   Partial total;
   auto join = [](Partial a, const Partial& b) {
-    a.max_disp2 = std::max(a.max_disp2, b.max_disp2);
+    a.moved += b.moved;
     a.failures += b.failures;
     a.walls.join(b.walls);
     return a;
@@ -367,7 +391,7 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
   } else {
     total = tbb::parallel_reduce(all, Partial{}, body, join, tbb::static_partitioner{});
   }
-  out.max_disp2 = total.max_disp2;
+  out.moved = total.moved;
   out.join(total.walls);
   if (total.failures > 0) {
     // Rare path: name the first particle that failed, deterministically.
@@ -390,13 +414,16 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
 }
 
 void ExplicitScheme::evaluate_and_update(double dt, Report& rep) {
-  PhaseTimer::Scope t(timer_, Phase::force);
   const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
+  {
+    PhaseTimer::Scope t(timer_, Phase::force);
+    model_.friction ? contact_pass<true>(dt, rep) : contact_pass<false>(dt, rep);
+  }
+  // Wall forces are evaluated inside the update pass and timed with it.
+  PhaseTimer::Scope t(timer_, Phase::integrate);
   if (model_.friction) {
-    contact_pass<true>(dt, rep);
     walls ? update_pass<true, true>(dt, rep) : update_pass<false, true>(dt, rep);
   } else {
-    contact_pass<false>(dt, rep);
     walls ? update_pass<true, false>(dt, rep) : update_pass<false, false>(dt, rep);
   }
 }
@@ -473,10 +500,13 @@ void ExplicitScheme::step(bool record) {
     evaluate_and_update(model_.dt, rep);
   } else {
     // Split so the state at time n can be recorded between the force and the update.
-    PhaseTimer::Scope t(timer_, Phase::force);
     const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
     const bool fr = model_.friction;
-    fr ? contact_pass<true>(model_.dt, rep) : contact_pass<false>(model_.dt, rep);
+    {
+      PhaseTimer::Scope t(timer_, Phase::force);
+      fr ? contact_pass<true>(model_.dt, rep) : contact_pass<false>(model_.dt, rep);
+    }
+    PhaseTimer::Scope t(timer_, Phase::integrate);
     if (walls) {
       // Wall forces are added inside the update pass; record after a force-only wall pass would
       // double count, so record with the wall forces applied by a dt = 0 update.
@@ -493,8 +523,7 @@ void ExplicitScheme::step(bool record) {
   ++steps_;
   particle_steps_ += static_cast<std::int64_t>(p_.size());
   pair_evaluations_ += static_cast<std::int64_t>(list_.pair_count());
-  const double half_skin = 0.5 * model_.skin;
-  if (rep.max_disp2 > half_skin * half_skin) need_rebuild_ = true;
+  if (rep.moved > 0) need_rebuild_ = true;
 }
 
 } // namespace cfddem::dem

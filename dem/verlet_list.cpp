@@ -147,9 +147,27 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
                         const auto first = neighbors_.begin() + offsets_[i];
                         const auto last = neighbors_.begin() + k;
                         std::sort(first, last);
-                        const auto mid = std::stable_partition(
-                            first, last, [&](std::uint32_t j) { return !crosses(j); });
-                        wrap_begin_[i] = static_cast<std::uint32_t>(mid - neighbors_.begin());
+                        // Stable partition; few pairs cross, so a small stack buffer
+                        // avoids std::stable_partition's heap buffer in all but odd rows.
+                        const auto nc = std::count_if(first, last, crosses);
+                        auto w = last;
+                        if (nc > 0 && nc <= 64) {
+                          std::uint32_t crossing[64];
+                          std::size_t q = 0;
+                          w = first;
+                          for (auto it = first; it != last; ++it) {
+                            if (crosses(*it)) {
+                              crossing[q++] = *it;
+                            } else {
+                              *w++ = *it;
+                            }
+                          }
+                          std::copy(crossing, crossing + q, w);
+                        } else if (nc > 64) {
+                          w = std::stable_partition(first, last,
+                                                    [&](std::uint32_t j) { return !crosses(j); });
+                        }
+                        wrap_begin_[i] = static_cast<std::uint32_t>(w - neighbors_.begin());
                       }
                     });
   active_.clear();

@@ -50,6 +50,39 @@ int stencil_axis(int b, int n, bool periodic, int out[3]) {
   return m;
 }
 
+// Put a row in its canonical order: pairs that do not cross a periodic face first, then those
+// that do, each part by increasing index (so the force sum order does not depend on how cells
+// were visited). Returns the number of non-crossing pairs. Few pairs cross, so a small stack
+// buffer avoids std::stable_partition's heap buffer in all but odd rows.
+std::size_t order_row(const ParticleStore& p, const DomainGeometry& g, std::size_t i,
+                      std::uint32_t* first, std::uint32_t* last) {
+  auto crosses = [&](std::uint32_t j) {
+    const double d[3] = {p.x[j] - p.x[i], p.y[j] - p.y[i], p.z[j] - p.z[i]};
+    bool c = false;
+    for (int a = 0; a < 3; ++a) c = c || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
+    return c;
+  };
+  std::sort(first, last);
+  const auto nc = std::count_if(first, last, crosses);
+  std::uint32_t* w = last;
+  if (nc > 0 && nc <= 64) {
+    std::uint32_t crossing[64];
+    std::size_t q = 0;
+    w = first;
+    for (auto* it = first; it != last; ++it) {
+      if (crosses(*it)) {
+        crossing[q++] = *it;
+      } else {
+        *w++ = *it;
+      }
+    }
+    std::copy(crossing, crossing + q, w);
+  } else if (nc > 64) {
+    w = std::stable_partition(first, last, [&](std::uint32_t j) { return !crosses(j); });
+  }
+  return static_cast<std::size_t>(w - first);
+}
+
 } // namespace
 
 void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
@@ -118,56 +151,38 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
           }
         }
   };
-  // Rows are emitted cell by cell in stencil order; sort each row by j so the force sum order
-  // is canonical (independent of how cells were visited).
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
+  // One pass: each chunk of 256 particles writes its rows (sorted, in-box pairs first) into its
+  // own buffer, kept between builds; then the chunks are laid end to end. Chunks are fixed by
+  // index, so the list does not depend on the thread count.
+  constexpr std::size_t kChunk = 256;
+  const std::size_t chunks = (n + kChunk - 1) / kChunk;
+  if (chunk_rows_.size() < chunks) chunk_rows_.resize(chunks);
+  wrap_begin_.resize(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
                     [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t i = r.begin(); i != r.end(); ++i) {
-                        std::uint32_t cnt = 0;
-                        visit_row(i, [&](std::uint32_t) { ++cnt; });
-                        offsets_[i + 1] = cnt;
+                      for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                        std::vector<std::uint32_t>& buf = chunk_rows_[c];
+                        buf.clear();
+                        const std::size_t end = std::min(n, (c + 1) * kChunk);
+                        for (std::size_t i = c * kChunk; i < end; ++i) {
+                          const std::size_t first = buf.size();
+                          visit_row(i, [&](std::uint32_t j) { buf.push_back(j); });
+                          offsets_[i + 1] = static_cast<std::uint32_t>(buf.size() - first);
+                          // wrap_begin_ holds the row-local split until the offsets are known.
+                          wrap_begin_[i] = static_cast<std::uint32_t>(
+                              order_row(p, g, i, buf.data() + first, buf.data() + buf.size()));
+                        }
                       }
                     });
   for (std::size_t i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
   neighbors_.resize(offsets_[n]);
-  wrap_begin_.resize(n);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
                     [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t i = r.begin(); i != r.end(); ++i) {
-                        std::uint32_t k = offsets_[i];
-                        visit_row(i, [&](std::uint32_t j) { neighbors_[k++] = j; });
-                        // Non-crossing pairs first, each part in index order.
-                        auto crosses = [&](std::uint32_t j) {
-                          const double d[3] = {p.x[j] - p.x[i], p.y[j] - p.y[i], p.z[j] - p.z[i]};
-                          bool c = false;
-                          for (int a = 0; a < 3; ++a)
-                            c = c || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
-                          return c;
-                        };
-                        const auto first = neighbors_.begin() + offsets_[i];
-                        const auto last = neighbors_.begin() + k;
-                        std::sort(first, last);
-                        // Stable partition; few pairs cross, so a small stack buffer
-                        // avoids std::stable_partition's heap buffer in all but odd rows.
-                        const auto nc = std::count_if(first, last, crosses);
-                        auto w = last;
-                        if (nc > 0 && nc <= 64) {
-                          std::uint32_t crossing[64];
-                          std::size_t q = 0;
-                          w = first;
-                          for (auto it = first; it != last; ++it) {
-                            if (crosses(*it)) {
-                              crossing[q++] = *it;
-                            } else {
-                              *w++ = *it;
-                            }
-                          }
-                          std::copy(crossing, crossing + q, w);
-                        } else if (nc > 64) {
-                          w = std::stable_partition(first, last,
-                                                    [&](std::uint32_t j) { return !crosses(j); });
-                        }
-                        wrap_begin_[i] = static_cast<std::uint32_t>(w - neighbors_.begin());
+                      for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                        const std::size_t first = c * kChunk, end = std::min(n, first + kChunk);
+                        std::copy(chunk_rows_[c].begin(), chunk_rows_[c].end(),
+                                  neighbors_.begin() + offsets_[first]);
+                        for (std::size_t i = first; i < end; ++i) wrap_begin_[i] += offsets_[i];
                       }
                     });
   active_.clear();

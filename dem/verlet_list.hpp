@@ -41,6 +41,7 @@ public:
 private:
   std::vector<std::uint32_t> order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
   std::vector<double> xr_, yr_, zr_;
+  std::vector<std::vector<std::uint32_t>> chunk_rows_; // per-chunk row buffers of the build
   double skin_ = 0.0;
 };
 

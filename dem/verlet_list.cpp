@@ -142,4 +142,16 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   xr_ = p.x, yr_ = p.y, zr_ = p.z;
 }
 
+void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::uint32_t> neighbors,
+                         std::vector<double> x_ref, std::vector<double> y_ref,
+                         std::vector<double> z_ref, double skin) {
+  offsets_ = std::move(offsets), neighbors_ = std::move(neighbors);
+  xr_ = std::move(x_ref), yr_ = std::move(y_ref), zr_ = std::move(z_ref);
+  skin_ = skin;
+  order_.clear();
+  active_.clear();
+  for (std::size_t i = 0; i + 1 < offsets_.size(); ++i)
+    if (offsets_[i + 1] > offsets_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+}
+
 } // namespace cfddem::dem

@@ -16,6 +16,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
@@ -150,7 +151,12 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     SnapshotFields f;
     f.time = static_cast<double>(k) * scheme.dt();
     f.step = k;
-    f.x = x, f.y = y, f.z = z, f.vx = vx, f.vy = vy, f.vz = vz;
+    // Positions wrapped into the periodic box (the scheme wraps only at neighbor builds).
+    const dem::DomainGeometry g(scene.domain);
+    std::vector<double> wx(x.size()), wy(y.size()), wz(z.size());
+    for (std::size_t i = 0; i < x.size(); ++i)
+      wx[i] = g.wrap(x[i], 0), wy[i] = g.wrap(y[i], 1), wz[i] = g.wrap(z[i], 2);
+    f.x = wx, f.y = wy, f.z = wz, f.vx = vx, f.vy = vy, f.vz = vz;
     f.radius = particles.radius, f.mass = particles.mass, f.id = particles.id;
     f.dt = scheme.dt();
     snapshots.add(write_particle_snapshot(opt.out_dir, f));

@@ -59,7 +59,7 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   for (double r : p.radius) rmax = std::max(rmax, r);
   const double cutoff = 2.0 * rmax + skin;
   for (int a = 0; a < 3; ++a)
-    if (g.periodic[a] && g.length[a] < 2.0 * cutoff)
+    if (n > 0 && g.periodic[a] && g.length[a] < 2.0 * cutoff) // no particles: nothing to list
       throw RunError(fmt::format(
           "periodic axis {} is {:.6g} m long, shorter than twice the neighbor cutoff {:.6g} m "
           "(largest diameter + skin): enlarge the domain or reduce dem.neighbor_skin",

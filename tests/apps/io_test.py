@@ -98,6 +98,18 @@ class Snapshots(Tmp):
         self.assertAlmostEqual(float(row[0]), t_snap, delta=1e-15)
         self.assertAlmostEqual(float(row[4]), mean_speed, delta=1e-12 * mean_speed)
         self.assertFalse([x for x in os.listdir(out) if ".tmp." in x], "temporary files left")
+        # The tools a user runs on these files produce PNGs.
+        tools = os.path.join(SRC, "tools")
+        for cmd in (["render_snapshot.py", os.path.join(out, "snapshot_000006910.h5"), "-o",
+                     os.path.join(out, "s.png"), "--color", "kinetic_energy"],
+                    ["plot_diagnostics.py", os.path.join(out, "diagnostics.csv"), "-o",
+                     os.path.join(out, "d.png")]):
+            r = subprocess.run([sys.executable, os.path.join(tools, cmd[0]), *cmd[1:]],
+                               capture_output=True, text=True)
+            self.assertEqual(r.returncode, 0, r.stderr)
+        for png in ("s.png", "d.png"):
+            with open(os.path.join(out, png), "rb") as f:
+                self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
 
     def test_zero_particles_gives_empty_snapshot(self):
         out = os.path.join(self.tmp, "empty")

@@ -111,6 +111,31 @@ class Snapshots(Tmp):
             with open(os.path.join(out, png), "rb") as f:
                 self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
 
+    def test_orb_snapshots_carry_leaf_and_local_dt(self):
+        out = os.path.join(self.tmp, "orb")
+        self.run_ok(HCS, "dem.scheme=orb", "run.end_time=0.002", "output.interval=0.001",
+                    "output.snapshot_interval=0.001", "--out", out)
+        root = ET.parse(os.path.join(out, "snapshots.xmf")).getroot()
+        grids = root.findall("Domain/Grid/Grid")
+        self.assertEqual(len(grids), 3)
+        for g in grids[1:]:
+            names = [a.get("Name") for a in g.findall("Attribute")]
+            self.assertIn("leaf", names)
+            for item in g.iter("DataItem"):
+                fname, dset = item.text.strip().split(":")
+                with h5py.File(os.path.join(out, fname), "r") as f:
+                    self.assertEqual(f[dset].shape,
+                                     tuple(int(d) for d in item.get("Dimensions").split()))
+        with h5py.File(os.path.join(out, "snapshot_000000100.h5"), "r") as f:
+            p = f["particles"]
+            leaf = p["leaf"][()]
+            self.assertTrue(np.all((leaf >= 0) & (leaf < 16)))
+            self.assertEqual(len(np.unique(p["id"][()])), 1222)
+            self.assertTrue(np.all(p["local_dt"][()] > 0))
+            mean_speed = p["speed"][()].mean()
+        row = [r for r in diagnostics(out)[1:] if int(float(r[1])) == 100][0]
+        self.assertAlmostEqual(float(row[4]), mean_speed, delta=1e-12 * mean_speed)
+
     def test_zero_particles_gives_empty_snapshot(self):
         out = os.path.join(self.tmp, "empty")
         self.run_ok(HCS, "particles.file=", "particles.count=0", "particles.diameter=1e-4",

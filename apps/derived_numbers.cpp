@@ -14,7 +14,11 @@ namespace cfddem::apps {
 DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
   DerivedNumbers d;
   d.particles = p.size();
-  if (p.size() == 0) return d;
+  if (p.size() == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
+    d.dt = dem::make_step_model(s, p).dt;
+    d.steps = std::llround(s.run.end_time / d.dt);
+    return d;
+  }
   const auto model = dem::make_step_model(s, p);
   double vol = 0, dsum = 0, mmin = INFINITY;
   for (std::size_t i = 0; i < p.size(); ++i) {

@@ -24,6 +24,7 @@ struct Args {
   int threads = 0;
   std::string out;
   bool quiet = false;
+  std::string restart;
 };
 
 // Load the scene file (or the embedded HCS), apply key=value overrides, validate.
@@ -81,8 +82,13 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)
+  output.snapshot_interval   simulated seconds between HDF5 particle snapshots, indexed by
+                             snapshots.xmf for ParaView (default 0: none)
+  output.checkpoint_interval simulated seconds between checkpoints checkpoint_<step>.h5
+                             (explicit scheme; default 0: none); continue with --restart FILE
 
-Outputs (in --out, default runs/<name>): diagnostics.csv (one row per interval), run.json.
+Outputs (in --out, default runs/<name>): diagnostics.csv (one row per interval), run.json,
+snapshot_<step>.h5 + snapshots.xmf, checkpoint_<step>.h5.
 Examples:
   cfddem run                                   the built-in HCS (1222 particles, 30 ms)
   cfddem run scenes/hcs.toml dem.restitution=0.9 --threads 2
@@ -106,6 +112,9 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   run->add_option("--out", a.out, "output directory (default runs/<scene name>)");
   run->add_flag("--quiet", a.quiet, "no progress lines");
+  run->add_option("--restart", a.restart,
+                  "continue from a checkpoint file (checkpoint_<step>.h5 of the same scene; "
+                  "explicit scheme); the run ends at run.end_time");
   auto* check = app.add_subcommand("check", "validate a scene and print the resolved "
                                             "configuration and derived numbers; runs nothing");
   check->add_option("scene", a.scene, "scene file (TOML)");
@@ -132,6 +141,7 @@ int main(int argc, char** argv) {
       cfddem::apps::RunOptions opt;
       opt.out_dir = a.out.empty() ? (std::filesystem::path("runs") / scene.name).string() : a.out;
       opt.quiet = a.quiet || env.rank() != 0;
+      opt.restart = a.restart;
       const auto result = cfddem::apps::run_simulation(scene, opt, env);
       if (env.rank() == 0 && !a.quiet)
         fmt::print("cfddem: done; outputs in {}/ (diagnostics.csv, run.json)\n", result.out_dir);

@@ -3,15 +3,20 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <optional>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "apps/checkpoint.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
 #include "core/atomic_file.hpp"
+#include "core/error.hpp"
 #include "core/initial_conditions.hpp"
+#include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
@@ -66,31 +71,105 @@ std::string format_eta(double s) {
 
 RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 
+// Steps between two events at a simulated-time interval (0: never).
+long long every(double interval, double dt) {
+  return interval > 0.0 ? std::max(1LL, std::llround(interval / dt)) : 0;
+}
+
+// Read a checkpoint and check it belongs to this scene; throws ConfigError (nothing written yet).
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
+  if (scene.dem.scheme != "explicit")
+    throw ConfigError("--restart", fmt::format("restart is implemented for the explicit scheme "
+                                               "only (dem.scheme = \"{}\")",
+                                               scene.dem.scheme));
+  Checkpoint ck = read_checkpoint(path);
+  if (ck.scheme != "explicit")
+    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\"", ck.scheme));
+  if (ck.columns != kColumns)
+    throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
+  const std::string now = restart_configuration(scene);
+  if (ck.configuration != now) {
+    // Name the first key that differs.
+    std::size_t a = 0;
+    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a]) ++a;
+    const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
+    const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
+    throw ConfigError(path, fmt::format("the checkpoint was written with a different "
+                                        "configuration; first difference at '{}' (only name, "
+                                        "run.* and output.* may change at a restart)",
+                                        now.substr(line, now.find('\n', line) - line)));
+  }
+  return ck;
+}
+
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
-  if (scene.dem.scheme == "orb") return run_orb(scene, opt, env);
+  if (scene.dem.scheme == "orb" && opt.restart.empty()) return run_orb(scene, opt, env);
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
-  ParticleStore particles = make_initial_particles(scene);
+  std::optional<Checkpoint> ck;
+  if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
+  ParticleStore particles = ck ? std::move(ck->particles) : make_initial_particles(scene);
   const DerivedNumbers derived = derive(scene, particles);
   PhaseTimer timer;
   dem::ExplicitScheme scheme(scene, particles, timer);
+  if (ck && ck->dt != scheme.dt())
+    throw ConfigError(opt.restart, fmt::format("checkpoint dt {:.17g} s differs from the "
+                                               "scene's {:.17g} s", ck->dt, scheme.dt()));
+
+  const long long n_end = derived.steps;
+  const long long k0 = ck ? ck->step : 0;
+  if (ck && k0 > std::max(n_end, 0LL))
+    throw ConfigError("run.end_time", fmt::format("the checkpoint is at step {}, past the end of "
+                                                  "the run (step {})",
+                                                  k0, n_end));
 
   fs::create_directories(opt.out_dir);
   const std::string diag_path = (fs::path(opt.out_dir) / "diagnostics.csv").string();
   DiagnosticsFile diag(diag_path, kColumns);
+  std::vector<std::vector<double>> rows; // kept for checkpoints
+  auto add_row = [&](std::vector<double> r) {
+    diag.add_row(r);
+    rows.push_back(std::move(r));
+  };
+  SnapshotIndex snapshots(opt.out_dir);
   if (!opt.quiet)
     fmt::print(stderr, "cfddem: scene '{}', {} particles, dt = {:.4e} s, {} steps, {} rank(s) x {} "
-                       "thread(s)\n",
+                       "thread(s){}\n",
                scene.name, particles.size(), scheme.dt(), derived.steps, env.ranks(),
-               env.threads());
+               env.threads(),
+               ck ? fmt::format(", restarted at step {} from {}", k0, opt.restart) : "");
 
-  const long long n_end = derived.steps;
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / scheme.dt()));
-  scheme.start();
+  const long long snap_every = every(scene.output.snapshot_interval, scheme.dt());
+  const long long ckpt_every = every(scene.output.checkpoint_interval, scheme.dt());
+  auto snapshot = [&](long long k, std::span<const double> x, std::span<const double> y,
+                      std::span<const double> z, std::span<const double> vx,
+                      std::span<const double> vy, std::span<const double> vz) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    SnapshotFields f;
+    f.time = static_cast<double>(k) * scheme.dt();
+    f.step = k;
+    // Positions wrapped into the periodic box (the scheme wraps only at neighbor builds).
+    const dem::DomainGeometry g(scene.domain);
+    std::vector<double> wx(x.size()), wy(y.size()), wz(z.size());
+    for (std::size_t i = 0; i < x.size(); ++i)
+      wx[i] = g.wrap(x[i], 0), wy[i] = g.wrap(y[i], 1), wz[i] = g.wrap(z[i], 2);
+    f.x = wx, f.y = wy, f.z = wz, f.vx = vx, f.vy = vy, f.vz = vz;
+    f.radius = particles.radius, f.mass = particles.mass, f.id = particles.id;
+    f.dt = scheme.dt();
+    snapshots.add(write_particle_snapshot(opt.out_dir, f));
+  };
+  long long k_last_row = 0;
   const auto t_loop = clock::now();
-  {
+  if (ck) {
+    scheme.restore_state(std::move(ck->state));
+    for (auto& r : ck->rows) add_row(std::move(r));
+    snapshots.restore(ck->snapshots);
+    k_last_row = ck->last_row_step;
+  } else {
+    scheme.start();
     // Row at t = 0 from the initial velocities (before the half-step shift).
     PhaseTimer::Scope io(timer, Phase::io);
     std::vector<double> v0x(particles.size()), v0y(particles.size()), v0z(particles.size());
@@ -103,24 +182,46 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     }
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, v0x, v0y, v0z,
                                   particles.mass});
-    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1}));
+    add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1}));
+    if (snap_every > 0) snapshot(0, particles.x, particles.y, particles.z, v0x, v0y, v0z);
   }
 
   auto last_progress = clock::now();
-  long long k_last_row = 0;
   // The state at step K (x(K), v(K)) is known once step K+1 has evaluated the forces at K, so
   // the loop runs one step past the last row; rows every out_every steps and at the end.
-  for (long long k = 0; k <= n_end && n_end > 0; ++k) {
+  for (long long k = k0; k <= n_end && n_end > 0; ++k) {
+    if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) {
+      // The state before step k: x(k), v(k - 1/2), the list and history the step will use.
+      PhaseTimer::Scope io(timer, Phase::io);
+      diag.flush();
+      Checkpoint c;
+      c.dt = scheme.dt();
+      c.step = k;
+      c.last_row_step = k_last_row;
+      c.columns = kColumns;
+      c.rows = rows;
+      c.snapshots = snapshots.entries();
+      c.configuration = restart_configuration(scene);
+      c.particles = particles;
+      c.state = scheme.save_state();
+      write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
+                       c);
+    }
     const bool record = k > 0 && (k % out_every == 0 || k == n_end);
-    scheme.step(record);
+    const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
+    scheme.step(record || snap);
     if (record) {
       PhaseTimer::Scope io(timer, Phase::io);
       const auto s = scheme.synchronised_previous();
       const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, particles.mass});
       const auto steps = static_cast<double>(k - k_last_row);
       k_last_row = k;
-      diag.add_row(row(static_cast<double>(k) * scheme.dt(), k, st, particles.size(), scheme,
-                       seconds_since(t_loop), dem::LeafStepStats{steps, steps, steps, 1.0}));
+      add_row(row(static_cast<double>(k) * scheme.dt(), k, st, particles.size(), scheme,
+                  seconds_since(t_loop), dem::LeafStepStats{steps, steps, steps, 1.0}));
+    }
+    if (snap) {
+      const auto s = scheme.synchronised_previous();
+      snapshot(k, s.x, s.y, s.z, s.vx, s.vy, s.vz);
     }
     if (!opt.quiet && (k & 63) == 0 &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=
@@ -202,6 +303,23 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
   const double dt_sp = scheme.dt_sub();
   const long long n_end = std::max(1LL, std::llround(scene.run.end_time / dt_sp));
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt_sp));
+  const long long snap_every = every(scene.output.snapshot_interval, dt_sp);
+  SnapshotIndex snapshots(opt.out_dir);
+  const dem::DomainGeometry geom(scene.domain);
+  // Synchronised state at sub-iteration k with each particle's ORB leaf and local step.
+  auto snapshot = [&](long long k) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const auto s = scheme.synchronised_previous();
+    std::vector<double> wx(s.x.size()), wy(s.x.size()), wz(s.x.size());
+    for (std::size_t i = 0; i < s.x.size(); ++i)
+      wx[i] = geom.wrap(s.x[i], 0), wy[i] = geom.wrap(s.y[i], 1), wz[i] = geom.wrap(s.z[i], 2);
+    SnapshotFields f;
+    f.time = static_cast<double>(k) * dt_sp;
+    f.step = k;
+    f.x = wx, f.y = wy, f.z = wz, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
+    f.radius = s.radius, f.mass = s.mass, f.id = s.id, f.leaf = s.leaf, f.local_dt = s.local_dt;
+    snapshots.add(write_particle_snapshot(opt.out_dir, f));
+  };
   if (!opt.quiet)
     fmt::print(stderr, "cfddem: scene '{}', {} particles, orb scheme: {} leaves, dt_sp = {:.4e} s "
                        "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
@@ -214,12 +332,21 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
                                   particles.vy, particles.vz, particles.mass});
     diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{}));
+    if (snap_every > 0) {
+      SnapshotFields f;
+      f.x = particles.x, f.y = particles.y, f.z = particles.z, f.vx = particles.vx;
+      f.vy = particles.vy, f.vz = particles.vz, f.radius = particles.radius;
+      f.mass = particles.mass, f.id = particles.id, f.dt = scheme.dt_fine();
+      snapshots.add(write_particle_snapshot(opt.out_dir, f));
+    }
   }
   auto last_progress = clock::now();
   for (long long k = 0; k <= n_end; ++k) {
     const bool record = k > 0 && (k % out_every == 0 || k == n_end);
     const dem::LeafStepStats ls = record ? scheme.take_interval_stats() : dem::LeafStepStats{};
-    scheme.subiterate(record);
+    const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
+    scheme.subiterate(record || snap);
+    if (snap) snapshot(k);
     if (record) {
       PhaseTimer::Scope io(timer, Phase::io);
       const auto s = scheme.synchronised_previous();

@@ -12,6 +12,7 @@ namespace cfddem::apps {
 struct RunOptions {
   std::string out_dir;
   bool quiet = false;
+  std::string restart; // checkpoint file to continue from (explicit scheme); empty: a fresh run
   std::vector<std::pair<std::string, std::string>> config; // resolved keys for run.json
 };
 

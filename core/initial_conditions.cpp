@@ -187,6 +187,8 @@ ParticleStore read_particle_csv(const std::string& path) {
       if (it == wanted.end())
         throw ConfigError(path + " line 1", fmt::format("unknown column '{}' (expected {})", name,
                                                         "x,y,z,vx,vy,vz,diameter,density"));
+      if (col[it - wanted.begin()] >= 0) // a repeated column would index past each row
+        throw ConfigError(path + " line 1", fmt::format("column '{}' appears twice", name));
       col[it - wanted.begin()] = c++;
     }
     for (std::size_t k = 0; k < wanted.size(); ++k)

@@ -136,6 +136,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   require(s.output.interval > 0.0, "output.interval", "must be > 0");
   s.output.progress_seconds = c.get_double("output.progress_seconds", 2.0);
   require(s.output.progress_seconds > 0.0, "output.progress_seconds", "must be > 0");
+  s.output.snapshot_interval = non_negative(c, "output.snapshot_interval", 0.0);
+  s.output.checkpoint_interval = non_negative(c, "output.checkpoint_interval", 0.0);
 
   c.check_all_used();
   return s;
@@ -199,6 +201,8 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("run.end_time", num(s.run.end_time));
   o.emplace_back("output.interval", num(s.output.interval));
   o.emplace_back("output.progress_seconds", num(s.output.progress_seconds));
+  o.emplace_back("output.snapshot_interval", num(s.output.snapshot_interval));
+  o.emplace_back("output.checkpoint_interval", num(s.output.checkpoint_interval));
   return o;
 }
 

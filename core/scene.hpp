@@ -63,6 +63,8 @@ struct RunSpec {
 struct OutputSpec {
   double interval = 0.0;        // simulated seconds between diagnostics rows
   double progress_seconds = 2.0;// wall seconds between progress lines
+  double snapshot_interval = 0.0;   // simulated seconds between HDF5 snapshots (0: none)
+  double checkpoint_interval = 0.0; // simulated seconds between checkpoints (0: none)
 };
 
 struct Scene {

@@ -526,4 +526,42 @@ void ExplicitScheme::step(bool record) {
   if (rep.moved > 0) need_rebuild_ = true;
 }
 
+ExplicitScheme::State ExplicitScheme::save_state() const {
+  State s;
+  s.offsets.assign(list_.offsets().begin(), list_.offsets().end());
+  s.neighbors.assign(list_.neighbors().begin(), list_.neighbors().end());
+  s.x_ref.assign(list_.x_ref().begin(), list_.x_ref().end());
+  s.y_ref.assign(list_.y_ref().begin(), list_.y_ref().end());
+  s.z_ref.assign(list_.z_ref().begin(), list_.z_ref().end());
+  s.hx = hx_, s.hy = hy_, s.hz = hz_;
+  s.skin = list_.skin();
+  s.need_rebuild = need_rebuild_;
+  s.steps = steps_, s.particle_steps = particle_steps_;
+  s.pair_evaluations = pair_evaluations_, s.builds = builds_;
+  return s;
+}
+
+void ExplicitScheme::restore_state(State s) {
+  const std::size_t n = p_.size();
+  const bool listed = !s.offsets.empty();
+  if (listed && (s.offsets.size() != n + 1 || s.offsets.front() != 0 ||
+                 s.offsets.back() != s.neighbors.size() || s.x_ref.size() != n ||
+                 s.y_ref.size() != n || s.z_ref.size() != n))
+    throw RunError("checkpoint: the neighbor list does not fit the particles");
+  for (std::size_t i = 0; listed && i < n; ++i)
+    if (s.offsets[i + 1] < s.offsets[i])
+      throw RunError("checkpoint: the neighbor list offsets are not monotonic");
+  for (const std::uint32_t j : s.neighbors)
+    if (j >= n) throw RunError("checkpoint: a neighbor index is out of range");
+  if (model_.friction && (s.hx.size() != s.neighbors.size() || s.hy.size() != s.neighbors.size() ||
+                          s.hz.size() != s.neighbors.size()))
+    throw RunError("checkpoint: the tangential history does not fit the neighbor list");
+  list_.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
+                std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
+  hx_ = std::move(s.hx), hy_ = std::move(s.hy), hz_ = std::move(s.hz);
+  need_rebuild_ = s.need_rebuild || !listed;
+  steps_ = s.steps, particle_steps_ = s.particle_steps;
+  pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
+}
+
 } // namespace cfddem::dem

@@ -65,6 +65,21 @@ public:
   };
   Synchronised synchronised_previous() const { return {sx_, sy_, sz_, svx_, svy_, svz_}; }
 
+  // Checkpoint/restart: everything beyond the particle store that the next step reads (the
+  // neighbor list with its reference positions, tangential history, counters). A scheme built on
+  // a restored store and given restore_state() instead of start() continues bit for bit.
+  struct State {
+    std::vector<std::uint32_t> offsets, neighbors;
+    std::vector<double> x_ref, y_ref, z_ref;
+    std::vector<double> hx, hy, hz;
+    double skin = 0.0;
+    bool need_rebuild = true;
+    std::int64_t steps = 0, particle_steps = 0, pair_evaluations = 0, builds = 0;
+  };
+  State save_state() const;
+  // Throws RunError if the state does not fit the particle store.
+  void restore_state(State s);
+
 private:
   struct Report;
   template <bool Friction> void contact_pass(double dt, Report& report);

@@ -304,7 +304,12 @@ void OrbScheme::subiterate(bool record) {
   if (record) {
     sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n),
         svz_.resize(n);
-    smass_ = p_.mass;
+    smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
+    sleaf_.resize(n), sdt_.resize(n);
+    for (int l = 0; l < nl; ++l)
+      for (std::uint32_t i = ranges_[static_cast<std::size_t>(l)];
+           i < ranges_[static_cast<std::size_t>(l) + 1]; ++i)
+        sleaf_[i] = l;
   }
   {
     PhaseTimer::Scope t(timer_, Phase::force);
@@ -353,6 +358,10 @@ void OrbScheme::subiterate(bool record) {
                             w.fault_value)));
     }
     if (w.n_own == 0) continue;
+    if (record)
+      for (std::uint32_t i = ranges_[static_cast<std::size_t>(l)];
+           i < ranges_[static_cast<std::size_t>(l) + 1]; ++i)
+        sdt_[i] = dt_sp_ / static_cast<double>(std::max<std::int64_t>(w.steps, 1));
     ++busy;
     fine += w.fine;
     leaf_steps_[static_cast<std::size_t>(l)] += w.steps;

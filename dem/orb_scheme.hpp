@@ -78,10 +78,16 @@ public:
   // Statistics since the last call (then reset).
   LeafStepStats take_interval_stats();
 
+  // With the identity, radius, ORB leaf and local step (dt_sp / the leaf's step count) of each
+  // recorded particle, in the same order (snapshots).
   struct Synchronised {
     std::span<const double> x, y, z, vx, vy, vz, mass;
+    std::span<const std::int64_t> id, leaf;
+    std::span<const double> radius, local_dt;
   };
-  Synchronised synchronised_previous() const { return {sx_, sy_, sz_, svx_, svy_, svz_, smass_}; }
+  Synchronised synchronised_previous() const {
+    return {sx_, sy_, sz_, svx_, svy_, svz_, smass_, sid_, sleaf_, sradius_, sdt_};
+  }
 
 private:
   struct Workspace;
@@ -101,7 +107,8 @@ private:
   std::vector<double> hprev_;         // per particle: half of its last step
   std::vector<std::uint32_t> ranges_; // leaf l owns [ranges_[l], ranges_[l+1])
   std::vector<Workspace> work_;
-  std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_;
+  std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
+  std::vector<std::int64_t> sid_, sleaf_;
   std::vector<std::int64_t> leaf_steps_; // per leaf, this interval
   std::int64_t fine_count_ = 0, leaf_subits_ = 0;
   double last_fine_fraction_ = 0.0, max_overlap_ratio_ = 0.0;

@@ -94,7 +94,7 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   for (int a = 0; a < 3; ++a)
     // Raw separations of non-crossing pairs stay below L/2 while particles move less than
     // skin/2 each: needs L > 2 (cutoff + skin).
-    if (g.periodic[a] && g.length[a] <= 2.0 * (cutoff + skin))
+    if (n > 0 && g.periodic[a] && g.length[a] <= 2.0 * (cutoff + skin)) // none: nothing to list
       throw RunError(fmt::format(
           "periodic axis {} is {:.6g} m long, not more than twice the neighbor cutoff plus skin "
           "{:.6g} m (largest diameter + 2 skins): enlarge the domain or reduce dem.neighbor_skin",
@@ -189,6 +189,32 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   for (std::size_t i = 0; i < n; ++i)
     if (offsets_[i + 1] > offsets_[i]) active_.push_back(static_cast<std::uint32_t>(i));
   xr_ = p.x, yr_ = p.y, zr_ = p.z;
+}
+
+void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::uint32_t> neighbors,
+                         std::vector<double> x_ref, std::vector<double> y_ref,
+                         std::vector<double> z_ref, double skin, const DomainGeometry& g) {
+  offsets_ = std::move(offsets), neighbors_ = std::move(neighbors);
+  xr_ = std::move(x_ref), yr_ = std::move(y_ref), zr_ = std::move(z_ref);
+  skin_ = skin;
+  order_.clear();
+  active_.clear();
+  const std::size_t n = offsets_.empty() ? 0 : offsets_.size() - 1;
+  wrap_begin_.assign(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (offsets_[i + 1] > offsets_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+    // The build put the pairs that cross a periodic face last, judged at the build positions
+    // (the reference positions): find where they start.
+    std::uint32_t k = offsets_[i];
+    for (; k < offsets_[i + 1]; ++k) {
+      const std::uint32_t j = neighbors_[k];
+      const double d[3] = {xr_[j] - xr_[i], yr_[j] - yr_[i], zr_[j] - zr_[i]};
+      bool crosses = false;
+      for (int a = 0; a < 3; ++a) crosses = crosses || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
+      if (crosses) break;
+    }
+    wrap_begin_[i] = k;
+  }
 }
 
 } // namespace cfddem::dem

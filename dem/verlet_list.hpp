@@ -36,6 +36,11 @@ public:
   // Particles with a non-empty row (the only ones that can have a contact until the next build).
   std::span<const std::uint32_t> active() const { return active_; }
   double skin() const { return skin_; }
+  // Restart: reinstate a list saved from offsets()/neighbors()/x_ref()... exactly (the rows keep
+  // their order, so forces sum in the same order as in the run that saved them).
+  void restore(std::vector<std::uint32_t> offsets, std::vector<std::uint32_t> neighbors,
+               std::vector<double> x_ref, std::vector<double> y_ref, std::vector<double> z_ref,
+               double skin, const DomainGeometry& g);
   std::size_t pair_count() const { return neighbors_.size() / 2; }
 
 private:

@@ -1,6 +1,7 @@
 // The `cfddem` program as a user meets it: bad input gives a message naming the key or file and
 // exit code 2 with nothing written; a run writes diagnostics.csv and run.json; the thread count
 // does not change a single digit of the diagnostics.
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -124,4 +125,34 @@ TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
   for (const char* k : {"\"loop_seconds\"", "\"particle_steps\"", "\"force_evaluations\"",
                         "\"threads\": 1", "\"ranks\": 1", "\"configuration\"", "\"version\""})
     EXPECT_NE(json.find(k), std::string::npos) << k;
+}
+
+// An impact faster than a radius per step would tunnel: the run stops with exit code 3 and a
+// message naming the particle, the time and the cause.
+TEST(Cli, ParticleFasterThanARadiusPerStepStopsWithCode3) {
+  const fs::path out = fs::path(::testing::TempDir()) / "too_fast";
+  fs::remove_all(out);
+  const Result r = cfddem(fmt::format(
+      "run {} particles.file= particles.count=20 particles.diameter=1e-4 particles.density=1000 "
+      "'particles.velocity=[500, 0, 0]' run.end_time=1e-4 --quiet --out {}",
+      kScene, out.string()));
+  EXPECT_EQ(r.code, 3) << r.output;
+  EXPECT_NE(r.output.find("tunnelling"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("particle "), std::string::npos) << r.output;
+}
+
+// No particle, and a single particle: both run to the end and write their outputs.
+TEST(Cli, ZeroAndOneParticleRuns) {
+  for (int n : {0, 1}) {
+    const fs::path out = fs::path(::testing::TempDir()) / fmt::format("n{}", n);
+    fs::remove_all(out);
+    const Result r = cfddem(fmt::format(
+        "run {} particles.file= particles.count={} particles.diameter=1e-4 "
+        "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
+        "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
+        kScene, n, out.string()));
+    EXPECT_EQ(r.code, 0) << r.output;
+    const std::string csv = read(out / "diagnostics.csv");
+    EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 101) << csv;
+  }
 }

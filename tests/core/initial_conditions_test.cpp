@@ -107,6 +107,10 @@ TEST(InitialConditions, CsvErrorsNameFileAndLine) {
   EXPECT_NE(message("x,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,-1,1\n").find("must be > 0"),
             std::string::npos);
   EXPECT_THROW(read_particle_csv("/nonexistent/file.csv"), ConfigError);
+  // Found by fuzz/fuzz_particle_csv: a repeated column made each row read past its values.
+  EXPECT_NE(message("x,y,z,vx,vy,vz,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,7,8\n")
+                .find("column 'y' appears twice"),
+            std::string::npos);
 }
 
 TEST(InitialConditions, OverlapNamesThePair) {

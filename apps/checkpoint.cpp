@@ -1,0 +1,239 @@
+#include "apps/checkpoint.hpp"
+
+#include <cstdio>
+#include <cstring>
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include "core/error.hpp"
+#include "core/hdf5_file.hpp"
+
+namespace cfddem::apps {
+
+namespace {
+
+constexpr std::int64_t kFormat = 1;
+
+// FNV-1a over the bytes of every array, in the order written (and read).
+struct Hash {
+  std::uint64_t h = 1469598103934665603ULL;
+  template <class T> void add(const std::vector<T>& v) {
+    const auto* b = reinterpret_cast<const unsigned char*>(v.data());
+    for (std::size_t i = 0; i < v.size() * sizeof(T); ++i) h = (h ^ b[i]) * 1099511628211ULL;
+    const std::uint64_t n = v.size();
+    for (int k = 0; k < 8; ++k) h = (h ^ ((n >> (8 * k)) & 0xff)) * 1099511628211ULL;
+  }
+};
+
+struct Writer {
+  h5::File& f;
+  Hash hash;
+  template <class T> void put(const std::string& name, const std::vector<T>& v) {
+    hash.add(v);
+    f.write(name, std::span<const T>(v), {static_cast<hsize_t>(v.size())});
+  }
+};
+
+struct Reader {
+  const h5::File& f;
+  Hash hash;
+  std::vector<double> doubles(const std::string& name, std::size_t n) {
+    auto a = f.read_double(name);
+    check(name, a.shape, n);
+    hash.add(a.values);
+    return std::move(a.values);
+  }
+  std::vector<std::int64_t> int64s(const std::string& name, std::size_t n) {
+    auto a = f.read_int64(name);
+    check(name, a.shape, n);
+    hash.add(a.values);
+    return std::move(a.values);
+  }
+  std::vector<std::uint32_t> uint32s(const std::string& name, std::size_t n) {
+    auto a = f.read_uint32(name);
+    check(name, a.shape, n);
+    hash.add(a.values);
+    return std::move(a.values);
+  }
+  void check(const std::string& name, const std::vector<hsize_t>& shape, std::size_t n) {
+    if (shape.size() != 1 || (n != kAny && shape[0] != n))
+      throw RunError(fmt::format("dataset '{}' has the wrong shape", name));
+  }
+  static constexpr std::size_t kAny = static_cast<std::size_t>(-1);
+};
+
+std::vector<double> flatten_rows(const std::vector<std::vector<double>>& rows) {
+  std::vector<double> v;
+  for (const auto& r : rows) v.insert(v.end(), r.begin(), r.end());
+  return v;
+}
+
+std::string join(const std::vector<std::string>& v) {
+  std::string s;
+  for (std::size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + v[i];
+  return s;
+}
+
+} // namespace
+
+std::string restart_configuration(const Scene& scene) {
+  std::string s;
+  for (const auto& [k, v] : describe_scene(scene)) {
+    if (k == "name" || k.rfind("run.", 0) == 0 || k.rfind("output.", 0) == 0) continue;
+    s += k + " = " + v + "\n";
+  }
+  return s;
+}
+
+void write_checkpoint(const std::string& path, const Checkpoint& c) {
+  const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
+  const ParticleStore& p = c.particles;
+  try {
+    h5::File f = h5::File::create(tmp);
+    Writer w{f, {}};
+    f.attribute("format", kFormat);
+    f.attribute("program", std::string("cfddem checkpoint"));
+    f.attribute("scheme", c.scheme);
+    f.attribute("dt", c.dt);
+    f.attribute("step", c.step);
+    f.attribute("last_row_step", c.last_row_step);
+    f.attribute("configuration", c.configuration);
+    f.attribute("columns", join(c.columns));
+    f.attribute("particles", static_cast<std::int64_t>(p.size()));
+    f.attribute("rotation", static_cast<std::int64_t>(p.rotation));
+    f.attribute("rows", static_cast<std::int64_t>(c.rows.size()));
+    f.create_group("/particles");
+    for (const auto& [name, v] :
+         {std::pair{"x", &p.x}, {"y", &p.y}, {"z", &p.z}, {"vx_half", &p.vx},
+          {"vy_half", &p.vy}, {"vz_half", &p.vz}, {"fx", &p.fx}, {"fy", &p.fy}, {"fz", &p.fz},
+          {"radius", &p.radius}, {"mass", &p.mass}, {"inv_mass", &p.inv_mass}})
+      w.put(std::string("/particles/") + name, *v);
+    w.put("/particles/id", p.id);
+    if (p.rotation)
+      for (const auto& [name, v] :
+           {std::pair{"wx_half", &p.wx}, {"wy_half", &p.wy}, {"wz_half", &p.wz},
+            {"tx", &p.tx}, {"ty", &p.ty}, {"tz", &p.tz}, {"inv_inertia", &p.inv_inertia}})
+        w.put(std::string("/particles/") + name, *v);
+    const auto& s = c.state;
+    f.create_group("/neighbor_list");
+    w.put("/neighbor_list/offsets", s.offsets);
+    w.put("/neighbor_list/neighbors", s.neighbors);
+    w.put("/neighbor_list/x_ref", s.x_ref);
+    w.put("/neighbor_list/y_ref", s.y_ref);
+    w.put("/neighbor_list/z_ref", s.z_ref);
+    w.put("/neighbor_list/history_x", s.hx);
+    w.put("/neighbor_list/history_y", s.hy);
+    w.put("/neighbor_list/history_z", s.hz);
+    f.attribute("skin", s.skin);
+    f.attribute("need_rebuild", static_cast<std::int64_t>(s.need_rebuild));
+    f.attribute("steps_taken", s.steps);
+    f.attribute("particle_steps", s.particle_steps);
+    f.attribute("pair_evaluations", s.pair_evaluations);
+    f.attribute("neighbor_builds", s.builds);
+    w.put("/diagnostics_rows", flatten_rows(c.rows));
+    std::vector<std::int64_t> ss, sn, sl;
+    std::vector<double> st;
+    for (const auto& e : c.snapshots)
+      ss.push_back(e.step), st.push_back(e.time), sn.push_back(e.particles),
+          sl.push_back(e.leaf ? 1 : 0);
+    f.create_group("/snapshots");
+    w.put("/snapshots/step", ss);
+    w.put("/snapshots/time", st);
+    w.put("/snapshots/particles", sn);
+    w.put("/snapshots/leaf", sl);
+    f.attribute("checksum", static_cast<std::int64_t>(w.hash.h));
+    f.close();
+  } catch (...) {
+    std::remove(tmp.c_str());
+    throw;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw RunError(fmt::format("cannot rename '{}' to '{}'", tmp, path));
+  }
+}
+
+Checkpoint read_checkpoint(const std::string& path) {
+  try {
+    const h5::File f = h5::File::open_read(path);
+    Checkpoint c;
+    if (f.read_attribute_int64("format") != kFormat)
+      throw RunError("unknown checkpoint format version");
+    Reader r{f, {}};
+    c.scheme = f.read_attribute_string("scheme");
+    c.dt = f.read_attribute_double("dt");
+    c.step = f.read_attribute_int64("step");
+    c.last_row_step = f.read_attribute_int64("last_row_step");
+    c.configuration = f.read_attribute_string("configuration");
+    const std::string cols = f.read_attribute_string("columns");
+    for (std::size_t a = 0; a <= cols.size();) {
+      const std::size_t b = std::min(cols.find(',', a), cols.size());
+      c.columns.push_back(cols.substr(a, b - a));
+      a = b + 1;
+    }
+    const std::int64_t n64 = f.read_attribute_int64("particles");
+    const std::int64_t nrows = f.read_attribute_int64("rows");
+    if (n64 < 0 || nrows < 0 || c.step < 0) throw RunError("negative counts");
+    const auto n = static_cast<std::size_t>(n64);
+    ParticleStore& p = c.particles;
+    p.x = r.doubles("/particles/x", n);
+    p.y = r.doubles("/particles/y", n);
+    p.z = r.doubles("/particles/z", n);
+    p.vx = r.doubles("/particles/vx_half", n);
+    p.vy = r.doubles("/particles/vy_half", n);
+    p.vz = r.doubles("/particles/vz_half", n);
+    p.fx = r.doubles("/particles/fx", n);
+    p.fy = r.doubles("/particles/fy", n);
+    p.fz = r.doubles("/particles/fz", n);
+    p.radius = r.doubles("/particles/radius", n);
+    p.mass = r.doubles("/particles/mass", n);
+    p.inv_mass = r.doubles("/particles/inv_mass", n);
+    p.id = r.int64s("/particles/id", n);
+    p.rotation = f.read_attribute_int64("rotation") != 0;
+    if (p.rotation) {
+      p.wx = r.doubles("/particles/wx_half", n);
+      p.wy = r.doubles("/particles/wy_half", n);
+      p.wz = r.doubles("/particles/wz_half", n);
+      p.tx = r.doubles("/particles/tx", n);
+      p.ty = r.doubles("/particles/ty", n);
+      p.tz = r.doubles("/particles/tz", n);
+      p.inv_inertia = r.doubles("/particles/inv_inertia", n);
+    }
+    auto& s = c.state;
+    s.offsets = r.uint32s("/neighbor_list/offsets", Reader::kAny);
+    s.neighbors = r.uint32s("/neighbor_list/neighbors", Reader::kAny);
+    s.x_ref = r.doubles("/neighbor_list/x_ref", Reader::kAny);
+    s.y_ref = r.doubles("/neighbor_list/y_ref", Reader::kAny);
+    s.z_ref = r.doubles("/neighbor_list/z_ref", Reader::kAny);
+    s.hx = r.doubles("/neighbor_list/history_x", Reader::kAny);
+    s.hy = r.doubles("/neighbor_list/history_y", Reader::kAny);
+    s.hz = r.doubles("/neighbor_list/history_z", Reader::kAny);
+    s.skin = f.read_attribute_double("skin");
+    s.need_rebuild = f.read_attribute_int64("need_rebuild") != 0;
+    s.steps = f.read_attribute_int64("steps_taken");
+    s.particle_steps = f.read_attribute_int64("particle_steps");
+    s.pair_evaluations = f.read_attribute_int64("pair_evaluations");
+    s.builds = f.read_attribute_int64("neighbor_builds");
+    const auto flat =
+        r.doubles("/diagnostics_rows", static_cast<std::size_t>(nrows) * c.columns.size());
+    for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
+      c.rows.emplace_back(flat.begin() + static_cast<std::ptrdiff_t>(i * c.columns.size()),
+                          flat.begin() + static_cast<std::ptrdiff_t>((i + 1) * c.columns.size()));
+    const auto ss = r.int64s("/snapshots/step", Reader::kAny);
+    const auto st = r.doubles("/snapshots/time", ss.size());
+    const auto sn = r.int64s("/snapshots/particles", ss.size());
+    const auto sl = r.int64s("/snapshots/leaf", ss.size());
+    for (std::size_t i = 0; i < ss.size(); ++i)
+      c.snapshots.push_back(
+          {ss[i], st[i], sn[i], sl[i] != 0, fmt::format("snapshot_{:09d}.h5", ss[i])});
+    if (static_cast<std::uint64_t>(f.read_attribute_int64("checksum")) != r.hash.h)
+      throw RunError("checksum mismatch: the arrays are corrupt");
+    return c;
+  } catch (const RunError& e) {
+    throw ConfigError(fmt::format("checkpoint '{}'", path),
+                      fmt::format("cannot restart: {}", e.what()));
+  }
+}
+
+} // namespace cfddem::apps

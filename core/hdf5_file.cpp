@@ -1,0 +1,190 @@
+#include "core/hdf5_file.hpp"
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+
+namespace cfddem::h5 {
+
+namespace {
+
+void quiet_errors() {
+  static const bool done = [] {
+    H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+    return true;
+  }();
+  (void)done;
+}
+
+hsize_t product(const std::vector<hsize_t>& shape) {
+  hsize_t n = 1;
+  for (hsize_t s : shape) n *= s;
+  return n;
+}
+
+} // namespace
+
+File File::create(const std::string& path) {
+  quiet_errors();
+  File f;
+  f.path_ = path;
+  f.file_ = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+  if (!f.file_.valid()) throw RunError(fmt::format("cannot create HDF5 file '{}'", path));
+  return f;
+}
+
+File File::open_read(const std::string& path) {
+  quiet_errors();
+  File f;
+  f.path_ = path;
+  if (H5Fis_hdf5(path.c_str()) <= 0)
+    throw RunError(fmt::format("'{}' is not a readable HDF5 file (missing, truncated or corrupt)",
+                               path));
+  f.file_ = Handle(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
+  if (!f.file_.valid())
+    throw RunError(fmt::format("cannot open HDF5 file '{}' (truncated or corrupt?)", path));
+  return f;
+}
+
+void File::close() {
+  if (!file_.valid()) return;
+  const hid_t id = file_.get();
+  if (H5Fflush(id, H5F_SCOPE_GLOBAL) < 0)
+    throw RunError(fmt::format("flushing HDF5 file '{}' failed (disk full?)", path_));
+  file_.reset();
+}
+
+void File::create_group(const std::string& name) {
+  Handle g(H5Gcreate2(file_.get(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose);
+  if (!g.valid()) throw RunError(fmt::format("{}: cannot create group '{}'", path_, name));
+}
+
+bool File::exists(const std::string& name) const {
+  // Check each path component (H5Lexists fails on a missing intermediate group).
+  std::size_t pos = 0;
+  while (true) {
+    const std::size_t next = name.find('/', pos + 1);
+    const std::string part = name.substr(0, next);
+    if (!part.empty() && part != "/" && H5Lexists(file_.get(), part.c_str(), H5P_DEFAULT) <= 0)
+      return false;
+    if (next == std::string::npos) return true;
+    pos = next;
+  }
+}
+
+void File::write_raw(const std::string& name, hid_t type, const void* data, std::size_t n,
+                     std::vector<hsize_t> shape) {
+  if (product(shape) != n)
+    throw RunError(fmt::format("{}: dataset '{}' has {} values for its shape", path_, name, n));
+  Handle space(H5Screate_simple(static_cast<int>(shape.size()), shape.data(), nullptr), H5Sclose);
+  Handle set(H5Dcreate2(file_.get(), name.c_str(), type, space.get(), H5P_DEFAULT, H5P_DEFAULT,
+                        H5P_DEFAULT),
+             H5Dclose);
+  if (!space.valid() || !set.valid())
+    throw RunError(fmt::format("{}: cannot create dataset '{}'", path_, name));
+  if (n > 0 && H5Dwrite(set.get(), type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
+    throw RunError(fmt::format("{}: writing dataset '{}' failed", path_, name));
+}
+
+void File::write(const std::string& name, std::span<const double> d, std::vector<hsize_t> s) {
+  write_raw(name, H5T_NATIVE_DOUBLE, d.data(), d.size(), std::move(s));
+}
+void File::write(const std::string& name, std::span<const std::int64_t> d,
+                 std::vector<hsize_t> s) {
+  write_raw(name, H5T_NATIVE_INT64, d.data(), d.size(), std::move(s));
+}
+void File::write(const std::string& name, std::span<const std::uint32_t> d,
+                 std::vector<hsize_t> s) {
+  write_raw(name, H5T_NATIVE_UINT32, d.data(), d.size(), std::move(s));
+}
+
+template <class T> Array<T> File::read_raw(const std::string& name, hid_t type) const {
+  if (!exists(name)) throw RunError(fmt::format("{}: dataset '{}' is missing", path_, name));
+  Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
+  if (!set.valid()) throw RunError(fmt::format("{}: cannot open dataset '{}'", path_, name));
+  Handle space(H5Dget_space(set.get()), H5Sclose);
+  const int rank = space.valid() ? H5Sget_simple_extent_ndims(space.get()) : -1;
+  if (rank < 0 || rank > 2)
+    throw RunError(fmt::format("{}: dataset '{}' has an unexpected shape", path_, name));
+  Array<T> a;
+  a.shape.resize(static_cast<std::size_t>(rank));
+  H5Sget_simple_extent_dims(space.get(), a.shape.data(), nullptr);
+  a.values.resize(product(a.shape));
+  if (!a.values.empty() &&
+      H5Dread(set.get(), type, H5S_ALL, H5S_ALL, H5P_DEFAULT, a.values.data()) < 0)
+    throw RunError(fmt::format("{}: reading dataset '{}' failed (truncated or corrupt file?)",
+                               path_, name));
+  return a;
+}
+
+Array<double> File::read_double(const std::string& name) const {
+  return read_raw<double>(name, H5T_NATIVE_DOUBLE);
+}
+Array<std::int64_t> File::read_int64(const std::string& name) const {
+  return read_raw<std::int64_t>(name, H5T_NATIVE_INT64);
+}
+Array<std::uint32_t> File::read_uint32(const std::string& name) const {
+  return read_raw<std::uint32_t>(name, H5T_NATIVE_UINT32);
+}
+
+void File::write_attr(const std::string& name, hid_t type, const void* v, const std::string& on) {
+  Handle space(H5Screate(H5S_SCALAR), H5Sclose);
+  Handle a(H5Acreate_by_name(file_.get(), on.c_str(), name.c_str(), type, space.get(),
+                             H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
+           H5Aclose);
+  if (!a.valid() || H5Awrite(a.get(), type, v) < 0)
+    throw RunError(fmt::format("{}: cannot write attribute '{}' on '{}'", path_, name, on));
+}
+
+void File::read_attr(const std::string& name, hid_t type, void* v, const std::string& on) const {
+  if (H5Aexists_by_name(file_.get(), on.c_str(), name.c_str(), H5P_DEFAULT) <= 0)
+    throw RunError(fmt::format("{}: attribute '{}' on '{}' is missing", path_, name, on));
+  Handle a(H5Aopen_by_name(file_.get(), on.c_str(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT),
+           H5Aclose);
+  if (!a.valid() || H5Aread(a.get(), type, v) < 0)
+    throw RunError(fmt::format("{}: cannot read attribute '{}' on '{}'", path_, name, on));
+}
+
+void File::attribute(const std::string& name, double v, const std::string& on) {
+  write_attr(name, H5T_NATIVE_DOUBLE, &v, on);
+}
+void File::attribute(const std::string& name, std::int64_t v, const std::string& on) {
+  write_attr(name, H5T_NATIVE_INT64, &v, on);
+}
+void File::attribute(const std::string& name, const std::string& v, const std::string& on) {
+  Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Tset_size(type.get(), v.empty() ? 1 : v.size());
+  H5Tset_strpad(type.get(), H5T_STR_NULLPAD);
+  write_attr(name, type.get(), v.empty() ? "" : v.data(), on);
+}
+
+double File::read_attribute_double(const std::string& name, const std::string& on) const {
+  double v = 0.0;
+  read_attr(name, H5T_NATIVE_DOUBLE, &v, on);
+  return v;
+}
+std::int64_t File::read_attribute_int64(const std::string& name, const std::string& on) const {
+  std::int64_t v = 0;
+  read_attr(name, H5T_NATIVE_INT64, &v, on);
+  return v;
+}
+std::string File::read_attribute_string(const std::string& name, const std::string& on) const {
+  if (H5Aexists_by_name(file_.get(), on.c_str(), name.c_str(), H5P_DEFAULT) <= 0)
+    throw RunError(fmt::format("{}: attribute '{}' on '{}' is missing", path_, name, on));
+  Handle a(H5Aopen_by_name(file_.get(), on.c_str(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT),
+           H5Aclose);
+  Handle t(a.valid() ? H5Aget_type(a.get()) : H5I_INVALID_HID, H5Tclose);
+  if (!t.valid() || H5Tget_class(t.get()) != H5T_STRING || H5Tis_variable_str(t.get()) > 0)
+    throw RunError(fmt::format("{}: attribute '{}' is not a fixed-length string", path_, name));
+  const std::size_t n = H5Tget_size(t.get());
+  std::string s(n, '\0');
+  Handle mem(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Tset_size(mem.get(), n);
+  H5Tset_strpad(mem.get(), H5T_STR_NULLPAD);
+  if (H5Aread(a.get(), mem.get(), s.data()) < 0)
+    throw RunError(fmt::format("{}: cannot read attribute '{}'", path_, name));
+  while (!s.empty() && s.back() == '\0') s.pop_back();
+  return s;
+}
+
+} // namespace cfddem::h5

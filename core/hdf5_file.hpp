@@ -1,0 +1,92 @@
+// A thin RAII wrapper over the HDF5 C API (the C++ H5:: API has no MPI-IO calls, HighFive is not
+// in Debian 12): files, groups, contiguous datasets of double / int64 / uint32 with up to two
+// dimensions, and scalar attributes. Every failure throws RunError naming the file and object;
+// HDF5's own error stack printing is turned off.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <hdf5.h>
+
+namespace cfddem::h5 {
+
+// Owns one hid_t and closes it with the matching H5*close.
+class Handle {
+public:
+  Handle() = default;
+  Handle(hid_t id, herr_t (*close)(hid_t)) : id_(id), close_(close) {}
+  Handle(Handle&& o) noexcept : id_(o.id_), close_(o.close_) { o.id_ = H5I_INVALID_HID; }
+  Handle& operator=(Handle&& o) noexcept {
+    if (this != &o) {
+      reset();
+      id_ = o.id_, close_ = o.close_;
+      o.id_ = H5I_INVALID_HID;
+    }
+    return *this;
+  }
+  Handle(const Handle&) = delete;
+  Handle& operator=(const Handle&) = delete;
+  ~Handle() { reset(); }
+  hid_t get() const { return id_; }
+  bool valid() const { return id_ >= 0; }
+  void reset() {
+    if (id_ >= 0 && close_) close_(id_);
+    id_ = H5I_INVALID_HID;
+  }
+
+private:
+  hid_t id_ = H5I_INVALID_HID;
+  herr_t (*close_)(hid_t) = nullptr;
+};
+
+// A dataset read back: values in C order and the shape.
+template <class T> struct Array {
+  std::vector<T> values;
+  std::vector<hsize_t> shape;
+};
+
+class File {
+public:
+  // Create (truncating) a file for writing.
+  static File create(const std::string& path);
+  // Open an existing file read-only; throws RunError if it is not a readable HDF5 file.
+  static File open_read(const std::string& path);
+
+  void create_group(const std::string& name);
+  // Datasets: shape {n} or {n, m}; data.size() must equal the product.
+  void write(const std::string& name, std::span<const double> data, std::vector<hsize_t> shape);
+  void write(const std::string& name, std::span<const std::int64_t> data,
+             std::vector<hsize_t> shape);
+  void write(const std::string& name, std::span<const std::uint32_t> data,
+             std::vector<hsize_t> shape);
+  // Scalar attributes on the root group (or on object `on`).
+  void attribute(const std::string& name, double v, const std::string& on = "/");
+  void attribute(const std::string& name, std::int64_t v, const std::string& on = "/");
+  void attribute(const std::string& name, const std::string& v, const std::string& on = "/");
+
+  bool exists(const std::string& name) const;
+  Array<double> read_double(const std::string& name) const;
+  Array<std::int64_t> read_int64(const std::string& name) const;
+  Array<std::uint32_t> read_uint32(const std::string& name) const;
+  double read_attribute_double(const std::string& name, const std::string& on = "/") const;
+  std::int64_t read_attribute_int64(const std::string& name, const std::string& on = "/") const;
+  std::string read_attribute_string(const std::string& name, const std::string& on = "/") const;
+
+  // Flush and close (errors surface here rather than in a destructor).
+  void close();
+  const std::string& path() const { return path_; }
+
+private:
+  void write_raw(const std::string& name, hid_t type, const void* data, std::size_t n,
+                 std::vector<hsize_t> shape);
+  template <class T> Array<T> read_raw(const std::string& name, hid_t type) const;
+  void write_attr(const std::string& name, hid_t type, const void* v, const std::string& on);
+  void read_attr(const std::string& name, hid_t type, void* v, const std::string& on) const;
+  Handle file_;
+  std::string path_;
+};
+
+} // namespace cfddem::h5

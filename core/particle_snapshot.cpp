@@ -1,0 +1,114 @@
+#include "core/particle_snapshot.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include "core/atomic_file.hpp"
+#include "core/error.hpp"
+#include "core/hdf5_file.hpp"
+
+namespace cfddem {
+
+SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f) {
+  namespace fs = std::filesystem;
+  const std::size_t n = f.x.size();
+  SnapshotEntry e;
+  e.step = f.step;
+  e.time = f.time;
+  e.particles = static_cast<std::int64_t>(n);
+  e.leaf = !f.leaf.empty();
+  e.file = fmt::format("snapshot_{:09d}.h5", f.step);
+  const std::string path = (fs::path(dir) / e.file).string();
+  const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
+
+  std::vector<double> pos(3 * n), vel(3 * n), diam(n), speed(n), ke(n), dt(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    pos[3 * i] = f.x[i], pos[3 * i + 1] = f.y[i], pos[3 * i + 2] = f.z[i];
+    vel[3 * i] = f.vx[i], vel[3 * i + 1] = f.vy[i], vel[3 * i + 2] = f.vz[i];
+    diam[i] = 2.0 * f.radius[i];
+    const double v2 = f.vx[i] * f.vx[i] + f.vy[i] * f.vy[i] + f.vz[i] * f.vz[i];
+    speed[i] = std::sqrt(v2);
+    ke[i] = 0.5 * f.mass[i] * v2;
+    dt[i] = f.local_dt.empty() ? f.dt : f.local_dt[i];
+  }
+  const hsize_t hn = n;
+  try {
+    h5::File file = h5::File::create(tmp);
+    file.attribute("time", f.time);
+    file.attribute("step", f.step);
+    file.attribute("program", std::string("cfddem"));
+    file.create_group("/particles");
+    file.write("/particles/position", std::span<const double>(pos), {hn, 3});
+    file.write("/particles/velocity", std::span<const double>(vel), {hn, 3});
+    file.write("/particles/diameter", std::span<const double>(diam), {hn});
+    file.write("/particles/speed", std::span<const double>(speed), {hn});
+    file.write("/particles/kinetic_energy", std::span<const double>(ke), {hn});
+    file.write("/particles/local_dt", std::span<const double>(dt), {hn});
+    file.write("/particles/id", f.id, {hn});
+    if (e.leaf) file.write("/particles/leaf", f.leaf, {hn});
+    file.close();
+  } catch (...) {
+    std::remove(tmp.c_str());
+    throw;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw RunError(fmt::format("cannot rename '{}' to '{}'", tmp, path));
+  }
+  return e;
+}
+
+std::string xdmf_index(const std::vector<SnapshotEntry>& entries) {
+  std::string s = "<?xml version=\"1.0\" ?>\n<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n"
+                  "<Xdmf Version=\"2.0\">\n <Domain>\n"
+                  "  <Grid Name=\"particles\" GridType=\"Collection\" "
+                  "CollectionType=\"Temporal\">\n";
+  for (const auto& e : entries) {
+    const auto item = [&](const std::string& name, const std::string& dims, const char* type) {
+      return fmt::format("      <DataItem Dimensions=\"{}\" NumberType=\"{}\" Precision=\"8\" "
+                         "Format=\"HDF\">{}:/particles/{}</DataItem>\n",
+                         dims, type, e.file, name);
+    };
+    const std::string n = std::to_string(e.particles), n3 = n + " 3";
+    s += fmt::format("   <Grid Name=\"step_{}\" GridType=\"Uniform\">\n", e.step);
+    s += fmt::format("    <Time Value=\"{:.17g}\"/>\n", e.time);
+    s += fmt::format("    <Topology TopologyType=\"Polyvertex\" NumberOfElements=\"{}\" "
+                     "NodesPerElement=\"1\"/>\n",
+                     n);
+    s += "    <Geometry GeometryType=\"XYZ\">\n" + item("position", n3, "Float") +
+         "    </Geometry>\n";
+    const auto attr = [&](const std::string& name, bool vector, const char* type) {
+      return fmt::format("    <Attribute Name=\"{}\" AttributeType=\"{}\" Center=\"Node\">\n{}"
+                         "    </Attribute>\n",
+                         name, vector ? "Vector" : "Scalar", item(name, vector ? n3 : n, type));
+    };
+    s += attr("velocity", true, "Float");
+    s += attr("diameter", false, "Float");
+    s += attr("speed", false, "Float");
+    s += attr("kinetic_energy", false, "Float");
+    s += attr("local_dt", false, "Float");
+    s += attr("id", false, "Int");
+    if (e.leaf) s += attr("leaf", false, "Int");
+    s += "   </Grid>\n";
+  }
+  s += "  </Grid>\n </Domain>\n</Xdmf>\n";
+  return s;
+}
+
+void SnapshotIndex::add(const SnapshotEntry& e) {
+  entries_.push_back(e);
+  write_file_atomically((std::filesystem::path(dir_) / "snapshots.xmf").string(),
+                        xdmf_index(entries_));
+}
+
+void SnapshotIndex::restore(const std::vector<SnapshotEntry>& entries) {
+  entries_.clear();
+  for (const auto& e : entries)
+    if (std::filesystem::exists(std::filesystem::path(dir_) / e.file)) entries_.push_back(e);
+}
+
+} // namespace cfddem

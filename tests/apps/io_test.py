@@ -1,0 +1,251 @@
+#!/usr/bin/env python3
+"""Snapshots and checkpoints opened the way a user would: h5py reads the files back, the XDMF
+index parses as XML and every dataset it references exists with the shape it declares; a run
+restarted from a checkpoint continues bit for bit; a truncated or corrupt checkpoint is refused
+with exit code 2 and the run directory is left alone.
+
+Usage: io_test.py CFDDEM_BINARY SOURCE_DIR [unittest args, e.g. -k Restart]
+"""
+import csv
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import unittest
+import xml.etree.ElementTree as ET
+
+import h5py
+import numpy as np
+
+BIN = sys.argv[1]
+SRC = sys.argv[2]
+HCS = os.path.join(SRC, "scenes", "hcs.toml")
+BOX = os.path.join(SRC, "scenes", "box_gravity.toml")
+
+
+def cfddem(*args):
+    r = subprocess.run([BIN, "run", *args, "--quiet"], capture_output=True, text=True)
+    return r.returncode, r.stdout + r.stderr
+
+
+def diagnostics(run_dir):
+    """Rows of diagnostics.csv as text, without wall_seconds (the only column allowed to differ)."""
+    with open(os.path.join(run_dir, "diagnostics.csv")) as f:
+        rows = list(csv.reader(f))
+    w = rows[0].index("wall_seconds")
+    return [[x for i, x in enumerate(r) if i != w] for r in rows]
+
+
+class Tmp(unittest.TestCase):
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="cfddem_io_")
+
+    def tearDown(self):
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def run_ok(self, *args):
+        code, out = cfddem(*args)
+        self.assertEqual(code, 0, out)
+        return out
+
+
+class Snapshots(Tmp):
+    def test_xdmf_references_existing_datasets_with_declared_shapes(self):
+        out = os.path.join(self.tmp, "snap")
+        self.run_ok(HCS, "run.end_time=0.002", "output.interval=0.0005",
+                    "output.snapshot_interval=0.0005", "--out", out)
+        root = ET.parse(os.path.join(out, "snapshots.xmf")).getroot()
+        self.assertEqual(root.tag, "Xdmf")
+        coll = root.find("Domain/Grid")
+        self.assertEqual(coll.get("GridType"), "Collection")
+        self.assertEqual(coll.get("CollectionType"), "Temporal")
+        grids = coll.findall("Grid")
+        self.assertEqual(len(grids), 5)  # t = 0, 0.5, 1, 1.5, 2 ms
+        times = [float(g.find("Time").get("Value")) for g in grids]
+        self.assertEqual(times, sorted(times))
+        self.assertAlmostEqual(times[-1], 0.002, delta=1e-6)
+        checked = 0
+        for g in grids:
+            topo = g.find("Topology")
+            self.assertEqual(topo.get("TopologyType"), "Polyvertex")
+            n = int(topo.get("NumberOfElements"))
+            self.assertEqual(n, 1222)
+            self.assertEqual(g.find("Geometry").get("GeometryType"), "XYZ")
+            for a in g.findall("Attribute"):
+                self.assertEqual(a.get("Center"), "Node")
+            for item in g.iter("DataItem"):
+                self.assertEqual(item.get("Format"), "HDF")
+                fname, dset = item.text.strip().split(":")
+                dims = tuple(int(d) for d in item.get("Dimensions").split())
+                with h5py.File(os.path.join(out, fname), "r") as f:
+                    self.assertIn(dset, f, f"{fname}:{dset}")
+                    self.assertEqual(f[dset].shape, dims, f"{fname}:{dset}")
+                    self.assertEqual(f[dset].dtype.itemsize, int(item.get("Precision")))
+                checked += 1
+        self.assertEqual(checked, 5 * 7)  # position + 6 attributes
+        # Values: a snapshot is the state the diagnostics row of the same time measured.
+        with h5py.File(os.path.join(out, "snapshot_000006910.h5"), "r") as f:
+            p = f["particles"]
+            v = p["velocity"][()]
+            np.testing.assert_allclose(p["diameter"][()], 1e-4, rtol=1e-12)
+            np.testing.assert_array_equal(np.sort(p["id"][()]), np.arange(1222))
+            np.testing.assert_allclose(p["speed"][()], np.linalg.norm(v, axis=1), rtol=1e-14)
+            self.assertTrue(np.all((p["position"][()] >= 0) & (p["position"][()] <= 4e-3)))
+            t_snap = f.attrs["time"]
+            mean_speed = p["speed"][()].mean()
+        row = [r for r in diagnostics(out)[1:] if int(float(r[1])) == 6910][0]
+        self.assertAlmostEqual(float(row[0]), t_snap, delta=1e-15)
+        self.assertAlmostEqual(float(row[4]), mean_speed, delta=1e-12 * mean_speed)
+        self.assertFalse([x for x in os.listdir(out) if ".tmp." in x], "temporary files left")
+        # The tools a user runs on these files produce PNGs.
+        tools = os.path.join(SRC, "tools")
+        for cmd in (["render_snapshot.py", os.path.join(out, "snapshot_000006910.h5"), "-o",
+                     os.path.join(out, "s.png"), "--color", "kinetic_energy"],
+                    ["plot_diagnostics.py", os.path.join(out, "diagnostics.csv"), "-o",
+                     os.path.join(out, "d.png")]):
+            r = subprocess.run([sys.executable, os.path.join(tools, cmd[0]), *cmd[1:]],
+                               capture_output=True, text=True)
+            self.assertEqual(r.returncode, 0, r.stderr)
+        for png in ("s.png", "d.png"):
+            with open(os.path.join(out, png), "rb") as f:
+                self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
+
+    def test_orb_snapshots_carry_leaf_and_local_dt(self):
+        out = os.path.join(self.tmp, "orb")
+        self.run_ok(HCS, "dem.scheme=orb", "run.end_time=0.002", "output.interval=0.001",
+                    "output.snapshot_interval=0.001", "--out", out)
+        root = ET.parse(os.path.join(out, "snapshots.xmf")).getroot()
+        grids = root.findall("Domain/Grid/Grid")
+        self.assertEqual(len(grids), 3)
+        for g in grids[1:]:
+            names = [a.get("Name") for a in g.findall("Attribute")]
+            self.assertIn("leaf", names)
+            for item in g.iter("DataItem"):
+                fname, dset = item.text.strip().split(":")
+                with h5py.File(os.path.join(out, fname), "r") as f:
+                    self.assertEqual(f[dset].shape,
+                                     tuple(int(d) for d in item.get("Dimensions").split()))
+        with h5py.File(os.path.join(out, "snapshot_000000100.h5"), "r") as f:
+            p = f["particles"]
+            leaf = p["leaf"][()]
+            self.assertTrue(np.all((leaf >= 0) & (leaf < 16)))
+            self.assertEqual(len(np.unique(p["id"][()])), 1222)
+            self.assertTrue(np.all(p["local_dt"][()] > 0))
+            mean_speed = p["speed"][()].mean()
+        row = [r for r in diagnostics(out)[1:] if int(float(r[1])) == 100][0]
+        self.assertAlmostEqual(float(row[4]), mean_speed, delta=1e-12 * mean_speed)
+
+    def test_zero_particles_gives_empty_snapshot(self):
+        out = os.path.join(self.tmp, "empty")
+        self.run_ok(HCS, "particles.file=", "particles.count=0", "particles.diameter=1e-4",
+                    "particles.density=1000", "run.end_time=1e-4",
+                    "output.snapshot_interval=5e-5", "dem.dt=1e-6", "--out", out)
+        root = ET.parse(os.path.join(out, "snapshots.xmf")).getroot()
+        for item in root.iter("DataItem"):
+            fname, dset = item.text.strip().split(":")
+            with h5py.File(os.path.join(out, fname), "r") as f:
+                self.assertEqual(f[dset].shape[0], 0)
+
+
+class Restart(Tmp):
+    def check_restart(self, scene, total, half, extra):
+        full = os.path.join(self.tmp, "full")
+        first = os.path.join(self.tmp, "first")
+        second = os.path.join(self.tmp, "second")
+        common = [f"output.snapshot_interval={half}", *extra]
+        self.run_ok(scene, f"run.end_time={total}", *common, "--out", full)
+        # N steps with a checkpoint at the end (written before the step that records row N) ...
+        self.run_ok(scene, f"run.end_time={half}", f"output.checkpoint_interval={half}", *common,
+                    "--out", first)
+        ckpts = sorted(x for x in os.listdir(first) if x.startswith("checkpoint_"))
+        self.assertEqual(len(ckpts), 1, ckpts)
+        # ... then restart and run the other N steps.
+        self.run_ok(scene, f"run.end_time={total}", *common, "--out", second, "--restart",
+                    os.path.join(first, ckpts[0]))
+        a, b = diagnostics(full), diagnostics(second)
+        self.assertEqual(len(a), len(b))
+        for ra, rb in zip(a, b):
+            self.assertEqual(ra, rb)
+        last = sorted(x for x in os.listdir(full) if x.startswith("snapshot_"))[-1]
+        with h5py.File(os.path.join(full, last)) as fa, h5py.File(os.path.join(second, last)) as fb:
+            for k in fa["particles"]:
+                np.testing.assert_array_equal(fa["particles"][k][()], fb["particles"][k][()], k)
+        # The restarted run's XDMF index lists only snapshots present in its own directory.
+        root = ET.parse(os.path.join(second, "snapshots.xmf")).getroot()
+        for item in root.iter("DataItem"):
+            self.assertTrue(os.path.exists(os.path.join(second, item.text.split(":")[0])))
+        return a
+
+    def test_explicit_hcs_bitwise(self):
+        rows = self.check_restart(HCS, 0.004, 0.002, ["output.interval=0.0005"])
+        self.assertEqual(len(rows), 1 + 9)
+
+    def test_explicit_frictional_walls_bitwise(self):
+        # Friction (tangential history), walls and gravity, with contacts alive at the restart.
+        self.check_restart(BOX, 0.016, 0.008, ["output.interval=0.001"])
+
+
+class BadCheckpoint(Tmp):
+    def make_checkpoint(self):
+        out = os.path.join(self.tmp, "src")
+        self.run_ok(HCS, "run.end_time=0.001", "output.checkpoint_interval=0.0005", "--out", out)
+        return os.path.join(out, "checkpoint_000003455.h5")
+
+    def expect_refused(self, path, needle="checkpoint", extra=()):
+        # An existing run directory with a result in it must be left exactly as it was.
+        out = os.path.join(self.tmp, "existing")
+        os.makedirs(out, exist_ok=True)
+        with open(os.path.join(out, "diagnostics.csv"), "w") as f:
+            f.write("precious\n")
+        before = sorted(os.listdir(out))
+        code, msg = cfddem(HCS, "run.end_time=0.001", *extra, "--out", out, "--restart", path)
+        self.assertEqual(code, 2, msg)
+        self.assertIn(needle, msg)
+        self.assertEqual(sorted(os.listdir(out)), before)
+        with open(os.path.join(out, "diagnostics.csv")) as f:
+            self.assertEqual(f.read(), "precious\n")
+        fresh = os.path.join(self.tmp, "never")
+        code, msg = cfddem(HCS, "run.end_time=0.001", *extra, "--out", fresh, "--restart", path)
+        self.assertEqual(code, 2, msg)
+        self.assertFalse(os.path.exists(fresh))
+
+    def test_missing(self):
+        self.expect_refused(os.path.join(self.tmp, "nope.h5"))
+
+    def test_truncated(self):
+        good = self.make_checkpoint()
+        bad = os.path.join(self.tmp, "truncated.h5")
+        with open(good, "rb") as f:
+            data = f.read()
+        for cut in (len(data) // 2, len(data) - 100, 1000):
+            with open(bad, "wb") as f:
+                f.write(data[:cut])
+            self.expect_refused(bad)
+
+    def test_flipped_bits_in_particle_data(self):
+        good = self.make_checkpoint()
+        with h5py.File(good, "r") as f:
+            offset = f["particles/vx_half"].id.get_offset() + 8 * 100 + 3
+        bad = os.path.join(self.tmp, "flipped.h5")
+        shutil.copy(good, bad)
+        with open(bad, "r+b") as f:
+            f.seek(offset)
+            b = f.read(1)
+            f.seek(offset)
+            f.write(bytes([b[0] ^ 0x10]))
+        self.expect_refused(bad, needle="checksum")
+
+    def test_not_hdf5(self):
+        bad = os.path.join(self.tmp, "text.h5")
+        with open(bad, "w") as f:
+            f.write("not a checkpoint\n")
+        self.expect_refused(bad)
+
+    def test_other_configuration(self):
+        good = self.make_checkpoint()
+        self.expect_refused(good, needle="dem.restitution", extra=["dem.restitution=0.9"])
+
+
+if __name__ == "__main__":
+    unittest.main(argv=[sys.argv[0], *sys.argv[3:]], verbosity=2)

@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "apps/coupled_step.hpp"
 #include "apps/default_scene.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/simulation.hpp"
@@ -43,7 +44,9 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
     default_name = fs::path(a.scene).stem().string();
   }
   for (const auto& o : a.overrides) cfg.apply_override(o);
-  return cfddem::read_scene(cfg, default_name);
+  cfddem::Scene scene = cfddem::read_scene(cfg, default_name);
+  cfddem::apps::validate_fluid(scene);
+  return scene;
 }
 
 const char* kKeysHelp = R"(

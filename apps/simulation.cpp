@@ -434,7 +434,7 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
                      dem::LeafStepStats{steps, steps, steps, 1.0},
                      means.next(t_row, s.vx, s.vy, s.vz, fd_row)));
   };
-  while (end - t > 1e-9 * dt) {
+  while (end - t > 1e-6 * dt) {
     long long n_sub = n_fixed;
     if (!fixed) {
       const double want = std::min({gas.cfl_dt(), scene.fluid.max_dt, end - t});
@@ -451,14 +451,16 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
       particle_step(record);
       if (record) pending = false;
     }
-    t += dt_f, dt_f_sum += dt_f;
     ++fluid_steps;
-    if (t >= next_out - 1e-9 * dt || end - t <= 1e-9 * dt) {
+    dt_f_sum += dt_f;
+    // A fixed step counts steps (no drift of a running sum against the output times).
+    t = fixed ? static_cast<double>(fluid_steps) * scene.fluid.dt : t + dt_f;
+    if (t >= next_out - 1e-6 * dt || end - t <= 1e-6 * dt) {
       PhaseTimer::Scope io(timer, Phase::io);
       fd_row = gas.diagnostics();
       t_row = t;
       pending = true;
-      while (next_out <= t + 1e-9 * dt) next_out += scene.output.interval;
+      while (next_out <= t + 1e-6 * dt) next_out += scene.output.interval;
     }
     if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
                           scene.output.progress_seconds) {

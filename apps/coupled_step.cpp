@@ -217,21 +217,31 @@ FluidDiagnostics GasCoupling::diagnostics() const {
         for (int i = 0; i < nc[0]; ++i) sum += eps(i, j, k) * uc(i, j, k);
     d.gas_momentum[a] = rho * vol * sum;
   }
-  // Pressure drop along the axis: full p = p' + gp0 . x, plane means of the first and last cells.
+  // Pressure drop along the axis between the boundary faces: plane means of the full pressure
+  // p = p' + gp0 . x, extrapolated linearly from the two cell planes next to each face (so the
+  // particles in the first and last half cells count, and a uniform gradient is exact).
   const int ax = axis_;
   const fluid::GridField& pp = solver_->pressure();
-  double lo = 0.0, hi = 0.0;
-  long long cnt = 0;
+  const int m = nc[ax];
+  std::vector<double> plane(static_cast<std::size_t>(m), 0.0);
   for (int k = 0; k < nc[2]; ++k)
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i) {
         const int c[3] = {i, j, k};
-        if (c[ax] == 0) lo += pp(i, j, k), ++cnt;
-        if (c[ax] == nc[ax] - 1) hi += pp(i, j, k);
+        plane[static_cast<std::size_t>(c[ax])] += pp(i, j, k);
       }
+  const double per_plane = static_cast<double>(nc[0]) * nc[1] * nc[2] / m;
   const double gp0 = solver_->background_pressure_gradient()[static_cast<std::size_t>(ax)];
-  const double span = grid_.spacing(ax) * (nc[ax] - 1);
-  d.pressure_drop = (lo - hi) / static_cast<double>(std::max(1LL, cnt)) - gp0 * span;
+  const double dx = grid_.spacing(ax);
+  for (int c = 0; c < m; ++c)
+    plane[static_cast<std::size_t>(c)] = plane[static_cast<std::size_t>(c)] / per_plane +
+                                         gp0 * (c + 0.5) * dx;
+  const double p_lo = m > 1 ? 1.5 * plane[0] - 0.5 * plane[1] : plane[0] - 0.5 * gp0 * dx;
+  const double p_hi = m > 1 ? 1.5 * plane[static_cast<std::size_t>(m - 1)] -
+                                  0.5 * plane[static_cast<std::size_t>(m - 2)]
+                            : plane[0] + 0.5 * gp0 * dx;
+  // Across a periodic axis p' repeats: the drop over the period is the imposed one.
+  d.pressure_drop = grid_.periodic(ax) ? -gp0 * grid_.length(ax) : p_lo - p_hi;
   // Continuity residual of the last step.
   if (last_dt_ > 0.0) {
     fluid::GridField e = eps, div = grid_.make_field();

@@ -30,7 +30,7 @@ fluid::MacGridSpec fluid_grid_spec(const Scene& scene);
 void validate_fluid(const Scene& scene);
 
 struct FluidDiagnostics {
-  double pressure_drop = 0.0;          // mean p, bottom minus top cell plane along the axis [Pa]
+  double pressure_drop = 0.0; // mean p, bottom minus top boundary face along the axis [Pa]
   std::array<double, 3> gas_momentum{}; // sum rho_g eps_g u_g V_cell [kg m/s]
   double mass_residual = 0.0; // max |div(eps u) + d(eps)/dt| dt_f over cells (dimensionless)
 };

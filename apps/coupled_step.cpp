@@ -90,11 +90,10 @@ void validate_fluid(const Scene& s) {
                       fmt::format("{} is above the stable limit {} of the explicit gas predictor "
                                   "(limited MUSCL advection with SSP Euler stages)",
                                   s.fluid.cfl, fluid::kMaxStableCourant));
-  if (s.dem.scheme != "explicit")
-    throw ConfigError("scene key 'dem.scheme'",
-                      fmt::format("\"{}\" is not coupled to the gas yet: use \"explicit\" with "
-                                  "[fluid]",
-                                  s.dem.scheme));
+  if (s.dem.scheme == "orb" && !(s.fluid.dt > 0.0))
+    throw ConfigError("scene key 'fluid.dt'",
+                      "dem.scheme = \"orb\" with a fluid needs a fixed fluid.dt (its "
+                      "sub-iterations are fluid.dt / dem.nsubit)");
 }
 
 GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p)

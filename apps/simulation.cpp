@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <chrono>
 #include <span>
+#include <type_traits>
 #include <cmath>
 #include <filesystem>
 
@@ -363,21 +364,28 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
 }
 
 
-// The coupled loop (the paper's Algorithm 1) with the explicit scheme: per fluid step of dt_f,
-// deposit + gas step + particle force (GasCoupling::step), then n_sub explicit steps of
-// dt_f / n_sub (n_sub = ceil(dt_f / dt_dem), so the sub-cycle lands exactly on the fluid step).
+// The coupled loop (the paper's Algorithm 1): per fluid step of dt_f, deposit + gas step +
+// particle force (GasCoupling::step), then the particle sub-cycle: explicit, n_sub steps of
+// dt_f / n_sub (n_sub = ceil(dt_f / dt_dem), so the sub-cycle lands exactly on the fluid step);
+// orb, dem.nsubit sub-iterations of dt_f / nsubit (dem.regrid_interval is set to dt_f).
 // A row at fluid time t is written by the first particle step after t (as in the explicit loop,
 // the synchronised state at t needs the forces at t), with the gas diagnostics taken at t.
-RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
+template <class Scheme>
+RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
+  constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   ParticleStore particles = make_initial_particles(scene_in);
   const DerivedNumbers derived = derive(scene_in, particles);
   Scene scene = scene_in;
   const double dt_dem = dem::make_step_model(scene_in, particles).dt;
+  if constexpr (kOrb) (void)dt_dem;
   const bool fixed = scene.fluid.dt > 0.0;
   long long n_fixed = 0;
-  if (fixed) {
+  if (kOrb) {
+    n_fixed = scene.dem.nsubit;
+    scene.dem.regrid_interval = scene.fluid.dt; // validate_fluid: orb needs a fixed fluid.dt
+  } else if (fixed) {
     n_fixed = std::max(1LL, static_cast<long long>(std::ceil(scene.fluid.dt / dt_dem * (1 - 1e-12))));
     scene.dem.dt = scene.fluid.dt / static_cast<double>(n_fixed);
   } else {
@@ -387,8 +395,12 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
   static const bool hypre_ready = (HYPRE_Init(), true); // once per process; freed at exit
   (void)hypre_ready;
   GasCoupling gas(scene, particles);
-  dem::ExplicitScheme scheme(scene, particles, timer);
-  const double dt = scheme.dt();
+  Scheme scheme(scene, particles, timer);
+  double dt = 0.0;
+  if constexpr (kOrb)
+    dt = scheme.dt_sub();
+  else
+    dt = scheme.dt();
 
   fs::create_directories(opt.out_dir);
   DiagnosticsFile diag((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
@@ -401,7 +413,7 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
                scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag,
                scene.fluid.deposition, fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                                              : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-               dt, fixed ? fmt::format(" ({} per fluid step)", n_fixed) : std::string(),
+               dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "orb sub-iterations" : "steps") : std::string(),
                env.ranks(), env.threads());
   }
   scheme.start();
@@ -422,16 +434,28 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
   double dt_f_sum = 0.0;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record) {
-    scheme.step(record);
+    dem::LeafStepStats ls{};
+    long long k = 0;
+    if constexpr (kOrb) {
+      if (record) ls = scheme.take_interval_stats();
+      scheme.subiterate(record);
+      k = scheme.subiterations() - 1;
+    } else {
+      scheme.step(record);
+      k = scheme.steps_taken() - 1;
+    }
     if (!record) return;
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s = scheme.synchronised_previous();
-    const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, particles.mass});
-    const long long k = scheme.steps_taken() - 1;
-    const auto steps = static_cast<double>(k - k_last_row);
+    std::span<const double> mass = particles.mass;
+    if constexpr (kOrb) mass = s.mass;
+    const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, mass});
+    if constexpr (!kOrb) {
+      const auto steps = static_cast<double>(k - k_last_row);
+      ls = dem::LeafStepStats{steps, steps, steps, 1.0};
+    }
     k_last_row = k;
-    diag.add_row(row(t_row, k, st, particles.size(), scheme, seconds_since(t_loop),
-                     dem::LeafStepStats{steps, steps, steps, 1.0},
+    diag.add_row(row(t_row, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
                      means.next(t_row, s.vx, s.vy, s.vz, fd_row)));
   };
   while (end - t > 1e-6 * dt) {
@@ -489,9 +513,18 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
   j["ranks"] = env.ranks();
   j["threads"] = env.threads();
   j["particles"] = particles.size();
-  j["scheme"] = "explicit";
-  j["dt"] = dt;
-  j["steps"] = scheme.steps_taken();
+  j["scheme"] = kOrb ? "orb" : "explicit";
+  if constexpr (kOrb) {
+    j["dt"] = scheme.dt_fine();
+    j["dt_sp"] = dt;
+    j["leaves"] = scheme.leaf_count();
+    j["steps"] = scheme.subiterations();
+    j["max_overlap_ratio"] = scheme.max_overlap_ratio();
+    j["overlap_violations"] = scheme.overlap_violations();
+  } else {
+    j["dt"] = dt;
+    j["steps"] = scheme.steps_taken();
+  }
   j["fluid_steps"] = fluid_steps;
   j["fluid_dt_mean"] = fluid_steps > 0 ? dt_f_sum / static_cast<double>(fluid_steps) : 0.0;
   j["gas_substeps"] = gas.gas_substeps();
@@ -522,11 +555,18 @@ RunResult run_coupled(const Scene& scene_in, const RunOptions& opt, const Parall
     fmt::print(stderr, "Loop time of {:.4g} s for {} fluid steps ({:.4g} s each) and {} particle "
                        "steps with {} particles; fluid {:.3g} s ({:.0f}%), particles {:.3g} s\n",
                loop_seconds, fluid_steps, j["wall_seconds_per_fluid_step"].get<double>(),
-               scheme.steps_taken(), particles.size(), timer.seconds(Phase::fluid),
+               static_cast<long long>(scheme.particle_steps() /
+                                      std::max<std::int64_t>(1, static_cast<std::int64_t>(particles.size()))),
+               particles.size(), timer.seconds(Phase::fluid),
                100 * timer.seconds(Phase::fluid) / std::max(loop_seconds, 1e-300),
                timer.seconds(Phase::neighbor) + timer.seconds(Phase::force));
   }
-  return {opt.out_dir, loop_seconds, scheme.steps_taken(), scheme.particle_steps()};
+  return {opt.out_dir, loop_seconds, k_last_row + 1, scheme.particle_steps()};
+}
+
+RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  if (scene.dem.scheme == "orb") return run_coupled_with<dem::OrbScheme>(scene, opt, env);
+  return run_coupled_with<dem::ExplicitScheme>(scene, opt, env);
 }
 
 } // namespace

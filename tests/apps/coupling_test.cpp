@@ -217,6 +217,14 @@ TEST(Riser, OrbSchemeSubCycleKeepsTheMomentumBalance) {
   }
 }
 
+// The four gas scenes of scenes/ are valid (cfddem check: exit 0).
+TEST(FluidScenes, AllCheckClean) {
+  for (const char* name : {"hcs_gas", "settling", "riser", "fluidized_bed"}) {
+    const Result r = cfddem(fmt::format("check {}/scenes/{}.toml", CFDDEM_SOURCE_DIR, name));
+    EXPECT_EQ(r.code, 0) << name << ": " << r.output;
+  }
+}
+
 void expect_config_error(const std::string& scene, const std::string& overrides,
                          const std::string& needle) {
   const fs::path out = temp_path("never_written");

@@ -25,7 +25,7 @@ import subprocess
 import sys
 
 SMALL = ["domain.hi=[0.8e-3,1.0e-2,0.8e-3]", "particles.count=2500",
-         "particles.region_hi=[0.8e-3,4.8e-3,0.8e-3]", "fluid.cells=[16,50,16]",
+         "particles.region_hi=[0.8e-3,5.4e-3,0.8e-3]", "fluid.cells=[16,50,16]",
          "run.end_time=0.1", "output.interval=1e-3", "name=fluidized_bed_small"]
 
 

@@ -181,6 +181,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
   }
   gas_substeps_ += substeps;
   projection_iterations_ += report.projection_iterations;
+  projection_fallbacks_ += report.used_fallback ? 1 : 0;
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   const std::size_t n = p.size();

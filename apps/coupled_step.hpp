@@ -57,6 +57,8 @@ public:
   [[nodiscard]] int axis() const { return axis_; }
   [[nodiscard]] long long gas_substeps() const { return gas_substeps_; }
   [[nodiscard]] long long projection_iterations() const { return projection_iterations_; }
+  // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
+  [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
 
 private:
   void deposit(const ParticleStore& p);
@@ -67,7 +69,7 @@ private:
   fluid::DragLaw law_;
   int axis_ = 1;
   double last_dt_ = 0.0;
-  long long gas_substeps_ = 0, projection_iterations_ = 0;
+  long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   fluid::GridField eps_s_, work_, eps_prev_;
   std::vector<double> eps_p_, beta_, bv_, ug_[3], force_[3];
 };

@@ -529,6 +529,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   j["fluid_dt_mean"] = fluid_steps > 0 ? dt_f_sum / static_cast<double>(fluid_steps) : 0.0;
   j["gas_substeps"] = gas.gas_substeps();
   j["projection_iterations"] = gas.projection_iterations();
+  j["projection_fallbacks"] = gas.projection_fallbacks();
   j["end_time"] = t;
   j["loop_seconds"] = loop_seconds;
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();

@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "apps/coupled_step.hpp"
 #include "apps/default_scene.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/simulation.hpp"
@@ -44,7 +45,9 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
     default_name = fs::path(a.scene).stem().string();
   }
   for (const auto& o : a.overrides) cfg.apply_override(o);
-  return cfddem::read_scene(cfg, default_name);
+  cfddem::Scene scene = cfddem::read_scene(cfg, default_name);
+  cfddem::apps::validate_fluid(scene);
+  return scene;
 }
 
 const char* kKeysHelp = R"(
@@ -79,6 +82,15 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   dem.proximity_radii        orb: a leaf takes the fine step if a pair's centre distance is below
                              this many radii, (r_i + r_j) / 2 each (default 3)
   partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4)
+  fluid.*                    the gas (a scene without [fluid] has none): fluid.cells [nx, ny, nz],
+                             fluid.density, fluid.viscosity, fluid.dt (fixed dt_f, paper 1e-4) or
+                             fluid.cfl (<= 0.5), fluid.drag ("bvk", "bvk2", "koch_hill", "wen_yu",
+                             "none"), fluid.deposition ("trilinear" | "dpvm"),
+                             fluid.deposition_width (particle diameters), fluid.bc.x_lo ...
+                             fluid.bc.z_hi ("periodic", "wall", "inflow", "outflow"; default: as
+                             domain.periodic, else wall), fluid.inflow_velocity,
+                             fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
+                             fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)

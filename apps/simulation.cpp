@@ -1,14 +1,20 @@
 #include "apps/simulation.hpp"
 
+#include <array>
+#include <algorithm>
 #include <chrono>
+#include <span>
+#include <type_traits>
 #include <cmath>
 #include <filesystem>
 #include <optional>
 
 #include <fmt/format.h>
+#include <HYPRE_utilities.h>
 #include <nlohmann/json.hpp>
 
 #include "apps/checkpoint.hpp"
+#include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
 #include "core/atomic_file.hpp"
@@ -35,11 +41,55 @@ const std::vector<std::string> kColumns = {
     "time",       "step",       "granular_temperature", "kinetic_energy", "mean_speed",
     "mean_x",     "mean_y",     "mean_z",               "momentum_x",     "momentum_y",
     "momentum_z", "particles",  "particle_steps",       "force_evaluations", "neighbor_builds",
-    "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction"};
+    "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction",
+    "pressure_drop", "gas_momentum_x", "gas_momentum_y", "gas_momentum_z", "mean_vx", "mean_vy",
+    "mean_vz", "mean_ax", "mean_ay", "mean_az", "gas_mass_residual"};
+
+// Columns added by the gas issue: fluid diagnostics (0 without a fluid) and particle means.
+// mean_a is the change of the mean velocity over the output interval divided by its length (0
+// in the first row): the interval-averaged mean acceleration, free of contact noise.
+struct RowExtra {
+  FluidDiagnostics fluid;
+  std::array<double, 3> mean_v{}, mean_a{};
+};
+
+class MeanTracker {
+public:
+  RowExtra next(double t, std::span<const double> vx, std::span<const double> vy,
+                std::span<const double> vz, const FluidDiagnostics& fd = {}) {
+    RowExtra e;
+    e.fluid = fd;
+    const std::span<const double> v[3] = {vx, vy, vz};
+    for (int a = 0; a < 3; ++a) {
+      double sum = 0.0;
+      for (double q : v[a]) sum += q;
+      e.mean_v[a] = v[a].empty() ? 0.0 : sum / static_cast<double>(v[a].size());
+      e.mean_a[a] = has_ && t > t_ ? (e.mean_v[a] - v_[a]) / (t - t_) : 0.0;
+    }
+    has_ = true, t_ = t, v_ = e.mean_v;
+    return e;
+  }
+  // Continue after a restart from the last row written before the checkpoint.
+  void resume(const std::vector<double>& last_row) {
+    const auto col = [](const char* name) {
+      return static_cast<std::size_t>(
+          std::find(kColumns.begin(), kColumns.end(), name) - kColumns.begin());
+    };
+    has_ = true;
+    t_ = last_row[col("time")];
+    v_ = {last_row[col("mean_vx")], last_row[col("mean_vy")], last_row[col("mean_vz")]};
+  }
+
+private:
+  bool has_ = false;
+  double t_ = 0.0;
+  std::array<double, 3> v_{};
+};
 
 template <class Scheme>
 std::vector<double> row(double t, long long step, const dem::GranularState& s, std::size_t n,
-                        const Scheme& scheme, double wall, const dem::LeafStepStats& ls) {
+                        const Scheme& scheme, double wall, const dem::LeafStepStats& ls,
+                        const RowExtra& x) {
   return {t,
           static_cast<double>(step),
           s.granular_temperature,
@@ -59,7 +109,18 @@ std::vector<double> row(double t, long long step, const dem::GranularState& s, s
           ls.steps_min,
           ls.steps_mean,
           ls.steps_max,
-          ls.fine_fraction};
+          ls.fine_fraction,
+          x.fluid.pressure_drop,
+          x.fluid.gas_momentum[0],
+          x.fluid.gas_momentum[1],
+          x.fluid.gas_momentum[2],
+          x.mean_v[0],
+          x.mean_v[1],
+          x.mean_v[2],
+          x.mean_a[0],
+          x.mean_a[1],
+          x.mean_a[2],
+          x.fluid.mass_residual};
 }
 
 std::string format_eta(double s) {
@@ -70,6 +131,7 @@ std::string format_eta(double s) {
 }
 
 RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
+RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 
 // Steps between two events at a simulated-time interval (0: never).
 long long every(double interval, double dt) {
@@ -105,6 +167,10 @@ Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  if (scene.fluid.enabled) {
+    validate_fluid(scene);
+    return run_coupled(scene, opt, env);
+  }
   if (scene.dem.scheme == "orb" && opt.restart.empty()) return run_orb(scene, opt, env);
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
@@ -163,11 +229,13 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   };
   long long k_last_row = 0;
   const auto t_loop = clock::now();
+  MeanTracker means;
   if (ck) {
     scheme.restore_state(std::move(ck->state));
     for (auto& r : ck->rows) add_row(std::move(r));
     snapshots.restore(ck->snapshots);
     k_last_row = ck->last_row_step;
+    if (!rows.empty()) means.resume(rows.back());
   } else {
     scheme.start();
     // Row at t = 0 from the initial velocities (before the half-step shift).
@@ -182,7 +250,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     }
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, v0x, v0y, v0z,
                                   particles.mass});
-    add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1}));
+    add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
+                means.next(0.0, v0x, v0y, v0z)));
     if (snap_every > 0) snapshot(0, particles.x, particles.y, particles.z, v0x, v0y, v0z);
   }
 
@@ -216,8 +285,9 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
       const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, particles.mass});
       const auto steps = static_cast<double>(k - k_last_row);
       k_last_row = k;
-      add_row(row(static_cast<double>(k) * scheme.dt(), k, st, particles.size(), scheme,
-                  seconds_since(t_loop), dem::LeafStepStats{steps, steps, steps, 1.0}));
+      const double t = static_cast<double>(k) * scheme.dt();
+      add_row(row(t, k, st, particles.size(), scheme, seconds_since(t_loop),
+                  dem::LeafStepStats{steps, steps, steps, 1.0}, means.next(t, s.vx, s.vy, s.vz)));
     }
     if (snap) {
       const auto s = scheme.synchronised_previous();
@@ -262,6 +332,7 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   ph["io"] = timer.seconds(Phase::io);
   ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
                 timer.seconds(Phase::integrate) - timer.seconds(Phase::io);
+  ph["fluid"] = 0.0;
   j["phase_seconds"] = ph;
   j["particle_steps"] = scheme.particle_steps();
   j["force_evaluations"] = scheme.pair_evaluations();
@@ -327,11 +398,13 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
                scheme.dt_fine(), n_end, env.ranks(), env.threads());
   scheme.start();
   const auto t_loop = clock::now();
+  MeanTracker means;
   {
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
                                   particles.vy, particles.vz, particles.mass});
-    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{}));
+    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{},
+                     means.next(0.0, particles.vx, particles.vy, particles.vz)));
     if (snap_every > 0) {
       SnapshotFields f;
       f.x = particles.x, f.y = particles.y, f.z = particles.z, f.vx = particles.vx;
@@ -351,8 +424,9 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
       PhaseTimer::Scope io(timer, Phase::io);
       const auto s = scheme.synchronised_previous();
       const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, s.mass});
-      diag.add_row(row(static_cast<double>(k) * dt_sp, k, st, particles.size(), scheme,
-                       seconds_since(t_loop), ls));
+      const double t = static_cast<double>(k) * dt_sp;
+      diag.add_row(row(t, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
+                       means.next(t, s.vx, s.vy, s.vz)));
     }
     if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
                           scene.output.progress_seconds) {
@@ -397,6 +471,7 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
   ph["io"] = timer.seconds(Phase::io);
   ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
                 timer.seconds(Phase::integrate) - timer.seconds(Phase::io);
+  ph["fluid"] = 0.0;
   ph["note"] = "neighbor: ORB regrid and re-sort; force: the leaves' tasks (ghosts, local lists, "
                "force and update)";
   j["phase_seconds"] = ph;
@@ -423,6 +498,213 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
                timer.seconds(Phase::io), scheme.max_overlap_ratio(), scheme.overlap_violations());
   }
   return {opt.out_dir, loop_seconds, scheme.subiterations(), scheme.particle_steps()};
+}
+
+
+// The coupled loop (the paper's Algorithm 1): per fluid step of dt_f, deposit + gas step +
+// particle force (GasCoupling::step), then the particle sub-cycle: explicit, n_sub steps of
+// dt_f / n_sub (n_sub = ceil(dt_f / dt_dem), so the sub-cycle lands exactly on the fluid step);
+// orb, dem.nsubit sub-iterations of dt_f / nsubit (dem.regrid_interval is set to dt_f).
+// A row at fluid time t is written by the first particle step after t (as in the explicit loop,
+// the synchronised state at t needs the forces at t), with the gas diagnostics taken at t.
+template <class Scheme>
+RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
+  constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
+  namespace fs = std::filesystem;
+  const auto t_setup = clock::now();
+  ParticleStore particles = make_initial_particles(scene_in);
+  const DerivedNumbers derived = derive(scene_in, particles);
+  Scene scene = scene_in;
+  const double dt_dem = dem::make_step_model(scene_in, particles).dt;
+  if constexpr (kOrb) (void)dt_dem;
+  const bool fixed = scene.fluid.dt > 0.0;
+  long long n_fixed = 0;
+  if (kOrb) {
+    n_fixed = scene.dem.nsubit;
+    scene.dem.regrid_interval = scene.fluid.dt; // validate_fluid: orb needs a fixed fluid.dt
+  } else if (fixed) {
+    n_fixed = std::max(1LL, static_cast<long long>(std::ceil(scene.fluid.dt / dt_dem * (1 - 1e-12))));
+    scene.dem.dt = scene.fluid.dt / static_cast<double>(n_fixed);
+  } else {
+    scene.dem.dt = dt_dem;
+  }
+  PhaseTimer timer;
+  static const bool hypre_ready = (HYPRE_Init(), true); // once per process; freed at exit
+  (void)hypre_ready;
+  GasCoupling gas(scene, particles);
+  Scheme scheme(scene, particles, timer);
+  double dt = 0.0;
+  if constexpr (kOrb)
+    dt = scheme.dt_sub();
+  else
+    dt = scheme.dt();
+
+  fs::create_directories(opt.out_dir);
+  DiagnosticsFile diag((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
+  const double end = scene.run.end_time;
+  if (!opt.quiet) {
+    const auto& c = scene.fluid.cells;
+    fmt::print(stderr, "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
+                       "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
+                       "thread(s)\n",
+               scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag,
+               scene.fluid.deposition, fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
+                                             : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
+               dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "orb sub-iterations" : "steps") : std::string(),
+               env.ranks(), env.threads());
+  }
+  scheme.start();
+  const auto t_loop = clock::now();
+  MeanTracker means;
+  {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
+                                  particles.vy, particles.vz, particles.mass});
+    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
+                     means.next(0.0, particles.vx, particles.vy, particles.vz,
+                                gas.diagnostics())));
+  }
+  double t = 0.0, next_out = scene.output.interval, t_row = 0.0;
+  bool pending = false;
+  FluidDiagnostics fd_row;
+  long long fluid_steps = 0, k_last_row = 0;
+  double dt_f_sum = 0.0;
+  auto last_progress = clock::now();
+  auto particle_step = [&](bool record) {
+    dem::LeafStepStats ls{};
+    long long k = 0;
+    if constexpr (kOrb) {
+      if (record) ls = scheme.take_interval_stats();
+      scheme.subiterate(record);
+      k = scheme.subiterations() - 1;
+    } else {
+      scheme.step(record);
+      k = scheme.steps_taken() - 1;
+    }
+    if (!record) return;
+    PhaseTimer::Scope io(timer, Phase::io);
+    const auto s = scheme.synchronised_previous();
+    std::span<const double> mass = particles.mass;
+    if constexpr (kOrb) mass = s.mass;
+    const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, mass});
+    if constexpr (!kOrb) {
+      const auto steps = static_cast<double>(k - k_last_row);
+      ls = dem::LeafStepStats{steps, steps, steps, 1.0};
+    }
+    k_last_row = k;
+    diag.add_row(row(t_row, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
+                     means.next(t_row, s.vx, s.vy, s.vz, fd_row)));
+  };
+  while (end - t > 1e-6 * dt) {
+    long long n_sub = n_fixed;
+    if (!fixed) {
+      const double want = std::min({gas.cfl_dt(), scene.fluid.max_dt, end - t});
+      n_sub = std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
+    }
+    const double dt_f = static_cast<double>(n_sub) * dt;
+    {
+      PhaseTimer::Scope fl(timer, Phase::fluid);
+      gas.step(particles, dt_f);
+      scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
+    }
+    for (long long q = 0; q < n_sub; ++q) {
+      const bool record = pending && q == 0;
+      particle_step(record);
+      if (record) pending = false;
+    }
+    ++fluid_steps;
+    dt_f_sum += dt_f;
+    // A fixed step counts steps (no drift of a running sum against the output times).
+    t = fixed ? static_cast<double>(fluid_steps) * scene.fluid.dt : t + dt_f;
+    if (t >= next_out - 1e-6 * dt || end - t <= 1e-6 * dt) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      fd_row = gas.diagnostics();
+      t_row = t;
+      pending = true;
+      while (next_out <= t + 1e-6 * dt) next_out += scene.output.interval;
+    }
+    if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
+                          scene.output.progress_seconds) {
+      last_progress = clock::now();
+      const double wall = seconds_since(t_loop);
+      const double frac = t / end;
+      fmt::print(stderr, "fluid step {:>8} t = {:.6e} s ({:5.1f}%)  fluid {:.0f}% of wall  ETA {}\n",
+                 fluid_steps, t, 100 * frac, 100 * timer.seconds(Phase::fluid) / wall,
+                 format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
+    }
+  }
+  if (pending) particle_step(true); // one particle step past the end, as the explicit loop
+  diag.flush();
+  const double loop_seconds = seconds_since(t_loop);
+
+  nlohmann::ordered_json j;
+  j["program"] = "cfddem";
+  j["version"] = CFDDEM_VERSION;
+  j["scene"] = scene.name;
+  nlohmann::ordered_json cfg;
+  for (const auto& [k, v] : describe_scene(scene_in)) cfg[k] = v;
+  j["configuration"] = cfg;
+  nlohmann::ordered_json der;
+  for (const auto& [k, v] : derived.table()) der[k] = v;
+  j["derived"] = der;
+  j["ranks"] = env.ranks();
+  j["threads"] = env.threads();
+  j["particles"] = particles.size();
+  j["scheme"] = kOrb ? "orb" : "explicit";
+  if constexpr (kOrb) {
+    j["dt"] = scheme.dt_fine();
+    j["dt_sp"] = dt;
+    j["leaves"] = scheme.leaf_count();
+    j["steps"] = scheme.subiterations();
+    j["max_overlap_ratio"] = scheme.max_overlap_ratio();
+    j["overlap_violations"] = scheme.overlap_violations();
+  } else {
+    j["dt"] = dt;
+    j["steps"] = scheme.steps_taken();
+  }
+  j["fluid_steps"] = fluid_steps;
+  j["fluid_dt_mean"] = fluid_steps > 0 ? dt_f_sum / static_cast<double>(fluid_steps) : 0.0;
+  j["gas_substeps"] = gas.gas_substeps();
+  j["projection_iterations"] = gas.projection_iterations();
+  j["projection_fallbacks"] = gas.projection_fallbacks();
+  j["end_time"] = t;
+  j["loop_seconds"] = loop_seconds;
+  j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
+  j["wall_seconds_per_fluid_step"] =
+      fluid_steps > 0 ? loop_seconds / static_cast<double>(fluid_steps) : 0.0;
+  nlohmann::ordered_json ph;
+  ph["neighbor"] = timer.seconds(Phase::neighbor);
+  ph["force"] = timer.seconds(Phase::force);
+  ph["integrate"] = 0.0;
+  ph["io"] = timer.seconds(Phase::io);
+  ph["fluid"] = timer.seconds(Phase::fluid);
+  ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
+                timer.seconds(Phase::io) - timer.seconds(Phase::fluid);
+  ph["note"] = "fluid: deposition, gas step (predictor, projection), interpolation and particle "
+               "forces; neighbor + force: the particle sub-cycle";
+  j["phase_seconds"] = ph;
+  j["particle_steps"] = scheme.particle_steps();
+  j["force_evaluations"] = scheme.pair_evaluations();
+  j["neighbor_builds"] = scheme.neighbor_builds();
+  j["particle_steps_per_second"] =
+      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+  write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
+  if (!opt.quiet) {
+    fmt::print(stderr, "Loop time of {:.4g} s for {} fluid steps ({:.4g} s each) and {} particle "
+                       "steps with {} particles; fluid {:.3g} s ({:.0f}%), particles {:.3g} s\n",
+               loop_seconds, fluid_steps, j["wall_seconds_per_fluid_step"].get<double>(),
+               static_cast<long long>(scheme.particle_steps() /
+                                      std::max<std::int64_t>(1, static_cast<std::int64_t>(particles.size()))),
+               particles.size(), timer.seconds(Phase::fluid),
+               100 * timer.seconds(Phase::fluid) / std::max(loop_seconds, 1e-300),
+               timer.seconds(Phase::neighbor) + timer.seconds(Phase::force));
+  }
+  return {opt.out_dir, loop_seconds, k_last_row + 1, scheme.particle_steps()};
+}
+
+RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  if (scene.dem.scheme == "orb") return run_coupled_with<dem::OrbScheme>(scene, opt, env);
+  return run_coupled_with<dem::ExplicitScheme>(scene, opt, env);
 }
 
 } // namespace

@@ -8,10 +8,10 @@
 
 namespace cfddem {
 
-enum class Phase { neighbor = 0, force, integrate, io, other, count };
+enum class Phase { neighbor = 0, force, integrate, io, other, fluid, count };
 
 inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> phase_names = {
-    "neighbor", "force", "integrate", "io", "other"};
+    "neighbor", "force", "integrate", "io", "other", "fluid"};
 
 class PhaseTimer {
 public:

@@ -139,6 +139,72 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   s.output.snapshot_interval = non_negative(c, "output.snapshot_interval", 0.0);
   s.output.checkpoint_interval = non_negative(c, "output.checkpoint_interval", 0.0);
 
+  // Gas (optional): physics.md §4-§7.
+  if (c.has("fluid")) {
+    auto& f = s.fluid;
+    f.enabled = true;
+    const auto cells = c.require_vec3("fluid.cells");
+    for (int a = 0; a < 3; ++a) {
+      require(cells[a] >= 1 && cells[a] == std::floor(cells[a]) && cells[a] <= 1 << 16,
+              "fluid.cells",
+              fmt::format("must be 3 positive whole numbers [nx, ny, nz], got [{}, {}, {}]",
+                          cells[0], cells[1], cells[2]));
+      f.cells[a] = static_cast<std::int64_t>(cells[a]);
+    }
+    f.cell_size = c.get_vec3("fluid.cell_size", {0, 0, 0});
+    for (int a = 0; a < 3; ++a)
+      require(f.cell_size[a] >= 0.0, "fluid.cell_size", "must be >= 0 (0: domain / cells)");
+    f.density = positive(c, "fluid.density");
+    f.viscosity = non_negative(c, "fluid.viscosity", 0.0);
+    require(c.has("fluid.viscosity"), "fluid.viscosity", "is required but missing");
+    f.dt = non_negative(c, "fluid.dt", 0.0);
+    f.cfl = c.get_double("fluid.cfl", 0.4);
+    require(std::isfinite(f.cfl) && f.cfl > 0.0, "fluid.cfl",
+            fmt::format("must be > 0, got {}", f.cfl));
+    f.max_dt = c.get_double("fluid.max_dt", 1e-3);
+    require(f.max_dt > 0.0, "fluid.max_dt", "must be > 0");
+    f.drag = c.get_string("fluid.drag", "bvk");
+    require(f.drag == "bvk" || f.drag == "bvk2" || f.drag == "koch_hill" || f.drag == "wen_yu" ||
+                f.drag == "none",
+            "fluid.drag",
+            fmt::format("unknown drag law \"{}\" (available: \"bvk\", \"bvk2\", "
+                        "\"koch_hill\", \"wen_yu\", \"none\")",
+                        f.drag));
+    f.deposition = c.get_string("fluid.deposition", "trilinear");
+    require(f.deposition == "trilinear" || f.deposition == "dpvm" ||
+                f.deposition == "dpvm_cube" || f.deposition == "dpvm_sphere",
+            "fluid.deposition",
+            fmt::format("unknown kernel \"{}\" (available: \"trilinear\", \"dpvm\", "
+                        "\"dpvm_sphere\")",
+                        f.deposition));
+    f.deposition_width = c.get_double("fluid.deposition_width", 2.0);
+    require(std::isfinite(f.deposition_width) && f.deposition_width > 0.0,
+            "fluid.deposition_width", "must be > 0 (particle diameters)");
+    static const char* faces[6] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
+    for (int k = 0; k < 6; ++k) {
+      const std::string key = fmt::format("fluid.bc.{}", faces[k]);
+      const bool periodic = s.domain.periodic[static_cast<std::size_t>(k / 2)];
+      // Default: the particles' domain (periodic axis periodic, else a no-slip wall).
+      f.bc[static_cast<std::size_t>(k)] = c.get_string(key, periodic ? "periodic" : "wall");
+      const std::string& b = f.bc[static_cast<std::size_t>(k)];
+      require(b == "periodic" || b == "wall" || b == "inflow" || b == "outflow", key,
+              fmt::format("unknown boundary \"{}\" (available: \"periodic\", \"wall\", "
+                          "\"inflow\", \"outflow\")",
+                          b));
+      require((b == "periodic") == periodic, key,
+              fmt::format("is \"{}\" but domain.periodic is {} on that axis: the gas and the "
+                          "particles must agree on periodicity",
+                          b, periodic));
+    }
+    f.inflow_velocity = c.get_vec3("fluid.inflow_velocity", {0, 0, 0});
+    f.outflow_pressure = c.get_double("fluid.outflow_pressure", 0.0);
+    f.pressure_drop = c.get_vec3("fluid.pressure_drop", {0, 0, 0});
+    f.velocity = c.get_vec3("fluid.velocity", {0, 0, 0});
+    f.implicit_viscosity = c.get_bool("fluid.implicit_viscosity", false);
+    f.tolerance = c.get_double("fluid.tolerance", 1e-10);
+    require(f.tolerance > 0.0 && f.tolerance < 1.0, "fluid.tolerance", "must be in (0, 1)");
+  }
+
   c.check_all_used();
   return s;
 }
@@ -203,6 +269,28 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("output.progress_seconds", num(s.output.progress_seconds));
   o.emplace_back("output.snapshot_interval", num(s.output.snapshot_interval));
   o.emplace_back("output.checkpoint_interval", num(s.output.checkpoint_interval));
+  const auto& f = s.fluid;
+  if (f.enabled) {
+    o.emplace_back("fluid.cells", fmt::format("[{}, {}, {}]", f.cells[0], f.cells[1], f.cells[2]));
+    o.emplace_back("fluid.cell_size", vec3(f.cell_size));
+    o.emplace_back("fluid.density", num(f.density));
+    o.emplace_back("fluid.viscosity", num(f.viscosity));
+    o.emplace_back("fluid.dt", num(f.dt));
+    o.emplace_back("fluid.cfl", num(f.cfl));
+    o.emplace_back("fluid.max_dt", num(f.max_dt));
+    o.emplace_back("fluid.drag", str(f.drag));
+    o.emplace_back("fluid.deposition", str(f.deposition));
+    o.emplace_back("fluid.deposition_width", num(f.deposition_width));
+    static const char* faces[6] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
+    for (int k = 0; k < 6; ++k)
+      o.emplace_back(fmt::format("fluid.bc.{}", faces[k]), str(f.bc[static_cast<std::size_t>(k)]));
+    o.emplace_back("fluid.inflow_velocity", vec3(f.inflow_velocity));
+    o.emplace_back("fluid.outflow_pressure", num(f.outflow_pressure));
+    o.emplace_back("fluid.pressure_drop", vec3(f.pressure_drop));
+    o.emplace_back("fluid.velocity", vec3(f.velocity));
+    o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity ? "true" : "false");
+    o.emplace_back("fluid.tolerance", num(f.tolerance));
+  }
   return o;
 }
 

@@ -67,6 +67,30 @@ struct OutputSpec {
   double checkpoint_interval = 0.0; // simulated seconds between checkpoints (0: none)
 };
 
+// The gas (scene table [fluid]); absent = no fluid work at all. Names are checked here, the grid
+// and boundary conditions by the coupling (apps/coupled_step), which knows the fluid library.
+struct FluidSpec {
+  bool enabled = false;
+  std::array<std::int64_t, 3> cells{};       // fluid.cells [nx, ny, nz]
+  std::array<double, 3> cell_size{};         // fluid.cell_size [m]; 0 = extent / cells
+  double density = 0.0;                      // rho_g [kg/m^3]
+  double viscosity = 0.0;                    // mu_g [Pa s]
+  double dt = 0.0;                           // fixed coupling step dt_f [s]; 0 = from cfl
+  double cfl = 0.4;                          // Courant number of the gas sub-steps / adaptive dt_f
+  double max_dt = 1e-3;                      // adaptive dt_f cap [s]
+  std::string drag = "bvk";                  // bvk | bvk2 | koch_hill | wen_yu | none
+  std::string deposition = "trilinear";      // trilinear | dpvm (= dpvm_cube) | dpvm_sphere
+  double deposition_width = 2.0;             // dpvm kernel width in particle diameters
+  // Per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi: periodic | wall | inflow | outflow.
+  std::array<std::string, 6> bc{};
+  std::array<double, 3> inflow_velocity{};   // gas velocity on inflow faces [m/s]
+  double outflow_pressure = 0.0;             // p' on outflow faces [Pa]
+  std::array<double, 3> pressure_drop{};     // MFIX's delp across periodic axes [Pa]
+  std::array<double, 3> velocity{};          // initial gas velocity [m/s]
+  bool implicit_viscosity = false;
+  double tolerance = 1e-10;                  // projection PCG relative residual
+};
+
 struct Scene {
   std::string name;
   DomainSpec domain;
@@ -76,6 +100,7 @@ struct Scene {
   PartitionSpec partition;
   RunSpec run;
   OutputSpec output;
+  FluidSpec fluid;
 };
 
 // Read and validate every key; throws ConfigError naming the key. Unknown keys are errors.

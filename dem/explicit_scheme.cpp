@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 #include <unordered_map>
 
 #include <fmt/format.h>
@@ -117,6 +118,15 @@ void ExplicitScheme::rebuild() {
             }
         }
       }
+    }
+  }
+  if (external_) {
+    // The build permuted the store: the external forces follow their particles.
+    const auto order = list_.order();
+    for (auto* v : {&ex_, &ey_, &ez_}) {
+      std::vector<double> out(order.size());
+      for (std::size_t k = 0; k < order.size(); ++k) out[k] = (*v)[order[k]];
+      v->swap(out);
     }
   }
   // Only particles with a row get their contact force rewritten each step: clear the rest.
@@ -283,10 +293,14 @@ static void add_wall_forces(const DomainGeometry& g, const StepModel& m, Particl
 // vectorize with no floating-point reassociation and no in-order dependency chain (a max, a
 // floating-point count, or int64 counts of double compares all vectorize badly or not at all
 // on baseline x86-64).
+// With External, a per-particle external force (the gas's, held over the sub-cycle) is added.
+template <bool External>
 static void integrate_range(double* __restrict x, double* __restrict y, double* __restrict z,
                             double* __restrict vx, double* __restrict vy, double* __restrict vz,
                             const double* __restrict fx, const double* __restrict fy,
-                            const double* __restrict fz, const double* __restrict im,
+                            const double* __restrict fz, const double* __restrict ex,
+                            const double* __restrict ey, const double* __restrict ez,
+                            const double* __restrict im,
                             const double* __restrict rx, const double* __restrict ry,
                             const double* __restrict rz, std::size_t n, double h, double gx,
                             double gy, double gz, double skin2, double lim2, double& moved,
@@ -294,14 +308,21 @@ static void integrate_range(double* __restrict x, double* __restrict y, double* 
   std::uint64_t still = ~std::uint64_t{0}, slow = ~std::uint64_t{0}; // sign bit: all fine
   for (std::size_t i = 0; i < n; ++i) {
     const double s = im[i] * h;
-    const double ux = vx[i] + fx[i] * s + gx;
-    const double uy = vy[i] + fy[i] * s + gy;
-    const double uz = vz[i] + fz[i] * s + gz;
+    double ux, uy, uz;
+    if constexpr (External) {
+      ux = vx[i] + (fx[i] + ex[i]) * s + gx;
+      uy = vy[i] + (fy[i] + ey[i]) * s + gy;
+      uz = vz[i] + (fz[i] + ez[i]) * s + gz;
+    } else {
+      ux = vx[i] + fx[i] * s + gx;
+      uy = vy[i] + fy[i] * s + gy;
+      uz = vz[i] + fz[i] * s + gz;
+    }
     vx[i] = ux, vy[i] = uy, vz[i] = uz;
     const double px = x[i] + ux * h, py = y[i] + uy * h, pz = z[i] + uz * h;
     x[i] = px, y[i] = py, z[i] = pz;
-    const double ex = px - rx[i], ey = py - ry[i], ez = pz - rz[i];
-    still &= std::bit_cast<std::uint64_t>(ex * ex + ey * ey + ez * ez > skin2 ? 1.0 : -1.0);
+    const double dx = px - rx[i], dy = py - ry[i], dz = pz - rz[i];
+    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > skin2 ? 1.0 : -1.0);
     slow &= std::bit_cast<std::uint64_t>(ux * ux + uy * uy + uz * uz <= lim2 ? -1.0 : 1.0);
   }
   moved += (still >> 63) ? 0.0 : 1.0;
@@ -311,7 +332,7 @@ static void integrate_range(double* __restrict x, double* __restrict y, double* 
 // v(n+1/2) = v(n-1/2) + (F/m + g) dt, x(n+1) = x(n) + v(n+1/2) dt over every particle. Without
 // walls the loop has no branch and vectorizes; the checks are folded into reductions and the
 // offending particle is searched for only when one fails.
-template <bool Walls, bool Friction>
+template <bool Walls, bool Friction, bool External>
 void ExplicitScheme::update_pass(double dt, Report& out) {
   const std::size_t n = p_.size();
   const DomainGeometry g = geom_;
@@ -339,6 +360,9 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
     double* __restrict fy = p_.fy.data();
     double* __restrict fz = p_.fz.data();
     const double* __restrict im = p_.inv_mass.data();
+    [[maybe_unused]] const double* __restrict fex = ex_.data();
+    [[maybe_unused]] const double* __restrict fey = ey_.data();
+    [[maybe_unused]] const double* __restrict fez = ez_.data();
     if constexpr (Walls) {
       // A particle without a neighbor row keeps last step's total (contact + wall) in f: start
       // it from zero. Rows are fixed between builds, so this is exact.
@@ -358,9 +382,10 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
     }
     const std::size_t b = r.begin(), e = r.end();
     double moved = 0.0, fails = 0.0;
-    integrate_range(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b, im + b,
-                    xr + b, yr + b, zr + b, e - b, dt, gx, gy, gz, half_skin2, vmax2, moved,
-                    fails);
+    integrate_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
+                              External ? fex + b : nullptr, External ? fey + b : nullptr,
+                              External ? fez + b : nullptr, im + b, xr + b, yr + b, zr + b, e - b,
+                              dt, gx, gy, gz, half_skin2, vmax2, moved, fails);
     if constexpr (Friction) {
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
         const double s = p_.inv_inertia[i] * dt;
@@ -413,6 +438,29 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
   }
 }
 
+template <bool Walls> void ExplicitScheme::update(double dt, Report& rep) {
+  if (model_.friction) {
+    external_ ? update_pass<Walls, true, true>(dt, rep) : update_pass<Walls, true, false>(dt, rep);
+  } else {
+    external_ ? update_pass<Walls, false, true>(dt, rep)
+              : update_pass<Walls, false, false>(dt, rep);
+  }
+}
+
+void ExplicitScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
+                                        std::span<const double> fz) {
+  external_ = !fx.empty();
+  if (!external_) {
+    ex_.clear(), ey_.clear(), ez_.clear();
+    return;
+  }
+  if (fx.size() != p_.size() || fy.size() != p_.size() || fz.size() != p_.size())
+    throw std::invalid_argument("set_external_force: one value per particle expected");
+  ex_.assign(fx.begin(), fx.end());
+  ey_.assign(fy.begin(), fy.end());
+  ez_.assign(fz.begin(), fz.end());
+}
+
 void ExplicitScheme::evaluate_and_update(double dt, Report& rep) {
   const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
   {
@@ -421,11 +469,7 @@ void ExplicitScheme::evaluate_and_update(double dt, Report& rep) {
   }
   // Wall forces are evaluated inside the update pass and timed with it.
   PhaseTimer::Scope t(timer_, Phase::integrate);
-  if (model_.friction) {
-    walls ? update_pass<true, true>(dt, rep) : update_pass<false, true>(dt, rep);
-  } else {
-    walls ? update_pass<true, false>(dt, rep) : update_pass<false, false>(dt, rep);
-  }
+  walls ? update<true>(dt, rep) : update<false>(dt, rep);
 }
 
 void ExplicitScheme::raise(const Report& r, double t) const {
@@ -469,9 +513,11 @@ void ExplicitScheme::start() {
   if (rep.bad != kNone && rep.fault == Fault::overlap) raise(rep, 0.0);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < p_.size(); ++i) {
-    p_.vx[i] -= (p_.fx[i] * p_.inv_mass[i] + model_.gravity[0]) * h;
-    p_.vy[i] -= (p_.fy[i] * p_.inv_mass[i] + model_.gravity[1]) * h;
-    p_.vz[i] -= (p_.fz[i] * p_.inv_mass[i] + model_.gravity[2]) * h;
+    const double e[3] = {external_ ? ex_[i] : 0.0, external_ ? ey_[i] : 0.0,
+                         external_ ? ez_[i] : 0.0};
+    p_.vx[i] -= ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
+    p_.vy[i] -= ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
+    p_.vz[i] -= ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
     if (model_.friction) {
       p_.wx[i] -= p_.tx[i] * p_.inv_inertia[i] * h;
       p_.wy[i] -= p_.ty[i] * p_.inv_inertia[i] * h;
@@ -487,9 +533,11 @@ void ExplicitScheme::record_synchronised() {
   svx_.resize(n), svy_.resize(n), svz_.resize(n);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < n; ++i) {
-    svx_[i] = p_.vx[i] + (p_.fx[i] * p_.inv_mass[i] + model_.gravity[0]) * h;
-    svy_[i] = p_.vy[i] + (p_.fy[i] * p_.inv_mass[i] + model_.gravity[1]) * h;
-    svz_[i] = p_.vz[i] + (p_.fz[i] * p_.inv_mass[i] + model_.gravity[2]) * h;
+    const double e[3] = {external_ ? ex_[i] : 0.0, external_ ? ey_[i] : 0.0,
+                         external_ ? ez_[i] : 0.0};
+    svx_[i] = p_.vx[i] + ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
+    svy_[i] = p_.vy[i] + ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
+    svz_[i] = p_.vz[i] + ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
   }
 }
 
@@ -510,13 +558,13 @@ void ExplicitScheme::step(bool record) {
     if (walls) {
       // Wall forces are added inside the update pass; record after a force-only wall pass would
       // double count, so record with the wall forces applied by a dt = 0 update.
-      fr ? update_pass<true, true>(0.0, rep) : update_pass<true, false>(0.0, rep);
+      fr ? update_pass<true, true, false>(0.0, rep) : update_pass<true, false, false>(0.0, rep);
       record_synchronised();
       // The dt = 0 pass left x, v unchanged and F including walls; finish with a pure update.
-      fr ? update_pass<false, true>(model_.dt, rep) : update_pass<false, false>(model_.dt, rep);
+      update<false>(model_.dt, rep);
     } else {
       record_synchronised();
-      fr ? update_pass<false, true>(model_.dt, rep) : update_pass<false, false>(model_.dt, rep);
+      update<false>(model_.dt, rep);
     }
   }
   if (rep.bad != kNone) raise(rep, time());

@@ -58,6 +58,14 @@ public:
   std::int64_t neighbor_builds() const { return builds_; }
   const StepModel& model() const { return model_; }
 
+  // Per-particle external force [N] (the gas's drag and pressure force), added in the update pass
+  // and held fixed until set again (MFIX-Exa holds them over the particle sub-cycle, physics.md
+  // §2). Spans of size() entries, in the store's order; an empty span removes it. Without one the
+  // update pass is the same instantiation as before (no extra loads).
+  void set_external_force(std::span<const double> fx, std::span<const double> fy,
+                          std::span<const double> fz);
+  bool has_external_force() const { return external_; }
+
   // State at the start of the last step recorded (time() - dt): positions x(n) and velocity
   // Verlet's synchronised velocity v(n) = v(n-1/2) + a(n) dt/2.
   struct Synchronised {
@@ -83,7 +91,8 @@ public:
 private:
   struct Report;
   template <bool Friction> void contact_pass(double dt, Report& report);
-  template <bool Walls, bool Friction> void update_pass(double dt, Report& report);
+  template <bool Walls, bool Friction, bool External> void update_pass(double dt, Report& report);
+  template <bool Walls> void update(double dt, Report& report);
   void evaluate_and_update(double dt, Report& report);
   void record_synchronised();
   void rebuild();
@@ -100,6 +109,9 @@ private:
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_;
   // Tangential history per full-list entry (friction only).
   std::vector<double> hx_, hy_, hz_;
+  // External force per particle (set_external_force).
+  std::vector<double> ex_, ey_, ez_;
+  bool external_ = false;
   bool need_rebuild_ = true;
   std::int64_t steps_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0;
 };

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <stdexcept>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -23,6 +24,7 @@ enum class Fault { none = 0, nan, left_domain };
 // leaf's counters. Only the task running the leaf writes it.
 struct OrbScheme::Workspace {
   std::vector<double> x, y, z, vx, vy, vz, r, m, im, hp, fx, fy, fz, x0, y0, z0;
+  std::vector<double> gx, gy, gz; // own: gravity + external force / m (external force only)
   std::vector<double> sx, sy, sz, svx, svy, svz; // recorded state (own)
   std::vector<std::uint32_t> oi, oj, gi, gj;     // own-own and own-ghost pairs
   std::vector<std::uint32_t> sorted;
@@ -77,6 +79,7 @@ void OrbScheme::regrid() {
   std::vector<double> h(hprev_.size());
   for (std::size_t k = 0; k < order.size(); ++k) h[k] = hprev_[order[k]];
   hprev_.swap(h);
+  permute_external(order);
   const auto leaves = tree_.leaves();
   ranges_.assign(leaves.size() + 1, 0);
   for (std::size_t l = 0; l < leaves.size(); ++l) ranges_[l + 1] = leaves[l].end;
@@ -112,11 +115,36 @@ void OrbScheme::resort() {
   std::vector<double> h(n);
   for (std::size_t k = 0; k < n; ++k) h[k] = hprev_[order[k]];
   hprev_.swap(h);
+  permute_external(order);
+}
+
+void OrbScheme::permute_external(std::span<const std::uint32_t> order) {
+  if (!external_) return;
+  for (auto* v : {&ex_, &ey_, &ez_}) {
+    std::vector<double> out(order.size());
+    for (std::size_t k = 0; k < order.size(); ++k) out[k] = (*v)[order[k]];
+    v->swap(out);
+  }
+}
+
+void OrbScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
+                                   std::span<const double> fz) {
+  external_ = !fx.empty();
+  if (!external_) {
+    ex_.clear(), ey_.clear(), ez_.clear();
+    return;
+  }
+  if (fx.size() != p_.size() || fy.size() != p_.size() || fz.size() != p_.size())
+    throw std::invalid_argument("set_external_force: one value per particle expected");
+  ex_.assign(fx.begin(), fx.end());
+  ey_.assign(fy.begin(), fy.end());
+  ez_.assign(fz.begin(), fz.end());
 }
 
 void OrbScheme::run_leaf(int leaf, bool record, Workspace& w) const {
   const auto l = static_cast<std::size_t>(leaf);
   const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
+  const bool ext = external_;
   w.n_own = e - b;
   w.steps = w.pair_evals = w.builds = w.violations = 0;
   w.fine = false;
@@ -132,6 +160,15 @@ void OrbScheme::run_leaf(int leaf, bool record, Workspace& w) const {
     w.hp.push_back(hprev_[i]);
   };
   for (std::uint32_t i = b; i < e; ++i) push(i, 0.0, 0.0, 0.0);
+  if (external_) {
+    // Body acceleration of the own particles: gravity + the external (gas) force / m.
+    clear(w.gx, w.gy, w.gz);
+    for (std::uint32_t i = b; i < e; ++i) {
+      w.gx.push_back(model_.gravity[0] + ex_[i] * p_.inv_mass[i]);
+      w.gy.push_back(model_.gravity[1] + ey_[i] * p_.inv_mass[i]);
+      w.gz.push_back(model_.gravity[2] + ez_[i] * p_.inv_mass[i]);
+    }
+  }
   // Ghosts: particles of other leaves (through each periodic image) within the halo of the box.
   // Copies of the own leaf's periodic images are not needed: own-own pairs use minimum image.
   const partition::Aabb box = tree_.leaves()[l].box;
@@ -260,18 +297,22 @@ void OrbScheme::run_leaf(int leaf, bool record, Workspace& w) const {
     }
     if (record && k == 0)
       for (std::size_t i = 0; i < no; ++i) {
-        w.svx[i] = w.vx[i] + (w.fx[i] * w.im[i] + m.gravity[0]) * w.hp[i];
-        w.svy[i] = w.vy[i] + (w.fy[i] * w.im[i] + m.gravity[1]) * w.hp[i];
-        w.svz[i] = w.vz[i] + (w.fz[i] * w.im[i] + m.gravity[2]) * w.hp[i];
+        const double bx = ext ? w.gx[i] : m.gravity[0], by = ext ? w.gy[i] : m.gravity[1],
+                     bz = ext ? w.gz[i] : m.gravity[2];
+        w.svx[i] = w.vx[i] + (w.fx[i] * w.im[i] + bx) * w.hp[i];
+        w.svy[i] = w.vy[i] + (w.fy[i] * w.im[i] + by) * w.hp[i];
+        w.svz[i] = w.vz[i] + (w.fz[i] * w.im[i] + bz) * w.hp[i];
       }
     // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h.
     const double half = 0.5 * hk;
     double md = 0.0;
     for (std::size_t i = 0; i < no; ++i) {
       const double s = w.hp[i] + half;
-      w.vx[i] += (w.fx[i] * w.im[i] + m.gravity[0]) * s;
-      w.vy[i] += (w.fy[i] * w.im[i] + m.gravity[1]) * s;
-      w.vz[i] += (w.fz[i] * w.im[i] + m.gravity[2]) * s;
+      const double bx = ext ? w.gx[i] : m.gravity[0], by = ext ? w.gy[i] : m.gravity[1],
+                   bz = ext ? w.gz[i] : m.gravity[2];
+      w.vx[i] += (w.fx[i] * w.im[i] + bx) * s;
+      w.vy[i] += (w.fy[i] * w.im[i] + by) * s;
+      w.vz[i] += (w.fz[i] * w.im[i] + bz) * s;
       w.x[i] += w.vx[i] * hk, w.y[i] += w.vy[i] * hk, w.z[i] += w.vz[i] * hk;
       w.hp[i] = half;
       const double ex = w.x[i] - w.x0[i], ey = w.y[i] - w.y0[i], ez = w.z[i] - w.z0[i];

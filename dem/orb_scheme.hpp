@@ -75,6 +75,12 @@ public:
   // Fraction of non-empty leaves on the fine step in the last sub-iteration.
   double last_fine_fraction() const { return last_fine_fraction_; }
 
+  // Per-particle external force [N] (the gas's drag and pressure), as ExplicitScheme's: held
+  // fixed until set again, follows its particle through regrids and re-sorts; in the store's
+  // current order; an empty span removes it.
+  void set_external_force(std::span<const double> fx, std::span<const double> fy,
+                          std::span<const double> fz);
+
   // Statistics since the last call (then reset).
   LeafStepStats take_interval_stats();
 
@@ -94,6 +100,7 @@ private:
   void regrid();
   void resort();
   void run_leaf(int leaf, bool record, Workspace& w) const;
+  void permute_external(std::span<const std::uint32_t> order);
 
   const Scene& scene_;
   ParticleStore& p_;
@@ -105,6 +112,8 @@ private:
   double dt_sp_ = 0.0, halo_ = 0.0, r_max_ = 0.0;
   std::int64_t nsubit_ = 1;
   std::vector<double> hprev_;         // per particle: half of its last step
+  std::vector<double> ex_, ey_, ez_;  // external force per particle (set_external_force)
+  bool external_ = false;
   std::vector<std::uint32_t> ranges_; // leaf l owns [ranges_[l], ranges_[l+1])
   std::vector<Workspace> work_;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;

@@ -1,0 +1,263 @@
+#include "apps/coupled_step.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <stdexcept>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+#include "fluid/ghost_fill.hpp"
+#include "fluid/pressure_projection.hpp"
+
+namespace cfddem::apps {
+
+namespace {
+
+// Floor on eps_g seen by the solver and the drag laws: a cell packed beyond random close packing
+// (eps_g ~ 0.36) by deposition noise would make 1/eps^3 terms blow up. Only dense beds reach it.
+constexpr double kMinGasFraction = 0.3;
+
+fluid::BoundaryKind boundary_kind(const std::string& name) {
+  if (name == "periodic") return fluid::BoundaryKind::periodic;
+  if (name == "inflow") return fluid::BoundaryKind::inflow;
+  if (name == "outflow") return fluid::BoundaryKind::outflow;
+  return fluid::BoundaryKind::wall;
+}
+
+fluid::DepositionKernel kernel(const std::string& name) {
+  if (name == "trilinear") return fluid::DepositionKernel::trilinear;
+  if (name == "dpvm_sphere") return fluid::DepositionKernel::dpvm_sphere;
+  return fluid::DepositionKernel::dpvm_cube; // "dpvm" = MFIX-Exa's cube kernel
+}
+
+fluid::GasSolverSettings solver_settings(const Scene& s) {
+  fluid::GasSolverSettings g;
+  g.gas.density = s.fluid.density;
+  g.gas.viscosity = s.fluid.viscosity;
+  g.gas.gravity = s.gravity;
+  g.cfl = s.fluid.cfl;
+  g.implicit_viscosity = s.fluid.implicit_viscosity;
+  g.projection.tolerance = s.fluid.tolerance;
+  return g;
+}
+
+} // namespace
+
+fluid::MacGridSpec fluid_grid_spec(const Scene& s) {
+  const FluidSpec& f = s.fluid;
+  fluid::MacGridSpec spec;
+  for (int a = 0; a < 3; ++a) {
+    spec.cells[a] = static_cast<int>(f.cells[a]);
+    spec.origin[a] = s.domain.lo[a];
+    spec.extent[a] = s.domain.length(a);
+    spec.spacing[a] = f.cell_size[a];
+    spec.pressure_drop[a] = f.pressure_drop[a];
+  }
+  for (int k = 0; k < fluid::kFaces; ++k) {
+    auto& bc = spec.bc[static_cast<std::size_t>(k)];
+    bc.kind = boundary_kind(f.bc[static_cast<std::size_t>(k)]);
+    if (bc.kind == fluid::BoundaryKind::inflow) bc.velocity = f.inflow_velocity;
+    if (bc.kind == fluid::BoundaryKind::outflow) bc.pressure = f.outflow_pressure;
+  }
+  const std::vector<std::string> problems = fluid::check_mac_grid(spec);
+  if (!problems.empty()) {
+    // Name the key each problem comes from (the fluid library words them per axis or face).
+    const std::string& p = problems.front();
+    std::string key = "fluid.bc";
+    if (p.find("tile") != std::string::npos || p.find("cell size") != std::string::npos)
+      key = "fluid.cell_size";
+    else if (p.find(" cells") != std::string::npos)
+      key = "fluid.cells";
+    else if (p.find("pressure drop") != std::string::npos)
+      key = "fluid.pressure_drop";
+    else if (p.find("inflow velocity") != std::string::npos)
+      key = "fluid.inflow_velocity";
+    std::string all;
+    for (const auto& q : problems) all += (all.empty() ? "" : "; ") + q;
+    throw ConfigError(fmt::format("scene key '{}'", key), all);
+  }
+  return spec;
+}
+
+void validate_fluid(const Scene& s) {
+  if (!s.fluid.enabled) return;
+  (void)fluid_grid_spec(s);
+  if (!(s.fluid.cfl <= fluid::kMaxStableCourant))
+    throw ConfigError("scene key 'fluid.cfl'",
+                      fmt::format("{} is above the stable limit {} of the explicit gas predictor "
+                                  "(limited MUSCL advection with SSP Euler stages)",
+                                  s.fluid.cfl, fluid::kMaxStableCourant));
+  if (s.dem.scheme == "orb" && !(s.fluid.dt > 0.0))
+    throw ConfigError("scene key 'fluid.dt'",
+                      "dem.scheme = \"orb\" with a fluid needs a fixed fluid.dt (its "
+                      "sub-iterations are fluid.dt / dem.nsubit)");
+}
+
+GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p)
+    : scene_(scene), grid_(fluid_grid_spec(scene)) {
+  solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene));
+  double r_max = 0.0;
+  for (double r : p.radius) r_max = std::max(r_max, r);
+  fluid::DepositionSettings ds;
+  ds.kernel = kernel(scene.fluid.deposition);
+  ds.width = scene.fluid.deposition_width;
+  deposition_ = std::make_unique<fluid::Deposition>(grid_, ds, std::max(r_max, 1e-300));
+  law_ = fluid::parse_drag_law(scene.fluid.drag);
+  eps_s_ = grid_.make_field();
+  work_ = grid_.make_field();
+  // Axis of the pressure drop diagnostic.
+  int axis = -1;
+  double gmax = 0.0;
+  for (int a = 0; a < 3; ++a)
+    if (std::abs(scene.gravity[a]) > gmax) gmax = std::abs(scene.gravity[a]), axis = a;
+  for (int a = 0; a < 3 && axis < 0; ++a)
+    if (scene.fluid.pressure_drop[a] != 0.0) axis = a;
+  for (int k = 0; k < fluid::kFaces && axis < 0; ++k)
+    if (scene.fluid.bc[static_cast<std::size_t>(k)] == "inflow") axis = k / 2;
+  axis_ = axis < 0 ? 1 : axis;
+  // Initial gas velocity: uniform on faces (the first projection makes it admissible).
+  for (int a = 0; a < 3; ++a) solver_->velocity()[a].fill(scene.fluid.velocity[a]);
+  // eps_g of the initial particles, so the first step sees no d(eps)/dt.
+  deposit(p);
+  solver_->reset_volume_fraction_history();
+}
+
+GasCoupling::~GasCoupling() = default;
+
+void GasCoupling::deposit(const ParticleStore& p) {
+  const std::size_t n = p.size();
+  const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
+  // Solid fraction -> eps_g (physics.md §7), floored (kMinGasFraction).
+  eps_s_.fill(0.0);
+  deposition_->deposit_solid_fraction(pos, eps_s_);
+  fluid::GridField& eps = solver_->volume_fraction();
+  const auto& nc = grid_.cells();
+  for (int k = 0; k < nc[2]; ++k)
+    for (int j = 0; j < nc[1]; ++j)
+      for (int i = 0; i < nc[0]; ++i)
+        eps(i, j, k) = std::max(kMinGasFraction, 1.0 - eps_s_(i, j, k));
+  // eps_g and the gas velocity (of the last step) at the particles.
+  eps_p_.resize(n), beta_.resize(n), bv_.resize(n);
+  deposition_->interpolate(pos, eps, eps_p_);
+  for (int a = 0; a < 3; ++a) {
+    ug_[a].resize(n);
+    solver_->cell_centred_velocity(a, work_);
+    deposition_->interpolate(pos, work_, ug_[a]);
+  }
+  // beta_i from the drag law (physics.md §4) with the slip |u_g - v_i|.
+  const double rho = scene_.fluid.density, mu = scene_.fluid.viscosity;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double sx = ug_[0][i] - p.vx[i], sy = ug_[1][i] - p.vy[i], sz = ug_[2][i] - p.vz[i];
+    const double slip = std::sqrt(sx * sx + sy * sy + sz * sz);
+    const double e = std::clamp(eps_p_[i], kMinGasFraction, 1.0);
+    beta_[i] = fluid::drag_beta(law_, e, 2.0 * p.radius[i], slip, rho, mu);
+  }
+  fluid::GridField& bcell = solver_->drag_coefficient();
+  bcell.fill(0.0);
+  deposition_->deposit(pos, beta_, bcell);
+  const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
+  for (int a = 0; a < 3; ++a) {
+    for (std::size_t i = 0; i < n; ++i) bv_[i] = beta_[i] * (*v[a])[i];
+    fluid::GridField& f = solver_->drag_velocity_sum(a);
+    f.fill(0.0);
+    deposition_->deposit(pos, bv_, f);
+  }
+}
+
+double GasCoupling::cfl_dt() const { return solver_->dt_for_courant(scene_.fluid.cfl); }
+
+fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
+  eps_prev_ = solver_->volume_fraction();
+  deposit(p);
+  int substeps = 0;
+  fluid::GasStepReport report;
+  try {
+    report = solver_->advance(dt_f, &substeps);
+  } catch (const std::runtime_error& e) {
+    throw RunError(fmt::format("gas step: {}", e.what()));
+  }
+  gas_substeps_ += substeps;
+  projection_iterations_ += report.projection_iterations;
+  projection_fallbacks_ += report.used_fallback ? 1 : 0;
+  last_dt_ = dt_f;
+  // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
+  const std::size_t n = p.size();
+  const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
+  const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
+  for (int a = 0; a < 3; ++a) {
+    force_[a].resize(n);
+    solver_->cell_centred_velocity(a, work_);
+    deposition_->interpolate(pos, work_, ug_[a]);
+    std::vector<double>& gp = bv_; // scratch
+    solver_->cell_pressure_gradient(a, work_);
+    deposition_->interpolate(pos, work_, gp);
+    for (std::size_t i = 0; i < n; ++i) {
+      const double r = p.radius[i];
+      const double vp = (4.0 / 3.0) * std::numbers::pi * r * r * r;
+      force_[a][i] = beta_[i] * (ug_[a][i] - (*v[a])[i]) - vp * gp[i];
+    }
+  }
+  return report;
+}
+
+FluidDiagnostics GasCoupling::diagnostics() const {
+  FluidDiagnostics d;
+  const auto& nc = grid_.cells();
+  const double rho = scene_.fluid.density, vol = grid_.cell_volume();
+  const fluid::GridField& eps = solver_->volume_fraction();
+  fluid::GridField uc = grid_.make_field();
+  for (int a = 0; a < 3; ++a) {
+    solver_->cell_centred_velocity(a, uc);
+    double sum = 0.0;
+    for (int k = 0; k < nc[2]; ++k)
+      for (int j = 0; j < nc[1]; ++j)
+        for (int i = 0; i < nc[0]; ++i) sum += eps(i, j, k) * uc(i, j, k);
+    d.gas_momentum[a] = rho * vol * sum;
+  }
+  // Pressure drop along the axis between the boundary faces: plane means of the full pressure
+  // p = p' + gp0 . x, extrapolated linearly from the two cell planes next to each face (so the
+  // particles in the first and last half cells count, and a uniform gradient is exact).
+  const int ax = axis_;
+  const fluid::GridField& pp = solver_->pressure();
+  const int m = nc[ax];
+  std::vector<double> plane(static_cast<std::size_t>(m), 0.0);
+  for (int k = 0; k < nc[2]; ++k)
+    for (int j = 0; j < nc[1]; ++j)
+      for (int i = 0; i < nc[0]; ++i) {
+        const int c[3] = {i, j, k};
+        plane[static_cast<std::size_t>(c[ax])] += pp(i, j, k);
+      }
+  const double per_plane = static_cast<double>(nc[0]) * nc[1] * nc[2] / m;
+  const double gp0 = solver_->background_pressure_gradient()[static_cast<std::size_t>(ax)];
+  const double dx = grid_.spacing(ax);
+  for (int c = 0; c < m; ++c)
+    plane[static_cast<std::size_t>(c)] = plane[static_cast<std::size_t>(c)] / per_plane +
+                                         gp0 * (c + 0.5) * dx;
+  const double p_lo = m > 1 ? 1.5 * plane[0] - 0.5 * plane[1] : plane[0] - 0.5 * gp0 * dx;
+  const double p_hi = m > 1 ? 1.5 * plane[static_cast<std::size_t>(m - 1)] -
+                                  0.5 * plane[static_cast<std::size_t>(m - 2)]
+                            : plane[0] + 0.5 * gp0 * dx;
+  // Across a periodic axis p' repeats: the drop over the period is the imposed one.
+  d.pressure_drop = grid_.periodic(ax) ? -gp0 * grid_.length(ax) : p_lo - p_hi;
+  // Continuity residual of the last step.
+  if (last_dt_ > 0.0) {
+    fluid::GridField e = eps, div = grid_.make_field();
+    fluid::fill_cell_ghosts(grid_, e, fluid::CellGhosts::zero_gradient);
+    fluid::flux_divergence(grid_, solver_->velocity(), e, div);
+    // div(eps u) + (eps^{n+1} - eps^n)/dt_f (the gas sub-steps interpolate eps linearly in time,
+    // so the last one satisfied the same rate).
+    double worst = 0.0;
+    for (int k = 0; k < nc[2]; ++k)
+      for (int j = 0; j < nc[1]; ++j)
+        for (int i = 0; i < nc[0]; ++i)
+          worst = std::max(worst, std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) /
+                                                              last_dt_));
+    d.mass_residual = worst * last_dt_;
+  }
+  return d;
+}
+
+} // namespace cfddem::apps

@@ -1,0 +1,77 @@
+// The gas <-> particle coupling of one fluid step (the paper's Algorithm 1; physics.md §4, §5, §7):
+//   1. deposit the solid fraction eps_s, the drag coefficients beta_i (drag law at each particle
+//      with eps_g and the slip |u_g - v_i| interpolated there) and beta_i v_i to the cells,
+//   2. advance the gas by dt_f (point-implicit drag, hypre projection),
+//   3. interpolate u_g and grad p to the particles with the same weights and set the force
+//      F_i = beta_i (u_g - v_i) - V_p grad p, held fixed over the particle sub-cycle (MFIX-Exa).
+// With the same kernel for deposition and interpolation, v_i frozen over the sub-cycle and the
+// face averages of the solver, the momentum the gas loses to drag and pressure is exactly what
+// the particles gain (tests/apps/coupling_test.cpp checks it on a periodic riser).
+#pragma once
+
+#include <array>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "core/particle_store.hpp"
+#include "core/scene.hpp"
+#include "fluid/deposition.hpp"
+#include "fluid/drag_law.hpp"
+#include "fluid/gas_solver.hpp"
+#include "fluid/mac_grid.hpp"
+
+namespace cfddem::apps {
+
+// The fluid grid of a scene; throws ConfigError naming the key (cells that do not tile, a
+// boundary condition that cannot be satisfied, a CFL above the stable limit, ...).
+fluid::MacGridSpec fluid_grid_spec(const Scene& scene);
+// All fluid checks of a scene (a no-op without [fluid]); throws ConfigError naming the key.
+void validate_fluid(const Scene& scene);
+
+struct FluidDiagnostics {
+  double pressure_drop = 0.0; // mean p, bottom minus top boundary face along the axis [Pa]
+  std::array<double, 3> gas_momentum{}; // sum rho_g eps_g u_g V_cell [kg m/s]
+  double mass_residual = 0.0; // max |div(eps u) + d(eps)/dt| dt_f over cells (dimensionless)
+};
+
+class GasCoupling {
+public:
+  GasCoupling(const Scene& scene, const ParticleStore& particles);
+  ~GasCoupling();
+  GasCoupling(const GasCoupling&) = delete;
+  GasCoupling& operator=(const GasCoupling&) = delete;
+
+  // Steps 1-3 above with the particles' current positions and velocities (v_i: whatever the
+  // scheme holds, the same value in the deposit and in the force). Afterwards force(a) holds
+  // F_i, one entry per particle in the store's current order.
+  fluid::GasStepReport step(const ParticleStore& particles, double dt_f);
+  // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
+  double cfl_dt() const;
+  [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
+  [[nodiscard]] FluidDiagnostics diagnostics() const;
+  [[nodiscard]] const fluid::GasSolver& solver() const { return *solver_; }
+  [[nodiscard]] fluid::GasSolver& solver() { return *solver_; }
+  // The scene's axis for the pressure drop: gravity's, else a pressure drop's, else an inflow's,
+  // else y.
+  [[nodiscard]] int axis() const { return axis_; }
+  [[nodiscard]] long long gas_substeps() const { return gas_substeps_; }
+  [[nodiscard]] long long projection_iterations() const { return projection_iterations_; }
+  // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
+  [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
+
+private:
+  void deposit(const ParticleStore& p);
+  const Scene& scene_;
+  fluid::MacGrid grid_;
+  std::unique_ptr<fluid::GasSolver> solver_;
+  std::unique_ptr<fluid::Deposition> deposition_;
+  fluid::DragLaw law_;
+  int axis_ = 1;
+  double last_dt_ = 0.0;
+  long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
+  fluid::GridField eps_s_, work_, eps_prev_;
+  std::vector<double> eps_p_, beta_, bv_, ug_[3], force_[3];
+};
+
+} // namespace cfddem::apps

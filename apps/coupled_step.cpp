@@ -41,6 +41,8 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.cfl = s.fluid.cfl;
   g.implicit_viscosity = s.fluid.implicit_viscosity;
   g.projection.tolerance = s.fluid.tolerance;
+  g.projection.preconditioner = s.fluid.preconditioner == "smg" ? fluid::PoissonPreconditioner::smg
+                                                                : fluid::PoissonPreconditioner::pfmg;
   return g;
 }
 

@@ -90,7 +90,8 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
                              fluid.bc.z_hi ("periodic", "wall", "inflow", "outflow"; default: as
                              domain.periodic, else wall), fluid.inflow_velocity,
                              fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
-                             fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity
+                             fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity,
+                             fluid.tolerance, fluid.preconditioner ("pfmg" | "smg")
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)

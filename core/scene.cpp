@@ -203,6 +203,9 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.implicit_viscosity = c.get_bool("fluid.implicit_viscosity", false);
     f.tolerance = c.get_double("fluid.tolerance", 1e-10);
     require(f.tolerance > 0.0 && f.tolerance < 1.0, "fluid.tolerance", "must be in (0, 1)");
+    f.preconditioner = c.get_string("fluid.preconditioner", "pfmg");
+    require(f.preconditioner == "pfmg" || f.preconditioner == "smg", "fluid.preconditioner",
+            fmt::format("must be \"pfmg\" or \"smg\", got \"{}\"", f.preconditioner));
   }
 
   c.check_all_used();
@@ -290,6 +293,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.velocity", vec3(f.velocity));
     o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity ? "true" : "false");
     o.emplace_back("fluid.tolerance", num(f.tolerance));
+    o.emplace_back("fluid.preconditioner", str(f.preconditioner));
   }
   return o;
 }

@@ -89,6 +89,7 @@ struct FluidSpec {
   std::array<double, 3> velocity{};          // initial gas velocity [m/s]
   bool implicit_viscosity = false;
   double tolerance = 1e-10;                  // projection PCG relative residual
+  std::string preconditioner = "pfmg";       // projection PCG preconditioner: pfmg | smg
 };
 
 struct Scene {

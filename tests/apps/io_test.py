@@ -224,6 +224,21 @@ class Restart(Tmp):
         self.check_restart(BOX, 0.016, 0.008, ["output.interval=0.001"])
 
 
+    def test_orb_hcs_bitwise(self):
+        # Checkpoints fall on regrid points (every dem.nsubit sub-iterations).
+        self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=orb", "output.interval=0.0005"])
+
+    def test_scheme_mismatch_refused(self):
+        first = os.path.join(self.tmp, "first")
+        self.run_ok(HCS, "run.end_time=0.001", "output.checkpoint_interval=0.001", "--out", first)
+        ck = [x for x in os.listdir(first) if x.startswith("checkpoint_")][0]
+        code, msg = cfddem(HCS, "dem.scheme=orb", "run.end_time=0.002", "--out",
+                           os.path.join(self.tmp, "never"), "--restart", os.path.join(first, ck))
+        self.assertEqual(code, 2, msg)
+        self.assertIn("scheme", msg)
+        self.assertFalse(os.path.exists(os.path.join(self.tmp, "never")))
+
+
 class BadCheckpoint(Tmp):
     def make_checkpoint(self):
         out = os.path.join(self.tmp, "src")

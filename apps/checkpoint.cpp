@@ -2,6 +2,7 @@
 
 #include <cstdio>
 #include <cstring>
+#include <exception>
 
 #include <fmt/format.h>
 #include <unistd.h>
@@ -256,6 +257,9 @@ Checkpoint read_checkpoint(const std::string& path) {
   } catch (const RunError& e) {
     throw ConfigError(fmt::format("checkpoint '{}'", path),
                       fmt::format("cannot restart: {}", e.what()));
+  } catch (const std::exception& e) { // e.g. bad_alloc from absurd sizes in a corrupt file
+    throw ConfigError(fmt::format("checkpoint '{}'", path),
+                      fmt::format("cannot restart: corrupt file ({})", e.what()));
   }
 }
 

@@ -2,6 +2,7 @@
 
 #include <cstdio>
 #include <cstring>
+#include <exception>
 
 #include <fmt/format.h>
 #include <unistd.h>
@@ -131,6 +132,17 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
     f.attribute("particle_steps", s.particle_steps);
     f.attribute("pair_evaluations", s.pair_evaluations);
     f.attribute("neighbor_builds", s.builds);
+    if (c.scheme == "orb") {
+      const auto& o = c.orb;
+      f.create_group("/orb");
+      w.put("/orb/half_step", o.hprev);
+      w.put("/orb/leaf_steps", o.leaf_steps);
+      w.put("/orb/counters", std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits,
+                                                       o.particle_steps, o.pair_evaluations,
+                                                       o.builds, o.regrids,
+                                                       o.overlap_violations});
+      w.put("/orb/ratios", std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio});
+    }
     w.put("/diagnostics_rows", flatten_rows(c.rows));
     std::vector<std::int64_t> ss, sn, sl;
     std::vector<double> st;
@@ -215,6 +227,18 @@ Checkpoint read_checkpoint(const std::string& path) {
     s.particle_steps = f.read_attribute_int64("particle_steps");
     s.pair_evaluations = f.read_attribute_int64("pair_evaluations");
     s.builds = f.read_attribute_int64("neighbor_builds");
+    if (c.scheme == "orb") {
+      auto& o = c.orb;
+      o.hprev = r.doubles("/orb/half_step", n);
+      o.leaf_steps = r.int64s("/orb/leaf_steps", Reader::kAny);
+      const auto k = r.int64s("/orb/counters", 8);
+      o.fine_count = k[0], o.leaf_subits = k[1], o.subits = k[2], o.particle_steps = k[3];
+      o.pair_evaluations = k[4], o.builds = k[5], o.regrids = k[6], o.overlap_violations = k[7];
+      const auto q = r.doubles("/orb/ratios", 2);
+      o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1];
+    } else if (c.scheme != "explicit") {
+      throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
+    }
     const auto flat =
         r.doubles("/diagnostics_rows", static_cast<std::size_t>(nrows) * c.columns.size());
     for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
@@ -233,6 +257,9 @@ Checkpoint read_checkpoint(const std::string& path) {
   } catch (const RunError& e) {
     throw ConfigError(fmt::format("checkpoint '{}'", path),
                       fmt::format("cannot restart: {}", e.what()));
+  } catch (const std::exception& e) { // e.g. bad_alloc from absurd sizes in a corrupt file
+    throw ConfigError(fmt::format("checkpoint '{}'", path),
+                      fmt::format("cannot restart: corrupt file ({})", e.what()));
   }
 }
 

@@ -1,4 +1,4 @@
-// Checkpoint/restart of the explicit scheme. A checkpoint holds everything the next step reads:
+// Checkpoint/restart of the explicit and orb schemes. A checkpoint holds everything the next step reads:
 // every particle field (velocities at the half step the integrator holds, forces, rotation), the
 // neighbor list exactly as built (rows in order, reference positions) and the tangential contact
 // history, the step counters, the diagnostics rows so far, the snapshot index, and the resolved
@@ -19,6 +19,7 @@
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 
 namespace cfddem::apps {
 
@@ -32,7 +33,8 @@ struct Checkpoint {
   std::vector<SnapshotEntry> snapshots;
   std::string configuration;             // describe_scene as "key = value" lines
   ParticleStore particles;
-  dem::ExplicitScheme::State state;
+  dem::ExplicitScheme::State state; // scheme == "explicit"
+  dem::OrbScheme::State orb;         // scheme == "orb"
 };
 
 // The configuration lines that must match between a checkpoint and the scene it restarts

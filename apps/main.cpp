@@ -98,7 +98,7 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   output.snapshot_interval   simulated seconds between HDF5 particle snapshots, indexed by
                              snapshots.xmf for ParaView (default 0: none)
   output.checkpoint_interval simulated seconds between checkpoints checkpoint_<step>.h5
-                             (explicit scheme; default 0: none); continue with --restart FILE
+                             (default 0: none; orb: whole regrid intervals); --restart FILE
 
 Outputs (in --out, default runs/<name>): diagnostics.csv (one row per interval), run.json,
 snapshot_<step>.h5 + snapshots.xmf, checkpoint_<step>.h5.

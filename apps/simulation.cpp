@@ -140,13 +140,10 @@ long long every(double interval, double dt) {
 
 // Read a checkpoint and check it belongs to this scene; throws ConfigError (nothing written yet).
 Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
-  if (scene.dem.scheme != "explicit")
-    throw ConfigError("--restart", fmt::format("restart is implemented for the explicit scheme "
-                                               "only (dem.scheme = \"{}\")",
-                                               scene.dem.scheme));
   Checkpoint ck = read_checkpoint(path);
-  if (ck.scheme != "explicit")
-    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\"", ck.scheme));
+  if (ck.scheme != scene.dem.scheme)
+    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
+                                        ck.scheme, scene.dem.scheme));
   if (ck.columns != kColumns)
     throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
   const std::string now = restart_configuration(scene);
@@ -169,9 +166,16 @@ Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (scene.fluid.enabled) {
     validate_fluid(scene);
+    // The gas state (velocities, pressure, eps_g history) is not in checkpoints yet: refuse
+    // rather than restart or checkpoint a coupled run incompletely.
+    if (!opt.restart.empty())
+      throw ConfigError("--restart", "restarting a scene with a [fluid] table is not supported yet");
+    if (scene.output.checkpoint_interval > 0)
+      throw ConfigError("scene key 'output.checkpoint_interval'",
+                        "checkpoints of scenes with a [fluid] table are not supported yet");
     return run_coupled(scene, opt, env);
   }
-  if (scene.dem.scheme == "orb" && opt.restart.empty()) return run_orb(scene, opt, env);
+  if (scene.dem.scheme == "orb") return run_orb(scene, opt, env);
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   std::optional<Checkpoint> ck;
@@ -363,18 +367,37 @@ namespace {
 RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
-  ParticleStore particles = make_initial_particles(scene);
+  std::optional<Checkpoint> ck;
+  if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
+  ParticleStore particles = ck ? std::move(ck->particles) : make_initial_particles(scene);
   const DerivedNumbers derived = derive(scene, particles);
   PhaseTimer timer;
   dem::OrbScheme scheme(scene, particles, timer);
+  const double dt_sp = scheme.dt_sub();
+  if (ck && ck->dt != dt_sp)
+    throw ConfigError(opt.restart, fmt::format("checkpoint dt_sp {:.17g} s differs from the "
+                                               "scene's {:.17g} s", ck->dt, dt_sp));
+  const long long n_end = std::max(1LL, std::llround(scene.run.end_time / dt_sp));
+  const long long k0 = ck ? ck->step : 0;
+  if (ck && k0 > n_end)
+    throw ConfigError("run.end_time", fmt::format("the checkpoint is at sub-iteration {}, past "
+                                                  "the end of the run ({})",
+                                                  k0, n_end));
 
   fs::create_directories(opt.out_dir);
   const std::string diag_path = (fs::path(opt.out_dir) / "diagnostics.csv").string();
   DiagnosticsFile diag(diag_path, kColumns);
-  const double dt_sp = scheme.dt_sub();
-  const long long n_end = std::max(1LL, std::llround(scene.run.end_time / dt_sp));
+  std::vector<std::vector<double>> rows; // kept for checkpoints
+  auto add_row = [&](std::vector<double> r) {
+    diag.add_row(r);
+    rows.push_back(std::move(r));
+  };
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt_sp));
   const long long snap_every = every(scene.output.snapshot_interval, dt_sp);
+  // Checkpoints only at regrid points (multiples of dem.nsubit), where the ORB is rebuilt from
+  // the store: the interval is rounded up to a whole number of regrid intervals.
+  long long ckpt_every = every(scene.output.checkpoint_interval, dt_sp);
+  if (ckpt_every > 0) ckpt_every = (ckpt_every + scheme.nsubit() - 1) / scheme.nsubit() * scheme.nsubit();
   SnapshotIndex snapshots(opt.out_dir);
   const dem::DomainGeometry geom(scene.domain);
   // Synchronised state at sub-iteration k with each particle's ORB leaf and local step.
@@ -396,15 +419,20 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
                        "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
                scene.name, particles.size(), 1 << scene.partition.orb_levels, dt_sp,
                scheme.dt_fine(), n_end, env.ranks(), env.threads());
-  scheme.start();
   const auto t_loop = clock::now();
   MeanTracker means;
-  {
+  if (ck) {
+    scheme.restore_state(std::move(ck->orb));
+    for (auto& r : ck->rows) add_row(std::move(r));
+    snapshots.restore(ck->snapshots);
+    if (!rows.empty()) means.resume(rows.back());
+  } else {
+    scheme.start();
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
                                   particles.vy, particles.vz, particles.mass});
-    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{},
-                     means.next(0.0, particles.vx, particles.vy, particles.vz)));
+    add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{},
+                means.next(0.0, particles.vx, particles.vy, particles.vz)));
     if (snap_every > 0) {
       SnapshotFields f;
       f.x = particles.x, f.y = particles.y, f.z = particles.z, f.vx = particles.vx;
@@ -414,7 +442,23 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
     }
   }
   auto last_progress = clock::now();
-  for (long long k = 0; k <= n_end; ++k) {
+  for (long long k = k0; k <= n_end; ++k) {
+    if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      diag.flush();
+      Checkpoint c;
+      c.scheme = "orb";
+      c.dt = dt_sp;
+      c.step = k;
+      c.columns = kColumns;
+      c.rows = rows;
+      c.snapshots = snapshots.entries();
+      c.configuration = restart_configuration(scene);
+      c.particles = particles;
+      c.orb = scheme.save_state();
+      write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
+                       c);
+    }
     const bool record = k > 0 && (k % out_every == 0 || k == n_end);
     const dem::LeafStepStats ls = record ? scheme.take_interval_stats() : dem::LeafStepStats{};
     const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
@@ -425,8 +469,8 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
       const auto s = scheme.synchronised_previous();
       const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, s.mass});
       const double t = static_cast<double>(k) * dt_sp;
-      diag.add_row(row(t, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
-                       means.next(t, s.vx, s.vy, s.vz)));
+      add_row(row(t, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
+                  means.next(t, s.vx, s.vy, s.vz)));
     }
     if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
                           scene.output.progress_seconds) {

@@ -436,4 +436,26 @@ LeafStepStats OrbScheme::take_interval_stats() {
   return s;
 }
 
+OrbScheme::State OrbScheme::save_state() const {
+  if (subits_ % nsubit_ != 0)
+    throw RunError("orb checkpoint requested between regrid points (internal error)");
+  State s;
+  s.hprev = hprev_, s.leaf_steps = leaf_steps_;
+  s.fine_count = fine_count_, s.leaf_subits = leaf_subits_, s.subits = subits_;
+  s.particle_steps = particle_steps_, s.pair_evaluations = pair_evaluations_, s.builds = builds_;
+  s.regrids = regrids_, s.overlap_violations = overlap_violations_;
+  s.last_fine_fraction = last_fine_fraction_, s.max_overlap_ratio = max_overlap_ratio_;
+  return s;
+}
+
+void OrbScheme::restore_state(State s) {
+  if (s.hprev.size() != p_.size() || s.subits < 0 || s.subits % nsubit_ != 0)
+    throw RunError("checkpoint: the orb state does not fit the particles or dem.nsubit");
+  hprev_ = std::move(s.hprev), leaf_steps_ = std::move(s.leaf_steps);
+  fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
+  particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
+  regrids_ = s.regrids, overlap_violations_ = s.overlap_violations;
+  last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
+}
+
 } // namespace cfddem::dem

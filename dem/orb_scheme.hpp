@@ -95,6 +95,21 @@ public:
     return {sx_, sy_, sz_, svx_, svy_, svz_, smass_, sid_, sleaf_, sradius_, sdt_};
   }
 
+  // Checkpoint/restart at a regrid point (subiterations() a multiple of dem.nsubit): the ORB,
+  // the leaf ranges and the leaves' workspaces are rebuilt from the particle store by the next
+  // sub-iteration exactly as they would have been, so the state is the per-particle half step,
+  // the counters and the interval statistics. restore_state() replaces start().
+  struct State {
+    std::vector<double> hprev;
+    std::vector<std::int64_t> leaf_steps;
+    std::int64_t fine_count = 0, leaf_subits = 0, subits = 0, particle_steps = 0,
+                 pair_evaluations = 0, builds = 0, regrids = 0, overlap_violations = 0;
+    double last_fine_fraction = 0.0, max_overlap_ratio = 0.0;
+  };
+  std::int64_t nsubit() const { return nsubit_; }
+  State save_state() const;
+  void restore_state(State s); // throws RunError if it does not fit the store
+
 private:
   struct Workspace;
   void regrid();

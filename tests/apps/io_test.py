@@ -148,6 +148,44 @@ class Snapshots(Tmp):
                 self.assertEqual(f[dset].shape[0], 0)
 
 
+PV_SCRIPT = """
+import sys
+from paraview.simple import XDMFReader, servermanager
+r = XDMFReader(FileNames=[sys.argv[1]])
+times = list(r.TimestepValues)
+r.UpdatePipeline(times[-1])
+d = servermanager.Fetch(r)
+b = d.GetBlock(0) if d.IsA("vtkMultiBlockDataSet") else d
+pd = b.GetPointData()
+names = sorted(pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays()))
+print("RESULT", len(times), b.GetNumberOfPoints(), b.GetNumberOfCells(), ",".join(names))
+"""
+
+
+class ParaView(Tmp):
+    """The reader users pick (Debian's ParaView 5.11 XDMFReader) loads the index as a series."""
+
+    def test_xdmf_reader_loads_time_series(self):
+        pvbatch = shutil.which("pvbatch")
+        if not pvbatch:
+            self.skipTest("pvbatch not installed (apt-get install paraview)")
+        out = os.path.join(self.tmp, "pv")
+        self.run_ok(HCS, "run.end_time=0.002", "output.snapshot_interval=0.001", "--out", out)
+        script = os.path.join(self.tmp, "load.py")
+        with open(script, "w") as f:
+            f.write(PV_SCRIPT)
+        r = subprocess.run([pvbatch, script, os.path.join(out, "snapshots.xmf")],
+                           capture_output=True, text=True, timeout=240)
+        line = [x for x in r.stdout.splitlines() if x.startswith("RESULT")]
+        self.assertTrue(line, r.stdout + r.stderr)
+        _, steps, points, cells, names = line[0].split()
+        self.assertEqual(int(steps), 3)
+        self.assertEqual(int(points), 1222)
+        self.assertEqual(int(cells), 1222)  # Polyvertex: one vertex cell per particle
+        for a in ("velocity", "speed", "kinetic_energy", "diameter", "id", "local_dt"):
+            self.assertIn(a, names.split(","))
+
+
 class Restart(Tmp):
     def check_restart(self, scene, total, half, extra):
         full = os.path.join(self.tmp, "full")
@@ -184,6 +222,21 @@ class Restart(Tmp):
     def test_explicit_frictional_walls_bitwise(self):
         # Friction (tangential history), walls and gravity, with contacts alive at the restart.
         self.check_restart(BOX, 0.016, 0.008, ["output.interval=0.001"])
+
+
+    def test_orb_hcs_bitwise(self):
+        # Checkpoints fall on regrid points (every dem.nsubit sub-iterations).
+        self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=orb", "output.interval=0.0005"])
+
+    def test_scheme_mismatch_refused(self):
+        first = os.path.join(self.tmp, "first")
+        self.run_ok(HCS, "run.end_time=0.001", "output.checkpoint_interval=0.001", "--out", first)
+        ck = [x for x in os.listdir(first) if x.startswith("checkpoint_")][0]
+        code, msg = cfddem(HCS, "dem.scheme=orb", "run.end_time=0.002", "--out",
+                           os.path.join(self.tmp, "never"), "--restart", os.path.join(first, ck))
+        self.assertEqual(code, 2, msg)
+        self.assertIn("scheme", msg)
+        self.assertFalse(os.path.exists(os.path.join(self.tmp, "never")))
 
 
 class BadCheckpoint(Tmp):

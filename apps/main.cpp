@@ -78,6 +78,8 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   dem.proximity_radii        orb: a leaf takes the fine step if a pair's centre distance is below
                              this many radii, (r_i + r_j) / 2 each (default 3)
   partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4)
+  partition.weights          orb: "count" (default) | "cost" (particles x local steps of the
+                             last regrid interval)
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)

@@ -12,6 +12,7 @@
 
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
+#include "dem/contact_kernels.hpp"
 
 namespace cfddem::dem {
 
@@ -174,10 +175,8 @@ template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& ou
         const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
         const double vn = dvx * nx + dvy * ny + dvz * nz;
         // Equal masses (the common case) skip the divide and square root of m_eff.
-        const double meff = m.uniform_mass ? m.uniform_meff : mi * mass[j] / (mi + mass[j]);
-        const double fn = m.uniform_mass
-                              ? m.pair.k * delta + m.uniform_eta * vn
-                              : normal_force(m.pair, meff, delta, vn);
+        const double meff = contact_meff(m, mi, mass[j]);
+        const double fn = contact_normal_force(m, meff, delta, vn);
         ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
         if (delta > m.max_overlap * std::min(ri, rad[j]))
           rep.flag(i, Fault::overlap, delta / std::min(ri, rad[j]), j);
@@ -311,11 +310,11 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
     int fails = 0;
     for (std::size_t i = r.begin(); i != r.end(); ++i) {
       const double s = im[i] * dt;
-      const double ux = vx[i] + fx[i] * s + gx;
-      const double uy = vy[i] + fy[i] * s + gy;
-      const double uz = vz[i] + fz[i] * s + gz;
+      double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+      kick_drift(px, ux, fx[i], s, gx, dt);
+      kick_drift(py, uy, fy[i], s, gy, dt);
+      kick_drift(pz, uz, fz[i], s, gz, dt);
       vx[i] = ux, vy[i] = uy, vz[i] = uz;
-      const double px = x[i] + ux * dt, py = y[i] + uy * dt, pz = z[i] + uz * dt;
       x[i] = px, y[i] = py, z[i] = pz;
       const double ex = px - xr[i], ey = py - yr[i], ez = pz - zr[i];
       const double d2 = ex * ex + ey * ey + ez * ez;

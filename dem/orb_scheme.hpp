@@ -68,6 +68,9 @@ public:
   std::int64_t pair_evaluations() const { return pair_evaluations_; }
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t regrids() const { return regrids_; }
+  // Sub-iterations redone with a larger skin because a fine leaf outran the neighbor list.
+  std::int64_t retries() const { return retries_; }
+  double skin() const { return skin_; }
   double max_overlap_ratio() const { return max_overlap_ratio_; }
   std::int64_t overlap_violations() const { return overlap_violations_; }
   const StepModel& model() const { return model_; }
@@ -84,10 +87,15 @@ public:
   Synchronised synchronised_previous() const { return {sx_, sy_, sz_, svx_, svy_, svz_, smass_}; }
 
 private:
-  struct Workspace;
+  struct Batch;
   void regrid();
   void resort();
-  void run_leaf(int leaf, bool record, Workspace& w) const;
+  void apply_permutation(std::span<const std::uint32_t> order);
+  void rebuild_pairs();
+  void derive_rows();
+  double max_displacement2() const;
+  void run_batch(Batch& b, bool record);
+  bool attempt(bool record);
 
   const Scene& scene_;
   ParticleStore& p_;
@@ -96,17 +104,33 @@ private:
   StepModel model_;
   partition::Aabb domain_;
   partition::OrbTree tree_;
-  double dt_sp_ = 0.0, halo_ = 0.0, r_max_ = 0.0;
+  double dt_sp_ = 0.0, r_max_ = 0.0, skin_ = 0.0, skin_cap_ = 0.0;
   std::int64_t nsubit_ = 1;
+  bool cost_weights_ = false;
   std::vector<double> hprev_;         // per particle: half of its last step
+  std::vector<double> cost_;          // per particle: local steps of its leaf since the regrid
   std::vector<std::uint32_t> ranges_; // leaf l owns [ranges_[l], ranges_[l+1])
-  std::vector<Workspace> work_;
+  std::vector<std::uint32_t> leaf_of_;
+  // Candidate pairs (a, b), global indices, valid while every particle stays within skin_/2 of
+  // its reference position: contact candidates (centres within r_a + r_b + skin) and proximity
+  // candidates (within proximity_radii (r_a + r_b) / 2 + skin).
+  std::vector<std::uint32_t> ca_, cb_, pa_, pb_;
+  std::vector<double> xr_, yr_, zr_;
+  bool pairs_valid_ = false;
+  // Rows derived from the contact candidates: particle i's partners of its own leaf in
+  // [off_[i], mid_[i]) (read live) and of other leaves in [mid_[i], off_[i+1]) (read frozen).
+  std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_of_, scratch_;
+  // State at the start of the sub-iteration: the ghosts' frozen copies and the rollback point.
+  std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_, dscratch_;
+  bool prox_from_pairs_ = true;
+  std::vector<unsigned char> near_, leaf_fine_;
+  std::vector<Batch> batches_;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_;
   std::vector<std::int64_t> leaf_steps_; // per leaf, this interval
   std::int64_t fine_count_ = 0, leaf_subits_ = 0;
   double last_fine_fraction_ = 0.0, max_overlap_ratio_ = 0.0;
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
-               regrids_ = 0, overlap_violations_ = 0;
+               regrids_ = 0, overlap_violations_ = 0, retries_ = 0;
 };
 
 } // namespace cfddem::dem

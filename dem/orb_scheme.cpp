@@ -626,6 +626,25 @@ void OrbScheme::subiterate(bool record) {
   resort();
 }
 
+void OrbScheme::benchmark_leaf_subiteration(int leaf) {
+  const auto l = static_cast<std::size_t>(leaf);
+  Batch bt;
+  bt.b = ranges_[l], bt.e = ranges_[l + 1];
+  bt.K = model_.dt < dt_sp_ ? std::max<std::int64_t>(
+                                  1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
+                            : 1;
+  bt.h = bt.K > 1 ? model_.dt : dt_sp_;
+  bt.h_last = dt_sp_ - static_cast<double>(bt.K - 1) * bt.h;
+  bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
+  bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
+  run_batch(bt, false);
+}
+
+void OrbScheme::benchmark_ghost_refresh() {
+  gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
+  derive_rows();
+}
+
 LeafStepStats OrbScheme::take_interval_stats() {
   LeafStepStats s;
   std::int64_t lo = std::numeric_limits<std::int64_t>::max(), hi = 0, sum = 0, count = 0;

@@ -78,6 +78,12 @@ public:
   // Fraction of non-empty leaves on the fine step in the last sub-iteration.
   double last_fine_fraction() const { return last_fine_fraction_; }
 
+  // Benchmark hooks (perf/dem): after at least one subiterate(), run leaf `leaf`'s fine-step
+  // sub-iteration alone (the batch of that one leaf, from the current state), and refresh the
+  // ghosts (frozen copies and the rows' own/other-leaf split, as after a re-sort).
+  void benchmark_leaf_subiteration(int leaf);
+  void benchmark_ghost_refresh();
+
   // Statistics since the last call (then reset).
   LeafStepStats take_interval_stats();
 

@@ -1,17 +1,39 @@
 // The `orb` scheme (dem.scheme = "orb"): the explicit adaptive time stepping of Sitaraman & Grout
 // (Algorithm 2). Every dem.regrid_interval (dt_f) of simulated time the particles are split by
 // an ORB into 2^partition.orb_levels leaves and the store is permuted so that each leaf is a
-// contiguous range. Time advances in sub-iterations of dt_sp = dt_f / dem.nsubit; in each one
-// every leaf is one TBB task that picks its own step:
+// contiguous range (partition.weights = "cost": each particle weighs the local steps its leaf
+// took since the last regrid, so a leaf weighs particles x local steps). Time advances in sub-iterations of dt_sp = dt_f / dem.nsubit; in each one
+// every leaf picks its own step (leaves with the same step run together as TBB tasks, below):
 //   dt_local = the explicit step (tau_p * dt_factor) if some own particle has a partner (own or
 //              ghost) closer than dem.proximity_radii * (r_i + r_j) / 2 centre to centre,
 //            = dt_sp otherwise,
 // and takes K = ceil(dt_sp / dt_local) velocity-Verlet steps with the explicit scheme's contact
 // law, the last one shortened so that the leaf lands exactly on the end of the sub-iteration.
-// Particles of other leaves within the halo (2 r_max + 2 skin) are ghosts, frozen at their state
-// at the start of the sub-iteration. Afterwards the own particles are copied back, periodic
-// positions wrapped, and particles that left their leaf are re-sorted into the leaf that now
-// holds them (OrbTree::locate), keeping every leaf contiguous.
+// Particles of other leaves are read frozen at their state at the start of the sub-iteration
+// (ghosts). Afterwards particles that left their leaf are re-sorted into the leaf that now holds
+// them (OrbTree::locate), keeping every leaf contiguous.
+//
+// Implementation (what makes it cheap when most leaves are fine-stepped):
+// - One cell list over the whole store gives candidate pairs: contact candidates (centres within
+//   r_i + r_j + skin) and proximity candidates (within proximity_radii (r_i + r_j)/2 + skin).
+//   They are rebuilt only when some particle's displacement since the build plus its free flight
+//   over one sub-iteration exceeds skin/2 (Verlet criterion, checked between sub-iterations), and
+//   are remapped, not rebuilt, when the store is re-sorted.
+// - Each particle's row is split into partners of its own leaf (read live) and of other leaves
+//   (read from the frozen copies): the ghost refresh is one copy of x and v per sub-iteration, and
+//   only particles that are actual partners are ever read as ghosts. Rows are summed in particle-id
+//   order, so results do not depend on the store's order, the batching or the thread count.
+// - Consecutive leaves with the same local step are advanced in lockstep as one TBB task (a
+//   batch, cut at ~max(256, n / 4 threads) particles): the contact pass over the rows, then the
+//   branch-free kick-drift over the batch's contiguous range (dem/contact_kernels.hpp, the
+//   explicit scheme's arithmetic). Leaves never read each other's live state, so the batching
+//   changes no result bit; it amortises the loop overhead of ~20-particle leaves.
+// - A fine leaf whose particle moves more than skin/2 during the sub-iteration (a collision sped
+//   it up) makes the whole sub-iteration roll back to the frozen copies and run again with rows
+//   rebuilt; if they were already fresh, with the skin doubled (kept: retries() and skin()).
+// Force evaluations (pair_evaluations) = per local step, own-leaf pairs once plus other-leaf
+// pairs once per side: a pair across a leaf boundary is evaluated by both leaves, against the
+// other's frozen copy, and counted twice. With one leaf it is the explicit scheme's count.
 //
 // Velocities are kept at half steps as in the explicit scheme, with the length of the half step
 // stored per particle (h_prev = dt_last / 2; 0 at the start, where v is the synchronised v(0)).

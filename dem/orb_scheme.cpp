@@ -240,32 +240,69 @@ void OrbScheme::rebuild_pairs() {
     for (std::size_t i = 0; i < n; ++i) scratch_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
   }
   ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear();
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint32_t c = cell_of_[i];
-    const int cx = static_cast<int>(c % nc[0]), cy = static_cast<int>((c / nc[0]) % nc[1]),
-              cz = static_cast<int>(c / (static_cast<std::size_t>(nc[0]) * nc[1]));
-    int sx[3], sy[3], sz[3];
-    const int mx = stencil_axis(cx, nc[0], g.periodic[0], sx);
-    const int my = stencil_axis(cy, nc[1], g.periodic[1], sy);
-    const int mz = stencil_axis(cz, nc[2], g.periodic[2], sz);
-    const double xi = p_.x[i], yi = p_.y[i], zi = p_.z[i], ri = p_.radius[i];
-    for (int cc = 0; cc < mz; ++cc)
-      for (int bb = 0; bb < my; ++bb)
-        for (int aa = 0; aa < mx; ++aa) {
-          const std::size_t q = (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
-          for (std::uint32_t k = cell_start_[q]; k < cell_start_[q + 1]; ++k) {
-            const std::uint32_t j = scratch_[k];
-            if (j <= i) continue;
-            const double dx = g.image(p_.x[j] - xi, 0), dy = g.image(p_.y[j] - yi, 1),
-                         dz = g.image(p_.z[j] - zi, 2);
-            const double r2 = dx * dx + dy * dy + dz * dz;
-            const double rs = ri + p_.radius[j];
-            const auto ii = static_cast<std::uint32_t>(i);
-            if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(ii), cb_.push_back(j);
-            if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
-              pa_.push_back(ii), pb_.push_back(j);
+  const double* px = p_.x.data();
+  const double* py = p_.y.data();
+  const double* pz = p_.z.data();
+  const double* pr = p_.radius.data();
+  auto test = [&](std::uint32_t i, std::uint32_t j) {
+    const double dx = g.image(px[j] - px[i], 0), dy = g.image(py[j] - py[i], 1),
+                 dz = g.image(pz[j] - pz[i], 2);
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const double rs = pr[i] + pr[j];
+    if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(i), cb_.push_back(j);
+    if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
+      pa_.push_back(i), pb_.push_back(j);
+  };
+  if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
+    // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
+    // so every pair is visited once and no cell twice.
+    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
+                                        {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
+                                        {0, 0, 1},  {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
+                                        {1, 1, 1}};
+    for (int cz = 0; cz < nc[2]; ++cz)
+      for (int cy = 0; cy < nc[1]; ++cy)
+        for (int cx = 0; cx < nc[0]; ++cx) {
+          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
+          const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
+          if (c0 == c1) continue;
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = a + 1; b < c1; ++b) test(scratch_[a], scratch_[b]);
+          for (const auto& o : kFwd) {
+            int q[3] = {cx + o[0], cy + o[1], cz + o[2]};
+            bool skip = false;
+            for (int a = 0; a < 3; ++a) {
+              if (q[a] < 0 || q[a] >= nc[a]) {
+                if (!g.periodic[a]) skip = true;
+                q[a] = (q[a] + nc[a]) % nc[a];
+              }
+            }
+            if (skip) continue;
+            const std::size_t d = (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0];
+            const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
+            for (std::uint32_t a = c0; a < c1; ++a)
+              for (std::uint32_t b = d0; b < d1; ++b) test(scratch_[a], scratch_[b]);
           }
         }
+  } else {
+    // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = cell_of_[i];
+      const int cx = static_cast<int>(c % nc[0]), cy = static_cast<int>((c / nc[0]) % nc[1]),
+                cz = static_cast<int>(c / (static_cast<std::size_t>(nc[0]) * nc[1]));
+      int sx[3], sy[3], sz[3];
+      const int mx = stencil_axis(cx, nc[0], g.periodic[0], sx);
+      const int my = stencil_axis(cy, nc[1], g.periodic[1], sy);
+      const int mz = stencil_axis(cz, nc[2], g.periodic[2], sz);
+      for (int cc = 0; cc < mz; ++cc)
+        for (int bb = 0; bb < my; ++bb)
+          for (int aa = 0; aa < mx; ++aa) {
+            const std::size_t q =
+                (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
+            for (std::uint32_t k = cell_start_[q]; k < cell_start_[q + 1]; ++k)
+              if (scratch_[k] > i) test(static_cast<std::uint32_t>(i), scratch_[k]);
+          }
+    }
   }
   prox_from_pairs_ = prox_cells;
   xr_ = p_.x, yr_ = p_.y, zr_ = p_.z;

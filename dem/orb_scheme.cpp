@@ -161,10 +161,15 @@ void OrbScheme::resort() {
   std::vector<std::uint32_t> count(nl + 1, 0);
   leaf_of.resize(n);
   bool moved = false;
+  const auto leaves = tree_.leaves();
   for (std::size_t l = 0; l < nl; ++l)
     for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) {
-      const int k = tree_.locate(geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
-                                 geom_.wrap(p_.z[i], 2));
+      const double q[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
+                           geom_.wrap(p_.z[i], 2)};
+      // Most particles are still inside their (half-open) box: skip the tree descent.
+      const int k = leaves[l].box.contains({q[0], q[1], q[2]})
+                        ? static_cast<int>(l)
+                        : tree_.locate(q[0], q[1], q[2]);
       if (k < 0)
         throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
                                    "the domain",
@@ -215,7 +220,7 @@ void OrbScheme::rebuild_pairs() {
   std::array<double, 3> inv{};
   double cell = cutoff;
   const double volume = g.length[0] * g.length[1] * g.length[2];
-  const double target = 4.0 * static_cast<double>(n) + 64.0;
+  const double target = 2.0 * static_cast<double>(n) + 64.0;
   if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
   for (int a = 0; a < 3; ++a) {
     nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));

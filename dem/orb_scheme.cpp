@@ -122,6 +122,9 @@ void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
 
 void OrbScheme::regrid() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
+  // A skin grown by a retry lasts until the regrid: rows built with it stay valid (they hold
+  // more pairs), and the next build uses the scene's skin again.
+  skin_ = model_.skin;
   const std::size_t n = p_.size();
   // Wrap into the box; the reference positions move by the same period, so the displacement
   // since the last neighbor build is unchanged.

@@ -30,7 +30,8 @@
 //   changes no result bit; it amortises the loop overhead of ~20-particle leaves.
 // - A fine leaf whose particle moves more than skin/2 during the sub-iteration (a collision sped
 //   it up) makes the whole sub-iteration roll back to the frozen copies and run again with rows
-//   rebuilt; if they were already fresh, with the skin doubled (kept: retries() and skin()).
+//   rebuilt; if they were already fresh, with the skin doubled until the next regrid
+//   (retries() counts them).
 // Force evaluations (pair_evaluations) = per local step, own-leaf pairs once plus other-leaf
 // pairs once per side: a pair across a leaf boundary is evaluated by both leaves, against the
 // other's frozen copy, and counted twice. With one leaf it is the explicit scheme's count.

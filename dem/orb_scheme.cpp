@@ -576,6 +576,16 @@ void OrbScheme::subiterate(bool record) {
     for (std::uint32_t a = 0; a < n; ++a)
       for (std::uint32_t c = a + 1; c < n; ++c) test(a, c);
   }
+  // A wall is a partner too: a particle whose centre is closer than proximity_radii radii to a
+  // wall (without this, a leaf near a floor took coarse steps straight into it).
+  for (int a = 0; a < 3; ++a) {
+    if (geom_.periodic[a]) continue;
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double d = 2.0 * prox * p_.radius[i];
+      near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+    }
+  }
   leaf_fine_.assign(nl, 0);
   for (std::size_t l = 0; l < nl; ++l)
     for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) leaf_fine_[l] |= near_[i];

@@ -6,6 +6,7 @@
 // every leaf picks its own step (leaves with the same step run together as TBB tasks, below):
 //   dt_local = the explicit step (tau_p * dt_factor) if some own particle has a partner (own or
 //              ghost) closer than dem.proximity_radii * (r_i + r_j) / 2 centre to centre,
+//              or its centre is closer than dem.proximity_radii * r_i to a wall,
 //            = dt_sp otherwise,
 // and takes K = ceil(dt_sp / dt_local) velocity-Verlet steps with the explicit scheme's contact
 // law, the last one shortened so that the leaf lands exactly on the end of the sub-iteration.

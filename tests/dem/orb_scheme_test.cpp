@@ -301,3 +301,20 @@ TEST(OrbScheme, CostWeightsDeterministicAndMoveTheCuts) {
   const ParticleStore c = orb_cost_run(1, "count");
   EXPECT_NE(a.id, c.id) << "cost weights should move at least one cut";
 }
+
+// (g) A wall counts as a partner: a lone particle whose centre is within proximity_radii radii of
+// a wall takes the fine step (a coarse step of dt_sp would drive it into the wall unresolved);
+// far from the walls it takes the coarse one.
+TEST(OrbScheme, WallIsAPartnerForTheStepRule) {
+  const Scene s = demtest::scene_from(kPair, {"domain.periodic=[false, false, false]",
+                                              "partition.orb_levels=0", "dem.nsubit=10"});
+  for (const double y : {2.0e-3, 0.12e-3}) {
+    ParticleStore p;
+    p.add(2.0e-3, y, 2.0e-3, 0.0, -0.1, 0.0, 50e-6, 1000.0, 0);
+    PhaseTimer t;
+    dem::OrbScheme o(s, p, t);
+    o.start();
+    o.subiterate();
+    EXPECT_EQ(o.last_fine_fraction(), y < 0.15e-3 ? 1.0 : 0.0) << "y = " << y;
+  }
+}

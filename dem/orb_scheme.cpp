@@ -165,14 +165,16 @@ void OrbScheme::resort() {
   leaf_of.resize(n);
   bool moved = false;
   const auto leaves = tree_.leaves();
-  for (std::size_t l = 0; l < nl; ++l)
+  for (std::size_t l = 0; l < nl; ++l) {
+    const partition::Aabb box = leaves[l].box;
     for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) {
-      const double q[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
-                           geom_.wrap(p_.z[i], 2)};
-      // Most particles are still inside their (half-open) box: skip the tree descent.
-      const int k = leaves[l].box.contains({q[0], q[1], q[2]})
-                        ? static_cast<int>(l)
-                        : tree_.locate(q[0], q[1], q[2]);
+      // Most particles are still inside their (half-open) box: skip the wrap and the tree
+      // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
+      const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
+      int k = static_cast<int>(l);
+      if (!(box.lo[0] <= px && px < box.hi[0] && box.lo[1] <= py && py < box.hi[1] &&
+            box.lo[2] <= pz && pz < box.hi[2]))
+        k = tree_.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
       if (k < 0)
         throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
                                    "the domain",
@@ -181,6 +183,7 @@ void OrbScheme::resort() {
       moved |= static_cast<std::size_t>(k) != l;
       ++count[static_cast<std::size_t>(k) + 1];
     }
+  }
   if (!moved) return;
   for (std::size_t l = 0; l < nl; ++l) count[l + 1] += count[l];
   ranges_.assign(count.begin(), count.end());
@@ -189,18 +192,28 @@ void OrbScheme::resort() {
   apply_permutation(order);
 }
 
-// Largest (displacement since the build + free flight over one sub-iteration), squared: the
-// rows are rebuilt before a sub-iteration in which a particle would likely outrun them.
-double OrbScheme::max_displacement2() const {
-  double md = 0.0;
-  for (std::size_t i = 0; i < p_.size(); ++i) {
-    const double ex = geom_.image(p_.x[i] - xr_[i], 0), ey = geom_.image(p_.y[i] - yr_[i], 1),
-                 ez = geom_.image(p_.z[i] - zr_[i], 2);
-    const double v = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]);
-    const double d = std::sqrt(ex * ex + ey * ey + ez * ez) + v * dt_sp_;
-    md = std::max(md, d * d);
+// True when some particle's displacement since the build plus its free flight over one
+// sub-iteration exceeds skin/2: the rows are then rebuilt before the sub-iteration, in which the
+// particle would likely outrun them. Positions and references are unwrapped alike (a regrid
+// shifts both), so plain differences. (d + v dt)^2 <= 2 (d^2 + v^2 dt^2): the square roots are
+// taken only for the few particles that fail that bound.
+bool OrbScheme::rows_expire() const {
+  const std::size_t n = p_.size();
+  const double lim = 0.5 * skin_, lim2 = lim * lim, dt2 = dt_sp_ * dt_sp_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* vx = p_.vx.data();
+  const double* vy = p_.vy.data();
+  const double* vz = p_.vz.data();
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ex = x[i] - xr_[i], ey = y[i] - yr_[i], ez = z[i] - zr_[i];
+    const double d2 = ex * ex + ey * ey + ez * ez;
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    if (!(2.0 * (d2 + v2 * dt2) <= lim2) && !(std::sqrt(d2) + std::sqrt(v2) * dt_sp_ <= lim))
+      return true; // NaN expires the rows too
   }
-  return md;
+  return false;
 }
 
 // One cell list over the whole store (indices binned, the store is not moved): contact
@@ -543,7 +556,7 @@ void OrbScheme::subiterate(bool record) {
   const std::size_t n = p_.size();
   bool fresh = false; // rows built for this sub-iteration
   {
-    if (!pairs_valid_ || max_displacement2() > 0.25 * skin_ * skin_) rebuild_pairs(), fresh = true;
+    if (!pairs_valid_ || rows_expire()) rebuild_pairs(), fresh = true;
     if (off_.size() != n + 1) {
       PhaseTimer::Scope t(timer_, Phase::neighbor);
       derive_rows();

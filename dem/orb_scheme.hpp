@@ -123,7 +123,7 @@ private:
   void apply_permutation(std::span<const std::uint32_t> order);
   void rebuild_pairs();
   void derive_rows();
-  double max_displacement2() const;
+  bool rows_expire() const;
   void run_batch(Batch& b, bool record);
   bool attempt(bool record);
 

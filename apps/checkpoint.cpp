@@ -136,12 +136,24 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
       const auto& o = c.orb;
       f.create_group("/orb");
       w.put("/orb/half_step", o.hprev);
+      w.put("/orb/cost", o.cost);
       w.put("/orb/leaf_steps", o.leaf_steps);
       w.put("/orb/counters", std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits,
                                                        o.particle_steps, o.pair_evaluations,
                                                        o.builds, o.regrids,
-                                                       o.overlap_violations});
-      w.put("/orb/ratios", std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio});
+                                                       o.overlap_violations, o.retries,
+                                                       o.pairs_valid ? 1 : 0,
+                                                       o.prox_from_pairs ? 1 : 0});
+      w.put("/orb/ratios",
+            std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
+      // Candidate pairs (store indices) and their reference positions.
+      w.put("/orb/contact_a", o.ca);
+      w.put("/orb/contact_b", o.cb);
+      w.put("/orb/proximity_a", o.pa);
+      w.put("/orb/proximity_b", o.pb);
+      w.put("/orb/x_ref", o.x_ref);
+      w.put("/orb/y_ref", o.y_ref);
+      w.put("/orb/z_ref", o.z_ref);
     }
     w.put("/diagnostics_rows", flatten_rows(c.rows));
     std::vector<std::int64_t> ss, sn, sl;
@@ -230,12 +242,21 @@ Checkpoint read_checkpoint(const std::string& path) {
     if (c.scheme == "orb") {
       auto& o = c.orb;
       o.hprev = r.doubles("/orb/half_step", n);
+      o.cost = r.doubles("/orb/cost", n);
       o.leaf_steps = r.int64s("/orb/leaf_steps", Reader::kAny);
-      const auto k = r.int64s("/orb/counters", 8);
+      const auto k = r.int64s("/orb/counters", 11);
       o.fine_count = k[0], o.leaf_subits = k[1], o.subits = k[2], o.particle_steps = k[3];
       o.pair_evaluations = k[4], o.builds = k[5], o.regrids = k[6], o.overlap_violations = k[7];
-      const auto q = r.doubles("/orb/ratios", 2);
-      o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1];
+      o.retries = k[8], o.pairs_valid = k[9] != 0, o.prox_from_pairs = k[10] != 0;
+      const auto q = r.doubles("/orb/ratios", 3);
+      o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1], o.skin = q[2];
+      o.ca = r.uint32s("/orb/contact_a", Reader::kAny);
+      o.cb = r.uint32s("/orb/contact_b", o.ca.size());
+      o.pa = r.uint32s("/orb/proximity_a", Reader::kAny);
+      o.pb = r.uint32s("/orb/proximity_b", o.pa.size());
+      o.x_ref = r.doubles("/orb/x_ref", Reader::kAny);
+      o.y_ref = r.doubles("/orb/y_ref", o.x_ref.size());
+      o.z_ref = r.doubles("/orb/z_ref", o.x_ref.size());
     } else if (c.scheme != "explicit") {
       throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
     }

@@ -92,6 +92,8 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
                              fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
                              fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity,
                              fluid.tolerance, fluid.preconditioner ("pfmg" | "smg")
+  partition.weights          orb: "count" (default) | "cost" (particles x local steps of the
+                             last regrid interval)
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)

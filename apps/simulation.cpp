@@ -522,7 +522,10 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
   j["particle_steps"] = scheme.particle_steps();
   j["force_evaluations"] = scheme.pair_evaluations();
   j["force_evaluations_definition"] =
-      "local-list pairs evaluated (own-own and own-ghost pairs once each per local step)";
+      "candidate pairs evaluated per local step: pairs within a leaf once, pairs across a leaf "
+      "boundary once per side (each leaf evaluates its side against the other's frozen copy)";
+  j["subiteration_retries"] = scheme.retries();
+  j["final_skin"] = scheme.skin();
   j["neighbor_builds"] = scheme.neighbor_builds();
   j["max_overlap_ratio"] = scheme.max_overlap_ratio();
   j["overlap_violations"] = scheme.overlap_violations();

@@ -129,6 +129,10 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   require(levels >= 0 && levels <= 20, "partition.orb_levels",
           fmt::format("must be in 0..20, got {}", levels));
   s.partition.orb_levels = static_cast<int>(levels);
+  s.partition.weights = c.get_string("partition.weights", "count");
+  require(s.partition.weights == "count" || s.partition.weights == "cost", "partition.weights",
+          fmt::format("unknown weights \"{}\" (available: \"count\", \"cost\")",
+                      s.partition.weights));
 
   // Run and output.
   s.run.end_time = positive(c, "run.end_time");
@@ -267,6 +271,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.proximity_radii", num(d.proximity_radii));
   o.emplace_back("dem.regrid_interval", num(d.regrid_interval));
   o.emplace_back("partition.orb_levels", std::to_string(s.partition.orb_levels));
+  o.emplace_back("partition.weights", str(s.partition.weights));
   o.emplace_back("run.end_time", num(s.run.end_time));
   o.emplace_back("output.interval", num(s.output.interval));
   o.emplace_back("output.progress_seconds", num(s.output.progress_seconds));

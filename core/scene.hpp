@@ -54,6 +54,9 @@ struct DemSpec {
 
 struct PartitionSpec {
   int orb_levels = 4; // the ORB has 2^orb_levels leaves
+  // ORB weights: "count" (every particle weighs 1) or "cost" (particles x local steps of the
+  // last regrid interval: each particle weighs the local steps its leaf took).
+  std::string weights = "count";
 };
 
 struct RunSpec {

@@ -14,6 +14,7 @@
 
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
+#include "dem/contact_kernels.hpp"
 
 namespace cfddem::dem {
 
@@ -190,10 +191,8 @@ template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& ou
         const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
         const double vn = dvx * nx + dvy * ny + dvz * nz;
         // Equal masses (the common case) skip the divide and square root of m_eff.
-        const double meff = m.uniform_mass ? m.uniform_meff : mi * mass[j] / (mi + mass[j]);
-        const double fn = m.uniform_mass
-                              ? m.pair.k * delta + m.uniform_eta * vn
-                              : normal_force(m.pair, meff, delta, vn);
+        const double meff = contact_meff(m, mi, mass[j]);
+        const double fn = contact_normal_force(m, meff, delta, vn);
         ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
         if (delta > m.max_overlap * std::min(ri, rad[j]))
           rep.flag(i, Fault::overlap, delta / std::min(ri, rad[j]), j);

@@ -10,28 +10,56 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/partitioner.h>
+#include <tbb/task_arena.h>
 
 #include "core/error.hpp"
+#include "dem/contact_kernels.hpp"
 
 namespace cfddem::dem {
 
 namespace {
 enum class Fault { none = 0, nan, left_domain };
+
+// The distinct cell indices along one axis around cell b (periodic images collapse when n < 3).
+int stencil_axis(int b, int n, bool periodic, int out[3]) {
+  int m = 0;
+  for (int o = -1; o <= 1; ++o) {
+    int c = b + o;
+    if (c < 0 || c >= n) {
+      if (!periodic) continue;
+      c = (c + n) % n;
+    }
+    bool seen = false;
+    for (int q = 0; q < m; ++q) seen = seen || out[q] == c;
+    if (!seen) out[m++] = c;
+  }
+  return m;
+}
+
+// Sort a short segment of partner indices by particle id (the canonical summation order: it
+// survives every re-sort of the store, so a row's sum does not depend on the store's order).
+void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
+  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
+    const std::uint32_t v = *i;
+    std::uint32_t* j = i;
+    for (; j > first && id[*(j - 1)] > id[v]; --j) *j = *(j - 1);
+    *j = v;
+  }
+}
 } // namespace
 
-// Everything one leaf touches during a sub-iteration: own particles first (n_own), then the
-// frozen ghosts; the local neighbor list (own-own pairs once, own-ghost pairs once); and the
-// leaf's counters. Only the task running the leaf writes it.
-struct OrbScheme::Workspace {
-  std::vector<double> x, y, z, vx, vy, vz, r, m, im, hp, fx, fy, fz, x0, y0, z0;
-  std::vector<double> gx, gy, gz; // own: gravity + external force / m (external force only)
-  std::vector<double> sx, sy, sz, svx, svy, svz; // recorded state (own)
-  std::vector<std::uint32_t> oi, oj, gi, gj;     // own-own and own-ghost pairs
-  std::vector<std::uint32_t> sorted;
-  std::size_t n_own = 0;
-  std::int64_t steps = 0, pair_evals = 0, builds = 0, violations = 0;
-  bool fine = false;
+// A run of consecutive leaves with the same local step, advanced in lockstep as one TBB task:
+// [b, e) in the store, rows active_[a0, a1). Leaves never read each other's live state (partners
+// in other leaves are read from the frozen copies), so the grouping changes nothing in the
+// arithmetic: it only amortises the per-step loop overhead of small leaves.
+struct OrbScheme::Batch {
+  std::uint32_t b = 0, e = 0, a0 = 0, a1 = 0;
+  std::int64_t K = 1, evals_per_step = 0;
+  double h = 0.0, h_last = 0.0;
+  // Results of the last attempt.
+  std::int64_t violations = 0;
   double max_ratio = 0.0;
+  bool outran = false; // a particle moved more than skin/2 with force evaluations still to do
   Fault fault = Fault::none;
   std::uint32_t fault_index = 0;
   double fault_value = 0.0;
@@ -51,13 +79,21 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
   if (p_.size() == 0) r_max_ = model_.r_min;
   nsubit_ = scene.dem.nsubit;
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
-  halo_ = 2.0 * r_max_ + 2.0 * model_.skin;
+  skin_ = model_.skin;
+  cost_weights_ = scene.partition.weights == "cost";
+  // The skin may grow (after a retry) while the contact cutoff stays below half of every
+  // periodic length (minimum image).
+  skin_cap_ = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a)
-    if (geom_.periodic[a] && geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
-      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
-                                 "neighbor cutoff {:.4g} m",
-                                 a, geom_.length[a], 2.0 * r_max_ + model_.skin));
+    if (geom_.periodic[a]) {
+      if (geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
+        throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                                   "neighbor cutoff {:.4g} m",
+                                   a, geom_.length[a], 2.0 * r_max_ + model_.skin));
+      skin_cap_ = std::min(skin_cap_, 0.499 * geom_.length[a] - 2.0 * r_max_);
+    }
   hprev_.assign(p_.size(), 0.0);
+  cost_.assign(p_.size(), 0.0);
 }
 
 void OrbScheme::start() {
@@ -66,25 +102,58 @@ void OrbScheme::start() {
   subits_ = 0;
 }
 
+// New index k holds old index order[k]: every per-particle array and the pair lists follow.
+void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
+  const std::size_t n = order.size();
+  p_.permute(order);
+  auto permute = [&](std::vector<double>& v) {
+    if (v.size() != n) return;
+    std::vector<double>& t = dscratch_;
+    t.resize(n);
+    for (std::size_t k = 0; k < n; ++k) t[k] = v[order[k]];
+    v.swap(t);
+  };
+  permute(hprev_), permute(cost_), permute(xr_), permute(yr_), permute(zr_);
+  permute(ex_), permute(ey_), permute(ez_); // empty without an external force
+  scratch_.resize(n);
+  for (std::size_t k = 0; k < n; ++k) scratch_[order[k]] = static_cast<std::uint32_t>(k);
+  for (auto* v : {&ca_, &cb_, &pa_, &pb_})
+    for (auto& i : *v) i = scratch_[i];
+  off_.clear(); // rows must be derived again
+}
+
 void OrbScheme::regrid() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
-  for (std::size_t i = 0; i < p_.size(); ++i) {
-    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1);
-    p_.z[i] = geom_.wrap(p_.z[i], 2);
+  // A skin grown by a retry lasts until the regrid: rows built with it stay valid (they hold
+  // more pairs), and the next build uses the scene's skin again.
+  skin_ = model_.skin;
+  const std::size_t n = p_.size();
+  // Wrap into the box; the reference positions move by the same period, so the displacement
+  // since the last neighbor build is unchanged.
+  for (std::size_t i = 0; i < n; ++i) {
+    const double wx = geom_.wrap(p_.x[i], 0), wy = geom_.wrap(p_.y[i], 1),
+                 wz = geom_.wrap(p_.z[i], 2);
+    if (!xr_.empty()) xr_[i] += wx - p_.x[i], yr_[i] += wy - p_.y[i], zr_[i] += wz - p_.z[i];
+    p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
   }
-  tree_ = partition::OrbTree::build(p_.x, p_.y, p_.z, {}, domain_,
+  bool use_cost = cost_weights_;
+  if (use_cost) {
+    double total = 0.0;
+    for (double c : cost_) total += c;
+    use_cost = total > 0.0; // the first regrid has no measurement yet: count
+  }
+  tree_ = partition::OrbTree::build(p_.x, p_.y, p_.z,
+                                    use_cost ? std::span<const double>(cost_)
+                                             : std::span<const double>(),
+                                    domain_,
                                     partition::OrbOptions{scene_.partition.orb_levels, {}});
   const auto order = tree_.order();
-  p_.permute(order);
-  std::vector<double> h(hprev_.size());
-  for (std::size_t k = 0; k < order.size(); ++k) h[k] = hprev_[order[k]];
-  hprev_.swap(h);
-  permute_external(order);
+  apply_permutation(order);
+  std::fill(cost_.begin(), cost_.end(), 0.0);
   const auto leaves = tree_.leaves();
   ranges_.assign(leaves.size() + 1, 0);
   for (std::size_t l = 0; l < leaves.size(); ++l) ranges_[l + 1] = leaves[l].end;
   if (leaf_steps_.size() != leaves.size()) leaf_steps_.assign(leaves.size(), 0);
-  work_.resize(leaves.size());
   ++regrids_;
 }
 
@@ -93,11 +162,21 @@ void OrbScheme::resort() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   const std::size_t n = p_.size();
   const std::size_t nl = ranges_.size() - 1;
-  std::vector<std::uint32_t> leaf_of(n), count(nl + 1, 0);
+  std::vector<std::uint32_t>& leaf_of = leaf_of_;
+  std::vector<std::uint32_t> count(nl + 1, 0);
+  leaf_of.resize(n);
   bool moved = false;
-  for (std::size_t l = 0; l < nl; ++l)
+  const auto leaves = tree_.leaves();
+  for (std::size_t l = 0; l < nl; ++l) {
+    const partition::Aabb box = leaves[l].box;
     for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) {
-      const int k = tree_.locate(p_.x[i], p_.y[i], p_.z[i]);
+      // Most particles are still inside their (half-open) box: skip the wrap and the tree
+      // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
+      const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
+      int k = static_cast<int>(l);
+      if (!(box.lo[0] <= px && px < box.hi[0] && box.lo[1] <= py && py < box.hi[1] &&
+            box.lo[2] <= pz && pz < box.hi[2]))
+        k = tree_.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
       if (k < 0)
         throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
                                    "the domain",
@@ -106,25 +185,568 @@ void OrbScheme::resort() {
       moved |= static_cast<std::size_t>(k) != l;
       ++count[static_cast<std::size_t>(k) + 1];
     }
+  }
   if (!moved) return;
   for (std::size_t l = 0; l < nl; ++l) count[l + 1] += count[l];
   ranges_.assign(count.begin(), count.end());
   std::vector<std::uint32_t> order(n);
   for (std::size_t i = 0; i < n; ++i) order[count[leaf_of[i]]++] = static_cast<std::uint32_t>(i);
-  p_.permute(order);
-  std::vector<double> h(n);
-  for (std::size_t k = 0; k < n; ++k) h[k] = hprev_[order[k]];
-  hprev_.swap(h);
-  permute_external(order);
+  apply_permutation(order);
 }
 
-void OrbScheme::permute_external(std::span<const std::uint32_t> order) {
-  if (!external_) return;
-  for (auto* v : {&ex_, &ey_, &ez_}) {
-    std::vector<double> out(order.size());
-    for (std::size_t k = 0; k < order.size(); ++k) out[k] = (*v)[order[k]];
-    v->swap(out);
+// True when some particle's displacement since the build plus its free flight over one
+// sub-iteration exceeds skin/2: the rows are then rebuilt before the sub-iteration, in which the
+// particle would likely outrun them. Positions and references are unwrapped alike (a regrid
+// shifts both), so plain differences. (d + v dt)^2 <= 2 (d^2 + v^2 dt^2): the square roots are
+// taken only for the few particles that fail that bound.
+bool OrbScheme::rows_expire() const {
+  const std::size_t n = p_.size();
+  const double lim = 0.5 * skin_, lim2 = lim * lim, dt2 = dt_sp_ * dt_sp_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* vx = p_.vx.data();
+  const double* vy = p_.vy.data();
+  const double* vz = p_.vz.data();
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ex = x[i] - xr_[i], ey = y[i] - yr_[i], ez = z[i] - zr_[i];
+    const double d2 = ex * ex + ey * ey + ez * ez;
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    if (!(2.0 * (d2 + v2 * dt2) <= lim2) && !(std::sqrt(d2) + std::sqrt(v2) * dt_sp_ <= lim))
+      return true; // NaN expires the rows too
   }
+  return false;
+}
+
+// One cell list over the whole store (indices binned, the store is not moved): contact
+// candidates within r_a + r_b + skin and proximity candidates within prox (r_a + r_b)/2 + skin,
+// each pair once, in a deterministic order. Proximity candidates are skipped when every particle
+// is within the proximity distance of every other (prox_all) or the proximity distance reaches
+// half a periodic length (prox_brute: tested pair by pair at each sub-iteration instead).
+void OrbScheme::rebuild_pairs() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  const std::size_t n = p_.size();
+  const DomainGeometry& g = geom_;
+  const double prox = 0.5 * scene_.dem.proximity_radii;
+  const double contact_cut = 2.0 * r_max_ + skin_;
+  const double prox_cut = 2.0 * prox * r_max_ + skin_;
+  bool prox_cells = true;
+  for (int a = 0; a < 3; ++a)
+    if (g.periodic[a] && 2.0 * prox_cut >= g.length[a]) prox_cells = false;
+  const double cutoff = prox_cells ? std::max(contact_cut, prox_cut) : contact_cut;
+  std::array<int, 3> nc{};
+  std::array<double, 3> inv{};
+  double cell = cutoff;
+  const double volume = g.length[0] * g.length[1] * g.length[2];
+  const double target = 2.0 * static_cast<double>(n) + 64.0;
+  if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
+  for (int a = 0; a < 3; ++a) {
+    nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
+    inv[a] = nc[a] / g.length[a];
+  }
+  const std::size_t ncell = static_cast<std::size_t>(nc[0]) * nc[1] * nc[2];
+  auto coord = [&](double v, int a) {
+    return std::clamp(static_cast<int>((g.wrap(v, a) - g.lo[a]) * inv[a]), 0, nc[a] - 1);
+  };
+  cell_of_.resize(n);
+  cell_start_.assign(ncell + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    cell_of_[i] = static_cast<std::uint32_t>(
+        (static_cast<std::size_t>(coord(p_.z[i], 2)) * nc[1] + coord(p_.y[i], 1)) * nc[0] +
+        coord(p_.x[i], 0));
+    ++cell_start_[cell_of_[i] + 1];
+  }
+  for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
+  scratch_.resize(n);
+  {
+    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) scratch_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+  }
+  ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear();
+  const double* px = p_.x.data();
+  const double* py = p_.y.data();
+  const double* pz = p_.z.data();
+  const double* pr = p_.radius.data();
+  auto test = [&](std::uint32_t i, std::uint32_t j) {
+    const double dx = g.image(px[j] - px[i], 0), dy = g.image(py[j] - py[i], 1),
+                 dz = g.image(pz[j] - pz[i], 2);
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const double rs = pr[i] + pr[j];
+    if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(i), cb_.push_back(j);
+    if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
+      pa_.push_back(i), pb_.push_back(j);
+  };
+  if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
+    // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
+    // so every pair is visited once and no cell twice.
+    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
+                                        {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
+                                        {0, 0, 1},  {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
+                                        {1, 1, 1}};
+    for (int cz = 0; cz < nc[2]; ++cz)
+      for (int cy = 0; cy < nc[1]; ++cy)
+        for (int cx = 0; cx < nc[0]; ++cx) {
+          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
+          const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
+          if (c0 == c1) continue;
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = a + 1; b < c1; ++b) test(scratch_[a], scratch_[b]);
+          for (const auto& o : kFwd) {
+            int q[3] = {cx + o[0], cy + o[1], cz + o[2]};
+            bool skip = false;
+            for (int a = 0; a < 3; ++a) {
+              if (q[a] < 0 || q[a] >= nc[a]) {
+                if (!g.periodic[a]) skip = true;
+                q[a] = (q[a] + nc[a]) % nc[a];
+              }
+            }
+            if (skip) continue;
+            const std::size_t d = (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0];
+            const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
+            for (std::uint32_t a = c0; a < c1; ++a)
+              for (std::uint32_t b = d0; b < d1; ++b) test(scratch_[a], scratch_[b]);
+          }
+        }
+  } else {
+    // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = cell_of_[i];
+      const int cx = static_cast<int>(c % nc[0]), cy = static_cast<int>((c / nc[0]) % nc[1]),
+                cz = static_cast<int>(c / (static_cast<std::size_t>(nc[0]) * nc[1]));
+      int sx[3], sy[3], sz[3];
+      const int mx = stencil_axis(cx, nc[0], g.periodic[0], sx);
+      const int my = stencil_axis(cy, nc[1], g.periodic[1], sy);
+      const int mz = stencil_axis(cz, nc[2], g.periodic[2], sz);
+      for (int cc = 0; cc < mz; ++cc)
+        for (int bb = 0; bb < my; ++bb)
+          for (int aa = 0; aa < mx; ++aa) {
+            const std::size_t q =
+                (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
+            for (std::uint32_t k = cell_start_[q]; k < cell_start_[q + 1]; ++k)
+              if (scratch_[k] > i) test(static_cast<std::uint32_t>(i), scratch_[k]);
+          }
+    }
+  }
+  prox_from_pairs_ = prox_cells;
+  xr_ = p_.x, yr_ = p_.y, zr_ = p_.z;
+  pairs_valid_ = true;
+  off_.clear();
+  ++builds_;
+}
+
+// Rows of the current leaves from the contact candidates (after a build or a re-sort).
+void OrbScheme::derive_rows() {
+  const std::size_t n = p_.size();
+  const std::size_t nl = ranges_.size() - 1;
+  leaf_of_.resize(n);
+  for (std::size_t l = 0; l < nl; ++l)
+    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i)
+      leaf_of_[i] = static_cast<std::uint32_t>(l);
+  std::vector<std::uint32_t>& own = scratch_;
+  own.assign(n, 0);
+  off_.assign(n + 1, 0);
+  for (std::size_t q = 0; q < ca_.size(); ++q) {
+    const std::uint32_t a = ca_[q], b = cb_[q];
+    ++off_[a + 1], ++off_[b + 1];
+    if (leaf_of_[a] == leaf_of_[b]) ++own[a], ++own[b];
+  }
+  for (std::size_t i = 0; i < n; ++i) off_[i + 1] += off_[i];
+  mid_.resize(n);
+  for (std::size_t i = 0; i < n; ++i) mid_[i] = off_[i] + own[i];
+  nb_.resize(off_[n]);
+  std::vector<std::uint32_t>& fo = own; // fill cursors: own segment, then ghost segment
+  std::vector<std::uint32_t>& fg = cell_of_;
+  fg.resize(n);
+  for (std::size_t i = 0; i < n; ++i) fo[i] = off_[i], fg[i] = mid_[i];
+  for (std::size_t q = 0; q < ca_.size(); ++q) {
+    const std::uint32_t a = ca_[q], b = cb_[q];
+    if (leaf_of_[a] == leaf_of_[b]) {
+      nb_[fo[a]++] = b, nb_[fo[b]++] = a;
+    } else {
+      nb_[fg[a]++] = b, nb_[fg[b]++] = a;
+    }
+  }
+  active_.clear();
+  for (std::size_t i = 0; i < n; ++i) {
+    sort_by_id(nb_.data() + off_[i], nb_.data() + mid_[i], p_.id.data());
+    sort_by_id(nb_.data() + mid_[i], nb_.data() + off_[i + 1], p_.id.data());
+    if (off_[i + 1] > off_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+  }
+  // Only particles with a row get their contact force rewritten each step: clear the rest.
+  std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
+  std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
+  std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+}
+
+void OrbScheme::run_batch(Batch& bt, bool record) {
+  external_ ? run_batch_impl<true>(bt, record) : run_batch_impl<false>(bt, record);
+}
+
+// With External, the per-particle external force is added to the contact force in every kick
+// and in the synchronised velocity ((F + F_ext) / m + g, the explicit scheme's arithmetic).
+template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) {
+  bt.violations = 0;
+  bt.max_ratio = 0.0;
+  bt.outran = false;
+  bt.fault = Fault::none;
+  if (bt.e == bt.b) return;
+  const DomainGeometry g = geom_;
+  const StepModel m = model_;
+  double* __restrict x = p_.x.data();
+  double* __restrict y = p_.y.data();
+  double* __restrict z = p_.z.data();
+  double* __restrict vx = p_.vx.data();
+  double* __restrict vy = p_.vy.data();
+  double* __restrict vz = p_.vz.data();
+  double* __restrict fx = p_.fx.data();
+  double* __restrict fy = p_.fy.data();
+  double* __restrict fz = p_.fz.data();
+  double* __restrict hp = hprev_.data();
+  const double* __restrict gx = gx_.data();
+  const double* __restrict gy = gy_.data();
+  const double* __restrict gz = gz_.data();
+  const double* __restrict gvx = gvx_.data();
+  const double* __restrict gvy = gvy_.data();
+  const double* __restrict gvz = gvz_.data();
+  const double* __restrict rad = p_.radius.data();
+  const double* __restrict mass = p_.mass.data();
+  const double* __restrict im = p_.inv_mass.data();
+  const double* __restrict fex = External ? ex_.data() : nullptr;
+  const double* __restrict fey = External ? ey_.data() : nullptr;
+  const double* __restrict fez = External ? ez_.data() : nullptr;
+  const double* __restrict xr = xr_.data();
+  const double* __restrict yr = yr_.data();
+  const double* __restrict zr = zr_.data();
+  const std::uint32_t* __restrict off = off_.data();
+  const std::uint32_t* __restrict mid = mid_.data();
+  const std::uint32_t* __restrict nb = nb_.data();
+  const std::uint32_t* __restrict act = active_.data();
+  const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
+  const double lim = m.max_overlap;
+  const double half_skin2 = 0.25 * skin_ * skin_;
+  const std::uint32_t b = bt.b, e = bt.e;
+  double max_ratio = 0.0;
+  std::int64_t violations = 0;
+  double h_before = 0.0; // the previous local step (k > 0)
+  for (std::int64_t k = 0; k < bt.K; ++k) {
+    const double hk = k + 1 == bt.K ? bt.h_last : bt.h;
+    // Contact pass: the explicit scheme's pair arithmetic; partners of the own leaf read live,
+    // partners of other leaves read frozen at the start of the sub-iteration.
+    for (std::uint32_t q = bt.a0; q < bt.a1; ++q) {
+      const std::uint32_t i = act[q];
+      const double xi = x[i], yi = y[i], zi = z[i];
+      const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
+      double ax = 0.0, ay = 0.0, az = 0.0;
+      auto partner = [&](std::uint32_t j, double xj, double yj, double zj, double vxj, double vyj,
+                         double vzj) {
+        const double dx = g.image(xj - xi, 0), dy = g.image(yj - yi, 1), dz = g.image(zj - zi, 2);
+        const double r2 = dx * dx + dy * dy + dz * dz;
+        const double rs = ri + rad[j];
+        if (r2 >= rs * rs) return;
+        const double dist = std::sqrt(r2);
+        const double inv = 1.0 / dist;
+        const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+        const double delta = rs - dist;
+        const double vn = (vxi - vxj) * nx + (vyi - vyj) * ny + (vzi - vzj) * nz;
+        const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
+        ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+        const double ratio = delta / std::min(ri, rad[j]);
+        max_ratio = std::max(max_ratio, ratio);
+        violations += ratio > lim;
+      };
+      for (std::uint32_t s = off[i]; s < mid[i]; ++s) {
+        const std::uint32_t j = nb[s];
+        partner(j, x[j], y[j], z[j], vx[j], vy[j], vz[j]);
+      }
+      for (std::uint32_t s = mid[i]; s < off[i + 1]; ++s) {
+        const std::uint32_t j = nb[s];
+        partner(j, gx[j], gy[j], gz[j], gvx[j], gvy[j], gvz[j]);
+      }
+      fx[i] = ax, fy[i] = ay, fz[i] = az;
+    }
+    if (walls) {
+      for (std::uint32_t i = b; i < e; ++i) {
+        const bool row = off[i + 1] > off[i];
+        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
+        const double pos[3] = {x[i], y[i], z[i]}, vel[3] = {vx[i], vy[i], vz[i]};
+        for (int a = 0; a < 3; ++a) {
+          if (g.periodic[a]) continue;
+          for (int side = 0; side < 2; ++side) {
+            const double sg = side ? 1.0 : -1.0;
+            const double delta = side ? rad[i] - (g.hi[a] - pos[a]) : rad[i] - (pos[a] - g.lo[a]);
+            if (delta <= 0.0) continue;
+            f[a] -= sg * normal_force(m.wall, mass[i], delta, sg * vel[a]);
+            max_ratio = std::max(max_ratio, delta / rad[i]);
+            violations += delta > lim * rad[i];
+          }
+        }
+        fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+      }
+    }
+    if (record && k == 0)
+      for (std::uint32_t i = b; i < e; ++i) {
+        if constexpr (External) {
+          svx_[i] = vx[i] + ((fx[i] + fex[i]) * im[i] + m.gravity[0]) * hp[i];
+          svy_[i] = vy[i] + ((fy[i] + fey[i]) * im[i] + m.gravity[1]) * hp[i];
+          svz_[i] = vz[i] + ((fz[i] + fez[i]) * im[i] + m.gravity[2]) * hp[i];
+        } else {
+          svx_[i] = vx[i] + (fx[i] * im[i] + m.gravity[0]) * hp[i];
+          svy_[i] = vy[i] + (fy[i] * im[i] + m.gravity[1]) * hp[i];
+          svz_[i] = vz[i] + (fz[i] * im[i] + m.gravity[2]) * hp[i];
+        }
+      }
+    // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h: the first step of
+    // the sub-iteration kicks each particle over its own h_prev + h/2, later ones over
+    // (h_before + h)/2 (= h exactly for a constant step: the explicit scheme's update).
+    const double half = 0.5 * hk;
+    double md = 0.0;
+    if (k == 0) {
+      for (std::uint32_t i = b; i < e; ++i) {
+        const double s = hp[i] + half;
+        const double ims = im[i] * s;
+        if constexpr (External) {
+          kick_drift(x[i], vx[i], fx[i] + fex[i], ims, m.gravity[0] * s, hk);
+          kick_drift(y[i], vy[i], fy[i] + fey[i], ims, m.gravity[1] * s, hk);
+          kick_drift(z[i], vz[i], fz[i] + fez[i], ims, m.gravity[2] * s, hk);
+        } else {
+          kick_drift(x[i], vx[i], fx[i], ims, m.gravity[0] * s, hk);
+          kick_drift(y[i], vy[i], fy[i], ims, m.gravity[1] * s, hk);
+          kick_drift(z[i], vz[i], fz[i], ims, m.gravity[2] * s, hk);
+        }
+        hp[i] = half;
+        const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+        const double d2 = ex * ex + ey * ey + ez * ez;
+        md = d2 > md ? d2 : md;
+      }
+    } else {
+      const double s = 0.5 * h_before + half;
+      const double gsx = m.gravity[0] * s, gsy = m.gravity[1] * s, gsz = m.gravity[2] * s;
+      for (std::uint32_t i = b; i < e; ++i) {
+        const double ims = im[i] * s;
+        if constexpr (External) {
+          kick_drift(x[i], vx[i], fx[i] + fex[i], ims, gsx, hk);
+          kick_drift(y[i], vy[i], fy[i] + fey[i], ims, gsy, hk);
+          kick_drift(z[i], vz[i], fz[i] + fez[i], ims, gsz, hk);
+        } else {
+          kick_drift(x[i], vx[i], fx[i], ims, gsx, hk);
+          kick_drift(y[i], vy[i], fy[i], ims, gsy, hk);
+          kick_drift(z[i], vz[i], fz[i], ims, gsz, hk);
+        }
+        const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+        const double d2 = ex * ex + ey * ey + ez * ez;
+        md = d2 > md ? d2 : md;
+      }
+      if (k + 1 == bt.K)
+        for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
+    }
+    h_before = hk;
+    // Ghosts do not move and were within skin/2 of their reference: own particles may use the
+    // other half. Beyond it a pair could be missing from the rows: stop, the sub-iteration is
+    // redone with a larger skin (md is NaN-safe: a NaN fails below and is reported as such).
+    if (k + 1 < bt.K && md > half_skin2) {
+      bt.outran = true;
+      break;
+    }
+  }
+  bt.max_ratio = max_ratio;
+  bt.violations = violations;
+  for (std::uint32_t i = b; i < e && bt.fault == Fault::none; ++i) {
+    const double q[3] = {x[i], y[i], z[i]};
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    if (!std::isfinite(v2 + q[0] + q[1] + q[2])) {
+      bt.fault = Fault::nan, bt.fault_index = i, bt.fault_value = v2;
+      break;
+    }
+    for (int a = 0; a < 3; ++a)
+      if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a])) {
+        bt.fault = Fault::left_domain, bt.fault_index = i, bt.fault_value = q[a];
+        break;
+      }
+  }
+}
+
+// One try at the sub-iteration with the current rows; false if some batch outran its rows.
+bool OrbScheme::attempt(bool record) {
+  const int nb = static_cast<int>(batches_.size());
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, nb, 1),
+      [&](const tbb::blocked_range<int>& r) {
+        for (int q = r.begin(); q != r.end(); ++q) run_batch(batches_[static_cast<std::size_t>(q)], record);
+      },
+      tbb::simple_partitioner{});
+  for (const Batch& bt : batches_)
+    if (bt.outran && bt.fault == Fault::none) return false;
+  return true;
+}
+
+void OrbScheme::subiterate(bool record) {
+  if (subits_ % nsubit_ == 0) regrid();
+  const std::size_t nl = ranges_.size() - 1;
+  const std::size_t n = p_.size();
+  bool fresh = false; // rows built for this sub-iteration
+  {
+    if (!pairs_valid_ || rows_expire()) rebuild_pairs(), fresh = true;
+    if (off_.size() != n + 1) {
+      PhaseTimer::Scope t(timer_, Phase::neighbor);
+      derive_rows();
+    }
+  }
+  PhaseTimer::Scope t(timer_, Phase::force);
+  // Frozen copies (the ghosts' state, and the rollback point of a retry).
+  gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
+  if (record) {
+    sx_.resize(n), sy_.resize(n), sz_.resize(n);
+    for (std::size_t i = 0; i < n; ++i)
+      sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1),
+      sz_[i] = geom_.wrap(p_.z[i], 2);
+    svx_.resize(n), svy_.resize(n), svz_.resize(n);
+    smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
+    sleaf_.resize(n), sdt_.resize(n);
+    for (std::size_t l = 0; l < nl; ++l)
+      for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i)
+        sleaf_[i] = static_cast<std::int64_t>(l);
+  }
+  // Local step of each leaf: fine if one of its particles has a partner (own or other leaf)
+  // within the proximity distance.
+  const double prox = 0.5 * scene_.dem.proximity_radii;
+  near_.assign(n, 0);
+  auto test = [&](std::uint32_t a, std::uint32_t c) {
+    const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
+                 dz = geom_.image(p_.z[c] - p_.z[a], 2);
+    const double d = prox * (p_.radius[a] + p_.radius[c]);
+    if (dx * dx + dy * dy + dz * dz < d * d) near_[a] = near_[c] = 1;
+  };
+  if (prox_from_pairs_) {
+    for (std::size_t q = 0; q < pa_.size(); ++q) test(pa_[q], pb_[q]);
+  } else {
+    for (std::uint32_t a = 0; a < n; ++a)
+      for (std::uint32_t c = a + 1; c < n; ++c) test(a, c);
+  }
+  // A wall is a partner too: a particle whose centre is closer than proximity_radii radii to a
+  // wall (without this, a leaf near a floor took coarse steps straight into it).
+  for (int a = 0; a < 3; ++a) {
+    if (geom_.periodic[a]) continue;
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double d = 2.0 * prox * p_.radius[i];
+      near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+    }
+  }
+  leaf_fine_.assign(nl, 0);
+  for (std::size_t l = 0; l < nl; ++l)
+    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) leaf_fine_[l] |= near_[i];
+  // K = ceil(dt_sp / dt) fine steps (a relative slack of 1e-9 absorbs rounding when dt divides
+  // dt_sp), the last one shortened to dt_sp - (K-1) dt so the leaf lands on the sub-iteration's
+  // end; or one step of dt_sp.
+  const bool can_refine = model_.dt < dt_sp_;
+  const std::int64_t K_fine =
+      can_refine
+          ? std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
+          : 1;
+  const double h_fine = can_refine ? model_.dt : dt_sp_;
+  const double h_fine_last = dt_sp_ - static_cast<double>(K_fine - 1) * h_fine;
+  // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so
+  // that every thread gets several (the arithmetic does not depend on the cuts).
+  const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
+  const std::size_t grain = std::max<std::size_t>(256, n / (4 * std::max<std::size_t>(threads, 1)));
+  batches_.clear();
+  for (std::size_t l = 0; l < nl; ++l) {
+    const bool fine = leaf_fine_[l] && can_refine;
+    const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
+    if (b == e) continue;
+    const std::int64_t K = fine ? K_fine : 1;
+    if (batches_.empty() || batches_.back().K != K || batches_.back().e != b ||
+        batches_.back().e - batches_.back().b >= grain) {
+      Batch bt;
+      bt.b = b, bt.K = K;
+      bt.h = fine ? h_fine : dt_sp_;
+      bt.h_last = fine ? h_fine_last : dt_sp_;
+      batches_.push_back(bt);
+    }
+    batches_.back().e = e;
+  }
+  if (record)
+    for (const Batch& bt : batches_)
+      for (std::uint32_t i = bt.b; i < bt.e; ++i) sdt_[i] = dt_sp_ / static_cast<double>(bt.K);
+  for (Batch& bt : batches_) {
+    bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
+    bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
+    std::int64_t own = 0, ghost = 0;
+    for (std::uint32_t i = bt.b; i < bt.e; ++i) own += mid_[i] - off_[i], ghost += off_[i + 1] - mid_[i];
+    bt.evals_per_step = own / 2 + ghost;
+  }
+  while (!attempt(record)) {
+    // A fine leaf outran its rows (a collision sped a particle up): roll back, rebuild, redo;
+    // if the rows were already fresh, with twice the skin (kept for the rest of the run).
+    if (fresh && skin_ >= skin_cap_)
+      throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor "
+                                 "skin in one sub-iteration even with the largest skin the "
+                                 "periodic box allows ({:.4g} m): raise dem.nsubit",
+                                 time(), skin_));
+    p_.x = gx_, p_.y = gy_, p_.z = gz_, p_.vx = gvx_, p_.vy = gvy_, p_.vz = gvz_, hprev_ = ghp_;
+    if (fresh) skin_ = std::min(2.0 * skin_, skin_cap_);
+    fresh = true;
+    ++retries_;
+    rebuild_pairs();
+    derive_rows();
+    for (Batch& bt : batches_) {
+      bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
+      bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
+      std::int64_t own = 0, ghost = 0;
+      for (std::uint32_t i = bt.b; i < bt.e; ++i) own += mid_[i] - off_[i], ghost += off_[i + 1] - mid_[i];
+      bt.evals_per_step = own / 2 + ghost;
+    }
+  }
+  // Counters, reduced in batch order.
+  for (const Batch& bt : batches_) {
+    if (bt.fault != Fault::none) {
+      const std::size_t k = bt.fault_index;
+      throw RunError(fmt::format(
+          "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {}", time(),
+          subits_, p_.id[k], p_.x[k], p_.y[k], p_.z[k],
+          bt.fault == Fault::nan
+              ? "position or velocity is not finite (NaN/inf): the step is unstable"
+              : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
+                            bt.fault_value)));
+    }
+    particle_steps_ += static_cast<std::int64_t>(bt.e - bt.b) * bt.K;
+    pair_evaluations_ += bt.evals_per_step * bt.K;
+    overlap_violations_ += bt.violations;
+    max_overlap_ratio_ = std::max(max_overlap_ratio_, bt.max_ratio);
+    if (cost_weights_)
+      for (std::uint32_t i = bt.b; i < bt.e; ++i) cost_[i] += static_cast<double>(bt.K);
+  }
+  std::int64_t fine = 0, busy = 0;
+  for (std::size_t l = 0; l < nl; ++l) {
+    if (ranges_[l + 1] == ranges_[l]) continue;
+    ++busy;
+    fine += leaf_fine_[l];
+    leaf_steps_[l] += leaf_fine_[l] && can_refine ? K_fine : 1;
+  }
+  fine_count_ += fine;
+  leaf_subits_ += busy;
+  last_fine_fraction_ = busy > 0 ? static_cast<double>(fine) / static_cast<double>(busy) : 0.0;
+  ++subits_;
+  resort();
+}
+
+void OrbScheme::benchmark_leaf_subiteration(int leaf) {
+  const auto l = static_cast<std::size_t>(leaf);
+  Batch bt;
+  bt.b = ranges_[l], bt.e = ranges_[l + 1];
+  bt.K = model_.dt < dt_sp_ ? std::max<std::int64_t>(
+                                  1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
+                            : 1;
+  bt.h = bt.K > 1 ? model_.dt : dt_sp_;
+  bt.h_last = dt_sp_ - static_cast<double>(bt.K - 1) * bt.h;
+  bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
+  bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
+  run_batch(bt, false);
+}
+
+void OrbScheme::benchmark_ghost_refresh() {
+  gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
+  derive_rows();
 }
 
 void OrbScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
@@ -141,282 +763,46 @@ void OrbScheme::set_external_force(std::span<const double> fx, std::span<const d
   ez_.assign(fz.begin(), fz.end());
 }
 
-void OrbScheme::run_leaf(int leaf, bool record, Workspace& w) const {
-  const auto l = static_cast<std::size_t>(leaf);
-  const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
-  const bool ext = external_;
-  w.n_own = e - b;
-  w.steps = w.pair_evals = w.builds = w.violations = 0;
-  w.fine = false;
-  w.max_ratio = 0.0;
-  w.fault = Fault::none;
-  if (w.n_own == 0) return;
-  auto clear = [](auto&... v) { (v.clear(), ...); };
-  clear(w.x, w.y, w.z, w.vx, w.vy, w.vz, w.r, w.m, w.im, w.hp);
-  auto push = [&](std::uint32_t i, double sx, double sy, double sz) {
-    w.x.push_back(p_.x[i] + sx), w.y.push_back(p_.y[i] + sy), w.z.push_back(p_.z[i] + sz);
-    w.vx.push_back(p_.vx[i]), w.vy.push_back(p_.vy[i]), w.vz.push_back(p_.vz[i]);
-    w.r.push_back(p_.radius[i]), w.m.push_back(p_.mass[i]), w.im.push_back(p_.inv_mass[i]);
-    w.hp.push_back(hprev_[i]);
-  };
-  for (std::uint32_t i = b; i < e; ++i) push(i, 0.0, 0.0, 0.0);
-  if (external_) {
-    // Body acceleration of the own particles: gravity + the external (gas) force / m.
-    clear(w.gx, w.gy, w.gz);
-    for (std::uint32_t i = b; i < e; ++i) {
-      w.gx.push_back(model_.gravity[0] + ex_[i] * p_.inv_mass[i]);
-      w.gy.push_back(model_.gravity[1] + ey_[i] * p_.inv_mass[i]);
-      w.gz.push_back(model_.gravity[2] + ez_[i] * p_.inv_mass[i]);
-    }
+OrbScheme::State OrbScheme::save_state() const {
+  if (subits_ % nsubit_ != 0)
+    throw RunError("orb checkpoint requested between regrid points (internal error)");
+  State s;
+  s.hprev = hprev_, s.cost = cost_, s.leaf_steps = leaf_steps_;
+  s.fine_count = fine_count_, s.leaf_subits = leaf_subits_, s.subits = subits_;
+  s.particle_steps = particle_steps_, s.pair_evaluations = pair_evaluations_, s.builds = builds_;
+  s.regrids = regrids_, s.overlap_violations = overlap_violations_, s.retries = retries_;
+  s.last_fine_fraction = last_fine_fraction_, s.max_overlap_ratio = max_overlap_ratio_;
+  s.skin = skin_;
+  s.pairs_valid = pairs_valid_, s.prox_from_pairs = prox_from_pairs_;
+  if (pairs_valid_) {
+    s.ca = ca_, s.cb = cb_, s.pa = pa_, s.pb = pb_;
+    s.x_ref = xr_, s.y_ref = yr_, s.z_ref = zr_;
   }
-  // Ghosts: particles of other leaves (through each periodic image) within the halo of the box.
-  // Copies of the own leaf's periodic images are not needed: own-own pairs use minimum image.
-  const partition::Aabb box = tree_.leaves()[l].box;
-  const partition::Aabb query = box.grown(halo_);
-  for (const auto& img : tree_.leaf_images_overlapping(query, geom_.periodic)) {
-    if (img.leaf == leaf) continue;
-    const double sx = -img.shift[0] * geom_.length[0], sy = -img.shift[1] * geom_.length[1],
-                 sz = -img.shift[2] * geom_.length[2];
-    const auto gl = static_cast<std::size_t>(img.leaf);
-    for (std::uint32_t i = ranges_[gl]; i < ranges_[gl + 1]; ++i)
-      if (query.contains_closed({p_.x[i] + sx, p_.y[i] + sy, p_.z[i] + sz})) push(i, sx, sy, sz);
-  }
-  const std::size_t n = w.x.size(), no = w.n_own;
-  w.fx.assign(no, 0.0), w.fy.assign(no, 0.0), w.fz.assign(no, 0.0);
-  const double skin = model_.skin;
-  const double prox = scene_.dem.proximity_radii * 0.5;
-
-  // Sort-and-sweep along an axis on which own-own separations need no periodic image (then the
-  // raw coordinate difference bounds the distance); if every axis wraps (a leaf spanning the
-  // box, L = 0 say), every pair is tested: O(n^2), acceptable for the small leaves this scheme
-  // is meant for. The scan radius covers the contact cutoff and the proximity test.
-  int axis = -1;
-  for (int a = 0; a < 3; ++a)
-    if ((!geom_.periodic[a] || box.extent(a) + 2.0 * skin < geom_.half[a]) &&
-        (axis < 0 || box.extent(a) > box.extent(axis)))
-      axis = a;
-  const std::vector<double>& key = axis == 1 ? w.y : axis == 2 ? w.z : w.x;
-  const double scan = std::max(2.0 * r_max_ + skin, 2.0 * prox * r_max_);
-  const DomainGeometry g = geom_;
-  auto build = [&](bool proximity) {
-    clear(w.oi, w.oj, w.gi, w.gj);
-    w.sorted.resize(n);
-    std::iota(w.sorted.begin(), w.sorted.end(), 0u);
-    if (axis >= 0)
-      std::sort(w.sorted.begin(), w.sorted.end(), [&](std::uint32_t i, std::uint32_t j) {
-        return key[i] < key[j] || (key[i] == key[j] && i < j);
-      });
-    for (std::size_t s = 0; s < n; ++s) {
-      const std::uint32_t i = w.sorted[s];
-      for (std::size_t t = s + 1; t < n; ++t) {
-        const std::uint32_t j = w.sorted[t];
-        if (axis >= 0 && key[j] - key[i] >= scan) break;
-        const bool own_i = i < no, own_j = j < no;
-        if (!own_i && !own_j) continue;
-        double dx = w.x[j] - w.x[i], dy = w.y[j] - w.y[i], dz = w.z[j] - w.z[i];
-        if (own_i && own_j) dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
-        const double r2 = dx * dx + dy * dy + dz * dz;
-        const double rs = w.r[i] + w.r[j];
-        if (proximity && r2 < prox * rs * prox * rs) w.fine = true;
-        if (r2 >= (rs + skin) * (rs + skin)) continue;
-        if (own_i && own_j) {
-          w.oi.push_back(std::min(i, j)), w.oj.push_back(std::max(i, j));
-        } else {
-          w.gi.push_back(own_i ? i : j), w.gj.push_back(own_i ? j : i);
-        }
-      }
-    }
-    w.x0.assign(w.x.begin(), w.x.begin() + static_cast<std::ptrdiff_t>(no));
-    w.y0.assign(w.y.begin(), w.y.begin() + static_cast<std::ptrdiff_t>(no));
-    w.z0.assign(w.z.begin(), w.z.begin() + static_cast<std::ptrdiff_t>(no));
-    ++w.builds;
-  };
-  build(true);
-
-  // Local step: the fine step near a partner, else one step of dt_sp. K = ceil(dt_sp / dt)
-  // (a relative slack of 1e-9 absorbs rounding when dt divides dt_sp); the last step is
-  // shortened to dt_sp - (K-1) dt so that the leaf lands exactly on the sub-iteration's end.
-  std::int64_t K = 1;
-  double h = dt_sp_, h_last = dt_sp_;
-  if (w.fine && model_.dt < dt_sp_) {
-    K = std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)));
-    h = model_.dt;
-    h_last = dt_sp_ - static_cast<double>(K - 1) * model_.dt;
-  }
-  const StepModel& m = model_;
-  const double lim = m.max_overlap;
-  if (record) {
-    w.sx.assign(w.x.begin(), w.x.begin() + static_cast<std::ptrdiff_t>(no));
-    w.sy.assign(w.y.begin(), w.y.begin() + static_cast<std::ptrdiff_t>(no));
-    w.sz.assign(w.z.begin(), w.z.begin() + static_cast<std::ptrdiff_t>(no));
-    w.svx.resize(no), w.svy.resize(no), w.svz.resize(no);
-  }
-  for (std::int64_t k = 0; k < K; ++k) {
-    const double hk = k + 1 == K ? h_last : h;
-    // Forces at x(n) with v(n-1/2): the explicit scheme's normal law, each pair once.
-    std::fill(w.fx.begin(), w.fx.end(), 0.0);
-    std::fill(w.fy.begin(), w.fy.end(), 0.0);
-    std::fill(w.fz.begin(), w.fz.end(), 0.0);
-    auto pair = [&](std::uint32_t i, std::uint32_t j, bool own_j) {
-      double dx = w.x[j] - w.x[i], dy = w.y[j] - w.y[i], dz = w.z[j] - w.z[i];
-      if (own_j) dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
-      const double r2 = dx * dx + dy * dy + dz * dz;
-      const double rs = w.r[i] + w.r[j];
-      if (r2 >= rs * rs) return;
-      const double dist = std::sqrt(r2);
-      const double inv = 1.0 / dist;
-      const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
-      const double delta = rs - dist;
-      const double vn = (w.vx[i] - w.vx[j]) * nx + (w.vy[i] - w.vy[j]) * ny +
-                        (w.vz[i] - w.vz[j]) * nz;
-      const double meff = w.m[i] * w.m[j] / (w.m[i] + w.m[j]);
-      const double fn = normal_force(m.pair, meff, delta, vn);
-      w.fx[i] -= fn * nx, w.fy[i] -= fn * ny, w.fz[i] -= fn * nz;
-      if (own_j) w.fx[j] += fn * nx, w.fy[j] += fn * ny, w.fz[j] += fn * nz;
-      const double ratio = delta / std::min(w.r[i], w.r[j]);
-      w.max_ratio = std::max(w.max_ratio, ratio);
-      if (ratio > lim) ++w.violations;
-    };
-    for (std::size_t q = 0; q < w.oi.size(); ++q) pair(w.oi[q], w.oj[q], true);
-    for (std::size_t q = 0; q < w.gi.size(); ++q) pair(w.gi[q], w.gj[q], false);
-    w.pair_evals += static_cast<std::int64_t>(w.oi.size() + w.gi.size());
-    for (int a = 0; a < 3; ++a) {
-      if (g.periodic[a]) continue;
-      std::vector<double>& pos = a == 0 ? w.x : a == 1 ? w.y : w.z;
-      std::vector<double>& vel = a == 0 ? w.vx : a == 1 ? w.vy : w.vz;
-      std::vector<double>& f = a == 0 ? w.fx : a == 1 ? w.fy : w.fz;
-      for (std::size_t i = 0; i < no; ++i)
-        for (int side = 0; side < 2; ++side) {
-          const double s = side ? 1.0 : -1.0;
-          const double delta = side ? w.r[i] - (g.hi[a] - pos[i]) : w.r[i] - (pos[i] - g.lo[a]);
-          if (delta <= 0.0) continue;
-          f[i] -= s * normal_force(m.wall, w.m[i], delta, s * vel[i]);
-          w.max_ratio = std::max(w.max_ratio, delta / w.r[i]);
-          if (delta > lim * w.r[i]) ++w.violations;
-        }
-    }
-    if (record && k == 0)
-      for (std::size_t i = 0; i < no; ++i) {
-        const double bx = ext ? w.gx[i] : m.gravity[0], by = ext ? w.gy[i] : m.gravity[1],
-                     bz = ext ? w.gz[i] : m.gravity[2];
-        w.svx[i] = w.vx[i] + (w.fx[i] * w.im[i] + bx) * w.hp[i];
-        w.svy[i] = w.vy[i] + (w.fy[i] * w.im[i] + by) * w.hp[i];
-        w.svz[i] = w.vz[i] + (w.fz[i] * w.im[i] + bz) * w.hp[i];
-      }
-    // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h.
-    const double half = 0.5 * hk;
-    double md = 0.0;
-    for (std::size_t i = 0; i < no; ++i) {
-      const double s = w.hp[i] + half;
-      const double bx = ext ? w.gx[i] : m.gravity[0], by = ext ? w.gy[i] : m.gravity[1],
-                   bz = ext ? w.gz[i] : m.gravity[2];
-      w.vx[i] += (w.fx[i] * w.im[i] + bx) * s;
-      w.vy[i] += (w.fy[i] * w.im[i] + by) * s;
-      w.vz[i] += (w.fz[i] * w.im[i] + bz) * s;
-      w.x[i] += w.vx[i] * hk, w.y[i] += w.vy[i] * hk, w.z[i] += w.vz[i] * hk;
-      w.hp[i] = half;
-      const double ex = w.x[i] - w.x0[i], ey = w.y[i] - w.y0[i], ez = w.z[i] - w.z0[i];
-      md = std::max(md, ex * ex + ey * ey + ez * ez);
-    }
-    // Ghosts do not move: own-own pairs need the skin/2 bound, own-ghost pairs tolerate skin.
-    if (k + 1 < K && md > 0.25 * skin * skin) build(false);
-  }
-  w.steps = K;
-  for (std::size_t i = 0; i < no && w.fault == Fault::none; ++i) {
-    const double q[3] = {w.x[i], w.y[i], w.z[i]};
-    const double v2 = w.vx[i] * w.vx[i] + w.vy[i] * w.vy[i] + w.vz[i] * w.vz[i];
-    if (!std::isfinite(v2 + q[0] + q[1] + q[2])) {
-      w.fault = Fault::nan, w.fault_index = static_cast<std::uint32_t>(i), w.fault_value = v2;
-      break;
-    }
-    for (int a = 0; a < 3; ++a)
-      if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a])) {
-        w.fault = Fault::left_domain, w.fault_index = static_cast<std::uint32_t>(i);
-        w.fault_value = q[a];
-        break;
-      }
-  }
+  return s;
 }
 
-void OrbScheme::subiterate(bool record) {
-  if (subits_ % nsubit_ == 0) regrid();
-  const int nl = static_cast<int>(ranges_.size()) - 1;
+void OrbScheme::restore_state(State s) {
   const std::size_t n = p_.size();
-  if (record) {
-    sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n),
-        svz_.resize(n);
-    smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
-    sleaf_.resize(n), sdt_.resize(n);
-    for (int l = 0; l < nl; ++l)
-      for (std::uint32_t i = ranges_[static_cast<std::size_t>(l)];
-           i < ranges_[static_cast<std::size_t>(l) + 1]; ++i)
-        sleaf_[i] = l;
+  if (s.hprev.size() != n || s.cost.size() != n || s.subits < 0 || s.subits % nsubit_ != 0)
+    throw RunError("checkpoint: the orb state does not fit the particles or dem.nsubit");
+  if (s.pairs_valid) {
+    bool ok = s.ca.size() == s.cb.size() && s.pa.size() == s.pb.size() && s.x_ref.size() == n &&
+              s.y_ref.size() == n && s.z_ref.size() == n;
+    for (const auto* v : {&s.ca, &s.cb, &s.pa, &s.pb})
+      for (std::uint32_t i : *v) ok = ok && i < n;
+    if (!ok) throw RunError("checkpoint: the orb candidate pairs do not fit the particles");
   }
-  {
-    PhaseTimer::Scope t(timer_, Phase::force);
-    // One leaf per task; each writes only its own workspace, then only its own particles.
-    tbb::parallel_for(
-        tbb::blocked_range<int>(0, nl, 1),
-        [&](const tbb::blocked_range<int>& r) {
-          for (int l = r.begin(); l != r.end(); ++l)
-            run_leaf(l, record, work_[static_cast<std::size_t>(l)]);
-        },
-        tbb::simple_partitioner{});
-    tbb::parallel_for(
-        tbb::blocked_range<int>(0, nl, 1),
-        [&](const tbb::blocked_range<int>& r) {
-          for (int l = r.begin(); l != r.end(); ++l) {
-            const Workspace& w = work_[static_cast<std::size_t>(l)];
-            const std::uint32_t b = ranges_[static_cast<std::size_t>(l)];
-            for (std::size_t i = 0; i < w.n_own; ++i) {
-              const std::size_t k = b + i;
-              p_.x[k] = geom_.wrap(w.x[i], 0), p_.y[k] = geom_.wrap(w.y[i], 1);
-              p_.z[k] = geom_.wrap(w.z[i], 2);
-              p_.vx[k] = w.vx[i], p_.vy[k] = w.vy[i], p_.vz[k] = w.vz[i];
-              p_.fx[k] = w.fx[i], p_.fy[k] = w.fy[i], p_.fz[k] = w.fz[i];
-              hprev_[k] = w.hp[i];
-              if (record) {
-                sx_[k] = w.sx[i], sy_[k] = w.sy[i], sz_[k] = w.sz[i];
-                svx_[k] = w.svx[i], svy_[k] = w.svy[i], svz_[k] = w.svz[i];
-              }
-            }
-          }
-        },
-        tbb::simple_partitioner{});
-  }
-  // Counters, reduced in leaf order.
-  std::int64_t fine = 0, busy = 0;
-  for (int l = 0; l < nl; ++l) {
-    const Workspace& w = work_[static_cast<std::size_t>(l)];
-    if (w.fault != Fault::none) {
-      const std::size_t k = ranges_[static_cast<std::size_t>(l)] + w.fault_index;
-      throw RunError(fmt::format(
-          "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {}", time(),
-          subits_, p_.id[k], p_.x[k], p_.y[k], p_.z[k],
-          w.fault == Fault::nan
-              ? "position or velocity is not finite (NaN/inf): the step is unstable"
-              : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
-                            w.fault_value)));
-    }
-    if (w.n_own == 0) continue;
-    if (record)
-      for (std::uint32_t i = ranges_[static_cast<std::size_t>(l)];
-           i < ranges_[static_cast<std::size_t>(l) + 1]; ++i)
-        sdt_[i] = dt_sp_ / static_cast<double>(std::max<std::int64_t>(w.steps, 1));
-    ++busy;
-    fine += w.fine;
-    leaf_steps_[static_cast<std::size_t>(l)] += w.steps;
-    particle_steps_ += static_cast<std::int64_t>(w.n_own) * w.steps;
-    pair_evaluations_ += w.pair_evals;
-    builds_ += w.builds;
-    overlap_violations_ += w.violations;
-    max_overlap_ratio_ = std::max(max_overlap_ratio_, w.max_ratio);
-  }
-  fine_count_ += fine;
-  leaf_subits_ += busy;
-  last_fine_fraction_ = busy > 0 ? static_cast<double>(fine) / static_cast<double>(busy) : 0.0;
-  ++subits_;
-  resort();
+  hprev_ = std::move(s.hprev), cost_ = std::move(s.cost), leaf_steps_ = std::move(s.leaf_steps);
+  fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
+  particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
+  regrids_ = s.regrids, overlap_violations_ = s.overlap_violations, retries_ = s.retries;
+  last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
+  if (s.skin > 0.0) skin_ = s.skin;
+  pairs_valid_ = s.pairs_valid, prox_from_pairs_ = s.prox_from_pairs;
+  ca_ = std::move(s.ca), cb_ = std::move(s.cb), pa_ = std::move(s.pa), pb_ = std::move(s.pb);
+  xr_ = std::move(s.x_ref), yr_ = std::move(s.y_ref), zr_ = std::move(s.z_ref);
+  if (!pairs_valid_) ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear(), xr_.clear(), yr_.clear(), zr_.clear();
+  off_.clear(); // rows are derived again
 }
 
 LeafStepStats OrbScheme::take_interval_stats() {
@@ -434,28 +820,6 @@ LeafStepStats OrbScheme::take_interval_stats() {
       leaf_subits_ > 0 ? static_cast<double>(fine_count_) / static_cast<double>(leaf_subits_) : 0.0;
   fine_count_ = leaf_subits_ = 0;
   return s;
-}
-
-OrbScheme::State OrbScheme::save_state() const {
-  if (subits_ % nsubit_ != 0)
-    throw RunError("orb checkpoint requested between regrid points (internal error)");
-  State s;
-  s.hprev = hprev_, s.leaf_steps = leaf_steps_;
-  s.fine_count = fine_count_, s.leaf_subits = leaf_subits_, s.subits = subits_;
-  s.particle_steps = particle_steps_, s.pair_evaluations = pair_evaluations_, s.builds = builds_;
-  s.regrids = regrids_, s.overlap_violations = overlap_violations_;
-  s.last_fine_fraction = last_fine_fraction_, s.max_overlap_ratio = max_overlap_ratio_;
-  return s;
-}
-
-void OrbScheme::restore_state(State s) {
-  if (s.hprev.size() != p_.size() || s.subits < 0 || s.subits % nsubit_ != 0)
-    throw RunError("checkpoint: the orb state does not fit the particles or dem.nsubit");
-  hprev_ = std::move(s.hprev), leaf_steps_ = std::move(s.leaf_steps);
-  fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
-  particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
-  regrids_ = s.regrids, overlap_violations_ = s.overlap_violations;
-  last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
 }
 
 } // namespace cfddem::dem

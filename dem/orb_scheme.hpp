@@ -1,17 +1,41 @@
 // The `orb` scheme (dem.scheme = "orb"): the explicit adaptive time stepping of Sitaraman & Grout
 // (Algorithm 2). Every dem.regrid_interval (dt_f) of simulated time the particles are split by
 // an ORB into 2^partition.orb_levels leaves and the store is permuted so that each leaf is a
-// contiguous range. Time advances in sub-iterations of dt_sp = dt_f / dem.nsubit; in each one
-// every leaf is one TBB task that picks its own step:
+// contiguous range (partition.weights = "cost": each particle weighs the local steps its leaf
+// took since the last regrid, so a leaf weighs particles x local steps). Time advances in sub-iterations of dt_sp = dt_f / dem.nsubit; in each one
+// every leaf picks its own step (leaves with the same step run together as TBB tasks, below):
 //   dt_local = the explicit step (tau_p * dt_factor) if some own particle has a partner (own or
 //              ghost) closer than dem.proximity_radii * (r_i + r_j) / 2 centre to centre,
+//              or its centre is closer than dem.proximity_radii * r_i to a wall,
 //            = dt_sp otherwise,
 // and takes K = ceil(dt_sp / dt_local) velocity-Verlet steps with the explicit scheme's contact
 // law, the last one shortened so that the leaf lands exactly on the end of the sub-iteration.
-// Particles of other leaves within the halo (2 r_max + 2 skin) are ghosts, frozen at their state
-// at the start of the sub-iteration. Afterwards the own particles are copied back, periodic
-// positions wrapped, and particles that left their leaf are re-sorted into the leaf that now
-// holds them (OrbTree::locate), keeping every leaf contiguous.
+// Particles of other leaves are read frozen at their state at the start of the sub-iteration
+// (ghosts). Afterwards particles that left their leaf are re-sorted into the leaf that now holds
+// them (OrbTree::locate), keeping every leaf contiguous.
+//
+// Implementation (what makes it cheap when most leaves are fine-stepped):
+// - One cell list over the whole store gives candidate pairs: contact candidates (centres within
+//   r_i + r_j + skin) and proximity candidates (within proximity_radii (r_i + r_j)/2 + skin).
+//   They are rebuilt only when some particle's displacement since the build plus its free flight
+//   over one sub-iteration exceeds skin/2 (Verlet criterion, checked between sub-iterations), and
+//   are remapped, not rebuilt, when the store is re-sorted.
+// - Each particle's row is split into partners of its own leaf (read live) and of other leaves
+//   (read from the frozen copies): the ghost refresh is one copy of x and v per sub-iteration, and
+//   only particles that are actual partners are ever read as ghosts. Rows are summed in particle-id
+//   order, so results do not depend on the store's order, the batching or the thread count.
+// - Consecutive leaves with the same local step are advanced in lockstep as one TBB task (a
+//   batch, cut at ~max(256, n / 4 threads) particles): the contact pass over the rows, then the
+//   branch-free kick-drift over the batch's contiguous range (dem/contact_kernels.hpp, the
+//   explicit scheme's arithmetic). Leaves never read each other's live state, so the batching
+//   changes no result bit; it amortises the loop overhead of ~20-particle leaves.
+// - A fine leaf whose particle moves more than skin/2 during the sub-iteration (a collision sped
+//   it up) makes the whole sub-iteration roll back to the frozen copies and run again with rows
+//   rebuilt; if they were already fresh, with the skin doubled until the next regrid
+//   (retries() counts them).
+// Force evaluations (pair_evaluations) = per local step, own-leaf pairs once plus other-leaf
+// pairs once per side: a pair across a leaf boundary is evaluated by both leaves, against the
+// other's frozen copy, and counted twice. With one leaf it is the explicit scheme's count.
 //
 // Velocities are kept at half steps as in the explicit scheme, with the length of the half step
 // stored per particle (h_prev = dt_last / 2; 0 at the start, where v is the synchronised v(0)).
@@ -68,12 +92,21 @@ public:
   std::int64_t pair_evaluations() const { return pair_evaluations_; }
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t regrids() const { return regrids_; }
+  // Sub-iterations redone with a larger skin because a fine leaf outran the neighbor list.
+  std::int64_t retries() const { return retries_; }
+  double skin() const { return skin_; }
   double max_overlap_ratio() const { return max_overlap_ratio_; }
   std::int64_t overlap_violations() const { return overlap_violations_; }
   const StepModel& model() const { return model_; }
   int leaf_count() const { return static_cast<int>(ranges_.size()) - 1; }
   // Fraction of non-empty leaves on the fine step in the last sub-iteration.
   double last_fine_fraction() const { return last_fine_fraction_; }
+
+  // Benchmark hooks (perf/dem): after at least one subiterate(), run leaf `leaf`'s fine-step
+  // sub-iteration alone (the batch of that one leaf, from the current state), and refresh the
+  // ghosts (frozen copies and the rows' own/other-leaf split, as after a re-sort).
+  void benchmark_leaf_subiteration(int leaf);
+  void benchmark_ghost_refresh();
 
   // Per-particle external force [N] (the gas's drag and pressure), as ExplicitScheme's: held
   // fixed until set again, follows its particle through regrids and re-sorts; in the store's
@@ -96,26 +129,38 @@ public:
   }
 
   // Checkpoint/restart at a regrid point (subiterations() a multiple of dem.nsubit): the ORB,
-  // the leaf ranges and the leaves' workspaces are rebuilt from the particle store by the next
-  // sub-iteration exactly as they would have been, so the state is the per-particle half step,
-  // the counters and the interval statistics. restore_state() replaces start().
+  // the leaf ranges, the rows and the batches are rebuilt from the particle store by the next
+  // sub-iteration exactly as they would have been. What survives a regrid is saved: the
+  // per-particle half step and cost weights, the candidate pairs with their reference positions
+  // (global indices in the store's order, which the checkpoint keeps), the counters and the
+  // interval statistics. restore_state() replaces start().
   struct State {
-    std::vector<double> hprev;
+    std::vector<double> hprev, cost;
     std::vector<std::int64_t> leaf_steps;
     std::int64_t fine_count = 0, leaf_subits = 0, subits = 0, particle_steps = 0,
-                 pair_evaluations = 0, builds = 0, regrids = 0, overlap_violations = 0;
-    double last_fine_fraction = 0.0, max_overlap_ratio = 0.0;
+                 pair_evaluations = 0, builds = 0, regrids = 0, overlap_violations = 0,
+                 retries = 0;
+    double last_fine_fraction = 0.0, max_overlap_ratio = 0.0, skin = 0.0;
+    // Candidate pairs: contact (ca, cb) and proximity (pa, pb); references x_ref..z_ref.
+    bool pairs_valid = false, prox_from_pairs = true;
+    std::vector<std::uint32_t> ca, cb, pa, pb;
+    std::vector<double> x_ref, y_ref, z_ref;
   };
   std::int64_t nsubit() const { return nsubit_; }
   State save_state() const;
   void restore_state(State s); // throws RunError if it does not fit the store
 
 private:
-  struct Workspace;
+  struct Batch;
   void regrid();
   void resort();
-  void run_leaf(int leaf, bool record, Workspace& w) const;
-  void permute_external(std::span<const std::uint32_t> order);
+  void apply_permutation(std::span<const std::uint32_t> order);
+  void rebuild_pairs();
+  void derive_rows();
+  bool rows_expire() const;
+  void run_batch(Batch& b, bool record);
+  template <bool External> void run_batch_impl(Batch& b, bool record);
+  bool attempt(bool record);
 
   const Scene& scene_;
   ParticleStore& p_;
@@ -124,20 +169,36 @@ private:
   StepModel model_;
   partition::Aabb domain_;
   partition::OrbTree tree_;
-  double dt_sp_ = 0.0, halo_ = 0.0, r_max_ = 0.0;
+  double dt_sp_ = 0.0, r_max_ = 0.0, skin_ = 0.0, skin_cap_ = 0.0;
   std::int64_t nsubit_ = 1;
+  bool cost_weights_ = false;
   std::vector<double> hprev_;         // per particle: half of its last step
   std::vector<double> ex_, ey_, ez_;  // external force per particle (set_external_force)
   bool external_ = false;
+  std::vector<double> cost_;          // per particle: local steps of its leaf since the regrid
   std::vector<std::uint32_t> ranges_; // leaf l owns [ranges_[l], ranges_[l+1])
-  std::vector<Workspace> work_;
+  std::vector<std::uint32_t> leaf_of_;
+  // Candidate pairs (a, b), global indices, valid while every particle stays within skin_/2 of
+  // its reference position: contact candidates (centres within r_a + r_b + skin) and proximity
+  // candidates (within proximity_radii (r_a + r_b) / 2 + skin).
+  std::vector<std::uint32_t> ca_, cb_, pa_, pb_;
+  std::vector<double> xr_, yr_, zr_;
+  bool pairs_valid_ = false;
+  // Rows derived from the contact candidates: particle i's partners of its own leaf in
+  // [off_[i], mid_[i]) (read live) and of other leaves in [mid_[i], off_[i+1]) (read frozen).
+  std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_of_, scratch_;
+  // State at the start of the sub-iteration: the ghosts' frozen copies and the rollback point.
+  std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_, dscratch_;
+  bool prox_from_pairs_ = true;
+  std::vector<unsigned char> near_, leaf_fine_;
+  std::vector<Batch> batches_;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
   std::vector<std::int64_t> sid_, sleaf_;
   std::vector<std::int64_t> leaf_steps_; // per leaf, this interval
   std::int64_t fine_count_ = 0, leaf_subits_ = 0;
   double last_fine_fraction_ = 0.0, max_overlap_ratio_ = 0.0;
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
-               regrids_ = 0, overlap_violations_ = 0;
+               regrids_ = 0, overlap_violations_ = 0, retries_ = 0;
 };
 
 } // namespace cfddem::dem

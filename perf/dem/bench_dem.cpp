@@ -2,6 +2,7 @@
 // d = 100 um, rho = 1000 kg/m^3, T0 = 0.01 m^2/s^2, k = 10 N/m, e = 0.8, frictionless, periodic
 // cube, skin 25 um, dt = tau/50. Arguments: {solid fraction in percent, particles}.
 //   BM_NeighborBuild  VerletList::build (wrap, cell sort, permute the store, full CSR list)
+//   BM_OrbSubiteration, BM_OrbLeafSubiteration, BM_OrbGhostRefresh: the orb scheme (below)
 //   BM_ExplicitStep   ExplicitScheme::step (contact pass + update; rebuilds when the skin is used
 //                     up, as in a run: the counter builds_per_step says how often)
 // items_per_second = particles processed per second (particle-steps/s for the step).
@@ -21,6 +22,7 @@
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 #include "dem/verlet_list.hpp"
 
 namespace {
@@ -120,6 +122,79 @@ void BM_ExplicitStep(benchmark::State& state) {
       timer.seconds(Phase::neighbor), benchmark::Counter::kAvgIterations);
 }
 
+// The orb scheme on the same gases, 2^levels leaves of ~19 particles (the paper's HCS 1222 in
+// 64 leaves): one whole sub-iteration (dt_sp = 1e-5 s, ~70 fine steps per fine leaf), one leaf's
+// fine sub-iteration alone, and the ghost refresh (frozen copies + own/other-leaf rows).
+int levels_for(std::int64_t n) {
+  int L = 0;
+  while ((std::int64_t{19} << (L + 1)) <= n) ++L;
+  return L;
+}
+Scene orb_scene(const Gas& g, std::int64_t n) {
+  Scene s = g.scene;
+  s.dem.scheme = "orb";
+  s.dem.nsubit = 10;
+  s.partition.orb_levels = levels_for(n);
+  return s;
+}
+
+void BM_OrbSubiteration(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  const Scene s = orb_scene(g, state.range(1));
+  ParticleStore p = g.particles;
+  PhaseTimer timer;
+  dem::OrbScheme scheme(s, p, timer);
+  scheme.start();
+  scheme.subiterate();
+  const auto steps0 = scheme.particle_steps();
+  for (auto _ : state) {
+    scheme.subiterate();
+    benchmark::DoNotOptimize(p.x.data());
+  }
+  state.SetItemsProcessed(scheme.particle_steps() - steps0);
+  state.counters["leaves"] = scheme.leaf_count();
+  state.counters["fine_leaf_fraction"] = scheme.last_fine_fraction();
+}
+
+void BM_OrbLeafSubiteration(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  const Scene s = orb_scene(g, state.range(1));
+  ParticleStore p = g.particles;
+  PhaseTimer timer;
+  dem::OrbScheme scheme(s, p, timer);
+  scheme.start();
+  scheme.subiterate();
+  const ParticleStore saved = p;
+  const int leaf = scheme.leaf_count() / 2;
+  for (auto _ : state) {
+    scheme.benchmark_leaf_subiteration(leaf);
+    benchmark::DoNotOptimize(p.x.data());
+    state.PauseTiming();
+    p = saved; // the same leaf state every iteration
+    state.ResumeTiming();
+  }
+  state.counters["leaf_particles"] =
+      static_cast<double>(p.size()) / static_cast<double>(scheme.leaf_count());
+}
+
+void BM_OrbGhostRefresh(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  const Scene s = orb_scene(g, state.range(1));
+  ParticleStore p = g.particles;
+  PhaseTimer timer;
+  dem::OrbScheme scheme(s, p, timer);
+  scheme.start();
+  scheme.subiterate();
+  for (auto _ : state) {
+    scheme.benchmark_ghost_refresh();
+    benchmark::DoNotOptimize(p.fx.data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(p.size()));
+}
+
 void gases(benchmark::internal::Benchmark* b) {
   for (int phi : {1, 30})
     for (std::int64_t n : {1000, 10000, 100000}) b->Args({phi, n});
@@ -130,3 +205,6 @@ void gases(benchmark::internal::Benchmark* b) {
 
 BENCHMARK(BM_NeighborBuild)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStep)->Apply(gases)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_OrbSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_OrbLeafSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_OrbGhostRefresh)->Apply(gases)->Unit(benchmark::kMicrosecond);

@@ -273,3 +273,48 @@ TEST(OrbScheme, MomentumDriftAcrossLeavesIsBounded) {
              worst / impulse);
   EXPECT_LT(worst, 2.0 * impulse);
 }
+
+// (f) Measured-cost weights (partition.weights = "cost"): the run is still bitwise independent of
+// the thread count, and the cuts move: with cost weights the fine leaves (particles x ~70 local
+// steps) get fewer particles than with counts, so the store order after a regrid differs.
+namespace {
+ParticleStore orb_cost_run(int threads, const char* weights) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+  const Scene s = demtest::scene_from(
+      kGas, {"particles.count=400", "domain.hi=[1.6e-3, 1.6e-3, 1.6e-3]", "dem.scheme=\"orb\"",
+             "partition.orb_levels=3", "dem.nsubit=5", "dem.proximity_radii=2.0",
+             fmt::format("partition.weights=\"{}\"", weights)});
+  ParticleStore p = make_initial_particles(s);
+  PhaseTimer timer;
+  dem::OrbScheme o(s, p, timer);
+  o.start();
+  for (int k = 0; k < 11; ++k) o.subiterate();
+  return p;
+}
+} // namespace
+
+TEST(OrbScheme, CostWeightsDeterministicAndMoveTheCuts) {
+  const ParticleStore a = orb_cost_run(1, "cost");
+  const ParticleStore b = orb_cost_run(2, "cost");
+  EXPECT_EQ(a.id, b.id);
+  EXPECT_TRUE(same_bits(a.x, b.x) && same_bits(a.vx, b.vx));
+  const ParticleStore c = orb_cost_run(1, "count");
+  EXPECT_NE(a.id, c.id) << "cost weights should move at least one cut";
+}
+
+// (g) A wall counts as a partner: a lone particle whose centre is within proximity_radii radii of
+// a wall takes the fine step (a coarse step of dt_sp would drive it into the wall unresolved);
+// far from the walls it takes the coarse one.
+TEST(OrbScheme, WallIsAPartnerForTheStepRule) {
+  const Scene s = demtest::scene_from(kPair, {"domain.periodic=[false, false, false]",
+                                              "partition.orb_levels=0", "dem.nsubit=10"});
+  for (const double y : {2.0e-3, 0.12e-3}) {
+    ParticleStore p;
+    p.add(2.0e-3, y, 2.0e-3, 0.0, -0.1, 0.0, 50e-6, 1000.0, 0);
+    PhaseTimer t;
+    dem::OrbScheme o(s, p, t);
+    o.start();
+    o.subiterate();
+    EXPECT_EQ(o.last_fine_fraction(), y < 0.15e-3 ? 1.0 : 0.0) << "y = " << y;
+  }
+}

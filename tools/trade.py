@@ -1,0 +1,149 @@
+#!/usr/bin/python3
+"""Speed/accuracy trade of the orb scheme (issue 3), like the paper's Fig. "hcserr".
+
+For a scene: one explicit reference run, then the orb scheme for every (nsubit, levels) of the
+sweep. Runs are sequential (never two at once) so wall times are comparable within the sweep.
+
+  error       = mean_t |O_orb(t) - O_ref(t)| / mean_t O_ref(t)   (the paper's definition; O is
+                --observable, a diagnostics.csv column; the orb row at t is matched to the
+                reference row at the same time, linear interpolation)
+  speedup     = loop_seconds(explicit) / loop_seconds(orb)   (run.json, same sweep; with
+                --repeat N the minimum of N runs of each)
+  force_ratio = force_evaluations(explicit) / force_evaluations(orb)   (noise-free; orb counts
+                each cross-leaf pair once per leaf side, see run.json)
+  fine_leaf_fraction_mean = mean over output rows of the fraction of non-empty leaves on the
+                fine step
+
+Writes <out>/trade.csv, <out>/trade_observable.png (observable vs time per nsubit) and
+<out>/trade_error_speedup.png (error and speed-up vs nsubit).
+
+Example:
+  tools/trade.py scenes/hcs.toml --levels 6 --end-time 0.01 --out runs/trade_hcs1222
+"""
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+
+def read_diag(path):
+    with open(os.path.join(path, "diagnostics.csv")) as f:
+        rows = list(csv.DictReader(f))
+    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+
+
+def run(binary, scene, out, overrides, threads, repeat=1):
+    """One configuration, `repeat` times in a row; loop_seconds is the minimum (the runs are
+    deterministic, so only the wall time differs: the minimum is the least disturbed by load)."""
+    cmd = [binary, "run", scene, *overrides, "--threads", str(threads), "--quiet", "--out", out]
+    best = None
+    for _ in range(repeat):
+        res = subprocess.run(cmd, capture_output=True, text=True)
+        if res.returncode != 0:
+            sys.exit(f"trade.py: {' '.join(cmd)} failed:\n{res.stderr}")
+        with open(os.path.join(out, "run.json")) as f:
+            js = json.load(f)
+        if best is None or js["loop_seconds"] < best["loop_seconds"]:
+            best = js
+    return best, read_diag(out)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("scene")
+    ap.add_argument("--nsubit", type=int, nargs="+", default=[5, 10, 15, 20, 30, 40])
+    ap.add_argument("--levels", type=int, nargs="+", default=[4])
+    ap.add_argument("--observable", default="granular_temperature",
+                    help="diagnostics.csv column: granular_temperature | mean_speed | mean_vy ...")
+    ap.add_argument("--end-time", type=float, default=None, help="run.end_time override [s]")
+    ap.add_argument("--set", action="append", default=[], help="extra key=value override (repeat)")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="runs per configuration; wall time = the minimum (default 1)")
+    ap.add_argument("--binary", default=os.path.join(os.path.dirname(__file__), "..", "build", "bin", "cfddem"))
+    ap.add_argument("--out", default="runs/trade")
+    ap.add_argument("--label", default=None, help="title of the plots (default: the scene)")
+    a = ap.parse_args()
+
+    os.makedirs(a.out, exist_ok=True)
+    common = list(a.set) + ([f"run.end_time={a.end_time}"] if a.end_time else [])
+    ref_json, ref = run(a.binary, a.scene, os.path.join(a.out, "explicit"),
+                        ["dem.scheme=\"explicit\""] + common, a.threads, a.repeat)
+    if a.observable not in ref:
+        sys.exit(f"trade.py: no column '{a.observable}' in diagnostics.csv (have: {', '.join(ref)})")
+    t_ref, o_ref = ref["time"], ref[a.observable]
+    rows = [dict(scheme="explicit", nsubit=0, levels=0, error=0.0, speedup=1.0, force_ratio=1.0,
+                 fine_leaf_fraction_mean=1.0, loop_seconds=ref_json["loop_seconds"],
+                 force_evaluations=ref_json["force_evaluations"])]
+    curves = {}
+    for L in a.levels:
+        for ns in a.nsubit:
+            name = f"orb_L{L}_n{ns}"
+            js, d = run(a.binary, a.scene, os.path.join(a.out, name),
+                        ["dem.scheme=\"orb\"", f"dem.nsubit={ns}", f"partition.orb_levels={L}"] + common,
+                        a.threads, a.repeat)
+            t, o = d["time"], d[a.observable]
+            keep = t <= t_ref[-1] + 1e-12
+            o_at = np.interp(t[keep], t_ref, o_ref)
+            err = np.mean(np.abs(o[keep] - o_at)) / abs(np.mean(o_at))
+            fine = d["fine_leaf_fraction"][1:]
+            rows.append(dict(scheme="orb", nsubit=ns, levels=L, error=err,
+                             speedup=ref_json["loop_seconds"] / js["loop_seconds"],
+                             force_ratio=ref_json["force_evaluations"] / max(js["force_evaluations"], 1),
+                             fine_leaf_fraction_mean=float(np.mean(fine)) if len(fine) else float("nan"),
+                             loop_seconds=js["loop_seconds"], force_evaluations=js["force_evaluations"]))
+            curves[(L, ns)] = (t, o)
+            r = rows[-1]
+            print(f"L={L} nsubit={ns:3d}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
+                  f"force ratio {r['force_ratio']:.2f}  fine leaves {r['fine_leaf_fraction_mean']:.2f}",
+                  flush=True)
+
+    with open(os.path.join(a.out, "trade.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+    title = a.label or os.path.basename(a.scene)
+    fig, axes = plt.subplots(1, len(a.levels), figsize=(6 * len(a.levels), 4.5), squeeze=False)
+    for ax, L in zip(axes[0], a.levels):
+        ax.plot(t_ref * 1e3, o_ref, "k-", lw=2, label="explicit")
+        for ns in a.nsubit:
+            t, o = curves[(L, ns)]
+            ax.plot(t * 1e3, o, "--", label=f"nsubit {ns}")
+        ax.set_xlabel("t [ms]")
+        ax.set_ylabel(a.observable)
+        ax.set_title(f"{title}: orb, {2 ** L} leaves")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(a.out, "trade_observable.png"), dpi=120)
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    for L in a.levels:
+        sel = [r for r in rows if r["scheme"] == "orb" and r["levels"] == L]
+        ns = [r["nsubit"] for r in sel]
+        ax1.plot(ns, [100 * r["error"] for r in sel], "o-", label=f"{2 ** L} leaves")
+        ax2.plot(ns, [r["speedup"] for r in sel], "o-", label=f"wall, {2 ** L} leaves")
+        ax2.plot(ns, [r["force_ratio"] for r in sel], "s--", label=f"force evaluations, {2 ** L} leaves")
+    ax1.set_xlabel("nsubit")
+    ax1.set_ylabel(f"error in {a.observable} [%]")
+    ax1.legend()
+    ax2.axhline(1.0, color="k", lw=0.8)
+    ax2.set_xlabel("nsubit")
+    ax2.set_ylabel("speed-up over explicit")
+    ax2.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(os.path.join(a.out, "trade_error_speedup.png"), dpi=120)
+
+
+if __name__ == "__main__":
+    main()

@@ -99,6 +99,8 @@ public:
   std::int64_t overlap_violations() const { return overlap_violations_; }
   const StepModel& model() const { return model_; }
   int leaf_count() const { return static_cast<int>(ranges_.size()) - 1; }
+  // The decomposition of the last regrid.
+  const partition::OrbTree& tree() const { return tree_; }
   // Fraction of non-empty leaves on the fine step in the last sub-iteration.
   double last_fine_fraction() const { return last_fine_fraction_; }
 

@@ -318,3 +318,28 @@ TEST(OrbScheme, WallIsAPartnerForTheStepRule) {
     EXPECT_EQ(o.last_fine_fraction(), y < 0.15e-3 ? 1.0 : 0.0) << "y = " << y;
   }
 }
+
+// (h) With a gas, every ORB cut lies on a fluid cell face (leaves are whole numbers of cells), so
+// the box can own both its particles and its cells.
+TEST(OrbScheme, CutsSnapToFluidCellFacesWithAGas) {
+  const Scene s = demtest::scene_from(std::string(kGas) + R"(
+[partition]
+orb_levels = 4
+[fluid]
+cells = [8, 10, 6]
+density = 1.0
+viscosity = 2.0e-5
+dt = 1.0e-4
+)", {"dem.scheme=orb"});
+  ParticleStore p = make_initial_particles(s);
+  PhaseTimer t;
+  dem::OrbScheme o(s, p, t);
+  o.start();
+  o.subiterate();
+  const std::array<double, 3> dx{1e-3 / 8, 1e-3 / 10, 1e-3 / 6};
+  ASSERT_EQ(o.tree().cuts().size(), 15u);
+  for (const auto& cut : o.tree().cuts()) {
+    const double k = cut.position / dx[static_cast<std::size_t>(cut.axis)];
+    EXPECT_NEAR(k, std::round(k), 1e-9) << "axis " << cut.axis << " at " << cut.position;
+  }
+}

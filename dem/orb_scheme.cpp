@@ -1,6 +1,7 @@
 #include "dem/orb_scheme.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <optional>
 #include <cmath>
 #include <limits>
@@ -392,6 +393,40 @@ void OrbScheme::derive_rows() {
   std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
 }
 
+// The constant-step kick-drift of particles [0, n) (every local step of a leaf but its first):
+// the arithmetic of kick_drift (contact_kernels.hpp), in a function of restrict pointers so that
+// it vectorizes; `still` keeps its sign bit while no particle is farther than skin/2 from its
+// reference position (sign-bit AND: see integrate_range in explicit_scheme.cpp).
+template <bool External>
+static void kick_drift_range(double* __restrict x, double* __restrict y, double* __restrict z,
+                             double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                             const double* __restrict fx, const double* __restrict fy,
+                             const double* __restrict fz, const double* __restrict ex,
+                             const double* __restrict ey, const double* __restrict ez,
+                             const double* __restrict im, const double* __restrict xr,
+                             const double* __restrict yr, const double* __restrict zr,
+                             std::size_t n, double s, double gsx, double gsy, double gsz,
+                             double h, double half_skin2, std::uint64_t& still_out) {
+  std::uint64_t still = still_out;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ims = im[i] * s;
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    if constexpr (External) {
+      kick_drift(px, ux, fx[i] + ex[i], ims, gsx, h);
+      kick_drift(py, uy, fy[i] + ey[i], ims, gsy, h);
+      kick_drift(pz, uz, fz[i] + ez[i], ims, gsz, h);
+    } else {
+      kick_drift(px, ux, fx[i], ims, gsx, h);
+      kick_drift(py, uy, fy[i], ims, gsy, h);
+      kick_drift(pz, uz, fz[i], ims, gsz, h);
+    }
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    const double dx = px - xr[i], dy = py - yr[i], dz = pz - zr[i];
+    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
+  }
+  still_out = still;
+}
+
 void OrbScheme::run_batch(Batch& bt, bool record) {
   external_ ? run_batch_impl<true>(bt, record) : run_batch_impl<false>(bt, record);
 }
@@ -513,7 +548,8 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     // the sub-iteration kicks each particle over its own h_prev + h/2, later ones over
     // (h_before + h)/2 (= h exactly for a constant step: the explicit scheme's update).
     const double half = 0.5 * hk;
-    double md = 0.0;
+    // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
+    std::uint64_t still = ~std::uint64_t{0};
     if (k == 0) {
       for (std::uint32_t i = b; i < e; ++i) {
         const double s = hp[i] + half;
@@ -530,34 +566,24 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
         hp[i] = half;
         const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
         const double d2 = ex * ex + ey * ey + ez * ez;
-        md = d2 > md ? d2 : md;
+        still &= std::bit_cast<std::uint64_t>(d2 > half_skin2 ? 1.0 : -1.0);
       }
     } else {
       const double s = 0.5 * h_before + half;
-      const double gsx = m.gravity[0] * s, gsy = m.gravity[1] * s, gsz = m.gravity[2] * s;
-      for (std::uint32_t i = b; i < e; ++i) {
-        const double ims = im[i] * s;
-        if constexpr (External) {
-          kick_drift(x[i], vx[i], fx[i] + fex[i], ims, gsx, hk);
-          kick_drift(y[i], vy[i], fy[i] + fey[i], ims, gsy, hk);
-          kick_drift(z[i], vz[i], fz[i] + fez[i], ims, gsz, hk);
-        } else {
-          kick_drift(x[i], vx[i], fx[i], ims, gsx, hk);
-          kick_drift(y[i], vy[i], fy[i], ims, gsy, hk);
-          kick_drift(z[i], vz[i], fz[i], ims, gsz, hk);
-        }
-        const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
-        const double d2 = ex * ex + ey * ey + ez * ez;
-        md = d2 > md ? d2 : md;
-      }
+      kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
+                                 fz + b, External ? fex + b : nullptr,
+                                 External ? fey + b : nullptr, External ? fez + b : nullptr,
+                                 im + b, xr + b, yr + b, zr + b, e - b, s, m.gravity[0] * s,
+                                 m.gravity[1] * s, m.gravity[2] * s, hk, half_skin2, still);
       if (k + 1 == bt.K)
         for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
     }
     h_before = hk;
     // Ghosts do not move and were within skin/2 of their reference: own particles may use the
     // other half. Beyond it a pair could be missing from the rows: stop, the sub-iteration is
-    // redone with a larger skin (md is NaN-safe: a NaN fails below and is reported as such).
-    if (k + 1 < bt.K && md > half_skin2) {
+    // redone with a larger skin (NaN-safe: a NaN compares false here, fails below and is
+    // reported as such).
+    if (k + 1 < bt.K && !(still >> 63)) {
       bt.outran = true;
       break;
     }

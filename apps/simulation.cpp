@@ -163,6 +163,43 @@ Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
 
 } // namespace
 
+namespace {
+
+// The part of run.json every loop writes first: program, version, scene, the resolved
+// configuration, derived numbers, ranks, threads and the particle count.
+nlohmann::ordered_json run_json_header(const Scene& described, const std::string& name,
+                                       const DerivedNumbers& derived, const ParallelEnv& env,
+                                       std::size_t particles) {
+  nlohmann::ordered_json j;
+  j["program"] = "cfddem";
+  j["version"] = CFDDEM_VERSION;
+  j["scene"] = name;
+  nlohmann::ordered_json cfg;
+  for (const auto& [k, v] : describe_scene(described)) cfg[k] = v;
+  j["configuration"] = cfg;
+  nlohmann::ordered_json der;
+  for (const auto& [k, v] : derived.table()) der[k] = v;
+  j["derived"] = der;
+  j["ranks"] = env.ranks();
+  j["threads"] = env.threads();
+  j["particles"] = particles;
+  return j;
+}
+
+// phase_seconds: every timed phase, and the rest of the loop as "other".
+nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_seconds) {
+  nlohmann::ordered_json ph;
+  double timed = 0.0;
+  for (const Phase p : {Phase::neighbor, Phase::force, Phase::integrate, Phase::io, Phase::fluid}) {
+    ph[std::string(phase_names[static_cast<int>(p)])] = timer.seconds(p);
+    timed += timer.seconds(p);
+  }
+  ph["other"] = loop_seconds - timed;
+  return ph;
+}
+
+} // namespace
+
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (scene.fluid.enabled) {
     validate_fluid(scene);
@@ -311,32 +348,14 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   diag.flush();
   const double loop_seconds = seconds_since(t_loop);
 
-  nlohmann::ordered_json j;
-  j["program"] = "cfddem";
-  j["version"] = CFDDEM_VERSION;
-  j["scene"] = scene.name;
-  nlohmann::ordered_json cfg;
-  for (const auto& [k, v] : describe_scene(scene)) cfg[k] = v;
-  j["configuration"] = cfg;
-  nlohmann::ordered_json der;
-  for (const auto& [k, v] : derived.table()) der[k] = v;
-  j["derived"] = der;
-  j["ranks"] = env.ranks();
-  j["threads"] = env.threads();
-  j["particles"] = particles.size();
+  nlohmann::ordered_json j =
+      run_json_header(scene, scene.name, derived, env, particles.size());
   j["dt"] = scheme.dt();
   j["steps"] = scheme.steps_taken();
   j["end_time"] = static_cast<double>(n_end) * scheme.dt();
   j["loop_seconds"] = loop_seconds;
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
-  nlohmann::ordered_json ph;
-  ph["neighbor"] = timer.seconds(Phase::neighbor);
-  ph["force"] = timer.seconds(Phase::force);
-  ph["integrate"] = timer.seconds(Phase::integrate);
-  ph["io"] = timer.seconds(Phase::io);
-  ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
-                timer.seconds(Phase::integrate) - timer.seconds(Phase::io);
-  ph["fluid"] = 0.0;
+  nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
   j["phase_seconds"] = ph;
   j["particle_steps"] = scheme.particle_steps();
   j["force_evaluations"] = scheme.pair_evaluations();
@@ -485,19 +504,8 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
   diag.flush();
   const double loop_seconds = seconds_since(t_loop);
 
-  nlohmann::ordered_json j;
-  j["program"] = "cfddem";
-  j["version"] = CFDDEM_VERSION;
-  j["scene"] = scene.name;
-  nlohmann::ordered_json cfg;
-  for (const auto& [k, v] : describe_scene(scene)) cfg[k] = v;
-  j["configuration"] = cfg;
-  nlohmann::ordered_json der;
-  for (const auto& [k, v] : derived.table()) der[k] = v;
-  j["derived"] = der;
-  j["ranks"] = env.ranks();
-  j["threads"] = env.threads();
-  j["particles"] = particles.size();
+  nlohmann::ordered_json j =
+      run_json_header(scene, scene.name, derived, env, particles.size());
   j["scheme"] = "orb";
   j["dt"] = scheme.dt_fine();
   j["dt_sp"] = dt_sp;
@@ -508,14 +516,7 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
   j["end_time"] = static_cast<double>(n_end) * dt_sp;
   j["loop_seconds"] = loop_seconds;
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
-  nlohmann::ordered_json ph;
-  ph["neighbor"] = timer.seconds(Phase::neighbor);
-  ph["force"] = timer.seconds(Phase::force);
-  ph["integrate"] = timer.seconds(Phase::integrate);
-  ph["io"] = timer.seconds(Phase::io);
-  ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
-                timer.seconds(Phase::integrate) - timer.seconds(Phase::io);
-  ph["fluid"] = 0.0;
+  nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
   ph["note"] = "neighbor: ORB regrid and re-sort; force: the leaves' tasks (ghosts, local lists, "
                "force and update)";
   j["phase_seconds"] = ph;
@@ -684,19 +685,8 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   diag.flush();
   const double loop_seconds = seconds_since(t_loop);
 
-  nlohmann::ordered_json j;
-  j["program"] = "cfddem";
-  j["version"] = CFDDEM_VERSION;
-  j["scene"] = scene.name;
-  nlohmann::ordered_json cfg;
-  for (const auto& [k, v] : describe_scene(scene_in)) cfg[k] = v;
-  j["configuration"] = cfg;
-  nlohmann::ordered_json der;
-  for (const auto& [k, v] : derived.table()) der[k] = v;
-  j["derived"] = der;
-  j["ranks"] = env.ranks();
-  j["threads"] = env.threads();
-  j["particles"] = particles.size();
+  nlohmann::ordered_json j =
+      run_json_header(scene_in, scene.name, derived, env, particles.size());
   j["scheme"] = kOrb ? "orb" : "explicit";
   if constexpr (kOrb) {
     j["dt"] = scheme.dt_fine();
@@ -719,14 +709,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
   j["wall_seconds_per_fluid_step"] =
       fluid_steps > 0 ? loop_seconds / static_cast<double>(fluid_steps) : 0.0;
-  nlohmann::ordered_json ph;
-  ph["neighbor"] = timer.seconds(Phase::neighbor);
-  ph["force"] = timer.seconds(Phase::force);
-  ph["integrate"] = 0.0;
-  ph["io"] = timer.seconds(Phase::io);
-  ph["fluid"] = timer.seconds(Phase::fluid);
-  ph["other"] = loop_seconds - timer.seconds(Phase::neighbor) - timer.seconds(Phase::force) -
-                timer.seconds(Phase::io) - timer.seconds(Phase::fluid);
+  nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
   ph["note"] = "fluid: deposition, gas step (predictor, projection), interpolation and particle "
                "forces; neighbor + force: the particle sub-cycle";
   j["phase_seconds"] = ph;

@@ -121,15 +121,7 @@ void ExplicitScheme::rebuild() {
       }
     }
   }
-  if (external_) {
-    // The build permuted the store: the external forces follow their particles.
-    const auto order = list_.order();
-    for (auto* v : {&ex_, &ey_, &ez_}) {
-      std::vector<double> out(order.size());
-      for (std::size_t k = 0; k < order.size(); ++k) out[k] = (*v)[order[k]];
-      v->swap(out);
-    }
-  }
+  ext_.permute(list_.order()); // the build permuted the store: external forces follow
   // Only particles with a row get their contact force rewritten each step: clear the rest.
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
@@ -359,9 +351,9 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
     double* __restrict fy = p_.fy.data();
     double* __restrict fz = p_.fz.data();
     const double* __restrict im = p_.inv_mass.data();
-    [[maybe_unused]] const double* __restrict fex = ex_.data();
-    [[maybe_unused]] const double* __restrict fey = ey_.data();
-    [[maybe_unused]] const double* __restrict fez = ez_.data();
+    [[maybe_unused]] const double* __restrict fex = ext_.x.data();
+    [[maybe_unused]] const double* __restrict fey = ext_.y.data();
+    [[maybe_unused]] const double* __restrict fez = ext_.z.data();
     if constexpr (Walls) {
       // A particle without a neighbor row keeps last step's total (contact + wall) in f: start
       // it from zero. Rows are fixed between builds, so this is exact.
@@ -439,25 +431,16 @@ void ExplicitScheme::update_pass(double dt, Report& out) {
 
 template <bool Walls> void ExplicitScheme::update(double dt, Report& rep) {
   if (model_.friction) {
-    external_ ? update_pass<Walls, true, true>(dt, rep) : update_pass<Walls, true, false>(dt, rep);
+    ext_.active() ? update_pass<Walls, true, true>(dt, rep) : update_pass<Walls, true, false>(dt, rep);
   } else {
-    external_ ? update_pass<Walls, false, true>(dt, rep)
+    ext_.active() ? update_pass<Walls, false, true>(dt, rep)
               : update_pass<Walls, false, false>(dt, rep);
   }
 }
 
 void ExplicitScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
                                         std::span<const double> fz) {
-  external_ = !fx.empty();
-  if (!external_) {
-    ex_.clear(), ey_.clear(), ez_.clear();
-    return;
-  }
-  if (fx.size() != p_.size() || fy.size() != p_.size() || fz.size() != p_.size())
-    throw std::invalid_argument("set_external_force: one value per particle expected");
-  ex_.assign(fx.begin(), fx.end());
-  ey_.assign(fy.begin(), fy.end());
-  ez_.assign(fz.begin(), fz.end());
+  ext_.set(fx, fy, fz, p_.size());
 }
 
 void ExplicitScheme::evaluate_and_update(double dt, Report& rep) {
@@ -512,8 +495,8 @@ void ExplicitScheme::start() {
   if (rep.bad != kNone && rep.fault == Fault::overlap) raise(rep, 0.0);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < p_.size(); ++i) {
-    const double e[3] = {external_ ? ex_[i] : 0.0, external_ ? ey_[i] : 0.0,
-                         external_ ? ez_[i] : 0.0};
+    const double e[3] = {ext_.active() ? ext_.x[i] : 0.0, ext_.active() ? ext_.y[i] : 0.0,
+                         ext_.active() ? ext_.z[i] : 0.0};
     p_.vx[i] -= ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
     p_.vy[i] -= ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
     p_.vz[i] -= ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
@@ -532,8 +515,8 @@ void ExplicitScheme::record_synchronised() {
   svx_.resize(n), svy_.resize(n), svz_.resize(n);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < n; ++i) {
-    const double e[3] = {external_ ? ex_[i] : 0.0, external_ ? ey_[i] : 0.0,
-                         external_ ? ez_[i] : 0.0};
+    const double e[3] = {ext_.active() ? ext_.x[i] : 0.0, ext_.active() ? ext_.y[i] : 0.0,
+                         ext_.active() ? ext_.z[i] : 0.0};
     svx_[i] = p_.vx[i] + ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
     svy_[i] = p_.vy[i] + ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
     svz_[i] = p_.vz[i] + ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;

@@ -14,6 +14,7 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
+#include "dem/external_force.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 #include "dem/verlet_list.hpp"
 
@@ -64,7 +65,7 @@ public:
   // update pass is the same instantiation as before (no extra loads).
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
-  bool has_external_force() const { return external_; }
+  bool has_external_force() const { return ext_.active(); }
 
   // State at the start of the last step recorded (time() - dt): positions x(n) and velocity
   // Verlet's synchronised velocity v(n) = v(n-1/2) + a(n) dt/2.
@@ -110,8 +111,7 @@ private:
   // Tangential history per full-list entry (friction only).
   std::vector<double> hx_, hy_, hz_;
   // External force per particle (set_external_force).
-  std::vector<double> ex_, ey_, ez_;
-  bool external_ = false;
+  ExternalForce ext_;
   bool need_rebuild_ = true;
   std::int64_t steps_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0;
 };

@@ -116,7 +116,7 @@ void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
     v.swap(t);
   };
   permute(hprev_), permute(cost_), permute(xr_), permute(yr_), permute(zr_);
-  permute(ex_), permute(ey_), permute(ez_); // empty without an external force
+  ext_.permute(order);
   scratch_.resize(n);
   for (std::size_t k = 0; k < n; ++k) scratch_[order[k]] = static_cast<std::uint32_t>(k);
   for (auto* v : {&ca_, &cb_, &pa_, &pb_})
@@ -428,7 +428,7 @@ static void kick_drift_range(double* __restrict x, double* __restrict y, double*
 }
 
 void OrbScheme::run_batch(Batch& bt, bool record) {
-  external_ ? run_batch_impl<true>(bt, record) : run_batch_impl<false>(bt, record);
+  ext_.active() ? run_batch_impl<true>(bt, record) : run_batch_impl<false>(bt, record);
 }
 
 // With External, the per-particle external force is added to the contact force in every kick
@@ -460,9 +460,9 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   const double* __restrict rad = p_.radius.data();
   const double* __restrict mass = p_.mass.data();
   const double* __restrict im = p_.inv_mass.data();
-  const double* __restrict fex = External ? ex_.data() : nullptr;
-  const double* __restrict fey = External ? ey_.data() : nullptr;
-  const double* __restrict fez = External ? ez_.data() : nullptr;
+  const double* __restrict fex = External ? ext_.x.data() : nullptr;
+  const double* __restrict fey = External ? ext_.y.data() : nullptr;
+  const double* __restrict fez = External ? ext_.z.data() : nullptr;
   const double* __restrict xr = xr_.data();
   const double* __restrict yr = yr_.data();
   const double* __restrict zr = zr_.data();
@@ -791,16 +791,7 @@ void OrbScheme::benchmark_ghost_refresh() {
 
 void OrbScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
                                    std::span<const double> fz) {
-  external_ = !fx.empty();
-  if (!external_) {
-    ex_.clear(), ey_.clear(), ez_.clear();
-    return;
-  }
-  if (fx.size() != p_.size() || fy.size() != p_.size() || fz.size() != p_.size())
-    throw std::invalid_argument("set_external_force: one value per particle expected");
-  ex_.assign(fx.begin(), fx.end());
-  ey_.assign(fy.begin(), fy.end());
-  ez_.assign(fz.begin(), fz.end());
+  ext_.set(fx, fy, fz, p_.size());
 }
 
 OrbScheme::State OrbScheme::save_state() const {

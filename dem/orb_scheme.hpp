@@ -175,8 +175,7 @@ private:
   std::int64_t nsubit_ = 1;
   bool cost_weights_ = false;
   std::vector<double> hprev_;         // per particle: half of its last step
-  std::vector<double> ex_, ey_, ez_;  // external force per particle (set_external_force)
-  bool external_ = false;
+  ExternalForce ext_; // set_external_force
   std::vector<double> cost_;          // per particle: local steps of its leaf since the regrid
   std::vector<std::uint32_t> ranges_; // leaf l owns [ranges_[l], ranges_[l+1])
   std::vector<std::uint32_t> leaf_of_;

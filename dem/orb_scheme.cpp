@@ -253,7 +253,7 @@ void OrbScheme::rebuild_pairs() {
   std::array<double, 3> inv{};
   double cell = cutoff;
   const double volume = g.length[0] * g.length[1] * g.length[2];
-  const double target = 2.0 * static_cast<double>(n) + 64.0;
+  const double target = 8.0 * static_cast<double>(n) + 64.0;
   if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
   for (int a = 0; a < 3; ++a) {
     nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
@@ -274,7 +274,8 @@ void OrbScheme::rebuild_pairs() {
   for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
   scratch_.resize(n);
   {
-    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
+    std::vector<std::uint32_t>& fill = fill_;
+    fill.assign(cell_start_.begin(), cell_start_.end() - 1);
     for (std::size_t i = 0; i < n; ++i) scratch_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
   }
   ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear();
@@ -293,35 +294,67 @@ void OrbScheme::rebuild_pairs() {
   };
   if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
     // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
-    // so every pair is visited once and no cell twice.
+    // so every pair is visited once and no cell twice. The neighbours of every cell are tabled
+    // once per grid (the grid changes only with the skin), and the binned particles' data are
+    // copied in cell order so that the inner loops read contiguous memory.
     static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
                                         {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
                                         {0, 0, 1},  {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
                                         {1, 1, 1}};
-    for (int cz = 0; cz < nc[2]; ++cz)
-      for (int cy = 0; cy < nc[1]; ++cy)
-        for (int cx = 0; cx < nc[0]; ++cx) {
-          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
-          const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
-          if (c0 == c1) continue;
-          for (std::uint32_t a = c0; a < c1; ++a)
-            for (std::uint32_t b = a + 1; b < c1; ++b) test(scratch_[a], scratch_[b]);
-          for (const auto& o : kFwd) {
-            int q[3] = {cx + o[0], cy + o[1], cz + o[2]};
-            bool skip = false;
-            for (int a = 0; a < 3; ++a) {
-              if (q[a] < 0 || q[a] >= nc[a]) {
-                if (!g.periodic[a]) skip = true;
-                q[a] = (q[a] + nc[a]) % nc[a];
-              }
+    if (fwd_grid_ != nc) {
+      fwd_.assign(ncell * 13, kNoCell);
+      for (int cz = 0; cz < nc[2]; ++cz)
+        for (int cy = 0; cy < nc[1]; ++cy)
+          for (int cx = 0; cx < nc[0]; ++cx) {
+            const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
+            for (int o = 0; o < 13; ++o) {
+              int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
+              bool skip = false;
+              for (int a = 0; a < 3; ++a)
+                if (q[a] < 0 || q[a] >= nc[a]) {
+                  if (!g.periodic[a]) skip = true;
+                  q[a] = (q[a] + nc[a]) % nc[a];
+                }
+              if (!skip)
+                fwd_[c * 13 + static_cast<std::size_t>(o)] = static_cast<std::uint32_t>(
+                    (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0]);
             }
-            if (skip) continue;
-            const std::size_t d = (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0];
-            const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
-            for (std::uint32_t a = c0; a < c1; ++a)
-              for (std::uint32_t b = d0; b < d1; ++b) test(scratch_[a], scratch_[b]);
           }
-        }
+      fwd_grid_ = nc;
+    }
+    std::vector<double>& sx = sorted_[0];
+    std::vector<double>& sy = sorted_[1];
+    std::vector<double>& sz = sorted_[2];
+    std::vector<double>& sr = sorted_[3];
+    sx.resize(n), sy.resize(n), sz.resize(n), sr.resize(n);
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::uint32_t i = scratch_[k];
+      sx[k] = px[i], sy[k] = py[i], sz[k] = pz[i], sr[k] = pr[i];
+    }
+    // Pair (a, b) of sorted slots: the test of `test` on the sorted copies.
+    auto test_sorted = [&](std::uint32_t a, std::uint32_t b) {
+      const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
+                   dz = g.image(sz[b] - sz[a], 2);
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      const double rs = sr[a] + sr[b];
+      const double pc = prox * rs + skin_;
+      if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(scratch_[a]), cb_.push_back(scratch_[b]);
+      if (prox_cells && r2 < pc * pc) pa_.push_back(scratch_[a]), pb_.push_back(scratch_[b]);
+    };
+    for (std::size_t c = 0; c < ncell; ++c) {
+      const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
+      if (c0 == c1) continue;
+      for (std::uint32_t a = c0; a < c1; ++a)
+        for (std::uint32_t b = a + 1; b < c1; ++b) test_sorted(a, b);
+      const std::uint32_t* f = fwd_.data() + c * 13;
+      for (int o = 0; o < 13; ++o) {
+        const std::uint32_t d = f[o];
+        if (d == kNoCell) continue;
+        const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
+        for (std::uint32_t a = c0; a < c1; ++a)
+          for (std::uint32_t b = d0; b < d1; ++b) test_sorted(a, b);
+      }
+    }
   } else {
     // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
     for (std::size_t i = 0; i < n; ++i) {

@@ -1,5 +1,7 @@
 #include "core/particle_store.hpp"
 
+#include <utility>
+
 #include <numbers>
 
 namespace cfddem {
@@ -46,6 +48,14 @@ std::size_t ParticleStore::add(double px, double py, double pz, double pvx, doub
   id[i] = pid;
   if (rotation) inv_inertia[i] = 1.0 / (0.4 * mass[i] * r * r);
   return i;
+}
+
+void ParticleStore::swap(std::size_t a, std::size_t b) {
+  for (auto* v : {&x, &y, &z, &vx, &vy, &vz, &fx, &fy, &fz, &radius, &mass, &inv_mass})
+    std::swap((*v)[a], (*v)[b]);
+  std::swap(id[a], id[b]);
+  if (rotation)
+    for (auto* v : {&wx, &wy, &wz, &tx, &ty, &tz, &inv_inertia}) std::swap((*v)[a], (*v)[b]);
 }
 
 void ParticleStore::permute(std::span<const std::uint32_t> order) {

@@ -31,6 +31,9 @@ struct ParticleStore {
                   double density, std::int64_t pid);
   // Reorder every field so that new index k holds old index order[k].
   void permute(std::span<const std::uint32_t> order);
+  // Exchange particles a and b in every field (a few particles changing place: cheaper than a
+  // permutation of the whole store).
+  void swap(std::size_t a, std::size_t b);
   double total_mass() const;
 
 private:

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <span>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 namespace cfddem::dem {
@@ -37,6 +38,11 @@ struct ExternalForce {
       for (std::size_t k = 0; k < order.size(); ++k) scratch_[k] = (*v)[order[k]];
       v->swap(scratch_);
     }
+  }
+
+  void swap(std::size_t a, std::size_t b) {
+    if (!active()) return;
+    std::swap(x[a], x[b]), std::swap(y[a], y[b]), std::swap(z[a], z[b]);
   }
 
 private:

@@ -172,14 +172,18 @@ void OrbScheme::regrid() {
   ++regrids_;
 }
 
-// Counting sort by the leaf that now holds each particle (stable: a leaf keeps its order).
+// Particles that left their leaf are moved to the leaf that now holds them, keeping every leaf a
+// contiguous range. A few particles cross a boundary per sub-iteration, so instead of sorting the
+// whole store each one walks along the leaves between its old and new leaf by swaps with the
+// boundary slots (one swap per leaf passed); particles of other leaves keep their leaf. The
+// order inside a leaf changes, which no result depends on (rows are summed in id order and the
+// update is per particle). Then the pair lists are relabelled and the rows derived again.
 void OrbScheme::resort() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   const std::size_t n = p_.size();
   const std::size_t nl = ranges_.size() - 1;
-  std::vector<std::uint32_t>& leaf_of = leaf_of_;
-  std::vector<std::uint32_t> count(nl + 1, 0);
-  leaf_of.resize(n);
+  std::vector<std::uint32_t>& target = leaf_of_; // the leaf holding each slot's particle
+  target.resize(n);
   bool moved = false;
   const auto leaves = tree_.leaves();
   for (std::size_t l = 0; l < nl; ++l) {
@@ -196,17 +200,60 @@ void OrbScheme::resort() {
         throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
                                    "the domain",
                                    time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
-      leaf_of[i] = static_cast<std::uint32_t>(k);
+      target[i] = static_cast<std::uint32_t>(k);
       moved |= static_cast<std::size_t>(k) != l;
-      ++count[static_cast<std::size_t>(k) + 1];
     }
   }
   if (!moved) return;
-  for (std::size_t l = 0; l < nl; ++l) count[l + 1] += count[l];
-  ranges_.assign(count.begin(), count.end());
-  std::vector<std::uint32_t> order(n);
-  for (std::size_t i = 0; i < n; ++i) order[count[leaf_of[i]]++] = static_cast<std::uint32_t>(i);
-  apply_permutation(order);
+  std::vector<std::uint32_t>& origin = fill_; // original slot of the particle now in each slot
+  origin.resize(n);
+  for (std::size_t i = 0; i < n; ++i) origin[i] = static_cast<std::uint32_t>(i);
+  auto swap_slots = [&](std::uint32_t a, std::uint32_t c) {
+    if (a == c) return;
+    p_.swap(a, c);
+    std::swap(hprev_[a], hprev_[c]);
+    std::swap(cost_[a], cost_[c]);
+    if (!xr_.empty()) std::swap(xr_[a], xr_[c]), std::swap(yr_[a], yr_[c]), std::swap(zr_[a], zr_[c]);
+    ext_.swap(a, c);
+    std::swap(target[a], target[c]);
+    std::swap(origin[a], origin[c]);
+  };
+  for (std::size_t l = 0; l < nl; ++l) {
+    std::uint32_t i = ranges_[l];
+    while (true) {
+      i = std::max(i, ranges_[l]); // a particle walked out of the front of leaf l
+      if (i >= ranges_[l + 1]) break;
+      const std::uint32_t dest = target[i];
+      if (dest == l) {
+        ++i;
+        continue;
+      }
+      // Walk the particle at slot i to leaf dest; slot i then holds a particle of leaf l (the
+      // boundary slot it was swapped with) and is checked again.
+      std::uint32_t m = i;
+      if (dest > l) {
+        for (std::size_t j = l; j < dest; ++j) {
+          const std::uint32_t last = ranges_[j + 1] - 1;
+          swap_slots(m, last);
+          m = last;
+          --ranges_[j + 1];
+        }
+      } else {
+        for (std::size_t j = l; j > dest; --j) {
+          const std::uint32_t first = ranges_[j];
+          swap_slots(m, first);
+          m = first;
+          ++ranges_[j];
+        }
+      }
+    }
+  }
+  // Relabel the pair lists: old slot origin[k] is now slot k.
+  scratch_.resize(n);
+  for (std::size_t k = 0; k < n; ++k) scratch_[origin[k]] = static_cast<std::uint32_t>(k);
+  for (auto* v : {&ca_, &cb_, &pa_, &pb_})
+    for (auto& q : *v) q = scratch_[q];
+  off_.clear(); // rows must be derived again
 }
 
 // True when some particle's displacement since the build plus its free flight over one
@@ -430,7 +477,9 @@ void OrbScheme::derive_rows() {
 // the arithmetic of kick_drift (contact_kernels.hpp), in a function of restrict pointers so that
 // it vectorizes; `still` keeps its sign bit while no particle is farther than skin/2 from its
 // reference position (sign-bit AND: see integrate_range in explicit_scheme.cpp).
-template <bool External>
+// With First, the kick of particle i spans its own h_prev + h/2 (hp[i] + half, the first step of
+// a sub-iteration; hp[i] is set to half afterwards) instead of the common s.
+template <bool External, bool First = false>
 static void kick_drift_range(double* __restrict x, double* __restrict y, double* __restrict z,
                              double* __restrict vx, double* __restrict vy, double* __restrict vz,
                              const double* __restrict fx, const double* __restrict fy,
@@ -439,9 +488,16 @@ static void kick_drift_range(double* __restrict x, double* __restrict y, double*
                              const double* __restrict im, const double* __restrict xr,
                              const double* __restrict yr, const double* __restrict zr,
                              std::size_t n, double s, double gsx, double gsy, double gsz,
-                             double h, double half_skin2, std::uint64_t& still_out) {
+                             double h, double half_skin2, std::uint64_t& still_out,
+                             double* __restrict hp = nullptr, double half = 0.0,
+                             const double* g = nullptr) {
   std::uint64_t still = still_out;
   for (std::size_t i = 0; i < n; ++i) {
+    if constexpr (First) {
+      s = hp[i] + half;
+      gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
+      hp[i] = half;
+    }
     const double ims = im[i] * s;
     double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
     if constexpr (External) {
@@ -584,23 +640,11 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
     std::uint64_t still = ~std::uint64_t{0};
     if (k == 0) {
-      for (std::uint32_t i = b; i < e; ++i) {
-        const double s = hp[i] + half;
-        const double ims = im[i] * s;
-        if constexpr (External) {
-          kick_drift(x[i], vx[i], fx[i] + fex[i], ims, m.gravity[0] * s, hk);
-          kick_drift(y[i], vy[i], fy[i] + fey[i], ims, m.gravity[1] * s, hk);
-          kick_drift(z[i], vz[i], fz[i] + fez[i], ims, m.gravity[2] * s, hk);
-        } else {
-          kick_drift(x[i], vx[i], fx[i], ims, m.gravity[0] * s, hk);
-          kick_drift(y[i], vy[i], fy[i], ims, m.gravity[1] * s, hk);
-          kick_drift(z[i], vz[i], fz[i], ims, m.gravity[2] * s, hk);
-        }
-        hp[i] = half;
-        const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
-        const double d2 = ex * ex + ey * ey + ez * ez;
-        still &= std::bit_cast<std::uint64_t>(d2 > half_skin2 ? 1.0 : -1.0);
-      }
+      kick_drift_range<External, true>(
+          x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
+          External ? fex + b : nullptr, External ? fey + b : nullptr,
+          External ? fez + b : nullptr, im + b, xr + b, yr + b, zr + b, e - b, 0.0, 0.0, 0.0,
+          0.0, hk, half_skin2, still, hp + b, half, m.gravity.data());
     } else {
       const double s = 0.5 * h_before + half;
       kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,

@@ -186,9 +186,21 @@ void OrbScheme::resort() {
   target.resize(n);
   bool moved = false;
   const auto leaves = tree_.leaves();
+  const double* __restrict xs = p_.x.data();
+  const double* __restrict ys = p_.y.data();
+  const double* __restrict zs = p_.z.data();
   for (std::size_t l = 0; l < nl; ++l) {
     const partition::Aabb box = leaves[l].box;
-    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) {
+    const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
+    std::fill(target.begin() + b, target.begin() + e, static_cast<std::uint32_t>(l));
+    // Most leaves keep all their particles: a branch-free pass (it vectorizes) finds them.
+    std::uint64_t out = 0;
+    for (std::uint32_t i = b; i < e; ++i)
+      out |= static_cast<std::uint64_t>(!(box.lo[0] <= xs[i] && xs[i] < box.hi[0]) |
+                                        !(box.lo[1] <= ys[i] && ys[i] < box.hi[1]) |
+                                        !(box.lo[2] <= zs[i] && zs[i] < box.hi[2]));
+    if (!out) continue;
+    for (std::uint32_t i = b; i < e; ++i) {
       // Most particles are still inside their (half-open) box: skip the wrap and the tree
       // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
       const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
@@ -462,6 +474,9 @@ void OrbScheme::derive_rows() {
     }
   }
   active_.clear();
+  own_before_.resize(n + 1);
+  own_before_[0] = 0;
+  for (std::size_t i = 0; i < n; ++i) own_before_[i + 1] = own_before_[i] + (mid_[i] - off_[i]);
   for (std::size_t i = 0; i < n; ++i) {
     sort_by_id(nb_.data() + off_[i], nb_.data() + mid_[i], p_.id.data());
     sort_by_id(nb_.data() + mid_[i], nb_.data() + off_[i + 1], p_.id.data());
@@ -471,6 +486,20 @@ void OrbScheme::derive_rows() {
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
   std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+}
+
+// Each batch's rows (its range of active_) and force evaluations per local step (own-leaf
+// entries count half a pair, other-leaf entries one: see pair_evaluations()).
+void OrbScheme::bind_rows() {
+  for (Batch& bt : batches_) {
+    bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) -
+                                       active_.begin());
+    bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) -
+                                       active_.begin());
+    const std::int64_t own = static_cast<std::int64_t>(own_before_[bt.e] - own_before_[bt.b]);
+    const std::int64_t all = static_cast<std::int64_t>(off_[bt.e] - off_[bt.b]);
+    bt.evals_per_step = own / 2 + (all - own);
+  }
 }
 
 // The constant-step kick-drift of particles [0, n) (every local step of a leaf but its first):
@@ -785,13 +814,7 @@ void OrbScheme::subiterate(bool record) {
   if (record)
     for (const Batch& bt : batches_)
       for (std::uint32_t i = bt.b; i < bt.e; ++i) sdt_[i] = dt_sp_ / static_cast<double>(bt.K);
-  for (Batch& bt : batches_) {
-    bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
-    bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
-    std::int64_t own = 0, ghost = 0;
-    for (std::uint32_t i = bt.b; i < bt.e; ++i) own += mid_[i] - off_[i], ghost += off_[i + 1] - mid_[i];
-    bt.evals_per_step = own / 2 + ghost;
-  }
+  bind_rows();
   while (!attempt(record)) {
     // A fine leaf outran its rows (a collision sped a particle up): roll back, rebuild, redo;
     // if the rows were already fresh, with twice the skin (kept for the rest of the run).
@@ -806,13 +829,7 @@ void OrbScheme::subiterate(bool record) {
     ++retries_;
     rebuild_pairs();
     derive_rows();
-    for (Batch& bt : batches_) {
-      bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
-      bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
-      std::int64_t own = 0, ghost = 0;
-      for (std::uint32_t i = bt.b; i < bt.e; ++i) own += mid_[i] - off_[i], ghost += off_[i + 1] - mid_[i];
-      bt.evals_per_step = own / 2 + ghost;
-    }
+    bind_rows();
   }
   // Counters, reduced in batch order.
   for (const Batch& bt : batches_) {

@@ -159,6 +159,7 @@ private:
   void apply_permutation(std::span<const std::uint32_t> order);
   void rebuild_pairs();
   void derive_rows();
+  void bind_rows();
   bool rows_expire() const;
   void run_batch(Batch& b, bool record);
   template <bool External> void run_batch_impl(Batch& b, bool record);
@@ -188,6 +189,7 @@ private:
   // Rows derived from the contact candidates: particle i's partners of its own leaf in
   // [off_[i], mid_[i]) (read live) and of other leaves in [mid_[i], off_[i+1]) (read frozen).
   std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_of_, scratch_, fill_;
+  std::vector<std::uint32_t> own_before_; // own-leaf row entries of particles [0, i)
   // rebuild_pairs: the 13 forward neighbour cells of every cell of the grid fwd_grid_ (kNoCell
   // across a wall), and the binned particles' x, y, z, radius in cell order.
   static constexpr std::uint32_t kNoCell = 0xffffffffu;

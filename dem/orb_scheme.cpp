@@ -196,9 +196,9 @@ void OrbScheme::resort() {
     // Most leaves keep all their particles: a branch-free pass (it vectorizes) finds them.
     std::uint64_t out = 0;
     for (std::uint32_t i = b; i < e; ++i)
-      out |= static_cast<std::uint64_t>(!(box.lo[0] <= xs[i] && xs[i] < box.hi[0]) |
-                                        !(box.lo[1] <= ys[i] && ys[i] < box.hi[1]) |
-                                        !(box.lo[2] <= zs[i] && zs[i] < box.hi[2]));
+      out |= static_cast<std::uint64_t>(!(box.lo[0] <= xs[i]) | !(xs[i] < box.hi[0]) |
+                                        !(box.lo[1] <= ys[i]) | !(ys[i] < box.hi[1]) |
+                                        !(box.lo[2] <= zs[i]) | !(zs[i] < box.hi[2]));
     if (!out) continue;
     for (std::uint32_t i = b; i < e; ++i) {
       // Most particles are still inside their (half-open) box: skip the wrap and the tree
@@ -282,8 +282,20 @@ bool OrbScheme::rows_expire() const {
   const double* vx = p_.vx.data();
   const double* vy = p_.vy.data();
   const double* vz = p_.vz.data();
+  const double* xr = xr_.data();
+  const double* yr = yr_.data();
+  const double* zr = zr_.data();
+  // Branch-free bound first (it vectorizes); the exact test only if the bound fails somewhere.
+  std::uint64_t over = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    const double ex = x[i] - xr_[i], ey = y[i] - yr_[i], ez = z[i] - zr_[i];
+    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+    const double d2 = ex * ex + ey * ey + ez * ez;
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    over |= static_cast<std::uint64_t>(!(2.0 * (d2 + v2 * dt2) <= lim2));
+  }
+  if (!over) return false;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
     const double d2 = ex * ex + ey * ey + ez * ez;
     const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
     if (!(2.0 * (d2 + v2 * dt2) <= lim2) && !(std::sqrt(d2) + std::sqrt(v2) * dt_sp_ <= lim))
@@ -696,6 +708,26 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   }
   bt.max_ratio = max_ratio;
   bt.violations = violations;
+  // Faults are rare: a branch-free pass (it vectorizes) says whether to look for one. The sum
+  // v2 + x + y + z is NaN or inf if any term is; a coordinate outside a wall's closed interval,
+  // or NaN, fails the comparison (periodic axes get an infinite interval).
+  {
+    double lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = g.periodic[a] ? -std::numeric_limits<double>::infinity() : g.lo[a];
+      hi[a] = g.periodic[a] ? std::numeric_limits<double>::infinity() : g.hi[a];
+    }
+    const double inf = std::numeric_limits<double>::infinity();
+    std::uint64_t bad = 0;
+    for (std::uint32_t i = b; i < e; ++i) {
+      const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+      const double t = v2 + x[i] + y[i] + z[i];
+      bad |= static_cast<std::uint64_t>(!(t > -inf) | !(t < inf) | !(x[i] >= lo[0]) |
+                                        !(x[i] <= hi[0]) | !(y[i] >= lo[1]) | !(y[i] <= hi[1]) |
+                                        !(z[i] >= lo[2]) | !(z[i] <= hi[2]));
+    }
+    if (!bad) return;
+  }
   for (std::uint32_t i = b; i < e && bt.fault == Fault::none; ++i) {
     const double q[3] = {x[i], y[i], z[i]};
     const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];

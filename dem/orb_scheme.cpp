@@ -40,6 +40,10 @@ int stencil_axis(int b, int n, bool periodic, int out[3]) {
 
 // Sort a short segment of partner indices by particle id (the canonical summation order: it
 // survives every re-sort of the store, so a row's sum does not depend on the store's order).
+// Sign bit set unless `ok`: OR-ing these over a loop is a flag reduction that GCC vectorizes (a
+// bool OR is not), the idiom of integrate_range in explicit_scheme.cpp.
+inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
+
 void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
   for (std::uint32_t* i = first + (first != last); i < last; ++i) {
     const std::uint32_t v = *i;
@@ -196,10 +200,10 @@ void OrbScheme::resort() {
     // Most leaves keep all their particles: a branch-free pass (it vectorizes) finds them.
     std::uint64_t out = 0;
     for (std::uint32_t i = b; i < e; ++i)
-      out |= static_cast<std::uint64_t>(!(box.lo[0] <= xs[i]) | !(xs[i] < box.hi[0]) |
-                                        !(box.lo[1] <= ys[i]) | !(ys[i] < box.hi[1]) |
-                                        !(box.lo[2] <= zs[i]) | !(zs[i] < box.hi[2]));
-    if (!out) continue;
+      out |= sign_unless(box.lo[0] <= xs[i]) | sign_unless(xs[i] < box.hi[0]) |
+             sign_unless(box.lo[1] <= ys[i]) | sign_unless(ys[i] < box.hi[1]) |
+             sign_unless(box.lo[2] <= zs[i]) | sign_unless(zs[i] < box.hi[2]);
+    if (!(out >> 63)) continue;
     for (std::uint32_t i = b; i < e; ++i) {
       // Most particles are still inside their (half-open) box: skip the wrap and the tree
       // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
@@ -291,9 +295,9 @@ bool OrbScheme::rows_expire() const {
     const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
     const double d2 = ex * ex + ey * ey + ez * ez;
     const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
-    over |= static_cast<std::uint64_t>(!(2.0 * (d2 + v2 * dt2) <= lim2));
+    over |= sign_unless(2.0 * (d2 + v2 * dt2) <= lim2);
   }
-  if (!over) return false;
+  if (!(over >> 63)) return false;
   for (std::size_t i = 0; i < n; ++i) {
     const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
     const double d2 = ex * ex + ey * ey + ez * ez;
@@ -722,11 +726,11 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     for (std::uint32_t i = b; i < e; ++i) {
       const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
       const double t = v2 + x[i] + y[i] + z[i];
-      bad |= static_cast<std::uint64_t>(!(t > -inf) | !(t < inf) | !(x[i] >= lo[0]) |
-                                        !(x[i] <= hi[0]) | !(y[i] >= lo[1]) | !(y[i] <= hi[1]) |
-                                        !(z[i] >= lo[2]) | !(z[i] <= hi[2]));
+      bad |= sign_unless(t > -inf) | sign_unless(t < inf) | sign_unless(x[i] >= lo[0]) |
+             sign_unless(x[i] <= hi[0]) | sign_unless(y[i] >= lo[1]) | sign_unless(y[i] <= hi[1]) |
+             sign_unless(z[i] >= lo[2]) | sign_unless(z[i] <= hi[2]);
     }
-    if (!bad) return;
+    if (!(bad >> 63)) return;
   }
   for (std::uint32_t i = b; i < e && bt.fault == Fault::none; ++i) {
     const double q[3] = {x[i], y[i], z[i]};

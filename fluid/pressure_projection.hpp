@@ -58,7 +58,10 @@ public:
 private:
   struct Hypre;
   void assemble(const std::vector<double>& stencil_values);
-  bool solve(PoissonPreconditioner pc, std::vector<double>& x, ProjectionReport& report);
+  // tolerance <= 0: the settings' tolerance.
+  bool solve(PoissonPreconditioner pc, std::vector<double>& x, ProjectionReport& report,
+             double tolerance = 0.0);
+  double closed_box_residual(const std::vector<double>& x) const;
 
   MacGrid grid_;
   ProjectionSettings settings_;

@@ -369,34 +369,27 @@ void OrbScheme::rebuild_pairs() {
   };
   if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
     // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
-    // so every pair is visited once and no cell twice. The neighbours of every cell are tabled
-    // once per grid (the grid changes only with the skin), and the binned particles' data are
-    // copied in cell order so that the inner loops read contiguous memory.
+    // so every pair is visited once and no cell twice. The binned particles' data are copied in
+    // cell order so that the inner loops read contiguous memory.
     static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
                                         {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
                                         {0, 0, 1},  {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
                                         {1, 1, 1}};
-    if (fwd_grid_ != nc) {
-      fwd_.assign(ncell * 13, kNoCell);
-      for (int cz = 0; cz < nc[2]; ++cz)
-        for (int cy = 0; cy < nc[1]; ++cy)
-          for (int cx = 0; cx < nc[0]; ++cx) {
-            const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
-            for (int o = 0; o < 13; ++o) {
-              int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
-              bool skip = false;
-              for (int a = 0; a < 3; ++a)
-                if (q[a] < 0 || q[a] >= nc[a]) {
-                  if (!g.periodic[a]) skip = true;
-                  q[a] = (q[a] + nc[a]) % nc[a];
-                }
-              if (!skip)
-                fwd_[c * 13 + static_cast<std::size_t>(o)] = static_cast<std::uint32_t>(
-                    (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0]);
-            }
-          }
-      fwd_grid_ = nc;
-    }
+    // Interior cells reach their forward neighbours by constant offsets; cells on the grid's
+    // faces wrap (periodic) or skip (wall) them.
+    std::ptrdiff_t fwd_off[13];
+    for (int o = 0; o < 13; ++o)
+      fwd_off[o] = (static_cast<std::ptrdiff_t>(kFwd[o][2]) * nc[1] + kFwd[o][1]) * nc[0] + kFwd[o][0];
+    // Cell c at (cx, cy, cz) on the grid's faces: its forward neighbour o, or kNoCell.
+    auto boundary_forward_cell = [&](int cx, int cy, int cz, int o) -> std::uint32_t {
+      int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
+      for (int a = 0; a < 3; ++a)
+        if (q[a] < 0 || q[a] >= nc[a]) {
+          if (!g.periodic[a]) return kNoCell;
+          q[a] = (q[a] + nc[a]) % nc[a];
+        }
+      return static_cast<std::uint32_t>((static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0]);
+    };
     std::vector<double>& sx = sorted_[0];
     std::vector<double>& sy = sorted_[1];
     std::vector<double>& sz = sorted_[2];
@@ -416,20 +409,26 @@ void OrbScheme::rebuild_pairs() {
       if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(scratch_[a]), cb_.push_back(scratch_[b]);
       if (prox_cells && r2 < pc * pc) pa_.push_back(scratch_[a]), pb_.push_back(scratch_[b]);
     };
-    for (std::size_t c = 0; c < ncell; ++c) {
-      const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
-      if (c0 == c1) continue;
-      for (std::uint32_t a = c0; a < c1; ++a)
-        for (std::uint32_t b = a + 1; b < c1; ++b) test_sorted(a, b);
-      const std::uint32_t* f = fwd_.data() + c * 13;
-      for (int o = 0; o < 13; ++o) {
-        const std::uint32_t d = f[o];
-        if (d == kNoCell) continue;
-        const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
-        for (std::uint32_t a = c0; a < c1; ++a)
-          for (std::uint32_t b = d0; b < d1; ++b) test_sorted(a, b);
-      }
-    }
+    for (int cz = 0; cz < nc[2]; ++cz)
+      for (int cy = 0; cy < nc[1]; ++cy)
+        for (int cx = 0; cx < nc[0]; ++cx) {
+          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
+          const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
+          if (c0 == c1) continue;
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = a + 1; b < c1; ++b) test_sorted(a, b);
+          const bool interior =
+              cx >= 1 && cx + 1 < nc[0] && cy >= 1 && cy + 1 < nc[1] && cz + 1 < nc[2];
+          for (int o = 0; o < 13; ++o) {
+            const std::uint32_t d =
+                interior ? static_cast<std::uint32_t>(static_cast<std::ptrdiff_t>(c) + fwd_off[o])
+                         : boundary_forward_cell(cx, cy, cz, o);
+            if (d == kNoCell) continue;
+            const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
+            for (std::uint32_t a = c0; a < c1; ++a)
+              for (std::uint32_t b = d0; b < d1; ++b) test_sorted(a, b);
+          }
+        }
   } else {
     // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
     for (std::size_t i = 0; i < n; ++i) {

@@ -190,11 +190,9 @@ private:
   // [off_[i], mid_[i]) (read live) and of other leaves in [mid_[i], off_[i+1]) (read frozen).
   std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_of_, scratch_, fill_;
   std::vector<std::uint32_t> own_before_; // own-leaf row entries of particles [0, i)
-  // rebuild_pairs: the 13 forward neighbour cells of every cell of the grid fwd_grid_ (kNoCell
-  // across a wall), and the binned particles' x, y, z, radius in cell order.
+  // rebuild_pairs: the binned particles' x, y, z, radius in cell order; kNoCell marks a forward
+  // neighbour beyond a wall.
   static constexpr std::uint32_t kNoCell = 0xffffffffu;
-  std::vector<std::uint32_t> fwd_;
-  std::array<int, 3> fwd_grid_{};
   std::array<std::vector<double>, 4> sorted_;
   // State at the start of the sub-iteration: the ghosts' frozen copies and the rollback point.
   std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_, dscratch_;

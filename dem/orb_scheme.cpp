@@ -814,8 +814,12 @@ void OrbScheme::subiterate(bool record) {
     }
   }
   leaf_fine_.assign(nl, 0);
-  for (std::size_t l = 0; l < nl; ++l)
-    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) leaf_fine_[l] |= near_[i];
+  const unsigned char* near = near_.data();
+  for (std::size_t l = 0; l < nl; ++l) {
+    unsigned char any = 0; // a local: stores through a char pointer would alias everything
+    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) any |= near[i];
+    leaf_fine_[l] = any;
+  }
   // K = ceil(dt_sp / dt) fine steps (a relative slack of 1e-9 absorbs rounding when dt divides
   // dt_sp), the last one shortened to dt_sp - (K-1) dt so the leaf lands on the sub-iteration's
   // end; or one step of dt_sp.

@@ -92,10 +92,11 @@ void validate_fluid(const Scene& s) {
                       fmt::format("{} is above the stable limit {} of the explicit gas predictor "
                                   "(limited MUSCL advection with SSP Euler stages)",
                                   s.fluid.cfl, fluid::kMaxStableCourant));
-  if (s.dem.scheme == "orb" && !(s.fluid.dt > 0.0))
+  if ((s.dem.scheme == "orb" || s.dem.scheme == "islands") && !(s.fluid.dt > 0.0))
     throw ConfigError("scene key 'fluid.dt'",
-                      "dem.scheme = \"orb\" with a fluid needs a fixed fluid.dt (its "
-                      "sub-iterations are fluid.dt / dem.nsubit)");
+                      fmt::format("dem.scheme = \"{}\" with a fluid needs a fixed fluid.dt (its "
+                                  "sub-iterations are fluid.dt / dem.nsubit)",
+                                  s.dem.scheme));
 }
 
 GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p)

@@ -66,6 +66,7 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   particles.seed             RNG seed (default 1)
   particles.allow_overlap    accept overlapping initial particles (default false)
   dem.scheme                 "explicit" (one global step) | "orb" (adaptive steps per ORB leaf)
+                             | "islands" (adaptive steps per contact island, no missed collision)
   dem.spring_constant        k_n in N/m
   dem.restitution            e in [0, 1]
   dem.friction               Coulomb coefficient (0 = frictionless, no rotation)

@@ -24,6 +24,7 @@
 #include "core/phase_timer.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 
@@ -130,7 +131,8 @@ std::string format_eta(double s) {
   return fmt::format("{:.1f}h", s / 3600);
 }
 
-RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
+template <class Scheme>
+RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 
 // Steps between two events at a simulated-time interval (0: never).
@@ -212,7 +214,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
                         "checkpoints of scenes with a [fluid] table are not supported yet");
     return run_coupled(scene, opt, env);
   }
-  if (scene.dem.scheme == "orb") return run_orb(scene, opt, env);
+  if (scene.dem.scheme == "orb") return run_subiterated<dem::OrbScheme>(scene, opt, env);
+  if (scene.dem.scheme == "islands") return run_subiterated<dem::IslandsScheme>(scene, opt, env);
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   std::optional<Checkpoint> ck;
@@ -380,18 +383,29 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
 
 namespace {
 
-// The orb scheme's loop: rows at multiples of output.interval rounded to whole sub-iterations.
-// As in the explicit loop, the state at sub-iteration K is recorded by sub-iteration K+1 (its
-// first local step evaluates the forces at K), so the loop runs one sub-iteration past the end.
-RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+// The loop of the sub-iterated schemes (orb, islands): rows at multiples of output.interval
+// rounded to whole sub-iterations. As in the explicit loop, the state at sub-iteration K is
+// recorded by sub-iteration K+1 (its first local step evaluates the forces at K), so the loop
+// runs one sub-iteration past the end.
+template <class Scheme>
+RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   namespace fs = std::filesystem;
+  constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
+  const char* scheme_name = kOrb ? "orb" : "islands";
+  if constexpr (!kOrb) {
+    if (!opt.restart.empty())
+      throw ConfigError("--restart", "restarting the \"islands\" scheme is not supported yet");
+    if (scene.output.checkpoint_interval > 0)
+      throw ConfigError("scene key 'output.checkpoint_interval'",
+                        "checkpoints of the \"islands\" scheme are not supported yet");
+  }
   const auto t_setup = clock::now();
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
   ParticleStore particles = ck ? std::move(ck->particles) : make_initial_particles(scene);
   const DerivedNumbers derived = derive(scene, particles);
   PhaseTimer timer;
-  dem::OrbScheme scheme(scene, particles, timer);
+  Scheme scheme(scene, particles, timer);
   const double dt_sp = scheme.dt_sub();
   if (ck && ck->dt != dt_sp)
     throw ConfigError(opt.restart, fmt::format("checkpoint dt_sp {:.17g} s differs from the "
@@ -434,14 +448,15 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
     snapshots.add(write_particle_snapshot(opt.out_dir, f));
   };
   if (!opt.quiet)
-    fmt::print(stderr, "cfddem: scene '{}', {} particles, orb scheme: {} leaves, dt_sp = {:.4e} s "
+    fmt::print(stderr, "cfddem: scene '{}', {} particles, {} scheme{}, dt_sp = {:.4e} s "
                        "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
-               scene.name, particles.size(), 1 << scene.partition.orb_levels, dt_sp,
+               scene.name, particles.size(), scheme_name,
+               kOrb ? fmt::format(": {} leaves", 1 << scene.partition.orb_levels) : "", dt_sp,
                scheme.dt_fine(), n_end, env.ranks(), env.threads());
   const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
-    scheme.restore_state(std::move(ck->orb));
+    if constexpr (kOrb) scheme.restore_state(std::move(ck->orb));
     for (auto& r : ck->rows) add_row(std::move(r));
     snapshots.restore(ck->snapshots);
     if (!rows.empty()) means.resume(rows.back());
@@ -474,7 +489,7 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
       c.snapshots = snapshots.entries();
       c.configuration = restart_configuration(scene);
       c.particles = particles;
-      c.orb = scheme.save_state();
+      if constexpr (kOrb) c.orb = scheme.save_state();
       write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
                        c);
     }
@@ -496,8 +511,9 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
       last_progress = clock::now();
       const double wall = seconds_since(t_loop);
       const double frac = static_cast<double>(k) / static_cast<double>(n_end);
-      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine leaves {:.2f}  ETA {}\n",
-                 k, scheme.time(), 100 * frac, scheme.last_fine_fraction(),
+      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}\n",
+                 k, scheme.time(), 100 * frac, kOrb ? "leaves" : "particles",
+                 scheme.last_fine_fraction(),
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
@@ -506,26 +522,42 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
 
   nlohmann::ordered_json j =
       run_json_header(scene, scene.name, derived, env, particles.size());
-  j["scheme"] = "orb";
+  j["scheme"] = scheme_name;
   j["dt"] = scheme.dt_fine();
   j["dt_sp"] = dt_sp;
-  j["leaves"] = scheme.leaf_count();
+  if constexpr (kOrb) j["leaves"] = scheme.leaf_count();
   j["steps"] = scheme.subiterations();
   j["steps_definition"] = "sub-iterations of dt_sp (one past the end, as the explicit loop)";
-  j["regrids"] = scheme.regrids();
+  if constexpr (kOrb) j["regrids"] = scheme.regrids();
   j["end_time"] = static_cast<double>(n_end) * dt_sp;
   j["loop_seconds"] = loop_seconds;
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
   nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
-  ph["note"] = "neighbor: ORB regrid and re-sort; force: the leaves' tasks (ghosts, local lists, "
-               "force and update)";
+  ph["note"] = kOrb ? "neighbor: ORB regrid and re-sort; force: the leaves' tasks (ghosts, local "
+                     "lists, force and update)"
+                   : "neighbor: speed bounds, links, islands and Verlet list builds; force: free "
+                     "flight and the islands' tasks (force and update)";
   j["phase_seconds"] = ph;
   j["particle_steps"] = scheme.particle_steps();
   j["force_evaluations"] = scheme.pair_evaluations();
-  j["force_evaluations_definition"] =
-      "candidate pairs evaluated per local step: pairs within a leaf once, pairs across a leaf "
-      "boundary once per side (each leaf evaluates its side against the other's frozen copy)";
-  j["subiteration_retries"] = scheme.retries();
+  if constexpr (kOrb) {
+    j["force_evaluations_definition"] =
+        "candidate pairs evaluated per local step: pairs within a leaf once, pairs across a leaf "
+        "boundary once per side (each leaf evaluates its side against the other's frozen copy)";
+    j["subiteration_retries"] = scheme.retries();
+  } else {
+    j["force_evaluations_definition"] =
+        "neighbor-list pairs inside a fine island evaluated per local step (each pair once)";
+    j["bound_violations"] = scheme.bound_violations();
+    nlohmann::ordered_json hist;
+    const auto h = scheme.island_size_histogram();
+    for (std::size_t b = 0; b < h.size(); ++b)
+      if (h[b] > 0)
+        hist[b == 0 ? std::string("1") : b == 1 ? std::string("2")
+                                         : fmt::format("{}-{}", (1LL << (b - 1)) + 1, 1LL << b)] = h[b];
+    j["island_sizes"] = hist;
+    j["island_sizes_definition"] = "islands of each size, one count per island per sub-iteration";
+  }
   j["final_skin"] = scheme.skin();
   j["neighbor_builds"] = scheme.neighbor_builds();
   j["max_overlap_ratio"] = scheme.max_overlap_ratio();
@@ -538,11 +570,12 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
     fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
                        "with {} particles\n",
                loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), particles.size());
-    fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; regrid+resort "
-                       "{:.3g} s, leaves {:.3g} s, io {:.3g} s; max overlap {:.3g} r ({} "
+    fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; {} "
+                       "{:.3g} s, {} {:.3g} s, io {:.3g} s; max overlap {:.3g} r ({} "
                        "beyond dem.max_overlap)\n",
                j["particle_steps_per_second"].get<double>(), scheme.pair_evaluations(),
-               timer.seconds(Phase::neighbor), timer.seconds(Phase::force),
+               kOrb ? "regrid+resort" : "islands", timer.seconds(Phase::neighbor),
+               kOrb ? "leaves" : "steps", timer.seconds(Phase::force),
                timer.seconds(Phase::io), scheme.max_overlap_ratio(), scheme.overlap_violations());
   }
   return {opt.out_dir, loop_seconds, scheme.subiterations(), scheme.particle_steps()};
@@ -557,7 +590,9 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
 // the synchronised state at t needs the forces at t), with the gas diagnostics taken at t.
 template <class Scheme>
 RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
-  constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
+  // kOrb: a sub-iterated scheme (orb or islands), dem.nsubit sub-iterations per fluid step.
+  constexpr bool kOrb = !std::is_same_v<Scheme, dem::ExplicitScheme>;
+  constexpr bool kLeaves = std::is_same_v<Scheme, dem::OrbScheme>;
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   ParticleStore particles = make_initial_particles(scene_in);
@@ -598,7 +633,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
                scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag,
                scene.fluid.deposition, fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                                              : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-               dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "orb sub-iterations" : "steps") : std::string(),
+               dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "sub-iterations" : "steps") : std::string(),
                env.ranks(), env.threads());
   }
   scheme.start();
@@ -687,11 +722,11 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
 
   nlohmann::ordered_json j =
       run_json_header(scene_in, scene.name, derived, env, particles.size());
-  j["scheme"] = kOrb ? "orb" : "explicit";
+  j["scheme"] = kLeaves ? "orb" : kOrb ? "islands" : "explicit";
   if constexpr (kOrb) {
     j["dt"] = scheme.dt_fine();
     j["dt_sp"] = dt;
-    j["leaves"] = scheme.leaf_count();
+    if constexpr (kLeaves) j["leaves"] = scheme.leaf_count();
     j["steps"] = scheme.subiterations();
     j["max_overlap_ratio"] = scheme.max_overlap_ratio();
     j["overlap_violations"] = scheme.overlap_violations();
@@ -734,6 +769,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
 
 RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (scene.dem.scheme == "orb") return run_coupled_with<dem::OrbScheme>(scene, opt, env);
+  if (scene.dem.scheme == "islands") return run_coupled_with<dem::IslandsScheme>(scene, opt, env);
   return run_coupled_with<dem::ExplicitScheme>(scene, opt, env);
 }
 

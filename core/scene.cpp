@@ -93,8 +93,9 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   // DEM contact model.
   auto& d = s.dem;
   d.scheme = c.get_string("dem.scheme", "explicit");
-  require(d.scheme == "explicit" || d.scheme == "orb", "dem.scheme",
-          fmt::format("unknown scheme \"{}\" (available: \"explicit\", \"orb\")", d.scheme));
+  require(d.scheme == "explicit" || d.scheme == "orb" || d.scheme == "islands", "dem.scheme",
+          fmt::format("unknown scheme \"{}\" (available: \"explicit\", \"orb\", \"islands\")",
+                      d.scheme));
   d.spring_constant = positive(c, "dem.spring_constant");
   d.restitution = unit_interval(c, "dem.restitution", 0.0);
   require(c.has("dem.restitution"), "dem.restitution", "is required but missing");

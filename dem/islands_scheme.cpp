@@ -1,0 +1,486 @@
+#include "dem/islands_scheme.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <limits>
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "core/error.hpp"
+#include "dem/contact_kernels.hpp"
+
+namespace cfddem::dem {
+
+namespace {
+
+// Islands larger than this run each pass as a nested parallel_for over their members.
+constexpr std::uint32_t kGiantIsland = 4096;
+
+// |F_ext / m + g| of particle i.
+template <bool External>
+double external_acceleration(const ParticleStore& p, const ExternalForce& e,
+                             const std::array<double, 3>& g, std::size_t i) {
+  double ax = g[0], ay = g[1], az = g[2];
+  if constexpr (External) {
+    ax += e.x[i] * p.inv_mass[i], ay += e.y[i] * p.inv_mass[i], az += e.z[i] * p.inv_mass[i];
+  }
+  return std::sqrt(ax * ax + ay * ay + az * az);
+}
+
+} // namespace
+
+IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
+    : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain),
+      model_(make_step_model(scene, particles)) {
+  if (model_.friction)
+    throw ConfigError("scene key 'dem.scheme'",
+                      "\"islands\" supports frictionless contacts only (dem.friction and "
+                      "dem.wall_friction must be 0); use \"explicit\"");
+  nsubit_ = scene.dem.nsubit;
+  dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
+  skin_ = model_.skin;
+  double r_max = 0.0;
+  for (double r : p_.radius) r_max = std::max(r_max, r);
+  // A link margin far above rounding and far below any gap that matters.
+  margin_ = 1e-3 * model_.r_min;
+  skin_cap_ = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a]) skin_cap_ = std::min(skin_cap_, 0.499 * geom_.length[a] - 2.0 * r_max);
+  hprev_.assign(p_.size(), 0.0);
+  size_hist_.assign(34, 0);
+}
+
+void IslandsScheme::start() {
+  hprev_.assign(p_.size(), 0.0);
+  subits_ = 0;
+  rebuild();
+}
+
+void IslandsScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
+                                       std::span<const double> fz) {
+  ext_.set(fx, fy, fz, p_.size());
+}
+
+// The Verlet list sorts the store by cell: the per-particle state follows.
+void IslandsScheme::rebuild() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  list_.build(p_, geom_, skin_);
+  const auto order = list_.order();
+  if (!order.empty()) {
+    std::vector<double> h(order.size());
+    for (std::size_t k = 0; k < order.size(); ++k) h[k] = hprev_[order[k]];
+    hprev_.swap(h);
+    ext_.permute(order);
+  }
+  built_ = true;
+  ++builds_;
+}
+
+void IslandsScheme::speed_bounds() {
+  const std::size_t n = p_.size();
+  bound_.resize(n);
+  const bool ext = ext_.active();
+  for (std::size_t i = 0; i < n; ++i) {
+    const double a = ext ? external_acceleration<true>(p_, ext_, model_.gravity, i)
+                         : external_acceleration<false>(p_, ext_, model_.gravity, i);
+    const double v = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]);
+    bound_[i] = v + a * (hprev_[i] + dt_sp_);
+  }
+}
+
+// True when some particle's displacement since the build plus its bound over the sub-iteration
+// exceeds skin/2: a pair that could touch might then be missing from the list.
+bool IslandsScheme::list_expires() const {
+  const auto xr = list_.x_ref(), yr = list_.y_ref(), zr = list_.z_ref();
+  const double lim = 0.5 * skin_;
+  for (std::size_t i = 0; i < p_.size(); ++i) {
+    const double ex = p_.x[i] - xr[i], ey = p_.y[i] - yr[i], ez = p_.z[i] - zr[i];
+    if (!(std::sqrt(ex * ex + ey * ey + ez * ez) + bound_[i] * dt_sp_ <= lim)) return true;
+  }
+  return false;
+}
+
+// Links and islands with the current bounds.
+void IslandsScheme::make_links() {
+  const std::size_t n = p_.size();
+  const auto off = list_.offsets();
+  const auto nb = list_.neighbors();
+  const DomainGeometry& g = geom_;
+  ea_.clear(), eb_.clear();
+  for (std::uint32_t i = 0; i < n; ++i)
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if (j <= i) continue;
+      const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
+                   dz = g.image(p_.z[j] - p_.z[i], 2);
+      const double gap = std::sqrt(dx * dx + dy * dy + dz * dz) - (p_.radius[i] + p_.radius[j]);
+      if (gap < (bound_[i] + bound_[j]) * dt_sp_ + margin_) ea_.push_back(i), eb_.push_back(j);
+    }
+  wall_.assign(n, 0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a]) continue;
+      const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
+      const double gap = std::min(pos - g.lo[a], g.hi[a] - pos) - p_.radius[i];
+      if (gap < bound_[i] * dt_sp_ + margin_) wall_[i] = 1;
+    }
+  partition::connected_components(n, ea_, eb_, islands_, uf_scratch_);
+}
+
+// Islands whose bounds account for the energy contacts can move inside them: link with the
+// particles' own bounds, raise every member of an island with a link or a wall to the island's
+// s_max (from the members' own bounds and the springs' energy), link again, until the islands
+// stop changing. Islands only merge from round to round (bounds only grow), so this ends.
+void IslandsScheme::link() {
+  const std::size_t n = p_.size();
+  const DomainGeometry& g = geom_;
+  own_bound_ = bound_;
+  const bool ext = ext_.active();
+  for (int round = 0;; ++round) {
+    make_links();
+    if (round > 0 && islands_.label == label_before_ && wall_ == wall_before_) break;
+    const std::uint32_t nc = islands_.count();
+    energy_.assign(nc, 0.0);
+    m_min_.assign(nc, std::numeric_limits<double>::infinity());
+    a_max_.assign(nc, 0.0);
+    hp_max_.assign(nc, 0.0);
+    busy_.assign(nc, 0);
+    for (std::size_t q = 0; q < ea_.size(); ++q) {
+      const std::uint32_t i = ea_[q], j = eb_[q];
+      busy_[islands_.label[i]] = 1;
+      const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
+                   dz = g.image(p_.z[j] - p_.z[i], 2);
+      const double delta = p_.radius[i] + p_.radius[j] - std::sqrt(dx * dx + dy * dy + dz * dz);
+      if (delta > 0.0) energy_[islands_.label[i]] += 0.5 * model_.pair.k * delta * delta;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = islands_.label[i];
+      busy_[c] |= wall_[i];
+      for (int a = 0; a < 3; ++a) {
+        if (g.periodic[a]) continue;
+        const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
+        const double delta = p_.radius[i] - std::min(pos - g.lo[a], g.hi[a] - pos);
+        if (delta > 0.0) energy_[c] += 0.5 * model_.wall.k * delta * delta;
+      }
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = islands_.label[i];
+      if (!busy_[c]) continue;
+      energy_[c] += 0.5 * p_.mass[i] * own_bound_[i] * own_bound_[i];
+      m_min_[c] = std::min(m_min_[c], p_.mass[i]);
+      a_max_[c] = std::max(a_max_[c], ext ? external_acceleration<true>(p_, ext_, model_.gravity, i)
+                                          : external_acceleration<false>(p_, ext_, model_.gravity, i));
+      hp_max_[c] = std::max(hp_max_[c], hprev_[i]);
+    }
+    bool raised = false;
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = islands_.label[i];
+      const double b = busy_[c] ? std::max(own_bound_[i], std::sqrt(2.0 * energy_[c] / m_min_[c]) +
+                                                              a_max_[c] * (hp_max_[c] + dt_sp_))
+                                : own_bound_[i];
+      raised |= b != bound_[i];
+      bound_[i] = b;
+    }
+    if (!raised) break;
+    label_before_ = islands_.label;
+    wall_before_ = wall_;
+  }
+}
+
+void IslandsScheme::subiterate(bool record) {
+  if (!built_) rebuild();
+  {
+    PhaseTimer::Scope t(timer_, Phase::neighbor);
+    bool fresh = false;
+    for (;;) {
+      speed_bounds();
+      link();
+      if (!list_expires()) break;
+      if (fresh) {
+        // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
+        double need = 0.0;
+        for (double b : bound_) need = std::max(need, 2.2 * b * dt_sp_);
+        if (!(need < skin_cap_))
+          throw RunError(fmt::format(
+              "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
+              "periodic box allows for a neighbor skin ({:.4g} m): raise dem.nsubit",
+              time(), 0.5 * need, skin_cap_));
+        skin_ = std::max(need, 2.0 * skin_ < skin_cap_ ? 2.0 * skin_ : need);
+      }
+      rebuild();
+      fresh = true;
+    }
+  }
+  PhaseTimer::Scope t(timer_, Phase::force);
+  const std::size_t n = p_.size();
+  const bool can_refine = model_.dt < dt_sp_;
+  K_ = can_refine ? std::max<std::int64_t>(
+                        1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
+                  : 1;
+  h_ = can_refine ? model_.dt : dt_sp_;
+  h_last_ = dt_sp_ - static_cast<double>(K_ - 1) * h_;
+  // Islands with a link or a wall take the fine steps.
+  const std::uint32_t nc = islands_.count();
+  fine_.clear();
+  is_fine_.assign(n, 0);
+  for (std::uint32_t c = 0; c < nc; ++c) {
+    bool fine = islands_.size(c) > 1;
+    for (std::uint32_t k = islands_.first[c]; k < islands_.first[c + 1] && !fine; ++k)
+      fine = wall_[islands_.members[k]] != 0;
+    const std::uint32_t sz = islands_.size(c);
+    ++size_hist_[static_cast<std::size_t>(std::bit_width(sz - 1))];
+    if (!fine) continue;
+    fine_.push_back(c);
+    for (std::uint32_t k = islands_.first[c]; k < islands_.first[c + 1]; ++k)
+      is_fine_[islands_.members[k]] = 1;
+  }
+  if (record) {
+    sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
+    sdt_.resize(n), sisland_.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1), sz_[i] = geom_.wrap(p_.z[i], 2);
+      sisland_[i] = is_fine_[i] ? static_cast<std::int64_t>(islands_.label[i]) : -1;
+      sdt_[i] = is_fine_[i] ? dt_sp_ / static_cast<double>(K_) : dt_sp_;
+    }
+    smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
+  }
+  x0_ = p_.x, y0_ = p_.y, z0_ = p_.z;
+  // Free flight first, then the islands' tasks (they touch disjoint particles).
+  ext_.active() ? free_flight<true>(record) : free_flight<false>(record);
+  results_.assign(fine_.size(), IslandResult{});
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine_.size(), 1),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q)
+                        ext_.active() ? run_island<true>(static_cast<std::uint32_t>(q), record)
+                                      : run_island<false>(static_cast<std::uint32_t>(q), record);
+                    });
+  // Counters, in island order.
+  std::int64_t members = 0;
+  for (std::size_t q = 0; q < fine_.size(); ++q) {
+    const IslandResult& r = results_[q];
+    members += islands_.size(fine_[q]);
+    pair_evaluations_ += r.pairs;
+    overlap_violations_ += r.violations;
+    bound_violations_ += r.bound_violations;
+    max_overlap_ratio_ = std::max(max_overlap_ratio_, r.max_ratio);
+  }
+  ++subits_;
+  raise_faults(time());
+  const std::int64_t free_count = static_cast<std::int64_t>(n) - members;
+  particle_steps_ += free_count + members * K_;
+  last_fine_islands_ = static_cast<int>(fine_.size());
+  last_fine_fraction_ = n > 0 ? static_cast<double>(members) / static_cast<double>(n) : 0.0;
+  iv_fine_ += members;
+  iv_particles_ += static_cast<std::int64_t>(n);
+  iv_steps_ += free_count + members * K_;
+  iv_min_ = std::min(iv_min_, free_count > 0 ? std::int64_t{1} : K_);
+  iv_max_ = std::max(iv_max_, members > 0 ? K_ : std::int64_t{1});
+}
+
+// One step of dt_sp for every particle not in a fine island: no contact can act on it.
+template <bool External> void IslandsScheme::free_flight(bool record) {
+  const std::size_t n = p_.size();
+  const std::array<double, 3> g = model_.gravity;
+  const double half = 0.5 * dt_sp_;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+    double* __restrict x = p_.x.data();
+    double* __restrict y = p_.y.data();
+    double* __restrict z = p_.z.data();
+    double* __restrict vx = p_.vx.data();
+    double* __restrict vy = p_.vy.data();
+    double* __restrict vz = p_.vz.data();
+    double* __restrict hp = hprev_.data();
+    const double* __restrict im = p_.inv_mass.data();
+    const unsigned char* __restrict fine = is_fine_.data();
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      if (fine[i]) continue;
+      double ax = g[0], ay = g[1], az = g[2];
+      if constexpr (External) {
+        ax += ext_.x[i] * im[i], ay += ext_.y[i] * im[i], az += ext_.z[i] * im[i];
+      }
+      if (record) {
+        svx_[i] = vx[i] + ax * hp[i], svy_[i] = vy[i] + ay * hp[i], svz_[i] = vz[i] + az * hp[i];
+      }
+      const double s = hp[i] + half;
+      // The explicit scheme's kick-drift with no contact force (contact_kernels.hpp).
+      kick_drift(x[i], vx[i], 0.0, 0.0, ax * s, dt_sp_);
+      kick_drift(y[i], vy[i], 0.0, 0.0, ay * s, dt_sp_);
+      kick_drift(z[i], vz[i], 0.0, 0.0, az * s, dt_sp_);
+      hp[i] = half;
+    }
+  });
+}
+
+// The K fine steps of fine island fine_[q]: contact forces from members only (no other particle
+// can reach them within dt_sp), walls, and the variable-step leapfrog.
+template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool record) {
+  const std::uint32_t c = fine_[q];
+  IslandResult res;
+  const std::uint32_t* mem = islands_.members.data() + islands_.first[c];
+  const std::uint32_t count = islands_.size(c);
+  const std::uint32_t* label = islands_.label.data();
+  const auto off = list_.offsets();
+  const auto nb = list_.neighbors();
+  const DomainGeometry g = geom_;
+  const StepModel& m = model_;
+  const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
+  double* x = p_.x.data();
+  double* y = p_.y.data();
+  double* z = p_.z.data();
+  double* vx = p_.vx.data();
+  double* vy = p_.vy.data();
+  double* vz = p_.vz.data();
+  double* fx = p_.fx.data();
+  double* fy = p_.fy.data();
+  double* fz = p_.fz.data();
+  double* hp = hprev_.data();
+  const double* rad = p_.radius.data();
+  const double* mass = p_.mass.data();
+  const double* im = p_.inv_mass.data();
+  // Per member: contact and wall force. Returns the pairs it evaluated with a later member.
+  auto force = [&](std::uint32_t i, double& max_ratio, std::int64_t& violations) {
+    const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
+    const double ri = rad[i], mi = mass[i];
+    double ax = 0.0, ay = 0.0, az = 0.0;
+    std::int64_t pairs = 0;
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if (label[j] != c) continue;
+      pairs += j > i;
+      const double dx = g.image(x[j] - xi, 0), dy = g.image(y[j] - yi, 1), dz = g.image(z[j] - zi, 2);
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      const double rs = ri + rad[j];
+      if (r2 >= rs * rs) continue;
+      const double dist = std::sqrt(r2);
+      const double inv = 1.0 / dist;
+      const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+      const double delta = rs - dist;
+      const double vn = (vxi - vx[j]) * nx + (vyi - vy[j]) * ny + (vzi - vz[j]) * nz;
+      const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
+      ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+      const double ratio = delta / std::min(ri, rad[j]);
+      max_ratio = std::max(max_ratio, ratio);
+      violations += ratio > m.max_overlap;
+    }
+    if (walls) {
+      double f[3] = {ax, ay, az};
+      const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
+      for (int a = 0; a < 3; ++a) {
+        if (g.periodic[a]) continue;
+        for (int side = 0; side < 2; ++side) {
+          const double sg = side ? 1.0 : -1.0;
+          const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+          if (delta <= 0.0) continue;
+          f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
+          max_ratio = std::max(max_ratio, delta / ri);
+          violations += delta > m.max_overlap * ri;
+        }
+      }
+      ax = f[0], ay = f[1], az = f[2];
+    }
+    fx[i] = ax, fy[i] = ay, fz[i] = az;
+    return pairs;
+  };
+  auto kick = [&](std::uint32_t i, double s, double hk, double half, double elapsed,
+                  std::int64_t& bound_violations) {
+    double ex = 0.0, ey = 0.0, ez = 0.0;
+    if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+    const double ims = im[i] * s;
+    kick_drift(x[i], vx[i], fx[i] + ex, ims, m.gravity[0] * s, hk);
+    kick_drift(y[i], vy[i], fy[i] + ey, ims, m.gravity[1] * s, hk);
+    kick_drift(z[i], vz[i], fz[i] + ez, ims, m.gravity[2] * s, hk);
+    hp[i] = half;
+    const double dx = x[i] - x0_[i], dy = y[i] - y0_[i], dz = z[i] - z0_[i];
+    const double reach = bound_[i] * elapsed + margin_;
+    bound_violations += dx * dx + dy * dy + dz * dz > reach * reach;
+  };
+  const bool giant = count > kGiantIsland;
+  double h_before = 0.0, elapsed = 0.0;
+  for (std::int64_t k = 0; k < K_; ++k) {
+    const double hk = k + 1 == K_ ? h_last_ : h_;
+    if (!giant) {
+      for (std::uint32_t u = 0; u < count; ++u) res.pairs += force(mem[u], res.max_ratio, res.violations);
+    } else {
+      // A dense bed's one island: its passes as nested parallel loops (each member's force and
+      // update depend only on the state before the pass: thread-count independent).
+      struct Part { std::int64_t pairs = 0, violations = 0; double max_ratio = 0.0; };
+      std::vector<Part> parts((count + 1023) / 1024);
+      tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
+        Part& pt = parts[b];
+        const std::uint32_t e = std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
+        for (std::uint32_t u = static_cast<std::uint32_t>(b * 1024); u < e; ++u)
+          pt.pairs += force(mem[u], pt.max_ratio, pt.violations);
+      });
+      for (const Part& pt : parts)
+        res.pairs += pt.pairs, res.violations += pt.violations, res.max_ratio = std::max(res.max_ratio, pt.max_ratio);
+    }
+    if (record && k == 0)
+      for (std::uint32_t u = 0; u < count; ++u) {
+        const std::uint32_t i = mem[u];
+        double ex = 0.0, ey = 0.0, ez = 0.0;
+        if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+        svx_[i] = vx[i] + ((fx[i] + ex) * im[i] + m.gravity[0]) * hp[i];
+        svy_[i] = vy[i] + ((fy[i] + ey) * im[i] + m.gravity[1]) * hp[i];
+        svz_[i] = vz[i] + ((fz[i] + ez) * im[i] + m.gravity[2]) * hp[i];
+      }
+    const double half = 0.5 * hk;
+    elapsed += hk;
+    if (!giant) {
+      for (std::uint32_t u = 0; u < count; ++u) {
+        const std::uint32_t i = mem[u];
+        kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, res.bound_violations);
+      }
+    } else {
+      std::vector<std::int64_t> bv((count + 1023) / 1024, 0);
+      tbb::parallel_for(std::size_t{0}, bv.size(), [&](std::size_t b) {
+        const std::uint32_t e = std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
+        for (std::uint32_t u = static_cast<std::uint32_t>(b * 1024); u < e; ++u) {
+          const std::uint32_t i = mem[u];
+          kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, bv[b]);
+        }
+      });
+      for (std::int64_t v : bv) res.bound_violations += v;
+    }
+    h_before = hk;
+  }
+  results_[q] = res;
+}
+
+// NaN anywhere, or a particle outside a wall: stop with the particle named.
+void IslandsScheme::raise_faults(double t) const {
+  const DomainGeometry& g = geom_;
+  for (std::size_t i = 0; i < p_.size(); ++i) {
+    const double q[3] = {p_.x[i], p_.y[i], p_.z[i]};
+    const double v2 = p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i];
+    if (!std::isfinite(v2 + q[0] + q[1] + q[2]))
+      throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: "
+                                 "position or velocity is not finite (NaN/inf): the step is "
+                                 "unstable",
+                                 t, p_.id[i], q[0], q[1], q[2]));
+    for (int a = 0; a < 3; ++a)
+      if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]))
+        throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
+                                   "the domain through a wall",
+                                   t, p_.id[i], q[0], q[1], q[2]));
+  }
+}
+
+LeafStepStats IslandsScheme::take_interval_stats() {
+  LeafStepStats s;
+  if (iv_particles_ > 0) {
+    s.steps_min = static_cast<double>(iv_min_);
+    s.steps_max = static_cast<double>(iv_max_);
+    s.steps_mean = static_cast<double>(iv_steps_) / static_cast<double>(iv_particles_);
+    s.fine_fraction = static_cast<double>(iv_fine_) / static_cast<double>(iv_particles_);
+  }
+  iv_fine_ = iv_particles_ = iv_steps_ = 0;
+  iv_min_ = std::numeric_limits<std::int64_t>::max();
+  iv_max_ = 0;
+  return s;
+}
+
+} // namespace cfddem::dem

@@ -1,0 +1,214 @@
+// The islands scheme (dem/islands_scheme.hpp): it misses no collision (fast binary encounters
+// give the explicit scheme's outgoing velocities), it equals the explicit scheme to round-off
+// when dt divides dt_sp (gas, and walls with gravity), and it does not depend on the thread
+// count.
+#include <cmath>
+#include <unordered_map>
+
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include "dem/islands_scheme.hpp"
+#include "dem_test_support.hpp"
+
+using namespace cfddem;
+
+namespace {
+
+using State = std::unordered_map<std::int64_t, std::array<double, 6>>;
+
+State state_of(const ParticleStore& p) {
+  State s;
+  for (std::size_t i = 0; i < p.size(); ++i)
+    s[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  return s;
+}
+
+// Both schemes from the same particles for `time` seconds; returns the synchronised states at
+// `time` (positions and v(t), as the diagnostics see them).
+template <class Setup> std::pair<State, State> run_both(const Scene& s, double time, Setup setup,
+                                                         std::int64_t* bound_violations = nullptr) {
+  ParticleStore pe = make_initial_particles(s);
+  setup(pe);
+  ParticleStore pi = pe;
+  PhaseTimer t;
+  dem::ExplicitScheme e(s, pe, t);
+  e.start();
+  const auto steps = std::llround(time / e.dt());
+  for (long long k = 0; k < steps; ++k) e.step();
+  e.step(true);
+  State ref;
+  {
+    const auto r = e.synchronised_previous();
+    for (std::size_t i = 0; i < pe.size(); ++i)
+      ref[pe.id[i]] = {r.x[i], r.y[i], r.z[i], r.vx[i], r.vy[i], r.vz[i]};
+  }
+  dem::IslandsScheme isl(s, pi, t);
+  isl.start();
+  const auto subits = std::llround(time / isl.dt_sub());
+  for (long long k = 0; k < subits; ++k) isl.subiterate();
+  isl.subiterate(true);
+  if (bound_violations) *bound_violations = isl.bound_violations();
+  State out;
+  const auto r = isl.synchronised_previous();
+  for (std::size_t i = 0; i < r.id.size(); ++i)
+    out[r.id[i]] = {r.x[i], r.y[i], r.z[i], r.vx[i], r.vy[i], r.vz[i]};
+  return {ref, out};
+}
+
+double wrap_diff(double a, double b, double length) {
+  double d = std::fabs(a - b);
+  d = std::fmod(d, length);
+  return std::min(d, length - d);
+}
+
+// 12 head-on pairs on separate lines along x, closing at 1 m/s from gaps of 0.05 to 1.2 mm: the
+// coarse sub-iteration (1e-4 s, a whole radius of travel per particle per step) would let them
+// pass through each other; the islands scheme must give every collision the explicit outcome.
+const char* kEncounters = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [4.0e-3, 4.0e-3, 4.0e-3]
+periodic = [true, true, true]
+[particles]
+count = 0
+diameter = 100.0e-6
+density = 1000.0
+[dem]
+scheme = "islands"
+spring_constant = 10.0
+restitution = 0.8
+dt = 1.0e-7
+nsubit = 1
+regrid_interval = 1.0e-4
+[run]
+end_time = 1.0
+)";
+
+} // namespace
+
+TEST(IslandsScheme, MissesNoCollisionOfFastBinaryEncounters) {
+  const Scene s = demtest::scene_from(kEncounters);
+  auto setup = [](ParticleStore& p) {
+    for (int q = 0; q < 12; ++q) {
+      const double y = 0.3e-3 + 0.3e-3 * (q % 4), z = 0.5e-3 + 1.0e-3 * (q / 4);
+      const double gap = 0.05e-3 + 0.1e-3 * q; // surface gap: collision at t = gap / 1 m/s
+      const double xa = 1.0e-3, xb = xa + 100e-6 + gap;
+      p.add(xa, y, z, 0.5, 0.0, 0.0, 50e-6, 1000.0, 2 * q);
+      p.add(xb, y, z, -0.5, 0.0, 0.0, 50e-6, 1000.0, 2 * q + 1);
+    }
+  };
+  std::int64_t violations = -1;
+  const auto [ref, isl] = run_both(s, 2.0e-3, setup, &violations);
+  EXPECT_EQ(violations, 0);
+  int collided_ref = 0, collided_isl = 0;
+  for (const auto& [id, r] : ref) {
+    const auto& v = isl.at(id);
+    const double v0 = id % 2 == 0 ? 0.5 : -0.5;
+    collided_ref += std::fabs(r[3] - v0) > 1e-3;
+    collided_isl += std::fabs(v[3] - v0) > 1e-3;
+    // Outgoing velocity of every collision: the explicit one to round-off (the fine steps of an
+    // island fall on the explicit scheme's time grid here, since dt divides dt_sp).
+    EXPECT_NEAR(v[3], r[3], 1e-9) << "particle " << id;
+    EXPECT_EQ(v[4], 0.0);
+    EXPECT_NEAR(wrap_diff(v[0], r[0], 4e-3), 0.0, 1e-12) << "particle " << id;
+  }
+  EXPECT_EQ(collided_ref, 24) << "every pair collided in the reference";
+  EXPECT_EQ(collided_isl, 24);
+  // The explicit outcome is a real collision: e = 0.8 for head-on equal spheres.
+  EXPECT_NEAR(ref.at(0)[3], -0.4, 0.02);
+}
+
+namespace {
+// 100 particles of a 1% gas (periodic) and 60 in a closed box under gravity.
+const char* kGas = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [1.737e-3, 1.737e-3, 1.737e-3]
+periodic = [true, true, true]
+[particles]
+count = 100
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.01
+seed = 3
+[dem]
+scheme = "islands"
+spring_constant = 10.0
+restitution = 0.8
+dt = 1.0e-7
+nsubit = 10
+regrid_interval = 1.0e-4
+[run]
+end_time = 1.0
+)";
+
+const char* kBox = R"(
+gravity = [0.0, -9.80665, 0.0]
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [1.0e-3, 1.0e-3, 1.0e-3]
+periodic = [false, false, false]
+[particles]
+count = 60
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.001
+seed = 8
+[dem]
+scheme = "islands"
+spring_constant = 10.0
+restitution = 0.8
+wall_restitution = 0.9
+dt = 1.0e-7
+nsubit = 20
+regrid_interval = 1.0e-4
+[run]
+end_time = 1.0
+)";
+
+void expect_round_off(const State& ref, const State& isl, double length, double tol_v) {
+  ASSERT_EQ(ref.size(), isl.size());
+  for (const auto& [id, r] : ref) {
+    const auto& v = isl.at(id);
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_NEAR(wrap_diff(v[a], r[a], length), 0.0, 1e-12) << "particle " << id << " axis " << a;
+      EXPECT_NEAR(v[3 + a], r[3 + a], tol_v) << "particle " << id << " axis " << a;
+    }
+  }
+}
+} // namespace
+
+// With dt dividing dt_sp the two schemes differ only by the rounding of free flight (one step of
+// dt_sp instead of many of dt): round-off, amplified by a few collisions over 3 ms.
+TEST(IslandsScheme, EqualsExplicitToRoundOffInAGas) {
+  std::int64_t violations = -1;
+  const auto [ref, isl] = run_both(demtest::scene_from(kGas), 3.0e-3, [](ParticleStore&) {},
+                                   &violations);
+  EXPECT_EQ(violations, 0);
+  expect_round_off(ref, isl, 1.737e-3, 1e-9);
+}
+
+TEST(IslandsScheme, EqualsExplicitToRoundOffWithWallsAndGravity) {
+  std::int64_t violations = -1;
+  const auto [ref, isl] = run_both(demtest::scene_from(kBox), 5.0e-3, [](ParticleStore&) {},
+                                   &violations);
+  EXPECT_EQ(violations, 0);
+  // Walls are not periodic: plain differences (wrap_diff with a huge length).
+  expect_round_off(ref, isl, 1.0, 1e-9);
+}
+
+TEST(IslandsScheme, BitwiseIndependentOfThreadCount) {
+  const Scene s = demtest::scene_from(kGas, {"particles.count=400", "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"});
+  auto run = [&](int threads) {
+    tbb::global_control gc(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(threads));
+    ParticleStore p = make_initial_particles(s);
+    PhaseTimer t;
+    dem::IslandsScheme isl(s, p, t);
+    isl.start();
+    for (int k = 0; k < 30; ++k) isl.subiterate();
+    return state_of(p);
+  };
+  const State one = run(1), two = run(2);
+  for (const auto& [id, a] : one) EXPECT_EQ(a, two.at(id)) << "particle " << id;
+}

@@ -1,8 +1,8 @@
 #!/usr/bin/python3
-"""Speed/accuracy trade of the orb scheme (issue 3), like the paper's Fig. "hcserr".
+"""Speed/accuracy trade of the adaptive schemes (orb, islands), like the paper's Fig. "hcserr".
 
 For a scene: one explicit reference run, then the orb scheme for every (nsubit, levels) of the
-sweep. Runs are sequential (never two at once) so wall times are comparable within the sweep.
+sweep (--schemes orb islands: also the islands scheme per nsubit). Runs are sequential (never two at once) so wall times are comparable within the sweep.
 
   error       = mean_t |O_orb(t) - O_ref(t)| / mean_t O_ref(t)   (the paper's definition; O is
                 --observable, a diagnostics.csv column; the orb row at t is matched to the
@@ -62,6 +62,8 @@ def main():
     ap.add_argument("scene")
     ap.add_argument("--nsubit", type=int, nargs="+", default=[5, 10, 15, 20, 30, 40])
     ap.add_argument("--levels", type=int, nargs="+", default=[4])
+    ap.add_argument("--schemes", nargs="+", default=["orb"], choices=["orb", "islands"],
+                    help="adaptive schemes to sweep (islands ignores --levels)")
     ap.add_argument("--observable", default="granular_temperature",
                     help="diagnostics.csv column: granular_temperature | mean_speed | mean_vy ...")
     ap.add_argument("--end-time", type=float, default=None, help="run.end_time override [s]")
@@ -85,26 +87,35 @@ def main():
                  fine_leaf_fraction_mean=1.0, loop_seconds=ref_json["loop_seconds"],
                  force_evaluations=ref_json["force_evaluations"])]
     curves = {}
-    for L in a.levels:
+    # Series: (label, scheme, levels); the islands scheme has no ORB.
+    series = []
+    for sch in a.schemes:
+        if sch == "orb":
+            series += [(f"orb, {2 ** L} leaves", "orb", L) for L in a.levels]
+        else:
+            series.append(("islands", "islands", 0))
+    for label, sch, L in series:
         for ns in a.nsubit:
-            name = f"orb_L{L}_n{ns}"
+            name = f"orb_L{L}_n{ns}" if sch == "orb" else f"islands_n{ns}"
+            extra = [f"partition.orb_levels={L}"] if sch == "orb" else []
             js, d = run(a.binary, a.scene, os.path.join(a.out, name),
-                        ["dem.scheme=\"orb\"", f"dem.nsubit={ns}", f"partition.orb_levels={L}"] + common,
+                        [f"dem.scheme=\"{sch}\"", f"dem.nsubit={ns}"] + extra + common,
                         a.threads, a.repeat)
             t, o = d["time"], d[a.observable]
             keep = t <= t_ref[-1] + 1e-12
             o_at = np.interp(t[keep], t_ref, o_ref)
             err = np.mean(np.abs(o[keep] - o_at)) / abs(np.mean(o_at))
             fine = d["fine_leaf_fraction"][1:]
-            rows.append(dict(scheme="orb", nsubit=ns, levels=L, error=err,
+            rows.append(dict(scheme=sch, nsubit=ns, levels=L, error=err,
                              speedup=ref_json["loop_seconds"] / js["loop_seconds"],
                              force_ratio=ref_json["force_evaluations"] / max(js["force_evaluations"], 1),
                              fine_leaf_fraction_mean=float(np.mean(fine)) if len(fine) else float("nan"),
                              loop_seconds=js["loop_seconds"], force_evaluations=js["force_evaluations"]))
-            curves[(L, ns)] = (t, o)
+            curves[(label, ns)] = (t, o)
             r = rows[-1]
-            print(f"L={L} nsubit={ns:3d}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
-                  f"force ratio {r['force_ratio']:.2f}  fine leaves {r['fine_leaf_fraction_mean']:.2f}",
+            what = "fine leaves" if sch == "orb" else "fine particles"
+            print(f"{label:>16} nsubit={ns:3d}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
+                  f"force ratio {r['force_ratio']:.2f}  {what} {r['fine_leaf_fraction_mean']:.3f}",
                   flush=True)
 
     with open(os.path.join(a.out, "trade.csv"), "w", newline="") as f:
@@ -113,26 +124,26 @@ def main():
         w.writerows(rows)
 
     title = a.label or os.path.basename(a.scene)
-    fig, axes = plt.subplots(1, len(a.levels), figsize=(6 * len(a.levels), 4.5), squeeze=False)
-    for ax, L in zip(axes[0], a.levels):
+    fig, axes = plt.subplots(1, len(series), figsize=(6 * len(series), 4.5), squeeze=False)
+    for ax, (label, sch, L) in zip(axes[0], series):
         ax.plot(t_ref * 1e3, o_ref, "k-", lw=2, label="explicit")
         for ns in a.nsubit:
-            t, o = curves[(L, ns)]
+            t, o = curves[(label, ns)]
             ax.plot(t * 1e3, o, "--", label=f"nsubit {ns}")
         ax.set_xlabel("t [ms]")
         ax.set_ylabel(a.observable)
-        ax.set_title(f"{title}: orb, {2 ** L} leaves")
+        ax.set_title(f"{title}: {label}")
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(os.path.join(a.out, "trade_observable.png"), dpi=120)
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
-    for L in a.levels:
-        sel = [r for r in rows if r["scheme"] == "orb" and r["levels"] == L]
+    for label, sch, L in series:
+        sel = [r for r in rows if r["scheme"] == sch and r["levels"] == L]
         ns = [r["nsubit"] for r in sel]
-        ax1.plot(ns, [100 * r["error"] for r in sel], "o-", label=f"{2 ** L} leaves")
-        ax2.plot(ns, [r["speedup"] for r in sel], "o-", label=f"wall, {2 ** L} leaves")
-        ax2.plot(ns, [r["force_ratio"] for r in sel], "s--", label=f"force evaluations, {2 ** L} leaves")
+        ax1.plot(ns, [100 * r["error"] for r in sel], "o-", label=label)
+        ax2.plot(ns, [r["speedup"] for r in sel], "o-", label=f"wall, {label}")
+        ax2.plot(ns, [r["force_ratio"] for r in sel], "s--", label=f"force evaluations, {label}")
     ax1.set_xlabel("nsubit")
     ax1.set_ylabel(f"error in {a.observable} [%]")
     ax1.legend()

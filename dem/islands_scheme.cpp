@@ -55,6 +55,8 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
 
 void IslandsScheme::start() {
   hprev_.assign(p_.size(), 0.0);
+  island_of_.assign(p_.size(), kAlone);
+  busy_v_.clear();
   subits_ = 0;
   rebuild();
 }
@@ -79,16 +81,28 @@ void IslandsScheme::rebuild() {
   ++builds_;
 }
 
+// Sign bit set unless `ok`: OR-ed over a loop, a flag reduction GCC vectorizes.
+inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
+
 void IslandsScheme::speed_bounds() {
   const std::size_t n = p_.size();
   bound_.resize(n);
-  const bool ext = ext_.active();
-  for (std::size_t i = 0; i < n; ++i) {
-    const double a = ext ? external_acceleration<true>(p_, ext_, model_.gravity, i)
-                         : external_acceleration<false>(p_, ext_, model_.gravity, i);
-    const double v = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]);
-    bound_[i] = v + a * (hprev_[i] + dt_sp_);
+  const double* __restrict vx = p_.vx.data();
+  const double* __restrict vy = p_.vy.data();
+  const double* __restrict vz = p_.vz.data();
+  const double* __restrict hp = hprev_.data();
+  double* __restrict b = bound_.data();
+  if (!ext_.active()) {
+    // Gravity alone: one acceleration for all.
+    const auto& g = model_.gravity;
+    const double a = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+    for (std::size_t i = 0; i < n; ++i)
+      b[i] = std::sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i]) + a * (hp[i] + dt_sp_);
+    return;
   }
+  for (std::size_t i = 0; i < n; ++i)
+    b[i] = std::sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i]) +
+           external_acceleration<true>(p_, ext_, model_.gravity, i) * (hp[i] + dt_sp_);
 }
 
 // True when some particle's displacement since the build plus its bound over the sub-iteration
@@ -96,14 +110,20 @@ void IslandsScheme::speed_bounds() {
 bool IslandsScheme::list_expires() const {
   const auto xr = list_.x_ref(), yr = list_.y_ref(), zr = list_.z_ref();
   const double lim = 0.5 * skin_;
+  const double* __restrict x = p_.x.data();
+  const double* __restrict y = p_.y.data();
+  const double* __restrict z = p_.z.data();
+  const double* __restrict b = bound_.data();
+  std::uint64_t over = 0;
   for (std::size_t i = 0; i < p_.size(); ++i) {
-    const double ex = p_.x[i] - xr[i], ey = p_.y[i] - yr[i], ez = p_.z[i] - zr[i];
-    if (!(std::sqrt(ex * ex + ey * ey + ez * ez) + bound_[i] * dt_sp_ <= lim)) return true;
+    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+    over |= sign_unless(std::sqrt(ex * ex + ey * ey + ez * ez) + b[i] * dt_sp_ <= lim);
   }
-  return false;
+  return (over >> 63) != 0; // NaN expires the list too
 }
 
-// Links and islands with the current bounds.
+// Links with the current bounds, and the islands of the linked and wall-tied particles
+// (`busy_v_`, increasing); every other particle is alone (island_of_ = kAlone).
 void IslandsScheme::make_links() {
   const std::size_t n = p_.size();
   const auto off = list_.offsets();
@@ -116,59 +136,63 @@ void IslandsScheme::make_links() {
       if (j <= i) continue;
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
                    dz = g.image(p_.z[j] - p_.z[i], 2);
-      const double gap = std::sqrt(dx * dx + dy * dy + dz * dz) - (p_.radius[i] + p_.radius[j]);
-      if (gap < (bound_[i] + bound_[j]) * dt_sp_ + margin_) ea_.push_back(i), eb_.push_back(j);
+      const double reach = (bound_[i] + bound_[j]) * dt_sp_ + margin_ + p_.radius[i] + p_.radius[j];
+      if (dx * dx + dy * dy + dz * dz < reach * reach) ea_.push_back(i), eb_.push_back(j);
     }
-  wall_.assign(n, 0);
-  for (std::size_t i = 0; i < n; ++i)
-    for (int a = 0; a < 3; ++a) {
-      if (g.periodic[a]) continue;
-      const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
-      const double gap = std::min(pos - g.lo[a], g.hi[a] - pos) - p_.radius[i];
-      if (gap < bound_[i] * dt_sp_ + margin_) wall_[i] = 1;
+  tied_.clear();
+  for (int a = 0; a < 3; ++a) {
+    if (g.periodic[a]) continue;
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    for (std::uint32_t i = 0; i < n; ++i) {
+      const double gap = std::min(pos[i] - g.lo[a], g.hi[a] - pos[i]) - p_.radius[i];
+      if (gap < bound_[i] * dt_sp_ + margin_) tied_.push_back(i);
     }
-  partition::connected_components(n, ea_, eb_, islands_, uf_scratch_);
+  }
+  // Busy vertices: endpoints and tied particles, sorted, unique; islands over them.
+  for (std::uint32_t v : busy_v_) island_of_[v] = kAlone; // reset the last sub-iteration's
+  busy_v_.assign(ea_.begin(), ea_.end());
+  busy_v_.insert(busy_v_.end(), eb_.begin(), eb_.end());
+  busy_v_.insert(busy_v_.end(), tied_.begin(), tied_.end());
+  std::sort(busy_v_.begin(), busy_v_.end());
+  busy_v_.erase(std::unique(busy_v_.begin(), busy_v_.end()), busy_v_.end());
+  for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = k; // local index
+  la_.resize(ea_.size()), lb_.resize(eb_.size());
+  for (std::size_t q = 0; q < ea_.size(); ++q) la_[q] = island_of_[ea_[q]], lb_[q] = island_of_[eb_[q]];
+  partition::connected_components(busy_v_.size(), la_, lb_, islands_, uf_scratch_);
+  for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = islands_.label[k];
 }
 
 // Islands whose bounds account for the energy contacts can move inside them: link with the
-// particles' own bounds, raise every member of an island with a link or a wall to the island's
-// s_max (from the members' own bounds and the springs' energy), link again, until the islands
-// stop changing. Islands only merge from round to round (bounds only grow), so this ends.
+// particles' own bounds, raise every member of an island to the island's s_max (from the
+// members' own bounds and the springs' energy), link again, until the islands stop changing.
+// Islands only merge from round to round (bounds only grow), so this ends.
 void IslandsScheme::link() {
-  const std::size_t n = p_.size();
   const DomainGeometry& g = geom_;
-  own_bound_ = bound_;
+  own_bound_.assign(bound_.begin(), bound_.end());
   const bool ext = ext_.active();
   for (int round = 0;; ++round) {
     make_links();
-    if (round > 0 && islands_.label == label_before_ && wall_ == wall_before_) break;
+    if (round > 0 && busy_v_ == busy_before_ && islands_.label == label_before_) break;
     const std::uint32_t nc = islands_.count();
     energy_.assign(nc, 0.0);
     m_min_.assign(nc, std::numeric_limits<double>::infinity());
     a_max_.assign(nc, 0.0);
     hp_max_.assign(nc, 0.0);
-    busy_.assign(nc, 0);
     for (std::size_t q = 0; q < ea_.size(); ++q) {
       const std::uint32_t i = ea_[q], j = eb_[q];
-      busy_[islands_.label[i]] = 1;
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
                    dz = g.image(p_.z[j] - p_.z[i], 2);
       const double delta = p_.radius[i] + p_.radius[j] - std::sqrt(dx * dx + dy * dy + dz * dz);
-      if (delta > 0.0) energy_[islands_.label[i]] += 0.5 * model_.pair.k * delta * delta;
+      if (delta > 0.0) energy_[island_of_[i]] += 0.5 * model_.pair.k * delta * delta;
     }
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t c = islands_.label[i];
-      busy_[c] |= wall_[i];
+    for (const std::uint32_t i : busy_v_) {
+      const std::uint32_t c = island_of_[i];
       for (int a = 0; a < 3; ++a) {
         if (g.periodic[a]) continue;
         const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
         const double delta = p_.radius[i] - std::min(pos - g.lo[a], g.hi[a] - pos);
         if (delta > 0.0) energy_[c] += 0.5 * model_.wall.k * delta * delta;
       }
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t c = islands_.label[i];
-      if (!busy_[c]) continue;
       energy_[c] += 0.5 * p_.mass[i] * own_bound_[i] * own_bound_[i];
       m_min_[c] = std::min(m_min_[c], p_.mass[i]);
       a_max_[c] = std::max(a_max_[c], ext ? external_acceleration<true>(p_, ext_, model_.gravity, i)
@@ -176,17 +200,16 @@ void IslandsScheme::link() {
       hp_max_[c] = std::max(hp_max_[c], hprev_[i]);
     }
     bool raised = false;
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t c = islands_.label[i];
-      const double b = busy_[c] ? std::max(own_bound_[i], std::sqrt(2.0 * energy_[c] / m_min_[c]) +
-                                                              a_max_[c] * (hp_max_[c] + dt_sp_))
-                                : own_bound_[i];
+    for (const std::uint32_t i : busy_v_) {
+      const std::uint32_t c = island_of_[i];
+      const double b = std::max(own_bound_[i], std::sqrt(2.0 * energy_[c] / m_min_[c]) +
+                                                   a_max_[c] * (hp_max_[c] + dt_sp_));
       raised |= b != bound_[i];
       bound_[i] = b;
     }
     if (!raised) break;
+    busy_before_ = busy_v_;
     label_before_ = islands_.label;
-    wall_before_ = wall_;
   }
 }
 
@@ -222,28 +245,25 @@ void IslandsScheme::subiterate(bool record) {
                   : 1;
   h_ = can_refine ? model_.dt : dt_sp_;
   h_last_ = dt_sp_ - static_cast<double>(K_ - 1) * h_;
-  // Islands with a link or a wall take the fine steps.
+  // Every island of busy particles (a link or a wall) takes the fine steps; the rest fly free.
   const std::uint32_t nc = islands_.count();
-  fine_.clear();
-  is_fine_.assign(n, 0);
+  fine_.resize(nc);
   for (std::uint32_t c = 0; c < nc; ++c) {
-    bool fine = islands_.size(c) > 1;
-    for (std::uint32_t k = islands_.first[c]; k < islands_.first[c + 1] && !fine; ++k)
-      fine = wall_[islands_.members[k]] != 0;
-    const std::uint32_t sz = islands_.size(c);
-    ++size_hist_[static_cast<std::size_t>(std::bit_width(sz - 1))];
-    if (!fine) continue;
-    fine_.push_back(c);
-    for (std::uint32_t k = islands_.first[c]; k < islands_.first[c + 1]; ++k)
-      is_fine_[islands_.members[k]] = 1;
+    fine_[c] = c;
+    ++size_hist_[static_cast<std::size_t>(std::bit_width(islands_.size(c) - 1))];
   }
+  size_hist_[0] += static_cast<std::int64_t>(n - busy_v_.size());
+  // Island members in particle order (islands_.members holds local indices).
+  members_.resize(busy_v_.size());
+  for (std::size_t k = 0; k < busy_v_.size(); ++k) members_[k] = busy_v_[islands_.members[k]];
   if (record) {
     sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
     sdt_.resize(n), sisland_.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
       sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1), sz_[i] = geom_.wrap(p_.z[i], 2);
-      sisland_[i] = is_fine_[i] ? static_cast<std::int64_t>(islands_.label[i]) : -1;
-      sdt_[i] = is_fine_[i] ? dt_sp_ / static_cast<double>(K_) : dt_sp_;
+      const bool fine = island_of_[i] != kAlone;
+      sisland_[i] = fine ? static_cast<std::int64_t>(island_of_[i]) : -1;
+      sdt_[i] = fine ? dt_sp_ / static_cast<double>(K_) : dt_sp_;
     }
     smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
   }
@@ -295,9 +315,9 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
     double* __restrict vz = p_.vz.data();
     double* __restrict hp = hprev_.data();
     const double* __restrict im = p_.inv_mass.data();
-    const unsigned char* __restrict fine = is_fine_.data();
+    const std::uint32_t* __restrict island = island_of_.data();
     for (std::size_t i = r.begin(); i != r.end(); ++i) {
-      if (fine[i]) continue;
+      if (island[i] != kAlone) continue;
       double ax = g[0], ay = g[1], az = g[2];
       if constexpr (External) {
         ax += ext_.x[i] * im[i], ay += ext_.y[i] * im[i], az += ext_.z[i] * im[i];
@@ -320,9 +340,9 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
 template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool record) {
   const std::uint32_t c = fine_[q];
   IslandResult res;
-  const std::uint32_t* mem = islands_.members.data() + islands_.first[c];
+  const std::uint32_t* mem = members_.data() + islands_.first[c];
   const std::uint32_t count = islands_.size(c);
-  const std::uint32_t* label = islands_.label.data();
+  const std::uint32_t* label = island_of_.data();
   const auto off = list_.offsets();
   const auto nb = list_.neighbors();
   const DomainGeometry g = geom_;

@@ -123,15 +123,17 @@ private:
   std::vector<double> own_bound_;             // ... from its own velocity (before islands)
   // link(): per island energy, lightest mass, largest external acceleration and half step.
   std::vector<double> energy_, m_min_, a_max_, hp_max_;
-  std::vector<unsigned char> busy_, wall_before_;
-  std::vector<std::uint32_t> label_before_;
+  std::vector<std::uint32_t> busy_before_, label_before_;
   std::vector<double> x0_, y0_, z0_;          // positions at the start of the sub-iteration
   std::vector<std::uint32_t> ea_, eb_;        // links
-  std::vector<unsigned char> wall_;           // tied to a wall
+  std::vector<std::uint32_t> tied_;           // particles tied to a wall
+  // Busy particles (linked or tied), increasing; the islands over them (local indices), each
+  // island's members as particle indices, and per particle its island or kAlone.
+  static constexpr std::uint32_t kAlone = 0xffffffffu;
+  std::vector<std::uint32_t> busy_v_, la_, lb_, members_, island_of_;
   partition::Islands islands_;
   std::vector<std::uint32_t> uf_scratch_;
   std::vector<std::uint32_t> fine_;           // islands that take fine steps
-  std::vector<unsigned char> is_fine_;        // per particle
   std::int64_t K_ = 1;
   double h_ = 0.0, h_last_ = 0.0;
   // Per fine island, results of its task (reduced in island order).

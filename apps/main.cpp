@@ -82,6 +82,8 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
                              sub-iteration dt_sp = dem.regrid_interval / dem.nsubit
   dem.proximity_radii        orb: a leaf takes the fine step if a pair's centre distance is below
                              this many radii, (r_i + r_j) / 2 each (default 3)
+  dem.local_dt               orb: "proximity" (the rule above, default) or "time_to_contact" (fine
+                             if a pair's gap or a wall's could close within dt_sp at its speeds)
   partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4)
   fluid.*                    the gas (a scene without [fluid] has none): fluid.cells [nx, ny, nz],
                              fluid.density, fluid.viscosity, fluid.dt (fixed dt_f, paper 1e-4) or

@@ -123,6 +123,10 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   d.proximity_radii = c.get_double("dem.proximity_radii", 3.0);
   require(std::isfinite(d.proximity_radii) && d.proximity_radii > 0.0, "dem.proximity_radii",
           fmt::format("must be > 0, got {}", d.proximity_radii));
+  d.local_dt = c.get_string("dem.local_dt", "proximity");
+  require(d.local_dt == "proximity" || d.local_dt == "time_to_contact", "dem.local_dt",
+          fmt::format("unknown rule \"{}\" (available: \"proximity\", \"time_to_contact\")",
+                      d.local_dt));
   d.regrid_interval = c.get_double("dem.regrid_interval", 1e-4);
   require(std::isfinite(d.regrid_interval) && d.regrid_interval > 0.0, "dem.regrid_interval",
           fmt::format("must be > 0, got {}", d.regrid_interval));
@@ -270,6 +274,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.max_overlap", num(d.max_overlap));
   o.emplace_back("dem.nsubit", std::to_string(d.nsubit));
   o.emplace_back("dem.proximity_radii", num(d.proximity_radii));
+  o.emplace_back("dem.local_dt", str(d.local_dt));
   o.emplace_back("dem.regrid_interval", num(d.regrid_interval));
   o.emplace_back("partition.orb_levels", std::to_string(s.partition.orb_levels));
   o.emplace_back("partition.weights", str(s.partition.weights));

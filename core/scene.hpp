@@ -49,6 +49,9 @@ struct DemSpec {
   // The `orb` scheme (Sitaraman & Grout, Algorithm 2).
   std::int64_t nsubit = 10;       // sub-iterations per regrid interval
   double proximity_radii = 3.0;   // a pair is close if centre distance < this * (r_i + r_j) / 2
+  // How an orb leaf picks its step: "proximity" (the paper's rule, proximity_radii) or
+  // "time_to_contact" (fine if a pair or a wall could close its gap within dt_sp).
+  std::string local_dt = "proximity";
   double regrid_interval = 1e-4;  // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
 };
 

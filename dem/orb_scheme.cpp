@@ -87,6 +87,7 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   skin_ = model_.skin;
   cost_weights_ = scene.partition.weights == "cost";
+  time_to_contact_ = scene.dem.local_dt == "time_to_contact";
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
   skin_cap_ = std::numeric_limits<double>::infinity();
@@ -765,6 +766,24 @@ void OrbScheme::subiterate(bool record) {
   const std::size_t nl = ranges_.size() - 1;
   const std::size_t n = p_.size();
   bool fresh = false; // rows built for this sub-iteration
+  if (time_to_contact_) {
+    // Speed bounds, and candidates long enough that every pair able to touch within dt_sp is
+    // one: the skin must cover two particles' reach (it returns to the scene's at the regrid).
+    speed_.resize(n);
+    double reach = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
+      if (ext_.active())
+        ax += ext_.x[i] * p_.inv_mass[i], ay += ext_.y[i] * p_.inv_mass[i], az += ext_.z[i] * p_.inv_mass[i];
+      speed_[i] = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]) +
+                  std::sqrt(ax * ax + ay * ay + az * az) * (hprev_[i] + dt_sp_);
+      reach = std::max(reach, speed_[i] * dt_sp_);
+    }
+    if (2.1 * reach > skin_ && skin_ < skin_cap_) {
+      skin_ = std::min(2.1 * reach, skin_cap_);
+      pairs_valid_ = false;
+    }
+  }
   {
     if (!pairs_valid_ || rows_expire()) rebuild_pairs(), fresh = true;
     if (off_.size() != n + 1) {
@@ -797,20 +816,42 @@ void OrbScheme::subiterate(bool record) {
     const double d = prox * (p_.radius[a] + p_.radius[c]);
     if (dx * dx + dy * dy + dz * dz < d * d) near_[a] = near_[c] = 1;
   };
-  if (prox_from_pairs_) {
-    for (std::size_t q = 0; q < pa_.size(); ++q) test(pa_[q], pb_[q]);
+  if (time_to_contact_) {
+    // dem.local_dt = "time_to_contact" (the seed paper's suggested relative-distance estimate):
+    // a particle is near when some gap, to a contact candidate or to a wall, could close within
+    // dt_sp at its current speed plus what gravity and its external force add (speed_, above).
+    // Any pair that could touch is a candidate: the skin covers two reaches.
+    for (std::size_t q = 0; q < ca_.size(); ++q) {
+      const std::uint32_t a = ca_[q], c = cb_[q];
+      const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
+                   dz = geom_.image(p_.z[c] - p_.z[a], 2);
+      const double reach = p_.radius[a] + p_.radius[c] + (speed_[a] + speed_[c]) * dt_sp_;
+      if (dx * dx + dy * dy + dz * dz < reach * reach) near_[a] = near_[c] = 1;
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (geom_.periodic[a]) continue;
+      const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+      for (std::size_t i = 0; i < n; ++i) {
+        const double d = p_.radius[i] + speed_[i] * dt_sp_;
+        near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+      }
+    }
   } else {
-    for (std::uint32_t a = 0; a < n; ++a)
-      for (std::uint32_t c = a + 1; c < n; ++c) test(a, c);
-  }
-  // A wall is a partner too: a particle whose centre is closer than proximity_radii radii to a
-  // wall (without this, a leaf near a floor took coarse steps straight into it).
-  for (int a = 0; a < 3; ++a) {
-    if (geom_.periodic[a]) continue;
-    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
-    for (std::size_t i = 0; i < n; ++i) {
-      const double d = 2.0 * prox * p_.radius[i];
-      near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+    if (prox_from_pairs_) {
+      for (std::size_t q = 0; q < pa_.size(); ++q) test(pa_[q], pb_[q]);
+    } else {
+      for (std::uint32_t a = 0; a < n; ++a)
+        for (std::uint32_t c = a + 1; c < n; ++c) test(a, c);
+    }
+    // A wall is a partner too: a particle whose centre is closer than proximity_radii radii to
+    // a wall (without this, a leaf near a floor took coarse steps straight into it).
+    for (int a = 0; a < 3; ++a) {
+      if (geom_.periodic[a]) continue;
+      const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+      for (std::size_t i = 0; i < n; ++i) {
+        const double d = 2.0 * prox * p_.radius[i];
+        near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+      }
     }
   }
   leaf_fine_.assign(nl, 0);

@@ -6,7 +6,9 @@
 // every leaf picks its own step (leaves with the same step run together as TBB tasks, below):
 //   dt_local = the explicit step (tau_p * dt_factor) if some own particle has a partner (own or
 //              ghost) closer than dem.proximity_radii * (r_i + r_j) / 2 centre to centre,
-//              or its centre is closer than dem.proximity_radii * r_i to a wall,
+//              or its centre is closer than dem.proximity_radii * r_i to a wall (with
+//              dem.local_dt = "time_to_contact": if some gap to a partner or a wall could close
+//              within dt_sp at the particles' speeds plus gravity and external forces),
 //            = dt_sp otherwise,
 // and takes K = ceil(dt_sp / dt_local) velocity-Verlet steps with the explicit scheme's contact
 // law, the last one shortened so that the leaf lands exactly on the end of the sub-iteration.
@@ -175,6 +177,8 @@ private:
   double dt_sp_ = 0.0, r_max_ = 0.0, skin_ = 0.0, skin_cap_ = 0.0;
   std::int64_t nsubit_ = 1;
   bool cost_weights_ = false;
+  bool time_to_contact_ = false;   // dem.local_dt = "time_to_contact"
+  std::vector<double> speed_;      // its per-particle speed bound
   std::vector<double> hprev_;         // per particle: half of its last step
   ExternalForce ext_; // set_external_force
   std::vector<double> cost_;          // per particle: local steps of its leaf since the regrid

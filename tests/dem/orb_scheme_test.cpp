@@ -241,6 +241,23 @@ TEST(OrbScheme, MissedCollisionAtCoarseStepCaughtAtFine) {
              c.va, e_orb, e_exp);
 }
 
+// dem.local_dt = "time_to_contact": the same coarse sub-iteration that let the pair pass through
+// each other now sees that their gap closes within dt_sp, so both leaves step finely and the
+// particles bounce (each against the other's frozen copy across the leaf boundary).
+TEST(OrbScheme, TimeToContactCatchesTheFastPairAtTheCoarseStep) {
+  const Scene coarse = demtest::scene_from(
+      kPair, {"dem.regrid_interval=3.0e-4", "dem.nsubit=1", "dem.local_dt=time_to_contact"});
+  const auto c = pair_run(coarse, [](const Scene& s, ParticleStore& p) {
+    PhaseTimer t;
+    dem::OrbScheme o(s, p, t);
+    o.start();
+    o.subiterate();
+  });
+  EXPECT_LT(c.xa, c.xb) << "no tunnelling";
+  EXPECT_LT(c.va, 0.0);
+  EXPECT_GT(c.vb, 0.0);
+}
+
 // (e) Momentum drift per sub-iteration. Within a leaf every own-own pair is exactly reciprocal;
 // only contacts across a leaf boundary (each side against the other's frozen copy) are not, so
 // the drift of one sub-iteration is bounded by the impulse of those contacts: at most

@@ -6,6 +6,10 @@
 // sum order and the rebuild schedule are those of the run that wrote it). There is no RNG state
 // to keep: random numbers are drawn only when the initial particles are generated.
 //
+// With a gas (coupled scenes) it also holds, under /gas, the gas solver's state and the coupling
+// counters (GasCoupling::State) and the coupled loop's position (CoupledLoopState); it is written
+// at a fluid-step boundary, before the next fluid step.
+//
 // The file (HDF5, checkpoint_<step>.h5) is written under a temporary name and renamed, and carries
 // an FNV-1a checksum over all its arrays, so a truncated or corrupt file is refused with a clear
 // error (read_checkpoint throws ConfigError) rather than restarting from garbage.
@@ -15,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "apps/coupled_step.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
@@ -22,6 +27,20 @@
 #include "dem/orb_scheme.hpp"
 
 namespace cfddem::apps {
+
+// Where the coupled loop stands at a fluid-step boundary. A row or snapshot at fluid time t is
+// written by the next particle step (the synchronised state at t needs the forces at t), after
+// the gas has moved on: what it takes from the gas at t waits here.
+struct CoupledLoopState {
+  double time = 0.0; // fluid time reached
+  double next_output = 0.0, next_snapshot = 0.0, dt_f_sum = 0.0;
+  std::int64_t fluid_steps = 0;
+  bool row_pending = false;
+  double row_time = 0.0;
+  FluidDiagnostics row_fluid;
+  bool snapshot_pending = false;
+  CellFields snapshot_cells;
+};
 
 struct Checkpoint {
   std::string scheme = "explicit";
@@ -35,6 +54,9 @@ struct Checkpoint {
   ParticleStore particles;
   dem::ExplicitScheme::State state; // scheme == "explicit"
   dem::OrbScheme::State orb;         // scheme == "orb"
+  bool gas = false;                  // a coupled scene's checkpoint: the two below are set
+  GasCoupling::State gas_state;
+  CoupledLoopState loop;
 };
 
 // The configuration lines that must match between a checkpoint and the scene it restarts

@@ -10,10 +10,12 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <vector>
 
+#include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "fluid/deposition.hpp"
@@ -59,6 +61,22 @@ public:
   [[nodiscard]] long long projection_iterations() const { return projection_iterations_; }
   // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
+
+  // The gas at cell centres for a snapshot (eps_g, full pressure, gas velocity).
+  [[nodiscard]] CellFields cell_fields() const;
+
+  // Checkpoint/restart at a fluid-step boundary: the solver's state, what the diagnostics read
+  // and the counters. Not in it: the deposited eps_s, drag coefficients and particle forces --
+  // step() deposits and interpolates them afresh from the particles before any use.
+  struct State {
+    fluid::GasSolver::State solver;
+    std::vector<double> eps_prev; // eps_g before the last step (mass residual); empty: no step
+    double last_dt = 0.0;
+    std::int64_t gas_substeps = 0, projection_iterations = 0, projection_fallbacks = 0;
+  };
+  [[nodiscard]] State save_state() const;
+  // Throws RunError if the state does not fit this grid.
+  void restore_state(const State& s);
 
 private:
   void deposit(const ParticleStore& p);

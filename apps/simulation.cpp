@@ -131,6 +131,18 @@ std::string format_eta(double s) {
   return fmt::format("{:.1f}h", s / 3600);
 }
 
+// Positions wrapped into the periodic box for a snapshot (the schemes wrap only when they
+// rebuild their lists or regrid).
+struct WrappedPositions {
+  std::vector<double> x, y, z;
+  WrappedPositions(const dem::DomainGeometry& g, std::span<const double> px,
+                   std::span<const double> py, std::span<const double> pz)
+      : x(px.size()), y(py.size()), z(pz.size()) {
+    for (std::size_t i = 0; i < px.size(); ++i)
+      x[i] = g.wrap(px[i], 0), y[i] = g.wrap(py[i], 1), z[i] = g.wrap(pz[i], 2);
+  }
+};
+
 RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 
@@ -423,13 +435,11 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
   auto snapshot = [&](long long k) {
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s = scheme.synchronised_previous();
-    std::vector<double> wx(s.x.size()), wy(s.x.size()), wz(s.x.size());
-    for (std::size_t i = 0; i < s.x.size(); ++i)
-      wx[i] = geom.wrap(s.x[i], 0), wy[i] = geom.wrap(s.y[i], 1), wz[i] = geom.wrap(s.z[i], 2);
+    const WrappedPositions w(geom, s.x, s.y, s.z);
     SnapshotFields f;
     f.time = static_cast<double>(k) * dt_sp;
     f.step = k;
-    f.x = wx, f.y = wy, f.z = wz, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
+    f.x = w.x, f.y = w.y, f.z = w.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
     f.radius = s.radius, f.mass = s.mass, f.id = s.id, f.leaf = s.leaf, f.local_dt = s.local_dt;
     snapshots.add(write_particle_snapshot(opt.out_dir, f));
   };
@@ -632,13 +642,11 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   auto snapshot = [&](double t_snap, long long k, const CellFields& cells) {
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s = scheme.synchronised_previous();
-    std::vector<double> wx(s.x.size()), wy(s.x.size()), wz(s.x.size());
-    for (std::size_t i = 0; i < s.x.size(); ++i)
-      wx[i] = geom.wrap(s.x[i], 0), wy[i] = geom.wrap(s.y[i], 1), wz[i] = geom.wrap(s.z[i], 2);
+    const WrappedPositions w(geom, s.x, s.y, s.z);
     SnapshotFields f;
     f.time = t_snap;
     f.step = k;
-    f.x = wx, f.y = wy, f.z = wz, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
+    f.x = w.x, f.y = w.y, f.z = w.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
     if constexpr (kOrb)
       f.radius = s.radius, f.mass = s.mass, f.id = s.id, f.leaf = s.leaf, f.local_dt = s.local_dt;
     else

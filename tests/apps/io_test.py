@@ -162,7 +162,8 @@ class Snapshots(Tmp):
             topo = g.find("Topology")
             self.assertEqual(topo.get("TopologyType"), "3DRectMesh")
             # XDMF gives node dimensions slowest axis first: z y x.
-            self.assertEqual(topo.get("Dimensions").split(), [str(nz + 1), str(ny + 1), str(nx + 1)])
+            self.assertEqual([int(d) for d in topo.get("Dimensions").split()],
+                             [nz + 1, ny + 1, nx + 1])
             geo = g.find("Geometry")
             self.assertEqual(geo.get("GeometryType"), "VXVYVZ")
             names = [a.get("Name") for a in g.findall("Attribute")]
@@ -436,17 +437,21 @@ class BadCheckpoint(Tmp):
                 f.write(data[:cut])
             self.expect_refused(bad)
 
-    def test_flipped_bits_in_particle_data(self):
-        good = self.make_checkpoint()
+    def flip_bit(self, good, dataset, byte, mask):
+        """A copy of `good` with one bit of a dataset's stored bytes flipped."""
         with h5py.File(good, "r") as f:
-            offset = f["particles/vx_half"].id.get_offset() + 8 * 100 + 3
+            offset = f[dataset].id.get_offset() + byte
         bad = os.path.join(self.tmp, "flipped.h5")
         shutil.copy(good, bad)
         with open(bad, "r+b") as f:
             f.seek(offset)
             b = f.read(1)
             f.seek(offset)
-            f.write(bytes([b[0] ^ 0x10]))
+            f.write(bytes([b[0] ^ mask]))
+        return bad
+
+    def test_flipped_bits_in_particle_data(self):
+        bad = self.flip_bit(self.make_checkpoint(), "particles/vx_half", 8 * 100 + 3, 0x10)
         self.expect_refused(bad, needle="checksum")
 
     def test_not_hdf5(self):
@@ -474,16 +479,7 @@ class BadCheckpoint(Tmp):
             self.expect_refused(bad, scene=HCS_GAS)
 
     def test_flipped_bits_in_gas_data(self):
-        good = self.make_gas_checkpoint()
-        with h5py.File(good, "r") as f:
-            offset = f["gas/u"].id.get_offset() + 8 * 200 + 2
-        bad = os.path.join(self.tmp, "flipped_gas.h5")
-        shutil.copy(good, bad)
-        with open(bad, "r+b") as f:
-            f.seek(offset)
-            b = f.read(1)
-            f.seek(offset)
-            f.write(bytes([b[0] ^ 0x01]))
+        bad = self.flip_bit(self.make_gas_checkpoint(), "gas/u", 8 * 200 + 2, 0x01)
         self.expect_refused(bad, needle="checksum", scene=HCS_GAS)
 
     def test_other_configuration(self):

@@ -344,7 +344,10 @@ Checkpoint read_checkpoint(const std::string& path) {
     const auto st = r.doubles("/snapshots/time", ss.size());
     const auto sn = r.int64s("/snapshots/particles", ss.size());
     const auto sl = r.int64s("/snapshots/leaf", ss.size());
-    const auto sc = r.int64s("/snapshots/cells", 3 * ss.size());
+    // Checkpoints written before snapshots had cells lack the dataset (and did not hash it).
+    const auto sc = f.exists("/snapshots/cells")
+                        ? r.int64s("/snapshots/cells", 3 * ss.size())
+                        : std::vector<std::int64_t>(3 * ss.size(), 0);
     for (std::size_t i = 0; i < ss.size(); ++i)
       c.snapshots.push_back({ss[i], st[i], sn[i], sl[i] != 0,
                              {sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]},

@@ -45,7 +45,8 @@ struct CoupledLoopState {
 struct Checkpoint {
   std::string scheme = "explicit";
   double dt = 0.0;
-  std::int64_t step = 0;       // the loop resumes at this step (state x(step), v(step - 1/2))
+  std::int64_t step = 0;       // the loop resumes at this step (state x(step), v(step - 1/2));
+                               // with a gas, the fluid steps taken
   std::int64_t last_row_step = 0;
   std::vector<std::string> columns;
   std::vector<std::vector<double>> rows; // diagnostics rows written so far

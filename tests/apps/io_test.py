@@ -201,6 +201,14 @@ class Snapshots(Tmp):
             expected = float(row[header.index(f"gas_momentum_{a}")])
             self.assertAlmostEqual(m, expected, delta=1e-12 * np.abs(momentum).max())
         self.assertNotEqual(momentum[0], 0.0)
+        # The render tool draws the cells under the particles.
+        png = os.path.join(out, "cells.png")
+        r = subprocess.run([sys.executable, os.path.join(SRC, "tools", "render_snapshot.py"),
+                            os.path.join(out, "snapshot_000006910.h5"), "--view", "xz",
+                            "--cells", "eps_g", "-o", png], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        with open(png, "rb") as f:
+            self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
 
     def test_zero_particles_gives_empty_snapshot(self):
         out = os.path.join(self.tmp, "empty")

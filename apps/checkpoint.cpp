@@ -97,6 +97,9 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
                                           l.dt_f_sum, l.row_time, d.pressure_drop,
                                           d.gas_momentum[0], d.gas_momentum[1],
                                           d.gas_momentum[2], d.mass_residual});
+  w.put("/gas/held_force_x", l.held_force[0]);
+  w.put("/gas/held_force_y", l.held_force[1]);
+  w.put("/gas/held_force_z", l.held_force[2]);
   // The cell data of a snapshot waiting for its particle step (empty arrays otherwise).
   const CellFields& s = l.snapshot_cells;
   f.create_group("/gas/snapshot");
@@ -127,6 +130,9 @@ void read_gas(Reader& r, Checkpoint& c) {
   g.last_dt = q[0], l.time = q[1], l.next_output = q[2], l.next_snapshot = q[3];
   l.dt_f_sum = q[4], l.row_time = q[5];
   l.row_fluid = {q[6], {q[7], q[8], q[9]}, q[10]};
+  l.held_force[0] = r.doubles("/gas/held_force_x", c.particles.size());
+  l.held_force[1] = r.doubles("/gas/held_force_y", c.particles.size());
+  l.held_force[2] = r.doubles("/gas/held_force_z", c.particles.size());
   CellFields& s = l.snapshot_cells;
   const auto n = r.int64s("/gas/snapshot/cells", 3);
   s.cells = {n[0], n[1], n[2]};

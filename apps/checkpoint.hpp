@@ -15,6 +15,7 @@
 // error (read_checkpoint throws ConfigError) rather than restarting from garbage.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -40,6 +41,10 @@ struct CoupledLoopState {
   FluidDiagnostics row_fluid;
   bool snapshot_pending = false;
   CellFields snapshot_cells;
+  // The gas force the scheme holds over the sub-cycle, in the store's order: the next fluid step
+  // replaces it before any use, except when the run resumes at its end (the one particle step
+  // past the end, which records the last row, still reads it).
+  std::array<std::vector<double>, 3> held_force;
 };
 
 struct Checkpoint {

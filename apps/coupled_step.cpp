@@ -5,6 +5,7 @@
 #include <limits>
 #include <numbers>
 #include <stdexcept>
+#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -187,6 +188,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   const std::size_t n = p.size();
+  force_ids_.assign(p.id.begin(), p.id.end());
   const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
   for (int a = 0; a < 3; ++a) {
@@ -260,6 +262,25 @@ FluidDiagnostics GasCoupling::diagnostics() const {
     d.mass_residual = worst * last_dt_;
   }
   return d;
+}
+
+std::array<std::vector<double>, 3> GasCoupling::force_in_order(
+    std::span<const std::int64_t> ids) const {
+  std::array<std::vector<double>, 3> f;
+  if (force_ids_.empty()) return f;
+  if (ids.size() != force_ids_.size())
+    throw RunError(fmt::format("{} particles, the gas force has {}", ids.size(),
+                               force_ids_.size()));
+  std::unordered_map<std::int64_t, std::size_t> at;
+  at.reserve(force_ids_.size());
+  for (std::size_t i = 0; i < force_ids_.size(); ++i) at.emplace(force_ids_[i], i);
+  for (int a = 0; a < 3; ++a) f[a].resize(ids.size());
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    const auto it = at.find(ids[i]);
+    if (it == at.end()) throw RunError(fmt::format("particle id {} has no gas force", ids[i]));
+    for (int a = 0; a < 3; ++a) f[a][i] = force_[a][it->second];
+  }
+  return f;
 }
 
 CellFields GasCoupling::cell_fields() const {

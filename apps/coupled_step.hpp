@@ -51,6 +51,10 @@ public:
   // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
   double cfl_dt() const;
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
+  // F_i of the last step() in the order of `ids` (the store's order now: the schemes permute the
+  // store, and the force they hold, after step()); empty before the first step.
+  [[nodiscard]] std::array<std::vector<double>, 3> force_in_order(
+      std::span<const std::int64_t> ids) const;
   [[nodiscard]] FluidDiagnostics diagnostics() const;
   [[nodiscard]] const fluid::GasSolver& solver() const { return *solver_; }
   [[nodiscard]] fluid::GasSolver& solver() { return *solver_; }
@@ -66,8 +70,8 @@ public:
   [[nodiscard]] CellFields cell_fields() const;
 
   // Checkpoint/restart at a fluid-step boundary: the solver's state, what the diagnostics read
-  // and the counters. Not in it: the deposited eps_s, drag coefficients and particle forces --
-  // step() deposits and interpolates them afresh from the particles before any use.
+  // and the counters. Not in it: the deposited eps_s and drag coefficients (step() deposits them
+  // afresh before any use) and the particle force (the scheme holds it: force_in_order()).
   struct State {
     fluid::GasSolver::State solver;
     std::vector<double> eps_prev; // eps_g before the last step (mass residual); empty: no step
@@ -90,6 +94,7 @@ private:
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   fluid::GridField eps_s_, work_, eps_prev_;
   std::vector<double> eps_p_, beta_, bv_, ug_[3], force_[3];
+  std::vector<std::int64_t> force_ids_; // particle ids in force_'s order
 };
 
 } // namespace cfddem::apps

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <limits>
 #include <optional>
+#include <stdexcept>
 
 #include <fmt/format.h>
 #include <HYPRE_utilities.h>
@@ -566,7 +567,8 @@ RunResult run_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& 
 // A row or snapshot at fluid time t is written by the first particle step after t (as in the
 // explicit loop, the synchronised state at t needs the forces at t), with the gas taken at t.
 // Checkpoints are written at fluid-step boundaries (an ORB regrid point), before the next gas
-// step; the held particle force is not in them because that step replaces it before any use.
+// step, with the gas force the scheme holds (read by the step past the end when a run resumes
+// at its end time).
 template <class Scheme>
 RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
   constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
@@ -620,6 +622,10 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
         scheme.restore_state(std::move(ck->orb));
       else
         scheme.restore_state(std::move(ck->state));
+      const auto& hf = ck->loop.held_force;
+      scheme.set_external_force(hf[0], hf[1], hf[2]);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError(opt.restart, fmt::format("cannot restart: held gas force: {}", e.what()));
     } catch (const RunError& e) {
       throw ConfigError(opt.restart, fmt::format("cannot restart: {}", e.what()));
     }
@@ -781,6 +787,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       c.gas = true;
       c.gas_state = gas.save_state();
       c.loop = loop;
+      c.loop.held_force = gas.force_in_order(particles.id);
       write_checkpoint(
           (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps)).string(),
           c);

@@ -236,23 +236,35 @@ print("RESULT", len(times), b.GetNumberOfPoints(), b.GetNumberOfCells(), ",".joi
 """
 
 
-class ParaView(Tmp):
+class PvTmp(Tmp):
+    """Tests that run a ParaView script with pvbatch (skipped where ParaView is not installed)."""
+
+    def setUp(self):
+        self.pvbatch = shutil.which("pvbatch")
+        if not self.pvbatch:
+            self.skipTest("pvbatch not installed (apt-get install paraview)")
+        super().setUp()
+
+    def pv_lines(self, script_text, xmf):
+        """Run script_text on xmf; its stdout lines as {first word: the fields after it}."""
+        script = os.path.join(self.tmp, "load.py")
+        with open(script, "w") as f:
+            f.write(script_text)
+        r = subprocess.run([self.pvbatch, script, xmf], capture_output=True, text=True,
+                           timeout=240)
+        lines = {x.split()[0]: x.split()[1:] for x in r.stdout.splitlines() if x.split()}
+        self.assertIn("RESULT", lines, r.stdout + r.stderr)
+        return lines
+
+
+class ParaView(PvTmp):
     """The reader users pick (Debian's ParaView 5.11 XDMFReader) loads the index as a series."""
 
     def test_xdmf_reader_loads_time_series(self):
-        pvbatch = shutil.which("pvbatch")
-        if not pvbatch:
-            self.skipTest("pvbatch not installed (apt-get install paraview)")
         out = os.path.join(self.tmp, "pv")
         self.run_ok(HCS, "run.end_time=0.002", "output.snapshot_interval=0.001", "--out", out)
-        script = os.path.join(self.tmp, "load.py")
-        with open(script, "w") as f:
-            f.write(PV_SCRIPT)
-        r = subprocess.run([pvbatch, script, os.path.join(out, "snapshots.xmf")],
-                           capture_output=True, text=True, timeout=240)
-        line = [x for x in r.stdout.splitlines() if x.startswith("RESULT")]
-        self.assertTrue(line, r.stdout + r.stderr)
-        _, steps, points, cells, names = line[0].split()
+        steps, points, cells, names = self.pv_lines(
+            PV_SCRIPT, os.path.join(out, "snapshots.xmf"))["RESULT"]
         self.assertEqual(int(steps), 3)
         self.assertEqual(int(points), 1222)
         self.assertEqual(int(cells), 1222)  # Polyvertex: one vertex cell per particle
@@ -279,25 +291,16 @@ print("EPS", " ".join(repr(eps.GetValue(i)) for i in range(eps.GetNumberOfTuples
 """
 
 
-class ParaViewFluid(Tmp):
+class ParaViewFluid(PvTmp):
     """ParaView's XDMFReader loads a coupled run's cells as a rectilinear grid next to the
     particles, with the cell values in the order h5py reads them (x fastest)."""
 
     def test_xdmf_reader_loads_fluid_grid(self):
-        pvbatch = shutil.which("pvbatch")
-        if not pvbatch:
-            self.skipTest("pvbatch not installed (apt-get install paraview)")
         out = os.path.join(self.tmp, "pvgas")
         self.run_ok(*HCS_GAS, "run.end_time=0.001", "output.snapshot_interval=0.0005", "--out",
                     out)
-        script = os.path.join(self.tmp, "load_fluid.py")
-        with open(script, "w") as f:
-            f.write(PV_FLUID_SCRIPT)
-        r = subprocess.run([pvbatch, script, os.path.join(out, "snapshots.xmf")],
-                           capture_output=True, text=True, timeout=240)
-        line = [x for x in r.stdout.splitlines() if x.startswith("RESULT")]
-        self.assertTrue(line, r.stdout + r.stderr)
-        f = line[0].split()
+        lines = self.pv_lines(PV_FLUID_SCRIPT, os.path.join(out, "snapshots.xmf"))
+        f = ["RESULT", *lines["RESULT"]]
         nx, ny, nz = GAS_CELLS
         self.assertEqual(int(f[1]), 3)
         self.assertEqual(f[2], "particles,fluid")
@@ -306,8 +309,7 @@ class ParaViewFluid(Tmp):
         self.assertEqual([int(x) for x in f[5:8]], [nx + 1, ny + 1, nz + 1])
         self.assertEqual(f[8], "eps_g,gas_velocity,pressure")
         np.testing.assert_allclose([float(x) for x in f[9:15]], [0, 4e-3] * 3, atol=1e-15)
-        eps_pv = [float(x) for x in
-                  [x for x in r.stdout.splitlines() if x.startswith("EPS")][0].split()[1:]]
+        eps_pv = [float(x) for x in lines["EPS"]]
         with h5py.File(os.path.join(out, "snapshot_000006910.h5"), "r") as h:
             np.testing.assert_array_equal(eps_pv, h["fluid/eps_g"][()].ravel())
 

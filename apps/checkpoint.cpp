@@ -76,6 +76,81 @@ std::string join(const std::vector<std::string>& v) {
   return s;
 }
 
+// The gas solver's arrays, the coupling counters and the coupled loop's position (/gas).
+void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
+  const GasCoupling::State& g = c.gas_state;
+  const CoupledLoopState& l = c.loop;
+  f.create_group("/gas");
+  w.put("/gas/u", g.solver.velocity[0]);
+  w.put("/gas/v", g.solver.velocity[1]);
+  w.put("/gas/w", g.solver.velocity[2]);
+  w.put("/gas/p", g.solver.pressure);
+  w.put("/gas/eps_g", g.solver.volume_fraction);
+  w.put("/gas/eps_g_old", g.solver.volume_fraction_old);
+  w.put("/gas/eps_g_prev", g.eps_prev);
+  w.put("/gas/counters",
+        std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
+                                  l.fluid_steps, l.row_pending ? 1 : 0,
+                                  l.snapshot_pending ? 1 : 0});
+  const FluidDiagnostics& d = l.row_fluid;
+  w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
+                                          l.dt_f_sum, l.row_time, d.pressure_drop,
+                                          d.gas_momentum[0], d.gas_momentum[1],
+                                          d.gas_momentum[2], d.mass_residual});
+  w.put("/gas/held_force_x", l.held_force[0]);
+  w.put("/gas/held_force_y", l.held_force[1]);
+  w.put("/gas/held_force_z", l.held_force[2]);
+  // The cell data of a snapshot waiting for its particle step (empty arrays otherwise).
+  const CellFields& s = l.snapshot_cells;
+  f.create_group("/gas/snapshot");
+  w.put("/gas/snapshot/cells", std::vector<std::int64_t>(s.cells.begin(), s.cells.end()));
+  w.put("/gas/snapshot/x_nodes", s.x_nodes);
+  w.put("/gas/snapshot/y_nodes", s.y_nodes);
+  w.put("/gas/snapshot/z_nodes", s.z_nodes);
+  w.put("/gas/snapshot/eps_g", s.eps_g);
+  w.put("/gas/snapshot/pressure", s.pressure);
+  w.put("/gas/snapshot/gas_velocity", s.gas_velocity);
+}
+
+void read_gas(Reader& r, Checkpoint& c) {
+  GasCoupling::State& g = c.gas_state;
+  CoupledLoopState& l = c.loop;
+  g.solver.velocity[0] = r.doubles("/gas/u", Reader::kAny);
+  const std::size_t m = g.solver.velocity[0].size(); // padded grid size
+  g.solver.velocity[1] = r.doubles("/gas/v", m);
+  g.solver.velocity[2] = r.doubles("/gas/w", m);
+  g.solver.pressure = r.doubles("/gas/p", m);
+  g.solver.volume_fraction = r.doubles("/gas/eps_g", m);
+  g.solver.volume_fraction_old = r.doubles("/gas/eps_g_old", m);
+  g.eps_prev = r.doubles("/gas/eps_g_prev", Reader::kAny);
+  const auto k = r.int64s("/gas/counters", 6);
+  g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
+  l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
+  const auto q = r.doubles("/gas/loop", 11);
+  g.last_dt = q[0], l.time = q[1], l.next_output = q[2], l.next_snapshot = q[3];
+  l.dt_f_sum = q[4], l.row_time = q[5];
+  l.row_fluid = {q[6], {q[7], q[8], q[9]}, q[10]};
+  l.held_force[0] = r.doubles("/gas/held_force_x", c.particles.size());
+  l.held_force[1] = r.doubles("/gas/held_force_y", c.particles.size());
+  l.held_force[2] = r.doubles("/gas/held_force_z", c.particles.size());
+  CellFields& s = l.snapshot_cells;
+  const auto n = r.int64s("/gas/snapshot/cells", 3);
+  s.cells = {n[0], n[1], n[2]};
+  s.x_nodes = r.doubles("/gas/snapshot/x_nodes", Reader::kAny);
+  s.y_nodes = r.doubles("/gas/snapshot/y_nodes", Reader::kAny);
+  s.z_nodes = r.doubles("/gas/snapshot/z_nodes", Reader::kAny);
+  s.eps_g = r.doubles("/gas/snapshot/eps_g", Reader::kAny);
+  s.pressure = r.doubles("/gas/snapshot/pressure", s.eps_g.size());
+  s.gas_velocity = r.doubles("/gas/snapshot/gas_velocity", 3 * s.eps_g.size());
+  if (l.snapshot_pending &&
+      (n[0] < 1 || n[1] < 1 || n[2] < 1 ||
+       s.eps_g.size() != static_cast<std::size_t>(n[0] * n[1] * n[2]) ||
+       s.x_nodes.size() != static_cast<std::size_t>(n[0] + 1) ||
+       s.y_nodes.size() != static_cast<std::size_t>(n[1] + 1) ||
+       s.z_nodes.size() != static_cast<std::size_t>(n[2] + 1)))
+    throw RunError("the pending snapshot's cell data has the wrong shape");
+}
+
 } // namespace
 
 std::string restart_configuration(const Scene& scene) {
@@ -155,17 +230,21 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
       w.put("/orb/y_ref", o.y_ref);
       w.put("/orb/z_ref", o.z_ref);
     }
+    if (c.gas) write_gas(f, w, c);
     w.put("/diagnostics_rows", flatten_rows(c.rows));
-    std::vector<std::int64_t> ss, sn, sl;
+    std::vector<std::int64_t> ss, sn, sl, sc;
     std::vector<double> st;
-    for (const auto& e : c.snapshots)
+    for (const auto& e : c.snapshots) {
       ss.push_back(e.step), st.push_back(e.time), sn.push_back(e.particles),
           sl.push_back(e.leaf ? 1 : 0);
+      sc.insert(sc.end(), e.cells.begin(), e.cells.end());
+    }
     f.create_group("/snapshots");
     w.put("/snapshots/step", ss);
     w.put("/snapshots/time", st);
     w.put("/snapshots/particles", sn);
     w.put("/snapshots/leaf", sl);
+    w.put("/snapshots/cells", sc);
     f.attribute("checksum", static_cast<std::int64_t>(w.hash.h));
     f.close();
   } catch (...) {
@@ -260,6 +339,8 @@ Checkpoint read_checkpoint(const std::string& path) {
     } else if (c.scheme != "explicit") {
       throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
     }
+    c.gas = f.exists("/gas");
+    if (c.gas) read_gas(r, c);
     const auto flat =
         r.doubles("/diagnostics_rows", static_cast<std::size_t>(nrows) * c.columns.size());
     for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
@@ -269,9 +350,14 @@ Checkpoint read_checkpoint(const std::string& path) {
     const auto st = r.doubles("/snapshots/time", ss.size());
     const auto sn = r.int64s("/snapshots/particles", ss.size());
     const auto sl = r.int64s("/snapshots/leaf", ss.size());
+    // Checkpoints written before snapshots had cells lack the dataset (and did not hash it).
+    const auto sc = f.exists("/snapshots/cells")
+                        ? r.int64s("/snapshots/cells", 3 * ss.size())
+                        : std::vector<std::int64_t>(3 * ss.size(), 0);
     for (std::size_t i = 0; i < ss.size(); ++i)
-      c.snapshots.push_back(
-          {ss[i], st[i], sn[i], sl[i] != 0, fmt::format("snapshot_{:09d}.h5", ss[i])});
+      c.snapshots.push_back({ss[i], st[i], sn[i], sl[i] != 0,
+                             {sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]},
+                             fmt::format("snapshot_{:09d}.h5", ss[i])});
     if (static_cast<std::uint64_t>(f.read_attribute_int64("checksum")) != r.hash.h)
       throw RunError("checksum mismatch: the arrays are corrupt");
     return c;

@@ -6,15 +6,21 @@
 // sum order and the rebuild schedule are those of the run that wrote it). There is no RNG state
 // to keep: random numbers are drawn only when the initial particles are generated.
 //
+// With a gas (coupled scenes) it also holds, under /gas, the gas solver's state and the coupling
+// counters (GasCoupling::State) and the coupled loop's position (CoupledLoopState); it is written
+// at a fluid-step boundary, before the next fluid step.
+//
 // The file (HDF5, checkpoint_<step>.h5) is written under a temporary name and renamed, and carries
 // an FNV-1a checksum over all its arrays, so a truncated or corrupt file is refused with a clear
 // error (read_checkpoint throws ConfigError) rather than restarting from garbage.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
 
+#include "apps/coupled_step.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
@@ -23,10 +29,29 @@
 
 namespace cfddem::apps {
 
+// Where the coupled loop stands at a fluid-step boundary. A row or snapshot at fluid time t is
+// written by the next particle step (the synchronised state at t needs the forces at t), after
+// the gas has moved on: what it takes from the gas at t waits here.
+struct CoupledLoopState {
+  double time = 0.0; // fluid time reached
+  double next_output = 0.0, next_snapshot = 0.0, dt_f_sum = 0.0;
+  std::int64_t fluid_steps = 0;
+  bool row_pending = false;
+  double row_time = 0.0;
+  FluidDiagnostics row_fluid;
+  bool snapshot_pending = false;
+  CellFields snapshot_cells;
+  // The gas force the scheme holds over the sub-cycle, in the store's order: the next fluid step
+  // replaces it before any use, except when the run resumes at its end (the one particle step
+  // past the end, which records the last row, still reads it).
+  std::array<std::vector<double>, 3> held_force;
+};
+
 struct Checkpoint {
   std::string scheme = "explicit";
   double dt = 0.0;
-  std::int64_t step = 0;       // the loop resumes at this step (state x(step), v(step - 1/2))
+  std::int64_t step = 0;       // the loop resumes at this step (state x(step), v(step - 1/2));
+                               // with a gas, the fluid steps taken
   std::int64_t last_row_step = 0;
   std::vector<std::string> columns;
   std::vector<std::vector<double>> rows; // diagnostics rows written so far
@@ -35,6 +60,9 @@ struct Checkpoint {
   ParticleStore particles;
   dem::ExplicitScheme::State state; // scheme == "explicit"
   dem::OrbScheme::State orb;         // scheme == "orb"
+  bool gas = false;                  // a coupled scene's checkpoint: the two below are set
+  GasCoupling::State gas_state;
+  CoupledLoopState loop;
 };
 
 // The configuration lines that must match between a checkpoint and the scene it restarts

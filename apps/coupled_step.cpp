@@ -5,6 +5,7 @@
 #include <limits>
 #include <numbers>
 #include <stdexcept>
+#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -188,6 +189,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   const std::size_t n = p.size();
+  force_ids_.assign(p.id.begin(), p.id.end());
   const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
   for (int a = 0; a < 3; ++a) {
@@ -261,6 +263,87 @@ FluidDiagnostics GasCoupling::diagnostics() const {
     d.mass_residual = worst * last_dt_;
   }
   return d;
+}
+
+std::array<std::vector<double>, 3> GasCoupling::force_in_order(
+    std::span<const std::int64_t> ids) const {
+  std::array<std::vector<double>, 3> f;
+  if (force_ids_.empty()) return f;
+  if (ids.size() != force_ids_.size())
+    throw RunError(fmt::format("{} particles, the gas force has {}", ids.size(),
+                               force_ids_.size()));
+  std::unordered_map<std::int64_t, std::size_t> at;
+  at.reserve(force_ids_.size());
+  for (std::size_t i = 0; i < force_ids_.size(); ++i) at.emplace(force_ids_[i], i);
+  for (int a = 0; a < 3; ++a) f[a].resize(ids.size());
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    const auto it = at.find(ids[i]);
+    if (it == at.end()) throw RunError(fmt::format("particle id {} has no gas force", ids[i]));
+    for (int a = 0; a < 3; ++a) f[a][i] = force_[a][it->second];
+  }
+  return f;
+}
+
+CellFields GasCoupling::cell_fields() const {
+  const auto& nc = grid_.cells();
+  CellFields c;
+  std::vector<double>* nodes[3] = {&c.x_nodes, &c.y_nodes, &c.z_nodes};
+  for (int a = 0; a < 3; ++a) {
+    c.cells[a] = nc[a];
+    for (int i = 0; i <= nc[a]; ++i)
+      nodes[a]->push_back(scene_.domain.lo[a] + i * grid_.spacing(a));
+  }
+  const fluid::GridField& eps = solver_->volume_fraction();
+  const fluid::GridField& pp = solver_->pressure();
+  const auto gp0 = solver_->background_pressure_gradient();
+  std::array<fluid::GridField, 3> u;
+  for (int a = 0; a < 3; ++a) {
+    u[a] = grid_.make_field();
+    solver_->cell_centred_velocity(a, u[a]);
+  }
+  for (int k = 0; k < nc[2]; ++k)
+    for (int j = 0; j < nc[1]; ++j)
+      for (int i = 0; i < nc[0]; ++i) {
+        c.eps_g.push_back(eps(i, j, k));
+        // As the pressure-drop diagnostic: p' plus the background gradient from the low corner.
+        c.pressure.push_back(pp(i, j, k) + gp0[0] * (i + 0.5) * grid_.spacing(0) +
+                             gp0[1] * (j + 0.5) * grid_.spacing(1) +
+                             gp0[2] * (k + 0.5) * grid_.spacing(2));
+        for (int a = 0; a < 3; ++a) c.gas_velocity.push_back(u[a](i, j, k));
+      }
+  return c;
+}
+
+GasCoupling::State GasCoupling::save_state() const {
+  State s;
+  s.solver = solver_->save_state();
+  s.eps_prev.assign(eps_prev_.values().begin(), eps_prev_.values().end());
+  s.last_dt = last_dt_;
+  s.gas_substeps = gas_substeps_;
+  s.projection_iterations = projection_iterations_;
+  s.projection_fallbacks = projection_fallbacks_;
+  return s;
+}
+
+void GasCoupling::restore_state(const State& s) {
+  try {
+    solver_->restore_state(s.solver);
+  } catch (const std::invalid_argument& e) {
+    throw RunError(e.what());
+  }
+  if (!s.eps_prev.empty()) {
+    if (s.eps_prev.size() != grid_.layout().size())
+      throw RunError(fmt::format("gas state 'eps_prev' has {} values, the grid {}",
+                                 s.eps_prev.size(), grid_.layout().size()));
+    eps_prev_ = grid_.make_field();
+    std::copy(s.eps_prev.begin(), s.eps_prev.end(), eps_prev_.values().begin());
+  } else {
+    eps_prev_ = fluid::GridField();
+  }
+  last_dt_ = s.last_dt;
+  gas_substeps_ = s.gas_substeps;
+  projection_iterations_ = s.projection_iterations;
+  projection_fallbacks_ = s.projection_fallbacks;
 }
 
 } // namespace cfddem::apps

@@ -10,10 +10,12 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <vector>
 
+#include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "fluid/deposition.hpp"
@@ -49,6 +51,10 @@ public:
   // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
   double cfl_dt() const;
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
+  // F_i of the last step() in the order of `ids` (the store's order now: the schemes permute the
+  // store, and the force they hold, after step()); empty before the first step.
+  [[nodiscard]] std::array<std::vector<double>, 3> force_in_order(
+      std::span<const std::int64_t> ids) const;
   [[nodiscard]] FluidDiagnostics diagnostics() const;
   [[nodiscard]] const fluid::GasSolver& solver() const { return *solver_; }
   [[nodiscard]] fluid::GasSolver& solver() { return *solver_; }
@@ -59,6 +65,22 @@ public:
   [[nodiscard]] long long projection_iterations() const { return projection_iterations_; }
   // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
+
+  // The gas at cell centres for a snapshot (eps_g, full pressure, gas velocity).
+  [[nodiscard]] CellFields cell_fields() const;
+
+  // Checkpoint/restart at a fluid-step boundary: the solver's state, what the diagnostics read
+  // and the counters. Not in it: the deposited eps_s and drag coefficients (step() deposits them
+  // afresh before any use) and the particle force (the scheme holds it: force_in_order()).
+  struct State {
+    fluid::GasSolver::State solver;
+    std::vector<double> eps_prev; // eps_g before the last step (mass residual); empty: no step
+    double last_dt = 0.0;
+    std::int64_t gas_substeps = 0, projection_iterations = 0, projection_fallbacks = 0;
+  };
+  [[nodiscard]] State save_state() const;
+  // Throws RunError if the state does not fit this grid.
+  void restore_state(const State& s);
 
 private:
   void deposit(const ParticleStore& p);
@@ -72,6 +94,7 @@ private:
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   fluid::GridField eps_s_, work_, eps_prev_;
   std::vector<double> eps_p_, beta_, bv_, ug_[3], force_[3];
+  std::vector<std::int64_t> force_ids_; // particle ids in force_'s order
 };
 
 } // namespace cfddem::apps

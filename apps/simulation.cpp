@@ -7,7 +7,9 @@
 #include <type_traits>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <optional>
+#include <stdexcept>
 
 #include <fmt/format.h>
 #include <HYPRE_utilities.h>
@@ -146,6 +148,18 @@ std::string format_eta(double s) {
   return fmt::format("{:.1f}h", s / 3600);
 }
 
+// Positions wrapped into the periodic box for a snapshot (the schemes wrap only when they
+// rebuild their lists or regrid).
+struct WrappedPositions {
+  std::vector<double> x, y, z;
+  WrappedPositions(const dem::DomainGeometry& g, std::span<const double> px,
+                   std::span<const double> py, std::span<const double> pz)
+      : x(px.size()), y(py.size()), z(pz.size()) {
+    for (std::size_t i = 0; i < px.size(); ++i)
+      x[i] = g.wrap(px[i], 0), y[i] = g.wrap(py[i], 1), z[i] = g.wrap(pz[i], 2);
+  }
+};
+
 template <class Scheme>
 RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
@@ -158,6 +172,12 @@ long long every(double interval, double dt) {
 // Read a checkpoint and check it belongs to this scene; throws ConfigError (nothing written yet).
 Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
   Checkpoint ck = read_checkpoint(path);
+  if (ck.gas != scene.fluid.enabled)
+    throw ConfigError(path, ck.gas ? "the checkpoint holds a gas state (written by a scene with "
+                                     "a [fluid] table) but this scene has no gas"
+                                   : "the checkpoint holds no gas state (written by a scene "
+                                     "without a [fluid] table) but this scene has a [fluid] "
+                                     "table");
   if (ck.scheme != scene.dem.scheme)
     throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
                                         ck.scheme, scene.dem.scheme));
@@ -220,13 +240,6 @@ nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_seconds) 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (scene.fluid.enabled) {
     validate_fluid(scene);
-    // The gas state (velocities, pressure, eps_g history) is not in checkpoints yet: refuse
-    // rather than restart or checkpoint a coupled run incompletely.
-    if (!opt.restart.empty())
-      throw ConfigError("--restart", "restarting a scene with a [fluid] table is not supported yet");
-    if (scene.output.checkpoint_interval > 0)
-      throw ConfigError("scene key 'output.checkpoint_interval'",
-                        "checkpoints of scenes with a [fluid] table are not supported yet");
     return run_coupled(scene, opt, env);
   }
   if (scene.dem.scheme == "orb") return run_subiterated<dem::OrbScheme>(scene, opt, env);
@@ -452,13 +465,11 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   auto snapshot = [&](long long k) {
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s = scheme.synchronised_previous();
-    std::vector<double> wx(s.x.size()), wy(s.x.size()), wz(s.x.size());
-    for (std::size_t i = 0; i < s.x.size(); ++i)
-      wx[i] = geom.wrap(s.x[i], 0), wy[i] = geom.wrap(s.y[i], 1), wz[i] = geom.wrap(s.z[i], 2);
+    const WrappedPositions w(geom, s.x, s.y, s.z);
     SnapshotFields f;
     f.time = static_cast<double>(k) * dt_sp;
     f.step = k;
-    f.x = wx, f.y = wy, f.z = wz, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
+    f.x = w.x, f.y = w.y, f.z = w.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
     f.radius = s.radius, f.mass = s.mass, f.id = s.id, f.leaf = s.leaf, f.local_dt = s.local_dt;
     snapshots.add(write_particle_snapshot(opt.out_dir, f));
   };
@@ -593,16 +604,28 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
 // particle force (GasCoupling::step), then the particle sub-cycle: explicit, n_sub steps of
 // dt_f / n_sub (n_sub = ceil(dt_f / dt_dem), so the sub-cycle lands exactly on the fluid step);
 // orb, dem.nsubit sub-iterations of dt_f / nsubit (dem.regrid_interval is set to dt_f).
-// A row at fluid time t is written by the first particle step after t (as in the explicit loop,
-// the synchronised state at t needs the forces at t), with the gas diagnostics taken at t.
+// A row or snapshot at fluid time t is written by the first particle step after t (as in the
+// explicit loop, the synchronised state at t needs the forces at t), with the gas taken at t.
+// Checkpoints are written at fluid-step boundaries (an ORB regrid point), before the next gas
+// step, with the gas force the scheme holds (read by the step past the end when a run resumes
+// at its end time).
 template <class Scheme>
 RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
   // kOrb: a sub-iterated scheme (orb or islands), dem.nsubit sub-iterations per fluid step.
   constexpr bool kOrb = !std::is_same_v<Scheme, dem::ExplicitScheme>;
   constexpr bool kLeaves = std::is_same_v<Scheme, dem::OrbScheme>;
+  if constexpr (kOrb && !kLeaves) {
+    if (!opt.restart.empty())
+      throw ConfigError("--restart", "restarting the \"islands\" scheme is not supported yet");
+    if (scene_in.output.checkpoint_interval > 0)
+      throw ConfigError("scene key 'output.checkpoint_interval'",
+                        "checkpoints of the \"islands\" scheme are not supported yet");
+  }
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
-  ParticleStore particles = make_initial_particles(scene_in);
+  std::optional<Checkpoint> ck;
+  if (!opt.restart.empty()) ck = load_checkpoint(scene_in, opt.restart);
+  ParticleStore particles = ck ? std::move(ck->particles) : make_initial_particles(scene_in);
   const DerivedNumbers derived = derive(scene_in, particles);
   Scene scene = scene_in;
   const double dt_dem = dem::make_step_model(scene_in, particles).dt;
@@ -628,49 +651,116 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     dt = scheme.dt_sub();
   else
     dt = scheme.dt();
+  const double end = scene.run.end_time;
+  CoupledLoopState loop;
+  loop.next_output = scene.output.interval;
+  loop.next_snapshot = scene.output.snapshot_interval;
+  long long k_last_row = 0;
+  if (ck) {
+    // Everything is checked and restored before the run directory is touched.
+    if (ck->dt != dt)
+      throw ConfigError(opt.restart, fmt::format("checkpoint particle step {:.17g} s differs from "
+                                                 "the scene's {:.17g} s", ck->dt, dt));
+    if (ck->loop.time > end + 1e-6 * dt)
+      throw ConfigError("run.end_time", fmt::format("the checkpoint is at t = {:.17g} s, past the "
+                                                    "end of the run ({:.17g} s)",
+                                                    ck->loop.time, end));
+    try {
+      gas.restore_state(ck->gas_state);
+      if constexpr (kLeaves)
+        scheme.restore_state(std::move(ck->orb));
+      else if constexpr (!kOrb)
+        scheme.restore_state(std::move(ck->state));
+      const auto& hf = ck->loop.held_force;
+      scheme.set_external_force(hf[0], hf[1], hf[2]);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError(opt.restart, fmt::format("cannot restart: held gas force: {}", e.what()));
+    } catch (const RunError& e) {
+      throw ConfigError(opt.restart, fmt::format("cannot restart: {}", e.what()));
+    }
+    loop = std::move(ck->loop);
+    k_last_row = ck->last_row_step;
+  }
 
   fs::create_directories(opt.out_dir);
   DiagnosticsFile diag((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
-  const double end = scene.run.end_time;
+  std::vector<std::vector<double>> rows; // kept for checkpoints
+  auto add_row = [&](std::vector<double> r) {
+    diag.add_row(r);
+    rows.push_back(std::move(r));
+  };
+  SnapshotIndex snapshots(opt.out_dir);
+  const dem::DomainGeometry geom(scene.domain);
+  double snap_dt = dt; // the particles' step (orb: the fine one; snapshots give each local step)
+  if constexpr (kOrb) snap_dt = scheme.dt_fine();
+  // Synchronised particles of the last recorded step with the gas kept from time t_snap.
+  auto snapshot = [&](double t_snap, long long k, const CellFields& cells) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const auto s = scheme.synchronised_previous();
+    const WrappedPositions w(geom, s.x, s.y, s.z);
+    SnapshotFields f;
+    f.time = t_snap;
+    f.step = k;
+    f.x = w.x, f.y = w.y, f.z = w.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
+    if constexpr (kOrb)
+      f.radius = s.radius, f.mass = s.mass, f.id = s.id, f.leaf = s.leaf, f.local_dt = s.local_dt;
+    else
+      f.radius = particles.radius, f.mass = particles.mass, f.id = particles.id;
+    f.dt = snap_dt;
+    f.cells = &cells;
+    snapshots.add(write_particle_snapshot(opt.out_dir, f));
+  };
   if (!opt.quiet) {
     const auto& c = scene.fluid.cells;
     fmt::print(stderr, "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
                        "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-                       "thread(s)\n",
+                       "thread(s){}\n",
                scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag,
                scene.fluid.deposition, fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                                              : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
                dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "sub-iterations" : "steps") : std::string(),
-               env.ranks(), env.threads());
+               env.ranks(), env.threads(),
+               ck ? fmt::format(", restarted at t = {:.6e} s from {}", loop.time, opt.restart)
+                  : "");
   }
-  scheme.start();
-  const auto t_loop = clock::now();
   MeanTracker means;
-  {
+  if (ck) {
+    for (auto& r : ck->rows) add_row(std::move(r));
+    snapshots.restore(ck->snapshots);
+    if (!rows.empty()) means.resume(rows.back());
+  } else {
+    if (loop.next_snapshot > 0.0) {
+      // t = 0 before start() (which shifts the explicit velocities to the half step).
+      const CellFields cells = gas.cell_fields();
+      SnapshotFields f;
+      f.x = particles.x, f.y = particles.y, f.z = particles.z, f.vx = particles.vx;
+      f.vy = particles.vy, f.vz = particles.vz, f.radius = particles.radius;
+      f.mass = particles.mass, f.id = particles.id, f.dt = snap_dt;
+      f.cells = &cells;
+      snapshots.add(write_particle_snapshot(opt.out_dir, f));
+    }
+    scheme.start();
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
                                   particles.vy, particles.vz, particles.mass});
-    diag.add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
-                     means.next(0.0, particles.vx, particles.vy, particles.vz,
-                                gas.diagnostics())));
+    add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
+                means.next(0.0, particles.vx, particles.vy, particles.vz, gas.diagnostics())));
   }
-  double t = 0.0, next_out = scene.output.interval, t_row = 0.0;
-  bool pending = false;
-  FluidDiagnostics fd_row;
-  long long fluid_steps = 0, k_last_row = 0;
-  double dt_f_sum = 0.0;
+  const auto t_loop = clock::now();
+  double& t = loop.time;
   auto last_progress = clock::now();
-  auto particle_step = [&](bool record) {
+  auto particle_step = [&](bool record, bool snap) {
     dem::LeafStepStats ls{};
     long long k = 0;
     if constexpr (kOrb) {
       if (record) ls = scheme.take_interval_stats();
-      scheme.subiterate(record);
+      scheme.subiterate(record || snap);
       k = scheme.subiterations() - 1;
     } else {
-      scheme.step(record);
+      scheme.step(record || snap);
       k = scheme.steps_taken() - 1;
     }
+    if (snap) snapshot(loop.row_time, k, loop.snapshot_cells);
     if (!record) return;
     PhaseTimer::Scope io(timer, Phase::io);
     const auto s = scheme.synchronised_previous();
@@ -682,10 +772,16 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       ls = dem::LeafStepStats{steps, steps, steps, 1.0};
     }
     k_last_row = k;
-    diag.add_row(row(t_row, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
-                     means.next(t_row, s.vx, s.vy, s.vz, fd_row)));
+    add_row(row(loop.row_time, k, st, particles.size(), scheme, seconds_since(t_loop), ls,
+                means.next(loop.row_time, s.vx, s.vy, s.vz, loop.row_fluid)));
   };
-  while (end - t > 1e-6 * dt) {
+  // Checkpoints at the fluid times that are multiples of the interval, after the restart time.
+  const double ckpt_interval = scene.output.checkpoint_interval;
+  double next_ckpt = ckpt_interval > 0.0
+                         ? (std::floor(t / ckpt_interval + 1e-6) + 1.0) * ckpt_interval
+                         : std::numeric_limits<double>::infinity();
+  const double tol = 1e-6 * dt;
+  while (end - t > tol) {
     long long n_sub = n_fixed;
     if (!fixed) {
       const double want = std::min({gas.cfl_dt(), scene.fluid.max_dt, end - t});
@@ -698,20 +794,53 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
     }
     for (long long q = 0; q < n_sub; ++q) {
-      const bool record = pending && q == 0;
-      particle_step(record);
-      if (record) pending = false;
+      particle_step(q == 0 && loop.row_pending, q == 0 && loop.snapshot_pending);
+      if (q == 0) loop.row_pending = loop.snapshot_pending = false;
     }
-    ++fluid_steps;
-    dt_f_sum += dt_f;
+    ++loop.fluid_steps;
+    loop.dt_f_sum += dt_f;
     // A fixed step counts steps (no drift of a running sum against the output times).
-    t = fixed ? static_cast<double>(fluid_steps) * scene.fluid.dt : t + dt_f;
-    if (t >= next_out - 1e-6 * dt || end - t <= 1e-6 * dt) {
+    t = fixed ? static_cast<double>(loop.fluid_steps) * scene.fluid.dt : t + dt_f;
+    const bool last = end - t <= tol;
+    if (t >= loop.next_output - tol || last) {
       PhaseTimer::Scope io(timer, Phase::io);
-      fd_row = gas.diagnostics();
-      t_row = t;
-      pending = true;
-      while (next_out <= t + 1e-6 * dt) next_out += scene.output.interval;
+      loop.row_fluid = gas.diagnostics();
+      loop.row_time = t;
+      loop.row_pending = true;
+      while (loop.next_output <= t + tol) loop.next_output += scene.output.interval;
+    }
+    if (scene.output.snapshot_interval > 0.0 && (t >= loop.next_snapshot - tol || last)) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      loop.snapshot_cells = gas.cell_fields();
+      loop.row_time = t;
+      loop.snapshot_pending = true;
+      while (loop.next_snapshot <= t + tol) loop.next_snapshot += scene.output.snapshot_interval;
+    }
+    if (t >= next_ckpt - tol) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      diag.flush();
+      Checkpoint c;
+      c.scheme = kLeaves ? "orb" : "explicit";
+      c.dt = dt;
+      c.step = loop.fluid_steps;
+      c.last_row_step = k_last_row;
+      c.columns = kColumns;
+      c.rows = rows;
+      c.snapshots = snapshots.entries();
+      c.configuration = restart_configuration(scene_in);
+      c.particles = particles;
+      if constexpr (kLeaves)
+        c.orb = scheme.save_state();
+      else if constexpr (!kOrb)
+        c.state = scheme.save_state();
+      c.gas = true;
+      c.gas_state = gas.save_state();
+      c.loop = loop;
+      c.loop.held_force = gas.force_in_order(particles.id);
+      write_checkpoint(
+          (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps)).string(),
+          c);
+      while (next_ckpt <= t + tol) next_ckpt += ckpt_interval;
     }
     if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
                           scene.output.progress_seconds) {
@@ -719,13 +848,16 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       const double wall = seconds_since(t_loop);
       const double frac = t / end;
       fmt::print(stderr, "fluid step {:>8} t = {:.6e} s ({:5.1f}%)  fluid {:.0f}% of wall  ETA {}\n",
-                 fluid_steps, t, 100 * frac, 100 * timer.seconds(Phase::fluid) / wall,
+                 loop.fluid_steps, t, 100 * frac, 100 * timer.seconds(Phase::fluid) / wall,
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
-  if (pending) particle_step(true); // one particle step past the end, as the explicit loop
+  // One particle step past the end, as the explicit loop.
+  if (loop.row_pending || loop.snapshot_pending)
+    particle_step(loop.row_pending, loop.snapshot_pending);
   diag.flush();
   const double loop_seconds = seconds_since(t_loop);
+  const long long fluid_steps = loop.fluid_steps;
 
   nlohmann::ordered_json j =
       run_json_header(scene_in, scene.name, derived, env, particles.size());
@@ -743,7 +875,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     j["steps"] = scheme.steps_taken();
   }
   j["fluid_steps"] = fluid_steps;
-  j["fluid_dt_mean"] = fluid_steps > 0 ? dt_f_sum / static_cast<double>(fluid_steps) : 0.0;
+  j["fluid_dt_mean"] = fluid_steps > 0 ? loop.dt_f_sum / static_cast<double>(fluid_steps) : 0.0;
   j["gas_substeps"] = gas.gas_substeps();
   j["projection_iterations"] = gas.projection_iterations();
   j["projection_fallbacks"] = gas.projection_fallbacks();

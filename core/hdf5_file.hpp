@@ -1,7 +1,7 @@
 // A thin RAII wrapper over the HDF5 C API (the C++ H5:: API has no MPI-IO calls, HighFive is not
-// in Debian 12): files, groups, contiguous datasets of double / int64 / uint32 with up to two
-// dimensions, and scalar attributes. Every failure throws RunError naming the file and object;
-// HDF5's own error stack printing is turned off.
+// in Debian 12): files, groups, contiguous datasets of double / int64 / uint32 (written with any
+// number of dimensions, read back with up to two), and scalar attributes. Every failure throws
+// RunError naming the file and object; HDF5's own error stack printing is turned off.
 #pragma once
 
 #include <cstdint>
@@ -56,7 +56,7 @@ public:
   static File open_read(const std::string& path);
 
   void create_group(const std::string& name);
-  // Datasets: shape {n} or {n, m}; data.size() must equal the product.
+  // Datasets of any shape ({n}, {n, m}, {nz, ny, nx, 3}, ...); data.size() = the product.
   void write(const std::string& name, std::span<const double> data, std::vector<hsize_t> shape);
   void write(const std::string& name, std::span<const std::int64_t> data,
              std::vector<hsize_t> shape);

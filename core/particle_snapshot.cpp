@@ -1,5 +1,6 @@
 #include "core/particle_snapshot.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -12,6 +13,57 @@
 #include "core/hdf5_file.hpp"
 
 namespace cfddem {
+
+namespace {
+
+void write_cells(h5::File& file, const CellFields& c) {
+  const auto [nx, ny, nz] = c.cells;
+  const auto h = [](std::int64_t v) { return static_cast<hsize_t>(v); };
+  file.create_group("/fluid");
+  file.write("/fluid/x_nodes", std::span<const double>(c.x_nodes), {h(nx + 1)});
+  file.write("/fluid/y_nodes", std::span<const double>(c.y_nodes), {h(ny + 1)});
+  file.write("/fluid/z_nodes", std::span<const double>(c.z_nodes), {h(nz + 1)});
+  file.write("/fluid/eps_g", std::span<const double>(c.eps_g), {h(nz), h(ny), h(nx)});
+  file.write("/fluid/pressure", std::span<const double>(c.pressure), {h(nz), h(ny), h(nx)});
+  file.write("/fluid/gas_velocity", std::span<const double>(c.gas_velocity),
+             {h(nz), h(ny), h(nx), 3});
+}
+
+std::string data_item(const SnapshotEntry& e, const std::string& dataset, const std::string& dims,
+                      const char* type) {
+  return fmt::format("      <DataItem Dimensions=\"{}\" NumberType=\"{}\" Precision=\"8\" "
+                     "Format=\"HDF\">{}:{}</DataItem>\n",
+                     dims, type, e.file, dataset);
+}
+
+std::string attribute(const std::string& name, bool vector, const char* center,
+                      const std::string& item) {
+  return fmt::format("    <Attribute Name=\"{}\" AttributeType=\"{}\" Center=\"{}\">\n{}"
+                     "    </Attribute>\n",
+                     name, vector ? "Vector" : "Scalar", center, item);
+}
+
+// The fluid of one snapshot as a rectilinear grid (XDMF 2's 3DRectMesh with VXVYVZ node
+// coordinates: unambiguous axis order, unlike ORIGIN_DXDYDZ whose order readers disagree on).
+std::string fluid_grid(const SnapshotEntry& e) {
+  const auto [nx, ny, nz] = e.cells;
+  const std::string cells = fmt::format("{} {} {}", nz, ny, nx);
+  std::string s = fmt::format("   <Grid Name=\"fluid_step_{}\" GridType=\"Uniform\">\n", e.step);
+  s += fmt::format("    <Time Value=\"{:.17g}\"/>\n", e.time);
+  s += fmt::format("    <Topology TopologyType=\"3DRectMesh\" Dimensions=\"{} {} {}\"/>\n",
+                   nz + 1, ny + 1, nx + 1);
+  s += "    <Geometry GeometryType=\"VXVYVZ\">\n" +
+       data_item(e, "/fluid/x_nodes", std::to_string(nx + 1), "Float") +
+       data_item(e, "/fluid/y_nodes", std::to_string(ny + 1), "Float") +
+       data_item(e, "/fluid/z_nodes", std::to_string(nz + 1), "Float") + "    </Geometry>\n";
+  s += attribute("eps_g", false, "Cell", data_item(e, "/fluid/eps_g", cells, "Float"));
+  s += attribute("pressure", false, "Cell", data_item(e, "/fluid/pressure", cells, "Float"));
+  s += attribute("gas_velocity", true, "Cell",
+                 data_item(e, "/fluid/gas_velocity", cells + " 3", "Float"));
+  return s + "   </Grid>\n";
+}
+
+} // namespace
 
 SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f) {
   namespace fs = std::filesystem;
@@ -50,6 +102,7 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
     file.write("/particles/local_dt", std::span<const double>(dt), {hn});
     file.write("/particles/id", f.id, {hn});
     if (e.leaf) file.write("/particles/leaf", f.leaf, {hn});
+    if (f.cells) write_cells(file, *f.cells), e.cells = f.cells->cells;
     file.close();
   } catch (...) {
     std::remove(tmp.c_str());
@@ -69,9 +122,7 @@ std::string xdmf_index(const std::vector<SnapshotEntry>& entries) {
                   "CollectionType=\"Temporal\">\n";
   for (const auto& e : entries) {
     const auto item = [&](const std::string& name, const std::string& dims, const char* type) {
-      return fmt::format("      <DataItem Dimensions=\"{}\" NumberType=\"{}\" Precision=\"8\" "
-                         "Format=\"HDF\">{}:/particles/{}</DataItem>\n",
-                         dims, type, e.file, name);
+      return data_item(e, "/particles/" + name, dims, type);
     };
     const std::string n = std::to_string(e.particles), n3 = n + " 3";
     s += fmt::format("   <Grid Name=\"step_{}\" GridType=\"Uniform\">\n", e.step);
@@ -82,9 +133,7 @@ std::string xdmf_index(const std::vector<SnapshotEntry>& entries) {
     s += "    <Geometry GeometryType=\"XYZ\">\n" + item("position", n3, "Float") +
          "    </Geometry>\n";
     const auto attr = [&](const std::string& name, bool vector, const char* type) {
-      return fmt::format("    <Attribute Name=\"{}\" AttributeType=\"{}\" Center=\"Node\">\n{}"
-                         "    </Attribute>\n",
-                         name, vector ? "Vector" : "Scalar", item(name, vector ? n3 : n, type));
+      return attribute(name, vector, "Node", item(name, vector ? n3 : n, type));
     };
     s += attr("velocity", true, "Float");
     s += attr("diameter", false, "Float");
@@ -94,6 +143,14 @@ std::string xdmf_index(const std::vector<SnapshotEntry>& entries) {
     s += attr("id", false, "Int");
     if (e.leaf) s += attr("leaf", false, "Int");
     s += "   </Grid>\n";
+  }
+  // The gas: a second time series next to the particles (ParaView shows both as blocks).
+  const auto has_cells = [](const SnapshotEntry& e) { return e.cells[0] > 0; };
+  if (std::any_of(entries.begin(), entries.end(), has_cells)) {
+    s += "  </Grid>\n  <Grid Name=\"fluid\" GridType=\"Collection\" "
+         "CollectionType=\"Temporal\">\n";
+    for (const auto& e : entries)
+      if (has_cells(e)) s += fluid_grid(e);
   }
   s += "  </Grid>\n </Domain>\n</Xdmf>\n";
   return s;

@@ -296,4 +296,34 @@ void GasSolver::cell_centred_velocity(int axis, GridField& out) const {
   }
 }
 
+GasSolver::State GasSolver::save_state() const {
+  const auto copy = [](const GridField& f) {
+    return std::vector<double>(f.values().begin(), f.values().end());
+  };
+  State s;
+  for (int a = 0; a < 3; ++a) {
+    s.velocity[a] = copy(u_[a]);
+  }
+  s.pressure = copy(p_);
+  s.volume_fraction = copy(eps_);
+  s.volume_fraction_old = copy(eps_old_);
+  return s;
+}
+
+void GasSolver::restore_state(const State& s) {
+  const auto load = [](const std::vector<double>& from, GridField& to, const char* name) {
+    if (from.size() != to.values().size()) {
+      throw std::invalid_argument(fmt::format("gas state '{}' has {} values, the grid {}", name,
+                                              from.size(), to.values().size()));
+    }
+    std::copy(from.begin(), from.end(), to.values().begin());
+  };
+  for (int a = 0; a < 3; ++a) {
+    load(s.velocity[a], u_[a], "velocity");
+  }
+  load(s.pressure, p_, "pressure");
+  load(s.volume_fraction, eps_, "volume_fraction");
+  load(s.volume_fraction_old, eps_old_, "volume_fraction_old");
+}
+
 } // namespace cfddem::fluid

@@ -7,6 +7,7 @@
 #include <array>
 #include <memory>
 #include <span>
+#include <vector>
 
 #include "fluid/grid_field.hpp"
 #include "fluid/implicit_viscosity.hpp"
@@ -92,6 +93,20 @@ public:
   // Full pressure gradient at cell centres, d p'/dx_a (central) + gp0_a, for the particles'
   // pressure force -V_p grad p (physics.md §4).
   void cell_pressure_gradient(int axis, GridField& out) const;
+
+  // Checkpoint/restart: everything a later step reads that it did not compute itself -- face
+  // velocities (the predictor's u^n and the CG first guesses), p' (the projection's first guess;
+  // its ghosts feed cell_pressure_gradient), eps_g and its previous value (the continuity source
+  // d(eps)/dt). Whole padded arrays, ghosts included, so nothing depends on when they were last
+  // filled. Drag fields, mobilities and right-hand sides are rebuilt by every step before use;
+  // the hypre set-up is a function of the matrix alone, so a fresh one solves identically.
+  struct State {
+    std::array<std::vector<double>, 3> velocity;
+    std::vector<double> pressure, volume_fraction, volume_fraction_old;
+  };
+  [[nodiscard]] State save_state() const;
+  // Throws std::invalid_argument if the arrays do not fit this grid.
+  void restore_state(const State& s);
 
 private:
   void stage(double dt, int order, GasStepReport& report);

@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Snapshots and checkpoints opened the way a user would: h5py reads the files back, the XDMF
-index parses as XML and every dataset it references exists with the shape it declares; a run
-restarted from a checkpoint continues bit for bit; a truncated or corrupt checkpoint is refused
-with exit code 2 and the run directory is left alone.
+index parses as XML and every dataset it references exists with the shape it declares (particles,
+and with a gas the cell data on the fluid grid); a run restarted from a checkpoint continues bit
+for bit, with or without a gas; a truncated or corrupt checkpoint, or one of a scene with(out) a
+gas given to a scene without (with) one, is refused with exit code 2 and the run directory is
+left alone.
 
 Usage: io_test.py CFDDEM_BINARY SOURCE_DIR [unittest args, e.g. -k Restart]
 """
 import csv
+import json
 import os
 import shutil
 import subprocess
@@ -22,6 +25,11 @@ BIN = sys.argv[1]
 SRC = sys.argv[2]
 HCS = os.path.join(SRC, "scenes", "hcs.toml")
 BOX = os.path.join(SRC, "scenes", "box_gravity.toml")
+# Coupled scenes made small: the HCS in gas on a coarse grid with a different cell count per axis
+# (so an axis-order mistake shows), and settling (walls, gravity, a closed box) with 30 particles.
+GAS_CELLS = (8, 5, 4)
+HCS_GAS = [os.path.join(SRC, "scenes", "hcs_gas.toml"), "fluid.cells=[8,5,4]"]
+SETTLING = [os.path.join(SRC, "scenes", "settling.toml"), "particles.count=30"]
 
 
 def cfddem(*args):
@@ -136,6 +144,72 @@ class Snapshots(Tmp):
         row = [r for r in diagnostics(out)[1:] if int(float(r[1])) == 100][0]
         self.assertAlmostEqual(float(row[4]), mean_speed, delta=1e-12 * mean_speed)
 
+    def test_coupled_snapshot_holds_cells_on_the_fluid_grid(self):
+        out = os.path.join(self.tmp, "gas")
+        self.run_ok(*HCS_GAS, "run.end_time=0.001", "output.interval=0.0005",
+                    "output.snapshot_interval=0.0005", "--out", out)
+        nx, ny, nz = GAS_CELLS
+        root = ET.parse(os.path.join(out, "snapshots.xmf")).getroot()
+        colls = root.findall("Domain/Grid")
+        self.assertEqual([c.get("Name") for c in colls], ["particles", "fluid"])
+        for c in colls:
+            self.assertEqual(c.get("CollectionType"), "Temporal")
+        particles, fluid = (c.findall("Grid") for c in colls)
+        self.assertEqual(len(fluid), 3)  # t = 0, 0.5, 1 ms
+        self.assertEqual([g.find("Time").get("Value") for g in fluid],
+                         [g.find("Time").get("Value") for g in particles])
+        for g in fluid:
+            topo = g.find("Topology")
+            self.assertEqual(topo.get("TopologyType"), "3DRectMesh")
+            # XDMF gives node dimensions slowest axis first: z y x.
+            self.assertEqual([int(d) for d in topo.get("Dimensions").split()],
+                             [nz + 1, ny + 1, nx + 1])
+            geo = g.find("Geometry")
+            self.assertEqual(geo.get("GeometryType"), "VXVYVZ")
+            names = [a.get("Name") for a in g.findall("Attribute")]
+            self.assertEqual(names, ["eps_g", "pressure", "gas_velocity"])
+            for a in g.findall("Attribute"):
+                self.assertEqual(a.get("Center"), "Cell")
+            for item in g.iter("DataItem"):
+                fname, dset = item.text.strip().split(":")
+                dims = tuple(int(d) for d in item.get("Dimensions").split())
+                with h5py.File(os.path.join(out, fname), "r") as f:
+                    self.assertIn(dset, f, f"{fname}:{dset}")
+                    self.assertEqual(f[dset].shape, dims, f"{fname}:{dset}")
+            node_dims = [int(i.get("Dimensions")) for i in geo.findall("DataItem")]
+            self.assertEqual(node_dims, [nx + 1, ny + 1, nz + 1])
+        with h5py.File(os.path.join(out, "snapshot_000006910.h5"), "r") as f:
+            fl = f["fluid"]
+            self.assertEqual(fl["eps_g"].shape, (nz, ny, nx))
+            self.assertEqual(fl["pressure"].shape, (nz, ny, nx))
+            self.assertEqual(fl["gas_velocity"].shape, (nz, ny, nx, 3))
+            eps = fl["eps_g"][()]
+            self.assertTrue(np.all((eps > 0) & (eps <= 1)), (eps.min(), eps.max()))
+            self.assertLess(eps.min(), 1.0)  # the particles are deposited
+            for a, n in zip("xyz", GAS_CELLS):
+                np.testing.assert_allclose(fl[f"{a}_nodes"][()], np.linspace(0, 4e-3, n + 1),
+                                           rtol=0, atol=1e-15)
+            self.assertTrue(np.all(np.isfinite(fl["pressure"][()])))
+            # The cells are the gas at the snapshot's time: their momentum is the diagnostics
+            # row's (rho_g = 1 kg/m^3).
+            u = fl["gas_velocity"][()]
+            momentum = (eps[..., None] * u).sum(axis=(0, 1, 2)) * (4e-3 ** 3 / (nx * ny * nz))
+            t = f.attrs["time"]
+        header, *rows = diagnostics(out)
+        row = [r for r in rows if abs(float(r[0]) - t) < 1e-12][0]
+        for a, m in zip("xyz", momentum):
+            expected = float(row[header.index(f"gas_momentum_{a}")])
+            self.assertAlmostEqual(m, expected, delta=1e-12 * np.abs(momentum).max())
+        self.assertNotEqual(momentum[0], 0.0)
+        # The render tool draws the cells under the particles.
+        png = os.path.join(out, "cells.png")
+        r = subprocess.run([sys.executable, os.path.join(SRC, "tools", "render_snapshot.py"),
+                            os.path.join(out, "snapshot_000006910.h5"), "--view", "xz",
+                            "--cells", "eps_g", "-o", png], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        with open(png, "rb") as f:
+            self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
+
     def test_zero_particles_gives_empty_snapshot(self):
         out = os.path.join(self.tmp, "empty")
         self.run_ok(HCS, "particles.file=", "particles.count=0", "particles.diameter=1e-4",
@@ -162,23 +236,35 @@ print("RESULT", len(times), b.GetNumberOfPoints(), b.GetNumberOfCells(), ",".joi
 """
 
 
-class ParaView(Tmp):
+class PvTmp(Tmp):
+    """Tests that run a ParaView script with pvbatch (skipped where ParaView is not installed)."""
+
+    def setUp(self):
+        self.pvbatch = shutil.which("pvbatch")
+        if not self.pvbatch:
+            self.skipTest("pvbatch not installed (apt-get install paraview)")
+        super().setUp()
+
+    def pv_lines(self, script_text, xmf):
+        """Run script_text on xmf; its stdout lines as {first word: the fields after it}."""
+        script = os.path.join(self.tmp, "load.py")
+        with open(script, "w") as f:
+            f.write(script_text)
+        r = subprocess.run([self.pvbatch, script, xmf], capture_output=True, text=True,
+                           timeout=240)
+        lines = {x.split()[0]: x.split()[1:] for x in r.stdout.splitlines() if x.split()}
+        self.assertIn("RESULT", lines, r.stdout + r.stderr)
+        return lines
+
+
+class ParaView(PvTmp):
     """The reader users pick (Debian's ParaView 5.11 XDMFReader) loads the index as a series."""
 
     def test_xdmf_reader_loads_time_series(self):
-        pvbatch = shutil.which("pvbatch")
-        if not pvbatch:
-            self.skipTest("pvbatch not installed (apt-get install paraview)")
         out = os.path.join(self.tmp, "pv")
         self.run_ok(HCS, "run.end_time=0.002", "output.snapshot_interval=0.001", "--out", out)
-        script = os.path.join(self.tmp, "load.py")
-        with open(script, "w") as f:
-            f.write(PV_SCRIPT)
-        r = subprocess.run([pvbatch, script, os.path.join(out, "snapshots.xmf")],
-                           capture_output=True, text=True, timeout=240)
-        line = [x for x in r.stdout.splitlines() if x.startswith("RESULT")]
-        self.assertTrue(line, r.stdout + r.stderr)
-        _, steps, points, cells, names = line[0].split()
+        steps, points, cells, names = self.pv_lines(
+            PV_SCRIPT, os.path.join(out, "snapshots.xmf"))["RESULT"]
         self.assertEqual(int(steps), 3)
         self.assertEqual(int(points), 1222)
         self.assertEqual(int(cells), 1222)  # Polyvertex: one vertex cell per particle
@@ -186,20 +272,63 @@ class ParaView(Tmp):
             self.assertIn(a, names.split(","))
 
 
+PV_FLUID_SCRIPT = """
+import sys
+from paraview.simple import XDMFReader, servermanager
+r = XDMFReader(FileNames=[sys.argv[1]])
+times = list(r.TimestepValues)
+r.UpdatePipeline(times[-1])
+d = servermanager.Fetch(r)
+names = [d.GetMetaData(i).Get(d.NAME()) for i in range(d.GetNumberOfBlocks())]
+b = d.GetBlock(names.index("fluid"))
+cd = b.GetCellData()
+arrays = sorted(cd.GetArrayName(i) for i in range(cd.GetNumberOfArrays()))
+eps = cd.GetArray("eps_g")
+print("RESULT", len(times), ",".join(names), b.GetClassName(), b.GetNumberOfCells(),
+      " ".join(str(x) for x in b.GetDimensions()), ",".join(arrays),
+      " ".join(repr(x) for x in b.GetBounds()))
+print("EPS", " ".join(repr(eps.GetValue(i)) for i in range(eps.GetNumberOfTuples())))
+"""
+
+
+class ParaViewFluid(PvTmp):
+    """ParaView's XDMFReader loads a coupled run's cells as a rectilinear grid next to the
+    particles, with the cell values in the order h5py reads them (x fastest)."""
+
+    def test_xdmf_reader_loads_fluid_grid(self):
+        out = os.path.join(self.tmp, "pvgas")
+        self.run_ok(*HCS_GAS, "run.end_time=0.001", "output.snapshot_interval=0.0005", "--out",
+                    out)
+        lines = self.pv_lines(PV_FLUID_SCRIPT, os.path.join(out, "snapshots.xmf"))
+        f = ["RESULT", *lines["RESULT"]]
+        nx, ny, nz = GAS_CELLS
+        self.assertEqual(int(f[1]), 3)
+        self.assertEqual(f[2], "particles,fluid")
+        self.assertEqual(f[3], "vtkRectilinearGrid")
+        self.assertEqual(int(f[4]), nx * ny * nz)
+        self.assertEqual([int(x) for x in f[5:8]], [nx + 1, ny + 1, nz + 1])
+        self.assertEqual(f[8], "eps_g,gas_velocity,pressure")
+        np.testing.assert_allclose([float(x) for x in f[9:15]], [0, 4e-3] * 3, atol=1e-15)
+        eps_pv = [float(x) for x in lines["EPS"]]
+        with h5py.File(os.path.join(out, "snapshot_000006910.h5"), "r") as h:
+            np.testing.assert_array_equal(eps_pv, h["fluid/eps_g"][()].ravel())
+
+
 class Restart(Tmp):
     def check_restart(self, scene, total, half, extra):
+        scene = scene if isinstance(scene, list) else [scene]
         full = os.path.join(self.tmp, "full")
         first = os.path.join(self.tmp, "first")
         second = os.path.join(self.tmp, "second")
         common = [f"output.snapshot_interval={half}", *extra]
-        self.run_ok(scene, f"run.end_time={total}", *common, "--out", full)
+        self.run_ok(*scene, f"run.end_time={total}", *common, "--out", full)
         # N steps with a checkpoint at the end (written before the step that records row N) ...
-        self.run_ok(scene, f"run.end_time={half}", f"output.checkpoint_interval={half}", *common,
+        self.run_ok(*scene, f"run.end_time={half}", f"output.checkpoint_interval={half}", *common,
                     "--out", first)
         ckpts = sorted(x for x in os.listdir(first) if x.startswith("checkpoint_"))
         self.assertEqual(len(ckpts), 1, ckpts)
         # ... then restart and run the other N steps.
-        self.run_ok(scene, f"run.end_time={total}", *common, "--out", second, "--restart",
+        self.run_ok(*scene, f"run.end_time={total}", *common, "--out", second, "--restart",
                     os.path.join(first, ckpts[0]))
         a, b = diagnostics(full), diagnostics(second)
         self.assertEqual(len(a), len(b))
@@ -207,8 +336,16 @@ class Restart(Tmp):
             self.assertEqual(ra, rb)
         last = sorted(x for x in os.listdir(full) if x.startswith("snapshot_"))[-1]
         with h5py.File(os.path.join(full, last)) as fa, h5py.File(os.path.join(second, last)) as fb:
-            for k in fa["particles"]:
-                np.testing.assert_array_equal(fa["particles"][k][()], fb["particles"][k][()], k)
+            self.assertEqual(sorted(fa), sorted(fb))
+            for g in fa:  # particles, and the cells with a gas
+                for k in fa[g]:
+                    np.testing.assert_array_equal(fa[g][k][()], fb[g][k][()], f"{g}/{k}")
+        # Restarting at the checkpoint's own end time repeats the first run's last row: the one
+        # particle step past the end reads what the checkpoint holds (with a gas, the held force).
+        at_end = os.path.join(self.tmp, "at_end")
+        self.run_ok(*scene, f"run.end_time={half}", *common, "--out", at_end, "--restart",
+                    os.path.join(first, ckpts[0]))
+        self.assertEqual(diagnostics(at_end), diagnostics(first))
         # The restarted run's XDMF index lists only snapshots present in its own directory.
         root = ET.parse(os.path.join(second, "snapshots.xmf")).getroot()
         for item in root.iter("DataItem"):
@@ -228,6 +365,39 @@ class Restart(Tmp):
         # Checkpoints fall on regrid points (every dem.nsubit sub-iterations).
         self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=orb", "output.interval=0.0005"])
 
+    # Coupled scenes: N fluid steps + checkpoint + restart + N fluid steps = 2N fluid steps, to
+    # the bit (gas velocities, pressure, eps_g history, loop position, pending row/snapshot).
+    def test_coupled_explicit_hcs_gas_bitwise(self):
+        rows = self.check_restart(HCS_GAS, 0.002, 0.001, ["output.interval=0.0005"])
+        self.assertEqual(len(rows), 1 + 5)
+        self.assertNotEqual(rows[-1][rows[0].index("gas_momentum_x")], "0")
+
+    def test_coupled_orb_hcs_gas_bitwise(self):
+        self.check_restart(HCS_GAS, 0.002, 0.001, ["dem.scheme=orb", "output.interval=0.0005"])
+
+    def test_coupled_explicit_settling_bitwise(self):
+        # Walls, gravity, the closed box's SMG-preconditioned projection.
+        self.check_restart(SETTLING, 0.002, 0.001, ["output.interval=0.0005"])
+
+    def test_coupled_orb_settling_bitwise(self):
+        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=orb", "output.interval=0.0005"])
+
+    def test_coupled_adaptive_fluid_step_bitwise(self):
+        # fluid.dt = 0: each fluid step comes from the gas's CFL number (capped by fluid.max_dt)
+        # and need not land on the checkpoint time, so the checkpoint comes from inside the full
+        # run (the first fluid-step boundary at or after 1 ms) and the restart repeats its end.
+        full = os.path.join(self.tmp, "full")
+        second = os.path.join(self.tmp, "second")
+        common = [*HCS_GAS, "fluid.dt=0", "fluid.max_dt=2e-4", "run.end_time=0.002",
+                  "output.interval=0.0005"]
+        self.run_ok(*common, "output.checkpoint_interval=0.001", "--out", full)
+        ckpts = sorted(x for x in os.listdir(full) if x.startswith("checkpoint_"))
+        self.assertEqual(len(ckpts), 2, ckpts)  # at ~1 ms and at the end
+        self.run_ok(*common, "--out", second, "--restart", os.path.join(full, ckpts[0]))
+        self.assertEqual(diagnostics(full), diagnostics(second))
+        with open(os.path.join(full, "run.json")) as f:
+            self.assertGreater(json.load(f)["fluid_steps"], 10)
+
     def test_scheme_mismatch_refused(self):
         first = os.path.join(self.tmp, "first")
         self.run_ok(HCS, "run.end_time=0.001", "output.checkpoint_interval=0.001", "--out", first)
@@ -245,21 +415,28 @@ class BadCheckpoint(Tmp):
         self.run_ok(HCS, "run.end_time=0.001", "output.checkpoint_interval=0.0005", "--out", out)
         return os.path.join(out, "checkpoint_000003455.h5")
 
-    def expect_refused(self, path, needle="checkpoint", extra=()):
+    def make_gas_checkpoint(self):
+        out = os.path.join(self.tmp, "gas")
+        self.run_ok(*HCS_GAS, "run.end_time=0.001", "output.checkpoint_interval=0.0005", "--out",
+                    out)
+        return os.path.join(out, "checkpoint_000000005.h5")
+
+    def expect_refused(self, path, needle="checkpoint", extra=(), scene=(HCS,)):
         # An existing run directory with a result in it must be left exactly as it was.
         out = os.path.join(self.tmp, "existing")
         os.makedirs(out, exist_ok=True)
         with open(os.path.join(out, "diagnostics.csv"), "w") as f:
             f.write("precious\n")
         before = sorted(os.listdir(out))
-        code, msg = cfddem(HCS, "run.end_time=0.001", *extra, "--out", out, "--restart", path)
+        code, msg = cfddem(*scene, "run.end_time=0.001", *extra, "--out", out, "--restart", path)
         self.assertEqual(code, 2, msg)
         self.assertIn(needle, msg)
+        self.assertIn(path, msg)  # the message names the file
         self.assertEqual(sorted(os.listdir(out)), before)
         with open(os.path.join(out, "diagnostics.csv")) as f:
             self.assertEqual(f.read(), "precious\n")
         fresh = os.path.join(self.tmp, "never")
-        code, msg = cfddem(HCS, "run.end_time=0.001", *extra, "--out", fresh, "--restart", path)
+        code, msg = cfddem(*scene, "run.end_time=0.001", *extra, "--out", fresh, "--restart", path)
         self.assertEqual(code, 2, msg)
         self.assertFalse(os.path.exists(fresh))
 
@@ -276,17 +453,21 @@ class BadCheckpoint(Tmp):
                 f.write(data[:cut])
             self.expect_refused(bad)
 
-    def test_flipped_bits_in_particle_data(self):
-        good = self.make_checkpoint()
+    def flip_bit(self, good, dataset, byte, mask):
+        """A copy of `good` with one bit of a dataset's stored bytes flipped."""
         with h5py.File(good, "r") as f:
-            offset = f["particles/vx_half"].id.get_offset() + 8 * 100 + 3
+            offset = f[dataset].id.get_offset() + byte
         bad = os.path.join(self.tmp, "flipped.h5")
         shutil.copy(good, bad)
         with open(bad, "r+b") as f:
             f.seek(offset)
             b = f.read(1)
             f.seek(offset)
-            f.write(bytes([b[0] ^ 0x10]))
+            f.write(bytes([b[0] ^ mask]))
+        return bad
+
+    def test_flipped_bits_in_particle_data(self):
+        bad = self.flip_bit(self.make_checkpoint(), "particles/vx_half", 8 * 100 + 3, 0x10)
         self.expect_refused(bad, needle="checksum")
 
     def test_not_hdf5(self):
@@ -294,6 +475,28 @@ class BadCheckpoint(Tmp):
         with open(bad, "w") as f:
             f.write("not a checkpoint\n")
         self.expect_refused(bad)
+
+    def test_gas_checkpoint_to_scene_without_gas(self):
+        self.expect_refused(self.make_gas_checkpoint(), needle="has no gas")
+
+    def test_checkpoint_without_gas_to_scene_with_gas(self):
+        self.expect_refused(self.make_checkpoint(), needle="holds no gas state", scene=HCS_GAS)
+
+    def test_truncated_gas_checkpoint(self):
+        good = self.make_gas_checkpoint()
+        bad = os.path.join(self.tmp, "truncated_gas.h5")
+        with open(good, "rb") as f:
+            data = f.read()
+        with h5py.File(good, "r") as f:  # cut inside the gas arrays
+            cut = f["gas/p"].id.get_offset() + 100
+        for n in (cut, len(data) // 2, len(data) - 100):
+            with open(bad, "wb") as f:
+                f.write(data[:n])
+            self.expect_refused(bad, scene=HCS_GAS)
+
+    def test_flipped_bits_in_gas_data(self):
+        bad = self.flip_bit(self.make_gas_checkpoint(), "gas/u", 8 * 200 + 2, 0x01)
+        self.expect_refused(bad, needle="checksum", scene=HCS_GAS)
 
     def test_other_configuration(self):
         good = self.make_checkpoint()

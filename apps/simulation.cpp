@@ -137,6 +137,11 @@ void add_island_json(nlohmann::ordered_json& j, const dem::IslandsScheme& scheme
       hist[b == 0 ? std::string("1") : b == 1 ? std::string("2")
                                        : fmt::format("{}-{}", (1LL << (b - 1)) + 1, 1LL << b)] = h[b];
   j["island_sizes"] = hist;
+  const auto d = scheme.fine_fraction_distribution();
+  j["fine_fraction_per_particle"] = {{"mean", d[0]}, {"min", d[1]}, {"p10", d[2]}, {"p50", d[3]},
+                                     {"p90", d[4]}, {"p99", d[5]}, {"max", d[6]}};
+  j["fine_fraction_per_particle_definition"] =
+      "distribution over particles of the fraction of sub-iterations each spent in a fine island";
   j["island_sizes_definition"] = "islands of each size, one count per island per sub-iteration "
                                  "(size 1: lone particles in free flight, or tied to a wall)";
 }

@@ -58,6 +58,7 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
 
 void IslandsScheme::start() {
   hprev_.assign(p_.size(), 0.0);
+  fine_subits_.assign(p_.size(), 0);
   island_of_.assign(p_.size(), kAlone);
   busy_v_.clear();
   subits_ = 0;
@@ -78,6 +79,9 @@ void IslandsScheme::rebuild() {
     std::vector<double> h(order.size());
     for (std::size_t k = 0; k < order.size(); ++k) h[k] = hprev_[order[k]];
     hprev_.swap(h);
+    std::vector<std::int64_t> f(order.size());
+    for (std::size_t k = 0; k < order.size(); ++k) f[k] = fine_subits_[order[k]];
+    fine_subits_.swap(f);
     ext_.permute(order);
   }
   built_ = true;
@@ -265,6 +269,7 @@ void IslandsScheme::subiterate(bool record) {
   // Island members in particle order (islands_.members holds local indices).
   members_.resize(busy_v_.size());
   for (std::size_t k = 0; k < busy_v_.size(); ++k) members_[k] = busy_v_[islands_.members[k]];
+  for (const std::uint32_t i : busy_v_) ++fine_subits_[i];
   if (record) {
     sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
     sdt_.resize(n), sisland_.resize(n);
@@ -530,6 +535,23 @@ LeafStepStats IslandsScheme::take_interval_stats() {
   iv_min_ = std::numeric_limits<std::int64_t>::max();
   iv_max_ = 0;
   return s;
+}
+
+std::array<double, 7> IslandsScheme::fine_fraction_distribution() const {
+  std::array<double, 7> d{};
+  if (subits_ == 0 || fine_subits_.empty()) return d;
+  std::vector<double> f(fine_subits_.size());
+  double sum = 0.0;
+  for (std::size_t i = 0; i < f.size(); ++i)
+    f[i] = static_cast<double>(fine_subits_[i]) / static_cast<double>(subits_), sum += f[i];
+  std::sort(f.begin(), f.end());
+  auto rank = [&](double q) {
+    const auto k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(f.size())));
+    return f[std::min(f.size() - 1, k > 0 ? k - 1 : 0)];
+  };
+  d = {sum / static_cast<double>(f.size()), f.front(), rank(0.1), rank(0.5), rank(0.9), rank(0.99),
+       f.back()};
+  return d;
 }
 
 } // namespace cfddem::dem

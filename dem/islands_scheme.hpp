@@ -85,6 +85,9 @@ public:
   // Island sizes over the run: bin b counts islands (fine or not) with 2^(b-1) < size <= 2^b
   // members (bin 0: single particles), one count per island per sub-iteration.
   std::span<const std::int64_t> island_size_histogram() const { return size_hist_; }
+  // Per particle, the fraction of sub-iterations it spent in a fine island: its distribution over
+  // the particles as {mean, min, p10, p50, p90, p99, max} (nearest-rank percentiles).
+  std::array<double, 7> fine_fraction_distribution() const;
 
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
@@ -119,6 +122,7 @@ private:
   std::int64_t nsubit_ = 1;
   bool built_ = false;
   std::vector<double> hprev_;                 // per particle: half of its last step
+  std::vector<std::int64_t> fine_subits_;     // per particle: sub-iterations in a fine island
   std::vector<double> bound_;                 // per particle: speed bound s_i [m/s]
   std::vector<double> own_bound_;             // ... from its own velocity (before islands)
   // link(): per island energy, lightest mass, largest external acceleration and half step.

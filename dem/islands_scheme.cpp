@@ -349,6 +349,144 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
   });
 }
 
+// Contact and wall force on particle i (the explicit scheme's contact law), from its list
+// partners in island c (with Label; all partners without). Returns the pairs (i, j > i) it
+// evaluated.
+template <bool Label>
+std::int64_t IslandsScheme::particle_force(std::uint32_t i, std::uint32_t c, double& max_ratio,
+                                           std::int64_t& violations) {
+  const auto off = list_.offsets();
+  const auto nb = list_.neighbors();
+  const DomainGeometry& g = geom_;
+  const StepModel& m = model_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* vx = p_.vx.data();
+  const double* vy = p_.vy.data();
+  const double* vz = p_.vz.data();
+  const double* rad = p_.radius.data();
+  const double* mass = p_.mass.data();
+  const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
+  const double ri = rad[i], mi = mass[i];
+  double ax = 0.0, ay = 0.0, az = 0.0;
+  std::int64_t pairs = 0;
+  for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+    const std::uint32_t j = nb[k];
+    if constexpr (Label) {
+      if (island_of_[j] != c) continue;
+    }
+    pairs += j > i;
+    const double dx = g.image(x[j] - xi, 0), dy = g.image(y[j] - yi, 1), dz = g.image(z[j] - zi, 2);
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const double rs = ri + rad[j];
+    if (r2 >= rs * rs) continue;
+    const double dist = std::sqrt(r2);
+    const double inv = 1.0 / dist;
+    const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+    const double delta = rs - dist;
+    const double vn = (vxi - vx[j]) * nx + (vyi - vy[j]) * ny + (vzi - vz[j]) * nz;
+    const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
+    ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+    const double ratio = delta / std::min(ri, rad[j]);
+    max_ratio = std::max(max_ratio, ratio);
+    violations += ratio > m.max_overlap;
+  }
+  if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
+    double f[3] = {ax, ay, az};
+    const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a]) continue;
+      for (int side = 0; side < 2; ++side) {
+        const double sg = side ? 1.0 : -1.0;
+        const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+        if (delta <= 0.0) continue;
+        f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
+        max_ratio = std::max(max_ratio, delta / ri);
+        violations += delta > m.max_overlap * ri;
+      }
+    }
+    ax = f[0], ay = f[1], az = f[2];
+  }
+  p_.fx[i] = ax, p_.fy[i] = ay, p_.fz[i] = az;
+  return pairs;
+}
+
+// A sub-iteration where a large part of the particles is linked (a dense bed): every particle
+// takes the K fine steps together, as the explicit scheme would, all partners read live (no
+// bound is needed: nothing flies free). The list is checked after every step, as the explicit
+// scheme checks it, and rebuilt when some particle moved more than skin/2.
+template <bool External> void IslandsScheme::global_steps(bool record) {
+  const std::size_t n = p_.size();
+  const StepModel& m = model_;
+  constexpr std::size_t kBlock = 1024;
+  const std::size_t blocks = (n + kBlock - 1) / kBlock;
+  struct Part { std::int64_t pairs = 0, violations = 0; double max_ratio = 0.0; std::uint64_t moved = 0; };
+  std::vector<Part> parts(blocks);
+  double h_before = 0.0;
+  for (std::int64_t k = 0; k < K_; ++k) {
+    const double hk = k + 1 == K_ ? h_last_ : h_;
+    if (k > 0) {
+      std::uint64_t moved = 0;
+      for (const Part& pt : parts) moved |= pt.moved;
+      if (moved >> 63) rebuild();
+    }
+    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+      Part pt;
+      const std::size_t e = std::min(n, (b + 1) * kBlock);
+      for (std::size_t i = b * kBlock; i < e; ++i)
+        pt.pairs += particle_force<false>(static_cast<std::uint32_t>(i), 0, pt.max_ratio, pt.violations);
+      parts[b] = pt;
+    });
+    if (record && k == 0)
+      for (std::size_t i = 0; i < n; ++i) {
+        double ex = 0.0, ey = 0.0, ez = 0.0;
+        if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+        svx_[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
+        svy_[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
+        svz_[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
+      }
+    for (const Part& pt : parts) {
+      pair_evaluations_ += pt.pairs;
+      overlap_violations_ += pt.violations;
+      max_overlap_ratio_ = std::max(max_overlap_ratio_, pt.max_ratio);
+    }
+    const double half = 0.5 * hk;
+    const double s_common = 0.5 * h_before + half;
+    const auto xr = list_.x_ref(), yr = list_.y_ref(), zr = list_.z_ref();
+    const double half_skin2 = 0.25 * skin_ * skin_;
+    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+      double* __restrict x = p_.x.data();
+      double* __restrict y = p_.y.data();
+      double* __restrict z = p_.z.data();
+      double* __restrict vx = p_.vx.data();
+      double* __restrict vy = p_.vy.data();
+      double* __restrict vz = p_.vz.data();
+      double* __restrict hp = hprev_.data();
+      const double* __restrict fx = p_.fx.data();
+      const double* __restrict fy = p_.fy.data();
+      const double* __restrict fz = p_.fz.data();
+      const double* __restrict im = p_.inv_mass.data();
+      std::uint64_t moved = 0;
+      const std::size_t e = std::min(n, (b + 1) * kBlock);
+      for (std::size_t i = b * kBlock; i < e; ++i) {
+        const double s = k == 0 ? hp[i] + half : s_common;
+        double ex = 0.0, ey = 0.0, ez = 0.0;
+        if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+        const double ims = im[i] * s;
+        kick_drift(x[i], vx[i], fx[i] + ex, ims, m.gravity[0] * s, hk);
+        kick_drift(y[i], vy[i], fy[i] + ey, ims, m.gravity[1] * s, hk);
+        kick_drift(z[i], vz[i], fz[i] + ez, ims, m.gravity[2] * s, hk);
+        hp[i] = half;
+        const double dx = x[i] - xr[i], dy = y[i] - yr[i], dz = z[i] - zr[i];
+        moved |= sign_unless(dx * dx + dy * dy + dz * dz <= half_skin2);
+      }
+      parts[b].moved = moved;
+    });
+    h_before = hk;
+  }
+}
+
 // The K fine steps of fine island fine_[q]: contact forces from members only (no other particle
 // can reach them within dt_sp), walls, and the variable-step leapfrog.
 template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool record) {
@@ -356,12 +494,7 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
   IslandResult res;
   const std::uint32_t* mem = members_.data() + islands_.first[c];
   const std::uint32_t count = islands_.size(c);
-  const std::uint32_t* label = island_of_.data();
-  const auto off = list_.offsets();
-  const auto nb = list_.neighbors();
-  const DomainGeometry g = geom_;
   const StepModel& m = model_;
-  const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
   double* x = p_.x.data();
   double* y = p_.y.data();
   double* z = p_.z.data();
@@ -372,52 +505,9 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
   double* fy = p_.fy.data();
   double* fz = p_.fz.data();
   double* hp = hprev_.data();
-  const double* rad = p_.radius.data();
-  const double* mass = p_.mass.data();
   const double* im = p_.inv_mass.data();
-  // Per member: contact and wall force. Returns the pairs it evaluated with a later member.
   auto force = [&](std::uint32_t i, double& max_ratio, std::int64_t& violations) {
-    const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
-    const double ri = rad[i], mi = mass[i];
-    double ax = 0.0, ay = 0.0, az = 0.0;
-    std::int64_t pairs = 0;
-    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-      const std::uint32_t j = nb[k];
-      if (label[j] != c) continue;
-      pairs += j > i;
-      const double dx = g.image(x[j] - xi, 0), dy = g.image(y[j] - yi, 1), dz = g.image(z[j] - zi, 2);
-      const double r2 = dx * dx + dy * dy + dz * dz;
-      const double rs = ri + rad[j];
-      if (r2 >= rs * rs) continue;
-      const double dist = std::sqrt(r2);
-      const double inv = 1.0 / dist;
-      const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
-      const double delta = rs - dist;
-      const double vn = (vxi - vx[j]) * nx + (vyi - vy[j]) * ny + (vzi - vz[j]) * nz;
-      const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
-      ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
-      const double ratio = delta / std::min(ri, rad[j]);
-      max_ratio = std::max(max_ratio, ratio);
-      violations += ratio > m.max_overlap;
-    }
-    if (walls) {
-      double f[3] = {ax, ay, az};
-      const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
-      for (int a = 0; a < 3; ++a) {
-        if (g.periodic[a]) continue;
-        for (int side = 0; side < 2; ++side) {
-          const double sg = side ? 1.0 : -1.0;
-          const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
-          if (delta <= 0.0) continue;
-          f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
-          max_ratio = std::max(max_ratio, delta / ri);
-          violations += delta > m.max_overlap * ri;
-        }
-      }
-      ax = f[0], ay = f[1], az = f[2];
-    }
-    fx[i] = ax, fy[i] = ay, fz[i] = az;
-    return pairs;
+    return particle_force<true>(i, c, max_ratio, violations);
   };
   auto kick = [&](std::uint32_t i, double s, double hk, double half, double elapsed,
                   std::int64_t& bound_violations) {

@@ -109,6 +109,10 @@ private:
   bool list_expires() const;
   template <bool External> void free_flight(bool record);
   template <bool External> void run_island(std::uint32_t c, bool record);
+  template <bool External> void global_steps(bool record);
+  template <bool Label>
+  std::int64_t particle_force(std::uint32_t i, std::uint32_t c, double& max_ratio,
+                              std::int64_t& violations);
   void raise_faults(double t) const;
 
   const Scene& scene_;

@@ -130,6 +130,10 @@ std::vector<double> row(double t, long long step, const dem::GranularState& s, s
 // and the island size distribution.
 void add_island_json(nlohmann::ordered_json& j, const dem::IslandsScheme& scheme) {
   j["bound_violations"] = scheme.bound_violations();
+  j["global_subiterations"] = scheme.global_subiterations();
+  j["global_subiterations_definition"] =
+      "sub-iterations where more than a quarter of the particles were linked, so every particle "
+      "took the fine steps together (a dense bed: the explicit scheme's work)";
   nlohmann::ordered_json hist;
   const auto h = scheme.island_size_histogram();
   for (std::size_t b = 0; b < h.size(); ++b)

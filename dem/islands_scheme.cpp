@@ -11,6 +11,7 @@
 
 #include "core/error.hpp"
 #include "dem/contact_kernels.hpp"
+#include "dem/kick_drift_range.hpp"
 
 namespace cfddem::dem {
 
@@ -44,7 +45,9 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
   // The list only finds links and island members (cheap per entry) while its builds are the
   // scheme's largest cost: without dem.neighbor_skin, three times the explicit scheme's skin
   // (measured on HCS 1222: 3.2x fewer builds, 30% less wall time than with the same skin).
-  skin_ = scene.dem.neighbor_skin > 0.0 ? model_.skin : 3.0 * model_.skin;
+  islands_skin_ = scene.dem.neighbor_skin > 0.0 ? model_.skin : 3.0 * model_.skin;
+  global_skin_ = model_.skin;
+  skin_ = islands_skin_;
   double r_max = 0.0;
   for (double r : p_.radius) r_max = std::max(r_max, r);
   // A link margin far above rounding and far below any gap that matters.
@@ -161,13 +164,16 @@ void IslandsScheme::make_links() {
       if (gap < bound_[i] * dt_sp_ + margin_) tied_.push_back(i);
     }
   }
-  // Busy vertices: endpoints and tied particles, sorted, unique; islands over them.
+  // Busy vertices: endpoints and tied particles, unique (marked), increasing; islands over them.
   for (std::uint32_t v : busy_v_) island_of_[v] = kAlone; // reset the last sub-iteration's
-  busy_v_.assign(ea_.begin(), ea_.end());
-  busy_v_.insert(busy_v_.end(), eb_.begin(), eb_.end());
-  busy_v_.insert(busy_v_.end(), tied_.begin(), tied_.end());
+  busy_v_.clear();
+  mark_.resize(n, 0);
+  for (const auto* list : {&ea_, &eb_, &tied_})
+    for (const std::uint32_t v : *list)
+      if (!mark_[v]) mark_[v] = 1, busy_v_.push_back(v);
+  for (const std::uint32_t v : busy_v_) mark_[v] = 0;
+  if (busy_v_.size() > kGlobalFraction * static_cast<double>(n)) return; // link() goes global
   std::sort(busy_v_.begin(), busy_v_.end());
-  busy_v_.erase(std::unique(busy_v_.begin(), busy_v_.end()), busy_v_.end());
   for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = k; // local index
   la_.resize(ea_.size()), lb_.resize(eb_.size());
   for (std::size_t q = 0; q < ea_.size(); ++q) la_[q] = island_of_[ea_[q]], lb_[q] = island_of_[eb_[q]];
@@ -181,10 +187,18 @@ void IslandsScheme::make_links() {
 // Islands only merge from round to round (bounds only grow), so this ends.
 void IslandsScheme::link() {
   const DomainGeometry& g = geom_;
+  const std::size_t n = p_.size();
   own_bound_.assign(bound_.begin(), bound_.end());
   const bool ext = ext_.active();
+  global_ = false;
   for (int round = 0;; ++round) {
     make_links();
+    if (busy_v_.size() > kGlobalFraction * static_cast<double>(n)) {
+      // A dense bed: most particles are linked, the energy bounds of a large island are loose,
+      // and the islands would cost more than they save. Step everyone finely instead.
+      global_ = true;
+      return;
+    }
     if (round > 0 && busy_v_ == busy_before_ && islands_.label == label_before_) break;
     const std::uint32_t nc = islands_.count();
     energy_.assign(nc, 0.0);
@@ -234,6 +248,17 @@ void IslandsScheme::subiterate(bool record) {
     for (;;) {
       speed_bounds();
       link();
+      if (global_) {
+        // The explicit scheme's skin: the list then holds what the explicit list holds.
+        if (skin_ != global_skin_) skin_ = global_skin_, rebuild();
+        break;
+      }
+      if (skin_ < islands_skin_) {
+        skin_ = islands_skin_;
+        rebuild();
+        fresh = true;
+        continue;
+      }
       if (!list_expires()) break;
       if (fresh) {
         // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
@@ -258,6 +283,30 @@ void IslandsScheme::subiterate(bool record) {
                   : 1;
   h_ = can_refine ? model_.dt : dt_sp_;
   h_last_ = dt_sp_ - static_cast<double>(K_ - 1) * h_;
+  if (global_) {
+    ++global_subits_;
+    if (record) {
+      sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
+      sdt_.resize(n), sisland_.resize(n);
+      for (std::size_t i = 0; i < n; ++i) {
+        sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1), sz_[i] = geom_.wrap(p_.z[i], 2);
+        sisland_[i] = 0, sdt_[i] = dt_sp_ / static_cast<double>(K_);
+      }
+      smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
+    }
+    for (auto& f : fine_subits_) ++f;
+    size_hist_[static_cast<std::size_t>(std::bit_width(static_cast<std::uint64_t>(n) - 1))] += 1;
+    ext_.active() ? global_steps<true>(record) : global_steps<false>(record);
+    ++subits_;
+    raise_faults(time());
+    const auto nn = static_cast<std::int64_t>(n);
+    particle_steps_ += nn * K_;
+    last_fine_islands_ = 1;
+    last_fine_fraction_ = 1.0;
+    iv_fine_ += nn, iv_particles_ += nn, iv_steps_ += nn * K_;
+    iv_min_ = std::min(iv_min_, K_), iv_max_ = std::max(iv_max_, K_);
+    return;
+  }
   // Every island of busy particles (a link or a wall) takes the fine steps; the rest fly free.
   const std::uint32_t nc = islands_.count();
   fine_.resize(nc);
@@ -349,38 +398,43 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
   });
 }
 
-// Contact and wall force on particle i (the explicit scheme's contact law), from its list
-// partners in island c (with Label; all partners without). Returns the pairs (i, j > i) it
-// evaluated.
-template <bool Label>
-std::int64_t IslandsScheme::particle_force(std::uint32_t i, std::uint32_t c, double& max_ratio,
-                                           std::int64_t& violations) {
-  const auto off = list_.offsets();
-  const auto nb = list_.neighbors();
+// Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit
+// scheme's contact law), from their list partners in island c (with Label; all partners
+// without). Returns the pairs (i, j > i) evaluated.
+template <bool Label, bool Indexed>
+std::int64_t IslandsScheme::particle_forces(const std::uint32_t* idx, std::uint32_t u0,
+                                            std::uint32_t u1, std::uint32_t c,
+                                            double& max_ratio_out, std::int64_t& violations_out) {
+  const std::uint32_t* __restrict off = list_.offsets().data();
+  const std::uint32_t* __restrict nb = list_.neighbors().data();
+  const std::uint32_t* __restrict wrap = list_.wrap_begin().data();
+  const std::uint32_t* __restrict label = island_of_.data();
+  // References (a copy per particle would cost more than it saves): the loop stores only to
+  // locals, so their fields stay in registers.
   const DomainGeometry& g = geom_;
   const StepModel& m = model_;
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
-  const double* vx = p_.vx.data();
-  const double* vy = p_.vy.data();
-  const double* vz = p_.vz.data();
-  const double* rad = p_.radius.data();
-  const double* mass = p_.mass.data();
+  const double* __restrict x = p_.x.data();
+  const double* __restrict y = p_.y.data();
+  const double* __restrict z = p_.z.data();
+  const double* __restrict vx = p_.vx.data();
+  const double* __restrict vy = p_.vy.data();
+  const double* __restrict vz = p_.vz.data();
+  const double* __restrict rad = p_.radius.data();
+  const double* __restrict mass = p_.mass.data();
+  double* __restrict fxo = p_.fx.data();
+  double* __restrict fyo = p_.fy.data();
+  double* __restrict fzo = p_.fz.data();
+  double max_ratio = max_ratio_out;
+  std::int64_t pairs = 0, violations = 0;
+  for (std::uint32_t u = u0; u < u1; ++u) {
+  const std::uint32_t i = Indexed ? idx[u] : u;
   const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
   const double ri = rad[i], mi = mass[i];
   double ax = 0.0, ay = 0.0, az = 0.0;
-  std::int64_t pairs = 0;
-  for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-    const std::uint32_t j = nb[k];
-    if constexpr (Label) {
-      if (island_of_[j] != c) continue;
-    }
-    pairs += j > i;
-    const double dx = g.image(x[j] - xi, 0), dy = g.image(y[j] - yi, 1), dz = g.image(z[j] - zi, 2);
+  auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
     const double r2 = dx * dx + dy * dy + dz * dz;
     const double rs = ri + rad[j];
-    if (r2 >= rs * rs) continue;
+    if (r2 >= rs * rs) return;
     const double dist = std::sqrt(r2);
     const double inv = 1.0 / dist;
     const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
@@ -388,9 +442,28 @@ std::int64_t IslandsScheme::particle_force(std::uint32_t i, std::uint32_t c, dou
     const double vn = (vxi - vx[j]) * nx + (vyi - vy[j]) * ny + (vzi - vz[j]) * nz;
     const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
     ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
-    const double ratio = delta / std::min(ri, rad[j]);
-    max_ratio = std::max(max_ratio, ratio);
-    violations += ratio > m.max_overlap;
+    // The ratio's divide only when it sets a new maximum (rare after the first contacts).
+    const double rmin = std::min(ri, rad[j]);
+    if (delta > max_ratio * rmin) max_ratio = delta / rmin;
+    violations += delta > m.max_overlap * rmin;
+  };
+  // Pairs inside the box first (no periodic image needed), then those across a face.
+  const std::uint32_t kw = wrap[i];
+  for (std::uint32_t k = off[i]; k < kw; ++k) {
+    const std::uint32_t j = nb[k];
+    if constexpr (Label) {
+      if (label[j] != c) continue;
+    }
+    pairs += j > i;
+    pair(j, x[j] - xi, y[j] - yi, z[j] - zi);
+  }
+  for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
+    const std::uint32_t j = nb[k];
+    if constexpr (Label) {
+      if (label[j] != c) continue;
+    }
+    pairs += j > i;
+    pair(j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
   }
   if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
     double f[3] = {ax, ay, az};
@@ -408,7 +481,10 @@ std::int64_t IslandsScheme::particle_force(std::uint32_t i, std::uint32_t c, dou
     }
     ax = f[0], ay = f[1], az = f[2];
   }
-  p_.fx[i] = ax, p_.fy[i] = ay, p_.fz[i] = az;
+  fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
+  }
+  max_ratio_out = max_ratio;
+  violations_out += violations;
   return pairs;
 }
 
@@ -434,8 +510,9 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
       Part pt;
       const std::size_t e = std::min(n, (b + 1) * kBlock);
-      for (std::size_t i = b * kBlock; i < e; ++i)
-        pt.pairs += particle_force<false>(static_cast<std::uint32_t>(i), 0, pt.max_ratio, pt.violations);
+      pt.pairs += particle_forces<false, false>(nullptr, static_cast<std::uint32_t>(b * kBlock),
+                                                static_cast<std::uint32_t>(e), 0, pt.max_ratio,
+                                                pt.violations);
       parts[b] = pt;
     });
     if (record && k == 0)
@@ -455,34 +532,32 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     const double s_common = 0.5 * h_before + half;
     const auto xr = list_.x_ref(), yr = list_.y_ref(), zr = list_.z_ref();
     const double half_skin2 = 0.25 * skin_ * skin_;
+    const double* ref[3] = {xr.data(), yr.data(), zr.data()};
+    const double* ext[3] = {External ? ext_.x.data() : nullptr, External ? ext_.y.data() : nullptr,
+                            External ? ext_.z.data() : nullptr};
     tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-      double* __restrict x = p_.x.data();
-      double* __restrict y = p_.y.data();
-      double* __restrict z = p_.z.data();
-      double* __restrict vx = p_.vx.data();
-      double* __restrict vy = p_.vy.data();
-      double* __restrict vz = p_.vz.data();
-      double* __restrict hp = hprev_.data();
-      const double* __restrict fx = p_.fx.data();
-      const double* __restrict fy = p_.fy.data();
-      const double* __restrict fz = p_.fz.data();
-      const double* __restrict im = p_.inv_mass.data();
-      std::uint64_t moved = 0;
-      const std::size_t e = std::min(n, (b + 1) * kBlock);
-      for (std::size_t i = b * kBlock; i < e; ++i) {
-        const double s = k == 0 ? hp[i] + half : s_common;
-        double ex = 0.0, ey = 0.0, ez = 0.0;
-        if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
-        const double ims = im[i] * s;
-        kick_drift(x[i], vx[i], fx[i] + ex, ims, m.gravity[0] * s, hk);
-        kick_drift(y[i], vy[i], fy[i] + ey, ims, m.gravity[1] * s, hk);
-        kick_drift(z[i], vz[i], fz[i] + ez, ims, m.gravity[2] * s, hk);
-        hp[i] = half;
-        const double dx = x[i] - xr[i], dy = y[i] - yr[i], dz = z[i] - zr[i];
-        moved |= sign_unless(dx * dx + dy * dy + dz * dz <= half_skin2);
-      }
-      parts[b].moved = moved;
+      const std::size_t i0 = b * kBlock, len = std::min(n, (b + 1) * kBlock) - i0;
+      std::uint64_t still = ~std::uint64_t{0};
+      auto at = [&](const double* v) { return v ? v + i0 : nullptr; };
+      if (k == 0)
+        kick_drift_range<External, true>(
+            p_.x.data() + i0, p_.y.data() + i0, p_.z.data() + i0, p_.vx.data() + i0,
+            p_.vy.data() + i0, p_.vz.data() + i0, p_.fx.data() + i0, p_.fy.data() + i0,
+            p_.fz.data() + i0, at(ext[0]), at(ext[1]), at(ext[2]), p_.inv_mass.data() + i0,
+            ref[0] + i0, ref[1] + i0, ref[2] + i0, len, 0.0, 0.0, 0.0, 0.0, hk, half_skin2, still,
+            hprev_.data() + i0, half, m.gravity.data());
+      else
+        kick_drift_range<External>(
+            p_.x.data() + i0, p_.y.data() + i0, p_.z.data() + i0, p_.vx.data() + i0,
+            p_.vy.data() + i0, p_.vz.data() + i0, p_.fx.data() + i0, p_.fy.data() + i0,
+            p_.fz.data() + i0, at(ext[0]), at(ext[1]), at(ext[2]), p_.inv_mass.data() + i0,
+            ref[0] + i0, ref[1] + i0, ref[2] + i0, len, s_common, m.gravity[0] * s_common,
+            m.gravity[1] * s_common, m.gravity[2] * s_common, hk, half_skin2, still);
+      parts[b].moved = ~still; // sign bit set: some particle beyond skin/2
     });
+    // The orb kernel leaves h_prev alone after the first step: the last step's half step.
+    if (k > 0 && k + 1 == K_)
+      for (double& h : hprev_) h = half;
     h_before = hk;
   }
 }
@@ -506,9 +581,6 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
   double* fz = p_.fz.data();
   double* hp = hprev_.data();
   const double* im = p_.inv_mass.data();
-  auto force = [&](std::uint32_t i, double& max_ratio, std::int64_t& violations) {
-    return particle_force<true>(i, c, max_ratio, violations);
-  };
   auto kick = [&](std::uint32_t i, double s, double hk, double half, double elapsed,
                   std::int64_t& bound_violations) {
     double ex = 0.0, ey = 0.0, ez = 0.0;
@@ -527,7 +599,7 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
   for (std::int64_t k = 0; k < K_; ++k) {
     const double hk = k + 1 == K_ ? h_last_ : h_;
     if (!giant) {
-      for (std::uint32_t u = 0; u < count; ++u) res.pairs += force(mem[u], res.max_ratio, res.violations);
+      res.pairs += particle_forces<true, true>(mem, 0, count, c, res.max_ratio, res.violations);
     } else {
       // A dense bed's one island: its passes as nested parallel loops (each member's force and
       // update depend only on the state before the pass: thread-count independent).
@@ -536,8 +608,8 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
       tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
         Part& pt = parts[b];
         const std::uint32_t e = std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
-        for (std::uint32_t u = static_cast<std::uint32_t>(b * 1024); u < e; ++u)
-          pt.pairs += force(mem[u], pt.max_ratio, pt.violations);
+        pt.pairs += particle_forces<true, true>(mem, static_cast<std::uint32_t>(b * 1024), e, c,
+                                                pt.max_ratio, pt.violations);
       });
       for (const Part& pt : parts)
         res.pairs += pt.pairs, res.violations += pt.violations, res.max_ratio = std::max(res.max_ratio, pt.max_ratio);

@@ -78,6 +78,8 @@ public:
   // Particles that moved farther than their speed bound allowed (a collision could then have
   // been missed): zero unless the bound is wrong.
   std::int64_t bound_violations() const { return bound_violations_; }
+  // Sub-iterations taken with every particle on the fine step (a dense bed: see kGlobalFraction).
+  std::int64_t global_subiterations() const { return global_subits_; }
   const StepModel& model() const { return model_; }
   // Islands that took fine steps in the last sub-iteration, and the fraction of particles in them.
   int fine_islands() const { return last_fine_islands_; }
@@ -110,9 +112,9 @@ private:
   template <bool External> void free_flight(bool record);
   template <bool External> void run_island(std::uint32_t c, bool record);
   template <bool External> void global_steps(bool record);
-  template <bool Label>
-  std::int64_t particle_force(std::uint32_t i, std::uint32_t c, double& max_ratio,
-                              std::int64_t& violations);
+  template <bool Label, bool Indexed>
+  std::int64_t particle_forces(const std::uint32_t* idx, std::uint32_t u0, std::uint32_t u1,
+                               std::uint32_t c, double& max_ratio, std::int64_t& violations);
   void raise_faults(double t) const;
 
   const Scene& scene_;
@@ -123,6 +125,13 @@ private:
   VerletList list_;
   ExternalForce ext_;
   double dt_sp_ = 0.0, skin_ = 0.0, skin_cap_ = 0.0, margin_ = 0.0;
+  // Skins of the two modes: islands (a longer list: fewer builds) and global fine steps (the
+  // explicit scheme's), and the mode of the current sub-iteration.
+  double islands_skin_ = 0.0, global_skin_ = 0.0;
+  bool global_ = false;
+  std::int64_t global_subits_ = 0;
+  // Above this fraction of particles linked or tied, a sub-iteration steps everyone finely.
+  static constexpr double kGlobalFraction = 0.25;
   std::int64_t nsubit_ = 1;
   bool built_ = false;
   std::vector<double> hprev_;                 // per particle: half of its last step
@@ -139,6 +148,7 @@ private:
   // island's members as particle indices, and per particle its island or kAlone.
   static constexpr std::uint32_t kAlone = 0xffffffffu;
   std::vector<std::uint32_t> busy_v_, la_, lb_, members_, island_of_;
+  std::vector<unsigned char> mark_; // make_links: all zero between calls
   partition::Islands islands_;
   std::vector<std::uint32_t> uf_scratch_;
   std::vector<std::uint32_t> fine_;           // islands that take fine steps

@@ -22,6 +22,7 @@
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/verlet_list.hpp"
 
@@ -157,6 +158,29 @@ void BM_OrbSubiteration(benchmark::State& state) {
   state.counters["fine_leaf_fraction"] = scheme.last_fine_fraction();
 }
 
+// One sub-iteration of the islands scheme (dt_sp = 1e-5 s, as the orb benchmark): links,
+// islands, free flight and the islands' fine steps. Items: particle steps (a free particle's one
+// step of dt_sp counts once).
+void BM_IslandsSubiteration(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  Scene s = g.scene;
+  s.dem.scheme = "islands";
+  s.dem.nsubit = 10;
+  ParticleStore p = g.particles;
+  PhaseTimer timer;
+  dem::IslandsScheme scheme(s, p, timer);
+  scheme.start();
+  scheme.subiterate();
+  const auto steps0 = scheme.particle_steps();
+  for (auto _ : state) {
+    scheme.subiterate();
+    benchmark::DoNotOptimize(p.x.data());
+  }
+  state.SetItemsProcessed(scheme.particle_steps() - steps0);
+  state.counters["fine_fraction"] = scheme.last_fine_fraction();
+}
+
 void BM_OrbLeafSubiteration(benchmark::State& state) {
   const auto threads = threads_from_env();
   const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
@@ -206,5 +230,6 @@ void gases(benchmark::internal::Benchmark* b) {
 BENCHMARK(BM_NeighborBuild)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStep)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_OrbSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_IslandsSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_OrbLeafSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_OrbGhostRefresh)->Apply(gases)->Unit(benchmark::kMicrosecond);

@@ -334,12 +334,17 @@ void IslandsScheme::subiterate(bool record) {
   // Free flight first, then the islands' tasks (they touch disjoint particles).
   ext_.active() ? free_flight<true>(record) : free_flight<false>(record);
   results_.assign(fine_.size(), IslandResult{});
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine_.size(), 1),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t q = r.begin(); q != r.end(); ++q)
-                        ext_.active() ? run_island<true>(static_cast<std::uint32_t>(q), record)
-                                      : run_island<false>(static_cast<std::uint32_t>(q), record);
-                    });
+  auto islands_range = [&](std::size_t b, std::size_t e) {
+    for (std::size_t q = b; q != e; ++q)
+      ext_.active() ? run_island<true>(static_cast<std::uint32_t>(q), record)
+                    : run_island<false>(static_cast<std::uint32_t>(q), record);
+  };
+  if (busy_v_.size() < 256) {
+    islands_range(0, fine_.size()); // few fine particles: no task overhead
+  } else {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine_.size(), 1),
+                      [&](const tbb::blocked_range<std::size_t>& r) { islands_range(r.begin(), r.end()); });
+  }
   // Counters, in island order.
   std::int64_t members = 0;
   for (std::size_t q = 0; q < fine_.size(); ++q) {
@@ -351,7 +356,24 @@ void IslandsScheme::subiterate(bool record) {
     max_overlap_ratio_ = std::max(max_overlap_ratio_, r.max_ratio);
   }
   ++subits_;
-  raise_faults(time());
+  // Free particles were checked in free_flight(); the islands' members are few: check them here.
+  {
+    const double inf = std::numeric_limits<double>::infinity();
+    for (const std::uint32_t i : busy_v_) {
+      const double q = p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i] + p_.x[i] +
+                       p_.y[i] + p_.z[i];
+      bool ok = q > -inf && q < inf;
+      for (int a = 0; a < 3; ++a) {
+        const double c = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
+        ok = ok && (geom_.periodic[a] || (c >= geom_.lo[a] && c <= geom_.hi[a]));
+      }
+      if (!ok) fault_flag_ |= std::uint64_t{1} << 63;
+    }
+  }
+  if (fault_flag_ >> 63) {
+    raise_faults(time()); // throws with the particle named (a NaN sum can flag falsely: no)
+    fault_flag_ = 0;
+  }
   const std::int64_t free_count = static_cast<std::int64_t>(n) - members;
   particle_steps_ += free_count + members * K_;
   last_fine_islands_ = static_cast<int>(fine_.size());
@@ -368,8 +390,14 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
   const std::size_t n = p_.size();
   const std::array<double, 3> g = model_.gravity;
   const double half = 0.5 * dt_sp_;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
+  // Faults (NaN, or a particle outside a wall) are flagged in the same pass (sign bit of
+  // `bad`); raise_faults() names the particle only when one is flagged.
+  const DomainGeometry& geo = geom_;
+  double lo[3], hi[3];
+  const double inf = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a)
+    lo[a] = geo.periodic[a] ? -inf : geo.lo[a], hi[a] = geo.periodic[a] ? inf : geo.hi[a];
+  auto range = [&](std::size_t b, std::size_t e) {
     double* __restrict x = p_.x.data();
     double* __restrict y = p_.y.data();
     double* __restrict z = p_.z.data();
@@ -379,23 +407,47 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
     double* __restrict hp = hprev_.data();
     const double* __restrict im = p_.inv_mass.data();
     const std::uint32_t* __restrict island = island_of_.data();
-    for (std::size_t i = r.begin(); i != r.end(); ++i) {
-      if (island[i] != kAlone) continue;
+    const double* __restrict ex = External ? ext_.x.data() : nullptr;
+    const double* __restrict ey = External ? ext_.y.data() : nullptr;
+    const double* __restrict ez = External ? ext_.z.data() : nullptr;
+    std::uint64_t bad = 0;
+    for (std::size_t i = b; i < e; ++i) {
       double ax = g[0], ay = g[1], az = g[2];
       if constexpr (External) {
-        ax += ext_.x[i] * im[i], ay += ext_.y[i] * im[i], az += ext_.z[i] * im[i];
+        ax += ex[i] * im[i], ay += ey[i] * im[i], az += ez[i] * im[i];
       }
-      if (record) {
+      const bool free = island[i] == kAlone;
+      if (record && free) {
         svx_[i] = vx[i] + ax * hp[i], svy_[i] = vy[i] + ay * hp[i], svz_[i] = vz[i] + az * hp[i];
       }
+      // The explicit scheme's kick-drift with no contact force (contact_kernels.hpp), selected
+      // branch-free: members of an island keep their state here.
       const double s = hp[i] + half;
-      // The explicit scheme's kick-drift with no contact force (contact_kernels.hpp).
-      kick_drift(x[i], vx[i], 0.0, 0.0, ax * s, dt_sp_);
-      kick_drift(y[i], vy[i], 0.0, 0.0, ay * s, dt_sp_);
-      kick_drift(z[i], vz[i], 0.0, 0.0, az * s, dt_sp_);
-      hp[i] = half;
+      double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+      kick_drift(px, ux, 0.0, 0.0, ax * s, dt_sp_);
+      kick_drift(py, uy, 0.0, 0.0, ay * s, dt_sp_);
+      kick_drift(pz, uz, 0.0, 0.0, az * s, dt_sp_);
+      x[i] = free ? px : x[i], y[i] = free ? py : y[i], z[i] = free ? pz : z[i];
+      vx[i] = free ? ux : vx[i], vy[i] = free ? uy : vy[i], vz[i] = free ? uz : vz[i];
+      hp[i] = free ? half : hp[i];
+      const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
+      bad |= sign_unless(!free || (q > -inf && q < inf && px >= lo[0] && px <= hi[0] &&
+                                   py >= lo[1] && py <= hi[1] && pz >= lo[2] && pz <= hi[2]));
     }
-  });
+    return bad;
+  };
+  std::uint64_t bad = 0;
+  if (n <= 4096) {
+    bad = range(0, n); // small: no task overhead
+  } else {
+    constexpr std::size_t kBlock = 2048;
+    std::vector<std::uint64_t> flags((n + kBlock - 1) / kBlock, 0);
+    tbb::parallel_for(std::size_t{0}, flags.size(), [&](std::size_t k) {
+      flags[k] = range(k * kBlock, std::min(n, (k + 1) * kBlock));
+    });
+    for (std::uint64_t f : flags) bad |= f;
+  }
+  fault_flag_ |= bad;
 }
 
 // Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit

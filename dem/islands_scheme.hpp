@@ -149,6 +149,7 @@ private:
   static constexpr std::uint32_t kAlone = 0xffffffffu;
   std::vector<std::uint32_t> busy_v_, la_, lb_, members_, island_of_;
   std::vector<unsigned char> mark_; // make_links: all zero between calls
+  std::uint64_t fault_flag_ = 0;    // sign bit: some particle may be NaN or outside a wall
   partition::Islands islands_;
   std::vector<std::uint32_t> uf_scratch_;
   std::vector<std::uint32_t> fine_;           // islands that take fine steps

@@ -3,11 +3,16 @@
 // when dt divides dt_sp (gas, and walls with gravity), and it does not depend on the thread
 // count.
 #include <cmath>
+#include <limits>
+#include <string>
 #include <unordered_map>
+
+#include <fmt/format.h>
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include "core/error.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem_test_support.hpp"
 
@@ -229,4 +234,22 @@ TEST(IslandsScheme, DenseGasStepsEveryoneFinelyAsExplicit) {
   const auto [ref, out] = run_both(s, 3.0e-4, [](ParticleStore&) {}, &violations);
   EXPECT_EQ(violations, 0);
   expect_round_off(ref, out, 1.0e-3, 1e-9);
+}
+
+// A particle whose velocity became NaN stops the run with a message naming it, not a hang.
+TEST(IslandsScheme, NonFiniteVelocityStopsTheRunNamingTheParticle) {
+  const Scene s = demtest::scene_from(kGas);
+  ParticleStore p = make_initial_particles(s);
+  PhaseTimer t;
+  dem::IslandsScheme isl(s, p, t);
+  isl.start();
+  isl.subiterate();
+  const std::int64_t victim = p.id[7];
+  p.vx[7] = std::numeric_limits<double>::quiet_NaN();
+  try {
+    for (int k = 0; k < 5; ++k) isl.subiterate();
+    FAIL() << "no error";
+  } catch (const RunError& e) {
+    EXPECT_NE(std::string(e.what()).find(fmt::format("particle {}", victim)), std::string::npos) << e.what();
+  }
 }

@@ -37,7 +37,7 @@ CSV (OUT/<mode>.csv), one row per (scheme, layout, cores):
   speedup           strong: T(1) / T(c); weak: scaled speed-up c T(1) / T(c)
   efficiency        strong: T(1) / (c T(c)); weak: T(1) / T(c)   (T = wall_per_step_s, T(1)
                     from the same scheme on 1 core)
-  orb_over_explicit T_explicit / T_scheme at the same (layout, cores): the adaptive scheme's
+  speedup_vs_explicit T_explicit / T_scheme at the same (layout, cores): the adaptive scheme's
                     speed-up over the explicit baseline
   loop_seconds, mpi_wait_seconds (when run.json has it), fluid_seconds, load_1min (the node's
   load average when the run started), status (ok | refused | failed | timeout | skipped),
@@ -77,7 +77,7 @@ import scaled_scene  # noqa: E402
 ROOT_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1"}
 FIELDS = ["mode", "scheme", "layout", "cores", "ranks", "threads", "particles", "fluid_cells",
           "step_unit", "wall_per_step_s", "particle_steps_per_second", "speedup", "efficiency",
-          "orb_over_explicit", "loop_seconds", "mpi_wait_seconds", "fluid_seconds", "load_1min",
+          "speedup_vs_explicit", "loop_seconds", "mpi_wait_seconds", "fluid_seconds", "load_1min",
           "status", "note", "command"]
 
 
@@ -215,14 +215,12 @@ def wall_per_step(js):
 
 
 def fill_derived(rows, mode):
-    """speedup, efficiency (vs the same scheme on 1 core) and orb_over_explicit."""
-    t1 = {r["scheme"]: r["wall_per_step_s"] for r in rows
-          if r["cores"] == 1 and r["status"] == "ok"}
-    expl = {(r["layout"], r["cores"]): r["wall_per_step_s"] for r in rows
-            if r["scheme"] == "explicit" and r["status"] == "ok"}
-    for r in rows:
-        if r["status"] != "ok":
-            continue
+    """speedup, efficiency (vs the same scheme on 1 core) and speedup_vs_explicit."""
+    rows_ok = [r for r in rows if r.get("status") == "ok"]
+    t1 = {r["scheme"]: r["wall_per_step_s"] for r in rows_ok if r["cores"] == 1}
+    expl = {(r["layout"], r["cores"]): r["wall_per_step_s"] for r in rows_ok
+            if r["scheme"] == "explicit"}
+    for r in rows_ok:
         t, c = r["wall_per_step_s"], r["cores"]
         if r["scheme"] in t1:
             ref = t1[r["scheme"]]
@@ -234,7 +232,7 @@ def fill_derived(rows, mode):
                 r["efficiency"] = ref / t
         key = (r["layout"], c)
         if key in expl:
-            r["orb_over_explicit"] = expl[key] / t
+            r["speedup_vs_explicit"] = expl[key] / t
 
 
 def write_csv(path, rows):
@@ -489,8 +487,10 @@ def main():
                 fill_derived(rows, a.mode)
                 write_csv(csv_path, rows)
                 print(f"scaling.py: {a.mode} {s:8s} {lay:12s} c={c:<3d} {ranks}x{threads}: "
-                      f"{status} {row.get('wall_per_step_s', '')} s/step "
-                      f"({time.time() - t0:.1f} s) {row['note']}", file=sys.stderr)
+                      f"{status}"
+                      + (f" {row['wall_per_step_s']:.4g} s per {row['step_unit']}"
+                         if "wall_per_step_s" in row else "") +
+                      f" (run {time.time() - t0:.1f} s) {row['note']}", file=sys.stderr)
     if a.dry_run:
         return
     fill_derived(rows, a.mode)

@@ -42,8 +42,9 @@ CSV (OUT/<mode>.csv), one row per (scheme, layout, cores):
   loop_seconds, mpi_wait_seconds (when run.json has it), fluid_seconds, load_1min (the node's
   load average when the run started), status (ok | refused | failed | timeout | skipped),
   note, command.
-OUT/<mode>_meta.json records the machine (host, cpu model, cores), the date, the binary, the
-cfddem source commit (when the binary sits in a git checkout) and this command line.
+OUT/<mode>_meta.json records the machine (host, cpu model, cores, load average at start and
+end), the date, the binary (path, sha256, cfddem version; the source commit when the binary sits
+in build/bin of a git checkout), --note and this command line.
 Plot (OUT/<mode>.png): time per step (log-log, ideal line), speed-up and efficiency vs cores,
 one line per scheme and layout.
 
@@ -60,6 +61,7 @@ Examples (a 16-core node):
 import argparse
 import csv
 import datetime
+import hashlib
 import json
 import math
 import os
@@ -332,6 +334,13 @@ def machine_info(a):
     except (OSError, subprocess.CalledProcessError):
         pass
     try:
+        with open(info["binary"], "rb") as f:
+            info["binary_sha256"] = hashlib.sha256(f.read()).hexdigest()
+    except OSError:
+        pass
+    if a.note:
+        info["note"] = a.note
+    try:
         info["load_avg_start"] = os.getloadavg()
     except OSError:
         pass
@@ -365,6 +374,8 @@ def main():
     ap.add_argument("--binding", choices=["none", "core"], default="none")
     ap.add_argument("--node-cores", type=int, default=os.cpu_count())
     ap.add_argument("--out", default=None, help="output folder (default runs/scaling_<mode>)")
+    ap.add_argument("--note", help="free text kept in OUT/<mode>_meta.json (where the binary "
+                    "came from, the node's state, ...)")
     ap.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
     ap.add_argument("--plot-only", metavar="CSV", help="re-plot an existing CSV")
     a = ap.parse_args()
@@ -467,6 +478,7 @@ def main():
                     row["particle_steps_per_second"] = float(js.get("particle_steps_per_second",
                                                                      float("nan")))
                     row["particles"] = js.get("particles", particles)
+                    meta.setdefault("cfddem_version", js.get("version"))
                     ph = js.get("phase_seconds", {})
                     if isinstance(ph, dict) and "fluid" in ph:
                         row["fluid_seconds"] = float(ph["fluid"])

@@ -7,8 +7,9 @@
 strong  one fixed scene; every core count c of --cores is run in each --layouts:
           ranks-only    c ranks x 1 thread
           threads-only  1 rank  x c threads
-          hybrid        c/T ranks x T threads, T = --hybrid-threads (default 4); a core count
-                        that gives no distinct hybrid layout (c < 2T or c % T != 0) is left out
+          hybrid        c/T ranks x T threads, T = --hybrid-threads (default 4; several
+                        values give one layout each, named hybrid-<T>t); a core count that
+                        gives no distinct hybrid layout (c < 2T or c % T != 0) is left out
         1 core (1 x 1) is run once per scheme and is the reference of every layout.
 weak    particles and fluid cells per core fixed: for c cores the scene is
         tools/scaled_scene.py --base B --particles (N x c) (the domain grows; --grow xz|xyz),
@@ -101,9 +102,10 @@ def layouts_for(cores, names, hybrid_threads):
         elif name == "threads-only":
             out.append((name, 1, cores))
         elif name == "hybrid":
-            t = hybrid_threads
-            if cores % t == 0 and cores // t >= 2 and t >= 2:
-                out.append((name, cores // t, t))
+            ts = [hybrid_threads] if isinstance(hybrid_threads, int) else list(hybrid_threads)
+            for t in ts:
+                if cores % t == 0 and cores // t >= 2 and t >= 2:
+                    out.append((name if len(ts) == 1 else f"hybrid-{t}t", cores // t, t))
         else:
             raise ValueError(name)
     return out
@@ -266,7 +268,9 @@ def plot(rows, mode, path, title):
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
     schemes = sorted({r["scheme"] for r in ok})
     layouts = sorted({r["layout"] for r in ok if r["layout"] != "serial"}) or ["serial"]
-    styles = {"ranks-only": "-", "threads-only": "--", "hybrid": ":", "serial": "-"}
+    styles = {"ranks-only": "-", "threads-only": "--", "serial": "-"}
+    for i, lay in enumerate(x for x in layouts if x.startswith("hybrid")):
+        styles[lay] = [":", "-.", (0, (5, 1, 1, 1, 1, 1)), (0, (1, 3))][i % 4]
     markers = {"explicit": "o", "orb": "s", "islands": "^"}
     allc = sorted({r["cores"] for r in ok})
     for si, s in enumerate(schemes):
@@ -362,7 +366,8 @@ def main():
     ap.add_argument("--cores", type=int, nargs="+", default=[1, 2, 4, 8, 16])
     ap.add_argument("--layouts", nargs="+", default=["ranks-only", "threads-only", "hybrid"],
                     choices=["ranks-only", "threads-only", "hybrid"])
-    ap.add_argument("--hybrid-threads", type=int, default=4, help="threads per rank (hybrid)")
+    ap.add_argument("--hybrid-threads", type=int, nargs="+", default=[4],
+                    help="threads per rank of the hybrid layouts (default 4; e.g. 2 4 8)")
     ap.add_argument("--schemes", nargs="+", default=["explicit", "orb", "islands"])
     ap.add_argument("--end-time", type=float, help="run.end_time for every run")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")

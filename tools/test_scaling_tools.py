@@ -109,6 +109,8 @@ class Scaling(unittest.TestCase):
                          [("ranks-only", 16, 1), ("threads-only", 1, 16), ("hybrid", 4, 4)])
         self.assertEqual(L(2, ["hybrid"], 4), [])  # no distinct hybrid on 2 cores
         self.assertEqual(L(4, ["hybrid"], 2), [("hybrid", 2, 2)])
+        self.assertEqual(L(16, ["hybrid"], [2, 4, 8, 16]),
+                         [("hybrid-2t", 8, 2), ("hybrid-4t", 4, 4), ("hybrid-8t", 2, 8)])
 
     def test_launch_line(self):
         class A:

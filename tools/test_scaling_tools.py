@@ -1,0 +1,206 @@
+#!/usr/bin/python3
+"""Tests of tools/scaled_scene.py and tools/scaling.py (standard library unittest, no pytest).
+
+  /usr/bin/python3 tools/test_scaling_tools.py            # pure Python checks
+  CFDDEM=build/bin/cfddem /usr/bin/python3 tools/test_scaling_tools.py
+                                                          # + `cfddem check` of scaled scenes and a
+                                                          #   --dry-run of scaling.py
+"""
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import tomllib
+import unittest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import scaled_scene  # noqa: E402
+import scaling  # noqa: E402
+
+CFDDEM = os.environ.get("CFDDEM", "")
+
+
+class ScaledScene(unittest.TestCase):
+    COUNTS = [2e4, 62500, 1e5, 1e6, 1e7]
+
+    def base(self, name):
+        with open(os.path.join(scaled_scene.SCENES, scaled_scene.BASES[name]), "rb") as f:
+            return tomllib.load(f)
+
+    def test_keeps_count_cell_size_and_solid_fraction(self):
+        for name in scaled_scene.BASES:
+            b = self.base(name)
+            h0 = [(b["domain"]["hi"][i] - b["domain"]["lo"][i]) / b["fluid"]["cells"][i]
+                  for i in range(3)]
+            for grow in ("xz", "xyz"):
+                for n in self.COUNTS:
+                    with self.subTest(base=name, grow=grow, n=n):
+                        s, over, info = scaled_scene.scale_scene(name, int(n), grow)
+                        self.assertEqual(s["particles"]["count"], int(n))
+                        self.assertEqual(s["particles"]["diameter"], b["particles"]["diameter"])
+                        cells = s["fluid"]["cells"]
+                        self.assertTrue(all(isinstance(c, int) and c >= 1 for c in cells))
+                        for i in range(3):
+                            h = (s["domain"]["hi"][i] - s["domain"]["lo"][i]) / cells[i]
+                            self.assertAlmostEqual(h / h0[i], 1.0, places=10)
+                        rel = info["solid_fraction"] / info["solid_fraction_base"] - 1
+                        self.assertLess(abs(rel), 0.015 if n < 5e4 else 0.008)
+                        if grow == "xz":
+                            self.assertEqual(cells[1], b["fluid"]["cells"][1])
+                            self.assertEqual(s["domain"]["hi"][1], b["domain"]["hi"][1])
+                        # lateral cells as even as integers allow
+                        self.assertLessEqual(abs(cells[0] - cells[2]), 2)
+
+    def test_orb_levels_give_100_to_200_per_leaf(self):
+        for n in self.COUNTS + [14000, 10000]:
+            s, over, info = scaled_scene.scale_scene("riser", int(n))
+            self.assertTrue(100 <= info["particles_per_leaf"] <= 200, (n, info))
+        # the base scenes' own levels are reproduced
+        self.assertEqual(scaled_scene.scale_scene("riser", 14000)[2]["orb_levels"], 7)
+        self.assertEqual(scaled_scene.scale_scene("fluidized_bed", 10000)[2]["orb_levels"], 6)
+
+    def test_riser_xyz_keeps_the_pressure_gradient(self):
+        b = self.base("riser")
+        s, _, _ = scaled_scene.scale_scene("riser", 10 ** 6, "xyz")
+        g0 = b["fluid"]["pressure_drop"][1] / b["domain"]["hi"][1]
+        g = s["fluid"]["pressure_drop"][1] / s["domain"]["hi"][1]
+        self.assertAlmostEqual(g / g0, 1.0, places=10)
+        s, _, _ = scaled_scene.scale_scene("riser", 10 ** 6, "xz")
+        self.assertEqual(s["fluid"]["pressure_drop"], b["fluid"]["pressure_drop"])
+
+    def test_bed_region_and_lattice_capacity(self):
+        b = self.base("fluidized_bed")
+        for grow in ("xz", "xyz"):
+            s, _, _ = scaled_scene.scale_scene("fluidized_bed", 10 ** 6, grow)
+            p = s["particles"]
+            self.assertEqual(p["region_hi"][0], s["domain"]["hi"][0])
+            self.assertEqual(p["region_hi"][2], s["domain"]["hi"][2])
+            if grow == "xz":
+                self.assertEqual(p["region_hi"][1], b["particles"]["region_hi"][1])
+            d = p["diameter"]
+            sites = math.prod(math.floor((p["region_hi"][i] - p["region_lo"][i]) / d + 1e-9)
+                              for i in range(3))
+            self.assertGreaterEqual(sites, p["count"])
+
+    def test_no_fluid_drops_the_gas_only(self):
+        s, _, _ = scaled_scene.scale_scene("riser", 20000, no_fluid=True)
+        self.assertNotIn("fluid", s)
+        self.assertEqual(s["particles"]["count"], 20000)
+
+    def test_toml_round_trip(self):
+        for name in scaled_scene.BASES:
+            s, _, _ = scaled_scene.scale_scene(name, 123456)
+            text = scaled_scene.write_toml(s, ["header"])
+            self.assertEqual(tomllib.loads(text), s)
+
+    def test_fmt_count(self):
+        self.assertEqual(scaled_scene.fmt_count(10 ** 6), "1e6")
+        self.assertEqual(scaled_scene.fmt_count(20000), "2e4")
+        self.assertEqual(scaled_scene.fmt_count(62500), "62500")
+
+
+class Scaling(unittest.TestCase):
+    def test_layouts(self):
+        L = scaling.layouts_for
+        self.assertEqual(L(1, ["ranks-only", "threads-only", "hybrid"], 4), [("serial", 1, 1)])
+        self.assertEqual(L(16, ["ranks-only", "threads-only", "hybrid"], 4),
+                         [("ranks-only", 16, 1), ("threads-only", 1, 16), ("hybrid", 4, 4)])
+        self.assertEqual(L(2, ["hybrid"], 4), [])  # no distinct hybrid on 2 cores
+        self.assertEqual(L(4, ["hybrid"], 2), [("hybrid", 2, 2)])
+        self.assertEqual(L(16, ["hybrid"], [2, 4, 8, 16]),
+                         [("hybrid-2t", 8, 2), ("hybrid-4t", 4, 4), ("hybrid-8t", 2, 8)])
+
+    def test_launch_line(self):
+        class A:
+            launcher, binding, node_cores, binary = "mpirun", "none", 2, "cfddem"
+        cmd = scaling.launch_cmd(A, 4, 1, "s.toml", ["dem.scheme=orb"], "out")
+        self.assertEqual(cmd[:6], ["mpirun", "-np", "4", "--bind-to", "none", "--oversubscribe"])
+        self.assertEqual(cmd[6:], ["cfddem", "run", "s.toml", "dem.scheme=orb", "--threads", "1",
+                                   "--quiet", "--out", "out"])
+        cmd = scaling.launch_cmd(A, 2, 1, "s.toml", [], "out")
+        self.assertNotIn("--oversubscribe", cmd)
+        A.binding = "core"
+        cmd = scaling.launch_cmd(A, 2, 4, "s.toml", [], "out")
+        self.assertIn("ppr:2:node:pe=4", cmd)
+        self.assertIn("--oversubscribe", cmd)  # 8 cores asked of a 2-core node
+
+    def test_wall_per_step(self):
+        t, u = scaling.wall_per_step({"loop_seconds": 2.0, "fluid_steps": 4})
+        self.assertEqual((t, u), (0.5, "fluid_step"))
+        t, u = scaling.wall_per_step({"loop_seconds": 2.0, "end_time": 2e-3,
+                                      "configuration": {"output.interval": "0.001"}})
+        self.assertAlmostEqual(t, 1.0)
+        self.assertTrue(u.startswith("output_interval"))
+
+    def rows(self):
+        return [
+            {"scheme": "explicit", "status": "skipped"},  # no cores: must not break anything
+            {"scheme": "explicit", "layout": "serial", "cores": 1, "status": "ok",
+             "wall_per_step_s": 8.0},
+            {"scheme": "orb", "layout": "serial", "cores": 1, "status": "ok",
+             "wall_per_step_s": 4.0},
+            {"scheme": "explicit", "layout": "ranks-only", "cores": 4, "status": "ok",
+             "wall_per_step_s": 2.5},
+            {"scheme": "orb", "layout": "ranks-only", "cores": 4, "status": "ok",
+             "wall_per_step_s": 2.0},
+            {"scheme": "orb", "layout": "threads-only", "cores": 4, "status": "refused"},
+        ]
+
+    def test_strong_and_weak_efficiency(self):
+        r = self.rows()
+        scaling.fill_derived(r, "strong")
+        self.assertAlmostEqual(r[3]["speedup"], 8.0 / 2.5)
+        self.assertAlmostEqual(r[3]["efficiency"], 8.0 / (4 * 2.5))
+        self.assertAlmostEqual(r[4]["efficiency"], 4.0 / (4 * 2.0))
+        self.assertAlmostEqual(r[4]["speedup_vs_explicit"], 2.5 / 2.0)
+        self.assertAlmostEqual(r[2]["speedup_vs_explicit"], 2.0)
+        self.assertNotIn("efficiency", r[5])
+        r = self.rows()
+        scaling.fill_derived(r, "weak")
+        self.assertAlmostEqual(r[3]["efficiency"], 8.0 / 2.5)
+        self.assertAlmostEqual(r[3]["speedup"], 4 * 8.0 / 2.5)
+
+    def test_csv_and_plot(self):
+        r = self.rows()
+        scaling.fill_derived(r, "strong")
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "strong.csv")
+            scaling.write_csv(path, r)
+            back = scaling.read_csv(path)
+            self.assertEqual(len(back), len(r))
+            scaling.plot(back, "strong", os.path.join(d, "strong.png"), "test")
+            self.assertGreater(os.path.getsize(os.path.join(d, "strong.png")), 1000)
+
+
+@unittest.skipUnless(CFDDEM and os.access(CFDDEM, os.X_OK), "set CFDDEM=path/to/cfddem")
+class WithBinary(unittest.TestCase):
+    def test_check_accepts_scaled_scenes(self):
+        with tempfile.TemporaryDirectory() as d:
+            for name in scaled_scene.BASES:
+                for no_fluid in (False, True):
+                    s, _, _ = scaled_scene.scale_scene(name, 10 ** 5, no_fluid=no_fluid)
+                    path = os.path.join(d, f"{name}_{no_fluid}.toml")
+                    with open(path, "w") as f:
+                        f.write(scaled_scene.write_toml(s, []))
+                    r = subprocess.run([CFDDEM, "check", path], capture_output=True, text=True)
+                    self.assertEqual(r.returncode, 0, r.stderr)
+                    self.assertIn("particles.count = 100000", r.stdout)
+
+    def test_dry_run(self):
+        with tempfile.TemporaryDirectory() as d:
+            r = subprocess.run([sys.executable, os.path.join(HERE, "scaling.py"), "weak",
+                                "--base", "riser", "--particles-per-core", "1e4", "--cores",
+                                "1", "2", "4", "--node-cores", "2", "--binary", CFDDEM,
+                                "--out", d, "--dry-run"], capture_output=True, text=True)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            lines = r.stdout.strip().splitlines()
+            # 1 core: 1 layout; 2 and 4 cores: ranks-only + threads-only; x 3 schemes
+            self.assertEqual(len(lines), 3 * (1 + 2 + 2))
+            self.assertTrue(all("mpirun -np" in ln for ln in lines))
+            self.assertEqual(sum("--oversubscribe" in ln for ln in lines), 3)
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -33,6 +33,18 @@ File File::create(const std::string& path) {
   return f;
 }
 
+File File::create_collective(const std::string& path, MPI_Comm comm) {
+  quiet_errors();
+  File f;
+  f.path_ = path;
+  Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+  if (!fapl.valid() || H5Pset_fapl_mpio(fapl.get(), comm, MPI_INFO_NULL) < 0)
+    throw RunError(fmt::format("cannot set up MPI-IO for HDF5 file '{}'", path));
+  f.file_ = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get()), H5Fclose);
+  if (!f.file_.valid()) throw RunError(fmt::format("cannot create HDF5 file '{}'", path));
+  return f;
+}
+
 File File::open_read(const std::string& path) {
   quiet_errors();
   File f;
@@ -96,6 +108,43 @@ void File::write(const std::string& name, std::span<const std::int64_t> d,
 void File::write(const std::string& name, std::span<const std::uint32_t> d,
                  std::vector<hsize_t> s) {
   write_raw(name, H5T_NATIVE_UINT32, d.data(), d.size(), std::move(s));
+}
+
+void File::write_rows_raw(const std::string& name, hid_t type, const void* data, std::size_t n,
+                          hsize_t rows_total, hsize_t row_offset, hsize_t width) {
+  const hsize_t rows = width > 0 ? n / width : 0;
+  if (width == 0 || rows * width != n || row_offset + rows > rows_total)
+    throw RunError(fmt::format("{}: dataset '{}': {} values do not fit rows {}..{} of {}", path_,
+                               name, n, row_offset, row_offset + rows, rows_total));
+  const int rank = width == 1 ? 1 : 2;
+  const hsize_t dims[2] = {rows_total, width};
+  Handle space(H5Screate_simple(rank, dims, nullptr), H5Sclose);
+  Handle set(H5Dcreate2(file_.get(), name.c_str(), type, space.get(), H5P_DEFAULT, H5P_DEFAULT,
+                        H5P_DEFAULT),
+             H5Dclose);
+  if (!space.valid() || !set.valid())
+    throw RunError(fmt::format("{}: cannot create dataset '{}'", path_, name));
+  const hsize_t start[2] = {row_offset, 0}, count[2] = {rows, width};
+  Handle mem(H5Screate_simple(rank, count, nullptr), H5Sclose);
+  if (rows == 0) {
+    H5Sselect_none(space.get());
+    H5Sselect_none(mem.get());
+  } else if (H5Sselect_hyperslab(space.get(), H5S_SELECT_SET, start, nullptr, count, nullptr) < 0) {
+    throw RunError(fmt::format("{}: selecting rows of dataset '{}' failed", path_, name));
+  }
+  Handle xfer(H5Pcreate(H5P_DATASET_XFER), H5Pclose);
+  H5Pset_dxpl_mpio(xfer.get(), H5FD_MPIO_COLLECTIVE);
+  if (H5Dwrite(set.get(), type, mem.get(), space.get(), xfer.get(), data) < 0)
+    throw RunError(fmt::format("{}: collective write of dataset '{}' failed", path_, name));
+}
+
+void File::write_rows(const std::string& name, std::span<const double> d, hsize_t total,
+                      hsize_t offset, hsize_t width) {
+  write_rows_raw(name, H5T_NATIVE_DOUBLE, d.data(), d.size(), total, offset, width);
+}
+void File::write_rows(const std::string& name, std::span<const std::int64_t> d, hsize_t total,
+                      hsize_t offset, hsize_t width) {
+  write_rows_raw(name, H5T_NATIVE_INT64, d.data(), d.size(), total, offset, width);
 }
 
 template <class T> Array<T> File::read_raw(const std::string& name, hid_t type) const {

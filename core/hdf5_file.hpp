@@ -10,6 +10,7 @@
 #include <vector>
 
 #include <hdf5.h>
+#include <mpi.h>
 
 namespace cfddem::h5 {
 
@@ -52,6 +53,9 @@ class File {
 public:
   // Create (truncating) a file for writing.
   static File create(const std::string& path);
+  // Create (truncating) a file that every rank of `comm` writes into with MPI-IO (parallel
+  // HDF5): collective, every rank calls it and every later call on the file in the same order.
+  static File create_collective(const std::string& path, MPI_Comm comm);
   // Open an existing file read-only; throws RunError if it is not a readable HDF5 file.
   static File open_read(const std::string& path);
 
@@ -62,6 +66,12 @@ public:
              std::vector<hsize_t> shape);
   void write(const std::string& name, std::span<const std::uint32_t> data,
              std::vector<hsize_t> shape);
+  // Collective (a file from create_collective): dataset {rows_total} (width 1) or {rows_total,
+  // width}; this rank writes its `local.size() / width` rows from row `row_offset` on.
+  void write_rows(const std::string& name, std::span<const double> local, hsize_t rows_total,
+                  hsize_t row_offset, hsize_t width);
+  void write_rows(const std::string& name, std::span<const std::int64_t> local,
+                  hsize_t rows_total, hsize_t row_offset, hsize_t width);
   // Scalar attributes on the root group (or on object `on`).
   void attribute(const std::string& name, double v, const std::string& on = "/");
   void attribute(const std::string& name, std::int64_t v, const std::string& on = "/");
@@ -83,6 +93,8 @@ private:
   void write_raw(const std::string& name, hid_t type, const void* data, std::size_t n,
                  std::vector<hsize_t> shape);
   template <class T> Array<T> read_raw(const std::string& name, hid_t type) const;
+  void write_rows_raw(const std::string& name, hid_t type, const void* data, std::size_t n,
+                      hsize_t rows_total, hsize_t row_offset, hsize_t width);
   void write_attr(const std::string& name, hid_t type, const void* v, const std::string& on);
   void read_attr(const std::string& name, hid_t type, void* v, const std::string& on) const;
   Handle file_;

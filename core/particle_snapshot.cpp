@@ -65,6 +65,29 @@ std::string fluid_grid(const SnapshotEntry& e) {
 
 } // namespace
 
+namespace {
+
+// Per-particle rows of a snapshot: position and velocity triples, diameter, speed, kinetic
+// energy, local step.
+struct SnapshotRows {
+  std::vector<double> pos, vel, diam, speed, ke, dt;
+  explicit SnapshotRows(const SnapshotFields& f) {
+    const std::size_t n = f.x.size();
+    pos.resize(3 * n), vel.resize(3 * n), diam.resize(n), speed.resize(n), ke.resize(n), dt.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      pos[3 * i] = f.x[i], pos[3 * i + 1] = f.y[i], pos[3 * i + 2] = f.z[i];
+      vel[3 * i] = f.vx[i], vel[3 * i + 1] = f.vy[i], vel[3 * i + 2] = f.vz[i];
+      diam[i] = 2.0 * f.radius[i];
+      const double v2 = f.vx[i] * f.vx[i] + f.vy[i] * f.vy[i] + f.vz[i] * f.vz[i];
+      speed[i] = std::sqrt(v2);
+      ke[i] = 0.5 * f.mass[i] * v2;
+      dt[i] = f.local_dt.empty() ? f.dt : f.local_dt[i];
+    }
+  }
+};
+
+} // namespace
+
 SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f) {
   namespace fs = std::filesystem;
   const std::size_t n = f.x.size();
@@ -77,16 +100,8 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
   const std::string path = (fs::path(dir) / e.file).string();
   const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
 
-  std::vector<double> pos(3 * n), vel(3 * n), diam(n), speed(n), ke(n), dt(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    pos[3 * i] = f.x[i], pos[3 * i + 1] = f.y[i], pos[3 * i + 2] = f.z[i];
-    vel[3 * i] = f.vx[i], vel[3 * i + 1] = f.vy[i], vel[3 * i + 2] = f.vz[i];
-    diam[i] = 2.0 * f.radius[i];
-    const double v2 = f.vx[i] * f.vx[i] + f.vy[i] * f.vy[i] + f.vz[i] * f.vz[i];
-    speed[i] = std::sqrt(v2);
-    ke[i] = 0.5 * f.mass[i] * v2;
-    dt[i] = f.local_dt.empty() ? f.dt : f.local_dt[i];
-  }
+  const SnapshotRows r(f);
+  const auto& [pos, vel, diam, speed, ke, dt] = r;
   const hsize_t hn = n;
   try {
     h5::File file = h5::File::create(tmp);
@@ -112,6 +127,70 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
     std::remove(tmp.c_str());
     throw RunError(fmt::format("cannot rename '{}' to '{}'", tmp, path));
   }
+  return e;
+}
+
+SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f,
+                                      MPI_Comm comm) {
+  namespace fs = std::filesystem;
+  int rank = 0, ranks = 1;
+  MPI_Comm_rank(comm, &rank);
+  MPI_Comm_size(comm, &ranks);
+  if (ranks == 1) return write_particle_snapshot(dir, f);
+  if (f.cells)
+    throw RunError("snapshots with cell data are written by one rank only (not yet distributed)");
+  const auto local = static_cast<long long>(f.x.size());
+  long long offset = 0, total = 0;
+  MPI_Exscan(&local, &offset, 1, MPI_LONG_LONG, MPI_SUM, comm);
+  if (rank == 0) offset = 0; // MPI_Exscan leaves rank 0's result undefined
+  MPI_Allreduce(&local, &total, 1, MPI_LONG_LONG, MPI_SUM, comm);
+  int has_leaf = f.leaf.empty() ? 0 : 1, all_leaf = 0;
+  MPI_Allreduce(&has_leaf, &all_leaf, 1, MPI_INT, MPI_MIN, comm);
+  SnapshotEntry e;
+  e.step = f.step;
+  e.time = f.time;
+  e.particles = total;
+  e.leaf = all_leaf != 0;
+  e.file = fmt::format("snapshot_{:09d}.h5", f.step);
+  const std::string path = (fs::path(dir) / e.file).string();
+  // One temporary name for all ranks (rank 0's pid), renamed by rank 0 once all have written.
+  long long pid = rank == 0 ? static_cast<long long>(::getpid()) : 0;
+  MPI_Bcast(&pid, 1, MPI_LONG_LONG, 0, comm);
+  const std::string tmp = fmt::format("{}.tmp.{}", path, pid);
+  const SnapshotRows r(f);
+  const auto h = [](long long v) { return static_cast<hsize_t>(v); };
+  int ok = 1;
+  std::string what;
+  try {
+    h5::File file = h5::File::create_collective(tmp, comm);
+    file.attribute("time", f.time);
+    file.attribute("step", f.step);
+    file.attribute("program", std::string("cfddem"));
+    file.create_group("/particles");
+    file.write_rows("/particles/position", std::span<const double>(r.pos), h(total), h(offset), 3);
+    file.write_rows("/particles/velocity", std::span<const double>(r.vel), h(total), h(offset), 3);
+    file.write_rows("/particles/diameter", std::span<const double>(r.diam), h(total), h(offset), 1);
+    file.write_rows("/particles/speed", std::span<const double>(r.speed), h(total), h(offset), 1);
+    file.write_rows("/particles/kinetic_energy", std::span<const double>(r.ke), h(total), h(offset), 1);
+    file.write_rows("/particles/local_dt", std::span<const double>(r.dt), h(total), h(offset), 1);
+    file.write_rows("/particles/id", f.id, h(total), h(offset), 1);
+    if (e.leaf) file.write_rows("/particles/leaf", f.leaf, h(total), h(offset), 1);
+    file.close();
+  } catch (const std::exception& ex) {
+    ok = 0, what = ex.what();
+  }
+  int all_ok = 0;
+  MPI_Allreduce(&ok, &all_ok, 1, MPI_INT, MPI_MIN, comm);
+  if (rank == 0) {
+    if (!all_ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
+      std::remove(tmp.c_str());
+      all_ok = 0;
+    }
+  }
+  MPI_Bcast(&all_ok, 1, MPI_INT, 0, comm);
+  if (!all_ok)
+    throw RunError(fmt::format("writing snapshot '{}' on {} ranks failed{}", path, ranks,
+                               what.empty() ? std::string() : ": " + what));
   return e;
 }
 

@@ -7,6 +7,8 @@
 // sees a torn file.
 #pragma once
 
+#include <mpi.h>
+
 #include <array>
 #include <cstdint>
 #include <span>
@@ -50,6 +52,13 @@ struct SnapshotEntry {
 // Write <dir>/snapshot_<step>.h5 atomically (particles, and cells if f.cells); returns its index
 // entry.
 SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f);
+
+// The same from every rank of `comm` at once, each with its own particles (the fields' spans),
+// written collectively into one file with parallel HDF5 (MPI-IO): the ranks' particles follow
+// each other in rank order. Collective; the entry (all particles) is returned on every rank.
+// Cell data must come from a single rank for now (f.cells with more than one rank throws).
+SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f,
+                                      MPI_Comm comm);
 
 // The XDMF text for a list of snapshots (exposed for tests).
 std::string xdmf_index(const std::vector<SnapshotEntry>& entries);

@@ -1,0 +1,72 @@
+#include "core/communicator.hpp"
+
+#include <limits>
+
+#include "core/communicator_mpi.hpp"
+
+namespace cfddem {
+
+namespace {
+template <class T> MPI_Datatype mpi_type();
+template <> MPI_Datatype mpi_type<double>() { return MPI_DOUBLE; }
+template <> MPI_Datatype mpi_type<std::int64_t>() { return MPI_INT64_T; }
+
+template <class T> void reduce(const Communicator& c, std::span<T> v, MPI_Op op) {
+  if (c.size() == 1 || v.empty()) return;
+  MpiWait w(c);
+  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), mpi_type<T>(), op,
+                mpi_comm(c));
+}
+} // namespace
+
+Communicator Communicator::world() {
+  Communicator c;
+  c.handle_ = static_cast<int>(MPI_Comm_c2f(MPI_COMM_WORLD));
+  MPI_Comm_rank(MPI_COMM_WORLD, &c.rank_);
+  MPI_Comm_size(MPI_COMM_WORLD, &c.size_);
+  return c;
+}
+
+void Communicator::sum(std::span<double> v) const { reduce(*this, v, MPI_SUM); }
+void Communicator::sum(std::span<std::int64_t> v) const { reduce(*this, v, MPI_SUM); }
+void Communicator::max(std::span<double> v) const { reduce(*this, v, MPI_MAX); }
+void Communicator::max(std::span<std::int64_t> v) const { reduce(*this, v, MPI_MAX); }
+void Communicator::min(std::span<std::int64_t> v) const { reduce(*this, v, MPI_MIN); }
+
+std::int64_t Communicator::sum(std::int64_t v) const {
+  sum(std::span<std::int64_t>(&v, 1));
+  return v;
+}
+
+double Communicator::max(double v) const {
+  max(std::span<double>(&v, 1));
+  return v;
+}
+
+std::vector<double> Communicator::gather(double v) const {
+  if (size_ == 1) return {v};
+  std::vector<double> all(rank_ == 0 ? static_cast<std::size_t>(size_) : 0);
+  MpiWait w(*this);
+  MPI_Gather(&v, 1, MPI_DOUBLE, all.data(), 1, MPI_DOUBLE, 0, mpi_comm(*this));
+  return all;
+}
+
+std::string Communicator::agree_on_error(std::int64_t key, const std::string& message) const {
+  constexpr std::int64_t kNoError = std::numeric_limits<std::int64_t>::max();
+  if (size_ == 1) return message;
+  // The smallest key, then the lowest rank holding it, which broadcasts its message.
+  std::int64_t k = message.empty() ? kNoError : key;
+  min(std::span<std::int64_t>(&k, 1));
+  if (k == kNoError) return {};
+  std::int64_t root = !message.empty() && key == k ? rank_ : size_;
+  min(std::span<std::int64_t>(&root, 1));
+  std::string text = rank_ == root ? message : std::string();
+  MpiWait w(*this);
+  auto len = static_cast<long long>(text.size());
+  MPI_Bcast(&len, 1, MPI_LONG_LONG, static_cast<int>(root), mpi_comm(*this));
+  text.resize(static_cast<std::size_t>(len));
+  MPI_Bcast(text.data(), static_cast<int>(len), MPI_CHAR, static_cast<int>(root), mpi_comm(*this));
+  return text;
+}
+
+} // namespace cfddem

@@ -112,7 +112,7 @@ void VerletList::build_local(const ParticleStore& p, std::size_t rows, double sk
   double rmax = 0.0;
   for (double r : p.radius) rmax = std::max(rmax, r);
   const double cutoff = 2.0 * rmax + skin;
-  // The frame: the particles' bounding box, one cutoff wider at the top so that no axis is empty.
+  // The frame: the particles' bounding box, at least one cutoff wide on every axis.
   DomainSpec box;
   box.periodic = {false, false, false};
   box.lo = {0.0, 0.0, 0.0}, box.hi = {0.0, 0.0, 0.0};
@@ -123,7 +123,7 @@ void VerletList::build_local(const ParticleStore& p, std::size_t rows, double sk
       for (int a = 0; a < 3; ++a) box.lo[a] = std::min(box.lo[a], q[a]), box.hi[a] = std::max(box.hi[a], q[a]);
     }
   }
-  for (int a = 0; a < 3; ++a) box.hi[a] += cutoff;
+  for (int a = 0; a < 3; ++a) box.hi[a] = std::max(box.hi[a], box.lo[a] + cutoff);
   const DomainGeometry g(box);
   const CellGrid grid = make_grid(g, cutoff, n);
   order_.clear();

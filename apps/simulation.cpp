@@ -208,6 +208,19 @@ nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_seconds) 
   return ph;
 }
 
+// The work counters of a loop in run.json: particle steps, force evaluations (and what they
+// count, when given), neighbor builds and the particle-step rate.
+template <class Scheme>
+void add_work_counters(nlohmann::ordered_json& j, const Scheme& scheme, double loop_seconds,
+                       const char* definition = nullptr) {
+  j["particle_steps"] = scheme.particle_steps();
+  j["force_evaluations"] = scheme.pair_evaluations();
+  if (definition) j["force_evaluations_definition"] = definition;
+  j["neighbor_builds"] = scheme.neighbor_builds();
+  j["particle_steps_per_second"] =
+      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+}
+
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
@@ -389,12 +402,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
   nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
   j["phase_seconds"] = ph;
-  j["particle_steps"] = scheme.particle_steps();
-  j["force_evaluations"] = scheme.pair_evaluations();
-  j["force_evaluations_definition"] = "neighbor-list pairs evaluated (each pair once per step)";
-  j["neighbor_builds"] = scheme.neighbor_builds();
-  j["particle_steps_per_second"] =
-      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+  add_work_counters(j, scheme, loop_seconds,
+                    "neighbor-list pairs evaluated (each pair once per step)");
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
 
   if (!opt.quiet) {
@@ -689,11 +698,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     ph["note"] = "rank 0's phases; neighbor: regrid, migration, ghost exchange and the local "
                  "list; other: mostly the per-step ghost forward and flag reduction";
     j["phase_seconds"] = ph;
-    j["particle_steps"] = scheme.particle_steps();
-    j["force_evaluations"] = scheme.pair_evaluations();
-    j["neighbor_builds"] = scheme.neighbor_builds();
-    j["particle_steps_per_second"] =
-        loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+    add_work_counters(j, scheme, loop_seconds,
+                      "neighbor-list pairs evaluated (each pair once per step), over all ranks");
     j["mpi_wait_seconds"] = waits;
     j["mpi_wait_definition"] = "per rank: wall time inside MPI calls (reductions, the parallel "
                                "ORB, particle and ghost exchanges), set-up included";
@@ -892,11 +898,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   ph["note"] = "fluid: deposition, gas step (predictor, projection), interpolation and particle "
                "forces; neighbor + force: the particle sub-cycle";
   j["phase_seconds"] = ph;
-  j["particle_steps"] = scheme.particle_steps();
-  j["force_evaluations"] = scheme.pair_evaluations();
-  j["neighbor_builds"] = scheme.neighbor_builds();
-  j["particle_steps_per_second"] =
-      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+  add_work_counters(j, scheme, loop_seconds);
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
   if (!opt.quiet) {
     fmt::print(stderr, "Loop time of {:.4g} s for {} fluid steps ({:.4g} s each) and {} particle "

@@ -33,6 +33,21 @@ void Communicator::max(std::span<double> v) const { reduce(*this, v, MPI_MAX); }
 void Communicator::max(std::span<std::int64_t> v) const { reduce(*this, v, MPI_MAX); }
 void Communicator::min(std::span<std::int64_t> v) const { reduce(*this, v, MPI_MIN); }
 
+void Communicator::max_begin(std::span<std::int64_t> v) const {
+  if (size_ == 1 || v.empty()) return;
+  auto req = std::make_shared<MPI_Request>();
+  MPI_Iallreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_INT64_T, MPI_MAX,
+                 mpi_comm(*this), req.get());
+  pending_ = req;
+}
+
+void Communicator::max_wait() const {
+  if (!pending_) return;
+  MpiWait w(*this);
+  MPI_Wait(static_cast<MPI_Request*>(pending_.get()), MPI_STATUS_IGNORE);
+  pending_.reset();
+}
+
 std::int64_t Communicator::sum(std::int64_t v) const {
   sum(std::span<std::int64_t>(&v, 1));
   return v;

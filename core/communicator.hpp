@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -31,6 +32,12 @@ public:
   std::int64_t sum(std::int64_t v) const;
   double max(double v) const;
 
+  // Non-blocking element-wise max: starts the reduction of `v`, which must stay alive and
+  // untouched until max_wait() completes it (one at a time), so that other messages can be in
+  // flight meanwhile.
+  void max_begin(std::span<std::int64_t> v) const;
+  void max_wait() const;
+
   // Rank 0 gets one value per rank (rank order); the others get an empty vector.
   std::vector<double> gather(double v) const;
 
@@ -50,6 +57,7 @@ private:
   int rank_ = 0, size_ = 1;
   int handle_ = -1; // MPI_Fint of the communicator; -1: serial
   mutable double wait_ = 0.0;
+  mutable std::shared_ptr<void> pending_; // the MPI_Request of max_begin (communicator.cpp)
 };
 
 } // namespace cfddem

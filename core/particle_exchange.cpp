@@ -119,6 +119,8 @@ std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> des
   unpack_append(p, recv_buf_, received);
   // The store changed: any ghost plan refers to old indices.
   plan_.clear();
+  send_counts_.assign(static_cast<std::size_t>(ranks), 0);
+  recv_counts_.assign(static_cast<std::size_t>(ranks), 0);
   owned_ = p.size();
   recv_total_ = 0;
   return received;
@@ -148,19 +150,57 @@ std::size_t ParticleExchange::build_ghosts(ParticleStore& p, std::size_t owned,
   return recv_total_;
 }
 
-void ParticleExchange::forward(ParticleStore& p) {
-  constexpr int kStride = 6;
-  send_buf_.resize(plan_.size() * kStride);
-  double* out = send_buf_.data();
+namespace {
+constexpr int kForwardStride = 6; // x, y, z, vx, vy, vz
+constexpr int kForwardTag = 7302;
+using Requests = std::vector<MPI_Request>;
+} // namespace
+
+void ParticleExchange::forward_begin(const ParticleStore& p) {
+  fwd_send_.resize(plan_.size() * kForwardStride);
+  double* out = fwd_send_.data();
   for (const Copy& c : plan_) {
     const std::size_t i = c.index;
     out[0] = p.x[i] + c.shift[0], out[1] = p.y[i] + c.shift[1], out[2] = p.z[i] + c.shift[2];
     out[3] = p.vx[i], out[4] = p.vy[i], out[5] = p.vz[i];
-    out += kStride;
+    out += kForwardStride;
   }
-  exchange(send_counts_, send_buf_, recv_counts_, recv_buf_, kStride, true);
-  const double* in = recv_buf_.data();
-  for (std::size_t g = owned_; g < owned_ + recv_total_; ++g, in += kStride) {
+  fwd_recv_.resize(recv_total_ * kForwardStride);
+  const int ranks = comm_.size(), me = comm_.rank();
+  if (!requests_) requests_ = std::make_shared<Requests>();
+  auto& req = *static_cast<Requests*>(requests_.get());
+  req.clear();
+  std::size_t so = 0, ro = 0; // offsets in doubles; the plan and the arrivals are in rank order
+  for (int r = 0; r < ranks; ++r) {
+    const auto ns = static_cast<std::size_t>(send_counts_[r]) * kForwardStride;
+    const auto nr = static_cast<std::size_t>(recv_counts_[r]) * kForwardStride;
+    if (r == me) {
+      std::copy(fwd_send_.begin() + static_cast<std::ptrdiff_t>(so),
+                fwd_send_.begin() + static_cast<std::ptrdiff_t>(so + ns),
+                fwd_recv_.begin() + static_cast<std::ptrdiff_t>(ro));
+    } else {
+      if (nr > 0)
+        MPI_Irecv(fwd_recv_.data() + ro, static_cast<int>(nr), MPI_DOUBLE, r, kForwardTag,
+                  mpi_comm(comm_), &req.emplace_back());
+      if (ns > 0)
+        MPI_Isend(fwd_send_.data() + so, static_cast<int>(ns), MPI_DOUBLE, r, kForwardTag,
+                  mpi_comm(comm_), &req.emplace_back());
+    }
+    so += ns, ro += nr;
+  }
+}
+
+void ParticleExchange::forward_end(ParticleStore& p) {
+  if (requests_) {
+    auto& req = *static_cast<Requests*>(requests_.get());
+    if (!req.empty()) {
+      MpiWait w(comm_);
+      MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
+      req.clear();
+    }
+  }
+  const double* in = fwd_recv_.data();
+  for (std::size_t g = owned_; g < owned_ + recv_total_; ++g, in += kForwardStride) {
     p.x[g] = in[0], p.y[g] = in[1], p.z[g] = in[2];
     p.vx[g] = in[3], p.vy[g] = in[4], p.vz[g] = in[5];
   }

@@ -11,6 +11,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <vector>
 
@@ -41,7 +42,14 @@ public:
   // order). Returns the number of ghosts.
   std::size_t build_ghosts(ParticleStore& p, std::size_t owned, std::vector<Copy> copies);
   // Refresh the ghosts' x and v from their owners along the plan (positions shifted again).
-  void forward(ParticleStore& p);
+  void forward(ParticleStore& p) {
+    forward_begin(p);
+    forward_end(p);
+  }
+  // forward() in two halves, so that other work or messages overlap the ones in flight: begin
+  // packs the owned values and posts the messages; end waits and writes the ghosts.
+  void forward_begin(const ParticleStore& p);
+  void forward_end(ParticleStore& p);
 
   std::size_t owned() const { return owned_; }
   std::size_t ghosts() const { return recv_total_; }
@@ -60,6 +68,8 @@ private:
   std::vector<std::int64_t> send_counts_, recv_counts_;
   std::size_t owned_ = 0, recv_total_ = 0;
   std::vector<double> send_buf_, recv_buf_;
+  std::vector<double> fwd_send_, fwd_recv_;
+  std::shared_ptr<void> requests_; // std::vector<MPI_Request> of a forward in flight
 };
 
 } // namespace cfddem

@@ -208,18 +208,18 @@ void DistributedExplicitScheme::step(bool record) {
     record_synchronised();
     update<false>(model_.dt, rep);
   }
-  // One allreduce: did any particle anywhere move past skin/2, and did any rank fail a check.
+  // One reduction: did any particle anywhere move past skin/2, and did any rank fail a check;
+  // in flight together with the ghost forward (wasted, and overwritten, before a rebuild).
   std::array<std::int64_t, 2> flags{rep.moved > 0 ? 1 : 0, rep.bad != kNoParticle ? 1 : 0};
-  comm_.max(flags);
+  comm_.max_begin(flags);
+  exchange_.forward_begin(p_);
+  exchange_.forward_end(p_);
+  comm_.max_wait();
   if (flags[1] != 0) agree(rep, time());
   ++steps_;
   particle_steps_ += n_global_;
   pair_evaluations_ += global_pairs_;
-  if (flags[0] != 0) {
-    need_rebuild_ = true; // the rebuild sends fresh ghosts: no forward now
-  } else {
-    exchange_.forward(p_);
-  }
+  if (flags[0] != 0) need_rebuild_ = true;
 }
 
 } // namespace cfddem::dem

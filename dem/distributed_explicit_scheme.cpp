@@ -76,7 +76,30 @@ void DistributedExplicitScheme::ghost_copies(std::vector<ParticleExchange::Copy>
   }
 }
 
+DistributedExplicitScheme::~DistributedExplicitScheme() { finish_forward(); }
+
+void DistributedExplicitScheme::finish_forward() {
+  if (!forward_pending_) return;
+  exchange_.forward_end(p_);
+  forward_pending_ = false;
+}
+
+void DistributedExplicitScheme::contact(double dt, StepReport& rep) {
+  PhaseTimer::Scope t(timer_, Phase::force);
+  if (!forward_pending_) {
+    contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, list_.active(),
+                        rep);
+    return;
+  }
+  contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, list_.interior(),
+                      rep);
+  finish_forward();
+  contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, list_.boundary(),
+                      rep);
+}
+
 void DistributedExplicitScheme::rebuild() {
+  finish_forward(); // its ghosts are about to be replaced; the messages must land first
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   p_.resize(owned_); // the ghosts go; they come back from their owners below
   for (std::size_t i = 0; i < owned_; ++i)
@@ -142,10 +165,7 @@ template <bool Walls> void DistributedExplicitScheme::update(double dt, StepRepo
 
 void DistributedExplicitScheme::evaluate_and_update(double dt, StepReport& rep) {
   const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
-  {
-    PhaseTimer::Scope t(timer_, Phase::force);
-    contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, rep);
-  }
+  contact(dt, rep);
   PhaseTimer::Scope t(timer_, Phase::integrate);
   walls ? update<true>(dt, rep) : update<false>(dt, rep);
 }
@@ -199,10 +219,7 @@ void DistributedExplicitScheme::step(bool record) {
   } else {
     // As ExplicitScheme::step: record x(n), v(n) between the forces and the update.
     const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
-    {
-      PhaseTimer::Scope t(timer_, Phase::force);
-      contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, model_.dt, rep);
-    }
+    contact(model_.dt, rep);
     PhaseTimer::Scope t(timer_, Phase::integrate);
     if (walls) update<true>(0.0, rep); // wall forces into f, x and v unchanged
     record_synchronised();
@@ -213,9 +230,12 @@ void DistributedExplicitScheme::step(bool record) {
   std::array<std::int64_t, 2> flags{rep.moved > 0 ? 1 : 0, rep.bad != kNoParticle ? 1 : 0};
   comm_.max_begin(flags);
   exchange_.forward_begin(p_);
-  exchange_.forward_end(p_);
+  forward_pending_ = true;
   comm_.max_wait();
-  if (flags[1] != 0) agree(rep, time());
+  if (flags[1] != 0) {
+    finish_forward();
+    agree(rep, time());
+  }
   ++steps_;
   particle_steps_ += n_global_;
   pair_evaluations_ += global_pairs_;

@@ -10,10 +10,12 @@
 // rank counts agree with the serial scheme to round-off (the sums run in another order).
 //
 // Update sequence of a step (LAMMPS's): forces on owned rows, kick-drift of owned particles,
-// one allreduce of the displacement and fault flags; then either forward (ghost x, v refreshed
-// along the plan) or, when some particle on some rank moved more than skin/2, at the next step:
-// wrap, regrid (when dem.regrid_interval has passed since the last), migrate to owners, rebuild
-// ghosts and the local list. No array is sized by the domain or the global count.
+// then the ghosts' new x and v are posted to the ranks holding them, with one reduction of the
+// displacement and fault flags in flight alongside. The forward completes during the next
+// step's forces: rows whose neighbours are all owned first, then the ghost-touching ones. When
+// some particle on some rank moved more than skin/2, the next step instead wraps, regrids (when
+// dem.regrid_interval has passed since the last), migrates to owners and rebuilds ghosts and
+// the local list. No array is sized by the domain or the global count.
 // Frictionless, no external force (the fluid is not distributed yet).
 #pragma once
 
@@ -43,6 +45,10 @@ public:
   // the model has friction (not distributed yet).
   DistributedExplicitScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                             const Communicator& comm, PhaseTimer& timer);
+  // Completes a ghost forward still in flight (collective, as every step).
+  ~DistributedExplicitScheme();
+  DistributedExplicitScheme(const DistributedExplicitScheme&) = delete;
+  DistributedExplicitScheme& operator=(const DistributedExplicitScheme&) = delete;
 
   // Collective. As ExplicitScheme::start: decomposition, ghosts, forces at t = 0, v(-dt/2).
   void start();
@@ -82,6 +88,9 @@ private:
   void ghost_copies(std::vector<ParticleExchange::Copy>& out) const;
   template <bool Walls> void update(double dt, StepReport& rep);
   void evaluate_and_update(double dt, StepReport& rep);
+  // Forces on the owned rows; a forward in flight completes after the interior rows.
+  void contact(double dt, StepReport& rep);
+  void finish_forward();
   void record_synchronised();
   // Collective: every rank learns whether any has a fault, and all throw the same error.
   void agree(const StepReport& rep, double t) const;
@@ -105,6 +114,7 @@ private:
   std::int64_t regrid_every_ = 0, last_regrid_ = -1;
   std::int64_t n_global_ = 0, global_pairs_ = 0;
   bool need_rebuild_ = true;
+  bool forward_pending_ = false; // ghost x, v of the last step still in flight
   std::int64_t steps_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0;
 };
 

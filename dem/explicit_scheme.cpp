@@ -119,7 +119,7 @@ void ExplicitScheme::rebuild() {
 
 template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& out) {
   dem::contact_pass<Friction>(p_, list_, geom_, model_, hx_.data(), hy_.data(), hz_.data(), dt,
-                              out);
+                              list_.active(), out);
 }
 
 

@@ -129,6 +129,11 @@ void VerletList::build_local(const ParticleStore& p, std::size_t rows, double sk
   order_.clear();
   bin(p, g, grid, sorted_);
   fill_rows<true>(p, g, grid, rows, skin);
+  interior_.clear(), boundary_.clear();
+  for (const std::uint32_t i : active_) {
+    // Rows are sorted by index and ghosts follow the owned particles: the last entry decides.
+    (neighbors_[offsets_[i + 1] - 1] < rows ? interior_ : boundary_).push_back(i);
+  }
 }
 
 void VerletList::bin(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,

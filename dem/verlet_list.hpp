@@ -58,6 +58,10 @@ public:
   // reordered (ghost indices belong to the exchange plan; order() is empty): the cells cover the
   // particles' bounding box, not the domain. Rows are in increasing index order, as build()'s.
   void build_local(const ParticleStore& p, std::size_t rows, double skin);
+  // build_local's split of active(): rows whose neighbours are all owned (interior: computable
+  // while the ghosts' new positions are in flight), and rows with a ghost neighbour.
+  std::span<const std::uint32_t> interior() const { return interior_; }
+  std::span<const std::uint32_t> boundary() const { return boundary_; }
   // Cells of the last build's grid (the memory a build needs grows with it).
   std::size_t cell_count() const { return cell_start_.empty() ? 0 : cell_start_.size() - 1; }
 
@@ -73,7 +77,7 @@ private:
   void fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
                  std::size_t rows, double skin);
 
-  std::vector<std::uint32_t> sorted_, order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
+  std::vector<std::uint32_t> interior_, boundary_, sorted_, order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
   std::vector<double> xr_, yr_, zr_;
   std::vector<std::vector<std::uint32_t>> chunk_rows_; // per-chunk row buffers of the build
   double skin_ = 0.0;

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <span>
 #include <string>
 
 #include <fmt/format.h>
@@ -26,14 +27,14 @@
 
 namespace cfddem::dem {
 
-// Contact forces (and torques, with friction) on every particle with a row of `list`, each
-// summed over its row in the row's order: f_i is overwritten, nothing is scattered to j. The
+// Contact forces (and torques, with friction) on the particles `rows` (list.active() or a part
+// of it) of `list`, each summed over its row in the row's order: f_i is overwritten, nothing is scattered to j. The
 // rows' first part is taken as the minimum image as is, the part from wrap_begin() through `geom`.
 // hx, hy, hz: tangential history per list entry (friction only).
 template <bool Friction>
 void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry& geom,
                   const StepModel& model, [[maybe_unused]] double* hx, [[maybe_unused]] double* hy,
-                  [[maybe_unused]] double* hz, double dt,
+                  [[maybe_unused]] double* hz, double dt, std::span<const std::uint32_t> rows,
                   StepReport& out) {
   const double* __restrict x = p.x.data();
   const double* __restrict y = p.y.data();
@@ -48,7 +49,7 @@ void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry
   double* __restrict fz = p.fz.data();
   const std::uint32_t* __restrict off = list.offsets().data();
   const std::uint32_t* __restrict nb = list.neighbors().data();
-  const std::uint32_t* __restrict act = list.active().data();
+  const std::uint32_t* __restrict act = rows.data();
   const DomainGeometry g = geom;
   const StepModel m = model;
 
@@ -122,7 +123,7 @@ void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry
     }
     return rep;
   };
-  const std::size_t n = list.active().size();
+  const std::size_t n = rows.size();
   const tbb::blocked_range<std::size_t> all(0, n, 256);
   if (n <= 1024) {
     out.join(body(all, StepReport{})); // small work: no task overhead

@@ -8,14 +8,18 @@ namespace cfddem {
 
 namespace {
 template <class T> MPI_Datatype mpi_type();
-template <> MPI_Datatype mpi_type<double>() { return MPI_DOUBLE; }
-template <> MPI_Datatype mpi_type<std::int64_t>() { return MPI_INT64_T; }
+template <> MPI_Datatype mpi_type<double>() {
+  return MPI_DOUBLE;
+}
+template <> MPI_Datatype mpi_type<std::int64_t>() {
+  return MPI_INT64_T;
+}
 
 template <class T> void reduce(const Communicator& c, std::span<T> v, MPI_Op op) {
-  if (c.size() == 1 || v.empty()) return;
+  if (c.size() == 1 || v.empty())
+    return;
   MpiWait w(c);
-  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), mpi_type<T>(), op,
-                mpi_comm(c));
+  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), mpi_type<T>(), op, mpi_comm(c));
 }
 } // namespace
 
@@ -27,14 +31,25 @@ Communicator Communicator::world() {
   return c;
 }
 
-void Communicator::sum(std::span<double> v) const { reduce(*this, v, MPI_SUM); }
-void Communicator::sum(std::span<std::int64_t> v) const { reduce(*this, v, MPI_SUM); }
-void Communicator::max(std::span<double> v) const { reduce(*this, v, MPI_MAX); }
-void Communicator::max(std::span<std::int64_t> v) const { reduce(*this, v, MPI_MAX); }
-void Communicator::min(std::span<std::int64_t> v) const { reduce(*this, v, MPI_MIN); }
+void Communicator::sum(std::span<double> v) const {
+  reduce(*this, v, MPI_SUM);
+}
+void Communicator::sum(std::span<std::int64_t> v) const {
+  reduce(*this, v, MPI_SUM);
+}
+void Communicator::max(std::span<double> v) const {
+  reduce(*this, v, MPI_MAX);
+}
+void Communicator::max(std::span<std::int64_t> v) const {
+  reduce(*this, v, MPI_MAX);
+}
+void Communicator::min(std::span<std::int64_t> v) const {
+  reduce(*this, v, MPI_MIN);
+}
 
 void Communicator::max_begin(std::span<std::int64_t> v) const {
-  if (size_ == 1 || v.empty()) return;
+  if (size_ == 1 || v.empty())
+    return;
   auto req = std::make_shared<MPI_Request>();
   MPI_Iallreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_INT64_T, MPI_MAX,
                  mpi_comm(*this), req.get());
@@ -42,7 +57,8 @@ void Communicator::max_begin(std::span<std::int64_t> v) const {
 }
 
 void Communicator::max_wait() const {
-  if (!pending_) return;
+  if (!pending_)
+    return;
   MpiWait w(*this);
   MPI_Wait(static_cast<MPI_Request*>(pending_.get()), MPI_STATUS_IGNORE);
   pending_.reset();
@@ -59,7 +75,8 @@ double Communicator::max(double v) const {
 }
 
 std::vector<double> Communicator::gather(double v) const {
-  if (size_ == 1) return {v};
+  if (size_ == 1)
+    return {v};
   std::vector<double> all(rank_ == 0 ? static_cast<std::size_t>(size_) : 0);
   MpiWait w(*this);
   MPI_Gather(&v, 1, MPI_DOUBLE, all.data(), 1, MPI_DOUBLE, 0, mpi_comm(*this));
@@ -68,11 +85,13 @@ std::vector<double> Communicator::gather(double v) const {
 
 std::string Communicator::agree_on_error(std::int64_t key, const std::string& message) const {
   constexpr std::int64_t kNoError = std::numeric_limits<std::int64_t>::max();
-  if (size_ == 1) return message;
+  if (size_ == 1)
+    return message;
   // The smallest key, then the lowest rank holding it, which broadcasts its message.
   std::int64_t k = message.empty() ? kNoError : key;
   min(std::span<std::int64_t>(&k, 1));
-  if (k == kNoError) return {};
+  if (k == kNoError)
+    return {};
   std::int64_t root = !message.empty() && key == k ? rank_ : size_;
   min(std::span<std::int64_t>(&root, 1));
   std::string text = rank_ == root ? message : std::string();

@@ -10,7 +10,9 @@
 
 namespace cfddem {
 
-inline MPI_Comm mpi_comm(const Communicator& c) { return MPI_Comm_f2c(c.fortran_handle()); }
+inline MPI_Comm mpi_comm(const Communicator& c) {
+  return MPI_Comm_f2c(c.fortran_handle());
+}
 
 // Adds the scope's wall time to the communicator's MPI wait.
 class MpiWait {

@@ -12,18 +12,22 @@ namespace {
 
 // The double fields that travel with a particle, in packing order (id travels as its bits).
 std::vector<std::vector<double>*> carried(ParticleStore& p) {
-  std::vector<std::vector<double>*> f{&p.x,      &p.y,    &p.z,       &p.vx, &p.vy,
-                                      &p.vz,     &p.radius, &p.mass, &p.inv_mass};
+  std::vector<std::vector<double>*> f{&p.x,  &p.y,      &p.z,    &p.vx,      &p.vy,
+                                      &p.vz, &p.radius, &p.mass, &p.inv_mass};
   if (p.rotation)
-    for (auto* v : {&p.wx, &p.wy, &p.wz, &p.inv_inertia}) f.push_back(v);
+    for (auto* v : {&p.wx, &p.wy, &p.wz, &p.inv_inertia})
+      f.push_back(v);
   return f;
 }
 
-int stride_of(ParticleStore& p) { return static_cast<int>(carried(p).size()) + 1; }
+int stride_of(ParticleStore& p) {
+  return static_cast<int>(carried(p).size()) + 1;
+}
 
 void pack(const std::vector<std::vector<double>*>& f, const ParticleStore& p, std::size_t i,
           const std::array<double, 3>& shift, std::vector<double>& buf) {
-  for (std::size_t k = 0; k < f.size(); ++k) buf.push_back((*f[k])[i] + (k < 3 ? shift[k] : 0.0));
+  for (std::size_t k = 0; k < f.size(); ++k)
+    buf.push_back((*f[k])[i] + (k < 3 ? shift[k] : 0.0));
   buf.push_back(std::bit_cast<double>(p.id[i]));
 }
 
@@ -35,7 +39,8 @@ void unpack_append(ParticleStore& p, std::span<const double> buf, std::size_t co
   const std::size_t stride = f.size() + 1;
   for (std::size_t q = 0; q < count; ++q) {
     const double* in = buf.data() + q * stride;
-    for (std::size_t k = 0; k < f.size(); ++k) (*f[k])[first + q] = in[k];
+    for (std::size_t k = 0; k < f.size(); ++k)
+      (*f[k])[first + q] = in[k];
     p.id[first + q] = std::bit_cast<std::int64_t>(in[f.size()]);
   }
 }
@@ -67,7 +72,8 @@ void ParticleExchange::exchange(std::span<const std::int64_t> send_counts,
   std::copy(send.begin() + static_cast<std::ptrdiff_t>(send_off[me]),
             send.begin() + static_cast<std::ptrdiff_t>(send_off[me + 1]),
             recv.begin() + static_cast<std::ptrdiff_t>(recv_off[me]));
-  if (ranks == 1) return;
+  if (ranks == 1)
+    return;
   std::vector<MPI_Request> req;
   req.reserve(2 * static_cast<std::size_t>(ranks));
   constexpr int kTag = 7301;
@@ -97,7 +103,8 @@ std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> des
   counts[static_cast<std::size_t>(me)] = 0; // stayers are not copied
   // Pack leavers by destination rank (a counting sort keeps each rank's in index order).
   std::vector<std::size_t> at(static_cast<std::size_t>(ranks) + 1, 0);
-  for (int r = 0; r < ranks; ++r) at[r + 1] = at[r] + static_cast<std::size_t>(counts[r]);
+  for (int r = 0; r < ranks; ++r)
+    at[r + 1] = at[r] + static_cast<std::size_t>(counts[r]);
   std::vector<std::uint32_t> by_rank(at[ranks]), keep;
   keep.reserve(p.size() - at[ranks]);
   for (std::size_t i = 0; i < p.size(); ++i) {
@@ -110,12 +117,14 @@ std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> des
   send_buf_.clear();
   send_buf_.reserve(by_rank.size() * static_cast<std::size_t>(stride_of(p)));
   const auto fields = carried(p);
-  for (const std::uint32_t i : by_rank) pack(fields, p, i, {0.0, 0.0, 0.0}, send_buf_);
+  for (const std::uint32_t i : by_rank)
+    pack(fields, p, i, {0.0, 0.0, 0.0}, send_buf_);
   std::vector<std::int64_t> recv_counts;
   exchange(counts, send_buf_, recv_counts, recv_buf_, stride_of(p), false);
   p.permute(keep); // a selection: the store shrinks to the stayers, in order
   std::size_t received = 0;
-  for (const std::int64_t c : recv_counts) received += static_cast<std::size_t>(c);
+  for (const std::int64_t c : recv_counts)
+    received += static_cast<std::size_t>(c);
   unpack_append(p, recv_buf_, received);
   // The store changed: any ghost plan refers to old indices.
   plan_.clear();
@@ -145,7 +154,8 @@ std::size_t ParticleExchange::build_ghosts(ParticleStore& p, std::size_t owned,
   }
   exchange(send_counts_, send_buf_, recv_counts_, recv_buf_, stride_of(p), false);
   recv_total_ = 0;
-  for (const std::int64_t c : recv_counts_) recv_total_ += static_cast<std::size_t>(c);
+  for (const std::int64_t c : recv_counts_)
+    recv_total_ += static_cast<std::size_t>(c);
   unpack_append(p, recv_buf_, recv_total_);
   return recv_total_;
 }
@@ -167,7 +177,8 @@ void ParticleExchange::forward_begin(const ParticleStore& p) {
   }
   fwd_recv_.resize(recv_total_ * kForwardStride);
   const int ranks = comm_.size(), me = comm_.rank();
-  if (!requests_) requests_ = std::make_shared<Requests>();
+  if (!requests_)
+    requests_ = std::make_shared<Requests>();
   auto& req = *static_cast<Requests*>(requests_.get());
   req.clear();
   std::size_t so = 0, ro = 0; // offsets in doubles; the plan and the arrivals are in rank order

@@ -16,7 +16,8 @@ namespace cfddem::dem {
 namespace {
 int ceil_log2(int n) {
   int l = 0;
-  while ((1 << l) < n) ++l;
+  while ((1 << l) < n)
+    ++l;
   return l;
 }
 } // namespace
@@ -24,8 +25,8 @@ int ceil_log2(int n) {
 DistributedExplicitScheme::DistributedExplicitScheme(const Scene& scene, ParticleStore& particles,
                                                      const StepModel& model,
                                                      const Communicator& comm, PhaseTimer& timer)
-    : scene_(scene), p_(particles), comm_(comm), timer_(timer), geom_(scene.domain),
-      model_(model), exchange_(comm) {
+    : scene_(scene), p_(particles), comm_(comm), timer_(timer), geom_(scene.domain), model_(model),
+      exchange_(comm) {
   if (model_.friction)
     throw ConfigError("scene key 'dem.friction'",
                       "friction (dem.friction, dem.wall_friction > 0) is not yet distributed over "
@@ -34,7 +35,8 @@ DistributedExplicitScheme::DistributedExplicitScheme(const Scene& scene, Particl
   // that is more).
   levels_ = std::min(20, std::max(scene.partition.orb_levels, ceil_log2(comm.size()) + 2));
   double r_max = 0.0;
-  for (const double r : p_.radius) r_max = std::max(r_max, r);
+  for (const double r : p_.radius)
+    r_max = std::max(r_max, r);
   r_max = comm_.max(r_max);
   halo_ = 2.0 * r_max + model_.skin; // the Verlet cutoff: every pair the list can hold
   n_global_ = comm_.sum(static_cast<std::int64_t>(p_.size()));
@@ -63,23 +65,29 @@ void DistributedExplicitScheme::ghost_copies(std::vector<ParticleExchange::Copy>
     // (leaf, s): the particle's image p + s L lies within the halo of the leaf.
     for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic)) {
       const int r = decomposition_.owner[static_cast<std::size_t>(li.leaf)];
-      if (r == me && li.shift == std::array<int, 3>{0, 0, 0}) continue; // the particle itself
+      if (r == me && li.shift == std::array<int, 3>{0, 0, 0})
+        continue; // the particle itself
       const std::pair<int, std::array<int, 3>> key{r, li.shift};
-      if (std::find(seen.begin(), seen.end(), key) != seen.end()) continue;
+      if (std::find(seen.begin(), seen.end(), key) != seen.end())
+        continue;
       seen.push_back(key);
       ParticleExchange::Copy c;
       c.rank = r;
       c.index = static_cast<std::uint32_t>(i);
-      for (int a = 0; a < 3; ++a) c.shift[a] = li.shift[a] * geom_.length[a];
+      for (int a = 0; a < 3; ++a)
+        c.shift[a] = li.shift[a] * geom_.length[a];
       out.push_back(c);
     }
   }
 }
 
-DistributedExplicitScheme::~DistributedExplicitScheme() { finish_forward(); }
+DistributedExplicitScheme::~DistributedExplicitScheme() {
+  finish_forward();
+}
 
 void DistributedExplicitScheme::finish_forward() {
-  if (!forward_pending_) return;
+  if (!forward_pending_)
+    return;
   exchange_.forward_end(p_);
   forward_pending_ = false;
 }
@@ -103,7 +111,8 @@ void DistributedExplicitScheme::rebuild() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   p_.resize(owned_); // the ghosts go; they come back from their owners below
   for (std::size_t i = 0; i < owned_; ++i)
-    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1), p_.z[i] = geom_.wrap(p_.z[i], 2);
+    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
+    p_.z[i] = geom_.wrap(p_.z[i], 2);
   const bool regrid = last_regrid_ < 0 || steps_ - last_regrid_ >= regrid_every_;
   if (regrid) {
     const partition::Aabb domain{scene_.domain.lo, scene_.domain.hi};
@@ -179,14 +188,16 @@ void DistributedExplicitScheme::agree(const StepReport& rep, double t) const {
     key = p_.id[rep.bad];
   }
   const std::string agreed = comm_.agree_on_error(key, message);
-  if (!agreed.empty()) throw RunError(agreed);
+  if (!agreed.empty())
+    throw RunError(agreed);
 }
 
 void DistributedExplicitScheme::start() {
   rebuild();
   StepReport rep;
   evaluate_and_update(0.0, rep); // dt = 0: forces at t = 0, x and v unchanged
-  if (rep.fault != StepFault::overlap) rep = StepReport{}; // as the serial start: overlaps only
+  if (rep.fault != StepFault::overlap)
+    rep = StepReport{}; // as the serial start: overlaps only
   agree(rep, 0.0);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < owned_; ++i) {
@@ -212,7 +223,8 @@ void DistributedExplicitScheme::record_synchronised() {
 }
 
 void DistributedExplicitScheme::step(bool record) {
-  if (need_rebuild_) rebuild();
+  if (need_rebuild_)
+    rebuild();
   StepReport rep;
   if (!record) {
     evaluate_and_update(model_.dt, rep);
@@ -221,7 +233,8 @@ void DistributedExplicitScheme::step(bool record) {
     const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
     contact(model_.dt, rep);
     PhaseTimer::Scope t(timer_, Phase::integrate);
-    if (walls) update<true>(0.0, rep); // wall forces into f, x and v unchanged
+    if (walls)
+      update<true>(0.0, rep); // wall forces into f, x and v unchanged
     record_synchronised();
     update<false>(model_.dt, rep);
   }
@@ -239,7 +252,8 @@ void DistributedExplicitScheme::step(bool record) {
   ++steps_;
   particle_steps_ += n_global_;
   pair_evaluations_ += global_pairs_;
-  if (flags[0] != 0) need_rebuild_ = true;
+  if (flags[0] != 0)
+    need_rebuild_ = true;
 }
 
 } // namespace cfddem::dem

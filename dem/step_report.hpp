@@ -18,11 +18,13 @@ struct StepReport {
   StepFault fault = StepFault::none;
   double value = 0.0;
   void flag(std::uint32_t i, StepFault f, double v, std::uint32_t j = kNoParticle) {
-    if (i < bad) bad = i, fault = f, value = v, partner = j;
+    if (i < bad)
+      bad = i, fault = f, value = v, partner = j;
   }
   void join(const StepReport& o) {
     moved += o.moved;
-    if (o.bad < bad) bad = o.bad, fault = o.fault, value = o.value, partner = o.partner;
+    if (o.bad < bad)
+      bad = o.bad, fault = o.fault, value = o.value, partner = o.partner;
   }
 };
 

@@ -15,8 +15,8 @@
 namespace cfddem::partition {
 
 struct RankDecomposition {
-  OrbTree tree;           // leaves = boxes; locate() and the halo searches
-  std::vector<int> owner; // rank of each leaf
+  OrbTree tree;             // leaves = boxes; locate() and the halo searches
+  std::vector<int> owner;   // rank of each leaf
   std::vector<double> load; // per rank: particles in its boxes
   double imbalance = 1.0;   // max load / mean load
 

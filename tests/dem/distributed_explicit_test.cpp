@@ -70,7 +70,9 @@ regrid_interval = 2.0e-6
 end_time = 1.0e-3
 )";
 
-Communicator comm() { return Communicator::world(); }
+Communicator comm() {
+  return Communicator::world();
+}
 
 // This rank's share of a store: every R-th particle (what `cfddem run` keeps before start()).
 ParticleStore share(const ParticleStore& all, int rank, int ranks) {
@@ -85,7 +87,8 @@ ParticleStore share(const ParticleStore& all, int rank, int ranks) {
 
 std::map<std::int64_t, std::size_t> index_by_id(const ParticleStore& p, std::size_t n) {
   std::map<std::int64_t, std::size_t> m;
-  for (std::size_t i = 0; i < n; ++i) m[p.id[i]] = i;
+  for (std::size_t i = 0; i < n; ++i)
+    m[p.id[i]] = i;
   return m;
 }
 
@@ -97,13 +100,16 @@ TEST(ParticleExchange, MigrationMovesEveryParticleWithAllItsFields) {
   // A random owner per particle, the same on every rank (drawn by global index).
   std::mt19937_64 rng(42);
   std::vector<int> owner_of_id(all.size());
-  for (auto& o : owner_of_id) o = static_cast<int>(rng() % static_cast<std::uint64_t>(c.size()));
+  for (auto& o : owner_of_id)
+    o = static_cast<int>(rng() % static_cast<std::uint64_t>(c.size()));
   std::vector<int> dest(p.size());
-  for (std::size_t i = 0; i < p.size(); ++i) dest[i] = owner_of_id[static_cast<std::size_t>(p.id[i])];
+  for (std::size_t i = 0; i < p.size(); ++i)
+    dest[i] = owner_of_id[static_cast<std::size_t>(p.id[i])];
   ParticleExchange ex(c);
   ex.migrate(p, dest);
   std::size_t expected = 0;
-  for (const int o : owner_of_id) expected += o == c.rank() ? 1 : 0;
+  for (const int o : owner_of_id)
+    expected += o == c.rank() ? 1 : 0;
   EXPECT_EQ(p.size(), expected);
   const auto by_id = index_by_id(all, all.size());
   for (std::size_t i = 0; i < p.size(); ++i) {
@@ -136,7 +142,8 @@ void expect_owners_and_ghosts(const char* toml) {
 
   const dem::DomainGeometry g(scene.domain);
   double r_max = 0.0;
-  for (const double r : all.radius) r_max = std::max(r_max, r);
+  for (const double r : all.radius)
+    r_max = std::max(r_max, r);
   const double h = 2.0 * r_max + model.skin;
   using Ghost = std::tuple<std::int64_t, double, double, double>;
   std::vector<Ghost> expected, actual;
@@ -154,28 +161,35 @@ void expect_owners_and_ghosts(const char* toml) {
             ok = ok && (g.periodic[a] || sh[a] == 0);
             im[a] = q[a] + sh[a] * g.length[a];
           }
-          if (!ok || (home == c.rank() && sx == 0 && sy == 0 && sz == 0)) continue;
+          if (!ok || (home == c.rank() && sx == 0 && sy == 0 && sz == 0))
+            continue;
           bool near = false;
           for (std::size_t l = 0; l < leaves.size() && !near; ++l)
             near = d.owner[l] == c.rank() && leaves[l].box.grown(h).contains_closed(im);
-          if (near) expected.emplace_back(all.id[j], im[0], im[1], im[2]);
+          if (near)
+            expected.emplace_back(all.id[j], im[0], im[1], im[2]);
         }
   }
-  for (std::size_t i = s.owned(); i < p.size(); ++i) actual.emplace_back(p.id[i], p.x[i], p.y[i], p.z[i]);
+  for (std::size_t i = s.owned(); i < p.size(); ++i)
+    actual.emplace_back(p.id[i], p.x[i], p.y[i], p.z[i]);
   std::sort(expected.begin(), expected.end());
   std::sort(actual.begin(), actual.end());
   EXPECT_EQ(actual.size(), expected.size());
   EXPECT_TRUE(actual == expected) << "rank " << c.rank();
 }
 
-TEST(DistributedGhosts, PeriodicGasGhostsEqualBruteForceHalo) { expect_owners_and_ghosts(kGas); }
-TEST(DistributedGhosts, WalledBoxGhostsEqualBruteForceHalo) { expect_owners_and_ghosts(kWalls); }
+TEST(DistributedGhosts, PeriodicGasGhostsEqualBruteForceHalo) {
+  expect_owners_and_ghosts(kGas);
+}
+TEST(DistributedGhosts, WalledBoxGhostsEqualBruteForceHalo) {
+  expect_owners_and_ghosts(kWalls);
+}
 
 struct Compared {
-  double dx = 0.0, dv = 0.0;      // largest |x - x_serial|, |v - v_serial| over particles
-  double ke = 0.0, ke_rel = 0.0;  // kinetic energy (serial) and its relative difference
-  double dp = 0.0;                // largest momentum component difference [kg m/s]
-  double ke_loss = 0.0;           // 1 - KE/KE(0) of the serial run: the collisions' dissipation
+  double dx = 0.0, dv = 0.0;     // largest |x - x_serial|, |v - v_serial| over particles
+  double ke = 0.0, ke_rel = 0.0; // kinetic energy (serial) and its relative difference
+  double dp = 0.0;               // largest momentum component difference [kg m/s]
+  double ke_loss = 0.0;          // 1 - KE/KE(0) of the serial run: the collisions' dissipation
   std::int64_t builds = 0, regrids = 0, pairs = 0;
   std::size_t max_owned = 0, local_cells = 0, serial_cells = 0;
 };
@@ -199,7 +213,8 @@ Compared run_and_compare(const char* toml, int steps, ParticleStore* final_state
     ref.step();
     s.step();
     std::array<double, 2> tot{static_cast<double>(s.owned()), 0.0};
-    for (std::size_t i = 0; i < s.owned(); ++i) tot[1] += p.mass[i];
+    for (std::size_t i = 0; i < s.owned(); ++i)
+      tot[1] += p.mass[i];
     c.sum(tot);
     EXPECT_EQ(tot[0], static_cast<double>(all.size())) << "step " << k;
     EXPECT_NEAR(tot[1], mass0, 1e-13 * mass0) << "step " << k;
@@ -212,9 +227,11 @@ Compared run_and_compare(const char* toml, int steps, ParticleStore* final_state
     const std::size_t j = ref_index.at(p.id[i]);
     const double d[6] = {g.image(p.x[i] - serial.x[j], 0), g.image(p.y[i] - serial.y[j], 1),
                          g.image(p.z[i] - serial.z[j], 2), p.vx[i] - serial.vx[j],
-                         p.vy[i] - serial.vy[j], p.vz[i] - serial.vz[j]};
-    for (int a = 0; a < 3; ++a) local[0] = std::max(local[0], std::abs(d[a]));
-    for (int a = 3; a < 6; ++a) local[1] = std::max(local[1], std::abs(d[a]));
+                         p.vy[i] - serial.vy[j],           p.vz[i] - serial.vz[j]};
+    for (int a = 0; a < 3; ++a)
+      local[0] = std::max(local[0], std::abs(d[a]));
+    for (int a = 3; a < 6; ++a)
+      local[1] = std::max(local[1], std::abs(d[a]));
   }
   r.dx = c.max(local[0]);
   r.dv = c.max(local[1]);
@@ -229,14 +246,16 @@ Compared run_and_compare(const char* toml, int steps, ParticleStore* final_state
   r.ke = sref.kinetic_energy;
   r.ke_loss = 1.0 - sref.kinetic_energy / demtest::measure_now(all).kinetic_energy;
   r.ke_rel = std::abs(q[0] - sref.kinetic_energy) / sref.kinetic_energy;
-  for (int a = 0; a < 3; ++a) r.dp = std::max(r.dp, std::abs(q[1 + a] - sref.momentum[a]));
+  for (int a = 0; a < 3; ++a)
+    r.dp = std::max(r.dp, std::abs(q[1 + a] - sref.momentum[a]));
   r.builds = s.neighbor_builds();
   r.regrids = static_cast<std::int64_t>(s.regrids().size());
   r.pairs = s.pair_evaluations();
   EXPECT_EQ(s.pair_evaluations(), ref.pair_evaluations());
   EXPECT_EQ(s.particle_steps(), ref.particle_steps());
   EXPECT_EQ(s.neighbor_builds(), ref.neighbor_builds());
-  std::int64_t mo = static_cast<std::int64_t>(s.owned()), lc = static_cast<std::int64_t>(s.local_cells());
+  std::int64_t mo = static_cast<std::int64_t>(s.owned()),
+               lc = static_cast<std::int64_t>(s.local_cells());
   c.max(std::span<std::int64_t>(&mo, 1));
   c.max(std::span<std::int64_t>(&lc, 1));
   r.max_owned = static_cast<std::size_t>(mo);
@@ -245,7 +264,8 @@ Compared run_and_compare(const char* toml, int steps, ParticleStore* final_state
   ParticleStore copy = serial;
   global.build(copy, g, model.skin);
   r.serial_cells = global.cell_count();
-  if (final_state) *final_state = p;
+  if (final_state)
+    *final_state = p;
   return r;
 }
 

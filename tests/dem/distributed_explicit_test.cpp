@@ -10,6 +10,8 @@
 #include <random>
 #include <tuple>
 
+#include <tbb/global_control.h>
+
 #include "core/communicator.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
@@ -317,6 +319,33 @@ TEST(DistributedExplicit, SameRanksSameResultBitwise) {
   ParticleStore a, b;
   run_and_compare(kGas, 150, &a);
   run_and_compare(kGas, 150, &b);
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.vx == b.vx && a.vy == b.vy &&
+              a.vz == b.vz && a.id == b.id);
+}
+
+// Enough particles per rank (20000 over at most 3 ranks) that the contact and update passes
+// run as parallel TBB loops.
+ParticleStore run_with_threads(int threads, int steps) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(threads));
+  const Communicator c = comm();
+  const Scene scene = scene_from(kGas, {"particles.count=20000", "particles.temperature=1.0",
+                                        "domain.hi=[4.71e-3, 4.71e-3, 4.71e-3]"});
+  ParticleStore all = make_initial_particles(scene);
+  const dem::StepModel model = dem::make_step_model(scene, all);
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::DistributedExplicitScheme s(scene, p, model, c, timer);
+  s.start();
+  for (int k = 0; k < steps; ++k) s.step(k == steps - 1);
+  EXPECT_GT(s.neighbor_builds(), 1);
+  p.resize(s.owned());
+  return p;
+}
+
+TEST(DistributedExplicit, BitwiseIndependentOfThreadCount) {
+  const ParticleStore a = run_with_threads(1, 150), b = run_with_threads(2, 150);
   ASSERT_EQ(a.size(), b.size());
   EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.vx == b.vx && a.vy == b.vy &&
               a.vz == b.vz && a.id == b.id);

@@ -50,18 +50,17 @@ void Communicator::min(std::span<std::int64_t> v) const {
 void Communicator::max_begin(std::span<std::int64_t> v) const {
   if (size_ == 1 || v.empty())
     return;
-  auto req = std::make_shared<MPI_Request>();
+  if (!request_)
+    request_ = std::make_shared<MPI_Request>(MPI_REQUEST_NULL); // once: no allocation per step
   MPI_Iallreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_INT64_T, MPI_MAX,
-                 mpi_comm(*this), req.get());
-  pending_ = req;
+                 mpi_comm(*this), static_cast<MPI_Request*>(request_.get()));
 }
 
 void Communicator::max_wait() const {
-  if (!pending_)
+  if (!request_)
     return;
   MpiWait w(*this);
-  MPI_Wait(static_cast<MPI_Request*>(pending_.get()), MPI_STATUS_IGNORE);
-  pending_.reset();
+  MPI_Wait(static_cast<MPI_Request*>(request_.get()), MPI_STATUS_IGNORE); // null: returns at once
 }
 
 std::int64_t Communicator::sum(std::int64_t v) const {

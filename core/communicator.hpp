@@ -57,7 +57,7 @@ private:
   int rank_ = 0, size_ = 1;
   int handle_ = -1; // MPI_Fint of the communicator; -1: serial
   mutable double wait_ = 0.0;
-  mutable std::shared_ptr<void> pending_; // the MPI_Request of max_begin (communicator.cpp)
+  mutable std::shared_ptr<void> request_; // the MPI_Request of max_begin (communicator.cpp)
 };
 
 } // namespace cfddem

@@ -7,6 +7,7 @@
 #include <type_traits>
 #include <cmath>
 #include <filesystem>
+#include <numeric>
 #include <optional>
 
 #include <fmt/format.h>
@@ -234,10 +235,6 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
                                     "run it on one rank, or use dem.scheme = \"explicit\"",
                                     scene.dem.scheme));
-    if (scene.output.snapshot_interval > 0)
-      throw ConfigError("scene key 'output.snapshot_interval'",
-                        "particle snapshots are not yet written by more than one rank: set it "
-                        "to 0 or run on one rank");
     if (scene.output.checkpoint_interval > 0)
       throw ConfigError("scene key 'output.checkpoint_interval'",
                         "checkpoints are not yet written by more than one rank: set it to 0 or "
@@ -635,6 +632,57 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
                scene.name, n_total, scheme.dt(), n_end, env.ranks(), env.threads(),
                1 << scheme.levels());
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / scheme.dt()));
+  const long long snap_every = every(scene.output.snapshot_interval, scheme.dt());
+  std::optional<SnapshotIndex> snapshots;
+  if (root) snapshots.emplace(opt.out_dir);
+  // A snapshot of the owned particles of every rank: gathered to rank 0, in id order, with the
+  // ORB box of each particle as its `leaf` (the decomposition, seen in ParaView).
+  auto snapshot = [&](long long k, std::span<const double> x, std::span<const double> y,
+                      std::span<const double> z, std::span<const double> vx,
+                      std::span<const double> vy, std::span<const double> vz) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const dem::DomainGeometry g(scene.domain);
+    const std::size_t n = x.size();
+    std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
+                                std::vector<double>(n)};
+    std::vector<std::int64_t> box(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      w[0][i] = g.wrap(x[i], 0), w[1][i] = g.wrap(y[i], 1), w[2][i] = g.wrap(z[i], 2);
+      box[i] = scheme.decomposition().tree.locate(w[0][i], w[1][i], w[2][i]);
+    }
+    const std::span<const double> own[9] = {w[0], w[1], w[2], vx, vy, vz,
+                                            {particles.radius.data(), n},
+                                            {particles.mass.data(), n}, {}};
+    std::vector<double> all[8];
+    for (int q = 0; q < 8; ++q) all[q] = comm.gather(own[q]);
+    const std::vector<std::int64_t> ids = comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+    const std::vector<std::int64_t> boxes = comm.gather(std::span<const std::int64_t>(box));
+    std::string error;
+    if (root) {
+      std::vector<std::size_t> order(ids.size());
+      std::iota(order.begin(), order.end(), std::size_t{0});
+      std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+      auto sorted = [&](const auto& v) {
+        std::remove_cvref_t<decltype(v)> out(v.size());
+        for (std::size_t i = 0; i < order.size(); ++i) out[i] = v[order[i]];
+        return out;
+      };
+      for (auto& v : all) v = sorted(v);
+      const auto sid = sorted(ids), sbox = sorted(boxes);
+      SnapshotFields f;
+      f.time = static_cast<double>(k) * scheme.dt();
+      f.step = k;
+      f.x = all[0], f.y = all[1], f.z = all[2], f.vx = all[3], f.vy = all[4], f.vz = all[5];
+      f.radius = all[6], f.mass = all[7], f.id = sid, f.leaf = sbox;
+      f.dt = scheme.dt();
+      try {
+        snapshots->add(write_particle_snapshot(opt.out_dir, f));
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+    }
+    if (const std::string e = comm.agree_on_error(0, error); !e.empty()) throw RunError(e);
+  };
   const auto t_loop = clock::now();
   MeanTracker means;
   scheme.start();
@@ -655,12 +703,18 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     const auto s0 = dem::measure({x, y, z, v0x, v0y, v0z, m}, comm);
     add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
                 means.next(0.0, s0.mean_velocity)));
+    if (snap_every > 0) snapshot(0, x, y, z, v0x, v0y, v0z);
   }
   long long k_last_row = 0;
   auto last_progress = clock::now();
   for (long long k = 0; k <= n_end && n_end > 0; ++k) {
     const bool record = k > 0 && (k % out_every == 0 || k == n_end);
-    scheme.step(record);
+    const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
+    scheme.step(record || snap);
+    if (snap) {
+      const auto s = scheme.synchronised_previous();
+      snapshot(k, s.x, s.y, s.z, s.vx, s.vy, s.vz);
+    }
     if (record) {
       PhaseTimer::Scope io(timer, Phase::io);
       const auto s = scheme.synchronised_previous();

@@ -82,6 +82,33 @@ std::vector<double> Communicator::gather(double v) const {
   return all;
 }
 
+namespace {
+template <class T> std::vector<T> gather_all(const Communicator& c, std::span<const T> v) {
+  if (c.size() == 1)
+    return {v.begin(), v.end()};
+  const bool root = c.rank() == 0;
+  int n = static_cast<int>(v.size());
+  std::vector<int> counts(root ? static_cast<std::size_t>(c.size()) : 0), offsets(counts.size());
+  MpiWait w(c);
+  MPI_Gather(&n, 1, MPI_INT, counts.data(), 1, MPI_INT, 0, mpi_comm(c));
+  int total = 0;
+  for (std::size_t r = 0; r < counts.size(); ++r)
+    offsets[r] = total, total += counts[r];
+  std::vector<T> all(static_cast<std::size_t>(total));
+  MPI_Gatherv(v.data(), n, mpi_type<T>(), all.data(), counts.data(), offsets.data(), mpi_type<T>(),
+              0, mpi_comm(c));
+  return all;
+}
+} // namespace
+
+std::vector<double> Communicator::gather(std::span<const double> v) const {
+  return gather_all(*this, v);
+}
+
+std::vector<std::int64_t> Communicator::gather(std::span<const std::int64_t> v) const {
+  return gather_all(*this, v);
+}
+
 std::string Communicator::agree_on_error(std::int64_t key, const std::string& message) const {
   constexpr std::int64_t kNoError = std::numeric_limits<std::int64_t>::max();
   if (size_ == 1)

@@ -40,6 +40,9 @@ public:
 
   // Rank 0 gets one value per rank (rank order); the others get an empty vector.
   std::vector<double> gather(double v) const;
+  // Rank 0 gets every rank's values, concatenated in rank order (output only: O(all) there).
+  std::vector<double> gather(std::span<const double> v) const;
+  std::vector<std::int64_t> gather(std::span<const std::int64_t> v) const;
 
   // Every rank passes its error (an empty message when it has none) and a key that orders the
   // errors (the particle id); every rank gets the message of the smallest key, so all of them

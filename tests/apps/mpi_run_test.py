@@ -9,7 +9,9 @@ by far less than 1e6, so every column agrees to 1e-9 of its scale: the column's 
 or, for quantities that are zero up to round-off (momentum, mean velocity and acceleration),
 the thermal scale sqrt(2 M KE0), sqrt(2 KE0 / M) and that over the output interval. Counters
 (steps, particles, particle steps, force evaluations, neighbor builds) agree exactly. run.json
-of the R-rank run names the ranks, threads, MPI wait per rank and the load imbalance.
+of the R-rank run names the ranks, threads, MPI wait per rank and the load imbalance. The
+snapshots (gathered to rank 0 with R ranks) hold the same particles (compared by id) at the same
+positions and velocities to 1e-9 of a diameter and of the thermal speed (h5py, when installed).
 """
 import csv
 import json
@@ -21,10 +23,26 @@ import tempfile
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCENE = os.path.join(SOURCE, "scenes", "hcs_small.toml")
-ARGS = ["run.end_time=0.004", "output.interval=2e-4", "--threads", "1", "--quiet"]
+ARGS = ["run.end_time=0.004", "output.interval=2e-4", "output.snapshot_interval=2e-3",
+        "--threads", "1", "--quiet"]
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles", "particle_steps", "force_evaluations", "neighbor_builds"]
 SKIP = ["wall_seconds"]
+
+
+def snapshots(out):
+    try:
+        import h5py
+    except ImportError:
+        return None
+    found = {}
+    for name in sorted(os.listdir(out)):
+        if name.startswith("snapshot_") and name.endswith(".h5"):
+            with h5py.File(os.path.join(out, name), "r") as f:
+                p = f["particles"]
+                order = p["id"][()].argsort()  # the serial store is in cell order
+                found[name] = {k: p[k][()][order] for k in ("id", "position", "velocity")}
+    return found
 
 
 def run(ranks, out):
@@ -34,13 +52,13 @@ def run(ranks, out):
         rows = list(csv.DictReader(f))
     with open(os.path.join(out, "run.json")) as f:
         info = json.load(f)
-    return rows, info
+    return rows, info, snapshots(out)
 
 
 def main():
     with tempfile.TemporaryDirectory() as tmp:
-        one, _ = run(1, os.path.join(tmp, "np1"))
-        many, info = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
+        one, _, snap_one = run(1, os.path.join(tmp, "np1"))
+        many, info, snap_many = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
     assert len(one) == len(many) > 10, (len(one), len(many))
     ke0 = float(one[0]["kinetic_energy"])
     mass = 100 * 1000.0 * math.pi / 6 * (100e-6) ** 3  # hcs_small: 100 particles, d, rho
@@ -66,6 +84,14 @@ def main():
     assert len(info["mpi_wait_seconds"]) == RANKS, info["mpi_wait_seconds"]
     assert info["load_imbalance_max"] >= 1.0 and len(info["load_imbalance"]) >= 1
     assert sum(info["owned_particles_at_end"]) == 100
+    if snap_one is not None:
+        assert sorted(snap_one) == sorted(snap_many) and len(snap_one) == 3, (snap_one, snap_many)
+        for name, a in snap_one.items():
+            b = snap_many[name]
+            assert (a["id"] == b["id"]).all(), name
+            dx = abs(a["position"] - b["position"]).max()
+            dv = abs(a["velocity"] - b["velocity"]).max()
+            assert dx <= 1e-9 * 100e-6 and dv <= 1e-9 * v_scale, (name, dx, dv)
     print(f"{RANKS} ranks vs 1: worst scaled column error "
           f"{max(worst.values()):.3g} ({max(worst, key=worst.get)}); "
           f"imbalance max {info['load_imbalance_max']:.3f}")

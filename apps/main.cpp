@@ -168,6 +168,11 @@ int main(int argc, char** argv) {
     } catch (const cfddem::RunError& e) {
       if (env.rank() == 0) fmt::print(stderr, "cfddem: run stopped: {}\n", e.what());
       return 3;
+    } catch (const std::exception& e) {
+      // Anything else may have been raised by this rank alone: end the others too.
+      fmt::print(stderr, "cfddem: error (rank {}): {}\n", env.rank(), e.what());
+      if (env.ranks() > 1) env.abort(3);
+      return 3;
     }
   } catch (const std::exception& e) {
     fmt::print(stderr, "cfddem: error: {}\n", e.what());

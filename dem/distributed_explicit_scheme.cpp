@@ -121,13 +121,19 @@ void DistributedExplicitScheme::rebuild() {
     last_regrid_ = steps_;
   }
   std::vector<int> dest(owned_);
+  std::string outside; // the update's checks stop such a particle first; agreed on all ranks
+  std::int64_t outside_id = 0;
   for (std::size_t i = 0; i < owned_; ++i) {
     dest[i] = decomposition_.owner_of(p_.x[i], p_.y[i], p_.z[i]);
-    if (dest[i] < 0)
-      throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m is "
-                                 "outside the domain (rank {})",
-                                 time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i], comm_.rank()));
+    if (dest[i] < 0 && outside.empty()) {
+      outside_id = p_.id[i];
+      outside = fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m is outside "
+                            "the domain (rank {})",
+                            time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i], comm_.rank());
+    }
   }
+  if (const std::string e = comm_.agree_on_error(outside_id, outside); !e.empty())
+    throw RunError(e);
   exchange_.migrate(p_, dest);
   owned_ = p_.size();
   if (regrid) {
@@ -139,7 +145,7 @@ void DistributedExplicitScheme::rebuild() {
       std::uint64_t k = 0;
       for (int a = 2; a >= 0; --a)
         k = k * (std::uint64_t{1} << 20) +
-            static_cast<std::uint64_t>(std::max(0.0, (q[a] - geom_.lo[a]) / halo_));
+            static_cast<std::uint64_t>(std::clamp((q[a] - geom_.lo[a]) / halo_, 0.0, 1048575.0));
       key[i] = k;
     }
     std::vector<std::uint32_t> order(owned_);

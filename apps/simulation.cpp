@@ -739,6 +739,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   const double loop_seconds = seconds_since(t_loop);
   const std::vector<double> waits = comm.gather(comm.wait_seconds());
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
+  const std::vector<double> busy = comm.gather(
+      timer.seconds(Phase::neighbor) + timer.seconds(Phase::force) + timer.seconds(Phase::integrate));
   if (root) {
     nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
     j["scheme"] = "explicit";
@@ -758,6 +760,9 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     j["mpi_wait_definition"] = "per rank: wall time inside MPI calls (reductions, the parallel "
                                "ORB, particle and ghost exchanges), set-up included";
     j["owned_particles_at_end"] = owned;
+    j["busy_seconds"] = busy;
+    j["busy_definition"] = "per rank: neighbor + force + integrate phases (rebuilds with their "
+                           "exchanges, forces, updates); their spread is the load imbalance in time";
     j["boxes"] = 1 << scheme.levels();
     j["regrid_policy"] = "ORB + Hilbert knapsack at the first neighbor rebuild after "
                          "dem.regrid_interval; migration and ghosts at every rebuild";

@@ -61,6 +61,17 @@ void DistributedExplicitScheme::ghost_copies(std::vector<ParticleExchange::Copy>
   for (std::size_t i = 0; i < owned_; ++i) {
     const partition::Aabb q{{p_.x[i] - halo_, p_.y[i] - halo_, p_.z[i] - halo_},
                             {p_.x[i] + halo_, p_.y[i] + halo_, p_.z[i] + halo_}};
+    // Fast path: a halo strictly inside the particle's own box reaches no other box and no
+    // periodic image (most particles of a large box).
+    const int own = tree.locate(p_.x[i], p_.y[i], p_.z[i]);
+    if (own >= 0) {
+      const partition::Aabb& b = tree.leaves()[static_cast<std::size_t>(own)].box;
+      bool inside = true;
+      for (int a = 0; a < 3; ++a)
+        inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
+      if (inside)
+        continue;
+    }
     seen.clear();
     // (leaf, s): the particle's image p + s L lies within the halo of the leaf.
     for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic)) {

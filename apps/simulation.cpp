@@ -752,7 +752,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
     nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
     ph["note"] = "rank 0's phases; neighbor: regrid, migration, ghost exchange and the local "
-                 "list; other: mostly the per-step ghost forward and flag reduction";
+                 "list; force: includes waiting for the ghost forward (after the interior rows); "
+                 "other: mostly posting the forward and the per-step flag reduction";
     j["phase_seconds"] = ph;
     add_work_counters(j, scheme, loop_seconds,
                       "neighbor-list pairs evaluated (each pair once per step), over all ranks");

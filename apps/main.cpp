@@ -111,7 +111,7 @@ Examples:
   cfddem run                                   the built-in HCS (1222 particles, 30 ms)
   cfddem run scenes/hcs.toml dem.restitution=0.9 --threads 2
   cfddem check scenes/hcs.toml
-  mpirun -np 1 cfddem run scenes/hcs.toml
+  mpirun -np 2 cfddem run scenes/hcs.toml --threads 1   (explicit scheme, no fluid: distributed)
 )";
 
 } // namespace
@@ -165,10 +165,16 @@ int main(int argc, char** argv) {
         fmt::print("cfddem: done; outputs in {}/ (diagnostics.csv, run.json)\n", result.out_dir);
       return 0;
     } catch (const cfddem::ConfigError& e) {
-      fmt::print(stderr, "cfddem: error: {}\n", e.what());
+      // Configuration and run errors are raised by every rank alike: rank 0 says it once.
+      if (env.rank() == 0) fmt::print(stderr, "cfddem: error: {}\n", e.what());
       return 2;
     } catch (const cfddem::RunError& e) {
-      fmt::print(stderr, "cfddem: run stopped: {}\n", e.what());
+      if (env.rank() == 0) fmt::print(stderr, "cfddem: run stopped: {}\n", e.what());
+      return 3;
+    } catch (const std::exception& e) {
+      // Anything else may have been raised by this rank alone: end the others too.
+      fmt::print(stderr, "cfddem: error (rank {}): {}\n", env.rank(), e.what());
+      if (env.ranks() > 1) env.abort(3);
       return 3;
     }
   } catch (const std::exception& e) {

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <numeric>
 #include <optional>
 #include <stdexcept>
 
@@ -20,10 +21,12 @@
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
 #include "core/atomic_file.hpp"
+#include "core/communicator.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
+#include "dem/distributed_explicit_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
@@ -60,15 +63,22 @@ class MeanTracker {
 public:
   RowExtra next(double t, std::span<const double> vx, std::span<const double> vy,
                 std::span<const double> vz, const FluidDiagnostics& fd = {}) {
-    RowExtra e;
-    e.fluid = fd;
     const std::span<const double> v[3] = {vx, vy, vz};
+    std::array<double, 3> mean{};
     for (int a = 0; a < 3; ++a) {
       double sum = 0.0;
       for (double q : v[a]) sum += q;
-      e.mean_v[a] = v[a].empty() ? 0.0 : sum / static_cast<double>(v[a].size());
-      e.mean_a[a] = has_ && t > t_ ? (e.mean_v[a] - v_[a]) / (t - t_) : 0.0;
+      mean[a] = v[a].empty() ? 0.0 : sum / static_cast<double>(v[a].size());
     }
+    return next(t, mean, fd);
+  }
+  // The mean velocity already known (over all ranks).
+  RowExtra next(double t, const std::array<double, 3>& mean_v, const FluidDiagnostics& fd = {}) {
+    RowExtra e;
+    e.fluid = fd;
+    e.mean_v = mean_v;
+    for (int a = 0; a < 3; ++a)
+      e.mean_a[a] = has_ && t > t_ ? (e.mean_v[a] - v_[a]) / (t - t_) : 0.0;
     has_ = true, t_ = t, v_ = e.mean_v;
     return e;
   }
@@ -169,6 +179,7 @@ struct WrappedPositions {
   }
 };
 
+RunResult run_distributed(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 template <class Scheme>
 RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
@@ -244,9 +255,40 @@ nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_seconds) 
   return ph;
 }
 
+// The work counters of a loop in run.json: particle steps, force evaluations (and what they
+// count, when given), neighbor builds and the particle-step rate.
+template <class Scheme>
+void add_work_counters(nlohmann::ordered_json& j, const Scheme& scheme, double loop_seconds,
+                       const char* definition = nullptr) {
+  j["particle_steps"] = scheme.particle_steps();
+  j["force_evaluations"] = scheme.pair_evaluations();
+  if (definition) j["force_evaluations_definition"] = definition;
+  j["neighbor_builds"] = scheme.neighbor_builds();
+  j["particle_steps_per_second"] =
+      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+}
+
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  if (env.ranks() > 1) {
+    // What is distributed so far: the explicit scheme without gas, friction or particle files.
+    if (scene.fluid.enabled)
+      throw ConfigError("scene table [fluid]", "the gas is not yet distributed over MPI ranks: "
+                                               "run scenes with a [fluid] table on one rank");
+    if (scene.dem.scheme != "explicit")
+      throw ConfigError("scene key 'dem.scheme'",
+                        fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
+                                    "run it on one rank, or use dem.scheme = \"explicit\"",
+                                    scene.dem.scheme));
+    if (scene.output.checkpoint_interval > 0)
+      throw ConfigError("scene key 'output.checkpoint_interval'",
+                        "checkpoints are not yet written by more than one rank: set it to 0 or "
+                        "run on one rank");
+    if (!opt.restart.empty())
+      throw ConfigError("--restart", "restarting on more than one rank is not supported yet");
+    return run_distributed(scene, opt, env);
+  }
   if (scene.fluid.enabled) {
     validate_fluid(scene);
     return run_coupled(scene, opt, env);
@@ -397,12 +439,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
   nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
   j["phase_seconds"] = ph;
-  j["particle_steps"] = scheme.particle_steps();
-  j["force_evaluations"] = scheme.pair_evaluations();
-  j["force_evaluations_definition"] = "neighbor-list pairs evaluated (each pair once per step)";
-  j["neighbor_builds"] = scheme.neighbor_builds();
-  j["particle_steps_per_second"] =
-      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+  add_work_counters(j, scheme, loop_seconds,
+                    "neighbor-list pairs evaluated (each pair once per step)");
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
 
   if (!opt.quiet) {
@@ -608,6 +646,213 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   return {opt.out_dir, loop_seconds, scheme.subiterations(), scheme.particle_steps()};
 }
 
+
+// The explicit loop over MPI ranks (dem::DistributedExplicitScheme). Every rank builds the same
+// initial particles and keeps every R-th (start() sends each to its owner): simple, at the cost
+// of one copy of the initial state per rank during set-up. Rows hold values reduced over the
+// ranks; only rank 0 writes diagnostics.csv and run.json.
+RunResult run_distributed(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
+  namespace fs = std::filesystem;
+  const auto t_setup = clock::now();
+  const Communicator comm = Communicator::world();
+  const bool root = comm.rank() == 0;
+  ParticleStore particles = make_initial_particles(scene);
+  const DerivedNumbers derived = derive(scene, particles);
+  const dem::StepModel model = dem::make_step_model(scene, particles);
+  const std::size_t n_total = particles.size();
+  {
+    std::vector<std::uint32_t> mine;
+    for (std::size_t i = static_cast<std::size_t>(comm.rank()); i < n_total;
+         i += static_cast<std::size_t>(comm.size()))
+      mine.push_back(static_cast<std::uint32_t>(i));
+    particles.permute(mine);
+  }
+  PhaseTimer timer;
+  dem::DistributedExplicitScheme scheme(scene, particles, model, comm, timer);
+  const long long n_end = derived.steps;
+
+  std::optional<DiagnosticsFile> diag;
+  std::string setup_error;
+  if (root) {
+    try {
+      fs::create_directories(opt.out_dir);
+      diag.emplace((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
+    } catch (const std::exception& e) {
+      setup_error = e.what();
+    }
+  }
+  if (const std::string e = comm.agree_on_error(0, setup_error); !e.empty())
+    throw ConfigError(opt.out_dir, e);
+  auto add_row = [&](const std::vector<double>& r) {
+    if (diag) diag->add_row(r);
+  };
+  if (!opt.quiet)
+    fmt::print(stderr, "cfddem: scene '{}', {} particles, dt = {:.4e} s, {} steps, {} rank(s) x {} "
+                       "thread(s), {} boxes\n",
+               scene.name, n_total, scheme.dt(), n_end, env.ranks(), env.threads(),
+               1 << scheme.levels());
+  const long long out_every = std::max(1LL, std::llround(scene.output.interval / scheme.dt()));
+  const long long snap_every = every(scene.output.snapshot_interval, scheme.dt());
+  std::optional<SnapshotIndex> snapshots;
+  if (root) snapshots.emplace(opt.out_dir);
+  // A snapshot of the owned particles of every rank: gathered to rank 0, in id order, with the
+  // ORB box of each particle as its `leaf` (the decomposition, seen in ParaView).
+  auto snapshot = [&](long long k, std::span<const double> x, std::span<const double> y,
+                      std::span<const double> z, std::span<const double> vx,
+                      std::span<const double> vy, std::span<const double> vz) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const dem::DomainGeometry g(scene.domain);
+    const std::size_t n = x.size();
+    std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
+                                std::vector<double>(n)};
+    std::vector<std::int64_t> box(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      w[0][i] = g.wrap(x[i], 0), w[1][i] = g.wrap(y[i], 1), w[2][i] = g.wrap(z[i], 2);
+      box[i] = scheme.decomposition().tree.locate(w[0][i], w[1][i], w[2][i]);
+    }
+    const std::span<const double> own[9] = {w[0], w[1], w[2], vx, vy, vz,
+                                            {particles.radius.data(), n},
+                                            {particles.mass.data(), n}, {}};
+    std::vector<double> all[8];
+    for (int q = 0; q < 8; ++q) all[q] = comm.gather(own[q]);
+    const std::vector<std::int64_t> ids = comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+    const std::vector<std::int64_t> boxes = comm.gather(std::span<const std::int64_t>(box));
+    std::string error;
+    if (root) {
+      std::vector<std::size_t> order(ids.size());
+      std::iota(order.begin(), order.end(), std::size_t{0});
+      std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+      auto sorted = [&](const auto& v) {
+        std::remove_cvref_t<decltype(v)> out(v.size());
+        for (std::size_t i = 0; i < order.size(); ++i) out[i] = v[order[i]];
+        return out;
+      };
+      for (auto& v : all) v = sorted(v);
+      const auto sid = sorted(ids), sbox = sorted(boxes);
+      SnapshotFields f;
+      f.time = static_cast<double>(k) * scheme.dt();
+      f.step = k;
+      f.x = all[0], f.y = all[1], f.z = all[2], f.vx = all[3], f.vy = all[4], f.vz = all[5];
+      f.radius = all[6], f.mass = all[7], f.id = sid, f.leaf = sbox;
+      f.dt = scheme.dt();
+      try {
+        snapshots->add(write_particle_snapshot(opt.out_dir, f));
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+    }
+    if (const std::string e = comm.agree_on_error(0, error); !e.empty()) throw RunError(e);
+  };
+  const auto t_loop = clock::now();
+  MeanTracker means;
+  scheme.start();
+  {
+    // Row at t = 0 from the initial velocities (before the half-step shift).
+    PhaseTimer::Scope io(timer, Phase::io);
+    const std::size_t n = scheme.owned();
+    std::vector<double> v0x(n), v0y(n), v0z(n);
+    const double h = 0.5 * scheme.dt();
+    const auto& gr = scheme.model().gravity;
+    for (std::size_t i = 0; i < n; ++i) {
+      v0x[i] = particles.vx[i] + (particles.fx[i] * particles.inv_mass[i] + gr[0]) * h;
+      v0y[i] = particles.vy[i] + (particles.fy[i] * particles.inv_mass[i] + gr[1]) * h;
+      v0z[i] = particles.vz[i] + (particles.fz[i] * particles.inv_mass[i] + gr[2]) * h;
+    }
+    const std::span<const double> x(particles.x.data(), n), y(particles.y.data(), n),
+        z(particles.z.data(), n), m(particles.mass.data(), n);
+    const auto s0 = dem::measure({x, y, z, v0x, v0y, v0z, m}, comm);
+    add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
+                means.next(0.0, s0.mean_velocity)));
+    if (snap_every > 0) snapshot(0, x, y, z, v0x, v0y, v0z);
+  }
+  long long k_last_row = 0;
+  auto last_progress = clock::now();
+  for (long long k = 0; k <= n_end && n_end > 0; ++k) {
+    const bool record = k > 0 && (k % out_every == 0 || k == n_end);
+    const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
+    scheme.step(record || snap);
+    if (snap) {
+      const auto s = scheme.synchronised_previous();
+      snapshot(k, s.x, s.y, s.z, s.vx, s.vy, s.vz);
+    }
+    if (record) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      const auto s = scheme.synchronised_previous();
+      const std::span<const double> m(particles.mass.data(), scheme.owned());
+      const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, m}, comm);
+      const auto steps = static_cast<double>(k - k_last_row);
+      k_last_row = k;
+      const double t = static_cast<double>(k) * scheme.dt();
+      add_row(row(t, k, st, n_total, scheme, seconds_since(t_loop),
+                  dem::LeafStepStats{steps, steps, steps, 1.0}, means.next(t, st.mean_velocity)));
+    }
+    if (!opt.quiet && std::chrono::duration<double>(clock::now() - last_progress).count() >=
+                          scene.output.progress_seconds) {
+      last_progress = clock::now();
+      const double wall = seconds_since(t_loop);
+      const double frac = static_cast<double>(k) / static_cast<double>(n_end);
+      fmt::print(stderr, "step {:>10} t = {:.6e} s ({:5.1f}%)  ETA {}\n", k, scheme.time(),
+                 100 * frac, format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
+    }
+  }
+  if (diag) diag->flush();
+  const double loop_seconds = seconds_since(t_loop);
+  const std::vector<double> waits = comm.gather(comm.wait_seconds());
+  const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
+  const std::vector<double> busy = comm.gather(
+      timer.seconds(Phase::neighbor) + timer.seconds(Phase::force) + timer.seconds(Phase::integrate));
+  if (root) {
+    nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
+    j["scheme"] = "explicit";
+    j["distributed"] = true;
+    j["dt"] = scheme.dt();
+    j["steps"] = scheme.steps_taken();
+    j["end_time"] = static_cast<double>(n_end) * scheme.dt();
+    j["loop_seconds"] = loop_seconds;
+    j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
+    nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
+    ph["note"] = "rank 0's phases; neighbor: regrid, migration, ghost exchange and the local "
+                 "list; force: includes waiting for the ghost forward (after the interior rows); "
+                 "other: mostly posting the forward and the per-step flag reduction";
+    j["phase_seconds"] = ph;
+    add_work_counters(j, scheme, loop_seconds,
+                      "neighbor-list pairs evaluated (each pair once per step), over all ranks");
+    j["mpi_wait_seconds"] = waits;
+    j["mpi_wait_definition"] = "per rank: wall time inside MPI calls (reductions, the parallel "
+                               "ORB, particle and ghost exchanges), set-up included";
+    j["owned_particles_at_end"] = owned;
+    j["busy_seconds"] = busy;
+    j["busy_definition"] = "per rank: neighbor + force + integrate phases (rebuilds with their "
+                           "exchanges, forces, updates); their spread is the load imbalance in time";
+    j["boxes"] = 1 << scheme.levels();
+    j["regrid_policy"] = "ORB + Hilbert knapsack at the first neighbor rebuild after "
+                         "dem.regrid_interval; migration and ghosts at every rebuild";
+    nlohmann::ordered_json regrids = nlohmann::ordered_json::array();
+    double worst = 1.0;
+    for (const auto& r : scheme.regrids()) {
+      regrids.push_back({{"step", r.step}, {"imbalance", r.imbalance}});
+      worst = std::max(worst, r.imbalance);
+    }
+    j["load_imbalance"] = regrids;
+    j["load_imbalance_definition"] = "per regrid: max over ranks / mean of particles owned";
+    j["load_imbalance_max"] = worst;
+    write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
+  }
+  if (!opt.quiet) {
+    double wait_max = 0.0;
+    for (const double w : waits) wait_max = std::max(wait_max, w);
+    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
+                       "particles\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), n_total);
+    fmt::print(stderr, "Performance: {:.4g} particle-steps/s; rank 0: neighbor+exchange {:.3g} s "
+                       "({} builds, {} regrids), force {:.3g} s, integrate {:.3g} s; MPI wait "
+                       "max {:.3g} s\n",
+               loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0,
+               timer.seconds(Phase::neighbor), scheme.neighbor_builds(), scheme.regrids().size(),
+               timer.seconds(Phase::force), timer.seconds(Phase::integrate), wait_max);
+  }
+  return {opt.out_dir, loop_seconds, scheme.steps_taken(), scheme.particle_steps()};
+}
 
 // The coupled loop (the paper's Algorithm 1): per fluid step of dt_f, deposit + gas step +
 // particle force (GasCoupling::step), then the particle sub-cycle: explicit, n_sub steps of
@@ -897,11 +1142,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   ph["note"] = "fluid: deposition, gas step (predictor, projection), interpolation and particle "
                "forces; neighbor + force: the particle sub-cycle";
   j["phase_seconds"] = ph;
-  j["particle_steps"] = scheme.particle_steps();
-  j["force_evaluations"] = scheme.pair_evaluations();
-  j["neighbor_builds"] = scheme.neighbor_builds();
-  j["particle_steps_per_second"] =
-      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+  add_work_counters(j, scheme, loop_seconds);
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
   if (!opt.quiet) {
     fmt::print(stderr, "Loop time of {:.4g} s for {} fluid steps ({:.4g} s each) and {} particle "

@@ -9,10 +9,12 @@
 namespace cfddem {
 
 int ParallelEnv::resolve_threads(int requested) {
-  if (requested > 0) return requested;
+  if (requested > 0)
+    return requested;
   if (const char* omp = std::getenv("OMP_NUM_THREADS")) {
     const int n = std::atoi(omp);
-    if (n > 0) return n;
+    if (n > 0)
+      return n;
   }
   // tbb::info respects the process affinity mask, so `--map-by ...:PE=n` gives n.
   return tbb::info::default_concurrency();
@@ -29,15 +31,21 @@ ParallelEnv::ParallelEnv(int* argc, char*** argv, int threads) {
   MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
   MPI_Comm_size(MPI_COMM_WORLD, &ranks_);
   threads_ = resolve_threads(threads);
-  control_ = std::make_unique<tbb::global_control>(
-      tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(threads_));
+  control_ = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                   static_cast<std::size_t>(threads_));
+}
+
+void ParallelEnv::abort(int code) const {
+  MPI_Abort(MPI_COMM_WORLD, code);
+  std::abort(); // MPI_Abort does not return; this tells the compiler so
 }
 
 ParallelEnv::~ParallelEnv() {
   control_.reset();
   int finalised = 0;
   MPI_Finalized(&finalised);
-  if (we_initialised_mpi_ && !finalised) MPI_Finalize();
+  if (we_initialised_mpi_ && !finalised)
+    MPI_Finalize();
 }
 
 } // namespace cfddem

@@ -19,6 +19,9 @@ public:
   int rank() const { return rank_; }
   int ranks() const { return ranks_; }
   int threads() const { return threads_; }
+  // End every rank of the job now (MPI_Abort): for an error raised by one rank alone, which
+  // would otherwise leave the others waiting in a collective call forever.
+  [[noreturn]] void abort(int code) const;
   // Resolve a requested thread count as the constructor does.
   static int resolve_threads(int requested);
 

@@ -16,6 +16,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/external_force.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
 
 namespace cfddem::dem {
@@ -90,7 +91,7 @@ public:
   void restore_state(State s);
 
 private:
-  struct Report;
+  using Report = StepReport;
   template <bool Friction> void contact_pass(double dt, Report& report);
   template <bool Walls, bool Friction, bool External> void update_pass(double dt, Report& report);
   template <bool Walls> void update(double dt, Report& report);

@@ -6,6 +6,8 @@
 #include <array>
 #include <span>
 
+#include "core/communicator.hpp"
+
 namespace cfddem::dem {
 
 struct GranularState {
@@ -22,5 +24,8 @@ struct ParticleSpans {
 };
 
 GranularState measure(const ParticleSpans& p);
+// The same over the particles of every rank (collective; each rank passes its own): the sums are
+// reduced, so the values are the serial ones up to the order of summation.
+GranularState measure(const ParticleSpans& p, const Communicator& comm);
 
 } // namespace cfddem::dem

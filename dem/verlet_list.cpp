@@ -13,11 +13,7 @@ namespace cfddem::dem {
 
 namespace {
 
-struct CellGrid {
-  std::array<int, 3> n{};
-  std::array<double, 3> inv{};
-  std::size_t count() const { return static_cast<std::size_t>(n[0]) * n[1] * n[2]; }
-};
+using detail::CellGrid;
 
 // Cells at least as wide as the cutoff, but not many more cells than particles (a dilute box
 // would otherwise spend its build time visiting empty cells).
@@ -105,6 +101,44 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
     p.x[i] = g.wrap(p.x[i], 0), p.y[i] = g.wrap(p.y[i], 1), p.z[i] = g.wrap(p.z[i], 2);
   }
   const CellGrid grid = make_grid(g, cutoff, n);
+  bin(p, g, grid, order_);
+  p.permute(order_);
+  fill_rows<false>(p, g, grid, n, skin);
+}
+
+void VerletList::build_local(const ParticleStore& p, std::size_t rows, double skin) {
+  skin_ = skin;
+  const std::size_t n = p.size();
+  double rmax = 0.0;
+  for (double r : p.radius) rmax = std::max(rmax, r);
+  const double cutoff = 2.0 * rmax + skin;
+  // The frame: the particles' bounding box, at least one cutoff wide on every axis.
+  DomainSpec box;
+  box.periodic = {false, false, false};
+  box.lo = {0.0, 0.0, 0.0}, box.hi = {0.0, 0.0, 0.0};
+  if (n > 0) {
+    box.lo = {p.x[0], p.y[0], p.z[0]}, box.hi = box.lo;
+    for (std::size_t i = 1; i < n; ++i) {
+      const double q[3] = {p.x[i], p.y[i], p.z[i]};
+      for (int a = 0; a < 3; ++a) box.lo[a] = std::min(box.lo[a], q[a]), box.hi[a] = std::max(box.hi[a], q[a]);
+    }
+  }
+  for (int a = 0; a < 3; ++a) box.hi[a] = std::max(box.hi[a], box.lo[a] + cutoff);
+  const DomainGeometry g(box);
+  const CellGrid grid = make_grid(g, cutoff, n);
+  order_.clear();
+  bin(p, g, grid, sorted_);
+  fill_rows<true>(p, g, grid, rows, skin);
+  interior_.clear(), boundary_.clear();
+  for (const std::uint32_t i : active_) {
+    // Rows are sorted by index and ghosts follow the owned particles: the last entry decides.
+    (neighbors_[offsets_[i + 1] - 1] < rows ? interior_ : boundary_).push_back(i);
+  }
+}
+
+void VerletList::bin(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
+                     std::vector<std::uint32_t>& sorted) {
+  const std::size_t n = p.size();
   const std::size_t ncell = grid.count();
   cell_of_.resize(n);
   auto cell_coord = [&](double v, int a) {
@@ -120,13 +154,17 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   cell_start_.assign(ncell + 1, 0);
   for (std::size_t i = 0; i < n; ++i) ++cell_start_[cell_of_[i] + 1];
   for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
-  order_.resize(n);
-  {
-    fill_.assign(cell_start_.begin(), cell_start_.end() - 1);
-    for (std::size_t i = 0; i < n; ++i) order_[fill_[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
-  }
-  p.permute(order_);
+  sorted.resize(n);
+  fill_.assign(cell_start_.begin(), cell_start_.end() - 1);
+  for (std::size_t i = 0; i < n; ++i) sorted[fill_[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+}
 
+template <bool Indirect>
+void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
+                           std::size_t n, double skin) {
+  auto cell_coord = [&](double v, int a) {
+    return std::clamp(static_cast<int>((v - g.lo[a]) * grid.inv[a]), 0, grid.n[a] - 1);
+  };
   // Count, then fill, each particle's row; rows are independent so the parallel build is
   // deterministic.
   offsets_.assign(n + 1, 0);
@@ -142,7 +180,8 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
         for (int a = 0; a < mx; ++a) {
           const std::size_t cell =
               (static_cast<std::size_t>(sz[c]) * grid.n[1] + sy[b]) * grid.n[0] + sx[a];
-          for (std::uint32_t j = cell_start_[cell]; j < cell_start_[cell + 1]; ++j) {
+          for (std::uint32_t q = cell_start_[cell]; q < cell_start_[cell + 1]; ++q) {
+            const std::uint32_t j = Indirect ? sorted_[q] : q;
             if (j == i) continue;
             const double dx = g.image(p.x[j] - xi, 0), dy = g.image(p.y[j] - yi, 1),
                          dz = g.image(p.z[j] - zi, 2);

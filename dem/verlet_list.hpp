@@ -5,6 +5,7 @@
 // until some particle has moved more than skin/2 since the build (needs_rebuild).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -13,6 +14,14 @@
 #include "dem/domain_geometry.hpp"
 
 namespace cfddem::dem {
+
+namespace detail {
+struct CellGrid {
+  std::array<int, 3> n{};
+  std::array<double, 3> inv{};
+  std::size_t count() const { return static_cast<std::size_t>(n[0]) * n[1] * n[2]; }
+};
+} // namespace detail
 
 class VerletList {
 public:
@@ -43,8 +52,32 @@ public:
                double skin, const DomainGeometry& g);
   std::size_t pair_count() const { return neighbors_.size() / 2; }
 
+  // Rank-local list (the distributed scheme): rows for particles [0, rows) only (the owned
+  // ones), whose neighbors are any particle of the store (owned, then ghost copies already at
+  // the periodic image they are needed at). No periodic wrap or image, and the store is not
+  // reordered (ghost indices belong to the exchange plan; order() is empty): the cells cover the
+  // particles' bounding box, not the domain. Rows are in increasing index order, as build()'s.
+  void build_local(const ParticleStore& p, std::size_t rows, double skin);
+  // build_local's split of active(): rows whose neighbours are all owned (interior: computable
+  // while the ghosts' new positions are in flight), and rows with a ghost neighbour.
+  std::span<const std::uint32_t> interior() const { return interior_; }
+  std::span<const std::uint32_t> boundary() const { return boundary_; }
+  // Cells of the last build's grid (the memory a build needs grows with it).
+  std::size_t cell_count() const { return cell_start_.empty() ? 0 : cell_start_.size() - 1; }
+
 private:
-  std::vector<std::uint32_t> order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
+  using CellGrid = detail::CellGrid;
+  // Counting sort of the particles by cell of `grid` over g: cell_start_, and into `sorted` the
+  // particle indices cell by cell (stable).
+  void bin(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
+           std::vector<std::uint32_t>& sorted);
+  // Rows of particles [0, rows) from the binned cells (Indirect: cell members through sorted_;
+  // else the store is in cell order).
+  template <bool Indirect>
+  void fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
+                 std::size_t rows, double skin);
+
+  std::vector<std::uint32_t> interior_, boundary_, sorted_, order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
   std::vector<double> xr_, yr_, zr_;
   std::vector<std::vector<std::uint32_t>> chunk_rows_; // per-chunk row buffers of the build
   double skin_ = 0.0;

@@ -1,0 +1,220 @@
+#include "core/particle_exchange.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <stdexcept>
+
+#include "core/communicator_mpi.hpp"
+
+namespace cfddem {
+
+namespace {
+
+// The double fields that travel with a particle, in packing order (id travels as its bits).
+std::vector<std::vector<double>*> carried(ParticleStore& p) {
+  std::vector<std::vector<double>*> f{&p.x,  &p.y,      &p.z,    &p.vx,      &p.vy,
+                                      &p.vz, &p.radius, &p.mass, &p.inv_mass};
+  if (p.rotation)
+    for (auto* v : {&p.wx, &p.wy, &p.wz, &p.inv_inertia})
+      f.push_back(v);
+  return f;
+}
+
+int stride_of(ParticleStore& p) {
+  return static_cast<int>(carried(p).size()) + 1;
+}
+
+void pack(const std::vector<std::vector<double>*>& f, const ParticleStore& p, std::size_t i,
+          const std::array<double, 3>& shift, std::vector<double>& buf) {
+  for (std::size_t k = 0; k < f.size(); ++k)
+    buf.push_back((*f[k])[i] + (k < 3 ? shift[k] : 0.0));
+  buf.push_back(std::bit_cast<double>(p.id[i]));
+}
+
+// Append `count` particles packed in `buf` to the store.
+void unpack_append(ParticleStore& p, std::span<const double> buf, std::size_t count) {
+  const std::size_t first = p.size();
+  p.resize(first + count);
+  const auto f = carried(p);
+  const std::size_t stride = f.size() + 1;
+  for (std::size_t q = 0; q < count; ++q) {
+    const double* in = buf.data() + q * stride;
+    for (std::size_t k = 0; k < f.size(); ++k)
+      (*f[k])[first + q] = in[k];
+    p.id[first + q] = std::bit_cast<std::int64_t>(in[f.size()]);
+  }
+}
+
+} // namespace
+
+void ParticleExchange::exchange(std::span<const std::int64_t> send_counts,
+                                std::span<const double> send,
+                                std::vector<std::int64_t>& recv_counts, std::vector<double>& recv,
+                                int stride, bool counts_known) {
+  const int ranks = comm_.size(), me = comm_.rank();
+  const MPI_Comm comm = mpi_comm(comm_);
+  if (!counts_known) {
+    recv_counts.assign(static_cast<std::size_t>(ranks), 0);
+    if (ranks == 1) {
+      recv_counts[0] = send_counts[0];
+    } else {
+      MpiWait w(comm_);
+      MPI_Alltoall(send_counts.data(), 1, MPI_INT64_T, recv_counts.data(), 1, MPI_INT64_T, comm);
+    }
+  }
+  std::vector<std::size_t> send_off(static_cast<std::size_t>(ranks) + 1, 0),
+      recv_off(static_cast<std::size_t>(ranks) + 1, 0);
+  for (int r = 0; r < ranks; ++r) {
+    send_off[r + 1] = send_off[r] + static_cast<std::size_t>(send_counts[r] * stride);
+    recv_off[r + 1] = recv_off[r] + static_cast<std::size_t>(recv_counts[r] * stride);
+  }
+  recv.resize(recv_off[ranks]);
+  std::copy(send.begin() + static_cast<std::ptrdiff_t>(send_off[me]),
+            send.begin() + static_cast<std::ptrdiff_t>(send_off[me + 1]),
+            recv.begin() + static_cast<std::ptrdiff_t>(recv_off[me]));
+  if (ranks == 1)
+    return;
+  std::vector<MPI_Request> req;
+  req.reserve(2 * static_cast<std::size_t>(ranks));
+  constexpr int kTag = 7301;
+  for (int r = 0; r < ranks; ++r)
+    if (r != me && recv_counts[r] > 0)
+      MPI_Irecv(recv.data() + recv_off[r], static_cast<int>(recv_off[r + 1] - recv_off[r]),
+                MPI_DOUBLE, r, kTag, comm, &req.emplace_back());
+  for (int r = 0; r < ranks; ++r)
+    if (r != me && send_counts[r] > 0)
+      MPI_Isend(send.data() + send_off[r], static_cast<int>(send_off[r + 1] - send_off[r]),
+                MPI_DOUBLE, r, kTag, comm, &req.emplace_back());
+  MpiWait w(comm_);
+  MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
+}
+
+std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> dest) {
+  const int ranks = comm_.size();
+  if (dest.size() != p.size())
+    throw std::invalid_argument("ParticleExchange::migrate: one destination per particle");
+  std::vector<std::int64_t> counts(static_cast<std::size_t>(ranks), 0);
+  for (const int r : dest) {
+    if (r < 0 || r >= ranks)
+      throw std::invalid_argument("ParticleExchange::migrate: destination rank out of range");
+    ++counts[static_cast<std::size_t>(r)];
+  }
+  const int me = comm_.rank();
+  counts[static_cast<std::size_t>(me)] = 0; // stayers are not copied
+  // Pack leavers by destination rank (a counting sort keeps each rank's in index order).
+  std::vector<std::size_t> at(static_cast<std::size_t>(ranks) + 1, 0);
+  for (int r = 0; r < ranks; ++r)
+    at[r + 1] = at[r] + static_cast<std::size_t>(counts[r]);
+  std::vector<std::uint32_t> by_rank(at[ranks]), keep;
+  keep.reserve(p.size() - at[ranks]);
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    if (dest[i] == me) {
+      keep.push_back(static_cast<std::uint32_t>(i));
+    } else {
+      by_rank[at[dest[i]]++] = static_cast<std::uint32_t>(i);
+    }
+  }
+  send_buf_.clear();
+  send_buf_.reserve(by_rank.size() * static_cast<std::size_t>(stride_of(p)));
+  const auto fields = carried(p);
+  for (const std::uint32_t i : by_rank)
+    pack(fields, p, i, {0.0, 0.0, 0.0}, send_buf_);
+  std::vector<std::int64_t> recv_counts;
+  exchange(counts, send_buf_, recv_counts, recv_buf_, stride_of(p), false);
+  p.permute(keep); // a selection: the store shrinks to the stayers, in order
+  std::size_t received = 0;
+  for (const std::int64_t c : recv_counts)
+    received += static_cast<std::size_t>(c);
+  unpack_append(p, recv_buf_, received);
+  // The store changed: any ghost plan refers to old indices.
+  plan_.clear();
+  send_counts_.assign(static_cast<std::size_t>(ranks), 0);
+  recv_counts_.assign(static_cast<std::size_t>(ranks), 0);
+  owned_ = p.size();
+  recv_total_ = 0;
+  return received;
+}
+
+std::size_t ParticleExchange::build_ghosts(ParticleStore& p, std::size_t owned,
+                                           std::vector<Copy> copies) {
+  const int ranks = comm_.size();
+  std::stable_sort(copies.begin(), copies.end(),
+                   [](const Copy& a, const Copy& b) { return a.rank < b.rank; });
+  plan_ = std::move(copies);
+  owned_ = owned;
+  p.resize(owned);
+  send_counts_.assign(static_cast<std::size_t>(ranks), 0);
+  send_buf_.clear();
+  const auto fields = carried(p);
+  for (const Copy& c : plan_) {
+    if (c.rank < 0 || c.rank >= ranks || c.index >= owned)
+      throw std::invalid_argument("ParticleExchange::build_ghosts: bad rank or index");
+    ++send_counts_[static_cast<std::size_t>(c.rank)];
+    pack(fields, p, c.index, c.shift, send_buf_);
+  }
+  exchange(send_counts_, send_buf_, recv_counts_, recv_buf_, stride_of(p), false);
+  recv_total_ = 0;
+  for (const std::int64_t c : recv_counts_)
+    recv_total_ += static_cast<std::size_t>(c);
+  unpack_append(p, recv_buf_, recv_total_);
+  return recv_total_;
+}
+
+namespace {
+constexpr int kForwardStride = 6; // x, y, z, vx, vy, vz
+constexpr int kForwardTag = 7302;
+using Requests = std::vector<MPI_Request>;
+} // namespace
+
+void ParticleExchange::forward_begin(const ParticleStore& p) {
+  fwd_send_.resize(plan_.size() * kForwardStride);
+  double* out = fwd_send_.data();
+  for (const Copy& c : plan_) {
+    const std::size_t i = c.index;
+    out[0] = p.x[i] + c.shift[0], out[1] = p.y[i] + c.shift[1], out[2] = p.z[i] + c.shift[2];
+    out[3] = p.vx[i], out[4] = p.vy[i], out[5] = p.vz[i];
+    out += kForwardStride;
+  }
+  fwd_recv_.resize(recv_total_ * kForwardStride);
+  const int ranks = comm_.size(), me = comm_.rank();
+  if (!requests_)
+    requests_ = std::make_shared<Requests>();
+  auto& req = *static_cast<Requests*>(requests_.get());
+  req.clear();
+  std::size_t so = 0, ro = 0; // offsets in doubles; the plan and the arrivals are in rank order
+  for (int r = 0; r < ranks; ++r) {
+    const auto ns = static_cast<std::size_t>(send_counts_[r]) * kForwardStride;
+    const auto nr = static_cast<std::size_t>(recv_counts_[r]) * kForwardStride;
+    if (r == me) {
+      std::copy(fwd_send_.begin() + static_cast<std::ptrdiff_t>(so),
+                fwd_send_.begin() + static_cast<std::ptrdiff_t>(so + ns),
+                fwd_recv_.begin() + static_cast<std::ptrdiff_t>(ro));
+    } else {
+      if (nr > 0)
+        MPI_Irecv(fwd_recv_.data() + ro, static_cast<int>(nr), MPI_DOUBLE, r, kForwardTag,
+                  mpi_comm(comm_), &req.emplace_back());
+      if (ns > 0)
+        MPI_Isend(fwd_send_.data() + so, static_cast<int>(ns), MPI_DOUBLE, r, kForwardTag,
+                  mpi_comm(comm_), &req.emplace_back());
+    }
+    so += ns, ro += nr;
+  }
+}
+
+void ParticleExchange::forward_end(ParticleStore& p) {
+  if (requests_) {
+    auto& req = *static_cast<Requests*>(requests_.get());
+    if (!req.empty()) {
+      MpiWait w(comm_);
+      MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
+      req.clear();
+    }
+  }
+  const double* in = fwd_recv_.data();
+  for (std::size_t g = owned_; g < owned_ + recv_total_; ++g, in += kForwardStride) {
+    p.x[g] = in[0], p.y[g] = in[1], p.z[g] = in[2];
+    p.vx[g] = in[3], p.vy[g] = in[4], p.vz[g] = in[5];
+  }
+}
+
+} // namespace cfddem

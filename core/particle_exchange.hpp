@@ -1,0 +1,75 @@
+// Particles between ranks (LAMMPS's `exchange` and `borders`/`comm->forward`, Cabana's halo as a
+// plan built once and replayed): migration moves particles to the rank that owns them now;
+// ghosts are copies of other ranks' particles (or periodic images of one's own) appended after
+// the owned ones, rebuilt with the neighbor list and refreshed between rebuilds by forward().
+// Every field of the store travels (x, v, radius, mass, 1/m, id, and w, 1/I with rotation);
+// forces and torques do not: the scheme recomputes them after each exchange. Sizes go first
+// (one all-to-all of counts), then the payload point to point, non-blocking, only between ranks
+// that exchange something. A rank's copies to itself (periodic self-images) are plain copies.
+// Every call is collective over the communicator.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "core/communicator.hpp"
+#include "core/particle_store.hpp"
+
+namespace cfddem {
+
+class ParticleExchange {
+public:
+  explicit ParticleExchange(const Communicator& comm) : comm_(comm) {}
+
+  // dest[i]: the rank that owns local particle i from now on (one per particle of the store).
+  // Leavers are removed (the others keep their order); arrivals are appended by source rank,
+  // each source's in its own order. Returns the number of particles received.
+  // Throws std::invalid_argument for a rank out of range or a dest of the wrong size.
+  std::size_t migrate(ParticleStore& p, std::span<const int> dest);
+
+  // One ghost copy: local particle `index` to `rank`, its position shifted by `shift` (the
+  // periodic image the receiver needs; zeros when none).
+  struct Copy {
+    int rank = 0;
+    std::uint32_t index = 0;
+    std::array<double, 3> shift{};
+  };
+  // Replace the plan by `copies` (any order: sorted by rank here, stably), truncate the store to
+  // its `owned` particles and append the received ghosts (by source rank, each in its sender's
+  // order). Returns the number of ghosts.
+  std::size_t build_ghosts(ParticleStore& p, std::size_t owned, std::vector<Copy> copies);
+  // Refresh the ghosts' x and v from their owners along the plan (positions shifted again).
+  void forward(ParticleStore& p) {
+    forward_begin(p);
+    forward_end(p);
+  }
+  // forward() in two halves, so that other work or messages overlap the ones in flight: begin
+  // packs the owned values and posts the messages; end waits and writes the ghosts.
+  void forward_begin(const ParticleStore& p);
+  void forward_end(ParticleStore& p);
+
+  std::size_t owned() const { return owned_; }
+  std::size_t ghosts() const { return recv_total_; }
+  std::size_t copies_sent() const { return plan_.size(); }
+
+private:
+  // Send `send` (per-rank counts of `stride` doubles each, packed in rank order); receive into
+  // `recv` with per-rank counts `recv_counts` (known, or exchanged first when `counts_known` is
+  // false). Self traffic is copied.
+  void exchange(std::span<const std::int64_t> send_counts, std::span<const double> send,
+                std::vector<std::int64_t>& recv_counts, std::vector<double>& recv, int stride,
+                bool counts_known);
+
+  const Communicator& comm_;
+  std::vector<Copy> plan_; // sorted by rank
+  std::vector<std::int64_t> send_counts_, recv_counts_;
+  std::size_t owned_ = 0, recv_total_ = 0;
+  std::vector<double> send_buf_, recv_buf_;
+  std::vector<double> fwd_send_, fwd_recv_;
+  std::shared_ptr<void> requests_; // std::vector<MPI_Request> of a forward in flight
+};
+
+} // namespace cfddem

@@ -1,0 +1,343 @@
+// The passes of one velocity Verlet step over a Verlet list, shared by the explicit scheme and
+// its distributed twin (dem/distributed_explicit_scheme.hpp), so both take the same
+// floating-point path: the contact pass over the list's rows, wall forces, the vectorized
+// kick-drift of a range, and the search and wording of a failed check. Loops over spans of the
+// store: no allocation, no MPI; the contact pass hands rows to TBB with a fixed partition.
+#pragma once
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <span>
+#include <string>
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/partitioner.h>
+
+#include "core/particle_store.hpp"
+#include "dem/contact_kernels.hpp"
+#include "dem/domain_geometry.hpp"
+#include "dem/explicit_scheme.hpp"
+#include "dem/external_force.hpp"
+#include "dem/linear_spring_dashpot.hpp"
+#include "dem/step_report.hpp"
+#include "dem/verlet_list.hpp"
+
+namespace cfddem::dem {
+
+// Contact forces (and torques, with friction) on the particles `rows` (list.active() or a part
+// of it) of `list`, each summed over its row in the row's order: f_i is overwritten, nothing is scattered to j. The
+// rows' first part is taken as the minimum image as is, the part from wrap_begin() through `geom`.
+// hx, hy, hz: tangential history per list entry (friction only).
+template <bool Friction>
+void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry& geom,
+                  const StepModel& model, [[maybe_unused]] double* hx, [[maybe_unused]] double* hy,
+                  [[maybe_unused]] double* hz, double dt, std::span<const std::uint32_t> rows,
+                  StepReport& out) {
+  const double* __restrict x = p.x.data();
+  const double* __restrict y = p.y.data();
+  const double* __restrict z = p.z.data();
+  const double* __restrict vx = p.vx.data();
+  const double* __restrict vy = p.vy.data();
+  const double* __restrict vz = p.vz.data();
+  const double* __restrict rad = p.radius.data();
+  const double* __restrict mass = p.mass.data();
+  double* __restrict fx = p.fx.data();
+  double* __restrict fy = p.fy.data();
+  double* __restrict fz = p.fz.data();
+  const std::uint32_t* __restrict off = list.offsets().data();
+  const std::uint32_t* __restrict nb = list.neighbors().data();
+  const std::uint32_t* __restrict act = rows.data();
+  const DomainGeometry g = geom;
+  const StepModel m = model;
+
+  // Forces on particle i from its row, summed in the row's (sorted) order.
+  const std::uint32_t* __restrict wrap = list.wrap_begin().data();
+  auto body = [&](const tbb::blocked_range<std::size_t>& r, StepReport rep) {
+    // Locals, not captures: the compiler keeps them in registers across the stores below.
+    const double* __restrict lx = x;
+    const double* __restrict ly = y;
+    const double* __restrict lz = z;
+    const double* __restrict lr = rad;
+    const std::uint32_t* __restrict lnb = nb;
+    for (std::size_t q = r.begin(); q != r.end(); ++q) {
+      const std::uint32_t i = act[q];
+      const double xi = x[i], yi = y[i], zi = z[i];
+      const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
+      double ax = 0.0, ay = 0.0, az = 0.0;
+      [[maybe_unused]] double tqx = 0.0, tqy = 0.0, tqz = 0.0;
+      // One pair: the separation (dx, dy, dz) is already the minimum image.
+      auto pair = [&](std::uint32_t k, std::uint32_t j, double dx, double dy, double dz) {
+        const double r2 = dx * dx + dy * dy + dz * dz;
+        const double rs = ri + lr[j];
+        if (r2 >= rs * rs) {
+          if constexpr (Friction) hx[k] = hy[k] = hz[k] = 0.0;
+          return;
+        }
+        const double dist = std::sqrt(r2);
+        const double inv = 1.0 / dist;
+        const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+        const double delta = rs - dist;
+        const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
+        const double vn = dvx * nx + dvy * ny + dvz * nz;
+        // Equal masses (the common case) skip the divide and square root of m_eff.
+        const double meff = contact_meff(m, mi, mass[j]);
+        const double fn = contact_normal_force(m, meff, delta, vn);
+        ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+        if (delta > m.max_overlap * std::min(ri, rad[j]))
+          rep.flag(i, StepFault::overlap, delta / std::min(ri, rad[j]), j);
+        if constexpr (Friction) {
+          // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n (physics.md §2).
+          const double sx = ri * p.wx[i] + rad[j] * p.wx[j];
+          const double sy = ri * p.wy[i] + rad[j] * p.wy[j];
+          const double sz = ri * p.wz[i] + rad[j] * p.wz[j];
+          const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
+                       rvz = dvz + (sx * ny - sy * nx);
+          const double rvn = rvx * nx + rvy * ny + rvz * nz;
+          const double nvec[3] = {nx, ny, nz};
+          const double vt[3] = {rvx - rvn * nx, rvy - rvn * ny, rvz - rvn * nz};
+          double xi3[3] = {hx[k], hy[k], hz[k]}, ft[3];
+          tangential_force(m.pair_t, meff, dt, std::abs(fn), nvec, vt, xi3, ft);
+          hx[k] = xi3[0], hy[k] = xi3[1], hz[k] = xi3[2];
+          ax += ft[0], ay += ft[1], az += ft[2];
+          // Torque on i: (r_i n) x F_t.
+          tqx += ri * (ny * ft[2] - nz * ft[1]);
+          tqy += ri * (nz * ft[0] - nx * ft[2]);
+          tqz += ri * (nx * ft[1] - ny * ft[0]);
+        }
+      };
+      // Pairs inside the box first (no periodic image needed), then those across a face.
+      const std::uint32_t kw = wrap[i];
+      for (std::uint32_t k = off[i]; k < kw; ++k) {
+        const std::uint32_t j = lnb[k];
+        pair(k, j, lx[j] - xi, ly[j] - yi, lz[j] - zi);
+      }
+      for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
+        const std::uint32_t j = lnb[k];
+        pair(k, j, g.image(lx[j] - xi, 0), g.image(ly[j] - yi, 1), g.image(lz[j] - zi, 2));
+      }
+      fx[i] = ax, fy[i] = ay, fz[i] = az;
+      if constexpr (Friction) p.tx[i] = tqx, p.ty[i] = tqy, p.tz[i] = tqz;
+    }
+    return rep;
+  };
+  const std::size_t n = rows.size();
+  const tbb::blocked_range<std::size_t> all(0, n, 256);
+  if (n <= 1024) {
+    out.join(body(all, StepReport{})); // small work: no task overhead
+  } else {
+    out.join(tbb::parallel_reduce(
+        all, StepReport{}, body,
+        [](StepReport a, const StepReport& b) {
+          a.join(b);
+          return a;
+        },
+        tbb::simple_partitioner{}));
+  }
+}
+
+// Planar walls at lo and hi of every non-periodic axis: force (and torque, with friction) added
+// to particle i's contact force. Outward wall normal s = -1 at lo, +1 at hi.
+template <bool Friction>
+void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore& p,
+                            std::size_t i, double f[3], double tq[3], auto&& flag) {
+  const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
+  const double ri = p.radius[i], mi = p.mass[i];
+  for (int a = 0; a < 3; ++a) {
+    if (g.periodic[a]) continue;
+    for (int side = 0; side < 2; ++side) {
+      const double s = side ? 1.0 : -1.0;
+      const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+      if (delta <= 0.0) continue;
+      const double fn = normal_force(m.wall, mi, delta, s * vel[a]);
+      f[a] -= s * fn;
+      if (delta > m.max_overlap * ri) flag(delta / ri);
+      if constexpr (Friction) {
+        double nvec[3] = {0, 0, 0};
+        nvec[a] = s;
+        // Slip of the contact point: v_i + w_i x (r_i n) (the wall is at rest).
+        const double w[3] = {p.wx[i], p.wy[i], p.wz[i]};
+        const double rv[3] = {vel[0] + ri * (w[1] * nvec[2] - w[2] * nvec[1]),
+                              vel[1] + ri * (w[2] * nvec[0] - w[0] * nvec[2]),
+                              vel[2] + ri * (w[0] * nvec[1] - w[1] * nvec[0])};
+        const double rvn = rv[a] * s;
+        const double vt[3] = {rv[0] - rvn * nvec[0], rv[1] - rvn * nvec[1], rv[2] - rvn * nvec[2]};
+        // Walls keep no tangential history: a dashpot capped by the Coulomb limit (MFIX-Exa's
+        // convention of sliding friction, physics.md §2).
+        double xi3[3] = {0, 0, 0}, ft[3];
+        tangential_force(m.wall_t, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
+        for (int b = 0; b < 3; ++b) f[b] += ft[b];
+        tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
+        tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
+        tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
+      }
+    }
+  }
+}
+
+// Velocity Verlet update of particles [0, n) of the given arrays: v += (F/m) dt + g dt,
+// x += v dt. Adds 1 to `moved` if some particle is now farther than skin/2 from its build
+// position, and to `fails` if some particle moves more than r_min per step (or is NaN).
+// The two checks are AND-reductions of sign bits (+-1.0 per particle): integer reductions that
+// vectorize with no floating-point reassociation and no in-order dependency chain (a max, a
+// floating-point count, or int64 counts of double compares all vectorize badly or not at all
+// on baseline x86-64).
+// With External, a per-particle external force (the gas's, held over the sub-cycle) is added.
+template <bool External>
+void integrate_range(double* __restrict x, double* __restrict y, double* __restrict z,
+                            double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                            const double* __restrict fx, const double* __restrict fy,
+                            const double* __restrict fz, const double* __restrict ex,
+                            const double* __restrict ey, const double* __restrict ez,
+                            const double* __restrict im,
+                            const double* __restrict rx, const double* __restrict ry,
+                            const double* __restrict rz, std::size_t n, double h, double gx,
+                            double gy, double gz, double skin2, double lim2, double& moved,
+                            double& fails) {
+  std::uint64_t still = ~std::uint64_t{0}, slow = ~std::uint64_t{0}; // sign bit: all fine
+  for (std::size_t i = 0; i < n; ++i) {
+    const double s = im[i] * h;
+    double ux, uy, uz;
+    if constexpr (External) {
+      ux = vx[i] + (fx[i] + ex[i]) * s + gx;
+      uy = vy[i] + (fy[i] + ey[i]) * s + gy;
+      uz = vz[i] + (fz[i] + ez[i]) * s + gz;
+    } else {
+      ux = vx[i] + fx[i] * s + gx;
+      uy = vy[i] + fy[i] * s + gy;
+      uz = vz[i] + fz[i] * s + gz;
+    }
+    vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    const double px = x[i] + ux * h, py = y[i] + uy * h, pz = z[i] + uz * h;
+    x[i] = px, y[i] = py, z[i] = pz;
+    const double dx = px - rx[i], dy = py - ry[i], dz = pz - rz[i];
+    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > skin2 ? 1.0 : -1.0);
+    slow &= std::bit_cast<std::uint64_t>(ux * ux + uy * uy + uz * uz <= lim2 ? -1.0 : 1.0);
+  }
+  moved += (still >> 63) ? 0.0 : 1.0;
+  fails += (slow >> 63) ? 0.0 : 1.0; // a NaN compares false: it fails too
+}
+
+// Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves
+// more than r_min per step: vmax2 = (r_min/dt)^2) or outside a wall, into `out`.
+inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g,
+                       double vmax2, StepReport& out) {
+  for (std::size_t i = 0; i < n; ++i) {
+    const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+    const double q[3] = {p.x[i], p.y[i], p.z[i]};
+    const auto ii = static_cast<std::uint32_t>(i);
+    if (!std::isfinite(u2) || !std::isfinite(q[0] + q[1] + q[2])) {
+      out.flag(ii, StepFault::nan, u2);
+    } else if (!(u2 <= vmax2)) {
+      out.flag(ii, StepFault::speed, std::sqrt(u2));
+    } else {
+      for (int a = 0; a < 3; ++a)
+        if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]))
+          out.flag(ii, StepFault::left_domain, q[a]);
+    }
+    if (out.bad != kNoParticle) break;
+  }
+}
+
+// v(n+1/2) = v(n-1/2) + (F/m + g) dt, x(n+1) = x(n) + v(n+1/2) dt over particles [0, n) (the
+// store may hold more: ghost copies, which their owners update). Without
+// walls the loop has no branch and vectorizes; the checks are folded into reductions and the
+// offending particle is searched for only when one fails.
+template <bool Walls, bool Friction, bool External>
+void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const ExternalForce& ext,
+                 const DomainGeometry& geom, const StepModel& model, double dt, StepReport& out) {
+  const DomainGeometry g = geom;
+  const StepModel m = model;
+  const double gx = m.gravity[0] * dt, gy = m.gravity[1] * dt, gz = m.gravity[2] * dt;
+  const double vmax2 = dt > 0 ? (m.r_min / dt) * (m.r_min / dt) : INFINITY;
+  const double half_skin2 = 0.25 * m.skin * m.skin;
+  const double* __restrict xr = list.x_ref().data();
+  const double* __restrict yr = list.y_ref().data();
+  const double* __restrict zr = list.z_ref().data();
+
+  struct Partial {
+    std::int64_t moved = 0; // particles now farther than skin/2 from their build position
+    std::int64_t failures = 0;
+    StepReport walls;
+  };
+  auto body = [&](const tbb::blocked_range<std::size_t>& r, Partial acc) {
+    double* __restrict x = p.x.data();
+    double* __restrict y = p.y.data();
+    double* __restrict z = p.z.data();
+    double* __restrict vx = p.vx.data();
+    double* __restrict vy = p.vy.data();
+    double* __restrict vz = p.vz.data();
+    double* __restrict fx = p.fx.data();
+    double* __restrict fy = p.fy.data();
+    double* __restrict fz = p.fz.data();
+    const double* __restrict im = p.inv_mass.data();
+    [[maybe_unused]] const double* __restrict fex = ext.x.data();
+    [[maybe_unused]] const double* __restrict fey = ext.y.data();
+    [[maybe_unused]] const double* __restrict fez = ext.z.data();
+    if constexpr (Walls) {
+      // A particle without a neighbor row keeps last step's total (contact + wall) in f: start
+      // it from zero. Rows are fixed between builds, so this is exact.
+      const std::uint32_t* __restrict off = list.offsets().data();
+      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+        const bool row = off[i + 1] > off[i];
+        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
+        double tq[3] = {0, 0, 0};
+        if constexpr (Friction)
+          if (row) tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
+        add_wall_forces<Friction>(g, m, p, i, f, tq, [&](double v) {
+          acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
+        });
+        fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+        if constexpr (Friction) p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
+      }
+    }
+    const std::size_t b = r.begin(), e = r.end();
+    double moved = 0.0, fails = 0.0;
+    integrate_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
+                              External ? fex + b : nullptr, External ? fey + b : nullptr,
+                              External ? fez + b : nullptr, im + b, xr + b, yr + b, zr + b, e - b,
+                              dt, gx, gy, gz, half_skin2, vmax2, moved, fails);
+    if constexpr (Friction) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+        const double s = p.inv_inertia[i] * dt;
+        p.wx[i] += p.tx[i] * s, p.wy[i] += p.ty[i] * s, p.wz[i] += p.tz[i] * s;
+      }
+    }
+    if constexpr (Walls) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+        const double q[3] = {x[i], y[i], z[i]};
+        for (int a = 0; a < 3; ++a)
+          fails += !g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]);
+      }
+    }
+    acc.moved += static_cast<std::int64_t>(moved);
+    acc.failures += static_cast<std::int64_t>(fails);
+    return acc;
+  };
+  const tbb::blocked_range<std::size_t> all(0, n, 4096);
+  Partial total;
+  auto join = [](Partial a, const Partial& b) {
+    a.moved += b.moved;
+    a.failures += b.failures;
+    a.walls.join(b.walls);
+    return a;
+  };
+  if (n <= 8192) {
+    total = body(all, Partial{});
+  } else {
+    total = tbb::parallel_reduce(all, Partial{}, body, join, tbb::static_partitioner{});
+  }
+  out.moved = total.moved;
+  out.join(total.walls);
+  if (total.failures > 0) {
+    find_fault(p, n, g, vmax2, out); // rare path: name the first, deterministically
+  }
+}
+
+// "particle <id> at (...): <why>" for a report with a fault (ids of the store: a partner may be
+// a ghost copy).
+std::string describe_fault(const ParticleStore& p, const StepReport& r, const StepModel& m);
+
+} // namespace cfddem::dem

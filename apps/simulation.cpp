@@ -695,8 +695,9 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   const long long snap_every = every(scene.output.snapshot_interval, scheme.dt());
   std::optional<SnapshotIndex> snapshots;
   if (root) snapshots.emplace(opt.out_dir);
-  // A snapshot of the owned particles of every rank: gathered to rank 0, in id order, with the
-  // ORB box of each particle as its `leaf` (the decomposition, seen in ParaView).
+  // A snapshot of the owned particles of every rank, written collectively into one file with
+  // parallel HDF5 (the ranks' particles in rank order), with the ORB box of each particle as its
+  // `leaf` (the decomposition, seen in ParaView).
   auto snapshot = [&](long long k, std::span<const double> x, std::span<const double> y,
                       std::span<const double> z, std::span<const double> vx,
                       std::span<const double> vy, std::span<const double> vz) {
@@ -710,38 +711,23 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
       w[0][i] = g.wrap(x[i], 0), w[1][i] = g.wrap(y[i], 1), w[2][i] = g.wrap(z[i], 2);
       box[i] = scheme.decomposition().tree.locate(w[0][i], w[1][i], w[2][i]);
     }
-    const std::span<const double> own[9] = {w[0], w[1], w[2], vx, vy, vz,
-                                            {particles.radius.data(), n},
-                                            {particles.mass.data(), n}, {}};
-    std::vector<double> all[8];
-    for (int q = 0; q < 8; ++q) all[q] = comm.gather(own[q]);
-    const std::vector<std::int64_t> ids = comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
-    const std::vector<std::int64_t> boxes = comm.gather(std::span<const std::int64_t>(box));
+    SnapshotFields f;
+    f.time = static_cast<double>(k) * scheme.dt();
+    f.step = k;
+    f.x = w[0], f.y = w[1], f.z = w[2], f.vx = vx, f.vy = vy, f.vz = vz;
+    f.radius = {particles.radius.data(), n}, f.mass = {particles.mass.data(), n};
+    f.id = {particles.id.data(), n}, f.leaf = box;
+    f.dt = scheme.dt();
+    const SnapshotEntry e = write_particle_snapshot(opt.out_dir, f, comm); // collective
     std::string error;
     if (root) {
-      std::vector<std::size_t> order(ids.size());
-      std::iota(order.begin(), order.end(), std::size_t{0});
-      std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
-      auto sorted = [&](const auto& v) {
-        std::remove_cvref_t<decltype(v)> out(v.size());
-        for (std::size_t i = 0; i < order.size(); ++i) out[i] = v[order[i]];
-        return out;
-      };
-      for (auto& v : all) v = sorted(v);
-      const auto sid = sorted(ids), sbox = sorted(boxes);
-      SnapshotFields f;
-      f.time = static_cast<double>(k) * scheme.dt();
-      f.step = k;
-      f.x = all[0], f.y = all[1], f.z = all[2], f.vx = all[3], f.vy = all[4], f.vz = all[5];
-      f.radius = all[6], f.mass = all[7], f.id = sid, f.leaf = sbox;
-      f.dt = scheme.dt();
       try {
-        snapshots->add(write_particle_snapshot(opt.out_dir, f));
-      } catch (const std::exception& e) {
-        error = e.what();
+        snapshots->add(e);
+      } catch (const std::exception& ex) {
+        error = ex.what();
       }
     }
-    if (const std::string e = comm.agree_on_error(0, error); !e.empty()) throw RunError(e);
+    if (const std::string m = comm.agree_on_error(0, error); !m.empty()) throw RunError(m);
   };
   const auto t_loop = clock::now();
   MeanTracker means;

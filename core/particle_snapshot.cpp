@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "core/atomic_file.hpp"
+#include "core/communicator_mpi.hpp"
 #include "core/error.hpp"
 #include "core/hdf5_file.hpp"
 
@@ -245,6 +246,12 @@ void SnapshotIndex::restore(const std::vector<SnapshotEntry>& entries) {
   entries_.clear();
   for (const auto& e : entries)
     if (std::filesystem::exists(std::filesystem::path(dir_) / e.file)) entries_.push_back(e);
+}
+
+SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f,
+                                      const Communicator& comm) {
+  if (comm.size() == 1) return write_particle_snapshot(dir, f);
+  return write_particle_snapshot(dir, f, mpi_comm(comm));
 }
 
 } // namespace cfddem

@@ -9,6 +9,8 @@
 
 #include <mpi.h>
 
+#include "core/communicator.hpp"
+
 #include <array>
 #include <cstdint>
 #include <span>
@@ -59,6 +61,9 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
 // Cell data must come from a single rank for now (f.cells with more than one rank throws).
 SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f,
                                       MPI_Comm comm);
+// The same over a Communicator (core/communicator.hpp); one rank: the serial writer.
+SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f,
+                                      const Communicator& comm);
 
 // The XDMF text for a list of snapshots (exposed for tests).
 std::string xdmf_index(const std::vector<SnapshotEntry>& entries);

@@ -281,12 +281,6 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
                                     "run it on one rank, or use dem.scheme = \"explicit\"",
                                     scene.dem.scheme));
-    if (scene.output.checkpoint_interval > 0)
-      throw ConfigError("scene key 'output.checkpoint_interval'",
-                        "checkpoints are not yet written by more than one rank: set it to 0 or "
-                        "run on one rank");
-    if (!opt.restart.empty())
-      throw ConfigError("--restart", "restarting on more than one rank is not supported yet");
     return run_distributed(scene, opt, env);
   }
   if (scene.fluid.enabled) {
@@ -656,7 +650,11 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
-  ParticleStore particles = make_initial_particles(scene);
+  // A restart: every rank reads the checkpoint (the same error on every rank if it is bad) and
+  // keeps its share of the particles, as at the start.
+  std::optional<Checkpoint> ck;
+  if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
+  ParticleStore particles = ck ? std::move(ck->particles) : make_initial_particles(scene);
   const DerivedNumbers derived = derive(scene, particles);
   const dem::StepModel model = dem::make_step_model(scene, particles);
   const std::size_t n_total = particles.size();
@@ -670,6 +668,14 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   PhaseTimer timer;
   dem::DistributedExplicitScheme scheme(scene, particles, model, comm, timer);
   const long long n_end = derived.steps;
+  if (ck && ck->dt != scheme.dt())
+    throw ConfigError(opt.restart, fmt::format("checkpoint dt {:.17g} s differs from the "
+                                               "scene's {:.17g} s", ck->dt, scheme.dt()));
+  const long long k0 = ck ? ck->step : 0;
+  if (ck && k0 > std::max(n_end, 0LL))
+    throw ConfigError("run.end_time", fmt::format("the checkpoint is at step {}, past the end of "
+                                                  "the run (step {})",
+                                                  k0, n_end));
 
   std::optional<DiagnosticsFile> diag;
   std::string setup_error;
@@ -683,9 +689,12 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   }
   if (const std::string e = comm.agree_on_error(0, setup_error); !e.empty())
     throw ConfigError(opt.out_dir, e);
-  auto add_row = [&](const std::vector<double>& r) {
+  std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
+  auto add_row = [&](std::vector<double> r) {
     if (diag) diag->add_row(r);
+    rows.push_back(std::move(r));
   };
+  const long long ckpt_every = every(scene.output.checkpoint_interval, scheme.dt());
   if (!opt.quiet)
     fmt::print(stderr, "cfddem: scene '{}', {} particles, dt = {:.4e} s, {} steps, {} rank(s) x {} "
                        "thread(s), {} boxes\n",
@@ -731,6 +740,14 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   };
   const auto t_loop = clock::now();
   MeanTracker means;
+  long long k_last_row = 0;
+  if (ck) {
+    for (auto& r : ck->rows) add_row(std::move(r));
+    if (root) snapshots->restore(ck->snapshots);
+    if (!rows.empty()) means.resume(rows.back());
+    k_last_row = ck->last_row_step;
+    scheme.restore({k0, ck->state.particle_steps, ck->state.pair_evaluations, ck->state.builds});
+  } else {
   scheme.start();
   {
     // Row at t = 0 from the initial velocities (before the half-step shift).
@@ -751,9 +768,63 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
                 means.next(0.0, s0.mean_velocity)));
     if (snap_every > 0) snapshot(0, x, y, z, v0x, v0y, v0z);
   }
-  long long k_last_row = 0;
+  }
+  // A checkpoint at step k: the scheme is put in its canonical state (restore() rebuilds the
+  // same), the particles are gathered to rank 0 in id order and written there atomically.
+  auto checkpoint = [&](long long k) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    scheme.canonicalize();
+    const std::size_t n = scheme.owned();
+    const std::span<const double> own[] = {
+        {particles.x.data(), n},  {particles.y.data(), n},      {particles.z.data(), n},
+        {particles.vx.data(), n}, {particles.vy.data(), n},     {particles.vz.data(), n},
+        {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n}};
+    std::vector<double> all[9];
+    for (int q = 0; q < 9; ++q) all[q] = comm.gather(own[q]);
+    const std::vector<std::int64_t> ids =
+        comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+    std::string error;
+    if (root) {
+      try {
+        if (diag) diag->flush();
+        std::vector<std::size_t> order(ids.size());
+        std::iota(order.begin(), order.end(), std::size_t{0});
+        std::sort(order.begin(), order.end(),
+                  [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+        Checkpoint c;
+        c.scheme = "explicit";
+        c.dt = scheme.dt();
+        c.step = k;
+        c.last_row_step = k_last_row;
+        c.columns = kColumns;
+        c.rows = rows;
+        c.snapshots = snapshots->entries();
+        c.configuration = restart_configuration(scene);
+        c.particles.resize(ids.size());
+        std::vector<double>* field[9] = {&c.particles.x,  &c.particles.y,      &c.particles.z,
+                                         &c.particles.vx, &c.particles.vy,     &c.particles.vz,
+                                         &c.particles.radius, &c.particles.mass,
+                                         &c.particles.inv_mass};
+        for (std::size_t i = 0; i < order.size(); ++i) {
+          for (int q = 0; q < 9; ++q) (*field[q])[i] = all[q][order[i]];
+          c.particles.id[i] = ids[order[i]];
+        }
+        // The list is rebuilt at a restart (canonical state): only the counters are kept.
+        const auto cnt = scheme.counters();
+        c.state.steps = cnt.steps, c.state.particle_steps = cnt.particle_steps;
+        c.state.pair_evaluations = cnt.pair_evaluations, c.state.builds = cnt.builds;
+        c.state.need_rebuild = true;
+        c.state.skin = scheme.model().skin;
+        write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(), c);
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+    }
+    if (const std::string m = comm.agree_on_error(0, error); !m.empty()) throw RunError(m);
+  };
   auto last_progress = clock::now();
-  for (long long k = 0; k <= n_end && n_end > 0; ++k) {
+  for (long long k = k0; k <= n_end && n_end > 0; ++k) {
+    if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) checkpoint(k);
     const bool record = k > 0 && (k % out_every == 0 || k == n_end);
     const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
     scheme.step(record || snap);

@@ -53,6 +53,17 @@ DistributedExplicitScheme::DistributedExplicitScheme(const Scene& scene, Particl
   owned_ = p_.size();
 }
 
+void DistributedExplicitScheme::canonicalize() {
+  last_regrid_ = -1; // regrid now
+  rebuild();
+}
+
+void DistributedExplicitScheme::restore(const Counters& c) {
+  steps_ = c.steps;
+  canonicalize();
+  particle_steps_ = c.particle_steps, pair_evaluations_ = c.pair_evaluations, builds_ = c.builds;
+}
+
 void DistributedExplicitScheme::ghost_copies(std::vector<ParticleExchange::Copy>& out) const {
   out.clear();
   const partition::OrbTree& tree = decomposition_.tree;
@@ -161,8 +172,11 @@ void DistributedExplicitScheme::rebuild() {
     }
     std::vector<std::uint32_t> order(owned_);
     std::iota(order.begin(), order.end(), 0U);
-    std::stable_sort(order.begin(), order.end(),
-                     [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b]; });
+    // Ties by id: the order (hence every force sum) does not depend on the order in which the
+    // particles arrived, so a restart rebuilds it exactly.
+    std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+      return key[a] != key[b] ? key[a] < key[b] : p_.id[a] < p_.id[b];
+    });
     p_.permute(order);
   }
   std::vector<ParticleExchange::Copy> copies;

@@ -76,6 +76,18 @@ public:
     return {sx_, sy_, sz_, svx_, svy_, svz_};
   }
 
+  // Checkpoint/restart on R ranks. canonicalize() (collective) regrids now and rebuilds ghosts and
+  // lists with the owned particles in (cell, id) order: a state that depends only on the
+  // particles, not on how they came to be where they are. A checkpoint is written right after
+  // it; a restart hands every rank a share of the checkpoint's particles (any split, as at the
+  // start), calls restore() instead of start(), and continues bit for bit.
+  struct Counters {
+    std::int64_t steps = 0, particle_steps = 0, pair_evaluations = 0, builds = 0;
+  };
+  void canonicalize();
+  Counters counters() const { return {steps_, particle_steps_, pair_evaluations_, builds_}; }
+  void restore(const Counters& c);
+
   struct Regrid {
     std::int64_t step = 0;
     double imbalance = 1.0; // max / mean particles per rank

@@ -12,6 +12,7 @@
 #include "core/error.hpp"
 #include "dem/contact_kernels.hpp"
 #include "dem/kick_drift_range.hpp"
+#include "dem/scheme_support.hpp"
 
 namespace cfddem::dem {
 
@@ -36,10 +37,7 @@ double external_acceleration(const ParticleStore& p, const ExternalForce& e,
 IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain),
       model_(make_step_model(scene, particles)) {
-  if (model_.friction)
-    throw ConfigError("scene key 'dem.scheme'",
-                      "\"islands\" supports frictionless contacts only (dem.friction and "
-                      "dem.wall_friction must be 0); use \"explicit\"");
+  require_frictionless(model_, "islands");
   nsubit_ = scene.dem.nsubit;
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   // The list only finds links and island members (cheap per entry) while its builds are the
@@ -52,9 +50,7 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
   for (double r : p_.radius) r_max = std::max(r_max, r);
   // A link margin far above rounding and far below any gap that matters.
   margin_ = 1e-3 * model_.r_min;
-  skin_cap_ = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a)
-    if (geom_.periodic[a]) skin_cap_ = std::min(skin_cap_, 0.499 * geom_.length[a] - 2.0 * r_max);
+  skin_cap_ = periodic_skin_cap(geom_, r_max);
   hprev_.assign(p_.size(), 0.0);
   size_hist_.assign(34, 0);
 }
@@ -91,8 +87,6 @@ void IslandsScheme::rebuild() {
   ++builds_;
 }
 
-// Sign bit set unless `ok`: OR-ed over a loop, a flag reduction GCC vectorizes.
-inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
 
 void IslandsScheme::speed_bounds() {
   const std::size_t n = p_.size();

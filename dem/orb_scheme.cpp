@@ -17,33 +17,16 @@
 #include "core/error.hpp"
 #include "dem/contact_kernels.hpp"
 #include "dem/kick_drift_range.hpp"
+#include "dem/scheme_support.hpp"
 
 namespace cfddem::dem {
 
 namespace {
 enum class Fault { none = 0, nan, left_domain };
 
-// The distinct cell indices along one axis around cell b (periodic images collapse when n < 3).
-int stencil_axis(int b, int n, bool periodic, int out[3]) {
-  int m = 0;
-  for (int o = -1; o <= 1; ++o) {
-    int c = b + o;
-    if (c < 0 || c >= n) {
-      if (!periodic) continue;
-      c = (c + n) % n;
-    }
-    bool seen = false;
-    for (int q = 0; q < m; ++q) seen = seen || out[q] == c;
-    if (!seen) out[m++] = c;
-  }
-  return m;
-}
 
 // Sort a short segment of partner indices by particle id (the canonical summation order: it
 // survives every re-sort of the store, so a row's sum does not depend on the store's order).
-// Sign bit set unless `ok`: OR-ing these over a loop is a flag reduction that GCC vectorizes (a
-// bool OR is not), the idiom of integrate_range in explicit_scheme.cpp.
-inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
 
 void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
   for (std::uint32_t* i = first + (first != last); i < last; ++i) {
@@ -77,10 +60,7 @@ OrbScheme::~OrbScheme() = default;
 OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain),
       model_(make_step_model(scene, particles)) {
-  if (model_.friction)
-    throw ConfigError("scene key 'dem.scheme'",
-                      "\"orb\" supports frictionless contacts only (dem.friction and "
-                      "dem.wall_friction must be 0); use \"explicit\"");
+  require_frictionless(model_, "orb");
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
   for (std::size_t i = 0; i < p_.size(); ++i) r_max_ = std::max(r_max_, p_.radius[i]);
   if (p_.size() == 0) r_max_ = model_.r_min;
@@ -91,15 +71,12 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
   time_to_contact_ = scene.dem.local_dt == "time_to_contact";
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
-  skin_cap_ = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a)
-    if (geom_.periodic[a]) {
-      if (geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
-        throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
-                                   "neighbor cutoff {:.4g} m",
-                                   a, geom_.length[a], 2.0 * r_max_ + model_.skin));
-      skin_cap_ = std::min(skin_cap_, 0.499 * geom_.length[a] - 2.0 * r_max_);
-    }
+    if (geom_.periodic[a] && geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
+      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                                 "neighbor cutoff {:.4g} m",
+                                 a, geom_.length[a], 2.0 * r_max_ + model_.skin));
+  skin_cap_ = periodic_skin_cap(geom_, r_max_);
   hprev_.assign(p_.size(), 0.0);
   cost_.assign(p_.size(), 0.0);
 }

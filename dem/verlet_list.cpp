@@ -30,21 +30,6 @@ CellGrid make_grid(const DomainGeometry& g, double cutoff, std::size_t particles
   return c;
 }
 
-// The distinct cell indices along one axis around cell b (periodic images collapse when n < 3).
-int stencil_axis(int b, int n, bool periodic, int out[3]) {
-  int m = 0;
-  for (int o = -1; o <= 1; ++o) {
-    int c = b + o;
-    if (c < 0 || c >= n) {
-      if (!periodic) continue;
-      c = (c + n) % n;
-    }
-    bool seen = false;
-    for (int q = 0; q < m; ++q) seen = seen || out[q] == c;
-    if (!seen) out[m++] = c;
-  }
-  return m;
-}
 
 // Put a row in its canonical order: pairs that do not cross a periodic face first, then those
 // that do, each part by increasing index (so the force sum order does not depend on how cells

@@ -23,6 +23,23 @@ struct CellGrid {
 };
 } // namespace detail
 
+// The distinct cell indices along one axis around cell b (periodic images collapse when n < 3):
+// the stencil of a cell list (this list's build and the orb scheme's pair build).
+inline int stencil_axis(int b, int n, bool periodic, int out[3]) {
+  int m = 0;
+  for (int o = -1; o <= 1; ++o) {
+    int c = b + o;
+    if (c < 0 || c >= n) {
+      if (!periodic) continue;
+      c = (c + n) % n;
+    }
+    bool seen = false;
+    for (int q = 0; q < m; ++q) seen = seen || out[q] == c;
+    if (!seen) out[m++] = c;
+  }
+  return m;
+}
+
 class VerletList {
 public:
   // Wrap positions into the periodic box, sort particles by cell (locality: neighbors are near

@@ -1,0 +1,38 @@
+// Small pieces the particle schemes share: the sign-bit flag reduction of their check passes and
+// the limits of the sub-iterated schemes (orb, islands).
+#pragma once
+
+#include <algorithm>
+#include <bit>
+#include <cstdint>
+#include <limits>
+#include <string>
+
+#include "core/error.hpp"
+#include "dem/domain_geometry.hpp"
+#include "dem/explicit_scheme.hpp"
+
+namespace cfddem::dem {
+
+// Sign bit set unless `ok`: OR-ed over a loop it is a flag reduction GCC vectorizes (a bool OR
+// is not), the idiom of integrate_range in explicit_scheme.cpp.
+inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
+
+// The sub-iterated schemes have no tangential history: refuse friction, naming the scheme.
+inline void require_frictionless(const StepModel& m, const std::string& scheme) {
+  if (m.friction)
+    throw ConfigError("scene key 'dem.scheme'",
+                      "\"" + scheme + "\" supports frictionless contacts only (dem.friction and "
+                      "dem.wall_friction must be 0); use \"explicit\"");
+}
+
+// The largest skin a list may grow to while its cutoff 2 r_max + skin stays below half of every
+// periodic length (minimum image); infinite without a periodic axis.
+inline double periodic_skin_cap(const DomainGeometry& g, double r_max) {
+  double cap = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a)
+    if (g.periodic[a]) cap = std::min(cap, 0.499 * g.length[a] - 2.0 * r_max);
+  return cap;
+}
+
+} // namespace cfddem::dem

@@ -295,7 +295,6 @@ void IslandsScheme::subiterate(bool record) {
     raise_faults(time());
     const auto nn = static_cast<std::int64_t>(n);
     particle_steps_ += nn * K_;
-    last_fine_islands_ = 1;
     last_fine_fraction_ = 1.0;
     iv_fine_ += nn, iv_particles_ += nn, iv_steps_ += nn * K_;
     iv_min_ = std::min(iv_min_, K_), iv_max_ = std::max(iv_max_, K_);
@@ -303,11 +302,8 @@ void IslandsScheme::subiterate(bool record) {
   }
   // Every island of busy particles (a link or a wall) takes the fine steps; the rest fly free.
   const std::uint32_t nc = islands_.count();
-  fine_.resize(nc);
-  for (std::uint32_t c = 0; c < nc; ++c) {
-    fine_[c] = c;
+  for (std::uint32_t c = 0; c < nc; ++c)
     ++size_hist_[static_cast<std::size_t>(std::bit_width(islands_.size(c) - 1))];
-  }
   size_hist_[0] += static_cast<std::int64_t>(n - busy_v_.size());
   // Island members in particle order (islands_.members holds local indices).
   members_.resize(busy_v_.size());
@@ -327,23 +323,23 @@ void IslandsScheme::subiterate(bool record) {
   x0_ = p_.x, y0_ = p_.y, z0_ = p_.z;
   // Free flight first, then the islands' tasks (they touch disjoint particles).
   ext_.active() ? free_flight<true>(record) : free_flight<false>(record);
-  results_.assign(fine_.size(), IslandResult{});
+  results_.assign(nc, IslandResult{});
   auto islands_range = [&](std::size_t b, std::size_t e) {
     for (std::size_t q = b; q != e; ++q)
       ext_.active() ? run_island<true>(static_cast<std::uint32_t>(q), record)
                     : run_island<false>(static_cast<std::uint32_t>(q), record);
   };
   if (busy_v_.size() < 256) {
-    islands_range(0, fine_.size()); // few fine particles: no task overhead
+    islands_range(0, nc); // few fine particles: no task overhead
   } else {
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine_.size(), 1),
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nc, 1),
                       [&](const tbb::blocked_range<std::size_t>& r) { islands_range(r.begin(), r.end()); });
   }
   // Counters, in island order.
   std::int64_t members = 0;
-  for (std::size_t q = 0; q < fine_.size(); ++q) {
+  for (std::uint32_t q = 0; q < nc; ++q) {
     const IslandResult& r = results_[q];
-    members += islands_.size(fine_[q]);
+    members += islands_.size(q);
     pair_evaluations_ += r.pairs;
     overlap_violations_ += r.violations;
     bound_violations_ += r.bound_violations;
@@ -370,7 +366,6 @@ void IslandsScheme::subiterate(bool record) {
   }
   const std::int64_t free_count = static_cast<std::int64_t>(n) - members;
   particle_steps_ += free_count + members * K_;
-  last_fine_islands_ = static_cast<int>(fine_.size());
   last_fine_fraction_ = n > 0 ? static_cast<double>(members) / static_cast<double>(n) : 0.0;
   iv_fine_ += members;
   iv_particles_ += static_cast<std::int64_t>(n);
@@ -608,10 +603,9 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
   }
 }
 
-// The K fine steps of fine island fine_[q]: contact forces from members only (no other particle
+// The K fine steps of island c (every island has a link or a wall): contact forces from members only (no other particle
 // can reach them within dt_sp), walls, and the variable-step leapfrog.
-template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool record) {
-  const std::uint32_t c = fine_[q];
+template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool record) {
   IslandResult res;
   const std::uint32_t* mem = members_.data() + islands_.first[c];
   const std::uint32_t count = islands_.size(c);
@@ -641,21 +635,26 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
     bound_violations += dx * dx + dy * dy + dz * dz > reach * reach;
   };
   const bool giant = count > kGiantIsland;
+  // A giant island's passes run as nested parallel loops over blocks of members; each block's
+  // partial counts go here (one allocation per sub-iteration, not per step).
+  struct Part { std::int64_t pairs = 0, violations = 0, bound_violations = 0; double max_ratio = 0.0; };
+  std::vector<Part> parts(giant ? (count + 1023) / 1024 : 0);
+  auto block_end = [&](std::size_t b) {
+    return std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
+  };
   double h_before = 0.0, elapsed = 0.0;
   for (std::int64_t k = 0; k < K_; ++k) {
     const double hk = k + 1 == K_ ? h_last_ : h_;
     if (!giant) {
       res.pairs += particle_forces<true, true>(mem, 0, count, c, res.max_ratio, res.violations);
     } else {
-      // A dense bed's one island: its passes as nested parallel loops (each member's force and
-      // update depend only on the state before the pass: thread-count independent).
-      struct Part { std::int64_t pairs = 0, violations = 0; double max_ratio = 0.0; };
-      std::vector<Part> parts((count + 1023) / 1024);
+      // Each member's force and update depend only on the state before the pass:
+      // thread-count independent.
       tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
         Part& pt = parts[b];
-        const std::uint32_t e = std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
-        pt.pairs += particle_forces<true, true>(mem, static_cast<std::uint32_t>(b * 1024), e, c,
-                                                pt.max_ratio, pt.violations);
+        pt = Part{};
+        pt.pairs = particle_forces<true, true>(mem, static_cast<std::uint32_t>(b * 1024),
+                                               block_end(b), c, pt.max_ratio, pt.violations);
       });
       for (const Part& pt : parts)
         res.pairs += pt.pairs, res.violations += pt.violations, res.max_ratio = std::max(res.max_ratio, pt.max_ratio);
@@ -677,19 +676,19 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t q, bool re
         kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, res.bound_violations);
       }
     } else {
-      std::vector<std::int64_t> bv((count + 1023) / 1024, 0);
-      tbb::parallel_for(std::size_t{0}, bv.size(), [&](std::size_t b) {
-        const std::uint32_t e = std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
-        for (std::uint32_t u = static_cast<std::uint32_t>(b * 1024); u < e; ++u) {
+      tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
+        std::int64_t& bv = parts[b].bound_violations;
+        bv = 0;
+        for (std::uint32_t u = static_cast<std::uint32_t>(b * 1024); u < block_end(b); ++u) {
           const std::uint32_t i = mem[u];
-          kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, bv[b]);
+          kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, bv);
         }
       });
-      for (std::int64_t v : bv) res.bound_violations += v;
+      for (const Part& pt : parts) res.bound_violations += pt.bound_violations;
     }
     h_before = hk;
   }
-  results_[q] = res;
+  results_[c] = res;
 }
 
 // NaN anywhere, or a particle outside a wall: stop with the particle named.

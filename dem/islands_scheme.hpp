@@ -81,8 +81,7 @@ public:
   // Sub-iterations taken with every particle on the fine step (a dense bed: see kGlobalFraction).
   std::int64_t global_subiterations() const { return global_subits_; }
   const StepModel& model() const { return model_; }
-  // Islands that took fine steps in the last sub-iteration, and the fraction of particles in them.
-  int fine_islands() const { return last_fine_islands_; }
+  // The fraction of particles in an island (on the fine step) in the last sub-iteration.
   double last_fine_fraction() const { return last_fine_fraction_; }
   // Island sizes over the run: bin b counts islands (fine or not) with 2^(b-1) < size <= 2^b
   // members (bin 0: single particles), one count per island per sub-iteration.
@@ -152,16 +151,12 @@ private:
   std::uint64_t fault_flag_ = 0;    // sign bit: some particle may be NaN or outside a wall
   partition::Islands islands_;
   std::vector<std::uint32_t> uf_scratch_;
-  std::vector<std::uint32_t> fine_;           // islands that take fine steps
   std::int64_t K_ = 1;
   double h_ = 0.0, h_last_ = 0.0;
-  // Per fine island, results of its task (reduced in island order).
+  // Per island, results of its task (reduced in island order; faults are flagged apart).
   struct IslandResult {
     std::int64_t pairs = 0, violations = 0, bound_violations = 0;
     double max_ratio = 0.0;
-    std::uint32_t fault_index = 0;
-    int fault = 0; // 0 none, 1 NaN, 2 left the domain
-    double fault_value = 0.0;
   };
   std::vector<IslandResult> results_;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
@@ -170,7 +165,6 @@ private:
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
                overlap_violations_ = 0, bound_violations_ = 0;
   double max_overlap_ratio_ = 0.0, last_fine_fraction_ = 0.0;
-  int last_fine_islands_ = 0;
   // Interval statistics.
   std::int64_t iv_fine_ = 0, iv_particles_ = 0, iv_steps_ = 0;
   std::int64_t iv_min_ = std::numeric_limits<std::int64_t>::max(), iv_max_ = 0;

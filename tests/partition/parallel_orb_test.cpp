@@ -93,17 +93,3 @@ TEST(ParallelOrb, SameCutsAsSerialSnappedToCells) {
 TEST(ParallelOrb, SameCutsAsSerialWithIntegerWeights) {
   expect_same_tree(3000, 6, false, true, {4, {}});
 }
-
-int main(int argc, char** argv) {
-  MPI_Init(&argc, &argv);
-  ::testing::InitGoogleTest(&argc, argv);
-  // Only rank 0 prints; every rank runs every test (the calls are collective).
-  if (rank() != 0) {
-    auto& listeners = ::testing::UnitTest::GetInstance()->listeners();
-    delete listeners.Release(listeners.default_result_printer());
-  }
-  int failed = RUN_ALL_TESTS();
-  MPI_Allreduce(MPI_IN_PLACE, &failed, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
-  MPI_Finalize();
-  return failed;
-}

@@ -218,6 +218,24 @@ Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
   return ck;
 }
 
+// A checkpoint's fields every loop fills alike: scheme, step length, step, the last row's step,
+// the diagnostics so far, the snapshot index and the configuration to check at a restart.
+Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, double dt,
+                             std::int64_t step, std::int64_t last_row_step,
+                             const std::vector<std::vector<double>>& rows,
+                             const std::vector<SnapshotEntry>& snapshots) {
+  Checkpoint c;
+  c.scheme = scheme;
+  c.dt = dt;
+  c.step = step;
+  c.last_row_step = last_row_step;
+  c.columns = kColumns;
+  c.rows = rows;
+  c.snapshots = snapshots;
+  c.configuration = restart_configuration(scene);
+  return c;
+}
+
 } // namespace
 
 namespace {
@@ -380,14 +398,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
       // The state before step k: x(k), v(k - 1/2), the list and history the step will use.
       PhaseTimer::Scope io(timer, Phase::io);
       diag.flush();
-      Checkpoint c;
-      c.dt = scheme.dt();
-      c.step = k;
-      c.last_row_step = k_last_row;
-      c.columns = kColumns;
-      c.rows = rows;
-      c.snapshots = snapshots.entries();
-      c.configuration = restart_configuration(scene);
+      Checkpoint c = checkpoint_header(scene, "explicit", scheme.dt(), k, k_last_row, rows,
+                                       snapshots.entries());
       c.particles = particles;
       c.state = scheme.save_state();
       write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
@@ -547,14 +559,7 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
     if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) {
       PhaseTimer::Scope io(timer, Phase::io);
       diag.flush();
-      Checkpoint c;
-      c.scheme = "orb";
-      c.dt = dt_sp;
-      c.step = k;
-      c.columns = kColumns;
-      c.rows = rows;
-      c.snapshots = snapshots.entries();
-      c.configuration = restart_configuration(scene);
+      Checkpoint c = checkpoint_header(scene, "orb", dt_sp, k, 0, rows, snapshots.entries());
       c.particles = particles;
       if constexpr (kOrb) c.orb = scheme.save_state();
       write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
@@ -791,15 +796,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
         std::iota(order.begin(), order.end(), std::size_t{0});
         std::sort(order.begin(), order.end(),
                   [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
-        Checkpoint c;
-        c.scheme = "explicit";
-        c.dt = scheme.dt();
-        c.step = k;
-        c.last_row_step = k_last_row;
-        c.columns = kColumns;
-        c.rows = rows;
-        c.snapshots = snapshots->entries();
-        c.configuration = restart_configuration(scene);
+        Checkpoint c = checkpoint_header(scene, "explicit", scheme.dt(), k, k_last_row, rows,
+                                         snapshots->entries());
         c.particles.resize(ids.size());
         std::vector<double>* field[9] = {&c.particles.x,  &c.particles.y,      &c.particles.z,
                                          &c.particles.vx, &c.particles.vy,     &c.particles.vz,
@@ -1130,15 +1128,8 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     if (t >= next_ckpt - tol) {
       PhaseTimer::Scope io(timer, Phase::io);
       diag.flush();
-      Checkpoint c;
-      c.scheme = kLeaves ? "orb" : "explicit";
-      c.dt = dt;
-      c.step = loop.fluid_steps;
-      c.last_row_step = k_last_row;
-      c.columns = kColumns;
-      c.rows = rows;
-      c.snapshots = snapshots.entries();
-      c.configuration = restart_configuration(scene_in);
+      Checkpoint c = checkpoint_header(scene_in, kLeaves ? "orb" : "explicit", dt,
+                                       loop.fluid_steps, k_last_row, rows, snapshots.entries());
       c.particles = particles;
       if constexpr (kLeaves)
         c.orb = scheme.save_state();

@@ -381,11 +381,10 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
   const double half = 0.5 * dt_sp_;
   // Faults (NaN, or a particle outside a wall) are flagged in the same pass (sign bit of
   // `bad`); raise_faults() names the particle only when one is flagged.
-  const DomainGeometry& geo = geom_;
-  double lo[3], hi[3];
+  const WallBounds wb(geom_);
+  const double (&lo)[3] = wb.lo;
+  const double (&hi)[3] = wb.hi;
   const double inf = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a)
-    lo[a] = geo.periodic[a] ? -inf : geo.lo[a], hi[a] = geo.periodic[a] ? inf : geo.hi[a];
   auto range = [&](std::size_t b, std::size_t e) {
     double* __restrict x = p_.x.data();
     double* __restrict y = p_.y.data();
@@ -696,9 +695,10 @@ void IslandsScheme::raise_faults(double t) const {
   const DomainGeometry& g = geom_;
   {
     // Faults are rare: a branch-free pass (it vectorizes) says whether to look for one.
-    double lo[3], hi[3];
+    const WallBounds wb(g);
+    const double (&lo)[3] = wb.lo;
+    const double (&hi)[3] = wb.hi;
     const double inf = std::numeric_limits<double>::infinity();
-    for (int a = 0; a < 3; ++a) lo[a] = g.periodic[a] ? -inf : g.lo[a], hi[a] = g.periodic[a] ? inf : g.hi[a];
     const double* __restrict x = p_.x.data();
     const double* __restrict y = p_.y.data();
     const double* __restrict z = p_.z.data();

@@ -651,11 +651,9 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   // v2 + x + y + z is NaN or inf if any term is; a coordinate outside a wall's closed interval,
   // or NaN, fails the comparison (periodic axes get an infinite interval).
   {
-    double lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = g.periodic[a] ? -std::numeric_limits<double>::infinity() : g.lo[a];
-      hi[a] = g.periodic[a] ? std::numeric_limits<double>::infinity() : g.hi[a];
-    }
+    const WallBounds wb(g);
+    const double (&lo)[3] = wb.lo;
+    const double (&hi)[3] = wb.hi;
     const double inf = std::numeric_limits<double>::infinity();
     std::uint64_t bad = 0;
     for (std::uint32_t i = b; i < e; ++i) {

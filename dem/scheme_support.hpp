@@ -18,6 +18,17 @@ namespace cfddem::dem {
 // is not), the idiom of integrate_range in explicit_scheme.cpp.
 inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
 
+// The closed interval a coordinate must stay in on each axis: the walls, or an infinite interval
+// on a periodic axis (so one comparison per axis checks walls and catches NaN, branch-free).
+struct WallBounds {
+  double lo[3], hi[3];
+  explicit WallBounds(const DomainGeometry& g) {
+    const double inf = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a)
+      lo[a] = g.periodic[a] ? -inf : g.lo[a], hi[a] = g.periodic[a] ? inf : g.hi[a];
+  }
+};
+
 // The sub-iterated schemes have no tangential history: refuse friction, naming the scheme.
 inline void require_frictionless(const StepModel& m, const std::string& scheme) {
   if (m.friction)

@@ -4,6 +4,8 @@
 // allocation, no threads; the callers' loops keep their own layout and vectorize as before.
 #pragma once
 
+#include <cmath>
+
 #include "dem/explicit_scheme.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 
@@ -18,6 +20,27 @@ inline double contact_meff(const StepModel& m, double mi, double mj) {
 inline double contact_normal_force(const StepModel& m, double meff, double delta, double vn) {
   return m.uniform_mass ? m.pair.k * delta + m.uniform_eta * vn
                         : normal_force(m.pair, meff, delta, vn);
+}
+
+// Frictionless contact of particle i with a partner at separation (dx, dy, dz) = x_j - x_i (the
+// minimum image), radii ri, rj, masses mi, mj, relative velocity (dvx, dvy, dvz) = v_i - v_j:
+// when they overlap, adds the normal force on i to (ax, ay, az) and returns the overlap; returns
+// 0 when they are apart. The orb and islands schemes' pair (the explicit scheme's contact pass
+// takes the same steps, with friction).
+inline double add_normal_contact(const StepModel& m, double dx, double dy, double dz, double ri,
+                                 double rj, double mi, double mj, double dvx, double dvy,
+                                 double dvz, double& ax, double& ay, double& az) {
+  const double r2 = dx * dx + dy * dy + dz * dz;
+  const double rs = ri + rj;
+  if (r2 >= rs * rs) return 0.0;
+  const double dist = std::sqrt(r2);
+  const double inv = 1.0 / dist;
+  const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+  const double delta = rs - dist;
+  const double vn = dvx * nx + dvy * ny + dvz * nz;
+  const double fn = contact_normal_force(m, contact_meff(m, mi, mj), delta, vn);
+  ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+  return delta;
 }
 
 // v += f (1/m) s + g s, x += v dt: the kick over s (s = dt for a constant step) and the drift

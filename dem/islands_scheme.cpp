@@ -472,16 +472,9 @@ std::int64_t IslandsScheme::particle_forces(const std::uint32_t* idx, std::uint3
   const double ri = rad[i], mi = mass[i];
   double ax = 0.0, ay = 0.0, az = 0.0;
   auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    const double rs = ri + rad[j];
-    if (r2 >= rs * rs) return;
-    const double dist = std::sqrt(r2);
-    const double inv = 1.0 / dist;
-    const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
-    const double delta = rs - dist;
-    const double vn = (vxi - vx[j]) * nx + (vyi - vy[j]) * ny + (vzi - vz[j]) * nz;
-    const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
-    ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+    const double delta = add_normal_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j],
+                                            vyi - vy[j], vzi - vz[j], ax, ay, az);
+    if (delta <= 0.0) return;
     // The ratio's divide only when it sets a new maximum (rare after the first contacts).
     const double rmin = std::min(ri, rad[j]);
     if (delta > max_ratio * rmin) max_ratio = delta / rmin;

@@ -557,17 +557,10 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
       double ax = 0.0, ay = 0.0, az = 0.0;
       auto partner = [&](std::uint32_t j, double xj, double yj, double zj, double vxj, double vyj,
                          double vzj) {
-        const double dx = g.image(xj - xi, 0), dy = g.image(yj - yi, 1), dz = g.image(zj - zi, 2);
-        const double r2 = dx * dx + dy * dy + dz * dz;
-        const double rs = ri + rad[j];
-        if (r2 >= rs * rs) return;
-        const double dist = std::sqrt(r2);
-        const double inv = 1.0 / dist;
-        const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
-        const double delta = rs - dist;
-        const double vn = (vxi - vxj) * nx + (vyi - vyj) * ny + (vzi - vzj) * nz;
-        const double fn = contact_normal_force(m, contact_meff(m, mi, mass[j]), delta, vn);
-        ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
+        const double delta = add_normal_contact(
+            m, g.image(xj - xi, 0), g.image(yj - yi, 1), g.image(zj - zi, 2), ri, rad[j], mi,
+            mass[j], vxi - vxj, vyi - vyj, vzi - vzj, ax, ay, az);
+        if (delta <= 0.0) return;
         const double ratio = delta / std::min(ri, rad[j]);
         max_ratio = std::max(max_ratio, ratio);
         violations += ratio > lim;

@@ -230,6 +230,20 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
       w.put("/orb/y_ref", o.y_ref);
       w.put("/orb/z_ref", o.z_ref);
     }
+    if (c.scheme == "islands") {
+      const auto& o = c.islands;
+      f.create_group("/islands");
+      w.put("/islands/offsets", o.offsets);
+      w.put("/islands/neighbors", o.neighbors);
+      w.put("/islands/x_ref", o.x_ref);
+      w.put("/islands/y_ref", o.y_ref);
+      w.put("/islands/z_ref", o.z_ref);
+      w.put("/islands/half_step", o.hprev);
+      w.put("/islands/fine_subiterations", o.fine_subits);
+      w.put("/islands/size_histogram", o.size_hist);
+      w.put("/islands/counters", o.counters);
+      w.put("/islands/ratios", std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
+    }
     if (c.gas) write_gas(f, w, c);
     w.put("/diagnostics_rows", flatten_rows(c.rows));
     std::vector<std::int64_t> ss, sn, sl, sc;
@@ -336,6 +350,19 @@ Checkpoint read_checkpoint(const std::string& path) {
       o.x_ref = r.doubles("/orb/x_ref", Reader::kAny);
       o.y_ref = r.doubles("/orb/y_ref", o.x_ref.size());
       o.z_ref = r.doubles("/orb/z_ref", o.x_ref.size());
+    } else if (c.scheme == "islands") {
+      auto& o = c.islands;
+      o.offsets = r.uint32s("/islands/offsets", Reader::kAny);
+      o.neighbors = r.uint32s("/islands/neighbors", Reader::kAny);
+      o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
+      o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
+      o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
+      o.hprev = r.doubles("/islands/half_step", n);
+      o.fine_subits = r.int64s("/islands/fine_subiterations", n);
+      o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);
+      o.counters = r.int64s("/islands/counters", 12);
+      const auto q = r.doubles("/islands/ratios", 3);
+      o.skin = q[0], o.max_overlap_ratio = q[1], o.last_fine_fraction = q[2];
     } else if (c.scheme != "explicit") {
       throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
     }

@@ -1,4 +1,4 @@
-// Checkpoint/restart of the explicit and orb schemes. A checkpoint holds everything the next step reads:
+// Checkpoint/restart of the explicit, orb and islands schemes. A checkpoint holds everything the next step reads:
 // every particle field (velocities at the half step the integrator holds, forces, rotation), the
 // neighbor list exactly as built (rows in order, reference positions) and the tangential contact
 // history, the step counters, the diagnostics rows so far, the snapshot index, and the resolved
@@ -25,6 +25,7 @@
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 
 namespace cfddem::apps {
@@ -60,6 +61,7 @@ struct Checkpoint {
   ParticleStore particles;
   dem::ExplicitScheme::State state; // scheme == "explicit"
   dem::OrbScheme::State orb;         // scheme == "orb"
+  dem::IslandsScheme::State islands; // scheme == "islands"
   bool gas = false;                  // a coupled scene's checkpoint: the two below are set
   GasCoupling::State gas_state;
   CoupledLoopState loop;

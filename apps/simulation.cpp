@@ -473,13 +473,6 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   namespace fs = std::filesystem;
   constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
   const char* scheme_name = kOrb ? "orb" : "islands";
-  if constexpr (!kOrb) {
-    if (!opt.restart.empty())
-      throw ConfigError("--restart", "restarting the \"islands\" scheme is not supported yet");
-    if (scene.output.checkpoint_interval > 0)
-      throw ConfigError("scene key 'output.checkpoint_interval'",
-                        "checkpoints of the \"islands\" scheme are not supported yet");
-  }
   const auto t_setup = clock::now();
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
@@ -508,10 +501,12 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   };
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt_sp));
   const long long snap_every = every(scene.output.snapshot_interval, dt_sp);
-  // Checkpoints only at regrid points (multiples of dem.nsubit), where the ORB is rebuilt from
-  // the store: the interval is rounded up to a whole number of regrid intervals.
+  // orb: checkpoints only at regrid points (multiples of dem.nsubit), where the ORB is rebuilt
+  // from the store: the interval is rounded up to a whole number of regrid intervals. islands:
+  // between any two sub-iterations.
   long long ckpt_every = every(scene.output.checkpoint_interval, dt_sp);
-  if (ckpt_every > 0) ckpt_every = (ckpt_every + scheme.nsubit() - 1) / scheme.nsubit() * scheme.nsubit();
+  if (kOrb && ckpt_every > 0)
+    ckpt_every = (ckpt_every + scheme.nsubit() - 1) / scheme.nsubit() * scheme.nsubit();
   SnapshotIndex snapshots(opt.out_dir);
   const dem::DomainGeometry geom(scene.domain);
   // Synchronised state at sub-iteration k with each particle's ORB leaf and local step.
@@ -535,7 +530,10 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
-    if constexpr (kOrb) scheme.restore_state(std::move(ck->orb));
+    if constexpr (kOrb)
+      scheme.restore_state(std::move(ck->orb));
+    else
+      scheme.restore_state(std::move(ck->islands));
     for (auto& r : ck->rows) add_row(std::move(r));
     snapshots.restore(ck->snapshots);
     if (!rows.empty()) means.resume(rows.back());
@@ -559,9 +557,12 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
     if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) {
       PhaseTimer::Scope io(timer, Phase::io);
       diag.flush();
-      Checkpoint c = checkpoint_header(scene, "orb", dt_sp, k, 0, rows, snapshots.entries());
+      Checkpoint c = checkpoint_header(scene, scheme_name, dt_sp, k, 0, rows, snapshots.entries());
       c.particles = particles;
-      if constexpr (kOrb) c.orb = scheme.save_state();
+      if constexpr (kOrb)
+        c.orb = scheme.save_state();
+      else
+        c.islands = scheme.save_state();
       write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
                        c);
     }
@@ -923,13 +924,6 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   // kOrb: a sub-iterated scheme (orb or islands), dem.nsubit sub-iterations per fluid step.
   constexpr bool kOrb = !std::is_same_v<Scheme, dem::ExplicitScheme>;
   constexpr bool kLeaves = std::is_same_v<Scheme, dem::OrbScheme>;
-  if constexpr (kOrb && !kLeaves) {
-    if (!opt.restart.empty())
-      throw ConfigError("--restart", "restarting the \"islands\" scheme is not supported yet");
-    if (scene_in.output.checkpoint_interval > 0)
-      throw ConfigError("scene key 'output.checkpoint_interval'",
-                        "checkpoints of the \"islands\" scheme are not supported yet");
-  }
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   std::optional<Checkpoint> ck;
@@ -978,7 +972,9 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       gas.restore_state(ck->gas_state);
       if constexpr (kLeaves)
         scheme.restore_state(std::move(ck->orb));
-      else if constexpr (!kOrb)
+      else if constexpr (kOrb)
+        scheme.restore_state(std::move(ck->islands));
+      else
         scheme.restore_state(std::move(ck->state));
       const auto& hf = ck->loop.held_force;
       scheme.set_external_force(hf[0], hf[1], hf[2]);
@@ -1128,12 +1124,14 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     if (t >= next_ckpt - tol) {
       PhaseTimer::Scope io(timer, Phase::io);
       diag.flush();
-      Checkpoint c = checkpoint_header(scene_in, kLeaves ? "orb" : "explicit", dt,
-                                       loop.fluid_steps, k_last_row, rows, snapshots.entries());
+      Checkpoint c = checkpoint_header(scene_in, kLeaves ? "orb" : kOrb ? "islands" : "explicit",
+                                       dt, loop.fluid_steps, k_last_row, rows, snapshots.entries());
       c.particles = particles;
       if constexpr (kLeaves)
         c.orb = scheme.save_state();
-      else if constexpr (!kOrb)
+      else if constexpr (kOrb)
+        c.islands = scheme.save_state();
+      else
         c.state = scheme.save_state();
       c.gas = true;
       c.gas_state = gas.save_state();

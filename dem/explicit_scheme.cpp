@@ -277,15 +277,7 @@ ExplicitScheme::State ExplicitScheme::save_state() const {
 void ExplicitScheme::restore_state(State s) {
   const std::size_t n = p_.size();
   const bool listed = !s.offsets.empty();
-  if (listed && (s.offsets.size() != n + 1 || s.offsets.front() != 0 ||
-                 s.offsets.back() != s.neighbors.size() || s.x_ref.size() != n ||
-                 s.y_ref.size() != n || s.z_ref.size() != n))
-    throw RunError("checkpoint: the neighbor list does not fit the particles");
-  for (std::size_t i = 0; listed && i < n; ++i)
-    if (s.offsets[i + 1] < s.offsets[i])
-      throw RunError("checkpoint: the neighbor list offsets are not monotonic");
-  for (const std::uint32_t j : s.neighbors)
-    if (j >= n) throw RunError("checkpoint: a neighbor index is out of range");
+  check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
   if (model_.friction && (s.hx.size() != s.neighbors.size() || s.hy.size() != s.neighbors.size() ||
                           s.hz.size() != s.neighbors.size()))
     throw RunError("checkpoint: the tangential history does not fit the neighbor list");

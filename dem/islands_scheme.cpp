@@ -64,6 +64,51 @@ void IslandsScheme::start() {
   rebuild();
 }
 
+IslandsScheme::State IslandsScheme::save_state() const {
+  State s;
+  if (built_) {
+    s.offsets.assign(list_.offsets().begin(), list_.offsets().end());
+    s.neighbors.assign(list_.neighbors().begin(), list_.neighbors().end());
+    s.x_ref.assign(list_.x_ref().begin(), list_.x_ref().end());
+    s.y_ref.assign(list_.y_ref().begin(), list_.y_ref().end());
+    s.z_ref.assign(list_.z_ref().begin(), list_.z_ref().end());
+  }
+  s.skin = skin_;
+  s.hprev = hprev_;
+  s.fine_subits = fine_subits_;
+  s.size_hist = size_hist_;
+  s.counters = {subits_,          particle_steps_,   pair_evaluations_, builds_,
+                overlap_violations_, bound_violations_, global_subits_, iv_fine_,
+                iv_particles_,    iv_steps_,         iv_min_,           iv_max_};
+  s.max_overlap_ratio = max_overlap_ratio_;
+  s.last_fine_fraction = last_fine_fraction_;
+  return s;
+}
+
+void IslandsScheme::restore_state(State s) {
+  const std::size_t n = p_.size();
+  check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
+  if (s.hprev.size() != n || s.fine_subits.size() != n || s.size_hist.size() != size_hist_.size() ||
+      s.counters.size() != 12 || !(s.skin > 0.0))
+    throw RunError("checkpoint: the islands scheme's state does not fit the particles");
+  built_ = !s.offsets.empty();
+  if (built_)
+    list_.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
+                  std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
+  skin_ = s.skin;
+  hprev_ = std::move(s.hprev);
+  fine_subits_ = std::move(s.fine_subits);
+  size_hist_ = std::move(s.size_hist);
+  const auto& k = s.counters;
+  subits_ = k[0], particle_steps_ = k[1], pair_evaluations_ = k[2], builds_ = k[3];
+  overlap_violations_ = k[4], bound_violations_ = k[5], global_subits_ = k[6];
+  iv_fine_ = k[7], iv_particles_ = k[8], iv_steps_ = k[9], iv_min_ = k[10], iv_max_ = k[11];
+  max_overlap_ratio_ = s.max_overlap_ratio;
+  last_fine_fraction_ = s.last_fine_fraction;
+  island_of_.assign(n, kAlone);
+  busy_v_.clear();
+}
+
 void IslandsScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
                                        std::span<const double> fz) {
   ext_.set(fx, fy, fz, p_.size());

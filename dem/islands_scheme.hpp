@@ -102,6 +102,28 @@ public:
     return {sx_, sy_, sz_, svx_, svy_, svz_, smass_, sid_, sisland_, sradius_, sdt_};
   }
 
+  // Checkpoint/restart between sub-iterations: what a sub-iteration reads that it did not compute
+  // itself -- the Verlet list exactly as built (rows in order, reference positions, skin; the
+  // store's order is the list's, which the checkpoint keeps), the per-particle half step and
+  // fine-sub-iteration count, the counters, the island-size histogram and the interval
+  // statistics. Speed bounds, links and islands are remade at the start of every sub-iteration.
+  // A gas force held over the sub-cycle is the caller's (set_external_force after restore).
+  // restore_state() replaces start().
+  struct State {
+    std::vector<std::uint32_t> offsets, neighbors;
+    std::vector<double> x_ref, y_ref, z_ref;
+    double skin = 0.0;
+    std::vector<double> hprev;
+    std::vector<std::int64_t> fine_subits, size_hist;
+    // subits, particle_steps, pair_evaluations, builds, overlap_violations, bound_violations,
+    // global_subits, iv_fine, iv_particles, iv_steps, iv_min, iv_max
+    std::vector<std::int64_t> counters;
+    double max_overlap_ratio = 0.0, last_fine_fraction = 0.0;
+  };
+  State save_state() const;
+  // Throws RunError if the state does not fit the store.
+  void restore_state(State s);
+
 private:
   void rebuild();
   void speed_bounds();

@@ -241,4 +241,18 @@ void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::ui
   }
 }
 
+void check_saved_list(std::size_t n, std::span<const std::uint32_t> offsets,
+                      std::span<const std::uint32_t> neighbors, std::span<const double> x_ref,
+                      std::span<const double> y_ref, std::span<const double> z_ref) {
+  if (offsets.empty()) return;
+  if (offsets.size() != n + 1 || offsets.front() != 0 || offsets.back() != neighbors.size() ||
+      x_ref.size() != n || y_ref.size() != n || z_ref.size() != n)
+    throw RunError("checkpoint: the neighbor list does not fit the particles");
+  for (std::size_t i = 0; i < n; ++i)
+    if (offsets[i + 1] < offsets[i])
+      throw RunError("checkpoint: the neighbor list offsets are not monotonic");
+  for (const std::uint32_t j : neighbors)
+    if (j >= n) throw RunError("checkpoint: a neighbor index is out of range");
+}
+
 } // namespace cfddem::dem

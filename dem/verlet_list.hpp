@@ -63,7 +63,8 @@ public:
   std::span<const std::uint32_t> active() const { return active_; }
   double skin() const { return skin_; }
   // Restart: reinstate a list saved from offsets()/neighbors()/x_ref()... exactly (the rows keep
-  // their order, so forces sum in the same order as in the run that saved them).
+  // their order, so forces sum in the same order as in the run that saved them). Check it first
+  // with check_saved_list.
   void restore(std::vector<std::uint32_t> offsets, std::vector<std::uint32_t> neighbors,
                std::vector<double> x_ref, std::vector<double> y_ref, std::vector<double> z_ref,
                double skin, const DomainGeometry& g);
@@ -99,5 +100,12 @@ private:
   std::vector<std::vector<std::uint32_t>> chunk_rows_; // per-chunk row buffers of the build
   double skin_ = 0.0;
 };
+
+// A saved list (offsets, neighbors, reference positions) for a store of n particles: throws
+// RunError saying what does not fit, so a restart never indexes out of range. An empty list
+// (never built) passes.
+void check_saved_list(std::size_t n, std::span<const std::uint32_t> offsets,
+                      std::span<const std::uint32_t> neighbors, std::span<const double> x_ref,
+                      std::span<const double> y_ref, std::span<const double> z_ref);
 
 } // namespace cfddem::dem

@@ -365,6 +365,13 @@ class Restart(Tmp):
         # Checkpoints fall on regrid points (every dem.nsubit sub-iterations).
         self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=orb", "output.interval=0.0005"])
 
+    def test_islands_hcs_bitwise(self):
+        # The list as built, half steps, counters and histograms; the checkpoint falls between
+        # two sub-iterations that are not a multiple of dem.nsubit (islands have no regrid).
+        rows = self.check_restart(HCS, 0.0041, 0.00205, ["dem.scheme=islands",
+                                                         "output.interval=0.0005"])
+        self.assertGreater(float(rows[-1][rows[0].index("fine_leaf_fraction")]), 0.0)
+
     # Coupled scenes: N fluid steps + checkpoint + restart + N fluid steps = 2N fluid steps, to
     # the bit (gas velocities, pressure, eps_g history, loop position, pending row/snapshot).
     def test_coupled_explicit_hcs_gas_bitwise(self):
@@ -381,6 +388,13 @@ class Restart(Tmp):
 
     def test_coupled_orb_settling_bitwise(self):
         self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=orb", "output.interval=0.0005"])
+
+    def test_coupled_islands_hcs_gas_bitwise(self):
+        self.check_restart(HCS_GAS, 0.002, 0.001, ["dem.scheme=islands", "output.interval=0.0005"])
+
+    def test_coupled_islands_settling_bitwise(self):
+        # Walls (tied particles) and gravity with the held gas force in the speed bounds.
+        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "output.interval=0.0005"])
 
     def test_coupled_adaptive_fluid_step_bitwise(self):
         # fluid.dt = 0: each fluid step comes from the gas's CFL number (capped by fluid.max_dt)

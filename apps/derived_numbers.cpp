@@ -1,5 +1,6 @@
 #include "apps/derived_numbers.hpp"
 
+#include <array>
 #include <cmath>
 #include <numbers>
 
@@ -11,31 +12,39 @@
 
 namespace cfddem::apps {
 
-DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
-  DerivedNumbers d;
-  d.particles = p.size();
-  if (p.size() == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
-    d.dt = dem::make_step_model(s, p).dt;
-    d.steps = std::llround(s.run.end_time / d.dt);
-    return d;
-  }
-  const auto model = dem::make_step_model(s, p);
-  double vol = 0, dsum = 0, mmin = INFINITY;
+namespace {
+
+// Sums over the particles: solid volume and diameters.
+std::array<double, 2> volume_and_diameters(const ParticleStore& p) {
+  double vol = 0, dsum = 0;
   for (std::size_t i = 0; i < p.size(); ++i) {
     vol += (4.0 / 3.0) * std::numbers::pi * std::pow(p.radius[i], 3);
     dsum += 2 * p.radius[i];
-    mmin = std::min(mmin, p.mass[i]);
   }
-  d.mean_diameter = dsum / p.size();
+  return {vol, dsum};
+}
+
+// The numbers from the particles' count, range, sums and granular temperature.
+DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
+                           std::array<double, 2> sums, double temperature) {
+  DerivedNumbers d;
+  d.particles = static_cast<std::size_t>(range.count);
+  const auto model = dem::make_step_model(s, range);
+  if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
+    d.dt = model.dt;
+    d.steps = std::llround(s.run.end_time / d.dt);
+    return d;
+  }
+  const double vol = sums[0], dsum = sums[1], mmin = range.m_min;
+  d.mean_diameter = dsum / static_cast<double>(range.count);
   d.min_mass = mmin;
   d.dt = model.dt;
   d.tau_p = std::sqrt(mmin / std::max(s.dem.spring_constant, s.dem.wall_spring_constant));
   d.solid_fraction = vol / s.domain.volume();
   const double phi = d.solid_fraction;
   d.g0 = (1 - phi / 2) / std::pow(1 - phi, 3);
-  const auto st = dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass});
-  d.granular_temperature = st.granular_temperature;
-  const double sqrtT = std::sqrt(st.granular_temperature);
+  d.granular_temperature = temperature;
+  const double sqrtT = std::sqrt(temperature);
   // nu = (24/sqrt(pi)) phi g0 sqrt(T)/d ; 1/t_H = (4/sqrt(pi)) (1-e^2) phi g0 sqrt(T0)/d.
   d.collision_frequency = 24.0 / std::sqrt(std::numbers::pi) * phi * d.g0 * sqrtT / d.mean_diameter;
   const double e = s.dem.restitution;
@@ -46,6 +55,31 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
   d.dt_per_contact = d.contact_duration / d.dt;
   d.steps = std::llround(s.run.end_time / d.dt);
   return d;
+}
+
+} // namespace
+
+DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
+  const double t = p.size() ? dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass})
+                                  .granular_temperature
+                            : 0.0;
+  return derive_from(s, dem::particle_range(p), volume_and_diameters(p), t);
+}
+
+DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator& comm,
+                      dem::ParticleRange* range_out) {
+  dem::ParticleRange r = dem::particle_range(p);
+  r.count = comm.sum(r.count);
+  // Minima as maxima of the negatives (an empty rank holds +inf minima and 0 maxima).
+  std::array<double, 4> ext = {-r.m_min, r.m_max, -r.r_min, r.r_max};
+  comm.max(ext);
+  r.m_min = -ext[0], r.m_max = ext[1], r.r_min = -ext[2], r.r_max = ext[3];
+  std::array<double, 2> sums = volume_and_diameters(p);
+  comm.sum(sums);
+  const double t =
+      dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}, comm).granular_temperature;
+  if (range_out) *range_out = r;
+  return derive_from(s, r, sums, t);
 }
 
 std::vector<std::pair<std::string, std::string>> DerivedNumbers::table() const {

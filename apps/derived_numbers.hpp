@@ -6,8 +6,10 @@
 #include <utility>
 #include <vector>
 
+#include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
+#include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
 
@@ -25,5 +27,9 @@ struct DerivedNumbers {
 };
 
 DerivedNumbers derive(const Scene& scene, const ParticleStore& particles);
+// The same over the particles of every rank (collective; the same numbers on every rank, sums
+// in another order than one rank's). Also returns the reduced range for make_step_model.
+DerivedNumbers derive(const Scene& scene, const ParticleStore& particles,
+                      const Communicator& comm, dem::ParticleRange* range = nullptr);
 
 } // namespace cfddem::apps

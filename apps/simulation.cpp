@@ -660,17 +660,23 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   // keeps its share of the particles, as at the start.
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
-  ParticleStore particles = ck ? std::move(ck->particles) : make_initial_particles(scene);
-  const DerivedNumbers derived = derive(scene, particles);
-  const dem::StepModel model = dem::make_step_model(scene, particles);
-  const std::size_t n_total = particles.size();
-  {
+  // Each rank starts from its share (every ranks-th particle): built alone where the initial
+  // conditions allow (make_initial_share), taken from the checkpoint at a restart.
+  ParticleStore particles;
+  if (ck) {
+    particles = std::move(ck->particles);
     std::vector<std::uint32_t> mine;
-    for (std::size_t i = static_cast<std::size_t>(comm.rank()); i < n_total;
+    for (std::size_t i = static_cast<std::size_t>(comm.rank()); i < particles.size();
          i += static_cast<std::size_t>(comm.size()))
       mine.push_back(static_cast<std::uint32_t>(i));
     particles.permute(mine);
+  } else {
+    particles = make_initial_share(scene, comm.rank(), comm.size());
   }
+  dem::ParticleRange range;
+  const DerivedNumbers derived = derive(scene, particles, comm, &range);
+  const dem::StepModel model = dem::make_step_model(scene, range);
+  const std::size_t n_total = derived.particles;
   PhaseTimer timer;
   dem::DistributedExplicitScheme scheme(scene, particles, model, comm, timer);
   const long long n_end = derived.steps;

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <functional>
+#include <stdexcept>
 #include <random>
 #include <sstream>
 #include <unordered_map>
@@ -119,7 +121,8 @@ void place_random(ParticleStore& p, const Scene& s) {
   }
 }
 
-void place_lattice(ParticleStore& p, const Scene& s) {
+// Particle k of the lattice is added when keep(k) (ids stay k): a rank builds its own share.
+template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep keep) {
   const auto& ps = s.particles;
   const double d = ps.diameter;
   std::array<int, 3> n{};
@@ -140,11 +143,51 @@ void place_lattice(ParticleStore& p, const Scene& s) {
   for (int iz = 0; iz < n[2] && k < ps.count; ++iz)
     for (int iy = 0; iy < n[1] && k < ps.count; ++iy)
       for (int ix = 0; ix < n[0] && k < ps.count; ++ix, ++k)
-        p.add(ps.region_lo[0] + (ix + 0.5) * spacing[0], ps.region_lo[1] + (iy + 0.5) * spacing[1],
-              ps.region_lo[2] + (iz + 0.5) * spacing[2], 0, 0, 0, 0.5 * d, ps.density, k);
+        if (keep(k))
+          p.add(ps.region_lo[0] + (ix + 0.5) * spacing[0],
+                ps.region_lo[1] + (iy + 0.5) * spacing[1],
+                ps.region_lo[2] + (iz + 0.5) * spacing[2], 0, 0, 0, 0.5 * d, ps.density, k);
 }
 
 } // namespace
+
+// assign_thermal_velocities for a share of n generated particles of equal mass m: p holds the
+// particles with the ids `ids` (increasing), and gets exactly the velocities the whole set would
+// get. The normal stream is drawn twice over all n (the mean, then the variance, summed in id
+// order as the whole-set version does) without storing it: O(n) time, O(share) memory.
+void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n, double m,
+                                     double temperature, const std::array<double, 3>& mean,
+                                     std::uint64_t seed) {
+  if (n == 0) return;
+  const double sigma = std::sqrt(std::max(temperature, 0.0));
+  double mt = 0, px = 0, py = 0, pz = 0;
+  {
+    std::mt19937_64 rng(seed ^ 0x9e3779b97f4a7c15ULL);
+    std::normal_distribution<double> g(0.0, sigma);
+    for (std::int64_t k = 0; k < n; ++k) {
+      const double a = g(rng), b = g(rng), c = g(rng);
+      mt += m, px += m * a, py += m * b, pz += m * c;
+    }
+  }
+  double sq = 0;
+  std::size_t mine = 0;
+  {
+    std::mt19937_64 rng(seed ^ 0x9e3779b97f4a7c15ULL);
+    std::normal_distribution<double> g(0.0, sigma);
+    for (std::int64_t k = 0; k < n; ++k) {
+      double a = g(rng), b = g(rng), c = g(rng);
+      a -= px / mt, b -= py / mt, c -= pz / mt;
+      sq += a * a + b * b + c * c;
+      if (mine < p.size() && p.id[mine] == k) p.vx[mine] = a, p.vy[mine] = b, p.vz[mine] = c, ++mine;
+    }
+  }
+  const double scale = (sq > 0 && n > 1) ? std::sqrt(temperature / (sq / (3.0 * static_cast<double>(n)))) : 0.0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    p.vx[i] = p.vx[i] * scale + mean[0];
+    p.vy[i] = p.vy[i] * scale + mean[1];
+    p.vz[i] = p.vz[i] * scale + mean[2];
+  }
+}
 
 void assign_thermal_velocities(ParticleStore& p, double temperature,
                                const std::array<double, 3>& mean, std::uint64_t seed) {
@@ -171,6 +214,11 @@ void assign_thermal_velocities(ParticleStore& p, double temperature,
 }
 
 ParticleStore read_particle_csv(const std::string& path) {
+  return read_particle_csv_rows(path, [](std::int64_t) { return true; });
+}
+
+ParticleStore read_particle_csv_rows(const std::string& path,
+                                     const std::function<bool(std::int64_t)>& keep) {
   std::ifstream in(path);
   if (!in) throw ConfigError(path, "cannot open the particle file (scene key 'particles.file')");
   std::string line;
@@ -197,6 +245,7 @@ ParticleStore read_particle_csv(const std::string& path) {
   }
   ParticleStore p;
   int lineno = 1;
+  std::int64_t row = 0;
   while (std::getline(in, line)) {
     ++lineno;
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
@@ -219,8 +268,9 @@ ParticleStore read_particle_csv(const std::string& path) {
     if (!(d > 0) || !(rho > 0))
       throw ConfigError(fmt::format("{} line {}", path, lineno),
                         "diameter and density must be > 0");
-    p.add(v[col[0]], v[col[1]], v[col[2]], v[col[3]], v[col[4]], v[col[5]], 0.5 * d, rho,
-          static_cast<std::int64_t>(p.size()));
+    if (keep(row))
+      p.add(v[col[0]], v[col[1]], v[col[2]], v[col[3]], v[col[4]], v[col[5]], 0.5 * d, rho, row);
+    ++row;
   }
   return p;
 }
@@ -246,19 +296,10 @@ void check_no_overlap(const ParticleStore& p, const DomainSpec& domain) {
   }
 }
 
-ParticleStore make_initial_particles(const Scene& s) {
-  ParticleStore p;
-  if (!s.particles.file.empty()) {
-    p = read_particle_csv(s.particles.file);
-  } else {
-    if (s.particles.placement == "lattice") {
-      place_lattice(p, s);
-    } else {
-      place_random(p, s);
-    }
-    assign_thermal_velocities(p, s.particles.temperature, s.particles.velocity, s.particles.seed);
-  }
-  // Every particle must start inside the domain (walls are at lo/hi of non-periodic axes).
+namespace {
+
+// Every particle must start inside the domain (walls are at lo/hi of non-periodic axes).
+void check_inside(const ParticleStore& p, const Scene& s) {
   for (std::size_t i = 0; i < p.size(); ++i) {
     const double c[3] = {p.x[i], p.y[i], p.z[i]};
     for (int a = 0; a < 3; ++a) {
@@ -274,7 +315,59 @@ ParticleStore make_initial_particles(const Scene& s) {
                                       p.id[i], 2 * p.radius[i], a, s.domain.length(a)));
     }
   }
+}
+
+} // namespace
+
+ParticleStore make_initial_particles(const Scene& s) {
+  ParticleStore p;
+  if (!s.particles.file.empty()) {
+    p = read_particle_csv(s.particles.file);
+  } else {
+    if (s.particles.placement == "lattice") {
+      place_lattice(p, s, [](std::int64_t) { return true; });
+    } else {
+      place_random(p, s);
+    }
+    assign_thermal_velocities(p, s.particles.temperature, s.particles.velocity, s.particles.seed);
+  }
+  check_inside(p, s);
   if (!s.particles.allow_overlap) check_no_overlap(p, s.domain);
+  return p;
+}
+
+ParticleStore make_initial_share(const Scene& s, int rank, int ranks) {
+  if (ranks < 1 || rank < 0 || rank >= ranks)
+    throw std::invalid_argument(fmt::format("make_initial_share: rank {} of {}", rank, ranks));
+  const auto r = static_cast<std::int64_t>(rank), nr = static_cast<std::int64_t>(ranks);
+  auto mine = [r, nr](std::int64_t k) { return k % nr == r; };
+  ParticleStore p;
+  if (!s.particles.file.empty()) {
+    if (!s.particles.allow_overlap) {
+      // The overlap test needs every particle: read them all, check, keep the share.
+      p = make_initial_particles(s);
+    } else {
+      p = read_particle_csv_rows(s.particles.file, mine);
+      check_inside(p, s);
+    }
+  } else if (s.particles.placement == "lattice") {
+    // Lattice sites are spaced by more than a diameter: no overlap to check.
+    place_lattice(p, s, mine);
+    ParticleStore one;
+    one.add(0, 0, 0, 0, 0, 0, 0.5 * s.particles.diameter, s.particles.density, 0);
+    assign_thermal_velocities_share(p, s.particles.count, one.mass[0], s.particles.temperature,
+                                    s.particles.velocity, s.particles.seed);
+    check_inside(p, s);
+    return p;
+  } else {
+    // Random placement rejects each candidate against those placed before it: the whole set is
+    // generated on every rank (positions for n particles) and only the share kept.
+    p = make_initial_particles(s);
+  }
+  std::vector<std::uint32_t> keep;
+  for (std::size_t i = 0; i < p.size(); ++i)
+    if (mine(p.id[i])) keep.push_back(static_cast<std::uint32_t>(i));
+  p.permute(keep);
   return p;
 }
 

@@ -2,6 +2,8 @@
 // placement, Gaussian velocities at a granular temperature with zero net momentum).
 #pragma once
 
+#include <cstdint>
+#include <functional>
 #include <string>
 
 #include "core/particle_store.hpp"
@@ -13,8 +15,21 @@ namespace cfddem {
 // and on overlapping particles unless particles.allow_overlap.
 ParticleStore make_initial_particles(const Scene& scene);
 
+// One rank's share of make_initial_particles(scene): the particles whose id k has
+// k % ranks == rank, in increasing id, bit for bit the values the whole set gets. Lattice
+// placement and particle files with particles.allow_overlap build only the share (memory
+// O(n / ranks); the thermal velocities' normal stream is drawn twice over all n without being
+// stored); random placement and the overlap test of a file need every particle's position, so
+// they build the whole set and keep the share. Throws as make_initial_particles does, on every
+// rank alike.
+ParticleStore make_initial_share(const Scene& scene, int rank, int ranks);
+
 // Read `x,y,z,vx,vy,vz,diameter,density` (SI, header row required, columns in any order).
 ParticleStore read_particle_csv(const std::string& path);
+// The same, keeping only the data rows r (0-based, ids r) for which keep(r) holds; every row is
+// still parsed and checked.
+ParticleStore read_particle_csv_rows(const std::string& path,
+                                     const std::function<bool(std::int64_t)>& keep);
 
 // Throw ConfigError naming the first overlapping pair (ids, positions, overlap).
 void check_no_overlap(const ParticleStore& p, const DomainSpec& domain);

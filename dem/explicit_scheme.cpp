@@ -23,7 +23,24 @@ namespace {
 constexpr std::uint32_t kNone = kNoParticle;
 } // namespace
 
+ParticleRange particle_range(const ParticleStore& p) {
+  ParticleRange r;
+  r.count = static_cast<std::int64_t>(p.size());
+  r.m_min = r.r_min = std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    r.m_min = std::min(r.m_min, p.mass[i]);
+    r.m_max = std::max(r.m_max, p.mass[i]);
+    r.r_min = std::min(r.r_min, p.radius[i]);
+    r.r_max = std::max(r.r_max, p.radius[i]);
+  }
+  return r;
+}
+
 StepModel make_step_model(const Scene& s, const ParticleStore& p) {
+  return make_step_model(s, particle_range(p));
+}
+
+StepModel make_step_model(const Scene& s, const ParticleRange& range) {
   StepModel m;
   const auto& d = s.dem;
   m.gravity = s.gravity;
@@ -35,19 +52,13 @@ StepModel make_step_model(const Scene& s, const ParticleStore& p) {
   m.wall_t = {d.tangential_stiffness_ratio * d.wall_spring_constant,
               d.tangential_damping_ratio * m.wall.eta_coef, d.wall_friction};
   m.max_overlap = d.max_overlap;
-  double m_min = std::numeric_limits<double>::infinity();
-  double r_min = std::numeric_limits<double>::infinity(), r_max = 0.0;
-  for (std::size_t i = 0; i < p.size(); ++i) {
-    m_min = std::min(m_min, p.mass[i]);
-    r_min = std::min(r_min, p.radius[i]);
-    r_max = std::max(r_max, p.radius[i]);
-  }
-  if (p.size() == 0) m_min = 1.0, r_min = r_max = 1.0;
+  const bool empty = range.count == 0;
+  const double m_min = empty ? 1.0 : range.m_min;
+  const double r_min = empty ? 1.0 : range.r_min, r_max = empty ? 1.0 : range.r_max;
   m.r_min = r_min;
-  m.uniform_mass = p.size() > 0 && std::all_of(p.mass.begin(), p.mass.end(),
-                                                [&](double mi) { return mi == p.mass[0]; });
+  m.uniform_mass = !empty && range.m_min == range.m_max;
   if (m.uniform_mass) {
-    m.uniform_meff = 0.5 * p.mass[0];
+    m.uniform_meff = 0.5 * range.m_min;
     m.uniform_eta = m.pair.eta_coef * std::sqrt(m.uniform_meff); // physics.md §2: eta_n
   }
   const double k_max = std::max(d.spring_constant, d.wall_spring_constant);

@@ -40,6 +40,15 @@ struct StepModel {
 // (omega dt >= 2 for the stiffest contact, physics.md §2).
 StepModel make_step_model(const Scene& scene, const ParticleStore& p);
 
+// What the step model reads of the particles: their count and the extremes of mass and radius
+// (of this store, or reduced over ranks: the model is then the same on every rank).
+struct ParticleRange {
+  std::int64_t count = 0;
+  double m_min = 0.0, m_max = 0.0, r_min = 0.0, r_max = 0.0;
+};
+ParticleRange particle_range(const ParticleStore& p);
+StepModel make_step_model(const Scene& scene, const ParticleRange& range);
+
 class ExplicitScheme {
 public:
   ExplicitScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);

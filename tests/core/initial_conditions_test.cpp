@@ -1,6 +1,8 @@
 // Initial conditions: seeded placement, exact granular temperature, CSV reading and its errors.
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+#include <stdexcept>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -132,4 +134,77 @@ TEST(InitialConditions, OverlapNamesThePair) {
   q.add(0.2e-4, 5e-4, 5e-4, 0, 0, 0, 5e-5, 1000, 1);
   q.add(9.9e-4, 5e-4, 5e-4, 0, 0, 0, 5e-5, 1000, 2);
   EXPECT_THROW(check_no_overlap(q, d), ConfigError);
+}
+
+namespace {
+
+// Every field of particle i of `a` equals particle j of `b`, bit for bit.
+void expect_same_particle(const ParticleStore& a, std::size_t i, const ParticleStore& b,
+                          std::size_t j) {
+  for (auto f : {&ParticleStore::x, &ParticleStore::y, &ParticleStore::z, &ParticleStore::vx,
+                 &ParticleStore::vy, &ParticleStore::vz, &ParticleStore::radius,
+                 &ParticleStore::mass, &ParticleStore::inv_mass})
+    EXPECT_EQ(std::memcmp(&(a.*f)[i], &(b.*f)[j], sizeof(double)), 0) << "particle " << a.id[i];
+  EXPECT_EQ(a.id[i], b.id[j]);
+}
+
+// make_initial_share(s, r, R) holds exactly the particles k % R == r of the whole set, in id
+// order, with the same bits, for R = 1..4.
+void expect_shares_partition_the_set(const Scene& s) {
+  const ParticleStore all = make_initial_particles(s);
+  ASSERT_GT(all.size(), 10u);
+  for (int ranks = 1; ranks <= 4; ++ranks) {
+    std::size_t total = 0;
+    for (int r = 0; r < ranks; ++r) {
+      const ParticleStore p = make_initial_share(s, r, ranks);
+      total += p.size();
+      for (std::size_t i = 0; i < p.size(); ++i) {
+        ASSERT_EQ(p.id[i] % ranks, r);
+        ASSERT_TRUE(i == 0 || p.id[i] > p.id[i - 1]);
+        ASSERT_LT(static_cast<std::size_t>(p.id[i]), all.size());
+        expect_same_particle(p, i, all, static_cast<std::size_t>(p.id[i]));
+      }
+    }
+    EXPECT_EQ(total, all.size()) << ranks << " ranks";
+  }
+}
+
+} // namespace
+
+TEST(InitialShare, LatticeWithThermalVelocities) {
+  // The share is built alone (velocities from the re-drawn normal stream).
+  expect_shares_partition_the_set(gas({"particles.placement=lattice", "particles.count=1001",
+                                       "particles.velocity=[0.0, 0.5, 0.0]"}));
+}
+
+TEST(InitialShare, RandomPlacement) { expect_shares_partition_the_set(gas({})); }
+
+TEST(InitialShare, ParticleFileWithAndWithoutOverlapTest) {
+  std::string text = "x,y,z,vx,vy,vz,diameter,density\n";
+  for (int k = 0; k < 37; ++k)
+    text += std::to_string(1e-4 + 4e-5 * k) + ",1e-3,1e-3," + std::to_string(0.01 * k) +
+            ",0,0,3e-5," + std::to_string(1000 + k) + "\n";
+  const std::string f = temp_file("share.csv", text);
+  for (const char* overlap : {"false", "true"}) {
+    auto c = SceneConfig::from_string(R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [2.0e-3, 2.0e-3, 2.0e-3]
+[particles]
+file = ")" + f + R"("
+[dem]
+spring_constant = 10.0
+restitution = 0.8
+[run]
+end_time = 1.0e-3
+)", "file");
+    c.apply_override(std::string("particles.allow_overlap=") + overlap);
+    expect_shares_partition_the_set(read_scene(c, "file"));
+  }
+}
+
+TEST(InitialShare, ErrorsAsTheWholeSet) {
+  EXPECT_THROW(make_initial_share(gas({"particles.placement=lattice", "particles.count=6860"}), 1, 2),
+               ConfigError);
+  EXPECT_THROW(make_initial_share(gas({}), 2, 2), std::invalid_argument);
 }

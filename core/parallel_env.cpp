@@ -3,6 +3,9 @@
 #include <cstdlib>
 
 #include <mpi.h>
+#ifdef CFDDEM_HAVE_OPENMP
+#include <omp.h>
+#endif
 #include <tbb/global_control.h>
 #include <tbb/info.h>
 
@@ -33,6 +36,13 @@ ParallelEnv::ParallelEnv(int* argc, char*** argv, int threads) {
   threads_ = resolve_threads(threads);
   control_ = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
                                                    static_cast<std::size_t>(threads_));
+#ifdef CFDDEM_HAVE_OPENMP
+  // TBB owns the threads of a rank. hypre (Debian builds it with OpenMP) would otherwise start
+  // one OpenMP thread per core in every rank, beside the TBB workers and the other ranks: with
+  // R ranks x N threads on R x N cores that oversubscribes the cores (spinning OpenMP workers),
+  // and an OpenMP reduction could make the pressure solve depend on the thread count.
+  omp_set_num_threads(1);
+#endif
 }
 
 void ParallelEnv::abort(int code) const {

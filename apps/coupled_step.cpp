@@ -111,7 +111,7 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p)
   deposition_ = std::make_unique<fluid::Deposition>(grid_, ds, std::max(r_max, 1e-300));
   law_ = fluid::parse_drag_law(scene.fluid.drag);
   eps_s_ = grid_.make_field();
-  work_ = grid_.make_field();
+  for (int a = 0; a < 3; ++a) cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
   // Axis of the pressure drop diagnostic.
   int axis = -1;
   double gmax = 0.0;
@@ -143,13 +143,16 @@ void GasCoupling::deposit(const ParticleStore& p) {
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i)
         eps(i, j, k) = std::max(kMinGasFraction, 1.0 - eps_s_(i, j, k));
-  // eps_g and the gas velocity (of the last step) at the particles.
-  eps_p_.resize(n), beta_.resize(n), bv_.resize(n);
-  deposition_->interpolate(pos, eps, eps_p_);
+  // eps_g and the gas velocity (of the last step) at the particles, in one pass.
+  eps_p_.resize(n), beta_.resize(n);
   for (int a = 0; a < 3; ++a) {
-    ug_[a].resize(n);
-    solver_->cell_centred_velocity(a, work_);
-    deposition_->interpolate(pos, work_, ug_[a]);
+    ug_[a].resize(n), bv_[a].resize(n);
+    solver_->cell_centred_velocity(a, cell_u_[a]);
+  }
+  {
+    const fluid::GridField* in[] = {&eps, &cell_u_[0], &cell_u_[1], &cell_u_[2]};
+    const std::span<double> out[] = {eps_p_, ug_[0], ug_[1], ug_[2]};
+    deposition_->interpolate(pos, in, out);
   }
   // beta_i from the drag law (physics.md §4) with the slip |u_g - v_i|.
   const double rho = scene_.fluid.density, mu = scene_.fluid.viscosity;
@@ -159,16 +162,15 @@ void GasCoupling::deposit(const ParticleStore& p) {
     const double e = std::clamp(eps_p_[i], kMinGasFraction, 1.0);
     beta_[i] = fluid::drag_beta(law_, e, 2.0 * p.radius[i], slip, rho, mu);
   }
-  fluid::GridField& bcell = solver_->drag_coefficient();
-  bcell.fill(0.0);
-  deposition_->deposit(pos, beta_, bcell);
+  // beta_i and beta_i v_i to the cells, in one pass.
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
-  for (int a = 0; a < 3; ++a) {
-    for (std::size_t i = 0; i < n; ++i) bv_[i] = beta_[i] * (*v[a])[i];
-    fluid::GridField& f = solver_->drag_velocity_sum(a);
-    f.fill(0.0);
-    deposition_->deposit(pos, bv_, f);
-  }
+  for (int a = 0; a < 3; ++a)
+    for (std::size_t i = 0; i < n; ++i) bv_[a][i] = beta_[i] * (*v[a])[i];
+  fluid::GridField* cells[] = {&solver_->drag_coefficient(), &solver_->drag_velocity_sum(0),
+                               &solver_->drag_velocity_sum(1), &solver_->drag_velocity_sum(2)};
+  for (fluid::GridField* f : cells) f->fill(0.0);
+  const std::span<const double> values[] = {beta_, bv_[0], bv_[1], bv_[2]};
+  deposition_->deposit(pos, values, cells);
 }
 
 double GasCoupling::cfl_dt() const { return solver_->dt_for_courant(scene_.fluid.cfl); }
@@ -192,13 +194,20 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
   force_ids_.assign(p.id.begin(), p.id.end());
   const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
+  // The new gas velocity and the pressure gradient at the particles, in one pass.
   for (int a = 0; a < 3; ++a) {
-    force_[a].resize(n);
-    solver_->cell_centred_velocity(a, work_);
-    deposition_->interpolate(pos, work_, ug_[a]);
-    std::vector<double>& gp = bv_; // scratch
-    solver_->cell_pressure_gradient(a, work_);
-    deposition_->interpolate(pos, work_, gp);
+    force_[a].resize(n), gp_[a].resize(n);
+    solver_->cell_centred_velocity(a, cell_u_[a]);
+    solver_->cell_pressure_gradient(a, cell_gp_[a]);
+  }
+  {
+    const fluid::GridField* in[] = {&cell_u_[0], &cell_u_[1], &cell_u_[2],
+                                    &cell_gp_[0], &cell_gp_[1], &cell_gp_[2]};
+    const std::span<double> out[] = {ug_[0], ug_[1], ug_[2], gp_[0], gp_[1], gp_[2]};
+    deposition_->interpolate(pos, in, out);
+  }
+  for (int a = 0; a < 3; ++a) {
+    const std::vector<double>& gp = gp_[a];
     for (std::size_t i = 0; i < n; ++i) {
       const double r = p.radius[i];
       const double vp = (4.0 / 3.0) * std::numbers::pi * r * r * r;

@@ -133,4 +133,54 @@ void Deposition::interpolate(const ParticlePositions& p, const GridField& field,
   }
 }
 
+void Deposition::interpolate(const ParticlePositions& p, std::span<const GridField* const> fields,
+                             std::span<const std::span<double>> outs) {
+  const std::size_t nf = fields.size();
+  if (outs.size() != nf) {
+    throw std::invalid_argument("Deposition::interpolate: one output per field");
+  }
+  constexpr std::size_t kMaxFields = 8;
+  if (nf > kMaxFields) {
+    throw std::invalid_argument("Deposition::interpolate: at most 8 fields at once");
+  }
+  const std::size_t n = nf ? outs[0].size() : 0;
+  for (std::size_t q = 0; q < n; ++q) {
+    std::array<double, kMaxFields> sum{};
+    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], [&](std::size_t idx, double w) {
+      for (std::size_t f = 0; f < nf; ++f) {
+        sum[f] += w * (*fields[f])[idx];
+      }
+    });
+    for (std::size_t f = 0; f < nf; ++f) {
+      outs[f][q] = sum[f];
+    }
+  }
+}
+
+void Deposition::deposit(const ParticlePositions& p,
+                         std::span<const std::span<const double>> values,
+                         std::span<GridField* const> cells) {
+  const std::size_t nf = values.size();
+  if (cells.size() != nf) {
+    throw std::invalid_argument("Deposition::deposit: one cell field per value array");
+  }
+  constexpr std::size_t kMaxFields = 8;
+  if (nf > kMaxFields) {
+    throw std::invalid_argument("Deposition::deposit: at most 8 fields at once");
+  }
+  const double inv_volume = 1.0 / grid_.cell_volume();
+  const std::size_t n = nf ? values[0].size() : 0;
+  std::array<double, kMaxFields> v{};
+  for (std::size_t q = 0; q < n; ++q) {
+    for (std::size_t f = 0; f < nf; ++f) {
+      v[f] = values[f][q] * inv_volume;
+    }
+    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], [&](std::size_t idx, double w) {
+      for (std::size_t f = 0; f < nf; ++f) {
+        (*cells[f])[idx] += w * v[f];
+      }
+    });
+  }
+}
+
 } // namespace cfddem::fluid

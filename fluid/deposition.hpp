@@ -50,6 +50,14 @@ public:
   // out_p = sum_cells W_p(cell) field(cell), with the same wrap/fold as deposit.
   void interpolate(const ParticlePositions& p, const GridField& field, std::span<double> out);
 
+  // Several fields at once: the weights of each particle are computed once for all of them
+  // (they cost more than the sums: a dpvm kernel samples the sphere). Each output is bit for
+  // bit what the one-field call gives (same weights, same order).
+  void interpolate(const ParticlePositions& p, std::span<const GridField* const> fields,
+                   std::span<const std::span<double>> outs);
+  void deposit(const ParticlePositions& p, std::span<const std::span<const double>> values,
+               std::span<GridField* const> cells);
+
   [[nodiscard]] const DepositionSettings& settings() const { return settings_; }
 
 private:

@@ -1,6 +1,10 @@
 #include "fluid/deposition.hpp"
 
 #include <numbers>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <stdexcept>
 #include <string>
 
@@ -42,13 +46,13 @@ Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, 
   weights_.resize(capacity);
 }
 
-void Deposition::reserve_weights(double r) {
+void Deposition::reserve_weights(double r, std::vector<double>& buf) const {
   std::size_t needed = 1;
   for (int a = 0; a < 3; ++a) {
     needed *= static_cast<std::size_t>(dpvm_max_cells(r, grid_.spacing(a)));
   }
-  if (needed > weights_.size()) {
-    weights_.resize(needed); // a particle larger than max_radius: grow once
+  if (needed > buf.size()) {
+    buf.resize(needed); // a particle larger than max_radius: grow once
   }
 }
 
@@ -64,21 +68,25 @@ int Deposition::fold(int axis, int i) const {
 }
 
 template <class Visit>
-void Deposition::for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit) {
+void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
+                                 std::vector<double>& buf, Visit&& visit) const {
+  if (buf.size() < weights_.size()) {
+    buf.resize(weights_.size());
+  }
   const std::array<double, 3> origin = {grid_.origin(0), grid_.origin(1), grid_.origin(2)};
   const std::array<double, 3> dx = {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)};
   CellStencil s;
   switch (settings_.kernel) {
   case DepositionKernel::trilinear:
-    s = trilinear_weights(x, origin, dx, std::span<double, 8>(weights_.data(), 8));
+    s = trilinear_weights(x, origin, dx, std::span<double, 8>(buf.data(), 8));
     break;
   case DepositionKernel::dpvm_cube:
-    reserve_weights(settings_.width * radius);
-    s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::cube, weights_);
+    reserve_weights(settings_.width * radius, buf);
+    s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::cube, buf);
     break;
   case DepositionKernel::dpvm_sphere:
-    reserve_weights(settings_.width * radius);
-    s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::sphere, weights_,
+    reserve_weights(settings_.width * radius, buf);
+    s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::sphere, buf,
                      settings_.sphere_samples);
     break;
   }
@@ -88,7 +96,7 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius, 
     for (int b = 0; b < s.size[1]; ++b) {
       const int j = fold(1, s.lo[1] + b);
       for (int a = 0; a < s.size[0]; ++a) {
-        const double w = weights_[m++];
+        const double w = buf[m++];
         if (w != 0.0) {
           visit(grid_.layout().index(fold(0, s.lo[0] + a), j, k), w);
         }
@@ -102,7 +110,7 @@ void Deposition::deposit(const ParticlePositions& p, std::span<const double> val
   const double inv_volume = 1.0 / grid_.cell_volume();
   for (std::size_t n = 0; n < value.size(); ++n) {
     const double q = value[n] * inv_volume;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n],
+    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
                     [&](std::size_t idx, double w) { cell[idx] += w * q; });
   }
 }
@@ -112,7 +120,7 @@ void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& e
   for (std::size_t n = 0; n < p.radius.size(); ++n) {
     const double r = p.radius[n];
     const double q = 4.0 / 3.0 * std::numbers::pi * r * r * r * inv_volume;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, r,
+    for_each_weight({p.x[n], p.y[n], p.z[n]}, r, weights_,
                     [&](std::size_t idx, double w) { eps_s[idx] += w * q; });
   }
 }
@@ -127,7 +135,7 @@ void Deposition::interpolate(const ParticlePositions& p, const GridField& field,
                              std::span<double> out) {
   for (std::size_t n = 0; n < out.size(); ++n) {
     double sum = 0.0;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n],
+    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
                     [&](std::size_t idx, double w) { sum += w * field[idx]; });
     out[n] = sum;
   }
@@ -144,17 +152,24 @@ void Deposition::interpolate(const ParticlePositions& p, std::span<const GridFie
     throw std::invalid_argument("Deposition::interpolate: at most 8 fields at once");
   }
   const std::size_t n = nf ? outs[0].size() : 0;
-  for (std::size_t q = 0; q < n; ++q) {
-    std::array<double, kMaxFields> sum{};
-    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], [&](std::size_t idx, double w) {
-      for (std::size_t f = 0; f < nf; ++f) {
-        sum[f] += w * (*fields[f])[idx];
-      }
-    });
-    for (std::size_t f = 0; f < nf; ++f) {
-      outs[f][q] = sum[f];
-    }
-  }
+  // Particles are independent (a gather): blocks of them are TBB tasks, each with its own
+  // weight buffer; every particle's sums run in the same order whatever the thread count.
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      std::vector<double> buf(weights_.size());
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        std::array<double, kMaxFields> sum{};
+                        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                                        [&](std::size_t idx, double w) {
+                                          for (std::size_t f = 0; f < nf; ++f) {
+                                            sum[f] += w * (*fields[f])[idx];
+                                          }
+                                        });
+                        for (std::size_t f = 0; f < nf; ++f) {
+                          outs[f][q] = sum[f];
+                        }
+                      }
+                    });
 }
 
 void Deposition::deposit(const ParticlePositions& p,
@@ -175,11 +190,12 @@ void Deposition::deposit(const ParticlePositions& p,
     for (std::size_t f = 0; f < nf; ++f) {
       v[f] = values[f][q] * inv_volume;
     }
-    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], [&](std::size_t idx, double w) {
-      for (std::size_t f = 0; f < nf; ++f) {
-        (*cells[f])[idx] += w * v[f];
-      }
-    });
+    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
+                    [&](std::size_t idx, double w) {
+                      for (std::size_t f = 0; f < nf; ++f) {
+                        (*cells[f])[idx] += w * v[f];
+                      }
+                    });
   }
 }
 

@@ -61,10 +61,13 @@ public:
   [[nodiscard]] const DepositionSettings& settings() const { return settings_; }
 
 private:
+  // Visits the cells of a particle's kernel with their weights; `buf` holds the weights (grown
+  // for large particles), so concurrent callers pass their own.
   template <class Visit>
-  void for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit);
+  void for_each_weight(const std::array<double, 3>& x, double radius, std::vector<double>& buf,
+                       Visit&& visit) const;
   [[nodiscard]] int fold(int axis, int i) const;
-  void reserve_weights(double kernel_radius);
+  void reserve_weights(double kernel_radius, std::vector<double>& buf) const;
 
   MacGrid grid_;
   DepositionSettings settings_;

@@ -1,21 +1,28 @@
 #include "fluid/momentum_rhs.hpp"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 namespace cfddem::fluid {
 
 namespace {
 
-// Calls f(p) for the linear index p of every point of the box lo..hi (inclusive).
+// Calls f(p) for the linear index p of every point of the box lo..hi (inclusive), planes of
+// constant k as TBB tasks: every pass writes each point once from values no pass of the same
+// sweep writes, so the result does not depend on the thread count.
 template <class F>
 void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::array<int, 3>& hi,
              F&& f) {
-  for (int k = lo[2]; k <= hi[2]; ++k) {
-    for (int j = lo[1]; j <= hi[1]; ++j) {
-      const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-      for (std::ptrdiff_t p = row; p <= row + (hi[0] - lo[0]); ++p) {
-        f(p);
+  tbb::parallel_for(tbb::blocked_range<int>(lo[2], hi[2] + 1), [&](const tbb::blocked_range<int>& r) {
+    for (int k = r.begin(); k != r.end(); ++k) {
+      for (int j = lo[1]; j <= hi[1]; ++j) {
+        const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+        for (std::ptrdiff_t p = row; p <= row + (hi[0] - lo[0]); ++p) {
+          f(p);
+        }
       }
     }
-  }
+  });
 }
 
 void ensure(GridField& f, const GridLayout& layout) {

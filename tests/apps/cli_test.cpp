@@ -98,6 +98,24 @@ TEST(Cli, HelpListsSubcommandsAndKeys) {
     EXPECT_NE(r.output.find(s), std::string::npos) << s;
 }
 
+namespace {
+
+// A diagnostics.csv without its wall-clock column (wall_seconds, the 16th: index 15).
+std::string strip_wall(const std::string& csv) {
+  std::stringstream in(csv), out;
+  std::string line;
+  while (std::getline(in, line)) {
+    std::stringstream cells(line);
+    std::string cell;
+    for (int c = 0; std::getline(cells, cell, ','); ++c)
+      if (c != 15) out << cell << ',';
+    out << '\n';
+  }
+  return out.str();
+}
+
+} // namespace
+
 // Same scene with 1 and 2 threads: diagnostics identical except the wall-clock column.
 TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
   const fs::path a = fs::path(::testing::TempDir()) / "t1", b = fs::path(::testing::TempDir()) / "t2";
@@ -105,19 +123,6 @@ TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
                              CFDDEM_SOURCE_DIR + "/scenes/data/hcs1222.csv --quiet";
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 2 --out {}", common, b.string())).code, 0);
-  auto strip_wall = [](const std::string& csv) {
-    std::stringstream in(csv), out;
-    std::string line;
-    // wall_seconds is the 16th column (index 15); the leaf-step columns follow it.
-    while (std::getline(in, line)) {
-      std::stringstream cells(line);
-      std::string cell;
-      for (int c = 0; std::getline(cells, cell, ','); ++c)
-        if (c != 15) out << cell << ',';
-      out << '\n';
-    }
-    return out.str();
-  };
   const std::string da = read(a / "diagnostics.csv"), db = read(b / "diagnostics.csv");
   EXPECT_EQ(std::count(da.begin(), da.end(), '\n'), 12); // header + t = 0 + 10 rows
   EXPECT_EQ(strip_wall(da), strip_wall(db));
@@ -154,5 +159,24 @@ TEST(Cli, ZeroAndOneParticleRuns) {
     EXPECT_EQ(r.code, 0) << r.output;
     const std::string csv = read(out / "diagnostics.csv");
     EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 101) << csv;
+  }
+}
+
+// With a gas (the momentum right-hand side by planes and the interpolation by particle blocks
+// run as TBB tasks): a quarter of the fluidized bed (dpvm kernel, walls, inflow and outflow)
+// and the riser's periodic pressure drive, 1 and 2 threads, diagnostics identical.
+TEST(Cli, CoupledDiagnosticsIdenticalForOneAndTwoThreads) {
+  const std::string src = CFDDEM_SOURCE_DIR;
+  for (const std::string& scene :
+       {src + "/scenes/fluidized_bed.toml particles.count=2500 domain.hi=[0.8e-3,1.0e-2,0.8e-3] "
+              "particles.region_hi=[0.8e-3,5.4e-3,0.8e-3] fluid.cells=[16,50,16]",
+        src + "/scenes/riser.toml particles.count=2000 fluid.cells=[16,25,16]"}) {
+    const fs::path a = fs::path(::testing::TempDir()) / "c1", b = fs::path(::testing::TempDir()) / "c2";
+    const std::string common = scene + " run.end_time=4e-4 output.interval=1e-4 --quiet";
+    ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
+    ASSERT_EQ(cfddem(fmt::format("run {} --threads 2 --out {}", common, b.string())).code, 0);
+    const std::string da = read(a / "diagnostics.csv"), db = read(b / "diagnostics.csv");
+    EXPECT_EQ(std::count(da.begin(), da.end(), '\n'), 6) << scene; // header + t = 0 + 4 rows
+    EXPECT_EQ(strip_wall(da), strip_wall(db)) << scene;
   }
 }

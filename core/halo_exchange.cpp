@@ -71,6 +71,9 @@ void HaloExchange::transfer(std::span<const std::span<double>> fields, bool reve
     for (const std::span<double> f : fields) {
       for (const std::size_t p : outgoing) {
         buf[m++] = f[p];
+        if (reverse) {
+          f[p] = 0.0;
+        }
       }
     }
     requests.emplace_back();
@@ -101,6 +104,7 @@ void HaloExchange::transfer(std::span<const std::span<double>> fields, bool reve
         for (const std::span<double> f : fields) {
           for (std::size_t k = 0; k < l.send.size(); ++k) {
             f[l.send[k]] += f[l.recv[k]];
+            f[l.recv[k]] = 0.0;
           }
         }
       }

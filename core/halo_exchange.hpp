@@ -33,7 +33,8 @@ public:
   void forward(std::span<const std::span<double>> fields) const;
   void forward(std::span<double> field) const;
   // Reverse: the peer's values at its recv positions are added into send positions, peers in
-  // rank order (deterministic). Ghost values are left as they were.
+  // rank order (deterministic), and the recv positions are zeroed: their content moved to the
+  // owners, so deposits into the same array can accumulate call after call.
   void reverse_add(std::span<double> field) const;
 
   [[nodiscard]] const std::vector<Link>& links() const { return links_; }

@@ -4,6 +4,8 @@
 #include <stdexcept>
 #include <string>
 
+#include <fmt/format.h>
+
 #include "fluid/diffusion_smoothing.hpp"
 #include "fluid/trilinear_weights.hpp"
 
@@ -23,8 +25,15 @@ DepositionKernel parse_deposition_kernel(std::string_view name) {
                               "\" (choose trilinear, dpvm_cube or dpvm_sphere)");
 }
 
-Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius)
-    : grid_(grid), settings_(settings) {
+Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius,
+                       const GridHalo* halo)
+    : grid_(grid), settings_(settings), halo_(halo) {
+  if (grid.distributed() != (halo != nullptr)) {
+    throw std::invalid_argument("deposition: a distributed grid needs its halo (and only it)");
+  }
+  if (grid.distributed() && settings.diffusion > 0.0) {
+    throw std::invalid_argument("deposition diffusion is not distributed over ranks yet (D = 0)");
+  }
   if (settings.kernel != DepositionKernel::trilinear && !(settings.width > 0.0)) {
     throw std::invalid_argument("deposition width must be positive (particle diameters)");
   }
@@ -53,6 +62,9 @@ void Deposition::reserve_weights(double r) {
 }
 
 int Deposition::fold(int axis, int i) const {
+  if (grid_.distributed()) {
+    return fold_in_box(axis, i);
+  }
   const int n = grid_.cells(axis);
   if (grid_.periodic(axis)) {
     return ((i % n) + n) % n;
@@ -61,6 +73,27 @@ int Deposition::fold(int axis, int i) const {
   const int period = 2 * n;
   int m = ((i % period) + period) % period;
   return m < n ? m : period - 1 - m;
+}
+
+// Global stencil index i to the box's local index: mirrored at walls (as above), kept on a
+// periodic axis (the ghost's periodic image is the halo's business).
+int Deposition::fold_in_box(int axis, int i) const {
+  const int n = grid_.global_cells()[axis];
+  int g = i;
+  if (!grid_.periodic(axis)) {
+    const int period = 2 * n;
+    const int m = ((i % period) + period) % period;
+    g = m < n ? m : period - 1 - m;
+  }
+  const int local = g - grid_.box().lo[axis];
+  if (local < -kGhostLayers || local > grid_.cells(axis) + kGhostLayers) {
+    throw std::runtime_error(fmt::format(
+        "deposition: a particle's kernel reaches cell {} along axis {}, beyond the {} ghost "
+        "layers of the box of cells {}..{} (a particle outside its rank's box, or a kernel wider "
+        "than {} cells: lower fluid.deposition_width or use coarser cells)",
+        g, axis, kGhostLayers, grid_.box().lo[axis], grid_.box().hi[axis] - 1, kGhostLayers));
+  }
+  return local;
 }
 
 template <class Visit>
@@ -105,6 +138,9 @@ void Deposition::deposit(const ParticlePositions& p, std::span<const double> val
     for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n],
                     [&](std::size_t idx, double w) { cell[idx] += w * q; });
   }
+  if (halo_ != nullptr) {
+    halo_->add_ghosts_to_owners(cell, kCellCentred);
+  }
 }
 
 void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s) {
@@ -114,6 +150,9 @@ void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& e
     const double q = 4.0 / 3.0 * std::numbers::pi * r * r * r * inv_volume;
     for_each_weight({p.x[n], p.y[n], p.z[n]}, r,
                     [&](std::size_t idx, double w) { eps_s[idx] += w * q; });
+  }
+  if (halo_ != nullptr) {
+    halo_->add_ghosts_to_owners(eps_s, kCellCentred);
   }
 }
 

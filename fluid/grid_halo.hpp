@@ -33,8 +33,8 @@ public:
   // ghost: the neighbour's face 0 (one value per face, whichever box computed it).
   void fill(GridField& f, int centring) const;
   void fill(std::span<GridField* const> fields, int centring) const;
-  // Every ghost point's value added into its owner's point (reverse of fill); ghosts keep their
-  // values. Adds arrive in rank order: deterministic for a given decomposition.
+  // Every exchanged ghost point's value added into its owner's point (reverse of fill), and the
+  // ghost zeroed. Adds arrive in rank order: deterministic for a given decomposition.
   void add_ghosts_to_owners(GridField& f, int centring) const;
 
   [[nodiscard]] double sum(double v) const {

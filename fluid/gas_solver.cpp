@@ -77,24 +77,26 @@ std::array<double, 3> GasSolver::background_pressure_gradient() const {
 
 double GasSolver::courant_number(double dt) const {
   const auto& n = grid_.cells();
-  double rate = 0.0;
   const double nu = settings_.gas.viscosity / settings_.gas.density;
+  std::array<double, 3> umax{};
   for (int a = 0; a < 3; ++a) {
-    double umax = 0.0;
     std::array<int, 3> hi = n;
     hi[a] = n[a] + 1;
     for (int k = 0; k < hi[2]; ++k) {
       for (int j = 0; j < hi[1]; ++j) {
         for (int i = 0; i < hi[0]; ++i) {
-          umax = std::max(umax, std::abs(u_[a](i, j, k)));
+          umax[a] = std::max(umax[a], std::abs(u_[a](i, j, k)));
         }
       }
     }
-    if (halo_) {
-      umax = halo_->max(umax); // exact: every rank takes the same dt
-    }
+  }
+  if (halo_) {
+    halo_->comm().max(umax); // a max is exact: every rank takes the same dt
+  }
+  double rate = 0.0;
+  for (int a = 0; a < 3; ++a) {
     const double dx = grid_.spacing(a);
-    rate += umax / dx + (settings_.implicit_viscosity ? 0.0 : 2.0 * nu / (dx * dx));
+    rate += umax[a] / dx + (settings_.implicit_viscosity ? 0.0 : 2.0 * nu / (dx * dx));
   }
   return dt * rate;
 }

@@ -270,6 +270,37 @@ TEST_P(DistributedGas, ClosedBoxAndOutflowColumnMatchOneGrid) {
                    GetParam() ? "column_implicit" : "column_explicit");
 }
 
+TEST_P(DistributedGas, TwoDimensionalChannelWithOneCellPeriodicAxisMatchesOneGrid) {
+  // One cell along periodic z (no flux: hypre's axis is left non-periodic, the exchange copies
+  // the cell onto itself), walls along y, pressure drop along periodic x, a disturbance.
+  MacGridSpec spec = box_spec({9, 12, 1}, {9e-4, 1.2e-3, 1e-4}, BoundaryKind::periodic);
+  set_axis(spec, 1, BoundaryKind::wall);
+  spec.pressure_drop[0] = 1e-3;
+  const FieldSetter start = [](const MacGrid& g, GasSolver& solver, int s) {
+    if (s == 0) {
+      set_field(g, solver.velocity()[1], 1, [](double x, double y, double) {
+        return 1e-3 * std::sin(2.0 * std::numbers::pi * x / 9e-4) *
+               std::sin(std::numbers::pi * y / 1.2e-3);
+      });
+    }
+  };
+  expect_round_off(run_both(spec, tight_settings(GetParam()), 10, 2e-5, 0.0, start),
+                   GetParam() ? "channel_2d_implicit" : "channel_2d_explicit");
+}
+
+TEST_P(DistributedGas, SmgPreconditionedColumnMatchesOneGrid) {
+  // hypre's SMG (the fallback preconditioner) on the communicator too.
+  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
+  column.bc[2] = test::bc_of(BoundaryKind::inflow);
+  column.bc[2].velocity = {0.0, 0.015, 0.0};
+  column.bc[3] = test::bc_of(BoundaryKind::outflow);
+  GasSolverSettings settings = tight_settings(GetParam());
+  settings.projection.preconditioner = PoissonPreconditioner::smg;
+  const FieldSetter none = [](const MacGrid&, GasSolver&, int) {};
+  expect_round_off(run_both(column, settings, 5, 1e-5, 0.0, none),
+                   GetParam() ? "column_smg_implicit" : "column_smg_explicit");
+}
+
 INSTANTIATE_TEST_SUITE_P(Viscosity, DistributedGas, ::testing::Values(false, true),
                          [](const ::testing::TestParamInfo<bool>& param) {
                            return std::string(param.param ? "implicit" : "explicit");

@@ -77,7 +77,7 @@ int Deposition::fold(int axis, int i) const {
 
 // Global stencil index i to the box's local index: mirrored at walls (as above), kept on a
 // periodic axis (the ghost's periodic image is the halo's business).
-int Deposition::fold_in_box(int axis, int i) const {
+int Deposition::box_index(int axis, int i) const {
   const int n = grid_.global_cells()[axis];
   int g = i;
   if (!grid_.periodic(axis)) {
@@ -85,7 +85,12 @@ int Deposition::fold_in_box(int axis, int i) const {
     const int m = ((i % period) + period) % period;
     g = m < n ? m : period - 1 - m;
   }
-  const int local = g - grid_.box().lo[axis];
+  return g - grid_.box().lo[axis];
+}
+
+int Deposition::fold_in_box(int axis, int i) const {
+  const int local = box_index(axis, i);
+  const int g = local + grid_.box().lo[axis];
   if (local < -kGhostLayers || local > grid_.cells(axis) + kGhostLayers) {
     throw std::runtime_error(fmt::format(
         "deposition: a particle's kernel reaches cell {} along axis {}, beyond the {} ghost "
@@ -96,8 +101,31 @@ int Deposition::fold_in_box(int axis, int i) const {
   return local;
 }
 
-template <class Visit>
-void Deposition::for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit) {
+std::string Deposition::reach_problem(const ParticlePositions& p) {
+  if (!grid_.distributed()) {
+    return {};
+  }
+  for (std::size_t n = 0; n < p.radius.size(); ++n) {
+    const CellStencil s = stencil({p.x[n], p.y[n], p.z[n]}, p.radius[n]);
+    for (int a = 0; a < 3; ++a) {
+      for (int c = 0; c < s.size[a]; ++c) {
+        const int local = box_index(a, s.lo[a] + c);
+        if (local < -kGhostLayers || local > grid_.cells(a) + kGhostLayers) {
+          return fmt::format(
+              "deposition: the kernel of the particle at ({:.6g}, {:.6g}, {:.6g}) m reaches "
+              "cell {} along axis {}, beyond the {} ghost layers of its rank's box of cells "
+              "{}..{} (lower fluid.deposition_width, use coarser cells, or a smaller "
+              "dem.neighbor_skin: owners are settled at neighbor rebuilds)",
+              p.x[n], p.y[n], p.z[n], local + grid_.box().lo[a], a, kGhostLayers, grid_.box().lo[a],
+              grid_.box().hi[a] - 1);
+        }
+      }
+    }
+  }
+  return {};
+}
+
+CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius) {
   const std::array<double, 3> origin = {grid_.origin(0), grid_.origin(1), grid_.origin(2)};
   const std::array<double, 3> dx = {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)};
   CellStencil s;
@@ -115,6 +143,12 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius, 
                      settings_.sphere_samples);
     break;
   }
+  return s;
+}
+
+template <class Visit>
+void Deposition::for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit) {
+  const CellStencil s = stencil(x, radius);
   std::size_t m = 0; // weights are stored x fastest, as the loops run
   for (int c = 0; c < s.size[2]; ++c) {
     const int k = fold(2, s.lo[2] + c);

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -61,9 +62,16 @@ public:
   // the field's exchanged ghosts must be filled (GridHalo::fill).
   void interpolate(const ParticlePositions& p, const GridField& field, std::span<double> out);
 
+  // Distributed: the first of the particles whose stencil leaves the box's ghost layers, as a
+  // message (empty: all fit; always empty on an undistributed grid). Not collective: a caller
+  // agrees on it over the ranks before the collective deposit.
+  [[nodiscard]] std::string reach_problem(const ParticlePositions& p);
+
   [[nodiscard]] const DepositionSettings& settings() const { return settings_; }
 
 private:
+  CellStencil stencil(const std::array<double, 3>& x, double radius);
+  [[nodiscard]] int box_index(int axis, int i) const;
   template <class Visit>
   void for_each_weight(const std::array<double, 3>& x, double radius, Visit&& visit);
   [[nodiscard]] int fold(int axis, int i) const;

@@ -441,6 +441,11 @@ TEST(DistributedExplicit, FluidBoxOwnershipWithExternalForceMatchesSerialScheme)
   }
   EXPECT_EQ(c.sum(outside), 0);
   EXPECT_EQ(c.sum(static_cast<std::int64_t>(s.owned())), static_cast<std::int64_t>(all.size()));
+  double mass = 0.0;
+  for (std::size_t i = 0; i < s.owned(); ++i)
+    mass += p.mass[i];
+  c.sum(std::span<double>(&mass, 1));
+  EXPECT_NEAR(mass, all.total_mass(), 1e-13 * all.total_mass());
   const auto ref_index = index_by_id(serial, serial.size());
   const dem::DomainGeometry g(scene.domain);
   double dx = 0.0, dv = 0.0;

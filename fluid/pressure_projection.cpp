@@ -122,8 +122,13 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
     owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
   }
   global_cells_ = static_cast<double>(global[0]) * global[1] * global[2];
-  const MPI_Comm comm = halo ? mpi_comm(halo->comm()) : MPI_COMM_SELF;
-  h.comm = comm;
+  // Distributed: hypre talks on its own duplicate of the ranks' communicator, so its messages
+  // can never match those of other traffic in flight meanwhile (the particles' ghost forward
+  // posted before a gas step, MPI-3.1 §3.5: matching is by source, tag and communicator).
+  if (halo != nullptr) {
+    MPI_Comm_dup(mpi_comm(halo->comm()), &h.comm);
+  }
+  const MPI_Comm comm = h.comm;
   HYPRE_StructGridCreate(comm, 3, &h.grid);
   HYPRE_StructGridSetExtents(h.grid, h.lower.data(), h.upper.data());
   HYPRE_StructGridSetPeriodic(h.grid, periodic.data());
@@ -155,6 +160,9 @@ PressureProjection::~PressureProjection() {
   HYPRE_StructMatrixDestroy(hypre_->matrix);
   HYPRE_StructStencilDestroy(hypre_->stencil);
   HYPRE_StructGridDestroy(hypre_->grid);
+  if (hypre_->comm != MPI_COMM_SELF) {
+    MPI_Comm_free(&hypre_->comm);
+  }
   delete hypre_;
 }
 

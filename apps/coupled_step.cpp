@@ -11,6 +11,7 @@
 
 #include "core/error.hpp"
 #include "fluid/ghost_fill.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/pressure_projection.hpp"
 
 namespace cfddem::apps {
@@ -100,15 +101,41 @@ void validate_fluid(const Scene& s) {
                                   s.dem.scheme));
 }
 
-GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p)
-    : scene_(scene), grid_(fluid_grid_spec(scene)) {
-  solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene));
+namespace {
+
+std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
+  const fluid::MacGridSpec spec = fluid_grid_spec(scene);
+  if (comm == nullptr || comm->size() == 1) return {CellBox{{0, 0, 0}, spec.cells}};
+  try {
+    return orb_cell_boxes(spec.cells, comm->size(), fluid::kMinBoxWidth);
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError("scene key 'fluid.cells'", e.what());
+  }
+}
+
+fluid::MacGrid gas_grid(const Scene& scene, const Communicator* comm,
+                        const std::vector<CellBox>& boxes) {
+  if (comm == nullptr || comm->size() == 1) return fluid::MacGrid(fluid_grid_spec(scene));
+  return fluid::MacGrid(fluid_grid_spec(scene), boxes[static_cast<std::size_t>(comm->rank())]);
+}
+
+} // namespace
+
+GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Communicator* comm,
+                         std::size_t owned)
+    : scene_(scene), comm_(comm != nullptr && comm->size() > 1 ? comm : nullptr),
+      boxes_(gas_boxes(scene, comm_)), grid_(gas_grid(scene, comm_, boxes_)) {
+  if (comm_ != nullptr) halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
+  solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);
+  const std::size_t n = std::min(owned, p.size());
   double r_max = 0.0;
-  for (double r : p.radius) r_max = std::max(r_max, r);
+  for (std::size_t i = 0; i < n; ++i) r_max = std::max(r_max, p.radius[i]);
+  if (comm_ != nullptr) r_max = comm_->max(r_max);
   fluid::DepositionSettings ds;
   ds.kernel = kernel(scene.fluid.deposition);
   ds.width = scene.fluid.deposition_width;
-  deposition_ = std::make_unique<fluid::Deposition>(grid_, ds, std::max(r_max, 1e-300));
+  deposition_ =
+      std::make_unique<fluid::Deposition>(grid_, ds, std::max(r_max, 1e-300), halo_.get());
   law_ = fluid::parse_drag_law(scene.fluid.drag);
   eps_s_ = grid_.make_field();
   for (int a = 0; a < 3; ++a) cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
@@ -125,15 +152,23 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p)
   // Initial gas velocity: uniform on faces (the first projection makes it admissible).
   for (int a = 0; a < 3; ++a) solver_->velocity()[a].fill(scene.fluid.velocity[a]);
   // eps_g of the initial particles, so the first step sees no d(eps)/dt.
-  deposit(p);
+  deposit(p, n);
   solver_->reset_volume_fraction_history();
 }
 
 GasCoupling::~GasCoupling() = default;
 
-void GasCoupling::deposit(const ParticleStore& p) {
-  const std::size_t n = p.size();
-  const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
+void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
+  const fluid::ParticlePositions pos{{p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n},
+                                     {p.radius.data(), n}};
+  if (comm_ != nullptr) {
+    // A stencil beyond the ghost layers on any rank stops every rank before the collective
+    // deposits (the first particle by rank).
+    const std::string problem = deposition_->reach_problem(pos);
+    const std::string agreed = comm_->agree_on_error(problem.empty() ? comm_->size() : comm_->rank(),
+                                                     problem);
+    if (!agreed.empty()) throw RunError(agreed);
+  }
   // Solid fraction -> eps_g (physics.md §7), floored (kMinGasFraction).
   eps_s_.fill(0.0);
   deposition_->deposit_solid_fraction(pos, eps_s_);
@@ -143,11 +178,14 @@ void GasCoupling::deposit(const ParticleStore& p) {
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i)
         eps(i, j, k) = std::max(kMinGasFraction, 1.0 - eps_s_(i, j, k));
-  // eps_g and the gas velocity (of the last step) at the particles, in one pass.
+  // eps_g and the gas velocity (of the last step) at the particles, in one pass (over ranks,
+  // from the fields with their exchanged ghosts).
   eps_p_.resize(n), beta_.resize(n);
+  if (halo_) halo_->fill(eps, fluid::kCellCentred);
   for (int a = 0; a < 3; ++a) {
     ug_[a].resize(n), bv_[a].resize(n);
     solver_->cell_centred_velocity(a, cell_u_[a]);
+    if (halo_) halo_->fill(cell_u_[a], fluid::kCellCentred);
   }
   {
     const fluid::GridField* in[] = {&eps, &cell_u_[0], &cell_u_[1], &cell_u_[2]};
@@ -175,9 +213,10 @@ void GasCoupling::deposit(const ParticleStore& p) {
 
 double GasCoupling::cfl_dt() const { return solver_->dt_for_courant(scene_.fluid.cfl); }
 
-fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
+fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
   eps_prev_ = solver_->volume_fraction();
-  deposit(p);
+  const std::size_t n = std::min(owned, p.size());
+  deposit(p, n);
   int substeps = 0;
   fluid::GasStepReport report;
   try {
@@ -190,15 +229,19 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f) {
   projection_fallbacks_ += report.used_fallback ? 1 : 0;
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
-  const std::size_t n = p.size();
-  force_ids_.assign(p.id.begin(), p.id.end());
-  const fluid::ParticlePositions pos{p.x, p.y, p.z, p.radius};
+  force_ids_.assign(p.id.begin(), p.id.begin() + static_cast<std::ptrdiff_t>(n));
+  const fluid::ParticlePositions pos{{p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n},
+                                     {p.radius.data(), n}};
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
   // The new gas velocity and the pressure gradient at the particles, in one pass.
   for (int a = 0; a < 3; ++a) {
     force_[a].resize(n), gp_[a].resize(n);
     solver_->cell_centred_velocity(a, cell_u_[a]);
     solver_->cell_pressure_gradient(a, cell_gp_[a]);
+    if (halo_) {
+      halo_->fill(cell_u_[a], fluid::kCellCentred);
+      halo_->fill(cell_gp_[a], fluid::kCellCentred);
+    }
   }
   {
     const fluid::GridField* in[] = {&cell_u_[0], &cell_u_[1], &cell_u_[2],
@@ -236,15 +279,22 @@ FluidDiagnostics GasCoupling::diagnostics() const {
   // particles in the first and last half cells count, and a uniform gradient is exact).
   const int ax = axis_;
   const fluid::GridField& pp = solver_->pressure();
-  const int m = nc[ax];
+  const auto& global = grid_.global_cells();
+  const int m = global[ax];
+  const int lo = grid_.box().lo[ax];
   std::vector<double> plane(static_cast<std::size_t>(m), 0.0);
   for (int k = 0; k < nc[2]; ++k)
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i) {
         const int c[3] = {i, j, k};
-        plane[static_cast<std::size_t>(c[ax])] += pp(i, j, k);
+        plane[static_cast<std::size_t>(lo + c[ax])] += pp(i, j, k);
       }
-  const double per_plane = static_cast<double>(nc[0]) * nc[1] * nc[2] / m;
+  if (comm_ != nullptr) {
+    // Reductions over the ranks: O(cells along the axis) for the planes.
+    comm_->sum(plane);
+    comm_->sum(d.gas_momentum);
+  }
+  const double per_plane = static_cast<double>(global[0]) * global[1] * global[2] / m;
   const double gp0 = solver_->background_pressure_gradient()[static_cast<std::size_t>(ax)];
   const double dx = grid_.spacing(ax);
   for (int c = 0; c < m; ++c)
@@ -259,7 +309,7 @@ FluidDiagnostics GasCoupling::diagnostics() const {
   // Continuity residual of the last step.
   if (last_dt_ > 0.0) {
     fluid::GridField e = eps, div = grid_.make_field();
-    fluid::fill_cell_ghosts(grid_, e, fluid::CellGhosts::zero_gradient);
+    fluid::fill_cell_ghosts(grid_, halo_.get(), e, fluid::CellGhosts::zero_gradient);
     fluid::flux_divergence(grid_, solver_->velocity(), e, div);
     // div(eps u) + (eps^{n+1} - eps^n)/dt_f (the gas sub-steps interpolate eps linearly in time,
     // so the last one satisfied the same rate).
@@ -269,6 +319,7 @@ FluidDiagnostics GasCoupling::diagnostics() const {
         for (int i = 0; i < nc[0]; ++i)
           worst = std::max(worst, std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) /
                                                               last_dt_));
+    if (comm_ != nullptr) worst = comm_->max(worst);
     d.mass_residual = worst * last_dt_;
   }
   return d;

@@ -15,12 +15,15 @@
 #include <span>
 #include <vector>
 
+#include "core/cell_box.hpp"
+#include "core/communicator.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "fluid/deposition.hpp"
 #include "fluid/drag_law.hpp"
 #include "fluid/gas_solver.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::apps {
@@ -37,9 +40,17 @@ struct FluidDiagnostics {
   double mass_residual = 0.0; // max |div(eps u) + d(eps)/dt| dt_f over cells (dimensionless)
 };
 
+// Distributed (a communicator of more than one rank): the gas grid is cut into one box per rank
+// (fluid::orb_cell_boxes), each rank holds its box's cells and passes the particles it owns
+// (the first `owned` of the store: those of its box, as the scheme's decomposition_of the
+// boxes makes them); deposits in ghost cells go to their owners, interpolation reads exchanged
+// ghosts, and the diagnostics are reduced over the ranks (the same values on every rank).
+// Every call is then collective.
 class GasCoupling {
 public:
-  GasCoupling(const Scene& scene, const ParticleStore& particles);
+  GasCoupling(const Scene& scene, const ParticleStore& particles,
+              const Communicator* comm = nullptr, std::size_t owned = kAllParticles);
+  static constexpr std::size_t kAllParticles = static_cast<std::size_t>(-1);
   ~GasCoupling();
   GasCoupling(const GasCoupling&) = delete;
   GasCoupling& operator=(const GasCoupling&) = delete;
@@ -47,7 +58,10 @@ public:
   // Steps 1-3 above with the particles' current positions and velocities (v_i: whatever the
   // scheme holds, the same value in the deposit and in the force). Afterwards force(a) holds
   // F_i, one entry per particle in the store's current order.
-  fluid::GasStepReport step(const ParticleStore& particles, double dt_f);
+  fluid::GasStepReport step(const ParticleStore& particles, double dt_f,
+                            std::size_t owned = kAllParticles);
+  // The ranks' boxes of gas cells (distributed; one box, the grid, otherwise).
+  [[nodiscard]] const std::vector<CellBox>& boxes() const { return boxes_; }
   // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
   double cfl_dt() const;
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
@@ -83,9 +97,12 @@ public:
   void restore_state(const State& s);
 
 private:
-  void deposit(const ParticleStore& p);
+  void deposit(const ParticleStore& p, std::size_t n);
   const Scene& scene_;
+  const Communicator* comm_ = nullptr; // distributed only
+  std::vector<CellBox> boxes_;
   fluid::MacGrid grid_;
+  std::shared_ptr<const fluid::GridHalo> halo_;
   std::unique_ptr<fluid::GasSolver> solver_;
   std::unique_ptr<fluid::Deposition> deposition_;
   fluid::DragLaw law_;

@@ -17,9 +17,11 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/checkpoint.hpp"
+#include "apps/coupled_distributed.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
 #include "core/communicator.hpp"
 #include "core/error.hpp"
@@ -36,105 +38,6 @@
 namespace cfddem::apps {
 
 namespace {
-
-using clock = std::chrono::steady_clock;
-
-double seconds_since(clock::time_point t0) {
-  return std::chrono::duration<double>(clock::now() - t0).count();
-}
-
-const std::vector<std::string> kColumns = {
-    "time",       "step",       "granular_temperature", "kinetic_energy", "mean_speed",
-    "mean_x",     "mean_y",     "mean_z",               "momentum_x",     "momentum_y",
-    "momentum_z", "particles",  "particle_steps",       "force_evaluations", "neighbor_builds",
-    "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction",
-    "pressure_drop", "gas_momentum_x", "gas_momentum_y", "gas_momentum_z", "mean_vx", "mean_vy",
-    "mean_vz", "mean_ax", "mean_ay", "mean_az", "gas_mass_residual"};
-
-// Columns added by the gas issue: fluid diagnostics (0 without a fluid) and particle means.
-// mean_a is the change of the mean velocity over the output interval divided by its length (0
-// in the first row): the interval-averaged mean acceleration, free of contact noise.
-struct RowExtra {
-  FluidDiagnostics fluid;
-  std::array<double, 3> mean_v{}, mean_a{};
-};
-
-class MeanTracker {
-public:
-  RowExtra next(double t, std::span<const double> vx, std::span<const double> vy,
-                std::span<const double> vz, const FluidDiagnostics& fd = {}) {
-    const std::span<const double> v[3] = {vx, vy, vz};
-    std::array<double, 3> mean{};
-    for (int a = 0; a < 3; ++a) {
-      double sum = 0.0;
-      for (double q : v[a]) sum += q;
-      mean[a] = v[a].empty() ? 0.0 : sum / static_cast<double>(v[a].size());
-    }
-    return next(t, mean, fd);
-  }
-  // The mean velocity already known (over all ranks).
-  RowExtra next(double t, const std::array<double, 3>& mean_v, const FluidDiagnostics& fd = {}) {
-    RowExtra e;
-    e.fluid = fd;
-    e.mean_v = mean_v;
-    for (int a = 0; a < 3; ++a)
-      e.mean_a[a] = has_ && t > t_ ? (e.mean_v[a] - v_[a]) / (t - t_) : 0.0;
-    has_ = true, t_ = t, v_ = e.mean_v;
-    return e;
-  }
-  // Continue after a restart from the last row written before the checkpoint.
-  void resume(const std::vector<double>& last_row) {
-    const auto col = [](const char* name) {
-      return static_cast<std::size_t>(
-          std::find(kColumns.begin(), kColumns.end(), name) - kColumns.begin());
-    };
-    has_ = true;
-    t_ = last_row[col("time")];
-    v_ = {last_row[col("mean_vx")], last_row[col("mean_vy")], last_row[col("mean_vz")]};
-  }
-
-private:
-  bool has_ = false;
-  double t_ = 0.0;
-  std::array<double, 3> v_{};
-};
-
-template <class Scheme>
-std::vector<double> row(double t, long long step, const dem::GranularState& s, std::size_t n,
-                        const Scheme& scheme, double wall, const dem::LeafStepStats& ls,
-                        const RowExtra& x) {
-  return {t,
-          static_cast<double>(step),
-          s.granular_temperature,
-          s.kinetic_energy,
-          s.mean_speed,
-          s.mean_position[0],
-          s.mean_position[1],
-          s.mean_position[2],
-          s.momentum[0],
-          s.momentum[1],
-          s.momentum[2],
-          static_cast<double>(n),
-          static_cast<double>(scheme.particle_steps()),
-          static_cast<double>(scheme.pair_evaluations()),
-          static_cast<double>(scheme.neighbor_builds()),
-          wall,
-          ls.steps_min,
-          ls.steps_mean,
-          ls.steps_max,
-          ls.fine_fraction,
-          x.fluid.pressure_drop,
-          x.fluid.gas_momentum[0],
-          x.fluid.gas_momentum[1],
-          x.fluid.gas_momentum[2],
-          x.mean_v[0],
-          x.mean_v[1],
-          x.mean_v[2],
-          x.mean_a[0],
-          x.mean_a[1],
-          x.mean_a[2],
-          x.fluid.mass_residual};
-}
 
 // The islands scheme's run.json entries: collisions its bound could have missed (none expected)
 // and the island size distribution.
@@ -158,13 +61,6 @@ void add_island_json(nlohmann::ordered_json& j, const dem::IslandsScheme& scheme
       "distribution over particles of the fraction of sub-iterations each spent in a fine island";
   j["island_sizes_definition"] = "islands of each size, one count per island per sub-iteration "
                                  "(size 1: lone particles in free flight, or tied to a wall)";
-}
-
-std::string format_eta(double s) {
-  if (!std::isfinite(s)) return "?";
-  if (s < 120) return fmt::format("{:.0f}s", s);
-  if (s < 7200) return fmt::format("{:.1f}min", s / 60);
-  return fmt::format("{:.1f}h", s / 3600);
 }
 
 // Positions wrapped into the periodic box for a snapshot (the schemes wrap only when they
@@ -240,65 +136,21 @@ Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, doub
 
 namespace {
 
-// The part of run.json every loop writes first: program, version, scene, the resolved
-// configuration, derived numbers, ranks, threads and the particle count.
-nlohmann::ordered_json run_json_header(const Scene& described, const std::string& name,
-                                       const DerivedNumbers& derived, const ParallelEnv& env,
-                                       std::size_t particles) {
-  nlohmann::ordered_json j;
-  j["program"] = "cfddem";
-  j["version"] = CFDDEM_VERSION;
-  j["scene"] = name;
-  nlohmann::ordered_json cfg;
-  for (const auto& [k, v] : describe_scene(described)) cfg[k] = v;
-  j["configuration"] = cfg;
-  nlohmann::ordered_json der;
-  for (const auto& [k, v] : derived.table()) der[k] = v;
-  j["derived"] = der;
-  j["ranks"] = env.ranks();
-  j["threads"] = env.threads();
-  j["particles"] = particles;
-  return j;
-}
-
-// phase_seconds: every timed phase, and the rest of the loop as "other".
-nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_seconds) {
-  nlohmann::ordered_json ph;
-  double timed = 0.0;
-  for (const Phase p : {Phase::neighbor, Phase::force, Phase::integrate, Phase::io, Phase::fluid}) {
-    ph[std::string(phase_names[static_cast<int>(p)])] = timer.seconds(p);
-    timed += timer.seconds(p);
-  }
-  ph["other"] = loop_seconds - timed;
-  return ph;
-}
-
-// The work counters of a loop in run.json: particle steps, force evaluations (and what they
-// count, when given), neighbor builds and the particle-step rate.
-template <class Scheme>
-void add_work_counters(nlohmann::ordered_json& j, const Scheme& scheme, double loop_seconds,
-                       const char* definition = nullptr) {
-  j["particle_steps"] = scheme.particle_steps();
-  j["force_evaluations"] = scheme.pair_evaluations();
-  if (definition) j["force_evaluations_definition"] = definition;
-  j["neighbor_builds"] = scheme.neighbor_builds();
-  j["particle_steps_per_second"] =
-      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
-}
 
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (env.ranks() > 1) {
-    // What is distributed so far: the explicit scheme without gas, friction or particle files.
-    if (scene.fluid.enabled)
-      throw ConfigError("scene table [fluid]", "the gas is not yet distributed over MPI ranks: "
-                                               "run scenes with a [fluid] table on one rank");
+    // What is distributed so far: the explicit scheme, with or without a gas, frictionless.
     if (scene.dem.scheme != "explicit")
       throw ConfigError("scene key 'dem.scheme'",
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
                                     "run it on one rank, or use dem.scheme = \"explicit\"",
                                     scene.dem.scheme));
+    if (scene.fluid.enabled) {
+      validate_fluid(scene);
+      return run_coupled_distributed(scene, opt, env);
+    }
     return run_distributed(scene, opt, env);
   }
   if (scene.fluid.enabled) {

@@ -89,10 +89,14 @@ void ParticleExchange::exchange(std::span<const std::int64_t> send_counts,
   MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
 }
 
-std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> dest) {
+std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> dest,
+                                      std::span<std::vector<double>* const> payload) {
   const int ranks = comm_.size();
   if (dest.size() != p.size())
     throw std::invalid_argument("ParticleExchange::migrate: one destination per particle");
+  for (const std::vector<double>* v : payload)
+    if (v->size() != p.size())
+      throw std::invalid_argument("ParticleExchange::migrate: one payload value per particle");
   std::vector<std::int64_t> counts(static_cast<std::size_t>(ranks), 0);
   for (const int r : dest) {
     if (r < 0 || r >= ranks)
@@ -114,18 +118,44 @@ std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> des
       by_rank[at[dest[i]]++] = static_cast<std::uint32_t>(i);
     }
   }
+  const std::size_t extra = payload.size();
+  const int stride = stride_of(p) + static_cast<int>(extra);
   send_buf_.clear();
-  send_buf_.reserve(by_rank.size() * static_cast<std::size_t>(stride_of(p)));
+  send_buf_.reserve(by_rank.size() * static_cast<std::size_t>(stride));
   const auto fields = carried(p);
-  for (const std::uint32_t i : by_rank)
+  for (const std::uint32_t i : by_rank) {
     pack(fields, p, i, {0.0, 0.0, 0.0}, send_buf_);
+    for (const std::vector<double>* v : payload)
+      send_buf_.push_back((*v)[i]);
+  }
   std::vector<std::int64_t> recv_counts;
-  exchange(counts, send_buf_, recv_counts, recv_buf_, stride_of(p), false);
+  exchange(counts, send_buf_, recv_counts, recv_buf_, stride, false);
   p.permute(keep); // a selection: the store shrinks to the stayers, in order
   std::size_t received = 0;
   for (const std::int64_t c : recv_counts)
     received += static_cast<std::size_t>(c);
-  unpack_append(p, recv_buf_, received);
+  if (extra == 0) {
+    unpack_append(p, recv_buf_, received);
+  } else {
+    // Split each record into the store's part and the payload's.
+    const std::size_t base = static_cast<std::size_t>(stride_of(p));
+    std::vector<double> store_part;
+    store_part.reserve(received * base);
+    for (std::vector<double>* v : payload) {
+      std::vector<double> kept(keep.size());
+      for (std::size_t k = 0; k < keep.size(); ++k)
+        kept[k] = (*v)[keep[k]];
+      v->swap(kept);
+      v->reserve(keep.size() + received);
+    }
+    for (std::size_t q = 0; q < received; ++q) {
+      const double* in = recv_buf_.data() + q * static_cast<std::size_t>(stride);
+      store_part.insert(store_part.end(), in, in + base);
+      for (std::size_t e = 0; e < extra; ++e)
+        payload[e]->push_back(in[base + e]);
+    }
+    unpack_append(p, store_part, received);
+  }
   // The store changed: any ghost plan refers to old indices.
   plan_.clear();
   send_counts_.assign(static_cast<std::size_t>(ranks), 0);

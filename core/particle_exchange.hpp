@@ -28,7 +28,10 @@ public:
   // Leavers are removed (the others keep their order); arrivals are appended by source rank,
   // each source's in its own order. Returns the number of particles received.
   // Throws std::invalid_argument for a rank out of range or a dest of the wrong size.
-  std::size_t migrate(ParticleStore& p, std::span<const int> dest);
+  // payload: per-particle arrays the caller keeps outside the store (one value per particle,
+  // e.g. the coupling's external force); they travel and are reordered with the particles.
+  std::size_t migrate(ParticleStore& p, std::span<const int> dest,
+                      std::span<std::vector<double>* const> payload = {});
 
   // One ghost copy: local particle `index` to `rank`, its position shifted by `shift` (the
   // periodic image the receiver needs; zeros when none).

@@ -135,11 +135,15 @@ void DistributedExplicitScheme::rebuild() {
   for (std::size_t i = 0; i < owned_; ++i)
     p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
     p_.z[i] = geom_.wrap(p_.z[i], 2);
-  const bool regrid = last_regrid_ < 0 || steps_ - last_regrid_ >= regrid_every_;
-  if (regrid) {
+  // A fixed decomposition is never redone, but the first build sorts as a regrid does.
+  const bool regrid =
+      last_regrid_ < 0 || (!fixed_decomposition_ && steps_ - last_regrid_ >= regrid_every_);
+  if (regrid && !fixed_decomposition_) {
     const partition::Aabb domain{scene_.domain.lo, scene_.domain.hi};
     decomposition_ = partition::decompose(comm_, p_.x, p_.y, p_.z, domain, levels_);
     regrids_.push_back({steps_, decomposition_.imbalance});
+  }
+  if (regrid) {
     last_regrid_ = steps_;
   }
   std::vector<int> dest(owned_);
@@ -156,7 +160,12 @@ void DistributedExplicitScheme::rebuild() {
   }
   if (const std::string e = comm_.agree_on_error(outside_id, outside); !e.empty())
     throw RunError(e);
-  exchange_.migrate(p_, dest);
+  if (ext_.active()) {
+    std::vector<double>* force[3] = {&ext_.x, &ext_.y, &ext_.z};
+    exchange_.migrate(p_, dest, force);
+  } else {
+    exchange_.migrate(p_, dest);
+  }
   owned_ = p_.size();
   if (regrid) {
     // Locality: owned particles in cell order (cells of the halo width), as the serial list
@@ -178,6 +187,7 @@ void DistributedExplicitScheme::rebuild() {
       return key[a] != key[b] ? key[a] < key[b] : p_.id[a] < p_.id[b];
     });
     p_.permute(order);
+    ext_.permute(order);
   }
   std::vector<ParticleExchange::Copy> copies;
   ghost_copies(copies);
@@ -200,7 +210,24 @@ void DistributedExplicitScheme::rebuild() {
 }
 
 template <bool Walls> void DistributedExplicitScheme::update(double dt, StepReport& rep) {
-  update_pass<Walls, false, false>(p_, owned_, list_, none_, geom_, model_, dt, rep);
+  if (ext_.active()) {
+    update_pass<Walls, false, true>(p_, owned_, list_, ext_, geom_, model_, dt, rep);
+  } else {
+    update_pass<Walls, false, false>(p_, owned_, list_, ext_, geom_, model_, dt, rep);
+  }
+}
+
+void DistributedExplicitScheme::set_decomposition(partition::RankDecomposition d) {
+  decomposition_ = std::move(d);
+  fixed_decomposition_ = true;
+  last_regrid_ = -1;
+  need_rebuild_ = true;
+}
+
+void DistributedExplicitScheme::set_external_force(std::span<const double> fx,
+                                                   std::span<const double> fy,
+                                                   std::span<const double> fz) {
+  ext_.set(fx, fy, fz, owned_);
 }
 
 void DistributedExplicitScheme::evaluate_and_update(double dt, StepReport& rep) {
@@ -232,9 +259,11 @@ void DistributedExplicitScheme::start() {
   agree(rep, 0.0);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < owned_; ++i) {
-    p_.vx[i] -= (p_.fx[i] * p_.inv_mass[i] + model_.gravity[0]) * h;
-    p_.vy[i] -= (p_.fy[i] * p_.inv_mass[i] + model_.gravity[1]) * h;
-    p_.vz[i] -= (p_.fz[i] * p_.inv_mass[i] + model_.gravity[2]) * h;
+    const double e[3] = {ext_.active() ? ext_.x[i] : 0.0, ext_.active() ? ext_.y[i] : 0.0,
+                         ext_.active() ? ext_.z[i] : 0.0};
+    p_.vx[i] -= ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
+    p_.vy[i] -= ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
+    p_.vz[i] -= ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
   }
   exchange_.forward(p_);
 }
@@ -247,9 +276,11 @@ void DistributedExplicitScheme::record_synchronised() {
   svx_.resize(n), svy_.resize(n), svz_.resize(n);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < n; ++i) {
-    svx_[i] = p_.vx[i] + (p_.fx[i] * p_.inv_mass[i] + model_.gravity[0]) * h;
-    svy_[i] = p_.vy[i] + (p_.fy[i] * p_.inv_mass[i] + model_.gravity[1]) * h;
-    svz_[i] = p_.vz[i] + (p_.fz[i] * p_.inv_mass[i] + model_.gravity[2]) * h;
+    const double e[3] = {ext_.active() ? ext_.x[i] : 0.0, ext_.active() ? ext_.y[i] : 0.0,
+                         ext_.active() ? ext_.z[i] : 0.0};
+    svx_[i] = p_.vx[i] + ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
+    svy_[i] = p_.vy[i] + ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
+    svz_[i] = p_.vz[i] + ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
   }
 }
 

@@ -16,7 +16,8 @@
 // some particle on some rank moved more than skin/2, the next step instead wraps, regrids (when
 // dem.regrid_interval has passed since the last), migrates to owners and rebuilds ghosts and
 // the local list. No array is sized by the domain or the global count.
-// Frictionless, no external force (the fluid is not distributed yet).
+// Frictionless. A coupled run fixes the decomposition to the fluid's boxes
+// (set_decomposition) and hands in the gas's force per particle (set_external_force).
 #pragma once
 
 #include <cstdint>
@@ -49,6 +50,17 @@ public:
   ~DistributedExplicitScheme();
   DistributedExplicitScheme(const DistributedExplicitScheme&) = delete;
   DistributedExplicitScheme& operator=(const DistributedExplicitScheme&) = delete;
+
+  // Ownership fixed by the caller instead of the particle ORB (the fluid boxes of a coupled
+  // run: partition/cell_box_decomposition.hpp); never regridded. Call before start(); the same
+  // decomposition on every rank.
+  void set_decomposition(partition::RankDecomposition d);
+  // External force [N] on the owned particles [0, owned()) in the store's current order (the
+  // gas's drag and pressure force), held until the next call and carried with the particles
+  // when they migrate. Empty spans remove it. Throws std::invalid_argument for a wrong size.
+  void set_external_force(std::span<const double> fx, std::span<const double> fy,
+                          std::span<const double> fz);
+  [[nodiscard]] bool has_external_force() const { return ext_.active(); }
 
   // Collective. As ExplicitScheme::start: decomposition, ghosts, forces at t = 0, v(-dt/2).
   void start();
@@ -117,7 +129,8 @@ private:
   ParticleExchange exchange_;
   partition::RankDecomposition decomposition_;
   VerletList list_;
-  ExternalForce none_;
+  ExternalForce ext_;
+  bool fixed_decomposition_ = false;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_;
   std::vector<Regrid> regrids_;
   std::size_t owned_ = 0;

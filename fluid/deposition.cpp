@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <string>
 
+#include <fmt/format.h>
+
 #include "fluid/diffusion_smoothing.hpp"
 #include "fluid/trilinear_weights.hpp"
 
@@ -27,8 +29,15 @@ DepositionKernel parse_deposition_kernel(std::string_view name) {
                               "\" (choose trilinear, dpvm_cube or dpvm_sphere)");
 }
 
-Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius)
-    : grid_(grid), settings_(settings) {
+Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius,
+                       const GridHalo* halo)
+    : grid_(grid), settings_(settings), halo_(halo) {
+  if (grid.distributed() != (halo != nullptr)) {
+    throw std::invalid_argument("deposition: a distributed grid needs its halo (and only it)");
+  }
+  if (grid.distributed() && settings.diffusion > 0.0) {
+    throw std::invalid_argument("deposition diffusion is not distributed over ranks yet (D = 0)");
+  }
   if (settings.kernel != DepositionKernel::trilinear && !(settings.width > 0.0)) {
     throw std::invalid_argument("deposition width must be positive (particle diameters)");
   }
@@ -57,6 +66,9 @@ void Deposition::reserve_weights(double r, std::vector<double>& buf) const {
 }
 
 int Deposition::fold(int axis, int i) const {
+  if (grid_.distributed()) {
+    return fold_in_box(axis, i);
+  }
   const int n = grid_.cells(axis);
   if (grid_.periodic(axis)) {
     return ((i % n) + n) % n;
@@ -67,9 +79,58 @@ int Deposition::fold(int axis, int i) const {
   return m < n ? m : period - 1 - m;
 }
 
-template <class Visit>
-void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
-                                 std::vector<double>& buf, Visit&& visit) const {
+// Global stencil index i to the box's local index: mirrored at walls (as above), kept on a
+// periodic axis (the ghost's periodic image is the halo's business).
+int Deposition::box_index(int axis, int i) const {
+  const int n = grid_.global_cells()[axis];
+  int g = i;
+  if (!grid_.periodic(axis)) {
+    const int period = 2 * n;
+    const int m = ((i % period) + period) % period;
+    g = m < n ? m : period - 1 - m;
+  }
+  return g - grid_.box().lo[axis];
+}
+
+int Deposition::fold_in_box(int axis, int i) const {
+  const int local = box_index(axis, i);
+  const int g = local + grid_.box().lo[axis];
+  if (local < -kGhostLayers || local > grid_.cells(axis) + kGhostLayers) {
+    throw std::runtime_error(fmt::format(
+        "deposition: a particle's kernel reaches cell {} along axis {}, beyond the {} ghost "
+        "layers of the box of cells {}..{} (a particle outside its rank's box, or a kernel wider "
+        "than {} cells: lower fluid.deposition_width or use coarser cells)",
+        g, axis, kGhostLayers, grid_.box().lo[axis], grid_.box().hi[axis] - 1, kGhostLayers));
+  }
+  return local;
+}
+
+std::string Deposition::reach_problem(const ParticlePositions& p) {
+  if (!grid_.distributed()) {
+    return {};
+  }
+  for (std::size_t n = 0; n < p.radius.size(); ++n) {
+    const CellStencil s = stencil({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_);
+    for (int a = 0; a < 3; ++a) {
+      for (int c = 0; c < s.size[a]; ++c) {
+        const int local = box_index(a, s.lo[a] + c);
+        if (local < -kGhostLayers || local > grid_.cells(a) + kGhostLayers) {
+          return fmt::format(
+              "deposition: the kernel of the particle at ({:.6g}, {:.6g}, {:.6g}) m reaches "
+              "cell {} along axis {}, beyond the {} ghost layers of its rank's box of cells "
+              "{}..{} (lower fluid.deposition_width, use coarser cells, or a smaller "
+              "dem.neighbor_skin: owners are settled at neighbor rebuilds)",
+              p.x[n], p.y[n], p.z[n], local + grid_.box().lo[a], a, kGhostLayers, grid_.box().lo[a],
+              grid_.box().hi[a] - 1);
+        }
+      }
+    }
+  }
+  return {};
+}
+
+CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius,
+                                std::vector<double>& buf) const {
   if (buf.size() < weights_.size()) {
     buf.resize(weights_.size());
   }
@@ -90,6 +151,13 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
                      settings_.sphere_samples);
     break;
   }
+  return s;
+}
+
+template <class Visit>
+void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
+                                 std::vector<double>& buf, Visit&& visit) const {
+  const CellStencil s = stencil(x, radius, buf);
   std::size_t m = 0; // weights are stored x fastest, as the loops run
   for (int c = 0; c < s.size[2]; ++c) {
     const int k = fold(2, s.lo[2] + c);
@@ -113,6 +181,9 @@ void Deposition::deposit(const ParticlePositions& p, std::span<const double> val
     for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
                     [&](std::size_t idx, double w) { cell[idx] += w * q; });
   }
+  if (halo_ != nullptr) {
+    halo_->add_ghosts_to_owners(cell, kCellCentred);
+  }
 }
 
 void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s) {
@@ -122,6 +193,9 @@ void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& e
     const double q = 4.0 / 3.0 * std::numbers::pi * r * r * r * inv_volume;
     for_each_weight({p.x[n], p.y[n], p.z[n]}, r, weights_,
                     [&](std::size_t idx, double w) { eps_s[idx] += w * q; });
+  }
+  if (halo_ != nullptr) {
+    halo_->add_ghosts_to_owners(eps_s, kCellCentred);
   }
 }
 
@@ -196,6 +270,11 @@ void Deposition::deposit(const ParticlePositions& p,
                         (*cells[f])[idx] += w * v[f];
                       }
                     });
+  }
+  if (halo_ != nullptr) {
+    for (GridField* c : cells) {
+      halo_->add_ghosts_to_owners(*c, kCellCentred);
+    }
   }
 }
 

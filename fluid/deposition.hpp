@@ -5,11 +5,13 @@
 
 #include <array>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
 #include "fluid/dpvm_weights.hpp"
 #include "fluid/grid_field.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::fluid {
@@ -33,44 +35,65 @@ struct ParticlePositions {
   std::span<const double> x, y, z, radius;
 };
 
+// Distributed (grid is one box, halo its grid's halo): each rank passes the particles it owns
+// (centres in its box); their stencils fold back at the domain faces the box touches, reach
+// into the ghost layers across internal and periodic faces, and deposits there are added into
+// the owners' cells (GridHalo::add_ghosts_to_owners). A stencil must end within the ghost
+// layers (std::runtime_error otherwise). Weights are computed in the global frame, so a
+// particle's weights are bitwise those of the one-grid run.
 class Deposition {
 public:
-  // max_radius sizes the weight buffer (larger particles grow it on first use).
-  Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius);
+  // max_radius sizes the weight buffer (larger particles grow it on first use). Throws
+  // std::invalid_argument for smoothing on a distributed grid (not distributed yet).
+  Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius,
+             const GridHalo* halo = nullptr);
 
   // cell += sum_p value_p W_p(cell) / V_cell over interior cells (a density: value per m^3).
   // Stencil cells outside the grid wrap on periodic axes and fold back (mirror) at other
-  // boundaries, so the total sum_cells cell V_cell = sum_p value_p is conserved.
+  // boundaries, so the total sum_cells cell V_cell = sum_p value_p is conserved. Distributed:
+  // collective (the ghosts' deposits go to their owners; ghosts are left at zero).
   void deposit(const ParticlePositions& p, std::span<const double> value, GridField& cell);
   // Solid volume fraction eps_s of the particles (sphere volumes; not smoothed).
   void deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s);
   // Applies the optional implicit diffusion (settings().diffusion > 0) to a deposited field;
   // conserves its cell sum. No-op when diffusion = 0.
   void smooth(GridField& cell) const;
-  // out_p = sum_cells W_p(cell) field(cell), with the same wrap/fold as deposit.
+  // out_p = sum_cells W_p(cell) field(cell), with the same wrap/fold as deposit. Distributed:
+  // the field's exchanged ghosts must be filled (GridHalo::fill).
   void interpolate(const ParticlePositions& p, const GridField& field, std::span<double> out);
 
   // Several fields at once: the weights of each particle are computed once for all of them
   // (they cost more than the sums: a dpvm kernel samples the sphere). Each output is bit for
-  // bit what the one-field call gives (same weights, same order).
+  // bit what the one-field call gives (same weights, same order). Distributed as above.
   void interpolate(const ParticlePositions& p, std::span<const GridField* const> fields,
                    std::span<const std::span<double>> outs);
   void deposit(const ParticlePositions& p, std::span<const std::span<const double>> values,
                std::span<GridField* const> cells);
 
+  // Distributed: the first of the particles whose stencil leaves the box's ghost layers, as a
+  // message (empty: all fit; always empty on an undistributed grid). Not collective: a caller
+  // agrees on it over the ranks before the collective deposit.
+  [[nodiscard]] std::string reach_problem(const ParticlePositions& p);
+
   [[nodiscard]] const DepositionSettings& settings() const { return settings_; }
 
 private:
-  // Visits the cells of a particle's kernel with their weights; `buf` holds the weights (grown
-  // for large particles), so concurrent callers pass their own.
+  // A particle's kernel: its cells, with the weights in `buf` (grown for large particles), so
+  // concurrent callers pass their own buffers.
+  CellStencil stencil(const std::array<double, 3>& x, double radius,
+                      std::vector<double>& buf) const;
+  [[nodiscard]] int box_index(int axis, int i) const;
+  // Visits the cells of a particle's kernel with their weights.
   template <class Visit>
   void for_each_weight(const std::array<double, 3>& x, double radius, std::vector<double>& buf,
                        Visit&& visit) const;
   [[nodiscard]] int fold(int axis, int i) const;
+  [[nodiscard]] int fold_in_box(int axis, int i) const;
   void reserve_weights(double kernel_radius, std::vector<double>& buf) const;
 
   MacGrid grid_;
   DepositionSettings settings_;
+  const GridHalo* halo_ = nullptr;
   std::vector<double> weights_;
 };
 

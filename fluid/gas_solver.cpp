@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -11,8 +12,12 @@
 
 namespace cfddem::fluid {
 
-GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings)
-    : grid_(grid), settings_(settings) {
+GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
+                     std::shared_ptr<const GridHalo> halo)
+    : grid_(grid), settings_(settings), halo_(std::move(halo)) {
+  if (grid.distributed() != (halo_ != nullptr)) {
+    throw std::invalid_argument("gas solver: a distributed grid needs its halo (and only it)");
+  }
   const GasProperties& gas = settings.gas;
   if (!(gas.density > 0.0) || gas.viscosity < 0.0) {
     throw std::invalid_argument(
@@ -47,9 +52,9 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings)
   eps_old_ = grid.make_field(1.0);
   beta_ = grid.make_field();
   source_ = grid.make_field();
-  projection_ = std::make_unique<PressureProjection>(grid, settings.projection);
+  projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
   if (settings.implicit_viscosity && gas.viscosity > 0.0) {
-    viscosity_ = std::make_unique<ImplicitViscosity>(grid);
+    viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
     for (GridField& l : lap_start_) {
       l = grid.make_field();
     }
@@ -72,21 +77,26 @@ std::array<double, 3> GasSolver::background_pressure_gradient() const {
 
 double GasSolver::courant_number(double dt) const {
   const auto& n = grid_.cells();
-  double rate = 0.0;
   const double nu = settings_.gas.viscosity / settings_.gas.density;
+  std::array<double, 3> umax{};
   for (int a = 0; a < 3; ++a) {
-    double umax = 0.0;
     std::array<int, 3> hi = n;
     hi[a] = n[a] + 1;
     for (int k = 0; k < hi[2]; ++k) {
       for (int j = 0; j < hi[1]; ++j) {
         for (int i = 0; i < hi[0]; ++i) {
-          umax = std::max(umax, std::abs(u_[a](i, j, k)));
+          umax[a] = std::max(umax[a], std::abs(u_[a](i, j, k)));
         }
       }
     }
+  }
+  if (halo_) {
+    halo_->comm().max(umax); // a max is exact: every rank takes the same dt
+  }
+  double rate = 0.0;
+  for (int a = 0; a < 3; ++a) {
     const double dx = grid_.spacing(a);
-    rate += umax / dx + (settings_.implicit_viscosity ? 0.0 : 2.0 * nu / (dx * dx));
+    rate += umax[a] / dx + (settings_.implicit_viscosity ? 0.0 : 2.0 * nu / (dx * dx));
   }
   return dt * rate;
 }
@@ -142,9 +152,9 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
       report.viscous_iterations += vr.iterations;
     }
   }
-  fill_velocity_ghosts(grid_, u_);
+  fill_velocity_ghosts(grid_, halo_.get(), u_);
   const ProjectionReport pr = projection_->project(u_, eps_, mobility_, source_, p_);
-  fill_velocity_ghosts(grid_, u_);
+  fill_velocity_ghosts(grid_, halo_.get(), u_);
   report.projection_iterations += pr.iterations;
   report.relative_residual = std::max(report.relative_residual, pr.relative_residual);
   report.used_fallback = report.used_fallback || pr.used_fallback;
@@ -159,7 +169,7 @@ GasStepReport GasSolver::step(double dt) {
         "CFL time step: set fixed_dt)",
         dt));
   }
-  fill_velocity_ghosts(grid_, u_);
+  fill_velocity_ghosts(grid_, halo_.get(), u_);
   report.courant = courant_number(dt);
   if (report.courant > kMaxStableCourant * (1.0 + 1e-12)) {
     throw std::runtime_error(fmt::format(
@@ -169,11 +179,11 @@ GasStepReport GasSolver::step(double dt) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
   const double rho = settings_.gas.density;
-  fill_cell_ghosts(grid_, eps_, CellGhosts::zero_gradient);
-  fill_cell_ghosts(grid_, eps_old_, CellGhosts::zero_gradient);
-  fill_cell_ghosts(grid_, beta_, CellGhosts::zero_gradient);
+  fill_cell_ghosts(grid_, halo_.get(), eps_, CellGhosts::zero_gradient);
+  fill_cell_ghosts(grid_, halo_.get(), eps_old_, CellGhosts::zero_gradient);
+  fill_cell_ghosts(grid_, halo_.get(), beta_, CellGhosts::zero_gradient);
   for (int a = 0; a < 3; ++a) {
-    fill_cell_ghosts(grid_, beta_v_[a], CellGhosts::zero_gradient);
+    fill_cell_ghosts(grid_, halo_.get(), beta_v_[a], CellGhosts::zero_gradient);
   }
   // Projection mobility dt/(rho + dt beta_f/eps_f): the pressure correction sees the same
   // implicit drag factor as the predictor, so the corrected velocity is exactly constrained.
@@ -219,7 +229,7 @@ GasStepReport GasSolver::step(double dt) {
                  implicit);
     stage(dt, 2, report);
   }
-  fill_cell_ghosts(grid_, p_, CellGhosts::pressure);
+  fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
   eps_old_ = eps_;
   return report;
 }
@@ -234,7 +244,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
   double t = 0.0;
   int count = 0;
   while (interval - t > 1e-12 * interval) {
-    fill_velocity_ghosts(grid_, u_);
+    fill_velocity_ghosts(grid_, halo_.get(), u_);
     double dt = std::min(interval - t, dt_for_courant(settings_.cfl));
     // Do not leave a sliver of a step at the end.
     const bool last = interval - t - dt < 1e-3 * dt;

@@ -1,7 +1,7 @@
 // The gas phase of MFIX's model A on one MAC grid (physics.md §5): explicit predictor (limited
 // MUSCL advection, viscous stress, body force; optionally the viscous Laplacian implicit),
 // point-implicit particle drag, and a hypre projection onto div(eps u) = -d(eps)/dt.
-// Single rank for now.
+// On one grid, or on one box of a grid distributed over ranks (with the grid's GridHalo).
 #pragma once
 
 #include <array>
@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "fluid/grid_field.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/implicit_viscosity.hpp"
 #include "fluid/mac_grid.hpp"
 #include "fluid/momentum_rhs.hpp"
@@ -49,9 +50,15 @@ struct GasStepReport {
 class GasSolver {
 public:
   // Throws std::invalid_argument for impossible settings (cfl above the stable limit, ...).
-  GasSolver(const MacGrid& grid, const GasSolverSettings& settings);
+  // Distributed: grid is this rank's box and halo its grid's halo (shared with the coupling);
+  // every call below is then collective over the ranks, and every field holds the box's cells
+  // (local indices) with ghost layers. Reductions (Courant number, means, dot products) are
+  // global, so every rank takes the same steps.
+  GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
+            std::shared_ptr<const GridHalo> halo = nullptr);
 
   [[nodiscard]] const MacGrid& grid() const { return grid_; }
+  [[nodiscard]] const GridHalo* halo() const { return halo_.get(); }
   [[nodiscard]] const GasSolverSettings& settings() const { return settings_; }
 
   // Face velocities u, v, w [m/s]; boundary faces are overwritten from the BCs on each step.
@@ -113,6 +120,7 @@ private:
 
   MacGrid grid_;
   GasSolverSettings settings_;
+  std::shared_ptr<const GridHalo> halo_;
   std::array<double, 3> body_{};
   std::array<GridField, 3> u_;
   std::array<GridField, 3> u_start_;

@@ -43,9 +43,14 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
     const BoundaryCondition& lo = grid.bc(a, 0);
     const BoundaryCondition& hi = grid.bc(a, 1);
     const bool periodic = grid.periodic(a);
+    const bool fill_lo = !grid.exchanged(a, 0);
+    const bool fill_hi = !grid.exchanged(a, 1);
+    if (!fill_lo && !fill_hi) {
+      continue;
+    }
     for_each_line(layout, a, [&](std::size_t base) {
       const auto at = [&](int i) -> double& { return q[base + static_cast<std::size_t>(i * s)]; };
-      for (int g = 1; g <= kGhostLayers; ++g) {
+      for (int g = 1; fill_lo && g <= kGhostLayers; ++g) {
         if (periodic) {
           at(-g) = at(wrap(-g, n));
           continue;
@@ -55,7 +60,7 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
                      ? 2.0 * lo.pressure - inner
                      : inner;
       }
-      for (int g = 0; g <= kGhostLayers; ++g) {
+      for (int g = 0; fill_hi && g <= kGhostLayers; ++g) {
         if (periodic) {
           at(n + g) = at(wrap(n + g, n));
           continue;
@@ -76,6 +81,10 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
       const int n = grid.cells(a);
       const std::ptrdiff_t s = layout.stride(a);
       const bool periodic = grid.periodic(a);
+      const std::array<bool, 2> fill = {!grid.exchanged(a, 0), !grid.exchanged(a, 1)};
+      if (!fill[0] && !fill[1]) {
+        continue;
+      }
       for_each_line(layout, a, [&](std::size_t base) {
         const auto at = [&](int i) -> double& { return f[base + static_cast<std::size_t>(i * s)]; };
         if (a == comp) {
@@ -90,6 +99,9 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
             return;
           }
           for (int side = 0; side < 2; ++side) {
+            if (!fill[side]) {
+              continue;
+            }
             const BoundaryCondition& bc = grid.bc(a, side);
             const int face = side == 0 ? 0 : n;
             const int out = side == 0 ? -1 : 1;
@@ -110,6 +122,9 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
         }
         // Tangential component: cells 0..n-1 along this axis.
         for (int side = 0; side < 2; ++side) {
+          if (!fill[side]) {
+            continue;
+          }
           const BoundaryCondition& bc = grid.bc(a, side);
           for (int g = 1; g <= kGhostLayers; ++g) {
             const int ghost = side == 0 ? -g : n - 1 + g;

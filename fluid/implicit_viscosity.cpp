@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "fluid/ghost_fill.hpp"
+#include "fluid/grid_halo.hpp"
 
 namespace cfddem::fluid {
 
@@ -42,21 +43,27 @@ double cv_face_eps(const double* ep, std::ptrdiff_t p, std::ptrdiff_t sa, std::p
 
 } // namespace
 
-ImplicitViscosity::ImplicitViscosity(const MacGrid& grid)
-    : grid_(grid), homogeneous_(homogeneous_spec(grid.spec())), r_(grid.layout()),
-      p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()) {}
+ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
+    : grid_(grid),
+      homogeneous_(grid.distributed() ? MacGrid(homogeneous_spec(grid.spec()), grid.box())
+                                      : MacGrid(homogeneous_spec(grid.spec()))),
+      halo_(halo), r_(grid.layout()), p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()) {}
 
 std::array<int, 3> ImplicitViscosity::unknown_lo(int comp) const {
   std::array<int, 3> lo = {0, 0, 0};
   const BoundaryKind kind = grid_.bc(comp, 0).kind;
-  lo[comp] = (kind == BoundaryKind::wall || kind == BoundaryKind::inflow) ? 1 : 0;
+  lo[comp] =
+      !grid_.exchanged(comp, 0) && (kind == BoundaryKind::wall || kind == BoundaryKind::inflow) ? 1
+                                                                                                : 0;
   return lo;
 }
 
 std::array<int, 3> ImplicitViscosity::unknown_hi(int comp) const {
   const auto& n = grid_.cells();
   std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[comp] = grid_.bc(comp, 1).kind == BoundaryKind::outflow ? n[comp] : n[comp] - 1;
+  hi[comp] = !grid_.exchanged(comp, 1) && grid_.bc(comp, 1).kind == BoundaryKind::outflow
+                 ? n[comp]
+                 : n[comp] - 1;
   return hi;
 }
 
@@ -100,19 +107,20 @@ void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const Gr
   });
 }
 
+double ImplicitViscosity::dot(const GridField& a, const GridField& b, int comp) const {
+  double s = 0.0;
+  for_box(grid_.layout(), unknown_lo(comp), unknown_hi(comp), [&](std::ptrdiff_t p) {
+    s += a[static_cast<std::size_t>(p)] * b[static_cast<std::size_t>(p)];
+  });
+  return s;
+}
+
 ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField& eps,
                                             const GridField& diag, const GridField& rhs,
                                             GridField& u, double tolerance, int max_iterations) {
   const GridLayout& layout = grid_.layout();
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
-  const auto dot = [&](const GridField& a, const GridField& b) {
-    double s = 0.0;
-    for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
-      s += a[static_cast<std::size_t>(p)] * b[static_cast<std::size_t>(p)];
-    });
-    return s;
-  };
   // r = rhs - A u with the true (inhomogeneous) boundary values in u's ghosts.
   apply(comp, c, eps, diag, u, ap_);
   double b_norm2 = 0.0;
@@ -141,27 +149,40 @@ ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField&
   for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
     p_[static_cast<std::size_t>(p)] = z_[static_cast<std::size_t>(p)];
   });
-  double rz = dot(r_, z_);
-  double rr = dot(r_, r_);
+  std::array<double, 3> sums = {dot(r_, z_, comp), dot(r_, r_, comp), b_norm2};
+  if (halo_ != nullptr) {
+    halo_->sum(sums);
+  }
+  double rz = sums[0];
+  double rr = sums[1];
+  b_norm2 = sums[2];
   const double target = tolerance * tolerance * b_norm2;
   ViscousSolveReport report;
   while (rr > target && report.iterations < max_iterations) {
-    fill_velocity_ghosts(homogeneous_, comp, p_);
+    fill_velocity_ghosts(homogeneous_, halo_, comp, p_);
     apply(comp, c, eps, diag, p_, ap_);
-    const double alpha = rz / dot(p_, ap_);
+    double pap = dot(p_, ap_, comp);
+    if (halo_ != nullptr) {
+      pap = halo_->sum(pap);
+    }
+    const double alpha = rz / pap;
     for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
       const auto m = static_cast<std::size_t>(p);
       u[m] += alpha * p_[m];
       r_[m] -= alpha * ap_[m];
     });
     precondition(r_, z_);
-    const double rz_new = dot(r_, z_);
+    std::array<double, 2> next = {dot(r_, z_, comp), dot(r_, r_, comp)};
+    if (halo_ != nullptr) {
+      halo_->sum(next); // one reduction for both
+    }
+    const double rz_new = next[0];
     for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
       const auto m = static_cast<std::size_t>(p);
       p_[m] = z_[m] + rz_new / rz * p_[m];
     });
     rz = rz_new;
-    rr = dot(r_, r_);
+    rr = next[1];
     ++report.iterations;
   }
   report.relative_residual = b_norm2 > 0.0 ? std::sqrt(rr / b_norm2) : 0.0;

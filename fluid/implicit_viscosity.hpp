@@ -8,6 +8,7 @@
 #include <array>
 
 #include "fluid/grid_field.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::fluid {
@@ -19,7 +20,9 @@ struct ViscousSolveReport {
 
 class ImplicitViscosity {
 public:
-  explicit ImplicitViscosity(const MacGrid& grid);
+  // halo: the grid's halo when it is one box of a distributed grid (the CG's search directions
+  // are exchanged, its dot products summed over the ranks).
+  explicit ImplicitViscosity(const MacGrid& grid, const GridHalo* halo = nullptr);
 
   // lap = div(eps mu grad u_comp) / (rho eps_f) on the faces the predictor updates; ghosts of
   // u[comp] and eps filled.
@@ -27,7 +30,8 @@ public:
                  GridField& lap) const;
 
   // Solves (diag - c div(eps grad)) u = rhs for u[comp] on its unknown faces (not the wall and
-  // inflow faces, nor the periodic copy of face 0), c = theta dt mu. diag = eps_f rho (1 + k
+  // inflow faces, nor the periodic copy of face 0, nor face n of an exchanged side: the
+  // neighbour's face 0), c = theta dt mu. diag = eps_f rho (1 + k
   // beta_f), rhs = eps_f rho b. u: in, first guess with ghosts filled; out, the solution (the
   // caller refills ghosts). Throws std::runtime_error if CG does not reach the tolerance.
   ViscousSolveReport solve(int comp, double c, const GridField& eps, const GridField& diag,
@@ -41,8 +45,11 @@ private:
   [[nodiscard]] std::array<int, 3> unknown_lo(int comp) const;
   [[nodiscard]] std::array<int, 3> unknown_hi(int comp) const;
 
+  [[nodiscard]] double dot(const GridField& a, const GridField& b, int comp) const;
+
   MacGrid grid_;
   MacGrid homogeneous_; // same faces with zero inflow velocity: BCs of a correction
+  const GridHalo* halo_ = nullptr;
   GridField r_, p_, ap_, z_;
 };
 

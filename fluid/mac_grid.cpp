@@ -111,7 +111,34 @@ MacGrid::MacGrid(const MacGridSpec& spec) : spec_(spec) {
   for (int a = 0; a < 3; ++a) {
     spacing_[a] = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
   }
+  box_ = CellBox{{0, 0, 0}, spec.cells};
+  cells_ = spec.cells;
   layout_ = GridLayout(spec.cells);
+}
+
+MacGrid::MacGrid(const MacGridSpec& spec, const CellBox& box) : MacGrid(spec) {
+  std::string problems;
+  for (int a = 0; a < 3; ++a) {
+    const int n = spec.cells[a];
+    if (box.lo[a] < 0 || box.hi[a] > n || box.cells(a) < 1) {
+      problems += fmt::format("\n  axis {}: box cells {}..{} are not inside 0..{}", a, box.lo[a],
+                              box.hi[a] - 1, n - 1);
+    } else if (box.cells(a) < n && box.cells(a) < kMinBoxWidth) {
+      problems += fmt::format("\n  axis {}: box is {} cells wide, a cut box needs {}", a,
+                              box.cells(a), kMinBoxWidth);
+    }
+  }
+  if (!problems.empty()) {
+    throw std::invalid_argument("invalid fluid box:" + problems);
+  }
+  box_ = box;
+  cells_ = box.cells();
+  distributed_ = true;
+  for (int a = 0; a < 3; ++a) {
+    exchanged_[2 * a] = periodic(a) || box.lo[a] > 0;
+    exchanged_[2 * a + 1] = periodic(a) || box.hi[a] < spec.cells[a];
+  }
+  layout_ = GridLayout(cells_);
 }
 
 bool MacGrid::has_outflow() const {

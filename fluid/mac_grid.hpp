@@ -7,6 +7,7 @@
 #include <string_view>
 #include <vector>
 
+#include "core/cell_box.hpp"
 #include "fluid/grid_field.hpp"
 
 namespace cfddem::fluid {
@@ -37,13 +38,35 @@ struct MacGridSpec {
 // Every problem with a spec, one message each (empty: valid).
 [[nodiscard]] std::vector<std::string> check_mac_grid(const MacGridSpec& spec);
 
+// Narrowest box along an axis it shares with another box: a box's physical ghost layers mirror
+// its own cells (ghost_fill.cpp), and a ghost near a prescribed face is then filled by the box
+// that also holds that face.
+inline constexpr int kMinBoxWidth = kGhostLayers + 1;
+
+// The whole grid (one rank), or one box of it (distributed: fields hold the box's cells plus
+// ghost layers, indices local to the box; the ghosts on the box's internal and periodic faces
+// come from a GridHalo, the physical boundary conditions act on the domain faces it touches).
 class MacGrid {
 public:
   // Throws std::invalid_argument listing every problem check_mac_grid finds.
   explicit MacGrid(const MacGridSpec& spec);
+  // The box `box` (global cell indices) of the grid, for a distributed solver; throws
+  // std::invalid_argument if it is not inside the grid or narrower than kMinBoxWidth along a
+  // cut axis.
+  MacGrid(const MacGridSpec& spec, const CellBox& box);
 
-  [[nodiscard]] const std::array<int, 3>& cells() const { return spec_.cells; }
-  [[nodiscard]] int cells(int axis) const { return spec_.cells[axis]; }
+  // Cells of this grid's box (all cells when not distributed).
+  [[nodiscard]] const std::array<int, 3>& cells() const { return cells_; }
+  [[nodiscard]] int cells(int axis) const { return cells_[axis]; }
+  [[nodiscard]] const std::array<int, 3>& global_cells() const { return spec_.cells; }
+  [[nodiscard]] const CellBox& box() const { return box_; }
+  [[nodiscard]] bool distributed() const { return distributed_; }
+  // This side of the box gets its ghosts from the halo exchange (an internal face, or any face
+  // of a periodic axis when distributed); otherwise its boundary condition fills them (and a
+  // periodic axis of an undistributed grid wraps onto itself).
+  [[nodiscard]] bool exchanged(int axis, int side) const {
+    return exchanged_[static_cast<std::size_t>(2 * axis + side)];
+  }
   [[nodiscard]] double spacing(int axis) const { return spacing_[axis]; }
   [[nodiscard]] double origin(int axis) const { return spec_.origin[axis]; }
   [[nodiscard]] double length(int axis) const { return spec_.extent[axis]; }
@@ -62,17 +85,21 @@ public:
   [[nodiscard]] const GridLayout& layout() const { return layout_; }
   [[nodiscard]] const MacGridSpec& spec() const { return spec_; }
 
-  // Positions: centre of cell i, and low face i, along an axis.
+  // Positions: centre of local cell i, and its low face, along an axis.
   [[nodiscard]] double cell_centre(int axis, int i) const {
-    return spec_.origin[axis] + (i + 0.5) * spacing_[axis];
+    return spec_.origin[axis] + (box_.lo[axis] + i + 0.5) * spacing_[axis];
   }
   [[nodiscard]] double face_position(int axis, int i) const {
-    return spec_.origin[axis] + i * spacing_[axis];
+    return spec_.origin[axis] + (box_.lo[axis] + i) * spacing_[axis];
   }
   [[nodiscard]] GridField make_field(double value = 0.0) const { return GridField(layout_, value); }
 
 private:
   MacGridSpec spec_;
+  CellBox box_;
+  std::array<int, 3> cells_{};
+  bool distributed_ = false;
+  std::array<bool, kFaces> exchanged_{};
   std::array<double, 3> spacing_{};
   GridLayout layout_;
 };

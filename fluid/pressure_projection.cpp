@@ -8,6 +8,8 @@
 #include <fmt/format.h>
 #include <mpi.h>
 
+#include "core/communicator_mpi.hpp"
+
 namespace cfddem::fluid {
 
 struct PressureProjection::Hypre {
@@ -19,6 +21,7 @@ struct PressureProjection::Hypre {
   HYPRE_StructSolver solver = nullptr;
   HYPRE_StructSolver precond = nullptr;
   PoissonPreconditioner precond_kind = PoissonPreconditioner::pfmg;
+  MPI_Comm comm = MPI_COMM_SELF;
   bool solver_ready = false;
   std::array<HYPRE_Int, 3> lower{};
   std::array<HYPRE_Int, 3> upper{};
@@ -50,7 +53,7 @@ constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
 // breaks down: seen on 4-cell periodic axes and on the riser grid). Mirrors the coarsening
 // loop of hypre 2.26's pfmg_setup.c with dxyz set explicitly.
 int pfmg_max_levels(const MacGrid& grid) {
-  std::array<int, 3> size = grid.cells();
+  std::array<int, 3> size = grid.global_cells();
   std::array<double, 3> dxyz = {grid.spacing(0), grid.spacing(1), grid.spacing(2)};
   int levels = 1;
   for (;;) {
@@ -100,21 +103,33 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
   }
 }
 
-PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings)
-    : grid_(grid), settings_(settings), hypre_(new Hypre) {
+PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
+                                       const GridHalo* halo)
+    : grid_(grid), settings_(settings), halo_(halo), hypre_(new Hypre) {
   if (!(settings.tolerance > 0.0) || settings.max_iterations < 1) {
     delete hypre_;
     throw std::invalid_argument("projection tolerance must be > 0 and max_iterations >= 1");
   }
   Hypre& h = *hypre_;
   const auto& n = grid.cells();
+  const auto& global = grid.global_cells();
   std::array<HYPRE_Int, 3> periodic{};
   for (int a = 0; a < 3; ++a) {
-    h.upper[a] = n[a] - 1;
+    h.lower[a] = grid.box().lo[a];
+    h.upper[a] = grid.box().hi[a] - 1;
     // A single periodic cell couples only to itself (no flux): leave the axis non-periodic.
-    periodic[a] = (grid.periodic(a) && n[a] > 1) ? n[a] : 0;
+    periodic[a] = (grid.periodic(a) && global[a] > 1) ? global[a] : 0;
+    owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
   }
-  HYPRE_StructGridCreate(MPI_COMM_SELF, 3, &h.grid);
+  global_cells_ = static_cast<double>(global[0]) * global[1] * global[2];
+  // Distributed: hypre talks on its own duplicate of the ranks' communicator, so its messages
+  // can never match those of other traffic in flight meanwhile (the particles' ghost forward
+  // posted before a gas step, MPI-3.1 §3.5: matching is by source, tag and communicator).
+  if (halo != nullptr) {
+    MPI_Comm_dup(mpi_comm(halo->comm()), &h.comm);
+  }
+  const MPI_Comm comm = h.comm;
+  HYPRE_StructGridCreate(comm, 3, &h.grid);
   HYPRE_StructGridSetExtents(h.grid, h.lower.data(), h.upper.data());
   HYPRE_StructGridSetPeriodic(h.grid, periodic.data());
   HYPRE_StructGridAssemble(h.grid);
@@ -124,17 +139,18 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   for (int e = 0; e < kStencilSize; ++e) {
     HYPRE_StructStencilSetElement(h.stencil, e, offsets[e].data());
   }
-  HYPRE_StructMatrixCreate(MPI_COMM_SELF, h.grid, h.stencil, &h.matrix);
+  HYPRE_StructMatrixCreate(comm, h.grid, h.stencil, &h.matrix);
   HYPRE_StructMatrixInitialize(h.matrix);
-  HYPRE_StructVectorCreate(MPI_COMM_SELF, h.grid, &h.b);
+  HYPRE_StructVectorCreate(comm, h.grid, &h.b);
   HYPRE_StructVectorInitialize(h.b);
-  HYPRE_StructVectorCreate(MPI_COMM_SELF, h.grid, &h.x);
+  HYPRE_StructVectorCreate(comm, h.grid, &h.x);
   HYPRE_StructVectorInitialize(h.x);
   const std::size_t cells = static_cast<std::size_t>(n[0]) * n[1] * n[2];
   rhs_.resize(cells);
   solution_.resize(cells);
   guess_.resize(cells);
   div_ = grid.make_field();
+  x_ = grid.make_field();
 }
 
 PressureProjection::~PressureProjection() {
@@ -144,6 +160,9 @@ PressureProjection::~PressureProjection() {
   HYPRE_StructMatrixDestroy(hypre_->matrix);
   HYPRE_StructStencilDestroy(hypre_->stencil);
   HYPRE_StructGridDestroy(hypre_->grid);
+  if (hypre_->comm != MPI_COMM_SELF) {
+    MPI_Comm_free(&hypre_->comm);
+  }
   delete hypre_;
 }
 
@@ -157,32 +176,50 @@ void PressureProjection::assemble(const std::vector<double>& stencil_values) {
 }
 
 // Relative residual ||b - A x|| / ||b|| of the unpinned closed-box system (no periodic axis: a
-// neighbour outside the grid has a zero coefficient), from the assembled stencil rows.
-double PressureProjection::closed_box_residual(const std::vector<double>& x) const {
+// neighbour outside the grid has a zero coefficient), from the assembled stencil rows; a
+// neighbour across an internal face of a distributed grid is read from x's exchanged ghosts.
+double PressureProjection::closed_box_residual(const std::vector<double>& x) {
   const auto& n = grid_.cells();
-  const std::ptrdiff_t stride[3] = {1, n[0], static_cast<std::ptrdiff_t>(n[0]) * n[1]};
-  double r2 = 0.0, b2 = 0.0;
+  const GridLayout& layout = grid_.layout();
   std::size_t m = 0;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        x_(i, j, k) = x[m++];
+      }
+    }
+  }
+  if (halo_ != nullptr) {
+    halo_->fill(x_, kCellCentred);
+  }
+  std::array<double, 2> sums{}; // |r|^2, |b|^2
+  m = 0;
   for (int k = 0; k < n[2]; ++k) {
     for (int j = 0; j < n[1]; ++j) {
       for (int i = 0; i < n[0]; ++i, ++m) {
         const double* row = &stencil_values_[m * kStencilSize];
         const int cell[3] = {i, j, k};
-        double ax = (m == 0 ? 0.5 : 1.0) * row[0] * x[m]; // the pin doubled row 0's diagonal
+        const std::size_t c = layout.index(i, j, k);
+        // The pin doubled the diagonal of the global first cell.
+        double ax = (m == 0 && owns_first_cell_ ? 0.5 : 1.0) * row[0] * x[m];
         for (int a = 0; a < 3; ++a) {
-          if (cell[a] > 0) {
-            ax += row[1 + 2 * a] * x[m - static_cast<std::size_t>(stride[a])];
+          const auto s = static_cast<std::size_t>(layout.stride(a));
+          if (cell[a] > 0 || grid_.exchanged(a, 0)) {
+            ax += row[1 + 2 * a] * x_[c - s];
           }
-          if (cell[a] < n[a] - 1) {
-            ax += row[2 + 2 * a] * x[m + static_cast<std::size_t>(stride[a])];
+          if (cell[a] < n[a] - 1 || grid_.exchanged(a, 1)) {
+            ax += row[2 + 2 * a] * x_[c + s];
           }
         }
-        r2 += (rhs_[m] - ax) * (rhs_[m] - ax);
-        b2 += rhs_[m] * rhs_[m];
+        sums[0] += (rhs_[m] - ax) * (rhs_[m] - ax);
+        sums[1] += rhs_[m] * rhs_[m];
       }
     }
   }
-  return b2 > 0.0 ? std::sqrt(r2 / b2) : std::sqrt(r2);
+  if (halo_ != nullptr) {
+    halo_->sum(sums);
+  }
+  return sums[1] > 0.0 ? std::sqrt(sums[0] / sums[1]) : std::sqrt(sums[0]);
 }
 
 bool PressureProjection::solve(PoissonPreconditioner pc, std::vector<double>& x,
@@ -194,14 +231,14 @@ bool PressureProjection::solve(PoissonPreconditioner pc, std::vector<double>& x,
   if (!h.solver_ready || h.precond_kind != pc) {
     h.destroy_solver();
     h.precond_kind = pc;
-    HYPRE_StructPCGCreate(MPI_COMM_SELF, &h.solver);
+    HYPRE_StructPCGCreate(h.comm, &h.solver);
     HYPRE_StructPCGSetTol(h.solver, settings_.tolerance);
     HYPRE_StructPCGSetMaxIter(h.solver, settings_.max_iterations);
     HYPRE_StructPCGSetTwoNorm(h.solver, 1);
     HYPRE_StructPCGSetRelChange(h.solver, 0);
     HYPRE_StructPCGSetLogging(h.solver, 1);
     if (pc == PoissonPreconditioner::pfmg) {
-      HYPRE_StructPFMGCreate(MPI_COMM_SELF, &h.precond);
+      HYPRE_StructPFMGCreate(h.comm, &h.precond);
       HYPRE_StructPFMGSetMaxIter(h.precond, 1);
       HYPRE_StructPFMGSetTol(h.precond, 0.0);
       HYPRE_StructPFMGSetZeroGuess(h.precond);
@@ -214,7 +251,7 @@ bool PressureProjection::solve(PoissonPreconditioner pc, std::vector<double>& x,
       HYPRE_StructPFMGSetNumPostRelax(h.precond, 1);
       HYPRE_StructPCGSetPrecond(h.solver, HYPRE_StructPFMGSolve, HYPRE_StructPFMGSetup, h.precond);
     } else {
-      HYPRE_StructSMGCreate(MPI_COMM_SELF, &h.precond);
+      HYPRE_StructSMGCreate(h.comm, &h.precond);
       HYPRE_StructSMGSetMemoryUse(h.precond, 0);
       HYPRE_StructSMGSetMaxIter(h.precond, 1);
       HYPRE_StructSMGSetTol(h.precond, 0.0);
@@ -256,6 +293,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
   const bool singular = !grid_.has_outflow();
   const bool pinned = singular && settings_.preconditioner == PoissonPreconditioner::pfmg &&
                       !grid_.periodic(0) && !grid_.periodic(1) && !grid_.periodic(2);
+  const auto& global = grid_.global_cells();
 
   std::size_t m = 0;
   for (int k = 0; k < n[2]; ++k) {
@@ -269,16 +307,23 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
           const std::ptrdiff_t s = layout.stride(a);
           const double inv_dx2 = 1.0 / (grid_.spacing(a) * grid_.spacing(a));
           for (int side = 0; side < 2; ++side) {
-            const bool boundary = side == 0 ? cell[a] == 0 : cell[a] == n[a] - 1;
+            const bool edge = side == 0 ? cell[a] == 0 : cell[a] == n[a] - 1;
+            // A face shared with another box (or a periodic image) couples like an interior
+            // one: its coefficient is computed from the same exchanged values on both sides.
+            const bool exchanged = edge && grid_.exchanged(a, side) && global[a] > 1;
+            const bool boundary = edge && !grid_.exchanged(a, side);
             std::size_t f = side == 0 ? c : c + static_cast<std::size_t>(s);
             if (boundary && side == 1 && grid_.periodic(a)) {
               f -= static_cast<std::size_t>(n[a] * s); // face n is face 0: one coefficient
             }
             const double coef = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
-            if (!boundary) {
+            if (!edge || exchanged) {
               row[0] += coef;
               row[1 + 2 * a + side] = -coef;
               continue;
+            }
+            if (!boundary) {
+              continue; // a one-cell periodic axis of a distributed grid: no flux
             }
             const BoundaryCondition& bc = grid_.bc(a, side);
             if (bc.kind == BoundaryKind::periodic && n[a] > 1) {
@@ -291,7 +336,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
             }
           }
         }
-        if (pinned && m == 0) {
+        if (pinned && m == 0 && owns_first_cell_) {
           // Pin the first cell (phi = 0 there): A + d e0 e0^T is definite, and with a
           // compatible right-hand side (zero sum, below) its exact solution solves the
           // singular system (summing all rows gives d phi_0 = 0). In a closed box PFMG's coarse
@@ -309,12 +354,17 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
     for (const double r : rhs_) {
       mean += r;
     }
-    mean /= static_cast<double>(rhs_.size());
+    mean = global_sum(mean) / global_cells_;
     for (double& r : rhs_) {
       r -= mean;
     }
   }
-  if (values != stencil_values_) {
+  bool changed = values != stencil_values_;
+  if (halo_ != nullptr) {
+    // Assembly and solver set-up are collective: every rank re-assembles if any matrix changed.
+    changed = halo_->max(changed ? 1.0 : 0.0) > 0.0;
+  }
+  if (changed) {
     std::swap(stencil_values_, values);
     assemble(stencil_values_);
   }
@@ -363,7 +413,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
     for (const double x : solution_) {
       mean += x;
     }
-    mean /= static_cast<double>(solution_.size());
+    mean = global_sum(mean) / global_cells_;
     for (double& x : solution_) {
       x -= mean;
     }
@@ -375,6 +425,9 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
         phi(i, j, k) = solution_[m++];
       }
     }
+  }
+  if (halo_ != nullptr) {
+    halo_->fill(phi, kCellCentred); // the correction of the box's edge faces reads them
   }
 
   // u = u* - m_f grad phi on every face whose velocity is not prescribed.
@@ -390,7 +443,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
           const std::size_t f = layout.index(face);
           const std::size_t below = f - static_cast<std::size_t>(s);
           double grad = 0.0;
-          if (face[a] > 0 && face[a] < n[a]) {
+          if ((face[a] > 0 || grid_.exchanged(a, 0)) && (face[a] < n[a] || grid_.exchanged(a, 1))) {
             grad = (phi[f] - phi[below]) * inv_dx;
           } else {
             const int side = face[a] == 0 ? 0 : 1;
@@ -413,7 +466,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
         }
       }
     }
-    if (grid_.periodic(a)) {
+    if (grid_.periodic(a) && !grid_.distributed()) {
       // Face n is face 0.
       std::array<int, 3> hi_other = n;
       hi_other[a] = 1;

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "fluid/grid_field.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::fluid {
@@ -35,10 +36,14 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
                      GridField& div);
 
 // Holds the hypre grid, matrix and solver; the solver set-up is reused while the matrix is
-// unchanged. Single rank for now: hypre objects live on MPI_COMM_SELF. MPI must be initialised.
+// unchanged. Undistributed (halo == nullptr): hypre objects on MPI_COMM_SELF. Distributed: on
+// the halo's communicator, each rank's box in global indices, the periodic axes by
+// HYPRE_StructGridSetPeriodic; collective. MPI must be initialised.
 class PressureProjection {
 public:
-  PressureProjection(const MacGrid& grid, const ProjectionSettings& settings);
+  // halo: the grid's halo when grid is one box of a distributed grid (kept by the caller).
+  PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
+                     const GridHalo* halo = nullptr);
   ~PressureProjection();
   PressureProjection(const PressureProjection&) = delete;
   PressureProjection& operator=(const PressureProjection&) = delete;
@@ -47,7 +52,9 @@ public:
   // predictor). source = d(eps)/dt per cell. phi: in, first guess; out, solution with phi =
   // p_out on outflow faces (mean zero when no face fixes the level). Preconditions: ghosts of
   // eps filled; u satisfies its boundary conditions. Corrects every face that is not prescribed
-  // (interior, periodic and outflow faces); the caller refills velocity ghosts.
+  // (interior, periodic and outflow faces); the caller refills velocity ghosts. Distributed:
+  // phi's ghosts are exchanged (the correction of the box's edge faces reads them) and face n
+  // of an exchanged side is corrected like its owner's face 0, bitwise.
   // Throws std::runtime_error when neither preconditioner reaches the tolerance.
   ProjectionReport project(std::array<GridField, 3>& u, const GridField& eps,
                            const std::array<GridField, 3>& mobility, const GridField& source,
@@ -61,10 +68,14 @@ private:
   // tolerance <= 0: the settings' tolerance.
   bool solve(PoissonPreconditioner pc, std::vector<double>& x, ProjectionReport& report,
              double tolerance = 0.0);
-  double closed_box_residual(const std::vector<double>& x) const;
+  double closed_box_residual(const std::vector<double>& x);
+  [[nodiscard]] double global_sum(double v) const { return halo_ ? halo_->sum(v) : v; }
 
   MacGrid grid_;
   ProjectionSettings settings_;
+  const GridHalo* halo_ = nullptr;
+  double global_cells_ = 0.0;
+  bool owns_first_cell_ = true; // global cell (0, 0, 0), the closed box's pinned cell
   Hypre* hypre_ = nullptr;
   std::vector<double> stencil_values_; // 7 per cell: centre, -x, +x, -y, +y, -z, +z
   std::vector<double> next_values_;
@@ -72,6 +83,7 @@ private:
   std::vector<double> solution_;
   std::vector<double> guess_;
   GridField div_;
+  GridField x_; // closed_box_residual's iterate with ghosts
 };
 
 } // namespace cfddem::fluid

@@ -1,0 +1,156 @@
+#!/usr/bin/env python3
+"""`mpirun -np R cfddem run` of a gas-particle scene against the 1-rank run.
+
+Usage: mpi_coupled_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS
+
+A small periodic riser (scenes/riser.toml shrunk to 2.4 x 4 x 2.4 mm, 12 x 20 x 12 cells, 800
+particles with a little thermal motion so that they migrate between ranks, 20 fluid steps). On
+one rank the serial coupled loop runs; on R ranks the gas grid is cut into R boxes, each rank
+owns the particles in its box, deposits them (ghost cells added into their owners), solves the
+gas with hypre on all ranks and interpolates from exchanged ghosts. Round-off differs (sums in
+another order) and the run is short, so every column agrees to 1e-9 of its scale (the axial
+column's largest value for the three momentum components, the column's largest value
+otherwise); counters agree exactly; the particle count is 800 in every row. The continuity
+residual is a round-off quantity in both runs (< 1e-8, as tests/apps/coupling_test.cpp). On
+R ranks the total axial momentum grows at delta_p x area to 0.5% (the coupling_test bound:
+the coupling's terms cancel, the gas's convective advection leaves a truncation error), and
+run.json shows the ranks' gas boxes (total/R cells each, up to half a cross-section per cut).
+One and two threads per rank give bitwise the same rows. The same comparison for
+scenes/settling.toml (walls, gravity, closed box). Snapshots on R ranks with a gas are refused
+naming the key.
+"""
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+
+MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+SCENE = os.path.join(SOURCE, "scenes", "riser.toml")
+CELLS = (12, 20, 12)
+ARGS = ["domain.hi=[2.4e-3,4.0e-3,2.4e-3]", "particles.count=800", "particles.temperature=1e-4",
+        f"fluid.cells=[{CELLS[0]},{CELLS[1]},{CELLS[2]}]", "run.end_time=2e-3",
+        "output.interval=2e-4", "--threads", "1", "--quiet"]
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+EXACT = ["time", "step", "particles", "particle_steps", "force_evaluations", "neighbor_builds"]
+SKIP = ["wall_seconds", "gas_mass_residual"]
+
+
+def run(ranks, out):
+    cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out", out] + ARGS
+    subprocess.run(cmd, check=True, env=ENV, timeout=120)
+    with open(os.path.join(out, "diagnostics.csv")) as f:
+        rows = list(csv.DictReader(f))
+    with open(os.path.join(out, "run.json")) as f:
+        info = json.load(f)
+    return rows, info
+
+
+def main():
+    with tempfile.TemporaryDirectory() as tmp:
+        one, _ = run(1, os.path.join(tmp, "np1"))
+        many, info = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
+    assert len(one) == len(many) == 11, (len(one), len(many))
+    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
+    for kind in ("momentum_", "gas_momentum_"):
+        for a in "xz":
+            scale[kind + a] = max(scale[kind + a], scale[kind + "y"])
+    worst = {}
+    for r1, rn in zip(one, many):
+        assert float(rn["particles"]) == 800, rn["particles"]
+        for r in (r1, rn):
+            assert float(r["gas_mass_residual"]) < 1e-8, r["gas_mass_residual"]
+        for c in r1:
+            if c in SKIP:
+                continue
+            x, y = float(r1[c]), float(rn[c])
+            if c in EXACT:
+                assert x == y, f"{c}: {x} (1 rank) != {y} ({RANKS} ranks) at t = {r1['time']}"
+                continue
+            err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
+            worst[c] = max(worst.get(c, 0.0), err)
+            assert err <= 1e-9, f"{c}: {x} vs {y} at t = {r1['time']} (scaled error {err:.3g})"
+    assert float(many[-1]["neighbor_builds"]) > 1, "no migration happened: the test is too short"
+    # Total axial momentum of gas + particles grows at delta_p x area (2 Pa x 2.4 mm x 2.4 mm).
+    rate = 2.0 * 2.4e-3 * 2.4e-3
+    p0 = float(many[0]["momentum_y"]) + float(many[0]["gas_momentum_y"])
+    for r in many[1:]:
+        p = float(r["momentum_y"]) + float(r["gas_momentum_y"])
+        t = float(r["time"])
+        assert abs((p - p0) / t - rate) <= 5e-3 * rate, (t, (p - p0) / t, rate)
+    assert info["ranks"] == RANKS and info["distributed"], info
+    assert sum(info["owned_particles_at_end"]) == 800, info["owned_particles_at_end"]
+    cells = info["gas_cells_per_rank"]
+    total = CELLS[0] * CELLS[1] * CELLS[2]
+    assert len(cells) == RANKS and sum(cells) == total, cells
+    section = max(CELLS[0] * CELLS[1], CELLS[1] * CELLS[2], CELLS[0] * CELLS[2])
+    levels = math.ceil(math.log2(RANKS))
+    assert all(abs(c - total / RANKS) <= levels * 0.5 * section for c in cells), cells
+    # Bitwise independent of the thread count on R ranks (the gas is one thread per rank; the
+    # particles' forces sum in a fixed order).
+    with tempfile.TemporaryDirectory() as tmp:
+        out = {}
+        for threads in ("1", "2"):
+            d = os.path.join(tmp, f"t{threads}")
+            args = [a for a in ARGS if a not in ("--threads", "1")] + ["--threads", threads]
+            cmd = [MPIEXEC, "-np", str(RANKS), "--oversubscribe", CFDDEM, "run", SCENE, "--out", d]
+            subprocess.run(cmd + args, check=True, env=ENV, timeout=120)
+            with open(os.path.join(d, "diagnostics.csv")) as f:
+                out[threads] = [{k: v for k, v in r.items() if k != "wall_seconds"}
+                                for r in csv.DictReader(f)]
+        assert out["1"] == out["2"], "1 and 2 threads per rank differ"
+    settling_matches()
+    # What is not distributed yet is refused with exit code 2, naming the key.
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [MPIEXEC, "-np", str(RANKS), "--oversubscribe", CFDDEM, "run", SCENE, "--out", tmp]
+        r = subprocess.run(cmd + ARGS + ["output.snapshot_interval=1e-3"], env=ENV, timeout=60,
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and "output.snapshot_interval" in r.stderr, (r.returncode,
+                                                                              r.stderr)
+    print(f"{RANKS} ranks vs 1: worst scaled column error {max(worst.values()):.3g} "
+          f"({max(worst, key=worst.get)}); gas cells per rank {cells}; "
+          f"neighbor builds {many[-1]['neighbor_builds']}")
+
+
+def settling_matches():
+    """scenes/settling.toml (walls on every face, gravity, a closed box: the pinned Poisson
+    problem; trilinear deposition folded at the walls), 30 fluid steps: the same bound."""
+    scene = os.path.join(SOURCE, "scenes", "settling.toml")
+    args = ["run.end_time=3e-3", "output.interval=5e-4", "output.snapshot_interval=0",
+            "--threads", "1", "--quiet"]
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for ranks in (1, RANKS):
+            out = os.path.join(tmp, f"np{ranks}")
+            cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", scene, "--out",
+                   out] + args
+            subprocess.run(cmd, check=True, env=ENV, timeout=120)
+            with open(os.path.join(out, "diagnostics.csv")) as f:
+                rows[ranks] = list(csv.DictReader(f))
+    one, many = rows[1], rows[RANKS]
+    assert len(one) == len(many) == 7, (len(one), len(many))
+    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
+    for kind in ("momentum_", "gas_momentum_", "mean_v", "mean_a"):
+        axial = scale[kind + "y"]
+        for a in "xz":
+            scale[kind + a] = max(scale[kind + a], axial)
+    worst = 0.0
+    for r1, rn in zip(one, many):
+        assert float(r1["gas_mass_residual"]) < 1e-8 and float(rn["gas_mass_residual"]) < 1e-8
+        for c in r1:
+            if c in SKIP:
+                continue
+            x, y = float(r1[c]), float(rn[c])
+            if c in EXACT:
+                assert x == y, f"settling {c}: {x} != {y} at t = {r1['time']}"
+                continue
+            err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
+            worst = max(worst, err)
+            assert err <= 1e-9, f"settling {c}: {x} vs {y} at t = {r1['time']} ({err:.3g})"
+    print(f"settling, {RANKS} ranks vs 1: worst scaled column error {worst:.3g}")
+
+
+if __name__ == "__main__":
+    main()

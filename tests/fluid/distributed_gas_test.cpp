@@ -1,0 +1,476 @@
+// The gas solver distributed over MPI ranks (one ORB box per rank, halo exchange, hypre on the
+// communicator) against the same problem on one grid, which every rank also solves: the
+// solutions agree to round-off (the ranks sum dot products and means in another order), the
+// constraint holds to the solver tolerance, and the boxes share the cells evenly.
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <memory>
+#include <numbers>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "core/cell_box.hpp"
+#include "core/communicator.hpp"
+#include "fluid/gas_solver.hpp"
+#include "fluid/grid_halo.hpp"
+#include "fluid/pressure_projection.hpp"
+#include "test_grids.hpp"
+
+namespace cfddem::fluid {
+namespace {
+
+using test::box_spec;
+using test::set_axis;
+
+constexpr double kRho = 1.0;
+constexpr double kMu = 2e-5;
+
+// Differences between the distributed and the one-grid solution, relative to the field's
+// largest value. Both solve each projection and each implicit-viscosity CG to a relative
+// residual of 1e-12 (the settings below). The ranks sum dot products, norms and means in
+// another order, so the iterates differ by round-off (~1e-16 relative per operation; measured
+// 2e-16 .. 2e-14 after tens of steps while both take the same iterations). When that round-off
+// moves a CG stopping test by an iteration, the two answers differ by up to the solver
+// tolerance instead (measured 3e-12, Taylor-Green with implicit viscosity). Bound: ten times
+// the tolerance.
+constexpr double kRoundOff = 1e-11;
+
+struct Split {
+  Communicator comm = Communicator::world();
+  std::vector<CellBox> boxes;
+  std::unique_ptr<MacGrid> grid;
+  std::shared_ptr<const GridHalo> halo;
+
+  explicit Split(const MacGridSpec& spec) {
+    boxes = orb_cell_boxes(spec.cells, comm.size(), kMinBoxWidth);
+    grid = std::make_unique<MacGrid>(spec, boxes[static_cast<std::size_t>(comm.rank())]);
+    halo = std::make_shared<GridHalo>(*grid, boxes, comm);
+  }
+};
+
+using PointFunction = std::function<double(double, double, double)>;
+
+// f at the cells (centring kCellCentred) or faces of the grid's box, owned and ghost points of
+// the interior index range 0..n (the solver fills the ghosts).
+void set_field(const MacGrid& g, GridField& f, int centring, const PointFunction& fn) {
+  std::array<int, 3> hi = g.cells();
+  if (centring >= 0) {
+    hi[static_cast<std::size_t>(centring)] += 1;
+  }
+  for (int k = 0; k < hi[2]; ++k) {
+    for (int j = 0; j < hi[1]; ++j) {
+      for (int i = 0; i < hi[0]; ++i) {
+        const std::array<int, 3> l = {i, j, k};
+        std::array<double, 3> x{};
+        for (int a = 0; a < 3; ++a) {
+          x[a] = a == centring ? g.face_position(a, l[a]) : g.cell_centre(a, l[a]);
+        }
+        f(i, j, k) = fn(x[0], x[1], x[2]);
+      }
+    }
+  }
+}
+
+// max |local - global| over the box's cells (faces 0..n along a face field's axis), and the
+// largest |global| value, both over all ranks.
+std::array<double, 2> compare(const MacGrid& local, const GridField& a, const GridField& b,
+                              int centring, const Communicator& comm) {
+  std::array<int, 3> hi = local.cells();
+  if (centring >= 0) {
+    hi[static_cast<std::size_t>(centring)] += 1;
+  }
+  const auto& lo = local.box().lo;
+  std::array<double, 2> out{};
+  for (int k = 0; k < hi[2]; ++k) {
+    for (int j = 0; j < hi[1]; ++j) {
+      for (int i = 0; i < hi[0]; ++i) {
+        const double ref = b(i + lo[0], j + lo[1], k + lo[2]);
+        out[0] = std::max(out[0], std::abs(a(i, j, k) - ref));
+        out[1] = std::max(out[1], std::abs(ref));
+      }
+    }
+  }
+  comm.max(out);
+  return out;
+}
+
+// Sets a solver's fields (both solvers get the same functions of position).
+using FieldSetter = std::function<void(const MacGrid&, GasSolver&, int step)>;
+
+struct Agreement {
+  double velocity = 0.0; // max over components of max|du| / max|u|
+  double pressure = 0.0; // max|dp| / max|p|
+  int serial_iterations = 0;
+  int distributed_iterations = 0;
+};
+
+// Runs `steps` steps (dt > 0: fixed; 0: adaptive; interval > 0: advance(interval)) of the
+// problem on one grid and on the ranks' boxes, `setup(grid, solver, s)` before step s.
+Agreement run_both(const MacGridSpec& spec, const GasSolverSettings& settings, int steps, double dt,
+                   double interval, const FieldSetter& setup) {
+  const Split split(spec);
+  const MacGrid global(spec);
+  GasSolver serial(global, settings);
+  GasSolver distributed(*split.grid, settings, split.halo);
+  Agreement out;
+  for (int s = 0; s < steps; ++s) {
+    setup(global, serial, s);
+    setup(*split.grid, distributed, s);
+    const auto advance = [&](GasSolver& solver) {
+      if (interval > 0.0) {
+        return solver.advance(interval);
+      }
+      return dt > 0.0 ? solver.step(dt) : solver.step();
+    };
+    const GasStepReport rs = advance(serial);
+    const GasStepReport rd = advance(distributed);
+    // dt from the Courant number: a max over the ranks, of fields equal to round-off.
+    EXPECT_NEAR(rd.dt, rs.dt, kRoundOff * rs.dt);
+    out.serial_iterations += rs.projection_iterations + rs.viscous_iterations;
+    out.distributed_iterations += rd.projection_iterations + rd.viscous_iterations;
+  }
+  // Relative to the largest velocity component (a component that is zero in exact arithmetic
+  // differs by round-off of the others).
+  std::array<double, 2> du{};
+  for (int a = 0; a < 3; ++a) {
+    const auto d =
+        compare(*split.grid, distributed.velocity()[a], serial.velocity()[a], a, split.comm);
+    du = {std::max(du[0], d[0]), std::max(du[1], d[1])};
+  }
+  EXPECT_GT(du[1], 0.0) << "a case that tests nothing";
+  out.velocity = du[0] / du[1];
+  const auto d =
+      compare(*split.grid, distributed.pressure(), serial.pressure(), kCellCentred, split.comm);
+  out.pressure = d[1] > 0.0 ? d[0] / d[1] : d[0];
+  return out;
+}
+
+void expect_round_off(const Agreement& a, const std::string& name) {
+  ::testing::Test::RecordProperty(name + "_velocity", std::to_string(a.velocity));
+  ::testing::Test::RecordProperty(name + "_pressure", std::to_string(a.pressure));
+  if (Communicator::world().rank() == 0) {
+    std::printf("[ measured ] %s on %d ranks: velocity %.3g, pressure %.3g (relative), "
+                "iterations %d (one grid) / %d (ranks)\n",
+                name.c_str(), Communicator::world().size(), a.velocity, a.pressure,
+                a.serial_iterations, a.distributed_iterations);
+  }
+  EXPECT_LE(a.velocity, kRoundOff) << name;
+  EXPECT_LE(a.pressure, kRoundOff) << name;
+}
+
+GasSolverSettings tight_settings(bool implicit_viscosity) {
+  GasSolverSettings settings;
+  settings.gas = {kRho, kMu, {0.0, 0.0, 0.0}};
+  settings.projection.tolerance = 1e-12;
+  settings.implicit_viscosity = implicit_viscosity;
+  settings.viscous_tolerance = 1e-12;
+  return settings;
+}
+
+class DistributedGas : public ::testing::TestWithParam<bool> {};
+
+TEST_P(DistributedGas, PlanePoiseuilleMatchesOneGrid) {
+  // Channel between no-slip walls (y), pressure drop across periodic x, periodic z: the cuts
+  // fall across the channel, so boxes meet both walls and internal faces.
+  MacGridSpec spec = box_spec({4, 15, 3}, {1e-3, 1e-3, 1e-3}, BoundaryKind::periodic);
+  set_axis(spec, 1, BoundaryKind::wall);
+  spec.pressure_drop[0] = 1e-3;
+  // From rest plus a cross-channel disturbance that the projection must remove.
+  const FieldSetter start = [](const MacGrid& g, GasSolver& solver, int s) {
+    if (s == 0) {
+      set_field(g, solver.velocity()[1], 1, [](double x, double y, double) {
+        return 1e-3 * std::sin(2.0 * std::numbers::pi * x / 1e-3) *
+               std::sin(std::numbers::pi * y / 1e-3);
+      });
+    }
+  };
+  // dt = 0.4 of the explicit viscous limit 1/(4 nu sum 1/dx^2) = 5e-5 s.
+  expect_round_off(run_both(spec, tight_settings(GetParam()), 30, 2e-5, 0.0, start),
+                   GetParam() ? "poiseuille_implicit" : "poiseuille_explicit");
+}
+
+TEST_P(DistributedGas, TaylorGreenMatchesOneGrid) {
+  const double length = 1e-3;
+  const double k = 2.0 * std::numbers::pi / length;
+  const double amplitude = 20.0 * kMu / (kRho * length); // Re = 20: advection matters
+  const MacGridSpec spec =
+      box_spec({12, 12, 3}, {length, length, length / 4.0}, BoundaryKind::periodic);
+  const FieldSetter start = [&](const MacGrid& g, GasSolver& solver, int s) {
+    if (s != 0) {
+      return;
+    }
+    set_field(g, solver.velocity()[0], 0, [&](double x, double y, double) {
+      return amplitude * std::sin(k * x) * std::cos(k * y);
+    });
+    set_field(g, solver.velocity()[1], 1, [&](double x, double y, double) {
+      return -amplitude * std::cos(k * x) * std::sin(k * y);
+    });
+  };
+  expect_round_off(run_both(spec, tight_settings(GetParam()), 20, 0.0, 0.0, start),
+                   GetParam() ? "taylor_green_implicit" : "taylor_green_explicit");
+}
+
+TEST_P(DistributedGas, PeriodicNonUniformVolumeFractionWithDragMatchesOneGrid) {
+  // A riser-like periodic box: eps_g and the drag fields vary in space and time (d(eps)/dt
+  // drives the projection's source), pressure drop along y, gravity; advance() sub-steps.
+  const MacGridSpec spec = [] {
+    MacGridSpec s = box_spec({9, 11, 7}, {9e-4, 1.1e-3, 7e-4}, BoundaryKind::periodic);
+    s.pressure_drop[1] = 2e-2;
+    return s;
+  }();
+  GasSolverSettings settings = tight_settings(GetParam());
+  settings.gas.gravity = {0.0, -9.80665, 0.0};
+  const double w = 2.0 * std::numbers::pi / 9e-4;
+  const FieldSetter particles = [&](const MacGrid& g, GasSolver& solver, int s) {
+    const double t = 1e-4 * s;
+    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
+      return 0.9 + 0.05 * std::sin(w * x + 3e3 * y + 1e4 * t) * std::cos(7e3 * z);
+    });
+    set_field(g, solver.drag_coefficient(), kCellCentred, [&](double x, double y, double) {
+      return 1e3 * (1.0 + 0.5 * std::cos(w * x - 2e3 * y));
+    });
+    set_field(g, solver.drag_velocity_sum(1), kCellCentred, [&](double x, double, double z) {
+      return 1e3 * 0.01 * (1.0 + std::sin(w * x) * std::cos(9e3 * z));
+    });
+    if (s == 0) {
+      solver.reset_volume_fraction_history();
+    }
+  };
+  expect_round_off(run_both(spec, settings, 8, 0.0, 1e-4, particles),
+                   GetParam() ? "periodic_eps_implicit" : "periodic_eps_explicit");
+}
+
+TEST_P(DistributedGas, ClosedBoxAndOutflowColumnMatchOneGrid) {
+  // Every boundary kind: a closed box under gravity with a moving solids blob (the pinned,
+  // singular Poisson problem), and an inflow/outflow column with walls.
+  const FieldSetter blob = [](const MacGrid& g, GasSolver& solver, int s) {
+    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
+      const double yc = 4e-4 + 2e-5 * s;
+      return 1.0 - 0.3 * std::exp(-std::pow((y - yc) / 1.5e-4, 2)) *
+                       (1.0 + 0.2 * std::sin(1e4 * x) * std::cos(8e3 * z));
+    });
+    if (s == 0) {
+      solver.reset_volume_fraction_history();
+    }
+  };
+  GasSolverSettings settings = tight_settings(GetParam());
+  settings.gas.gravity = {0.0, -9.80665, 0.0};
+  const MacGridSpec closed = box_spec({7, 9, 6}, {7e-4, 9e-4, 6e-4}, BoundaryKind::wall);
+  expect_round_off(run_both(closed, settings, 6, 1e-5, 0.0, blob),
+                   GetParam() ? "closed_box_implicit" : "closed_box_explicit");
+
+  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
+  column.bc[2] = test::bc_of(BoundaryKind::inflow);
+  column.bc[2].velocity = {0.0, 0.015, 0.0};
+  column.bc[3] = test::bc_of(BoundaryKind::outflow);
+  column.bc[3].pressure = 0.5;
+  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, blob),
+                   GetParam() ? "column_implicit" : "column_explicit");
+}
+
+TEST_P(DistributedGas, TwoDimensionalChannelWithOneCellPeriodicAxisMatchesOneGrid) {
+  // One cell along periodic z (no flux: hypre's axis is left non-periodic, the exchange copies
+  // the cell onto itself), walls along y, pressure drop along periodic x, a disturbance.
+  MacGridSpec spec = box_spec({9, 12, 1}, {9e-4, 1.2e-3, 1e-4}, BoundaryKind::periodic);
+  set_axis(spec, 1, BoundaryKind::wall);
+  spec.pressure_drop[0] = 1e-3;
+  const FieldSetter start = [](const MacGrid& g, GasSolver& solver, int s) {
+    if (s == 0) {
+      set_field(g, solver.velocity()[1], 1, [](double x, double y, double) {
+        return 1e-3 * std::sin(2.0 * std::numbers::pi * x / 9e-4) *
+               std::sin(std::numbers::pi * y / 1.2e-3);
+      });
+    }
+  };
+  expect_round_off(run_both(spec, tight_settings(GetParam()), 10, 2e-5, 0.0, start),
+                   GetParam() ? "channel_2d_implicit" : "channel_2d_explicit");
+}
+
+TEST_P(DistributedGas, SmgPreconditionedColumnMatchesOneGrid) {
+  // hypre's SMG (the fallback preconditioner) on the communicator too.
+  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
+  column.bc[2] = test::bc_of(BoundaryKind::inflow);
+  column.bc[2].velocity = {0.0, 0.015, 0.0};
+  column.bc[3] = test::bc_of(BoundaryKind::outflow);
+  GasSolverSettings settings = tight_settings(GetParam());
+  settings.projection.preconditioner = PoissonPreconditioner::smg;
+  const FieldSetter none = [](const MacGrid&, GasSolver&, int) {};
+  expect_round_off(run_both(column, settings, 5, 1e-5, 0.0, none),
+                   GetParam() ? "column_smg_implicit" : "column_smg_explicit");
+}
+
+INSTANTIATE_TEST_SUITE_P(Viscosity, DistributedGas, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& param) {
+                           return std::string(param.param ? "implicit" : "explicit");
+                         });
+
+TEST(DistributedGasConstraint, VolumeFractionChangeDrivesDivergenceOnEveryBox) {
+  // As GasSolverConstraint on one grid: after each step div(eps u) = -d(eps)/dt holds to the
+  // projection tolerance relative to the source's norm, summed over every rank's cells.
+  MacGridSpec spec = box_spec({10, 9, 8}, {1e-3, 9e-4, 8e-4}, BoundaryKind::periodic);
+  spec.pressure_drop[1] = 1e-2;
+  const Split split(spec);
+  const MacGrid& grid = *split.grid;
+  GasSolverSettings settings = tight_settings(false);
+  settings.projection.tolerance = 1e-10;
+  GasSolver solver(grid, settings, split.halo);
+  const double dt = 1e-5;
+  GridField old = grid.make_field();
+  for (int step = 0; step < 4; ++step) {
+    old = solver.volume_fraction();
+    set_field(grid, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
+      return 0.85 + 0.1 * std::sin(6e3 * x + 7e3 * y - 2e4 * dt * step) * std::cos(7.85e3 * z);
+    });
+    if (step == 0) {
+      solver.reset_volume_fraction_history();
+      continue;
+    }
+    (void)solver.step(dt);
+    GridField& eps = solver.volume_fraction();
+    fill_cell_ghosts(grid, split.halo.get(), eps, CellGhosts::zero_gradient);
+    GridField div = grid.make_field();
+    flux_divergence(grid, solver.velocity(), eps, div);
+    std::array<double, 3> sums{}; // |div + s|^2, |s|^2, sum s
+    for (int k = 0; k < grid.cells(2); ++k) {
+      for (int j = 0; j < grid.cells(1); ++j) {
+        for (int i = 0; i < grid.cells(0); ++i) {
+          const double s = (eps(i, j, k) - old(i, j, k)) / dt;
+          sums[0] += std::pow(div(i, j, k) + s, 2);
+          sums[1] += s * s;
+          sums[2] += s;
+        }
+      }
+    }
+    split.comm.sum(sums);
+    ASSERT_GT(sums[1], 0.0);
+    const double cells = 10.0 * 9.0 * 8.0;
+    const double mean = sums[2] / cells; // the singular system's compatible part
+    EXPECT_LE(std::sqrt(std::max(0.0, sums[0] - cells * mean * mean)) / std::sqrt(sums[1]), 2e-10);
+  }
+}
+
+TEST(FluidBoxes, EveryRankOwnsAboutTotalOverRanksCells) {
+  const Communicator comm = Communicator::world();
+  const std::array<int, 5> all_parts = {comm.size(), 2, 3, 5, 8};
+  for (std::size_t p = 0; p < all_parts.size(); ++p) {
+    const int parts = all_parts[p];
+    for (const std::array<int, 3> cells : {std::array<int, 3>{32, 50, 32}, {9, 11, 7}}) {
+      if (parts == 8 && cells[2] == 7) {
+        continue; // 7 cells cannot be cut twice into boxes of 3
+      }
+      const std::vector<CellBox> boxes = orb_cell_boxes(cells, parts, kMinBoxWidth);
+      ASSERT_EQ(boxes.size(), static_cast<std::size_t>(parts));
+      std::int64_t total = 0;
+      for (const CellBox& b : boxes) {
+        total += b.count();
+      }
+      EXPECT_EQ(total, static_cast<std::int64_t>(cells[0]) * cells[1] * cells[2]);
+      const double mean = static_cast<double>(total) / parts;
+      // Each of the ceil(log2 R) cuts rounds to the nearest cell face: it moves a part's share
+      // by at most half a cross-section of the box it cuts, at most the grid's largest.
+      const double section = std::max({static_cast<double>(cells[0]) * cells[1],
+                                       static_cast<double>(cells[1]) * cells[2],
+                                       static_cast<double>(cells[0]) * cells[2]});
+      const double levels = std::ceil(std::log2(static_cast<double>(parts)));
+      std::int64_t largest = 0;
+      for (const CellBox& b : boxes) {
+        EXPECT_LE(std::abs(static_cast<double>(b.count()) - mean), levels * 0.5 * section)
+            << b.count() << " cells against a mean of " << mean;
+        largest = std::max(largest, b.count());
+      }
+      if (comm.rank() == 0 && p == 0) {
+        std::printf("[ measured ] %d x %d x %d cells on %d ranks: largest box %lld cells, mean "
+                    "%.0f\n",
+                    cells[0], cells[1], cells[2], parts, static_cast<long long>(largest), mean);
+      }
+    }
+  }
+  EXPECT_THROW((void)orb_cell_boxes({4, 4, 4}, 3, kMinBoxWidth), std::invalid_argument);
+}
+
+// Global index of a local point, wrapped on periodic axes; false outside a non-periodic face.
+bool global_point(const MacGrid& g, int centring, std::array<int, 3> l, std::array<int, 3>& out) {
+  for (int a = 0; a < 3; ++a) {
+    const int n = g.global_cells()[a];
+    int x = g.box().lo[a] + l[a];
+    if (g.periodic(a)) {
+      x = ((x % n) + n) % n;
+    } else if (x < 0 || x > (a == centring ? n : n - 1)) {
+      return false;
+    }
+    out[a] = x;
+  }
+  return true;
+}
+
+TEST(GridHalo, GhostsHoldTheOwnersValuesWithPeriodicImages) {
+  // x periodic, y walls, z periodic: every exchanged ghost (faces and edges and corners
+  // included) gets the owner's value of the wrapped global point; ghosts outside a wall are
+  // left alone.
+  MacGridSpec spec = box_spec({10, 9, 7}, {1e-3, 9e-4, 7e-4}, BoundaryKind::periodic);
+  set_axis(spec, 1, BoundaryKind::wall);
+  const Split split(spec);
+  const MacGrid& g = *split.grid;
+  const auto code = [](const std::array<int, 3>& x) {
+    return 1.0 + x[0] + 100.0 * x[1] + 10000.0 * x[2];
+  };
+  for (int centring = kCellCentred; centring < 3; ++centring) {
+    GridField f = g.make_field(-1.0);
+    std::array<int, 3> hi = g.cells();
+    if (centring >= 0 && !g.exchanged(centring, 1)) {
+      hi[static_cast<std::size_t>(centring)] += 1; // the owned last face
+    }
+    std::array<int, 3> x{};
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          ASSERT_TRUE(global_point(g, centring, {i, j, k}, x));
+          f(i, j, k) = code(x);
+        }
+      }
+    }
+    split.halo->fill(f, centring);
+    int wrong = 0;
+    for (int k = -kGhostLayers; k <= g.cells(2) + kGhostLayers; ++k) {
+      for (int j = -kGhostLayers; j <= g.cells(1) + kGhostLayers; ++j) {
+        for (int i = -kGhostLayers; i <= g.cells(0) + kGhostLayers; ++i) {
+          const double expected = global_point(g, centring, {i, j, k}, x) ? code(x) : -1.0;
+          wrong += f(i, j, k) != expected ? 1 : 0;
+        }
+      }
+    }
+    EXPECT_EQ(split.comm.sum(static_cast<std::int64_t>(wrong)), 0) << "centring " << centring;
+  }
+}
+
+TEST(GridHalo, ReverseAddPutsEveryGhostIntoItsOwner) {
+  // Ones everywhere (owned and exchanged ghosts): after the reverse add the owned points sum
+  // to the number of owned plus exchanged ghost points, over all ranks.
+  const MacGridSpec spec = box_spec({8, 10, 6}, {8e-4, 1e-3, 6e-4}, BoundaryKind::periodic);
+  const Split split(spec);
+  const MacGrid& g = *split.grid;
+  GridField f = g.make_field(1.0);
+  split.halo->add_ghosts_to_owners(f, kCellCentred);
+  double owned = 0.0;
+  for (int k = 0; k < g.cells(2); ++k) {
+    for (int j = 0; j < g.cells(1); ++j) {
+      for (int i = 0; i < g.cells(0); ++i) {
+        owned += f(i, j, k);
+      }
+    }
+  }
+  double ghosts = 0.0;
+  for (const HaloExchange::Link& l : split.halo->plan(kCellCentred).links()) {
+    ghosts += static_cast<double>(l.recv.size());
+  }
+  // Every padded point of a fully periodic grid is exchanged: (n + 5)^3 - n^3 per box.
+  const auto& n = g.cells();
+  const double padded = (n[0] + 5.0) * (n[1] + 5.0) * (n[2] + 5.0);
+  EXPECT_EQ(ghosts, padded - static_cast<double>(g.box().count()));
+  EXPECT_EQ(split.halo->sum(owned), split.halo->sum(static_cast<double>(g.box().count()) + ghosts));
+}
+
+} // namespace
+} // namespace cfddem::fluid

@@ -1,0 +1,622 @@
+#include "dem/distributed_orb_scheme.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
+
+#include "core/error.hpp"
+#include "dem/contact_kernels.hpp"
+#include "dem/kick_drift_range.hpp"
+#include "dem/scheme_support.hpp"
+#include "dem/verlet_list.hpp"
+
+namespace cfddem::dem {
+
+namespace {
+enum : int { kNoFault = 0, kNaN = 1, kLeftDomain = 2 };
+} // namespace
+
+DistributedOrbScheme::DistributedOrbScheme(const Scene& scene, ParticleStore& particles,
+                                           const StepModel& model, const Communicator& comm,
+                                           PhaseTimer& timer)
+    : scene_(scene), p_(particles), comm_(comm), timer_(timer), geom_(scene.domain), model_(model),
+      exchange_(comm), aux_exchange_(comm) {
+  require_frictionless(model_, "orb");
+  domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
+  levels_ = scene.partition.orb_levels;
+  for (const double r : p_.radius) r_max_ = std::max(r_max_, r);
+  r_max_ = comm_.max(r_max_);
+  n_global_ = comm_.sum(static_cast<std::int64_t>(p_.size()));
+  if (n_global_ == 0) r_max_ = model_.r_min;
+  nsubit_ = scene.dem.nsubit;
+  dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
+  skin_ = model_.skin;
+  cost_weights_ = scene.partition.weights == "cost";
+  time_to_contact_ = scene.dem.local_dt == "time_to_contact";
+  // OrbScheme's check (the same message): minimum image needs the cutoff below half a period.
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a] && geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
+      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                                 "neighbor cutoff {:.4g} m",
+                                 a, geom_.length[a], 2.0 * r_max_ + model_.skin));
+  skin_cap_ = periodic_skin_cap(geom_, r_max_);
+  owned_ = p_.size();
+  hprev_.assign(owned_, 0.0);
+  cost_.assign(owned_, 0.0);
+  leaf_steps_.assign(std::size_t{1} << levels_, 0);
+}
+
+void DistributedOrbScheme::start() {
+  hprev_.assign(owned_, 0.0);
+  subits_ = 0;
+}
+
+// A new ORB over all ranks' particles (OrbScheme::regrid: wrapped positions, weights = counts, or
+// the local steps since the last regrid once there are some), then the knapsack over ranks.
+void DistributedOrbScheme::regrid() {
+  for (std::size_t i = 0; i < owned_; ++i)
+    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
+    p_.z[i] = geom_.wrap(p_.z[i], 2);
+  bool use_cost = cost_weights_;
+  if (use_cost) {
+    double total = 0.0;
+    for (const double c : cost_) total += c;
+    use_cost = comm_.max(total) > 0.0; // the first regrid has no measurement yet: count
+  }
+  decomposition_ = partition::decompose(
+      comm_, std::span<const double>(p_.x.data(), owned_),
+      std::span<const double>(p_.y.data(), owned_), std::span<const double>(p_.z.data(), owned_),
+      use_cost ? std::span<const double>(cost_) : std::span<const double>(), domain_, levels_);
+  imbalances_.push_back(decomposition_.imbalance);
+  std::fill(cost_.begin(), cost_.end(), 0.0);
+  skin_ = model_.skin; // a skin grown by a retry or by time_to_contact lasts until the regrid
+  ++regrids_;
+}
+
+// Every owned particle to the rank owning its leaf, with its half step and cost; then the owned
+// ones in (leaf, id) order, the leaves' ranges, and the count over all ranks.
+void DistributedOrbScheme::redistribute(bool regridding) {
+  const partition::OrbTree& tree = decomposition_.tree;
+  const auto leaves = tree.leaves();
+  std::vector<int> dest(owned_);
+  std::string outside;
+  std::int64_t outside_id = std::numeric_limits<std::int64_t>::max();
+  leaf_of_.resize(owned_);
+  for (std::size_t i = 0; i < owned_; ++i) {
+    const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
+    // OrbScheme::resort's rule: inside its (half-open) box a particle keeps its leaf; otherwise
+    // it is located at its wrapped position.
+    int l = -1;
+    if (!regridding) {
+      const partition::Aabb& b = leaves[leaf_of_[i]].box;
+      if (b.lo[0] <= px && px < b.hi[0] && b.lo[1] <= py && py < b.hi[1] && b.lo[2] <= pz &&
+          pz < b.hi[2])
+        l = static_cast<int>(leaf_of_[i]);
+    }
+    if (l < 0) l = tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
+    if (l < 0) {
+      if (p_.id[i] < outside_id) {
+        outside_id = p_.id[i];
+        outside = fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left the "
+                              "domain (rank {})",
+                              time(), p_.id[i], px, py, pz, comm_.rank());
+      }
+      l = 0;
+    }
+    leaf_of_[i] = static_cast<std::uint32_t>(l);
+    dest[i] = decomposition_.owner[static_cast<std::size_t>(l)];
+  }
+  if (const std::string e = comm_.agree_on_error(outside_id, outside); !e.empty())
+    throw RunError(e);
+  if (comm_.size() > 1) {
+    // The half step and the cost travel in a second store migrated with the same destinations:
+    // arrivals come in the same order (by source rank, each in its sender's order).
+    ParticleStore aux;
+    aux.resize(owned_);
+    std::copy(hprev_.begin(), hprev_.end(), aux.x.begin());
+    std::copy(cost_.begin(), cost_.end(), aux.y.begin());
+    std::copy(leaf_of_.begin(), leaf_of_.end(), aux.z.begin());
+    std::copy(p_.id.begin(), p_.id.begin() + static_cast<std::ptrdiff_t>(owned_), aux.id.begin());
+    exchange_.migrate(p_, dest);
+    aux_exchange_.migrate(aux, dest);
+    owned_ = p_.size();
+    if (aux.size() != owned_ || !std::equal(aux.id.begin(), aux.id.end(), p_.id.begin()))
+      throw RunError("distributed orb: the half steps did not follow their particles (internal "
+                     "error)");
+    hprev_ = aux.x, cost_ = aux.y;
+    leaf_of_.resize(owned_);
+    for (std::size_t i = 0; i < owned_; ++i) leaf_of_[i] = static_cast<std::uint32_t>(aux.z[i]);
+  }
+  // None lost, none duplicated: the owned counts add up to the total at every sub-iteration.
+  const std::int64_t total = comm_.sum(static_cast<std::int64_t>(owned_));
+  if (total != n_global_)
+    throw RunError(fmt::format("t = {:.9g} s: {} particles on the ranks after migration, {} "
+                               "expected",
+                               time(), total, n_global_));
+  // (leaf, id) order: each leaf contiguous, and an order that depends on the particles only.
+  bool sorted = true;
+  for (std::size_t i = 1; i < owned_ && sorted; ++i)
+    sorted = leaf_of_[i - 1] < leaf_of_[i] ||
+             (leaf_of_[i - 1] == leaf_of_[i] && p_.id[i - 1] < p_.id[i]);
+  if (!sorted) {
+    std::vector<std::uint32_t> order(owned_);
+    std::iota(order.begin(), order.end(), 0U);
+    std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+      return leaf_of_[a] != leaf_of_[b] ? leaf_of_[a] < leaf_of_[b] : p_.id[a] < p_.id[b];
+    });
+    p_.permute(order);
+    auto permute = [&](auto& v) {
+      auto t = v;
+      for (std::size_t k = 0; k < owned_; ++k) t[k] = v[order[k]];
+      v.swap(t);
+    };
+    permute(hprev_), permute(cost_), permute(leaf_of_);
+  }
+  ids_.clear();
+  ranges_.assign(1, 0);
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (ids_.empty() || static_cast<std::uint32_t>(ids_.back()) != leaf_of_[i]) {
+      if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(i));
+      ids_.push_back(static_cast<int>(leaf_of_[i]));
+    }
+  if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(owned_));
+}
+
+// Ghosts (unshifted copies of other ranks' particles within the cutoff of this rank's leaves)
+// and the owned particles' rows and proximity flags, from a cell list over owned + ghosts.
+void DistributedOrbScheme::build_ghosts_and_rows() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  p_.resize(owned_);
+  const double prox = 0.5 * scene_.dem.proximity_radii;
+  if (time_to_contact_) {
+    // OrbScheme's speed bounds, and a skin covering two reaches (until the next regrid).
+    speed_.resize(owned_);
+    double reach = 0.0;
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
+      speed_[i] = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]) +
+                  std::sqrt(ax * ax + ay * ay + az * az) * (hprev_[i] + dt_sp_);
+      reach = std::max(reach, speed_[i] * dt_sp_);
+    }
+    reach_ = comm_.max(reach);
+    if (2.1 * reach_ > skin_ && skin_ < skin_cap_) skin_ = std::min(2.1 * reach_, skin_cap_);
+  }
+  // Every distance a test below compares: contact candidates, the proximity or reach test.
+  double cutoff = 2.0 * r_max_ + skin_;
+  cutoff = std::max(cutoff, time_to_contact_ ? 2.0 * r_max_ + 2.0 * reach_
+                                             : 2.0 * prox * r_max_);
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
+      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                                 "distributed orb scheme's cutoff {:.4g} m (contact, proximity "
+                                 "or reach): enlarge the domain or run on one rank",
+                                 a, geom_.length[a], cutoff));
+  {
+    const partition::OrbTree& tree = decomposition_.tree;
+    const auto leaves = tree.leaves();
+    const int me = comm_.rank();
+    std::vector<ParticleExchange::Copy> copies;
+    std::vector<int> ranks;
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
+                           geom_.wrap(p_.z[i], 2)};
+      const partition::Aabb q{{w[0] - cutoff, w[1] - cutoff, w[2] - cutoff},
+                              {w[0] + cutoff, w[1] + cutoff, w[2] + cutoff}};
+      // A halo strictly inside the particle's own leaf reaches no other leaf and no image.
+      const partition::Aabb& b = leaves[leaf_of_[i]].box;
+      bool inside = true;
+      for (int a = 0; a < 3; ++a) inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
+      if (inside) continue;
+      ranks.clear();
+      for (const int l : tree.leaves_overlapping(q, geom_.periodic)) {
+        const int r = decomposition_.owner[static_cast<std::size_t>(l)];
+        if (r != me && std::find(ranks.begin(), ranks.end(), r) == ranks.end()) ranks.push_back(r);
+      }
+      for (const int r : ranks) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    }
+    if (time_to_contact_) {
+      ParticleStore aux;
+      aux.resize(owned_);
+      std::copy(speed_.begin(), speed_.end(), aux.x.begin());
+      aux_exchange_.build_ghosts(aux, owned_, copies);
+      speed_ = aux.x;
+    }
+    exchange_.build_ghosts(p_, owned_, std::move(copies));
+  }
+  ++builds_;
+  // Cell list over the local store: the whole domain in cells of at least the cutoff, at most
+  // about 8 per local particle (OrbScheme's rule), binned at wrapped positions.
+  const std::size_t n = p_.size();
+  std::array<int, 3> nc{};
+  std::array<double, 3> inv{};
+  double cell = cutoff;
+  const double volume = geom_.length[0] * geom_.length[1] * geom_.length[2];
+  const double target = 8.0 * static_cast<double>(n) + 64.0;
+  if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
+  for (int a = 0; a < 3; ++a) {
+    nc[a] = std::max(1, static_cast<int>(std::floor(geom_.length[a] / cell)));
+    inv[a] = nc[a] / geom_.length[a];
+  }
+  const std::size_t ncell = static_cast<std::size_t>(nc[0]) * nc[1] * nc[2];
+  auto coord = [&](double v, int a) {
+    return std::clamp(static_cast<int>((geom_.wrap(v, a) - geom_.lo[a]) * inv[a]), 0, nc[a] - 1);
+  };
+  std::vector<std::array<int, 3>> cc(n);
+  cell_start_.assign(ncell + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    cc[i] = {coord(p_.x[i], 0), coord(p_.y[i], 1), coord(p_.z[i], 2)};
+    ++cell_start_[(static_cast<std::size_t>(cc[i][2]) * nc[1] + cc[i][1]) * nc[0] + cc[i][0] + 1];
+  }
+  for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
+  cell_items_.resize(n);
+  {
+    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
+    for (std::size_t i = 0; i < n; ++i)
+      cell_items_[fill[(static_cast<std::size_t>(cc[i][2]) * nc[1] + cc[i][1]) * nc[0] +
+                       cc[i][0]]++] = static_cast<std::uint32_t>(i);
+  }
+  // Rows: own-leaf partners, then the others, each by id (OrbScheme's summation order); the
+  // proximity flag of each owned particle, exact (OrbScheme's tests, the same expressions).
+  off_.assign(owned_ + 1, 0);
+  mid_.assign(owned_, 0);
+  nb_.clear();
+  near_.assign(owned_, 0);
+  const double* px = p_.x.data();
+  const double* py = p_.y.data();
+  const double* pz = p_.z.data();
+  const double* pr = p_.radius.data();
+  const std::int64_t* id = p_.id.data();
+  std::vector<std::uint32_t> own, other;
+  for (std::size_t i = 0; i < owned_; ++i) {
+    own.clear(), other.clear();
+    int sx[3], sy[3], sz[3];
+    const int mx = stencil_axis(cc[i][0], nc[0], geom_.periodic[0], sx);
+    const int my = stencil_axis(cc[i][1], nc[1], geom_.periodic[1], sy);
+    const int mz = stencil_axis(cc[i][2], nc[2], geom_.periodic[2], sz);
+    unsigned char near = 0;
+    for (int c2 = 0; c2 < mz; ++c2)
+      for (int c1 = 0; c1 < my; ++c1)
+        for (int c0 = 0; c0 < mx; ++c0) {
+          const std::size_t q = (static_cast<std::size_t>(sz[c2]) * nc[1] + sy[c1]) * nc[0] + sx[c0];
+          for (std::uint32_t s = cell_start_[q]; s < cell_start_[q + 1]; ++s) {
+            const std::uint32_t j = cell_items_[s];
+            if (j == i) continue;
+            const double dx = geom_.image(px[j] - px[i], 0), dy = geom_.image(py[j] - py[i], 1),
+                         dz = geom_.image(pz[j] - pz[i], 2);
+            const double r2 = dx * dx + dy * dy + dz * dz;
+            const double rs = pr[i] + pr[j];
+            if (r2 < (rs + skin_) * (rs + skin_))
+              (j < owned_ && leaf_of_[j] == leaf_of_[i] ? own : other).push_back(j);
+            if (time_to_contact_) {
+              const double reach = rs + (speed_[i] + speed_[j]) * dt_sp_;
+              near |= r2 < reach * reach;
+            } else {
+              const double d = prox * rs;
+              near |= r2 < d * d;
+            }
+          }
+        }
+    auto by_id = [&](std::uint32_t a, std::uint32_t b) { return id[a] < id[b]; };
+    std::sort(own.begin(), own.end(), by_id);
+    std::sort(other.begin(), other.end(), by_id);
+    off_[i] = static_cast<std::uint32_t>(nb_.size());
+    nb_.insert(nb_.end(), own.begin(), own.end());
+    mid_[i] = static_cast<std::uint32_t>(nb_.size());
+    nb_.insert(nb_.end(), other.begin(), other.end());
+    near_[i] = near;
+  }
+  off_[owned_] = static_cast<std::uint32_t>(nb_.size());
+  // A wall is a partner too (OrbScheme's rule, either local_dt).
+  for (int a = 0; a < 3; ++a) {
+    if (geom_.periodic[a]) continue;
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const double d =
+          time_to_contact_ ? p_.radius[i] + speed_[i] * dt_sp_ : 2.0 * prox * p_.radius[i];
+      near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+    }
+  }
+}
+
+// Leaf k's K local steps: OrbScheme::run_batch_impl's arithmetic (without an external force),
+// own-leaf partners read live, every other partner from the copies at the sub-iteration start.
+void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
+  LeafRun& bt = runs_[k];
+  bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = kNoFault;
+  const std::uint32_t b = ranges_[k], e = ranges_[k + 1];
+  const DomainGeometry g = geom_;
+  const StepModel m = model_;
+  double* __restrict x = p_.x.data();
+  double* __restrict y = p_.y.data();
+  double* __restrict z = p_.z.data();
+  double* __restrict vx = p_.vx.data();
+  double* __restrict vy = p_.vy.data();
+  double* __restrict vz = p_.vz.data();
+  double* __restrict fx = p_.fx.data();
+  double* __restrict fy = p_.fy.data();
+  double* __restrict fz = p_.fz.data();
+  double* __restrict hp = hprev_.data();
+  const double* __restrict gx = gx_.data();
+  const double* __restrict gy = gy_.data();
+  const double* __restrict gz = gz_.data();
+  const double* __restrict gvx = gvx_.data();
+  const double* __restrict gvy = gvy_.data();
+  const double* __restrict gvz = gvz_.data();
+  const double* __restrict rad = p_.radius.data();
+  const double* __restrict mass = p_.mass.data();
+  const double* __restrict im = p_.inv_mass.data();
+  const std::uint32_t* __restrict off = off_.data();
+  const std::uint32_t* __restrict mid = mid_.data();
+  const std::uint32_t* __restrict nb = nb_.data();
+  const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
+  const double lim = m.max_overlap;
+  const double half_skin2 = 0.25 * skin_ * skin_;
+  double max_ratio = 0.0;
+  std::int64_t violations = 0;
+  double h_before = 0.0;
+  for (std::int64_t step = 0; step < bt.K; ++step) {
+    const double hk = step + 1 == bt.K ? bt.h_last : bt.h;
+    for (std::uint32_t i = b; i < e; ++i) {
+      const double xi = x[i], yi = y[i], zi = z[i];
+      const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
+      double ax = 0.0, ay = 0.0, az = 0.0;
+      auto partner = [&](std::uint32_t j, double xj, double yj, double zj, double vxj, double vyj,
+                         double vzj) {
+        const double delta = add_normal_contact(
+            m, g.image(xj - xi, 0), g.image(yj - yi, 1), g.image(zj - zi, 2), ri, rad[j], mi,
+            mass[j], vxi - vxj, vyi - vyj, vzi - vzj, ax, ay, az);
+        if (delta <= 0.0) return;
+        const double ratio = delta / std::min(ri, rad[j]);
+        max_ratio = std::max(max_ratio, ratio);
+        violations += ratio > lim;
+      };
+      for (std::uint32_t s = off[i]; s < mid[i]; ++s) {
+        const std::uint32_t j = nb[s];
+        partner(j, x[j], y[j], z[j], vx[j], vy[j], vz[j]);
+      }
+      for (std::uint32_t s = mid[i]; s < off[i + 1]; ++s) {
+        const std::uint32_t j = nb[s];
+        partner(j, gx[j], gy[j], gz[j], gvx[j], gvy[j], gvz[j]);
+      }
+      fx[i] = ax, fy[i] = ay, fz[i] = az;
+    }
+    if (walls) {
+      for (std::uint32_t i = b; i < e; ++i) {
+        double f[3] = {fx[i], fy[i], fz[i]};
+        const double pos[3] = {x[i], y[i], z[i]}, vel[3] = {vx[i], vy[i], vz[i]};
+        for (int a = 0; a < 3; ++a) {
+          if (g.periodic[a]) continue;
+          for (int side = 0; side < 2; ++side) {
+            const double sg = side ? 1.0 : -1.0;
+            const double delta = side ? rad[i] - (g.hi[a] - pos[a]) : rad[i] - (pos[a] - g.lo[a]);
+            if (delta <= 0.0) continue;
+            f[a] -= sg * normal_force(m.wall, mass[i], delta, sg * vel[a]);
+            max_ratio = std::max(max_ratio, delta / rad[i]);
+            violations += delta > lim * rad[i];
+          }
+        }
+        fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+      }
+    }
+    if (record && step == 0)
+      for (std::uint32_t i = b; i < e; ++i) {
+        svx_[i] = vx[i] + (fx[i] * im[i] + m.gravity[0]) * hp[i];
+        svy_[i] = vy[i] + (fy[i] * im[i] + m.gravity[1]) * hp[i];
+        svz_[i] = vz[i] + (fz[i] * im[i] + m.gravity[2]) * hp[i];
+      }
+    const double half = 0.5 * hk;
+    std::uint64_t still = ~std::uint64_t{0};
+    // The reference of the skin test is the position at the sub-iteration start (the rows are
+    // built there).
+    if (step == 0) {
+      kick_drift_range<false, true>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
+                                    fz + b, nullptr, nullptr, nullptr, im + b, gx + b, gy + b,
+                                    gz + b, e - b, 0.0, 0.0, 0.0, 0.0, hk, half_skin2, still,
+                                    hp + b, half, m.gravity.data());
+    } else {
+      const double s = 0.5 * h_before + half;
+      kick_drift_range<false>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
+                              nullptr, nullptr, nullptr, im + b, gx + b, gy + b, gz + b, e - b, s,
+                              m.gravity[0] * s, m.gravity[1] * s, m.gravity[2] * s, hk,
+                              half_skin2, still);
+      if (step + 1 == bt.K)
+        for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
+    }
+    h_before = hk;
+    if (step + 1 < bt.K && !(still >> 63)) {
+      bt.outran = true;
+      break;
+    }
+  }
+  bt.max_ratio = max_ratio;
+  bt.violations = violations;
+  const WallBounds wb(g);
+  for (std::uint32_t i = b; i < e && bt.fault == kNoFault; ++i) {
+    const double q[3] = {x[i], y[i], z[i]};
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    if (!std::isfinite(v2 + q[0] + q[1] + q[2])) {
+      bt.fault = kNaN, bt.fault_index = i, bt.fault_value = v2;
+      break;
+    }
+    for (int a = 0; a < 3; ++a)
+      if (!(q[a] >= wb.lo[a] && q[a] <= wb.hi[a])) {
+        bt.fault = kLeftDomain, bt.fault_index = i, bt.fault_value = q[a];
+        break;
+      }
+  }
+}
+
+bool DistributedOrbScheme::attempt(bool record) {
+  const int nl = static_cast<int>(ids_.size());
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, nl, 1),
+      [&](const tbb::blocked_range<int>& r) {
+        for (int k = r.begin(); k != r.end(); ++k) run_leaf(static_cast<std::size_t>(k), record);
+      },
+      tbb::simple_partitioner{});
+  std::int64_t outran = 0;
+  for (const LeafRun& r : runs_) outran += r.outran && r.fault == kNoFault ? 1 : 0;
+  return comm_.sum(outran) == 0;
+}
+
+void DistributedOrbScheme::subiterate(bool record) {
+  p_.resize(owned_); // the last sub-iteration's ghosts go
+  const bool regridding = subits_ % nsubit_ == 0;
+  {
+    PhaseTimer::Scope t(timer_, Phase::neighbor);
+    if (regridding) regrid();
+    redistribute(regridding);
+  }
+  const bool can_refine = model_.dt < dt_sp_;
+  const std::int64_t K_fine =
+      can_refine
+          ? std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
+          : 1;
+  const double h_fine = can_refine ? model_.dt : dt_sp_;
+  const double h_fine_last = dt_sp_ - static_cast<double>(K_fine - 1) * h_fine;
+  while (true) {
+    build_ghosts_and_rows();
+    PhaseTimer::Scope t(timer_, Phase::force);
+    gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
+    runs_.assign(ids_.size(), LeafRun{});
+    for (std::size_t k = 0; k < ids_.size(); ++k) {
+      LeafRun& r = runs_[k];
+      unsigned char any = 0;
+      for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i) any |= near_[i];
+      r.fine = any && can_refine;
+      r.K = r.fine ? K_fine : 1;
+      r.h = r.fine ? h_fine : dt_sp_;
+      r.h_last = r.fine ? h_fine_last : dt_sp_;
+      std::int64_t own = 0, all = 0;
+      for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)
+        own += mid_[i] - off_[i], all += off_[i + 1] - off_[i];
+      r.evals = own / 2 + (all - own);
+    }
+    if (record) {
+      const std::size_t n = owned_;
+      sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
+      for (std::size_t i = 0; i < n; ++i)
+        sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1),
+        sz_[i] = geom_.wrap(p_.z[i], 2);
+      smass_.assign(p_.mass.begin(), p_.mass.begin() + static_cast<std::ptrdiff_t>(n));
+      sradius_.assign(p_.radius.begin(), p_.radius.begin() + static_cast<std::ptrdiff_t>(n));
+      sid_.assign(p_.id.begin(), p_.id.begin() + static_cast<std::ptrdiff_t>(n));
+      sleaf_.resize(n), sdt_.resize(n);
+      for (std::size_t k = 0; k < ids_.size(); ++k)
+        for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)
+          sleaf_[i] = ids_[k], sdt_[i] = dt_sp_ / static_cast<double>(runs_[k].K);
+    }
+    if (attempt(record)) break;
+    // Some fine leaf, on some rank, outran its rows: every rank rolls back and redoes the
+    // sub-iteration with twice the skin (OrbScheme's retry; the lists here are always fresh).
+    if (skin_ >= skin_cap_)
+      throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor "
+                                 "skin in one sub-iteration even with the largest skin the "
+                                 "periodic box allows ({:.4g} m): raise dem.nsubit",
+                                 time(), skin_));
+    std::copy_n(gx_.begin(), owned_, p_.x.begin()), std::copy_n(gy_.begin(), owned_, p_.y.begin());
+    std::copy_n(gz_.begin(), owned_, p_.z.begin()), std::copy_n(gvx_.begin(), owned_, p_.vx.begin());
+    std::copy_n(gvy_.begin(), owned_, p_.vy.begin()), std::copy_n(gvz_.begin(), owned_, p_.vz.begin());
+    hprev_ = ghp_;
+    skin_ = std::min(2.0 * skin_, skin_cap_);
+    ++retries_;
+  }
+  // Faults: every rank raises the one of the smallest particle id.
+  std::string message;
+  std::int64_t key = std::numeric_limits<std::int64_t>::max();
+  for (const LeafRun& r : runs_) {
+    if (r.fault == kNoFault) continue;
+    const std::size_t i = r.fault_index;
+    if (p_.id[i] >= key) continue;
+    key = p_.id[i];
+    message = fmt::format(
+        "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {} (rank {})",
+        time(), subits_, p_.id[i], p_.x[i], p_.y[i], p_.z[i],
+        r.fault == kNaN ? "position or velocity is not finite (NaN/inf): the step is unstable"
+                        : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
+                                      r.fault_value),
+        comm_.rank());
+  }
+  if (const std::string e = comm_.agree_on_error(key, message); !e.empty()) throw RunError(e);
+  // Counters over all ranks: particle steps, force evaluations, overlaps, fine and busy leaves.
+  std::array<std::int64_t, 5> c{};
+  double ratio = 0.0;
+  for (std::size_t k = 0; k < ids_.size(); ++k) {
+    const LeafRun& r = runs_[k];
+    c[0] += static_cast<std::int64_t>(ranges_[k + 1] - ranges_[k]) * r.K;
+    c[1] += r.evals * r.K;
+    c[2] += r.violations;
+    c[3] += r.fine ? 1 : 0;
+    c[4] += 1;
+    ratio = std::max(ratio, r.max_ratio);
+    leaf_steps_[static_cast<std::size_t>(ids_[k])] += r.K;
+    if (cost_weights_)
+      for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)
+        cost_[i] += static_cast<double>(r.K);
+  }
+  comm_.sum(c);
+  particle_steps_ += c[0], pair_evaluations_ += c[1], overlap_violations_ += c[2];
+  fine_count_ += c[3], leaf_subits_ += c[4];
+  last_fine_fraction_ = c[4] > 0 ? static_cast<double>(c[3]) / static_cast<double>(c[4]) : 0.0;
+  max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(ratio));
+  ++subits_;
+}
+
+LeafStepStats DistributedOrbScheme::take_interval_stats() {
+  std::vector<std::int64_t> steps = leaf_steps_;
+  comm_.sum(steps);
+  std::fill(leaf_steps_.begin(), leaf_steps_.end(), 0);
+  LeafStepStats s;
+  std::int64_t lo = std::numeric_limits<std::int64_t>::max(), hi = 0, sum = 0, count = 0;
+  for (const std::int64_t v : steps)
+    if (v > 0) lo = std::min(lo, v), hi = std::max(hi, v), sum += v, ++count;
+  if (count > 0) {
+    s.steps_min = static_cast<double>(lo), s.steps_max = static_cast<double>(hi);
+    s.steps_mean = static_cast<double>(sum) / static_cast<double>(count);
+  }
+  s.fine_fraction =
+      leaf_subits_ > 0 ? static_cast<double>(fine_count_) / static_cast<double>(leaf_subits_) : 0.0;
+  fine_count_ = leaf_subits_ = 0;
+  return s;
+}
+
+OrbScheme::State DistributedOrbScheme::save_state() const {
+  if (subits_ % nsubit_ != 0)
+    throw RunError("orb checkpoint requested between regrid points (internal error)");
+  OrbScheme::State s;
+  s.hprev = hprev_, s.cost = cost_;
+  s.leaf_steps = leaf_steps_;
+  comm_.sum(s.leaf_steps);
+  s.fine_count = fine_count_, s.leaf_subits = leaf_subits_, s.subits = subits_;
+  s.particle_steps = particle_steps_, s.pair_evaluations = pair_evaluations_, s.builds = builds_;
+  s.regrids = regrids_, s.overlap_violations = overlap_violations_, s.retries = retries_;
+  s.last_fine_fraction = last_fine_fraction_, s.max_overlap_ratio = max_overlap_ratio_;
+  s.skin = skin_;
+  s.pairs_valid = false;
+  return s;
+}
+
+void DistributedOrbScheme::restore_state(OrbScheme::State s) {
+  if (s.hprev.size() != owned_ || s.cost.size() != owned_ || s.subits < 0 ||
+      s.subits % nsubit_ != 0 || (!s.leaf_steps.empty() && s.leaf_steps.size() != leaf_steps_.size()))
+    throw RunError("checkpoint: the orb state does not fit the particles, dem.nsubit or "
+                   "partition.orb_levels");
+  hprev_ = std::move(s.hprev), cost_ = std::move(s.cost);
+  // The per-leaf steps of the interval are sums over the ranks: rank 0 holds them.
+  std::fill(leaf_steps_.begin(), leaf_steps_.end(), 0);
+  if (comm_.rank() == 0 && !s.leaf_steps.empty()) leaf_steps_ = s.leaf_steps;
+  fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
+  particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
+  regrids_ = s.regrids, overlap_violations_ = s.overlap_violations, retries_ = s.retries;
+  last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
+  if (s.skin > 0.0) skin_ = s.skin;
+}
+
+} // namespace cfddem::dem

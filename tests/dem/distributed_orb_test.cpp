@@ -1,0 +1,246 @@
+// The orb scheme over MPI ranks (run under mpirun -np 1, 2 and 3): with the same leaves (the
+// parallel ORB builds the serial ORB's boxes) and rows summed in OrbScheme's order, every
+// particle's position and velocity equal the serial OrbScheme's bit for bit, for any rank and
+// thread count; no particle or mass is lost at any sub-iteration.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <map>
+#include <string>
+
+#include <tbb/global_control.h>
+
+#include "core/communicator.hpp"
+#include "core/initial_conditions.hpp"
+#include "core/phase_timer.hpp"
+#include "dem/distributed_orb_scheme.hpp"
+#include "dem/orb_scheme.hpp"
+#include "dem_test_support.hpp"
+
+namespace cfddem {
+namespace {
+
+using demtest::scene_from;
+
+// A dense granular gas (phi ~ 0.25: collisions within a few sub-iterations, every leaf fine) in a
+// periodic box, 8 leaves; kHcs below is the dilute, HCS-like variant where leaves differ.
+const char* kGas = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.86e-3, 0.86e-3, 0.86e-3]
+periodic = [true, true, true]
+[particles]
+count = 300
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.05
+seed = 11
+[dem]
+scheme = "orb"
+spring_constant = 10.0
+restitution = 0.8
+max_overlap = 0.9
+regrid_interval = 5.0e-5
+nsubit = 5
+[partition]
+orb_levels = 3
+[run]
+end_time = 1.0e-3
+)";
+
+// HCS-like: phi ~ 1.5 %, 16 leaves of ~19 particles; some leaves take the fine step, some not.
+const char* kHcs = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [2.2e-3, 2.2e-3, 2.2e-3]
+periodic = [true, true, true]
+[particles]
+count = 300
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.1
+seed = 7
+[dem]
+scheme = "orb"
+spring_constant = 10.0
+restitution = 0.8
+regrid_interval = 1.0e-4
+nsubit = 5
+[partition]
+orb_levels = 4
+[run]
+end_time = 1.0e-3
+)";
+
+// Walls on every side and gravity along -y (100 g): wall contacts and the wall proximity rule.
+const char* kWalls = R"(
+gravity = [0.0, -1.0e3, 0.0]
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [1.2e-3, 0.8e-3, 0.6e-3]
+periodic = [false, false, false]
+[particles]
+count = 250
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.05
+seed = 5
+[dem]
+scheme = "orb"
+spring_constant = 10.0
+restitution = 0.7
+wall_restitution = 0.9
+max_overlap = 0.9
+regrid_interval = 5.0e-5
+nsubit = 5
+[partition]
+orb_levels = 3
+[run]
+end_time = 1.0e-3
+)";
+
+constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
+
+using State = std::map<std::int64_t, std::array<double, 6>>;
+
+ParticleStore share(const ParticleStore& all, int rank, int ranks) {
+  ParticleStore p = all;
+  std::vector<std::uint32_t> pick;
+  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
+       i += static_cast<std::size_t>(ranks))
+    pick.push_back(static_cast<std::uint32_t>(i));
+  p.permute(pick);
+  return p;
+}
+
+State serial_orb(const Scene& scene, int subits) {
+  ParticleStore p = make_initial_particles(scene);
+  PhaseTimer timer;
+  dem::OrbScheme s(scene, p, timer);
+  s.start();
+  for (int k = 0; k < subits; ++k) s.subiterate();
+  State out;
+  for (std::size_t i = 0; i < p.size(); ++i)
+    out[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  return out;
+}
+
+struct DistributedRun {
+  State owned; // this rank's particles at the end
+  double fine_fraction = 0.0, max_overlap_ratio = 0.0;
+  std::int64_t pair_evaluations = 0, particle_steps = 0;
+};
+
+// The distributed scheme on `threads` TBB threads; at every sub-iteration the particles over all
+// ranks are counted and identified (count, sum of ids, sum of squared ids: none lost, none
+// twice) and their total mass compared with the initial one.
+DistributedRun distributed_orb(const Scene& scene, int subits, int threads) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(threads));
+  const Communicator c = Communicator::world();
+  const ParticleStore all = make_initial_particles(scene);
+  ParticleStore p = share(all, c.rank(), c.size());
+  const dem::StepModel model = dem::make_step_model(scene, all);
+  PhaseTimer timer;
+  dem::DistributedOrbScheme s(scene, p, model, c, timer);
+  s.start();
+  std::array<std::int64_t, 3> expect{};
+  for (const std::int64_t id : all.id) expect[0] += 1, expect[1] += id, expect[2] += id * id;
+  const double mass0 = all.total_mass();
+  DistributedRun r;
+  for (int k = 0; k < subits; ++k) {
+    s.subiterate();
+    std::array<std::int64_t, 3> got{};
+    double mass = 0.0;
+    for (std::size_t i = 0; i < s.owned(); ++i)
+      got[0] += 1, got[1] += p.id[i], got[2] += p.id[i] * p.id[i], mass += p.mass[i];
+    c.sum(got);
+    c.sum(std::span<double>(&mass, 1));
+    EXPECT_EQ(got, expect) << "sub-iteration " << k;
+    // Equal masses summed in another order: N eps relative at most (300 x 1.1e-16).
+    EXPECT_NEAR(mass, mass0, 1e-13 * mass0) << "sub-iteration " << k;
+    // On several ranks the leaves do read other ranks' particles (ghosts).
+    if (c.size() > 1) {
+      EXPECT_GT(c.sum(static_cast<std::int64_t>(s.ghosts())), 0);
+    }
+  }
+  for (std::size_t i = 0; i < s.owned(); ++i)
+    r.owned[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  r.fine_fraction = s.take_interval_stats().fine_fraction;
+  r.pair_evaluations = s.pair_evaluations();
+  r.max_overlap_ratio = s.max_overlap_ratio();
+  r.particle_steps = s.particle_steps();
+  return r;
+}
+
+// Every owned particle of every rank against the serial scheme: bitwise (the bound is 0).
+void expect_bitwise(const State& serial, const State& mine, const std::string& what) {
+  const Communicator c = Communicator::world();
+  std::int64_t count = static_cast<std::int64_t>(mine.size()), differ = 0;
+  double worst = 0.0;
+  for (const auto& [id, q] : mine) {
+    const auto it = serial.find(id);
+    ASSERT_NE(it, serial.end()) << what << ": unknown id " << id;
+    for (int a = 0; a < 6; ++a) {
+      if (q[a] != it->second[a]) ++differ;
+      worst = std::max(worst, std::abs(q[a] - it->second[a]));
+    }
+  }
+  count = c.sum(count);
+  differ = c.sum(differ);
+  worst = c.max(worst);
+  EXPECT_EQ(count, static_cast<std::int64_t>(serial.size())) << what;
+  EXPECT_EQ(differ, 0) << what << ": " << differ << " coordinates differ, worst by " << worst;
+}
+
+TEST(DistributedOrb, DenseGasMatchesSerialOrbBitwise) {
+  const Scene scene = scene_from(kGas);
+  const DistributedRun d = distributed_orb(scene, kSubits, 1);
+  expect_bitwise(serial_orb(scene, kSubits), d.owned, "dense gas");
+  EXPECT_GT(d.max_overlap_ratio, 0.0); // particles collided
+}
+
+TEST(DistributedOrb, HcsMatchesSerialOrbBitwise) {
+  const Scene scene = scene_from(kHcs);
+  const DistributedRun d = distributed_orb(scene, kSubits, 1);
+  expect_bitwise(serial_orb(scene, kSubits), d.owned, "HCS");
+  // Collisions, and leaves on both steps: the local steps do differ between leaves.
+  EXPECT_GT(d.max_overlap_ratio, 0.0);
+  EXPECT_GT(d.fine_fraction, 0.0);
+  EXPECT_LT(d.fine_fraction, 1.0);
+  EXPECT_GT(d.pair_evaluations, 0);
+}
+
+TEST(DistributedOrb, CostWeightsMatchSerialOrbBitwise) {
+  // Integer weights (local steps) sum exactly, so the parallel ORB cuts where the serial one does.
+  const Scene scene = scene_from(kHcs, {"partition.weights=\"cost\""});
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "gas, cost weights");
+}
+
+TEST(DistributedOrb, WallsAndGravityMatchSerialOrbBitwise) {
+  const Scene scene = scene_from(kWalls);
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "walls and gravity");
+}
+
+TEST(DistributedOrb, TimeToContactMatchesSerialOrbBitwise) {
+  const Scene scene = scene_from(kWalls, {"dem.local_dt=\"time_to_contact\""});
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "time_to_contact");
+}
+
+TEST(DistributedOrb, RerunAndThreadCountsAreBitwiseIdentical) {
+  const Scene scene = scene_from(kHcs);
+  const DistributedRun a = distributed_orb(scene, kSubits, 1);
+  const DistributedRun b = distributed_orb(scene, kSubits, 1);
+  const DistributedRun c = distributed_orb(scene, kSubits, 2);
+  EXPECT_EQ(a.owned, b.owned);
+  EXPECT_EQ(a.owned, c.owned);
+  EXPECT_EQ(a.pair_evaluations, c.pair_evaluations);
+  EXPECT_EQ(a.particle_steps, c.particle_steps);
+}
+
+} // namespace
+} // namespace cfddem

@@ -27,7 +27,7 @@ DistributedOrbScheme::DistributedOrbScheme(const Scene& scene, ParticleStore& pa
                                            const StepModel& model, const Communicator& comm,
                                            PhaseTimer& timer)
     : scene_(scene), p_(particles), comm_(comm), timer_(timer), geom_(scene.domain), model_(model),
-      exchange_(comm), aux_exchange_(comm) {
+      exchange_(comm) {
   require_frictionless(model_, "orb");
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
   levels_ = scene.partition.orb_levels;
@@ -80,19 +80,19 @@ void DistributedOrbScheme::regrid() {
   ++regrids_;
 }
 
-// Every owned particle to the rank owning its leaf, with its half step and cost; then the owned
-// ones in (leaf, id) order, the leaves' ranges, and the count over all ranks.
-void DistributedOrbScheme::redistribute(bool regridding) {
+// The leaf of every owned particle (OrbScheme::resort's rule: inside its half-open box a particle
+// keeps its leaf, otherwise it is located at its wrapped position) and the rank it goes to.
+// Returns the particles outside the domain (an error, raised after the next reduction), with
+// the message of the first.
+std::int64_t DistributedOrbScheme::locate(bool regridding, std::string& message,
+                                          std::int64_t& key) {
   const partition::OrbTree& tree = decomposition_.tree;
   const auto leaves = tree.leaves();
-  std::vector<int> dest(owned_);
-  std::string outside;
-  std::int64_t outside_id = std::numeric_limits<std::int64_t>::max();
+  std::int64_t outside = 0;
+  dest_.resize(owned_);
   leaf_of_.resize(owned_);
   for (std::size_t i = 0; i < owned_; ++i) {
     const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
-    // OrbScheme::resort's rule: inside its (half-open) box a particle keeps its leaf; otherwise
-    // it is located at its wrapped position.
     int l = -1;
     if (!regridding) {
       const partition::Aabb& b = leaves[leaf_of_[i]].box;
@@ -102,76 +102,29 @@ void DistributedOrbScheme::redistribute(bool regridding) {
     }
     if (l < 0) l = tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
     if (l < 0) {
-      if (p_.id[i] < outside_id) {
-        outside_id = p_.id[i];
-        outside = fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left the "
+      ++outside;
+      if (p_.id[i] < key) {
+        key = p_.id[i];
+        message = fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left the "
                               "domain (rank {})",
                               time(), p_.id[i], px, py, pz, comm_.rank());
       }
-      l = 0;
+      l = regridding ? 0 : static_cast<int>(leaf_of_[i]); // kept here; the run stops below
+      dest_[i] = comm_.rank();
+    } else {
+      dest_[i] = decomposition_.owner[static_cast<std::size_t>(l)];
     }
     leaf_of_[i] = static_cast<std::uint32_t>(l);
-    dest[i] = decomposition_.owner[static_cast<std::size_t>(l)];
   }
-  if (const std::string e = comm_.agree_on_error(outside_id, outside); !e.empty())
-    throw RunError(e);
-  if (comm_.size() > 1) {
-    // The half step and the cost travel in a second store migrated with the same destinations:
-    // arrivals come in the same order (by source rank, each in its sender's order).
-    ParticleStore aux;
-    aux.resize(owned_);
-    std::copy(hprev_.begin(), hprev_.end(), aux.x.begin());
-    std::copy(cost_.begin(), cost_.end(), aux.y.begin());
-    std::copy(leaf_of_.begin(), leaf_of_.end(), aux.z.begin());
-    std::copy(p_.id.begin(), p_.id.begin() + static_cast<std::ptrdiff_t>(owned_), aux.id.begin());
-    exchange_.migrate(p_, dest);
-    aux_exchange_.migrate(aux, dest);
-    owned_ = p_.size();
-    if (aux.size() != owned_ || !std::equal(aux.id.begin(), aux.id.end(), p_.id.begin()))
-      throw RunError("distributed orb: the half steps did not follow their particles (internal "
-                     "error)");
-    hprev_ = aux.x, cost_ = aux.y;
-    leaf_of_.resize(owned_);
-    for (std::size_t i = 0; i < owned_; ++i) leaf_of_[i] = static_cast<std::uint32_t>(aux.z[i]);
-  }
-  // None lost, none duplicated: the owned counts add up to the total at every sub-iteration.
-  const std::int64_t total = comm_.sum(static_cast<std::int64_t>(owned_));
-  if (total != n_global_)
-    throw RunError(fmt::format("t = {:.9g} s: {} particles on the ranks after migration, {} "
-                               "expected",
-                               time(), total, n_global_));
-  // (leaf, id) order: each leaf contiguous, and an order that depends on the particles only.
-  bool sorted = true;
-  for (std::size_t i = 1; i < owned_ && sorted; ++i)
-    sorted = leaf_of_[i - 1] < leaf_of_[i] ||
-             (leaf_of_[i - 1] == leaf_of_[i] && p_.id[i - 1] < p_.id[i]);
-  if (!sorted) {
-    std::vector<std::uint32_t> order(owned_);
-    std::iota(order.begin(), order.end(), 0U);
-    std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-      return leaf_of_[a] != leaf_of_[b] ? leaf_of_[a] < leaf_of_[b] : p_.id[a] < p_.id[b];
-    });
-    p_.permute(order);
-    auto permute = [&](auto& v) {
-      auto t = v;
-      for (std::size_t k = 0; k < owned_; ++k) t[k] = v[order[k]];
-      v.swap(t);
-    };
-    permute(hprev_), permute(cost_), permute(leaf_of_);
-  }
-  ids_.clear();
-  ranges_.assign(1, 0);
-  for (std::size_t i = 0; i < owned_; ++i)
-    if (ids_.empty() || static_cast<std::uint32_t>(ids_.back()) != leaf_of_[i]) {
-      if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(i));
-      ids_.push_back(static_cast<int>(leaf_of_[i]));
-    }
-  if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(owned_));
+  return outside;
 }
 
-// Ghosts (unshifted copies of other ranks' particles within the cutoff of this rank's leaves)
-// and the owned particles' rows and proximity flags, from a cell list over owned + ghosts.
-void DistributedOrbScheme::build_ghosts_and_rows() {
+// One round of messages: every owned particle to the rank of its leaf (dest_), and a ghost copy
+// of it, UNSHIFTED, to every other rank with a leaf within the cutoff (periodic images
+// included), each with its half step, cost, leaf and speed bound. Then the owned particles in
+// (leaf, id) order, the leaves' ranges, and the owned particles' rows and proximity flags from a
+// cell list over owned + ghosts.
+void DistributedOrbScheme::exchange_and_rows() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   p_.resize(owned_);
   const double prox = 0.5 * scene_.dem.proximity_radii;
@@ -187,6 +140,8 @@ void DistributedOrbScheme::build_ghosts_and_rows() {
     }
     reach_ = comm_.max(reach);
     if (2.1 * reach_ > skin_ && skin_ < skin_cap_) skin_ = std::min(2.1 * reach_, skin_cap_);
+  } else {
+    speed_.assign(owned_, 0.0);
   }
   // Every distance a test below compares: contact candidates, the proximity or reach test.
   double cutoff = 2.0 * r_max_ + skin_;
@@ -201,7 +156,6 @@ void DistributedOrbScheme::build_ghosts_and_rows() {
   {
     const partition::OrbTree& tree = decomposition_.tree;
     const auto leaves = tree.leaves();
-    const int me = comm_.rank();
     std::vector<ParticleExchange::Copy> copies;
     std::vector<int> ranks;
     for (std::size_t i = 0; i < owned_; ++i) {
@@ -217,23 +171,53 @@ void DistributedOrbScheme::build_ghosts_and_rows() {
       ranks.clear();
       for (const int l : tree.leaves_overlapping(q, geom_.periodic)) {
         const int r = decomposition_.owner[static_cast<std::size_t>(l)];
-        if (r != me && std::find(ranks.begin(), ranks.end(), r) == ranks.end()) ranks.push_back(r);
+        if (r != dest_[i] && std::find(ranks.begin(), ranks.end(), r) == ranks.end())
+          ranks.push_back(r);
       }
       for (const int r : ranks) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
     }
-    if (time_to_contact_) {
-      ParticleStore aux;
-      aux.resize(owned_);
-      std::copy(speed_.begin(), speed_.end(), aux.x.begin());
-      aux_exchange_.build_ghosts(aux, owned_, copies);
-      speed_ = aux.x;
-    }
-    exchange_.build_ghosts(p_, owned_, std::move(copies));
+    std::vector<double> leaf(owned_);
+    for (std::size_t i = 0; i < owned_; ++i) leaf[i] = static_cast<double>(leaf_of_[i]);
+    std::vector<double>* extra[] = {&hprev_, &cost_, &leaf, &speed_};
+    owned_ = exchange_.redistribute(p_, dest_, std::move(copies), extra);
+    hprev_.resize(owned_), cost_.resize(owned_);
+    leaf_of_.resize(owned_);
+    for (std::size_t i = 0; i < owned_; ++i) leaf_of_[i] = static_cast<std::uint32_t>(leaf[i]);
   }
   ++builds_;
+  const std::size_t n = p_.size();
+  // (leaf, id) order of the owned particles: each leaf contiguous, in an order that depends on
+  // the particles only (ghosts keep theirs).
+  bool sorted = true;
+  for (std::size_t i = 1; i < owned_ && sorted; ++i)
+    sorted = leaf_of_[i - 1] < leaf_of_[i] ||
+             (leaf_of_[i - 1] == leaf_of_[i] && p_.id[i - 1] < p_.id[i]);
+  if (!sorted) {
+    std::vector<std::uint32_t> order(n);
+    std::iota(order.begin(), order.end(), 0U);
+    std::sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(owned_),
+              [&](std::uint32_t a, std::uint32_t b) {
+                return leaf_of_[a] != leaf_of_[b] ? leaf_of_[a] < leaf_of_[b] : p_.id[a] < p_.id[b];
+              });
+    p_.permute(order);
+    auto permute = [&](auto& v, std::size_t m) {
+      auto tmp = v;
+      for (std::size_t k = 0; k < m; ++k) tmp[k] = v[order[k]];
+      v.swap(tmp);
+    };
+    permute(hprev_, owned_), permute(cost_, owned_), permute(leaf_of_, owned_);
+    permute(speed_, owned_);
+  }
+  ids_.clear();
+  ranges_.assign(1, 0);
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (ids_.empty() || static_cast<std::uint32_t>(ids_.back()) != leaf_of_[i]) {
+      if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(i));
+      ids_.push_back(static_cast<int>(leaf_of_[i]));
+    }
+  if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(owned_));
   // Cell list over the local store: the whole domain in cells of at least the cutoff, at most
   // about 8 per local particle (OrbScheme's rule), binned at wrapped positions.
-  const std::size_t n = p_.size();
   std::array<int, 3> nc{};
   std::array<double, 3> inv{};
   double cell = cutoff;
@@ -248,19 +232,19 @@ void DistributedOrbScheme::build_ghosts_and_rows() {
   auto coord = [&](double v, int a) {
     return std::clamp(static_cast<int>((geom_.wrap(v, a) - geom_.lo[a]) * inv[a]), 0, nc[a] - 1);
   };
-  std::vector<std::array<int, 3>> cc(n);
+  cc_.resize(n);
   cell_start_.assign(ncell + 1, 0);
   for (std::size_t i = 0; i < n; ++i) {
-    cc[i] = {coord(p_.x[i], 0), coord(p_.y[i], 1), coord(p_.z[i], 2)};
-    ++cell_start_[(static_cast<std::size_t>(cc[i][2]) * nc[1] + cc[i][1]) * nc[0] + cc[i][0] + 1];
+    cc_[i] = {coord(p_.x[i], 0), coord(p_.y[i], 1), coord(p_.z[i], 2)};
+    ++cell_start_[(static_cast<std::size_t>(cc_[i][2]) * nc[1] + cc_[i][1]) * nc[0] + cc_[i][0] + 1];
   }
   for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
   cell_items_.resize(n);
   {
     std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
     for (std::size_t i = 0; i < n; ++i)
-      cell_items_[fill[(static_cast<std::size_t>(cc[i][2]) * nc[1] + cc[i][1]) * nc[0] +
-                       cc[i][0]]++] = static_cast<std::uint32_t>(i);
+      cell_items_[fill[(static_cast<std::size_t>(cc_[i][2]) * nc[1] + cc_[i][1]) * nc[0] +
+                       cc_[i][0]]++] = static_cast<std::uint32_t>(i);
   }
   // Rows: own-leaf partners, then the others, each by id (OrbScheme's summation order); the
   // proximity flag of each owned particle, exact (OrbScheme's tests, the same expressions).
@@ -273,13 +257,14 @@ void DistributedOrbScheme::build_ghosts_and_rows() {
   const double* pz = p_.z.data();
   const double* pr = p_.radius.data();
   const std::int64_t* id = p_.id.data();
-  std::vector<std::uint32_t> own, other;
+  std::vector<std::uint32_t>& own = scratch_own_;
+  std::vector<std::uint32_t>& other = scratch_other_;
   for (std::size_t i = 0; i < owned_; ++i) {
     own.clear(), other.clear();
     int sx[3], sy[3], sz[3];
-    const int mx = stencil_axis(cc[i][0], nc[0], geom_.periodic[0], sx);
-    const int my = stencil_axis(cc[i][1], nc[1], geom_.periodic[1], sy);
-    const int mz = stencil_axis(cc[i][2], nc[2], geom_.periodic[2], sz);
+    const int mx = stencil_axis(cc_[i][0], nc[0], geom_.periodic[0], sx);
+    const int my = stencil_axis(cc_[i][1], nc[1], geom_.periodic[1], sy);
+    const int mz = stencil_axis(cc_[i][2], nc[2], geom_.periodic[2], sz);
     unsigned char near = 0;
     for (int c2 = 0; c2 < mz; ++c2)
       for (int c1 = 0; c1 < my; ++c1)
@@ -453,6 +438,7 @@ void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
   }
 }
 
+// The owned leaves' local steps (one TBB task per leaf); whether one of them outran its rows.
 bool DistributedOrbScheme::attempt(bool record) {
   const int nl = static_cast<int>(ids_.size());
   tbb::parallel_for(
@@ -461,18 +447,21 @@ bool DistributedOrbScheme::attempt(bool record) {
         for (int k = r.begin(); k != r.end(); ++k) run_leaf(static_cast<std::size_t>(k), record);
       },
       tbb::simple_partitioner{});
-  std::int64_t outran = 0;
-  for (const LeafRun& r : runs_) outran += r.outran && r.fault == kNoFault ? 1 : 0;
-  return comm_.sum(outran) == 0;
+  for (const LeafRun& r : runs_)
+    if (r.outran && r.fault == kNoFault) return true;
+  return false;
 }
 
 void DistributedOrbScheme::subiterate(bool record) {
   p_.resize(owned_); // the last sub-iteration's ghosts go
   const bool regridding = subits_ % nsubit_ == 0;
+  std::string outside_message;
+  std::int64_t outside_key = std::numeric_limits<std::int64_t>::max();
+  std::int64_t outside = 0;
   {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     if (regridding) regrid();
-    redistribute(regridding);
+    outside = locate(regridding, outside_message, outside_key);
   }
   const bool can_refine = model_.dt < dt_sp_;
   const std::int64_t K_fine =
@@ -481,8 +470,11 @@ void DistributedOrbScheme::subiterate(bool record) {
           : 1;
   const double h_fine = can_refine ? model_.dt : dt_sp_;
   const double h_fine_last = dt_sp_ - static_cast<double>(K_fine - 1) * h_fine;
+  // One reduction closes the sub-iteration: {outran, faults, outside, owned, particle steps,
+  // force evaluations, overlaps beyond the bound, fine leaves, non-empty leaves}.
+  std::array<std::int64_t, 9> c{};
   while (true) {
-    build_ghosts_and_rows();
+    exchange_and_rows();
     PhaseTimer::Scope t(timer_, Phase::force);
     gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
     runs_.assign(ids_.size(), LeafRun{});
@@ -513,9 +505,32 @@ void DistributedOrbScheme::subiterate(bool record) {
         for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)
           sleaf_[i] = ids_[k], sdt_[i] = dt_sp_ / static_cast<double>(runs_[k].K);
     }
-    if (attempt(record)) break;
-    // Some fine leaf, on some rank, outran its rows: every rank rolls back and redoes the
-    // sub-iteration with twice the skin (OrbScheme's retry; the lists here are always fresh).
+    c = {};
+    c[0] = attempt(record) ? 1 : 0;
+    c[2] = outside;
+    c[3] = static_cast<std::int64_t>(owned_);
+    for (std::size_t k = 0; k < ids_.size(); ++k) {
+      const LeafRun& r = runs_[k];
+      c[1] += r.fault != kNoFault ? 1 : 0;
+      c[4] += static_cast<std::int64_t>(ranges_[k + 1] - ranges_[k]) * r.K;
+      c[5] += r.evals * r.K;
+      c[6] += r.violations;
+      c[7] += r.fine ? 1 : 0;
+      c[8] += 1;
+    }
+    comm_.sum(c);
+    if (c[2] > 0) {
+      const std::string e = comm_.agree_on_error(outside_key, outside_message);
+      throw RunError(e.empty() ? std::string("a particle left the domain") : e);
+    }
+    // None lost, none duplicated: the owned counts add up to the total at every sub-iteration.
+    if (c[3] != n_global_)
+      throw RunError(fmt::format("t = {:.9g} s: {} particles on the ranks after migration, {} "
+                                 "expected",
+                                 time(), c[3], n_global_));
+    if (c[0] == 0 || c[1] > 0) break;
+    // A fine leaf, on some rank, outran its rows: every rank rolls back and redoes the
+    // sub-iteration with twice the skin (OrbScheme's retry; the rows here are always fresh).
     if (skin_ >= skin_cap_)
       throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor "
                                  "skin in one sub-iteration even with the largest skin the "
@@ -526,46 +541,42 @@ void DistributedOrbScheme::subiterate(bool record) {
     std::copy_n(gvy_.begin(), owned_, p_.vy.begin()), std::copy_n(gvz_.begin(), owned_, p_.vz.begin());
     hprev_ = ghp_;
     skin_ = std::min(2.0 * skin_, skin_cap_);
+    dest_.assign(owned_, comm_.rank()); // the particles are where they belong already
     ++retries_;
   }
-  // Faults: every rank raises the one of the smallest particle id.
-  std::string message;
-  std::int64_t key = std::numeric_limits<std::int64_t>::max();
-  for (const LeafRun& r : runs_) {
-    if (r.fault == kNoFault) continue;
-    const std::size_t i = r.fault_index;
-    if (p_.id[i] >= key) continue;
-    key = p_.id[i];
-    message = fmt::format(
-        "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {} (rank {})",
-        time(), subits_, p_.id[i], p_.x[i], p_.y[i], p_.z[i],
-        r.fault == kNaN ? "position or velocity is not finite (NaN/inf): the step is unstable"
-                        : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
-                                      r.fault_value),
-        comm_.rank());
+  if (c[1] > 0) {
+    // Faults: every rank raises the one of the smallest particle id.
+    std::string message;
+    std::int64_t key = std::numeric_limits<std::int64_t>::max();
+    for (const LeafRun& r : runs_) {
+      if (r.fault == kNoFault) continue;
+      const std::size_t i = r.fault_index;
+      if (p_.id[i] >= key) continue;
+      key = p_.id[i];
+      message = fmt::format(
+          "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {} (rank {})",
+          time(), subits_, p_.id[i], p_.x[i], p_.y[i], p_.z[i],
+          r.fault == kNaN ? "position or velocity is not finite (NaN/inf): the step is unstable"
+                          : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
+                                        r.fault_value),
+          comm_.rank());
+    }
+    throw RunError(comm_.agree_on_error(key, message));
   }
-  if (const std::string e = comm_.agree_on_error(key, message); !e.empty()) throw RunError(e);
-  // Counters over all ranks: particle steps, force evaluations, overlaps, fine and busy leaves.
-  std::array<std::int64_t, 5> c{};
-  double ratio = 0.0;
   for (std::size_t k = 0; k < ids_.size(); ++k) {
     const LeafRun& r = runs_[k];
-    c[0] += static_cast<std::int64_t>(ranges_[k + 1] - ranges_[k]) * r.K;
-    c[1] += r.evals * r.K;
-    c[2] += r.violations;
-    c[3] += r.fine ? 1 : 0;
-    c[4] += 1;
-    ratio = std::max(ratio, r.max_ratio);
+    ratio_ = std::max(ratio_, r.max_ratio);
     leaf_steps_[static_cast<std::size_t>(ids_[k])] += r.K;
     if (cost_weights_)
       for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)
         cost_[i] += static_cast<double>(r.K);
   }
-  comm_.sum(c);
-  particle_steps_ += c[0], pair_evaluations_ += c[1], overlap_violations_ += c[2];
-  fine_count_ += c[3], leaf_subits_ += c[4];
-  last_fine_fraction_ = c[4] > 0 ? static_cast<double>(c[3]) / static_cast<double>(c[4]) : 0.0;
-  max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(ratio));
+  particle_steps_ += c[4], pair_evaluations_ += c[5], overlap_violations_ += c[6];
+  fine_count_ += c[7], leaf_subits_ += c[8];
+  last_fine_fraction_ = c[8] > 0 ? static_cast<double>(c[7]) / static_cast<double>(c[8]) : 0.0;
+  // The largest overlap over the ranks is reduced only when the state is recorded (the loop
+  // records the last sub-iteration): one reduction per sub-iteration is the budget.
+  if (record) max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(ratio_));
   ++subits_;
 }
 
@@ -597,7 +608,8 @@ OrbScheme::State DistributedOrbScheme::save_state() const {
   s.fine_count = fine_count_, s.leaf_subits = leaf_subits_, s.subits = subits_;
   s.particle_steps = particle_steps_, s.pair_evaluations = pair_evaluations_, s.builds = builds_;
   s.regrids = regrids_, s.overlap_violations = overlap_violations_, s.retries = retries_;
-  s.last_fine_fraction = last_fine_fraction_, s.max_overlap_ratio = max_overlap_ratio_;
+  s.last_fine_fraction = last_fine_fraction_;
+  s.max_overlap_ratio = std::max(max_overlap_ratio_, comm_.max(ratio_));
   s.skin = skin_;
   s.pairs_valid = false;
   return s;
@@ -616,6 +628,7 @@ void DistributedOrbScheme::restore_state(OrbScheme::State s) {
   particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
   regrids_ = s.regrids, overlap_violations_ = s.overlap_violations, retries_ = s.retries;
   last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
+  ratio_ = 0.0;
   if (s.skin > 0.0) skin_ = s.skin;
 }
 

@@ -8,27 +8,32 @@
 //      2^partition.orb_levels leaves (weights as OrbScheme's: counts, or the measured local steps
 //      with partition.weights = "cost"), knapsack over the same weights; otherwise the leaves
 //      stay and only particles that left them are located again (OrbScheme::resort's rule);
-//   2. migrate every particle to the rank owning its leaf (with its half step and cost), count
-//      the particles over the ranks (none may be lost), order the owned ones by (leaf, id);
-//   3. ghosts: every particle within the halo of one of this rank's leaves (periodic images
-//      included) is copied here UNSHIFTED, so that pair separations take OrbScheme's
-//      minimum-image arithmetic bit for bit; they are read frozen for the whole sub-iteration,
-//      as OrbScheme reads particles of other leaves, and so are this rank's other leaves;
+//   2. one round of messages (ParticleExchange::redistribute): every particle to the rank owning
+//      its leaf (with its half step and cost), and ghosts: every particle within the cutoff of
+//      one of a rank's leaves (periodic images included) is copied there UNSHIFTED, so that pair
+//      separations take OrbScheme's minimum-image arithmetic bit for bit; ghosts are read frozen
+//      for the whole sub-iteration, as OrbScheme reads particles of other leaves, and so are
+//      this rank's other leaves; the owned particles are ordered by (leaf, id);
 //   4. rows of the owned particles from a cell list over owned + ghosts (fresh at every
 //      sub-iteration, cut at the contact distance + skin), the proximity (or time-to-contact)
 //      test of each leaf, exact, then K velocity-Verlet steps per leaf with OrbScheme's
 //      per-pair and kick-drift arithmetic (contact_kernels.hpp, kick_drift_range.hpp). Rows sum
 //      own-leaf partners by id, then other partners by id: OrbScheme's order, so with the same
 //      leaves the result is OrbScheme's bit for bit, whatever the rank and thread counts;
-//   5. one reduction of the counters and flags: a fine leaf that moved a particle more than
-//      skin/2 (its rows may miss a pair) makes every rank roll back and redo the sub-iteration
-//      with twice the skin (retries()); a NaN or a particle through a wall stops every rank with
-//      the same RunError.
+//   5. one reduction of the counters and flags, the particle count among them (none may be
+//      lost): a fine leaf that moved a particle more than skin/2 (its rows may miss a pair)
+//      makes every rank roll back and redo the sub-iteration with twice the skin (retries()); a
+//      NaN or a particle through a wall stops every rank with the same RunError.
+// So a sub-iteration costs one all-to-all of counts, one exchange of particles between
+// neighbouring ranks and one allreduce (with time_to_contact, one more for the largest reach),
+// plus the parallel ORB's reductions at a regrid.
 // Frictionless, no external force, no gas (as the explicit distributed scheme, so far).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "core/communicator.hpp"
@@ -72,6 +77,7 @@ public:
   std::int64_t regrids() const { return regrids_; }
   std::int64_t retries() const { return retries_; }
   double skin() const { return skin_; }
+  // Over all ranks as of the last recorded sub-iteration (subiterate(true)).
   double max_overlap_ratio() const { return max_overlap_ratio_; }
   std::int64_t overlap_violations() const { return overlap_violations_; }
   double last_fine_fraction() const { return last_fine_fraction_; }
@@ -105,8 +111,8 @@ public:
 
 private:
   void regrid();
-  void redistribute(bool regridding);
-  void build_ghosts_and_rows();
+  std::int64_t locate(bool regridding, std::string& message, std::int64_t& key);
+  void exchange_and_rows();
   void run_leaf(std::size_t k, bool record);
   bool attempt(bool record);
 
@@ -125,7 +131,7 @@ private:
   PhaseTimer& timer_;
   DomainGeometry geom_;
   StepModel model_;
-  ParticleExchange exchange_, aux_exchange_;
+  ParticleExchange exchange_;
   partition::RankDecomposition decomposition_;
   partition::Aabb domain_;
   int levels_ = 0;
@@ -136,13 +142,16 @@ private:
   // Per owned particle: half of its last step, local steps since the regrid, its leaf.
   std::vector<double> hprev_, cost_;
   std::vector<std::uint32_t> leaf_of_;
+  std::vector<int> dest_; // per owned particle: the rank it goes to
   std::vector<double> speed_; // time_to_contact: speed bound, owned and ghosts
   // This rank's non-empty leaves: leaf ids_[k] owns [ranges_[k], ranges_[k+1]).
   std::vector<int> ids_;
   std::vector<std::uint32_t> ranges_;
   std::vector<LeafRun> runs_;
   // Rows of the owned particles: own-leaf partners [off_[i], mid_[i]), others to off_[i+1].
-  std::vector<std::uint32_t> off_, mid_, nb_, cell_start_, cell_items_;
+  std::vector<std::uint32_t> off_, mid_, nb_, cell_start_, cell_items_, scratch_own_,
+      scratch_other_;
+  std::vector<std::array<int, 3>> cc_; // cell coordinates of each local particle
   std::vector<unsigned char> near_;
   // State at the start of the sub-iteration: what other leaves read, and the rollback point.
   std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_;
@@ -151,6 +160,7 @@ private:
   std::vector<std::int64_t> leaf_steps_; // per leaf, this rank's part, this interval
   std::vector<double> imbalances_;
   double last_fine_fraction_ = 0.0, max_overlap_ratio_ = 0.0;
+  double ratio_ = 0.0; // this rank's largest overlap ratio (max_overlap_ratio_: over the ranks)
   std::int64_t fine_count_ = 0, leaf_subits_ = 0;
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
                regrids_ = 0, overlap_violations_ = 0, retries_ = 0;

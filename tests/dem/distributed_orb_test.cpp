@@ -150,7 +150,7 @@ DistributedRun distributed_orb(const Scene& scene, int subits, int threads) {
   const double mass0 = all.total_mass();
   DistributedRun r;
   for (int k = 0; k < subits; ++k) {
-    s.subiterate();
+    s.subiterate(k + 1 == subits); // the last one recorded: max_overlap_ratio over the ranks
     std::array<std::int64_t, 3> got{};
     double mass = 0.0;
     for (std::size_t i = 0; i < s.owned(); ++i)

@@ -6,12 +6,17 @@
 
 #include <array>
 #include <cmath>
+#include <functional>
 #include <map>
+#include <random>
+#include <set>
 #include <string>
 
 #include <tbb/global_control.h>
 
 #include "core/communicator.hpp"
+#include "core/error.hpp"
+#include "core/particle_exchange.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_orb_scheme.hpp"
@@ -240,6 +245,85 @@ TEST(DistributedOrb, RerunAndThreadCountsAreBitwiseIdentical) {
   EXPECT_EQ(a.owned, c.owned);
   EXPECT_EQ(a.pair_evaluations, c.pair_evaluations);
   EXPECT_EQ(a.particle_steps, c.particle_steps);
+}
+
+TEST(DistributedOrb, ParticleThroughAWallStopsEveryRankWithTheSameError) {
+  const Scene scene = scene_from(kWalls);
+  const Communicator c = Communicator::world();
+  ParticleStore all = make_initial_particles(scene);
+  all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::DistributedOrbScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  s.start();
+  std::string message;
+  try {
+    for (int k = 0; k < kSubits; ++k) s.subiterate();
+  } catch (const RunError& e) {
+    message = e.what();
+  }
+  ASSERT_FALSE(message.empty()) << "no rank stopped";
+  EXPECT_NE(message.find("particle " + std::to_string(all.id[7])), std::string::npos) << message;
+  // The same text on every rank (its hash, compared by a max and a min over the ranks).
+  std::array<std::int64_t, 1> hi{static_cast<std::int64_t>(std::hash<std::string>{}(message))};
+  std::array<std::int64_t, 1> lo = hi;
+  c.max(hi);
+  c.min(lo);
+  EXPECT_EQ(hi[0], lo[0]) << message;
+}
+
+// ParticleExchange::redistribute: each particle reaches its new owner once, each ghost copy the
+// ranks named for it (this rank included, for a leaver), with every field and extra column.
+TEST(ParticleExchange, RedistributeMovesOwnersAndCopiesGhostsWithTheirColumns) {
+  const Communicator c = Communicator::world();
+  const ParticleStore all = make_initial_particles(scene_from(kGas));
+  ParticleStore p = share(all, c.rank(), c.size());
+  const auto ranks = static_cast<std::uint64_t>(c.size());
+  // Owner and ghost ranks drawn by id, the same on every rank.
+  std::mt19937_64 rng(3);
+  std::vector<int> owner(all.size());
+  std::vector<std::set<int>> ghost(all.size());
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    owner[i] = static_cast<int>(rng() % ranks);
+    for (std::uint64_t r = 0; r < ranks; ++r)
+      if (static_cast<int>(r) != owner[i] && rng() % 3 == 0) ghost[i].insert(static_cast<int>(r));
+  }
+  std::vector<int> dest(p.size());
+  std::vector<ParticleExchange::Copy> copies;
+  std::vector<double> half(p.size()), cost(p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const auto id = static_cast<std::size_t>(p.id[i]);
+    dest[i] = owner[id];
+    for (const int r : ghost[id]) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    half[i] = 0.5 * static_cast<double>(id), cost[i] = 3.0 * static_cast<double>(id);
+  }
+  ParticleExchange ex(c);
+  std::vector<double>* extra[] = {&half, &cost};
+  const std::size_t owned = ex.redistribute(p, dest, copies, extra);
+  ASSERT_EQ(half.size(), p.size());
+  ASSERT_EQ(cost.size(), p.size());
+  std::set<std::int64_t> own_ids, ghost_ids;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const auto id = static_cast<std::size_t>(p.id[i]);
+    (i < owned ? own_ids : ghost_ids).insert(p.id[i]);
+    if (i < owned) {
+      EXPECT_EQ(owner[id], c.rank()) << "id " << id;
+    } else {
+      EXPECT_EQ(ghost[id].count(c.rank()), 1U) << "id " << id;
+    }
+    EXPECT_EQ(p.x[i], all.x[id]);
+    EXPECT_EQ(p.vz[i], all.vz[id]);
+    EXPECT_EQ(p.mass[i], all.mass[id]);
+    EXPECT_EQ(half[i], 0.5 * static_cast<double>(id));
+    EXPECT_EQ(cost[i], 3.0 * static_cast<double>(id));
+  }
+  std::size_t expect_own = 0, expect_ghost = 0;
+  for (std::size_t i = 0; i < all.size(); ++i)
+    expect_own += owner[i] == c.rank(), expect_ghost += ghost[i].count(c.rank());
+  EXPECT_EQ(own_ids.size(), expect_own);
+  EXPECT_EQ(owned, expect_own);
+  EXPECT_EQ(ghost_ids.size(), expect_ghost);
+  EXPECT_EQ(p.size() - owned, expect_ghost);
 }
 
 } // namespace

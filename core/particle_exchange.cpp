@@ -190,7 +190,7 @@ std::size_t ParticleExchange::redistribute(ParticleStore& p, std::span<const int
     received += static_cast<std::size_t>(c);
   for (std::size_t q = 0; q < received; ++q)
     arrivals += recv_buf_[q * static_cast<std::size_t>(stride) + static_cast<std::size_t>(stride) - 1] == 0.0;
-  p.permute(keep);
+  if (keep.size() != n) p.permute(keep); // nobody left: the store keeps its order
   const std::size_t owned = keep.size() + arrivals;
   for (std::vector<double>* e : extra) {
     std::vector<double> col(owned + received - arrivals);

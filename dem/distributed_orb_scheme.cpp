@@ -10,6 +10,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/partitioner.h>
+#include <tbb/task_arena.h>
 
 #include "core/error.hpp"
 #include "dem/contact_kernels.hpp"
@@ -21,6 +22,17 @@ namespace cfddem::dem {
 
 namespace {
 enum : int { kNoFault = 0, kNaN = 1, kLeftDomain = 2 };
+
+// A row's few partners by particle id (insertion sort: rows are short): the summation order of
+// OrbScheme, which depends on the particles only.
+void sort_by_id(std::vector<std::uint32_t>& v, const std::int64_t* id) {
+  for (std::size_t i = 1; i < v.size(); ++i) {
+    const std::uint32_t x = v[i];
+    std::size_t j = i;
+    for (; j > 0 && id[v[j - 1]] > id[x]; --j) v[j] = v[j - 1];
+    v[j] = x;
+  }
+}
 } // namespace
 
 DistributedOrbScheme::DistributedOrbScheme(const Scene& scene, ParticleStore& particles,
@@ -158,7 +170,21 @@ void DistributedOrbScheme::exchange_and_rows() {
     const auto leaves = tree.leaves();
     std::vector<ParticleExchange::Copy> copies;
     std::vector<int> ranks;
+    // A leaf whose halo touches only leaves of its own rank (periodic images included) sends
+    // no ghost of the particles that stay with that rank: most leaves, so most queries go.
+    const int me = comm_.rank();
+    leaf_alone_.assign(leaves.size(), 0);
+    for (std::size_t l = 0; l < leaves.size(); ++l) {
+      if (decomposition_.owner[l] != me) continue;
+      partition::Aabb q = leaves[l].box;
+      for (int a = 0; a < 3; ++a) q.lo[a] -= cutoff, q.hi[a] += cutoff;
+      bool alone = true;
+      for (const int o : tree.leaves_overlapping(q, geom_.periodic))
+        alone = alone && decomposition_.owner[static_cast<std::size_t>(o)] == me;
+      leaf_alone_[l] = alone;
+    }
     for (std::size_t i = 0; i < owned_; ++i) {
+      if (dest_[i] == me && leaf_alone_[leaf_of_[i]]) continue;
       const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
                            geom_.wrap(p_.z[i], 2)};
       const partition::Aabb q{{w[0] - cutoff, w[1] - cutoff, w[2] - cutoff},
@@ -259,38 +285,48 @@ void DistributedOrbScheme::exchange_and_rows() {
   const std::int64_t* id = p_.id.data();
   std::vector<std::uint32_t>& own = scratch_own_;
   std::vector<std::uint32_t>& other = scratch_other_;
+  // Locals, so that the stores into the rows do not make the compiler reload them.
+  const DomainGeometry g = geom_;
+  const double skin = skin_, dt_sp = dt_sp_;
+  const bool ttc = time_to_contact_;
+  const double* sp = speed_.data();
+  const std::uint32_t* leaf = leaf_of_.data();
+  const std::uint32_t* items = cell_items_.data();
+  const std::uint32_t* start = cell_start_.data();
+  const std::uint32_t n_own = static_cast<std::uint32_t>(owned_);
   for (std::size_t i = 0; i < owned_; ++i) {
     own.clear(), other.clear();
     int sx[3], sy[3], sz[3];
-    const int mx = stencil_axis(cc_[i][0], nc[0], geom_.periodic[0], sx);
-    const int my = stencil_axis(cc_[i][1], nc[1], geom_.periodic[1], sy);
-    const int mz = stencil_axis(cc_[i][2], nc[2], geom_.periodic[2], sz);
-    unsigned char near = 0;
+    const int mx = stencil_axis(cc_[i][0], nc[0], g.periodic[0], sx);
+    const int my = stencil_axis(cc_[i][1], nc[1], g.periodic[1], sy);
+    const int mz = stencil_axis(cc_[i][2], nc[2], g.periodic[2], sz);
+    const double xi = px[i], yi = py[i], zi = pz[i], ri = pr[i], si = ttc ? sp[i] : 0.0;
+    const std::uint32_t li = leaf[i];
+    bool near = false;
     for (int c2 = 0; c2 < mz; ++c2)
       for (int c1 = 0; c1 < my; ++c1)
         for (int c0 = 0; c0 < mx; ++c0) {
           const std::size_t q = (static_cast<std::size_t>(sz[c2]) * nc[1] + sy[c1]) * nc[0] + sx[c0];
-          for (std::uint32_t s = cell_start_[q]; s < cell_start_[q + 1]; ++s) {
-            const std::uint32_t j = cell_items_[s];
+          for (std::uint32_t s = start[q]; s < start[q + 1]; ++s) {
+            const std::uint32_t j = items[s];
             if (j == i) continue;
-            const double dx = geom_.image(px[j] - px[i], 0), dy = geom_.image(py[j] - py[i], 1),
-                         dz = geom_.image(pz[j] - pz[i], 2);
+            const double dx = g.image(px[j] - xi, 0), dy = g.image(py[j] - yi, 1),
+                         dz = g.image(pz[j] - zi, 2);
             const double r2 = dx * dx + dy * dy + dz * dz;
-            const double rs = pr[i] + pr[j];
-            if (r2 < (rs + skin_) * (rs + skin_))
-              (j < owned_ && leaf_of_[j] == leaf_of_[i] ? own : other).push_back(j);
-            if (time_to_contact_) {
-              const double reach = rs + (speed_[i] + speed_[j]) * dt_sp_;
-              near |= r2 < reach * reach;
+            const double rs = ri + pr[j];
+            if (r2 < (rs + skin) * (rs + skin))
+              (j < n_own && leaf[j] == li ? own : other).push_back(j);
+            if (ttc) {
+              const double reach = rs + (si + sp[j]) * dt_sp;
+              near = near || r2 < reach * reach;
             } else {
               const double d = prox * rs;
-              near |= r2 < d * d;
+              near = near || r2 < d * d;
             }
           }
         }
-    auto by_id = [&](std::uint32_t a, std::uint32_t b) { return id[a] < id[b]; };
-    std::sort(own.begin(), own.end(), by_id);
-    std::sort(other.begin(), other.end(), by_id);
+    sort_by_id(own, id);
+    sort_by_id(other, id);
     off_[i] = static_cast<std::uint32_t>(nb_.size());
     nb_.insert(nb_.end(), own.begin(), own.end());
     mid_[i] = static_cast<std::uint32_t>(nb_.size());
@@ -298,6 +334,13 @@ void DistributedOrbScheme::exchange_and_rows() {
     near_[i] = near;
   }
   off_[owned_] = static_cast<std::uint32_t>(nb_.size());
+  // Only particles with a row get their contact force rewritten at each step: clear the rest.
+  active_.clear();
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (off_[i + 1] > off_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+  std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
+  std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
+  std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
   // A wall is a partner too (OrbScheme's rule, either local_dt).
   for (int a = 0; a < 3; ++a) {
     if (geom_.periodic[a]) continue;
@@ -310,12 +353,12 @@ void DistributedOrbScheme::exchange_and_rows() {
   }
 }
 
-// Leaf k's K local steps: OrbScheme::run_batch_impl's arithmetic (without an external force),
+// Batch q's K local steps: OrbScheme::run_batch_impl's arithmetic (without an external force),
 // own-leaf partners read live, every other partner from the copies at the sub-iteration start.
-void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
-  LeafRun& bt = runs_[k];
+void DistributedOrbScheme::run_batch(std::size_t which, bool record) {
+  Batch& bt = batches_[which];
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = kNoFault;
-  const std::uint32_t b = ranges_[k], e = ranges_[k + 1];
+  const std::uint32_t b = bt.b, e = bt.e;
   const DomainGeometry g = geom_;
   const StepModel m = model_;
   double* __restrict x = p_.x.data();
@@ -340,6 +383,7 @@ void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
   const std::uint32_t* __restrict off = off_.data();
   const std::uint32_t* __restrict mid = mid_.data();
   const std::uint32_t* __restrict nb = nb_.data();
+  const std::uint32_t* __restrict act = active_.data();
   const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
   const double lim = m.max_overlap;
   const double half_skin2 = 0.25 * skin_ * skin_;
@@ -348,7 +392,8 @@ void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
   double h_before = 0.0;
   for (std::int64_t step = 0; step < bt.K; ++step) {
     const double hk = step + 1 == bt.K ? bt.h_last : bt.h;
-    for (std::uint32_t i = b; i < e; ++i) {
+    for (std::uint32_t a = bt.a0; a < bt.a1; ++a) {
+      const std::uint32_t i = act[a];
       const double xi = x[i], yi = y[i], zi = z[i];
       const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
       double ax = 0.0, ay = 0.0, az = 0.0;
@@ -374,7 +419,8 @@ void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
     }
     if (walls) {
       for (std::uint32_t i = b; i < e; ++i) {
-        double f[3] = {fx[i], fy[i], fz[i]};
+        const bool row = off[i + 1] > off[i]; // rowless particles' f holds the last wall force
+        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
         const double pos[3] = {x[i], y[i], z[i]}, vel[3] = {vx[i], vy[i], vz[i]};
         for (int a = 0; a < 3; ++a) {
           if (g.periodic[a]) continue;
@@ -422,7 +468,22 @@ void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
   }
   bt.max_ratio = max_ratio;
   bt.violations = violations;
+  // Faults are rare: a branch-free pass (it vectorizes) says whether to look for one
+  // (OrbScheme's: NaN or inf in the sum, or a coordinate outside a wall's closed interval).
   const WallBounds wb(g);
+  {
+    const double inf = std::numeric_limits<double>::infinity();
+    std::uint64_t bad = 0;
+    for (std::uint32_t i = b; i < e; ++i) {
+      const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+      const double t = v2 + x[i] + y[i] + z[i];
+      bad |= sign_unless(t > -inf) | sign_unless(t < inf) | sign_unless(x[i] >= wb.lo[0]) |
+             sign_unless(x[i] <= wb.hi[0]) | sign_unless(y[i] >= wb.lo[1]) |
+             sign_unless(y[i] <= wb.hi[1]) | sign_unless(z[i] >= wb.lo[2]) |
+             sign_unless(z[i] <= wb.hi[2]);
+    }
+    if (!(bad >> 63)) return;
+  }
   for (std::uint32_t i = b; i < e && bt.fault == kNoFault; ++i) {
     const double q[3] = {x[i], y[i], z[i]};
     const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
@@ -438,17 +499,17 @@ void DistributedOrbScheme::run_leaf(std::size_t k, bool record) {
   }
 }
 
-// The owned leaves' local steps (one TBB task per leaf); whether one of them outran its rows.
+// The owned leaves' local steps (one TBB task per batch); whether one of them outran its rows.
 bool DistributedOrbScheme::attempt(bool record) {
-  const int nl = static_cast<int>(ids_.size());
+  const int nb = static_cast<int>(batches_.size());
   tbb::parallel_for(
-      tbb::blocked_range<int>(0, nl, 1),
+      tbb::blocked_range<int>(0, nb, 1),
       [&](const tbb::blocked_range<int>& r) {
-        for (int k = r.begin(); k != r.end(); ++k) run_leaf(static_cast<std::size_t>(k), record);
+        for (int q = r.begin(); q != r.end(); ++q) run_batch(static_cast<std::size_t>(q), record);
       },
       tbb::simple_partitioner{});
-  for (const LeafRun& r : runs_)
-    if (r.outran && r.fault == kNoFault) return true;
+  for (const Batch& bt : batches_)
+    if (bt.outran && bt.fault == kNoFault) return true;
   return false;
 }
 
@@ -491,6 +552,28 @@ void DistributedOrbScheme::subiterate(bool record) {
         own += mid_[i] - off_[i], all += off_[i + 1] - off_[i];
       r.evals = own / 2 + (all - own);
     }
+    // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles
+    // (OrbScheme's grouping: leaves never read each other's live state, so it changes no bit).
+    const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
+    const std::size_t grain =
+        std::max<std::size_t>(256, owned_ / (4 * std::max<std::size_t>(threads, 1)));
+    batches_.clear();
+    for (std::size_t k = 0; k < ids_.size(); ++k) {
+      const LeafRun& r = runs_[k];
+      if (batches_.empty() || batches_.back().K != r.K ||
+          batches_.back().e - batches_.back().b >= grain) {
+        Batch bt;
+        bt.b = ranges_[k], bt.K = r.K, bt.h = r.h, bt.h_last = r.h_last;
+        batches_.push_back(bt);
+      }
+      batches_.back().e = ranges_[k + 1];
+    }
+    for (Batch& bt : batches_) {
+      bt.a0 = static_cast<std::uint32_t>(
+          std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
+      bt.a1 = static_cast<std::uint32_t>(
+          std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
+    }
     if (record) {
       const std::size_t n = owned_;
       sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
@@ -511,13 +594,12 @@ void DistributedOrbScheme::subiterate(bool record) {
     c[3] = static_cast<std::int64_t>(owned_);
     for (std::size_t k = 0; k < ids_.size(); ++k) {
       const LeafRun& r = runs_[k];
-      c[1] += r.fault != kNoFault ? 1 : 0;
       c[4] += static_cast<std::int64_t>(ranges_[k + 1] - ranges_[k]) * r.K;
       c[5] += r.evals * r.K;
-      c[6] += r.violations;
       c[7] += r.fine ? 1 : 0;
       c[8] += 1;
     }
+    for (const Batch& bt : batches_) c[1] += bt.fault != kNoFault ? 1 : 0, c[6] += bt.violations;
     comm_.sum(c);
     if (c[2] > 0) {
       const std::string e = comm_.agree_on_error(outside_key, outside_message);
@@ -548,7 +630,7 @@ void DistributedOrbScheme::subiterate(bool record) {
     // Faults: every rank raises the one of the smallest particle id.
     std::string message;
     std::int64_t key = std::numeric_limits<std::int64_t>::max();
-    for (const LeafRun& r : runs_) {
+    for (const Batch& r : batches_) {
       if (r.fault == kNoFault) continue;
       const std::size_t i = r.fault_index;
       if (p_.id[i] >= key) continue;
@@ -563,9 +645,9 @@ void DistributedOrbScheme::subiterate(bool record) {
     }
     throw RunError(comm_.agree_on_error(key, message));
   }
+  for (const Batch& bt : batches_) ratio_ = std::max(ratio_, bt.max_ratio);
   for (std::size_t k = 0; k < ids_.size(); ++k) {
     const LeafRun& r = runs_[k];
-    ratio_ = std::max(ratio_, r.max_ratio);
     leaf_steps_[static_cast<std::size_t>(ids_[k])] += r.K;
     if (cost_weights_)
       for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)

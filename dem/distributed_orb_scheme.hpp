@@ -113,13 +113,22 @@ private:
   void regrid();
   std::int64_t locate(bool regridding, std::string& message, std::int64_t& key);
   void exchange_and_rows();
-  void run_leaf(std::size_t k, bool record);
+  void run_batch(std::size_t which, bool record);
   bool attempt(bool record);
 
+  // Per owned leaf: its step count and length, whether fine, force evaluations per step.
   struct LeafRun {
-    std::int64_t K = 1, evals = 0, violations = 0;
+    std::int64_t K = 1, evals = 0;
+    double h = 0.0, h_last = 0.0;
+    bool fine = false;
+  };
+  // A run of consecutive owned leaves with the same step, advanced as one TBB task: [b, e) in the
+  // store, rows active_[a0, a1) (OrbScheme's batches), and the results of its last attempt.
+  struct Batch {
+    std::uint32_t b = 0, e = 0, a0 = 0, a1 = 0;
+    std::int64_t K = 1, violations = 0;
     double h = 0.0, h_last = 0.0, max_ratio = 0.0;
-    bool fine = false, outran = false;
+    bool outran = false;
     int fault = 0; // 1: NaN, 2: left the domain through a wall
     std::uint32_t fault_index = 0;
     double fault_value = 0.0;
@@ -143,11 +152,14 @@ private:
   std::vector<double> hprev_, cost_;
   std::vector<std::uint32_t> leaf_of_;
   std::vector<int> dest_; // per owned particle: the rank it goes to
+  std::vector<unsigned char> leaf_alone_; // per leaf: its halo touches only this rank's leaves
   std::vector<double> speed_; // time_to_contact: speed bound, owned and ghosts
   // This rank's non-empty leaves: leaf ids_[k] owns [ranges_[k], ranges_[k+1]).
   std::vector<int> ids_;
   std::vector<std::uint32_t> ranges_;
   std::vector<LeafRun> runs_;
+  std::vector<Batch> batches_;
+  std::vector<std::uint32_t> active_; // owned particles with a non-empty row
   // Rows of the owned particles: own-leaf partners [off_[i], mid_[i]), others to off_[i+1].
   std::vector<std::uint32_t> off_, mid_, nb_, cell_start_, cell_items_, scratch_own_,
       scratch_other_;

@@ -25,13 +25,16 @@ enum : int { kNoFault = 0, kNaN = 1, kLeftDomain = 2 };
 
 // A row's few partners by particle id (insertion sort: rows are short): the summation order of
 // OrbScheme, which depends on the particles only.
-void sort_by_id(std::vector<std::uint32_t>& v, const std::int64_t* id) {
-  for (std::size_t i = 1; i < v.size(); ++i) {
-    const std::uint32_t x = v[i];
-    std::size_t j = i;
-    for (; j > 0 && id[v[j - 1]] > id[x]; --j) v[j] = v[j - 1];
-    v[j] = x;
+void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
+  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
+    const std::uint32_t v = *i;
+    std::uint32_t* j = i;
+    for (; j > first && id[*(j - 1)] > id[v]; --j) *j = *(j - 1);
+    *j = v;
   }
+}
+void sort_by_id(std::vector<std::uint32_t>& v, const std::int64_t* id) {
+  sort_by_id(v.data(), v.data() + v.size(), id);
 }
 } // namespace
 
@@ -294,46 +297,52 @@ void DistributedOrbScheme::exchange_and_rows() {
   const std::uint32_t* items = cell_items_.data();
   const std::uint32_t* start = cell_start_.data();
   const std::uint32_t n_own = static_cast<std::uint32_t>(owned_);
-  for (std::size_t i = 0; i < owned_; ++i) {
-    own.clear(), other.clear();
-    int sx[3], sy[3], sz[3];
-    const int mx = stencil_axis(cc_[i][0], nc[0], g.periodic[0], sx);
-    const int my = stencil_axis(cc_[i][1], nc[1], g.periodic[1], sy);
-    const int mz = stencil_axis(cc_[i][2], nc[2], g.periodic[2], sz);
-    const double xi = px[i], yi = py[i], zi = pz[i], ri = pr[i], si = ttc ? sp[i] : 0.0;
-    const std::uint32_t li = leaf[i];
-    bool near = false;
-    for (int c2 = 0; c2 < mz; ++c2)
-      for (int c1 = 0; c1 < my; ++c1)
-        for (int c0 = 0; c0 < mx; ++c0) {
-          const std::size_t q = (static_cast<std::size_t>(sz[c2]) * nc[1] + sy[c1]) * nc[0] + sx[c0];
-          for (std::uint32_t s = start[q]; s < start[q + 1]; ++s) {
-            const std::uint32_t j = items[s];
-            if (j == i) continue;
-            const double dx = g.image(px[j] - xi, 0), dy = g.image(py[j] - yi, 1),
-                         dz = g.image(pz[j] - zi, 2);
-            const double r2 = dx * dx + dy * dy + dz * dz;
-            const double rs = ri + pr[j];
-            if (r2 < (rs + skin) * (rs + skin))
-              (j < n_own && leaf[j] == li ? own : other).push_back(j);
-            if (ttc) {
-              const double reach = rs + (si + sp[j]) * dt_sp;
-              near = near || r2 < reach * reach;
-            } else {
-              const double d = prox * rs;
-              near = near || r2 < d * d;
+  if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
+    half_stencil_rows(nc, prox);
+  } else {
+    // Fewer than three cells on an axis (a small box): each owned particle against the full
+    // stencil, periodic images collapsed.
+    for (std::size_t i = 0; i < owned_; ++i) {
+      own.clear(), other.clear();
+      int sx[3], sy[3], sz[3];
+      const int mx = stencil_axis(cc_[i][0], nc[0], g.periodic[0], sx);
+      const int my = stencil_axis(cc_[i][1], nc[1], g.periodic[1], sy);
+      const int mz = stencil_axis(cc_[i][2], nc[2], g.periodic[2], sz);
+      const double xi = px[i], yi = py[i], zi = pz[i], ri = pr[i], si = ttc ? sp[i] : 0.0;
+      const std::uint32_t li = leaf[i];
+      bool near = false;
+      for (int c2 = 0; c2 < mz; ++c2)
+        for (int c1 = 0; c1 < my; ++c1)
+          for (int c0 = 0; c0 < mx; ++c0) {
+            const std::size_t q = (static_cast<std::size_t>(sz[c2]) * nc[1] + sy[c1]) * nc[0] + sx[c0];
+            for (std::uint32_t s = start[q]; s < start[q + 1]; ++s) {
+              const std::uint32_t j = items[s];
+              if (j == i) continue;
+              const double dx = g.image(px[j] - xi, 0), dy = g.image(py[j] - yi, 1),
+                           dz = g.image(pz[j] - zi, 2);
+              const double r2 = dx * dx + dy * dy + dz * dz;
+              const double rs = ri + pr[j];
+              if (r2 < (rs + skin) * (rs + skin))
+                (j < n_own && leaf[j] == li ? own : other).push_back(j);
+              if (ttc) {
+                const double reach = rs + (si + sp[j]) * dt_sp;
+                near = near || r2 < reach * reach;
+              } else {
+                const double d = prox * rs;
+                near = near || r2 < d * d;
+              }
             }
           }
-        }
-    sort_by_id(own, id);
-    sort_by_id(other, id);
-    off_[i] = static_cast<std::uint32_t>(nb_.size());
-    nb_.insert(nb_.end(), own.begin(), own.end());
-    mid_[i] = static_cast<std::uint32_t>(nb_.size());
-    nb_.insert(nb_.end(), other.begin(), other.end());
-    near_[i] = near;
+      sort_by_id(own, id);
+      sort_by_id(other, id);
+      off_[i] = static_cast<std::uint32_t>(nb_.size());
+      nb_.insert(nb_.end(), own.begin(), own.end());
+      mid_[i] = static_cast<std::uint32_t>(nb_.size());
+      nb_.insert(nb_.end(), other.begin(), other.end());
+      near_[i] = near;
+    }
+    off_[owned_] = static_cast<std::uint32_t>(nb_.size());
   }
-  off_[owned_] = static_cast<std::uint32_t>(nb_.size());
   // Only particles with a row get their contact force rewritten at each step: clear the rest.
   active_.clear();
   for (std::size_t i = 0; i < owned_; ++i)
@@ -350,6 +359,114 @@ void DistributedOrbScheme::exchange_and_rows() {
           time_to_contact_ ? p_.radius[i] + speed_[i] * dt_sp_ : 2.0 * prox * p_.radius[i];
       near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
     }
+  }
+}
+
+// Rows and proximity flags from each pair of local particles once (not two ghosts): a cell and
+// its 13 forward neighbours (OrbScheme::rebuild_pairs' half stencil, over copies in cell order),
+// then the rows of the owned ends, each segment by id. The tests are those of the full stencil
+// (symmetric in the pair), so the rows and flags are the same.
+void DistributedOrbScheme::half_stencil_rows(const std::array<int, 3>& nc, double prox) {
+  const std::size_t n = p_.size();
+  const std::uint32_t n_own = static_cast<std::uint32_t>(owned_);
+  const DomainGeometry g = geom_;
+  const double skin = skin_, dt_sp = dt_sp_;
+  const bool ttc = time_to_contact_;
+  const std::uint32_t* items = cell_items_.data();
+  const std::uint32_t* start = cell_start_.data();
+  for (auto& v : sorted_) v.resize(n);
+  double* sx = sorted_[0].data();
+  double* sy = sorted_[1].data();
+  double* sz = sorted_[2].data();
+  double* sr = sorted_[3].data();
+  double* ss = sorted_[4].data();
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::uint32_t i = items[k];
+    sx[k] = p_.x[i], sy[k] = p_.y[i], sz[k] = p_.z[i], sr[k] = p_.radius[i];
+    ss[k] = ttc ? speed_[i] : 0.0;
+  }
+  pair_a_.clear(), pair_b_.clear();
+  unsigned char* near = near_.data();
+  auto test = [&](std::uint32_t a, std::uint32_t b) {
+    const std::uint32_t i = items[a], j = items[b];
+    if (i >= n_own && j >= n_own) return; // two ghosts: neither row is this rank's
+    const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
+                 dz = g.image(sz[b] - sz[a], 2);
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const double rs = sr[a] + sr[b];
+    if (r2 < (rs + skin) * (rs + skin)) pair_a_.push_back(i), pair_b_.push_back(j);
+    bool close;
+    if (ttc) {
+      const double reach = rs + (ss[a] + ss[b]) * dt_sp;
+      close = r2 < reach * reach;
+    } else {
+      const double d = prox * rs;
+      close = r2 < d * d;
+    }
+    if (close) {
+      if (i < n_own) near[i] = 1;
+      if (j < n_own) near[j] = 1;
+    }
+  };
+  static constexpr int kForward[13][3] = {{1, 0, 0},   {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
+                                          {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
+                                          {0, 0, 1},   {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
+                                          {1, 1, 1}};
+  for (int cz = 0; cz < nc[2]; ++cz)
+    for (int cy = 0; cy < nc[1]; ++cy)
+      for (int cx = 0; cx < nc[0]; ++cx) {
+        const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
+        const std::uint32_t c0 = start[c], c1 = start[c + 1];
+        if (c0 == c1) continue;
+        for (std::uint32_t a = c0; a < c1; ++a)
+          for (std::uint32_t b = a + 1; b < c1; ++b) test(a, b);
+        for (const auto& o : kForward) {
+          int q[3] = {cx + o[0], cy + o[1], cz + o[2]};
+          bool skip = false;
+          for (int ax = 0; ax < 3; ++ax)
+            if (q[ax] < 0 || q[ax] >= nc[ax]) {
+              if (!g.periodic[ax]) skip = true;
+              q[ax] = (q[ax] + nc[ax]) % nc[ax];
+            }
+          if (skip) continue;
+          const std::size_t d = (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0];
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = start[d]; b < start[d + 1]; ++b) test(a, b);
+        }
+      }
+  // Rows of the owned ends: own-leaf partners first, then the others.
+  std::vector<std::uint32_t>& own_count = scratch_own_;
+  own_count.assign(owned_, 0);
+  std::fill(off_.begin(), off_.end(), 0);
+  const std::uint32_t* leaf = leaf_of_.data();
+  auto same_leaf = [&](std::uint32_t i, std::uint32_t j) {
+    return i < n_own && j < n_own && leaf[i] == leaf[j];
+  };
+  for (std::size_t q = 0; q < pair_a_.size(); ++q) {
+    const std::uint32_t i = pair_a_[q], j = pair_b_[q];
+    const bool same = same_leaf(i, j);
+    if (i < n_own) ++off_[i + 1], own_count[i] += same;
+    if (j < n_own) ++off_[j + 1], own_count[j] += same;
+  }
+  for (std::size_t i = 0; i < owned_; ++i) off_[i + 1] += off_[i];
+  std::vector<std::uint32_t>& fill_own = scratch_other_;
+  fill_own.resize(owned_);
+  fill_other_.resize(owned_);
+  for (std::size_t i = 0; i < owned_; ++i) {
+    mid_[i] = off_[i] + own_count[i];
+    fill_own[i] = off_[i], fill_other_[i] = mid_[i];
+  }
+  nb_.resize(off_[owned_]);
+  for (std::size_t q = 0; q < pair_a_.size(); ++q) {
+    const std::uint32_t i = pair_a_[q], j = pair_b_[q];
+    const bool same = same_leaf(i, j);
+    if (i < n_own) nb_[same ? fill_own[i]++ : fill_other_[i]++] = j;
+    if (j < n_own) nb_[same ? fill_own[j]++ : fill_other_[j]++] = i;
+  }
+  const std::int64_t* id = p_.id.data();
+  for (std::size_t i = 0; i < owned_; ++i) {
+    sort_by_id(nb_.data() + off_[i], nb_.data() + mid_[i], id);
+    sort_by_id(nb_.data() + mid_[i], nb_.data() + off_[i + 1], id);
   }
 }
 

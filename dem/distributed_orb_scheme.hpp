@@ -113,6 +113,7 @@ private:
   void regrid();
   std::int64_t locate(bool regridding, std::string& message, std::int64_t& key);
   void exchange_and_rows();
+  void half_stencil_rows(const std::array<int, 3>& nc, double prox);
   void run_batch(std::size_t which, bool record);
   bool attempt(bool record);
 
@@ -164,6 +165,8 @@ private:
   std::vector<std::uint32_t> off_, mid_, nb_, cell_start_, cell_items_, scratch_own_,
       scratch_other_;
   std::vector<std::array<int, 3>> cc_; // cell coordinates of each local particle
+  std::vector<std::uint32_t> pair_a_, pair_b_, fill_other_;
+  std::array<std::vector<double>, 5> sorted_; // x, y, z, radius, speed in cell order
   std::vector<unsigned char> near_;
   // State at the start of the sub-iteration: what other leaves read, and the rollback point.
   std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_;

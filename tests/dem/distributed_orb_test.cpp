@@ -206,6 +206,14 @@ TEST(DistributedOrb, DenseGasMatchesSerialOrbBitwise) {
   EXPECT_GT(d.max_overlap_ratio, 0.0); // particles collided
 }
 
+TEST(DistributedOrb, BoxOfTwoCellsMatchesSerialOrbBitwise) {
+  // Two cells of the cutoff per axis: the rows come from the full stencil, images collapsed.
+  const Scene scene = scene_from(kGas, {"domain.hi=[0.4e-3, 0.4e-3, 0.4e-3]", "particles.count=20",
+                                        "partition.orb_levels=2"});
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "box of two cells");
+}
+
 TEST(DistributedOrb, HcsMatchesSerialOrbBitwise) {
   const Scene scene = scene_from(kHcs);
   const DistributedRun d = distributed_orb(scene, kSubits, 1);

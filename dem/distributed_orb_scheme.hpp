@@ -14,20 +14,23 @@
 //      separations take OrbScheme's minimum-image arithmetic bit for bit; ghosts are read frozen
 //      for the whole sub-iteration, as OrbScheme reads particles of other leaves, and so are
 //      this rank's other leaves; the owned particles are ordered by (leaf, id);
-//   4. rows of the owned particles from a cell list over owned + ghosts (fresh at every
-//      sub-iteration, cut at the contact distance + skin), the proximity (or time-to-contact)
-//      test of each leaf, exact, then K velocity-Verlet steps per leaf with OrbScheme's
-//      per-pair and kick-drift arithmetic (contact_kernels.hpp, kick_drift_range.hpp). Rows sum
-//      own-leaf partners by id, then other partners by id: OrbScheme's order, so with the same
-//      leaves the result is OrbScheme's bit for bit, whatever the rank and thread counts;
-//   5. one reduction of the counters and flags, the particle count among them (none may be
+//   3. rows of the owned particles from a cell list over owned + ghosts (fresh at every
+//      sub-iteration, each local pair tested once, cut at the contact distance + skin), the
+//      proximity (or time-to-contact) test of each leaf, exact, then K velocity-Verlet steps
+//      per leaf with OrbScheme's per-pair and kick-drift arithmetic (contact_kernels.hpp,
+//      kick_drift_range.hpp). Rows sum own-leaf partners by id, then other partners by id:
+//      OrbScheme's order, so with the same leaves the result is OrbScheme's bit for bit,
+//      whatever the rank and thread counts (consecutive leaves with the same step run as one
+//      TBB task, OrbScheme's batches);
+//   4. one reduction of the counters and flags, the particle count among them (none may be
 //      lost): a fine leaf that moved a particle more than skin/2 (its rows may miss a pair)
 //      makes every rank roll back and redo the sub-iteration with twice the skin (retries()); a
 //      NaN or a particle through a wall stops every rank with the same RunError.
 // So a sub-iteration costs one all-to-all of counts, one exchange of particles between
 // neighbouring ranks and one allreduce (with time_to_contact, one more for the largest reach),
 // plus the parallel ORB's reductions at a regrid.
-// Frictionless, no external force, no gas (as the explicit distributed scheme, so far).
+// Frictionless, no external force, no gas (as the explicit distributed scheme, so far). With more
+// ranks than leaves some ranks own none (they still take part in every collective).
 #pragma once
 
 #include <array>

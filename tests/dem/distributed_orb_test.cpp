@@ -134,7 +134,7 @@ State serial_orb(const Scene& scene, int subits) {
 struct DistributedRun {
   State owned; // this rank's particles at the end
   double fine_fraction = 0.0, max_overlap_ratio = 0.0;
-  std::int64_t pair_evaluations = 0, particle_steps = 0;
+  std::int64_t pair_evaluations = 0, particle_steps = 0, retries = 0;
 };
 
 // The distributed scheme on `threads` TBB threads; at every sub-iteration the particles over all
@@ -175,6 +175,7 @@ DistributedRun distributed_orb(const Scene& scene, int subits, int threads) {
   r.fine_fraction = s.take_interval_stats().fine_fraction;
   r.pair_evaluations = s.pair_evaluations();
   r.max_overlap_ratio = s.max_overlap_ratio();
+  r.retries = s.retries();
   r.particle_steps = s.particle_steps();
   return r;
 }
@@ -223,6 +224,15 @@ TEST(DistributedOrb, HcsMatchesSerialOrbBitwise) {
   EXPECT_GT(d.fine_fraction, 0.0);
   EXPECT_LT(d.fine_fraction, 1.0);
   EXPECT_GT(d.pair_evaluations, 0);
+}
+
+TEST(DistributedOrb, RetriesWithLongSubiterationsMatchSerialOrbBitwise) {
+  // dt_sp = 50 us: fine leaves outrun their rows and redo sub-iterations with a larger skin.
+  const Scene scene = scene_from(kHcs, {"dem.regrid_interval=2.0e-4", "dem.nsubit=4",
+                                        "particles.temperature=0.05"});
+  const DistributedRun d = distributed_orb(scene, kSubits, 1);
+  expect_bitwise(serial_orb(scene, kSubits), d.owned, "retries");
+  EXPECT_GT(d.retries, 0);
 }
 
 TEST(DistributedOrb, CostWeightsMatchSerialOrbBitwise) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -385,34 +386,40 @@ void DistributedOrbScheme::half_stencil_rows(const std::array<int, 3>& nc, doubl
     sx[k] = p_.x[i], sy[k] = p_.y[i], sz[k] = p_.z[i], sr[k] = p_.radius[i];
     ss[k] = ttc ? speed_[i] : 0.0;
   }
-  pair_a_.clear(), pair_b_.clear();
+  // Slabs of cells along z are TBB tasks, each with its own pair lists, joined in slab order
+  // (the rows are sorted by id below, so neither the slabs nor the threads change a result).
+  // A flag set from two slabs is set to the same value: an atomic store, no race.
   unsigned char* near = near_.data();
-  auto test = [&](std::uint32_t a, std::uint32_t b) {
-    const std::uint32_t i = items[a], j = items[b];
-    if (i >= n_own && j >= n_own) return; // two ghosts: neither row is this rank's
-    const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
-                 dz = g.image(sz[b] - sz[a], 2);
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    const double rs = sr[a] + sr[b];
-    if (r2 < (rs + skin) * (rs + skin)) pair_a_.push_back(i), pair_b_.push_back(j);
-    bool close;
-    if (ttc) {
-      const double reach = rs + (ss[a] + ss[b]) * dt_sp;
-      close = r2 < reach * reach;
-    } else {
-      const double d = prox * rs;
-      close = r2 < d * d;
-    }
-    if (close) {
-      if (i < n_own) near[i] = 1;
-      if (j < n_own) near[j] = 1;
-    }
-  };
+  const auto slabs = static_cast<std::size_t>(nc[2]);
+  if (slab_pairs_.size() < slabs) slab_pairs_.resize(slabs);
   static constexpr int kForward[13][3] = {{1, 0, 0},   {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
                                           {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
                                           {0, 0, 1},   {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
                                           {1, 1, 1}};
-  for (int cz = 0; cz < nc[2]; ++cz)
+  auto slab = [&](int cz) {
+    std::vector<std::uint32_t>& out = slab_pairs_[static_cast<std::size_t>(cz)];
+    out.clear();
+    auto test = [&](std::uint32_t a, std::uint32_t b) {
+      const std::uint32_t i = items[a], j = items[b];
+      if (i >= n_own && j >= n_own) return; // two ghosts: neither row is this rank's
+      const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
+                   dz = g.image(sz[b] - sz[a], 2);
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      const double rs = sr[a] + sr[b];
+      if (r2 < (rs + skin) * (rs + skin)) out.push_back(i), out.push_back(j);
+      bool close;
+      if (ttc) {
+        const double reach = rs + (ss[a] + ss[b]) * dt_sp;
+        close = r2 < reach * reach;
+      } else {
+        const double d = prox * rs;
+        close = r2 < d * d;
+      }
+      if (close) {
+        if (i < n_own) std::atomic_ref<unsigned char>(near[i]).store(1, std::memory_order_relaxed);
+        if (j < n_own) std::atomic_ref<unsigned char>(near[j]).store(1, std::memory_order_relaxed);
+      }
+    };
     for (int cy = 0; cy < nc[1]; ++cy)
       for (int cx = 0; cx < nc[0]; ++cx) {
         const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
@@ -434,6 +441,17 @@ void DistributedOrbScheme::half_stencil_rows(const std::array<int, 3>& nc, doubl
             for (std::uint32_t b = start[d]; b < start[d + 1]; ++b) test(a, b);
         }
       }
+  };
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, nc[2], 1),
+      [&](const tbb::blocked_range<int>& r) {
+        for (int cz = r.begin(); cz != r.end(); ++cz) slab(cz);
+      },
+      tbb::simple_partitioner{});
+  pair_a_.clear(), pair_b_.clear();
+  for (std::size_t z = 0; z < slabs; ++z)
+    for (std::size_t k = 0; k < slab_pairs_[z].size(); k += 2)
+      pair_a_.push_back(slab_pairs_[z][k]), pair_b_.push_back(slab_pairs_[z][k + 1]);
   // Rows of the owned ends: own-leaf partners first, then the others.
   std::vector<std::uint32_t>& own_count = scratch_own_;
   own_count.assign(owned_, 0);

@@ -169,6 +169,7 @@ private:
       scratch_other_;
   std::vector<std::array<int, 3>> cc_; // cell coordinates of each local particle
   std::vector<std::uint32_t> pair_a_, pair_b_, fill_other_;
+  std::vector<std::vector<std::uint32_t>> slab_pairs_; // per z slab of cells: pairs (i, j)
   std::array<std::vector<double>, 5> sorted_; // x, y, z, radius, speed in cell order
   std::vector<unsigned char> near_;
   // State at the start of the sub-iteration: what other leaves read, and the rollback point.

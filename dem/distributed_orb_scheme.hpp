@@ -46,6 +46,7 @@
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/orb_local_rows.hpp"
 #include "dem/orb_scheme.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -116,7 +117,6 @@ private:
   void regrid();
   std::int64_t locate(bool regridding, std::string& message, std::int64_t& key);
   void exchange_and_rows();
-  void half_stencil_rows(const std::array<int, 3>& nc, double prox);
   void run_batch(std::size_t which, bool record);
   bool attempt(bool record);
 
@@ -127,7 +127,7 @@ private:
     bool fine = false;
   };
   // A run of consecutive owned leaves with the same step, advanced as one TBB task: [b, e) in the
-  // store, rows active_[a0, a1) (OrbScheme's batches), and the results of its last attempt.
+  // store, rows rows_.active()[a0, a1) (OrbScheme's batches), and the results of its last attempt.
   struct Batch {
     std::uint32_t b = 0, e = 0, a0 = 0, a1 = 0;
     std::int64_t K = 1, violations = 0;
@@ -163,15 +163,7 @@ private:
   std::vector<std::uint32_t> ranges_;
   std::vector<LeafRun> runs_;
   std::vector<Batch> batches_;
-  std::vector<std::uint32_t> active_; // owned particles with a non-empty row
-  // Rows of the owned particles: own-leaf partners [off_[i], mid_[i]), others to off_[i+1].
-  std::vector<std::uint32_t> off_, mid_, nb_, cell_start_, cell_items_, scratch_own_,
-      scratch_other_;
-  std::vector<std::array<int, 3>> cc_; // cell coordinates of each local particle
-  std::vector<std::uint32_t> pair_a_, pair_b_, fill_other_;
-  std::vector<std::vector<std::uint32_t>> slab_pairs_; // per z slab of cells: pairs (i, j)
-  std::array<std::vector<double>, 5> sorted_; // x, y, z, radius, speed in cell order
-  std::vector<unsigned char> near_;
+  OrbLocalRows rows_; // of the owned particles, rebuilt at every sub-iteration
   // State at the start of the sub-iteration: what other leaves read, and the rollback point.
   std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;

@@ -159,35 +159,41 @@ void DistributedOrbScheme::exchange_and_rows() {
     const auto leaves = tree.leaves();
     std::vector<ParticleExchange::Copy> copies;
     std::vector<int> ranks;
-    // A leaf whose halo touches only leaves of its own rank (periodic images included) sends
-    // no ghost of the particles that stay with that rank: most leaves, so most queries go.
-    const int me = comm_.rank();
-    leaf_alone_.assign(leaves.size(), 0);
-    for (std::size_t l = 0; l < leaves.size(); ++l) {
-      if (decomposition_.owner[l] != me) continue;
-      partition::Aabb q = leaves[l].box;
-      for (int a = 0; a < 3; ++a) q.lo[a] -= cutoff, q.hi[a] += cutoff;
-      bool alone = true;
-      for (const int o : tree.leaves_overlapping(q, geom_.periodic))
-        alone = alone && decomposition_.owner[static_cast<std::size_t>(o)] == me;
-      leaf_alone_[l] = alone;
-    }
+    // Per leaf holding a particle here, the (leaf, periodic image) pairs of other ranks than its
+    // owner within the cutoff of its box: a particle's halo lies inside its leaf's, and it goes
+    // to the leaf's owner, so only those can need its ghost. Most leaves have none.
+    near_leaves_.resize(leaves.size());
+    near_known_.assign(leaves.size(), 0);
+    auto candidates = [&](std::uint32_t l) -> const std::vector<partition::LeafImage>& {
+      if (!near_known_[l]) {
+        near_known_[l] = 1;
+        near_leaves_[l].clear();
+        partition::Aabb q = leaves[l].box;
+        for (int a = 0; a < 3; ++a) q.lo[a] -= cutoff, q.hi[a] += cutoff;
+        for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic))
+          if (decomposition_.owner[static_cast<std::size_t>(li.leaf)] != decomposition_.owner[l])
+            near_leaves_[l].push_back(li);
+      }
+      return near_leaves_[l];
+    };
     for (std::size_t i = 0; i < owned_; ++i) {
-      if (dest_[i] == me && leaf_alone_[leaf_of_[i]]) continue;
+      const std::vector<partition::LeafImage>& cand = candidates(leaf_of_[i]);
+      if (cand.empty()) continue;
       const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
                            geom_.wrap(p_.z[i], 2)};
-      const partition::Aabb q{{w[0] - cutoff, w[1] - cutoff, w[2] - cutoff},
-                              {w[0] + cutoff, w[1] + cutoff, w[2] + cutoff}};
-      // A halo strictly inside the particle's own leaf reaches no other leaf and no image.
-      const partition::Aabb& b = leaves[leaf_of_[i]].box;
-      bool inside = true;
-      for (int a = 0; a < 3; ++a) inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
-      if (inside) continue;
       ranks.clear();
-      for (const int l : tree.leaves_overlapping(q, geom_.periodic)) {
-        const int r = decomposition_.owner[static_cast<std::size_t>(l)];
-        if (r != dest_[i] && std::find(ranks.begin(), ranks.end(), r) == ranks.end())
-          ranks.push_back(r);
+      for (const partition::LeafImage& li : cand) {
+        const int r = decomposition_.owner[static_cast<std::size_t>(li.leaf)];
+        if (r == dest_[i] || std::find(ranks.begin(), ranks.end(), r) != ranks.end()) continue;
+        // Closed overlap of the particle's halo, seen through the image, with the leaf's box
+        // (OrbTree's test: conservative, a ghost too many costs only its copy).
+        const partition::Aabb& b = leaves[static_cast<std::size_t>(li.leaf)].box;
+        bool touch = true;
+        for (int a = 0; a < 3; ++a) {
+          const double s = static_cast<double>(li.shift[a]) * geom_.length[a];
+          touch = touch && w[a] - cutoff + s <= b.hi[a] && w[a] + cutoff + s >= b.lo[a];
+        }
+        if (touch) ranks.push_back(r);
       }
       for (const int r : ranks) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
     }

@@ -156,7 +156,10 @@ private:
   std::vector<double> hprev_, cost_;
   std::vector<std::uint32_t> leaf_of_;
   std::vector<int> dest_; // per owned particle: the rank it goes to
-  std::vector<unsigned char> leaf_alone_; // per leaf: its halo touches only this rank's leaves
+  // Per leaf: leaves of other ranks than its owner (with the periodic image) within the cutoff
+  // of its box, found when first needed in a sub-iteration.
+  std::vector<std::vector<partition::LeafImage>> near_leaves_;
+  std::vector<unsigned char> near_known_;
   std::vector<double> speed_; // time_to_contact: speed bound, owned and ghosts
   // This rank's non-empty leaves: leaf ids_[k] owns [ranges_[k], ranges_[k+1]).
   std::vector<int> ids_;

@@ -58,9 +58,13 @@ void OrbLocalRows::build(const Input& in) {
   cell_items_.resize(n);
   {
     std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
-    for (std::size_t i = 0; i < n; ++i)
-      cell_items_[fill[(static_cast<std::size_t>(cc_[i][2]) * nc[1] + cc_[i][1]) * nc[0] +
-                       cc_[i][0]]++] = static_cast<std::uint32_t>(i);
+    cell_has_owned_.assign(ncell, 0);
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t c =
+          (static_cast<std::size_t>(cc_[i][2]) * nc[1] + cc_[i][1]) * nc[0] + cc_[i][0];
+      cell_items_[fill[c]++] = static_cast<std::uint32_t>(i);
+      cell_has_owned_[c] |= i < owned;
+    }
   }
   // Rows: own-leaf partners, then the others, each by id (OrbScheme's summation order); the
   // proximity flag of each owned particle, exact (OrbScheme's tests, the same expressions).
@@ -150,6 +154,7 @@ void OrbLocalRows::half_stencil(const Input& in, const std::array<int, 3>& nc) {
   const bool ttc = in.ttc;
   const std::uint32_t* items = cell_items_.data();
   const std::uint32_t* start = cell_start_.data();
+  const unsigned char* has_owned = cell_has_owned_.data();
   for (auto& v : sorted_) v.resize(n);
   double* sx = sorted_[0].data();
   double* sy = sorted_[1].data();
@@ -200,8 +205,10 @@ void OrbLocalRows::half_stencil(const Input& in, const std::array<int, 3>& nc) {
         const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
         const std::uint32_t c0 = start[c], c1 = start[c + 1];
         if (c0 == c1) continue;
-        for (std::uint32_t a = c0; a < c1; ++a)
-          for (std::uint32_t b = a + 1; b < c1; ++b) test(a, b);
+        const bool mine = has_owned[c] != 0; // cells of ghosts only meet only through owned cells
+        if (mine)
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = a + 1; b < c1; ++b) test(a, b);
         for (const auto& o : kForward) {
           int q[3] = {cx + o[0], cy + o[1], cz + o[2]};
           bool skip = false;
@@ -212,6 +219,7 @@ void OrbLocalRows::half_stencil(const Input& in, const std::array<int, 3>& nc) {
             }
           if (skip) continue;
           const std::size_t d = (static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0];
+          if (!mine && !has_owned[d]) continue;
           for (std::uint32_t a = c0; a < c1; ++a)
             for (std::uint32_t b = start[d]; b < start[d + 1]; ++b) test(a, b);
         }

@@ -52,7 +52,7 @@ private:
   std::vector<std::array<int, 3>> cc_;                 // cell coordinates of each local particle
   std::vector<std::vector<std::uint32_t>> slab_pairs_; // per z slab of cells: pairs (i, j)
   std::array<std::vector<double>, 5> sorted_;          // x, y, z, radius, speed in cell order
-  std::vector<unsigned char> near_;
+  std::vector<unsigned char> near_, cell_has_owned_;
 };
 
 } // namespace cfddem::dem

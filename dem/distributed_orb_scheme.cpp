@@ -21,7 +21,6 @@ namespace cfddem::dem {
 
 namespace {
 enum : int { kNoFault = 0, kNaN = 1, kLeftDomain = 2 };
-
 } // namespace
 
 DistributedOrbScheme::DistributedOrbScheme(const Scene& scene, ParticleStore& particles,
@@ -257,7 +256,7 @@ void DistributedOrbScheme::exchange_and_rows() {
   }
 }
 
-// Batch q's K local steps: OrbScheme::run_batch_impl's arithmetic (without an external force),
+// Batch `which`'s K local steps: OrbScheme::run_batch_impl's arithmetic (without an external force),
 // own-leaf partners read live, every other partner from the copies at the sub-iteration start.
 void DistributedOrbScheme::run_batch(std::size_t which, bool record) {
   Batch& bt = batches_[which];

@@ -14,7 +14,8 @@ particles, particle steps, leaf steps, fine-leaf fraction) agree exactly; force 
 neighbor builds are counted over this scheme's own lists (rebuilt each sub-iteration) and are
 not compared. Then 2N sub-iterations on R ranks vs N + checkpoint + restart + N on R ranks:
 diagnostics (all but wall_seconds) and the final snapshot bitwise equal; the same checkpoint
-restarted on one rank ends with the same particles bit for bit.
+restarted on one rank ends with the same particles bit for bit. A failing run stops every rank
+with exit code 3 and one message.
 """
 import csv
 import json
@@ -128,6 +129,21 @@ def restart_is_exact():
           f"on 1 rank, the same final particles)")
 
 
+def failure_stops_every_rank():
+    """A sub-iteration too long for the skin (a particle outruns even the largest skin) stops the
+    R-rank run with exit code 3 and one message, well within the timeout (no rank left waiting)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [MPIEXEC, "-np", str(RANKS), "--oversubscribe", CFDDEM, "run", SCENE, "--out", tmp,
+               "dem.scheme=orb", "dem.nsubit=1", "dem.regrid_interval=5e-4",
+               "particles.temperature=1.0", "run.end_time=0.01", "--threads", "1", "--quiet"]
+        r = subprocess.run(cmd, env=ENV, timeout=60, capture_output=True, text=True)
+    assert r.returncode == 3, (r.returncode, r.stderr[-2000:])
+    assert r.stderr.count("cfddem: run stopped:") == 1, r.stderr[-2000:]
+    assert "raise dem.nsubit" in r.stderr, r.stderr[-2000:]
+    print(f"orb, {RANKS} ranks: a failing run stops with exit code 3 and one message")
+
+
 if __name__ == "__main__":
     matches_one_rank()
     restart_is_exact()
+    failure_stops_every_rank()

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <stdexcept>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -133,7 +134,9 @@ void DistributedOrbScheme::exchange_and_rows() {
     speed_.resize(owned_);
     double reach = 0.0;
     for (std::size_t i = 0; i < owned_; ++i) {
-      const double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
+      double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
+      if (ext_on_)
+        ax += ex_[i] * p_.inv_mass[i], ay += ey_[i] * p_.inv_mass[i], az += ez_[i] * p_.inv_mass[i];
       speed_[i] = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]) +
                   std::sqrt(ax * ax + ay * ay + az * az) * (hprev_[i] + dt_sp_);
       reach = std::max(reach, speed_[i] * dt_sp_);
@@ -198,8 +201,10 @@ void DistributedOrbScheme::exchange_and_rows() {
     }
     std::vector<double> leaf(owned_);
     for (std::size_t i = 0; i < owned_; ++i) leaf[i] = static_cast<double>(leaf_of_[i]);
-    std::vector<double>* extra[] = {&hprev_, &cost_, &leaf, &speed_};
+    std::vector<std::vector<double>*> extra{&hprev_, &cost_, &leaf, &speed_};
+    if (ext_on_) extra.insert(extra.end(), {&ex_, &ey_, &ez_});
     owned_ = exchange_.redistribute(p_, dest_, std::move(copies), extra);
+    if (ext_on_) ex_.resize(owned_), ey_.resize(owned_), ez_.resize(owned_);
     hprev_.resize(owned_), cost_.resize(owned_);
     leaf_of_.resize(owned_);
     for (std::size_t i = 0; i < owned_; ++i) leaf_of_[i] = static_cast<std::uint32_t>(leaf[i]);
@@ -227,6 +232,7 @@ void DistributedOrbScheme::exchange_and_rows() {
     };
     permute(hprev_, owned_), permute(cost_, owned_), permute(leaf_of_, owned_);
     permute(speed_, owned_);
+    if (ext_on_) permute(ex_, owned_), permute(ey_, owned_), permute(ez_, owned_);
   }
   ids_.clear();
   ranges_.assign(1, 0);
@@ -256,9 +262,14 @@ void DistributedOrbScheme::exchange_and_rows() {
   }
 }
 
-// Batch `which`'s K local steps: OrbScheme::run_batch_impl's arithmetic (without an external force),
-// own-leaf partners read live, every other partner from the copies at the sub-iteration start.
 void DistributedOrbScheme::run_batch(std::size_t which, bool record) {
+  ext_on_ ? run_batch_impl<true>(which, record) : run_batch_impl<false>(which, record);
+}
+
+// Batch `which`'s K local steps: OrbScheme::run_batch_impl's arithmetic, own-leaf partners read
+// live, every other partner from the copies at the sub-iteration start. With External, the
+// external force is added to the contact force in every kick and in the synchronised velocity.
+template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t which, bool record) {
   Batch& bt = batches_[which];
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = kNoFault;
   const std::uint32_t b = bt.b, e = bt.e;
@@ -283,6 +294,9 @@ void DistributedOrbScheme::run_batch(std::size_t which, bool record) {
   const double* __restrict rad = p_.radius.data();
   const double* __restrict mass = p_.mass.data();
   const double* __restrict im = p_.inv_mass.data();
+  const double* __restrict fex = External ? ex_.data() : nullptr;
+  const double* __restrict fey = External ? ey_.data() : nullptr;
+  const double* __restrict fez = External ? ez_.data() : nullptr;
   const std::uint32_t* __restrict off = rows_.off().data();
   const std::uint32_t* __restrict mid = rows_.mid().data();
   const std::uint32_t* __restrict nb = rows_.nb().data();
@@ -341,25 +355,33 @@ void DistributedOrbScheme::run_batch(std::size_t which, bool record) {
     }
     if (record && step == 0)
       for (std::uint32_t i = b; i < e; ++i) {
-        svx_[i] = vx[i] + (fx[i] * im[i] + m.gravity[0]) * hp[i];
-        svy_[i] = vy[i] + (fy[i] * im[i] + m.gravity[1]) * hp[i];
-        svz_[i] = vz[i] + (fz[i] * im[i] + m.gravity[2]) * hp[i];
+        if constexpr (External) {
+          svx_[i] = vx[i] + ((fx[i] + fex[i]) * im[i] + m.gravity[0]) * hp[i];
+          svy_[i] = vy[i] + ((fy[i] + fey[i]) * im[i] + m.gravity[1]) * hp[i];
+          svz_[i] = vz[i] + ((fz[i] + fez[i]) * im[i] + m.gravity[2]) * hp[i];
+        } else {
+          svx_[i] = vx[i] + (fx[i] * im[i] + m.gravity[0]) * hp[i];
+          svy_[i] = vy[i] + (fy[i] * im[i] + m.gravity[1]) * hp[i];
+          svz_[i] = vz[i] + (fz[i] * im[i] + m.gravity[2]) * hp[i];
+        }
       }
     const double half = 0.5 * hk;
     std::uint64_t still = ~std::uint64_t{0};
     // The reference of the skin test is the position at the sub-iteration start (the rows are
     // built there).
     if (step == 0) {
-      kick_drift_range<false, true>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
-                                    fz + b, nullptr, nullptr, nullptr, im + b, gx + b, gy + b,
-                                    gz + b, e - b, 0.0, 0.0, 0.0, 0.0, hk, half_skin2, still,
-                                    hp + b, half, m.gravity.data());
+      kick_drift_range<External, true>(
+          x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
+          External ? fex + b : nullptr, External ? fey + b : nullptr,
+          External ? fez + b : nullptr, im + b, gx + b, gy + b, gz + b, e - b, 0.0, 0.0, 0.0,
+          0.0, hk, half_skin2, still, hp + b, half, m.gravity.data());
     } else {
       const double s = 0.5 * h_before + half;
-      kick_drift_range<false>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
-                              nullptr, nullptr, nullptr, im + b, gx + b, gy + b, gz + b, e - b, s,
-                              m.gravity[0] * s, m.gravity[1] * s, m.gravity[2] * s, hk,
-                              half_skin2, still);
+      kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
+                                 fz + b, External ? fex + b : nullptr,
+                                 External ? fey + b : nullptr, External ? fez + b : nullptr,
+                                 im + b, gx + b, gy + b, gz + b, e - b, s, m.gravity[0] * s,
+                                 m.gravity[1] * s, m.gravity[2] * s, hk, half_skin2, still);
       if (step + 1 == bt.K)
         for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
     }
@@ -566,6 +588,21 @@ void DistributedOrbScheme::subiterate(bool record) {
   // records the last sub-iteration): one reduction per sub-iteration is the budget.
   if (record) max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(ratio_));
   ++subits_;
+}
+
+void DistributedOrbScheme::set_external_force(std::span<const double> fx,
+                                              std::span<const double> fy,
+                                              std::span<const double> fz) {
+  // On when any rank passes values (a rank without particles passes empty spans): the columns
+  // that travel with the particles must be the same on every rank.
+  const bool on = comm_.max(fx.empty() ? 0.0 : 1.0) > 0.0;
+  const bool fits = on ? fx.size() == owned_ && fy.size() == owned_ && fz.size() == owned_
+                       : fy.empty() && fz.empty();
+  if (comm_.max(fits ? 0.0 : 1.0) > 0.0)
+    throw std::invalid_argument("set_external_force: one value per owned particle expected");
+  ext_on_ = on;
+  ex_.assign(fx.begin(), fx.end()), ey_.assign(fy.begin(), fy.end());
+  ez_.assign(fz.begin(), fz.end());
 }
 
 LeafStepStats DistributedOrbScheme::take_interval_stats() {

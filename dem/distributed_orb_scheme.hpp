@@ -29,7 +29,8 @@
 // So a sub-iteration costs one all-to-all of counts, one exchange of particles between
 // neighbouring ranks and one allreduce (with time_to_contact, one more for the largest reach),
 // plus the parallel ORB's reductions at a regrid.
-// Frictionless, no external force, no gas (as the explicit distributed scheme, so far). With more
+// Frictionless. An external force per particle (the gas's) travels with its particle; the gas
+// itself is not distributed here (apps refuse a [fluid] table on R > 1 ranks). With more
 // ranks than leaves some ranks own none (they still take part in every collective).
 #pragma once
 
@@ -96,6 +97,13 @@ public:
   std::size_t owned() const { return owned_; }
   std::size_t ghosts() const { return p_.size() - owned_; }
 
+  // Collective. A per-particle external force [N] (the gas's), as OrbScheme's: one value per
+  // owned particle in the store's current order ([0, owned())), held fixed until set again,
+  // following its particle through migrations and re-sorts; empty spans on every rank remove it
+  // (a rank without particles passes empty spans either way).
+  void set_external_force(std::span<const double> fx, std::span<const double> fy,
+                          std::span<const double> fz);
+
   // Collective: statistics over all ranks since the last call (then reset).
   LeafStepStats take_interval_stats();
 
@@ -118,6 +126,7 @@ private:
   std::int64_t locate(bool regridding, std::string& message, std::int64_t& key);
   void exchange_and_rows();
   void run_batch(std::size_t which, bool record);
+  template <bool External> void run_batch_impl(std::size_t which, bool record);
   bool attempt(bool record);
 
   // Per owned leaf: its step count and length, whether fine, force evaluations per step.
@@ -161,6 +170,8 @@ private:
   std::vector<std::vector<partition::LeafImage>> near_leaves_;
   std::vector<unsigned char> near_known_;
   std::vector<double> speed_; // time_to_contact: speed bound, owned and ghosts
+  bool ext_on_ = false;       // set_external_force: on for every rank alike
+  std::vector<double> ex_, ey_, ez_; // per owned particle
   // This rank's non-empty leaves: leaf ids_[k] owns [ranges_[k], ranges_[k+1]).
   std::vector<int> ids_;
   std::vector<std::uint32_t> ranges_;

@@ -119,11 +119,27 @@ ParticleStore share(const ParticleStore& all, int rank, int ranks) {
   return p;
 }
 
-State serial_orb(const Scene& scene, int subits) {
+// An external force per particle, a function of its id (the gas's force, held fixed): N.
+std::array<double, 3> force_of(std::int64_t id) {
+  return {1e-7 * static_cast<double>(id % 5 - 2), -2e-7 * static_cast<double>(id % 3),
+          5e-8 * static_cast<double>(id % 7 - 3)};
+}
+
+void apply_force(const ParticleStore& p, std::size_t n, auto& scheme) {
+  std::vector<double> fx(n), fy(n), fz(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto f = force_of(p.id[i]);
+    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+  }
+  scheme.set_external_force(fx, fy, fz);
+}
+
+State serial_orb(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);
   PhaseTimer timer;
   dem::OrbScheme s(scene, p, timer);
   s.start();
+  if (external) apply_force(p, p.size(), s);
   for (int k = 0; k < subits; ++k) s.subiterate();
   State out;
   for (std::size_t i = 0; i < p.size(); ++i)
@@ -140,7 +156,8 @@ struct DistributedRun {
 // The distributed scheme on `threads` TBB threads; at every sub-iteration the particles over all
 // ranks are counted and identified (count, sum of ids, sum of squared ids: none lost, none
 // twice) and their total mass compared with the initial one.
-DistributedRun distributed_orb(const Scene& scene, int subits, int threads) {
+DistributedRun distributed_orb(const Scene& scene, int subits, int threads,
+                               bool external = false) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   const Communicator c = Communicator::world();
@@ -150,6 +167,7 @@ DistributedRun distributed_orb(const Scene& scene, int subits, int threads) {
   PhaseTimer timer;
   dem::DistributedOrbScheme s(scene, p, model, c, timer);
   s.start();
+  if (external) apply_force(p, s.owned(), s);
   std::array<std::int64_t, 3> expect{};
   for (const std::int64_t id : all.id) expect[0] += 1, expect[1] += id, expect[2] += id * id;
   const double mass0 = all.total_mass();
@@ -246,6 +264,19 @@ TEST(DistributedOrb, WallsAndGravityMatchSerialOrbBitwise) {
   const Scene scene = scene_from(kWalls);
   expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
                  "walls and gravity");
+}
+
+TEST(DistributedOrb, ExternalForceFollowsItsParticleAndMatchesSerialOrbBitwise) {
+  // The force set once at the start travels with each particle through 8 regrids and their
+  // migrations; with time_to_contact it also enters the speed bounds.
+  for (const char* rule : {"proximity", "time_to_contact"}) {
+    const Scene scene = scene_from(kWalls, {std::string("dem.local_dt=\"") + rule + "\""});
+    expect_bitwise(serial_orb(scene, kSubits, true), distributed_orb(scene, kSubits, 1, true).owned,
+                   std::string("external force, ") + rule);
+  }
+  // And it matters: without it the particles end elsewhere.
+  const Scene scene = scene_from(kWalls);
+  EXPECT_NE(serial_orb(scene, kSubits, true), serial_orb(scene, kSubits, false));
 }
 
 TEST(DistributedOrb, TimeToContactMatchesSerialOrbBitwise) {

@@ -165,6 +165,89 @@ std::size_t ParticleExchange::migrate(ParticleStore& p, std::span<const int> des
   return received;
 }
 
+std::size_t ParticleExchange::redistribute(ParticleStore& p, std::span<const int> dest,
+                                           std::vector<Copy> ghosts,
+                                           std::span<std::vector<double>* const> extra) {
+  const int ranks = comm_.size(), me = comm_.rank();
+  const std::size_t n = p.size();
+  if (dest.size() != n)
+    throw std::invalid_argument("ParticleExchange::redistribute: one destination per particle");
+  for (const std::vector<double>* e : extra)
+    if (e->size() != n)
+      throw std::invalid_argument("ParticleExchange::redistribute: an extra column of the wrong "
+                                  "size");
+  for (const Copy& c : ghosts)
+    if (c.rank < 0 || c.rank >= ranks || c.index >= n)
+      throw std::invalid_argument("ParticleExchange::redistribute: bad ghost rank or index");
+  // Per destination rank: its owned arrivals, then its ghosts (a flag travels with each).
+  std::vector<std::vector<std::uint32_t>> own_to(static_cast<std::size_t>(ranks));
+  std::vector<std::uint32_t> keep;
+  keep.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (dest[i] < 0 || dest[i] >= ranks)
+      throw std::invalid_argument("ParticleExchange::redistribute: destination rank out of range");
+    if (dest[i] == me) {
+      keep.push_back(static_cast<std::uint32_t>(i));
+    } else {
+      own_to[static_cast<std::size_t>(dest[i])].push_back(static_cast<std::uint32_t>(i));
+    }
+  }
+  std::stable_sort(ghosts.begin(), ghosts.end(),
+                   [](const Copy& a, const Copy& b) { return a.rank < b.rank; });
+  const auto fields = carried(p);
+  const int stride = stride_of(p) + static_cast<int>(extra.size()) + 1;
+  std::vector<std::int64_t> counts(static_cast<std::size_t>(ranks), 0);
+  send_buf_.clear();
+  auto put = [&](std::uint32_t i, const std::array<double, 3>& shift, double ghost) {
+    pack(fields, p, i, shift, send_buf_);
+    for (const std::vector<double>* e : extra)
+      send_buf_.push_back((*e)[i]);
+    send_buf_.push_back(ghost);
+  };
+  std::size_t g = 0;
+  for (int r = 0; r < ranks; ++r) {
+    for (const std::uint32_t i : own_to[static_cast<std::size_t>(r)])
+      put(i, {0.0, 0.0, 0.0}, 0.0);
+    counts[static_cast<std::size_t>(r)] += static_cast<std::int64_t>(own_to[static_cast<std::size_t>(r)].size());
+    for (; g < ghosts.size() && ghosts[g].rank == r; ++g, ++counts[static_cast<std::size_t>(r)])
+      put(ghosts[g].index, ghosts[g].shift, 1.0);
+  }
+  std::vector<std::int64_t> recv_counts;
+  exchange(counts, send_buf_, recv_counts, recv_buf_, stride, false);
+  // Stayers, owned arrivals, ghosts; the extra columns alike.
+  std::size_t arrivals = 0, received = 0;
+  for (const std::int64_t c : recv_counts)
+    received += static_cast<std::size_t>(c);
+  for (std::size_t q = 0; q < received; ++q)
+    arrivals += recv_buf_[q * static_cast<std::size_t>(stride) + static_cast<std::size_t>(stride) - 1] == 0.0;
+  if (keep.size() != n) p.permute(keep); // nobody left: the store keeps its order
+  const std::size_t owned = keep.size() + arrivals;
+  for (std::vector<double>* e : extra) {
+    std::vector<double> col(owned + received - arrivals);
+    for (std::size_t k = 0; k < keep.size(); ++k)
+      col[k] = (*e)[keep[k]];
+    e->swap(col);
+  }
+  p.resize(owned + received - arrivals);
+  const std::size_t base = static_cast<std::size_t>(stride_of(p));
+  std::size_t next_owned = keep.size(), next_ghost = owned;
+  for (std::size_t q = 0; q < received; ++q) {
+    const double* in = recv_buf_.data() + q * static_cast<std::size_t>(stride);
+    const std::size_t at = in[stride - 1] == 0.0 ? next_owned++ : next_ghost++;
+    for (std::size_t k = 0; k < fields.size(); ++k)
+      (*fields[k])[at] = in[k];
+    p.id[at] = std::bit_cast<std::int64_t>(in[fields.size()]);
+    for (std::size_t k = 0; k < extra.size(); ++k)
+      (*extra[k])[at] = in[base + k];
+  }
+  plan_.clear();
+  send_counts_.assign(static_cast<std::size_t>(ranks), 0);
+  recv_counts_.assign(static_cast<std::size_t>(ranks), 0);
+  owned_ = owned;
+  recv_total_ = received - arrivals;
+  return owned;
+}
+
 std::size_t ParticleExchange::build_ghosts(ParticleStore& p, std::size_t owned,
                                            std::vector<Copy> copies) {
   const int ranks = comm_.size();

@@ -44,6 +44,16 @@ public:
   // its `owned` particles and append the received ghosts (by source rank, each in its sender's
   // order). Returns the number of ghosts.
   std::size_t build_ghosts(ParticleStore& p, std::size_t owned, std::vector<Copy> copies);
+  // Migration and fresh ghosts in one round of messages (the orb scheme's exchange at every
+  // sub-iteration, where both are rebuilt): local particle i goes to dest[i] as an owned particle
+  // (stays when dest[i] is this rank) and a copy of it to each rank in `ghosts` (which may name
+  // this rank, for a particle that leaves but stays within its halo). The store becomes: stayers
+  // in order, then owned arrivals by source rank, then the ghosts by source rank (each source's
+  // in its sender's order). `extra`: per-particle columns of the caller (one value per particle
+  // of the store) that travel and are laid out the same way. Returns the owned count. Drops any
+  // forward plan. Throws std::invalid_argument for a bad rank, index or column size.
+  std::size_t redistribute(ParticleStore& p, std::span<const int> dest, std::vector<Copy> ghosts,
+                           std::span<std::vector<double>* const> extra = {});
   // Refresh the ghosts' x and v from their owners along the plan (positions shifted again).
   void forward(ParticleStore& p) {
     forward_begin(p);

@@ -1,7 +1,8 @@
 // ORB over points spread across MPI ranks: every cut's weighted median is found with reductions
-// (bisection on the coordinate's bit pattern), and the cut itself with the serial build's rules
-// (orb_cut_rules.hpp), so all ranks agree on the tree and it is the serial tree of the union of
-// their points: bit for bit with unit weights, to the rounding of the weight sums otherwise.
+// (a 256-way search on the coordinate's bit pattern: one allreduce per 8 bits), and the cut itself
+// with the serial build's rules (orb_cut_rules.hpp), so all ranks agree on the tree and it is the
+// serial tree of the union of their points: bit for bit with unit or integer weights, to the
+// rounding of the weight sums otherwise.
 #pragma once
 
 #include <span>

@@ -32,5 +32,12 @@ struct RankDecomposition {
 [[nodiscard]] RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
                                           std::span<const double> y, std::span<const double> z,
                                           const Aabb& domain, int levels);
+// The same with a weight per particle (finite, >= 0; empty: each weighs 1) for both the ORB's
+// medians and the knapsack (the orb scheme's measured cost: particles x local steps). Integer
+// weights sum exactly, so the boxes are the serial ORB's for the same weights.
+[[nodiscard]] RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
+                                          std::span<const double> y, std::span<const double> z,
+                                          std::span<const double> weights, const Aabb& domain,
+                                          int levels);
 
 } // namespace cfddem::partition

@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
-"""Ranks x threads on one node: particle-steps/s of the explicit scheme for each layout.
+"""Ranks x threads on one node: particle-steps/s and loop time of a scheme for each layout.
 
     /usr/bin/python3 tools/mpi_compare.py [--scene scenes/hcs.toml] [--end-time 0.005]
         [--layouts 1x2,2x1] [--reps 3] [--csv tools/mpi_results/hcs.csv] [key=value ...]
     /usr/bin/python3 tools/mpi_compare.py --weak-per-core 50000 --layouts 1x1,2x1,4x1,...
 
 Each layout RxT runs `mpirun -np R --map-by ppr:R:node:pe=T --bind-to core cfddem run SCENE
---threads T` (1 rank: the serial ExplicitScheme; more: the distributed one) and reads run.json:
-particle_steps_per_second of the stepping loop, the MPI wait of the slowest rank and the load
-imbalance. The median of --reps runs is reported; the 1-minute load average before each run is
+--threads T` (1 rank: the serial ExplicitScheme; more: the distributed one; `dem.scheme=orb`
+among the overrides: OrbScheme, or the distributed orb) and reads run.json:
+particle_steps_per_second and loop_seconds of the stepping loop (compare schemes by the loop
+time: an orb particle step is not an explicit one), the MPI wait of the slowest rank and the
+load imbalance. The median of --reps runs is reported; the 1-minute load average before each run is
 recorded, since a busy machine makes the numbers meaningless. Efficiency: particle-steps/s per
 core over the first layout's per core (strong scaling: same scene; weak scaling with
 --weak-per-core N: scenes/hcs_small.toml with N particles per core at solid fraction --phi,
@@ -49,7 +51,7 @@ def main():
             side = (n * 3.141592653589793 / 6 * d**3 / a.phi) ** (1 / 3)
             scene = os.path.join(ROOT, "scenes", "hcs_small.toml")
             overrides += [f"particles.count={n}", f"domain.hi=[{side},{side},{side}]"]
-        rates, waits, imb, loads = [], [], [], []
+        rates, waits, imb, loads, loops = [], [], [], [], []
         for _ in range(a.reps):
             loads.append(os.getloadavg()[0])
             with tempfile.TemporaryDirectory() as out:
@@ -61,19 +63,22 @@ def main():
                 with open(os.path.join(out, "run.json")) as f:
                     j = json.load(f)
             rates.append(j["particle_steps_per_second"])
+            loops.append(j["loop_seconds"])
             waits.append(max(j.get("mpi_wait_seconds", [0.0])) / j["loop_seconds"])
             imb.append(j.get("load_imbalance_max", 1.0))
         row = {"ranks": ranks, "threads": threads, "cores": ranks * threads,
                "particles": j["particles"], "steps": j["steps"],
                "particle_steps_per_second": statistics.median(rates),
-               "min": min(rates), "max": max(rates),
+               "min": min(rates), "max": max(rates), "loop_seconds": statistics.median(loops),
+               "scheme": j.get("scheme", "explicit"),
                "mpi_wait_fraction": statistics.median(waits), "load_imbalance_max": max(imb),
                "load_average_max": max(loads)}
         base = rows[0] if rows else row
         row["efficiency"] = (row["particle_steps_per_second"] / row["cores"]) / (
             base["particle_steps_per_second"] / base["cores"])
         rows.append(row)
-        print(f"{ranks} rank(s) x {threads} thread(s): {row['particle_steps_per_second']:.4g} "
+        print(f"{ranks} rank(s) x {threads} thread(s), {row['scheme']}: loop {row['loop_seconds']:.3f} s, "
+              f"{row['particle_steps_per_second']:.4g} "
               f"particle-steps/s (min {row['min']:.4g}, max {row['max']:.4g}), MPI wait "
               f"{100 * row['mpi_wait_fraction']:.1f}% of the loop, imbalance "
               f"{row['load_imbalance_max']:.3f}, efficiency {row['efficiency']:.2f}, "

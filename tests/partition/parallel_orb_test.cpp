@@ -1,12 +1,15 @@
 // The parallel ORB gives every rank the serial tree of the union of all ranks' points (run under
 // mpirun with 1, 2 and 3 ranks by ctest).
+#include <algorithm>
 #include <cstring>
 #include <random>
 
 #include <gtest/gtest.h>
 #include <mpi.h>
 
+#include "core/communicator.hpp"
 #include "partition/parallel_orb.hpp"
+#include "partition/rank_decomposition.hpp"
 
 using namespace cfddem::partition;
 
@@ -92,4 +95,42 @@ TEST(ParallelOrb, SameCutsAsSerialSnappedToCells) {
 
 TEST(ParallelOrb, SameCutsAsSerialWithIntegerWeights) {
   expect_same_tree(3000, 6, false, true, {4, {}});
+}
+
+// decompose() with weights (the orb scheme's measured cost): the serial weighted tree on every
+// rank, and the knapsack balances the weights, not the counts: each rank's load is the weight of
+// its leaves, the loads add up to the total, and heavy clustered points do not land on one rank.
+TEST(RankDecomposition, WeightsGiveTheSerialTreeAndAWeightedKnapsack) {
+  const cfddem::Communicator comm = cfddem::Communicator::world();
+  const Aabb domain{{0.0, 0.0, 0.0}, {2.0, 1.0, 0.5}};
+  const Points g = global_points(3000, 8, true, true);
+  const Points l = local_share(g);
+  const int levels = 4;
+  const RankDecomposition d = decompose(comm, l.x, l.y, l.z, l.w, domain, levels);
+  const OrbTree serial = OrbTree::build(g.x, g.y, g.z, g.w, domain, {levels, {}});
+  ASSERT_EQ(d.tree.cuts().size(), serial.cuts().size());
+  for (std::size_t k = 0; k < serial.cuts().size(); ++k) {
+    EXPECT_EQ(d.tree.cuts()[k].axis, serial.cuts()[k].axis);
+    EXPECT_EQ(d.tree.cuts()[k].position, serial.cuts()[k].position);
+  }
+  std::vector<double> load(static_cast<std::size_t>(comm.size()), 0.0);
+  double total = 0.0;
+  for (std::size_t j = 0; j < serial.leaves().size(); ++j) {
+    load[static_cast<std::size_t>(d.owner[j])] += serial.leaves()[j].weight;
+    total += serial.leaves()[j].weight;
+  }
+  double sum = 0.0;
+  for (int r = 0; r < comm.size(); ++r) {
+    EXPECT_EQ(d.load[static_cast<std::size_t>(r)], load[static_cast<std::size_t>(r)]) << "rank " << r;
+    sum += d.load[static_cast<std::size_t>(r)];
+  }
+  EXPECT_EQ(sum, total);
+  // 16 leaves of nearly equal weight (the weighted medians): no rank holds more than its share
+  // plus one leaf.
+  const double leaf_max = [&] {
+    double m = 0.0;
+    for (const OrbLeaf& f : serial.leaves()) m = std::max(m, f.weight);
+    return m;
+  }();
+  for (const double q : d.load) EXPECT_LE(q, total / comm.size() + leaf_max);
 }

@@ -1,0 +1,58 @@
+// The rows of the distributed orb scheme (dem/distributed_orb_scheme.hpp): for each owned
+// particle of a rank, its contact candidates among the local particles (owned first, then ghost
+// copies at their unshifted positions) and whether some partner is close enough to make its leaf
+// take the fine step. Rebuilt at every sub-iteration from a cell list over the whole domain
+// (binned at wrapped positions, so unshifted ghosts across a periodic face are found through the
+// periodic stencil); each local pair is tested once, a pair of two ghosts not at all. Rows hold
+// the partners of the particle's own leaf first, then the others, each segment by particle id:
+// the summation order of OrbScheme's rows, which depends on the particles only.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "dem/domain_geometry.hpp"
+
+namespace cfddem::dem {
+
+class OrbLocalRows {
+public:
+  struct Input {
+    DomainGeometry geom;                       // the whole domain (minimum image)
+    std::span<const double> x, y, z, radius;   // owned then ghosts
+    std::span<const std::int64_t> id;          // owned then ghosts
+    std::span<const double> speed;             // with ttc: speed bound per local particle
+    std::span<const std::uint32_t> leaf;       // per owned particle
+    std::size_t owned = 0;
+    double cutoff = 0.0; // >= every distance tested below, < half of each periodic length
+    double skin = 0.0;   // contact candidates: centres within r_i + r_j + skin
+    double prox = 0.0;   // proximity: centres within prox (r_i + r_j) (not ttc)
+    double dt_sp = 0.0;  // ttc: within r_i + r_j + (s_i + s_j) dt_sp
+    bool ttc = false;    // dem.local_dt = "time_to_contact"
+  };
+  void build(const Input& in);
+
+  // Owned particle i's row: own-leaf partners nb()[off()[i], mid()[i]), others up to off()[i+1].
+  std::span<const std::uint32_t> off() const { return off_; }
+  std::span<const std::uint32_t> mid() const { return mid_; }
+  std::span<const std::uint32_t> nb() const { return nb_; }
+  // Owned particles with a non-empty row, increasing.
+  std::span<const std::uint32_t> active() const { return active_; }
+  // Per owned particle: a partner within the proximity (or reach) distance. Writable: the
+  // scheme adds the walls.
+  std::span<unsigned char> near() { return near_; }
+
+private:
+  void half_stencil(const Input& in, const std::array<int, 3>& nc);
+
+  std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_items_, scratch_own_,
+      scratch_other_, pair_a_, pair_b_, fill_other_;
+  std::vector<std::array<int, 3>> cc_;                 // cell coordinates of each local particle
+  std::vector<std::vector<std::uint32_t>> slab_pairs_; // per z slab of cells: pairs (i, j)
+  std::array<std::vector<double>, 5> sorted_;          // x, y, z, radius, speed in cell order
+  std::vector<unsigned char> near_, cell_has_owned_;
+};
+
+} // namespace cfddem::dem

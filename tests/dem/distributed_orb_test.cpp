@@ -1,0 +1,379 @@
+// The orb scheme over MPI ranks (run under mpirun -np 1, 2 and 3): with the same leaves (the
+// parallel ORB builds the serial ORB's boxes) and rows summed in OrbScheme's order, every
+// particle's position and velocity equal the serial OrbScheme's bit for bit, for any rank and
+// thread count; no particle or mass is lost at any sub-iteration.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <functional>
+#include <map>
+#include <random>
+#include <set>
+#include <string>
+
+#include <tbb/global_control.h>
+
+#include "core/communicator.hpp"
+#include "core/error.hpp"
+#include "core/particle_exchange.hpp"
+#include "core/initial_conditions.hpp"
+#include "core/phase_timer.hpp"
+#include "dem/distributed_orb_scheme.hpp"
+#include "dem/orb_scheme.hpp"
+#include "dem_test_support.hpp"
+
+namespace cfddem {
+namespace {
+
+using demtest::scene_from;
+
+// A dense granular gas (phi ~ 0.25: collisions within a few sub-iterations, every leaf fine) in a
+// periodic box, 8 leaves; kHcs below is the dilute, HCS-like variant where leaves differ.
+const char* kGas = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.86e-3, 0.86e-3, 0.86e-3]
+periodic = [true, true, true]
+[particles]
+count = 300
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.05
+seed = 11
+[dem]
+scheme = "orb"
+spring_constant = 10.0
+restitution = 0.8
+max_overlap = 0.9
+regrid_interval = 5.0e-5
+nsubit = 5
+[partition]
+orb_levels = 3
+[run]
+end_time = 1.0e-3
+)";
+
+// HCS-like: phi ~ 1.5 %, 16 leaves of ~19 particles; some leaves take the fine step, some not.
+const char* kHcs = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [2.2e-3, 2.2e-3, 2.2e-3]
+periodic = [true, true, true]
+[particles]
+count = 300
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.1
+seed = 7
+[dem]
+scheme = "orb"
+spring_constant = 10.0
+restitution = 0.8
+regrid_interval = 1.0e-4
+nsubit = 5
+[partition]
+orb_levels = 4
+[run]
+end_time = 1.0e-3
+)";
+
+// Walls on every side and gravity along -y (100 g): wall contacts and the wall proximity rule.
+const char* kWalls = R"(
+gravity = [0.0, -1.0e3, 0.0]
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [1.2e-3, 0.8e-3, 0.6e-3]
+periodic = [false, false, false]
+[particles]
+count = 250
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.05
+seed = 5
+[dem]
+scheme = "orb"
+spring_constant = 10.0
+restitution = 0.7
+wall_restitution = 0.9
+max_overlap = 0.9
+regrid_interval = 5.0e-5
+nsubit = 5
+[partition]
+orb_levels = 3
+[run]
+end_time = 1.0e-3
+)";
+
+constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
+
+using State = std::map<std::int64_t, std::array<double, 6>>;
+
+ParticleStore share(const ParticleStore& all, int rank, int ranks) {
+  ParticleStore p = all;
+  std::vector<std::uint32_t> pick;
+  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
+       i += static_cast<std::size_t>(ranks))
+    pick.push_back(static_cast<std::uint32_t>(i));
+  p.permute(pick);
+  return p;
+}
+
+// An external force per particle, a function of its id (the gas's force, held fixed): N.
+std::array<double, 3> force_of(std::int64_t id) {
+  return {1e-7 * static_cast<double>(id % 5 - 2), -2e-7 * static_cast<double>(id % 3),
+          5e-8 * static_cast<double>(id % 7 - 3)};
+}
+
+void apply_force(const ParticleStore& p, std::size_t n, auto& scheme) {
+  std::vector<double> fx(n), fy(n), fz(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto f = force_of(p.id[i]);
+    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+  }
+  scheme.set_external_force(fx, fy, fz);
+}
+
+State serial_orb(const Scene& scene, int subits, bool external = false) {
+  ParticleStore p = make_initial_particles(scene);
+  PhaseTimer timer;
+  dem::OrbScheme s(scene, p, timer);
+  s.start();
+  if (external) apply_force(p, p.size(), s);
+  for (int k = 0; k < subits; ++k) s.subiterate();
+  State out;
+  for (std::size_t i = 0; i < p.size(); ++i)
+    out[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  return out;
+}
+
+struct DistributedRun {
+  State owned; // this rank's particles at the end
+  double fine_fraction = 0.0, max_overlap_ratio = 0.0;
+  std::int64_t pair_evaluations = 0, particle_steps = 0, retries = 0;
+};
+
+// The distributed scheme on `threads` TBB threads; at every sub-iteration the particles over all
+// ranks are counted and identified (count, sum of ids, sum of squared ids: none lost, none
+// twice) and their total mass compared with the initial one.
+DistributedRun distributed_orb(const Scene& scene, int subits, int threads,
+                               bool external = false) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(threads));
+  const Communicator c = Communicator::world();
+  const ParticleStore all = make_initial_particles(scene);
+  ParticleStore p = share(all, c.rank(), c.size());
+  const dem::StepModel model = dem::make_step_model(scene, all);
+  PhaseTimer timer;
+  dem::DistributedOrbScheme s(scene, p, model, c, timer);
+  s.start();
+  if (external) apply_force(p, s.owned(), s);
+  std::array<std::int64_t, 3> expect{};
+  for (const std::int64_t id : all.id) expect[0] += 1, expect[1] += id, expect[2] += id * id;
+  const double mass0 = all.total_mass();
+  DistributedRun r;
+  for (int k = 0; k < subits; ++k) {
+    s.subiterate(k + 1 == subits); // the last one recorded: max_overlap_ratio over the ranks
+    std::array<std::int64_t, 3> got{};
+    double mass = 0.0;
+    for (std::size_t i = 0; i < s.owned(); ++i)
+      got[0] += 1, got[1] += p.id[i], got[2] += p.id[i] * p.id[i], mass += p.mass[i];
+    c.sum(got);
+    c.sum(std::span<double>(&mass, 1));
+    EXPECT_EQ(got, expect) << "sub-iteration " << k;
+    // Equal masses summed in another order: N eps relative at most (300 x 1.1e-16).
+    EXPECT_NEAR(mass, mass0, 1e-13 * mass0) << "sub-iteration " << k;
+    // On several ranks the leaves do read other ranks' particles (ghosts).
+    if (c.size() > 1) {
+      EXPECT_GT(c.sum(static_cast<std::int64_t>(s.ghosts())), 0);
+    }
+  }
+  for (std::size_t i = 0; i < s.owned(); ++i)
+    r.owned[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  r.fine_fraction = s.take_interval_stats().fine_fraction;
+  r.pair_evaluations = s.pair_evaluations();
+  r.max_overlap_ratio = s.max_overlap_ratio();
+  r.retries = s.retries();
+  r.particle_steps = s.particle_steps();
+  return r;
+}
+
+// Every owned particle of every rank against the serial scheme: bitwise (the bound is 0).
+void expect_bitwise(const State& serial, const State& mine, const std::string& what) {
+  const Communicator c = Communicator::world();
+  std::int64_t count = static_cast<std::int64_t>(mine.size()), differ = 0;
+  double worst = 0.0;
+  for (const auto& [id, q] : mine) {
+    const auto it = serial.find(id);
+    ASSERT_NE(it, serial.end()) << what << ": unknown id " << id;
+    for (int a = 0; a < 6; ++a) {
+      if (q[a] != it->second[a]) ++differ;
+      worst = std::max(worst, std::abs(q[a] - it->second[a]));
+    }
+  }
+  count = c.sum(count);
+  differ = c.sum(differ);
+  worst = c.max(worst);
+  EXPECT_EQ(count, static_cast<std::int64_t>(serial.size())) << what;
+  EXPECT_EQ(differ, 0) << what << ": " << differ << " coordinates differ, worst by " << worst;
+}
+
+TEST(DistributedOrb, DenseGasMatchesSerialOrbBitwise) {
+  const Scene scene = scene_from(kGas);
+  const DistributedRun d = distributed_orb(scene, kSubits, 1);
+  expect_bitwise(serial_orb(scene, kSubits), d.owned, "dense gas");
+  EXPECT_GT(d.max_overlap_ratio, 0.0); // particles collided
+}
+
+TEST(DistributedOrb, BoxOfTwoCellsMatchesSerialOrbBitwise) {
+  // Two cells of the cutoff per axis: the rows come from the full stencil, images collapsed.
+  const Scene scene = scene_from(kGas, {"domain.hi=[0.4e-3, 0.4e-3, 0.4e-3]", "particles.count=20",
+                                        "partition.orb_levels=2"});
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "box of two cells");
+}
+
+TEST(DistributedOrb, HcsMatchesSerialOrbBitwise) {
+  const Scene scene = scene_from(kHcs);
+  const DistributedRun d = distributed_orb(scene, kSubits, 1);
+  expect_bitwise(serial_orb(scene, kSubits), d.owned, "HCS");
+  // Collisions, and leaves on both steps: the local steps do differ between leaves.
+  EXPECT_GT(d.max_overlap_ratio, 0.0);
+  EXPECT_GT(d.fine_fraction, 0.0);
+  EXPECT_LT(d.fine_fraction, 1.0);
+  EXPECT_GT(d.pair_evaluations, 0);
+}
+
+TEST(DistributedOrb, RetriesWithLongSubiterationsMatchSerialOrbBitwise) {
+  // dt_sp = 50 us: fine leaves outrun their rows and redo sub-iterations with a larger skin.
+  const Scene scene = scene_from(kHcs, {"dem.regrid_interval=2.0e-4", "dem.nsubit=4",
+                                        "particles.temperature=0.05"});
+  const DistributedRun d = distributed_orb(scene, kSubits, 1);
+  expect_bitwise(serial_orb(scene, kSubits), d.owned, "retries");
+  EXPECT_GT(d.retries, 0);
+}
+
+TEST(DistributedOrb, CostWeightsMatchSerialOrbBitwise) {
+  // Integer weights (local steps) sum exactly, so the parallel ORB cuts where the serial one does.
+  const Scene scene = scene_from(kHcs, {"partition.weights=\"cost\""});
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "gas, cost weights");
+}
+
+TEST(DistributedOrb, WallsAndGravityMatchSerialOrbBitwise) {
+  const Scene scene = scene_from(kWalls);
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "walls and gravity");
+}
+
+TEST(DistributedOrb, ExternalForceFollowsItsParticleAndMatchesSerialOrbBitwise) {
+  // The force set once at the start travels with each particle through 8 regrids and their
+  // migrations; with time_to_contact it also enters the speed bounds.
+  for (const char* rule : {"proximity", "time_to_contact"}) {
+    const Scene scene = scene_from(kWalls, {std::string("dem.local_dt=\"") + rule + "\""});
+    expect_bitwise(serial_orb(scene, kSubits, true), distributed_orb(scene, kSubits, 1, true).owned,
+                   std::string("external force, ") + rule);
+  }
+  // And it matters: without it the particles end elsewhere.
+  const Scene scene = scene_from(kWalls);
+  EXPECT_NE(serial_orb(scene, kSubits, true), serial_orb(scene, kSubits, false));
+}
+
+TEST(DistributedOrb, TimeToContactMatchesSerialOrbBitwise) {
+  const Scene scene = scene_from(kWalls, {"dem.local_dt=\"time_to_contact\""});
+  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+                 "time_to_contact");
+}
+
+TEST(DistributedOrb, RerunAndThreadCountsAreBitwiseIdentical) {
+  const Scene scene = scene_from(kHcs);
+  const DistributedRun a = distributed_orb(scene, kSubits, 1);
+  const DistributedRun b = distributed_orb(scene, kSubits, 1);
+  const DistributedRun c = distributed_orb(scene, kSubits, 2);
+  EXPECT_EQ(a.owned, b.owned);
+  EXPECT_EQ(a.owned, c.owned);
+  EXPECT_EQ(a.pair_evaluations, c.pair_evaluations);
+  EXPECT_EQ(a.particle_steps, c.particle_steps);
+}
+
+TEST(DistributedOrb, ParticleThroughAWallStopsEveryRankWithTheSameError) {
+  const Scene scene = scene_from(kWalls);
+  const Communicator c = Communicator::world();
+  ParticleStore all = make_initial_particles(scene);
+  all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::DistributedOrbScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  s.start();
+  std::string message;
+  try {
+    for (int k = 0; k < kSubits; ++k) s.subiterate();
+  } catch (const RunError& e) {
+    message = e.what();
+  }
+  ASSERT_FALSE(message.empty()) << "no rank stopped";
+  EXPECT_NE(message.find("particle " + std::to_string(all.id[7])), std::string::npos) << message;
+  // The same text on every rank (its hash, compared by a max and a min over the ranks).
+  std::array<std::int64_t, 1> hi{static_cast<std::int64_t>(std::hash<std::string>{}(message))};
+  std::array<std::int64_t, 1> lo = hi;
+  c.max(hi);
+  c.min(lo);
+  EXPECT_EQ(hi[0], lo[0]) << message;
+}
+
+// ParticleExchange::redistribute: each particle reaches its new owner once, each ghost copy the
+// ranks named for it (this rank included, for a leaver), with every field and extra column.
+TEST(ParticleExchange, RedistributeMovesOwnersAndCopiesGhostsWithTheirColumns) {
+  const Communicator c = Communicator::world();
+  const ParticleStore all = make_initial_particles(scene_from(kGas));
+  ParticleStore p = share(all, c.rank(), c.size());
+  const auto ranks = static_cast<std::uint64_t>(c.size());
+  // Owner and ghost ranks drawn by id, the same on every rank.
+  std::mt19937_64 rng(3);
+  std::vector<int> owner(all.size());
+  std::vector<std::set<int>> ghost(all.size());
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    owner[i] = static_cast<int>(rng() % ranks);
+    for (std::uint64_t r = 0; r < ranks; ++r)
+      if (static_cast<int>(r) != owner[i] && rng() % 3 == 0) ghost[i].insert(static_cast<int>(r));
+  }
+  std::vector<int> dest(p.size());
+  std::vector<ParticleExchange::Copy> copies;
+  std::vector<double> half(p.size()), cost(p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const auto id = static_cast<std::size_t>(p.id[i]);
+    dest[i] = owner[id];
+    for (const int r : ghost[id]) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    half[i] = 0.5 * static_cast<double>(id), cost[i] = 3.0 * static_cast<double>(id);
+  }
+  ParticleExchange ex(c);
+  std::vector<double>* extra[] = {&half, &cost};
+  const std::size_t owned = ex.redistribute(p, dest, copies, extra);
+  ASSERT_EQ(half.size(), p.size());
+  ASSERT_EQ(cost.size(), p.size());
+  std::set<std::int64_t> own_ids, ghost_ids;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const auto id = static_cast<std::size_t>(p.id[i]);
+    (i < owned ? own_ids : ghost_ids).insert(p.id[i]);
+    if (i < owned) {
+      EXPECT_EQ(owner[id], c.rank()) << "id " << id;
+    } else {
+      EXPECT_EQ(ghost[id].count(c.rank()), 1U) << "id " << id;
+    }
+    EXPECT_EQ(p.x[i], all.x[id]);
+    EXPECT_EQ(p.vz[i], all.vz[id]);
+    EXPECT_EQ(p.mass[i], all.mass[id]);
+    EXPECT_EQ(half[i], 0.5 * static_cast<double>(id));
+    EXPECT_EQ(cost[i], 3.0 * static_cast<double>(id));
+  }
+  std::size_t expect_own = 0, expect_ghost = 0;
+  for (std::size_t i = 0; i < all.size(); ++i)
+    expect_own += owner[i] == c.rank(), expect_ghost += ghost[i].count(c.rank());
+  EXPECT_EQ(own_ids.size(), expect_own);
+  EXPECT_EQ(owned, expect_own);
+  EXPECT_EQ(ghost_ids.size(), expect_ghost);
+  EXPECT_EQ(p.size() - owned, expect_ghost);
+}
+
+} // namespace
+} // namespace cfddem

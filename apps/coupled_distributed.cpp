@@ -16,10 +16,12 @@
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
 #include "core/communicator.hpp"
+#include "core/particle_snapshot.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "partition/cell_box_decomposition.hpp"
 
@@ -37,10 +39,6 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   if (scene_in.output.checkpoint_interval > 0)
     throw ConfigError("scene key 'output.checkpoint_interval'",
                       "checkpoints of a run with a gas on several ranks are not supported yet");
-  if (scene_in.output.snapshot_interval > 0)
-    throw ConfigError("scene key 'output.snapshot_interval'",
-                      "snapshots of a run with a gas on several ranks are not supported yet "
-                      "(set it to 0, or run on one rank)");
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
@@ -99,6 +97,35 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     if (diag)
       diag->add_row(r);
   };
+  // Snapshots: every rank's particles and gas box written collectively into one file (parallel
+  // HDF5); rank 0 keeps the XDMF index. Particles as on one rank (the synchronised state of the
+  // first particle step after the snapshot time), the gas taken at that time.
+  std::optional<SnapshotIndex> snapshots;
+  if (root && scene.output.snapshot_interval > 0)
+    snapshots.emplace(opt.out_dir);
+  const dem::DomainGeometry geom(scene.domain);
+  auto write_snapshot = [&](SnapshotFields& f, const CellFields& cells) {
+    PhaseTimer::Scope io(timer, Phase::io);
+    const std::size_t n = f.x.size();
+    std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
+                                std::vector<double>(n)};
+    for (std::size_t i = 0; i < n; ++i)
+      w[0][i] = geom.wrap(f.x[i], 0), w[1][i] = geom.wrap(f.y[i], 1), w[2][i] = geom.wrap(f.z[i], 2);
+    f.x = w[0], f.y = w[1], f.z = w[2];
+    f.dt = dt;
+    f.cells = &cells;
+    const SnapshotEntry e = write_particle_snapshot(opt.out_dir, f, comm); // collective
+    std::string error;
+    if (root) {
+      try {
+        snapshots->add(e);
+      } catch (const std::exception& ex) {
+        error = ex.what();
+      }
+    }
+    if (const std::string m = comm.agree_on_error(0, error); !m.empty())
+      throw RunError(m);
+  };
   if (!opt.quiet && root) {
     const auto& c = scene.fluid.cells;
     fmt::print(stderr,
@@ -111,9 +138,22 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                dt, fixed ? fmt::format(" ({} steps per fluid step)", n_fixed) : std::string(),
                env.ranks(), env.threads());
   }
+  // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
+  // kept before start() shifts them to the half step.
+  ParticleStore initial;
+  if (scene.output.snapshot_interval > 0)
+    initial = particles;
   // start() moves every particle to its box's rank; the gas then deposits the owned ones.
   scheme.start();
   GasCoupling gas(scene, particles, &comm, scheme.owned());
+  if (scene.output.snapshot_interval > 0) {
+    const CellFields cells = gas.cell_fields();
+    SnapshotFields f;
+    f.x = initial.x, f.y = initial.y, f.z = initial.z, f.vx = initial.vx, f.vy = initial.vy;
+    f.vz = initial.vz, f.radius = initial.radius, f.mass = initial.mass, f.id = initial.id;
+    write_snapshot(f, cells);
+    initial = ParticleStore();
+  }
   MeanTracker means;
   {
     PhaseTimer::Scope io(timer, Phase::io);
@@ -133,12 +173,24 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   const auto t_loop = clock::now();
   CoupledLoopState loop;
   loop.next_output = scene.output.interval;
+  loop.next_snapshot = scene.output.snapshot_interval;
   double& t = loop.time;
   long long k_last_row = 0;
   auto last_progress = clock::now();
-  auto particle_step = [&](bool record) {
-    scheme.step(record);
+  auto particle_step = [&](bool record, bool snap) {
+    scheme.step(record || snap);
     const long long k = scheme.steps_taken() - 1;
+    if (snap) {
+      const auto s = scheme.synchronised_previous();
+      const std::size_t n = s.x.size();
+      SnapshotFields f;
+      f.time = loop.row_time;
+      f.step = k;
+      f.x = s.x, f.y = s.y, f.z = s.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
+      f.radius = {particles.radius.data(), n}, f.mass = {particles.mass.data(), n};
+      f.id = {particles.id.data(), n};
+      write_snapshot(f, loop.snapshot_cells);
+    }
     if (!record)
       return;
     PhaseTimer::Scope io(timer, Phase::io);
@@ -165,9 +217,9 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
       scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
     }
     for (long long q = 0; q < n_sub; ++q) {
-      particle_step(q == 0 && loop.row_pending);
+      particle_step(q == 0 && loop.row_pending, q == 0 && loop.snapshot_pending);
       if (q == 0)
-        loop.row_pending = false;
+        loop.row_pending = loop.snapshot_pending = false;
     }
     ++loop.fluid_steps;
     loop.dt_f_sum += dt_f;
@@ -181,6 +233,14 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
       while (loop.next_output <= t + tol)
         loop.next_output += scene.output.interval;
     }
+    if (scene.output.snapshot_interval > 0.0 && (t >= loop.next_snapshot - tol || last)) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      loop.snapshot_cells = gas.cell_fields();
+      loop.row_time = t;
+      loop.snapshot_pending = true;
+      while (loop.next_snapshot <= t + tol)
+        loop.next_snapshot += scene.output.snapshot_interval;
+    }
     if (!opt.quiet && root &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=
             scene.output.progress_seconds) {
@@ -193,8 +253,8 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
-  if (loop.row_pending)
-    particle_step(true); // one particle step past the end, as on one rank
+  if (loop.row_pending || loop.snapshot_pending)
+    particle_step(loop.row_pending, loop.snapshot_pending); // one step past the end, as on one rank
   if (diag)
     diag->flush();
   const double loop_seconds = seconds_since(t_loop);

@@ -345,12 +345,18 @@ std::array<std::vector<double>, 3> GasCoupling::force_in_order(
 }
 
 CellFields GasCoupling::cell_fields() const {
+  // On several ranks: this rank's box (its arrays), placed in the whole grid by block_lo.
   const auto& nc = grid_.cells();
+  const auto& global = grid_.global_cells();
+  std::array<int, 3> lo{};
+  if (grid_.distributed()) lo = grid_.box().lo;
   CellFields c;
   std::vector<double>* nodes[3] = {&c.x_nodes, &c.y_nodes, &c.z_nodes};
   for (int a = 0; a < 3; ++a) {
-    c.cells[a] = nc[a];
-    for (int i = 0; i <= nc[a]; ++i)
+    c.cells[a] = global[a];
+    c.block_lo[a] = lo[a];
+    c.block_cells[a] = nc[a];
+    for (int i = 0; i <= global[a]; ++i)
       nodes[a]->push_back(scene_.domain.lo[a] + i * grid_.spacing(a));
   }
   const fluid::GridField& eps = solver_->volume_fraction();
@@ -366,9 +372,9 @@ CellFields GasCoupling::cell_fields() const {
       for (int i = 0; i < nc[0]; ++i) {
         c.eps_g.push_back(eps(i, j, k));
         // As the pressure-drop diagnostic: p' plus the background gradient from the low corner.
-        c.pressure.push_back(pp(i, j, k) + gp0[0] * (i + 0.5) * grid_.spacing(0) +
-                             gp0[1] * (j + 0.5) * grid_.spacing(1) +
-                             gp0[2] * (k + 0.5) * grid_.spacing(2));
+        c.pressure.push_back(pp(i, j, k) + gp0[0] * (i + lo[0] + 0.5) * grid_.spacing(0) +
+                             gp0[1] * (j + lo[1] + 0.5) * grid_.spacing(1) +
+                             gp0[2] * (k + lo[2] + 0.5) * grid_.spacing(2));
         for (int a = 0; a < 3; ++a) c.gas_velocity.push_back(u[a](i, j, k));
       }
   return c;

@@ -138,6 +138,39 @@ void File::write_rows_raw(const std::string& name, hid_t type, const void* data,
     throw RunError(fmt::format("{}: collective write of dataset '{}' failed", path_, name));
 }
 
+void File::write_block(const std::string& name, std::span<const double> local,
+                       std::vector<hsize_t> shape, std::vector<hsize_t> start,
+                       std::vector<hsize_t> count) {
+  const std::size_t rank = shape.size();
+  hsize_t n = 1;
+  bool fits = rank > 0 && start.size() == rank && count.size() == rank;
+  for (std::size_t a = 0; fits && a < rank; ++a) {
+    n *= count[a];
+    fits = start[a] + count[a] <= shape[a];
+  }
+  if (!fits || n != local.size())
+    throw RunError(fmt::format("{}: dataset '{}': a block of {} values does not fit", path_, name,
+                               local.size()));
+  Handle space(H5Screate_simple(static_cast<int>(rank), shape.data(), nullptr), H5Sclose);
+  Handle set(H5Dcreate2(file_.get(), name.c_str(), H5T_NATIVE_DOUBLE, space.get(), H5P_DEFAULT,
+                        H5P_DEFAULT, H5P_DEFAULT),
+             H5Dclose);
+  if (!space.valid() || !set.valid())
+    throw RunError(fmt::format("{}: cannot create dataset '{}'", path_, name));
+  Handle mem(H5Screate_simple(static_cast<int>(rank), count.data(), nullptr), H5Sclose);
+  if (n == 0) {
+    H5Sselect_none(space.get());
+    H5Sselect_none(mem.get());
+  } else if (H5Sselect_hyperslab(space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(),
+                                 nullptr) < 0) {
+    throw RunError(fmt::format("{}: selecting a block of dataset '{}' failed", path_, name));
+  }
+  Handle xfer(H5Pcreate(H5P_DATASET_XFER), H5Pclose);
+  H5Pset_dxpl_mpio(xfer.get(), H5FD_MPIO_COLLECTIVE);
+  if (H5Dwrite(set.get(), H5T_NATIVE_DOUBLE, mem.get(), space.get(), xfer.get(), local.data()) < 0)
+    throw RunError(fmt::format("{}: collective write of dataset '{}' failed", path_, name));
+}
+
 void File::write_rows(const std::string& name, std::span<const double> d, hsize_t total,
                       hsize_t offset, hsize_t width) {
   write_rows_raw(name, H5T_NATIVE_DOUBLE, d.data(), d.size(), total, offset, width);

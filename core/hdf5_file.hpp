@@ -72,6 +72,11 @@ public:
                   hsize_t row_offset, hsize_t width);
   void write_rows(const std::string& name, std::span<const std::int64_t> local,
                   hsize_t rows_total, hsize_t row_offset, hsize_t width);
+  // Collective: dataset of shape `shape`; this rank writes the block of extents `count` from
+  // `start` (data.size() = the product of count; a zero count writes nothing).
+  void write_block(const std::string& name, std::span<const double> local,
+                   std::vector<hsize_t> shape, std::vector<hsize_t> start,
+                   std::vector<hsize_t> count);
   // Scalar attributes on the root group (or on object `on`).
   void attribute(const std::string& name, double v, const std::string& on = "/");
   void attribute(const std::string& name, std::int64_t v, const std::string& on = "/");

@@ -30,6 +30,30 @@ void write_cells(h5::File& file, const CellFields& c) {
              {h(nz), h(ny), h(nx), 3});
 }
 
+// The collective counterpart of write_cells: every rank its block of cells, rank 0 the nodes.
+void write_cell_blocks(h5::File& file, const CellFields& c, int rank) {
+  const auto h = [](std::int64_t v) { return static_cast<hsize_t>(v); };
+  const auto [nx, ny, nz] = c.cells;
+  const bool whole = c.block_cells == std::array<std::int64_t, 3>{};
+  const auto lo = c.block_lo;
+  const auto n = whole ? c.cells : c.block_cells;
+  file.create_group("/fluid");
+  const std::vector<double>* nodes[3] = {&c.x_nodes, &c.y_nodes, &c.z_nodes};
+  const char* names[3] = {"/fluid/x_nodes", "/fluid/y_nodes", "/fluid/z_nodes"};
+  for (int a = 0; a < 3; ++a) {
+    const std::span<const double> mine =
+        rank == 0 ? std::span<const double>(*nodes[a]) : std::span<const double>();
+    file.write_rows(names[a], mine, h(c.cells[a] + 1), 0, 1);
+  }
+  const std::vector<hsize_t> shape = {h(nz), h(ny), h(nx)};
+  const std::vector<hsize_t> start = {h(lo[2]), h(lo[1]), h(lo[0])};
+  const std::vector<hsize_t> count = {h(n[2]), h(n[1]), h(n[0])};
+  file.write_block("/fluid/eps_g", c.eps_g, shape, start, count);
+  file.write_block("/fluid/pressure", c.pressure, shape, start, count);
+  file.write_block("/fluid/gas_velocity", c.gas_velocity, {h(nz), h(ny), h(nx), 3},
+                   {start[0], start[1], start[2], 0}, {count[0], count[1], count[2], 3});
+}
+
 std::string data_item(const SnapshotEntry& e, const std::string& dataset, const std::string& dims,
                       const char* type) {
   return fmt::format("      <DataItem Dimensions=\"{}\" NumberType=\"{}\" Precision=\"8\" "
@@ -138,8 +162,11 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
   MPI_Comm_rank(comm, &rank);
   MPI_Comm_size(comm, &ranks);
   if (ranks == 1) return write_particle_snapshot(dir, f);
-  if (f.cells)
-    throw RunError("snapshots with cell data are written by one rank only (not yet distributed)");
+  int has_cells = f.cells ? 1 : 0, all_cells = 0, any_cells = 0;
+  MPI_Allreduce(&has_cells, &all_cells, 1, MPI_INT, MPI_MIN, comm);
+  MPI_Allreduce(&has_cells, &any_cells, 1, MPI_INT, MPI_MAX, comm);
+  if (all_cells != any_cells)
+    throw RunError("a snapshot with cell data needs the cells of every rank");
   const auto local = static_cast<long long>(f.x.size());
   long long offset = 0, total = 0;
   MPI_Exscan(&local, &offset, 1, MPI_LONG_LONG, MPI_SUM, comm);
@@ -176,6 +203,7 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
     file.write_rows("/particles/local_dt", std::span<const double>(r.dt), h(total), h(offset), 1);
     file.write_rows("/particles/id", f.id, h(total), h(offset), 1);
     if (e.leaf) file.write_rows("/particles/leaf", f.leaf, h(total), h(offset), 1);
+    if (all_cells) write_cell_blocks(file, *f.cells, rank), e.cells = f.cells->cells;
     file.close();
   } catch (const std::exception& ex) {
     ok = 0, what = ex.what();

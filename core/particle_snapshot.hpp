@@ -24,6 +24,9 @@ namespace cfddem {
 // the order XDMF's 3DRectMesh dimensions are given in.
 struct CellFields {
   std::array<std::int64_t, 3> cells{}; // nx, ny, nz
+  // On several ranks, this rank's block of cells: [block_lo, block_lo + block_cells) per axis,
+  // the arrays below holding only it (block_cells all zero: the whole grid).
+  std::array<std::int64_t, 3> block_lo{}, block_cells{};
   std::vector<double> x_nodes, y_nodes, z_nodes;
   std::vector<double> eps_g;        // gas volume fraction
   std::vector<double> pressure;     // full pressure p' + gp0 . (x - lo) [Pa]
@@ -58,7 +61,8 @@ SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFiel
 // The same from every rank of `comm` at once, each with its own particles (the fields' spans),
 // written collectively into one file with parallel HDF5 (MPI-IO): the ranks' particles follow
 // each other in rank order. Collective; the entry (all particles) is returned on every rank.
-// Cell data must come from a single rank for now (f.cells with more than one rank throws).
+// With cell data every rank passes its block (CellFields::block_lo, block_cells), written into
+// the whole grid's datasets; the node coordinates are the whole grid's on every rank.
 SnapshotEntry write_particle_snapshot(const std::string& dir, const SnapshotFields& f,
                                       MPI_Comm comm);
 // The same over a Communicator (core/communicator.hpp); one rank: the serial writer.

@@ -13,6 +13,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
 #include "core/communicator.hpp"
@@ -44,7 +45,8 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   const bool root = comm.rank() == 0;
   // Every rank builds its share of the particles (every R-th, make_initial_share); start()
   // sends each to the rank whose gas box holds it.
-  ParticleStore particles = make_initial_share(scene_in, comm.rank(), comm.size());
+  std::optional<Checkpoint> no_checkpoint; // refused above
+  ParticleStore particles = rank_share(scene_in, no_checkpoint, comm);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene_in, particles, comm, &range);
   const std::size_t n_total = derived.particles;
@@ -81,18 +83,7 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   const double dt = scheme.dt();
   const double end = scene.run.end_time;
 
-  std::optional<DiagnosticsFile> diag;
-  std::string setup_error;
-  if (root) {
-    try {
-      fs::create_directories(opt.out_dir);
-      diag.emplace((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
-    } catch (const std::exception& e) {
-      setup_error = e.what();
-    }
-  }
-  if (const std::string e = comm.agree_on_error(0, setup_error); !e.empty())
-    throw ConfigError(opt.out_dir, e);
+  std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   auto add_row = [&](const std::vector<double>& r) {
     if (diag)
       diag->add_row(r);

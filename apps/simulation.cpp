@@ -21,6 +21,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
 #include "core/communicator.hpp"
@@ -523,19 +524,7 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   // keeps its share of the particles, as at the start.
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
-  // Each rank starts from its share (every ranks-th particle): built alone where the initial
-  // conditions allow (make_initial_share), taken from the checkpoint at a restart.
-  ParticleStore particles;
-  if (ck) {
-    particles = std::move(ck->particles);
-    std::vector<std::uint32_t> mine;
-    for (std::size_t i = static_cast<std::size_t>(comm.rank()); i < particles.size();
-         i += static_cast<std::size_t>(comm.size()))
-      mine.push_back(static_cast<std::uint32_t>(i));
-    particles.permute(mine);
-  } else {
-    particles = make_initial_share(scene, comm.rank(), comm.size());
-  }
+  ParticleStore particles = rank_share(scene, ck, comm);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene, particles, comm, &range);
   const dem::StepModel model = dem::make_step_model(scene, range);
@@ -552,18 +541,7 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
                                                   "the run (step {})",
                                                   k0, n_end));
 
-  std::optional<DiagnosticsFile> diag;
-  std::string setup_error;
-  if (root) {
-    try {
-      fs::create_directories(opt.out_dir);
-      diag.emplace((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
-    } catch (const std::exception& e) {
-      setup_error = e.what();
-    }
-  }
-  if (const std::string e = comm.agree_on_error(0, setup_error); !e.empty())
-    throw ConfigError(opt.out_dir, e);
+  std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
   auto add_row = [&](std::vector<double> r) {
     if (diag) diag->add_row(r);
@@ -793,24 +771,14 @@ RunResult run_distributed_orb(const Scene& scene, const RunOptions& opt, const P
   const bool root = comm.rank() == 0;
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
-  // Each rank starts from its share (every ranks-th particle): built alone where the initial
-  // conditions allow (make_initial_share), taken from the checkpoint at a restart.
-  ParticleStore particles;
+  if (ck && (ck->orb.hprev.size() != ck->particles.size() ||
+             ck->orb.cost.size() != ck->particles.size()))
+    throw ConfigError(opt.restart, "the orb state does not fit the checkpoint's particles");
+  std::vector<std::uint32_t> mine;
+  ParticleStore particles = rank_share(scene, ck, comm, &mine);
   std::vector<double> hprev, cost; // a restart: this rank's share of the checkpoint's
-  if (ck) {
-    particles = std::move(ck->particles);
-    const std::size_t n = particles.size();
-    if (ck->orb.hprev.size() != n || ck->orb.cost.size() != n)
-      throw ConfigError(opt.restart, "the orb state does not fit the checkpoint's particles");
-    std::vector<std::uint32_t> mine;
-    for (std::size_t i = static_cast<std::size_t>(comm.rank()); i < n;
-         i += static_cast<std::size_t>(comm.size()))
-      mine.push_back(static_cast<std::uint32_t>(i));
-    particles.permute(mine);
+  if (ck)
     for (const std::uint32_t i : mine) hprev.push_back(ck->orb.hprev[i]), cost.push_back(ck->orb.cost[i]);
-  } else {
-    particles = make_initial_share(scene, comm.rank(), comm.size());
-  }
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene, particles, comm, &range);
   const dem::StepModel model = dem::make_step_model(scene, range);
@@ -827,18 +795,7 @@ RunResult run_distributed_orb(const Scene& scene, const RunOptions& opt, const P
     throw ConfigError("run.end_time", fmt::format("the checkpoint is at sub-iteration {}, past "
                                                   "the end of the run ({})",
                                                   k0, n_end));
-  std::optional<DiagnosticsFile> diag;
-  std::string setup_error;
-  if (root) {
-    try {
-      fs::create_directories(opt.out_dir);
-      diag.emplace((fs::path(opt.out_dir) / "diagnostics.csv").string(), kColumns);
-    } catch (const std::exception& e) {
-      setup_error = e.what();
-    }
-  }
-  if (const std::string e = comm.agree_on_error(0, setup_error); !e.empty())
-    throw ConfigError(opt.out_dir, e);
+  std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
   auto add_row = [&](std::vector<double> r) {
     if (diag) diag->add_row(r);

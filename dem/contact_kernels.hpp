@@ -4,8 +4,12 @@
 // allocation, no threads; the callers' loops keep their own layout and vectorize as before.
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdint>
 
+#include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 
@@ -48,6 +52,57 @@ inline double add_normal_contact(const StepModel& m, double dx, double dy, doubl
 inline void kick_drift(double& x, double& v, double f, double ims, double gs, double dt) {
   v = v + f * ims + gs;
   x = x + v * dt;
+}
+
+// Wall contacts of the particles [b, e) of a leaf batch (orb schemes): each adds its walls'
+// normal forces to the force its row summed (a particle without a row has no pair force, so
+// the wall force replaces what f held), and tracks the largest overlap ratio and the overlaps
+// beyond `limit` radii.
+inline void add_wall_forces(std::uint32_t b, std::uint32_t e, const std::uint32_t* off,
+                            const double* x, const double* y, const double* z, const double* vx,
+                            const double* vy, const double* vz, const double* rad,
+                            const double* mass, double* fx, double* fy, double* fz,
+                            const DomainGeometry& g, const NormalLaw& wall, double limit,
+                            double& max_ratio, std::int64_t& violations) {
+  for (std::uint32_t i = b; i < e; ++i) {
+    const bool row = off[i + 1] > off[i];
+    double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
+    const double pos[3] = {x[i], y[i], z[i]}, vel[3] = {vx[i], vy[i], vz[i]};
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a]) continue;
+      for (int side = 0; side < 2; ++side) {
+        const double sg = side ? 1.0 : -1.0;
+        const double delta = side ? rad[i] - (g.hi[a] - pos[a]) : rad[i] - (pos[a] - g.lo[a]);
+        if (delta <= 0.0) continue;
+        f[a] -= sg * normal_force(wall, mass[i], delta, sg * vel[a]);
+        max_ratio = std::max(max_ratio, delta / rad[i]);
+        violations += delta > limit * rad[i];
+      }
+    }
+    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+  }
+}
+
+// The synchronised velocities v(n) = v(n-1/2) + a(n) h_prev of the particles [b, e) (a recorded
+// step of the variable-step leapfrog), into sv.
+template <bool External>
+inline void synchronised_velocities(std::uint32_t b, std::uint32_t e, const double* vx,
+                                    const double* vy, const double* vz, const double* fx,
+                                    const double* fy, const double* fz, const double* fex,
+                                    const double* fey, const double* fez, const double* im,
+                                    const double* hp, const std::array<double, 3>& gravity,
+                                    double* svx, double* svy, double* svz) {
+  for (std::uint32_t i = b; i < e; ++i) {
+    if constexpr (External) {
+      svx[i] = vx[i] + ((fx[i] + fex[i]) * im[i] + gravity[0]) * hp[i];
+      svy[i] = vy[i] + ((fy[i] + fey[i]) * im[i] + gravity[1]) * hp[i];
+      svz[i] = vz[i] + ((fz[i] + fez[i]) * im[i] + gravity[2]) * hp[i];
+    } else {
+      svx[i] = vx[i] + (fx[i] * im[i] + gravity[0]) * hp[i];
+      svy[i] = vy[i] + (fy[i] * im[i] + gravity[1]) * hp[i];
+      svz[i] = vz[i] + (fz[i] * im[i] + gravity[2]) * hp[i];
+    }
+  }
 }
 
 } // namespace cfddem::dem

@@ -334,37 +334,12 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
       }
       fx[i] = ax, fy[i] = ay, fz[i] = az;
     }
-    if (walls) {
-      for (std::uint32_t i = b; i < e; ++i) {
-        const bool row = off[i + 1] > off[i]; // rowless particles' f holds the last wall force
-        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
-        const double pos[3] = {x[i], y[i], z[i]}, vel[3] = {vx[i], vy[i], vz[i]};
-        for (int a = 0; a < 3; ++a) {
-          if (g.periodic[a]) continue;
-          for (int side = 0; side < 2; ++side) {
-            const double sg = side ? 1.0 : -1.0;
-            const double delta = side ? rad[i] - (g.hi[a] - pos[a]) : rad[i] - (pos[a] - g.lo[a]);
-            if (delta <= 0.0) continue;
-            f[a] -= sg * normal_force(m.wall, mass[i], delta, sg * vel[a]);
-            max_ratio = std::max(max_ratio, delta / rad[i]);
-            violations += delta > lim * rad[i];
-          }
-        }
-        fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
-      }
-    }
+    if (walls)
+      add_wall_forces(b, e, off, x, y, z, vx, vy, vz, rad, mass, fx, fy, fz, g, m.wall, lim,
+                      max_ratio, violations);
     if (record && step == 0)
-      for (std::uint32_t i = b; i < e; ++i) {
-        if constexpr (External) {
-          svx_[i] = vx[i] + ((fx[i] + fex[i]) * im[i] + m.gravity[0]) * hp[i];
-          svy_[i] = vy[i] + ((fy[i] + fey[i]) * im[i] + m.gravity[1]) * hp[i];
-          svz_[i] = vz[i] + ((fz[i] + fez[i]) * im[i] + m.gravity[2]) * hp[i];
-        } else {
-          svx_[i] = vx[i] + (fx[i] * im[i] + m.gravity[0]) * hp[i];
-          svy_[i] = vy[i] + (fy[i] * im[i] + m.gravity[1]) * hp[i];
-          svz_[i] = vz[i] + (fz[i] * im[i] + m.gravity[2]) * hp[i];
-        }
-      }
+      synchronised_velocities<External>(b, e, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, hp,
+                                        m.gravity, svx_.data(), svy_.data(), svz_.data());
     const double half = 0.5 * hk;
     std::uint64_t still = ~std::uint64_t{0};
     // The reference of the skin test is the position at the sub-iteration start (the rows are

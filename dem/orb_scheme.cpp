@@ -575,37 +575,12 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
       }
       fx[i] = ax, fy[i] = ay, fz[i] = az;
     }
-    if (walls) {
-      for (std::uint32_t i = b; i < e; ++i) {
-        const bool row = off[i + 1] > off[i];
-        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
-        const double pos[3] = {x[i], y[i], z[i]}, vel[3] = {vx[i], vy[i], vz[i]};
-        for (int a = 0; a < 3; ++a) {
-          if (g.periodic[a]) continue;
-          for (int side = 0; side < 2; ++side) {
-            const double sg = side ? 1.0 : -1.0;
-            const double delta = side ? rad[i] - (g.hi[a] - pos[a]) : rad[i] - (pos[a] - g.lo[a]);
-            if (delta <= 0.0) continue;
-            f[a] -= sg * normal_force(m.wall, mass[i], delta, sg * vel[a]);
-            max_ratio = std::max(max_ratio, delta / rad[i]);
-            violations += delta > lim * rad[i];
-          }
-        }
-        fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
-      }
-    }
+    if (walls)
+      add_wall_forces(b, e, off, x, y, z, vx, vy, vz, rad, mass, fx, fy, fz, g, m.wall, lim,
+                      max_ratio, violations);
     if (record && k == 0)
-      for (std::uint32_t i = b; i < e; ++i) {
-        if constexpr (External) {
-          svx_[i] = vx[i] + ((fx[i] + fex[i]) * im[i] + m.gravity[0]) * hp[i];
-          svy_[i] = vy[i] + ((fy[i] + fey[i]) * im[i] + m.gravity[1]) * hp[i];
-          svz_[i] = vz[i] + ((fz[i] + fez[i]) * im[i] + m.gravity[2]) * hp[i];
-        } else {
-          svx_[i] = vx[i] + (fx[i] * im[i] + m.gravity[0]) * hp[i];
-          svy_[i] = vy[i] + (fy[i] * im[i] + m.gravity[1]) * hp[i];
-          svz_[i] = vz[i] + (fz[i] * im[i] + m.gravity[2]) * hp[i];
-        }
-      }
+      synchronised_velocities<External>(b, e, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, hp,
+                                        m.gravity, svx_.data(), svy_.data(), svz_.data());
     // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h: the first step of
     // the sub-iteration kicks each particle over its own h_prev + h/2, later ones over
     // (h_before + h)/2 (= h exactly for a constant step: the explicit scheme's update).

@@ -13,6 +13,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/coupled_schedule.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
@@ -196,11 +197,7 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   };
   const double tol = 1e-6 * dt;
   while (end - t > tol) {
-    long long n_sub = n_fixed;
-    if (!fixed) {
-      const double want = std::min({gas.cfl_dt(), scene.fluid.max_dt, end - t});
-      n_sub = std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
-    }
+    const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
     const double dt_f = static_cast<double>(n_sub) * dt;
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
@@ -216,21 +213,9 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     loop.dt_f_sum += dt_f;
     t = fixed ? static_cast<double>(loop.fluid_steps) * scene.fluid.dt : t + dt_f;
     const bool last = end - t <= tol;
-    if (t >= loop.next_output - tol || last) {
+    {
       PhaseTimer::Scope io(timer, Phase::io);
-      loop.row_fluid = gas.diagnostics();
-      loop.row_time = t;
-      loop.row_pending = true;
-      while (loop.next_output <= t + tol)
-        loop.next_output += scene.output.interval;
-    }
-    if (scene.output.snapshot_interval > 0.0 && (t >= loop.next_snapshot - tol || last)) {
-      PhaseTimer::Scope io(timer, Phase::io);
-      loop.snapshot_cells = gas.cell_fields();
-      loop.row_time = t;
-      loop.snapshot_pending = true;
-      while (loop.next_snapshot <= t + tol)
-        loop.next_snapshot += scene.output.snapshot_interval;
+      mark_due_outputs(loop, gas, scene, t, last, tol);
     }
     if (!opt.quiet && root &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=

@@ -21,6 +21,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/coupled_schedule.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
@@ -511,10 +512,9 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
 }
 
 
-// The explicit loop over MPI ranks (dem::DistributedExplicitScheme). Every rank builds the same
-// initial particles and keeps every R-th (start() sends each to its owner): simple, at the cost
-// of one copy of the initial state per rank during set-up. Rows hold values reduced over the
-// ranks; only rank 0 writes diagnostics.csv and run.json.
+// The explicit loop over MPI ranks (dem::DistributedExplicitScheme). Every rank starts from its
+// share of the particles (rank_share; start() sends each to its owner). Rows hold values
+// reduced over the ranks; only rank 0 writes diagnostics.csv and run.json.
 RunResult run_distributed(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
@@ -759,8 +759,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
 
 // The orb loop over MPI ranks (dem::DistributedOrbScheme): run_subiterated's schedule (rows at
 // multiples of output.interval, checkpoints at regrid points, the state at sub-iteration k
-// recorded by sub-iteration k + 1) with run_distributed's set-up (every rank keeps every R-th
-// particle), reductions, collective snapshots and rank-0 outputs. A checkpoint holds the
+// recorded by sub-iteration k + 1) with run_distributed's set-up (every rank starts from its
+// share of the particles), reductions, collective snapshots and rank-0 outputs. A checkpoint holds the
 // particles in id order with their half steps and costs: the distributed scheme rebuilds
 // everything else from them at the regrid that follows, so a restart on any number of ranks
 // continues as the run that wrote it would have.
@@ -1183,11 +1183,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
                          : std::numeric_limits<double>::infinity();
   const double tol = 1e-6 * dt;
   while (end - t > tol) {
-    long long n_sub = n_fixed;
-    if (!fixed) {
-      const double want = std::min({gas.cfl_dt(), scene.fluid.max_dt, end - t});
-      n_sub = std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
-    }
+    const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
     const double dt_f = static_cast<double>(n_sub) * dt;
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
@@ -1203,19 +1199,9 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     // A fixed step counts steps (no drift of a running sum against the output times).
     t = fixed ? static_cast<double>(loop.fluid_steps) * scene.fluid.dt : t + dt_f;
     const bool last = end - t <= tol;
-    if (t >= loop.next_output - tol || last) {
+    {
       PhaseTimer::Scope io(timer, Phase::io);
-      loop.row_fluid = gas.diagnostics();
-      loop.row_time = t;
-      loop.row_pending = true;
-      while (loop.next_output <= t + tol) loop.next_output += scene.output.interval;
-    }
-    if (scene.output.snapshot_interval > 0.0 && (t >= loop.next_snapshot - tol || last)) {
-      PhaseTimer::Scope io(timer, Phase::io);
-      loop.snapshot_cells = gas.cell_fields();
-      loop.row_time = t;
-      loop.snapshot_pending = true;
-      while (loop.next_snapshot <= t + tol) loop.next_snapshot += scene.output.snapshot_interval;
+      mark_due_outputs(loop, gas, scene, t, last, tol);
     }
     if (t >= next_ckpt - tol) {
       PhaseTimer::Scope io(timer, Phase::io);

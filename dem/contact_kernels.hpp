@@ -54,6 +54,53 @@ inline void kick_drift(double& x, double& v, double f, double ims, double gs, do
   x = x + v * dt;
 }
 
+// Contact pass of an orb leaf batch over the rows act[a0, a1): each particle's force is the sum
+// of its pair forces, partners nb[off[i], mid[i]) of its own leaf read live (x, v) and partners
+// nb[mid[i], off[i + 1]) of other leaves (or ranks) read from their frozen copies (gx, gv);
+// tracks the largest overlap ratio and the overlaps beyond m.max_overlap.
+inline void leaf_contact_pass(std::uint32_t a0, std::uint32_t a1,
+                              const std::uint32_t* __restrict act,
+                              const std::uint32_t* __restrict off,
+                              const std::uint32_t* __restrict mid,
+                              const std::uint32_t* __restrict nb, const double* __restrict x,
+                              const double* __restrict y, const double* __restrict z,
+                              const double* __restrict vx, const double* __restrict vy,
+                              const double* __restrict vz, const double* __restrict gx,
+                              const double* __restrict gy, const double* __restrict gz,
+                              const double* __restrict gvx, const double* __restrict gvy,
+                              const double* __restrict gvz, const double* __restrict rad,
+                              const double* __restrict mass, double* __restrict fx,
+                              double* __restrict fy, double* __restrict fz,
+                              const DomainGeometry& g, const StepModel& m, double& max_ratio,
+                              std::int64_t& violations) {
+  const double lim = m.max_overlap;
+  for (std::uint32_t q = a0; q < a1; ++q) {
+    const std::uint32_t i = act[q];
+    const double xi = x[i], yi = y[i], zi = z[i];
+    const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
+    double ax = 0.0, ay = 0.0, az = 0.0;
+    auto partner = [&](std::uint32_t j, double xj, double yj, double zj, double vxj, double vyj,
+                       double vzj) {
+      const double delta = add_normal_contact(
+          m, g.image(xj - xi, 0), g.image(yj - yi, 1), g.image(zj - zi, 2), ri, rad[j], mi,
+          mass[j], vxi - vxj, vyi - vyj, vzi - vzj, ax, ay, az);
+      if (delta <= 0.0) return;
+      const double ratio = delta / std::min(ri, rad[j]);
+      max_ratio = std::max(max_ratio, ratio);
+      violations += ratio > lim;
+    };
+    for (std::uint32_t s = off[i]; s < mid[i]; ++s) {
+      const std::uint32_t j = nb[s];
+      partner(j, x[j], y[j], z[j], vx[j], vy[j], vz[j]);
+    }
+    for (std::uint32_t s = mid[i]; s < off[i + 1]; ++s) {
+      const std::uint32_t j = nb[s];
+      partner(j, gx[j], gy[j], gz[j], gvx[j], gvy[j], gvz[j]);
+    }
+    fx[i] = ax, fy[i] = ay, fz[i] = az;
+  }
+}
+
 // Wall contacts of the particles [b, e) of a leaf batch (orb schemes): each adds its walls'
 // normal forces to the force its row summed (a particle without a row has no pair force, so
 // the wall force replaces what f held), and tracks the largest overlap ratio and the overlaps

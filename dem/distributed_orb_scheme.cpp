@@ -309,31 +309,8 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
   double h_before = 0.0;
   for (std::int64_t step = 0; step < bt.K; ++step) {
     const double hk = step + 1 == bt.K ? bt.h_last : bt.h;
-    for (std::uint32_t a = bt.a0; a < bt.a1; ++a) {
-      const std::uint32_t i = act[a];
-      const double xi = x[i], yi = y[i], zi = z[i];
-      const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
-      double ax = 0.0, ay = 0.0, az = 0.0;
-      auto partner = [&](std::uint32_t j, double xj, double yj, double zj, double vxj, double vyj,
-                         double vzj) {
-        const double delta = add_normal_contact(
-            m, g.image(xj - xi, 0), g.image(yj - yi, 1), g.image(zj - zi, 2), ri, rad[j], mi,
-            mass[j], vxi - vxj, vyi - vyj, vzi - vzj, ax, ay, az);
-        if (delta <= 0.0) return;
-        const double ratio = delta / std::min(ri, rad[j]);
-        max_ratio = std::max(max_ratio, ratio);
-        violations += ratio > lim;
-      };
-      for (std::uint32_t s = off[i]; s < mid[i]; ++s) {
-        const std::uint32_t j = nb[s];
-        partner(j, x[j], y[j], z[j], vx[j], vy[j], vz[j]);
-      }
-      for (std::uint32_t s = mid[i]; s < off[i + 1]; ++s) {
-        const std::uint32_t j = nb[s];
-        partner(j, gx[j], gy[j], gz[j], gvx[j], gvy[j], gvz[j]);
-      }
-      fx[i] = ax, fy[i] = ay, fz[i] = az;
-    }
+    leaf_contact_pass(bt.a0, bt.a1, act, off, mid, nb, x, y, z, vx, vy, vz, gx, gy, gz, gvx, gvy,
+                      gvz, rad, mass, fx, fy, fz, g, m, max_ratio, violations);
     if (walls)
       add_wall_forces(b, e, off, x, y, z, vx, vy, vz, rad, mass, fx, fy, fz, g, m.wall, lim,
                       max_ratio, violations);

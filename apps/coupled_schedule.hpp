@@ -1,0 +1,42 @@
+// The schedule of the coupled loops (one rank and R ranks alike): how many particle steps the
+// next fluid step takes, and which rows and snapshots fall due at the end of a fluid step (the
+// gas is taken then; the next particle step writes them with the synchronised particles).
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+
+#include "apps/checkpoint.hpp"
+#include "apps/coupled_step.hpp"
+#include "core/scene.hpp"
+
+namespace cfddem::apps {
+
+// A fixed fluid.dt: n_fixed. Adaptive: as many particle steps of dt as fit in the gas's CFL
+// step, capped by fluid.max_dt and the time left (at least one).
+inline long long particle_steps_per_fluid_step(const Scene& scene, const GasCoupling& gas,
+                                               long long n_fixed, double dt, double time_left) {
+  if (scene.fluid.dt > 0.0) return n_fixed;
+  const double want = std::min({gas.cfl_dt(), scene.fluid.max_dt, time_left});
+  return std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
+}
+
+// At fluid time t (last: the run's end): a row or snapshot that is due takes the gas now
+// (collective on R ranks: diagnostics are reduced) and is marked pending.
+inline void mark_due_outputs(CoupledLoopState& loop, const GasCoupling& gas, const Scene& scene,
+                             double t, bool last, double tol) {
+  if (t >= loop.next_output - tol || last) {
+    loop.row_fluid = gas.diagnostics();
+    loop.row_time = t;
+    loop.row_pending = true;
+    while (loop.next_output <= t + tol) loop.next_output += scene.output.interval;
+  }
+  if (scene.output.snapshot_interval > 0.0 && (t >= loop.next_snapshot - tol || last)) {
+    loop.snapshot_cells = gas.cell_fields();
+    loop.row_time = t;
+    loop.snapshot_pending = true;
+    while (loop.next_snapshot <= t + tol) loop.next_snapshot += scene.output.snapshot_interval;
+  }
+}
+
+} // namespace cfddem::apps

@@ -317,26 +317,11 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
     if (record && step == 0)
       synchronised_velocities<External>(b, e, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, hp,
                                         m.gravity, svx_.data(), svy_.data(), svz_.data());
-    const double half = 0.5 * hk;
-    std::uint64_t still = ~std::uint64_t{0};
     // The reference of the skin test is the position at the sub-iteration start (the rows are
     // built there).
-    if (step == 0) {
-      kick_drift_range<External, true>(
-          x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
-          External ? fex + b : nullptr, External ? fey + b : nullptr,
-          External ? fez + b : nullptr, im + b, gx + b, gy + b, gz + b, e - b, 0.0, 0.0, 0.0,
-          0.0, hk, half_skin2, still, hp + b, half, m.gravity.data());
-    } else {
-      const double s = 0.5 * h_before + half;
-      kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
-                                 fz + b, External ? fex + b : nullptr,
-                                 External ? fey + b : nullptr, External ? fez + b : nullptr,
-                                 im + b, gx + b, gy + b, gz + b, e - b, s, m.gravity[0] * s,
-                                 m.gravity[1] * s, m.gravity[2] * s, hk, half_skin2, still);
-      if (step + 1 == bt.K)
-        for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
-    }
+    std::uint64_t still = ~std::uint64_t{0};
+    leaf_kick_drift<External>(step, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez,
+                              im, gx, gy, gz, hp, h_before, hk, half_skin2, m.gravity, still);
     h_before = hk;
     if (step + 1 < bt.K && !(still >> 63)) {
       bt.outran = true;

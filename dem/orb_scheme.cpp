@@ -558,28 +558,11 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     if (record && k == 0)
       synchronised_velocities<External>(b, e, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, hp,
                                         m.gravity, svx_.data(), svy_.data(), svz_.data());
-    // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h: the first step of
-    // the sub-iteration kicks each particle over its own h_prev + h/2, later ones over
-    // (h_before + h)/2 (= h exactly for a constant step: the explicit scheme's update).
-    const double half = 0.5 * hk;
+    // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h (leaf_kick_drift).
     // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
     std::uint64_t still = ~std::uint64_t{0};
-    if (k == 0) {
-      kick_drift_range<External, true>(
-          x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
-          External ? fex + b : nullptr, External ? fey + b : nullptr,
-          External ? fez + b : nullptr, im + b, xr + b, yr + b, zr + b, e - b, 0.0, 0.0, 0.0,
-          0.0, hk, half_skin2, still, hp + b, half, m.gravity.data());
-    } else {
-      const double s = 0.5 * h_before + half;
-      kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
-                                 fz + b, External ? fex + b : nullptr,
-                                 External ? fey + b : nullptr, External ? fez + b : nullptr,
-                                 im + b, xr + b, yr + b, zr + b, e - b, s, m.gravity[0] * s,
-                                 m.gravity[1] * s, m.gravity[2] * s, hk, half_skin2, still);
-      if (k + 1 == bt.K)
-        for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
-    }
+    leaf_kick_drift<External>(k, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez, im,
+                              xr, yr, zr, hp, h_before, hk, half_skin2, m.gravity, still);
     h_before = hk;
     // Ghosts do not move and were within skin/2 of their reference: own particles may use the
     // other half. Beyond it a pair could be missing from the rows: stop, the sub-iteration is

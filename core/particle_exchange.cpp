@@ -274,21 +274,54 @@ std::size_t ParticleExchange::build_ghosts(ParticleStore& p, std::size_t owned,
 }
 
 namespace {
-constexpr int kForwardStride = 6; // x, y, z, vx, vy, vz
 constexpr int kForwardTag = 7302;
 using Requests = std::vector<MPI_Request>;
 } // namespace
 
+std::vector<double> ParticleExchange::route(std::span<const int> dest,
+                                            std::span<const double> records, int stride) {
+  const int ranks = comm_.size();
+  const auto st = static_cast<std::size_t>(stride);
+  if (stride <= 0 || records.size() != dest.size() * st)
+    throw std::invalid_argument("ParticleExchange::route: one destination per record");
+  std::vector<std::int64_t> counts(static_cast<std::size_t>(ranks), 0);
+  for (const int r : dest) {
+    if (r < 0 || r >= ranks)
+      throw std::invalid_argument("ParticleExchange::route: destination rank out of range");
+    ++counts[static_cast<std::size_t>(r)];
+  }
+  // Pack by destination rank, each rank's in record order (a counting sort).
+  std::vector<std::size_t> at(static_cast<std::size_t>(ranks) + 1, 0);
+  for (int r = 0; r < ranks; ++r)
+    at[r + 1] = at[r] + static_cast<std::size_t>(counts[r]) * st;
+  std::vector<double> send(records.size());
+  for (std::size_t q = 0; q < dest.size(); ++q) {
+    std::size_t& o = at[static_cast<std::size_t>(dest[q])];
+    std::copy_n(records.begin() + static_cast<std::ptrdiff_t>(q * st), st,
+                send.begin() + static_cast<std::ptrdiff_t>(o));
+    o += st;
+  }
+  std::vector<std::int64_t> recv_counts;
+  std::vector<double> recv;
+  exchange(counts, send, recv_counts, recv, stride, false);
+  return recv;
+}
+
 void ParticleExchange::forward_begin(const ParticleStore& p) {
-  fwd_send_.resize(plan_.size() * kForwardStride);
+  const bool spin = p.rotation;
+  fwd_stride_ = spin ? 9 : 6;
+  const auto stride = static_cast<std::size_t>(fwd_stride_);
+  fwd_send_.resize(plan_.size() * stride);
   double* out = fwd_send_.data();
   for (const Copy& c : plan_) {
     const std::size_t i = c.index;
     out[0] = p.x[i] + c.shift[0], out[1] = p.y[i] + c.shift[1], out[2] = p.z[i] + c.shift[2];
     out[3] = p.vx[i], out[4] = p.vy[i], out[5] = p.vz[i];
-    out += kForwardStride;
+    if (spin)
+      out[6] = p.wx[i], out[7] = p.wy[i], out[8] = p.wz[i];
+    out += stride;
   }
-  fwd_recv_.resize(recv_total_ * kForwardStride);
+  fwd_recv_.resize(recv_total_ * stride);
   const int ranks = comm_.size(), me = comm_.rank();
   if (!requests_)
     requests_ = std::make_shared<Requests>();
@@ -296,8 +329,8 @@ void ParticleExchange::forward_begin(const ParticleStore& p) {
   req.clear();
   std::size_t so = 0, ro = 0; // offsets in doubles; the plan and the arrivals are in rank order
   for (int r = 0; r < ranks; ++r) {
-    const auto ns = static_cast<std::size_t>(send_counts_[r]) * kForwardStride;
-    const auto nr = static_cast<std::size_t>(recv_counts_[r]) * kForwardStride;
+    const auto ns = static_cast<std::size_t>(send_counts_[r]) * stride;
+    const auto nr = static_cast<std::size_t>(recv_counts_[r]) * stride;
     if (r == me) {
       std::copy(fwd_send_.begin() + static_cast<std::ptrdiff_t>(so),
                 fwd_send_.begin() + static_cast<std::ptrdiff_t>(so + ns),
@@ -324,9 +357,12 @@ void ParticleExchange::forward_end(ParticleStore& p) {
     }
   }
   const double* in = fwd_recv_.data();
-  for (std::size_t g = owned_; g < owned_ + recv_total_; ++g, in += kForwardStride) {
+  const bool spin = fwd_stride_ == 9;
+  for (std::size_t g = owned_; g < owned_ + recv_total_; ++g, in += fwd_stride_) {
     p.x[g] = in[0], p.y[g] = in[1], p.z[g] = in[2];
     p.vx[g] = in[3], p.vy[g] = in[4], p.vz[g] = in[5];
+    if (spin)
+      p.wx[g] = in[6], p.wy[g] = in[7], p.wz[g] = in[8];
   }
 }
 

@@ -3,6 +3,7 @@
 // ghosts are copies of other ranks' particles (or periodic images of one's own) appended after
 // the owned ones, rebuilt with the neighbor list and refreshed between rebuilds by forward().
 // Every field of the store travels (x, v, radius, mass, 1/m, id, and w, 1/I with rotation);
+// a forward refreshes x, v (and w: a frictional contact reads the partner's spin);
 // forces and torques do not: the scheme recomputes them after each exchange. Sizes go first
 // (one all-to-all of counts), then the payload point to point, non-blocking, only between ranks
 // that exchange something. A rank's copies to itself (periodic self-images) are plain copies.
@@ -54,7 +55,14 @@ public:
   // forward plan. Throws std::invalid_argument for a bad rank, index or column size.
   std::size_t redistribute(ParticleStore& p, std::span<const int> dest, std::vector<Copy> ghosts,
                            std::span<std::vector<double>* const> extra = {});
-  // Refresh the ghosts' x and v from their owners along the plan (positions shifted again).
+  // Records that follow particles but are not one per particle (a contact's tangential history,
+  // any number per particle): `records` holds records of `stride` doubles, record q goes to rank
+  // dest[q]. Returns the records this rank receives, by source rank, each source's in its order
+  // (its own included). Leaves the ghost plan alone.
+  std::vector<double> route(std::span<const int> dest, std::span<const double> records,
+                            int stride);
+  // Refresh the ghosts' x and v (and w, with rotation) from their owners along the plan
+  // (positions shifted again).
   void forward(ParticleStore& p) {
     forward_begin(p);
     forward_end(p);
@@ -82,6 +90,7 @@ private:
   std::size_t owned_ = 0, recv_total_ = 0;
   std::vector<double> send_buf_, recv_buf_;
   std::vector<double> fwd_send_, fwd_recv_;
+  int fwd_stride_ = 6; // x, v; and w with rotation
   std::shared_ptr<void> requests_; // std::vector<MPI_Request> of a forward in flight
 };
 

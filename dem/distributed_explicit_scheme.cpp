@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -28,9 +29,7 @@ DistributedExplicitScheme::DistributedExplicitScheme(const Scene& scene, Particl
     : scene_(scene), p_(particles), comm_(comm), timer_(timer), geom_(scene.domain), model_(model),
       exchange_(comm) {
   if (model_.friction)
-    throw ConfigError("scene key 'dem.friction'",
-                      "friction (dem.friction, dem.wall_friction > 0) is not yet distributed over "
-                      "MPI ranks: run this scene on one rank");
+    p_.enable_rotation();
   // Enough boxes that the knapsack can balance: at least 4 per rank (partition.orb_levels when
   // that is more).
   levels_ = std::min(20, std::max(scene.partition.orb_levels, ceil_log2(comm.size()) + 2));
@@ -58,8 +57,13 @@ void DistributedExplicitScheme::canonicalize() {
   rebuild();
 }
 
-void DistributedExplicitScheme::restore(const Counters& c) {
+ContactHistory DistributedExplicitScheme::contact_history() const {
+  return collect_history(p_, list_, owned_, hx_, hy_, hz_);
+}
+
+void DistributedExplicitScheme::restore(const Counters& c, const ContactHistory& history) {
   steps_ = c.steps;
+  pending_ = history;
   canonicalize();
   particle_steps_ = c.particle_steps, pair_evaluations_ = c.pair_evaluations, builds_ = c.builds;
 }
@@ -114,23 +118,38 @@ void DistributedExplicitScheme::finish_forward() {
   forward_pending_ = false;
 }
 
+template <bool Friction>
+void DistributedExplicitScheme::contact_rows(std::span<const std::uint32_t> rows, double dt,
+                                             StepReport& rep) {
+  contact_pass<Friction>(p_, list_, local_, model_, hx_.data(), hy_.data(), hz_.data(), dt, rows,
+                         rep);
+}
+
 void DistributedExplicitScheme::contact(double dt, StepReport& rep) {
   PhaseTimer::Scope t(timer_, Phase::force);
+  const bool fr = model_.friction;
   if (!forward_pending_) {
-    contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, list_.active(),
-                        rep);
+    fr ? contact_rows<true>(list_.active(), dt, rep) : contact_rows<false>(list_.active(), dt, rep);
     return;
   }
-  contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, list_.interior(),
-                      rep);
+  fr ? contact_rows<true>(list_.interior(), dt, rep)
+     : contact_rows<false>(list_.interior(), dt, rep);
   finish_forward();
-  contact_pass<false>(p_, list_, local_, model_, nullptr, nullptr, nullptr, dt, list_.boundary(),
-                      rep);
+  fr ? contact_rows<true>(list_.boundary(), dt, rep)
+     : contact_rows<false>(list_.boundary(), dt, rep);
 }
 
 void DistributedExplicitScheme::rebuild() {
   finish_forward(); // its ghosts are about to be replaced; the messages must land first
   PhaseTimer::Scope t(timer_, Phase::neighbor);
+  // The owned rows' history by ids (partners may be ghosts, about to go), with any records a
+  // restart handed in.
+  ContactHistory held;
+  if (model_.friction) {
+    held = collect_history(p_, list_, owned_, hx_, hy_, hz_);
+    held.append(pending_);
+    pending_ = ContactHistory{};
+  }
   p_.resize(owned_); // the ghosts go; they come back from their owners below
   for (std::size_t i = 0; i < owned_; ++i)
     p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
@@ -160,6 +179,26 @@ void DistributedExplicitScheme::rebuild() {
   }
   if (const std::string e = comm_.agree_on_error(outside_id, outside); !e.empty())
     throw RunError(e);
+  ContactHistory arrived;
+  std::int64_t moved_history = 0;
+  if (model_.friction) {
+    // Each record follows its owner particle; records of particles this rank does not hold
+    // (a restart's, of other ranks' shares) are dropped here: their holder routes them.
+    std::unordered_map<std::int64_t, std::uint32_t> index;
+    index.reserve(owned_);
+    for (std::size_t i = 0; i < owned_; ++i)
+      index.emplace(p_.id[i], static_cast<std::uint32_t>(i));
+    ContactHistory mine;
+    std::vector<int> to;
+    for (std::size_t q = 0; q < held.size(); ++q) {
+      const auto it = index.find(held.owner[q]);
+      if (it == index.end()) continue;
+      mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
+      to.push_back(dest[it->second]);
+      moved_history += to.back() != comm_.rank() ? 1 : 0;
+    }
+    arrived = ContactHistory::unpack(exchange_.route(to, mine.pack(), ContactHistory::kStride));
+  }
   if (ext_.active()) {
     std::vector<double>* force[3] = {&ext_.x, &ext_.y, &ext_.z};
     exchange_.migrate(p_, dest, force);
@@ -193,27 +232,38 @@ void DistributedExplicitScheme::rebuild() {
   ghost_copies(copies);
   exchange_.build_ghosts(p_, owned_, std::move(copies));
   list_.build_local(p_, owned_, model_.skin);
+  if (model_.friction)
+    attach_history(std::move(arrived), p_, list_, owned_, hx_, hy_, hz_);
+  // Only rows get their force (torque) rewritten each step: clear the rest, as the serial build.
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
   std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+  if (p_.rotation) {
+    std::fill(p_.tx.begin(), p_.tx.end(), 0.0);
+    std::fill(p_.ty.begin(), p_.ty.end(), 0.0);
+    std::fill(p_.tz.begin(), p_.tz.end(), 0.0);
+  }
   // No particle lost: the owned counts add up to the initial total (and the pair count).
-  std::array<std::int64_t, 2> totals{static_cast<std::int64_t>(owned_),
-                                     static_cast<std::int64_t>(list_.neighbors().size())};
+  std::array<std::int64_t, 3> totals{static_cast<std::int64_t>(owned_),
+                                     static_cast<std::int64_t>(list_.neighbors().size()),
+                                     moved_history};
   comm_.sum(totals);
   if (totals[0] != n_global_)
     throw RunError(fmt::format("t = {:.9g} s: {} particles on the ranks after migration, {} "
                                "expected",
                                time(), totals[0], n_global_));
   global_pairs_ = totals[1] / 2;
+  history_migrations_ += totals[2];
   ++builds_;
   need_rebuild_ = false;
 }
 
-template <bool Walls> void DistributedExplicitScheme::update(double dt, StepReport& rep) {
+template <bool Walls, bool Friction>
+void DistributedExplicitScheme::update(double dt, StepReport& rep) {
   if (ext_.active()) {
-    update_pass<Walls, false, true>(p_, owned_, list_, ext_, geom_, model_, dt, rep);
+    update_pass<Walls, Friction, true>(p_, owned_, list_, ext_, geom_, model_, dt, rep);
   } else {
-    update_pass<Walls, false, false>(p_, owned_, list_, ext_, geom_, model_, dt, rep);
+    update_pass<Walls, Friction, false>(p_, owned_, list_, ext_, geom_, model_, dt, rep);
   }
 }
 
@@ -234,7 +284,10 @@ void DistributedExplicitScheme::evaluate_and_update(double dt, StepReport& rep) 
   const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
   contact(dt, rep);
   PhaseTimer::Scope t(timer_, Phase::integrate);
-  walls ? update<true>(dt, rep) : update<false>(dt, rep);
+  if (model_.friction)
+    walls ? update<true, true>(dt, rep) : update<false, true>(dt, rep);
+  else
+    walls ? update<true, false>(dt, rep) : update<false, false>(dt, rep);
 }
 
 void DistributedExplicitScheme::agree(const StepReport& rep, double t) const {
@@ -264,6 +317,11 @@ void DistributedExplicitScheme::start() {
     p_.vx[i] -= ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
     p_.vy[i] -= ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
     p_.vz[i] -= ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
+    if (model_.friction) {
+      p_.wx[i] -= p_.tx[i] * p_.inv_inertia[i] * h;
+      p_.wy[i] -= p_.ty[i] * p_.inv_inertia[i] * h;
+      p_.wz[i] -= p_.tz[i] * p_.inv_inertia[i] * h;
+    }
   }
   exchange_.forward(p_);
 }
@@ -295,10 +353,11 @@ void DistributedExplicitScheme::step(bool record) {
     const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
     contact(model_.dt, rep);
     PhaseTimer::Scope t(timer_, Phase::integrate);
-    if (walls)
-      update<true>(0.0, rep); // wall forces into f, x and v unchanged
+    const bool fr = model_.friction;
+    if (walls) // wall forces into f, x and v unchanged
+      fr ? update<true, true>(0.0, rep) : update<true, false>(0.0, rep);
     record_synchronised();
-    update<false>(model_.dt, rep);
+    fr ? update<false, true>(model_.dt, rep) : update<false, false>(model_.dt, rep);
   }
   // One reduction: did any particle anywhere move past skin/2, and did any rank fail a check;
   // in flight together with the ghost forward (wasted, and overwritten, before a rebuild).

@@ -16,7 +16,10 @@
 // some particle on some rank moved more than skin/2, the next step instead wraps, regrids (when
 // dem.regrid_interval has passed since the last), migrates to owners and rebuilds ghosts and
 // the local list. No array is sized by the domain or the global count.
-// Frictionless. A coupled run fixes the decomposition to the fluid's boxes
+// With friction, angular velocities travel with particles and ghosts (a contact reads its
+// partner's spin), and each owned row's tangential history travels with its particle, keyed by
+// partner id (dem/contact_history.hpp), and is reattached to the new list as ExplicitScheme
+// carries it over a rebuild. A coupled run fixes the decomposition to the fluid's boxes
 // (set_decomposition) and hands in the gas's force per particle (set_external_force).
 #pragma once
 
@@ -29,6 +32,7 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
@@ -42,8 +46,7 @@ class DistributedExplicitScheme {
 public:
   // `particles`: this rank's share of the initial particles, any split (start() moves each to
   // its owner). `model`: the step model of the whole system, the same on every rank
-  // (make_step_model over all initial particles). Throws ConfigError naming dem.friction when
-  // the model has friction (not distributed yet).
+  // (make_step_model over all initial particles). With friction the store gets rotation fields.
   DistributedExplicitScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                             const Communicator& comm, PhaseTimer& timer);
   // Completes a ghost forward still in flight (collective, as every step).
@@ -75,6 +78,9 @@ public:
   std::int64_t pair_evaluations() const { return pair_evaluations_; }
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t global_count() const { return n_global_; }
+  // Over all ranks: tangential history records (contacts with a non-zero spring) that moved to
+  // another rank with their particle at rebuilds so far.
+  std::int64_t history_migrations() const { return history_migrations_; }
   const StepModel& model() const { return model_; }
 
   // This rank: owned particles are [0, owned()) of the store, ghosts [owned(), size()).
@@ -96,9 +102,13 @@ public:
   struct Counters {
     std::int64_t steps = 0, particle_steps = 0, pair_evaluations = 0, builds = 0;
   };
+  // With friction a checkpoint also holds the contact history (contact_history(), this rank's
+  // records, after canonicalize()); restore() takes the records of all ranks (or any superset
+  // of this rank's share's: each rank keeps those whose owner it holds).
   void canonicalize();
   Counters counters() const { return {steps_, particle_steps_, pair_evaluations_, builds_}; }
-  void restore(const Counters& c);
+  ContactHistory contact_history() const;
+  void restore(const Counters& c, const ContactHistory& history = {});
 
   struct Regrid {
     std::int64_t step = 0;
@@ -110,7 +120,9 @@ public:
 private:
   void rebuild();
   void ghost_copies(std::vector<ParticleExchange::Copy>& out) const;
-  template <bool Walls> void update(double dt, StepReport& rep);
+  template <bool Walls, bool Friction> void update(double dt, StepReport& rep);
+  template <bool Friction> void contact_rows(std::span<const std::uint32_t> rows, double dt,
+                                             StepReport& rep);
   void evaluate_and_update(double dt, StepReport& rep);
   // Forces on the owned rows; a forward in flight completes after the interior rows.
   void contact(double dt, StepReport& rep);
@@ -130,6 +142,10 @@ private:
   partition::RankDecomposition decomposition_;
   VerletList list_;
   ExternalForce ext_;
+  // Tangential history per list entry (friction only), and records handed in by restore() that
+  // the next rebuild reattaches.
+  std::vector<double> hx_, hy_, hz_;
+  ContactHistory pending_;
   bool fixed_decomposition_ = false;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_;
   std::vector<Regrid> regrids_;
@@ -137,9 +153,9 @@ private:
   int levels_ = 0;
   double halo_ = 0.0;
   std::int64_t regrid_every_ = 0, last_regrid_ = -1;
-  std::int64_t n_global_ = 0, global_pairs_ = 0;
+  std::int64_t n_global_ = 0, global_pairs_ = 0, history_migrations_ = 0;
   bool need_rebuild_ = true;
-  bool forward_pending_ = false; // ghost x, v of the last step still in flight
+  bool forward_pending_ = false; // ghost x, v (w) of the last step still in flight
   std::int64_t steps_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0;
 };
 

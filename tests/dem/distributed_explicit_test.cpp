@@ -375,20 +375,6 @@ TEST(DistributedExplicit, BitwiseIndependentOfThreadCount) {
               a.vz == b.vz && a.id == b.id);
 }
 
-TEST(DistributedExplicit, FrictionIsRefusedNamingTheKey) {
-  const Communicator c = comm();
-  const Scene scene = scene_from(kGas, {"dem.friction=0.3"});
-  ParticleStore all = make_initial_particles(scene);
-  const dem::StepModel model = dem::make_step_model(scene, all);
-  PhaseTimer timer;
-  try {
-    dem::DistributedExplicitScheme s(scene, all, model, c, timer);
-    FAIL() << "friction accepted";
-  } catch (const ConfigError& e) {
-    EXPECT_NE(std::string(e.what()).find("dem.friction"), std::string::npos);
-  }
-}
-
 // A coupled run's set-up: the particles are owned by the ranks' fluid boxes (12 x 8 x 6 cells
 // of the walled box, cut as the gas is) and feel a per-particle external force (here a function
 // of the id, of the order of gravity), which must follow them through every migration. Against

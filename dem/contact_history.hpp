@@ -1,0 +1,46 @@
+// The tangential spring history of frictional contacts keyed by particle ids, not list entries:
+// the form in which it survives what renumbers the store (a migration to another rank, a
+// checkpoint) and is reattached to a freshly built Verlet list, as ExplicitScheme carries it
+// across a rebuild (an entry keeps its value when the pair (id_i, id_j) is listed again).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "core/particle_store.hpp"
+#include "dem/verlet_list.hpp"
+
+namespace cfddem::dem {
+
+// One record per (owner, partner) entry of the owner's row: the displacement xi the owner's
+// contact force reads (physics.md §2). The partner's row holds its own record.
+struct ContactHistory {
+  std::vector<std::int64_t> owner, partner;
+  std::vector<double> hx, hy, hz;
+
+  std::size_t size() const { return owner.size(); }
+  void add(std::int64_t o, std::int64_t q, double x, double y, double z) {
+    owner.push_back(o), partner.push_back(q), hx.push_back(x), hy.push_back(y), hz.push_back(z);
+  }
+  void append(const ContactHistory& h);
+  // Records as 5 doubles each (the ids as their bits), for ParticleExchange::route, and back.
+  std::vector<double> pack() const;
+  static ContactHistory unpack(std::span<const double> records);
+  static constexpr int kStride = 5;
+};
+
+// The non-zero history of rows [0, rows) of `list` (hx, hy, hz: one value per list entry); an
+// entry left at zero is what a new entry starts from, so it need not be kept.
+ContactHistory collect_history(const ParticleStore& p, const VerletList& list, std::size_t rows,
+                               std::span<const double> hx, std::span<const double> hy,
+                               std::span<const double> hz);
+
+// History per entry of `list` (rows [0, rows) of the store `p`): the record of (id_i, id_j)
+// where `h` has one, zero elsewhere. Records whose pair is not listed are dropped (the pair
+// separated beyond the list's reach: out of contact, so its history is zero anyway).
+void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& list,
+                    std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
+                    std::vector<double>& hz);
+
+} // namespace cfddem::dem

@@ -145,8 +145,8 @@ namespace {
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (env.ranks() > 1) {
-    // What is distributed so far: the explicit and orb schemes (frictionless), the explicit
-    // one with a gas too.
+    // What is distributed so far: the explicit scheme (with friction too, and with a gas) and
+    // the orb scheme (frictionless: it refuses friction itself).
     if (scene.dem.scheme != "explicit" && scene.dem.scheme != "orb")
       throw ConfigError("scene key 'dem.scheme'",
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
@@ -524,6 +524,15 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   // keeps its share of the particles, as at the start.
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
+  // With friction the checkpoint's history rows (over its particles) become records by id,
+  // which restore() hands to each particle's owner.
+  const bool friction = scene.dem.friction > 0.0 || scene.dem.wall_friction > 0.0;
+  dem::ContactHistory saved_history;
+  if (ck && friction) {
+    const auto& st = ck->state;
+    saved_history = dem::history_from_rows(ck->particles.id, st.offsets, st.neighbors, st.hx,
+                                           st.hy, st.hz);
+  }
   ParticleStore particles = rank_share(scene, ck, comm);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene, particles, comm, &range);
@@ -599,7 +608,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     if (root) snapshots->restore(ck->snapshots);
     if (!rows.empty()) means.resume(rows.back());
     k_last_row = ck->last_row_step;
-    scheme.restore({k0, ck->state.particle_steps, ck->state.pair_evaluations, ck->state.builds});
+    scheme.restore({k0, ck->state.particle_steps, ck->state.pair_evaluations, ck->state.builds},
+                   saved_history);
   } else {
   scheme.start();
   {
@@ -636,6 +646,22 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     for (int q = 0; q < 9; ++q) all[q] = comm.gather(own[q]);
     const std::vector<std::int64_t> ids =
         comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+    // Friction: the spin and the contact history (records by id) travel to rank 0 as well.
+    std::vector<double> spin[4];
+    std::vector<std::int64_t> h_owner, h_partner;
+    std::vector<double> h_xyz[3];
+    if (particles.rotation) {
+      const std::span<const double> w[] = {{particles.wx.data(), n}, {particles.wy.data(), n},
+                                           {particles.wz.data(), n},
+                                           {particles.inv_inertia.data(), n}};
+      for (int q = 0; q < 4; ++q) spin[q] = comm.gather(w[q]);
+      const dem::ContactHistory h = scheme.contact_history();
+      h_owner = comm.gather(std::span<const std::int64_t>(h.owner));
+      h_partner = comm.gather(std::span<const std::int64_t>(h.partner));
+      h_xyz[0] = comm.gather(std::span<const double>(h.hx));
+      h_xyz[1] = comm.gather(std::span<const double>(h.hy));
+      h_xyz[2] = comm.gather(std::span<const double>(h.hz));
+    }
     std::string error;
     if (root) {
       try {
@@ -654,6 +680,21 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
         for (std::size_t i = 0; i < order.size(); ++i) {
           for (int q = 0; q < 9; ++q) (*field[q])[i] = all[q][order[i]];
           c.particles.id[i] = ids[order[i]];
+        }
+        if (particles.rotation) {
+          c.particles.enable_rotation();
+          std::vector<double>* w[4] = {&c.particles.wx, &c.particles.wy, &c.particles.wz,
+                                       &c.particles.inv_inertia};
+          for (std::size_t i = 0; i < order.size(); ++i)
+            for (int q = 0; q < 4; ++q) (*w[q])[i] = spin[q][order[i]];
+          // The history as rows over the saved particles (a serial checkpoint's layout, with
+          // no reference positions: the list itself is rebuilt at a restart).
+          const dem::ContactHistory h{h_owner, h_partner, h_xyz[0], h_xyz[1], h_xyz[2]};
+          dem::HistoryRows rows_h = dem::history_rows(h, c.particles.id);
+          c.state.offsets = std::move(rows_h.offsets);
+          c.state.neighbors = std::move(rows_h.neighbors);
+          c.state.hx = std::move(rows_h.hx), c.state.hy = std::move(rows_h.hy);
+          c.state.hz = std::move(rows_h.hz);
         }
         // The list is rebuilt at a restart (canonical state): only the counters are kept.
         const auto cnt = scheme.counters();

@@ -3,6 +3,11 @@
 #include <algorithm>
 #include <bit>
 #include <numeric>
+#include <unordered_map>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
 
 namespace cfddem::dem {
 
@@ -78,6 +83,54 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
       }
     }
   }
+}
+
+HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> ids) {
+  std::unordered_map<std::int64_t, std::uint32_t> index;
+  index.reserve(ids.size());
+  for (std::size_t i = 0; i < ids.size(); ++i) index.emplace(ids[i], static_cast<std::uint32_t>(i));
+  auto at = [&](std::int64_t id) {
+    const auto it = index.find(id);
+    if (it == index.end())
+      throw RunError(fmt::format("contact history names particle {}, which is not saved", id));
+    return it->second;
+  };
+  HistoryRows r;
+  r.offsets.assign(ids.size() + 1, 0);
+  for (const std::int64_t o : h.owner) ++r.offsets[at(o) + 1];
+  std::partial_sum(r.offsets.begin(), r.offsets.end(), r.offsets.begin());
+  std::vector<std::uint32_t> next(r.offsets.begin(), r.offsets.end() - 1);
+  r.neighbors.resize(h.size()), r.hx.resize(h.size()), r.hy.resize(h.size()),
+      r.hz.resize(h.size());
+  for (std::size_t q = 0; q < h.size(); ++q) {
+    const std::uint32_t k = next[at(h.owner[q])]++;
+    r.neighbors[k] = at(h.partner[q]);
+    r.hx[k] = h.hx[q], r.hy[k] = h.hy[q], r.hz[k] = h.hz[q];
+  }
+  return r;
+}
+
+ContactHistory history_from_rows(std::span<const std::int64_t> ids,
+                                 std::span<const std::uint32_t> offsets,
+                                 std::span<const std::uint32_t> neighbors,
+                                 std::span<const double> hx, std::span<const double> hy,
+                                 std::span<const double> hz) {
+  ContactHistory h;
+  if (offsets.empty()) return h;
+  const std::size_t n = ids.size(), m = neighbors.size();
+  if (offsets.size() != n + 1 || offsets.front() != 0 || offsets.back() != m || hx.size() != m ||
+      hy.size() != m || hz.size() != m)
+    throw RunError("checkpoint: the contact history does not fit the particles");
+  for (std::size_t i = 0; i < n; ++i) {
+    if (offsets[i + 1] < offsets[i])
+      throw RunError("checkpoint: the contact history offsets are not monotonic");
+    for (std::uint32_t k = offsets[i]; k < offsets[i + 1]; ++k) {
+      if (neighbors[k] >= n) throw RunError("checkpoint: a contact partner is out of range");
+      if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0)
+        h.add(ids[i], ids[neighbors[k]], hx[k], hy[k], hz[k]);
+    }
+  }
+  return h;
 }
 
 } // namespace cfddem::dem

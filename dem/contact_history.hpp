@@ -43,4 +43,20 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
                     std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
                     std::vector<double>& hz);
 
+// A checkpoint's form: rows over the particles `ids` (the checkpoint's order), entries naming
+// the partner by its index there, one history value per entry: the layout of a serial
+// ExplicitScheme::State's list and history, so either kind of checkpoint reads the same way.
+struct HistoryRows {
+  std::vector<std::uint32_t> offsets, neighbors;
+  std::vector<double> hx, hy, hz;
+};
+// Throws RunError for a record naming an id that `ids` does not hold.
+HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> ids);
+// The records of rows saved over `ids` (no rows: none). Throws RunError when they do not fit.
+ContactHistory history_from_rows(std::span<const std::int64_t> ids,
+                                 std::span<const std::uint32_t> offsets,
+                                 std::span<const std::uint32_t> neighbors,
+                                 std::span<const double> hx, std::span<const double> hy,
+                                 std::span<const double> hz);
+
 } // namespace cfddem::dem

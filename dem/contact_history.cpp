@@ -44,7 +44,8 @@ ContactHistory collect_history(const ParticleStore& p, const VerletList& list, s
   ContactHistory h;
   const auto off = list.offsets();
   const auto nb = list.neighbors();
-  if (off.empty() || hx.size() != nb.size()) return h; // never built, or built without history
+  if (off.empty() || hx.size() != nb.size())
+    return h; // never built, or built without history
   for (std::size_t i = 0; i < rows && i + 1 < off.size(); ++i)
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k)
       if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0)
@@ -58,7 +59,8 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
   const auto off = list.offsets();
   const auto nb = list.neighbors();
   hx.assign(nb.size(), 0.0), hy.assign(nb.size(), 0.0), hz.assign(nb.size(), 0.0);
-  if (h.size() == 0) return;
+  if (h.size() == 0)
+    return;
   // Records sorted by (owner, partner): an owner's records are one range, found by bisection.
   std::vector<std::uint32_t> order(h.size());
   std::iota(order.begin(), order.end(), 0U);
@@ -66,12 +68,15 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
     return h.owner[a] != h.owner[b] ? h.owner[a] < h.owner[b] : h.partner[a] < h.partner[b];
   });
   std::vector<std::int64_t> owner(h.size());
-  for (std::size_t q = 0; q < h.size(); ++q) owner[q] = h.owner[order[q]];
+  for (std::size_t q = 0; q < h.size(); ++q)
+    owner[q] = h.owner[order[q]];
   for (std::size_t i = 0; i < rows && i + 1 < off.size(); ++i) {
-    if (off[i + 1] == off[i]) continue;
+    if (off[i + 1] == off[i])
+      continue;
     const auto lo = std::lower_bound(owner.begin(), owner.end(), p.id[i]);
     const auto hi = std::upper_bound(lo, owner.end(), p.id[i]);
-    if (lo == hi) continue;
+    if (lo == hi)
+      continue;
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
       const std::int64_t j = p.id[nb[k]];
       for (auto it = lo; it != hi; ++it) {
@@ -88,7 +93,8 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
 HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> ids) {
   std::unordered_map<std::int64_t, std::uint32_t> index;
   index.reserve(ids.size());
-  for (std::size_t i = 0; i < ids.size(); ++i) index.emplace(ids[i], static_cast<std::uint32_t>(i));
+  for (std::size_t i = 0; i < ids.size(); ++i)
+    index.emplace(ids[i], static_cast<std::uint32_t>(i));
   auto at = [&](std::int64_t id) {
     const auto it = index.find(id);
     if (it == index.end())
@@ -97,11 +103,11 @@ HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> 
   };
   HistoryRows r;
   r.offsets.assign(ids.size() + 1, 0);
-  for (const std::int64_t o : h.owner) ++r.offsets[at(o) + 1];
+  for (const std::int64_t o : h.owner)
+    ++r.offsets[at(o) + 1];
   std::partial_sum(r.offsets.begin(), r.offsets.end(), r.offsets.begin());
   std::vector<std::uint32_t> next(r.offsets.begin(), r.offsets.end() - 1);
-  r.neighbors.resize(h.size()), r.hx.resize(h.size()), r.hy.resize(h.size()),
-      r.hz.resize(h.size());
+  r.neighbors.resize(h.size()), r.hx.resize(h.size()), r.hy.resize(h.size()), r.hz.resize(h.size());
   for (std::size_t q = 0; q < h.size(); ++q) {
     const std::uint32_t k = next[at(h.owner[q])]++;
     r.neighbors[k] = at(h.partner[q]);
@@ -116,7 +122,8 @@ ContactHistory history_from_rows(std::span<const std::int64_t> ids,
                                  std::span<const double> hx, std::span<const double> hy,
                                  std::span<const double> hz) {
   ContactHistory h;
-  if (offsets.empty()) return h;
+  if (offsets.empty())
+    return h;
   const std::size_t n = ids.size(), m = neighbors.size();
   if (offsets.size() != n + 1 || offsets.front() != 0 || offsets.back() != m || hx.size() != m ||
       hy.size() != m || hz.size() != m)
@@ -125,7 +132,8 @@ ContactHistory history_from_rows(std::span<const std::int64_t> ids,
     if (offsets[i + 1] < offsets[i])
       throw RunError("checkpoint: the contact history offsets are not monotonic");
     for (std::uint32_t k = offsets[i]; k < offsets[i + 1]; ++k) {
-      if (neighbors[k] >= n) throw RunError("checkpoint: a contact partner is out of range");
+      if (neighbors[k] >= n)
+        throw RunError("checkpoint: a contact partner is out of range");
       if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0)
         h.add(ids[i], ids[neighbors[k]], hx[k], hy[k], hz[k]);
     }

@@ -192,7 +192,8 @@ void DistributedExplicitScheme::rebuild() {
     std::vector<int> to;
     for (std::size_t q = 0; q < held.size(); ++q) {
       const auto it = index.find(held.owner[q]);
-      if (it == index.end()) continue;
+      if (it == index.end())
+        continue;
       mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
       to.push_back(dest[it->second]);
       moved_history += to.back() != comm_.rank() ? 1 : 0;

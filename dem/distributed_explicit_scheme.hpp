@@ -121,8 +121,8 @@ private:
   void rebuild();
   void ghost_copies(std::vector<ParticleExchange::Copy>& out) const;
   template <bool Walls, bool Friction> void update(double dt, StepReport& rep);
-  template <bool Friction> void contact_rows(std::span<const std::uint32_t> rows, double dt,
-                                             StepReport& rep);
+  template <bool Friction>
+  void contact_rows(std::span<const std::uint32_t> rows, double dt, StepReport& rep);
   void evaluate_and_update(double dt, StepReport& rep);
   // Forces on the owned rows; a forward in flight completes after the interior rows.
   void contact(double dt, StepReport& rep);

@@ -105,11 +105,11 @@ template <class T> std::vector<T> all_gather(std::span<const T> mine) {
 ParticleStore gather_owned(const ParticleStore& p, std::size_t owned) {
   ParticleStore all;
   all.enable_rotation();
-  const std::vector<double>* from[] = {&p.x,      &p.y,  &p.z,  &p.vx, &p.vy,
-                                       &p.vz,     &p.radius, &p.mass, &p.inv_mass, &p.wx,
-                                       &p.wy,     &p.wz, &p.inv_inertia};
-  std::vector<double>* to[] = {&all.x,  &all.y,      &all.z,    &all.vx,       &all.vy,
-                               &all.vz, &all.radius, &all.mass, &all.inv_mass, &all.wx,
+  const std::vector<double>* from[] = {&p.x,  &p.y,      &p.z,          &p.vx,       &p.vy,
+                                       &p.vz, &p.radius, &p.mass,       &p.inv_mass, &p.wx,
+                                       &p.wy, &p.wz,     &p.inv_inertia};
+  std::vector<double>* to[] = {&all.x,  &all.y,      &all.z,          &all.vx,       &all.vy,
+                               &all.vz, &all.radius, &all.mass,       &all.inv_mass, &all.wx,
                                &all.wy, &all.wz,     &all.inv_inertia};
   const std::vector<std::int64_t> ids = all_gather<std::int64_t>({p.id.data(), owned});
   all.resize(ids.size());
@@ -124,10 +124,10 @@ ParticleStore gather_owned(const ParticleStore& p, std::size_t owned) {
 }
 
 struct Compared {
-  double dx = 0, dv = 0, dw = 0;   // largest difference from the serial run (by id)
-  double w_scale = 0;              // largest |w| of the serial run
-  double dp = 0, p_scale = 0;      // total momentum change over the run, and its scale
-  double dl = 0, l_scale = 0;      // total spin I w: distributed minus serial, and its scale
+  double dx = 0, dv = 0, dw = 0; // largest difference from the serial run (by id)
+  double w_scale = 0;            // largest |w| of the serial run
+  double dp = 0, p_scale = 0;    // total momentum change over the run, and its scale
+  double dl = 0, l_scale = 0;    // total spin I w: distributed minus serial, and its scale
   std::int64_t builds = 0, regrids = 0, migrated = 0, sliding_or_stuck = 0;
 };
 
@@ -186,8 +186,8 @@ Compared run_and_compare(const char* toml, int steps) {
   c.sum(l);
   for (std::size_t j = 0; j < serial.size(); ++j) {
     const double inertia = 1.0 / serial.inv_inertia[j];
-    r.w_scale = std::max({r.w_scale, std::abs(serial.wx[j]), std::abs(serial.wy[j]),
-                          std::abs(serial.wz[j])});
+    r.w_scale = std::max(
+        {r.w_scale, std::abs(serial.wx[j]), std::abs(serial.wy[j]), std::abs(serial.wz[j])});
     l[0] -= inertia * serial.wx[j], l[1] -= inertia * serial.wy[j], l[2] -= inertia * serial.wz[j];
     r.l_scale += inertia * std::hypot(serial.wx[j], serial.wy[j], serial.wz[j]);
   }
@@ -292,10 +292,9 @@ TEST(DistributedFriction, RestartWithContactHistoryIsBitwise) {
     return gather_owned(q, r.owned());
   };
   const ParticleStore again = resume(h);
-  EXPECT_TRUE(again.id == full.id && again.x == full.x && again.y == full.y &&
-              again.z == full.z && again.vx == full.vx && again.vy == full.vy &&
-              again.vz == full.vz && again.wx == full.wx && again.wy == full.wy &&
-              again.wz == full.wz);
+  EXPECT_TRUE(again.id == full.id && again.x == full.x && again.y == full.y && again.z == full.z &&
+              again.vx == full.vx && again.vy == full.vy && again.vz == full.vz &&
+              again.wx == full.wx && again.wy == full.wy && again.wz == full.wz);
   const ParticleStore forgot = resume({});
   EXPECT_FALSE(forgot.x == full.x && forgot.wx == full.wx);
 }

@@ -231,6 +231,13 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
+    if (ck->state.x_ref.empty() && !ck->state.offsets.empty()) {
+      // An R-rank checkpoint with friction: its rows hold only the contact history, over the
+      // saved particles (the store's order here). Reinstated as a list due for a rebuild, they
+      // are carried over by ids as any rebuild carries the history.
+      ck->state.x_ref = particles.x, ck->state.y_ref = particles.y, ck->state.z_ref = particles.z;
+      ck->state.need_rebuild = true;
+    }
     scheme.restore_state(std::move(ck->state));
     for (auto& r : ck->rows) add_row(std::move(r));
     snapshots.restore(ck->snapshots);

@@ -13,6 +13,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/gas_rebalance.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
@@ -67,19 +68,20 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   static const bool hypre_ready = (HYPRE_Init(), true); // once per process; freed at exit
   (void)hypre_ready;
   dem::DistributedExplicitScheme scheme(scene, particles, model, comm, timer);
-  {
+  // The particles' owners: the ranks' gas boxes (at the start the count cut, later the
+  // weighted cuts of the gas regrids).
+  const auto own_by_boxes = [&](const std::vector<CellBox>& boxes) {
     const fluid::MacGridSpec spec = fluid_grid_spec(scene);
     std::array<double, 3> spacing{};
     for (int a = 0; a < 3; ++a)
       spacing[a] = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
-    std::vector<CellBox> boxes;
-    try {
-      boxes = orb_cell_boxes(spec.cells, comm.size(), fluid::kMinBoxWidth);
-    } catch (const std::invalid_argument& e) {
-      throw ConfigError("scene key 'fluid.cells'", e.what());
-    }
     scheme.set_decomposition(partition::decomposition_of_cell_boxes(
         boxes, spec.origin, spacing, {scene.domain.lo, scene.domain.hi}));
+  };
+  try {
+    own_by_boxes(orb_cell_boxes(fluid_grid_spec(scene).cells, comm.size(), fluid::kMinBoxWidth));
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError("scene key 'fluid.cells'", e.what());
   }
   const double dt = scheme.dt();
   const double end = scene.run.end_time;
@@ -196,8 +198,49 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                 means.next(loop.row_time, st.mean_velocity, loop.row_fluid)));
   };
   const double tol = 1e-6 * dt;
+  // Gas regrids (partition.gas_regrid_interval): the boxes cut again by the cells' weights with
+  // the particle steps of the last fluid step; moved when that is predicted to cut the largest
+  // load by more than kRegridGain of the mean, so a balanced run does not churn.
+  constexpr double kRegridGain = 0.02;
+  const double regrid_every = scene.partition.gas_regrid_interval;
+  double next_regrid = regrid_every;
+  long long last_n_sub = 0;
+  nlohmann::ordered_json regrids = nlohmann::ordered_json::array();
+  auto gas_regrid = [&] {
+    PhaseTimer::Scope fl(timer, Phase::fluid);
+    const std::size_t n = scheme.owned();
+    std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
+                                std::vector<double>(n)};
+    for (std::size_t i = 0; i < n; ++i)
+      w[0][i] = geom.wrap(particles.x[i], 0), w[1][i] = geom.wrap(particles.y[i], 1),
+      w[2][i] = geom.wrap(particles.z[i], 2);
+    const std::vector<double> steps(n, static_cast<double>(last_n_sub));
+    GasBalance b;
+    try {
+      b = balance_gas_boxes(gas, w[0], w[1], w[2], steps, scene.partition.cell_weight, comm);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError("scene key 'fluid.cells'", e.what());
+    }
+    const bool move = b.boxes != gas.boxes() && b.imbalance_after < b.imbalance_before - kRegridGain;
+    std::size_t sent = 0;
+    if (move) {
+      sent = gas.rebox(b.boxes);
+      own_by_boxes(b.boxes);
+      scheme.redistribute_now();
+    }
+    regrids.push_back({{"time", t},
+                       {"imbalance_before", b.imbalance_before},
+                       {"imbalance_after", move ? b.imbalance_after : b.imbalance_before},
+                       {"moved", move},
+                       {"gas_values_sent", comm.sum(static_cast<std::int64_t>(sent))}});
+  };
   while (end - t > tol) {
+    if (regrid_every > 0.0 && last_n_sub > 0 && t >= next_regrid - tol) {
+      gas_regrid();
+      while (next_regrid <= t + tol) next_regrid += regrid_every;
+    }
     const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
+    last_n_sub = n_sub;
     const double dt_f = static_cast<double>(n_sub) * dt;
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
@@ -268,8 +311,10 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     for (const CellBox& b : gas.boxes())
       cells.push_back(b.count());
     j["gas_cells_per_rank"] = cells;
-    j["decomposition"] = "the gas grid's ORB boxes, one per rank; particles owned by the rank "
-                         "whose box holds them (settled at neighbor rebuilds)";
+    j["gas_regrids"] = regrids;
+    j["decomposition"] = "the gas grid's ORB boxes, one per rank (cut by cell count, then by "
+                         "weight at gas regrids); particles owned by the rank whose box holds "
+                         "them (settled at neighbor rebuilds and gas regrids)";
     write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
   }
   if (!opt.quiet && root)

@@ -145,8 +145,8 @@ namespace {
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (env.ranks() > 1) {
-    // What is distributed so far: the explicit and orb schemes (frictionless), the explicit
-    // one with a gas too.
+    // What is distributed so far: the explicit and orb schemes (frictionless), with a gas
+    // too (run_coupled_distributed refuses the others).
     if (scene.dem.scheme != "explicit" && scene.dem.scheme != "orb")
       throw ConfigError("scene key 'dem.scheme'",
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
@@ -154,12 +154,6 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
                                     "\"orb\"",
                                     scene.dem.scheme));
     if (scene.fluid.enabled) {
-      if (scene.dem.scheme != "explicit")
-        throw ConfigError("scene key 'dem.scheme'",
-                          fmt::format("dem.scheme = \"{}\" with a gas is not yet distributed "
-                                      "over MPI ranks: run it on one rank, or use dem.scheme = "
-                                      "\"explicit\"",
-                                      scene.dem.scheme));
       validate_fluid(scene);
       return run_coupled_distributed(scene, opt, env);
     }

@@ -76,8 +76,8 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
-  // Every rank builds its share of the particles (every R-th, make_initial_share); start()
-  // sends each to the rank whose gas box holds it.
+  // Every rank builds its share of the particles (every R-th, make_initial_share); the first
+  // particle step sends each to its owner (explicit: its gas box's rank; orb: its leaf's).
   std::optional<Checkpoint> no_checkpoint; // refused above
   ParticleStore particles = rank_share(scene_in, no_checkpoint, comm);
   dem::ParticleRange range;
@@ -337,11 +337,16 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
         loop.fluid_steps > 0 ? loop_seconds / static_cast<double>(loop.fluid_steps) : 0.0;
     nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
     ph["note"] = "rank 0's phases; fluid: deposition, gas step (predictor, projection over the "
-                 "ranks), interpolation and particle forces; neighbor + force: the particle "
-                 "sub-cycle";
+                 "ranks), interpolation and particle forces (with orb: and the routing of the "
+                 "particles to the gas boxes and of their forces back); neighbor + force: the "
+                 "particle sub-cycle";
     j["phase_seconds"] = ph;
     add_work_counters(j, scheme, loop_seconds,
-                      "neighbor-list pairs evaluated (each pair once per step), over all ranks");
+                      kSub ? "candidate pairs evaluated per local step, over all ranks: pairs "
+                             "within a leaf once, pairs across a leaf boundary once per side "
+                             "(rows rebuilt at every sub-iteration)"
+                           : "neighbor-list pairs evaluated (each pair once per step), over all "
+                             "ranks");
     j["mpi_wait_seconds"] = waits;
     j["fluid_seconds"] = fluid_seconds;
     j["owned_particles_at_end"] = owned;

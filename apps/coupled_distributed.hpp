@@ -1,4 +1,4 @@
-// The coupled loop (gas + explicit particles) over MPI ranks.
+// The coupled loop (gas + explicit or orb particles) over MPI ranks.
 #pragma once
 
 #include "apps/simulation.hpp"

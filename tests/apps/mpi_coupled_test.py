@@ -18,7 +18,7 @@ run.json shows the ranks' gas boxes (total/R cells each, up to half a cross-sect
 One and two threads per rank give bitwise the same rows. The same comparison for
 scenes/settling.toml (walls, gravity, closed box). The snapshots (particles and the gas boxes
 written collectively) hold the 1-rank run's particles and cells to round-off. Checkpoints on R
-ranks with a gas are refused naming the key.
+ranks with a gas, and the islands scheme with a gas on R ranks, are refused naming the key.
 
 SCHEME = orb (default explicit): dem.scheme = "orb" with dem.nsubit = 10 sub-iterations per fluid
 step on both sides. The particles are owned by the ranks of their ORB leaves (not by the gas
@@ -140,6 +140,10 @@ def main():
                            capture_output=True, text=True)
         assert r.returncode == 2 and "output.checkpoint_interval" in r.stderr, (r.returncode,
                                                                                 r.stderr)
+        # The islands scheme with a gas is not distributed yet (the orb and explicit ones are).
+        r = subprocess.run(cmd + ARGS + ["dem.scheme=islands"], env=ENV, timeout=60,
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and "dem.scheme" in r.stderr, (r.returncode, r.stderr)
     print(f"{SCHEME}, {RANKS} ranks vs 1: worst scaled column error {max(worst.values()):.3g} "
           f"({max(worst, key=worst.get)}); gas cells per rank {cells}; "
           f"neighbor builds {many[-1]['neighbor_builds']}")

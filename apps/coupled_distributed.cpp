@@ -13,6 +13,7 @@
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
+#include "apps/gas_rebalance.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/diagnostics_file.hpp"
 #include "apps/gas_routing.hpp"
@@ -34,19 +35,14 @@ namespace cfddem::apps {
 
 namespace {
 
-// The gas grid's boxes, one per rank (GasCoupling's cut), as a decomposition of the domain: the
+// The gas grid's boxes, one per rank (GasCoupling's), as a decomposition of the domain: the
 // explicit scheme's ownership and the routing's destination rule, the same on every rank.
-partition::RankDecomposition gas_box_decomposition(const Scene& scene, const Communicator& comm) {
+partition::RankDecomposition box_decomposition(const Scene& scene,
+                                               const std::vector<CellBox>& boxes) {
   const fluid::MacGridSpec spec = fluid_grid_spec(scene);
   std::array<double, 3> spacing{};
   for (int a = 0; a < 3; ++a)
     spacing[a] = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
-  std::vector<CellBox> boxes;
-  try {
-    boxes = orb_cell_boxes(spec.cells, comm.size(), fluid::kMinBoxWidth);
-  } catch (const std::invalid_argument& e) {
-    throw ConfigError("scene key 'fluid.cells'", e.what());
-  }
   return partition::decomposition_of_cell_boxes(boxes, spec.origin, spacing,
                                                 {scene.domain.lo, scene.domain.hi});
 }
@@ -104,13 +100,27 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   Scheme scheme(scene, particles, model, comm, timer);
   const dem::DomainGeometry geom(scene.domain);
   std::optional<GasRouting> routing;
+  std::vector<CellBox> boxes0;
+  try {
+    boxes0 = orb_cell_boxes(fluid_grid_spec(scene).cells, comm.size(), fluid::kMinBoxWidth);
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError("scene key 'fluid.cells'", e.what());
+  }
+  // The gas boxes decide the explicit scheme's owners and the routing's destinations (at the
+  // start the count cut, later the weighted cuts of the gas regrids).
+  const auto own_by_boxes = [&](const std::vector<CellBox>& boxes) {
+    if constexpr (kSub)
+      routing->set_boxes(box_decomposition(scene, boxes));
+    else
+      scheme.set_decomposition(box_decomposition(scene, boxes));
+  };
   double dt = 0.0, snap_dt = 0.0; // snap_dt: the particles' fine step (snapshots)
   if constexpr (kSub) {
-    routing.emplace(comm, gas_box_decomposition(scene, comm), geom);
+    routing.emplace(comm, box_decomposition(scene, boxes0), geom);
     dt = scheme.dt_sub();
     snap_dt = scheme.dt_fine();
   } else {
-    scheme.set_decomposition(gas_box_decomposition(scene, comm));
+    own_by_boxes(boxes0);
     dt = snap_dt = scheme.dt();
   }
   const double end = scene.run.end_time;
@@ -264,8 +274,53 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
                 means.next(loop.row_time, st.mean_velocity, loop.row_fluid)));
   };
   const double tol = 1e-6 * dt;
+  // Gas regrids (partition.gas_regrid_interval): the boxes cut again by the cells' weights with
+  // the particle steps of the last fluid step; moved when that is predicted to cut the largest
+  // load by more than kRegridGain of the mean, so a balanced run does not churn.
+  constexpr double kRegridGain = 0.02;
+  const double regrid_every = scene.partition.gas_regrid_interval;
+  double next_regrid = regrid_every;
+  long long last_n_sub = 0;
+  nlohmann::ordered_json regrids = nlohmann::ordered_json::array();
+  auto gas_regrid = [&] {
+    PhaseTimer::Scope fl(timer, Phase::fluid);
+    // The particles this rank's gas box deposits (sub-iterated: the routed copies of the last
+    // fluid step, wrapped; each weighs its dem.nsubit sub-iterations, not its local steps).
+    const ParticleStore& dep = kSub ? routing->routed() : particles;
+    const std::size_t n = kSub ? dep.size() : scheme.owned();
+    std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
+                                std::vector<double>(n)};
+    for (std::size_t i = 0; i < n; ++i)
+      w[0][i] = geom.wrap(dep.x[i], 0), w[1][i] = geom.wrap(dep.y[i], 1),
+      w[2][i] = geom.wrap(dep.z[i], 2);
+    const std::vector<double> steps(n, static_cast<double>(last_n_sub));
+    GasBalance b;
+    try {
+      b = balance_gas_boxes(gas, w[0], w[1], w[2], steps, scene.partition.cell_weight, comm);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError("scene key 'fluid.cells'", e.what());
+    }
+    const bool move = b.boxes != gas.boxes() && b.imbalance_after < b.imbalance_before - kRegridGain;
+    std::size_t sent = 0;
+    if (move) {
+      sent = gas.rebox(b.boxes);
+      own_by_boxes(b.boxes); // sub-iterated: the next route() follows the new boxes
+      if constexpr (!kSub)
+        scheme.redistribute_now();
+    }
+    regrids.push_back({{"time", t},
+                       {"imbalance_before", b.imbalance_before},
+                       {"imbalance_after", move ? b.imbalance_after : b.imbalance_before},
+                       {"moved", move},
+                       {"gas_values_sent", comm.sum(static_cast<std::int64_t>(sent))}});
+  };
   while (end - t > tol) {
+    if (regrid_every > 0.0 && last_n_sub > 0 && t >= next_regrid - tol) {
+      gas_regrid();
+      while (next_regrid <= t + tol) next_regrid += regrid_every;
+    }
     const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
+    last_n_sub = n_sub;
     const double dt_f = static_cast<double>(n_sub) * dt;
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
@@ -357,7 +412,8 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     if constexpr (kSub) {
       j["decomposition"] = "the gas grid's ORB boxes, one per rank; particles owned by their "
                            "leaf's rank (parallel ORB + knapsack), routed to their gas box's rank "
-                           "and their force back once per fluid step";
+                           "and their force back once per fluid step (boxes cut by cell count, "
+                           "then by weight at gas regrids)";
       double worst = 0.0;
       for (const double r : routing_seconds) worst = std::max(worst, r);
       j["gas_routing_seconds"] = routing_seconds;
@@ -370,9 +426,11 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
                                     "rank's; copies away: particles of the last fluid step "
                                     "whose gas box is on another rank";
     } else {
-      j["decomposition"] = "the gas grid's ORB boxes, one per rank; particles owned by the rank "
-                           "whose box holds them (settled at neighbor rebuilds)";
+      j["decomposition"] = "the gas grid's ORB boxes, one per rank (cut by cell count, then by "
+                           "weight at gas regrids); particles owned by the rank whose box holds "
+                           "them (settled at neighbor rebuilds and gas regrids)";
     }
+    j["gas_regrids"] = regrids;
     write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
   }
   if (!opt.quiet && root)

@@ -12,6 +12,7 @@
 #include "core/error.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
+#include "fluid/grid_move.hpp"
 #include "fluid/pressure_projection.hpp"
 
 namespace cfddem::apps {
@@ -119,6 +120,13 @@ fluid::MacGrid gas_grid(const Scene& scene, const Communicator* comm,
   return fluid::MacGrid(fluid_grid_spec(scene), boxes[static_cast<std::size_t>(comm->rank())]);
 }
 
+fluid::DepositionSettings deposition_settings(const Scene& scene) {
+  fluid::DepositionSettings ds;
+  ds.kernel = kernel(scene.fluid.deposition);
+  ds.width = scene.fluid.deposition_width;
+  return ds;
+}
+
 } // namespace
 
 GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Communicator* comm,
@@ -131,11 +139,9 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
   double r_max = 0.0;
   for (std::size_t i = 0; i < n; ++i) r_max = std::max(r_max, p.radius[i]);
   if (comm_ != nullptr) r_max = comm_->max(r_max);
-  fluid::DepositionSettings ds;
-  ds.kernel = kernel(scene.fluid.deposition);
-  ds.width = scene.fluid.deposition_width;
-  deposition_ =
-      std::make_unique<fluid::Deposition>(grid_, ds, std::max(r_max, 1e-300), halo_.get());
+  r_max_ = std::max(r_max, 1e-300);
+  deposition_ = std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene), r_max_,
+                                                    halo_.get());
   law_ = fluid::parse_drag_law(scene.fluid.drag);
   eps_s_ = grid_.make_field();
   for (int a = 0; a < 3; ++a) cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
@@ -157,6 +163,40 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
 }
 
 GasCoupling::~GasCoupling() = default;
+
+std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
+  if (comm_ == nullptr)
+    throw std::logic_error("GasCoupling::rebox: the gas is not distributed");
+  if (boxes == boxes_) return 0;
+  fluid::MacGrid grid = [&] {
+    try {
+      return gas_grid(scene_, comm_, boxes);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError("scene key 'fluid.cells'", e.what());
+    }
+  }();
+  auto halo = std::make_shared<const fluid::GridHalo>(grid, boxes, *comm_);
+  auto solver = std::make_unique<fluid::GasSolver>(grid, solver_settings(scene_), halo);
+  const fluid::GridMove move(grid_, grid, boxes_, boxes, *comm_);
+  fluid::move_solver_state(*solver_, *solver, move);
+  if (eps_prev_.values().size() == grid_.layout().size()) {
+    // eps_g before the last step: the mass residual reads its owned cells only.
+    fluid::GridField e = grid.make_field();
+    move.move(eps_prev_, e, fluid::kCellCentred);
+    eps_prev_ = std::move(e);
+  }
+  const std::size_t sent = move.points_sent();
+  // The rest is rebuilt from the particles at the next step().
+  boxes_ = boxes;
+  grid_ = std::move(grid);
+  halo_ = std::move(halo);
+  solver_ = std::move(solver);
+  deposition_ = std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene_), r_max_,
+                                                    halo_.get());
+  eps_s_ = grid_.make_field();
+  for (int a = 0; a < 3; ++a) cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+  return sent;
+}
 
 void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   const fluid::ParticlePositions pos{{p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n},

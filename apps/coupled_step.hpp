@@ -62,6 +62,13 @@ public:
                             std::size_t owned = kAllParticles);
   // The ranks' boxes of gas cells (distributed; one box, the grid, otherwise).
   [[nodiscard]] const std::vector<CellBox>& boxes() const { return boxes_; }
+  // Distributed, between fluid steps: the gas moves to a new cutting of the grid into boxes (a
+  // load-balancing regrid; every rank passes the same list, rank r's box boxes[r]). Each owned
+  // cell and face value goes to its new owner unchanged (fluid/grid_move); the new boxes get
+  // their own halo and hypre set-up. Returns the values this rank sent to other ranks. The
+  // caller moves the particles (step() deposits only particles within its box's reach).
+  // Collective; throws ConfigError if a box is too narrow.
+  std::size_t rebox(const std::vector<CellBox>& boxes);
   // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
   double cfl_dt() const;
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
@@ -107,7 +114,7 @@ private:
   std::unique_ptr<fluid::Deposition> deposition_;
   fluid::DragLaw law_;
   int axis_ = 1;
-  double last_dt_ = 0.0;
+  double last_dt_ = 0.0, r_max_ = 0.0;
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   fluid::GridField eps_s_, eps_prev_;
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p

@@ -10,6 +10,7 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "core/communicator.hpp"
@@ -44,6 +45,10 @@ public:
   [[nodiscard]] std::size_t sent_away() const { return sent_away_; }
   [[nodiscard]] double seconds() const { return seconds_; }
   [[nodiscard]] const partition::RankDecomposition& boxes() const { return boxes_; }
+  // The box store of the last route().
+  [[nodiscard]] const ParticleStore& routed() const { return box_; }
+  // New gas boxes (a gas regrid recut them): the next route() sends to their ranks.
+  void set_boxes(partition::RankDecomposition boxes) { boxes_ = std::move(boxes); }
 
 private:
   const Communicator& comm_;

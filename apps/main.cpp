@@ -97,6 +97,12 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
                              fluid.tolerance, fluid.preconditioner ("pfmg" | "smg")
   partition.weights          orb: "count" (default) | "cost" (particles x local steps of the
                              last regrid interval)
+  partition.gas_regrid_interval  a gas on R ranks: simulated seconds between recuts of the gas
+                             boxes by a weighted ORB (default 0: boxes fixed); cells and
+                             particles move to their new owners
+  partition.cell_weight      the weight of a gas cell in particle steps per fluid step
+                             (default 400: measured on hcs_gas, one fluid cell step ~ 400
+                             particle steps)
   run.end_time               simulated seconds
   output.interval            simulated seconds between diagnostics rows
   output.progress_seconds    wall seconds between progress lines (default 2)

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace cfddem {
@@ -28,5 +29,19 @@ struct CellBox {
 // the grid when it is too small for the parts.
 [[nodiscard]] std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts,
                                                   int min_width);
+
+// The cost of a box's slabs: slab_weights(box, axis)[s] is the weight of the cells of `box`
+// whose index along `axis` is box.lo[axis] + s (box.cells(axis) values, none negative). A
+// distributed caller sums its own cells' part over the ranks, so every rank gets the same
+// values and makes the same cuts.
+using SlabWeights = std::function<std::vector<double>(const CellBox& box, int axis)>;
+
+// Weighted ORB (the fluid's share of a load-balancing regrid): as orb_cell_boxes, the same axes
+// in the same order, but each cut falls on the face where the weight to its left is closest to
+// the left parts' share of the box's weight (ties: the higher face, so that equal weights give
+// orb_cell_boxes's boxes), within min_width of the box's ends. One slab_weights call per cut,
+// in recursion order. A box of zero weight is cut by cell counts.
+[[nodiscard]] std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts,
+                                                  int min_width, const SlabWeights& slab_weights);
 
 } // namespace cfddem

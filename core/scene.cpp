@@ -138,6 +138,10 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   require(s.partition.weights == "count" || s.partition.weights == "cost", "partition.weights",
           fmt::format("unknown weights \"{}\" (available: \"count\", \"cost\")",
                       s.partition.weights));
+  s.partition.gas_regrid_interval = non_negative(c, "partition.gas_regrid_interval", 0.0);
+  s.partition.cell_weight = c.get_double("partition.cell_weight", 400.0);
+  require(std::isfinite(s.partition.cell_weight) && s.partition.cell_weight >= 0.0,
+          "partition.cell_weight", fmt::format("must be >= 0, got {}", s.partition.cell_weight));
 
   // Run and output.
   s.run.end_time = positive(c, "run.end_time");
@@ -278,6 +282,8 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.regrid_interval", num(d.regrid_interval));
   o.emplace_back("partition.orb_levels", std::to_string(s.partition.orb_levels));
   o.emplace_back("partition.weights", str(s.partition.weights));
+  o.emplace_back("partition.gas_regrid_interval", num(s.partition.gas_regrid_interval));
+  o.emplace_back("partition.cell_weight", num(s.partition.cell_weight));
   o.emplace_back("run.end_time", num(s.run.end_time));
   o.emplace_back("output.interval", num(s.output.interval));
   o.emplace_back("output.progress_seconds", num(s.output.progress_seconds));

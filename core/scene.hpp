@@ -60,6 +60,12 @@ struct PartitionSpec {
   // ORB weights: "count" (every particle weighs 1) or "cost" (particles x local steps of the
   // last regrid interval: each particle weighs the local steps its leaf took).
   std::string weights = "count";
+  // A gas on R ranks: every gas_regrid_interval simulated seconds (0: never) the gas boxes are
+  // cut again by a weighted ORB, each cell weighing cell_weight (its fluid step, in particle
+  // steps) plus the particle steps of the particles in it over the last fluid step; a box's
+  // cells and particles then move to their new owner.
+  double gas_regrid_interval = 0.0;
+  double cell_weight = 400.0;
 };
 
 struct RunSpec {

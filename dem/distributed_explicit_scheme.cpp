@@ -160,7 +160,8 @@ void DistributedExplicitScheme::rebuild() {
   }
   if (const std::string e = comm_.agree_on_error(outside_id, outside); !e.empty())
     throw RunError(e);
-  if (ext_.active()) {
+  if (ext_on_) {
+    // Every rank alike (the record sizes must agree), a rank without particles included.
     std::vector<double>* force[3] = {&ext_.x, &ext_.y, &ext_.z};
     exchange_.migrate(p_, dest, force);
   } else {
@@ -228,6 +229,9 @@ void DistributedExplicitScheme::set_external_force(std::span<const double> fx,
                                                    std::span<const double> fy,
                                                    std::span<const double> fz) {
   ext_.set(fx, fy, fz, owned_);
+  // On when any rank holds a force: then every rank carries one per particle when particles
+  // migrate (a rank without particles, whose spans are empty, too).
+  ext_on_ = comm_.max(fx.empty() ? 0.0 : 1.0) > 0.0;
 }
 
 void DistributedExplicitScheme::evaluate_and_update(double dt, StepReport& rep) {

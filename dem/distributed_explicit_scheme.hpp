@@ -55,9 +55,17 @@ public:
   // run: partition/cell_box_decomposition.hpp); never regridded. Call before start(); the same
   // decomposition on every rank.
   void set_decomposition(partition::RankDecomposition d);
-  // External force [N] on the owned particles [0, owned()) in the store's current order (the
-  // gas's drag and pressure force), held until the next call and carried with the particles
-  // when they migrate. Empty spans remove it. Throws std::invalid_argument for a wrong size.
+  // Collective, between steps of a started run: a decomposition set since the last step takes
+  // effect now (particles move to their new owners, lists and ghosts are rebuilt), as the next
+  // step would do first; so a caller can use the new owners before it (a gas that moved its
+  // boxes deposits the particles they hold).
+  void redistribute_now() {
+    if (need_rebuild_) rebuild();
+  }
+  // Collective. External force [N] on the owned particles [0, owned()) in the store's current
+  // order (the gas's drag and pressure force), held until the next call and carried with the
+  // particles when they migrate. Empty spans on every rank remove it (a rank without particles
+  // passes empty spans either way). Throws std::invalid_argument for a wrong size.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
   [[nodiscard]] bool has_external_force() const { return ext_.active(); }
@@ -130,6 +138,7 @@ private:
   partition::RankDecomposition decomposition_;
   VerletList list_;
   ExternalForce ext_;
+  bool ext_on_ = false; // set_external_force: on for every rank alike
   bool fixed_decomposition_ = false;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_;
   std::vector<Regrid> regrids_;

@@ -15,6 +15,7 @@
 #include "core/communicator.hpp"
 #include "fluid/gas_solver.hpp"
 #include "fluid/grid_halo.hpp"
+#include "fluid/grid_move.hpp"
 #include "fluid/pressure_projection.hpp"
 #include "test_grids.hpp"
 
@@ -106,18 +107,62 @@ struct Agreement {
   int distributed_iterations = 0;
 };
 
+// Boxes cut by a weighted ORB whose weights grow along the longest axis (a dense bottom):
+// other cuts than orb_cell_boxes's, for moving a run to them (GridMove).
+std::vector<CellBox> skewed_boxes(const MacGridSpec& spec, int parts) {
+  const SlabWeights weights = [&](const CellBox& box, int axis) {
+    std::vector<double> w(static_cast<std::size_t>(box.cells(axis)));
+    for (int s = 0; s < box.cells(axis); ++s) {
+      const int g = box.lo[axis] + s;
+      // Cells per slab times a weight falling with the index along axis 1.
+      const double per_cell = axis == 1 ? 1.0 + 8.0 * (g < spec.cells[1] / 3) : 1.0;
+      double cells = 1.0;
+      for (int b = 0; b < 3; ++b) {
+        cells *= b == axis ? 1.0 : box.cells(b);
+      }
+      w[static_cast<std::size_t>(s)] = cells * per_cell;
+    }
+    if (axis != 1) {
+      // The slab's cells weighted by their rows along axis 1.
+      double rows = 0.0;
+      for (int j = box.lo[1]; j < box.hi[1]; ++j) {
+        rows += 1.0 + 8.0 * (j < spec.cells[1] / 3);
+      }
+      for (double& v : w) {
+        v = v / box.cells(1) * rows;
+      }
+    }
+    return w;
+  };
+  return orb_cell_boxes(spec.cells, parts, kMinBoxWidth, weights);
+}
+
 // Runs `steps` steps (dt > 0: fixed; 0: adaptive; interval > 0: advance(interval)) of the
-// problem on one grid and on the ranks' boxes, `setup(grid, solver, s)` before step s.
+// problem on one grid and on the ranks' boxes, `setup(grid, solver, s)` before step s. With
+// rebox_at >= 0 the distributed run moves to skewed_boxes after that many steps.
 Agreement run_both(const MacGridSpec& spec, const GasSolverSettings& settings, int steps, double dt,
-                   double interval, const FieldSetter& setup) {
-  const Split split(spec);
+                   double interval, const FieldSetter& setup, int rebox_at = -1) {
+  Split split(spec);
   const MacGrid global(spec);
   GasSolver serial(global, settings);
-  GasSolver distributed(*split.grid, settings, split.halo);
+  auto distributed = std::make_unique<GasSolver>(*split.grid, settings, split.halo);
   Agreement out;
   for (int s = 0; s < steps; ++s) {
+    if (s == rebox_at) {
+      const std::vector<CellBox> boxes = skewed_boxes(spec, split.comm.size());
+      auto grid = std::make_unique<MacGrid>(spec, boxes[static_cast<std::size_t>(split.comm.rank())]);
+      auto halo = std::make_shared<const GridHalo>(*grid, boxes, split.comm);
+      auto moved = std::make_unique<GasSolver>(*grid, settings, halo);
+      move_solver_state(*distributed, *moved, GridMove(*split.grid, *grid, split.boxes, boxes,
+                                                        split.comm));
+      if (split.comm.size() > 1) {
+        EXPECT_NE(boxes, split.boxes) << "the rebox moves nothing";
+      }
+      split.boxes = boxes, split.grid = std::move(grid), split.halo = std::move(halo);
+      distributed = std::move(moved);
+    }
     setup(global, serial, s);
-    setup(*split.grid, distributed, s);
+    setup(*split.grid, *distributed, s);
     const auto advance = [&](GasSolver& solver) {
       if (interval > 0.0) {
         return solver.advance(interval);
@@ -125,7 +170,7 @@ Agreement run_both(const MacGridSpec& spec, const GasSolverSettings& settings, i
       return dt > 0.0 ? solver.step(dt) : solver.step();
     };
     const GasStepReport rs = advance(serial);
-    const GasStepReport rd = advance(distributed);
+    const GasStepReport rd = advance(*distributed);
     // dt from the Courant number: a max over the ranks, of fields equal to round-off.
     EXPECT_NEAR(rd.dt, rs.dt, kRoundOff * rs.dt);
     out.serial_iterations += rs.projection_iterations + rs.viscous_iterations;
@@ -136,13 +181,13 @@ Agreement run_both(const MacGridSpec& spec, const GasSolverSettings& settings, i
   std::array<double, 2> du{};
   for (int a = 0; a < 3; ++a) {
     const auto d =
-        compare(*split.grid, distributed.velocity()[a], serial.velocity()[a], a, split.comm);
+        compare(*split.grid, distributed->velocity()[a], serial.velocity()[a], a, split.comm);
     du = {std::max(du[0], d[0]), std::max(du[1], d[1])};
   }
   EXPECT_GT(du[1], 0.0) << "a case that tests nothing";
   out.velocity = du[0] / du[1];
   const auto d =
-      compare(*split.grid, distributed.pressure(), serial.pressure(), kCellCentred, split.comm);
+      compare(*split.grid, distributed->pressure(), serial.pressure(), kCellCentred, split.comm);
   out.pressure = d[1] > 0.0 ? d[0] / d[1] : d[0];
   return out;
 }
@@ -268,6 +313,48 @@ TEST_P(DistributedGas, ClosedBoxAndOutflowColumnMatchOneGrid) {
   column.bc[3].pressure = 0.5;
   expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, blob),
                    GetParam() ? "column_implicit" : "column_explicit");
+}
+
+TEST_P(DistributedGas, MovedToOtherBoxesMidRunMatchesOneGrid) {
+  // A load-balancing regrid of the gas: half-way through, every rank's owned cells and faces go
+  // to the owners of a weighted cutting (GridMove) and the run goes on on the new boxes; it still
+  // agrees with the undivided grid to round-off. The riser-like periodic box, and the column
+  // with walls, inflow and outflow (owned high faces on the domain boundary).
+  GasSolverSettings settings = tight_settings(GetParam());
+  settings.gas.gravity = {0.0, -9.80665, 0.0};
+  MacGridSpec periodic = box_spec({9, 11, 7}, {9e-4, 1.1e-3, 7e-4}, BoundaryKind::periodic);
+  periodic.pressure_drop[1] = 2e-2;
+  const double w = 2.0 * std::numbers::pi / 9e-4;
+  const FieldSetter particles = [&](const MacGrid& g, GasSolver& solver, int s) {
+    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
+      return 0.9 + 0.05 * std::sin(w * x + 3e3 * y + 1e3 * s) * std::cos(7e3 * z);
+    });
+    set_field(g, solver.drag_coefficient(), kCellCentred, [&](double x, double y, double) {
+      return 1e3 * (1.0 + 0.5 * std::cos(w * x - 2e3 * y));
+    });
+    if (s == 0) {
+      solver.reset_volume_fraction_history();
+    }
+  };
+  expect_round_off(run_both(periodic, settings, 8, 0.0, 1e-4, particles, 4),
+                   GetParam() ? "moved_periodic_implicit" : "moved_periodic_explicit");
+  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
+  column.bc[2] = test::bc_of(BoundaryKind::inflow);
+  column.bc[2].velocity = {0.0, 0.015, 0.0};
+  column.bc[3] = test::bc_of(BoundaryKind::outflow);
+  column.bc[3].pressure = 0.5;
+  const FieldSetter blob = [](const MacGrid& g, GasSolver& solver, int s) {
+    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
+      const double yc = 4e-4 + 2e-5 * s;
+      return 1.0 - 0.3 * std::exp(-std::pow((y - yc) / 1.5e-4, 2)) *
+                       (1.0 + 0.2 * std::sin(1e4 * x) * std::cos(8e3 * z));
+    });
+    if (s == 0) {
+      solver.reset_volume_fraction_history();
+    }
+  };
+  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, blob, 3),
+                   GetParam() ? "moved_column_implicit" : "moved_column_explicit");
 }
 
 TEST_P(DistributedGas, TwoDimensionalChannelWithOneCellPeriodicAxisMatchesOneGrid) {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <optional>
+#include <type_traits>
 
 #include <HYPRE_utilities.h>
 #include <fmt/format.h>
@@ -12,9 +13,10 @@
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
-#include "apps/diagnostics_file.hpp"
 #include "apps/gas_rebalance.hpp"
 #include "apps/coupled_schedule.hpp"
+#include "apps/diagnostics_file.hpp"
+#include "apps/gas_routing.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
@@ -24,17 +26,42 @@
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
+#include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "partition/cell_box_decomposition.hpp"
 
 namespace cfddem::apps {
 
-// Mirrors run_coupled_with<ExplicitScheme> (simulation.cpp) step for step, so that the rows
-// agree with the one-rank run to round-off: the same fluid-step lengths and sub-cycles, rows
-// written by the first particle step after an output time with the gas taken at that time.
-RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
-                                  const ParallelEnv& env) {
+namespace {
+
+// The gas grid's boxes, one per rank (GasCoupling's), as a decomposition of the domain: the
+// explicit scheme's ownership and the routing's destination rule, the same on every rank.
+partition::RankDecomposition box_decomposition(const Scene& scene,
+                                               const std::vector<CellBox>& boxes) {
+  const fluid::MacGridSpec spec = fluid_grid_spec(scene);
+  std::array<double, 3> spacing{};
+  for (int a = 0; a < 3; ++a)
+    spacing[a] = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
+  return partition::decomposition_of_cell_boxes(boxes, spec.origin, spacing,
+                                                {scene.domain.lo, scene.domain.hi});
+}
+
+// Mirrors run_coupled_with<ExplicitScheme / OrbScheme> (simulation.cpp) step for step, so that
+// the rows agree with the one-rank run to round-off: the same fluid-step lengths and sub-cycles
+// (explicit: ceil(dt_f / dt_dem) steps; sub-iterated: dem.nsubit sub-iterations of dt_f / nsubit,
+// a regrid at every fluid step), rows written by the first particle step after an output time
+// with the gas taken at that time.
+// Scheme: dem::DistributedExplicitScheme owns particles by gas box (its decomposition is the gas
+// boxes), so the gas deposits its owned particles directly. A sub-iterated scheme
+// (dem::DistributedOrbScheme; any with its interface: start, subiterate, take_interval_stats,
+// set_external_force, owned, synchronised_previous) owns them by its own leaves, so each fluid
+// step routes them to the gas boxes and the forces back (GasRouting).
+template <class Scheme>
+RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
+  constexpr bool kSub = !std::is_same_v<Scheme, dem::DistributedExplicitScheme>;
+  constexpr bool kLeaves = std::is_same_v<Scheme, dem::DistributedOrbScheme>;
+  const char* scheme_name = kLeaves ? "orb" : kSub ? "islands" : "explicit";
   namespace fs = std::filesystem;
   if (!opt.restart.empty())
     throw ConfigError("--restart", "restarting a run with a gas on several ranks is not "
@@ -45,8 +72,8 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
-  // Every rank builds its share of the particles (every R-th, make_initial_share); start()
-  // sends each to the rank whose gas box holds it.
+  // Every rank builds its share of the particles (every R-th, make_initial_share); the first
+  // particle step sends each to its owner (explicit: its gas box's rank; orb: its leaf's).
   std::optional<Checkpoint> no_checkpoint; // refused above
   ParticleStore particles = rank_share(scene_in, no_checkpoint, comm);
   dem::ParticleRange range;
@@ -56,7 +83,10 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   const double dt_dem = dem::make_step_model(scene_in, range).dt;
   const bool fixed = scene.fluid.dt > 0.0;
   long long n_fixed = 0;
-  if (fixed) {
+  if (kSub) {
+    n_fixed = scene.dem.nsubit;
+    scene.dem.regrid_interval = scene.fluid.dt; // validate_fluid: a fixed fluid.dt
+  } else if (fixed) {
     n_fixed =
         std::max(1LL, static_cast<long long>(std::ceil(scene.fluid.dt / dt_dem * (1 - 1e-12))));
     scene.dem.dt = scene.fluid.dt / static_cast<double>(n_fixed);
@@ -67,23 +97,32 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   PhaseTimer timer;
   static const bool hypre_ready = (HYPRE_Init(), true); // once per process; freed at exit
   (void)hypre_ready;
-  dem::DistributedExplicitScheme scheme(scene, particles, model, comm, timer);
-  // The particles' owners: the ranks' gas boxes (at the start the count cut, later the
-  // weighted cuts of the gas regrids).
-  const auto own_by_boxes = [&](const std::vector<CellBox>& boxes) {
-    const fluid::MacGridSpec spec = fluid_grid_spec(scene);
-    std::array<double, 3> spacing{};
-    for (int a = 0; a < 3; ++a)
-      spacing[a] = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
-    scheme.set_decomposition(partition::decomposition_of_cell_boxes(
-        boxes, spec.origin, spacing, {scene.domain.lo, scene.domain.hi}));
-  };
+  Scheme scheme(scene, particles, model, comm, timer);
+  const dem::DomainGeometry geom(scene.domain);
+  std::optional<GasRouting> routing;
+  std::vector<CellBox> boxes0;
   try {
-    own_by_boxes(orb_cell_boxes(fluid_grid_spec(scene).cells, comm.size(), fluid::kMinBoxWidth));
+    boxes0 = orb_cell_boxes(fluid_grid_spec(scene).cells, comm.size(), fluid::kMinBoxWidth);
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }
-  const double dt = scheme.dt();
+  // The gas boxes decide the explicit scheme's owners and the routing's destinations (at the
+  // start the count cut, later the weighted cuts of the gas regrids).
+  const auto own_by_boxes = [&](const std::vector<CellBox>& boxes) {
+    if constexpr (kSub)
+      routing->set_boxes(box_decomposition(scene, boxes));
+    else
+      scheme.set_decomposition(box_decomposition(scene, boxes));
+  };
+  double dt = 0.0, snap_dt = 0.0; // snap_dt: the particles' fine step (snapshots)
+  if constexpr (kSub) {
+    routing.emplace(comm, box_decomposition(scene, boxes0), geom);
+    dt = scheme.dt_sub();
+    snap_dt = scheme.dt_fine();
+  } else {
+    own_by_boxes(boxes0);
+    dt = snap_dt = scheme.dt();
+  }
   const double end = scene.run.end_time;
 
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
@@ -97,7 +136,6 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   std::optional<SnapshotIndex> snapshots;
   if (root && scene.output.snapshot_interval > 0)
     snapshots.emplace(opt.out_dir);
-  const dem::DomainGeometry geom(scene.domain);
   auto write_snapshot = [&](SnapshotFields& f, const CellFields& cells) {
     PhaseTimer::Scope io(timer, Phase::io);
     const std::size_t n = f.x.size();
@@ -106,7 +144,7 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     for (std::size_t i = 0; i < n; ++i)
       w[0][i] = geom.wrap(f.x[i], 0), w[1][i] = geom.wrap(f.y[i], 1), w[2][i] = geom.wrap(f.z[i], 2);
     f.x = w[0], f.y = w[1], f.z = w[2];
-    f.dt = dt;
+    f.dt = snap_dt;
     f.cells = &cells;
     const SnapshotEntry e = write_particle_snapshot(opt.out_dir, f, comm); // collective
     std::string error;
@@ -125,21 +163,44 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     fmt::print(stderr,
                "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
                "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-               "thread(s)\n",
+               "thread(s), {} scheme\n",
                scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
                fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                      : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-               dt, fixed ? fmt::format(" ({} steps per fluid step)", n_fixed) : std::string(),
-               env.ranks(), env.threads());
+               dt,
+               fixed ? fmt::format(" ({} {} per fluid step)", n_fixed,
+                                   kSub ? "sub-iterations" : "steps")
+                     : std::string(),
+               env.ranks(), env.threads(), scheme_name);
   }
   // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
   // kept before start() shifts them to the half step.
   ParticleStore initial;
   if (scene.output.snapshot_interval > 0)
     initial = particles;
-  // start() moves every particle to its box's rank; the gas then deposits the owned ones.
+  // Explicit: start() moves every particle to its box's rank; the gas then deposits the owned
+  // ones. Sub-iterated: the owned particles (any split until the first sub-iteration) go to the
+  // gas boxes by routing.
   scheme.start();
-  GasCoupling gas(scene, particles, &comm, scheme.owned());
+  // The particles the gas deposits and their force afterwards, one per owned particle.
+  auto to_gas = [&]() -> const ParticleStore& {
+    if constexpr (kSub)
+      return routing->route(particles, scheme.owned());
+    else
+      return particles;
+  };
+  GasCoupling gas(scene, to_gas(), &comm, kSub ? GasCoupling::kAllParticles : scheme.owned());
+  // Deposit, gas step, force; the scheme holds the force for the particle sub-cycle.
+  auto gas_step = [&](double dt_f) {
+    if constexpr (kSub) {
+      gas.step(to_gas(), dt_f);
+      routing->return_force({gas.force(0), gas.force(1), gas.force(2)});
+      scheme.set_external_force(routing->force(0), routing->force(1), routing->force(2));
+    } else {
+      gas.step(particles, dt_f, scheme.owned());
+      scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
+    }
+  };
   if (scene.output.snapshot_interval > 0) {
     const CellFields cells = gas.cell_fields();
     SnapshotFields f;
@@ -172,29 +233,44 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   long long k_last_row = 0;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {
-    scheme.step(record || snap);
-    const long long k = scheme.steps_taken() - 1;
+    dem::LeafStepStats ls{};
+    long long k = 0;
+    if constexpr (kSub) {
+      if (record)
+        ls = scheme.take_interval_stats(); // collective
+      scheme.subiterate(record || snap);
+      k = scheme.subiterations() - 1;
+    } else {
+      scheme.step(record || snap);
+      k = scheme.steps_taken() - 1;
+    }
+    const auto s = scheme.synchronised_previous();
+    const std::size_t n = s.x.size();
+    // The owned particles' mass, radius and id in the synchronised order.
+    std::span<const double> mass(particles.mass.data(), n), radius(particles.radius.data(), n);
+    std::span<const std::int64_t> id(particles.id.data(), n);
+    if constexpr (kSub)
+      mass = s.mass, radius = s.radius, id = s.id;
     if (snap) {
-      const auto s = scheme.synchronised_previous();
-      const std::size_t n = s.x.size();
       SnapshotFields f;
       f.time = loop.row_time;
       f.step = k;
       f.x = s.x, f.y = s.y, f.z = s.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
-      f.radius = {particles.radius.data(), n}, f.mass = {particles.mass.data(), n};
-      f.id = {particles.id.data(), n};
+      f.radius = radius, f.mass = mass, f.id = id;
+      if constexpr (kSub)
+        f.leaf = s.leaf, f.local_dt = s.local_dt;
       write_snapshot(f, loop.snapshot_cells);
     }
     if (!record)
       return;
     PhaseTimer::Scope io(timer, Phase::io);
-    const auto s = scheme.synchronised_previous();
-    const std::span<const double> m(particles.mass.data(), scheme.owned());
-    const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, m}, comm);
-    const auto steps = static_cast<double>(k - k_last_row);
+    const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, mass}, comm);
+    if constexpr (!kSub) {
+      const auto steps = static_cast<double>(k - k_last_row);
+      ls = dem::LeafStepStats{steps, steps, steps, 1.0};
+    }
     k_last_row = k;
-    add_row(row(loop.row_time, k, st, n_total, scheme, seconds_since(t_loop),
-                dem::LeafStepStats{steps, steps, steps, 1.0},
+    add_row(row(loop.row_time, k, st, n_total, scheme, seconds_since(t_loop), ls,
                 means.next(loop.row_time, st.mean_velocity, loop.row_fluid)));
   };
   const double tol = 1e-6 * dt;
@@ -208,12 +284,15 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   nlohmann::ordered_json regrids = nlohmann::ordered_json::array();
   auto gas_regrid = [&] {
     PhaseTimer::Scope fl(timer, Phase::fluid);
-    const std::size_t n = scheme.owned();
+    // The particles this rank's gas box deposits (sub-iterated: the routed copies of the last
+    // fluid step, wrapped; each weighs its dem.nsubit sub-iterations, not its local steps).
+    const ParticleStore& dep = kSub ? routing->routed() : particles;
+    const std::size_t n = kSub ? dep.size() : scheme.owned();
     std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
                                 std::vector<double>(n)};
     for (std::size_t i = 0; i < n; ++i)
-      w[0][i] = geom.wrap(particles.x[i], 0), w[1][i] = geom.wrap(particles.y[i], 1),
-      w[2][i] = geom.wrap(particles.z[i], 2);
+      w[0][i] = geom.wrap(dep.x[i], 0), w[1][i] = geom.wrap(dep.y[i], 1),
+      w[2][i] = geom.wrap(dep.z[i], 2);
     const std::vector<double> steps(n, static_cast<double>(last_n_sub));
     GasBalance b;
     try {
@@ -225,8 +304,9 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     std::size_t sent = 0;
     if (move) {
       sent = gas.rebox(b.boxes);
-      own_by_boxes(b.boxes);
-      scheme.redistribute_now();
+      own_by_boxes(b.boxes); // sub-iterated: the next route() follows the new boxes
+      if constexpr (!kSub)
+        scheme.redistribute_now();
     }
     regrids.push_back({{"time", t},
                        {"imbalance_before", b.imbalance_before},
@@ -244,8 +324,7 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     const double dt_f = static_cast<double>(n_sub) * dt;
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
-      gas.step(particles, dt_f, scheme.owned());
-      scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
+      gas_step(dt_f);
     }
     for (long long q = 0; q < n_sub; ++q) {
       particle_step(q == 0 && loop.row_pending, q == 0 && loop.snapshot_pending);
@@ -280,12 +359,26 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   const std::vector<double> waits = comm.gather(comm.wait_seconds());
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
   const std::vector<double> fluid_seconds = comm.gather(timer.seconds(Phase::fluid));
+  const std::vector<double> routing_seconds = comm.gather(routing ? routing->seconds() : 0.0);
+  const std::vector<double> routed_away =
+      comm.gather(routing ? static_cast<double>(routing->sent_away()) : 0.0);
   if (root) {
     nlohmann::ordered_json j = run_json_header(scene_in, scene.name, derived, env, n_total);
-    j["scheme"] = "explicit";
+    j["scheme"] = scheme_name;
     j["distributed"] = true;
-    j["dt"] = dt;
-    j["steps"] = scheme.steps_taken();
+    if constexpr (kSub) {
+      j["dt"] = scheme.dt_fine();
+      j["dt_sp"] = dt;
+      if constexpr (kLeaves)
+        j["leaves"] = scheme.leaf_count();
+      j["steps"] = scheme.subiterations();
+      j["subiteration_retries"] = scheme.retries();
+      j["max_overlap_ratio"] = scheme.max_overlap_ratio();
+      j["overlap_violations"] = scheme.overlap_violations();
+    } else {
+      j["dt"] = dt;
+      j["steps"] = scheme.steps_taken();
+    }
     j["fluid_steps"] = loop.fluid_steps;
     j["fluid_dt_mean"] =
         loop.fluid_steps > 0 ? loop.dt_f_sum / static_cast<double>(loop.fluid_steps) : 0.0;
@@ -299,11 +392,16 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
         loop.fluid_steps > 0 ? loop_seconds / static_cast<double>(loop.fluid_steps) : 0.0;
     nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
     ph["note"] = "rank 0's phases; fluid: deposition, gas step (predictor, projection over the "
-                 "ranks), interpolation and particle forces; neighbor + force: the particle "
-                 "sub-cycle";
+                 "ranks), interpolation and particle forces (with orb: and the routing of the "
+                 "particles to the gas boxes and of their forces back); neighbor + force: the "
+                 "particle sub-cycle";
     j["phase_seconds"] = ph;
     add_work_counters(j, scheme, loop_seconds,
-                      "neighbor-list pairs evaluated (each pair once per step), over all ranks");
+                      kSub ? "candidate pairs evaluated per local step, over all ranks: pairs "
+                             "within a leaf once, pairs across a leaf boundary once per side "
+                             "(rows rebuilt at every sub-iteration)"
+                           : "neighbor-list pairs evaluated (each pair once per step), over all "
+                             "ranks");
     j["mpi_wait_seconds"] = waits;
     j["fluid_seconds"] = fluid_seconds;
     j["owned_particles_at_end"] = owned;
@@ -311,10 +409,28 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     for (const CellBox& b : gas.boxes())
       cells.push_back(b.count());
     j["gas_cells_per_rank"] = cells;
+    if constexpr (kSub) {
+      j["decomposition"] = "the gas grid's ORB boxes, one per rank; particles owned by their "
+                           "leaf's rank (parallel ORB + knapsack), routed to their gas box's rank "
+                           "and their force back once per fluid step (boxes cut by cell count, "
+                           "then by weight at gas regrids)";
+      double worst = 0.0;
+      for (const double r : routing_seconds) worst = std::max(worst, r);
+      j["gas_routing_seconds"] = routing_seconds;
+      j["gas_routing_seconds_per_fluid_step"] =
+          loop.fluid_steps > 0 ? worst / static_cast<double>(loop.fluid_steps) : 0.0;
+      j["gas_routing_copies_away_at_end"] = routed_away;
+      j["gas_routing_definition"] = "per rank: wall time packing, sending and unpacking the "
+                                    "particle copies to the gas boxes and their forces back "
+                                    "(part of the fluid phase); per fluid step: the slowest "
+                                    "rank's; copies away: particles of the last fluid step "
+                                    "whose gas box is on another rank";
+    } else {
+      j["decomposition"] = "the gas grid's ORB boxes, one per rank (cut by cell count, then by "
+                           "weight at gas regrids); particles owned by the rank whose box holds "
+                           "them (settled at neighbor rebuilds and gas regrids)";
+    }
     j["gas_regrids"] = regrids;
-    j["decomposition"] = "the gas grid's ORB boxes, one per rank (cut by cell count, then by "
-                         "weight at gas regrids); particles owned by the rank whose box holds "
-                         "them (settled at neighbor rebuilds and gas regrids)";
     write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
   }
   if (!opt.quiet && root)
@@ -325,6 +441,21 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                timer.seconds(Phase::fluid),
                100 * timer.seconds(Phase::fluid) / std::max(loop_seconds, 1e-300));
   return {opt.out_dir, loop_seconds, k_last_row + 1, scheme.particle_steps()};
+}
+
+} // namespace
+
+RunResult run_coupled_distributed(const Scene& scene, const RunOptions& opt,
+                                  const ParallelEnv& env) {
+  if (scene.dem.scheme == "orb")
+    return run_coupled_ranks<dem::DistributedOrbScheme>(scene, opt, env);
+  if (scene.dem.scheme != "explicit")
+    throw ConfigError("scene key 'dem.scheme'",
+                      fmt::format("dem.scheme = \"{}\" with a gas is not yet distributed over "
+                                  "MPI ranks: run it on one rank, or use dem.scheme = "
+                                  "\"explicit\" or \"orb\"",
+                                  scene.dem.scheme));
+  return run_coupled_ranks<dem::DistributedExplicitScheme>(scene, opt, env);
 }
 
 } // namespace cfddem::apps

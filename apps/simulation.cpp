@@ -145,8 +145,8 @@ namespace {
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (env.ranks() > 1) {
-    // What is distributed so far: the explicit scheme (with friction too, and with a gas) and
-    // the orb scheme (frictionless: it refuses friction itself).
+    // What is distributed so far: the explicit scheme (with friction too) and the orb scheme
+    // (frictionless: it refuses friction itself), both with a gas too.
     if (scene.dem.scheme != "explicit" && scene.dem.scheme != "orb")
       throw ConfigError("scene key 'dem.scheme'",
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
@@ -154,12 +154,6 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
                                     "\"orb\"",
                                     scene.dem.scheme));
     if (scene.fluid.enabled) {
-      if (scene.dem.scheme != "explicit")
-        throw ConfigError("scene key 'dem.scheme'",
-                          fmt::format("dem.scheme = \"{}\" with a gas is not yet distributed "
-                                      "over MPI ranks: run it on one rank, or use dem.scheme = "
-                                      "\"explicit\"",
-                                      scene.dem.scheme));
       validate_fluid(scene);
       return run_coupled_distributed(scene, opt, env);
     }

@@ -74,7 +74,8 @@ void DistributedOrbScheme::regrid() {
   decomposition_ = partition::decompose(
       comm_, std::span<const double>(p_.x.data(), owned_),
       std::span<const double>(p_.y.data(), owned_), std::span<const double>(p_.z.data(), owned_),
-      use_cost ? std::span<const double>(cost_) : std::span<const double>(), domain_, levels_);
+      use_cost ? std::span<const double>(cost_) : std::span<const double>(), domain_,
+      partition::OrbOptions{levels_, orb_snap_grid(scene_)}); // OrbScheme's cuts
   imbalances_.push_back(decomposition_.imbalance);
   std::fill(cost_.begin(), cost_.end(), 0.0);
   skin_ = model_.skin; // a skin grown by a retry or by time_to_contact lasts until the regrid

@@ -29,9 +29,10 @@
 // So a sub-iteration costs one all-to-all of counts, one exchange of particles between
 // neighbouring ranks and one allreduce (with time_to_contact, one more for the largest reach),
 // plus the parallel ORB's reductions at a regrid.
-// Frictionless. An external force per particle (the gas's) travels with its particle; the gas
-// itself is not distributed here (apps refuse a [fluid] table on R > 1 ranks). With more
-// ranks than leaves some ranks own none (they still take part in every collective).
+// Frictionless. An external force per particle (the gas's) travels with its particle; with a
+// gas the ORB cuts lie on its cell faces, as OrbScheme's (orb_snap_grid), and the gas force is
+// computed on the gas boxes' ranks and routed back (apps/gas_routing.hpp). With more ranks than
+// leaves some ranks own none (they still take part in every collective).
 #pragma once
 
 #include <array>

@@ -127,24 +127,10 @@ void OrbScheme::regrid() {
     for (double c : cost_) total += c;
     use_cost = total > 0.0; // the first regrid has no measurement yet: count
   }
-  // With a gas, cuts lie on fluid cell faces, so every leaf is a whole number of cells (the box
-  // is the unit of both the particles and the fluid).
-  std::optional<partition::Grid> snap;
-  if (scene_.fluid.enabled) {
-    partition::Grid grid;
-    for (int a = 0; a < 3; ++a) {
-      grid.origin[a] = scene_.domain.lo[a];
-      grid.spacing[a] = scene_.fluid.cell_size[a] > 0.0
-                            ? scene_.fluid.cell_size[a]
-                            : scene_.domain.length(a) / static_cast<double>(scene_.fluid.cells[a]);
-    }
-    snap = grid;
-  }
-  tree_ = partition::OrbTree::build(p_.x, p_.y, p_.z,
-                                    use_cost ? std::span<const double>(cost_)
-                                             : std::span<const double>(),
-                                    domain_,
-                                    partition::OrbOptions{scene_.partition.orb_levels, snap});
+  // With a gas, cuts lie on fluid cell faces (orb_snap_grid).
+  tree_ = partition::OrbTree::build(
+      p_.x, p_.y, p_.z, use_cost ? std::span<const double>(cost_) : std::span<const double>(),
+      domain_, partition::OrbOptions{scene_.partition.orb_levels, orb_snap_grid(scene_)});
   const auto order = tree_.order();
   apply_permutation(order);
   std::fill(cost_.begin(), cost_.end(), 0.0);

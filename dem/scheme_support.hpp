@@ -6,17 +6,33 @@
 #include <bit>
 #include <cstdint>
 #include <limits>
+#include <optional>
 #include <string>
 
 #include "core/error.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "partition/orb_tree.hpp"
 
 namespace cfddem::dem {
 
 // Sign bit set unless `ok`: OR-ed over a loop it is a flag reduction GCC vectorizes (a bool OR
 // is not), the idiom of integrate_range in explicit_scheme.cpp.
 inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
+
+// The grid the orb schemes' ORB cuts snap to: with a gas, its cell faces, so that every leaf is
+// a whole number of cells (the box is the unit of both the particles and the fluid); none
+// without. The serial and the distributed orb scheme must agree on it to share their leaves.
+inline std::optional<partition::Grid> orb_snap_grid(const Scene& scene) {
+  if (!scene.fluid.enabled) return std::nullopt;
+  partition::Grid grid;
+  for (int a = 0; a < 3; ++a)
+    grid.origin[a] = scene.domain.lo[a],
+    grid.spacing[a] = scene.fluid.cell_size[a] > 0.0
+                          ? scene.fluid.cell_size[a]
+                          : scene.domain.length(a) / static_cast<double>(scene.fluid.cells[a]);
+  return grid;
+}
 
 // The closed interval a coordinate must stay in on each axis: the walls, or an infinite interval
 // on a periodic axis (so one comparison per axis checks walls and catches NaN, branch-free).

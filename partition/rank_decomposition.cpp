@@ -21,6 +21,14 @@ RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
                             std::span<const double> weights, const Aabb& domain, int levels) {
   OrbOptions opt;
   opt.levels = levels;
+  return decompose(comm, x, y, z, weights, domain, opt);
+}
+
+RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
+                            std::span<const double> y, std::span<const double> z,
+                            std::span<const double> weights, const Aabb& domain,
+                            const OrbOptions& opt) {
+  const int levels = opt.levels;
   std::vector<OrbCut> cuts;
   if (comm.size() == 1) {
     const OrbTree serial = OrbTree::build(x, y, z, weights, domain, opt);

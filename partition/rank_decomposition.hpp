@@ -39,5 +39,11 @@ struct RankDecomposition {
                                           std::span<const double> y, std::span<const double> z,
                                           std::span<const double> weights, const Aabb& domain,
                                           int levels);
+// The same with the ORB's options: with options.snap every cut lies on a face of that grid (the
+// orb scheme with a gas: each leaf a whole number of fluid cells, as the serial OrbScheme's).
+[[nodiscard]] RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
+                                          std::span<const double> y, std::span<const double> z,
+                                          std::span<const double> weights, const Aabb& domain,
+                                          const OrbOptions& options);
 
 } // namespace cfddem::partition

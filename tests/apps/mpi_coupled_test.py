@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """`mpirun -np R cfddem run` of a gas-particle scene against the 1-rank run.
 
-Usage: mpi_coupled_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS
+Usage: mpi_coupled_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS [SCHEME]
 
 A small periodic riser (scenes/riser.toml shrunk to 2.4 x 4 x 2.4 mm, 12 x 20 x 12 cells, 800
 particles with a little thermal motion so that they migrate between ranks, 20 fluid steps). On
@@ -18,7 +18,20 @@ run.json shows the ranks' gas boxes (total/R cells each, up to half a cross-sect
 One and two threads per rank give bitwise the same rows. The same comparison for
 scenes/settling.toml (walls, gravity, closed box). The snapshots (particles and the gas boxes
 written collectively) hold the 1-rank run's particles and cells to round-off. Checkpoints on R
-ranks with a gas are refused naming the key.
+ranks with a gas, and the islands scheme with a gas on R ranks, are refused naming the key.
+
+SCHEME = orb (default explicit): dem.scheme = "orb" with dem.nsubit = 10 sub-iterations per fluid
+step on both sides. The particles are owned by the ranks of their ORB leaves (not by the gas
+boxes' ranks): each fluid step routes a copy of every particle to its gas box's rank and its
+force back (apps/gas_routing.hpp). The leaves are the serial OrbScheme's (cuts on the gas's cell
+faces on both sides), so the particle steps, leaf-step statistics and fine-leaf fraction agree
+exactly; the state columns differ only by the gas's sums over ranks: the same 1e-9 bound (seen:
+~1e-13). Force evaluations and neighbor builds count the distributed scheme's own lists and are
+not compared. Routing must really happen (particles whose gas box is on another rank), no
+particle is lost (800 in every row, the same ids and diameters, so the same mass, in every
+snapshot), and the snapshots also carry each particle's leaf, equal to the 1-rank run's.
+With gas regrids (partition.gas_regrid_interval) the gas cells move to the recut boxes and the
+routing follows them while the particles stay with their leaves: the same bound.
 """
 import csv
 import json
@@ -29,14 +42,22 @@ import sys
 import tempfile
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+SCHEME = sys.argv[5] if len(sys.argv) > 5 else "explicit"
+ORB = SCHEME == "orb"
 SCENE = os.path.join(SOURCE, "scenes", "riser.toml")
 CELLS = (12, 20, 12)
 ARGS = ["domain.hi=[2.4e-3,4.0e-3,2.4e-3]", "particles.count=800", "particles.temperature=1e-4",
         f"fluid.cells=[{CELLS[0]},{CELLS[1]},{CELLS[2]}]", "run.end_time=2e-3",
         "output.interval=2e-4", "output.snapshot_interval=1e-3", "--threads", "1", "--quiet"]
+if ORB:
+    ARGS += ["dem.scheme=orb", "dem.nsubit=10"]
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles", "particle_steps", "force_evaluations", "neighbor_builds"]
 SKIP = ["wall_seconds", "gas_mass_residual"]
+if ORB:
+    EXACT = ["time", "step", "particles", "particle_steps", "leaf_steps_min", "leaf_steps_mean",
+             "leaf_steps_max", "fine_leaf_fraction"]
+    SKIP += ["force_evaluations", "neighbor_builds"]
 
 
 def run(ranks, out):
@@ -74,14 +95,24 @@ def main():
             err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
             worst[c] = max(worst.get(c, 0.0), err)
             assert err <= 1e-9, f"{c}: {x} vs {y} at t = {r1['time']} (scaled error {err:.3g})"
-    assert float(many[-1]["neighbor_builds"]) > 1, "no migration happened: the test is too short"
+    if ORB:
+        assert info["scheme"] == "orb", info["scheme"]
+        away = info["gas_routing_copies_away_at_end"]
+        assert len(away) == RANKS and sum(away) > 0, f"no particle was routed: {away}"
+        assert info["gas_routing_seconds_per_fluid_step"] > 0, info
+    else:
+        assert float(many[-1]["neighbor_builds"]) > 1, "no migration happened: too short"
     # Total axial momentum of gas + particles grows at delta_p x area (2 Pa x 2.4 mm x 2.4 mm).
+    # With orb, a contact across two leaves reads the partner frozen at the sub-iteration start,
+    # so the pair's forces are not equal and opposite: the 1-rank orb run misses the balance by
+    # up to 0.50% here (the columns above already tie R ranks to it), hence 1% for orb.
     rate = 2.0 * 2.4e-3 * 2.4e-3
+    bound = 1e-2 if ORB else 5e-3
     p0 = float(many[0]["momentum_y"]) + float(many[0]["gas_momentum_y"])
     for r in many[1:]:
         p = float(r["momentum_y"]) + float(r["gas_momentum_y"])
         t = float(r["time"])
-        assert abs((p - p0) / t - rate) <= 5e-3 * rate, (t, (p - p0) / t, rate)
+        assert abs((p - p0) / t - rate) <= bound * rate, (t, (p - p0) / t, rate)
     assert info["ranks"] == RANKS and info["distributed"], info
     assert sum(info["owned_particles_at_end"]) == 800, info["owned_particles_at_end"]
     cells = info["gas_cells_per_rank"]
@@ -104,6 +135,8 @@ def main():
                                 for r in csv.DictReader(f)]
         assert out["1"] == out["2"], "1 and 2 threads per rank differ"
     settling_matches()
+    if ORB:
+        orb_gas_regrid_matches()
     # What is not distributed yet is refused with exit code 2, naming the key.
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [MPIEXEC, "-np", str(RANKS), "--oversubscribe", CFDDEM, "run", SCENE, "--out", tmp]
@@ -111,7 +144,11 @@ def main():
                            capture_output=True, text=True)
         assert r.returncode == 2 and "output.checkpoint_interval" in r.stderr, (r.returncode,
                                                                                 r.stderr)
-    print(f"{RANKS} ranks vs 1: worst scaled column error {max(worst.values()):.3g} "
+        # The islands scheme with a gas is not distributed yet (the orb and explicit ones are).
+        r = subprocess.run(cmd + ARGS + ["dem.scheme=islands"], env=ENV, timeout=60,
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and "dem.scheme" in r.stderr, (r.returncode, r.stderr)
+    print(f"{SCHEME}, {RANKS} ranks vs 1: worst scaled column error {max(worst.values()):.3g} "
           f"({max(worst, key=worst.get)}); gas cells per rank {cells}; "
           f"neighbor builds {many[-1]['neighbor_builds']}")
 
@@ -132,6 +169,11 @@ def snapshots_match(one, many):
         with h5py.File(os.path.join(one, name)) as a, h5py.File(os.path.join(many, name)) as b:
             ia, ib = np.argsort(a["particles/id"][()]), np.argsort(b["particles/id"][()])
             assert np.array_equal(a["particles/id"][()][ia], b["particles/id"][()][ib])
+            assert len(ia) == 800, (name, len(ia))
+            # No particle lost or altered: the same diameters (uniform density: the same masses).
+            assert np.array_equal(a["particles/diameter"][()][ia], b["particles/diameter"][()][ib])
+            if ORB and not name.endswith("000000000.h5"):
+                assert np.array_equal(a["particles/leaf"][()][ia], b["particles/leaf"][()][ib]), name
             for group, keys in (("particles", ("position", "velocity", "diameter")),
                                 ("fluid", ("x_nodes", "y_nodes", "z_nodes", "eps_g", "pressure",
                                            "gas_velocity"))):
@@ -154,6 +196,8 @@ def settling_matches():
     scene = os.path.join(SOURCE, "scenes", "settling.toml")
     args = ["run.end_time=3e-3", "output.interval=5e-4", "output.snapshot_interval=0",
             "--threads", "1", "--quiet"]
+    if ORB:
+        args += ["dem.scheme=orb", "dem.nsubit=10"]
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         for ranks in (1, RANKS):
@@ -183,7 +227,49 @@ def settling_matches():
             err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
             worst = max(worst, err)
             assert err <= 1e-9, f"settling {c}: {x} vs {y} at t = {r1['time']} ({err:.3g})"
-    print(f"settling, {RANKS} ranks vs 1: worst scaled column error {worst:.3g}")
+    print(f"settling ({SCHEME}), {RANKS} ranks vs 1: worst scaled column error {worst:.3g}")
+
+
+def orb_gas_regrid_matches():
+    """orb with gas regrids (partition.gas_regrid_interval; particles in the lower 40% of the
+    riser, a light cell weight so that the boxes are recut): the gas cells move to the new boxes
+    and the routing follows them, the particles stay with their leaves; the rows agree with the
+    1-rank run to the same bound and none is lost."""
+    args = ARGS + ["particles.region_hi=[2.4e-3,1.6e-3,2.4e-3]", "output.snapshot_interval=0",
+                   "partition.gas_regrid_interval=4e-4", "partition.cell_weight=0.5"]
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for ranks in (1, RANKS):
+            out = os.path.join(tmp, f"np{ranks}")
+            cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out",
+                   out] + args
+            subprocess.run(cmd, check=True, env=ENV, timeout=120)
+            with open(os.path.join(out, "diagnostics.csv")) as f:
+                rows[ranks] = list(csv.DictReader(f))
+            if ranks > 1:
+                with open(os.path.join(out, "run.json")) as f:
+                    info = json.load(f)
+    assert any(r["moved"] for r in info["gas_regrids"]), info["gas_regrids"]
+    one, many = rows[1], rows[RANKS]
+    assert len(one) == len(many) == 11, (len(one), len(many))
+    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
+    for kind in ("momentum_", "gas_momentum_", "mean_v", "mean_a"):
+        for a in "xz":
+            scale[kind + a] = max(scale[kind + a], scale[kind + "y"])
+    worst = 0.0
+    for r1, rn in zip(one, many):
+        assert float(rn["particles"]) == 800, rn["particles"]
+        for c in r1:
+            if c in SKIP:
+                continue
+            x, y = float(r1[c]), float(rn[c])
+            if c in EXACT:
+                assert x == y, f"gas regrid {c}: {x} != {y} at t = {r1['time']}"
+                continue
+            err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
+            worst = max(worst, err)
+            assert err <= 1e-9, f"gas regrid {c}: {x} vs {y} at t = {r1['time']} ({err:.3g})"
+    print(f"orb with gas regrids, {RANKS} ranks vs 1: worst scaled column error {worst:.3g}")
 
 
 if __name__ == "__main__":

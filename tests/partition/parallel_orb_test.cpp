@@ -1,6 +1,7 @@
 // The parallel ORB gives every rank the serial tree of the union of all ranks' points (run under
 // mpirun with 1, 2 and 3 ranks by ctest).
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <random>
 
@@ -133,4 +134,24 @@ TEST(RankDecomposition, WeightsGiveTheSerialTreeAndAWeightedKnapsack) {
     return m;
   }();
   for (const double q : d.load) EXPECT_LE(q, total / comm.size() + leaf_max);
+}
+
+// decompose() with a snapping grid (the distributed orb scheme with a gas): the serial OrbScheme's
+// snapped tree on every rank, every cut on a cell face.
+TEST(RankDecomposition, SnappedCutsAreTheSerialSnappedTree) {
+  const cfddem::Communicator comm = cfddem::Communicator::world();
+  const Aabb domain{{0.0, 0.0, 0.0}, {2.0, 1.0, 0.5}};
+  const Points g = global_points(3000, 9, false, false);
+  const Points l = local_share(g);
+  const OrbOptions opt{5, Grid{{0.0, 0.0, 0.0}, {0.1, 0.05, 0.05}}};
+  const RankDecomposition d = decompose(comm, l.x, l.y, l.z, {}, domain, opt);
+  const OrbTree serial = OrbTree::build(g.x, g.y, g.z, {}, domain, opt);
+  ASSERT_EQ(d.tree.cuts().size(), serial.cuts().size());
+  for (std::size_t k = 0; k < serial.cuts().size(); ++k) {
+    const OrbCut& c = d.tree.cuts()[k];
+    EXPECT_EQ(c.axis, serial.cuts()[k].axis);
+    EXPECT_EQ(c.position, serial.cuts()[k].position);
+    const double cells = c.position / opt.snap->spacing[static_cast<std::size_t>(c.axis)];
+    EXPECT_NEAR(cells, std::round(cells), 1e-9) << "cut " << k << " off the cell faces";
+  }
 }

@@ -46,6 +46,7 @@ DistributedIslandsScheme::DistributedIslandsScheme(const Scene& scene, ParticleS
   nsubit_ = scene.dem.nsubit;
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   margin_ = 1e-3 * model_.r_min; // IslandsScheme's link margin
+  base_skin_ = scene.dem.neighbor_skin > 0.0 ? model_.skin : 3.0 * model_.skin;
   owned_ = p_.size();
   hprev_.assign(owned_, 0.0);
   fine_.assign(owned_, 0.0);
@@ -126,9 +127,9 @@ void DistributedIslandsScheme::own_bounds() {
   }
 }
 
-// Ghosts within the halo of speed S (step 2 of the header), their bounds, and the rows.
-void DistributedIslandsScheme::build_ghosts_and_rows(double halo_speed) {
-  skin_ = 2.0 * halo_speed * dt_sp_ + 2.0 * margin_;
+// Ghosts within the halo 2 r_max + skin_ of this rank's boxes, their bounds, and the rows
+// (step 2 of the header).
+void DistributedIslandsScheme::build_ghosts_and_rows() {
   const double cutoff = 2.0 * r_max_ + skin_;
   for (int a = 0; a < 3; ++a)
     if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
@@ -169,9 +170,9 @@ void DistributedIslandsScheme::build_ghosts_and_rows(double halo_speed) {
   rows_.build({geom_, {p_.x.data(), n}, {p_.y.data(), n}, {p_.z.data(), n},
                {p_.radius.data(), n}, {p_.id.data(), n}, {bound_.data(), n},
                {leaf0_.data(), owned_}, owned_, cutoff, skin_, 0.0, dt_sp_, false});
-  island_of_.assign(n, kAlone);
-  busy_v_.clear();
-  mark_.assign(n, 0);
+  x_ref_.assign(p_.x.begin(), p_.x.begin() + static_cast<std::ptrdiff_t>(owned_));
+  y_ref_.assign(p_.y.begin(), p_.y.begin() + static_cast<std::ptrdiff_t>(owned_));
+  z_ref_.assign(p_.z.begin(), p_.z.begin() + static_cast<std::ptrdiff_t>(owned_));
   ++builds_;
 }
 
@@ -242,7 +243,7 @@ double DistributedIslandsScheme::link_rounds() {
     // Spanning islands: one set of sums for all of them, over all ranks. A pair with a ghost end
     // is counted on both ranks (more energy: still conservative).
     double e_span = 0.0, m_span = std::numeric_limits<double>::infinity(), a_span = 0.0,
-           hp_span = 0.0, busy_owned = 0.0, b_max = 0.0;
+           hp_span = 0.0, busy_owned = 0.0, b_max = 0.0, bound_max = 0.0;
     for (std::size_t q = 0; q < ea_.size(); ++q) {
       const std::uint32_t i = ea_[q], j = eb_[q];
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
@@ -272,14 +273,26 @@ double DistributedIslandsScheme::link_rounds() {
         a_max_[c] = std::max(a_max_[c], acc), hp_max_[c] = std::max(hp_max_[c], hprev_[i]);
       }
     }
-    for (std::size_t i = 0; i < owned_; ++i) b_max = std::max(b_max, bound_[i]);
-    std::array<double, 5> mx{changed ? 1.0 : 0.0, a_span, hp_span, -m_span, b_max};
+    // The rows and ghosts hold every pair that can link while no two particles' reaches
+    // (displacement since the build + bound over the sub-iteration) add up to the skin.
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const double dx = p_.x[i] - x_ref_[i], dy = p_.y[i] - y_ref_[i], dz = p_.z[i] - z_ref_[i];
+      const double reach = std::sqrt(dx * dx + dy * dy + dz * dz) + bound_[i] * dt_sp_;
+      b_max = std::max(b_max, std::isnan(reach) ? std::numeric_limits<double>::infinity() : reach);
+      bound_max = std::max(bound_max, bound_[i]);
+    }
+    double spanning = 0.0;
+    for (const std::uint32_t i : busy_v_)
+      if (i < owned_ && spans_[island_of_[i]]) spanning += 1.0;
+    std::array<double, 6> mx{changed ? 1.0 : 0.0, a_span, hp_span, -m_span, b_max, bound_max};
     comm_.max(mx);
-    std::array<double, 2> sm{e_span, busy_owned};
+    std::array<double, 3> sm{e_span, busy_owned, spanning};
     comm_.sum(sm);
+    last_max_bound_ = mx[5];
+    spanning_global_ = static_cast<std::int64_t>(sm[2]);
     if (sm[1] > IslandsScheme::kGlobalFraction * static_cast<double>(n_global_)) {
       global_ = true; // a dense bed: everyone takes the fine steps
-      return 0.0;
+      return mx[4];
     }
     if (round > 0 && mx[0] == 0.0) return mx[4];
     const double m_all = -mx[3];
@@ -446,13 +459,16 @@ template <bool External> void DistributedIslandsScheme::fine_together(bool recor
         kick_drift(p_.y[i], p_.vy[i], p_.fy[i] + ey, ims, m.gravity[1] * s, hk);
         kick_drift(p_.z[i], p_.vz[i], p_.fz[i] + ez, ims, m.gravity[2] * s, hk);
         hprev_[i] = half;
-        const double dx = p_.x[i] - x0_[i], dy = p_.y[i] - y0_[i], dz = p_.z[i] - z0_[i];
-        const double d2 = dx * dx + dy * dy + dz * dz;
         if (all) {
-          r.outran += d2 > half_skin2; // its rows may miss a pair: redo with a wider halo
+          // Rows built at x_ref hold every pair within r_i + r_j + skin: a particle that moved
+          // farther than skin/2 since may miss one; redo with a wider halo.
+          const double dx = p_.x[i] - x_ref_[i], dy = p_.y[i] - y_ref_[i],
+                       dz = p_.z[i] - z_ref_[i];
+          r.outran += dx * dx + dy * dy + dz * dz > half_skin2;
         } else {
+          const double dx = p_.x[i] - x0_[i], dy = p_.y[i] - y0_[i], dz = p_.z[i] - z0_[i];
           const double reach = bound_[i] * elapsed + margin_;
-          r.bound_violations += d2 > reach * reach;
+          r.bound_violations += dx * dx + dy * dy + dz * dz > reach * reach;
         }
       }
     });
@@ -483,60 +499,79 @@ void DistributedIslandsScheme::record_state() {
   sid_.assign(p_.id.begin(), p_.id.begin() + static_cast<std::ptrdiff_t>(n));
 }
 
+// A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations
+// have passed since the last), ghosts and rows with a skin for several sub-iterations.
+void DistributedIslandsScheme::rebuild() {
+  p_.resize(owned_); // the ghosts go
+  if (last_regrid_ < 0 || subits_ - last_regrid_ >= nsubit_) {
+    regrid();
+    last_regrid_ = subits_;
+  }
+  migrate();
+  own_bounds();
+  double b = 0.0;
+  for (std::size_t i = 0; i < owned_; ++i) b = std::max(b, bound_[i]);
+  const double speed = std::max(comm_.max(b), last_max_bound_);
+  // IslandsScheme's islands skin (three times the explicit scheme's unless dem.neighbor_skin is
+  // set), at least four sub-iterations of the largest bound, or what a failed build asked for.
+  skin_ = std::max({base_skin_, 4.0 * speed * dt_sp_ + 2.0 * margin_, grown_skin_});
+  build_ghosts_and_rows();
+  need_rebuild_ = false;
+}
+
 void DistributedIslandsScheme::subiterate(bool record) {
-  p_.resize(owned_); // the last sub-iteration's ghosts go
   const bool can_refine = model_.dt < dt_sp_;
   K_ = can_refine ? std::max<std::int64_t>(
                         1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
                   : 1;
   h_ = can_refine ? model_.dt : dt_sp_;
   h_last_ = dt_sp_ - static_cast<double>(K_ - 1) * h_;
-  double halo_speed = 0.0;
-  {
-    PhaseTimer::Scope t(timer_, Phase::neighbor);
-    if (subits_ % nsubit_ == 0) regrid();
-    migrate();
-    own_bounds();
-    double b = 0.0;
-    for (std::size_t i = 0; i < owned_; ++i) b = std::max(b, bound_[i]);
-    halo_speed = std::max(2.0 * comm_.max(b), 1.2 * last_max_bound_);
-  }
-  x0_.assign(p_.x.begin(), p_.x.end()), y0_.assign(p_.y.begin(), p_.y.end());
-  z0_.assign(p_.z.begin(), p_.z.end()), vx0_.assign(p_.vx.begin(), p_.vx.end());
-  vy0_.assign(p_.vy.begin(), p_.vy.end()), vz0_.assign(p_.vz.begin(), p_.vz.end());
-  hp0_ = hprev_;
-  const std::vector<double> own_owned(bound_.begin(), bound_.begin() + static_cast<std::ptrdiff_t>(owned_));
   // {owned, particle steps, pairs, overlaps beyond the bound, bound violations, faults, fine
-  // members, spanning members, spanning island parts, outran}
-  std::array<std::int64_t, 10> c{};
-  std::array<double, 2> dsum{};
+  // members, spanning members, spanning island parts, outran, mass}
+  std::array<double, 11> c{};
   std::uint32_t fault_index = 0;
   int fault = 0;
   double ratio = 0.0;
   for (;;) {
     {
       PhaseTimer::Scope t(timer_, Phase::neighbor);
-      for (;;) {
-        p_.resize(owned_);
-        bound_ = own_owned;
-        build_ghosts_and_rows(halo_speed);
-        const double b_max = link_rounds();
-        if (global_ || b_max <= halo_speed) {
-          last_max_bound_ = b_max;
-          break;
+      for (bool fresh = false;;) {
+        if (need_rebuild_) {
+          rebuild();
+          fresh = true;
+        } else {
+          // The ghosts' positions, velocities and own bounds from their owners: one message round.
+          own_bounds();
+          const std::size_t n = p_.size();
+          bound_.resize(n);
+          std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &bound_};
+          exchange_.forward_columns(cols);
         }
-        // Some raised bound reaches past the halo: rebuild the ghosts wider.
-        halo_speed = 1.5 * b_max;
+        island_of_.assign(p_.size(), kAlone);
+        busy_v_.clear();
+        mark_.assign(p_.size(), 0);
+        const double reach = link_rounds();
+        if (2.0 * reach + margin_ < skin_) break;
+        // Some pair could link that the rows (or the ghosts) miss: build again, wider when even
+        // a fresh build was too short.
+        if (fresh) grown_skin_ = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
+        need_rebuild_ = true;
         ++halo_retries_;
       }
     }
+    x0_.assign(p_.x.begin(), p_.x.begin() + static_cast<std::ptrdiff_t>(owned_));
+    y0_.assign(p_.y.begin(), p_.y.begin() + static_cast<std::ptrdiff_t>(owned_));
+    z0_.assign(p_.z.begin(), p_.z.begin() + static_cast<std::ptrdiff_t>(owned_));
+    vx0_.assign(p_.vx.begin(), p_.vx.begin() + static_cast<std::ptrdiff_t>(owned_));
+    vy0_.assign(p_.vy.begin(), p_.vy.begin() + static_cast<std::ptrdiff_t>(owned_));
+    vz0_.assign(p_.vz.begin(), p_.vz.begin() + static_cast<std::ptrdiff_t>(owned_));
+    hp0_ = hprev_;
     PhaseTimer::Scope t(timer_, Phase::force);
     if (record) record_state();
     std::int64_t span_parts = 0, members = 0;
     span_members_.clear();
     results_.clear();
     span_result_ = Result{};
-    std::int64_t span_global = 0;
     if (global_) {
       ext_on_ ? fine_together<true>(record, true) : fine_together<false>(record, true);
       members = static_cast<std::int64_t>(owned_);
@@ -559,20 +594,22 @@ void DistributedIslandsScheme::subiterate(bool record) {
                               ext_on_ ? run_local_island<true>(q, record)
                                       : run_local_island<false>(q, record);
                         });
-      span_global = comm_.sum(span_parts);
-      if (span_global > 0)
+      if (spanning_global_ > 0) // some rank has a spanning island: every rank takes part
         ext_on_ ? fine_together<true>(record, false) : fine_together<false>(record, false);
     }
     c = {};
-    c[0] = static_cast<std::int64_t>(owned_);
-    c[1] = static_cast<std::int64_t>(owned_) - members + members * K_;
+    c[0] = static_cast<double>(owned_);
+    c[1] = static_cast<double>(static_cast<std::int64_t>(owned_) - members + members * K_);
     ratio = span_result_.max_ratio;
     for (const Result& r : results_) {
-      c[2] += r.pairs, c[3] += r.violations, c[4] += r.bound_violations;
+      c[2] += static_cast<double>(r.pairs), c[3] += static_cast<double>(r.violations);
+      c[4] += static_cast<double>(r.bound_violations);
       ratio = std::max(ratio, r.max_ratio);
     }
-    c[2] += span_result_.pairs, c[3] += span_result_.violations;
-    c[4] += span_result_.bound_violations, c[9] = span_result_.outran;
+    c[2] += static_cast<double>(span_result_.pairs);
+    c[3] += static_cast<double>(span_result_.violations);
+    c[4] += static_cast<double>(span_result_.bound_violations);
+    c[9] = static_cast<double>(span_result_.outran);
     // Faults: NaN, or an owned particle outside a wall.
     fault = 0;
     for (std::uint32_t i = 0; i < owned_ && fault == 0; ++i) {
@@ -584,14 +621,12 @@ void DistributedIslandsScheme::subiterate(bool record) {
           fault = 2, fault_index = i;
     }
     c[5] = fault != 0;
-    c[6] = members;
-    c[7] = static_cast<std::int64_t>(span_members_.size());
-    c[8] = span_parts;
-    double mass = 0.0;
-    for (std::size_t i = 0; i < owned_; ++i) mass += p_.mass[i];
-    dsum = {mass, 0.0};
+    c[6] = static_cast<double>(members);
+    c[7] = static_cast<double>(span_members_.size());
+    c[8] = static_cast<double>(span_parts);
+    for (std::size_t i = 0; i < owned_; ++i) c[10] += p_.mass[i];
+    // One reduction closes the sub-iteration (the counts are exact in doubles below 2^53).
     comm_.sum(c);
-    comm_.sum(dsum);
     if (c[9] == 0 || c[5] > 0) break;
     // The dense mode outran its rows somewhere: every rank rolls back and widens the halo.
     std::copy(x0_.begin(), x0_.end(), p_.x.begin()), std::copy(y0_.begin(), y0_.end(), p_.y.begin());
@@ -600,7 +635,8 @@ void DistributedIslandsScheme::subiterate(bool record) {
     std::copy(vy0_.begin(), vy0_.end(), p_.vy.begin());
     std::copy(vz0_.begin(), vz0_.end(), p_.vz.begin());
     hprev_ = hp0_;
-    halo_speed *= 2.0;
+    grown_skin_ = 2.0 * skin_;
+    need_rebuild_ = true;
     ++retries_;
   }
   if (c[5] > 0) {
@@ -618,20 +654,24 @@ void DistributedIslandsScheme::subiterate(bool record) {
     }
     throw RunError(comm_.agree_on_error(key, message));
   }
-  if (c[0] != n_global_ || std::abs(dsum[0] - mass_global_) > 1e-9 * mass_global_)
+  if (c[0] != static_cast<double>(n_global_) ||
+      std::abs(c[10] - mass_global_) > 1e-9 * mass_global_)
     throw RunError(fmt::format("t = {:.9g} s: {} particles of total mass {:.17g} kg on the ranks "
                                "after migration, {} of {:.17g} kg expected",
-                               time(), c[0], dsum[0], n_global_, mass_global_));
+                               time(), c[0], c[10], n_global_, mass_global_));
   if (global_) ++global_subits_;
   for (std::size_t i = 0; i < owned_; ++i)
     if (global_ || island_of_[i] != kAlone) fine_[i] += 1.0;
-  particle_steps_ += c[1], pair_evaluations_ += c[2], overlap_violations_ += c[3];
-  bound_violations_ += c[4];
-  span_subits_ += c[7] > 0, span_particles_ += c[7], span_parts_ += c[8];
-  last_fine_fraction_ = n_global_ > 0 ? static_cast<double>(c[6]) / static_cast<double>(n_global_) : 0.0;
-  iv_fine_ += c[6], iv_particles_ += n_global_, iv_steps_ += c[1];
-  iv_min_ = std::min(iv_min_, c[6] < n_global_ ? std::int64_t{1} : K_);
-  iv_max_ = std::max(iv_max_, c[6] > 0 ? K_ : std::int64_t{1});
+  auto count = [&](int q) { return static_cast<std::int64_t>(c[static_cast<std::size_t>(q)]); };
+  particle_steps_ += count(1), pair_evaluations_ += count(2), overlap_violations_ += count(3);
+  bound_violations_ += count(4);
+  span_subits_ += count(7) > 0, span_particles_ += count(7), span_parts_ += count(8);
+  const std::int64_t fine = count(6);
+  last_fine_fraction_ =
+      n_global_ > 0 ? static_cast<double>(fine) / static_cast<double>(n_global_) : 0.0;
+  iv_fine_ += fine, iv_particles_ += n_global_, iv_steps_ += count(1);
+  iv_min_ = std::min(iv_min_, fine < n_global_ ? std::int64_t{1} : K_);
+  iv_max_ = std::max(iv_max_, fine > 0 ? K_ : std::int64_t{1});
   // The largest overlap is reduced only when the state is recorded (the orb scheme's budget).
   max_ratio_local_ = std::max(max_ratio_local_, ratio);
   if (record) max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(max_ratio_local_));

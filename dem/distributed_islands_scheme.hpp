@@ -124,7 +124,8 @@ private:
   void regrid();
   void migrate();
   void own_bounds();
-  void build_ghosts_and_rows(double halo_speed);
+  void rebuild();
+  void build_ghosts_and_rows();
   // Link rounds (step 3); returns the largest final bound over all ranks.
   double link_rounds();
   void make_links();
@@ -145,7 +146,9 @@ private:
   partition::Aabb domain_;
   int levels_ = 0;
   double dt_sp_ = 0.0, r_max_ = 0.0, margin_ = 0.0, skin_ = 0.0, last_max_bound_ = 0.0;
-  double mass_global_ = 0.0;
+  double mass_global_ = 0.0, base_skin_ = 0.0, grown_skin_ = 0.0;
+  std::int64_t last_regrid_ = -1, spanning_global_ = 0;
+  bool need_rebuild_ = true;
   std::int64_t nsubit_ = 1, n_global_ = 0;
   std::size_t owned_ = 0;
   bool ext_on_ = false, global_ = false;
@@ -153,6 +156,7 @@ private:
   std::vector<double> hprev_, fine_, ex_, ey_, ez_;
   // Per local particle (owned, then ghosts): speed bound and own bound.
   std::vector<double> bound_, own_bound_;
+  std::vector<double> x_ref_, y_ref_, z_ref_; // owned positions at the last build
   std::vector<std::uint32_t> leaf0_; // all zero: the rows' one "leaf" of owned particles
   OrbLocalRows rows_;
   static constexpr std::uint32_t kAlone = 0xffffffffu;

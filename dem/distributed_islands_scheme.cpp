@@ -622,7 +622,7 @@ void DistributedIslandsScheme::subiterate(bool record) {
     }
     c[5] = fault != 0;
     c[6] = static_cast<double>(members);
-    c[7] = static_cast<double>(span_members_.size());
+    c[7] = global_ ? 0.0 : static_cast<double>(span_members_.size()); // dense: not "spanning"
     c[8] = static_cast<double>(span_parts);
     for (std::size_t i = 0; i < owned_; ++i) c[10] += p_.mass[i];
     // One reduction closes the sub-iteration (the counts are exact in doubles below 2^53).

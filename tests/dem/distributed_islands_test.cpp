@@ -102,11 +102,27 @@ State state_of(const ParticleStore& p, std::size_t n) {
   return s;
 }
 
-Outcome serial_islands(const Scene& scene, int subits) {
+// An external force per particle, a function of its id (the gas's force, held fixed): N.
+std::array<double, 3> force_of(std::int64_t id) {
+  return {1e-7 * static_cast<double>(id % 5 - 2), -2e-7 * static_cast<double>(id % 3),
+          5e-8 * static_cast<double>(id % 7 - 3)};
+}
+
+void apply_force(const ParticleStore& p, std::size_t n, auto& scheme) {
+  std::vector<double> fx(n), fy(n), fz(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto f = force_of(p.id[i]);
+    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+  }
+  scheme.set_external_force(fx, fy, fz);
+}
+
+Outcome serial_islands(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);
   PhaseTimer timer;
   dem::IslandsScheme s(scene, p, timer);
   s.start();
+  if (external) apply_force(p, p.size(), s);
   Outcome r;
   for (int k = 0; k < subits; ++k) {
     s.subiterate();
@@ -124,7 +140,7 @@ Outcome serial_islands(const Scene& scene, int subits) {
 
 // The distributed scheme on `threads` threads; every sub-iteration the particles over all ranks
 // are counted and identified (count, sum of ids and of squared ids) and their mass compared.
-Outcome distributed_islands(const Scene& scene, int subits, int threads) {
+Outcome distributed_islands(const Scene& scene, int subits, int threads, bool external = false) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   const Communicator c = Communicator::world();
@@ -133,6 +149,7 @@ Outcome distributed_islands(const Scene& scene, int subits, int threads) {
   PhaseTimer timer;
   dem::DistributedIslandsScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
   s.start();
+  if (external) apply_force(p, s.owned(), s);
   std::array<std::int64_t, 3> expect{};
   for (const std::int64_t id : all.id) expect[0] += 1, expect[1] += id, expect[2] += id * id;
   const double mass0 = all.total_mass();
@@ -208,18 +225,22 @@ TEST(DistributedIslands, DenseGasMatchesSerialIslandsToRoundOff) {
   expect_close(scene, s, d, kPos, kVel, kEnergy, "dense gas");
   EXPECT_EQ(d.bound_violations, 0);
   EXPECT_GT(d.max_overlap_ratio, 0.0);
-  if (Communicator::world().size() > 1) {
-    EXPECT_GT(d.spanning_subits, 0);
-  }
+  EXPECT_GT(d.global_subits, 0); // the dense mode: every particle on the fine steps
 }
 
 TEST(DistributedIslands, HcsSmallMatchesSerialIslandsToRoundOff) {
   const Scene scene = scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]",
                                         "particles.count=100", "particles.temperature=0.01",
                                         "particles.seed=3", "dem.regrid_interval=1.0e-4"});
-  const Outcome d = distributed_islands(scene, kSubits, 1);
-  expect_close(scene, serial_islands(scene, kSubits), d, kPos, kVel, kEnergy, "HCS small");
+  // 4 ms: collisions, and on several ranks islands across them.
+  const int subits = 200;
+  const Outcome d = distributed_islands(scene, subits, 1);
+  expect_close(scene, serial_islands(scene, subits), d, kPos, kVel, kEnergy, "HCS small");
   EXPECT_EQ(d.bound_violations, 0);
+  EXPECT_GT(d.max_overlap_ratio, 0.0);
+  if (Communicator::world().size() > 1) {
+    EXPECT_GT(d.spanning_subits, 0);
+  }
 }
 
 TEST(DistributedIslands, WalledBoxWithGravityMatchesSerialIslandsToRoundOff) {
@@ -227,6 +248,18 @@ TEST(DistributedIslands, WalledBoxWithGravityMatchesSerialIslandsToRoundOff) {
   const Outcome d = distributed_islands(scene, kSubits, 1);
   expect_close(scene, serial_islands(scene, kSubits), d, kPos, kVel, kEnergy, "walls and gravity");
   EXPECT_EQ(d.bound_violations, 0);
+}
+
+TEST(DistributedIslands, ExternalForceFollowsItsParticleAndMatchesSerialIslands) {
+  // The force set once at the start travels with each particle through the migrations and
+  // enters the speed bounds.
+  const Scene scene = scene_from(kWalls);
+  const Outcome d = distributed_islands(scene, kSubits, 1, true);
+  expect_close(scene, serial_islands(scene, kSubits, true), d, kPos, kVel, kEnergy,
+               "external force");
+  EXPECT_EQ(d.bound_violations, 0);
+  // And it matters: without it the particles end elsewhere.
+  EXPECT_NE(serial_islands(scene, kSubits, true).state, serial_islands(scene, kSubits).state);
 }
 
 TEST(DistributedIslands, RerunAndThreadCountsAreBitwiseIdentical) {

@@ -3,16 +3,18 @@
 // (parallel ORB + Hilbert knapsack, partition/rank_decomposition.hpp).
 //
 // Update sequence of one sub-iteration t -> t + dt_sp:
-//   1. at a regrid point (every dem.nsubit sub-iterations) wrap and decompose again; every
+//   1. at a build (the first sub-iteration, or when step 3 finds the rows too short): a new
+//      decomposition when dem.nsubit sub-iterations have passed since the last (the first build
+//      after it, as the distributed explicit scheme regrids at its first rebuild); every
 //      particle migrates to the rank owning its position (with its half step, fine-sub-iteration
-//      count and external force); the owned particles are put in id order;
-//   2. own speed bounds s_i (IslandsScheme's formula) of the owned particles; one reduction of
-//      the largest gives the halo speed S (twice it, or 1.2 x the last sub-iteration's largest
-//      raised bound when that is more); ghosts: every owned particle within
-//      2 r_max + 2 S dt_sp + margin of another rank's box is copied there unshifted (pair
-//      separations use the minimum image, as IslandsScheme's); the ghosts' bounds come from
-//      their owners (ParticleExchange::forward_columns), rows of the owned particles over owned
-//      + ghosts hold every pair within r_i + r_j + 2 S dt_sp + margin (OrbLocalRows);
+//      count and external force), the owned ones in id order; ghosts: every owned particle
+//      within 2 r_max + skin of another rank's box is copied there unshifted (separations take
+//      the minimum image, as IslandsScheme's); rows of the owned particles over owned + ghosts
+//      with every pair within r_i + r_j + skin (OrbLocalRows). The skin is IslandsScheme's
+//      islands skin, at least 4 dt_sp times the largest bound (one reduction). Between builds
+//      ownership, ghosts and rows stay (a particle may wander out of its owner's boxes);
+//   2. own speed bounds s_i (IslandsScheme's formula) of the owned particles; the ghosts' x, v
+//      and own bounds from their owners in one message round (forward_columns);
 //   3. link rounds: links and wall ties as IslandsScheme's, over pairs with an owned end; the
 //      islands over their ends. An island with a ghost member SPANS ranks; one without is LOCAL
 //      (entirely on this rank, and by the link test no particle of another rank can reach it).
@@ -24,20 +26,27 @@
 //      changed (one max and one sum reduction per round). Every rank then sees every particle
 //      it holds with the same bound, so a link exists on one rank iff on every rank holding its
 //      two ends, and "spanning" on the owner is the same as "some member on another rank" over
-//      the whole system. When the largest final bound exceeds S the sub-iteration's ghosts are
-//      rebuilt with a wider halo (halo_retries()). When more than a quarter of all particles
-//      are linked (IslandsScheme::kGlobalFraction, over all ranks) every particle takes the
-//      fine steps, as the distributed explicit scheme;
+//      the whole system. The rows and ghosts hold every pair that can link while no two
+//      particles' reaches (displacement since the build + final bound x dt_sp) add up to the
+//      skin (IslandsScheme::list_expires's rule, the largest reach reduced with the rounds);
+//      otherwise the sub-iteration builds again (step 1, halo_retries()) and redoes the rounds,
+//      with a doubled skin when even a fresh build was too short. When more than a quarter of
+//      all particles are linked (IslandsScheme::kGlobalFraction, over all ranks) every particle
+//      takes the fine steps, as the distributed explicit scheme (the dense mode);
 //   4. steps: lone particles fly free one step of dt_sp, local islands take the K fine steps
 //      (one TBB task each), exactly as IslandsScheme; then, when some rank has a spanning island
 //      (or in the dense mode), all spanning members (all particles) take the K fine steps
 //      together, each rank its owned ones with forces from their island's partners, and the
-//      ghosts' x and v are refreshed after EVERY fine step (the ghost plan of step 2, fixed over
-//      the sub-iteration);
+//      ghosts' x and v are refreshed after EVERY fine step (the ghost plan of the last build,
+//      fixed over the sub-iteration);
 //   5. one reduction of the counters, the particle count and mass (none may be lost), faults
 //      (every rank throws the same RunError) and the dense mode's displacement test: a particle
-//      that moved more than half the rows' skin (its rows may miss a pair) makes every rank
-//      roll back and redo the sub-iteration with a wider halo (retries()).
+//      that moved more than half the skin since the build (its rows may miss a pair) makes
+//      every rank roll back and redo the sub-iteration after a build with twice the skin
+//      (retries()).
+// So a sub-iteration without a build costs one ghost refresh, two reductions per link round
+// (usually two rounds) and one closing reduction, plus K - 1 ghost refreshes when an island
+// spans ranks.
 // Results are bitwise independent of the thread count; different rank counts agree with the
 // one-rank IslandsScheme to round-off (island sums in another order; a particle that spans
 // takes fine steps where IslandsScheme may fly it free). Frictionless; no checkpoint yet.

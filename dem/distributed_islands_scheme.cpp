@@ -285,9 +285,8 @@ double DistributedIslandsScheme::link_rounds() {
     for (const std::uint32_t i : busy_v_)
       if (i < owned_ && spans_[island_of_[i]]) spanning += 1.0;
     std::array<double, 6> mx{changed ? 1.0 : 0.0, a_span, hp_span, -m_span, b_max, bound_max};
-    comm_.max(mx);
     std::array<double, 3> sm{e_span, busy_owned, spanning};
-    comm_.sum(sm);
+    comm_.sum_max(sm, mx);
     last_max_bound_ = mx[5];
     spanning_global_ = static_cast<std::int64_t>(sm[2]);
     if (sm[1] > IslandsScheme::kGlobalFraction * static_cast<double>(n_global_)) {

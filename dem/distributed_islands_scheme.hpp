@@ -23,7 +23,7 @@
 //      particles of all ranks (energy summed, lightest mass, largest acceleration and half
 //      step): at least any one spanning island's own s_max, so conservative. The raised bounds
 //      go to the ghosts (forward_columns) and the links are made again, until no rank's islands
-//      changed (one max and one sum reduction per round). Every rank then sees every particle
+//      changed (one reduction per round). Every rank then sees every particle
 //      it holds with the same bound, so a link exists on one rank iff on every rank holding its
 //      two ends, and "spanning" on the owner is the same as "some member on another rank" over
 //      the whole system. The rows and ghosts hold every pair that can link while no two
@@ -44,7 +44,7 @@
 //      that moved more than half the skin since the build (its rows may miss a pair) makes
 //      every rank roll back and redo the sub-iteration after a build with twice the skin
 //      (retries()).
-// So a sub-iteration without a build costs one ghost refresh, two reductions per link round
+// So a sub-iteration without a build costs one ghost refresh, one reduction per link round
 // (usually two rounds) and one closing reduction, plus K - 1 ghost refreshes when an island
 // spans ranks.
 // Results are bitwise independent of the thread count; different rank counts agree with the

@@ -47,7 +47,8 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   std::vector<std::vector<double>> rows;
   auto add_row = [&](std::vector<double> r) {
-    if (diag) diag->add_row(r);
+    if (diag)
+      diag->add_row(r);
     rows.push_back(std::move(r));
   };
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt_sp));
@@ -55,7 +56,8 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
   const long long snap_every =
       snap_interval > 0.0 ? std::max(1LL, std::llround(snap_interval / dt_sp)) : 0;
   std::optional<SnapshotIndex> snapshots;
-  if (root) snapshots.emplace(opt.out_dir);
+  if (root)
+    snapshots.emplace(opt.out_dir);
   auto write_snapshot = [&](const SnapshotFields& f) {
     PhaseTimer::Scope io(timer, Phase::io);
     const SnapshotEntry e = write_particle_snapshot(opt.out_dir, f, comm);
@@ -67,19 +69,21 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
         error = ex.what();
       }
     }
-    if (const std::string m = comm.agree_on_error(0, error); !m.empty()) throw RunError(m);
+    if (const std::string m = comm.agree_on_error(0, error); !m.empty())
+      throw RunError(m);
   };
   if (!opt.quiet && root)
-    fmt::print(stderr, "cfddem: scene '{}', {} particles, islands scheme, dt_sp = {:.4e} s "
-                       "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
+    fmt::print(stderr,
+               "cfddem: scene '{}', {} particles, islands scheme, dt_sp = {:.4e} s "
+               "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
                scene.name, n_total, dt_sp, scheme.dt_fine(), n_end, env.ranks(), env.threads());
   const auto t_loop = clock::now();
   MeanTracker means;
   scheme.start();
   {
     PhaseTimer::Scope io(timer, Phase::io);
-    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
-                                  particles.vy, particles.vz, particles.mass},
+    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx, particles.vy,
+                                  particles.vz, particles.mass},
                                  comm);
     add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{},
                 means.next(0.0, s0.mean_velocity)));
@@ -120,19 +124,21 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
       last_progress = clock::now();
       const double wall = seconds_since(t_loop);
       const double frac = static_cast<double>(k) / static_cast<double>(n_end);
-      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine particles {:.2f}  "
-                         "ETA {}\n",
+      fmt::print(stderr,
+                 "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine particles {:.2f}  "
+                 "ETA {}\n",
                  k, scheme.time(), 100 * frac, scheme.last_fine_fraction(),
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
-  if (diag) diag->flush();
+  if (diag)
+    diag->flush();
   const double loop_seconds = seconds_since(t_loop);
   const std::vector<double> waits = comm.gather(comm.wait_seconds());
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
-  const std::vector<double> busy = comm.gather(timer.seconds(Phase::neighbor) +
-                                               timer.seconds(Phase::force) +
-                                               timer.seconds(Phase::integrate));
+  const std::vector<double> busy =
+      comm.gather(timer.seconds(Phase::neighbor) + timer.seconds(Phase::force) +
+                  timer.seconds(Phase::integrate));
   if (root) {
     nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
     j["scheme"] = "islands";
@@ -160,7 +166,8 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
         "particle took the fine steps together (the distributed explicit scheme's work)";
     const auto subits = static_cast<double>(std::max<std::int64_t>(1, scheme.subiterations()));
     j["spanning_subiterations"] = scheme.spanning_subiterations();
-    j["spanning_subiteration_fraction"] = static_cast<double>(scheme.spanning_subiterations()) / subits;
+    j["spanning_subiteration_fraction"] =
+        static_cast<double>(scheme.spanning_subiterations()) / subits;
     j["spanning_particles_mean"] = static_cast<double>(scheme.spanning_particles()) / subits;
     j["spanning_island_parts"] = scheme.spanning_island_parts();
     j["spanning_definition"] =
@@ -184,13 +191,16 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
   }
   if (!opt.quiet && root) {
     double wait_max = 0.0;
-    for (const double w : waits) wait_max = std::max(wait_max, w);
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
-                       "with {} particles\n",
+    for (const double w : waits)
+      wait_max = std::max(wait_max, w);
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
+               "with {} particles\n",
                loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), n_total);
-    fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; spanning "
-                       "sub-iterations {} of {}; MPI wait max {:.3g} s; max overlap {:.3g} r ({} "
-                       "beyond dem.max_overlap); bound violations {}\n",
+    fmt::print(stderr,
+               "Performance: {:.4g} particle-steps/s; {} force evaluations; spanning "
+               "sub-iterations {} of {}; MPI wait max {:.3g} s; max overlap {:.3g} r ({} "
+               "beyond dem.max_overlap); bound violations {}\n",
                loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0,
                scheme.pair_evaluations(), scheme.spanning_subiterations(), scheme.subiterations(),
                wait_max, scheme.max_overlap_ratio(), scheme.overlap_violations(),

@@ -8,6 +8,7 @@ namespace cfddem::apps {
 // Collective. Rows hold values reduced over the ranks; rank 0 writes diagnostics.csv and
 // run.json (with how often islands spanned ranks). No checkpoint or restart yet: the caller
 // refuses output.checkpoint_interval and --restart.
-RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
+RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
+                                  const ParallelEnv& env);
 
 } // namespace cfddem::apps

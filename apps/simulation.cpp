@@ -168,7 +168,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     if (scene.dem.scheme == "orb") return run_distributed_orb(scene, opt, env);
     if (scene.dem.scheme == "islands") {
       if (!opt.restart.empty() || scene.output.checkpoint_interval > 0.0)
-        throw ConfigError(!opt.restart.empty() ? "--restart" : "scene key 'output.checkpoint_interval'",
+        throw ConfigError(!opt.restart.empty() ? "--restart"
+                                               : "scene key 'output.checkpoint_interval'",
                           "checkpoint/restart of dem.scheme = \"islands\" is not yet "
                           "distributed over MPI ranks: run it on one rank, or leave "
                           "output.checkpoint_interval at 0 and drop --restart");

@@ -20,26 +20,29 @@ namespace cfddem::dem {
 namespace {
 int ceil_log2(int n) {
   int l = 0;
-  while ((1 << l) < n) ++l;
+  while ((1 << l) < n)
+    ++l;
   return l;
 }
 constexpr std::size_t kBlock = 1024;
 } // namespace
 
 DistributedIslandsScheme::DistributedIslandsScheme(const Scene& scene, ParticleStore& particles,
-                                                   const StepModel& model,
-                                                   const Communicator& comm, PhaseTimer& timer)
+                                                   const StepModel& model, const Communicator& comm,
+                                                   PhaseTimer& timer)
     : scene_(scene), p_(particles), comm_(comm), timer_(timer), geom_(scene.domain), model_(model),
       exchange_(comm) {
   require_frictionless(model_, "islands");
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
   // Enough boxes that the knapsack can balance (the distributed explicit scheme's rule).
   levels_ = std::min(20, std::max(scene.partition.orb_levels, ceil_log2(comm.size()) + 2));
-  for (const double r : p_.radius) r_max_ = std::max(r_max_, r);
+  for (const double r : p_.radius)
+    r_max_ = std::max(r_max_, r);
   r_max_ = comm_.max(r_max_);
   n_global_ = comm_.sum(static_cast<std::int64_t>(p_.size()));
   double m = 0.0;
-  for (const double v : p_.mass) m += v;
+  for (const double v : p_.mass)
+    m += v;
   std::array<double, 1> ms{m};
   comm_.sum(ms);
   mass_global_ = ms[0];
@@ -96,9 +99,11 @@ void DistributedIslandsScheme::migrate() {
                             time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i], comm_.rank());
     }
   }
-  if (const std::string e = comm_.agree_on_error(key, outside); !e.empty()) throw RunError(e);
+  if (const std::string e = comm_.agree_on_error(key, outside); !e.empty())
+    throw RunError(e);
   std::vector<std::vector<double>*> cols{&hprev_, &fine_};
-  if (ext_on_) cols.insert(cols.end(), {&ex_, &ey_, &ez_});
+  if (ext_on_)
+    cols.insert(cols.end(), {&ex_, &ey_, &ez_});
   exchange_.migrate(p_, dest, cols);
   owned_ = p_.size();
   std::vector<std::uint32_t> order(owned_);
@@ -108,7 +113,8 @@ void DistributedIslandsScheme::migrate() {
   p_.permute(order);
   for (std::vector<double>* c : cols) {
     std::vector<double> t(owned_);
-    for (std::size_t k = 0; k < owned_; ++k) t[k] = (*c)[order[k]];
+    for (std::size_t k = 0; k < owned_; ++k)
+      t[k] = (*c)[order[k]];
     c->swap(t);
   }
 }
@@ -149,17 +155,21 @@ void DistributedIslandsScheme::build_ghosts_and_rows() {
     if (own >= 0) {
       const partition::Aabb& b = tree.leaves()[static_cast<std::size_t>(own)].box;
       bool inside = true;
-      for (int a = 0; a < 3; ++a) inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
-      if (inside) continue;
+      for (int a = 0; a < 3; ++a)
+        inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
+      if (inside)
+        continue;
     }
     ranks.clear();
     for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic)) {
       const int r = decomposition_.owner[static_cast<std::size_t>(li.leaf)];
-      if (r == me || std::find(ranks.begin(), ranks.end(), r) != ranks.end()) continue;
+      if (r == me || std::find(ranks.begin(), ranks.end(), r) != ranks.end())
+        continue;
       ranks.push_back(r);
     }
     // Unshifted: separations take the minimum image, as IslandsScheme's.
-    for (const int r : ranks) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    for (const int r : ranks)
+      copies.push_back({r, static_cast<std::uint32_t>(i), {}});
   }
   exchange_.build_ghosts(p_, owned_, std::move(copies));
   const std::size_t n = p_.size();
@@ -167,9 +177,20 @@ void DistributedIslandsScheme::build_ghosts_and_rows() {
   std::vector<double>* col[] = {&bound_};
   exchange_.forward_columns(col);
   leaf0_.assign(owned_, 0);
-  rows_.build({geom_, {p_.x.data(), n}, {p_.y.data(), n}, {p_.z.data(), n},
-               {p_.radius.data(), n}, {p_.id.data(), n}, {bound_.data(), n},
-               {leaf0_.data(), owned_}, owned_, cutoff, skin_, 0.0, dt_sp_, false});
+  rows_.build({geom_,
+               {p_.x.data(), n},
+               {p_.y.data(), n},
+               {p_.z.data(), n},
+               {p_.radius.data(), n},
+               {p_.id.data(), n},
+               {bound_.data(), n},
+               {leaf0_.data(), owned_},
+               owned_,
+               cutoff,
+               skin_,
+               0.0,
+               dt_sp_,
+               false});
   x_ref_.assign(p_.x.begin(), p_.x.begin() + static_cast<std::ptrdiff_t>(owned_));
   y_ref_.assign(p_.y.begin(), p_.y.begin() + static_cast<std::ptrdiff_t>(owned_));
   z_ref_.assign(p_.z.begin(), p_.z.begin() + static_cast<std::ptrdiff_t>(owned_));
@@ -186,38 +207,47 @@ void DistributedIslandsScheme::make_links() {
   for (std::uint32_t i = 0; i < owned_; ++i)
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
       const std::uint32_t j = nb[k];
-      if (j < owned_ && j <= i) continue;
+      if (j < owned_ && j <= i)
+        continue;
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
                    dz = g.image(p_.z[j] - p_.z[i], 2);
-      const double reach =
-          (bound_[i] + bound_[j]) * dt_sp_ + margin_ + p_.radius[i] + p_.radius[j];
-      if (dx * dx + dy * dy + dz * dz < reach * reach) ea_.push_back(i), eb_.push_back(j);
+      const double reach = (bound_[i] + bound_[j]) * dt_sp_ + margin_ + p_.radius[i] + p_.radius[j];
+      if (dx * dx + dy * dy + dz * dz < reach * reach)
+        ea_.push_back(i), eb_.push_back(j);
     }
   tied_.clear();
   for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a]) continue;
+    if (g.periodic[a])
+      continue;
     const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
     for (std::uint32_t i = 0; i < owned_; ++i) {
       const double gap = std::min(pos[i] - g.lo[a], g.hi[a] - pos[i]) - p_.radius[i];
-      if (gap < bound_[i] * dt_sp_ + margin_) tied_.push_back(i);
+      if (gap < bound_[i] * dt_sp_ + margin_)
+        tied_.push_back(i);
     }
   }
-  for (const std::uint32_t v : busy_v_) island_of_[v] = kAlone;
+  for (const std::uint32_t v : busy_v_)
+    island_of_[v] = kAlone;
   busy_v_.clear();
   for (const auto* list : {&ea_, &eb_, &tied_})
     for (const std::uint32_t v : *list)
-      if (!mark_[v]) mark_[v] = 1, busy_v_.push_back(v);
-  for (const std::uint32_t v : busy_v_) mark_[v] = 0;
+      if (!mark_[v])
+        mark_[v] = 1, busy_v_.push_back(v);
+  for (const std::uint32_t v : busy_v_)
+    mark_[v] = 0;
   std::sort(busy_v_.begin(), busy_v_.end());
-  for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = k;
+  for (std::uint32_t k = 0; k < busy_v_.size(); ++k)
+    island_of_[busy_v_[k]] = k;
   la_.resize(ea_.size()), lb_.resize(eb_.size());
   for (std::size_t q = 0; q < ea_.size(); ++q)
     la_[q] = island_of_[ea_[q]], lb_[q] = island_of_[eb_[q]];
   partition::connected_components(busy_v_.size(), la_, lb_, islands_, uf_scratch_);
-  for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = islands_.label[k];
+  for (std::uint32_t k = 0; k < busy_v_.size(); ++k)
+    island_of_[busy_v_[k]] = islands_.label[k];
   spans_.assign(islands_.count(), 0);
   for (const std::uint32_t v : busy_v_)
-    if (v >= owned_) spans_[island_of_[v]] = 1;
+    if (v >= owned_)
+      spans_[island_of_[v]] = 1;
 }
 
 double DistributedIslandsScheme::link_rounds() {
@@ -249,20 +279,24 @@ double DistributedIslandsScheme::link_rounds() {
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
                    dz = g.image(p_.z[j] - p_.z[i], 2);
       const double delta = p_.radius[i] + p_.radius[j] - std::sqrt(dx * dx + dy * dy + dz * dz);
-      if (delta <= 0.0) continue;
+      if (delta <= 0.0)
+        continue;
       const std::uint32_t c = island_of_[i];
       (spans_[c] ? e_span : energy_[c]) += 0.5 * model_.pair.k * delta * delta;
     }
     for (const std::uint32_t i : busy_v_) {
-      if (i >= owned_) break; // busy_v_ is increasing: the ghosts come last
+      if (i >= owned_)
+        break; // busy_v_ is increasing: the ghosts come last
       busy_owned += 1.0;
       const std::uint32_t c = island_of_[i];
       double e = 0.5 * p_.mass[i] * own_bound_[i] * own_bound_[i];
       for (int a = 0; a < 3; ++a) {
-        if (g.periodic[a]) continue;
+        if (g.periodic[a])
+          continue;
         const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
         const double delta = p_.radius[i] - std::min(pos - g.lo[a], g.hi[a] - pos);
-        if (delta > 0.0) e += 0.5 * model_.wall.k * delta * delta;
+        if (delta > 0.0)
+          e += 0.5 * model_.wall.k * delta * delta;
       }
       const double acc = accel(i);
       if (spans_[c]) {
@@ -283,7 +317,8 @@ double DistributedIslandsScheme::link_rounds() {
     }
     double spanning = 0.0;
     for (const std::uint32_t i : busy_v_)
-      if (i < owned_ && spans_[island_of_[i]]) spanning += 1.0;
+      if (i < owned_ && spans_[island_of_[i]])
+        spanning += 1.0;
     std::array<double, 6> mx{changed ? 1.0 : 0.0, a_span, hp_span, -m_span, b_max, bound_max};
     std::array<double, 3> sm{e_span, busy_owned, spanning};
     comm_.sum_max(sm, mx);
@@ -293,16 +328,18 @@ double DistributedIslandsScheme::link_rounds() {
       global_ = true; // a dense bed: everyone takes the fine steps
       return mx[4];
     }
-    if (round > 0 && mx[0] == 0.0) return mx[4];
+    if (round > 0 && mx[0] == 0.0)
+      return mx[4];
     const double m_all = -mx[3];
     const double s_span =
         std::isfinite(m_all) ? std::sqrt(2.0 * sm[0] / m_all) + mx[1] * (mx[2] + dt_sp_) : 0.0;
     for (const std::uint32_t i : busy_v_) {
-      if (i >= owned_) break;
+      if (i >= owned_)
+        break;
       const std::uint32_t c = island_of_[i];
-      const double s = spans_[c] ? s_span
-                                 : std::sqrt(2.0 * energy_[c] / m_min_[c]) +
-                                       a_max_[c] * (hp_max_[c] + dt_sp_);
+      const double s =
+          spans_[c] ? s_span
+                    : std::sqrt(2.0 * energy_[c] / m_min_[c]) + a_max_[c] * (hp_max_[c] + dt_sp_);
       bound_[i] = std::max(own_bound_[i], s);
     }
     std::vector<double>* col[] = {&bound_};
@@ -329,12 +366,14 @@ std::int64_t DistributedIslandsScheme::forces(std::uint32_t i, bool label, doubl
   std::int64_t pairs = 0;
   for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
     const std::uint32_t j = nb[k];
-    if (label && island_of_[j] != c) continue;
+    if (label && island_of_[j] != c)
+      continue;
     pairs += p_.id[j] > p_.id[i];
     const double delta = add_normal_contact(
         m, g.image(p_.x[j] - xi, 0), g.image(p_.y[j] - yi, 1), g.image(p_.z[j] - zi, 2), ri,
         p_.radius[j], mi, p_.mass[j], vxi - p_.vx[j], vyi - p_.vy[j], vzi - p_.vz[j], ax, ay, az);
-    if (delta <= 0.0) continue;
+    if (delta <= 0.0)
+      continue;
     const double rmin = std::min(ri, p_.radius[j]);
     max_ratio = std::max(max_ratio, delta / rmin);
     violations += delta > m.max_overlap * rmin;
@@ -342,11 +381,13 @@ std::int64_t DistributedIslandsScheme::forces(std::uint32_t i, bool label, doubl
   double f[3] = {ax, ay, az};
   const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
   for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a]) continue;
+    if (g.periodic[a])
+      continue;
     for (int side = 0; side < 2; ++side) {
       const double sg = side ? 1.0 : -1.0;
       const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
-      if (delta <= 0.0) continue;
+      if (delta <= 0.0)
+        continue;
       f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
       max_ratio = std::max(max_ratio, delta / ri);
       violations += delta > m.max_overlap * ri;
@@ -361,7 +402,8 @@ template <bool External> void DistributedIslandsScheme::free_flight(bool record)
   const std::array<double, 3> g = model_.gravity;
   const double half = 0.5 * dt_sp_;
   for (std::size_t i = 0; i < owned_; ++i) {
-    if (island_of_[i] != kAlone) continue;
+    if (island_of_[i] != kAlone)
+      continue;
     double ax = g[0], ay = g[1], az = g[2];
     if constexpr (External) {
       ax += ex_[i] * p_.inv_mass[i], ay += ey_[i] * p_.inv_mass[i], az += ez_[i] * p_.inv_mass[i];
@@ -394,7 +436,8 @@ void DistributedIslandsScheme::run_local_island(std::uint32_t c, bool record) {
     for (std::uint32_t u = 0; u < count; ++u) {
       const std::uint32_t i = mem[u];
       double ex = 0.0, ey = 0.0, ez = 0.0;
-      if constexpr (External) ex = ex_[i], ey = ey_[i], ez = ez_[i];
+      if constexpr (External)
+        ex = ex_[i], ey = ey_[i], ez = ez_[i];
       const double im = p_.inv_mass[i];
       if (record && k == 0) {
         svx_[i] = p_.vx[i] + ((p_.fx[i] + ex) * im + m.gravity[0]) * hprev_[i];
@@ -445,7 +488,8 @@ template <bool External> void DistributedIslandsScheme::fine_together(bool recor
       for (std::size_t u = b * kBlock; u < std::min(count, (b + 1) * kBlock); ++u) {
         const std::uint32_t i = span_members_[u];
         double ex = 0.0, ey = 0.0, ez = 0.0;
-        if constexpr (External) ex = ex_[i], ey = ey_[i], ez = ez_[i];
+        if constexpr (External)
+          ex = ex_[i], ey = ey_[i], ez = ez_[i];
         const double im = p_.inv_mass[i];
         if (record && k == 0) {
           svx_[i] = p_.vx[i] + ((p_.fx[i] + ex) * im + m.gravity[0]) * hprev_[i];
@@ -461,8 +505,7 @@ template <bool External> void DistributedIslandsScheme::fine_together(bool recor
         if (all) {
           // Rows built at x_ref hold every pair within r_i + r_j + skin: a particle that moved
           // farther than skin/2 since may miss one; redo with a wider halo.
-          const double dx = p_.x[i] - x_ref_[i], dy = p_.y[i] - y_ref_[i],
-                       dz = p_.z[i] - z_ref_[i];
+          const double dx = p_.x[i] - x_ref_[i], dy = p_.y[i] - y_ref_[i], dz = p_.z[i] - z_ref_[i];
           r.outran += dx * dx + dy * dy + dz * dz > half_skin2;
         } else {
           const double dx = p_.x[i] - x0_[i], dy = p_.y[i] - y0_[i], dz = p_.z[i] - z0_[i];
@@ -471,7 +514,8 @@ template <bool External> void DistributedIslandsScheme::fine_together(bool recor
         }
       }
     });
-    if (k + 1 < K_) exchange_.forward(p_);
+    if (k + 1 < K_)
+      exchange_.forward(p_);
     h_before = hk;
   }
   span_result_ = Result{};
@@ -509,7 +553,8 @@ void DistributedIslandsScheme::rebuild() {
   migrate();
   own_bounds();
   double b = 0.0;
-  for (std::size_t i = 0; i < owned_; ++i) b = std::max(b, bound_[i]);
+  for (std::size_t i = 0; i < owned_; ++i)
+    b = std::max(b, bound_[i]);
   const double speed = std::max(comm_.max(b), last_max_bound_);
   // IslandsScheme's islands skin (three times the explicit scheme's unless dem.neighbor_skin is
   // set), at least four sub-iterations of the largest bound, or what a failed build asked for.
@@ -550,10 +595,12 @@ void DistributedIslandsScheme::subiterate(bool record) {
         busy_v_.clear();
         mark_.assign(p_.size(), 0);
         const double reach = link_rounds();
-        if (2.0 * reach + margin_ < skin_) break;
+        if (2.0 * reach + margin_ < skin_)
+          break;
         // Some pair could link that the rows (or the ghosts) miss: build again, wider when even
         // a fresh build was too short.
-        if (fresh) grown_skin_ = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
+        if (fresh)
+          grown_skin_ = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
         need_rebuild_ = true;
         ++halo_retries_;
       }
@@ -566,7 +613,8 @@ void DistributedIslandsScheme::subiterate(bool record) {
     vz0_.assign(p_.vz.begin(), p_.vz.begin() + static_cast<std::ptrdiff_t>(owned_));
     hp0_ = hprev_;
     PhaseTimer::Scope t(timer_, Phase::force);
-    if (record) record_state();
+    if (record)
+      record_state();
     std::int64_t span_parts = 0, members = 0;
     span_members_.clear();
     results_.clear();
@@ -577,12 +625,15 @@ void DistributedIslandsScheme::subiterate(bool record) {
     } else {
       const std::uint32_t nc = islands_.count();
       members_.resize(busy_v_.size());
-      for (std::size_t k = 0; k < busy_v_.size(); ++k) members_[k] = busy_v_[islands_.members[k]];
-      for (std::uint32_t q = 0; q < nc; ++q) span_parts += spans_[q];
+      for (std::size_t k = 0; k < busy_v_.size(); ++k)
+        members_[k] = busy_v_[islands_.members[k]];
+      for (std::uint32_t q = 0; q < nc; ++q)
+        span_parts += spans_[q];
       for (const std::uint32_t i : busy_v_)
         if (i < owned_) {
           ++members;
-          if (spans_[island_of_[i]]) span_members_.push_back(i);
+          if (spans_[island_of_[i]])
+            span_members_.push_back(i);
         }
       ext_on_ ? free_flight<true>(record) : free_flight<false>(record);
       results_.assign(nc, Result{});
@@ -614,7 +665,8 @@ void DistributedIslandsScheme::subiterate(bool record) {
     for (std::uint32_t i = 0; i < owned_ && fault == 0; ++i) {
       const double q[3] = {p_.x[i], p_.y[i], p_.z[i]};
       const double v2 = p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i];
-      if (!std::isfinite(v2 + q[0] + q[1] + q[2])) fault = 1, fault_index = i;
+      if (!std::isfinite(v2 + q[0] + q[1] + q[2]))
+        fault = 1, fault_index = i;
       for (int a = 0; a < 3 && fault == 0; ++a)
         if (!geom_.periodic[a] && !(q[a] >= geom_.lo[a] && q[a] <= geom_.hi[a]))
           fault = 2, fault_index = i;
@@ -623,12 +675,15 @@ void DistributedIslandsScheme::subiterate(bool record) {
     c[6] = static_cast<double>(members);
     c[7] = global_ ? 0.0 : static_cast<double>(span_members_.size()); // dense: not "spanning"
     c[8] = static_cast<double>(span_parts);
-    for (std::size_t i = 0; i < owned_; ++i) c[10] += p_.mass[i];
+    for (std::size_t i = 0; i < owned_; ++i)
+      c[10] += p_.mass[i];
     // One reduction closes the sub-iteration (the counts are exact in doubles below 2^53).
     comm_.sum(c);
-    if (c[9] == 0 || c[5] > 0) break;
+    if (c[9] == 0 || c[5] > 0)
+      break;
     // The dense mode outran its rows somewhere: every rank rolls back and widens the halo.
-    std::copy(x0_.begin(), x0_.end(), p_.x.begin()), std::copy(y0_.begin(), y0_.end(), p_.y.begin());
+    std::copy(x0_.begin(), x0_.end(), p_.x.begin()),
+        std::copy(y0_.begin(), y0_.end(), p_.y.begin());
     std::copy(z0_.begin(), z0_.end(), p_.z.begin());
     std::copy(vx0_.begin(), vx0_.end(), p_.vx.begin());
     std::copy(vy0_.begin(), vy0_.end(), p_.vy.begin());
@@ -658,9 +713,11 @@ void DistributedIslandsScheme::subiterate(bool record) {
     throw RunError(fmt::format("t = {:.9g} s: {} particles of total mass {:.17g} kg on the ranks "
                                "after migration, {} of {:.17g} kg expected",
                                time(), c[0], c[10], n_global_, mass_global_));
-  if (global_) ++global_subits_;
+  if (global_)
+    ++global_subits_;
   for (std::size_t i = 0; i < owned_; ++i)
-    if (global_ || island_of_[i] != kAlone) fine_[i] += 1.0;
+    if (global_ || island_of_[i] != kAlone)
+      fine_[i] += 1.0;
   auto count = [&](int q) { return static_cast<std::int64_t>(c[static_cast<std::size_t>(q)]); };
   particle_steps_ += count(1), pair_evaluations_ += count(2), overlap_violations_ += count(3);
   bound_violations_ += count(4);
@@ -673,7 +730,8 @@ void DistributedIslandsScheme::subiterate(bool record) {
   iv_max_ = std::max(iv_max_, fine > 0 ? K_ : std::int64_t{1});
   // The largest overlap is reduced only when the state is recorded (the orb scheme's budget).
   max_ratio_local_ = std::max(max_ratio_local_, ratio);
-  if (record) max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(max_ratio_local_));
+  if (record)
+    max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(max_ratio_local_));
   ++subits_;
 }
 

@@ -166,7 +166,7 @@ private:
   // Per local particle (owned, then ghosts): speed bound and own bound.
   std::vector<double> bound_, own_bound_;
   std::vector<double> x_ref_, y_ref_, z_ref_; // owned positions at the last build
-  std::vector<std::uint32_t> leaf0_; // all zero: the rows' one "leaf" of owned particles
+  std::vector<std::uint32_t> leaf0_;          // all zero: the rows' one "leaf" of owned particles
   OrbLocalRows rows_;
   static constexpr std::uint32_t kAlone = 0xffffffffu;
   std::vector<std::uint32_t> ea_, eb_, tied_, busy_v_, la_, lb_, island_of_, members_;

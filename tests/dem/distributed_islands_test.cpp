@@ -90,15 +90,16 @@ ParticleStore share(const ParticleStore& all, int rank, int ranks) {
 }
 
 struct Outcome {
-  State state;                         // serial: all; distributed: this rank's owned
-  std::vector<double> kinetic_energy;  // per sub-iteration, over all particles
+  State state;                        // serial: all; distributed: this rank's owned
+  std::vector<double> kinetic_energy; // per sub-iteration, over all particles
   std::int64_t bound_violations = 0, spanning_subits = 0, global_subits = 0;
   double max_overlap_ratio = 0.0;
 };
 
 State state_of(const ParticleStore& p, std::size_t n) {
   State s;
-  for (std::size_t i = 0; i < n; ++i) s[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  for (std::size_t i = 0; i < n; ++i)
+    s[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
   return s;
 }
 
@@ -122,7 +123,8 @@ Outcome serial_islands(const Scene& scene, int subits, bool external = false) {
   PhaseTimer timer;
   dem::IslandsScheme s(scene, p, timer);
   s.start();
-  if (external) apply_force(p, p.size(), s);
+  if (external)
+    apply_force(p, p.size(), s);
   Outcome r;
   for (int k = 0; k < subits; ++k) {
     s.subiterate();
@@ -149,9 +151,11 @@ Outcome distributed_islands(const Scene& scene, int subits, int threads, bool ex
   PhaseTimer timer;
   dem::DistributedIslandsScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
   s.start();
-  if (external) apply_force(p, s.owned(), s);
+  if (external)
+    apply_force(p, s.owned(), s);
   std::array<std::int64_t, 3> expect{};
-  for (const std::int64_t id : all.id) expect[0] += 1, expect[1] += id, expect[2] += id * id;
+  for (const std::int64_t id : all.id)
+    expect[0] += 1, expect[1] += id, expect[2] += id * id;
   const double mass0 = all.total_mass();
   Outcome r;
   for (int k = 0; k < subits; ++k) {
@@ -191,7 +195,8 @@ void expect_close(const Scene& scene, const Outcome& serial, const Outcome& mine
     for (int a = 0; a < 6; ++a) {
       double d = std::abs(q[a] - it->second[a]);
       // A particle across a periodic face: the two runs may wrap it differently.
-      if (a < 3) d = std::min(d, std::abs(d - g.length[a]));
+      if (a < 3)
+        d = std::min(d, std::abs(d - g.length[a]));
       worst[a < 3 ? 0 : 1] = std::max(worst[a < 3 ? 0 : 1], d);
     }
   }
@@ -283,7 +288,8 @@ TEST(DistributedIslands, ParticleThroughAWallStopsEveryRankWithTheSameError) {
   s.start();
   std::string message;
   try {
-    for (int k = 0; k < kSubits; ++k) s.subiterate();
+    for (int k = 0; k < kSubits; ++k)
+      s.subiterate();
   } catch (const RunError& e) {
     message = e.what();
   }

@@ -175,7 +175,10 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
         "the dense mode), their member particles per sub-iteration (mean), and their parts summed "
         "over ranks and sub-iterations; they take the fine steps together with a ghost refresh "
         "per fine step";
-    j["halo_retries"] = scheme.halo_retries();
+    j["expired_builds"] = scheme.expired_builds();
+    j["expired_builds_definition"] =
+        "builds (of neighbor_builds) made inside a sub-iteration because two particles' reaches "
+        "(displacement since the last build + speed bound x dt_sp) could add up to the skin";
     j["subiteration_retries"] = scheme.retries();
     j["final_skin"] = scheme.skin();
     j["max_overlap_ratio"] = scheme.max_overlap_ratio();
@@ -187,6 +190,12 @@ RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
     j["busy_seconds"] = busy;
     j["busy_definition"] = "per rank: neighbor + force + integrate phases; their spread is the "
                            "load imbalance in time";
+    double worst = 1.0;
+    for (const double q : scheme.imbalances())
+      worst = std::max(worst, q);
+    j["load_imbalance_max"] = worst;
+    j["load_imbalance_definition"] = "largest over the regrids of max over ranks / mean of the "
+                                     "particles per rank";
     write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
   }
   if (!opt.quiet && root) {

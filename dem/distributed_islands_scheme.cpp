@@ -79,6 +79,7 @@ void DistributedIslandsScheme::regrid() {
     p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
     p_.z[i] = geom_.wrap(p_.z[i], 2);
   decomposition_ = partition::decompose(comm_, p_.x, p_.y, p_.z, domain_, levels_);
+  imbalances_.push_back(decomposition_.imbalance);
   ++regrids_;
 }
 
@@ -602,7 +603,7 @@ void DistributedIslandsScheme::subiterate(bool record) {
         if (fresh)
           grown_skin_ = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
         need_rebuild_ = true;
-        ++halo_retries_;
+        ++expired_builds_;
       }
     }
     x0_.assign(p_.x.begin(), p_.x.begin() + static_cast<std::ptrdiff_t>(owned_));

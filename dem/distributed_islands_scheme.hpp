@@ -29,7 +29,7 @@
 //      the whole system. The rows and ghosts hold every pair that can link while no two
 //      particles' reaches (displacement since the build + final bound x dt_sp) add up to the
 //      skin (IslandsScheme::list_expires's rule, the largest reach reduced with the rounds);
-//      otherwise the sub-iteration builds again (step 1, halo_retries()) and redoes the rounds,
+//      otherwise the sub-iteration builds again (step 1, expired_builds()) and redoes the rounds,
 //      with a doubled skin when even a fresh build was too short. When more than a quarter of
 //      all particles are linked (IslandsScheme::kGlobalFraction, over all ranks) every particle
 //      takes the fine steps, as the distributed explicit scheme (the dense mode);
@@ -97,7 +97,8 @@ public:
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t regrids() const { return regrids_; }
   std::int64_t retries() const { return retries_; }
-  std::int64_t halo_retries() const { return halo_retries_; }
+  // Builds made inside a sub-iteration because the rows ran short (step 3 of the header).
+  std::int64_t expired_builds() const { return expired_builds_; }
   double skin() const { return skin_; }
   double max_overlap_ratio() const { return max_overlap_ratio_; }
   std::int64_t overlap_violations() const { return overlap_violations_; }
@@ -112,6 +113,9 @@ public:
   double last_fine_fraction() const { return last_fine_fraction_; }
   std::int64_t global_count() const { return n_global_; }
   const StepModel& model() const { return model_; }
+
+  // Per regrid: max over ranks / mean of the particles per rank.
+  const std::vector<double>& imbalances() const { return imbalances_; }
 
   std::size_t owned() const { return owned_; }
   std::size_t ghosts() const { return p_.size() - owned_; }
@@ -166,6 +170,7 @@ private:
   // Per local particle (owned, then ghosts): speed bound and own bound.
   std::vector<double> bound_, own_bound_;
   std::vector<double> x_ref_, y_ref_, z_ref_; // owned positions at the last build
+  std::vector<double> imbalances_;
   std::vector<std::uint32_t> leaf0_;          // all zero: the rows' one "leaf" of owned particles
   OrbLocalRows rows_;
   static constexpr std::uint32_t kAlone = 0xffffffffu;
@@ -188,7 +193,7 @@ private:
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
   std::vector<std::int64_t> sid_, sisland_;
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0, regrids_ = 0,
-               retries_ = 0, halo_retries_ = 0, overlap_violations_ = 0, bound_violations_ = 0,
+               retries_ = 0, expired_builds_ = 0, overlap_violations_ = 0, bound_violations_ = 0,
                global_subits_ = 0, span_subits_ = 0, span_particles_ = 0, span_parts_ = 0;
   double max_overlap_ratio_ = 0.0, last_fine_fraction_ = 0.0, max_ratio_local_ = 0.0;
   std::int64_t iv_fine_ = 0, iv_particles_ = 0, iv_steps_ = 0;

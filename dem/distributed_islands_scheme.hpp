@@ -125,7 +125,7 @@ public:
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
 
-  // Collective: IslandsScheme's interval statistics over all ranks (then reset).
+  // IslandsScheme's interval statistics over all ranks (reduced every sub-iteration; then reset).
   LeafStepStats take_interval_stats();
 
   // The owned particles' recorded state; `leaf` holds the island (-1: alone, free flight).

@@ -21,6 +21,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/distributed_islands_run.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
@@ -145,19 +146,30 @@ namespace {
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (env.ranks() > 1) {
-    // What is distributed so far: the explicit scheme (with friction too) and the orb scheme
-    // (frictionless: it refuses friction itself), both with a gas too.
-    if (scene.dem.scheme != "explicit" && scene.dem.scheme != "orb")
+    // What is distributed so far: the explicit scheme (with friction too), the orb scheme and
+    // the islands scheme (frictionless: they refuse friction themselves); explicit and orb with
+    // a gas too (run_coupled_distributed refuses islands with a gas).
+    if (scene.dem.scheme != "explicit" && scene.dem.scheme != "orb" &&
+        scene.dem.scheme != "islands")
       throw ConfigError("scene key 'dem.scheme'",
                         fmt::format("dem.scheme = \"{}\" is not yet distributed over MPI ranks: "
-                                    "run it on one rank, or use dem.scheme = \"explicit\" or "
-                                    "\"orb\"",
+                                    "run it on one rank, or use dem.scheme = \"explicit\", "
+                                    "\"orb\" or \"islands\"",
                                     scene.dem.scheme));
     if (scene.fluid.enabled) {
       validate_fluid(scene);
       return run_coupled_distributed(scene, opt, env);
     }
     if (scene.dem.scheme == "orb") return run_distributed_orb(scene, opt, env);
+    if (scene.dem.scheme == "islands") {
+      if (!opt.restart.empty() || scene.output.checkpoint_interval > 0.0)
+        throw ConfigError(!opt.restart.empty() ? "--restart"
+                                               : "scene key 'output.checkpoint_interval'",
+                          "checkpoint/restart of dem.scheme = \"islands\" is not yet "
+                          "distributed over MPI ranks: run it on one rank, or leave "
+                          "output.checkpoint_interval at 0 and drop --restart");
+      return run_distributed_islands(scene, opt, env);
+    }
     return run_distributed(scene, opt, env);
   }
   if (scene.fluid.enabled) {

@@ -1,6 +1,8 @@
 #include "core/communicator.hpp"
 
+#include <algorithm>
 #include <limits>
+#include <vector>
 
 #include "core/communicator_mpi.hpp"
 
@@ -45,6 +47,39 @@ void Communicator::max(std::span<std::int64_t> v) const {
 }
 void Communicator::min(std::span<std::int64_t> v) const {
   reduce(*this, v, MPI_MIN);
+}
+
+namespace {
+// The user operation of sum_max: buffer[0] = number of summed entries (the same on every rank),
+// then the sums, then the maxima.
+void sum_then_max(void* in, void* inout, int* len, MPI_Datatype*) {
+  const auto* a = static_cast<const double*>(in);
+  auto* b = static_cast<double*>(inout);
+  const auto n = static_cast<int>(a[0]);
+  for (int k = 1; k <= n; ++k) b[k] += a[k];
+  for (int k = n + 1; k < *len; ++k) b[k] = a[k] > b[k] ? a[k] : b[k];
+}
+} // namespace
+
+void Communicator::sum_max(std::span<double> sums, std::span<double> maxes) const {
+  if (size_ == 1) return;
+  static MPI_Op op = [] {
+    MPI_Op o;
+    MPI_Op_create(&sum_then_max, 1, &o);
+    return o;
+  }();
+  std::vector<double> buf(1 + sums.size() + maxes.size());
+  buf[0] = static_cast<double>(sums.size());
+  std::copy(sums.begin(), sums.end(), buf.begin() + 1);
+  std::copy(maxes.begin(), maxes.end(), buf.begin() + 1 + static_cast<std::ptrdiff_t>(sums.size()));
+  {
+    MpiWait w(*this);
+    MPI_Allreduce(MPI_IN_PLACE, buf.data(), static_cast<int>(buf.size()), MPI_DOUBLE, op,
+                  mpi_comm(*this));
+  }
+  std::copy_n(buf.begin() + 1, sums.size(), sums.begin());
+  std::copy_n(buf.begin() + 1 + static_cast<std::ptrdiff_t>(sums.size()), maxes.size(),
+              maxes.begin());
 }
 
 void Communicator::max_begin(std::span<std::int64_t> v) const {

@@ -71,6 +71,10 @@ public:
   // packs the owned values and posts the messages; end waits and writes the ghosts.
   void forward_begin(const ParticleStore& p);
   void forward_end(ParticleStore& p);
+  // Refresh caller columns of the ghosts along the same plan (one value per particle of the
+  // store, owned then ghosts; unshifted): values a scheme computes on its owned particles that
+  // the ranks holding their ghosts must see (the islands scheme's speed bounds). Blocking.
+  void forward_columns(std::span<std::vector<double>* const> columns);
 
   std::size_t owned() const { return owned_; }
   std::size_t ghosts() const { return recv_total_; }

@@ -55,6 +55,10 @@ namespace cfddem::dem {
 
 class IslandsScheme {
 public:
+  // Above this fraction of particles linked or tied, a sub-iteration steps everyone finely (the
+  // distributed scheme applies it over all ranks).
+  static constexpr double kGlobalFraction = 0.25;
+
   IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
 
   // h_prev = 0 (velocities are the synchronised v(0)); builds the Verlet list.
@@ -151,8 +155,6 @@ private:
   double islands_skin_ = 0.0, global_skin_ = 0.0;
   bool global_ = false;
   std::int64_t global_subits_ = 0;
-  // Above this fraction of particles linked or tied, a sub-iteration steps everyone finely.
-  static constexpr double kGlobalFraction = 0.25;
   std::int64_t nsubit_ = 1;
   bool built_ = false;
   std::vector<double> hprev_;                 // per particle: half of its last step

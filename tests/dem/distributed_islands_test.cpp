@@ -1,0 +1,306 @@
+// The islands scheme over MPI ranks (run under mpirun -np 1, 2 and 3) against the one-rank
+// IslandsScheme: the same particles within round-off (a spanning island sums its forces in
+// another order, and a particle that spans may take K fine steps where the serial scheme flies
+// it free, equal under a constant force only to round-off), no particle or mass lost at any
+// sub-iteration, no bound violated, and bitwise the same result for 1 and 2 threads per rank.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <functional>
+#include <map>
+#include <string>
+
+#include <tbb/global_control.h>
+
+#include "core/communicator.hpp"
+#include "core/error.hpp"
+#include "core/initial_conditions.hpp"
+#include "core/phase_timer.hpp"
+#include "dem/distributed_islands_scheme.hpp"
+#include "dem/granular_diagnostics.hpp"
+#include "dem/islands_scheme.hpp"
+#include "dem_test_support.hpp"
+
+namespace cfddem {
+namespace {
+
+using demtest::scene_from;
+
+// A dense granular gas (phi ~ 0.25): islands everywhere, often the dense (global) mode.
+const char* kGas = R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.86e-3, 0.86e-3, 0.86e-3]
+periodic = [true, true, true]
+[particles]
+count = 300
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.05
+seed = 11
+[dem]
+scheme = "islands"
+spring_constant = 10.0
+restitution = 0.8
+max_overlap = 0.9
+regrid_interval = 5.0e-5
+nsubit = 5
+[run]
+end_time = 1.0e-3
+)";
+
+// Walls on every side and gravity along -y (100 g): wall ties and a settling bed.
+const char* kWalls = R"(
+gravity = [0.0, -1.0e3, 0.0]
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [1.2e-3, 0.8e-3, 0.6e-3]
+periodic = [false, false, false]
+[particles]
+count = 250
+diameter = 100.0e-6
+density = 1000.0
+temperature = 0.05
+seed = 5
+[dem]
+scheme = "islands"
+spring_constant = 10.0
+restitution = 0.7
+wall_restitution = 0.9
+max_overlap = 0.9
+regrid_interval = 5.0e-5
+nsubit = 5
+[run]
+end_time = 1.0e-3
+)";
+
+constexpr int kSubits = 40;
+
+using State = std::map<std::int64_t, std::array<double, 6>>;
+
+ParticleStore share(const ParticleStore& all, int rank, int ranks) {
+  ParticleStore p = all;
+  std::vector<std::uint32_t> pick;
+  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
+       i += static_cast<std::size_t>(ranks))
+    pick.push_back(static_cast<std::uint32_t>(i));
+  p.permute(pick);
+  return p;
+}
+
+struct Outcome {
+  State state;                        // serial: all; distributed: this rank's owned
+  std::vector<double> kinetic_energy; // per sub-iteration, over all particles
+  std::int64_t bound_violations = 0, spanning_subits = 0, global_subits = 0;
+  double max_overlap_ratio = 0.0;
+};
+
+State state_of(const ParticleStore& p, std::size_t n) {
+  State s;
+  for (std::size_t i = 0; i < n; ++i)
+    s[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  return s;
+}
+
+// An external force per particle, a function of its id (the gas's force, held fixed): N.
+std::array<double, 3> force_of(std::int64_t id) {
+  return {1e-7 * static_cast<double>(id % 5 - 2), -2e-7 * static_cast<double>(id % 3),
+          5e-8 * static_cast<double>(id % 7 - 3)};
+}
+
+void apply_force(const ParticleStore& p, std::size_t n, auto& scheme) {
+  std::vector<double> fx(n), fy(n), fz(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto f = force_of(p.id[i]);
+    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+  }
+  scheme.set_external_force(fx, fy, fz);
+}
+
+Outcome serial_islands(const Scene& scene, int subits, bool external = false) {
+  ParticleStore p = make_initial_particles(scene);
+  PhaseTimer timer;
+  dem::IslandsScheme s(scene, p, timer);
+  s.start();
+  if (external)
+    apply_force(p, p.size(), s);
+  Outcome r;
+  for (int k = 0; k < subits; ++k) {
+    s.subiterate();
+    r.kinetic_energy.push_back(0.5 * [&] {
+      double e = 0.0;
+      for (std::size_t i = 0; i < p.size(); ++i)
+        e += p.mass[i] * (p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i]);
+      return e;
+    }());
+  }
+  r.state = state_of(p, p.size());
+  r.bound_violations = s.bound_violations();
+  return r;
+}
+
+// The distributed scheme on `threads` threads; every sub-iteration the particles over all ranks
+// are counted and identified (count, sum of ids and of squared ids) and their mass compared.
+Outcome distributed_islands(const Scene& scene, int subits, int threads, bool external = false) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(threads));
+  const Communicator c = Communicator::world();
+  const ParticleStore all = make_initial_particles(scene);
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::DistributedIslandsScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  s.start();
+  if (external)
+    apply_force(p, s.owned(), s);
+  std::array<std::int64_t, 3> expect{};
+  for (const std::int64_t id : all.id)
+    expect[0] += 1, expect[1] += id, expect[2] += id * id;
+  const double mass0 = all.total_mass();
+  Outcome r;
+  for (int k = 0; k < subits; ++k) {
+    s.subiterate(k + 1 == subits);
+    std::array<std::int64_t, 3> got{};
+    std::array<double, 2> sums{};
+    for (std::size_t i = 0; i < s.owned(); ++i) {
+      got[0] += 1, got[1] += p.id[i], got[2] += p.id[i] * p.id[i], sums[0] += p.mass[i];
+      sums[1] += 0.5 * p.mass[i] * (p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i]);
+    }
+    c.sum(got);
+    c.sum(sums);
+    EXPECT_EQ(got, expect) << "sub-iteration " << k;
+    EXPECT_NEAR(sums[0], mass0, 1e-13 * mass0) << "sub-iteration " << k;
+    r.kinetic_energy.push_back(sums[1]);
+  }
+  r.state = state_of(p, s.owned());
+  r.bound_violations = s.bound_violations();
+  r.spanning_subits = s.spanning_subiterations();
+  r.global_subits = s.global_subiterations();
+  r.max_overlap_ratio = s.max_overlap_ratio();
+  return r;
+}
+
+// Every owned particle of every rank against the serial scheme: |position| differences below
+// `pos` (m), velocity differences below `vel` (m/s); the kinetic energy at every sub-iteration
+// within a relative `energy`.
+void expect_close(const Scene& scene, const Outcome& serial, const Outcome& mine, double pos,
+                  double vel, double energy, const std::string& what) {
+  const Communicator c = Communicator::world();
+  std::int64_t count = static_cast<std::int64_t>(mine.state.size());
+  std::array<double, 2> worst{};
+  const dem::DomainGeometry g(scene.domain);
+  for (const auto& [id, q] : mine.state) {
+    const auto it = serial.state.find(id);
+    ASSERT_NE(it, serial.state.end()) << what << ": unknown id " << id;
+    for (int a = 0; a < 6; ++a) {
+      double d = std::abs(q[a] - it->second[a]);
+      // A particle across a periodic face: the two runs may wrap it differently.
+      if (a < 3)
+        d = std::min(d, std::abs(d - g.length[a]));
+      worst[a < 3 ? 0 : 1] = std::max(worst[a < 3 ? 0 : 1], d);
+    }
+  }
+  count = c.sum(count);
+  c.max(worst);
+  EXPECT_EQ(count, static_cast<std::int64_t>(serial.state.size())) << what;
+  EXPECT_LE(worst[0], pos) << what << ": positions";
+  EXPECT_LE(worst[1], vel) << what << ": velocities";
+  ASSERT_EQ(serial.kinetic_energy.size(), mine.kinetic_energy.size());
+  double e_worst = 0.0;
+  for (std::size_t k = 0; k < mine.kinetic_energy.size(); ++k)
+    e_worst = std::max(e_worst, std::abs(mine.kinetic_energy[k] - serial.kinetic_energy[k]) /
+                                    serial.kinetic_energy[k]);
+  EXPECT_LE(e_worst, energy) << what << ": kinetic energy";
+  if (c.rank() == 0)
+    std::printf("[ %s ] worst |dx| %.3g m, |dv| %.3g m/s, dE/E %.3g\n", what.c_str(), worst[0],
+                worst[1], e_worst);
+}
+
+// Round-off bounds: positions ~1e-3 m and speeds ~0.1 m/s carry 1e-19 m and 1e-17 m/s of
+// rounding per operation; collisions amplify a difference by a factor of a few each (granular
+// gases are chaotic). Measured after 40 sub-iterations on 1-3 ranks: 1.5e-16 m, 2.4e-12 m/s and
+// 1e-13 relative energy (dense gas); the bounds leave a factor ~50-100 and stay far below any
+// physical difference (a missed collision changes a velocity by ~0.1 m/s, the energy by percent).
+constexpr double kPos = 1e-14, kVel = 1e-10, kEnergy = 1e-11;
+
+TEST(DistributedIslands, DenseGasMatchesSerialIslandsToRoundOff) {
+  const Scene scene = scene_from(kGas);
+  const Outcome d = distributed_islands(scene, kSubits, 1);
+  const Outcome s = serial_islands(scene, kSubits);
+  expect_close(scene, s, d, kPos, kVel, kEnergy, "dense gas");
+  EXPECT_EQ(d.bound_violations, 0);
+  EXPECT_GT(d.max_overlap_ratio, 0.0);
+  EXPECT_GT(d.global_subits, 0); // the dense mode: every particle on the fine steps
+}
+
+TEST(DistributedIslands, HcsSmallMatchesSerialIslandsToRoundOff) {
+  const Scene scene = scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]",
+                                        "particles.count=100", "particles.temperature=0.01",
+                                        "particles.seed=3", "dem.regrid_interval=1.0e-4"});
+  // 4 ms: collisions, and on several ranks islands across them.
+  const int subits = 200;
+  const Outcome d = distributed_islands(scene, subits, 1);
+  expect_close(scene, serial_islands(scene, subits), d, kPos, kVel, kEnergy, "HCS small");
+  EXPECT_EQ(d.bound_violations, 0);
+  EXPECT_GT(d.max_overlap_ratio, 0.0);
+  if (Communicator::world().size() > 1) {
+    EXPECT_GT(d.spanning_subits, 0);
+  }
+}
+
+TEST(DistributedIslands, WalledBoxWithGravityMatchesSerialIslandsToRoundOff) {
+  const Scene scene = scene_from(kWalls);
+  const Outcome d = distributed_islands(scene, kSubits, 1);
+  expect_close(scene, serial_islands(scene, kSubits), d, kPos, kVel, kEnergy, "walls and gravity");
+  EXPECT_EQ(d.bound_violations, 0);
+}
+
+TEST(DistributedIslands, ExternalForceFollowsItsParticleAndMatchesSerialIslands) {
+  // The force set once at the start travels with each particle through the migrations and
+  // enters the speed bounds.
+  const Scene scene = scene_from(kWalls);
+  const Outcome d = distributed_islands(scene, kSubits, 1, true);
+  expect_close(scene, serial_islands(scene, kSubits, true), d, kPos, kVel, kEnergy,
+               "external force");
+  EXPECT_EQ(d.bound_violations, 0);
+  // And it matters: without it the particles end elsewhere.
+  EXPECT_NE(serial_islands(scene, kSubits, true).state, serial_islands(scene, kSubits).state);
+}
+
+TEST(DistributedIslands, RerunAndThreadCountsAreBitwiseIdentical) {
+  const Scene scene = scene_from(kGas);
+  const Outcome a = distributed_islands(scene, kSubits, 1);
+  const Outcome b = distributed_islands(scene, kSubits, 1);
+  const Outcome c = distributed_islands(scene, kSubits, 2);
+  EXPECT_EQ(a.state, b.state);
+  EXPECT_EQ(a.state, c.state);
+  EXPECT_EQ(a.kinetic_energy, c.kinetic_energy);
+}
+
+TEST(DistributedIslands, ParticleThroughAWallStopsEveryRankWithTheSameError) {
+  const Scene scene = scene_from(kWalls);
+  const Communicator c = Communicator::world();
+  ParticleStore all = make_initial_particles(scene);
+  all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::DistributedIslandsScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  s.start();
+  std::string message;
+  try {
+    for (int k = 0; k < kSubits; ++k)
+      s.subiterate();
+  } catch (const RunError& e) {
+    message = e.what();
+  }
+  ASSERT_FALSE(message.empty()) << "no rank stopped";
+  EXPECT_NE(message.find("particle " + std::to_string(all.id[7])), std::string::npos) << message;
+  std::array<std::int64_t, 1> hi{static_cast<std::int64_t>(std::hash<std::string>{}(message))};
+  std::array<std::int64_t, 1> lo = hi;
+  c.max(hi);
+  c.min(lo);
+  EXPECT_EQ(hi[0], lo[0]) << message;
+}
+
+} // namespace
+} // namespace cfddem

@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include "apps/run_output.hpp"
 #include "core/error.hpp"
 #include "core/hdf5_file.hpp"
 
@@ -80,14 +81,6 @@ std::string join(const std::vector<std::string>& v) {
 void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   const GasCoupling::State& g = c.gas_state;
   const CoupledLoopState& l = c.loop;
-  f.create_group("/gas");
-  w.put("/gas/u", g.solver.velocity[0]);
-  w.put("/gas/v", g.solver.velocity[1]);
-  w.put("/gas/w", g.solver.velocity[2]);
-  w.put("/gas/p", g.solver.pressure);
-  w.put("/gas/eps_g", g.solver.volume_fraction);
-  w.put("/gas/eps_g_old", g.solver.volume_fraction_old);
-  w.put("/gas/eps_g_prev", g.eps_prev);
   w.put("/gas/counters",
         std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
                                   l.fluid_steps, l.row_pending ? 1 : 0,
@@ -115,14 +108,6 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
 void read_gas(Reader& r, Checkpoint& c) {
   GasCoupling::State& g = c.gas_state;
   CoupledLoopState& l = c.loop;
-  g.solver.velocity[0] = r.doubles("/gas/u", Reader::kAny);
-  const std::size_t m = g.solver.velocity[0].size(); // padded grid size
-  g.solver.velocity[1] = r.doubles("/gas/v", m);
-  g.solver.velocity[2] = r.doubles("/gas/w", m);
-  g.solver.pressure = r.doubles("/gas/p", m);
-  g.solver.volume_fraction = r.doubles("/gas/eps_g", m);
-  g.solver.volume_fraction_old = r.doubles("/gas/eps_g_old", m);
-  g.eps_prev = r.doubles("/gas/eps_g_prev", Reader::kAny);
   const auto k = r.int64s("/gas/counters", 6);
   g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
   l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
@@ -142,7 +127,8 @@ void read_gas(Reader& r, Checkpoint& c) {
   s.eps_g = r.doubles("/gas/snapshot/eps_g", Reader::kAny);
   s.pressure = r.doubles("/gas/snapshot/pressure", s.eps_g.size());
   s.gas_velocity = r.doubles("/gas/snapshot/gas_velocity", 3 * s.eps_g.size());
-  if (l.snapshot_pending &&
+  // R ranks leave the pending snapshot's cells out: the restart takes them from the gas restored.
+  if (l.snapshot_pending && !s.eps_g.empty() &&
       (n[0] < 1 || n[1] < 1 || n[2] < 1 ||
        s.eps_g.size() != static_cast<std::size_t>(n[0] * n[1] * n[2]) ||
        s.x_nodes.size() != static_cast<std::size_t>(n[0] + 1) ||
@@ -162,11 +148,12 @@ std::string restart_configuration(const Scene& scene) {
   return s;
 }
 
-void write_checkpoint(const std::string& path, const Checkpoint& c) {
-  const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
+namespace {
+
+// Everything but the gas grids into an open file; gas_sum: the gas grids' checksum.
+void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
   const ParticleStore& p = c.particles;
-  try {
-    h5::File f = h5::File::create(tmp);
+  {
     Writer w{f, {}};
     f.attribute("format", kFormat);
     f.attribute("program", std::string("cfddem checkpoint"));
@@ -244,7 +231,10 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
       w.put("/islands/counters", o.counters);
       w.put("/islands/ratios", std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
     }
-    if (c.gas) write_gas(f, w, c);
+    if (c.gas) {
+      write_gas(f, w, c);
+      f.attribute("gas_checksum", gas_sum);
+    }
     w.put("/diagnostics_rows", flatten_rows(c.rows));
     std::vector<std::int64_t> ss, sn, sl, sc;
     std::vector<double> st;
@@ -260,20 +250,80 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
     w.put("/snapshots/leaf", sl);
     w.put("/snapshots/cells", sc);
     f.attribute("checksum", static_cast<std::int64_t>(w.hash.h));
-    f.close();
-  } catch (...) {
-    std::remove(tmp.c_str());
-    throw;
   }
+}
+
+void rename_into_place(const std::string& tmp, const std::string& path) {
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     std::remove(tmp.c_str());
     throw RunError(fmt::format("cannot rename '{}' to '{}'", tmp, path));
   }
 }
 
-Checkpoint read_checkpoint(const std::string& path) {
+GasBlock whole_grid(const std::array<int, 3>& cells) { return {cells, CellBox{{0, 0, 0}, cells}}; }
+
+} // namespace
+
+void write_checkpoint(const std::string& path, const Checkpoint& c) {
+  const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
   try {
-    const h5::File f = h5::File::open_read(path);
+    h5::File f = h5::File::create(tmp);
+    GasChecksum sums{};
+    if (c.gas) {
+      f.create_group("/gas");
+      sums = write_gas_grids(f, c.gas_state, whole_grid(c.gas_cells), false);
+    }
+    write_contents(f, c, combine_checksum(sums));
+    f.close();
+  } catch (...) {
+    std::remove(tmp.c_str());
+    throw;
+  }
+  rename_into_place(tmp, path);
+}
+
+void write_checkpoint(const std::string& path, const Checkpoint& c, const GasBlock& block,
+                      const Communicator& comm) {
+  if (comm.size() == 1) return write_checkpoint(path, c);
+  const bool root = comm.rank() == 0;
+  // One temporary name for all ranks (rank 0's pid). The gas grids first, collectively; then
+  // rank 0 alone adds the rest to the closed file and renames it.
+  const std::int64_t pid = comm.sum(root ? static_cast<std::int64_t>(::getpid()) : 0);
+  const std::string tmp = fmt::format("{}.tmp.{}", path, pid);
+  std::string error;
+  GasChecksum sums{};
+  try {
+    h5::File f = h5::File::create_collective(tmp, comm);
+    f.create_group("/gas");
+    sums = write_gas_grids(f, c.gas_state, block, true);
+    f.close();
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  error = comm.agree_on_error(error.empty() ? comm.size() : comm.rank(), error);
+  comm.sum(sums);
+  if (root && error.empty()) {
+    try {
+      h5::File f = h5::File::open_write(tmp);
+      write_contents(f, c, combine_checksum(sums));
+      f.close();
+      rename_into_place(tmp, path);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+  }
+  if (root && !error.empty()) std::remove(tmp.c_str());
+  error = comm.agree_on_error(0, error);
+  if (!error.empty())
+    throw RunError(fmt::format("writing checkpoint '{}' on {} ranks failed: {}", path,
+                               comm.size(), error));
+}
+
+namespace {
+
+// Everything but the gas grids, its checksum verified; throws RunError.
+Checkpoint read_contents(const h5::File& f) {
+  {
     Checkpoint c;
     if (f.read_attribute_int64("format") != kFormat)
       throw RunError("unknown checkpoint format version");
@@ -388,6 +438,23 @@ Checkpoint read_checkpoint(const std::string& path) {
     if (static_cast<std::uint64_t>(f.read_attribute_int64("checksum")) != r.hash.h)
       throw RunError("checksum mismatch: the arrays are corrupt");
     return c;
+  }
+}
+
+} // namespace
+
+Checkpoint read_checkpoint(const std::string& path) {
+  try {
+    const h5::File f = h5::File::open_read(path);
+    Checkpoint c = read_contents(f);
+    if (c.gas) {
+      c.gas_cells = gas_grid_cells(f);
+      GasChecksum sums{};
+      read_gas_grids(f, whole_grid(c.gas_cells), c.gas_state, sums);
+      if (combine_checksum(sums) != f.read_attribute_int64("gas_checksum"))
+        throw RunError("checksum mismatch: the gas fields are corrupt");
+    }
+    return c;
   } catch (const RunError& e) {
     throw ConfigError(fmt::format("checkpoint '{}'", path),
                       fmt::format("cannot restart: {}", e.what()));
@@ -396,5 +463,97 @@ Checkpoint read_checkpoint(const std::string& path) {
                       fmt::format("cannot restart: corrupt file ({})", e.what()));
   }
 }
+
+Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
+                           const Communicator& comm) {
+  if (comm.size() == 1) return read_checkpoint(path);
+  Checkpoint c;
+  GasChecksum sums{};
+  std::int64_t stored = 0;
+  std::string error;
+  try {
+    const h5::File f = h5::File::open_read(path);
+    c = read_contents(f);
+    if (c.gas) {
+      c.gas_cells = block.cells;
+      read_gas_grids(f, block, c.gas_state, sums);
+      stored = f.read_attribute_int64("gas_checksum");
+    }
+  } catch (const RunError& e) {
+    error = e.what();
+  } catch (const std::exception& e) {
+    error = fmt::format("corrupt file ({})", e.what());
+  }
+  error = comm.agree_on_error(error.empty() ? comm.size() : comm.rank(), error);
+  if (error.empty()) {
+    comm.sum(sums); // every rank's owned points: the whole grid's sum
+    if (c.gas && combine_checksum(sums) != stored)
+      error = "checksum mismatch: the gas fields are corrupt";
+  }
+  if (!error.empty())
+    throw ConfigError(fmt::format("checkpoint '{}'", path), fmt::format("cannot restart: {}", error));
+  return c;
+}
+
+namespace {
+
+// The checks of a checkpoint against the scene it restarts; throws ConfigError naming the file.
+void check_fits(const Scene& scene, const std::string& path, const Checkpoint& ck) {
+  if (ck.gas != scene.fluid.enabled)
+    throw ConfigError(path, ck.gas ? "the checkpoint holds a gas state (written by a scene with "
+                                     "a [fluid] table) but this scene has no gas"
+                                   : "the checkpoint holds no gas state (written by a scene "
+                                     "without a [fluid] table) but this scene has a [fluid] "
+                                     "table");
+  if (ck.scheme != scene.dem.scheme)
+    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
+                                        ck.scheme, scene.dem.scheme));
+  if (ck.columns != kColumns)
+    throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
+  const std::string now = restart_configuration(scene);
+  if (ck.configuration != now) {
+    // Name the first key that differs.
+    std::size_t a = 0;
+    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a]) ++a;
+    const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
+    const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
+    throw ConfigError(path, fmt::format("the checkpoint was written with a different "
+                                        "configuration; first difference at '{}' (only name, "
+                                        "run.* and output.* may change at a restart)",
+                                        now.substr(line, now.find('\n', line) - line)));
+  }
+}
+
+} // namespace
+
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
+  Checkpoint ck = read_checkpoint(path);
+  check_fits(scene, path, ck);
+  return ck;
+}
+
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path, const GasBlock& block,
+                           const Communicator& comm) {
+  Checkpoint ck = read_checkpoint(path, block, comm);
+  check_fits(scene, path, ck); // the same file on every rank: the same error
+  return ck;
+}
+
+Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, double dt,
+                             std::int64_t step, std::int64_t last_row_step,
+                             const std::vector<std::vector<double>>& rows,
+                             const std::vector<SnapshotEntry>& snapshots) {
+  Checkpoint c;
+  c.scheme = scheme;
+  c.dt = dt;
+  c.step = step;
+  c.last_row_step = last_row_step;
+  c.columns = kColumns;
+  c.rows = rows;
+  c.snapshots = snapshots;
+  c.configuration = restart_configuration(scene);
+  return c;
+}
+
 
 } // namespace cfddem::apps

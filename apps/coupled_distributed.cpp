@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <optional>
 
 #include <HYPRE_utilities.h>
@@ -10,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/checkpoint.hpp"
+#include "apps/coupled_checkpoint.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
@@ -35,19 +37,16 @@ namespace cfddem::apps {
 RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                                   const ParallelEnv& env) {
   namespace fs = std::filesystem;
-  if (!opt.restart.empty())
-    throw ConfigError("--restart", "restarting a run with a gas on several ranks is not "
-                                   "supported yet: restart it on one rank");
-  if (scene_in.output.checkpoint_interval > 0)
-    throw ConfigError("scene key 'output.checkpoint_interval'",
-                      "checkpoints of a run with a gas on several ranks are not supported yet");
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
-  // Every rank builds its share of the particles (every R-th, make_initial_share); start()
-  // sends each to the rank whose gas box holds it.
-  std::optional<Checkpoint> no_checkpoint; // refused above
-  ParticleStore particles = rank_share(scene_in, no_checkpoint, comm);
+  // Every rank builds its share of the particles (every R-th, make_initial_share, or of the
+  // checkpoint's); start() or the restore sends each to the rank whose gas box holds it.
+  const GasBlock block = gas_block(scene_in, comm);
+  std::optional<Checkpoint> ck;
+  if (!opt.restart.empty()) ck = load_checkpoint(scene_in, opt.restart, block, comm);
+  std::vector<std::uint32_t> taken;
+  ParticleStore particles = rank_share(scene_in, ck, comm, &taken);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene_in, particles, comm, &range);
   const std::size_t n_total = derived.particles;
@@ -83,11 +82,20 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
   }
   const double dt = scheme.dt();
   const double end = scene.run.end_time;
+  if (ck && ck->dt != dt)
+    throw ConfigError(opt.restart, fmt::format("checkpoint particle step {:.17g} s differs from "
+                                               "the scene's {:.17g} s", ck->dt, dt));
+  if (ck && ck->loop.time > end + 1e-6 * dt)
+    throw ConfigError("run.end_time", fmt::format("the checkpoint is at t = {:.17g} s, past the "
+                                                  "end of the run ({:.17g} s)",
+                                                  ck->loop.time, end));
 
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
-  auto add_row = [&](const std::vector<double>& r) {
+  std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
+  auto add_row = [&](std::vector<double> r) {
     if (diag)
       diag->add_row(r);
+    rows.push_back(std::move(r));
   };
   // Snapshots: every rank's particles and gas box written collectively into one file (parallel
   // HDF5); rank 0 keeps the XDMF index. Particles as on one rank (the synchronised state of the
@@ -123,22 +131,42 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     fmt::print(stderr,
                "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
                "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-               "thread(s)\n",
+               "thread(s){}\n",
                scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
                fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                      : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
                dt, fixed ? fmt::format(" ({} steps per fluid step)", n_fixed) : std::string(),
-               env.ranks(), env.threads());
+               env.ranks(), env.threads(),
+               ck ? fmt::format(", restarted at t = {:.6e} s from {}", ck->loop.time, opt.restart)
+                  : "");
   }
   // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
   // kept before start() shifts them to the half step.
   ParticleStore initial;
-  if (scene.output.snapshot_interval > 0)
+  if (!ck && scene.output.snapshot_interval > 0)
     initial = particles;
   // start() moves every particle to its box's rank; the gas then deposits the owned ones.
-  scheme.start();
+  if (ck)
+    restore_coupled_scheme(*ck, taken, scheme);
+  else
+    scheme.start();
   GasCoupling gas(scene, particles, &comm, scheme.owned());
-  if (scene.output.snapshot_interval > 0) {
+  CoupledLoopState loop;
+  loop.next_output = scene.output.interval;
+  loop.next_snapshot = scene.output.snapshot_interval;
+  long long k_last_row = 0;
+  MeanTracker means;
+  if (ck) {
+    restore_coupled_gas(*ck, opt.restart, gas, loop);
+    k_last_row = ck->last_row_step;
+    for (auto& r : ck->rows)
+      add_row(std::move(r));
+    if (snapshots)
+      snapshots->restore(ck->snapshots);
+    if (!rows.empty())
+      means.resume(rows.back());
+  }
+  if (!ck && scene.output.snapshot_interval > 0) {
     const CellFields cells = gas.cell_fields();
     SnapshotFields f;
     f.x = initial.x, f.y = initial.y, f.z = initial.z, f.vx = initial.vx, f.vy = initial.vy;
@@ -146,8 +174,7 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     write_snapshot(f, cells);
     initial = ParticleStore();
   }
-  MeanTracker means;
-  {
+  if (!ck) {
     PhaseTimer::Scope io(timer, Phase::io);
     // As the one-rank loop: the velocities after start() (the half step).
     const std::size_t n = scheme.owned();
@@ -163,11 +190,7 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                 means.next(0.0, s0.mean_velocity, gas.diagnostics())));
   }
   const auto t_loop = clock::now();
-  CoupledLoopState loop;
-  loop.next_output = scene.output.interval;
-  loop.next_snapshot = scene.output.snapshot_interval;
   double& t = loop.time;
-  long long k_last_row = 0;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {
     scheme.step(record || snap);
@@ -195,6 +218,11 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
                 dem::LeafStepStats{steps, steps, steps, 1.0},
                 means.next(loop.row_time, st.mean_velocity, loop.row_fluid)));
   };
+  // Checkpoints at the fluid times that are multiples of the interval, after the restart time.
+  const double ckpt_interval = scene.output.checkpoint_interval;
+  double next_ckpt = ckpt_interval > 0.0
+                         ? (std::floor(t / ckpt_interval + 1e-6) + 1.0) * ckpt_interval
+                         : std::numeric_limits<double>::infinity();
   const double tol = 1e-6 * dt;
   while (end - t > tol) {
     const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
@@ -216,6 +244,18 @@ RunResult run_coupled_distributed(const Scene& scene_in, const RunOptions& opt,
     {
       PhaseTimer::Scope io(timer, Phase::io);
       mark_due_outputs(loop, gas, scene, t, last, tol);
+    }
+    if (t >= next_ckpt - tol) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      if (diag)
+        diag->flush();
+      write_coupled_checkpoint(
+          (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps)).string(),
+          checkpoint_header(scene_in, "explicit", dt, loop.fluid_steps, k_last_row, rows,
+                            snapshots ? snapshots->entries() : std::vector<SnapshotEntry>{}),
+          scheme, particles, gas, loop, block, comm);
+      while (next_ckpt <= t + tol)
+        next_ckpt += ckpt_interval;
     }
     if (!opt.quiet && root &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=

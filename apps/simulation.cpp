@@ -89,58 +89,6 @@ long long every(double interval, double dt) {
   return interval > 0.0 ? std::max(1LL, std::llround(interval / dt)) : 0;
 }
 
-// Read a checkpoint and check it belongs to this scene; throws ConfigError (nothing written yet).
-Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
-  Checkpoint ck = read_checkpoint(path);
-  if (ck.gas != scene.fluid.enabled)
-    throw ConfigError(path, ck.gas ? "the checkpoint holds a gas state (written by a scene with "
-                                     "a [fluid] table) but this scene has no gas"
-                                   : "the checkpoint holds no gas state (written by a scene "
-                                     "without a [fluid] table) but this scene has a [fluid] "
-                                     "table");
-  if (ck.scheme != scene.dem.scheme)
-    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
-                                        ck.scheme, scene.dem.scheme));
-  if (ck.columns != kColumns)
-    throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
-  const std::string now = restart_configuration(scene);
-  if (ck.configuration != now) {
-    // Name the first key that differs.
-    std::size_t a = 0;
-    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a]) ++a;
-    const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
-    const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
-    throw ConfigError(path, fmt::format("the checkpoint was written with a different "
-                                        "configuration; first difference at '{}' (only name, "
-                                        "run.* and output.* may change at a restart)",
-                                        now.substr(line, now.find('\n', line) - line)));
-  }
-  return ck;
-}
-
-// A checkpoint's fields every loop fills alike: scheme, step length, step, the last row's step,
-// the diagnostics so far, the snapshot index and the configuration to check at a restart.
-Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, double dt,
-                             std::int64_t step, std::int64_t last_row_step,
-                             const std::vector<std::vector<double>>& rows,
-                             const std::vector<SnapshotEntry>& snapshots) {
-  Checkpoint c;
-  c.scheme = scheme;
-  c.dt = dt;
-  c.step = step;
-  c.last_row_step = last_row_step;
-  c.columns = kColumns;
-  c.rows = rows;
-  c.snapshots = snapshots;
-  c.configuration = restart_configuration(scene);
-  return c;
-}
-
-} // namespace
-
-namespace {
-
-
 } // namespace
 
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
@@ -1081,6 +1029,9 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     }
     loop = std::move(ck->loop);
     k_last_row = ck->last_row_step;
+    // A checkpoint from R ranks leaves the pending snapshot's cells to the gas restored.
+    if (loop.snapshot_pending && loop.snapshot_cells.eps_g.empty())
+      loop.snapshot_cells = gas.cell_fields();
   }
 
   fs::create_directories(opt.out_dir);
@@ -1216,6 +1167,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       else
         c.state = scheme.save_state();
       c.gas = true;
+      c.gas_cells = gas.solver().grid().global_cells();
       c.gas_state = gas.save_state();
       c.loop = loop;
       c.loop.held_force = gas.force_in_order(particles.id);

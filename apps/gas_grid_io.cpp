@@ -156,7 +156,8 @@ void read_gas_grids(const h5::File& f, const GasBlock& b, GasCoupling::State& s,
     const std::vector<hsize_t> d = f.shape(fl.name);
     if (d != dims(b.cells))
       throw RunError(fmt::format(
-          "gas field '{}' holds a grid of {} cells, the scene's is {} x {} x {} (another grid)",
+          "gas field '{}' holds a grid of {} cells, the scene's fluid.cells {} x {} x {}: a "
+          "checkpoint of another grid",
           fl.name,
           d.size() == 3 ? fmt::format("{} x {} x {}", static_cast<long long>(d[2]) - 1 - 2 * kG,
                                       static_cast<long long>(d[1]) - 1 - 2 * kG,

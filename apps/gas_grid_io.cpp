@@ -16,7 +16,9 @@ namespace {
 constexpr int kG = fluid::kGhostLayers;
 
 // Points along an axis of n cells: faces 0..n and kG ghost layers each side.
-int padded(int n) { return n + 1 + 2 * kG; }
+int padded(int n) {
+  return n + 1 + 2 * kG;
+}
 
 // This box's points along axis a, as local indices from -kG: all of them (read), or the ones it
 // owns (write, checksum): from its first cell, or from the outer ghosts on the domain's low face;
@@ -24,7 +26,9 @@ int padded(int n) { return n + 1 + 2 * kG; }
 struct Span {
   int from, to; // [from, to)
 };
-Span all_points(const GasBlock& b, int a) { return {-kG, b.box.cells(a) + 1 + kG}; }
+Span all_points(const GasBlock& b, int a) {
+  return {-kG, b.box.cells(a) + 1 + kG};
+}
 Span owned_points(const GasBlock& b, int a) {
   const int n = b.box.cells(a);
   return {b.box.lo[a] == 0 ? -kG : 0, b.box.hi[a] == b.cells[a] ? n + 1 + kG : n};
@@ -46,13 +50,12 @@ template <class S> auto fields(S& s, bool with_prev) {
     const char* name;
     Values values;
   };
-  std::vector<Field> f = {{"/gas/u", &s.solver.velocity[0]},
-                          {"/gas/v", &s.solver.velocity[1]},
-                          {"/gas/w", &s.solver.velocity[2]},
-                          {"/gas/p", &s.solver.pressure},
-                          {"/gas/eps_g", &s.solver.volume_fraction},
-                          {"/gas/eps_g_old", &s.solver.volume_fraction_old}};
-  if (with_prev) f.push_back({"/gas/eps_g_prev", &s.eps_prev});
+  std::vector<Field> f = {
+      {"/gas/u", &s.solver.velocity[0]},         {"/gas/v", &s.solver.velocity[1]},
+      {"/gas/w", &s.solver.velocity[2]},         {"/gas/p", &s.solver.pressure},
+      {"/gas/eps_g", &s.solver.volume_fraction}, {"/gas/eps_g_old", &s.solver.volume_fraction_old}};
+  if (with_prev)
+    f.push_back({"/gas/eps_g_prev", &s.eps_prev});
   return f;
 }
 
@@ -67,13 +70,12 @@ template <class F> void for_points(const GasBlock& b, const std::array<Span, 3>&
   for (int k = s[2].from; k < s[2].to; ++k)
     for (int j = s[1].from; j < s[1].to; ++j)
       for (int i = s[0].from; i < s[0].to; ++i) {
-        const std::size_t local = static_cast<std::size_t>(i + kG) +
-                                  sx * (static_cast<std::size_t>(j + kG) +
-                                        sy * static_cast<std::size_t>(k + kG));
-        const std::uint64_t global =
-            static_cast<std::uint64_t>(b.box.lo[0] + i + kG) +
-            gx * (static_cast<std::uint64_t>(b.box.lo[1] + j + kG) +
-                  gy * static_cast<std::uint64_t>(b.box.lo[2] + k + kG));
+        const std::size_t local =
+            static_cast<std::size_t>(i + kG) +
+            sx * (static_cast<std::size_t>(j + kG) + sy * static_cast<std::size_t>(k + kG));
+        const std::uint64_t global = static_cast<std::uint64_t>(b.box.lo[0] + i + kG) +
+                                     gx * (static_cast<std::uint64_t>(b.box.lo[1] + j + kG) +
+                                           gy * static_cast<std::uint64_t>(b.box.lo[2] + k + kG));
         visit(local, global);
       }
 }
@@ -82,8 +84,8 @@ void add_owned(const GasBlock& b, int field, const std::vector<double>& v, GasCh
   const std::array<Span, 3> own = {owned_points(b, 0), owned_points(b, 1), owned_points(b, 2)};
   std::uint64_t lo = 0, hi = 0;
   for_points(b, own, [&](std::size_t local, std::uint64_t global) {
-    const std::uint64_t h =
-        mix(std::bit_cast<std::uint64_t>(v[local]) ^ mix(global * 8 + static_cast<unsigned>(field)));
+    const std::uint64_t h = mix(std::bit_cast<std::uint64_t>(v[local]) ^
+                                mix(global * 8 + static_cast<unsigned>(field)));
     lo += h & 0xffffffffULL, hi += h >> 32;
   });
   sums[0] += static_cast<std::int64_t>(lo), sums[1] += static_cast<std::int64_t>(hi);
@@ -137,7 +139,8 @@ GasChecksum write_gas_grids(h5::File& f, const GasCoupling::State& s, const GasB
 std::array<int, 3> gas_grid_cells(const h5::File& f) {
   const std::vector<hsize_t> d = f.shape("/gas/u");
   if (d.size() != 3 || d[0] < 2 * kG + 2 || d[1] < 2 * kG + 2 || d[2] < 2 * kG + 2)
-    throw RunError("dataset '/gas/u' is not a 3-D grid of padded points");
+    throw RunError("dataset '/gas/u' is not a 3-D grid of padded points (a checkpoint from a "
+                   "cfddem that wrote the gas fields as flat arrays?)");
   return {static_cast<int>(d[2]) - 1 - 2 * kG, static_cast<int>(d[1]) - 1 - 2 * kG,
           static_cast<int>(d[0]) - 1 - 2 * kG};
 }

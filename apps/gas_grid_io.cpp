@@ -82,13 +82,15 @@ template <class F> void for_points(const GasBlock& b, const std::array<Span, 3>&
 
 void add_owned(const GasBlock& b, int field, const std::vector<double>& v, GasChecksum& sums) {
   const std::array<Span, 3> own = {owned_points(b, 0), owned_points(b, 1), owned_points(b, 2)};
-  std::uint64_t lo = 0, hi = 0;
+  GasChecksum part{};
   for_points(b, own, [&](std::size_t local, std::uint64_t global) {
     const std::uint64_t h = mix(std::bit_cast<std::uint64_t>(v[local]) ^
                                 mix(global * 8 + static_cast<unsigned>(field)));
-    lo += h & 0xffffffffULL, hi += h >> 32;
+    for (int c = 0; c < 4; ++c)
+      part[static_cast<std::size_t>(c)] += static_cast<std::int64_t>((h >> (16 * c)) & 0xffff);
   });
-  sums[0] += static_cast<std::int64_t>(lo), sums[1] += static_cast<std::int64_t>(hi);
+  for (std::size_t c = 0; c < 4; ++c)
+    sums[c] += part[c];
 }
 
 std::vector<hsize_t> dims(const std::array<int, 3>& cells) {
@@ -104,8 +106,10 @@ std::size_t box_points(const GasBlock& b) {
 } // namespace
 
 std::int64_t combine_checksum(const GasChecksum& sums) {
-  return static_cast<std::int64_t>(static_cast<std::uint64_t>(sums[0]) +
-                                   (static_cast<std::uint64_t>(sums[1]) << 32));
+  std::uint64_t h = 0;
+  for (std::size_t c = 0; c < 4; ++c)
+    h += static_cast<std::uint64_t>(sums[c]) << (16 * c); // modulo 2^64
+  return static_cast<std::int64_t>(h);
 }
 
 GasChecksum write_gas_grids(h5::File& f, const GasCoupling::State& s, const GasBlock& b,

@@ -29,9 +29,10 @@ struct GasBlock {
   CellBox box;
 };
 
-// The checksum's two partial sums (low and high 32 bits of the point hashes): they add over the
-// ranks as integers and combine_checksum turns them into one number.
-using GasChecksum = std::array<std::int64_t, 2>;
+// The checksum's partial sums: the point hashes' four 16-bit parts summed apart, so that they add
+// over the ranks as integers without overflow (below 2^44 points); combine_checksum turns them
+// into one number.
+using GasChecksum = std::array<std::int64_t, 4>;
 std::int64_t combine_checksum(const GasChecksum& sums);
 
 // Writes /gas/{u,v,w,p,eps_g,eps_g_old[,eps_g_prev]} (the group must exist): collective over the

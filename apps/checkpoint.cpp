@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include "apps/run_output.hpp"
 #include "core/error.hpp"
 #include "core/hdf5_file.hpp"
 
@@ -80,14 +81,6 @@ std::string join(const std::vector<std::string>& v) {
 void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   const GasCoupling::State& g = c.gas_state;
   const CoupledLoopState& l = c.loop;
-  f.create_group("/gas");
-  w.put("/gas/u", g.solver.velocity[0]);
-  w.put("/gas/v", g.solver.velocity[1]);
-  w.put("/gas/w", g.solver.velocity[2]);
-  w.put("/gas/p", g.solver.pressure);
-  w.put("/gas/eps_g", g.solver.volume_fraction);
-  w.put("/gas/eps_g_old", g.solver.volume_fraction_old);
-  w.put("/gas/eps_g_prev", g.eps_prev);
   w.put("/gas/counters",
         std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
                                   l.fluid_steps, l.row_pending ? 1 : 0,
@@ -115,14 +108,6 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
 void read_gas(Reader& r, Checkpoint& c) {
   GasCoupling::State& g = c.gas_state;
   CoupledLoopState& l = c.loop;
-  g.solver.velocity[0] = r.doubles("/gas/u", Reader::kAny);
-  const std::size_t m = g.solver.velocity[0].size(); // padded grid size
-  g.solver.velocity[1] = r.doubles("/gas/v", m);
-  g.solver.velocity[2] = r.doubles("/gas/w", m);
-  g.solver.pressure = r.doubles("/gas/p", m);
-  g.solver.volume_fraction = r.doubles("/gas/eps_g", m);
-  g.solver.volume_fraction_old = r.doubles("/gas/eps_g_old", m);
-  g.eps_prev = r.doubles("/gas/eps_g_prev", Reader::kAny);
   const auto k = r.int64s("/gas/counters", 6);
   g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
   l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
@@ -142,7 +127,8 @@ void read_gas(Reader& r, Checkpoint& c) {
   s.eps_g = r.doubles("/gas/snapshot/eps_g", Reader::kAny);
   s.pressure = r.doubles("/gas/snapshot/pressure", s.eps_g.size());
   s.gas_velocity = r.doubles("/gas/snapshot/gas_velocity", 3 * s.eps_g.size());
-  if (l.snapshot_pending &&
+  // R ranks leave the pending snapshot's cells out: the restart takes them from the gas restored.
+  if (l.snapshot_pending && !s.eps_g.empty() &&
       (n[0] < 1 || n[1] < 1 || n[2] < 1 ||
        s.eps_g.size() != static_cast<std::size_t>(n[0] * n[1] * n[2]) ||
        s.x_nodes.size() != static_cast<std::size_t>(n[0] + 1) ||
@@ -162,231 +148,308 @@ std::string restart_configuration(const Scene& scene) {
   return s;
 }
 
-void write_checkpoint(const std::string& path, const Checkpoint& c) {
-  const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
+namespace {
+
+// Everything but the gas grids into an open file; gas_sum: the gas grids' checksum.
+void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
   const ParticleStore& p = c.particles;
-  try {
-    h5::File f = h5::File::create(tmp);
-    Writer w{f, {}};
-    f.attribute("format", kFormat);
-    f.attribute("program", std::string("cfddem checkpoint"));
-    f.attribute("scheme", c.scheme);
-    f.attribute("dt", c.dt);
-    f.attribute("step", c.step);
-    f.attribute("last_row_step", c.last_row_step);
-    f.attribute("configuration", c.configuration);
-    f.attribute("columns", join(c.columns));
-    f.attribute("particles", static_cast<std::int64_t>(p.size()));
-    f.attribute("rotation", static_cast<std::int64_t>(p.rotation));
-    f.attribute("rows", static_cast<std::int64_t>(c.rows.size()));
-    f.create_group("/particles");
+  Writer w{f, {}};
+  f.attribute("format", kFormat);
+  f.attribute("program", std::string("cfddem checkpoint"));
+  f.attribute("scheme", c.scheme);
+  f.attribute("dt", c.dt);
+  f.attribute("step", c.step);
+  f.attribute("last_row_step", c.last_row_step);
+  f.attribute("configuration", c.configuration);
+  f.attribute("columns", join(c.columns));
+  f.attribute("particles", static_cast<std::int64_t>(p.size()));
+  f.attribute("rotation", static_cast<std::int64_t>(p.rotation));
+  f.attribute("rows", static_cast<std::int64_t>(c.rows.size()));
+  f.create_group("/particles");
+  for (const auto& [name, v] :
+       {std::pair{"x", &p.x}, {"y", &p.y}, {"z", &p.z}, {"vx_half", &p.vx},
+        {"vy_half", &p.vy}, {"vz_half", &p.vz}, {"fx", &p.fx}, {"fy", &p.fy}, {"fz", &p.fz},
+        {"radius", &p.radius}, {"mass", &p.mass}, {"inv_mass", &p.inv_mass}})
+    w.put(std::string("/particles/") + name, *v);
+  w.put("/particles/id", p.id);
+  if (p.rotation)
     for (const auto& [name, v] :
-         {std::pair{"x", &p.x}, {"y", &p.y}, {"z", &p.z}, {"vx_half", &p.vx},
-          {"vy_half", &p.vy}, {"vz_half", &p.vz}, {"fx", &p.fx}, {"fy", &p.fy}, {"fz", &p.fz},
-          {"radius", &p.radius}, {"mass", &p.mass}, {"inv_mass", &p.inv_mass}})
+         {std::pair{"wx_half", &p.wx}, {"wy_half", &p.wy}, {"wz_half", &p.wz},
+          {"tx", &p.tx}, {"ty", &p.ty}, {"tz", &p.tz}, {"inv_inertia", &p.inv_inertia}})
       w.put(std::string("/particles/") + name, *v);
-    w.put("/particles/id", p.id);
-    if (p.rotation)
-      for (const auto& [name, v] :
-           {std::pair{"wx_half", &p.wx}, {"wy_half", &p.wy}, {"wz_half", &p.wz},
-            {"tx", &p.tx}, {"ty", &p.ty}, {"tz", &p.tz}, {"inv_inertia", &p.inv_inertia}})
-        w.put(std::string("/particles/") + name, *v);
-    const auto& s = c.state;
-    f.create_group("/neighbor_list");
-    w.put("/neighbor_list/offsets", s.offsets);
-    w.put("/neighbor_list/neighbors", s.neighbors);
-    w.put("/neighbor_list/x_ref", s.x_ref);
-    w.put("/neighbor_list/y_ref", s.y_ref);
-    w.put("/neighbor_list/z_ref", s.z_ref);
-    w.put("/neighbor_list/history_x", s.hx);
-    w.put("/neighbor_list/history_y", s.hy);
-    w.put("/neighbor_list/history_z", s.hz);
-    f.attribute("skin", s.skin);
-    f.attribute("need_rebuild", static_cast<std::int64_t>(s.need_rebuild));
-    f.attribute("steps_taken", s.steps);
-    f.attribute("particle_steps", s.particle_steps);
-    f.attribute("pair_evaluations", s.pair_evaluations);
-    f.attribute("neighbor_builds", s.builds);
-    if (c.scheme == "orb") {
-      const auto& o = c.orb;
-      f.create_group("/orb");
-      w.put("/orb/half_step", o.hprev);
-      w.put("/orb/cost", o.cost);
-      w.put("/orb/leaf_steps", o.leaf_steps);
-      w.put("/orb/counters", std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits,
-                                                       o.particle_steps, o.pair_evaluations,
-                                                       o.builds, o.regrids,
-                                                       o.overlap_violations, o.retries,
-                                                       o.pairs_valid ? 1 : 0,
-                                                       o.prox_from_pairs ? 1 : 0});
-      w.put("/orb/ratios",
-            std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
-      // Candidate pairs (store indices) and their reference positions.
-      w.put("/orb/contact_a", o.ca);
-      w.put("/orb/contact_b", o.cb);
-      w.put("/orb/proximity_a", o.pa);
-      w.put("/orb/proximity_b", o.pb);
-      w.put("/orb/x_ref", o.x_ref);
-      w.put("/orb/y_ref", o.y_ref);
-      w.put("/orb/z_ref", o.z_ref);
-    }
-    if (c.scheme == "islands") {
-      const auto& o = c.islands;
-      f.create_group("/islands");
-      w.put("/islands/offsets", o.offsets);
-      w.put("/islands/neighbors", o.neighbors);
-      w.put("/islands/x_ref", o.x_ref);
-      w.put("/islands/y_ref", o.y_ref);
-      w.put("/islands/z_ref", o.z_ref);
-      w.put("/islands/half_step", o.hprev);
-      w.put("/islands/fine_subiterations", o.fine_subits);
-      w.put("/islands/size_histogram", o.size_hist);
-      w.put("/islands/counters", o.counters);
-      w.put("/islands/ratios", std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
-    }
-    if (c.gas) write_gas(f, w, c);
-    w.put("/diagnostics_rows", flatten_rows(c.rows));
-    std::vector<std::int64_t> ss, sn, sl, sc;
-    std::vector<double> st;
-    for (const auto& e : c.snapshots) {
-      ss.push_back(e.step), st.push_back(e.time), sn.push_back(e.particles),
-          sl.push_back(e.leaf ? 1 : 0);
-      sc.insert(sc.end(), e.cells.begin(), e.cells.end());
-    }
-    f.create_group("/snapshots");
-    w.put("/snapshots/step", ss);
-    w.put("/snapshots/time", st);
-    w.put("/snapshots/particles", sn);
-    w.put("/snapshots/leaf", sl);
-    w.put("/snapshots/cells", sc);
-    f.attribute("checksum", static_cast<std::int64_t>(w.hash.h));
-    f.close();
-  } catch (...) {
-    std::remove(tmp.c_str());
-    throw;
+  const auto& s = c.state;
+  f.create_group("/neighbor_list");
+  w.put("/neighbor_list/offsets", s.offsets);
+  w.put("/neighbor_list/neighbors", s.neighbors);
+  w.put("/neighbor_list/x_ref", s.x_ref);
+  w.put("/neighbor_list/y_ref", s.y_ref);
+  w.put("/neighbor_list/z_ref", s.z_ref);
+  w.put("/neighbor_list/history_x", s.hx);
+  w.put("/neighbor_list/history_y", s.hy);
+  w.put("/neighbor_list/history_z", s.hz);
+  f.attribute("skin", s.skin);
+  f.attribute("need_rebuild", static_cast<std::int64_t>(s.need_rebuild));
+  f.attribute("steps_taken", s.steps);
+  f.attribute("particle_steps", s.particle_steps);
+  f.attribute("pair_evaluations", s.pair_evaluations);
+  f.attribute("neighbor_builds", s.builds);
+  if (c.scheme == "orb") {
+    const auto& o = c.orb;
+    f.create_group("/orb");
+    w.put("/orb/half_step", o.hprev);
+    w.put("/orb/cost", o.cost);
+    w.put("/orb/leaf_steps", o.leaf_steps);
+    w.put("/orb/counters", std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits,
+                                                     o.particle_steps, o.pair_evaluations,
+                                                     o.builds, o.regrids,
+                                                     o.overlap_violations, o.retries,
+                                                     o.pairs_valid ? 1 : 0,
+                                                     o.prox_from_pairs ? 1 : 0});
+    w.put("/orb/ratios",
+          std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
+    // Candidate pairs (store indices) and their reference positions.
+    w.put("/orb/contact_a", o.ca);
+    w.put("/orb/contact_b", o.cb);
+    w.put("/orb/proximity_a", o.pa);
+    w.put("/orb/proximity_b", o.pb);
+    w.put("/orb/x_ref", o.x_ref);
+    w.put("/orb/y_ref", o.y_ref);
+    w.put("/orb/z_ref", o.z_ref);
   }
+  if (c.scheme == "islands") {
+    const auto& o = c.islands;
+    f.create_group("/islands");
+    w.put("/islands/offsets", o.offsets);
+    w.put("/islands/neighbors", o.neighbors);
+    w.put("/islands/x_ref", o.x_ref);
+    w.put("/islands/y_ref", o.y_ref);
+    w.put("/islands/z_ref", o.z_ref);
+    w.put("/islands/half_step", o.hprev);
+    w.put("/islands/fine_subiterations", o.fine_subits);
+    w.put("/islands/size_histogram", o.size_hist);
+    w.put("/islands/counters", o.counters);
+    w.put("/islands/ratios", std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
+  }
+  if (c.gas) {
+    write_gas(f, w, c);
+    f.attribute("gas_checksum", gas_sum);
+  }
+  w.put("/diagnostics_rows", flatten_rows(c.rows));
+  std::vector<std::int64_t> ss, sn, sl, sc;
+  std::vector<double> st;
+  for (const auto& e : c.snapshots) {
+    ss.push_back(e.step), st.push_back(e.time), sn.push_back(e.particles),
+        sl.push_back(e.leaf ? 1 : 0);
+    sc.insert(sc.end(), e.cells.begin(), e.cells.end());
+  }
+  f.create_group("/snapshots");
+  w.put("/snapshots/step", ss);
+  w.put("/snapshots/time", st);
+  w.put("/snapshots/particles", sn);
+  w.put("/snapshots/leaf", sl);
+  w.put("/snapshots/cells", sc);
+  f.attribute("checksum", static_cast<std::int64_t>(w.hash.h));
+}
+
+void rename_into_place(const std::string& tmp, const std::string& path) {
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     std::remove(tmp.c_str());
     throw RunError(fmt::format("cannot rename '{}' to '{}'", tmp, path));
   }
 }
 
+GasBlock whole_grid(const std::array<int, 3>& cells) { return {cells, CellBox{{0, 0, 0}, cells}}; }
+
+} // namespace
+
+void write_checkpoint(const std::string& path, const Checkpoint& c) {
+  const std::string tmp = fmt::format("{}.tmp.{}", path, ::getpid());
+  try {
+    h5::File f = h5::File::create(tmp);
+    GasChecksum sums{};
+    if (c.gas) {
+      f.create_group("/gas");
+      sums = write_gas_grids(f, c.gas_state, whole_grid(c.gas_cells), false);
+    }
+    write_contents(f, c, combine_checksum(sums));
+    f.close();
+  } catch (...) {
+    std::remove(tmp.c_str());
+    throw;
+  }
+  rename_into_place(tmp, path);
+}
+
+void write_checkpoint(const std::string& path, const Checkpoint& c, const GasBlock& block,
+                      const Communicator& comm) {
+  if (comm.size() == 1) return write_checkpoint(path, c);
+  const bool root = comm.rank() == 0;
+  // One temporary name for all ranks (rank 0's pid). The gas grids first, collectively; then
+  // rank 0 alone adds the rest to the closed file and renames it.
+  const std::int64_t pid = comm.sum(root ? static_cast<std::int64_t>(::getpid()) : 0);
+  const std::string tmp = fmt::format("{}.tmp.{}", path, pid);
+  std::string error;
+  GasChecksum sums{};
+  try {
+    h5::File f = h5::File::create_collective(tmp, comm);
+    f.create_group("/gas");
+    sums = write_gas_grids(f, c.gas_state, block, true);
+    f.close();
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  error = comm.agree_on_error(error.empty() ? comm.size() : comm.rank(), error);
+  comm.sum(sums);
+  if (root && error.empty()) {
+    try {
+      h5::File f = h5::File::open_write(tmp);
+      write_contents(f, c, combine_checksum(sums));
+      f.close();
+      rename_into_place(tmp, path);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+  }
+  if (root && !error.empty()) std::remove(tmp.c_str());
+  error = comm.agree_on_error(0, error);
+  if (!error.empty())
+    throw RunError(fmt::format("writing checkpoint '{}' on {} ranks failed: {}", path,
+                               comm.size(), error));
+}
+
+namespace {
+
+// Everything but the gas grids, its checksum verified; throws RunError.
+Checkpoint read_contents(const h5::File& f) {
+  Checkpoint c;
+  if (f.read_attribute_int64("format") != kFormat)
+    throw RunError("unknown checkpoint format version");
+  Reader r{f, {}};
+  c.scheme = f.read_attribute_string("scheme");
+  c.dt = f.read_attribute_double("dt");
+  c.step = f.read_attribute_int64("step");
+  c.last_row_step = f.read_attribute_int64("last_row_step");
+  c.configuration = f.read_attribute_string("configuration");
+  const std::string cols = f.read_attribute_string("columns");
+  for (std::size_t a = 0; a <= cols.size();) {
+    const std::size_t b = std::min(cols.find(',', a), cols.size());
+    c.columns.push_back(cols.substr(a, b - a));
+    a = b + 1;
+  }
+  const std::int64_t n64 = f.read_attribute_int64("particles");
+  const std::int64_t nrows = f.read_attribute_int64("rows");
+  if (n64 < 0 || nrows < 0 || c.step < 0) throw RunError("negative counts");
+  const auto n = static_cast<std::size_t>(n64);
+  ParticleStore& p = c.particles;
+  p.x = r.doubles("/particles/x", n);
+  p.y = r.doubles("/particles/y", n);
+  p.z = r.doubles("/particles/z", n);
+  p.vx = r.doubles("/particles/vx_half", n);
+  p.vy = r.doubles("/particles/vy_half", n);
+  p.vz = r.doubles("/particles/vz_half", n);
+  p.fx = r.doubles("/particles/fx", n);
+  p.fy = r.doubles("/particles/fy", n);
+  p.fz = r.doubles("/particles/fz", n);
+  p.radius = r.doubles("/particles/radius", n);
+  p.mass = r.doubles("/particles/mass", n);
+  p.inv_mass = r.doubles("/particles/inv_mass", n);
+  p.id = r.int64s("/particles/id", n);
+  p.rotation = f.read_attribute_int64("rotation") != 0;
+  if (p.rotation) {
+    p.wx = r.doubles("/particles/wx_half", n);
+    p.wy = r.doubles("/particles/wy_half", n);
+    p.wz = r.doubles("/particles/wz_half", n);
+    p.tx = r.doubles("/particles/tx", n);
+    p.ty = r.doubles("/particles/ty", n);
+    p.tz = r.doubles("/particles/tz", n);
+    p.inv_inertia = r.doubles("/particles/inv_inertia", n);
+  }
+  auto& s = c.state;
+  s.offsets = r.uint32s("/neighbor_list/offsets", Reader::kAny);
+  s.neighbors = r.uint32s("/neighbor_list/neighbors", Reader::kAny);
+  s.x_ref = r.doubles("/neighbor_list/x_ref", Reader::kAny);
+  s.y_ref = r.doubles("/neighbor_list/y_ref", Reader::kAny);
+  s.z_ref = r.doubles("/neighbor_list/z_ref", Reader::kAny);
+  s.hx = r.doubles("/neighbor_list/history_x", Reader::kAny);
+  s.hy = r.doubles("/neighbor_list/history_y", Reader::kAny);
+  s.hz = r.doubles("/neighbor_list/history_z", Reader::kAny);
+  s.skin = f.read_attribute_double("skin");
+  s.need_rebuild = f.read_attribute_int64("need_rebuild") != 0;
+  s.steps = f.read_attribute_int64("steps_taken");
+  s.particle_steps = f.read_attribute_int64("particle_steps");
+  s.pair_evaluations = f.read_attribute_int64("pair_evaluations");
+  s.builds = f.read_attribute_int64("neighbor_builds");
+  if (c.scheme == "orb") {
+    auto& o = c.orb;
+    o.hprev = r.doubles("/orb/half_step", n);
+    o.cost = r.doubles("/orb/cost", n);
+    o.leaf_steps = r.int64s("/orb/leaf_steps", Reader::kAny);
+    const auto k = r.int64s("/orb/counters", 11);
+    o.fine_count = k[0], o.leaf_subits = k[1], o.subits = k[2], o.particle_steps = k[3];
+    o.pair_evaluations = k[4], o.builds = k[5], o.regrids = k[6], o.overlap_violations = k[7];
+    o.retries = k[8], o.pairs_valid = k[9] != 0, o.prox_from_pairs = k[10] != 0;
+    const auto q = r.doubles("/orb/ratios", 3);
+    o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1], o.skin = q[2];
+    o.ca = r.uint32s("/orb/contact_a", Reader::kAny);
+    o.cb = r.uint32s("/orb/contact_b", o.ca.size());
+    o.pa = r.uint32s("/orb/proximity_a", Reader::kAny);
+    o.pb = r.uint32s("/orb/proximity_b", o.pa.size());
+    o.x_ref = r.doubles("/orb/x_ref", Reader::kAny);
+    o.y_ref = r.doubles("/orb/y_ref", o.x_ref.size());
+    o.z_ref = r.doubles("/orb/z_ref", o.x_ref.size());
+  } else if (c.scheme == "islands") {
+    auto& o = c.islands;
+    o.offsets = r.uint32s("/islands/offsets", Reader::kAny);
+    o.neighbors = r.uint32s("/islands/neighbors", Reader::kAny);
+    o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
+    o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
+    o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
+    o.hprev = r.doubles("/islands/half_step", n);
+    o.fine_subits = r.int64s("/islands/fine_subiterations", n);
+    o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);
+    o.counters = r.int64s("/islands/counters", 12);
+    const auto q = r.doubles("/islands/ratios", 3);
+    o.skin = q[0], o.max_overlap_ratio = q[1], o.last_fine_fraction = q[2];
+  } else if (c.scheme != "explicit") {
+    throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
+  }
+  c.gas = f.exists("/gas");
+  if (c.gas) read_gas(r, c);
+  const auto flat =
+      r.doubles("/diagnostics_rows", static_cast<std::size_t>(nrows) * c.columns.size());
+  for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
+    c.rows.emplace_back(flat.begin() + static_cast<std::ptrdiff_t>(i * c.columns.size()),
+                        flat.begin() + static_cast<std::ptrdiff_t>((i + 1) * c.columns.size()));
+  const auto ss = r.int64s("/snapshots/step", Reader::kAny);
+  const auto st = r.doubles("/snapshots/time", ss.size());
+  const auto sn = r.int64s("/snapshots/particles", ss.size());
+  const auto sl = r.int64s("/snapshots/leaf", ss.size());
+  // Checkpoints written before snapshots had cells lack the dataset (and did not hash it).
+  const auto sc = f.exists("/snapshots/cells")
+                      ? r.int64s("/snapshots/cells", 3 * ss.size())
+                      : std::vector<std::int64_t>(3 * ss.size(), 0);
+  for (std::size_t i = 0; i < ss.size(); ++i)
+    c.snapshots.push_back({ss[i], st[i], sn[i], sl[i] != 0,
+                           {sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]},
+                           fmt::format("snapshot_{:09d}.h5", ss[i])});
+  if (static_cast<std::uint64_t>(f.read_attribute_int64("checksum")) != r.hash.h)
+    throw RunError("checksum mismatch: the arrays are corrupt");
+  return c;
+}
+
+} // namespace
+
 Checkpoint read_checkpoint(const std::string& path) {
   try {
     const h5::File f = h5::File::open_read(path);
-    Checkpoint c;
-    if (f.read_attribute_int64("format") != kFormat)
-      throw RunError("unknown checkpoint format version");
-    Reader r{f, {}};
-    c.scheme = f.read_attribute_string("scheme");
-    c.dt = f.read_attribute_double("dt");
-    c.step = f.read_attribute_int64("step");
-    c.last_row_step = f.read_attribute_int64("last_row_step");
-    c.configuration = f.read_attribute_string("configuration");
-    const std::string cols = f.read_attribute_string("columns");
-    for (std::size_t a = 0; a <= cols.size();) {
-      const std::size_t b = std::min(cols.find(',', a), cols.size());
-      c.columns.push_back(cols.substr(a, b - a));
-      a = b + 1;
+    Checkpoint c = read_contents(f);
+    if (c.gas) {
+      c.gas_cells = gas_grid_cells(f);
+      GasChecksum sums{};
+      read_gas_grids(f, whole_grid(c.gas_cells), c.gas_state, sums);
+      if (combine_checksum(sums) != f.read_attribute_int64("gas_checksum"))
+        throw RunError("checksum mismatch: the gas fields are corrupt");
     }
-    const std::int64_t n64 = f.read_attribute_int64("particles");
-    const std::int64_t nrows = f.read_attribute_int64("rows");
-    if (n64 < 0 || nrows < 0 || c.step < 0) throw RunError("negative counts");
-    const auto n = static_cast<std::size_t>(n64);
-    ParticleStore& p = c.particles;
-    p.x = r.doubles("/particles/x", n);
-    p.y = r.doubles("/particles/y", n);
-    p.z = r.doubles("/particles/z", n);
-    p.vx = r.doubles("/particles/vx_half", n);
-    p.vy = r.doubles("/particles/vy_half", n);
-    p.vz = r.doubles("/particles/vz_half", n);
-    p.fx = r.doubles("/particles/fx", n);
-    p.fy = r.doubles("/particles/fy", n);
-    p.fz = r.doubles("/particles/fz", n);
-    p.radius = r.doubles("/particles/radius", n);
-    p.mass = r.doubles("/particles/mass", n);
-    p.inv_mass = r.doubles("/particles/inv_mass", n);
-    p.id = r.int64s("/particles/id", n);
-    p.rotation = f.read_attribute_int64("rotation") != 0;
-    if (p.rotation) {
-      p.wx = r.doubles("/particles/wx_half", n);
-      p.wy = r.doubles("/particles/wy_half", n);
-      p.wz = r.doubles("/particles/wz_half", n);
-      p.tx = r.doubles("/particles/tx", n);
-      p.ty = r.doubles("/particles/ty", n);
-      p.tz = r.doubles("/particles/tz", n);
-      p.inv_inertia = r.doubles("/particles/inv_inertia", n);
-    }
-    auto& s = c.state;
-    s.offsets = r.uint32s("/neighbor_list/offsets", Reader::kAny);
-    s.neighbors = r.uint32s("/neighbor_list/neighbors", Reader::kAny);
-    s.x_ref = r.doubles("/neighbor_list/x_ref", Reader::kAny);
-    s.y_ref = r.doubles("/neighbor_list/y_ref", Reader::kAny);
-    s.z_ref = r.doubles("/neighbor_list/z_ref", Reader::kAny);
-    s.hx = r.doubles("/neighbor_list/history_x", Reader::kAny);
-    s.hy = r.doubles("/neighbor_list/history_y", Reader::kAny);
-    s.hz = r.doubles("/neighbor_list/history_z", Reader::kAny);
-    s.skin = f.read_attribute_double("skin");
-    s.need_rebuild = f.read_attribute_int64("need_rebuild") != 0;
-    s.steps = f.read_attribute_int64("steps_taken");
-    s.particle_steps = f.read_attribute_int64("particle_steps");
-    s.pair_evaluations = f.read_attribute_int64("pair_evaluations");
-    s.builds = f.read_attribute_int64("neighbor_builds");
-    if (c.scheme == "orb") {
-      auto& o = c.orb;
-      o.hprev = r.doubles("/orb/half_step", n);
-      o.cost = r.doubles("/orb/cost", n);
-      o.leaf_steps = r.int64s("/orb/leaf_steps", Reader::kAny);
-      const auto k = r.int64s("/orb/counters", 11);
-      o.fine_count = k[0], o.leaf_subits = k[1], o.subits = k[2], o.particle_steps = k[3];
-      o.pair_evaluations = k[4], o.builds = k[5], o.regrids = k[6], o.overlap_violations = k[7];
-      o.retries = k[8], o.pairs_valid = k[9] != 0, o.prox_from_pairs = k[10] != 0;
-      const auto q = r.doubles("/orb/ratios", 3);
-      o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1], o.skin = q[2];
-      o.ca = r.uint32s("/orb/contact_a", Reader::kAny);
-      o.cb = r.uint32s("/orb/contact_b", o.ca.size());
-      o.pa = r.uint32s("/orb/proximity_a", Reader::kAny);
-      o.pb = r.uint32s("/orb/proximity_b", o.pa.size());
-      o.x_ref = r.doubles("/orb/x_ref", Reader::kAny);
-      o.y_ref = r.doubles("/orb/y_ref", o.x_ref.size());
-      o.z_ref = r.doubles("/orb/z_ref", o.x_ref.size());
-    } else if (c.scheme == "islands") {
-      auto& o = c.islands;
-      o.offsets = r.uint32s("/islands/offsets", Reader::kAny);
-      o.neighbors = r.uint32s("/islands/neighbors", Reader::kAny);
-      o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
-      o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
-      o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
-      o.hprev = r.doubles("/islands/half_step", n);
-      o.fine_subits = r.int64s("/islands/fine_subiterations", n);
-      o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);
-      o.counters = r.int64s("/islands/counters", 12);
-      const auto q = r.doubles("/islands/ratios", 3);
-      o.skin = q[0], o.max_overlap_ratio = q[1], o.last_fine_fraction = q[2];
-    } else if (c.scheme != "explicit") {
-      throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
-    }
-    c.gas = f.exists("/gas");
-    if (c.gas) read_gas(r, c);
-    const auto flat =
-        r.doubles("/diagnostics_rows", static_cast<std::size_t>(nrows) * c.columns.size());
-    for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
-      c.rows.emplace_back(flat.begin() + static_cast<std::ptrdiff_t>(i * c.columns.size()),
-                          flat.begin() + static_cast<std::ptrdiff_t>((i + 1) * c.columns.size()));
-    const auto ss = r.int64s("/snapshots/step", Reader::kAny);
-    const auto st = r.doubles("/snapshots/time", ss.size());
-    const auto sn = r.int64s("/snapshots/particles", ss.size());
-    const auto sl = r.int64s("/snapshots/leaf", ss.size());
-    // Checkpoints written before snapshots had cells lack the dataset (and did not hash it).
-    const auto sc = f.exists("/snapshots/cells")
-                        ? r.int64s("/snapshots/cells", 3 * ss.size())
-                        : std::vector<std::int64_t>(3 * ss.size(), 0);
-    for (std::size_t i = 0; i < ss.size(); ++i)
-      c.snapshots.push_back({ss[i], st[i], sn[i], sl[i] != 0,
-                             {sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]},
-                             fmt::format("snapshot_{:09d}.h5", ss[i])});
-    if (static_cast<std::uint64_t>(f.read_attribute_int64("checksum")) != r.hash.h)
-      throw RunError("checksum mismatch: the arrays are corrupt");
     return c;
   } catch (const RunError& e) {
     throw ConfigError(fmt::format("checkpoint '{}'", path),
@@ -396,5 +459,97 @@ Checkpoint read_checkpoint(const std::string& path) {
                       fmt::format("cannot restart: corrupt file ({})", e.what()));
   }
 }
+
+Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
+                           const Communicator& comm) {
+  if (comm.size() == 1) return read_checkpoint(path);
+  Checkpoint c;
+  GasChecksum sums{};
+  std::int64_t stored = 0;
+  std::string error;
+  try {
+    const h5::File f = h5::File::open_read(path);
+    c = read_contents(f);
+    if (c.gas) {
+      c.gas_cells = block.cells;
+      read_gas_grids(f, block, c.gas_state, sums);
+      stored = f.read_attribute_int64("gas_checksum");
+    }
+  } catch (const RunError& e) {
+    error = e.what();
+  } catch (const std::exception& e) {
+    error = fmt::format("corrupt file ({})", e.what());
+  }
+  error = comm.agree_on_error(error.empty() ? comm.size() : comm.rank(), error);
+  if (error.empty()) {
+    comm.sum(sums); // every rank's owned points: the whole grid's sum
+    if (c.gas && combine_checksum(sums) != stored)
+      error = "checksum mismatch: the gas fields are corrupt";
+  }
+  if (!error.empty())
+    throw ConfigError(fmt::format("checkpoint '{}'", path), fmt::format("cannot restart: {}", error));
+  return c;
+}
+
+namespace {
+
+// The checks of a checkpoint against the scene it restarts; throws ConfigError naming the file.
+void check_fits(const Scene& scene, const std::string& path, const Checkpoint& ck) {
+  if (ck.gas != scene.fluid.enabled)
+    throw ConfigError(path, ck.gas ? "the checkpoint holds a gas state (written by a scene with "
+                                     "a [fluid] table) but this scene has no gas"
+                                   : "the checkpoint holds no gas state (written by a scene "
+                                     "without a [fluid] table) but this scene has a [fluid] "
+                                     "table");
+  if (ck.scheme != scene.dem.scheme)
+    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
+                                        ck.scheme, scene.dem.scheme));
+  if (ck.columns != kColumns)
+    throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
+  const std::string now = restart_configuration(scene);
+  if (ck.configuration != now) {
+    // Name the first key that differs.
+    std::size_t a = 0;
+    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a]) ++a;
+    const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
+    const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
+    throw ConfigError(path, fmt::format("the checkpoint was written with a different "
+                                        "configuration; first difference at '{}' (only name, "
+                                        "run.* and output.* may change at a restart)",
+                                        now.substr(line, now.find('\n', line) - line)));
+  }
+}
+
+} // namespace
+
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
+  Checkpoint ck = read_checkpoint(path);
+  check_fits(scene, path, ck);
+  return ck;
+}
+
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path, const GasBlock& block,
+                           const Communicator& comm) {
+  Checkpoint ck = read_checkpoint(path, block, comm);
+  check_fits(scene, path, ck); // the same file on every rank: the same error
+  return ck;
+}
+
+Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, double dt,
+                             std::int64_t step, std::int64_t last_row_step,
+                             const std::vector<std::vector<double>>& rows,
+                             const std::vector<SnapshotEntry>& snapshots) {
+  Checkpoint c;
+  c.scheme = scheme;
+  c.dt = dt;
+  c.step = step;
+  c.last_row_step = last_row_step;
+  c.columns = kColumns;
+  c.rows = rows;
+  c.snapshots = snapshots;
+  c.configuration = restart_configuration(scene);
+  return c;
+}
+
 
 } // namespace cfddem::apps

@@ -8,7 +8,8 @@
 //
 // With a gas (coupled scenes) it also holds, under /gas, the gas solver's state and the coupling
 // counters (GasCoupling::State) and the coupled loop's position (CoupledLoopState); it is written
-// at a fluid-step boundary, before the next fluid step.
+// at a fluid-step boundary, before the next fluid step. The gas fields are whole-grid datasets
+// (apps/gas_grid_io.hpp), so a checkpoint written on R ranks restarts on any number of ranks.
 //
 // The file (HDF5, checkpoint_<step>.h5) is written under a temporary name and renamed, and carries
 // an FNV-1a checksum over all its arrays, so a truncated or corrupt file is refused with a clear
@@ -21,6 +22,7 @@
 #include <vector>
 
 #include "apps/coupled_step.hpp"
+#include "apps/gas_grid_io.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
@@ -62,10 +64,23 @@ struct Checkpoint {
   dem::ExplicitScheme::State state; // scheme == "explicit"
   dem::OrbScheme::State orb;         // scheme == "orb"
   dem::IslandsScheme::State islands; // scheme == "islands"
-  bool gas = false;                  // a coupled scene's checkpoint: the two below are set
-  GasCoupling::State gas_state;
+  bool gas = false;                  // a coupled scene's checkpoint: the three below are set
+  std::array<int, 3> gas_cells{};    // the whole gas grid's cells
+  GasCoupling::State gas_state;      // one rank: the whole grid; R ranks: this rank's box
   CoupledLoopState loop;
 };
+
+// read_checkpoint, then the checks against the scene it restarts (gas or not, scheme, columns,
+// configuration): a ConfigError naming the file and the first thing that differs.
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path);
+Checkpoint load_checkpoint(const Scene& scene, const std::string& path, const GasBlock& block,
+                           const Communicator& comm);
+// A checkpoint's fields every loop fills alike: scheme, step length, step, the last row's step,
+// the diagnostics so far, the snapshot index and the configuration to check at a restart.
+Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, double dt,
+                             std::int64_t step, std::int64_t last_row_step,
+                             const std::vector<std::vector<double>>& rows,
+                             const std::vector<SnapshotEntry>& snapshots);
 
 // The configuration lines that must match between a checkpoint and the scene it restarts
 // (physics and numerics: everything but name, run.* and output.*).
@@ -73,7 +88,15 @@ std::string restart_configuration(const Scene& scene);
 
 // Write atomically; throws RunError.
 void write_checkpoint(const std::string& path, const Checkpoint& c);
+// The same file from R ranks (collective): every rank writes its box `block` of the gas grids
+// (c.gas_state holds the box), rank 0 everything else (only its c needs the rest).
+void write_checkpoint(const std::string& path, const Checkpoint& c, const GasBlock& block,
+                      const Communicator& comm);
 // Read and verify; throws ConfigError naming the file and what is wrong.
 Checkpoint read_checkpoint(const std::string& path);
+// On R ranks (collective): every rank reads the whole file but the gas grids, of which it reads
+// its box `block`; every rank throws the same ConfigError.
+Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
+                           const Communicator& comm);
 
 } // namespace cfddem::apps

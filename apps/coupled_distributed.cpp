@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <optional>
 #include <type_traits>
 
@@ -11,12 +12,14 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/checkpoint.hpp"
+#include "apps/coupled_checkpoint.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/gas_rebalance.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/diagnostics_file.hpp"
 #include "apps/gas_routing.hpp"
+#include "apps/rank_checkpoint.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
@@ -63,19 +66,33 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   constexpr bool kLeaves = std::is_same_v<Scheme, dem::DistributedOrbScheme>;
   const char* scheme_name = kLeaves ? "orb" : kSub ? "islands" : "explicit";
   namespace fs = std::filesystem;
-  if (!opt.restart.empty())
-    throw ConfigError("--restart", "restarting a run with a gas on several ranks is not "
-                                   "supported yet: restart it on one rank");
-  if (scene_in.output.checkpoint_interval > 0)
-    throw ConfigError("scene key 'output.checkpoint_interval'",
-                      "checkpoints of a run with a gas on several ranks are not supported yet");
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
-  // Every rank builds its share of the particles (every R-th, make_initial_share); the first
-  // particle step sends each to its owner (explicit: its gas box's rank; orb: its leaf's).
-  std::optional<Checkpoint> no_checkpoint; // refused above
-  ParticleStore particles = rank_share(scene_in, no_checkpoint, comm);
+  // Checkpoints and restarts: the explicit scheme's (apps/coupled_checkpoint.hpp).
+  if constexpr (kSub) {
+    if (!opt.restart.empty())
+      throw ConfigError("--restart", fmt::format("restarting a run with a gas and dem.scheme = "
+                                                 "\"{}\" on several ranks is not supported yet: "
+                                                 "restart it on one rank",
+                                                 scheme_name));
+    if (scene_in.output.checkpoint_interval > 0)
+      throw ConfigError("scene key 'output.checkpoint_interval'",
+                        fmt::format("checkpoints of a run with a gas and dem.scheme = \"{}\" on "
+                                    "several ranks are not supported yet (they are with "
+                                    "dem.scheme = \"explicit\", or on one rank)",
+                                    scheme_name));
+  }
+  // Every rank builds its share of the particles (every R-th, make_initial_share, or of the
+  // checkpoint's); the first particle step or the restore sends each to its owner (explicit: its
+  // gas box's rank; orb: its leaf's).
+  const GasBlock block0 = gas_block(scene_in, comm);
+  std::optional<Checkpoint> ck;
+  if (!opt.restart.empty())
+    ck = load_checkpoint(scene_in, opt.restart, block0, comm);
+  const dem::ContactHistory saved_history = ck ? saved_contact_history(*ck) : dem::ContactHistory{};
+  std::vector<std::uint32_t> taken;
+  ParticleStore particles = rank_share(scene_in, ck, comm, &taken);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene_in, particles, comm, &range);
   const std::size_t n_total = derived.particles;
@@ -124,11 +141,20 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     dt = snap_dt = scheme.dt();
   }
   const double end = scene.run.end_time;
+  if (ck && ck->dt != dt)
+    throw ConfigError(opt.restart, fmt::format("checkpoint particle step {:.17g} s differs from "
+                                               "the scene's {:.17g} s", ck->dt, dt));
+  if (ck && ck->loop.time > end + 1e-6 * dt)
+    throw ConfigError("run.end_time", fmt::format("the checkpoint is at t = {:.17g} s, past the "
+                                                  "end of the run ({:.17g} s)",
+                                                  ck->loop.time, end));
 
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
-  auto add_row = [&](const std::vector<double>& r) {
+  std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
+  auto add_row = [&](std::vector<double> r) {
     if (diag)
       diag->add_row(r);
+    rows.push_back(std::move(r));
   };
   // Snapshots: every rank's particles and gas box written collectively into one file (parallel
   // HDF5); rank 0 keeps the XDMF index. Particles as on one rank (the synchronised state of the
@@ -163,7 +189,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     fmt::print(stderr,
                "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
                "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-               "thread(s), {} scheme\n",
+               "thread(s), {} scheme{}\n",
                scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
                fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                      : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
@@ -171,17 +197,24 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
                fixed ? fmt::format(" ({} {} per fluid step)", n_fixed,
                                    kSub ? "sub-iterations" : "steps")
                      : std::string(),
-               env.ranks(), env.threads(), scheme_name);
+               env.ranks(), env.threads(), scheme_name,
+               ck ? fmt::format(", restarted at t = {:.6e} s from {}", ck->loop.time, opt.restart)
+                  : "");
   }
   // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
   // kept before start() shifts them to the half step.
   ParticleStore initial;
-  if (scene.output.snapshot_interval > 0)
+  if (!ck && scene.output.snapshot_interval > 0)
     initial = particles;
-  // Explicit: start() moves every particle to its box's rank; the gas then deposits the owned
-  // ones. Sub-iterated: the owned particles (any split until the first sub-iteration) go to the
-  // gas boxes by routing.
-  scheme.start();
+  // Explicit: start() (or the restore) moves every particle to its box's rank; the gas then
+  // deposits the owned ones. Sub-iterated: the owned particles (any split until the first
+  // sub-iteration) go to the gas boxes by routing.
+  if constexpr (kSub)
+    scheme.start();
+  else if (ck)
+    restore_coupled_scheme(*ck, taken, saved_history, scheme);
+  else
+    scheme.start();
   // The particles the gas deposits and their force afterwards, one per owned particle.
   auto to_gas = [&]() -> const ParticleStore& {
     if constexpr (kSub)
@@ -201,7 +234,22 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
     }
   };
-  if (scene.output.snapshot_interval > 0) {
+  CoupledLoopState loop;
+  loop.next_output = scene.output.interval;
+  loop.next_snapshot = scene.output.snapshot_interval;
+  long long k_last_row = 0;
+  MeanTracker means;
+  if (ck) {
+    restore_coupled_gas(*ck, opt.restart, gas, loop);
+    k_last_row = ck->last_row_step;
+    for (auto& r : ck->rows)
+      add_row(std::move(r));
+    if (snapshots)
+      snapshots->restore(ck->snapshots);
+    if (!rows.empty())
+      means.resume(rows.back());
+  }
+  if (!ck && scene.output.snapshot_interval > 0) {
     const CellFields cells = gas.cell_fields();
     SnapshotFields f;
     f.x = initial.x, f.y = initial.y, f.z = initial.z, f.vx = initial.vx, f.vy = initial.vy;
@@ -209,8 +257,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     write_snapshot(f, cells);
     initial = ParticleStore();
   }
-  MeanTracker means;
-  {
+  if (!ck) {
     PhaseTimer::Scope io(timer, Phase::io);
     // As the one-rank loop: the velocities after start() (the half step).
     const std::size_t n = scheme.owned();
@@ -226,11 +273,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
                 means.next(0.0, s0.mean_velocity, gas.diagnostics())));
   }
   const auto t_loop = clock::now();
-  CoupledLoopState loop;
-  loop.next_output = scene.output.interval;
-  loop.next_snapshot = scene.output.snapshot_interval;
   double& t = loop.time;
-  long long k_last_row = 0;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {
     dem::LeafStepStats ls{};
@@ -273,13 +316,22 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     add_row(row(loop.row_time, k, st, n_total, scheme, seconds_since(t_loop), ls,
                 means.next(loop.row_time, st.mean_velocity, loop.row_fluid)));
   };
+  // Checkpoints at the fluid times that are multiples of the interval, after the restart time.
+  const double ckpt_interval = scene.output.checkpoint_interval;
+  double next_ckpt = ckpt_interval > 0.0
+                         ? (std::floor(t / ckpt_interval + 1e-6) + 1.0) * ckpt_interval
+                         : std::numeric_limits<double>::infinity();
   const double tol = 1e-6 * dt;
   // Gas regrids (partition.gas_regrid_interval): the boxes cut again by the cells' weights with
   // the particle steps of the last fluid step; moved when that is predicted to cut the largest
   // load by more than kRegridGain of the mean, so a balanced run does not churn.
   constexpr double kRegridGain = 0.02;
   const double regrid_every = scene.partition.gas_regrid_interval;
+  // After a restart: the first multiple of the interval from the checkpoint's time on (the gas
+  // boxes restart from the count cut and are recut after the first fluid step).
   double next_regrid = regrid_every;
+  while (regrid_every > 0.0 && next_regrid < t - tol)
+    next_regrid += regrid_every;
   long long last_n_sub = 0;
   nlohmann::ordered_json regrids = nlohmann::ordered_json::array();
   auto gas_regrid = [&] {
@@ -338,6 +390,23 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     {
       PhaseTimer::Scope io(timer, Phase::io);
       mark_due_outputs(loop, gas, scene, t, last, tol);
+    }
+    if constexpr (!kSub) {
+      if (t >= next_ckpt - tol) {
+        PhaseTimer::Scope io(timer, Phase::io);
+        if (diag)
+          diag->flush();
+        // The gas box now (a gas regrid may have moved it from the count cut).
+        const GasBlock block{block0.cells, gas.boxes()[static_cast<std::size_t>(comm.rank())]};
+        write_coupled_checkpoint(
+            (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps))
+                .string(),
+            checkpoint_header(scene_in, "explicit", dt, loop.fluid_steps, k_last_row, rows,
+                              snapshots ? snapshots->entries() : std::vector<SnapshotEntry>{}),
+            scheme, particles, gas, loop, block, comm);
+        while (next_ckpt <= t + tol)
+          next_ckpt += ckpt_interval;
+      }
     }
     if (!opt.quiet && root &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=

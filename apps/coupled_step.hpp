@@ -72,6 +72,8 @@ public:
   // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
   double cfl_dt() const;
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
+  // The ids of the particles force(a) is for (the owned ones at the last step()).
+  [[nodiscard]] std::span<const std::int64_t> force_ids() const { return force_ids_; }
   // F_i of the last step() in the order of `ids` (the store's order now: the schemes permute the
   // store, and the force they hold, after step()); empty before the first step.
   [[nodiscard]] std::array<std::vector<double>, 3> force_in_order(

@@ -23,6 +23,7 @@
 #include "apps/diagnostics_file.hpp"
 #include "apps/distributed_islands_run.hpp"
 #include "apps/coupled_schedule.hpp"
+#include "apps/rank_checkpoint.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
@@ -89,58 +90,6 @@ RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelE
 long long every(double interval, double dt) {
   return interval > 0.0 ? std::max(1LL, std::llround(interval / dt)) : 0;
 }
-
-// Read a checkpoint and check it belongs to this scene; throws ConfigError (nothing written yet).
-Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
-  Checkpoint ck = read_checkpoint(path);
-  if (ck.gas != scene.fluid.enabled)
-    throw ConfigError(path, ck.gas ? "the checkpoint holds a gas state (written by a scene with "
-                                     "a [fluid] table) but this scene has no gas"
-                                   : "the checkpoint holds no gas state (written by a scene "
-                                     "without a [fluid] table) but this scene has a [fluid] "
-                                     "table");
-  if (ck.scheme != scene.dem.scheme)
-    throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
-                                        ck.scheme, scene.dem.scheme));
-  if (ck.columns != kColumns)
-    throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
-  const std::string now = restart_configuration(scene);
-  if (ck.configuration != now) {
-    // Name the first key that differs.
-    std::size_t a = 0;
-    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a]) ++a;
-    const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
-    const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
-    throw ConfigError(path, fmt::format("the checkpoint was written with a different "
-                                        "configuration; first difference at '{}' (only name, "
-                                        "run.* and output.* may change at a restart)",
-                                        now.substr(line, now.find('\n', line) - line)));
-  }
-  return ck;
-}
-
-// A checkpoint's fields every loop fills alike: scheme, step length, step, the last row's step,
-// the diagnostics so far, the snapshot index and the configuration to check at a restart.
-Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, double dt,
-                             std::int64_t step, std::int64_t last_row_step,
-                             const std::vector<std::vector<double>>& rows,
-                             const std::vector<SnapshotEntry>& snapshots) {
-  Checkpoint c;
-  c.scheme = scheme;
-  c.dt = dt;
-  c.step = step;
-  c.last_row_step = last_row_step;
-  c.columns = kColumns;
-  c.rows = rows;
-  c.snapshots = snapshots;
-  c.configuration = restart_configuration(scene);
-  return c;
-}
-
-} // namespace
-
-namespace {
-
 
 } // namespace
 
@@ -539,13 +488,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
   // With friction the checkpoint's history rows (over its particles) become records by id,
   // which restore() hands to each particle's owner.
-  const bool friction = scene.dem.friction > 0.0 || scene.dem.wall_friction > 0.0;
   dem::ContactHistory saved_history;
-  if (ck && friction) {
-    const auto& st = ck->state;
-    saved_history = dem::history_from_rows(ck->particles.id, st.offsets, st.neighbors, st.hx,
-                                           st.hy, st.hz);
-  }
+  if (ck) saved_history = saved_contact_history(*ck);
   ParticleStore particles = rank_share(scene, ck, comm);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene, particles, comm, &range);
@@ -650,71 +594,15 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   auto checkpoint = [&](long long k) {
     PhaseTimer::Scope io(timer, Phase::io);
     scheme.canonicalize();
-    const std::size_t n = scheme.owned();
-    const std::span<const double> own[] = {
-        {particles.x.data(), n},  {particles.y.data(), n},      {particles.z.data(), n},
-        {particles.vx.data(), n}, {particles.vy.data(), n},     {particles.vz.data(), n},
-        {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n}};
-    std::vector<double> all[9];
-    for (int q = 0; q < 9; ++q) all[q] = comm.gather(own[q]);
-    const std::vector<std::int64_t> ids =
-        comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
-    // Friction: the spin and the contact history (records by id) travel to rank 0 as well.
-    std::vector<double> spin[4];
-    std::vector<std::int64_t> h_owner, h_partner;
-    std::vector<double> h_xyz[3];
-    if (particles.rotation) {
-      const std::span<const double> w[] = {{particles.wx.data(), n}, {particles.wy.data(), n},
-                                           {particles.wz.data(), n},
-                                           {particles.inv_inertia.data(), n}};
-      for (int q = 0; q < 4; ++q) spin[q] = comm.gather(w[q]);
-      const dem::ContactHistory h = scheme.contact_history();
-      h_owner = comm.gather(std::span<const std::int64_t>(h.owner));
-      h_partner = comm.gather(std::span<const std::int64_t>(h.partner));
-      h_xyz[0] = comm.gather(std::span<const double>(h.hx));
-      h_xyz[1] = comm.gather(std::span<const double>(h.hy));
-      h_xyz[2] = comm.gather(std::span<const double>(h.hz));
-    }
+    Checkpoint c;
+    if (root)
+      c = checkpoint_header(scene, "explicit", scheme.dt(), k, k_last_row, rows,
+                            snapshots->entries());
+    gather_rank_particles(scheme, particles, comm, c); // collective
     std::string error;
     if (root) {
       try {
         if (diag) diag->flush();
-        std::vector<std::size_t> order(ids.size());
-        std::iota(order.begin(), order.end(), std::size_t{0});
-        std::sort(order.begin(), order.end(),
-                  [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
-        Checkpoint c = checkpoint_header(scene, "explicit", scheme.dt(), k, k_last_row, rows,
-                                         snapshots->entries());
-        c.particles.resize(ids.size());
-        std::vector<double>* field[9] = {&c.particles.x,  &c.particles.y,      &c.particles.z,
-                                         &c.particles.vx, &c.particles.vy,     &c.particles.vz,
-                                         &c.particles.radius, &c.particles.mass,
-                                         &c.particles.inv_mass};
-        for (std::size_t i = 0; i < order.size(); ++i) {
-          for (int q = 0; q < 9; ++q) (*field[q])[i] = all[q][order[i]];
-          c.particles.id[i] = ids[order[i]];
-        }
-        if (particles.rotation) {
-          c.particles.enable_rotation();
-          std::vector<double>* w[4] = {&c.particles.wx, &c.particles.wy, &c.particles.wz,
-                                       &c.particles.inv_inertia};
-          for (std::size_t i = 0; i < order.size(); ++i)
-            for (int q = 0; q < 4; ++q) (*w[q])[i] = spin[q][order[i]];
-          // The history as rows over the saved particles (a serial checkpoint's layout, with
-          // no reference positions: the list itself is rebuilt at a restart).
-          const dem::ContactHistory h{h_owner, h_partner, h_xyz[0], h_xyz[1], h_xyz[2]};
-          dem::HistoryRows rows_h = dem::history_rows(h, c.particles.id);
-          c.state.offsets = std::move(rows_h.offsets);
-          c.state.neighbors = std::move(rows_h.neighbors);
-          c.state.hx = std::move(rows_h.hx), c.state.hy = std::move(rows_h.hy);
-          c.state.hz = std::move(rows_h.hz);
-        }
-        // The list is rebuilt at a restart (canonical state): only the counters are kept.
-        const auto cnt = scheme.counters();
-        c.state.steps = cnt.steps, c.state.particle_steps = cnt.particle_steps;
-        c.state.pair_evaluations = cnt.pair_evaluations, c.state.builds = cnt.builds;
-        c.state.need_rebuild = true;
-        c.state.skin = scheme.model().skin;
         write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(), c);
       } catch (const std::exception& e) {
         error = e.what();
@@ -1135,6 +1023,9 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     }
     loop = std::move(ck->loop);
     k_last_row = ck->last_row_step;
+    // A checkpoint from R ranks leaves the pending snapshot's cells to the gas restored.
+    if (loop.snapshot_pending && loop.snapshot_cells.eps_g.empty())
+      loop.snapshot_cells = gas.cell_fields();
   }
 
   fs::create_directories(opt.out_dir);
@@ -1270,6 +1161,7 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
       else
         c.state = scheme.save_state();
       c.gas = true;
+      c.gas_cells = gas.solver().grid().global_cells();
       c.gas_state = gas.save_state();
       c.loop = loop;
       c.loop.held_force = gas.force_in_order(particles.id);

@@ -12,6 +12,8 @@
 #include <hdf5.h>
 #include <mpi.h>
 
+#include "core/communicator.hpp"
+
 namespace cfddem::h5 {
 
 // Owns one hid_t and closes it with the matching H5*close.
@@ -56,8 +58,11 @@ public:
   // Create (truncating) a file that every rank of `comm` writes into with MPI-IO (parallel
   // HDF5): collective, every rank calls it and every later call on the file in the same order.
   static File create_collective(const std::string& path, MPI_Comm comm);
+  static File create_collective(const std::string& path, const Communicator& comm);
   // Open an existing file read-only; throws RunError if it is not a readable HDF5 file.
   static File open_read(const std::string& path);
+  // Open an existing file to add to it (one process: e.g. rank 0 after a collective write).
+  static File open_write(const std::string& path);
 
   void create_group(const std::string& name);
   // Datasets of any shape ({n}, {n, m}, {nz, ny, nx, 3}, ...); data.size() = the product.
@@ -86,6 +91,12 @@ public:
   Array<double> read_double(const std::string& name) const;
   Array<std::int64_t> read_int64(const std::string& name) const;
   Array<std::uint32_t> read_uint32(const std::string& name) const;
+  // The dataset's shape (any number of dimensions).
+  std::vector<hsize_t> shape(const std::string& name) const;
+  // The block of extents `count` from `start` of a double dataset of any shape, in C order
+  // (a rank's box of a whole-grid dataset).
+  std::vector<double> read_block(const std::string& name, const std::vector<hsize_t>& start,
+                                 const std::vector<hsize_t>& count) const;
   double read_attribute_double(const std::string& name, const std::string& on = "/") const;
   std::int64_t read_attribute_int64(const std::string& name, const std::string& on = "/") const;
   std::string read_attribute_string(const std::string& name, const std::string& on = "/") const;

@@ -1,0 +1,94 @@
+#include "apps/rank_checkpoint.hpp"
+
+#include <algorithm>
+#include <numeric>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "core/error.hpp"
+
+namespace cfddem::apps {
+
+void gather_rank_particles(const dem::DistributedExplicitScheme& scheme,
+                           const ParticleStore& particles, const Communicator& comm,
+                           Checkpoint& c) {
+  const std::size_t n = scheme.owned();
+  const std::span<const double> own[] = {
+      {particles.x.data(), n},      {particles.y.data(), n},    {particles.z.data(), n},
+      {particles.vx.data(), n},     {particles.vy.data(), n},   {particles.vz.data(), n},
+      {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n}};
+  std::vector<double> all[9];
+  for (int q = 0; q < 9; ++q)
+    all[q] = comm.gather(own[q]);
+  const std::vector<std::int64_t> ids =
+      comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+  // Friction: the spin and the contact history (records by id) travel to rank 0 as well.
+  std::vector<double> spin[4];
+  dem::ContactHistory history;
+  if (particles.rotation) {
+    const std::span<const double> w[] = {{particles.wx.data(), n},
+                                         {particles.wy.data(), n},
+                                         {particles.wz.data(), n},
+                                         {particles.inv_inertia.data(), n}};
+    for (int q = 0; q < 4; ++q)
+      spin[q] = comm.gather(w[q]);
+    const dem::ContactHistory h = scheme.contact_history();
+    history.owner = comm.gather(std::span<const std::int64_t>(h.owner));
+    history.partner = comm.gather(std::span<const std::int64_t>(h.partner));
+    history.hx = comm.gather(std::span<const double>(h.hx));
+    history.hy = comm.gather(std::span<const double>(h.hy));
+    history.hz = comm.gather(std::span<const double>(h.hz));
+  }
+  std::string error;
+  if (comm.rank() == 0) {
+    try {
+      std::vector<std::size_t> order(ids.size());
+      std::iota(order.begin(), order.end(), std::size_t{0});
+      std::sort(order.begin(), order.end(),
+                [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+      c.particles.resize(ids.size());
+      std::vector<double>* field[9] = {
+          &c.particles.x,      &c.particles.y,    &c.particles.z,
+          &c.particles.vx,     &c.particles.vy,   &c.particles.vz,
+          &c.particles.radius, &c.particles.mass, &c.particles.inv_mass};
+      for (std::size_t i = 0; i < order.size(); ++i) {
+        for (int q = 0; q < 9; ++q)
+          (*field[q])[i] = all[q][order[i]];
+        c.particles.id[i] = ids[order[i]];
+      }
+      if (particles.rotation) {
+        c.particles.enable_rotation();
+        std::vector<double>* w[4] = {&c.particles.wx, &c.particles.wy, &c.particles.wz,
+                                     &c.particles.inv_inertia};
+        for (std::size_t i = 0; i < order.size(); ++i)
+          for (int q = 0; q < 4; ++q)
+            (*w[q])[i] = spin[q][order[i]];
+        // No reference positions: the list itself is rebuilt at a restart.
+        dem::HistoryRows rows = dem::history_rows(history, c.particles.id);
+        c.state.offsets = std::move(rows.offsets);
+        c.state.neighbors = std::move(rows.neighbors);
+        c.state.hx = std::move(rows.hx), c.state.hy = std::move(rows.hy);
+        c.state.hz = std::move(rows.hz);
+      }
+      const auto cnt = scheme.counters();
+      c.state.steps = cnt.steps, c.state.particle_steps = cnt.particle_steps;
+      c.state.pair_evaluations = cnt.pair_evaluations, c.state.builds = cnt.builds;
+      c.state.need_rebuild = true;
+      c.state.skin = scheme.model().skin;
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+  }
+  if (const std::string m = comm.agree_on_error(0, error); !m.empty())
+    throw RunError(m);
+}
+
+dem::ContactHistory saved_contact_history(const Checkpoint& ck) {
+  const auto& st = ck.state;
+  if (st.hx.empty())
+    return {}; // no friction (the rows, if any, are a serial list without history) or no contact
+  return dem::history_from_rows(ck.particles.id, st.offsets, st.neighbors, st.hx, st.hy, st.hz);
+}
+
+} // namespace cfddem::apps

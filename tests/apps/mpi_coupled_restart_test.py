@@ -1,0 +1,154 @@
+#!/usr/bin/env python3
+"""Checkpoint and restart of a gas-particle run on R ranks (apps/coupled_checkpoint.hpp).
+
+Usage: mpi_coupled_restart_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS
+
+The small periodic riser of mpi_coupled_test.py (800 particles that migrate between ranks,
+12 x 20 x 12 cells), 2N = 20 fluid steps with a checkpoint after N:
+  - restarted on R ranks, the other N steps give the 2N run's diagnostics rows (all but
+    wall_seconds) and final snapshot (particles by id, gas cells) bit for bit; restarted from the
+    2N run's last checkpoint with the same end time, the last row again (the held gas force);
+  - restarted on 1 rank and on R + 1 ranks (the gas fields are whole-grid datasets, read back
+    by any cutting into boxes), the same to round-off (1e-12 of each column's scale, the
+    snapshot's particles and cells likewise). Not compared there: neighbor_builds and
+    force_evaluations (the serial scheme rebuilds its list at a restart and counts pairs its own
+    way) and mean_x/y/z (positions are unwrapped between list builds, so a particle that crossed
+    the periodic boundary counts at either end until the next build);
+  - a checkpoint written on 1 rank restarts on R ranks, to round-off against the R-rank run;
+  - with friction (dem.friction = 0.3, the particles denser and hotter so that the checkpoint
+    holds open contacts) the spin and the contact history travel in the file: the restart on R
+    ranks is again bit for bit;
+  - with gas regrids (partition.gas_regrid_interval, the particles in the lower 40 % so that the
+    boxes are recut and moved before the checkpoint) the file holds the gas from the recut
+    boxes; the restart starts from the count cut and recuts after its first fluid step, so it
+    agrees to round-off (the gas's sums over other boxes), and it regrids again;
+  - refused with exit code 2, naming the file and what differs: another gas grid, and a gas
+    field changed in the file (the checksum, summed over the ranks' boxes).
+"""
+import csv
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import h5py
+import numpy as np
+
+MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+SCENE = os.path.join(SOURCE, "scenes", "riser.toml")
+ARGS = ["domain.hi=[2.4e-3,4.0e-3,2.4e-3]", "particles.count=800", "particles.temperature=1e-4",
+        "fluid.cells=[12,20,12]", "output.interval=2e-4", "output.snapshot_interval=1e-3",
+        "output.checkpoint_interval=1e-3", "--threads", "1", "--quiet"]
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+# Denser and hotter, so that contacts (and their tangential history) are open at the checkpoint.
+FRICTION_ARGS = ["dem.friction=0.3", "particles.temperature=1e-2",
+                 "particles.region_hi=[2.4e-3,0.6e-3,2.4e-3]"]
+CONVENTIONS = ["wall_seconds", "neighbor_builds", "force_evaluations", "mean_x", "mean_y",
+               "mean_z"]
+
+
+def run(ranks, out, *extra, check=True):
+    cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out", out]
+    return subprocess.run(cmd + ARGS + list(extra), check=check, env=ENV, timeout=120,
+                          capture_output=not check, text=True)
+
+
+def rows(d, skip=("wall_seconds",)):
+    with open(os.path.join(d, "diagnostics.csv")) as f:
+        return [{k: float(v) for k, v in r.items() if k not in skip} for r in csv.DictReader(f)]
+
+
+def snapshot(d):
+    last = max(n for n in os.listdir(d) if n.startswith("snapshot_") and n.endswith(".h5"))
+    with h5py.File(os.path.join(d, last)) as f:
+        order = np.argsort(f["particles/id"][()])
+        return {f"{g}/{k}": f[g][k][()][order] if g == "particles" else f[g][k][()]
+                for g in ("particles", "fluid") for k in f[g]}
+
+
+def regrids(d):
+    with open(os.path.join(d, "run.json")) as f:
+        return json.load(f)["gas_regrids"]
+
+
+def assert_bitwise(a, b, what):
+    assert rows(a) == rows(b), f"{what}: diagnostics rows differ"
+    sa, sb = snapshot(a), snapshot(b)
+    for k in sa:
+        assert np.array_equal(sa[k], sb[k]), f"{what}: {k} differs"
+
+
+def assert_round_off(a, b, what):
+    ra, rb = rows(a, CONVENTIONS), rows(b, CONVENTIONS)
+    assert len(ra) == len(rb), (what, len(ra), len(rb))
+    scale = {c: max(abs(r[c]) for r in ra) for c in ra[0]}
+    for kind in ("momentum_", "gas_momentum_", "mean_v", "mean_a"):
+        for x in "xz":
+            scale[kind + x] = max(scale[kind + x], scale[kind + "y"])
+    scale["gas_mass_residual"] = 1.0  # a round-off quantity itself (< 1e-8, mpi_coupled_test)
+    for x, y in zip(ra, rb):
+        for c in x:
+            err = abs(x[c] - y[c]) / (scale[c] or 1.0)
+            assert err <= 1e-12, f"{what}: {c} {x[c]} vs {y[c]} at t = {x['time']} ({err:.3g})"
+    sa, sb = snapshot(a), snapshot(b)
+    assert np.array_equal(sa["particles/id"], sb["particles/id"]), what
+    for k in sa:
+        err = np.max(np.abs(sa[k] - sb[k])) / max(np.max(np.abs(sa[k])), 1e-300)
+        assert err <= 1e-12, f"{what}: {k} scaled difference {err:.3g}"
+
+
+def main():
+    with tempfile.TemporaryDirectory() as tmp:
+        d = {k: os.path.join(tmp, k) for k in ("full", "half", "end", "one", "more", "first",
+                                               "from_one", "bad", "fric", "fric_half",
+                                               "regrid", "regrid_half")}
+        run(RANKS, d["full"], "run.end_time=2e-3")
+        cks = sorted(n for n in os.listdir(d["full"]) if n.startswith("checkpoint_"))
+        assert cks == ["checkpoint_000000010.h5", "checkpoint_000000020.h5"], cks
+        mid = os.path.join(d["full"], cks[0])
+        run(RANKS, d["half"], "run.end_time=2e-3", "--restart", mid)
+        assert_bitwise(d["full"], d["half"], f"restart on {RANKS} ranks")
+        run(RANKS, d["end"], "run.end_time=2e-3", "--restart", os.path.join(d["full"], cks[1]))
+        assert rows(d["end"]) == rows(d["full"]), "restart at the end time: last row differs"
+        # Other rank counts read the same file.
+        run(1, d["one"], "run.end_time=2e-3", "--restart", mid)
+        assert_round_off(d["full"], d["one"], f"{RANKS}-rank checkpoint on 1 rank")
+        run(RANKS + 1, d["more"], "run.end_time=2e-3", "--restart", mid)
+        assert_round_off(d["full"], d["more"], f"{RANKS}-rank checkpoint on {RANKS + 1} ranks")
+        run(1, d["first"], "run.end_time=1e-3")
+        run(RANKS, d["from_one"], "run.end_time=2e-3", "--restart",
+            os.path.join(d["first"], cks[0]))
+        assert_round_off(d["full"], d["from_one"], f"1-rank checkpoint on {RANKS} ranks")
+        # Friction: spin and contact history in the file, bitwise again.
+        fric = ["run.end_time=2e-3"] + FRICTION_ARGS
+        run(RANKS, d["fric"], *fric)
+        run(RANKS, d["fric_half"], *fric, "--restart", os.path.join(d["fric"], cks[0]))
+        assert_bitwise(d["fric"], d["fric_half"], f"frictional restart on {RANKS} ranks")
+        # Gas regrids: the checkpoint written from recut boxes.
+        regrid = ["run.end_time=2e-3", "particles.region_hi=[2.4e-3,1.6e-3,2.4e-3]",
+                  "partition.gas_regrid_interval=4e-4"]
+        run(RANKS, d["regrid"], *regrid)
+        moved = [g for g in regrids(d["regrid"]) if g["moved"]]
+        assert moved and moved[0]["time"] < 1e-3, moved
+        run(RANKS, d["regrid_half"], *regrid, "--restart", os.path.join(d["regrid"], cks[0]))
+        assert regrids(d["regrid_half"]), "no gas regrid after the restart"
+        assert_round_off(d["regrid"], d["regrid_half"], "restart with gas regrids")
+        # Bad input: another grid; a gas field changed after writing.
+        r = run(RANKS, d["bad"], "run.end_time=2e-3", "fluid.cells=[12,20,6]", "--restart", mid,
+                check=False)
+        assert r.returncode == 2 and mid in r.stderr and "fluid.cells" in r.stderr, r.stderr
+        bad = os.path.join(tmp, "changed.h5")
+        subprocess.run(["cp", mid, bad], check=True)
+        with h5py.File(bad, "r+") as f:
+            f["gas/p"][3, 7, 5] += 1e-9
+        r = run(RANKS, d["bad"], "run.end_time=2e-3", "--restart", bad, check=False)
+        assert r.returncode == 2 and bad in r.stderr and "gas fields are corrupt" in r.stderr, \
+            r.stderr
+    print(f"{RANKS} ranks: restart at {cks[0]} continues bit for bit; the checkpoint restarts on "
+          f"1 and {RANKS + 1} ranks, and a 1-rank one on {RANKS}, to round-off; with friction bit "
+          f"for bit; with gas regrids to round-off")
+
+
+if __name__ == "__main__":
+    main()

@@ -29,6 +29,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
+#include "dem/distributed_islands_scheme.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
@@ -444,6 +445,17 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       j["subiteration_retries"] = scheme.retries();
       j["max_overlap_ratio"] = scheme.max_overlap_ratio();
       j["overlap_violations"] = scheme.overlap_violations();
+      if constexpr (!kLeaves) {
+        // Islands: as the DEM-only R-rank run.json (apps/distributed_islands_run.cpp).
+        const auto subits = static_cast<double>(std::max<std::int64_t>(1, scheme.subiterations()));
+        j["bound_violations"] = scheme.bound_violations();
+        j["global_subiterations"] = scheme.global_subiterations();
+        j["spanning_subiterations"] = scheme.spanning_subiterations();
+        j["spanning_particles_mean"] = static_cast<double>(scheme.spanning_particles()) / subits;
+        j["spanning_definition"] =
+            "sub-iterations with an island whose members are on more than one rank (outside the "
+            "dense mode), and their member particles per sub-iteration (mean)";
+      }
     } else {
       j["dt"] = dt;
       j["steps"] = scheme.steps_taken();
@@ -518,12 +530,8 @@ RunResult run_coupled_distributed(const Scene& scene, const RunOptions& opt,
                                   const ParallelEnv& env) {
   if (scene.dem.scheme == "orb")
     return run_coupled_ranks<dem::DistributedOrbScheme>(scene, opt, env);
-  if (scene.dem.scheme != "explicit")
-    throw ConfigError("scene key 'dem.scheme'",
-                      fmt::format("dem.scheme = \"{}\" with a gas is not yet distributed over "
-                                  "MPI ranks: run it on one rank, or use dem.scheme = "
-                                  "\"explicit\" or \"orb\"",
-                                  scene.dem.scheme));
+  if (scene.dem.scheme == "islands")
+    return run_coupled_ranks<dem::DistributedIslandsScheme>(scene, opt, env);
   return run_coupled_ranks<dem::DistributedExplicitScheme>(scene, opt, env);
 }
 

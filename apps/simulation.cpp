@@ -96,8 +96,8 @@ long long every(double interval, double dt) {
 RunResult run_simulation(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   if (env.ranks() > 1) {
     // What is distributed so far: the explicit scheme (with friction too), the orb scheme and
-    // the islands scheme (frictionless: they refuse friction themselves); explicit and orb with
-    // a gas too (run_coupled_distributed refuses islands with a gas).
+    // the islands scheme (frictionless: they refuse friction themselves); all three with a gas
+    // too.
     if (scene.dem.scheme != "explicit" && scene.dem.scheme != "orb" &&
         scene.dem.scheme != "islands")
       throw ConfigError("scene key 'dem.scheme'",

@@ -229,6 +229,10 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
     w.put("/islands/size_histogram", o.size_hist);
     w.put("/islands/counters", o.counters);
     w.put("/islands/ratios", std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
+    if (!o.rank_counters.empty()) {
+      w.put("/islands/rank_counters", o.rank_counters);
+      w.put("/islands/rank_values", o.rank_values);
+    }
   }
   if (c.gas) {
     write_gas(f, w, c);
@@ -410,6 +414,10 @@ Checkpoint read_contents(const h5::File& f) {
     o.counters = r.int64s("/islands/counters", 12);
     const auto q = r.doubles("/islands/ratios", 3);
     o.skin = q[0], o.max_overlap_ratio = q[1], o.last_fine_fraction = q[2];
+    if (f.exists("/islands/rank_counters")) {
+      o.rank_counters = r.int64s("/islands/rank_counters", 6);
+      o.rank_values = r.doubles("/islands/rank_values", 1);
+    }
   } else if (c.scheme != "explicit") {
     throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
   }

@@ -446,7 +446,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       j["max_overlap_ratio"] = scheme.max_overlap_ratio();
       j["overlap_violations"] = scheme.overlap_violations();
       if constexpr (!kLeaves) {
-        // Islands: as the DEM-only R-rank run.json (apps/distributed_islands_run.cpp).
+        // Islands: as the DEM-only R-rank run.json (apps/distributed_subiterated_run.cpp).
         const auto subits = static_cast<double>(std::max<std::int64_t>(1, scheme.subiterations()));
         j["bound_violations"] = scheme.bound_violations();
         j["global_subiterations"] = scheme.global_subiterations();

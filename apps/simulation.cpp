@@ -21,7 +21,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
-#include "apps/distributed_islands_run.hpp"
+#include "apps/distributed_subiterated_run.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/rank_checkpoint.hpp"
 #include "apps/rank_setup.hpp"
@@ -81,7 +81,6 @@ struct WrappedPositions {
 };
 
 RunResult run_distributed(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
-RunResult run_distributed_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 template <class Scheme>
 RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
 RunResult run_coupled(const Scene& scene, const RunOptions& opt, const ParallelEnv& env);
@@ -110,15 +109,7 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
       return run_coupled_distributed(scene, opt, env);
     }
     if (scene.dem.scheme == "orb") return run_distributed_orb(scene, opt, env);
-    if (scene.dem.scheme == "islands") {
-      if (!opt.restart.empty() || scene.output.checkpoint_interval > 0.0)
-        throw ConfigError(!opt.restart.empty() ? "--restart"
-                                               : "scene key 'output.checkpoint_interval'",
-                          "checkpoint/restart of dem.scheme = \"islands\" is not yet "
-                          "distributed over MPI ranks: run it on one rank, or leave "
-                          "output.checkpoint_interval at 0 and drop --restart");
-      return run_distributed_islands(scene, opt, env);
-    }
+    if (scene.dem.scheme == "islands") return run_distributed_islands(scene, opt, env);
     return run_distributed(scene, opt, env);
   }
   if (scene.fluid.enabled) {
@@ -697,255 +688,6 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
                timer.seconds(Phase::force), timer.seconds(Phase::integrate), wait_max);
   }
   return {opt.out_dir, loop_seconds, scheme.steps_taken(), scheme.particle_steps()};
-}
-
-// The orb loop over MPI ranks (dem::DistributedOrbScheme): run_subiterated's schedule (rows at
-// multiples of output.interval, checkpoints at regrid points, the state at sub-iteration k
-// recorded by sub-iteration k + 1) with run_distributed's set-up (every rank starts from its
-// share of the particles), reductions, collective snapshots and rank-0 outputs. A checkpoint holds the
-// particles in id order with their half steps and costs: the distributed scheme rebuilds
-// everything else from them at the regrid that follows, so a restart on any number of ranks
-// continues as the run that wrote it would have.
-RunResult run_distributed_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
-  namespace fs = std::filesystem;
-  const auto t_setup = clock::now();
-  const Communicator comm = Communicator::world();
-  const bool root = comm.rank() == 0;
-  std::optional<Checkpoint> ck;
-  if (!opt.restart.empty()) ck = load_checkpoint(scene, opt.restart);
-  if (ck && (ck->orb.hprev.size() != ck->particles.size() ||
-             ck->orb.cost.size() != ck->particles.size()))
-    throw ConfigError(opt.restart, "the orb state does not fit the checkpoint's particles");
-  std::vector<std::uint32_t> mine;
-  ParticleStore particles = rank_share(scene, ck, comm, &mine);
-  std::vector<double> hprev, cost; // a restart: this rank's share of the checkpoint's
-  if (ck)
-    for (const std::uint32_t i : mine) hprev.push_back(ck->orb.hprev[i]), cost.push_back(ck->orb.cost[i]);
-  dem::ParticleRange range;
-  const DerivedNumbers derived = derive(scene, particles, comm, &range);
-  const dem::StepModel model = dem::make_step_model(scene, range);
-  const std::size_t n_total = derived.particles;
-  PhaseTimer timer;
-  dem::DistributedOrbScheme scheme(scene, particles, model, comm, timer);
-  const double dt_sp = scheme.dt_sub();
-  if (ck && ck->dt != dt_sp)
-    throw ConfigError(opt.restart, fmt::format("checkpoint dt_sp {:.17g} s differs from the "
-                                               "scene's {:.17g} s", ck->dt, dt_sp));
-  const long long n_end = std::max(1LL, std::llround(scene.run.end_time / dt_sp));
-  const long long k0 = ck ? ck->step : 0;
-  if (ck && k0 > n_end)
-    throw ConfigError("run.end_time", fmt::format("the checkpoint is at sub-iteration {}, past "
-                                                  "the end of the run ({})",
-                                                  k0, n_end));
-  std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
-  std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
-  auto add_row = [&](std::vector<double> r) {
-    if (diag) diag->add_row(r);
-    rows.push_back(std::move(r));
-  };
-  const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt_sp));
-  const long long snap_every = every(scene.output.snapshot_interval, dt_sp);
-  // Checkpoints only at regrid points, as run_subiterated's.
-  long long ckpt_every = every(scene.output.checkpoint_interval, dt_sp);
-  if (ckpt_every > 0)
-    ckpt_every = (ckpt_every + scheme.nsubit() - 1) / scheme.nsubit() * scheme.nsubit();
-  std::optional<SnapshotIndex> snapshots;
-  if (root) snapshots.emplace(opt.out_dir);
-  // Collective: every rank's owned particles into one file (rank order), each with its leaf.
-  auto write_snapshot = [&](const SnapshotFields& f) {
-    PhaseTimer::Scope io(timer, Phase::io);
-    const SnapshotEntry e = write_particle_snapshot(opt.out_dir, f, comm);
-    std::string error;
-    if (root) {
-      try {
-        snapshots->add(e);
-      } catch (const std::exception& ex) {
-        error = ex.what();
-      }
-    }
-    if (const std::string m = comm.agree_on_error(0, error); !m.empty()) throw RunError(m);
-  };
-  auto snapshot = [&](long long k) {
-    const auto s = scheme.synchronised_previous(); // positions already wrapped
-    SnapshotFields f;
-    f.time = static_cast<double>(k) * dt_sp;
-    f.step = k;
-    f.x = s.x, f.y = s.y, f.z = s.z, f.vx = s.vx, f.vy = s.vy, f.vz = s.vz;
-    f.radius = s.radius, f.mass = s.mass, f.id = s.id, f.leaf = s.leaf, f.local_dt = s.local_dt;
-    write_snapshot(f);
-  };
-  if (!opt.quiet && root)
-    fmt::print(stderr, "cfddem: scene '{}', {} particles, orb scheme: {} leaves, dt_sp = {:.4e} s "
-                       "(fine dt = {:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s)\n",
-               scene.name, n_total, scheme.leaf_count(), dt_sp, scheme.dt_fine(), n_end,
-               env.ranks(), env.threads());
-  const auto t_loop = clock::now();
-  MeanTracker means;
-  if (ck) {
-    ck->orb.hprev = std::move(hprev), ck->orb.cost = std::move(cost);
-    scheme.restore_state(std::move(ck->orb));
-    for (auto& r : ck->rows) add_row(std::move(r));
-    if (root) snapshots->restore(ck->snapshots);
-    if (!rows.empty()) means.resume(rows.back());
-  } else {
-    scheme.start();
-    PhaseTimer::Scope io(timer, Phase::io);
-    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
-                                  particles.vy, particles.vz, particles.mass},
-                                 comm);
-    add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{},
-                means.next(0.0, s0.mean_velocity)));
-    if (snap_every > 0) {
-      SnapshotFields f;
-      f.x = particles.x, f.y = particles.y, f.z = particles.z, f.vx = particles.vx;
-      f.vy = particles.vy, f.vz = particles.vz, f.radius = particles.radius;
-      f.mass = particles.mass, f.id = particles.id, f.dt = scheme.dt_fine();
-      write_snapshot(f);
-    }
-  }
-  // A checkpoint at sub-iteration k (a regrid point): the owned particles with their half steps
-  // and costs gathered to rank 0, in id order.
-  auto checkpoint = [&](long long k) {
-    PhaseTimer::Scope io(timer, Phase::io);
-    dem::OrbScheme::State state = scheme.save_state(); // collective
-    const std::size_t n = scheme.owned();
-    const std::span<const double> own[] = {
-        {particles.x.data(), n},      {particles.y.data(), n},    {particles.z.data(), n},
-        {particles.vx.data(), n},     {particles.vy.data(), n},   {particles.vz.data(), n},
-        {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n},
-        state.hprev,                  state.cost};
-    std::vector<double> all[11];
-    for (int q = 0; q < 11; ++q) all[q] = comm.gather(own[q]);
-    const std::vector<std::int64_t> ids =
-        comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
-    std::string error;
-    if (root) {
-      try {
-        if (diag) diag->flush();
-        std::vector<std::size_t> order(ids.size());
-        std::iota(order.begin(), order.end(), std::size_t{0});
-        std::sort(order.begin(), order.end(),
-                  [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
-        Checkpoint c = checkpoint_header(scene, "orb", dt_sp, k, 0, rows, snapshots->entries());
-        c.particles.resize(ids.size());
-        state.hprev.resize(ids.size()), state.cost.resize(ids.size());
-        std::vector<double>* field[11] = {
-            &c.particles.x,      &c.particles.y,    &c.particles.z,        &c.particles.vx,
-            &c.particles.vy,     &c.particles.vz,   &c.particles.radius,   &c.particles.mass,
-            &c.particles.inv_mass, &state.hprev,    &state.cost};
-        for (std::size_t i = 0; i < order.size(); ++i) {
-          for (int q = 0; q < 11; ++q) (*field[q])[i] = all[q][order[i]];
-          c.particles.id[i] = ids[order[i]];
-        }
-        c.orb = std::move(state);
-        write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
-                         c);
-      } catch (const std::exception& e) {
-        error = e.what();
-      }
-    }
-    if (const std::string m = comm.agree_on_error(0, error); !m.empty()) throw RunError(m);
-  };
-  auto last_progress = clock::now();
-  for (long long k = k0; k <= n_end; ++k) {
-    if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) checkpoint(k);
-    const bool record = k > 0 && (k % out_every == 0 || k == n_end);
-    const dem::LeafStepStats ls = record ? scheme.take_interval_stats() : dem::LeafStepStats{};
-    const bool snap = k > 0 && snap_every > 0 && (k % snap_every == 0 || k == n_end);
-    scheme.subiterate(record || snap);
-    if (snap) snapshot(k);
-    if (record) {
-      PhaseTimer::Scope io(timer, Phase::io);
-      const auto s = scheme.synchronised_previous();
-      const auto st = dem::measure({s.x, s.y, s.z, s.vx, s.vy, s.vz, s.mass}, comm);
-      const double t = static_cast<double>(k) * dt_sp;
-      add_row(row(t, k, st, n_total, scheme, seconds_since(t_loop), ls,
-                  means.next(t, st.mean_velocity)));
-    }
-    if (!opt.quiet && root &&
-        std::chrono::duration<double>(clock::now() - last_progress).count() >=
-            scene.output.progress_seconds) {
-      last_progress = clock::now();
-      const double wall = seconds_since(t_loop);
-      const double frac = static_cast<double>(k) / static_cast<double>(n_end);
-      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine leaves {:.2f}  ETA {}\n",
-                 k, scheme.time(), 100 * frac, scheme.last_fine_fraction(),
-                 format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
-    }
-  }
-  if (diag) diag->flush();
-  const double loop_seconds = seconds_since(t_loop);
-  const std::vector<double> waits = comm.gather(comm.wait_seconds());
-  const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
-  const std::vector<double> busy = comm.gather(timer.seconds(Phase::neighbor) +
-                                               timer.seconds(Phase::force) +
-                                               timer.seconds(Phase::integrate));
-  if (root) {
-    nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
-    j["scheme"] = "orb";
-    j["distributed"] = true;
-    j["dt"] = scheme.dt_fine();
-    j["dt_sp"] = dt_sp;
-    j["leaves"] = scheme.leaf_count();
-    j["steps"] = scheme.subiterations();
-    j["steps_definition"] = "sub-iterations of dt_sp (one past the end, as the explicit loop)";
-    j["regrids"] = scheme.regrids();
-    j["end_time"] = static_cast<double>(n_end) * dt_sp;
-    j["loop_seconds"] = loop_seconds;
-    j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
-    nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
-    ph["note"] = "rank 0's phases; neighbor: regrid, migration, ghost exchange and the rows; "
-                 "force: its leaves' local steps and the reductions that close a sub-iteration";
-    j["phase_seconds"] = ph;
-    add_work_counters(j, scheme, loop_seconds,
-                      "candidate pairs evaluated per local step, over all ranks: pairs within a "
-                      "leaf once, pairs across a leaf boundary once per side (rows rebuilt at "
-                      "every sub-iteration)");
-    double fine = 0.0;
-    std::size_t intervals = 0;
-    const auto col = static_cast<std::size_t>(
-        std::find(kColumns.begin(), kColumns.end(), "fine_leaf_fraction") - kColumns.begin());
-    for (std::size_t r = 1; r < rows.size(); ++r) fine += rows[r][col], ++intervals;
-    j["fine_leaf_fraction_mean"] = intervals > 0 ? fine / static_cast<double>(intervals) : 0.0;
-    j["fine_leaf_fraction_definition"] = "mean over the diagnostics rows of the fraction of "
-                                         "(non-empty leaf, sub-iteration) pairs on the fine step, "
-                                         "over all ranks";
-    j["subiteration_retries"] = scheme.retries();
-    j["final_skin"] = scheme.skin();
-    j["max_overlap_ratio"] = scheme.max_overlap_ratio();
-    j["overlap_violations"] = scheme.overlap_violations();
-    j["mpi_wait_seconds"] = waits;
-    j["mpi_wait_definition"] = "per rank: wall time inside MPI calls (reductions, the parallel "
-                               "ORB, particle and ghost exchanges), set-up included";
-    j["owned_particles_at_end"] = owned;
-    j["busy_seconds"] = busy;
-    j["busy_definition"] = "per rank: neighbor + force + integrate phases; their spread is the "
-                           "load imbalance in time";
-    j["regrid_policy"] = "parallel ORB + Hilbert knapsack every dem.regrid_interval (weights: "
-                         "partition.weights); migration and ghosts at every sub-iteration";
-    double worst = 1.0;
-    for (const double q : scheme.imbalances()) worst = std::max(worst, q);
-    j["load_imbalance"] = scheme.imbalances();
-    j["load_imbalance_definition"] = "per regrid in this run: max over ranks / mean of the "
-                                     "knapsack weight (particles, or particles x local steps)";
-    j["load_imbalance_max"] = worst;
-    write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
-  }
-  if (!opt.quiet && root) {
-    double wait_max = 0.0;
-    for (const double w : waits) wait_max = std::max(wait_max, w);
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
-                       "with {} particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), n_total);
-    fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; rank 0: "
-                       "neighbor+exchange {:.3g} s, leaves {:.3g} s; MPI wait max {:.3g} s; max "
-                       "overlap {:.3g} r ({} beyond dem.max_overlap)\n",
-               loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0,
-               scheme.pair_evaluations(), timer.seconds(Phase::neighbor),
-               timer.seconds(Phase::force), wait_max, scheme.max_overlap_ratio(),
-               scheme.overlap_violations());
-  }
-  return {opt.out_dir, loop_seconds, scheme.subiterations(), scheme.particle_steps()};
 }
 
 // The coupled loop (the paper's Algorithm 1): per fluid step of dt_f, deposit + gas step +

@@ -736,6 +736,62 @@ void DistributedIslandsScheme::subiterate(bool record) {
   ++subits_;
 }
 
+// What a restart cannot know is reset on both sides: the decomposition and ownership (the next
+// build regrids and migrates), the skin grown by short builds, the last sub-iteration's largest
+// bound, and each rank's own unrecorded overlap ratio (the largest over the ranks instead).
+void DistributedIslandsScheme::canonicalize() {
+  need_rebuild_ = true;
+  last_regrid_ = -1;
+  grown_skin_ = 0.0;
+  last_max_bound_ = 0.0;
+  max_ratio_local_ = comm_.max(max_ratio_local_);
+}
+
+IslandsScheme::State DistributedIslandsScheme::save_state() {
+  canonicalize();
+  IslandsScheme::State s;
+  s.skin = skin_ > 0.0 ? skin_ : base_skin_;
+  s.hprev.assign(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(owned_));
+  s.fine_subits.resize(owned_);
+  for (std::size_t i = 0; i < owned_; ++i)
+    s.fine_subits[i] = static_cast<std::int64_t>(fine_[i]);
+  s.counters = {subits_,     particle_steps_, pair_evaluations_, builds_,
+                overlap_violations_, bound_violations_, global_subits_, iv_fine_,
+                iv_particles_, iv_steps_,     iv_min_,           iv_max_};
+  s.max_overlap_ratio = max_overlap_ratio_;
+  s.last_fine_fraction = last_fine_fraction_;
+  s.rank_counters = {regrids_, retries_, expired_builds_, span_subits_, span_particles_,
+                     span_parts_};
+  s.rank_values = {max_ratio_local_};
+  return s;
+}
+
+void DistributedIslandsScheme::restore_state(IslandsScheme::State s) {
+  const bool fits = s.hprev.size() == owned_ && s.fine_subits.size() == owned_ &&
+                    s.counters.size() == 12 &&
+                    (s.rank_counters.empty() || s.rank_counters.size() == 6) &&
+                    (s.rank_values.empty() || s.rank_values.size() == 1);
+  if (comm_.max(fits ? 0.0 : 1.0) > 0.0)
+    throw RunError("checkpoint: the islands scheme's state does not fit the particles");
+  hprev_ = std::move(s.hprev);
+  fine_.resize(owned_);
+  for (std::size_t i = 0; i < owned_; ++i)
+    fine_[i] = static_cast<double>(s.fine_subits[i]);
+  const auto& k = s.counters;
+  subits_ = k[0], particle_steps_ = k[1], pair_evaluations_ = k[2], builds_ = k[3];
+  overlap_violations_ = k[4], bound_violations_ = k[5], global_subits_ = k[6];
+  iv_fine_ = k[7], iv_particles_ = k[8], iv_steps_ = k[9], iv_min_ = k[10], iv_max_ = k[11];
+  max_overlap_ratio_ = s.max_overlap_ratio;
+  last_fine_fraction_ = s.last_fine_fraction;
+  if (!s.rank_counters.empty()) {
+    const auto& r = s.rank_counters;
+    regrids_ = r[0], retries_ = r[1], expired_builds_ = r[2], span_subits_ = r[3];
+    span_particles_ = r[4], span_parts_ = r[5];
+  }
+  max_ratio_local_ = s.rank_values.empty() ? max_overlap_ratio_ : s.rank_values[0];
+  canonicalize();
+}
+
 LeafStepStats DistributedIslandsScheme::take_interval_stats() {
   LeafStepStats s;
   if (iv_particles_ > 0) {

@@ -49,7 +49,11 @@
 // spans ranks.
 // Results are bitwise independent of the thread count; different rank counts agree with the
 // one-rank IslandsScheme to round-off (island sums in another order; a particle that spans
-// takes fine steps where IslandsScheme may fly it free). Frictionless; no checkpoint yet.
+// takes fine steps where IslandsScheme may fly it free). Frictionless.
+// Checkpoints: save_state() puts the scheme in a canonical state (the next sub-iteration builds
+// afresh: a new decomposition, every particle to its owner in id order, the skin from the bounds
+// alone), which restore_state() recreates from the particles and their saved values on any
+// number of ranks; the run that wrote the checkpoint goes on from that state too.
 #pragma once
 
 #include <array>
@@ -65,6 +69,7 @@
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/islands_scheme.hpp"
 #include "dem/orb_local_rows.hpp"
 #include "dem/orb_scheme.hpp"
 #include "partition/contact_islands.hpp"
@@ -128,12 +133,21 @@ public:
   // IslandsScheme's interval statistics over all ranks (reduced every sub-iteration; then reset).
   LeafStepStats take_interval_stats();
 
+  // Checkpoint/restart, both collective. save_state(): the canonical state above, and per owned
+  // particle (store order) the half step and fine-sub-iteration count, the counters (the same on
+  // every rank; IslandsScheme::State's layout, no list, no histogram) and the R-rank ones.
+  // restore_state() replaces start(): each rank passes its share's values (any split of the
+  // particles); a state that does not fit throws RunError on every rank.
+  IslandsScheme::State save_state();
+  void restore_state(IslandsScheme::State s);
+
   // The owned particles' recorded state; `leaf` holds the island (-1: alone, free flight).
   OrbScheme::Synchronised synchronised_previous() const {
     return {sx_, sy_, sz_, svx_, svy_, svz_, smass_, sid_, sisland_, sradius_, sdt_};
   }
 
 private:
+  void canonicalize();
   void regrid();
   void migrate();
   void own_bounds();

@@ -88,6 +88,8 @@ IslandsScheme::State IslandsScheme::save_state() const {
 void IslandsScheme::restore_state(State s) {
   const std::size_t n = p_.size();
   check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
+  // An R-rank checkpoint holds no histogram: it counts from the restart on.
+  if (s.size_hist.empty()) s.size_hist.assign(size_hist_.size(), 0);
   if (s.hprev.size() != n || s.fine_subits.size() != n || s.size_hist.size() != size_hist_.size() ||
       s.counters.size() != 12 || !(s.skin > 0.0))
     throw RunError("checkpoint: the islands scheme's state does not fit the particles");

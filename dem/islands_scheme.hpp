@@ -123,6 +123,11 @@ public:
     // global_subits, iv_fine, iv_particles, iv_steps, iv_min, iv_max
     std::vector<std::int64_t> counters;
     double max_overlap_ratio = 0.0, last_fine_fraction = 0.0;
+    // Written by the R-rank scheme only (DistributedIslandsScheme::save_state; empty from one
+    // rank, ignored by it): regrids, retries, expired builds, spanning sub-iterations, spanning
+    // particles, spanning island parts; and the overlap ratio not yet recorded.
+    std::vector<std::int64_t> rank_counters;
+    std::vector<double> rank_values;
   };
   State save_state() const;
   // Throws RunError if the state does not fit the store.

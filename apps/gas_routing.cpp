@@ -1,7 +1,9 @@
 #include "apps/gas_routing.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <chrono>
+#include <numeric>
 
 #include <fmt/format.h>
 
@@ -70,13 +72,20 @@ const ParticleStore& GasRouting::route(const ParticleStore& p, std::size_t owned
     o[7] = std::bit_cast<double>(p.id[i]);
   }
   sparse_exchange(comm_, send_counts_, send_, recv_counts_, recv_, kOut, false);
+  // The box store in id order: the deposit order then depends on the particles only, not on
+  // which rank owned them in what order (a restart, whose owners differ, deposits alike).
   const std::size_t n = recv_.size() / kOut;
+  arrival_.resize(n);
+  std::iota(arrival_.begin(), arrival_.end(), 0U);
+  auto id_at = [&](std::uint32_t q) { return std::bit_cast<std::int64_t>(recv_[q * kOut + 7]); };
+  std::sort(arrival_.begin(), arrival_.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return id_at(a) < id_at(b); });
   box_.resize(n);
-  for (std::size_t q = 0; q < n; ++q) {
-    const double* in = recv_.data() + q * kOut;
-    box_.x[q] = in[0], box_.y[q] = in[1], box_.z[q] = in[2];
-    box_.vx[q] = in[3], box_.vy[q] = in[4], box_.vz[q] = in[5], box_.radius[q] = in[6];
-    box_.id[q] = std::bit_cast<std::int64_t>(in[7]);
+  for (std::size_t k = 0; k < n; ++k) {
+    const double* in = recv_.data() + static_cast<std::size_t>(arrival_[k]) * kOut;
+    box_.x[k] = in[0], box_.y[k] = in[1], box_.z[k] = in[2];
+    box_.vx[k] = in[3], box_.vy[k] = in[4], box_.vz[k] = in[5], box_.radius[k] = in[6];
+    box_.id[k] = std::bit_cast<std::int64_t>(in[7]);
   }
   return box_;
 }
@@ -89,10 +98,10 @@ void GasRouting::return_force(const std::array<std::span<const double>, 3>& f) {
       throw RunError(fmt::format("gas routing: {} forces for {} routed particles", v.size(), n));
   // Back along the same pairs of ranks: what arrived from rank r returns to it in its order.
   send_.resize(n * kBack);
-  for (std::size_t q = 0; q < n; ++q) {
-    double* o = send_.data() + q * kBack;
-    o[0] = f[0][q], o[1] = f[1][q], o[2] = f[2][q];
-    o[3] = std::bit_cast<double>(box_.id[q]);
+  for (std::size_t k = 0; k < n; ++k) {
+    double* o = send_.data() + static_cast<std::size_t>(arrival_[k]) * kBack;
+    o[0] = f[0][k], o[1] = f[1][k], o[2] = f[2][k];
+    o[3] = std::bit_cast<double>(box_.id[k]);
   }
   std::vector<std::int64_t> back = send_counts_;
   sparse_exchange(comm_, recv_counts_, send_, back, recv_, kBack, true);

@@ -27,9 +27,9 @@ public:
              const dem::DomainGeometry& geom);
 
   // Collective. Sends a copy of each owned particle [0, owned) of `p` to the rank whose gas box
-  // holds its wrapped centre; returns this rank's box store: the arrivals by source rank, each
-  // source's in its own order (so the deposit order depends on the particles and the ranks
-  // only, not on threads). It holds the wrapped x, y, z, the velocity (whatever the scheme
+  // holds its wrapped centre; returns this rank's box store: the arrivals in id order (so the
+  // deposit order depends on the particles only, not on threads, owners or their order). It
+  // holds the wrapped x, y, z, the velocity (whatever the scheme
   // holds: the deposit and the force use the same v_i), radius and id; mass and the rest are
   // left zero (the gas coupling reads none of them).
   const ParticleStore& route(const ParticleStore& p, std::size_t owned);
@@ -58,6 +58,7 @@ private:
   std::vector<std::int64_t> send_counts_, recv_counts_;
   std::vector<std::uint32_t> slot_;         // per owned particle: its place in the send order
   std::vector<std::int64_t> sent_id_;       // ids in the send order (checked on return)
+  std::vector<std::uint32_t> arrival_;      // per box store entry: its place in the arrivals
   std::vector<double> send_, recv_;
   std::array<std::vector<double>, 3> force_;
   std::size_t sent_away_ = 0;

@@ -16,6 +16,7 @@
 #include "apps/checkpoint.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/rank_checkpoint.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
@@ -31,37 +32,10 @@ namespace cfddem::apps {
 
 namespace {
 
-// What differs between the two schemes' checkpoints: the state type, where it sits in the file,
-// and its second per-particle value (orb: the cost; islands: the fine-sub-iteration count, a
-// count below 2^53 carried as a double).
-template <class Scheme> struct SubState;
-template <> struct SubState<dem::DistributedOrbScheme> {
-  using State = dem::OrbScheme::State;
-  static constexpr const char* kName = "orb";
-  static State& in(Checkpoint& c) { return c.orb; }
-  static std::vector<double> second(const State& s) { return s.cost; }
-  static void set_second(State& s, std::vector<double> v) { s.cost = std::move(v); }
-  static std::size_t second_size(const State& s) { return s.cost.size(); }
-};
-template <> struct SubState<dem::DistributedIslandsScheme> {
-  using State = dem::IslandsScheme::State;
-  static constexpr const char* kName = "islands";
-  static State& in(Checkpoint& c) { return c.islands; }
-  static std::vector<double> second(const State& s) {
-    return std::vector<double>(s.fine_subits.begin(), s.fine_subits.end());
-  }
-  static void set_second(State& s, const std::vector<double>& v) {
-    s.fine_subits.assign(v.size(), 0);
-    for (std::size_t i = 0; i < v.size(); ++i)
-      s.fine_subits[i] = static_cast<std::int64_t>(v[i]);
-  }
-  static std::size_t second_size(const State& s) { return s.fine_subits.size(); }
-};
-
 template <class Scheme>
 RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
                                       const ParallelEnv& env) {
-  using Sub = SubState<Scheme>;
+  using Sub = SubiteratedState<Scheme>;
   constexpr bool kOrb = std::is_same_v<Scheme, dem::DistributedOrbScheme>;
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
@@ -70,19 +44,12 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty())
     ck = load_checkpoint(scene, opt.restart);
-  if (ck && (Sub::in(*ck).hprev.size() != ck->particles.size() ||
-             Sub::second_size(Sub::in(*ck)) != ck->particles.size()))
-    throw ConfigError(opt.restart, fmt::format("the {} state does not fit the checkpoint's "
-                                               "particles",
-                                               Sub::kName));
+  const std::size_t n_saved = ck ? ck->particles.size() : 0;
   std::vector<std::uint32_t> mine;
   ParticleStore particles = rank_share(scene, ck, comm, &mine);
-  std::vector<double> hprev, second; // a restart: this rank's share of the checkpoint's
-  if (ck) {
-    const std::vector<double> all_second = Sub::second(Sub::in(*ck));
-    for (const std::uint32_t i : mine)
-      hprev.push_back(Sub::in(*ck).hprev[i]), second.push_back(all_second[i]);
-  }
+  std::optional<typename Sub::State> saved; // a restart: this rank's share of the scheme state
+  if (ck)
+    saved = subiterated_share<Scheme>(*ck, mine, n_saved, opt.restart);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene, particles, comm, &range);
   const dem::StepModel model = dem::make_step_model(scene, range);
@@ -159,10 +126,7 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
   const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
-    typename Sub::State state = std::move(Sub::in(*ck));
-    state.hprev = std::move(hprev);
-    Sub::set_second(state, std::move(second));
-    scheme.restore_state(std::move(state));
+    scheme.restore_state(std::move(*saved));
     for (auto& r : ck->rows)
       add_row(std::move(r));
     if (root)
@@ -185,49 +149,18 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
       write_snapshot(f);
     }
   }
-  // A checkpoint at sub-iteration k: the scheme's state (save_state, collective), the owned
-  // particles with their two per-particle values gathered to rank 0, in id order.
+  // A checkpoint at sub-iteration k (apps/rank_checkpoint.hpp), written by rank 0.
   auto checkpoint = [&](long long k) {
     PhaseTimer::Scope io(timer, Phase::io);
-    typename Sub::State state = scheme.save_state();
-    const std::vector<double> own_second = Sub::second(state);
-    const std::size_t n = scheme.owned();
-    const std::span<const double> own[] = {
-        {particles.x.data(), n},      {particles.y.data(), n},    {particles.z.data(), n},
-        {particles.vx.data(), n},     {particles.vy.data(), n},   {particles.vz.data(), n},
-        {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n},
-        state.hprev,                  own_second};
-    std::vector<double> all[11];
-    for (int q = 0; q < 11; ++q)
-      all[q] = comm.gather(own[q]);
-    const std::vector<std::int64_t> ids =
-        comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+    Checkpoint c;
+    if (root)
+      c = checkpoint_header(scene, Sub::kName, dt_sp, k, 0, rows, snapshots->entries());
+    gather_subiterated(scheme, particles, comm, c); // collective
     std::string error;
     if (root) {
       try {
         if (diag)
           diag->flush();
-        std::vector<std::size_t> order(ids.size());
-        std::iota(order.begin(), order.end(), std::size_t{0});
-        std::sort(order.begin(), order.end(),
-                  [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
-        Checkpoint c =
-            checkpoint_header(scene, Sub::kName, dt_sp, k, 0, rows, snapshots->entries());
-        c.particles.resize(ids.size());
-        std::vector<double> second_all(ids.size());
-        state.hprev.resize(ids.size());
-        std::vector<double>* field[11] = {
-            &c.particles.x,      &c.particles.y,    &c.particles.z,
-            &c.particles.vx,     &c.particles.vy,   &c.particles.vz,
-            &c.particles.radius, &c.particles.mass, &c.particles.inv_mass,
-            &state.hprev,        &second_all};
-        for (std::size_t i = 0; i < order.size(); ++i) {
-          for (int q = 0; q < 11; ++q)
-            (*field[q])[i] = all[q][order[i]];
-          c.particles.id[i] = ids[order[i]];
-        }
-        Sub::set_second(state, std::move(second_all));
-        Sub::in(c) = std::move(state);
         write_checkpoint(
             (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(), c);
       } catch (const std::exception& e) {

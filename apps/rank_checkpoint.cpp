@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include <fmt/format.h>
+
 #include "core/error.hpp"
 
 namespace cfddem::apps {
@@ -90,5 +92,82 @@ dem::ContactHistory saved_contact_history(const Checkpoint& ck) {
     return {}; // no friction (the rows, if any, are a serial list without history) or no contact
   return dem::history_from_rows(ck.particles.id, st.offsets, st.neighbors, st.hx, st.hy, st.hz);
 }
+
+template <class Scheme>
+void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Communicator& comm,
+                        Checkpoint& c) {
+  using Sub = SubiteratedState<Scheme>;
+  typename Sub::State state = scheme.save_state();
+  const std::vector<double> own_second = Sub::second(state);
+  const std::size_t n = scheme.owned();
+  const std::span<const double> own[] = {
+      {particles.x.data(), n},      {particles.y.data(), n},    {particles.z.data(), n},
+      {particles.vx.data(), n},     {particles.vy.data(), n},   {particles.vz.data(), n},
+      {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n},
+      state.hprev,                  own_second};
+  std::vector<double> all[11];
+  for (int q = 0; q < 11; ++q)
+    all[q] = comm.gather(own[q]);
+  const std::vector<std::int64_t> ids =
+      comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+  std::string error;
+  if (comm.rank() == 0) {
+    try {
+      std::vector<std::size_t> order(ids.size());
+      std::iota(order.begin(), order.end(), std::size_t{0});
+      std::sort(order.begin(), order.end(),
+                [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+      c.particles.resize(ids.size());
+      std::vector<double> second_all(ids.size());
+      state.hprev.resize(ids.size());
+      std::vector<double>* field[11] = {
+          &c.particles.x,      &c.particles.y,    &c.particles.z,
+          &c.particles.vx,     &c.particles.vy,   &c.particles.vz,
+          &c.particles.radius, &c.particles.mass, &c.particles.inv_mass,
+          &state.hprev,        &second_all};
+      for (std::size_t i = 0; i < order.size(); ++i) {
+        for (int q = 0; q < 11; ++q)
+          (*field[q])[i] = all[q][order[i]];
+        c.particles.id[i] = ids[order[i]];
+      }
+      Sub::set_second(state, std::move(second_all));
+      Sub::in(c) = std::move(state);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+  }
+  if (const std::string m = comm.agree_on_error(0, error); !m.empty())
+    throw RunError(m);
+}
+
+template <class Scheme>
+typename SubiteratedState<Scheme>::State subiterated_share(Checkpoint& ck,
+                                                           const std::vector<std::uint32_t>& mine,
+                                                           std::size_t particles,
+                                                           const std::string& path) {
+  using Sub = SubiteratedState<Scheme>;
+  typename Sub::State state = std::move(Sub::in(ck));
+  if (state.hprev.size() != particles || Sub::second_size(state) != particles)
+    throw ConfigError(path, fmt::format("the {} state does not fit the checkpoint's particles",
+                                        Sub::kName));
+  const std::vector<double> second = Sub::second(state);
+  std::vector<double> h, q;
+  for (const std::uint32_t i : mine)
+    h.push_back(state.hprev[i]), q.push_back(second[i]);
+  state.hprev = std::move(h);
+  Sub::set_second(state, std::move(q));
+  return state;
+}
+
+template void gather_subiterated(dem::DistributedOrbScheme&, const ParticleStore&,
+                                 const Communicator&, Checkpoint&);
+template void gather_subiterated(dem::DistributedIslandsScheme&, const ParticleStore&,
+                                 const Communicator&, Checkpoint&);
+template SubiteratedState<dem::DistributedOrbScheme>::State
+subiterated_share<dem::DistributedOrbScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
+                                             std::size_t, const std::string&);
+template SubiteratedState<dem::DistributedIslandsScheme>::State
+subiterated_share<dem::DistributedIslandsScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
+                                                 std::size_t, const std::string&);
 
 } // namespace cfddem::apps

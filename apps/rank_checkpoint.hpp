@@ -1,16 +1,25 @@
-// The particle part of a checkpoint written on R ranks by the distributed explicit scheme, for
-// the DEM-only loop (apps/simulation.cpp) and the coupled one (apps/coupled_checkpoint.hpp)
-// alike: the owned particles of every rank gathered to rank 0 in id order (the file's order for
-// any rank count), with friction their spin and the contact history as rows over those
-// particles (a serial checkpoint's layout), and the scheme's counters. The neighbor list is not
-// kept: a checkpoint is written in the scheme's canonical state, which the restart rebuilds.
+// The particle part of a checkpoint written on R ranks, for the DEM-only loops
+// (apps/simulation.cpp, apps/distributed_subiterated_run.cpp) and the coupled one
+// (apps/coupled_checkpoint.hpp) alike: the owned particles of every rank gathered to rank 0 in
+// id order (the file's order for any rank count) with the scheme's state. Explicit: with
+// friction the spin and the contact history as rows over those particles (a serial
+// checkpoint's layout), and the counters. Orb and islands: save_state()'s per-particle values
+// (half step, and the cost or the fine-sub-iteration count) in the same order, and its counters.
+// No neighbor list or pair set is kept: a checkpoint is written in the scheme's canonical
+// state, which the restart rebuilds from the particles.
 #pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
 
 #include "apps/checkpoint.hpp"
 #include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "dem/contact_history.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
+#include "dem/distributed_islands_scheme.hpp"
+#include "dem/distributed_orb_scheme.hpp"
 
 namespace cfddem::apps {
 
@@ -24,5 +33,48 @@ void gather_rank_particles(const dem::DistributedExplicitScheme& scheme,
 // DistributedExplicitScheme::restore; empty without friction. Call before the particles are
 // handed out (rank_share moves them).
 dem::ContactHistory saved_contact_history(const Checkpoint& ck);
+
+// What differs between the sub-iterated schemes' states: the type, where it sits in a
+// checkpoint, and its second per-particle value (orb: the cost; islands: the
+// fine-sub-iteration count, below 2^53, carried as a double).
+template <class Scheme> struct SubiteratedState;
+template <> struct SubiteratedState<dem::DistributedOrbScheme> {
+  using State = dem::OrbScheme::State;
+  static constexpr const char* kName = "orb";
+  static State& in(Checkpoint& c) { return c.orb; }
+  static std::vector<double> second(const State& s) { return s.cost; }
+  static void set_second(State& s, std::vector<double> v) { s.cost = std::move(v); }
+  static std::size_t second_size(const State& s) { return s.cost.size(); }
+};
+template <> struct SubiteratedState<dem::DistributedIslandsScheme> {
+  using State = dem::IslandsScheme::State;
+  static constexpr const char* kName = "islands";
+  static State& in(Checkpoint& c) { return c.islands; }
+  static std::vector<double> second(const State& s) {
+    return std::vector<double>(s.fine_subits.begin(), s.fine_subits.end());
+  }
+  static void set_second(State& s, const std::vector<double>& v) {
+    s.fine_subits.assign(v.size(), 0);
+    for (std::size_t i = 0; i < v.size(); ++i)
+      s.fine_subits[i] = static_cast<std::int64_t>(v[i]);
+  }
+  static std::size_t second_size(const State& s) { return s.fine_subits.size(); }
+};
+
+// Collective: scheme.save_state() (the canonical state) and the owned particles with its
+// per-particle values gathered into rank 0's `c` in id order (c.orb or c.islands). Throws
+// RunError on every rank when rank 0 fails.
+template <class Scheme>
+void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Communicator& comm,
+                        Checkpoint& c);
+
+// A restart: the checkpoint's scheme state with this rank's share of its per-particle values
+// (`mine`: the checkpoint's particles rank_share gave this rank, in that order), for
+// scheme.restore_state. Throws ConfigError naming `path` when they do not fit the particles.
+template <class Scheme>
+typename SubiteratedState<Scheme>::State subiterated_share(Checkpoint& ck,
+                                                           const std::vector<std::uint32_t>& mine,
+                                                           std::size_t particles,
+                                                           const std::string& path);
 
 } // namespace cfddem::apps

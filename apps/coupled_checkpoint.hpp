@@ -1,7 +1,8 @@
 // Checkpoint and restart of the coupled loop over R ranks (apps/coupled_distributed.cpp), into
 // the file a one-rank coupled run writes (apps/checkpoint.hpp), so either restarts the other.
 // What the R-rank loop holds at a fluid-step boundary goes in as follows:
-//   - the particles: the scheme is put in its canonical state first (as a DEM-only checkpoint
+//   - the particles (explicit; orb and islands: apps/rank_checkpoint.hpp, their save_state() and
+//     per-particle values): the scheme is put in its canonical state first (as a DEM-only checkpoint
 //     on R ranks: the run goes on from that state, a restart rebuilds the same), then gathered
 //     to rank 0 in id order with the scheme's counters, and with friction their spin and
 //     contact history (apps/rank_checkpoint.hpp; the neighbor list is rebuilt);
@@ -23,6 +24,7 @@
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/contact_history.hpp"
+#include "apps/rank_checkpoint.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
 
 namespace cfddem::apps {
@@ -31,8 +33,10 @@ namespace cfddem::apps {
 GasBlock gas_block(const Scene& scene, const Communicator& comm);
 
 // Collective. `header`: checkpoint_header's fields (rank 0's count); the rest is filled here.
-void write_coupled_checkpoint(const std::string& path, Checkpoint header,
-                              dem::DistributedExplicitScheme& scheme,
+// Scheme: dem::DistributedExplicitScheme, DistributedOrbScheme or DistributedIslandsScheme (the
+// sub-iterated ones at a fluid-step boundary, a regrid point: their save_state()).
+template <class Scheme>
+void write_coupled_checkpoint(const std::string& path, Checkpoint header, Scheme& scheme,
                               const ParticleStore& particles, const GasCoupling& gas,
                               const CoupledLoopState& loop, const GasBlock& block,
                               const Communicator& comm);
@@ -44,6 +48,10 @@ void write_coupled_checkpoint(const std::string& path, Checkpoint header,
 void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
                             const dem::ContactHistory& history,
                             dem::DistributedExplicitScheme& scheme);
+// The same for a sub-iterated scheme: `state` is subiterated_share's (apps/rank_checkpoint.hpp).
+template <class Scheme>
+void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
+                            typename SubiteratedState<Scheme>::State state, Scheme& scheme);
 // Then, with the gas built on the owned particles: its box's state, and the loop's position.
 // Throws ConfigError naming the file when the state does not fit.
 void restore_coupled_gas(Checkpoint& ck, const std::string& path, GasCoupling& gas,

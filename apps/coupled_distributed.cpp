@@ -70,20 +70,6 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
   const bool root = comm.rank() == 0;
-  // Checkpoints and restarts: the explicit scheme's (apps/coupled_checkpoint.hpp).
-  if constexpr (kSub) {
-    if (!opt.restart.empty())
-      throw ConfigError("--restart", fmt::format("restarting a run with a gas and dem.scheme = "
-                                                 "\"{}\" on several ranks is not supported yet: "
-                                                 "restart it on one rank",
-                                                 scheme_name));
-    if (scene_in.output.checkpoint_interval > 0)
-      throw ConfigError("scene key 'output.checkpoint_interval'",
-                        fmt::format("checkpoints of a run with a gas and dem.scheme = \"{}\" on "
-                                    "several ranks are not supported yet (they are with "
-                                    "dem.scheme = \"explicit\", or on one rank)",
-                                    scheme_name));
-  }
   // Every rank builds its share of the particles (every R-th, make_initial_share, or of the
   // checkpoint's); the first particle step or the restore sends each to its owner (explicit: its
   // gas box's rank; orb: its leaf's).
@@ -92,8 +78,17 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   if (!opt.restart.empty())
     ck = load_checkpoint(scene_in, opt.restart, block0, comm);
   const dem::ContactHistory saved_history = ck ? saved_contact_history(*ck) : dem::ContactHistory{};
+  const std::size_t n_saved = ck ? ck->particles.size() : 0;
   std::vector<std::uint32_t> taken;
   ParticleStore particles = rank_share(scene_in, ck, comm, &taken);
+  // Sub-iterated: this rank's share of the scheme state (orb: half steps and costs; islands:
+  // half steps and fine-sub-iteration counts).
+  using SavedState = typename SubiteratedState<std::conditional_t<
+      kSub, Scheme, dem::DistributedOrbScheme>>::State;
+  std::optional<SavedState> saved;
+  if constexpr (kSub)
+    if (ck)
+      saved = subiterated_share<Scheme>(*ck, taken, n_saved, opt.restart);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene_in, particles, comm, &range);
   const std::size_t n_total = derived.particles;
@@ -210,12 +205,12 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   // Explicit: start() (or the restore) moves every particle to its box's rank; the gas then
   // deposits the owned ones. Sub-iterated: the owned particles (any split until the first
   // sub-iteration) go to the gas boxes by routing.
-  if constexpr (kSub)
+  if (!ck)
     scheme.start();
-  else if (ck)
-    restore_coupled_scheme(*ck, taken, saved_history, scheme);
+  else if constexpr (kSub)
+    restore_coupled_scheme<Scheme>(*ck, taken, std::move(*saved), scheme);
   else
-    scheme.start();
+    restore_coupled_scheme(*ck, taken, saved_history, scheme);
   // The particles the gas deposits and their force afterwards, one per owned particle.
   auto to_gas = [&]() -> const ParticleStore& {
     if constexpr (kSub)
@@ -392,22 +387,20 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       PhaseTimer::Scope io(timer, Phase::io);
       mark_due_outputs(loop, gas, scene, t, last, tol);
     }
-    if constexpr (!kSub) {
-      if (t >= next_ckpt - tol) {
-        PhaseTimer::Scope io(timer, Phase::io);
-        if (diag)
-          diag->flush();
-        // The gas box now (a gas regrid may have moved it from the count cut).
-        const GasBlock block{block0.cells, gas.boxes()[static_cast<std::size_t>(comm.rank())]};
-        write_coupled_checkpoint(
-            (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps))
-                .string(),
-            checkpoint_header(scene_in, "explicit", dt, loop.fluid_steps, k_last_row, rows,
-                              snapshots ? snapshots->entries() : std::vector<SnapshotEntry>{}),
-            scheme, particles, gas, loop, block, comm);
-        while (next_ckpt <= t + tol)
-          next_ckpt += ckpt_interval;
-      }
+    if (t >= next_ckpt - tol) {
+      PhaseTimer::Scope io(timer, Phase::io);
+      if (diag)
+        diag->flush();
+      // The gas box now (a gas regrid may have moved it from the count cut).
+      const GasBlock block{block0.cells, gas.boxes()[static_cast<std::size_t>(comm.rank())]};
+      write_coupled_checkpoint(
+          (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps))
+              .string(),
+          checkpoint_header(scene_in, scheme_name, dt, loop.fluid_steps, k_last_row, rows,
+                            snapshots ? snapshots->entries() : std::vector<SnapshotEntry>{}),
+          scheme, particles, gas, loop, block, comm);
+      while (next_ckpt <= t + tol)
+        next_ckpt += ckpt_interval;
     }
     if (!opt.quiet && root &&
         std::chrono::duration<double>(clock::now() - last_progress).count() >=

@@ -138,8 +138,8 @@ int main(int argc, char** argv) {
   run->add_flag("--quiet", a.quiet, "no progress lines");
   run->add_option("--restart", a.restart,
                   "continue from a checkpoint file (checkpoint_<step>.h5 of the same scene: "
-                  "explicit, orb or islands; with a gas on R ranks explicit only); the run ends "
-                  "at run.end_time");
+                  "explicit, orb or islands, with or without a gas, on any rank count); the run "
+                  "ends at run.end_time");
   auto* check = app.add_subcommand("check", "validate a scene and print the resolved "
                                             "configuration and derived numbers; runs nothing");
   check->add_option("scene", a.scene, "scene file (TOML)");

@@ -21,13 +21,15 @@
 #include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/verlet_list.hpp"
-#include "dem_test_support.hpp"
+#include "distributed_test_support.hpp"
 #include "partition/cell_box_decomposition.hpp"
 
 namespace cfddem {
 namespace {
 
 using demtest::scene_from;
+using demtest::run_explicit_with_threads;
+using demtest::share;
 
 // A dense granular gas (phi ~ 0.25, so particles collide within a few hundred steps) in a
 // periodic box. max_overlap is raised: the fastest pairs of the tail overlap more than 0.3 r.
@@ -78,16 +80,6 @@ Communicator comm() {
   return Communicator::world();
 }
 
-// This rank's share of a store: every R-th particle (what `cfddem run` keeps before start()).
-ParticleStore share(const ParticleStore& all, int rank, int ranks) {
-  ParticleStore p = all;
-  std::vector<std::uint32_t> pick;
-  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
-       i += static_cast<std::size_t>(ranks))
-    pick.push_back(static_cast<std::uint32_t>(i));
-  p.permute(pick);
-  return p;
-}
 
 std::map<std::int64_t, std::size_t> index_by_id(const ParticleStore& p, std::size_t n) {
   std::map<std::int64_t, std::size_t> m;
@@ -347,29 +339,9 @@ TEST(DistributedExplicit, ClusteredParticlesStayBalanced) {
   EXPECT_LT(imbalance, 1.2); // 16 boxes of ~equal counts: 6/5/5 at worst over 3 ranks
 }
 
-// Enough particles per rank (20000 over at most 3 ranks) that the contact and update passes
-// run as parallel TBB loops.
-ParticleStore run_with_threads(int threads, int steps) {
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
-                            static_cast<std::size_t>(threads));
-  const Communicator c = comm();
-  const Scene scene = scene_from(kGas, {"particles.count=20000", "particles.temperature=1.0",
-                                        "domain.hi=[4.71e-3, 4.71e-3, 4.71e-3]"});
-  ParticleStore all = make_initial_particles(scene);
-  const dem::StepModel model = dem::make_step_model(scene, all);
-  ParticleStore p = share(all, c.rank(), c.size());
-  PhaseTimer timer;
-  dem::DistributedExplicitScheme s(scene, p, model, c, timer);
-  s.start();
-  for (int k = 0; k < steps; ++k)
-    s.step(k == steps - 1);
-  EXPECT_GT(s.neighbor_builds(), 1);
-  p.resize(s.owned());
-  return p;
-}
 
 TEST(DistributedExplicit, BitwiseIndependentOfThreadCount) {
-  const ParticleStore a = run_with_threads(1, 150), b = run_with_threads(2, 150);
+  const ParticleStore a = run_explicit_with_threads(kGas, 1, 150), b = run_explicit_with_threads(kGas, 2, 150);
   ASSERT_EQ(a.size(), b.size());
   EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.vx == b.vx && a.vy == b.vy &&
               a.vz == b.vz && a.id == b.id);

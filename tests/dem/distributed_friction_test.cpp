@@ -19,12 +19,14 @@
 #include "core/initial_conditions.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
-#include "dem_test_support.hpp"
+#include "distributed_test_support.hpp"
 
 namespace cfddem {
 namespace {
 
 using demtest::scene_from;
+using demtest::run_explicit_with_threads;
+using demtest::share;
 
 // A dense periodic gas (phi ~ 0.25) with friction: many contacts, spin exchanged.
 const char* kGas = R"(
@@ -79,15 +81,6 @@ Communicator comm() {
   return Communicator::world();
 }
 
-ParticleStore share(const ParticleStore& all, int rank, int ranks) {
-  ParticleStore p = all;
-  std::vector<std::uint32_t> pick;
-  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
-       i += static_cast<std::size_t>(ranks))
-    pick.push_back(static_cast<std::uint32_t>(i));
-  p.permute(pick);
-  return p;
-}
 
 template <class T> std::vector<T> all_gather(std::span<const T> mine) {
   const int ranks = comm().size();
@@ -300,28 +293,9 @@ TEST(DistributedFriction, RestartWithContactHistoryIsBitwise) {
   EXPECT_FALSE(forgot.x == full.x && forgot.wx == full.wx);
 }
 
-// 20000 particles over at most 3 ranks: the contact and update passes run as TBB loops.
-ParticleStore run_with_threads(int threads, int steps) {
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
-                            static_cast<std::size_t>(threads));
-  const Communicator c = comm();
-  const Scene scene = scene_from(kGas, {"particles.count=20000", "particles.temperature=1.0",
-                                        "domain.hi=[4.71e-3, 4.71e-3, 4.71e-3]"});
-  ParticleStore all = make_initial_particles(scene);
-  const dem::StepModel model = dem::make_step_model(scene, all);
-  ParticleStore p = share(all, c.rank(), c.size());
-  PhaseTimer timer;
-  dem::DistributedExplicitScheme s(scene, p, model, c, timer);
-  s.start();
-  for (int k = 0; k < steps; ++k)
-    s.step(k == steps - 1);
-  EXPECT_GT(s.neighbor_builds(), 1);
-  p.resize(s.owned());
-  return p;
-}
 
 TEST(DistributedFriction, BitwiseIndependentOfThreadCount) {
-  const ParticleStore a = run_with_threads(1, 100), b = run_with_threads(2, 100);
+  const ParticleStore a = run_explicit_with_threads(kGas, 1, 100), b = run_explicit_with_threads(kGas, 2, 100);
   ASSERT_EQ(a.size(), b.size());
   EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.vx == b.vx && a.vy == b.vy &&
               a.vz == b.vz && a.wx == b.wx && a.wy == b.wy && a.wz == b.wz && a.id == b.id);

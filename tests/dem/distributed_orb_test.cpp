@@ -21,12 +21,15 @@
 #include "core/phase_timer.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/orb_scheme.hpp"
-#include "dem_test_support.hpp"
+#include "distributed_test_support.hpp"
 
 namespace cfddem {
 namespace {
 
 using demtest::scene_from;
+using demtest::share;
+using demtest::apply_force;
+using demtest::force_of;
 
 // A dense granular gas (phi ~ 0.25: collisions within a few sub-iterations, every leaf fine) in a
 // periodic box, 8 leaves; kHcs below is the dilute, HCS-like variant where leaves differ.
@@ -109,30 +112,7 @@ constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
-ParticleStore share(const ParticleStore& all, int rank, int ranks) {
-  ParticleStore p = all;
-  std::vector<std::uint32_t> pick;
-  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
-       i += static_cast<std::size_t>(ranks))
-    pick.push_back(static_cast<std::uint32_t>(i));
-  p.permute(pick);
-  return p;
-}
 
-// An external force per particle, a function of its id (the gas's force, held fixed): N.
-std::array<double, 3> force_of(std::int64_t id) {
-  return {1e-7 * static_cast<double>(id % 5 - 2), -2e-7 * static_cast<double>(id % 3),
-          5e-8 * static_cast<double>(id % 7 - 3)};
-}
-
-void apply_force(const ParticleStore& p, std::size_t n, auto& scheme) {
-  std::vector<double> fx(n), fy(n), fz(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const auto f = force_of(p.id[i]);
-    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
-  }
-  scheme.set_external_force(fx, fy, fz);
-}
 
 State serial_orb(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);

@@ -1,0 +1,71 @@
+// Shared set-up for the distributed DEM tests (explicit, friction, orb, islands over MPI ranks):
+// a rank's share of a store as `cfddem run` deals it, the test-wide external force, and the
+// explicit run whose thread count must not change a bit.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <tbb/global_control.h>
+
+#include "core/communicator.hpp"
+#include "core/initial_conditions.hpp"
+#include "core/particle_store.hpp"
+#include "core/phase_timer.hpp"
+#include "dem/distributed_explicit_scheme.hpp"
+#include "dem_test_support.hpp"
+
+namespace cfddem::demtest {
+
+// This rank's share of a store: every R-th particle (what `cfddem run` keeps before start()).
+inline ParticleStore share(const ParticleStore& all, int rank, int ranks) {
+  ParticleStore p = all;
+  std::vector<std::uint32_t> pick;
+  for (std::size_t i = static_cast<std::size_t>(rank); i < all.size();
+       i += static_cast<std::size_t>(ranks))
+    pick.push_back(static_cast<std::uint32_t>(i));
+  p.permute(pick);
+  return p;
+}
+
+// An external force per particle, a function of its id (the gas's force, held fixed): N.
+inline std::array<double, 3> force_of(std::int64_t id) {
+  return {1e-7 * static_cast<double>(id % 5 - 2), -2e-7 * static_cast<double>(id % 3),
+          5e-8 * static_cast<double>(id % 7 - 3)};
+}
+
+// force_of for the first n particles of p, handed to the scheme.
+inline void apply_force(const ParticleStore& p, std::size_t n, auto& scheme) {
+  std::vector<double> fx(n), fy(n), fz(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto f = force_of(p.id[i]);
+    fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+  }
+  scheme.set_external_force(fx, fy, fz);
+}
+
+// `toml` with 20000 particles over at most 3 ranks (so the contact and update passes run as
+// TBB loops), `steps` distributed explicit steps on `threads` threads: this rank's owned
+// particles at the end. The run rebuilt its lists (checked), so migration happened.
+inline ParticleStore run_explicit_with_threads(const char* toml, int threads, int steps) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(threads));
+  const Communicator c = Communicator::world();
+  const Scene scene = scene_from(toml, {"particles.count=20000", "particles.temperature=1.0",
+                                        "domain.hi=[4.71e-3, 4.71e-3, 4.71e-3]"});
+  ParticleStore all = make_initial_particles(scene);
+  const dem::StepModel model = dem::make_step_model(scene, all);
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::DistributedExplicitScheme s(scene, p, model, c, timer);
+  s.start();
+  for (int k = 0; k < steps; ++k)
+    s.step(k == steps - 1);
+  EXPECT_GT(s.neighbor_builds(), 1);
+  p.resize(s.owned());
+  return p;
+}
+
+} // namespace cfddem::demtest

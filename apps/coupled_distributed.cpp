@@ -224,7 +224,8 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     if constexpr (kSub) {
       gas.step(to_gas(), dt_f);
       routing->return_force({gas.force(0), gas.force(1), gas.force(2)});
-      scheme.set_external_force(routing->force(0), routing->force(1), routing->force(2));
+      // The owed half kick settled with the old force (replace_external_force).
+      scheme.replace_external_force(routing->force(0), routing->force(1), routing->force(2));
     } else {
       gas.step(particles, dt_f, scheme.owned());
       scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));

@@ -875,7 +875,11 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
       gas.step(particles, dt_f);
-      scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
+      // Sub-iterated: the owed half kick settled with the old force (replace_external_force).
+      if constexpr (kOrb)
+        scheme.replace_external_force(gas.force(0), gas.force(1), gas.force(2));
+      else
+        scheme.set_external_force(gas.force(0), gas.force(1), gas.force(2));
     }
     for (long long q = 0; q < n_sub; ++q) {
       particle_step(q == 0 && loop.row_pending, q == 0 && loop.snapshot_pending);

@@ -74,6 +74,16 @@ void DistributedIslandsScheme::set_external_force(std::span<const double> fx,
   ez_.assign(fz.begin(), fz.end());
 }
 
+void DistributedIslandsScheme::replace_external_force(std::span<const double> fx,
+                                   std::span<const double> fy,
+                                   std::span<const double> fz) {
+  if (fx.size() == owned_ && hprev_.size() >= owned_)
+    settle_owed_half_kick(std::span<double>(p_.vx).first(owned_), std::span<double>(p_.vy).first(owned_),
+                          std::span<double>(p_.vz).first(owned_), p_.inv_mass,
+                          std::span<const double>(hprev_).first(owned_), ex_, ey_, ez_, fx, fy, fz);
+  set_external_force(fx, fy, fz); // checks the sizes on every rank
+}
+
 void DistributedIslandsScheme::regrid() {
   for (std::size_t i = 0; i < owned_; ++i)
     p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),

@@ -68,6 +68,7 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
+#include "dem/external_force.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_local_rows.hpp"
@@ -129,6 +130,11 @@ public:
   // set again and carried with its particle; empty spans on every rank remove it.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
+  // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
+  // set_external_force alone is for a restart (the held force as it was).
+  void replace_external_force(std::span<const double> fx, std::span<const double> fy,
+                              std::span<const double> fz);
 
   // IslandsScheme's interval statistics over all ranks (reduced every sub-iteration; then reset).
   LeafStepStats take_interval_stats();

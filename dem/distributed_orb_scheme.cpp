@@ -543,6 +543,16 @@ void DistributedOrbScheme::set_external_force(std::span<const double> fx,
   ez_.assign(fz.begin(), fz.end());
 }
 
+void DistributedOrbScheme::replace_external_force(std::span<const double> fx,
+                                   std::span<const double> fy,
+                                   std::span<const double> fz) {
+  if (fx.size() == owned_ && hprev_.size() >= owned_)
+    settle_owed_half_kick(std::span<double>(p_.vx).first(owned_), std::span<double>(p_.vy).first(owned_),
+                          std::span<double>(p_.vz).first(owned_), p_.inv_mass,
+                          std::span<const double>(hprev_).first(owned_), ex_, ey_, ez_, fx, fy, fz);
+  set_external_force(fx, fy, fz); // checks the sizes on every rank
+}
+
 LeafStepStats DistributedOrbScheme::take_interval_stats() {
   std::vector<std::int64_t> steps = leaf_steps_;
   comm_.sum(steps);

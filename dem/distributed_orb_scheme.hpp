@@ -47,6 +47,7 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
+#include "dem/external_force.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/orb_local_rows.hpp"
 #include "dem/orb_scheme.hpp"
@@ -104,6 +105,11 @@ public:
   // (a rank without particles passes empty spans either way).
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
+  // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
+  // set_external_force alone is for a restart (the held force as it was).
+  void replace_external_force(std::span<const double> fx, std::span<const double> fy,
+                              std::span<const double> fz);
 
   // Collective: statistics over all ranks since the last call (then reset).
   LeafStepStats take_interval_stats();

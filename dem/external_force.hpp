@@ -49,4 +49,31 @@ private:
   std::vector<double> scratch_;
 };
 
+// At a fluid-step boundary a new gas force replaces the one held over the last sub-cycle. A
+// particle's velocity is half its last step h behind (v(t - h)), and its next kick pays that
+// half together with its own first half, at the force then held. Settling the owed half with
+// the old force first, v += (F_old - F_new) h / m, makes every particle take each fluid step's
+// force over exactly that fluid step, the interval over which the gas gives it up, so the
+// momentum they exchange balances at every fluid-step boundary instead of the particles running
+// ahead by h F. The sub-iterated schemes' h is half a sub-iteration for a free particle, where
+// this matters (a small riser's total momentum was off by dt_sp/2 x the gas force, 0.4% of its
+// growth at dt_sp = dt_f / 10); the explicit schemes' h is dt/2 and they keep the plain
+// replacement. The first n particles of the spans; an empty old or new force counts as zero.
+inline void settle_owed_half_kick(std::span<double> vx, std::span<double> vy,
+                                  std::span<double> vz, std::span<const double> inv_mass,
+                                  std::span<const double> h,
+                                  std::span<const double> ox, std::span<const double> oy,
+                                  std::span<const double> oz, std::span<const double> nx,
+                                  std::span<const double> ny, std::span<const double> nz) {
+  const std::size_t n = h.size();
+  const bool has_old = !ox.empty(), has_new = !nx.empty();
+  for (std::size_t i = 0; i < n; ++i) {
+    const double k = inv_mass[i] * h[i];
+    const double dx = (has_old ? ox[i] : 0.0) - (has_new ? nx[i] : 0.0);
+    const double dy = (has_old ? oy[i] : 0.0) - (has_new ? ny[i] : 0.0);
+    const double dz = (has_old ? oz[i] : 0.0) - (has_new ? nz[i] : 0.0);
+    vx[i] += dx * k, vy[i] += dy * k, vz[i] += dz * k;
+  }
+}
+
 } // namespace cfddem::dem

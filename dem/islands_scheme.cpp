@@ -116,6 +116,15 @@ void IslandsScheme::set_external_force(std::span<const double> fx, std::span<con
   ext_.set(fx, fy, fz, p_.size());
 }
 
+void IslandsScheme::replace_external_force(std::span<const double> fx, std::span<const double> fy,
+                                  std::span<const double> fz) {
+  // hprev_ was sized at construction; after a checkpoint restore it is the saved one.
+  if (ext_.active() || !fx.empty())
+    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass, std::span<const double>(hprev_).first(p_.size()),
+                          ext_.x, ext_.y, ext_.z, fx, fy, fz);
+  set_external_force(fx, fy, fz);
+}
+
 // The Verlet list sorts the store by cell: the per-particle state follows.
 void IslandsScheme::rebuild() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);

@@ -96,6 +96,11 @@ public:
 
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
+  // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
+  // set_external_force alone is for a restart (the held force as it was).
+  void replace_external_force(std::span<const double> fx, std::span<const double> fy,
+                              std::span<const double> fz);
 
   // Per output interval: local steps per particle per sub-iteration (min/mean/max over particles
   // and sub-iterations) and the fraction of particle sub-iterations on the fine step.

@@ -815,6 +815,15 @@ void OrbScheme::set_external_force(std::span<const double> fx, std::span<const d
   ext_.set(fx, fy, fz, p_.size());
 }
 
+void OrbScheme::replace_external_force(std::span<const double> fx, std::span<const double> fy,
+                                  std::span<const double> fz) {
+  // hprev_ was sized at construction; after a checkpoint restore it is the saved one.
+  if (ext_.active() || !fx.empty())
+    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass, std::span<const double>(hprev_).first(p_.size()),
+                          ext_.x, ext_.y, ext_.z, fx, fy, fz);
+  set_external_force(fx, fy, fz);
+}
+
 OrbScheme::State OrbScheme::save_state() const {
   if (subits_ % nsubit_ != 0)
     throw RunError("orb checkpoint requested between regrid points (internal error)");

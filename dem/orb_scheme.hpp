@@ -62,6 +62,7 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
+#include "dem/external_force.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "partition/orb_tree.hpp"
 
@@ -117,6 +118,11 @@ public:
   // current order; an empty span removes it.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
+  // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
+  // set_external_force alone is for a restart (the held force as it was).
+  void replace_external_force(std::span<const double> fx, std::span<const double> fy,
+                              std::span<const double> fz);
 
   // Statistics since the last call (then reset).
   LeafStepStats take_interval_stats();

@@ -166,16 +166,28 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
   f.attribute("rotation", static_cast<std::int64_t>(p.rotation));
   f.attribute("rows", static_cast<std::int64_t>(c.rows.size()));
   f.create_group("/particles");
-  for (const auto& [name, v] :
-       {std::pair{"x", &p.x}, {"y", &p.y}, {"z", &p.z}, {"vx_half", &p.vx},
-        {"vy_half", &p.vy}, {"vz_half", &p.vz}, {"fx", &p.fx}, {"fy", &p.fy}, {"fz", &p.fz},
-        {"radius", &p.radius}, {"mass", &p.mass}, {"inv_mass", &p.inv_mass}})
+  for (const auto& [name, v] : {std::pair{"x", &p.x},
+                                {"y", &p.y},
+                                {"z", &p.z},
+                                {"vx_half", &p.vx},
+                                {"vy_half", &p.vy},
+                                {"vz_half", &p.vz},
+                                {"fx", &p.fx},
+                                {"fy", &p.fy},
+                                {"fz", &p.fz},
+                                {"radius", &p.radius},
+                                {"mass", &p.mass},
+                                {"inv_mass", &p.inv_mass}})
     w.put(std::string("/particles/") + name, *v);
   w.put("/particles/id", p.id);
   if (p.rotation)
-    for (const auto& [name, v] :
-         {std::pair{"wx_half", &p.wx}, {"wy_half", &p.wy}, {"wz_half", &p.wz},
-          {"tx", &p.tx}, {"ty", &p.ty}, {"tz", &p.tz}, {"inv_inertia", &p.inv_inertia}})
+    for (const auto& [name, v] : {std::pair{"wx_half", &p.wx},
+                                  {"wy_half", &p.wy},
+                                  {"wz_half", &p.wz},
+                                  {"tx", &p.tx},
+                                  {"ty", &p.ty},
+                                  {"tz", &p.tz},
+                                  {"inv_inertia", &p.inv_inertia}})
       w.put(std::string("/particles/") + name, *v);
   const auto& s = c.state;
   f.create_group("/neighbor_list");
@@ -199,14 +211,11 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
     w.put("/orb/half_step", o.hprev);
     w.put("/orb/cost", o.cost);
     w.put("/orb/leaf_steps", o.leaf_steps);
-    w.put("/orb/counters", std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits,
-                                                     o.particle_steps, o.pair_evaluations,
-                                                     o.builds, o.regrids,
-                                                     o.overlap_violations, o.retries,
-                                                     o.pairs_valid ? 1 : 0,
-                                                     o.prox_from_pairs ? 1 : 0});
-    w.put("/orb/ratios",
-          std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
+    w.put("/orb/counters",
+          std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits, o.particle_steps,
+                                    o.pair_evaluations, o.builds, o.regrids, o.overlap_violations,
+                                    o.retries, o.pairs_valid ? 1 : 0, o.prox_from_pairs ? 1 : 0});
+    w.put("/orb/ratios", std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
     // Candidate pairs (store indices) and their reference positions.
     w.put("/orb/contact_a", o.ca);
     w.put("/orb/contact_b", o.cb);
@@ -228,7 +237,8 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
     w.put("/islands/fine_subiterations", o.fine_subits);
     w.put("/islands/size_histogram", o.size_hist);
     w.put("/islands/counters", o.counters);
-    w.put("/islands/ratios", std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
+    w.put("/islands/ratios",
+          std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
     if (!o.rank_counters.empty()) {
       w.put("/islands/rank_counters", o.rank_counters);
       w.put("/islands/rank_values", o.rank_values);
@@ -262,7 +272,9 @@ void rename_into_place(const std::string& tmp, const std::string& path) {
   }
 }
 
-GasBlock whole_grid(const std::array<int, 3>& cells) { return {cells, CellBox{{0, 0, 0}, cells}}; }
+GasBlock whole_grid(const std::array<int, 3>& cells) {
+  return {cells, CellBox{{0, 0, 0}, cells}};
+}
 
 } // namespace
 
@@ -286,7 +298,8 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
 
 void write_checkpoint(const std::string& path, const Checkpoint& c, const GasBlock& block,
                       const Communicator& comm) {
-  if (comm.size() == 1) return write_checkpoint(path, c);
+  if (comm.size() == 1)
+    return write_checkpoint(path, c);
   const bool root = comm.rank() == 0;
   // One temporary name for all ranks (rank 0's pid). The gas grids first, collectively; then
   // rank 0 alone adds the rest to the closed file and renames it.
@@ -314,11 +327,12 @@ void write_checkpoint(const std::string& path, const Checkpoint& c, const GasBlo
       error = e.what();
     }
   }
-  if (root && !error.empty()) std::remove(tmp.c_str());
+  if (root && !error.empty())
+    std::remove(tmp.c_str());
   error = comm.agree_on_error(0, error);
   if (!error.empty())
-    throw RunError(fmt::format("writing checkpoint '{}' on {} ranks failed: {}", path,
-                               comm.size(), error));
+    throw RunError(
+        fmt::format("writing checkpoint '{}' on {} ranks failed: {}", path, comm.size(), error));
 }
 
 namespace {
@@ -342,7 +356,8 @@ Checkpoint read_contents(const h5::File& f) {
   }
   const std::int64_t n64 = f.read_attribute_int64("particles");
   const std::int64_t nrows = f.read_attribute_int64("rows");
-  if (n64 < 0 || nrows < 0 || c.step < 0) throw RunError("negative counts");
+  if (n64 < 0 || nrows < 0 || c.step < 0)
+    throw RunError("negative counts");
   const auto n = static_cast<std::size_t>(n64);
   ParticleStore& p = c.particles;
   p.x = r.doubles("/particles/x", n);
@@ -422,7 +437,8 @@ Checkpoint read_contents(const h5::File& f) {
     throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
   }
   c.gas = f.exists("/gas");
-  if (c.gas) read_gas(r, c);
+  if (c.gas)
+    read_gas(r, c);
   const auto flat =
       r.doubles("/diagnostics_rows", static_cast<std::size_t>(nrows) * c.columns.size());
   for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
@@ -433,11 +449,13 @@ Checkpoint read_contents(const h5::File& f) {
   const auto sn = r.int64s("/snapshots/particles", ss.size());
   const auto sl = r.int64s("/snapshots/leaf", ss.size());
   // Checkpoints written before snapshots had cells lack the dataset (and did not hash it).
-  const auto sc = f.exists("/snapshots/cells")
-                      ? r.int64s("/snapshots/cells", 3 * ss.size())
-                      : std::vector<std::int64_t>(3 * ss.size(), 0);
+  const auto sc = f.exists("/snapshots/cells") ? r.int64s("/snapshots/cells", 3 * ss.size())
+                                               : std::vector<std::int64_t>(3 * ss.size(), 0);
   for (std::size_t i = 0; i < ss.size(); ++i)
-    c.snapshots.push_back({ss[i], st[i], sn[i], sl[i] != 0,
+    c.snapshots.push_back({ss[i],
+                           st[i],
+                           sn[i],
+                           sl[i] != 0,
                            {sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]},
                            fmt::format("snapshot_{:09d}.h5", ss[i])});
   if (static_cast<std::uint64_t>(f.read_attribute_int64("checksum")) != r.hash.h)
@@ -470,7 +488,8 @@ Checkpoint read_checkpoint(const std::string& path) {
 
 Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
                            const Communicator& comm) {
-  if (comm.size() == 1) return read_checkpoint(path);
+  if (comm.size() == 1)
+    return read_checkpoint(path);
   Checkpoint c;
   GasChecksum sums{};
   std::int64_t stored = 0;
@@ -495,7 +514,8 @@ Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
       error = "checksum mismatch: the gas fields are corrupt";
   }
   if (!error.empty())
-    throw ConfigError(fmt::format("checkpoint '{}'", path), fmt::format("cannot restart: {}", error));
+    throw ConfigError(fmt::format("checkpoint '{}'", path),
+                      fmt::format("cannot restart: {}", error));
   return c;
 }
 
@@ -518,7 +538,8 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
   if (ck.configuration != now) {
     // Name the first key that differs.
     std::size_t a = 0;
-    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a]) ++a;
+    while (a < now.size() && a < ck.configuration.size() && now[a] == ck.configuration[a])
+      ++a;
     const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
     const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
     throw ConfigError(path, fmt::format("the checkpoint was written with a different "
@@ -558,6 +579,5 @@ Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, doub
   c.configuration = restart_configuration(scene);
   return c;
 }
-
 
 } // namespace cfddem::apps

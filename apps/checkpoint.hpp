@@ -1,10 +1,10 @@
-// Checkpoint/restart of the explicit, orb and islands schemes. A checkpoint holds everything the next step reads:
-// every particle field (velocities at the half step the integrator holds, forces, rotation), the
-// neighbor list exactly as built (rows in order, reference positions) and the tangential contact
-// history, the step counters, the diagnostics rows so far, the snapshot index, and the resolved
-// configuration. A run restarted from it continues bit for bit (the cell-list order, the force
-// sum order and the rebuild schedule are those of the run that wrote it). There is no RNG state
-// to keep: random numbers are drawn only when the initial particles are generated.
+// Checkpoint/restart of the explicit, orb and islands schemes. A checkpoint holds everything the
+// next step reads: every particle field (velocities at the half step the integrator holds, forces,
+// rotation), the neighbor list exactly as built (rows in order, reference positions) and the
+// tangential contact history, the step counters, the diagnostics rows so far, the snapshot index,
+// and the resolved configuration. A run restarted from it continues bit for bit (the cell-list
+// order, the force sum order and the rebuild schedule are those of the run that wrote it). There is
+// no RNG state to keep: random numbers are drawn only when the initial particles are generated.
 //
 // With a gas (coupled scenes) it also holds, under /gas, the gas solver's state and the coupling
 // counters (GasCoupling::State) and the coupled loop's position (CoupledLoopState); it is written

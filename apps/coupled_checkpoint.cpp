@@ -127,16 +127,16 @@ void restore_coupled_gas(Checkpoint& ck, const std::string& path, GasCoupling& g
 
 template void write_coupled_checkpoint(const std::string&, Checkpoint,
                                        dem::DistributedExplicitScheme&, const ParticleStore&,
-                                       const GasCoupling&, const CoupledLoopState&,
-                                       const GasBlock&, const Communicator&);
+                                       const GasCoupling&, const CoupledLoopState&, const GasBlock&,
+                                       const Communicator&);
 template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::DistributedOrbScheme&,
                                        const ParticleStore&, const GasCoupling&,
                                        const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
 template void write_coupled_checkpoint(const std::string&, Checkpoint,
                                        dem::DistributedIslandsScheme&, const ParticleStore&,
-                                       const GasCoupling&, const CoupledLoopState&,
-                                       const GasBlock&, const Communicator&);
+                                       const GasCoupling&, const CoupledLoopState&, const GasBlock&,
+                                       const Communicator&);
 template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
                                      dem::OrbScheme::State, dem::DistributedOrbScheme&);
 template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,

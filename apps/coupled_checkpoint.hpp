@@ -2,9 +2,9 @@
 // the file a one-rank coupled run writes (apps/checkpoint.hpp), so either restarts the other.
 // What the R-rank loop holds at a fluid-step boundary goes in as follows:
 //   - the particles (explicit; orb and islands: apps/rank_checkpoint.hpp, their save_state() and
-//     per-particle values): the scheme is put in its canonical state first (as a DEM-only checkpoint
-//     on R ranks: the run goes on from that state, a restart rebuilds the same), then gathered
-//     to rank 0 in id order with the scheme's counters, and with friction their spin and
+//     per-particle values): the scheme is put in its canonical state first (as a DEM-only
+//     checkpoint on R ranks: the run goes on from that state, a restart rebuilds the same), then
+//     gathered to rank 0 in id order with the scheme's counters, and with friction their spin and
 //     contact history (apps/rank_checkpoint.hpp; the neighbor list is rebuilt);
 //   - the gas force the scheme holds over the sub-cycle: the last gas step's force, gathered by
 //     particle id (particles may have changed rank since; the value is the one held);
@@ -20,11 +20,11 @@
 
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_step.hpp"
+#include "apps/rank_checkpoint.hpp"
 #include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/contact_history.hpp"
-#include "apps/rank_checkpoint.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
 
 namespace cfddem::apps {

@@ -13,20 +13,20 @@
 
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_checkpoint.hpp"
+#include "apps/coupled_schedule.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
-#include "apps/gas_rebalance.hpp"
-#include "apps/coupled_schedule.hpp"
 #include "apps/diagnostics_file.hpp"
+#include "apps/gas_rebalance.hpp"
 #include "apps/gas_routing.hpp"
 #include "apps/rank_checkpoint.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
 #include "core/atomic_file.hpp"
 #include "core/communicator.hpp"
-#include "core/particle_snapshot.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
+#include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
 #include "dem/distributed_islands_scheme.hpp"
@@ -83,8 +83,8 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   ParticleStore particles = rank_share(scene_in, ck, comm, &taken);
   // Sub-iterated: this rank's share of the scheme state (orb: half steps and costs; islands:
   // half steps and fine-sub-iteration counts).
-  using SavedState = typename SubiteratedState<std::conditional_t<
-      kSub, Scheme, dem::DistributedOrbScheme>>::State;
+  using SavedState =
+      typename SubiteratedState<std::conditional_t<kSub, Scheme, dem::DistributedOrbScheme>>::State;
   std::optional<SavedState> saved;
   if constexpr (kSub)
     if (ck)
@@ -139,7 +139,8 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   const double end = scene.run.end_time;
   if (ck && ck->dt != dt)
     throw ConfigError(opt.restart, fmt::format("checkpoint particle step {:.17g} s differs from "
-                                               "the scene's {:.17g} s", ck->dt, dt));
+                                               "the scene's {:.17g} s",
+                                               ck->dt, dt));
   if (ck && ck->loop.time > end + 1e-6 * dt)
     throw ConfigError("run.end_time", fmt::format("the checkpoint is at t = {:.17g} s, past the "
                                                   "end of the run ({:.17g} s)",
@@ -182,20 +183,19 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   };
   if (!opt.quiet && root) {
     const auto& c = scene.fluid.cells;
-    fmt::print(stderr,
-               "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
-               "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-               "thread(s), {} scheme{}\n",
-               scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
-               fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
-                     : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-               dt,
-               fixed ? fmt::format(" ({} {} per fluid step)", n_fixed,
-                                   kSub ? "sub-iterations" : "steps")
-                     : std::string(),
-               env.ranks(), env.threads(), scheme_name,
-               ck ? fmt::format(", restarted at t = {:.6e} s from {}", ck->loop.time, opt.restart)
-                  : "");
+    fmt::print(
+        stderr,
+        "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
+        "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
+        "thread(s), {} scheme{}\n",
+        scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
+        fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
+              : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
+        dt,
+        fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kSub ? "sub-iterations" : "steps")
+              : std::string(),
+        env.ranks(), env.threads(), scheme_name,
+        ck ? fmt::format(", restarted at t = {:.6e} s from {}", ck->loop.time, opt.restart) : "");
   }
   // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
   // kept before start() shifts them to the half step.
@@ -395,8 +395,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       // The gas box now (a gas regrid may have moved it from the count cut).
       const GasBlock block{block0.cells, gas.boxes()[static_cast<std::size_t>(comm.rank())]};
       write_coupled_checkpoint(
-          (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps))
-              .string(),
+          (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", loop.fluid_steps)).string(),
           checkpoint_header(scene_in, scheme_name, dt, loop.fluid_steps, k_last_row, rows,
                             snapshots ? snapshots->entries() : std::vector<SnapshotEntry>{}),
           scheme, particles, gas, loop, block, comm);
@@ -490,7 +489,8 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
                            "and their force back once per fluid step (boxes cut by cell count, "
                            "then by weight at gas regrids)";
       double worst = 0.0;
-      for (const double r : routing_seconds) worst = std::max(worst, r);
+      for (const double r : routing_seconds)
+        worst = std::max(worst, r);
       j["gas_routing_seconds"] = routing_seconds;
       j["gas_routing_seconds_per_fluid_step"] =
           loop.fluid_steps > 0 ? worst / static_cast<double>(loop.fluid_steps) : 0.0;

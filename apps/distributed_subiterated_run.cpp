@@ -111,18 +111,19 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
     write_snapshot(f);
   };
   if (!opt.quiet && root)
-    fmt::print(stderr,
-               "cfddem: scene '{}', {} particles, {} scheme{}, dt_sp = {:.4e} s (fine dt = "
-               "{:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s){}\n",
-               scene.name, n_total, Sub::kName,
-               [&] {
-                 if constexpr (kOrb)
-                   return fmt::format(": {} leaves", scheme.leaf_count());
-                 else
-                   return std::string();
-               }(),
-               dt_sp, scheme.dt_fine(), n_end, env.ranks(), env.threads(),
-               ck ? fmt::format(", restarted at sub-iteration {} from {}", k0, opt.restart) : "");
+    fmt::print(
+        stderr,
+        "cfddem: scene '{}', {} particles, {} scheme{}, dt_sp = {:.4e} s (fine dt = "
+        "{:.4e} s), {} sub-iterations, {} rank(s) x {} thread(s){}\n",
+        scene.name, n_total, Sub::kName,
+        [&] {
+          if constexpr (kOrb)
+            return fmt::format(": {} leaves", scheme.leaf_count());
+          else
+            return std::string();
+        }(),
+        dt_sp, scheme.dt_fine(), n_end, env.ranks(), env.threads(),
+        ck ? fmt::format(", restarted at sub-iteration {} from {}", k0, opt.restart) : "");
   const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
@@ -136,8 +137,8 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
   } else {
     scheme.start();
     PhaseTimer::Scope io(timer, Phase::io);
-    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx,
-                                  particles.vy, particles.vz, particles.mass},
+    const auto s0 = dem::measure({particles.x, particles.y, particles.z, particles.vx, particles.vy,
+                                  particles.vz, particles.mass},
                                  comm);
     add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{},
                 means.next(0.0, s0.mean_velocity)));
@@ -161,8 +162,8 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
       try {
         if (diag)
           diag->flush();
-        write_checkpoint(
-            (fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(), c);
+        write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
+                         c);
       } catch (const std::exception& e) {
         error = e.what();
       }
@@ -194,8 +195,8 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
       last_progress = clock::now();
       const double wall = seconds_since(t_loop);
       const double frac = static_cast<double>(k) / static_cast<double>(n_end);
-      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}\n",
-                 k, scheme.time(), 100 * frac, kOrb ? "leaves" : "particles",
+      fmt::print(stderr, "sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}\n", k,
+                 scheme.time(), 100 * frac, kOrb ? "leaves" : "particles",
                  scheme.last_fine_fraction(),
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }

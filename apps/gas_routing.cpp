@@ -57,7 +57,8 @@ const ParticleStore& GasRouting::route(const ParticleStore& p, std::size_t owned
     ++send_counts_[static_cast<std::size_t>(r)];
   }
   std::vector<std::size_t> at(static_cast<std::size_t>(ranks) + 1, 0);
-  for (int r = 0; r < ranks; ++r) at[r + 1] = at[r] + static_cast<std::size_t>(send_counts_[r]);
+  for (int r = 0; r < ranks; ++r)
+    at[r + 1] = at[r] + static_cast<std::size_t>(send_counts_[r]);
   sent_away_ = owned - static_cast<std::size_t>(send_counts_[static_cast<std::size_t>(me)]);
   slot_.resize(owned);
   sent_id_.resize(owned);
@@ -106,7 +107,8 @@ void GasRouting::return_force(const std::array<std::span<const double>, 3>& f) {
   std::vector<std::int64_t> back = send_counts_;
   sparse_exchange(comm_, recv_counts_, send_, back, recv_, kBack, true);
   const std::size_t owned = slot_.size();
-  for (auto& v : force_) v.resize(owned);
+  for (auto& v : force_)
+    v.resize(owned);
   for (std::size_t i = 0; i < owned; ++i) {
     const double* in = recv_.data() + static_cast<std::size_t>(slot_[i]) * kBack;
     if (std::bit_cast<std::int64_t>(in[3]) != sent_id_[slot_[i]])

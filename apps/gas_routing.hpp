@@ -54,11 +54,11 @@ private:
   const Communicator& comm_;
   partition::RankDecomposition boxes_;
   dem::DomainGeometry geom_;
-  ParticleStore box_;                       // the particles this rank's gas box deposits
+  ParticleStore box_; // the particles this rank's gas box deposits
   std::vector<std::int64_t> send_counts_, recv_counts_;
-  std::vector<std::uint32_t> slot_;         // per owned particle: its place in the send order
-  std::vector<std::int64_t> sent_id_;       // ids in the send order (checked on return)
-  std::vector<std::uint32_t> arrival_;      // per box store entry: its place in the arrivals
+  std::vector<std::uint32_t> slot_;    // per owned particle: its place in the send order
+  std::vector<std::int64_t> sent_id_;  // ids in the send order (checked on return)
+  std::vector<std::uint32_t> arrival_; // per box store entry: its place in the arrivals
   std::vector<double> send_, recv_;
   std::array<std::vector<double>, 3> force_;
   std::size_t sent_away_ = 0;

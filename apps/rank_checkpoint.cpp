@@ -100,11 +100,17 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
   typename Sub::State state = scheme.save_state();
   const std::vector<double> own_second = Sub::second(state);
   const std::size_t n = scheme.owned();
-  const std::span<const double> own[] = {
-      {particles.x.data(), n},      {particles.y.data(), n},    {particles.z.data(), n},
-      {particles.vx.data(), n},     {particles.vy.data(), n},   {particles.vz.data(), n},
-      {particles.radius.data(), n}, {particles.mass.data(), n}, {particles.inv_mass.data(), n},
-      state.hprev,                  own_second};
+  const std::span<const double> own[] = {{particles.x.data(), n},
+                                         {particles.y.data(), n},
+                                         {particles.z.data(), n},
+                                         {particles.vx.data(), n},
+                                         {particles.vy.data(), n},
+                                         {particles.vz.data(), n},
+                                         {particles.radius.data(), n},
+                                         {particles.mass.data(), n},
+                                         {particles.inv_mass.data(), n},
+                                         state.hprev,
+                                         own_second};
   std::vector<double> all[11];
   for (int q = 0; q < 11; ++q)
     all[q] = comm.gather(own[q]);
@@ -121,10 +127,9 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
       std::vector<double> second_all(ids.size());
       state.hprev.resize(ids.size());
       std::vector<double>* field[11] = {
-          &c.particles.x,      &c.particles.y,    &c.particles.z,
-          &c.particles.vx,     &c.particles.vy,   &c.particles.vz,
-          &c.particles.radius, &c.particles.mass, &c.particles.inv_mass,
-          &state.hprev,        &second_all};
+          &c.particles.x,        &c.particles.y,  &c.particles.z,      &c.particles.vx,
+          &c.particles.vy,       &c.particles.vz, &c.particles.radius, &c.particles.mass,
+          &c.particles.inv_mass, &state.hprev,    &second_all};
       for (std::size_t i = 0; i < order.size(); ++i) {
         for (int q = 0; q < 11; ++q)
           (*field[q])[i] = all[q][order[i]];
@@ -141,15 +146,14 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
 }
 
 template <class Scheme>
-typename SubiteratedState<Scheme>::State subiterated_share(Checkpoint& ck,
-                                                           const std::vector<std::uint32_t>& mine,
-                                                           std::size_t particles,
-                                                           const std::string& path) {
+typename SubiteratedState<Scheme>::State
+subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::size_t particles,
+                  const std::string& path) {
   using Sub = SubiteratedState<Scheme>;
   typename Sub::State state = std::move(Sub::in(ck));
   if (state.hprev.size() != particles || Sub::second_size(state) != particles)
-    throw ConfigError(path, fmt::format("the {} state does not fit the checkpoint's particles",
-                                        Sub::kName));
+    throw ConfigError(
+        path, fmt::format("the {} state does not fit the checkpoint's particles", Sub::kName));
   const std::vector<double> second = Sub::second(state);
   std::vector<double> h, q;
   for (const std::uint32_t i : mine)

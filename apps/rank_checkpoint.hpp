@@ -26,8 +26,7 @@ namespace cfddem::apps {
 // Collective, after scheme.canonicalize(). Fills c.particles and c.state on rank 0 (other ranks'
 // `c` is left as it is). Throws RunError on every rank when the history does not fit.
 void gather_rank_particles(const dem::DistributedExplicitScheme& scheme,
-                           const ParticleStore& particles, const Communicator& comm,
-                           Checkpoint& c);
+                           const ParticleStore& particles, const Communicator& comm, Checkpoint& c);
 
 // The contact history a checkpoint holds (rows over its particles) as records by id, for
 // DistributedExplicitScheme::restore; empty without friction. Call before the particles are
@@ -72,9 +71,8 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
 // (`mine`: the checkpoint's particles rank_share gave this rank, in that order), for
 // scheme.restore_state. Throws ConfigError naming `path` when they do not fit the particles.
 template <class Scheme>
-typename SubiteratedState<Scheme>::State subiterated_share(Checkpoint& ck,
-                                                           const std::vector<std::uint32_t>& mine,
-                                                           std::size_t particles,
-                                                           const std::string& path);
+typename SubiteratedState<Scheme>::State
+subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::size_t particles,
+                  const std::string& path);
 
 } // namespace cfddem::apps

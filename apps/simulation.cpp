@@ -18,11 +18,11 @@
 
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_distributed.hpp"
+#include "apps/coupled_schedule.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "apps/diagnostics_file.hpp"
 #include "apps/distributed_subiterated_run.hpp"
-#include "apps/coupled_schedule.hpp"
 #include "apps/rank_checkpoint.hpp"
 #include "apps/rank_setup.hpp"
 #include "apps/run_output.hpp"
@@ -36,9 +36,9 @@
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/granular_diagnostics.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
-#include "dem/granular_diagnostics.hpp"
 
 namespace cfddem::apps {
 
@@ -109,7 +109,8 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
       return run_coupled_distributed(scene, opt, env);
     }
     if (scene.dem.scheme == "orb") return run_distributed_orb(scene, opt, env);
-    if (scene.dem.scheme == "islands") return run_distributed_islands(scene, opt, env);
+    if (scene.dem.scheme == "islands")
+      return run_distributed_islands(scene, opt, env);
     return run_distributed(scene, opt, env);
   }
   if (scene.fluid.enabled) {
@@ -480,7 +481,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   // With friction the checkpoint's history rows (over its particles) become records by id,
   // which restore() hands to each particle's owner.
   dem::ContactHistory saved_history;
-  if (ck) saved_history = saved_contact_history(*ck);
+  if (ck)
+    saved_history = saved_contact_history(*ck);
   ParticleStore particles = rank_share(scene, ck, comm);
   dem::ParticleRange range;
   const DerivedNumbers derived = derive(scene, particles, comm, &range);
@@ -593,7 +595,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     std::string error;
     if (root) {
       try {
-        if (diag) diag->flush();
+        if (diag)
+          diag->flush();
         write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(), c);
       } catch (const std::exception& e) {
         error = e.what();

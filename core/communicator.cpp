@@ -56,13 +56,16 @@ void sum_then_max(void* in, void* inout, int* len, MPI_Datatype*) {
   const auto* a = static_cast<const double*>(in);
   auto* b = static_cast<double*>(inout);
   const auto n = static_cast<int>(a[0]);
-  for (int k = 1; k <= n; ++k) b[k] += a[k];
-  for (int k = n + 1; k < *len; ++k) b[k] = a[k] > b[k] ? a[k] : b[k];
+  for (int k = 1; k <= n; ++k)
+    b[k] += a[k];
+  for (int k = n + 1; k < *len; ++k)
+    b[k] = a[k] > b[k] ? a[k] : b[k];
 }
 } // namespace
 
 void Communicator::sum_max(std::span<double> sums, std::span<double> maxes) const {
-  if (size_ == 1) return;
+  if (size_ == 1)
+    return;
   static MPI_Op op = [] {
     MPI_Op o;
     MPI_Op_create(&sum_then_max, 1, &o);

@@ -68,7 +68,8 @@ File File::open_write(const std::string& path) {
   File f;
   f.path_ = path;
   f.file_ = Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT), H5Fclose);
-  if (!f.file_.valid()) throw RunError(fmt::format("cannot open HDF5 file '{}' to write", path));
+  if (!f.file_.valid())
+    throw RunError(fmt::format("cannot open HDF5 file '{}' to write", path));
   return f;
 }
 
@@ -214,11 +215,13 @@ template <class T> Array<T> File::read_raw(const std::string& name, hid_t type) 
 }
 
 std::vector<hsize_t> File::shape(const std::string& name) const {
-  if (!exists(name)) throw RunError(fmt::format("{}: dataset '{}' is missing", path_, name));
+  if (!exists(name))
+    throw RunError(fmt::format("{}: dataset '{}' is missing", path_, name));
   Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
   Handle space(set.valid() ? H5Dget_space(set.get()) : H5I_INVALID_HID, H5Sclose);
   const int rank = space.valid() ? H5Sget_simple_extent_ndims(space.get()) : -1;
-  if (rank < 0) throw RunError(fmt::format("{}: cannot open dataset '{}'", path_, name));
+  if (rank < 0)
+    throw RunError(fmt::format("{}: cannot open dataset '{}'", path_, name));
   std::vector<hsize_t> dims(static_cast<std::size_t>(rank));
   H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
   return dims;
@@ -228,11 +231,13 @@ std::vector<double> File::read_block(const std::string& name, const std::vector<
                                      const std::vector<hsize_t>& count) const {
   const std::vector<hsize_t> dims = shape(name);
   bool fits = start.size() == dims.size() && count.size() == dims.size();
-  for (std::size_t a = 0; fits && a < dims.size(); ++a) fits = start[a] + count[a] <= dims[a];
+  for (std::size_t a = 0; fits && a < dims.size(); ++a)
+    fits = start[a] + count[a] <= dims[a];
   if (!fits)
     throw RunError(fmt::format("{}: the block asked of dataset '{}' lies outside it", path_, name));
   std::vector<double> v(product(count));
-  if (v.empty()) return v;
+  if (v.empty())
+    return v;
   Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
   Handle space(set.valid() ? H5Dget_space(set.get()) : H5I_INVALID_HID, H5Sclose);
   Handle mem(H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr), H5Sclose);

@@ -337,16 +337,19 @@ void ParticleExchange::forward_columns(std::span<std::vector<double>* const> col
   for (const std::vector<double>* v : columns)
     if (v->size() != owned_ + recv_total_)
       throw std::invalid_argument("ParticleExchange::forward_columns: one value per particle");
-  if (stride == 0) return;
+  if (stride == 0)
+    return;
   std::vector<double> send(plan_.size() * columns.size()), recv;
   double* out = send.data();
   for (const Copy& c : plan_)
-    for (const std::vector<double>* v : columns) *out++ = (*v)[c.index];
+    for (const std::vector<double>* v : columns)
+      *out++ = (*v)[c.index];
   std::vector<std::int64_t> counts = recv_counts_;
   exchange(send_counts_, send, counts, recv, stride, true);
   const double* in = recv.data();
   for (std::size_t g = owned_; g < owned_ + recv_total_; ++g)
-    for (std::vector<double>* v : columns) (*v)[g] = *in++;
+    for (std::vector<double>* v : columns)
+      (*v)[g] = *in++;
 }
 
 } // namespace cfddem

@@ -59,8 +59,7 @@ public:
   // any number per particle): `records` holds records of `stride` doubles, record q goes to rank
   // dest[q]. Returns the records this rank receives, by source rank, each source's in its order
   // (its own included). Leaves the ghost plan alone.
-  std::vector<double> route(std::span<const int> dest, std::span<const double> records,
-                            int stride);
+  std::vector<double> route(std::span<const int> dest, std::span<const double> records, int stride);
   // Refresh the ghosts' x and v (and w, with rotation) from their owners along the plan
   // (positions shifted again).
   void forward(ParticleStore& p) {
@@ -94,7 +93,7 @@ private:
   std::size_t owned_ = 0, recv_total_ = 0;
   std::vector<double> send_buf_, recv_buf_;
   std::vector<double> fwd_send_, fwd_recv_;
-  int fwd_stride_ = 6; // x, v; and w with rotation
+  int fwd_stride_ = 6;             // x, v; and w with rotation
   std::shared_ptr<void> requests_; // std::vector<MPI_Request> of a forward in flight
 };
 

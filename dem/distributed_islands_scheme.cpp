@@ -75,10 +75,11 @@ void DistributedIslandsScheme::set_external_force(std::span<const double> fx,
 }
 
 void DistributedIslandsScheme::replace_external_force(std::span<const double> fx,
-                                   std::span<const double> fy,
-                                   std::span<const double> fz) {
+                                                      std::span<const double> fy,
+                                                      std::span<const double> fz) {
   if (fx.size() == owned_ && hprev_.size() >= owned_)
-    settle_owed_half_kick(std::span<double>(p_.vx).first(owned_), std::span<double>(p_.vy).first(owned_),
+    settle_owed_half_kick(std::span<double>(p_.vx).first(owned_),
+                          std::span<double>(p_.vy).first(owned_),
                           std::span<double>(p_.vz).first(owned_), p_.inv_mass,
                           std::span<const double>(hprev_).first(owned_), ex_, ey_, ez_, fx, fy, fz);
   set_external_force(fx, fy, fz); // checks the sizes on every rank
@@ -765,13 +766,14 @@ IslandsScheme::State DistributedIslandsScheme::save_state() {
   s.fine_subits.resize(owned_);
   for (std::size_t i = 0; i < owned_; ++i)
     s.fine_subits[i] = static_cast<std::int64_t>(fine_[i]);
-  s.counters = {subits_,     particle_steps_, pair_evaluations_, builds_,
-                overlap_violations_, bound_violations_, global_subits_, iv_fine_,
-                iv_particles_, iv_steps_,     iv_min_,           iv_max_};
+  s.counters = {
+      subits_,           particle_steps_, pair_evaluations_, builds_,       overlap_violations_,
+      bound_violations_, global_subits_,  iv_fine_,          iv_particles_, iv_steps_,
+      iv_min_,           iv_max_};
   s.max_overlap_ratio = max_overlap_ratio_;
   s.last_fine_fraction = last_fine_fraction_;
-  s.rank_counters = {regrids_, retries_, expired_builds_, span_subits_, span_particles_,
-                     span_parts_};
+  s.rank_counters = {regrids_,     retries_,        expired_builds_,
+                     span_subits_, span_particles_, span_parts_};
   s.rank_values = {max_ratio_local_};
   return s;
 }

@@ -68,8 +68,8 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
-#include "dem/external_force.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/external_force.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_local_rows.hpp"
 #include "dem/orb_scheme.hpp"
@@ -191,7 +191,7 @@ private:
   std::vector<double> bound_, own_bound_;
   std::vector<double> x_ref_, y_ref_, z_ref_; // owned positions at the last build
   std::vector<double> imbalances_;
-  std::vector<std::uint32_t> leaf0_;          // all zero: the rows' one "leaf" of owned particles
+  std::vector<std::uint32_t> leaf0_; // all zero: the rows' one "leaf" of owned particles
   OrbLocalRows rows_;
   static constexpr std::uint32_t kAlone = 0xffffffffu;
   std::vector<std::uint32_t> ea_, eb_, tied_, busy_v_, la_, lb_, island_of_, members_;

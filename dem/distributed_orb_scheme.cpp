@@ -544,10 +544,11 @@ void DistributedOrbScheme::set_external_force(std::span<const double> fx,
 }
 
 void DistributedOrbScheme::replace_external_force(std::span<const double> fx,
-                                   std::span<const double> fy,
-                                   std::span<const double> fz) {
+                                                  std::span<const double> fy,
+                                                  std::span<const double> fz) {
   if (fx.size() == owned_ && hprev_.size() >= owned_)
-    settle_owed_half_kick(std::span<double>(p_.vx).first(owned_), std::span<double>(p_.vy).first(owned_),
+    settle_owed_half_kick(std::span<double>(p_.vx).first(owned_),
+                          std::span<double>(p_.vy).first(owned_),
                           std::span<double>(p_.vz).first(owned_), p_.inv_mass,
                           std::span<const double>(hprev_).first(owned_), ex_, ey_, ez_, fx, fy, fz);
   set_external_force(fx, fy, fz); // checks the sizes on every rank

@@ -59,9 +59,8 @@ private:
 // this matters (a small riser's total momentum was off by dt_sp/2 x the gas force, 0.4% of its
 // growth at dt_sp = dt_f / 10); the explicit schemes' h is dt/2 and they keep the plain
 // replacement. The first n particles of the spans; an empty old or new force counts as zero.
-inline void settle_owed_half_kick(std::span<double> vx, std::span<double> vy,
-                                  std::span<double> vz, std::span<const double> inv_mass,
-                                  std::span<const double> h,
+inline void settle_owed_half_kick(std::span<double> vx, std::span<double> vy, std::span<double> vz,
+                                  std::span<const double> inv_mass, std::span<const double> h,
                                   std::span<const double> ox, std::span<const double> oy,
                                   std::span<const double> oz, std::span<const double> nx,
                                   std::span<const double> ny, std::span<const double> nz) {

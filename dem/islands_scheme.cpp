@@ -89,7 +89,8 @@ void IslandsScheme::restore_state(State s) {
   const std::size_t n = p_.size();
   check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
   // An R-rank checkpoint holds no histogram: it counts from the restart on.
-  if (s.size_hist.empty()) s.size_hist.assign(size_hist_.size(), 0);
+  if (s.size_hist.empty())
+    s.size_hist.assign(size_hist_.size(), 0);
   if (s.hprev.size() != n || s.fine_subits.size() != n || s.size_hist.size() != size_hist_.size() ||
       s.counters.size() != 12 || !(s.skin > 0.0))
     throw RunError("checkpoint: the islands scheme's state does not fit the particles");
@@ -117,11 +118,12 @@ void IslandsScheme::set_external_force(std::span<const double> fx, std::span<con
 }
 
 void IslandsScheme::replace_external_force(std::span<const double> fx, std::span<const double> fy,
-                                  std::span<const double> fz) {
+                                           std::span<const double> fz) {
   // hprev_ was sized at construction; after a checkpoint restore it is the saved one.
   if (ext_.active() || !fx.empty())
-    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass, std::span<const double>(hprev_).first(p_.size()),
-                          ext_.x, ext_.y, ext_.z, fx, fy, fz);
+    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass,
+                          std::span<const double>(hprev_).first(p_.size()), ext_.x, ext_.y, ext_.z,
+                          fx, fy, fz);
   set_external_force(fx, fy, fz);
 }
 

@@ -816,11 +816,12 @@ void OrbScheme::set_external_force(std::span<const double> fx, std::span<const d
 }
 
 void OrbScheme::replace_external_force(std::span<const double> fx, std::span<const double> fy,
-                                  std::span<const double> fz) {
+                                       std::span<const double> fz) {
   // hprev_ was sized at construction; after a checkpoint restore it is the saved one.
   if (ext_.active() || !fx.empty())
-    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass, std::span<const double>(hprev_).first(p_.size()),
-                          ext_.x, ext_.y, ext_.z, fx, fy, fz);
+    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass,
+                          std::span<const double>(hprev_).first(p_.size()), ext_.x, ext_.y, ext_.z,
+                          fx, fy, fz);
   set_external_force(fx, fy, fz);
 }
 

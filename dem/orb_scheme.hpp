@@ -62,8 +62,8 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
-#include "dem/external_force.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/external_force.hpp"
 #include "partition/orb_tree.hpp"
 
 namespace cfddem::dem {

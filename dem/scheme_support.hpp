@@ -24,7 +24,8 @@ inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(
 // a whole number of cells (the box is the unit of both the particles and the fluid); none
 // without. The serial and the distributed orb scheme must agree on it to share their leaves.
 inline std::optional<partition::Grid> orb_snap_grid(const Scene& scene) {
-  if (!scene.fluid.enabled) return std::nullopt;
+  if (!scene.fluid.enabled)
+    return std::nullopt;
   partition::Grid grid;
   for (int a = 0; a < 3; ++a)
     grid.origin[a] = scene.domain.lo[a],

@@ -41,7 +41,8 @@ ParticleStore share(const Communicator& comm) {
   ParticleStore p;
   for (std::int64_t i = 0; i < 500; ++i) {
     const double x = u(rng), y = 2.0 * u(rng), z = u(rng);
-    if (i % comm.size() != comm.rank()) continue;
+    if (i % comm.size() != comm.rank())
+      continue;
     const double shift = i % 5 == 0 ? 1.0 : 0.0; // an unwrapped image
     p.add(x + shift, y, z - shift, 0.1 * x, 0.2 * y, 0.3 * z, 0.01, 1000.0, i);
   }
@@ -68,14 +69,16 @@ TEST(GasRouting, EveryParticleReachesItsBoxAndItsForceComesBack) {
     reverse[i] = static_cast<std::uint32_t>(p.size() - 1 - i);
   p.permute(reverse);
   const ParticleStore& box = routing.route(p, p.size());
-  for (std::size_t q = 1; q < box.size(); ++q) EXPECT_LT(box.id[q - 1], box.id[q]);
+  for (std::size_t q = 1; q < box.size(); ++q)
+    EXPECT_LT(box.id[q - 1], box.id[q]);
   // None lost or duplicated: the ids over the ranks are 0..499 once each.
   const std::vector<std::int64_t> all = comm.gather(std::span<const std::int64_t>(box.id));
   if (comm.rank() == 0) {
     std::vector<std::int64_t> sorted = all;
     std::sort(sorted.begin(), sorted.end());
     ASSERT_EQ(sorted.size(), 500u);
-    for (std::int64_t i = 0; i < 500; ++i) EXPECT_EQ(sorted[static_cast<std::size_t>(i)], i);
+    for (std::int64_t i = 0; i < 500; ++i)
+      EXPECT_EQ(sorted[static_cast<std::size_t>(i)], i);
   }
   // Each copy is in this rank's box, wrapped, with its velocity and radius.
   for (std::size_t q = 0; q < box.size(); ++q) {
@@ -86,7 +89,8 @@ TEST(GasRouting, EveryParticleReachesItsBoxAndItsForceComesBack) {
   }
   std::array<std::vector<double>, 3> f;
   for (int a = 0; a < 3; ++a)
-    for (std::size_t q = 0; q < box.size(); ++q) f[a].push_back(force_of(box, q, a));
+    for (std::size_t q = 0; q < box.size(); ++q)
+      f[a].push_back(force_of(box, q, a));
   routing.return_force({f[0], f[1], f[2]});
   // Back in the owner's order, each the value computed from its own copy.
   for (std::size_t i = 0; i < p.size(); ++i) {
@@ -112,7 +116,8 @@ TEST(GasRouting, IsTheIdentityForGasBoxOwners) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (std::int64_t i = 0; i < 400; ++i) {
     const double x = u(rng), y = 2.0 * u(rng), z = u(rng);
-    if (s.boxes.owner_of(x, y, z) == comm.rank()) p.add(x, y, z, 0.0, 0.0, 0.0, 0.01, 1000.0, i);
+    if (s.boxes.owner_of(x, y, z) == comm.rank())
+      p.add(x, y, z, 0.0, 0.0, 0.0, 0.01, 1000.0, i);
   }
   const ParticleStore& box = routing.route(p, p.size());
   EXPECT_EQ(routing.sent_away(), 0u);

@@ -27,8 +27,8 @@
 namespace cfddem {
 namespace {
 
-using demtest::scene_from;
 using demtest::run_explicit_with_threads;
+using demtest::scene_from;
 using demtest::share;
 
 // A dense granular gas (phi ~ 0.25, so particles collide within a few hundred steps) in a
@@ -79,7 +79,6 @@ end_time = 1.0e-3
 Communicator comm() {
   return Communicator::world();
 }
-
 
 std::map<std::int64_t, std::size_t> index_by_id(const ParticleStore& p, std::size_t n) {
   std::map<std::int64_t, std::size_t> m;
@@ -339,9 +338,9 @@ TEST(DistributedExplicit, ClusteredParticlesStayBalanced) {
   EXPECT_LT(imbalance, 1.2); // 16 boxes of ~equal counts: 6/5/5 at worst over 3 ranks
 }
 
-
 TEST(DistributedExplicit, BitwiseIndependentOfThreadCount) {
-  const ParticleStore a = run_explicit_with_threads(kGas, 1, 150), b = run_explicit_with_threads(kGas, 2, 150);
+  const ParticleStore a = run_explicit_with_threads(kGas, 1, 150),
+                      b = run_explicit_with_threads(kGas, 2, 150);
   ASSERT_EQ(a.size(), b.size());
   EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.vx == b.vx && a.vy == b.vy &&
               a.vz == b.vz && a.id == b.id);

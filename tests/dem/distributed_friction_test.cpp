@@ -24,8 +24,8 @@
 namespace cfddem {
 namespace {
 
-using demtest::scene_from;
 using demtest::run_explicit_with_threads;
+using demtest::scene_from;
 using demtest::share;
 
 // A dense periodic gas (phi ~ 0.25) with friction: many contacts, spin exchanged.
@@ -80,7 +80,6 @@ end_time = 1.0e-3
 Communicator comm() {
   return Communicator::world();
 }
-
 
 template <class T> std::vector<T> all_gather(std::span<const T> mine) {
   const int ranks = comm().size();
@@ -293,9 +292,9 @@ TEST(DistributedFriction, RestartWithContactHistoryIsBitwise) {
   EXPECT_FALSE(forgot.x == full.x && forgot.wx == full.wx);
 }
 
-
 TEST(DistributedFriction, BitwiseIndependentOfThreadCount) {
-  const ParticleStore a = run_explicit_with_threads(kGas, 1, 100), b = run_explicit_with_threads(kGas, 2, 100);
+  const ParticleStore a = run_explicit_with_threads(kGas, 1, 100),
+                      b = run_explicit_with_threads(kGas, 2, 100);
   ASSERT_EQ(a.size(), b.size());
   EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.vx == b.vx && a.vy == b.vy &&
               a.vz == b.vz && a.wx == b.wx && a.wy == b.wy && a.wz == b.wz && a.id == b.id);

@@ -25,10 +25,10 @@
 namespace cfddem {
 namespace {
 
-using demtest::scene_from;
-using demtest::share;
 using demtest::apply_force;
 using demtest::force_of;
+using demtest::scene_from;
+using demtest::share;
 
 // A dense granular gas (phi ~ 0.25): islands everywhere, often the dense (global) mode.
 const char* kGas = R"(
@@ -82,7 +82,6 @@ constexpr int kSubits = 40;
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
-
 struct Outcome {
   State state;                        // serial: all; distributed: this rank's owned
   std::vector<double> kinetic_energy; // per sub-iteration, over all particles
@@ -96,7 +95,6 @@ State state_of(const ParticleStore& p, std::size_t n) {
     s[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
   return s;
 }
-
 
 Outcome serial_islands(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);

@@ -16,8 +16,8 @@
 
 #include "core/communicator.hpp"
 #include "core/error.hpp"
-#include "core/particle_exchange.hpp"
 #include "core/initial_conditions.hpp"
+#include "core/particle_exchange.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/orb_scheme.hpp"
@@ -26,10 +26,10 @@
 namespace cfddem {
 namespace {
 
-using demtest::scene_from;
-using demtest::share;
 using demtest::apply_force;
 using demtest::force_of;
+using demtest::scene_from;
+using demtest::share;
 
 // A dense granular gas (phi ~ 0.25: collisions within a few sub-iterations, every leaf fine) in a
 // periodic box, 8 leaves; kHcs below is the dilute, HCS-like variant where leaves differ.
@@ -111,8 +111,6 @@ end_time = 1.0e-3
 constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
-
-
 
 State serial_orb(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);

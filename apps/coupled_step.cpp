@@ -209,7 +209,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
                                                      problem);
     if (!agreed.empty()) throw RunError(agreed);
   }
-  // Solid fraction -> eps_g (physics.md §7), floored (kMinGasFraction).
+  // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction).
   eps_s_.fill(0.0);
   deposition_->deposit_solid_fraction(pos, eps_s_);
   fluid::GridField& eps = solver_->volume_fraction();
@@ -232,7 +232,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     const std::span<double> out[] = {eps_p_, ug_[0], ug_[1], ug_[2]};
     deposition_->interpolate(pos, in, out);
   }
-  // beta_i from the drag law (physics.md §4) with the slip |u_g - v_i|.
+  // beta_i from the drag law (docs/theory.md §4) with the slip |u_g - v_i|.
   const double rho = scene_.fluid.density, mu = scene_.fluid.viscosity;
   for (std::size_t i = 0; i < n; ++i) {
     const double sx = ug_[0][i] - p.vx[i], sy = ug_[1][i] - p.vy[i], sz = ug_[2][i] - p.vz[i];

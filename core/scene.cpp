@@ -152,7 +152,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   s.output.snapshot_interval = non_negative(c, "output.snapshot_interval", 0.0);
   s.output.checkpoint_interval = non_negative(c, "output.checkpoint_interval", 0.0);
 
-  // Gas (optional): physics.md §4-§7.
+  // Gas (optional): docs/theory.md §4-§7.
   if (c.has("fluid")) {
     auto& f = s.fluid;
     f.enabled = true;

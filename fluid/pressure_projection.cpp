@@ -330,7 +330,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
               row[0] += coef;
               row[1 + 2 * a + side] = -coef;
             } else if (bc.kind == BoundaryKind::outflow) {
-              // phi = p_out on the face: ghost 2 p_out - phi (physics.md §5 outflow).
+              // phi = p_out on the face: ghost 2 p_out - phi (docs/theory.md §5 outflow).
               row[0] += 2.0 * coef;
               rhs += 2.0 * coef * bc.pressure;
             }

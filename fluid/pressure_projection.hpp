@@ -1,5 +1,5 @@
 // Projection of face velocities onto the model-A constraint div(eps u) = -d(eps)/dt
-// (physics.md §5): the variable-coefficient Poisson equation
+// (docs/theory.md §5): the variable-coefficient Poisson equation
 //   div(eps_f m_f grad phi) = div(eps_f u*) + d(eps)/dt,   u = u* - m_f grad phi,
 // solved with hypre's Struct interface, PCG preconditioned with PFMG (SMG as fallback).
 #pragma once

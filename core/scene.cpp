@@ -39,8 +39,14 @@ double non_negative(SceneConfig& c, const std::string& key, double fallback) {
 Scene read_scene(SceneConfig& c, const std::string& default_name) {
   Scene s;
   s.name = c.get_string("name", default_name);
-  require(!s.name.empty() && s.name.find('/') == std::string::npos, "name",
-          "must be a non-empty name without '/'");
+  // The run goes to runs/<name>: a name that is a path ('..', '/abs', 'a/b') would leave runs/.
+  require(!s.name.empty() && s.name != "." && s.name != ".." &&
+              s.name.find_first_of("/\\") == std::string::npos &&
+              s.name.find('\0') == std::string::npos,
+          "name",
+          fmt::format("must be a plain name (no '/', '\\', and not '.' or '..': the run goes to "
+                      "runs/<name>), got \"{}\"; use --out DIR to write elsewhere",
+                      s.name));
 
   // Domain.
   s.domain.lo = c.require_vec3("domain.lo");

@@ -91,6 +91,8 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
     cfg = cfddem::SceneConfig::from_string(cfddem::apps::kDefaultScene, "built-in HCS scene");
   } else {
     if (!fs::exists(a.scene)) throw cfddem::ConfigError(a.scene, "scene file not found");
+    if (fs::is_directory(a.scene))
+      throw cfddem::ConfigError(a.scene, "is a directory, not a scene file (give the .toml file)");
     cfg = cfddem::SceneConfig::from_file(a.scene);
     default_name = fs::path(a.scene).stem().string();
   }
@@ -242,6 +244,8 @@ int main(int argc, char** argv) {
       opt.out_dir = a.out.empty() ? (std::filesystem::path("runs") / scene.name).string() : a.out;
       opt.quiet = a.quiet || env.rank() != 0;
       opt.restart = a.restart;
+      // A particle count that cannot fit is named before the run directory is looked at.
+      cfddem::check_packing_feasible(scene);
       {
         // Rank 0 looks at (and with --overwrite clears) the run directory; every rank raises
         // its refusal alike, after rank 0 is done (agree_on_error is collective).

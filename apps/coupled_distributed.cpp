@@ -149,8 +149,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
   auto add_row = [&](std::vector<double> r) {
-    if (diag)
-      diag->add_row(r);
+    add_root_row(diag, r);
     rows.push_back(std::move(r));
   };
   // Snapshots: every rank's particles and gas box written collectively into one file (parallel
@@ -390,8 +389,6 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     }
     if (t >= next_ckpt - tol) {
       PhaseTimer::Scope io(timer, Phase::io);
-      if (diag)
-        diag->flush();
       // The gas box now (a gas regrid may have moved it from the count cut).
       const GasBlock block{block0.cells, gas.boxes()[static_cast<std::size_t>(comm.rank())]};
       write_coupled_checkpoint(
@@ -416,8 +413,6 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   }
   if (loop.row_pending || loop.snapshot_pending)
     particle_step(loop.row_pending, loop.snapshot_pending); // one step past the end, as on one rank
-  if (diag)
-    diag->flush();
   const double loop_seconds = seconds_since(t_loop);
   const std::vector<double> waits = comm.gather(comm.wait_seconds());
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));

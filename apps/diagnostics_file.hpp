@@ -1,9 +1,10 @@
 // diagnostics.csv: a header row and one row per output interval, numbers written with {:.17g} so
-// they round-trip. The whole file is rewritten atomically at each row (small: one row per
-// interval), at most once a second and at the end, so a reader never sees a torn row.
+// they round-trip. The header is written atomically (temporary file, rename); each row is then
+// appended with one write(2) the moment it is added, so a run that stops (an error, a signal, a
+// full disk) leaves every row before the stop on disk. A row that cannot be written whole is cut
+// off again (ftruncate), so the file never ends in a torn row.
 #pragma once
 
-#include <chrono>
 #include <string>
 #include <vector>
 
@@ -12,18 +13,22 @@ namespace cfddem::apps {
 class DiagnosticsFile {
 public:
   DiagnosticsFile(std::string path, std::vector<std::string> columns);
-  // Rows reach the disk at most every `flush_seconds` of wall time, and always on flush().
+  ~DiagnosticsFile();
+  DiagnosticsFile(DiagnosticsFile&& o) noexcept;
+  DiagnosticsFile& operator=(DiagnosticsFile&&) = delete;
+  DiagnosticsFile(const DiagnosticsFile&) = delete;
+  DiagnosticsFile& operator=(const DiagnosticsFile&) = delete;
+
+  // Appends the row to the file now; throws RunError (naming the file and the system's reason)
+  // when it cannot.
   void add_row(const std::vector<double>& values);
-  void flush();
   const std::vector<std::string>& columns() const { return columns_; }
 
 private:
   std::string path_;
   std::vector<std::string> columns_;
-  std::string text_;
-  std::chrono::steady_clock::time_point last_write_;
-  bool dirty_ = false;
-  static constexpr double flush_seconds = 1.0;
+  int fd_ = -1;
+  long long size_ = 0; // bytes written whole
 };
 
 } // namespace cfddem::apps

@@ -70,8 +70,7 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
   auto add_row = [&](std::vector<double> r) {
-    if (diag)
-      diag->add_row(r);
+    add_root_row(diag, r);
     rows.push_back(std::move(r));
   };
   auto every = [&](double interval) {
@@ -160,8 +159,6 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
     std::string error;
     if (root) {
       try {
-        if (diag)
-          diag->flush();
         write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(),
                          c);
       } catch (const std::exception& e) {
@@ -201,8 +198,6 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
-  if (diag)
-    diag->flush();
   const double loop_seconds = seconds_since(t_loop);
   const std::vector<double> waits = comm.gather(comm.wait_seconds());
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));

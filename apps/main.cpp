@@ -1,8 +1,12 @@
-// cfddem: the command-line program. `run` a scene, `check` it, or ask for --help.
-// Exit codes: 0 success, 1 usage, 2 configuration/input error, 3 run-time failure.
+// cfddem: the command-line program. `run` a scene, `check` it, or ask for --help / --version.
+// Exit codes: 0 success, 2 command-line, configuration or input error, 3 run-time failure
+// (docs/hostile_input.md).
+#include <charconv>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <new>
+#include <string_view>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
@@ -10,12 +14,16 @@
 #include "apps/coupled_step.hpp"
 #include "apps/default_scene.hpp"
 #include "apps/derived_numbers.hpp"
+#include "apps/run_directory.hpp"
 #include "apps/simulation.hpp"
+#include "core/communicator.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/parallel_env.hpp"
 #include "core/scene.hpp"
 #include "core/scene_config.hpp"
+
+#include <tbb/info.h>
 
 namespace {
 
@@ -26,7 +34,49 @@ struct Args {
   std::string out;
   bool quiet = false;
   std::string restart;
+  bool overwrite = false;
 };
+
+// --threads: a whole number >= 1 (CLI11's PositiveNumber accepts 0 and names a range of doubles).
+const CLI::Validator kThreadCount(
+    [](std::string& text) -> std::string {
+      long long v = 0;
+      const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+      if (ec != std::errc() || end != text.data() + text.size())
+        return "must be a whole number >= 1, got '" + text + "'";
+      if (v < 1)
+        return "must be >= 1, got " + text;
+      if (v > 1 << 16)
+        return "must be at most 65536, got " + text;
+      return {};
+    },
+    "INT>=1");
+
+// The command line did not parse: say why in one plain line and exit 2. A word where a
+// subcommand belongs that is none of them is named, with the subcommands there are.
+int command_line_error(const CLI::App& app, const CLI::ParseError& e, int argc, char** argv) {
+  std::vector<std::string> names;
+  for (const CLI::App* sub : app.get_subcommands([](const CLI::App*) { return true; }))
+    names.push_back(sub->get_name());
+  std::string first_word;
+  for (int i = 1; i < argc && first_word.empty(); ++i)
+    if (argv[i][0] != '-')
+      first_word = argv[i];
+  const bool known = std::find(names.begin(), names.end(), first_word) != names.end();
+  if (!first_word.empty() && !known)
+    fmt::print(stderr,
+               "cfddem: error: unknown command '{}' (the commands are: {}; see "
+               "`cfddem --help`)\n",
+               first_word, fmt::join(names, ", "));
+  else if (first_word.empty() && dynamic_cast<const CLI::RequiredError*>(&e) &&
+           std::string_view(e.what()).find("subcommand") != std::string_view::npos)
+    fmt::print(stderr, "cfddem: error: a command is required: {} (see `cfddem --help`)\n",
+               fmt::join(names, " or "));
+  else
+    fmt::print(stderr, "cfddem: error: {} (see `cfddem {} --help`)\n", e.what(),
+               known ? first_word : std::string());
+  return 2;
+}
 
 // Load the scene file (or the embedded HCS), apply key=value overrides, validate.
 cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
@@ -41,6 +91,8 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
     cfg = cfddem::SceneConfig::from_string(cfddem::apps::kDefaultScene, "built-in HCS scene");
   } else {
     if (!fs::exists(a.scene)) throw cfddem::ConfigError(a.scene, "scene file not found");
+    if (fs::is_directory(a.scene))
+      throw cfddem::ConfigError(a.scene, "is a directory, not a scene file (give the .toml file)");
     cfg = cfddem::SceneConfig::from_file(a.scene);
     default_name = fs::path(a.scene).stem().string();
   }
@@ -128,15 +180,20 @@ int main(int argc, char** argv) {
                "linear spring-dashpot contacts, velocity Verlet)"};
   app.footer(kKeysHelp);
   app.require_subcommand(1);
+  app.set_version_flag("--version", "cfddem " CFDDEM_VERSION, "print the version and exit");
   Args a;
   auto* run = app.add_subcommand("run", "run a scene (default: the built-in HCS)");
   run->add_option("scene", a.scene, "scene file (TOML)");
   run->add_option("overrides", a.overrides, "key=value overrides of scene keys");
-  run->add_option("--threads", a.threads, "TBB threads per rank (default: OMP_NUM_THREADS, else "
-                                          "the cores available)")
-      ->check(CLI::PositiveNumber);
+  run->add_option("--threads", a.threads,
+                  "TBB threads per rank (default: OMP_NUM_THREADS, else "
+                  "the cores available)")
+      ->check(kThreadCount);
   run->add_option("--out", a.out, "output directory (default runs/<scene name>)");
   run->add_flag("--quiet", a.quiet, "no progress lines");
+  run->add_flag("--overwrite", a.overwrite,
+                "replace the outputs of an earlier run in the output directory (without it, a "
+                "directory holding another run's outputs is refused)");
   run->add_option("--restart", a.restart,
                   "continue from a checkpoint file (checkpoint_<step>.h5 of the same scene: "
                   "explicit, orb or islands, with or without a gas, on any rank count); the run "
@@ -146,10 +203,30 @@ int main(int argc, char** argv) {
   check->add_option("scene", a.scene, "scene file (TOML)");
   check->add_option("overrides", a.overrides, "key=value overrides of scene keys");
 
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    return command_line_error(app, e, argc, argv);
+  }
 
   try {
     cfddem::ParallelEnv env(&argc, &argv, a.threads);
+    // Legal but almost surely a mistake: more threads than this process has cores to run them.
+    if (const int cores = tbb::info::default_concurrency(); a.threads > cores && env.rank() == 0)
+      fmt::print(stderr,
+                 "cfddem: warning: --threads {} exceeds the {} core(s) available to this "
+                 "process; the extra threads only share those cores (slower, not "
+                 "faster)\n",
+                 a.threads, cores);
+    if (env.rank() == 0 && !(run->parsed() && a.quiet))
+      cfddem::set_setup_progress(
+          [](const std::string& line) { fmt::print(stderr, "cfddem: {}\n", line); });
     try {
       cfddem::SceneConfig cfg;
       const cfddem::Scene scene = load(a, cfg);
@@ -168,6 +245,23 @@ int main(int argc, char** argv) {
       opt.out_dir = a.out.empty() ? (std::filesystem::path("runs") / scene.name).string() : a.out;
       opt.quiet = a.quiet || env.rank() != 0;
       opt.restart = a.restart;
+      // A particle count that cannot fit is named before the run directory is looked at.
+      cfddem::check_packing_feasible(scene);
+      {
+        // Rank 0 looks at (and with --overwrite clears) the run directory; every rank raises
+        // its refusal alike, after rank 0 is done (agree_on_error is collective).
+        const auto comm = cfddem::Communicator::world();
+        std::string refused;
+        if (comm.rank() == 0) {
+          try {
+            cfddem::apps::prepare_run_directory(opt.out_dir, a.overwrite, a.restart);
+          } catch (const cfddem::ConfigError& e) {
+            refused = e.what();
+          }
+        }
+        if (const std::string e = comm.agree_on_error(0, refused); !e.empty())
+          throw cfddem::ConfigError("", e);
+      }
       const auto result = cfddem::apps::run_simulation(scene, opt, env);
       if (env.rank() == 0 && !a.quiet)
         fmt::print("cfddem: done; outputs in {}/ (diagnostics.csv, run.json)\n", result.out_dir);
@@ -178,6 +272,15 @@ int main(int argc, char** argv) {
       return 2;
     } catch (const cfddem::RunError& e) {
       if (env.rank() == 0) fmt::print(stderr, "cfddem: run stopped: {}\n", e.what());
+      return 3;
+    } catch (const std::bad_alloc&) {
+      fmt::print(stderr,
+                 "cfddem: error (rank {}): out of memory: the scene needs more memory "
+                 "than this process may use (fewer particles or fluid cells, or more "
+                 "ranks)\n",
+                 env.rank());
+      if (env.ranks() > 1)
+        env.abort(3);
       return 3;
     } catch (const std::exception& e) {
       // Anything else may have been raised by this rank alone: end the others too.

@@ -2,6 +2,7 @@
 
 #include <exception>
 #include <filesystem>
+#include <stdexcept>
 
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
@@ -38,6 +39,16 @@ std::optional<DiagnosticsFile> open_root_diagnostics(const Communicator& comm,
   if (const std::string e = comm.agree_on_error(0, error); !e.empty())
     throw ConfigError(out_dir, e);
   return diag;
+}
+
+void add_root_row(std::optional<DiagnosticsFile>& diag, const std::vector<double>& row) {
+  if (!diag)
+    return;
+  try {
+    diag->add_row(row);
+  } catch (const RunError& e) {
+    throw std::runtime_error(e.what());
+  }
 }
 
 } // namespace cfddem::apps

@@ -28,4 +28,10 @@ std::optional<DiagnosticsFile> open_root_diagnostics(const Communicator& comm,
                                                      const std::string& out_dir,
                                                      const std::vector<std::string>& columns);
 
+// Rank 0 appends a row (the others hold no file). A failure there (a full disk) is rank 0's
+// alone: it is raised as a plain std::runtime_error, which apps/main.cpp answers by ending every
+// rank with exit code 3 (a RunError is taken as raised by every rank alike, and would leave the
+// others waiting in their next collective call).
+void add_root_row(std::optional<DiagnosticsFile>& diag, const std::vector<double>& row);
+
 } // namespace cfddem::apps

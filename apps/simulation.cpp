@@ -216,7 +216,6 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) {
       // The state before step k: x(k), v(k - 1/2), the list and history the step will use.
       PhaseTimer::Scope io(timer, Phase::io);
-      diag.flush();
       Checkpoint c = checkpoint_header(scene, "explicit", scheme.dt(), k, k_last_row, rows,
                                        snapshots.entries());
       c.particles = particles;
@@ -252,7 +251,6 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
                  format_eta(wall * (1 - frac) / frac));
     }
   }
-  diag.flush();
   const double loop_seconds = seconds_since(t_loop);
 
   nlohmann::ordered_json j =
@@ -375,7 +373,6 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   for (long long k = k0; k <= n_end; ++k) {
     if (ckpt_every > 0 && k > k0 && k % ckpt_every == 0) {
       PhaseTimer::Scope io(timer, Phase::io);
-      diag.flush();
       Checkpoint c = checkpoint_header(scene, scheme_name, dt_sp, k, 0, rows, snapshots.entries());
       c.particles = particles;
       if constexpr (kOrb)
@@ -409,7 +406,6 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
                  format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
-  diag.flush();
   const double loop_seconds = seconds_since(t_loop);
 
   nlohmann::ordered_json j =
@@ -503,7 +499,7 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   std::optional<DiagnosticsFile> diag = open_root_diagnostics(comm, opt.out_dir, kColumns);
   std::vector<std::vector<double>> rows; // kept for checkpoints (the same on every rank)
   auto add_row = [&](std::vector<double> r) {
-    if (diag) diag->add_row(r);
+    add_root_row(diag, r);
     rows.push_back(std::move(r));
   };
   const long long ckpt_every = every(scene.output.checkpoint_interval, scheme.dt());
@@ -595,8 +591,6 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     std::string error;
     if (root) {
       try {
-        if (diag)
-          diag->flush();
         write_checkpoint((fs::path(opt.out_dir) / fmt::format("checkpoint_{:09d}.h5", k)).string(), c);
       } catch (const std::exception& e) {
         error = e.what();
@@ -634,7 +628,6 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
                  100 * frac, format_eta(wall * (1 - frac) / std::max(frac, 1e-12)));
     }
   }
-  if (diag) diag->flush();
   const double loop_seconds = seconds_since(t_loop);
   const std::vector<double> waits = comm.gather(comm.wait_seconds());
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
@@ -902,7 +895,6 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     }
     if (t >= next_ckpt - tol) {
       PhaseTimer::Scope io(timer, Phase::io);
-      diag.flush();
       Checkpoint c = checkpoint_header(scene_in, kLeaves ? "orb" : kOrb ? "islands" : "explicit",
                                        dt, loop.fluid_steps, k_last_row, rows, snapshots.entries());
       c.particles = particles;
@@ -935,7 +927,6 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   // One particle step past the end, as the explicit loop.
   if (loop.row_pending || loop.snapshot_pending)
     particle_step(loop.row_pending, loop.snapshot_pending);
-  diag.flush();
   const double loop_seconds = seconds_since(t_loop);
   const long long fluid_steps = loop.fluid_steps;
 

@@ -1,6 +1,11 @@
 #include "core/hdf5_file.hpp"
 
+#include <cerrno>
+#include <cstring>
+
+#include <fcntl.h>
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include "core/communicator_mpi.hpp"
 #include "core/error.hpp"
@@ -23,14 +28,46 @@ hsize_t product(const std::vector<hsize_t>& shape) {
   return n;
 }
 
+// Write `bytes` to `path` (created or truncated) with write(2); on any failure remove what was
+// written and throw RunError with the system's reason (ENOSPC: "No space left on device").
+void write_bytes(const std::string& path, const std::vector<char>& bytes) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0)
+    throw RunError(fmt::format("cannot create '{}': {}", path, std::strerror(errno)));
+  std::size_t done = 0;
+  int err = 0;
+  while (done < bytes.size()) {
+    const ::ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR)
+      continue;
+    if (n <= 0) {
+      err = n < 0 ? errno : ENOSPC;
+      break;
+    }
+    done += static_cast<std::size_t>(n);
+  }
+  if (::close(fd) != 0 && err == 0)
+    err = errno;
+  if (err != 0) {
+    ::unlink(path.c_str());
+    throw RunError(fmt::format("writing '{}' failed after {} of {} bytes: {}", path, done,
+                               bytes.size(), std::strerror(err)));
+  }
+}
+
 } // namespace
 
 File File::create(const std::string& path) {
   quiet_errors();
   File f;
   f.path_ = path;
-  f.file_ = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+  // In memory, growing by 1 MiB, no backing store: close() writes the image.
+  Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+  if (!fapl.valid() || H5Pset_fapl_core(fapl.get(), std::size_t{1} << 20, false) < 0)
+    throw RunError(fmt::format("cannot set up HDF5 file '{}' in memory", path));
+  f.file_ = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get()), H5Fclose);
   if (!f.file_.valid()) throw RunError(fmt::format("cannot create HDF5 file '{}'", path));
+  f.in_memory_ = true;
   return f;
 }
 
@@ -78,7 +115,16 @@ void File::close() {
   const hid_t id = file_.get();
   if (H5Fflush(id, H5F_SCOPE_GLOBAL) < 0)
     throw RunError(fmt::format("flushing HDF5 file '{}' failed (disk full?)", path_));
-  file_.reset();
+  if (!in_memory_) {
+    file_.reset();
+    return;
+  }
+  const ssize_t size = H5Fget_file_image(id, nullptr, 0);
+  std::vector<char> image(size > 0 ? static_cast<std::size_t>(size) : 0);
+  if (size <= 0 || H5Fget_file_image(id, image.data(), image.size()) != size)
+    throw RunError(fmt::format("cannot take the image of HDF5 file '{}'", path_));
+  file_.reset(); // the in-memory file: nothing to flush to a disk
+  write_bytes(path_, image);
 }
 
 void File::create_group(const std::string& name) {

@@ -53,7 +53,11 @@ template <class T> struct Array {
 
 class File {
 public:
-  // Create (truncating) a file for writing.
+  // Create (truncating) a file for writing. The file is built in memory (HDF5's core driver)
+  // and written to `path` by close() with plain write(2) calls: a full disk then fails in our
+  // own write, which reports it and removes the partial file, instead of in HDF5's flush, which
+  // left a half-closed file that crashed the library's clean-up in MPI_Finalize. Nothing
+  // reaches `path` before close().
   static File create(const std::string& path);
   // Create (truncating) a file that every rank of `comm` writes into with MPI-IO (parallel
   // HDF5): collective, every rank calls it and every later call on the file in the same order.
@@ -101,7 +105,8 @@ public:
   std::int64_t read_attribute_int64(const std::string& name, const std::string& on = "/") const;
   std::string read_attribute_string(const std::string& name, const std::string& on = "/") const;
 
-  // Flush and close (errors surface here rather than in a destructor).
+  // Flush and close (errors surface here rather than in a destructor); a file from create()
+  // is written to its path here. Throws RunError naming the file and the system's reason.
   void close();
   const std::string& path() const { return path_; }
 
@@ -115,6 +120,7 @@ private:
   void read_attr(const std::string& name, hid_t type, void* v, const std::string& on) const;
   Handle file_;
   std::string path_;
+  bool in_memory_ = false; // create(): the image is written to path_ by close()
 };
 
 } // namespace cfddem::h5

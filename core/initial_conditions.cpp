@@ -1,15 +1,18 @@
 #include "core/initial_conditions.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <fstream>
 #include <functional>
-#include <stdexcept>
+#include <numbers>
 #include <random>
 #include <sstream>
+#include <stdexcept>
 #include <unordered_map>
 
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include "core/error.hpp"
 
@@ -17,31 +20,43 @@ namespace cfddem {
 
 namespace {
 
-// Uniform bins over the domain for overlap queries (serial set-up work, not the hot loop).
+// Bins of at least `cell` over the domain for overlap queries (serial set-up work, not the hot
+// loop). Only occupied bins are stored: a hash from the bin to the head of its chain of particle
+// indices, and one link per particle, so memory is O(particles) however large the domain (a
+// dense array of bins over a dilute 100 mm box took gigabytes).
 class PointGrid {
 public:
+  static constexpr std::size_t npos = static_cast<std::size_t>(-1);
   PointGrid(const DomainSpec& d, double cell) : d_(d) {
     for (int a = 0; a < 3; ++a) {
-      n_[a] = std::max(1, static_cast<int>(std::floor(d.length(a) / cell)));
+      // At most 2^21 bins per axis (the bin key packs three 21-bit indices); fewer, larger bins
+      // still hold every neighbour within `cell` in the 27 around a point.
+      const double n = std::floor(d.length(a) / cell);
+      n_[a] = static_cast<int>(std::clamp(n, 1.0, static_cast<double>(1 << 21)));
       inv_[a] = n_[a] / d.length(a);
     }
-    bins_.resize(static_cast<std::size_t>(n_[0]) * n_[1] * n_[2]);
   }
   std::array<int, 3> bin_of(double x, double y, double z) const {
     const double p[3] = {x, y, z};
     std::array<int, 3> b{};
-    for (int a = 0; a < 3; ++a)
-      b[a] = std::clamp(static_cast<int>(std::floor((p[a] - d_.lo[a]) * inv_[a])), 0, n_[a] - 1);
+    for (int a = 0; a < 3; ++a) {
+      const double f = std::floor((p[a] - d_.lo[a]) * inv_[a]);
+      b[a] = static_cast<int>(std::clamp(f, 0.0, static_cast<double>(n_[a] - 1)));
+    }
     return b;
   }
   void insert(std::size_t i, double x, double y, double z) {
-    auto b = bin_of(x, y, z);
-    bins_[flat(b)].push_back(i);
+    if (next_.size() <= i)
+      next_.resize(i + 1, npos);
+    auto [it, added] = head_.try_emplace(key(bin_of(x, y, z)), i);
+    next_[i] = added ? npos : it->second;
+    it->second = i;
   }
   // Visit every stored index in the 27 bins around (x, y, z), each bin once.
   template <class F> void for_near(double x, double y, double z, F&& f) const {
     auto b = bin_of(x, y, z);
-    std::array<std::vector<int>, 3> idx;
+    std::array<std::array<int, 3>, 3> idx{};
+    std::array<int, 3> count{};
     for (int a = 0; a < 3; ++a) {
       for (int o = -1; o <= 1; ++o) {
         int c = b[a] + o;
@@ -49,23 +64,33 @@ public:
           if (!d_.periodic[a]) continue;
           c = (c + n_[a]) % n_[a];
         }
-        if (std::find(idx[a].begin(), idx[a].end(), c) == idx[a].end()) idx[a].push_back(c);
+        if (std::find(idx[a].begin(), idx[a].begin() + count[a], c) == idx[a].begin() + count[a])
+          idx[a][static_cast<std::size_t>(count[a]++)] = c;
       }
     }
-    for (int i : idx[0])
-      for (int j : idx[1])
-        for (int k : idx[2])
-          for (std::size_t q : bins_[flat({i, j, k})]) f(q);
+    for (int i = 0; i < count[0]; ++i)
+      for (int j = 0; j < count[1]; ++j)
+        for (int k = 0; k < count[2]; ++k) {
+          const auto it = head_.find(
+              key({idx[0][static_cast<std::size_t>(i)], idx[1][static_cast<std::size_t>(j)],
+                   idx[2][static_cast<std::size_t>(k)]}));
+          if (it == head_.end())
+            continue;
+          for (std::size_t q = it->second; q != npos; q = next_[q])
+            f(q);
+        }
   }
 
 private:
-  std::size_t flat(std::array<int, 3> b) const {
-    return (static_cast<std::size_t>(b[2]) * n_[1] + b[1]) * n_[0] + b[0];
+  static std::uint64_t key(std::array<int, 3> b) {
+    return (static_cast<std::uint64_t>(b[2]) << 42) | (static_cast<std::uint64_t>(b[1]) << 21) |
+           static_cast<std::uint64_t>(b[0]);
   }
   DomainSpec d_;
   std::array<int, 3> n_{};
   std::array<double, 3> inv_{};
-  std::vector<std::vector<std::size_t>> bins_;
+  std::unordered_map<std::uint64_t, std::size_t> head_; // occupied bin -> last particle in it
+  std::vector<std::size_t> next_;                       // particle -> the one before it in its bin
 };
 
 double min_image(double dx, double length, bool periodic) {
@@ -79,6 +104,93 @@ double gap(const ParticleStore& p, std::size_t i, std::size_t j, const DomainSpe
   const double dz = min_image(p.z[j] - p.z[i], d.length(2), d.periodic[2]);
   return std::sqrt(dx * dx + dy * dy + dz * dz) - (p.radius[i] + p.radius[j]);
 }
+
+// Random close packing of equal spheres (Scott & Kilgour 1969; Torquato, Truskett & Debenedetti,
+// PRL 84, 2064 (2000)): no placement fits more. Random sequential addition, what place_random
+// does, jams near 0.384 (Torquato, Uche & Stillinger, PRE 74, 061308 (2006)) and slows to a crawl
+// well before that.
+constexpr double kRandomClosePacking = 0.64;
+constexpr double kRandomSequentialLimit = 0.38;
+// The memory a generated particle costs at set-up and in the run (store, lists, scheme state),
+// an upper estimate used only to refuse counts that cannot fit at all.
+constexpr double kBytesPerParticle = 1024;
+
+std::function<void(const std::string&)>& setup_progress_sink() {
+  static std::function<void(const std::string&)> sink;
+  return sink;
+}
+
+// A progress line every output.progress_seconds of wall time while a set-up runs long.
+class SetupProgress {
+public:
+  SetupProgress(const Scene& s, const char* what)
+      : what_(what), every_(s.output.progress_seconds), t0_(std::chrono::steady_clock::now()),
+        last_(t0_) {}
+  void report(std::int64_t done, std::int64_t total, std::int64_t attempts) {
+    const auto& sink = setup_progress_sink();
+    if (!sink)
+      return;
+    const auto now = std::chrono::steady_clock::now();
+    if (std::chrono::duration<double>(now - last_).count() < every_)
+      return;
+    last_ = now;
+    sink(fmt::format("set-up ({}): {} of {} particles placed ({:.1f}%), {} attempts, {:.0f} s",
+                     what_, done, total,
+                     100.0 * static_cast<double>(done) / static_cast<double>(total), attempts,
+                     std::chrono::duration<double>(now - t0_).count()));
+  }
+
+private:
+  const char* what_;
+  double every_;
+  std::chrono::steady_clock::time_point t0_, last_;
+};
+
+} // namespace
+
+void set_setup_progress(std::function<void(const std::string&)> sink) {
+  setup_progress_sink() = std::move(sink);
+}
+
+void check_packing_feasible(const Scene& s) {
+  const auto& ps = s.particles;
+  if (!ps.file.empty() || ps.count <= 0)
+    return;
+  double region = 1.0;
+  for (int a = 0; a < 3; ++a)
+    region *= ps.region_hi[a] - ps.region_lo[a];
+  const double solids = static_cast<double>(ps.count) * std::numbers::pi / 6.0 * ps.diameter *
+                        ps.diameter * ps.diameter;
+  const double phi = solids / region;
+  const auto fits = [&](double limit) {
+    return static_cast<std::int64_t>(limit * region / (solids / static_cast<double>(ps.count)));
+  };
+  if (phi > kRandomClosePacking)
+    throw ConfigError("scene key 'particles.count'",
+                      fmt::format("{} particles of diameter {} m fill {:.3g} times the region "
+                                  "(solid fraction {:.3g}); no packing holds more than random "
+                                  "close packing, {} (about {} particles here): lower "
+                                  "particles.count or enlarge the region",
+                                  ps.count, ps.diameter, phi, kRandomClosePacking, phi,
+                                  kRandomClosePacking, fits(kRandomClosePacking)));
+  const double bytes = static_cast<double>(ps.count) * kBytesPerParticle;
+  const double memory = static_cast<double>(::sysconf(_SC_PHYS_PAGES)) *
+                        static_cast<double>(::sysconf(_SC_PAGE_SIZE));
+  if (memory > 0 && bytes > memory)
+    throw ConfigError("scene key 'particles.count'",
+                      fmt::format("{} particles need about {:.3g} GB, more than this machine's "
+                                  "{:.3g} GB of memory",
+                                  ps.count, bytes / 1e9, memory / 1e9));
+  if (ps.placement == "random" && phi > kRandomSequentialLimit)
+    throw ConfigError("scene key 'particles.count'",
+                      fmt::format("solid fraction {:.3g} in the region: random placement (random "
+                                  "sequential addition) jams near {} (about {} particles here); "
+                                  "use particles.placement = \"lattice\", or fewer particles, "
+                                  "or a larger region",
+                                  phi, kRandomSequentialLimit, fits(kRandomSequentialLimit)));
+}
+
+namespace {
 
 void place_random(ParticleStore& p, const Scene& s) {
   const auto& ps = s.particles;
@@ -99,7 +211,10 @@ void place_random(ParticleStore& p, const Scene& s) {
   PointGrid grid(s.domain, ps.diameter);
   const std::int64_t max_attempts = 1000 * ps.count + 100000;
   std::int64_t attempts = 0;
+  SetupProgress progress(s, "random placement");
   while (static_cast<std::int64_t>(p.size()) < ps.count) {
+    if ((attempts & 4095) == 0)
+      progress.report(static_cast<std::int64_t>(p.size()), ps.count, attempts);
     if (++attempts > max_attempts)
       throw ConfigError("scene key 'particles.count'",
                         fmt::format("could place only {} of {} non-overlapping particles in the "
@@ -324,6 +439,7 @@ ParticleStore make_initial_particles(const Scene& s) {
   if (!s.particles.file.empty()) {
     p = read_particle_csv(s.particles.file);
   } else {
+    check_packing_feasible(s);
     if (s.particles.placement == "lattice") {
       place_lattice(p, s, [](std::int64_t) { return true; });
     } else {
@@ -351,6 +467,7 @@ ParticleStore make_initial_share(const Scene& s, int rank, int ranks) {
       check_inside(p, s);
     }
   } else if (s.particles.placement == "lattice") {
+    check_packing_feasible(s);
     // Lattice sites are spaced by more than a diameter: no overlap to check.
     place_lattice(p, s, mine);
     ParticleStore one;

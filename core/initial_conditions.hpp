@@ -24,6 +24,16 @@ ParticleStore make_initial_particles(const Scene& scene);
 // rank alike.
 ParticleStore make_initial_share(const Scene& scene, int rank, int ranks);
 
+// Throw ConfigError (naming particles.count) when the generator's particles cannot fit: their
+// solid fraction in the region above random close packing (0.64), more memory than the machine
+// has, or, for random placement, above the jamming limit of random sequential addition (0.38,
+// lattice placement suggested). Checked before any placement starts; no-op for a particle file.
+void check_packing_feasible(const Scene& scene);
+
+// Where long set-ups report progress (a line every output.progress_seconds while the random
+// placement runs); none by default. apps/main.cpp sets it unless --quiet.
+void set_setup_progress(std::function<void(const std::string&)> sink);
+
 // Read `x,y,z,vx,vy,vz,diameter,density` (SI, header row required, columns in any order).
 ParticleStore read_particle_csv(const std::string& path);
 // The same, keeping only the data rows r (0-based, ids r) for which keep(r) holds; every row is

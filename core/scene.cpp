@@ -39,8 +39,14 @@ double non_negative(SceneConfig& c, const std::string& key, double fallback) {
 Scene read_scene(SceneConfig& c, const std::string& default_name) {
   Scene s;
   s.name = c.get_string("name", default_name);
-  require(!s.name.empty() && s.name.find('/') == std::string::npos, "name",
-          "must be a non-empty name without '/'");
+  // The run goes to runs/<name>: a name that is a path ('..', '/abs', 'a/b') would leave runs/.
+  require(!s.name.empty() && s.name != "." && s.name != ".." &&
+              s.name.find_first_of("/\\") == std::string::npos &&
+              s.name.find('\0') == std::string::npos,
+          "name",
+          fmt::format("must be a plain name (no '/', '\\', and not '.' or '..': the run goes to "
+                      "runs/<name>), got \"{}\"; use --out DIR to write elsewhere",
+                      s.name));
 
   // Domain.
   s.domain.lo = c.require_vec3("domain.lo");
@@ -158,12 +164,19 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.enabled = true;
     const auto cells = c.require_vec3("fluid.cells");
     for (int a = 0; a < 3; ++a) {
-      require(cells[a] >= 1 && cells[a] == std::floor(cells[a]) && cells[a] <= 1 << 16,
-              "fluid.cells",
+      require(cells[a] >= 1 && cells[a] == std::floor(cells[a]), "fluid.cells",
               fmt::format("must be 3 positive whole numbers [nx, ny, nz], got [{}, {}, {}]",
                           cells[0], cells[1], cells[2]));
+      require(cells[a] <= 1 << 16, "fluid.cells",
+              fmt::format("at most {} cells per axis, got [{}, {}, {}]", 1 << 16, cells[0],
+                          cells[1], cells[2]));
       f.cells[a] = static_cast<std::int64_t>(cells[a]);
     }
+    // Memory: about 30 doubles per cell (velocities, pressure, solver work arrays).
+    const double total = cells[0] * cells[1] * cells[2];
+    require(total <= 4.0e9, "fluid.cells",
+            fmt::format("{:.3g} cells in all ([{}, {}, {}]) need about {:.3g} TB of memory", total,
+                        cells[0], cells[1], cells[2], total * 30 * 8 / 1e12));
     f.cell_size = c.get_vec3("fluid.cell_size", {0, 0, 0});
     for (int a = 0; a < 3; ++a)
       require(f.cell_size[a] >= 0.0, "fluid.cell_size", "must be >= 0 (0: domain / cells)");

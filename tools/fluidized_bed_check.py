@@ -58,7 +58,7 @@ def main():
     a = ap.parse_args()
     run_dir = a.run_dir
     if run_dir is None:
-        cmd = [a.cfddem, "run", a.scene, "--threads", a.threads, "--out", a.out]
+        cmd = [a.cfddem, "run", a.scene, "--threads", a.threads, "--out", a.out, "--overwrite"]
         if a.small:
             cmd += SMALL
         print("running:", " ".join(cmd), flush=True)

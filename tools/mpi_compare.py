@@ -58,7 +58,7 @@ def main():
                 cmd = ["mpirun", "-np", str(ranks), "--map-by", f"ppr:{ranks}:node:pe={threads}",
                        "--bind-to", "core", a.cfddem, "run", scene,
                        f"run.end_time={a.end_time}", "output.interval=1e-3", *overrides,
-                       "--threads", str(threads), "--quiet", "--out", out]
+                       "--threads", str(threads), "--quiet", "--overwrite", "--out", out]
                 subprocess.run(cmd, check=True, env=env)
                 with open(os.path.join(out, "run.json")) as f:
                     j = json.load(f)

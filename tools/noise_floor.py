@@ -113,7 +113,8 @@ def initial_state(binary, scene, overrides, workdir):
     out = os.path.join(workdir, "initial_state")
     interval = table.get("output", {}).get("interval", 1e-4)
     cmd = [binary, "run", scene, *overrides, f"run.end_time={interval}",
-           f"output.snapshot_interval={interval}", "--threads", "1", "--quiet", "--out", out]
+           f"output.snapshot_interval={interval}", "--threads", "1", "--quiet", "--overwrite",
+           "--out", out]
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         sys.exit(f"noise_floor: {' '.join(cmd)} failed:\n{res.stderr}")

@@ -151,7 +151,7 @@ def last_temperature_csv(path):
 def run_cfddem(cfddem, prep, out):
     out.mkdir(parents=True, exist_ok=True)
     cmd = [str(cfddem), "run", str(prep["scene"]), *prep["overrides"], "--threads", "1",
-           "--out", str(out), "--quiet"]
+           "--out", str(out), "--quiet", "--overwrite"]
     env = dict(os.environ, OMP_NUM_THREADS="1")
     r = sh(cmd, env=env)
     (out / "stderr.txt").write_text(r.stdout + r.stderr)

@@ -124,7 +124,7 @@ def launch_cmd(a, ranks, threads, scene, overrides, out_dir):
     elif ranks != 1:
         raise SystemExit("scaling.py: --launcher '' runs without mpirun: 1 rank only")
     cmd += [a.binary, "run", scene, *overrides, "--threads", str(threads), "--quiet",
-            "--out", out_dir]
+            "--overwrite", "--out", out_dir]
     return cmd
 
 

@@ -45,7 +45,7 @@ def run_case(exe, out, scheme, tau_per_dt, e, k, speed):
     # Long enough to close the gap and finish a contact of a few pi/omega.
     t_contact = math.pi * math.sqrt(MASS / 2 / k)
     end = gap / (2 * speed) + 3 * t_contact
-    args = [exe, "run", csv_scene(out), "--quiet", "--out", os.path.join(out, "run"),
+    args = [exe, "run", csv_scene(out), "--quiet", "--overwrite", "--out", os.path.join(out, "run"),
             f"particles.file={csv_path}", f"dem.spring_constant={k}", f"dem.restitution={e}",
             f"dem.dt_factor={1.0 / tau_per_dt}", f"dem.scheme={scheme}",
             f"run.end_time={end}", f"output.interval={end / 4}"]

@@ -119,7 +119,7 @@ class Scaling(unittest.TestCase):
         cmd = scaling.launch_cmd(A, 4, 1, "s.toml", ["dem.scheme=orb"], "out")
         self.assertEqual(cmd[:6], ["mpirun", "-np", "4", "--bind-to", "none", "--oversubscribe"])
         self.assertEqual(cmd[6:], ["cfddem", "run", "s.toml", "dem.scheme=orb", "--threads", "1",
-                                   "--quiet", "--out", "out"])
+                                   "--quiet", "--overwrite", "--out", "out"])
         cmd = scaling.launch_cmd(A, 2, 1, "s.toml", [], "out")
         self.assertNotIn("--oversubscribe", cmd)
         A.binding = "core"

@@ -64,7 +64,7 @@ def run(binary, scene, out, overrides, threads, repeat=1):
     cpu_seconds (user + system of the whole process, the minimum over the repeats) is added to
     the returned run.json: with one thread it is what the run cost even when other work shares
     the cores and stretches its wall time."""
-    cmd = [binary, "run", scene, *overrides, "--threads", str(threads), "--quiet", "--out", out]
+    cmd = [binary, "run", scene, *overrides, "--threads", str(threads), "--quiet", "--overwrite", "--out", out]
     best, best_cpu = None, None
     for _ in range(repeat):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)

@@ -76,6 +76,7 @@ TEST(Cli, OverlappingInitialParticlesNamed) {
 
 TEST(Cli, UnstableStepStopsWithCode3) {
   const fs::path out = fs::path(::testing::TempDir()) / "unstable";
+  fs::remove_all(out);
   const Result r = cfddem(fmt::format("run {} dem.dt_factor=1.5 --quiet --out {}", kScene,
                                       out.string()));
   EXPECT_EQ(r.code, 3) << r.output;
@@ -119,6 +120,7 @@ std::string strip_wall(const std::string& csv) {
 // Same scene with 1 and 2 threads: diagnostics identical except the wall-clock column.
 TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
   const fs::path a = fs::path(::testing::TempDir()) / "t1", b = fs::path(::testing::TempDir()) / "t2";
+  fs::remove_all(a), fs::remove_all(b);
   const std::string common = kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" +
                              CFDDEM_SOURCE_DIR + "/scenes/data/hcs1222.csv --quiet";
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
@@ -172,6 +174,7 @@ TEST(Cli, CoupledDiagnosticsIdenticalForOneAndTwoThreads) {
               "particles.region_hi=[0.8e-3,5.4e-3,0.8e-3] fluid.cells=[16,50,16]",
         src + "/scenes/riser.toml particles.count=2000 fluid.cells=[16,25,16]"}) {
     const fs::path a = fs::path(::testing::TempDir()) / "c1", b = fs::path(::testing::TempDir()) / "c2";
+    fs::remove_all(a), fs::remove_all(b);
     const std::string common = scene + " run.end_time=4e-4 output.interval=1e-4 --quiet";
     ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
     ASSERT_EQ(cfddem(fmt::format("run {} --threads 2 --out {}", common, b.string())).code, 0);
@@ -179,4 +182,119 @@ TEST(Cli, CoupledDiagnosticsIdenticalForOneAndTwoThreads) {
     EXPECT_EQ(std::count(da.begin(), da.end(), '\n'), 6) << scene; // header + t = 0 + 4 rows
     EXPECT_EQ(strip_wall(da), strip_wall(db)) << scene;
   }
+}
+
+// Command-line mistakes exit 2 with one plain line naming the cause (CLI11's own codes were 105,
+// 106 and 109); --version prints the project version; a thread count beyond the cores warns.
+TEST(Cli, CommandLineErrorsExitWithCode2) {
+  struct Case {
+    const char* args;
+    const char* needle;
+  };
+  for (const Case& c :
+       {Case{"run --threads 0", "--threads: must be >= 1, got 0"},
+        Case{"run --threads two", "must be a whole number >= 1"},
+        Case{"runn", "unknown command 'runn' (the commands are: run, check"},
+        Case{"", "a command is required: run or check"},
+        Case{"run --no-such-option", "--no-such-option"}, Case{"check --threads 2", "--threads"}}) {
+    const Result r = cfddem(c.args);
+    EXPECT_EQ(r.code, 2) << c.args << ": " << r.output;
+    EXPECT_NE(r.output.find(c.needle), std::string::npos) << c.args << ": " << r.output;
+  }
+  const Result v = cfddem("--version");
+  EXPECT_EQ(v.code, 0) << v.output;
+  EXPECT_EQ(v.output, fmt::format("cfddem {}\n", CFDDEM_VERSION));
+}
+
+TEST(Cli, ThreadsBeyondTheCoresWarn) {
+  const fs::path out = fs::path(::testing::TempDir()) / "many_threads";
+  fs::remove_all(out);
+  const Result r = cfddem(fmt::format("run {}/scenes/hcs_small.toml run.end_time=1e-5 --threads "
+                                      "4096 --quiet --out {}",
+                                      CFDDEM_SOURCE_DIR, out.string()));
+  EXPECT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("warning: --threads 4096 exceeds the"), std::string::npos) << r.output;
+}
+
+// A run stopped by an error keeps every row written before the stop: one particle driven into a
+// soft wall stops the run at t = 7.2e-4 s (overlap beyond dem.max_overlap); with a row every
+// 1e-5 s, the 73 rows from t = 0 to 7.2e-4 s must all be there, whole (rows used to reach the
+// disk at most once a wall second, and never on the error path: only the header was left).
+TEST(Cli, DiagnosticsRowsSurviveARunThatStops) {
+  const fs::path out = fs::path(::testing::TempDir()) / "stopped";
+  fs::remove_all(out);
+  const Result r = cfddem(fmt::format(
+      "run {} particles.file= particles.count=1 particles.diameter=1e-4 particles.density=1000 "
+      "'particles.velocity=[0.5,0,0]' 'domain.periodic=[false,true,true]' "
+      "'particles.region_lo=[3.5e-3,0,0]' dem.wall_spring_constant=1e-3 output.interval=1e-5 "
+      "run.end_time=1e-2 --quiet --out {}",
+      kScene, out.string()));
+  EXPECT_EQ(r.code, 3) << r.output;
+  EXPECT_NE(r.output.find("overlap with a wall"), std::string::npos) << r.output;
+  std::stringstream csv(read(out / "diagnostics.csv"));
+  std::string line;
+  int rows = -1;
+  double last_t = -1;
+  while (std::getline(csv, line)) {
+    EXPECT_EQ(std::count(line.begin(), line.end(), ','), 30) << "torn row: " << line;
+    if (++rows > 0)
+      last_t = std::stod(line.substr(0, line.find(',')));
+  }
+  EXPECT_EQ(rows, 73);
+  EXPECT_GT(last_t, 7.23e-4 - 1e-5); // the last row due before the stop at t = 7.230e-4 s
+  EXPECT_LT(last_t, 7.23e-4);
+}
+
+// Set-up: a count that cannot fit is refused before any placement (it used to retry for hours
+// with no output), and set-up memory follows the particles, not the domain's volume (a dense
+// bin array over a 100 mm box needed more than 4 GB for 1000 particles).
+TEST(Cli, SetUpRefusesWhatCannotFitAndNeedsMemoryOfTheParticles) {
+  const std::string small = std::string(CFDDEM_SOURCE_DIR) + "/scenes/hcs_small.toml";
+  expect_config_error(small + " particles.count=1000000 'domain.hi=[1e-3,1e-3,1e-3]'",
+                      "random close packing");
+  // Solid fraction 0.40: beyond what random sequential placement reaches; a lattice holds it.
+  expect_config_error(small + " particles.count=4000", "particles.placement = \"lattice\"");
+  const Result lattice = cfddem(fmt::format("check {} particles.count=4000 "
+                                            "particles.placement=lattice",
+                                            small));
+  EXPECT_EQ(lattice.code, 0) << lattice.output;
+  // 1000 particles in a 100 mm box under a 1 GB address-space limit (the binary itself maps
+  // about 0.3 GB).
+  const std::string cmd = fmt::format(
+      "sh -c 'ulimit -v 1000000; {} check {} particles.count=1000 \"domain.hi=[0.1,0.1,0.1]\"' "
+      "> {}big_box.txt 2>&1",
+      CFDDEM_BINARY, small, ::testing::TempDir());
+  const int status = std::system(cmd.c_str());
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0)
+      << read(::testing::TempDir() + "big_box.txt");
+}
+
+// A run directory holds one run: a second run into it is refused (exit 2, files untouched)
+// unless --overwrite, which removes the old outputs first (old snapshots too); a name cannot
+// lead out of runs/.
+TEST(Cli, RunDirectoryNeverMixesRuns) {
+  const fs::path out = fs::path(::testing::TempDir()) / "mixed";
+  fs::remove_all(out);
+  const std::string small = std::string(CFDDEM_SOURCE_DIR) + "/scenes/hcs_small.toml";
+  ASSERT_EQ(cfddem(fmt::format("run {} run.end_time=2e-4 output.snapshot_interval=1e-4 --quiet "
+                               "--out {}",
+                               small, out.string()))
+                .code,
+            0);
+  ASSERT_TRUE(fs::exists(out / "snapshot_000001382.h5"));
+  const std::string before = read(out / "diagnostics.csv");
+  const Result again = cfddem(fmt::format("run {} run.end_time=1e-4 particles.seed=9 --quiet "
+                                          "--out {}",
+                                          small, out.string()));
+  EXPECT_EQ(again.code, 2) << again.output;
+  EXPECT_NE(again.output.find("--overwrite"), std::string::npos) << again.output;
+  EXPECT_EQ(read(out / "diagnostics.csv"), before);
+  const Result over = cfddem(fmt::format("run {} run.end_time=1e-4 particles.seed=9 --quiet "
+                                         "--overwrite --out {}",
+                                         small, out.string()));
+  EXPECT_EQ(over.code, 0) << over.output;
+  EXPECT_FALSE(fs::exists(out / "snapshot_000001382.h5")) << "the old run's snapshot is left";
+  EXPECT_NE(read(out / "diagnostics.csv"), before);
+  for (const char* name : {"..", ".", "a/b", "/tmp/x"})
+    expect_config_error(fmt::format("{} name={}", small, name), "scene key 'name'");
 }

@@ -1,0 +1,429 @@
+#!/usr/bin/env python3
+"""Hostile input and faults, as a new user meets them (issue 17): every case runs the `cfddem`
+program and asserts its exit code (0 success, 2 command-line or configuration error, 3 run-time
+failure), a message naming the cause, and that a pre-existing run directory is left byte for byte
+as it was. Standard library only; tiny scenes, short end times.
+
+Usage: hostile_test.py CFDDEM_BINARY SOURCE_DIR [-k PATTERN] [--list]
+A case that needs something this machine lacks (a tmpfs mount for a real full disk) says so and
+falls back to an unprivileged equivalent (a file-size limit) rather than passing silently.
+"""
+import csv
+import os
+import re
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+
+BIN = os.path.abspath(sys.argv[1])
+SRC = os.path.abspath(sys.argv[2])
+ARGS = sys.argv[3:]
+SCENES = os.path.join(SRC, "scenes")
+SMALL = os.path.join(SCENES, "hcs_small.toml")  # 100 particles, 1.737 mm periodic box
+HCS = os.path.join(SCENES, "hcs.toml")
+SETTLING = os.path.join(SCENES, "settling.toml")  # walls, gravity, a gas at rest
+TINY = ["run.end_time=2e-5"]  # 138 steps of hcs_small
+TIMEOUT = 60
+
+with open(os.path.join(SRC, "CMakeLists.txt")) as f:
+    VERSION = re.search(r"project\(cfddem VERSION ([0-9.]+)", f.read()).group(1)
+
+
+def run(args, timeout=TIMEOUT, preexec=None, cwd=None):
+    """(exit code, stdout + stderr); a hang is a failure of its own."""
+    try:
+        r = subprocess.run([BIN, *args], capture_output=True, text=True, timeout=timeout,
+                           preexec_fn=preexec, cwd=cwd)
+    except subprocess.TimeoutExpired:
+        return "timeout", ""
+    return r.returncode, r.stdout + r.stderr
+
+
+def tree(d):
+    """Every file under d with its bytes."""
+    out = {}
+    for root, _, files in os.walk(d):
+        for n in files:
+            p = os.path.join(root, n)
+            with open(p, "rb") as f:
+                out[os.path.relpath(p, d)] = f.read()
+    return out
+
+
+def rows(d):
+    with open(os.path.join(d, "diagnostics.csv")) as f:
+        return list(csv.reader(f))
+
+
+class Context:
+    def __init__(self, tmp):
+        self.tmp = tmp
+        # The pre-existing run directory every refused case points at.
+        self.precious = os.path.join(tmp, "precious")
+        code, out = run(["run", SMALL, *TINY, "output.snapshot_interval=1e-5",
+                         "output.checkpoint_interval=1e-5", "--quiet", "--out", self.precious])
+        assert code == 0, out
+        self.before = tree(self.precious)
+        assert any(n.startswith("snapshot_") for n in self.before), sorted(self.before)
+
+    def fresh(self, name):
+        d = os.path.join(self.tmp, name)
+        shutil.rmtree(d, ignore_errors=True)
+        return d
+
+    def file(self, name, text):
+        p = os.path.join(self.tmp, name)
+        with open(p, "w") as f:
+            f.write(text)
+        return p
+
+
+CASES = []
+
+
+def case(fn):
+    CASES.append(fn)
+    return fn
+
+
+def expect(ctx, args, code, needle, out_dir=None, timeout=TIMEOUT, fresh=False, **kw):
+    """Run `args` (with --out the precious directory unless given), check the exit code, the
+    message and that the precious directory is unchanged. fresh: an input error found while the
+    particles are set up (after the run directory is looked at), so --out is a new directory,
+    which must not be created. Returns the output."""
+    never = os.path.join(ctx.tmp, "never_written")
+    if args and args[0] == "run" and "--out" not in args:
+        args = [*args, "--out", never if fresh else (out_dir or ctx.precious)]
+    got, out = run(args, timeout=timeout, **kw)
+    assert got == code, f"exit {got}, expected {code}: {out[-1500:]}"
+    if needle:
+        assert re.search(needle, out), f"message lacks /{needle}/: {out[-1500:]}"
+    assert tree(ctx.precious) == ctx.before, "the pre-existing run directory changed"
+    assert not os.path.exists(never), "a refused run created its directory"
+    return out
+
+
+# ---- the command line (exit 2, plain message) ----
+@case
+def threads_zero(ctx):
+    expect(ctx, ["run", SMALL, "--threads", "0"], 2, r"--threads: must be >= 1, got 0")
+
+
+@case
+def threads_negative(ctx):
+    expect(ctx, ["run", SMALL, "--threads=-3"], 2, r"--threads: must be >= 1")
+
+
+@case
+def threads_not_a_number(ctx):
+    expect(ctx, ["run", SMALL, "--threads", "two"], 2, r"must be a whole number >= 1, got 'two'")
+
+
+@case
+def mistyped_command(ctx):
+    expect(ctx, ["runn", SMALL], 2, r"unknown command 'runn' \(the commands are: run, check")
+
+
+@case
+def no_command(ctx):
+    expect(ctx, [], 2, r"a command is required: run or check")
+
+
+@case
+def unknown_option(ctx):
+    expect(ctx, ["run", SMALL, "--no-such-option"], 2, r"--no-such-option")
+
+
+@case
+def version(ctx):
+    out = expect(ctx, ["--version"], 0, None)
+    assert out == f"cfddem {VERSION}\n", out
+
+
+@case
+def threads_beyond_cores_warn(ctx):
+    expect(ctx, ["run", SMALL, *TINY, "--threads", "512", "--quiet"], 0,
+           r"warning: --threads 512 exceeds the \d+ core", out_dir=ctx.fresh("threads"))
+
+
+# ---- scene files and keys (exit 2, naming the key or file) ----
+@case
+def scene_missing(ctx):
+    expect(ctx, ["run", "/no/such/scene.toml"], 2, r"/no/such/scene.toml: scene file not found")
+
+
+@case
+def scene_is_a_directory(ctx):
+    expect(ctx, ["run", SCENES], 2, r"is a directory, not a scene file")
+
+
+@case
+def toml_syntax_error(ctx):
+    bad = ctx.file("bad.toml", "[domain\nlo = [0, 0, 0]\n")
+    expect(ctx, ["run", bad], 2, r"bad.toml line 1")
+
+
+@case
+def unknown_key(ctx):
+    expect(ctx, ["run", SMALL, "dem.no_such_key=1"], 2, r"'dem.no_such_key'.*unknown key")
+
+
+@case
+def restitution_out_of_range(ctx):
+    expect(ctx, ["run", SMALL, "dem.restitution=1.5"], 2, r"'dem.restitution'.*\[0, 1\]")
+
+
+@case
+def word_for_a_number(ctx):
+    expect(ctx, ["run", SMALL, "dem.dt_factor=fast"], 2, r"'dem.dt_factor'.*expected a number")
+
+
+@case
+def domain_inverted(ctx):
+    expect(ctx, ["run", SMALL, "domain.hi=[1e-3,-1e-3,1e-3]"], 2, r"'domain.hi'.*must exceed")
+
+
+@case
+def override_without_equals(ctx):
+    expect(ctx, ["check", SMALL, "dem.restitution"], 2, r"not of the form key=value")
+
+
+@case
+def particle_file_missing(ctx):
+    expect(ctx, ["run", HCS, "particles.file=/no/such.csv"], 2, r"/no/such.csv", fresh=True)
+
+
+@case
+def particle_csv_bad_number(ctx):
+    p = ctx.file("bad_number.csv", "x,y,z,vx,vy,vz,diameter,density\n1e-3,1e-3,1e-3,0,0,0,1e-4,"
+                                   "lots\n")
+    expect(ctx, ["run", HCS, f"particles.file={p}"], 2, r"bad_number.csv line 2.*'lots'", fresh=True)
+
+
+@case
+def particle_csv_missing_column(ctx):
+    p = ctx.file("no_density.csv", "x,y,z,vx,vy,vz,diameter\n1e-3,1e-3,1e-3,0,0,0,1e-4\n")
+    expect(ctx, ["run", HCS, f"particles.file={p}"], 2, r"missing column 'density'", fresh=True)
+
+
+@case
+def particle_csv_overlap(ctx):
+    p = ctx.file("overlap.csv", "x,y,z,vx,vy,vz,diameter,density\n1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n"
+                                "1.05e-3,1e-3,1e-3,0,0,0,1e-4,1000\n")
+    expect(ctx, ["run", HCS, f"particles.file={p}"], 2, r"particles 0 .* and 1 .* overlap", fresh=True)
+
+
+@case
+def fluid_cells_too_many(ctx):
+    expect(ctx, ["check", SETTLING, "fluid.cells=[100000,100000,100000]"], 2,
+           r"'fluid.cells': at most 65536 cells per axis")
+
+
+@case
+def snapshot_given_as_checkpoint(ctx):
+    snap = sorted(n for n in ctx.before if n.startswith("snapshot_"))[0]
+    expect(ctx, ["run", SMALL, *TINY, "--restart", os.path.join(ctx.precious, snap)], 2,
+           r"is a particle snapshot .* not a checkpoint")
+
+
+@case
+def restart_changed_key_refused(ctx):
+    ck = sorted(n for n in ctx.before if n.startswith("checkpoint_"))[0]
+    expect(ctx, ["run", SMALL, *TINY, "dem.restitution=0.5", "--restart",
+                 os.path.join(ctx.precious, ck)], 2, r"first difference at 'dem.restitution")
+
+
+@case
+def settle_then_turn_the_gas_on(ctx):
+    """A restart may change the gas drive: settle 30 particles in a closed box with the gas at
+    rest, then continue from the checkpoint with an inflow of 0.1 m/s at y_lo and an outflow at
+    y_hi. The incompressible gas then carries U through every plane: its y momentum is
+    rho U V (1 - phi) = 3.359e-10 kg m/s (phi = 0.47%), to 1%. Any other key is still refused."""
+    base = [SETTLING, "particles.count=30", "run.end_time=2e-3", "output.interval=5e-4"]
+    settled = ctx.fresh("settled")
+    expect(ctx, ["run", *base, "output.checkpoint_interval=1e-3", "--quiet"], 0, None,
+           out_dir=settled)
+    ck = os.path.join(settled, "checkpoint_000000010.h5")
+    on = ctx.fresh("gas_on")
+    expect(ctx, ["run", *base, "fluid.bc.y_lo=inflow", "fluid.bc.y_hi=outflow",
+                 "fluid.inflow_velocity=[0,0.1,0]", "fluid.velocity=[0,0.1,0]", "--restart", ck,
+                 "--quiet"], 0, None, out_dir=on)
+    r = rows(on)
+    col = r[0].index("gas_momentum_y")
+    assert abs(float(r[1][col])) < 1e-12 and abs(float(r[3][col])) < 1e-12, r  # settling rows
+    v = 1.5e-3 ** 3
+    phi = 30 * 3.141592653589793 / 6 * 1e-4 ** 3 / v
+    want = 1.0 * 0.1 * v * (1 - phi)
+    assert abs(float(r[-1][col]) / want - 1) < 0.01, (r[-1][col], want)
+    expect(ctx, ["run", *base, "fluid.density=2", "--restart", ck, "--quiet"], 2,
+           r"first difference at 'fluid.density = 2'.*fluid.bc.\* may change",
+           out_dir=ctx.fresh("refused_restart"))
+
+
+# ---- names cannot leave runs/ ----
+@case
+def name_dotdot(ctx):
+    expect(ctx, ["run", SMALL, *TINY, "name=.."], 2, r"scene key 'name'.*plain name", cwd=ctx.tmp)
+    assert not os.path.exists(os.path.join(ctx.tmp, "diagnostics.csv"))
+
+
+@case
+def name_absolute(ctx):
+    expect(ctx, ["run", SMALL, *TINY, f"name={ctx.tmp}/evil"], 2, r"scene key 'name'")
+
+
+@case
+def name_with_slash(ctx):
+    expect(ctx, ["run", SMALL, *TINY, "name=a/../../b"], 2, r"scene key 'name'")
+
+
+# ---- set-up: refused before placement when it cannot fit, memory of the particles ----
+@case
+def count_beyond_close_packing(ctx):
+    expect(ctx, ["run", SMALL, "particles.count=1000000", "domain.hi=[1e-3,1e-3,1e-3]"], 2,
+           r"'particles.count'.*random close packing", timeout=20)
+
+
+@case
+def count_beyond_random_placement(ctx):
+    expect(ctx, ["run", SMALL, "particles.count=4000"], 2,
+           r"random placement .* jams near 0.38.*particles.placement = \"lattice\"", timeout=20)
+
+
+@case
+def count_beyond_memory(ctx):
+    expect(ctx, ["check", SMALL, "particles.count=1000000000000", "domain.hi=[10,10,10]"], 2,
+           r"'particles.count'.*GB, more than this machine", timeout=20)
+
+
+@case
+def big_dilute_box_memory(ctx):
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))  # 1 GiB of address space
+    expect(ctx, ["check", SMALL, "particles.count=1000", "domain.hi=[0.1,0.1,0.1]"], 0,
+           r"particles\s+1000\b", preexec=limit)
+
+
+# ---- run directories are never mixed ----
+@case
+def rerun_into_a_run_directory(ctx):
+    expect(ctx, ["run", SMALL, *TINY, "particles.seed=7", "--quiet"], 2,
+           r"holds the outputs of an earlier run .*--overwrite")
+
+
+@case
+def overwrite_removes_the_old_run(ctx):
+    d = ctx.fresh("overwritten")
+    shutil.copytree(ctx.precious, d)
+    with open(os.path.join(d, "notes.txt"), "w") as f:
+        f.write("mine\n")
+    expect(ctx, ["run", SMALL, "run.end_time=1e-5", "particles.seed=7", "--quiet",
+                 "--overwrite"], 0, None, out_dir=d)
+    names = sorted(os.listdir(d))
+    assert "notes.txt" in names, names  # not a run's output: left alone
+    assert not any(n.startswith("checkpoint_") for n in names), names
+    assert names.count("snapshots.xmf") == 0, names
+    assert rows(d)[-1][0] != rows(ctx.precious)[-1][0]
+
+
+# ---- faults while running (exit 3, every earlier file intact) ----
+@case
+def rows_kept_when_a_run_stops(ctx):
+    d = ctx.fresh("stopped")
+    expect(ctx, ["run", HCS, "particles.file=", "particles.count=1", "particles.diameter=1e-4",
+                 "particles.density=1000", "particles.velocity=[0.5,0,0]",
+                 "domain.periodic=[false,true,true]", "particles.region_lo=[3.5e-3,0,0]",
+                 "dem.wall_spring_constant=1e-3", "output.interval=1e-5", "run.end_time=1e-2",
+                 "--quiet"], 3, r"overlap with a wall", out_dir=d)
+    r = rows(d)
+    assert len(r) == 1 + 73 and all(len(x) == len(r[0]) for x in r), len(r)
+
+
+def full_disk_run(ctx, d, preexec=None):
+    return expect(ctx, ["run", SETTLING, "run.end_time=0.01", "output.snapshot_interval=1e-3",
+                        "--quiet"], 3, None, out_dir=d, preexec=preexec)
+
+
+def check_intact(d):
+    names = sorted(os.listdir(d))
+    assert not any(".tmp." in n for n in names), names
+    snaps = [n for n in names if n.startswith("snapshot_")]
+    assert snaps, names
+    for n in snaps:
+        with open(os.path.join(d, n), "rb") as f:
+            assert f.read(8) == b"\x89HDF\r\n\x1a\n", n
+    r = rows(d)
+    assert len(r) >= 2 and all(len(x) == len(r[0]) for x in r), r
+    with open(os.path.join(d, "snapshots.xmf")) as f:
+        xmf = f.read()
+    for n in snaps:
+        assert n in xmf, n
+
+
+@case
+def disk_full(ctx):
+    """A real full disk: a 200 KiB tmpfs (needs root and mount); else says so and is skipped."""
+    mnt = os.path.join(ctx.tmp, "tmpfs")
+    os.makedirs(mnt)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", mnt],
+                      capture_output=True).returncode != 0:
+        print("  disk_full: cannot mount a tmpfs here (not root?); the file-size case covers "
+              "the same error path")
+        return
+    try:
+        out = full_disk_run(ctx, os.path.join(mnt, "run"))
+        assert "No space left on device" in out, out
+        check_intact(os.path.join(mnt, "run"))
+    finally:
+        subprocess.run(["umount", mnt])
+
+
+@case
+def file_size_limit(ctx):
+    """Unprivileged: a 4 MiB file-size limit (SIGXFSZ ignored, so a write past it fails with
+    EFBIG; Open MPI's start-up needs about that much) stops the run at its first snapshot, 4.5 MB
+    with a 48^3 gas grid: exit 3 naming the file and the cause, no temporary file left, no crash
+    in MPI_Finalize (the HDF5 flush failure used to end in SIGSEGV)."""
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4 << 20, 4 << 20))
+    d = ctx.fresh("fsize")
+    out = expect(ctx, ["run", SETTLING, "fluid.cells=[48,48,48]", "run.end_time=1e-3",
+                       "output.snapshot_interval=1e-4", "--quiet"], 3,
+                 r"snapshot_000000000\.h5.*File too large", out_dir=d, preexec=limit)
+    names = os.listdir(d)
+    assert not any(".tmp." in n for n in names), names
+    assert rows(d)[0][0] == "time", names
+
+
+def main():
+    only = ARGS[ARGS.index("-k") + 1] if "-k" in ARGS else None
+    if "--list" in ARGS:
+        print("\n".join(c.__name__ for c in CASES))
+        return 0
+    tmp = tempfile.mkdtemp(prefix="cfddem_hostile_")
+    failed = []
+    try:
+        ctx = Context(tmp)
+        ran = 0
+        for c in CASES:
+            if only and only not in c.__name__:
+                continue
+            ran += 1
+            try:
+                c(ctx)
+                print(f"ok    {c.__name__}")
+            except AssertionError as e:
+                failed.append(c.__name__)
+                print(f"FAIL  {c.__name__}: {e}")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"{ran - len(failed)} of {ran} hostile cases passed")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -28,7 +28,7 @@ struct MultigridPoisson::Level {
   // Dirichlet face coefficients per axis and side, on the transverse plane (lower axis fastest).
   std::array<std::array<std::vector<double>, 2>, 3> dface;
   std::vector<double> diag, inv_diag;
-  std::vector<double> x, b, r;
+  std::vector<double> x, b; // a coarse level's correction and right-hand side
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
         const std::array<std::array<PoissonSide, 2>, 3>& sides)
@@ -51,7 +51,6 @@ struct MultigridPoisson::Level {
     inv_diag.assign(size, 0.0);
     x.assign(size, 0.0);
     b.assign(size, 0.0);
-    r.assign(size, 0.0);
   }
   [[nodiscard]] std::size_t at(int i, int j, int k) const {
     return static_cast<std::size_t>((i + 1) * s[0] + (j + 1) * s[1] + (k + 1) * s[2]);
@@ -76,7 +75,18 @@ namespace {
 
 using Level = MultigridPoisson::Level;
 
-template <class F> void for_planes(int planes, F&& f) {
+// Loops over fewer cells than this run on the calling thread: on the coarse levels a task
+// launch costs more than the work.
+constexpr std::size_t kParallelCells = 4096;
+
+// f(k) for every plane k; work: the cells the loop touches (decides serial or TBB).
+template <class F> void for_planes(int planes, std::size_t work, F&& f) {
+  if (work < kParallelCells) {
+    for (int k = 0; k < planes; ++k) {
+      f(k);
+    }
+    return;
+  }
   tbb::parallel_for(tbb::blocked_range<int>(0, planes), [&](const tbb::blocked_range<int>& r) {
     for (int k = r.begin(); k < r.end(); ++k) {
       f(k);
@@ -86,9 +96,9 @@ template <class F> void for_planes(int planes, F&& f) {
 
 // Sum over z-planes of f(k): per-plane partial sums added in plane order, so the result does not
 // depend on how the planes were shared among threads.
-template <class F> double sum_planes(int planes, F&& f) {
+template <class F> double sum_planes(int planes, std::size_t work, F&& f) {
   std::vector<double> partial(static_cast<std::size_t>(planes), 0.0);
-  for_planes(planes, [&](int k) { partial[static_cast<std::size_t>(k)] = f(k); });
+  for_planes(planes, work, [&](int k) { partial[static_cast<std::size_t>(k)] = f(k); });
   double total = 0.0;
   for (const double v : partial) {
     total += v;
@@ -96,9 +106,10 @@ template <class F> double sum_planes(int planes, F&& f) {
   return total;
 }
 
-template <std::size_t N, class F> std::array<double, N> sum_planes_n(int planes, F&& f) {
+template <std::size_t N, class F>
+std::array<double, N> sum_planes_n(int planes, std::size_t work, F&& f) {
   std::vector<std::array<double, N>> partial(static_cast<std::size_t>(planes));
-  for_planes(planes, [&](int k) { partial[static_cast<std::size_t>(k)] = f(k); });
+  for_planes(planes, work, [&](int k) { partial[static_cast<std::size_t>(k)] = f(k); });
   std::array<double, N> total{};
   for (const auto& v : partial) {
     for (std::size_t m = 0; m < N; ++m) {
@@ -110,7 +121,7 @@ template <std::size_t N, class F> std::array<double, N> sum_planes_n(int planes,
 
 // f(c) on every interior cell of a level, plane-parallel.
 template <class F> void for_cells(const Level& L, F&& f) {
-  for_planes(L.n[2], [&](int k) {
+  for_planes(L.n[2], L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
       std::size_t c = L.at(0, j, k);
       for (int i = 0; i < L.n[0]; ++i, ++c) {
@@ -122,7 +133,7 @@ template <class F> void for_cells(const Level& L, F&& f) {
 
 // f(c, s) adds cell c's terms into the sum s; summed as sum_planes does (thread-count free).
 template <class F> double sum_cells(const Level& L, F&& f) {
-  return sum_planes(L.n[2], [&](int k) {
+  return sum_planes(L.n[2], L.cells(), [&](int k) {
     double s = 0.0;
     for (int j = 0; j < L.n[1]; ++j) {
       std::size_t c = L.at(0, j, k);
@@ -140,7 +151,7 @@ void fill_ghosts(const Level& L, double* v) {
   const bool px = L.periodic[0] && n[0] > 1;
   const bool py = L.periodic[1] && n[1] > 1;
   if (px || py) {
-    for_planes(n[2], [&](int k) {
+    for_planes(n[2], 2 * static_cast<std::size_t>((n[0] + n[1]) * n[2]), [&](int k) {
       if (px) {
         for (int j = 0; j < n[1]; ++j) {
           v[L.at(-1, j, k)] = v[L.at(n[0] - 1, j, k)];
@@ -192,7 +203,7 @@ void relax_points(const Level& L, const double* b, double* x, int colour) {
   const double* ky = L.K[1].data();
   const double* kz = L.K[2].data();
   const double* id = L.inv_diag.data();
-  for_planes(L.n[2], [&](int k) {
+  for_planes(L.n[2], L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
       const int i0 = (colour + j + k) & 1;
       std::size_t c = L.at(i0, j, k);
@@ -260,7 +271,7 @@ void relax_lines(const Level& L, const double* b, double* x, int colour) {
   const double* kp = L.K[p].data();
   const double* kq = L.K[q].data();
   const bool cyclic = L.periodic[a] && na > 1;
-  for_planes(L.n[q], [&](int iq) {
+  for_planes(L.n[q], 4 * L.cells(), [&](int iq) {
     std::vector<double> buf(static_cast<std::size_t>(7 * na));
     double* lo = buf.data();
     double* d = lo + na;
@@ -309,12 +320,14 @@ void relax(const Level& L, const double* b, double* x, int colour) {
   }
 }
 
-// Coarse right-hand side: the mean of the fine residual over each coarse cell's children (the
-// transpose of piecewise-constant prolongation, scaled by 1 / children).
-void restrict_residual(const Level& F, const Level& C, const double* r, double* bc) {
+// Coarse right-hand side: the mean of the fine residual b - A x over each coarse cell's children
+// (the transpose of piecewise-constant prolongation, scaled by 1 / children), the residual
+// computed on the fly (ghosts of x filled).
+void restrict_residual(const Level& F, const Level& C, const double* b, const double* x,
+                       double* bc) {
   const auto& q = F.ratio;
   const double inv = 1.0 / (q[0] * q[1] * q[2]);
-  for_planes(C.n[2], [&](int k) {
+  for_planes(C.n[2], F.cells(), [&](int k) {
     for (int j = 0; j < C.n[1]; ++j) {
       for (int i = 0; i < C.n[0]; ++i) {
         double sum = 0.0;
@@ -322,7 +335,8 @@ void restrict_residual(const Level& F, const Level& C, const double* r, double* 
           for (int dj = 0; dj < q[1]; ++dj) {
             const std::size_t f = F.at(q[0] * i, q[1] * j + dj, q[2] * k + dk);
             for (int di = 0; di < q[0]; ++di) {
-              sum += r[f + static_cast<std::size_t>(di)];
+              const std::size_t c = f + static_cast<std::size_t>(di);
+              sum += b[c] - apply_at(F, x, c);
             }
           }
         }
@@ -332,10 +346,25 @@ void restrict_residual(const Level& F, const Level& C, const double* r, double* 
   });
 }
 
+// The first red pass from x = 0: red cells b / diag, black cells 0 (their neighbours are zero).
+void relax_points_from_zero(const Level& L, const double* b, double* x) {
+  const double* id = L.inv_diag.data();
+  for_planes(L.n[2], L.cells(), [&](int k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::size_t c = L.at(0, j, k);
+      const int red = (j + k) & 1; // i parity of the red cells in this row
+      for (int i = 0; i < L.n[0]; ++i, ++c) {
+        x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+      }
+    }
+  });
+  fill_ghosts(L, x);
+}
+
 // x_fine += x_coarse of the parent cell (piecewise constant).
 void prolong_add(const Level& F, const Level& C, const double* xc, double* xf) {
   const auto& q = F.ratio;
-  for_planes(F.n[2], [&](int k) {
+  for_planes(F.n[2], F.cells(), [&](int k) {
     for (int j = 0; j < F.n[1]; ++j) {
       std::size_t f = F.at(0, j, k);
       const std::size_t crow = C.at(0, j / q[1], k / q[2]);
@@ -364,7 +393,7 @@ void shift_interior(const Level& L, double* v, double shift) {
 
 // The diagonal from the face coefficients and the Dirichlet faces.
 void build_diagonal(Level& L) {
-  for_planes(L.n[2], [&](int k) {
+  for_planes(L.n[2], L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
       for (int i = 0; i < L.n[0]; ++i) {
         const std::array<int, 3> cell = {i, j, k};
@@ -400,7 +429,7 @@ void coarsen_coefficients(const Level& F, Level& C) {
     std::array<int, 3> hi = C.n;
     hi[a] = C.n[a] + 1;
     const bool wrap_to_self = C.periodic[a] && C.n[a] == 1;
-    for_planes(hi[2], [&](int k) {
+    for_planes(hi[2], 2 * C.cells(), [&](int k) {
       for (int j = 0; j < hi[1]; ++j) {
         for (int i = 0; i < hi[0]; ++i) {
           const std::array<int, 3> face = {i, j, k};
@@ -568,7 +597,7 @@ void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef) {
     std::array<int, 3> hi = L.n;
     hi[a] = L.n[a] + 1;
     const bool self = L.periodic[a] && L.n[a] == 1;
-    for_planes(hi[2], [&](int k) {
+    for_planes(hi[2], L.cells(), [&](int k) {
       for (int j = 0; j < hi[1]; ++j) {
         for (int i = 0; i < hi[0]; ++i) {
           std::array<int, 3> face = {i, j, k};
@@ -770,13 +799,18 @@ void MultigridPoisson::vcycle(int level, const double* b, double* x) {
   }
   Level& L = levels_[static_cast<std::size_t>(level)];
   Level& C = levels_[static_cast<std::size_t>(level) + 1];
-  std::fill(x, x + L.size, 0.0);
-  for (int s = 0; s < settings_.pre_sweeps; ++s) {
+  if (L.line < 0) {
+    relax_points_from_zero(L, b, x);
+  } else {
+    std::fill(x, x + L.size, 0.0);
+    relax(L, b, x, 0);
+  }
+  relax(L, b, x, 1);
+  for (int s = 1; s < settings_.pre_sweeps; ++s) {
     relax(L, b, x, 0);
     relax(L, b, x, 1);
   }
-  (void)residual(L, b, x, L.r.data());
-  restrict_residual(L, C, L.r.data(), C.b.data());
+  restrict_residual(L, C, b, x, C.b.data());
   vcycle(level + 1, C.b.data(), C.x.data());
   prolong_add(L, C, C.x.data(), x);
   for (int s = 0; s < settings_.post_sweeps; ++s) {
@@ -857,7 +891,7 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
         break;
       }
       precondition(r_.data(), z_.data());
-      const auto sums = sum_planes_n<2>(planes, [&](int k) {
+      const auto sums = sum_planes_n<2>(planes, L.cells(), [&](int k) {
         std::array<double, 2> s{};
         for (int j = 0; j < L.n[1]; ++j) {
           std::size_t c = L.at(0, j, k);

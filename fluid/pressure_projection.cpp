@@ -47,6 +47,8 @@ namespace {
 
 constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
 
+} // namespace
+
 // PFMG levels that keep every periodic axis at two or more cells. PFMG semicoarsens by 2 along
 // the axis of smallest dxyz (ties: lowest axis) and itself stops at an odd period; a period of
 // one cell couples a cell to itself, where red/black relaxation is wrong (PCG then stalls or
@@ -75,6 +77,8 @@ int pfmg_max_levels(const MacGrid& grid) {
   }
   return levels;
 }
+
+namespace {
 
 double face_eps(const GridField& eps, std::size_t c, std::ptrdiff_t s) {
   return 0.5 * (eps[c] + eps[c - static_cast<std::size_t>(s)]);

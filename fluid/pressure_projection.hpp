@@ -39,6 +39,9 @@ struct ProjectionReport {
   bool used_fallback = false; // PFMG did not converge and SMG was used
 };
 
+// The PFMG levels the hypre path uses on this grid (every periodic axis keeps >= 2 cells).
+[[nodiscard]] int pfmg_max_levels(const MacGrid& grid);
+
 // div(eps_f u) per interior cell [1/s]; eps ghosts must be filled.
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,
                      GridField& div);

@@ -46,6 +46,9 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.projection.tolerance = s.fluid.tolerance;
   g.projection.preconditioner = s.fluid.preconditioner == "smg" ? fluid::PoissonPreconditioner::smg
                                                                 : fluid::PoissonPreconditioner::pfmg;
+  g.projection.solver = s.fluid.solver == "multigrid" ? fluid::PoissonSolver::multigrid
+                        : s.fluid.solver == "hypre"   ? fluid::PoissonSolver::hypre
+                                                      : fluid::PoissonSolver::automatic;
   return g;
 }
 
@@ -133,6 +136,11 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
                          std::size_t owned)
     : scene_(scene), comm_(comm != nullptr && comm->size() > 1 ? comm : nullptr),
       boxes_(gas_boxes(scene, comm_)), grid_(gas_grid(scene, comm_, boxes_)) {
+  if (comm_ != nullptr && scene.fluid.solver == "multigrid") {
+    throw ConfigError("scene key 'fluid.solver'",
+                      "\"multigrid\" solves the projection on one rank only (no distributed "
+                      "V-cycle yet): on R ranks use \"hypre\" or \"auto\"");
+  }
   if (comm_ != nullptr) halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
   solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);
   const std::size_t n = std::min(owned, p.size());

@@ -147,7 +147,9 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
                              domain.periodic, else wall), fluid.inflow_velocity,
                              fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
                              fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity,
-                             fluid.tolerance, fluid.preconditioner ("pfmg" | "smg")
+                             fluid.tolerance, fluid.preconditioner ("pfmg" | "smg"),
+                             fluid.solver ("multigrid" | "hypre" | "auto": multigrid on one
+                             rank, hypre on R ranks; default auto)
   partition.weights          orb: "count" (default) | "cost" (particles x local steps of the
                              last regrid interval)
   partition.gas_regrid_interval  a gas on R ranks: simulated seconds between recuts of the gas

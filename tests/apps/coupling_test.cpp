@@ -269,6 +269,7 @@ TEST(FluidInput, BadInputsExitWithCode2AndNameTheKey) {
   expect_config_error(kRiser, "fluid.deposition=gauss", "fluid.deposition");
   expect_config_error(kRiser, "fluid.bc.x_lo=wall", "fluid.bc.x_lo");
   expect_config_error(kRiser, "fluid.pressure_dorp=[0,1,0]", "fluid.pressure_dorp");
+  expect_config_error(kRiser, "fluid.solver=amg", "fluid.solver");
   // The orb scheme's sub-iterations divide a fixed fluid step.
   expect_config_error(kRiser, "dem.scheme=orb fluid.dt=0", "fluid.dt");
 }

@@ -187,6 +187,9 @@ GasStepReport GasSolver::step(double dt) {
   }
   // Projection mobility dt/(rho + dt beta_f/eps_f): the pressure correction sees the same
   // implicit drag factor as the predictor, so the corrected velocity is exactly constrained.
+  // On wall and inflow faces the velocity is prescribed: their eps_f, mobility and drag are
+  // computed here and in stage() but never read (the inflow's eps_g = 1 enters through
+  // flux_divergence and the viscous stresses in the inflow plane).
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     std::array<int, 3> hi = n;

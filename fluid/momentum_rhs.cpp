@@ -91,6 +91,11 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
       const double* ub = uv[b];
       std::array<int, 3> edge_hi = hi;
       ++edge_hi[b];
+      // d u_a/d x_b + d u_b/d x_a on the (a, b) edge below p along b (b != a); the d u_a/d x_b
+      // part is left to ImplicitViscosity when it is implicit.
+      const auto shear_rate = [&](std::ptrdiff_t p) {
+        return own * (q[p] - q[p - sb]) * inv_dx[b] + (ub[p] - ub[p - sa]) * inv_dx[a];
+      };
       // Quantities on the low control-volume face of p along b: advecting velocity, upwind
       // MUSCL state times it, and eps tau_ab (normal stress at cell p - 1 when b == a; shear
       // stress on the (a, b) edge otherwise).
@@ -107,10 +112,21 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
               ep[c] * mu * ((1.0 + own) * (q[c + sa] - q[c]) * inv_dx[a] - 2.0 / 3.0 * div[c]);
         } else {
           const double eps_edge = 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
-          stress[p] = eps_edge * mu *
-                      (own * (q[p] - q[p - sb]) * inv_dx[b] + (ub[p] - ub[p - sa]) * inv_dx[a]);
+          stress[p] = eps_edge * mu * shear_rate(p);
         }
       });
+      // Edges in the plane of a velocity-inflow face carry the incoming gas's eps_g (mac_grid.hpp),
+      // not the mean with the zero-gradient ghosts.
+      for (int side = 0; mu != 0.0 && b != a && side < 2; ++side) {
+        if (!grid.inflow_face(b, side)) {
+          continue;
+        }
+        std::array<int, 3> plane_lo = {0, 0, 0};
+        std::array<int, 3> plane_hi = edge_hi;
+        plane_lo[b] = plane_hi[b] = side == 0 ? 0 : n[b];
+        for_box(layout, plane_lo, plane_hi,
+                [&](std::ptrdiff_t p) { stress[p] = kInflowVolumeFraction * mu * shear_rate(p); });
+      }
       // Convective form u.grad q = div(a q) - q div(a) (see the header).
       for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
         out[p] -= ((flux[p + sb] - flux[p]) - q[p] * (speed[p + sb] - speed[p])) * inv_dx[b];

@@ -31,7 +31,8 @@ struct ProjectionReport {
   bool used_fallback = false; // PFMG did not converge and SMG was used
 };
 
-// div(eps_f u) per interior cell [1/s]; eps ghosts must be filled.
+// div(eps_f u) per interior cell [1/s]; eps ghosts must be filled. eps_f is the mean of the two
+// cells, except on a velocity-inflow face: kInflowVolumeFraction (the incoming gas's).
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,
                      GridField& div);
 

@@ -96,20 +96,7 @@ double taylor_green_rate_error(int n, double reynolds, bool implicit_viscosity) 
   const double dt_max =
       settings.cfl / (amplitude * 2.0 * n / length + 2.0 * nu * 3.0 * n * n / (length * length));
   auto& u = solver.velocity();
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i <= n; ++i) {
-      const double x = grid.face_position(0, i);
-      const double y = grid.cell_centre(1, j);
-      u[0](i, j, 0) = amplitude * std::sin(k * x) * std::cos(k * y);
-    }
-  }
-  for (int j = 0; j <= n; ++j) {
-    for (int i = 0; i < n; ++i) {
-      const double x = grid.cell_centre(0, i);
-      const double y = grid.face_position(1, j);
-      u[1](i, j, 0) = -amplitude * std::cos(k * x) * std::sin(k * y);
-    }
-  }
+  test::set_taylor_green(grid, u, amplitude);
   const auto energy = [&]() {
     double e = 0.0;
     for (int j = 0; j < n; ++j) {

@@ -1,12 +1,17 @@
 #include "fluid/deposition.hpp"
 
+#include <algorithm>
+#include <cstdint>
+#include <limits>
 #include <numbers>
 #include <vector>
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 #include <stdexcept>
 #include <string>
+#include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <fmt/format.h>
 
@@ -173,30 +178,113 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
   }
 }
 
-void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,
-                         GridField& cell) {
-  const double inv_volume = 1.0 / grid_.cell_volume();
-  for (std::size_t n = 0; n < value.size(); ++n) {
-    const double q = value[n] * inv_volume;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
-                    [&](std::size_t idx, double w) { cell[idx] += w * q; });
+void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
+                         std::span<GridField* const> cells) {
+  const double* v = values_.data();
+  const std::size_t threads =
+      std::min(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
+               static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()));
+  if (threads <= 1) {
+    // One thread: the serial order directly (the same sums, without the sorting's traffic).
+    for (std::size_t q = 0; q < count; ++q) {
+      for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
+                      [&](std::size_t idx, double w) {
+                        for (std::size_t f = 0; f < nf; ++f) {
+                          (*cells[f])[idx] += w * v[q * nf + f];
+                        }
+                      });
+    }
+  } else {
+    scatter_by_planes(p, count, nf, cells);
   }
   if (halo_ != nullptr) {
-    halo_->add_ghosts_to_owners(cell, kCellCentred);
+    for (std::size_t f = 0; f < nf; ++f) {
+      halo_->add_ghosts_to_owners(*cells[f], kCellCentred);
+    }
   }
+}
+
+void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
+                                   std::span<GridField* const> cells) {
+  const double* v = values_.data();
+  if (count > std::numeric_limits<std::uint32_t>::max() ||
+      grid_.layout().size() > std::numeric_limits<std::uint32_t>::max()) {
+    throw std::length_error("deposition: more than 2^32 particles or grid points on one rank");
+  }
+  // Fixed blocks (not TBB's splitting): the same grouping whatever the thread count.
+  constexpr std::size_t kBlock = 256;
+  const std::size_t nblocks = (count + kBlock - 1) / kBlock;
+  if (blocks_.size() < nblocks) {
+    blocks_.resize(nblocks);
+  }
+  const GridLayout& layout = grid_.layout();
+  const auto plane_stride = static_cast<std::size_t>(layout.stride(2));
+  const std::size_t planes = layout.size() / plane_stride;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nblocks), [&](const tbb::blocked_range<
+                                                                     std::size_t>& r) {
+    std::vector<double> buf(weights_.size());
+    for (std::size_t b = r.begin(); b != r.end(); ++b) {
+      Block& block = blocks_[b];
+      block.raw.clear();
+      const std::size_t end = std::min(count, (b + 1) * kBlock);
+      for (std::size_t q = b * kBlock; q < end; ++q) {
+        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf, [&](std::size_t idx, double w) {
+          block.raw.push_back({w, static_cast<std::uint32_t>(idx), static_cast<std::uint32_t>(q)});
+        });
+      }
+      // Stable counting sort by k-plane.
+      block.start.assign(planes + 1, 0);
+      for (const Entry& e : block.raw) {
+        ++block.start[e.idx / plane_stride + 1];
+      }
+      for (std::size_t m = 0; m < planes; ++m) {
+        block.start[m + 1] += block.start[m];
+      }
+      block.sorted.resize(block.raw.size());
+      std::vector<std::size_t> next(block.start.begin(), block.start.end() - 1);
+      for (const Entry& e : block.raw) {
+        block.sorted[next[e.idx / plane_stride]++] = e;
+      }
+    }
+  });
+  // Every cell lies in one plane: a plane's additions run in block order, then in the serial
+  // order within each block, so each cell gets them in the serial order.
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, planes),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t m = r.begin(); m != r.end(); ++m) {
+                        for (std::size_t b = 0; b < nblocks; ++b) {
+                          const Block& block = blocks_[b];
+                          for (std::size_t e = block.start[m]; e < block.start[m + 1]; ++e) {
+                            const Entry& entry = block.sorted[e];
+                            for (std::size_t f = 0; f < nf; ++f) {
+                              (*cells[f])[entry.idx] += entry.w * v[entry.particle * nf + f];
+                            }
+                          }
+                        }
+                      }
+                    });
+}
+
+void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,
+                         GridField& cell) {
+  const std::span<const double> values[1] = {value};
+  GridField* const cells[1] = {&cell};
+  deposit(p, values, cells);
 }
 
 void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s) {
   const double inv_volume = 1.0 / grid_.cell_volume();
-  for (std::size_t n = 0; n < p.radius.size(); ++n) {
-    const double r = p.radius[n];
-    const double q = 4.0 / 3.0 * std::numbers::pi * r * r * r * inv_volume;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, r, weights_,
-                    [&](std::size_t idx, double w) { eps_s[idx] += w * q; });
-  }
-  if (halo_ != nullptr) {
-    halo_->add_ghosts_to_owners(eps_s, kCellCentred);
-  }
+  const std::size_t n = p.radius.size();
+  values_.resize(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        const double rad = p.radius[q];
+                        values_[q] = 4.0 / 3.0 * std::numbers::pi * rad * rad * rad * inv_volume;
+                      }
+                    });
+  GridField* const cells[1] = {&eps_s};
+  scatter(p, n, 1, cells);
 }
 
 void Deposition::smooth(GridField& cell) const {
@@ -207,12 +295,9 @@ void Deposition::smooth(GridField& cell) const {
 
 void Deposition::interpolate(const ParticlePositions& p, const GridField& field,
                              std::span<double> out) {
-  for (std::size_t n = 0; n < out.size(); ++n) {
-    double sum = 0.0;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
-                    [&](std::size_t idx, double w) { sum += w * field[idx]; });
-    out[n] = sum;
-  }
+  const GridField* const fields[1] = {&field};
+  const std::span<double> outs[1] = {out};
+  interpolate(p, fields, outs);
 }
 
 void Deposition::interpolate(const ParticlePositions& p, std::span<const GridField* const> fields,
@@ -259,23 +344,17 @@ void Deposition::deposit(const ParticlePositions& p,
   }
   const double inv_volume = 1.0 / grid_.cell_volume();
   const std::size_t n = nf ? values[0].size() : 0;
-  std::array<double, kMaxFields> v{};
-  for (std::size_t q = 0; q < n; ++q) {
-    for (std::size_t f = 0; f < nf; ++f) {
-      v[f] = values[f][q] * inv_volume;
-    }
-    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
-                    [&](std::size_t idx, double w) {
-                      for (std::size_t f = 0; f < nf; ++f) {
-                        (*cells[f])[idx] += w * v[f];
+  // Each particle's values per unit cell volume, computed once (as the additions use them).
+  values_.resize(n * nf);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        for (std::size_t f = 0; f < nf; ++f) {
+                          values_[q * nf + f] = values[f][q] * inv_volume;
+                        }
                       }
                     });
-  }
-  if (halo_ != nullptr) {
-    for (GridField* c : cells) {
-      halo_->add_ghosts_to_owners(*c, kCellCentred);
-    }
-  }
+  scatter(p, n, nf, cells);
 }
 
 } // namespace cfddem::fluid

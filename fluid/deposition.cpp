@@ -1,9 +1,9 @@
 #include "fluid/deposition.hpp"
 
 #include <algorithm>
-#include <cstdint>
-#include <limits>
+#include <cmath>
 #include <numbers>
+#include <type_traits>
 #include <vector>
 
 #include <stdexcept>
@@ -19,6 +19,10 @@
 #include "fluid/trilinear_weights.hpp"
 
 namespace cfddem::fluid {
+
+namespace {
+constexpr std::size_t kMaxDepositFields = 8;
+} // namespace
 
 DepositionKernel parse_deposition_kernel(std::string_view name) {
   if (name == "trilinear") {
@@ -171,7 +175,12 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
       for (int a = 0; a < s.size[0]; ++a) {
         const double w = buf[m++];
         if (w != 0.0) {
-          visit(grid_.layout().index(fold(0, s.lo[0] + a), j, k), w);
+          const std::size_t idx = grid_.layout().index(fold(0, s.lo[0] + a), j, k);
+          if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
+            visit(idx, w, k); // the cell's k index too (scatter_by_planes)
+          } else {
+            visit(idx, w);
+          }
         }
       }
     }
@@ -186,11 +195,13 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
                static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()));
   if (threads <= 1) {
     // One thread: the serial order directly (the same sums, without the sorting's traffic).
+    std::array<double, kMaxDepositFields> vq{};
     for (std::size_t q = 0; q < count; ++q) {
+      std::copy_n(v + q * nf, nf, vq.begin());
       for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
                       [&](std::size_t idx, double w) {
                         for (std::size_t f = 0; f < nf; ++f) {
-                          (*cells[f])[idx] += w * v[q * nf + f];
+                          (*cells[f])[idx] += w * vq[f];
                         }
                       });
     }
@@ -207,62 +218,52 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
 void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
                                    std::span<GridField* const> cells) {
   const double* v = values_.data();
-  if (count > std::numeric_limits<std::uint32_t>::max() ||
-      grid_.layout().size() > std::numeric_limits<std::uint32_t>::max()) {
-    throw std::length_error("deposition: more than 2^32 particles or grid points on one rank");
-  }
-  // Fixed blocks (not TBB's splitting): the same grouping whatever the thread count.
-  constexpr std::size_t kBlock = 256;
-  const std::size_t nblocks = (count + kBlock - 1) / kBlock;
-  if (blocks_.size() < nblocks) {
-    blocks_.resize(nblocks);
-  }
-  const GridLayout& layout = grid_.layout();
-  const auto plane_stride = static_cast<std::size_t>(layout.stride(2));
-  const std::size_t planes = layout.size() / plane_stride;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nblocks), [&](const tbb::blocked_range<
-                                                                     std::size_t>& r) {
-    std::vector<double> buf(weights_.size());
-    for (std::size_t b = r.begin(); b != r.end(); ++b) {
-      Block& block = blocks_[b];
-      block.raw.clear();
-      const std::size_t end = std::min(count, (b + 1) * kBlock);
-      for (std::size_t q = b * kBlock; q < end; ++q) {
-        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf, [&](std::size_t idx, double w) {
-          block.raw.push_back({w, static_cast<std::uint32_t>(idx), static_cast<std::uint32_t>(q)});
-        });
-      }
-      // Stable counting sort by k-plane.
-      block.start.assign(planes + 1, 0);
-      for (const Entry& e : block.raw) {
-        ++block.start[e.idx / plane_stride + 1];
-      }
-      for (std::size_t m = 0; m < planes; ++m) {
-        block.start[m + 1] += block.start[m];
-      }
-      block.sorted.resize(block.raw.size());
-      std::vector<std::size_t> next(block.start.begin(), block.start.end() - 1);
-      for (const Entry& e : block.raw) {
-        block.sorted[next[e.idx / plane_stride]++] = e;
-      }
-    }
-  });
-  // Every cell lies in one plane: a plane's additions run in block order, then in the serial
-  // order within each block, so each cell gets them in the serial order.
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, planes),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t m = r.begin(); m != r.end(); ++m) {
-                        for (std::size_t b = 0; b < nblocks; ++b) {
-                          const Block& block = blocks_[b];
-                          for (std::size_t e = block.start[m]; e < block.start[m + 1]; ++e) {
-                            const Entry& entry = block.sorted[e];
-                            for (std::size_t f = 0; f < nf; ++f) {
-                              (*cells[f])[entry.idx] += entry.w * v[entry.particle * nf + f];
+  const double dz = grid_.spacing(2);
+  const double z0 = grid_.origin(2);
+  const int global_n = grid_.global_cells()[2];
+  const int box_lo = grid_.box().lo[2];
+  // The box's k-planes, ghosts included (a distributed box's deposits reach its ghost layers).
+  const int lo = -kGhostLayers;
+  const int hi = grid_.cells(2) + kGhostLayers;
+  tbb::parallel_for(
+      tbb::blocked_range<int>(lo, hi + 1, 4), // >= 4 planes a task: few kernels done twice
+      [&](const tbb::blocked_range<int>& r) {
+        const int k0 = r.begin();
+        const int k1 = r.end();
+        std::vector<double> buf(weights_.size());
+        std::array<double, kMaxDepositFields> vq{};
+        for (std::size_t q = 0; q < count; ++q) {
+          // Global k range that holds the particle's kernel, with a cell to spare: the
+          // trilinear kernel spans the cells within dz of the centre, a dpvm one those within
+          // its half-width.
+          const double reach =
+              settings_.kernel == DepositionKernel::trilinear ? dz : settings_.width * p.radius[q];
+          const int first = static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1;
+          const int last = static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) + 1;
+          bool touches = false;
+          if (first >= 0 && last < global_n) {
+            touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
+          } else {
+            for (int i = first; i <= last && !touches; ++i) {
+              const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
+              touches = k >= k0 && k < k1;
+            }
+          }
+          if (!touches) {
+            continue;
+          }
+          std::copy_n(v + q * nf, nf, vq.begin());
+          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                          [&](std::size_t idx, double w, int k) {
+                            if (k < k0 || k >= k1) {
+                              return; // another task's plane
                             }
-                          }
-                        }
-                      }
-                    });
+                            for (std::size_t f = 0; f < nf; ++f) {
+                              (*cells[f])[idx] += w * vq[f];
+                            }
+                          });
+        }
+      });
 }
 
 void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,
@@ -338,8 +339,7 @@ void Deposition::deposit(const ParticlePositions& p,
   if (cells.size() != nf) {
     throw std::invalid_argument("Deposition::deposit: one cell field per value array");
   }
-  constexpr std::size_t kMaxFields = 8;
-  if (nf > kMaxFields) {
+  if (nf > kMaxDepositFields) {
     throw std::invalid_argument("Deposition::deposit: at most 8 fields at once");
   }
   const double inv_volume = 1.0 / grid_.cell_volume();

@@ -4,7 +4,6 @@
 #pragma once
 
 #include <array>
-#include <cstdint>
 #include <span>
 #include <string>
 #include <string_view>
@@ -92,33 +91,21 @@ private:
   [[nodiscard]] int fold_in_box(int axis, int i) const;
   void reserve_weights(double kernel_radius, std::vector<double>& buf) const;
   // cells[f][idx] += W_q(idx) values_[q nf + f] for every particle q, f < nf, in the serial
-  // order (particles in turn, each one's kernel cells in turn) at every cell, with TBB threads:
-  // particle blocks compute their kernels, then k-planes of cells take their additions
-  // (scatter_by_planes). On one thread it runs the serial loop itself (the same sums).
+  // order (particles in turn, each one's kernel cells in turn) at every cell. With TBB threads
+  // (scatter_by_planes) each task owns a range of k-planes and goes through the particles in
+  // order, adding only into its planes (a particle whose kernel spans two tasks' planes has its
+  // weights computed by both): every cell gets its additions in the serial order, so the sums
+  // are the serial ones whatever the thread count. On one thread the serial loop runs itself.
   void scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
                std::span<GridField* const> cells);
   void scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
                          std::span<GridField* const> cells);
-
-  // One addition W_q(idx) value(f, q) of the scatter.
-  struct Entry {
-    double w;
-    std::uint32_t idx;
-    std::uint32_t particle;
-  };
-  // A block of particles' additions, grouped by the k-plane of their cell (stable: within a
-  // plane in the serial order); plane m's are sorted[start[m]] .. sorted[start[m + 1] - 1].
-  struct Block {
-    std::vector<Entry> raw, sorted;
-    std::vector<std::size_t> start;
-  };
 
   MacGrid grid_;
   DepositionSettings settings_;
   const GridHalo* halo_ = nullptr;
   std::vector<double> weights_;
   std::vector<double> values_; // per particle and field, per unit cell volume
-  std::vector<Block> blocks_;
 };
 
 } // namespace cfddem::fluid

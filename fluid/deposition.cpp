@@ -206,7 +206,7 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
                       });
     }
   } else {
-    scatter_by_planes(p, count, nf, cells);
+    scatter_by_planes(p, count, nf, cells, threads);
   }
   if (halo_ != nullptr) {
     for (std::size_t f = 0; f < nf; ++f) {
@@ -216,54 +216,62 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
 }
 
 void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
-                                   std::span<GridField* const> cells) {
+                                   std::span<GridField* const> cells, std::size_t threads) {
   const double* v = values_.data();
   const double dz = grid_.spacing(2);
   const double z0 = grid_.origin(2);
   const int global_n = grid_.global_cells()[2];
   const int box_lo = grid_.box().lo[2];
-  // The box's k-planes, ghosts included (a distributed box's deposits reach its ghost layers).
+  // Each particle's global k range that holds its kernel, with a cell to spare: the trilinear
+  // kernel spans the cells within dz of the centre, a dpvm one those within its half-width.
+  reach_.resize(count);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        const double reach = settings_.kernel == DepositionKernel::trilinear
+                                                 ? dz
+                                                 : settings_.width * p.radius[q];
+                        reach_[q] = {static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1,
+                                     static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) + 1};
+                      }
+                    });
+  // The box's k-planes, ghosts included (a distributed box's deposits reach its ghost layers),
+  // in about two tasks a thread (fewer kernels computed twice).
   const int lo = -kGhostLayers;
   const int hi = grid_.cells(2) + kGhostLayers;
-  tbb::parallel_for(
-      tbb::blocked_range<int>(lo, hi + 1, 4), // >= 4 planes a task: few kernels done twice
-      [&](const tbb::blocked_range<int>& r) {
-        const int k0 = r.begin();
-        const int k1 = r.end();
-        std::vector<double> buf(weights_.size());
-        std::array<double, kMaxDepositFields> vq{};
-        for (std::size_t q = 0; q < count; ++q) {
-          // Global k range that holds the particle's kernel, with a cell to spare: the
-          // trilinear kernel spans the cells within dz of the centre, a dpvm one those within
-          // its half-width.
-          const double reach =
-              settings_.kernel == DepositionKernel::trilinear ? dz : settings_.width * p.radius[q];
-          const int first = static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1;
-          const int last = static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) + 1;
-          bool touches = false;
-          if (first >= 0 && last < global_n) {
-            touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
-          } else {
-            for (int i = first; i <= last && !touches; ++i) {
-              const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
-              touches = k >= k0 && k < k1;
-            }
-          }
-          if (!touches) {
-            continue;
-          }
-          std::copy_n(v + q * nf, nf, vq.begin());
-          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
-                          [&](std::size_t idx, double w, int k) {
-                            if (k < k0 || k >= k1) {
-                              return; // another task's plane
-                            }
-                            for (std::size_t f = 0; f < nf; ++f) {
-                              (*cells[f])[idx] += w * vq[f];
-                            }
-                          });
-        }
-      });
+  const int grain = std::max(4, (hi - lo + 1) / (2 * static_cast<int>(threads)));
+  tbb::parallel_for(tbb::blocked_range<int>(lo, hi + 1, grain),
+                    [&](const tbb::blocked_range<int>& r) {
+                      const int k0 = r.begin();
+                      const int k1 = r.end();
+                      std::vector<double> buf(weights_.size());
+                      std::array<double, kMaxDepositFields> vq{};
+                      for (std::size_t q = 0; q < count; ++q) {
+                        const auto [first, last] = reach_[q];
+                        bool touches = false;
+                        if (first >= 0 && last < global_n) {
+                          touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
+                        } else {
+                          for (int i = first; i <= last && !touches; ++i) {
+                            const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
+                            touches = k >= k0 && k < k1;
+                          }
+                        }
+                        if (!touches) {
+                          continue;
+                        }
+                        std::copy_n(v + q * nf, nf, vq.begin());
+                        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                                        [&](std::size_t idx, double w, int k) {
+                                          if (k < k0 || k >= k1) {
+                                            return; // another task's plane
+                                          }
+                                          for (std::size_t f = 0; f < nf; ++f) {
+                                            (*cells[f])[idx] += w * vq[f];
+                                          }
+                                        });
+                      }
+                    });
 }
 
 void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,

@@ -99,13 +99,14 @@ private:
   void scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
                std::span<GridField* const> cells);
   void scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
-                         std::span<GridField* const> cells);
+                         std::span<GridField* const> cells, std::size_t threads);
 
   MacGrid grid_;
   DepositionSettings settings_;
   const GridHalo* halo_ = nullptr;
   std::vector<double> weights_;
-  std::vector<double> values_; // per particle and field, per unit cell volume
+  std::vector<double> values_;            // per particle and field, per unit cell volume
+  std::vector<std::array<int, 2>> reach_; // per particle: global k range of its kernel, +-1
 };
 
 } // namespace cfddem::fluid

@@ -194,9 +194,17 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
       std::min(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
                static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()));
   if (threads <= 1) {
-    // One thread: the serial order directly (the same sums, without the sorting's traffic).
+    // One thread: the serial loop itself (the same sums, no kernel computed twice).
     std::array<double, kMaxDepositFields> vq{};
-    for (std::size_t q = 0; q < count; ++q) {
+    if (nf == 1) { // the solid fraction: one field, no loop over fields
+      GridField& cell = *cells[0];
+      for (std::size_t q = 0; q < count; ++q) {
+        const double vq0 = v[q];
+        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
+                        [&](std::size_t idx, double w) { cell[idx] += w * vq0; });
+      }
+    }
+    for (std::size_t q = 0; nf > 1 && q < count; ++q) {
       std::copy_n(v + q * nf, nf, vq.begin());
       for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
                       [&](std::size_t idx, double w) {
@@ -236,42 +244,46 @@ void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count
                       }
                     });
   // The box's k-planes, ghosts included (a distributed box's deposits reach its ghost layers),
-  // in about two tasks a thread (fewer kernels computed twice).
+  // in one task a thread: a kernel spanning two tasks is computed by both (a dpvm kernel two
+  // diameters wide spans about 7 planes), so fewer, larger tasks do less work twice.
   const int lo = -kGhostLayers;
   const int hi = grid_.cells(2) + kGhostLayers;
-  const int grain = std::max(4, (hi - lo + 1) / (2 * static_cast<int>(threads)));
-  tbb::parallel_for(tbb::blocked_range<int>(lo, hi + 1, grain),
-                    [&](const tbb::blocked_range<int>& r) {
-                      const int k0 = r.begin();
-                      const int k1 = r.end();
-                      std::vector<double> buf(weights_.size());
-                      std::array<double, kMaxDepositFields> vq{};
-                      for (std::size_t q = 0; q < count; ++q) {
-                        const auto [first, last] = reach_[q];
-                        bool touches = false;
-                        if (first >= 0 && last < global_n) {
-                          touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
-                        } else {
-                          for (int i = first; i <= last && !touches; ++i) {
-                            const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
-                            touches = k >= k0 && k < k1;
-                          }
-                        }
-                        if (!touches) {
-                          continue;
-                        }
-                        std::copy_n(v + q * nf, nf, vq.begin());
-                        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
-                                        [&](std::size_t idx, double w, int k) {
-                                          if (k < k0 || k >= k1) {
-                                            return; // another task's plane
-                                          }
-                                          for (std::size_t f = 0; f < nf; ++f) {
-                                            (*cells[f])[idx] += w * vq[f];
-                                          }
-                                        });
-                      }
-                    });
+  const int tasks = static_cast<int>(threads);
+  const int grain = std::max(4, (hi - lo + tasks) / tasks);
+  tbb::parallel_for(
+      tbb::blocked_range<int>(lo, hi + 1, grain),
+      [&](const tbb::blocked_range<int>& r) {
+        const int k0 = r.begin();
+        const int k1 = r.end();
+        std::vector<double> buf(weights_.size());
+        std::array<double, kMaxDepositFields> vq{};
+        for (std::size_t q = 0; q < count; ++q) {
+          const auto [first, last] = reach_[q];
+          bool touches = false;
+          if (first >= 0 && last < global_n) {
+            touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
+          } else {
+            for (int i = first; i <= last && !touches; ++i) {
+              const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
+              touches = k >= k0 && k < k1;
+            }
+          }
+          if (!touches) {
+            continue;
+          }
+          std::copy_n(v + q * nf, nf, vq.begin());
+          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                          [&](std::size_t idx, double w, int k) {
+                            if (k < k0 || k >= k1) {
+                              return; // another task's plane
+                            }
+                            for (std::size_t f = 0; f < nf; ++f) {
+                              (*cells[f])[idx] += w * vq[f];
+                            }
+                          });
+        }
+      },
+      tbb::simple_partitioner());
 }
 
 void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,

@@ -43,6 +43,7 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.gas.gravity = s.gravity;
   g.cfl = s.fluid.cfl;
   g.implicit_viscosity = s.fluid.implicit_viscosity;
+  g.time_order = s.fluid.time_order;
   g.projection.tolerance = s.fluid.tolerance;
   g.projection.preconditioner = s.fluid.preconditioner == "smg" ? fluid::PoissonPreconditioner::smg
                                                                 : fluid::PoissonPreconditioner::pfmg;

@@ -147,6 +147,8 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
                              domain.periodic, else wall), fluid.inflow_velocity,
                              fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
                              fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity,
+                             fluid.time_order (2: predictor-corrector, default; 1: Euler, one
+                             projection per gas step, first order in time),
                              fluid.tolerance, fluid.preconditioner ("pfmg" | "smg"),
                              fluid.solver ("multigrid" | "hypre" | "auto": multigrid on one
                              rank, hypre on R ranks; default auto)

@@ -227,6 +227,12 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.pressure_drop = c.get_vec3("fluid.pressure_drop", {0, 0, 0});
     f.velocity = c.get_vec3("fluid.velocity", {0, 0, 0});
     f.implicit_viscosity = c.get_bool("fluid.implicit_viscosity", false);
+    const std::int64_t order = c.get_int("fluid.time_order", 2);
+    require(order == 1 || order == 2, "fluid.time_order",
+            fmt::format("must be 1 (Euler: one projection per gas step) or 2 (predictor-corrector: "
+                        "two), got {}",
+                        order));
+    f.time_order = static_cast<int>(order);
     f.tolerance = c.get_double("fluid.tolerance", 1e-10);
     require(f.tolerance > 0.0 && f.tolerance < 1.0, "fluid.tolerance", "must be in (0, 1)");
     f.preconditioner = c.get_string("fluid.preconditioner", "pfmg");
@@ -325,6 +331,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.pressure_drop", vec3(f.pressure_drop));
     o.emplace_back("fluid.velocity", vec3(f.velocity));
     o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity ? "true" : "false");
+    o.emplace_back("fluid.time_order", std::to_string(f.time_order));
     o.emplace_back("fluid.tolerance", num(f.tolerance));
     o.emplace_back("fluid.preconditioner", str(f.preconditioner));
     o.emplace_back("fluid.solver", str(f.solver));

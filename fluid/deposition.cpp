@@ -1,12 +1,17 @@
 #include "fluid/deposition.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <numbers>
+#include <type_traits>
 #include <vector>
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 #include <stdexcept>
 #include <string>
+#include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <fmt/format.h>
 
@@ -14,6 +19,10 @@
 #include "fluid/trilinear_weights.hpp"
 
 namespace cfddem::fluid {
+
+namespace {
+constexpr std::size_t kMaxDepositFields = 8;
+} // namespace
 
 DepositionKernel parse_deposition_kernel(std::string_view name) {
   if (name == "trilinear") {
@@ -166,37 +175,137 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
       for (int a = 0; a < s.size[0]; ++a) {
         const double w = buf[m++];
         if (w != 0.0) {
-          visit(grid_.layout().index(fold(0, s.lo[0] + a), j, k), w);
+          const std::size_t idx = grid_.layout().index(fold(0, s.lo[0] + a), j, k);
+          if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
+            visit(idx, w, k); // the cell's k index too (scatter_by_planes)
+          } else {
+            visit(idx, w);
+          }
         }
       }
     }
   }
 }
 
-void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,
-                         GridField& cell) {
-  const double inv_volume = 1.0 / grid_.cell_volume();
-  for (std::size_t n = 0; n < value.size(); ++n) {
-    const double q = value[n] * inv_volume;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
-                    [&](std::size_t idx, double w) { cell[idx] += w * q; });
+void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
+                         std::span<GridField* const> cells) {
+  const double* v = values_.data();
+  const std::size_t threads =
+      std::min(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
+               static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()));
+  if (threads <= 1) {
+    // One thread: the serial loop itself (the same sums, no kernel computed twice).
+    std::array<double, kMaxDepositFields> vq{};
+    if (nf == 1) { // the solid fraction: one field, no loop over fields
+      GridField& cell = *cells[0];
+      for (std::size_t q = 0; q < count; ++q) {
+        const double vq0 = v[q];
+        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
+                        [&](std::size_t idx, double w) { cell[idx] += w * vq0; });
+      }
+    }
+    for (std::size_t q = 0; nf > 1 && q < count; ++q) {
+      std::copy_n(v + q * nf, nf, vq.begin());
+      for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
+                      [&](std::size_t idx, double w) {
+                        for (std::size_t f = 0; f < nf; ++f) {
+                          (*cells[f])[idx] += w * vq[f];
+                        }
+                      });
+    }
+  } else {
+    scatter_by_planes(p, count, nf, cells, threads);
   }
   if (halo_ != nullptr) {
-    halo_->add_ghosts_to_owners(cell, kCellCentred);
+    for (std::size_t f = 0; f < nf; ++f) {
+      halo_->add_ghosts_to_owners(*cells[f], kCellCentred);
+    }
   }
+}
+
+void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
+                                   std::span<GridField* const> cells, std::size_t threads) {
+  const double* v = values_.data();
+  const double dz = grid_.spacing(2);
+  const double z0 = grid_.origin(2);
+  const int global_n = grid_.global_cells()[2];
+  const int box_lo = grid_.box().lo[2];
+  // Each particle's global k range that holds its kernel, with a cell to spare: the trilinear
+  // kernel spans the cells within dz of the centre, a dpvm one those within its half-width.
+  reach_.resize(count);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        const double reach = settings_.kernel == DepositionKernel::trilinear
+                                                 ? dz
+                                                 : settings_.width * p.radius[q];
+                        reach_[q] = {static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1,
+                                     static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) + 1};
+                      }
+                    });
+  // The box's k-planes, ghosts included (a distributed box's deposits reach its ghost layers),
+  // in one task a thread: a kernel spanning two tasks is computed by both (a dpvm kernel two
+  // diameters wide spans about 7 planes), so fewer, larger tasks do less work twice.
+  const int lo = -kGhostLayers;
+  const int hi = grid_.cells(2) + kGhostLayers;
+  const int tasks = static_cast<int>(threads);
+  const int grain = std::max(4, (hi - lo + tasks) / tasks);
+  tbb::parallel_for(
+      tbb::blocked_range<int>(lo, hi + 1, grain),
+      [&](const tbb::blocked_range<int>& r) {
+        const int k0 = r.begin();
+        const int k1 = r.end();
+        std::vector<double> buf(weights_.size());
+        std::array<double, kMaxDepositFields> vq{};
+        for (std::size_t q = 0; q < count; ++q) {
+          const auto [first, last] = reach_[q];
+          bool touches = false;
+          if (first >= 0 && last < global_n) {
+            touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
+          } else {
+            for (int i = first; i <= last && !touches; ++i) {
+              const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
+              touches = k >= k0 && k < k1;
+            }
+          }
+          if (!touches) {
+            continue;
+          }
+          std::copy_n(v + q * nf, nf, vq.begin());
+          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                          [&](std::size_t idx, double w, int k) {
+                            if (k < k0 || k >= k1) {
+                              return; // another task's plane
+                            }
+                            for (std::size_t f = 0; f < nf; ++f) {
+                              (*cells[f])[idx] += w * vq[f];
+                            }
+                          });
+        }
+      },
+      tbb::simple_partitioner());
+}
+
+void Deposition::deposit(const ParticlePositions& p, std::span<const double> value,
+                         GridField& cell) {
+  const std::span<const double> values[1] = {value};
+  GridField* const cells[1] = {&cell};
+  deposit(p, values, cells);
 }
 
 void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s) {
   const double inv_volume = 1.0 / grid_.cell_volume();
-  for (std::size_t n = 0; n < p.radius.size(); ++n) {
-    const double r = p.radius[n];
-    const double q = 4.0 / 3.0 * std::numbers::pi * r * r * r * inv_volume;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, r, weights_,
-                    [&](std::size_t idx, double w) { eps_s[idx] += w * q; });
-  }
-  if (halo_ != nullptr) {
-    halo_->add_ghosts_to_owners(eps_s, kCellCentred);
-  }
+  const std::size_t n = p.radius.size();
+  values_.resize(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        const double rad = p.radius[q];
+                        values_[q] = 4.0 / 3.0 * std::numbers::pi * rad * rad * rad * inv_volume;
+                      }
+                    });
+  GridField* const cells[1] = {&eps_s};
+  scatter(p, n, 1, cells);
 }
 
 void Deposition::smooth(GridField& cell) const {
@@ -207,12 +316,9 @@ void Deposition::smooth(GridField& cell) const {
 
 void Deposition::interpolate(const ParticlePositions& p, const GridField& field,
                              std::span<double> out) {
-  for (std::size_t n = 0; n < out.size(); ++n) {
-    double sum = 0.0;
-    for_each_weight({p.x[n], p.y[n], p.z[n]}, p.radius[n], weights_,
-                    [&](std::size_t idx, double w) { sum += w * field[idx]; });
-    out[n] = sum;
-  }
+  const GridField* const fields[1] = {&field};
+  const std::span<double> outs[1] = {out};
+  interpolate(p, fields, outs);
 }
 
 void Deposition::interpolate(const ParticlePositions& p, std::span<const GridField* const> fields,
@@ -253,29 +359,22 @@ void Deposition::deposit(const ParticlePositions& p,
   if (cells.size() != nf) {
     throw std::invalid_argument("Deposition::deposit: one cell field per value array");
   }
-  constexpr std::size_t kMaxFields = 8;
-  if (nf > kMaxFields) {
+  if (nf > kMaxDepositFields) {
     throw std::invalid_argument("Deposition::deposit: at most 8 fields at once");
   }
   const double inv_volume = 1.0 / grid_.cell_volume();
   const std::size_t n = nf ? values[0].size() : 0;
-  std::array<double, kMaxFields> v{};
-  for (std::size_t q = 0; q < n; ++q) {
-    for (std::size_t f = 0; f < nf; ++f) {
-      v[f] = values[f][q] * inv_volume;
-    }
-    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
-                    [&](std::size_t idx, double w) {
-                      for (std::size_t f = 0; f < nf; ++f) {
-                        (*cells[f])[idx] += w * v[f];
+  // Each particle's values per unit cell volume, computed once (as the additions use them).
+  values_.resize(n * nf);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                        for (std::size_t f = 0; f < nf; ++f) {
+                          values_[q * nf + f] = values[f][q] * inv_volume;
+                        }
                       }
                     });
-  }
-  if (halo_ != nullptr) {
-    for (GridField* c : cells) {
-      halo_->add_ghosts_to_owners(*c, kCellCentred);
-    }
-  }
+  scatter(p, n, nf, cells);
 }
 
 } // namespace cfddem::fluid

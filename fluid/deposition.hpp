@@ -90,11 +90,23 @@ private:
   [[nodiscard]] int fold(int axis, int i) const;
   [[nodiscard]] int fold_in_box(int axis, int i) const;
   void reserve_weights(double kernel_radius, std::vector<double>& buf) const;
+  // cells[f][idx] += W_q(idx) values_[q nf + f] for every particle q, f < nf, in the serial
+  // order (particles in turn, each one's kernel cells in turn) at every cell. With TBB threads
+  // (scatter_by_planes) each task owns a range of k-planes and goes through the particles in
+  // order, adding only into its planes (a particle whose kernel spans two tasks' planes has its
+  // weights computed by both): every cell gets its additions in the serial order, so the sums
+  // are the serial ones whatever the thread count. On one thread the serial loop runs itself.
+  void scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
+               std::span<GridField* const> cells);
+  void scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
+                         std::span<GridField* const> cells, std::size_t threads);
 
   MacGrid grid_;
   DepositionSettings settings_;
   const GridHalo* halo_ = nullptr;
   std::vector<double> weights_;
+  std::vector<double> values_;            // per particle and field, per unit cell volume
+  std::vector<std::array<int, 2>> reach_; // per particle: global k range of its kernel, +-1
 };
 
 } // namespace cfddem::fluid

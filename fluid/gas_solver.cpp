@@ -7,7 +7,11 @@
 #include <utility>
 
 #include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
+#include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 
 namespace cfddem::fluid {
@@ -82,13 +86,20 @@ double GasSolver::courant_number(double dt) const {
   for (int a = 0; a < 3; ++a) {
     std::array<int, 3> hi = n;
     hi[a] = n[a] + 1;
-    for (int k = 0; k < hi[2]; ++k) {
-      for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          umax[a] = std::max(umax[a], std::abs(u_[a](i, j, k)));
-        }
-      }
-    }
+    // A max is exact in any order: the planes are TBB tasks.
+    umax[a] = tbb::parallel_reduce(
+        tbb::blocked_range<int>(0, hi[2]), 0.0,
+        [&](const tbb::blocked_range<int>& r, double m) {
+          for (int k = r.begin(); k != r.end(); ++k) {
+            for (int j = 0; j < hi[1]; ++j) {
+              for (int i = 0; i < hi[0]; ++i) {
+                m = std::max(m, std::abs(u_[a](i, j, k)));
+              }
+            }
+          }
+          return m;
+        },
+        [](double x, double y) { return std::max(x, y); });
   }
   if (halo_) {
     halo_->comm().max(umax); // a max is exact: every rank takes the same dt
@@ -118,32 +129,28 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)).
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
-    std::array<int, 3> hi = n;
-    hi[a] = n[a] + 1;
-    for (int k = 0; k < hi[2]; ++k) {
-      for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          const std::size_t f = layout.index(i, j, k);
-          const std::size_t below = f - static_cast<std::size_t>(s);
-          const double eps_f = 0.5 * (eps_[f] + eps_[below]);
-          const double beta_f = 0.5 * (beta_[f] + beta_[below]);
-          const double beta_v_f = 0.5 * (beta_v_[a][f] + beta_v_[a][below]);
-          const double k_drag = dt / (rho * eps_f);
-          double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
-          if (viscosity_ && order == 2) {
-            rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
-          }
-          if (!viscosity_) {
-            u_[a][f] = (u_start_[a][f] + dt * rate + k_drag * beta_v_f) / (1.0 + k_drag * beta_f);
-            continue;
-          }
-          // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k (beta
-          // v)_f)
-          diag_[f] = eps_f * rho * (1.0 + k_drag * beta_f);
-          vrhs_[f] = eps_f * rho * (u_start_[a][f] + dt * rate + k_drag * beta_v_f);
-        }
+    std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+    hi[a] = n[a]; // faces 0..n along a
+    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+      const auto f = static_cast<std::size_t>(p);
+      const std::size_t below = f - static_cast<std::size_t>(s);
+      const double eps_f = 0.5 * (eps_[f] + eps_[below]);
+      const double beta_f = 0.5 * (beta_[f] + beta_[below]);
+      const double beta_v_f = 0.5 * (beta_v_[a][f] + beta_v_[a][below]);
+      const double k_drag = dt / (rho * eps_f);
+      double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
+      if (viscosity_ && order == 2) {
+        rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
       }
-    }
+      if (!viscosity_) {
+        u_[a][f] = (u_start_[a][f] + dt * rate + k_drag * beta_v_f) / (1.0 + k_drag * beta_f);
+        return;
+      }
+      // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k
+      // (beta v)_f)
+      diag_[f] = eps_f * rho * (1.0 + k_drag * beta_f);
+      vrhs_[f] = eps_f * rho * (u_start_[a][f] + dt * rate + k_drag * beta_v_f);
+    });
     if (viscosity_) {
       const double theta = order == 1 ? 1.0 : 0.5;
       const ViscousSolveReport vr =
@@ -187,29 +194,25 @@ GasStepReport GasSolver::step(double dt) {
   }
   // Projection mobility dt/(rho + dt beta_f/eps_f): the pressure correction sees the same
   // implicit drag factor as the predictor, so the corrected velocity is exactly constrained.
+  // On wall and inflow faces the velocity is prescribed: their eps_f, mobility and drag are
+  // computed here and in stage() but never read (the inflow's eps_g = 1 enters through
+  // flux_divergence and the viscous stresses in the inflow plane).
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
-    std::array<int, 3> hi = n;
-    hi[a] = n[a] + 1;
-    for (int k = 0; k < hi[2]; ++k) {
-      for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          const std::size_t f = layout.index(i, j, k);
-          const std::size_t below = f - static_cast<std::size_t>(s);
-          const double eps_f = 0.5 * (eps_[f] + eps_[below]);
-          const double beta_f = 0.5 * (beta_[f] + beta_[below]);
-          mobility_[a][f] = dt / (rho + dt * beta_f / eps_f);
-        }
-      }
-    }
+    std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+    hi[a] = n[a]; // faces 0..n along a
+    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+      const auto f = static_cast<std::size_t>(p);
+      const std::size_t below = f - static_cast<std::size_t>(s);
+      const double eps_f = 0.5 * (eps_[f] + eps_[below]);
+      const double beta_f = 0.5 * (beta_[f] + beta_[below]);
+      mobility_[a][f] = dt / (rho + dt * beta_f / eps_f);
+    });
   }
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        source_(i, j, k) = (eps_(i, j, k) - eps_old_(i, j, k)) / dt;
-      }
-    }
-  }
+  for_box(layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
+    const auto c = static_cast<std::size_t>(p);
+    source_[c] = (eps_[c] - eps_old_[c]) / dt;
+  });
   // Predictor: u1 = P(u^n + dt R(u^n)). Corrector (time_order 2, MFIX-Exa's predictor-
   // corrector, i.e. Heun): u^{n+1} = P(u^n + dt (R(u^n) + R(u1))/2). Each stage is projected,
   // so the returned field satisfies the constraint whatever u^n did.
@@ -255,9 +258,12 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
     std::span<double> e = eps_.values();
     std::span<const double> e0 = start.values();
     std::span<const double> e1 = target.values();
-    for (std::size_t m = 0; m < e.size(); ++m) {
-      e[m] = e0[m] + fraction * (e1[m] - e0[m]);
-    }
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, e.size(), 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t m = r.begin(); m != r.end(); ++m) {
+                          e[m] = e0[m] + fraction * (e1[m] - e0[m]);
+                        }
+                      });
     const GasStepReport r = step(dt);
     total.dt = r.dt;
     total.courant = std::max(total.courant, r.courant);
@@ -281,29 +287,20 @@ void GasSolver::cell_pressure_gradient(int axis, GridField& out) const {
   const double gp0 = background_pressure_gradient()[static_cast<std::size_t>(axis)];
   const double inv_2dx = 0.5 / grid_.spacing(axis);
   const auto& n = grid_.cells();
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        const std::size_t c = grid_.layout().index(i, j, k);
-        out[c] =
-            (p_[c + static_cast<std::size_t>(s)] - p_[c - static_cast<std::size_t>(s)]) * inv_2dx +
-            gp0;
-      }
-    }
-  }
+  for_box(grid_.layout(), {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
+    const auto c = static_cast<std::size_t>(p);
+    out[c] =
+        (p_[c + static_cast<std::size_t>(s)] - p_[c - static_cast<std::size_t>(s)]) * inv_2dx + gp0;
+  });
 }
 
 void GasSolver::cell_centred_velocity(int axis, GridField& out) const {
   const std::ptrdiff_t s = grid_.layout().stride(axis);
   const auto& n = grid_.cells();
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        const std::size_t c = grid_.layout().index(i, j, k);
-        out[c] = 0.5 * (u_[axis][c] + u_[axis][c + static_cast<std::size_t>(s)]);
-      }
-    }
-  }
+  for_box(grid_.layout(), {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
+    const auto c = static_cast<std::size_t>(p);
+    out[c] = 0.5 * (u_[axis][c] + u_[axis][c + static_cast<std::size_t>(s)]);
+  });
 }
 
 GasSolver::State GasSolver::save_state() const {

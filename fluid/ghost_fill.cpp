@@ -1,23 +1,31 @@
 #include "fluid/ghost_fill.hpp"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 namespace cfddem::fluid {
 
 namespace {
 
 // Calls line(base) for every line of the padded index space along `axis`; base is the linear
-// index of the point with index 0 along axis.
+// index of the point with index 0 along axis. A line's ghosts are filled from points of the
+// same line only, so lines are independent TBB tasks (by blocks of the outer index): the
+// result does not depend on the thread count.
 template <class Line> void for_each_line(const GridLayout& layout, int axis, Line&& line) {
   const int b = (axis + 1) % 3;
   const int c = (axis + 2) % 3;
   const auto& n = layout.cells();
-  for (int jc = -kGhostLayers; jc <= n[c] + kGhostLayers; ++jc) {
-    for (int jb = -kGhostLayers; jb <= n[b] + kGhostLayers; ++jb) {
-      std::array<int, 3> idx{};
-      idx[b] = jb;
-      idx[c] = jc;
-      line(layout.index(idx));
-    }
-  }
+  tbb::parallel_for(tbb::blocked_range<int>(-kGhostLayers, n[c] + kGhostLayers + 1),
+                    [&](const tbb::blocked_range<int>& r) {
+                      for (int jc = r.begin(); jc != r.end(); ++jc) {
+                        for (int jb = -kGhostLayers; jb <= n[b] + kGhostLayers; ++jb) {
+                          std::array<int, 3> idx{};
+                          idx[b] = jb;
+                          idx[c] = jc;
+                          line(layout.index(idx));
+                        }
+                      }
+                    });
 }
 
 int wrap(int i, int n) {

@@ -34,11 +34,29 @@ void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::
   }
 }
 
+// The same, f(p, idx) with the point's indices.
+template <class F>
+void for_box_indexed(const GridLayout& layout, const std::array<int, 3>& lo,
+                     const std::array<int, 3>& hi, F&& f) {
+  for (int k = lo[2]; k <= hi[2]; ++k) {
+    for (int j = lo[1]; j <= hi[1]; ++j) {
+      const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+      for (int i = lo[0]; i <= hi[0]; ++i) {
+        f(row + (i - lo[0]), std::array<int, 3>{i, j, k});
+      }
+    }
+  }
+}
+
 // eps on the low control-volume face of face p along b (cell p - 1 when b == a, else the
-// (a, b) edge average).
+// (a, b) edge average, or the incoming gas's on the plane of an inflow face: mac_grid.hpp).
 double cv_face_eps(const double* ep, std::ptrdiff_t p, std::ptrdiff_t sa, std::ptrdiff_t sb,
-                   bool same) {
-  return same ? ep[p - sa] : 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
+                   bool same, bool inflow_plane = false) {
+  if (same) {
+    return ep[p - sa];
+  }
+  return inflow_plane ? kInflowVolumeFraction
+                      : 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
 }
 
 } // namespace
@@ -47,7 +65,11 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
     : grid_(grid),
       homogeneous_(grid.distributed() ? MacGrid(homogeneous_spec(grid.spec()), grid.box())
                                       : MacGrid(homogeneous_spec(grid.spec()))),
-      halo_(halo), r_(grid.layout()), p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()) {}
+      halo_(halo), r_(grid.layout()), p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()) {
+  for (int b = 0; b < 3; ++b) {
+    inflow_[b] = {grid.inflow_face(b, 0), grid.inflow_face(b, 1)};
+  }
+}
 
 std::array<int, 3> ImplicitViscosity::unknown_lo(int comp) const {
   std::array<int, 3> lo = {0, 0, 0};
@@ -67,6 +89,10 @@ std::array<int, 3> ImplicitViscosity::unknown_hi(int comp) const {
   return hi;
 }
 
+bool ImplicitViscosity::inflow_plane(int b, int side, const std::array<int, 3>& idx) const {
+  return inflow_[b][side] && idx[b] == (side == 0 ? 0 : grid_.cells(b) - 1);
+}
+
 void ImplicitViscosity::laplacian(int comp, double mu, double rho, const GridField& eps,
                                   const GridField& u, GridField& lap) const {
   const GridLayout& layout = grid_.layout();
@@ -75,13 +101,13 @@ void ImplicitViscosity::laplacian(int comp, double mu, double rho, const GridFie
   const std::ptrdiff_t sa = layout.stride(comp);
   std::array<int, 3> hi = {grid_.cells(0) - 1, grid_.cells(1) - 1, grid_.cells(2) - 1};
   hi[comp] = grid_.cells(comp);
-  for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+  for_box_indexed(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
     double sum = 0.0;
     for (int b = 0; b < 3; ++b) {
       const std::ptrdiff_t sb = layout.stride(b);
       const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
-      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp);
-      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp);
+      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx));
+      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx));
       sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
     }
     lap[static_cast<std::size_t>(p)] = mu * sum / (rho * 0.5 * (ep[p] + ep[p - sa]));
@@ -94,17 +120,19 @@ void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const Gr
   const double* ep = eps.values().data();
   const double* q = x.values().data();
   const std::ptrdiff_t sa = layout.stride(comp);
-  for_box(layout, unknown_lo(comp), unknown_hi(comp), [&](std::ptrdiff_t p) {
-    double sum = 0.0;
-    for (int b = 0; b < 3; ++b) {
-      const std::ptrdiff_t sb = layout.stride(b);
-      const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
-      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp);
-      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp);
-      sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
-    }
-    y[static_cast<std::size_t>(p)] = diag[static_cast<std::size_t>(p)] * q[p] - c * sum;
-  });
+  for_box_indexed(
+      layout, unknown_lo(comp), unknown_hi(comp),
+      [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
+        double sum = 0.0;
+        for (int b = 0; b < 3; ++b) {
+          const std::ptrdiff_t sb = layout.stride(b);
+          const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+          const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx));
+          const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx));
+          sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
+        }
+        y[static_cast<std::size_t>(p)] = diag[static_cast<std::size_t>(p)] * q[p] - c * sum;
+      });
 }
 
 double ImplicitViscosity::dot(const GridField& a, const GridField& b, int comp) const {
@@ -131,14 +159,16 @@ ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField&
   });
   // Corrections satisfy homogeneous boundary conditions; Jacobi-preconditioned CG.
   const auto precondition = [&](const GridField& in, GridField& out) {
-    for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+    for_box_indexed(layout, lo, hi, [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
       double centre = diag[static_cast<std::size_t>(p)];
       for (int b = 0; b < 3; ++b) {
         const std::ptrdiff_t sb = layout.stride(b);
         const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
         centre += c * inv_dx2 *
-                  (cv_face_eps(eps.values().data(), p, layout.stride(comp), sb, b == comp) +
-                   cv_face_eps(eps.values().data(), p + sb, layout.stride(comp), sb, b == comp));
+                  (cv_face_eps(eps.values().data(), p, layout.stride(comp), sb, b == comp,
+                               inflow_plane(b, 0, idx)) +
+                   cv_face_eps(eps.values().data(), p + sb, layout.stride(comp), sb, b == comp,
+                               inflow_plane(b, 1, idx)));
       }
       out[static_cast<std::size_t>(p)] = in[static_cast<std::size_t>(p)] / centre;
     });

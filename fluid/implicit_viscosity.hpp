@@ -46,10 +46,15 @@ private:
   [[nodiscard]] std::array<int, 3> unknown_hi(int comp) const;
 
   [[nodiscard]] double dot(const GridField& a, const GridField& b, int comp) const;
+  // The low (side 0) or high (side 1) control-volume face along b of the face at idx lies in
+  // the plane of a velocity-inflow face (only meaningful for b != comp: cv_face_eps ignores it
+  // otherwise).
+  [[nodiscard]] bool inflow_plane(int b, int side, const std::array<int, 3>& idx) const;
 
   MacGrid grid_;
   MacGrid homogeneous_; // same faces with zero inflow velocity: BCs of a correction
   const GridHalo* halo_ = nullptr;
+  std::array<std::array<bool, 2>, 3> inflow_{}; // grid_.inflow_face(axis, side)
   GridField r_, p_, ap_, z_;
 };
 

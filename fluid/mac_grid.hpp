@@ -25,6 +25,13 @@ struct BoundaryCondition {
   double pressure = 0.0;            // outflow: p' on the face [Pa]
 };
 
+// eps_g on the plane of a velocity-inflow face (the face itself and the cell edges in it): the
+// incoming gas is pure, so the superficial velocity eps_g u through the face is the prescribed
+// u. MFIX-Exa's mass inflow likewise sets the boundary's gas volume fraction to that of the
+// incoming stream (ep_g = 1 for gas alone). Inside the domain, and on wall and outflow faces,
+// eps_g on a face or edge is the mean of the cells around it (zero-gradient ghosts).
+inline constexpr double kInflowVolumeFraction = 1.0;
+
 struct MacGridSpec {
   std::array<int, 3> cells{};
   std::array<double, 3> origin{};
@@ -79,6 +86,11 @@ public:
   }
   [[nodiscard]] bool periodic(int axis) const {
     return bc(2 * axis).kind == BoundaryKind::periodic;
+  }
+  // This side of the box is a velocity-inflow face of the domain (filled by its boundary
+  // condition, not by a halo).
+  [[nodiscard]] bool inflow_face(int axis, int side) const {
+    return !exchanged(axis, side) && bc(axis, side).kind == BoundaryKind::inflow;
   }
   [[nodiscard]] double pressure_drop(int axis) const { return spec_.pressure_drop[axis]; }
   [[nodiscard]] bool has_outflow() const;

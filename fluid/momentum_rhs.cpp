@@ -3,32 +3,188 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "fluid/box_loops.hpp"
+
 namespace cfddem::fluid {
 
 namespace {
-
-// Calls f(p) for the linear index p of every point of the box lo..hi (inclusive), planes of
-// constant k as TBB tasks: every pass writes each point once from values no pass of the same
-// sweep writes, so the result does not depend on the thread count.
-template <class F>
-void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::array<int, 3>& hi,
-             F&& f) {
-  tbb::parallel_for(tbb::blocked_range<int>(lo[2], hi[2] + 1), [&](const tbb::blocked_range<int>& r) {
-    for (int k = r.begin(); k != r.end(); ++k) {
-      for (int j = lo[1]; j <= hi[1]; ++j) {
-        const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-        for (std::ptrdiff_t p = row; p <= row + (hi[0] - lo[0]); ++p) {
-          f(p);
-        }
-      }
-    }
-  });
-}
 
 void ensure(GridField& f, const GridLayout& layout) {
   if (f.values().size() != layout.size()) {
     f = GridField(layout);
   }
+}
+
+// Everything one component's passes read, with the strides and spacings.
+struct ComponentView {
+  int a = 0;
+  std::array<std::ptrdiff_t, 3> st{};
+  std::array<double, 3> inv_dx{};
+  std::array<const double*, 3> u{};
+  const double* ep = nullptr;
+  const double* div = nullptr;
+  double mu = 0.0;
+  double own = 1.0; // weight of the grad u_a (Laplacian) part of tau
+};
+
+// Advecting velocity and upwind MUSCL flux on the low control-volume face along b of the points
+// p0 .. p0 + len of a row (physics.md §5: convective form, see the header).
+template <Limiter L>
+void advective_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdiff_t len,
+                   double* __restrict speed, double* __restrict flux) {
+  const double* __restrict q = v.u[v.a];
+  // b == a: the mean of the two faces around the cell below; else the b-velocity on the edge.
+  const double* __restrict w = b == v.a ? q : v.u[b];
+  const std::ptrdiff_t sw = b == v.a ? v.st[b] : v.st[v.a];
+  const std::ptrdiff_t sb = v.st[b];
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    const double adv = 0.5 * (w[p] + w[p - sw]);
+    speed[p] = adv;
+    flux[p] = adv * muscl_edge_state<L>(q[p - 2 * sb], q[p - sb], q[p], q[p + sb], adv);
+  }
+}
+
+// eps tau_ab on the low control-volume face along b: the normal stress at the cell below p when
+// b == a; else the shear stress on the (a, b) edge, eps averaged from the edge's four cells, or
+// eps = kInflowVolumeFraction on the plane of an inflow face (inflow_row: the whole row lies in
+// it; inflow_ends: its first and/or last point does, for b = x).
+void stress_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdiff_t len,
+                bool inflow_row, std::array<bool, 2> inflow_ends, double* __restrict stress) {
+  const int a = v.a;
+  const double* __restrict q = v.u[a];
+  const double* __restrict ep = v.ep;
+  const std::ptrdiff_t sa = v.st[a];
+  const double mu = v.mu;
+  if (b == a) {
+    const double* __restrict div = v.div;
+    const double own = v.own;
+    const double inv_dx = v.inv_dx[a];
+    for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+      const std::ptrdiff_t c = p - sa;
+      stress[p] = ep[c] * mu * ((1.0 + own) * (q[c + sa] - q[c]) * inv_dx - 2.0 / 3.0 * div[c]);
+    }
+    return;
+  }
+  const double* __restrict ub = v.u[b];
+  const std::ptrdiff_t sb = v.st[b];
+  const double own = v.own;
+  const double inv_dx_a = v.inv_dx[a];
+  const double inv_dx_b = v.inv_dx[b];
+  const auto shear_rate = [&](std::ptrdiff_t p) {
+    return own * (q[p] - q[p - sb]) * inv_dx_b + (ub[p] - ub[p - sa]) * inv_dx_a;
+  };
+  if (inflow_row) {
+    for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+      stress[p] = kInflowVolumeFraction * mu * shear_rate(p);
+    }
+    return;
+  }
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    const double eps_edge = 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
+    stress[p] = eps_edge * mu * shear_rate(p);
+  }
+  if (inflow_ends[0]) {
+    stress[p0] = kInflowVolumeFraction * mu * shear_rate(p0);
+  }
+  if (inflow_ends[1]) {
+    stress[p0 + len] = kInflowVolumeFraction * mu * shear_rate(p0 + len);
+  }
+}
+
+// rhs_a = -(u.grad u_a) + div(eps tau_a)/(eps_f rho) + body_a on the points of a row, the three
+// directions' differences summed in the order x, y, z.
+template <bool Viscous>
+void sum_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
+             const MomentumWorkspace& work, double inv_rho, double body, double* __restrict out) {
+  const double* __restrict q = v.u[v.a];
+  const double* __restrict ep = v.ep;
+  const std::ptrdiff_t sa = v.st[v.a];
+  const std::array<const double*, 3> flux = {
+      work.flux[0].values().data(), work.flux[1].values().data(), work.flux[2].values().data()};
+  const std::array<const double*, 3> speed = {
+      work.speed[0].values().data(), work.speed[1].values().data(), work.speed[2].values().data()};
+  const std::array<const double*, 3> stress = {work.stress[0].values().data(),
+                                               work.stress[1].values().data(),
+                                               work.stress[2].values().data()};
+  const double* __restrict f0 = flux[0];
+  const double* __restrict f1 = flux[1];
+  const double* __restrict f2 = flux[2];
+  const double* __restrict s0 = speed[0];
+  const double* __restrict s1 = speed[1];
+  const double* __restrict s2 = speed[2];
+  const double* __restrict t0 = stress[0];
+  const double* __restrict t1 = stress[1];
+  const double* __restrict t2 = stress[2];
+  const std::ptrdiff_t sy = v.st[1];
+  const std::ptrdiff_t sz = v.st[2];
+  const double ix = v.inv_dx[0];
+  const double iy = v.inv_dx[1];
+  const double iz = v.inv_dx[2];
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    double o = 0.0;
+    o -= ((f0[p + 1] - f0[p]) - q[p] * (s0[p + 1] - s0[p])) * ix;
+    o -= ((f1[p + sy] - f1[p]) - q[p] * (s1[p + sy] - s1[p])) * iy;
+    o -= ((f2[p + sz] - f2[p]) - q[p] * (s2[p + sz] - s2[p])) * iz;
+    double visc = 0.0;
+    if constexpr (Viscous) {
+      visc += (t0[p + 1] - t0[p]) * ix;
+      visc += (t1[p + sy] - t1[p]) * iy;
+      visc += (t2[p + sz] - t2[p]) * iz;
+    }
+    const double eps_face = 0.5 * (ep[p] + ep[p - sa]);
+    out[p] = o + (visc * inv_rho / eps_face + body);
+  }
+}
+
+template <Limiter L>
+void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, double body,
+                   MomentumWorkspace& work, GridField& rhs) {
+  const GridLayout& layout = grid.layout();
+  const auto& n = grid.cells();
+  const int a = v.a;
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[a] = n[a]; // faces 0..n along the component's axis
+  std::array<std::array<bool, 2>, 3> inflow{};
+  for (int b = 0; b < 3; ++b) {
+    inflow[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
+  }
+  const bool viscous = v.mu != 0.0;
+  // Pass 1: the control-volume face quantities of every direction b on the box 0..hi, one more
+  // point along b (the high face of the last control volume).
+  tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
+    for (int k = r.begin(); k != r.end(); ++k) {
+      for (int b = 0; b < 3; ++b) {
+        std::array<int, 3> edge_hi = hi;
+        ++edge_hi[b];
+        if (k > edge_hi[2]) {
+          continue;
+        }
+        double* speed = work.speed[b].values().data();
+        double* flux = work.flux[b].values().data();
+        double* stress = work.stress[b].values().data();
+        const bool inflow_k = (b == 2) && ((k == 0 && inflow[2][0]) || (k == n[2] && inflow[2][1]));
+        for (int j = 0; j <= edge_hi[1]; ++j) {
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
+          advective_row<L>(v, b, p0, edge_hi[0], speed, flux);
+          if (viscous) {
+            const bool inflow_j =
+                (b == 1) && ((j == 0 && inflow[1][0]) || (j == n[1] && inflow[1][1]));
+            stress_row(v, b, p0, edge_hi[0], inflow_k || inflow_j,
+                       {b == 0 && inflow[0][0], b == 0 && inflow[0][1]}, stress);
+          }
+        }
+      }
+    }
+  });
+  // Pass 2: differences, viscous term and body force on the component's faces.
+  double* out = rhs.values().data();
+  for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
+    if (viscous) {
+      sum_row<true>(v, p0, hi[0], work, inv_rho, body, out);
+    } else {
+      sum_row<false>(v, p0, hi[0], work, inv_rho, body, out);
+    }
+  });
 }
 
 } // namespace
@@ -45,83 +201,45 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
                   const std::array<double, 3>& body, std::array<GridField, 3>& rhs,
                   MomentumWorkspace& work, bool exclude_laplacian) {
   const GridLayout& layout = grid.layout();
-  for (GridField* f : {&work.flux, &work.speed, &work.stress, &work.viscous, &work.divergence}) {
-    ensure(*f, layout);
+  for (int b = 0; b < 3; ++b) {
+    ensure(work.flux[b], layout);
+    ensure(work.speed[b], layout);
+    ensure(work.stress[b], layout);
   }
-  const std::array<std::ptrdiff_t, 3> st = {layout.stride(0), layout.stride(1), layout.stride(2)};
-  const std::array<double, 3> inv_dx = {1.0 / grid.spacing(0), 1.0 / grid.spacing(1),
-                                        1.0 / grid.spacing(2)};
-  const double mu = gas.viscosity;
-  // Weight of the grad u (Laplacian) part of tau: 0 when it is treated implicitly.
-  const double own = exclude_laplacian ? 0.0 : 1.0;
-  const double inv_rho = 1.0 / gas.density;
+  ensure(work.divergence, layout);
+  ComponentView v;
+  v.st = {layout.stride(0), layout.stride(1), layout.stride(2)};
+  v.inv_dx = {1.0 / grid.spacing(0), 1.0 / grid.spacing(1), 1.0 / grid.spacing(2)};
+  v.u = {u[0].values().data(), u[1].values().data(), u[2].values().data()};
+  v.ep = eps.values().data();
+  v.div = work.divergence.values().data();
+  v.mu = gas.viscosity;
+  v.own = exclude_laplacian ? 0.0 : 1.0;
   const auto& n = grid.cells();
-  const std::array<const double*, 3> uv = {u[0].values().data(), u[1].values().data(),
-                                           u[2].values().data()};
-  const double* ep = eps.values().data();
-  double* flux = work.flux.values().data();
-  double* speed = work.speed.values().data();
-  double* stress = work.stress.values().data();
-  double* visc = work.viscous.values().data();
-  double* div = work.divergence.values().data();
-
-  if (mu != 0.0) {
+  if (v.mu != 0.0) {
     // div u at cells -1..n (the normal stress of faces 0..n needs cells -1..n).
-    for_box(layout, {-1, -1, -1}, {n[0], n[1], n[2]}, [&](std::ptrdiff_t c) {
-      double d = 0.0;
-      for (int b = 0; b < 3; ++b) {
-        d += (uv[b][c + st[b]] - uv[b][c]) * inv_dx[b];
+    double* div = work.divergence.values().data();
+    for_box_rows(layout, {-1, -1, -1}, {n[0], n[1], n[2]}, [&](std::ptrdiff_t p0, int, int) {
+      const double* __restrict ux = v.u[0];
+      const double* __restrict uy = v.u[1];
+      const double* __restrict uz = v.u[2];
+      for (std::ptrdiff_t c = p0; c <= p0 + n[0] + 1; ++c) {
+        double d = 0.0;
+        d += (ux[c + 1] - ux[c]) * v.inv_dx[0];
+        d += (uy[c + v.st[1]] - uy[c]) * v.inv_dx[1];
+        d += (uz[c + v.st[2]] - uz[c]) * v.inv_dx[2];
+        div[c] = d;
       }
-      div[c] = d;
     });
   }
-
+  const double inv_rho = 1.0 / gas.density;
   for (int a = 0; a < 3; ++a) {
-    const double* q = uv[a];
-    double* out = rhs[a].values().data();
-    std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-    hi[a] = n[a]; // faces 0..n along the component's axis
-    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
-      out[p] = 0.0;
-      visc[p] = 0.0;
-    });
-    for (int b = 0; b < 3; ++b) {
-      const std::ptrdiff_t sb = st[b];
-      const std::ptrdiff_t sa = st[a];
-      const double* ub = uv[b];
-      std::array<int, 3> edge_hi = hi;
-      ++edge_hi[b];
-      // Quantities on the low control-volume face of p along b: advecting velocity, upwind
-      // MUSCL state times it, and eps tau_ab (normal stress at cell p - 1 when b == a; shear
-      // stress on the (a, b) edge otherwise).
-      for_box(layout, {0, 0, 0}, edge_hi, [&](std::ptrdiff_t p) {
-        const double adv = b == a ? 0.5 * (q[p - sb] + q[p]) : 0.5 * (ub[p] + ub[p - sa]);
-        speed[p] = adv;
-        flux[p] = adv * muscl_edge_state(q[p - 2 * sb], q[p - sb], q[p], q[p + sb], adv, limiter);
-        if (mu == 0.0) {
-          return;
-        }
-        if (b == a) {
-          const std::ptrdiff_t c = p - sa;
-          stress[p] =
-              ep[c] * mu * ((1.0 + own) * (q[c + sa] - q[c]) * inv_dx[a] - 2.0 / 3.0 * div[c]);
-        } else {
-          const double eps_edge = 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
-          stress[p] = eps_edge * mu *
-                      (own * (q[p] - q[p - sb]) * inv_dx[b] + (ub[p] - ub[p - sa]) * inv_dx[a]);
-        }
-      });
-      // Convective form u.grad q = div(a q) - q div(a) (see the header).
-      for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
-        out[p] -= ((flux[p + sb] - flux[p]) - q[p] * (speed[p + sb] - speed[p])) * inv_dx[b];
-        visc[p] += (stress[p + sb] - stress[p]) * inv_dx[b];
-      });
+    v.a = a;
+    if (limiter == Limiter::minmod) {
+      component_rhs<Limiter::minmod>(grid, v, inv_rho, body[a], work, rhs[a]);
+    } else {
+      component_rhs<Limiter::van_leer>(grid, v, inv_rho, body[a], work, rhs[a]);
     }
-    const std::ptrdiff_t sa = st[a];
-    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
-      const double eps_face = 0.5 * (ep[p] + ep[p - sa]);
-      out[p] += visc[p] * inv_rho / eps_face + body[a];
-    });
   }
 }
 

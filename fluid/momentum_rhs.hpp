@@ -25,9 +25,12 @@ struct GasProperties {
 // exclude_laplacian leaves out div(eps mu grad u_a), the part ImplicitViscosity treats
 // implicitly; the transpose and dilatation parts stay explicit.
 // Each control-volume face quantity (upwind flux, advecting velocity, stress) is computed
-// once, into the workspace, and differenced.
+// once, into the workspace, and differenced: per component, one pass writes the quantities of
+// all three directions, a second sums their differences (both TBB-parallel over k-planes, each
+// point written once: bitwise independent of the thread count).
 struct MomentumWorkspace {
-  GridField flux, speed, stress, viscous, divergence;
+  std::array<GridField, 3> flux, speed, stress; // on the low control-volume face along b
+  GridField divergence;
 };
 
 void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,

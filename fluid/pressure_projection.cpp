@@ -90,16 +90,27 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
                      GridField& div) {
   const GridLayout& layout = grid.layout();
   const auto& n = grid.cells();
+  // A cell next to a velocity-inflow face takes that face's flux at eps_g = 1 (mac_grid.hpp:
+  // kInflowVolumeFraction), so the prescribed velocity is the superficial one; averaging the
+  // cell with its zero-gradient ghost would deliver only eps_g(cell) times it.
+  std::array<std::array<bool, 2>, 3> inflow{};
+  for (int a = 0; a < 3; ++a) {
+    inflow[a] = {grid.inflow_face(a, 0), grid.inflow_face(a, 1)};
+  }
   for (int k = 0; k < n[2]; ++k) {
     for (int j = 0; j < n[1]; ++j) {
       for (int i = 0; i < n[0]; ++i) {
-        const std::size_t c = layout.index(i, j, k);
+        const std::array<int, 3> cell = {i, j, k};
+        const std::size_t c = layout.index(cell);
         double sum = 0.0;
         for (int a = 0; a < 3; ++a) {
           const std::ptrdiff_t s = layout.stride(a);
           const std::size_t up = c + static_cast<std::size_t>(s);
-          sum +=
-              (face_eps(eps, up, s) * u[a][up] - face_eps(eps, c, s) * u[a][c]) / grid.spacing(a);
+          const double eps_lo =
+              cell[a] == 0 && inflow[a][0] ? kInflowVolumeFraction : face_eps(eps, c, s);
+          const double eps_hi =
+              cell[a] == n[a] - 1 && inflow[a][1] ? kInflowVolumeFraction : face_eps(eps, up, s);
+          sum += (eps_hi * u[a][up] - eps_lo * u[a][c]) / grid.spacing(a);
         }
         div[c] = sum;
       }

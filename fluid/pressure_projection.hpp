@@ -42,7 +42,8 @@ struct ProjectionReport {
 // The PFMG levels the hypre path uses on this grid (every periodic axis keeps >= 2 cells).
 [[nodiscard]] int pfmg_max_levels(const MacGrid& grid);
 
-// div(eps_f u) per interior cell [1/s]; eps ghosts must be filled.
+// div(eps_f u) per interior cell [1/s]; eps ghosts must be filled. eps_f is the mean of the two
+// cells, except on a velocity-inflow face: kInflowVolumeFraction (the incoming gas's).
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,
                      GridField& div);
 

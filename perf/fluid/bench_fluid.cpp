@@ -1,9 +1,14 @@
 // Benchmarks of the gas solver on the paper's riser grid (32 x 50 x 32 cells, 0.2 mm, periodic,
 // 2 Pa drop along y): the projection with hypre and with our multigrid side by side (full solve,
-// V-cycle, smoother sweep, residual, in ns per cell), the momentum right-hand side and a full
-// step.
+// V-cycle, smoother sweep, residual, in ns per cell), a full step, and the parts of a fluid step
+// in nanoseconds per cell (momentum right-hand side, deposition, interpolation) on 1 and 2 TBB
+// threads (argument `threads`).
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
+#include <span>
+#include <vector>
 
 #include <HYPRE_struct_ls.h>
 #include <HYPRE_utilities.h>
@@ -11,6 +16,7 @@
 #include <mpi.h>
 #include <tbb/global_control.h>
 
+#include "fluid/deposition.hpp"
 #include "fluid/gas_solver.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/momentum_rhs.hpp"
@@ -322,8 +328,20 @@ BENCHMARK(BM_HypreKernelRiser)
     ->UseRealTime()
     ->Unit(benchmark::kMicrosecond);
 
+// Seconds per iteration divided by `cells`, in ns (Google Benchmark inverts the rate; wall time
+// where the benchmark uses real time, as the threaded ones do).
+benchmark::Counter ns_per(double cells) {
+  return benchmark::Counter(cells * 1e-9, benchmark::Counter::kIsIterationInvariantRate |
+                                              benchmark::Counter::kInvert);
+}
+
+std::size_t threads_of(const benchmark::State& state, int arg) {
+  return static_cast<std::size_t>(state.range(arg));
+}
+
 // The explicit momentum right-hand side alone (advection + viscous stress, three components).
 void BM_MomentumRhsRiser(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 0));
   const MacGrid grid(riser_spec());
   const GasProperties gas{1.0, 2e-5, {0.0, -9.80665, 0.0}};
   std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
@@ -338,14 +356,137 @@ void BM_MomentumRhsRiser(benchmark::State& state) {
     }
   }
   fill_velocity_ghosts(grid, u);
+  MomentumWorkspace work; // as the solver: allocated once
   for (auto _ : state) {
-    momentum_rhs(grid, gas, Limiter::van_leer, u, eps, {0.0, 0.0, 0.0}, rhs);
+    momentum_rhs(grid, gas, Limiter::van_leer, u, eps, {0.0, 0.0, 0.0}, rhs, work);
     benchmark::DoNotOptimize(rhs[0].values().data());
   }
   state.counters["cells_per_s"] = benchmark::Counter(
-      32.0 * 50.0 * 32.0 * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+      kRiserCells * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["ns_per_cell"] = ns_per(kRiserCells);
 }
-BENCHMARK(BM_MomentumRhsRiser)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_MomentumRhsRiser)
+    ->ArgName("threads")
+    ->Arg(1)
+    ->Arg(2)
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+
+// Particles as the coupling sees them: the riser (14,000 of 100 um, uniform in its 6 x 10 x 6 mm,
+// trilinear) or the paper's bed (10,000 in the bottom 4.8 mm of 1.6 x 10 x 1.6 mm, 50 um cells,
+// dpvm cube two diameters wide).
+struct BenchParticles {
+  MacGridSpec spec;
+  DepositionSettings settings;
+  std::vector<double> x, y, z, r;
+  [[nodiscard]] ParticlePositions view() const { return {x, y, z, r}; }
+};
+
+BenchParticles bench_particles(bool bed) {
+  BenchParticles b;
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  std::array<double, 3> region{};
+  std::size_t count = 0;
+  if (bed) {
+    b.spec.cells = {32, 50, 32};
+    b.spec.extent = {1.6e-3, 10e-3, 1.6e-3};
+    b.spec.bc[2].kind = BoundaryKind::inflow;
+    b.spec.bc[2].velocity = {0.0, 0.015, 0.0};
+    b.spec.bc[3].kind = BoundaryKind::outflow;
+    b.settings.kernel = DepositionKernel::dpvm_cube;
+    region = {1.6e-3, 4.8e-3, 1.6e-3};
+    count = 10000;
+  } else {
+    b.spec = riser_spec();
+    b.spec.extent = {6e-3, 10e-3, 6e-3};
+    region = b.spec.extent;
+    count = 14000;
+  }
+  // Sorted by cell (z slowest), as the particle store keeps them (re-sorted at neighbor builds).
+  std::vector<std::array<double, 3>> at(count);
+  for (auto& p : at) {
+    p = {region[0] * uni(rng), region[1] * uni(rng), region[2] * uni(rng)};
+  }
+  const auto cell = [&](const std::array<double, 3>& p) {
+    std::array<int, 3> c{};
+    for (int a = 0; a < 3; ++a) {
+      c[a] = static_cast<int>(p[a] / b.spec.extent[a] * b.spec.cells[a]);
+    }
+    return std::array<int, 3>{c[2], c[1], c[0]};
+  };
+  std::sort(at.begin(), at.end(), [&](const auto& p, const auto& q) { return cell(p) < cell(q); });
+  for (const auto& p : at) {
+    b.x.push_back(p[0]);
+    b.y.push_back(p[1]);
+    b.z.push_back(p[2]);
+    b.r.push_back(5e-5);
+  }
+  return b;
+}
+
+void set_particle_counters(benchmark::State& state, const BenchParticles& b) {
+  state.counters["ns_per_cell"] = ns_per(b.spec.cells[0] * b.spec.cells[1] * b.spec.cells[2]);
+  state.counters["ns_per_particle"] = ns_per(static_cast<double>(b.x.size()));
+}
+
+// What the coupling deposits per fluid step: the solid fraction, then beta and beta v (4 fields).
+void BM_Deposition(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 1));
+  const BenchParticles b = bench_particles(state.range(0) != 0);
+  const MacGrid grid(b.spec);
+  Deposition deposition(grid, b.settings, 5e-5);
+  GridField eps_s = grid.make_field();
+  std::array<GridField, 4> cells = {grid.make_field(), grid.make_field(), grid.make_field(),
+                                    grid.make_field()};
+  std::vector<double> beta(b.x.size(), 1e-6);
+  const std::span<const double> values[4] = {beta, b.x, b.y, b.z};
+  GridField* out[4] = {&cells[0], &cells[1], &cells[2], &cells[3]};
+  for (auto _ : state) {
+    eps_s.fill(0.0);
+    for (GridField& c : cells) {
+      c.fill(0.0);
+    }
+    deposition.deposit_solid_fraction(b.view(), eps_s);
+    deposition.deposit(b.view(), values, out);
+    benchmark::DoNotOptimize(eps_s.values().data());
+  }
+  set_particle_counters(state, b);
+}
+
+// Riser (bed 0) and bed (bed 1), each on 1 and 2 threads.
+void particle_args(benchmark::internal::Benchmark* bench) {
+  bench->ArgNames({"bed", "threads"})
+      ->Args({0, 1})
+      ->Args({0, 2})
+      ->Args({1, 1})
+      ->Args({1, 2})
+      ->UseRealTime()
+      ->Unit(benchmark::kMillisecond);
+}
+BENCHMARK(BM_Deposition)->Apply(particle_args);
+
+// What the coupling interpolates per fluid step: eps_g and the three cell-centred velocities.
+void BM_Interpolation(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 1));
+  const BenchParticles b = bench_particles(state.range(0) != 0);
+  const MacGrid grid(b.spec);
+  Deposition deposition(grid, b.settings, 5e-5);
+  std::array<GridField, 4> fields = {grid.make_field(0.9), grid.make_field(0.1),
+                                     grid.make_field(0.2), grid.make_field(0.3)};
+  std::array<std::vector<double>, 4> outs;
+  for (auto& o : outs) {
+    o.resize(b.x.size());
+  }
+  const GridField* in[4] = {&fields[0], &fields[1], &fields[2], &fields[3]};
+  const std::span<double> out[4] = {outs[0], outs[1], outs[2], outs[3]};
+  for (auto _ : state) {
+    deposition.interpolate(b.view(), in, out);
+    benchmark::DoNotOptimize(outs[0].data());
+  }
+  set_particle_counters(state, b);
+}
+BENCHMARK(BM_Interpolation)->Apply(particle_args);
 
 // One full gas step (predictor-corrector: two momentum evaluations and two projections) at the
 // paper's dt_f = 1e-4 s, with drag fields; eps changes every step as it does when coupled.
@@ -381,6 +522,7 @@ void gas_step_riser(benchmark::State& state, int time_order, double tolerance,
       32.0 * 50.0 * 32.0 * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
 void BM_GasStepRiser(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 1));
   gas_step_riser(state, static_cast<int>(state.range(0)), 1e-8, PoissonSolver::automatic);
 }
 // A full gas step at the scenes' tolerance 1e-10 with each projection solver (0 = hypre, 1 =
@@ -435,7 +577,13 @@ void BM_GasStepFluidizedBedImplicitViscosity(benchmark::State& state) {
 }
 BENCHMARK(BM_GasStepFluidizedBedImplicitViscosity)->Unit(benchmark::kMillisecond);
 
-BENCHMARK(BM_GasStepRiser)->ArgName("time_order")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_GasStepRiser)
+    ->ArgNames({"time_order", "threads"})
+    ->Args({1, 1})
+    ->Args({2, 1})
+    ->Args({2, 2})
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
 
 } // namespace
 } // namespace cfddem::fluid

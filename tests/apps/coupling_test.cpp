@@ -263,6 +263,8 @@ TEST(FluidInput, BadInputsExitWithCode2AndNameTheKey) {
                       "fluid.bc");
   // CFL above the stable limit of the explicit predictor (0.5).
   expect_config_error(kRiser, "fluid.cfl=0.8", "fluid.cfl");
+  // A time order other than 1 (Euler) or 2 (predictor-corrector).
+  expect_config_error(kRiser, "fluid.time_order=3", "fluid.time_order");
   // Cells that are not whole numbers, unknown laws and kernels, bc against domain periodicity.
   expect_config_error(kRiser, "fluid.cells=[4,8.5,4]", "fluid.cells");
   expect_config_error(kRiser, "fluid.drag=stokes", "fluid.drag");

@@ -114,3 +114,23 @@ TEST(SceneConfig, SyntaxErrorGivesLineAndColumn) {
 TEST(SceneConfig, FileAndGeneratorConflict) {
   EXPECT_NE(error_of({"particles.file=x.csv"}).find("cannot be combined"), std::string::npos);
 }
+
+// fluid.time_order: 2 (predictor-corrector) unless set; 1 or 2 only, listed when resolved.
+TEST(SceneConfig, FluidTimeOrder) {
+  const Scene s = load({"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5"});
+  EXPECT_EQ(s.fluid.time_order, 2);
+  const Scene euler = load(
+      {"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", "fluid.time_order=1"});
+  EXPECT_EQ(euler.fluid.time_order, 1);
+  bool listed = false;
+  for (const auto& [key, value] : describe_scene(euler)) {
+    if (key == "fluid.time_order") {
+      listed = true;
+      EXPECT_EQ(value, "1");
+    }
+  }
+  EXPECT_TRUE(listed);
+  const std::string e = error_of(
+      {"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", "fluid.time_order=3"});
+  EXPECT_NE(e.find("fluid.time_order"), std::string::npos) << e;
+}

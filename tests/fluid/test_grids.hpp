@@ -2,8 +2,11 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstddef>
+#include <numbers>
 
+#include "fluid/grid_field.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::fluid::test {
@@ -27,6 +30,26 @@ inline MacGridSpec box_spec(std::array<int, 3> cells, std::array<double, 3> exte
 inline void set_axis(MacGridSpec& spec, std::size_t axis, BoundaryKind kind) {
   spec.bc[2 * axis] = bc_of(kind);
   spec.bc[2 * axis + 1] = bc_of(kind);
+}
+
+// The 2-D Taylor-Green vortex u = U sin(kx) cos(ky), v = -U cos(kx) sin(ky), k = 2 pi / L_x, on
+// the x and y faces of the first z layer of a periodic box (ghosts not filled).
+inline void set_taylor_green(const MacGrid& grid, std::array<GridField, 3>& u, double amplitude) {
+  const double k = 2.0 * std::numbers::pi / grid.length(0);
+  const int nx = grid.cells(0);
+  const int ny = grid.cells(1);
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i <= nx; ++i) {
+      u[0](i, j, 0) =
+          amplitude * std::sin(k * grid.face_position(0, i)) * std::cos(k * grid.cell_centre(1, j));
+    }
+  }
+  for (int j = 0; j <= ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      u[1](i, j, 0) = -amplitude * std::cos(k * grid.cell_centre(0, i)) *
+                      std::sin(k * grid.face_position(1, j));
+    }
+  }
 }
 
 } // namespace cfddem::fluid::test

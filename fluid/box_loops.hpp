@@ -1,0 +1,46 @@
+// Loops over boxes of a GridLayout's index space, planes of constant k as TBB tasks. The callers
+// write each point from values no other point of the same loop writes, so the result does not
+// depend on the thread count or on how TBB splits the planes.
+#pragma once
+
+#include <array>
+#include <cstddef>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "fluid/grid_field.hpp"
+
+namespace cfddem::fluid {
+
+// Calls row(p0, j, k) for every row of the box lo..hi (inclusive): p0 is the linear index of
+// (lo[0], j, k); the row's points are p0 .. p0 + hi[0] - lo[0].
+template <class Row>
+void for_box_rows(const GridLayout& layout, const std::array<int, 3>& lo,
+                  const std::array<int, 3>& hi, Row&& row) {
+  if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) {
+    return;
+  }
+  tbb::parallel_for(tbb::blocked_range<int>(lo[2], hi[2] + 1),
+                    [&](const tbb::blocked_range<int>& r) {
+                      for (int k = r.begin(); k != r.end(); ++k) {
+                        for (int j = lo[1]; j <= hi[1]; ++j) {
+                          row(static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)), j, k);
+                        }
+                      }
+                    });
+}
+
+// Calls f(p) for the linear index p of every point of the box lo..hi (inclusive).
+template <class F>
+void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::array<int, 3>& hi,
+             F&& f) {
+  const std::ptrdiff_t len = hi[0] - lo[0];
+  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+    for (std::ptrdiff_t p = row; p <= row + len; ++p) {
+      f(p);
+    }
+  });
+}
+
+} // namespace cfddem::fluid

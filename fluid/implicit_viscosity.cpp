@@ -220,7 +220,7 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
 ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField& eps,
                                             const GridField& diag, const GridField& rhs,
                                             GridField& u, double tolerance, int max_iterations) {
-  if (halo_ == nullptr) {
+  if (halo_ == nullptr && multigrid_) {
     return solve_multigrid(comp, c, eps, diag, rhs, u, tolerance, max_iterations);
   }
   const GridLayout& layout = grid_.layout();

@@ -32,6 +32,9 @@ public:
   ImplicitViscosity(const ImplicitViscosity&) = delete;
   ImplicitViscosity& operator=(const ImplicitViscosity&) = delete;
 
+  // One grid: false solves with Jacobi CG as a distributed grid does (tests, benchmarks).
+  void use_multigrid(bool on) { multigrid_ = on; }
+
   // lap = div(eps mu grad u_comp) / (rho eps_f) on the faces the predictor updates; ghosts of
   // u[comp] and eps filled.
   void laplacian(int comp, double mu, double rho, const GridField& eps, const GridField& u,
@@ -72,6 +75,7 @@ private:
     std::vector<double> r, e;
   };
   std::array<Multigrid, 3> mg_;
+  bool multigrid_ = true;
 };
 
 } // namespace cfddem::fluid

@@ -2,6 +2,7 @@
 // 2 Pa drop along y): the projection with hypre and with our multigrid side by side (full solve,
 // V-cycle, smoother sweep, residual, in ns per cell), the momentum right-hand side and a full
 // step.
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -13,6 +14,7 @@
 
 #include "fluid/gas_solver.hpp"
 #include "fluid/ghost_fill.hpp"
+#include "fluid/implicit_viscosity.hpp"
 #include "fluid/momentum_rhs.hpp"
 #include "fluid/pressure_projection.hpp"
 
@@ -321,6 +323,49 @@ BENCHMARK(BM_HypreKernelRiser)
     ->Arg(2)
     ->UseRealTime()
     ->Unit(benchmark::kMicrosecond);
+
+// The implicit viscosity's Helmholtz solve of one component on the fluidized bed's grid (32 x 50
+// x 32 cells of 50 um, walls, inflow below, outflow above), c = theta dt mu at dt = 1e-4 s:
+// multigrid 0 = Jacobi CG (the distributed path), 1 = multigrid-preconditioned CG; tolerance
+// 1e-10 (GasSolverSettings::viscous_tolerance). Component 1 (the inflow axis).
+void BM_ViscousSolveBed(benchmark::State& state) {
+  const tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 1);
+  MacGridSpec spec;
+  spec.cells = {32, 50, 32};
+  spec.extent = {1.6e-3, 2.5e-3, 1.6e-3};
+  spec.bc[2].kind = BoundaryKind::inflow;
+  spec.bc[2].velocity = {0.0, 0.015, 0.0};
+  spec.bc[3].kind = BoundaryKind::outflow;
+  const MacGrid grid(spec);
+  GridField eps = grid.make_field();
+  GridField beta = grid.make_field();
+  fill_particle_fields(grid, eps, &beta, 3);
+  GridField diag = grid.make_field();
+  GridField rhs = grid.make_field();
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> uni(-0.01, 0.01);
+  const double dt = 1e-4;
+  for (std::size_t p = 0; p < diag.values().size(); ++p) {
+    diag[p] = eps[p] * (1.0 + dt * beta[p] / std::max(eps[p], 0.1)); // eps_f rho (1 + k beta)
+    rhs[p] = diag[p] * (0.015 + uni(rng));
+  }
+  std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
+  ImplicitViscosity viscosity(grid);
+  viscosity.use_multigrid(state.range(0) != 0);
+  const int comp = 1;
+  double iterations = 0.0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    u[comp].fill(0.0);
+    fill_velocity_ghosts(grid, u);
+    state.ResumeTiming();
+    iterations +=
+        viscosity.solve(comp, 0.5 * dt * 2e-5, eps, diag, rhs, u[comp], 1e-10, 1000).iterations;
+  }
+  state.counters["cg_iterations"] =
+      benchmark::Counter(iterations, benchmark::Counter::kAvgIterations);
+}
+BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // The explicit momentum right-hand side alone (advection + viscous stress, three components).
 void BM_MomentumRhsRiser(benchmark::State& state) {

@@ -55,6 +55,7 @@ void run_projection(benchmark::State& state, PoissonPreconditioner pc, bool new_
   ProjectionSettings settings;
   settings.tolerance = 1e-8;
   settings.preconditioner = pc;
+  settings.solver = PoissonSolver::hypre; // these measure hypre's preconditioners
   PressureProjection projection(grid, settings);
   std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
   const std::array<GridField, 3> mobility = {grid.make_field(1e-4), grid.make_field(1e-4),

@@ -59,6 +59,7 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
   if (settings.implicit_viscosity && gas.viscosity > 0.0) {
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
+    viscosity_->use_multigrid(settings.viscous_multigrid);
     for (GridField& l : lap_start_) {
       l = grid.make_field();
     }

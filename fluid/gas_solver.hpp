@@ -35,6 +35,8 @@ struct GasSolverSettings {
   // by CG: removes the viscous term from the Courant number (cells smaller than particles).
   bool implicit_viscosity = false;
   double viscous_tolerance = 1e-10;
+  // One grid: the viscous solves preconditioned by the multigrid (false: Jacobi, as on R ranks).
+  bool viscous_multigrid = true;
   int time_order = 2; // 1: Euler; 2: predictor-corrector (Heun), one projection per stage
 };
 

@@ -71,6 +71,8 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
   }
 }
 
+ImplicitViscosity::~ImplicitViscosity() = default;
+
 std::array<int, 3> ImplicitViscosity::unknown_lo(int comp) const {
   std::array<int, 3> lo = {0, 0, 0};
   const BoundaryKind kind = grid_.bc(comp, 0).kind;
@@ -143,9 +145,112 @@ double ImplicitViscosity::dot(const GridField& a, const GridField& b, int comp) 
   return s;
 }
 
+// The unknown faces of component comp form a box of cells for the multigrid: along comp the faces
+// lo..hi (a known wall or inflow face one spacing beyond: dirichlet_node; an outflow face's
+// zero-gradient ghost: Neumann), across it the cells (wall and inflow ghosts -u: Dirichlet on the
+// face; outflow: Neumann). Its face coefficients are c eps_cv / h^2, its mass term diag.
+ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const GridField& eps,
+                                                      const GridField& diag, const GridField& rhs,
+                                                      GridField& u, double tolerance,
+                                                      int max_iterations) {
+  const GridLayout& layout = grid_.layout();
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  std::array<int, 3> m{};
+  for (int b = 0; b < 3; ++b) {
+    m[b] = hi[b] - lo[b] + 1;
+  }
+  Multigrid& s = mg_[static_cast<std::size_t>(comp)];
+  if (!s.mg) {
+    std::array<std::array<PoissonSide, 2>, 3> sides{};
+    std::array<double, 3> spacing{};
+    for (int b = 0; b < 3; ++b) {
+      spacing[b] = grid_.spacing(b);
+      for (int side = 0; side < 2; ++side) {
+        const BoundaryKind kind = grid_.bc(b, side).kind;
+        sides[b][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
+                         : kind == BoundaryKind::outflow ? PoissonSide::neumann
+                         : b == comp                     ? PoissonSide::dirichlet_node
+                                                         : PoissonSide::dirichlet;
+      }
+    }
+    s.mg = std::make_unique<MultigridPoisson>(m, spacing, sides);
+    const GridLayout box(m);
+    s.coef = {GridField(box), GridField(box), GridField(box)};
+    s.mass = GridField(box);
+    const std::size_t cells = static_cast<std::size_t>(m[0]) * m[1] * m[2];
+    s.r.assign(cells, 0.0);
+    s.e.assign(cells, 0.0);
+  }
+  const GridLayout& box = s.mass.layout();
+  const double* ep = eps.values().data();
+  const std::ptrdiff_t sa = layout.stride(comp);
+  for (int b = 0; b < 3; ++b) {
+    const std::ptrdiff_t sb = layout.stride(b);
+    const double k = c / (grid_.spacing(b) * grid_.spacing(b));
+    std::array<int, 3> top = m;
+    top[b] = m[b] + 1; // faces 0..m_b along b
+    for (int kk = 0; kk < top[2]; ++kk) {
+      for (int jj = 0; jj < top[1]; ++jj) {
+        for (int ii = 0; ii < top[0]; ++ii) {
+          const auto p =
+              static_cast<std::ptrdiff_t>(layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk));
+          s.coef[static_cast<std::size_t>(b)][box.index(ii, jj, kk)] =
+              k * cv_face_eps(ep, p, sa, sb, b == comp);
+        }
+      }
+    }
+  }
+  // r = rhs - A u with the true boundary values in u's ghosts.
+  apply(comp, c, eps, diag, u, ap_);
+  double b_norm2 = 0.0;
+  double r_norm2 = 0.0;
+  std::size_t n = 0;
+  for (int kk = 0; kk < m[2]; ++kk) {
+    for (int jj = 0; jj < m[1]; ++jj) {
+      for (int ii = 0; ii < m[0]; ++ii, ++n) {
+        const std::size_t p = layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk);
+        s.mass(ii, jj, kk) = diag[p];
+        s.r[n] = rhs[p] - ap_[p];
+        s.e[n] = 0.0;
+        b_norm2 += rhs[p] * rhs[p];
+        r_norm2 += s.r[n] * s.r[n];
+      }
+    }
+  }
+  ViscousSolveReport report;
+  if (!(r_norm2 > tolerance * tolerance * b_norm2)) {
+    report.relative_residual = b_norm2 > 0.0 ? std::sqrt(r_norm2 / b_norm2) : 0.0;
+    return report;
+  }
+  s.mg->set_coefficients(s.coef, &s.mass);
+  const double scale = std::sqrt(r_norm2 / b_norm2); // |r0| / |rhs|
+  const MultigridReport mr = s.mg->solve(s.r, s.e, tolerance / scale, max_iterations);
+  report.iterations = mr.iterations;
+  report.relative_residual = mr.relative_residual * scale;
+  if (!mr.converged) {
+    throw std::runtime_error(
+        fmt::format("implicit viscosity: multigrid-preconditioned CG reached relative residual "
+                    "{:g} after {} iterations (tolerance {:g})",
+                    report.relative_residual, report.iterations, tolerance));
+  }
+  n = 0;
+  for (int kk = 0; kk < m[2]; ++kk) {
+    for (int jj = 0; jj < m[1]; ++jj) {
+      for (int ii = 0; ii < m[0]; ++ii, ++n) {
+        u[layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk)] += s.e[n];
+      }
+    }
+  }
+  return report;
+}
+
 ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField& eps,
                                             const GridField& diag, const GridField& rhs,
                                             GridField& u, double tolerance, int max_iterations) {
+  if (halo_ == nullptr && multigrid_) {
+    return solve_multigrid(comp, c, eps, diag, rhs, u, tolerance, max_iterations);
+  }
   const GridLayout& layout = grid_.layout();
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);

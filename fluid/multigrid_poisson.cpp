@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <limits>
 #include <stdexcept>
 
 #include <fmt/format.h>
@@ -20,6 +21,9 @@ struct MultigridPoisson::Level {
   std::array<double, 3> h{};
   std::array<bool, 3> periodic{};
   std::array<std::array<bool, 2>, 3> dirichlet{};
+  // Distance from the last unknown's centre to a Dirichlet boundary, in spacings (1/2 for a face,
+  // 1 for a node; coarsening moves it).
+  std::array<std::array<double, 2>, 3> bdist{};
   std::array<std::ptrdiff_t, 3> s{};
   std::size_t size = 0;
   std::array<int, 3> ratio{1, 1, 1}; // coarsening factor to the next level
@@ -28,6 +32,7 @@ struct MultigridPoisson::Level {
   // Dirichlet face coefficients per axis and side, on the transverse plane (lower axis fastest).
   std::array<std::array<std::vector<double>, 2>, 3> dface;
   std::vector<double> diag, inv_diag;
+  std::vector<double> mass; // empty without a mass term
   std::vector<double> x, b; // a coarse level's correction and right-hand side
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
@@ -40,7 +45,9 @@ struct MultigridPoisson::Level {
     for (int a = 0; a < 3; ++a) {
       periodic[a] = sides[a][0] == PoissonSide::periodic;
       for (int side = 0; side < 2; ++side) {
-        dirichlet[a][side] = sides[a][side] == PoissonSide::dirichlet;
+        dirichlet[a][side] = sides[a][side] == PoissonSide::dirichlet ||
+                             sides[a][side] == PoissonSide::dirichlet_node;
+        bdist[a][side] = sides[a][side] == PoissonSide::dirichlet_node ? 1.0 : 0.5;
         if (dirichlet[a][side]) {
           dface[a][side].assign(plane_cells(a), 0.0);
         }
@@ -328,19 +335,33 @@ void restrict_residual(const Level& F, const Level& C, const double* b, const do
   const auto& q = F.ratio;
   const double inv = 1.0 / (q[0] * q[1] * q[2]);
   for_planes(C.n[2], F.cells(), [&](int k) {
+    // Row by row: the fine residual of a whole row (a loop the compiler vectorises), then its
+    // pairs (or cells) added into the coarse row.
+    std::vector<double> row(static_cast<std::size_t>(F.n[0]));
+    std::vector<double> acc(static_cast<std::size_t>(C.n[0]));
     for (int j = 0; j < C.n[1]; ++j) {
-      for (int i = 0; i < C.n[0]; ++i) {
-        double sum = 0.0;
-        for (int dk = 0; dk < q[2]; ++dk) {
-          for (int dj = 0; dj < q[1]; ++dj) {
-            const std::size_t f = F.at(q[0] * i, q[1] * j + dj, q[2] * k + dk);
-            for (int di = 0; di < q[0]; ++di) {
-              const std::size_t c = f + static_cast<std::size_t>(di);
-              sum += b[c] - apply_at(F, x, c);
+      std::fill(acc.begin(), acc.end(), 0.0);
+      for (int dk = 0; dk < q[2]; ++dk) {
+        for (int dj = 0; dj < q[1]; ++dj) {
+          const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
+          for (int i = 0; i < F.n[0]; ++i) {
+            const std::size_t c = f0 + static_cast<std::size_t>(i);
+            row[static_cast<std::size_t>(i)] = b[c] - apply_at(F, x, c);
+          }
+          if (q[0] == 2) {
+            for (std::size_t i = 0; i < acc.size(); ++i) {
+              acc[i] += row[2 * i] + row[2 * i + 1];
+            }
+          } else {
+            for (std::size_t i = 0; i < acc.size(); ++i) {
+              acc[i] += row[i];
             }
           }
         }
-        bc[C.at(i, j, k)] = sum * inv;
+      }
+      double* out = bc + C.at(0, j, k);
+      for (std::size_t i = 0; i < acc.size(); ++i) {
+        out[i] = acc[i] * inv;
       }
     }
   });
@@ -398,12 +419,12 @@ void build_diagonal(Level& L) {
       for (int i = 0; i < L.n[0]; ++i) {
         const std::array<int, 3> cell = {i, j, k};
         const std::size_t c = L.at(i, j, k);
-        double d = 0.0;
+        double d = L.mass.empty() ? 0.0 : L.mass[c];
         for (int a = 0; a < 3; ++a) {
           d += L.K[a][c] + L.K[a][c + static_cast<std::size_t>(L.s[a])];
           for (int side = 0; side < 2; ++side) {
             if (L.dirichlet[a][side] && cell[a] == (side == 0 ? 0 : L.n[a] - 1)) {
-              d += 2.0 * L.dface[a][side][L.plane_index(a, cell)];
+              d += L.dface[a][side][L.plane_index(a, cell)] / L.bdist[a][side];
             }
           }
         }
@@ -468,6 +489,34 @@ void coarsen_coefficients(const Level& F, Level& C) {
         }
       }
     }
+  }
+  for (int a = 0; a < 3; ++a) {
+    for (int side = 0; side < 2; ++side) {
+      // The coarse centre sits (r - 1) / 2 fine spacings further in than the first child's.
+      C.bdist[a][side] = (F.bdist[a][side] + 0.5 * (q[a] - 1)) / q[a];
+    }
+  }
+  if (!F.mass.empty()) {
+    // The mass term's restriction R M P: the mean over the children.
+    C.mass.assign(C.size, 0.0);
+    const double inv = 1.0 / (q[0] * q[1] * q[2]);
+    for_planes(C.n[2], F.cells(), [&](int k) {
+      for (int j = 0; j < C.n[1]; ++j) {
+        for (int i = 0; i < C.n[0]; ++i) {
+          double sum = 0.0;
+          for (int dk = 0; dk < q[2]; ++dk) {
+            for (int dj = 0; dj < q[1]; ++dj) {
+              for (int di = 0; di < q[0]; ++di) {
+                sum += F.mass[F.at(q[0] * i + di, q[1] * j + dj, q[2] * k + dk)];
+              }
+            }
+          }
+          C.mass[C.at(i, j, k)] = sum * inv;
+        }
+      }
+    });
+  } else {
+    C.mass.clear();
   }
   build_diagonal(C);
 }
@@ -535,11 +584,13 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
           fmt::format("multigrid: axis {} is periodic on one side only", a));
     }
     for (int side = 0; side < 2; ++side) {
-      if (sides[a][side] == PoissonSide::dirichlet) {
-        singular_ = false;
+      if (sides[a][side] == PoissonSide::dirichlet ||
+          sides[a][side] == PoissonSide::dirichlet_node) {
+        has_dirichlet_ = true;
       }
     }
   }
+  singular_ = !has_dirichlet_;
   if (settings.pre_sweeps < 1 || settings.post_sweeps != settings.pre_sweeps) {
     throw std::invalid_argument("multigrid: pre_sweeps must be >= 1 and equal post_sweeps (a "
                                 "symmetric preconditioner for CG)");
@@ -586,8 +637,25 @@ int MultigridPoisson::line_axis(int level) const {
   return levels_.at(static_cast<std::size_t>(level)).line;
 }
 
-void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef) {
+void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef,
+                                        const GridField* mass) {
   Level& L = levels_.front();
+  singular_ = !has_dirichlet_ && mass == nullptr;
+  if (mass != nullptr) {
+    if (mass->layout().cells() != L.n) {
+      throw std::invalid_argument("multigrid: mass field of another grid");
+    }
+    L.mass.assign(L.size, 0.0);
+    for_planes(L.n[2], L.cells(), [&](int k) {
+      for (int j = 0; j < L.n[1]; ++j) {
+        for (int i = 0; i < L.n[0]; ++i) {
+          L.mass[L.at(i, j, k)] = (*mass)(i, j, k);
+        }
+      }
+    });
+  } else {
+    L.mass.clear();
+  }
   for (int a = 0; a < 3; ++a) {
     const GridField& in = coef[a];
     const GridLayout& layout = in.layout();
@@ -819,7 +887,13 @@ void MultigridPoisson::vcycle(int level, const double* b, double* x) {
   }
 }
 
-void MultigridPoisson::precondition(const double* r, double* z) {
+void MultigridPoisson::precondition(double* r, double* z) {
+  if (singular_) {
+    // The V-cycle is definite on mean-zero vectors only: a residual whose constant part (round-off
+    // of a tiny right-hand side) is not removed can give r.z <= 0 and break CG down. The constant
+    // part is unreachable anyway (A's null space).
+    shift_interior(levels_.front(), r, mean_interior(levels_.front(), r));
+  }
   vcycle(0, r, z);
   if (singular_ && levels_.size() > 1) {
     const Level& L = levels_.front();
@@ -858,7 +932,10 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
   };
   MultigridReport report;
   const double bb = dot(b_, b_);
-  if (!(bb > 0.0)) {
+  // |b|^2 below the smallest normal double (a right-hand side of round-off from a field that is
+  // already divergence-free): b is zero to working precision and so is x; relative residuals of
+  // such a b are noise (a V-cycle of it underflows to zero).
+  if (!(bb >= std::numeric_limits<double>::min())) {
     std::fill(x.begin(), x.end(), 0.0);
     report.converged = true;
     return report;

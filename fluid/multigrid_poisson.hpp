@@ -20,7 +20,10 @@
 
 namespace cfddem::fluid {
 
-enum class PoissonSide { neumann, dirichlet, periodic };
+// dirichlet: zero on the boundary face, half a spacing beyond the last cell centre (a cell-centred
+// unknown: ghost -x). dirichlet_node: zero one spacing beyond the last unknown (a staggered
+// velocity next to its known wall face).
+enum class PoissonSide { neumann, dirichlet, periodic, dirichlet_node };
 
 struct MultigridSettings {
   int pre_sweeps = 2;  // red-black Gauss-Seidel sweeps before the coarse correction
@@ -47,12 +50,15 @@ public:
   // coef[a] at layout index (i, j, k) is the coefficient K / h_a^2 of the low a-face of cell
   // (i, j, k), faces 0..n_a (layout: GridLayout(cells)). Read on interior faces, on Dirichlet
   // faces, and on face 0 of a periodic axis (face n_a is face 0); Neumann faces are not read.
+  // mass (optional, same layout): a non-negative term added to the diagonal (a Helmholtz
+  // operator mass - div(K grad)); coarse levels average it over the children.
   // Builds the coarse levels' coefficients and factors the coarsest level.
-  void set_coefficients(const std::array<GridField, 3>& coef);
+  void set_coefficients(const std::array<GridField, 3>& coef, const GridField* mass = nullptr);
 
   // Solves A x = b (cells in i-fastest order) from the first guess x, until the relative residual
   // 2-norm is at most tolerance. Without a Dirichlet side A is singular: b must sum to zero (up
-  // to rounding; its mean is removed) and x is returned with mean zero.
+  // to rounding; its mean is removed) and x is returned with mean zero. Likewise with a mass
+  // term: then A is definite and nothing is removed.
   MultigridReport solve(std::span<const double> b, std::span<double> x, double tolerance,
                         int max_iterations);
 
@@ -74,10 +80,11 @@ private:
   void vcycle(int level, const double* b, double* x);
   void coarsest_solve(const double* b, double* x); // b: the coarsest level's own vector
   void factor_coarsest();
-  void precondition(const double* r, double* z);
+  void precondition(double* r, double* z); // singular: r's mean is removed first
 
   MultigridSettings settings_;
   std::array<std::array<PoissonSide, 2>, 3> sides_{};
+  bool has_dirichlet_ = false;
   bool singular_ = true;
   std::vector<Level> levels_;
   // Outer flexible CG's vectors on the finest level's padded layout.

@@ -12,6 +12,7 @@
 
 #include <HYPRE_struct_ls.h>
 #include <HYPRE_utilities.h>
+#include <_hypre_struct_ls.h> // hypre_RedBlackGS: PFMG's smoother, for kernel 1
 #include <benchmark/benchmark.h>
 #include <mpi.h>
 #include <tbb/global_control.h>
@@ -19,6 +20,7 @@
 #include "fluid/deposition.hpp"
 #include "fluid/gas_solver.hpp"
 #include "fluid/ghost_fill.hpp"
+#include "fluid/implicit_viscosity.hpp"
 #include "fluid/momentum_rhs.hpp"
 #include "fluid/pressure_projection.hpp"
 
@@ -58,6 +60,7 @@ void run_projection(benchmark::State& state, PoissonPreconditioner pc, bool new_
   ProjectionSettings settings;
   settings.tolerance = 1e-8;
   settings.preconditioner = pc;
+  settings.solver = PoissonSolver::hypre; // these measure hypre's preconditioners
   PressureProjection projection(grid, settings);
   std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
   const std::array<GridField, 3> mobility = {grid.make_field(1e-4), grid.make_field(1e-4),
@@ -218,8 +221,9 @@ BENCHMARK(BM_MultigridKernelRiser)
 
 // hypre's counterparts on the same matrix (assembled here as the projection does for a periodic
 // grid): kernel 0 = one PFMG V-cycle as PressureProjection configures it (symmetric red-black,
-// 1 + 1 sweeps), 2 = one residual b - A x (HYPRE_StructMatrixMatvec). hypre 2.26 has no public
-// single relaxation sweep of PFMG, so kernel 1 is not measured.
+// 1 + 1 sweeps), 1 = one red-black Gauss-Seidel sweep (hypre_RedBlackGS, the smoother PFMG's
+// relax type 2 runs; hypre's internal API, no public one exists), 2 = one residual b - A x
+// (HYPRE_StructMatrixMatvec).
 void BM_HypreKernelRiser(benchmark::State& state) {
   RiserSystem sys;
   sys.renew(1);
@@ -302,14 +306,25 @@ void BM_HypreKernelRiser(benchmark::State& state) {
   HYPRE_StructPFMGSetNumPreRelax(pfmg, 1);
   HYPRE_StructPFMGSetNumPostRelax(pfmg, 1);
   HYPRE_StructPFMGSetup(pfmg, A, b, x);
+  void* rbgs = hypre_RedBlackGSCreate(MPI_COMM_SELF);
+  hypre_RedBlackGSSetMaxIter(rbgs, 1);
+  hypre_RedBlackGSSetTol(rbgs, 0.0);
+  hypre_RedBlackGSSetStartRed(rbgs);
+  auto* hA = reinterpret_cast<hypre_StructMatrix*>(A);
+  auto* hb = reinterpret_cast<hypre_StructVector*>(b);
+  auto* hx = reinterpret_cast<hypre_StructVector*>(x);
+  hypre_RedBlackGSSetup(rbgs, hA, hb, hx);
   const int64_t kernel = state.range(0);
   for (auto _ : state) {
     if (kernel == 0) {
       HYPRE_StructPFMGSolve(pfmg, A, b, x);
+    } else if (kernel == 1) {
+      hypre_RedBlackGS(rbgs, hA, hb, hx);
     } else {
       HYPRE_StructMatrixMatvec(-1.0, A, x, 1.0, b);
     }
   }
+  hypre_RedBlackGSDestroy(rbgs);
   HYPRE_ClearAllErrors(); // one V-cycle does not reach a tolerance: not an error here
   state.counters["ns_per_cell"] =
       benchmark::Counter(1e-9 * kRiserCells * static_cast<double>(state.iterations()),
@@ -324,6 +339,7 @@ void BM_HypreKernelRiser(benchmark::State& state) {
 BENCHMARK(BM_HypreKernelRiser)
     ->ArgName("kernel")
     ->Arg(0)
+    ->Arg(1)
     ->Arg(2)
     ->UseRealTime()
     ->Unit(benchmark::kMicrosecond);
@@ -338,6 +354,49 @@ benchmark::Counter ns_per(double cells) {
 std::size_t threads_of(const benchmark::State& state, int arg) {
   return static_cast<std::size_t>(state.range(arg));
 }
+
+// The implicit viscosity's Helmholtz solve of one component on the fluidized bed's grid (32 x 50
+// x 32 cells of 50 um, walls, inflow below, outflow above), c = theta dt mu at dt = 1e-4 s:
+// multigrid 0 = Jacobi CG (the distributed path), 1 = multigrid-preconditioned CG; tolerance
+// 1e-10 (GasSolverSettings::viscous_tolerance). Component 1 (the inflow axis).
+void BM_ViscousSolveBed(benchmark::State& state) {
+  const tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 1);
+  MacGridSpec spec;
+  spec.cells = {32, 50, 32};
+  spec.extent = {1.6e-3, 2.5e-3, 1.6e-3};
+  spec.bc[2].kind = BoundaryKind::inflow;
+  spec.bc[2].velocity = {0.0, 0.015, 0.0};
+  spec.bc[3].kind = BoundaryKind::outflow;
+  const MacGrid grid(spec);
+  GridField eps = grid.make_field();
+  GridField beta = grid.make_field();
+  fill_particle_fields(grid, eps, &beta, 3);
+  GridField diag = grid.make_field();
+  GridField rhs = grid.make_field();
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> uni(-0.01, 0.01);
+  const double dt = 1e-4;
+  for (std::size_t p = 0; p < diag.values().size(); ++p) {
+    diag[p] = eps[p] * (1.0 + dt * beta[p] / std::max(eps[p], 0.1)); // eps_f rho (1 + k beta)
+    rhs[p] = diag[p] * (0.015 + uni(rng));
+  }
+  std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
+  ImplicitViscosity viscosity(grid);
+  viscosity.use_multigrid(state.range(0) != 0);
+  const int comp = 1;
+  double iterations = 0.0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    u[comp].fill(0.0);
+    fill_velocity_ghosts(grid, u);
+    state.ResumeTiming();
+    iterations +=
+        viscosity.solve(comp, 0.5 * dt * 2e-5, eps, diag, rhs, u[comp], 1e-10, 1000).iterations;
+  }
+  state.counters["cg_iterations"] =
+      benchmark::Counter(iterations, benchmark::Counter::kAvgIterations);
+}
+BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // The explicit momentum right-hand side alone (advection + viscous stress, three components).
 void BM_MomentumRhsRiser(benchmark::State& state) {

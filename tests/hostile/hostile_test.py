@@ -263,6 +263,34 @@ def settle_then_turn_the_gas_on(ctx):
            out_dir=ctx.fresh("refused_restart"))
 
 
+# ---- legal but almost surely a mistake: a warning, and run.json as typed JSON ----
+@case
+def snapshot_interval_tiny_warns(ctx):
+    expect(ctx, ["check", SMALL, "output.snapshot_interval=1e-12"], 0,
+           r"warning: output.snapshot_interval = 1e-12 s writes up to 3e\+10 snapshot files")
+
+
+@case
+def dem_dt_tiny_warns(ctx):
+    expect(ctx, ["check", SMALL, "dem.dt=1e-20"], 0,
+           r"warning: dem.dt = 1e-20 s makes 3e\+18 steps .* years")
+
+
+@case
+def run_json_typed_and_done_line(ctx):
+    import json
+    d = ctx.fresh("typed")
+    out = expect(ctx, ["run", SMALL, *TINY, "output.snapshot_interval=1e-5"], 0,
+                 r"done; outputs in .* \(diagnostics.csv, run.json, 3 snapshot\(s\) \+ "
+                 r"snapshots.xmf\)", out_dir=d)
+    with open(os.path.join(d, "run.json")) as f:
+        j = json.load(f)
+    c = j["configuration"]
+    assert c["name"] == "hcs_small" and c["dem.restitution"] == 0.8, c
+    assert c["domain.periodic"] == [True, True, True] and c["particles.count"] == 100, c
+    assert j["derived"]["dt_s"] == 1.447203e-07, j["derived"]
+
+
 # ---- names cannot leave runs/ ----
 @case
 def name_dotdot(ctx):

@@ -367,9 +367,11 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       gas_regrid();
       while (next_regrid <= t + tol) next_regrid += regrid_every;
     }
-    const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
+    const bool no_particles = n_total == 0 && !fixed;
+    const long long n_sub =
+        no_particles ? 1 : particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
     last_n_sub = n_sub;
-    const double dt_f = static_cast<double>(n_sub) * dt;
+    const double dt_f = fluid_step_length(scene, gas, no_particles, n_sub, dt, end - t);
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
       gas_step(dt_f);

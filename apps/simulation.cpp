@@ -866,8 +866,10 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
                          : std::numeric_limits<double>::infinity();
   const double tol = 1e-6 * dt;
   while (end - t > tol) {
-    const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
-    const double dt_f = static_cast<double>(n_sub) * dt;
+    const bool no_particles = particles.size() == 0 && !fixed;
+    const long long n_sub =
+        no_particles ? 1 : particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
+    const double dt_f = fluid_step_length(scene, gas, no_particles, n_sub, dt, end - t);
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
       gas.step(particles, dt_f);

@@ -14,6 +14,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/default_scene.hpp"
 #include "apps/derived_numbers.hpp"
+#include "apps/gas_check.hpp"
 #include "apps/run_directory.hpp"
 #include "apps/setting_warnings.hpp"
 #include "apps/simulation.hpp"
@@ -241,6 +242,14 @@ int main(int argc, char** argv) {
           for (const auto& [k, v] : cfddem::describe_scene(scene)) fmt::print("{} = {}\n", k, v);
           fmt::print("\n# derived numbers\n");
           for (const auto& [k, v] : derived.table()) fmt::print("{:<48} {}\n", k, v);
+          if (scene.fluid.enabled) {
+            const auto gas = cfddem::apps::check_gas(scene, derived);
+            fmt::print("\n# gas\n");
+            for (const auto& [k, v] : gas.table)
+              fmt::print("{:<48} {}\n", k, v);
+            for (const auto& w : gas.warnings)
+              fmt::print(stderr, "cfddem: warning: {}\n", w);
+          }
         }
         return 0;
       }

@@ -263,6 +263,47 @@ def settle_then_turn_the_gas_on(ctx):
            out_dir=ctx.fresh("refused_restart"))
 
 
+@case
+def gas_alone_at_its_own_step(ctx):
+    """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
+    capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of
+    6.3e-3 s used to set the fluid step: two steps, ending at 0.0126 s)."""
+    import json
+    d = ctx.fresh("gas_alone")
+    expect(ctx, ["run", SETTLING, "particles.count=0", "fluid.dt=0", "run.end_time=1e-2",
+                 "--quiet"], 0, None, out_dir=d)
+    with open(os.path.join(d, "run.json")) as f:
+        j = json.load(f)
+    assert abs(j["end_time"] - 1e-2) < 1e-12, j["end_time"]
+    assert j["fluid_steps"] >= 10 and j["fluid_dt_mean"] <= 1e-3, (j["fluid_steps"],
+                                                                   j["fluid_dt_mean"])
+    assert float(rows(d)[-1][0]) == float(j["end_time"])
+
+
+@case
+def check_tells_about_the_gas(ctx):
+    """`cfddem check` of the fluidized bed: cells per particle diameter (0.5, with a warning once
+    the deposition is trilinear), fluid steps, the minimum fluidization velocity (Wen & Yu; in
+    the Stokes regime of these 100 um particles it is d^2 (rho_p - rho_g) g / (1652 mu), to
+    0.1%) and a rough cost."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    out = expect(ctx, ["check", bed, "fluid.deposition=trilinear"], 0,
+                 r"warning: a gas cell .* is narrower than a particle")
+    assert re.search(r"cell_size / particle diameter \(smallest\)\s+0.5\b", out), out
+    assert re.search(r"fluid_steps\s+2000 \(fluid.dt = 0.0001 s\)", out), out
+    assert "cost_per_fluid_step" in out and "cost_of_run_s" in out, out
+    umf = float(re.search(r"minimum_fluidization_velocity_m_s \(Wen & Yu\)\s+(\S+)", out)
+                .group(1))
+    cfg = dict(re.findall(r"^(\S+) = (.*)$", out, re.M))
+    d, rho_p = float(cfg["particles.diameter"]), float(cfg["particles.density"])
+    rho_g, mu = float(cfg["fluid.density"]), float(cfg["fluid.viscosity"])
+    g = max(abs(float(x)) for x in cfg["gravity"].strip("[]").split(","))
+    stokes = d * d * (rho_p - rho_g) * g / (2 * 33.7 / 0.0408 * mu)  # Ar << 33.7^2 / 0.0408
+    assert abs(umf / stokes - 1) < 1e-3, (umf, stokes)
+    quiet = expect(ctx, ["check", bed], 0, None)
+    assert "narrower than a particle" not in quiet  # dpvm spreads the particle: no warning
+
+
 # ---- legal but almost surely a mistake: a warning, and run.json as typed JSON ----
 @case
 def snapshot_interval_tiny_warns(ctx):

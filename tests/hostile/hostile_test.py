@@ -318,6 +318,19 @@ def dem_dt_tiny_warns(ctx):
 
 
 @case
+def output_interval_below_dt_sp_warns(ctx):
+    expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
+           r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "
+           r"1e-05 s of dem.scheme = \"orb\"")
+
+
+@case
+def unstable_step_is_a_configuration_error(ctx):
+    expect(ctx, ["run", SMALL, "dem.dt_factor=1.5"], 2,
+           r"scene key 'dem.dt_factor': unstable time step: omega dt", fresh=True)
+
+
+@case
 def run_json_typed_and_done_line(ctx):
     import json
     d = ctx.fresh("typed")

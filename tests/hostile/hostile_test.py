@@ -464,6 +464,32 @@ def disk_full(ctx):
 
 
 @case
+def disk_full_two_ranks(ctx):
+    """The same full tmpfs with 2 ranks (the snapshots written collectively with MPI-IO): exit 3
+    naming the snapshot, no rank left waiting, earlier files intact."""
+    mpirun = shutil.which("mpirun")
+    mnt = os.path.join(ctx.tmp, "tmpfs2")
+    os.makedirs(mnt)
+    if not mpirun or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", mnt],
+                                    capture_output=True).returncode != 0:
+        print("  disk_full_two_ranks: no mpirun or no tmpfs mount here: not run")
+        return
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    try:
+        d = os.path.join(mnt, "run")
+        r = subprocess.run([mpirun, "-np", "2", "--oversubscribe", BIN, "run", SETTLING,
+                            "run.end_time=0.01", "output.snapshot_interval=1e-3", "--quiet",
+                            "--threads", "1", "--out", d], capture_output=True, text=True,
+                           timeout=120, env=env)
+        out = r.stdout + r.stderr
+        assert r.returncode == 3, (r.returncode, out[-1500:])
+        assert re.search(r"run stopped: writing snapshot .* on 2 ranks failed", out), out[-1500:]
+        check_intact(d)
+    finally:
+        subprocess.run(["umount", mnt])
+
+
+@case
 def file_size_limit(ctx):
     """Unprivileged: a 4 MiB file-size limit (SIGXFSZ ignored, so a write past it fails with
     EFBIG; Open MPI's start-up needs about that much) stops the run at its first snapshot, 4.5 MB

@@ -185,12 +185,12 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     fmt::print(
         stderr,
         "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
-        "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
+        "deposition), dt_f = {}, {} = {:.4e} s{}, {} rank(s) x {} "
         "thread(s), {} scheme{}\n",
         scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
         fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
               : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-        dt,
+        kSub ? "dt_sp (sub-iteration)" : "particle dt", dt,
         fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kSub ? "sub-iterations" : "steps")
               : std::string(),
         env.ranks(), env.threads(), scheme_name,

@@ -267,9 +267,11 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
 
   if (!opt.quiet) {
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
-                       "particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), particles.size());
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
+               "particles ({} to run.end_time and one that completes the last row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), particles.size(),
+               n_end);
     fmt::print(stderr, "Performance: {:.4g} particle-steps/s; neighbor {:.3g} s ({} builds), "
                        "force {:.3g} s, integrate {:.3g} s, io {:.3g} s\n",
                j["particle_steps_per_second"].get<double>(), timer.seconds(Phase::neighbor),
@@ -447,9 +449,12 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
 
   if (!opt.quiet) {
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
-                       "with {} particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), particles.size());
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
+               "with {} particles ({} to run.end_time and one that completes the last "
+               "row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), particles.size(),
+               n_end);
     fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; {} "
                        "{:.3g} s, {} {:.3g} s, io {:.3g} s; max overlap {:.3g} r ({} "
                        "beyond dem.max_overlap)\n",
@@ -673,9 +678,10 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   if (!opt.quiet) {
     double wait_max = 0.0;
     for (const double w : waits) wait_max = std::max(wait_max, w);
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
-                       "particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), n_total);
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
+               "particles ({} to run.end_time and one that completes the last row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), n_total, n_end);
     fmt::print(stderr, "Performance: {:.4g} particle-steps/s; rank 0: neighbor+exchange {:.3g} s "
                        "({} builds, {} regrids), force {:.3g} s, integrate {:.3g} s; MPI wait "
                        "max {:.3g} s\n",
@@ -796,16 +802,20 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   };
   if (!opt.quiet) {
     const auto& c = scene.fluid.cells;
-    fmt::print(stderr, "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
-                       "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-                       "thread(s){}\n",
-               scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag,
-               scene.fluid.deposition, fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
-                                             : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-               dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "sub-iterations" : "steps") : std::string(),
-               env.ranks(), env.threads(),
-               ck ? fmt::format(", restarted at t = {:.6e} s from {}", loop.time, opt.restart)
-                  : "");
+    fmt::print(
+        stderr,
+        "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
+        "deposition), dt_f = {}, {}{}, {} rank(s) x {} "
+        "thread(s){}\n",
+        scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
+        fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
+              : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
+        kOrb ? fmt::format("dt_sp = {:.4e} s (fine dt = {:.4e} s)", dt, snap_dt)
+             : fmt::format("particle dt = {:.4e} s", dt),
+        fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "sub-iterations" : "steps")
+              : std::string(),
+        env.ranks(), env.threads(),
+        ck ? fmt::format(", restarted at t = {:.6e} s from {}", loop.time, opt.restart) : "");
   }
   MeanTracker means;
   if (ck) {

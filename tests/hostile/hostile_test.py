@@ -331,6 +331,20 @@ def unstable_step_is_a_configuration_error(ctx):
 
 
 @case
+def banner_and_summary_agree(ctx):
+    """The orb banner's sub-iteration count is the summary's (which adds the one that completes
+    the last row, and says so); a coupled orb banner names dt_sp and the fine dt."""
+    out = expect(ctx, ["run", SMALL, "dem.scheme=orb", "run.end_time=2e-4"], 0,
+                 r"dt_sp = 1.0000e-05 s \(fine dt = 1.4472e-07 s\), 20 sub-iterations",
+                 out_dir=ctx.fresh("orb_banner"))
+    assert re.search(r"for 21 sub-iterations with 100 particles \(20 to run.end_time and one "
+                     r"that completes the last row\)", out), out
+    expect(ctx, ["run", SETTLING, "particles.count=30", "dem.scheme=orb", "run.end_time=2e-4"],
+           0, r"dt_f = 1.0000e-04 s, dt_sp = 1.0000e-05 s \(fine dt = 1.4472e-07 s\)",
+           out_dir=ctx.fresh("orb_gas_banner"))
+
+
+@case
 def run_json_typed_and_done_line(ctx):
     import json
     d = ctx.fresh("typed")

@@ -196,6 +196,9 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
         env.ranks(), env.threads(), scheme_name,
         ck ? fmt::format(", restarted at t = {:.6e} s from {}", ck->loop.time, opt.restart) : "");
   }
+  // The loop's wall time starts before start() and the t = 0 outputs, which the phase timer
+  // counts too (else phase_seconds.other came out negative).
+  const auto t_loop = clock::now();
   // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
   // kept before start() shifts them to the half step.
   ParticleStore initial;
@@ -268,7 +271,6 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
                 means.next(0.0, s0.mean_velocity, gas.diagnostics())));
   }
-  const auto t_loop = clock::now();
   double& t = loop.time;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {

@@ -817,6 +817,9 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
         env.ranks(), env.threads(),
         ck ? fmt::format(", restarted at t = {:.6e} s from {}", loop.time, opt.restart) : "");
   }
+  // The loop's wall time starts before start() and the t = 0 outputs, which the phase timer
+  // counts too (else phase_seconds.other came out negative).
+  const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
     for (auto& r : ck->rows) add_row(std::move(r));
@@ -840,7 +843,6 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
                 means.next(0.0, particles.vx, particles.vy, particles.vz, gas.diagnostics())));
   }
-  const auto t_loop = clock::now();
   double& t = loop.time;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {

@@ -345,6 +345,21 @@ def banner_and_summary_agree(ctx):
 
 
 @case
+def phase_other_not_negative(ctx):
+    """run.json phase_seconds: with a gas, start() and the t = 0 outputs were timed in phases
+    but fell before the loop's clock started, so 'other' (the loop's untimed rest) came out
+    negative."""
+    import json
+    for sched in ("explicit", "orb"):
+        d = ctx.fresh(f"phases_{sched}")
+        expect(ctx, ["run", SETTLING, f"dem.scheme={sched}", "run.end_time=2e-4",
+                     "output.snapshot_interval=1e-4", "--quiet"], 0, None, out_dir=d)
+        with open(os.path.join(d, "run.json")) as f:
+            ph = json.load(f)["phase_seconds"]
+        assert ph["other"] >= 0, (sched, ph)
+
+
+@case
 def run_json_typed_and_done_line(ctx):
     import json
     d = ctx.fresh("typed")

@@ -411,6 +411,13 @@ def count_beyond_memory(ctx):
 
 
 @case
+def long_set_up_shows_progress(ctx):
+    # 2000 particles (solid fraction 0.2) with a progress line due at every report.
+    expect(ctx, ["check", SMALL, "particles.count=2000", "output.progress_seconds=1e-9"], 0,
+           r"set-up \(random placement\): \d+ of 2000 particles placed")
+
+
+@case
 def big_dilute_box_memory(ctx):
     def limit():
         resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))  # 1 GiB of address space

@@ -424,6 +424,10 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   const std::vector<double> routing_seconds = comm.gather(routing ? routing->seconds() : 0.0);
   const std::vector<double> routed_away =
       comm.gather(routing ? static_cast<double>(routing->sent_away()) : 0.0);
+  const auto& box = gas.solver().grid().cells();
+  const nlohmann::ordered_json counts = rank_counts_json(
+      comm, scheme.local_particle_steps(), scheme.local_pair_evaluations(),
+      static_cast<std::int64_t>(box[0]) * box[1] * box[2] * gas.gas_substeps());
   if (root) {
     nlohmann::ordered_json j = run_json_header(scene_in, scene.name, derived, env, n_total);
     j["scheme"] = scheme_name;
@@ -453,6 +457,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       j["steps"] = scheme.steps_taken();
     }
     j["fluid_steps"] = loop.fluid_steps;
+    j["rank_counts"] = counts;
     j["fluid_dt_mean"] =
         loop.fluid_steps > 0 ? loop.dt_f_sum / static_cast<double>(loop.fluid_steps) : 0.0;
     j["gas_substeps"] = gas.gas_substeps();

@@ -46,6 +46,9 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.projection.tolerance = s.fluid.tolerance;
   g.projection.preconditioner = s.fluid.preconditioner == "smg" ? fluid::PoissonPreconditioner::smg
                                                                 : fluid::PoissonPreconditioner::pfmg;
+  g.projection.solver = s.fluid.solver == "multigrid" ? fluid::PoissonSolver::multigrid
+                        : s.fluid.solver == "hypre"   ? fluid::PoissonSolver::hypre
+                                                      : fluid::PoissonSolver::automatic;
   return g;
 }
 
@@ -133,6 +136,11 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
                          std::size_t owned)
     : scene_(scene), comm_(comm != nullptr && comm->size() > 1 ? comm : nullptr),
       boxes_(gas_boxes(scene, comm_)), grid_(gas_grid(scene, comm_, boxes_)) {
+  if (comm_ != nullptr && scene.fluid.solver == "multigrid") {
+    throw ConfigError("scene key 'fluid.solver'",
+                      "\"multigrid\" solves the projection on one rank only (no distributed "
+                      "V-cycle yet): on R ranks use \"hypre\" or \"auto\"");
+  }
   if (comm_ != nullptr) halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
   solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);
   const std::size_t n = std::min(owned, p.size());
@@ -209,7 +217,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
                                                      problem);
     if (!agreed.empty()) throw RunError(agreed);
   }
-  // Solid fraction -> eps_g (physics.md §7), floored (kMinGasFraction).
+  // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction).
   eps_s_.fill(0.0);
   deposition_->deposit_solid_fraction(pos, eps_s_);
   fluid::GridField& eps = solver_->volume_fraction();
@@ -232,7 +240,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     const std::span<double> out[] = {eps_p_, ug_[0], ug_[1], ug_[2]};
     deposition_->interpolate(pos, in, out);
   }
-  // beta_i from the drag law (physics.md §4) with the slip |u_g - v_i|.
+  // beta_i from the drag law (docs/theory.md §4) with the slip |u_g - v_i|.
   const double rho = scene_.fluid.density, mu = scene_.fluid.viscosity;
   for (std::size_t i = 0; i < n; ++i) {
     const double sx = ug_[0][i] - p.vx[i], sy = ug_[1][i] - p.vy[i], sz = ug_[2][i] - p.vz[i];

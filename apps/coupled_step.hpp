@@ -1,4 +1,5 @@
-// The gas <-> particle coupling of one fluid step (the paper's Algorithm 1; physics.md §4, §5, §7):
+// The gas <-> particle coupling of one fluid step (the paper's Algorithm 1;
+// docs/theory.md §4, §5, §7):
 //   1. deposit the solid fraction eps_s, the drag coefficients beta_i (drag law at each particle
 //      with eps_g and the slip |u_g - v_i| interpolated there) and beta_i v_i to the cells,
 //   2. advance the gas by dt_f (point-implicit drag, hypre projection),

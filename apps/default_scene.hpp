@@ -1,5 +1,5 @@
 // The scene `cfddem run` uses when no scene file is given: the paper's homogeneous cooling system
-// (HCS) with the peers' parameters (shared physics.md §1, §3), particles generated in place.
+// (HCS) with the peers' parameters (docs/theory.md §1, §3), particles generated in place.
 // scenes/hcs.toml is the same scene started from the peers' exact initial state.
 #pragma once
 

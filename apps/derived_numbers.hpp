@@ -1,5 +1,6 @@
 // Numbers a user checks before a run (`cfddem check`) and finds again in run.json: particle mass,
-// tau_p, dt, solid fraction, the Enskog collision frequency and Haff's cooling time (physics.md §1, §3).
+// tau_p, dt, solid fraction, the Enskog collision frequency and Haff's cooling time
+// (docs/theory.md §1, §3).
 #pragma once
 
 #include <string>

@@ -204,6 +204,8 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
   const std::vector<double> busy =
       comm.gather(timer.seconds(Phase::neighbor) + timer.seconds(Phase::force) +
                   timer.seconds(Phase::integrate));
+  const nlohmann::ordered_json counts =
+      rank_counts_json(comm, scheme.local_particle_steps(), scheme.local_pair_evaluations(), 0);
   if (root) {
     nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
     j["scheme"] = Sub::kName;
@@ -215,6 +217,7 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
     j["steps"] = scheme.subiterations();
     j["steps_definition"] = "sub-iterations of dt_sp (one past the end, as the explicit loop)";
     j["regrids"] = scheme.regrids();
+    j["rank_counts"] = counts;
     j["end_time"] = static_cast<double>(n_end) * dt_sp;
     j["loop_seconds"] = loop_seconds;
     j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();

@@ -131,24 +131,27 @@ Scene keys (TOML, dotted; any key can be overridden as key=value on the command 
   dem.neighbor_skin          Verlet skin in m (default a quarter of the largest diameter)
   dem.max_overlap            stop when an overlap exceeds this fraction of the radius (0.3;
                              orb: counted and reported, not fatal)
-  dem.nsubit                 orb: sub-iterations per regrid interval (default 10)
-  dem.regrid_interval        orb: seconds between ORB rebuilds, dt_f (default 1e-4);
+  dem.nsubit                 orb, islands: sub-iterations per regrid interval (default 10)
+  dem.regrid_interval        orb, islands: seconds between ORB rebuilds, dt_f (default 1e-4);
                              sub-iteration dt_sp = dem.regrid_interval / dem.nsubit
   dem.proximity_radii        orb: a leaf takes the fine step if a pair's centre distance is below
                              this many radii, (r_i + r_j) / 2 each (default 3)
   dem.local_dt               orb: "proximity" (the rule above, default) or "time_to_contact" (fine
                              if a pair's gap or a wall's could close within dt_sp at its speeds)
-  partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4)
+  partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4); R > 1 ranks: ORB boxes
   fluid.*                    the gas (a scene without [fluid] has none): fluid.cells [nx, ny, nz],
                              fluid.density, fluid.viscosity, fluid.dt (fixed dt_f, paper 1e-4) or
-                             fluid.cfl (<= 0.5), fluid.drag ("bvk", "bvk2", "koch_hill", "wen_yu",
-                             "none"), fluid.deposition ("trilinear" | "dpvm"),
+                             fluid.cfl (<= 0.5) and fluid.max_dt (cap, 1e-3), fluid.drag ("bvk",
+                             "bvk2", "koch_hill", "wen_yu", "none"), fluid.deposition
+                             ("trilinear" | "dpvm" | "dpvm_sphere"),
                              fluid.deposition_width (particle diameters), fluid.bc.x_lo ...
                              fluid.bc.z_hi ("periodic", "wall", "inflow", "outflow"; default: as
                              domain.periodic, else wall), fluid.inflow_velocity,
                              fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
                              fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity,
-                             fluid.tolerance, fluid.preconditioner ("pfmg" | "smg")
+                             fluid.tolerance, fluid.preconditioner ("pfmg" | "smg"),
+                             fluid.solver ("multigrid" | "hypre" | "auto": multigrid on one
+                             rank, hypre on R ranks; default auto)
   partition.weights          orb: "count" (default) | "cost" (particles x local steps of the
                              last regrid interval)
   partition.gas_regrid_interval  a gas on R ranks: simulated seconds between recuts of the gas
@@ -171,7 +174,7 @@ Examples:
   cfddem run                                   the built-in HCS (1222 particles, 30 ms)
   cfddem run scenes/hcs.toml dem.restitution=0.9 --threads 2
   cfddem check scenes/hcs.toml
-  mpirun -np 2 cfddem run scenes/hcs.toml --threads 1   (explicit scheme, no fluid: distributed)
+  mpirun -np 2 cfddem run scenes/hcs.toml --threads 1   (any scheme, with or without a gas)
 )";
 
 } // namespace

@@ -16,6 +16,8 @@
 
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
+#include "core/communicator.hpp"
+#include "core/message_counts.hpp"
 #include "core/parallel_env.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
@@ -188,6 +190,40 @@ inline void add_work_counters(nlohmann::ordered_json& j, const Scheme& scheme, d
   j["neighbor_builds"] = scheme.neighbor_builds();
   j["particle_steps_per_second"] =
       loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+}
+
+// run.json's rank_counts: per rank (arrays in rank order), the work it did and what it sent,
+// for the scaling model (tools/scaling_model.py). Counts, not times: a function of the
+// configuration and the rank count only. Collective: every rank calls it; rank 0 gets the
+// object, the others an empty one. cell_updates: gas cells of this rank's box times gas
+// sub-steps (0 without a gas).
+inline nlohmann::ordered_json rank_counts_json(const Communicator& comm,
+                                               std::int64_t particle_steps,
+                                               std::int64_t force_evaluations,
+                                               std::int64_t cell_updates) {
+  const MessageCounts m = message_counts(); // before the gather below adds to it
+  constexpr std::size_t kFields = 8;
+  const std::array<std::int64_t, kFields> mine{particle_steps, force_evaluations, cell_updates,
+                                               m.p2p_messages,  m.p2p_bytes, m.collectives,
+                                               m.collective_bytes, m.reductions};
+  const std::vector<std::int64_t> all = comm.gather(std::span<const std::int64_t>(mine));
+  nlohmann::ordered_json j;
+  if (comm.rank() != 0) return j;
+  static constexpr std::array<const char*, kFields> names = {
+      "particle_steps", "force_evaluations", "cell_updates", "p2p_messages",
+      "p2p_bytes",      "collectives",       "collective_bytes", "reductions"};
+  for (std::size_t k = 0; k < kFields; ++k) {
+    nlohmann::ordered_json v = nlohmann::ordered_json::array();
+    for (std::size_t r = 0; r * kFields + k < all.size(); r += 1) v.push_back(all[r * kFields + k]);
+    j[names[k]] = v;
+  }
+  j["definition"] =
+      "per rank, since this process started (set-up included, a restart starts from 0): owned "
+      "particle steps; pair evaluations of its rows (a pair with a ghost counts on both ranks); "
+      "gas cell updates (box cells x gas sub-steps); point-to-point sends and their bytes (halo, "
+      "ghost and migration messages); collectives this rank took part in and its payload bytes; "
+      "of those, the reductions. Not counted: snapshot and checkpoint I/O, hypre's own messages";
+  return j;
 }
 
 } // namespace cfddem::apps

@@ -638,6 +638,8 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   const std::vector<double> owned = comm.gather(static_cast<double>(scheme.owned()));
   const std::vector<double> busy = comm.gather(
       timer.seconds(Phase::neighbor) + timer.seconds(Phase::force) + timer.seconds(Phase::integrate));
+  const nlohmann::ordered_json counts =
+      rank_counts_json(comm, scheme.local_particle_steps(), scheme.local_pair_evaluations(), 0);
   if (root) {
     nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
     j["scheme"] = "explicit";
@@ -662,6 +664,7 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
     j["busy_definition"] = "per rank: neighbor + force + integrate phases (rebuilds with their "
                            "exchanges, forces, updates); their spread is the load imbalance in time";
     j["boxes"] = 1 << scheme.levels();
+    j["rank_counts"] = counts;
     j["regrid_policy"] = "ORB + Hilbert knapsack at the first neighbor rebuild after "
                          "dem.regrid_interval; migration and ghosts at every rebuild";
     nlohmann::ordered_json regrids = nlohmann::ordered_json::array();

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "core/communicator_mpi.hpp"
+#include "core/message_counts.hpp"
 
 namespace cfddem {
 
@@ -20,6 +21,7 @@ template <> MPI_Datatype mpi_type<std::int64_t>() {
 template <class T> void reduce(const Communicator& c, std::span<T> v, MPI_Op op) {
   if (c.size() == 1 || v.empty())
     return;
+  count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(T)), true);
   MpiWait w(c);
   MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), mpi_type<T>(), op, mpi_comm(c));
 }
@@ -75,6 +77,7 @@ void Communicator::sum_max(std::span<double> sums, std::span<double> maxes) cons
   buf[0] = static_cast<double>(sums.size());
   std::copy(sums.begin(), sums.end(), buf.begin() + 1);
   std::copy(maxes.begin(), maxes.end(), buf.begin() + 1 + static_cast<std::ptrdiff_t>(sums.size()));
+  count_messages::collective(static_cast<std::int64_t>(buf.size() * sizeof(double)), true);
   {
     MpiWait w(*this);
     MPI_Allreduce(MPI_IN_PLACE, buf.data(), static_cast<int>(buf.size()), MPI_DOUBLE, op,
@@ -90,6 +93,7 @@ void Communicator::max_begin(std::span<std::int64_t> v) const {
     return;
   if (!request_)
     request_ = std::make_shared<MPI_Request>(MPI_REQUEST_NULL); // once: no allocation per step
+  count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(std::int64_t)), true);
   MPI_Iallreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_INT64_T, MPI_MAX,
                  mpi_comm(*this), static_cast<MPI_Request*>(request_.get()));
 }
@@ -115,6 +119,7 @@ std::vector<double> Communicator::gather(double v) const {
   if (size_ == 1)
     return {v};
   std::vector<double> all(rank_ == 0 ? static_cast<std::size_t>(size_) : 0);
+  count_messages::collective(sizeof(double), false);
   MpiWait w(*this);
   MPI_Gather(&v, 1, MPI_DOUBLE, all.data(), 1, MPI_DOUBLE, 0, mpi_comm(*this));
   return all;
@@ -127,6 +132,8 @@ template <class T> std::vector<T> gather_all(const Communicator& c, std::span<co
   const bool root = c.rank() == 0;
   int n = static_cast<int>(v.size());
   std::vector<int> counts(root ? static_cast<std::size_t>(c.size()) : 0), offsets(counts.size());
+  count_messages::collective(sizeof(int), false);
+  count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(T)), false);
   MpiWait w(c);
   MPI_Gather(&n, 1, MPI_INT, counts.data(), 1, MPI_INT, 0, mpi_comm(c));
   int total = 0;
@@ -161,8 +168,10 @@ std::string Communicator::agree_on_error(std::int64_t key, const std::string& me
   std::string text = rank_ == root ? message : std::string();
   MpiWait w(*this);
   auto len = static_cast<long long>(text.size());
+  count_messages::collective(sizeof(len), false);
   MPI_Bcast(&len, 1, MPI_LONG_LONG, static_cast<int>(root), mpi_comm(*this));
   text.resize(static_cast<std::size_t>(len));
+  count_messages::collective(len, false);
   MPI_Bcast(text.data(), static_cast<int>(len), MPI_CHAR, static_cast<int>(root), mpi_comm(*this));
   return text;
 }

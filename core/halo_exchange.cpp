@@ -3,6 +3,7 @@
 #include <stdexcept>
 
 #include "core/communicator_mpi.hpp"
+#include "core/message_counts.hpp"
 
 namespace cfddem {
 
@@ -77,6 +78,7 @@ void HaloExchange::transfer(std::span<const std::span<double>> fields, bool reve
       }
     }
     requests.emplace_back();
+    count_messages::point_to_point(static_cast<std::int64_t>(buf.size() * sizeof(double)));
     MPI_Isend(buf.data(), static_cast<int>(buf.size()), MPI_DOUBLE, l.rank, kHaloTag,
               mpi_comm(comm_), &requests.back());
   }

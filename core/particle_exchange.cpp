@@ -5,6 +5,7 @@
 #include <stdexcept>
 
 #include "core/communicator_mpi.hpp"
+#include "core/message_counts.hpp"
 #include "core/sparse_exchange.hpp"
 
 namespace cfddem {
@@ -305,9 +306,11 @@ void ParticleExchange::forward_begin(const ParticleStore& p) {
       if (nr > 0)
         MPI_Irecv(fwd_recv_.data() + ro, static_cast<int>(nr), MPI_DOUBLE, r, kForwardTag,
                   mpi_comm(comm_), &req.emplace_back());
-      if (ns > 0)
+      if (ns > 0) {
+        count_messages::point_to_point(static_cast<std::int64_t>(ns * sizeof(double)));
         MPI_Isend(fwd_send_.data() + so, static_cast<int>(ns), MPI_DOUBLE, r, kForwardTag,
                   mpi_comm(comm_), &req.emplace_back());
+      }
     }
     so += ns, ro += nr;
   }

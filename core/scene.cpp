@@ -158,7 +158,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   s.output.snapshot_interval = non_negative(c, "output.snapshot_interval", 0.0);
   s.output.checkpoint_interval = non_negative(c, "output.checkpoint_interval", 0.0);
 
-  // Gas (optional): physics.md §4-§7.
+  // Gas (optional): docs/theory.md §4-§7.
   if (c.has("fluid")) {
     auto& f = s.fluid;
     f.enabled = true;
@@ -232,6 +232,9 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.preconditioner = c.get_string("fluid.preconditioner", "pfmg");
     require(f.preconditioner == "pfmg" || f.preconditioner == "smg", "fluid.preconditioner",
             fmt::format("must be \"pfmg\" or \"smg\", got \"{}\"", f.preconditioner));
+    f.solver = c.get_string("fluid.solver", "auto");
+    require(f.solver == "multigrid" || f.solver == "hypre" || f.solver == "auto", "fluid.solver",
+            fmt::format("must be \"multigrid\", \"hypre\" or \"auto\", got \"{}\"", f.solver));
   }
 
   c.check_all_used();
@@ -324,6 +327,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity ? "true" : "false");
     o.emplace_back("fluid.tolerance", num(f.tolerance));
     o.emplace_back("fluid.preconditioner", str(f.preconditioner));
+    o.emplace_back("fluid.solver", str(f.solver));
   }
   return o;
 }

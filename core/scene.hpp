@@ -102,6 +102,8 @@ struct FluidSpec {
   bool implicit_viscosity = false;
   double tolerance = 1e-10;                  // projection PCG relative residual
   std::string preconditioner = "pfmg";       // projection PCG preconditioner: pfmg | smg
+  // Projection solver: multigrid | hypre | auto (multigrid on one rank, hypre on R ranks).
+  std::string solver = "auto";
 };
 
 struct Scene {

@@ -264,7 +264,7 @@ void SceneConfig::check_all_used() const {
       used = used_.count(key.substr(0, p)) > 0;
     if (!used)
       throw ConfigError(where(key), "unknown key (check the spelling; `cfddem --help` and "
-                                    "README list the keys)");
+                                    "docs/keys.md list the keys)");
   }
 }
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "core/communicator_mpi.hpp"
+#include "core/message_counts.hpp"
 
 namespace cfddem {
 
@@ -15,6 +16,7 @@ void sparse_exchange(const Communicator& c, std::span<const std::int64_t> send_c
     if (ranks == 1) {
       recv_counts[0] = send_counts[0];
     } else {
+      count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(std::int64_t)), false);
       MpiWait w(c);
       MPI_Alltoall(send_counts.data(), 1, MPI_INT64_T, recv_counts.data(), 1, MPI_INT64_T,
                    mpi_comm(c));
@@ -41,9 +43,12 @@ void sparse_exchange(const Communicator& c, std::span<const std::int64_t> send_c
       MPI_Irecv(recv.data() + recv_off[r], static_cast<int>(recv_off[r + 1] - recv_off[r]),
                 MPI_DOUBLE, r, kTag, comm, &req.emplace_back());
   for (int r = 0; r < ranks; ++r)
-    if (r != me && send_counts[r] > 0)
+    if (r != me && send_counts[r] > 0) {
+      count_messages::point_to_point(
+          static_cast<std::int64_t>((send_off[r + 1] - send_off[r]) * sizeof(double)));
       MPI_Isend(send.data() + send_off[r], static_cast<int>(send_off[r + 1] - send_off[r]),
                 MPI_DOUBLE, r, kTag, comm, &req.emplace_back());
+    }
   MpiWait w(c);
   MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
 }

@@ -1,5 +1,5 @@
 // Dashpot coefficients of the linear spring-dashpot model from the restitution coefficient.
-// physics.md §2; Garg et al. 2012 (MFIX DEM), eq. for eta_n: the overlap ODE
+// docs/theory.md §2; Garg et al. 2012 (MFIX DEM), eq. for eta_n: the overlap ODE
 // m_eff d'' + eta d' + k d = 0 ends at d = 0 after pi/omega_d, so e = exp(-pi zeta/sqrt(1-zeta^2)).
 #pragma once
 

@@ -14,7 +14,7 @@
 namespace cfddem::dem {
 
 // One record per (owner, partner) entry of the owner's row: the displacement xi the owner's
-// contact force reads (physics.md §2). The partner's row holds its own record.
+// contact force reads (docs/theory.md §2). The partner's row holds its own record.
 struct ContactHistory {
   std::vector<std::int64_t> owner, partner;
   std::vector<double> hx, hy, hz;

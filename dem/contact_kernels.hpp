@@ -20,7 +20,7 @@ inline double contact_meff(const StepModel& m, double mi, double mj) {
   return m.uniform_mass ? m.uniform_meff : mi * mj / (mi + mj);
 }
 
-// F_n = k delta + eta_n v_n (physics.md §2), with eta_n precomputed for equal masses.
+// F_n = k delta + eta_n v_n (docs/theory.md §2), with eta_n precomputed for equal masses.
 inline double contact_normal_force(const StepModel& m, double meff, double delta, double vn) {
   return m.uniform_mass ? m.pair.k * delta + m.uniform_eta * vn
                         : normal_force(m.pair, meff, delta, vn);

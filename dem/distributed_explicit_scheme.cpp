@@ -378,6 +378,8 @@ void DistributedExplicitScheme::step(bool record) {
   ++steps_;
   particle_steps_ += n_global_;
   pair_evaluations_ += global_pairs_;
+  local_particle_steps_ += static_cast<std::int64_t>(owned_);
+  local_pair_evaluations_ += static_cast<std::int64_t>(list_.neighbors().size() / 2);
   if (flags[0] != 0)
     need_rebuild_ = true;
 }

@@ -84,6 +84,10 @@ public:
   // Over all ranks (the same value on every rank).
   std::int64_t particle_steps() const { return particle_steps_; }
   std::int64_t pair_evaluations() const { return pair_evaluations_; }
+  // This rank's share of the work since this process started (run.json's rank_counts; not in
+  // checkpoints): owned particle steps and the pairs of its list, halved (a pair with a ghost counts on both ranks).
+  std::int64_t local_particle_steps() const { return local_particle_steps_; }
+  std::int64_t local_pair_evaluations() const { return local_pair_evaluations_; }
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t global_count() const { return n_global_; }
   // Over all ranks: tangential history records (contacts with a non-zero spring) that moved to
@@ -166,6 +170,7 @@ private:
   bool need_rebuild_ = true;
   bool forward_pending_ = false; // ghost x, v (w) of the last step still in flight
   std::int64_t steps_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0;
+  std::int64_t local_particle_steps_ = 0, local_pair_evaluations_ = 0;
 };
 
 } // namespace cfddem::dem

@@ -689,6 +689,7 @@ void DistributedIslandsScheme::subiterate(bool record) {
     c[8] = static_cast<double>(span_parts);
     for (std::size_t i = 0; i < owned_; ++i)
       c[10] += p_.mass[i];
+    local_c_[0] = static_cast<std::int64_t>(c[1]), local_c_[1] = static_cast<std::int64_t>(c[2]);
     // One reduction closes the sub-iteration (the counts are exact in doubles below 2^53).
     comm_.sum(c);
     if (c[9] == 0 || c[5] > 0)
@@ -732,6 +733,7 @@ void DistributedIslandsScheme::subiterate(bool record) {
       fine_[i] += 1.0;
   auto count = [&](int q) { return static_cast<std::int64_t>(c[static_cast<std::size_t>(q)]); };
   particle_steps_ += count(1), pair_evaluations_ += count(2), overlap_violations_ += count(3);
+  local_particle_steps_ += local_c_[0], local_pair_evaluations_ += local_c_[1];
   bound_violations_ += count(4);
   span_subits_ += count(7) > 0, span_particles_ += count(7), span_parts_ += count(8);
   const std::int64_t fine = count(6);

@@ -100,6 +100,10 @@ public:
   // Counters over all ranks (the same value on every rank).
   std::int64_t particle_steps() const { return particle_steps_; }
   std::int64_t pair_evaluations() const { return pair_evaluations_; }
+  // This rank's share of the work since this process started (run.json's rank_counts; not in
+  // checkpoints): owned particle steps and the pair evaluations of its rows.
+  std::int64_t local_particle_steps() const { return local_particle_steps_; }
+  std::int64_t local_pair_evaluations() const { return local_pair_evaluations_; }
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t regrids() const { return regrids_; }
   std::int64_t retries() const { return retries_; }
@@ -212,6 +216,8 @@ private:
   Result span_result_;
   std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
   std::vector<std::int64_t> sid_, sisland_;
+  std::int64_t local_particle_steps_ = 0, local_pair_evaluations_ = 0;
+  std::int64_t local_c_[2] = {0, 0}; // this rank's counts of the last attempt, before its reduction
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0, regrids_ = 0,
                retries_ = 0, expired_builds_ = 0, overlap_violations_ = 0, bound_violations_ = 0,
                global_subits_ = 0, span_subits_ = 0, span_particles_ = 0, span_parts_ = 0;

@@ -466,6 +466,7 @@ void DistributedOrbScheme::subiterate(bool record) {
       c[8] += 1;
     }
     for (const Batch& bt : batches_) c[1] += bt.fault != kNoFault ? 1 : 0, c[6] += bt.violations;
+    local_c_[0] = c[4], local_c_[1] = c[5];
     comm_.sum(c);
     if (c[2] > 0) {
       const std::string e = comm_.agree_on_error(outside_key, outside_message);
@@ -520,6 +521,7 @@ void DistributedOrbScheme::subiterate(bool record) {
         cost_[i] += static_cast<double>(r.K);
   }
   particle_steps_ += c[4], pair_evaluations_ += c[5], overlap_violations_ += c[6];
+  local_particle_steps_ += local_c_[0], local_pair_evaluations_ += local_c_[1];
   fine_count_ += c[7], leaf_subits_ += c[8];
   last_fine_fraction_ = c[8] > 0 ? static_cast<double>(c[7]) / static_cast<double>(c[8]) : 0.0;
   // The largest overlap over the ranks is reduced only when the state is recorded (the loop

@@ -80,6 +80,10 @@ public:
   // OrbScheme's definition, over the rows of this scheme's lists (built at every sub-iteration,
   // so the count differs from OrbScheme's, whose lists live longer).
   std::int64_t pair_evaluations() const { return pair_evaluations_; }
+  // This rank's share of the work since this process started (run.json's rank_counts; not in
+  // checkpoints): owned particle steps and the pair evaluations of its rows.
+  std::int64_t local_particle_steps() const { return local_particle_steps_; }
+  std::int64_t local_pair_evaluations() const { return local_pair_evaluations_; }
   std::int64_t neighbor_builds() const { return builds_; }
   std::int64_t regrids() const { return regrids_; }
   std::int64_t retries() const { return retries_; }
@@ -194,6 +198,8 @@ private:
   double last_fine_fraction_ = 0.0, max_overlap_ratio_ = 0.0;
   double ratio_ = 0.0; // this rank's largest overlap ratio (max_overlap_ratio_: over the ranks)
   std::int64_t fine_count_ = 0, leaf_subits_ = 0;
+  std::int64_t local_particle_steps_ = 0, local_pair_evaluations_ = 0;
+  std::int64_t local_c_[2] = {0, 0}; // this rank's counts of the last attempt, before its reduction
   std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
                regrids_ = 0, overlap_violations_ = 0, retries_ = 0;
 };

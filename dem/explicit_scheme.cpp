@@ -59,7 +59,7 @@ StepModel make_step_model(const Scene& s, const ParticleRange& range) {
   m.uniform_mass = !empty && range.m_min == range.m_max;
   if (m.uniform_mass) {
     m.uniform_meff = 0.5 * range.m_min;
-    m.uniform_eta = m.pair.eta_coef * std::sqrt(m.uniform_meff); // physics.md §2: eta_n
+    m.uniform_eta = m.pair.eta_coef * std::sqrt(m.uniform_meff); // docs/theory.md §2: eta_n
   }
   const double k_max = std::max(d.spring_constant, d.wall_spring_constant);
   const double tau_p = std::sqrt(m_min / k_max);

@@ -35,9 +35,9 @@ struct StepModel {
   double uniform_meff = 0.0, uniform_eta = 0.0;
 };
 
-// Global dt = min over particles of tau_p * dt_factor, tau_p = sqrt(m / k) (physics.md §1), with
-// k the stiffest of the pair and wall springs. Throws RunError when dt is unstable
-// (omega dt >= 2 for the stiffest contact, physics.md §2).
+// Global dt = min over particles of tau_p * dt_factor, tau_p = sqrt(m / k) (docs/theory.md §1),
+// with k the stiffest of the pair and wall springs. Throws RunError when dt is unstable
+// (omega dt >= 2 for the stiffest contact, docs/theory.md §2).
 StepModel make_step_model(const Scene& scene, const ParticleStore& p);
 
 // What the step model reads of the particles: their count and the extremes of mass and radius
@@ -70,7 +70,7 @@ public:
   const StepModel& model() const { return model_; }
 
   // Per-particle external force [N] (the gas's drag and pressure force), added in the update pass
-  // and held fixed until set again (MFIX-Exa holds them over the particle sub-cycle, physics.md
+  // and held fixed until set again (MFIX-Exa holds them over the particle sub-cycle, docs/theory.md
   // §2). Spans of size() entries, in the store's order; an empty span removes it. Without one the
   // update pass is the same instantiation as before (no extra loads).
   void set_external_force(std::span<const double> fx, std::span<const double> fy,

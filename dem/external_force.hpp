@@ -1,6 +1,6 @@
 // A per-particle external force (the gas's drag and pressure force), held fixed over the particle
-// sub-cycle (MFIX-Exa, physics.md §2) and kept in the particle store's order: every scheme that
-// permutes the store permutes it too. Empty means no external force.
+// sub-cycle (MFIX-Exa, docs/theory.md §2) and kept in the particle store's order: every scheme
+// that permutes the store permutes it too. Empty means no external force.
 #pragma once
 
 #include <cstdint>

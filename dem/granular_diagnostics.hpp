@@ -1,6 +1,6 @@
-// Bulk observables of a particle set: granular temperature T = (1/3)<|v - <v>|^2> (physics.md §3),
-// kinetic energy, momentum, mean speed and mean position. Serial sums in index order, so the
-// values are a deterministic function of the state.
+// Bulk observables of a particle set: granular temperature T = (1/3)<|v - <v>|^2>
+// (docs/theory.md §3), kinetic energy, momentum, mean speed and mean position. Serial sums in
+// index order, so the values are a deterministic function of the state.
 #pragma once
 
 #include <array>

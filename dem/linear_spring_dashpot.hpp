@@ -1,6 +1,6 @@
-// Linear spring-dashpot normal contact between two spheres (Cundall & Strack 1979; physics.md §2),
-// and its tangential spring with Coulomb friction and history (MFIX classic / LIGGGHTS convention).
-// Kernels on scalars: no allocation, no threads, no I/O.
+// Linear spring-dashpot normal contact between two spheres (Cundall & Strack 1979;
+// docs/theory.md §2), and its tangential spring with Coulomb friction and history (MFIX classic /
+// LIGGGHTS convention). Kernels on scalars: no allocation, no threads, no I/O.
 #pragma once
 
 #include <cmath>
@@ -14,7 +14,7 @@ struct NormalLaw {
 
 // Magnitude of the normal force along n (n from i to j; positive = repulsive):
 // F_n = k delta + eta v_n, v_n = (v_i - v_j).n the approach speed. No tensile clamp: the peers
-// and MFIX-Exa do not clamp, and clamping changes the restitution (physics.md §2).
+// and MFIX-Exa do not clamp, and clamping changes the restitution (docs/theory.md §2).
 inline double normal_force(const NormalLaw& law, double m_eff, double delta, double v_n) {
   return law.k * delta + law.eta_coef * std::sqrt(m_eff) * v_n;
 }
@@ -29,7 +29,7 @@ struct TangentialLaw {
 // vt: tangential slip velocity at the contact; n: unit normal; fn_abs: |F_n|.
 // xi is first rotated into the current tangent plane (LIGGGHTS), then xi += dt vt,
 // F_t = -k_t xi - eta_t vt; if |F_t| > mu |F_n| the contact slides: F_t is scaled onto the
-// Coulomb cone and xi is reset to the spring length that gives it (physics.md §2).
+// Coulomb cone and xi is reset to the spring length that gives it (docs/theory.md §2).
 inline void tangential_force(const TangentialLaw& law, double m_eff, double dt, double fn_abs,
                              const double n[3], const double vt[3], double xi[3], double ft[3]) {
   const double xn = xi[0] * n[0] + xi[1] * n[1] + xi[2] * n[2];

@@ -89,7 +89,8 @@ void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry
         if (delta > m.max_overlap * std::min(ri, rad[j]))
           rep.flag(i, StepFault::overlap, delta / std::min(ri, rad[j]), j);
         if constexpr (Friction) {
-          // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n (physics.md §2).
+          // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n
+          // (docs/theory.md §2).
           const double sx = ri * p.wx[i] + rad[j] * p.wx[j];
           const double sy = ri * p.wy[i] + rad[j] * p.wy[j];
           const double sz = ri * p.wz[i] + rad[j] * p.wz[j];
@@ -165,7 +166,7 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
         const double rvn = rv[a] * s;
         const double vt[3] = {rv[0] - rvn * nvec[0], rv[1] - rvn * nvec[1], rv[2] - rvn * nvec[2]};
         // Walls keep no tangential history: a dashpot capped by the Coulomb limit (MFIX-Exa's
-        // convention of sliding friction, physics.md §2).
+        // convention of sliding friction, docs/theory.md §2).
         double xi3[3] = {0, 0, 0}, ft[3];
         tangential_force(m.wall_t, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
         for (int b = 0; b < 3; ++b) f[b] += ft[b];

@@ -1,4 +1,4 @@
-// Tang et al. (2015) drag, "BVK2" in MFIX-Exa since 2019 (physics.md §4). Scalar kernels.
+// Tang et al. (2015) drag, "BVK2" in MFIX-Exa since 2019 (docs/theory.md §4). Scalar kernels.
 #pragma once
 
 #include <cmath>

@@ -1,4 +1,4 @@
-// Beetstra-van der Hoef-Kuipers (2007) drag, as MFIX-Exa coded it in 2018 (physics.md §4).
+// Beetstra-van der Hoef-Kuipers (2007) drag, as MFIX-Exa coded it in 2018 (docs/theory.md §4).
 // Kernels on scalars: no allocation, no I/O.
 #pragma once
 
@@ -22,7 +22,7 @@ namespace cfddem::fluid {
   return f;
 }
 
-// beta_i [N s/m] of one particle: beta_i = 3 pi mu_g d eps F (physics.md §4, BVK).
+// beta_i [N s/m] of one particle: beta_i = 3 pi mu_g d eps F (docs/theory.md §4, BVK).
 [[nodiscard]] inline double bvk_beta(double eps_g, double d, double slip, double rho_g,
                                      double mu_g) {
   const double re = eps_g * rho_g * d * slip / mu_g;

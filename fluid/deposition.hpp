@@ -1,6 +1,6 @@
 // Particle <-> cell transfer with one kernel (trilinear or dpvm): deposit per-particle values to
 // cells and interpolate cell fields to particles with the same weights, so exchanged momentum
-// is conserved (physics.md §5, §7). The loop layer above the weight kernels.
+// is conserved (docs/theory.md §5, §7). The loop layer above the weight kernels.
 #pragma once
 
 #include <array>

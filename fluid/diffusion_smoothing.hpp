@@ -1,5 +1,5 @@
 // Optional implicit diffusion of deposited fields, (I - D lap) q_new = q_old, over a length
-// ~ sqrt(D) (MFIX-Exa's deposition diffusion; physics.md §7). Conserves sum_cells q.
+// ~ sqrt(D) (MFIX-Exa's deposition diffusion; docs/theory.md §7). Conserves sum_cells q.
 #pragma once
 
 #include "fluid/grid_field.hpp"

@@ -1,5 +1,5 @@
 // Divided-particle-volume weights: the fraction of a cube or sphere of radius r* = s r_p around
-// the particle lying in each cell, over as many cells as it covers (physics.md §7; unlike
+// the particle lying in each cell, over as many cells as it covers (docs/theory.md §7; unlike
 // MFIX-Exa's dpvm, r* is not capped at dx/2, so cells smaller than a particle work). Kernels.
 #pragma once
 

@@ -1,5 +1,5 @@
 // Choice of gas-solid drag law by name ("bvk", "bvk2", "koch_hill", "wen_yu", "none") and one
-// dispatch kernel giving beta_i for one particle (physics.md §4).
+// dispatch kernel giving beta_i for one particle (docs/theory.md §4).
 #pragma once
 
 #include <string_view>

@@ -114,7 +114,7 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
   const double rho = settings_.gas.density;
-  // Point-implicit drag (physics.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
+  // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)).
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);

@@ -1,4 +1,4 @@
-// The gas phase of MFIX's model A on one MAC grid (physics.md §5): explicit predictor (limited
+// The gas phase of MFIX's model A on one MAC grid (docs/theory.md §5): explicit predictor (limited
 // MUSCL advection, viscous stress, body force; optionally the viscous Laplacian implicit),
 // point-implicit particle drag, and a hypre projection onto div(eps u) = -d(eps)/dt.
 // On one grid, or on one box of a grid distributed over ranks (with the grid's GridHalo).
@@ -77,7 +77,7 @@ public:
   [[nodiscard]] GridField& drag_velocity_sum(int axis) { return beta_v_[axis]; }
 
   // MFIX-Exa's gp0: -delp/L along an axis with an imposed periodic drop, rho_g g along
-  // non-periodic axes (hydrostatic), 0 on other periodic axes (physics.md §4).
+  // non-periodic axes (hydrostatic), 0 on other periodic axes (docs/theory.md §4).
   [[nodiscard]] std::array<double, 3> background_pressure_gradient() const;
 
   [[nodiscard]] double courant_number(double dt) const;
@@ -98,7 +98,7 @@ public:
   // Velocity component averaged to cell centres (for interpolation to particles).
   void cell_centred_velocity(int axis, GridField& out) const;
   // Full pressure gradient at cell centres, d p'/dx_a (central) + gp0_a, for the particles'
-  // pressure force -V_p grad p (physics.md §4).
+  // pressure force -V_p grad p (docs/theory.md §4).
   void cell_pressure_gradient(int axis, GridField& out) const;
 
   // Checkpoint/restart: everything a later step reads that it did not compute itself -- face

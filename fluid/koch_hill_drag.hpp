@@ -1,5 +1,5 @@
 // Koch-Hill drag (Hill, Koch & Ladd 2001; Benyahia et al. 2006 blend) exactly as MFIX codes it,
-// with the 17.14 phi coefficient and the jump at phi = 0.01 (physics.md §4). Scalar kernels.
+// with the 17.14 phi coefficient and the jump at phi = 0.01 (docs/theory.md §4). Scalar kernels.
 #pragma once
 
 #include <cmath>
@@ -20,7 +20,7 @@ struct KochHillCoefficients {
   const double w = phi > 0.0 ? std::exp(-10.0 * (0.4 - phi) / phi) : 0.0;
   const double root = 1.0 + 3.0 * std::sqrt(phi / 2.0) + 135.0 / 64.0 * phi_ln_phi;
   KochHillCoefficients c{};
-  // F0, F2: MFIX's 17.14 (CFDEMcoupling writes Hill-Koch-Ladd's 16.14); physics.md §4.
+  // F0, F2: MFIX's 17.14 (CFDEMcoupling writes Hill-Koch-Ladd's 16.14); docs/theory.md §4.
   if (phi < 0.4) {
     c.f0 = (1.0 - w) * (root + 17.14 * phi) /
                (1.0 + 0.681 * phi - 8.48 * phi * phi + 8.16 * phi * phi * phi) +

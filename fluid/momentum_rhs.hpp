@@ -1,4 +1,4 @@
-// Explicit right-hand side of the model-A gas momentum equation on the faces (physics.md §5,
+// Explicit right-hand side of the model-A gas momentum equation on the faces (docs/theory.md §5,
 // divided by eps rho_g): -u.grad u (limited MUSCL) + div(eps tau)/(eps rho_g) + body force.
 // Pressure is left to the projection and drag to the point-implicit update.
 #pragma once

@@ -47,6 +47,8 @@ namespace {
 
 constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
 
+} // namespace
+
 // PFMG levels that keep every periodic axis at two or more cells. PFMG semicoarsens by 2 along
 // the axis of smallest dxyz (ties: lowest axis) and itself stops at an odd period; a period of
 // one cell couples a cell to itself, where red/black relaxation is wrong (PCG then stalls or
@@ -75,6 +77,8 @@ int pfmg_max_levels(const MacGrid& grid) {
   }
   return levels;
 }
+
+namespace {
 
 double face_eps(const GridField& eps, std::size_t c, std::ptrdiff_t s) {
   return 0.5 * (eps[c] + eps[c - static_cast<std::size_t>(s)]);
@@ -151,6 +155,28 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   guess_.resize(cells);
   div_ = grid.make_field();
   x_ = grid.make_field();
+  if (settings.solver == PoissonSolver::multigrid && halo != nullptr) {
+    throw std::invalid_argument(
+        "fluid.solver = \"multigrid\" solves on one grid only: a gas on several ranks needs "
+        "\"hypre\" (or the default)");
+  }
+  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
+                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
+  if (multigrid) {
+    std::array<std::array<PoissonSide, 2>, 3> sides{};
+    std::array<double, 3> spacing{};
+    for (int a = 0; a < 3; ++a) {
+      spacing[a] = grid.spacing(a);
+      for (int side = 0; side < 2; ++side) {
+        const BoundaryKind kind = grid.bc(a, side).kind;
+        sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
+                         : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
+                                                         : PoissonSide::neumann;
+      }
+    }
+    mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
+    face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
+  }
 }
 
 PressureProjection::~PressureProjection() {
@@ -284,12 +310,83 @@ bool PressureProjection::solve(PoissonPreconditioner pc, std::vector<double>& x,
 ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const GridField& eps,
                                              const std::array<GridField, 3>& mobility,
                                              const GridField& source, GridField& phi) {
+  flux_divergence(grid_, u, eps, div_);
+  ProjectionReport report;
+  if (mg_) {
+    solve_with_multigrid(eps, mobility, source, phi, report);
+  } else {
+    solve_with_hypre(eps, mobility, source, phi, report);
+  }
+  correct(u, mobility, phi);
+  return report;
+}
+
+// The same system as the hypre rows below, given to the multigrid as face coefficients: K_f =
+// eps_f m_f / h^2 on every face (a periodic axis's face n is its face 0; wall and inflow faces
+// carry no flux and are not read), the outflow faces' p_out moved into the right-hand side.
+void PressureProjection::solve_with_multigrid(const GridField& eps,
+                                              const std::array<GridField, 3>& mobility,
+                                              const GridField& source, const GridField& phi,
+                                              ProjectionReport& report) {
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  for (int a = 0; a < 3; ++a) {
+    const std::ptrdiff_t s = layout.stride(a);
+    const double inv_dx2 = 1.0 / (grid_.spacing(a) * grid_.spacing(a));
+    std::array<int, 3> hi = n;
+    hi[a] = n[a] + 1;
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          const std::size_t f = layout.index(i, j, k);
+          face_coef_[a][f] = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+        }
+      }
+    }
+  }
+  mg_->set_coefficients(face_coef_);
+  std::size_t m = 0;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i, ++m) {
+        const std::array<int, 3> cell = {i, j, k};
+        const std::size_t c = layout.index(cell);
+        double rhs = -(div_[c] + source[c]);
+        for (int a = 0; a < 3; ++a) {
+          for (int side = 0; side < 2; ++side) {
+            const BoundaryCondition& bc = grid_.bc(a, side);
+            if (bc.kind == BoundaryKind::outflow && cell[a] == (side == 0 ? 0 : n[a] - 1)) {
+              const std::size_t f = side == 0 ? c : c + static_cast<std::size_t>(layout.stride(a));
+              rhs += 2.0 * face_coef_[a][f] * bc.pressure; // ghost 2 p_out - phi
+            }
+          }
+        }
+        rhs_[m] = rhs;
+        solution_[m] = phi[c];
+      }
+    }
+  }
+  const MultigridReport mr =
+      mg_->solve(rhs_, solution_, settings_.tolerance, settings_.max_iterations);
+  report.iterations = mr.iterations;
+  report.relative_residual = mr.relative_residual;
+  if (!mr.converged) {
+    throw std::runtime_error(
+        fmt::format("pressure projection: multigrid-preconditioned CG reached relative residual "
+                    "{:g} after {} iterations (tolerance {:g})",
+                    mr.relative_residual, mr.iterations, settings_.tolerance));
+  }
+}
+
+void PressureProjection::solve_with_hypre(const GridField& eps,
+                                          const std::array<GridField, 3>& mobility,
+                                          const GridField& source, const GridField& phi,
+                                          ProjectionReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
   std::vector<double>& values = next_values_;
   values.assign(rhs_.size() * kStencilSize, 0.0);
-  GridField& div = div_;
-  flux_divergence(grid_, u, eps, div);
+  const GridField& div = div_;
   const bool singular = !grid_.has_outflow();
   const bool pinned = singular && settings_.preconditioner == PoissonPreconditioner::pfmg &&
                       !grid_.periodic(0) && !grid_.periodic(1) && !grid_.periodic(2);
@@ -330,7 +427,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
               row[0] += coef;
               row[1 + 2 * a + side] = -coef;
             } else if (bc.kind == BoundaryKind::outflow) {
-              // phi = p_out on the face: ghost 2 p_out - phi (physics.md §5 outflow).
+              // phi = p_out on the face: ghost 2 p_out - phi (docs/theory.md §5 outflow).
               row[0] += 2.0 * coef;
               rhs += 2.0 * coef * bc.pressure;
             }
@@ -372,7 +469,6 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
   HYPRE_StructVectorSetBoxValues(h.b, h.lower.data(), h.upper.data(), rhs_.data());
   HYPRE_StructVectorAssemble(h.b);
 
-  ProjectionReport report;
   guess_ = solution_;
   if (!solve(settings_.preconditioner, solution_, report)) {
     if (settings_.preconditioner == PoissonPreconditioner::smg) {
@@ -408,7 +504,13 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
       }
     }
   }
-  if (singular) {
+}
+
+void PressureProjection::correct(std::array<GridField, 3>& u,
+                                 const std::array<GridField, 3>& mobility, GridField& phi) {
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  if (!grid_.has_outflow()) {
     double mean = 0.0;
     for (const double x : solution_) {
       mean += x;
@@ -418,7 +520,7 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
       x -= mean;
     }
   }
-  m = 0;
+  std::size_t m = 0;
   for (int k = 0; k < n[2]; ++k) {
     for (int j = 0; j < n[1]; ++j) {
       for (int i = 0; i < n[0]; ++i) {
@@ -481,7 +583,6 @@ ProjectionReport PressureProjection::project(std::array<GridField, 3>& u, const 
       }
     }
   }
-  return report;
 }
 
 } // namespace cfddem::fluid

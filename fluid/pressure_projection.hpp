@@ -1,17 +1,24 @@
 // Projection of face velocities onto the model-A constraint div(eps u) = -d(eps)/dt
-// (physics.md §5): the variable-coefficient Poisson equation
+// (docs/theory.md §5): the variable-coefficient Poisson equation
 //   div(eps_f m_f grad phi) = div(eps_f u*) + d(eps)/dt,   u = u* - m_f grad phi,
-// solved with hypre's Struct interface, PCG preconditioned with PFMG (SMG as fallback).
+// solved either by our geometric multigrid inside flexible CG (fluid/multigrid_poisson.hpp) or
+// with hypre's Struct interface, PCG preconditioned with PFMG (SMG as fallback).
 #pragma once
 
 #include <array>
+#include <memory>
 #include <vector>
 
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
+#include "fluid/multigrid_poisson.hpp"
 
 namespace cfddem::fluid {
+
+// automatic: the multigrid on one grid (faster on the riser grid: docs/multigrid.md), hypre on a
+// distributed grid (the multigrid has no distributed V-cycle yet).
+enum class PoissonSolver { automatic, multigrid, hypre };
 
 // PFMG (semicoarsening, pointwise relaxation) is the default. SMG (plane relaxation) is more
 // robust for strong anisotropy but, in hypre 2.26, fails to converge when a periodic axis has
@@ -22,7 +29,8 @@ enum class PoissonPreconditioner { pfmg, smg };
 struct ProjectionSettings {
   double tolerance = 1e-10; // PCG relative residual, 2-norm
   int max_iterations = 200;
-  PoissonPreconditioner preconditioner = PoissonPreconditioner::pfmg;
+  PoissonPreconditioner preconditioner = PoissonPreconditioner::pfmg; // hypre's
+  PoissonSolver solver = PoissonSolver::automatic;
 };
 
 struct ProjectionReport {
@@ -31,6 +39,9 @@ struct ProjectionReport {
   bool used_fallback = false; // PFMG did not converge and SMG was used
 };
 
+// The PFMG levels the hypre path uses on this grid (every periodic axis keeps >= 2 cells).
+[[nodiscard]] int pfmg_max_levels(const MacGrid& grid);
+
 // div(eps_f u) per interior cell [1/s]; eps ghosts must be filled.
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,
                      GridField& div);
@@ -38,10 +49,12 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
 // Holds the hypre grid, matrix and solver; the solver set-up is reused while the matrix is
 // unchanged. Undistributed (halo == nullptr): hypre objects on MPI_COMM_SELF. Distributed: on
 // the halo's communicator, each rank's box in global indices, the periodic axes by
-// HYPRE_StructGridSetPeriodic; collective. MPI must be initialised.
+// HYPRE_StructGridSetPeriodic; collective. MPI must be initialised. The multigrid (one grid
+// only) keeps its own hierarchy and needs no hypre objects.
 class PressureProjection {
 public:
   // halo: the grid's halo when grid is one box of a distributed grid (kept by the caller).
+  // Throws std::invalid_argument for PoissonSolver::multigrid with a halo.
   PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
                      const GridHalo* halo = nullptr);
   ~PressureProjection();
@@ -61,9 +74,25 @@ public:
                            GridField& phi);
 
   [[nodiscard]] const ProjectionSettings& settings() const { return settings_; }
+  // The solver in use (automatic resolved).
+  [[nodiscard]] PoissonSolver solver() const {
+    return mg_ ? PoissonSolver::multigrid : PoissonSolver::hypre;
+  }
+  // The multigrid (nullptr when hypre solves), e.g. for benchmarks of its kernels.
+  [[nodiscard]] MultigridPoisson* multigrid() { return mg_.get(); }
 
 private:
   struct Hypre;
+  // The projection's right-hand side into rhs_ and the solve into solution_: hypre (stencil rows
+  // assembled) or the multigrid (face coefficients).
+  void solve_with_hypre(const GridField& eps, const std::array<GridField, 3>& mobility,
+                        const GridField& source, const GridField& phi, ProjectionReport& report);
+  void solve_with_multigrid(const GridField& eps, const std::array<GridField, 3>& mobility,
+                            const GridField& source, const GridField& phi,
+                            ProjectionReport& report);
+  // phi from solution_ (mean zero when singular), then u -= m_f grad phi.
+  void correct(std::array<GridField, 3>& u, const std::array<GridField, 3>& mobility,
+               GridField& phi);
   void assemble(const std::vector<double>& stencil_values);
   // tolerance <= 0: the settings' tolerance.
   bool solve(PoissonPreconditioner pc, std::vector<double>& x, ProjectionReport& report,
@@ -84,6 +113,8 @@ private:
   std::vector<double> guess_;
   GridField div_;
   GridField x_; // closed_box_residual's iterate with ghosts
+  std::unique_ptr<MultigridPoisson> mg_;
+  std::array<GridField, 3> face_coef_; // the multigrid's eps_f m_f / h^2
 };
 
 } // namespace cfddem::fluid

@@ -1,5 +1,5 @@
 // Trilinear weights of a particle over the 2x2x2 cell-centred stencil (MFIX-Exa's default
-// deposition_scheme; physics.md §7). Kernel: no allocation.
+// deposition_scheme; docs/theory.md §7). Kernel: no allocation.
 #pragma once
 
 #include <array>
@@ -10,7 +10,7 @@
 
 namespace cfddem::fluid {
 
-// xh = (x_p - x_lo)/dx + 1/2, i = floor(xh): cells i-1 and i, w_hi = xh - i (physics.md §7).
+// xh = (x_p - x_lo)/dx + 1/2, i = floor(xh): cells i-1 and i, w_hi = xh - i (docs/theory.md §7).
 [[nodiscard]] inline CellStencil trilinear_weights(const std::array<double, 3>& x,
                                                    const std::array<double, 3>& origin,
                                                    const std::array<double, 3>& dx,

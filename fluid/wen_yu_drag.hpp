@@ -1,4 +1,4 @@
-// Wen & Yu (1966) drag as MFIX codes it (physics.md §4). Scalar kernel.
+// Wen & Yu (1966) drag as MFIX codes it (docs/theory.md §4). Scalar kernel.
 #pragma once
 
 #include <cmath>

@@ -6,6 +6,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "core/message_counts.hpp"
 #include "partition/orb_cut_rules.hpp"
 
 namespace cfddem::partition {
@@ -24,6 +25,7 @@ double value_of(std::uint64_t k) {
 }
 
 void allreduce(MPI_Comm comm, std::vector<double>& v, MPI_Op op) {
+  count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(double)), true);
   MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op, comm);
 }
 

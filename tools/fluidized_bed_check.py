@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Fluidized-bed validation: the time-averaged pressure drop at steady state equals the bed's
-buoyant weight per unit area plus the gas head (physics.md §6):
+buoyant weight per unit area plus the gas head (docs/theory.md §6):
 
     dp = N m g (1 - rho_g/rho_p) / A + rho_g g L          (20.04 + 0.10 Pa for the paper's bed)
 

@@ -3,7 +3,7 @@
 
 Fits T/T0 = (1 + t/t_H)^-2 to cfddem's diagnostics.csv (columns time, granular_temperature) by
 nonlinear least squares (scipy curve_fit), prints the fitted t_H next to the kinetic-theory
-prediction (physics.md; Enskog, Carnahan-Starling contact value)
+prediction (docs/theory.md; Enskog, Carnahan-Starling contact value)
 
     1/t_H = (4/sqrt(pi)) (1 - e^2) phi g0 sqrt(T0) / d,   g0 = (1 - phi/2) / (1 - phi)^3,
 

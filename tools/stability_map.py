@@ -12,7 +12,7 @@ head-on binary collision with `cfddem run`, and classify each run:
 With orb, the two particles start in different leaves (1 ORB level, dt_f = 1e-4 s, nsubit 10):
 a leaf with a partner within 3 radii steps at tau_p/dt, else at dt_sp = 1e-5 s.
 
-Theory (physics.md §2): velocity Verlet on a linear spring is stable for omega dt < 2, i.e.
+Theory (docs/theory.md §2): velocity Verlet on a linear spring is stable for omega dt < 2, i.e.
 tau_p/dt > sqrt(2)/2 for two equal spheres (omega = sqrt(2k/m)); accuracy needs far more.
 Writes DIR/stability.csv and DIR/stability.png (one panel per k and impact speed per scheme).
 

@@ -18,6 +18,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import scaled_scene  # noqa: E402
 import scaling  # noqa: E402
+import scaling_model  # noqa: E402
 
 CFDDEM = os.environ.get("CFDDEM", "")
 
@@ -172,6 +173,61 @@ class Scaling(unittest.TestCase):
             self.assertEqual(len(back), len(r))
             scaling.plot(back, "strong", os.path.join(d, "strong.png"), "test")
             self.assertGreater(os.path.getsize(os.path.join(d, "strong.png")), 1000)
+
+
+class ScalingModel(unittest.TestCase):
+    """tools/scaling_model.py on synthetic run.json files, where the answer is known."""
+
+    @staticmethod
+    def runs(ranks, steps=(1000,), pairs=(500,), msgs=0, bytes_=0, reductions=0):
+        steps = list(steps) * (ranks // len(steps))
+        pairs = list(pairs) * (ranks // len(pairs))
+        cal = {"ranks": 1, "threads": 1, "particle_steps": sum(steps),
+               "force_evaluations": sum(pairs),
+               "phase_seconds": {"neighbor": 0.0, "integrate": 1e-7 * sum(steps),
+                                 "force": 2e-7 * sum(pairs), "fluid": 0.0}}
+        run = {"loop_seconds": 1.0, "rank_counts": {
+            "particle_steps": steps, "force_evaluations": pairs, "cell_updates": [0] * ranks,
+            "p2p_messages": [msgs] * ranks, "p2p_bytes": [bytes_] * ranks,
+            "collectives": [reductions] * ranks, "collective_bytes": [0] * ranks,
+            "reductions": [reductions] * ranks}}
+        return run, scaling_model.calibrate(cal)
+
+    def test_balanced_work_without_messages_scales_perfectly(self):
+        run, cal = self.runs(4)
+        for cores in (4, 64, 4096):
+            _, eff, _, _ = scaling_model.predict(run, cal, cores, False, "shm", 64)
+            self.assertAlmostEqual(eff, 1.0, places=12)
+        _, eff, _, _ = scaling_model.predict(run, cal, 4096, True, "ib", 64)
+        self.assertAlmostEqual(eff, 1.0, places=12)
+
+    def test_imbalance_is_the_max_over_the_mean(self):
+        run, cal = self.runs(2, steps=(3000, 1000), pairs=(0, 0))
+        _, eff, lim, terms = scaling_model.predict(run, cal, 2, False, "shm", 64)
+        self.assertAlmostEqual(eff, 2.0 / 3.0, places=12)  # mean 2000, max 3000
+        self.assertEqual(lim, "load imbalance")
+
+    def test_reductions_cost_log2_p_latencies_and_limit_at_scale(self):
+        run, cal = self.runs(4, reductions=10000)
+        alpha = scaling_model.NETWORKS["ib"][0]
+        t16, _, _, terms16 = scaling_model.predict(run, cal, 16, False, "ib", 64)
+        self.assertAlmostEqual(terms16["reductions"], 10000 * alpha * 4, places=15)
+        _, e16, _, _ = scaling_model.predict(run, cal, 16, False, "ib", 64)
+        _, e4096, lim, _ = scaling_model.predict(run, cal, 4096, False, "ib", 64)
+        self.assertLess(e4096, e16)
+        self.assertEqual(lim, "reductions")
+
+    def test_halo_bytes_shrink_with_the_surface_in_strong_scaling(self):
+        run, cal = self.runs(8, msgs=0, bytes_=8_000_000)
+        beta = scaling_model.NETWORKS["shm"][1]
+        _, _, _, t8 = scaling_model.predict(run, cal, 8, False, "shm", 64)
+        _, _, _, t64 = scaling_model.predict(run, cal, 64, False, "shm", 64)
+        self.assertAlmostEqual(t8["halo bytes"], 8e6 / beta, places=15)
+        self.assertAlmostEqual(t64["halo bytes"], 8e6 / beta / 4.0, places=15)  # (8/64)^(2/3)
+
+    def test_calibration_must_be_one_rank_one_thread(self):
+        with self.assertRaises(SystemExit):
+            scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})
 
 
 @unittest.skipUnless(CFDDEM and os.access(CFDDEM, os.X_OK), "set CFDDEM=path/to/cfddem")

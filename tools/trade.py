@@ -19,8 +19,19 @@ sweep (--schemes orb islands: also the islands scheme per nsubit). Runs are sequ
 Writes <out>/trade.csv, <out>/trade_observable.png (observable vs time per nsubit) and
 <out>/trade_error_speedup.png (error and speed-up vs nsubit).
 
+--noise-floor K (K >= 2) separates the scheme's error from chaos (tools/noise_floor.py): K - 1
+more explicit runs start from the reference's initial state with every position moved by a
+relative --perturbation (1e-12 of the domain's extent, one seed per run). For every observable
+of --observables and each of --windows equal time windows, the floor is the largest error of
+those runs against the reference, and each scheme's error in the same window is given next to
+it with a verdict ("indistinguishable from chaos" or "scheme error E above the floor F").
+Writes <out>/trade_floor.csv and draws the perturbed runs' envelope as a band in
+trade_observable.png; trade.csv gains the whole-run floor of --observable.
+
 Example:
   tools/trade.py scenes/hcs.toml --levels 6 --end-time 0.01 --out runs/trade_hcs1222
+  tools/trade.py scenes/hcs.toml --schemes islands --nsubit 10 20 --noise-floor 4 \
+      --observables granular_temperature mean_speed --windows 3 --out runs/trade_hcs_floor
 """
 import argparse
 import csv
@@ -31,6 +42,9 @@ import subprocess
 import sys
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import noise_floor  # noqa: E402
 
 import matplotlib
 
@@ -85,6 +99,14 @@ def main():
     ap.add_argument("--binary", default=os.path.join(os.path.dirname(__file__), "..", "build", "bin", "cfddem"))
     ap.add_argument("--out", default="runs/trade")
     ap.add_argument("--label", default=None, help="title of the plots (default: the scene)")
+    ap.add_argument("--noise-floor", type=int, default=0, metavar="K",
+                    help="K explicit references (the reference + K-1 perturbed runs): report the "
+                         "chaos floor and a verdict per scheme (default 0: off)")
+    ap.add_argument("--perturbation", type=float, default=1e-12,
+                    help="relative position perturbation of the floor's runs (default 1e-12)")
+    ap.add_argument("--observables", nargs="+", default=None,
+                    help="observables of the floor table (default: --observable)")
+    ap.add_argument("--windows", type=int, default=4, help="time windows of the floor table")
     a = ap.parse_args()
 
     os.makedirs(a.out, exist_ok=True)
@@ -94,10 +116,47 @@ def main():
     if a.observable not in ref:
         sys.exit(f"trade.py: no column '{a.observable}' in diagnostics.csv (have: {', '.join(ref)})")
     t_ref, o_ref = ref["time"], ref[a.observable]
+    observables = a.observables or [a.observable]
+    for ob in observables:
+        if ob not in ref:
+            sys.exit(f"trade.py: no column '{ob}' in diagnostics.csv (have: {', '.join(ref)})")
+    wins = noise_floor.windows(t_ref[-1], a.windows)
+    floor_rows, floor, floor_whole, perturbed_runs = [], {}, 0.0, []
+    if a.noise_floor == 1 or a.noise_floor < 0:
+        sys.exit("trade.py: --noise-floor needs K >= 2 (the reference and K-1 perturbed runs)")
+    if a.noise_floor >= 2:
+        plain = [o for o in common if not noise_floor.generator_override(o)]
+        state = noise_floor.initial_state(a.binary, a.scene, common, a.out)
+        lo, hi, per = noise_floor.domain_of(a.scene, common)
+        for j in range(1, a.noise_floor):
+            tag = f"floor_{j}"
+            csv_path = os.path.join(a.out, f"{tag}.csv")
+            noise_floor.write_particle_csv(
+                noise_floor.perturbed(state, lo, hi, per, a.perturbation, seed=1000 + j), csv_path)
+            scene_path = os.path.join(a.out, f"{tag}.toml")
+            noise_floor.write_scene_with_file(a.scene, csv_path, scene_path)
+            _, d = run(a.binary, scene_path, os.path.join(a.out, tag),
+                       ["dem.scheme=\"explicit\""] + plain, a.threads, 1)
+            perturbed_runs.append(d)
+            floor_whole = max(floor_whole, noise_floor.window_error(
+                d["time"], d[a.observable], t_ref, o_ref, (0.0, t_ref[-1])))
+        for ob in observables:
+            for w in wins:
+                errs = [noise_floor.window_error(d["time"], d[ob], t_ref, ref[ob], w)
+                        for d in perturbed_runs]
+                floor[(ob, w)] = max(errs)
+                floor_rows.append(dict(scheme="floor", nsubit=0, levels=0, observable=ob,
+                                       window_start=w[0], window_end=w[1], error=max(errs),
+                                       floor=max(errs), verdict=f"spread of {len(errs)} runs"))
+        print(f"chaos floor ({a.noise_floor - 1} perturbed explicit runs, relative "
+              f"{a.perturbation:g}): {100 * floor_whole:.3g}% in {a.observable} over the run",
+              flush=True)
     rows = [dict(scheme="explicit", nsubit=0, levels=0, error=0.0, speedup=1.0, force_ratio=1.0,
                  fine_leaf_fraction_mean=1.0, loop_seconds=ref_json["loop_seconds"],
                  force_evaluations=ref_json["force_evaluations"], cpu_speedup=1.0,
                  cpu_seconds=ref_json["cpu_seconds"])]
+    if a.noise_floor >= 2:
+        rows[0]["floor"] = floor_whole
     curves = {}
     # Series: (label, scheme, levels); the islands scheme has no ORB.
     series = []
@@ -126,6 +185,19 @@ def main():
                              cpu_speedup=ref_json["cpu_seconds"] / max(js["cpu_seconds"], 1e-9),
                              cpu_seconds=js["cpu_seconds"]))
             curves[(label, ns)] = (t, o)
+            if a.noise_floor >= 2:
+                rows[-1]["floor"] = floor_whole
+                for ob in observables:
+                    for w in wins:
+                        e = noise_floor.window_error(t, d[ob], t_ref, ref[ob], w)
+                        floor_rows.append(dict(scheme=sch, nsubit=ns, levels=L, observable=ob,
+                                               window_start=w[0], window_end=w[1], error=e,
+                                               floor=floor[(ob, w)],
+                                               verdict=noise_floor.verdict(e, floor[(ob, w)])))
+                        print(f"    {ob} in ({1e3 * w[0]:.3g}, {1e3 * w[1]:.3g}] ms: "
+                              f"{floor_rows[-1]['verdict']}" +
+                              (f" (error {100 * e:.3g}%, floor {100 * floor[(ob, w)]:.3g}%)"
+                               if e <= floor[(ob, w)] else ""), flush=True)
             r = rows[-1]
             what = "fine leaves" if sch == "orb" else "fine particles"
             print(f"{label:>16} nsubit={ns:3d}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
@@ -136,11 +208,23 @@ def main():
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+    if floor_rows:
+        with open(os.path.join(a.out, "trade_floor.csv"), "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(floor_rows[0]))
+            w.writeheader()
+            w.writerows(floor_rows)
 
     title = a.label or os.path.basename(a.scene)
     fig, axes = plt.subplots(1, len(series), figsize=(6 * len(series), 4.5), squeeze=False)
     for ax, (label, sch, L) in zip(axes[0], series):
         ax.plot(t_ref * 1e3, o_ref, "k-", lw=2, label="explicit")
+        if perturbed_runs:
+            n = min(len(d["time"]) for d in perturbed_runs)
+            tt = perturbed_runs[0]["time"][:n]
+            env = np.array([np.interp(tt, d["time"], d[a.observable]) for d in perturbed_runs]
+                           + [np.interp(tt, t_ref, o_ref)])
+            ax.fill_between(tt * 1e3, env.min(axis=0), env.max(axis=0), color="0.75",
+                            label=f"chaos floor ({len(perturbed_runs) + 1} explicit runs)")
         for ns in a.nsubit:
             t, o = curves[(label, ns)]
             ax.plot(t * 1e3, o, "--", label=f"nsubit {ns}")

@@ -87,7 +87,7 @@ TEST(Cli, CheckPrintsDerivedNumbersAndRunsNothing) {
   const Result r = cfddem("check " + kScene);
   EXPECT_EQ(r.code, 0) << r.output;
   EXPECT_NE(r.output.find("tau_p"), std::string::npos);
-  EXPECT_NE(r.output.find("7.236013e-06"), std::string::npos) << r.output; // physics.md §1
+  EXPECT_NE(r.output.find("7.236013e-06"), std::string::npos) << r.output; // docs/theory.md §1
   EXPECT_NE(r.output.find("1.447203e-07"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("dem.dt_factor = 0.02"), std::string::npos);
 }

@@ -79,7 +79,7 @@ std::map<std::string, std::vector<double>> run(const std::string& scene,
 
 // One particle of the paper (100 um, 1000 kg/m^3) released at rest near the top of a closed
 // 1 x 8 x 1 cm column of still gas (rho_g = 1, mu_g = 2e-5), x and z periodic. Cells of 5 x 10 x 5
-// mm make phi at the particle ~2e-6, the limit phi -> 0 of physics.md §4's table (BVK's
+// mm make phi at the particle ~2e-6, the limit phi -> 0 of docs/theory.md §4's table (BVK's
 // sqrt(phi) term is 0.2% there); so large a cell also keeps the gas the particle drags along
 // negligible (its momentum is spread over 2.5e-7 m^3 of gas). 0.25 s is 9 Stokes times.
 const char* kFall = R"(
@@ -113,7 +113,7 @@ interval = 0.01
 
 struct TerminalCase {
   const char* law;
-  double v_t; // physics.md §4 table [m/s]
+  double v_t; // docs/theory.md §4 table [m/s]
 };
 
 class TerminalVelocity : public ::testing::TestWithParam<TerminalCase> {};
@@ -269,6 +269,7 @@ TEST(FluidInput, BadInputsExitWithCode2AndNameTheKey) {
   expect_config_error(kRiser, "fluid.deposition=gauss", "fluid.deposition");
   expect_config_error(kRiser, "fluid.bc.x_lo=wall", "fluid.bc.x_lo");
   expect_config_error(kRiser, "fluid.pressure_dorp=[0,1,0]", "fluid.pressure_dorp");
+  expect_config_error(kRiser, "fluid.solver=amg", "fluid.solver");
   // The orb scheme's sub-iterations divide a fixed fluid step.
   expect_config_error(kRiser, "dem.scheme=orb fluid.dt=0", "fluid.dt");
 }

@@ -1,4 +1,4 @@
-// Binary collisions against the analytic linear spring-dashpot solution (physics.md §2).
+// Binary collisions against the analytic linear spring-dashpot solution (docs/theory.md §2).
 #include <cmath>
 #include <numbers>
 
@@ -29,7 +29,7 @@ HeadOn head_on(double e, double dt_factor) {
   dem::ExplicitScheme scheme(s, p, timer);
   scheme.start();
   long contact_steps = 0;
-  // The 20 um gap closes at 1e-4 s; the contact lasts 1.6e-5 s (physics.md §1).
+  // The 20 um gap closes at 1e-4 s; the contact lasts 1.6e-5 s (docs/theory.md §1).
   while (scheme.time() < 2.0e-4) {
     scheme.step(false);
     if (p.fx[0] != 0.0) ++contact_steps;
@@ -75,7 +75,7 @@ TEST(HeadOnCollision, RestitutionConvergesWithDt) {
   EXPECT_NEAR(head_on(0.8, 0.002).restitution, 0.799792, 2e-5);
 }
 
-// Contact lasts pi/omega_d (physics.md §1: 1.611488e-5 s for e = 0.8), to within 1%.
+// Contact lasts pi/omega_d (docs/theory.md §1: 1.611488e-5 s for e = 0.8), to within 1%.
 TEST(HeadOnCollision, ContactDurationIsPiOverOmegaD) {
   const double m = 1000.0 * std::numbers::pi * 1e-12 / 6.0;
   for (double e : {0.1, 0.5, 0.8, 1.0}) {

@@ -1,4 +1,4 @@
-// Homogeneous cooling (physics.md §3): T(t) against Haff's law, and against LAMMPS from the
+// Homogeneous cooling (docs/theory.md §3): T(t) against Haff's law, and against LAMMPS from the
 // peers' identical initial state.
 #include <cmath>
 #include <fstream>
@@ -65,10 +65,10 @@ double fit_haff_time(const std::vector<std::pair<double, double>>& curve, double
 } // namespace
 
 // Ensemble of 8 independent 1222-particle boxes (seeds 1..8), 30 ms each. One box scatters 2.3%
-// (1 sigma) in fitted t_H (physics.md §3; the peers' 20-seed ensemble), so the mean of 8 has
+// (1 sigma) in fitted t_H (docs/theory.md §3; the peers' 20-seed ensemble), so the mean of 8 has
 // sigma 0.8%; the peers' ensemble found DEM 0.5% slower than the Enskog prediction, and the
 // integrator's effective e = 0.7974 (not 0.8) shortens t_H by 1.1%. Tolerance: 3 sigma + 1.5%
-// systematic = 4%. t_H = 120.06 ms for T0 = 0.01 (physics.md §3).
+// systematic = 4%. t_H = 120.06 ms for T0 = 0.01 (docs/theory.md §3).
 TEST(HomogeneousCooling, FollowsHaffLawOverEnsemble) {
   tbb::global_control one(tbb::global_control::max_allowed_parallelism, 2);
   const double phi = 1222 * std::numbers::pi * 1e-12 / 6.0 / 64e-9;

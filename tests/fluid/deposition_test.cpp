@@ -1,4 +1,4 @@
-// Interpolation and deposition (physics.md §7): weights, conservation, exactness for linear
+// Interpolation and deposition (docs/theory.md §7): weights, conservation, exactness for linear
 // fields, and eps_g in (0, 1] for cells smaller than a particle with the wide dpvm kernel.
 #include <algorithm>
 #include <cmath>

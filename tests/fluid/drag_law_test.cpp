@@ -1,4 +1,4 @@
-// Drag laws against physics.md §4: BVK and Koch-Hill reference values, terminal velocities of
+// Drag laws against docs/theory.md §4: BVK and Koch-Hill reference values, terminal velocities of
 // one particle in still gas by root finding and by integrating its equation of motion.
 #include <array>
 #include <cmath>
@@ -14,7 +14,7 @@
 namespace cfddem::fluid {
 namespace {
 
-// The paper's particle and gas (physics.md §1).
+// The paper's particle and gas (docs/theory.md §1).
 constexpr double kD = 100e-6;
 constexpr double kRhoP = 1000.0;
 constexpr double kRhoG = 1.0;
@@ -53,7 +53,7 @@ double terminal_velocity_ode(const std::function<double(double)>& beta) {
 struct TerminalCase {
   DragLaw law;
   double eps;
-  double expected; // physics.md §4 table [m/s]
+  double expected; // docs/theory.md §4 table [m/s]
 };
 
 TEST(DragLawTerminalVelocity, MatchesPhysicsTableByRootAndByIntegration) {
@@ -91,8 +91,8 @@ TEST(KochHillDrag, ZeroReynoldsCoefficientAtRiserAndDenseBed) {
 }
 
 TEST(KochHillDrag, JumpsAtOnePercentSolids) {
-  // phi <= 0.01: F = 1 + (3/8) Re_KH -> 1. Just above: F0 of the 17.14 fit, 1.2788 by MFIX's
-  // formula (physics.md quotes 1.281; the formula, identical to MFIX's source, gives 1.27876).
+  // phi <= 0.01: F = 1 + (3/8) Re_KH -> 1. Just above: F0 of the 17.14 fit, 1.27876 by MFIX's
+  // formula (docs/theory.md §4; an earlier note quoted 1.281, which the formula does not give).
   EXPECT_DOUBLE_EQ(koch_hill_dimensionless_drag(0.01, 0.0), 1.0);
   EXPECT_NEAR(koch_hill_dimensionless_drag(0.01 + 1e-9, 0.0), 1.27876, 1e-4);
   const double d = 3.0 * std::numbers::pi * kMuG * kD;

@@ -1,4 +1,4 @@
-// Gas solver validations (physics.md §5): plane Poiseuille flow with second-order convergence,
+// Gas solver validations (docs/theory.md §5): plane Poiseuille flow with second-order convergence,
 // Taylor-Green viscous decay, point-implicit drag, and the time-step limits.
 #include <array>
 #include <cmath>
@@ -223,7 +223,7 @@ TEST(GasSolverConservation, InflowMassLeavesThroughOutflow) {
   }
 }
 
-// Fluidized-bed geometry (physics.md §6): x, z periodic, inflow at y_lo, pressure outflow at
+// Fluidized-bed geometry (docs/theory.md §6): x, z periodic, inflow at y_lo, pressure outflow at
 // y_hi, gravity along y.
 MacGridSpec bed_spec(std::array<int, 3> cells, double dx, double inflow) {
   MacGridSpec spec =
@@ -236,7 +236,7 @@ MacGridSpec bed_spec(std::array<int, 3> cells, double dx, double inflow) {
 
 TEST(FixedBed, PressureGradientBalancesDrag) {
   // Gas through particles at rest (v = 0) with uniform beta: model A gives the plug flow
-  // u = U_in and grad p' = -beta U_in / eps (physics.md §5), so p' falls linearly to p_out.
+  // u = U_in and grad p' = -beta U_in / eps (docs/theory.md §5), so p' falls linearly to p_out.
   const double inflow = 0.015;
   const double eps = 0.4;
   const double beta = 1e6; // N s/m^4
@@ -326,7 +326,7 @@ TEST(GasSolverImplicitViscosity, TakesPaperStepOnFiftyMicronCells) {
 }
 
 TEST(GasSolverMomentum, PeriodicPressureDropAcceleratesGasAtDeltaPOverRhoL) {
-  // Riser drive without gravity (physics.md §6): uniform gas accelerates at delp/(rho_g L), so
+  // Riser drive without gravity (docs/theory.md §6): uniform gas accelerates at delp/(rho_g L), so
   // gas momentum grows at eps delp A (the particles take the remaining phi delp A).
   MacGridSpec spec = box_spec({4, 6, 4}, {6.4e-3, 10e-3, 6.4e-3}, BoundaryKind::periodic);
   spec.pressure_drop[1] = 2.0;

@@ -90,6 +90,7 @@ void check_projection(const Case& c) {
   ProjectionSettings settings;
   settings.tolerance = 1e-9;
   settings.preconditioner = c.pc;
+  settings.solver = PoissonSolver::hypre; // the multigrid: multigrid_poisson_test.cpp
   PressureProjection projection(grid, settings);
   GridField phi = grid.make_field();
   const ProjectionReport report = projection.project(u, eps, mobility, source, phi);

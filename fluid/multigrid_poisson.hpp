@@ -1,0 +1,91 @@
+// Geometric multigrid for the cell-centred, variable-coefficient Poisson problem of the pressure
+// projection, -div(K grad phi) = b on a box of cells, used as the preconditioner of a flexible
+// conjugate-gradient solve (docs/multigrid.md). The operator is given by its face coefficients
+// K_f / h^2 (no assembled stencil); each boundary side is Neumann (wall, inflow), homogeneous
+// Dirichlet on the face (outflow: the caller moves p_out into b) or periodic.
+//
+// Levels coarsen by 2 along every axis that is even, has at least 4 cells and is among the finest
+// of those that can coarsen (semi-coarsening: an odd or short axis keeps its cells). A level whose
+// finest axis is markedly finer than the others relaxes whole lines along it; the coarsest level
+// is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop over a
+// level runs over z-planes (TBB) and every reduction is summed plane by plane in plane order, so
+// results are bitwise independent of the thread count.
+#pragma once
+
+#include <array>
+#include <span>
+#include <vector>
+
+#include "fluid/grid_field.hpp"
+
+namespace cfddem::fluid {
+
+enum class PoissonSide { neumann, dirichlet, periodic };
+
+struct MultigridSettings {
+  int pre_sweeps = 2;  // red-black Gauss-Seidel sweeps before the coarse correction
+  int post_sweeps = 2; // black-red sweeps after it (the adjoint: the V-cycle stays symmetric)
+  int max_direct_cells = 256; // coarsest level solved by dense Cholesky up to this many cells
+};
+
+struct MultigridReport {
+  int iterations = 0;
+  double relative_residual = 0.0; // ||b - A x|| / ||b||, recomputed from x at the end
+  bool converged = false;
+};
+
+class MultigridPoisson {
+public:
+  // cells, spacing: the finest grid; sides[a][side]: a periodic axis is periodic on both sides.
+  MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
+                   std::array<std::array<PoissonSide, 2>, 3> sides,
+                   MultigridSettings settings = {});
+  ~MultigridPoisson();
+  MultigridPoisson(const MultigridPoisson&) = delete;
+  MultigridPoisson& operator=(const MultigridPoisson&) = delete;
+
+  // coef[a] at layout index (i, j, k) is the coefficient K / h_a^2 of the low a-face of cell
+  // (i, j, k), faces 0..n_a (layout: GridLayout(cells)). Read on interior faces, on Dirichlet
+  // faces, and on face 0 of a periodic axis (face n_a is face 0); Neumann faces are not read.
+  // Builds the coarse levels' coefficients and factors the coarsest level.
+  void set_coefficients(const std::array<GridField, 3>& coef);
+
+  // Solves A x = b (cells in i-fastest order) from the first guess x, until the relative residual
+  // 2-norm is at most tolerance. Without a Dirichlet side A is singular: b must sum to zero (up
+  // to rounding; its mean is removed) and x is returned with mean zero.
+  MultigridReport solve(std::span<const double> b, std::span<double> x, double tolerance,
+                        int max_iterations);
+
+  [[nodiscard]] int levels() const;
+  [[nodiscard]] std::array<int, 3> level_cells(int level) const;
+  // The axis a level relaxes lines along (-1: point relaxation).
+  [[nodiscard]] int line_axis(int level) const;
+  [[nodiscard]] bool singular() const { return singular_; }
+
+  // The finest level's kernels on the state the last solve left, for benchmarks: one V-cycle
+  // (the preconditioner), one red-black sweep, one residual with its norm.
+  void benchmark_vcycle();
+  void benchmark_sweep();
+  double benchmark_residual();
+
+  struct Level; // one grid of the hierarchy (multigrid_poisson.cpp)
+
+private:
+  void vcycle(int level, const double* b, double* x);
+  void coarsest_solve(const double* b, double* x); // b: the coarsest level's own vector
+  void factor_coarsest();
+  void precondition(const double* r, double* z);
+
+  MultigridSettings settings_;
+  std::array<std::array<PoissonSide, 2>, 3> sides_{};
+  bool singular_ = true;
+  std::vector<Level> levels_;
+  // Outer flexible CG's vectors on the finest level's padded layout.
+  std::vector<double> x_, b_, r_, r_old_, z_, p_, q_;
+  // Coarsest level: dense Cholesky factor (row-major lower triangle) or empty (CG).
+  std::vector<double> cholesky_;
+  std::vector<double> dense_rhs_;
+  std::vector<double> cg_r_, cg_p_, cg_q_, cg_z_;
+};
+
+} // namespace cfddem::fluid

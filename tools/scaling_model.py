@@ -1,0 +1,176 @@
+#!/usr/bin/python3
+"""A cost model of cfddem at many cores, priced from counts measured anywhere.
+
+Two cores cannot time sixteen, but an R-rank run on them counts exactly what each rank of an
+R-rank job does (run.json's rank_counts: particle steps, pair evaluations, gas cell updates,
+point-to-point messages and bytes, collectives, reductions) -- counts do not depend on timing or
+on oversubscription. This script prices those counts:
+
+  compute_r   = particle_steps_r * t_ps + force_evaluations_r * t_fe + cell_updates_r * t_cell
+                (t_* measured on one core: --calibration, a 1-rank run.json of the same scene)
+  halo_r      = p2p_messages_r * alpha + p2p_bytes_r / beta
+  reductions  = reductions * alpha * ceil(log2 P)       (a tree: log2 P latencies each)
+  T(P)        = max_r compute_r + max_r halo_r + reductions        (bulk synchronous)
+  efficiency  = T_serial / (P * T(P)),   T_serial = the calibration run's counted compute
+
+The terms it names as limiting (the largest loss against perfect scaling):
+  load imbalance  = max_r compute_r - mean_r compute_r
+  halo bytes      = max_r halo_r
+  reductions      = reductions * alpha * ceil(log2 P)
+  coarse grid     = the pressure solve's global steps: per projection iteration, the multigrid
+                    levels that no longer split over P ranks cost alpha per level and ~log2 P
+                    latencies for their gather (only when the run has a gas)
+
+Extrapolation from the measured R ranks to P cores (strong scaling, the same scene):
+  work per rank       x R/P, with the measured imbalance max/mean held
+  halo bytes per rank x (R/P)^(2/3) (a box's surface), messages per rank held (<= 26 faces,
+                        edges and corners of a box, as measured)
+  reductions          held (the same steps), each costing log2 P latencies
+Weak scaling (--weak): work, messages and bytes per rank held as measured; only the reductions'
+log2 P and the coarse grid grow.
+
+Network defaults (--network):
+  shm: one node's shared memory, alpha = 0.4 us, beta = 10 GB/s (Open MPI's vader/sm
+       transport's published ping-pong latency and single-pair bandwidth on current x86 nodes;
+       OSU micro-benchmarks osu_latency/osu_bw, mvapich.cse.ohio-state.edu/benchmarks)
+  ib:  an InfiniBand HDR-class network, alpha = 1.5 us, beta = 20 GB/s (HDR 200 Gb/s = 25 GB/s
+       raw, ~1 us switch-to-switch latency; NVIDIA ConnectX-6 product brief, with MPI overhead)
+A node holds --cores-per-node cores (default 64): jobs within one node use shm, larger ones ib.
+
+Usage:
+  tools/scaling_model.py --run-dir runs/riser_r8 --calibration runs/riser_r1 --cores 16 256 4096
+  tools/scaling_model.py --run-dir runs/riser_r2 --calibration runs/riser_r1 --check
+prints CSV lines `cores,efficiency,limiting_term` after a header (--check: the model's time for
+the measured rank count against the measured loop_seconds, and its relative error).
+"""
+import argparse
+import json
+import math
+import os
+import sys
+
+NETWORKS = {"shm": (0.4e-6, 10e9), "ib": (1.5e-6, 20e9)}
+
+
+def load(run_dir):
+    path = os.path.join(run_dir, "run.json") if os.path.isdir(run_dir) else run_dir
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, json.JSONDecodeError) as e:
+        sys.exit(f"scaling_model.py: cannot read {path}: {e}")
+
+
+def config_value(j, key):
+    """A value of run.json's resolved configuration (typed, or the older quoted strings)."""
+    v = j.get("configuration", {}).get(key)
+    if isinstance(v, str):
+        try:
+            return json.loads(v)
+        except json.JSONDecodeError:
+            return v
+    return v
+
+
+def gas_cells(j):
+    cells = config_value(j, "fluid.cells")
+    return math.prod(cells) if isinstance(cells, list) else 0
+
+
+def calibrate(j):
+    """Seconds per particle step, per pair evaluation and per gas cell update on one core, from
+    a 1-rank run's phases: neighbor + integrate over particle steps, force over pair
+    evaluations, fluid over cells x gas sub-steps."""
+    if j.get("ranks", 1) != 1 or j.get("threads", 1) != 1:
+        sys.exit("scaling_model.py: --calibration must be a run on 1 rank with 1 thread")
+    ph = j["phase_seconds"]
+    ps, fe = max(j.get("particle_steps", 0), 1), max(j.get("force_evaluations", 0), 1)
+    cu = gas_cells(j) * j.get("gas_substeps", 0)
+    t_ps = (ph.get("neighbor", 0.0) + ph.get("integrate", 0.0)) / ps
+    t_fe = ph.get("force", 0.0) / fe
+    t_cell = ph.get("fluid", 0.0) / cu if cu > 0 else 0.0
+    serial = ps * t_ps + fe * t_fe + cu * t_cell
+    return t_ps, t_fe, t_cell, serial
+
+
+def network(cores, name, per_node):
+    if name != "auto":
+        return NETWORKS[name]
+    return NETWORKS["shm"] if cores <= per_node else NETWORKS["ib"]
+
+
+def predict(run, cal, cores, weak, net, per_node):
+    """Model time per run and its terms at `cores` ranks, from `run`'s counts at R ranks."""
+    rc = run.get("rank_counts")
+    if rc is None:
+        sys.exit("scaling_model.py: the run has no rank_counts (an R-rank run of cfddem is needed)")
+    R = len(rc["particle_steps"])
+    t_ps, t_fe, t_cell, serial = cal
+    comp = [rc["particle_steps"][r] * t_ps + rc["force_evaluations"][r] * t_fe +
+            rc["cell_updates"][r] * t_cell for r in range(R)]
+    alpha, beta = network(cores, net, per_node)
+    halo = [rc["p2p_messages"][r] * alpha + rc["p2p_bytes"][r] / beta for r in range(R)]
+    reductions = max(rc["reductions"])
+    mean_c, max_c = sum(comp) / R, max(comp)
+    imbalance = max_c / mean_c if mean_c > 0 else 1.0
+    if weak:
+        work_scale, halo_bytes_scale = 1.0, 1.0
+    else:
+        work_scale, halo_bytes_scale = R / cores, (R / cores) ** (2.0 / 3.0)
+    mean_w = mean_c * work_scale
+    compute = mean_w * imbalance
+    r_max = max(range(R), key=lambda r: halo[r])
+    halo_t = rc["p2p_messages"][r_max] * alpha + rc["p2p_bytes"][r_max] * halo_bytes_scale / beta
+    red_t = reductions * alpha * max(1, math.ceil(math.log2(max(cores, 2))))
+    coarse_t = 0.0
+    if gas_cells(run) > 0 and run.get("projection_iterations"):
+        # Levels whose grid has fewer cells than ranks are gathered: about log2(cores / cells
+        # per coarsest split) more latencies per V-cycle, one V-cycle per projection iteration.
+        cells = gas_cells(run)
+        per_rank = cells / cores if not weak else cells / R
+        replicated_levels = max(0.0, math.log2(max(cores / max(per_rank, 1.0), 1.0)) / 3.0)
+        levels = max(1.0, math.log2(max(per_rank, 2.0)) / 3.0) + replicated_levels
+        coarse_t = run["projection_iterations"] * alpha * (2 * levels +
+                                                           math.log2(max(cores, 2)))
+    total = compute + halo_t + red_t + coarse_t
+    # Perfect scaling: the 1-core run's work spread evenly (strong), or the same work per rank
+    # as measured, balanced and without communication (weak).
+    ideal = mean_c if weak else serial / cores
+    eff = ideal / total if total > 0 else 0.0
+    terms = {"load imbalance": compute - mean_w, "halo bytes": halo_t, "reductions": red_t,
+             "coarse grid": coarse_t}
+    return total, eff, max(terms, key=terms.get), terms
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--run-dir", required=True, help="an R-rank run (its run.json has rank_counts)")
+    ap.add_argument("--calibration", required=True,
+                    help="a 1-rank, 1-thread run of the same scene (per-core speed)")
+    ap.add_argument("--cores", type=int, nargs="+", default=[16, 256, 4096])
+    ap.add_argument("--weak", action="store_true", help="weak scaling (work per rank held)")
+    ap.add_argument("--network", choices=["auto", "shm", "ib"], default="auto")
+    ap.add_argument("--cores-per-node", type=int, default=64)
+    ap.add_argument("--check", action="store_true",
+                    help="compare the model with the run's measured loop_seconds")
+    a = ap.parse_args()
+    for c in a.cores:
+        if c < 1:
+            sys.exit(f"scaling_model.py: --cores {c}: must be >= 1")
+    run, cal = load(a.run_dir), calibrate(load(a.calibration))
+    if a.check:
+        R = len(run["rank_counts"]["particle_steps"])
+        total, eff, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node)
+        meas = run["loop_seconds"]
+        print("ranks,model_seconds,measured_seconds,relative_error,limiting_term")
+        print(f"{R},{total:.6g},{meas:.6g},{(total - meas) / meas:.4g},{lim}")
+        return
+    print("cores,efficiency,limiting_term")
+    for c in a.cores:
+        _, eff, lim, _ = predict(run, cal, c, a.weak, a.network, a.cores_per_node)
+        print(f"{c},{eff:.4f},{lim}")
+
+
+if __name__ == "__main__":
+    main()

@@ -185,17 +185,20 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     fmt::print(
         stderr,
         "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
-        "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
+        "deposition), dt_f = {}, {} = {:.4e} s{}, {} rank(s) x {} "
         "thread(s), {} scheme{}\n",
         scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
         fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
               : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-        dt,
+        kSub ? "dt_sp (sub-iteration)" : "particle dt", dt,
         fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kSub ? "sub-iterations" : "steps")
               : std::string(),
         env.ranks(), env.threads(), scheme_name,
         ck ? fmt::format(", restarted at t = {:.6e} s from {}", ck->loop.time, opt.restart) : "");
   }
+  // The loop's wall time starts before start() and the t = 0 outputs, which the phase timer
+  // counts too (else phase_seconds.other came out negative).
+  const auto t_loop = clock::now();
   // The snapshot at t = 0 holds the initial velocities, as on one rank: this rank's share,
   // kept before start() shifts them to the half step.
   ParticleStore initial;
@@ -268,7 +271,6 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
     add_row(row(0.0, 0, s0, n_total, scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
                 means.next(0.0, s0.mean_velocity, gas.diagnostics())));
   }
-  const auto t_loop = clock::now();
   double& t = loop.time;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {
@@ -367,9 +369,11 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
       gas_regrid();
       while (next_regrid <= t + tol) next_regrid += regrid_every;
     }
-    const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
+    const bool no_particles = n_total == 0 && !fixed;
+    const long long n_sub =
+        no_particles ? 1 : particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
     last_n_sub = n_sub;
-    const double dt_f = static_cast<double>(n_sub) * dt;
+    const double dt_f = fluid_step_length(scene, gas, no_particles, n_sub, dt, end - t);
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
       gas_step(dt_f);

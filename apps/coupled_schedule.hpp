@@ -21,6 +21,17 @@ inline long long particle_steps_per_fluid_step(const Scene& scene, const GasCoup
   return std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
 }
 
+// The length of the next fluid step: n_sub particle steps of dt. With no particles at all and an
+// adaptive gas, the gas's own step (its CFL step, fluid.max_dt, the time left), taken with one
+// empty particle step: a particle step (which an empty scene sets from no particle) must not
+// set it. Collective on R ranks as cfl_dt() is.
+inline double fluid_step_length(const Scene& scene, const GasCoupling& gas, bool no_particles,
+                                long long n_sub, double dt, double time_left) {
+  if (no_particles && scene.fluid.dt <= 0.0)
+    return std::min({gas.cfl_dt(), scene.fluid.max_dt, time_left});
+  return static_cast<double>(n_sub) * dt;
+}
+
 // At fluid time t (last: the run's end): a row or snapshot that is due takes the gas now
 // (collective on R ranks: diagnostics are reduced) and is marked pending.
 inline void mark_due_outputs(CoupledLoopState& loop, const GasCoupling& gas, const Scene& scene,

@@ -306,8 +306,8 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
       wait_max = std::max(wait_max, w);
     fmt::print(stderr,
                "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
-               "with {} particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), n_total);
+               "with {} particles ({} to run.end_time and one that completes the last row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), n_total, n_end);
     fmt::print(stderr,
                "Performance: {:.4g} particle-steps/s; {} force evaluations; rank 0: "
                "neighbor+exchange {:.3g} s, stepping {:.3g} s; MPI wait max {:.3g} s; max "

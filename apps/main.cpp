@@ -14,7 +14,9 @@
 #include "apps/coupled_step.hpp"
 #include "apps/default_scene.hpp"
 #include "apps/derived_numbers.hpp"
+#include "apps/gas_check.hpp"
 #include "apps/run_directory.hpp"
+#include "apps/setting_warnings.hpp"
 #include "apps/simulation.hpp"
 #include "core/communicator.hpp"
 #include "core/error.hpp"
@@ -234,6 +236,9 @@ int main(int argc, char** argv) {
     try {
       cfddem::SceneConfig cfg;
       const cfddem::Scene scene = load(a, cfg);
+      if (env.rank() == 0)
+        for (const std::string& w : cfddem::apps::setting_warnings(scene))
+          fmt::print(stderr, "cfddem: warning: {}\n", w);
       if (check->parsed()) {
         if (env.rank() == 0) {
           const auto particles = cfddem::make_initial_particles(scene);
@@ -242,6 +247,14 @@ int main(int argc, char** argv) {
           for (const auto& [k, v] : cfddem::describe_scene(scene)) fmt::print("{} = {}\n", k, v);
           fmt::print("\n# derived numbers\n");
           for (const auto& [k, v] : derived.table()) fmt::print("{:<48} {}\n", k, v);
+          if (scene.fluid.enabled) {
+            const auto gas = cfddem::apps::check_gas(scene, derived);
+            fmt::print("\n# gas\n");
+            for (const auto& [k, v] : gas.table)
+              fmt::print("{:<48} {}\n", k, v);
+            for (const auto& w : gas.warnings)
+              fmt::print(stderr, "cfddem: warning: {}\n", w);
+          }
         }
         return 0;
       }
@@ -267,8 +280,22 @@ int main(int argc, char** argv) {
           throw cfddem::ConfigError("", e);
       }
       const auto result = cfddem::apps::run_simulation(scene, opt, env);
-      if (env.rank() == 0 && !a.quiet)
-        fmt::print("cfddem: done; outputs in {}/ (diagnostics.csv, run.json)\n", result.out_dir);
+      if (env.rank() == 0 && !a.quiet) {
+        // What the directory holds now: the diagnostics and run.json, and how many snapshots
+        // and checkpoints.
+        int snaps = 0, ckpts = 0;
+        for (const auto& f : cfddem::apps::run_outputs_in(result.out_dir)) {
+          const std::string n = f.filename().string();
+          snaps += n.rfind("snapshot_", 0) == 0, ckpts += n.rfind("checkpoint_", 0) == 0;
+        }
+        std::string extra;
+        if (snaps > 0)
+          extra += fmt::format(", {} snapshot(s) + snapshots.xmf", snaps);
+        if (ckpts > 0)
+          extra += fmt::format(", {} checkpoint(s)", ckpts);
+        fmt::print("cfddem: done; outputs in {}/ (diagnostics.csv, run.json{})\n", result.out_dir,
+                   extra);
+      }
       return 0;
     } catch (const cfddem::ConfigError& e) {
       // Configuration and run errors are raised by every rank alike: rank 0 says it once.

@@ -129,7 +129,19 @@ inline std::string format_eta(double s) {
   if (!std::isfinite(s)) return "?";
   if (s < 120) return fmt::format("{:.0f}s", s);
   if (s < 7200) return fmt::format("{:.1f}min", s / 60);
-  return fmt::format("{:.1f}h", s / 3600);
+  if (s < 3 * 86400)
+    return fmt::format("{:.1f}h", s / 3600);
+  if (s < 365.25 * 86400)
+    return fmt::format("{:.1f}d", s / 86400);
+  return fmt::format("{:.3g} years (check dem.dt and run.end_time)", s / (365.25 * 86400));
+}
+
+// A configuration or derived value as typed JSON: the text describe_scene and DerivedNumbers
+// give (TOML numbers, "strings", [arrays], booleans) is JSON as well, so it is parsed; text that
+// is not (a path with a backslash) stays a string.
+inline nlohmann::ordered_json typed_value(const std::string& text) {
+  auto v = nlohmann::ordered_json::parse(text, nullptr, false);
+  return v.is_discarded() ? nlohmann::ordered_json(text) : v;
 }
 
 // The part of run.json every loop writes first: program, version, scene, the resolved
@@ -142,10 +154,12 @@ inline nlohmann::ordered_json run_json_header(const Scene& described, const std:
   j["version"] = CFDDEM_VERSION;
   j["scene"] = name;
   nlohmann::ordered_json cfg;
-  for (const auto& [k, v] : describe_scene(described)) cfg[k] = v;
+  for (const auto& [k, v] : describe_scene(described))
+    cfg[k] = typed_value(v);
   j["configuration"] = cfg;
   nlohmann::ordered_json der;
-  for (const auto& [k, v] : derived.table()) der[k] = v;
+  for (const auto& [k, v] : derived.table())
+    der[k] = typed_value(v);
   j["derived"] = der;
   j["ranks"] = env.ranks();
   j["threads"] = env.threads();

@@ -267,9 +267,11 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
 
   if (!opt.quiet) {
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
-                       "particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), particles.size());
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
+               "particles ({} to run.end_time and one that completes the last row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), particles.size(),
+               n_end);
     fmt::print(stderr, "Performance: {:.4g} particle-steps/s; neighbor {:.3g} s ({} builds), "
                        "force {:.3g} s, integrate {:.3g} s, io {:.3g} s\n",
                j["particle_steps_per_second"].get<double>(), timer.seconds(Phase::neighbor),
@@ -447,9 +449,12 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
   write_file_atomically((fs::path(opt.out_dir) / "run.json").string(), j.dump(2) + "\n");
 
   if (!opt.quiet) {
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
-                       "with {} particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), particles.size());
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} sub-iterations "
+               "with {} particles ({} to run.end_time and one that completes the last "
+               "row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.subiterations(), particles.size(),
+               n_end);
     fmt::print(stderr, "Performance: {:.4g} particle-steps/s; {} force evaluations; {} "
                        "{:.3g} s, {} {:.3g} s, io {:.3g} s; max overlap {:.3g} r ({} "
                        "beyond dem.max_overlap)\n",
@@ -676,9 +681,10 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   if (!opt.quiet) {
     double wait_max = 0.0;
     for (const double w : waits) wait_max = std::max(wait_max, w);
-    fmt::print(stderr, "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
-                       "particles\n",
-               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), n_total);
+    fmt::print(stderr,
+               "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} steps with {} "
+               "particles ({} to run.end_time and one that completes the last row)\n",
+               loop_seconds, env.ranks(), env.threads(), scheme.steps_taken(), n_total, n_end);
     fmt::print(stderr, "Performance: {:.4g} particle-steps/s; rank 0: neighbor+exchange {:.3g} s "
                        "({} builds, {} regrids), force {:.3g} s, integrate {:.3g} s; MPI wait "
                        "max {:.3g} s\n",
@@ -799,17 +805,24 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
   };
   if (!opt.quiet) {
     const auto& c = scene.fluid.cells;
-    fmt::print(stderr, "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
-                       "deposition), dt_f = {}, particle dt = {:.4e} s{}, {} rank(s) x {} "
-                       "thread(s){}\n",
-               scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag,
-               scene.fluid.deposition, fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
-                                             : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-               dt, fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "sub-iterations" : "steps") : std::string(),
-               env.ranks(), env.threads(),
-               ck ? fmt::format(", restarted at t = {:.6e} s from {}", loop.time, opt.restart)
-                  : "");
+    fmt::print(
+        stderr,
+        "cfddem: scene '{}', {} particles, gas {} x {} x {} cells ({} drag, {} "
+        "deposition), dt_f = {}, {}{}, {} rank(s) x {} "
+        "thread(s){}\n",
+        scene.name, particles.size(), c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
+        fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
+              : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
+        kOrb ? fmt::format("dt_sp = {:.4e} s (fine dt = {:.4e} s)", dt, snap_dt)
+             : fmt::format("particle dt = {:.4e} s", dt),
+        fixed ? fmt::format(" ({} {} per fluid step)", n_fixed, kOrb ? "sub-iterations" : "steps")
+              : std::string(),
+        env.ranks(), env.threads(),
+        ck ? fmt::format(", restarted at t = {:.6e} s from {}", loop.time, opt.restart) : "");
   }
+  // The loop's wall time starts before start() and the t = 0 outputs, which the phase timer
+  // counts too (else phase_seconds.other came out negative).
+  const auto t_loop = clock::now();
   MeanTracker means;
   if (ck) {
     for (auto& r : ck->rows) add_row(std::move(r));
@@ -833,7 +846,6 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
     add_row(row(0.0, 0, s0, particles.size(), scheme, 0.0, dem::LeafStepStats{0, 0, 0, 1},
                 means.next(0.0, particles.vx, particles.vy, particles.vz, gas.diagnostics())));
   }
-  const auto t_loop = clock::now();
   double& t = loop.time;
   auto last_progress = clock::now();
   auto particle_step = [&](bool record, bool snap) {
@@ -869,8 +881,10 @@ RunResult run_coupled_with(const Scene& scene_in, const RunOptions& opt, const P
                          : std::numeric_limits<double>::infinity();
   const double tol = 1e-6 * dt;
   while (end - t > tol) {
-    const long long n_sub = particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
-    const double dt_f = static_cast<double>(n_sub) * dt;
+    const bool no_particles = particles.size() == 0 && !fixed;
+    const long long n_sub =
+        no_particles ? 1 : particle_steps_per_fluid_step(scene, gas, n_fixed, dt, end - t);
+    const double dt_f = fluid_step_length(scene, gas, no_particles, n_sub, dt, end - t);
     {
       PhaseTimer::Scope fl(timer, Phase::fluid);
       gas.step(particles, dt_f);

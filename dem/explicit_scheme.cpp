@@ -67,12 +67,15 @@ StepModel make_step_model(const Scene& s, const ParticleRange& range) {
   // Stiffest oscillator: two of the lightest particles (m_eff = m/2) or one against a wall.
   const double omega = std::max(std::sqrt(2.0 * d.spring_constant / m_min),
                                 std::sqrt(d.wall_spring_constant / m_min));
+  // Known before any step: a configuration error (exit 2), named by its keys.
   if (omega * m.dt >= 2.0)
-    throw RunError(fmt::format(
-        "unstable time step: omega dt = {:.4g} >= 2 for the stiffest contact (dt = {:.4g} s, "
-        "dem.dt_factor = {}, dem.dt = {}); velocity Verlet on a spring needs omega dt < 2, and "
-        "accuracy needs far less (dem.dt_factor = 0.02 gives 0.028)",
-        omega * m.dt, m.dt, d.dt_factor, d.dt));
+    throw ConfigError(
+        d.dt > 0.0 ? "scene key 'dem.dt'" : "scene key 'dem.dt_factor'",
+        fmt::format(
+            "unstable time step: omega dt = {:.4g} >= 2 for the stiffest contact (dt = {:.4g} s, "
+            "dem.dt_factor = {}, dem.dt = {}); velocity Verlet on a spring needs omega dt < 2, and "
+            "accuracy needs far less (dem.dt_factor = 0.02 gives 0.028)",
+            omega * m.dt, m.dt, d.dt_factor, d.dt));
   m.skin = d.neighbor_skin > 0 ? d.neighbor_skin : 0.5 * r_max; // 0.25 d_max (the peers' skin)
   return m;
 }

@@ -30,6 +30,8 @@ SMALL = ["domain.hi=[0.8e-3,1.0e-2,0.8e-3]", "particles.count=2500",
 
 
 def toml_value(text):
+    if not isinstance(text, str):  # run.json holds typed values since issue 17
+        return text
     text = text.strip()
     if text.startswith("["):
         try:

@@ -263,6 +263,117 @@ def settle_then_turn_the_gas_on(ctx):
            out_dir=ctx.fresh("refused_restart"))
 
 
+@case
+def gas_alone_at_its_own_step(ctx):
+    """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
+    capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of
+    6.3e-3 s used to set the fluid step: two steps, ending at 0.0126 s)."""
+    import json
+    d = ctx.fresh("gas_alone")
+    expect(ctx, ["run", SETTLING, "particles.count=0", "fluid.dt=0", "run.end_time=1e-2",
+                 "--quiet"], 0, None, out_dir=d)
+    with open(os.path.join(d, "run.json")) as f:
+        j = json.load(f)
+    assert abs(j["end_time"] - 1e-2) < 1e-12, j["end_time"]
+    assert j["fluid_steps"] >= 10 and j["fluid_dt_mean"] <= 1e-3, (j["fluid_steps"],
+                                                                   j["fluid_dt_mean"])
+    assert float(rows(d)[-1][0]) == float(j["end_time"])
+
+
+@case
+def check_tells_about_the_gas(ctx):
+    """`cfddem check` of the fluidized bed: cells per particle diameter (0.5, with a warning once
+    the deposition is trilinear), fluid steps, the minimum fluidization velocity (Wen & Yu; in
+    the Stokes regime of these 100 um particles it is d^2 (rho_p - rho_g) g / (1652 mu), to
+    0.1%) and a rough cost."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    out = expect(ctx, ["check", bed, "fluid.deposition=trilinear"], 0,
+                 r"warning: a gas cell .* is narrower than a particle")
+    assert re.search(r"cell_size / particle diameter \(smallest\)\s+0.5\b", out), out
+    assert re.search(r"fluid_steps\s+2000 \(fluid.dt = 0.0001 s\)", out), out
+    assert "cost_per_fluid_step" in out and "cost_of_run_s" in out, out
+    umf = float(re.search(r"minimum_fluidization_velocity_m_s \(Wen & Yu\)\s+(\S+)", out)
+                .group(1))
+    cfg = dict(re.findall(r"^(\S+) = (.*)$", out, re.M))
+    d, rho_p = float(cfg["particles.diameter"]), float(cfg["particles.density"])
+    rho_g, mu = float(cfg["fluid.density"]), float(cfg["fluid.viscosity"])
+    g = max(abs(float(x)) for x in cfg["gravity"].strip("[]").split(","))
+    stokes = d * d * (rho_p - rho_g) * g / (2 * 33.7 / 0.0408 * mu)  # Ar << 33.7^2 / 0.0408
+    assert abs(umf / stokes - 1) < 1e-3, (umf, stokes)
+    quiet = expect(ctx, ["check", bed], 0, None)
+    assert "narrower than a particle" not in quiet  # dpvm spreads the particle: no warning
+
+
+# ---- legal but almost surely a mistake: a warning, and run.json as typed JSON ----
+@case
+def snapshot_interval_tiny_warns(ctx):
+    expect(ctx, ["check", SMALL, "output.snapshot_interval=1e-12"], 0,
+           r"warning: output.snapshot_interval = 1e-12 s writes up to 3e\+10 snapshot files")
+
+
+@case
+def dem_dt_tiny_warns(ctx):
+    expect(ctx, ["check", SMALL, "dem.dt=1e-20"], 0,
+           r"warning: dem.dt = 1e-20 s makes 3e\+18 steps .* years")
+
+
+@case
+def output_interval_below_dt_sp_warns(ctx):
+    expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
+           r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "
+           r"1e-05 s of dem.scheme = \"orb\"")
+
+
+@case
+def unstable_step_is_a_configuration_error(ctx):
+    expect(ctx, ["run", SMALL, "dem.dt_factor=1.5"], 2,
+           r"scene key 'dem.dt_factor': unstable time step: omega dt", fresh=True)
+
+
+@case
+def banner_and_summary_agree(ctx):
+    """The orb banner's sub-iteration count is the summary's (which adds the one that completes
+    the last row, and says so); a coupled orb banner names dt_sp and the fine dt."""
+    out = expect(ctx, ["run", SMALL, "dem.scheme=orb", "run.end_time=2e-4"], 0,
+                 r"dt_sp = 1.0000e-05 s \(fine dt = 1.4472e-07 s\), 20 sub-iterations",
+                 out_dir=ctx.fresh("orb_banner"))
+    assert re.search(r"for 21 sub-iterations with 100 particles \(20 to run.end_time and one "
+                     r"that completes the last row\)", out), out
+    expect(ctx, ["run", SETTLING, "particles.count=30", "dem.scheme=orb", "run.end_time=2e-4"],
+           0, r"dt_f = 1.0000e-04 s, dt_sp = 1.0000e-05 s \(fine dt = 1.4472e-07 s\)",
+           out_dir=ctx.fresh("orb_gas_banner"))
+
+
+@case
+def phase_other_not_negative(ctx):
+    """run.json phase_seconds: with a gas, start() and the t = 0 outputs were timed in phases
+    but fell before the loop's clock started, so 'other' (the loop's untimed rest) came out
+    negative."""
+    import json
+    for sched in ("explicit", "orb"):
+        d = ctx.fresh(f"phases_{sched}")
+        expect(ctx, ["run", SETTLING, f"dem.scheme={sched}", "run.end_time=2e-4",
+                     "output.snapshot_interval=1e-4", "--quiet"], 0, None, out_dir=d)
+        with open(os.path.join(d, "run.json")) as f:
+            ph = json.load(f)["phase_seconds"]
+        assert ph["other"] >= 0, (sched, ph)
+
+
+@case
+def run_json_typed_and_done_line(ctx):
+    import json
+    d = ctx.fresh("typed")
+    out = expect(ctx, ["run", SMALL, *TINY, "output.snapshot_interval=1e-5"], 0,
+                 r"done; outputs in .* \(diagnostics.csv, run.json, 3 snapshot\(s\) \+ "
+                 r"snapshots.xmf\)", out_dir=d)
+    with open(os.path.join(d, "run.json")) as f:
+        j = json.load(f)
+    c = j["configuration"]
+    assert c["name"] == "hcs_small" and c["dem.restitution"] == 0.8, c
+    assert c["domain.periodic"] == [True, True, True] and c["particles.count"] == 100, c
+    assert j["derived"]["dt_s"] == 1.447203e-07, j["derived"]
+
+
 # ---- names cannot leave runs/ ----
 @case
 def name_dotdot(ctx):
@@ -297,6 +408,13 @@ def count_beyond_random_placement(ctx):
 def count_beyond_memory(ctx):
     expect(ctx, ["check", SMALL, "particles.count=1000000000000", "domain.hi=[10,10,10]"], 2,
            r"'particles.count'.*GB, more than this machine", timeout=20)
+
+
+@case
+def long_set_up_shows_progress(ctx):
+    # 2000 particles (solid fraction 0.2) with a progress line due at every report.
+    expect(ctx, ["check", SMALL, "particles.count=2000", "output.progress_seconds=1e-9"], 0,
+           r"set-up \(random placement\): \d+ of 2000 particles placed")
 
 
 @case
@@ -377,6 +495,32 @@ def disk_full(ctx):
         out = full_disk_run(ctx, os.path.join(mnt, "run"))
         assert "No space left on device" in out, out
         check_intact(os.path.join(mnt, "run"))
+    finally:
+        subprocess.run(["umount", mnt])
+
+
+@case
+def disk_full_two_ranks(ctx):
+    """The same full tmpfs with 2 ranks (the snapshots written collectively with MPI-IO): exit 3
+    naming the snapshot, no rank left waiting, earlier files intact."""
+    mpirun = shutil.which("mpirun")
+    mnt = os.path.join(ctx.tmp, "tmpfs2")
+    os.makedirs(mnt)
+    if not mpirun or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", mnt],
+                                    capture_output=True).returncode != 0:
+        print("  disk_full_two_ranks: no mpirun or no tmpfs mount here: not run")
+        return
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    try:
+        d = os.path.join(mnt, "run")
+        r = subprocess.run([mpirun, "-np", "2", "--oversubscribe", BIN, "run", SETTLING,
+                            "run.end_time=0.01", "output.snapshot_interval=1e-3", "--quiet",
+                            "--threads", "1", "--out", d], capture_output=True, text=True,
+                           timeout=120, env=env)
+        out = r.stdout + r.stderr
+        assert r.returncode == 3, (r.returncode, out[-1500:])
+        assert re.search(r"run stopped: writing snapshot .* on 2 ranks failed", out), out[-1500:]
+        check_intact(d)
     finally:
         subprocess.run(["umount", mnt])
 

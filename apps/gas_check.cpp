@@ -1,0 +1,90 @@
+#include "apps/gas_check.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include <fmt/format.h>
+
+namespace cfddem::apps {
+
+namespace {
+
+// A rough rate for the cost estimate: particle steps per second per thread, as measured for
+// small explicit runs on the development machine (hcs_small: 5e6 on 2 threads). The estimate
+// is an order of magnitude, stated as such.
+constexpr double kParticleStepsPerSecond = 2.5e6;
+
+} // namespace
+
+double minimum_fluidization_velocity(double d, double rho_p, double rho_g, double mu, double g) {
+  const double ar = d * d * d * rho_g * (rho_p - rho_g) * g / (mu * mu);
+  const double re = std::sqrt(33.7 * 33.7 + 0.0408 * ar) - 33.7;
+  return re * mu / (rho_g * d);
+}
+
+GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
+  GasCheck out;
+  const auto& f = s.fluid;
+  auto& t = out.table;
+  std::array<double, 3> dx{};
+  for (int a = 0; a < 3; ++a)
+    dx[a] = f.cell_size[static_cast<std::size_t>(a)] > 0
+                ? f.cell_size[static_cast<std::size_t>(a)]
+                : s.domain.length(a) / static_cast<double>(f.cells[static_cast<std::size_t>(a)]);
+  const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
+  t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
+  t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));
+  const double d = derived.mean_diameter;
+  if (d > 0) {
+    const double ratio = *std::min_element(dx.begin(), dx.end()) / d;
+    t.emplace_back("cell_size / particle diameter (smallest)", fmt::format("{:.3g}", ratio));
+    if (ratio < 1.0 && f.deposition == "trilinear")
+      out.warnings.push_back(fmt::format(
+          "a gas cell ({:.3g} m) is narrower than a particle ({:.3g} m) and fluid.deposition = "
+          "\"trilinear\" puts each particle's volume in the 8 cells around its centre: the solid "
+          "fraction of a cell can exceed what is physical; use fluid.deposition = \"dpvm\" or "
+          "coarser cells",
+          *std::min_element(dx.begin(), dx.end()), d));
+  }
+  const double end = s.run.end_time;
+  double fluid_steps = 0;
+  if (f.dt > 0) {
+    fluid_steps = std::ceil(end / f.dt * (1 - 1e-12));
+    t.emplace_back("fluid_steps", fmt::format("{:.0f} (fluid.dt = {:g} s)", fluid_steps, f.dt));
+  } else {
+    fluid_steps = std::ceil(end / f.max_dt * (1 - 1e-12));
+    t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive, cfl {:g}, fluid.max_dt "
+                                              "= {:g} s)",
+                                              fluid_steps, f.cfl, f.max_dt));
+  }
+  // A bed: particles under gravity along a walled axis.
+  int axis = 0;
+  for (int a = 1; a < 3; ++a)
+    if (std::abs(s.gravity[static_cast<std::size_t>(a)]) >
+        std::abs(s.gravity[static_cast<std::size_t>(axis)]))
+      axis = a;
+  const double g = std::abs(s.gravity[static_cast<std::size_t>(axis)]);
+  if (derived.particles > 0 && g > 0 && !s.domain.periodic[static_cast<std::size_t>(axis)] &&
+      f.viscosity > 0) {
+    const double rho_p = derived.min_mass / (std::numbers::pi / 6 * d * d * d);
+    const double umf = minimum_fluidization_velocity(d, rho_p, f.density, f.viscosity, g);
+    t.emplace_back("minimum_fluidization_velocity_m_s (Wen & Yu)", fmt::format("{:.4g}", umf));
+    const double u_in = std::abs(f.inflow_velocity[static_cast<std::size_t>(axis)]);
+    if (u_in > 0)
+      t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));
+  }
+  // Cost: a cell step is partition.cell_weight particle steps (measured on hcs_gas).
+  const double sub = derived.dt > 0 && f.dt > 0 ? std::max(1.0, std::ceil(f.dt / derived.dt))
+                                                : 1.0;
+  const double per_step = cells * s.partition.cell_weight +
+                          static_cast<double>(derived.particles) * sub;
+  t.emplace_back("cost_per_fluid_step (particle-step equivalents)", fmt::format("{:.3g}", per_step));
+  t.emplace_back("cost_of_run_s (rough, one thread)",
+                 fmt::format("{:.2g} (at {:.1e} particle-steps/s)",
+                             per_step * fluid_steps / kParticleStepsPerSecond,
+                             kParticleStepsPerSecond));
+  return out;
+}
+
+} // namespace cfddem::apps

@@ -19,8 +19,9 @@
 namespace cfddem::fluid {
 
 struct ViscousSolveReport {
-  int iterations = 0;
+  int iterations = 0; // multigrid and CG iterations together
   double relative_residual = 0.0;
+  bool converged = true;
 };
 
 class ImplicitViscosity {

@@ -522,6 +522,7 @@ void IslandsScheme::subiterate(bool record) {
 // dilute store).
 template <bool External> void IslandsScheme::free_flight(bool record) {
   const std::size_t n = p_.size();
+  const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
   // Runs of free particles in [b, e): between the busy particles that fall in it.
   auto range = [&](std::size_t b, std::size_t e) {
     std::uint64_t bad = 0;
@@ -529,8 +530,9 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
     for (std::size_t i = b; i < e;) {
       const std::size_t stop = q != busy_v_.end() ? std::min<std::size_t>(e, *q) : e;
       if (stop > i)
-        bad |= record ? free_flight_run<External, true>(i, stop)
-                      : free_flight_run<External, false>(i, stop);
+        bad |= record  ? free_flight_run<External, true, true>(i, stop)
+               : walls ? free_flight_run<External, false, true>(i, stop)
+                       : free_flight_run<External, false, false>(i, stop);
       i = stop + 1; // past the busy particle (or past e)
       if (q != busy_v_.end()) ++q;
     }
@@ -553,13 +555,15 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
 // Free flight of particles [b, e), all alone: the explicit scheme's kick-drift with no contact
 // force (contact_kernels.hpp). Faults (NaN, or a particle outside a wall) are flagged in the
 // same pass (sign bit of the result); raise_faults() names the particle only when one is flagged.
-template <bool External, bool Record>
+// Without Walls (a periodic box) the wall comparisons are left out: against the infinite bounds
+// they fail only for a NaN or infinite coordinate, which the finiteness test of q catches.
+template <bool External, bool Record, bool Walls>
 std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
   const std::array<double, 3> g = model_.gravity;
   const double dt = dt_sp_, half = 0.5 * dt_sp_;
   const WallBounds wb(geom_);
-  const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
-  const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
+  [[maybe_unused]] const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
+  [[maybe_unused]] const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
   const double inf = std::numeric_limits<double>::infinity();
   double* __restrict x = p_.x.data();
   double* __restrict y = p_.y.data();
@@ -592,8 +596,11 @@ std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
     x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
     hp[i] = half;
     const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
-    bad |= sign_unless(q > -inf && q < inf && px >= lo0 && px <= hi0 && py >= lo1 && py <= hi1 &&
-                       pz >= lo2 && pz <= hi2);
+    if constexpr (Walls)
+      bad |= sign_unless(q > -inf && q < inf && px >= lo0 && px <= hi0 && py >= lo1 &&
+                         py <= hi1 && pz >= lo2 && pz <= hi2);
+    else
+      bad |= sign_unless(q > -inf && q < inf);
   }
   return bad;
 }

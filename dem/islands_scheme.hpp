@@ -145,7 +145,8 @@ private:
   void link();
   bool list_expires() const;
   template <bool External> void free_flight(bool record);
-  template <bool External, bool Record> std::uint64_t free_flight_run(std::size_t b, std::size_t e);
+  template <bool External, bool Record, bool Walls>
+  std::uint64_t free_flight_run(std::size_t b, std::size_t e);
   template <bool External> void run_island(std::uint32_t c, bool record);
   template <bool External> void global_steps(bool record);
   template <bool Label, bool Indexed>

@@ -321,7 +321,7 @@ void IslandsScheme::link() {
   const bool ext = ext_.active();
   global_ = false;
   for (int round = 0;; ++round) {
-    make_links(round > 0);
+    make_links(round > 0 && incremental_links_);
     if (busy_v_.size() > kGlobalFraction * static_cast<double>(n)) {
       // A dense bed: most particles are linked, the energy bounds of a large island are loose,
       // and the islands would cost more than they save. Step everyone finely instead.

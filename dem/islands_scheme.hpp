@@ -96,6 +96,10 @@ public:
 
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // With false, every link round rescans all rows instead of the raised particles' rows only
+  // (the reference the tests hold the incremental rounds to: the same links in the same order,
+  // hence bitwise the same run).
+  void set_incremental_links(bool on) { incremental_links_ = on; }
   // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
   // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
   // set_external_force alone is for a restart (the held force as it was).
@@ -182,6 +186,7 @@ private:
   std::vector<std::uint32_t> ea_, eb_;        // links (ea_ < eb_), in row-scan order
   std::vector<std::uint32_t> ek_;             // ... each one's position in ea_'s row, increasing
   std::vector<std::uint32_t> changed_, new_k_; // link(): particles raised by the last round
+  bool incremental_links_ = true;
   std::vector<std::uint32_t> tied_;           // particles tied to a wall
   // Busy particles (linked or tied), increasing; the islands over them (local indices), each
   // island's members as particle indices, and per particle its island or kAlone.

@@ -32,6 +32,51 @@ double external_acceleration(const ParticleStore& p, const ExternalForce& e,
   return std::sqrt(ax * ax + ay * ay + az * az);
 }
 
+// The free-flight kernel of IslandsScheme::free_flight_run over len particles (pointers at the
+// run's first). Branch-free, so that it vectorizes: a coordinate or speed that is not finite
+// makes q - q a NaN (non-zero bits), and a particle beyond a wall makes the smallest of its wall
+// gaps negative (sign bit; with Walls only: on a periodic axis the bounds are infinite). Returns
+// a value with the sign bit set when either happened.
+template <bool External, bool Record, bool Walls>
+std::uint64_t free_flight_kernel(double* __restrict x, double* __restrict y, double* __restrict z,
+                                 double* __restrict vx, double* __restrict vy,
+                                 double* __restrict vz, double* __restrict hp,
+                                 const double* __restrict im, const double* __restrict ex,
+                                 const double* __restrict ey, const double* __restrict ez,
+                                 double* __restrict sx, double* __restrict sy,
+                                 double* __restrict sz, std::size_t len, const double* g,
+                                 double dt, const WallBounds& wb) {
+  const double g0 = g[0], g1 = g[1], g2 = g[2], half = 0.5 * dt;
+  const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
+  const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
+  std::uint64_t nonfinite = 0, outside = 0;
+  for (std::size_t i = 0; i < len; ++i) {
+    double ax = g0, ay = g1, az = g2;
+    if constexpr (External) {
+      ax += ex[i] * im[i], ay += ey[i] * im[i], az += ez[i] * im[i];
+    }
+    if constexpr (Record) {
+      sx[i] = vx[i] + ax * hp[i], sy[i] = vy[i] + ay * hp[i], sz[i] = vz[i] + az * hp[i];
+    }
+    const double s = hp[i] + half;
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    kick_drift(px, ux, 0.0, 0.0, ax * s, dt);
+    kick_drift(py, uy, 0.0, 0.0, ay * s, dt);
+    kick_drift(pz, uz, 0.0, 0.0, az * s, dt);
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    hp[i] = half;
+    const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
+    nonfinite |= std::bit_cast<std::uint64_t>(q - q); // 0 when q is finite
+    if constexpr (Walls) {
+      // x - lo and hi - x are +0 at a wall, negative beyond it (q catches a NaN coordinate).
+      const double gap = std::min(std::min(std::min(px - lo0, hi0 - px), std::min(py - lo1, hi1 - py)),
+                                  std::min(pz - lo2, hi2 - pz));
+      outside |= std::bit_cast<std::uint64_t>(gap);
+    }
+  }
+  return (nonfinite != 0 ? std::uint64_t{1} << 63 : 0) | (outside & (std::uint64_t{1} << 63));
+}
+
 } // namespace
 
 IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
@@ -555,54 +600,16 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
 // Free flight of particles [b, e), all alone: the explicit scheme's kick-drift with no contact
 // force (contact_kernels.hpp). Faults (NaN, or a particle outside a wall) are flagged in the
 // same pass (sign bit of the result); raise_faults() names the particle only when one is flagged.
-// Without Walls (a periodic box) the wall comparisons are left out: against the infinite bounds
-// they fail only for a NaN or infinite coordinate, which the finiteness test of q catches.
 template <bool External, bool Record, bool Walls>
 std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
-  const std::array<double, 3> g = model_.gravity;
-  const double dt = dt_sp_, half = 0.5 * dt_sp_;
   const WallBounds wb(geom_);
-  [[maybe_unused]] const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
-  [[maybe_unused]] const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
-  const double inf = std::numeric_limits<double>::infinity();
-  double* __restrict x = p_.x.data();
-  double* __restrict y = p_.y.data();
-  double* __restrict z = p_.z.data();
-  double* __restrict vx = p_.vx.data();
-  double* __restrict vy = p_.vy.data();
-  double* __restrict vz = p_.vz.data();
-  double* __restrict hp = hprev_.data();
-  const double* __restrict im = p_.inv_mass.data();
-  const double* __restrict ex = External ? ext_.x.data() : nullptr;
-  const double* __restrict ey = External ? ext_.y.data() : nullptr;
-  const double* __restrict ez = External ? ext_.z.data() : nullptr;
-  double* __restrict sx = Record ? svx_.data() : nullptr;
-  double* __restrict sy = Record ? svy_.data() : nullptr;
-  double* __restrict sz = Record ? svz_.data() : nullptr;
-  std::uint64_t bad = 0;
-  for (std::size_t i = b; i < e; ++i) {
-    double ax = g[0], ay = g[1], az = g[2];
-    if constexpr (External) {
-      ax += ex[i] * im[i], ay += ey[i] * im[i], az += ez[i] * im[i];
-    }
-    if constexpr (Record) {
-      sx[i] = vx[i] + ax * hp[i], sy[i] = vy[i] + ay * hp[i], sz[i] = vz[i] + az * hp[i];
-    }
-    const double s = hp[i] + half;
-    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
-    kick_drift(px, ux, 0.0, 0.0, ax * s, dt);
-    kick_drift(py, uy, 0.0, 0.0, ay * s, dt);
-    kick_drift(pz, uz, 0.0, 0.0, az * s, dt);
-    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
-    hp[i] = half;
-    const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
-    if constexpr (Walls)
-      bad |= sign_unless(q > -inf && q < inf && px >= lo0 && px <= hi0 && py >= lo1 &&
-                         py <= hi1 && pz >= lo2 && pz <= hi2);
-    else
-      bad |= sign_unless(q > -inf && q < inf);
-  }
-  return bad;
+  return free_flight_kernel<External, Record, Walls>(
+      p_.x.data() + b, p_.y.data() + b, p_.z.data() + b, p_.vx.data() + b, p_.vy.data() + b,
+      p_.vz.data() + b, hprev_.data() + b, p_.inv_mass.data() + b,
+      External ? ext_.x.data() + b : nullptr, External ? ext_.y.data() + b : nullptr,
+      External ? ext_.z.data() + b : nullptr, Record ? svx_.data() + b : nullptr,
+      Record ? svy_.data() + b : nullptr, Record ? svz_.data() + b : nullptr, e - b,
+      model_.gravity.data(), dt_sp_, wb);
 }
 
 // Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit

@@ -69,8 +69,8 @@ std::uint64_t free_flight_kernel(double* __restrict x, double* __restrict y, dou
     nonfinite |= std::bit_cast<std::uint64_t>(q - q); // 0 when q is finite
     if constexpr (Walls) {
       // x - lo and hi - x are +0 at a wall, negative beyond it (q catches a NaN coordinate).
-      const double gap = std::min(std::min(std::min(px - lo0, hi0 - px), std::min(py - lo1, hi1 - py)),
-                                  std::min(pz - lo2, hi2 - pz));
+      const double gx = std::min(px - lo0, hi0 - px), gy = std::min(py - lo1, hi1 - py);
+      const double gap = std::min(std::min(gx, gy), std::min(pz - lo2, hi2 - pz));
       outside |= std::bit_cast<std::uint64_t>(gap);
     }
   }

@@ -226,7 +226,8 @@ TEST(IslandsScheme, BitwiseIndependentOfThreadCount) {
 TEST(IslandsScheme, IncrementalLinksBitwiseEqualFullRescans) {
   for (const Scene& s :
        {demtest::scene_from(kBox, {"particles.count=150"}),
-        demtest::scene_from(kGas, {"particles.count=400", "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"})}) {
+        demtest::scene_from(kGas, {"particles.count=400",
+                                   "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"})}) {
     auto run = [&](bool incremental) {
       ParticleStore p = make_initial_particles(s);
       PhaseTimer t;

@@ -271,7 +271,8 @@ void IslandsScheme::make_links(bool incremental) {
   };
   if (!incremental) {
     ea_.clear(), eb_.clear(), ek_.clear();
-    for (std::uint32_t i = 0; i < n; ++i) {
+    // Only particles with a non-empty row (increasing): most rows of a dilute scene are empty.
+    for (const std::uint32_t i : list_.active()) {
       const std::uint32_t kw = wrap[i], ke = off[i + 1];
       for (std::uint32_t k = off[i]; k < ke; ++k) {
         const std::uint32_t j = nb[k];

@@ -32,6 +32,51 @@ double external_acceleration(const ParticleStore& p, const ExternalForce& e,
   return std::sqrt(ax * ax + ay * ay + az * az);
 }
 
+// The free-flight kernel of IslandsScheme::free_flight_run over len particles (pointers at the
+// run's first). Branch-free, so that it vectorizes: a coordinate or speed that is not finite
+// makes q - q a NaN (non-zero bits), and a particle beyond a wall makes the smallest of its wall
+// gaps negative (sign bit; with Walls only: on a periodic axis the bounds are infinite). Returns
+// a value with the sign bit set when either happened.
+template <bool External, bool Record, bool Walls>
+std::uint64_t free_flight_kernel(double* __restrict x, double* __restrict y, double* __restrict z,
+                                 double* __restrict vx, double* __restrict vy,
+                                 double* __restrict vz, double* __restrict hp,
+                                 const double* __restrict im, const double* __restrict ex,
+                                 const double* __restrict ey, const double* __restrict ez,
+                                 double* __restrict sx, double* __restrict sy,
+                                 double* __restrict sz, std::size_t len, const double* g,
+                                 double dt, const WallBounds& wb) {
+  const double g0 = g[0], g1 = g[1], g2 = g[2], half = 0.5 * dt;
+  const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
+  const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
+  std::uint64_t nonfinite = 0, outside = 0;
+  for (std::size_t i = 0; i < len; ++i) {
+    double ax = g0, ay = g1, az = g2;
+    if constexpr (External) {
+      ax += ex[i] * im[i], ay += ey[i] * im[i], az += ez[i] * im[i];
+    }
+    if constexpr (Record) {
+      sx[i] = vx[i] + ax * hp[i], sy[i] = vy[i] + ay * hp[i], sz[i] = vz[i] + az * hp[i];
+    }
+    const double s = hp[i] + half;
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    kick_drift(px, ux, 0.0, 0.0, ax * s, dt);
+    kick_drift(py, uy, 0.0, 0.0, ay * s, dt);
+    kick_drift(pz, uz, 0.0, 0.0, az * s, dt);
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    hp[i] = half;
+    const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
+    nonfinite |= std::bit_cast<std::uint64_t>(q - q); // 0 when q is finite
+    if constexpr (Walls) {
+      // x - lo and hi - x are +0 at a wall, negative beyond it (q catches a NaN coordinate).
+      const double gx = std::min(px - lo0, hi0 - px), gy = std::min(py - lo1, hi1 - py);
+      const double gap = std::min(std::min(gx, gy), std::min(pz - lo2, hi2 - pz));
+      outside |= std::bit_cast<std::uint64_t>(gap);
+    }
+  }
+  return (nonfinite != 0 ? std::uint64_t{1} << 63 : 0) | (outside & (std::uint64_t{1} << 63));
+}
+
 } // namespace
 
 IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
@@ -192,28 +237,101 @@ bool IslandsScheme::list_expires() const {
 
 // Links with the current bounds, and the islands of the linked and wall-tied particles
 // (`busy_v_`, increasing); every other particle is alone (island_of_ = kAlone).
-void IslandsScheme::make_links() {
+//
+// The first call of a link() scans every row. Later rounds only raise bounds, and a link test
+// only grows with the two bounds (floating-point addition, multiplication and comparison are
+// monotone), so every link stays and a pair can become linked only if one of its particles had
+// its bound raised (changed_): those rows alone are scanned, and the new links are merged into
+// the list in scan order (by the pair's position in the lower particle's row, ek_), so the list
+// is exactly what a full scan would give.
+void IslandsScheme::make_links(bool incremental) {
   const std::size_t n = p_.size();
-  const auto off = list_.offsets();
-  const auto nb = list_.neighbors();
+  const std::uint32_t* __restrict off = list_.offsets().data();
+  const std::uint32_t* __restrict nb = list_.neighbors().data();
+  const std::uint32_t* __restrict wrap = list_.wrap_begin().data();
+  const double* __restrict x = p_.x.data();
+  const double* __restrict y = p_.y.data();
+  const double* __restrict z = p_.z.data();
+  const double* __restrict rad = p_.radius.data();
+  const double* __restrict bnd = bound_.data();
   const DomainGeometry& g = geom_;
-  ea_.clear(), eb_.clear();
-  for (std::uint32_t i = 0; i < n; ++i)
-    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-      const std::uint32_t j = nb[k];
-      if (j <= i) continue;
-      const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
-                   dz = g.image(p_.z[j] - p_.z[i], 2);
-      const double reach = (bound_[i] + bound_[j]) * dt_sp_ + margin_ + p_.radius[i] + p_.radius[j];
-      if (dx * dx + dy * dy + dz * dz < reach * reach) ea_.push_back(i), eb_.push_back(j);
+  const double dt = dt_sp_, margin = margin_;
+  // The link test of pair (i, j), i < j. Pairs that do not cross a periodic face (before the
+  // row's wrap_begin) need no image: image() returns their separation unchanged.
+  auto linked = [&](std::uint32_t i, std::uint32_t j, bool crosses) {
+    double dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
+    if (crosses) dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+    const double reach = (bnd[i] + bnd[j]) * dt + margin + rad[i] + rad[j];
+    return dx * dx + dy * dy + dz * dz < reach * reach;
+  };
+  auto tied = [&](std::uint32_t i, int a) {
+    const double pos = a == 0 ? x[i] : a == 1 ? y[i] : z[i];
+    const double gap = std::min(pos - g.lo[a], g.hi[a] - pos) - rad[i];
+    return gap < bnd[i] * dt + margin;
+  };
+  if (!incremental) {
+    ea_.clear(), eb_.clear(), ek_.clear();
+    // Only particles with a non-empty row (increasing): most rows of a dilute scene are empty.
+    for (const std::uint32_t i : list_.active()) {
+      const std::uint32_t kw = wrap[i], ke = off[i + 1];
+      for (std::uint32_t k = off[i]; k < ke; ++k) {
+        const std::uint32_t j = nb[k];
+        if (j > i && linked(i, j, k >= kw)) ea_.push_back(i), eb_.push_back(j), ek_.push_back(k);
+      }
     }
-  tied_.clear();
-  for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a]) continue;
-    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
-    for (std::uint32_t i = 0; i < n; ++i) {
-      const double gap = std::min(pos[i] - g.lo[a], g.hi[a] - pos[i]) - p_.radius[i];
-      if (gap < bound_[i] * dt_sp_ + margin_) tied_.push_back(i);
+    tied_.clear();
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a]) continue;
+      for (std::uint32_t i = 0; i < n; ++i)
+        if (tied(i, a)) tied_.push_back(i);
+    }
+  } else {
+    // New links from the rows of the raised particles, keyed by their position in the lower
+    // particle's row; a pair both of whose particles were raised is found twice (unique).
+    new_k_.clear();
+    for (const std::uint32_t c : changed_)
+      for (std::uint32_t k = off[c]; k < off[c + 1]; ++k) {
+        const std::uint32_t j = nb[k];
+        if (j > c) {
+          if (linked(c, j, k >= wrap[c])) new_k_.push_back(k);
+        } else {
+          // The pair's position in row j (rows hold both directions).
+          std::uint32_t kj = off[j];
+          while (nb[kj] != c) ++kj;
+          if (linked(j, c, kj >= wrap[j])) new_k_.push_back(kj);
+        }
+      }
+    std::sort(new_k_.begin(), new_k_.end());
+    new_k_.erase(std::unique(new_k_.begin(), new_k_.end()), new_k_.end());
+    // Merge (ek_ increasing); a key already linked is kept once.
+    std::size_t q = ek_.size(), r = new_k_.size();
+    std::size_t added = 0;
+    for (std::size_t t = 0, u = 0; u < r; ++u) {
+      while (t < q && ek_[t] < new_k_[u]) ++t;
+      if (t == q || ek_[t] != new_k_[u]) new_k_[added++] = new_k_[u];
+    }
+    new_k_.resize(added);
+    if (added > 0) {
+      ea_.resize(q + added), eb_.resize(q + added), ek_.resize(q + added);
+      // Back to front: the merged list in place.
+      std::size_t w = q + added;
+      while (added > 0) {
+        const std::uint32_t kn = new_k_[added - 1];
+        if (q > 0 && ek_[q - 1] > kn) {
+          --q, --w;
+          ea_[w] = ea_[q], eb_[w] = eb_[q], ek_[w] = ek_[q];
+        } else {
+          --added, --w;
+          // Owner of position kn: the last row starting at or before it.
+          const auto* row = std::upper_bound(off, off + n + 1, kn) - 1;
+          ea_[w] = static_cast<std::uint32_t>(row - off), eb_[w] = nb[kn], ek_[w] = kn;
+        }
+      }
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a]) continue;
+      for (const std::uint32_t c : changed_)
+        if (tied(c, a)) tied_.push_back(c); // duplicates are harmless (busy_v_ is a set)
     }
   }
   // Busy vertices: endpoints and tied particles, unique (marked), increasing; islands over them.
@@ -240,11 +358,16 @@ void IslandsScheme::make_links() {
 void IslandsScheme::link() {
   const DomainGeometry& g = geom_;
   const std::size_t n = p_.size();
-  own_bound_.assign(bound_.begin(), bound_.end());
+  // Own bounds are kept only for busy particles (the only ones raised), saved the first time a
+  // particle is busy in this call: busy sets only grow from round to round, so bound_ still
+  // holds its own bound then. A stamp per call marks the saved ones (no O(N) copy or reset).
+  own_bound_.resize(n);
+  own_stamp_.resize(n, 0);
+  if (++stamp_ == 0) std::fill(own_stamp_.begin(), own_stamp_.end(), 0u), stamp_ = 1;
   const bool ext = ext_.active();
   global_ = false;
   for (int round = 0;; ++round) {
-    make_links();
+    make_links(round > 0 && incremental_links_);
     if (busy_v_.size() > kGlobalFraction * static_cast<double>(n)) {
       // A dense bed: most particles are linked, the energy bounds of a large island are loose,
       // and the islands would cost more than they save. Step everyone finely instead.
@@ -252,6 +375,8 @@ void IslandsScheme::link() {
       return;
     }
     if (round > 0 && busy_v_ == busy_before_ && islands_.label == label_before_) break;
+    for (const std::uint32_t i : busy_v_)
+      if (own_stamp_[i] != stamp_) own_stamp_[i] = stamp_, own_bound_[i] = bound_[i];
     const std::uint32_t nc = islands_.count();
     energy_.assign(nc, 0.0);
     m_min_.assign(nc, std::numeric_limits<double>::infinity());
@@ -278,15 +403,15 @@ void IslandsScheme::link() {
                                           : external_acceleration<false>(p_, ext_, model_.gravity, i));
       hp_max_[c] = std::max(hp_max_[c], hprev_[i]);
     }
-    bool raised = false;
+    changed_.clear();
     for (const std::uint32_t i : busy_v_) {
       const std::uint32_t c = island_of_[i];
       const double b = std::max(own_bound_[i], std::sqrt(2.0 * energy_[c] / m_min_[c]) +
                                                    a_max_[c] * (hp_max_[c] + dt_sp_));
-      raised |= b != bound_[i];
+      if (b != bound_[i]) changed_.push_back(i);
       bound_[i] = b;
     }
-    if (!raised) break;
+    if (changed_.empty()) break;
     busy_before_ = busy_v_;
     label_before_ = islands_.label;
   }
@@ -378,7 +503,12 @@ void IslandsScheme::subiterate(bool record) {
     }
     smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
   }
-  x0_ = p_.x, y0_ = p_.y, z0_ = p_.z;
+  // Start positions of the members (members_ order), for the bound check of their steps.
+  x0_.resize(members_.size()), y0_.resize(members_.size()), z0_.resize(members_.size());
+  for (std::size_t k = 0; k < members_.size(); ++k) {
+    const std::uint32_t i = members_[k];
+    x0_[k] = p_.x[i], y0_[k] = p_.y[i], z0_[k] = p_.z[i];
+  }
   // Free flight first, then the islands' tasks (they touch disjoint particles).
   ext_.active() ? free_flight<true>(record) : free_flight<false>(record);
   results_.assign(nc, IslandResult{});
@@ -432,53 +562,25 @@ void IslandsScheme::subiterate(bool record) {
   iv_max_ = std::max(iv_max_, members > 0 ? K_ : std::int64_t{1});
 }
 
-// One step of dt_sp for every particle not in a fine island: no contact can act on it.
+// One step of dt_sp for every particle not in a fine island: no contact can act on it. The
+// busy particles (busy_v_, increasing) split the store into runs of free particles; each run
+// is one branch-free loop (no per-particle island test or select: the runs hold ~99% of a
+// dilute store).
 template <bool External> void IslandsScheme::free_flight(bool record) {
   const std::size_t n = p_.size();
-  const std::array<double, 3> g = model_.gravity;
-  const double half = 0.5 * dt_sp_;
-  // Faults (NaN, or a particle outside a wall) are flagged in the same pass (sign bit of
-  // `bad`); raise_faults() names the particle only when one is flagged.
-  const WallBounds wb(geom_);
-  const double (&lo)[3] = wb.lo;
-  const double (&hi)[3] = wb.hi;
-  const double inf = std::numeric_limits<double>::infinity();
+  const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
+  // Runs of free particles in [b, e): between the busy particles that fall in it.
   auto range = [&](std::size_t b, std::size_t e) {
-    double* __restrict x = p_.x.data();
-    double* __restrict y = p_.y.data();
-    double* __restrict z = p_.z.data();
-    double* __restrict vx = p_.vx.data();
-    double* __restrict vy = p_.vy.data();
-    double* __restrict vz = p_.vz.data();
-    double* __restrict hp = hprev_.data();
-    const double* __restrict im = p_.inv_mass.data();
-    const std::uint32_t* __restrict island = island_of_.data();
-    const double* __restrict ex = External ? ext_.x.data() : nullptr;
-    const double* __restrict ey = External ? ext_.y.data() : nullptr;
-    const double* __restrict ez = External ? ext_.z.data() : nullptr;
     std::uint64_t bad = 0;
-    for (std::size_t i = b; i < e; ++i) {
-      double ax = g[0], ay = g[1], az = g[2];
-      if constexpr (External) {
-        ax += ex[i] * im[i], ay += ey[i] * im[i], az += ez[i] * im[i];
-      }
-      const bool free = island[i] == kAlone;
-      if (record && free) {
-        svx_[i] = vx[i] + ax * hp[i], svy_[i] = vy[i] + ay * hp[i], svz_[i] = vz[i] + az * hp[i];
-      }
-      // The explicit scheme's kick-drift with no contact force (contact_kernels.hpp), selected
-      // branch-free: members of an island keep their state here.
-      const double s = hp[i] + half;
-      double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
-      kick_drift(px, ux, 0.0, 0.0, ax * s, dt_sp_);
-      kick_drift(py, uy, 0.0, 0.0, ay * s, dt_sp_);
-      kick_drift(pz, uz, 0.0, 0.0, az * s, dt_sp_);
-      x[i] = free ? px : x[i], y[i] = free ? py : y[i], z[i] = free ? pz : z[i];
-      vx[i] = free ? ux : vx[i], vy[i] = free ? uy : vy[i], vz[i] = free ? uz : vz[i];
-      hp[i] = free ? half : hp[i];
-      const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
-      bad |= sign_unless(!free || (q > -inf && q < inf && px >= lo[0] && px <= hi[0] &&
-                                   py >= lo[1] && py <= hi[1] && pz >= lo[2] && pz <= hi[2]));
+    auto q = std::lower_bound(busy_v_.begin(), busy_v_.end(), static_cast<std::uint32_t>(b));
+    for (std::size_t i = b; i < e;) {
+      const std::size_t stop = q != busy_v_.end() ? std::min<std::size_t>(e, *q) : e;
+      if (stop > i)
+        bad |= record  ? free_flight_run<External, true, true>(i, stop)
+               : walls ? free_flight_run<External, false, true>(i, stop)
+                       : free_flight_run<External, false, false>(i, stop);
+      i = stop + 1; // past the busy particle (or past e)
+      if (q != busy_v_.end()) ++q;
     }
     return bad;
   };
@@ -494,6 +596,21 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
     for (std::uint64_t f : flags) bad |= f;
   }
   fault_flag_ |= bad;
+}
+
+// Free flight of particles [b, e), all alone: the explicit scheme's kick-drift with no contact
+// force (contact_kernels.hpp). Faults (NaN, or a particle outside a wall) are flagged in the
+// same pass (sign bit of the result); raise_faults() names the particle only when one is flagged.
+template <bool External, bool Record, bool Walls>
+std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
+  const WallBounds wb(geom_);
+  return free_flight_kernel<External, Record, Walls>(
+      p_.x.data() + b, p_.y.data() + b, p_.z.data() + b, p_.vx.data() + b, p_.vy.data() + b,
+      p_.vz.data() + b, hprev_.data() + b, p_.inv_mass.data() + b,
+      External ? ext_.x.data() + b : nullptr, External ? ext_.y.data() + b : nullptr,
+      External ? ext_.z.data() + b : nullptr, Record ? svx_.data() + b : nullptr,
+      Record ? svy_.data() + b : nullptr, Record ? svz_.data() + b : nullptr, e - b,
+      model_.gravity.data(), dt_sp_, wb);
 }
 
 // Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit
@@ -671,17 +788,31 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool re
   double* fz = p_.fz.data();
   double* hp = hprev_.data();
   const double* im = p_.inv_mass.data();
-  auto kick = [&](std::uint32_t i, double s, double hk, double half, double elapsed,
+  // Member u's update over one step. Everything it reads besides the particle's own state is
+  // held in locals (the stores through x, v, hp could alias members of *this otherwise, and
+  // the compiler would reload them for every member).
+  const double* __restrict x0 = x0_.data() + islands_.first[c];
+  const double* __restrict y0 = y0_.data() + islands_.first[c];
+  const double* __restrict z0 = z0_.data() + islands_.first[c];
+  const double* __restrict bnd = bound_.data();
+  const double* __restrict ex_x = External ? ext_.x.data() : nullptr;
+  const double* __restrict ex_y = External ? ext_.y.data() : nullptr;
+  const double* __restrict ex_z = External ? ext_.z.data() : nullptr;
+  const double g0 = m.gravity[0], g1 = m.gravity[1], g2 = m.gravity[2], margin = margin_;
+  auto kick = [=](std::uint32_t u, double s, double hk, double half, double elapsed,
                   std::int64_t& bound_violations) {
+    const std::uint32_t i = mem[u];
     double ex = 0.0, ey = 0.0, ez = 0.0;
-    if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+    if constexpr (External) ex = ex_x[i], ey = ex_y[i], ez = ex_z[i];
     const double ims = im[i] * s;
-    kick_drift(x[i], vx[i], fx[i] + ex, ims, m.gravity[0] * s, hk);
-    kick_drift(y[i], vy[i], fy[i] + ey, ims, m.gravity[1] * s, hk);
-    kick_drift(z[i], vz[i], fz[i] + ez, ims, m.gravity[2] * s, hk);
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    kick_drift(px, ux, fx[i] + ex, ims, g0 * s, hk);
+    kick_drift(py, uy, fy[i] + ey, ims, g1 * s, hk);
+    kick_drift(pz, uz, fz[i] + ez, ims, g2 * s, hk);
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
     hp[i] = half;
-    const double dx = x[i] - x0_[i], dy = y[i] - y0_[i], dz = z[i] - z0_[i];
-    const double reach = bound_[i] * elapsed + margin_;
+    const double dx = px - x0[u], dy = py - y0[u], dz = pz - z0[u];
+    const double reach = bnd[i] * elapsed + margin;
     bound_violations += dx * dx + dy * dy + dz * dz > reach * reach;
   };
   const bool giant = count > kGiantIsland;
@@ -722,16 +853,15 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool re
     elapsed += hk;
     if (!giant) {
       for (std::uint32_t u = 0; u < count; ++u) {
-        const std::uint32_t i = mem[u];
-        kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, res.bound_violations);
+        kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed,
+             res.bound_violations);
       }
     } else {
       tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
         std::int64_t& bv = parts[b].bound_violations;
         bv = 0;
         for (std::uint32_t u = static_cast<std::uint32_t>(b * 1024); u < block_end(b); ++u) {
-          const std::uint32_t i = mem[u];
-          kick(i, k == 0 ? hp[i] + half : 0.5 * h_before + half, hk, half, elapsed, bv);
+          kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed, bv);
         }
       });
       for (const Part& pt : parts) res.bound_violations += pt.bound_violations;

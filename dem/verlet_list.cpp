@@ -159,13 +159,22 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
     const int mx = stencil_axis(cx, grid.n[0], g.periodic[0], sx);
     const int my = stencil_axis(cy, grid.n[1], g.periodic[1], sy);
     const int mz = stencil_axis(cz, grid.n[2], g.periodic[2], sz);
+    // Cells of the x stencil that follow each other in memory (all of them away from a periodic
+    // face) form one run of the binned particles: the same particles in the same order as cell
+    // by cell, with fewer loop starts (most cells of a dilute scene are empty).
+    int run_first[3], run_len[3], runs = 0;
+    for (int a = 0; a < mx; ++a) {
+      if (runs > 0 && sx[a] == run_first[runs - 1] + run_len[runs - 1]) ++run_len[runs - 1];
+      else run_first[runs] = sx[a], run_len[runs] = 1, ++runs;
+    }
     const double xi = p.x[i], yi = p.y[i], zi = p.z[i], ri = p.radius[i];
     for (int c = 0; c < mz; ++c)
       for (int b = 0; b < my; ++b)
-        for (int a = 0; a < mx; ++a) {
+        for (int a = 0; a < runs; ++a) {
           const std::size_t cell =
-              (static_cast<std::size_t>(sz[c]) * grid.n[1] + sy[b]) * grid.n[0] + sx[a];
-          for (std::uint32_t q = cell_start_[cell]; q < cell_start_[cell + 1]; ++q) {
+              (static_cast<std::size_t>(sz[c]) * grid.n[1] + sy[b]) * grid.n[0] + run_first[a];
+          const std::uint32_t q_end = cell_start_[cell + static_cast<std::size_t>(run_len[a])];
+          for (std::uint32_t q = cell_start_[cell]; q < q_end; ++q) {
             const std::uint32_t j = Indirect ? sorted_[q] : q;
             if (j == i) continue;
             const double dx = g.image(p.x[j] - xi, 0), dy = g.image(p.y[j] - yi, 1),

@@ -26,6 +26,10 @@ struct CellGrid {
 // The distinct cell indices along one axis around cell b (periodic images collapse when n < 3):
 // the stencil of a cell list (this list's build and the orb scheme's pair build).
 inline int stencil_axis(int b, int n, bool periodic, int out[3]) {
+  if (b > 0 && b + 1 < n) { // an inner cell (the common case): no wrap, no duplicate
+    out[0] = b - 1, out[1] = b, out[2] = b + 1;
+    return 3;
+  }
   int m = 0;
   for (int o = -1; o <= 1; ++o) {
     int c = b + o;

@@ -5,7 +5,9 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <tuple>
 #include <unordered_map>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -216,6 +218,37 @@ TEST(IslandsScheme, BitwiseIndependentOfThreadCount) {
   };
   const State one = run(1), two = run(2);
   for (const auto& [id, a] : one) EXPECT_EQ(a, two.at(id)) << "particle " << id;
+}
+
+// The link rounds after the first rescan only the rows of particles whose bound was raised
+// (IslandsScheme::make_links): the run must be bitwise the one that rescans every row in every
+// round, with walls and gravity and in a periodic gas.
+TEST(IslandsScheme, IncrementalLinksBitwiseEqualFullRescans) {
+  for (const Scene& s :
+       {demtest::scene_from(kBox, {"particles.count=150"}),
+        demtest::scene_from(kGas, {"particles.count=400",
+                                   "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"})}) {
+    auto run = [&](bool incremental) {
+      ParticleStore p = make_initial_particles(s);
+      PhaseTimer t;
+      dem::IslandsScheme isl(s, p, t);
+      isl.set_incremental_links(incremental);
+      isl.start();
+      for (int k = 0; k < 40; ++k) isl.subiterate();
+      EXPECT_EQ(isl.bound_violations(), 0);
+      const auto hist = isl.island_size_histogram();
+      return std::tuple(state_of(p), isl.pair_evaluations(),
+                        std::vector<std::int64_t>(hist.begin(), hist.end()));
+    };
+    const auto [full, full_pairs, full_hist] = run(false);
+    const auto [inc, inc_pairs, inc_hist] = run(true);
+    // The runs must have islands of several particles (links made over several rounds).
+    ASSERT_GT(full_pairs, 0);
+    ASSERT_GT(full_hist[1], 0);
+    EXPECT_EQ(inc_pairs, full_pairs);
+    EXPECT_EQ(inc_hist, full_hist);
+    for (const auto& [id, a] : full) EXPECT_EQ(a, inc.at(id)) << "particle " << id;
+  }
 }
 
 // A dense gas (phi = 0.3): most particles are linked, every sub-iteration steps everyone finely

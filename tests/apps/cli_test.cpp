@@ -259,7 +259,11 @@ TEST(Cli, SetUpRefusesWhatCannotFitAndNeedsMemoryOfTheParticles) {
                                             small));
   EXPECT_EQ(lattice.code, 0) << lattice.output;
   // 1000 particles in a 100 mm box under a 1 GB address-space limit (the binary itself maps
-  // about 0.3 GB).
+  // about 0.3 GB). Under AddressSanitizer the binary reserves terabytes of shadow address space,
+  // so no such limit can be set: the Release suite checks this part.
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "address-space limit not applicable under AddressSanitizer";
+#endif
   const std::string cmd = fmt::format(
       "sh -c 'ulimit -v 1000000; {} check {} particles.count=1000 \"domain.hi=[0.1,0.1,0.1]\"' "
       "> {}big_box.txt 2>&1",

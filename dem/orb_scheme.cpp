@@ -71,8 +71,9 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
   time_to_contact_ = scene.dem.local_dt == "time_to_contact";
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
-  for (int a = 0; a < 3; ++a)
-    if (geom_.periodic[a] && geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
+  for (int a = 0; a < 3; ++a) // no particles: nothing to list (a gas-only or empty scene)
+    if (p_.size() > 0 && geom_.periodic[a] &&
+        geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
       throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
                                  "neighbor cutoff {:.4g} m",
                                  a, geom_.length[a], 2.0 * r_max_ + model_.skin));

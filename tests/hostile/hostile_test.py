@@ -281,6 +281,16 @@ def gas_alone_at_its_own_step(ctx):
 
 
 @case
+def no_particles_with_every_scheme(ctx):
+    """An empty DEM scene runs with every scheme (orb used to stop with exit 3 and a neighbour
+    cutoff of 2.5 m made up from no particle)."""
+    for scheme in ("explicit", "orb", "islands"):
+        d = ctx.fresh(f"empty_{scheme}")
+        expect(ctx, ["run", SMALL, "particles.count=0", f"dem.scheme={scheme}",
+                     "run.end_time=1e-3", "--quiet"], 0, None, out_dir=d)
+
+
+@case
 def check_tells_about_the_gas(ctx):
     """`cfddem check` of the fluidized bed: cells per particle diameter (0.5, with a warning once
     the deposition is trilinear), fluid steps, the minimum fluidization velocity (Wen & Yu; in

@@ -28,7 +28,7 @@ struct ComponentView {
 };
 
 // Advecting velocity and upwind MUSCL flux on the low control-volume face along b of the points
-// p0 .. p0 + len of a row (physics.md §5: convective form, see the header).
+// p0 .. p0 + len of a row (docs/theory.md §5: convective form, see the header).
 template <Limiter L>
 void advective_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdiff_t len,
                    double* __restrict speed, double* __restrict flux) {

@@ -214,7 +214,7 @@ inline nlohmann::ordered_json rank_counts_json(const Communicator& comm,
       "p2p_bytes",      "collectives",       "collective_bytes", "reductions"};
   for (std::size_t k = 0; k < kFields; ++k) {
     nlohmann::ordered_json v = nlohmann::ordered_json::array();
-    for (std::size_t r = 0; r * kFields + k < all.size(); r += 1) v.push_back(all[r * kFields + k]);
+    for (std::size_t r = 0; r * kFields + k < all.size(); ++r) v.push_back(all[r * kFields + k]);
     j[names[k]] = v;
   }
   j["definition"] =

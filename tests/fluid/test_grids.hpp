@@ -11,6 +11,22 @@
 
 namespace cfddem::fluid::test {
 
+// The 2-norm over the interior cells of div(eps u) + d(eps)/dt: what the projection drives to
+// zero.
+inline double constraint_residual_norm(const MacGrid& grid, const GridField& div,
+                                       const GridField& source) {
+  double s = 0.0;
+  for (int k = 0; k < grid.cells(2); ++k) {
+    for (int j = 0; j < grid.cells(1); ++j) {
+      for (int i = 0; i < grid.cells(0); ++i) {
+        const double r = div(i, j, k) + source(i, j, k);
+        s += r * r;
+      }
+    }
+  }
+  return std::sqrt(s);
+}
+
 inline BoundaryCondition bc_of(BoundaryKind kind) {
   BoundaryCondition bc;
   bc.kind = kind;

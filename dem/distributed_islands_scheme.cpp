@@ -576,12 +576,10 @@ void DistributedIslandsScheme::rebuild() {
 }
 
 void DistributedIslandsScheme::subiterate(bool record) {
-  const bool can_refine = model_.dt < dt_sp_;
-  K_ = can_refine ? std::max<std::int64_t>(
-                        1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
-                  : 1;
-  h_ = can_refine ? model_.dt : dt_sp_;
-  h_last_ = dt_sp_ - static_cast<double>(K_ - 1) * h_;
+  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
+  K_ = steps.K;
+  h_ = steps.h;
+  h_last_ = steps.h_last;
   // {owned, particle steps, pairs, overlaps beyond the bound, bound violations, faults, fine
   // members, spanning members, spanning island parts, outran, mass}
   std::array<double, 11> c{};

@@ -32,10 +32,12 @@ DistributedOrbScheme::DistributedOrbScheme(const Scene& scene, ParticleStore& pa
   require_frictionless(model_, "orb");
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
   levels_ = scene.partition.orb_levels;
-  for (const double r : p_.radius) r_max_ = std::max(r_max_, r);
+  for (const double r : p_.radius)
+    r_max_ = std::max(r_max_, r);
   r_max_ = comm_.max(r_max_);
   n_global_ = comm_.sum(static_cast<std::int64_t>(p_.size()));
-  if (n_global_ == 0) r_max_ = model_.r_min;
+  if (n_global_ == 0)
+    r_max_ = model_.r_min;
   nsubit_ = scene.dem.nsubit;
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   skin_ = model_.skin;
@@ -68,7 +70,8 @@ void DistributedOrbScheme::regrid() {
   bool use_cost = cost_weights_;
   if (use_cost) {
     double total = 0.0;
-    for (const double c : cost_) total += c;
+    for (const double c : cost_)
+      total += c;
     use_cost = comm_.max(total) > 0.0; // the first regrid has no measurement yet: count
   }
   decomposition_ = partition::decompose(
@@ -102,7 +105,8 @@ std::int64_t DistributedOrbScheme::locate(bool regridding, std::string& message,
           pz < b.hi[2])
         l = static_cast<int>(leaf_of_[i]);
     }
-    if (l < 0) l = tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
+    if (l < 0)
+      l = tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
     if (l < 0) {
       ++outside;
       if (p_.id[i] < key) {
@@ -143,14 +147,14 @@ void DistributedOrbScheme::exchange_and_rows() {
       reach = std::max(reach, speed_[i] * dt_sp_);
     }
     reach_ = comm_.max(reach);
-    if (2.1 * reach_ > skin_ && skin_ < skin_cap_) skin_ = std::min(2.1 * reach_, skin_cap_);
+    if (2.1 * reach_ > skin_ && skin_ < skin_cap_)
+      skin_ = std::min(2.1 * reach_, skin_cap_);
   } else {
     speed_.assign(owned_, 0.0);
   }
   // Every distance a test below compares: contact candidates, the proximity or reach test.
   double cutoff = 2.0 * r_max_ + skin_;
-  cutoff = std::max(cutoff, time_to_contact_ ? 2.0 * r_max_ + 2.0 * reach_
-                                             : 2.0 * prox * r_max_);
+  cutoff = std::max(cutoff, time_to_contact_ ? 2.0 * r_max_ + 2.0 * reach_ : 2.0 * prox * r_max_);
   for (int a = 0; a < 3; ++a)
     if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
       throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
@@ -172,7 +176,8 @@ void DistributedOrbScheme::exchange_and_rows() {
         near_known_[l] = 1;
         near_leaves_[l].clear();
         partition::Aabb q = leaves[l].box;
-        for (int a = 0; a < 3; ++a) q.lo[a] -= cutoff, q.hi[a] += cutoff;
+        for (int a = 0; a < 3; ++a)
+          q.lo[a] -= cutoff, q.hi[a] += cutoff;
         for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic))
           if (decomposition_.owner[static_cast<std::size_t>(li.leaf)] != decomposition_.owner[l])
             near_leaves_[l].push_back(li);
@@ -181,13 +186,14 @@ void DistributedOrbScheme::exchange_and_rows() {
     };
     for (std::size_t i = 0; i < owned_; ++i) {
       const std::vector<partition::LeafImage>& cand = candidates(leaf_of_[i]);
-      if (cand.empty()) continue;
-      const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1),
-                           geom_.wrap(p_.z[i], 2)};
+      if (cand.empty())
+        continue;
+      const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2)};
       ranks.clear();
       for (const partition::LeafImage& li : cand) {
         const int r = decomposition_.owner[static_cast<std::size_t>(li.leaf)];
-        if (r == dest_[i] || std::find(ranks.begin(), ranks.end(), r) != ranks.end()) continue;
+        if (r == dest_[i] || std::find(ranks.begin(), ranks.end(), r) != ranks.end())
+          continue;
         // Closed overlap of the particle's halo, seen through the image, with the leaf's box
         // (OrbTree's test: conservative, a ghost too many costs only its copy).
         const partition::Aabb& b = leaves[static_cast<std::size_t>(li.leaf)].box;
@@ -196,19 +202,25 @@ void DistributedOrbScheme::exchange_and_rows() {
           const double s = static_cast<double>(li.shift[a]) * geom_.length[a];
           touch = touch && w[a] - cutoff + s <= b.hi[a] && w[a] + cutoff + s >= b.lo[a];
         }
-        if (touch) ranks.push_back(r);
+        if (touch)
+          ranks.push_back(r);
       }
-      for (const int r : ranks) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+      for (const int r : ranks)
+        copies.push_back({r, static_cast<std::uint32_t>(i), {}});
     }
     std::vector<double> leaf(owned_);
-    for (std::size_t i = 0; i < owned_; ++i) leaf[i] = static_cast<double>(leaf_of_[i]);
+    for (std::size_t i = 0; i < owned_; ++i)
+      leaf[i] = static_cast<double>(leaf_of_[i]);
     std::vector<std::vector<double>*> extra{&hprev_, &cost_, &leaf, &speed_};
-    if (ext_on_) extra.insert(extra.end(), {&ex_, &ey_, &ez_});
+    if (ext_on_)
+      extra.insert(extra.end(), {&ex_, &ey_, &ez_});
     owned_ = exchange_.redistribute(p_, dest_, std::move(copies), extra);
-    if (ext_on_) ex_.resize(owned_), ey_.resize(owned_), ez_.resize(owned_);
+    if (ext_on_)
+      ex_.resize(owned_), ey_.resize(owned_), ez_.resize(owned_);
     hprev_.resize(owned_), cost_.resize(owned_);
     leaf_of_.resize(owned_);
-    for (std::size_t i = 0; i < owned_; ++i) leaf_of_[i] = static_cast<std::uint32_t>(leaf[i]);
+    for (std::size_t i = 0; i < owned_; ++i)
+      leaf_of_[i] = static_cast<std::uint32_t>(leaf[i]);
   }
   ++builds_;
   const std::size_t n = p_.size();
@@ -228,24 +240,39 @@ void DistributedOrbScheme::exchange_and_rows() {
     p_.permute(order);
     auto permute = [&](auto& v, std::size_t m) {
       auto tmp = v;
-      for (std::size_t k = 0; k < m; ++k) tmp[k] = v[order[k]];
+      for (std::size_t k = 0; k < m; ++k)
+        tmp[k] = v[order[k]];
       v.swap(tmp);
     };
     permute(hprev_, owned_), permute(cost_, owned_), permute(leaf_of_, owned_);
     permute(speed_, owned_);
-    if (ext_on_) permute(ex_, owned_), permute(ey_, owned_), permute(ez_, owned_);
+    if (ext_on_)
+      permute(ex_, owned_), permute(ey_, owned_), permute(ez_, owned_);
   }
   ids_.clear();
   ranges_.assign(1, 0);
   for (std::size_t i = 0; i < owned_; ++i)
     if (ids_.empty() || static_cast<std::uint32_t>(ids_.back()) != leaf_of_[i]) {
-      if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(i));
+      if (!ids_.empty())
+        ranges_.push_back(static_cast<std::uint32_t>(i));
       ids_.push_back(static_cast<int>(leaf_of_[i]));
     }
-  if (!ids_.empty()) ranges_.push_back(static_cast<std::uint32_t>(owned_));
-  rows_.build({geom_, {p_.x.data(), n}, {p_.y.data(), n}, {p_.z.data(), n},
-               {p_.radius.data(), n}, {p_.id.data(), n}, {speed_.data(), n},
-               {leaf_of_.data(), owned_}, owned_, cutoff, skin_, prox, dt_sp_, time_to_contact_});
+  if (!ids_.empty())
+    ranges_.push_back(static_cast<std::uint32_t>(owned_));
+  rows_.build({geom_,
+               {p_.x.data(), n},
+               {p_.y.data(), n},
+               {p_.z.data(), n},
+               {p_.radius.data(), n},
+               {p_.id.data(), n},
+               {speed_.data(), n},
+               {leaf_of_.data(), owned_},
+               owned_,
+               cutoff,
+               skin_,
+               prox,
+               dt_sp_,
+               time_to_contact_});
   // Only particles with a row get their contact force rewritten at each step: clear the rest.
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
@@ -253,7 +280,8 @@ void DistributedOrbScheme::exchange_and_rows() {
   // A wall is a partner too (OrbScheme's rule, either local_dt).
   const std::span<unsigned char> near = rows_.near();
   for (int a = 0; a < 3; ++a) {
-    if (geom_.periodic[a]) continue;
+    if (geom_.periodic[a])
+      continue;
     const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
     for (std::size_t i = 0; i < owned_; ++i) {
       const double d =
@@ -321,8 +349,8 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
     // The reference of the skin test is the position at the sub-iteration start (the rows are
     // built there).
     std::uint64_t still = ~std::uint64_t{0};
-    leaf_kick_drift<External>(step, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez,
-                              im, gx, gy, gz, hp, h_before, hk, half_skin2, m.gravity, still);
+    leaf_kick_drift<External>(step, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez, im,
+                              gx, gy, gz, hp, h_before, hk, half_skin2, m.gravity, still);
     h_before = hk;
     if (step + 1 < bt.K && !(still >> 63)) {
       bt.outran = true;
@@ -345,7 +373,8 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
              sign_unless(y[i] <= wb.hi[1]) | sign_unless(z[i] >= wb.lo[2]) |
              sign_unless(z[i] <= wb.hi[2]);
     }
-    if (!(bad >> 63)) return;
+    if (!(bad >> 63))
+      return;
   }
   for (std::uint32_t i = b; i < e && bt.fault == kNoFault; ++i) {
     const double q[3] = {x[i], y[i], z[i]};
@@ -368,11 +397,13 @@ bool DistributedOrbScheme::attempt(bool record) {
   tbb::parallel_for(
       tbb::blocked_range<int>(0, nb, 1),
       [&](const tbb::blocked_range<int>& r) {
-        for (int q = r.begin(); q != r.end(); ++q) run_batch(static_cast<std::size_t>(q), record);
+        for (int q = r.begin(); q != r.end(); ++q)
+          run_batch(static_cast<std::size_t>(q), record);
       },
       tbb::simple_partitioner{});
   for (const Batch& bt : batches_)
-    if (bt.outran && bt.fault == kNoFault) return true;
+    if (bt.outran && bt.fault == kNoFault)
+      return true;
   return false;
 }
 
@@ -384,16 +415,14 @@ void DistributedOrbScheme::subiterate(bool record) {
   std::int64_t outside = 0;
   {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
-    if (regridding) regrid();
+    if (regridding)
+      regrid();
     outside = locate(regridding, outside_message, outside_key);
   }
-  const bool can_refine = model_.dt < dt_sp_;
-  const std::int64_t K_fine =
-      can_refine
-          ? std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
-          : 1;
-  const double h_fine = can_refine ? model_.dt : dt_sp_;
-  const double h_fine_last = dt_sp_ - static_cast<double>(K_fine - 1) * h_fine;
+  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
+  const std::int64_t K_fine = steps.K;
+  const double h_fine = steps.h;
+  const double h_fine_last = steps.h_last;
   // One reduction closes the sub-iteration: {outran, faults, outside, owned, particle steps,
   // force evaluations, overlaps beyond the bound, fine leaves, non-empty leaves}.
   std::array<std::int64_t, 9> c{};
@@ -408,8 +437,9 @@ void DistributedOrbScheme::subiterate(bool record) {
     for (std::size_t k = 0; k < ids_.size(); ++k) {
       LeafRun& r = runs_[k];
       unsigned char any = 0;
-      for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i) any |= near[i];
-      r.fine = any && can_refine;
+      for (std::uint32_t i = ranges_[k]; i < ranges_[k + 1]; ++i)
+        any |= near[i];
+      r.fine = any && model_.dt < dt_sp_;
       r.K = r.fine ? K_fine : 1;
       r.h = r.fine ? h_fine : dt_sp_;
       r.h_last = r.fine ? h_fine_last : dt_sp_;
@@ -435,10 +465,10 @@ void DistributedOrbScheme::subiterate(bool record) {
       batches_.back().e = ranges_[k + 1];
     }
     for (Batch& bt : batches_) {
-      bt.a0 = static_cast<std::uint32_t>(
-          std::lower_bound(active.begin(), active.end(), bt.b) - active.begin());
-      bt.a1 = static_cast<std::uint32_t>(
-          std::lower_bound(active.begin(), active.end(), bt.e) - active.begin());
+      bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.b) -
+                                         active.begin());
+      bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.e) -
+                                         active.begin());
     }
     if (record) {
       const std::size_t n = owned_;
@@ -465,7 +495,8 @@ void DistributedOrbScheme::subiterate(bool record) {
       c[7] += r.fine ? 1 : 0;
       c[8] += 1;
     }
-    for (const Batch& bt : batches_) c[1] += bt.fault != kNoFault ? 1 : 0, c[6] += bt.violations;
+    for (const Batch& bt : batches_)
+      c[1] += bt.fault != kNoFault ? 1 : 0, c[6] += bt.violations;
     local_c_[0] = c[4], local_c_[1] = c[5];
     comm_.sum(c);
     if (c[2] > 0) {
@@ -477,7 +508,8 @@ void DistributedOrbScheme::subiterate(bool record) {
       throw RunError(fmt::format("t = {:.9g} s: {} particles on the ranks after migration, {} "
                                  "expected",
                                  time(), c[3], n_global_));
-    if (c[0] == 0 || c[1] > 0) break;
+    if (c[0] == 0 || c[1] > 0)
+      break;
     // A fine leaf, on some rank, outran its rows: every rank rolls back and redoes the
     // sub-iteration with twice the skin (OrbScheme's retry; the rows here are always fresh).
     if (skin_ >= skin_cap_)
@@ -486,8 +518,10 @@ void DistributedOrbScheme::subiterate(bool record) {
                                  "periodic box allows ({:.4g} m): raise dem.nsubit",
                                  time(), skin_));
     std::copy_n(gx_.begin(), owned_, p_.x.begin()), std::copy_n(gy_.begin(), owned_, p_.y.begin());
-    std::copy_n(gz_.begin(), owned_, p_.z.begin()), std::copy_n(gvx_.begin(), owned_, p_.vx.begin());
-    std::copy_n(gvy_.begin(), owned_, p_.vy.begin()), std::copy_n(gvz_.begin(), owned_, p_.vz.begin());
+    std::copy_n(gz_.begin(), owned_, p_.z.begin()),
+        std::copy_n(gvx_.begin(), owned_, p_.vx.begin());
+    std::copy_n(gvy_.begin(), owned_, p_.vy.begin()),
+        std::copy_n(gvz_.begin(), owned_, p_.vz.begin());
     hprev_ = ghp_;
     skin_ = std::min(2.0 * skin_, skin_cap_);
     dest_.assign(owned_, comm_.rank()); // the particles are where they belong already
@@ -498,21 +532,24 @@ void DistributedOrbScheme::subiterate(bool record) {
     std::string message;
     std::int64_t key = std::numeric_limits<std::int64_t>::max();
     for (const Batch& r : batches_) {
-      if (r.fault == kNoFault) continue;
+      if (r.fault == kNoFault)
+        continue;
       const std::size_t i = r.fault_index;
-      if (p_.id[i] >= key) continue;
+      if (p_.id[i] >= key)
+        continue;
       key = p_.id[i];
       message = fmt::format(
           "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {} (rank {})",
           time(), subits_, p_.id[i], p_.x[i], p_.y[i], p_.z[i],
-          r.fault == kNaN ? "position or velocity is not finite (NaN/inf): the step is unstable"
-                          : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
-                                        r.fault_value),
+          r.fault == kNaN
+              ? "position or velocity is not finite (NaN/inf): the step is unstable"
+              : fmt::format("left the domain through a wall (coordinate {:.6g} m)", r.fault_value),
           comm_.rank());
     }
     throw RunError(comm_.agree_on_error(key, message));
   }
-  for (const Batch& bt : batches_) ratio_ = std::max(ratio_, bt.max_ratio);
+  for (const Batch& bt : batches_)
+    ratio_ = std::max(ratio_, bt.max_ratio);
   for (std::size_t k = 0; k < ids_.size(); ++k) {
     const LeafRun& r = runs_[k];
     leaf_steps_[static_cast<std::size_t>(ids_[k])] += r.K;
@@ -526,7 +563,8 @@ void DistributedOrbScheme::subiterate(bool record) {
   last_fine_fraction_ = c[8] > 0 ? static_cast<double>(c[7]) / static_cast<double>(c[8]) : 0.0;
   // The largest overlap over the ranks is reduced only when the state is recorded (the loop
   // records the last sub-iteration): one reduction per sub-iteration is the budget.
-  if (record) max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(ratio_));
+  if (record)
+    max_overlap_ratio_ = std::max(max_overlap_ratio_, comm_.max(ratio_));
   ++subits_;
 }
 
@@ -563,7 +601,8 @@ LeafStepStats DistributedOrbScheme::take_interval_stats() {
   LeafStepStats s;
   std::int64_t lo = std::numeric_limits<std::int64_t>::max(), hi = 0, sum = 0, count = 0;
   for (const std::int64_t v : steps)
-    if (v > 0) lo = std::min(lo, v), hi = std::max(hi, v), sum += v, ++count;
+    if (v > 0)
+      lo = std::min(lo, v), hi = std::max(hi, v), sum += v, ++count;
   if (count > 0) {
     s.steps_min = static_cast<double>(lo), s.steps_max = static_cast<double>(hi);
     s.steps_mean = static_cast<double>(sum) / static_cast<double>(count);
@@ -593,19 +632,22 @@ OrbScheme::State DistributedOrbScheme::save_state() const {
 
 void DistributedOrbScheme::restore_state(OrbScheme::State s) {
   if (s.hprev.size() != owned_ || s.cost.size() != owned_ || s.subits < 0 ||
-      s.subits % nsubit_ != 0 || (!s.leaf_steps.empty() && s.leaf_steps.size() != leaf_steps_.size()))
+      s.subits % nsubit_ != 0 ||
+      (!s.leaf_steps.empty() && s.leaf_steps.size() != leaf_steps_.size()))
     throw RunError("checkpoint: the orb state does not fit the particles, dem.nsubit or "
                    "partition.orb_levels");
   hprev_ = std::move(s.hprev), cost_ = std::move(s.cost);
   // The per-leaf steps of the interval are sums over the ranks: rank 0 holds them.
   std::fill(leaf_steps_.begin(), leaf_steps_.end(), 0);
-  if (comm_.rank() == 0 && !s.leaf_steps.empty()) leaf_steps_ = s.leaf_steps;
+  if (comm_.rank() == 0 && !s.leaf_steps.empty())
+    leaf_steps_ = s.leaf_steps;
   fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
   particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
   regrids_ = s.regrids, overlap_violations_ = s.overlap_violations, retries_ = s.retries;
   last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
   ratio_ = 0.0;
-  if (s.skin > 0.0) skin_ = s.skin;
+  if (s.skin > 0.0)
+    skin_ = s.skin;
 }
 
 } // namespace cfddem::dem

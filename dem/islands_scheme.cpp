@@ -38,14 +38,13 @@ double external_acceleration(const ParticleStore& p, const ExternalForce& e,
 // gaps negative (sign bit; with Walls only: on a periodic axis the bounds are infinite). Returns
 // a value with the sign bit set when either happened.
 template <bool External, bool Record, bool Walls>
-std::uint64_t free_flight_kernel(double* __restrict x, double* __restrict y, double* __restrict z,
-                                 double* __restrict vx, double* __restrict vy,
-                                 double* __restrict vz, double* __restrict hp,
-                                 const double* __restrict im, const double* __restrict ex,
-                                 const double* __restrict ey, const double* __restrict ez,
-                                 double* __restrict sx, double* __restrict sy,
-                                 double* __restrict sz, std::size_t len, const double* g,
-                                 double dt, const WallBounds& wb) {
+std::uint64_t
+free_flight_kernel(double* __restrict x, double* __restrict y, double* __restrict z,
+                   double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                   double* __restrict hp, const double* __restrict im, const double* __restrict ex,
+                   const double* __restrict ey, const double* __restrict ez, double* __restrict sx,
+                   double* __restrict sy, double* __restrict sz, std::size_t len, const double* g,
+                   double dt, const WallBounds& wb) {
   const double g0 = g[0], g1 = g[1], g2 = g[2], half = 0.5 * dt;
   const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
   const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
@@ -92,7 +91,8 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
   global_skin_ = model_.skin;
   skin_ = islands_skin_;
   double r_max = 0.0;
-  for (double r : p_.radius) r_max = std::max(r_max, r);
+  for (double r : p_.radius)
+    r_max = std::max(r_max, r);
   // A link margin far above rounding and far below any gap that matters.
   margin_ = 1e-3 * model_.r_min;
   skin_cap_ = periodic_skin_cap(geom_, r_max);
@@ -122,9 +122,10 @@ IslandsScheme::State IslandsScheme::save_state() const {
   s.hprev = hprev_;
   s.fine_subits = fine_subits_;
   s.size_hist = size_hist_;
-  s.counters = {subits_,          particle_steps_,   pair_evaluations_, builds_,
-                overlap_violations_, bound_violations_, global_subits_, iv_fine_,
-                iv_particles_,    iv_steps_,         iv_min_,           iv_max_};
+  s.counters = {
+      subits_,           particle_steps_, pair_evaluations_, builds_,       overlap_violations_,
+      bound_violations_, global_subits_,  iv_fine_,          iv_particles_, iv_steps_,
+      iv_min_,           iv_max_};
   s.max_overlap_ratio = max_overlap_ratio_;
   s.last_fine_fraction = last_fine_fraction_;
   return s;
@@ -179,17 +180,18 @@ void IslandsScheme::rebuild() {
   const auto order = list_.order();
   if (!order.empty()) {
     std::vector<double> h(order.size());
-    for (std::size_t k = 0; k < order.size(); ++k) h[k] = hprev_[order[k]];
+    for (std::size_t k = 0; k < order.size(); ++k)
+      h[k] = hprev_[order[k]];
     hprev_.swap(h);
     std::vector<std::int64_t> f(order.size());
-    for (std::size_t k = 0; k < order.size(); ++k) f[k] = fine_subits_[order[k]];
+    for (std::size_t k = 0; k < order.size(); ++k)
+      f[k] = fine_subits_[order[k]];
     fine_subits_.swap(f);
     ext_.permute(order);
   }
   built_ = true;
   ++builds_;
 }
-
 
 void IslandsScheme::speed_bounds() {
   const std::size_t n = p_.size();
@@ -228,8 +230,10 @@ bool IslandsScheme::list_expires() const {
     const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
     const double reach = std::sqrt(ex * ex + ey * ey + ez * ez) + b[i] * dt_sp_;
     if (!(reach <= top2)) { // NaN lands here and fails below
-      if (!(reach <= top1)) top2 = top1, top1 = reach;
-      else top2 = reach;
+      if (!(reach <= top1))
+        top2 = top1, top1 = reach;
+      else
+        top2 = reach;
     }
   }
   return !(top1 + top2 < skin_);
@@ -260,7 +264,8 @@ void IslandsScheme::make_links(bool incremental) {
   // row's wrap_begin) need no image: image() returns their separation unchanged.
   auto linked = [&](std::uint32_t i, std::uint32_t j, bool crosses) {
     double dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
-    if (crosses) dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+    if (crosses)
+      dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
     const double reach = (bnd[i] + bnd[j]) * dt + margin + rad[i] + rad[j];
     return dx * dx + dy * dy + dz * dz < reach * reach;
   };
@@ -276,14 +281,17 @@ void IslandsScheme::make_links(bool incremental) {
       const std::uint32_t kw = wrap[i], ke = off[i + 1];
       for (std::uint32_t k = off[i]; k < ke; ++k) {
         const std::uint32_t j = nb[k];
-        if (j > i && linked(i, j, k >= kw)) ea_.push_back(i), eb_.push_back(j), ek_.push_back(k);
+        if (j > i && linked(i, j, k >= kw))
+          ea_.push_back(i), eb_.push_back(j), ek_.push_back(k);
       }
     }
     tied_.clear();
     for (int a = 0; a < 3; ++a) {
-      if (g.periodic[a]) continue;
+      if (g.periodic[a])
+        continue;
       for (std::uint32_t i = 0; i < n; ++i)
-        if (tied(i, a)) tied_.push_back(i);
+        if (tied(i, a))
+          tied_.push_back(i);
     }
   } else {
     // New links from the rows of the raised particles, keyed by their position in the lower
@@ -293,12 +301,15 @@ void IslandsScheme::make_links(bool incremental) {
       for (std::uint32_t k = off[c]; k < off[c + 1]; ++k) {
         const std::uint32_t j = nb[k];
         if (j > c) {
-          if (linked(c, j, k >= wrap[c])) new_k_.push_back(k);
+          if (linked(c, j, k >= wrap[c]))
+            new_k_.push_back(k);
         } else {
           // The pair's position in row j (rows hold both directions).
           std::uint32_t kj = off[j];
-          while (nb[kj] != c) ++kj;
-          if (linked(j, c, kj >= wrap[j])) new_k_.push_back(kj);
+          while (nb[kj] != c)
+            ++kj;
+          if (linked(j, c, kj >= wrap[j]))
+            new_k_.push_back(kj);
         }
       }
     std::sort(new_k_.begin(), new_k_.end());
@@ -307,8 +318,10 @@ void IslandsScheme::make_links(bool incremental) {
     std::size_t q = ek_.size(), r = new_k_.size();
     std::size_t added = 0;
     for (std::size_t t = 0, u = 0; u < r; ++u) {
-      while (t < q && ek_[t] < new_k_[u]) ++t;
-      if (t == q || ek_[t] != new_k_[u]) new_k_[added++] = new_k_[u];
+      while (t < q && ek_[t] < new_k_[u])
+        ++t;
+      if (t == q || ek_[t] != new_k_[u])
+        new_k_[added++] = new_k_[u];
     }
     new_k_.resize(added);
     if (added > 0) {
@@ -329,26 +342,35 @@ void IslandsScheme::make_links(bool incremental) {
       }
     }
     for (int a = 0; a < 3; ++a) {
-      if (g.periodic[a]) continue;
+      if (g.periodic[a])
+        continue;
       for (const std::uint32_t c : changed_)
-        if (tied(c, a)) tied_.push_back(c); // duplicates are harmless (busy_v_ is a set)
+        if (tied(c, a))
+          tied_.push_back(c); // duplicates are harmless (busy_v_ is a set)
     }
   }
   // Busy vertices: endpoints and tied particles, unique (marked), increasing; islands over them.
-  for (std::uint32_t v : busy_v_) island_of_[v] = kAlone; // reset the last sub-iteration's
+  for (std::uint32_t v : busy_v_)
+    island_of_[v] = kAlone; // reset the last sub-iteration's
   busy_v_.clear();
   mark_.resize(n, 0);
   for (const auto* list : {&ea_, &eb_, &tied_})
     for (const std::uint32_t v : *list)
-      if (!mark_[v]) mark_[v] = 1, busy_v_.push_back(v);
-  for (const std::uint32_t v : busy_v_) mark_[v] = 0;
-  if (busy_v_.size() > kGlobalFraction * static_cast<double>(n)) return; // link() goes global
+      if (!mark_[v])
+        mark_[v] = 1, busy_v_.push_back(v);
+  for (const std::uint32_t v : busy_v_)
+    mark_[v] = 0;
+  if (busy_v_.size() > kGlobalFraction * static_cast<double>(n))
+    return; // link() goes global
   std::sort(busy_v_.begin(), busy_v_.end());
-  for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = k; // local index
+  for (std::uint32_t k = 0; k < busy_v_.size(); ++k)
+    island_of_[busy_v_[k]] = k; // local index
   la_.resize(ea_.size()), lb_.resize(eb_.size());
-  for (std::size_t q = 0; q < ea_.size(); ++q) la_[q] = island_of_[ea_[q]], lb_[q] = island_of_[eb_[q]];
+  for (std::size_t q = 0; q < ea_.size(); ++q)
+    la_[q] = island_of_[ea_[q]], lb_[q] = island_of_[eb_[q]];
   partition::connected_components(busy_v_.size(), la_, lb_, islands_, uf_scratch_);
-  for (std::uint32_t k = 0; k < busy_v_.size(); ++k) island_of_[busy_v_[k]] = islands_.label[k];
+  for (std::uint32_t k = 0; k < busy_v_.size(); ++k)
+    island_of_[busy_v_[k]] = islands_.label[k];
 }
 
 // Islands whose bounds account for the energy contacts can move inside them: link with the
@@ -363,7 +385,8 @@ void IslandsScheme::link() {
   // holds its own bound then. A stamp per call marks the saved ones (no O(N) copy or reset).
   own_bound_.resize(n);
   own_stamp_.resize(n, 0);
-  if (++stamp_ == 0) std::fill(own_stamp_.begin(), own_stamp_.end(), 0u), stamp_ = 1;
+  if (++stamp_ == 0)
+    std::fill(own_stamp_.begin(), own_stamp_.end(), 0u), stamp_ = 1;
   const bool ext = ext_.active();
   global_ = false;
   for (int round = 0;; ++round) {
@@ -374,9 +397,11 @@ void IslandsScheme::link() {
       global_ = true;
       return;
     }
-    if (round > 0 && busy_v_ == busy_before_ && islands_.label == label_before_) break;
+    if (round > 0 && busy_v_ == busy_before_ && islands_.label == label_before_)
+      break;
     for (const std::uint32_t i : busy_v_)
-      if (own_stamp_[i] != stamp_) own_stamp_[i] = stamp_, own_bound_[i] = bound_[i];
+      if (own_stamp_[i] != stamp_)
+        own_stamp_[i] = stamp_, own_bound_[i] = bound_[i];
     const std::uint32_t nc = islands_.count();
     energy_.assign(nc, 0.0);
     m_min_.assign(nc, std::numeric_limits<double>::infinity());
@@ -387,20 +412,24 @@ void IslandsScheme::link() {
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
                    dz = g.image(p_.z[j] - p_.z[i], 2);
       const double delta = p_.radius[i] + p_.radius[j] - std::sqrt(dx * dx + dy * dy + dz * dz);
-      if (delta > 0.0) energy_[island_of_[i]] += 0.5 * model_.pair.k * delta * delta;
+      if (delta > 0.0)
+        energy_[island_of_[i]] += 0.5 * model_.pair.k * delta * delta;
     }
     for (const std::uint32_t i : busy_v_) {
       const std::uint32_t c = island_of_[i];
       for (int a = 0; a < 3; ++a) {
-        if (g.periodic[a]) continue;
+        if (g.periodic[a])
+          continue;
         const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
         const double delta = p_.radius[i] - std::min(pos - g.lo[a], g.hi[a] - pos);
-        if (delta > 0.0) energy_[c] += 0.5 * model_.wall.k * delta * delta;
+        if (delta > 0.0)
+          energy_[c] += 0.5 * model_.wall.k * delta * delta;
       }
       energy_[c] += 0.5 * p_.mass[i] * own_bound_[i] * own_bound_[i];
       m_min_[c] = std::min(m_min_[c], p_.mass[i]);
-      a_max_[c] = std::max(a_max_[c], ext ? external_acceleration<true>(p_, ext_, model_.gravity, i)
-                                          : external_acceleration<false>(p_, ext_, model_.gravity, i));
+      a_max_[c] =
+          std::max(a_max_[c], ext ? external_acceleration<true>(p_, ext_, model_.gravity, i)
+                                  : external_acceleration<false>(p_, ext_, model_.gravity, i));
       hp_max_[c] = std::max(hp_max_[c], hprev_[i]);
     }
     changed_.clear();
@@ -408,17 +437,20 @@ void IslandsScheme::link() {
       const std::uint32_t c = island_of_[i];
       const double b = std::max(own_bound_[i], std::sqrt(2.0 * energy_[c] / m_min_[c]) +
                                                    a_max_[c] * (hp_max_[c] + dt_sp_));
-      if (b != bound_[i]) changed_.push_back(i);
+      if (b != bound_[i])
+        changed_.push_back(i);
       bound_[i] = b;
     }
-    if (changed_.empty()) break;
+    if (changed_.empty())
+      break;
     busy_before_ = busy_v_;
     label_before_ = islands_.label;
   }
 }
 
 void IslandsScheme::subiterate(bool record) {
-  if (!built_) rebuild();
+  if (!built_)
+    rebuild();
   {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     bool fresh = false;
@@ -427,7 +459,8 @@ void IslandsScheme::subiterate(bool record) {
       link();
       if (global_) {
         // The explicit scheme's skin: the list then holds what the explicit list holds.
-        if (skin_ != global_skin_) skin_ = global_skin_, rebuild();
+        if (skin_ != global_skin_)
+          skin_ = global_skin_, rebuild();
         break;
       }
       if (skin_ < islands_skin_) {
@@ -436,11 +469,13 @@ void IslandsScheme::subiterate(bool record) {
         fresh = true;
         continue;
       }
-      if (!list_expires()) break;
+      if (!list_expires())
+        break;
       if (fresh) {
         // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
         double need = 0.0;
-        for (double b : bound_) need = std::max(need, 2.2 * b * dt_sp_);
+        for (double b : bound_)
+          need = std::max(need, 2.2 * b * dt_sp_);
         if (!(need < skin_cap_))
           throw RunError(fmt::format(
               "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
@@ -454,24 +489,24 @@ void IslandsScheme::subiterate(bool record) {
   }
   PhaseTimer::Scope t(timer_, Phase::force);
   const std::size_t n = p_.size();
-  const bool can_refine = model_.dt < dt_sp_;
-  K_ = can_refine ? std::max<std::int64_t>(
-                        1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
-                  : 1;
-  h_ = can_refine ? model_.dt : dt_sp_;
-  h_last_ = dt_sp_ - static_cast<double>(K_ - 1) * h_;
+  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
+  K_ = steps.K;
+  h_ = steps.h;
+  h_last_ = steps.h_last;
   if (global_) {
     ++global_subits_;
     if (record) {
       sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
       sdt_.resize(n), sisland_.resize(n);
       for (std::size_t i = 0; i < n; ++i) {
-        sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1), sz_[i] = geom_.wrap(p_.z[i], 2);
+        sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1),
+        sz_[i] = geom_.wrap(p_.z[i], 2);
         sisland_[i] = 0, sdt_[i] = dt_sp_ / static_cast<double>(K_);
       }
       smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
     }
-    for (auto& f : fine_subits_) ++f;
+    for (auto& f : fine_subits_)
+      ++f;
     size_hist_[static_cast<std::size_t>(std::bit_width(static_cast<std::uint64_t>(n) - 1))] += 1;
     ext_.active() ? global_steps<true>(record) : global_steps<false>(record);
     ++subits_;
@@ -490,13 +525,16 @@ void IslandsScheme::subiterate(bool record) {
   size_hist_[0] += static_cast<std::int64_t>(n - busy_v_.size());
   // Island members in particle order (islands_.members holds local indices).
   members_.resize(busy_v_.size());
-  for (std::size_t k = 0; k < busy_v_.size(); ++k) members_[k] = busy_v_[islands_.members[k]];
-  for (const std::uint32_t i : busy_v_) ++fine_subits_[i];
+  for (std::size_t k = 0; k < busy_v_.size(); ++k)
+    members_[k] = busy_v_[islands_.members[k]];
+  for (const std::uint32_t i : busy_v_)
+    ++fine_subits_[i];
   if (record) {
     sx_.resize(n), sy_.resize(n), sz_.resize(n), svx_.resize(n), svy_.resize(n), svz_.resize(n);
     sdt_.resize(n), sisland_.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
-      sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1), sz_[i] = geom_.wrap(p_.z[i], 2);
+      sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1),
+      sz_[i] = geom_.wrap(p_.z[i], 2);
       const bool fine = island_of_[i] != kAlone;
       sisland_[i] = fine ? static_cast<std::int64_t>(island_of_[i]) : -1;
       sdt_[i] = fine ? dt_sp_ / static_cast<double>(K_) : dt_sp_;
@@ -520,8 +558,9 @@ void IslandsScheme::subiterate(bool record) {
   if (busy_v_.size() < 256) {
     islands_range(0, nc); // few fine particles: no task overhead
   } else {
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nc, 1),
-                      [&](const tbb::blocked_range<std::size_t>& r) { islands_range(r.begin(), r.end()); });
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, nc, 1),
+        [&](const tbb::blocked_range<std::size_t>& r) { islands_range(r.begin(), r.end()); });
   }
   // Counters, in island order.
   std::int64_t members = 0;
@@ -545,7 +584,8 @@ void IslandsScheme::subiterate(bool record) {
         const double c = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
         ok = ok && (geom_.periodic[a] || (c >= geom_.lo[a] && c <= geom_.hi[a]));
       }
-      if (!ok) fault_flag_ |= std::uint64_t{1} << 63;
+      if (!ok)
+        fault_flag_ |= std::uint64_t{1} << 63;
     }
   }
   if (fault_flag_ >> 63) {
@@ -580,7 +620,8 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
                : walls ? free_flight_run<External, false, true>(i, stop)
                        : free_flight_run<External, false, false>(i, stop);
       i = stop + 1; // past the busy particle (or past e)
-      if (q != busy_v_.end()) ++q;
+      if (q != busy_v_.end())
+        ++q;
     }
     return bad;
   };
@@ -593,7 +634,8 @@ template <bool External> void IslandsScheme::free_flight(bool record) {
     tbb::parallel_for(std::size_t{0}, flags.size(), [&](std::size_t k) {
       flags[k] = range(k * kBlock, std::min(n, (k + 1) * kBlock));
     });
-    for (std::uint64_t f : flags) bad |= f;
+    for (std::uint64_t f : flags)
+      bad |= f;
   }
   fault_flag_ |= bad;
 }
@@ -642,54 +684,60 @@ std::int64_t IslandsScheme::particle_forces(const std::uint32_t* idx, std::uint3
   double max_ratio = max_ratio_out;
   std::int64_t pairs = 0, violations = 0;
   for (std::uint32_t u = u0; u < u1; ++u) {
-  const std::uint32_t i = Indexed ? idx[u] : u;
-  const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
-  const double ri = rad[i], mi = mass[i];
-  double ax = 0.0, ay = 0.0, az = 0.0;
-  auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
-    const double delta = add_normal_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j],
-                                            vyi - vy[j], vzi - vz[j], ax, ay, az);
-    if (delta <= 0.0) return;
-    // The ratio's divide only when it sets a new maximum (rare after the first contacts).
-    const double rmin = std::min(ri, rad[j]);
-    if (delta > max_ratio * rmin) max_ratio = delta / rmin;
-    violations += delta > m.max_overlap * rmin;
-  };
-  // Pairs inside the box first (no periodic image needed), then those across a face.
-  const std::uint32_t kw = wrap[i];
-  for (std::uint32_t k = off[i]; k < kw; ++k) {
-    const std::uint32_t j = nb[k];
-    if constexpr (Label) {
-      if (label[j] != c) continue;
-    }
-    pairs += j > i;
-    pair(j, x[j] - xi, y[j] - yi, z[j] - zi);
-  }
-  for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
-    const std::uint32_t j = nb[k];
-    if constexpr (Label) {
-      if (label[j] != c) continue;
-    }
-    pairs += j > i;
-    pair(j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
-  }
-  if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
-    double f[3] = {ax, ay, az};
-    const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
-    for (int a = 0; a < 3; ++a) {
-      if (g.periodic[a]) continue;
-      for (int side = 0; side < 2; ++side) {
-        const double sg = side ? 1.0 : -1.0;
-        const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
-        if (delta <= 0.0) continue;
-        f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
-        max_ratio = std::max(max_ratio, delta / ri);
-        violations += delta > m.max_overlap * ri;
+    const std::uint32_t i = Indexed ? idx[u] : u;
+    const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
+    const double ri = rad[i], mi = mass[i];
+    double ax = 0.0, ay = 0.0, az = 0.0;
+    auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
+      const double delta = add_normal_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j],
+                                              vyi - vy[j], vzi - vz[j], ax, ay, az);
+      if (delta <= 0.0)
+        return;
+      // The ratio's divide only when it sets a new maximum (rare after the first contacts).
+      const double rmin = std::min(ri, rad[j]);
+      if (delta > max_ratio * rmin)
+        max_ratio = delta / rmin;
+      violations += delta > m.max_overlap * rmin;
+    };
+    // Pairs inside the box first (no periodic image needed), then those across a face.
+    const std::uint32_t kw = wrap[i];
+    for (std::uint32_t k = off[i]; k < kw; ++k) {
+      const std::uint32_t j = nb[k];
+      if constexpr (Label) {
+        if (label[j] != c)
+          continue;
       }
+      pairs += j > i;
+      pair(j, x[j] - xi, y[j] - yi, z[j] - zi);
     }
-    ax = f[0], ay = f[1], az = f[2];
-  }
-  fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
+    for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if constexpr (Label) {
+        if (label[j] != c)
+          continue;
+      }
+      pairs += j > i;
+      pair(j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
+    }
+    if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
+      double f[3] = {ax, ay, az};
+      const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
+      for (int a = 0; a < 3; ++a) {
+        if (g.periodic[a])
+          continue;
+        for (int side = 0; side < 2; ++side) {
+          const double sg = side ? 1.0 : -1.0;
+          const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+          if (delta <= 0.0)
+            continue;
+          f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
+          max_ratio = std::max(max_ratio, delta / ri);
+          violations += delta > m.max_overlap * ri;
+        }
+      }
+      ax = f[0], ay = f[1], az = f[2];
+    }
+    fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
   }
   max_ratio_out = max_ratio;
   violations_out += violations;
@@ -705,15 +753,21 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
   const StepModel& m = model_;
   constexpr std::size_t kBlock = 1024;
   const std::size_t blocks = (n + kBlock - 1) / kBlock;
-  struct Part { std::int64_t pairs = 0, violations = 0; double max_ratio = 0.0; std::uint64_t moved = 0; };
+  struct Part {
+    std::int64_t pairs = 0, violations = 0;
+    double max_ratio = 0.0;
+    std::uint64_t moved = 0;
+  };
   std::vector<Part> parts(blocks);
   double h_before = 0.0;
   for (std::int64_t k = 0; k < K_; ++k) {
     const double hk = k + 1 == K_ ? h_last_ : h_;
     if (k > 0) {
       std::uint64_t moved = 0;
-      for (const Part& pt : parts) moved |= pt.moved;
-      if (moved >> 63) rebuild();
+      for (const Part& pt : parts)
+        moved |= pt.moved;
+      if (moved >> 63)
+        rebuild();
     }
     tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
       Part pt;
@@ -726,7 +780,8 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     if (record && k == 0)
       for (std::size_t i = 0; i < n; ++i) {
         double ex = 0.0, ey = 0.0, ez = 0.0;
-        if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+        if constexpr (External)
+          ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
         svx_[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
         svy_[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
         svz_[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
@@ -765,13 +820,14 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     });
     // The orb kernel leaves h_prev alone after the first step: the last step's half step.
     if (k > 0 && k + 1 == K_)
-      for (double& h : hprev_) h = half;
+      for (double& h : hprev_)
+        h = half;
     h_before = hk;
   }
 }
 
-// The K fine steps of island c (every island has a link or a wall): contact forces from members only (no other particle
-// can reach them within dt_sp), walls, and the variable-step leapfrog.
+// The K fine steps of island c (every island has a link or a wall): contact forces from members
+// only (no other particle can reach them within dt_sp), walls, and the variable-step leapfrog.
 template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool record) {
   IslandResult res;
   const std::uint32_t* mem = members_.data() + islands_.first[c];
@@ -803,7 +859,8 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool re
                   std::int64_t& bound_violations) {
     const std::uint32_t i = mem[u];
     double ex = 0.0, ey = 0.0, ez = 0.0;
-    if constexpr (External) ex = ex_x[i], ey = ex_y[i], ez = ex_z[i];
+    if constexpr (External)
+      ex = ex_x[i], ey = ex_y[i], ez = ex_z[i];
     const double ims = im[i] * s;
     double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
     kick_drift(px, ux, fx[i] + ex, ims, g0 * s, hk);
@@ -818,7 +875,10 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool re
   const bool giant = count > kGiantIsland;
   // A giant island's passes run as nested parallel loops over blocks of members; each block's
   // partial counts go here (one allocation per sub-iteration, not per step).
-  struct Part { std::int64_t pairs = 0, violations = 0, bound_violations = 0; double max_ratio = 0.0; };
+  struct Part {
+    std::int64_t pairs = 0, violations = 0, bound_violations = 0;
+    double max_ratio = 0.0;
+  };
   std::vector<Part> parts(giant ? (count + 1023) / 1024 : 0);
   auto block_end = [&](std::size_t b) {
     return std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * 1024));
@@ -838,13 +898,15 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool re
                                                block_end(b), c, pt.max_ratio, pt.violations);
       });
       for (const Part& pt : parts)
-        res.pairs += pt.pairs, res.violations += pt.violations, res.max_ratio = std::max(res.max_ratio, pt.max_ratio);
+        res.pairs += pt.pairs, res.violations += pt.violations,
+            res.max_ratio = std::max(res.max_ratio, pt.max_ratio);
     }
     if (record && k == 0)
       for (std::uint32_t u = 0; u < count; ++u) {
         const std::uint32_t i = mem[u];
         double ex = 0.0, ey = 0.0, ez = 0.0;
-        if constexpr (External) ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+        if constexpr (External)
+          ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
         svx_[i] = vx[i] + ((fx[i] + ex) * im[i] + m.gravity[0]) * hp[i];
         svy_[i] = vy[i] + ((fy[i] + ey) * im[i] + m.gravity[1]) * hp[i];
         svz_[i] = vz[i] + ((fz[i] + ez) * im[i] + m.gravity[2]) * hp[i];
@@ -864,7 +926,8 @@ template <bool External> void IslandsScheme::run_island(std::uint32_t c, bool re
           kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed, bv);
         }
       });
-      for (const Part& pt : parts) res.bound_violations += pt.bound_violations;
+      for (const Part& pt : parts)
+        res.bound_violations += pt.bound_violations;
     }
     h_before = hk;
   }
@@ -877,8 +940,8 @@ void IslandsScheme::raise_faults(double t) const {
   {
     // Faults are rare: a branch-free pass (it vectorizes) says whether to look for one.
     const WallBounds wb(g);
-    const double (&lo)[3] = wb.lo;
-    const double (&hi)[3] = wb.hi;
+    const double(&lo)[3] = wb.lo;
+    const double(&hi)[3] = wb.hi;
     const double inf = std::numeric_limits<double>::infinity();
     const double* __restrict x = p_.x.data();
     const double* __restrict y = p_.y.data();
@@ -893,7 +956,8 @@ void IslandsScheme::raise_faults(double t) const {
              sign_unless(x[i] <= hi[0]) | sign_unless(y[i] >= lo[1]) | sign_unless(y[i] <= hi[1]) |
              sign_unless(z[i] >= lo[2]) | sign_unless(z[i] <= hi[2]);
     }
-    if (!(bad >> 63)) return;
+    if (!(bad >> 63))
+      return;
   }
   for (std::size_t i = 0; i < p_.size(); ++i) {
     const double q[3] = {p_.x[i], p_.y[i], p_.z[i]};
@@ -927,7 +991,8 @@ LeafStepStats IslandsScheme::take_interval_stats() {
 
 std::array<double, 7> IslandsScheme::fine_fraction_distribution() const {
   std::array<double, 7> d{};
-  if (subits_ == 0 || fine_subits_.empty()) return d;
+  if (subits_ == 0 || fine_subits_.empty())
+    return d;
   std::vector<double> f(fine_subits_.size());
   double sum = 0.0;
   for (std::size_t i = 0; i < f.size(); ++i)
@@ -937,7 +1002,12 @@ std::array<double, 7> IslandsScheme::fine_fraction_distribution() const {
     const auto k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(f.size())));
     return f[std::min(f.size() - 1, k > 0 ? k - 1 : 0)];
   };
-  d = {sum / static_cast<double>(f.size()), f.front(), rank(0.1), rank(0.5), rank(0.9), rank(0.99),
+  d = {sum / static_cast<double>(f.size()),
+       f.front(),
+       rank(0.1),
+       rank(0.5),
+       rank(0.9),
+       rank(0.99),
        f.back()};
   return d;
 }

@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <bit>
-#include <optional>
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <stdexcept>
 
 #include <fmt/format.h>
@@ -24,7 +24,6 @@ namespace cfddem::dem {
 namespace {
 enum class Fault { none = 0, nan, left_domain };
 
-
 // Sort a short segment of partner indices by particle id (the canonical summation order: it
 // survives every re-sort of the store, so a row's sum does not depend on the store's order).
 
@@ -32,7 +31,8 @@ void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* i
   for (std::uint32_t* i = first + (first != last); i < last; ++i) {
     const std::uint32_t v = *i;
     std::uint32_t* j = i;
-    for (; j > first && id[*(j - 1)] > id[v]; --j) *j = *(j - 1);
+    for (; j > first && id[*(j - 1)] > id[v]; --j)
+      *j = *(j - 1);
     *j = v;
   }
 }
@@ -62,8 +62,10 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
       model_(make_step_model(scene, particles)) {
   require_frictionless(model_, "orb");
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
-  for (std::size_t i = 0; i < p_.size(); ++i) r_max_ = std::max(r_max_, p_.radius[i]);
-  if (p_.size() == 0) r_max_ = model_.r_min;
+  for (std::size_t i = 0; i < p_.size(); ++i)
+    r_max_ = std::max(r_max_, p_.radius[i]);
+  if (p_.size() == 0)
+    r_max_ = model_.r_min;
   nsubit_ = scene.dem.nsubit;
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   skin_ = model_.skin;
@@ -72,8 +74,7 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
   for (int a = 0; a < 3; ++a) // no particles: nothing to list (a gas-only or empty scene)
-    if (p_.size() > 0 && geom_.periodic[a] &&
-        geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
+    if (p_.size() > 0 && geom_.periodic[a] && geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
       throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
                                  "neighbor cutoff {:.4g} m",
                                  a, geom_.length[a], 2.0 * r_max_ + model_.skin));
@@ -93,18 +94,22 @@ void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
   const std::size_t n = order.size();
   p_.permute(order);
   auto permute = [&](std::vector<double>& v) {
-    if (v.size() != n) return;
+    if (v.size() != n)
+      return;
     std::vector<double>& t = dscratch_;
     t.resize(n);
-    for (std::size_t k = 0; k < n; ++k) t[k] = v[order[k]];
+    for (std::size_t k = 0; k < n; ++k)
+      t[k] = v[order[k]];
     v.swap(t);
   };
   permute(hprev_), permute(cost_), permute(xr_), permute(yr_), permute(zr_);
   ext_.permute(order);
   scratch_.resize(n);
-  for (std::size_t k = 0; k < n; ++k) scratch_[order[k]] = static_cast<std::uint32_t>(k);
+  for (std::size_t k = 0; k < n; ++k)
+    scratch_[order[k]] = static_cast<std::uint32_t>(k);
   for (auto* v : {&ca_, &cb_, &pa_, &pb_})
-    for (auto& i : *v) i = scratch_[i];
+    for (auto& i : *v)
+      i = scratch_[i];
   off_.clear(); // rows must be derived again
 }
 
@@ -119,13 +124,15 @@ void OrbScheme::regrid() {
   for (std::size_t i = 0; i < n; ++i) {
     const double wx = geom_.wrap(p_.x[i], 0), wy = geom_.wrap(p_.y[i], 1),
                  wz = geom_.wrap(p_.z[i], 2);
-    if (!xr_.empty()) xr_[i] += wx - p_.x[i], yr_[i] += wy - p_.y[i], zr_[i] += wz - p_.z[i];
+    if (!xr_.empty())
+      xr_[i] += wx - p_.x[i], yr_[i] += wy - p_.y[i], zr_[i] += wz - p_.z[i];
     p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
   }
   bool use_cost = cost_weights_;
   if (use_cost) {
     double total = 0.0;
-    for (double c : cost_) total += c;
+    for (double c : cost_)
+      total += c;
     use_cost = total > 0.0; // the first regrid has no measurement yet: count
   }
   // With a gas, cuts lie on fluid cell faces (orb_snap_grid).
@@ -137,8 +144,10 @@ void OrbScheme::regrid() {
   std::fill(cost_.begin(), cost_.end(), 0.0);
   const auto leaves = tree_.leaves();
   ranges_.assign(leaves.size() + 1, 0);
-  for (std::size_t l = 0; l < leaves.size(); ++l) ranges_[l + 1] = leaves[l].end;
-  if (leaf_steps_.size() != leaves.size()) leaf_steps_.assign(leaves.size(), 0);
+  for (std::size_t l = 0; l < leaves.size(); ++l)
+    ranges_[l + 1] = leaves[l].end;
+  if (leaf_steps_.size() != leaves.size())
+    leaf_steps_.assign(leaves.size(), 0);
   ++regrids_;
 }
 
@@ -169,7 +178,8 @@ void OrbScheme::resort() {
       out |= sign_unless(box.lo[0] <= xs[i]) | sign_unless(xs[i] < box.hi[0]) |
              sign_unless(box.lo[1] <= ys[i]) | sign_unless(ys[i] < box.hi[1]) |
              sign_unless(box.lo[2] <= zs[i]) | sign_unless(zs[i] < box.hi[2]);
-    if (!(out >> 63)) continue;
+    if (!(out >> 63))
+      continue;
     for (std::uint32_t i = b; i < e; ++i) {
       // Most particles are still inside their (half-open) box: skip the wrap and the tree
       // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
@@ -186,16 +196,20 @@ void OrbScheme::resort() {
       moved |= static_cast<std::size_t>(k) != l;
     }
   }
-  if (!moved) return;
+  if (!moved)
+    return;
   std::vector<std::uint32_t>& origin = fill_; // original slot of the particle now in each slot
   origin.resize(n);
-  for (std::size_t i = 0; i < n; ++i) origin[i] = static_cast<std::uint32_t>(i);
+  for (std::size_t i = 0; i < n; ++i)
+    origin[i] = static_cast<std::uint32_t>(i);
   auto swap_slots = [&](std::uint32_t a, std::uint32_t c) {
-    if (a == c) return;
+    if (a == c)
+      return;
     p_.swap(a, c);
     std::swap(hprev_[a], hprev_[c]);
     std::swap(cost_[a], cost_[c]);
-    if (!xr_.empty()) std::swap(xr_[a], xr_[c]), std::swap(yr_[a], yr_[c]), std::swap(zr_[a], zr_[c]);
+    if (!xr_.empty())
+      std::swap(xr_[a], xr_[c]), std::swap(yr_[a], yr_[c]), std::swap(zr_[a], zr_[c]);
     ext_.swap(a, c);
     std::swap(target[a], target[c]);
     std::swap(origin[a], origin[c]);
@@ -204,7 +218,8 @@ void OrbScheme::resort() {
     std::uint32_t i = ranges_[l];
     while (true) {
       i = std::max(i, ranges_[l]); // a particle walked out of the front of leaf l
-      if (i >= ranges_[l + 1]) break;
+      if (i >= ranges_[l + 1])
+        break;
       const std::uint32_t dest = target[i];
       if (dest == l) {
         ++i;
@@ -232,9 +247,11 @@ void OrbScheme::resort() {
   }
   // Relabel the pair lists: old slot origin[k] is now slot k.
   scratch_.resize(n);
-  for (std::size_t k = 0; k < n; ++k) scratch_[origin[k]] = static_cast<std::uint32_t>(k);
+  for (std::size_t k = 0; k < n; ++k)
+    scratch_[origin[k]] = static_cast<std::uint32_t>(k);
   for (auto* v : {&ca_, &cb_, &pa_, &pb_})
-    for (auto& q : *v) q = scratch_[q];
+    for (auto& q : *v)
+      q = scratch_[q];
   off_.clear(); // rows must be derived again
 }
 
@@ -263,7 +280,8 @@ bool OrbScheme::rows_expire() const {
     const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
     over |= sign_unless(2.0 * (d2 + v2 * dt2) <= lim2);
   }
-  if (!(over >> 63)) return false;
+  if (!(over >> 63))
+    return false;
   for (std::size_t i = 0; i < n; ++i) {
     const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
     const double d2 = ex * ex + ey * ey + ez * ez;
@@ -288,14 +306,16 @@ void OrbScheme::rebuild_pairs() {
   const double prox_cut = 2.0 * prox * r_max_ + skin_;
   bool prox_cells = true;
   for (int a = 0; a < 3; ++a)
-    if (g.periodic[a] && 2.0 * prox_cut >= g.length[a]) prox_cells = false;
+    if (g.periodic[a] && 2.0 * prox_cut >= g.length[a])
+      prox_cells = false;
   const double cutoff = prox_cells ? std::max(contact_cut, prox_cut) : contact_cut;
   std::array<int, 3> nc{};
   std::array<double, 3> inv{};
   double cell = cutoff;
   const double volume = g.length[0] * g.length[1] * g.length[2];
   const double target = 8.0 * static_cast<double>(n) + 64.0;
-  if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
+  if (volume / (cell * cell * cell) > target)
+    cell = std::cbrt(volume / target);
   for (int a = 0; a < 3; ++a) {
     nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
     inv[a] = nc[a] / g.length[a];
@@ -312,12 +332,14 @@ void OrbScheme::rebuild_pairs() {
         coord(p_.x[i], 0));
     ++cell_start_[cell_of_[i] + 1];
   }
-  for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
+  for (std::size_t c = 0; c < ncell; ++c)
+    cell_start_[c + 1] += cell_start_[c];
   scratch_.resize(n);
   {
     std::vector<std::uint32_t>& fill = fill_;
     fill.assign(cell_start_.begin(), cell_start_.end() - 1);
-    for (std::size_t i = 0; i < n; ++i) scratch_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+    for (std::size_t i = 0; i < n; ++i)
+      scratch_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
   }
   ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear();
   const double* px = p_.x.data();
@@ -329,7 +351,8 @@ void OrbScheme::rebuild_pairs() {
                  dz = g.image(pz[j] - pz[i], 2);
     const double r2 = dx * dx + dy * dy + dz * dz;
     const double rs = pr[i] + pr[j];
-    if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(i), cb_.push_back(j);
+    if (r2 < (rs + skin_) * (rs + skin_))
+      ca_.push_back(i), cb_.push_back(j);
     if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
       pa_.push_back(i), pb_.push_back(j);
   };
@@ -337,24 +360,26 @@ void OrbScheme::rebuild_pairs() {
     // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
     // so every pair is visited once and no cell twice. The binned particles' data are copied in
     // cell order so that the inner loops read contiguous memory.
-    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0},
-                                        {-1, -1, 1}, {0, -1, 1}, {1, -1, 1}, {-1, 0, 1},
-                                        {0, 0, 1},  {1, 0, 1},  {-1, 1, 1}, {0, 1, 1},
-                                        {1, 1, 1}};
+    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0}, {-1, -1, 1},
+                                        {0, -1, 1}, {1, -1, 1}, {-1, 0, 1}, {0, 0, 1}, {1, 0, 1},
+                                        {-1, 1, 1}, {0, 1, 1},  {1, 1, 1}};
     // Interior cells reach their forward neighbours by constant offsets; cells on the grid's
     // faces wrap (periodic) or skip (wall) them.
     std::ptrdiff_t fwd_off[13];
     for (int o = 0; o < 13; ++o)
-      fwd_off[o] = (static_cast<std::ptrdiff_t>(kFwd[o][2]) * nc[1] + kFwd[o][1]) * nc[0] + kFwd[o][0];
+      fwd_off[o] =
+          (static_cast<std::ptrdiff_t>(kFwd[o][2]) * nc[1] + kFwd[o][1]) * nc[0] + kFwd[o][0];
     // Cell c at (cx, cy, cz) on the grid's faces: its forward neighbour o, or kNoCell.
     auto boundary_forward_cell = [&](int cx, int cy, int cz, int o) -> std::uint32_t {
       int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
       for (int a = 0; a < 3; ++a)
         if (q[a] < 0 || q[a] >= nc[a]) {
-          if (!g.periodic[a]) return kNoCell;
+          if (!g.periodic[a])
+            return kNoCell;
           q[a] = (q[a] + nc[a]) % nc[a];
         }
-      return static_cast<std::uint32_t>((static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] + q[0]);
+      return static_cast<std::uint32_t>((static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] +
+                                        q[0]);
     };
     std::vector<double>& sx = sorted_[0];
     std::vector<double>& sy = sorted_[1];
@@ -372,27 +397,33 @@ void OrbScheme::rebuild_pairs() {
       const double r2 = dx * dx + dy * dy + dz * dz;
       const double rs = sr[a] + sr[b];
       const double pc = prox * rs + skin_;
-      if (r2 < (rs + skin_) * (rs + skin_)) ca_.push_back(scratch_[a]), cb_.push_back(scratch_[b]);
-      if (prox_cells && r2 < pc * pc) pa_.push_back(scratch_[a]), pb_.push_back(scratch_[b]);
+      if (r2 < (rs + skin_) * (rs + skin_))
+        ca_.push_back(scratch_[a]), cb_.push_back(scratch_[b]);
+      if (prox_cells && r2 < pc * pc)
+        pa_.push_back(scratch_[a]), pb_.push_back(scratch_[b]);
     };
     for (int cz = 0; cz < nc[2]; ++cz)
       for (int cy = 0; cy < nc[1]; ++cy)
         for (int cx = 0; cx < nc[0]; ++cx) {
           const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
           const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
-          if (c0 == c1) continue;
+          if (c0 == c1)
+            continue;
           for (std::uint32_t a = c0; a < c1; ++a)
-            for (std::uint32_t b = a + 1; b < c1; ++b) test_sorted(a, b);
+            for (std::uint32_t b = a + 1; b < c1; ++b)
+              test_sorted(a, b);
           const bool interior =
               cx >= 1 && cx + 1 < nc[0] && cy >= 1 && cy + 1 < nc[1] && cz + 1 < nc[2];
           for (int o = 0; o < 13; ++o) {
             const std::uint32_t d =
                 interior ? static_cast<std::uint32_t>(static_cast<std::ptrdiff_t>(c) + fwd_off[o])
                          : boundary_forward_cell(cx, cy, cz, o);
-            if (d == kNoCell) continue;
+            if (d == kNoCell)
+              continue;
             const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
             for (std::uint32_t a = c0; a < c1; ++a)
-              for (std::uint32_t b = d0; b < d1; ++b) test_sorted(a, b);
+              for (std::uint32_t b = d0; b < d1; ++b)
+                test_sorted(a, b);
           }
         }
   } else {
@@ -411,7 +442,8 @@ void OrbScheme::rebuild_pairs() {
             const std::size_t q =
                 (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
             for (std::uint32_t k = cell_start_[q]; k < cell_start_[q + 1]; ++k)
-              if (scratch_[k] > i) test(static_cast<std::uint32_t>(i), scratch_[k]);
+              if (scratch_[k] > i)
+                test(static_cast<std::uint32_t>(i), scratch_[k]);
           }
     }
   }
@@ -436,16 +468,20 @@ void OrbScheme::derive_rows() {
   for (std::size_t q = 0; q < ca_.size(); ++q) {
     const std::uint32_t a = ca_[q], b = cb_[q];
     ++off_[a + 1], ++off_[b + 1];
-    if (leaf_of_[a] == leaf_of_[b]) ++own[a], ++own[b];
+    if (leaf_of_[a] == leaf_of_[b])
+      ++own[a], ++own[b];
   }
-  for (std::size_t i = 0; i < n; ++i) off_[i + 1] += off_[i];
+  for (std::size_t i = 0; i < n; ++i)
+    off_[i + 1] += off_[i];
   mid_.resize(n);
-  for (std::size_t i = 0; i < n; ++i) mid_[i] = off_[i] + own[i];
+  for (std::size_t i = 0; i < n; ++i)
+    mid_[i] = off_[i] + own[i];
   nb_.resize(off_[n]);
   std::vector<std::uint32_t>& fo = own; // fill cursors: own segment, then ghost segment
   std::vector<std::uint32_t>& fg = cell_of_;
   fg.resize(n);
-  for (std::size_t i = 0; i < n; ++i) fo[i] = off_[i], fg[i] = mid_[i];
+  for (std::size_t i = 0; i < n; ++i)
+    fo[i] = off_[i], fg[i] = mid_[i];
   for (std::size_t q = 0; q < ca_.size(); ++q) {
     const std::uint32_t a = ca_[q], b = cb_[q];
     if (leaf_of_[a] == leaf_of_[b]) {
@@ -457,11 +493,13 @@ void OrbScheme::derive_rows() {
   active_.clear();
   own_before_.resize(n + 1);
   own_before_[0] = 0;
-  for (std::size_t i = 0; i < n; ++i) own_before_[i + 1] = own_before_[i] + (mid_[i] - off_[i]);
+  for (std::size_t i = 0; i < n; ++i)
+    own_before_[i + 1] = own_before_[i] + (mid_[i] - off_[i]);
   for (std::size_t i = 0; i < n; ++i) {
     sort_by_id(nb_.data() + off_[i], nb_.data() + mid_[i], p_.id.data());
     sort_by_id(nb_.data() + mid_[i], nb_.data() + off_[i + 1], p_.id.data());
-    if (off_[i + 1] > off_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+    if (off_[i + 1] > off_[i])
+      active_.push_back(static_cast<std::uint32_t>(i));
   }
   // Only particles with a row get their contact force rewritten each step: clear the rest.
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
@@ -494,7 +532,8 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   bt.max_ratio = 0.0;
   bt.outran = false;
   bt.fault = Fault::none;
-  if (bt.e == bt.b) return;
+  if (bt.e == bt.b)
+    return;
   const DomainGeometry g = geom_;
   const StepModel m = model_;
   double* __restrict x = p_.x.data();
@@ -548,8 +587,8 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h (leaf_kick_drift).
     // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
     std::uint64_t still = ~std::uint64_t{0};
-    leaf_kick_drift<External>(k, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez, im,
-                              xr, yr, zr, hp, h_before, hk, half_skin2, m.gravity, still);
+    leaf_kick_drift<External>(k, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, xr,
+                              yr, zr, hp, h_before, hk, half_skin2, m.gravity, still);
     h_before = hk;
     // Ghosts do not move and were within skin/2 of their reference: own particles may use the
     // other half. Beyond it a pair could be missing from the rows: stop, the sub-iteration is
@@ -567,8 +606,8 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   // or NaN, fails the comparison (periodic axes get an infinite interval).
   {
     const WallBounds wb(g);
-    const double (&lo)[3] = wb.lo;
-    const double (&hi)[3] = wb.hi;
+    const double(&lo)[3] = wb.lo;
+    const double(&hi)[3] = wb.hi;
     const double inf = std::numeric_limits<double>::infinity();
     std::uint64_t bad = 0;
     for (std::uint32_t i = b; i < e; ++i) {
@@ -578,7 +617,8 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
              sign_unless(x[i] <= hi[0]) | sign_unless(y[i] >= lo[1]) | sign_unless(y[i] <= hi[1]) |
              sign_unless(z[i] >= lo[2]) | sign_unless(z[i] <= hi[2]);
     }
-    if (!(bad >> 63)) return;
+    if (!(bad >> 63))
+      return;
   }
   for (std::uint32_t i = b; i < e && bt.fault == Fault::none; ++i) {
     const double q[3] = {x[i], y[i], z[i]};
@@ -601,16 +641,19 @@ bool OrbScheme::attempt(bool record) {
   tbb::parallel_for(
       tbb::blocked_range<int>(0, nb, 1),
       [&](const tbb::blocked_range<int>& r) {
-        for (int q = r.begin(); q != r.end(); ++q) run_batch(batches_[static_cast<std::size_t>(q)], record);
+        for (int q = r.begin(); q != r.end(); ++q)
+          run_batch(batches_[static_cast<std::size_t>(q)], record);
       },
       tbb::simple_partitioner{});
   for (const Batch& bt : batches_)
-    if (bt.outran && bt.fault == Fault::none) return false;
+    if (bt.outran && bt.fault == Fault::none)
+      return false;
   return true;
 }
 
 void OrbScheme::subiterate(bool record) {
-  if (subits_ % nsubit_ == 0) regrid();
+  if (subits_ % nsubit_ == 0)
+    regrid();
   const std::size_t nl = ranges_.size() - 1;
   const std::size_t n = p_.size();
   bool fresh = false; // rows built for this sub-iteration
@@ -622,7 +665,8 @@ void OrbScheme::subiterate(bool record) {
     for (std::size_t i = 0; i < n; ++i) {
       double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
       if (ext_.active())
-        ax += ext_.x[i] * p_.inv_mass[i], ay += ext_.y[i] * p_.inv_mass[i], az += ext_.z[i] * p_.inv_mass[i];
+        ax += ext_.x[i] * p_.inv_mass[i], ay += ext_.y[i] * p_.inv_mass[i],
+            az += ext_.z[i] * p_.inv_mass[i];
       speed_[i] = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]) +
                   std::sqrt(ax * ax + ay * ay + az * az) * (hprev_[i] + dt_sp_);
       reach = std::max(reach, speed_[i] * dt_sp_);
@@ -633,7 +677,8 @@ void OrbScheme::subiterate(bool record) {
     }
   }
   {
-    if (!pairs_valid_ || rows_expire()) rebuild_pairs(), fresh = true;
+    if (!pairs_valid_ || rows_expire())
+      rebuild_pairs(), fresh = true;
     if (off_.size() != n + 1) {
       PhaseTimer::Scope t(timer_, Phase::neighbor);
       derive_rows();
@@ -662,7 +707,8 @@ void OrbScheme::subiterate(bool record) {
     const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
                  dz = geom_.image(p_.z[c] - p_.z[a], 2);
     const double d = prox * (p_.radius[a] + p_.radius[c]);
-    if (dx * dx + dy * dy + dz * dz < d * d) near_[a] = near_[c] = 1;
+    if (dx * dx + dy * dy + dz * dz < d * d)
+      near_[a] = near_[c] = 1;
   };
   if (time_to_contact_) {
     // dem.local_dt = "time_to_contact" (the seed paper's suggested relative-distance estimate):
@@ -674,10 +720,12 @@ void OrbScheme::subiterate(bool record) {
       const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
                    dz = geom_.image(p_.z[c] - p_.z[a], 2);
       const double reach = p_.radius[a] + p_.radius[c] + (speed_[a] + speed_[c]) * dt_sp_;
-      if (dx * dx + dy * dy + dz * dz < reach * reach) near_[a] = near_[c] = 1;
+      if (dx * dx + dy * dy + dz * dz < reach * reach)
+        near_[a] = near_[c] = 1;
     }
     for (int a = 0; a < 3; ++a) {
-      if (geom_.periodic[a]) continue;
+      if (geom_.periodic[a])
+        continue;
       const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
       for (std::size_t i = 0; i < n; ++i) {
         const double d = p_.radius[i] + speed_[i] * dt_sp_;
@@ -686,15 +734,18 @@ void OrbScheme::subiterate(bool record) {
     }
   } else {
     if (prox_from_pairs_) {
-      for (std::size_t q = 0; q < pa_.size(); ++q) test(pa_[q], pb_[q]);
+      for (std::size_t q = 0; q < pa_.size(); ++q)
+        test(pa_[q], pb_[q]);
     } else {
       for (std::uint32_t a = 0; a < n; ++a)
-        for (std::uint32_t c = a + 1; c < n; ++c) test(a, c);
+        for (std::uint32_t c = a + 1; c < n; ++c)
+          test(a, c);
     }
     // A wall is a partner too: a particle whose centre is closer than proximity_radii radii to
     // a wall (without this, a leaf near a floor took coarse steps straight into it).
     for (int a = 0; a < 3; ++a) {
-      if (geom_.periodic[a]) continue;
+      if (geom_.periodic[a])
+        continue;
       const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
       for (std::size_t i = 0; i < n; ++i) {
         const double d = 2.0 * prox * p_.radius[i];
@@ -706,19 +757,15 @@ void OrbScheme::subiterate(bool record) {
   const unsigned char* near = near_.data();
   for (std::size_t l = 0; l < nl; ++l) {
     unsigned char any = 0; // a local: stores through a char pointer would alias everything
-    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i) any |= near[i];
+    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i)
+      any |= near[i];
     leaf_fine_[l] = any;
   }
-  // K = ceil(dt_sp / dt) fine steps (a relative slack of 1e-9 absorbs rounding when dt divides
-  // dt_sp), the last one shortened to dt_sp - (K-1) dt so the leaf lands on the sub-iteration's
-  // end; or one step of dt_sp.
   const bool can_refine = model_.dt < dt_sp_;
-  const std::int64_t K_fine =
-      can_refine
-          ? std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
-          : 1;
-  const double h_fine = can_refine ? model_.dt : dt_sp_;
-  const double h_fine_last = dt_sp_ - static_cast<double>(K_fine - 1) * h_fine;
+  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
+  const std::int64_t K_fine = steps.K;
+  const double h_fine = steps.h;
+  const double h_fine_last = steps.h_last;
   // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so
   // that every thread gets several (the arithmetic does not depend on the cuts).
   const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
@@ -727,7 +774,8 @@ void OrbScheme::subiterate(bool record) {
   for (std::size_t l = 0; l < nl; ++l) {
     const bool fine = leaf_fine_[l] && can_refine;
     const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
-    if (b == e) continue;
+    if (b == e)
+      continue;
     const std::int64_t K = fine ? K_fine : 1;
     if (batches_.empty() || batches_.back().K != K || batches_.back().e != b ||
         batches_.back().e - batches_.back().b >= grain) {
@@ -741,7 +789,8 @@ void OrbScheme::subiterate(bool record) {
   }
   if (record)
     for (const Batch& bt : batches_)
-      for (std::uint32_t i = bt.b; i < bt.e; ++i) sdt_[i] = dt_sp_ / static_cast<double>(bt.K);
+      for (std::uint32_t i = bt.b; i < bt.e; ++i)
+        sdt_[i] = dt_sp_ / static_cast<double>(bt.K);
   bind_rows();
   while (!attempt(record)) {
     // A fine leaf outran its rows (a collision sped a particle up): roll back, rebuild, redo;
@@ -752,7 +801,8 @@ void OrbScheme::subiterate(bool record) {
                                  "periodic box allows ({:.4g} m): raise dem.nsubit",
                                  time(), skin_));
     p_.x = gx_, p_.y = gy_, p_.z = gz_, p_.vx = gvx_, p_.vy = gvy_, p_.vz = gvz_, hprev_ = ghp_;
-    if (fresh) skin_ = std::min(2.0 * skin_, skin_cap_);
+    if (fresh)
+      skin_ = std::min(2.0 * skin_, skin_cap_);
     fresh = true;
     ++retries_;
     rebuild_pairs();
@@ -776,11 +826,13 @@ void OrbScheme::subiterate(bool record) {
     overlap_violations_ += bt.violations;
     max_overlap_ratio_ = std::max(max_overlap_ratio_, bt.max_ratio);
     if (cost_weights_)
-      for (std::uint32_t i = bt.b; i < bt.e; ++i) cost_[i] += static_cast<double>(bt.K);
+      for (std::uint32_t i = bt.b; i < bt.e; ++i)
+        cost_[i] += static_cast<double>(bt.K);
   }
   std::int64_t fine = 0, busy = 0;
   for (std::size_t l = 0; l < nl; ++l) {
-    if (ranges_[l + 1] == ranges_[l]) continue;
+    if (ranges_[l + 1] == ranges_[l])
+      continue;
     ++busy;
     fine += leaf_fine_[l];
     leaf_steps_[l] += leaf_fine_[l] && can_refine ? K_fine : 1;
@@ -796,13 +848,14 @@ void OrbScheme::benchmark_leaf_subiteration(int leaf) {
   const auto l = static_cast<std::size_t>(leaf);
   Batch bt;
   bt.b = ranges_[l], bt.e = ranges_[l + 1];
-  bt.K = model_.dt < dt_sp_ ? std::max<std::int64_t>(
-                                  1, static_cast<std::int64_t>(std::ceil(dt_sp_ / model_.dt - 1e-9)))
-                            : 1;
-  bt.h = bt.K > 1 ? model_.dt : dt_sp_;
-  bt.h_last = dt_sp_ - static_cast<double>(bt.K - 1) * bt.h;
-  bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) - active_.begin());
-  bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) - active_.begin());
+  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
+  bt.K = steps.K;
+  bt.h = steps.h;
+  bt.h_last = steps.h_last;
+  bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) -
+                                     active_.begin());
+  bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) -
+                                     active_.begin());
   run_batch(bt, false);
 }
 
@@ -852,19 +905,23 @@ void OrbScheme::restore_state(State s) {
     bool ok = s.ca.size() == s.cb.size() && s.pa.size() == s.pb.size() && s.x_ref.size() == n &&
               s.y_ref.size() == n && s.z_ref.size() == n;
     for (const auto* v : {&s.ca, &s.cb, &s.pa, &s.pb})
-      for (std::uint32_t i : *v) ok = ok && i < n;
-    if (!ok) throw RunError("checkpoint: the orb candidate pairs do not fit the particles");
+      for (std::uint32_t i : *v)
+        ok = ok && i < n;
+    if (!ok)
+      throw RunError("checkpoint: the orb candidate pairs do not fit the particles");
   }
   hprev_ = std::move(s.hprev), cost_ = std::move(s.cost), leaf_steps_ = std::move(s.leaf_steps);
   fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
   particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
   regrids_ = s.regrids, overlap_violations_ = s.overlap_violations, retries_ = s.retries;
   last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
-  if (s.skin > 0.0) skin_ = s.skin;
+  if (s.skin > 0.0)
+    skin_ = s.skin;
   pairs_valid_ = s.pairs_valid, prox_from_pairs_ = s.prox_from_pairs;
   ca_ = std::move(s.ca), cb_ = std::move(s.cb), pa_ = std::move(s.pa), pb_ = std::move(s.pb);
   xr_ = std::move(s.x_ref), yr_ = std::move(s.y_ref), zr_ = std::move(s.z_ref);
-  if (!pairs_valid_) ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear(), xr_.clear(), yr_.clear(), zr_.clear();
+  if (!pairs_valid_)
+    ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear(), xr_.clear(), yr_.clear(), zr_.clear();
   off_.clear(); // rows are derived again
 }
 
@@ -872,7 +929,8 @@ LeafStepStats OrbScheme::take_interval_stats() {
   LeafStepStats s;
   std::int64_t lo = std::numeric_limits<std::int64_t>::max(), hi = 0, sum = 0, count = 0;
   for (auto& v : leaf_steps_) {
-    if (v > 0) lo = std::min(lo, v), hi = std::max(hi, v), sum += v, ++count;
+    if (v > 0)
+      lo = std::min(lo, v), hi = std::max(hi, v), sum += v, ++count;
     v = 0;
   }
   if (count > 0) {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <optional>
@@ -18,7 +19,9 @@ namespace cfddem::dem {
 
 // Sign bit set unless `ok`: OR-ed over a loop it is a flag reduction GCC vectorizes (a bool OR
 // is not), the idiom of integrate_range in explicit_scheme.cpp.
-inline std::uint64_t sign_unless(bool ok) { return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0); }
+inline std::uint64_t sign_unless(bool ok) {
+  return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0);
+}
 
 // The grid the orb schemes' ORB cuts snap to: with a gas, its cell faces, so that every leaf is
 // a whole number of cells (the box is the unit of both the particles and the fluid); none
@@ -33,6 +36,26 @@ inline std::optional<partition::Grid> orb_snap_grid(const Scene& scene) {
                           ? scene.fluid.cell_size[a]
                           : scene.domain.length(a) / static_cast<double>(scene.fluid.cells[a]);
   return grid;
+}
+
+// The fine steps of one sub-iteration of length dt_sp for a contact step dt: K = ceil(dt_sp / dt)
+// steps of dt (a relative slack of 1e-9 absorbs rounding when dt divides dt_sp), the last one
+// shortened to dt_sp - (K-1) dt so that the particle lands on the sub-iteration's end; or one
+// step of dt_sp when dt >= dt_sp. Every sub-iterated scheme (orb, islands, on any rank count)
+// takes its fine steps from here.
+struct FineSteps {
+  std::int64_t K = 1;
+  double h = 0.0, h_last = 0.0;
+};
+inline FineSteps fine_steps(double dt_sp, double dt) {
+  FineSteps f;
+  const bool can_refine = dt < dt_sp;
+  f.K = can_refine
+            ? std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(dt_sp / dt - 1e-9)))
+            : 1;
+  f.h = can_refine ? dt : dt_sp;
+  f.h_last = dt_sp - static_cast<double>(f.K - 1) * f.h;
+  return f;
 }
 
 // The closed interval a coordinate must stay in on each axis: the walls, or an infinite interval
@@ -50,8 +73,9 @@ struct WallBounds {
 inline void require_frictionless(const StepModel& m, const std::string& scheme) {
   if (m.friction)
     throw ConfigError("scene key 'dem.scheme'",
-                      "\"" + scheme + "\" supports frictionless contacts only (dem.friction and "
-                      "dem.wall_friction must be 0); use \"explicit\"");
+                      "\"" + scheme +
+                          "\" supports frictionless contacts only (dem.friction and "
+                          "dem.wall_friction must be 0); use \"explicit\"");
 }
 
 // The largest skin a list may grow to while its cutoff 2 r_max + skin stays below half of every
@@ -59,7 +83,8 @@ inline void require_frictionless(const StepModel& m, const std::string& scheme) 
 inline double periodic_skin_cap(const DomainGeometry& g, double r_max) {
   double cap = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a)
-    if (g.periodic[a]) cap = std::min(cap, 0.499 * g.length[a] - 2.0 * r_max);
+    if (g.periodic[a])
+      cap = std::min(cap, 0.499 * g.length[a] - 2.0 * r_max);
   return cap;
 }
 

@@ -1,6 +1,5 @@
-// The passes of one velocity Verlet step over a Verlet list, shared by the explicit scheme and
-// its distributed twin (dem/distributed_explicit_scheme.hpp), so both take the same
-// floating-point path: the contact pass over the list's rows, wall forces, the vectorized
+// The passes of one velocity Verlet step over a Verlet list, of the explicit scheme on any rank
+// count (dem/explicit_scheme.hpp), so one rank and R ranks take the same floating-point path: the contact pass over the list's rows, wall forces, the vectorized
 // kick-drift of a range, and the search and wording of a failed check. Loops over spans of the
 // store: no allocation, no MPI; the contact pass hands rows to TBB with a fixed partition.
 #pragma once

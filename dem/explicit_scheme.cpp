@@ -109,8 +109,8 @@ void ExplicitScheme::rebuild() {
 template <bool Friction>
 void ExplicitScheme::contact_rows(std::span<const std::uint32_t> rows, const DomainGeometry& frame,
                                   double dt, StepReport& rep) {
-  contact_pass<Friction>(p_, rows_.list, frame, model_, rows_.hx.data(), rows_.hy.data(),
-                         rows_.hz.data(), dt, rows, rep);
+  contact_pass<Friction>(p_, rows_.list, rows, {rows_.hx, rows_.hy, rows_.hz}, frame, model_, dt,
+                         rep);
 }
 
 void ExplicitScheme::contact(double dt, StepReport& rep) {

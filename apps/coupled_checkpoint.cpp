@@ -31,7 +31,7 @@ void write_coupled_checkpoint(const std::string& path, Checkpoint c, Scheme& sch
                               const ParticleStore& particles, const GasCoupling& gas,
                               const CoupledLoopState& loop, const GasBlock& block,
                               const Communicator& comm) {
-  if constexpr (std::is_same_v<Scheme, dem::DistributedExplicitScheme>) {
+  if constexpr (std::is_same_v<Scheme, dem::ExplicitScheme>) {
     scheme.canonicalize();
     gather_rank_particles(scheme, particles, comm, c);
   } else {
@@ -94,8 +94,7 @@ std::array<std::vector<double>, 3> held_share(const Checkpoint& ck,
 } // namespace
 
 void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
-                            const dem::ContactHistory& history,
-                            dem::DistributedExplicitScheme& scheme) {
+                            const dem::ContactHistory& history, dem::ExplicitScheme& scheme) {
   const auto f = held_share(ck, taken);
   scheme.set_external_force(f[0], f[1], f[2]);
   scheme.restore(
@@ -125,9 +124,9 @@ void restore_coupled_gas(Checkpoint& ck, const std::string& path, GasCoupling& g
     loop.snapshot_cells = gas.cell_fields();
 }
 
-template void write_coupled_checkpoint(const std::string&, Checkpoint,
-                                       dem::DistributedExplicitScheme&, const ParticleStore&,
-                                       const GasCoupling&, const CoupledLoopState&, const GasBlock&,
+template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::ExplicitScheme&,
+                                       const ParticleStore&, const GasCoupling&,
+                                       const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
 template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::DistributedOrbScheme&,
                                        const ParticleStore&, const GasCoupling&,

@@ -25,7 +25,7 @@
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/contact_history.hpp"
-#include "dem/distributed_explicit_scheme.hpp"
+#include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
 
@@ -33,7 +33,7 @@ namespace cfddem::apps {
 GasBlock gas_block(const Scene& scene, const Communicator& comm);
 
 // Collective. `header`: checkpoint_header's fields (rank 0's count); the rest is filled here.
-// Scheme: dem::DistributedExplicitScheme, DistributedOrbScheme or DistributedIslandsScheme (the
+// Scheme: dem::ExplicitScheme, DistributedOrbScheme or DistributedIslandsScheme (the
 // sub-iterated ones at a fluid-step boundary, a regrid point: their save_state()).
 template <class Scheme>
 void write_coupled_checkpoint(const std::string& path, Checkpoint header, Scheme& scheme,
@@ -46,8 +46,7 @@ void write_coupled_checkpoint(const std::string& path, Checkpoint header, Scheme
 // (saved_contact_history, read before rank_share); restore() moves every particle to its owner
 // with its force and history.
 void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
-                            const dem::ContactHistory& history,
-                            dem::DistributedExplicitScheme& scheme);
+                            const dem::ContactHistory& history, dem::ExplicitScheme& scheme);
 // The same for a sub-iterated scheme: `state` is subiterated_share's (apps/rank_checkpoint.hpp).
 template <class Scheme>
 void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,

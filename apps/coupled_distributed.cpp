@@ -28,7 +28,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/distributed_explicit_scheme.hpp"
+#include "dem/explicit_scheme.hpp"
 #include "dem/distributed_islands_scheme.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
@@ -56,14 +56,14 @@ partition::RankDecomposition box_decomposition(const Scene& scene,
 // (explicit: ceil(dt_f / dt_dem) steps; sub-iterated: dem.nsubit sub-iterations of dt_f / nsubit,
 // a regrid at every fluid step), rows written by the first particle step after an output time
 // with the gas taken at that time.
-// Scheme: dem::DistributedExplicitScheme owns particles by gas box (its decomposition is the gas
+// Scheme: dem::ExplicitScheme owns particles by gas box (its decomposition is the gas
 // boxes), so the gas deposits its owned particles directly. A sub-iterated scheme
 // (dem::DistributedOrbScheme; any with its interface: start, subiterate, take_interval_stats,
 // set_external_force, owned, synchronised_previous) owns them by its own leaves, so each fluid
 // step routes them to the gas boxes and the forces back (GasRouting).
 template <class Scheme>
 RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
-  constexpr bool kSub = !std::is_same_v<Scheme, dem::DistributedExplicitScheme>;
+  constexpr bool kSub = !std::is_same_v<Scheme, dem::ExplicitScheme>;
   constexpr bool kLeaves = std::is_same_v<Scheme, dem::DistributedOrbScheme>;
   const char* scheme_name = kLeaves ? "orb" : kSub ? "islands" : "explicit";
   namespace fs = std::filesystem;
@@ -530,7 +530,7 @@ RunResult run_coupled_distributed(const Scene& scene, const RunOptions& opt,
     return run_coupled_ranks<dem::DistributedOrbScheme>(scene, opt, env);
   if (scene.dem.scheme == "islands")
     return run_coupled_ranks<dem::DistributedIslandsScheme>(scene, opt, env);
-  return run_coupled_ranks<dem::DistributedExplicitScheme>(scene, opt, env);
+  return run_coupled_ranks<dem::ExplicitScheme>(scene, opt, env);
 }
 
 } // namespace cfddem::apps

@@ -12,9 +12,8 @@
 
 namespace cfddem::apps {
 
-void gather_rank_particles(const dem::DistributedExplicitScheme& scheme,
-                           const ParticleStore& particles, const Communicator& comm,
-                           Checkpoint& c) {
+void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStore& particles,
+                           const Communicator& comm, Checkpoint& c) {
   const std::size_t n = scheme.owned();
   const std::span<const double> own[] = {
       {particles.x.data(), n},      {particles.y.data(), n},    {particles.z.data(), n},

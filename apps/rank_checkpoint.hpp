@@ -17,19 +17,19 @@
 #include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "dem/contact_history.hpp"
-#include "dem/distributed_explicit_scheme.hpp"
 #include "dem/distributed_islands_scheme.hpp"
 #include "dem/distributed_orb_scheme.hpp"
+#include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
 
 // Collective, after scheme.canonicalize(). Fills c.particles and c.state on rank 0 (other ranks'
 // `c` is left as it is). Throws RunError on every rank when the history does not fit.
-void gather_rank_particles(const dem::DistributedExplicitScheme& scheme,
-                           const ParticleStore& particles, const Communicator& comm, Checkpoint& c);
+void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStore& particles,
+                           const Communicator& comm, Checkpoint& c);
 
 // The contact history a checkpoint holds (rows over its particles) as records by id, for
-// DistributedExplicitScheme::restore; empty without friction. Call before the particles are
+// ExplicitScheme::restore; empty without friction. Call before the particles are
 // handed out (rank_share moves them).
 dem::ContactHistory saved_contact_history(const Checkpoint& ck);
 

@@ -32,10 +32,9 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/distributed_explicit_scheme.hpp"
+#include "dem/explicit_scheme.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
-#include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
@@ -467,7 +466,7 @@ RunResult run_subiterated(const Scene& scene, const RunOptions& opt, const Paral
 }
 
 
-// The explicit loop over MPI ranks (dem::DistributedExplicitScheme). Every rank starts from its
+// The explicit loop over MPI ranks (dem::ExplicitScheme). Every rank starts from its
 // share of the particles (rank_share; start() sends each to its owner). Rows hold values
 // reduced over the ranks; only rank 0 writes diagnostics.csv and run.json.
 RunResult run_distributed(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
@@ -490,7 +489,7 @@ RunResult run_distributed(const Scene& scene, const RunOptions& opt, const Paral
   const dem::StepModel model = dem::make_step_model(scene, range);
   const std::size_t n_total = derived.particles;
   PhaseTimer timer;
-  dem::DistributedExplicitScheme scheme(scene, particles, model, comm, timer);
+  dem::ExplicitScheme scheme(scene, particles, model, comm, timer);
   const long long n_end = derived.steps;
   if (ck && ck->dt != scheme.dt())
     throw ConfigError(opt.restart, fmt::format("checkpoint dt {:.17g} s differs from the "

@@ -336,6 +336,10 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
   double max_ratio = 0.0;
   std::int64_t violations = 0;
   double h_before = 0.0;
+  // The reference of the skin test is the position at the sub-iteration start (gx, gy, gz).
+  KickDriftColumns columns = kick_drift_columns(p_, gx_, gy_, gz_, nullptr, hprev_);
+  if constexpr (External)
+    columns.ex = ex_, columns.ey = ey_, columns.ez = ez_;
   for (std::int64_t step = 0; step < bt.K; ++step) {
     const double hk = step + 1 == bt.K ? bt.h_last : bt.h;
     leaf_contact_pass(bt.a0, bt.a1, act, off, mid, nb, x, y, z, vx, vy, vz, gx, gy, gz, gvx, gvy,
@@ -349,8 +353,8 @@ template <bool External> void DistributedOrbScheme::run_batch_impl(std::size_t w
     // The reference of the skin test is the position at the sub-iteration start (the rows are
     // built there).
     std::uint64_t still = ~std::uint64_t{0};
-    leaf_kick_drift<External>(step, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez, im,
-                              gx, gy, gz, hp, h_before, hk, half_skin2, m.gravity, still);
+    leaf_kick_drift<External>(step, bt.K, columns.range(b, e), h_before, hk, m.gravity, half_skin2,
+                              still);
     h_before = hk;
     if (step + 1 < bt.K && !(still >> 63)) {
       bt.outran = true;

@@ -1,123 +1,98 @@
 #include "dem/explicit_scheme.hpp"
 
 #include <algorithm>
-#include <bit>
-#include <cmath>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
-#include <unordered_map>
+#include <string>
 
 #include <fmt/format.h>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_reduce.h>
-#include <tbb/partitioner.h>
 
 #include "core/error.hpp"
-#include "dem/contact_damping.hpp"
-#include "dem/contact_kernels.hpp"
+#include "dem/explicit_ranks.hpp"
 #include "dem/verlet_passes.hpp"
 
 namespace cfddem::dem {
 
-namespace {
-constexpr std::uint32_t kNone = kNoParticle;
-} // namespace
-
-ParticleRange particle_range(const ParticleStore& p) {
-  ParticleRange r;
-  r.count = static_cast<std::int64_t>(p.size());
-  r.m_min = r.r_min = std::numeric_limits<double>::infinity();
-  for (std::size_t i = 0; i < p.size(); ++i) {
-    r.m_min = std::min(r.m_min, p.mass[i]);
-    r.m_max = std::max(r.m_max, p.mass[i]);
-    r.r_min = std::min(r.r_min, p.radius[i]);
-    r.r_max = std::max(r.r_max, p.radius[i]);
-  }
-  return r;
-}
-
-StepModel make_step_model(const Scene& s, const ParticleStore& p) {
-  return make_step_model(s, particle_range(p));
-}
-
-StepModel make_step_model(const Scene& s, const ParticleRange& range) {
-  StepModel m;
-  const auto& d = s.dem;
-  m.gravity = s.gravity;
-  m.pair = {d.spring_constant, dashpot_coefficient(d.spring_constant, d.restitution)};
-  m.wall = {d.wall_spring_constant, dashpot_coefficient(d.wall_spring_constant, d.wall_restitution)};
-  m.friction = d.friction > 0.0 || d.wall_friction > 0.0;
-  m.pair_t = {d.tangential_stiffness_ratio * d.spring_constant,
-              d.tangential_damping_ratio * m.pair.eta_coef, d.friction};
-  m.wall_t = {d.tangential_stiffness_ratio * d.wall_spring_constant,
-              d.tangential_damping_ratio * m.wall.eta_coef, d.wall_friction};
-  m.max_overlap = d.max_overlap;
-  const bool empty = range.count == 0;
-  const double m_min = empty ? 1.0 : range.m_min;
-  const double r_min = empty ? 1.0 : range.r_min, r_max = empty ? 1.0 : range.r_max;
-  m.r_min = r_min;
-  m.uniform_mass = !empty && range.m_min == range.m_max;
-  if (m.uniform_mass) {
-    m.uniform_meff = 0.5 * range.m_min;
-    m.uniform_eta = m.pair.eta_coef * std::sqrt(m.uniform_meff); // docs/theory.md §2: eta_n
-  }
-  const double k_max = std::max(d.spring_constant, d.wall_spring_constant);
-  const double tau_p = std::sqrt(m_min / k_max);
-  m.dt = d.dt > 0.0 ? d.dt : tau_p * d.dt_factor;
-  // Stiffest oscillator: two of the lightest particles (m_eff = m/2) or one against a wall.
-  const double omega = std::max(std::sqrt(2.0 * d.spring_constant / m_min),
-                                std::sqrt(d.wall_spring_constant / m_min));
-  // Known before any step: a configuration error (exit 2), named by its keys.
-  if (omega * m.dt >= 2.0)
-    throw ConfigError(
-        d.dt > 0.0 ? "scene key 'dem.dt'" : "scene key 'dem.dt_factor'",
-        fmt::format(
-            "unstable time step: omega dt = {:.4g} >= 2 for the stiffest contact (dt = {:.4g} s, "
-            "dem.dt_factor = {}, dem.dt = {}); velocity Verlet on a spring needs omega dt < 2, and "
-            "accuracy needs far less (dem.dt_factor = 0.02 gives 0.028)",
-            omega * m.dt, m.dt, d.dt_factor, d.dt));
-  m.skin = d.neighbor_skin > 0 ? d.neighbor_skin : 0.5 * r_max; // 0.25 d_max (the peers' skin)
-  return m;
-}
-
 ExplicitScheme::ExplicitScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
-    : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain),
-      model_(make_step_model(scene, particles)) {
-  if (model_.friction) p_.enable_rotation();
+    : ExplicitScheme(scene, particles, make_step_model(scene, particles), nullptr, timer) {}
+
+ExplicitScheme::ExplicitScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
+                               const Communicator* comm, PhaseTimer& timer)
+    : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
+  if (model_.friction)
+    p_.enable_rotation();
+  if (comm != nullptr && comm->size() > 1)
+    rank_ = std::make_unique<RankPart>(scene, p_, model_, *comm);
+}
+
+ExplicitScheme::~ExplicitScheme() {
+  finish_forward();
+}
+
+std::size_t ExplicitScheme::owned() const {
+  return rank_ ? rank_->owned : p_.size();
+}
+std::int64_t ExplicitScheme::global_count() const {
+  return rank_ ? rank_->n_global : static_cast<std::int64_t>(p_.size());
+}
+std::int64_t ExplicitScheme::history_migrations() const {
+  return rank_ ? rank_->history_migrations : 0;
+}
+int ExplicitScheme::levels() const {
+  return rank_ ? rank_->levels : 0;
+}
+const std::vector<ExplicitScheme::Regrid>& ExplicitScheme::regrids() const {
+  static const std::vector<Regrid> none;
+  return rank_ ? rank_->regrids : none;
+}
+const partition::RankDecomposition& ExplicitScheme::decomposition() const {
+  static const partition::RankDecomposition none;
+  return rank_ ? rank_->decomposition : none;
+}
+
+void ExplicitScheme::set_decomposition(partition::RankDecomposition d) {
+  if (!rank_)
+    return;
+  rank_->decomposition = std::move(d);
+  rank_->fixed_decomposition = true;
+  rank_->last_regrid = -1;
+  rows_.need_rebuild = true;
+}
+
+void ExplicitScheme::redistribute_now() {
+  if (rank_ && rows_.need_rebuild)
+    rebuild();
+}
+
+void ExplicitScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
+                                        std::span<const double> fz) {
+  ext_.set(fx, fy, fz, owned());
+  // On R ranks: on when any rank holds a force; then every rank carries one per particle when
+  // particles migrate (a rank without particles, whose spans are empty, too).
+  if (rank_)
+    rank_->ext_on = rank_->comm.max(fx.empty() ? 0.0 : 1.0) > 0.0;
+}
+
+void ExplicitScheme::rebuild_one_rank() {
+  // Carry the tangential history of each pair across the rebuild, keyed by particle ids (with
+  // any records a restart handed in).
+  ContactHistory held;
+  if (model_.friction) {
+    held = collect_history(p_, rows_.list, p_.size(), rows_.hx, rows_.hy, rows_.hz);
+    held.append(rows_.pending);
+    rows_.pending = ContactHistory{};
+  }
+  rows_.list.build(p_, geom_, model_.skin);
+  if (model_.friction)
+    attach_history(std::move(held), p_, rows_.list, p_.size(), rows_.hx, rows_.hy, rows_.hz);
+  ext_.permute(rows_.list.order()); // the build permuted the store: external forces follow
 }
 
 void ExplicitScheme::rebuild() {
+  finish_forward(); // its ghosts are about to be replaced; the messages must land first
   PhaseTimer::Scope t(timer_, Phase::neighbor);
-  if (!model_.friction) {
-    list_.build(p_, geom_, model_.skin);
-  } else {
-    // Carry the tangential history of each pair across the rebuild, keyed by particle ids.
-    std::unordered_map<std::int64_t, std::uint32_t> old_index;
-    old_index.reserve(p_.size());
-    for (std::size_t i = 0; i < p_.size(); ++i) old_index[p_.id[i]] = static_cast<std::uint32_t>(i);
-    const std::vector<std::uint32_t> old_off(list_.offsets().begin(), list_.offsets().end());
-    const std::vector<std::uint32_t> old_nb(list_.neighbors().begin(), list_.neighbors().end());
-    std::vector<std::int64_t> old_ids(p_.id);
-    std::vector<double> ohx(std::move(hx_)), ohy(std::move(hy_)), ohz(std::move(hz_));
-    list_.build(p_, geom_, model_.skin);
-    const auto off = list_.offsets();
-    const auto nb = list_.neighbors();
-    hx_.assign(nb.size(), 0.0), hy_.assign(nb.size(), 0.0), hz_.assign(nb.size(), 0.0);
-    if (!old_off.empty()) {
-      for (std::size_t i = 0; i + 1 < off.size(); ++i) {
-        const std::uint32_t oi = old_index[p_.id[i]];
-        for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-          const std::int64_t jid = p_.id[nb[k]];
-          for (std::uint32_t q = old_off[oi]; q < old_off[oi + 1]; ++q)
-            if (old_ids[old_nb[q]] == jid) {
-              hx_[k] = ohx[q], hy_[k] = ohy[q], hz_[k] = ohz[q];
-              break;
-            }
-        }
-      }
-    }
-  }
-  ext_.permute(list_.order()); // the build permuted the store: external forces follow
+  rank_ ? rebuild_ranks() : rebuild_one_rank();
   // Only particles with a row get their contact force rewritten each step: clear the rest.
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
@@ -127,91 +102,81 @@ void ExplicitScheme::rebuild() {
     std::fill(p_.ty.begin(), p_.ty.end(), 0.0);
     std::fill(p_.tz.begin(), p_.tz.end(), 0.0);
   }
-  ++builds_;
-  need_rebuild_ = false;
+  ++stats_.builds;
+  rows_.need_rebuild = false;
 }
 
-template <bool Friction> void ExplicitScheme::contact_pass(double dt, Report& out) {
-  dem::contact_pass<Friction>(p_, list_, geom_, model_, hx_.data(), hy_.data(), hz_.data(), dt,
-                              list_.active(), out);
+template <bool Friction>
+void ExplicitScheme::contact_rows(std::span<const std::uint32_t> rows, const DomainGeometry& frame,
+                                  double dt, StepReport& rep) {
+  contact_pass<Friction>(p_, rows_.list, rows, {rows_.hx, rows_.hy, rows_.hz}, frame, model_, dt,
+                         rep);
 }
 
-
-template <bool Walls, bool Friction, bool External>
-void ExplicitScheme::update_pass(double dt, Report& out) {
-  dem::update_pass<Walls, Friction, External>(p_, p_.size(), list_, ext_, geom_, model_, dt, out);
+void ExplicitScheme::contact(double dt, StepReport& rep) {
+  PhaseTimer::Scope t(timer_, Phase::force);
+  const bool fr = model_.friction;
+  // One rank: minimum image through the whole domain. R ranks: the local frame (ghosts sit at
+  // their images).
+  const DomainGeometry& frame = rank_ ? rank_->local : geom_;
+  const VerletList& list = rows_.list;
+  if (!rank_ || !rank_->forward_pending) {
+    fr ? contact_rows<true>(list.active(), frame, dt, rep)
+       : contact_rows<false>(list.active(), frame, dt, rep);
+    return;
+  }
+  fr ? contact_rows<true>(list.interior(), frame, dt, rep)
+     : contact_rows<false>(list.interior(), frame, dt, rep);
+  finish_forward();
+  fr ? contact_rows<true>(list.boundary(), frame, dt, rep)
+     : contact_rows<false>(list.boundary(), frame, dt, rep);
 }
 
-template <bool Walls> void ExplicitScheme::update(double dt, Report& rep) {
+template <bool Walls> void ExplicitScheme::update(double dt, StepReport& rep) {
+  const std::size_t n = owned();
   if (model_.friction) {
-    ext_.active() ? update_pass<Walls, true, true>(dt, rep) : update_pass<Walls, true, false>(dt, rep);
+    ext_.active()
+        ? update_pass<Walls, true, true>(p_, n, rows_.list, ext_, geom_, model_, dt, rep)
+        : update_pass<Walls, true, false>(p_, n, rows_.list, ext_, geom_, model_, dt, rep);
   } else {
-    ext_.active() ? update_pass<Walls, false, true>(dt, rep)
-              : update_pass<Walls, false, false>(dt, rep);
+    ext_.active()
+        ? update_pass<Walls, false, true>(p_, n, rows_.list, ext_, geom_, model_, dt, rep)
+        : update_pass<Walls, false, false>(p_, n, rows_.list, ext_, geom_, model_, dt, rep);
   }
 }
 
-void ExplicitScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
-                                        std::span<const double> fz) {
-  ext_.set(fx, fy, fz, p_.size());
-}
-
-void ExplicitScheme::evaluate_and_update(double dt, Report& rep) {
+void ExplicitScheme::evaluate_and_update(double dt, StepReport& rep) {
   const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
-  {
-    PhaseTimer::Scope t(timer_, Phase::force);
-    model_.friction ? contact_pass<true>(dt, rep) : contact_pass<false>(dt, rep);
-  }
+  contact(dt, rep);
   // Wall forces are evaluated inside the update pass and timed with it.
   PhaseTimer::Scope t(timer_, Phase::integrate);
   walls ? update<true>(dt, rep) : update<false>(dt, rep);
 }
 
-std::string describe_fault(const ParticleStore& p, const StepReport& r, const StepModel& m) {
-  const std::uint32_t i = r.bad;
-  const std::string who = fmt::format("particle {} at ({:.6g}, {:.6g}, {:.6g}) m", p.id[i],
-                                      p.x[i], p.y[i], p.z[i]);
-  std::string why;
-  switch (r.fault) {
-  case StepFault::nan:
-    why = "position or velocity is not finite (NaN/inf): the step is unstable";
-    break;
-  case StepFault::overlap:
-    why = r.partner == kNone
-              ? fmt::format("overlap with a wall is {:.3g} of its radius (dem.max_overlap = {}): "
-                            "the impact is too fast for the spring (raise k or lower dt)",
-                            r.value, m.max_overlap)
-              : fmt::format("overlap with particle {} is {:.3g} of the smaller radius "
-                            "(dem.max_overlap = {}): the impact is too fast for the spring "
-                            "(raise k or lower dt)",
-                            p.id[r.partner], r.value, m.max_overlap);
-    break;
-  case StepFault::speed:
-    why = fmt::format("speed {:.4g} m/s moves it more than the smallest radius in one step "
-                      "(dt = {:.4g} s): contacts could be missed (tunnelling)",
-                      r.value, m.dt);
-    break;
-  case StepFault::left_domain:
-    why = fmt::format("left the domain through a wall (coordinate {:.6g} m)", r.value);
-    break;
-  case StepFault::none:
-    break;
+void ExplicitScheme::report_fault(const StepReport& rep, double t) const {
+  std::string message;
+  std::int64_t key = std::numeric_limits<std::int64_t>::max();
+  if (rep.bad != kNoParticle) {
+    message =
+        fmt::format("t = {:.9g} s, step {}: {}", t, stats_.steps, describe_fault(p_, rep, model_));
+    if (rank_)
+      message += fmt::format(" (rank {})", rank_->comm.rank());
+    key = p_.id[rep.bad];
   }
-  return who + ": " + why;
+  if (!rank_) {
+    if (!message.empty())
+      throw RunError(message);
+    return;
+  }
+  // Every rank learns whether any has a fault, and all throw the same error.
+  const std::string agreed = rank_->comm.agree_on_error(key, message);
+  if (!agreed.empty())
+    throw RunError(agreed);
 }
 
-void ExplicitScheme::raise(const Report& r, double t) const {
-  throw RunError(fmt::format("t = {:.9g} s, step {}: {}", t, steps_, describe_fault(p_, r, model_)));
-}
-
-void ExplicitScheme::start() {
-  rebuild();
-  // Forces at t = 0 with v(0) (dt = 0 leaves x and v unchanged), then v(-dt/2) = v(0) - a(0) dt/2.
-  Report rep;
-  evaluate_and_update(0.0, rep);
-  if (rep.bad != kNone && rep.fault == StepFault::overlap) raise(rep, 0.0);
+void ExplicitScheme::half_kick_start() {
   const double h = 0.5 * model_.dt;
-  for (std::size_t i = 0; i < p_.size(); ++i) {
+  for (std::size_t i = 0, n = owned(); i < n; ++i) {
     const double e[3] = {ext_.active() ? ext_.x[i] : 0.0, ext_.active() ? ext_.y[i] : 0.0,
                          ext_.active() ? ext_.z[i] : 0.0};
     p_.vx[i] -= ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
@@ -225,82 +190,145 @@ void ExplicitScheme::start() {
   }
 }
 
+void ExplicitScheme::start() {
+  rebuild();
+  // Forces at t = 0 with v(0) (dt = 0 leaves x and v unchanged), then v(-dt/2) = v(0) - a(0) dt/2.
+  StepReport rep;
+  evaluate_and_update(0.0, rep);
+  if (rep.fault != StepFault::overlap)
+    rep = StepReport{}; // at t = 0 only an overlap is a fault
+  report_fault(rep, 0.0);
+  half_kick_start();
+  if (rank_)
+    rank_->exchange.forward(p_);
+}
+
 void ExplicitScheme::record_synchronised() {
   // x(n) and v(n) = v(n-1/2) + a(n) dt/2, with a(n) from the forces just evaluated.
-  const std::size_t n = p_.size();
-  sx_ = p_.x, sy_ = p_.y, sz_ = p_.z;
-  svx_.resize(n), svy_.resize(n), svz_.resize(n);
+  const std::size_t n = owned();
+  const auto first = static_cast<std::ptrdiff_t>(n);
+  Recorded& s = recorded_;
+  s.x.assign(p_.x.begin(), p_.x.begin() + first);
+  s.y.assign(p_.y.begin(), p_.y.begin() + first);
+  s.z.assign(p_.z.begin(), p_.z.begin() + first);
+  s.vx.resize(n), s.vy.resize(n), s.vz.resize(n);
   const double h = 0.5 * model_.dt;
   for (std::size_t i = 0; i < n; ++i) {
     const double e[3] = {ext_.active() ? ext_.x[i] : 0.0, ext_.active() ? ext_.y[i] : 0.0,
                          ext_.active() ? ext_.z[i] : 0.0};
-    svx_[i] = p_.vx[i] + ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
-    svy_[i] = p_.vy[i] + ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
-    svz_[i] = p_.vz[i] + ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
+    s.vx[i] = p_.vx[i] + ((p_.fx[i] + e[0]) * p_.inv_mass[i] + model_.gravity[0]) * h;
+    s.vy[i] = p_.vy[i] + ((p_.fy[i] + e[1]) * p_.inv_mass[i] + model_.gravity[1]) * h;
+    s.vz[i] = p_.vz[i] + ((p_.fz[i] + e[2]) * p_.inv_mass[i] + model_.gravity[2]) * h;
   }
 }
 
 void ExplicitScheme::step(bool record) {
-  if (need_rebuild_) rebuild();
-  Report rep;
+  if (rows_.need_rebuild)
+    rebuild();
+  StepReport rep;
   if (!record) {
     evaluate_and_update(model_.dt, rep);
   } else {
     // Split so the state at time n can be recorded between the force and the update.
     const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
     const bool fr = model_.friction;
-    {
-      PhaseTimer::Scope t(timer_, Phase::force);
-      fr ? contact_pass<true>(model_.dt, rep) : contact_pass<false>(model_.dt, rep);
-    }
+    contact(model_.dt, rep);
     PhaseTimer::Scope t(timer_, Phase::integrate);
+    const std::size_t n = owned();
     if (walls) {
       // Wall forces are added inside the update pass; record after a force-only wall pass would
-      // double count, so record with the wall forces applied by a dt = 0 update.
-      fr ? update_pass<true, true, false>(0.0, rep) : update_pass<true, false, false>(0.0, rep);
-      record_synchronised();
-      // The dt = 0 pass left x, v unchanged and F including walls; finish with a pure update.
-      update<false>(model_.dt, rep);
-    } else {
-      record_synchronised();
-      update<false>(model_.dt, rep);
+      // double count, so record with the wall forces applied by a dt = 0 update (x, v unchanged).
+      fr ? update_pass<true, true, false>(p_, n, rows_.list, ext_, geom_, model_, 0.0, rep)
+         : update_pass<true, false, false>(p_, n, rows_.list, ext_, geom_, model_, 0.0, rep);
     }
+    record_synchronised();
+    // F now includes the walls: finish with a pure update.
+    update<false>(model_.dt, rep);
   }
-  if (rep.bad != kNone) raise(rep, time());
-  ++steps_;
-  particle_steps_ += static_cast<std::int64_t>(p_.size());
-  pair_evaluations_ += static_cast<std::int64_t>(list_.pair_count());
-  if (rep.moved > 0) need_rebuild_ = true;
+  bool moved = rep.moved > 0, failed = rep.bad != kNoParticle;
+  if (rank_)
+    exchange_after_step(moved, failed);
+  if (failed)
+    report_fault(rep, time());
+  ++stats_.steps;
+  const auto pairs = static_cast<std::int64_t>(rows_.list.neighbors().size() / 2);
+  stats_.particle_steps += global_count();
+  stats_.pair_evaluations += rank_ ? rank_->global_pairs : pairs;
+  stats_.local_particle_steps += static_cast<std::int64_t>(owned());
+  stats_.local_pair_evaluations += pairs;
+  if (moved)
+    rows_.need_rebuild = true;
+}
+
+void ExplicitScheme::canonicalize() {
+  if (rank_) {
+    rank_->last_regrid = -1; // regrid now
+    rebuild();
+    return;
+  }
+  // One rank: the list build sorts the store by cell, ties kept in their order; start it from id
+  // order, so that the order is (cell, id) however the particles come back (a checkpoint's).
+  if (model_.friction)
+    rows_.pending.append(contact_history());
+  std::vector<std::uint32_t> order(p_.size());
+  std::iota(order.begin(), order.end(), 0U);
+  std::sort(order.begin(), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return p_.id[a] < p_.id[b]; });
+  p_.permute(order);
+  ext_.permute(order);
+  ContactHistory pending = std::move(rows_.pending);
+  rows_ = Rows{}; // the rows indexed the old order
+  rows_.pending = std::move(pending);
+  rebuild();
+}
+
+ContactHistory ExplicitScheme::contact_history() const {
+  return collect_history(p_, rows_.list, owned(), rows_.hx, rows_.hy, rows_.hz);
+}
+
+void ExplicitScheme::restore(const Counters& c, const ContactHistory& history) {
+  stats_.steps = c.steps;
+  rows_.pending = history;
+  canonicalize();
+  stats_.particle_steps = c.particle_steps, stats_.pair_evaluations = c.pair_evaluations;
+  stats_.builds = c.builds;
 }
 
 ExplicitScheme::State ExplicitScheme::save_state() const {
+  if (rank_)
+    throw std::logic_error("ExplicitScheme::save_state is the one-rank checkpoint; on R ranks "
+                           "use canonicalize(), counters() and contact_history()");
+  const VerletList& list = rows_.list;
   State s;
-  s.offsets.assign(list_.offsets().begin(), list_.offsets().end());
-  s.neighbors.assign(list_.neighbors().begin(), list_.neighbors().end());
-  s.x_ref.assign(list_.x_ref().begin(), list_.x_ref().end());
-  s.y_ref.assign(list_.y_ref().begin(), list_.y_ref().end());
-  s.z_ref.assign(list_.z_ref().begin(), list_.z_ref().end());
-  s.hx = hx_, s.hy = hy_, s.hz = hz_;
-  s.skin = list_.skin();
-  s.need_rebuild = need_rebuild_;
-  s.steps = steps_, s.particle_steps = particle_steps_;
-  s.pair_evaluations = pair_evaluations_, s.builds = builds_;
+  s.offsets.assign(list.offsets().begin(), list.offsets().end());
+  s.neighbors.assign(list.neighbors().begin(), list.neighbors().end());
+  s.x_ref.assign(list.x_ref().begin(), list.x_ref().end());
+  s.y_ref.assign(list.y_ref().begin(), list.y_ref().end());
+  s.z_ref.assign(list.z_ref().begin(), list.z_ref().end());
+  s.hx = rows_.hx, s.hy = rows_.hy, s.hz = rows_.hz;
+  s.skin = list.skin();
+  s.need_rebuild = rows_.need_rebuild;
+  s.steps = stats_.steps, s.particle_steps = stats_.particle_steps;
+  s.pair_evaluations = stats_.pair_evaluations, s.builds = stats_.builds;
   return s;
 }
 
 void ExplicitScheme::restore_state(State s) {
+  if (rank_)
+    throw std::logic_error("ExplicitScheme::restore_state is the one-rank restart; on R ranks "
+                           "use restore()");
   const std::size_t n = p_.size();
   const bool listed = !s.offsets.empty();
   check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
   if (model_.friction && (s.hx.size() != s.neighbors.size() || s.hy.size() != s.neighbors.size() ||
                           s.hz.size() != s.neighbors.size()))
     throw RunError("checkpoint: the tangential history does not fit the neighbor list");
-  list_.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
-                std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
-  hx_ = std::move(s.hx), hy_ = std::move(s.hy), hz_ = std::move(s.hz);
-  need_rebuild_ = s.need_rebuild || !listed;
-  steps_ = s.steps, particle_steps_ = s.particle_steps;
-  pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
+  rows_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
+                     std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
+  rows_.hx = std::move(s.hx), rows_.hy = std::move(s.hy), rows_.hz = std::move(s.hz);
+  rows_.need_rebuild = s.need_rebuild || !listed;
+  stats_.steps = s.steps, stats_.particle_steps = s.particle_steps;
+  stats_.pair_evaluations = s.pair_evaluations, stats_.builds = s.builds;
 }
 
 } // namespace cfddem::dem

@@ -795,27 +795,18 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     const double s_common = 0.5 * h_before + half;
     const auto xr = list_.x_ref(), yr = list_.y_ref(), zr = list_.z_ref();
     const double half_skin2 = 0.25 * skin_ * skin_;
-    const double* ref[3] = {xr.data(), yr.data(), zr.data()};
-    const double* ext[3] = {External ? ext_.x.data() : nullptr, External ? ext_.y.data() : nullptr,
-                            External ? ext_.z.data() : nullptr};
+    const KickDriftColumns columns =
+        kick_drift_columns(p_, xr, yr, zr, External ? &ext_ : nullptr, hprev_);
+    KickDriftStep st;
+    st.s = s_common, st.h = hk, st.g = m.gravity, st.half_skin2 = half_skin2;
     tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-      const std::size_t i0 = b * kBlock, len = std::min(n, (b + 1) * kBlock) - i0;
-      std::uint64_t still = ~std::uint64_t{0};
-      auto at = [&](const double* v) { return v ? v + i0 : nullptr; };
-      if (k == 0)
-        kick_drift_range<External, true>(
-            p_.x.data() + i0, p_.y.data() + i0, p_.z.data() + i0, p_.vx.data() + i0,
-            p_.vy.data() + i0, p_.vz.data() + i0, p_.fx.data() + i0, p_.fy.data() + i0,
-            p_.fz.data() + i0, at(ext[0]), at(ext[1]), at(ext[2]), p_.inv_mass.data() + i0,
-            ref[0] + i0, ref[1] + i0, ref[2] + i0, len, 0.0, 0.0, 0.0, 0.0, hk, half_skin2, still,
-            hprev_.data() + i0, half, m.gravity.data());
+      const std::size_t i0 = b * kBlock, i1 = std::min(n, (b + 1) * kBlock);
+      KickDriftFlags flags;
+      if (k == 0) // each particle's own first kick h_prev + h/2 (st.s unused)
+        kick_drift_range<External, true>(columns.range(i0, i1), st, flags);
       else
-        kick_drift_range<External>(
-            p_.x.data() + i0, p_.y.data() + i0, p_.z.data() + i0, p_.vx.data() + i0,
-            p_.vy.data() + i0, p_.vz.data() + i0, p_.fx.data() + i0, p_.fy.data() + i0,
-            p_.fz.data() + i0, at(ext[0]), at(ext[1]), at(ext[2]), p_.inv_mass.data() + i0,
-            ref[0] + i0, ref[1] + i0, ref[2] + i0, len, s_common, m.gravity[0] * s_common,
-            m.gravity[1] * s_common, m.gravity[2] * s_common, hk, half_skin2, still);
+        kick_drift_range<External>(columns.range(i0, i1), st, flags);
+      const std::uint64_t still = flags.still;
       parts[b].moved = ~still; // sign bit set: some particle beyond skin/2
     });
     // The orb kernel leaves h_prev alone after the first step: the last step's half step.

@@ -1,37 +1,37 @@
-// The leapfrog kick-drift over a contiguous range of particles, written with restrict pointers
-// so that it vectorizes: the explicit scheme's arithmetic (contact_kernels.hpp kick_drift) for
-// the orb scheme's batches and the islands scheme's global steps.
+// The leapfrog kick-drift over a contiguous range of particles, written so that it vectorizes:
+// the arithmetic of kick_drift (contact_kernels.hpp) for every particle scheme: the explicit
+// scheme's update pass, the orb scheme's batches and the islands scheme's global steps.
 #pragma once
 
 #include <array>
-
 #include <bit>
 #include <cstddef>
 #include <cstdint>
 
 #include "dem/contact_kernels.hpp"
+#include "dem/particle_views.hpp"
 
 namespace cfddem::dem {
 
-// The constant-step kick-drift of particles [0, n) (every local step of a leaf but its first):
-// the arithmetic of kick_drift (contact_kernels.hpp), in a function of restrict pointers so that
-// it vectorizes; `still` keeps its sign bit while no particle is farther than skin/2 from its
-// reference position (sign-bit AND: see integrate_range in explicit_scheme.cpp).
-// With First, the kick of particle i spans its own h_prev + h/2 (hp[i] + half, the first step of
-// a sub-iteration; hp[i] is set to half afterwards) instead of the common s.
-template <bool External, bool First = false>
-inline void kick_drift_range(double* __restrict x, double* __restrict y, double* __restrict z,
-                             double* __restrict vx, double* __restrict vy, double* __restrict vz,
-                             const double* __restrict fx, const double* __restrict fy,
-                             const double* __restrict fz, const double* __restrict ex,
-                             const double* __restrict ey, const double* __restrict ez,
-                             const double* __restrict im, const double* __restrict xr,
-                             const double* __restrict yr, const double* __restrict zr,
-                             std::size_t n, double s, double gsx, double gsy, double gsz,
-                             double h, double half_skin2, std::uint64_t& still_out,
-                             double* __restrict hp = nullptr, double half = 0.0,
-                             const double* g = nullptr) {
-  std::uint64_t still = still_out;
+namespace detail {
+// The loop of kick_drift_range over n particles. Its pointers are restrict parameters because
+// GCC takes no-alias from parameters only (not from restrict locals), and without it the loop
+// does not vectorize; callers use kick_drift_range.
+template <bool External, bool First, bool CheckSpeed>
+inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y,
+                            double* __restrict z, double* __restrict vx, double* __restrict vy,
+                            double* __restrict vz, const double* __restrict fx,
+                            const double* __restrict fy, const double* __restrict fz,
+                            const double* __restrict ex, const double* __restrict ey,
+                            const double* __restrict ez, const double* __restrict im,
+                            const double* __restrict xr, const double* __restrict yr,
+                            const double* __restrict zr, double* __restrict hp,
+                            const KickDriftStep& k, KickDriftFlags& flags) {
+  const double h = k.h, half = 0.5 * k.h, half_skin2 = k.half_skin2;
+  [[maybe_unused]] const double vmax2 = k.vmax2;
+  const std::array<double, 3> g = k.g;
+  double s = k.s, gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
+  std::uint64_t still = flags.still, slow = flags.slow;
   for (std::size_t i = 0; i < n; ++i) {
     if constexpr (First) {
       s = hp[i] + half;
@@ -52,40 +52,51 @@ inline void kick_drift_range(double* __restrict x, double* __restrict y, double*
     x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
     const double dx = px - xr[i], dy = py - yr[i], dz = pz - zr[i];
     still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
+    if constexpr (CheckSpeed)
+      slow &= std::bit_cast<std::uint64_t>(ux * ux + uy * uy + uz * uz <= vmax2 ? -1.0 : 1.0);
   }
-  still_out = still;
+  flags.still = still, flags.slow = slow;
+}
+} // namespace detail
+
+// v += (F/m + g) s, x += v h over the columns `c` (KickDriftStep: s, h, g): the arithmetic of
+// kick_drift, in a loop that vectorizes. flags.still keeps its sign bit while no particle is
+// farther than skin/2 from its reference; with CheckSpeed, flags.slow while every |v|^2 <= vmax2
+// (a NaN compares false: it fails too).
+// With First, the kick of particle i spans its own h_prev + h/2 (c.h_prev[i] + h/2, the first
+// step of a sub-iteration; h_prev[i] is set to h/2 afterwards) instead of the common s.
+template <bool External, bool First = false, bool CheckSpeed = false>
+inline void kick_drift_range(const KickDriftColumns& c, const KickDriftStep& k,
+                             KickDriftFlags& flags) {
+  detail::kick_drift_loop<External, First, CheckSpeed>(
+      c.size(), c.x.data(), c.y.data(), c.z.data(), c.vx.data(), c.vy.data(), c.vz.data(),
+      c.fx.data(), c.fy.data(), c.fz.data(), c.ex.data(), c.ey.data(), c.ez.data(),
+      c.inv_mass.data(), c.xr.data(), c.yr.data(), c.zr.data(), c.h_prev.data(), k, flags);
 }
 
-// Local step k of K of an orb leaf batch [b, e) (variable-step leapfrog): the first step kicks
+// Local step k of K of an orb leaf batch `c` (variable-step leapfrog): the first step kicks
 // each particle over its own h_prev + h/2, later ones over (h_before + h)/2 (= h exactly for a
 // constant step: the explicit scheme's update); the last one leaves h_prev = h/2. `still`
-// keeps its sign bit while every particle stays within skin/2 of its reference (xr, yr, zr).
+// keeps its sign bit while every particle stays within skin/2 of its reference (c.xr, yr, zr).
 template <bool External>
-inline void leaf_kick_drift(std::int64_t k, std::int64_t K, std::uint32_t b, std::uint32_t e,
-                            double* x, double* y, double* z, double* vx, double* vy, double* vz,
-                            const double* fx, const double* fy, const double* fz,
-                            const double* fex, const double* fey, const double* fez,
-                            const double* im, const double* xr, const double* yr,
-                            const double* zr, double* hp, double h_before, double hk,
-                            double half_skin2, const std::array<double, 3>& gravity,
-                            std::uint64_t& still) {
+inline void leaf_kick_drift(std::int64_t k, std::int64_t K, const KickDriftColumns& c,
+                            double h_before, double hk, const std::array<double, 3>& gravity,
+                            double half_skin2, std::uint64_t& still) {
   const double half = 0.5 * hk;
+  KickDriftFlags flags;
+  flags.still = still;
+  KickDriftStep step;
+  step.h = hk, step.g = gravity, step.half_skin2 = half_skin2;
   if (k == 0) {
-    kick_drift_range<External, true>(
-        x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
-        External ? fex + b : nullptr, External ? fey + b : nullptr, External ? fez + b : nullptr,
-        im + b, xr + b, yr + b, zr + b, e - b, 0.0, 0.0, 0.0, 0.0, hk, half_skin2, still, hp + b,
-        half, gravity.data());
+    kick_drift_range<External, true>(c, step, flags);
   } else {
-    const double s = 0.5 * h_before + half;
-    kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
-                               fz + b, External ? fex + b : nullptr,
-                               External ? fey + b : nullptr, External ? fez + b : nullptr,
-                               im + b, xr + b, yr + b, zr + b, e - b, s, gravity[0] * s,
-                               gravity[1] * s, gravity[2] * s, hk, half_skin2, still);
+    step.s = 0.5 * h_before + half;
+    kick_drift_range<External>(c, step, flags);
     if (k + 1 == K)
-      for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
+      for (double& hp : c.h_prev)
+        hp = half;
   }
+  still = flags.still;
 }
 
 } // namespace cfddem::dem

@@ -558,9 +558,6 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   const double* __restrict fex = External ? ext_.x.data() : nullptr;
   const double* __restrict fey = External ? ext_.y.data() : nullptr;
   const double* __restrict fez = External ? ext_.z.data() : nullptr;
-  const double* __restrict xr = xr_.data();
-  const double* __restrict yr = yr_.data();
-  const double* __restrict zr = zr_.data();
   const std::uint32_t* __restrict off = off_.data();
   const std::uint32_t* __restrict mid = mid_.data();
   const std::uint32_t* __restrict nb = nb_.data();
@@ -572,6 +569,8 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
   double max_ratio = 0.0;
   std::int64_t violations = 0;
   double h_before = 0.0; // the previous local step (k > 0)
+  const KickDriftColumns columns =
+      kick_drift_columns(p_, xr_, yr_, zr_, External ? &ext_ : nullptr, hprev_);
   for (std::int64_t k = 0; k < bt.K; ++k) {
     const double hk = k + 1 == bt.K ? bt.h_last : bt.h;
     // Contact pass: the explicit scheme's pair arithmetic; partners of the own leaf read live,
@@ -585,10 +584,10 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
       synchronised_velocities<External>(b, e, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, hp,
                                         m.gravity, svx_.data(), svy_.data(), svz_.data());
     // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h (leaf_kick_drift).
-    // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
+    // Sign-bit AND instead of a max: vectorizes (see kick_drift_range.hpp).
     std::uint64_t still = ~std::uint64_t{0};
-    leaf_kick_drift<External>(k, bt.K, b, e, x, y, z, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, xr,
-                              yr, zr, hp, h_before, hk, half_skin2, m.gravity, still);
+    leaf_kick_drift<External>(k, bt.K, columns.range(b, e), h_before, hk, m.gravity, half_skin2,
+                              still);
     h_before = hk;
     // Ghosts do not move and were within skin/2 of their reference: own particles may use the
     // other half. Beyond it a pair could be missing from the rows: stop, the sub-iteration is

@@ -18,7 +18,7 @@
 namespace cfddem::dem {
 
 // Sign bit set unless `ok`: OR-ed over a loop it is a flag reduction GCC vectorizes (a bool OR
-// is not), the idiom of integrate_range in explicit_scheme.cpp.
+// is not), the idiom of kick_drift_range (kick_drift_range.hpp).
 inline std::uint64_t sign_unless(bool ok) {
   return std::bit_cast<std::uint64_t>(ok ? 1.0 : -1.0);
 }

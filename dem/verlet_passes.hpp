@@ -1,8 +1,8 @@
-// The passes of one velocity Verlet step over a Verlet list, shared by the explicit scheme and
-// its distributed twin (dem/distributed_explicit_scheme.hpp), so both take the same
-// floating-point path: the contact pass over the list's rows, wall forces, the vectorized
-// kick-drift of a range, and the search and wording of a failed check. Loops over spans of the
-// store: no allocation, no MPI; the contact pass hands rows to TBB with a fixed partition.
+// The passes of one velocity Verlet step over a Verlet list, of the explicit scheme on any rank
+// count (dem/explicit_scheme.hpp), so one rank and R ranks take the same floating-point path: the
+// contact pass over the list's rows, wall forces, the vectorized kick-drift of a range, and the
+// search and wording of a failed check. Loops over spans of the store: no allocation, no MPI; the
+// contact pass hands rows to TBB with a fixed partition.
 #pragma once
 
 #include <algorithm>
@@ -21,21 +21,25 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/kick_drift_range.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/particle_views.hpp"
 #include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
 
 namespace cfddem::dem {
 
 // Contact forces (and torques, with friction) on the particles `rows` (list.active() or a part
-// of it) of `list`, each summed over its row in the row's order: f_i is overwritten, nothing is scattered to j. The
-// rows' first part is taken as the minimum image as is, the part from wrap_begin() through `geom`.
-// hx, hy, hz: tangential history per list entry (friction only).
+// of it) of `list`, each summed over its row in the row's order: f_i is overwritten, nothing is
+// scattered to j. The rows' first part is taken as the minimum image as is, the part from
+// wrap_begin() through `geom`. `history`: tangential history per list entry (friction only).
 template <bool Friction>
-void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry& geom,
-                  const StepModel& model, [[maybe_unused]] double* hx, [[maybe_unused]] double* hy,
-                  [[maybe_unused]] double* hz, double dt, std::span<const std::uint32_t> rows,
-                  StepReport& out) {
+void contact_pass(ParticleStore& p, const VerletList& list, std::span<const std::uint32_t> rows,
+                  [[maybe_unused]] HistoryColumns history, const DomainGeometry& geom,
+                  const StepModel& model, double dt, StepReport& out) {
+  [[maybe_unused]] double* hx = history.x.data();
+  [[maybe_unused]] double* hy = history.y.data();
+  [[maybe_unused]] double* hz = history.z.data();
   const double* __restrict x = p.x.data();
   const double* __restrict y = p.y.data();
   const double* __restrict z = p.z.data();
@@ -73,7 +77,8 @@ void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry
         const double r2 = dx * dx + dy * dy + dz * dz;
         const double rs = ri + lr[j];
         if (r2 >= rs * rs) {
-          if constexpr (Friction) hx[k] = hy[k] = hz[k] = 0.0;
+          if constexpr (Friction)
+            hx[k] = hy[k] = hz[k] = 0.0;
           return;
         }
         const double dist = std::sqrt(r2);
@@ -120,7 +125,8 @@ void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry
         pair(k, j, g.image(lx[j] - xi, 0), g.image(ly[j] - yi, 1), g.image(lz[j] - zi, 2));
       }
       fx[i] = ax, fy[i] = ay, fz[i] = az;
-      if constexpr (Friction) p.tx[i] = tqx, p.ty[i] = tqy, p.tz[i] = tqz;
+      if constexpr (Friction)
+        p.tx[i] = tqx, p.ty[i] = tqy, p.tz[i] = tqz;
     }
     return rep;
   };
@@ -142,19 +148,22 @@ void contact_pass(ParticleStore& p, const VerletList& list, const DomainGeometry
 // Planar walls at lo and hi of every non-periodic axis: force (and torque, with friction) added
 // to particle i's contact force. Outward wall normal s = -1 at lo, +1 at hi.
 template <bool Friction>
-void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore& p,
-                            std::size_t i, double f[3], double tq[3], auto&& flag) {
+void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore& p, std::size_t i,
+                     double f[3], double tq[3], auto&& flag) {
   const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
   const double ri = p.radius[i], mi = p.mass[i];
   for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a]) continue;
+    if (g.periodic[a])
+      continue;
     for (int side = 0; side < 2; ++side) {
       const double s = side ? 1.0 : -1.0;
       const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
-      if (delta <= 0.0) continue;
+      if (delta <= 0.0)
+        continue;
       const double fn = normal_force(m.wall, mi, delta, s * vel[a]);
       f[a] -= s * fn;
-      if (delta > m.max_overlap * ri) flag(delta / ri);
+      if (delta > m.max_overlap * ri)
+        flag(delta / ri);
       if constexpr (Friction) {
         double nvec[3] = {0, 0, 0};
         nvec[a] = s;
@@ -169,7 +178,8 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
         // convention of sliding friction, docs/theory.md §2).
         double xi3[3] = {0, 0, 0}, ft[3];
         tangential_force(m.wall_t, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
-        for (int b = 0; b < 3; ++b) f[b] += ft[b];
+        for (int b = 0; b < 3; ++b)
+          f[b] += ft[b];
         tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
         tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
         tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
@@ -178,53 +188,10 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
   }
 }
 
-// Velocity Verlet update of particles [0, n) of the given arrays: v += (F/m) dt + g dt,
-// x += v dt. Adds 1 to `moved` if some particle is now farther than skin/2 from its build
-// position, and to `fails` if some particle moves more than r_min per step (or is NaN).
-// The two checks are AND-reductions of sign bits (+-1.0 per particle): integer reductions that
-// vectorize with no floating-point reassociation and no in-order dependency chain (a max, a
-// floating-point count, or int64 counts of double compares all vectorize badly or not at all
-// on baseline x86-64).
-// With External, a per-particle external force (the gas's, held over the sub-cycle) is added.
-template <bool External>
-void integrate_range(double* __restrict x, double* __restrict y, double* __restrict z,
-                            double* __restrict vx, double* __restrict vy, double* __restrict vz,
-                            const double* __restrict fx, const double* __restrict fy,
-                            const double* __restrict fz, const double* __restrict ex,
-                            const double* __restrict ey, const double* __restrict ez,
-                            const double* __restrict im,
-                            const double* __restrict rx, const double* __restrict ry,
-                            const double* __restrict rz, std::size_t n, double h, double gx,
-                            double gy, double gz, double skin2, double lim2, double& moved,
-                            double& fails) {
-  std::uint64_t still = ~std::uint64_t{0}, slow = ~std::uint64_t{0}; // sign bit: all fine
-  for (std::size_t i = 0; i < n; ++i) {
-    const double s = im[i] * h;
-    double ux, uy, uz;
-    if constexpr (External) {
-      ux = vx[i] + (fx[i] + ex[i]) * s + gx;
-      uy = vy[i] + (fy[i] + ey[i]) * s + gy;
-      uz = vz[i] + (fz[i] + ez[i]) * s + gz;
-    } else {
-      ux = vx[i] + fx[i] * s + gx;
-      uy = vy[i] + fy[i] * s + gy;
-      uz = vz[i] + fz[i] * s + gz;
-    }
-    vx[i] = ux, vy[i] = uy, vz[i] = uz;
-    const double px = x[i] + ux * h, py = y[i] + uy * h, pz = z[i] + uz * h;
-    x[i] = px, y[i] = py, z[i] = pz;
-    const double dx = px - rx[i], dy = py - ry[i], dz = pz - rz[i];
-    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > skin2 ? 1.0 : -1.0);
-    slow &= std::bit_cast<std::uint64_t>(ux * ux + uy * uy + uz * uz <= lim2 ? -1.0 : 1.0);
-  }
-  moved += (still >> 63) ? 0.0 : 1.0;
-  fails += (slow >> 63) ? 0.0 : 1.0; // a NaN compares false: it fails too
-}
-
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves
 // more than r_min per step: vmax2 = (r_min/dt)^2) or outside a wall, into `out`.
-inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g,
-                       double vmax2, StepReport& out) {
+inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g, double vmax2,
+                       StepReport& out) {
   for (std::size_t i = 0; i < n; ++i) {
     const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
     const double q[3] = {p.x[i], p.y[i], p.z[i]};
@@ -238,7 +205,8 @@ inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeomet
         if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]))
           out.flag(ii, StepFault::left_domain, q[a]);
     }
-    if (out.bad != kNoParticle) break;
+    if (out.bad != kNoParticle)
+      break;
   }
 }
 
@@ -251,12 +219,12 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const 
                  const DomainGeometry& geom, const StepModel& model, double dt, StepReport& out) {
   const DomainGeometry g = geom;
   const StepModel m = model;
-  const double gx = m.gravity[0] * dt, gy = m.gravity[1] * dt, gz = m.gravity[2] * dt;
   const double vmax2 = dt > 0 ? (m.r_min / dt) * (m.r_min / dt) : INFINITY;
-  const double half_skin2 = 0.25 * m.skin * m.skin;
-  const double* __restrict xr = list.x_ref().data();
-  const double* __restrict yr = list.y_ref().data();
-  const double* __restrict zr = list.z_ref().data();
+  KickDriftStep step;
+  step.s = dt, step.h = dt, step.g = m.gravity;
+  step.half_skin2 = 0.25 * m.skin * m.skin, step.vmax2 = vmax2;
+  const KickDriftColumns columns =
+      kick_drift_columns(p, list.x_ref(), list.y_ref(), list.z_ref(), External ? &ext : nullptr);
 
   struct Partial {
     std::int64_t moved = 0; // particles now farther than skin/2 from their build position
@@ -264,42 +232,32 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const 
     StepReport walls;
   };
   auto body = [&](const tbb::blocked_range<std::size_t>& r, Partial acc) {
-    double* __restrict x = p.x.data();
-    double* __restrict y = p.y.data();
-    double* __restrict z = p.z.data();
-    double* __restrict vx = p.vx.data();
-    double* __restrict vy = p.vy.data();
-    double* __restrict vz = p.vz.data();
-    double* __restrict fx = p.fx.data();
-    double* __restrict fy = p.fy.data();
-    double* __restrict fz = p.fz.data();
-    const double* __restrict im = p.inv_mass.data();
-    [[maybe_unused]] const double* __restrict fex = ext.x.data();
-    [[maybe_unused]] const double* __restrict fey = ext.y.data();
-    [[maybe_unused]] const double* __restrict fez = ext.z.data();
     if constexpr (Walls) {
       // A particle without a neighbor row keeps last step's total (contact + wall) in f: start
       // it from zero. Rows are fixed between builds, so this is exact.
+      double* __restrict fx = p.fx.data();
+      double* __restrict fy = p.fy.data();
+      double* __restrict fz = p.fz.data();
       const std::uint32_t* __restrict off = list.offsets().data();
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
         const bool row = off[i + 1] > off[i];
         double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
         double tq[3] = {0, 0, 0};
         if constexpr (Friction)
-          if (row) tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
+          if (row)
+            tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
         add_wall_forces<Friction>(g, m, p, i, f, tq, [&](double v) {
           acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
         });
         fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
-        if constexpr (Friction) p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
+        if constexpr (Friction)
+          p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
       }
     }
-    const std::size_t b = r.begin(), e = r.end();
-    double moved = 0.0, fails = 0.0;
-    integrate_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
-                              External ? fex + b : nullptr, External ? fey + b : nullptr,
-                              External ? fez + b : nullptr, im + b, xr + b, yr + b, zr + b, e - b,
-                              dt, gx, gy, gz, half_skin2, vmax2, moved, fails);
+    KickDriftFlags flags;
+    kick_drift_range<External, false, true>(columns.range(r.begin(), r.end()), step, flags);
+    // A double: int64 counts of double compares do not vectorize on baseline x86-64.
+    double fails = flags.too_fast() ? 1.0 : 0.0;
     if constexpr (Friction) {
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
         const double s = p.inv_inertia[i] * dt;
@@ -307,13 +265,16 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const 
       }
     }
     if constexpr (Walls) {
+      const double* __restrict x = p.x.data();
+      const double* __restrict y = p.y.data();
+      const double* __restrict z = p.z.data();
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
         const double q[3] = {x[i], y[i], z[i]};
         for (int a = 0; a < 3; ++a)
           fails += !g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]);
       }
     }
-    acc.moved += static_cast<std::int64_t>(moved);
+    acc.moved += flags.moved() ? 1 : 0;
     acc.failures += static_cast<std::int64_t>(fails);
     return acc;
   };

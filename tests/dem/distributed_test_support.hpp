@@ -14,7 +14,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/distributed_explicit_scheme.hpp"
+#include "dem/explicit_scheme.hpp"
 #include "dem_test_support.hpp"
 
 namespace cfddem::demtest {
@@ -59,7 +59,7 @@ inline ParticleStore run_explicit_with_threads(const char* toml, int threads, in
   const dem::StepModel model = dem::make_step_model(scene, all);
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::DistributedExplicitScheme s(scene, p, model, c, timer);
+  dem::ExplicitScheme s(scene, p, model, c, timer);
   s.start();
   for (int k = 0; k < steps; ++k)
     s.step(k == steps - 1);

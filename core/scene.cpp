@@ -12,7 +12,8 @@ namespace cfddem {
 namespace {
 
 void require(bool ok, const std::string& key, const std::string& why) {
-  if (!ok) throw ConfigError(fmt::format("scene key '{}'", key), why);
+  if (!ok)
+    throw ConfigError(fmt::format("scene key '{}'", key), why);
 }
 
 double positive(SceneConfig& c, const std::string& key) {
@@ -55,8 +56,9 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   for (int a = 0; a < 3; ++a)
     require(std::isfinite(s.domain.lo[a]) && std::isfinite(s.domain.hi[a]) &&
                 s.domain.hi[a] > s.domain.lo[a],
-            "domain.hi", fmt::format("must exceed domain.lo on every axis (axis {}: {} <= {})", a,
-                                     s.domain.hi[a], s.domain.lo[a]));
+            "domain.hi",
+            fmt::format("must exceed domain.lo on every axis (axis {}: {} <= {})", a,
+                        s.domain.hi[a], s.domain.lo[a]));
   s.gravity = c.get_vec3("gravity", {0, 0, 0});
 
   // Particles: a CSV file or a generator.
@@ -72,7 +74,30 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   if (p.file.empty()) {
     p.count = c.get_int("particles.count", 0);
     require(p.count >= 0, "particles.count", fmt::format("must be >= 0, got {}", p.count));
-    p.diameter = positive(c, "particles.diameter");
+    if (c.has("particles.diameter.distribution")) {
+      // A table { distribution, mean, std, min, max } (core/diameter_distribution.hpp).
+      auto& dd = p.diameters;
+      dd.kind = c.get_string("particles.diameter.distribution", "");
+      require(dd.kind == "uniform" || dd.kind == "normal" || dd.kind == "lognormal",
+              "particles.diameter.distribution",
+              fmt::format("must be \"uniform\", \"normal\" or \"lognormal\", got \"{}\"", dd.kind));
+      dd.min = positive(c, "particles.diameter.min");
+      dd.max = positive(c, "particles.diameter.max");
+      require(dd.max > dd.min, "particles.diameter.max",
+              fmt::format("must be > particles.diameter.min ({} m), got {} m", dd.min, dd.max));
+      if (dd.kind == "uniform") {
+        for (const char* k : {"particles.diameter.mean", "particles.diameter.std"})
+          require(!c.has(k), k, "a uniform distribution takes only min and max");
+        dd.mean = 0.5 * (dd.min + dd.max);
+      } else {
+        dd.mean = positive(c, "particles.diameter.mean");
+        dd.std = positive(c, "particles.diameter.std");
+      }
+      p.diameter = dd.max;
+    } else {
+      p.diameter = positive(c, "particles.diameter");
+      p.diameters.kind = "fixed", p.diameters.mean = p.diameter;
+    }
     p.density = positive(c, "particles.density");
     p.temperature = non_negative(c, "particles.temperature", 0.0);
     p.velocity = c.get_vec3("particles.velocity", {0, 0, 0});
@@ -87,8 +112,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
               "particles.region_hi",
               fmt::format("the region must be non-empty and inside the domain (axis {})", a));
       require(p.diameter < s.domain.length(a), "particles.diameter",
-              fmt::format("{} m does not fit in the domain (axis {} is {} m long)", p.diameter,
-                          a, s.domain.length(a)));
+              fmt::format("{} m does not fit in the domain (axis {} is {} m long)", p.diameter, a,
+                          s.domain.length(a)));
     }
   } else {
     for (const char* k : {"particles.count", "particles.diameter", "particles.density",
@@ -141,9 +166,9 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
           fmt::format("must be in 0..20, got {}", levels));
   s.partition.orb_levels = static_cast<int>(levels);
   s.partition.weights = c.get_string("partition.weights", "count");
-  require(s.partition.weights == "count" || s.partition.weights == "cost", "partition.weights",
-          fmt::format("unknown weights \"{}\" (available: \"count\", \"cost\")",
-                      s.partition.weights));
+  require(
+      s.partition.weights == "count" || s.partition.weights == "cost", "partition.weights",
+      fmt::format("unknown weights \"{}\" (available: \"count\", \"cost\")", s.partition.weights));
   s.partition.gas_regrid_interval = non_negative(c, "partition.gas_regrid_interval", 0.0);
   s.partition.cell_weight = c.get_double("partition.cell_weight", 400.0);
   require(std::isfinite(s.partition.cell_weight) && s.partition.cell_weight >= 0.0,
@@ -197,15 +222,15 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
                         "\"koch_hill\", \"wen_yu\", \"none\")",
                         f.drag));
     f.deposition = c.get_string("fluid.deposition", "trilinear");
-    require(f.deposition == "trilinear" || f.deposition == "dpvm" ||
-                f.deposition == "dpvm_cube" || f.deposition == "dpvm_sphere",
+    require(f.deposition == "trilinear" || f.deposition == "dpvm" || f.deposition == "dpvm_cube" ||
+                f.deposition == "dpvm_sphere",
             "fluid.deposition",
             fmt::format("unknown kernel \"{}\" (available: \"trilinear\", \"dpvm\", "
                         "\"dpvm_sphere\")",
                         f.deposition));
     f.deposition_width = c.get_double("fluid.deposition_width", 2.0);
-    require(std::isfinite(f.deposition_width) && f.deposition_width > 0.0,
-            "fluid.deposition_width", "must be > 0 (particle diameters)");
+    require(std::isfinite(f.deposition_width) && f.deposition_width > 0.0, "fluid.deposition_width",
+            "must be > 0 (particle diameters)");
     static const char* faces[6] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
     for (int k = 0; k < 6; ++k) {
       const std::string key = fmt::format("fluid.bc.{}", faces[k]);
@@ -258,8 +283,12 @@ std::string vec3(const std::array<double, 3>& v) {
 std::string bool3(const std::array<bool, 3>& v) {
   return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]);
 }
-std::string num(double v) { return fmt::format("{:.17g}", v); }
-std::string str(const std::string& s) { return fmt::format("\"{}\"", s); }
+std::string num(double v) {
+  return fmt::format("{:.17g}", v);
+}
+std::string str(const std::string& s) {
+  return fmt::format("\"{}\"", s);
+}
 } // namespace
 
 std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) {
@@ -274,7 +303,17 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("particles.file", str(p.file));
   } else {
     o.emplace_back("particles.count", std::to_string(p.count));
-    o.emplace_back("particles.diameter", num(p.diameter));
+    if (p.diameters.fixed()) {
+      o.emplace_back("particles.diameter", num(p.diameter));
+    } else {
+      o.emplace_back("particles.diameter.distribution", str(p.diameters.kind));
+      if (p.diameters.kind != "uniform") {
+        o.emplace_back("particles.diameter.mean", num(p.diameters.mean));
+        o.emplace_back("particles.diameter.std", num(p.diameters.std));
+      }
+      o.emplace_back("particles.diameter.min", num(p.diameters.min));
+      o.emplace_back("particles.diameter.max", num(p.diameters.max));
+    }
     o.emplace_back("particles.density", num(p.density));
     o.emplace_back("particles.temperature", num(p.temperature));
     o.emplace_back("particles.velocity", vec3(p.velocity));

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <numeric>
 #include <stdexcept>
-#include <type_traits>
 #include <unordered_map>
 
 #include <fmt/format.h>
@@ -26,17 +25,9 @@ GasBlock gas_block(const Scene& scene, const Communicator& comm) {
   }
 }
 
-template <class Scheme>
-void write_coupled_checkpoint(const std::string& path, Checkpoint c, Scheme& scheme,
-                              const ParticleStore& particles, const GasCoupling& gas,
+void write_coupled_checkpoint(const std::string& path, Checkpoint c, const GasCoupling& gas,
                               const CoupledLoopState& loop, const GasBlock& block,
                               const Communicator& comm) {
-  if constexpr (std::is_same_v<Scheme, dem::ExplicitScheme>) {
-    scheme.canonicalize();
-    gather_rank_particles(scheme, particles, comm, c);
-  } else {
-    gather_subiterated(scheme, particles, comm, c);
-  }
   std::vector<double> force[3];
   for (int a = 0; a < 3; ++a)
     force[a] = comm.gather(gas.force(a));
@@ -74,10 +65,6 @@ void write_coupled_checkpoint(const std::string& path, Checkpoint c, Scheme& sch
   write_checkpoint(path, c, block, comm);
 }
 
-namespace {
-
-// This rank's share of the held gas force (the checkpoint's particles `taken` by rank_share);
-// empty when no gas step came before the checkpoint.
 std::array<std::vector<double>, 3> held_share(const Checkpoint& ck,
                                               const std::vector<std::uint32_t>& taken) {
   std::array<std::vector<double>, 3> f;
@@ -90,55 +77,5 @@ std::array<std::vector<double>, 3> held_share(const Checkpoint& ck,
   }
   return f;
 }
-
-} // namespace
-
-void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
-                            const dem::ContactHistory& history, dem::ExplicitScheme& scheme) {
-  const auto f = held_share(ck, taken);
-  scheme.set_external_force(f[0], f[1], f[2]);
-  scheme.restore(
-      {ck.state.steps, ck.state.particle_steps, ck.state.pair_evaluations, ck.state.builds},
-      history);
-}
-
-template <class Scheme>
-void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
-                            typename SubiteratedState<Scheme>::State state, Scheme& scheme) {
-  scheme.restore_state(std::move(state));
-  const auto f = held_share(ck, taken);
-  scheme.set_external_force(f[0], f[1], f[2]);
-}
-
-void restore_coupled_gas(Checkpoint& ck, const std::string& path, GasCoupling& gas,
-                         CoupledLoopState& loop) {
-  try {
-    gas.restore_state(ck.gas_state);
-  } catch (const RunError& e) {
-    throw ConfigError(path, fmt::format("cannot restart: {}", e.what()));
-  }
-  loop = std::move(ck.loop);
-  loop.held_force = {}; // the scheme holds it
-  // A pending snapshot's cells: this rank's box of the gas at the checkpoint's time.
-  if (loop.snapshot_pending)
-    loop.snapshot_cells = gas.cell_fields();
-}
-
-template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::ExplicitScheme&,
-                                       const ParticleStore&, const GasCoupling&,
-                                       const CoupledLoopState&, const GasBlock&,
-                                       const Communicator&);
-template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::DistributedOrbScheme&,
-                                       const ParticleStore&, const GasCoupling&,
-                                       const CoupledLoopState&, const GasBlock&,
-                                       const Communicator&);
-template void write_coupled_checkpoint(const std::string&, Checkpoint,
-                                       dem::DistributedIslandsScheme&, const ParticleStore&,
-                                       const GasCoupling&, const CoupledLoopState&, const GasBlock&,
-                                       const Communicator&);
-template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
-                                     dem::OrbScheme::State, dem::DistributedOrbScheme&);
-template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
-                                     dem::IslandsScheme::State, dem::DistributedIslandsScheme&);
 
 } // namespace cfddem::apps

@@ -1,4 +1,4 @@
-// Checkpoint and restart of the coupled loop over R ranks (apps/coupled_distributed.cpp), into
+// Checkpoint and restart of the coupled loop over R ranks (apps/run_loop.hpp), into
 // the file a one-rank coupled run writes (apps/checkpoint.hpp), so either restarts the other.
 // What the R-rank loop holds at a fluid-step boundary goes in as follows:
 //   - the particles (explicit; orb and islands: apps/rank_checkpoint.hpp, their save_state() and
@@ -14,6 +14,7 @@
 //     restored (the same numbers).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -24,36 +25,22 @@
 #include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
-#include "dem/contact_history.hpp"
-#include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
 
 // This rank's box of the gas grid (the boxes GasCoupling cuts it into).
 GasBlock gas_block(const Scene& scene, const Communicator& comm);
 
-// Collective. `header`: checkpoint_header's fields (rank 0's count); the rest is filled here.
-// Scheme: dem::ExplicitScheme, DistributedOrbScheme or DistributedIslandsScheme (the
-// sub-iterated ones at a fluid-step boundary, a regrid point: their save_state()).
-template <class Scheme>
-void write_coupled_checkpoint(const std::string& path, Checkpoint header, Scheme& scheme,
-                              const ParticleStore& particles, const GasCoupling& gas,
+// Collective. `c`: checkpoint_header's fields and the particles with the scheme's state (rank
+// 0's); the held gas force, the loop's position and the gas are filled here, and the file is
+// written.
+void write_coupled_checkpoint(const std::string& path, Checkpoint c, const GasCoupling& gas,
                               const CoupledLoopState& loop, const GasBlock& block,
                               const Communicator& comm);
 
-// Restart, collective, in place of scheme.start(): this rank's share of the held force (the
-// checkpoint's particles `taken` by rank_share), the counters and the contact history
-// (saved_contact_history, read before rank_share); restore() moves every particle to its owner
-// with its force and history.
-void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
-                            const dem::ContactHistory& history, dem::ExplicitScheme& scheme);
-// The same for a sub-iterated scheme: `state` is subiterated_share's (apps/rank_checkpoint.hpp).
-template <class Scheme>
-void restore_coupled_scheme(const Checkpoint& ck, const std::vector<std::uint32_t>& taken,
-                            typename SubiteratedState<Scheme>::State state, Scheme& scheme);
-// Then, with the gas built on the owned particles: its box's state, and the loop's position.
-// Throws ConfigError naming the file when the state does not fit.
-void restore_coupled_gas(Checkpoint& ck, const std::string& path, GasCoupling& gas,
-                         CoupledLoopState& loop);
+// A restart: this rank's share of the held gas force (the checkpoint's particles `taken` by
+// rank_share); empty when no gas step came before the checkpoint.
+std::array<std::vector<double>, 3> held_share(const Checkpoint& ck,
+                                              const std::vector<std::uint32_t>& taken);
 
 } // namespace cfddem::apps

@@ -1,5 +1,5 @@
 // The particle part of a checkpoint written on R ranks, for the DEM-only loops
-// (apps/simulation.cpp, apps/distributed_subiterated_run.cpp) and the coupled one
+// (apps/run_loop.hpp, through apps/scheme_runs.hpp) and the coupled one
 // (apps/coupled_checkpoint.hpp) alike: the owned particles of every rank gathered to rank 0 in
 // id order (the file's order for any rank count) with the scheme's state. Explicit: with
 // friction the spin and the contact history as rows over those particles (a serial

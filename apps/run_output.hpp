@@ -1,6 +1,6 @@
 // What every run loop writes: the diagnostics columns and rows (with the particles' mean
 // velocity and acceleration, and the gas's diagnostics), run.json's common parts, and the
-// progress line's ETA. Shared by the loops of simulation.cpp and coupled_distributed.cpp.
+// progress line's ETA, for the one time loop (apps/run_loop.hpp).
 #pragma once
 
 #include <algorithm>

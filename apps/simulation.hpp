@@ -1,4 +1,6 @@
-// The time loop of a run: initial particles -> scheme -> diagnostics rows, progress, run.json.
+// A run: the scene's scheme on one rank or R, with or without a gas, through the one time loop
+// (apps/run_loop.hpp): initial particles -> scheme -> diagnostics rows, snapshots, checkpoints,
+// run.json.
 #pragma once
 
 #include <string>
@@ -12,7 +14,7 @@ namespace cfddem::apps {
 struct RunOptions {
   std::string out_dir;
   bool quiet = false;
-  std::string restart; // checkpoint file to continue from (explicit scheme); empty: a fresh run
+  std::string restart; // checkpoint file to continue from; empty: a fresh run
   std::vector<std::pair<std::string, std::string>> config; // resolved keys for run.json
 };
 

@@ -129,7 +129,7 @@ template void write_coupled_checkpoint(const std::string&, Checkpoint,
                                        dem::DistributedExplicitScheme&, const ParticleStore&,
                                        const GasCoupling&, const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
-template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::DistributedOrbScheme&,
+template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::OrbScheme&,
                                        const ParticleStore&, const GasCoupling&,
                                        const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
@@ -138,7 +138,7 @@ template void write_coupled_checkpoint(const std::string&, Checkpoint,
                                        const GasCoupling&, const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
 template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
-                                     dem::OrbScheme::State, dem::DistributedOrbScheme&);
+                                     dem::OrbScheme::State, dem::OrbScheme&);
 template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
                                      dem::IslandsScheme::State, dem::DistributedIslandsScheme&);
 

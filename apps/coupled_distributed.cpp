@@ -30,7 +30,7 @@
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
 #include "dem/distributed_islands_scheme.hpp"
-#include "dem/distributed_orb_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "partition/cell_box_decomposition.hpp"
@@ -58,13 +58,13 @@ partition::RankDecomposition box_decomposition(const Scene& scene,
 // with the gas taken at that time.
 // Scheme: dem::DistributedExplicitScheme owns particles by gas box (its decomposition is the gas
 // boxes), so the gas deposits its owned particles directly. A sub-iterated scheme
-// (dem::DistributedOrbScheme; any with its interface: start, subiterate, take_interval_stats,
+// (dem::OrbScheme; any with its interface: start, subiterate, take_interval_stats,
 // set_external_force, owned, synchronised_previous) owns them by its own leaves, so each fluid
 // step routes them to the gas boxes and the forces back (GasRouting).
 template <class Scheme>
 RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
   constexpr bool kSub = !std::is_same_v<Scheme, dem::DistributedExplicitScheme>;
-  constexpr bool kLeaves = std::is_same_v<Scheme, dem::DistributedOrbScheme>;
+  constexpr bool kLeaves = std::is_same_v<Scheme, dem::OrbScheme>;
   const char* scheme_name = kLeaves ? "orb" : kSub ? "islands" : "explicit";
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
@@ -84,7 +84,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
   // Sub-iterated: this rank's share of the scheme state (orb: half steps and costs; islands:
   // half steps and fine-sub-iteration counts).
   using SavedState =
-      typename SubiteratedState<std::conditional_t<kSub, Scheme, dem::DistributedOrbScheme>>::State;
+      typename SubiteratedState<std::conditional_t<kSub, Scheme, dem::OrbScheme>>::State;
   std::optional<SavedState> saved;
   if constexpr (kSub)
     if (ck)
@@ -527,7 +527,7 @@ RunResult run_coupled_ranks(const Scene& scene_in, const RunOptions& opt, const 
 RunResult run_coupled_distributed(const Scene& scene, const RunOptions& opt,
                                   const ParallelEnv& env) {
   if (scene.dem.scheme == "orb")
-    return run_coupled_ranks<dem::DistributedOrbScheme>(scene, opt, env);
+    return run_coupled_ranks<dem::OrbScheme>(scene, opt, env);
   if (scene.dem.scheme == "islands")
     return run_coupled_ranks<dem::DistributedIslandsScheme>(scene, opt, env);
   return run_coupled_ranks<dem::DistributedExplicitScheme>(scene, opt, env);

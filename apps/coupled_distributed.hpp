@@ -9,7 +9,7 @@ namespace cfddem::apps {
 // the gas is solved over the ranks; rows are reduced over the ranks and written by rank 0,
 // snapshots written collectively. dem.scheme = "explicit": each rank owns the particles in its
 // gas box (dem::DistributedExplicitScheme with the boxes as its fixed decomposition) and the gas
-// force on them. dem.scheme = "orb": dem::DistributedOrbScheme's leaves decide the owners, and
+// force on them. dem.scheme = "orb": dem::OrbScheme's leaves decide the owners, and
 // the particles are routed to their gas boxes and their forces back once per fluid step
 // (apps/gas_routing.hpp). Other schemes, checkpoints and restarts of such runs are refused
 // (ConfigError naming the key). Collective.

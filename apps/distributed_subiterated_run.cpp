@@ -25,7 +25,7 @@
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_islands_scheme.hpp"
-#include "dem/distributed_orb_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 
 namespace cfddem::apps {
@@ -36,7 +36,7 @@ template <class Scheme>
 RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
                                       const ParallelEnv& env) {
   using Sub = SubiteratedState<Scheme>;
-  constexpr bool kOrb = std::is_same_v<Scheme, dem::DistributedOrbScheme>;
+  constexpr bool kOrb = std::is_same_v<Scheme, dem::OrbScheme>;
   namespace fs = std::filesystem;
   const auto t_setup = clock::now();
   const Communicator comm = Communicator::world();
@@ -330,7 +330,7 @@ RunResult run_distributed_subiterated(const Scene& scene, const RunOptions& opt,
 } // namespace
 
 RunResult run_distributed_orb(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
-  return run_distributed_subiterated<dem::DistributedOrbScheme>(scene, opt, env);
+  return run_distributed_subiterated<dem::OrbScheme>(scene, opt, env);
 }
 
 RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,

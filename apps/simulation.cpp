@@ -33,7 +33,6 @@
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
-#include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"

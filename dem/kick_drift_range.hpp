@@ -56,36 +56,4 @@ inline void kick_drift_range(double* __restrict x, double* __restrict y, double*
   still_out = still;
 }
 
-// Local step k of K of an orb leaf batch [b, e) (variable-step leapfrog): the first step kicks
-// each particle over its own h_prev + h/2, later ones over (h_before + h)/2 (= h exactly for a
-// constant step: the explicit scheme's update); the last one leaves h_prev = h/2. `still`
-// keeps its sign bit while every particle stays within skin/2 of its reference (xr, yr, zr).
-template <bool External>
-inline void leaf_kick_drift(std::int64_t k, std::int64_t K, std::uint32_t b, std::uint32_t e,
-                            double* x, double* y, double* z, double* vx, double* vy, double* vz,
-                            const double* fx, const double* fy, const double* fz,
-                            const double* fex, const double* fey, const double* fez,
-                            const double* im, const double* xr, const double* yr,
-                            const double* zr, double* hp, double h_before, double hk,
-                            double half_skin2, const std::array<double, 3>& gravity,
-                            std::uint64_t& still) {
-  const double half = 0.5 * hk;
-  if (k == 0) {
-    kick_drift_range<External, true>(
-        x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b, fz + b,
-        External ? fex + b : nullptr, External ? fey + b : nullptr, External ? fez + b : nullptr,
-        im + b, xr + b, yr + b, zr + b, e - b, 0.0, 0.0, 0.0, 0.0, hk, half_skin2, still, hp + b,
-        half, gravity.data());
-  } else {
-    const double s = 0.5 * h_before + half;
-    kick_drift_range<External>(x + b, y + b, z + b, vx + b, vy + b, vz + b, fx + b, fy + b,
-                               fz + b, External ? fex + b : nullptr,
-                               External ? fey + b : nullptr, External ? fez + b : nullptr,
-                               im + b, xr + b, yr + b, zr + b, e - b, s, gravity[0] * s,
-                               gravity[1] * s, gravity[2] * s, hk, half_skin2, still);
-    if (k + 1 == K)
-      for (std::uint32_t i = b; i < e; ++i) hp[i] = half;
-  }
-}
-
 } // namespace cfddem::dem

@@ -12,23 +12,6 @@
 
 namespace cfddem::dem {
 
-namespace {
-// A row's few partners by particle id (insertion sort: rows are short): the summation order of
-// OrbScheme, which depends on the particles only.
-void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
-  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
-    const std::uint32_t v = *i;
-    std::uint32_t* j = i;
-    for (; j > first && id[*(j - 1)] > id[v]; --j)
-      *j = *(j - 1);
-    *j = v;
-  }
-}
-void sort_by_id(std::vector<std::uint32_t>& v, const std::int64_t* id) {
-  sort_by_id(v.data(), v.data() + v.size(), id);
-}
-} // namespace
-
 void OrbLocalRows::build(const Input& in) {
   const std::size_t owned = in.owned;
   const std::size_t n = in.x.size();
@@ -126,8 +109,8 @@ void OrbLocalRows::build(const Input& in) {
                                   : within_proximity(r2, rs, prox));
             }
           }
-      sort_by_id(own, id);
-      sort_by_id(other, id);
+      sort_by_id(own.data(), own.data() + own.size(), id);
+      sort_by_id(other.data(), other.data() + other.size(), id);
       off_[i] = static_cast<std::uint32_t>(nb_.size());
       nb_.insert(nb_.end(), own.begin(), own.end());
       mid_[i] = static_cast<std::uint32_t>(nb_.size());

@@ -17,6 +17,18 @@
 
 namespace cfddem::dem {
 
+// A row's few partners by particle id (insertion sort: rows are short): the orb scheme's summation
+// order on any rank count; it depends on the particles only, not on the store's order.
+inline void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
+  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
+    const std::uint32_t v = *i;
+    std::uint32_t* j = i;
+    for (; j > first && id[*(j - 1)] > id[v]; --j)
+      *j = *(j - 1);
+    *j = v;
+  }
+}
+
 // The orb scheme's proximity test, on any rank count: a leaf takes the fine step when one of its
 // particles has a partner whose centre is closer than prox (r_i + r_j) (prox =
 // dem.proximity_radii / 2; r2: the squared separation, rs = r_i + r_j) ...

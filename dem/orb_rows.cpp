@@ -18,19 +18,6 @@ namespace cfddem::dem {
 
 namespace {
 
-// Sort a short segment of partner indices by particle id (the canonical summation order: it
-// survives every re-sort of the store, so a row's sum does not depend on the store's order).
-
-void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
-  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
-    const std::uint32_t v = *i;
-    std::uint32_t* j = i;
-    for (; j > first && id[*(j - 1)] > id[v]; --j)
-      *j = *(j - 1);
-    *j = v;
-  }
-}
-
 constexpr std::uint32_t kNoCell = 0xffffffffu; // a forward neighbour beyond a wall
 } // namespace
 
@@ -49,13 +36,20 @@ void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
   };
   permute(hprev_), permute(cost_), permute(pairs_.xr), permute(pairs_.yr), permute(pairs_.zr);
   ext_.permute(order);
+  relabel_pairs(order);
+}
+
+// The store was reordered (slot k holds the particle of old slot old_slot[k]): the candidate
+// pairs follow their particles, and the rows must be derived again.
+void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
+  const std::size_t n = old_slot.size();
   scratch_.resize(n);
   for (std::size_t k = 0; k < n; ++k)
-    scratch_[order[k]] = static_cast<std::uint32_t>(k);
+    scratch_[old_slot[k]] = static_cast<std::uint32_t>(k);
   for (auto* v : {&pairs_.ca, &pairs_.cb, &pairs_.pa, &pairs_.pb})
     for (auto& i : *v)
       i = scratch_[i];
-  rows_.off.clear(); // rows must be derived again
+  rows_.off.clear();
 }
 
 void OrbScheme::regrid() {
@@ -195,14 +189,7 @@ void OrbScheme::resort() {
       }
     }
   }
-  // Relabel the pair lists: old slot origin[k] is now slot k.
-  scratch_.resize(n);
-  for (std::size_t k = 0; k < n; ++k)
-    scratch_[origin[k]] = static_cast<std::uint32_t>(k);
-  for (auto* v : {&pairs_.ca, &pairs_.cb, &pairs_.pa, &pairs_.pb})
-    for (auto& q : *v)
-      q = scratch_[q];
-  rows_.off.clear(); // rows must be derived again
+  relabel_pairs(origin); // old slot origin[k] is now slot k
 }
 
 // True when some particle's displacement since the build plus its free flight over one

@@ -296,6 +296,7 @@ private:
   void regrid();
   void resort();
   void apply_permutation(std::span<const std::uint32_t> order);
+  void relabel_pairs(std::span<const std::uint32_t> old_slot);
   bool rows_expire() const;
   void rebuild_pairs();
   void derive_rows();

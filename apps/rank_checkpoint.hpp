@@ -18,7 +18,7 @@
 #include "core/particle_store.hpp"
 #include "dem/contact_history.hpp"
 #include "dem/distributed_islands_scheme.hpp"
-#include "dem/distributed_orb_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
@@ -37,7 +37,7 @@ dem::ContactHistory saved_contact_history(const Checkpoint& ck);
 // checkpoint, and its second per-particle value (orb: the cost; islands: the
 // fine-sub-iteration count, below 2^53, carried as a double).
 template <class Scheme> struct SubiteratedState;
-template <> struct SubiteratedState<dem::DistributedOrbScheme> {
+template <> struct SubiteratedState<dem::OrbScheme> {
   using State = dem::OrbScheme::State;
   static constexpr const char* kName = "orb";
   static State& in(Checkpoint& c) { return c.orb; }

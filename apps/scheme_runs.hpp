@@ -32,7 +32,6 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/distributed_islands_scheme.hpp"
-#include "dem/distributed_orb_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/islands_scheme.hpp"
@@ -295,13 +294,11 @@ private:
   ParticleStore& p_;
 };
 
-template <class S> class SubiteratedRun {
+template <class S, bool R = false> class SubiteratedRun {
 public:
-  static constexpr bool kRanks = std::is_same_v<S, dem::DistributedOrbScheme> ||
-                                 std::is_same_v<S, dem::DistributedIslandsScheme>;
+  static constexpr bool kRanks = R;
   static constexpr bool kSub = true;
-  static constexpr bool kOrb =
-      std::is_same_v<S, dem::OrbScheme> || std::is_same_v<S, dem::DistributedOrbScheme>;
+  static constexpr bool kOrb = std::is_same_v<S, dem::OrbScheme>;
   static constexpr const char* kName = kOrb ? "orb" : "islands";
   using State = std::conditional_t<kOrb, dem::OrbScheme::State, dem::IslandsScheme::State>;
   using Restart = RestartShare<State>;

@@ -4,7 +4,6 @@
 #include "apps/run_loop.hpp"
 #include "apps/scheme_runs.hpp"
 #include "dem/distributed_islands_scheme.hpp"
-#include "dem/distributed_orb_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
@@ -18,9 +17,9 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     validate_fluid(scene);
   if (env.ranks() > 1) {
     if (s == "orb")
-      return run_loop<SubiteratedRun<dem::DistributedOrbScheme>>(scene, opt, env);
+      return run_loop<SubiteratedRun<dem::OrbScheme, true>>(scene, opt, env);
     if (s == "islands")
-      return run_loop<SubiteratedRun<dem::DistributedIslandsScheme>>(scene, opt, env);
+      return run_loop<SubiteratedRun<dem::DistributedIslandsScheme, true>>(scene, opt, env);
     return run_loop<ExplicitRun<dem::ExplicitScheme, true>>(scene, opt, env);
   }
   if (s == "orb")

@@ -1,4 +1,4 @@
-// The rows of the distributed orb scheme (dem/distributed_orb_scheme.hpp): for each owned
+// The rows of the orb scheme over R ranks (dem/orb_scheme.hpp): for each owned
 // particle of a rank, its contact candidates among the local particles (owned first, then ghost
 // copies at their unshifted positions) and whether some partner is close enough to make its leaf
 // take the fine step. Rebuilt at every sub-iteration from a cell list over the whole domain
@@ -17,14 +17,40 @@
 
 namespace cfddem::dem {
 
+// A row's few partners by particle id (insertion sort: rows are short): the orb scheme's summation
+// order on any rank count; it depends on the particles only, not on the store's order.
+inline void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
+  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
+    const std::uint32_t v = *i;
+    std::uint32_t* j = i;
+    for (; j > first && id[*(j - 1)] > id[v]; --j)
+      *j = *(j - 1);
+    *j = v;
+  }
+}
+
+// The orb scheme's proximity test, on any rank count: a leaf takes the fine step when one of its
+// particles has a partner whose centre is closer than prox (r_i + r_j) (prox =
+// dem.proximity_radii / 2; r2: the squared separation, rs = r_i + r_j) ...
+inline bool within_proximity(double r2, double rs, double prox) {
+  const double d = prox * rs;
+  return r2 < d * d;
+}
+// ... or, with dem.local_dt = "time_to_contact", when the gap could close within dt_sp at the
+// pair's summed speed bounds s = s_i + s_j.
+inline bool within_reach(double r2, double rs, double s, double dt_sp) {
+  const double reach = rs + s * dt_sp;
+  return r2 < reach * reach;
+}
+
 class OrbLocalRows {
 public:
   struct Input {
-    DomainGeometry geom;                       // the whole domain (minimum image)
-    std::span<const double> x, y, z, radius;   // owned then ghosts
-    std::span<const std::int64_t> id;          // owned then ghosts
-    std::span<const double> speed;             // with ttc: speed bound per local particle
-    std::span<const std::uint32_t> leaf;       // per owned particle
+    DomainGeometry geom;                     // the whole domain (minimum image)
+    std::span<const double> x, y, z, radius; // owned then ghosts
+    std::span<const std::int64_t> id;        // owned then ghosts
+    std::span<const double> speed;           // with ttc: speed bound per local particle
+    std::span<const std::uint32_t> leaf;     // per owned particle
     std::size_t owned = 0;
     double cutoff = 0.0; // >= every distance tested below, < half of each periodic length
     double skin = 0.0;   // contact candidates: centres within r_i + r_j + skin

@@ -1,12 +1,11 @@
 #include "dem/orb_scheme.hpp"
 
 #include <algorithm>
-#include <bit>
+#include <array>
 #include <cmath>
 #include <limits>
-#include <numeric>
-#include <optional>
 #include <stdexcept>
+#include <string>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -15,31 +14,18 @@
 #include <tbb/task_arena.h>
 
 #include "core/error.hpp"
-#include "dem/contact_kernels.hpp"
-#include "dem/kick_drift_range.hpp"
+#include "dem/orb_leaf_kernels.hpp"
+#include "dem/orb_rank_part.hpp"
 #include "dem/scheme_support.hpp"
 
 namespace cfddem::dem {
 
 namespace {
 enum class Fault { none = 0, nan, left_domain };
-
-// Sort a short segment of partner indices by particle id (the canonical summation order: it
-// survives every re-sort of the store, so a row's sum does not depend on the store's order).
-
-void sort_by_id(std::uint32_t* first, std::uint32_t* last, const std::int64_t* id) {
-  for (std::uint32_t* i = first + (first != last); i < last; ++i) {
-    const std::uint32_t v = *i;
-    std::uint32_t* j = i;
-    for (; j > first && id[*(j - 1)] > id[v]; --j)
-      *j = *(j - 1);
-    *j = v;
-  }
-}
 } // namespace
 
 // A run of consecutive leaves with the same local step, advanced in lockstep as one TBB task:
-// [b, e) in the store, rows active_[a0, a1). Leaves never read each other's live state (partners
+// [b, e) in the store, rows active[a0, a1). Leaves never read each other's live state (partners
 // in other leaves are read from the frozen copies), so the grouping changes nothing in the
 // arithmetic: it only amortises the per-step loop overhead of small leaves.
 struct OrbScheme::Batch {
@@ -58,475 +44,242 @@ struct OrbScheme::Batch {
 OrbScheme::~OrbScheme() = default;
 
 OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer)
-    : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain),
-      model_(make_step_model(scene, particles)) {
+    : OrbScheme(scene, particles, make_step_model(scene, particles), nullptr, timer) {}
+
+OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
+                     const Communicator* comm, PhaseTimer& timer)
+    : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
   require_frictionless(model_, "orb");
+  if (comm != nullptr && comm->size() > 1)
+    rank_ = std::make_unique<RankPart>(*comm);
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
-  for (std::size_t i = 0; i < p_.size(); ++i)
-    r_max_ = std::max(r_max_, p_.radius[i]);
-  if (p_.size() == 0)
-    r_max_ = model_.r_min;
-  nsubit_ = scene.dem.nsubit;
-  dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
+  cfg_.levels = scene.partition.orb_levels;
+  double r_max = 0.0;
+  for (const double r : p_.radius)
+    r_max = std::max(r_max, r);
+  cfg_.n_global = static_cast<std::int64_t>(p_.size());
+  if (rank_)
+    r_max = rank_->comm.max(r_max), cfg_.n_global = rank_->comm.sum(cfg_.n_global);
+  cfg_.r_max = cfg_.n_global > 0 ? r_max : model_.r_min;
+  cfg_.nsubit = scene.dem.nsubit;
+  cfg_.dt_sp = scene.dem.regrid_interval / static_cast<double>(cfg_.nsubit);
+  cfg_.prox = 0.5 * scene.dem.proximity_radii;
+  cfg_.cost_weights = scene.partition.weights == "cost";
+  cfg_.time_to_contact = scene.dem.local_dt == "time_to_contact";
   skin_ = model_.skin;
-  cost_weights_ = scene.partition.weights == "cost";
-  time_to_contact_ = scene.dem.local_dt == "time_to_contact";
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
   for (int a = 0; a < 3; ++a) // no particles: nothing to list (a gas-only or empty scene)
-    if (p_.size() > 0 && geom_.periodic[a] && geom_.length[a] <= 2.0 * (2.0 * r_max_ + model_.skin))
+    if (cfg_.n_global > 0 && geom_.periodic[a] &&
+        geom_.length[a] <= 2.0 * (2.0 * cfg_.r_max + model_.skin))
       throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
                                  "neighbor cutoff {:.4g} m",
-                                 a, geom_.length[a], 2.0 * r_max_ + model_.skin));
-  skin_cap_ = periodic_skin_cap(geom_, r_max_);
-  hprev_.assign(p_.size(), 0.0);
-  cost_.assign(p_.size(), 0.0);
+                                 a, geom_.length[a], 2.0 * cfg_.r_max + model_.skin));
+  cfg_.skin_cap = periodic_skin_cap(geom_, cfg_.r_max);
+  owned_ = p_.size();
+  hprev_.assign(owned_, 0.0);
+  cost_.assign(owned_, 0.0);
+  stats_.leaf_steps.assign(std::size_t{1} << cfg_.levels, 0);
 }
 
 void OrbScheme::start() {
   // v holds the synchronised v(0): the first kick is a(0) (0 + h/2), velocity Verlet's.
-  hprev_.assign(p_.size(), 0.0);
-  subits_ = 0;
+  hprev_.assign(owned_, 0.0);
+  stats_.subits = 0;
 }
 
-// New index k holds old index order[k]: every per-particle array and the pair lists follow.
-void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
-  const std::size_t n = order.size();
-  p_.permute(order);
-  auto permute = [&](std::vector<double>& v) {
-    if (v.size() != n)
-      return;
-    std::vector<double>& t = dscratch_;
-    t.resize(n);
-    for (std::size_t k = 0; k < n; ++k)
-      t[k] = v[order[k]];
-    v.swap(t);
-  };
-  permute(hprev_), permute(cost_), permute(xr_), permute(yr_), permute(zr_);
-  ext_.permute(order);
-  scratch_.resize(n);
-  for (std::size_t k = 0; k < n; ++k)
-    scratch_[order[k]] = static_cast<std::uint32_t>(k);
-  for (auto* v : {&ca_, &cb_, &pa_, &pb_})
-    for (auto& i : *v)
-      i = scratch_[i];
-  off_.clear(); // rows must be derived again
+double OrbScheme::all_max(double v) const {
+  return rank_ ? rank_->comm.max(v) : v;
 }
 
-void OrbScheme::regrid() {
-  PhaseTimer::Scope t(timer_, Phase::neighbor);
-  // A skin grown by a retry lasts until the regrid: rows built with it stay valid (they hold
-  // more pairs), and the next build uses the scene's skin again.
-  skin_ = model_.skin;
-  const std::size_t n = p_.size();
-  // Wrap into the box; the reference positions move by the same period, so the displacement
-  // since the last neighbor build is unchanged.
-  for (std::size_t i = 0; i < n; ++i) {
-    const double wx = geom_.wrap(p_.x[i], 0), wy = geom_.wrap(p_.y[i], 1),
-                 wz = geom_.wrap(p_.z[i], 2);
-    if (!xr_.empty())
-      xr_[i] += wx - p_.x[i], yr_[i] += wy - p_.y[i], zr_[i] += wz - p_.z[i];
-    p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
+// With dem.local_dt = "time_to_contact": each owned particle's speed bound (its speed plus what
+// gravity and its external force add over h_prev + dt_sp), the largest reach over the ranks, and
+// a skin covering two reaches (so that every pair able to touch within dt_sp is a candidate; it
+// returns to the scene's at the regrid). Returns whether the skin grew.
+bool OrbScheme::time_to_contact_speeds() {
+  speed_.resize(owned_);
+  double reach = 0.0;
+  for (std::size_t i = 0; i < owned_; ++i) {
+    double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
+    if (ext_.active())
+      ax += ext_.x[i] * p_.inv_mass[i], ay += ext_.y[i] * p_.inv_mass[i],
+          az += ext_.z[i] * p_.inv_mass[i];
+    speed_[i] = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]) +
+                std::sqrt(ax * ax + ay * ay + az * az) * (hprev_[i] + cfg_.dt_sp);
+    reach = std::max(reach, speed_[i] * cfg_.dt_sp);
   }
-  bool use_cost = cost_weights_;
-  if (use_cost) {
-    double total = 0.0;
-    for (double c : cost_)
-      total += c;
-    use_cost = total > 0.0; // the first regrid has no measurement yet: count
-  }
-  // With a gas, cuts lie on fluid cell faces (orb_snap_grid).
-  tree_ = partition::OrbTree::build(
-      p_.x, p_.y, p_.z, use_cost ? std::span<const double>(cost_) : std::span<const double>(),
-      domain_, partition::OrbOptions{scene_.partition.orb_levels, orb_snap_grid(scene_)});
-  const auto order = tree_.order();
-  apply_permutation(order);
-  std::fill(cost_.begin(), cost_.end(), 0.0);
-  const auto leaves = tree_.leaves();
-  ranges_.assign(leaves.size() + 1, 0);
-  for (std::size_t l = 0; l < leaves.size(); ++l)
-    ranges_[l + 1] = leaves[l].end;
-  if (leaf_steps_.size() != leaves.size())
-    leaf_steps_.assign(leaves.size(), 0);
-  ++regrids_;
-}
-
-// Particles that left their leaf are moved to the leaf that now holds them, keeping every leaf a
-// contiguous range. A few particles cross a boundary per sub-iteration, so instead of sorting the
-// whole store each one walks along the leaves between its old and new leaf by swaps with the
-// boundary slots (one swap per leaf passed); particles of other leaves keep their leaf. The
-// order inside a leaf changes, which no result depends on (rows are summed in id order and the
-// update is per particle). Then the pair lists are relabelled and the rows derived again.
-void OrbScheme::resort() {
-  PhaseTimer::Scope t(timer_, Phase::neighbor);
-  const std::size_t n = p_.size();
-  const std::size_t nl = ranges_.size() - 1;
-  std::vector<std::uint32_t>& target = leaf_of_; // the leaf holding each slot's particle
-  target.resize(n);
-  bool moved = false;
-  const auto leaves = tree_.leaves();
-  const double* __restrict xs = p_.x.data();
-  const double* __restrict ys = p_.y.data();
-  const double* __restrict zs = p_.z.data();
-  for (std::size_t l = 0; l < nl; ++l) {
-    const partition::Aabb box = leaves[l].box;
-    const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
-    std::fill(target.begin() + b, target.begin() + e, static_cast<std::uint32_t>(l));
-    // Most leaves keep all their particles: a branch-free pass (it vectorizes) finds them.
-    std::uint64_t out = 0;
-    for (std::uint32_t i = b; i < e; ++i)
-      out |= sign_unless(box.lo[0] <= xs[i]) | sign_unless(xs[i] < box.hi[0]) |
-             sign_unless(box.lo[1] <= ys[i]) | sign_unless(ys[i] < box.hi[1]) |
-             sign_unless(box.lo[2] <= zs[i]) | sign_unless(zs[i] < box.hi[2]);
-    if (!(out >> 63))
-      continue;
-    for (std::uint32_t i = b; i < e; ++i) {
-      // Most particles are still inside their (half-open) box: skip the wrap and the tree
-      // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
-      const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
-      int k = static_cast<int>(l);
-      if (!(box.lo[0] <= px && px < box.hi[0] && box.lo[1] <= py && py < box.hi[1] &&
-            box.lo[2] <= pz && pz < box.hi[2]))
-        k = tree_.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
-      if (k < 0)
-        throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
-                                   "the domain",
-                                   time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
-      target[i] = static_cast<std::uint32_t>(k);
-      moved |= static_cast<std::size_t>(k) != l;
-    }
-  }
-  if (!moved)
-    return;
-  std::vector<std::uint32_t>& origin = fill_; // original slot of the particle now in each slot
-  origin.resize(n);
-  for (std::size_t i = 0; i < n; ++i)
-    origin[i] = static_cast<std::uint32_t>(i);
-  auto swap_slots = [&](std::uint32_t a, std::uint32_t c) {
-    if (a == c)
-      return;
-    p_.swap(a, c);
-    std::swap(hprev_[a], hprev_[c]);
-    std::swap(cost_[a], cost_[c]);
-    if (!xr_.empty())
-      std::swap(xr_[a], xr_[c]), std::swap(yr_[a], yr_[c]), std::swap(zr_[a], zr_[c]);
-    ext_.swap(a, c);
-    std::swap(target[a], target[c]);
-    std::swap(origin[a], origin[c]);
-  };
-  for (std::size_t l = 0; l < nl; ++l) {
-    std::uint32_t i = ranges_[l];
-    while (true) {
-      i = std::max(i, ranges_[l]); // a particle walked out of the front of leaf l
-      if (i >= ranges_[l + 1])
-        break;
-      const std::uint32_t dest = target[i];
-      if (dest == l) {
-        ++i;
-        continue;
-      }
-      // Walk the particle at slot i to leaf dest; slot i then holds a particle of leaf l (the
-      // boundary slot it was swapped with) and is checked again.
-      std::uint32_t m = i;
-      if (dest > l) {
-        for (std::size_t j = l; j < dest; ++j) {
-          const std::uint32_t last = ranges_[j + 1] - 1;
-          swap_slots(m, last);
-          m = last;
-          --ranges_[j + 1];
-        }
-      } else {
-        for (std::size_t j = l; j > dest; --j) {
-          const std::uint32_t first = ranges_[j];
-          swap_slots(m, first);
-          m = first;
-          ++ranges_[j];
-        }
-      }
-    }
-  }
-  // Relabel the pair lists: old slot origin[k] is now slot k.
-  scratch_.resize(n);
-  for (std::size_t k = 0; k < n; ++k)
-    scratch_[origin[k]] = static_cast<std::uint32_t>(k);
-  for (auto* v : {&ca_, &cb_, &pa_, &pb_})
-    for (auto& q : *v)
-      q = scratch_[q];
-  off_.clear(); // rows must be derived again
-}
-
-// True when some particle's displacement since the build plus its free flight over one
-// sub-iteration exceeds skin/2: the rows are then rebuilt before the sub-iteration, in which the
-// particle would likely outrun them. Positions and references are unwrapped alike (a regrid
-// shifts both), so plain differences. (d + v dt)^2 <= 2 (d^2 + v^2 dt^2): the square roots are
-// taken only for the few particles that fail that bound.
-bool OrbScheme::rows_expire() const {
-  const std::size_t n = p_.size();
-  const double lim = 0.5 * skin_, lim2 = lim * lim, dt2 = dt_sp_ * dt_sp_;
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
-  const double* vx = p_.vx.data();
-  const double* vy = p_.vy.data();
-  const double* vz = p_.vz.data();
-  const double* xr = xr_.data();
-  const double* yr = yr_.data();
-  const double* zr = zr_.data();
-  // Branch-free bound first (it vectorizes); the exact test only if the bound fails somewhere.
-  std::uint64_t over = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
-    const double d2 = ex * ex + ey * ey + ez * ez;
-    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
-    over |= sign_unless(2.0 * (d2 + v2 * dt2) <= lim2);
-  }
-  if (!(over >> 63))
-    return false;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
-    const double d2 = ex * ex + ey * ey + ez * ez;
-    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
-    if (!(2.0 * (d2 + v2 * dt2) <= lim2) && !(std::sqrt(d2) + std::sqrt(v2) * dt_sp_ <= lim))
-      return true; // NaN expires the rows too
+  reach_ = all_max(reach);
+  if (2.1 * reach_ > skin_ && skin_ < cfg_.skin_cap) {
+    skin_ = std::min(2.1 * reach_, cfg_.skin_cap);
+    return true;
   }
   return false;
 }
 
-// One cell list over the whole store (indices binned, the store is not moved): contact
-// candidates within r_a + r_b + skin and proximity candidates within prox (r_a + r_b)/2 + skin,
-// each pair once, in a deterministic order. Proximity candidates are skipped when every particle
-// is within the proximity distance of every other (prox_all) or the proximity distance reaches
-// half a periodic length (prox_brute: tested pair by pair at each sub-iteration instead).
-void OrbScheme::rebuild_pairs() {
-  PhaseTimer::Scope t(timer_, Phase::neighbor);
-  const std::size_t n = p_.size();
-  const DomainGeometry& g = geom_;
-  const double prox = 0.5 * scene_.dem.proximity_radii;
-  const double contact_cut = 2.0 * r_max_ + skin_;
-  const double prox_cut = 2.0 * prox * r_max_ + skin_;
-  bool prox_cells = true;
-  for (int a = 0; a < 3; ++a)
-    if (g.periodic[a] && 2.0 * prox_cut >= g.length[a])
-      prox_cells = false;
-  const double cutoff = prox_cells ? std::max(contact_cut, prox_cut) : contact_cut;
-  std::array<int, 3> nc{};
-  std::array<double, 3> inv{};
-  double cell = cutoff;
-  const double volume = g.length[0] * g.length[1] * g.length[2];
-  const double target = 8.0 * static_cast<double>(n) + 64.0;
-  if (volume / (cell * cell * cell) > target)
-    cell = std::cbrt(volume / target);
+// A wall is a partner too: an owned particle whose centre is closer than proximity_radii radii
+// to a wall (with time_to_contact: whose gap to it could close within dt_sp) is near (without
+// this, a leaf near a floor took coarse steps straight into it).
+void OrbScheme::mark_walls(std::span<unsigned char> near) const {
   for (int a = 0; a < 3; ++a) {
-    nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
-    inv[a] = nc[a] / g.length[a];
-  }
-  const std::size_t ncell = static_cast<std::size_t>(nc[0]) * nc[1] * nc[2];
-  auto coord = [&](double v, int a) {
-    return std::clamp(static_cast<int>((g.wrap(v, a) - g.lo[a]) * inv[a]), 0, nc[a] - 1);
-  };
-  cell_of_.resize(n);
-  cell_start_.assign(ncell + 1, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    cell_of_[i] = static_cast<std::uint32_t>(
-        (static_cast<std::size_t>(coord(p_.z[i], 2)) * nc[1] + coord(p_.y[i], 1)) * nc[0] +
-        coord(p_.x[i], 0));
-    ++cell_start_[cell_of_[i] + 1];
-  }
-  for (std::size_t c = 0; c < ncell; ++c)
-    cell_start_[c + 1] += cell_start_[c];
-  scratch_.resize(n);
-  {
-    std::vector<std::uint32_t>& fill = fill_;
-    fill.assign(cell_start_.begin(), cell_start_.end() - 1);
-    for (std::size_t i = 0; i < n; ++i)
-      scratch_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
-  }
-  ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear();
-  const double* px = p_.x.data();
-  const double* py = p_.y.data();
-  const double* pz = p_.z.data();
-  const double* pr = p_.radius.data();
-  auto test = [&](std::uint32_t i, std::uint32_t j) {
-    const double dx = g.image(px[j] - px[i], 0), dy = g.image(py[j] - py[i], 1),
-                 dz = g.image(pz[j] - pz[i], 2);
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    const double rs = pr[i] + pr[j];
-    if (r2 < (rs + skin_) * (rs + skin_))
-      ca_.push_back(i), cb_.push_back(j);
-    if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
-      pa_.push_back(i), pb_.push_back(j);
-  };
-  if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
-    // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
-    // so every pair is visited once and no cell twice. The binned particles' data are copied in
-    // cell order so that the inner loops read contiguous memory.
-    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0}, {-1, -1, 1},
-                                        {0, -1, 1}, {1, -1, 1}, {-1, 0, 1}, {0, 0, 1}, {1, 0, 1},
-                                        {-1, 1, 1}, {0, 1, 1},  {1, 1, 1}};
-    // Interior cells reach their forward neighbours by constant offsets; cells on the grid's
-    // faces wrap (periodic) or skip (wall) them.
-    std::ptrdiff_t fwd_off[13];
-    for (int o = 0; o < 13; ++o)
-      fwd_off[o] =
-          (static_cast<std::ptrdiff_t>(kFwd[o][2]) * nc[1] + kFwd[o][1]) * nc[0] + kFwd[o][0];
-    // Cell c at (cx, cy, cz) on the grid's faces: its forward neighbour o, or kNoCell.
-    auto boundary_forward_cell = [&](int cx, int cy, int cz, int o) -> std::uint32_t {
-      int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
-      for (int a = 0; a < 3; ++a)
-        if (q[a] < 0 || q[a] >= nc[a]) {
-          if (!g.periodic[a])
-            return kNoCell;
-          q[a] = (q[a] + nc[a]) % nc[a];
-        }
-      return static_cast<std::uint32_t>((static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] +
-                                        q[0]);
-    };
-    std::vector<double>& sx = sorted_[0];
-    std::vector<double>& sy = sorted_[1];
-    std::vector<double>& sz = sorted_[2];
-    std::vector<double>& sr = sorted_[3];
-    sx.resize(n), sy.resize(n), sz.resize(n), sr.resize(n);
-    for (std::size_t k = 0; k < n; ++k) {
-      const std::uint32_t i = scratch_[k];
-      sx[k] = px[i], sy[k] = py[i], sz[k] = pz[i], sr[k] = pr[i];
+    if (geom_.periodic[a])
+      continue;
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const double d = cfg_.time_to_contact ? p_.radius[i] + speed_[i] * cfg_.dt_sp
+                                            : 2.0 * cfg_.prox * p_.radius[i];
+      near[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
     }
-    // Pair (a, b) of sorted slots: the test of `test` on the sorted copies.
-    auto test_sorted = [&](std::uint32_t a, std::uint32_t b) {
-      const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
-                   dz = g.image(sz[b] - sz[a], 2);
-      const double r2 = dx * dx + dy * dy + dz * dz;
-      const double rs = sr[a] + sr[b];
-      const double pc = prox * rs + skin_;
-      if (r2 < (rs + skin_) * (rs + skin_))
-        ca_.push_back(scratch_[a]), cb_.push_back(scratch_[b]);
-      if (prox_cells && r2 < pc * pc)
-        pa_.push_back(scratch_[a]), pb_.push_back(scratch_[b]);
-    };
-    for (int cz = 0; cz < nc[2]; ++cz)
-      for (int cy = 0; cy < nc[1]; ++cy)
-        for (int cx = 0; cx < nc[0]; ++cx) {
-          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
-          const std::uint32_t c0 = cell_start_[c], c1 = cell_start_[c + 1];
-          if (c0 == c1)
-            continue;
-          for (std::uint32_t a = c0; a < c1; ++a)
-            for (std::uint32_t b = a + 1; b < c1; ++b)
-              test_sorted(a, b);
-          const bool interior =
-              cx >= 1 && cx + 1 < nc[0] && cy >= 1 && cy + 1 < nc[1] && cz + 1 < nc[2];
-          for (int o = 0; o < 13; ++o) {
-            const std::uint32_t d =
-                interior ? static_cast<std::uint32_t>(static_cast<std::ptrdiff_t>(c) + fwd_off[o])
-                         : boundary_forward_cell(cx, cy, cz, o);
-            if (d == kNoCell)
-              continue;
-            const std::uint32_t d0 = cell_start_[d], d1 = cell_start_[d + 1];
-            for (std::uint32_t a = c0; a < c1; ++a)
-              for (std::uint32_t b = d0; b < d1; ++b)
-                test_sorted(a, b);
-          }
-        }
+  }
+}
+
+// The rows of this sub-iteration; true if built now. One rank: the candidate pairs are rebuilt
+// when forced (a retry), invalid or about to be outrun, and the rows derived after a re-sort. R
+// ranks: the exchange of particles and ghosts and fresh rows, at every sub-iteration.
+bool OrbScheme::build_rows(bool force) {
+  if (rank_) {
+    rank_exchange_and_rows();
+    return true;
+  }
+  bool fresh = false;
+  if (cfg_.time_to_contact && time_to_contact_speeds())
+    pairs_.valid = false;
+  if (force || !pairs_.valid || rows_expire())
+    rebuild_pairs(), fresh = true;
+  if (rows_.off.size() != p_.size() + 1) {
+    PhaseTimer::Scope t(timer_, Phase::neighbor);
+    derive_rows();
+  }
+  return fresh;
+}
+
+// Frozen copies (what other leaves and ranks read, and the rollback point of a retry).
+void OrbScheme::freeze() {
+  frozen_.x = p_.x, frozen_.y = p_.y, frozen_.z = p_.z;
+  frozen_.vx = p_.vx, frozen_.vy = p_.vy, frozen_.vz = p_.vz, frozen_.hp = hprev_;
+}
+
+void OrbScheme::roll_back() {
+  const auto back = [&](const std::vector<double>& from, std::vector<double>& to) {
+    std::copy_n(from.begin(), owned_, to.begin());
+  };
+  back(frozen_.x, p_.x), back(frozen_.y, p_.y), back(frozen_.z, p_.z);
+  back(frozen_.vx, p_.vx), back(frozen_.vy, p_.vy), back(frozen_.vz, p_.vz);
+  hprev_ = frozen_.hp;
+}
+
+LeafLive OrbScheme::live(bool external) {
+  return {p_.x.data(),
+          p_.y.data(),
+          p_.z.data(),
+          p_.vx.data(),
+          p_.vy.data(),
+          p_.vz.data(),
+          p_.fx.data(),
+          p_.fy.data(),
+          p_.fz.data(),
+          hprev_.data(),
+          p_.radius.data(),
+          p_.mass.data(),
+          p_.inv_mass.data(),
+          external ? ext_.x.data() : nullptr,
+          external ? ext_.y.data() : nullptr,
+          external ? ext_.z.data() : nullptr};
+}
+
+LeafFrozen OrbScheme::frozen() const {
+  return {frozen_.x.data(),  frozen_.y.data(),  frozen_.z.data(),
+          frozen_.vx.data(), frozen_.vy.data(), frozen_.vz.data()};
+}
+
+LeafRows OrbScheme::rows_view() const {
+  if (rank_)
+    return {rank_->rows.active().data(), rank_->rows.off().data(), rank_->rows.mid().data(),
+            rank_->rows.nb().data()};
+  return {rows_.active.data(), rows_.off.data(), rows_.mid.data(), rows_.nb.data()};
+}
+
+// The step of each leaf (fine if one of its particles is near a partner or a wall), the batches
+// with their rows and force evaluations per local step (own-leaf entries count half a pair,
+// other-leaf entries one: see pair_evaluations()), and with `record` the state at t.
+void OrbScheme::plan(bool record) {
+  const std::size_t n = owned_;
+  std::span<const unsigned char> near;
+  if (rank_) {
+    near = rank_->rows.near();
   } else {
-    // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t c = cell_of_[i];
-      const int cx = static_cast<int>(c % nc[0]), cy = static_cast<int>((c / nc[0]) % nc[1]),
-                cz = static_cast<int>(c / (static_cast<std::size_t>(nc[0]) * nc[1]));
-      int sx[3], sy[3], sz[3];
-      const int mx = stencil_axis(cx, nc[0], g.periodic[0], sx);
-      const int my = stencil_axis(cy, nc[1], g.periodic[1], sy);
-      const int mz = stencil_axis(cz, nc[2], g.periodic[2], sz);
-      for (int cc = 0; cc < mz; ++cc)
-        for (int bb = 0; bb < my; ++bb)
-          for (int aa = 0; aa < mx; ++aa) {
-            const std::size_t q =
-                (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
-            for (std::uint32_t k = cell_start_[q]; k < cell_start_[q + 1]; ++k)
-              if (scratch_[k] > i)
-                test(static_cast<std::uint32_t>(i), scratch_[k]);
-          }
+    mark_near();
+    near = rows_.near;
+  }
+  const std::size_t nl = leaves_.id.size();
+  leaves_.fine.assign(nl, 0);
+  for (std::size_t k = 0; k < nl; ++k) {
+    unsigned char any = 0; // a local: stores through a char pointer would alias everything
+    for (std::uint32_t i = leaves_.range[k]; i < leaves_.range[k + 1]; ++i)
+      any |= near[i];
+    leaves_.fine[k] = any;
+  }
+  const bool can_refine = model_.dt < cfg_.dt_sp;
+  const FineSteps steps = fine_steps(cfg_.dt_sp, model_.dt);
+  // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so
+  // that every thread gets several (the arithmetic does not depend on the cuts).
+  const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
+  const std::size_t grain = std::max<std::size_t>(256, n / (4 * std::max<std::size_t>(threads, 1)));
+  batches_.clear();
+  for (std::size_t k = 0; k < nl; ++k) {
+    const bool fine = leaves_.fine[k] && can_refine;
+    const std::uint32_t b = leaves_.range[k], e = leaves_.range[k + 1];
+    if (b == e)
+      continue;
+    const std::int64_t K = fine ? steps.K : 1;
+    if (batches_.empty() || batches_.back().K != K || batches_.back().e != b ||
+        batches_.back().e - batches_.back().b >= grain) {
+      Batch bt;
+      bt.b = b, bt.K = K;
+      bt.h = fine ? steps.h : cfg_.dt_sp;
+      bt.h_last = fine ? steps.h_last : cfg_.dt_sp;
+      batches_.push_back(bt);
     }
+    batches_.back().e = e;
   }
-  prox_from_pairs_ = prox_cells;
-  xr_ = p_.x, yr_ = p_.y, zr_ = p_.z;
-  pairs_valid_ = true;
-  off_.clear();
-  ++builds_;
-}
-
-// Rows of the current leaves from the contact candidates (after a build or a re-sort).
-void OrbScheme::derive_rows() {
-  const std::size_t n = p_.size();
-  const std::size_t nl = ranges_.size() - 1;
-  leaf_of_.resize(n);
-  for (std::size_t l = 0; l < nl; ++l)
-    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i)
-      leaf_of_[i] = static_cast<std::uint32_t>(l);
-  std::vector<std::uint32_t>& own = scratch_;
-  own.assign(n, 0);
-  off_.assign(n + 1, 0);
-  for (std::size_t q = 0; q < ca_.size(); ++q) {
-    const std::uint32_t a = ca_[q], b = cb_[q];
-    ++off_[a + 1], ++off_[b + 1];
-    if (leaf_of_[a] == leaf_of_[b])
-      ++own[a], ++own[b];
-  }
-  for (std::size_t i = 0; i < n; ++i)
-    off_[i + 1] += off_[i];
-  mid_.resize(n);
-  for (std::size_t i = 0; i < n; ++i)
-    mid_[i] = off_[i] + own[i];
-  nb_.resize(off_[n]);
-  std::vector<std::uint32_t>& fo = own; // fill cursors: own segment, then ghost segment
-  std::vector<std::uint32_t>& fg = cell_of_;
-  fg.resize(n);
-  for (std::size_t i = 0; i < n; ++i)
-    fo[i] = off_[i], fg[i] = mid_[i];
-  for (std::size_t q = 0; q < ca_.size(); ++q) {
-    const std::uint32_t a = ca_[q], b = cb_[q];
-    if (leaf_of_[a] == leaf_of_[b]) {
-      nb_[fo[a]++] = b, nb_[fo[b]++] = a;
-    } else {
-      nb_[fg[a]++] = b, nb_[fg[b]++] = a;
-    }
-  }
-  active_.clear();
-  own_before_.resize(n + 1);
-  own_before_[0] = 0;
-  for (std::size_t i = 0; i < n; ++i)
-    own_before_[i + 1] = own_before_[i] + (mid_[i] - off_[i]);
-  for (std::size_t i = 0; i < n; ++i) {
-    sort_by_id(nb_.data() + off_[i], nb_.data() + mid_[i], p_.id.data());
-    sort_by_id(nb_.data() + mid_[i], nb_.data() + off_[i + 1], p_.id.data());
-    if (off_[i + 1] > off_[i])
-      active_.push_back(static_cast<std::uint32_t>(i));
-  }
-  // Only particles with a row get their contact force rewritten each step: clear the rest.
-  std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
-  std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
-  std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
-}
-
-// Each batch's rows (its range of active_) and force evaluations per local step (own-leaf
-// entries count half a pair, other-leaf entries one: see pair_evaluations()).
-void OrbScheme::bind_rows() {
+  const LeafRows rows = rows_view();
+  const std::span<const std::uint32_t> active(rows.act, rank_ ? rank_->rows.active().size()
+                                                              : rows_.active.size());
   for (Batch& bt : batches_) {
-    bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) -
-                                       active_.begin());
-    bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) -
-                                       active_.begin());
-    const std::int64_t own = static_cast<std::int64_t>(own_before_[bt.e] - own_before_[bt.b]);
-    const std::int64_t all = static_cast<std::int64_t>(off_[bt.e] - off_[bt.b]);
+    bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.b) -
+                                       active.begin());
+    bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.e) -
+                                       active.begin());
+    const auto own = static_cast<std::int64_t>(rows_.own_before[bt.e] - rows_.own_before[bt.b]);
+    const auto all = static_cast<std::int64_t>(rows.off[bt.e] - rows.off[bt.b]);
     bt.evals_per_step = own / 2 + (all - own);
   }
+  if (!record)
+    return;
+  rec_.x.resize(n), rec_.y.resize(n), rec_.z.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    rec_.x[i] = geom_.wrap(p_.x[i], 0), rec_.y[i] = geom_.wrap(p_.y[i], 1),
+    rec_.z[i] = geom_.wrap(p_.z[i], 2);
+  rec_.vx.resize(n), rec_.vy.resize(n), rec_.vz.resize(n);
+  const auto first = [n](const auto& v) {
+    return std::vector(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(n));
+  };
+  rec_.mass = first(p_.mass), rec_.id = first(p_.id), rec_.radius = first(p_.radius);
+  rec_.leaf.resize(n), rec_.dt.resize(n);
+  for (std::size_t k = 0; k < nl; ++k)
+    for (std::uint32_t i = leaves_.range[k]; i < leaves_.range[k + 1]; ++i)
+      rec_.leaf[i] = leaves_.id[k];
+  for (const Batch& bt : batches_)
+    for (std::uint32_t i = bt.b; i < bt.e; ++i)
+      rec_.dt[i] = cfg_.dt_sp / static_cast<double>(bt.K);
 }
 
 void OrbScheme::run_batch(Batch& bt, bool record) {
   ext_.active() ? run_batch_impl<true>(bt, record) : run_batch_impl<false>(bt, record);
 }
 
-// With External, the per-particle external force is added to the contact force in every kick
-// and in the synchronised velocity ((F + F_ext) / m + g, the explicit scheme's arithmetic).
+// The batch's K local steps. With External, the per-particle external force is added to the
+// contact force in every kick and in the synchronised velocity ((F + F_ext) / m + g, the
+// explicit scheme's arithmetic).
 template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   bt.violations = 0;
   bt.max_ratio = 0.0;
@@ -536,105 +289,82 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     return;
   const DomainGeometry g = geom_;
   const StepModel m = model_;
-  double* __restrict x = p_.x.data();
-  double* __restrict y = p_.y.data();
-  double* __restrict z = p_.z.data();
-  double* __restrict vx = p_.vx.data();
-  double* __restrict vy = p_.vy.data();
-  double* __restrict vz = p_.vz.data();
-  double* __restrict fx = p_.fx.data();
-  double* __restrict fy = p_.fy.data();
-  double* __restrict fz = p_.fz.data();
-  double* __restrict hp = hprev_.data();
-  const double* __restrict gx = gx_.data();
-  const double* __restrict gy = gy_.data();
-  const double* __restrict gz = gz_.data();
-  const double* __restrict gvx = gvx_.data();
-  const double* __restrict gvy = gvy_.data();
-  const double* __restrict gvz = gvz_.data();
-  const double* __restrict rad = p_.radius.data();
-  const double* __restrict mass = p_.mass.data();
-  const double* __restrict im = p_.inv_mass.data();
-  const double* __restrict fex = External ? ext_.x.data() : nullptr;
-  const double* __restrict fey = External ? ext_.y.data() : nullptr;
-  const double* __restrict fez = External ? ext_.z.data() : nullptr;
-  const std::uint32_t* __restrict off = off_.data();
-  const std::uint32_t* __restrict mid = mid_.data();
-  const std::uint32_t* __restrict nb = nb_.data();
-  const std::uint32_t* __restrict act = active_.data();
+  const LeafLive p = live(External);
+  const LeafFrozen frozen_state = frozen();
+  // The reference of the skin test: one rank, the positions of the pair build; R ranks, those at
+  // the sub-iteration start (the rows are built there).
+  const LeafFrozen ref =
+      rank_ ? frozen_state : LeafFrozen{pairs_.xr.data(), pairs_.yr.data(), pairs_.zr.data(),
+                                        nullptr,          nullptr,          nullptr};
+  const LeafRows rows = rows_view();
   const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
-  const double lim = m.max_overlap;
-  const double half_skin2 = 0.25 * skin_ * skin_;
   const std::uint32_t b = bt.b, e = bt.e;
-  double max_ratio = 0.0;
-  std::int64_t violations = 0;
-  double h_before = 0.0; // the previous local step (k > 0)
-  const KickDriftColumns columns =
-      kick_drift_columns(p_, xr_, yr_, zr_, External ? &ext_ : nullptr, hprev_);
+  OverlapTally tally;
+  LeafStep st;
+  st.K = bt.K;
+  st.half_skin2 = 0.25 * skin_ * skin_;
   for (std::int64_t k = 0; k < bt.K; ++k) {
-    const double hk = k + 1 == bt.K ? bt.h_last : bt.h;
+    st.k = k;
+    st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
     // Contact pass: the explicit scheme's pair arithmetic; partners of the own leaf read live,
     // partners of other leaves read frozen at the start of the sub-iteration.
-    leaf_contact_pass(bt.a0, bt.a1, act, off, mid, nb, x, y, z, vx, vy, vz, gx, gy, gz, gvx, gvy,
-                      gvz, rad, mass, fx, fy, fz, g, m, max_ratio, violations);
+    leaf_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, g, m, tally);
     if (walls)
-      add_wall_forces(b, e, off, x, y, z, vx, vy, vz, rad, mass, fx, fy, fz, g, m.wall, lim,
-                      max_ratio, violations);
+      add_wall_forces(b, e, rows.off, p, g, m.wall, m.max_overlap, tally);
     if (record && k == 0)
-      synchronised_velocities<External>(b, e, vx, vy, vz, fx, fy, fz, fex, fey, fez, im, hp,
-                                        m.gravity, svx_.data(), svy_.data(), svz_.data());
+      synchronised_velocities<External>(b, e, p, m.gravity, rec_.vx.data(), rec_.vy.data(),
+                                        rec_.vz.data());
     // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h (leaf_kick_drift).
-    // Sign-bit AND instead of a max: vectorizes (see kick_drift_range.hpp).
+    // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
     std::uint64_t still = ~std::uint64_t{0};
-    leaf_kick_drift<External>(k, bt.K, columns.range(b, e), h_before, hk, m.gravity, half_skin2,
-                              still);
-    h_before = hk;
-    // Ghosts do not move and were within skin/2 of their reference: own particles may use the
-    // other half. Beyond it a pair could be missing from the rows: stop, the sub-iteration is
-    // redone with a larger skin (NaN-safe: a NaN compares false here, fails below and is
-    // reported as such).
+    leaf_kick_drift<External>(b, e, p, ref, st, m.gravity, still);
+    st.h_before = st.hk;
+    // Frozen partners do not move and were within skin/2 of their reference: own particles may
+    // use the other half. Beyond it a pair could be missing from the rows: stop, the
+    // sub-iteration is redone with a larger skin (NaN-safe: a NaN compares false here, fails
+    // below and is reported as such).
     if (k + 1 < bt.K && !(still >> 63)) {
       bt.outran = true;
       break;
     }
   }
-  bt.max_ratio = max_ratio;
-  bt.violations = violations;
+  bt.max_ratio = tally.max_ratio;
+  bt.violations = tally.violations;
   // Faults are rare: a branch-free pass (it vectorizes) says whether to look for one. The sum
   // v2 + x + y + z is NaN or inf if any term is; a coordinate outside a wall's closed interval,
   // or NaN, fails the comparison (periodic axes get an infinite interval).
+  const WallBounds wb(g);
   {
-    const WallBounds wb(g);
-    const double(&lo)[3] = wb.lo;
-    const double(&hi)[3] = wb.hi;
     const double inf = std::numeric_limits<double>::infinity();
     std::uint64_t bad = 0;
     for (std::uint32_t i = b; i < e; ++i) {
-      const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
-      const double t = v2 + x[i] + y[i] + z[i];
-      bad |= sign_unless(t > -inf) | sign_unless(t < inf) | sign_unless(x[i] >= lo[0]) |
-             sign_unless(x[i] <= hi[0]) | sign_unless(y[i] >= lo[1]) | sign_unless(y[i] <= hi[1]) |
-             sign_unless(z[i] >= lo[2]) | sign_unless(z[i] <= hi[2]);
+      const double v2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+      const double t = v2 + p.x[i] + p.y[i] + p.z[i];
+      bad |= sign_unless(t > -inf) | sign_unless(t < inf) | sign_unless(p.x[i] >= wb.lo[0]) |
+             sign_unless(p.x[i] <= wb.hi[0]) | sign_unless(p.y[i] >= wb.lo[1]) |
+             sign_unless(p.y[i] <= wb.hi[1]) | sign_unless(p.z[i] >= wb.lo[2]) |
+             sign_unless(p.z[i] <= wb.hi[2]);
     }
     if (!(bad >> 63))
       return;
   }
   for (std::uint32_t i = b; i < e && bt.fault == Fault::none; ++i) {
-    const double q[3] = {x[i], y[i], z[i]};
-    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    const double q[3] = {p.x[i], p.y[i], p.z[i]};
+    const double v2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
     if (!std::isfinite(v2 + q[0] + q[1] + q[2])) {
       bt.fault = Fault::nan, bt.fault_index = i, bt.fault_value = v2;
       break;
     }
     for (int a = 0; a < 3; ++a)
-      if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a])) {
+      if (!(q[a] >= wb.lo[a] && q[a] <= wb.hi[a])) {
         bt.fault = Fault::left_domain, bt.fault_index = i, bt.fault_value = q[a];
         break;
       }
   }
 }
 
-// One try at the sub-iteration with the current rows; false if some batch outran its rows.
+// One try at the sub-iteration with the current rows (one TBB task per batch); true if some
+// batch outran its rows.
 bool OrbScheme::attempt(bool record) {
   const int nb = static_cast<int>(batches_.size());
   tbb::parallel_for(
@@ -646,260 +376,214 @@ bool OrbScheme::attempt(bool record) {
       tbb::simple_partitioner{});
   for (const Batch& bt : batches_)
     if (bt.outran && bt.fault == Fault::none)
-      return false;
-  return true;
+      return true;
+  return false;
+}
+
+// A NaN or a particle through a wall: every rank raises the fault of the smallest particle id.
+void OrbScheme::raise_fault() {
+  std::string message;
+  std::int64_t key = std::numeric_limits<std::int64_t>::max();
+  for (const Batch& bt : batches_) {
+    if (bt.fault == Fault::none)
+      continue;
+    const std::size_t i = bt.fault_index;
+    if (p_.id[i] >= key)
+      continue;
+    key = p_.id[i];
+    message = fmt::format(
+        "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {}{}", time(),
+        stats_.subits, p_.id[i], p_.x[i], p_.y[i], p_.z[i],
+        bt.fault == Fault::nan
+            ? "position or velocity is not finite (NaN/inf): the step is unstable"
+            : fmt::format("left the domain through a wall (coordinate {:.6g} m)", bt.fault_value),
+        rank_ ? fmt::format(" (rank {})", rank_->comm.rank()) : std::string());
+  }
+  throw RunError(rank_ ? rank_->comm.agree_on_error(key, message) : message);
 }
 
 void OrbScheme::subiterate(bool record) {
-  if (subits_ % nsubit_ == 0)
+  const bool regridding = stats_.subits % cfg_.nsubit == 0;
+  std::string outside_message;
+  std::int64_t outside_key = std::numeric_limits<std::int64_t>::max();
+  std::int64_t outside = 0;
+  if (rank_) {
+    p_.resize(owned_); // the last sub-iteration's ghosts go
+    PhaseTimer::Scope t(timer_, Phase::neighbor);
+    if (regridding)
+      rank_regrid();
+    outside = rank_locate(regridding, outside_message, outside_key);
+  } else if (regridding) {
     regrid();
-  const std::size_t nl = ranges_.size() - 1;
-  const std::size_t n = p_.size();
-  bool fresh = false; // rows built for this sub-iteration
-  if (time_to_contact_) {
-    // Speed bounds, and candidates long enough that every pair able to touch within dt_sp is
-    // one: the skin must cover two particles' reach (it returns to the scene's at the regrid).
-    speed_.resize(n);
-    double reach = 0.0;
-    for (std::size_t i = 0; i < n; ++i) {
-      double ax = model_.gravity[0], ay = model_.gravity[1], az = model_.gravity[2];
-      if (ext_.active())
-        ax += ext_.x[i] * p_.inv_mass[i], ay += ext_.y[i] * p_.inv_mass[i],
-            az += ext_.z[i] * p_.inv_mass[i];
-      speed_[i] = std::sqrt(p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i]) +
-                  std::sqrt(ax * ax + ay * ay + az * az) * (hprev_[i] + dt_sp_);
-      reach = std::max(reach, speed_[i] * dt_sp_);
-    }
-    if (2.1 * reach > skin_ && skin_ < skin_cap_) {
-      skin_ = std::min(2.1 * reach, skin_cap_);
-      pairs_valid_ = false;
-    }
   }
-  {
-    if (!pairs_valid_ || rows_expire())
-      rebuild_pairs(), fresh = true;
-    if (off_.size() != n + 1) {
-      PhaseTimer::Scope t(timer_, Phase::neighbor);
-      derive_rows();
+  bool fresh = build_rows(false);
+  // One reduction closes the sub-iteration (on R ranks): {outran, faults, outside, owned,
+  // particle steps, force evaluations, overlaps beyond the bound, fine leaves, non-empty leaves}.
+  std::array<std::int64_t, 9> c{};
+  std::int64_t local_steps = 0, local_evals = 0;
+  while (true) {
+    PhaseTimer::Scope t(timer_, Phase::force);
+    freeze();
+    plan(record);
+    c = {};
+    c[0] = attempt(record) ? 1 : 0;
+    c[2] = outside;
+    c[3] = static_cast<std::int64_t>(owned_);
+    for (const Batch& bt : batches_) {
+      c[1] += bt.fault != Fault::none ? 1 : 0;
+      c[4] += static_cast<std::int64_t>(bt.e - bt.b) * bt.K;
+      c[5] += bt.evals_per_step * bt.K;
+      c[6] += bt.violations;
     }
-  }
-  PhaseTimer::Scope t(timer_, Phase::force);
-  // Frozen copies (the ghosts' state, and the rollback point of a retry).
-  gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
-  if (record) {
-    sx_.resize(n), sy_.resize(n), sz_.resize(n);
-    for (std::size_t i = 0; i < n; ++i)
-      sx_[i] = geom_.wrap(p_.x[i], 0), sy_[i] = geom_.wrap(p_.y[i], 1),
-      sz_[i] = geom_.wrap(p_.z[i], 2);
-    svx_.resize(n), svy_.resize(n), svz_.resize(n);
-    smass_ = p_.mass, sid_ = p_.id, sradius_ = p_.radius;
-    sleaf_.resize(n), sdt_.resize(n);
-    for (std::size_t l = 0; l < nl; ++l)
-      for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i)
-        sleaf_[i] = static_cast<std::int64_t>(l);
-  }
-  // Local step of each leaf: fine if one of its particles has a partner (own or other leaf)
-  // within the proximity distance.
-  const double prox = 0.5 * scene_.dem.proximity_radii;
-  near_.assign(n, 0);
-  auto test = [&](std::uint32_t a, std::uint32_t c) {
-    const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
-                 dz = geom_.image(p_.z[c] - p_.z[a], 2);
-    const double d = prox * (p_.radius[a] + p_.radius[c]);
-    if (dx * dx + dy * dy + dz * dz < d * d)
-      near_[a] = near_[c] = 1;
-  };
-  if (time_to_contact_) {
-    // dem.local_dt = "time_to_contact" (the seed paper's suggested relative-distance estimate):
-    // a particle is near when some gap, to a contact candidate or to a wall, could close within
-    // dt_sp at its current speed plus what gravity and its external force add (speed_, above).
-    // Any pair that could touch is a candidate: the skin covers two reaches.
-    for (std::size_t q = 0; q < ca_.size(); ++q) {
-      const std::uint32_t a = ca_[q], c = cb_[q];
-      const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
-                   dz = geom_.image(p_.z[c] - p_.z[a], 2);
-      const double reach = p_.radius[a] + p_.radius[c] + (speed_[a] + speed_[c]) * dt_sp_;
-      if (dx * dx + dy * dy + dz * dz < reach * reach)
-        near_[a] = near_[c] = 1;
-    }
-    for (int a = 0; a < 3; ++a) {
-      if (geom_.periodic[a])
-        continue;
-      const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
-      for (std::size_t i = 0; i < n; ++i) {
-        const double d = p_.radius[i] + speed_[i] * dt_sp_;
-        near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
+    for (std::size_t k = 0; k < leaves_.id.size(); ++k)
+      if (leaves_.range[k + 1] > leaves_.range[k])
+        c[7] += leaves_.fine[k], c[8] += 1;
+    local_steps = c[4], local_evals = c[5];
+    if (rank_) {
+      rank_->comm.sum(c);
+      if (c[2] > 0) {
+        const std::string e = rank_->comm.agree_on_error(outside_key, outside_message);
+        throw RunError(e.empty() ? std::string("a particle left the domain") : e);
       }
+      // None lost, none duplicated: the owned counts add up to the total at every sub-iteration.
+      if (c[3] != cfg_.n_global)
+        throw RunError(fmt::format("t = {:.9g} s: {} particles on the ranks after migration, {} "
+                                   "expected",
+                                   time(), c[3], cfg_.n_global));
     }
-  } else {
-    if (prox_from_pairs_) {
-      for (std::size_t q = 0; q < pa_.size(); ++q)
-        test(pa_[q], pb_[q]);
-    } else {
-      for (std::uint32_t a = 0; a < n; ++a)
-        for (std::uint32_t c = a + 1; c < n; ++c)
-          test(a, c);
-    }
-    // A wall is a partner too: a particle whose centre is closer than proximity_radii radii to
-    // a wall (without this, a leaf near a floor took coarse steps straight into it).
-    for (int a = 0; a < 3; ++a) {
-      if (geom_.periodic[a])
-        continue;
-      const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
-      for (std::size_t i = 0; i < n; ++i) {
-        const double d = 2.0 * prox * p_.radius[i];
-        near_[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
-      }
-    }
-  }
-  leaf_fine_.assign(nl, 0);
-  const unsigned char* near = near_.data();
-  for (std::size_t l = 0; l < nl; ++l) {
-    unsigned char any = 0; // a local: stores through a char pointer would alias everything
-    for (std::uint32_t i = ranges_[l]; i < ranges_[l + 1]; ++i)
-      any |= near[i];
-    leaf_fine_[l] = any;
-  }
-  const bool can_refine = model_.dt < dt_sp_;
-  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
-  const std::int64_t K_fine = steps.K;
-  const double h_fine = steps.h;
-  const double h_fine_last = steps.h_last;
-  // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so
-  // that every thread gets several (the arithmetic does not depend on the cuts).
-  const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
-  const std::size_t grain = std::max<std::size_t>(256, n / (4 * std::max<std::size_t>(threads, 1)));
-  batches_.clear();
-  for (std::size_t l = 0; l < nl; ++l) {
-    const bool fine = leaf_fine_[l] && can_refine;
-    const std::uint32_t b = ranges_[l], e = ranges_[l + 1];
-    if (b == e)
-      continue;
-    const std::int64_t K = fine ? K_fine : 1;
-    if (batches_.empty() || batches_.back().K != K || batches_.back().e != b ||
-        batches_.back().e - batches_.back().b >= grain) {
-      Batch bt;
-      bt.b = b, bt.K = K;
-      bt.h = fine ? h_fine : dt_sp_;
-      bt.h_last = fine ? h_fine_last : dt_sp_;
-      batches_.push_back(bt);
-    }
-    batches_.back().e = e;
-  }
-  if (record)
-    for (const Batch& bt : batches_)
-      for (std::uint32_t i = bt.b; i < bt.e; ++i)
-        sdt_[i] = dt_sp_ / static_cast<double>(bt.K);
-  bind_rows();
-  while (!attempt(record)) {
-    // A fine leaf outran its rows (a collision sped a particle up): roll back, rebuild, redo;
-    // if the rows were already fresh, with twice the skin (kept for the rest of the run).
-    if (fresh && skin_ >= skin_cap_)
+    if (c[0] == 0 || c[1] > 0)
+      break;
+    // A fine leaf (on some rank) outran its rows (a collision sped a particle up): roll back,
+    // rebuild, redo; if the rows were already fresh, with twice the skin (until the regrid).
+    if (fresh && skin_ >= cfg_.skin_cap)
       throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor "
                                  "skin in one sub-iteration even with the largest skin the "
                                  "periodic box allows ({:.4g} m): raise dem.nsubit",
                                  time(), skin_));
-    p_.x = gx_, p_.y = gy_, p_.z = gz_, p_.vx = gvx_, p_.vy = gvy_, p_.vz = gvz_, hprev_ = ghp_;
+    roll_back();
     if (fresh)
-      skin_ = std::min(2.0 * skin_, skin_cap_);
-    fresh = true;
-    ++retries_;
-    rebuild_pairs();
-    derive_rows();
-    bind_rows();
+      skin_ = std::min(2.0 * skin_, cfg_.skin_cap);
+    ++stats_.retries;
+    if (rank_)
+      rank_->dest.assign(owned_, rank_->comm.rank()); // the particles are where they belong
+    fresh = build_rows(true);
   }
+  if (c[1] > 0)
+    raise_fault();
   // Counters, reduced in batch order.
   for (const Batch& bt : batches_) {
-    if (bt.fault != Fault::none) {
-      const std::size_t k = bt.fault_index;
-      throw RunError(fmt::format(
-          "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {}", time(),
-          subits_, p_.id[k], p_.x[k], p_.y[k], p_.z[k],
-          bt.fault == Fault::nan
-              ? "position or velocity is not finite (NaN/inf): the step is unstable"
-              : fmt::format("left the domain through a wall (coordinate {:.6g} m)",
-                            bt.fault_value)));
-    }
-    particle_steps_ += static_cast<std::int64_t>(bt.e - bt.b) * bt.K;
-    pair_evaluations_ += bt.evals_per_step * bt.K;
-    overlap_violations_ += bt.violations;
-    max_overlap_ratio_ = std::max(max_overlap_ratio_, bt.max_ratio);
-    if (cost_weights_)
+    stats_.ratio = std::max(stats_.ratio, bt.max_ratio);
+    if (cfg_.cost_weights)
       for (std::uint32_t i = bt.b; i < bt.e; ++i)
         cost_[i] += static_cast<double>(bt.K);
   }
-  std::int64_t fine = 0, busy = 0;
-  for (std::size_t l = 0; l < nl; ++l) {
-    if (ranges_[l + 1] == ranges_[l])
-      continue;
-    ++busy;
-    fine += leaf_fine_[l];
-    leaf_steps_[l] += leaf_fine_[l] && can_refine ? K_fine : 1;
-  }
-  fine_count_ += fine;
-  leaf_subits_ += busy;
-  last_fine_fraction_ = busy > 0 ? static_cast<double>(fine) / static_cast<double>(busy) : 0.0;
-  ++subits_;
-  resort();
+  const bool can_refine = model_.dt < cfg_.dt_sp;
+  const std::int64_t K_fine = fine_steps(cfg_.dt_sp, model_.dt).K;
+  for (std::size_t k = 0; k < leaves_.id.size(); ++k)
+    if (leaves_.range[k + 1] > leaves_.range[k])
+      stats_.leaf_steps[static_cast<std::size_t>(leaves_.id[k])] +=
+          leaves_.fine[k] && can_refine ? K_fine : 1;
+  stats_.particle_steps += c[4], stats_.pair_evaluations += c[5];
+  stats_.overlap_violations += c[6];
+  stats_.local_particle_steps += local_steps, stats_.local_pair_evaluations += local_evals;
+  stats_.fine_count += c[7], stats_.leaf_subits += c[8];
+  stats_.last_fine_fraction =
+      c[8] > 0 ? static_cast<double>(c[7]) / static_cast<double>(c[8]) : 0.0;
+  // On R ranks the largest overlap over the ranks is reduced only when the state is recorded
+  // (the loop records the last sub-iteration): one reduction per sub-iteration is the budget.
+  if (!rank_ || record)
+    stats_.max_overlap_ratio = std::max(stats_.max_overlap_ratio, all_max(stats_.ratio));
+  ++stats_.subits;
+  if (!rank_)
+    resort();
 }
 
 void OrbScheme::benchmark_leaf_subiteration(int leaf) {
   const auto l = static_cast<std::size_t>(leaf);
   Batch bt;
-  bt.b = ranges_[l], bt.e = ranges_[l + 1];
-  const FineSteps steps = fine_steps(dt_sp_, model_.dt);
+  bt.b = leaves_.range[l], bt.e = leaves_.range[l + 1];
+  const FineSteps steps = fine_steps(cfg_.dt_sp, model_.dt);
   bt.K = steps.K;
   bt.h = steps.h;
   bt.h_last = steps.h_last;
-  bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.b) -
-                                     active_.begin());
-  bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active_.begin(), active_.end(), bt.e) -
-                                     active_.begin());
+  const auto& active = rows_.active;
+  bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.b) -
+                                     active.begin());
+  bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.e) -
+                                     active.begin());
   run_batch(bt, false);
 }
 
 void OrbScheme::benchmark_ghost_refresh() {
-  gx_ = p_.x, gy_ = p_.y, gz_ = p_.z, gvx_ = p_.vx, gvy_ = p_.vy, gvz_ = p_.vz, ghp_ = hprev_;
+  freeze();
   derive_rows();
 }
 
 void OrbScheme::set_external_force(std::span<const double> fx, std::span<const double> fy,
                                    std::span<const double> fz) {
-  ext_.set(fx, fy, fz, p_.size());
+  if (!rank_) {
+    ext_.set(fx, fy, fz, owned_);
+    return;
+  }
+  // On when any rank passes values (a rank without particles passes empty spans): the columns
+  // that travel with the particles must be the same on every rank.
+  const Communicator& comm = rank_->comm;
+  const bool on = comm.max(fx.empty() ? 0.0 : 1.0) > 0.0;
+  const bool fits = on ? fx.size() == owned_ && fy.size() == owned_ && fz.size() == owned_
+                       : fy.empty() && fz.empty();
+  if (comm.max(fits ? 0.0 : 1.0) > 0.0)
+    throw std::invalid_argument("set_external_force: one value per owned particle expected");
+  rank_->ext_on = on;
+  ext_.x.assign(fx.begin(), fx.end()), ext_.y.assign(fy.begin(), fy.end());
+  ext_.z.assign(fz.begin(), fz.end());
 }
 
 void OrbScheme::replace_external_force(std::span<const double> fx, std::span<const double> fy,
                                        std::span<const double> fz) {
-  // hprev_ was sized at construction; after a checkpoint restore it is the saved one.
-  if (ext_.active() || !fx.empty())
-    settle_owed_half_kick(p_.vx, p_.vy, p_.vz, p_.inv_mass,
-                          std::span<const double>(hprev_).first(p_.size()), ext_.x, ext_.y, ext_.z,
-                          fx, fy, fz);
+  // hprev_ was sized at construction; after a checkpoint restore it is the saved one. A force
+  // of the wrong size is refused by set_external_force below.
+  const bool fits =
+      (fx.empty() || (fx.size() == owned_ && fy.size() == owned_ && fz.size() == owned_)) &&
+      (!ext_.active() || ext_.x.size() == owned_);
+  if ((ext_.active() || !fx.empty()) && fits)
+    settle_owed_half_kick(
+        std::span<double>(p_.vx).first(owned_), std::span<double>(p_.vy).first(owned_),
+        std::span<double>(p_.vz).first(owned_), p_.inv_mass,
+        std::span<const double>(hprev_).first(owned_), ext_.x, ext_.y, ext_.z, fx, fy, fz);
   set_external_force(fx, fy, fz);
 }
 
 OrbScheme::State OrbScheme::save_state() const {
-  if (subits_ % nsubit_ != 0)
+  if (stats_.subits % cfg_.nsubit != 0)
     throw RunError("orb checkpoint requested between regrid points (internal error)");
   State s;
-  s.hprev = hprev_, s.cost = cost_, s.leaf_steps = leaf_steps_;
-  s.fine_count = fine_count_, s.leaf_subits = leaf_subits_, s.subits = subits_;
-  s.particle_steps = particle_steps_, s.pair_evaluations = pair_evaluations_, s.builds = builds_;
-  s.regrids = regrids_, s.overlap_violations = overlap_violations_, s.retries = retries_;
-  s.last_fine_fraction = last_fine_fraction_, s.max_overlap_ratio = max_overlap_ratio_;
+  s.hprev = hprev_, s.cost = cost_, s.leaf_steps = stats_.leaf_steps;
+  if (rank_)
+    rank_->comm.sum(s.leaf_steps);
+  s.fine_count = stats_.fine_count, s.leaf_subits = stats_.leaf_subits, s.subits = stats_.subits;
+  s.particle_steps = stats_.particle_steps, s.pair_evaluations = stats_.pair_evaluations;
+  s.builds = stats_.builds, s.regrids = stats_.regrids;
+  s.overlap_violations = stats_.overlap_violations, s.retries = stats_.retries;
+  s.last_fine_fraction = stats_.last_fine_fraction;
+  s.max_overlap_ratio = std::max(stats_.max_overlap_ratio, all_max(stats_.ratio));
   s.skin = skin_;
-  s.pairs_valid = pairs_valid_, s.prox_from_pairs = prox_from_pairs_;
-  if (pairs_valid_) {
-    s.ca = ca_, s.cb = cb_, s.pa = pa_, s.pb = pb_;
-    s.x_ref = xr_, s.y_ref = yr_, s.z_ref = zr_;
+  // One rank: the candidate pairs survive the regrid (R ranks rebuild rows every sub-iteration).
+  s.pairs_valid = !rank_ && pairs_.valid, s.prox_from_pairs = pairs_.prox_from_pairs;
+  if (s.pairs_valid) {
+    s.ca = pairs_.ca, s.cb = pairs_.cb, s.pa = pairs_.pa, s.pb = pairs_.pb;
+    s.x_ref = pairs_.xr, s.y_ref = pairs_.yr, s.z_ref = pairs_.zr;
   }
   return s;
 }
 
 void OrbScheme::restore_state(State s) {
-  const std::size_t n = p_.size();
-  if (s.hprev.size() != n || s.cost.size() != n || s.subits < 0 || s.subits % nsubit_ != 0)
-    throw RunError("checkpoint: the orb state does not fit the particles or dem.nsubit");
+  const std::size_t n = owned_;
+  if (s.hprev.size() != n || s.cost.size() != n || s.subits < 0 || s.subits % cfg_.nsubit != 0 ||
+      (!s.leaf_steps.empty() && s.leaf_steps.size() != stats_.leaf_steps.size()))
+    throw RunError("checkpoint: the orb state does not fit the particles, dem.nsubit or "
+                   "partition.orb_levels");
+  if (rank_)
+    s.pairs_valid = false; // R ranks build their rows from the particles
   if (s.pairs_valid) {
     bool ok = s.ca.size() == s.cb.size() && s.pa.size() == s.pb.size() && s.x_ref.size() == n &&
               s.y_ref.size() == n && s.z_ref.size() == n;
@@ -909,36 +593,47 @@ void OrbScheme::restore_state(State s) {
     if (!ok)
       throw RunError("checkpoint: the orb candidate pairs do not fit the particles");
   }
-  hprev_ = std::move(s.hprev), cost_ = std::move(s.cost), leaf_steps_ = std::move(s.leaf_steps);
-  fine_count_ = s.fine_count, leaf_subits_ = s.leaf_subits, subits_ = s.subits;
-  particle_steps_ = s.particle_steps, pair_evaluations_ = s.pair_evaluations, builds_ = s.builds;
-  regrids_ = s.regrids, overlap_violations_ = s.overlap_violations, retries_ = s.retries;
-  last_fine_fraction_ = s.last_fine_fraction, max_overlap_ratio_ = s.max_overlap_ratio;
+  hprev_ = std::move(s.hprev), cost_ = std::move(s.cost);
+  // The per-leaf steps of the interval are sums over the ranks: rank 0 holds them.
+  std::fill(stats_.leaf_steps.begin(), stats_.leaf_steps.end(), 0);
+  if (!s.leaf_steps.empty() && (!rank_ || rank_->comm.rank() == 0))
+    stats_.leaf_steps = std::move(s.leaf_steps);
+  stats_.fine_count = s.fine_count, stats_.leaf_subits = s.leaf_subits, stats_.subits = s.subits;
+  stats_.particle_steps = s.particle_steps, stats_.pair_evaluations = s.pair_evaluations;
+  stats_.builds = s.builds, stats_.regrids = s.regrids;
+  stats_.overlap_violations = s.overlap_violations, stats_.retries = s.retries;
+  stats_.last_fine_fraction = s.last_fine_fraction, stats_.max_overlap_ratio = s.max_overlap_ratio;
+  stats_.ratio = 0.0;
   if (s.skin > 0.0)
     skin_ = s.skin;
-  pairs_valid_ = s.pairs_valid, prox_from_pairs_ = s.prox_from_pairs;
-  ca_ = std::move(s.ca), cb_ = std::move(s.cb), pa_ = std::move(s.pa), pb_ = std::move(s.pb);
-  xr_ = std::move(s.x_ref), yr_ = std::move(s.y_ref), zr_ = std::move(s.z_ref);
-  if (!pairs_valid_)
-    ca_.clear(), cb_.clear(), pa_.clear(), pb_.clear(), xr_.clear(), yr_.clear(), zr_.clear();
-  off_.clear(); // rows are derived again
+  pairs_.valid = s.pairs_valid, pairs_.prox_from_pairs = s.prox_from_pairs;
+  pairs_.ca = std::move(s.ca), pairs_.cb = std::move(s.cb);
+  pairs_.pa = std::move(s.pa), pairs_.pb = std::move(s.pb);
+  pairs_.xr = std::move(s.x_ref), pairs_.yr = std::move(s.y_ref), pairs_.zr = std::move(s.z_ref);
+  if (!pairs_.valid)
+    pairs_.ca.clear(), pairs_.cb.clear(), pairs_.pa.clear(), pairs_.pb.clear(), pairs_.xr.clear(),
+        pairs_.yr.clear(), pairs_.zr.clear();
+  rows_.off.clear(); // rows are derived again
 }
 
 LeafStepStats OrbScheme::take_interval_stats() {
+  std::vector<std::int64_t> steps = stats_.leaf_steps;
+  if (rank_)
+    rank_->comm.sum(steps);
+  std::fill(stats_.leaf_steps.begin(), stats_.leaf_steps.end(), 0);
   LeafStepStats s;
   std::int64_t lo = std::numeric_limits<std::int64_t>::max(), hi = 0, sum = 0, count = 0;
-  for (auto& v : leaf_steps_) {
+  for (const std::int64_t v : steps)
     if (v > 0)
       lo = std::min(lo, v), hi = std::max(hi, v), sum += v, ++count;
-    v = 0;
-  }
   if (count > 0) {
     s.steps_min = static_cast<double>(lo), s.steps_max = static_cast<double>(hi);
     s.steps_mean = static_cast<double>(sum) / static_cast<double>(count);
   }
-  s.fine_fraction =
-      leaf_subits_ > 0 ? static_cast<double>(fine_count_) / static_cast<double>(leaf_subits_) : 0.0;
-  fine_count_ = leaf_subits_ = 0;
+  s.fine_fraction = stats_.leaf_subits > 0 ? static_cast<double>(stats_.fine_count) /
+                                                 static_cast<double>(stats_.leaf_subits)
+                                           : 0.0;
+  stats_.fine_count = stats_.leaf_subits = 0;
   return s;
 }
 

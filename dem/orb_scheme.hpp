@@ -2,8 +2,9 @@
 // (Algorithm 2). Every dem.regrid_interval (dt_f) of simulated time the particles are split by
 // an ORB into 2^partition.orb_levels leaves and the store is permuted so that each leaf is a
 // contiguous range (partition.weights = "cost": each particle weighs the local steps its leaf
-// took since the last regrid, so a leaf weighs particles x local steps). Time advances in sub-iterations of dt_sp = dt_f / dem.nsubit; in each one
-// every leaf picks its own step (leaves with the same step run together as TBB tasks, below):
+// took since the last regrid, so a leaf weighs particles x local steps). Time advances in
+// sub-iterations of dt_sp = dt_f / dem.nsubit; in each one every leaf picks its own step (leaves
+// with the same step run together as TBB tasks, below):
 //   dt_local = the explicit step (tau_p * dt_factor) if some own particle has a partner (own or
 //              ghost) closer than dem.proximity_radii * (r_i + r_j) / 2 centre to centre,
 //              or its centre is closer than dem.proximity_radii * r_i to a wall (with
@@ -51,13 +52,42 @@
 // friction); an overlap beyond dem.max_overlap is counted (max_overlap_ratio) rather than fatal,
 // since a coarse step missing a collision is the trade this scheme makes; NaN or a particle
 // leaving through a wall stops the run.
+//
+// Over MPI ranks (a communicator of more than one rank; nullptr or one rank is the one-rank path
+// above, bit for bit and at its speed) the leaves of the parallel ORB are dealt to ranks by the
+// knapsack (partition/rank_decomposition.hpp) and each rank advances the leaves it owns. The
+// sub-iteration is the same sequence, with these rank steps (RankPart, dem/orb_rank_part.cpp):
+//   1. at a regrid point: wrap, parallel ORB with the same weights and cuts, knapsack over the
+//      same weights; otherwise only particles that left their leaf are located again (resort's
+//      rule);
+//   2. one round of messages (ParticleExchange::redistribute): every particle to the rank owning
+//      its leaf (with its half step and cost), and ghosts: every particle within the cutoff of
+//      one of a rank's leaves (periodic images included) is copied there UNSHIFTED, so that pair
+//      separations take the one-rank minimum-image arithmetic bit for bit; the owned particles
+//      are ordered by (leaf, id);
+//   3. rows of the owned particles from a cell list over owned + ghosts (OrbLocalRows, fresh at
+//      every sub-iteration), summed in the one-rank order (own-leaf partners by id, then the
+//      others by id), so with the same leaves the result is the one-rank result bit for bit,
+//      whatever the rank and thread counts;
+//   4. one reduction of the counters and flags, the particle count among them (none may be
+//      lost): an outrun fine leaf on any rank makes every rank roll back and redo the
+//      sub-iteration with twice the skin; a NaN or a particle through a wall stops every rank
+//      with the same RunError (the smallest particle id's).
+// So a sub-iteration costs one all-to-all of counts, one exchange of particles between
+// neighbouring ranks and one allreduce (with time_to_contact, one more for the largest reach).
+// With a gas, the gas force is computed on the gas boxes' ranks and routed back
+// (apps/gas_routing.hpp). With more ranks than leaves some ranks own none (they still take part
+// in every collective).
 #pragma once
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <span>
+#include <string>
 #include <vector>
 
+#include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
@@ -65,6 +95,7 @@
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
 #include "partition/orb_tree.hpp"
+#include "partition/rank_decomposition.hpp"
 
 namespace cfddem::dem {
 
@@ -74,48 +105,78 @@ struct LeafStepStats {
   double steps_min = 0.0, steps_mean = 0.0, steps_max = 0.0, fine_fraction = 0.0;
 };
 
+struct LeafLive;
+struct LeafFrozen;
+struct LeafRows;
+
 class OrbScheme {
 public:
+  // One rank: the step model from `particles` (every particle of the scene).
   OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
+  // Any rank count: `particles` is this rank's share (any split: the first sub-iteration moves
+  // each to its owner); `model`: make_step_model over all particles, the same on every rank;
+  // `comm` nullptr or of one rank: the one-rank path. Throws ConfigError with friction.
+  OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
+            const Communicator* comm, PhaseTimer& timer);
+  OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
+            const Communicator& comm, PhaseTimer& timer)
+      : OrbScheme(scene, particles, model, &comm, timer) {}
   ~OrbScheme();
   OrbScheme(const OrbScheme&) = delete;
   OrbScheme& operator=(const OrbScheme&) = delete;
 
-  // Regrid and set h_prev = 0 (velocities are the synchronised v(0)); evaluates nothing.
+  // h_prev = 0 (velocities are the synchronised v(0)); evaluates nothing.
   void start();
-  // One sub-iteration t -> t + dt_sp. With record = true the state at t (x and the synchronised
-  // v(t) = v(t-h_prev) + a(t) h_prev, with a(t) from the first local step) is kept.
+  // One sub-iteration t -> t + dt_sp (collective). With record = true the state at t (x and the
+  // synchronised v(t) = v(t-h_prev) + a(t) h_prev, with a(t) from the first local step) is kept.
+  // On a fault every rank throws the same RunError.
   void subiterate(bool record = false);
 
   double dt_fine() const { return model_.dt; }
-  double dt_sub() const { return dt_sp_; }
-  std::int64_t subiterations() const { return subits_; }
-  double time() const { return static_cast<double>(subits_) * dt_sp_; }
-  std::int64_t particle_steps() const { return particle_steps_; }
-  std::int64_t pair_evaluations() const { return pair_evaluations_; }
-  std::int64_t neighbor_builds() const { return builds_; }
-  std::int64_t regrids() const { return regrids_; }
-  // Sub-iterations redone with a larger skin because a fine leaf outran the neighbor list.
-  std::int64_t retries() const { return retries_; }
+  double dt_sub() const { return cfg_.dt_sp; }
+  std::int64_t nsubit() const { return cfg_.nsubit; }
+  std::int64_t subiterations() const { return stats_.subits; }
+  double time() const { return static_cast<double>(stats_.subits) * cfg_.dt_sp; }
+  // Over all ranks (the same value on every rank).
+  std::int64_t particle_steps() const { return stats_.particle_steps; }
+  // Per local step, own-leaf pairs once plus other-leaf pairs once per side, over the rows (on R
+  // ranks the rows are rebuilt at every sub-iteration, so the count differs from one rank's).
+  std::int64_t pair_evaluations() const { return stats_.pair_evaluations; }
+  // This rank's share since this process started (run.json's rank_counts; not in checkpoints).
+  std::int64_t local_particle_steps() const { return stats_.local_particle_steps; }
+  std::int64_t local_pair_evaluations() const { return stats_.local_pair_evaluations; }
+  std::int64_t neighbor_builds() const { return stats_.builds; }
+  std::int64_t regrids() const { return stats_.regrids; }
+  // Sub-iterations redone with a larger skin because a fine leaf outran its rows.
+  std::int64_t retries() const { return stats_.retries; }
   double skin() const { return skin_; }
-  double max_overlap_ratio() const { return max_overlap_ratio_; }
-  std::int64_t overlap_violations() const { return overlap_violations_; }
-  const StepModel& model() const { return model_; }
-  int leaf_count() const { return static_cast<int>(ranges_.size()) - 1; }
-  // The decomposition of the last regrid.
-  const partition::OrbTree& tree() const { return tree_; }
+  // On R ranks: over all ranks as of the last recorded sub-iteration (subiterate(true)).
+  double max_overlap_ratio() const { return stats_.max_overlap_ratio; }
+  std::int64_t overlap_violations() const { return stats_.overlap_violations; }
   // Fraction of non-empty leaves on the fine step in the last sub-iteration.
-  double last_fine_fraction() const { return last_fine_fraction_; }
+  double last_fine_fraction() const { return stats_.last_fine_fraction; }
+  const StepModel& model() const { return model_; }
+  int leaf_count() const { return 1 << cfg_.levels; }
+  std::int64_t global_count() const { return cfg_.n_global; }
+  // The decomposition of the last regrid (one rank: every leaf on rank 0) and its ORB.
+  const partition::RankDecomposition& decomposition() const { return decomp_; }
+  const partition::OrbTree& tree() const { return decomp_.tree; }
+  // Per regrid: max over ranks / mean of the knapsack load (empty on one rank).
+  const std::vector<double>& imbalances() const { return imbalances_; }
+  // This rank: owned particles are [0, owned()) of the store, ghosts after them (none on one
+  // rank).
+  std::size_t owned() const { return owned_; }
+  std::size_t ghosts() const { return p_.size() - owned_; }
 
-  // Benchmark hooks (perf/dem): after at least one subiterate(), run leaf `leaf`'s fine-step
-  // sub-iteration alone (the batch of that one leaf, from the current state), and refresh the
-  // ghosts (frozen copies and the rows' own/other-leaf split, as after a re-sort).
+  // Benchmark hooks (perf/dem, one rank): after at least one subiterate(), run leaf `leaf`'s
+  // fine-step sub-iteration alone (the batch of that one leaf, from the current state), and
+  // refresh the ghosts (frozen copies and the rows' own/other-leaf split, as after a re-sort).
   void benchmark_leaf_subiteration(int leaf);
   void benchmark_ghost_refresh();
 
-  // Per-particle external force [N] (the gas's drag and pressure), as ExplicitScheme's: held
-  // fixed until set again, follows its particle through regrids and re-sorts; in the store's
-  // current order; an empty span removes it.
+  // Collective. Per-particle external force [N] (the gas's drag and pressure), one value per
+  // owned particle in the store's current order: held fixed until set again, follows its
+  // particle through regrids, re-sorts and migrations; empty spans (on every rank) remove it.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
   // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
@@ -124,54 +185,126 @@ public:
   void replace_external_force(std::span<const double> fx, std::span<const double> fy,
                               std::span<const double> fz);
 
-  // Statistics since the last call (then reset).
+  // Collective: statistics over all ranks since the last call (then reset).
   LeafStepStats take_interval_stats();
 
-  // With the identity, radius, ORB leaf and local step (dt_sp / the leaf's step count) of each
-  // recorded particle, in the same order (snapshots).
+  // The owned particles' recorded state, with the identity, radius, ORB leaf and local step
+  // (dt_sp / the leaf's step count) of each, in the same order (snapshots).
   struct Synchronised {
     std::span<const double> x, y, z, vx, vy, vz, mass;
     std::span<const std::int64_t> id, leaf;
     std::span<const double> radius, local_dt;
   };
   Synchronised synchronised_previous() const {
-    return {sx_, sy_, sz_, svx_, svy_, svz_, smass_, sid_, sleaf_, sradius_, sdt_};
+    return {rec_.x,    rec_.y,  rec_.z,    rec_.vx,     rec_.vy, rec_.vz,
+            rec_.mass, rec_.id, rec_.leaf, rec_.radius, rec_.dt};
   }
 
   // Checkpoint/restart at a regrid point (subiterations() a multiple of dem.nsubit): the ORB,
   // the leaf ranges, the rows and the batches are rebuilt from the particle store by the next
-  // sub-iteration exactly as they would have been. What survives a regrid is saved: the
-  // per-particle half step and cost weights, the candidate pairs with their reference positions
-  // (global indices in the store's order, which the checkpoint keeps), the counters and the
-  // interval statistics. restore_state() replaces start().
+  // sub-iteration exactly as they would have been. Saved: the owned particles' half step and
+  // cost weights (store order), the counters over all ranks and the interval statistics, and on
+  // one rank the candidate pairs with their reference positions (global indices in the store's
+  // order, which the checkpoint keeps). restore_state() replaces start(); on R ranks each rank
+  // passes the h_prev and cost of its share of the checkpoint's particles.
   struct State {
     std::vector<double> hprev, cost;
     std::vector<std::int64_t> leaf_steps;
     std::int64_t fine_count = 0, leaf_subits = 0, subits = 0, particle_steps = 0,
-                 pair_evaluations = 0, builds = 0, regrids = 0, overlap_violations = 0,
-                 retries = 0;
+                 pair_evaluations = 0, builds = 0, regrids = 0, overlap_violations = 0, retries = 0;
     double last_fine_fraction = 0.0, max_overlap_ratio = 0.0, skin = 0.0;
     // Candidate pairs: contact (ca, cb) and proximity (pa, pb); references x_ref..z_ref.
     bool pairs_valid = false, prox_from_pairs = true;
     std::vector<std::uint32_t> ca, cb, pa, pb;
     std::vector<double> x_ref, y_ref, z_ref;
   };
-  std::int64_t nsubit() const { return nsubit_; }
-  State save_state() const;
+  State save_state() const;    // collective
   void restore_state(State s); // throws RunError if it does not fit the store
 
 private:
   struct Batch;
+  struct RankPart;
+  // Constants of the run.
+  struct Config {
+    double dt_sp = 0.0, r_max = 0.0, skin_cap = 0.0, prox = 0.0; // prox: proximity_radii / 2
+    std::int64_t nsubit = 1, n_global = 0;
+    int levels = 0;
+    bool cost_weights = false, time_to_contact = false;
+  };
+  // The leaves this rank advances: leaf id[k] owns [range[k], range[k+1]) of the store (one
+  // rank: every leaf, empty ones included, id[k] = k; R ranks: the non-empty owned ones).
+  struct Leaves {
+    std::vector<int> id;
+    std::vector<std::uint32_t> range;
+    std::vector<std::uint32_t> of; // per owned particle: its leaf
+    std::vector<unsigned char> fine;
+  };
+  // One rank's persistent candidate pairs (a, b), global indices, valid while every particle
+  // stays within skin/2 of its reference position: contact candidates (centres within
+  // r_a + r_b + skin) and proximity candidates (within prox (r_a + r_b) + skin), and the cell
+  // list that builds them.
+  struct Pairs {
+    std::vector<std::uint32_t> ca, cb, pa, pb;
+    std::vector<double> xr, yr, zr;
+    bool valid = false, prox_from_pairs = true;
+    std::vector<std::uint32_t> cell_start, cell_of;
+    std::array<std::vector<double>, 4> sorted; // x, y, z, radius in cell order
+  };
+  // Rows (one rank: derived from the contact candidates; R ranks: OrbLocalRows'): particle i's
+  // own-leaf partners [off[i], mid[i]), others up to off[i+1]; own_before[i]: own-leaf entries
+  // of the particles [0, i); near: a partner or wall within the proximity (or reach) distance.
+  struct Rows {
+    std::vector<std::uint32_t> off, mid, nb, active, own_before;
+    std::vector<unsigned char> near;
+  };
+  // The state at the start of the sub-iteration: what other leaves read, and the rollback point.
+  struct Frozen {
+    std::vector<double> x, y, z, vx, vy, vz, hp;
+  };
+  // The recorded state (subiterate(true)).
+  struct Record {
+    std::vector<double> x, y, z, vx, vy, vz, mass, radius, dt;
+    std::vector<std::int64_t> id, leaf;
+  };
+  // Counters (over all ranks unless local_) and the interval statistics.
+  struct Stats {
+    std::vector<std::int64_t> leaf_steps; // per leaf, this rank's part, this interval
+    std::int64_t fine_count = 0, leaf_subits = 0;
+    double last_fine_fraction = 0.0, max_overlap_ratio = 0.0;
+    double ratio = 0.0; // this rank's largest overlap ratio (max_overlap_ratio: over the ranks)
+    std::int64_t subits = 0, particle_steps = 0, pair_evaluations = 0, builds = 0, regrids = 0,
+                 overlap_violations = 0, retries = 0;
+    std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
+  };
+
+  // The sub-iteration's steps (orb_scheme.cpp).
+  bool build_rows(bool force);
+  void freeze();
+  void plan(bool record);
+  bool attempt(bool record);
+  void run_batch(Batch& b, bool record);
+  template <bool External> void run_batch_impl(Batch& b, bool record);
+  void roll_back();
+  [[noreturn]] void raise_fault();
+  LeafLive live(bool external);
+  LeafFrozen frozen() const;
+  LeafRows rows_view() const;
+  double all_max(double v) const;
+  bool time_to_contact_speeds();
+  void mark_walls(std::span<unsigned char> near) const;
+  // One rank's steps (orb_rows.cpp).
   void regrid();
   void resort();
   void apply_permutation(std::span<const std::uint32_t> order);
+  void relabel_pairs(std::span<const std::uint32_t> old_slot);
+  bool rows_expire() const;
   void rebuild_pairs();
   void derive_rows();
-  void bind_rows();
-  bool rows_expire() const;
-  void run_batch(Batch& b, bool record);
-  template <bool External> void run_batch_impl(Batch& b, bool record);
-  bool attempt(bool record);
+  void mark_near();
+  // R ranks' steps (orb_rank_part.cpp).
+  void rank_regrid();
+  std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);
+  void rank_exchange_and_rows();
 
   const Scene& scene_;
   ParticleStore& p_;
@@ -179,43 +312,26 @@ private:
   DomainGeometry geom_;
   StepModel model_;
   partition::Aabb domain_;
-  partition::OrbTree tree_;
-  double dt_sp_ = 0.0, r_max_ = 0.0, skin_ = 0.0, skin_cap_ = 0.0;
-  std::int64_t nsubit_ = 1;
-  bool cost_weights_ = false;
-  bool time_to_contact_ = false;   // dem.local_dt = "time_to_contact"
-  std::vector<double> speed_;      // its per-particle speed bound
-  std::vector<double> hprev_;         // per particle: half of its last step
-  ExternalForce ext_; // set_external_force
-  std::vector<double> cost_;          // per particle: local steps of its leaf since the regrid
-  std::vector<std::uint32_t> ranges_; // leaf l owns [ranges_[l], ranges_[l+1])
-  std::vector<std::uint32_t> leaf_of_;
-  // Candidate pairs (a, b), global indices, valid while every particle stays within skin_/2 of
-  // its reference position: contact candidates (centres within r_a + r_b + skin) and proximity
-  // candidates (within proximity_radii (r_a + r_b) / 2 + skin).
-  std::vector<std::uint32_t> ca_, cb_, pa_, pb_;
-  std::vector<double> xr_, yr_, zr_;
-  bool pairs_valid_ = false;
-  // Rows derived from the contact candidates: particle i's partners of its own leaf in
-  // [off_[i], mid_[i]) (read live) and of other leaves in [mid_[i], off_[i+1]) (read frozen).
-  std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_of_, scratch_, fill_;
-  std::vector<std::uint32_t> own_before_; // own-leaf row entries of particles [0, i)
-  // rebuild_pairs: the binned particles' x, y, z, radius in cell order; kNoCell marks a forward
-  // neighbour beyond a wall.
-  static constexpr std::uint32_t kNoCell = 0xffffffffu;
-  std::array<std::vector<double>, 4> sorted_;
-  // State at the start of the sub-iteration: the ghosts' frozen copies and the rollback point.
-  std::vector<double> gx_, gy_, gz_, gvx_, gvy_, gvz_, ghp_, dscratch_;
-  bool prox_from_pairs_ = true;
-  std::vector<unsigned char> near_, leaf_fine_;
+  Config cfg_;
+  double skin_ = 0.0;     // grows by retries and time_to_contact until the next regrid
+  double reach_ = 0.0;    // time_to_contact: the largest speed bound x dt_sp (over the ranks)
+  std::size_t owned_ = 0; // this rank's particles: [0, owned_) of the store
+  partition::RankDecomposition decomp_;
+  std::vector<double> imbalances_;
+  // Per owned particle: half of its last step, local steps since the regrid, the external force;
+  // with time_to_contact, the speed bound (owned and ghosts).
+  std::vector<double> hprev_, cost_, speed_;
+  ExternalForce ext_;
+  Leaves leaves_;
+  Pairs pairs_;
+  Rows rows_;
+  Frozen frozen_;
+  Record rec_;
+  Stats stats_;
   std::vector<Batch> batches_;
-  std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
-  std::vector<std::int64_t> sid_, sleaf_;
-  std::vector<std::int64_t> leaf_steps_; // per leaf, this interval
-  std::int64_t fine_count_ = 0, leaf_subits_ = 0;
-  double last_fine_fraction_ = 0.0, max_overlap_ratio_ = 0.0;
-  std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
-               regrids_ = 0, overlap_violations_ = 0, retries_ = 0;
+  std::vector<std::uint32_t> scratch_, fill_; // index scratch (one rank)
+  std::vector<double> dscratch_;
+  std::unique_ptr<RankPart> rank_; // null on one rank
 };
 
 } // namespace cfddem::dem

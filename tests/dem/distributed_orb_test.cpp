@@ -1,7 +1,8 @@
-// The orb scheme over MPI ranks (run under mpirun -np 1, 2 and 3): with the same leaves (the
-// parallel ORB builds the serial ORB's boxes) and rows summed in OrbScheme's order, every
-// particle's position and velocity equal the serial OrbScheme's bit for bit, for any rank and
-// thread count; no particle or mass is lost at any sub-iteration.
+// The orb scheme over MPI ranks (run under mpirun -np 1, 2 and 3): one rank equals R ranks. With
+// the same leaves (the parallel ORB builds the one-rank ORB's boxes) and rows summed in the
+// one-rank order, every particle's position and velocity on R ranks equal the one-rank
+// OrbScheme's (no communicator) bit for bit, for any rank and thread count; no particle or mass
+// is lost at any sub-iteration.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -19,7 +20,6 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_exchange.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/distributed_orb_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "distributed_test_support.hpp"
 
@@ -112,13 +112,15 @@ constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
-State serial_orb(const Scene& scene, int subits, bool external = false) {
+State one_rank_orb(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);
   PhaseTimer timer;
   dem::OrbScheme s(scene, p, timer);
   s.start();
-  if (external) apply_force(p, p.size(), s);
-  for (int k = 0; k < subits; ++k) s.subiterate();
+  if (external)
+    apply_force(p, p.size(), s);
+  for (int k = 0; k < subits; ++k)
+    s.subiterate();
   State out;
   for (std::size_t i = 0; i < p.size(); ++i)
     out[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
@@ -131,11 +133,10 @@ struct DistributedRun {
   std::int64_t pair_evaluations = 0, particle_steps = 0, retries = 0;
 };
 
-// The distributed scheme on `threads` TBB threads; at every sub-iteration the particles over all
-// ranks are counted and identified (count, sum of ids, sum of squared ids: none lost, none
-// twice) and their total mass compared with the initial one.
-DistributedRun distributed_orb(const Scene& scene, int subits, int threads,
-                               bool external = false) {
+// The scheme over the world communicator on `threads` TBB threads; at every sub-iteration the
+// particles over all ranks are counted and identified (count, sum of ids, sum of squared ids: none
+// lost, none twice) and their total mass compared with the initial one.
+DistributedRun distributed_orb(const Scene& scene, int subits, int threads, bool external = false) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   const Communicator c = Communicator::world();
@@ -143,11 +144,13 @@ DistributedRun distributed_orb(const Scene& scene, int subits, int threads,
   ParticleStore p = share(all, c.rank(), c.size());
   const dem::StepModel model = dem::make_step_model(scene, all);
   PhaseTimer timer;
-  dem::DistributedOrbScheme s(scene, p, model, c, timer);
+  dem::OrbScheme s(scene, p, model, &c, timer);
   s.start();
-  if (external) apply_force(p, s.owned(), s);
+  if (external)
+    apply_force(p, s.owned(), s);
   std::array<std::int64_t, 3> expect{};
-  for (const std::int64_t id : all.id) expect[0] += 1, expect[1] += id, expect[2] += id * id;
+  for (const std::int64_t id : all.id)
+    expect[0] += 1, expect[1] += id, expect[2] += id * id;
   const double mass0 = all.total_mass();
   DistributedRun r;
   for (int k = 0; k < subits; ++k) {
@@ -176,45 +179,46 @@ DistributedRun distributed_orb(const Scene& scene, int subits, int threads,
   return r;
 }
 
-// Every owned particle of every rank against the serial scheme: bitwise (the bound is 0).
-void expect_bitwise(const State& serial, const State& mine, const std::string& what) {
+// Every owned particle of every rank against the one-rank scheme: bitwise (the bound is 0).
+void expect_bitwise(const State& one_rank, const State& mine, const std::string& what) {
   const Communicator c = Communicator::world();
   std::int64_t count = static_cast<std::int64_t>(mine.size()), differ = 0;
   double worst = 0.0;
   for (const auto& [id, q] : mine) {
-    const auto it = serial.find(id);
-    ASSERT_NE(it, serial.end()) << what << ": unknown id " << id;
+    const auto it = one_rank.find(id);
+    ASSERT_NE(it, one_rank.end()) << what << ": unknown id " << id;
     for (int a = 0; a < 6; ++a) {
-      if (q[a] != it->second[a]) ++differ;
+      if (q[a] != it->second[a])
+        ++differ;
       worst = std::max(worst, std::abs(q[a] - it->second[a]));
     }
   }
   count = c.sum(count);
   differ = c.sum(differ);
   worst = c.max(worst);
-  EXPECT_EQ(count, static_cast<std::int64_t>(serial.size())) << what;
+  EXPECT_EQ(count, static_cast<std::int64_t>(one_rank.size())) << what;
   EXPECT_EQ(differ, 0) << what << ": " << differ << " coordinates differ, worst by " << worst;
 }
 
-TEST(DistributedOrb, DenseGasMatchesSerialOrbBitwise) {
+TEST(DistributedOrb, DenseGasMatchesOneRankBitwise) {
   const Scene scene = scene_from(kGas);
   const DistributedRun d = distributed_orb(scene, kSubits, 1);
-  expect_bitwise(serial_orb(scene, kSubits), d.owned, "dense gas");
+  expect_bitwise(one_rank_orb(scene, kSubits), d.owned, "dense gas");
   EXPECT_GT(d.max_overlap_ratio, 0.0); // particles collided
 }
 
-TEST(DistributedOrb, BoxOfTwoCellsMatchesSerialOrbBitwise) {
+TEST(DistributedOrb, BoxOfTwoCellsMatchesOneRankBitwise) {
   // Two cells of the cutoff per axis: the rows come from the full stencil, images collapsed.
-  const Scene scene = scene_from(kGas, {"domain.hi=[0.4e-3, 0.4e-3, 0.4e-3]", "particles.count=20",
-                                        "partition.orb_levels=2"});
-  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+  const Scene scene = scene_from(
+      kGas, {"domain.hi=[0.4e-3, 0.4e-3, 0.4e-3]", "particles.count=20", "partition.orb_levels=2"});
+  expect_bitwise(one_rank_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
                  "box of two cells");
 }
 
-TEST(DistributedOrb, HcsMatchesSerialOrbBitwise) {
+TEST(DistributedOrb, HcsMatchesOneRankBitwise) {
   const Scene scene = scene_from(kHcs);
   const DistributedRun d = distributed_orb(scene, kSubits, 1);
-  expect_bitwise(serial_orb(scene, kSubits), d.owned, "HCS");
+  expect_bitwise(one_rank_orb(scene, kSubits), d.owned, "HCS");
   // Collisions, and leaves on both steps: the local steps do differ between leaves.
   EXPECT_GT(d.max_overlap_ratio, 0.0);
   EXPECT_GT(d.fine_fraction, 0.0);
@@ -222,44 +226,46 @@ TEST(DistributedOrb, HcsMatchesSerialOrbBitwise) {
   EXPECT_GT(d.pair_evaluations, 0);
 }
 
-TEST(DistributedOrb, RetriesWithLongSubiterationsMatchSerialOrbBitwise) {
+TEST(DistributedOrb, RetriesWithLongSubiterationsMatchOneRankBitwise) {
   // dt_sp = 50 us: fine leaves outrun their rows and redo sub-iterations with a larger skin.
-  const Scene scene = scene_from(kHcs, {"dem.regrid_interval=2.0e-4", "dem.nsubit=4",
-                                        "particles.temperature=0.05"});
+  const Scene scene = scene_from(
+      kHcs, {"dem.regrid_interval=2.0e-4", "dem.nsubit=4", "particles.temperature=0.05"});
   const DistributedRun d = distributed_orb(scene, kSubits, 1);
-  expect_bitwise(serial_orb(scene, kSubits), d.owned, "retries");
+  expect_bitwise(one_rank_orb(scene, kSubits), d.owned, "retries");
   EXPECT_GT(d.retries, 0);
 }
 
-TEST(DistributedOrb, CostWeightsMatchSerialOrbBitwise) {
-  // Integer weights (local steps) sum exactly, so the parallel ORB cuts where the serial one does.
+TEST(DistributedOrb, CostWeightsMatchOneRankBitwise) {
+  // Integer weights (local steps) sum exactly, so the parallel ORB cuts where the one-rank one
+  // does.
   const Scene scene = scene_from(kHcs, {"partition.weights=\"cost\""});
-  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+  expect_bitwise(one_rank_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
                  "gas, cost weights");
 }
 
-TEST(DistributedOrb, WallsAndGravityMatchSerialOrbBitwise) {
+TEST(DistributedOrb, WallsAndGravityMatchOneRankBitwise) {
   const Scene scene = scene_from(kWalls);
-  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+  expect_bitwise(one_rank_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
                  "walls and gravity");
 }
 
-TEST(DistributedOrb, ExternalForceFollowsItsParticleAndMatchesSerialOrbBitwise) {
+TEST(DistributedOrb, ExternalForceFollowsItsParticleAndMatchesOneRankBitwise) {
   // The force set once at the start travels with each particle through 8 regrids and their
   // migrations; with time_to_contact it also enters the speed bounds.
   for (const char* rule : {"proximity", "time_to_contact"}) {
     const Scene scene = scene_from(kWalls, {std::string("dem.local_dt=\"") + rule + "\""});
-    expect_bitwise(serial_orb(scene, kSubits, true), distributed_orb(scene, kSubits, 1, true).owned,
+    expect_bitwise(one_rank_orb(scene, kSubits, true),
+                   distributed_orb(scene, kSubits, 1, true).owned,
                    std::string("external force, ") + rule);
   }
   // And it matters: without it the particles end elsewhere.
   const Scene scene = scene_from(kWalls);
-  EXPECT_NE(serial_orb(scene, kSubits, true), serial_orb(scene, kSubits, false));
+  EXPECT_NE(one_rank_orb(scene, kSubits, true), one_rank_orb(scene, kSubits, false));
 }
 
-TEST(DistributedOrb, TimeToContactMatchesSerialOrbBitwise) {
+TEST(DistributedOrb, TimeToContactMatchesOneRankBitwise) {
   const Scene scene = scene_from(kWalls, {"dem.local_dt=\"time_to_contact\""});
-  expect_bitwise(serial_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
+  expect_bitwise(one_rank_orb(scene, kSubits), distributed_orb(scene, kSubits, 1).owned,
                  "time_to_contact");
 }
 
@@ -281,11 +287,12 @@ TEST(DistributedOrb, ParticleThroughAWallStopsEveryRankWithTheSameError) {
   all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::DistributedOrbScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  dem::OrbScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
   s.start();
   std::string message;
   try {
-    for (int k = 0; k < kSubits; ++k) s.subiterate();
+    for (int k = 0; k < kSubits; ++k)
+      s.subiterate();
   } catch (const RunError& e) {
     message = e.what();
   }
@@ -313,7 +320,8 @@ TEST(ParticleExchange, RedistributeMovesOwnersAndCopiesGhostsWithTheirColumns) {
   for (std::size_t i = 0; i < all.size(); ++i) {
     owner[i] = static_cast<int>(rng() % ranks);
     for (std::uint64_t r = 0; r < ranks; ++r)
-      if (static_cast<int>(r) != owner[i] && rng() % 3 == 0) ghost[i].insert(static_cast<int>(r));
+      if (static_cast<int>(r) != owner[i] && rng() % 3 == 0)
+        ghost[i].insert(static_cast<int>(r));
   }
   std::vector<int> dest(p.size());
   std::vector<ParticleExchange::Copy> copies;
@@ -321,7 +329,8 @@ TEST(ParticleExchange, RedistributeMovesOwnersAndCopiesGhostsWithTheirColumns) {
   for (std::size_t i = 0; i < p.size(); ++i) {
     const auto id = static_cast<std::size_t>(p.id[i]);
     dest[i] = owner[id];
-    for (const int r : ghost[id]) copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    for (const int r : ghost[id])
+      copies.push_back({r, static_cast<std::uint32_t>(i), {}});
     half[i] = 0.5 * static_cast<double>(id), cost[i] = 3.0 * static_cast<double>(id);
   }
   ParticleExchange ex(c);

@@ -1,0 +1,171 @@
+// The fine stepping of an orb leaf batch (dem/orb_scheme.hpp), on any rank count: the contact
+// pass over the batch's rows, the wall contacts, the synchronised velocity of a recorded step and
+// the variable-step leapfrog kick-drift. The kernels take small views of the particle columns
+// (structs of pointers into the store's SoA) and know nothing of leaves, ranks or threads.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cstdint>
+
+#include "dem/contact_kernels.hpp"
+#include "dem/kick_drift_range.hpp"
+
+namespace cfddem::dem {
+
+// The columns a batch advances, indexed by the store's slots: positions, velocities and the
+// contact force (written), the half step h_prev of each particle (written), and what is read.
+// fex/fey/fez: the external force, read only by the External instantiations.
+struct LeafLive {
+  double *x, *y, *z, *vx, *vy, *vz, *fx, *fy, *fz, *hp;
+  const double *rad, *mass, *im;
+  const double *fex, *fey, *fez;
+};
+
+// Read-only positions and velocities at the start of the sub-iteration: what a particle reads of
+// its partners in other leaves (or on other ranks).
+struct LeafFrozen {
+  const double *x, *y, *z, *vx, *vy, *vz;
+};
+
+// Rows: the particles act[a0, a1) with partners; particle i's own-leaf partners
+// nb[off[i], mid[i]) (read live), other partners nb[mid[i], off[i + 1]) (read frozen).
+struct LeafRows {
+  const std::uint32_t *act, *off, *mid, *nb;
+};
+
+// The largest overlap ratio seen and the overlaps beyond the bound (dem.max_overlap radii).
+struct OverlapTally {
+  double max_ratio = 0.0;
+  std::int64_t violations = 0;
+};
+
+// Contact pass over the rows act[a0, a1): each particle's force is the sum of its pair forces,
+// own-leaf partners live, the others frozen; the sum runs in row order (rows are sorted by id).
+inline void leaf_contact_pass(std::uint32_t a0, std::uint32_t a1, const LeafRows& r,
+                              const LeafLive& p, const LeafFrozen& f, const DomainGeometry& g,
+                              const StepModel& m, OverlapTally& tally) {
+  const std::uint32_t* __restrict act = r.act;
+  const std::uint32_t* __restrict off = r.off;
+  const std::uint32_t* __restrict mid = r.mid;
+  const std::uint32_t* __restrict nb = r.nb;
+  const double* __restrict x = p.x;
+  const double* __restrict y = p.y;
+  const double* __restrict z = p.z;
+  const double* __restrict vx = p.vx;
+  const double* __restrict vy = p.vy;
+  const double* __restrict vz = p.vz;
+  const double* __restrict gx = f.x;
+  const double* __restrict gy = f.y;
+  const double* __restrict gz = f.z;
+  const double* __restrict gvx = f.vx;
+  const double* __restrict gvy = f.vy;
+  const double* __restrict gvz = f.vz;
+  const double* __restrict rad = p.rad;
+  const double* __restrict mass = p.mass;
+  double* __restrict fx = p.fx;
+  double* __restrict fy = p.fy;
+  double* __restrict fz = p.fz;
+  const double lim = m.max_overlap;
+  double max_ratio = tally.max_ratio;
+  std::int64_t violations = tally.violations;
+  for (std::uint32_t q = a0; q < a1; ++q) {
+    const std::uint32_t i = act[q];
+    const double xi = x[i], yi = y[i], zi = z[i];
+    const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
+    double ax = 0.0, ay = 0.0, az = 0.0;
+    auto partner = [&](std::uint32_t j, double xj, double yj, double zj, double vxj, double vyj,
+                       double vzj) {
+      const double delta =
+          add_normal_contact(m, g.image(xj - xi, 0), g.image(yj - yi, 1), g.image(zj - zi, 2), ri,
+                             rad[j], mi, mass[j], vxi - vxj, vyi - vyj, vzi - vzj, ax, ay, az);
+      if (delta <= 0.0)
+        return;
+      const double ratio = delta / std::min(ri, rad[j]);
+      max_ratio = std::max(max_ratio, ratio);
+      violations += ratio > lim;
+    };
+    for (std::uint32_t s = off[i]; s < mid[i]; ++s) {
+      const std::uint32_t j = nb[s];
+      partner(j, x[j], y[j], z[j], vx[j], vy[j], vz[j]);
+    }
+    for (std::uint32_t s = mid[i]; s < off[i + 1]; ++s) {
+      const std::uint32_t j = nb[s];
+      partner(j, gx[j], gy[j], gz[j], gvx[j], gvy[j], gvz[j]);
+    }
+    fx[i] = ax, fy[i] = ay, fz[i] = az;
+  }
+  tally.max_ratio = max_ratio;
+  tally.violations = violations;
+}
+
+// Wall contacts of the particles [b, e): each adds its walls' normal forces to the force its row
+// summed (a particle without a row has no pair force, so the wall force replaces what f held).
+inline void add_wall_forces(std::uint32_t b, std::uint32_t e, const std::uint32_t* off,
+                            const LeafLive& p, const DomainGeometry& g, const NormalLaw& wall,
+                            double limit, OverlapTally& tally) {
+  for (std::uint32_t i = b; i < e; ++i) {
+    const bool row = off[i + 1] > off[i];
+    double f[3] = {row ? p.fx[i] : 0.0, row ? p.fy[i] : 0.0, row ? p.fz[i] : 0.0};
+    const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a])
+        continue;
+      for (int side = 0; side < 2; ++side) {
+        const double sg = side ? 1.0 : -1.0;
+        const double delta = side ? p.rad[i] - (g.hi[a] - pos[a]) : p.rad[i] - (pos[a] - g.lo[a]);
+        if (delta <= 0.0)
+          continue;
+        f[a] -= sg * normal_force(wall, p.mass[i], delta, sg * vel[a]);
+        tally.max_ratio = std::max(tally.max_ratio, delta / p.rad[i]);
+        tally.violations += delta > limit * p.rad[i];
+      }
+    }
+    p.fx[i] = f[0], p.fy[i] = f[1], p.fz[i] = f[2];
+  }
+}
+
+// The synchronised velocities v(n) = v(n-1/2) + a(n) h_prev of the particles [b, e) (a recorded
+// step of the variable-step leapfrog), into sv.
+template <bool External>
+inline void synchronised_velocities(std::uint32_t b, std::uint32_t e, const LeafLive& p,
+                                    const std::array<double, 3>& gravity, double* svx, double* svy,
+                                    double* svz) {
+  for (std::uint32_t i = b; i < e; ++i) {
+    if constexpr (External) {
+      svx[i] = p.vx[i] + ((p.fx[i] + p.fex[i]) * p.im[i] + gravity[0]) * p.hp[i];
+      svy[i] = p.vy[i] + ((p.fy[i] + p.fey[i]) * p.im[i] + gravity[1]) * p.hp[i];
+      svz[i] = p.vz[i] + ((p.fz[i] + p.fez[i]) * p.im[i] + gravity[2]) * p.hp[i];
+    } else {
+      svx[i] = p.vx[i] + (p.fx[i] * p.im[i] + gravity[0]) * p.hp[i];
+      svy[i] = p.vy[i] + (p.fy[i] * p.im[i] + gravity[1]) * p.hp[i];
+      svz[i] = p.vz[i] + (p.fz[i] * p.im[i] + gravity[2]) * p.hp[i];
+    }
+  }
+}
+
+// One local step of a batch [b, e): its length, the previous one's (k > 0), the step's index k
+// of K, and the skin test against the reference positions `ref` (squared half skin).
+struct LeafStep {
+  std::int64_t k = 0, K = 1;
+  double h_before = 0.0, hk = 0.0, half_skin2 = 0.0;
+};
+
+// Local step k of K of a batch [b, e): dem/kick_drift_range.hpp's leaf_kick_drift (the one
+// variable-step leapfrog) over the batch's columns, the reference positions `ref` for the skin
+// test.
+template <bool External>
+inline void leaf_kick_drift(std::uint32_t b, std::uint32_t e, const LeafLive& p,
+                            const LeafFrozen& ref, const LeafStep& st,
+                            const std::array<double, 3>& gravity, std::uint64_t& still) {
+  const std::size_t n = e - b;
+  KickDriftColumns c{{p.x + b, n},  {p.y + b, n},   {p.z + b, n},  {p.vx + b, n}, {p.vy + b, n},
+                     {p.vz + b, n}, {p.fx + b, n},  {p.fy + b, n}, {p.fz + b, n}, {},
+                     {},            {},             {p.im + b, n}, {ref.x + b, n}, {ref.y + b, n},
+                     {ref.z + b, n}, {p.hp + b, n}};
+  if constexpr (External)
+    c.ex = {p.fex + b, n}, c.ey = {p.fey + b, n}, c.ez = {p.fez + b, n};
+  leaf_kick_drift<External>(st.k, st.K, c, st.h_before, st.hk, gravity, st.half_skin2, still);
+}
+
+} // namespace cfddem::dem

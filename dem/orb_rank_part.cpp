@@ -1,0 +1,233 @@
+// The orb scheme's steps over R > 1 ranks (dem/orb_scheme.hpp, RankPart): the parallel regrid
+// and knapsack, the leaf and destination rank of every owned particle, and the one round of
+// messages that moves particles to their owners and brings the ghosts, followed by the rows over
+// owned + ghosts.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <string>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+#include "dem/orb_rank_part.hpp"
+#include "dem/scheme_support.hpp"
+
+namespace cfddem::dem {
+
+// A new ORB over all ranks' particles (regrid's: wrapped positions, weights = counts, or
+// the local steps since the last regrid once there are some), then the knapsack over ranks.
+void OrbScheme::rank_regrid() {
+  for (std::size_t i = 0; i < owned_; ++i)
+    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
+    p_.z[i] = geom_.wrap(p_.z[i], 2);
+  bool use_cost = cfg_.cost_weights;
+  if (use_cost) {
+    double total = 0.0;
+    for (const double c : cost_)
+      total += c;
+    use_cost = rank_->comm.max(total) > 0.0; // the first regrid has no measurement yet: count
+  }
+  decomp_ = partition::decompose(
+      rank_->comm, std::span<const double>(p_.x.data(), owned_),
+      std::span<const double>(p_.y.data(), owned_), std::span<const double>(p_.z.data(), owned_),
+      use_cost ? std::span<const double>(cost_) : std::span<const double>(), domain_,
+      partition::OrbOptions{cfg_.levels, orb_snap_grid(scene_)}); // the one-rank cuts
+  imbalances_.push_back(decomp_.imbalance);
+  std::fill(cost_.begin(), cost_.end(), 0.0);
+  skin_ = model_.skin; // a skin grown by a retry or by time_to_contact lasts until the regrid
+  ++stats_.regrids;
+}
+
+// The leaf of every owned particle (resort's rule: inside its half-open box a particle
+// keeps its leaf, otherwise it is located at its wrapped position) and the rank it goes to.
+// Returns the particles outside the domain (an error, raised after the next reduction), with
+// the message of the first.
+std::int64_t OrbScheme::rank_locate(bool regridding, std::string& message, std::int64_t& key) {
+  const partition::OrbTree& tree = decomp_.tree;
+  const auto leaves = tree.leaves();
+  std::int64_t outside = 0;
+  rank_->dest.resize(owned_);
+  leaves_.of.resize(owned_);
+  for (std::size_t i = 0; i < owned_; ++i) {
+    const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
+    int l = -1;
+    if (!regridding) {
+      const partition::Aabb& b = leaves[leaves_.of[i]].box;
+      if (b.lo[0] <= px && px < b.hi[0] && b.lo[1] <= py && py < b.hi[1] && b.lo[2] <= pz &&
+          pz < b.hi[2])
+        l = static_cast<int>(leaves_.of[i]);
+    }
+    if (l < 0)
+      l = tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
+    if (l < 0) {
+      ++outside;
+      if (p_.id[i] < key) {
+        key = p_.id[i];
+        message = fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left the "
+                              "domain (rank {})",
+                              time(), p_.id[i], px, py, pz, rank_->comm.rank());
+      }
+      l = regridding ? 0 : static_cast<int>(leaves_.of[i]); // kept here; the run stops below
+      rank_->dest[i] = rank_->comm.rank();
+    } else {
+      rank_->dest[i] = decomp_.owner[static_cast<std::size_t>(l)];
+    }
+    leaves_.of[i] = static_cast<std::uint32_t>(l);
+  }
+  return outside;
+}
+
+// One round of messages: every owned particle to the rank of its leaf (rank_->dest), and a ghost
+// copy of it, UNSHIFTED, to every other rank with a leaf within the cutoff (periodic images
+// included), each with its half step, cost, leaf and speed bound. Then the owned particles in
+// (leaf, id) order, the leaves' ranges, and the owned particles' rows and proximity flags from a
+// cell list over owned + ghosts.
+void OrbScheme::rank_exchange_and_rows() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  p_.resize(owned_);
+  const double prox = cfg_.prox;
+  if (cfg_.time_to_contact)
+    time_to_contact_speeds();
+  else
+    speed_.assign(owned_, 0.0);
+  // Every distance a test below compares: contact candidates, the proximity or reach test.
+  double cutoff = 2.0 * cfg_.r_max + skin_;
+  cutoff = std::max(cutoff, cfg_.time_to_contact ? 2.0 * cfg_.r_max + 2.0 * reach_
+                                                 : 2.0 * prox * cfg_.r_max);
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
+      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                                 "distributed orb scheme's cutoff {:.4g} m (contact, proximity "
+                                 "or reach): enlarge the domain or run on one rank",
+                                 a, geom_.length[a], cutoff));
+  {
+    const partition::OrbTree& tree = decomp_.tree;
+    const auto leaves = tree.leaves();
+    std::vector<ParticleExchange::Copy> copies;
+    std::vector<int> ranks;
+    // Per leaf holding a particle here, the (leaf, periodic image) pairs of other ranks than its
+    // owner within the cutoff of its box: a particle's halo lies inside its leaf's, and it goes
+    // to the leaf's owner, so only those can need its ghost. Most leaves have none.
+    rank_->near_leaves.resize(leaves.size());
+    rank_->near_known.assign(leaves.size(), 0);
+    auto candidates = [&](std::uint32_t l) -> const std::vector<partition::LeafImage>& {
+      if (!rank_->near_known[l]) {
+        rank_->near_known[l] = 1;
+        rank_->near_leaves[l].clear();
+        partition::Aabb q = leaves[l].box;
+        for (int a = 0; a < 3; ++a)
+          q.lo[a] -= cutoff, q.hi[a] += cutoff;
+        for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic))
+          if (decomp_.owner[static_cast<std::size_t>(li.leaf)] != decomp_.owner[l])
+            rank_->near_leaves[l].push_back(li);
+      }
+      return rank_->near_leaves[l];
+    };
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const std::vector<partition::LeafImage>& cand = candidates(leaves_.of[i]);
+      if (cand.empty())
+        continue;
+      const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2)};
+      ranks.clear();
+      for (const partition::LeafImage& li : cand) {
+        const int r = decomp_.owner[static_cast<std::size_t>(li.leaf)];
+        if (r == rank_->dest[i] || std::find(ranks.begin(), ranks.end(), r) != ranks.end())
+          continue;
+        // Closed overlap of the particle's halo, seen through the image, with the leaf's box
+        // (OrbTree's test: conservative, a ghost too many costs only its copy).
+        const partition::Aabb& b = leaves[static_cast<std::size_t>(li.leaf)].box;
+        bool touch = true;
+        for (int a = 0; a < 3; ++a) {
+          const double s = static_cast<double>(li.shift[a]) * geom_.length[a];
+          touch = touch && w[a] - cutoff + s <= b.hi[a] && w[a] + cutoff + s >= b.lo[a];
+        }
+        if (touch)
+          ranks.push_back(r);
+      }
+      for (const int r : ranks)
+        copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    }
+    std::vector<double> leaf(owned_);
+    for (std::size_t i = 0; i < owned_; ++i)
+      leaf[i] = static_cast<double>(leaves_.of[i]);
+    std::vector<std::vector<double>*> extra{&hprev_, &cost_, &leaf, &speed_};
+    if (rank_->ext_on)
+      extra.insert(extra.end(), {&ext_.x, &ext_.y, &ext_.z});
+    owned_ = rank_->exchange.redistribute(p_, rank_->dest, std::move(copies), extra);
+    if (rank_->ext_on)
+      ext_.x.resize(owned_), ext_.y.resize(owned_), ext_.z.resize(owned_);
+    hprev_.resize(owned_), cost_.resize(owned_);
+    leaves_.of.resize(owned_);
+    for (std::size_t i = 0; i < owned_; ++i)
+      leaves_.of[i] = static_cast<std::uint32_t>(leaf[i]);
+  }
+  ++stats_.builds;
+  const std::size_t n = p_.size();
+  // (leaf, id) order of the owned particles: each leaf contiguous, in an order that depends on
+  // the particles only (ghosts keep theirs).
+  bool sorted = true;
+  for (std::size_t i = 1; i < owned_ && sorted; ++i)
+    sorted = leaves_.of[i - 1] < leaves_.of[i] ||
+             (leaves_.of[i - 1] == leaves_.of[i] && p_.id[i - 1] < p_.id[i]);
+  if (!sorted) {
+    std::vector<std::uint32_t> order(n);
+    std::iota(order.begin(), order.end(), 0U);
+    std::sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(owned_),
+              [&](std::uint32_t a, std::uint32_t b) {
+                return leaves_.of[a] != leaves_.of[b] ? leaves_.of[a] < leaves_.of[b]
+                                                      : p_.id[a] < p_.id[b];
+              });
+    p_.permute(order);
+    auto permute = [&](auto& v, std::size_t m) {
+      auto tmp = v;
+      for (std::size_t k = 0; k < m; ++k)
+        tmp[k] = v[order[k]];
+      v.swap(tmp);
+    };
+    permute(hprev_, owned_), permute(cost_, owned_), permute(leaves_.of, owned_);
+    permute(speed_, owned_);
+    if (rank_->ext_on)
+      permute(ext_.x, owned_), permute(ext_.y, owned_), permute(ext_.z, owned_);
+  }
+  leaves_.id.clear();
+  leaves_.range.assign(1, 0);
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (leaves_.id.empty() || static_cast<std::uint32_t>(leaves_.id.back()) != leaves_.of[i]) {
+      if (!leaves_.id.empty())
+        leaves_.range.push_back(static_cast<std::uint32_t>(i));
+      leaves_.id.push_back(static_cast<int>(leaves_.of[i]));
+    }
+  if (!leaves_.id.empty())
+    leaves_.range.push_back(static_cast<std::uint32_t>(owned_));
+  rank_->rows.build({geom_,
+                     {p_.x.data(), n},
+                     {p_.y.data(), n},
+                     {p_.z.data(), n},
+                     {p_.radius.data(), n},
+                     {p_.id.data(), n},
+                     {speed_.data(), n},
+                     {leaves_.of.data(), owned_},
+                     owned_,
+                     cutoff,
+                     skin_,
+                     prox,
+                     cfg_.dt_sp,
+                     cfg_.time_to_contact});
+  // Only particles with a row get their contact force rewritten at each step: clear the rest.
+  std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
+  std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
+  std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+  // The own-leaf entries before each owned particle (the batches' force evaluations), and the
+  // walls as partners.
+  const auto off = rank_->rows.off(), mid = rank_->rows.mid();
+  rows_.own_before.resize(owned_ + 1);
+  rows_.own_before[0] = 0;
+  for (std::size_t i = 0; i < owned_; ++i)
+    rows_.own_before[i + 1] = rows_.own_before[i] + (mid[i] - off[i]);
+  mark_walls(rank_->rows.near());
+}
+
+} // namespace cfddem::dem

@@ -1,0 +1,30 @@
+// What the orb scheme (dem/orb_scheme.hpp) holds only over R > 1 ranks: the communicator and its
+// particle exchange, the rows over owned + ghosts (OrbLocalRows), where each owned particle goes
+// and the leaves of other ranks near each leaf. Null on one rank.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "core/communicator.hpp"
+#include "core/particle_exchange.hpp"
+#include "dem/orb_local_rows.hpp"
+#include "dem/orb_scheme.hpp"
+#include "partition/orb_tree.hpp"
+
+namespace cfddem::dem {
+
+struct OrbScheme::RankPart {
+  explicit RankPart(const Communicator& c) : comm(c), exchange(c) {}
+  const Communicator& comm;
+  ParticleExchange exchange;
+  OrbLocalRows rows;     // of the owned particles, rebuilt at every sub-iteration
+  std::vector<int> dest; // per owned particle: the rank it goes to
+  // Per leaf: leaves of other ranks than its owner (with the periodic image) within the cutoff
+  // of its box, found when first needed in a sub-iteration.
+  std::vector<std::vector<partition::LeafImage>> near_leaves;
+  std::vector<unsigned char> near_known;
+  bool ext_on = false; // an external force is set: on for every rank alike
+};
+
+} // namespace cfddem::dem

@@ -1,0 +1,486 @@
+// The one-rank steps of the orb scheme (dem/orb_scheme.hpp): the regrid over the whole store,
+// the re-sort of particles that left their leaf, and the persistent candidate pairs (rebuilt
+// when some particle may outrun them, remapped when the store is re-sorted) with the rows
+// derived from them.
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+#include "dem/orb_local_rows.hpp"
+#include "dem/orb_scheme.hpp"
+#include "dem/scheme_support.hpp"
+#include "dem/verlet_list.hpp"
+
+namespace cfddem::dem {
+
+namespace {
+
+constexpr std::uint32_t kNoCell = 0xffffffffu; // a forward neighbour beyond a wall
+} // namespace
+
+// New index k holds old index order[k]: every per-particle array and the pair lists follow.
+void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
+  const std::size_t n = order.size();
+  p_.permute(order);
+  auto permute = [&](std::vector<double>& v) {
+    if (v.size() != n)
+      return;
+    std::vector<double>& t = dscratch_;
+    t.resize(n);
+    for (std::size_t k = 0; k < n; ++k)
+      t[k] = v[order[k]];
+    v.swap(t);
+  };
+  permute(hprev_), permute(cost_), permute(pairs_.xr), permute(pairs_.yr), permute(pairs_.zr);
+  ext_.permute(order);
+  relabel_pairs(order);
+}
+
+// The store was reordered (slot k holds the particle of old slot old_slot[k]): the candidate
+// pairs follow their particles, and the rows must be derived again.
+void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
+  const std::size_t n = old_slot.size();
+  scratch_.resize(n);
+  for (std::size_t k = 0; k < n; ++k)
+    scratch_[old_slot[k]] = static_cast<std::uint32_t>(k);
+  for (auto* v : {&pairs_.ca, &pairs_.cb, &pairs_.pa, &pairs_.pb})
+    for (auto& i : *v)
+      i = scratch_[i];
+  rows_.off.clear();
+}
+
+void OrbScheme::regrid() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  // A skin grown by a retry lasts until the regrid: rows built with it stay valid (they hold
+  // more pairs), and the next build uses the scene's skin again.
+  skin_ = model_.skin;
+  const std::size_t n = p_.size();
+  // Wrap into the box; the reference positions move by the same period, so the displacement
+  // since the last neighbor build is unchanged.
+  for (std::size_t i = 0; i < n; ++i) {
+    const double wx = geom_.wrap(p_.x[i], 0), wy = geom_.wrap(p_.y[i], 1),
+                 wz = geom_.wrap(p_.z[i], 2);
+    if (!pairs_.xr.empty())
+      pairs_.xr[i] += wx - p_.x[i], pairs_.yr[i] += wy - p_.y[i], pairs_.zr[i] += wz - p_.z[i];
+    p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
+  }
+  bool use_cost = cfg_.cost_weights;
+  if (use_cost) {
+    double total = 0.0;
+    for (double c : cost_)
+      total += c;
+    use_cost = total > 0.0; // the first regrid has no measurement yet: count
+  }
+  // With a gas, cuts lie on fluid cell faces (orb_snap_grid).
+  decomp_.tree = partition::OrbTree::build(
+      p_.x, p_.y, p_.z, use_cost ? std::span<const double>(cost_) : std::span<const double>(),
+      domain_, partition::OrbOptions{scene_.partition.orb_levels, orb_snap_grid(scene_)});
+  const auto order = decomp_.tree.order();
+  apply_permutation(order);
+  std::fill(cost_.begin(), cost_.end(), 0.0);
+  const auto leaves = decomp_.tree.leaves();
+  leaves_.range.assign(leaves.size() + 1, 0);
+  for (std::size_t l = 0; l < leaves.size(); ++l)
+    leaves_.range[l + 1] = leaves[l].end;
+  leaves_.id.resize(leaves.size());
+  std::iota(leaves_.id.begin(), leaves_.id.end(), 0);
+  decomp_.owner.assign(leaves.size(), 0); // every leaf on this rank
+  decomp_.load.assign(1, static_cast<double>(n));
+  if (stats_.leaf_steps.size() != leaves.size())
+    stats_.leaf_steps.assign(leaves.size(), 0);
+  ++stats_.regrids;
+}
+
+// Particles that left their leaf are moved to the leaf that now holds them, keeping every leaf a
+// contiguous range. A few particles cross a boundary per sub-iteration, so instead of sorting the
+// whole store each one walks along the leaves between its old and new leaf by swaps with the
+// boundary slots (one swap per leaf passed); particles of other leaves keep their leaf. The
+// order inside a leaf changes, which no result depends on (rows are summed in id order and the
+// update is per particle). Then the pair lists are relabelled and the rows derived again.
+void OrbScheme::resort() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  const std::size_t n = p_.size();
+  const std::size_t nl = leaves_.range.size() - 1;
+  std::vector<std::uint32_t>& target = leaves_.of; // the leaf holding each slot's particle
+  target.resize(n);
+  bool moved = false;
+  const auto leaves = decomp_.tree.leaves();
+  const double* __restrict xs = p_.x.data();
+  const double* __restrict ys = p_.y.data();
+  const double* __restrict zs = p_.z.data();
+  for (std::size_t l = 0; l < nl; ++l) {
+    const partition::Aabb box = leaves[l].box;
+    const std::uint32_t b = leaves_.range[l], e = leaves_.range[l + 1];
+    std::fill(target.begin() + b, target.begin() + e, static_cast<std::uint32_t>(l));
+    // Most leaves keep all their particles: a branch-free pass (it vectorizes) finds them.
+    std::uint64_t out = 0;
+    for (std::uint32_t i = b; i < e; ++i)
+      out |= sign_unless(box.lo[0] <= xs[i]) | sign_unless(xs[i] < box.hi[0]) |
+             sign_unless(box.lo[1] <= ys[i]) | sign_unless(ys[i] < box.hi[1]) |
+             sign_unless(box.lo[2] <= zs[i]) | sign_unless(zs[i] < box.hi[2]);
+    if (!(out >> 63))
+      continue;
+    for (std::uint32_t i = b; i < e; ++i) {
+      // Most particles are still inside their (half-open) box: skip the wrap and the tree
+      // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
+      const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
+      int k = static_cast<int>(l);
+      if (!(box.lo[0] <= px && px < box.hi[0] && box.lo[1] <= py && py < box.hi[1] &&
+            box.lo[2] <= pz && pz < box.hi[2]))
+        k = decomp_.tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
+      if (k < 0)
+        throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
+                                   "the domain",
+                                   time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
+      target[i] = static_cast<std::uint32_t>(k);
+      moved |= static_cast<std::size_t>(k) != l;
+    }
+  }
+  if (!moved)
+    return;
+  std::vector<std::uint32_t>& origin = fill_; // original slot of the particle now in each slot
+  origin.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    origin[i] = static_cast<std::uint32_t>(i);
+  auto swap_slots = [&](std::uint32_t a, std::uint32_t c) {
+    if (a == c)
+      return;
+    p_.swap(a, c);
+    std::swap(hprev_[a], hprev_[c]);
+    std::swap(cost_[a], cost_[c]);
+    if (!pairs_.xr.empty())
+      std::swap(pairs_.xr[a], pairs_.xr[c]), std::swap(pairs_.yr[a], pairs_.yr[c]),
+          std::swap(pairs_.zr[a], pairs_.zr[c]);
+    ext_.swap(a, c);
+    std::swap(target[a], target[c]);
+    std::swap(origin[a], origin[c]);
+  };
+  for (std::size_t l = 0; l < nl; ++l) {
+    std::uint32_t i = leaves_.range[l];
+    while (true) {
+      i = std::max(i, leaves_.range[l]); // a particle walked out of the front of leaf l
+      if (i >= leaves_.range[l + 1])
+        break;
+      const std::uint32_t dest = target[i];
+      if (dest == l) {
+        ++i;
+        continue;
+      }
+      // Walk the particle at slot i to leaf dest; slot i then holds a particle of leaf l (the
+      // boundary slot it was swapped with) and is checked again.
+      std::uint32_t m = i;
+      if (dest > l) {
+        for (std::size_t j = l; j < dest; ++j) {
+          const std::uint32_t last = leaves_.range[j + 1] - 1;
+          swap_slots(m, last);
+          m = last;
+          --leaves_.range[j + 1];
+        }
+      } else {
+        for (std::size_t j = l; j > dest; --j) {
+          const std::uint32_t first = leaves_.range[j];
+          swap_slots(m, first);
+          m = first;
+          ++leaves_.range[j];
+        }
+      }
+    }
+  }
+  relabel_pairs(origin); // old slot origin[k] is now slot k
+}
+
+// True when some particle's displacement since the build plus its free flight over one
+// sub-iteration exceeds skin/2: the rows are then rebuilt before the sub-iteration, in which the
+// particle would likely outrun them. Positions and references are unwrapped alike (a regrid
+// shifts both), so plain differences. (d + v dt)^2 <= 2 (d^2 + v^2 dt^2): the square roots are
+// taken only for the few particles that fail that bound.
+bool OrbScheme::rows_expire() const {
+  const std::size_t n = p_.size();
+  const double lim = 0.5 * skin_, lim2 = lim * lim, dt2 = cfg_.dt_sp * cfg_.dt_sp;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* vx = p_.vx.data();
+  const double* vy = p_.vy.data();
+  const double* vz = p_.vz.data();
+  const double* xr = pairs_.xr.data();
+  const double* yr = pairs_.yr.data();
+  const double* zr = pairs_.zr.data();
+  // Branch-free bound first (it vectorizes); the exact test only if the bound fails somewhere.
+  std::uint64_t over = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+    const double d2 = ex * ex + ey * ey + ez * ez;
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    over |= sign_unless(2.0 * (d2 + v2 * dt2) <= lim2);
+  }
+  if (!(over >> 63))
+    return false;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+    const double d2 = ex * ex + ey * ey + ez * ez;
+    const double v2 = vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i];
+    if (!(2.0 * (d2 + v2 * dt2) <= lim2) && !(std::sqrt(d2) + std::sqrt(v2) * cfg_.dt_sp <= lim))
+      return true; // NaN expires the rows too
+  }
+  return false;
+}
+
+// One cell list over the whole store (indices binned, the store is not moved): contact
+// candidates within r_a + r_b + skin and proximity candidates within prox (r_a + r_b)/2 + skin,
+// each pair once, in a deterministic order. Proximity candidates are skipped when every particle
+// is within the proximity distance of every other (prox_all) or the proximity distance reaches
+// half a periodic length (prox_brute: tested pair by pair at each sub-iteration instead).
+void OrbScheme::rebuild_pairs() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  const std::size_t n = p_.size();
+  const DomainGeometry& g = geom_;
+  const double prox = 0.5 * scene_.dem.proximity_radii;
+  const double contact_cut = 2.0 * cfg_.r_max + skin_;
+  const double prox_cut = 2.0 * prox * cfg_.r_max + skin_;
+  bool prox_cells = true;
+  for (int a = 0; a < 3; ++a)
+    if (g.periodic[a] && 2.0 * prox_cut >= g.length[a])
+      prox_cells = false;
+  const double cutoff = prox_cells ? std::max(contact_cut, prox_cut) : contact_cut;
+  std::array<int, 3> nc{};
+  std::array<double, 3> inv{};
+  double cell = cutoff;
+  const double volume = g.length[0] * g.length[1] * g.length[2];
+  const double target = 8.0 * static_cast<double>(n) + 64.0;
+  if (volume / (cell * cell * cell) > target)
+    cell = std::cbrt(volume / target);
+  for (int a = 0; a < 3; ++a) {
+    nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
+    inv[a] = nc[a] / g.length[a];
+  }
+  const std::size_t ncell = static_cast<std::size_t>(nc[0]) * nc[1] * nc[2];
+  auto coord = [&](double v, int a) {
+    return std::clamp(static_cast<int>((g.wrap(v, a) - g.lo[a]) * inv[a]), 0, nc[a] - 1);
+  };
+  pairs_.cell_of.resize(n);
+  pairs_.cell_start.assign(ncell + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    pairs_.cell_of[i] = static_cast<std::uint32_t>(
+        (static_cast<std::size_t>(coord(p_.z[i], 2)) * nc[1] + coord(p_.y[i], 1)) * nc[0] +
+        coord(p_.x[i], 0));
+    ++pairs_.cell_start[pairs_.cell_of[i] + 1];
+  }
+  for (std::size_t c = 0; c < ncell; ++c)
+    pairs_.cell_start[c + 1] += pairs_.cell_start[c];
+  scratch_.resize(n);
+  {
+    std::vector<std::uint32_t>& fill = fill_;
+    fill.assign(pairs_.cell_start.begin(), pairs_.cell_start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i)
+      scratch_[fill[pairs_.cell_of[i]]++] = static_cast<std::uint32_t>(i);
+  }
+  pairs_.ca.clear(), pairs_.cb.clear(), pairs_.pa.clear(), pairs_.pb.clear();
+  const double* px = p_.x.data();
+  const double* py = p_.y.data();
+  const double* pz = p_.z.data();
+  const double* pr = p_.radius.data();
+  auto test = [&](std::uint32_t i, std::uint32_t j) {
+    const double dx = g.image(px[j] - px[i], 0), dy = g.image(py[j] - py[i], 1),
+                 dz = g.image(pz[j] - pz[i], 2);
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const double rs = pr[i] + pr[j];
+    if (r2 < (rs + skin_) * (rs + skin_))
+      pairs_.ca.push_back(i), pairs_.cb.push_back(j);
+    if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
+      pairs_.pa.push_back(i), pairs_.pb.push_back(j);
+  };
+  if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
+    // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
+    // so every pair is visited once and no cell twice. The binned particles' data are copied in
+    // cell order so that the inner loops read contiguous memory.
+    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0}, {-1, -1, 1},
+                                        {0, -1, 1}, {1, -1, 1}, {-1, 0, 1}, {0, 0, 1}, {1, 0, 1},
+                                        {-1, 1, 1}, {0, 1, 1},  {1, 1, 1}};
+    // Interior cells reach their forward neighbours by constant offsets; cells on the grid's
+    // faces wrap (periodic) or skip (wall) them.
+    std::ptrdiff_t fwd_off[13];
+    for (int o = 0; o < 13; ++o)
+      fwd_off[o] =
+          (static_cast<std::ptrdiff_t>(kFwd[o][2]) * nc[1] + kFwd[o][1]) * nc[0] + kFwd[o][0];
+    // Cell c at (cx, cy, cz) on the grid's faces: its forward neighbour o, or kNoCell.
+    auto boundary_forward_cell = [&](int cx, int cy, int cz, int o) -> std::uint32_t {
+      int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
+      for (int a = 0; a < 3; ++a)
+        if (q[a] < 0 || q[a] >= nc[a]) {
+          if (!g.periodic[a])
+            return kNoCell;
+          q[a] = (q[a] + nc[a]) % nc[a];
+        }
+      return static_cast<std::uint32_t>((static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] +
+                                        q[0]);
+    };
+    std::vector<double>& sx = pairs_.sorted[0];
+    std::vector<double>& sy = pairs_.sorted[1];
+    std::vector<double>& sz = pairs_.sorted[2];
+    std::vector<double>& sr = pairs_.sorted[3];
+    sx.resize(n), sy.resize(n), sz.resize(n), sr.resize(n);
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::uint32_t i = scratch_[k];
+      sx[k] = px[i], sy[k] = py[i], sz[k] = pz[i], sr[k] = pr[i];
+    }
+    // Pair (a, b) of sorted slots: the test of `test` on the sorted copies.
+    auto test_sorted = [&](std::uint32_t a, std::uint32_t b) {
+      const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
+                   dz = g.image(sz[b] - sz[a], 2);
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      const double rs = sr[a] + sr[b];
+      const double pc = prox * rs + skin_;
+      if (r2 < (rs + skin_) * (rs + skin_))
+        pairs_.ca.push_back(scratch_[a]), pairs_.cb.push_back(scratch_[b]);
+      if (prox_cells && r2 < pc * pc)
+        pairs_.pa.push_back(scratch_[a]), pairs_.pb.push_back(scratch_[b]);
+    };
+    for (int cz = 0; cz < nc[2]; ++cz)
+      for (int cy = 0; cy < nc[1]; ++cy)
+        for (int cx = 0; cx < nc[0]; ++cx) {
+          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
+          const std::uint32_t c0 = pairs_.cell_start[c], c1 = pairs_.cell_start[c + 1];
+          if (c0 == c1)
+            continue;
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = a + 1; b < c1; ++b)
+              test_sorted(a, b);
+          const bool interior =
+              cx >= 1 && cx + 1 < nc[0] && cy >= 1 && cy + 1 < nc[1] && cz + 1 < nc[2];
+          for (int o = 0; o < 13; ++o) {
+            const std::uint32_t d =
+                interior ? static_cast<std::uint32_t>(static_cast<std::ptrdiff_t>(c) + fwd_off[o])
+                         : boundary_forward_cell(cx, cy, cz, o);
+            if (d == kNoCell)
+              continue;
+            const std::uint32_t d0 = pairs_.cell_start[d], d1 = pairs_.cell_start[d + 1];
+            for (std::uint32_t a = c0; a < c1; ++a)
+              for (std::uint32_t b = d0; b < d1; ++b)
+                test_sorted(a, b);
+          }
+        }
+  } else {
+    // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = pairs_.cell_of[i];
+      const int cx = static_cast<int>(c % nc[0]), cy = static_cast<int>((c / nc[0]) % nc[1]),
+                cz = static_cast<int>(c / (static_cast<std::size_t>(nc[0]) * nc[1]));
+      int sx[3], sy[3], sz[3];
+      const int mx = stencil_axis(cx, nc[0], g.periodic[0], sx);
+      const int my = stencil_axis(cy, nc[1], g.periodic[1], sy);
+      const int mz = stencil_axis(cz, nc[2], g.periodic[2], sz);
+      for (int cc = 0; cc < mz; ++cc)
+        for (int bb = 0; bb < my; ++bb)
+          for (int aa = 0; aa < mx; ++aa) {
+            const std::size_t q =
+                (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
+            for (std::uint32_t k = pairs_.cell_start[q]; k < pairs_.cell_start[q + 1]; ++k)
+              if (scratch_[k] > i)
+                test(static_cast<std::uint32_t>(i), scratch_[k]);
+          }
+    }
+  }
+  pairs_.prox_from_pairs = prox_cells;
+  pairs_.xr = p_.x, pairs_.yr = p_.y, pairs_.zr = p_.z;
+  pairs_.valid = true;
+  rows_.off.clear();
+  ++stats_.builds;
+}
+
+// Rows of the current leaves from the contact candidates (after a build or a re-sort).
+void OrbScheme::derive_rows() {
+  const std::size_t n = p_.size();
+  const std::size_t nl = leaves_.range.size() - 1;
+  leaves_.of.resize(n);
+  for (std::size_t l = 0; l < nl; ++l)
+    for (std::uint32_t i = leaves_.range[l]; i < leaves_.range[l + 1]; ++i)
+      leaves_.of[i] = static_cast<std::uint32_t>(l);
+  std::vector<std::uint32_t>& own = scratch_;
+  own.assign(n, 0);
+  rows_.off.assign(n + 1, 0);
+  for (std::size_t q = 0; q < pairs_.ca.size(); ++q) {
+    const std::uint32_t a = pairs_.ca[q], b = pairs_.cb[q];
+    ++rows_.off[a + 1], ++rows_.off[b + 1];
+    if (leaves_.of[a] == leaves_.of[b])
+      ++own[a], ++own[b];
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    rows_.off[i + 1] += rows_.off[i];
+  rows_.mid.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    rows_.mid[i] = rows_.off[i] + own[i];
+  rows_.nb.resize(rows_.off[n]);
+  std::vector<std::uint32_t>& fo = own; // fill cursors: own segment, then ghost segment
+  std::vector<std::uint32_t>& fg = pairs_.cell_of;
+  fg.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    fo[i] = rows_.off[i], fg[i] = rows_.mid[i];
+  for (std::size_t q = 0; q < pairs_.ca.size(); ++q) {
+    const std::uint32_t a = pairs_.ca[q], b = pairs_.cb[q];
+    if (leaves_.of[a] == leaves_.of[b]) {
+      rows_.nb[fo[a]++] = b, rows_.nb[fo[b]++] = a;
+    } else {
+      rows_.nb[fg[a]++] = b, rows_.nb[fg[b]++] = a;
+    }
+  }
+  rows_.active.clear();
+  rows_.own_before.resize(n + 1);
+  rows_.own_before[0] = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    rows_.own_before[i + 1] = rows_.own_before[i] + (rows_.mid[i] - rows_.off[i]);
+  for (std::size_t i = 0; i < n; ++i) {
+    sort_by_id(rows_.nb.data() + rows_.off[i], rows_.nb.data() + rows_.mid[i], p_.id.data());
+    sort_by_id(rows_.nb.data() + rows_.mid[i], rows_.nb.data() + rows_.off[i + 1], p_.id.data());
+    if (rows_.off[i + 1] > rows_.off[i])
+      rows_.active.push_back(static_cast<std::uint32_t>(i));
+  }
+  // Only particles with a row get their contact force rewritten each step: clear the rest.
+  std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
+  std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
+  std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+}
+
+// Per particle: whether some partner (another particle, or a wall: mark_walls) is within the
+// proximity distance, or with dem.local_dt = "time_to_contact" could touch it within dt_sp. The
+// candidate pairs hold every such pair (their skin covers the distance, or two reaches).
+void OrbScheme::mark_near() {
+  const std::size_t n = p_.size();
+  std::vector<unsigned char>& near = rows_.near;
+  near.assign(n, 0);
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* r = p_.radius.data();
+  auto separation2 = [&](std::uint32_t a, std::uint32_t c) {
+    const double dx = geom_.image(x[c] - x[a], 0), dy = geom_.image(y[c] - y[a], 1),
+                 dz = geom_.image(z[c] - z[a], 2);
+    return dx * dx + dy * dy + dz * dz;
+  };
+  if (cfg_.time_to_contact) {
+    for (std::size_t q = 0; q < pairs_.ca.size(); ++q) {
+      const std::uint32_t a = pairs_.ca[q], c = pairs_.cb[q];
+      if (within_reach(separation2(a, c), r[a] + r[c], speed_[a] + speed_[c], cfg_.dt_sp))
+        near[a] = near[c] = 1;
+    }
+  } else {
+    auto test = [&](std::uint32_t a, std::uint32_t c) {
+      if (within_proximity(separation2(a, c), r[a] + r[c], cfg_.prox))
+        near[a] = near[c] = 1;
+    };
+    if (pairs_.prox_from_pairs) {
+      for (std::size_t q = 0; q < pairs_.pa.size(); ++q)
+        test(pairs_.pa[q], pairs_.pb[q]);
+    } else {
+      for (std::uint32_t a = 0; a < n; ++a)
+        for (std::uint32_t c = a + 1; c < n; ++c)
+          test(a, c);
+    }
+  }
+  mark_walls(near);
+}
+
+} // namespace cfddem::dem

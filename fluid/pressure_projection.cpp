@@ -120,23 +120,54 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
 
 PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
                                        const GridHalo* halo)
-    : grid_(grid), settings_(settings), halo_(halo), hypre_(new Hypre) {
+    : grid_(grid), settings_(settings), halo_(halo) {
   if (!(settings.tolerance > 0.0) || settings.max_iterations < 1) {
-    delete hypre_;
     throw std::invalid_argument("projection tolerance must be > 0 and max_iterations >= 1");
   }
-  Hypre& h = *hypre_;
+  if (settings.solver == PoissonSolver::multigrid && halo != nullptr) {
+    throw std::invalid_argument(
+        "fluid.solver = \"multigrid\" solves on one grid only: a gas on several ranks needs "
+        "\"hypre\" (or the default)");
+  }
   const auto& n = grid.cells();
   const auto& global = grid.global_cells();
+  for (int a = 0; a < 3; ++a) {
+    owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
+  }
+  global_cells_ = static_cast<double>(global[0]) * global[1] * global[2];
+  const std::size_t cells = static_cast<std::size_t>(n[0]) * n[1] * n[2];
+  rhs_.resize(cells);
+  solution_.resize(cells);
+  div_ = grid.make_field();
+  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
+                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
+  if (multigrid) {
+    // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
+    // (their set-up time and memory would be spent for nothing).
+    std::array<std::array<PoissonSide, 2>, 3> sides{};
+    std::array<double, 3> spacing{};
+    for (int a = 0; a < 3; ++a) {
+      spacing[a] = grid.spacing(a);
+      for (int side = 0; side < 2; ++side) {
+        const BoundaryKind kind = grid.bc(a, side).kind;
+        sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
+                         : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
+                                                         : PoissonSide::neumann;
+      }
+    }
+    mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
+    face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
+    return;
+  }
+  hypre_ = new Hypre;
+  Hypre& h = *hypre_;
   std::array<HYPRE_Int, 3> periodic{};
   for (int a = 0; a < 3; ++a) {
     h.lower[a] = grid.box().lo[a];
     h.upper[a] = grid.box().hi[a] - 1;
     // A single periodic cell couples only to itself (no flux): leave the axis non-periodic.
     periodic[a] = (grid.periodic(a) && global[a] > 1) ? global[a] : 0;
-    owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
   }
-  global_cells_ = static_cast<double>(global[0]) * global[1] * global[2];
   // Distributed: hypre talks on its own duplicate of the ranks' communicator, so its messages
   // can never match those of other traffic in flight meanwhile (the particles' ghost forward
   // posted before a gas step, MPI-3.1 §3.5: matching is by source, tag and communicator).
@@ -160,37 +191,14 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   HYPRE_StructVectorInitialize(h.b);
   HYPRE_StructVectorCreate(comm, h.grid, &h.x);
   HYPRE_StructVectorInitialize(h.x);
-  const std::size_t cells = static_cast<std::size_t>(n[0]) * n[1] * n[2];
-  rhs_.resize(cells);
-  solution_.resize(cells);
   guess_.resize(cells);
-  div_ = grid.make_field();
   x_ = grid.make_field();
-  if (settings.solver == PoissonSolver::multigrid && halo != nullptr) {
-    throw std::invalid_argument(
-        "fluid.solver = \"multigrid\" solves on one grid only: a gas on several ranks needs "
-        "\"hypre\" (or the default)");
-  }
-  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
-                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
-  if (multigrid) {
-    std::array<std::array<PoissonSide, 2>, 3> sides{};
-    std::array<double, 3> spacing{};
-    for (int a = 0; a < 3; ++a) {
-      spacing[a] = grid.spacing(a);
-      for (int side = 0; side < 2; ++side) {
-        const BoundaryKind kind = grid.bc(a, side).kind;
-        sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
-                         : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
-                                                         : PoissonSide::neumann;
-      }
-    }
-    mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
-    face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
-  }
 }
 
 PressureProjection::~PressureProjection() {
+  if (hypre_ == nullptr) {
+    return;
+  }
   hypre_->destroy_solver();
   HYPRE_StructVectorDestroy(hypre_->x);
   HYPRE_StructVectorDestroy(hypre_->b);

@@ -203,6 +203,12 @@ TEST(MultigridProjection, DefaultIsMultigridOnOneGrid) {
   const MacGrid grid(box_spec({4, 6, 4}, {4e-4, 6e-4, 4e-4}, BoundaryKind::wall));
   PressureProjection projection(grid, ProjectionSettings{});
   EXPECT_EQ(projection.solver(), PoissonSolver::multigrid);
+  // The multigrid path sets up nothing of hypre's; the hypre path does.
+  EXPECT_FALSE(projection.holds_hypre_objects());
+  ProjectionSettings hypre;
+  hypre.solver = PoissonSolver::hypre;
+  const PressureProjection with_hypre(grid, hypre);
+  EXPECT_TRUE(with_hypre.holds_hypre_objects());
 }
 
 // The riser grid's hierarchy: x and z halve to 2 cells, the 50-cell period stops at 25 and is

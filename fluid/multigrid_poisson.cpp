@@ -912,18 +912,22 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     throw std::invalid_argument("multigrid: vector of another grid");
   }
   const int planes = L.n[2];
-  {
-    std::size_t m = 0;
-    for (int k = 0; k < L.n[2]; ++k) {
-      for (int j = 0; j < L.n[1]; ++j) {
-        std::size_t c = L.at(0, j, k);
-        for (int i = 0; i < L.n[0]; ++i, ++c, ++m) {
-          b_[c] = b[m];
-          x_[c] = x[m];
-        }
+  // Entry m = i + n0 (j + n1 k) of b and x is cell (i, j, k).
+  const auto entry = [&](int j, int k) {
+    return static_cast<std::size_t>(L.n[0]) *
+           (static_cast<std::size_t>(j) +
+            static_cast<std::size_t>(L.n[1]) * static_cast<std::size_t>(k));
+  };
+  for_planes(planes, L.cells(), [&](int k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      const std::size_t m = entry(j, k);
+      const std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i) {
+        b_[c + static_cast<std::size_t>(i)] = b[m + static_cast<std::size_t>(i)];
+        x_[c + static_cast<std::size_t>(i)] = x[m + static_cast<std::size_t>(i)];
       }
     }
-  }
+  });
   if (singular_) {
     shift_interior(L, b_.data(), mean_interior(L, b_.data()));
   }
@@ -995,15 +999,15 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
   if (singular_) {
     shift_interior(L, x_.data(), mean_interior(L, x_.data()));
   }
-  std::size_t m = 0;
-  for (int k = 0; k < L.n[2]; ++k) {
+  for_planes(planes, L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
-      std::size_t c = L.at(0, j, k);
-      for (int i = 0; i < L.n[0]; ++i, ++c, ++m) {
-        x[m] = x_[c];
+      const std::size_t m = entry(j, k);
+      const std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i) {
+        x[m + static_cast<std::size_t>(i)] = x_[c + static_cast<std::size_t>(i)];
       }
     }
-  }
+  });
   report.iterations = it;
   report.relative_residual = rel;
   report.converged = rel <= tolerance;

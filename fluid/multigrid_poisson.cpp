@@ -200,6 +200,23 @@ double residual(const Level& L, const double* b, const double* x, double* r) {
   });
 }
 
+// The same, returning {|r|^2, sum of r} (the sum as mean_interior adds it: plane by plane).
+std::array<double, 2> residual_and_sum(const Level& L, const double* b, const double* x,
+                                       double* r) {
+  return sum_planes_n<2>(L.n[2], L.cells(), [&](int k) {
+    std::array<double, 2> s{};
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i, ++c) {
+        r[c] = b[c] - apply_at(L, x, c);
+        s[0] += r[c] * r[c];
+        s[1] += r[c];
+      }
+    }
+    return s;
+  });
+}
+
 // Gauss-Seidel on the cells of one colour ((i + j + k) even or odd): they depend only on the
 // other colour, except across the seam of an odd periodic axis, where the neighbour is read from
 // the ghost (its value before this pass: a Jacobi step there, still symmetric and convergent).
@@ -375,6 +392,23 @@ void relax_points_from_zero(const Level& L, const double* b, double* x) {
       std::size_t c = L.at(0, j, k);
       const int red = (j + k) & 1; // i parity of the red cells in this row
       for (int i = 0; i < L.n[0]; ++i, ++c) {
+        x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+      }
+    }
+  });
+  fill_ghosts(L, x);
+}
+
+// The same after b -= shift on the interior, in one pass over b (what shift_interior and then
+// relax_points_from_zero compute, bitwise).
+void shift_and_relax_points_from_zero(const Level& L, double* b, double shift, double* x) {
+  const double* id = L.inv_diag.data();
+  for_planes(L.n[2], L.cells(), [&](int k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::size_t c = L.at(0, j, k);
+      const int red = (j + k) & 1;
+      for (int i = 0; i < L.n[0]; ++i, ++c) {
+        b[c] -= shift;
         x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
       }
     }
@@ -866,13 +900,19 @@ void MultigridPoisson::vcycle(int level, const double* b, double* x) {
     return;
   }
   Level& L = levels_[static_cast<std::size_t>(level)];
-  Level& C = levels_[static_cast<std::size_t>(level) + 1];
   if (L.line < 0) {
     relax_points_from_zero(L, b, x);
   } else {
     std::fill(x, x + L.size, 0.0);
     relax(L, b, x, 0);
   }
+  vcycle_rest(level, b, x);
+}
+
+// The V-cycle after its first colour pass.
+void MultigridPoisson::vcycle_rest(int level, const double* b, double* x) {
+  Level& L = levels_[static_cast<std::size_t>(level)];
+  Level& C = levels_[static_cast<std::size_t>(level) + 1];
   relax(L, b, x, 1);
   for (int s = 1; s < settings_.pre_sweeps; ++s) {
     relax(L, b, x, 0);
@@ -887,19 +927,28 @@ void MultigridPoisson::vcycle(int level, const double* b, double* x) {
   }
 }
 
-void MultigridPoisson::precondition(double* r, double* z) {
-  if (singular_) {
-    // The V-cycle is definite on mean-zero vectors only: a residual whose constant part (round-off
-    // of a tiny right-hand side) is not removed can give r.z <= 0 and break CG down. The constant
-    // part is unreachable anyway (A's null space).
-    shift_interior(levels_.front(), r, mean_interior(levels_.front(), r));
+double MultigridPoisson::precondition(double* r, double* z, double r_sum) {
+  const Level& L = levels_.front();
+  if (!singular_) {
+    vcycle(0, r, z);
+    return 0.0;
   }
-  vcycle(0, r, z);
-  if (singular_ && levels_.size() > 1) {
-    const Level& L = levels_.front();
-    shift_interior(L, z, mean_interior(L, z));
-    fill_ghosts(L, z);
+  // The V-cycle is definite on mean-zero vectors only: a residual whose constant part (round-off
+  // of a tiny right-hand side) is not removed can give r.z <= 0 and break CG down. The constant
+  // part is unreachable anyway (A's null space).
+  const double r_mean =
+      (std::isnan(r_sum) ? sum_cells(L, [&](std::size_t c, double& s) { s += r[c]; }) : r_sum) /
+      static_cast<double>(L.cells());
+  if (levels_.size() > 1 && L.line < 0) {
+    // The shift rides on the first smoothing pass, which reads r anyway.
+    shift_and_relax_points_from_zero(L, r, r_mean, z);
+    vcycle_rest(0, r, z);
+  } else {
+    shift_interior(L, r, r_mean);
+    vcycle(0, r, z);
   }
+  // z's mean: the caller removes it in its next pass over z (z's ghosts are not read before).
+  return levels_.size() > 1 ? mean_interior(L, z) : 0.0;
 }
 
 // Flexible preconditioned CG (Notay, SIAM J. Sci. Comput. 22 (2000) 1444: beta from
@@ -945,11 +994,16 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     return report;
   }
   fill_ghosts(L, x_.data());
-  double rel = std::sqrt(residual(L, b_.data(), x_.data(), r_.data()) / bb);
+  std::array<double, 2> rr_sum = residual_and_sum(L, b_.data(), x_.data(), r_.data());
+  double rel = std::sqrt(rr_sum[0] / bb);
   int it = 0;
   while (rel > tolerance && it < max_iterations) {
-    precondition(r_.data(), z_.data());
-    double rz = dot(r_, z_);
+    const double z_mean = precondition(r_.data(), z_.data(), rr_sum[1]);
+    // z -= its mean (singular; a shift by 0 otherwise), fused with r.z.
+    double rz = sum_cells(L, [&](std::size_t c, double& s) {
+      z_[c] -= z_mean;
+      s += r_[c] * z_[c];
+    });
     p_ = z_;
     while (it < max_iterations) {
       fill_ghosts(L, p_.data());
@@ -961,22 +1015,32 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
         break;
       }
       const double alpha = rz / pq;
-      const double rr = sum_cells(L, [&](std::size_t c, double& s) {
-        x_[c] += alpha * p_[c];
-        r_old_[c] = r_[c];
-        r_[c] -= alpha * q_[c];
-        s += r_[c] * r_[c];
+      // |r|^2 and the sum of r (the preconditioner's mean removal) in the update's pass.
+      const auto rr = sum_planes_n<2>(planes, L.cells(), [&](int k) {
+        std::array<double, 2> s{};
+        for (int j = 0; j < L.n[1]; ++j) {
+          std::size_t c = L.at(0, j, k);
+          for (int i = 0; i < L.n[0]; ++i, ++c) {
+            x_[c] += alpha * p_[c];
+            r_old_[c] = r_[c];
+            r_[c] -= alpha * q_[c];
+            s[0] += r_[c] * r_[c];
+            s[1] += r_[c];
+          }
+        }
+        return s;
       });
       ++it;
-      if (std::sqrt(rr / bb) <= tolerance) {
+      if (std::sqrt(rr[0] / bb) <= tolerance) {
         break;
       }
-      precondition(r_.data(), z_.data());
+      const double z_shift = precondition(r_.data(), z_.data(), rr[1]);
       const auto sums = sum_planes_n<2>(planes, L.cells(), [&](int k) {
         std::array<double, 2> s{};
         for (int j = 0; j < L.n[1]; ++j) {
           std::size_t c = L.at(0, j, k);
           for (int i = 0; i < L.n[0]; ++i, ++c) {
+            z_[c] -= z_shift;
             s[0] += r_[c] * z_[c];
             s[1] += r_old_[c] * z_[c];
           }
@@ -989,7 +1053,8 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     }
     // The recursive residual drifts from b - A x: judge (and restart from) the true one.
     fill_ghosts(L, x_.data());
-    const double rel_new = std::sqrt(residual(L, b_.data(), x_.data(), r_.data()) / bb);
+    rr_sum = residual_and_sum(L, b_.data(), x_.data(), r_.data());
+    const double rel_new = std::sqrt(rr_sum[0] / bb);
     if (!(rel_new < rel) && rel_new > tolerance) {
       rel = rel_new;
       break; // no progress (breakdown): report what was reached
@@ -1015,7 +1080,8 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
 }
 
 void MultigridPoisson::benchmark_vcycle() {
-  precondition(r_.data(), z_.data());
+  const double z_mean = precondition(r_.data(), z_.data());
+  shift_interior(levels_.front(), z_.data(), z_mean);
 }
 
 void MultigridPoisson::benchmark_sweep() {

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -78,9 +79,13 @@ public:
 
 private:
   void vcycle(int level, const double* b, double* x);
+  void vcycle_rest(int level, const double* b, double* x);
   void coarsest_solve(const double* b, double* x); // b: the coarsest level's own vector
   void factor_coarsest();
-  void precondition(double* r, double* z); // singular: r's mean is removed first
+  // z = V-cycle(r). Singular: r's mean is removed first (r_sum: r's interior sum if known, else
+  // NaN), and z's mean is returned for the caller to remove (0 otherwise).
+  double precondition(double* r, double* z,
+                      double r_sum = std::numeric_limits<double>::quiet_NaN());
 
   MultigridSettings settings_;
   std::array<std::array<PoissonSide, 2>, 3> sides_{};

@@ -152,33 +152,42 @@ template <class F> double sum_cells(const Level& L, F&& f) {
   });
 }
 
-// Periodic images into the ghost layer (faces only: no kernel reads edges or corners).
-void fill_ghosts(const Level& L, double* v) {
+// Periodic images along x and y into the ghost layer of plane k.
+void fill_plane_ghosts(const Level& L, double* v, int k) {
   const auto& n = L.n;
-  const bool px = L.periodic[0] && n[0] > 1;
-  const bool py = L.periodic[1] && n[1] > 1;
-  if (px || py) {
-    for_planes(n[2], 2 * static_cast<std::size_t>((n[0] + n[1]) * n[2]), [&](int k) {
-      if (px) {
-        for (int j = 0; j < n[1]; ++j) {
-          v[L.at(-1, j, k)] = v[L.at(n[0] - 1, j, k)];
-          v[L.at(n[0], j, k)] = v[L.at(0, j, k)];
-        }
-      }
-      if (py) {
-        for (int i = 0; i < n[0]; ++i) {
-          v[L.at(i, -1, k)] = v[L.at(i, n[1] - 1, k)];
-          v[L.at(i, n[1], k)] = v[L.at(i, 0, k)];
-        }
-      }
-    });
+  if (L.periodic[0] && n[0] > 1) {
+    for (int j = 0; j < n[1]; ++j) {
+      v[L.at(-1, j, k)] = v[L.at(n[0] - 1, j, k)];
+      v[L.at(n[0], j, k)] = v[L.at(0, j, k)];
+    }
   }
+  if (L.periodic[1] && n[1] > 1) {
+    for (int i = 0; i < n[0]; ++i) {
+      v[L.at(i, -1, k)] = v[L.at(i, n[1] - 1, k)];
+      v[L.at(i, n[1], k)] = v[L.at(i, 0, k)];
+    }
+  }
+}
+
+// Periodic images along z: the ghost planes -1 and n_z.
+void fill_z_ghosts(const Level& L, double* v) {
+  const auto& n = L.n;
   if (L.periodic[2] && n[2] > 1) {
     for (int j = 0; j < n[1]; ++j) {
       std::copy_n(v + L.at(0, j, n[2] - 1), n[0], v + L.at(0, j, -1));
       std::copy_n(v + L.at(0, j, 0), n[0], v + L.at(0, j, n[2]));
     }
   }
+}
+
+// Periodic images into the ghost layer (faces only: no kernel reads edges or corners).
+void fill_ghosts(const Level& L, double* v) {
+  const auto& n = L.n;
+  if ((L.periodic[0] && n[0] > 1) || (L.periodic[1] && n[1] > 1)) {
+    for_planes(n[2], 2 * static_cast<std::size_t>((n[0] + n[1]) * n[2]),
+               [&](int k) { fill_plane_ghosts(L, v, k); });
+  }
+  fill_z_ghosts(L, v);
 }
 
 // (A x)_c = diag_c x_c - sum over faces K_f x_neighbour (ghosts of x filled).
@@ -220,24 +229,27 @@ std::array<double, 2> residual_and_sum(const Level& L, const double* b, const do
 // Gauss-Seidel on the cells of one colour ((i + j + k) even or odd): they depend only on the
 // other colour, except across the seam of an odd periodic axis, where the neighbour is read from
 // the ghost (its value before this pass: a Jacobi step there, still symmetric and convergent).
-void relax_points(const Level& L, const double* b, double* x, int colour) {
+// The cells of one colour on plane k.
+inline void relax_plane(const Level& L, const double* b, double* x, int colour, int k) {
   const std::size_t sy = static_cast<std::size_t>(L.s[1]);
   const std::size_t sz = static_cast<std::size_t>(L.s[2]);
   const double* kx = L.K[0].data();
   const double* ky = L.K[1].data();
   const double* kz = L.K[2].data();
   const double* id = L.inv_diag.data();
-  for_planes(L.n[2], L.cells(), [&](int k) {
-    for (int j = 0; j < L.n[1]; ++j) {
-      const int i0 = (colour + j + k) & 1;
-      std::size_t c = L.at(i0, j, k);
-      for (int i = i0; i < L.n[0]; i += 2, c += 2) {
-        x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
-                ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
-               id[c];
-      }
+  for (int j = 0; j < L.n[1]; ++j) {
+    const int i0 = (colour + j + k) & 1;
+    std::size_t c = L.at(i0, j, k);
+    for (int i = i0; i < L.n[0]; i += 2, c += 2) {
+      x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
+              ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
+             id[c];
     }
-  });
+  }
+}
+
+void relax_points(const Level& L, const double* b, double* x, int colour) {
+  for_planes(L.n[2], L.cells(), [&](int k) { relax_plane(L, b, x, colour, k); });
   fill_ghosts(L, x);
 }
 
@@ -399,18 +411,78 @@ void relax_points_from_zero(const Level& L, const double* b, double* x) {
   fill_ghosts(L, x);
 }
 
-// The same after b -= shift on the interior, in one pass over b (what shift_interior and then
-// relax_points_from_zero compute, bitwise).
-void shift_and_relax_points_from_zero(const Level& L, double* b, double shift, double* x) {
+// Plane k of the first red pass from x = 0 (relax_points_from_zero), after b -= *shift on the
+// plane when shift is given.
+void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const double* shift) {
   const double* id = L.inv_diag.data();
-  for_planes(L.n[2], L.cells(), [&](int k) {
-    for (int j = 0; j < L.n[1]; ++j) {
-      std::size_t c = L.at(0, j, k);
-      const int red = (j + k) & 1;
-      for (int i = 0; i < L.n[0]; ++i, ++c) {
-        b[c] -= shift;
-        x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+  for (int j = 0; j < L.n[1]; ++j) {
+    std::size_t c = L.at(0, j, k);
+    const int red = (j + k) & 1;
+    if (shift != nullptr) {
+      for (int i = 0; i < L.n[0]; ++i) {
+        b[c + static_cast<std::size_t>(i)] -= *shift;
       }
+    }
+    for (int i = 0; i < L.n[0]; ++i, ++c) {
+      x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+    }
+  }
+}
+
+// Planes per task of a fused colour pair (relax_pair); a fixed number, so the tasks and their
+// order do not depend on the thread count.
+constexpr int kPairPlanes = 8;
+
+// relax_pair needs a z-neighbour of the other colour on both sides: an odd period along z puts
+// cells of one colour next to each other across the seam.
+bool pair_fusable(const Level& L) {
+  return L.line < 0 && !(L.periodic[2] && L.n[2] > 1 && L.n[2] % 2 == 1);
+}
+
+// Two colour passes, `first` then 1 - first, in one sweep over the planes: the second colour's
+// plane k - 1 is relaxed right after the first colour's plane k, while those planes are still in
+// cache (the second pass reads the first colour on planes k - 2 .. k only). Every value is computed
+// from the same inputs as by relax_points(first) followed by relax_points(1 - first), so the
+// result is bitwise theirs:
+// - a task owns kPairPlanes planes; it relaxes the first colour on all of them and the second
+//   colour on its inner planes, each after the first colour of the plane above (whose first pass
+//   read the second colour's old values);
+// - then the periodic z ghosts get the new first colour, and the second colour is relaxed on the
+//   tasks' edge planes (their neighbours in other tasks are done by then);
+// - x and y ghosts of a plane are refreshed right after its first pass, as fill_ghosts after the
+//   whole pass would (the second pass reads the first colour's new images; at an odd x or y
+//   period the same colour's old one, as relax_points does).
+// from_zero: the first pass is relax_points_from_zero's (first = 0), after b -= *shift if given.
+void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
+                const double* shift) {
+  const int nz = L.n[2];
+  const int tasks = (nz + kPairPlanes - 1) / kPairPlanes;
+  const int second = 1 - first;
+  const auto first_pass = [&](int k) {
+    if (from_zero) {
+      relax_plane_from_zero(L, b, x, k, shift);
+    } else {
+      relax_plane(L, b, x, first, k);
+    }
+    fill_plane_ghosts(L, x, k);
+  };
+  for_planes(tasks, L.cells(), [&](int t) {
+    const int k0 = t * kPairPlanes;
+    const int k1 = std::min(nz, k0 + kPairPlanes);
+    for (int k = k0; k < k1; ++k) {
+      first_pass(k);
+      if (k - 1 > k0 && k - 1 < k1 - 1) {
+        relax_plane(L, b, x, second, k - 1);
+      }
+    }
+  });
+  fill_z_ghosts(L, x);
+  for_planes(tasks, 2 * L.cells() / static_cast<std::size_t>(kPairPlanes), [&](int t) {
+    const int k0 = t * kPairPlanes;
+    const int k1 = std::min(nz, k0 + kPairPlanes);
+    relax_plane(L, b, x, second, k0);
+    if (k1 - 1 != k0) {
+      relax_plane(L, b, x, second, k1 - 1);
     }
   });
   fill_ghosts(L, x);
@@ -894,43 +966,56 @@ void MultigridPoisson::coarsest_solve(const double* b, double* x) {
 
 // One V-cycle for A x = b from x = 0: symmetric (red-black before, black-red after, the
 // restriction the scaled transpose of the prolongation), so it is an SPD preconditioner.
-void MultigridPoisson::vcycle(int level, const double* b, double* x) {
+// shift (level 0 only): b -= *shift on the interior first, in the first smoothing pass.
+void MultigridPoisson::vcycle(int level, double* b, double* x, const double* shift) {
+  Level& L = levels_[static_cast<std::size_t>(level)];
   if (static_cast<std::size_t>(level) + 1 == levels_.size()) {
+    if (shift != nullptr) {
+      shift_interior(L, b, *shift);
+    }
     coarsest_solve(b, x);
     return;
   }
-  Level& L = levels_[static_cast<std::size_t>(level)];
-  if (L.line < 0) {
-    relax_points_from_zero(L, b, x);
-  } else {
-    std::fill(x, x + L.size, 0.0);
-    relax(L, b, x, 0);
-  }
-  vcycle_rest(level, b, x);
-}
-
-// The V-cycle after its first colour pass.
-void MultigridPoisson::vcycle_rest(int level, const double* b, double* x) {
-  Level& L = levels_[static_cast<std::size_t>(level)];
   Level& C = levels_[static_cast<std::size_t>(level) + 1];
-  relax(L, b, x, 1);
-  for (int s = 1; s < settings_.pre_sweeps; ++s) {
-    relax(L, b, x, 0);
+  const bool fused = settings_.fuse_colour_pairs && pair_fusable(L);
+  if (fused) {
+    relax_pair(L, b, x, 0, true, shift);
+    for (int s = 1; s < settings_.pre_sweeps; ++s) {
+      relax_pair(L, b, x, 0, false, nullptr);
+    }
+  } else {
+    if (shift != nullptr) {
+      shift_interior(L, b, *shift);
+    }
+    if (L.line < 0) {
+      relax_points_from_zero(L, b, x);
+    } else {
+      std::fill(x, x + L.size, 0.0);
+      relax(L, b, x, 0);
+    }
     relax(L, b, x, 1);
+    for (int s = 1; s < settings_.pre_sweeps; ++s) {
+      relax(L, b, x, 0);
+      relax(L, b, x, 1);
+    }
   }
   restrict_residual(L, C, b, x, C.b.data());
-  vcycle(level + 1, C.b.data(), C.x.data());
+  vcycle(level + 1, C.b.data(), C.x.data(), nullptr);
   prolong_add(L, C, C.x.data(), x);
   for (int s = 0; s < settings_.post_sweeps; ++s) {
-    relax(L, b, x, 1);
-    relax(L, b, x, 0);
+    if (fused) {
+      relax_pair(L, b, x, 1, false, nullptr);
+    } else {
+      relax(L, b, x, 1);
+      relax(L, b, x, 0);
+    }
   }
 }
 
 double MultigridPoisson::precondition(double* r, double* z, double r_sum) {
   const Level& L = levels_.front();
   if (!singular_) {
-    vcycle(0, r, z);
+    vcycle(0, r, z, nullptr);
     return 0.0;
   }
   // The V-cycle is definite on mean-zero vectors only: a residual whose constant part (round-off
@@ -939,14 +1024,7 @@ double MultigridPoisson::precondition(double* r, double* z, double r_sum) {
   const double r_mean =
       (std::isnan(r_sum) ? sum_cells(L, [&](std::size_t c, double& s) { s += r[c]; }) : r_sum) /
       static_cast<double>(L.cells());
-  if (levels_.size() > 1 && L.line < 0) {
-    // The shift rides on the first smoothing pass, which reads r anyway.
-    shift_and_relax_points_from_zero(L, r, r_mean, z);
-    vcycle_rest(0, r, z);
-  } else {
-    shift_interior(L, r, r_mean);
-    vcycle(0, r, z);
-  }
+  vcycle(0, r, z, &r_mean); // the shift rides on the first smoothing pass where it can
   // z's mean: the caller removes it in its next pass over z (z's ghosts are not read before).
   return levels_.size() > 1 ? mean_interior(L, z) : 0.0;
 }

@@ -33,6 +33,11 @@ struct MultigridPoisson::Level {
   std::array<std::array<std::vector<double>, 2>, 3> dface;
   std::vector<double> diag, inv_diag;
   std::vector<double> mass; // empty without a mass term
+  // A line-relaxed level's tridiagonal factors, per line (index ip + n_p iq) and position along
+  // it: the sub-diagonal, the Thomas pivots and multipliers, and for a periodic line the
+  // Sherman-Morrison vector; sm: per line 2 values (lo[0] / g and the denominator; for a period
+  // of 2, the determinant). They depend on the coefficients only (factor_lines).
+  std::vector<double> line_lo, line_pivot, line_mult, line_z, line_sm;
   std::vector<double> x, b; // a coarse level's correction and right-hand side
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
@@ -268,28 +273,105 @@ void thomas(int n, const double* lo, const double* d, const double* up, double* 
   }
 }
 
-// Periodic (cyclic) tridiagonal solve, n >= 3: lo[0] couples 0 to n-1 and up[n-1] couples n-1 to
-// 0. A = T + u v^T with u = (g, 0, .., up[n-1]), v = (1, 0, .., lo[0] / g), g = -d[0], and the
+// thomas() with its pivots and multipliers already computed (by thomas's own expressions, so the
+// solution is bitwise thomas's): rhs is overwritten by the solution.
+void thomas_factored(int n, const double* lo, const double* pivot, const double* mult,
+                     double* rhs) {
+  rhs[0] /= pivot[0];
+  for (int m = 1; m < n; ++m) {
+    rhs[m] = (rhs[m] - lo[m] * rhs[m - 1]) / pivot[m];
+  }
+  for (int m = n - 2; m >= 0; --m) {
+    rhs[m] -= mult[m + 1] * rhs[m + 1];
+  }
+}
+
+// Thomas's pivots and multipliers of the tridiagonal (lo, d, up), as thomas() computes them.
+void thomas_factors(int n, const double* lo, const double* d, const double* up, double* pivot,
+                    double* mult) {
+  double beta = d[0];
+  pivot[0] = beta;
+  mult[0] = 0.0;
+  for (int m = 1; m < n; ++m) {
+    mult[m] = up[m - 1] / beta;
+    beta = d[m] - lo[m] * mult[m];
+    pivot[m] = beta;
+  }
+}
+
+// The line relaxation's matrices change only with the coefficients: factor every line once per
+// set_coefficients, so a relaxation pass only substitutes.
+// A periodic (cyclic) line, n >= 3: lo[0] couples 0 to n-1 and up[n-1] couples n-1 to 0.
+// A = T + u v^T with u = (g, 0, .., up[n-1]), v = (1, 0, .., lo[0] / g), g = -d[0], and the
 // Sherman-Morrison formula x = y - (v.y) / (1 + v.z) z with T y = rhs, T z = u (Golub & Van Loan,
-// "Matrix Computations", 4th ed., §2.1.4). scratch: 3 n values.
-void cyclic_thomas(int n, const double* lo, const double* d, const double* up, double* rhs,
-                   double* scratch) {
-  double* td = scratch;
-  double* z = scratch + n;
-  double* w = scratch + 2 * n;
-  const double g = -d[0];
-  std::copy_n(d, n, td);
-  td[0] = d[0] - g;
-  td[n - 1] = d[n - 1] - lo[0] * up[n - 1] / g;
-  std::fill_n(z, n, 0.0);
-  z[0] = g;
-  z[n - 1] = up[n - 1];
-  thomas(n, lo, td, up, rhs, w);
-  thomas(n, lo, td, up, z, w);
-  const double ratio = lo[0] / g;
-  const double factor = (rhs[0] + ratio * rhs[n - 1]) / (1.0 + z[0] + ratio * z[n - 1]);
-  for (int m = 0; m < n; ++m) {
-    rhs[m] -= factor * z[m];
+// "Matrix Computations", 4th ed., §2.1.4): T's factors, z and 1 + v.z are stored per line.
+void factor_lines(Level& L) {
+  if (L.line < 0) {
+    return;
+  }
+  const int a = L.line;
+  const int p = a == 0 ? 1 : 0;
+  const int q = a == 2 ? 1 : 2;
+  const int na = L.n[a];
+  const auto len = static_cast<std::size_t>(na);
+  const std::size_t lines = L.plane_cells(a);
+  const std::size_t sa = static_cast<std::size_t>(L.s[a]);
+  const bool cyclic = L.periodic[a] && na > 2;
+  L.line_lo.assign(lines * len, 0.0);
+  L.line_pivot.assign(lines * len, 0.0);
+  L.line_mult.assign(lines * len, 0.0);
+  L.line_z.assign(cyclic ? lines * len : 0, 0.0);
+  L.line_sm.assign(2 * lines, 0.0);
+  std::vector<double> buf(5 * len);
+  double* d = buf.data();
+  double* up = d + na;
+  double* td = up + na;
+  double* w = td + na;
+  for (int iq = 0; iq < L.n[q]; ++iq) {
+    for (int ip = 0; ip < L.n[p]; ++ip) {
+      std::array<int, 3> first{};
+      first[p] = ip;
+      first[q] = iq;
+      const std::size_t base = L.at(first[0], first[1], first[2]);
+      const std::size_t line = static_cast<std::size_t>(ip) +
+                               static_cast<std::size_t>(L.n[p]) * static_cast<std::size_t>(iq);
+      double* lo = L.line_lo.data() + line * len;
+      double* pivot = L.line_pivot.data() + line * len;
+      double* mult = L.line_mult.data() + line * len;
+      for (int m = 0; m < na; ++m) {
+        const std::size_t c = base + static_cast<std::size_t>(m) * sa;
+        d[m] = L.diag[c];
+        lo[m] = -L.K[a][c];
+        up[m] = -L.K[a][c + sa];
+      }
+      if (L.periodic[a] && na == 2) {
+        // Both faces of the period join cells 0 and 1: a 2 x 2 solve (relax_lines).
+        const double off0 = lo[0] + up[0];
+        const double off1 = lo[1] + up[1];
+        pivot[0] = d[0];
+        pivot[1] = d[1];
+        mult[0] = off0;
+        mult[1] = off1;
+        L.line_sm[2 * line] = d[0] * d[1] - off0 * off1;
+      } else if (!cyclic) {
+        thomas_factors(na, lo, d, up, pivot, mult); // lo[0], up[na-1] unused (boundary faces)
+      } else {
+        // T = tridiag(lo, td, up), u = (g, 0, .., up[n-1]), z = T^-1 u.
+        const double g = -d[0];
+        std::copy_n(d, na, td);
+        td[0] = d[0] - g;
+        td[na - 1] = d[na - 1] - lo[0] * up[na - 1] / g;
+        thomas_factors(na, lo, td, up, pivot, mult);
+        double* z = L.line_z.data() + line * len;
+        std::fill_n(z, na, 0.0);
+        z[0] = g;
+        z[na - 1] = up[na - 1];
+        thomas(na, lo, td, up, z, w);
+        const double ratio = lo[0] / g;
+        L.line_sm[2 * line] = ratio;
+        L.line_sm[2 * line + 1] = 1.0 + z[0] + ratio * z[na - 1];
+      }
+    }
   }
 }
 
@@ -303,45 +385,49 @@ void relax_lines(const Level& L, const double* b, double* x, int colour) {
   const std::size_t sa = static_cast<std::size_t>(L.s[a]);
   const std::size_t sp = static_cast<std::size_t>(L.s[p]);
   const std::size_t sq = static_cast<std::size_t>(L.s[q]);
-  const double* ka = L.K[a].data();
   const double* kp = L.K[p].data();
   const double* kq = L.K[q].data();
-  const bool cyclic = L.periodic[a] && na > 1;
+  const auto len = static_cast<std::size_t>(na);
+  const bool cyclic = L.periodic[a] && na > 2;
+  const bool pair = L.periodic[a] && na == 2;
   for_planes(L.n[q], 4 * L.cells(), [&](int iq) {
-    std::vector<double> buf(static_cast<std::size_t>(7 * na));
-    double* lo = buf.data();
-    double* d = lo + na;
-    double* up = d + na;
-    double* rhs = up + na;
-    double* scratch = rhs + na;
+    std::vector<double> rhs(len);
     for (int ip = (colour + iq) & 1; ip < L.n[p]; ip += 2) {
       std::array<int, 3> first{};
       first[p] = ip;
       first[q] = iq;
       const std::size_t base = L.at(first[0], first[1], first[2]);
+      const std::size_t line = static_cast<std::size_t>(ip) +
+                               static_cast<std::size_t>(L.n[p]) * static_cast<std::size_t>(iq);
+      const double* lo = L.line_lo.data() + line * len;
+      const double* pivot = L.line_pivot.data() + line * len;
+      const double* mult = L.line_mult.data() + line * len;
       for (int m = 0; m < na; ++m) {
         const std::size_t c = base + static_cast<std::size_t>(m) * sa;
-        rhs[m] = b[c] + kp[c] * x[c - sp] + kp[c + sp] * x[c + sp] + kq[c] * x[c - sq] +
-                 kq[c + sq] * x[c + sq];
-        d[m] = L.diag[c];
-        lo[m] = -ka[c];
-        up[m] = -ka[c + sa];
+        rhs[static_cast<std::size_t>(m)] = b[c] + kp[c] * x[c - sp] + kp[c + sp] * x[c + sp] +
+                                           kq[c] * x[c - sq] + kq[c + sq] * x[c + sq];
       }
-      if (!cyclic || na == 1) {
-        thomas(na, lo, d, up, rhs, scratch); // lo[0], up[na-1] unused (boundary faces)
-      } else if (na == 2) {
-        // Both faces of the period join cells 0 and 1.
-        const double off0 = lo[0] + up[0];
-        const double off1 = lo[1] + up[1];
-        const double det = d[0] * d[1] - off0 * off1;
+      if (pair) {
+        // Both faces of the period join cells 0 and 1 (factor_lines: diagonal in pivot, the two
+        // couplings in mult, the determinant in line_sm).
+        const double det = L.line_sm[2 * line];
         const double r0 = rhs[0];
-        rhs[0] = (d[1] * r0 - off0 * rhs[1]) / det;
-        rhs[1] = (d[0] * rhs[1] - off1 * r0) / det;
+        rhs[0] = (pivot[1] * r0 - mult[0] * rhs[1]) / det;
+        rhs[1] = (pivot[0] * rhs[1] - mult[1] * r0) / det;
       } else {
-        cyclic_thomas(na, lo, d, up, rhs, scratch);
+        thomas_factored(na, lo, pivot, mult, rhs.data());
+        if (cyclic) {
+          // Sherman-Morrison (factor_lines): x = y - (v.y) / (1 + v.z) z.
+          const double* z = L.line_z.data() + line * len;
+          const double ratio = L.line_sm[2 * line];
+          const double factor = (rhs[0] + ratio * rhs[len - 1]) / L.line_sm[2 * line + 1];
+          for (std::size_t m = 0; m < len; ++m) {
+            rhs[m] -= factor * z[m];
+          }
+        }
       }
       for (int m = 0; m < na; ++m) {
-        x[base + static_cast<std::size_t>(m) * sa] = rhs[m];
+        x[base + static_cast<std::size_t>(m) * sa] = rhs[static_cast<std::size_t>(m)];
       }
     }
   });
@@ -539,6 +625,7 @@ void build_diagonal(Level& L) {
       }
     }
   });
+  factor_lines(L);
 }
 
 // Coarse face coefficients: the arithmetic mean of the fine faces that make up the coarse face

@@ -8,7 +8,9 @@
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 namespace cfddem::fluid {
 
@@ -515,9 +517,8 @@ void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const do
   }
 }
 
-// Planes per task of a fused colour pair (relax_pair); a fixed number, so the tasks and their
-// order do not depend on the thread count.
-constexpr int kPairPlanes = 8;
+// Fewest planes per task of a fused colour pair (relax_pair).
+constexpr int kMinPairPlanes = 4;
 
 // relax_pair needs a z-neighbour of the other colour on both sides: an odd period along z puts
 // cells of one colour next to each other across the seam.
@@ -530,7 +531,7 @@ bool pair_fusable(const Level& L) {
 // cache (the second pass reads the first colour on planes k - 2 .. k only). Every value is computed
 // from the same inputs as by relax_points(first) followed by relax_points(1 - first), so the
 // result is bitwise theirs:
-// - a task owns kPairPlanes planes; it relaxes the first colour on all of them and the second
+// - a task owns a block of planes; it relaxes the first colour on all of them and the second
 //   colour on its inner planes, each after the first colour of the plane above (whose first pass
 //   read the second colour's old values);
 // - then the periodic z ghosts get the new first colour, and the second colour is relaxed on the
@@ -538,11 +539,18 @@ bool pair_fusable(const Level& L) {
 // - x and y ghosts of a plane are refreshed right after its first pass, as fill_ghosts after the
 //   whole pass would (the second pass reads the first colour's new images; at an odd x or y
 //   period the same colour's old one, as relax_points does).
+// Since no value depends on where the blocks end, their number may follow the thread count:
+// one block per thread (at least kMinPairPlanes planes each) leaves the fewest edge planes, which
+// are relaxed from memory rather than from cache (on one thread only the first and the last).
 // from_zero: the first pass is relax_points_from_zero's (first = 0), after b -= *shift if given.
 void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
                 const double* shift) {
   const int nz = L.n[2];
-  const int tasks = (nz + kPairPlanes - 1) / kPairPlanes;
+  const int threads = static_cast<int>(
+      std::min(static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
+               tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+  const int tasks = std::max(1, std::min(threads, nz / kMinPairPlanes));
+  const int block = (nz + tasks - 1) / tasks;
   const int second = 1 - first;
   const auto first_pass = [&](int k) {
     if (from_zero) {
@@ -553,8 +561,8 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
     fill_plane_ghosts(L, x, k);
   };
   for_planes(tasks, L.cells(), [&](int t) {
-    const int k0 = t * kPairPlanes;
-    const int k1 = std::min(nz, k0 + kPairPlanes);
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
     for (int k = k0; k < k1; ++k) {
       first_pass(k);
       if (k - 1 > k0 && k - 1 < k1 - 1) {
@@ -563,9 +571,12 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
     }
   });
   fill_z_ghosts(L, x);
-  for_planes(tasks, 2 * L.cells() / static_cast<std::size_t>(kPairPlanes), [&](int t) {
-    const int k0 = t * kPairPlanes;
-    const int k1 = std::min(nz, k0 + kPairPlanes);
+  for_planes(tasks, 2 * L.cells() / static_cast<std::size_t>(block), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    if (k0 == k1) {
+      return;
+    }
     relax_plane(L, b, x, second, k0);
     if (k1 - 1 != k0) {
       relax_plane(L, b, x, second, k1 - 1);

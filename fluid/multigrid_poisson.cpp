@@ -517,8 +517,17 @@ void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const do
   }
 }
 
-// Fewest planes per task of a fused colour pair (relax_pair).
+// Fewest planes per task of a fused sweep (relax_pair, update_and_apply).
 constexpr int kMinPairPlanes = 4;
+
+// {tasks, planes per task} of a fused sweep over nz planes: one block per thread.
+std::array<int, 2> plane_blocks(int nz) {
+  const int threads = static_cast<int>(
+      std::min(static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
+               tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+  const int tasks = std::max(1, std::min(threads, nz / kMinPairPlanes));
+  return {tasks, (nz + tasks - 1) / tasks};
+}
 
 // relax_pair needs a z-neighbour of the other colour on both sides: an odd period along z puts
 // cells of one colour next to each other across the seam.
@@ -546,11 +555,7 @@ bool pair_fusable(const Level& L) {
 void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
                 const double* shift) {
   const int nz = L.n[2];
-  const int threads = static_cast<int>(
-      std::min(static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
-               tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
-  const int tasks = std::max(1, std::min(threads, nz / kMinPairPlanes));
-  const int block = (nz + tasks - 1) / tasks;
+  const auto [tasks, block] = plane_blocks(nz);
   const int second = 1 - first;
   const auto first_pass = [&](int k) {
     if (from_zero) {
@@ -583,6 +588,69 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
     }
   });
   fill_ghosts(L, x);
+}
+
+// CG's new direction p = z + beta p (p = z when `first`) and q = A p with p.q, in one sweep over
+// the planes: q on plane k - 1 right after p on plane k, while p's planes k - 2 .. k are in cache.
+// Blocks of planes as relax_pair's: a block's inner planes in the sweep; after every block's p
+// (and the z ghosts), its edge planes. Each value, and each plane's partial sum of p.q, is
+// computed as by the two separate loops (summed in plane order): bitwise theirs.
+double update_and_apply(const Level& L, const double* z, double beta, bool first, double* p,
+                        double* q) {
+  const int nz = L.n[2];
+  const auto [tasks, block] = plane_blocks(nz);
+  std::vector<double> partial(static_cast<std::size_t>(nz), 0.0);
+  const auto update = [&](int k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      const std::size_t c0 = L.at(0, j, k);
+      if (first) {
+        std::copy_n(z + c0, L.n[0], p + c0);
+      } else {
+        for (std::size_t c = c0; c < c0 + static_cast<std::size_t>(L.n[0]); ++c) {
+          p[c] = z[c] + beta * p[c];
+        }
+      }
+    }
+    fill_plane_ghosts(L, p, k);
+  };
+  const auto apply = [&](int k) {
+    double sum = 0.0;
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i, ++c) {
+        q[c] = apply_at(L, p, c);
+        sum += p[c] * q[c];
+      }
+    }
+    partial[static_cast<std::size_t>(k)] = sum;
+  };
+  for_planes(tasks, L.cells(), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    for (int k = k0; k < k1; ++k) {
+      update(k);
+      if (k - 1 > k0 && k - 1 < k1 - 1) {
+        apply(k - 1);
+      }
+    }
+  });
+  fill_z_ghosts(L, p);
+  for_planes(tasks, 2 * L.cells() / static_cast<std::size_t>(block), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    if (k0 == k1) {
+      return;
+    }
+    apply(k0);
+    if (k1 - 1 != k0) {
+      apply(k1 - 1);
+    }
+  });
+  double total = 0.0;
+  for (const double v : partial) {
+    total += v;
+  }
+  return total;
 }
 
 // x_fine += x_coarse of the parent cell (piecewise constant).
@@ -1180,13 +1248,11 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
       z_[c] -= z_mean;
       s += r_[c] * z_[c];
     });
-    p_ = z_;
+    bool restart = true; // p = z
+    double beta = 0.0;
     while (it < max_iterations) {
-      fill_ghosts(L, p_.data());
-      const double pq = sum_cells(L, [&](std::size_t c, double& s) {
-        q_[c] = apply_at(L, p_.data(), c);
-        s += p_[c] * q_[c];
-      });
+      const double pq = update_and_apply(L, z_.data(), beta, restart, p_.data(), q_.data());
+      restart = false;
       if (!(pq > 0.0) || !(rz > 0.0)) {
         break;
       }
@@ -1223,9 +1289,8 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
         }
         return s;
       });
-      const double beta = (sums[0] - sums[1]) / rz;
+      beta = (sums[0] - sums[1]) / rz;
       rz = sums[0];
-      for_cells(L, [&](std::size_t c) { p_[c] = z_[c] + beta * p_[c]; });
     }
     // The recursive residual drifts from b - A x: judge (and restart from) the true one.
     fill_ghosts(L, x_.data());

@@ -447,40 +447,47 @@ void relax(const Level& L, const double* b, double* x, int colour) {
 // Coarse right-hand side: the mean of the fine residual b - A x over each coarse cell's children
 // (the transpose of piecewise-constant prolongation, scaled by 1 / children), the residual
 // computed on the fly (ghosts of x filled).
-void restrict_residual(const Level& F, const Level& C, const double* b, const double* x,
-                       double* bc) {
+// Coarse plane k of the restriction; row, acc: F.n[0] and C.n[0] values of scratch.
+void restrict_plane(const Level& F, const Level& C, const double* b, const double* x, double* bc,
+                    int k, double* row, double* acc) {
   const auto& q = F.ratio;
   const double inv = 1.0 / (q[0] * q[1] * q[2]);
-  for_planes(C.n[2], F.cells(), [&](int k) {
-    // Row by row: the fine residual of a whole row (a loop the compiler vectorises), then its
-    // pairs (or cells) added into the coarse row.
-    std::vector<double> row(static_cast<std::size_t>(F.n[0]));
-    std::vector<double> acc(static_cast<std::size_t>(C.n[0]));
-    for (int j = 0; j < C.n[1]; ++j) {
-      std::fill(acc.begin(), acc.end(), 0.0);
-      for (int dk = 0; dk < q[2]; ++dk) {
-        for (int dj = 0; dj < q[1]; ++dj) {
-          const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
-          for (int i = 0; i < F.n[0]; ++i) {
-            const std::size_t c = f0 + static_cast<std::size_t>(i);
-            row[static_cast<std::size_t>(i)] = b[c] - apply_at(F, x, c);
+  const auto nc = static_cast<std::size_t>(C.n[0]);
+  // Row by row: the fine residual of a whole row (a loop the compiler vectorises), then its
+  // pairs (or cells) added into the coarse row.
+  for (int j = 0; j < C.n[1]; ++j) {
+    std::fill_n(acc, nc, 0.0);
+    for (int dk = 0; dk < q[2]; ++dk) {
+      for (int dj = 0; dj < q[1]; ++dj) {
+        const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
+        for (int i = 0; i < F.n[0]; ++i) {
+          const std::size_t c = f0 + static_cast<std::size_t>(i);
+          row[static_cast<std::size_t>(i)] = b[c] - apply_at(F, x, c);
+        }
+        if (q[0] == 2) {
+          for (std::size_t i = 0; i < nc; ++i) {
+            acc[i] += row[2 * i] + row[2 * i + 1];
           }
-          if (q[0] == 2) {
-            for (std::size_t i = 0; i < acc.size(); ++i) {
-              acc[i] += row[2 * i] + row[2 * i + 1];
-            }
-          } else {
-            for (std::size_t i = 0; i < acc.size(); ++i) {
-              acc[i] += row[i];
-            }
+        } else {
+          for (std::size_t i = 0; i < nc; ++i) {
+            acc[i] += row[i];
           }
         }
       }
-      double* out = bc + C.at(0, j, k);
-      for (std::size_t i = 0; i < acc.size(); ++i) {
-        out[i] = acc[i] * inv;
-      }
     }
+    double* out = bc + C.at(0, j, k);
+    for (std::size_t i = 0; i < nc; ++i) {
+      out[i] = acc[i] * inv;
+    }
+  }
+}
+
+void restrict_residual(const Level& F, const Level& C, const double* b, const double* x,
+                       double* bc) {
+  for_planes(C.n[2], F.cells(), [&](int k) {
+    std::vector<double> row(static_cast<std::size_t>(F.n[0]));
+    std::vector<double> acc(static_cast<std::size_t>(C.n[0]));
+    restrict_plane(F, C, b, x, bc, k, row.data(), acc.data());
   });
 }
 
@@ -552,11 +559,16 @@ bool pair_fusable(const Level& L) {
 // one block per thread (at least kMinPairPlanes planes each) leaves the fewest edge planes, which
 // are relaxed from memory rather than from cache (on one thread only the first and the last).
 // from_zero: the first pass is relax_points_from_zero's (first = 0), after b -= *shift if given.
+// coarse (optional): also restrict the residual to coarse->b (restrict_residual, bitwise) in the
+// same sweep, for each coarse plane whose fine planes and their neighbours are final inside the
+// block (a plane's x and y ghosts refreshed after its second pass); the others after the pair.
 void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
-                const double* shift) {
+                const double* shift, Level* coarse = nullptr) {
   const int nz = L.n[2];
   const auto [tasks, block] = plane_blocks(nz);
   const int second = 1 - first;
+  const int qz = L.ratio[2];
+  std::vector<char> restricted(coarse != nullptr ? static_cast<std::size_t>(coarse->n[2]) : 0, 0);
   const auto first_pass = [&](int k) {
     if (from_zero) {
       relax_plane_from_zero(L, b, x, k, shift);
@@ -568,10 +580,24 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
   for_planes(tasks, L.cells(), [&](int t) {
     const int k0 = std::min(nz, t * block);
     const int k1 = std::min(nz, k0 + block);
+    std::vector<double> row(coarse != nullptr ? static_cast<std::size_t>(L.n[0]) : 0);
+    std::vector<double> acc(coarse != nullptr ? static_cast<std::size_t>(coarse->n[0]) : 0);
     for (int k = k0; k < k1; ++k) {
       first_pass(k);
       if (k - 1 > k0 && k - 1 < k1 - 1) {
         relax_plane(L, b, x, second, k - 1);
+        if (coarse == nullptr) {
+          continue;
+        }
+        fill_plane_ghosts(L, x, k - 1);
+        // Fine planes up to k - 1 are final: the coarse plane ending at fine plane k - 2, if
+        // its first fine plane's lower neighbour is final too (an inner plane of this block).
+        const int m = k - 2;
+        const int kc = m / qz;
+        if ((m + 1) % qz == 0 && kc * qz >= k0 + 2) {
+          restrict_plane(L, *coarse, b, x, coarse->b.data(), kc, row.data(), acc.data());
+          restricted[static_cast<std::size_t>(kc)] = 1;
+        }
       }
     }
   });
@@ -588,6 +614,15 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
     }
   });
   fill_ghosts(L, x);
+  if (coarse != nullptr) {
+    for_planes(coarse->n[2], L.cells(), [&](int kc) {
+      if (restricted[static_cast<std::size_t>(kc)] == 0) {
+        std::vector<double> row(static_cast<std::size_t>(L.n[0]));
+        std::vector<double> acc(static_cast<std::size_t>(coarse->n[0]));
+        restrict_plane(L, *coarse, b, x, coarse->b.data(), kc, row.data(), acc.data());
+      }
+    });
+  }
 }
 
 // CG's new direction p = z + beta p (p = z when `first`) and q = A p with p.q, in one sweep over
@@ -1145,9 +1180,11 @@ void MultigridPoisson::vcycle(int level, double* b, double* x, const double* shi
   Level& C = levels_[static_cast<std::size_t>(level) + 1];
   const bool fused = settings_.fuse_colour_pairs && pair_fusable(L);
   if (fused) {
-    relax_pair(L, b, x, 0, true, shift);
-    for (int s = 1; s < settings_.pre_sweeps; ++s) {
-      relax_pair(L, b, x, 0, false, nullptr);
+    // The last pre-smoothing pair restricts the residual as it goes.
+    const int pairs = settings_.pre_sweeps;
+    relax_pair(L, b, x, 0, true, shift, pairs == 1 ? &C : nullptr);
+    for (int s = 1; s < pairs; ++s) {
+      relax_pair(L, b, x, 0, false, nullptr, s + 1 == pairs ? &C : nullptr);
     }
   } else {
     if (shift != nullptr) {
@@ -1165,7 +1202,9 @@ void MultigridPoisson::vcycle(int level, double* b, double* x, const double* shi
       relax(L, b, x, 1);
     }
   }
-  restrict_residual(L, C, b, x, C.b.data());
+  if (!fused) {
+    restrict_residual(L, C, b, x, C.b.data());
+  }
   vcycle(level + 1, C.b.data(), C.x.data(), nullptr);
   prolong_add(L, C, C.x.data(), x);
   for (int s = 0; s < settings_.post_sweeps; ++s) {

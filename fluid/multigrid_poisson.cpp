@@ -8,7 +8,9 @@
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 namespace cfddem::fluid {
 
@@ -33,6 +35,11 @@ struct MultigridPoisson::Level {
   std::array<std::array<std::vector<double>, 2>, 3> dface;
   std::vector<double> diag, inv_diag;
   std::vector<double> mass; // empty without a mass term
+  // A line-relaxed level's tridiagonal factors, per line (index ip + n_p iq) and position along
+  // it: the sub-diagonal, the Thomas pivots and multipliers, and for a periodic line the
+  // Sherman-Morrison vector; sm: per line 2 values (lo[0] / g and the denominator; for a period
+  // of 2, the determinant). They depend on the coefficients only (factor_lines).
+  std::vector<double> line_lo, line_pivot, line_mult, line_z, line_sm;
   std::vector<double> x, b; // a coarse level's correction and right-hand side
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
@@ -152,33 +159,42 @@ template <class F> double sum_cells(const Level& L, F&& f) {
   });
 }
 
-// Periodic images into the ghost layer (faces only: no kernel reads edges or corners).
-void fill_ghosts(const Level& L, double* v) {
+// Periodic images along x and y into the ghost layer of plane k.
+void fill_plane_ghosts(const Level& L, double* v, int k) {
   const auto& n = L.n;
-  const bool px = L.periodic[0] && n[0] > 1;
-  const bool py = L.periodic[1] && n[1] > 1;
-  if (px || py) {
-    for_planes(n[2], 2 * static_cast<std::size_t>((n[0] + n[1]) * n[2]), [&](int k) {
-      if (px) {
-        for (int j = 0; j < n[1]; ++j) {
-          v[L.at(-1, j, k)] = v[L.at(n[0] - 1, j, k)];
-          v[L.at(n[0], j, k)] = v[L.at(0, j, k)];
-        }
-      }
-      if (py) {
-        for (int i = 0; i < n[0]; ++i) {
-          v[L.at(i, -1, k)] = v[L.at(i, n[1] - 1, k)];
-          v[L.at(i, n[1], k)] = v[L.at(i, 0, k)];
-        }
-      }
-    });
+  if (L.periodic[0] && n[0] > 1) {
+    for (int j = 0; j < n[1]; ++j) {
+      v[L.at(-1, j, k)] = v[L.at(n[0] - 1, j, k)];
+      v[L.at(n[0], j, k)] = v[L.at(0, j, k)];
+    }
   }
+  if (L.periodic[1] && n[1] > 1) {
+    for (int i = 0; i < n[0]; ++i) {
+      v[L.at(i, -1, k)] = v[L.at(i, n[1] - 1, k)];
+      v[L.at(i, n[1], k)] = v[L.at(i, 0, k)];
+    }
+  }
+}
+
+// Periodic images along z: the ghost planes -1 and n_z.
+void fill_z_ghosts(const Level& L, double* v) {
+  const auto& n = L.n;
   if (L.periodic[2] && n[2] > 1) {
     for (int j = 0; j < n[1]; ++j) {
       std::copy_n(v + L.at(0, j, n[2] - 1), n[0], v + L.at(0, j, -1));
       std::copy_n(v + L.at(0, j, 0), n[0], v + L.at(0, j, n[2]));
     }
   }
+}
+
+// Periodic images into the ghost layer (faces only: no kernel reads edges or corners).
+void fill_ghosts(const Level& L, double* v) {
+  const auto& n = L.n;
+  if ((L.periodic[0] && n[0] > 1) || (L.periodic[1] && n[1] > 1)) {
+    for_planes(n[2], 2 * static_cast<std::size_t>((n[0] + n[1]) * n[2]),
+               [&](int k) { fill_plane_ghosts(L, v, k); });
+  }
+  fill_z_ghosts(L, v);
 }
 
 // (A x)_c = diag_c x_c - sum over faces K_f x_neighbour (ghosts of x filled).
@@ -200,27 +216,47 @@ double residual(const Level& L, const double* b, const double* x, double* r) {
   });
 }
 
+// The same, returning {|r|^2, sum of r} (the sum as mean_interior adds it: plane by plane).
+std::array<double, 2> residual_and_sum(const Level& L, const double* b, const double* x,
+                                       double* r) {
+  return sum_planes_n<2>(L.n[2], L.cells(), [&](int k) {
+    std::array<double, 2> s{};
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i, ++c) {
+        r[c] = b[c] - apply_at(L, x, c);
+        s[0] += r[c] * r[c];
+        s[1] += r[c];
+      }
+    }
+    return s;
+  });
+}
+
 // Gauss-Seidel on the cells of one colour ((i + j + k) even or odd): they depend only on the
 // other colour, except across the seam of an odd periodic axis, where the neighbour is read from
 // the ghost (its value before this pass: a Jacobi step there, still symmetric and convergent).
-void relax_points(const Level& L, const double* b, double* x, int colour) {
+// The cells of one colour on plane k.
+inline void relax_plane(const Level& L, const double* b, double* x, int colour, int k) {
   const std::size_t sy = static_cast<std::size_t>(L.s[1]);
   const std::size_t sz = static_cast<std::size_t>(L.s[2]);
   const double* kx = L.K[0].data();
   const double* ky = L.K[1].data();
   const double* kz = L.K[2].data();
   const double* id = L.inv_diag.data();
-  for_planes(L.n[2], L.cells(), [&](int k) {
-    for (int j = 0; j < L.n[1]; ++j) {
-      const int i0 = (colour + j + k) & 1;
-      std::size_t c = L.at(i0, j, k);
-      for (int i = i0; i < L.n[0]; i += 2, c += 2) {
-        x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
-                ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
-               id[c];
-      }
+  for (int j = 0; j < L.n[1]; ++j) {
+    const int i0 = (colour + j + k) & 1;
+    std::size_t c = L.at(i0, j, k);
+    for (int i = i0; i < L.n[0]; i += 2, c += 2) {
+      x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
+              ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
+             id[c];
     }
-  });
+  }
+}
+
+void relax_points(const Level& L, const double* b, double* x, int colour) {
+  for_planes(L.n[2], L.cells(), [&](int k) { relax_plane(L, b, x, colour, k); });
   fill_ghosts(L, x);
 }
 
@@ -239,28 +275,105 @@ void thomas(int n, const double* lo, const double* d, const double* up, double* 
   }
 }
 
-// Periodic (cyclic) tridiagonal solve, n >= 3: lo[0] couples 0 to n-1 and up[n-1] couples n-1 to
-// 0. A = T + u v^T with u = (g, 0, .., up[n-1]), v = (1, 0, .., lo[0] / g), g = -d[0], and the
+// thomas() with its pivots and multipliers already computed (by thomas's own expressions, so the
+// solution is bitwise thomas's): rhs is overwritten by the solution.
+void thomas_factored(int n, const double* lo, const double* pivot, const double* mult,
+                     double* rhs) {
+  rhs[0] /= pivot[0];
+  for (int m = 1; m < n; ++m) {
+    rhs[m] = (rhs[m] - lo[m] * rhs[m - 1]) / pivot[m];
+  }
+  for (int m = n - 2; m >= 0; --m) {
+    rhs[m] -= mult[m + 1] * rhs[m + 1];
+  }
+}
+
+// Thomas's pivots and multipliers of the tridiagonal (lo, d, up), as thomas() computes them.
+void thomas_factors(int n, const double* lo, const double* d, const double* up, double* pivot,
+                    double* mult) {
+  double beta = d[0];
+  pivot[0] = beta;
+  mult[0] = 0.0;
+  for (int m = 1; m < n; ++m) {
+    mult[m] = up[m - 1] / beta;
+    beta = d[m] - lo[m] * mult[m];
+    pivot[m] = beta;
+  }
+}
+
+// The line relaxation's matrices change only with the coefficients: factor every line once per
+// set_coefficients, so a relaxation pass only substitutes.
+// A periodic (cyclic) line, n >= 3: lo[0] couples 0 to n-1 and up[n-1] couples n-1 to 0.
+// A = T + u v^T with u = (g, 0, .., up[n-1]), v = (1, 0, .., lo[0] / g), g = -d[0], and the
 // Sherman-Morrison formula x = y - (v.y) / (1 + v.z) z with T y = rhs, T z = u (Golub & Van Loan,
-// "Matrix Computations", 4th ed., §2.1.4). scratch: 3 n values.
-void cyclic_thomas(int n, const double* lo, const double* d, const double* up, double* rhs,
-                   double* scratch) {
-  double* td = scratch;
-  double* z = scratch + n;
-  double* w = scratch + 2 * n;
-  const double g = -d[0];
-  std::copy_n(d, n, td);
-  td[0] = d[0] - g;
-  td[n - 1] = d[n - 1] - lo[0] * up[n - 1] / g;
-  std::fill_n(z, n, 0.0);
-  z[0] = g;
-  z[n - 1] = up[n - 1];
-  thomas(n, lo, td, up, rhs, w);
-  thomas(n, lo, td, up, z, w);
-  const double ratio = lo[0] / g;
-  const double factor = (rhs[0] + ratio * rhs[n - 1]) / (1.0 + z[0] + ratio * z[n - 1]);
-  for (int m = 0; m < n; ++m) {
-    rhs[m] -= factor * z[m];
+// "Matrix Computations", 4th ed., §2.1.4): T's factors, z and 1 + v.z are stored per line.
+void factor_lines(Level& L) {
+  if (L.line < 0) {
+    return;
+  }
+  const int a = L.line;
+  const int p = a == 0 ? 1 : 0;
+  const int q = a == 2 ? 1 : 2;
+  const int na = L.n[a];
+  const auto len = static_cast<std::size_t>(na);
+  const std::size_t lines = L.plane_cells(a);
+  const std::size_t sa = static_cast<std::size_t>(L.s[a]);
+  const bool cyclic = L.periodic[a] && na > 2;
+  L.line_lo.assign(lines * len, 0.0);
+  L.line_pivot.assign(lines * len, 0.0);
+  L.line_mult.assign(lines * len, 0.0);
+  L.line_z.assign(cyclic ? lines * len : 0, 0.0);
+  L.line_sm.assign(2 * lines, 0.0);
+  std::vector<double> buf(5 * len);
+  double* d = buf.data();
+  double* up = d + na;
+  double* td = up + na;
+  double* w = td + na;
+  for (int iq = 0; iq < L.n[q]; ++iq) {
+    for (int ip = 0; ip < L.n[p]; ++ip) {
+      std::array<int, 3> first{};
+      first[p] = ip;
+      first[q] = iq;
+      const std::size_t base = L.at(first[0], first[1], first[2]);
+      const std::size_t line = static_cast<std::size_t>(ip) +
+                               static_cast<std::size_t>(L.n[p]) * static_cast<std::size_t>(iq);
+      double* lo = L.line_lo.data() + line * len;
+      double* pivot = L.line_pivot.data() + line * len;
+      double* mult = L.line_mult.data() + line * len;
+      for (int m = 0; m < na; ++m) {
+        const std::size_t c = base + static_cast<std::size_t>(m) * sa;
+        d[m] = L.diag[c];
+        lo[m] = -L.K[a][c];
+        up[m] = -L.K[a][c + sa];
+      }
+      if (L.periodic[a] && na == 2) {
+        // Both faces of the period join cells 0 and 1: a 2 x 2 solve (relax_lines).
+        const double off0 = lo[0] + up[0];
+        const double off1 = lo[1] + up[1];
+        pivot[0] = d[0];
+        pivot[1] = d[1];
+        mult[0] = off0;
+        mult[1] = off1;
+        L.line_sm[2 * line] = d[0] * d[1] - off0 * off1;
+      } else if (!cyclic) {
+        thomas_factors(na, lo, d, up, pivot, mult); // lo[0], up[na-1] unused (boundary faces)
+      } else {
+        // T = tridiag(lo, td, up), u = (g, 0, .., up[n-1]), z = T^-1 u.
+        const double g = -d[0];
+        std::copy_n(d, na, td);
+        td[0] = d[0] - g;
+        td[na - 1] = d[na - 1] - lo[0] * up[na - 1] / g;
+        thomas_factors(na, lo, td, up, pivot, mult);
+        double* z = L.line_z.data() + line * len;
+        std::fill_n(z, na, 0.0);
+        z[0] = g;
+        z[na - 1] = up[na - 1];
+        thomas(na, lo, td, up, z, w);
+        const double ratio = lo[0] / g;
+        L.line_sm[2 * line] = ratio;
+        L.line_sm[2 * line + 1] = 1.0 + z[0] + ratio * z[na - 1];
+      }
+    }
   }
 }
 
@@ -274,45 +387,49 @@ void relax_lines(const Level& L, const double* b, double* x, int colour) {
   const std::size_t sa = static_cast<std::size_t>(L.s[a]);
   const std::size_t sp = static_cast<std::size_t>(L.s[p]);
   const std::size_t sq = static_cast<std::size_t>(L.s[q]);
-  const double* ka = L.K[a].data();
   const double* kp = L.K[p].data();
   const double* kq = L.K[q].data();
-  const bool cyclic = L.periodic[a] && na > 1;
+  const auto len = static_cast<std::size_t>(na);
+  const bool cyclic = L.periodic[a] && na > 2;
+  const bool pair = L.periodic[a] && na == 2;
   for_planes(L.n[q], 4 * L.cells(), [&](int iq) {
-    std::vector<double> buf(static_cast<std::size_t>(7 * na));
-    double* lo = buf.data();
-    double* d = lo + na;
-    double* up = d + na;
-    double* rhs = up + na;
-    double* scratch = rhs + na;
+    std::vector<double> rhs(len);
     for (int ip = (colour + iq) & 1; ip < L.n[p]; ip += 2) {
       std::array<int, 3> first{};
       first[p] = ip;
       first[q] = iq;
       const std::size_t base = L.at(first[0], first[1], first[2]);
+      const std::size_t line = static_cast<std::size_t>(ip) +
+                               static_cast<std::size_t>(L.n[p]) * static_cast<std::size_t>(iq);
+      const double* lo = L.line_lo.data() + line * len;
+      const double* pivot = L.line_pivot.data() + line * len;
+      const double* mult = L.line_mult.data() + line * len;
       for (int m = 0; m < na; ++m) {
         const std::size_t c = base + static_cast<std::size_t>(m) * sa;
-        rhs[m] = b[c] + kp[c] * x[c - sp] + kp[c + sp] * x[c + sp] + kq[c] * x[c - sq] +
-                 kq[c + sq] * x[c + sq];
-        d[m] = L.diag[c];
-        lo[m] = -ka[c];
-        up[m] = -ka[c + sa];
+        rhs[static_cast<std::size_t>(m)] = b[c] + kp[c] * x[c - sp] + kp[c + sp] * x[c + sp] +
+                                           kq[c] * x[c - sq] + kq[c + sq] * x[c + sq];
       }
-      if (!cyclic || na == 1) {
-        thomas(na, lo, d, up, rhs, scratch); // lo[0], up[na-1] unused (boundary faces)
-      } else if (na == 2) {
-        // Both faces of the period join cells 0 and 1.
-        const double off0 = lo[0] + up[0];
-        const double off1 = lo[1] + up[1];
-        const double det = d[0] * d[1] - off0 * off1;
+      if (pair) {
+        // Both faces of the period join cells 0 and 1 (factor_lines: diagonal in pivot, the two
+        // couplings in mult, the determinant in line_sm).
+        const double det = L.line_sm[2 * line];
         const double r0 = rhs[0];
-        rhs[0] = (d[1] * r0 - off0 * rhs[1]) / det;
-        rhs[1] = (d[0] * rhs[1] - off1 * r0) / det;
+        rhs[0] = (pivot[1] * r0 - mult[0] * rhs[1]) / det;
+        rhs[1] = (pivot[0] * rhs[1] - mult[1] * r0) / det;
       } else {
-        cyclic_thomas(na, lo, d, up, rhs, scratch);
+        thomas_factored(na, lo, pivot, mult, rhs.data());
+        if (cyclic) {
+          // Sherman-Morrison (factor_lines): x = y - (v.y) / (1 + v.z) z.
+          const double* z = L.line_z.data() + line * len;
+          const double ratio = L.line_sm[2 * line];
+          const double factor = (rhs[0] + ratio * rhs[len - 1]) / L.line_sm[2 * line + 1];
+          for (std::size_t m = 0; m < len; ++m) {
+            rhs[m] -= factor * z[m];
+          }
+        }
       }
       for (int m = 0; m < na; ++m) {
-        x[base + static_cast<std::size_t>(m) * sa] = rhs[m];
+        x[base + static_cast<std::size_t>(m) * sa] = rhs[static_cast<std::size_t>(m)];
       }
     }
   });
@@ -330,40 +447,47 @@ void relax(const Level& L, const double* b, double* x, int colour) {
 // Coarse right-hand side: the mean of the fine residual b - A x over each coarse cell's children
 // (the transpose of piecewise-constant prolongation, scaled by 1 / children), the residual
 // computed on the fly (ghosts of x filled).
-void restrict_residual(const Level& F, const Level& C, const double* b, const double* x,
-                       double* bc) {
+// Coarse plane k of the restriction; row, acc: F.n[0] and C.n[0] values of scratch.
+void restrict_plane(const Level& F, const Level& C, const double* b, const double* x, double* bc,
+                    int k, double* row, double* acc) {
   const auto& q = F.ratio;
   const double inv = 1.0 / (q[0] * q[1] * q[2]);
-  for_planes(C.n[2], F.cells(), [&](int k) {
-    // Row by row: the fine residual of a whole row (a loop the compiler vectorises), then its
-    // pairs (or cells) added into the coarse row.
-    std::vector<double> row(static_cast<std::size_t>(F.n[0]));
-    std::vector<double> acc(static_cast<std::size_t>(C.n[0]));
-    for (int j = 0; j < C.n[1]; ++j) {
-      std::fill(acc.begin(), acc.end(), 0.0);
-      for (int dk = 0; dk < q[2]; ++dk) {
-        for (int dj = 0; dj < q[1]; ++dj) {
-          const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
-          for (int i = 0; i < F.n[0]; ++i) {
-            const std::size_t c = f0 + static_cast<std::size_t>(i);
-            row[static_cast<std::size_t>(i)] = b[c] - apply_at(F, x, c);
+  const auto nc = static_cast<std::size_t>(C.n[0]);
+  // Row by row: the fine residual of a whole row (a loop the compiler vectorises), then its
+  // pairs (or cells) added into the coarse row.
+  for (int j = 0; j < C.n[1]; ++j) {
+    std::fill_n(acc, nc, 0.0);
+    for (int dk = 0; dk < q[2]; ++dk) {
+      for (int dj = 0; dj < q[1]; ++dj) {
+        const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
+        for (int i = 0; i < F.n[0]; ++i) {
+          const std::size_t c = f0 + static_cast<std::size_t>(i);
+          row[static_cast<std::size_t>(i)] = b[c] - apply_at(F, x, c);
+        }
+        if (q[0] == 2) {
+          for (std::size_t i = 0; i < nc; ++i) {
+            acc[i] += row[2 * i] + row[2 * i + 1];
           }
-          if (q[0] == 2) {
-            for (std::size_t i = 0; i < acc.size(); ++i) {
-              acc[i] += row[2 * i] + row[2 * i + 1];
-            }
-          } else {
-            for (std::size_t i = 0; i < acc.size(); ++i) {
-              acc[i] += row[i];
-            }
+        } else {
+          for (std::size_t i = 0; i < nc; ++i) {
+            acc[i] += row[i];
           }
         }
       }
-      double* out = bc + C.at(0, j, k);
-      for (std::size_t i = 0; i < acc.size(); ++i) {
-        out[i] = acc[i] * inv;
-      }
     }
+    double* out = bc + C.at(0, j, k);
+    for (std::size_t i = 0; i < nc; ++i) {
+      out[i] = acc[i] * inv;
+    }
+  }
+}
+
+void restrict_residual(const Level& F, const Level& C, const double* b, const double* x,
+                       double* bc) {
+  for_planes(C.n[2], F.cells(), [&](int k) {
+    std::vector<double> row(static_cast<std::size_t>(F.n[0]));
+    std::vector<double> acc(static_cast<std::size_t>(C.n[0]));
+    restrict_plane(F, C, b, x, bc, k, row.data(), acc.data());
   });
 }
 
@@ -380,6 +504,188 @@ void relax_points_from_zero(const Level& L, const double* b, double* x) {
     }
   });
   fill_ghosts(L, x);
+}
+
+// Plane k of the first red pass from x = 0 (relax_points_from_zero), after b -= *shift on the
+// plane when shift is given.
+void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const double* shift) {
+  const double* id = L.inv_diag.data();
+  for (int j = 0; j < L.n[1]; ++j) {
+    std::size_t c = L.at(0, j, k);
+    const int red = (j + k) & 1;
+    if (shift != nullptr) {
+      for (int i = 0; i < L.n[0]; ++i) {
+        b[c + static_cast<std::size_t>(i)] -= *shift;
+      }
+    }
+    for (int i = 0; i < L.n[0]; ++i, ++c) {
+      x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+    }
+  }
+}
+
+// Fewest planes per task of a fused sweep (relax_pair, update_and_apply).
+constexpr int kMinPairPlanes = 4;
+
+// {tasks, planes per task} of a fused sweep over nz planes: one block per thread.
+std::array<int, 2> plane_blocks(int nz) {
+  const int threads = static_cast<int>(
+      std::min(static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
+               tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+  const int tasks = std::max(1, std::min(threads, nz / kMinPairPlanes));
+  return {tasks, (nz + tasks - 1) / tasks};
+}
+
+// relax_pair needs a z-neighbour of the other colour on both sides: an odd period along z puts
+// cells of one colour next to each other across the seam.
+bool pair_fusable(const Level& L) {
+  return L.line < 0 && !(L.periodic[2] && L.n[2] > 1 && L.n[2] % 2 == 1);
+}
+
+// Two colour passes, `first` then 1 - first, in one sweep over the planes: the second colour's
+// plane k - 1 is relaxed right after the first colour's plane k, while those planes are still in
+// cache (the second pass reads the first colour on planes k - 2 .. k only). Every value is computed
+// from the same inputs as by relax_points(first) followed by relax_points(1 - first), so the
+// result is bitwise theirs:
+// - a task owns a block of planes; it relaxes the first colour on all of them and the second
+//   colour on its inner planes, each after the first colour of the plane above (whose first pass
+//   read the second colour's old values);
+// - then the periodic z ghosts get the new first colour, and the second colour is relaxed on the
+//   tasks' edge planes (their neighbours in other tasks are done by then);
+// - x and y ghosts of a plane are refreshed right after its first pass, as fill_ghosts after the
+//   whole pass would (the second pass reads the first colour's new images; at an odd x or y
+//   period the same colour's old one, as relax_points does).
+// Since no value depends on where the blocks end, their number may follow the thread count:
+// one block per thread (at least kMinPairPlanes planes each) leaves the fewest edge planes, which
+// are relaxed from memory rather than from cache (on one thread only the first and the last).
+// from_zero: the first pass is relax_points_from_zero's (first = 0), after b -= *shift if given.
+// coarse (optional): also restrict the residual to coarse->b (restrict_residual, bitwise) in the
+// same sweep, for each coarse plane whose fine planes and their neighbours are final inside the
+// block (a plane's x and y ghosts refreshed after its second pass); the others after the pair.
+void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
+                const double* shift, Level* coarse = nullptr) {
+  const int nz = L.n[2];
+  const auto [tasks, block] = plane_blocks(nz);
+  const int second = 1 - first;
+  const int qz = L.ratio[2];
+  std::vector<char> restricted(coarse != nullptr ? static_cast<std::size_t>(coarse->n[2]) : 0, 0);
+  const auto first_pass = [&](int k) {
+    if (from_zero) {
+      relax_plane_from_zero(L, b, x, k, shift);
+    } else {
+      relax_plane(L, b, x, first, k);
+    }
+    fill_plane_ghosts(L, x, k);
+  };
+  for_planes(tasks, L.cells(), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    std::vector<double> row(coarse != nullptr ? static_cast<std::size_t>(L.n[0]) : 0);
+    std::vector<double> acc(coarse != nullptr ? static_cast<std::size_t>(coarse->n[0]) : 0);
+    for (int k = k0; k < k1; ++k) {
+      first_pass(k);
+      if (k - 1 > k0 && k - 1 < k1 - 1) {
+        relax_plane(L, b, x, second, k - 1);
+        if (coarse == nullptr) {
+          continue;
+        }
+        fill_plane_ghosts(L, x, k - 1);
+        // Fine planes up to k - 1 are final: the coarse plane ending at fine plane k - 2, if
+        // its first fine plane's lower neighbour is final too (an inner plane of this block).
+        const int m = k - 2;
+        const int kc = m / qz;
+        if ((m + 1) % qz == 0 && kc * qz >= k0 + 2) {
+          restrict_plane(L, *coarse, b, x, coarse->b.data(), kc, row.data(), acc.data());
+          restricted[static_cast<std::size_t>(kc)] = 1;
+        }
+      }
+    }
+  });
+  fill_z_ghosts(L, x);
+  for_planes(tasks, 2 * L.cells() / static_cast<std::size_t>(block), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    if (k0 == k1) {
+      return;
+    }
+    relax_plane(L, b, x, second, k0);
+    if (k1 - 1 != k0) {
+      relax_plane(L, b, x, second, k1 - 1);
+    }
+  });
+  fill_ghosts(L, x);
+  if (coarse != nullptr) {
+    for_planes(coarse->n[2], L.cells(), [&](int kc) {
+      if (restricted[static_cast<std::size_t>(kc)] == 0) {
+        std::vector<double> row(static_cast<std::size_t>(L.n[0]));
+        std::vector<double> acc(static_cast<std::size_t>(coarse->n[0]));
+        restrict_plane(L, *coarse, b, x, coarse->b.data(), kc, row.data(), acc.data());
+      }
+    });
+  }
+}
+
+// CG's new direction p = z + beta p (p = z when `first`) and q = A p with p.q, in one sweep over
+// the planes: q on plane k - 1 right after p on plane k, while p's planes k - 2 .. k are in cache.
+// Blocks of planes as relax_pair's: a block's inner planes in the sweep; after every block's p
+// (and the z ghosts), its edge planes. Each value, and each plane's partial sum of p.q, is
+// computed as by the two separate loops (summed in plane order): bitwise theirs.
+double update_and_apply(const Level& L, const double* z, double beta, bool first, double* p,
+                        double* q) {
+  const int nz = L.n[2];
+  const auto [tasks, block] = plane_blocks(nz);
+  std::vector<double> partial(static_cast<std::size_t>(nz), 0.0);
+  const auto update = [&](int k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      const std::size_t c0 = L.at(0, j, k);
+      if (first) {
+        std::copy_n(z + c0, L.n[0], p + c0);
+      } else {
+        for (std::size_t c = c0; c < c0 + static_cast<std::size_t>(L.n[0]); ++c) {
+          p[c] = z[c] + beta * p[c];
+        }
+      }
+    }
+    fill_plane_ghosts(L, p, k);
+  };
+  const auto apply = [&](int k) {
+    double sum = 0.0;
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i, ++c) {
+        q[c] = apply_at(L, p, c);
+        sum += p[c] * q[c];
+      }
+    }
+    partial[static_cast<std::size_t>(k)] = sum;
+  };
+  for_planes(tasks, L.cells(), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    for (int k = k0; k < k1; ++k) {
+      update(k);
+      if (k - 1 > k0 && k - 1 < k1 - 1) {
+        apply(k - 1);
+      }
+    }
+  });
+  fill_z_ghosts(L, p);
+  for_planes(tasks, 2 * L.cells() / static_cast<std::size_t>(block), [&](int t) {
+    const int k0 = std::min(nz, t * block);
+    const int k1 = std::min(nz, k0 + block);
+    if (k0 == k1) {
+      return;
+    }
+    apply(k0);
+    if (k1 - 1 != k0) {
+      apply(k1 - 1);
+    }
+  });
+  double total = 0.0;
+  for (const double v : partial) {
+    total += v;
+  }
+  return total;
 }
 
 // x_fine += x_coarse of the parent cell (piecewise constant).
@@ -433,6 +739,7 @@ void build_diagonal(Level& L) {
       }
     }
   });
+  factor_lines(L);
 }
 
 // Coarse face coefficients: the arithmetic mean of the fine faces that make up the coarse face
@@ -860,46 +1167,71 @@ void MultigridPoisson::coarsest_solve(const double* b, double* x) {
 
 // One V-cycle for A x = b from x = 0: symmetric (red-black before, black-red after, the
 // restriction the scaled transpose of the prolongation), so it is an SPD preconditioner.
-void MultigridPoisson::vcycle(int level, const double* b, double* x) {
+// shift (level 0 only): b -= *shift on the interior first, in the first smoothing pass.
+void MultigridPoisson::vcycle(int level, double* b, double* x, const double* shift) {
+  Level& L = levels_[static_cast<std::size_t>(level)];
   if (static_cast<std::size_t>(level) + 1 == levels_.size()) {
+    if (shift != nullptr) {
+      shift_interior(L, b, *shift);
+    }
     coarsest_solve(b, x);
     return;
   }
-  Level& L = levels_[static_cast<std::size_t>(level)];
   Level& C = levels_[static_cast<std::size_t>(level) + 1];
-  if (L.line < 0) {
-    relax_points_from_zero(L, b, x);
+  const bool fused = settings_.fuse_colour_pairs && pair_fusable(L);
+  if (fused) {
+    // The last pre-smoothing pair restricts the residual as it goes.
+    const int pairs = settings_.pre_sweeps;
+    relax_pair(L, b, x, 0, true, shift, pairs == 1 ? &C : nullptr);
+    for (int s = 1; s < pairs; ++s) {
+      relax_pair(L, b, x, 0, false, nullptr, s + 1 == pairs ? &C : nullptr);
+    }
   } else {
-    std::fill(x, x + L.size, 0.0);
-    relax(L, b, x, 0);
-  }
-  relax(L, b, x, 1);
-  for (int s = 1; s < settings_.pre_sweeps; ++s) {
-    relax(L, b, x, 0);
+    if (shift != nullptr) {
+      shift_interior(L, b, *shift);
+    }
+    if (L.line < 0) {
+      relax_points_from_zero(L, b, x);
+    } else {
+      std::fill(x, x + L.size, 0.0);
+      relax(L, b, x, 0);
+    }
     relax(L, b, x, 1);
+    for (int s = 1; s < settings_.pre_sweeps; ++s) {
+      relax(L, b, x, 0);
+      relax(L, b, x, 1);
+    }
   }
-  restrict_residual(L, C, b, x, C.b.data());
-  vcycle(level + 1, C.b.data(), C.x.data());
+  if (!fused) {
+    restrict_residual(L, C, b, x, C.b.data());
+  }
+  vcycle(level + 1, C.b.data(), C.x.data(), nullptr);
   prolong_add(L, C, C.x.data(), x);
   for (int s = 0; s < settings_.post_sweeps; ++s) {
-    relax(L, b, x, 1);
-    relax(L, b, x, 0);
+    if (fused) {
+      relax_pair(L, b, x, 1, false, nullptr);
+    } else {
+      relax(L, b, x, 1);
+      relax(L, b, x, 0);
+    }
   }
 }
 
-void MultigridPoisson::precondition(double* r, double* z) {
-  if (singular_) {
-    // The V-cycle is definite on mean-zero vectors only: a residual whose constant part (round-off
-    // of a tiny right-hand side) is not removed can give r.z <= 0 and break CG down. The constant
-    // part is unreachable anyway (A's null space).
-    shift_interior(levels_.front(), r, mean_interior(levels_.front(), r));
+double MultigridPoisson::precondition(double* r, double* z, double r_sum) {
+  const Level& L = levels_.front();
+  if (!singular_) {
+    vcycle(0, r, z, nullptr);
+    return 0.0;
   }
-  vcycle(0, r, z);
-  if (singular_ && levels_.size() > 1) {
-    const Level& L = levels_.front();
-    shift_interior(L, z, mean_interior(L, z));
-    fill_ghosts(L, z);
-  }
+  // The V-cycle is definite on mean-zero vectors only: a residual whose constant part (round-off
+  // of a tiny right-hand side) is not removed can give r.z <= 0 and break CG down. The constant
+  // part is unreachable anyway (A's null space).
+  const double r_mean =
+      (std::isnan(r_sum) ? sum_cells(L, [&](std::size_t c, double& s) { s += r[c]; }) : r_sum) /
+      static_cast<double>(L.cells());
+  vcycle(0, r, z, &r_mean); // the shift rides on the first smoothing pass where it can
+  // z's mean: the caller removes it in its next pass over z (z's ghosts are not read before).
+  return levels_.size() > 1 ? mean_interior(L, z) : 0.0;
 }
 
 // Flexible preconditioned CG (Notay, SIAM J. Sci. Comput. 22 (2000) 1444: beta from
@@ -912,18 +1244,22 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     throw std::invalid_argument("multigrid: vector of another grid");
   }
   const int planes = L.n[2];
-  {
-    std::size_t m = 0;
-    for (int k = 0; k < L.n[2]; ++k) {
-      for (int j = 0; j < L.n[1]; ++j) {
-        std::size_t c = L.at(0, j, k);
-        for (int i = 0; i < L.n[0]; ++i, ++c, ++m) {
-          b_[c] = b[m];
-          x_[c] = x[m];
-        }
+  // Entry m = i + n0 (j + n1 k) of b and x is cell (i, j, k).
+  const auto entry = [&](int j, int k) {
+    return static_cast<std::size_t>(L.n[0]) *
+           (static_cast<std::size_t>(j) +
+            static_cast<std::size_t>(L.n[1]) * static_cast<std::size_t>(k));
+  };
+  for_planes(planes, L.cells(), [&](int k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      const std::size_t m = entry(j, k);
+      const std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i) {
+        b_[c + static_cast<std::size_t>(i)] = b[m + static_cast<std::size_t>(i)];
+        x_[c + static_cast<std::size_t>(i)] = x[m + static_cast<std::size_t>(i)];
       }
     }
-  }
+  });
   if (singular_) {
     shift_interior(L, b_.data(), mean_interior(L, b_.data()));
   }
@@ -941,51 +1277,64 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     return report;
   }
   fill_ghosts(L, x_.data());
-  double rel = std::sqrt(residual(L, b_.data(), x_.data(), r_.data()) / bb);
+  std::array<double, 2> rr_sum = residual_and_sum(L, b_.data(), x_.data(), r_.data());
+  double rel = std::sqrt(rr_sum[0] / bb);
   int it = 0;
   while (rel > tolerance && it < max_iterations) {
-    precondition(r_.data(), z_.data());
-    double rz = dot(r_, z_);
-    p_ = z_;
+    const double z_mean = precondition(r_.data(), z_.data(), rr_sum[1]);
+    // z -= its mean (singular; a shift by 0 otherwise), fused with r.z.
+    double rz = sum_cells(L, [&](std::size_t c, double& s) {
+      z_[c] -= z_mean;
+      s += r_[c] * z_[c];
+    });
+    bool restart = true; // p = z
+    double beta = 0.0;
     while (it < max_iterations) {
-      fill_ghosts(L, p_.data());
-      const double pq = sum_cells(L, [&](std::size_t c, double& s) {
-        q_[c] = apply_at(L, p_.data(), c);
-        s += p_[c] * q_[c];
-      });
+      const double pq = update_and_apply(L, z_.data(), beta, restart, p_.data(), q_.data());
+      restart = false;
       if (!(pq > 0.0) || !(rz > 0.0)) {
         break;
       }
       const double alpha = rz / pq;
-      const double rr = sum_cells(L, [&](std::size_t c, double& s) {
-        x_[c] += alpha * p_[c];
-        r_old_[c] = r_[c];
-        r_[c] -= alpha * q_[c];
-        s += r_[c] * r_[c];
+      // |r|^2 and the sum of r (the preconditioner's mean removal) in the update's pass.
+      const auto rr = sum_planes_n<2>(planes, L.cells(), [&](int k) {
+        std::array<double, 2> s{};
+        for (int j = 0; j < L.n[1]; ++j) {
+          std::size_t c = L.at(0, j, k);
+          for (int i = 0; i < L.n[0]; ++i, ++c) {
+            x_[c] += alpha * p_[c];
+            r_old_[c] = r_[c];
+            r_[c] -= alpha * q_[c];
+            s[0] += r_[c] * r_[c];
+            s[1] += r_[c];
+          }
+        }
+        return s;
       });
       ++it;
-      if (std::sqrt(rr / bb) <= tolerance) {
+      if (std::sqrt(rr[0] / bb) <= tolerance) {
         break;
       }
-      precondition(r_.data(), z_.data());
+      const double z_shift = precondition(r_.data(), z_.data(), rr[1]);
       const auto sums = sum_planes_n<2>(planes, L.cells(), [&](int k) {
         std::array<double, 2> s{};
         for (int j = 0; j < L.n[1]; ++j) {
           std::size_t c = L.at(0, j, k);
           for (int i = 0; i < L.n[0]; ++i, ++c) {
+            z_[c] -= z_shift;
             s[0] += r_[c] * z_[c];
             s[1] += r_old_[c] * z_[c];
           }
         }
         return s;
       });
-      const double beta = (sums[0] - sums[1]) / rz;
+      beta = (sums[0] - sums[1]) / rz;
       rz = sums[0];
-      for_cells(L, [&](std::size_t c) { p_[c] = z_[c] + beta * p_[c]; });
     }
     // The recursive residual drifts from b - A x: judge (and restart from) the true one.
     fill_ghosts(L, x_.data());
-    const double rel_new = std::sqrt(residual(L, b_.data(), x_.data(), r_.data()) / bb);
+    rr_sum = residual_and_sum(L, b_.data(), x_.data(), r_.data());
+    const double rel_new = std::sqrt(rr_sum[0] / bb);
     if (!(rel_new < rel) && rel_new > tolerance) {
       rel = rel_new;
       break; // no progress (breakdown): report what was reached
@@ -995,15 +1344,15 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
   if (singular_) {
     shift_interior(L, x_.data(), mean_interior(L, x_.data()));
   }
-  std::size_t m = 0;
-  for (int k = 0; k < L.n[2]; ++k) {
+  for_planes(planes, L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
-      std::size_t c = L.at(0, j, k);
-      for (int i = 0; i < L.n[0]; ++i, ++c, ++m) {
-        x[m] = x_[c];
+      const std::size_t m = entry(j, k);
+      const std::size_t c = L.at(0, j, k);
+      for (int i = 0; i < L.n[0]; ++i) {
+        x[m + static_cast<std::size_t>(i)] = x_[c + static_cast<std::size_t>(i)];
       }
     }
-  }
+  });
   report.iterations = it;
   report.relative_residual = rel;
   report.converged = rel <= tolerance;
@@ -1011,7 +1360,8 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
 }
 
 void MultigridPoisson::benchmark_vcycle() {
-  precondition(r_.data(), z_.data());
+  const double z_mean = precondition(r_.data(), z_.data());
+  shift_interior(levels_.front(), z_.data(), z_mean);
 }
 
 void MultigridPoisson::benchmark_sweep() {

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -29,6 +30,9 @@ struct MultigridSettings {
   int pre_sweeps = 2;  // red-black Gauss-Seidel sweeps before the coarse correction
   int post_sweeps = 2; // black-red sweeps after it (the adjoint: the V-cycle stays symmetric)
   int max_direct_cells = 256; // coarsest level solved by dense Cholesky up to this many cells
+  // Point-relaxed levels run each red-black (black-red) pair of passes as one sweep over the
+  // planes (bitwise the same result, about half the memory traffic); false: pass by pass.
+  bool fuse_colour_pairs = true;
 };
 
 struct MultigridReport {
@@ -77,10 +81,13 @@ public:
   struct Level; // one grid of the hierarchy (multigrid_poisson.cpp)
 
 private:
-  void vcycle(int level, const double* b, double* x);
+  void vcycle(int level, double* b, double* x, const double* shift);
   void coarsest_solve(const double* b, double* x); // b: the coarsest level's own vector
   void factor_coarsest();
-  void precondition(double* r, double* z); // singular: r's mean is removed first
+  // z = V-cycle(r). Singular: r's mean is removed first (r_sum: r's interior sum if known, else
+  // NaN), and z's mean is returned for the caller to remove (0 otherwise).
+  double precondition(double* r, double* z,
+                      double r_sum = std::numeric_limits<double>::quiet_NaN());
 
   MultigridSettings settings_;
   std::array<std::array<PoissonSide, 2>, 3> sides_{};

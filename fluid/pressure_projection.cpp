@@ -1,5 +1,6 @@
 #include "fluid/pressure_projection.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <utility>
@@ -9,6 +10,7 @@
 #include <mpi.h>
 
 #include "core/communicator_mpi.hpp"
+#include "fluid/box_loops.hpp"
 
 namespace cfddem::fluid {
 
@@ -97,46 +99,77 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
   for (int a = 0; a < 3; ++a) {
     inflow[a] = {grid.inflow_face(a, 0), grid.inflow_face(a, 1)};
   }
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        const std::array<int, 3> cell = {i, j, k};
-        const std::size_t c = layout.index(cell);
-        double sum = 0.0;
-        for (int a = 0; a < 3; ++a) {
-          const std::ptrdiff_t s = layout.stride(a);
-          const std::size_t up = c + static_cast<std::size_t>(s);
-          const double eps_lo =
-              cell[a] == 0 && inflow[a][0] ? kInflowVolumeFraction : face_eps(eps, c, s);
-          const double eps_hi =
-              cell[a] == n[a] - 1 && inflow[a][1] ? kInflowVolumeFraction : face_eps(eps, up, s);
-          sum += (eps_hi * u[a][up] - eps_lo * u[a][c]) / grid.spacing(a);
+  // Rows of cells as TBB tasks: each cell is written once, from values this loop does not write.
+  for_box_rows(
+      layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
+        for (int i = 0; i < n[0]; ++i) {
+          const std::array<int, 3> cell = {i, j, k};
+          const std::size_t c = static_cast<std::size_t>(row + i);
+          double sum = 0.0;
+          for (int a = 0; a < 3; ++a) {
+            const std::ptrdiff_t s = layout.stride(a);
+            const std::size_t up = c + static_cast<std::size_t>(s);
+            const double eps_lo =
+                cell[a] == 0 && inflow[a][0] ? kInflowVolumeFraction : face_eps(eps, c, s);
+            const double eps_hi =
+                cell[a] == n[a] - 1 && inflow[a][1] ? kInflowVolumeFraction : face_eps(eps, up, s);
+            sum += (eps_hi * u[a][up] - eps_lo * u[a][c]) / grid.spacing(a);
+          }
+          div[c] = sum;
         }
-        div[c] = sum;
-      }
-    }
-  }
+      });
 }
 
 PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
                                        const GridHalo* halo)
-    : grid_(grid), settings_(settings), halo_(halo), hypre_(new Hypre) {
+    : grid_(grid), settings_(settings), halo_(halo) {
   if (!(settings.tolerance > 0.0) || settings.max_iterations < 1) {
-    delete hypre_;
     throw std::invalid_argument("projection tolerance must be > 0 and max_iterations >= 1");
   }
-  Hypre& h = *hypre_;
+  if (settings.solver == PoissonSolver::multigrid && halo != nullptr) {
+    throw std::invalid_argument(
+        "fluid.solver = \"multigrid\" solves on one grid only: a gas on several ranks needs "
+        "\"hypre\" (or the default)");
+  }
   const auto& n = grid.cells();
   const auto& global = grid.global_cells();
+  for (int a = 0; a < 3; ++a) {
+    owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
+  }
+  global_cells_ = static_cast<double>(global[0]) * global[1] * global[2];
+  const std::size_t cells = static_cast<std::size_t>(n[0]) * n[1] * n[2];
+  rhs_.resize(cells);
+  solution_.resize(cells);
+  div_ = grid.make_field();
+  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
+                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
+  if (multigrid) {
+    // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
+    // (their set-up time and memory would be spent for nothing).
+    std::array<std::array<PoissonSide, 2>, 3> sides{};
+    std::array<double, 3> spacing{};
+    for (int a = 0; a < 3; ++a) {
+      spacing[a] = grid.spacing(a);
+      for (int side = 0; side < 2; ++side) {
+        const BoundaryKind kind = grid.bc(a, side).kind;
+        sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
+                         : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
+                                                         : PoissonSide::neumann;
+      }
+    }
+    mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
+    face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
+    return;
+  }
+  hypre_ = new Hypre;
+  Hypre& h = *hypre_;
   std::array<HYPRE_Int, 3> periodic{};
   for (int a = 0; a < 3; ++a) {
     h.lower[a] = grid.box().lo[a];
     h.upper[a] = grid.box().hi[a] - 1;
     // A single periodic cell couples only to itself (no flux): leave the axis non-periodic.
     periodic[a] = (grid.periodic(a) && global[a] > 1) ? global[a] : 0;
-    owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
   }
-  global_cells_ = static_cast<double>(global[0]) * global[1] * global[2];
   // Distributed: hypre talks on its own duplicate of the ranks' communicator, so its messages
   // can never match those of other traffic in flight meanwhile (the particles' ghost forward
   // posted before a gas step, MPI-3.1 §3.5: matching is by source, tag and communicator).
@@ -160,37 +193,14 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   HYPRE_StructVectorInitialize(h.b);
   HYPRE_StructVectorCreate(comm, h.grid, &h.x);
   HYPRE_StructVectorInitialize(h.x);
-  const std::size_t cells = static_cast<std::size_t>(n[0]) * n[1] * n[2];
-  rhs_.resize(cells);
-  solution_.resize(cells);
   guess_.resize(cells);
-  div_ = grid.make_field();
   x_ = grid.make_field();
-  if (settings.solver == PoissonSolver::multigrid && halo != nullptr) {
-    throw std::invalid_argument(
-        "fluid.solver = \"multigrid\" solves on one grid only: a gas on several ranks needs "
-        "\"hypre\" (or the default)");
-  }
-  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
-                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
-  if (multigrid) {
-    std::array<std::array<PoissonSide, 2>, 3> sides{};
-    std::array<double, 3> spacing{};
-    for (int a = 0; a < 3; ++a) {
-      spacing[a] = grid.spacing(a);
-      for (int side = 0; side < 2; ++side) {
-        const BoundaryKind kind = grid.bc(a, side).kind;
-        sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
-                         : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
-                                                         : PoissonSide::neumann;
-      }
-    }
-    mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
-    face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
-  }
 }
 
 PressureProjection::~PressureProjection() {
+  if (hypre_ == nullptr) {
+    return;
+  }
   hypre_->destroy_solver();
   HYPRE_StructVectorDestroy(hypre_->x);
   HYPRE_StructVectorDestroy(hypre_->b);
@@ -344,39 +354,38 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     const double inv_dx2 = 1.0 / (grid_.spacing(a) * grid_.spacing(a));
-    std::array<int, 3> hi = n;
-    hi[a] = n[a] + 1;
-    for (int k = 0; k < hi[2]; ++k) {
-      for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          const std::size_t f = layout.index(i, j, k);
-          face_coef_[a][f] = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
-        }
-      }
-    }
+    std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+    hi[a] = n[a]; // faces 0..n along a
+    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+      const auto f = static_cast<std::size_t>(p);
+      face_coef_[a][f] = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+    });
   }
   mg_->set_coefficients(face_coef_);
-  std::size_t m = 0;
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i, ++m) {
-        const std::array<int, 3> cell = {i, j, k};
-        const std::size_t c = layout.index(cell);
-        double rhs = -(div_[c] + source[c]);
-        for (int a = 0; a < 3; ++a) {
-          for (int side = 0; side < 2; ++side) {
-            const BoundaryCondition& bc = grid_.bc(a, side);
-            if (bc.kind == BoundaryKind::outflow && cell[a] == (side == 0 ? 0 : n[a] - 1)) {
-              const std::size_t f = side == 0 ? c : c + static_cast<std::size_t>(layout.stride(a));
-              rhs += 2.0 * face_coef_[a][f] * bc.pressure; // ghost 2 p_out - phi
+  // Cell (i, j, k) is entry m = i + n0 (j + n1 k) of the solver's vectors; rows are TBB tasks.
+  for_box_rows(
+      layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
+        std::size_t m = static_cast<std::size_t>(n[0]) *
+                        (static_cast<std::size_t>(j) +
+                         static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
+        for (int i = 0; i < n[0]; ++i, ++m) {
+          const std::array<int, 3> cell = {i, j, k};
+          const std::size_t c = static_cast<std::size_t>(row + i);
+          double rhs = -(div_[c] + source[c]);
+          for (int a = 0; a < 3; ++a) {
+            for (int side = 0; side < 2; ++side) {
+              const BoundaryCondition& bc = grid_.bc(a, side);
+              if (bc.kind == BoundaryKind::outflow && cell[a] == (side == 0 ? 0 : n[a] - 1)) {
+                const std::size_t f =
+                    side == 0 ? c : c + static_cast<std::size_t>(layout.stride(a));
+                rhs += 2.0 * face_coef_[a][f] * bc.pressure; // ghost 2 p_out - phi
+              }
             }
           }
+          rhs_[m] = rhs;
+          solution_[m] = phi[c];
         }
-        rhs_[m] = rhs;
-        solution_[m] = phi[c];
-      }
-    }
-  }
+      });
   const MultigridReport mr =
       mg_->solve(rhs_, solution_, settings_.tolerance, settings_.max_iterations);
   report.iterations = mr.iterations;
@@ -531,67 +540,62 @@ void PressureProjection::correct(std::array<GridField, 3>& u,
       x -= mean;
     }
   }
-  std::size_t m = 0;
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        phi(i, j, k) = solution_[m++];
-      }
-    }
-  }
+  for_box_rows(
+      layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
+        const std::size_t m = static_cast<std::size_t>(n[0]) *
+                              (static_cast<std::size_t>(j) +
+                               static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
+        std::copy_n(solution_.begin() + static_cast<std::ptrdiff_t>(m), n[0],
+                    phi.values().begin() + row);
+      });
   if (halo_ != nullptr) {
     halo_->fill(phi, kCellCentred); // the correction of the box's edge faces reads them
   }
 
-  // u = u* - m_f grad phi on every face whose velocity is not prescribed.
+  // u = u* - m_f grad phi on every face whose velocity is not prescribed; rows of faces are TBB
+  // tasks (each face written once, from phi and its own value).
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     const double inv_dx = 1.0 / grid_.spacing(a);
-    std::array<int, 3> hi = n;
-    hi[a] = n[a] + 1;
-    for (int k = 0; k < hi[2]; ++k) {
-      for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          const std::array<int, 3> face = {i, j, k};
-          const std::size_t f = layout.index(face);
-          const std::size_t below = f - static_cast<std::size_t>(s);
-          double grad = 0.0;
-          if ((face[a] > 0 || grid_.exchanged(a, 0)) && (face[a] < n[a] || grid_.exchanged(a, 1))) {
-            grad = (phi[f] - phi[below]) * inv_dx;
-          } else {
-            const int side = face[a] == 0 ? 0 : 1;
-            const BoundaryCondition& bc = grid_.bc(a, side);
-            if (bc.kind == BoundaryKind::periodic) {
-              if (side == 1) {
-                continue; // face n is face 0, set below
-              }
-              std::array<int, 3> last = face;
-              last[a] = n[a] - 1;
-              grad = (phi[f] - phi(last[0], last[1], last[2])) * inv_dx;
-            } else if (bc.kind == BoundaryKind::outflow) {
-              grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
-                               : 2.0 * (bc.pressure - phi[below]) * inv_dx;
-            } else {
-              continue; // wall or inflow: prescribed
+    std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+    hi[a] = n[a]; // faces 0..n along a
+    for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int j, int k) {
+      for (int i = 0; i <= hi[0]; ++i) {
+        const std::array<int, 3> face = {i, j, k};
+        const std::size_t f = static_cast<std::size_t>(row + i);
+        const std::size_t below = f - static_cast<std::size_t>(s);
+        double grad = 0.0;
+        if ((face[a] > 0 || grid_.exchanged(a, 0)) && (face[a] < n[a] || grid_.exchanged(a, 1))) {
+          grad = (phi[f] - phi[below]) * inv_dx;
+        } else {
+          const int side = face[a] == 0 ? 0 : 1;
+          const BoundaryCondition& bc = grid_.bc(a, side);
+          if (bc.kind == BoundaryKind::periodic) {
+            if (side == 1) {
+              continue; // face n is face 0, set below
             }
+            std::array<int, 3> last = face;
+            last[a] = n[a] - 1;
+            grad = (phi[f] - phi(last[0], last[1], last[2])) * inv_dx;
+          } else if (bc.kind == BoundaryKind::outflow) {
+            grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
+                             : 2.0 * (bc.pressure - phi[below]) * inv_dx;
+          } else {
+            continue; // wall or inflow: prescribed
           }
-          u[a][f] -= mobility[a][f] * grad;
         }
+        u[a][f] -= mobility[a][f] * grad;
       }
-    }
+    });
     if (grid_.periodic(a) && !grid_.distributed()) {
       // Face n is face 0.
-      std::array<int, 3> hi_other = n;
-      hi_other[a] = 1;
-      for (int k = 0; k < hi_other[2]; ++k) {
-        for (int j = 0; j < hi_other[1]; ++j) {
-          for (int i = 0; i < hi_other[0]; ++i) {
-            std::array<int, 3> top = {i, j, k};
-            top[a] = n[a];
-            u[a][layout.index(top)] = u[a][layout.index(i, j, k)];
-          }
-        }
-      }
+      std::array<int, 3> hi_other = {n[0] - 1, n[1] - 1, n[2] - 1};
+      hi_other[a] = 0;
+      const std::size_t period = static_cast<std::size_t>(n[a]) * static_cast<std::size_t>(s);
+      for_box(layout, {0, 0, 0}, hi_other, [&](std::ptrdiff_t p) {
+        const auto f = static_cast<std::size_t>(p);
+        u[a][f + period] = u[a][f];
+      });
     }
   }
 }

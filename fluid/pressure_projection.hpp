@@ -47,11 +47,11 @@ struct ProjectionReport {
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,
                      GridField& div);
 
-// Holds the hypre grid, matrix and solver; the solver set-up is reused while the matrix is
-// unchanged. Undistributed (halo == nullptr): hypre objects on MPI_COMM_SELF. Distributed: on
+// With hypre: holds its grid, matrix and solver; the solver set-up is reused while the matrix
+// is unchanged. Undistributed (halo == nullptr): hypre objects on MPI_COMM_SELF. Distributed: on
 // the halo's communicator, each rank's box in global indices, the periodic axes by
 // HYPRE_StructGridSetPeriodic; collective. MPI must be initialised. The multigrid (one grid
-// only) keeps its own hierarchy and needs no hypre objects.
+// only) keeps its own hierarchy: with it no hypre object is ever created.
 class PressureProjection {
 public:
   // halo: the grid's halo when grid is one box of a distributed grid (kept by the caller).
@@ -79,6 +79,8 @@ public:
   [[nodiscard]] PoissonSolver solver() const {
     return mg_ ? PoissonSolver::multigrid : PoissonSolver::hypre;
   }
+  // Whether hypre's grid, matrix and vectors exist (only when hypre solves).
+  [[nodiscard]] bool holds_hypre_objects() const { return hypre_ != nullptr; }
   // The multigrid (nullptr when hypre solves), e.g. for benchmarks of its kernels.
   [[nodiscard]] MultigridPoisson* multigrid() { return mg_.get(); }
 

@@ -186,6 +186,23 @@ BENCHMARK(BM_ProjectionRiserSolver)
     ->UseRealTime()
     ->Unit(benchmark::kMillisecond);
 
+// Setting up a projection on the riser grid (solver 0 = hypre: its grid, matrix and vectors; 1 =
+// the multigrid: its hierarchy only, no hypre object). A GasSolver pays this once.
+void BM_ProjectionSetupRiser(benchmark::State& state) {
+  const MacGrid grid(riser_spec());
+  ProjectionSettings settings;
+  settings.solver = state.range(0) == 0 ? PoissonSolver::hypre : PoissonSolver::multigrid;
+  for (auto _ : state) {
+    PressureProjection projection(grid, settings);
+    benchmark::DoNotOptimize(projection.holds_hypre_objects());
+  }
+}
+BENCHMARK(BM_ProjectionSetupRiser)
+    ->ArgName("multigrid")
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond);
+
 // The multigrid's kernels on the finest level of the riser system: kernel 0 = one V-cycle (the
 // preconditioner, all levels), 1 = one red-black Gauss-Seidel sweep, 2 = one residual.
 void BM_MultigridKernelRiser(benchmark::State& state) {

@@ -8,7 +8,10 @@
 #include <cstring>
 #include <numbers>
 #include <random>
+#include <string>
+#include <vector>
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
@@ -203,6 +206,12 @@ TEST(MultigridProjection, DefaultIsMultigridOnOneGrid) {
   const MacGrid grid(box_spec({4, 6, 4}, {4e-4, 6e-4, 4e-4}, BoundaryKind::wall));
   PressureProjection projection(grid, ProjectionSettings{});
   EXPECT_EQ(projection.solver(), PoissonSolver::multigrid);
+  // The multigrid path sets up nothing of hypre's; the hypre path does.
+  EXPECT_FALSE(projection.holds_hypre_objects());
+  ProjectionSettings hypre;
+  hypre.solver = PoissonSolver::hypre;
+  const PressureProjection with_hypre(grid, hypre);
+  EXPECT_TRUE(with_hypre.holds_hypre_objects());
 }
 
 // The riser grid's hierarchy: x and z halve to 2 cells, the 50-cell period stops at 25 and is
@@ -279,6 +288,76 @@ TEST(MultigridProjection, BitwiseIndependentOfTheThreadCount) {
     for (int a = 0; a < 3; ++a) {
       EXPECT_TRUE(same(runs[0].u[a], runs[1].u[a])) << "axis " << a;
     }
+  }
+}
+
+// The fused red-black pair (MultigridSettings::fuse_colour_pairs) computes every value from the
+// same inputs as two separate colour passes: the solutions are bitwise those of the pass-by-pass
+// V-cycle, on 1 and 2 threads. Grids: the riser's (z periodic and even, 4 tasks of 8 planes);
+// odd periodic x and y (same-colour seams) over 20 planes with Dirichlet and Neumann z sides
+// (tasks of 8, 8 and 4 planes); 3 planes (one task); an odd periodic z (not fused: the fallback);
+// and a Helmholtz mass term.
+TEST(MultigridPoisson, FusedColourPairsEqualSeparatePasses) {
+  using P = PoissonSide;
+  struct System {
+    std::array<int, 3> cells;
+    std::array<std::array<P, 2>, 3> sides;
+    bool mass;
+  };
+  using Sides = std::array<std::array<P, 2>, 3>;
+  const std::array<P, 2> per = {P::periodic, P::periodic};
+  const std::array<P, 2> neumann = {P::neumann, P::neumann};
+  const std::vector<System> systems = {
+      {{32, 50, 32}, Sides{per, per, per}, false},
+      {{9, 7, 20}, Sides{per, per, std::array<P, 2>{P::dirichlet, P::neumann}}, false},
+      {{6, 11, 3}, Sides{std::array<P, 2>{P::neumann, P::dirichlet}, per, neumann}, false},
+      {{12, 10, 5}, Sides{per, std::array<P, 2>{P::neumann, P::dirichlet}, per}, false},
+      {{16, 12, 10}, Sides{std::array<P, 2>{P::dirichlet_node, P::dirichlet_node}, per, per}, true},
+  };
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> uni(0.5, 1.5);
+  for (const System& sys : systems) {
+    const GridLayout layout(sys.cells);
+    std::array<GridField, 3> coef = {GridField(layout), GridField(layout), GridField(layout)};
+    for (GridField& c : coef) {
+      for (double& v : c.values()) {
+        v = uni(rng);
+      }
+    }
+    GridField mass(layout);
+    for (double& v : mass.values()) {
+      v = 0.1 * uni(rng);
+    }
+    const std::size_t cells = layout.cells()[0] * static_cast<std::size_t>(layout.cells()[1]) *
+                              static_cast<std::size_t>(layout.cells()[2]);
+    std::vector<double> b(cells);
+    double mean = 0.0;
+    for (double& v : b) {
+      v = uni(rng) - 1.0;
+      mean += v;
+    }
+    for (double& v : b) {
+      v -= mean / static_cast<double>(cells);
+    }
+    std::array<std::vector<double>, 3> x;
+    std::array<int, 3> iterations{};
+    for (int run = 0; run < 3; ++run) { // separate passes; fused on 1 and on 2 threads
+      const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                                        run == 2 ? 2 : 1);
+      MultigridSettings settings;
+      settings.fuse_colour_pairs = run > 0;
+      MultigridPoisson mg(sys.cells, {1e-4, 1.1e-4, 0.9e-4}, sys.sides, settings);
+      mg.set_coefficients(coef, sys.mass ? &mass : nullptr);
+      x[static_cast<std::size_t>(run)].assign(cells, 0.0);
+      const MultigridReport report = mg.solve(b, x[static_cast<std::size_t>(run)], 1e-10, 100);
+      EXPECT_TRUE(report.converged);
+      iterations[static_cast<std::size_t>(run)] = report.iterations;
+    }
+    const std::string name = fmt::format("{}x{}x{}", sys.cells[0], sys.cells[1], sys.cells[2]);
+    EXPECT_EQ(iterations[0], iterations[1]) << name;
+    EXPECT_EQ(iterations[0], iterations[2]) << name;
+    EXPECT_EQ(std::memcmp(x[0].data(), x[1].data(), cells * sizeof(double)), 0) << name;
+    EXPECT_EQ(std::memcmp(x[0].data(), x[2].data(), cells * sizeof(double)), 0) << name;
   }
 }
 

@@ -60,6 +60,8 @@ TEST(Cli, BadInputsExitWithCode2AndNameTheKey) {
   expect_config_error(kScene + " dem.restitution=1.5", "dem.restitution");
   expect_config_error(kScene + " dem.spring_constant=-1", "dem.spring_constant");
   expect_config_error(kScene + " dem.no_such_key=1", "dem.no_such_key");
+  expect_config_error(kScene + " dem.restitutoin=0.5",
+                      "'dem.restitutoin': unknown key (did you mean 'dem.restitution'?");
   expect_config_error(kScene + " dem.dt_factor=fast", "dem.dt_factor");
   expect_config_error(kScene + " domain.hi=[5e-5,4e-3,4e-3]", "domain.hi");
   expect_config_error(kScene + " particles.file=/no/such.csv", "/no/such.csv");
@@ -95,8 +97,21 @@ TEST(Cli, CheckPrintsDerivedNumbersAndRunsNothing) {
 TEST(Cli, HelpListsSubcommandsAndKeys) {
   const Result r = cfddem("--help");
   EXPECT_EQ(r.code, 0);
-  for (const char* s : {"run", "check", "dem.scheme", "particles.file", "output.interval"})
+  for (const char* s : {"run", "check", "keys", "dem.scheme", "particles.file", "output.interval",
+                        "fluid.max_dt", "partition.cell_weight"})
     EXPECT_NE(r.output.find(s), std::string::npos) << s;
+}
+
+// `cfddem keys` explains every key; `cfddem keys --markdown` prints docs/keys.md as it is.
+TEST(Cli, KeysListsTheKeysAndPrintsTheDocs) {
+  const Result text = cfddem("keys");
+  EXPECT_EQ(text.code, 0) << text.output;
+  EXPECT_NE(text.output.find("  fluid.tolerance  (number, (0, 1); default: 1e-10)\n"),
+            std::string::npos)
+      << text.output;
+  const Result md = cfddem("keys --markdown");
+  EXPECT_EQ(md.code, 0) << md.output;
+  EXPECT_EQ(md.output, read(fs::path(CFDDEM_SOURCE_DIR) / "docs" / "keys.md"));
 }
 
 namespace {
@@ -109,7 +124,8 @@ std::string strip_wall(const std::string& csv) {
     std::stringstream cells(line);
     std::string cell;
     for (int c = 0; std::getline(cells, cell, ','); ++c)
-      if (c != 15) out << cell << ',';
+      if (c != 15)
+        out << cell << ',';
     out << '\n';
   }
   return out.str();
@@ -119,10 +135,12 @@ std::string strip_wall(const std::string& csv) {
 
 // Same scene with 1 and 2 threads: diagnostics identical except the wall-clock column.
 TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
-  const fs::path a = fs::path(::testing::TempDir()) / "t1", b = fs::path(::testing::TempDir()) / "t2";
+  const fs::path a = fs::path(::testing::TempDir()) / "t1",
+                 b = fs::path(::testing::TempDir()) / "t2";
   fs::remove_all(a), fs::remove_all(b);
-  const std::string common = kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" +
-                             CFDDEM_SOURCE_DIR + "/scenes/data/hcs1222.csv --quiet";
+  const std::string common =
+      kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" + CFDDEM_SOURCE_DIR +
+      "/scenes/data/hcs1222.csv --quiet";
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 2 --out {}", common, b.string())).code, 0);
   const std::string da = read(a / "diagnostics.csv"), db = read(b / "diagnostics.csv");
@@ -153,11 +171,11 @@ TEST(Cli, ZeroAndOneParticleRuns) {
   for (int n : {0, 1}) {
     const fs::path out = fs::path(::testing::TempDir()) / fmt::format("n{}", n);
     fs::remove_all(out);
-    const Result r = cfddem(fmt::format(
-        "run {} particles.file= particles.count={} particles.diameter=1e-4 "
-        "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
-        "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
-        kScene, n, out.string()));
+    const Result r = cfddem(
+        fmt::format("run {} particles.file= particles.count={} particles.diameter=1e-4 "
+                    "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
+                    "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
+                    kScene, n, out.string()));
     EXPECT_EQ(r.code, 0) << r.output;
     const std::string csv = read(out / "diagnostics.csv");
     EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 101) << csv;
@@ -173,7 +191,8 @@ TEST(Cli, CoupledDiagnosticsIdenticalForOneAndTwoThreads) {
        {src + "/scenes/fluidized_bed.toml particles.count=2500 domain.hi=[0.8e-3,1.0e-2,0.8e-3] "
               "particles.region_hi=[0.8e-3,5.4e-3,0.8e-3] fluid.cells=[16,50,16]",
         src + "/scenes/riser.toml particles.count=2000 fluid.cells=[16,25,16]"}) {
-    const fs::path a = fs::path(::testing::TempDir()) / "c1", b = fs::path(::testing::TempDir()) / "c2";
+    const fs::path a = fs::path(::testing::TempDir()) / "c1",
+                   b = fs::path(::testing::TempDir()) / "c2";
     fs::remove_all(a), fs::remove_all(b);
     const std::string common = scene + " run.end_time=4e-4 output.interval=1e-4 --quiet";
     ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);

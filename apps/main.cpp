@@ -94,15 +94,13 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
   if (a.scene.empty()) {
     cfg = cfddem::SceneConfig::from_string(cfddem::apps::kDefaultScene, "built-in HCS scene");
   } else {
-    if (!fs::exists(a.scene))
-      throw cfddem::ConfigError(a.scene, "scene file not found");
+    if (!fs::exists(a.scene)) throw cfddem::ConfigError(a.scene, "scene file not found");
     if (fs::is_directory(a.scene))
       throw cfddem::ConfigError(a.scene, "is a directory, not a scene file (give the .toml file)");
     cfg = cfddem::SceneConfig::from_file(a.scene);
     default_name = fs::path(a.scene).stem().string();
   }
-  for (const auto& o : a.overrides)
-    cfg.apply_override(o);
+  for (const auto& o : a.overrides) cfg.apply_override(o);
   cfddem::Scene scene = cfddem::read_scene(cfg, default_name);
   cfddem::apps::validate_fluid(scene);
   return scene;
@@ -194,11 +192,9 @@ int main(int argc, char** argv) {
           const auto particles = cfddem::make_initial_particles(scene);
           const auto derived = cfddem::apps::derive(scene, particles);
           fmt::print("# resolved configuration ({})\n", cfg.origin());
-          for (const auto& [k, v] : cfddem::describe_scene(scene))
-            fmt::print("{} = {}\n", k, v);
+          for (const auto& [k, v] : cfddem::describe_scene(scene)) fmt::print("{} = {}\n", k, v);
           fmt::print("\n# derived numbers\n");
-          for (const auto& [k, v] : derived.table())
-            fmt::print("{:<48} {}\n", k, v);
+          for (const auto& [k, v] : derived.table()) fmt::print("{:<48} {}\n", k, v);
           if (scene.fluid.enabled) {
             const auto gas = cfddem::apps::check_gas(scene, derived);
             fmt::print("\n# gas\n");
@@ -251,12 +247,10 @@ int main(int argc, char** argv) {
       return 0;
     } catch (const cfddem::ConfigError& e) {
       // Configuration and run errors are raised by every rank alike: rank 0 says it once.
-      if (env.rank() == 0)
-        fmt::print(stderr, "cfddem: error: {}\n", e.what());
+      if (env.rank() == 0) fmt::print(stderr, "cfddem: error: {}\n", e.what());
       return 2;
     } catch (const cfddem::RunError& e) {
-      if (env.rank() == 0)
-        fmt::print(stderr, "cfddem: run stopped: {}\n", e.what());
+      if (env.rank() == 0) fmt::print(stderr, "cfddem: run stopped: {}\n", e.what());
       return 3;
     } catch (const std::bad_alloc&) {
       fmt::print(stderr,
@@ -270,8 +264,7 @@ int main(int argc, char** argv) {
     } catch (const std::exception& e) {
       // Anything else may have been raised by this rank alone: end the others too.
       fmt::print(stderr, "cfddem: error (rank {}): {}\n", env.rank(), e.what());
-      if (env.ranks() > 1)
-        env.abort(3);
+      if (env.ranks() > 1) env.abort(3);
       return 3;
     }
   } catch (const std::exception& e) {

@@ -282,18 +282,11 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
 namespace cfddem {
 
 namespace {
-std::string vec3(const std::array<double, 3>& v) {
-  return fmt::format("[{:.17g}, {:.17g}, {:.17g}]", v[0], v[1], v[2]);
-}
-std::string bool3(const std::array<bool, 3>& v) {
-  return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]);
-}
-std::string num(double v) {
-  return fmt::format("{:.17g}", v);
-}
-std::string str(const std::string& s) {
-  return fmt::format("\"{}\"", s);
-}
+// As the key table writes values (17 significant digits).
+std::string vec3(const std::array<double, 3>& v) { return toml_text(v); }
+std::string bool3(const std::array<bool, 3>& v) { return toml_text(v); }
+std::string num(double v) { return toml_text(v); }
+std::string str(const std::string& s) { return toml_text(std::string_view(s)); }
 } // namespace
 
 std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) {

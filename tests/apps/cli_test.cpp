@@ -124,8 +124,7 @@ std::string strip_wall(const std::string& csv) {
     std::stringstream cells(line);
     std::string cell;
     for (int c = 0; std::getline(cells, cell, ','); ++c)
-      if (c != 15)
-        out << cell << ',';
+      if (c != 15) out << cell << ',';
     out << '\n';
   }
   return out.str();
@@ -135,12 +134,10 @@ std::string strip_wall(const std::string& csv) {
 
 // Same scene with 1 and 2 threads: diagnostics identical except the wall-clock column.
 TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
-  const fs::path a = fs::path(::testing::TempDir()) / "t1",
-                 b = fs::path(::testing::TempDir()) / "t2";
+  const fs::path a = fs::path(::testing::TempDir()) / "t1", b = fs::path(::testing::TempDir()) / "t2";
   fs::remove_all(a), fs::remove_all(b);
-  const std::string common =
-      kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" + CFDDEM_SOURCE_DIR +
-      "/scenes/data/hcs1222.csv --quiet";
+  const std::string common = kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" +
+                             CFDDEM_SOURCE_DIR + "/scenes/data/hcs1222.csv --quiet";
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 2 --out {}", common, b.string())).code, 0);
   const std::string da = read(a / "diagnostics.csv"), db = read(b / "diagnostics.csv");
@@ -171,11 +168,11 @@ TEST(Cli, ZeroAndOneParticleRuns) {
   for (int n : {0, 1}) {
     const fs::path out = fs::path(::testing::TempDir()) / fmt::format("n{}", n);
     fs::remove_all(out);
-    const Result r = cfddem(
-        fmt::format("run {} particles.file= particles.count={} particles.diameter=1e-4 "
-                    "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
-                    "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
-                    kScene, n, out.string()));
+    const Result r = cfddem(fmt::format(
+        "run {} particles.file= particles.count={} particles.diameter=1e-4 "
+        "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
+        "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
+        kScene, n, out.string()));
     EXPECT_EQ(r.code, 0) << r.output;
     const std::string csv = read(out / "diagnostics.csv");
     EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 101) << csv;
@@ -191,8 +188,7 @@ TEST(Cli, CoupledDiagnosticsIdenticalForOneAndTwoThreads) {
        {src + "/scenes/fluidized_bed.toml particles.count=2500 domain.hi=[0.8e-3,1.0e-2,0.8e-3] "
               "particles.region_hi=[0.8e-3,5.4e-3,0.8e-3] fluid.cells=[16,50,16]",
         src + "/scenes/riser.toml particles.count=2000 fluid.cells=[16,25,16]"}) {
-    const fs::path a = fs::path(::testing::TempDir()) / "c1",
-                   b = fs::path(::testing::TempDir()) / "c2";
+    const fs::path a = fs::path(::testing::TempDir()) / "c1", b = fs::path(::testing::TempDir()) / "c2";
     fs::remove_all(a), fs::remove_all(b);
     const std::string common = scene + " run.end_time=4e-4 output.interval=1e-4 --quiet";
     ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);

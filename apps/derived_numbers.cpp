@@ -48,8 +48,8 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   // nu = (24/sqrt(pi)) phi g0 sqrt(T)/d ; 1/t_H = (4/sqrt(pi)) (1-e^2) phi g0 sqrt(T0)/d.
   d.collision_frequency = 24.0 / std::sqrt(std::numbers::pi) * phi * d.g0 * sqrtT / d.mean_diameter;
   const double e = s.dem.restitution;
-  const double rate = 4.0 / std::sqrt(std::numbers::pi) * (1 - e * e) * phi * d.g0 * sqrtT /
-                      d.mean_diameter;
+  const double rate =
+      4.0 / std::sqrt(std::numbers::pi) * (1 - e * e) * phi * d.g0 * sqrtT / d.mean_diameter;
   d.haff_time = rate > 0 ? 1.0 / rate : INFINITY;
   d.contact_duration = dem::contact_duration(s.dem.spring_constant, e, mmin / 2);
   d.dt_per_contact = d.contact_duration / d.dt;
@@ -60,10 +60,11 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
 } // namespace
 
 DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
-  const double t = p.size() ? dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass})
-                                  .granular_temperature
-                            : 0.0;
-  return derive_from(s, dem::particle_range(p), volume_and_diameters(p), t);
+  const double t =
+      p.size() ? dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}).granular_temperature : 0.0;
+  DerivedNumbers d = derive_from(s, dem::particle_range(p), volume_and_diameters(p), t);
+  d.sizes = size_statistics(p.radius);
+  return d;
 }
 
 DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator& comm,
@@ -78,12 +79,13 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator
   comm.sum(sums);
   const double t =
       dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}, comm).granular_temperature;
-  if (range_out) *range_out = r;
+  if (range_out)
+    *range_out = r;
   return derive_from(s, r, sums, t);
 }
 
 std::vector<std::pair<std::string, std::string>> DerivedNumbers::table() const {
-  return {
+  std::vector<std::pair<std::string, std::string>> rows = {
       {"particles", fmt::format("{}", particles)},
       {"mean_diameter_m", fmt::format("{:.6g}", mean_diameter)},
       {"particle_mass_kg (lightest)", fmt::format("{:.6e}", min_mass)},
@@ -98,6 +100,14 @@ std::vector<std::pair<std::string, std::string>> DerivedNumbers::table() const {
       {"contact_duration_s", fmt::format("{:.6e}", contact_duration)},
       {"steps_per_contact", fmt::format("{:.4g}", dt_per_contact)},
   };
+  if (sizes.d_max > sizes.d_min) {
+    rows.insert(rows.begin() + 2,
+                {{"diameter_min_max_m", fmt::format("{:.6g} {:.6g}", sizes.d_min, sizes.d_max)},
+                 {"d10_d50_d90_m (by volume)",
+                  fmt::format("{:.6g} {:.6g} {:.6g}", sizes.d10, sizes.d50, sizes.d90)},
+                 {"sauter_mean_d32_m", fmt::format("{:.6g}", sizes.d32)}});
+  }
+  return rows;
 }
 
 } // namespace cfddem::apps

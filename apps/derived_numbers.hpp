@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "core/communicator.hpp"
+#include "core/diameter_distribution.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/explicit_scheme.hpp"
@@ -17,20 +18,23 @@ namespace cfddem::apps {
 struct DerivedNumbers {
   std::size_t particles = 0;
   double mean_diameter = 0, min_mass = 0, tau_p = 0, dt = 0, solid_fraction = 0;
-  double g0 = 0;                  // Carnahan-Starling contact value
+  double g0 = 0; // Carnahan-Starling contact value
   double granular_temperature = 0;
   double collision_frequency = 0; // per particle, Enskog [1/s]
   double haff_time = 0;           // t_H [s] (no gas)
   double contact_duration = 0;    // pi/omega_d for two of the lightest particles [s]
   double dt_per_contact = 0;      // contact duration / dt
   long long steps = 0;            // steps to run.end_time
+  // d10/d50/d90 by volume and the Sauter mean (core/diameter_distribution.hpp), listed when the
+  // sizes differ; from the whole set only (the one-rank derive(), as `cfddem check` calls it).
+  SizeStatistics sizes;
   std::vector<std::pair<std::string, std::string>> table() const;
 };
 
 DerivedNumbers derive(const Scene& scene, const ParticleStore& particles);
 // The same over the particles of every rank (collective; the same numbers on every rank, sums
 // in another order than one rank's). Also returns the reduced range for make_step_model.
-DerivedNumbers derive(const Scene& scene, const ParticleStore& particles,
-                      const Communicator& comm, dem::ParticleRange* range = nullptr);
+DerivedNumbers derive(const Scene& scene, const ParticleStore& particles, const Communicator& comm,
+                      dem::ParticleRange* range = nullptr);
 
 } // namespace cfddem::apps

@@ -34,12 +34,18 @@ DiagnosticsFile::DiagnosticsFile(DiagnosticsFile&& o) noexcept
 }
 
 void DiagnosticsFile::add_row(const std::vector<double>& values) {
-  if (values.size() != columns_.size())
-    throw std::logic_error("diagnostics row has the wrong number of columns");
+  add_rows({values});
+}
+
+void DiagnosticsFile::add_rows(const std::vector<std::vector<double>>& rows) {
   std::string text;
-  for (std::size_t k = 0; k < values.size(); ++k)
-    text += fmt::format(k ? fmt::runtime(",{:.17g}") : fmt::runtime("{:.17g}"), values[k]);
-  text += '\n';
+  for (const std::vector<double>& values : rows) {
+    if (values.size() != columns_.size())
+      throw std::logic_error("diagnostics row has the wrong number of columns");
+    for (std::size_t k = 0; k < values.size(); ++k)
+      text += fmt::format(k ? fmt::runtime(",{:.17g}") : fmt::runtime("{:.17g}"), values[k]);
+    text += '\n';
+  }
   std::size_t done = 0;
   while (done < text.size()) {
     const ::ssize_t n = ::write(fd_, text.data() + done, text.size() - done);

@@ -22,6 +22,9 @@ public:
   // Appends the row to the file now; throws RunError (naming the file and the system's reason)
   // when it cannot.
   void add_row(const std::vector<double>& values);
+  // Appends several rows with one write (profiles.csv: every bin of one time, whole or not at
+  // all).
+  void add_rows(const std::vector<std::vector<double>>& rows);
   const std::vector<std::string>& columns() const { return columns_; }
 
 private:

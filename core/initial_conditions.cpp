@@ -6,6 +6,7 @@
 #include <fstream>
 #include <functional>
 #include <numbers>
+#include <numeric>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -61,7 +62,8 @@ public:
       for (int o = -1; o <= 1; ++o) {
         int c = b[a] + o;
         if (c < 0 || c >= n_[a]) {
-          if (!d_.periodic[a]) continue;
+          if (!d_.periodic[a])
+            continue;
           c = (c + n_[a]) % n_[a];
         }
         if (std::find(idx[a].begin(), idx[a].begin() + count[a], c) == idx[a].begin() + count[a])
@@ -94,7 +96,8 @@ private:
 };
 
 double min_image(double dx, double length, bool periodic) {
-  if (periodic) dx -= length * std::nearbyint(dx / length);
+  if (periodic)
+    dx -= length * std::nearbyint(dx / length);
   return dx;
 }
 
@@ -159,20 +162,30 @@ void check_packing_feasible(const Scene& s) {
   double region = 1.0;
   for (int a = 0; a < 3; ++a)
     region *= ps.region_hi[a] - ps.region_lo[a];
-  const double solids = static_cast<double>(ps.count) * std::numbers::pi / 6.0 * ps.diameter *
-                        ps.diameter * ps.diameter;
+  double solids = 0.0;
+  if (ps.diameters.fixed()) {
+    solids = static_cast<double>(ps.count) * std::numbers::pi / 6.0 * ps.diameter * ps.diameter *
+             ps.diameter;
+  } else {
+    DiameterStream d(ps.diameters, ps.seed);
+    for (std::int64_t k = 0; k < ps.count; ++k) {
+      const double dk = d.next();
+      solids += std::numbers::pi / 6.0 * dk * dk * dk;
+    }
+  }
   const double phi = solids / region;
   const auto fits = [&](double limit) {
     return static_cast<std::int64_t>(limit * region / (solids / static_cast<double>(ps.count)));
   };
   if (phi > kRandomClosePacking)
-    throw ConfigError("scene key 'particles.count'",
-                      fmt::format("{} particles of diameter {} m fill {:.3g} times the region "
-                                  "(solid fraction {:.3g}); no packing holds more than random "
-                                  "close packing, {} (about {} particles here): lower "
-                                  "particles.count or enlarge the region",
-                                  ps.count, ps.diameter, phi, kRandomClosePacking, phi,
-                                  kRandomClosePacking, fits(kRandomClosePacking)));
+    throw ConfigError(
+        "scene key 'particles.count'",
+        fmt::format("{} particles of diameter up to {} m fill {:.3g} times the region "
+                    "(solid fraction {:.3g}); no packing holds more than random "
+                    "close packing, {} (about {} particles here): lower "
+                    "particles.count or enlarge the region",
+                    ps.count, ps.diameter, phi, kRandomClosePacking, phi, kRandomClosePacking,
+                    fits(kRandomClosePacking)));
   const double bytes = static_cast<double>(ps.count) * kBytesPerParticle;
   const double memory = static_cast<double>(::sysconf(_SC_PHYS_PAGES)) *
                         static_cast<double>(::sysconf(_SC_PAGE_SIZE));
@@ -192,21 +205,37 @@ void check_packing_feasible(const Scene& s) {
 
 namespace {
 
+// The diameters of particles 0..count-1 (core/diameter_distribution.hpp).
+std::vector<double> draw_diameters(const ParticleSpec& ps) {
+  DiameterStream stream(ps.diameters, ps.seed);
+  std::vector<double> d(static_cast<std::size_t>(ps.count));
+  for (double& x : d)
+    x = stream.next();
+  return d;
+}
+
 void place_random(ParticleStore& p, const Scene& s) {
   const auto& ps = s.particles;
-  const double r = 0.5 * ps.diameter;
+  const std::vector<double> diameter = draw_diameters(ps);
+  // Random sequential addition; with a distribution the largest particles go first (a large
+  // sphere finds no hole left among small ones long before a small one runs out of room), and
+  // the store is put back in id order at the end.
+  std::vector<std::int64_t> order(diameter.size());
+  std::iota(order.begin(), order.end(), std::int64_t{0});
+  if (!ps.diameters.fixed())
+    std::stable_sort(order.begin(), order.end(), [&](std::int64_t a, std::int64_t b) {
+      return diameter[static_cast<std::size_t>(a)] > diameter[static_cast<std::size_t>(b)];
+    });
   std::mt19937_64 rng(ps.seed);
-  // Centres keep a radius from non-periodic region faces so no particle starts in a wall.
-  std::array<std::uniform_real_distribution<double>, 3> u;
+  // Centres keep their radius from non-periodic region faces so no particle starts in a wall.
+  std::array<bool, 3> full_periodic{};
   for (int a = 0; a < 3; ++a) {
-    const bool full_periodic = s.domain.periodic[a] && ps.region_lo[a] == s.domain.lo[a] &&
-                               ps.region_hi[a] == s.domain.hi[a];
-    const double m = full_periodic ? 0.0 : r;
-    if (ps.region_hi[a] - ps.region_lo[a] <= 2 * m)
-      throw ConfigError("scene key 'particles.region_hi'",
-                        fmt::format("region too thin for particles of diameter {} (axis {})",
-                                    ps.diameter, a));
-    u[a] = std::uniform_real_distribution<double>(ps.region_lo[a] + m, ps.region_hi[a] - m);
+    full_periodic[a] = s.domain.periodic[a] && ps.region_lo[a] == s.domain.lo[a] &&
+                       ps.region_hi[a] == s.domain.hi[a];
+    if (ps.region_hi[a] - ps.region_lo[a] <= (full_periodic[a] ? 0.0 : ps.diameter))
+      throw ConfigError(
+          "scene key 'particles.region_hi'",
+          fmt::format("region too thin for particles of diameter {} (axis {})", ps.diameter, a));
   }
   PointGrid grid(s.domain, ps.diameter);
   const std::int64_t max_attempts = 1000 * ps.count + 100000;
@@ -221,18 +250,33 @@ void place_random(ParticleStore& p, const Scene& s) {
                                     "region (random placement saturates near 38% solids; use "
                                     "particles.placement = \"lattice\" or a larger region)",
                                     p.size(), ps.count));
-    const double x = u[0](rng), y = u[1](rng), z = u[2](rng);
+    const std::int64_t k = order[p.size()];
+    const double r = 0.5 * diameter[static_cast<std::size_t>(k)];
+    // (The distributions are stateless: drawing through fresh ones with the same range gives
+    // the values one reused distribution gives.)
+    std::array<double, 3> c{};
+    for (std::size_t a = 0; a < 3; ++a) {
+      const double m = full_periodic[a] ? 0.0 : r;
+      c[a] = std::uniform_real_distribution<double>(ps.region_lo[a] + m, ps.region_hi[a] - m)(rng);
+    }
+    const double x = c[0], y = c[1], z = c[2];
     bool free = true;
-    const std::size_t cand = p.add(x, y, z, 0, 0, 0, r, ps.density,
-                                   static_cast<std::int64_t>(p.size()));
+    const std::size_t cand = p.add(x, y, z, 0, 0, 0, r, ps.density, k);
     grid.for_near(x, y, z, [&](std::size_t q) {
-      if (free && gap(p, cand, q, s.domain) <= 0.0) free = false;
+      if (free && gap(p, cand, q, s.domain) <= 0.0)
+        free = false;
     });
     if (free) {
       grid.insert(cand, x, y, z);
     } else {
       p.resize(cand);
     }
+  }
+  if (!ps.diameters.fixed()) {
+    std::vector<std::uint32_t> by_id(p.size());
+    for (std::size_t i = 0; i < p.size(); ++i)
+      by_id[static_cast<std::size_t>(p.id[i])] = static_cast<std::uint32_t>(i);
+    p.permute(by_id);
   }
 }
 
@@ -245,7 +289,8 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
   // Simple cubic lattice with spacing >= d filling the region; particles fill it in x, y, z order.
   for (int a = 0; a < 3; ++a) {
     n[a] = static_cast<int>(std::floor((ps.region_hi[a] - ps.region_lo[a]) / (d * 1.0000001)));
-    if (n[a] < 1) n[a] = 0;
+    if (n[a] < 1)
+      n[a] = 0;
   }
   const std::int64_t capacity = static_cast<std::int64_t>(n[0]) * n[1] * n[2];
   if (capacity < ps.count)
@@ -253,15 +298,20 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
                       fmt::format("a cubic lattice of spacing d fits {} particles in the region, "
                                   "{} were asked for",
                                   capacity, ps.count));
-  for (int a = 0; a < 3; ++a) spacing[a] = (ps.region_hi[a] - ps.region_lo[a]) / n[a];
+  for (int a = 0; a < 3; ++a)
+    spacing[a] = (ps.region_hi[a] - ps.region_lo[a]) / n[a];
+  // Sites are spaced by the largest diameter; each particle's own diameter comes from the
+  // stream, drawn for every site in id order (kept or not) so a rank's share gets the whole
+  // set's values.
+  DiameterStream diameter(ps.diameters, ps.seed);
   std::int64_t k = 0;
   for (int iz = 0; iz < n[2] && k < ps.count; ++iz)
     for (int iy = 0; iy < n[1] && k < ps.count; ++iy)
       for (int ix = 0; ix < n[0] && k < ps.count; ++ix, ++k)
-        if (keep(k))
+        if (const double dk = diameter.next(); keep(k))
           p.add(ps.region_lo[0] + (ix + 0.5) * spacing[0],
                 ps.region_lo[1] + (iy + 0.5) * spacing[1],
-                ps.region_lo[2] + (iz + 0.5) * spacing[2], 0, 0, 0, 0.5 * d, ps.density, k);
+                ps.region_lo[2] + (iz + 0.5) * spacing[2], 0, 0, 0, 0.5 * dk, ps.density, k);
 }
 
 } // namespace
@@ -270,17 +320,21 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
 // particles with the ids `ids` (increasing), and gets exactly the velocities the whole set would
 // get. The normal stream is drawn twice over all n (the mean, then the variance, summed in id
 // order as the whole-set version does) without storing it: O(n) time, O(share) memory.
-void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n, double m,
+void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n,
+                                     const DiameterDistribution& diameters, double density,
                                      double temperature, const std::array<double, 3>& mean,
                                      std::uint64_t seed) {
-  if (n == 0) return;
+  if (n == 0)
+    return;
   const double sigma = std::sqrt(std::max(temperature, 0.0));
   double mt = 0, px = 0, py = 0, pz = 0;
   {
     std::mt19937_64 rng(seed ^ 0x9e3779b97f4a7c15ULL);
     std::normal_distribution<double> g(0.0, sigma);
+    DiameterStream diameter(diameters, seed);
     for (std::int64_t k = 0; k < n; ++k) {
       const double a = g(rng), b = g(rng), c = g(rng);
+      const double m = ParticleStore::sphere_mass(density, 0.5 * diameter.next());
       mt += m, px += m * a, py += m * b, pz += m * c;
     }
   }
@@ -293,10 +347,12 @@ void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n, double m,
       double a = g(rng), b = g(rng), c = g(rng);
       a -= px / mt, b -= py / mt, c -= pz / mt;
       sq += a * a + b * b + c * c;
-      if (mine < p.size() && p.id[mine] == k) p.vx[mine] = a, p.vy[mine] = b, p.vz[mine] = c, ++mine;
+      if (mine < p.size() && p.id[mine] == k)
+        p.vx[mine] = a, p.vy[mine] = b, p.vz[mine] = c, ++mine;
     }
   }
-  const double scale = (sq > 0 && n > 1) ? std::sqrt(temperature / (sq / (3.0 * static_cast<double>(n)))) : 0.0;
+  const double scale =
+      (sq > 0 && n > 1) ? std::sqrt(temperature / (sq / (3.0 * static_cast<double>(n)))) : 0.0;
   for (std::size_t i = 0; i < p.size(); ++i) {
     p.vx[i] = p.vx[i] * scale + mean[0];
     p.vy[i] = p.vy[i] * scale + mean[1];
@@ -307,14 +363,17 @@ void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n, double m,
 void assign_thermal_velocities(ParticleStore& p, double temperature,
                                const std::array<double, 3>& mean, std::uint64_t seed) {
   const std::size_t n = p.size();
-  if (n == 0) return;
+  if (n == 0)
+    return;
   std::mt19937_64 rng(seed ^ 0x9e3779b97f4a7c15ULL);
   std::normal_distribution<double> g(0.0, std::sqrt(std::max(temperature, 0.0)));
-  for (std::size_t i = 0; i < n; ++i) p.vx[i] = g(rng), p.vy[i] = g(rng), p.vz[i] = g(rng);
+  for (std::size_t i = 0; i < n; ++i)
+    p.vx[i] = g(rng), p.vy[i] = g(rng), p.vz[i] = g(rng);
   // Remove the mass-weighted mean, then rescale to T0 exactly (as the peers' generator does).
   double mt = 0, px = 0, py = 0, pz = 0;
   for (std::size_t i = 0; i < n; ++i)
-    mt += p.mass[i], px += p.mass[i] * p.vx[i], py += p.mass[i] * p.vy[i], pz += p.mass[i] * p.vz[i];
+    mt += p.mass[i], px += p.mass[i] * p.vx[i], py += p.mass[i] * p.vy[i],
+        pz += p.mass[i] * p.vz[i];
   double sq = 0;
   for (std::size_t i = 0; i < n; ++i) {
     p.vx[i] -= px / mt, p.vy[i] -= py / mt, p.vz[i] -= pz / mt;
@@ -335,9 +394,11 @@ ParticleStore read_particle_csv(const std::string& path) {
 ParticleStore read_particle_csv_rows(const std::string& path,
                                      const std::function<bool(std::int64_t)>& keep) {
   std::ifstream in(path);
-  if (!in) throw ConfigError(path, "cannot open the particle file (scene key 'particles.file')");
+  if (!in)
+    throw ConfigError(path, "cannot open the particle file (scene key 'particles.file')");
   std::string line;
-  if (!std::getline(in, line)) throw ConfigError(path, "empty file: expected a header row");
+  if (!std::getline(in, line))
+    throw ConfigError(path, "empty file: expected a header row");
   const std::vector<std::string> wanted = {"x", "y", "z", "vx", "vy", "vz", "diameter", "density"};
   std::vector<int> col(wanted.size(), -1);
   {
@@ -363,14 +424,16 @@ ParticleStore read_particle_csv_rows(const std::string& path,
   std::int64_t row = 0;
   while (std::getline(in, line)) {
     ++lineno;
-    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    if (line.find_first_not_of(" \t\r") == std::string::npos)
+      continue;
     std::vector<double> v;
     std::stringstream ls(line);
     std::string cell;
     while (std::getline(ls, cell, ',')) {
       char* end = nullptr;
       const double val = std::strtod(cell.c_str(), &end);
-      while (end && *end && std::isspace(static_cast<unsigned char>(*end))) ++end;
+      while (end && *end && std::isspace(static_cast<unsigned char>(*end)))
+        ++end;
       if (cell.empty() || !end || *end != '\0' || !std::isfinite(val))
         throw ConfigError(fmt::format("{} line {}", path, lineno),
                           fmt::format("'{}' is not a finite number", cell));
@@ -391,14 +454,18 @@ ParticleStore read_particle_csv_rows(const std::string& path,
 }
 
 void check_no_overlap(const ParticleStore& p, const DomainSpec& domain) {
-  if (p.size() < 2) return;
+  if (p.size() < 2)
+    return;
   double dmax = 0;
-  for (double r : p.radius) dmax = std::max(dmax, 2 * r);
+  for (double r : p.radius)
+    dmax = std::max(dmax, 2 * r);
   PointGrid grid(domain, dmax);
-  for (std::size_t i = 0; i < p.size(); ++i) grid.insert(i, p.x[i], p.y[i], p.z[i]);
+  for (std::size_t i = 0; i < p.size(); ++i)
+    grid.insert(i, p.x[i], p.y[i], p.z[i]);
   for (std::size_t i = 0; i < p.size(); ++i) {
     grid.for_near(p.x[i], p.y[i], p.z[i], [&](std::size_t j) {
-      if (j <= i) return;
+      if (j <= i)
+        return;
       const double g = gap(p, i, j, domain);
       if (g < 0.0)
         throw ConfigError(
@@ -448,7 +515,8 @@ ParticleStore make_initial_particles(const Scene& s) {
     assign_thermal_velocities(p, s.particles.temperature, s.particles.velocity, s.particles.seed);
   }
   check_inside(p, s);
-  if (!s.particles.allow_overlap) check_no_overlap(p, s.domain);
+  if (!s.particles.allow_overlap)
+    check_no_overlap(p, s.domain);
   return p;
 }
 
@@ -470,9 +538,8 @@ ParticleStore make_initial_share(const Scene& s, int rank, int ranks) {
     check_packing_feasible(s);
     // Lattice sites are spaced by more than a diameter: no overlap to check.
     place_lattice(p, s, mine);
-    ParticleStore one;
-    one.add(0, 0, 0, 0, 0, 0, 0.5 * s.particles.diameter, s.particles.density, 0);
-    assign_thermal_velocities_share(p, s.particles.count, one.mass[0], s.particles.temperature,
+    assign_thermal_velocities_share(p, s.particles.count, s.particles.diameters,
+                                    s.particles.density, s.particles.temperature,
                                     s.particles.velocity, s.particles.seed);
     check_inside(p, s);
     return p;
@@ -483,7 +550,8 @@ ParticleStore make_initial_share(const Scene& s, int rank, int ranks) {
   }
   std::vector<std::uint32_t> keep;
   for (std::size_t i = 0; i < p.size(); ++i)
-    if (mine(p.id[i])) keep.push_back(static_cast<std::uint32_t>(i));
+    if (mine(p.id[i]))
+      keep.push_back(static_cast<std::uint32_t>(i));
   p.permute(keep);
   return p;
 }

@@ -43,7 +43,7 @@ std::size_t ParticleStore::add(double px, double py, double pz, double pvx, doub
   x[i] = px, y[i] = py, z[i] = pz;
   vx[i] = pvx, vy[i] = pvy, vz[i] = pvz;
   radius[i] = r;
-  mass[i] = density * (4.0 / 3.0) * std::numbers::pi * r * r * r;
+  mass[i] = sphere_mass(density, r);
   inv_mass[i] = 1.0 / mass[i];
   id[i] = pid;
   if (rotation) inv_inertia[i] = 1.0 / (0.4 * mass[i] * r * r);

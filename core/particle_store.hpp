@@ -4,6 +4,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <numbers>
 #include <span>
 #include <vector>
 
@@ -18,15 +19,19 @@ struct ParticleStore {
   std::vector<double> inv_mass;   // 1/mass, kept so the update multiplies
   std::vector<std::int64_t> id;   // stable identity across reordering and ranks
 
-  bool rotation = false;             // angular fields present (friction on)
-  std::vector<double> wx, wy, wz;    // angular velocity [rad/s]
-  std::vector<double> tx, ty, tz;    // torque [N m]
-  std::vector<double> inv_inertia;   // 1/I, I = m d^2 / 10 for a solid sphere
+  bool rotation = false;           // angular fields present (friction on)
+  std::vector<double> wx, wy, wz;  // angular velocity [rad/s]
+  std::vector<double> tx, ty, tz;  // torque [N m]
+  std::vector<double> inv_inertia; // 1/I, I = m d^2 / 10 for a solid sphere
 
   std::size_t size() const { return x.size(); }
   void enable_rotation();
   void resize(std::size_t n);
   // Append one particle at rest with zero force; returns its index.
+  // Mass of a sphere of radius r [m] and density [kg/m^3], as add() stores it.
+  static double sphere_mass(double density, double r) {
+    return density * (4.0 / 3.0) * std::numbers::pi * r * r * r;
+  }
   std::size_t add(double px, double py, double pz, double pvx, double pvy, double pvz, double r,
                   double density, std::int64_t pid);
   // Reorder every field so that new index k holds old index order[k].
@@ -37,7 +42,7 @@ struct ParticleStore {
   double total_mass() const;
 
 private:
-  std::vector<double> scratch_;         // permute() reuses these: no allocation per neighbor build
+  std::vector<double> scratch_; // permute() reuses these: no allocation per neighbor build
   std::vector<std::int64_t> scratch_id_;
 };
 

@@ -112,8 +112,10 @@ private:
                                                           must_be(k), v[0], v[1], v[2]));
     return v;
   }
+  // A word given in the scene must be one of the key's choices.
   std::string chosen(const SceneKey& k, std::string v) const {
-    if (!k.choices.empty() && std::find(k.choices.begin(), k.choices.end(), v) == k.choices.end())
+    if (!k.choices.empty() && c_.has(key(k)) &&
+        std::find(k.choices.begin(), k.choices.end(), v) == k.choices.end())
       throw ConfigError(c_.where(key(k)), fmt::format("unknown value \"{}\" (available: \"{}\")", v,
                                                       fmt::join(k.choices, "\", \"")));
     return v;
@@ -167,7 +169,27 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   p.allow_overlap = k.flag("particles.allow_overlap");
   if (p.file.empty()) {
     p.count = k.integer("particles.count");
-    p.diameter = k.number("particles.diameter");
+    if (c.has("particles.diameter.distribution")) {
+      // A table { distribution, mean, std, min, max } (core/diameter_distribution.hpp).
+      auto& dd = p.diameters;
+      dd.kind = k.word("particles.diameter.distribution", "");
+      dd.min = k.number("particles.diameter.min");
+      dd.max = k.number("particles.diameter.max");
+      require(dd.max > dd.min, "particles.diameter.max",
+              fmt::format("must be > particles.diameter.min ({} m), got {} m", dd.min, dd.max));
+      if (dd.kind == "uniform") {
+        for (const char* g : {"particles.diameter.mean", "particles.diameter.std"})
+          require(!c.has(g), g, "a uniform distribution takes only min and max");
+        dd.mean = 0.5 * (dd.min + dd.max);
+      } else {
+        dd.mean = k.number("particles.diameter.mean");
+        dd.std = k.number("particles.diameter.std");
+      }
+      p.diameter = dd.max;
+    } else {
+      p.diameter = k.number("particles.diameter");
+      p.diameters.kind = "fixed", p.diameters.mean = p.diameter;
+    }
     p.density = k.number("particles.density");
     p.temperature = k.number("particles.temperature");
     p.velocity = k.vec3("particles.velocity");
@@ -283,10 +305,18 @@ namespace cfddem {
 
 namespace {
 // As the key table writes values (17 significant digits).
-std::string vec3(const std::array<double, 3>& v) { return toml_text(v); }
-std::string bool3(const std::array<bool, 3>& v) { return toml_text(v); }
-std::string num(double v) { return toml_text(v); }
-std::string str(const std::string& s) { return toml_text(std::string_view(s)); }
+std::string vec3(const std::array<double, 3>& v) {
+  return toml_text(v);
+}
+std::string bool3(const std::array<bool, 3>& v) {
+  return toml_text(v);
+}
+std::string num(double v) {
+  return toml_text(v);
+}
+std::string str(const std::string& s) {
+  return toml_text(std::string_view(s));
+}
 } // namespace
 
 std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) {
@@ -301,7 +331,17 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("particles.file", str(p.file));
   } else {
     o.emplace_back("particles.count", std::to_string(p.count));
-    o.emplace_back("particles.diameter", num(p.diameter));
+    if (p.diameters.fixed()) {
+      o.emplace_back("particles.diameter", num(p.diameter));
+    } else {
+      o.emplace_back("particles.diameter.distribution", str(p.diameters.kind));
+      if (p.diameters.kind != "uniform") {
+        o.emplace_back("particles.diameter.mean", num(p.diameters.mean));
+        o.emplace_back("particles.diameter.std", num(p.diameters.std));
+      }
+      o.emplace_back("particles.diameter.min", num(p.diameters.min));
+      o.emplace_back("particles.diameter.max", num(p.diameters.max));
+    }
     o.emplace_back("particles.density", num(p.density));
     o.emplace_back("particles.temperature", num(p.temperature));
     o.emplace_back("particles.velocity", vec3(p.velocity));

@@ -10,6 +10,8 @@
 #include <utility>
 #include <vector>
 
+#include "core/diameter_distribution.hpp"
+
 #include "core/scene_config.hpp"
 
 namespace cfddem {
@@ -22,11 +24,12 @@ struct DomainSpec {
 };
 
 struct ParticleSpec {
-  std::string file;          // CSV x,y,z,vx,vy,vz,diameter,density; empty = generator
-  std::int64_t count = 0;    // generator: number of particles
-  double diameter = 0.0;     // [m]
-  double density = 0.0;      // [kg/m^3]
-  double temperature = 0.0;  // granular temperature T0 [m^2/s^2], Gaussian velocities
+  std::string file;               // CSV x,y,z,vx,vy,vz,diameter,density; empty = generator
+  std::int64_t count = 0;         // generator: number of particles
+  double diameter = 0.0;          // [m]; with a distribution, its largest value (diameters.max)
+  DiameterDistribution diameters; // "fixed" (= diameter) or a truncated distribution
+  double density = 0.0;           // [kg/m^3]
+  double temperature = 0.0;       // granular temperature T0 [m^2/s^2], Gaussian velocities
   std::array<double, 3> velocity{0, 0, 0}; // mean velocity added to the Gaussian part
   std::uint64_t seed = 1;
   std::string placement = "random";
@@ -36,30 +39,34 @@ struct ParticleSpec {
 
 struct DemSpec {
   std::string scheme = "explicit";
-  double spring_constant = 0.0;   // k_n [N/m]
-  double restitution = 0.0;       // e
-  double friction = 0.0;          // Coulomb mu
+  double spring_constant = 0.0;                  // k_n [N/m]
+  double restitution = 0.0;                      // e
+  double friction = 0.0;                         // Coulomb mu
   double tangential_stiffness_ratio = 2.0 / 7.0; // k_t / k_n (MFIX, LIGGGHTS default)
   double tangential_damping_ratio = 0.5;         // eta_t / eta_n (MFIX default)
   double wall_spring_constant = 0.0;
   double wall_restitution = 0.0;
   double wall_friction = 0.0;
-  double dt_factor = 0.02;        // dt = tau_p * dt_factor
-  double dt = 0.0;                // explicit step [s] (0 = from dt_factor), as LAMMPS `timestep`
-  double neighbor_skin = 0.0;     // Verlet skin [m]
-  double max_overlap = 0.3;       // stop when overlap / smaller radius exceeds this
+  double dt_factor = 0.02;    // dt = tau_p * dt_factor
+  double dt = 0.0;            // explicit step [s] (0 = from dt_factor), as LAMMPS `timestep`
+  double neighbor_skin = 0.0; // Verlet skin [m]
+  double max_overlap = 0.3;   // stop when overlap / smaller radius exceeds this
   // The `orb` scheme (Sitaraman & Grout, Algorithm 2).
-  std::int64_t nsubit = 10;       // sub-iterations per regrid interval
-  double proximity_radii = 3.0;   // a pair is close if centre distance < this * (r_i + r_j) / 2
+  std::int64_t nsubit = 10;     // sub-iterations per regrid interval
+  double proximity_radii = 3.0; // a pair is close if centre distance < this * (r_i + r_j) / 2
   std::string local_dt = "proximity";
-  double regrid_interval = 1e-4;  // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
+  double regrid_interval = 1e-4; // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
 };
 
 struct PartitionSpec {
   int orb_levels = 4; // the ORB has 2^orb_levels leaves
+  // ORB weights: "count" (every particle weighs 1) or "cost" (particles x local steps of the
+  // last regrid interval: each particle weighs the local steps its leaf took).
   std::string weights = "count";
-  // A gas on R ranks: the gas boxes are recut by a weighted ORB, each cell weighing cell_weight
-  // plus the particle steps of the particles in it over the last fluid step.
+  // A gas on R ranks: every gas_regrid_interval simulated seconds (0: never) the gas boxes are
+  // cut again by a weighted ORB, each cell weighing cell_weight (its fluid step, in particle
+  // steps) plus the particle steps of the particles in it over the last fluid step; a box's
+  // cells and particles then move to their new owner.
   double gas_regrid_interval = 0.0;
   double cell_weight = 400.0;
 };
@@ -69,8 +76,8 @@ struct RunSpec {
 };
 
 struct OutputSpec {
-  double interval = 0.0;        // simulated seconds between diagnostics rows
-  double progress_seconds = 2.0;// wall seconds between progress lines
+  double interval = 0.0;            // simulated seconds between diagnostics rows
+  double progress_seconds = 2.0;    // wall seconds between progress lines
   double snapshot_interval = 0.0;   // simulated seconds between HDF5 snapshots (0: none)
   double checkpoint_interval = 0.0; // simulated seconds between checkpoints (0: none)
 };
@@ -79,26 +86,26 @@ struct OutputSpec {
 // and boundary conditions by the coupling (apps/coupled_step), which knows the fluid library.
 struct FluidSpec {
   bool enabled = false;
-  std::array<std::int64_t, 3> cells{};       // fluid.cells [nx, ny, nz]
-  std::array<double, 3> cell_size{};         // fluid.cell_size [m]; 0 = extent / cells
-  double density = 0.0;                      // rho_g [kg/m^3]
-  double viscosity = 0.0;                    // mu_g [Pa s]
-  double dt = 0.0;                           // fixed coupling step dt_f [s]; 0 = from cfl
-  double cfl = 0.4;                          // Courant number of the gas sub-steps / adaptive dt_f
-  double max_dt = 1e-3;                      // adaptive dt_f cap [s]
+  std::array<std::int64_t, 3> cells{};  // fluid.cells [nx, ny, nz]
+  std::array<double, 3> cell_size{};    // fluid.cell_size [m]; 0 = extent / cells
+  double density = 0.0;                 // rho_g [kg/m^3]
+  double viscosity = 0.0;               // mu_g [Pa s]
+  double dt = 0.0;                      // fixed coupling step dt_f [s]; 0 = from cfl
+  double cfl = 0.4;                     // Courant number of the gas sub-steps / adaptive dt_f
+  double max_dt = 1e-3;                 // adaptive dt_f cap [s]
   std::string drag = "bvk";
   std::string deposition = "trilinear";
-  double deposition_width = 2.0;             // dpvm kernel width in particle diameters
-  std::array<std::string, 6> bc{};           // per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi
-  std::array<double, 3> inflow_velocity{};   // gas velocity on inflow faces [m/s]
-  double outflow_pressure = 0.0;             // p' on outflow faces [Pa]
-  std::array<double, 3> pressure_drop{};     // MFIX's delp across periodic axes [Pa]
-  std::array<double, 3> velocity{};          // initial gas velocity [m/s]
+  double deposition_width = 2.0;        // dpvm kernel width in particle diameters
+  std::array<std::string, 6> bc{}; // per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi
+  std::array<double, 3> inflow_velocity{}; // gas velocity on inflow faces [m/s]
+  double outflow_pressure = 0.0;           // p' on outflow faces [Pa]
+  std::array<double, 3> pressure_drop{};   // MFIX's delp across periodic axes [Pa]
+  std::array<double, 3> velocity{};        // initial gas velocity [m/s]
   bool implicit_viscosity = false;
-  int time_order = 2;                        // 1: Euler, 2: predictor-corrector (Heun)
-  double tolerance = 1e-10;                  // projection PCG relative residual
-  std::string preconditioner = "pfmg";       // projection PCG preconditioner
-  std::string solver = "auto";               // projection solver
+  int time_order = 2;                  // 1: Euler, 2: predictor-corrector (Heun)
+  double tolerance = 1e-10;            // projection PCG relative residual
+  std::string preconditioner = "pfmg"; // projection PCG preconditioner
+  std::string solver = "auto";         // projection solver
 };
 
 struct Scene {

@@ -53,6 +53,7 @@ KeyDefault derived(std::string_view how) {
 }
 
 constexpr std::string_view kPlacements[] = {"random", "lattice"};
+constexpr std::string_view kDistributions[] = {"uniform", "normal", "lognormal"};
 constexpr std::string_view kSchemes[] = {"explicit", "orb", "islands"};
 constexpr std::string_view kLocalDt[] = {"proximity", "time_to_contact"};
 constexpr std::string_view kWeights[] = {"count", "cost"};
@@ -127,8 +128,49 @@ std::vector<SceneKey> make_table() {
        .section = S::DomainParticles,
        .unit = "m",
        .range = above(0),
-       .fallback = required("without `particles.file`"),
-       .meaning = "generator: diameter (must fit in the domain)"},
+       .fallback = required("without `particles.file` or a distribution"),
+       .meaning = "generator: one diameter for every particle (must fit in the domain); or a "
+                  "size distribution, the table `particles.diameter = { distribution, mean, "
+                  "std, min, max }` below"},
+      {.name = "particles.diameter.distribution",
+       .type = T::String,
+       .section = S::DomainParticles,
+       .choices = kDistributions,
+       .fallback = derived("none (one size)"),
+       .meaning = "generator: diameters drawn from this distribution, truncated to [min, max] by "
+                  "redrawing (not clamping), in particle id order from their own seeded stream; "
+                  "lognormal takes the diameter's own mean and std"},
+      {.name = "particles.diameter.mean",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .range = above(0),
+       .fallback = required("for `\"normal\"` and `\"lognormal\"`"),
+       .meaning = "generator, distribution: mean diameter (not with `\"uniform\"`, whose mean is "
+                  "(min + max) / 2)"},
+      {.name = "particles.diameter.std",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .range = above(0),
+       .fallback = required("for `\"normal\"` and `\"lognormal\"`"),
+       .meaning = "generator, distribution: standard deviation of the diameter (not with "
+                  "`\"uniform\"`)"},
+      {.name = "particles.diameter.min",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .range = above(0),
+       .fallback = required("with a distribution"),
+       .meaning = "generator, distribution: smallest diameter"},
+      {.name = "particles.diameter.max",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .range = above(0),
+       .fallback = required("with a distribution"),
+       .meaning = "generator, distribution: largest diameter (> min; the packing, cell sizes and "
+                  "margins use it)"},
       {.name = "particles.density",
        .type = T::Number,
        .section = S::DomainParticles,

@@ -1,12 +1,14 @@
 // Initial conditions: seeded placement, exact granular temperature, CSV reading and its errors.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <stdexcept>
 #include <fstream>
+#include <stdexcept>
 
 #include <gtest/gtest.h>
 
+#include "core/diameter_distribution.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/scene_config.hpp"
@@ -31,8 +33,10 @@ spring_constant = 10.0
 restitution = 0.8
 [run]
 end_time = 1.0e-3
-)", "gas");
-  for (const auto& o : overrides) c.apply_override(o);
+)",
+                                    "gas");
+  for (const auto& o : overrides)
+    c.apply_override(o);
   return read_scene(c, "gas");
 }
 
@@ -101,7 +105,8 @@ TEST(InitialConditions, CsvErrorsNameFileAndLine) {
     }
     return std::string();
   };
-  EXPECT_NE(message("x,y,z,vx,vy,vz,diameter\n").find("missing column 'density'"), std::string::npos);
+  EXPECT_NE(message("x,y,z,vx,vy,vz,diameter\n").find("missing column 'density'"),
+            std::string::npos);
   EXPECT_NE(message("x,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,7\n").find("line 2"),
             std::string::npos);
   EXPECT_NE(message("x,y,z,vx,vy,vz,diameter,density\n1,2,3,4,5,6,abc,1\n").find("'abc'"),
@@ -177,7 +182,9 @@ TEST(InitialShare, LatticeWithThermalVelocities) {
                                        "particles.velocity=[0.0, 0.5, 0.0]"}));
 }
 
-TEST(InitialShare, RandomPlacement) { expect_shares_partition_the_set(gas({})); }
+TEST(InitialShare, RandomPlacement) {
+  expect_shares_partition_the_set(gas({}));
+}
 
 TEST(InitialShare, ParticleFileWithAndWithoutOverlapTest) {
   std::string text = "x,y,z,vx,vy,vz,diameter,density\n";
@@ -197,14 +204,167 @@ spring_constant = 10.0
 restitution = 0.8
 [run]
 end_time = 1.0e-3
-)", "file");
+)",
+                                      "file");
     c.apply_override(std::string("particles.allow_overlap=") + overlap);
     expect_shares_partition_the_set(read_scene(c, "file"));
   }
 }
 
 TEST(InitialShare, ErrorsAsTheWholeSet) {
-  EXPECT_THROW(make_initial_share(gas({"particles.placement=lattice", "particles.count=6860"}), 1, 2),
-               ConfigError);
+  EXPECT_THROW(
+      make_initial_share(gas({"particles.placement=lattice", "particles.count=6860"}), 1, 2),
+      ConfigError);
   EXPECT_THROW(make_initial_share(gas({}), 2, 2), std::invalid_argument);
+}
+
+// Polydisperse generation (core/diameter_distribution.hpp).
+namespace {
+
+Scene poly(const std::string& diameter, std::initializer_list<std::string> overrides = {}) {
+  auto c = SceneConfig::from_string(R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [2.0e-3, 2.0e-3, 2.0e-3]
+[particles]
+count = 400
+diameter = )" + diameter + R"(
+density = 1000.0
+temperature = 0.01
+seed = 5
+[dem]
+spring_constant = 10.0
+restitution = 0.8
+[run]
+end_time = 1.0e-3
+)",
+                                    "poly");
+  for (const auto& o : overrides)
+    c.apply_override(o);
+  return read_scene(c, "poly");
+}
+
+const std::string kUniform3to1 = R"({ distribution = "uniform", min = 50.0e-6, max = 150.0e-6 })";
+
+} // namespace
+
+TEST(DiameterDistribution, DrawsFollowTheDistributionWithinItsBounds) {
+  // Sample means and deviations within 5 standard errors of the (truncated) distribution's.
+  const int n = 200000;
+  {
+    DiameterStream s({"uniform", 0.0, 0.0, 1.0, 3.0}, 7);
+    double sum = 0, sq = 0;
+    for (int k = 0; k < n; ++k) {
+      const double d = s.next();
+      ASSERT_TRUE(d >= 1.0 && d <= 3.0);
+      sum += d, sq += d * d;
+    }
+    const double mean = sum / n, var = sq / n - mean * mean;
+    EXPECT_NEAR(mean, 2.0, 5.0 * std::sqrt(1.0 / 3.0 / n));
+    EXPECT_NEAR(var, 1.0 / 3.0, 5.0 * std::sqrt(4.0 / 45.0 / n)); // Var(X^2) = 4/45 for U(1,3)
+  }
+  {
+    // Lognormal with mean 1, std 0.2, bounds far in the tails (mass outside ~1e-9): the
+    // diameter's own mean and std come back.
+    DiameterStream s({"lognormal", 1.0, 0.2, 0.2, 5.0}, 7);
+    double sum = 0, sq = 0;
+    for (int k = 0; k < n; ++k) {
+      const double d = s.next();
+      sum += d, sq += d * d;
+    }
+    const double mean = sum / n, sd = std::sqrt(sq / n - mean * mean);
+    EXPECT_NEAR(mean, 1.0, 5.0 * 0.2 / std::sqrt(n));
+    EXPECT_NEAR(sd, 0.2, 5.0 * 0.2 / std::sqrt(2.0 * n) * 1.3); // kurtosis of a lognormal: 1.3x
+  }
+  {
+    // A normal truncated to [mean, mean + std]: every draw inside, none at a bound by clamping.
+    DiameterStream s({"normal", 1.0, 0.5, 1.0, 1.5}, 3);
+    int at_bound = 0;
+    for (int k = 0; k < 10000; ++k) {
+      const double d = s.next();
+      ASSERT_TRUE(d >= 1.0 && d <= 1.5);
+      at_bound += d == 1.0 || d == 1.5;
+    }
+    EXPECT_EQ(at_bound, 0);
+  }
+  // A range that holds nothing of the distribution is an error naming the key.
+  DiameterStream far({"normal", 1.0, 0.01, 2.0, 3.0}, 1);
+  try {
+    far.next();
+    FAIL() << "expected a ConfigError";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("particles.diameter"), std::string::npos) << e.what();
+  }
+}
+
+TEST(DiameterDistribution, SizeStatisticsByVolume) {
+  // One particle of d = 2 and eight of d = 1: equal volumes. d10 = d50 = 1 (the small ones
+  // hold half the volume), d90 = 2, d32 = (8 + 8) / (4 + 8) = 4/3.
+  std::vector<double> r(8, 0.5);
+  r.push_back(1.0);
+  const SizeStatistics s = size_statistics(r);
+  EXPECT_EQ(s.d_min, 1.0);
+  EXPECT_EQ(s.d_max, 2.0);
+  EXPECT_EQ(s.d10, 1.0);
+  EXPECT_EQ(s.d50, 1.0);
+  EXPECT_EQ(s.d90, 2.0);
+  EXPECT_NEAR(s.d32, 4.0 / 3.0, 1e-15);
+  const SizeStatistics one = size_statistics(std::vector<double>(5, 0.25));
+  EXPECT_EQ(one.d10, 0.5);
+  EXPECT_EQ(one.d90, 0.5);
+  EXPECT_NEAR(one.d32, 0.5, 1e-16);
+}
+
+TEST(InitialConditions, PolydisperseRandomPlacementIsSeededNonOverlappingAndInIdOrder) {
+  const Scene s = poly(kUniform3to1, {"domain.periodic=[false, false, false]"});
+  EXPECT_EQ(s.particles.diameter, 150e-6); // the largest: cell sizes and margins
+  const ParticleStore a = make_initial_particles(s), b = make_initial_particles(s);
+  ASSERT_EQ(a.size(), 400u);
+  EXPECT_EQ(a.radius, b.radius);
+  EXPECT_EQ(a.x, b.x);
+  EXPECT_NO_THROW(check_no_overlap(a, s.domain));
+  DiameterStream stream(s.particles.diameters, s.particles.seed);
+  double r_min = 1.0, r_max = 0.0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a.id[i], static_cast<std::int64_t>(i));
+    EXPECT_EQ(2.0 * a.radius[i], stream.next()); // particle k has the k-th diameter drawn
+    r_min = std::min(r_min, a.radius[i]), r_max = std::max(r_max, a.radius[i]);
+    for (int ax = 0; ax < 3; ++ax) { // no sphere starts in a wall
+      const double c = ax == 0 ? a.x[i] : ax == 1 ? a.y[i] : a.z[i];
+      EXPECT_GE(c - a.radius[i], 0.0);
+      EXPECT_LE(c + a.radius[i], 2.0e-3);
+    }
+  }
+  EXPECT_LT(r_max / r_min, 3.0);
+  EXPECT_GT(r_max / r_min, 2.5); // 400 draws span most of the 3:1 range
+}
+
+TEST(InitialShare, PolydisperseLatticeAndRandom) {
+  expect_shares_partition_the_set(
+      poly(kUniform3to1, {"particles.placement=lattice", "particles.count=300"}));
+  expect_shares_partition_the_set(poly(
+      R"({ distribution = "lognormal", mean = 80.0e-6, std = 20.0e-6, min = 40.0e-6, max = 160.0e-6 })"));
+}
+
+TEST(SceneConfig, DiameterDistributionKeysAreChecked) {
+  auto bad = [](const std::string& diameter, const std::string& key) {
+    try {
+      poly(diameter);
+      ADD_FAILURE() << "expected a ConfigError for " << diameter;
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
+    }
+  };
+  bad(R"({ distribution = "gamma", min = 1.0e-5, max = 2.0e-5 })",
+      "particles.diameter.distribution");
+  bad(R"({ distribution = "uniform", min = 2.0e-5, max = 1.0e-5 })", "particles.diameter.max");
+  bad(R"({ distribution = "uniform", min = 1.0e-5, max = 2.0e-5, std = 1.0e-6 })",
+      "particles.diameter.std");
+  bad(R"({ distribution = "normal", min = 1.0e-5, max = 2.0e-5 })", "particles.diameter.mean");
+  bad(R"({ distribution = "lognormal", mean = 1.5e-5, min = 1.0e-5, max = 2.0e-5 })",
+      "particles.diameter.std");
+  bad(R"({ distribution = "normal", mean = 1.5e-5, std = 1e-6, max = 2.0e-5 })",
+      "particles.diameter.min");
+  bad(R"({ distribution = "uniform", min = 1.0e-5, max = 2.0e-5, typo = 1 })",
+      "particles.diameter.typo");
 }

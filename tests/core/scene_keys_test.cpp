@@ -33,6 +33,38 @@ const Lines kRequired = {
     {"run.end_time", "1.0e-3"},       {"fluid.cells", "[2, 2, 2]"},
     {"fluid.density", "1.0"},         {"fluid.viscosity", "1.0e-5"}};
 
+Lines with(const Lines& lines, const std::string& key, const std::string& value) {
+  Lines out = lines;
+  for (auto& [k, v] : out)
+    if (k == key)
+      v = value;
+  return out;
+}
+
+// Diameters from a distribution instead of one size.
+const Lines kNormal = with(kRequired, "particles.diameter",
+                           "{ distribution = \"normal\", mean = 1.0e-4, std = 1.0e-5, min = "
+                           "8.0e-5, max = 1.2e-4 }");
+const Lines kUniform = with(kRequired, "particles.diameter",
+                            "{ distribution = \"uniform\", min = 8.0e-5, max = 1.2e-4 }");
+
+// Particles from a file: no generator keys, no gas.
+Lines file_scene() {
+  Lines lines;
+  for (const auto& line : kRequired)
+    if (line.first.rfind("particles.", 0) != 0 && line.first.rfind("fluid.", 0) != 0)
+      lines.push_back(line);
+  lines.emplace_back("particles.file", "\"particles.csv\"");
+  return lines;
+}
+
+// The scene a key's value is tried in: the distribution's keys need a distribution.
+const Lines& scene_for(const std::string& key, std::string_view value) {
+  if (key.rfind("particles.diameter.", 0) != 0)
+    return kRequired;
+  return value == "uniform" ? kUniform : kNormal;
+}
+
 std::string toml(const Lines& lines) {
   std::string text;
   for (const auto& [k, v] : lines)
@@ -173,16 +205,14 @@ TEST(SceneKeys, TableIsConsistent) {
 }
 
 // Every key the parser reads is in the table, and every key of the table is read by the parser
-// (the generator and gas keys in one scene, particles.file in another).
+// (the generator and gas keys in one scene, a diameter distribution in another, particles.file
+// in a third).
 TEST(SceneKeys, ParserReadsExactlyTheTable) {
-  std::set<std::string> read = parse(kRequired).used;
-  Lines file_scene;
-  for (const auto& line : kRequired)
-    if (line.first.rfind("particles.", 0) != 0 && line.first.rfind("fluid.", 0) != 0)
-      file_scene.push_back(line);
-  file_scene.emplace_back("particles.file", "\"particles.csv\"");
-  const std::set<std::string> with_file = parse(file_scene).used;
-  read.insert(with_file.begin(), with_file.end());
+  std::set<std::string> read;
+  for (const Lines& scene : {kRequired, kNormal, file_scene()}) {
+    const std::set<std::string> used = parse(scene).used;
+    read.insert(used.begin(), used.end());
+  }
 
   std::set<std::string> table;
   for (const SceneKey& k : scene_keys())
@@ -263,10 +293,32 @@ TEST(SceneKeys, RequiredKeysAreRequired) {
     EXPECT_NE(e.find(fmt::format("'{}'", key)), std::string::npos) << key << ": " << e;
     EXPECT_NE(e.find("required"), std::string::npos) << key << ": " << e;
   }
-  int required = 0;
+  // A key the table calls required without a condition is in the scene above.
   for (const SceneKey& k : scene_keys())
-    required += k.fallback.kind == KeyDefault::Kind::Required;
-  EXPECT_EQ(required, static_cast<int>(kRequired.size()));
+    if (k.fallback.kind == KeyDefault::Kind::Required && k.fallback.text.empty()) {
+      EXPECT_TRUE(std::any_of(kRequired.begin(), kRequired.end(), [&](const auto& line) {
+        return line.first == k.name;
+      })) << k.name;
+    }
+  // A distribution's conditions: mean and std for normal (not uniform), min and max for both.
+  const auto distribution_error = [](const std::string& table) {
+    return error_of(with(kRequired, "particles.diameter", table));
+  };
+  EXPECT_NE(
+      distribution_error("{ distribution = \"normal\", std = 1e-5, min = 8e-5, max = 1.2e-4 }")
+          .find("'particles.diameter.mean': is required but missing"),
+      std::string::npos);
+  EXPECT_NE(
+      distribution_error("{ distribution = \"lognormal\", mean = 1e-4, min = 8e-5, max = 1.2e-4 }")
+          .find("'particles.diameter.std': is required but missing"),
+      std::string::npos);
+  EXPECT_NE(distribution_error("{ distribution = \"uniform\", max = 1.2e-4 }")
+                .find("'particles.diameter.min': is required but missing"),
+            std::string::npos);
+  EXPECT_NE(
+      distribution_error("{ distribution = \"uniform\", std = 1e-5, min = 8e-5, max = 1.2e-4 }")
+          .find("'particles.diameter.std': a uniform distribution takes only min and max"),
+      std::string::npos);
 }
 
 // Each finite bound of each range is where the parser draws the line: the next value outside is
@@ -278,12 +330,13 @@ TEST(SceneKeys, RangesAreTheParsersRanges) {
       continue;
     const std::string name(k.name);
     const auto refused = [&](double v) {
-      const std::string e = error_of(kRequired, {fmt::format("{}={}", name, value_toml(k, v))});
+      const std::string e =
+          error_of(scene_for(name, ""), {fmt::format("{}={}", name, value_toml(k, v))});
       EXPECT_NE(e.find(fmt::format("'{}'", name)), std::string::npos)
           << name << " = " << value_toml(k, v) << ": " << e;
     };
     const auto accepted = [&](double v) {
-      EXPECT_EQ(error_of(kRequired, {fmt::format("{}={}", name, value_toml(k, v))}), "")
+      EXPECT_EQ(error_of(scene_for(name, ""), {fmt::format("{}={}", name, value_toml(k, v))}), "")
           << name << " = " << value_toml(k, v);
     };
     // A closed bound is accepted and the next value past it refused; an open bound is refused.
@@ -316,12 +369,13 @@ TEST(SceneKeys, ChoicesAreTheParsersChoices) {
     for (std::string_view c : k.choices) {
       // A gas boundary must agree with the domain: periodic exactly on periodic axes.
       const std::string periodic = c == "periodic" ? "true" : "false";
-      EXPECT_EQ(error_of(kRequired, {fmt::format("{}={}", name, c),
-                                     fmt::format("domain.periodic=[{0}, {0}, {0}]", periodic)}),
-                "")
+      EXPECT_EQ(
+          error_of(scene_for(name, c), {fmt::format("{}={}", name, c),
+                                        fmt::format("domain.periodic=[{0}, {0}, {0}]", periodic)}),
+          "")
           << name << " = " << c;
     }
-    const std::string e = error_of(kRequired, {name + "=no_such_word"});
+    const std::string e = error_of(scene_for(name, ""), {name + "=no_such_word"});
     EXPECT_NE(e.find(fmt::format("'{}'", name)), std::string::npos) << e;
     EXPECT_NE(e.find(fmt::format("\"{}\"", k.choices.back())), std::string::npos) << e;
   }
@@ -351,15 +405,23 @@ TEST(SceneKeys, UnknownKeyNamedWithTheNearest) {
   EXPECT_NE(error_of({{"dem", "3"}}).find("'dem' is a table of keys"), std::string::npos);
 }
 
-// `cfddem check` lists every key the scene uses, in the table's order.
+// `cfddem check` lists every key the scene uses, in the table's order; the scenes together use
+// every key.
 TEST(SceneKeys, CheckListsTheKeysInTableOrder) {
-  std::vector<std::string> listed, table;
-  for (const auto& [k, v] : describe_scene(parse(kRequired).scene))
-    listed.push_back(k);
+  std::map<std::string, std::size_t> position;
   for (const SceneKey& k : scene_keys())
-    if (k.name != "particles.file")
-      table.emplace_back(k.name);
-  EXPECT_EQ(listed, table);
+    position[std::string(k.name)] = position.size();
+  std::set<std::string> listed;
+  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene()}) {
+    std::vector<std::size_t> order;
+    for (const auto& [k, v] : describe_scene(parse(scene).scene)) {
+      ASSERT_TRUE(position.count(k)) << "cfddem check lists " << k << ", not in the table";
+      EXPECT_TRUE(order.empty() || position[k] > order.back()) << k << " is out of table order";
+      order.push_back(position[k]);
+      listed.insert(k);
+    }
+  }
+  EXPECT_EQ(listed.size(), scene_keys().size());
 }
 
 TEST(SceneKeys, HelpAndKeysListEveryKey) {

@@ -1,4 +1,5 @@
-// cfddem: the command-line program. `run` a scene, `check` it, or ask for --help / --version.
+// cfddem: the command-line program. `run` a scene, `check` it, list the `keys`, or ask for --help
+// / --version.
 // Exit codes: 0 success, 2 command-line, configuration or input error, 3 run-time failure
 // (docs/hostile_input.md).
 #include <charconv>
@@ -24,6 +25,7 @@
 #include "core/parallel_env.hpp"
 #include "core/scene.hpp"
 #include "core/scene_config.hpp"
+#include "core/scene_keys_doc.hpp"
 
 #include <tbb/info.h>
 
@@ -104,78 +106,15 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
   return scene;
 }
 
-const char* kKeysHelp = R"(
-Scene keys (TOML, dotted; any key can be overridden as key=value on the command line):
-  name                       run name (default: the scene file's stem); output in runs/<name>
-  domain.lo, domain.hi       box corners [x, y, z] in m
-  domain.periodic            [bool, bool, bool]; a non-periodic axis has planar walls at lo and hi
-  gravity                    [gx, gy, gz] in m/s^2 (default [0, 0, 0])
-  particles.file             CSV with header x,y,z,vx,vy,vz,diameter,density (SI), relative to
-                             the scene file; or the generator keys:
-  particles.count, particles.diameter, particles.density
-  particles.temperature      granular temperature T0 in m^2/s^2 (Gaussian velocities, zero momentum)
-  particles.velocity         mean velocity added [vx, vy, vz]
-  particles.placement        "random" (non-overlapping, seeded) | "lattice"
-  particles.region_lo/hi     where to place them (default: the domain)
-  particles.seed             RNG seed (default 1)
-  particles.allow_overlap    accept overlapping initial particles (default false)
-  dem.scheme                 "explicit" (one global step) | "orb" (adaptive steps per ORB leaf)
-                             | "islands" (adaptive steps per contact island, no missed collision)
-  dem.spring_constant        k_n in N/m
-  dem.restitution            e in [0, 1]
-  dem.friction               Coulomb coefficient (0 = frictionless, no rotation)
-  dem.wall_spring_constant, dem.wall_restitution, dem.wall_friction   (default: as particles)
-  dem.tangential_stiffness_ratio (k_t/k_n, default 2/7), dem.tangential_damping_ratio (0.5)
-  dem.dt_factor              dt = tau_p * dt_factor, tau_p = sqrt(m/k) (default 0.02 = tau_p/50)
-  dem.dt                     fixed step in s, overriding dt_factor (default 0: use dt_factor)
-  dem.neighbor_skin          Verlet skin in m (default a quarter of the largest diameter)
-  dem.max_overlap            stop when an overlap exceeds this fraction of the radius (0.3;
-                             orb: counted and reported, not fatal)
-  dem.nsubit                 orb, islands: sub-iterations per regrid interval (default 10)
-  dem.regrid_interval        orb, islands: seconds between ORB rebuilds, dt_f (default 1e-4);
-                             sub-iteration dt_sp = dem.regrid_interval / dem.nsubit
-  dem.proximity_radii        orb: a leaf takes the fine step if a pair's centre distance is below
-                             this many radii, (r_i + r_j) / 2 each (default 3)
-  dem.local_dt               orb: "proximity" (the rule above, default) or "time_to_contact" (fine
-                             if a pair's gap or a wall's could close within dt_sp at its speeds)
-  partition.orb_levels       orb: 2^levels leaves, 0..20 (default 4); R > 1 ranks: ORB boxes
-  fluid.*                    the gas (a scene without [fluid] has none): fluid.cells [nx, ny, nz],
-                             fluid.density, fluid.viscosity, fluid.dt (fixed dt_f, paper 1e-4) or
-                             fluid.cfl (<= 0.5) and fluid.max_dt (cap, 1e-3), fluid.drag ("bvk",
-                             "bvk2", "koch_hill", "wen_yu", "none"), fluid.deposition
-                             ("trilinear" | "dpvm" | "dpvm_sphere"),
-                             fluid.deposition_width (particle diameters), fluid.bc.x_lo ...
-                             fluid.bc.z_hi ("periodic", "wall", "inflow", "outflow"; default: as
-                             domain.periodic, else wall), fluid.inflow_velocity,
-                             fluid.outflow_pressure, fluid.pressure_drop [Pa per period],
-                             fluid.velocity (initial), fluid.cell_size, fluid.implicit_viscosity,
-                             fluid.time_order (2: predictor-corrector, default; 1: Euler, one
-                             projection per gas step, first order in time),
-                             fluid.tolerance, fluid.preconditioner ("pfmg" | "smg"),
-                             fluid.solver ("multigrid" | "hypre" | "auto": multigrid on one
-                             rank, hypre on R ranks; default auto)
-  partition.weights          orb: "count" (default) | "cost" (particles x local steps of the
-                             last regrid interval)
-  partition.gas_regrid_interval  a gas on R ranks: simulated seconds between recuts of the gas
-                             boxes by a weighted ORB (default 0: boxes fixed); cells and
-                             particles move to their new owners
-  partition.cell_weight      the weight of a gas cell in particle steps per fluid step
-                             (default 400: measured on hcs_gas, one fluid cell step ~ 400
-                             particle steps)
-  run.end_time               simulated seconds
-  output.interval            simulated seconds between diagnostics rows
-  output.progress_seconds    wall seconds between progress lines (default 2)
-  output.snapshot_interval   simulated seconds between HDF5 particle snapshots, indexed by
-                             snapshots.xmf for ParaView (default 0: none)
-  output.checkpoint_interval simulated seconds between checkpoints checkpoint_<step>.h5
-                             (default 0: none; orb: whole regrid intervals); --restart FILE
-
+// After the key listing (core/scene_keys_doc.cpp) in `cfddem --help`.
+const char* kHelpTail = R"(
 Outputs (in --out, default runs/<name>): diagnostics.csv (one row per interval), run.json,
 snapshot_<step>.h5 + snapshots.xmf, checkpoint_<step>.h5.
 Examples:
   cfddem run                                   the built-in HCS (1222 particles, 30 ms)
   cfddem run scenes/hcs.toml dem.restitution=0.9 --threads 2
   cfddem check scenes/hcs.toml
+  cfddem keys                                  every scene key with its meaning
   mpirun -np 2 cfddem run scenes/hcs.toml --threads 1   (any scheme, with or without a gas)
 )";
 
@@ -184,7 +123,7 @@ Examples:
 int main(int argc, char** argv) {
   CLI::App app{"cfddem: CFD-DEM with adaptive particle time stepping (soft-sphere DEM, "
                "linear spring-dashpot contacts, velocity Verlet)"};
-  app.footer(kKeysHelp);
+  app.footer("\n" + cfddem::keys_help_text() + kHelpTail);
   app.require_subcommand(1);
   app.set_version_flag("--version", "cfddem " CFDDEM_VERSION, "print the version and exit");
   Args a;
@@ -208,6 +147,10 @@ int main(int argc, char** argv) {
                                             "configuration and derived numbers; runs nothing");
   check->add_option("scene", a.scene, "scene file (TOML)");
   check->add_option("overrides", a.overrides, "key=value overrides of scene keys");
+  bool markdown = false;
+  auto* keys = app.add_subcommand("keys", "list the scene keys with their types, defaults and "
+                                          "meanings; --markdown prints docs/keys.md");
+  keys->add_flag("--markdown", markdown, "print docs/keys.md (Markdown) instead of plain text");
 
   try {
     app.parse(argc, argv);
@@ -219,6 +162,11 @@ int main(int argc, char** argv) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
     return command_line_error(app, e, argc, argv);
+  }
+
+  if (keys->parsed()) {
+    fmt::print("{}", markdown ? cfddem::keys_markdown() : cfddem::keys_text());
+    return 0;
   }
 
   try {

@@ -1,11 +1,15 @@
 #include "core/scene.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <stdexcept>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "core/error.hpp"
+#include "core/scene_keys.hpp"
 
 namespace cfddem {
 
@@ -16,30 +20,122 @@ void require(bool ok, const std::string& key, const std::string& why) {
     throw ConfigError(fmt::format("scene key '{}'", key), why);
 }
 
-double positive(SceneConfig& c, const std::string& key) {
-  const double v = c.require_double(key);
-  require(std::isfinite(v) && v > 0.0, key, fmt::format("must be > 0, got {}", v));
-  return v;
-}
+// Reads keys through the table (core/scene_keys.cpp): the table's default when a key is absent,
+// its range or choices checked when it is present. Reading a key the table lacks, or as another
+// type, is a bug of this file (std::logic_error; tests/core/scene_keys_test.cpp reads them all).
+class KeyReader {
+public:
+  explicit KeyReader(SceneConfig& c) : c_(c) {}
 
-double unit_interval(SceneConfig& c, const std::string& key, double fallback) {
-  const double v = c.get_double(key, fallback);
-  require(std::isfinite(v) && v >= 0.0 && v <= 1.0, key,
-          fmt::format("must be in [0, 1], got {}", v));
-  return v;
-}
+  // Keys whose default is a value in the table (or that are required).
+  double number(std::string_view name) {
+    const SceneKey& k = entry(name, KeyType::Number);
+    return checked(k, required(k) ? c_.require_double(key(k))
+                                  : c_.get_double(key(k), value<double>(k)));
+  }
+  std::int64_t integer(std::string_view name) {
+    const SceneKey& k = entry(name, KeyType::Integer);
+    const std::int64_t v = c_.get_int(key(k), value<std::int64_t>(k));
+    (void)checked(k, static_cast<double>(v));
+    return v;
+  }
+  bool flag(std::string_view name) {
+    const SceneKey& k = entry(name, KeyType::Bool);
+    return c_.get_bool(key(k), value<bool>(k));
+  }
+  std::string word(std::string_view name) {
+    const SceneKey& k = entry(name, KeyType::String);
+    return chosen(k, c_.get_string(key(k), std::string(value<std::string_view>(k))));
+  }
+  std::array<double, 3> vec3(std::string_view name) {
+    const SceneKey& k = entry(name, KeyType::Vec3);
+    return checked(k, required(k) ? c_.require_vec3(key(k))
+                                  : c_.get_vec3(key(k), value<std::array<double, 3>>(k)));
+  }
+  std::array<bool, 3> bool3(std::string_view name) {
+    const SceneKey& k = entry(name, KeyType::Bool3);
+    return c_.get_bool3(key(k), value<std::array<bool, 3>>(k));
+  }
+  // fluid.cells: read as numbers, checked by the caller (whole numbers, the table's range).
+  std::array<double, 3> whole3(std::string_view name) {
+    return c_.require_vec3(key(entry(name, KeyType::Int3)));
+  }
 
-double non_negative(SceneConfig& c, const std::string& key, double fallback) {
-  const double v = c.get_double(key, fallback);
-  require(std::isfinite(v) && v >= 0.0, key, fmt::format("must be >= 0, got {}", v));
-  return v;
-}
+  // Keys whose default the parser computes (the table says SameAs or Derived).
+  double number(std::string_view name, double fallback) {
+    const SceneKey& k = computed(entry(name, KeyType::Number));
+    return checked(k, c_.get_double(key(k), fallback));
+  }
+  std::string word(std::string_view name, const std::string& fallback) {
+    const SceneKey& k = computed(entry(name, KeyType::String));
+    return chosen(k, c_.get_string(key(k), fallback));
+  }
+  std::array<double, 3> vec3(std::string_view name, const std::array<double, 3>& fallback) {
+    const SceneKey& k = computed(entry(name, KeyType::Vec3));
+    return checked(k, c_.get_vec3(key(k), fallback));
+  }
+
+private:
+  static const SceneKey& entry(std::string_view name, KeyType type) {
+    const SceneKey* k = find_scene_key(name);
+    if (k == nullptr || k->type != type)
+      throw std::logic_error(fmt::format("scene key '{}' is read but {} core/scene_keys.cpp", name,
+                                         k ? "has another type in" : "missing from"));
+    return *k;
+  }
+  static const SceneKey& computed(const SceneKey& k) {
+    if (k.fallback.kind != KeyDefault::Kind::SameAs && k.fallback.kind != KeyDefault::Kind::Derived)
+      throw std::logic_error(fmt::format("scene key '{}': the table holds its default", k.name));
+    return k;
+  }
+  static bool required(const SceneKey& k) { return k.fallback.kind == KeyDefault::Kind::Required; }
+  static std::string key(const SceneKey& k) { return std::string(k.name); }
+  template <class V> static V value(const SceneKey& k) {
+    const V* v = std::get_if<V>(&k.fallback.value);
+    if (k.fallback.kind != KeyDefault::Kind::Value || v == nullptr)
+      throw std::logic_error(
+          fmt::format("scene key '{}': no default of its type in the table", k.name));
+    return *v;
+  }
+  // A value given in the scene outside the key's range is refused; defaults are trusted (the
+  // table's own test checks them).
+  double checked(const SceneKey& k, double v) const {
+    if (k.range.bounded() && c_.has(key(k)) && !k.range.contains(v))
+      throw ConfigError(c_.where(key(k)), fmt::format("{}, got {}", must_be(k), v));
+    return v;
+  }
+  std::array<double, 3> checked(const SceneKey& k, const std::array<double, 3>& v) const {
+    if (k.range.bounded() && c_.has(key(k)))
+      for (double x : v)
+        if (!k.range.contains(x))
+          throw ConfigError(c_.where(key(k)), fmt::format("{} on every axis, got [{}, {}, {}]",
+                                                          must_be(k), v[0], v[1], v[2]));
+    return v;
+  }
+  // A word given in the scene must be one of the key's choices.
+  std::string chosen(const SceneKey& k, std::string v) const {
+    if (!k.choices.empty() && c_.has(key(k)) &&
+        std::find(k.choices.begin(), k.choices.end(), v) == k.choices.end())
+      throw ConfigError(c_.where(key(k)), fmt::format("unknown value \"{}\" (available: \"{}\")", v,
+                                                      fmt::join(k.choices, "\", \"")));
+    return v;
+  }
+
+  SceneConfig& c_;
+};
 
 } // namespace
 
 Scene read_scene(SceneConfig& c, const std::string& default_name) {
+  // A key the table does not know is refused first, with the nearest key: a misspelt required
+  // key would otherwise be reported as missing.
+  for (const auto& [key, value] : c.flatten())
+    if (find_scene_key(key) == nullptr)
+      throw ConfigError(c.where(key), unknown_key_hint(key));
+
+  KeyReader k(c);
   Scene s;
-  s.name = c.get_string("name", default_name);
+  s.name = k.word("name", default_name);
   // The run goes to runs/<name>: a name that is a path ('..', '/abs', 'a/b') would leave runs/.
   require(!s.name.empty() && s.name != "." && s.name != ".." &&
               s.name.find_first_of("/\\") == std::string::npos &&
@@ -50,62 +146,56 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
                       s.name));
 
   // Domain.
-  s.domain.lo = c.require_vec3("domain.lo");
-  s.domain.hi = c.require_vec3("domain.hi");
-  s.domain.periodic = c.get_bool3("domain.periodic", {true, true, true});
+  s.domain.lo = k.vec3("domain.lo");
+  s.domain.hi = k.vec3("domain.hi");
+  s.domain.periodic = k.bool3("domain.periodic");
   for (int a = 0; a < 3; ++a)
     require(std::isfinite(s.domain.lo[a]) && std::isfinite(s.domain.hi[a]) &&
                 s.domain.hi[a] > s.domain.lo[a],
             "domain.hi",
             fmt::format("must exceed domain.lo on every axis (axis {}: {} <= {})", a,
                         s.domain.hi[a], s.domain.lo[a]));
-  s.gravity = c.get_vec3("gravity", {0, 0, 0});
+  s.gravity = k.vec3("gravity");
 
   // Particles: a CSV file or a generator.
   auto& p = s.particles;
-  p.file = c.get_string("particles.file", "");
+  p.file = k.word("particles.file");
   // A path in the scene file is relative to the scene's folder; one given on the command line,
   // to the working directory.
   if (!p.file.empty() && !c.overridden("particles.file") && !c.base_dir().empty() &&
       std::filesystem::path(p.file).is_relative())
     p.file = (std::filesystem::path(c.base_dir()) / p.file).string();
-  p.seed = static_cast<std::uint64_t>(c.get_int("particles.seed", 1));
-  p.allow_overlap = c.get_bool("particles.allow_overlap", false);
+  p.seed = static_cast<std::uint64_t>(k.integer("particles.seed"));
+  p.allow_overlap = k.flag("particles.allow_overlap");
   if (p.file.empty()) {
-    p.count = c.get_int("particles.count", 0);
-    require(p.count >= 0, "particles.count", fmt::format("must be >= 0, got {}", p.count));
+    p.count = k.integer("particles.count");
     if (c.has("particles.diameter.distribution")) {
       // A table { distribution, mean, std, min, max } (core/diameter_distribution.hpp).
       auto& dd = p.diameters;
-      dd.kind = c.get_string("particles.diameter.distribution", "");
-      require(dd.kind == "uniform" || dd.kind == "normal" || dd.kind == "lognormal",
-              "particles.diameter.distribution",
-              fmt::format("must be \"uniform\", \"normal\" or \"lognormal\", got \"{}\"", dd.kind));
-      dd.min = positive(c, "particles.diameter.min");
-      dd.max = positive(c, "particles.diameter.max");
+      dd.kind = k.word("particles.diameter.distribution", "");
+      dd.min = k.number("particles.diameter.min");
+      dd.max = k.number("particles.diameter.max");
       require(dd.max > dd.min, "particles.diameter.max",
               fmt::format("must be > particles.diameter.min ({} m), got {} m", dd.min, dd.max));
       if (dd.kind == "uniform") {
-        for (const char* k : {"particles.diameter.mean", "particles.diameter.std"})
-          require(!c.has(k), k, "a uniform distribution takes only min and max");
+        for (const char* g : {"particles.diameter.mean", "particles.diameter.std"})
+          require(!c.has(g), g, "a uniform distribution takes only min and max");
         dd.mean = 0.5 * (dd.min + dd.max);
       } else {
-        dd.mean = positive(c, "particles.diameter.mean");
-        dd.std = positive(c, "particles.diameter.std");
+        dd.mean = k.number("particles.diameter.mean");
+        dd.std = k.number("particles.diameter.std");
       }
       p.diameter = dd.max;
     } else {
-      p.diameter = positive(c, "particles.diameter");
+      p.diameter = k.number("particles.diameter");
       p.diameters.kind = "fixed", p.diameters.mean = p.diameter;
     }
-    p.density = positive(c, "particles.density");
-    p.temperature = non_negative(c, "particles.temperature", 0.0);
-    p.velocity = c.get_vec3("particles.velocity", {0, 0, 0});
-    p.placement = c.get_string("particles.placement", "random");
-    require(p.placement == "random" || p.placement == "lattice", "particles.placement",
-            fmt::format("must be \"random\" or \"lattice\", got \"{}\"", p.placement));
-    p.region_lo = c.get_vec3("particles.region_lo", s.domain.lo);
-    p.region_hi = c.get_vec3("particles.region_hi", s.domain.hi);
+    p.density = k.number("particles.density");
+    p.temperature = k.number("particles.temperature");
+    p.velocity = k.vec3("particles.velocity");
+    p.placement = k.word("particles.placement");
+    p.region_lo = k.vec3("particles.region_lo", s.domain.lo);
+    p.region_hi = k.vec3("particles.region_hi", s.domain.hi);
     for (int a = 0; a < 3; ++a) {
       require(p.region_lo[a] >= s.domain.lo[a] && p.region_hi[a] <= s.domain.hi[a] &&
                   p.region_hi[a] > p.region_lo[a],
@@ -116,84 +206,55 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
                           s.domain.length(a)));
     }
   } else {
-    for (const char* k : {"particles.count", "particles.diameter", "particles.density",
-                          "particles.temperature", "particles.placement"})
-      require(!c.has(k), k, "cannot be combined with particles.file");
+    for (const char* g : {"particles.count", "particles.diameter", "particles.density",
+                          "particles.temperature", "particles.velocity", "particles.placement",
+                          "particles.region_lo", "particles.region_hi"})
+      require(!c.has(g), g, "cannot be combined with particles.file");
   }
 
   // DEM contact model.
   auto& d = s.dem;
-  d.scheme = c.get_string("dem.scheme", "explicit");
-  require(d.scheme == "explicit" || d.scheme == "orb" || d.scheme == "islands", "dem.scheme",
-          fmt::format("unknown scheme \"{}\" (available: \"explicit\", \"orb\", \"islands\")",
-                      d.scheme));
-  d.spring_constant = positive(c, "dem.spring_constant");
-  d.restitution = unit_interval(c, "dem.restitution", 0.0);
-  require(c.has("dem.restitution"), "dem.restitution", "is required but missing");
-  d.friction = non_negative(c, "dem.friction", 0.0);
-  d.tangential_stiffness_ratio = c.get_double("dem.tangential_stiffness_ratio", 2.0 / 7.0);
-  require(d.tangential_stiffness_ratio > 0.0, "dem.tangential_stiffness_ratio", "must be > 0");
-  d.tangential_damping_ratio = non_negative(c, "dem.tangential_damping_ratio", 0.5);
-  d.wall_spring_constant = c.get_double("dem.wall_spring_constant", d.spring_constant);
-  require(d.wall_spring_constant > 0.0, "dem.wall_spring_constant", "must be > 0");
-  d.wall_restitution = unit_interval(c, "dem.wall_restitution", d.restitution);
-  d.wall_friction = non_negative(c, "dem.wall_friction", d.friction);
-  d.dt_factor = c.get_double("dem.dt_factor", 0.02);
-  require(std::isfinite(d.dt_factor) && d.dt_factor > 0.0, "dem.dt_factor",
-          fmt::format("must be > 0, got {}", d.dt_factor));
-  d.dt = c.get_double("dem.dt", 0.0);
-  require(std::isfinite(d.dt) && d.dt >= 0.0, "dem.dt",
-          fmt::format("must be > 0 (or 0 for dt = tau_p * dem.dt_factor), got {}", d.dt));
-  d.neighbor_skin = c.get_double("dem.neighbor_skin", -1.0); // resolved once sizes are known
-  require(d.neighbor_skin == -1.0 || d.neighbor_skin > 0.0, "dem.neighbor_skin", "must be > 0");
-  d.max_overlap = c.get_double("dem.max_overlap", 0.3);
-  require(d.max_overlap > 0.0 && d.max_overlap < 1.0, "dem.max_overlap",
-          "must be in (0, 1) (a fraction of the smaller radius)");
-  d.nsubit = c.get_int("dem.nsubit", 10);
-  require(d.nsubit >= 1, "dem.nsubit", fmt::format("must be >= 1, got {}", d.nsubit));
-  d.proximity_radii = c.get_double("dem.proximity_radii", 3.0);
-  require(std::isfinite(d.proximity_radii) && d.proximity_radii > 0.0, "dem.proximity_radii",
-          fmt::format("must be > 0, got {}", d.proximity_radii));
-  d.local_dt = c.get_string("dem.local_dt", "proximity");
-  require(d.local_dt == "proximity" || d.local_dt == "time_to_contact", "dem.local_dt",
-          fmt::format("unknown rule \"{}\" (available: \"proximity\", \"time_to_contact\")",
-                      d.local_dt));
-  d.regrid_interval = c.get_double("dem.regrid_interval", 1e-4);
-  require(std::isfinite(d.regrid_interval) && d.regrid_interval > 0.0, "dem.regrid_interval",
-          fmt::format("must be > 0, got {}", d.regrid_interval));
-  const std::int64_t levels = c.get_int("partition.orb_levels", 4);
-  require(levels >= 0 && levels <= 20, "partition.orb_levels",
-          fmt::format("must be in 0..20, got {}", levels));
-  s.partition.orb_levels = static_cast<int>(levels);
-  s.partition.weights = c.get_string("partition.weights", "count");
-  require(
-      s.partition.weights == "count" || s.partition.weights == "cost", "partition.weights",
-      fmt::format("unknown weights \"{}\" (available: \"count\", \"cost\")", s.partition.weights));
-  s.partition.gas_regrid_interval = non_negative(c, "partition.gas_regrid_interval", 0.0);
-  s.partition.cell_weight = c.get_double("partition.cell_weight", 400.0);
-  require(std::isfinite(s.partition.cell_weight) && s.partition.cell_weight >= 0.0,
-          "partition.cell_weight", fmt::format("must be >= 0, got {}", s.partition.cell_weight));
+  d.scheme = k.word("dem.scheme");
+  d.spring_constant = k.number("dem.spring_constant");
+  d.restitution = k.number("dem.restitution");
+  d.friction = k.number("dem.friction");
+  d.tangential_stiffness_ratio = k.number("dem.tangential_stiffness_ratio");
+  d.tangential_damping_ratio = k.number("dem.tangential_damping_ratio");
+  d.wall_spring_constant = k.number("dem.wall_spring_constant", d.spring_constant);
+  d.wall_restitution = k.number("dem.wall_restitution", d.restitution);
+  d.wall_friction = k.number("dem.wall_friction", d.friction);
+  d.dt_factor = k.number("dem.dt_factor");
+  d.dt = k.number("dem.dt");
+  d.neighbor_skin = k.number("dem.neighbor_skin", -1.0); // resolved once sizes are known
+  d.max_overlap = k.number("dem.max_overlap");
+  d.nsubit = k.integer("dem.nsubit");
+  d.proximity_radii = k.number("dem.proximity_radii");
+  d.local_dt = k.word("dem.local_dt");
+  d.regrid_interval = k.number("dem.regrid_interval");
+  s.partition.orb_levels = static_cast<int>(k.integer("partition.orb_levels"));
+  s.partition.weights = k.word("partition.weights");
+  s.partition.gas_regrid_interval = k.number("partition.gas_regrid_interval");
+  s.partition.cell_weight = k.number("partition.cell_weight");
 
   // Run and output.
-  s.run.end_time = positive(c, "run.end_time");
-  s.output.interval = c.get_double("output.interval", s.run.end_time / 100.0);
-  require(s.output.interval > 0.0, "output.interval", "must be > 0");
-  s.output.progress_seconds = c.get_double("output.progress_seconds", 2.0);
-  require(s.output.progress_seconds > 0.0, "output.progress_seconds", "must be > 0");
-  s.output.snapshot_interval = non_negative(c, "output.snapshot_interval", 0.0);
-  s.output.checkpoint_interval = non_negative(c, "output.checkpoint_interval", 0.0);
+  s.run.end_time = k.number("run.end_time");
+  s.output.interval = k.number("output.interval", s.run.end_time / 100.0);
+  s.output.progress_seconds = k.number("output.progress_seconds");
+  s.output.snapshot_interval = k.number("output.snapshot_interval");
+  s.output.checkpoint_interval = k.number("output.checkpoint_interval");
 
   // Gas (optional): docs/theory.md §4-§7.
   if (c.has("fluid")) {
     auto& f = s.fluid;
     f.enabled = true;
-    const auto cells = c.require_vec3("fluid.cells");
+    const auto cells = k.whole3("fluid.cells");
+    const KeyRange per_axis = find_scene_key("fluid.cells")->range;
     for (int a = 0; a < 3; ++a) {
-      require(cells[a] >= 1 && cells[a] == std::floor(cells[a]), "fluid.cells",
+      require(cells[a] >= per_axis.lo && cells[a] == std::floor(cells[a]), "fluid.cells",
               fmt::format("must be 3 positive whole numbers [nx, ny, nz], got [{}, {}, {}]",
                           cells[0], cells[1], cells[2]));
-      require(cells[a] <= 1 << 16, "fluid.cells",
-              fmt::format("at most {} cells per axis, got [{}, {}, {}]", 1 << 16, cells[0],
+      require(cells[a] <= per_axis.hi, "fluid.cells",
+              fmt::format("at most {} cells per axis, got [{}, {}, {}]", per_axis.hi, cells[0],
                           cells[1], cells[2]));
       f.cells[a] = static_cast<std::int64_t>(cells[a]);
     }
@@ -202,70 +263,36 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     require(total <= 4.0e9, "fluid.cells",
             fmt::format("{:.3g} cells in all ([{}, {}, {}]) need about {:.3g} TB of memory", total,
                         cells[0], cells[1], cells[2], total * 30 * 8 / 1e12));
-    f.cell_size = c.get_vec3("fluid.cell_size", {0, 0, 0});
-    for (int a = 0; a < 3; ++a)
-      require(f.cell_size[a] >= 0.0, "fluid.cell_size", "must be >= 0 (0: domain / cells)");
-    f.density = positive(c, "fluid.density");
-    f.viscosity = non_negative(c, "fluid.viscosity", 0.0);
-    require(c.has("fluid.viscosity"), "fluid.viscosity", "is required but missing");
-    f.dt = non_negative(c, "fluid.dt", 0.0);
-    f.cfl = c.get_double("fluid.cfl", 0.4);
-    require(std::isfinite(f.cfl) && f.cfl > 0.0, "fluid.cfl",
-            fmt::format("must be > 0, got {}", f.cfl));
-    f.max_dt = c.get_double("fluid.max_dt", 1e-3);
-    require(f.max_dt > 0.0, "fluid.max_dt", "must be > 0");
-    f.drag = c.get_string("fluid.drag", "bvk");
-    require(f.drag == "bvk" || f.drag == "bvk2" || f.drag == "koch_hill" || f.drag == "wen_yu" ||
-                f.drag == "none",
-            "fluid.drag",
-            fmt::format("unknown drag law \"{}\" (available: \"bvk\", \"bvk2\", "
-                        "\"koch_hill\", \"wen_yu\", \"none\")",
-                        f.drag));
-    f.deposition = c.get_string("fluid.deposition", "trilinear");
-    require(f.deposition == "trilinear" || f.deposition == "dpvm" || f.deposition == "dpvm_cube" ||
-                f.deposition == "dpvm_sphere",
-            "fluid.deposition",
-            fmt::format("unknown kernel \"{}\" (available: \"trilinear\", \"dpvm\", "
-                        "\"dpvm_sphere\")",
-                        f.deposition));
-    f.deposition_width = c.get_double("fluid.deposition_width", 2.0);
-    require(std::isfinite(f.deposition_width) && f.deposition_width > 0.0, "fluid.deposition_width",
-            "must be > 0 (particle diameters)");
+    f.cell_size = k.vec3("fluid.cell_size");
+    f.density = k.number("fluid.density");
+    f.viscosity = k.number("fluid.viscosity");
+    f.dt = k.number("fluid.dt");
+    f.cfl = k.number("fluid.cfl");
+    f.max_dt = k.number("fluid.max_dt");
+    f.drag = k.word("fluid.drag");
+    f.deposition = k.word("fluid.deposition");
+    f.deposition_width = k.number("fluid.deposition_width");
     static const char* faces[6] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
-    for (int k = 0; k < 6; ++k) {
-      const std::string key = fmt::format("fluid.bc.{}", faces[k]);
-      const bool periodic = s.domain.periodic[static_cast<std::size_t>(k / 2)];
+    for (int a = 0; a < 6; ++a) {
+      const std::string key = fmt::format("fluid.bc.{}", faces[a]);
+      const bool periodic = s.domain.periodic[static_cast<std::size_t>(a / 2)];
       // Default: the particles' domain (periodic axis periodic, else a no-slip wall).
-      f.bc[static_cast<std::size_t>(k)] = c.get_string(key, periodic ? "periodic" : "wall");
-      const std::string& b = f.bc[static_cast<std::size_t>(k)];
-      require(b == "periodic" || b == "wall" || b == "inflow" || b == "outflow", key,
-              fmt::format("unknown boundary \"{}\" (available: \"periodic\", \"wall\", "
-                          "\"inflow\", \"outflow\")",
-                          b));
+      f.bc[static_cast<std::size_t>(a)] = k.word(key, periodic ? "periodic" : "wall");
+      const std::string& b = f.bc[static_cast<std::size_t>(a)];
       require((b == "periodic") == periodic, key,
               fmt::format("is \"{}\" but domain.periodic is {} on that axis: the gas and the "
                           "particles must agree on periodicity",
                           b, periodic));
     }
-    f.inflow_velocity = c.get_vec3("fluid.inflow_velocity", {0, 0, 0});
-    f.outflow_pressure = c.get_double("fluid.outflow_pressure", 0.0);
-    f.pressure_drop = c.get_vec3("fluid.pressure_drop", {0, 0, 0});
-    f.velocity = c.get_vec3("fluid.velocity", {0, 0, 0});
-    f.implicit_viscosity = c.get_bool("fluid.implicit_viscosity", false);
-    const std::int64_t order = c.get_int("fluid.time_order", 2);
-    require(order == 1 || order == 2, "fluid.time_order",
-            fmt::format("must be 1 (Euler: one projection per gas step) or 2 (predictor-corrector: "
-                        "two), got {}",
-                        order));
-    f.time_order = static_cast<int>(order);
-    f.tolerance = c.get_double("fluid.tolerance", 1e-10);
-    require(f.tolerance > 0.0 && f.tolerance < 1.0, "fluid.tolerance", "must be in (0, 1)");
-    f.preconditioner = c.get_string("fluid.preconditioner", "pfmg");
-    require(f.preconditioner == "pfmg" || f.preconditioner == "smg", "fluid.preconditioner",
-            fmt::format("must be \"pfmg\" or \"smg\", got \"{}\"", f.preconditioner));
-    f.solver = c.get_string("fluid.solver", "auto");
-    require(f.solver == "multigrid" || f.solver == "hypre" || f.solver == "auto", "fluid.solver",
-            fmt::format("must be \"multigrid\", \"hypre\" or \"auto\", got \"{}\"", f.solver));
+    f.inflow_velocity = k.vec3("fluid.inflow_velocity");
+    f.outflow_pressure = k.number("fluid.outflow_pressure");
+    f.pressure_drop = k.vec3("fluid.pressure_drop");
+    f.velocity = k.vec3("fluid.velocity");
+    f.implicit_viscosity = k.flag("fluid.implicit_viscosity");
+    f.time_order = static_cast<int>(k.integer("fluid.time_order"));
+    f.tolerance = k.number("fluid.tolerance");
+    f.preconditioner = k.word("fluid.preconditioner");
+    f.solver = k.word("fluid.solver");
   }
 
   c.check_all_used();
@@ -277,17 +304,18 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
 namespace cfddem {
 
 namespace {
+// As the key table writes values (17 significant digits).
 std::string vec3(const std::array<double, 3>& v) {
-  return fmt::format("[{:.17g}, {:.17g}, {:.17g}]", v[0], v[1], v[2]);
+  return toml_text(v);
 }
 std::string bool3(const std::array<bool, 3>& v) {
-  return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]);
+  return toml_text(v);
 }
 std::string num(double v) {
-  return fmt::format("{:.17g}", v);
+  return toml_text(v);
 }
 std::string str(const std::string& s) {
-  return fmt::format("\"{}\"", s);
+  return toml_text(std::string_view(s));
 }
 } // namespace
 

@@ -1,5 +1,7 @@
 // The resolved, validated scene: every key read once from SceneConfig, with defaults applied and
 // impossible values rejected (the error names the key). Physics modules read this, never TOML.
+// What each key means, its unit, range and default: the key table, core/scene_keys.cpp (printed
+// as docs/keys.md). The member initializers below are the table's defaults (a test checks).
 #pragma once
 
 #include <array>
@@ -30,7 +32,7 @@ struct ParticleSpec {
   double temperature = 0.0;       // granular temperature T0 [m^2/s^2], Gaussian velocities
   std::array<double, 3> velocity{0, 0, 0}; // mean velocity added to the Gaussian part
   std::uint64_t seed = 1;
-  std::string placement = "random";               // "random" (non-overlapping) | "lattice"
+  std::string placement = "random";
   std::array<double, 3> region_lo{}, region_hi{}; // where the generator places particles
   bool allow_overlap = false;
 };
@@ -52,8 +54,6 @@ struct DemSpec {
   // The `orb` scheme (Sitaraman & Grout, Algorithm 2).
   std::int64_t nsubit = 10;     // sub-iterations per regrid interval
   double proximity_radii = 3.0; // a pair is close if centre distance < this * (r_i + r_j) / 2
-  // How an orb leaf picks its step: "proximity" (the paper's rule, proximity_radii) or
-  // "time_to_contact" (fine if a pair or a wall could close its gap within dt_sp).
   std::string local_dt = "proximity";
   double regrid_interval = 1e-4; // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
 };
@@ -93,11 +93,10 @@ struct FluidSpec {
   double dt = 0.0;                      // fixed coupling step dt_f [s]; 0 = from cfl
   double cfl = 0.4;                     // Courant number of the gas sub-steps / adaptive dt_f
   double max_dt = 1e-3;                 // adaptive dt_f cap [s]
-  std::string drag = "bvk";             // bvk | bvk2 | koch_hill | wen_yu | none
-  std::string deposition = "trilinear"; // trilinear | dpvm (= dpvm_cube) | dpvm_sphere
+  std::string drag = "bvk";
+  std::string deposition = "trilinear";
   double deposition_width = 2.0;        // dpvm kernel width in particle diameters
-  // Per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi: periodic | wall | inflow | outflow.
-  std::array<std::string, 6> bc{};
+  std::array<std::string, 6> bc{}; // per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi
   std::array<double, 3> inflow_velocity{}; // gas velocity on inflow faces [m/s]
   double outflow_pressure = 0.0;           // p' on outflow faces [Pa]
   std::array<double, 3> pressure_drop{};   // MFIX's delp across periodic axes [Pa]
@@ -105,9 +104,8 @@ struct FluidSpec {
   bool implicit_viscosity = false;
   int time_order = 2;                  // 1: Euler, 2: predictor-corrector (Heun)
   double tolerance = 1e-10;            // projection PCG relative residual
-  std::string preconditioner = "pfmg"; // projection PCG preconditioner: pfmg | smg
-  // Projection solver: multigrid | hypre | auto (multigrid on one rank, hypre on R ranks).
-  std::string solver = "auto";
+  std::string preconditioner = "pfmg"; // projection PCG preconditioner
+  std::string solver = "auto";         // projection solver
 };
 
 struct Scene {
@@ -122,7 +120,8 @@ struct Scene {
   FluidSpec fluid;
 };
 
-// Read and validate every key; throws ConfigError naming the key. Unknown keys are errors.
+// Read and validate every key; throws ConfigError naming the key. A key not in the key table is
+// refused, with the nearest key named.
 // `default_name` is used when the scene has no `name` key (the file's stem).
 Scene read_scene(SceneConfig& config, const std::string& default_name);
 

@@ -48,10 +48,13 @@ public:
   // The scene file's folder (empty for text scenes).
   std::string base_dir() const { return base_dir_; }
   const toml::table& table() const { return table_; }
+  // Every key a getter or mark_used asked for, present or not.
+  const std::set<std::string>& used() const { return used_; }
+  // How an error names the key: "scene key 'k' (FILE line N)" when it came from the file.
+  std::string where(const std::string& key) const;
 
 private:
   const toml::node* find(const std::string& key) const;
-  std::string where(const std::string& key) const;
   toml::table table_;
   std::string origin_;
   std::set<std::string> used_;

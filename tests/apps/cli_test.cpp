@@ -60,6 +60,8 @@ TEST(Cli, BadInputsExitWithCode2AndNameTheKey) {
   expect_config_error(kScene + " dem.restitution=1.5", "dem.restitution");
   expect_config_error(kScene + " dem.spring_constant=-1", "dem.spring_constant");
   expect_config_error(kScene + " dem.no_such_key=1", "dem.no_such_key");
+  expect_config_error(kScene + " dem.restitutoin=0.5",
+                      "'dem.restitutoin': unknown key (did you mean 'dem.restitution'?");
   expect_config_error(kScene + " dem.dt_factor=fast", "dem.dt_factor");
   expect_config_error(kScene + " domain.hi=[5e-5,4e-3,4e-3]", "domain.hi");
   expect_config_error(kScene + " particles.file=/no/such.csv", "/no/such.csv");
@@ -95,8 +97,21 @@ TEST(Cli, CheckPrintsDerivedNumbersAndRunsNothing) {
 TEST(Cli, HelpListsSubcommandsAndKeys) {
   const Result r = cfddem("--help");
   EXPECT_EQ(r.code, 0);
-  for (const char* s : {"run", "check", "dem.scheme", "particles.file", "output.interval"})
+  for (const char* s : {"run", "check", "keys", "dem.scheme", "particles.file", "output.interval",
+                        "fluid.max_dt", "partition.cell_weight"})
     EXPECT_NE(r.output.find(s), std::string::npos) << s;
+}
+
+// `cfddem keys` explains every key; `cfddem keys --markdown` prints docs/keys.md as it is.
+TEST(Cli, KeysListsTheKeysAndPrintsTheDocs) {
+  const Result text = cfddem("keys");
+  EXPECT_EQ(text.code, 0) << text.output;
+  EXPECT_NE(text.output.find("  fluid.tolerance  (number, (0, 1); default: 1e-10)\n"),
+            std::string::npos)
+      << text.output;
+  const Result md = cfddem("keys --markdown");
+  EXPECT_EQ(md.code, 0) << md.output;
+  EXPECT_EQ(md.output, read(fs::path(CFDDEM_SOURCE_DIR) / "docs" / "keys.md"));
 }
 
 namespace {

@@ -20,6 +20,20 @@ double below(double u) {
 
 } // namespace
 
+std::optional<ProfileSpec> profile_spec(const Scene& scene) {
+  const int a = scene.output.profile_axis_index();
+  if (a < 0)
+    return std::nullopt;
+  ProfileSpec s;
+  s.axis = a;
+  s.bins = static_cast<int>(scene.output.profile_bins);
+  s.lo = scene.domain.lo[static_cast<std::size_t>(a)];
+  s.hi = scene.domain.hi[static_cast<std::size_t>(a)];
+  s.area = scene.domain.length((a + 1) % 3) * scene.domain.length((a + 2) % 3);
+  s.periodic = scene.domain.periodic[static_cast<std::size_t>(a)];
+  return s;
+}
+
 double sphere_slab_fraction(double c, double r, double a, double b) {
   if (b <= a || r <= 0.0)
     return 0.0;
@@ -72,7 +86,8 @@ void ColumnProfiles::add_particles(const ProfileParticles& p, std::span<double> 
   }
 }
 
-void ColumnProfiles::add_gas(const fluid::GasSolver& gas, std::span<double> sums) const {
+void ColumnProfiles::add_gas(const fluid::GasSolver& gas, std::span<double> sums, int stride,
+                             int offset) const {
   const fluid::MacGrid& g = gas.grid();
   std::array<fluid::GridField, 3> u;
   for (int a = 0; a < 3; ++a) {
@@ -82,7 +97,7 @@ void ColumnProfiles::add_gas(const fluid::GasSolver& gas, std::span<double> sums
   const std::array<double, 3> gp0 = gas.background_pressure_gradient();
   const fluid::GridField& eps = gas.volume_fraction();
   const fluid::GridField& pr = gas.pressure();
-  const int nb = spec_.bins, stride = sums_per_bin();
+  const int nb = spec_.bins;
   const double h = (spec_.hi - spec_.lo) / nb, dv = g.cell_volume();
   for (int k = 0; k < g.cells(2); ++k)
     for (int j = 0; j < g.cells(1); ++j)
@@ -97,7 +112,7 @@ void ColumnProfiles::add_gas(const fluid::GasSolver& gas, std::span<double> sums
           p_full +=
               gp0[static_cast<std::size_t>(a)] * (x[static_cast<std::size_t>(a)] - g.origin(a));
         const double e = eps(i, j, k) * dv;
-        double* s = sums.data() + bin * stride + kParticleSums;
+        double* s = sums.data() + bin * stride + offset;
         s[0] += dv;
         s[1] += e;
         s[2] += e * u[0](i, j, k);
@@ -107,16 +122,33 @@ void ColumnProfiles::add_gas(const fluid::GasSolver& gas, std::span<double> sums
       }
 }
 
+std::vector<double> ColumnProfiles::gas_sums(const fluid::GasSolver& gas) const {
+  std::vector<double> sums(static_cast<std::size_t>(spec_.bins * kGasSums), 0.0);
+  add_gas(gas, sums, kGasSums, 0);
+  return sums;
+}
+
 std::vector<std::vector<double>> ColumnProfiles::rows(double t, const ProfileParticles& p,
                                                       const fluid::GasSolver* gas,
                                                       const Communicator* comm) const {
   if (with_gas_ && gas == nullptr)
     throw std::logic_error("ColumnProfiles: gas columns without a gas");
+  return rows(t, p, with_gas_ ? gas_sums(*gas) : std::vector<double>{}, comm);
+}
+
+std::vector<std::vector<double>> ColumnProfiles::rows(double t, const ProfileParticles& p,
+                                                      std::span<const double> gas,
+                                                      const Communicator* comm) const {
   const int nb = spec_.bins, stride = sums_per_bin();
+  if (with_gas_ && gas.size() != static_cast<std::size_t>(nb * kGasSums))
+    throw std::logic_error("ColumnProfiles: gas sums of the wrong size");
   std::vector<double> sums(static_cast<std::size_t>(nb * stride), 0.0);
   add_particles(p, sums);
   if (with_gas_)
-    add_gas(*gas, sums);
+    for (int b = 0; b < nb; ++b)
+      for (int q = 0; q < kGasSums; ++q)
+        sums[static_cast<std::size_t>(b * stride + kParticleSums + q)] =
+            gas[static_cast<std::size_t>(b * kGasSums + q)];
   if (comm != nullptr)
     comm->sum(std::span<double>(sums));
 

@@ -20,11 +20,13 @@
 // those of one rank up to the order of summation.
 #pragma once
 
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "core/communicator.hpp"
+#include "core/scene.hpp"
 #include "fluid/gas_solver.hpp"
 
 namespace cfddem::apps {
@@ -42,6 +44,9 @@ struct ProfileParticles {
   std::span<const double> x, y, z, vx, vy, vz, radius, mass;
 };
 
+// The profiles a scene asks for (output.profile_axis, output.profile_bins), or none.
+std::optional<ProfileSpec> profile_spec(const Scene& scene);
+
 // Fraction of a sphere's volume (centre c, radius r, along the axis) between the planes a < b.
 double sphere_slab_fraction(double c, double r, double a, double b);
 
@@ -57,13 +62,20 @@ public:
   [[nodiscard]] std::vector<std::vector<double>> rows(double t, const ProfileParticles& p,
                                                       const fluid::GasSolver* gas,
                                                       const Communicator* comm) const;
+  // The same with the gas taken earlier: gas_sums() of this rank's cells at time t (a coupled
+  // loop takes the gas when a row falls due and writes the row a particle step later).
+  [[nodiscard]] std::vector<std::vector<double>> rows(double t, const ProfileParticles& p,
+                                                      std::span<const double> gas_sums,
+                                                      const Communicator* comm) const;
+  [[nodiscard]] std::vector<double> gas_sums(const fluid::GasSolver& gas) const;
+  [[nodiscard]] bool with_gas() const { return with_gas_; }
 
 private:
   // Per-bin sums, kParticleSums particle values then kGasSums gas values, bin-major.
   static constexpr int kParticleSums = 6; // volume, w, w vx, w vy, w vz, w |v|^2
   static constexpr int kGasSums = 6;      // V, eps V, eps V ux, eps V uy, eps V uz, p V
   void add_particles(const ProfileParticles& p, std::span<double> sums) const;
-  void add_gas(const fluid::GasSolver& gas, std::span<double> sums) const;
+  void add_gas(const fluid::GasSolver& gas, std::span<double> sums, int stride, int offset) const;
   int sums_per_bin() const { return kParticleSums + (with_gas_ ? kGasSums : 0); }
 
   ProfileSpec spec_;

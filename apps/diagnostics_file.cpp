@@ -13,9 +13,10 @@
 
 namespace cfddem::apps {
 
-DiagnosticsFile::DiagnosticsFile(std::string path, std::vector<std::string> columns)
+DiagnosticsFile::DiagnosticsFile(std::string path, std::vector<std::string> columns,
+                                 const std::string& kept)
     : path_(std::move(path)), columns_(std::move(columns)) {
-  const std::string header = fmt::format("{}\n", fmt::join(columns_, ","));
+  const std::string header = fmt::format("{}\n", fmt::join(columns_, ",")) + kept;
   write_file_atomically(path_, header);
   fd_ = ::open(path_.c_str(), O_WRONLY | O_APPEND | O_CLOEXEC);
   if (fd_ < 0)

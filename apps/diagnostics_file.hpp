@@ -12,7 +12,9 @@ namespace cfddem::apps {
 
 class DiagnosticsFile {
 public:
-  DiagnosticsFile(std::string path, std::vector<std::string> columns);
+  // `kept`: whole rows (each ending in a newline) written after the header in the same atomic
+  // write (a restart keeps the rows before its time).
+  DiagnosticsFile(std::string path, std::vector<std::string> columns, const std::string& kept = {});
   ~DiagnosticsFile();
   DiagnosticsFile(DiagnosticsFile&& o) noexcept;
   DiagnosticsFile& operator=(DiagnosticsFile&&) = delete;

@@ -23,7 +23,8 @@ bool is_run_output(const std::string& name) {
   std::string base = name;
   if (const auto t = name.find(".tmp."); t != std::string::npos)
     base = name.substr(0, t);
-  if (base == "diagnostics.csv" || base == "run.json" || base == "snapshots.xmf")
+  if (base == "diagnostics.csv" || base == "run.json" || base == "snapshots.xmf" ||
+      base == "profiles.csv")
     return true;
   const bool h5 = base.size() > 3 && base.compare(base.size() - 3, 3, ".h5") == 0;
   return h5 && (starts_with(base, "snapshot_") || starts_with(base, "checkpoint_"));

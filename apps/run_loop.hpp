@@ -27,6 +27,7 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/checkpoint.hpp"
+#include "apps/column_profiles.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/gas_side.hpp"
 #include "apps/run_output.hpp"
@@ -203,8 +204,23 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     loop.next_snapshot = scene.output.snapshot_interval;
   }
 
-  // The run directory: diagnostics.csv, snapshots.
+  // The run directory: diagnostics.csv, snapshots; profiles.csv when the scene asks for it,
+  // with the gas part of a row's profiles taken when the row falls due (as its diagnostics).
   RunOutputs out(comm, opt.out_dir, kColumns);
+  std::optional<ColumnProfiles> profiles;
+  std::vector<double> profile_gas;
+  if (const auto spec = profile_spec(scene)) {
+    profiles.emplace(*spec, gas_on);
+    out.open_profiles(profiles->columns(),
+                      ck && !ck->rows.empty() ? std::optional<double>(ck->rows.back()[0])
+                                              : std::nullopt);
+  }
+  auto take_profile_gas = [&] {
+    if (profiles && gas)
+      profile_gas = profiles->gas_sums(gas->coupling().solver());
+  };
+  if (ck && loop.row_pending)
+    take_profile_gas(); // the restored gas is the gas of the pending row's time
   MeanTracker means;
   const dem::DomainGeometry geom(scene.domain);
   // A snapshot of every rank's particles (positions wrapped into the periodic box: the schemes
@@ -237,6 +253,9 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     const RowExtra x =
         one ? means.next(t, s.vx, s.vy, s.vz, fd) : means.next(t, st.mean_velocity, fd);
     out.add_row(row(t, k, st, n_total, run.scheme, wall, ls, x));
+    if (profiles)
+      out.add_profile_rows(profiles->rows(t, {s.x, s.y, s.z, s.vx, s.vy, s.vz, s.radius, s.mass},
+                                          profile_gas, one ? nullptr : &comm));
   };
   if (ck) {
     out.resume(std::move(ck->rows), ck->snapshots);
@@ -272,6 +291,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
       s.vx = v0[0], s.vy = v0[1], s.vz = v0[2];
     const dem::LeafStepStats ls0 =
         Run::kSub && !gas_on ? dem::LeafStepStats{} : dem::LeafStepStats{0, 0, 0, 1};
+    take_profile_gas();
     add_row(0.0, 0, s, ls0, gas ? gas->coupling().diagnostics() : FluidDiagnostics{}, 0.0);
     if (!gas_on && snap_every > 0) {
       SnapshotFields f;
@@ -358,6 +378,8 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
       {
         PhaseTimer::Scope io(timer, Phase::io);
         mark_due_outputs(loop, gas->coupling(), scene, t, end - t <= tol, tol);
+        if (loop.row_pending)
+          take_profile_gas();
       }
       checkpoint_due = t >= next_ckpt - tol;
       while (checkpoint_due && next_ckpt <= t + tol)

@@ -1,9 +1,13 @@
 #include "apps/run_outputs.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <exception>
 #include <filesystem>
+#include <fstream>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "apps/rank_setup.hpp"
 #include "core/atomic_file.hpp"
@@ -46,6 +50,49 @@ void RunOutputs::add_row(std::vector<double> row) {
   else
     add_root_row(diag_, row);
   rows_.push_back(std::move(row));
+}
+
+namespace {
+
+// The rows of an existing CSV whose first column (time) is at most t + a relative 1e-9, when its
+// header is `header`; empty otherwise (no file, another header, unreadable).
+std::string rows_up_to(const fs::path& path, const std::string& header, double t) {
+  std::ifstream in(path);
+  std::string line, kept;
+  if (!in || !std::getline(in, line) || line != header)
+    return {};
+  while (std::getline(in, line)) {
+    if (in.eof())
+      break; // a row without its newline was cut off: drop it
+    try {
+      if (std::stod(line.substr(0, line.find(','))) > t + 1e-9 * std::max(1.0, std::abs(t)))
+        break;
+    } catch (const std::exception&) {
+      break;
+    }
+    kept += line + '\n';
+  }
+  return kept;
+}
+
+} // namespace
+
+void RunOutputs::open_profiles(const std::vector<std::string>& columns,
+                               std::optional<double> resume_time) {
+  on_root([&] {
+    const fs::path path = fs::path(dir_) / "profiles.csv";
+    const std::string kept =
+        resume_time ? rows_up_to(path, fmt::format("{}", fmt::join(columns, ",")), *resume_time)
+                    : std::string{};
+    profiles_.emplace(path.string(), columns, kept);
+  });
+}
+
+void RunOutputs::add_profile_rows(const std::vector<std::vector<double>>& rows) {
+  on_root([&] {
+    if (profiles_)
+      profiles_->add_rows(rows);
+  });
 }
 
 template <class F> void RunOutputs::on_root(F&& write) const {

@@ -38,6 +38,11 @@ public:
   [[nodiscard]] std::string checkpoint_path(long long step) const;
   // Rank 0 writes `c` (the other ranks' are ignored); collective.
   void write_checkpoint(long long step, const Checkpoint& c);
+  // profiles.csv with `columns` (rank 0). A restart at `resume_time` keeps the rows of an
+  // existing file up to that time (the rest is written again) when its header is the same.
+  void open_profiles(const std::vector<std::string>& columns, std::optional<double> resume_time);
+  // Appends the rows of one output time in one write (rank 0).
+  void add_profile_rows(const std::vector<std::vector<double>>& rows);
   // Rank 0 writes run.json.
   void write_run_json(const nlohmann::ordered_json& j) const;
 
@@ -47,6 +52,7 @@ private:
   const Communicator& comm_;
   std::string dir_;
   std::optional<DiagnosticsFile> diag_;
+  std::optional<DiagnosticsFile> profiles_;
   std::optional<SnapshotIndex> index_;
   std::vector<std::vector<double>> rows_;
 };

@@ -80,6 +80,12 @@ struct OutputSpec {
   double progress_seconds = 2.0;    // wall seconds between progress lines
   double snapshot_interval = 0.0;   // simulated seconds between HDF5 snapshots (0: none)
   double checkpoint_interval = 0.0; // simulated seconds between checkpoints (0: none)
+  std::string profile_axis = "none"; // profiles.csv along "x" | "y" | "z"; "none": not written
+  std::int64_t profile_bins = 20;    // slabs of profiles.csv
+  // 0, 1, 2 for x, y, z; -1 without profiles.
+  [[nodiscard]] int profile_axis_index() const {
+    return profile_axis == "x" ? 0 : profile_axis == "y" ? 1 : profile_axis == "z" ? 2 : -1;
+  }
 };
 
 // The gas (scene table [fluid]); absent = no fluid work at all. Names are checked here, the grid

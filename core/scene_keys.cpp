@@ -55,6 +55,7 @@ KeyDefault derived(std::string_view how) {
 constexpr std::string_view kPlacements[] = {"random", "lattice"};
 constexpr std::string_view kDistributions[] = {"uniform", "normal", "lognormal"};
 constexpr std::string_view kSchemes[] = {"explicit", "orb", "islands"};
+constexpr std::string_view kProfileAxes[] = {"none", "x", "y", "z"};
 constexpr std::string_view kLocalDt[] = {"proximity", "time_to_contact"};
 constexpr std::string_view kWeights[] = {"count", "cost"};
 constexpr std::string_view kDrags[] = {"bvk", "bvk2", "koch_hill", "wen_yu", "none"};
@@ -416,6 +417,21 @@ std::vector<SceneKey> make_table() {
        .meaning = "simulated time between checkpoints `checkpoint_<step>.h5`; orb: rounded up to "
                   "whole regrid intervals; with a gas: at the first fluid-step boundary after "
                   "each multiple"},
+      {.name = "output.profile_axis",
+       .type = T::String,
+       .section = S::RunOutput,
+       .choices = kProfileAxes,
+       .fallback = word("none"),
+       .meaning = "write `profiles.csv` at every `output.interval`: the domain cut into "
+                  "`output.profile_bins` equal slabs along this axis, per slab the solids "
+                  "fraction, particle velocity and granular temperature, with a gas also eps_g, "
+                  "gas velocity, pressure and slip ([outputs.md](outputs.md))"},
+      {.name = "output.profile_bins",
+       .type = T::Integer,
+       .section = S::RunOutput,
+       .range = at_least(1),
+       .fallback = integer(20),
+       .meaning = "number of equal slabs along `output.profile_axis`"},
 
       // Gas.
       {.name = "fluid.cells",

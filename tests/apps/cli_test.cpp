@@ -124,7 +124,8 @@ std::string strip_wall(const std::string& csv) {
     std::stringstream cells(line);
     std::string cell;
     for (int c = 0; std::getline(cells, cell, ','); ++c)
-      if (c != 15) out << cell << ',';
+      if (c != 15)
+        out << cell << ',';
     out << '\n';
   }
   return out.str();
@@ -134,10 +135,12 @@ std::string strip_wall(const std::string& csv) {
 
 // Same scene with 1 and 2 threads: diagnostics identical except the wall-clock column.
 TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
-  const fs::path a = fs::path(::testing::TempDir()) / "t1", b = fs::path(::testing::TempDir()) / "t2";
+  const fs::path a = fs::path(::testing::TempDir()) / "t1",
+                 b = fs::path(::testing::TempDir()) / "t2";
   fs::remove_all(a), fs::remove_all(b);
-  const std::string common = kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" +
-                             CFDDEM_SOURCE_DIR + "/scenes/data/hcs1222.csv --quiet";
+  const std::string common =
+      kScene + " run.end_time=2e-3 output.interval=2e-4 particles.file=" + CFDDEM_SOURCE_DIR +
+      "/scenes/data/hcs1222.csv --quiet";
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
   ASSERT_EQ(cfddem(fmt::format("run {} --threads 2 --out {}", common, b.string())).code, 0);
   const std::string da = read(a / "diagnostics.csv"), db = read(b / "diagnostics.csv");
@@ -168,11 +171,11 @@ TEST(Cli, ZeroAndOneParticleRuns) {
   for (int n : {0, 1}) {
     const fs::path out = fs::path(::testing::TempDir()) / fmt::format("n{}", n);
     fs::remove_all(out);
-    const Result r = cfddem(fmt::format(
-        "run {} particles.file= particles.count={} particles.diameter=1e-4 "
-        "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
-        "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
-        kScene, n, out.string()));
+    const Result r = cfddem(
+        fmt::format("run {} particles.file= particles.count={} particles.diameter=1e-4 "
+                    "particles.density=1000 'particles.velocity=[0.1, 0, 0]' run.end_time=1e-4 "
+                    "dem.dt=1e-7 output.interval=1e-6 --quiet --out {}",
+                    kScene, n, out.string()));
     EXPECT_EQ(r.code, 0) << r.output;
     const std::string csv = read(out / "diagnostics.csv");
     EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 101) << csv;
@@ -188,7 +191,8 @@ TEST(Cli, CoupledDiagnosticsIdenticalForOneAndTwoThreads) {
        {src + "/scenes/fluidized_bed.toml particles.count=2500 domain.hi=[0.8e-3,1.0e-2,0.8e-3] "
               "particles.region_hi=[0.8e-3,5.4e-3,0.8e-3] fluid.cells=[16,50,16]",
         src + "/scenes/riser.toml particles.count=2000 fluid.cells=[16,25,16]"}) {
-    const fs::path a = fs::path(::testing::TempDir()) / "c1", b = fs::path(::testing::TempDir()) / "c2";
+    const fs::path a = fs::path(::testing::TempDir()) / "c1",
+                   b = fs::path(::testing::TempDir()) / "c2";
     fs::remove_all(a), fs::remove_all(b);
     const std::string common = scene + " run.end_time=4e-4 output.interval=1e-4 --quiet";
     ASSERT_EQ(cfddem(fmt::format("run {} --threads 1 --out {}", common, a.string())).code, 0);
@@ -291,6 +295,57 @@ TEST(Cli, SetUpRefusesWhatCannotFitAndNeedsMemoryOfTheParticles) {
 // A run directory holds one run: a second run into it is refused (exit 2, files untouched)
 // unless --overwrite, which removes the old outputs first (old snapshots too); a name cannot
 // lead out of runs/.
+// profiles.csv (output.profile_axis): one row per slab per output time, every time's slabs
+// holding the particles' whole volume (each sphere split exactly between slabs), and a restart
+// from a checkpoint into the same directory ends with the file an uninterrupted run writes.
+TEST(Cli, ProfilesHoldTheSolidsAndSurviveARestart) {
+  const std::string small = std::string(CFDDEM_SOURCE_DIR) + "/scenes/hcs_small.toml";
+  const fs::path a = fs::path(::testing::TempDir()) / "prof_a",
+                 b = fs::path(::testing::TempDir()) / "prof_b";
+  fs::remove_all(a), fs::remove_all(b);
+  const std::string common = small + " particles.count=100 domain.hi=[2e-3,2e-3,2e-3] "
+                                     "run.end_time=4e-4 output.interval=1e-4 "
+                                     "output.profile_axis=z output.profile_bins=7 --quiet";
+  ASSERT_EQ(cfddem(fmt::format("run {} --out {}", common, a.string())).code, 0);
+  const std::string whole = read(a / "profiles.csv");
+  // Header, then 5 output times (t = 0 and 4 rows) x 7 slabs.
+  EXPECT_EQ(std::count(whole.begin(), whole.end(), '\n'), 1 + 5 * 7);
+  {
+    std::istringstream in(whole);
+    std::string line;
+    std::getline(in, line);
+    EXPECT_EQ(line.rfind("time,bin,centre,solids_fraction,vp_x,vp_y,vp_z,granular_temperature", 0),
+              0u);
+    // 100 particles of 100 um in a 2 mm periodic cube; a slab is 2 mm x 2 mm x 2/7 mm.
+    const double volume = 100 * M_PI / 6 * 1e-12, slab = 4e-6 * 2e-3 / 7;
+    double sum = 0.0;
+    int k = 0;
+    while (std::getline(in, line)) {
+      sum +=
+          std::stod(line.substr(line.find(',', line.find(',', line.find(',') + 1) + 1) + 1)) * slab;
+      if (++k % 7 == 0) {
+        EXPECT_NEAR(sum, volume, 1e-12 * volume) << "output time " << k / 7;
+        sum = 0.0;
+      }
+    }
+  }
+  // Interrupted at 2e-4 s (its checkpoint), then continued into the same directory.
+  ASSERT_EQ(cfddem(fmt::format("run {} output.checkpoint_interval=2e-4 run.end_time=2e-4 --out {}",
+                               common, b.string()))
+                .code,
+            0);
+  fs::path ckpt;
+  for (const auto& e : fs::directory_iterator(b))
+    if (e.path().filename().string().rfind("checkpoint_", 0) == 0)
+      ckpt = e.path();
+  ASSERT_FALSE(ckpt.empty());
+  const Result r =
+      cfddem(fmt::format("run {} output.checkpoint_interval=2e-4 --restart {} --out {}", common,
+                         ckpt.string(), b.string()));
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_EQ(read(b / "profiles.csv"), whole);
+}
+
 TEST(Cli, RunDirectoryNeverMixesRuns) {
   const fs::path out = fs::path(::testing::TempDir()) / "mixed";
   fs::remove_all(out);

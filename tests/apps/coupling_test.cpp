@@ -141,6 +141,47 @@ INSTANTIATE_TEST_SUITE_P(Laws, TerminalVelocity,
                                            TerminalCase{"bvk2", 0.2190}),
                          [](const auto& tc) { return std::string(tc.param.law); });
 
+// Drag uses each particle's own diameter: a 100 um and a 50 um particle fall side by side in the
+// column of kFall, one per x half (profiles.csv along x, two slabs, gives each one's velocity).
+// Wen-Yu at eps_g -> 1 (Schiller-Naumann, docs/theory.md §4): (rho_p - rho_g) V g =
+// 3 pi mu d v (1 + 0.15 Re^0.687), solved here by bisection: 0.2332 m/s (theory.md's table) and
+// 0.06522 m/s. 0.25 s is 9 Stokes times of the larger one, 36 of the smaller.
+double wen_yu_terminal_velocity(double d) {
+  const double rho_p = 1000.0, rho_g = 1.0, mu = 2e-5, g = 9.80665;
+  const double weight = (rho_p - rho_g) * M_PI / 6.0 * d * d * d * g;
+  double lo = 0.0, hi = 1.0;
+  for (int it = 0; it < 200; ++it) {
+    const double v = 0.5 * (lo + hi), re = rho_g * v * d / mu;
+    (3.0 * M_PI * mu * d * v * (1.0 + 0.15 * std::pow(re, 0.687)) > weight ? hi : lo) = v;
+  }
+  return 0.5 * (lo + hi);
+}
+
+TEST(TerminalVelocity, EachParticleFallsAtItsOwnDiametersVelocity) {
+  const fs::path csv = temp_path("two_sizes.csv");
+  std::ofstream(csv) << "x,y,z,vx,vy,vz,diameter,density\n"
+                        "2.5e-3,0.0741,5e-3,0,0,0,100e-6,1000\n"
+                        "7.5e-3,0.0741,5e-3,0,0,0,50e-6,1000\n";
+  std::string scene = kFall;
+  const auto a = scene.find("[particles]"), b = scene.find("[dem]");
+  scene.replace(a, b - a, "[particles]\nfile = \"" + csv.string() + "\"\n");
+  const fs::path out = temp_path("out");
+  fs::remove_all(out);
+  const Result r = cfddem(fmt::format("run {} fluid.drag=wen_yu output.profile_axis=x "
+                                      "output.profile_bins=2 --quiet --threads 1 --out {}",
+                                      write_scene(scene).string(), out.string()));
+  ASSERT_EQ(r.code, 0) << r.output;
+  auto prof = read_csv(out / "profiles.csv");
+  const std::size_t n = prof["vp_y"].size();
+  ASSERT_GE(n, 4u);
+  ASSERT_EQ(prof["bin"][n - 2], 0.0);
+  ASSERT_EQ(prof["bin"][n - 1], 1.0);
+  const double big = wen_yu_terminal_velocity(100e-6), small = wen_yu_terminal_velocity(50e-6);
+  EXPECT_NEAR(big, 0.2332, 1e-4); // the table's value: the balance above is the law's
+  EXPECT_NEAR(-prof["vp_y"][n - 2], big, 0.01 * big);
+  EXPECT_NEAR(-prof["vp_y"][n - 1], small, 0.01 * small);
+}
+
 // A small periodic riser (1 x 2 x 1 mm, 100 particles, 2.6% solids, 4 x 8 x 4 cells), 2 Pa
 // across the 2 mm period along y, no gravity: total axial momentum of gas + particles must grow
 // at delta_p x A = 2 Pa x 1e-6 m^2 = 2e-6 N.

@@ -134,12 +134,12 @@ template void write_coupled_checkpoint(const std::string&, Checkpoint, dem::Dist
                                        const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
 template void write_coupled_checkpoint(const std::string&, Checkpoint,
-                                       dem::DistributedIslandsScheme&, const ParticleStore&,
+                                       dem::IslandsScheme&, const ParticleStore&,
                                        const GasCoupling&, const CoupledLoopState&, const GasBlock&,
                                        const Communicator&);
 template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
                                      dem::OrbScheme::State, dem::DistributedOrbScheme&);
 template void restore_coupled_scheme(const Checkpoint&, const std::vector<std::uint32_t>&,
-                                     dem::IslandsScheme::State, dem::DistributedIslandsScheme&);
+                                     dem::IslandsScheme::State, dem::IslandsScheme&);
 
 } // namespace cfddem::apps

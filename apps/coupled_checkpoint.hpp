@@ -33,7 +33,7 @@ namespace cfddem::apps {
 GasBlock gas_block(const Scene& scene, const Communicator& comm);
 
 // Collective. `header`: checkpoint_header's fields (rank 0's count); the rest is filled here.
-// Scheme: dem::DistributedExplicitScheme, DistributedOrbScheme or DistributedIslandsScheme (the
+// Scheme: dem::DistributedExplicitScheme, DistributedOrbScheme or IslandsScheme (the
 // sub-iterated ones at a fluid-step boundary, a regrid point: their save_state()).
 template <class Scheme>
 void write_coupled_checkpoint(const std::string& path, Checkpoint header, Scheme& scheme,

@@ -29,10 +29,10 @@
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/distributed_explicit_scheme.hpp"
-#include "dem/distributed_islands_scheme.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
+#include "dem/islands_scheme.hpp"
 #include "partition/cell_box_decomposition.hpp"
 
 namespace cfddem::apps {
@@ -529,7 +529,7 @@ RunResult run_coupled_distributed(const Scene& scene, const RunOptions& opt,
   if (scene.dem.scheme == "orb")
     return run_coupled_ranks<dem::DistributedOrbScheme>(scene, opt, env);
   if (scene.dem.scheme == "islands")
-    return run_coupled_ranks<dem::DistributedIslandsScheme>(scene, opt, env);
+    return run_coupled_ranks<dem::IslandsScheme>(scene, opt, env);
   return run_coupled_ranks<dem::DistributedExplicitScheme>(scene, opt, env);
 }
 

@@ -24,9 +24,9 @@
 #include "core/error.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/distributed_islands_scheme.hpp"
 #include "dem/distributed_orb_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
+#include "dem/islands_scheme.hpp"
 
 namespace cfddem::apps {
 
@@ -335,7 +335,7 @@ RunResult run_distributed_orb(const Scene& scene, const RunOptions& opt, const P
 
 RunResult run_distributed_islands(const Scene& scene, const RunOptions& opt,
                                   const ParallelEnv& env) {
-  return run_distributed_subiterated<dem::DistributedIslandsScheme>(scene, opt, env);
+  return run_distributed_subiterated<dem::IslandsScheme>(scene, opt, env);
 }
 
 } // namespace cfddem::apps

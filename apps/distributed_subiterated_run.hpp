@@ -1,5 +1,5 @@
 // The sub-iterated schemes' loop over MPI ranks, DEM only: dem.scheme = "orb"
-// (dem::DistributedOrbScheme) and "islands" (dem::DistributedIslandsScheme).
+// (dem::DistributedOrbScheme) and "islands" (dem::IslandsScheme).
 #pragma once
 
 #include "apps/simulation.hpp"

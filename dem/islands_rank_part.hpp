@@ -42,8 +42,8 @@ struct IslandsScheme::RankPart {
   std::vector<std::uint32_t> span_members; // owned members of spanning islands (or all)
   std::vector<double> sx0, sy0, sz0;       // ... their start positions
   islands::IslandResult span_result;       // their fine steps (outran: bound_violations, dense)
-  // Start of the sub-iteration in the dense mode (rollback).
-  std::vector<double> x0, y0, z0, vx0, vy0, vz0, hp0;
+  // Start of the sub-iteration in the dense mode (rollback): x, y, z, vx, vy, vz, h_prev.
+  std::array<std::vector<double>, 7> start;
   double max_ratio_local = 0.0;               // this rank's largest overlap ratio not yet reduced
   std::array<std::int64_t, 2> local_counts{}; // the last attempt's particle steps and pairs
 };

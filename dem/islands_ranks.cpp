@@ -1,6 +1,32 @@
-// The islands scheme on R > 1 ranks (header of dem/islands_scheme.hpp, "R-rank update
-// sequence"): ownership, migration, ghosts, rows, link rounds with reductions, spanning islands
-// and the dense mode. The kernels are the one-rank path's (dem/islands_kernels.hpp).
+// The islands scheme on R > 1 ranks (dem/islands_scheme.hpp). One sub-iteration t -> t + dt_sp:
+//   1. at a build (the first sub-iteration, or when step 3 finds the rows too short): a new
+//      decomposition (parallel ORB + Hilbert knapsack) if dem.nsubit sub-iterations have passed
+//      since the last; every particle migrates to its owner (with its half step, fine count and
+//      external force), owned ones in id order; every owned particle within 2 r_max + skin of
+//      another rank's box is copied there unshifted (separations take the minimum image); rows
+//      of the owned particles over owned + ghosts (OrbLocalRows) with every pair within
+//      r_i + r_j + skin, the skin the islands skin and at least 4 dt_sp x the largest bound;
+//   2. own speed bounds of the owned particles; the ghosts' x, v and bounds from their owners
+//      (one forward_columns);
+//   3. link rounds over pairs with an owned end. An island with a ghost member SPANS ranks; a
+//      LOCAL one is raised to its s_max as on one rank; every spanning island's members on every
+//      rank to one s_span from sums over all spanning particles of all ranks (energy summed,
+//      lightest mass, largest acceleration and half step: at least any spanning island's own
+//      s_max). Raised bounds go to the ghosts and the links are redone until no rank's islands
+//      change (one reduction per round), so a link exists on one rank iff on every rank holding
+//      its ends. The rows hold every pair that can link while twice the largest reach over all
+//      ranks (largest_reaches) stays below the skin; else the sub-iteration builds again
+//      (expired_builds(); a doubled skin when even a fresh build was short). Above
+//      kGlobalFraction of all particles linked, everyone steps finely (the dense mode);
+//   4. lone particles fly free, local islands take the K fine steps (TBB tasks) as on one rank;
+//      then, when some rank has a spanning island (or in the dense mode), all spanning members
+//      (all particles) take them together, the ghosts' x and v refreshed before every step;
+//   5. one reduction of the counters, particle count and mass (none may be lost), faults (every
+//      rank throws the same RunError) and the dense mode's test: a particle that moved more than
+//      half the skin since the build rolls every rank back to redo the sub-iteration after a
+//      build with twice the skin (retries()).
+// A sub-iteration without a build costs one ghost refresh, one reduction per link round (usually
+// two) and one closing reduction, plus K - 1 ghost refreshes when an island spans ranks.
 #include <algorithm>
 #include <cmath>
 #include <numeric>
@@ -385,16 +411,10 @@ void IslandsScheme::subiterate_ranks(bool record) {
         ++st_.expired_builds;
       }
     }
-    const auto own_end = static_cast<std::ptrdiff_t>(owned_);
-    if (global_) { // the dense mode may roll back
-      r.x0.assign(p_.x.begin(), p_.x.begin() + own_end);
-      r.y0.assign(p_.y.begin(), p_.y.begin() + own_end);
-      r.z0.assign(p_.z.begin(), p_.z.begin() + own_end);
-      r.vx0.assign(p_.vx.begin(), p_.vx.begin() + own_end);
-      r.vy0.assign(p_.vy.begin(), p_.vy.begin() + own_end);
-      r.vz0.assign(p_.vz.begin(), p_.vz.begin() + own_end);
-      r.hp0 = hprev_;
-    }
+    std::vector<double>* const live[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &hprev_};
+    if (global_) // the dense mode may roll back
+      for (std::size_t q = 0; q < r.start.size(); ++q)
+        r.start[q].assign(live[q]->begin(), live[q]->begin() + static_cast<std::ptrdiff_t>(owned_));
     PhaseTimer::Scope t(timer_, Phase::force);
     if (record)
       record_state();
@@ -463,13 +483,8 @@ void IslandsScheme::subiterate_ranks(bool record) {
     if (c[9] == 0 || c[5] > 0)
       break;
     // The dense mode outran its rows somewhere: every rank rolls back and widens the halo.
-    std::copy(r.x0.begin(), r.x0.end(), p_.x.begin());
-    std::copy(r.y0.begin(), r.y0.end(), p_.y.begin());
-    std::copy(r.z0.begin(), r.z0.end(), p_.z.begin());
-    std::copy(r.vx0.begin(), r.vx0.end(), p_.vx.begin());
-    std::copy(r.vy0.begin(), r.vy0.end(), p_.vy.begin());
-    std::copy(r.vz0.begin(), r.vz0.end(), p_.vz.begin());
-    hprev_ = r.hp0;
+    for (std::size_t q = 0; q < r.start.size(); ++q)
+      std::copy(r.start[q].begin(), r.start[q].end(), live[q]->begin());
     r.grown_skin = 2.0 * skin_;
     r.need_rebuild = true;
     ++st_.retries;
@@ -521,46 +536,6 @@ void IslandsScheme::canonicalize() {
   r.grown_skin = 0.0;
   r.last_max_bound = 0.0;
   r.max_ratio_local = r.comm.max(r.max_ratio_local);
-}
-
-IslandsScheme::State IslandsScheme::save_state_ranks() {
-  const RankPart& r = *rank_;
-  canonicalize();
-  State s;
-  s.skin = skin_ > 0.0 ? skin_ : r.base_skin;
-  s.hprev.assign(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(owned_));
-  s.fine_subits.resize(owned_);
-  for (std::size_t i = 0; i < owned_; ++i)
-    s.fine_subits[i] = static_cast<std::int64_t>(fine_[i]);
-  s.counters = st_.counters();
-  s.max_overlap_ratio = st_.max_overlap_ratio;
-  s.last_fine_fraction = st_.last_fine_fraction;
-  s.rank_counters = {st_.regrids,     st_.retries,        st_.expired_builds,
-                     st_.span_subits, st_.span_particles, st_.span_parts};
-  s.rank_values = {r.max_ratio_local};
-  return s;
-}
-
-void IslandsScheme::restore_state_ranks(State s) {
-  RankPart& r = *rank_;
-  const bool fits = s.hprev.size() == owned_ && s.fine_subits.size() == owned_ &&
-                    s.counters.size() == 12 &&
-                    (s.rank_counters.empty() || s.rank_counters.size() == 6) &&
-                    (s.rank_values.empty() || s.rank_values.size() == 1);
-  if (r.comm.max(fits ? 0.0 : 1.0) > 0.0)
-    throw RunError("checkpoint: the islands scheme's state does not fit the particles");
-  hprev_ = std::move(s.hprev);
-  fine_.assign(s.fine_subits.begin(), s.fine_subits.end());
-  st_.set_counters(s.counters);
-  st_.max_overlap_ratio = s.max_overlap_ratio;
-  st_.last_fine_fraction = s.last_fine_fraction;
-  if (!s.rank_counters.empty()) {
-    const auto& k = s.rank_counters;
-    st_.regrids = k[0], st_.retries = k[1], st_.expired_builds = k[2], st_.span_subits = k[3];
-    st_.span_particles = k[4], st_.span_parts = k[5];
-  }
-  r.max_ratio_local = s.rank_values.empty() ? st_.max_overlap_ratio : s.rank_values[0];
-  canonicalize();
 }
 
 } // namespace cfddem::dem

@@ -71,12 +71,11 @@ void IslandsScheme::subiterate(bool record) {
 
 IslandsScheme::State IslandsScheme::save_state() {
   if (rank_)
-    return save_state_ranks();
-  // An R-rank loop on one rank keeps no list in its checkpoints: the canonical state.
-  if (one_.with_comm)
+    canonicalize();
+  else if (one_.with_comm) // an R-rank loop on one rank: no list, the canonical state
     one_.canonical = true, one_.built = false;
   State s;
-  if (one_.built) {
+  if (!rank_ && one_.built) {
     const VerletList& l = one_.list;
     s.offsets.assign(l.offsets().begin(), l.offsets().end());
     s.neighbors.assign(l.neighbors().begin(), l.neighbors().end());
@@ -85,38 +84,61 @@ IslandsScheme::State IslandsScheme::save_state() {
     s.z_ref.assign(l.z_ref().begin(), l.z_ref().end());
   }
   s.skin = skin_;
-  s.hprev = hprev_;
-  s.fine_subits.assign(fine_.begin(), fine_.end());
-  s.size_hist = st_.size_hist;
+  s.hprev.assign(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(owned_));
+  s.fine_subits.resize(owned_);
+  for (std::size_t i = 0; i < owned_; ++i)
+    s.fine_subits[i] = static_cast<std::int64_t>(fine_[i]);
+  if (!rank_)
+    s.size_hist = st_.size_hist;
   s.counters = st_.counters();
   s.max_overlap_ratio = st_.max_overlap_ratio;
   s.last_fine_fraction = st_.last_fine_fraction;
+  if (rank_) {
+    s.rank_counters = {st_.regrids,     st_.retries,        st_.expired_builds,
+                       st_.span_subits, st_.span_particles, st_.span_parts};
+    s.rank_values = {rank_->max_ratio_local};
+  }
   return s;
 }
 
 void IslandsScheme::restore_state(State s) {
-  if (rank_)
-    return restore_state_ranks(std::move(s));
-  const std::size_t n = p_.size();
-  check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
-  // An R-rank checkpoint holds no histogram: it counts from the restart on.
-  if (s.size_hist.empty())
-    s.size_hist.assign(st_.size_hist.size(), 0);
-  if (s.hprev.size() != n || s.fine_subits.size() != n ||
-      s.size_hist.size() != st_.size_hist.size() || s.counters.size() != 12 || !(s.skin > 0.0))
+  const std::size_t n = owned_;
+  bool fits = s.hprev.size() == n && s.fine_subits.size() == n && s.counters.size() == 12;
+  if (rank_) {
+    fits = fits && (s.rank_counters.empty() || s.rank_counters.size() == 6) &&
+           (s.rank_values.empty() || s.rank_values.size() == 1);
+    fits = rank_->comm.max(fits ? 0.0 : 1.0) == 0.0; // every rank throws alike
+  } else {
+    check_saved_list(n, s.offsets, s.neighbors, s.x_ref, s.y_ref, s.z_ref);
+    // An R-rank checkpoint holds no histogram: it counts from the restart on.
+    if (s.size_hist.empty())
+      s.size_hist.assign(st_.size_hist.size(), 0);
+    fits = fits && s.size_hist.size() == st_.size_hist.size() && s.skin > 0.0;
+  }
+  if (!fits)
     throw RunError("checkpoint: the islands scheme's state does not fit the particles");
+  hprev_ = std::move(s.hprev);
+  fine_.assign(s.fine_subits.begin(), s.fine_subits.end());
+  st_.set_counters(s.counters);
+  st_.max_overlap_ratio = s.max_overlap_ratio;
+  st_.last_fine_fraction = s.last_fine_fraction;
+  if (rank_) {
+    if (!s.rank_counters.empty()) {
+      const auto& k = s.rank_counters;
+      st_.regrids = k[0], st_.retries = k[1], st_.expired_builds = k[2], st_.span_subits = k[3];
+      st_.span_particles = k[4], st_.span_parts = k[5];
+    }
+    rank_->max_ratio_local = s.rank_values.empty() ? st_.max_overlap_ratio : s.rank_values[0];
+    canonicalize();
+    return;
+  }
   one_.built = !s.offsets.empty();
   if (one_.built)
     one_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
                       std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   one_.canonical = one_.with_comm;
   skin_ = s.skin;
-  hprev_ = std::move(s.hprev);
-  fine_.assign(s.fine_subits.begin(), s.fine_subits.end());
   st_.size_hist = std::move(s.size_hist);
-  st_.set_counters(s.counters);
-  st_.max_overlap_ratio = s.max_overlap_ratio;
-  st_.last_fine_fraction = s.last_fine_fraction;
   ln_.island_of.assign(n, kAlone);
   ln_.busy.clear();
 }

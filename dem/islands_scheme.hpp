@@ -34,69 +34,19 @@
 // Limits: frictionless contacts (the constructor refuses friction); an overlap beyond
 // dem.max_overlap is counted, NaN or a particle leaving through a wall stops the run.
 //
-// ONE RANK OR R RANKS. Constructed without a communicator, or with one of size 1, the scheme
-// runs the path above (minimum image, the Verlet list reused over sub-iterations, no ghost). On
-// R > 1 ranks the particles are owned by ranks as in the distributed orb scheme (parallel ORB +
-// Hilbert knapsack, partition/rank_decomposition.hpp), held in RankPart; the speed bound, link
-// test, island formation, raised bounds, contact forces, fine steps, free flight and fault
-// report are the same code (dem/islands_kernels.hpp).
-//
-// R-rank update sequence of one sub-iteration t -> t + dt_sp:
-//   1. at a build (the first sub-iteration, or when step 3 finds the rows too short): a new
-//      decomposition when dem.nsubit sub-iterations have passed since the last (the first build
-//      after it, as the distributed explicit scheme regrids at its first rebuild); every
-//      particle migrates to the rank owning its position (with its half step, fine-sub-iteration
-//      count and external force), the owned ones in id order; ghosts: every owned particle
-//      within 2 r_max + skin of another rank's box is copied there unshifted (separations take
-//      the minimum image, as the one-rank path's); rows of the owned particles over owned + ghosts
-//      with every pair within r_i + r_j + skin (OrbLocalRows). The skin is the one-rank path's
-//      islands skin, at least 4 dt_sp times the largest bound (one reduction). Between builds
-//      ownership, ghosts and rows stay (a particle may wander out of its owner's boxes);
-//   2. own speed bounds s_i (the one-rank path's formula) of the owned particles; the ghosts' x, v
-//      and own bounds from their owners in one message round (forward_columns);
-//   3. link rounds: links and wall ties as the one-rank path's, over pairs with an owned end; the
-//      islands over their ends. An island with a ghost member SPANS ranks; one without is LOCAL
-//      (entirely on this rank, and by the link test no particle of another rank can reach it).
-//      A local island's members are raised to its s_max as the one-rank path raises them; every
-//      spanning island's members, on every rank, to one s_span from reductions over all spanning
-//      particles of all ranks (energy summed, lightest mass, largest acceleration and half
-//      step): at least any one spanning island's own s_max, so conservative. The raised bounds
-//      go to the ghosts (forward_columns) and the links are made again, until no rank's islands
-//      changed (one reduction per round). Every rank then sees every particle
-//      it holds with the same bound, so a link exists on one rank iff on every rank holding its
-//      two ends, and "spanning" on the owner is the same as "some member on another rank" over
-//      the whole system. The rows and ghosts hold every pair that can link while no two
-//      particles' reaches (displacement since the build + final bound x dt_sp) add up to the
-//      skin (the list-expiry rule, largest_reaches(), with the largest reach over all ranks
-//      counted twice: one max reduction with the rounds);
-//      otherwise the sub-iteration builds again (step 1, expired_builds()) and redoes the rounds,
-//      with a doubled skin when even a fresh build was too short. When more than a quarter of
-//      all particles are linked (kGlobalFraction, over all ranks) every particle
-//      takes the fine steps, as the distributed explicit scheme (the dense mode);
-//   4. steps: lone particles fly free one step of dt_sp, local islands take the K fine steps
-//      (one TBB task each), exactly as on one rank; then, when some rank has a spanning island
-//      (or in the dense mode), all spanning members (all particles) take the K fine steps
-//      together, each rank its owned ones with forces from their island's partners, and the
-//      ghosts' x and v are refreshed after EVERY fine step (the ghost plan of the last build,
-//      fixed over the sub-iteration);
-//   5. one reduction of the counters, the particle count and mass (none may be lost), faults
-//      (every rank throws the same RunError) and the dense mode's displacement test: a particle
-//      that moved more than half the skin since the build (its rows may miss a pair) makes
-//      every rank roll back and redo the sub-iteration after a build with twice the skin
-//      (retries()).
-// So a sub-iteration without a build costs one ghost refresh, one reduction per link round
-// (usually two rounds) and one closing reduction, plus K - 1 ghost refreshes when an island
-// spans ranks.
-// Results are bitwise independent of the thread count; different rank counts agree with the
-// one-rank path to round-off (island sums in another order; a particle that spans
-// takes fine steps where the one-rank path may fly it free). Frictionless.
-// Checkpoints: save_state() puts the scheme in a canonical state (the next sub-iteration builds
-// afresh: a new decomposition, every particle to its owner in id order, the skin from the bounds
-// alone), which restore_state() recreates from the particles and their saved values on any
-// number of ranks; the run that wrote the checkpoint goes on from that state too. On one rank
-// with a communicator (an R-rank loop run on one rank) the canonical state is the store in id
-// order and no list (the next sub-iteration builds it); without a communicator the state holds
-// the Verlet list as built (the one-rank loops' checkpoints).
+// One rank or R ranks. Without a communicator, or with one of size 1, the scheme runs the path
+// above (minimum image, the Verlet list reused over sub-iterations, no ghost). On R > 1 ranks
+// (dem/islands_ranks.cpp, whose header gives the sequence) particles are owned by ranks as in
+// the distributed orb scheme, with ghosts and rows kept between builds; an island with a member
+// on another rank spans ranks and takes one bound from reductions over all ranks. The speed
+// bound, link test, island formation and sums, contact forces, fine steps, free flight and fault
+// report are one code for both (dem/islands_kernels.hpp). Results are bitwise independent of the
+// thread count; R ranks agree with one rank to round-off.
+// Checkpoints: with a communicator save_state() puts the scheme in a canonical state that
+// restore_state() recreates from the particles and their saved values on any rank count (R
+// ranks: the next sub-iteration regrids, migrates and builds; one rank: the store in id order,
+// no list); the writing run goes on from it too. Without one the state holds the Verlet list as
+// built (the one-rank loops' checkpoints).
 #pragma once
 
 #include <array>
@@ -350,8 +300,6 @@ private:
   void make_links_ranks();
   template <bool External> void fine_together(bool record, bool all);
   void canonicalize();
-  State save_state_ranks();
-  void restore_state_ranks(State s);
 
   const Scene& scene_;
   ParticleStore& p_;

@@ -153,12 +153,13 @@ Reaches largest_reaches(const double* __restrict x, const double* __restrict y,
 }
 
 // Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit
-// scheme's contact law), from their row partners in their own island (with Label; all partners
+// scheme's contact law), from their row partners in island `island` (with Label; all partners
 // without). Returns the pairs evaluated, each once: (i, j) with j > i (ById: id[j] > id[i], so
 // that a pair with a ghost end counts on one rank only).
 template <bool Label, bool Indexed, bool Wrap, bool ById>
 std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
-                            std::uint32_t u1, double& max_ratio_out, std::int64_t& violations_out) {
+                            std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
+                            std::int64_t& violations_out) {
   const std::uint32_t* __restrict off = v.rows.off;
   const std::uint32_t* __restrict nb = v.rows.nb;
   const std::uint32_t* __restrict wrap = v.rows.wrap;
@@ -185,7 +186,6 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
     const std::uint32_t i = Indexed ? idx[u] : u;
     const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
     const double ri = rad[i], mi = mass[i];
-    const std::uint32_t island = Label ? label[i] : 0;
     double ax = 0.0, ay = 0.0, az = 0.0;
     auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
       if constexpr (ById)
@@ -253,8 +253,8 @@ struct IslandResult {
 
 // The members of an island (particle indices) and their positions at the sub-iteration's start
 // (member order). The displacement check after each step: farther than bound[i] x elapsed +
-// margin counts as a bound violation; without bounds (the R-rank dense mode) farther than
-// sqrt(fixed2) (half the skin: the rows may miss a pair).
+// margin counts as a bound violation (step_island<.., Bounded = true>); else (the R-rank dense
+// mode) farther than sqrt(fixed2) (half the skin: the rows may miss a pair).
 struct Members {
   const std::uint32_t* mem;
   std::uint32_t count;
@@ -273,10 +273,11 @@ inline constexpr std::uint32_t kMemberBlock = 1024;
 // `between()` before every step but the first (the R-rank ghost refresh). With svx non-null the
 // synchronised velocities at the start go there. Each member's force and update read only the
 // state before the pass: bitwise independent of the thread count.
-template <bool External, class Forces, class Between>
-IslandResult step_island(const Columns& col, const Members& mb, const FineSteps& fs,
-                         const std::array<double, 3>& grav, double* svx, double* svy, double* svz,
-                         Forces&& forces, Between&& between) {
+template <bool External, bool Bounded, class Forces, class Between>
+[[gnu::always_inline]] inline IslandResult
+step_island(const Columns& col, const Members& mb, const FineSteps& fs,
+            const std::array<double, 3>& grav, double* svx, double* svy, double* svz,
+            Forces&& forces, Between&& between) {
   IslandResult res;
   const std::uint32_t* mem = mb.mem;
   const std::uint32_t count = mb.count;
@@ -316,12 +317,12 @@ IslandResult step_island(const Columns& col, const Members& mb, const FineSteps&
     x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
     hp[i] = half;
     const double dx = px - x0[u], dy = py - y0[u], dz = pz - z0[u];
-    double limit2 = fixed2;
-    if (bnd != nullptr) {
+    if constexpr (Bounded) {
       const double reach = bnd[i] * elapsed + margin;
-      limit2 = reach * reach;
+      bound_violations += dx * dx + dy * dy + dz * dz > reach * reach;
+    } else {
+      bound_violations += dx * dx + dy * dy + dz * dz > fixed2;
     }
-    bound_violations += dx * dx + dy * dy + dz * dz > limit2;
   };
   const bool giant = count > kGiantIsland;
   // A giant island's passes run as nested parallel loops over blocks of members; each block's

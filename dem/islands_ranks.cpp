@@ -341,16 +341,29 @@ template <bool External> void IslandsScheme::fine_together(bool record, bool all
     mb.x0 = r.sx0.data(), mb.y0 = r.sy0.data(), mb.z0 = r.sz0.data(), mb.bound = ln_.bound.data();
   }
   const islands::ContactView view = contact_view_ranks();
-  r.span_result = islands::step_island<External>(
-      view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
-      record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
-      [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations) {
-        return all ? islands::contact_forces<false, true, false, true>(view, mb.mem, u0, u1,
-                                                                       max_ratio, violations)
-                   : islands::contact_forces<true, true, false, true>(view, mb.mem, u0, u1,
-                                                                      max_ratio, violations);
-      },
-      [&] { r.exchange.forward(p_); });
+  const auto* label = ln_.island_of.data();
+  // Spanning members belong to different islands: one member at a time, each with its own.
+  auto forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
+                    std::int64_t& violations) {
+    std::int64_t pairs = 0;
+    for (std::uint32_t u = u0; u < u1; ++u)
+      pairs += islands::contact_forces<true, true, false, true>(
+          view, mb.mem, u, u + 1, label[mb.mem[u]], max_ratio, violations);
+    return pairs;
+  };
+  auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
+                        std::int64_t& violations) {
+    return islands::contact_forces<false, true, false, true>(view, mb.mem, u0, u1, 0, max_ratio,
+                                                             violations);
+  };
+  auto refresh = [&] { r.exchange.forward(p_); };
+  double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
+                   record ? rec_.vz.data() : nullptr};
+  r.span_result =
+      all ? islands::step_island<External, false>(view.c, mb, steps_, model_.gravity, sv[0], sv[1],
+                                                  sv[2], all_forces, refresh)
+          : islands::step_island<External, true>(view.c, mb, steps_, model_.gravity, sv[0], sv[1],
+                                                 sv[2], forces, refresh);
 }
 
 // A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations
@@ -446,12 +459,13 @@ void IslandsScheme::subiterate_ranks(bool record) {
       ext ? free_flight<true>(record) : free_flight<false>(record);
       fault_flag_ = 0; // every owned particle is checked below
       results_.assign(nc, islands::IslandResult{});
+      const islands::ContactView view = contact_view_ranks();
       tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, nc, 1),
                         [&](const tbb::blocked_range<std::uint32_t>& b) {
                           for (std::uint32_t q = b.begin(); q != b.end(); ++q)
                             if (!r.spans[q])
-                              ext ? run_island<true, true>(q, record)
-                                  : run_island<false, true>(q, record);
+                              ext ? run_island<true, true>(q, record, view)
+                                  : run_island<false, true>(q, record, view);
                         });
       if (r.spanning_global > 0) // some rank has a spanning island: every rank takes part
         ext ? fine_together<true>(record, false) : fine_together<false>(record, false);

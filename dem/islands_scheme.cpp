@@ -550,10 +550,11 @@ void IslandsScheme::subiterate_one(bool record) {
   // Free flight first, then the islands' tasks (they touch disjoint particles).
   ext_.active() ? free_flight<true>(record) : free_flight<false>(record);
   results_.assign(nc, islands::IslandResult{});
+  const islands::ContactView view = contact_view(); // the same for every island
   auto islands_range = [&](std::size_t b, std::size_t e) {
     for (std::size_t q = b; q != e; ++q)
-      ext_.active() ? run_island<true, false>(static_cast<std::uint32_t>(q), record)
-                    : run_island<false, false>(static_cast<std::uint32_t>(q), record);
+      ext_.active() ? run_island<true, false>(static_cast<std::uint32_t>(q), record, view)
+                    : run_island<false, false>(static_cast<std::uint32_t>(q), record, view);
   };
   if (ln_.busy.size() < 256) {
     islands_range(0, nc); // few fine particles: no task overhead
@@ -690,7 +691,7 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
       Part pt;
       const std::size_t e = std::min(n, (b + 1) * kBlock);
       pt.pairs += islands::contact_forces<false, false, true, false>(
-          view, nullptr, static_cast<std::uint32_t>(b * kBlock), static_cast<std::uint32_t>(e),
+          view, nullptr, static_cast<std::uint32_t>(b * kBlock), static_cast<std::uint32_t>(e), 0,
           pt.max_ratio, pt.violations);
       parts[b] = pt;
     });
@@ -746,7 +747,8 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
 // The K fine steps of island c (every island has a link or a wall): contact forces from members
 // only (no other particle can reach them within dt_sp), walls, and the variable-step leapfrog.
 // On R ranks a local island's (all its members owned), over the rank's rows.
-template <bool External, bool Ranks> void IslandsScheme::run_island(std::uint32_t c, bool record) {
+template <bool External, bool Ranks>
+void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::ContactView& view) {
   const std::uint32_t first = ln_.islands.first[c];
   const islands::Members mb{ln_.members.data() + first,
                             ln_.islands.size(c),
@@ -756,13 +758,12 @@ template <bool External, bool Ranks> void IslandsScheme::run_island(std::uint32_
                             ln_.bound.data(),
                             margin_,
                             0.0};
-  const islands::ContactView view = Ranks ? contact_view_ranks() : contact_view();
-  results_[c] = islands::step_island<External>(
+  results_[c] = islands::step_island<External, true>(
       view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
       record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
       [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations) {
-        return islands::contact_forces<true, true, !Ranks, Ranks>(view, mb.mem, u0, u1, max_ratio,
-                                                                  violations);
+        return islands::contact_forces<true, true, !Ranks, Ranks>(view, mb.mem, u0, u1, c,
+                                                                  max_ratio, violations);
       },
       [] {});
 }
@@ -770,8 +771,10 @@ template <bool External, bool Ranks> void IslandsScheme::run_island(std::uint32_
 // The R-rank path (islands_ranks.cpp) runs its local islands and free flight here too.
 template void IslandsScheme::free_flight<true>(bool);
 template void IslandsScheme::free_flight<false>(bool);
-template void IslandsScheme::run_island<true, true>(std::uint32_t, bool);
-template void IslandsScheme::run_island<false, true>(std::uint32_t, bool);
+template void IslandsScheme::run_island<true, true>(std::uint32_t, bool,
+                                                    const islands::ContactView&);
+template void IslandsScheme::run_island<false, true>(std::uint32_t, bool,
+                                                     const islands::ContactView&);
 
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each
 // particle's island (-1 alone, 0 for all in the global mode) and local step.

@@ -282,7 +282,8 @@ private:
   void make_links(bool incremental);
   void link();
   bool list_expires() const;
-  template <bool External, bool Ranks> void run_island(std::uint32_t c, bool record);
+  template <bool External, bool Ranks>
+  void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External> void global_steps(bool record);
   islands::ContactView contact_view();
   // R ranks (islands_ranks.cpp).

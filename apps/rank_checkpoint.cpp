@@ -164,13 +164,13 @@ subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::s
 
 template void gather_subiterated(dem::OrbScheme&, const ParticleStore&,
                                  const Communicator&, Checkpoint&);
-template void gather_subiterated(dem::DistributedIslandsScheme&, const ParticleStore&,
+template void gather_subiterated(dem::IslandsScheme&, const ParticleStore&,
                                  const Communicator&, Checkpoint&);
 template SubiteratedState<dem::OrbScheme>::State
 subiterated_share<dem::OrbScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
                                              std::size_t, const std::string&);
-template SubiteratedState<dem::DistributedIslandsScheme>::State
-subiterated_share<dem::DistributedIslandsScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
+template SubiteratedState<dem::IslandsScheme>::State
+subiterated_share<dem::IslandsScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
                                                  std::size_t, const std::string&);
 
 } // namespace cfddem::apps

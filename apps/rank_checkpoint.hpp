@@ -17,7 +17,7 @@
 #include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "dem/contact_history.hpp"
-#include "dem/distributed_islands_scheme.hpp"
+#include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
 
@@ -45,7 +45,7 @@ template <> struct SubiteratedState<dem::OrbScheme> {
   static void set_second(State& s, std::vector<double> v) { s.cost = std::move(v); }
   static std::size_t second_size(const State& s) { return s.cost.size(); }
 };
-template <> struct SubiteratedState<dem::DistributedIslandsScheme> {
+template <> struct SubiteratedState<dem::IslandsScheme> {
   using State = dem::IslandsScheme::State;
   static constexpr const char* kName = "islands";
   static State& in(Checkpoint& c) { return c.islands; }

@@ -31,7 +31,6 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
-#include "dem/distributed_islands_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/islands_scheme.hpp"

@@ -3,7 +3,6 @@
 #include "apps/coupled_step.hpp"
 #include "apps/run_loop.hpp"
 #include "apps/scheme_runs.hpp"
-#include "dem/distributed_islands_scheme.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
@@ -19,7 +18,7 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     if (s == "orb")
       return run_loop<SubiteratedRun<dem::OrbScheme, true>>(scene, opt, env);
     if (s == "islands")
-      return run_loop<SubiteratedRun<dem::DistributedIslandsScheme, true>>(scene, opt, env);
+      return run_loop<SubiteratedRun<dem::IslandsScheme, true>>(scene, opt, env);
     return run_loop<ExplicitRun<dem::ExplicitScheme, true>>(scene, opt, env);
   }
   if (s == "orb")

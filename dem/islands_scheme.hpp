@@ -33,21 +33,39 @@
 //
 // Limits: frictionless contacts (the constructor refuses friction); an overlap beyond
 // dem.max_overlap is counted, NaN or a particle leaving through a wall stops the run.
+//
+// One rank or R ranks. Without a communicator, or with one of size 1, the scheme runs the path
+// above (minimum image, the Verlet list reused over sub-iterations, no ghost). On R > 1 ranks
+// (dem/islands_ranks.cpp, whose header gives the sequence) particles are owned by ranks as in
+// the distributed orb scheme, with ghosts and rows kept between builds; an island with a member
+// on another rank spans ranks and takes one bound from reductions over all ranks. The speed
+// bound, link test, island formation and sums, contact forces, fine steps, free flight and fault
+// report are one code for both (dem/islands_kernels.hpp). Results are bitwise independent of the
+// thread count; R ranks agree with one rank to round-off.
+// Checkpoints: with a communicator save_state() puts the scheme in a canonical state that
+// restore_state() recreates from the particles and their saved values on any rank count (R
+// ranks: the next sub-iteration regrids, migrates and builds; one rank: the store in id order,
+// no list); the writing run goes on from it too. Without one the state holds the Verlet list as
+// built (the one-rank loops' checkpoints).
 #pragma once
 
 #include <array>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <span>
 #include <vector>
 
+#include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/islands_kernels.hpp"
 #include "dem/orb_scheme.hpp"
+#include "dem/scheme_support.hpp"
 #include "dem/verlet_list.hpp"
 #include "partition/contact_islands.hpp"
 
@@ -55,51 +73,93 @@ namespace cfddem::dem {
 
 class IslandsScheme {
 public:
-  // Above this fraction of particles linked or tied, a sub-iteration steps everyone finely (the
-  // distributed scheme applies it over all ranks).
+  // Above this fraction of particles linked or tied, a sub-iteration steps everyone finely (over
+  // all ranks on R ranks).
   static constexpr double kGlobalFraction = 0.25;
 
+  // One rank: the model from these particles.
   IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
+  // `comm` null or of size 1: one rank. Else `particles` is this rank's share (any split) and
+  // `model` make_step_model over all particles, the same on every rank. Throws ConfigError with
+  // friction.
+  IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
+                const Communicator* comm, PhaseTimer& timer);
+  // The R-rank loops' form (a communicator of any size).
+  IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
+                const Communicator& comm, PhaseTimer& timer)
+      : IslandsScheme(scene, particles, model, &comm, timer) {}
+  IslandsScheme(const IslandsScheme&) = delete;
+  IslandsScheme& operator=(const IslandsScheme&) = delete;
+  ~IslandsScheme();
 
-  // h_prev = 0 (velocities are the synchronised v(0)); builds the Verlet list.
+  // h_prev = 0 (velocities are the synchronised v(0)); on one rank builds the Verlet list.
   void start();
-  // One sub-iteration t -> t + dt_sp. With record = true the state at t is kept
-  // (synchronised_previous()).
+  // One sub-iteration t -> t + dt_sp; collective on R ranks (every rank throws the same RunError
+  // on a fault). With record = true the state at t is kept (synchronised_previous()).
   void subiterate(bool record = false);
 
   double dt_fine() const { return model_.dt; }
   double dt_sub() const { return dt_sp_; }
   std::int64_t nsubit() const { return nsubit_; }
-  std::int64_t subiterations() const { return subits_; }
-  double time() const { return static_cast<double>(subits_) * dt_sp_; }
-  std::int64_t particle_steps() const { return particle_steps_; }
+  std::int64_t subiterations() const { return st_.subits; }
+  double time() const { return static_cast<double>(st_.subits) * dt_sp_; }
+  // Counters over all ranks (the same value on every rank).
+  std::int64_t particle_steps() const { return st_.particle_steps; }
   // Pairs of an island evaluated per local step (each pair once), summed over steps.
-  std::int64_t pair_evaluations() const { return pair_evaluations_; }
-  std::int64_t neighbor_builds() const { return builds_; }
+  std::int64_t pair_evaluations() const { return st_.pair_evaluations; }
+  // This rank's share of the work since this process started (run.json's rank_counts; not in
+  // checkpoints): owned particle steps and the pair evaluations of its rows.
+  std::int64_t local_particle_steps() const {
+    return rank_ ? st_.local_particle_steps : st_.particle_steps;
+  }
+  std::int64_t local_pair_evaluations() const {
+    return rank_ ? st_.local_pair_evaluations : st_.pair_evaluations;
+  }
+  std::int64_t neighbor_builds() const { return st_.builds; }
+  // R ranks: decompositions, rolled-back sub-iterations (the dense mode outran its rows), and
+  // builds made inside a sub-iteration because the rows ran short (0 on one rank).
+  std::int64_t regrids() const { return st_.regrids; }
+  std::int64_t retries() const { return st_.retries; }
+  std::int64_t expired_builds() const { return st_.expired_builds; }
   double skin() const { return skin_; }
-  double max_overlap_ratio() const { return max_overlap_ratio_; }
-  std::int64_t overlap_violations() const { return overlap_violations_; }
+  double max_overlap_ratio() const { return st_.max_overlap_ratio; }
+  std::int64_t overlap_violations() const { return st_.overlap_violations; }
   // Particles that moved farther than their speed bound allowed (a collision could then have
   // been missed): zero unless the bound is wrong.
-  std::int64_t bound_violations() const { return bound_violations_; }
+  std::int64_t bound_violations() const { return st_.bound_violations; }
   // Sub-iterations taken with every particle on the fine step (a dense bed: see kGlobalFraction).
-  std::int64_t global_subiterations() const { return global_subits_; }
+  std::int64_t global_subiterations() const { return st_.global_subits; }
+  // R ranks: sub-iterations in which some island spanned ranks; spanning particles summed over
+  // sub-iterations; spanning islands summed over ranks and sub-iterations (an island over two
+  // ranks counts twice: each rank sees its part). 0 on one rank.
+  std::int64_t spanning_subiterations() const { return st_.span_subits; }
+  std::int64_t spanning_particles() const { return st_.span_particles; }
+  std::int64_t spanning_island_parts() const { return st_.span_parts; }
+  std::int64_t global_count() const { return n_global_; }
   const StepModel& model() const { return model_; }
   // The fraction of particles in an island (on the fine step) in the last sub-iteration.
-  double last_fine_fraction() const { return last_fine_fraction_; }
-  // Island sizes over the run: bin b counts islands (fine or not) with 2^(b-1) < size <= 2^b
-  // members (bin 0: single particles), one count per island per sub-iteration.
-  std::span<const std::int64_t> island_size_histogram() const { return size_hist_; }
+  double last_fine_fraction() const { return st_.last_fine_fraction; }
+  // Island sizes over the run (one rank; an R-rank run counts none): bin b counts islands (fine
+  // or not) with 2^(b-1) < size <= 2^b members (bin 0: single particles), one count per island
+  // per sub-iteration.
+  std::span<const std::int64_t> island_size_histogram() const { return st_.size_hist; }
   // Per particle, the fraction of sub-iterations it spent in a fine island: its distribution over
-  // the particles as {mean, min, p10, p50, p90, p99, max} (nearest-rank percentiles).
+  // this rank's particles as {mean, min, p10, p50, p90, p99, max} (nearest-rank percentiles).
   std::array<double, 7> fine_fraction_distribution() const;
+  // Per regrid: max over ranks / mean of the particles per rank (empty on one rank).
+  const std::vector<double>& imbalances() const { return imbalances_; }
+  // The particles this rank owns (the first owned() of the store) and the ghosts after them.
+  std::size_t owned() const { return owned_; }
+  std::size_t ghosts() const { return p_.size() - owned_; }
 
+  // Collective. External force [N] per owned particle in the store's current order, held until
+  // set again and carried with its particle; empty spans (on every rank) remove it.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
   // With false, every link round rescans all rows instead of the raised particles' rows only
-  // (the reference the tests hold the incremental rounds to: the same links in the same order,
-  // hence bitwise the same run).
-  void set_incremental_links(bool on) { incremental_links_ = on; }
+  // (one rank; the reference the tests hold the incremental rounds to: the same links in the
+  // same order, hence bitwise the same run).
+  void set_incremental_links(bool on) { one_.incremental = on; }
   // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
   // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
   // set_external_force alone is for a restart (the held force as it was).
@@ -110,18 +170,21 @@ public:
   // and sub-iterations) and the fraction of particle sub-iterations on the fine step.
   LeafStepStats take_interval_stats();
 
-  // The recorded state, with each particle's island (-1: alone, free flight) and local step.
+  // The recorded state of the owned particles, with each particle's island (-1: alone, free
+  // flight) and local step.
   OrbScheme::Synchronised synchronised_previous() const {
-    return {sx_, sy_, sz_, svx_, svy_, svz_, smass_, sid_, sisland_, sradius_, sdt_};
+    return {rec_.x,    rec_.y,  rec_.z,      rec_.vx,     rec_.vy, rec_.vz,
+            rec_.mass, rec_.id, rec_.island, rec_.radius, rec_.dt};
   }
 
   // Checkpoint/restart between sub-iterations: what a sub-iteration reads that it did not compute
-  // itself -- the Verlet list exactly as built (rows in order, reference positions, skin; the
-  // store's order is the list's, which the checkpoint keeps), the per-particle half step and
-  // fine-sub-iteration count, the counters, the island-size histogram and the interval
-  // statistics. Speed bounds, links and islands are remade at the start of every sub-iteration.
-  // A gas force held over the sub-cycle is the caller's (set_external_force after restore).
-  // restore_state() replaces start().
+  // itself -- on one rank without a communicator the Verlet list exactly as built (rows in order,
+  // reference positions, skin; the store's order is the list's, which the checkpoint keeps); per
+  // owned particle the half step and fine-sub-iteration count; the counters, the island-size
+  // histogram and the interval statistics. Speed bounds, links and islands are remade at the
+  // start of every sub-iteration. A gas force held over the sub-cycle is the caller's
+  // (set_external_force after restore). restore_state() replaces start(). With a communicator
+  // both are collective and save_state() puts the scheme in its canonical state (header).
   struct State {
     std::vector<std::uint32_t> offsets, neighbors;
     std::vector<double> x_ref, y_ref, z_ref;
@@ -132,87 +195,136 @@ public:
     // global_subits, iv_fine, iv_particles, iv_steps, iv_min, iv_max
     std::vector<std::int64_t> counters;
     double max_overlap_ratio = 0.0, last_fine_fraction = 0.0;
-    // Written by the R-rank scheme only (DistributedIslandsScheme::save_state; empty from one
-    // rank, ignored by it): regrids, retries, expired builds, spanning sub-iterations, spanning
-    // particles, spanning island parts; and the overlap ratio not yet recorded.
+    // Written on R ranks only (empty from one rank, ignored by it): regrids, retries, expired
+    // builds, spanning sub-iterations, spanning particles, spanning island parts; and the overlap
+    // ratio not yet recorded.
     std::vector<std::int64_t> rank_counters;
     std::vector<double> rank_values;
   };
-  State save_state() const;
-  // Throws RunError if the state does not fit the store.
+  State save_state();
+  // Throws RunError (on every rank) if the state does not fit the store.
   void restore_state(State s);
 
 private:
-  void rebuild();
-  void speed_bounds();
-  void make_links(bool incremental);
-  void link();
-  bool list_expires() const;
+  // Links and islands of the current sub-iteration (both paths).
+  struct Links {
+    std::vector<double> bound;            // per local particle: speed bound s_i [m/s]
+    std::vector<double> own_bound;        // ... from its own velocity (busy particles only)
+    std::vector<std::uint32_t> own_stamp; // own_bound[i] is this round set's when == stamp
+    std::uint32_t stamp = 0;
+    std::vector<std::uint32_t> ea, eb;         // links (one rank: ea < eb), in row-scan order
+    std::vector<std::uint32_t> ek;             // one rank: each one's position in ea's row
+    std::vector<std::uint32_t> changed, new_k; // one rank: particles raised by the last round
+    std::vector<std::uint32_t> tied;           // particles tied to a wall
+    // Busy particles (linked or tied), increasing; the islands over them (local indices), each
+    // island's members as particle indices, and per particle its island or kAlone.
+    std::vector<std::uint32_t> busy, la, lb, members, island_of;
+    std::vector<std::uint32_t> busy_before, label_before;
+    std::vector<unsigned char> mark; // all zero between calls
+    partition::Islands islands;
+    std::vector<std::uint32_t> uf_scratch;
+    // Per island: energy, lightest mass, largest external acceleration and half step.
+    std::vector<double> energy, m_min, a_max, hp_max;
+    // Islands over the busy particles (busy from ea, eb, tied); false, with no islands made,
+    // when more than `limit` particles are busy.
+    bool form(std::size_t n, double limit);
+  };
+  // One rank: the Verlet list and its skins.
+  struct OneRank {
+    VerletList list;
+    double skin_cap = 0.0;
+    // Skins of the two modes: islands (a longer list: fewer builds) and global fine steps (the
+    // explicit scheme's).
+    double islands_skin = 0.0, global_skin = 0.0;
+    bool built = false, incremental = true;
+    // Canonical state pending (a communicator of size 1): the next sub-iteration sorts the store
+    // by id and builds.
+    bool canonical = false;
+    bool with_comm = false; // constructed with a communicator (of size 1)
+  };
+  struct RankPart; // R ranks: ownership, ghosts, rows, reductions (islands_ranks.cpp)
+  // The recorded state (synchronised_previous).
+  struct Recorded {
+    std::vector<double> x, y, z, vx, vy, vz, mass, radius, dt;
+    std::vector<std::int64_t> id, island;
+  };
+  // Counters (over all ranks unless local_) and the interval statistics.
+  struct Stats {
+    std::int64_t subits = 0, particle_steps = 0, pair_evaluations = 0, builds = 0,
+                 overlap_violations = 0, bound_violations = 0, global_subits = 0;
+    std::int64_t regrids = 0, retries = 0, expired_builds = 0, span_subits = 0, span_particles = 0,
+                 span_parts = 0;
+    std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
+    double max_overlap_ratio = 0.0, last_fine_fraction = 0.0;
+    std::int64_t iv_fine = 0, iv_particles = 0, iv_steps = 0;
+    std::int64_t iv_min = std::numeric_limits<std::int64_t>::max(), iv_max = 0;
+    std::vector<std::int64_t> size_hist = std::vector<std::int64_t>(34, 0);
+    // The interval statistics of one sub-iteration: `fine` of `n` particles on K steps.
+    void add_interval(std::int64_t fine, std::int64_t n, std::int64_t K);
+    std::vector<std::int64_t> counters() const;
+    void set_counters(const std::vector<std::int64_t>& k);
+  };
+  static constexpr std::uint32_t kAlone = 0xffffffffu;
+
+  islands::Columns cols() { return islands::columns(p_, hprev_, ext_); }
+  // Shared by both paths.
+  template <bool External> void island_sums(std::size_t owned);
   template <bool External> void free_flight(bool record);
   template <bool External, bool Record, bool Walls>
   std::uint64_t free_flight_run(std::size_t b, std::size_t e);
-  template <bool External> void run_island(std::uint32_t c, bool record);
+  void record_state();
+  void raise_faults() const;
+  void speed_bounds();
+  // One rank.
+  void subiterate_one(bool record);
+  void rebuild();
+  void canonical_order();
+  void make_links(bool incremental);
+  void link();
+  bool list_expires() const;
+  template <bool External, bool Ranks>
+  void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External> void global_steps(bool record);
-  template <bool Label, bool Indexed>
-  std::int64_t particle_forces(const std::uint32_t* idx, std::uint32_t u0, std::uint32_t u1,
-                               std::uint32_t c, double& max_ratio, std::int64_t& violations);
-  void raise_faults(double t) const;
+  islands::ContactView contact_view();
+  // R ranks (islands_ranks.cpp).
+  void init_ranks();
+  void set_external_force_ranks(std::span<const double> fx, std::span<const double> fy,
+                                std::span<const double> fz);
+  islands::ContactView contact_view_ranks();
+  void subiterate_ranks(bool record);
+  void regrid();
+  void migrate();
+  void own_bounds();
+  void rebuild_ranks();
+  void build_ghosts_and_rows();
+  double link_rounds();
+  void make_links_ranks();
+  template <bool External> void fine_together(bool record, bool all);
+  void canonicalize();
 
   const Scene& scene_;
   ParticleStore& p_;
   PhaseTimer& timer_;
   DomainGeometry geom_;
   StepModel model_;
-  VerletList list_;
-  ExternalForce ext_;
-  double dt_sp_ = 0.0, skin_ = 0.0, skin_cap_ = 0.0, margin_ = 0.0;
-  // Skins of the two modes: islands (a longer list: fewer builds) and global fine steps (the
-  // explicit scheme's), and the mode of the current sub-iteration.
-  double islands_skin_ = 0.0, global_skin_ = 0.0;
-  bool global_ = false;
-  std::int64_t global_subits_ = 0;
-  std::int64_t nsubit_ = 1;
-  bool built_ = false;
-  std::vector<double> hprev_;                 // per particle: half of its last step
-  std::vector<std::int64_t> fine_subits_;     // per particle: sub-iterations in a fine island
-  std::vector<double> bound_;                 // per particle: speed bound s_i [m/s]
-  std::vector<double> own_bound_;             // ... from its own velocity (busy particles only)
-  std::vector<std::uint32_t> own_stamp_;      // own_bound_[i] is this link() call's when == stamp_
-  std::uint32_t stamp_ = 0;
-  // link(): per island energy, lightest mass, largest external acceleration and half step.
-  std::vector<double> energy_, m_min_, a_max_, hp_max_;
-  std::vector<std::uint32_t> busy_before_, label_before_;
-  std::vector<double> x0_, y0_, z0_;          // members' start positions (members_ order)
-  std::vector<std::uint32_t> ea_, eb_;        // links (ea_ < eb_), in row-scan order
-  std::vector<std::uint32_t> ek_;             // ... each one's position in ea_'s row, increasing
-  std::vector<std::uint32_t> changed_, new_k_; // link(): particles raised by the last round
-  bool incremental_links_ = true;
-  std::vector<std::uint32_t> tied_;           // particles tied to a wall
-  // Busy particles (linked or tied), increasing; the islands over them (local indices), each
-  // island's members as particle indices, and per particle its island or kAlone.
-  static constexpr std::uint32_t kAlone = 0xffffffffu;
-  std::vector<std::uint32_t> busy_v_, la_, lb_, members_, island_of_;
-  std::vector<unsigned char> mark_; // make_links: all zero between calls
-  std::uint64_t fault_flag_ = 0;    // sign bit: some particle may be NaN or outside a wall
-  partition::Islands islands_;
-  std::vector<std::uint32_t> uf_scratch_;
-  std::int64_t K_ = 1;
-  double h_ = 0.0, h_last_ = 0.0;
-  // Per island, results of its task (reduced in island order; faults are flagged apart).
-  struct IslandResult {
-    std::int64_t pairs = 0, violations = 0, bound_violations = 0;
-    double max_ratio = 0.0;
-  };
-  std::vector<IslandResult> results_;
-  std::vector<double> sx_, sy_, sz_, svx_, svy_, svz_, smass_, sradius_, sdt_;
-  std::vector<std::int64_t> sid_, sisland_;
-  std::vector<std::int64_t> size_hist_;
-  std::int64_t subits_ = 0, particle_steps_ = 0, pair_evaluations_ = 0, builds_ = 0,
-               overlap_violations_ = 0, bound_violations_ = 0;
-  double max_overlap_ratio_ = 0.0, last_fine_fraction_ = 0.0;
-  // Interval statistics.
-  std::int64_t iv_fine_ = 0, iv_particles_ = 0, iv_steps_ = 0;
-  std::int64_t iv_min_ = std::numeric_limits<std::int64_t>::max(), iv_max_ = 0;
+  ExternalForce ext_; // per owned particle
+  double dt_sp_ = 0.0, skin_ = 0.0, margin_ = 0.0;
+  std::int64_t nsubit_ = 1, n_global_ = 0;
+  std::size_t owned_ = 0;
+  bool global_ = false; // this sub-iteration: everyone on the fine steps
+  FineSteps steps_;
+  // Per owned particle (carried through migrations): half of its last step, and sub-iterations
+  // in a fine island (a count, below 2^53).
+  std::vector<double> hprev_, fine_;
+  std::vector<double> x0_, y0_, z0_;           // island members' start positions (members order)
+  std::vector<islands::IslandResult> results_; // per island, reduced in island order
+  std::uint64_t fault_flag_ = 0;               // sign bit: some particle may be NaN or outside
+  std::vector<double> imbalances_;
+  Links ln_;
+  OneRank one_;
+  std::unique_ptr<RankPart> rank_;
+  Recorded rec_;
+  Stats st_;
 };
 
 } // namespace cfddem::dem

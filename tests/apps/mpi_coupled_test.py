@@ -33,7 +33,7 @@ snapshot), and the snapshots also carry each particle's leaf, equal to the 1-ran
 With gas regrids (partition.gas_regrid_interval) the gas cells move to the recut boxes and the
 routing follows them while the particles stay with their leaves: the same bound.
 
-SCHEME = islands: dem.scheme = "islands" (dem/distributed_islands_scheme.hpp) in the same loop,
+SCHEME = islands: dem.scheme = "islands" (dem/islands_scheme.hpp on R ranks) in the same loop,
 routed as orb. Islands are the same on any rank count, so besides the orb's exact columns the
 force evaluations agree exactly too; run.json reports how often islands spanned ranks (some
 must). Gas regrids as orb.

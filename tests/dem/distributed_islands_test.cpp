@@ -1,8 +1,10 @@
-// The islands scheme over MPI ranks (run under mpirun -np 1, 2 and 3) against the one-rank
-// IslandsScheme: the same particles within round-off (a spanning island sums its forces in
-// another order, and a particle that spans may take K fine steps where the serial scheme flies
-// it free, equal under a constant force only to round-off), no particle or mass lost at any
-// sub-iteration, no bound violated, and bitwise the same result for 1 and 2 threads per rank.
+// One rank equals R ranks: IslandsScheme with the world communicator (run under mpirun -np 1, 2
+// and 3) against IslandsScheme without one: the same particles within round-off on R > 1 ranks
+// (a spanning island sums its forces in another order, and a particle that spans may take K
+// fine steps where one rank flies it free, equal under a constant force only to round-off) and
+// bitwise on one rank (the same path), no particle or mass lost at any sub-iteration, no bound
+// violated, bitwise the same result for 1 and 2 threads per rank, and a restart from save_state()
+// bitwise the run that wrote it.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -17,7 +19,6 @@
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/distributed_islands_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/islands_scheme.hpp"
 #include "distributed_test_support.hpp"
@@ -83,7 +84,7 @@ constexpr int kSubits = 40;
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
 struct Outcome {
-  State state;                        // serial: all; distributed: this rank's owned
+  State state;                        // one rank: all; R ranks: this rank's owned
   std::vector<double> kinetic_energy; // per sub-iteration, over all particles
   std::int64_t bound_violations = 0, spanning_subits = 0, global_subits = 0;
   double max_overlap_ratio = 0.0;
@@ -96,7 +97,7 @@ State state_of(const ParticleStore& p, std::size_t n) {
   return s;
 }
 
-Outcome serial_islands(const Scene& scene, int subits, bool external = false) {
+Outcome one_rank(const Scene& scene, int subits, bool external = false) {
   ParticleStore p = make_initial_particles(scene);
   PhaseTimer timer;
   dem::IslandsScheme s(scene, p, timer);
@@ -118,16 +119,17 @@ Outcome serial_islands(const Scene& scene, int subits, bool external = false) {
   return r;
 }
 
-// The distributed scheme on `threads` threads; every sub-iteration the particles over all ranks
-// are counted and identified (count, sum of ids and of squared ids) and their mass compared.
-Outcome distributed_islands(const Scene& scene, int subits, int threads, bool external = false) {
+// The scheme with the world communicator on `threads` threads; every sub-iteration the particles
+// over all ranks are counted and identified (count, sum of ids and of squared ids) and their mass
+// compared.
+Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = false) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   const Communicator c = Communicator::world();
   const ParticleStore all = make_initial_particles(scene);
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::DistributedIslandsScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  dem::IslandsScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
   s.start();
   if (external)
     apply_force(p, s.owned(), s);
@@ -158,18 +160,18 @@ Outcome distributed_islands(const Scene& scene, int subits, int threads, bool ex
   return r;
 }
 
-// Every owned particle of every rank against the serial scheme: |position| differences below
+// Every owned particle of every rank against the one-rank run: |position| differences below
 // `pos` (m), velocity differences below `vel` (m/s); the kinetic energy at every sub-iteration
 // within a relative `energy`.
-void expect_close(const Scene& scene, const Outcome& serial, const Outcome& mine, double pos,
+void expect_close(const Scene& scene, const Outcome& one, const Outcome& mine, double pos,
                   double vel, double energy, const std::string& what) {
   const Communicator c = Communicator::world();
   std::int64_t count = static_cast<std::int64_t>(mine.state.size());
   std::array<double, 2> worst{};
   const dem::DomainGeometry g(scene.domain);
   for (const auto& [id, q] : mine.state) {
-    const auto it = serial.state.find(id);
-    ASSERT_NE(it, serial.state.end()) << what << ": unknown id " << id;
+    const auto it = one.state.find(id);
+    ASSERT_NE(it, one.state.end()) << what << ": unknown id " << id;
     for (int a = 0; a < 6; ++a) {
       double d = std::abs(q[a] - it->second[a]);
       // A particle across a periodic face: the two runs may wrap it differently.
@@ -180,14 +182,14 @@ void expect_close(const Scene& scene, const Outcome& serial, const Outcome& mine
   }
   count = c.sum(count);
   c.max(worst);
-  EXPECT_EQ(count, static_cast<std::int64_t>(serial.state.size())) << what;
+  EXPECT_EQ(count, static_cast<std::int64_t>(one.state.size())) << what;
   EXPECT_LE(worst[0], pos) << what << ": positions";
   EXPECT_LE(worst[1], vel) << what << ": velocities";
-  ASSERT_EQ(serial.kinetic_energy.size(), mine.kinetic_energy.size());
+  ASSERT_EQ(one.kinetic_energy.size(), mine.kinetic_energy.size());
   double e_worst = 0.0;
   for (std::size_t k = 0; k < mine.kinetic_energy.size(); ++k)
-    e_worst = std::max(e_worst, std::abs(mine.kinetic_energy[k] - serial.kinetic_energy[k]) /
-                                    serial.kinetic_energy[k]);
+    e_worst = std::max(e_worst, std::abs(mine.kinetic_energy[k] - one.kinetic_energy[k]) /
+                                    one.kinetic_energy[k]);
   EXPECT_LE(e_worst, energy) << what << ": kinetic energy";
   if (c.rank() == 0)
     std::printf("[ %s ] worst |dx| %.3g m, |dv| %.3g m/s, dE/E %.3g\n", what.c_str(), worst[0],
@@ -201,24 +203,24 @@ void expect_close(const Scene& scene, const Outcome& serial, const Outcome& mine
 // physical difference (a missed collision changes a velocity by ~0.1 m/s, the energy by percent).
 constexpr double kPos = 1e-14, kVel = 1e-10, kEnergy = 1e-11;
 
-TEST(DistributedIslands, DenseGasMatchesSerialIslandsToRoundOff) {
+TEST(DistributedIslands, DenseGasMatchesOneRankToRoundOff) {
   const Scene scene = scene_from(kGas);
-  const Outcome d = distributed_islands(scene, kSubits, 1);
-  const Outcome s = serial_islands(scene, kSubits);
+  const Outcome d = on_ranks(scene, kSubits, 1);
+  const Outcome s = one_rank(scene, kSubits);
   expect_close(scene, s, d, kPos, kVel, kEnergy, "dense gas");
   EXPECT_EQ(d.bound_violations, 0);
   EXPECT_GT(d.max_overlap_ratio, 0.0);
   EXPECT_GT(d.global_subits, 0); // the dense mode: every particle on the fine steps
 }
 
-TEST(DistributedIslands, HcsSmallMatchesSerialIslandsToRoundOff) {
+TEST(DistributedIslands, HcsSmallMatchesOneRankToRoundOff) {
   const Scene scene = scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]",
                                         "particles.count=100", "particles.temperature=0.01",
                                         "particles.seed=3", "dem.regrid_interval=1.0e-4"});
   // 4 ms: collisions, and on several ranks islands across them.
   const int subits = 200;
-  const Outcome d = distributed_islands(scene, subits, 1);
-  expect_close(scene, serial_islands(scene, subits), d, kPos, kVel, kEnergy, "HCS small");
+  const Outcome d = on_ranks(scene, subits, 1);
+  expect_close(scene, one_rank(scene, subits), d, kPos, kVel, kEnergy, "HCS small");
   EXPECT_EQ(d.bound_violations, 0);
   EXPECT_GT(d.max_overlap_ratio, 0.0);
   if (Communicator::world().size() > 1) {
@@ -226,33 +228,67 @@ TEST(DistributedIslands, HcsSmallMatchesSerialIslandsToRoundOff) {
   }
 }
 
-TEST(DistributedIslands, WalledBoxWithGravityMatchesSerialIslandsToRoundOff) {
+TEST(DistributedIslands, WalledBoxWithGravityMatchesOneRankToRoundOff) {
   const Scene scene = scene_from(kWalls);
-  const Outcome d = distributed_islands(scene, kSubits, 1);
-  expect_close(scene, serial_islands(scene, kSubits), d, kPos, kVel, kEnergy, "walls and gravity");
+  const Outcome d = on_ranks(scene, kSubits, 1);
+  expect_close(scene, one_rank(scene, kSubits), d, kPos, kVel, kEnergy, "walls and gravity");
   EXPECT_EQ(d.bound_violations, 0);
 }
 
-TEST(DistributedIslands, ExternalForceFollowsItsParticleAndMatchesSerialIslands) {
+TEST(DistributedIslands, ExternalForceFollowsItsParticleAndMatchesOneRank) {
   // The force set once at the start travels with each particle through the migrations and
   // enters the speed bounds.
   const Scene scene = scene_from(kWalls);
-  const Outcome d = distributed_islands(scene, kSubits, 1, true);
-  expect_close(scene, serial_islands(scene, kSubits, true), d, kPos, kVel, kEnergy,
-               "external force");
+  const Outcome d = on_ranks(scene, kSubits, 1, true);
+  expect_close(scene, one_rank(scene, kSubits, true), d, kPos, kVel, kEnergy, "external force");
   EXPECT_EQ(d.bound_violations, 0);
   // And it matters: without it the particles end elsewhere.
-  EXPECT_NE(serial_islands(scene, kSubits, true).state, serial_islands(scene, kSubits).state);
+  EXPECT_NE(one_rank(scene, kSubits, true).state, one_rank(scene, kSubits).state);
 }
 
 TEST(DistributedIslands, RerunAndThreadCountsAreBitwiseIdentical) {
   const Scene scene = scene_from(kGas);
-  const Outcome a = distributed_islands(scene, kSubits, 1);
-  const Outcome b = distributed_islands(scene, kSubits, 1);
-  const Outcome c = distributed_islands(scene, kSubits, 2);
+  const Outcome a = on_ranks(scene, kSubits, 1);
+  const Outcome b = on_ranks(scene, kSubits, 1);
+  const Outcome c = on_ranks(scene, kSubits, 2);
   EXPECT_EQ(a.state, b.state);
   EXPECT_EQ(a.state, c.state);
   EXPECT_EQ(a.kinetic_energy, c.kinetic_energy);
+}
+
+// A checkpoint between sub-iterations: save_state() (the canonical state) restored on a fresh
+// scheme over the same owned particles goes on bitwise as the run that wrote it, on one rank with
+// a communicator (the store in id order, the list rebuilt) and on R ranks (ownership and rows
+// rebuilt).
+TEST(DistributedIslands, RestartFromSavedStateIsBitwiseTheRunThatWroteIt) {
+  for (const char* text : {kGas, kWalls}) {
+    const Scene scene = scene_from(text);
+    const Communicator c = Communicator::world();
+    const ParticleStore all = make_initial_particles(scene);
+    const dem::StepModel model = dem::make_step_model(scene, all);
+    ParticleStore p = share(all, c.rank(), c.size());
+    PhaseTimer timer;
+    dem::IslandsScheme a(scene, p, model, &c, timer);
+    a.start();
+    for (int k = 0; k < kSubits / 2; ++k)
+      a.subiterate();
+    dem::IslandsScheme::State saved = a.save_state();
+    EXPECT_TRUE(saved.offsets.empty()); // no list: the next sub-iteration builds one
+    ParticleStore q = p;
+    q.resize(a.owned());
+    dem::IslandsScheme b(scene, q, model, &c, timer);
+    b.restore_state(std::move(saved));
+    for (int k = 0; k < kSubits / 2; ++k) {
+      a.subiterate(k + 1 == kSubits / 2);
+      b.subiterate(k + 1 == kSubits / 2);
+    }
+    EXPECT_EQ(state_of(p, a.owned()), state_of(q, b.owned()));
+    EXPECT_EQ(a.particle_steps(), b.particle_steps());
+    EXPECT_EQ(a.pair_evaluations(), b.pair_evaluations());
+    EXPECT_EQ(a.max_overlap_ratio(), b.max_overlap_ratio());
+    EXPECT_GT(a.pair_evaluations(), 0);
+    EXPECT_EQ(a.bound_violations(), 0);
+  }
 }
 
 TEST(DistributedIslands, ParticleThroughAWallStopsEveryRankWithTheSameError) {
@@ -262,7 +298,7 @@ TEST(DistributedIslands, ParticleThroughAWallStopsEveryRankWithTheSameError) {
   all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::DistributedIslandsScheme s(scene, p, dem::make_step_model(scene, all), c, timer);
+  dem::IslandsScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
   s.start();
   std::string message;
   try {

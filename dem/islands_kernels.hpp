@@ -1,0 +1,439 @@
+// The islands scheme's kernels (dem/islands_scheme.hpp), one copy for its one-rank and R-rank
+// paths: the speed bound, the link and wall-tie tests, an island's raised bound, the contact
+// forces on island members, the fine steps of an island, free flight and the fault search. They
+// take small views of the particle columns and know nothing of ranks or threads, except the
+// fine steps of a giant island, which run each pass as a nested parallel loop.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <tbb/parallel_for.h>
+
+#include "core/particle_store.hpp"
+#include "dem/contact_kernels.hpp"
+#include "dem/domain_geometry.hpp"
+#include "dem/explicit_scheme.hpp"
+#include "dem/external_force.hpp"
+#include "dem/scheme_support.hpp"
+
+namespace cfddem::dem::islands {
+
+// The columns a fine step reads and writes: the store's, the scheme's half steps (hp) and the
+// held external force (null pointers without one).
+struct Columns {
+  double *x, *y, *z, *vx, *vy, *vz, *fx, *fy, *fz, *hp;
+  const double *im, *radius, *mass;
+  const std::int64_t* id;
+  const double *ex, *ey, *ez;
+};
+inline Columns columns(ParticleStore& p, std::vector<double>& hprev, const ExternalForce& e) {
+  const bool on = e.active();
+  return {p.x.data(),
+          p.y.data(),
+          p.z.data(),
+          p.vx.data(),
+          p.vy.data(),
+          p.vz.data(),
+          p.fx.data(),
+          p.fy.data(),
+          p.fz.data(),
+          hprev.data(),
+          p.inv_mass.data(),
+          p.radius.data(),
+          p.mass.data(),
+          p.id.data(),
+          on ? e.x.data() : nullptr,
+          on ? e.y.data() : nullptr,
+          on ? e.z.data() : nullptr};
+}
+
+// Neighbor rows in CSR form. wrap[i]: where row i's pairs across a periodic face begin (the
+// Verlet list's order); without it (R ranks) every pair takes the minimum image.
+struct Rows {
+  const std::uint32_t *off, *nb, *wrap;
+};
+
+// What the contact pass of island members needs besides the columns: the rows, each particle's
+// island (label) and the contact law.
+struct ContactView {
+  Columns c;
+  Rows rows;
+  const std::uint32_t* label;
+  const DomainGeometry* geom;
+  const StepModel* model;
+};
+
+// |F_ext,i / m_i + g|.
+template <bool External>
+inline double acceleration(const Columns& c, const std::array<double, 3>& g, std::size_t i) {
+  double ax = g[0], ay = g[1], az = g[2];
+  if constexpr (External) {
+    ax += c.ex[i] * c.im[i], ay += c.ey[i] * c.im[i], az += c.ez[i] * c.im[i];
+  }
+  return std::sqrt(ax * ax + ay * ay + az * az);
+}
+
+// The speed bound of particles [0, n) over a sub-iteration of dt_sp (header of
+// islands_scheme.hpp): s_i = |v_i| + |F_ext,i / m_i + g| (h_prev,i + dt_sp).
+inline void speed_bounds(const Columns& c, std::size_t n, const std::array<double, 3>& g,
+                         double dt_sp, double* __restrict b) {
+  const double* __restrict vx = c.vx;
+  const double* __restrict vy = c.vy;
+  const double* __restrict vz = c.vz;
+  const double* __restrict hp = c.hp;
+  if (c.ex == nullptr) {
+    // Gravity alone: one acceleration for all.
+    const double a = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+    for (std::size_t i = 0; i < n; ++i)
+      b[i] = std::sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i]) + a * (hp[i] + dt_sp);
+    return;
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    b[i] = std::sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i]) +
+           acceleration<true>(c, g, i) * (hp[i] + dt_sp);
+}
+
+// The link test: particles i and j (squared separation d2) could touch within dt_sp.
+inline bool may_touch(double d2, double bi, double bj, double ri, double rj, double dt_sp,
+                      double margin) {
+  const double reach = (bi + bj) * dt_sp + margin + ri + rj;
+  return d2 < reach * reach;
+}
+// The wall tie: a particle at `pos` could reach the wall lo or hi of its axis within dt_sp.
+inline bool may_reach_wall(double pos, double lo, double hi, double r, double b, double dt_sp,
+                           double margin) {
+  const double gap = std::min(pos - lo, hi - pos) - r;
+  return gap < b * dt_sp + margin;
+}
+// An island's raised bound: the speed that takes its whole energy E on its lightest member, plus
+// what the external forces add over the sub-iteration: s_max = sqrt(2 E / m_min) + a_max
+// (h_prev,max + dt_sp).
+inline double island_speed(double energy, double m_min, double a_max, double hp_max, double dt_sp) {
+  return std::sqrt(2.0 * energy / m_min) + a_max * (hp_max + dt_sp);
+}
+
+// The largest reach (displacement since the list's build plus the bound over the sub-iteration)
+// and the second largest, over particles [0, n). A pair missing from a list of skin s needs two
+// reaches adding up to s to touch (the list-expiry rule). With NanIsInfinite a NaN reach makes
+// the largest infinite (the R-rank rule reduces it over ranks); without, a NaN is left to the
+// fault checks.
+struct Reaches {
+  double first = 0.0, second = 0.0;
+};
+template <bool NanIsInfinite>
+Reaches largest_reaches(const double* __restrict x, const double* __restrict y,
+                        const double* __restrict z, const double* __restrict xr,
+                        const double* __restrict yr, const double* __restrict zr,
+                        const double* __restrict b, double dt_sp, std::size_t n) {
+  double top1 = 0.0, top2 = 0.0;
+  bool nan = false;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double ex = x[i] - xr[i], ey = y[i] - yr[i], ez = z[i] - zr[i];
+    const double reach = std::sqrt(ex * ex + ey * ey + ez * ez) + b[i] * dt_sp;
+    if (!(reach <= top2)) { // NaN lands here
+      if constexpr (NanIsInfinite)
+        nan = nan || reach != reach;
+      if (!(reach <= top1))
+        top2 = top1, top1 = reach;
+      else
+        top2 = reach;
+    }
+  }
+  if (nan)
+    top1 = std::numeric_limits<double>::infinity();
+  return {top1, top2};
+}
+
+// Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit
+// scheme's contact law), from their row partners in island `island` (with Label; all partners
+// without). Returns the pairs evaluated, each once: (i, j) with j > i (ById: id[j] > id[i], so
+// that a pair with a ghost end counts on one rank only).
+template <bool Label, bool Indexed, bool Wrap, bool ById>
+std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
+                            std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
+                            std::int64_t& violations_out) {
+  const std::uint32_t* __restrict off = v.rows.off;
+  const std::uint32_t* __restrict nb = v.rows.nb;
+  const std::uint32_t* __restrict wrap = v.rows.wrap;
+  const std::uint32_t* __restrict label = v.label;
+  // References (a copy per particle would cost more than it saves): the loop stores only to
+  // locals, so their fields stay in registers.
+  const DomainGeometry& g = *v.geom;
+  const StepModel& m = *v.model;
+  const double* __restrict x = v.c.x;
+  const double* __restrict y = v.c.y;
+  const double* __restrict z = v.c.z;
+  const double* __restrict vx = v.c.vx;
+  const double* __restrict vy = v.c.vy;
+  const double* __restrict vz = v.c.vz;
+  const double* __restrict rad = v.c.radius;
+  const double* __restrict mass = v.c.mass;
+  const std::int64_t* __restrict id = v.c.id;
+  double* __restrict fxo = v.c.fx;
+  double* __restrict fyo = v.c.fy;
+  double* __restrict fzo = v.c.fz;
+  double max_ratio = max_ratio_out;
+  std::int64_t pairs = 0, violations = 0;
+  for (std::uint32_t u = u0; u < u1; ++u) {
+    const std::uint32_t i = Indexed ? idx[u] : u;
+    const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
+    const double ri = rad[i], mi = mass[i];
+    double ax = 0.0, ay = 0.0, az = 0.0;
+    auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
+      if constexpr (ById)
+        pairs += id[j] > id[i];
+      else
+        pairs += j > i;
+      const double delta = add_normal_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j],
+                                              vyi - vy[j], vzi - vz[j], ax, ay, az);
+      if (delta <= 0.0)
+        return;
+      // The ratio's divide only when it sets a new maximum (rare after the first contacts).
+      const double rmin = std::min(ri, rad[j]);
+      if (delta > max_ratio * rmin)
+        max_ratio = delta / rmin;
+      violations += delta > m.max_overlap * rmin;
+    };
+    // Pairs inside the box first (no periodic image needed), then those across a face.
+    const std::uint32_t kw = Wrap ? wrap[i] : off[i];
+    for (std::uint32_t k = off[i]; k < kw; ++k) {
+      const std::uint32_t j = nb[k];
+      if constexpr (Label) {
+        if (label[j] != island)
+          continue;
+      }
+      pair(j, x[j] - xi, y[j] - yi, z[j] - zi);
+    }
+    for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if constexpr (Label) {
+        if (label[j] != island)
+          continue;
+      }
+      pair(j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
+    }
+    if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
+      double f[3] = {ax, ay, az};
+      const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
+      for (int a = 0; a < 3; ++a) {
+        if (g.periodic[a])
+          continue;
+        for (int side = 0; side < 2; ++side) {
+          const double sg = side ? 1.0 : -1.0;
+          const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+          if (delta <= 0.0)
+            continue;
+          f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
+          max_ratio = std::max(max_ratio, delta / ri);
+          violations += delta > m.max_overlap * ri;
+        }
+      }
+      ax = f[0], ay = f[1], az = f[2];
+    }
+    fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
+  }
+  max_ratio_out = max_ratio;
+  violations_out += violations;
+  return pairs;
+}
+
+// What one island's fine steps add to the scheme's counters.
+struct IslandResult {
+  std::int64_t pairs = 0, violations = 0, bound_violations = 0;
+  double max_ratio = 0.0;
+};
+
+// The members of an island (particle indices) and their positions at the sub-iteration's start
+// (member order). The displacement check after each step: farther than bound[i] x elapsed +
+// margin counts as a bound violation (step_island<.., Bounded = true>); else (the R-rank dense
+// mode) farther than sqrt(fixed2) (half the skin: the rows may miss a pair).
+struct Members {
+  const std::uint32_t* mem;
+  std::uint32_t count;
+  const double *x0, *y0, *z0;
+  const double* bound;
+  double margin, fixed2;
+};
+
+// Islands larger than this run each pass as a nested parallel_for over blocks of members.
+inline constexpr std::uint32_t kGiantIsland = 4096;
+inline constexpr std::uint32_t kMemberBlock = 1024;
+
+// The K fine steps of an island (fine_steps(): h, the last one h_last) with the orb scheme's
+// variable-step leapfrog (h_prev per particle): contact forces from `forces(u0, u1, max_ratio,
+// violations)` over members u0..u1 (returns the pairs), then every member's kick-drift, then
+// `between()` before every step but the first (the R-rank ghost refresh). With svx non-null the
+// synchronised velocities at the start go there. Each member's force and update read only the
+// state before the pass: bitwise independent of the thread count.
+template <bool External, bool Bounded, class Forces, class Between>
+[[gnu::always_inline]] inline IslandResult
+step_island(const Columns& col, const Members& mb, const FineSteps& fs,
+            const std::array<double, 3>& grav, double* svx, double* svy, double* svz,
+            Forces&& forces, Between&& between) {
+  IslandResult res;
+  const std::uint32_t* mem = mb.mem;
+  const std::uint32_t count = mb.count;
+  double* x = col.x;
+  double* y = col.y;
+  double* z = col.z;
+  double* vx = col.vx;
+  double* vy = col.vy;
+  double* vz = col.vz;
+  double* fx = col.fx;
+  double* fy = col.fy;
+  double* fz = col.fz;
+  double* hp = col.hp;
+  const double* im = col.im;
+  // Member u's update over one step. Everything it reads besides the particle's own state is
+  // held in locals (the stores through x, v, hp could alias the views otherwise, and the
+  // compiler would reload them for every member).
+  const double* __restrict x0 = mb.x0;
+  const double* __restrict y0 = mb.y0;
+  const double* __restrict z0 = mb.z0;
+  const double* __restrict bnd = mb.bound;
+  const double* __restrict ex_x = col.ex;
+  const double* __restrict ex_y = col.ey;
+  const double* __restrict ex_z = col.ez;
+  const double g0 = grav[0], g1 = grav[1], g2 = grav[2], margin = mb.margin, fixed2 = mb.fixed2;
+  auto kick = [=](std::uint32_t u, double s, double hk, double half, double elapsed,
+                  std::int64_t& bound_violations) {
+    const std::uint32_t i = mem[u];
+    double ex = 0.0, ey = 0.0, ez = 0.0;
+    if constexpr (External)
+      ex = ex_x[i], ey = ex_y[i], ez = ex_z[i];
+    const double ims = im[i] * s;
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    kick_drift(px, ux, fx[i] + ex, ims, g0 * s, hk);
+    kick_drift(py, uy, fy[i] + ey, ims, g1 * s, hk);
+    kick_drift(pz, uz, fz[i] + ez, ims, g2 * s, hk);
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    hp[i] = half;
+    const double dx = px - x0[u], dy = py - y0[u], dz = pz - z0[u];
+    if constexpr (Bounded) {
+      const double reach = bnd[i] * elapsed + margin;
+      bound_violations += dx * dx + dy * dy + dz * dz > reach * reach;
+    } else {
+      bound_violations += dx * dx + dy * dy + dz * dz > fixed2;
+    }
+  };
+  const bool giant = count > kGiantIsland;
+  // A giant island's passes run as nested parallel loops over blocks of members; each block's
+  // partial counts go here (one allocation per sub-iteration, not per step).
+  std::vector<IslandResult> parts(giant ? (count + kMemberBlock - 1) / kMemberBlock : 0);
+  auto block_end = [&](std::size_t b) {
+    return std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * kMemberBlock));
+  };
+  double h_before = 0.0, elapsed = 0.0;
+  for (std::int64_t k = 0; k < fs.K; ++k) {
+    const double hk = k + 1 == fs.K ? fs.h_last : fs.h;
+    if (k > 0)
+      between();
+    if (!giant) {
+      res.pairs += forces(0u, count, res.max_ratio, res.violations);
+    } else {
+      tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
+        IslandResult& pt = parts[b];
+        pt = IslandResult{};
+        pt.pairs = forces(static_cast<std::uint32_t>(b * kMemberBlock),
+                          static_cast<std::uint32_t>(block_end(b)), pt.max_ratio, pt.violations);
+      });
+      for (const IslandResult& pt : parts)
+        res.pairs += pt.pairs, res.violations += pt.violations,
+            res.max_ratio = std::max(res.max_ratio, pt.max_ratio);
+    }
+    if (svx != nullptr && k == 0)
+      for (std::uint32_t u = 0; u < count; ++u) {
+        const std::uint32_t i = mem[u];
+        double ex = 0.0, ey = 0.0, ez = 0.0;
+        if constexpr (External)
+          ex = ex_x[i], ey = ex_y[i], ez = ex_z[i];
+        svx[i] = vx[i] + ((fx[i] + ex) * im[i] + g0) * hp[i];
+        svy[i] = vy[i] + ((fy[i] + ey) * im[i] + g1) * hp[i];
+        svz[i] = vz[i] + ((fz[i] + ez) * im[i] + g2) * hp[i];
+      }
+    const double half = 0.5 * hk;
+    elapsed += hk;
+    if (!giant) {
+      for (std::uint32_t u = 0; u < count; ++u)
+        kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed,
+             res.bound_violations);
+    } else {
+      tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
+        std::int64_t& bv = parts[b].bound_violations;
+        bv = 0;
+        for (std::uint32_t u = static_cast<std::uint32_t>(b * kMemberBlock); u < block_end(b); ++u)
+          kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed, bv);
+      });
+      for (const IslandResult& pt : parts)
+        res.bound_violations += pt.bound_violations;
+    }
+    h_before = hk;
+  }
+  return res;
+}
+
+// The free-flight kernel over len particles (pointers at the run's first): one step of dt under
+// gravity and the held force, no contact. Branch-free, so that it vectorizes: a coordinate or
+// speed that is not finite makes q - q a NaN (non-zero bits), and a particle beyond a wall makes
+// the smallest of its wall gaps negative (sign bit; with Walls only: on a periodic axis the
+// bounds are infinite). Returns a value with the sign bit set when either happened. (Positional
+// restrict parameters: GCC vectorizes this loop only with them.)
+template <bool External, bool Record, bool Walls>
+std::uint64_t
+free_flight_kernel(double* __restrict x, double* __restrict y, double* __restrict z,
+                   double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                   double* __restrict hp, const double* __restrict im, const double* __restrict ex,
+                   const double* __restrict ey, const double* __restrict ez, double* __restrict sx,
+                   double* __restrict sy, double* __restrict sz, std::size_t len, const double* g,
+                   double dt, const WallBounds& wb) {
+  const double g0 = g[0], g1 = g[1], g2 = g[2], half = 0.5 * dt;
+  const double lo0 = wb.lo[0], lo1 = wb.lo[1], lo2 = wb.lo[2];
+  const double hi0 = wb.hi[0], hi1 = wb.hi[1], hi2 = wb.hi[2];
+  std::uint64_t nonfinite = 0, outside = 0;
+  for (std::size_t i = 0; i < len; ++i) {
+    double ax = g0, ay = g1, az = g2;
+    if constexpr (External) {
+      ax += ex[i] * im[i], ay += ey[i] * im[i], az += ez[i] * im[i];
+    }
+    if constexpr (Record) {
+      sx[i] = vx[i] + ax * hp[i], sy[i] = vy[i] + ay * hp[i], sz[i] = vz[i] + az * hp[i];
+    }
+    const double s = hp[i] + half;
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    kick_drift(px, ux, 0.0, 0.0, ax * s, dt);
+    kick_drift(py, uy, 0.0, 0.0, ay * s, dt);
+    kick_drift(pz, uz, 0.0, 0.0, az * s, dt);
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    hp[i] = half;
+    const double q = ux * ux + uy * uy + uz * uz + px + py + pz;
+    nonfinite |= std::bit_cast<std::uint64_t>(q - q); // 0 when q is finite
+    if constexpr (Walls) {
+      // x - lo and hi - x are +0 at a wall, negative beyond it (q catches a NaN coordinate).
+      const double gx = std::min(px - lo0, hi0 - px), gy = std::min(py - lo1, hi1 - py);
+      const double gap = std::min(std::min(gx, gy), std::min(pz - lo2, hi2 - pz));
+      outside |= std::bit_cast<std::uint64_t>(gap);
+    }
+  }
+  return (nonfinite != 0 ? std::uint64_t{1} << 63 : 0) | (outside & (std::uint64_t{1} << 63));
+}
+
+// A particle whose position or velocity is not finite, or which is outside a wall.
+struct Fault {
+  std::size_t index = 0;
+  bool nonfinite = false;
+};
+// The first faulty particle of [0, n), if any. Faults are rare: a branch-free pass (it
+// vectorizes) says whether to look for one.
+std::optional<Fault> find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g);
+// "t = .. s, sub-iteration ..: particle <id> at (..) m: <what>" (the run's stop message).
+std::string fault_message(const ParticleStore& p, const Fault& f, double t, std::int64_t subit);
+
+} // namespace cfddem::dem::islands

@@ -1,0 +1,51 @@
+// The R-rank part of the islands scheme (dem/islands_scheme.hpp): what a rank holds besides the
+// one-rank state -- the communicator and particle exchange, the decomposition, the rows of its
+// owned particles over owned + ghosts (OrbLocalRows), the spanning islands and the rollback
+// copies. Private to islands_scheme.cpp and islands_ranks.cpp.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "core/communicator.hpp"
+#include "core/particle_exchange.hpp"
+#include "dem/islands_kernels.hpp"
+#include "dem/islands_scheme.hpp"
+#include "dem/orb_local_rows.hpp"
+#include "partition/orb_tree.hpp"
+#include "partition/rank_decomposition.hpp"
+
+namespace cfddem::dem {
+
+struct IslandsScheme::RankPart {
+  explicit RankPart(const Communicator& c) : comm(c), exchange(c) {}
+
+  const Communicator& comm;
+  ParticleExchange exchange;
+  partition::RankDecomposition decomposition;
+  partition::Aabb domain;
+  int levels = 0;
+  double r_max = 0.0, mass_global = 0.0;
+  // The islands skin; the largest bound of the last link rounds (over all ranks); the skin a
+  // short build asked for.
+  double base_skin = 0.0, last_max_bound = 0.0, grown_skin = 0.0;
+  std::int64_t last_regrid = -1;
+  // Spanning particles over all ranks in the last link round.
+  std::int64_t spanning_global = 0;
+  bool need_rebuild = true;
+  bool ext_on = false; // some rank holds an external force (its columns migrate)
+  OrbLocalRows rows;
+  std::vector<std::uint32_t> leaf0;        // all zero: the rows' one "leaf" of owned particles
+  std::vector<double> x_ref, y_ref, z_ref; // owned positions at the last build
+  std::vector<unsigned char> spans;        // per island: has a ghost member
+  std::vector<std::uint32_t> span_members; // owned members of spanning islands (or all)
+  std::vector<double> sx0, sy0, sz0;       // ... their start positions
+  islands::IslandResult span_result;       // their fine steps (outran: bound_violations, dense)
+  // Start of the sub-iteration in the dense mode (rollback): x, y, z, vx, vy, vz, h_prev.
+  std::array<std::vector<double>, 7> start;
+  double max_ratio_local = 0.0;               // this rank's largest overlap ratio not yet reduced
+  std::array<std::int64_t, 2> local_counts{}; // the last attempt's particle steps and pairs
+};
+
+} // namespace cfddem::dem

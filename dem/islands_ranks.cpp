@@ -1,0 +1,555 @@
+// The islands scheme on R > 1 ranks (dem/islands_scheme.hpp). One sub-iteration t -> t + dt_sp:
+//   1. at a build (the first sub-iteration, or when step 3 finds the rows too short): a new
+//      decomposition (parallel ORB + Hilbert knapsack) if dem.nsubit sub-iterations have passed
+//      since the last; every particle migrates to its owner (with its half step, fine count and
+//      external force), owned ones in id order; every owned particle within 2 r_max + skin of
+//      another rank's box is copied there unshifted (separations take the minimum image); rows
+//      of the owned particles over owned + ghosts (OrbLocalRows) with every pair within
+//      r_i + r_j + skin, the skin the islands skin and at least 4 dt_sp x the largest bound;
+//   2. own speed bounds of the owned particles; the ghosts' x, v and bounds from their owners
+//      (one forward_columns);
+//   3. link rounds over pairs with an owned end. An island with a ghost member SPANS ranks; a
+//      LOCAL one is raised to its s_max as on one rank; every spanning island's members on every
+//      rank to one s_span from sums over all spanning particles of all ranks (energy summed,
+//      lightest mass, largest acceleration and half step: at least any spanning island's own
+//      s_max). Raised bounds go to the ghosts and the links are redone until no rank's islands
+//      change (one reduction per round), so a link exists on one rank iff on every rank holding
+//      its ends. The rows hold every pair that can link while twice the largest reach over all
+//      ranks (largest_reaches) stays below the skin; else the sub-iteration builds again
+//      (expired_builds(); a doubled skin when even a fresh build was short). Above
+//      kGlobalFraction of all particles linked, everyone steps finely (the dense mode);
+//   4. lone particles fly free, local islands take the K fine steps (TBB tasks) as on one rank;
+//      then, when some rank has a spanning island (or in the dense mode), all spanning members
+//      (all particles) take them together, the ghosts' x and v refreshed before every step;
+//   5. one reduction of the counters, particle count and mass (none may be lost), faults (every
+//      rank throws the same RunError) and the dense mode's test: a particle that moved more than
+//      half the skin since the build rolls every rank back to redo the sub-iteration after a
+//      build with twice the skin (retries()).
+// A sub-iteration without a build costs one ghost refresh, one reduction per link round (usually
+// two) and one closing reduction, plus K - 1 ghost refreshes when an island spans ranks.
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "core/error.hpp"
+#include "dem/islands_rank_part.hpp"
+#include "dem/islands_scheme.hpp"
+
+namespace cfddem::dem {
+
+namespace {
+int ceil_log2(int n) {
+  int l = 0;
+  while ((1 << l) < n)
+    ++l;
+  return l;
+}
+} // namespace
+
+void IslandsScheme::init_ranks() {
+  RankPart& r = *rank_;
+  r.domain = partition::Aabb{scene_.domain.lo, scene_.domain.hi};
+  // Enough boxes that the knapsack can balance (the distributed explicit scheme's rule).
+  r.levels = std::min(20, std::max(scene_.partition.orb_levels, ceil_log2(r.comm.size()) + 2));
+  for (const double v : p_.radius)
+    r.r_max = std::max(r.r_max, v);
+  r.r_max = r.comm.max(r.r_max);
+  n_global_ = r.comm.sum(static_cast<std::int64_t>(p_.size()));
+  double m = 0.0;
+  for (const double v : p_.mass)
+    m += v;
+  std::array<double, 1> ms{m};
+  r.comm.sum(ms);
+  r.mass_global = ms[0];
+  r.base_skin = one_.islands_skin;
+}
+
+void IslandsScheme::set_external_force_ranks(std::span<const double> fx, std::span<const double> fy,
+                                             std::span<const double> fz) {
+  RankPart& r = *rank_;
+  const bool on = r.comm.max(fx.empty() ? 0.0 : 1.0) > 0.0;
+  const bool fits = on ? fx.size() == owned_ && fy.size() == owned_ && fz.size() == owned_
+                       : fy.empty() && fz.empty();
+  if (r.comm.max(fits ? 0.0 : 1.0) > 0.0)
+    throw std::invalid_argument("set_external_force: one value per owned particle expected");
+  r.ext_on = on;
+  ext_.x.assign(fx.begin(), fx.end()), ext_.y.assign(fy.begin(), fy.end());
+  ext_.z.assign(fz.begin(), fz.end());
+}
+
+void IslandsScheme::regrid() {
+  RankPart& r = *rank_;
+  for (std::size_t i = 0; i < owned_; ++i)
+    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
+    p_.z[i] = geom_.wrap(p_.z[i], 2);
+  r.decomposition = partition::decompose(r.comm, p_.x, p_.y, p_.z, r.domain, r.levels);
+  imbalances_.push_back(r.decomposition.imbalance);
+  ++st_.regrids;
+}
+
+// Every owned particle to the rank owning its wrapped position, then the owned ones in id order
+// (an order that depends on the particles only, whatever the arrival order).
+void IslandsScheme::migrate() {
+  RankPart& r = *rank_;
+  std::vector<int> dest(owned_);
+  std::string outside;
+  std::int64_t key = std::numeric_limits<std::int64_t>::max();
+  for (std::size_t i = 0; i < owned_; ++i) {
+    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
+    p_.z[i] = geom_.wrap(p_.z[i], 2);
+    dest[i] = r.decomposition.owner_of(p_.x[i], p_.y[i], p_.z[i]);
+    if (dest[i] < 0 && p_.id[i] < key) {
+      key = p_.id[i];
+      outside = fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m is outside "
+                            "the domain (rank {})",
+                            time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i], r.comm.rank());
+    }
+  }
+  if (const std::string e = r.comm.agree_on_error(key, outside); !e.empty())
+    throw RunError(e);
+  std::vector<std::vector<double>*> cols{&hprev_, &fine_};
+  if (r.ext_on)
+    cols.insert(cols.end(), {&ext_.x, &ext_.y, &ext_.z});
+  r.exchange.migrate(p_, dest, cols);
+  owned_ = p_.size();
+  std::vector<std::uint32_t> order(owned_);
+  std::iota(order.begin(), order.end(), 0U);
+  std::sort(order.begin(), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return p_.id[a] < p_.id[b]; });
+  p_.permute(order);
+  for (std::vector<double>* c : cols) {
+    std::vector<double> t(owned_);
+    for (std::size_t k = 0; k < owned_; ++k)
+      t[k] = (*c)[order[k]];
+    c->swap(t);
+  }
+}
+
+// The own speed bounds of the owned particles (the ghosts' come from their owners).
+void IslandsScheme::own_bounds() {
+  ln_.bound.resize(owned_);
+  islands::speed_bounds(cols(), owned_, model_.gravity, dt_sp_, ln_.bound.data());
+}
+
+// Ghosts within the halo 2 r_max + skin_ of this rank's boxes, their bounds, and the rows
+// (step 1 of the header).
+void IslandsScheme::build_ghosts_and_rows() {
+  RankPart& r = *rank_;
+  const double cutoff = 2.0 * r.r_max + skin_;
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
+      throw RunError(fmt::format("t = {:.9g} s: periodic axis {} is {:.4g} m long, not more than "
+                                 "twice the distributed islands scheme's halo {:.4g} m: raise "
+                                 "dem.nsubit or run on one rank",
+                                 time(), a, geom_.length[a], cutoff));
+  const partition::OrbTree& tree = r.decomposition.tree;
+  const int me = r.comm.rank();
+  std::vector<ParticleExchange::Copy> copies;
+  std::vector<int> ranks;
+  for (std::size_t i = 0; i < owned_; ++i) {
+    const partition::Aabb q{{p_.x[i] - cutoff, p_.y[i] - cutoff, p_.z[i] - cutoff},
+                            {p_.x[i] + cutoff, p_.y[i] + cutoff, p_.z[i] + cutoff}};
+    // A halo strictly inside the particle's own box reaches no other rank.
+    const int own = tree.locate(p_.x[i], p_.y[i], p_.z[i]);
+    if (own >= 0) {
+      const partition::Aabb& b = tree.leaves()[static_cast<std::size_t>(own)].box;
+      bool inside = true;
+      for (int a = 0; a < 3; ++a)
+        inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
+      if (inside)
+        continue;
+    }
+    ranks.clear();
+    for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic)) {
+      const int o = r.decomposition.owner[static_cast<std::size_t>(li.leaf)];
+      if (o == me || std::find(ranks.begin(), ranks.end(), o) != ranks.end())
+        continue;
+      ranks.push_back(o);
+    }
+    // Unshifted: separations take the minimum image, as on one rank.
+    for (const int o : ranks)
+      copies.push_back({o, static_cast<std::uint32_t>(i), {}});
+  }
+  r.exchange.build_ghosts(p_, owned_, std::move(copies));
+  const std::size_t n = p_.size();
+  ln_.bound.resize(n);
+  std::vector<double>* col[] = {&ln_.bound};
+  r.exchange.forward_columns(col);
+  r.leaf0.assign(owned_, 0);
+  r.rows.build({geom_,
+                {p_.x.data(), n},
+                {p_.y.data(), n},
+                {p_.z.data(), n},
+                {p_.radius.data(), n},
+                {p_.id.data(), n},
+                {ln_.bound.data(), n},
+                {r.leaf0.data(), owned_},
+                owned_,
+                cutoff,
+                skin_,
+                0.0,
+                dt_sp_,
+                false});
+  r.x_ref.assign(p_.x.begin(), p_.x.begin() + static_cast<std::ptrdiff_t>(owned_));
+  r.y_ref.assign(p_.y.begin(), p_.y.begin() + static_cast<std::ptrdiff_t>(owned_));
+  r.z_ref.assign(p_.z.begin(), p_.z.begin() + static_cast<std::ptrdiff_t>(owned_));
+  ++st_.builds;
+}
+
+// The one-rank link test and wall tie over pairs with an owned end (each owned pair once), walls
+// of owned particles; islands over the linked and tied particles (owned and ghosts); an island
+// with a ghost member spans ranks.
+void IslandsScheme::make_links_ranks() {
+  const RankPart& r = *rank_;
+  const auto off = r.rows.off();
+  const auto nb = r.rows.nb();
+  const DomainGeometry& g = geom_;
+  const double* bnd = ln_.bound.data();
+  ln_.ea.clear(), ln_.eb.clear();
+  for (std::uint32_t i = 0; i < owned_; ++i)
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if (j < owned_ && j <= i)
+        continue;
+      const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
+                   dz = g.image(p_.z[j] - p_.z[i], 2);
+      if (islands::may_touch(dx * dx + dy * dy + dz * dz, bnd[i], bnd[j], p_.radius[i],
+                             p_.radius[j], dt_sp_, margin_))
+        ln_.ea.push_back(i), ln_.eb.push_back(j);
+    }
+  ln_.tied.clear();
+  for (int a = 0; a < 3; ++a) {
+    if (g.periodic[a])
+      continue;
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    for (std::uint32_t i = 0; i < owned_; ++i)
+      if (islands::may_reach_wall(pos[i], g.lo[a], g.hi[a], p_.radius[i], bnd[i], dt_sp_, margin_))
+        ln_.tied.push_back(i);
+  }
+  ln_.form(p_.size(), std::numeric_limits<double>::infinity());
+  rank_->spans.assign(ln_.islands.count(), 0);
+  for (const std::uint32_t v : ln_.busy)
+    if (v >= owned_)
+      rank_->spans[ln_.island_of[v]] = 1;
+}
+
+// Link rounds (step 3 of the header); returns the largest reach over all ranks.
+double IslandsScheme::link_rounds() {
+  RankPart& r = *rank_;
+  const std::size_t n = p_.size();
+  // Own bounds saved the first time a particle is busy in this call, as on one rank.
+  ln_.own_bound.resize(n);
+  ln_.own_stamp.assign(n, 0);
+  ln_.stamp = 1;
+  global_ = false;
+  const bool ext = ext_.active();
+  for (int round = 0;; ++round) {
+    make_links_ranks();
+    const bool changed =
+        round == 0 || ln_.busy != ln_.busy_before || ln_.islands.label != ln_.label_before;
+    for (const std::uint32_t i : ln_.busy)
+      if (ln_.own_stamp[i] != ln_.stamp)
+        ln_.own_stamp[i] = ln_.stamp, ln_.own_bound[i] = ln_.bound[i];
+    ext ? island_sums<true>(owned_) : island_sums<false>(owned_);
+    // Spanning islands: one set of sums for all of them, over all ranks. A pair with a ghost end
+    // is counted on both ranks (more energy: still conservative).
+    const std::uint32_t nc = ln_.islands.count();
+    double e_span = 0.0, m_span = std::numeric_limits<double>::infinity(), a_span = 0.0,
+           hp_span = 0.0, busy_owned = 0.0, spanning = 0.0, bound_max = 0.0;
+    for (std::uint32_t q = 0; q < nc; ++q)
+      if (r.spans[q]) {
+        e_span += ln_.energy[q], m_span = std::min(m_span, ln_.m_min[q]);
+        a_span = std::max(a_span, ln_.a_max[q]), hp_span = std::max(hp_span, ln_.hp_max[q]);
+      }
+    for (const std::uint32_t i : ln_.busy) {
+      if (i >= owned_)
+        break; // busy is increasing: the ghosts come last
+      busy_owned += 1.0;
+      spanning += r.spans[ln_.island_of[i]];
+    }
+    // The rows and ghosts hold every pair that can link while no two particles' reaches
+    // (displacement since the build + bound over the sub-iteration) add up to the skin.
+    const islands::Reaches reach = islands::largest_reaches<true>(
+        p_.x.data(), p_.y.data(), p_.z.data(), r.x_ref.data(), r.y_ref.data(), r.z_ref.data(),
+        ln_.bound.data(), dt_sp_, owned_);
+    for (std::size_t i = 0; i < owned_; ++i)
+      bound_max = std::max(bound_max, ln_.bound[i]);
+    std::array<double, 6> mx{changed ? 1.0 : 0.0, a_span, hp_span, -m_span, reach.first, bound_max};
+    std::array<double, 3> sm{e_span, busy_owned, spanning};
+    r.comm.sum_max(sm, mx);
+    r.last_max_bound = mx[5];
+    r.spanning_global = static_cast<std::int64_t>(sm[2]);
+    if (sm[1] > kGlobalFraction * static_cast<double>(n_global_)) {
+      global_ = true; // a dense bed: everyone takes the fine steps
+      return mx[4];
+    }
+    if (round > 0 && mx[0] == 0.0)
+      return mx[4];
+    const double m_all = -mx[3];
+    const double s_span =
+        std::isfinite(m_all) ? islands::island_speed(sm[0], m_all, mx[1], mx[2], dt_sp_) : 0.0;
+    for (const std::uint32_t i : ln_.busy) {
+      if (i >= owned_)
+        break;
+      const std::uint32_t c = ln_.island_of[i];
+      const double s = r.spans[c] ? s_span
+                                  : islands::island_speed(ln_.energy[c], ln_.m_min[c], ln_.a_max[c],
+                                                          ln_.hp_max[c], dt_sp_);
+      ln_.bound[i] = std::max(ln_.own_bound[i], s);
+    }
+    std::vector<double>* col[] = {&ln_.bound};
+    r.exchange.forward_columns(col); // the ghosts' raised bounds from their owners
+    ln_.busy_before = ln_.busy;
+    ln_.label_before = ln_.islands.label;
+  }
+}
+
+islands::ContactView IslandsScheme::contact_view_ranks() {
+  const OrbLocalRows& rows = rank_->rows;
+  return {cols(),
+          {rows.off().data(), rows.nb().data(), nullptr},
+          ln_.island_of.data(),
+          &geom_,
+          &model_};
+}
+
+// The K fine steps of every spanning member (all: every owned particle, the dense mode), all
+// ranks together: the ghosts' x and v from their owners before every step but the first
+// (collective, also on a rank with no member). In the dense mode the displacement check is
+// against half the skin since the build (the rows may miss a pair: roll back).
+template <bool External> void IslandsScheme::fine_together(bool record, bool all) {
+  RankPart& r = *rank_;
+  if (all) {
+    r.span_members.resize(owned_);
+    std::iota(r.span_members.begin(), r.span_members.end(), 0U);
+  }
+  const auto count = static_cast<std::uint32_t>(r.span_members.size());
+  islands::Members mb{r.span_members.data(), count,   r.x_ref.data(), r.y_ref.data(),
+                      r.z_ref.data(),        nullptr, margin_,        0.25 * skin_ * skin_};
+  if (!all) {
+    r.sx0.resize(count), r.sy0.resize(count), r.sz0.resize(count);
+    for (std::uint32_t u = 0; u < count; ++u) {
+      const std::uint32_t i = r.span_members[u];
+      r.sx0[u] = p_.x[i], r.sy0[u] = p_.y[i], r.sz0[u] = p_.z[i];
+    }
+    mb.x0 = r.sx0.data(), mb.y0 = r.sy0.data(), mb.z0 = r.sz0.data(), mb.bound = ln_.bound.data();
+  }
+  const islands::ContactView view = contact_view_ranks();
+  const auto* label = ln_.island_of.data();
+  // Spanning members belong to different islands: one member at a time, each with its own.
+  auto forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
+                    std::int64_t& violations) {
+    std::int64_t pairs = 0;
+    for (std::uint32_t u = u0; u < u1; ++u)
+      pairs += islands::contact_forces<true, true, false, true>(
+          view, mb.mem, u, u + 1, label[mb.mem[u]], max_ratio, violations);
+    return pairs;
+  };
+  auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
+                        std::int64_t& violations) {
+    return islands::contact_forces<false, true, false, true>(view, mb.mem, u0, u1, 0, max_ratio,
+                                                             violations);
+  };
+  auto refresh = [&] { r.exchange.forward(p_); };
+  double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
+                   record ? rec_.vz.data() : nullptr};
+  r.span_result =
+      all ? islands::step_island<External, false>(view.c, mb, steps_, model_.gravity, sv[0], sv[1],
+                                                  sv[2], all_forces, refresh)
+          : islands::step_island<External, true>(view.c, mb, steps_, model_.gravity, sv[0], sv[1],
+                                                 sv[2], forces, refresh);
+}
+
+// A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations
+// have passed since the last), ghosts and rows with a skin for several sub-iterations.
+void IslandsScheme::rebuild_ranks() {
+  RankPart& r = *rank_;
+  p_.resize(owned_); // the ghosts go
+  if (r.last_regrid < 0 || st_.subits - r.last_regrid >= nsubit_) {
+    regrid();
+    r.last_regrid = st_.subits;
+  }
+  migrate();
+  own_bounds();
+  double b = 0.0;
+  for (std::size_t i = 0; i < owned_; ++i)
+    b = std::max(b, ln_.bound[i]);
+  const double speed = std::max(r.comm.max(b), r.last_max_bound);
+  // The one-rank islands skin (three times the explicit scheme's unless dem.neighbor_skin is
+  // set), at least four sub-iterations of the largest bound, or what a failed build asked for.
+  skin_ = std::max({r.base_skin, 4.0 * speed * dt_sp_ + 2.0 * margin_, r.grown_skin});
+  build_ghosts_and_rows();
+  r.need_rebuild = false;
+}
+
+void IslandsScheme::subiterate_ranks(bool record) {
+  RankPart& r = *rank_;
+  const std::int64_t K = steps_.K;
+  // {owned, particle steps, pairs, overlaps beyond the bound, bound violations, faults, fine
+  // members, spanning members, spanning island parts, outran, mass}
+  std::array<double, 11> c{};
+  std::optional<islands::Fault> fault;
+  double ratio = 0.0;
+  for (;;) {
+    {
+      PhaseTimer::Scope t(timer_, Phase::neighbor);
+      for (bool fresh = false;;) {
+        if (r.need_rebuild) {
+          rebuild_ranks();
+          fresh = true;
+        } else {
+          // The ghosts' positions, velocities and own bounds from their owners: one message round.
+          own_bounds();
+          ln_.bound.resize(p_.size());
+          std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &ln_.bound};
+          r.exchange.forward_columns(cols);
+        }
+        ln_.island_of.assign(p_.size(), kAlone);
+        ln_.busy.clear();
+        ln_.mark.assign(p_.size(), 0);
+        const double reach = link_rounds();
+        if (2.0 * reach + margin_ < skin_)
+          break;
+        // Some pair could link that the rows (or the ghosts) miss: build again, wider when even
+        // a fresh build was too short.
+        if (fresh)
+          r.grown_skin = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
+        r.need_rebuild = true;
+        ++st_.expired_builds;
+      }
+    }
+    std::vector<double>* const live[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &hprev_};
+    if (global_) // the dense mode may roll back
+      for (std::size_t q = 0; q < r.start.size(); ++q)
+        r.start[q].assign(live[q]->begin(), live[q]->begin() + static_cast<std::ptrdiff_t>(owned_));
+    PhaseTimer::Scope t(timer_, Phase::force);
+    if (record)
+      record_state();
+    std::int64_t span_parts = 0, members = 0;
+    r.span_members.clear();
+    results_.clear();
+    r.span_result = islands::IslandResult{};
+    const bool ext = ext_.active();
+    if (global_) {
+      ext ? fine_together<true>(record, true) : fine_together<false>(record, true);
+      members = static_cast<std::int64_t>(owned_);
+    } else {
+      const std::uint32_t nc = ln_.islands.count();
+      ln_.members.resize(ln_.busy.size());
+      x0_.resize(ln_.busy.size()), y0_.resize(ln_.busy.size()), z0_.resize(ln_.busy.size());
+      for (std::size_t k = 0; k < ln_.busy.size(); ++k) {
+        const std::uint32_t i = ln_.busy[ln_.islands.members[k]];
+        ln_.members[k] = i;
+        x0_[k] = p_.x[i], y0_[k] = p_.y[i], z0_[k] = p_.z[i];
+      }
+      for (std::uint32_t q = 0; q < nc; ++q)
+        span_parts += r.spans[q];
+      for (const std::uint32_t i : ln_.busy)
+        if (i < owned_) {
+          ++members;
+          if (r.spans[ln_.island_of[i]])
+            r.span_members.push_back(i);
+        }
+      ext ? free_flight<true>(record) : free_flight<false>(record);
+      fault_flag_ = 0; // every owned particle is checked below
+      results_.assign(nc, islands::IslandResult{});
+      const islands::ContactView view = contact_view_ranks();
+      tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, nc, 1),
+                        [&](const tbb::blocked_range<std::uint32_t>& b) {
+                          for (std::uint32_t q = b.begin(); q != b.end(); ++q)
+                            if (!r.spans[q])
+                              ext ? run_island<true, true>(q, record, view)
+                                  : run_island<false, true>(q, record, view);
+                        });
+      if (r.spanning_global > 0) // some rank has a spanning island: every rank takes part
+        ext ? fine_together<true>(record, false) : fine_together<false>(record, false);
+    }
+    const islands::IslandResult& sr = r.span_result;
+    c = {};
+    c[0] = static_cast<double>(owned_);
+    c[1] = static_cast<double>(static_cast<std::int64_t>(owned_) - members + members * K);
+    ratio = sr.max_ratio;
+    for (const islands::IslandResult& q : results_) {
+      c[2] += static_cast<double>(q.pairs), c[3] += static_cast<double>(q.violations);
+      c[4] += static_cast<double>(q.bound_violations);
+      ratio = std::max(ratio, q.max_ratio);
+    }
+    c[2] += static_cast<double>(sr.pairs);
+    c[3] += static_cast<double>(sr.violations);
+    // In the dense mode the displacement check counts particles that outran the rows.
+    c[global_ ? 9 : 4] += static_cast<double>(sr.bound_violations);
+    fault = islands::find_fault(p_, owned_, geom_);
+    c[5] = fault.has_value() ? 1.0 : 0.0;
+    c[6] = static_cast<double>(members);
+    c[7] = global_ ? 0.0 : static_cast<double>(r.span_members.size()); // dense: not "spanning"
+    c[8] = static_cast<double>(span_parts);
+    for (std::size_t i = 0; i < owned_; ++i)
+      c[10] += p_.mass[i];
+    r.local_counts = {static_cast<std::int64_t>(c[1]), static_cast<std::int64_t>(c[2])};
+    // One reduction closes the sub-iteration (the counts are exact in doubles below 2^53).
+    r.comm.sum(c);
+    if (c[9] == 0 || c[5] > 0)
+      break;
+    // The dense mode outran its rows somewhere: every rank rolls back and widens the halo.
+    for (std::size_t q = 0; q < r.start.size(); ++q)
+      std::copy(r.start[q].begin(), r.start[q].end(), live[q]->begin());
+    r.grown_skin = 2.0 * skin_;
+    r.need_rebuild = true;
+    ++st_.retries;
+  }
+  if (c[5] > 0) {
+    std::string message;
+    std::int64_t key = std::numeric_limits<std::int64_t>::max();
+    if (fault) {
+      key = p_.id[fault->index];
+      message = islands::fault_message(p_, *fault, time() + dt_sp_, st_.subits) +
+                fmt::format(" (rank {})", r.comm.rank());
+    }
+    throw RunError(r.comm.agree_on_error(key, message));
+  }
+  if (c[0] != static_cast<double>(n_global_) ||
+      std::abs(c[10] - r.mass_global) > 1e-9 * r.mass_global)
+    throw RunError(fmt::format("t = {:.9g} s: {} particles of total mass {:.17g} kg on the ranks "
+                               "after migration, {} of {:.17g} kg expected",
+                               time(), c[0], c[10], n_global_, r.mass_global));
+  if (global_)
+    ++st_.global_subits;
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (global_ || ln_.island_of[i] != kAlone)
+      fine_[i] += 1.0;
+  auto count = [&](int q) { return static_cast<std::int64_t>(c[static_cast<std::size_t>(q)]); };
+  st_.particle_steps += count(1), st_.pair_evaluations += count(2);
+  st_.overlap_violations += count(3);
+  st_.local_particle_steps += r.local_counts[0], st_.local_pair_evaluations += r.local_counts[1];
+  st_.bound_violations += count(4);
+  st_.span_subits += count(7) > 0, st_.span_particles += count(7), st_.span_parts += count(8);
+  const std::int64_t fine = count(6);
+  st_.last_fine_fraction =
+      n_global_ > 0 ? static_cast<double>(fine) / static_cast<double>(n_global_) : 0.0;
+  st_.add_interval(fine, n_global_, K);
+  // The largest overlap is reduced only when the state is recorded (the orb scheme's budget).
+  r.max_ratio_local = std::max(r.max_ratio_local, ratio);
+  if (record)
+    st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, r.comm.max(r.max_ratio_local));
+  ++st_.subits;
+}
+
+// What a restart cannot know is reset on both sides: the decomposition and ownership (the next
+// build regrids and migrates), the skin grown by short builds, the last sub-iteration's largest
+// bound, and each rank's own unrecorded overlap ratio (the largest over the ranks instead).
+void IslandsScheme::canonicalize() {
+  RankPart& r = *rank_;
+  r.need_rebuild = true;
+  r.last_regrid = -1;
+  r.grown_skin = 0.0;
+  r.last_max_bound = 0.0;
+  r.max_ratio_local = r.comm.max(r.max_ratio_local);
+}
+
+} // namespace cfddem::dem

@@ -20,6 +20,17 @@
 namespace cfddem {
 
 namespace {
+// The diameter stream of a generator: a single size is particles.diameter (a Scene built in code
+// may set only that), a distribution its own (core/diameter_distribution.hpp).
+DiameterStream diameter_stream(const ParticleSpec& ps) {
+  DiameterDistribution d = ps.diameters;
+  if (d.fixed())
+    d.mean = ps.diameter;
+  return DiameterStream(d, ps.seed);
+}
+} // namespace
+
+namespace {
 
 // Bins of at least `cell` over the domain for overlap queries (serial set-up work, not the hot
 // loop). Only occupied bins are stored: a hash from the bin to the head of its chain of particle
@@ -167,7 +178,7 @@ void check_packing_feasible(const Scene& s) {
     solids = static_cast<double>(ps.count) * std::numbers::pi / 6.0 * ps.diameter * ps.diameter *
              ps.diameter;
   } else {
-    DiameterStream d(ps.diameters, ps.seed);
+    DiameterStream d = diameter_stream(ps);
     for (std::int64_t k = 0; k < ps.count; ++k) {
       const double dk = d.next();
       solids += std::numbers::pi / 6.0 * dk * dk * dk;
@@ -207,7 +218,7 @@ namespace {
 
 // The diameters of particles 0..count-1 (core/diameter_distribution.hpp).
 std::vector<double> draw_diameters(const ParticleSpec& ps) {
-  DiameterStream stream(ps.diameters, ps.seed);
+  DiameterStream stream = diameter_stream(ps);
   std::vector<double> d(static_cast<std::size_t>(ps.count));
   for (double& x : d)
     x = stream.next();
@@ -303,7 +314,7 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
   // Sites are spaced by the largest diameter; each particle's own diameter comes from the
   // stream, drawn for every site in id order (kept or not) so a rank's share gets the whole
   // set's values.
-  DiameterStream diameter(ps.diameters, ps.seed);
+  DiameterStream diameter = diameter_stream(ps);
   std::int64_t k = 0;
   for (int iz = 0; iz < n[2] && k < ps.count; ++iz)
     for (int iy = 0; iy < n[1] && k < ps.count; ++iy)
@@ -320,10 +331,9 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
 // particles with the ids `ids` (increasing), and gets exactly the velocities the whole set would
 // get. The normal stream is drawn twice over all n (the mean, then the variance, summed in id
 // order as the whole-set version does) without storing it: O(n) time, O(share) memory.
-void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n,
-                                     const DiameterDistribution& diameters, double density,
-                                     double temperature, const std::array<double, 3>& mean,
-                                     std::uint64_t seed) {
+void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n, const ParticleSpec& ps,
+                                     double density, double temperature,
+                                     const std::array<double, 3>& mean, std::uint64_t seed) {
   if (n == 0)
     return;
   const double sigma = std::sqrt(std::max(temperature, 0.0));
@@ -331,7 +341,7 @@ void assign_thermal_velocities_share(ParticleStore& p, std::int64_t n,
   {
     std::mt19937_64 rng(seed ^ 0x9e3779b97f4a7c15ULL);
     std::normal_distribution<double> g(0.0, sigma);
-    DiameterStream diameter(diameters, seed);
+    DiameterStream diameter = diameter_stream(ps);
     for (std::int64_t k = 0; k < n; ++k) {
       const double a = g(rng), b = g(rng), c = g(rng);
       const double m = ParticleStore::sphere_mass(density, 0.5 * diameter.next());
@@ -538,9 +548,9 @@ ParticleStore make_initial_share(const Scene& s, int rank, int ranks) {
     check_packing_feasible(s);
     // Lattice sites are spaced by more than a diameter: no overlap to check.
     place_lattice(p, s, mine);
-    assign_thermal_velocities_share(p, s.particles.count, s.particles.diameters,
-                                    s.particles.density, s.particles.temperature,
-                                    s.particles.velocity, s.particles.seed);
+    assign_thermal_velocities_share(p, s.particles.count, s.particles, s.particles.density,
+                                    s.particles.temperature, s.particles.velocity,
+                                    s.particles.seed);
     check_inside(p, s);
     return p;
   } else {

@@ -368,3 +368,14 @@ TEST(SceneConfig, DiameterDistributionKeysAreChecked) {
   bad(R"({ distribution = "uniform", min = 1.0e-5, max = 2.0e-5, typo = 1 })",
       "particles.diameter.typo");
 }
+
+// A Scene set up in code (benchmarks, tests) may change only particles.diameter: a single size
+// is that value, whatever particles.diameters held (it once read 0 there: radius 0, NaN forces).
+TEST(InitialConditions, SingleSizeIsParticlesDiameterForASceneBuiltInCode) {
+  Scene s = gas({"particles.placement=lattice", "particles.count=8"});
+  s.particles.diameter = 50e-6;
+  s.particles.diameters = DiameterDistribution{};
+  for (const ParticleStore& p : {make_initial_particles(s), make_initial_share(s, 1, 2)})
+    for (double r : p.radius)
+      EXPECT_EQ(r, 25e-6);
+}

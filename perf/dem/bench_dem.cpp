@@ -5,6 +5,8 @@
 //   BM_OrbSubiteration, BM_OrbLeafSubiteration, BM_OrbGhostRefresh: the orb scheme (below)
 //   BM_ExplicitStep   ExplicitScheme::step (contact pass + update; rebuilds when the skin is used
 //                     up, as in a run: the counter builds_per_step says how often)
+//   BM_DenseStep      the same step on 100k particles at phi 0.1, 0.3 and 0.5 (issue 21's dense
+//                     granular flow; force_s_per_step is the contact pass)
 // items_per_second = particles processed per second (particle-steps/s for the step).
 // Threads: CFDDEM_BENCH_THREADS (default 1, to compare with the single-core peer figures).
 #include <cmath>
@@ -35,9 +37,8 @@ constexpr double kDiameter = 100e-6, kDensity = 1000.0, kSkin = 25e-6;
 Scene gas_scene(double phi, std::int64_t n) {
   Scene s;
   s.name = "bench_gas";
-  const double box =
-      std::cbrt(static_cast<double>(n) * std::numbers::pi * kDiameter * kDiameter * kDiameter /
-                (6.0 * phi));
+  const double box = std::cbrt(static_cast<double>(n) * std::numbers::pi * kDiameter * kDiameter *
+                               kDiameter / (6.0 * phi));
   s.domain.lo = {0, 0, 0};
   s.domain.hi = {box, box, box};
   s.domain.periodic = {true, true, true};
@@ -46,7 +47,9 @@ Scene gas_scene(double phi, std::int64_t n) {
   p.diameter = kDiameter;
   p.density = kDensity;
   p.temperature = 0.01;
-  p.placement = "random"; // random sequential addition; fine up to phi ~0.35
+  // Random sequential addition jams near 0.38: denser gases start on the cubic lattice (up to
+  // pi/6 = 0.52) with the same thermal velocities.
+  p.placement = phi < 0.35 ? "random" : "lattice";
   p.region_lo = s.domain.lo;
   p.region_hi = s.domain.hi;
   p.seed = 7;
@@ -117,10 +120,10 @@ void BM_ExplicitStep(benchmark::State& state) {
   state.counters["builds_per_step"] =
       static_cast<double>(scheme.neighbor_builds() - builds0) /
       static_cast<double>(std::max<std::int64_t>(1, state.iterations()));
-  state.counters["force_s_per_step"] = benchmark::Counter(
-      timer.seconds(Phase::force), benchmark::Counter::kAvgIterations);
-  state.counters["neighbor_s_per_step"] = benchmark::Counter(
-      timer.seconds(Phase::neighbor), benchmark::Counter::kAvgIterations);
+  state.counters["force_s_per_step"] =
+      benchmark::Counter(timer.seconds(Phase::force), benchmark::Counter::kAvgIterations);
+  state.counters["neighbor_s_per_step"] =
+      benchmark::Counter(timer.seconds(Phase::neighbor), benchmark::Counter::kAvgIterations);
 }
 
 // The orb scheme on the same gases, 2^levels leaves of ~19 particles (the paper's HCS 1222 in
@@ -128,7 +131,8 @@ void BM_ExplicitStep(benchmark::State& state) {
 // fine sub-iteration alone, and the ghost refresh (frozen copies + own/other-leaf rows).
 int levels_for(std::int64_t n) {
   int L = 0;
-  while ((std::int64_t{19} << (L + 1)) <= n) ++L;
+  while ((std::int64_t{19} << (L + 1)) <= n)
+    ++L;
   return L;
 }
 Scene orb_scene(const Gas& g, std::int64_t n) {
@@ -221,7 +225,8 @@ void BM_OrbGhostRefresh(benchmark::State& state) {
 
 void gases(benchmark::internal::Benchmark* b) {
   for (int phi : {1, 30})
-    for (std::int64_t n : {1000, 10000, 100000}) b->Args({phi, n});
+    for (std::int64_t n : {1000, 10000, 100000})
+      b->Args({phi, n});
   b->ArgNames({"phi_pct", "n"});
 }
 
@@ -229,6 +234,16 @@ void gases(benchmark::internal::Benchmark* b) {
 
 BENCHMARK(BM_NeighborBuild)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStep)->Apply(gases)->Unit(benchmark::kMicrosecond);
+// Dense granular flow: the explicit step at solid fractions 10, 30, 50% on 100k particles.
+void BM_DenseStep(benchmark::State& state) {
+  BM_ExplicitStep(state);
+}
+BENCHMARK(BM_DenseStep)
+    ->ArgNames({"phi_pct", "n"})
+    ->Args({10, 100000})
+    ->Args({30, 100000})
+    ->Args({50, 100000})
+    ->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_OrbSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IslandsSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_OrbLeafSubiteration)->Apply(gases)->Unit(benchmark::kMicrosecond);

@@ -12,6 +12,7 @@
 #include <fmt/format.h>
 
 #include "core/error.hpp"
+#include "dem/scheme_support.hpp"
 
 namespace cfddem::dem {
 
@@ -34,17 +35,8 @@ void ghost_copies(const ParticleStore& p, std::size_t owned,
   for (std::size_t i = 0; i < owned; ++i) {
     const partition::Aabb q{{p.x[i] - halo, p.y[i] - halo, p.z[i] - halo},
                             {p.x[i] + halo, p.y[i] + halo, p.z[i] + halo}};
-    // Fast path: a halo strictly inside the particle's own box reaches no other box and no
-    // periodic image (most particles of a large box).
-    const int own = tree.locate(p.x[i], p.y[i], p.z[i]);
-    if (own >= 0) {
-      const partition::Aabb& b = tree.leaves()[static_cast<std::size_t>(own)].box;
-      bool inside = true;
-      for (int a = 0; a < 3; ++a)
-        inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
-      if (inside)
-        continue;
-    }
+    if (halo_inside_own_leaf(tree, p.x[i], p.y[i], p.z[i], q))
+      continue;
     seen.clear();
     // (leaf, s): the particle's image p + s L lies within the halo of the leaf.
     for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom.periodic)) {

@@ -40,6 +40,7 @@
 #include "core/error.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
+#include "dem/scheme_support.hpp"
 
 namespace cfddem::dem {
 
@@ -155,16 +156,8 @@ void IslandsScheme::build_ghosts_and_rows() {
   for (std::size_t i = 0; i < owned_; ++i) {
     const partition::Aabb q{{p_.x[i] - cutoff, p_.y[i] - cutoff, p_.z[i] - cutoff},
                             {p_.x[i] + cutoff, p_.y[i] + cutoff, p_.z[i] + cutoff}};
-    // A halo strictly inside the particle's own box reaches no other rank.
-    const int own = tree.locate(p_.x[i], p_.y[i], p_.z[i]);
-    if (own >= 0) {
-      const partition::Aabb& b = tree.leaves()[static_cast<std::size_t>(own)].box;
-      bool inside = true;
-      for (int a = 0; a < 3; ++a)
-        inside = inside && q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a];
-      if (inside)
-        continue;
-    }
+    if (halo_inside_own_leaf(tree, p_.x[i], p_.y[i], p_.z[i], q))
+      continue;
     ranks.clear();
     for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic)) {
       const int o = r.decomposition.owner[static_cast<std::size_t>(li.leaf)];

@@ -78,6 +78,21 @@ inline void require_frictionless(const StepModel& m, const std::string& scheme) 
                           "dem.wall_friction must be 0); use \"explicit\"");
 }
 
+// A particle's halo box `q` lies strictly inside the leaf holding the particle at (x, y, z): it
+// reaches no other leaf and no periodic image, so the particle needs no ghost copy (most
+// particles of a large box). The R-rank ghost searches take this fast path first.
+inline bool halo_inside_own_leaf(const partition::OrbTree& tree, double x, double y, double z,
+                                 const partition::Aabb& q) {
+  const int own = tree.locate(x, y, z);
+  if (own < 0)
+    return false;
+  const partition::Aabb& b = tree.leaves()[static_cast<std::size_t>(own)].box;
+  for (int a = 0; a < 3; ++a)
+    if (!(q.lo[a] > b.lo[a] && q.hi[a] < b.hi[a]))
+      return false;
+  return true;
+}
+
 // The largest skin a list may grow to while its cutoff 2 r_max + skin stays below half of every
 // periodic length (minimum image); infinite without a periodic axis.
 inline double periodic_skin_cap(const DomainGeometry& g, double r_max) {

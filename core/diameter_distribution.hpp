@@ -21,11 +21,11 @@ namespace cfddem {
 
 struct DiameterDistribution {
   std::string kind = "fixed";  // "fixed" | "uniform" | "normal" | "lognormal"
-  double mean = 0.0;           // fixed: the diameter [m]
+  // normal, lognormal: the diameter's mean; a "fixed" stream returns it for every particle (a
+  // scene's single size is ParticleSpec::diameter; the generator hands it in here).
+  double mean = 0.0;           // [m]
   double std = 0.0;            // normal, lognormal [m]
   double min = 0.0, max = 0.0; // truncation (uniform: the range) [m]
-  // The largest diameter a particle can get (cell sizes, lattice spacing, packing margins).
-  [[nodiscard]] double largest() const { return kind == "fixed" ? mean : max; }
   [[nodiscard]] bool fixed() const { return kind == "fixed"; }
 };
 

@@ -187,8 +187,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
       }
       p.diameter = dd.max;
     } else {
-      p.diameter = k.number("particles.diameter");
-      p.diameters.kind = "fixed", p.diameters.mean = p.diameter;
+      p.diameter = k.number("particles.diameter"); // diameters stays "fixed"
     }
     p.density = k.number("particles.density");
     p.temperature = k.number("particles.temperature");

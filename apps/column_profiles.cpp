@@ -6,6 +6,8 @@
 #include <numbers>
 #include <stdexcept>
 
+#include "apps/coupled_step.hpp"
+
 namespace cfddem::apps {
 
 namespace {
@@ -86,45 +88,43 @@ void ColumnProfiles::add_particles(const ProfileParticles& p, std::span<double> 
   }
 }
 
-void ColumnProfiles::add_gas(const fluid::GasSolver& gas, std::span<double> sums, int stride,
+void ColumnProfiles::add_gas(const CellFields& c, std::span<double> sums, int stride,
                              int offset) const {
-  const fluid::MacGrid& g = gas.grid();
-  std::array<fluid::GridField, 3> u;
-  for (int a = 0; a < 3; ++a) {
-    u[a] = g.make_field();
-    gas.cell_centred_velocity(a, u[a]);
-  }
-  const std::array<double, 3> gp0 = gas.background_pressure_gradient();
-  const fluid::GridField& eps = gas.volume_fraction();
-  const fluid::GridField& pr = gas.pressure();
+  // This rank's block of cells (the whole grid when block_cells is zero), cell (i, j, k) at
+  // global index block_lo + (i, j, k); arrays in (k, j, i) order, velocity 3 per cell.
+  std::array<std::int64_t, 3> n = c.block_cells;
+  if (n[0] == 0 && n[1] == 0 && n[2] == 0)
+    n = c.cells;
+  const std::vector<double>* nodes[3] = {&c.x_nodes, &c.y_nodes, &c.z_nodes};
+  const auto a = static_cast<std::size_t>(spec_.axis);
+  double dv = 1.0;
+  for (std::size_t q = 0; q < 3; ++q)
+    dv *= (*nodes[q])[1] - (*nodes[q])[0];
   const int nb = spec_.bins;
-  const double h = (spec_.hi - spec_.lo) / nb, dv = g.cell_volume();
-  for (int k = 0; k < g.cells(2); ++k)
-    for (int j = 0; j < g.cells(1); ++j)
-      for (int i = 0; i < g.cells(0); ++i) {
-        const std::array<double, 3> x{g.cell_centre(0, i), g.cell_centre(1, j),
-                                      g.cell_centre(2, k)};
-        const auto bin = std::clamp(
-            static_cast<long>(std::floor((x[static_cast<std::size_t>(spec_.axis)] - spec_.lo) / h)),
-            0L, static_cast<long>(nb - 1));
-        double p_full = pr(i, j, k);
-        for (int a = 0; a < 3; ++a)
-          p_full +=
-              gp0[static_cast<std::size_t>(a)] * (x[static_cast<std::size_t>(a)] - g.origin(a));
-        const double e = eps(i, j, k) * dv;
+  const double h = (spec_.hi - spec_.lo) / nb;
+  std::size_t cell = 0;
+  for (std::int64_t k = 0; k < n[2]; ++k)
+    for (std::int64_t j = 0; j < n[1]; ++j)
+      for (std::int64_t i = 0; i < n[0]; ++i, ++cell) {
+        const std::int64_t idx[3] = {i, j, k};
+        const auto g = static_cast<std::size_t>(c.block_lo[a] + idx[a]);
+        const double centre = 0.5 * ((*nodes[a])[g] + (*nodes[a])[g + 1]);
+        const auto bin = std::clamp(static_cast<long>(std::floor((centre - spec_.lo) / h)), 0L,
+                                    static_cast<long>(nb - 1));
+        const double e = c.eps_g[cell] * dv;
         double* s = sums.data() + bin * stride + offset;
         s[0] += dv;
         s[1] += e;
-        s[2] += e * u[0](i, j, k);
-        s[3] += e * u[1](i, j, k);
-        s[4] += e * u[2](i, j, k);
-        s[5] += p_full * dv;
+        s[2] += e * c.gas_velocity[3 * cell];
+        s[3] += e * c.gas_velocity[3 * cell + 1];
+        s[4] += e * c.gas_velocity[3 * cell + 2];
+        s[5] += c.pressure[cell] * dv;
       }
 }
 
-std::vector<double> ColumnProfiles::gas_sums(const fluid::GasSolver& gas) const {
+std::vector<double> ColumnProfiles::gas_sums(const CellFields& cells) const {
   std::vector<double> sums(static_cast<std::size_t>(spec_.bins * kGasSums), 0.0);
-  add_gas(gas, sums, kGasSums, 0);
+  add_gas(cells, sums, kGasSums, 0);
   return sums;
 }
 
@@ -133,7 +133,7 @@ std::vector<std::vector<double>> ColumnProfiles::rows(double t, const ProfilePar
                                                       const Communicator* comm) const {
   if (with_gas_ && gas == nullptr)
     throw std::logic_error("ColumnProfiles: gas columns without a gas");
-  return rows(t, p, with_gas_ ? gas_sums(*gas) : std::vector<double>{}, comm);
+  return rows(t, p, with_gas_ ? gas_sums(cell_fields(*gas)) : std::vector<double>{}, comm);
 }
 
 std::vector<std::vector<double>> ColumnProfiles::rows(double t, const ProfileParticles& p,

@@ -11,7 +11,8 @@
 //   <v>_b = sum_i w_ib v_i / sum_i w_ib,  T_b = (1/3)(sum_i w_ib |v_i|^2 / sum_i w_ib - |<v>_b|^2),
 // w_ib = m_i (volume of i in b) / (volume of i): the mass-weighted granular temperature of
 // docs/theory.md §3 restricted to the slab.
-// Gas: cells are given to the slab holding their centre. eps_g and the pressure are volume
+// Gas (the coupling's cell fields, apps/coupled_step.hpp cell_fields): cells are given to the
+// slab holding their centre. eps_g and the pressure are volume
 // averages; the gas velocity is the phase average sum eps u V / sum eps V (the interstitial
 // velocity); the pressure is the full pressure p' + gp0 . (x - origin) (docs/theory.md §4), so an
 // imposed drop shows as a slope. The slip velocity is <u_g>_b - <v_p>_b.
@@ -26,6 +27,7 @@
 #include <vector>
 
 #include "core/communicator.hpp"
+#include "core/particle_snapshot.hpp"
 #include "core/scene.hpp"
 #include "fluid/gas_solver.hpp"
 
@@ -67,7 +69,7 @@ public:
   [[nodiscard]] std::vector<std::vector<double>> rows(double t, const ProfileParticles& p,
                                                       std::span<const double> gas_sums,
                                                       const Communicator* comm) const;
-  [[nodiscard]] std::vector<double> gas_sums(const fluid::GasSolver& gas) const;
+  [[nodiscard]] std::vector<double> gas_sums(const CellFields& cells) const;
   [[nodiscard]] bool with_gas() const { return with_gas_; }
 
 private:
@@ -75,7 +77,7 @@ private:
   static constexpr int kParticleSums = 6; // volume, w, w vx, w vy, w vz, w |v|^2
   static constexpr int kGasSums = 6;      // V, eps V, eps V ux, eps V uy, eps V uz, p V
   void add_particles(const ProfileParticles& p, std::span<double> sums) const;
-  void add_gas(const fluid::GasSolver& gas, std::span<double> sums, int stride, int offset) const;
+  void add_gas(const CellFields& cells, std::span<double> sums, int stride, int offset) const;
   int sums_per_bin() const { return kParticleSums + (with_gas_ ? kGasSums : 0); }
 
   ProfileSpec spec_;

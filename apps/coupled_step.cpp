@@ -24,15 +24,20 @@ namespace {
 constexpr double kMinGasFraction = 0.3;
 
 fluid::BoundaryKind boundary_kind(const std::string& name) {
-  if (name == "periodic") return fluid::BoundaryKind::periodic;
-  if (name == "inflow") return fluid::BoundaryKind::inflow;
-  if (name == "outflow") return fluid::BoundaryKind::outflow;
+  if (name == "periodic")
+    return fluid::BoundaryKind::periodic;
+  if (name == "inflow")
+    return fluid::BoundaryKind::inflow;
+  if (name == "outflow")
+    return fluid::BoundaryKind::outflow;
   return fluid::BoundaryKind::wall;
 }
 
 fluid::DepositionKernel kernel(const std::string& name) {
-  if (name == "trilinear") return fluid::DepositionKernel::trilinear;
-  if (name == "dpvm_sphere") return fluid::DepositionKernel::dpvm_sphere;
+  if (name == "trilinear")
+    return fluid::DepositionKernel::trilinear;
+  if (name == "dpvm_sphere")
+    return fluid::DepositionKernel::dpvm_sphere;
   return fluid::DepositionKernel::dpvm_cube; // "dpvm" = MFIX-Exa's cube kernel
 }
 
@@ -45,8 +50,9 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.implicit_viscosity = s.fluid.implicit_viscosity;
   g.time_order = s.fluid.time_order;
   g.projection.tolerance = s.fluid.tolerance;
-  g.projection.preconditioner = s.fluid.preconditioner == "smg" ? fluid::PoissonPreconditioner::smg
-                                                                : fluid::PoissonPreconditioner::pfmg;
+  g.projection.preconditioner = s.fluid.preconditioner == "smg"
+                                    ? fluid::PoissonPreconditioner::smg
+                                    : fluid::PoissonPreconditioner::pfmg;
   g.projection.solver = s.fluid.solver == "multigrid" ? fluid::PoissonSolver::multigrid
                         : s.fluid.solver == "hypre"   ? fluid::PoissonSolver::hypre
                                                       : fluid::PoissonSolver::automatic;
@@ -68,8 +74,10 @@ fluid::MacGridSpec fluid_grid_spec(const Scene& s) {
   for (int k = 0; k < fluid::kFaces; ++k) {
     auto& bc = spec.bc[static_cast<std::size_t>(k)];
     bc.kind = boundary_kind(f.bc[static_cast<std::size_t>(k)]);
-    if (bc.kind == fluid::BoundaryKind::inflow) bc.velocity = f.inflow_velocity;
-    if (bc.kind == fluid::BoundaryKind::outflow) bc.pressure = f.outflow_pressure;
+    if (bc.kind == fluid::BoundaryKind::inflow)
+      bc.velocity = f.inflow_velocity;
+    if (bc.kind == fluid::BoundaryKind::outflow)
+      bc.pressure = f.outflow_pressure;
   }
   const std::vector<std::string> problems = fluid::check_mac_grid(spec);
   if (!problems.empty()) {
@@ -85,14 +93,16 @@ fluid::MacGridSpec fluid_grid_spec(const Scene& s) {
     else if (p.find("inflow velocity") != std::string::npos)
       key = "fluid.inflow_velocity";
     std::string all;
-    for (const auto& q : problems) all += (all.empty() ? "" : "; ") + q;
+    for (const auto& q : problems)
+      all += (all.empty() ? "" : "; ") + q;
     throw ConfigError(fmt::format("scene key '{}'", key), all);
   }
   return spec;
 }
 
 void validate_fluid(const Scene& s) {
-  if (!s.fluid.enabled) return;
+  if (!s.fluid.enabled)
+    return;
   (void)fluid_grid_spec(s);
   if (!(s.fluid.cfl <= fluid::kMaxStableCourant))
     throw ConfigError("scene key 'fluid.cfl'",
@@ -110,7 +120,8 @@ namespace {
 
 std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
   const fluid::MacGridSpec spec = fluid_grid_spec(scene);
-  if (comm == nullptr || comm->size() == 1) return {CellBox{{0, 0, 0}, spec.cells}};
+  if (comm == nullptr || comm->size() == 1)
+    return {CellBox{{0, 0, 0}, spec.cells}};
   try {
     return orb_cell_boxes(spec.cells, comm->size(), fluid::kMinBoxWidth);
   } catch (const std::invalid_argument& e) {
@@ -120,7 +131,8 @@ std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
 
 fluid::MacGrid gas_grid(const Scene& scene, const Communicator* comm,
                         const std::vector<CellBox>& boxes) {
-  if (comm == nullptr || comm->size() == 1) return fluid::MacGrid(fluid_grid_spec(scene));
+  if (comm == nullptr || comm->size() == 1)
+    return fluid::MacGrid(fluid_grid_spec(scene));
   return fluid::MacGrid(fluid_grid_spec(scene), boxes[static_cast<std::size_t>(comm->rank())]);
 }
 
@@ -142,30 +154,38 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
                       "\"multigrid\" solves the projection on one rank only (no distributed "
                       "V-cycle yet): on R ranks use \"hypre\" or \"auto\"");
   }
-  if (comm_ != nullptr) halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
+  if (comm_ != nullptr)
+    halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
   solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);
   const std::size_t n = std::min(owned, p.size());
   double r_max = 0.0;
-  for (std::size_t i = 0; i < n; ++i) r_max = std::max(r_max, p.radius[i]);
-  if (comm_ != nullptr) r_max = comm_->max(r_max);
+  for (std::size_t i = 0; i < n; ++i)
+    r_max = std::max(r_max, p.radius[i]);
+  if (comm_ != nullptr)
+    r_max = comm_->max(r_max);
   r_max_ = std::max(r_max, 1e-300);
-  deposition_ = std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene), r_max_,
-                                                    halo_.get());
+  deposition_ =
+      std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene), r_max_, halo_.get());
   law_ = fluid::parse_drag_law(scene.fluid.drag);
   eps_s_ = grid_.make_field();
-  for (int a = 0; a < 3; ++a) cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+  for (int a = 0; a < 3; ++a)
+    cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
   // Axis of the pressure drop diagnostic.
   int axis = -1;
   double gmax = 0.0;
   for (int a = 0; a < 3; ++a)
-    if (std::abs(scene.gravity[a]) > gmax) gmax = std::abs(scene.gravity[a]), axis = a;
+    if (std::abs(scene.gravity[a]) > gmax)
+      gmax = std::abs(scene.gravity[a]), axis = a;
   for (int a = 0; a < 3 && axis < 0; ++a)
-    if (scene.fluid.pressure_drop[a] != 0.0) axis = a;
+    if (scene.fluid.pressure_drop[a] != 0.0)
+      axis = a;
   for (int k = 0; k < fluid::kFaces && axis < 0; ++k)
-    if (scene.fluid.bc[static_cast<std::size_t>(k)] == "inflow") axis = k / 2;
+    if (scene.fluid.bc[static_cast<std::size_t>(k)] == "inflow")
+      axis = k / 2;
   axis_ = axis < 0 ? 1 : axis;
   // Initial gas velocity: uniform on faces (the first projection makes it admissible).
-  for (int a = 0; a < 3; ++a) solver_->velocity()[a].fill(scene.fluid.velocity[a]);
+  for (int a = 0; a < 3; ++a)
+    solver_->velocity()[a].fill(scene.fluid.velocity[a]);
   // eps_g of the initial particles, so the first step sees no d(eps)/dt.
   deposit(p, n);
   solver_->reset_volume_fraction_history();
@@ -176,7 +196,8 @@ GasCoupling::~GasCoupling() = default;
 std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
   if (comm_ == nullptr)
     throw std::logic_error("GasCoupling::rebox: the gas is not distributed");
-  if (boxes == boxes_) return 0;
+  if (boxes == boxes_)
+    return 0;
   fluid::MacGrid grid = [&] {
     try {
       return gas_grid(scene_, comm_, boxes);
@@ -200,23 +221,25 @@ std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
   grid_ = std::move(grid);
   halo_ = std::move(halo);
   solver_ = std::move(solver);
-  deposition_ = std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene_), r_max_,
-                                                    halo_.get());
+  deposition_ =
+      std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene_), r_max_, halo_.get());
   eps_s_ = grid_.make_field();
-  for (int a = 0; a < 3; ++a) cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+  for (int a = 0; a < 3; ++a)
+    cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
   return sent;
 }
 
 void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
-  const fluid::ParticlePositions pos{{p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n},
-                                     {p.radius.data(), n}};
+  const fluid::ParticlePositions pos{
+      {p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n}, {p.radius.data(), n}};
   if (comm_ != nullptr) {
     // A stencil beyond the ghost layers on any rank stops every rank before the collective
     // deposits (the first particle by rank).
     const std::string problem = deposition_->reach_problem(pos);
-    const std::string agreed = comm_->agree_on_error(problem.empty() ? comm_->size() : comm_->rank(),
-                                                     problem);
-    if (!agreed.empty()) throw RunError(agreed);
+    const std::string agreed =
+        comm_->agree_on_error(problem.empty() ? comm_->size() : comm_->rank(), problem);
+    if (!agreed.empty())
+      throw RunError(agreed);
   }
   // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction).
   eps_s_.fill(0.0);
@@ -230,11 +253,13 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   // eps_g and the gas velocity (of the last step) at the particles, in one pass (over ranks,
   // from the fields with their exchanged ghosts).
   eps_p_.resize(n), beta_.resize(n);
-  if (halo_) halo_->fill(eps, fluid::kCellCentred);
+  if (halo_)
+    halo_->fill(eps, fluid::kCellCentred);
   for (int a = 0; a < 3; ++a) {
     ug_[a].resize(n), bv_[a].resize(n);
     solver_->cell_centred_velocity(a, cell_u_[a]);
-    if (halo_) halo_->fill(cell_u_[a], fluid::kCellCentred);
+    if (halo_)
+      halo_->fill(cell_u_[a], fluid::kCellCentred);
   }
   {
     const fluid::GridField* in[] = {&eps, &cell_u_[0], &cell_u_[1], &cell_u_[2]};
@@ -252,15 +277,19 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   // beta_i and beta_i v_i to the cells, in one pass.
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
   for (int a = 0; a < 3; ++a)
-    for (std::size_t i = 0; i < n; ++i) bv_[a][i] = beta_[i] * (*v[a])[i];
+    for (std::size_t i = 0; i < n; ++i)
+      bv_[a][i] = beta_[i] * (*v[a])[i];
   fluid::GridField* cells[] = {&solver_->drag_coefficient(), &solver_->drag_velocity_sum(0),
                                &solver_->drag_velocity_sum(1), &solver_->drag_velocity_sum(2)};
-  for (fluid::GridField* f : cells) f->fill(0.0);
+  for (fluid::GridField* f : cells)
+    f->fill(0.0);
   const std::span<const double> values[] = {beta_, bv_[0], bv_[1], bv_[2]};
   deposition_->deposit(pos, values, cells);
 }
 
-double GasCoupling::cfl_dt() const { return solver_->dt_for_courant(scene_.fluid.cfl); }
+double GasCoupling::cfl_dt() const {
+  return solver_->dt_for_courant(scene_.fluid.cfl);
+}
 
 fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
   eps_prev_ = solver_->volume_fraction();
@@ -279,8 +308,8 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   force_ids_.assign(p.id.begin(), p.id.begin() + static_cast<std::ptrdiff_t>(n));
-  const fluid::ParticlePositions pos{{p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n},
-                                     {p.radius.data(), n}};
+  const fluid::ParticlePositions pos{
+      {p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n}, {p.radius.data(), n}};
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
   // The new gas velocity and the pressure gradient at the particles, in one pass.
   for (int a = 0; a < 3; ++a) {
@@ -293,7 +322,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     }
   }
   {
-    const fluid::GridField* in[] = {&cell_u_[0], &cell_u_[1], &cell_u_[2],
+    const fluid::GridField* in[] = {&cell_u_[0],  &cell_u_[1],  &cell_u_[2],
                                     &cell_gp_[0], &cell_gp_[1], &cell_gp_[2]};
     const std::span<double> out[] = {ug_[0], ug_[1], ug_[2], gp_[0], gp_[1], gp_[2]};
     deposition_->interpolate(pos, in, out);
@@ -320,7 +349,8 @@ FluidDiagnostics GasCoupling::diagnostics() const {
     double sum = 0.0;
     for (int k = 0; k < nc[2]; ++k)
       for (int j = 0; j < nc[1]; ++j)
-        for (int i = 0; i < nc[0]; ++i) sum += eps(i, j, k) * uc(i, j, k);
+        for (int i = 0; i < nc[0]; ++i)
+          sum += eps(i, j, k) * uc(i, j, k);
     d.gas_momentum[a] = rho * vol * sum;
   }
   // Pressure drop along the axis between the boundary faces: plane means of the full pressure
@@ -347,8 +377,8 @@ FluidDiagnostics GasCoupling::diagnostics() const {
   const double gp0 = solver_->background_pressure_gradient()[static_cast<std::size_t>(ax)];
   const double dx = grid_.spacing(ax);
   for (int c = 0; c < m; ++c)
-    plane[static_cast<std::size_t>(c)] = plane[static_cast<std::size_t>(c)] / per_plane +
-                                         gp0 * (c + 0.5) * dx;
+    plane[static_cast<std::size_t>(c)] =
+        plane[static_cast<std::size_t>(c)] / per_plane + gp0 * (c + 0.5) * dx;
   const double p_lo = m > 1 ? 1.5 * plane[0] - 0.5 * plane[1] : plane[0] - 0.5 * gp0 * dx;
   const double p_hi = m > 1 ? 1.5 * plane[static_cast<std::size_t>(m - 1)] -
                                   0.5 * plane[static_cast<std::size_t>(m - 2)]
@@ -366,39 +396,47 @@ FluidDiagnostics GasCoupling::diagnostics() const {
     for (int k = 0; k < nc[2]; ++k)
       for (int j = 0; j < nc[1]; ++j)
         for (int i = 0; i < nc[0]; ++i)
-          worst = std::max(worst, std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) /
-                                                              last_dt_));
-    if (comm_ != nullptr) worst = comm_->max(worst);
+          worst = std::max(worst,
+                           std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) / last_dt_));
+    if (comm_ != nullptr)
+      worst = comm_->max(worst);
     d.mass_residual = worst * last_dt_;
   }
   return d;
 }
 
-std::array<std::vector<double>, 3> GasCoupling::force_in_order(
-    std::span<const std::int64_t> ids) const {
+std::array<std::vector<double>, 3>
+GasCoupling::force_in_order(std::span<const std::int64_t> ids) const {
   std::array<std::vector<double>, 3> f;
-  if (force_ids_.empty()) return f;
+  if (force_ids_.empty())
+    return f;
   if (ids.size() != force_ids_.size())
-    throw RunError(fmt::format("{} particles, the gas force has {}", ids.size(),
-                               force_ids_.size()));
+    throw RunError(
+        fmt::format("{} particles, the gas force has {}", ids.size(), force_ids_.size()));
   std::unordered_map<std::int64_t, std::size_t> at;
   at.reserve(force_ids_.size());
-  for (std::size_t i = 0; i < force_ids_.size(); ++i) at.emplace(force_ids_[i], i);
-  for (int a = 0; a < 3; ++a) f[a].resize(ids.size());
+  for (std::size_t i = 0; i < force_ids_.size(); ++i)
+    at.emplace(force_ids_[i], i);
+  for (int a = 0; a < 3; ++a)
+    f[a].resize(ids.size());
   for (std::size_t i = 0; i < ids.size(); ++i) {
     const auto it = at.find(ids[i]);
-    if (it == at.end()) throw RunError(fmt::format("particle id {} has no gas force", ids[i]));
-    for (int a = 0; a < 3; ++a) f[a][i] = force_[a][it->second];
+    if (it == at.end())
+      throw RunError(fmt::format("particle id {} has no gas force", ids[i]));
+    for (int a = 0; a < 3; ++a)
+      f[a][i] = force_[a][it->second];
   }
   return f;
 }
 
-CellFields GasCoupling::cell_fields() const {
+CellFields cell_fields(const fluid::GasSolver& gas) {
+  const fluid::MacGrid& grid = gas.grid();
   // On several ranks: this rank's box (its arrays), placed in the whole grid by block_lo.
-  const auto& nc = grid_.cells();
-  const auto& global = grid_.global_cells();
+  const auto& nc = grid.cells();
+  const auto& global = grid.global_cells();
   std::array<int, 3> lo{};
-  if (grid_.distributed()) lo = grid_.box().lo;
+  if (grid.distributed())
+    lo = grid.box().lo;
   CellFields c;
   std::vector<double>* nodes[3] = {&c.x_nodes, &c.y_nodes, &c.z_nodes};
   for (int a = 0; a < 3; ++a) {
@@ -406,25 +444,26 @@ CellFields GasCoupling::cell_fields() const {
     c.block_lo[a] = lo[a];
     c.block_cells[a] = nc[a];
     for (int i = 0; i <= global[a]; ++i)
-      nodes[a]->push_back(scene_.domain.lo[a] + i * grid_.spacing(a));
+      nodes[a]->push_back(grid.origin(a) + i * grid.spacing(a));
   }
-  const fluid::GridField& eps = solver_->volume_fraction();
-  const fluid::GridField& pp = solver_->pressure();
-  const auto gp0 = solver_->background_pressure_gradient();
+  const fluid::GridField& eps = gas.volume_fraction();
+  const fluid::GridField& pp = gas.pressure();
+  const auto gp0 = gas.background_pressure_gradient();
   std::array<fluid::GridField, 3> u;
   for (int a = 0; a < 3; ++a) {
-    u[a] = grid_.make_field();
-    solver_->cell_centred_velocity(a, u[a]);
+    u[a] = grid.make_field();
+    gas.cell_centred_velocity(a, u[a]);
   }
   for (int k = 0; k < nc[2]; ++k)
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i) {
         c.eps_g.push_back(eps(i, j, k));
         // As the pressure-drop diagnostic: p' plus the background gradient from the low corner.
-        c.pressure.push_back(pp(i, j, k) + gp0[0] * (i + lo[0] + 0.5) * grid_.spacing(0) +
-                             gp0[1] * (j + lo[1] + 0.5) * grid_.spacing(1) +
-                             gp0[2] * (k + lo[2] + 0.5) * grid_.spacing(2));
-        for (int a = 0; a < 3; ++a) c.gas_velocity.push_back(u[a](i, j, k));
+        c.pressure.push_back(pp(i, j, k) + gp0[0] * (i + lo[0] + 0.5) * grid.spacing(0) +
+                             gp0[1] * (j + lo[1] + 0.5) * grid.spacing(1) +
+                             gp0[2] * (k + lo[2] + 0.5) * grid.spacing(2));
+        for (int a = 0; a < 3; ++a)
+          c.gas_velocity.push_back(u[a](i, j, k));
       }
   return c;
 }

@@ -41,6 +41,11 @@ struct FluidDiagnostics {
   double mass_residual = 0.0; // max |div(eps u) + d(eps)/dt| dt_f over cells (dimensionless)
 };
 
+// The gas of `gas` at its cells' centres (this rank's box on R ranks, placed by block_lo):
+// eps_g, the full pressure p' + gp0 . (x - origin) and the face velocities averaged to the
+// centres. Snapshots and column profiles read the gas through it.
+CellFields cell_fields(const fluid::GasSolver& gas);
+
 // Distributed (a communicator of more than one rank): the gas grid is cut into one box per rank
 // (fluid::orb_cell_boxes), each rank holds its box's cells and passes the particles it owns
 // (the first `owned` of the store: those of its box, as the scheme's decomposition_of the
@@ -77,8 +82,8 @@ public:
   [[nodiscard]] std::span<const std::int64_t> force_ids() const { return force_ids_; }
   // F_i of the last step() in the order of `ids` (the store's order now: the schemes permute the
   // store, and the force they hold, after step()); empty before the first step.
-  [[nodiscard]] std::array<std::vector<double>, 3> force_in_order(
-      std::span<const std::int64_t> ids) const;
+  [[nodiscard]] std::array<std::vector<double>, 3>
+  force_in_order(std::span<const std::int64_t> ids) const;
   [[nodiscard]] FluidDiagnostics diagnostics() const;
   [[nodiscard]] const fluid::GasSolver& solver() const { return *solver_; }
   [[nodiscard]] fluid::GasSolver& solver() { return *solver_; }
@@ -91,7 +96,7 @@ public:
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
 
   // The gas at cell centres for a snapshot (eps_g, full pressure, gas velocity).
-  [[nodiscard]] CellFields cell_fields() const;
+  [[nodiscard]] CellFields cell_fields() const { return apps::cell_fields(*solver_); }
 
   // Checkpoint/restart at a fluid-step boundary: the solver's state, what the diagnostics read
   // and the counters. Not in it: the deposited eps_s and drag coefficients (step() deposits them

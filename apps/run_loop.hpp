@@ -211,13 +211,13 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   std::vector<double> profile_gas;
   if (const auto spec = profile_spec(scene)) {
     profiles.emplace(*spec, gas_on);
-    out.open_profiles(profiles->columns(),
-                      ck && !ck->rows.empty() ? std::optional<double>(ck->rows.back()[0])
-                                              : std::nullopt);
+    out.open_profiles(profiles->columns(), ck && !ck->rows.empty()
+                                               ? std::optional<double>(ck->rows.back()[0])
+                                               : std::nullopt);
   }
   auto take_profile_gas = [&] {
     if (profiles && gas)
-      profile_gas = profiles->gas_sums(gas->coupling().solver());
+      profile_gas = profiles->gas_sums(gas->coupling().cell_fields());
   };
   if (ck && loop.row_pending)
     take_profile_gas(); // the restored gas is the gas of the pending row's time

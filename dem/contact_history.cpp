@@ -19,6 +19,17 @@ void ContactHistory::append(const ContactHistory& h) {
   hz.insert(hz.end(), h.hz.begin(), h.hz.end());
 }
 
+void ContactHistory::add_mirrors() {
+  std::vector<std::pair<std::int64_t, std::int64_t>> have(size());
+  for (std::size_t q = 0; q < size(); ++q)
+    have[q] = {owner[q], partner[q]};
+  std::sort(have.begin(), have.end());
+  const std::size_t n = size();
+  for (std::size_t q = 0; q < n; ++q)
+    if (!std::binary_search(have.begin(), have.end(), std::pair{partner[q], owner[q]}))
+      add(partner[q], owner[q], -hx[q], -hy[q], -hz[q]);
+}
+
 std::vector<double> ContactHistory::pack() const {
   std::vector<double> out;
   out.reserve(size() * kStride);
@@ -46,10 +57,14 @@ ContactHistory collect_history(const ParticleStore& p, const VerletList& list, s
   const auto nb = list.neighbors();
   if (off.empty() || hx.size() != nb.size())
     return h; // never built, or built without history
+  const bool half = list.kind() == RowKind::half;
   for (std::size_t i = 0; i < rows && i + 1 < off.size(); ++i)
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k)
-      if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0)
+      if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0) {
         h.add(p.id[i], p.id[nb[k]], hx[k], hy[k], hz[k]);
+        if (half && nb[k] < rows)
+          h.add(p.id[nb[k]], p.id[i], -hx[k], -hy[k], -hz[k]);
+      }
   return h;
 }
 
@@ -138,6 +153,7 @@ ContactHistory history_from_rows(std::span<const std::int64_t> ids,
         h.add(ids[i], ids[neighbors[k]], hx[k], hy[k], hz[k]);
     }
   }
+  h.add_mirrors();
   return h;
 }
 

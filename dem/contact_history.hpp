@@ -24,6 +24,9 @@ struct ContactHistory {
     owner.push_back(o), partner.push_back(q), hx.push_back(x), hy.push_back(y), hz.push_back(z);
   }
   void append(const ContactHistory& h);
+  // Adds the partner's record (partner, owner, -xi) of each record whose pair has none, as a
+  // full list holds it (each side's spring is the other's negated, bit for bit).
+  void add_mirrors();
   // Records as 5 doubles each (the ids as their bits), for ParticleExchange::route, and back.
   std::vector<double> pack() const;
   static ContactHistory unpack(std::span<const double> records);
@@ -31,7 +34,9 @@ struct ContactHistory {
 };
 
 // The non-zero history of rows [0, rows) of `list` (hx, hy, hz: one value per list entry); an
-// entry left at zero is what a new entry starts from, so it need not be kept.
+// entry left at zero is what a new entry starts from, so it need not be kept. A half list's entry
+// gives both records, the partner's too when the partner is one of the rows (a ghost's owner
+// keeps its own).
 ContactHistory collect_history(const ParticleStore& p, const VerletList& list, std::size_t rows,
                                std::span<const double> hx, std::span<const double> hy,
                                std::span<const double> hz);
@@ -52,7 +57,8 @@ struct HistoryRows {
 };
 // Throws RunError for a record naming an id that `ids` does not hold.
 HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> ids);
-// The records of rows saved over `ids` (no rows: none). Throws RunError when they do not fit.
+// The records of rows saved over `ids` (no rows: none), with the mirror of each record a half
+// list's rows lack. Throws RunError when they do not fit.
 ContactHistory history_from_rows(std::span<const std::int64_t> ids,
                                  std::span<const std::uint32_t> offsets,
                                  std::span<const std::uint32_t> neighbors,

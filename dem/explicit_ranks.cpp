@@ -201,9 +201,9 @@ void ExplicitScheme::rebuild_ranks() {
   rows_.list.build_local(p_, r.owned, model_.skin);
   if (model_.friction)
     attach_history(std::move(arrived), p_, rows_.list, r.owned, rows_.hx, rows_.hy, rows_.hz);
-  // No particle lost: the owned counts add up to the initial total (and the pair count).
-  std::array<std::int64_t, 3> totals{static_cast<std::int64_t>(r.owned),
-                                     static_cast<std::int64_t>(rows_.list.neighbors().size()),
+  // No particle lost: the owned counts add up to the initial total (and the pair count: a pair
+  // with a ghost is listed on both its ranks, so entries count twice, ghost entries once).
+  std::array<std::int64_t, 3> totals{static_cast<std::int64_t>(r.owned), local_pair_entries2(),
                                      moved_history};
   comm.sum(totals);
   if (totals[0] != r.n_global)

@@ -83,7 +83,7 @@ void ExplicitScheme::rebuild_one_rank() {
     held.append(rows_.pending);
     rows_.pending = ContactHistory{};
   }
-  rows_.list.build(p_, geom_, model_.skin);
+  rows_.list.build(p_, geom_, model_.skin, RowKind::half);
   if (model_.friction)
     attach_history(std::move(held), p_, rows_.list, p_.size(), rows_.hx, rows_.hy, rows_.hz);
   ext_.permute(rows_.list.order()); // the build permuted the store: external forces follow
@@ -107,29 +107,31 @@ void ExplicitScheme::rebuild() {
 }
 
 template <bool Friction>
-void ExplicitScheme::contact_rows(std::span<const std::uint32_t> rows, const DomainGeometry& frame,
-                                  double dt, StepReport& rep) {
-  contact_pass<Friction>(p_, rows_.list, rows, {rows_.hx, rows_.hy, rows_.hz}, frame, model_, dt,
-                         rep);
+void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep) {
+  const VerletList& list = rows_.list;
+  const HistoryColumns h{rows_.hx, rows_.hy, rows_.hz};
+  // Pairs whose separation is ready first (in-box; on R ranks two owned particles), then, once a
+  // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
+  const std::size_t nh =
+      pair_pass<Friction, false>(p_, list, list.active(), h, frame, model_, dt, rows_.head, rep);
+  finish_forward();
+  const std::size_t nt =
+      pair_pass<Friction, true>(p_, list, list.tail_rows(), h, frame, model_, dt, rows_.tail, rep);
+  scatter_contacts<Friction>(p_, list, std::span<const PairContacts>(rows_.head).first(nh),
+                             std::span<const PairContacts>(rows_.tail).first(nt));
 }
 
 void ExplicitScheme::contact(double dt, StepReport& rep) {
   PhaseTimer::Scope t(timer_, Phase::force);
-  const bool fr = model_.friction;
   // One rank: minimum image through the whole domain. R ranks: the local frame (ghosts sit at
   // their images).
   const DomainGeometry& frame = rank_ ? rank_->local : geom_;
-  const VerletList& list = rows_.list;
-  if (!rank_ || !rank_->forward_pending) {
-    fr ? contact_rows<true>(list.active(), frame, dt, rep)
-       : contact_rows<false>(list.active(), frame, dt, rep);
-    return;
-  }
-  fr ? contact_rows<true>(list.interior(), frame, dt, rep)
-     : contact_rows<false>(list.interior(), frame, dt, rep);
-  finish_forward();
-  fr ? contact_rows<true>(list.boundary(), frame, dt, rep)
-     : contact_rows<false>(list.boundary(), frame, dt, rep);
+  model_.friction ? contact_pairs<true>(frame, dt, rep) : contact_pairs<false>(frame, dt, rep);
+}
+
+std::int64_t ExplicitScheme::local_pair_entries2() const {
+  return 2 * static_cast<std::int64_t>(rows_.list.neighbors().size()) -
+         static_cast<std::int64_t>(rows_.list.ghost_entries());
 }
 
 template <bool Walls> void ExplicitScheme::update(double dt, StepReport& rep) {
@@ -251,7 +253,7 @@ void ExplicitScheme::step(bool record) {
   if (failed)
     report_fault(rep, time());
   ++stats_.steps;
-  const auto pairs = static_cast<std::int64_t>(rows_.list.neighbors().size() / 2);
+  const std::int64_t pairs = local_pair_entries2() / 2;
   stats_.particle_steps += global_count();
   stats_.pair_evaluations += rank_ ? rank_->global_pairs : pairs;
   stats_.local_particle_steps += static_cast<std::int64_t>(owned());
@@ -294,6 +296,32 @@ void ExplicitScheme::restore(const Counters& c, const ContactHistory& history) {
   stats_.builds = c.builds;
 }
 
+namespace {
+// A full list's rows reduced to the half list's (each row's partners of higher index, in their
+// order), history entries with them: what a build of the same list gives.
+void keep_upper_pairs(ExplicitScheme::State& s) {
+  const std::size_t n = s.offsets.size() - 1;
+  const bool history = !s.hx.empty();
+  std::size_t w = 0, k = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint32_t end = s.offsets[i + 1];
+    s.offsets[i] = static_cast<std::uint32_t>(w);
+    for (; k < end; ++k) {
+      if (s.neighbors[k] <= i)
+        continue;
+      s.neighbors[w] = s.neighbors[k];
+      if (history)
+        s.hx[w] = s.hx[k], s.hy[w] = s.hy[k], s.hz[w] = s.hz[k];
+      ++w;
+    }
+  }
+  s.offsets[n] = static_cast<std::uint32_t>(w);
+  s.neighbors.resize(w);
+  if (history)
+    s.hx.resize(w), s.hy.resize(w), s.hz.resize(w);
+}
+} // namespace
+
 ExplicitScheme::State ExplicitScheme::save_state() const {
   if (rank_)
     throw std::logic_error("ExplicitScheme::save_state is the one-rank checkpoint; on R ranks "
@@ -323,6 +351,8 @@ void ExplicitScheme::restore_state(State s) {
   if (model_.friction && (s.hx.size() != s.neighbors.size() || s.hy.size() != s.neighbors.size() ||
                           s.hz.size() != s.neighbors.size()))
     throw RunError("checkpoint: the tangential history does not fit the neighbor list");
+  if (listed)
+    keep_upper_pairs(s); // a checkpoint of an older version holds full rows
   rows_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
                      std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   rows_.hx = std::move(s.hx), rows_.hy = std::move(s.hy), rows_.hz = std::move(s.hz);

@@ -1,8 +1,9 @@
 // The `explicit` scheme: one global time step for every particle (tau_p * dem.dt_factor), velocity
 // Verlet in the paper's form (v at half steps, x at whole steps). Each step is two passes: contact
-// forces over the particles that have a neighbor-list row (few, in a dilute gas), then a
-// branch-free update of every particle that the compiler vectorizes (dem/verlet_passes.hpp). It is
-// the baseline every adaptive scheme is measured against, so it is written to be as fast as we can.
+// forces, each pair's once over a half neighbor list and then added to both particles in a fixed
+// order, and a branch-free update of every particle that the compiler vectorizes
+// (dem/verlet_passes.hpp). It is the baseline every adaptive scheme is measured against, so it is
+// written to be as fast as we can.
 //
 // One class for any rank count. On one rank (no communicator, or one of size 1) the store holds
 // the whole system and the list is periodic by minimum image, reused until some particle has
@@ -11,20 +12,21 @@
 // dealt to ranks by the knapsack (partition/rank_decomposition.hpp). A rank's store holds its
 // owned particles [0, owned()) and then ghost copies: every particle (or periodic image of one,
 // its own included) within the halo 2 r_max + skin of one of its boxes, stored at the image
-// position, so the rank-local list needs no periodic wrap. The full list gives each owned
-// particle its whole force with no reverse communication, summed in a fixed row order: bitwise
-// the same result for any thread count with the same rank count; different rank counts agree
-// to round-off (the sums run in another order).
+// position, so the rank-local list needs no periodic wrap. A pair of two owned particles is
+// computed once; a pair with a ghost is computed on both its ranks, so each owned particle gets
+// its whole force with no reverse communication, summed in a fixed order: bitwise the same
+// result for any thread count with the same rank count; different rank counts agree to
+// round-off (the sums run in another order).
 //
 // Update sequence of a step on R ranks (LAMMPS's): forces on owned rows, kick-drift of owned
 // particles, then the ghosts' new x and v are posted to the ranks holding them, with one
 // reduction of the displacement and fault flags in flight alongside. The forward completes
-// during the next step's forces: rows whose neighbours are all owned first, then the
-// ghost-touching ones. When some particle on some rank moved more than skin/2, the next step
-// instead wraps, regrids (when dem.regrid_interval has passed since the last), migrates to owners
-// and rebuilds ghosts and the local list. With friction, angular velocities travel with the
-// particles and ghosts, and each row's tangential history is carried over a rebuild keyed by
-// partner id (dem/contact_history.hpp), on one rank and across ranks alike.
+// during the next step's forces: pairs of two owned particles first, then those with a ghost. When
+// some particle on some rank moved more than skin/2, the next step instead wraps, regrids (when
+// dem.regrid_interval has passed since the last), migrates to owners and rebuilds ghosts and the
+// local list. With friction, angular velocities travel with the particles and ghosts, and each
+// row's tangential history is carried over a rebuild keyed by partner id (dem/contact_history.hpp),
+// on one rank and across ranks alike.
 #pragma once
 
 #include <cstdint>
@@ -39,6 +41,7 @@
 #include "dem/contact_history.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/external_force.hpp"
+#include "dem/pair_contacts.hpp"
 #include "dem/step_model.hpp"
 #include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
@@ -178,6 +181,8 @@ private:
     std::vector<double> hx, hy, hz;
     ContactHistory pending;
     bool need_rebuild = true;
+    // The contacts of the last pair passes (buffers kept between steps).
+    std::vector<PairContacts> head, tail;
   };
   // x(n), v(n) of the owned particles at the last recorded step.
   struct Recorded {
@@ -193,10 +198,13 @@ private:
   void rebuild();
   void rebuild_one_rank();
   template <bool Friction>
-  void contact_rows(std::span<const std::uint32_t> rows, const DomainGeometry& frame, double dt,
-                    StepReport& rep);
-  // Forces on the owned rows; on R ranks a forward in flight completes after the interior rows.
+  void contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep);
+  // Forces on the owned particles; on R ranks a forward in flight completes after the pairs of
+  // two owned particles.
   void contact(double dt, StepReport& rep);
+  // Entries of this rank's list counted as a full list would hold them (a pair of owned
+  // particles twice, a pair with a ghost once).
+  std::int64_t local_pair_entries2() const;
   template <bool Walls> void update(double dt, StepReport& rep);
   void evaluate_and_update(double dt, StepReport& rep);
   void record_synchronised();

@@ -22,14 +22,14 @@ CellGrid make_grid(const DomainGeometry& g, double cutoff, std::size_t particles
   double cell = cutoff;
   const double volume = g.length[0] * g.length[1] * g.length[2];
   const double target = 32.0 * static_cast<double>(particles) + 64.0;
-  if (volume / (cell * cell * cell) > target) cell = std::cbrt(volume / target);
+  if (volume / (cell * cell * cell) > target)
+    cell = std::cbrt(volume / target);
   for (int a = 0; a < 3; ++a) {
     c.n[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
     c.inv[a] = c.n[a] / g.length[a];
   }
   return c;
 }
-
 
 // Put a row in its canonical order: pairs that do not cross a periodic face first, then those
 // that do, each part by increasing index (so the force sum order does not depend on how cells
@@ -40,7 +40,8 @@ std::size_t order_row(const ParticleStore& p, const DomainGeometry& g, std::size
   auto crosses = [&](std::uint32_t j) {
     const double d[3] = {p.x[j] - p.x[i], p.y[j] - p.y[i], p.z[j] - p.z[i]};
     bool c = false;
-    for (int a = 0; a < 3; ++a) c = c || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
+    for (int a = 0; a < 3; ++a)
+      c = c || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
     return c;
   };
   std::sort(first, last);
@@ -66,11 +67,13 @@ std::size_t order_row(const ParticleStore& p, const DomainGeometry& g, std::size
 
 } // namespace
 
-void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
+void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin, RowKind kind) {
   skin_ = skin;
+  kind_ = kind;
   const std::size_t n = p.size();
   double rmax = 0.0;
-  for (double r : p.radius) rmax = std::max(rmax, r);
+  for (double r : p.radius)
+    rmax = std::max(rmax, r);
   const double cutoff = 2.0 * rmax + skin;
   for (int a = 0; a < 3; ++a)
     // Raw separations of non-crossing pairs stay below L/2 while particles move less than
@@ -89,13 +92,17 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin) {
   bin(p, g, grid, order_);
   p.permute(order_);
   fill_rows<false>(p, g, grid, n, skin);
+  ghost_entries_ = 0;
+  index_rows(n);
 }
 
 void VerletList::build_local(const ParticleStore& p, std::size_t rows, double skin) {
   skin_ = skin;
+  kind_ = RowKind::half;
   const std::size_t n = p.size();
   double rmax = 0.0;
-  for (double r : p.radius) rmax = std::max(rmax, r);
+  for (double r : p.radius)
+    rmax = std::max(rmax, r);
   const double cutoff = 2.0 * rmax + skin;
   // The frame: the particles' bounding box, at least one cutoff wide on every axis.
   DomainSpec box;
@@ -105,20 +112,50 @@ void VerletList::build_local(const ParticleStore& p, std::size_t rows, double sk
     box.lo = {p.x[0], p.y[0], p.z[0]}, box.hi = box.lo;
     for (std::size_t i = 1; i < n; ++i) {
       const double q[3] = {p.x[i], p.y[i], p.z[i]};
-      for (int a = 0; a < 3; ++a) box.lo[a] = std::min(box.lo[a], q[a]), box.hi[a] = std::max(box.hi[a], q[a]);
+      for (int a = 0; a < 3; ++a)
+        box.lo[a] = std::min(box.lo[a], q[a]), box.hi[a] = std::max(box.hi[a], q[a]);
     }
   }
-  for (int a = 0; a < 3; ++a) box.hi[a] = std::max(box.hi[a], box.lo[a] + cutoff);
+  for (int a = 0; a < 3; ++a)
+    box.hi[a] = std::max(box.hi[a], box.lo[a] + cutoff);
   const DomainGeometry g(box);
   const CellGrid grid = make_grid(g, cutoff, n);
   order_.clear();
   bin(p, g, grid, sorted_);
   fill_rows<true>(p, g, grid, rows, skin);
-  interior_.clear(), boundary_.clear();
-  for (const std::uint32_t i : active_) {
-    // Rows are sorted by index and ghosts follow the owned particles: the last entry decides.
-    (neighbors_[offsets_[i + 1] - 1] < rows ? interior_ : boundary_).push_back(i);
+  // The frame is not periodic, so no pair crosses a face: the second part of each row is its
+  // ghost partners (rows are sorted by index and ghosts follow the owned particles).
+  ghost_entries_ = 0;
+  for (std::size_t i = 0; i < rows; ++i) {
+    const auto first = neighbors_.begin() + offsets_[i],
+               last = neighbors_.begin() + offsets_[i + 1];
+    wrap_begin_[i] = static_cast<std::uint32_t>(
+        std::lower_bound(first, last, static_cast<std::uint32_t>(rows)) - neighbors_.begin());
+    ghost_entries_ += offsets_[i + 1] - wrap_begin_[i];
   }
+  index_rows(rows);
+}
+
+void VerletList::index_rows(std::size_t n) {
+  active_.clear(), tail_rows_.clear();
+  std::size_t store = n;
+  for (const std::uint32_t j : neighbors_)
+    store = std::max<std::size_t>(store, j + std::size_t{1});
+  listed_.assign(store, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (offsets_[i + 1] == offsets_[i])
+      continue;
+    active_.push_back(static_cast<std::uint32_t>(i));
+    if (wrap_begin_[i] < offsets_[i + 1])
+      tail_rows_.push_back(static_cast<std::uint32_t>(i));
+    listed_[i] = 1;
+  }
+  for (const std::uint32_t j : neighbors_)
+    listed_[j] = 1;
+  listed_index_.clear();
+  for (std::size_t i = 0; i < store; ++i)
+    if (listed_[i])
+      listed_index_.push_back(static_cast<std::uint32_t>(i));
 }
 
 void VerletList::bin(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
@@ -131,17 +168,20 @@ void VerletList::bin(const ParticleStore& p, const DomainGeometry& g, const Cell
   };
   for (std::size_t i = 0; i < n; ++i) {
     const int cx = cell_coord(p.x[i], 0), cy = cell_coord(p.y[i], 1), cz = cell_coord(p.z[i], 2);
-    cell_of_[i] = static_cast<std::uint32_t>((static_cast<std::size_t>(cz) * grid.n[1] + cy) *
-                                                 grid.n[0] + cx);
+    cell_of_[i] = static_cast<std::uint32_t>(
+        (static_cast<std::size_t>(cz) * grid.n[1] + cy) * grid.n[0] + cx);
   }
   // Counting sort by cell (stable: ties keep their previous order, so the result is a pure
   // function of the previous state).
   cell_start_.assign(ncell + 1, 0);
-  for (std::size_t i = 0; i < n; ++i) ++cell_start_[cell_of_[i] + 1];
-  for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
+  for (std::size_t i = 0; i < n; ++i)
+    ++cell_start_[cell_of_[i] + 1];
+  for (std::size_t c = 0; c < ncell; ++c)
+    cell_start_[c + 1] += cell_start_[c];
   sorted.resize(n);
   fill_.assign(cell_start_.begin(), cell_start_.end() - 1);
-  for (std::size_t i = 0; i < n; ++i) sorted[fill_[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+  for (std::size_t i = 0; i < n; ++i)
+    sorted[fill_[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
 }
 
 template <bool Indirect>
@@ -152,6 +192,7 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
   };
   // Count, then fill, each particle's row; rows are independent so the parallel build is
   // deterministic.
+  const bool half = kind_ == RowKind::half;
   offsets_.assign(n + 1, 0);
   auto visit_row = [&](std::size_t i, auto&& emit) {
     const int cx = cell_coord(p.x[i], 0), cy = cell_coord(p.y[i], 1), cz = cell_coord(p.z[i], 2);
@@ -164,8 +205,10 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
     // by cell, with fewer loop starts (most cells of a dilute scene are empty).
     int run_first[3], run_len[3], runs = 0;
     for (int a = 0; a < mx; ++a) {
-      if (runs > 0 && sx[a] == run_first[runs - 1] + run_len[runs - 1]) ++run_len[runs - 1];
-      else run_first[runs] = sx[a], run_len[runs] = 1, ++runs;
+      if (runs > 0 && sx[a] == run_first[runs - 1] + run_len[runs - 1])
+        ++run_len[runs - 1];
+      else
+        run_first[runs] = sx[a], run_len[runs] = 1, ++runs;
     }
     const double xi = p.x[i], yi = p.y[i], zi = p.z[i], ri = p.radius[i];
     for (int c = 0; c < mz; ++c)
@@ -176,11 +219,13 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
           const std::uint32_t q_end = cell_start_[cell + static_cast<std::size_t>(run_len[a])];
           for (std::uint32_t q = cell_start_[cell]; q < q_end; ++q) {
             const std::uint32_t j = Indirect ? sorted_[q] : q;
-            if (j == i) continue;
+            if (half ? j <= i : j == i)
+              continue;
             const double dx = g.image(p.x[j] - xi, 0), dy = g.image(p.y[j] - yi, 1),
                          dz = g.image(p.z[j] - zi, 2);
             const double rc = ri + p.radius[j] + skin;
-            if (dx * dx + dy * dy + dz * dz < rc * rc) emit(j);
+            if (dx * dx + dy * dy + dz * dz < rc * rc)
+              emit(j);
           }
         }
   };
@@ -189,7 +234,8 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
   // index, so the list does not depend on the thread count.
   constexpr std::size_t kChunk = 256;
   const std::size_t chunks = (n + kChunk - 1) / kChunk;
-  if (chunk_rows_.size() < chunks) chunk_rows_.resize(chunks);
+  if (chunk_rows_.size() < chunks)
+    chunk_rows_.resize(chunks);
   wrap_begin_.resize(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
                     [&](const tbb::blocked_range<std::size_t>& r) {
@@ -207,7 +253,8 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
                         }
                       }
                     });
-  for (std::size_t i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
+  for (std::size_t i = 0; i < n; ++i)
+    offsets_[i + 1] += offsets_[i];
   neighbors_.resize(offsets_[n]);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
                     [&](const tbb::blocked_range<std::size_t>& r) {
@@ -215,12 +262,10 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, cons
                         const std::size_t first = c * kChunk, end = std::min(n, first + kChunk);
                         std::copy(chunk_rows_[c].begin(), chunk_rows_[c].end(),
                                   neighbors_.begin() + offsets_[first]);
-                        for (std::size_t i = first; i < end; ++i) wrap_begin_[i] += offsets_[i];
+                        for (std::size_t i = first; i < end; ++i)
+                          wrap_begin_[i] += offsets_[i];
                       }
                     });
-  active_.clear();
-  for (std::size_t i = 0; i < n; ++i)
-    if (offsets_[i + 1] > offsets_[i]) active_.push_back(static_cast<std::uint32_t>(i));
   xr_ = p.x, yr_ = p.y, zr_ = p.z;
 }
 
@@ -231,11 +276,14 @@ void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::ui
   xr_ = std::move(x_ref), yr_ = std::move(y_ref), zr_ = std::move(z_ref);
   skin_ = skin;
   order_.clear();
-  active_.clear();
   const std::size_t n = offsets_.empty() ? 0 : offsets_.size() - 1;
   wrap_begin_.assign(n, 0);
+  kind_ = RowKind::half;
+  ghost_entries_ = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    if (offsets_[i + 1] > offsets_[i]) active_.push_back(static_cast<std::uint32_t>(i));
+    for (std::uint32_t k = offsets_[i]; k < offsets_[i + 1]; ++k)
+      if (neighbors_[k] <= i)
+        kind_ = RowKind::full;
     // The build put the pairs that cross a periodic face last, judged at the build positions
     // (the reference positions): find where they start.
     std::uint32_t k = offsets_[i];
@@ -243,17 +291,21 @@ void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::ui
       const std::uint32_t j = neighbors_[k];
       const double d[3] = {xr_[j] - xr_[i], yr_[j] - yr_[i], zr_[j] - zr_[i]};
       bool crosses = false;
-      for (int a = 0; a < 3; ++a) crosses = crosses || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
-      if (crosses) break;
+      for (int a = 0; a < 3; ++a)
+        crosses = crosses || (g.periodic[a] && std::abs(d[a]) > g.half[a]);
+      if (crosses)
+        break;
     }
     wrap_begin_[i] = k;
   }
+  index_rows(n);
 }
 
 void check_saved_list(std::size_t n, std::span<const std::uint32_t> offsets,
                       std::span<const std::uint32_t> neighbors, std::span<const double> x_ref,
                       std::span<const double> y_ref, std::span<const double> z_ref) {
-  if (offsets.empty()) return;
+  if (offsets.empty())
+    return;
   if (offsets.size() != n + 1 || offsets.front() != 0 || offsets.back() != neighbors.size() ||
       x_ref.size() != n || y_ref.size() != n || z_ref.size() != n)
     throw RunError("checkpoint: the neighbor list does not fit the particles");
@@ -261,7 +313,8 @@ void check_saved_list(std::size_t n, std::span<const std::uint32_t> offsets,
     if (offsets[i + 1] < offsets[i])
       throw RunError("checkpoint: the neighbor list offsets are not monotonic");
   for (const std::uint32_t j : neighbors)
-    if (j >= n) throw RunError("checkpoint: a neighbor index is out of range");
+    if (j >= n)
+      throw RunError("checkpoint: a neighbor index is out of range");
 }
 
 } // namespace cfddem::dem

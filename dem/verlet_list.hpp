@@ -1,8 +1,10 @@
-// Neighbor search: a cell list (counting sort of particles into cells) feeding a full Verlet list
-// in CSR form (every pair appears in both particles' rows). A full list lets each particle sum its
-// own forces in a fixed order, with no scatter to j: parallel without atomics and bitwise
-// independent of the thread count. The list holds pairs within r_i + r_j + skin; it stays valid
-// until some particle has moved more than skin/2 since the build (needs_rebuild).
+// Neighbor search: a cell list (counting sort of particles into cells) feeding a Verlet list in
+// CSR form. A full list (every pair in both particles' rows) lets each particle sum its own forces
+// in a fixed order with no scatter to j (the islands scheme's kernels). A half list (each pair
+// once, in the row of its lower index: RowKind::half) is what the explicit scheme's contact pass
+// reads: each pair's force is computed once and then added to both particles in a fixed order
+// (dem/verlet_passes.hpp). The list holds pairs within r_i + r_j + skin; it stays valid until
+// some particle has moved more than skin/2 since the build.
 #pragma once
 
 #include <array>
@@ -34,30 +36,48 @@ inline int stencil_axis(int b, int n, bool periodic, int out[3]) {
   for (int o = -1; o <= 1; ++o) {
     int c = b + o;
     if (c < 0 || c >= n) {
-      if (!periodic) continue;
+      if (!periodic)
+        continue;
       c = (c + n) % n;
     }
     bool seen = false;
-    for (int q = 0; q < m; ++q) seen = seen || out[q] == c;
-    if (!seen) out[m++] = c;
+    for (int q = 0; q < m; ++q)
+      seen = seen || out[q] == c;
+    if (!seen)
+      out[m++] = c;
   }
   return m;
 }
+
+// Which pairs a row holds: every partner (full), or only partners of higher index (half).
+enum class RowKind { full, half };
 
 class VerletList {
 public:
   // Wrap positions into the periodic box, sort particles by cell (locality: neighbors are near
   // in memory; the store is permuted and `order()` says how), and build the list.
   // Throws RunError if a periodic length is shorter than twice the cutoff.
-  void build(ParticleStore& p, const DomainGeometry& g, double skin);
+  void build(ParticleStore& p, const DomainGeometry& g, double skin, RowKind kind = RowKind::full);
 
   // Permutation applied to the store by the last build: new index k = old index order()[k].
   std::span<const std::uint32_t> order() const { return order_; }
   std::span<const std::uint32_t> offsets() const { return offsets_; }
   // Each row lists first the pairs that do not cross a periodic face (their raw separation is
   // already the minimum image for the list's lifetime), then, from wrap_begin()[i], those that do.
-  // The hot loop applies the periodic image only to the second part.
+  // The hot loop applies the periodic image only to the second part. In a rank-local list
+  // (build_local) the second part is instead the pairs whose partner is a ghost copy: the part
+  // that waits for the ghosts' new positions.
   std::span<const std::uint32_t> wrap_begin() const { return wrap_begin_; }
+  // Rows whose second part (from wrap_begin) is not empty.
+  std::span<const std::uint32_t> tail_rows() const { return tail_rows_; }
+  // Per particle of the store: 1 when some row names it (its own or a partner's), so it can have
+  // a contact force until the next build; 0 for particles alone within their cutoff.
+  std::span<const std::uint8_t> listed() const { return listed_; }
+  // The listed particles' indices, increasing.
+  std::span<const std::uint32_t> listed_index() const { return listed_index_; }
+  RowKind kind() const { return kind_; }
+  // Entries whose partner is a ghost copy (build_local only; 0 otherwise).
+  std::size_t ghost_entries() const { return ghost_entries_; }
   std::span<const std::uint32_t> neighbors() const { return neighbors_; }
   // Reference positions of the last build (for the displacement test).
   std::span<const double> x_ref() const { return xr_; }
@@ -68,22 +88,22 @@ public:
   double skin() const { return skin_; }
   // Restart: reinstate a list saved from offsets()/neighbors()/x_ref()... exactly (the rows keep
   // their order, so forces sum in the same order as in the run that saved them). Check it first
-  // with check_saved_list.
+  // with check_saved_list. The kind is read from the rows (half when no row names a lower index).
   void restore(std::vector<std::uint32_t> offsets, std::vector<std::uint32_t> neighbors,
                std::vector<double> x_ref, std::vector<double> y_ref, std::vector<double> z_ref,
                double skin, const DomainGeometry& g);
-  std::size_t pair_count() const { return neighbors_.size() / 2; }
+  std::size_t pair_count() const {
+    return kind_ == RowKind::half ? neighbors_.size() : neighbors_.size() / 2;
+  }
 
-  // Rank-local list (the distributed scheme): rows for particles [0, rows) only (the owned
-  // ones), whose neighbors are any particle of the store (owned, then ghost copies already at
-  // the periodic image they are needed at). No periodic wrap or image, and the store is not
-  // reordered (ghost indices belong to the exchange plan; order() is empty): the cells cover the
-  // particles' bounding box, not the domain. Rows are in increasing index order, as build()'s.
+  // Rank-local half list (the explicit scheme on R ranks): rows for particles [0, rows) only (the
+  // owned ones), whose partners are owned particles of higher index, then ghost copies (any
+  // particle of the store from `rows` on, already at the periodic image they are needed at). No
+  // periodic wrap or image, and the store is not reordered (ghost indices belong to the exchange
+  // plan; order() is empty): the cells cover the particles' bounding box, not the domain. Rows
+  // are in increasing index order, as build()'s, so the ghost partners come last in each row
+  // (from wrap_begin()).
   void build_local(const ParticleStore& p, std::size_t rows, double skin);
-  // build_local's split of active(): rows whose neighbours are all owned (interior: computable
-  // while the ghosts' new positions are in flight), and rows with a ghost neighbour.
-  std::span<const std::uint32_t> interior() const { return interior_; }
-  std::span<const std::uint32_t> boundary() const { return boundary_; }
   // Cells of the last build's grid (the memory a build needs grows with it).
   std::size_t cell_count() const { return cell_start_.empty() ? 0 : cell_start_.size() - 1; }
 
@@ -99,7 +119,14 @@ private:
   void fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
                  std::size_t rows, double skin);
 
-  std::vector<std::uint32_t> interior_, boundary_, sorted_, order_, offsets_, wrap_begin_, active_, neighbors_, cell_start_, cell_of_, fill_;
+  // After the rows are in place: active_, tail_rows_, listed_.
+  void index_rows(std::size_t n);
+
+  std::vector<std::uint32_t> tail_rows_, listed_index_, sorted_, order_, offsets_, wrap_begin_,
+      active_, neighbors_, cell_start_, cell_of_, fill_;
+  std::vector<std::uint8_t> listed_;
+  RowKind kind_ = RowKind::full;
+  std::size_t ghost_entries_ = 0;
   std::vector<double> xr_, yr_, zr_;
   std::vector<std::vector<std::uint32_t>> chunk_rows_; // per-chunk row buffers of the build
   double skin_ = 0.0;

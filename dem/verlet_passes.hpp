@@ -10,6 +10,7 @@
 #include <cmath>
 #include <span>
 #include <string>
+#include <vector>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -23,20 +24,28 @@
 #include "dem/external_force.hpp"
 #include "dem/kick_drift_range.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/pair_contacts.hpp"
 #include "dem/particle_views.hpp"
 #include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
 
 namespace cfddem::dem {
 
-// Contact forces (and torques, with friction) on the particles `rows` (list.active() or a part
-// of it) of `list`, each summed over its row in the row's order: f_i is overwritten, nothing is
-// scattered to j. The rows' first part is taken as the minimum image as is, the part from
-// wrap_begin() through `geom`. `history`: tangential history per list entry (friction only).
-template <bool Friction>
-void contact_pass(ParticleStore& p, const VerletList& list, std::span<const std::uint32_t> rows,
-                  [[maybe_unused]] HistoryColumns history, const DomainGeometry& geom,
-                  const StepModel& model, double dt, StepReport& out) {
+// Rows per block of the pair pass: blocks are fixed by position in the row list, so the contacts
+// and their order do not depend on the thread count.
+inline constexpr std::size_t kPairBlock = 256;
+
+// One part of each row of `rows` (Tail = false: the part before wrap_begin(), whose raw
+// separations are the minimum image; Tail = true: the part from wrap_begin(), through `geom`'s
+// periodic image): the contacts, into one PairContacts per block of kPairBlock rows. Overlaps
+// beyond the bound are flagged on i (the lower index, as a full list's first flag would be).
+// `history`: tangential history per list entry (friction only), zeroed for pairs apart. Returns
+// the number of blocks written (the first ones of `blocks`).
+template <bool Friction, bool Tail>
+std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
+                      std::span<const std::uint32_t> rows, [[maybe_unused]] HistoryColumns history,
+                      const DomainGeometry& geom, const StepModel& model, double dt,
+                      std::vector<PairContacts>& blocks, StepReport& out) {
   [[maybe_unused]] double* hx = history.x.data();
   [[maybe_unused]] double* hy = history.y.data();
   [[maybe_unused]] double* hz = history.z.data();
@@ -48,91 +57,90 @@ void contact_pass(ParticleStore& p, const VerletList& list, std::span<const std:
   const double* __restrict vz = p.vz.data();
   const double* __restrict rad = p.radius.data();
   const double* __restrict mass = p.mass.data();
-  double* __restrict fx = p.fx.data();
-  double* __restrict fy = p.fy.data();
-  double* __restrict fz = p.fz.data();
   const std::uint32_t* __restrict off = list.offsets().data();
   const std::uint32_t* __restrict nb = list.neighbors().data();
+  const std::uint32_t* __restrict wrap = list.wrap_begin().data();
   const std::uint32_t* __restrict act = rows.data();
   const DomainGeometry g = geom;
   const StepModel m = model;
+  const std::size_t n = rows.size();
+  const std::size_t nblocks = (n + kPairBlock - 1) / kPairBlock;
+  if (blocks.size() < nblocks)
+    blocks.resize(nblocks);
 
-  // Forces on particle i from its row, summed in the row's (sorted) order.
-  const std::uint32_t* __restrict wrap = list.wrap_begin().data();
   auto body = [&](const tbb::blocked_range<std::size_t>& r, StepReport rep) {
-    // Locals, not captures: the compiler keeps them in registers across the stores below.
-    const double* __restrict lx = x;
-    const double* __restrict ly = y;
-    const double* __restrict lz = z;
-    const double* __restrict lr = rad;
-    const std::uint32_t* __restrict lnb = nb;
-    for (std::size_t q = r.begin(); q != r.end(); ++q) {
-      const std::uint32_t i = act[q];
-      const double xi = x[i], yi = y[i], zi = z[i];
-      const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
-      double ax = 0.0, ay = 0.0, az = 0.0;
-      [[maybe_unused]] double tqx = 0.0, tqy = 0.0, tqz = 0.0;
-      // One pair: the separation (dx, dy, dz) is already the minimum image.
-      auto pair = [&](std::uint32_t k, std::uint32_t j, double dx, double dy, double dz) {
-        const double r2 = dx * dx + dy * dy + dz * dz;
-        const double rs = ri + lr[j];
-        if (r2 >= rs * rs) {
-          if constexpr (Friction)
-            hx[k] = hy[k] = hz[k] = 0.0;
-          return;
+    for (std::size_t b = r.begin(); b != r.end(); ++b) {
+      PairContacts& c = blocks[b];
+      c.size = 0;
+      const std::size_t q_begin = b * kPairBlock, q_end = std::min(n, (b + 1) * kPairBlock);
+      // Rows are increasing: the block's entries lie within these bounds (room for all).
+      c.reserve_more(off[act[q_end - 1] + 1] - off[act[q_begin]], Friction);
+      std::uint32_t* __restrict ci = c.i.data();
+      std::uint32_t* __restrict cj = c.j.data();
+      double* __restrict cax = c.ax.data();
+      double* __restrict cay = c.ay.data();
+      double* __restrict caz = c.az.data();
+      std::size_t s = 0;
+      for (std::size_t q = q_begin; q != q_end; ++q) {
+        const std::uint32_t i = act[q];
+        const std::uint32_t k0 = Tail ? wrap[i] : off[i], k1 = Tail ? off[i + 1] : wrap[i];
+        const double xi = x[i], yi = y[i], zi = z[i];
+        const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
+        for (std::uint32_t k = k0; k < k1; ++k) {
+          const std::uint32_t j = nb[k];
+          double dx = x[j] - xi, dy = y[j] - yi, dz = z[j] - zi;
+          if constexpr (Tail)
+            dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+          const double r2 = dx * dx + dy * dy + dz * dz;
+          const double rs = ri + rad[j];
+          if (r2 >= rs * rs) {
+            if constexpr (Friction)
+              hx[k] = hy[k] = hz[k] = 0.0;
+            continue;
+          }
+          // The same operations as a full list's row of i: each value here is, bit for bit,
+          // the negative of what j's row computes (x_i - x_j == -(x_j - x_i) exactly).
+          const double dist = std::sqrt(r2);
+          const double inv = 1.0 / dist;
+          const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+          const double delta = rs - dist;
+          const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
+          const double vn = dvx * nx + dvy * ny + dvz * nz;
+          // Equal masses (the common case) skip the divide and square root of m_eff.
+          const double meff = contact_meff(m, mi, mass[j]);
+          const double fn = contact_normal_force(m, meff, delta, vn);
+          ci[s] = i, cj[s] = j;
+          cax[s] = fn * nx, cay[s] = fn * ny, caz[s] = fn * nz;
+          if (delta > m.max_overlap * std::min(ri, rad[j]))
+            rep.flag(i, StepFault::overlap, delta / std::min(ri, rad[j]), j);
+          if constexpr (Friction) {
+            // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n
+            // (docs/theory.md §2).
+            const double sx = ri * p.wx[i] + rad[j] * p.wx[j];
+            const double sy = ri * p.wy[i] + rad[j] * p.wy[j];
+            const double sz = ri * p.wz[i] + rad[j] * p.wz[j];
+            const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
+                         rvz = dvz + (sx * ny - sy * nx);
+            const double rvn = rvx * nx + rvy * ny + rvz * nz;
+            const double nvec[3] = {nx, ny, nz};
+            const double vt[3] = {rvx - rvn * nx, rvy - rvn * ny, rvz - rvn * nz};
+            double xi3[3] = {hx[k], hy[k], hz[k]}, ft[3];
+            tangential_force(m.pair_t, meff, dt, std::abs(fn), nvec, vt, xi3, ft);
+            hx[k] = xi3[0], hy[k] = xi3[1], hz[k] = xi3[2];
+            c.bx[s] = ft[0], c.by[s] = ft[1], c.bz[s] = ft[2];
+            c.cx[s] = ny * ft[2] - nz * ft[1];
+            c.cy[s] = nz * ft[0] - nx * ft[2];
+            c.cz[s] = nx * ft[1] - ny * ft[0];
+          }
+          ++s;
         }
-        const double dist = std::sqrt(r2);
-        const double inv = 1.0 / dist;
-        const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
-        const double delta = rs - dist;
-        const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
-        const double vn = dvx * nx + dvy * ny + dvz * nz;
-        // Equal masses (the common case) skip the divide and square root of m_eff.
-        const double meff = contact_meff(m, mi, mass[j]);
-        const double fn = contact_normal_force(m, meff, delta, vn);
-        ax -= fn * nx, ay -= fn * ny, az -= fn * nz;
-        if (delta > m.max_overlap * std::min(ri, rad[j]))
-          rep.flag(i, StepFault::overlap, delta / std::min(ri, rad[j]), j);
-        if constexpr (Friction) {
-          // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n
-          // (docs/theory.md §2).
-          const double sx = ri * p.wx[i] + rad[j] * p.wx[j];
-          const double sy = ri * p.wy[i] + rad[j] * p.wy[j];
-          const double sz = ri * p.wz[i] + rad[j] * p.wz[j];
-          const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
-                       rvz = dvz + (sx * ny - sy * nx);
-          const double rvn = rvx * nx + rvy * ny + rvz * nz;
-          const double nvec[3] = {nx, ny, nz};
-          const double vt[3] = {rvx - rvn * nx, rvy - rvn * ny, rvz - rvn * nz};
-          double xi3[3] = {hx[k], hy[k], hz[k]}, ft[3];
-          tangential_force(m.pair_t, meff, dt, std::abs(fn), nvec, vt, xi3, ft);
-          hx[k] = xi3[0], hy[k] = xi3[1], hz[k] = xi3[2];
-          ax += ft[0], ay += ft[1], az += ft[2];
-          // Torque on i: (r_i n) x F_t.
-          tqx += ri * (ny * ft[2] - nz * ft[1]);
-          tqy += ri * (nz * ft[0] - nx * ft[2]);
-          tqz += ri * (nx * ft[1] - ny * ft[0]);
-        }
-      };
-      // Pairs inside the box first (no periodic image needed), then those across a face.
-      const std::uint32_t kw = wrap[i];
-      for (std::uint32_t k = off[i]; k < kw; ++k) {
-        const std::uint32_t j = lnb[k];
-        pair(k, j, lx[j] - xi, ly[j] - yi, lz[j] - zi);
       }
-      for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
-        const std::uint32_t j = lnb[k];
-        pair(k, j, g.image(lx[j] - xi, 0), g.image(ly[j] - yi, 1), g.image(lz[j] - zi, 2));
-      }
-      fx[i] = ax, fy[i] = ay, fz[i] = az;
-      if constexpr (Friction)
-        p.tx[i] = tqx, p.ty[i] = tqy, p.tz[i] = tqz;
+      c.size = s;
     }
     return rep;
   };
-  const std::size_t n = rows.size();
-  const tbb::blocked_range<std::size_t> all(0, n, 256);
-  if (n <= 1024) {
+  const tbb::blocked_range<std::size_t> all(0, nblocks, 1);
+  if (n <= 4 * kPairBlock) {
     out.join(body(all, StepReport{})); // small work: no task overhead
   } else {
     out.join(tbb::parallel_reduce(
@@ -143,6 +151,46 @@ void contact_pass(ParticleStore& p, const VerletList& list, std::span<const std:
         },
         tbb::simple_partitioner{}));
   }
+  return nblocks;
+}
+
+// Contact forces (and torques, with friction) from the contacts of the pair passes: f of every
+// listed particle is overwritten, then each contact is added to both its particles, the head
+// blocks in order and then the tail blocks. A particle thus sums its pairs in the order of a full
+// list's row (in-box partners by index, then partners across a face by index; on R ranks owned
+// partners, then ghosts), bit for bit what a full list gives, for any thread count.
+template <bool Friction>
+void scatter_contacts(ParticleStore& p, const VerletList& list, std::span<const PairContacts> head,
+                      std::span<const PairContacts> tail) {
+  double* __restrict fx = p.fx.data();
+  double* __restrict fy = p.fy.data();
+  double* __restrict fz = p.fz.data();
+  [[maybe_unused]] double* __restrict tx = p.tx.data();
+  [[maybe_unused]] double* __restrict ty = p.ty.data();
+  [[maybe_unused]] double* __restrict tz = p.tz.data();
+  [[maybe_unused]] const double* __restrict rad = p.radius.data();
+  for (const std::uint32_t i : list.listed_index()) {
+    fx[i] = fy[i] = fz[i] = 0.0;
+    if constexpr (Friction)
+      tx[i] = ty[i] = tz[i] = 0.0;
+  }
+  auto add = [&](const PairContacts& c) {
+    for (std::size_t s = 0; s < c.size; ++s) {
+      const std::uint32_t i = c.i[s], j = c.j[s];
+      fx[i] -= c.ax[s], fy[i] -= c.ay[s], fz[i] -= c.az[s];
+      fx[j] += c.ax[s], fy[j] += c.ay[s], fz[j] += c.az[s];
+      if constexpr (Friction) {
+        fx[i] += c.bx[s], fy[i] += c.by[s], fz[i] += c.bz[s];
+        fx[j] -= c.bx[s], fy[j] -= c.by[s], fz[j] -= c.bz[s];
+        tx[i] += rad[i] * c.cx[s], ty[i] += rad[i] * c.cy[s], tz[i] += rad[i] * c.cz[s];
+        tx[j] += rad[j] * c.cx[s], ty[j] += rad[j] * c.cy[s], tz[j] += rad[j] * c.cz[s];
+      }
+    }
+  };
+  for (const PairContacts& c : head)
+    add(c);
+  for (const PairContacts& c : tail)
+    add(c);
 }
 
 // Planar walls at lo and hi of every non-periodic axis: force (and torque, with friction) added
@@ -233,14 +281,14 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const 
   };
   auto body = [&](const tbb::blocked_range<std::size_t>& r, Partial acc) {
     if constexpr (Walls) {
-      // A particle without a neighbor row keeps last step's total (contact + wall) in f: start
-      // it from zero. Rows are fixed between builds, so this is exact.
+      // A particle that no row names keeps last step's total (contact + wall) in f: start it
+      // from zero. Rows are fixed between builds, so this is exact.
       double* __restrict fx = p.fx.data();
       double* __restrict fy = p.fy.data();
       double* __restrict fz = p.fz.data();
-      const std::uint32_t* __restrict off = list.offsets().data();
+      const std::uint8_t* __restrict listed = list.listed().data();
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
-        const bool row = off[i + 1] > off[i];
+        const bool row = listed[i] != 0;
         double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
         double tq[3] = {0, 0, 0};
         if constexpr (Friction)

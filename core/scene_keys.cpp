@@ -321,7 +321,10 @@ std::vector<SceneKey> make_table() {
        .range = at_least(1),
        .fallback = integer(10),
        .meaning = "orb and islands: sub-iterations per regrid interval, dt_sp = "
-                  "`dem.regrid_interval` / nsubit (with a gas: `fluid.dt` / nsubit)"},
+                  "`dem.regrid_interval` / nsubit (with a gas: `fluid.dt` / nsubit); islands "
+                  "also take \"auto\": the scheme picks nsubit at the end of every interval "
+                  "from operation counts (starting at 10; docs/schemes.md), each choice in "
+                  "run.json"},
       {.name = "dem.proximity_radii",
        .type = T::Number,
        .section = S::Contacts,

@@ -372,6 +372,32 @@ class Restart(Tmp):
                                                          "output.interval=0.0005"])
         self.assertGreater(float(rows[-1][rows[0].index("fine_leaf_fraction")]), 0.0)
 
+    def test_islands_auto_hcs_bitwise(self):
+        # dem.nsubit = "auto": the chosen length, its running means and its log are state; the
+        # loop steps control intervals (dem.regrid_interval). A rerun on one thread is the same
+        # run to the bit, and run.json logs the choices.
+        rows = self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=islands", "dem.nsubit=auto",
+                                                      "output.interval=0.0005"])
+        self.assertEqual(len(rows), 1 + 9)
+        one = os.path.join(self.tmp, "one_thread")
+        self.run_ok(HCS, "run.end_time=0.004", "output.snapshot_interval=0.002",
+                    "dem.scheme=islands", "dem.nsubit=auto", "output.interval=0.0005",
+                    "--threads", "1", "--out", one)
+        self.assertEqual(diagnostics(one), rows)
+        with open(os.path.join(one, "run.json")) as f:
+            run = json.load(f)
+        self.assertEqual(run["nsubit"], "auto")
+        self.assertEqual(run["bound_violations"], 0)
+        choices = run["nsubit_choices"]
+        self.assertGreaterEqual(len(choices), 2)
+        self.assertEqual(sum(c["intervals"] for c in choices), 40)
+        self.assertTrue(all(c["nsubit_min"] <= c["nsubit"] <= c["nsubit_max"] for c in choices))
+
+    def test_coupled_islands_auto_settling_bitwise(self):
+        # With a gas the interval is fluid.dt; the held force's change bounds the length.
+        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=auto",
+                                                    "output.interval=0.0005"])
+
     # Coupled scenes: N fluid steps + checkpoint + restart + N fluid steps = 2N fluid steps, to
     # the bit (gas velocities, pressure, eps_g history, loop position, pending row/snapshot).
     def test_coupled_explicit_hcs_gas_bitwise(self):

@@ -64,9 +64,13 @@ void IslandsScheme::choose_length() {
   double s_max = 0.0;
   length::RowsView v{
       {}, {}, p_.x.data(), p_.y.data(), p_.z.data(), p_.radius.data(), ln_.bound.data(), owned_};
-  if (rank_)
+  if (rank_) {
+    // The ghosts at their owners' positions now, as one rank sees them (one message round per
+    // interval; the next sub-iteration forwards them again).
+    std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z};
+    rank_->exchange.forward_columns(cols);
     v.offsets = rank_->rows.off(), v.neighbors = rank_->rows.nb();
-  else if (one_.built)
+  } else if (one_.built)
     v.offsets = one_.list.offsets(), v.neighbors = one_.list.neighbors();
   if (ln_.bound.size() >= p_.size() && v.offsets.size() == owned_ + 1) {
     length::first_contact_histogram(v, geom_, margin_, D, m_hi, hist);

@@ -280,3 +280,43 @@ TEST(SubiterationLength, SceneKey) {
   EXPECT_THROW(demtest::scene_from(kAutoGas, {"dem.scheme=\"orb\""}), ConfigError);
   EXPECT_THROW(demtest::scene_from(kAutoGas, {"dem.nsubit=\"fast\""}), ConfigError);
 }
+
+// Under "auto" the list expires only when a fast pair that could link is missing from it
+// (IslandsScheme::unlisted_fast_pair), not whenever the two largest reaches could add up to the
+// skin: no collision may be missed. Every pair overlapping at the end of a sub-iteration touched
+// during it, so it must have been in one island (checked over all pairs, in a hot gas whose
+// reaches outgrow the skin every few sub-iterations).
+TEST(SubiterationLength, AutoListMissesNoContact) {
+  const Scene s =
+      demtest::scene_from(kAutoGas, {"particles.temperature=0.25",
+                                     "domain.hi=[1.74e-3,1.74e-3,1.74e-3]", "particles.count=200"});
+  ParticleStore p = make_initial_particles(s);
+  PhaseTimer t;
+  dem::IslandsScheme isl(s, p, t);
+  isl.start();
+  const DomainGeometry g(s.domain);
+  std::int64_t overlapping = 0;
+  for (int k = 0; k < 20; ++k) {
+    const std::int64_t m = isl.begin_interval();
+    for (std::int64_t q = 0; q < m; ++q) {
+      isl.subiterate(true);
+      const auto r = isl.synchronised_previous();
+      std::unordered_map<std::int64_t, std::int64_t> island;
+      for (std::size_t i = 0; i < r.id.size(); ++i)
+        island[r.id[i]] = r.leaf[i];
+      for (std::size_t i = 0; i < p.size(); ++i)
+        for (std::size_t j = i + 1; j < p.size(); ++j) {
+          const double dx = g.image(p.x[j] - p.x[i], 0), dy = g.image(p.y[j] - p.y[i], 1),
+                       dz = g.image(p.z[j] - p.z[i], 2);
+          if (std::sqrt(dx * dx + dy * dy + dz * dz) >= p.radius[i] + p.radius[j])
+            continue;
+          ++overlapping;
+          const std::int64_t a = island.at(p.id[i]), b = island.at(p.id[j]);
+          EXPECT_TRUE(a >= 0 && a == b) << "particles " << p.id[i] << ", " << p.id[j];
+        }
+    }
+  }
+  EXPECT_GT(overlapping, 0); // contacts happened
+  EXPECT_EQ(isl.bound_violations(), 0);
+  EXPECT_LT(isl.neighbor_builds(), isl.subiterations()); // the list outlived sub-iterations
+}

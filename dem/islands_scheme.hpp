@@ -329,7 +329,6 @@ private:
   void make_links(bool incremental);
   void link();
   bool list_expires() const;
-  bool unlisted_fast_pair(double largest) const;
   template <bool External, bool Ranks>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External> void global_steps(bool record);

@@ -281,11 +281,10 @@ TEST(SubiterationLength, SceneKey) {
   EXPECT_THROW(demtest::scene_from(kAutoGas, {"dem.nsubit=\"fast\""}), ConfigError);
 }
 
-// Under "auto" the list expires only when a fast pair that could link is missing from it
-// (IslandsScheme::unlisted_fast_pair), not whenever the two largest reaches could add up to the
-// skin: no collision may be missed. Every pair overlapping at the end of a sub-iteration touched
-// during it, so it must have been in one island (checked over all pairs, in a hot gas whose
-// reaches outgrow the skin every few sub-iterations).
+// Under "auto" the length changes from interval to interval while the list, the links and the
+// fine steps follow it: no collision may be missed. Every pair overlapping at the end of a
+// sub-iteration touched during it, so it must have been in one island (checked over all pairs,
+// in a hot gas whose reaches outgrow the skin every few sub-iterations).
 TEST(SubiterationLength, AutoListMissesNoContact) {
   const Scene s =
       demtest::scene_from(kAutoGas, {"particles.temperature=0.25",

@@ -267,6 +267,12 @@ private:
     // by id and builds.
     bool canonical = false;
     bool with_comm = false; // constructed with a communicator (of size 1)
+    // A bound on every particle's displacement since the build: the sum over the sub-iterations
+    // since of the largest speed bound x dt_sp + margin (infinite when unknown: after a restore,
+    // a dense sub-iteration or a bound violation); list_expires() skips its exact pass while
+    // twice this plus the largest reach of the sub-iteration stays below the skin.
+    double moved = std::numeric_limits<double>::infinity();
+    double bound_max = 0.0; // the largest speed bound of the current sub-iteration
   };
   // dem.nsubit = "auto": the control interval and the choice for the next one.
   struct AutoLength {
@@ -328,7 +334,7 @@ private:
   void canonical_order();
   void make_links(bool incremental);
   void link();
-  bool list_expires() const;
+  bool list_expires();
   template <bool External, bool Ranks>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External> void global_steps(bool record);

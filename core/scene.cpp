@@ -239,6 +239,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     d.nsubit = 10;
   } else {
     d.nsubit = k.integer("dem.nsubit");
+    // Not given: islands choose their own (docs/schemes.md), orb takes the table's 10.
+    d.nsubit_auto = d.scheme == "islands" && !c.has("dem.nsubit");
   }
   d.proximity_radii = k.number("dem.proximity_radii");
   d.local_dt = k.word("dem.local_dt");

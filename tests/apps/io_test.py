@@ -368,7 +368,7 @@ class Restart(Tmp):
     def test_islands_hcs_bitwise(self):
         # The list as built, half steps, counters and histograms; the checkpoint falls between
         # two sub-iterations that are not a multiple of dem.nsubit (islands have no regrid).
-        rows = self.check_restart(HCS, 0.0041, 0.00205, ["dem.scheme=islands",
+        rows = self.check_restart(HCS, 0.0041, 0.00205, ["dem.scheme=islands", "dem.nsubit=10",
                                                          "output.interval=0.0005"])
         self.assertGreater(float(rows[-1][rows[0].index("fine_leaf_fraction")]), 0.0)
 
@@ -416,11 +416,13 @@ class Restart(Tmp):
         self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=orb", "output.interval=0.0005"])
 
     def test_coupled_islands_hcs_gas_bitwise(self):
-        self.check_restart(HCS_GAS, 0.002, 0.001, ["dem.scheme=islands", "output.interval=0.0005"])
+        self.check_restart(HCS_GAS, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=10",
+                                                   "output.interval=0.0005"])
 
     def test_coupled_islands_settling_bitwise(self):
         # Walls (tied particles) and gravity with the held gas force in the speed bounds.
-        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "output.interval=0.0005"])
+        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=10",
+                                                    "output.interval=0.0005"])
 
     def test_coupled_adaptive_fluid_step_bitwise(self):
         # fluid.dt = 0: each fluid step comes from the gas's CFL number (capped by fluid.max_dt)

@@ -26,7 +26,7 @@ import tempfile
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCENE = os.path.join(SOURCE, "scenes", "hcs_small.toml")
-ARGS = ["dem.scheme=islands", "run.end_time=0.01", "output.interval=5e-4", "--threads", "1",
+ARGS = ["dem.scheme=islands", "dem.nsubit=10", "run.end_time=0.01", "output.interval=5e-4", "--threads", "1",
         "--quiet"]
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles"]

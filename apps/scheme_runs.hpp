@@ -396,6 +396,10 @@ public:
 
   std::string banner(long long n_end) const {
     const int leaves = kRanks ? leaf_count() : 1 << levels_;
+    if (auto_length())
+      return fmt::format("islands scheme, dem.nsubit = \"auto\": dt_sp chosen per control "
+                         "interval of {:.4e} s (first {:.4e} s; fine dt = {:.4e} s), {} intervals",
+                         dt(), scheme.dt_sub(), scheme.dt_fine(), n_end);
     return fmt::format("{} scheme{}, dt_sp = {:.4e} s (fine dt = {:.4e} s), {} sub-iterations",
                        kName, kOrb ? fmt::format(": {} leaves", leaves) : "", scheme.dt_sub(),
                        scheme.dt_fine(), n_end);
@@ -404,9 +408,12 @@ public:
   static constexpr const char* kStepWord = "sub-iteration";
   static constexpr const char* kStepsWord = "sub-iterations";
   std::string progress(long long k, double frac, double, const std::string& eta) const {
-    return fmt::format("sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}", k,
-                       scheme.time(), 100 * frac, kOrb ? "leaves" : "particles",
-                       scheme.last_fine_fraction(), eta);
+    // "auto": k counts control intervals; the sub-iterations and the current count are shown.
+    const std::string at = auto_length() ? fmt::format("sub-iteration {:>8} (nsubit {:>4})",
+                                                       scheme.subiterations(), scheme.nsubit())
+                                         : fmt::format("sub-iteration {:>8}", k);
+    return fmt::format("{} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}", at, scheme.time(),
+                       100 * frac, kOrb ? "leaves" : "particles", scheme.last_fine_fraction(), eta);
   }
   void describe(nlohmann::ordered_json& j, const std::vector<std::vector<double>>& rows) const {
     j["dt"] = scheme.dt_fine();

@@ -109,7 +109,7 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
   // fine count of a dilute scene is small and noisy; a change for less is not worth a row).
   const std::int64_t prev = std::clamp<std::int64_t>(m_prev, m_lo, m_hi);
   const double prev_cost = cost(prev);
-  c.cost_ratio = best / prev_cost;
+  c.cost_ratio = prev_cost > 0.0 ? best / prev_cost : 1.0; // no particles: nothing to gain
   if (c.cost_ratio > 1.0 - kMinGain && prev == m_prev) {
     c.m = prev, c.cost_ratio = 1.0;
     c.reason = kKept;

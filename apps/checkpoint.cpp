@@ -244,6 +244,11 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
       w.put("/islands/rank_counters", o.rank_counters);
       w.put("/islands/rank_values", o.rank_values);
     }
+    if (!o.length_counters.empty()) { // dem.nsubit = "auto": the chosen length and its log
+      w.put("/islands/length_counters", o.length_counters);
+      w.put("/islands/length_values", o.length_values);
+      w.put("/islands/length_choices", o.length_log);
+    }
   }
   if (c.gas) {
     write_gas(f, w, c);
@@ -442,6 +447,11 @@ Checkpoint read_contents(const h5::File& f) {
     if (f.exists("/islands/rank_counters")) {
       o.rank_counters = r.int64s("/islands/rank_counters", 6);
       o.rank_values = r.doubles("/islands/rank_values", 1);
+    }
+    if (f.exists("/islands/length_counters")) {
+      o.length_counters = r.int64s("/islands/length_counters", 6);
+      o.length_values = r.doubles("/islands/length_values", Reader::kAny);
+      o.length_log = r.doubles("/islands/length_choices", Reader::kAny);
     }
   } else if (c.scheme != "explicit") {
     throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));

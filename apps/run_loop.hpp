@@ -3,7 +3,9 @@
 // without):
 //   1. with a gas: deposit, gas step and particle force (GasSide::step), held by the scheme;
 //   2. the particle sub-cycle: n_sub particle steps (explicit: steps of dt, n_sub =
-//      ceil(dt_f / dt_dem); orb and islands: sub-iterations of dt_sp = dt_f / dem.nsubit);
+//      ceil(dt_f / dt_dem); orb and islands: sub-iterations of dt_sp = dt_f / dem.nsubit;
+//      islands with dem.nsubit = "auto": the outer step is a control interval, without a gas
+//      dem.regrid_interval, taken in the sub-iterations the scheme chose for it);
 //   3. the rows and snapshots that fall due at the step's end are marked: the gas is taken then,
 //      and the next particle step writes them with the synchronised particles (the state at t
 //      needs the forces at t), so the loop ends with one particle step past the end;
@@ -76,7 +78,9 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   if (gas_on) {
     const double dt_dem = Run::Ranks::dem_dt(scene_in, particles, range);
     if (Run::kSub) {
-      n_fixed = scene.dem.nsubit;
+      // dem.nsubit = "auto" (islands): one particle step of the schedule is the whole fluid step,
+      // taken in the sub-iterations begin_interval() chose.
+      n_fixed = scene.dem.nsubit_auto ? 1 : scene.dem.nsubit;
       scene.dem.regrid_interval = scene.fluid.dt; // validate_fluid: a fixed fluid.dt
     } else if (fixed) {
       n_fixed =
@@ -364,6 +368,10 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
       PhaseTimer::Scope fl(timer, Phase::fluid);
       run.hold_gas_force(gas->step(particles, run.owned(), dt_f));
     }
+    // dem.nsubit = "auto": the outer step (dt, a control interval) in the chosen sub-iterations
+    // (after the gas force: its change bounds them).
+    if (run.auto_length())
+      n_sub = run.begin_interval();
     for (long long q = 0; q < n_sub; ++q) {
       particle_step(q == 0 && loop.row_pending, q == 0 && loop.snapshot_pending);
       if (q == 0)

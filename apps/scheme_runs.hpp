@@ -35,6 +35,7 @@
 #include "dem/granular_diagnostics.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
+#include "dem/subiteration_length.hpp"
 
 namespace cfddem::apps {
 
@@ -138,6 +139,8 @@ public:
   long long steps() const { return scheme.steps_taken(); }
   std::size_t owned() const { return Ranks::owned(scheme, p_); }
   long long checkpoint_every(long long every) const { return every; }
+  bool auto_length() const { return false; }
+  long long begin_interval() { return 1; }
   void start() { scheme.start(); }
   // In place of start(). held: the gas force held at the checkpoint (null without a gas).
   void restore(Checkpoint& ck, Restart& r, const std::array<std::vector<double>, 3>* held) {
@@ -319,8 +322,27 @@ public:
         levels_(scene.partition.orb_levels) {}
 
   S scheme;
-  double dt() const { return scheme.dt_sub(); }
+  // The loop's step: a sub-iteration, or with dem.nsubit = "auto" a control interval.
+  double dt() const {
+    if constexpr (!kOrb)
+      if (scheme.auto_length())
+        return scheme.interval();
+    return scheme.dt_sub();
+  }
   double fine_dt() const { return scheme.dt_fine(); }
+  bool auto_length() const {
+    if constexpr (kOrb)
+      return false;
+    else
+      return scheme.auto_length();
+  }
+  // The sub-iterations of the next control interval ("auto" only).
+  long long begin_interval() {
+    if constexpr (kOrb)
+      return 1;
+    else
+      return scheme.begin_interval();
+  }
   long long steps() const { return scheme.subiterations(); }
   std::size_t owned() const { return Ranks::owned(scheme, p_); }
   // orb: checkpoints only at regrid points (multiples of dem.nsubit), where the ORB is rebuilt
@@ -374,6 +396,10 @@ public:
 
   std::string banner(long long n_end) const {
     const int leaves = kRanks ? leaf_count() : 1 << levels_;
+    if (auto_length())
+      return fmt::format("islands scheme, dem.nsubit = \"auto\": dt_sp chosen per control "
+                         "interval of {:.4e} s (first {:.4e} s; fine dt = {:.4e} s), {} intervals",
+                         dt(), scheme.dt_sub(), scheme.dt_fine(), n_end);
     return fmt::format("{} scheme{}, dt_sp = {:.4e} s (fine dt = {:.4e} s), {} sub-iterations",
                        kName, kOrb ? fmt::format(": {} leaves", leaves) : "", scheme.dt_sub(),
                        scheme.dt_fine(), n_end);
@@ -382,9 +408,12 @@ public:
   static constexpr const char* kStepWord = "sub-iteration";
   static constexpr const char* kStepsWord = "sub-iterations";
   std::string progress(long long k, double frac, double, const std::string& eta) const {
-    return fmt::format("sub-iteration {:>8} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}", k,
-                       scheme.time(), 100 * frac, kOrb ? "leaves" : "particles",
-                       scheme.last_fine_fraction(), eta);
+    // "auto": k counts control intervals; the sub-iterations and the current count are shown.
+    const std::string at = auto_length() ? fmt::format("sub-iteration {:>8} (nsubit {:>4})",
+                                                       scheme.subiterations(), scheme.nsubit())
+                                         : fmt::format("sub-iteration {:>8}", k);
+    return fmt::format("{} t = {:.6e} s ({:5.1f}%)  fine {} {:.2f}  ETA {}", at, scheme.time(),
+                       100 * frac, kOrb ? "leaves" : "particles", scheme.last_fine_fraction(), eta);
   }
   void describe(nlohmann::ordered_json& j, const std::vector<std::vector<double>>& rows) const {
     j["dt"] = scheme.dt_fine();
@@ -496,6 +525,8 @@ private:
   // The islands' run.json entries: collisions its bound could have missed (none expected), the
   // dense sub-iterations, and the island sizes (one rank) or the islands across ranks (R ranks).
   void describe_islands(nlohmann::ordered_json& j) const {
+    if (scheme.auto_length())
+      describe_length(j);
     j["bound_violations"] = scheme.bound_violations();
     j["global_subiterations"] = scheme.global_subiterations();
     j["global_subiterations_definition"] =
@@ -537,6 +568,44 @@ private:
       j["island_sizes_definition"] = "islands of each size, one count per island per "
                                      "sub-iteration (size 1: lone particles in free flight, or "
                                      "tied to a wall)";
+    }
+  }
+  // dem.nsubit = "auto": every choice of the sub-iteration length with its reason.
+  void describe_length(nlohmann::ordered_json& j) const {
+    j["nsubit"] = "auto";
+    j["control_interval"] = scheme.interval();
+    nlohmann::ordered_json rows = nlohmann::ordered_json::array();
+    const auto& log = scheme.choices();
+    const auto& cols = dem::IslandsScheme::kChoiceColumns;
+    for (std::size_t r = 0; r + cols.size() <= log.size(); r += cols.size()) {
+      nlohmann::ordered_json row;
+      for (std::size_t c = 0; c < cols.size(); ++c) {
+        const double v = log[r + c];
+        if (c == 1 || c == 3 || c == 4 || c == 5)
+          row[cols[c]] = static_cast<long long>(v);
+        else if (c + 1 == cols.size())
+          row[cols[c]] = dem::length::reason_text(static_cast<int>(v));
+        else
+          row[cols[c]] = v;
+      }
+      rows.push_back(row);
+    }
+    j["nsubit_choices"] = rows;
+    j["nsubit_choices_definition"] =
+        "dem.nsubit = \"auto\": a row per change of the sub-iterations per control interval "
+        "(dem.regrid_interval, with a gas fluid.dt), chosen at the end of an interval for the "
+        "next from operation counts (docs/schemes.md): t when chosen, nsubit, dt_sp, the "
+        "intervals it was kept for, the bounds it was chosen within (nsubit_min: the skin or "
+        "the gas force's change; nsubit_max: dt_sp at least the fine step), the fine particles "
+        "the model expected per sub-iteration, rho (fine particles measured / first-contact "
+        "count), the modelled cost ratio to the previous nsubit, and the reason";
+    if (scheme.gas_change_ratio_max() > 0.0) {
+      j["gas_force_change_ratio_max"] = scheme.gas_change_ratio_max();
+      j["gas_force_change_bound"] = dem::length::kGasChangeBound;
+      j["gas_force_change_definition"] =
+          "largest change of a held gas acceleration over one sub-iteration (at the rate it "
+          "changed over its fluid step) / the largest held acceleration (or |g|); \"auto\" keeps "
+          "it within the bound unless dt_sp would fall below the fine step";
     }
   }
   ParticleStore& p_;

@@ -226,7 +226,22 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   d.dt = k.number("dem.dt");
   d.neighbor_skin = k.number("dem.neighbor_skin", -1.0); // resolved once sizes are known
   d.max_overlap = k.number("dem.max_overlap");
-  d.nsubit = k.integer("dem.nsubit");
+  if (c.holds_string("dem.nsubit")) {
+    // "auto" (islands): the table's integer stays the first interval's count.
+    const std::string w = c.get_string("dem.nsubit", "");
+    if (w != "auto")
+      throw ConfigError(c.where("dem.nsubit"),
+                        fmt::format("expected an integer >= 1 or \"auto\", got \"{}\"", w));
+    if (d.scheme == "orb")
+      throw ConfigError(c.where("dem.nsubit"), "\"auto\" is for the islands scheme; orb takes an "
+                                               "integer >= 1");
+    d.nsubit_auto = d.scheme == "islands";
+    d.nsubit = 10;
+  } else {
+    d.nsubit = k.integer("dem.nsubit");
+    // Not given: islands choose their own (docs/schemes.md), orb takes the table's 10.
+    d.nsubit_auto = d.scheme == "islands" && !c.has("dem.nsubit");
+  }
   d.proximity_radii = k.number("dem.proximity_radii");
   d.local_dt = k.word("dem.local_dt");
   d.regrid_interval = k.number("dem.regrid_interval");
@@ -366,7 +381,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.dt", num(d.dt));
   o.emplace_back("dem.neighbor_skin", d.neighbor_skin > 0 ? num(d.neighbor_skin) : "\"auto\"");
   o.emplace_back("dem.max_overlap", num(d.max_overlap));
-  o.emplace_back("dem.nsubit", std::to_string(d.nsubit));
+  o.emplace_back("dem.nsubit", d.nsubit_auto ? std::string("\"auto\"") : std::to_string(d.nsubit));
   o.emplace_back("dem.proximity_radii", num(d.proximity_radii));
   o.emplace_back("dem.local_dt", str(d.local_dt));
   o.emplace_back("dem.regrid_interval", num(d.regrid_interval));

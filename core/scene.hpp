@@ -53,6 +53,9 @@ struct DemSpec {
   double max_overlap = 0.3;   // stop when overlap / smaller radius exceeds this
   // The `orb` scheme (Sitaraman & Grout, Algorithm 2).
   std::int64_t nsubit = 10;     // sub-iterations per regrid interval
+  // islands: dem.nsubit = "auto", the scheme picks nsubit per interval (dem/subiteration_length);
+  // nsubit is then the first interval's count.
+  bool nsubit_auto = false;
   double proximity_radii = 3.0; // a pair is close if centre distance < this * (r_i + r_j) / 2
   std::string local_dt = "proximity";
   double regrid_interval = 1e-4; // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit

@@ -156,6 +156,11 @@ std::string SceneConfig::where(const std::string& key) const {
 
 bool SceneConfig::has(const std::string& key) const { return find(key) != nullptr; }
 
+bool SceneConfig::holds_string(const std::string& key) const {
+  const toml::node* n = find(key);
+  return n != nullptr && n->is_string();
+}
+
 void SceneConfig::mark_used(const std::string& key) { used_.insert(key); }
 
 double SceneConfig::get_double(const std::string& key, double fallback) {

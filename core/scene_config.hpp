@@ -26,6 +26,8 @@ public:
   void apply_override(const std::string& assignment);
 
   bool has(const std::string& key) const;
+  // The key is present and holds a string (a key that takes a number or a word).
+  bool holds_string(const std::string& key) const;
   double get_double(const std::string& key, double fallback);
   double require_double(const std::string& key);
   std::int64_t get_int(const std::string& key, std::int64_t fallback);

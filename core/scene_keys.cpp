@@ -30,8 +30,8 @@ KeyDefault required(std::string_view when = "") {
 KeyDefault number(double v, std::string_view shown = "") {
   return {KeyDefault::Kind::Value, v, shown};
 }
-KeyDefault integer(std::int64_t v) {
-  return {KeyDefault::Kind::Value, v, ""};
+KeyDefault integer(std::int64_t v, std::string_view shown = "") {
+  return {KeyDefault::Kind::Value, v, shown};
 }
 KeyDefault flag(bool v) {
   return {KeyDefault::Kind::Value, v, ""};
@@ -319,9 +319,12 @@ std::vector<SceneKey> make_table() {
        .type = T::Integer,
        .section = S::Contacts,
        .range = at_least(1),
-       .fallback = integer(10),
+       .fallback = integer(10, "10 (islands: \"auto\")"),
        .meaning = "orb and islands: sub-iterations per regrid interval, dt_sp = "
-                  "`dem.regrid_interval` / nsubit (with a gas: `fluid.dt` / nsubit)"},
+                  "`dem.regrid_interval` / nsubit (with a gas: `fluid.dt` / nsubit); islands "
+                  "also take \"auto\", their default: the scheme picks nsubit at the end of "
+                  "every interval from operation counts (starting at 10; docs/schemes.md), each "
+                  "choice in run.json"},
       {.name = "dem.proximity_radii",
        .type = T::Number,
        .section = S::Contacts,

@@ -15,6 +15,7 @@
 #include "dem/islands_rank_part.hpp"
 #include "dem/kick_drift_range.hpp"
 #include "dem/scheme_support.hpp"
+#include "dem/subiteration_length.hpp"
 
 namespace cfddem::dem {
 
@@ -26,6 +27,13 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
   require_frictionless(model_, "islands");
   nsubit_ = scene.dem.nsubit;
+  auto_.on = scene.dem.nsubit_auto;
+  if (auto_.on) {
+    // The first interval's count: dem.nsubit's integer, at most the fine step's.
+    auto_.interval = scene.dem.regrid_interval;
+    nsubit_ = std::min(nsubit_, length::most_subiterations(auto_.interval, model_.dt));
+    auto_.next = nsubit_;
+  }
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   // The list only finds links and island members (cheap per entry) while its builds are the
   // scheme's largest cost: without dem.neighbor_skin, three times the explicit scheme's skin
@@ -67,6 +75,12 @@ void IslandsScheme::start() {
 void IslandsScheme::subiterate(bool record) {
   steps_ = fine_steps(dt_sp_, model_.dt);
   rank_ ? subiterate_ranks(record) : subiterate_one(record);
+  if (auto_.on) {
+    auto_.fine_sum += st_.last_fine_fraction;
+    ++auto_.fine_count;
+    if (++auto_.q == nsubit_)
+      choose_length(); // the interval's last sub-iteration
+  }
 }
 
 IslandsScheme::State IslandsScheme::save_state() {
@@ -98,6 +112,14 @@ IslandsScheme::State IslandsScheme::save_state() {
                        st_.span_subits, st_.span_particles, st_.span_parts};
     s.rank_values = {rank_->max_ratio_local};
   }
+  if (auto_.on) {
+    const AutoLength& a = auto_;
+    s.length_counters = {nsubit_, a.next, a.intervals, a.subits_base, a.q, a.fine_count};
+    s.length_values = {a.t0,       a.fine_sum, a.gas_dA, a.gas_aref, a.gas_ratio_max,
+                       a.fine_avg, a.busy_avg};
+    s.length_values.insert(s.length_values.end(), a.hist_avg.begin(), a.hist_avg.end());
+    s.length_log = a.log;
+  }
   return s;
 }
 
@@ -115,8 +137,28 @@ void IslandsScheme::restore_state(State s) {
       s.size_hist.assign(st_.size_hist.size(), 0);
     fits = fits && s.size_hist.size() == st_.size_hist.size() && s.skin > 0.0;
   }
+  // dem.nsubit = "auto" needs its choice (the sub-iteration length is state); an integer
+  // nsubit ignores one.
+  fits = fits &&
+         (!auto_.on || (s.length_counters.size() == 6 && s.length_values.size() >= 7 &&
+                        !s.length_log.empty() && s.length_log.size() % kChoiceColumns.size() == 0 &&
+                        s.length_counters[0] >= 1 && s.length_counters[1] >= 1));
   if (!fits)
-    throw RunError("checkpoint: the islands scheme's state does not fit the particles");
+    throw RunError(auto_.on && s.length_counters.empty()
+                       ? "checkpoint: written without dem.nsubit = \"auto\" (no sub-iteration "
+                         "length in it): restart with the integer dem.nsubit it was written with"
+                       : "checkpoint: the islands scheme's state does not fit the particles");
+  if (auto_.on) {
+    const auto& k = s.length_counters;
+    const auto& v = s.length_values;
+    nsubit_ = k[0], auto_.next = k[1], auto_.intervals = k[2], auto_.subits_base = k[3];
+    auto_.q = k[4], auto_.fine_count = k[5];
+    auto_.t0 = v[0], auto_.fine_sum = v[1], auto_.gas_dA = v[2], auto_.gas_aref = v[3];
+    auto_.gas_ratio_max = v[4], auto_.fine_avg = v[5], auto_.busy_avg = v[6];
+    auto_.hist_avg.assign(v.begin() + 7, v.end());
+    auto_.log = std::move(s.length_log);
+    dt_sp_ = auto_.interval / static_cast<double>(nsubit_);
+  }
   hprev_ = std::move(s.hprev);
   fine_.assign(s.fine_subits.begin(), s.fine_subits.end());
   st_.set_counters(s.counters);
@@ -137,6 +179,7 @@ void IslandsScheme::restore_state(State s) {
     one_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
                       std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   one_.canonical = one_.with_comm;
+  one_.moved = std::numeric_limits<double>::infinity(); // unknown until the next build
   skin_ = s.skin;
   st_.size_hist = std::move(s.size_hist);
   ln_.island_of.assign(n, kAlone);
@@ -170,6 +213,8 @@ void IslandsScheme::set_external_force(std::span<const double> fx, std::span<con
 
 void IslandsScheme::replace_external_force(std::span<const double> fx, std::span<const double> fy,
                                            std::span<const double> fz) {
+  if (auto_.on)
+    note_gas_change(fx, fy, fz); // collective
   // hprev_ was sized at construction; after a checkpoint restore it is the saved one. A force of
   // the wrong size is refused by set_external_force (on every rank).
   if ((ext_.active() || !fx.empty()) && (fx.empty() || fx.size() == owned_) &&
@@ -197,6 +242,7 @@ void IslandsScheme::rebuild() {
     ext_.permute(order);
   }
   one_.built = true;
+  one_.moved = 0.0;
   ++st_.builds;
 }
 
@@ -234,7 +280,17 @@ void IslandsScheme::speed_bounds() {
 // reaches (displacement since the build plus bound over the sub-iteration) to add up to the skin:
 // the two largest reaches are checked against it (the list stays valid twice as long as with
 // skin/2 per particle when a few particles are fast).
-bool IslandsScheme::list_expires() const {
+bool IslandsScheme::list_expires() {
+  // The cheap bound first: no particle has moved farther than one_.moved since the build, nor
+  // can it move farther than bound_max dt_sp in this sub-iteration, so while twice their sum is
+  // below the skin the exact pass below cannot expire the list (the same answer, one max over
+  // the bounds instead of a square root per particle).
+  double b_max = 0.0;
+  for (const double b : ln_.bound)
+    b_max = std::max(b_max, b);
+  one_.bound_max = b_max;
+  if (2.0 * (one_.moved + b_max * dt_sp_) < skin_)
+    return false;
   const VerletList& l = one_.list;
   const islands::Reaches r = islands::largest_reaches<false>(
       p_.x.data(), p_.y.data(), p_.z.data(), l.x_ref().data(), l.y_ref().data(), l.z_ref().data(),
@@ -520,6 +576,7 @@ void IslandsScheme::subiterate_one(bool record) {
       ++f;
     st_.size_hist[static_cast<std::size_t>(std::bit_width(static_cast<std::uint64_t>(n) - 1))] += 1;
     ext_.active() ? global_steps<true>(record) : global_steps<false>(record);
+    one_.moved = std::numeric_limits<double>::infinity(); // explicit steps: no bound
     ++st_.subits;
     raise_faults();
     const auto nn = static_cast<std::int64_t>(n);
@@ -564,6 +621,7 @@ void IslandsScheme::subiterate_one(bool record) {
         [&](const tbb::blocked_range<std::size_t>& r) { islands_range(r.begin(), r.end()); });
   }
   // Counters, in island order.
+  const std::int64_t violations_before = st_.bound_violations;
   std::int64_t members = 0;
   for (std::uint32_t q = 0; q < nc; ++q) {
     const islands::IslandResult& r = results_[q];
@@ -574,6 +632,11 @@ void IslandsScheme::subiterate_one(bool record) {
     st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, r.max_ratio);
   }
   ++st_.subits;
+  // Every particle stayed within its bound (checked for the members; free flight by
+  // construction), each bound at most bound_max, up to the margin.
+  one_.moved = st_.bound_violations == violations_before
+                   ? one_.moved + (one_.bound_max * dt_sp_ + margin_)
+                   : std::numeric_limits<double>::infinity();
   // Free particles were checked in free_flight(); the islands' members are few: check them here.
   {
     const double inf = std::numeric_limits<double>::infinity();

@@ -102,7 +102,28 @@ public:
   double dt_sub() const { return dt_sp_; }
   std::int64_t nsubit() const { return nsubit_; }
   std::int64_t subiterations() const { return st_.subits; }
-  double time() const { return static_cast<double>(st_.subits) * dt_sp_; }
+  double time() const {
+    return auto_.on ? auto_.t0 + static_cast<double>(st_.subits - auto_.subits_base) * dt_sp_
+                    : static_cast<double>(st_.subits) * dt_sp_;
+  }
+
+  // dem.nsubit = "auto" (dem/subiteration_length.hpp): the caller runs the loop in control
+  // intervals of interval() (dem.regrid_interval; with a gas fluid.dt), each opened by
+  // begin_interval(), which sets dt_sp to the length chosen at the end of the last interval and
+  // returns its sub-iterations. Without "auto" begin_interval() only returns nsubit().
+  bool auto_length() const { return auto_.on; }
+  double interval() const { return auto_.interval; }
+  std::int64_t begin_interval();
+  // The choices so far: rows of kChoiceColumns (a row per change of nsubit; `intervals` counts
+  // the intervals it was kept for).
+  static constexpr std::array<const char*, 10> kChoiceColumns = {
+      "t",          "nsubit",        "dt_sp", "intervals",  "nsubit_min",
+      "nsubit_max", "fine_estimate", "rho",   "cost_ratio", "reason"};
+  const std::vector<double>& choices() const { return auto_.log; }
+  // With a gas: the largest ratio of a held acceleration's change over one sub-iteration (at
+  // the last fluid step's rate) to the largest held acceleration (or |g|), over the run; the
+  // bound is length::kGasChangeBound.
+  double gas_change_ratio_max() const { return auto_.gas_ratio_max; }
   // Counters over all ranks (the same value on every rank).
   std::int64_t particle_steps() const { return st_.particle_steps; }
   // Pairs of an island evaluated per local step (each pair once), summed over steps.
@@ -200,6 +221,11 @@ public:
     // ratio not yet recorded.
     std::vector<std::int64_t> rank_counters;
     std::vector<double> rank_values;
+    // dem.nsubit = "auto" (empty otherwise): nsubit, next, intervals, subits_base, q,
+    // fine_count; t0, fine_sum, gas_dA, gas_aref, gas_ratio_max, fine_avg, busy_avg and
+    // hist_avg; the choices' rows.
+    std::vector<std::int64_t> length_counters;
+    std::vector<double> length_values, length_log;
   };
   State save_state();
   // Throws RunError (on every rank) if the state does not fit the store.
@@ -241,7 +267,34 @@ private:
     // by id and builds.
     bool canonical = false;
     bool with_comm = false; // constructed with a communicator (of size 1)
+    // A bound on every particle's displacement since the build: the sum over the sub-iterations
+    // since of the largest speed bound x dt_sp + margin (infinite when unknown: after a restore,
+    // a dense sub-iteration or a bound violation); list_expires() skips its exact pass while
+    // twice this plus the largest reach of the sub-iteration stays below the skin.
+    double moved = std::numeric_limits<double>::infinity();
+    double bound_max = 0.0; // the largest speed bound of the current sub-iteration
   };
+  // dem.nsubit = "auto": the control interval and the choice for the next one.
+  struct AutoLength {
+    bool on = false;
+    double interval = 0.0;                // D [s]
+    std::int64_t next = 1, intervals = 0; // next interval's nsubit; intervals begun
+    std::int64_t subits_base = 0, q = 0;  // subits at this interval's start; taken in it
+    double t0 = 0.0;                      // this interval's start time
+    double fine_sum = 0.0;                // fine fractions of the sub-iterations since the
+    std::int64_t fine_count = 0;          // last choice, and their number
+    double gas_dA = 0.0, gas_aref = 0.0;  // the last fluid step's force change, reference
+    double gas_ratio_max = 0.0;
+    // Running means (length::kSmoothing) of the first-contact histogram, of the fine particles
+    // per sub-iteration and of the first-contact count at the length they were measured at
+    // (fine_avg < 0: none yet).
+    std::vector<double> hist_avg;
+    double fine_avg = -1.0, busy_avg = 0.0;
+    std::vector<double> log; // kChoiceColumns rows
+  };
+  void choose_length();
+  void note_gas_change(std::span<const double> fx, std::span<const double> fy,
+                       std::span<const double> fz);
   struct RankPart; // R ranks: ownership, ghosts, rows, reductions (islands_ranks.cpp)
   // The recorded state (synchronised_previous).
   struct Recorded {
@@ -281,7 +334,7 @@ private:
   void canonical_order();
   void make_links(bool incremental);
   void link();
-  bool list_expires() const;
+  bool list_expires();
   template <bool External, bool Ranks>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External> void global_steps(bool record);
@@ -325,6 +378,7 @@ private:
   std::unique_ptr<RankPart> rank_;
   Recorded rec_;
   Stats st_;
+  AutoLength auto_;
 };
 
 } // namespace cfddem::dem

@@ -52,6 +52,25 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
+def nsubit_arg(text):
+    if text == "auto":
+        return text
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"nsubit must be an integer >= 1 or auto, got {text!r}")
+    return n
+
+
+def mean_nsubit(ns, js):
+    """The x position of a configuration: nsubit, or the mean count an auto run took."""
+    if ns != "auto":
+        return float(ns)
+    return js["steps"] / max(1, round(js["end_time"] / js["control_interval"]))
+
+
 def read_diag(path):
     with open(os.path.join(path, "diagnostics.csv")) as f:
         rows = list(csv.DictReader(f))
@@ -85,7 +104,9 @@ def run(binary, scene, out, overrides, threads, repeat=1):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene")
-    ap.add_argument("--nsubit", type=int, nargs="+", default=[5, 10, 15, 20, 30, 40])
+    ap.add_argument("--nsubit", type=nsubit_arg, nargs="+", default=[5, 10, 15, 20, 30, 40],
+                    help="sub-iterations per regrid interval; islands also take auto "
+                         "(dem.nsubit = \"auto\", plotted at its mean count)")
     ap.add_argument("--levels", type=int, nargs="+", default=[4])
     ap.add_argument("--schemes", nargs="+", default=["orb"], choices=["orb", "islands"],
                     help="adaptive schemes to sweep (islands ignores --levels)")
@@ -151,7 +172,7 @@ def main():
         print(f"chaos floor ({a.noise_floor - 1} perturbed explicit runs, relative "
               f"{a.perturbation:g}): {100 * floor_whole:.3g}% in {a.observable} over the run",
               flush=True)
-    rows = [dict(scheme="explicit", nsubit=0, levels=0, error=0.0, speedup=1.0, force_ratio=1.0,
+    rows = [dict(scheme="explicit", nsubit=0, nsubit_mean=0.0, levels=0, error=0.0, speedup=1.0, force_ratio=1.0,
                  fine_leaf_fraction_mean=1.0, loop_seconds=ref_json["loop_seconds"],
                  force_evaluations=ref_json["force_evaluations"], cpu_speedup=1.0,
                  cpu_seconds=ref_json["cpu_seconds"])]
@@ -167,6 +188,8 @@ def main():
             series.append(("islands", "islands", 0))
     for label, sch, L in series:
         for ns in a.nsubit:
+            if ns == "auto" and sch == "orb":
+                continue  # orb takes an integer
             name = f"orb_L{L}_n{ns}" if sch == "orb" else f"islands_n{ns}"
             extra = [f"partition.orb_levels={L}"] if sch == "orb" else []
             js, d = run(a.binary, a.scene, os.path.join(a.out, name),
@@ -177,7 +200,8 @@ def main():
             o_at = np.interp(t[keep], t_ref, o_ref)
             err = np.mean(np.abs(o[keep] - o_at)) / abs(np.mean(o_at))
             fine = d["fine_leaf_fraction"][1:]
-            rows.append(dict(scheme=sch, nsubit=ns, levels=L, error=err,
+            rows.append(dict(scheme=sch, nsubit=ns, nsubit_mean=mean_nsubit(ns, js), levels=L,
+                             error=err,
                              speedup=ref_json["loop_seconds"] / js["loop_seconds"],
                              force_ratio=ref_json["force_evaluations"] / max(js["force_evaluations"], 1),
                              fine_leaf_fraction_mean=float(np.mean(fine)) if len(fine) else float("nan"),
@@ -200,7 +224,7 @@ def main():
                                if e <= floor[(ob, w)] else ""), flush=True)
             r = rows[-1]
             what = "fine leaves" if sch == "orb" else "fine particles"
-            print(f"{label:>16} nsubit={ns:3d}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
+            print(f"{label:>16} nsubit={ns!s:>4}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
                   f"cpu speed-up {r['cpu_speedup']:.2f}  force ratio {r['force_ratio']:.2f}  {what} {r['fine_leaf_fraction_mean']:.3f}",
                   flush=True)
 
@@ -226,6 +250,8 @@ def main():
             ax.fill_between(tt * 1e3, env.min(axis=0), env.max(axis=0), color="0.75",
                             label=f"chaos floor ({len(perturbed_runs) + 1} explicit runs)")
         for ns in a.nsubit:
+            if (label, ns) not in curves:
+                continue
             t, o = curves[(label, ns)]
             ax.plot(t * 1e3, o, "--", label=f"nsubit {ns}")
         ax.set_xlabel("t [ms]")
@@ -237,12 +263,13 @@ def main():
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
     for label, sch, L in series:
-        sel = [r for r in rows if r["scheme"] == sch and r["levels"] == L]
-        ns = [r["nsubit"] for r in sel]
+        sel = sorted((r for r in rows if r["scheme"] == sch and r["levels"] == L),
+                     key=lambda r: r["nsubit_mean"])
+        ns = [r["nsubit_mean"] for r in sel]
         ax1.plot(ns, [100 * r["error"] for r in sel], "o-", label=label)
         ax2.plot(ns, [r["speedup"] for r in sel], "o-", label=f"wall, {label}")
         ax2.plot(ns, [r["force_ratio"] for r in sel], "s--", label=f"force evaluations, {label}")
-    ax1.set_xlabel("nsubit")
+    ax1.set_xlabel("nsubit (auto: its mean)")
     ax1.set_ylabel(f"error in {a.observable} [%]")
     ax1.legend()
     ax2.axhline(1.0, color="k", lw=0.8)

@@ -368,9 +368,35 @@ class Restart(Tmp):
     def test_islands_hcs_bitwise(self):
         # The list as built, half steps, counters and histograms; the checkpoint falls between
         # two sub-iterations that are not a multiple of dem.nsubit (islands have no regrid).
-        rows = self.check_restart(HCS, 0.0041, 0.00205, ["dem.scheme=islands",
+        rows = self.check_restart(HCS, 0.0041, 0.00205, ["dem.scheme=islands", "dem.nsubit=10",
                                                          "output.interval=0.0005"])
         self.assertGreater(float(rows[-1][rows[0].index("fine_leaf_fraction")]), 0.0)
+
+    def test_islands_auto_hcs_bitwise(self):
+        # dem.nsubit = "auto": the chosen length, its running means and its log are state; the
+        # loop steps control intervals (dem.regrid_interval). A rerun on one thread is the same
+        # run to the bit, and run.json logs the choices.
+        rows = self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=islands", "dem.nsubit=auto",
+                                                      "output.interval=0.0005"])
+        self.assertEqual(len(rows), 1 + 9)
+        one = os.path.join(self.tmp, "one_thread")
+        self.run_ok(HCS, "run.end_time=0.004", "output.snapshot_interval=0.002",
+                    "dem.scheme=islands", "dem.nsubit=auto", "output.interval=0.0005",
+                    "--threads", "1", "--out", one)
+        self.assertEqual(diagnostics(one), rows)
+        with open(os.path.join(one, "run.json")) as f:
+            run = json.load(f)
+        self.assertEqual(run["nsubit"], "auto")
+        self.assertEqual(run["bound_violations"], 0)
+        choices = run["nsubit_choices"]
+        self.assertGreaterEqual(len(choices), 2)
+        self.assertEqual(sum(c["intervals"] for c in choices), 40)
+        self.assertTrue(all(c["nsubit_min"] <= c["nsubit"] <= c["nsubit_max"] for c in choices))
+
+    def test_coupled_islands_auto_settling_bitwise(self):
+        # With a gas the interval is fluid.dt; the held force's change bounds the length.
+        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=auto",
+                                                    "output.interval=0.0005"])
 
     # Coupled scenes: N fluid steps + checkpoint + restart + N fluid steps = 2N fluid steps, to
     # the bit (gas velocities, pressure, eps_g history, loop position, pending row/snapshot).
@@ -390,11 +416,13 @@ class Restart(Tmp):
         self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=orb", "output.interval=0.0005"])
 
     def test_coupled_islands_hcs_gas_bitwise(self):
-        self.check_restart(HCS_GAS, 0.002, 0.001, ["dem.scheme=islands", "output.interval=0.0005"])
+        self.check_restart(HCS_GAS, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=10",
+                                                   "output.interval=0.0005"])
 
     def test_coupled_islands_settling_bitwise(self):
         # Walls (tied particles) and gravity with the held gas force in the speed bounds.
-        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "output.interval=0.0005"])
+        self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=10",
+                                                    "output.interval=0.0005"])
 
     def test_coupled_adaptive_fluid_step_bitwise(self):
         # fluid.dt = 0: each fluid step comes from the gas's CFL number (capped by fluid.max_dt)

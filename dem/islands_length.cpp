@@ -1,0 +1,136 @@
+// The islands scheme's dem.nsubit = "auto" (dem/subiteration_length.hpp): the control interval,
+// the choice at its end from counts summed over ranks, and the gas force's change bound.
+#include <algorithm>
+#include <cmath>
+
+#include "dem/islands_rank_part.hpp"
+#include "dem/islands_scheme.hpp"
+#include "dem/subiteration_length.hpp"
+
+namespace cfddem::dem {
+
+namespace {
+constexpr std::size_t kRow = IslandsScheme::kChoiceColumns.size();
+} // namespace
+
+std::int64_t IslandsScheme::begin_interval() {
+  if (!auto_.on)
+    return nsubit_;
+  const double D = auto_.interval;
+  const std::int64_t m_hi = length::most_subiterations(D, model_.dt);
+  if (auto_.log.empty())
+    auto_.log = {0.0,
+                 static_cast<double>(auto_.next),
+                 D / static_cast<double>(auto_.next),
+                 0.0,
+                 1.0,
+                 static_cast<double>(m_hi),
+                 0.0,
+                 1.0,
+                 1.0,
+                 length::kStart};
+  // With a gas the force just computed for this fluid step: its change since the last one
+  // bounds the length now (the choice at the last interval's end saw the change before).
+  std::int64_t m = auto_.next;
+  if (auto_.gas_dA > 0.0) {
+    const std::int64_t lo = std::min(m_hi, length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref));
+    if (lo > m) {
+      m = lo;
+      auto_.log.insert(auto_.log.end(),
+                       {static_cast<double>(auto_.intervals) * D, static_cast<double>(m),
+                        D / static_cast<double>(m), 0.0, static_cast<double>(lo),
+                        static_cast<double>(m_hi), 0.0, 1.0, 1.0, length::kGas});
+    }
+    if (auto_.gas_aref > 0.0)
+      auto_.gas_ratio_max =
+          std::max(auto_.gas_ratio_max, auto_.gas_dA / (static_cast<double>(m) * auto_.gas_aref));
+  }
+  auto_.log[auto_.log.size() - kRow + 3] += 1.0; // the row in force counts this interval
+  nsubit_ = m;
+  dt_sp_ = D / static_cast<double>(m);
+  auto_.t0 = static_cast<double>(auto_.intervals) * D;
+  ++auto_.intervals;
+  auto_.subits_base = st_.subits;
+  auto_.q = 0;
+  return nsubit_;
+}
+
+// At the end of an interval: the next interval's m (dem/subiteration_length.hpp), from this
+// sub-iteration's rows and bounds and the fine fractions measured since the last choice.
+void IslandsScheme::choose_length() {
+  const double D = auto_.interval;
+  const std::int64_t m_hi = length::most_subiterations(D, model_.dt);
+  std::vector<std::int64_t> hist(static_cast<std::size_t>(m_hi) + 1, 0);
+  double s_max = 0.0;
+  length::RowsView v{
+      {}, {}, p_.x.data(), p_.y.data(), p_.z.data(), p_.radius.data(), ln_.bound.data(), owned_};
+  if (rank_) {
+    // The ghosts at their owners' positions now, as one rank sees them (one message round per
+    // interval; the next sub-iteration forwards them again).
+    std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z};
+    rank_->exchange.forward_columns(cols);
+    v.offsets = rank_->rows.off(), v.neighbors = rank_->rows.nb();
+  } else if (one_.built)
+    v.offsets = one_.list.offsets(), v.neighbors = one_.list.neighbors();
+  if (ln_.bound.size() >= p_.size() && v.offsets.size() == owned_ + 1) {
+    length::first_contact_histogram(v, geom_, margin_, D, m_hi, hist);
+    for (std::size_t i = 0; i < owned_; ++i)
+      s_max = std::max(s_max, ln_.bound[i]);
+  }
+  if (rank_) {
+    rank_->comm.sum(std::span<std::int64_t>(hist));
+    s_max = rank_->comm.max(s_max);
+  }
+  const double N = static_cast<double>(n_global_);
+  double busy_now = 0.0;
+  for (std::int64_t c = std::min(nsubit_, m_hi); c <= m_hi; ++c)
+    busy_now += static_cast<double>(hist[static_cast<std::size_t>(c)]);
+  const double fine_now =
+      auto_.fine_count > 0 ? auto_.fine_sum / static_cast<double>(auto_.fine_count) * N : busy_now;
+  const double w = length::kSmoothing;
+  if (auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size()) {
+    auto_.hist_avg.assign(hist.begin(), hist.end());
+    auto_.fine_avg = fine_now, auto_.busy_avg = busy_now;
+  } else {
+    for (std::size_t c = 0; c < hist.size(); ++c)
+      auto_.hist_avg[c] += w * (static_cast<double>(hist[c]) - auto_.hist_avg[c]);
+    auto_.fine_avg += w * (fine_now - auto_.fine_avg);
+    auto_.busy_avg += w * (busy_now - auto_.busy_avg);
+  }
+  const double rho = std::clamp((auto_.fine_avg + 1.0) / (auto_.busy_avg + 1.0), 0.25, 4.0);
+  const std::int64_t lo_skin = length::fewest_for_skin(D, s_max, skin_);
+  const std::int64_t lo_gas = length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref);
+  const length::Choice c =
+      length::choose(auto_.hist_avg, N, D, model_.dt, rho, std::max(lo_skin, lo_gas), m_hi, nsubit_,
+                     lo_gas > lo_skin ? length::kGas : length::kSkin);
+  auto_.next = c.m;
+  auto_.fine_sum = 0.0, auto_.fine_count = 0;
+  const std::size_t last = auto_.log.size() - kRow;
+  if (auto_.log[last + 1] != static_cast<double>(c.m))
+    auto_.log.insert(auto_.log.end(),
+                     {time(), static_cast<double>(c.m), D / static_cast<double>(c.m), 0.0,
+                      static_cast<double>(c.m_lo), static_cast<double>(c.m_hi), c.busy_estimate,
+                      c.rho, c.cost_ratio, static_cast<double>(c.reason)});
+}
+
+// Collective on R ranks. The largest change of a held acceleration from the force held so far to
+// `f`, and the largest held acceleration of `f` (or |g|): the gas bound of the next intervals.
+void IslandsScheme::note_gas_change(std::span<const double> fx, std::span<const double> fy,
+                                    std::span<const double> fz) {
+  double m[2] = {0.0, std::sqrt(model_.gravity[0] * model_.gravity[0] +
+                                model_.gravity[1] * model_.gravity[1] +
+                                model_.gravity[2] * model_.gravity[2])};
+  if (ext_.active() && fx.size() == owned_ && ext_.x.size() >= owned_ && fy.size() == owned_ &&
+      fz.size() == owned_)
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const double ex = fx[i] - ext_.x[i], ey = fy[i] - ext_.y[i], ez = fz[i] - ext_.z[i];
+      m[0] = std::max(m[0], std::sqrt(ex * ex + ey * ey + ez * ez) * p_.inv_mass[i]);
+      m[1] =
+          std::max(m[1], std::sqrt(fx[i] * fx[i] + fy[i] * fy[i] + fz[i] * fz[i]) * p_.inv_mass[i]);
+    }
+  if (rank_)
+    rank_->comm.max(std::span<double>(m));
+  auto_.gas_dA = m[0], auto_.gas_aref = m[1];
+}
+
+} // namespace cfddem::dem

@@ -1,0 +1,148 @@
+#include "dem/subiteration_length.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "dem/islands_kernels.hpp"
+#include "dem/scheme_support.hpp"
+
+namespace cfddem::dem::length {
+
+namespace {
+
+// The candidates m in [1, m_hi] with m < D / tau (tau: a first-contact time).
+std::int64_t fine_candidates(double tau, double D, std::int64_t m_hi) {
+  if (!(tau > 0.0))
+    return m_hi; // in contact now (or a NaN the fault check reports): fine at every length
+  const double q = D / tau;
+  if (!(q < static_cast<double>(m_hi) + 1.0))
+    return m_hi;
+  // m < q for m = 1 .. ceil(q) - 1.
+  return std::max<std::int64_t>(0, static_cast<std::int64_t>(std::ceil(q)) - 1);
+}
+
+} // namespace
+
+void first_contact_histogram(const RowsView& v, const DomainGeometry& g, double margin, double D,
+                             std::int64_t m_hi, std::span<std::int64_t> hist) {
+  const std::uint32_t* off = v.offsets.data();
+  const std::uint32_t* nb = v.neighbors.data();
+  for (std::size_t i = 0; i < v.n; ++i) {
+    const double si = v.bound[i], ri = v.radius[i];
+    double tau = std::numeric_limits<double>::infinity();
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      const double dx = g.image(v.x[j] - v.x[i], 0), dy = g.image(v.y[j] - v.y[i], 1),
+                   dz = g.image(v.z[j] - v.z[i], 2);
+      const double d2 = dx * dx + dy * dy + dz * dz;
+      // Pairs that cannot link even over D: no sqrt.
+      if (!islands::may_touch(d2, si, v.bound[j], ri, v.radius[j], D, margin))
+        continue;
+      const double gap = std::sqrt(d2) - ri - v.radius[j] - margin;
+      const double s = si + v.bound[j];
+      tau = std::min(tau, gap <= 0.0 ? 0.0 : gap / s);
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a])
+        continue;
+      const double pos = a == 0 ? v.x[i] : a == 1 ? v.y[i] : v.z[i];
+      const double gap = std::min(pos - g.lo[a], g.hi[a] - pos) - ri - margin;
+      if (gap <= 0.0)
+        tau = 0.0;
+      else if (si > 0.0)
+        tau = std::min(tau, gap / si);
+    }
+    const std::int64_t c = fine_candidates(tau, D, m_hi);
+    if (c > 0)
+      ++hist[static_cast<std::size_t>(c)];
+  }
+}
+
+const char* reason_text(int r) {
+  switch (r) {
+  case kStart:
+    return "start: the first interval takes dem.nsubit's default count";
+  case kMinCost:
+    return "least modelled cost per interval";
+  case kSkin:
+    return "least cost within the skin bound (longer sub-iterations would outrun the list)";
+  case kGas:
+    return "least cost within the gas force's change bound";
+  case kFine:
+    return "least cost at the fine step (dt_sp = fine dt)";
+  case kKept:
+    return "kept: no other count saves 10% of the modelled cost";
+  default:
+    return "?";
+  }
+}
+
+Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
+              std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason) {
+  m_lo = std::clamp<std::int64_t>(m_lo, 1, m_hi);
+  // busy[m] = sum over c >= m of hist[c].
+  std::vector<double> busy(static_cast<std::size_t>(m_hi) + 2, 0.0);
+  for (std::int64_t m = m_hi; m >= 1; --m)
+    busy[static_cast<std::size_t>(m)] =
+        busy[static_cast<std::size_t>(m) + 1] + hist[static_cast<std::size_t>(m)];
+  auto cost = [&](std::int64_t m) {
+    const double dt = D / static_cast<double>(m);
+    const double fine = std::min(N, rho * busy[static_cast<std::size_t>(m)]);
+    const auto K = static_cast<double>(fine_steps(dt, dt_fine).K);
+    return static_cast<double>(m) * (kPerParticle * N + kPerFineStep * fine * K);
+  };
+  Choice c;
+  c.m_lo = m_lo, c.m_hi = m_hi, c.rho = rho;
+  double best = std::numeric_limits<double>::infinity();
+  std::int64_t free_best = 1;
+  double free_cost = std::numeric_limits<double>::infinity();
+  for (std::int64_t m = 1; m <= m_hi; ++m) {
+    const double q = cost(m);
+    if (q < free_cost)
+      free_cost = q, free_best = m;
+    if (m >= m_lo && q < best)
+      best = q, c.m = m;
+  }
+  c.reason = free_best < m_lo ? lo_reason : c.m == m_hi && m_hi > 1 ? kFine : kMinCost;
+  // Hysteresis: the previous m is kept unless the best saves kMinGain of its modelled cost (the
+  // fine count of a dilute scene is small and noisy; a change for less is not worth a row).
+  const std::int64_t prev = std::clamp<std::int64_t>(m_prev, m_lo, m_hi);
+  const double prev_cost = cost(prev);
+  c.cost_ratio = prev_cost > 0.0 ? best / prev_cost : 1.0; // no particles: nothing to gain
+  if (c.cost_ratio > 1.0 - kMinGain && prev == m_prev) {
+    c.m = prev, c.cost_ratio = 1.0;
+    c.reason = kKept;
+  }
+  c.busy_estimate = std::min(N, rho * busy[static_cast<std::size_t>(c.m)]);
+  return c;
+}
+
+std::int64_t most_subiterations(double D, double dt_fine) {
+  if (!(dt_fine > 0.0) || !(D > dt_fine))
+    return 1;
+  return std::max<std::int64_t>(1,
+                                static_cast<std::int64_t>(std::floor(D / dt_fine * (1 + 1e-12))));
+}
+
+std::int64_t fewest_for_skin(double D, double s_max, double skin) {
+  if (!(s_max > 0.0) || !(skin > 0.0))
+    return 1;
+  const double q = 4.0 * s_max * D / skin;
+  if (!(q < 1e15))
+    return std::numeric_limits<std::int64_t>::max() / 4;
+  return std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(q)));
+}
+
+std::int64_t fewest_for_gas(double dA, double a_ref) {
+  if (!(dA > 0.0))
+    return 1;
+  if (!(a_ref > 0.0))
+    return std::numeric_limits<std::int64_t>::max() / 4;
+  const double q = dA / (kGasChangeBound * a_ref);
+  if (!(q < 1e15))
+    return std::numeric_limits<std::int64_t>::max() / 4;
+  return std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(q)));
+}
+
+} // namespace cfddem::dem::length

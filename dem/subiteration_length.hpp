@@ -1,0 +1,97 @@
+// The islands scheme's sub-iteration length under dem.nsubit = "auto": the number m of
+// sub-iterations per control interval D (dem.regrid_interval without a gas, fluid.dt with one),
+// dt_sp = D / m, chosen at the end of every interval for the next one from counts only (never
+// from clocks: the choice, and hence the run, is the same on a rerun, after a restart and for any
+// thread count).
+//
+// The cost of an interval in m sub-iterations is modelled in instructions:
+//   C(m) = m [c_o N + c_f rho B(D/m) K(D/m)],
+// N the particles, B(dt) those in an island over a sub-iteration of dt (fine), K(dt) =
+// ceil(dt / dt_fine) their steps, c_o the per-particle bookkeeping of a sub-iteration (speed
+// bound, list check, link scan, free flight), c_f one fine particle step with its pairs. B(dt)
+// is counted from the current state: a particle joins an island over dt when the link test
+//   |x_j - x_i| - (r_i + r_j) < (s_i + s_j) dt + margin
+// holds for some row partner (or its wall gap is below s_i dt + margin), i.e. when dt exceeds
+// its first-contact time tau_i = min_j (gap_ij - margin) / (s_i + s_j); tau_i <= 0 for a
+// particle in contact. So B(D/m) counts the particles with m < D / tau_i, one histogram over m
+// for every candidate at once (summed over ranks: every rank chooses alike). rho, the ratio of
+// the fine particles measured over the last interval to B at its length, carries what the
+// first-contact count misses (islands raised by their energy bound). The chosen m minimises
+// C(m) over [m_lo, m_hi]: m_hi keeps dt_sp at least the fine step (shorter gains nothing);
+// m_lo keeps the fastest particle's reach 2 s_max dt_sp within half the list's skin (longer
+// sub-iterations would rebuild the list every time, and rows beyond the skin are not counted),
+// and with a gas the held force's change bound (gas_force_floor).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "dem/domain_geometry.hpp"
+
+namespace cfddem::dem::length {
+
+// Instructions per particle per sub-iteration (speed bound, list check, link scan, free flight)
+// and per fine particle step (its force pairs and update), from callgrind on HCS 1222 (islands,
+// 3 ms at nsubit 5, 20 and 80; docs/schemes.md): 89 and 270-310.
+inline constexpr double kPerParticle = 90.0;
+inline constexpr double kPerFineStep = 280.0;
+// With a gas: the held force's change over one sub-iteration, at the rate it changed over the
+// last fluid step, at most this fraction of the largest held acceleration (or |g|).
+inline constexpr double kGasChangeBound = 0.1;
+
+// The rows and columns the first-contact scan reads: rows of particles [0, n) (both directions:
+// each row holds every partner), positions, radii, speed bounds of rows' particles and partners.
+struct RowsView {
+  std::span<const std::uint32_t> offsets, neighbors;
+  const double *x, *y, *z, *radius, *bound;
+  std::size_t n;
+};
+
+// Adds to hist[c] (size m_hi + 1) each particle of [0, n) with c >= 1 candidates m in
+// [1, m_hi] for which it is fine (m < D / tau_i; c = m_hi when tau_i <= 0). Pairs use the
+// minimum image; walls of non-periodic axes count.
+void first_contact_histogram(const RowsView& v, const DomainGeometry& g, double margin, double D,
+                             std::int64_t m_hi, std::span<std::int64_t> hist);
+
+// What the choice saw and why it took its m (one row of run.json's nsubit_choices).
+struct Choice {
+  std::int64_t m = 1, m_lo = 1, m_hi = 1;
+  double busy_estimate = 0.0; // rho B(D / m)
+  double rho = 1.0;
+  double cost_ratio = 1.0; // C(m) / C(m_previous): the gain predicted for the change
+  int reason = 0;          // Reason
+};
+enum Reason : int {
+  kStart = 0,   // the first interval: dem.nsubit's integer default
+  kMinCost = 1, // the model's least cost within [m_lo, m_hi]
+  kSkin = 2,    // the least cost lies below m_lo set by the skin
+  kGas = 3,     // ... set by the gas force's change bound
+  kFine = 4,    // ... above m_hi: dt_sp is the fine step
+  kKept = 5,    // the previous m: the best saves less than kMinGain
+};
+// The weight of the newest interval in the running means of the first-contact histogram and of
+// the fine counts (about the last 1 / kSmoothing intervals count: a dilute scene has ~10 fine
+// particles per sub-iteration, too few for one interval's count to choose by).
+inline constexpr double kSmoothing = 0.125;
+// The modelled saving below which the previous m is kept.
+inline constexpr double kMinGain = 0.1;
+const char* reason_text(int r);
+
+// The least-cost m in [m_lo, m_hi] (the smallest m among equals; m_prev kept unless the best
+// saves kMinGain of its cost) from hist (first_contact_
+// histogram over all particles, or a running mean of it), N particles, D, the fine step, rho, the
+// previous m and which bound set m_lo (kSkin or kGas).
+Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
+              std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason);
+
+// m_hi: the most sub-iterations whose dt_sp = D / m is still at least the fine step (>= 1).
+std::int64_t most_subiterations(double D, double dt_fine);
+// The fewest sub-iterations with 2 s_max D / m <= skin / 2 (>= 1).
+std::int64_t fewest_for_skin(double D, double s_max, double skin);
+// The fewest with the gas force's change bound: dA D / m / D <= kGasChangeBound a_ref, i.e.
+// m >= dA / (kGasChangeBound a_ref) (dA: the largest change of a held acceleration over the
+// last fluid step; a_ref: the largest held acceleration or |g|). 1 without a change.
+std::int64_t fewest_for_gas(double dA, double a_ref);
+
+} // namespace cfddem::dem::length

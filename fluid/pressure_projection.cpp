@@ -351,17 +351,36 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
                                               ProjectionReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
+  // The hierarchy (coarse coefficients, line factors, coarsest Cholesky) is rebuilt only when a
+  // face coefficient changed: the corrector of a gas step projects with the predictor's eps and
+  // mobility, so its set-up would repeat the predictor's bit for bit (hypre's path likewise
+  // keeps its set-up while the matrix is unchanged). Rows are TBB tasks; each marks its plane.
+  changed_planes_.assign(static_cast<std::size_t>(n[2]) + 1, 0);
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     const double inv_dx2 = 1.0 / (grid_.spacing(a) * grid_.spacing(a));
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
     hi[a] = n[a]; // faces 0..n along a
-    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
-      const auto f = static_cast<std::size_t>(p);
-      face_coef_[a][f] = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+    for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int k) {
+      bool changed = false;
+      for (std::ptrdiff_t p = row; p <= row + hi[0]; ++p) {
+        const auto f = static_cast<std::size_t>(p);
+        const double coef = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+        changed = changed || coef != face_coef_[a][f];
+        face_coef_[a][f] = coef;
+      }
+      if (changed) {
+        changed_planes_[static_cast<std::size_t>(k)] = 1; // only this plane's rows write it
+      }
     });
   }
-  mg_->set_coefficients(face_coef_);
+  const bool changed = !mg_ready_ || std::find(changed_planes_.begin(), changed_planes_.end(), 1) !=
+                                         changed_planes_.end();
+  if (changed) {
+    mg_->set_coefficients(face_coef_);
+    mg_ready_ = true;
+    ++mg_setups_;
+  }
   // Cell (i, j, k) is entry m = i + n0 (j + n1 k) of the solver's vectors; rows are TBB tasks.
   for_box_rows(
       layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {

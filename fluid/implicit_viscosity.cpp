@@ -60,43 +60,6 @@ double cv_face_eps(const double* ep, std::ptrdiff_t p, std::ptrdiff_t sa, std::p
                       : 0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]);
 }
 
-// f(p, sum) for every point p of the box lo..hi of component comp's faces, with
-// sum = sum_b (e_hi (q[p + s_b] - q[p]) - e_lo (q[p] - q[p - s_b])) / h_b^2 over b = x, y, z in
-// that order (e: cv_face_eps; the incoming gas's eps on an inflow plane). Rows are TBB tasks;
-// the inflow flags of the y and z faces are constant along a row and taken once per row.
-template <class F>
-void for_viscous_sums(const MacGrid& grid, const std::array<std::array<bool, 2>, 3>& inflow,
-                      int comp, const double* ep, const double* q, const std::array<int, 3>& lo,
-                      const std::array<int, 3>& hi, F&& f) {
-  const GridLayout& layout = grid.layout();
-  const std::ptrdiff_t sa = layout.stride(comp);
-  const std::array<std::ptrdiff_t, 3> st = {layout.stride(0), layout.stride(1), layout.stride(2)};
-  std::array<double, 3> inv_dx2{};
-  for (int b = 0; b < 3; ++b) {
-    inv_dx2[b] = 1.0 / (grid.spacing(b) * grid.spacing(b));
-  }
-  const int last_x = grid.cells(0) - 1;
-  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
-    const std::array<int, 3> at = {0, j, k};
-    std::array<std::array<bool, 2>, 3> flag{};
-    for (int b = 1; b < 3; ++b) {
-      flag[b] = {inflow[b][0] && at[b] == 0, inflow[b][1] && at[b] == grid.cells(b) - 1};
-    }
-    for (int i = lo[0]; i <= hi[0]; ++i) {
-      const std::ptrdiff_t p = row + (i - lo[0]);
-      flag[0] = {inflow[0][0] && i == 0, inflow[0][1] && i == last_x};
-      double sum = 0.0;
-      for (int b = 0; b < 3; ++b) {
-        const std::ptrdiff_t sb = st[b];
-        const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, flag[b][0]);
-        const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, flag[b][1]);
-        sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2[b];
-      }
-      f(p, sum);
-    }
-  });
-}
-
 } // namespace
 
 ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
@@ -135,25 +98,44 @@ bool ImplicitViscosity::inflow_plane(int b, int side, const std::array<int, 3>& 
 
 void ImplicitViscosity::laplacian(int comp, double mu, double rho, const GridField& eps,
                                   const GridField& u, GridField& lap) const {
+  const GridLayout& layout = grid_.layout();
   const double* ep = eps.values().data();
-  const std::ptrdiff_t sa = grid_.layout().stride(comp);
+  const double* q = u.values().data();
+  const std::ptrdiff_t sa = layout.stride(comp);
   std::array<int, 3> hi = {grid_.cells(0) - 1, grid_.cells(1) - 1, grid_.cells(2) - 1};
   hi[comp] = grid_.cells(comp);
-  for_viscous_sums(grid_, inflow_, comp, ep, u.values().data(), {0, 0, 0}, hi,
-                   [&](std::ptrdiff_t p, double sum) {
-                     lap[static_cast<std::size_t>(p)] =
-                         mu * sum / (rho * 0.5 * (ep[p] + ep[p - sa]));
-                   });
+  for_box_indexed(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
+    double sum = 0.0;
+    for (int b = 0; b < 3; ++b) {
+      const std::ptrdiff_t sb = layout.stride(b);
+      const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx));
+      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx));
+      sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
+    }
+    lap[static_cast<std::size_t>(p)] = mu * sum / (rho * 0.5 * (ep[p] + ep[p - sa]));
+  });
 }
 
 void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const GridField& diag,
                               const GridField& x, GridField& y) const {
+  const GridLayout& layout = grid_.layout();
+  const double* ep = eps.values().data();
   const double* q = x.values().data();
-  for_viscous_sums(grid_, inflow_, comp, eps.values().data(), q, unknown_lo(comp), unknown_hi(comp),
-                   [&](std::ptrdiff_t p, double sum) {
-                     const auto m = static_cast<std::size_t>(p);
-                     y[m] = diag[m] * q[p] - c * sum;
-                   });
+  const std::ptrdiff_t sa = layout.stride(comp);
+  for_box_indexed(
+      layout, unknown_lo(comp), unknown_hi(comp),
+      [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
+        double sum = 0.0;
+        for (int b = 0; b < 3; ++b) {
+          const std::ptrdiff_t sb = layout.stride(b);
+          const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+          const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx));
+          const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx));
+          sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
+        }
+        y[static_cast<std::size_t>(p)] = diag[static_cast<std::size_t>(p)] * q[p] - c * sum;
+      });
 }
 
 double ImplicitViscosity::dot(const GridField& a, const GridField& b, int comp) const {

@@ -12,6 +12,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
+#include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/grid_move.hpp"
@@ -304,7 +305,7 @@ double GasCoupling::cfl_dt() const {
 }
 
 fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
-  eps_prev_ = solver_->volume_fraction();
+  fluid::copy_field(solver_->volume_fraction(), eps_prev_);
   const std::size_t n = std::min(owned, p.size());
   deposit(p, n);
   int substeps = 0;

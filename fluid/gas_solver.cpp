@@ -231,7 +231,9 @@ GasStepReport GasSolver::step(double dt) {
   // so the returned field satisfies the constraint whatever u^n did.
   // With implicit viscosity the predictor is backward Euler and the corrector trapezoidal in
   // the Laplacian part div(eps mu grad u).
-  u_start_ = u_;
+  for (int a = 0; a < 3; ++a) {
+    copy_field(u_[a], u_start_[a]);
+  }
   momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
   if (implicit && settings_.time_order == 2) {
     for (int a = 0; a < 3; ++a) {
@@ -245,7 +247,7 @@ GasStepReport GasSolver::step(double dt) {
     stage(dt, 2, report);
   }
   fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
-  eps_old_ = eps_;
+  copy_field(eps_, eps_old_);
   return report;
 }
 
@@ -254,8 +256,8 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
     throw std::runtime_error(fmt::format("fluid advance: interval {} is not positive", interval));
   }
   // eps_g of the fluid step's end and start (members: no allocation per fluid step).
-  eps_target_ = eps_;
-  eps_start_ = eps_old_;
+  copy_field(eps_, eps_target_);
+  copy_field(eps_old_, eps_start_);
   const GridField& target = eps_target_;
   const GridField& start = eps_start_;
   GasStepReport total;
@@ -289,8 +291,8 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
     t += dt;
     ++count;
   }
-  eps_ = target;
-  eps_old_ = target;
+  copy_field(target, eps_);
+  copy_field(target, eps_old_);
   if (substeps != nullptr) {
     *substeps = count;
   }

@@ -100,24 +100,48 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
     inflow[a] = {grid.inflow_face(a, 0), grid.inflow_face(a, 1)};
   }
   // Rows of cells as TBB tasks: each cell is written once, from values this loop does not write.
-  for_box_rows(
-      layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
-        for (int i = 0; i < n[0]; ++i) {
-          const std::array<int, 3> cell = {i, j, k};
-          const std::size_t c = static_cast<std::size_t>(row + i);
-          double sum = 0.0;
-          for (int a = 0; a < 3; ++a) {
-            const std::ptrdiff_t s = layout.stride(a);
-            const std::size_t up = c + static_cast<std::size_t>(s);
-            const double eps_lo =
-                cell[a] == 0 && inflow[a][0] ? kInflowVolumeFraction : face_eps(eps, c, s);
-            const double eps_hi =
-                cell[a] == n[a] - 1 && inflow[a][1] ? kInflowVolumeFraction : face_eps(eps, up, s);
-            sum += (eps_hi * u[a][up] - eps_lo * u[a][c]) / grid.spacing(a);
-          }
-          div[c] = sum;
-        }
-      });
+  // Along a row the y and z faces' inflow flags are constant; the x faces' apply at the row's
+  // ends only, which are recomputed with them after the (vectorizable) row loop.
+  const std::array<double, 3> h = {grid.spacing(0), grid.spacing(1), grid.spacing(2)};
+  const std::array<std::ptrdiff_t, 3> st = {layout.stride(0), layout.stride(1), layout.stride(2)};
+  const double* __restrict e = eps.values().data();
+  const double* __restrict u0 = u[0].values().data();
+  const double* __restrict u1 = u[1].values().data();
+  const double* __restrict u2 = u[2].values().data();
+  double* __restrict out = div.values().data();
+  for_box_rows(layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1},
+               [&](std::ptrdiff_t row, int j, int k) {
+                 const bool lo1 = j == 0 && inflow[1][0];
+                 const bool hi1 = j == n[1] - 1 && inflow[1][1];
+                 const bool lo2 = k == 0 && inflow[2][0];
+                 const bool hi2 = k == n[2] - 1 && inflow[2][1];
+                 const std::ptrdiff_t s1 = st[1];
+                 const std::ptrdiff_t s2 = st[2];
+                 // The divergence of cell c, the x faces' volume fractions given: terms x, y, z in
+                 // order.
+                 const auto cell = [&](std::ptrdiff_t c, double elo0, double ehi0) {
+                   const double elo1 = lo1 ? kInflowVolumeFraction : 0.5 * (e[c] + e[c - s1]);
+                   const double ehi1 = hi1 ? kInflowVolumeFraction : 0.5 * (e[c + s1] + e[c]);
+                   const double elo2 = lo2 ? kInflowVolumeFraction : 0.5 * (e[c] + e[c - s2]);
+                   const double ehi2 = hi2 ? kInflowVolumeFraction : 0.5 * (e[c + s2] + e[c]);
+                   double sum = 0.0;
+                   sum += (ehi0 * u0[c + 1] - elo0 * u0[c]) / h[0];
+                   sum += (ehi1 * u1[c + s1] - elo1 * u1[c]) / h[1];
+                   sum += (ehi2 * u2[c + s2] - elo2 * u2[c]) / h[2];
+                   return sum;
+                 };
+                 for (std::ptrdiff_t c = row; c < row + n[0]; ++c) {
+                   out[c] = cell(c, 0.5 * (e[c] + e[c - 1]), 0.5 * (e[c + 1] + e[c]));
+                 }
+                 if (inflow[0][0] || inflow[0][1]) {
+                   for (const std::ptrdiff_t c : {row, row + n[0] - 1}) {
+                     const bool lo0 = c == row && inflow[0][0];
+                     const bool hi0 = c == row + n[0] - 1 && inflow[0][1];
+                     out[c] = cell(c, lo0 ? kInflowVolumeFraction : 0.5 * (e[c] + e[c - 1]),
+                                   hi0 ? kInflowVolumeFraction : 0.5 * (e[c + 1] + e[c]));
+                   }
+                 }
+               });
 }
 
 PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
@@ -366,7 +390,7 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
       for (std::ptrdiff_t p = row; p <= row + hi[0]; ++p) {
         const auto f = static_cast<std::size_t>(p);
         const double coef = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
-        changed = changed || coef != face_coef_[a][f];
+        changed |= coef != face_coef_[a][f]; // no short circuit: the row vectorizes
         face_coef_[a][f] = coef;
       }
       if (changed) {
@@ -382,27 +406,40 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
     ++mg_setups_;
   }
   // Cell (i, j, k) is entry m = i + n0 (j + n1 k) of the solver's vectors; rows are TBB tasks.
+  // An outflow face's 2 K_f p_out (ghost 2 p_out - phi) is added after the row's -(div + source),
+  // axis by axis: on the x sides to the row's end cells, on the y and z sides to whole rows.
   for_box_rows(
       layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
-        std::size_t m = static_cast<std::size_t>(n[0]) *
-                        (static_cast<std::size_t>(j) +
-                         static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
-        for (int i = 0; i < n[0]; ++i, ++m) {
-          const std::array<int, 3> cell = {i, j, k};
-          const std::size_t c = static_cast<std::size_t>(row + i);
-          double rhs = -(div_[c] + source[c]);
-          for (int a = 0; a < 3; ++a) {
-            for (int side = 0; side < 2; ++side) {
-              const BoundaryCondition& bc = grid_.bc(a, side);
-              if (bc.kind == BoundaryKind::outflow && cell[a] == (side == 0 ? 0 : n[a] - 1)) {
-                const std::size_t f =
-                    side == 0 ? c : c + static_cast<std::size_t>(layout.stride(a));
-                rhs += 2.0 * face_coef_[a][f] * bc.pressure; // ghost 2 p_out - phi
+        const std::size_t m = static_cast<std::size_t>(n[0]) *
+                              (static_cast<std::size_t>(j) +
+                               static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
+        const auto c0 = static_cast<std::size_t>(row);
+        double* __restrict out = rhs_.data() + m;
+        for (int i = 0; i < n[0]; ++i) {
+          const std::size_t c = c0 + static_cast<std::size_t>(i);
+          out[i] = -(div_[c] + source[c]);
+          solution_[m + static_cast<std::size_t>(i)] = phi[c];
+        }
+        const std::array<int, 3> at = {0, j, k};
+        for (int a = 0; a < 3; ++a) {
+          for (int side = 0; side < 2; ++side) {
+            const BoundaryCondition& bc = grid_.bc(a, side);
+            if (bc.kind != BoundaryKind::outflow) {
+              continue;
+            }
+            const int edge = side == 0 ? 0 : n[a] - 1;
+            const std::size_t up = side == 0 ? 0 : static_cast<std::size_t>(layout.stride(a));
+            const double* coef = face_coef_[a].values().data();
+            if (a == 0) {
+              const auto i = static_cast<std::size_t>(edge);
+              out[i] += 2.0 * coef[c0 + i + up] * bc.pressure;
+            } else if (at[a] == edge) {
+              for (int i = 0; i < n[0]; ++i) {
+                const std::size_t f = c0 + static_cast<std::size_t>(i) + up;
+                out[i] += 2.0 * coef[f] * bc.pressure;
               }
             }
           }
-          rhs_[m] = rhs;
-          solution_[m] = phi[c];
         }
       });
   const MultigridReport mr =

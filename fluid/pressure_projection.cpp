@@ -615,32 +615,57 @@ void PressureProjection::correct(std::array<GridField, 3>& u,
     const double inv_dx = 1.0 / grid_.spacing(a);
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
     hi[a] = n[a]; // faces 0..n along a
+    const bool open_lo = grid_.exchanged(a, 0);
+    const bool open_hi = grid_.exchanged(a, 1);
+    // Faces between two cells of the box (or an exchanged side): grad = (phi_c - phi_below) / h.
+    const auto interior = [&](std::size_t f) {
+      const std::size_t below = f - static_cast<std::size_t>(s);
+      u[a][f] -= mobility[a][f] * ((phi[f] - phi[below]) * inv_dx);
+    };
+    // A face on the box's boundary along a (face index 0 or n).
+    const auto boundary = [&](std::size_t f, std::array<int, 3> face) {
+      const std::size_t below = f - static_cast<std::size_t>(s);
+      const int side = face[a] == 0 ? 0 : 1;
+      const BoundaryCondition& bc = grid_.bc(a, side);
+      double grad = 0.0;
+      if (bc.kind == BoundaryKind::periodic) {
+        if (side == 1) {
+          return; // face n is face 0, set below
+        }
+        face[a] = n[a] - 1;
+        grad = (phi[f] - phi(face[0], face[1], face[2])) * inv_dx;
+      } else if (bc.kind == BoundaryKind::outflow) {
+        grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
+                         : 2.0 * (bc.pressure - phi[below]) * inv_dx;
+      } else {
+        return; // wall or inflow: prescribed
+      }
+      u[a][f] -= mobility[a][f] * grad;
+    };
     for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int j, int k) {
-      for (int i = 0; i <= hi[0]; ++i) {
-        const std::array<int, 3> face = {i, j, k};
-        const std::size_t f = static_cast<std::size_t>(row + i);
-        const std::size_t below = f - static_cast<std::size_t>(s);
-        double grad = 0.0;
-        if ((face[a] > 0 || grid_.exchanged(a, 0)) && (face[a] < n[a] || grid_.exchanged(a, 1))) {
-          grad = (phi[f] - phi[below]) * inv_dx;
+      const auto f0 = static_cast<std::size_t>(row);
+      if (a != 0) {
+        const int at = a == 1 ? j : k; // the row's face index along a
+        if ((at > 0 || open_lo) && (at < n[a] || open_hi)) {
+          for (int i = 0; i <= hi[0]; ++i) {
+            interior(f0 + static_cast<std::size_t>(i));
+          }
         } else {
-          const int side = face[a] == 0 ? 0 : 1;
-          const BoundaryCondition& bc = grid_.bc(a, side);
-          if (bc.kind == BoundaryKind::periodic) {
-            if (side == 1) {
-              continue; // face n is face 0, set below
-            }
-            std::array<int, 3> last = face;
-            last[a] = n[a] - 1;
-            grad = (phi[f] - phi(last[0], last[1], last[2])) * inv_dx;
-          } else if (bc.kind == BoundaryKind::outflow) {
-            grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
-                             : 2.0 * (bc.pressure - phi[below]) * inv_dx;
-          } else {
-            continue; // wall or inflow: prescribed
+          for (int i = 0; i <= hi[0]; ++i) {
+            boundary(f0 + static_cast<std::size_t>(i), {i, j, k});
           }
         }
-        u[a][f] -= mobility[a][f] * grad;
+        return;
+      }
+      // Along x the row's first and last faces may lie on the boundary.
+      if (!open_lo) {
+        boundary(f0, {0, j, k});
+      }
+      for (int i = open_lo ? 0 : 1; i <= (open_hi ? n[0] : n[0] - 1); ++i) {
+        interior(f0 + static_cast<std::size_t>(i));
+      }
+      if (!open_hi) {
+        boundary(f0 + static_cast<std::size_t>(n[0]), {n[0], j, k});
       }
     });
     if (grid_.periodic(a) && !grid_.distributed()) {

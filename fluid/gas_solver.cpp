@@ -170,6 +170,11 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
 }
 
 GasStepReport GasSolver::step(double dt) {
+  fill_velocity_ghosts(grid_, halo_.get(), u_);
+  return step_with_ghosts(dt);
+}
+
+GasStepReport GasSolver::step_with_ghosts(double dt) {
   GasStepReport report;
   report.dt = dt;
   if (!(dt > 0.0) || !std::isfinite(dt)) {
@@ -178,7 +183,6 @@ GasStepReport GasSolver::step(double dt) {
         "CFL time step: set fixed_dt)",
         dt));
   }
-  fill_velocity_ghosts(grid_, halo_.get(), u_);
   report.courant = courant_number(dt);
   if (report.courant > kMaxStableCourant * (1.0 + 1e-12)) {
     throw std::runtime_error(fmt::format(
@@ -281,7 +285,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
                       });
-    const GasStepReport r = step(dt);
+    const GasStepReport r = step_with_ghosts(dt); // u's ghosts filled above
     total.dt = r.dt;
     total.courant = std::max(total.courant, r.courant);
     total.projection_iterations += r.projection_iterations;

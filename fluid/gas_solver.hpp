@@ -119,6 +119,8 @@ public:
 
 private:
   void stage(double dt, int order, GasStepReport& report);
+  // step(dt) once u's ghosts are filled (advance() fills them for its Courant number).
+  GasStepReport step_with_ghosts(double dt);
 
   MacGrid grid_;
   GasSolverSettings settings_;

@@ -102,9 +102,9 @@ void check_projection(const Case& c) {
 // one-cell x axis whose only cell touches two of them: equal bit for bit.
 TEST(FluxDivergence, EqualsTheCellByCellFormulaWithInflowOnEveryAxis) {
   MacGridSpec a = box_spec({5, 4, 3}, {5e-4, 4e-4, 3e-4}, BoundaryKind::wall);
-  a.bc[0].kind = BoundaryKind::inflow; // x lo
-  a.bc[3].kind = BoundaryKind::inflow; // y hi
-  a.bc[4].kind = BoundaryKind::inflow; // z lo
+  a.bc[0].kind = BoundaryKind::inflow;  // x lo
+  a.bc[3].kind = BoundaryKind::inflow;  // y hi
+  a.bc[4].kind = BoundaryKind::inflow;  // z lo
   a.bc[1].kind = BoundaryKind::outflow; // every inflow needs an outlet
   MacGridSpec b = box_spec({1, 4, 3}, {1e-4, 4e-4, 3e-4}, BoundaryKind::wall);
   b.bc[0].kind = BoundaryKind::inflow;

@@ -8,8 +8,11 @@
 #include <unordered_map>
 
 #include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
+#include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/grid_move.hpp"
@@ -117,6 +120,15 @@ void validate_fluid(const Scene& s) {
 }
 
 namespace {
+
+// f(i) for particles 0..n-1, blocks of them as TBB tasks.
+template <class F> void for_particles(std::size_t n, F&& f) {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i != r.end(); ++i)
+                        f(i);
+                    });
+}
 
 std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
   const fluid::MacGridSpec spec = fluid_grid_spec(scene);
@@ -246,10 +258,11 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   deposition_->deposit_solid_fraction(pos, eps_s_);
   fluid::GridField& eps = solver_->volume_fraction();
   const auto& nc = grid_.cells();
-  for (int k = 0; k < nc[2]; ++k)
+  tbb::parallel_for(0, nc[2], [&](int k) { // planes as tasks (pointwise)
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i)
         eps(i, j, k) = std::max(kMinGasFraction, 1.0 - eps_s_(i, j, k));
+  });
   // eps_g and the gas velocity (of the last step) at the particles, in one pass (over ranks,
   // from the fields with their exchanged ghosts).
   eps_p_.resize(n), beta_.resize(n);
@@ -267,18 +280,18 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     deposition_->interpolate(pos, in, out);
   }
   // beta_i from the drag law (docs/theory.md §4) with the slip |u_g - v_i|.
+  // Particle blocks as TBB tasks (each particle's values written once: thread-count free).
   const double rho = scene_.fluid.density, mu = scene_.fluid.viscosity;
-  for (std::size_t i = 0; i < n; ++i) {
+  const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
+  for_particles(n, [&](std::size_t i) {
     const double sx = ug_[0][i] - p.vx[i], sy = ug_[1][i] - p.vy[i], sz = ug_[2][i] - p.vz[i];
     const double slip = std::sqrt(sx * sx + sy * sy + sz * sz);
     const double e = std::clamp(eps_p_[i], kMinGasFraction, 1.0);
     beta_[i] = fluid::drag_beta(law_, e, 2.0 * p.radius[i], slip, rho, mu);
-  }
-  // beta_i and beta_i v_i to the cells, in one pass.
-  const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
-  for (int a = 0; a < 3; ++a)
-    for (std::size_t i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a)
       bv_[a][i] = beta_[i] * (*v[a])[i];
+  });
+  // beta_i and beta_i v_i to the cells, in one pass.
   fluid::GridField* cells[] = {&solver_->drag_coefficient(), &solver_->drag_velocity_sum(0),
                                &solver_->drag_velocity_sum(1), &solver_->drag_velocity_sum(2)};
   for (fluid::GridField* f : cells)
@@ -292,7 +305,7 @@ double GasCoupling::cfl_dt() const {
 }
 
 fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
-  eps_prev_ = solver_->volume_fraction();
+  fluid::copy_field(solver_->volume_fraction(), eps_prev_);
   const std::size_t n = std::min(owned, p.size());
   deposit(p, n);
   int substeps = 0;
@@ -327,14 +340,12 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     const std::span<double> out[] = {ug_[0], ug_[1], ug_[2], gp_[0], gp_[1], gp_[2]};
     deposition_->interpolate(pos, in, out);
   }
-  for (int a = 0; a < 3; ++a) {
-    const std::vector<double>& gp = gp_[a];
-    for (std::size_t i = 0; i < n; ++i) {
-      const double r = p.radius[i];
-      const double vp = (4.0 / 3.0) * std::numbers::pi * r * r * r;
-      force_[a][i] = beta_[i] * (ug_[a][i] - (*v[a])[i]) - vp * gp[i];
-    }
-  }
+  for_particles(n, [&](std::size_t i) {
+    const double r = p.radius[i];
+    const double vp = (4.0 / 3.0) * std::numbers::pi * r * r * r;
+    for (int a = 0; a < 3; ++a)
+      force_[a][i] = beta_[i] * (ug_[a][i] - (*v[a])[i]) - vp * gp_[a][i];
+  });
   return report;
 }
 

@@ -3,8 +3,10 @@
 // depend on the thread count or on how TBB splits the planes.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstddef>
+#include <span>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -41,6 +43,23 @@ void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::
       f(p);
     }
   });
+}
+
+// to = from (layout and values), blocks of the values as TBB tasks when the sizes agree (a copy
+// is exact in any order); otherwise a plain assignment (allocates).
+inline void copy_field(const GridField& from, GridField& to) {
+  if (to.values().size() != from.values().size()) {
+    to = from;
+    return;
+  }
+  const std::span<const double> in = from.values();
+  const std::span<double> out = to.values();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, in.size(), 16384),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      std::copy(in.begin() + static_cast<std::ptrdiff_t>(r.begin()),
+                                in.begin() + static_cast<std::ptrdiff_t>(r.end()),
+                                out.begin() + static_cast<std::ptrdiff_t>(r.begin()));
+                    });
 }
 
 } // namespace cfddem::fluid

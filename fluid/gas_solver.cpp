@@ -49,6 +49,8 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
     rhs_[a] = grid.make_field();
     rhs_stage_[a] = grid.make_field();
     mobility_[a] = grid.make_field();
+    drag_gain_[a] = grid.make_field();
+    drag_push_[a] = grid.make_field();
     beta_v_[a] = grid.make_field();
   }
   p_ = grid.make_field();
@@ -62,6 +64,9 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
     viscosity_->use_multigrid(settings.viscous_multigrid);
     for (GridField& l : lap_start_) {
       l = grid.make_field();
+    }
+    for (GridField& m : face_mass_) {
+      m = grid.make_field();
     }
     diag_ = grid.make_field();
     vrhs_ = grid.make_field();
@@ -125,32 +130,28 @@ GasStepReport GasSolver::step() {
 void GasSolver::stage(double dt, int order, GasStepReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
-  const double rho = settings_.gas.density;
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
-  // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)).
+  // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
+  // step() computed once for both stages.
   for (int a = 0; a < 3; ++a) {
-    const std::ptrdiff_t s = layout.stride(a);
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
     hi[a] = n[a]; // faces 0..n along a
+    const double* gain = drag_gain_[a].values().data();
+    const double* push = drag_push_[a].values().data();
     for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
       const auto f = static_cast<std::size_t>(p);
-      const std::size_t below = f - static_cast<std::size_t>(s);
-      const double eps_f = 0.5 * (eps_[f] + eps_[below]);
-      const double beta_f = 0.5 * (beta_[f] + beta_[below]);
-      const double beta_v_f = 0.5 * (beta_v_[a][f] + beta_v_[a][below]);
-      const double k_drag = dt / (rho * eps_f);
       double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
       if (viscosity_ && order == 2) {
         rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
       }
       if (!viscosity_) {
-        u_[a][f] = (u_start_[a][f] + dt * rate + k_drag * beta_v_f) / (1.0 + k_drag * beta_f);
+        u_[a][f] = (u_start_[a][f] + dt * rate + push[f]) / gain[f];
         return;
       }
       // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k
       // (beta v)_f)
-      diag_[f] = eps_f * rho * (1.0 + k_drag * beta_f);
-      vrhs_[f] = eps_f * rho * (u_start_[a][f] + dt * rate + k_drag * beta_v_f);
+      diag_[f] = face_mass_[a][f] * gain[f];
+      vrhs_[f] = face_mass_[a][f] * (u_start_[a][f] + dt * rate + push[f]);
     });
     if (viscosity_) {
       const double theta = order == 1 ? 1.0 : 0.5;
@@ -169,6 +170,11 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
 }
 
 GasStepReport GasSolver::step(double dt) {
+  fill_velocity_ghosts(grid_, halo_.get(), u_);
+  return step_with_ghosts(dt);
+}
+
+GasStepReport GasSolver::step_with_ghosts(double dt) {
   GasStepReport report;
   report.dt = dt;
   if (!(dt > 0.0) || !std::isfinite(dt)) {
@@ -177,7 +183,6 @@ GasStepReport GasSolver::step(double dt) {
         "CFL time step: set fixed_dt)",
         dt));
   }
-  fill_velocity_ghosts(grid_, halo_.get(), u_);
   report.courant = courant_number(dt);
   if (report.courant > kMaxStableCourant * (1.0 + 1e-12)) {
     throw std::runtime_error(fmt::format(
@@ -198,6 +203,10 @@ GasStepReport GasSolver::step(double dt) {
   // On wall and inflow faces the velocity is prescribed: their eps_f, mobility and drag are
   // computed here and in stage() but never read (the inflow's eps_g = 1 enters through
   // flux_divergence and the viscous stresses in the inflow plane).
+  // The same face averages give the stages' drag factors, 1 + k beta_f and k (beta v)_f with
+  // k = dt/(rho eps_f), and with implicit viscosity the face mass eps_f rho: computed here once
+  // for both stages (one pass over eps, beta and beta v per axis).
+  const bool implicit = static_cast<bool>(viscosity_);
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
@@ -207,7 +216,14 @@ GasStepReport GasSolver::step(double dt) {
       const std::size_t below = f - static_cast<std::size_t>(s);
       const double eps_f = 0.5 * (eps_[f] + eps_[below]);
       const double beta_f = 0.5 * (beta_[f] + beta_[below]);
+      const double beta_v_f = 0.5 * (beta_v_[a][f] + beta_v_[a][below]);
+      const double k_drag = dt / (rho * eps_f);
       mobility_[a][f] = dt / (rho + dt * beta_f / eps_f);
+      drag_gain_[a][f] = 1.0 + k_drag * beta_f;
+      drag_push_[a][f] = k_drag * beta_v_f;
+      if (implicit) {
+        face_mass_[a][f] = eps_f * rho;
+      }
     });
   }
   for_box(layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
@@ -219,8 +235,9 @@ GasStepReport GasSolver::step(double dt) {
   // so the returned field satisfies the constraint whatever u^n did.
   // With implicit viscosity the predictor is backward Euler and the corrector trapezoidal in
   // the Laplacian part div(eps mu grad u).
-  const bool implicit = static_cast<bool>(viscosity_);
-  u_start_ = u_;
+  for (int a = 0; a < 3; ++a) {
+    copy_field(u_[a], u_start_[a]);
+  }
   momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
   if (implicit && settings_.time_order == 2) {
     for (int a = 0; a < 3; ++a) {
@@ -234,7 +251,7 @@ GasStepReport GasSolver::step(double dt) {
     stage(dt, 2, report);
   }
   fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
-  eps_old_ = eps_;
+  copy_field(eps_, eps_old_);
   return report;
 }
 
@@ -242,8 +259,11 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
   if (!(interval > 0.0)) {
     throw std::runtime_error(fmt::format("fluid advance: interval {} is not positive", interval));
   }
-  const GridField target = eps_;
-  const GridField start = eps_old_;
+  // eps_g of the fluid step's end and start (members: no allocation per fluid step).
+  copy_field(eps_, eps_target_);
+  copy_field(eps_old_, eps_start_);
+  const GridField& target = eps_target_;
+  const GridField& start = eps_start_;
   GasStepReport total;
   double t = 0.0;
   int count = 0;
@@ -265,7 +285,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
                       });
-    const GasStepReport r = step(dt);
+    const GasStepReport r = step_with_ghosts(dt); // u's ghosts filled above
     total.dt = r.dt;
     total.courant = std::max(total.courant, r.courant);
     total.projection_iterations += r.projection_iterations;
@@ -275,8 +295,8 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
     t += dt;
     ++count;
   }
-  eps_ = target;
-  eps_old_ = target;
+  copy_field(target, eps_);
+  copy_field(target, eps_old_);
   if (substeps != nullptr) {
     *substeps = count;
   }

@@ -119,6 +119,8 @@ public:
 
 private:
   void stage(double dt, int order, GasStepReport& report);
+  // step(dt) once u's ghosts are filled (advance() fills them for its Courant number).
+  GasStepReport step_with_ghosts(double dt);
 
   MacGrid grid_;
   GasSolverSettings settings_;
@@ -133,8 +135,12 @@ private:
   std::array<GridField, 3> lap_start_; // L(u^n) for the trapezoidal corrector
   GridField diag_, vrhs_;
   std::array<GridField, 3> mobility_;
+  // Per face, for both stages of a step: 1 + k beta_f, k (beta v)_f (k = dt/(rho eps_f)) and,
+  // with implicit viscosity, eps_f rho.
+  std::array<GridField, 3> drag_gain_, drag_push_, face_mass_;
   std::array<GridField, 3> beta_v_;
   GridField p_, eps_, eps_old_, beta_, source_;
+  GridField eps_target_, eps_start_; // advance()'s end and start eps_g
   std::unique_ptr<PressureProjection> projection_;
 };
 

@@ -4,7 +4,9 @@
 #include <stdexcept>
 
 #include <fmt/format.h>
+#include <tbb/parallel_for.h>
 
+#include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 
@@ -21,9 +23,11 @@ MacGridSpec homogeneous_spec(const MacGridSpec& spec) {
   return h;
 }
 
+// Pointwise loops run their z-planes as TBB tasks (fluid/box_loops.hpp: each point written once,
+// bitwise independent of the thread count); sums run over the points in one fixed serial order.
 template <class F>
-void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::array<int, 3>& hi,
-             F&& f) {
+void for_box_serial(const GridLayout& layout, const std::array<int, 3>& lo,
+                    const std::array<int, 3>& hi, F&& f) {
   for (int k = lo[2]; k <= hi[2]; ++k) {
     for (int j = lo[1]; j <= hi[1]; ++j) {
       const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
@@ -34,18 +38,15 @@ void for_box(const GridLayout& layout, const std::array<int, 3>& lo, const std::
   }
 }
 
-// The same, f(p, idx) with the point's indices.
+// The pointwise loop f(p, idx) with the point's indices, planes as TBB tasks.
 template <class F>
 void for_box_indexed(const GridLayout& layout, const std::array<int, 3>& lo,
                      const std::array<int, 3>& hi, F&& f) {
-  for (int k = lo[2]; k <= hi[2]; ++k) {
-    for (int j = lo[1]; j <= hi[1]; ++j) {
-      const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-      for (int i = lo[0]; i <= hi[0]; ++i) {
-        f(row + (i - lo[0]), std::array<int, 3>{i, j, k});
-      }
+  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
+    for (int i = lo[0]; i <= hi[0]; ++i) {
+      f(row + (i - lo[0]), std::array<int, 3>{i, j, k});
     }
-  }
+  });
 }
 
 // eps on the low control-volume face of face p along b (cell p - 1 when b == a, else the
@@ -139,7 +140,7 @@ void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const Gr
 
 double ImplicitViscosity::dot(const GridField& a, const GridField& b, int comp) const {
   double s = 0.0;
-  for_box(grid_.layout(), unknown_lo(comp), unknown_hi(comp), [&](std::ptrdiff_t p) {
+  for_box_serial(grid_.layout(), unknown_lo(comp), unknown_hi(comp), [&](std::ptrdiff_t p) {
     s += a[static_cast<std::size_t>(p)] * b[static_cast<std::size_t>(p)];
   });
   return s;
@@ -190,7 +191,8 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
     const double k = c / (grid_.spacing(b) * grid_.spacing(b));
     std::array<int, 3> top = m;
     top[b] = m[b] + 1; // faces 0..m_b along b
-    for (int kk = 0; kk < top[2]; ++kk) {
+    // Planes of faces as TBB tasks (each coefficient written once).
+    tbb::parallel_for(0, top[2], [&](int kk) {
       for (int jj = 0; jj < top[1]; ++jj) {
         for (int ii = 0; ii < top[0]; ++ii) {
           const auto p =
@@ -206,10 +208,27 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
                               inflow_plane(b, 0, up) || inflow_plane(b, 1, dn));
         }
       }
-    }
+    });
   }
   // r = rhs - A u with the true boundary values in u's ghosts.
   apply(comp, c, eps, diag, u, ap_);
+  // The unknowns into the multigrid's vectors (entry n = ii + m0 (jj + m1 kk)), planes as TBB
+  // tasks; the norms after, summed in that order on one thread.
+  const auto entry = [&](int jj, int kk) {
+    return static_cast<std::size_t>(m[0]) *
+           (static_cast<std::size_t>(jj) + static_cast<std::size_t>(m[1]) * kk);
+  };
+  tbb::parallel_for(0, m[2], [&](int kk) {
+    for (int jj = 0; jj < m[1]; ++jj) {
+      std::size_t n = entry(jj, kk);
+      for (int ii = 0; ii < m[0]; ++ii, ++n) {
+        const std::size_t p = layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk);
+        s.mass(ii, jj, kk) = diag[p];
+        s.r[n] = rhs[p] - ap_[p];
+        s.e[n] = 0.0;
+      }
+    }
+  });
   double b_norm2 = 0.0;
   double r_norm2 = 0.0;
   std::size_t n = 0;
@@ -217,9 +236,6 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
     for (int jj = 0; jj < m[1]; ++jj) {
       for (int ii = 0; ii < m[0]; ++ii, ++n) {
         const std::size_t p = layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk);
-        s.mass(ii, jj, kk) = diag[p];
-        s.r[n] = rhs[p] - ap_[p];
-        s.e[n] = 0.0;
         b_norm2 += rhs[p] * rhs[p];
         r_norm2 += s.r[n] * s.r[n];
       }
@@ -238,14 +254,14 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
   report.converged = mr.converged;
   // Not converged (a tolerance near round-off, judged on the true residual): the correction is
   // kept all the same; solve() goes on from it with Jacobi CG.
-  n = 0;
-  for (int kk = 0; kk < m[2]; ++kk) {
+  tbb::parallel_for(0, m[2], [&](int kk) {
     for (int jj = 0; jj < m[1]; ++jj) {
-      for (int ii = 0; ii < m[0]; ++ii, ++n) {
-        u[layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk)] += s.e[n];
+      std::size_t e = entry(jj, kk);
+      for (int ii = 0; ii < m[0]; ++ii, ++e) {
+        u[layout.index(lo[0] + ii, lo[1] + jj, lo[2] + kk)] += s.e[e];
       }
     }
-  }
+  });
   return report;
 }
 
@@ -270,7 +286,7 @@ ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField&
   // r = rhs - A u with the true (inhomogeneous) boundary values in u's ghosts.
   apply(comp, c, eps, diag, u, ap_);
   double b_norm2 = 0.0;
-  for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
+  for_box_serial(layout, lo, hi, [&](std::ptrdiff_t p) {
     const auto m = static_cast<std::size_t>(p);
     r_[m] = rhs[m] - ap_[m];
     b_norm2 += rhs[m] * rhs[m];

@@ -718,24 +718,48 @@ void shift_interior(const Level& L, double* v, double shift) {
   for_cells(L, [&](std::size_t c) { v[c] -= shift; });
 }
 
-// The diagonal from the face coefficients and the Dirichlet faces.
+// The diagonal from the face coefficients and the Dirichlet faces. Row by row (the inner loops
+// run along x and vectorize); each cell's terms are added in the order mass, then per axis the
+// two faces and that axis's Dirichlet faces, as a cell-by-cell loop would.
 void build_diagonal(Level& L) {
+  const int n0 = L.n[0];
   for_planes(L.n[2], L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
-      for (int i = 0; i < L.n[0]; ++i) {
-        const std::array<int, 3> cell = {i, j, k};
-        const std::size_t c = L.at(i, j, k);
-        double d = L.mass.empty() ? 0.0 : L.mass[c];
-        for (int a = 0; a < 3; ++a) {
-          d += L.K[a][c] + L.K[a][c + static_cast<std::size_t>(L.s[a])];
-          for (int side = 0; side < 2; ++side) {
-            if (L.dirichlet[a][side] && cell[a] == (side == 0 ? 0 : L.n[a] - 1)) {
-              d += L.dface[a][side][L.plane_index(a, cell)] / L.bdist[a][side];
+      const std::size_t c = L.at(0, j, k);
+      double* __restrict d = L.diag.data() + c;
+      if (L.mass.empty()) {
+        std::fill_n(d, n0, 0.0);
+      } else {
+        std::copy_n(L.mass.data() + c, n0, d);
+      }
+      const std::array<int, 3> row = {0, j, k};
+      for (int a = 0; a < 3; ++a) {
+        const double* __restrict lo = L.K[a].data() + c;
+        const double* __restrict hi = lo + L.s[a];
+        for (int i = 0; i < n0; ++i) {
+          d[i] += lo[i] + hi[i];
+        }
+        for (int side = 0; side < 2; ++side) {
+          if (!L.dirichlet[a][side]) {
+            continue;
+          }
+          const int edge = side == 0 ? 0 : L.n[a] - 1;
+          const double* face = L.dface[a][side].data();
+          const double dist = L.bdist[a][side];
+          if (a == 0) {
+            d[edge] += face[L.plane_index(0, {edge, j, k})] / dist;
+          } else if (row[a] == edge) {
+            // The x-fastest plane index of the row's first cell; the row runs along it.
+            const std::size_t first = L.plane_index(a, row);
+            for (int i = 0; i < n0; ++i) {
+              d[i] += face[first + static_cast<std::size_t>(i)] / dist;
             }
           }
         }
-        L.diag[c] = d;
-        L.inv_diag[c] = d > 0.0 ? 1.0 / d : 0.0;
+      }
+      double* __restrict inv = L.inv_diag.data() + c;
+      for (int i = 0; i < n0; ++i) {
+        inv[i] = d[i] > 0.0 ? 1.0 / d[i] : 0.0;
       }
     }
   });
@@ -757,20 +781,33 @@ void coarsen_coefficients(const Level& F, Level& C) {
     std::array<int, 3> hi = C.n;
     hi[a] = C.n[a] + 1;
     const bool wrap_to_self = C.periodic[a] && C.n[a] == 1;
+    // Row by row: each coarse face accumulates its children in the order (dk, dj, di), as a
+    // face-by-face sum would, in the coarse row itself, then scales it.
     for_planes(hi[2], 2 * C.cells(), [&](int k) {
       for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          const std::array<int, 3> face = {i, j, k};
-          double sum = 0.0;
-          for (int dk = 0; dk < kids[2]; ++dk) {
-            for (int dj = 0; dj < kids[1]; ++dj) {
-              for (int di = 0; di < kids[0]; ++di) {
-                sum += F.K[a][F.at(q[0] * i + di, q[1] * j + dj, q[2] * k + dk)];
+        double* __restrict out = C.K[a].data() + C.at(0, j, k);
+        std::fill_n(out, hi[0], 0.0);
+        if (wrap_to_self) {
+          continue; // a one-cell period couples a cell only to itself: no flux
+        }
+        for (int dk = 0; dk < kids[2]; ++dk) {
+          for (int dj = 0; dj < kids[1]; ++dj) {
+            const double* __restrict in = F.K[a].data() + F.at(0, q[1] * j + dj, q[2] * k + dk);
+            if (kids[0] == 2) {
+              for (int i = 0; i < hi[0]; ++i) {
+                out[i] += in[2 * i];
+                out[i] += in[2 * i + 1];
+              }
+            } else {
+              const int stride = q[0];
+              for (int i = 0; i < hi[0]; ++i) {
+                out[i] += in[stride * i];
               }
             }
           }
-          // A one-cell period couples a cell only to itself: no flux.
-          C.K[a][C.at(face[0], face[1], face[2])] = wrap_to_self ? 0.0 : sum * inv;
+        }
+        for (int i = 0; i < hi[0]; ++i) {
+          out[i] = out[i] * inv;
         }
       }
     });
@@ -809,16 +846,20 @@ void coarsen_coefficients(const Level& F, Level& C) {
     const double inv = 1.0 / (q[0] * q[1] * q[2]);
     for_planes(C.n[2], F.cells(), [&](int k) {
       for (int j = 0; j < C.n[1]; ++j) {
-        for (int i = 0; i < C.n[0]; ++i) {
-          double sum = 0.0;
-          for (int dk = 0; dk < q[2]; ++dk) {
-            for (int dj = 0; dj < q[1]; ++dj) {
+        double* __restrict out = C.mass.data() + C.at(0, j, k);
+        std::fill_n(out, C.n[0], 0.0);
+        for (int dk = 0; dk < q[2]; ++dk) {
+          for (int dj = 0; dj < q[1]; ++dj) {
+            const double* __restrict in = F.mass.data() + F.at(0, q[1] * j + dj, q[2] * k + dk);
+            for (int i = 0; i < C.n[0]; ++i) {
               for (int di = 0; di < q[0]; ++di) {
-                sum += F.mass[F.at(q[0] * i + di, q[1] * j + dj, q[2] * k + dk)];
+                out[i] += in[q[0] * i + di];
               }
             }
           }
-          C.mass[C.at(i, j, k)] = sum * inv;
+        }
+        for (int i = 0; i < C.n[0]; ++i) {
+          out[i] = out[i] * inv;
         }
       }
     });
@@ -972,19 +1013,27 @@ void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef,
     std::array<int, 3> hi = L.n;
     hi[a] = L.n[a] + 1;
     const bool self = L.periodic[a] && L.n[a] == 1;
+    // Row by row: interior faces copied; a boundary face takes face 0's value on a periodic axis
+    // (face n is face 0) and 0 otherwise (Neumann; Dirichlet faces go to dface below).
+    const bool wraps = L.periodic[a] && !self;
     for_planes(hi[2], L.cells(), [&](int k) {
       for (int j = 0; j < hi[1]; ++j) {
-        for (int i = 0; i < hi[0]; ++i) {
-          std::array<int, 3> face = {i, j, k};
-          const bool boundary = face[a] == 0 || face[a] == L.n[a];
-          double value = 0.0;
-          if (!boundary) {
-            value = in[layout.index(face)];
-          } else if (L.periodic[a] && !self) {
-            face[a] = 0; // face n is face 0
-            value = in[layout.index(face)];
+        std::array<int, 3> face = {0, j, k};
+        double* __restrict out = L.K[a].data() + L.at(0, j, k);
+        if (a != 0 && (face[a] == 0 || face[a] == L.n[a])) {
+          face[a] = 0;
+          if (wraps) {
+            std::copy_n(in.values().data() + layout.index(face), hi[0], out);
+          } else {
+            std::fill_n(out, hi[0], 0.0);
           }
-          L.K[a][L.at(i, j, k)] = value;
+          continue;
+        }
+        const double* row = in.values().data() + layout.index(face);
+        std::copy_n(row, hi[0], out);
+        if (a == 0) {
+          out[0] = wraps ? row[0] : 0.0;
+          out[L.n[0]] = wraps ? row[0] : 0.0;
         }
       }
     });

@@ -100,24 +100,48 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
     inflow[a] = {grid.inflow_face(a, 0), grid.inflow_face(a, 1)};
   }
   // Rows of cells as TBB tasks: each cell is written once, from values this loop does not write.
-  for_box_rows(
-      layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
-        for (int i = 0; i < n[0]; ++i) {
-          const std::array<int, 3> cell = {i, j, k};
-          const std::size_t c = static_cast<std::size_t>(row + i);
-          double sum = 0.0;
-          for (int a = 0; a < 3; ++a) {
-            const std::ptrdiff_t s = layout.stride(a);
-            const std::size_t up = c + static_cast<std::size_t>(s);
-            const double eps_lo =
-                cell[a] == 0 && inflow[a][0] ? kInflowVolumeFraction : face_eps(eps, c, s);
-            const double eps_hi =
-                cell[a] == n[a] - 1 && inflow[a][1] ? kInflowVolumeFraction : face_eps(eps, up, s);
-            sum += (eps_hi * u[a][up] - eps_lo * u[a][c]) / grid.spacing(a);
-          }
-          div[c] = sum;
-        }
-      });
+  // Along a row the y and z faces' inflow flags are constant; the x faces' apply at the row's
+  // ends only, which are recomputed with them after the (vectorizable) row loop.
+  const std::array<double, 3> h = {grid.spacing(0), grid.spacing(1), grid.spacing(2)};
+  const std::array<std::ptrdiff_t, 3> st = {layout.stride(0), layout.stride(1), layout.stride(2)};
+  const double* __restrict e = eps.values().data();
+  const double* __restrict u0 = u[0].values().data();
+  const double* __restrict u1 = u[1].values().data();
+  const double* __restrict u2 = u[2].values().data();
+  double* __restrict out = div.values().data();
+  for_box_rows(layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1},
+               [&](std::ptrdiff_t row, int j, int k) {
+                 const bool lo1 = j == 0 && inflow[1][0];
+                 const bool hi1 = j == n[1] - 1 && inflow[1][1];
+                 const bool lo2 = k == 0 && inflow[2][0];
+                 const bool hi2 = k == n[2] - 1 && inflow[2][1];
+                 const std::ptrdiff_t s1 = st[1];
+                 const std::ptrdiff_t s2 = st[2];
+                 // The divergence of cell c, the x faces' volume fractions given: terms x, y, z in
+                 // order.
+                 const auto cell = [&](std::ptrdiff_t c, double elo0, double ehi0) {
+                   const double elo1 = lo1 ? kInflowVolumeFraction : 0.5 * (e[c] + e[c - s1]);
+                   const double ehi1 = hi1 ? kInflowVolumeFraction : 0.5 * (e[c + s1] + e[c]);
+                   const double elo2 = lo2 ? kInflowVolumeFraction : 0.5 * (e[c] + e[c - s2]);
+                   const double ehi2 = hi2 ? kInflowVolumeFraction : 0.5 * (e[c + s2] + e[c]);
+                   double sum = 0.0;
+                   sum += (ehi0 * u0[c + 1] - elo0 * u0[c]) / h[0];
+                   sum += (ehi1 * u1[c + s1] - elo1 * u1[c]) / h[1];
+                   sum += (ehi2 * u2[c + s2] - elo2 * u2[c]) / h[2];
+                   return sum;
+                 };
+                 for (std::ptrdiff_t c = row; c < row + n[0]; ++c) {
+                   out[c] = cell(c, 0.5 * (e[c] + e[c - 1]), 0.5 * (e[c + 1] + e[c]));
+                 }
+                 if (inflow[0][0] || inflow[0][1]) {
+                   for (const std::ptrdiff_t c : {row, row + n[0] - 1}) {
+                     const bool lo0 = c == row && inflow[0][0];
+                     const bool hi0 = c == row + n[0] - 1 && inflow[0][1];
+                     out[c] = cell(c, lo0 ? kInflowVolumeFraction : 0.5 * (e[c] + e[c - 1]),
+                                   hi0 ? kInflowVolumeFraction : 0.5 * (e[c + 1] + e[c]));
+                   }
+                 }
+               });
 }
 
 PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
@@ -351,39 +375,71 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
                                               ProjectionReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
+  // The hierarchy (coarse coefficients, line factors, coarsest Cholesky) is rebuilt only when a
+  // face coefficient changed: the corrector of a gas step projects with the predictor's eps and
+  // mobility, so its set-up would repeat the predictor's bit for bit (hypre's path likewise
+  // keeps its set-up while the matrix is unchanged). Rows are TBB tasks; each marks its plane.
+  changed_planes_.assign(static_cast<std::size_t>(n[2]) + 1, 0);
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     const double inv_dx2 = 1.0 / (grid_.spacing(a) * grid_.spacing(a));
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
     hi[a] = n[a]; // faces 0..n along a
-    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
-      const auto f = static_cast<std::size_t>(p);
-      face_coef_[a][f] = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+    for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int k) {
+      bool changed = false;
+      for (std::ptrdiff_t p = row; p <= row + hi[0]; ++p) {
+        const auto f = static_cast<std::size_t>(p);
+        const double coef = face_eps(eps, f, s) * mobility[a][f] * inv_dx2;
+        changed |= coef != face_coef_[a][f]; // no short circuit: the row vectorizes
+        face_coef_[a][f] = coef;
+      }
+      if (changed) {
+        changed_planes_[static_cast<std::size_t>(k)] = 1; // only this plane's rows write it
+      }
     });
   }
-  mg_->set_coefficients(face_coef_);
+  const bool changed = !mg_ready_ || std::find(changed_planes_.begin(), changed_planes_.end(), 1) !=
+                                         changed_planes_.end();
+  if (changed) {
+    mg_->set_coefficients(face_coef_);
+    mg_ready_ = true;
+    ++mg_setups_;
+  }
   // Cell (i, j, k) is entry m = i + n0 (j + n1 k) of the solver's vectors; rows are TBB tasks.
+  // An outflow face's 2 K_f p_out (ghost 2 p_out - phi) is added after the row's -(div + source),
+  // axis by axis: on the x sides to the row's end cells, on the y and z sides to whole rows.
   for_box_rows(
       layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t row, int j, int k) {
-        std::size_t m = static_cast<std::size_t>(n[0]) *
-                        (static_cast<std::size_t>(j) +
-                         static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
-        for (int i = 0; i < n[0]; ++i, ++m) {
-          const std::array<int, 3> cell = {i, j, k};
-          const std::size_t c = static_cast<std::size_t>(row + i);
-          double rhs = -(div_[c] + source[c]);
-          for (int a = 0; a < 3; ++a) {
-            for (int side = 0; side < 2; ++side) {
-              const BoundaryCondition& bc = grid_.bc(a, side);
-              if (bc.kind == BoundaryKind::outflow && cell[a] == (side == 0 ? 0 : n[a] - 1)) {
-                const std::size_t f =
-                    side == 0 ? c : c + static_cast<std::size_t>(layout.stride(a));
-                rhs += 2.0 * face_coef_[a][f] * bc.pressure; // ghost 2 p_out - phi
+        const std::size_t m = static_cast<std::size_t>(n[0]) *
+                              (static_cast<std::size_t>(j) +
+                               static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
+        const auto c0 = static_cast<std::size_t>(row);
+        double* __restrict out = rhs_.data() + m;
+        for (int i = 0; i < n[0]; ++i) {
+          const std::size_t c = c0 + static_cast<std::size_t>(i);
+          out[i] = -(div_[c] + source[c]);
+          solution_[m + static_cast<std::size_t>(i)] = phi[c];
+        }
+        const std::array<int, 3> at = {0, j, k};
+        for (int a = 0; a < 3; ++a) {
+          for (int side = 0; side < 2; ++side) {
+            const BoundaryCondition& bc = grid_.bc(a, side);
+            if (bc.kind != BoundaryKind::outflow) {
+              continue;
+            }
+            const int edge = side == 0 ? 0 : n[a] - 1;
+            const std::size_t up = side == 0 ? 0 : static_cast<std::size_t>(layout.stride(a));
+            const double* coef = face_coef_[a].values().data();
+            if (a == 0) {
+              const auto i = static_cast<std::size_t>(edge);
+              out[i] += 2.0 * coef[c0 + i + up] * bc.pressure;
+            } else if (at[a] == edge) {
+              for (int i = 0; i < n[0]; ++i) {
+                const std::size_t f = c0 + static_cast<std::size_t>(i) + up;
+                out[i] += 2.0 * coef[f] * bc.pressure;
               }
             }
           }
-          rhs_[m] = rhs;
-          solution_[m] = phi[c];
         }
       });
   const MultigridReport mr =
@@ -559,32 +615,57 @@ void PressureProjection::correct(std::array<GridField, 3>& u,
     const double inv_dx = 1.0 / grid_.spacing(a);
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
     hi[a] = n[a]; // faces 0..n along a
+    const bool open_lo = grid_.exchanged(a, 0);
+    const bool open_hi = grid_.exchanged(a, 1);
+    // Faces between two cells of the box (or an exchanged side): grad = (phi_c - phi_below) / h.
+    const auto interior = [&](std::size_t f) {
+      const std::size_t below = f - static_cast<std::size_t>(s);
+      u[a][f] -= mobility[a][f] * ((phi[f] - phi[below]) * inv_dx);
+    };
+    // A face on the box's boundary along a (face index 0 or n).
+    const auto boundary = [&](std::size_t f, std::array<int, 3> face) {
+      const std::size_t below = f - static_cast<std::size_t>(s);
+      const int side = face[a] == 0 ? 0 : 1;
+      const BoundaryCondition& bc = grid_.bc(a, side);
+      double grad = 0.0;
+      if (bc.kind == BoundaryKind::periodic) {
+        if (side == 1) {
+          return; // face n is face 0, set below
+        }
+        face[a] = n[a] - 1;
+        grad = (phi[f] - phi(face[0], face[1], face[2])) * inv_dx;
+      } else if (bc.kind == BoundaryKind::outflow) {
+        grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
+                         : 2.0 * (bc.pressure - phi[below]) * inv_dx;
+      } else {
+        return; // wall or inflow: prescribed
+      }
+      u[a][f] -= mobility[a][f] * grad;
+    };
     for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int j, int k) {
-      for (int i = 0; i <= hi[0]; ++i) {
-        const std::array<int, 3> face = {i, j, k};
-        const std::size_t f = static_cast<std::size_t>(row + i);
-        const std::size_t below = f - static_cast<std::size_t>(s);
-        double grad = 0.0;
-        if ((face[a] > 0 || grid_.exchanged(a, 0)) && (face[a] < n[a] || grid_.exchanged(a, 1))) {
-          grad = (phi[f] - phi[below]) * inv_dx;
+      const auto f0 = static_cast<std::size_t>(row);
+      if (a != 0) {
+        const int at = a == 1 ? j : k; // the row's face index along a
+        if ((at > 0 || open_lo) && (at < n[a] || open_hi)) {
+          for (int i = 0; i <= hi[0]; ++i) {
+            interior(f0 + static_cast<std::size_t>(i));
+          }
         } else {
-          const int side = face[a] == 0 ? 0 : 1;
-          const BoundaryCondition& bc = grid_.bc(a, side);
-          if (bc.kind == BoundaryKind::periodic) {
-            if (side == 1) {
-              continue; // face n is face 0, set below
-            }
-            std::array<int, 3> last = face;
-            last[a] = n[a] - 1;
-            grad = (phi[f] - phi(last[0], last[1], last[2])) * inv_dx;
-          } else if (bc.kind == BoundaryKind::outflow) {
-            grad = side == 0 ? 2.0 * (phi[f] - bc.pressure) * inv_dx
-                             : 2.0 * (bc.pressure - phi[below]) * inv_dx;
-          } else {
-            continue; // wall or inflow: prescribed
+          for (int i = 0; i <= hi[0]; ++i) {
+            boundary(f0 + static_cast<std::size_t>(i), {i, j, k});
           }
         }
-        u[a][f] -= mobility[a][f] * grad;
+        return;
+      }
+      // Along x the row's first and last faces may lie on the boundary.
+      if (!open_lo) {
+        boundary(f0, {0, j, k});
+      }
+      for (int i = open_lo ? 0 : 1; i <= (open_hi ? n[0] : n[0] - 1); ++i) {
+        interior(f0 + static_cast<std::size_t>(i));
+      }
+      if (!open_hi) {
+        boundary(f0 + static_cast<std::size_t>(n[0]), {n[0], j, k});
       }
     });
     if (grid_.periodic(a) && !grid_.distributed()) {

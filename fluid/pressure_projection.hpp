@@ -83,6 +83,8 @@ public:
   [[nodiscard]] bool holds_hypre_objects() const { return hypre_ != nullptr; }
   // The multigrid (nullptr when hypre solves), e.g. for benchmarks of its kernels.
   [[nodiscard]] MultigridPoisson* multigrid() { return mg_.get(); }
+  // How many times the multigrid's hierarchy was built (once per new set of face coefficients).
+  [[nodiscard]] long long multigrid_setups() const { return mg_setups_; }
 
 private:
   struct Hypre;
@@ -118,6 +120,9 @@ private:
   GridField x_; // closed_box_residual's iterate with ghosts
   std::unique_ptr<MultigridPoisson> mg_;
   std::array<GridField, 3> face_coef_; // the multigrid's eps_f m_f / h^2
+  std::vector<char> changed_planes_;   // per z-plane: a face coefficient changed
+  bool mg_ready_ = false;              // the hierarchy holds face_coef_'s coefficients
+  long long mg_setups_ = 0;
 };
 
 } // namespace cfddem::fluid

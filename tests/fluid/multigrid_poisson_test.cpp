@@ -291,6 +291,47 @@ TEST(MultigridProjection, BitwiseIndependentOfTheThreadCount) {
   }
 }
 
+// A projection with the eps and mobility of the previous call (a gas step's corrector) keeps the
+// hierarchy it built then; the result is bitwise that of a projection that builds it afresh.
+// A changed mobility in one face rebuilds it.
+TEST(MultigridProjection, KeepsItsHierarchyWhileTheOperatorIsUnchanged) {
+  for (const Case& c : cases()) {
+    SCOPED_TRACE(c.name);
+    const MacGrid grid(c.spec);
+    const Fields f = make_fields(grid, false, c.jump, 23);
+    const Fields second = make_fields(grid, false, c.jump, 29); // other u and source
+    ProjectionSettings settings;
+    settings.solver = PoissonSolver::multigrid;
+    PressureProjection reused(grid, settings);
+    GridField phi = grid.make_field();
+    std::array<GridField, 3> u = f.u;
+    (void)reused.project(u, f.eps, f.mobility, f.source, phi);
+    EXPECT_EQ(reused.multigrid_setups(), 1);
+    std::array<GridField, 3> u2 = second.u;
+    GridField phi2 = phi;
+    const ProjectionReport r2 = reused.project(u2, f.eps, f.mobility, second.source, phi2);
+    EXPECT_EQ(reused.multigrid_setups(), 1) << "same eps and mobility: no new set-up";
+    PressureProjection fresh(grid, settings);
+    std::array<GridField, 3> u3 = second.u;
+    GridField phi3 = phi;
+    const ProjectionReport r3 = fresh.project(u3, f.eps, f.mobility, second.source, phi3);
+    EXPECT_EQ(r2.iterations, r3.iterations);
+    const auto same = [](const GridField& a, const GridField& b) {
+      return std::memcmp(a.values().data(), b.values().data(),
+                         a.values().size() * sizeof(double)) == 0;
+    };
+    EXPECT_TRUE(same(phi2, phi3));
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_TRUE(same(u2[a], u3[a])) << "axis " << a;
+    }
+    // One interior face's mobility changes: the hierarchy is rebuilt.
+    std::array<GridField, 3> mobility = f.mobility;
+    mobility[1](1, 1, 1) *= 0.5;
+    (void)reused.project(u2, f.eps, mobility, second.source, phi2);
+    EXPECT_EQ(reused.multigrid_setups(), 2);
+  }
+}
+
 // The fused red-black pair (MultigridSettings::fuse_colour_pairs) computes every value from the
 // same inputs as two separate colour passes: the solutions are bitwise those of the pass-by-pass
 // V-cycle, on 1 and 2 threads. Grids: the riser's (z periodic and even, 4 tasks of 8 planes);

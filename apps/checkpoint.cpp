@@ -265,6 +265,11 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
     w.put("/islands/x_ref", o.x_ref);
     w.put("/islands/y_ref", o.y_ref);
     w.put("/islands/z_ref", o.z_ref);
+    if (!o.hx.empty()) { // friction: the tangential history per entry of the list
+      w.put("/islands/history_x", o.hx);
+      w.put("/islands/history_y", o.hy);
+      w.put("/islands/history_z", o.hz);
+    }
     w.put("/islands/half_step", o.hprev);
     w.put("/islands/fine_subiterations", o.fine_subits);
     w.put("/islands/size_histogram", o.size_hist);
@@ -465,6 +470,11 @@ Checkpoint read_contents(const h5::File& f) {
     o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
     o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
     o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
+    if (f.exists("/islands/history_x")) {
+      o.hx = r.doubles("/islands/history_x", o.neighbors.size());
+      o.hy = r.doubles("/islands/history_y", o.neighbors.size());
+      o.hz = r.doubles("/islands/history_z", o.neighbors.size());
+    }
     o.hprev = r.doubles("/islands/half_step", n);
     o.fine_subits = r.int64s("/islands/fine_subiterations", n);
     o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);

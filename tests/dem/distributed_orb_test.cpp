@@ -20,6 +20,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_exchange.hpp"
 #include "core/phase_timer.hpp"
+#include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "distributed_test_support.hpp"
 
@@ -304,6 +305,33 @@ TEST(DistributedOrb, ParticleThroughAWallStopsEveryRankWithTheSameError) {
   c.max(hi);
   c.min(lo);
   EXPECT_EQ(hi[0], lo[0]) << message;
+}
+
+// Friction runs on one rank only (the history does not migrate yet): on R ranks the orb and
+// islands schemes refuse it with a configuration error naming dem.scheme; on one rank (a
+// communicator of size 1) orb takes it.
+TEST(DistributedOrb, FrictionOnRanksIsAConfigurationError) {
+  const Scene scene = scene_from(kWalls, {"dem.friction=0.3"});
+  const Communicator c = Communicator::world();
+  ParticleStore all = make_initial_particles(scene);
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  const dem::StepModel model = dem::make_step_model(scene, all);
+  if (c.size() == 1) {
+    dem::OrbScheme s(scene, p, model, &c, timer);
+    EXPECT_TRUE(p.rotation);
+    return;
+  }
+  auto names_the_key = [](auto&& make) {
+    try {
+      make();
+    } catch (const ConfigError& e) {
+      return std::string(e.what()).find("dem.scheme") != std::string::npos;
+    }
+    return false;
+  };
+  EXPECT_TRUE(names_the_key([&] { dem::OrbScheme s(scene, p, model, &c, timer); }));
+  EXPECT_TRUE(names_the_key([&] { dem::IslandsScheme s(scene, p, model, &c, timer); }));
 }
 
 // ParticleExchange::redistribute: each particle reaches its new owner once, each ghost copy the

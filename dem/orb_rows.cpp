@@ -11,6 +11,7 @@
 #include "core/error.hpp"
 #include "dem/contact_history.hpp"
 #include "dem/orb_local_rows.hpp"
+#include "dem/orb_rank_part.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/verlet_list.hpp"
@@ -405,9 +406,17 @@ void OrbScheme::drop_rows() {
   rows_.off.clear();
 }
 
-// The tangential history by ids: that of the current rows, or the records awaiting rows.
+// The tangential history by ids: that of the current rows, or the records awaiting rows (R
+// ranks: this rank's owned rows').
 ContactHistory OrbScheme::current_history() const {
   ContactHistory h = hist_.pending;
+  if (rank_) {
+    const auto off = rank_->rows.off();
+    if (off.size() >= 1 && hist_.hx.size() == rank_->rows.nb().size())
+      h.append(collect_history(hist_.ids, off, rank_->rows.nb(), off.size() - 1, hist_.hx, hist_.hy,
+                               hist_.hz));
+    return h;
+  }
   if (rows_.off.size() == hist_.ids.size() + 1 && hist_.hx.size() == rows_.nb.size())
     h.append(collect_history(hist_.ids, rows_.off, rows_.nb, hist_.ids.size(), hist_.hx, hist_.hy,
                              hist_.hz));

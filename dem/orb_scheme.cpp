@@ -49,13 +49,8 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
 OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                      const Communicator* comm, PhaseTimer& timer)
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
-  if (comm != nullptr && comm->size() > 1) {
-    if (model_.friction)
-      throw ConfigError("scene key 'dem.scheme'",
-                        "\"orb\" supports friction (dem.friction, dem.wall_friction) on one rank "
-                        "only; run it on one rank or use \"explicit\"");
+  if (comm != nullptr && comm->size() > 1)
     rank_ = std::make_unique<RankPart>(*comm);
-  }
   if (model_.friction)
     p_.enable_rotation();
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};

@@ -48,19 +48,21 @@
 // v(n+1/2) = v(n) + a(n) h/2 (start the new one): variable-step leapfrog. With a constant h it is
 // the explicit scheme's update exactly (h/2 + h/2 == h in floating point).
 //
-// Friction (dem.friction or dem.wall_friction > 0; one rank): the explicit scheme's tangential
-// spring with history and Coulomb limit (dem/friction_kernels.hpp) and the spin kick. Each row
-// entry (i, j) holds i's tangential history; a partner in another leaf is read with its spin
-// frozen too. The history lives with the pair, not with the entry: whenever the rows are derived
-// again (a re-sort, a rebuild, a regrid, a restore) it is collected by particle ids and attached
-// to the new rows (dem/contact_history.hpp, as the explicit scheme carries it across a rebuild),
-// and a retried sub-iteration rolls it back with the particles. A pair's spring advances by
-// h_k v_t at each local step of length h_k.
+// Friction (dem.friction or dem.wall_friction > 0; any rank count): the explicit scheme's
+// tangential spring with history and Coulomb limit (dem/friction_kernels.hpp) and the spin kick.
+// Each row entry (i, j) holds i's tangential history; a partner in another leaf is read with its
+// spin frozen too. The history lives with the pair, not with the entry: whenever the rows are
+// derived again (a re-sort, a rebuild, a regrid, a restore) it is collected by particle ids and
+// attached to the new rows (dem/contact_history.hpp, as the explicit scheme carries it across a
+// rebuild), and a retried sub-iteration rolls it back with the particles. A pair's spring advances
+// by h_k v_t at each local step of length h_k. On R ranks the rows are built at every
+// sub-iteration: the owned rows' history is collected by ids before the exchange and each record
+// routed to the rank its owner particle goes to (ParticleExchange::route), then attached to the new
+// rows; the ghosts carry their spins.
 //
-// Limits (documented, not hidden): friction on one rank only (the constructor throws with
-// friction on R ranks); an overlap beyond dem.max_overlap is counted (max_overlap_ratio) rather
-// than fatal, since a coarse step missing a collision is the trade this scheme makes; NaN or a
-// particle leaving through a wall stops the run.
+// Limits (documented, not hidden): an overlap beyond dem.max_overlap is counted (max_overlap_ratio)
+// rather than fatal, since a coarse step missing a collision is the trade this scheme makes; NaN or
+// a particle leaving through a wall stops the run.
 //
 // Over MPI ranks (a communicator of more than one rank; nullptr or one rank is the one-rank path
 // above, bit for bit and at its speed) the leaves of the parallel ORB are dealt to ranks by the
@@ -126,8 +128,7 @@ public:
   OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
   // Any rank count: `particles` is this rank's share (any split: the first sub-iteration moves
   // each to its owner); `model`: make_step_model over all particles, the same on every rank;
-  // `comm` nullptr or of one rank: the one-rank path. Throws ConfigError with friction on more
-  // than one rank. With friction the store gets rotation.
+  // `comm` nullptr or of one rank: the one-rank path. With friction the store gets rotation.
   OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
             const Communicator* comm, PhaseTimer& timer);
   OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,

@@ -42,9 +42,20 @@ ContactHistory ContactHistory::unpack(std::span<const double> records) {
 ContactHistory collect_history(const ParticleStore& p, const VerletList& list, std::size_t rows,
                                std::span<const double> hx, std::span<const double> hy,
                                std::span<const double> hz) {
-  return collect_history(p.id, list.offsets(), list.neighbors(), rows, hx, hy, hz);
+  ContactHistory h;
+  const auto off = list.offsets();
+  const auto nb = list.neighbors();
+  if (off.empty() || hx.size() != nb.size())
+    return h; // never built, or built without history
+  for (std::size_t i = 0; i < rows && i + 1 < off.size(); ++i)
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k)
+      if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0)
+        h.add(p.id[i], p.id[nb[k]], hx[k], hy[k], hz[k]);
+  return h;
 }
 
+// The same over rows given as spans, with the particle ids as a column (orb's rows: the
+// scheme's own CSR arrays, not a VerletList).
 ContactHistory collect_history(std::span<const std::int64_t> ids,
                                std::span<const std::uint32_t> off,
                                std::span<const std::uint32_t> nb, std::size_t rows,

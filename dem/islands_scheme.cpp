@@ -28,7 +28,7 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
   if (model_.friction && comm != nullptr)
     throw ConfigError("scene key 'dem.scheme'",
                       "\"islands\" supports friction (dem.friction, dem.wall_friction) on one "
-                      "rank only; run it on one rank or use \"explicit\"");
+                      "rank only; run it on one rank or use \"explicit\" or \"orb\"");
   if (model_.friction)
     p_.enable_rotation();
   nsubit_ = scene.dem.nsubit;

@@ -11,6 +11,7 @@
 #include "apps/run_output.hpp"
 #include "core/error.hpp"
 #include "core/hdf5_file.hpp"
+#include "dem/contact_history.hpp"
 
 namespace cfddem::apps {
 
@@ -23,9 +24,11 @@ struct Hash {
   std::uint64_t h = 1469598103934665603ULL;
   template <class T> void add(const std::vector<T>& v) {
     const auto* b = reinterpret_cast<const unsigned char*>(v.data());
-    for (std::size_t i = 0; i < v.size() * sizeof(T); ++i) h = (h ^ b[i]) * 1099511628211ULL;
+    for (std::size_t i = 0; i < v.size() * sizeof(T); ++i)
+      h = (h ^ b[i]) * 1099511628211ULL;
     const std::uint64_t n = v.size();
-    for (int k = 0; k < 8; ++k) h = (h ^ ((n >> (8 * k)) & 0xff)) * 1099511628211ULL;
+    for (int k = 0; k < 8; ++k)
+      h = (h ^ ((n >> (8 * k)) & 0xff)) * 1099511628211ULL;
   }
 };
 
@@ -68,29 +71,55 @@ struct Reader {
 
 std::vector<double> flatten_rows(const std::vector<std::vector<double>>& rows) {
   std::vector<double> v;
-  for (const auto& r : rows) v.insert(v.end(), r.begin(), r.end());
+  for (const auto& r : rows)
+    v.insert(v.end(), r.begin(), r.end());
   return v;
 }
 
 std::string join(const std::vector<std::string>& v) {
   std::string s;
-  for (std::size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + v[i];
+  for (std::size_t i = 0; i < v.size(); ++i)
+    s += (i ? "," : "") + v[i];
   return s;
 }
 
 // The gas solver's arrays, the coupling counters and the coupled loop's position (/gas).
+// A sub-iterated scheme's tangential history (friction) under `group`, as rows over the
+// checkpoint's particles (dem/contact_history.hpp's checkpoint form); nothing without records.
+void put_history(Writer& w, const std::string& group, const dem::ContactHistory& h,
+                 const std::vector<std::int64_t>& ids) {
+  if (h.size() == 0)
+    return;
+  const dem::HistoryRows r = dem::history_rows(h, ids);
+  w.put(group + "/history_offsets", r.offsets);
+  w.put(group + "/history_neighbors", r.neighbors);
+  w.put(group + "/history_x", r.hx);
+  w.put(group + "/history_y", r.hy);
+  w.put(group + "/history_z", r.hz);
+}
+
+dem::ContactHistory read_history(Reader& r, const std::string& group,
+                                 const std::vector<std::int64_t>& ids) {
+  if (!r.f.exists(group + "/history_offsets"))
+    return {};
+  const auto off = r.uint32s(group + "/history_offsets", ids.size() + 1);
+  const auto nb = r.uint32s(group + "/history_neighbors", Reader::kAny);
+  const auto hx = r.doubles(group + "/history_x", nb.size());
+  const auto hy = r.doubles(group + "/history_y", nb.size());
+  const auto hz = r.doubles(group + "/history_z", nb.size());
+  return dem::history_from_rows(ids, off, nb, hx, hy, hz);
+}
+
 void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   const GasCoupling::State& g = c.gas_state;
   const CoupledLoopState& l = c.loop;
-  w.put("/gas/counters",
-        std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
-                                  l.fluid_steps, l.row_pending ? 1 : 0,
-                                  l.snapshot_pending ? 1 : 0});
+  w.put("/gas/counters", std::vector<std::int64_t>{
+                             g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
+                             l.fluid_steps, l.row_pending ? 1 : 0, l.snapshot_pending ? 1 : 0});
   const FluidDiagnostics& d = l.row_fluid;
   w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
-                                          l.dt_f_sum, l.row_time, d.pressure_drop,
-                                          d.gas_momentum[0], d.gas_momentum[1],
-                                          d.gas_momentum[2], d.mass_residual});
+                                         l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],
+                                         d.gas_momentum[1], d.gas_momentum[2], d.mass_residual});
   w.put("/gas/held_force_x", l.held_force[0]);
   w.put("/gas/held_force_y", l.held_force[1]);
   w.put("/gas/held_force_z", l.held_force[2]);
@@ -143,7 +172,8 @@ void read_gas(Reader& r, Checkpoint& c) {
 std::string restart_configuration(const Scene& scene) {
   std::string s;
   for (const auto& [k, v] : describe_scene(scene)) {
-    if (k == "name" || k.rfind("run.", 0) == 0 || k.rfind("output.", 0) == 0) continue;
+    if (k == "name" || k.rfind("run.", 0) == 0 || k.rfind("output.", 0) == 0)
+      continue;
     s += k + " = " + v + "\n";
   }
   return s;
@@ -225,6 +255,7 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
     w.put("/orb/x_ref", o.x_ref);
     w.put("/orb/y_ref", o.y_ref);
     w.put("/orb/z_ref", o.z_ref);
+    put_history(w, "/orb", o.history, p.id);
   }
   if (c.scheme == "islands") {
     const auto& o = c.islands;
@@ -234,6 +265,11 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
     w.put("/islands/x_ref", o.x_ref);
     w.put("/islands/y_ref", o.y_ref);
     w.put("/islands/z_ref", o.z_ref);
+    if (!o.hx.empty()) { // friction: the tangential history per entry of the list
+      w.put("/islands/history_x", o.hx);
+      w.put("/islands/history_y", o.hy);
+      w.put("/islands/history_z", o.hz);
+    }
     w.put("/islands/half_step", o.hprev);
     w.put("/islands/fine_subiterations", o.fine_subits);
     w.put("/islands/size_histogram", o.size_hist);
@@ -431,6 +467,7 @@ Checkpoint read_contents(const h5::File& f) {
     o.x_ref = r.doubles("/orb/x_ref", Reader::kAny);
     o.y_ref = r.doubles("/orb/y_ref", o.x_ref.size());
     o.z_ref = r.doubles("/orb/z_ref", o.x_ref.size());
+    o.history = read_history(r, "/orb", p.id);
   } else if (c.scheme == "islands") {
     auto& o = c.islands;
     o.offsets = r.uint32s("/islands/offsets", Reader::kAny);
@@ -438,6 +475,11 @@ Checkpoint read_contents(const h5::File& f) {
     o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
     o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
     o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
+    if (f.exists("/islands/history_x")) {
+      o.hx = r.doubles("/islands/history_x", o.neighbors.size());
+      o.hy = r.doubles("/islands/history_y", o.neighbors.size());
+      o.hz = r.doubles("/islands/history_z", o.neighbors.size());
+    }
     o.hprev = r.doubles("/islands/half_step", n);
     o.fine_subits = r.int64s("/islands/fine_subiterations", n);
     o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);

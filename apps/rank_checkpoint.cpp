@@ -115,6 +115,25 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
     all[q] = comm.gather(own[q]);
   const std::vector<std::int64_t> ids =
       comm.gather(std::span<const std::int64_t>(particles.id.data(), n));
+  // With friction (orb): the spins and this rank's tangential history records by ids.
+  std::vector<double> spin[4];
+  if (particles.rotation) {
+    const std::vector<double>* w[4] = {&particles.wx, &particles.wy, &particles.wz,
+                                       &particles.inv_inertia};
+    for (int q = 0; q < 4; ++q)
+      spin[q] = comm.gather(std::span<const double>(w[q]->data(), n));
+  }
+  dem::ContactHistory history;
+  if constexpr (requires { state.history; }) {
+    const auto& h = state.history;
+    const auto owner = comm.gather(std::span<const std::int64_t>(h.owner));
+    const auto partner = comm.gather(std::span<const std::int64_t>(h.partner));
+    const auto hx = comm.gather(std::span<const double>(h.hx));
+    const auto hy = comm.gather(std::span<const double>(h.hy));
+    const auto hz = comm.gather(std::span<const double>(h.hz));
+    for (std::size_t q = 0; q < owner.size(); ++q)
+      history.add(owner[q], partner[q], hx[q], hy[q], hz[q]);
+  }
   std::string error;
   if (comm.rank() == 0) {
     try {
@@ -134,6 +153,16 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
           (*field[q])[i] = all[q][order[i]];
         c.particles.id[i] = ids[order[i]];
       }
+      if (particles.rotation) {
+        c.particles.enable_rotation();
+        std::vector<double>* w[4] = {&c.particles.wx, &c.particles.wy, &c.particles.wz,
+                                     &c.particles.inv_inertia};
+        for (std::size_t i = 0; i < order.size(); ++i)
+          for (int q = 0; q < 4; ++q)
+            (*w[q])[i] = spin[q][order[i]];
+      }
+      if constexpr (requires { state.history; })
+        state.history = std::move(history);
       Sub::set_second(state, std::move(second_all));
       Sub::in(c) = std::move(state);
     } catch (const std::exception& e) {
@@ -162,15 +191,15 @@ subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::s
   return state;
 }
 
-template void gather_subiterated(dem::OrbScheme&, const ParticleStore&,
-                                 const Communicator&, Checkpoint&);
-template void gather_subiterated(dem::IslandsScheme&, const ParticleStore&,
-                                 const Communicator&, Checkpoint&);
+template void gather_subiterated(dem::OrbScheme&, const ParticleStore&, const Communicator&,
+                                 Checkpoint&);
+template void gather_subiterated(dem::IslandsScheme&, const ParticleStore&, const Communicator&,
+                                 Checkpoint&);
 template SubiteratedState<dem::OrbScheme>::State
-subiterated_share<dem::OrbScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
-                                             std::size_t, const std::string&);
+subiterated_share<dem::OrbScheme>(Checkpoint&, const std::vector<std::uint32_t>&, std::size_t,
+                                  const std::string&);
 template SubiteratedState<dem::IslandsScheme>::State
-subiterated_share<dem::IslandsScheme>(Checkpoint&, const std::vector<std::uint32_t>&,
-                                                 std::size_t, const std::string&);
+subiterated_share<dem::IslandsScheme>(Checkpoint&, const std::vector<std::uint32_t>&, std::size_t,
+                                      const std::string&);
 
 } // namespace cfddem::apps

@@ -4,7 +4,8 @@
 // id order (the file's order for any rank count) with the scheme's state. Explicit: with
 // friction the spin and the contact history as rows over those particles (a serial
 // checkpoint's layout), and the counters. Orb and islands: save_state()'s per-particle values
-// (half step, and the cost or the fine-sub-iteration count) in the same order, and its counters.
+// (half step, and the cost or the fine-sub-iteration count) in the same order, and its counters;
+// orb with friction also the spins and the tangential history records of every rank.
 // No neighbor list or pair set is kept: a checkpoint is written in the scheme's canonical
 // state, which the restart rebuilds from the particles.
 #pragma once
@@ -17,9 +18,9 @@
 #include "core/communicator.hpp"
 #include "core/particle_store.hpp"
 #include "dem/contact_history.hpp"
+#include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
-#include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
 

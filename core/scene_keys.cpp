@@ -253,7 +253,8 @@ std::vector<SceneKey> make_table() {
        .range = at_least(0),
        .fallback = number(0),
        .meaning = "Coulomb coefficient mu; 0 is frictionless and allocates no rotation fields. "
-                  "Only the explicit scheme supports friction: orb and islands refuse mu > 0"},
+                  "explicit and orb support friction on any rank count, islands on one rank "
+                  "(on R ranks it refuses mu > 0)"},
       {.name = "dem.tangential_stiffness_ratio",
        .type = T::Number,
        .section = S::Contacts,

@@ -4,6 +4,7 @@
 #include <bit>
 #include <numeric>
 #include <unordered_map>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -68,11 +69,33 @@ ContactHistory collect_history(const ParticleStore& p, const VerletList& list, s
   return h;
 }
 
+// The same over rows given as spans, with the particle ids as a column (orb's rows: the
+// scheme's own CSR arrays, not a VerletList).
+ContactHistory collect_history(std::span<const std::int64_t> ids,
+                               std::span<const std::uint32_t> off,
+                               std::span<const std::uint32_t> nb, std::size_t rows,
+                               std::span<const double> hx, std::span<const double> hy,
+                               std::span<const double> hz) {
+  ContactHistory h;
+  if (off.empty() || hx.size() != nb.size())
+    return h; // never built, or built without history
+  for (std::size_t i = 0; i < rows && i + 1 < off.size(); ++i)
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k)
+      if (hx[k] != 0.0 || hy[k] != 0.0 || hz[k] != 0.0)
+        h.add(ids[i], ids[nb[k]], hx[k], hy[k], hz[k]);
+  return h;
+}
+
 void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& list,
                     std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
                     std::vector<double>& hz) {
-  const auto off = list.offsets();
-  const auto nb = list.neighbors();
+  attach_history(std::move(h), p.id, list.offsets(), list.neighbors(), rows, hx, hy, hz);
+}
+
+void attach_history(ContactHistory h, std::span<const std::int64_t> ids,
+                    std::span<const std::uint32_t> off, std::span<const std::uint32_t> nb,
+                    std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
+                    std::vector<double>& hz) {
   hx.assign(nb.size(), 0.0), hy.assign(nb.size(), 0.0), hz.assign(nb.size(), 0.0);
   if (h.size() == 0)
     return;
@@ -88,12 +111,12 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
   for (std::size_t i = 0; i < rows && i + 1 < off.size(); ++i) {
     if (off[i + 1] == off[i])
       continue;
-    const auto lo = std::lower_bound(owner.begin(), owner.end(), p.id[i]);
-    const auto hi = std::upper_bound(lo, owner.end(), p.id[i]);
+    const auto lo = std::lower_bound(owner.begin(), owner.end(), ids[i]);
+    const auto hi = std::upper_bound(lo, owner.end(), ids[i]);
     if (lo == hi)
       continue;
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-      const std::int64_t j = p.id[nb[k]];
+      const std::int64_t j = ids[nb[k]];
       for (auto it = lo; it != hi; ++it) {
         const std::uint32_t q = order[static_cast<std::size_t>(it - owner.begin())];
         if (h.partner[q] == j) {
@@ -153,7 +176,6 @@ ContactHistory history_from_rows(std::span<const std::int64_t> ids,
         h.add(ids[i], ids[neighbors[k]], hx[k], hy[k], hz[k]);
     }
   }
-  h.add_mirrors();
   return h;
 }
 

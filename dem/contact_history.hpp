@@ -48,6 +48,19 @@ void attach_history(ContactHistory h, const ParticleStore& p, const VerletList& 
                     std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
                     std::vector<double>& hz);
 
+// The same over any rows (offsets `off`, partners `nb` as indices into `ids`, rows [0, rows)):
+// the orb and islands schemes' rows, whose particle ids are given as a column (`ids[i]` is the
+// id of row i and of partner index i).
+ContactHistory collect_history(std::span<const std::int64_t> ids,
+                               std::span<const std::uint32_t> off,
+                               std::span<const std::uint32_t> nb, std::size_t rows,
+                               std::span<const double> hx, std::span<const double> hy,
+                               std::span<const double> hz);
+void attach_history(ContactHistory h, std::span<const std::int64_t> ids,
+                    std::span<const std::uint32_t> off, std::span<const std::uint32_t> nb,
+                    std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
+                    std::vector<double>& hz);
+
 // A checkpoint's form: rows over the particles `ids` (the checkpoint's order), entries naming
 // the partner by its index there, one history value per entry: the layout of a serial
 // ExplicitScheme::State's list and history, so either kind of checkpoint reads the same way.
@@ -57,8 +70,7 @@ struct HistoryRows {
 };
 // Throws RunError for a record naming an id that `ids` does not hold.
 HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> ids);
-// The records of rows saved over `ids` (no rows: none), with the mirror of each record a half
-// list's rows lack. Throws RunError when they do not fit.
+// The records of rows saved over `ids` (no rows: none). Throws RunError when they do not fit.
 ContactHistory history_from_rows(std::span<const std::int64_t> ids,
                                  std::span<const std::uint32_t> offsets,
                                  std::span<const std::uint32_t> neighbors,

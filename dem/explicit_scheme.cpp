@@ -291,6 +291,9 @@ ContactHistory ExplicitScheme::contact_history() const {
 void ExplicitScheme::restore(const Counters& c, const ContactHistory& history) {
   stats_.steps = c.steps;
   rows_.pending = history;
+  // A one-rank checkpoint's half rows hold each pair's record once: its partner's is the negated
+  // spring (a full list's row would hold it).
+  rows_.pending.add_mirrors();
   canonicalize();
   stats_.particle_steps = c.particle_steps, stats_.pair_evaluations = c.pair_evaluations;
   stats_.builds = c.builds;

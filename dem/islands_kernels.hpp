@@ -22,17 +22,21 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/friction_kernels.hpp"
 #include "dem/scheme_support.hpp"
 
 namespace cfddem::dem::islands {
 
 // The columns a fine step reads and writes: the store's, the scheme's half steps (hp) and the
-// held external force (null pointers without one).
+// held external force (null pointers without one); with friction the spins and torques, and
+// 1 / I (null pointers without rotation).
 struct Columns {
   double *x, *y, *z, *vx, *vy, *vz, *fx, *fy, *fz, *hp;
   const double *im, *radius, *mass;
   const std::int64_t* id;
   const double *ex, *ey, *ez;
+  double *wx, *wy, *wz, *tx, *ty, *tz;
+  const double* ii;
 };
 inline Columns columns(ParticleStore& p, std::vector<double>& hprev, const ExternalForce& e) {
   const bool on = e.active();
@@ -52,7 +56,14 @@ inline Columns columns(ParticleStore& p, std::vector<double>& hprev, const Exter
           p.id.data(),
           on ? e.x.data() : nullptr,
           on ? e.y.data() : nullptr,
-          on ? e.z.data() : nullptr};
+          on ? e.z.data() : nullptr,
+          p.rotation ? p.wx.data() : nullptr,
+          p.rotation ? p.wy.data() : nullptr,
+          p.rotation ? p.wz.data() : nullptr,
+          p.rotation ? p.tx.data() : nullptr,
+          p.rotation ? p.ty.data() : nullptr,
+          p.rotation ? p.tz.data() : nullptr,
+          p.rotation ? p.inv_inertia.data() : nullptr};
 }
 
 // Neighbor rows in CSR form. wrap[i]: where row i's pairs across a periodic face begin (the
@@ -62,13 +73,14 @@ struct Rows {
 };
 
 // What the contact pass of island members needs besides the columns: the rows, each particle's
-// island (label) and the contact law.
+// island (label) and the contact law; with friction the tangential history per row entry.
 struct ContactView {
   Columns c;
   Rows rows;
   const std::uint32_t* label;
   const DomainGeometry* geom;
   const StepModel* model;
+  double *hx, *hy, *hz;
 };
 
 // |F_ext,i / m_i + g|.
@@ -155,11 +167,13 @@ Reaches largest_reaches(const double* __restrict x, const double* __restrict y,
 // Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit
 // scheme's contact law), from their row partners in island `island` (with Label; all partners
 // without). Returns the pairs evaluated, each once: (i, j) with j > i (ById: id[j] > id[i], so
-// that a pair with a ghost end counts on one rank only).
-template <bool Label, bool Indexed, bool Wrap, bool ById>
+// that a pair with a ghost end counts on one rank only). With Friction the tangential springs of
+// the entries evaluated advance over the step hk and the torques are written too
+// (dem/friction_kernels.hpp: the explicit scheme's arithmetic).
+template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction = false>
 std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
                             std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
-                            std::int64_t& violations_out) {
+                            std::int64_t& violations_out, [[maybe_unused]] double hk = 0.0) {
   const std::uint32_t* __restrict off = v.rows.off;
   const std::uint32_t* __restrict nb = v.rows.nb;
   const std::uint32_t* __restrict wrap = v.rows.wrap;
@@ -187,13 +201,28 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
     const double xi = x[i], yi = y[i], zi = z[i], vxi = vx[i], vyi = vy[i], vzi = vz[i];
     const double ri = rad[i], mi = mass[i];
     double ax = 0.0, ay = 0.0, az = 0.0;
-    auto pair = [&](std::uint32_t j, double dx, double dy, double dz) {
+    [[maybe_unused]] double tq[3] = {0.0, 0.0, 0.0};
+    [[maybe_unused]] double wi[3] = {0.0, 0.0, 0.0};
+    if constexpr (Friction)
+      wi[0] = v.c.wx[i], wi[1] = v.c.wy[i], wi[2] = v.c.wz[i];
+    auto pair = [&]([[maybe_unused]] std::uint32_t k, std::uint32_t j, double dx, double dy,
+                    double dz) {
       if constexpr (ById)
         pairs += id[j] > id[i];
       else
         pairs += j > i;
-      const double delta = add_normal_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j],
-                                              vyi - vy[j], vzi - vz[j], ax, ay, az);
+      double delta;
+      if constexpr (Friction) {
+        const double wj[3] = {v.c.wx[j], v.c.wy[j], v.c.wz[j]};
+        double h[3] = {v.hx[k], v.hy[k], v.hz[k]}, a[3] = {ax, ay, az};
+        delta = add_frictional_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j],
+                                       vyi - vy[j], vzi - vz[j], wi, wj, hk, h, a, tq);
+        v.hx[k] = h[0], v.hy[k] = h[1], v.hz[k] = h[2];
+        ax = a[0], ay = a[1], az = a[2];
+      } else {
+        delta = add_normal_contact(m, dx, dy, dz, ri, rad[j], mi, mass[j], vxi - vx[j], vyi - vy[j],
+                                   vzi - vz[j], ax, ay, az);
+      }
       if (delta <= 0.0)
         return;
       // The ratio's divide only when it sets a new maximum (rare after the first contacts).
@@ -210,7 +239,7 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
         if (label[j] != island)
           continue;
       }
-      pair(j, x[j] - xi, y[j] - yi, z[j] - zi);
+      pair(k, j, x[j] - xi, y[j] - yi, z[j] - zi);
     }
     for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
       const std::uint32_t j = nb[k];
@@ -218,7 +247,7 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
         if (label[j] != island)
           continue;
       }
-      pair(j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
+      pair(k, j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
     }
     if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
       double f[3] = {ax, ay, az};
@@ -231,14 +260,19 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
           const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
           if (delta <= 0.0)
             continue;
-          f[a] -= sg * normal_force(m.wall, mi, delta, sg * vel[a]);
+          const double fn = normal_force(m.wall, mi, delta, sg * vel[a]);
+          f[a] -= sg * fn;
           max_ratio = std::max(max_ratio, delta / ri);
           violations += delta > m.max_overlap * ri;
+          if constexpr (Friction)
+            add_wall_friction(m.wall_t, mi, ri, fn, a, sg, vel, wi, f, tq);
         }
       }
       ax = f[0], ay = f[1], az = f[2];
     }
     fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
+    if constexpr (Friction)
+      v.c.tx[i] = tq[0], v.c.ty[i] = tq[1], v.c.tz[i] = tq[2];
   }
   max_ratio_out = max_ratio;
   violations_out += violations;
@@ -273,7 +307,7 @@ inline constexpr std::uint32_t kMemberBlock = 1024;
 // `between()` before every step but the first (the R-rank ghost refresh). With svx non-null the
 // synchronised velocities at the start go there. Each member's force and update read only the
 // state before the pass: bitwise independent of the thread count.
-template <bool External, bool Bounded, class Forces, class Between>
+template <bool External, bool Bounded, bool Friction = false, class Forces, class Between>
 [[gnu::always_inline]] inline IslandResult
 step_island(const Columns& col, const Members& mb, const FineSteps& fs,
             const std::array<double, 3>& grav, double* svx, double* svy, double* svz,
@@ -303,6 +337,13 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   const double* __restrict ex_y = col.ey;
   const double* __restrict ex_z = col.ez;
   const double g0 = grav[0], g1 = grav[1], g2 = grav[2], margin = mb.margin, fixed2 = mb.fixed2;
+  [[maybe_unused]] double* wx = col.wx;
+  [[maybe_unused]] double* wy = col.wy;
+  [[maybe_unused]] double* wz = col.wz;
+  [[maybe_unused]] const double* tx = col.tx;
+  [[maybe_unused]] const double* ty = col.ty;
+  [[maybe_unused]] const double* tz = col.tz;
+  [[maybe_unused]] const double* ii = col.ii;
   auto kick = [=](std::uint32_t u, double s, double hk, double half, double elapsed,
                   std::int64_t& bound_violations) {
     const std::uint32_t i = mem[u];
@@ -316,6 +357,11 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     kick_drift(pz, uz, fz[i] + ez, ims, g2 * s, hk);
     x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
     hp[i] = half;
+    if constexpr (Friction) {
+      // The spin's kick over the same span s (the explicit scheme's w += T (1/I) dt).
+      const double si = ii[i] * s;
+      wx[i] += tx[i] * si, wy[i] += ty[i] * si, wz[i] += tz[i] * si;
+    }
     const double dx = px - x0[u], dy = py - y0[u], dz = pz - z0[u];
     if constexpr (Bounded) {
       const double reach = bnd[i] * elapsed + margin;
@@ -336,14 +382,22 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     const double hk = k + 1 == fs.K ? fs.h_last : fs.h;
     if (k > 0)
       between();
+    // With friction the springs advance over the step: the forces take its length.
+    auto evaluate = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
+                        std::int64_t& violations) {
+      if constexpr (Friction)
+        return forces(u0, u1, max_ratio, violations, hk);
+      else
+        return forces(u0, u1, max_ratio, violations);
+    };
     if (!giant) {
-      res.pairs += forces(0u, count, res.max_ratio, res.violations);
+      res.pairs += evaluate(0u, count, res.max_ratio, res.violations);
     } else {
       tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
         IslandResult& pt = parts[b];
         pt = IslandResult{};
-        pt.pairs = forces(static_cast<std::uint32_t>(b * kMemberBlock),
-                          static_cast<std::uint32_t>(block_end(b)), pt.max_ratio, pt.violations);
+        pt.pairs = evaluate(static_cast<std::uint32_t>(b * kMemberBlock),
+                            static_cast<std::uint32_t>(block_end(b)), pt.max_ratio, pt.violations);
       });
       for (const IslandResult& pt : parts)
         res.pairs += pt.pairs, res.violations += pt.violations,

@@ -309,7 +309,10 @@ islands::ContactView IslandsScheme::contact_view_ranks() {
           {rows.off().data(), rows.nb().data(), nullptr},
           ln_.island_of.data(),
           &geom_,
-          &model_};
+          &model_,
+          nullptr,
+          nullptr,
+          nullptr}; // frictionless on R ranks (the constructor refuses friction there)
 }
 
 // The K fine steps of every spanning member (all: every owned particle, the dense mode), all

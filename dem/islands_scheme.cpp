@@ -11,6 +11,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/contact_kernels.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/kick_drift_range.hpp"
@@ -25,7 +26,12 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
 IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                              const Communicator* comm, PhaseTimer& timer)
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
-  require_frictionless(model_, "islands");
+  if (model_.friction && comm != nullptr)
+    throw ConfigError("scene key 'dem.scheme'",
+                      "\"islands\" supports friction (dem.friction, dem.wall_friction) on one "
+                      "rank only; run it on one rank or use \"explicit\" or \"orb\"");
+  if (model_.friction)
+    p_.enable_rotation();
   nsubit_ = scene.dem.nsubit;
   auto_.on = scene.dem.nsubit_auto;
   if (auto_.on) {
@@ -96,6 +102,8 @@ IslandsScheme::State IslandsScheme::save_state() {
     s.x_ref.assign(l.x_ref().begin(), l.x_ref().end());
     s.y_ref.assign(l.y_ref().begin(), l.y_ref().end());
     s.z_ref.assign(l.z_ref().begin(), l.z_ref().end());
+    if (model_.friction)
+      s.hx = hx_, s.hy = hy_, s.hz = hz_;
   }
   s.skin = skin_;
   s.hprev.assign(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(owned_));
@@ -136,6 +144,9 @@ void IslandsScheme::restore_state(State s) {
     if (s.size_hist.empty())
       s.size_hist.assign(st_.size_hist.size(), 0);
     fits = fits && s.size_hist.size() == st_.size_hist.size() && s.skin > 0.0;
+    if (model_.friction && !s.offsets.empty())
+      fits = fits && s.hx.size() == s.neighbors.size() && s.hy.size() == s.neighbors.size() &&
+             s.hz.size() == s.neighbors.size();
   }
   // dem.nsubit = "auto" needs its choice (the sub-iteration length is state); an integer
   // nsubit ignores one.
@@ -175,6 +186,12 @@ void IslandsScheme::restore_state(State s) {
     return;
   }
   one_.built = !s.offsets.empty();
+  if (model_.friction) {
+    if (one_.built)
+      hx_ = std::move(s.hx), hy_ = std::move(s.hy), hz_ = std::move(s.hz);
+    else
+      hx_.clear(), hy_.clear(), hz_.clear();
+  }
   if (one_.built)
     one_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
                       std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
@@ -229,7 +246,14 @@ void IslandsScheme::replace_external_force(std::span<const double> fx, std::span
 // The Verlet list sorts the store by cell: the per-particle state follows.
 void IslandsScheme::rebuild() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
+  // With friction the tangential history follows its pairs by particle ids (as the explicit
+  // scheme carries it across a rebuild).
+  ContactHistory held;
+  if (model_.friction && one_.built)
+    held = collect_history(p_, one_.list, p_.size(), hx_, hy_, hz_);
   one_.list.build(p_, geom_, skin_);
+  if (model_.friction)
+    attach_history(std::move(held), p_, one_.list, p_.size(), hx_, hy_, hz_);
   const auto order = one_.list.order();
   if (!order.empty()) {
     std::vector<double> h(order.size());
@@ -442,7 +466,7 @@ bool IslandsScheme::Links::form(std::size_t n, double limit) {
 // members' kinetic energy at their own bounds, the lightest mass, the largest external
 // acceleration and half step, over the owned members (busy particles below `owned`). Both paths
 // sum here.
-template <bool External> void IslandsScheme::island_sums(std::size_t owned) {
+template <bool External, bool Friction> void IslandsScheme::island_sums(std::size_t owned) {
   const DomainGeometry& g = geom_;
   const std::uint32_t nc = ln_.islands.count();
   ln_.energy.assign(nc, 0.0);
@@ -456,6 +480,13 @@ template <bool External> void IslandsScheme::island_sums(std::size_t owned) {
     const double delta = p_.radius[i] + p_.radius[j] - std::sqrt(dx * dx + dy * dy + dz * dz);
     if (delta > 0.0)
       ln_.energy[ln_.island_of[i]] += 0.5 * model_.pair.k * delta * delta;
+    if constexpr (Friction) {
+      // The tangential spring of the pair (i's entry; j's holds the same vector negated): what a
+      // sticking contact has stored and can give back.
+      const std::uint32_t k = ln_.ek[q];
+      const double xi2 = hx_[k] * hx_[k] + hy_[k] * hy_[k] + hz_[k] * hz_[k];
+      ln_.energy[ln_.island_of[i]] += 0.5 * model_.pair_t.k_t * xi2;
+    }
   }
   const islands::Columns c = cols();
   for (const std::uint32_t i : ln_.busy) {
@@ -471,6 +502,9 @@ template <bool External> void IslandsScheme::island_sums(std::size_t owned) {
         ln_.energy[q] += 0.5 * model_.wall.k * delta * delta;
     }
     ln_.energy[q] += 0.5 * p_.mass[i] * ln_.own_bound[i] * ln_.own_bound[i];
+    if constexpr (Friction) // rotational energy I |w|^2 / 2, I = 1 / inv_inertia
+      ln_.energy[q] += 0.5 * (p_.wx[i] * p_.wx[i] + p_.wy[i] * p_.wy[i] + p_.wz[i] * p_.wz[i]) /
+                       p_.inv_inertia[i];
     ln_.m_min[q] = std::min(ln_.m_min[q], p_.mass[i]);
     ln_.a_max[q] = std::max(ln_.a_max[q], islands::acceleration<External>(c, model_.gravity, i));
     ln_.hp_max[q] = std::max(ln_.hp_max[q], hprev_[i]);
@@ -478,6 +512,8 @@ template <bool External> void IslandsScheme::island_sums(std::size_t owned) {
 }
 template void IslandsScheme::island_sums<true>(std::size_t);
 template void IslandsScheme::island_sums<false>(std::size_t);
+template void IslandsScheme::island_sums<true, true>(std::size_t);
+template void IslandsScheme::island_sums<false, true>(std::size_t);
 
 // Islands whose bounds account for the energy contacts can move inside them: link with the
 // particles' own bounds, raise every member of an island to the island's s_max (from the
@@ -507,7 +543,10 @@ void IslandsScheme::link() {
     for (const std::uint32_t i : ln_.busy)
       if (ln_.own_stamp[i] != ln_.stamp)
         ln_.own_stamp[i] = ln_.stamp, ln_.own_bound[i] = ln_.bound[i];
-    ext ? island_sums<true>(n) : island_sums<false>(n);
+    if (model_.friction)
+      ext ? island_sums<true, true>(n) : island_sums<false, true>(n);
+    else
+      ext ? island_sums<true>(n) : island_sums<false>(n);
     ln_.changed.clear();
     for (const std::uint32_t i : ln_.busy) {
       const std::uint32_t c = ln_.island_of[i];
@@ -575,7 +614,10 @@ void IslandsScheme::subiterate_one(bool record) {
     for (auto& f : fine_)
       ++f;
     st_.size_hist[static_cast<std::size_t>(std::bit_width(static_cast<std::uint64_t>(n) - 1))] += 1;
-    ext_.active() ? global_steps<true>(record) : global_steps<false>(record);
+    if (model_.friction)
+      ext_.active() ? global_steps<true, true>(record) : global_steps<false, true>(record);
+    else
+      ext_.active() ? global_steps<true, false>(record) : global_steps<false, false>(record);
     one_.moved = std::numeric_limits<double>::infinity(); // explicit steps: no bound
     ++st_.subits;
     raise_faults();
@@ -609,9 +651,15 @@ void IslandsScheme::subiterate_one(bool record) {
   results_.assign(nc, islands::IslandResult{});
   const islands::ContactView view = contact_view(); // the same for every island
   auto islands_range = [&](std::size_t b, std::size_t e) {
-    for (std::size_t q = b; q != e; ++q)
-      ext_.active() ? run_island<true, false>(static_cast<std::uint32_t>(q), record, view)
-                    : run_island<false, false>(static_cast<std::uint32_t>(q), record, view);
+    for (std::size_t q = b; q != e; ++q) {
+      const auto c = static_cast<std::uint32_t>(q);
+      if (model_.friction)
+        ext_.active() ? run_island<true, false, true>(c, record, view)
+                      : run_island<false, false, true>(c, record, view);
+      else
+        ext_.active() ? run_island<true, false>(c, record, view)
+                      : run_island<false, false>(c, record, view);
+    }
   };
   if (ln_.busy.size() < 256) {
     islands_range(0, nc); // few fine particles: no task overhead
@@ -721,14 +769,17 @@ islands::ContactView IslandsScheme::contact_view() {
           {l.offsets().data(), l.neighbors().data(), l.wrap_begin().data()},
           ln_.island_of.data(),
           &geom_,
-          &model_};
+          &model_,
+          model_.friction ? hx_.data() : nullptr,
+          model_.friction ? hy_.data() : nullptr,
+          model_.friction ? hz_.data() : nullptr};
 }
 
 // A sub-iteration where a large part of the particles is linked (a dense bed): every particle
 // takes the K fine steps together, as the explicit scheme would, all partners read live (no
 // bound is needed: nothing flies free). The list is checked after every step, as the explicit
 // scheme checks it, and rebuilt when some particle moved more than skin/2.
-template <bool External> void IslandsScheme::global_steps(bool record) {
+template <bool External, bool Friction> void IslandsScheme::global_steps(bool record) {
   const std::size_t n = p_.size();
   const StepModel& m = model_;
   constexpr std::size_t kBlock = 1024;
@@ -753,9 +804,9 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
       Part pt;
       const std::size_t e = std::min(n, (b + 1) * kBlock);
-      pt.pairs += islands::contact_forces<false, false, true, false>(
+      pt.pairs += islands::contact_forces<false, false, true, false, Friction>(
           view, nullptr, static_cast<std::uint32_t>(b * kBlock), static_cast<std::uint32_t>(e), 0,
-          pt.max_ratio, pt.violations);
+          pt.max_ratio, pt.violations, hk);
       parts[b] = pt;
     });
     if (record && k == 0)
@@ -782,6 +833,11 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
     st.s = s_common, st.h = hk, st.g = m.gravity, st.half_skin2 = half_skin2;
     tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
       const std::size_t i0 = b * kBlock, i1 = std::min(n, (b + 1) * kBlock);
+      if constexpr (Friction) // the spin's kick over the same span (before h_prev changes)
+        for (std::size_t i = i0; i < i1; ++i) {
+          const double si = p_.inv_inertia[i] * (k == 0 ? hprev_[i] + half : s_common);
+          p_.wx[i] += p_.tx[i] * si, p_.wy[i] += p_.ty[i] * si, p_.wz[i] += p_.tz[i] * si;
+        }
       KickDriftFlags flags;
       if (k == 0) // each particle's own first kick h_prev + h/2 (st.s unused)
         kick_drift_range<External, true>(columns.range(i0, i1), st, flags);
@@ -801,7 +857,7 @@ template <bool External> void IslandsScheme::global_steps(bool record) {
 // The K fine steps of island c (every island has a link or a wall): contact forces from members
 // only (no other particle can reach them within dt_sp), walls, and the variable-step leapfrog.
 // On R ranks a local island's (all its members owned), over the rank's rows.
-template <bool External, bool Ranks>
+template <bool External, bool Ranks, bool Friction>
 void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::ContactView& view) {
   const std::uint32_t first = ln_.islands.first[c];
   const islands::Members mb{ln_.members.data() + first,
@@ -812,12 +868,13 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
                             ln_.bound.data(),
                             margin_,
                             0.0};
-  results_[c] = islands::step_island<External, true>(
+  results_[c] = islands::step_island<External, true, Friction>(
       view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
       record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
-      [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations) {
-        return islands::contact_forces<true, true, !Ranks, Ranks>(view, mb.mem, u0, u1, c,
-                                                                  max_ratio, violations);
+      [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
+          auto... hk) {
+        return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
+            view, mb.mem, u0, u1, c, max_ratio, violations, hk...);
       },
       [] {});
 }

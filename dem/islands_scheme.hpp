@@ -31,8 +31,18 @@
 // thread count. The Verlet list (dem/verlet_list) is rebuilt when some particle's displacement
 // since the build plus its bound over the next sub-iteration would exceed skin/2.
 //
-// Limits: frictionless contacts (the constructor refuses friction); an overlap beyond
-// dem.max_overlap is counted, NaN or a particle leaving through a wall stops the run.
+// Friction (one rank, without a communicator): the explicit scheme's tangential spring with
+// history and Coulomb limit and the spin kick (dem/friction_kernels.hpp), in islands and in the
+// global fine steps. The history is kept per entry of the Verlet list and carried across its
+// rebuilds by particle ids (dem/contact_history.hpp), as the explicit scheme carries it. The
+// island energy then includes what rotation and the tangential springs can release: every
+// member's rotational energy I |w|^2 / 2 and the stored tangential spring energy k_t |xi|^2 / 2
+// of every linked pair, so s_max stays a bound (a sliding contact only dissipates; the stored
+// spring energy is the most a contact can give back).
+//
+// Limits: friction on one rank only (the constructor refuses it with a communicator); an
+// overlap beyond dem.max_overlap is counted, NaN or a particle leaving through a wall stops the
+// run.
 //
 // One rank or R ranks. Without a communicator, or with one of size 1, the scheme runs the path
 // above (minimum image, the Verlet list reused over sub-iterations, no ghost). On R > 1 ranks
@@ -81,7 +91,7 @@ public:
   IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
   // `comm` null or of size 1: one rank. Else `particles` is this rank's share (any split) and
   // `model` make_step_model over all particles, the same on every rank. Throws ConfigError with
-  // friction.
+  // friction and a communicator. With friction the store gets rotation.
   IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                 const Communicator* comm, PhaseTimer& timer);
   // The R-rank loops' form (a communicator of any size).
@@ -226,6 +236,8 @@ public:
     // hist_avg; the choices' rows.
     std::vector<std::int64_t> length_counters;
     std::vector<double> length_values, length_log;
+    // Friction: the tangential history per entry of the list (neighbors' indexing).
+    std::vector<double> hx, hy, hz;
   };
   State save_state();
   // Throws RunError (on every rank) if the state does not fit the store.
@@ -321,7 +333,7 @@ private:
 
   islands::Columns cols() { return islands::columns(p_, hprev_, ext_); }
   // Shared by both paths.
-  template <bool External> void island_sums(std::size_t owned);
+  template <bool External, bool Friction = false> void island_sums(std::size_t owned);
   template <bool External> void free_flight(bool record);
   template <bool External, bool Record, bool Walls>
   std::uint64_t free_flight_run(std::size_t b, std::size_t e);
@@ -335,9 +347,9 @@ private:
   void make_links(bool incremental);
   void link();
   bool list_expires();
-  template <bool External, bool Ranks>
+  template <bool External, bool Ranks, bool Friction = false>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
-  template <bool External> void global_steps(bool record);
+  template <bool External, bool Friction> void global_steps(bool record);
   islands::ContactView contact_view();
   // R ranks (islands_ranks.cpp).
   void init_ranks();
@@ -369,6 +381,8 @@ private:
   // Per owned particle (carried through migrations): half of its last step, and sub-iterations
   // in a fine island (a count, below 2^53).
   std::vector<double> hprev_, fine_;
+  // Friction (one rank): the tangential history per entry of one_.list.
+  std::vector<double> hx_, hy_, hz_;
   std::vector<double> x0_, y0_, z0_;           // island members' start positions (members order)
   std::vector<islands::IslandResult> results_; // per island, reduced in island order
   std::uint64_t fault_flag_ = 0;               // sign bit: some particle may be NaN or outside

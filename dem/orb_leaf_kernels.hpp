@@ -9,6 +9,7 @@
 #include <cstdint>
 
 #include "dem/contact_kernels.hpp"
+#include "dem/friction_kernels.hpp"
 #include "dem/kick_drift_range.hpp"
 
 namespace cfddem::dem {
@@ -32,6 +33,16 @@ struct LeafFrozen {
 // nb[off[i], mid[i]) (read live), other partners nb[mid[i], off[i + 1]) (read frozen).
 struct LeafRows {
   const std::uint32_t *act, *off, *mid, *nb;
+};
+
+// With friction: the spins (read live) and torques (written) of the store's slots, 1 / I, the
+// spins at the start of the sub-iteration (what a partner in another leaf is read at), and the
+// tangential history per row entry (nb's indexing: entry s is particle i's record of nb[s]).
+struct LeafSpin {
+  double *wx, *wy, *wz, *tx, *ty, *tz;
+  const double* ii;
+  const double *gwx, *gwy, *gwz;
+  double *hx, *hy, *hz;
 };
 
 // The largest overlap ratio seen and the overlaps beyond the bound (dem.max_overlap radii).
@@ -98,6 +109,49 @@ inline void leaf_contact_pass(std::uint32_t a0, std::uint32_t a1, const LeafRows
                             tally);
 }
 
+// The frictional contact pass over the rows act[a0, a1): leaf_contact_pass's sums with the
+// tangential spring of each entry advanced over the local step hk (its increment hk v_t, with
+// v_t the slip at the half step the step starts from: the explicit scheme's update for a
+// constant step, and over a sub-iteration the increments add up to dt_sp), and the torques.
+inline void leaf_frictional_contact_pass(std::uint32_t a0, std::uint32_t a1, const LeafRows& r,
+                                         const LeafLive& p, const LeafFrozen& f, const LeafSpin& w,
+                                         double hk, const DomainGeometry& g, const StepModel& m,
+                                         OverlapTally& tally) {
+  const double lim = m.max_overlap;
+  for (std::uint32_t q = a0; q < a1; ++q) {
+    const std::uint32_t i = r.act[q];
+    const double xi = p.x[i], yi = p.y[i], zi = p.z[i];
+    const double vxi = p.vx[i], vyi = p.vy[i], vzi = p.vz[i], ri = p.rad[i], mi = p.mass[i];
+    const double wi[3] = {w.wx[i], w.wy[i], w.wz[i]};
+    double a[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
+    auto partner = [&](std::uint32_t s, std::uint32_t j, double xj, double yj, double zj,
+                       double vxj, double vyj, double vzj, const double wj[3]) {
+      double h[3] = {w.hx[s], w.hy[s], w.hz[s]};
+      const double delta = add_frictional_contact(
+          m, g.image(xj - xi, 0), g.image(yj - yi, 1), g.image(zj - zi, 2), ri, p.rad[j], mi,
+          p.mass[j], vxi - vxj, vyi - vyj, vzi - vzj, wi, wj, hk, h, a, tq);
+      w.hx[s] = h[0], w.hy[s] = h[1], w.hz[s] = h[2];
+      if (delta <= 0.0)
+        return;
+      const double ratio = delta / std::min(ri, p.rad[j]);
+      tally.max_ratio = std::max(tally.max_ratio, ratio);
+      tally.violations += ratio > lim;
+    };
+    for (std::uint32_t s = r.off[i]; s < r.mid[i]; ++s) {
+      const std::uint32_t j = r.nb[s];
+      const double wj[3] = {w.wx[j], w.wy[j], w.wz[j]};
+      partner(s, j, p.x[j], p.y[j], p.z[j], p.vx[j], p.vy[j], p.vz[j], wj);
+    }
+    for (std::uint32_t s = r.mid[i]; s < r.off[i + 1]; ++s) {
+      const std::uint32_t j = r.nb[s];
+      const double wj[3] = {w.gwx[j], w.gwy[j], w.gwz[j]};
+      partner(s, j, f.x[j], f.y[j], f.z[j], f.vx[j], f.vy[j], f.vz[j], wj);
+    }
+    p.fx[i] = a[0], p.fy[i] = a[1], p.fz[i] = a[2];
+    w.tx[i] = tq[0], w.ty[i] = tq[1], w.tz[i] = tq[2];
+  }
+}
+
 // Wall contacts of the particles [b, e): each adds its walls' normal forces to the force its row
 // summed (a particle without a row has no pair force, so the wall force replaces what f held).
 inline void add_wall_forces(std::uint32_t b, std::uint32_t e, const std::uint32_t* off,
@@ -121,6 +175,51 @@ inline void add_wall_forces(std::uint32_t b, std::uint32_t e, const std::uint32_
       }
     }
     p.fx[i] = f[0], p.fy[i] = f[1], p.fz[i] = f[2];
+  }
+}
+
+// add_wall_forces with friction: each wall's tangential force and torque too (the explicit
+// scheme's wall pass); a particle without a row starts from zero force and torque.
+inline void add_frictional_wall_forces(std::uint32_t b, std::uint32_t e, const std::uint32_t* off,
+                                       const LeafLive& p, const LeafSpin& w,
+                                       const DomainGeometry& g, const StepModel& m,
+                                       OverlapTally& tally) {
+  for (std::uint32_t i = b; i < e; ++i) {
+    const bool row = off[i + 1] > off[i];
+    double f[3] = {row ? p.fx[i] : 0.0, row ? p.fy[i] : 0.0, row ? p.fz[i] : 0.0};
+    double tq[3] = {row ? w.tx[i] : 0.0, row ? w.ty[i] : 0.0, row ? w.tz[i] : 0.0};
+    const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
+    const double ri = p.rad[i], mi = p.mass[i];
+    for (int a = 0; a < 3; ++a) {
+      if (g.periodic[a])
+        continue;
+      for (int side = 0; side < 2; ++side) {
+        const double sg = side ? 1.0 : -1.0;
+        const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+        if (delta <= 0.0)
+          continue;
+        const double fn = normal_force(m.wall, mi, delta, sg * vel[a]);
+        f[a] -= sg * fn;
+        tally.max_ratio = std::max(tally.max_ratio, delta / ri);
+        tally.violations += delta > m.max_overlap * ri;
+        const double wv[3] = {w.wx[i], w.wy[i], w.wz[i]};
+        add_wall_friction(m.wall_t, mi, ri, fn, a, sg, vel, wv, f, tq);
+      }
+    }
+    p.fx[i] = f[0], p.fy[i] = f[1], p.fz[i] = f[2];
+    w.tx[i] = tq[0], w.ty[i] = tq[1], w.tz[i] = tq[2];
+  }
+}
+
+// The spin kick of local step k of a batch [b, e), before leaf_kick_drift (which overwrites
+// h_prev): w += T / I s over the span s of the translational kick (h_prev + h/2 at k = 0, then
+// (h_before + h)/2), the explicit scheme's w += T (1/I) dt for a constant step.
+inline void leaf_spin_kick(std::uint32_t b, std::uint32_t e, const LeafLive& p, const LeafSpin& w,
+                           std::int64_t k, double h_before, double hk) {
+  const double half = 0.5 * hk, sk = 0.5 * h_before + half;
+  for (std::uint32_t i = b; i < e; ++i) {
+    const double s = w.ii[i] * (k == 0 ? p.hp[i] + half : sk);
+    w.wx[i] += w.tx[i] * s, w.wy[i] += w.ty[i] * s, w.wz[i] += w.tz[i] * s;
   }
 }
 

@@ -8,10 +8,13 @@
 #include <limits>
 #include <numeric>
 #include <string>
+#include <unordered_map>
+#include <utility>
 
 #include <fmt/format.h>
 
 #include "core/error.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/orb_rank_part.hpp"
 #include "dem/scheme_support.hpp"
 
@@ -88,6 +91,34 @@ std::int64_t OrbScheme::rank_locate(bool regridding, std::string& message, std::
 void OrbScheme::rank_exchange_and_rows() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   p_.resize(owned_);
+  // With friction: the owned rows' history by ids (partners may be ghosts, about to go), with
+  // any records a restore handed in, each record routed to the rank its owner particle goes to
+  // (records of particles this rank does not hold, a restore's of other ranks' shares, are
+  // dropped: their holder routes them), as the explicit scheme carries it (explicit_ranks.cpp).
+  ContactHistory arrived;
+  if (model_.friction) {
+    ContactHistory held = hist_.pending;
+    hist_.pending = ContactHistory{};
+    const auto off = rank_->rows.off();
+    if (off.size() >= 1 && hist_.hx.size() == rank_->rows.nb().size())
+      held.append(collect_history(hist_.ids, off, rank_->rows.nb(), off.size() - 1, hist_.hx,
+                                  hist_.hy, hist_.hz));
+    std::unordered_map<std::int64_t, std::uint32_t> index;
+    index.reserve(owned_);
+    for (std::size_t i = 0; i < owned_; ++i)
+      index.emplace(p_.id[i], static_cast<std::uint32_t>(i));
+    ContactHistory mine;
+    std::vector<int> to;
+    for (std::size_t q = 0; q < held.size(); ++q) {
+      const auto it = index.find(held.owner[q]);
+      if (it == index.end())
+        continue;
+      mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
+      to.push_back(rank_->dest[it->second]);
+    }
+    arrived =
+        ContactHistory::unpack(rank_->exchange.route(to, mine.pack(), ContactHistory::kStride));
+  }
   const double prox = cfg_.prox;
   if (cfg_.time_to_contact)
     time_to_contact_speeds();
@@ -220,6 +251,14 @@ void OrbScheme::rank_exchange_and_rows() {
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
   std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+  if (model_.friction) {
+    std::fill(p_.tx.begin(), p_.tx.end(), 0.0);
+    std::fill(p_.ty.begin(), p_.ty.end(), 0.0);
+    std::fill(p_.tz.begin(), p_.tz.end(), 0.0);
+    attach_history(std::move(arrived), p_.id, rank_->rows.off(), rank_->rows.nb(), owned_, hist_.hx,
+                   hist_.hy, hist_.hz);
+    hist_.ids = p_.id;
+  }
   // The own-leaf entries before each owned particle (the batches' force evaluations), and the
   // walls as partners.
   const auto off = rank_->rows.off(), mid = rank_->rows.mid();

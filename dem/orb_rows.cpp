@@ -9,7 +9,9 @@
 #include <fmt/format.h>
 
 #include "core/error.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/orb_local_rows.hpp"
+#include "dem/orb_rank_part.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/verlet_list.hpp"
@@ -49,7 +51,7 @@ void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
   for (auto* v : {&pairs_.ca, &pairs_.cb, &pairs_.pa, &pairs_.pb})
     for (auto& i : *v)
       i = scratch_[i];
-  rows_.off.clear();
+  drop_rows();
 }
 
 void OrbScheme::regrid() {
@@ -387,12 +389,45 @@ void OrbScheme::rebuild_pairs() {
   pairs_.prox_from_pairs = prox_cells;
   pairs_.xr = p_.x, pairs_.yr = p_.y, pairs_.zr = p_.z;
   pairs_.valid = true;
-  rows_.off.clear();
+  drop_rows();
   ++stats_.builds;
 }
 
-// Rows of the current leaves from the contact candidates (after a build or a re-sort).
+// The rows no longer fit the store (it was re-sorted, or the pairs rebuilt): with friction their
+// history is kept by particle ids (the ids of the slots the rows were derived over) until the
+// next derive_rows attaches it.
+void OrbScheme::drop_rows() {
+  if (model_.friction && rows_.off.size() == hist_.ids.size() + 1 &&
+      hist_.hx.size() == rows_.nb.size()) {
+    hist_.pending.append(collect_history(hist_.ids, rows_.off, rows_.nb, hist_.ids.size(), hist_.hx,
+                                         hist_.hy, hist_.hz));
+    hist_.hx.clear(), hist_.hy.clear(), hist_.hz.clear(), hist_.ids.clear();
+  }
+  rows_.off.clear();
+}
+
+// The tangential history by ids: that of the current rows, or the records awaiting rows (R
+// ranks: this rank's owned rows').
+ContactHistory OrbScheme::current_history() const {
+  ContactHistory h = hist_.pending;
+  if (rank_) {
+    const auto off = rank_->rows.off();
+    if (off.size() >= 1 && hist_.hx.size() == rank_->rows.nb().size())
+      h.append(collect_history(hist_.ids, off, rank_->rows.nb(), off.size() - 1, hist_.hx, hist_.hy,
+                               hist_.hz));
+    return h;
+  }
+  if (rows_.off.size() == hist_.ids.size() + 1 && hist_.hx.size() == rows_.nb.size())
+    h.append(collect_history(hist_.ids, rows_.off, rows_.nb, hist_.ids.size(), hist_.hx, hist_.hy,
+                             hist_.hz));
+  return h;
+}
+
+// Rows of the current leaves from the contact candidates (after a build or a re-sort); with
+// friction the history follows the pairs (drop_rows, then attached by ids).
 void OrbScheme::derive_rows() {
+  if (model_.friction)
+    drop_rows();
   const std::size_t n = p_.size();
   const std::size_t nl = leaves_.range.size() - 1;
   leaves_.of.resize(n);
@@ -442,6 +477,15 @@ void OrbScheme::derive_rows() {
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);
   std::fill(p_.fz.begin(), p_.fz.end(), 0.0);
+  if (model_.friction) {
+    std::fill(p_.tx.begin(), p_.tx.end(), 0.0);
+    std::fill(p_.ty.begin(), p_.ty.end(), 0.0);
+    std::fill(p_.tz.begin(), p_.tz.end(), 0.0);
+    attach_history(std::move(hist_.pending), p_.id, rows_.off, rows_.nb, n, hist_.hx, hist_.hy,
+                   hist_.hz);
+    hist_.pending = ContactHistory{};
+    hist_.ids = p_.id;
+  }
 }
 
 // Per particle: whether some partner (another particle, or a wall: mark_walls) is within the

@@ -49,9 +49,10 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& t
 OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                      const Communicator* comm, PhaseTimer& timer)
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
-  require_frictionless(model_, "orb");
   if (comm != nullptr && comm->size() > 1)
     rank_ = std::make_unique<RankPart>(*comm);
+  if (model_.friction)
+    p_.enable_rotation();
   domain_ = partition::Aabb{scene.domain.lo, scene.domain.hi};
   cfg_.levels = scene.partition.orb_levels;
   double r_max = 0.0;
@@ -156,6 +157,10 @@ bool OrbScheme::build_rows(bool force) {
 void OrbScheme::freeze() {
   frozen_.x = p_.x, frozen_.y = p_.y, frozen_.z = p_.z;
   frozen_.vx = p_.vx, frozen_.vy = p_.vy, frozen_.vz = p_.vz, frozen_.hp = hprev_;
+  if (model_.friction) {
+    frozen_.wx = p_.wx, frozen_.wy = p_.wy, frozen_.wz = p_.wz;
+    frozen_.hx = hist_.hx, frozen_.hy = hist_.hy, frozen_.hz = hist_.hz;
+  }
 }
 
 void OrbScheme::roll_back() {
@@ -165,6 +170,10 @@ void OrbScheme::roll_back() {
   back(frozen_.x, p_.x), back(frozen_.y, p_.y), back(frozen_.z, p_.z);
   back(frozen_.vx, p_.vx), back(frozen_.vy, p_.vy), back(frozen_.vz, p_.vz);
   hprev_ = frozen_.hp;
+  if (model_.friction) {
+    back(frozen_.wx, p_.wx), back(frozen_.wy, p_.wy), back(frozen_.wz, p_.wz);
+    hist_.hx = frozen_.hx, hist_.hy = frozen_.hy, hist_.hz = frozen_.hz;
+  }
 }
 
 LeafLive OrbScheme::live(bool external) {
@@ -189,6 +198,13 @@ LeafLive OrbScheme::live(bool external) {
 LeafFrozen OrbScheme::frozen() const {
   return {frozen_.x.data(),  frozen_.y.data(),  frozen_.z.data(),
           frozen_.vx.data(), frozen_.vy.data(), frozen_.vz.data()};
+}
+
+LeafSpin OrbScheme::spin() {
+  return {p_.wx.data(),      p_.wy.data(),      p_.wz.data(),          p_.tx.data(),
+          p_.ty.data(),      p_.tz.data(),      p_.inv_inertia.data(), frozen_.wx.data(),
+          frozen_.wy.data(), frozen_.wz.data(), hist_.hx.data(),       hist_.hy.data(),
+          hist_.hz.data()};
 }
 
 LeafRows OrbScheme::rows_view() const {
@@ -274,13 +290,18 @@ void OrbScheme::plan(bool record) {
 }
 
 void OrbScheme::run_batch(Batch& bt, bool record) {
-  ext_.active() ? run_batch_impl<true>(bt, record) : run_batch_impl<false>(bt, record);
+  if (model_.friction)
+    ext_.active() ? run_batch_impl<true, true>(bt, record)
+                  : run_batch_impl<false, true>(bt, record);
+  else
+    ext_.active() ? run_batch_impl<true, false>(bt, record)
+                  : run_batch_impl<false, false>(bt, record);
 }
 
 // The batch's K local steps. With External, the per-particle external force is added to the
 // contact force in every kick and in the synchronised velocity ((F + F_ext) / m + g, the
 // explicit scheme's arithmetic).
-template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) {
+template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   bt.violations = 0;
   bt.max_ratio = 0.0;
   bt.outran = false;
@@ -297,6 +318,7 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
       rank_ ? frozen_state : LeafFrozen{pairs_.xr.data(), pairs_.yr.data(), pairs_.zr.data(),
                                         nullptr,          nullptr,          nullptr};
   const LeafRows rows = rows_view();
+  [[maybe_unused]] const LeafSpin w = Friction ? spin() : LeafSpin{};
   const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
   const std::uint32_t b = bt.b, e = bt.e;
   OverlapTally tally;
@@ -308,12 +330,20 @@ template <bool External> void OrbScheme::run_batch_impl(Batch& bt, bool record) 
     st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
     // Contact pass: the explicit scheme's pair arithmetic; partners of the own leaf read live,
     // partners of other leaves read frozen at the start of the sub-iteration.
-    leaf_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, g, m, tally);
-    if (walls)
-      add_wall_forces(b, e, rows.off, p, g, m.wall, m.max_overlap, tally);
+    if constexpr (Friction) {
+      leaf_frictional_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, w, st.hk, g, m, tally);
+      if (walls)
+        add_frictional_wall_forces(b, e, rows.off, p, w, g, m, tally);
+    } else {
+      leaf_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, g, m, tally);
+      if (walls)
+        add_wall_forces(b, e, rows.off, p, g, m.wall, m.max_overlap, tally);
+    }
     if (record && k == 0)
       synchronised_velocities<External>(b, e, p, m.gravity, rec_.vx.data(), rec_.vy.data(),
                                         rec_.vz.data());
+    if constexpr (Friction)
+      leaf_spin_kick(b, e, p, w, k, st.h_before, st.hk);
     // v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2), x(n+1) = x(n) + v(n+1/2) h (leaf_kick_drift).
     // Sign-bit AND instead of a max: vectorizes (see integrate_range in explicit_scheme.cpp).
     std::uint64_t still = ~std::uint64_t{0};
@@ -573,6 +603,8 @@ OrbScheme::State OrbScheme::save_state() const {
     s.ca = pairs_.ca, s.cb = pairs_.cb, s.pa = pairs_.pa, s.pb = pairs_.pb;
     s.x_ref = pairs_.xr, s.y_ref = pairs_.yr, s.z_ref = pairs_.zr;
   }
+  if (model_.friction)
+    s.history = current_history();
   return s;
 }
 
@@ -613,7 +645,9 @@ void OrbScheme::restore_state(State s) {
   if (!pairs_.valid)
     pairs_.ca.clear(), pairs_.cb.clear(), pairs_.pa.clear(), pairs_.pb.clear(), pairs_.xr.clear(),
         pairs_.yr.clear(), pairs_.zr.clear();
-  rows_.off.clear(); // rows are derived again
+  rows_.off.clear(); // rows are derived again, the history attached to them by ids
+  hist_.hx.clear(), hist_.hy.clear(), hist_.hz.clear(), hist_.ids.clear();
+  hist_.pending = std::move(s.history);
 }
 
 LeafStepStats OrbScheme::take_interval_stats() {

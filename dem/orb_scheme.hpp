@@ -48,10 +48,21 @@
 // v(n+1/2) = v(n) + a(n) h/2 (start the new one): variable-step leapfrog. With a constant h it is
 // the explicit scheme's update exactly (h/2 + h/2 == h in floating point).
 //
-// Limits (documented, not hidden): frictionless contacts only (the constructor throws with
-// friction); an overlap beyond dem.max_overlap is counted (max_overlap_ratio) rather than fatal,
-// since a coarse step missing a collision is the trade this scheme makes; NaN or a particle
-// leaving through a wall stops the run.
+// Friction (dem.friction or dem.wall_friction > 0; any rank count): the explicit scheme's
+// tangential spring with history and Coulomb limit (dem/friction_kernels.hpp) and the spin kick.
+// Each row entry (i, j) holds i's tangential history; a partner in another leaf is read with its
+// spin frozen too. The history lives with the pair, not with the entry: whenever the rows are
+// derived again (a re-sort, a rebuild, a regrid, a restore) it is collected by particle ids and
+// attached to the new rows (dem/contact_history.hpp, as the explicit scheme carries it across a
+// rebuild), and a retried sub-iteration rolls it back with the particles. A pair's spring advances
+// by h_k v_t at each local step of length h_k. On R ranks the rows are built at every
+// sub-iteration: the owned rows' history is collected by ids before the exchange and each record
+// routed to the rank its owner particle goes to (ParticleExchange::route), then attached to the new
+// rows; the ghosts carry their spins.
+//
+// Limits (documented, not hidden): an overlap beyond dem.max_overlap is counted (max_overlap_ratio)
+// rather than fatal, since a coarse step missing a collision is the trade this scheme makes; NaN or
+// a particle leaving through a wall stops the run.
 //
 // Over MPI ranks (a communicator of more than one rank; nullptr or one rank is the one-rank path
 // above, bit for bit and at its speed) the leaves of the parallel ORB are dealt to ranks by the
@@ -91,6 +102,7 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
@@ -107,6 +119,7 @@ struct LeafStepStats {
 
 struct LeafLive;
 struct LeafFrozen;
+struct LeafSpin;
 struct LeafRows;
 
 class OrbScheme {
@@ -115,7 +128,7 @@ public:
   OrbScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
   // Any rank count: `particles` is this rank's share (any split: the first sub-iteration moves
   // each to its owner); `model`: make_step_model over all particles, the same on every rank;
-  // `comm` nullptr or of one rank: the one-rank path. Throws ConfigError with friction.
+  // `comm` nullptr or of one rank: the one-rank path. With friction the store gets rotation.
   OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
             const Communicator* comm, PhaseTimer& timer);
   OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
@@ -217,6 +230,7 @@ public:
     bool pairs_valid = false, prox_from_pairs = true;
     std::vector<std::uint32_t> ca, cb, pa, pb;
     std::vector<double> x_ref, y_ref, z_ref;
+    ContactHistory history; // friction: the tangential history by particle ids
   };
   State save_state() const;    // collective
   void restore_state(State s); // throws RunError if it does not fit the store
@@ -257,9 +271,19 @@ private:
     std::vector<std::uint32_t> off, mid, nb, active, own_before;
     std::vector<unsigned char> near;
   };
-  // The state at the start of the sub-iteration: what other leaves read, and the rollback point.
+  // The state at the start of the sub-iteration: what other leaves read, and the rollback point
+  // (with friction: the spins and the history per row entry too).
   struct Frozen {
     std::vector<double> x, y, z, vx, vy, vz, hp;
+    std::vector<double> wx, wy, wz, hx, hy, hz;
+  };
+  // Friction: the tangential history per entry of rows_.nb, the ids of the store's slots when the
+  // rows were derived (the rows' indices name slots of that order), and records waiting for the
+  // next derivation (collected when the rows were dropped, or handed in by a restore).
+  struct History {
+    std::vector<double> hx, hy, hz;
+    std::vector<std::int64_t> ids;
+    ContactHistory pending;
   };
   // The recorded state (subiterate(true)).
   struct Record {
@@ -283,11 +307,12 @@ private:
   void plan(bool record);
   bool attempt(bool record);
   void run_batch(Batch& b, bool record);
-  template <bool External> void run_batch_impl(Batch& b, bool record);
+  template <bool External, bool Friction> void run_batch_impl(Batch& b, bool record);
   void roll_back();
   [[noreturn]] void raise_fault();
   LeafLive live(bool external);
   LeafFrozen frozen() const;
+  LeafSpin spin();
   LeafRows rows_view() const;
   double all_max(double v) const;
   bool time_to_contact_speeds();
@@ -300,6 +325,8 @@ private:
   bool rows_expire() const;
   void rebuild_pairs();
   void derive_rows();
+  void drop_rows();
+  ContactHistory current_history() const;
   void mark_near();
   // R ranks' steps (orb_rank_part.cpp).
   void rank_regrid();
@@ -326,6 +353,7 @@ private:
   Pairs pairs_;
   Rows rows_;
   Frozen frozen_;
+  History hist_;
   Record rec_;
   Stats stats_;
   std::vector<Batch> batches_;

@@ -69,15 +69,6 @@ struct WallBounds {
   }
 };
 
-// The sub-iterated schemes have no tangential history: refuse friction, naming the scheme.
-inline void require_frictionless(const StepModel& m, const std::string& scheme) {
-  if (m.friction)
-    throw ConfigError("scene key 'dem.scheme'",
-                      "\"" + scheme +
-                          "\" supports frictionless contacts only (dem.friction and "
-                          "dem.wall_friction must be 0); use \"explicit\"");
-}
-
 // A particle's halo box `q` lies strictly inside the leaf holding the particle at (x, y, z): it
 // reaches no other leaf and no periodic image, so the particle needs no ghost copy (most
 // particles of a large box). The R-rank ghost searches take this fast path first.

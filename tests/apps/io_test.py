@@ -360,6 +360,13 @@ class Restart(Tmp):
         # Friction (tangential history), walls and gravity, with contacts alive at the restart.
         self.check_restart(BOX, 0.016, 0.008, ["output.interval=0.001"])
 
+    def test_orb_frictional_walls_bitwise(self):
+        # The orb scheme's tangential history, by particle ids, in the checkpoint (/orb/history_*).
+        self.check_restart(BOX, 0.016, 0.008, ["dem.scheme=orb", "output.interval=0.001"])
+
+    def test_islands_frictional_walls_bitwise(self):
+        # The islands scheme's tangential history per list entry (/islands/history_*).
+        self.check_restart(BOX, 0.016, 0.008, ["dem.scheme=islands", "output.interval=0.001"])
 
     def test_orb_hcs_bitwise(self):
         # Checkpoints fall on regrid points (every dem.nsubit sub-iterations).

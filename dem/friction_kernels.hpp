@@ -1,0 +1,82 @@
+// The frictional contact of one pair and of one wall (docs/theory.md §2: the normal spring-dashpot
+// plus the tangential spring with history and the Coulomb limit), for the orb and islands
+// schemes' leaf and island kernels. The arithmetic is the explicit scheme's contact pass and
+// wall pass (dem/verlet_passes.hpp) step for step, in the same order, so that a sub-iterated
+// scheme stepping at the explicit dt takes the explicit floating-point path. Inline scalars: no
+// allocation, no threads.
+#pragma once
+
+#include <cmath>
+
+#include "dem/contact_kernels.hpp"
+#include "dem/linear_spring_dashpot.hpp"
+
+namespace cfddem::dem {
+
+// Contact of particle i with a partner at separation (dx, dy, dz) = x_j - x_i (minimum image),
+// radii ri, rj, masses mi, mj, relative velocity dv = v_i - v_j, spins wi, wj, over a step dt.
+// h: the tangential history of this (i, j) entry (i's record), updated; zeroed when the pair is
+// apart. When they overlap, adds the force on i to a and the torque on i to tq and returns the
+// overlap; returns 0 when apart.
+inline double add_frictional_contact(const StepModel& m, double dx, double dy, double dz, double ri,
+                                     double rj, double mi, double mj, double dvx, double dvy,
+                                     double dvz, const double wi[3], const double wj[3], double dt,
+                                     double h[3], double a[3], double tq[3]) {
+  const double r2 = dx * dx + dy * dy + dz * dz;
+  const double rs = ri + rj;
+  if (r2 >= rs * rs) {
+    h[0] = h[1] = h[2] = 0.0;
+    return 0.0;
+  }
+  const double dist = std::sqrt(r2);
+  const double inv = 1.0 / dist;
+  const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+  const double delta = rs - dist;
+  const double vn = dvx * nx + dvy * ny + dvz * nz;
+  const double meff = contact_meff(m, mi, mj);
+  const double fn = contact_normal_force(m, meff, delta, vn);
+  a[0] -= fn * nx, a[1] -= fn * ny, a[2] -= fn * nz;
+  // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n.
+  const double sx = ri * wi[0] + rj * wj[0];
+  const double sy = ri * wi[1] + rj * wj[1];
+  const double sz = ri * wi[2] + rj * wj[2];
+  const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
+               rvz = dvz + (sx * ny - sy * nx);
+  const double rvn = rvx * nx + rvy * ny + rvz * nz;
+  const double nvec[3] = {nx, ny, nz};
+  const double vt[3] = {rvx - rvn * nx, rvy - rvn * ny, rvz - rvn * nz};
+  double ft[3];
+  tangential_force(m.pair_t, meff, dt, std::abs(fn), nvec, vt, h, ft);
+  a[0] += ft[0], a[1] += ft[1], a[2] += ft[2];
+  // Torque on i: (r_i n) x F_t.
+  tq[0] += ri * (ny * ft[2] - nz * ft[1]);
+  tq[1] += ri * (nz * ft[0] - nx * ft[2]);
+  tq[2] += ri * (nx * ft[1] - ny * ft[0]);
+  return delta;
+}
+
+// The tangential force of a wall with outward normal s e_a (s = -1 at lo, +1 at hi) pressing on
+// a particle of radius ri, mass mi, velocity vel and spin w with the normal force fn: added to f,
+// its torque to tq. Walls keep no history: a dashpot capped by the Coulomb limit (MFIX-Exa's
+// sliding friction, docs/theory.md §2).
+inline void add_wall_friction(const TangentialLaw& law, double mi, double ri, double fn, int a,
+                              double s, const double vel[3], const double w[3], double f[3],
+                              double tq[3]) {
+  double nvec[3] = {0, 0, 0};
+  nvec[a] = s;
+  // Slip of the contact point: v_i + w_i x (r_i n) (the wall is at rest).
+  const double rv[3] = {vel[0] + ri * (w[1] * nvec[2] - w[2] * nvec[1]),
+                        vel[1] + ri * (w[2] * nvec[0] - w[0] * nvec[2]),
+                        vel[2] + ri * (w[0] * nvec[1] - w[1] * nvec[0])};
+  const double rvn = rv[a] * s;
+  const double vt[3] = {rv[0] - rvn * nvec[0], rv[1] - rvn * nvec[1], rv[2] - rvn * nvec[2]};
+  double xi3[3] = {0, 0, 0}, ft[3];
+  tangential_force(law, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
+  for (int b = 0; b < 3; ++b)
+    f[b] += ft[b];
+  tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
+  tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
+  tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
+}
+
+} // namespace cfddem::dem

@@ -46,6 +46,7 @@ StepModel make_step_model(const Scene& s, const ParticleRange& range) {
   const double r_min = empty ? 1.0 : range.r_min, r_max = empty ? 1.0 : range.r_max;
   m.r_min = r_min;
   m.uniform_mass = !empty && range.m_min == range.m_max;
+  m.uniform_radius = !empty && range.r_min == range.r_max;
   if (m.uniform_mass) {
     m.uniform_meff = 0.5 * range.m_min;
     m.uniform_eta = m.pair.eta_coef * std::sqrt(m.uniform_meff); // docs/theory.md §2: eta_n

@@ -23,6 +23,9 @@ struct StepModel {
   double skin = 0.0;
   bool uniform_mass = false; // every particle has the same mass: m_eff and eta_n are constants
   double uniform_meff = 0.0, uniform_eta = 0.0;
+  // Every particle has the same radius (r_min): a pair's contact distance is 2 r_min, with no
+  // load of the partner's radius in the pair loop.
+  bool uniform_radius = false;
 };
 
 // Global dt = min over particles of tau_p * dt_factor, tau_p = sqrt(m / k) (docs/theory.md §1),

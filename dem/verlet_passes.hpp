@@ -57,6 +57,9 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
   const double* __restrict vz = p.vz.data();
   const double* __restrict rad = p.radius.data();
   const double* __restrict mass = p.mass.data();
+  [[maybe_unused]] const double* __restrict wx = p.wx.data();
+  [[maybe_unused]] const double* __restrict wy = p.wy.data();
+  [[maybe_unused]] const double* __restrict wz = p.wz.data();
   const std::uint32_t* __restrict off = list.offsets().data();
   const std::uint32_t* __restrict nb = list.neighbors().data();
   const std::uint32_t* __restrict wrap = list.wrap_begin().data();
@@ -68,7 +71,9 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
   if (blocks.size() < nblocks)
     blocks.resize(nblocks);
 
-  auto body = [&](const tbb::blocked_range<std::size_t>& r, StepReport rep) {
+  // Equal radii (the common case): the contact distance r_i + r_j is this constant, bit for bit.
+  const double rs_uniform = m.r_min + m.r_min;
+  auto blocks_of = [&]<bool Uniform>(const tbb::blocked_range<std::size_t>& r, StepReport rep) {
     for (std::size_t b = r.begin(); b != r.end(); ++b) {
       PairContacts& c = blocks[b];
       c.size = 0;
@@ -92,7 +97,7 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
           if constexpr (Tail)
             dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
           const double r2 = dx * dx + dy * dy + dz * dz;
-          const double rs = ri + rad[j];
+          const double rs = Uniform ? rs_uniform : ri + rad[j];
           if (r2 >= rs * rs) {
             if constexpr (Friction)
               hx[k] = hy[k] = hz[k] = 0.0;
@@ -116,9 +121,9 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
           if constexpr (Friction) {
             // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n
             // (docs/theory.md §2).
-            const double sx = ri * p.wx[i] + rad[j] * p.wx[j];
-            const double sy = ri * p.wy[i] + rad[j] * p.wy[j];
-            const double sz = ri * p.wz[i] + rad[j] * p.wz[j];
+            const double sx = ri * wx[i] + rad[j] * wx[j];
+            const double sy = ri * wy[i] + rad[j] * wy[j];
+            const double sz = ri * wz[i] + rad[j] * wz[j];
             const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
                          rvz = dvz + (sx * ny - sy * nx);
             const double rvn = rvx * nx + rvy * ny + rvz * nz;
@@ -138,6 +143,10 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
       c.size = s;
     }
     return rep;
+  };
+  auto body = [&](const tbb::blocked_range<std::size_t>& r, StepReport rep) {
+    return m.uniform_radius ? blocks_of.template operator()<true>(r, rep)
+                            : blocks_of.template operator()<false>(r, rep);
   };
   const tbb::blocked_range<std::size_t> all(0, nblocks, 1);
   if (n <= 4 * kPairBlock) {

@@ -7,6 +7,8 @@
 //                     up, as in a run: the counter builds_per_step says how often)
 //   BM_DenseStep      the same step on 100k particles at phi 0.1, 0.3 and 0.5 (issue 21's dense
 //                     granular flow; force_s_per_step is the contact pass)
+//   BM_DenseContactPass  the contact pass alone on those gases (pair passes over the half list
+//                     and the scatter to both particles; the list built once)
 // items_per_second = particles processed per second (particle-steps/s for the step).
 // Threads: CFDDEM_BENCH_THREADS (default 1, to compare with the single-core peer figures).
 #include <cmath>
@@ -26,7 +28,9 @@
 #include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
+#include "dem/step_model.hpp"
 #include "dem/verlet_list.hpp"
+#include "dem/verlet_passes.hpp"
 
 namespace {
 
@@ -124,6 +128,36 @@ void BM_ExplicitStep(benchmark::State& state) {
       benchmark::Counter(timer.seconds(Phase::force), benchmark::Counter::kAvgIterations);
   state.counters["neighbor_s_per_step"] =
       benchmark::Counter(timer.seconds(Phase::neighbor), benchmark::Counter::kAvgIterations);
+}
+
+void BM_DenseContactPass(benchmark::State& state) {
+  const auto threads = threads_from_env();
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  ParticleStore p = g.particles;
+  const dem::DomainGeometry geom(g.scene.domain);
+  const dem::StepModel m = dem::make_step_model(g.scene, p);
+  dem::VerletList list;
+  list.build(p, geom, kSkin, dem::RowKind::half);
+  std::vector<dem::PairContacts> head, tail;
+  std::size_t nh = 0, nt = 0;
+  for (auto _ : state) {
+    dem::StepReport rep;
+    nh = dem::pair_pass<false, false>(p, list, list.active(), {}, geom, m, m.dt, head, rep);
+    nt = dem::pair_pass<false, true>(p, list, list.tail_rows(), {}, geom, m, m.dt, tail, rep);
+    dem::scatter_contacts<false>(p, list, std::span<const dem::PairContacts>(head).first(nh),
+                                 std::span<const dem::PairContacts>(tail).first(nt));
+    benchmark::DoNotOptimize(p.fx.data());
+  }
+  std::size_t contacts = 0;
+  for (std::size_t b = 0; b < nh; ++b)
+    contacts += head[b].size;
+  for (std::size_t b = 0; b < nt; ++b)
+    contacts += tail[b].size;
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(p.size()));
+  state.counters["pairs_per_particle"] =
+      static_cast<double>(list.pair_count()) / static_cast<double>(p.size());
+  state.counters["contacts_per_particle"] =
+      static_cast<double>(contacts) / static_cast<double>(p.size());
 }
 
 // The orb scheme on the same gases, 2^levels leaves of ~19 particles (the paper's HCS 1222 in
@@ -239,6 +273,12 @@ void BM_DenseStep(benchmark::State& state) {
   BM_ExplicitStep(state);
 }
 BENCHMARK(BM_DenseStep)
+    ->ArgNames({"phi_pct", "n"})
+    ->Args({10, 100000})
+    ->Args({30, 100000})
+    ->Args({50, 100000})
+    ->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_DenseContactPass)
     ->ArgNames({"phi_pct", "n"})
     ->Args({10, 100000})
     ->Args({30, 100000})

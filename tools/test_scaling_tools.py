@@ -225,6 +225,43 @@ class ScalingModel(unittest.TestCase):
         self.assertAlmostEqual(t8["halo bytes"], 8e6 / beta, places=15)
         self.assertAlmostEqual(t64["halo bytes"], 8e6 / beta / 4.0, places=15)  # (8/64)^(2/3)
 
+    def test_each_core_count_extrapolates_from_the_largest_run_not_above_it(self):
+        runs = [self.runs(r)[0] for r in (2, 8, 64)]
+        pick = scaling_model.nearest_run
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 1)), 2)  # none below: the smallest
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 16)), 8)
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 64)), 64)
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 4096)), 64)
+
+    def test_count_rows_are_per_fluid_step_mean_and_max(self):
+        run, _ = self.runs(2, steps=(3000, 1000), msgs=6, bytes_=100)
+        run["fluid_steps"] = 2
+        row = scaling_model.count_rows(run)
+        self.assertEqual(row["ranks"], 2)
+        self.assertEqual(row["particle_steps_mean"], 1000.0)  # (3000 + 1000) / 2 ranks / 2
+        self.assertEqual(row["particle_steps_max"], 1500.0)
+        self.assertEqual(row["p2p_messages_max"], 3.0)
+
+    def test_a_calibration_of_another_scheme_is_refused(self):
+        run, cal = self.runs(2)
+        run["configuration"] = {"dem.scheme": "orb"}
+        with self.assertRaises(SystemExit) as e:
+            scaling_model.check_scheme(run, cal, "run")
+        self.assertEqual(e.exception.code, 2)
+
+    def test_serial_time_of_another_scene_is_the_summed_counts(self):
+        # Calibrated on a scene half the size: the serial time must be the R-rank run's own
+        # work (the sum over its ranks), not the smaller calibration run's.
+        run, cal = self.runs(4)
+        small = {"ranks": 1, "threads": 1, "particle_steps": 2000, "force_evaluations": 1000,
+                 "configuration": {"particles.count": 50},
+                 "phase_seconds": {"integrate": 2e-4, "force": 2e-4}}
+        cal_small = scaling_model.calibrate(small)
+        serial = scaling_model.serial_seconds(run, cal_small)
+        self.assertAlmostEqual(serial, 4 * (1000 * 1e-7 + 500 * 2e-7), places=15)
+        # Same scene: the calibration run's own counted compute.
+        self.assertAlmostEqual(scaling_model.serial_seconds(run, cal), cal[3], places=15)
+
     def test_calibration_must_be_one_rank_one_thread(self):
         with self.assertRaises(SystemExit):
             scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})

@@ -86,17 +86,25 @@ def gas_cells(j):
     return math.prod(cells) if isinstance(cells, list) else 0
 
 
+def fluid_steps(run):
+    """Fluid steps of the run: the model's unit of time (per fluid step, so that runs of
+    different lengths compare); 1 for a run without a gas (then per run)."""
+    return max(int(run.get("fluid_steps") or run.get("gas_substeps") or 1), 1)
+
+
 def scene_key(j):
-    """What makes two runs the same scene for the model: scheme, particle count, gas cells."""
+    """What makes two runs the same scene for the model: scheme, particle count, gas cells (and
+    without a gas, whose unit is the whole run, the end time)."""
+    cells = gas_cells(j)
     return (config_value(j, "dem.scheme") or j.get("scheme"), config_value(j, "particles.count"),
-            gas_cells(j))
+            cells, None if cells else j.get("end_time", config_value(j, "run.end_time")))
 
 
 def calibrate(j):
     """Seconds per particle step, per pair evaluation and per gas cell update on one core, from
     a 1-rank run's phases: neighbor + integrate over particle steps, force over pair
     evaluations, fluid over cells x gas sub-steps. Returns (t_ps, t_fe, t_cell, serial, key):
-    serial is the run's counted compute, key its scene_key."""
+    serial is the run's counted compute per fluid step, key its scene_key."""
     if j.get("ranks", 1) != 1 or j.get("threads", 1) != 1:
         sys.exit("scaling_model.py: --calibration must be a run on 1 rank with 1 thread")
     ph = j["phase_seconds"]
@@ -105,7 +113,7 @@ def calibrate(j):
     t_ps = (ph.get("neighbor", 0.0) + ph.get("integrate", 0.0)) / ps
     t_fe = ph.get("force", 0.0) / fe
     t_cell = ph.get("fluid", 0.0) / cu if cu > 0 else 0.0
-    serial = ps * t_ps + fe * t_fe + cu * t_cell
+    serial = (ps * t_ps + fe * t_fe + cu * t_cell) / fluid_steps(j)
     return t_ps, t_fe, t_cell, serial, scene_key(j)
 
 
@@ -119,7 +127,7 @@ def serial_seconds(run, cal):
         return serial
     rc = run["rank_counts"]
     return (sum(rc["particle_steps"]) * t_ps + sum(rc["force_evaluations"]) * t_fe +
-            sum(rc["cell_updates"]) * t_cell)
+            sum(rc["cell_updates"]) * t_cell) / fluid_steps(run)
 
 
 def network(cores, name, per_node):
@@ -129,10 +137,12 @@ def network(cores, name, per_node):
 
 
 def predict(run, cal, cores, weak, net, per_node):
-    """Model time per run and its terms at `cores` ranks, from `run`'s counts at R ranks."""
-    rc = run.get("rank_counts")
-    if rc is None:
+    """Model time per fluid step (per run without a gas) and its terms at `cores` ranks, from
+    `run`'s counts at R ranks."""
+    if run.get("rank_counts") is None:
         sys.exit("scaling_model.py: the run has no rank_counts (an R-rank run of cfddem is needed)")
+    n = fluid_steps(run)
+    rc = {k: [x / n for x in v] for k, v in run["rank_counts"].items() if isinstance(v, list)}
     R = len(rc["particle_steps"])
     t_ps, t_fe, t_cell = cal[:3]
     serial = serial_seconds(run, cal)
@@ -160,8 +170,8 @@ def predict(run, cal, cores, weak, net, per_node):
         per_rank = cells / cores if not weak else cells / R
         replicated_levels = max(0.0, math.log2(max(cores / max(per_rank, 1.0), 1.0)) / 3.0)
         levels = max(1.0, math.log2(max(per_rank, 2.0)) / 3.0) + replicated_levels
-        coarse_t = run["projection_iterations"] * alpha * (2 * levels +
-                                                           math.log2(max(cores, 2)))
+        coarse_t = run["projection_iterations"] / n * alpha * (2 * levels +
+                                                               math.log2(max(cores, 2)))
     total = compute + halo_t + red_t + coarse_t
     # Perfect scaling: the 1-core run's work spread evenly (strong), or the same work per rank
     # as measured, balanced and without communication (weak).
@@ -186,11 +196,6 @@ def nearest_run(runs, cores):
     if below:
         return max(below, key=ranks_of)
     return min(runs, key=ranks_of)
-
-
-def fluid_steps(run):
-    """Fluid steps of the run (the unit of the count table); 1 for a run without a gas."""
-    return max(int(run.get("fluid_steps") or run.get("gas_substeps") or 1), 1)
 
 
 COUNT_FIELDS = ("particle_steps", "force_evaluations", "cell_updates", "p2p_messages",
@@ -281,11 +286,12 @@ def main():
     for d, r in zip(a.run_dir, runs):
         check_scheme(r, cal, d)
     if a.check:
-        print("ranks,model_seconds,measured_seconds,relative_error,limiting_term")
+        print("ranks,model_seconds_per_fluid_step,measured_seconds_per_fluid_step,"
+              "relative_error,limiting_term")
         for run in runs:
             R = ranks_of(run)
             total, _, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node)
-            meas = run["loop_seconds"]
+            meas = run["loop_seconds"] / fluid_steps(run)
             print(f"{R},{total:.6g},{meas:.6g},{(total - meas) / meas:.4g},{lim}")
         return
     header = "cores,efficiency,limiting_term"

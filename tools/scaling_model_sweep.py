@@ -8,7 +8,9 @@ made oversubscribed on two cores) and a folder of calibration runs named <scene>
   counts.csv       scene, scheme and scaling_model.count_rows: per fluid step, the mean and max
                    over the ranks of each count in run.json's rank_counts
   predicted.csv    scene, scheme, mode (strong or weak), cores, efficiency, limiting term, the
-                   rank count extrapolated from and each term's seconds
+                   rank count extrapolated from and each term's seconds (strong: from the
+                   largest R <= P; weak: from the one run whose particles per rank are nearest
+                   --weak-per-core, default 62,500, its work per rank held)
   predicted.png    the strong curves, one per scene and scheme, points marked with their
                    limiting term
   check.csv        the model against the measured loop time of the calibration folder's runs
@@ -25,6 +27,7 @@ Usage:
 """
 import argparse
 import csv
+import math
 import os
 import re
 import sys
@@ -63,17 +66,17 @@ def check_rows(scene, scheme, cal_runs, cal, network, per_node):
     the whole model (compute, messages, reductions) against a real parallel run."""
     rows = []
     for r, runs in sorted(cal_runs.items()):
-        meas = [j["loop_seconds"] for j in runs]
+        meas = [j["loop_seconds"] / scaling_model.fluid_steps(j) for j in runs]
         run = median_run(runs)
         if r == 1:
             model = cal[3]
             lim = "-"
         else:
             model, _, lim, _ = scaling_model.predict(run, cal, r, True, network, per_node)
-        med = run["loop_seconds"]
+        med = run["loop_seconds"] / scaling_model.fluid_steps(run)
         rows.append({"scene": scene, "scheme": scheme, "ranks": r, "repeats": len(runs),
-                     "measured_median_s": med, "measured_min_s": min(meas),
-                     "measured_max_s": max(meas), "model_s": model,
+                     "measured_median_s_per_fluid_step": med, "measured_min_s": min(meas),
+                     "measured_max_s": max(meas), "model_s_per_fluid_step": model,
                      "relative_error": (model - med) / med, "limiting_term": lim})
     return rows
 
@@ -97,6 +100,8 @@ def main():
     ap.add_argument("--cores", type=int, nargs="+", default=[16, 64, 256, 1024, 4096])
     ap.add_argument("--calibrate-with", action="append", default=[], metavar="SCENE=SCENE",
                     help="calibrate SCENE with the 1-rank runs of another scene")
+    ap.add_argument("--weak-per-core", type=float, default=62500.0,
+                    help="weak curves: the run whose particles per rank are nearest this")
     ap.add_argument("--network", choices=["auto", "shm", "ib"], default="auto")
     ap.add_argument("--cores-per-node", type=int, default=64)
     a = ap.parse_args()
@@ -118,17 +123,21 @@ def main():
         cal = scaling_model.calibrate(median_run(cal_runs[1]))
         if alias.get(scene, scene) == scene:
             checks += check_rows(scene, scheme, cal_runs, cal, a.network, a.cores_per_node)
+        # Weak: one run throughout, the one whose particles per rank are nearest the target
+        # (62,500 per core, issue 20's weak series), its per-rank work held at every P.
+        weak_run = min(runs, key=lambda j: abs(math.log(
+            j["particles"] / scaling_model.ranks_of(j) / a.weak_per_core)))
         for mode in ("strong", "weak"):
             pts = []
             for c in a.cores:
-                run = scaling_model.nearest_run(runs, c)
+                run = weak_run if mode == "weak" else scaling_model.nearest_run(runs, c)
                 total, eff, lim, terms = scaling_model.predict(run, cal, c, mode == "weak",
                                                                a.network, a.cores_per_node)
                 pts.append((c, eff, lim))
                 predicted.append({"scene": scene, "scheme": scheme, "mode": mode, "cores": c,
                                   "efficiency": eff, "limiting_term": lim,
                                   "from_ranks": scaling_model.ranks_of(run),
-                                  "model_seconds": total,
+                                  "model_s_per_fluid_step": total,
                                   **{k.replace(" ", "_") + "_s": v for k, v in terms.items()}})
             if mode == "strong":
                 curves.append((f"{scene} {scheme}", pts))

@@ -262,6 +262,18 @@ class ScalingModel(unittest.TestCase):
         # Same scene: the calibration run's own counted compute.
         self.assertAlmostEqual(scaling_model.serial_seconds(run, cal), cal[3], places=15)
 
+    def test_runs_of_different_lengths_compare_per_fluid_step(self):
+        # The calibration ran 4 fluid steps, the R-rank run 1: the same scene per fluid step,
+        # so balanced work without messages still scales perfectly (not 4x too well).
+        run, _ = self.runs(4)
+        cal = {"ranks": 1, "threads": 1, "particle_steps": 4 * 4000, "force_evaluations": 4 * 2000,
+               "fluid_steps": 4, "phase_seconds": {"integrate": 4 * 4000 * 1e-7,
+                                                   "force": 4 * 2000 * 2e-7}}
+        run["fluid_steps"] = 1
+        _, eff, _, _ = scaling_model.predict(run, scaling_model.calibrate(cal), 16, False, "shm",
+                                             64)
+        self.assertAlmostEqual(eff, 1.0, places=12)
+
     def test_calibration_must_be_one_rank_one_thread(self):
         with self.assertRaises(SystemExit):
             scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})

@@ -10,7 +10,12 @@ on oversubscription. This script prices those counts:
                 (t_* measured on one core: --calibration, a 1-rank run.json of the same scene)
   halo_r      = p2p_messages_r * alpha + p2p_bytes_r / beta
   reductions  = reductions * alpha * ceil(log2 P)       (a tree: log2 P latencies each)
-  T(P)        = max_r compute_r + max_r halo_r + reductions        (bulk synchronous)
+  collective  = 2 * collective_bytes / beta + (collectives - reductions) * alpha * ceil(log2 P)
+                (an all-reduce of m bytes moves ~2m per rank: reduce-scatter + all-gather,
+                Thakur, Rabenseifner & Gropp 2005; the parallel ORB's histograms are the
+                large payload, 257 buckets x 8 B x 8 rounds per tree node and ORB)
+  T(P)        = max_r compute_r + max_r halo_r + reductions + collective + coarse grid
+                (bulk synchronous)
   efficiency  = T_serial / (P * T(P)),   T_serial = the calibration run's counted compute
                 (a calibration on a different scene of the same scheme: the R-rank counts
                 summed over the ranks, an upper bound by the pairs with a ghost; a calibration
@@ -20,6 +25,7 @@ The terms it names as limiting (the largest loss against perfect scaling):
   load imbalance  = max_r compute_r - mean_r compute_r
   halo bytes      = max_r halo_r
   reductions      = reductions * alpha * ceil(log2 P)
+  collective bytes = the collective term above
   coarse grid     = the pressure solve's global steps: per projection iteration, the multigrid
                     levels that no longer split over P ranks cost alpha per level and ~log2 P
                     latencies for their gather (only when the run has a gas)
@@ -32,8 +38,10 @@ Extrapolation from the measured R ranks to P cores (strong scaling, the same sce
   halo bytes per rank x (R/P)^(2/3) (a box's surface), messages per rank held (<= 26 faces,
                         edges and corners of a box, as measured)
   reductions          held (the same steps), each costing log2 P latencies
-Weak scaling (--weak): work, messages and bytes per rank held as measured; only the reductions'
-log2 P and the coarse grid grow.
+  collective bytes    held (the ORB tree is the scene's)
+Weak scaling (--weak): work, messages and halo bytes per rank held as measured; the reductions'
+log2 P and the coarse grid grow, and the collective bytes as P / R (the scaled scene's ORB tree
+grows with the particles).
 
 Network defaults (--network):
   shm: one node's shared memory, alpha = 0.4 us, beta = 10 GB/s (Open MPI's vader/sm
@@ -161,7 +169,18 @@ def predict(run, cal, cores, weak, net, per_node):
     compute = mean_w * imbalance
     r_max = max(range(R), key=lambda r: halo[r])
     halo_t = rc["p2p_messages"][r_max] * alpha + rc["p2p_bytes"][r_max] * halo_bytes_scale / beta
-    red_t = reductions * alpha * max(1, math.ceil(math.log2(max(cores, 2))))
+    log_p = max(1, math.ceil(math.log2(max(cores, 2))))
+    red_t = reductions * alpha * log_p
+    # Collective payloads: the all-reduces are priced bandwidth-optimally (a reduce-scatter then
+    # an all-gather moves about 2 m bytes per rank for an m-byte vector, independent of P;
+    # Thakur, Rabenseifner & Gropp 2005, IJHPCA 19(1)), and the collectives that are not
+    # reductions (gathers, broadcasts, all-to-all of counts) pay log2 P latencies each. The
+    # large payload is the parallel ORB's histograms, one row of 257 buckets per tree node:
+    # fixed by the scene's orb_levels in strong scaling; in weak scaling the scaled scene keeps
+    # 100-200 particles per leaf, so the nodes, and these bytes, grow as P / R.
+    coll_bytes = max(rc["collective_bytes"]) * (cores / R if weak else 1.0)
+    coll_t = (2.0 * coll_bytes / beta +
+              (max(rc["collectives"]) - reductions) * alpha * log_p)
     coarse_t = 0.0
     if gas_cells(run) > 0 and run.get("projection_iterations"):
         # Levels whose grid has fewer cells than ranks are gathered: about log2(cores / cells
@@ -172,13 +191,13 @@ def predict(run, cal, cores, weak, net, per_node):
         levels = max(1.0, math.log2(max(per_rank, 2.0)) / 3.0) + replicated_levels
         coarse_t = run["projection_iterations"] / n * alpha * (2 * levels +
                                                                math.log2(max(cores, 2)))
-    total = compute + halo_t + red_t + coarse_t
+    total = compute + halo_t + red_t + coll_t + coarse_t
     # Perfect scaling: the 1-core run's work spread evenly (strong), or the same work per rank
     # as measured, balanced and without communication (weak).
     ideal = mean_c if weak else serial / cores
     eff = ideal / total if total > 0 else 0.0
     terms = {"load imbalance": compute - mean_w, "halo bytes": halo_t, "reductions": red_t,
-             "coarse grid": coarse_t}
+             "collective bytes": coll_t, "coarse grid": coarse_t}
     return total, eff, max(terms, key=terms.get), terms
 
 
@@ -229,7 +248,7 @@ def plot(path, curves):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     short = {"load imbalance": "imb", "halo bytes": "halo", "reductions": "red",
-             "coarse grid": "cg"}
+             "collective bytes": "coll", "coarse grid": "cg"}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for label, pts in curves:
         xs, ys = [p[0] for p in pts], [p[1] for p in pts]
@@ -296,7 +315,8 @@ def main():
         return
     header = "cores,efficiency,limiting_term"
     if a.detail:
-        header += ",from_ranks,model_seconds,imbalance_s,halo_s,reductions_s,coarse_grid_s"
+        header += (",from_ranks,model_seconds,imbalance_s,halo_s,reductions_s,collective_s,"
+                   "coarse_grid_s")
     print(header)
     pts = []
     for c in a.cores:
@@ -307,7 +327,7 @@ def main():
         if a.detail:
             line += (f",{ranks_of(run)},{total:.6g},{terms['load imbalance']:.4g},"
                      f"{terms['halo bytes']:.4g},{terms['reductions']:.4g},"
-                     f"{terms['coarse grid']:.4g}")
+                     f"{terms['collective bytes']:.4g},{terms['coarse grid']:.4g}")
         print(line)
     if a.plot:
         plot(a.plot, [(a.label or ("weak" if a.weak else "strong"), pts)])

@@ -274,6 +274,21 @@ class ScalingModel(unittest.TestCase):
                                              64)
         self.assertAlmostEqual(eff, 1.0, places=12)
 
+    def test_collective_bytes_cost_two_passes_held_strong_grown_weak(self):
+        run, cal = self.runs(4)
+        run["rank_counts"]["collective_bytes"] = [1_000_000] * 4
+        run["rank_counts"]["collectives"] = [10] * 4  # 10 gathers, no reductions
+        alpha, beta = scaling_model.NETWORKS["ib"]
+        for cores in (16, 4096):
+            _, _, _, t = scaling_model.predict(run, cal, cores, False, "ib", 64)
+            log_p = math.ceil(math.log2(cores))
+            self.assertAlmostEqual(t["collective bytes"], 2e6 / beta + 10 * alpha * log_p,
+                                   places=15)
+        _, _, lim, t = scaling_model.predict(run, cal, 4096, True, "ib", 64)
+        self.assertAlmostEqual(t["collective bytes"], 2e6 * 1024 / beta + 10 * alpha * 12,
+                               places=12)  # the ORB tree grows with the particles: x P/R
+        self.assertEqual(lim, "collective bytes")
+
     def test_calibration_must_be_one_rank_one_thread(self):
         with self.assertRaises(SystemExit):
             scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})

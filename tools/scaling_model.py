@@ -241,7 +241,7 @@ def check_scheme(run, cal, where):
         sys.exit(2)
 
 
-def plot(path, curves):
+def plot(path, curves, title=None):
     """curves: [(label, [(cores, efficiency, limiting_term)])] -> a PNG of efficiency against
     cores, each point annotated with the first letter(s) of its limiting term."""
     import matplotlib
@@ -262,6 +262,8 @@ def plot(path, curves):
     ax.set_ylim(0, 1.05)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
     fig.tight_layout()
     tmp = path + ".tmp.png"
     fig.savefig(tmp, dpi=120)
@@ -330,7 +332,8 @@ def main():
                      f"{terms['collective bytes']:.4g},{terms['coarse grid']:.4g}")
         print(line)
     if a.plot:
-        plot(a.plot, [(a.label or ("weak" if a.weak else "strong"), pts)])
+        plot(a.plot, [(a.label or ("weak" if a.weak else "strong"), pts)],
+             "scaling_model.py: " + ("weak" if a.weak else "strong") + " scaling, predicted")
 
 
 if __name__ == "__main__":

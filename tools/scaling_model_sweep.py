@@ -12,7 +12,7 @@ made oversubscribed on two cores) and a folder of calibration runs named <scene>
                    largest R <= P; weak: from the one run whose particles per rank are nearest
                    --weak-per-core, default 62,500, its work per rank held)
   predicted.png    the strong curves, one per scene and scheme, points marked with their
-                   limiting term
+                   limiting term (predicted_weak.png: the weak ones)
   check.csv        the model against the measured loop time of the calibration folder's runs
                    at 1 rank (the per-core speeds against the spread of the repeats) and at 2
                    ranks (the whole model), medians of repeats named ..._r<R>_try<k>
@@ -110,7 +110,8 @@ def main():
     if not counts:
         sys.exit(f"scaling_model_sweep.py: no <scene>_<scheme>_r<R>/run.json in {a.counts_dir}")
     os.makedirs(a.out, exist_ok=True)
-    count_table, predicted, curves, checks = [], [], [], []
+    count_table, predicted, checks = [], [], []
+    curves = {"strong": [], "weak": []}
     for (scene, scheme), by_r in sorted(counts.items()):
         runs = [median_run(by_r[r]) for r in sorted(by_r) if r > 1]
         for run in runs:
@@ -139,16 +140,20 @@ def main():
                                   "from_ranks": scaling_model.ranks_of(run),
                                   "model_s_per_fluid_step": total,
                                   **{k.replace(" ", "_") + "_s": v for k, v in terms.items()}})
-            if mode == "strong":
-                curves.append((f"{scene} {scheme}", pts))
+            curves[mode].append((f"{scene} {scheme}", pts))
     write_csv(os.path.join(a.out, "counts.csv"), count_table)
     if checks:
         write_csv(os.path.join(a.out, "check.csv"), checks)
     if predicted:
         write_csv(os.path.join(a.out, "predicted.csv"), predicted)
-        scaling_model.plot(os.path.join(a.out, "predicted.png"), curves)
+        what = "model priced from counts at 2-64 ranks (1 thread per rank); network " + a.network
+        scaling_model.plot(os.path.join(a.out, "predicted.png"), curves["strong"],
+                           "strong scaling, " + what)
+        scaling_model.plot(os.path.join(a.out, "predicted_weak.png"), curves["weak"],
+                           f"weak scaling ({a.weak_per_core:g} particles per core), " + what)
     print(f"scaling_model_sweep.py: wrote {a.out}/counts.csv ({len(count_table)} rows)"
-          + (f", predicted.csv ({len(predicted)} rows), predicted.png" if predicted else ""))
+          + (f", predicted.csv ({len(predicted)} rows), predicted.png, predicted_weak.png"
+             if predicted else "") + (f", check.csv ({len(checks)} rows)" if checks else ""))
 
 
 if __name__ == "__main__":

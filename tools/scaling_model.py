@@ -7,14 +7,19 @@ point-to-point messages and bytes, collectives, reductions) -- counts do not dep
 on oversubscription. This script prices those counts:
 
   compute_r   = particle_steps_r * t_ps + force_evaluations_r * t_fe + cell_updates_r * t_cell
-                (t_* measured on one core: --calibration, a 1-rank run.json of the same scene)
+  pressure    = max_r cells_r * (pressure iterations above the calibration's) * t_iter
+                (t_* measured on one core: --calibration, a 1-rank run.json of the same scene;
+                t_iter, --iteration-ns, default 20 ns per cell per iteration: one V-cycle of
+                the riser grid, 0.99 ms on 51,200 cells; the R-rank solve, hypre, takes far
+                more iterations than the one-rank multigrid: riser 1e5, 304 against 15)
   halo_r      = p2p_messages_r * alpha + p2p_bytes_r / beta
   reductions  = reductions * alpha * ceil(log2 P)       (a tree: log2 P latencies each)
   collective  = 2 * collective_bytes / beta + (collectives - reductions) * alpha * ceil(log2 P)
                 (an all-reduce of m bytes moves ~2m per rank: reduce-scatter + all-gather,
                 Thakur, Rabenseifner & Gropp 2005; the parallel ORB's histograms are the
                 large payload, 257 buckets x 8 B x 8 rounds per tree node and ORB)
-  T(P)        = max_r compute_r + max_r halo_r + reductions + collective + coarse grid
+  T(P)        = max_r compute_r + pressure + max_r halo_r + reductions + collective
+                + coarse grid
                 (bulk synchronous)
   efficiency  = T_serial / (P * T(P)),   T_serial = the calibration run's counted compute
                 (a calibration on a different scene of the same scheme: the R-rank counts
@@ -26,6 +31,7 @@ The terms it names as limiting (the largest loss against perfect scaling):
   halo bytes      = max_r halo_r
   reductions      = reductions * alpha * ceil(log2 P)
   collective bytes = the collective term above
+  pressure iterations = the pressure term above
   coarse grid     = the pressure solve's global steps: per projection iteration, the multigrid
                     levels that no longer split over P ranks cost alpha per level and ~log2 P
                     latencies for their gather (only when the run has a gas)
@@ -111,8 +117,9 @@ def scene_key(j):
 def calibrate(j):
     """Seconds per particle step, per pair evaluation and per gas cell update on one core, from
     a 1-rank run's phases: neighbor + integrate over particle steps, force over pair
-    evaluations, fluid over cells x gas sub-steps. Returns (t_ps, t_fe, t_cell, serial, key):
-    serial is the run's counted compute per fluid step, key its scene_key."""
+    evaluations, fluid over cells x gas sub-steps. Returns (t_ps, t_fe, t_cell, serial, key,
+    iterations): serial is the run's counted compute per fluid step, key its scene_key,
+    iterations its pressure iterations per fluid step."""
     if j.get("ranks", 1) != 1 or j.get("threads", 1) != 1:
         sys.exit("scaling_model.py: --calibration must be a run on 1 rank with 1 thread")
     ph = j["phase_seconds"]
@@ -122,7 +129,8 @@ def calibrate(j):
     t_fe = ph.get("force", 0.0) / fe
     t_cell = ph.get("fluid", 0.0) / cu if cu > 0 else 0.0
     serial = (ps * t_ps + fe * t_fe + cu * t_cell) / fluid_steps(j)
-    return t_ps, t_fe, t_cell, serial, scene_key(j)
+    iterations = j.get("projection_iterations", 0) / fluid_steps(j)
+    return t_ps, t_fe, t_cell, serial, scene_key(j), iterations
 
 
 def serial_seconds(run, cal):
@@ -130,7 +138,7 @@ def serial_seconds(run, cal):
     same scene; otherwise the R-rank counts summed over the ranks (particle steps and cell
     updates add up exactly; pairs with a ghost count on both ranks, so this is an upper bound
     by the ghost pairs)."""
-    t_ps, t_fe, t_cell, serial, key = cal
+    t_ps, t_fe, t_cell, serial, key = cal[:5]
     if key == scene_key(run):
         return serial
     rc = run["rank_counts"]
@@ -144,7 +152,11 @@ def network(cores, name, per_node):
     return NETWORKS["shm"] if cores <= per_node else NETWORKS["ib"]
 
 
-def predict(run, cal, cores, weak, net, per_node):
+T_ITER = 20e-9  # s per cell per pressure iteration: one V-cycle of the riser grid, 0.99 ms CPU
+#                 on 51,200 cells (docs/performance.md, "The gas step on one rank")
+
+
+def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
     """Model time per fluid step (per run without a gas) and its terms at `cores` ranks, from
     `run`'s counts at R ranks."""
     if run.get("rank_counts") is None:
@@ -154,8 +166,14 @@ def predict(run, cal, cores, weak, net, per_node):
     R = len(rc["particle_steps"])
     t_ps, t_fe, t_cell = cal[:3]
     serial = serial_seconds(run, cal)
+    # The pressure solve on R ranks is not the one-rank solver (hypre there, cfddem's own
+    # multigrid on one rank) and takes other iteration counts (riser 1e5: 304 against 15 per
+    # fluid step): the iterations above the calibration's cost t_iter per cell each.
+    extra_it = max(0.0, run.get("projection_iterations", 0) / n - cal[5])
+    substeps = max(run.get("gas_substeps", 0) / n, 1.0)
     comp = [rc["particle_steps"][r] * t_ps + rc["force_evaluations"][r] * t_fe +
             rc["cell_updates"][r] * t_cell for r in range(R)]
+    solve = max(rc["cell_updates"]) / substeps * extra_it * t_iter
     alpha, beta = network(cores, net, per_node)
     halo = [rc["p2p_messages"][r] * alpha + rc["p2p_bytes"][r] / beta for r in range(R)]
     reductions = max(rc["reductions"])
@@ -191,13 +209,15 @@ def predict(run, cal, cores, weak, net, per_node):
         levels = max(1.0, math.log2(max(per_rank, 2.0)) / 3.0) + replicated_levels
         coarse_t = run["projection_iterations"] / n * alpha * (2 * levels +
                                                                math.log2(max(cores, 2)))
-    total = compute + halo_t + red_t + coll_t + coarse_t
+    solve_t = solve * work_scale
+    total = compute + solve_t + halo_t + red_t + coll_t + coarse_t
     # Perfect scaling: the 1-core run's work spread evenly (strong), or the same work per rank
     # as measured, balanced and without communication (weak).
     ideal = mean_c if weak else serial / cores
     eff = ideal / total if total > 0 else 0.0
-    terms = {"load imbalance": compute - mean_w, "halo bytes": halo_t, "reductions": red_t,
-             "collective bytes": coll_t, "coarse grid": coarse_t}
+    terms = {"load imbalance": compute - mean_w, "pressure iterations": solve_t,
+             "halo bytes": halo_t, "reductions": red_t, "collective bytes": coll_t,
+             "coarse grid": coarse_t}
     return total, eff, max(terms, key=terms.get), terms
 
 
@@ -248,7 +268,7 @@ def plot(path, curves, title=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     short = {"load imbalance": "imb", "halo bytes": "halo", "reductions": "red",
-             "collective bytes": "coll", "coarse grid": "cg"}
+             "collective bytes": "coll", "coarse grid": "cg", "pressure iterations": "p-it"}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for label, pts in curves:
         xs, ys = [p[0] for p in pts], [p[1] for p in pts]
@@ -282,6 +302,8 @@ def main():
     ap.add_argument("--weak", action="store_true", help="weak scaling (work per rank held)")
     ap.add_argument("--network", choices=["auto", "shm", "ib"], default="auto")
     ap.add_argument("--cores-per-node", type=int, default=64)
+    ap.add_argument("--iteration-ns", type=float, default=T_ITER * 1e9,
+                    help="ns per cell per pressure iteration (default %(default)g)")
     ap.add_argument("--check", action="store_true",
                     help="compare the model with each run's measured loop_seconds")
     ap.add_argument("--detail", action="store_true",
@@ -311,23 +333,26 @@ def main():
               "relative_error,limiting_term")
         for run in runs:
             R = ranks_of(run)
-            total, _, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node)
+            total, _, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node,
+                                       a.iteration_ns * 1e-9)
             meas = run["loop_seconds"] / fluid_steps(run)
             print(f"{R},{total:.6g},{meas:.6g},{(total - meas) / meas:.4g},{lim}")
         return
     header = "cores,efficiency,limiting_term"
     if a.detail:
-        header += (",from_ranks,model_seconds,imbalance_s,halo_s,reductions_s,collective_s,"
-                   "coarse_grid_s")
+        header += (",from_ranks,model_seconds,imbalance_s,pressure_iterations_s,halo_s,"
+                   "reductions_s,collective_s,coarse_grid_s")
     print(header)
     pts = []
     for c in a.cores:
         run = nearest_run(runs, c)
-        total, eff, lim, terms = predict(run, cal, c, a.weak, a.network, a.cores_per_node)
+        total, eff, lim, terms = predict(run, cal, c, a.weak, a.network, a.cores_per_node,
+                                         a.iteration_ns * 1e-9)
         pts.append((c, eff, lim))
         line = f"{c},{eff:.4f},{lim}"
         if a.detail:
             line += (f",{ranks_of(run)},{total:.6g},{terms['load imbalance']:.4g},"
+                     f"{terms['pressure iterations']:.4g},"
                      f"{terms['halo bytes']:.4g},{terms['reductions']:.4g},"
                      f"{terms['collective bytes']:.4g},{terms['coarse grid']:.4g}")
         print(line)

@@ -289,6 +289,20 @@ class ScalingModel(unittest.TestCase):
                                places=12)  # the ORB tree grows with the particles: x P/R
         self.assertEqual(lim, "collective bytes")
 
+    def test_pressure_iterations_above_the_calibrations_are_priced(self):
+        run, _ = self.runs(2)
+        run["rank_counts"]["cell_updates"] = [2000, 1000]  # box cells x 2 gas sub-steps
+        run.update(fluid_steps=1, gas_substeps=2, projection_iterations=100)
+        cal = scaling_model.calibrate({"ranks": 1, "threads": 1, "particle_steps": 2000,
+                                       "force_evaluations": 1000, "fluid_steps": 1,
+                                       "gas_substeps": 2, "projection_iterations": 10,
+                                       "phase_seconds": {"integrate": 2e-4, "force": 2e-4}})
+        _, _, _, t = scaling_model.predict(run, cal, 2, True, "shm", 64, t_iter=1e-8)
+        self.assertAlmostEqual(t["pressure iterations"], 1000 * 90 * 1e-8, places=15)
+        run["projection_iterations"] = 10  # the calibration's: nothing extra
+        _, _, _, t = scaling_model.predict(run, cal, 2, True, "shm", 64, t_iter=1e-8)
+        self.assertEqual(t["pressure iterations"], 0.0)
+
     def test_calibration_must_be_one_rank_one_thread(self):
         with self.assertRaises(SystemExit):
             scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})

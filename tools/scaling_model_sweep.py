@@ -99,7 +99,8 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--cores", type=int, nargs="+", default=[16, 64, 256, 1024, 4096])
     ap.add_argument("--calibrate-with", action="append", default=[], metavar="SCENE=SCENE",
-                    help="calibrate SCENE with the 1-rank runs of another scene")
+                    help="calibrate SCENE with the 1-rank runs of another scene where it has "
+                         "none of its own")
     ap.add_argument("--weak-per-core", type=float, default=62500.0,
                     help="weak curves: the run whose particles per rank are nearest this")
     ap.add_argument("--network", choices=["auto", "shm", "ib"], default="auto")
@@ -116,13 +117,16 @@ def main():
         runs = [median_run(by_r[r]) for r in sorted(by_r) if r > 1]
         for run in runs:
             count_table.append({"scene": scene, "scheme": scheme, **scaling_model.count_rows(run)})
-        cal_runs = cals.get((alias.get(scene, scene), scheme), {})
+        # The scene's own 1-rank runs first; --calibrate-with only where there are none.
+        cal_scene = scene if 1 in cals.get((scene, scheme), {}) else alias.get(scene, scene)
+        cal_runs = cals.get((cal_scene, scheme), {})
         if 1 not in cal_runs:
             print(f"scaling_model_sweep.py: no calibration for {scene} {scheme}: counts only",
                   file=sys.stderr)
             continue
         cal = scaling_model.calibrate(median_run(cal_runs[1]))
-        if alias.get(scene, scene) == scene:
+        predicted_from = cal_scene
+        if cal_scene == scene:
             checks += check_rows(scene, scheme, cal_runs, cal, a.network, a.cores_per_node)
         # Weak: one run throughout, the one whose particles per rank are nearest the target
         # (62,500 per core, issue 20's weak series), its per-rank work held at every P.
@@ -135,7 +139,8 @@ def main():
                 total, eff, lim, terms = scaling_model.predict(run, cal, c, mode == "weak",
                                                                a.network, a.cores_per_node)
                 pts.append((c, eff, lim))
-                predicted.append({"scene": scene, "scheme": scheme, "mode": mode, "cores": c,
+                predicted.append({"scene": scene, "scheme": scheme, "calibration": predicted_from,
+                                  "mode": mode, "cores": c,
                                   "efficiency": eff, "limiting_term": lim,
                                   "from_ranks": scaling_model.ranks_of(run),
                                   "model_s_per_fluid_step": total,

@@ -74,6 +74,14 @@ def toml_value(v):
     raise TypeError(f"cannot write {v!r} as TOML")
 
 
+def write_text(path, text):
+    """Write the whole file under a temporary name, then rename it over path."""
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
 def flatten(d, prefix=""):
     """Nested dict -> [(dotted key, value)] (sub-tables become dotted keys: fluid.bc.y_lo)."""
     out = []
@@ -268,8 +276,7 @@ def main():
     text = write_toml(scene, header)
     if a.out:
         os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-        with open(a.out, "w") as f:
-            f.write(text)
+        write_text(a.out, text)
         print(f"scaled_scene.py: wrote {a.out}: {n} particles, phi {info['solid_fraction']:.5f} "
               f"(base {info['solid_fraction_base']:.5f}), cells {info['cells']} "
               f"({info['fluid_cells']} cells{', unused: no gas' if a.no_fluid else ''}), "

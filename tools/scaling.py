@@ -240,12 +240,14 @@ def fill_derived(rows, mode):
 
 
 def write_csv(path, rows):
-    with open(path, "w", newline="") as f:
+    tmp = path + ".tmp"  # written whole, then renamed: a reader never sees half a table
+    with open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=FIELDS)
         w.writeheader()
         for r in rows:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in
                         ((k, r.get(k, "")) for k in FIELDS)})
+    os.replace(tmp, path)
 
 
 def read_csv(path):
@@ -312,7 +314,8 @@ def plot(rows, mode, path, title):
         title += f"  ({len(bad)} configuration(s) not run: see CSV status/note)"
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path + ".tmp.png", dpi=110)
+    os.replace(path + ".tmp.png", path)
     plt.close(fig)
 
 
@@ -417,8 +420,7 @@ def main():
             f"{over['name']}: made by tools/scaling.py via scaled_scene.scale_scene",
             f"{n} particles, phi {info['solid_fraction']:.5f}, cells {info['cells']}, "
             f"grow {a.grow}, orb_levels {info['orb_levels']}"])
-        with open(path, "w") as f:
-            f.write(text)
+        scaled_scene.write_text(path, text)
         return path
 
     # the scene of each core count
@@ -516,8 +518,7 @@ def main():
         meta["load_avg_end"] = os.getloadavg()
     except OSError:
         pass
-    with open(os.path.join(out, f"{a.mode}_meta.json"), "w") as f:
-        json.dump(meta, f, indent=2)
+    scaled_scene.write_text(os.path.join(out, f"{a.mode}_meta.json"), json.dumps(meta, indent=2))
     what = a.scene or (f"{a.base} {'%g' % a.particles} particles" if a.mode == "strong" else
                        f"{a.base} {'%g' % a.particles_per_core} particles/core")
     title = (f"{a.mode} scaling: {what}{', no gas' if a.no_fluid else ''} "

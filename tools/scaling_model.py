@@ -7,27 +7,47 @@ point-to-point messages and bytes, collectives, reductions) -- counts do not dep
 on oversubscription. This script prices those counts:
 
   compute_r   = particle_steps_r * t_ps + force_evaluations_r * t_fe + cell_updates_r * t_cell
-                (t_* measured on one core: --calibration, a 1-rank run.json of the same scene)
+  pressure    = max_r cells_r * (pressure iterations above the calibration's) * t_iter
+                (t_* measured on one core: --calibration, a 1-rank run.json of the same scene;
+                t_iter, --iteration-ns, default 20 ns per cell per iteration: one V-cycle of
+                the riser grid, 0.99 ms on 51,200 cells; the R-rank solve, hypre, takes far
+                more iterations than the one-rank multigrid: riser 1e5, 304 against 15)
   halo_r      = p2p_messages_r * alpha + p2p_bytes_r / beta
   reductions  = reductions * alpha * ceil(log2 P)       (a tree: log2 P latencies each)
-  T(P)        = max_r compute_r + max_r halo_r + reductions        (bulk synchronous)
+  collective  = 2 * collective_bytes / beta + (collectives - reductions) * alpha * ceil(log2 P)
+                (an all-reduce of m bytes moves ~2m per rank: reduce-scatter + all-gather,
+                Thakur, Rabenseifner & Gropp 2005; the parallel ORB's histograms are the
+                large payload, 257 buckets x 8 B x 8 rounds per tree node and ORB)
+  T(P)        = max_r compute_r + pressure + max_r halo_r + reductions + collective
+                + coarse grid
+                (bulk synchronous)
   efficiency  = T_serial / (P * T(P)),   T_serial = the calibration run's counted compute
+                (a calibration on a different scene of the same scheme: the R-rank counts
+                summed over the ranks, an upper bound by the pairs with a ghost; a calibration
+                of another scheme is refused, exit 2)
 
 The terms it names as limiting (the largest loss against perfect scaling):
   load imbalance  = max_r compute_r - mean_r compute_r
   halo bytes      = max_r halo_r
   reductions      = reductions * alpha * ceil(log2 P)
+  collective bytes = the collective term above
+  pressure iterations = the pressure term above
   coarse grid     = the pressure solve's global steps: per projection iteration, the multigrid
                     levels that no longer split over P ranks cost alpha per level and ~log2 P
                     latencies for their gather (only when the run has a gas)
+
+Several --run-dir (a sweep at R = 2..64): each P extrapolates from the largest R <= P (the
+smallest R when none is), so P = R is priced from its own counts, without extrapolation.
 
 Extrapolation from the measured R ranks to P cores (strong scaling, the same scene):
   work per rank       x R/P, with the measured imbalance max/mean held
   halo bytes per rank x (R/P)^(2/3) (a box's surface), messages per rank held (<= 26 faces,
                         edges and corners of a box, as measured)
   reductions          held (the same steps), each costing log2 P latencies
-Weak scaling (--weak): work, messages and bytes per rank held as measured; only the reductions'
-log2 P and the coarse grid grow.
+  collective bytes    held (the ORB tree is the scene's)
+Weak scaling (--weak): work, messages and halo bytes per rank held as measured; the reductions'
+log2 P and the coarse grid grow, and the collective bytes as P / R (the scaled scene's ORB tree
+grows with the particles).
 
 Network defaults (--network):
   shm: one node's shared memory, alpha = 0.4 us, beta = 10 GB/s (Open MPI's vader/sm
@@ -40,8 +60,11 @@ A node holds --cores-per-node cores (default 64): jobs within one node use shm, 
 Usage:
   tools/scaling_model.py --run-dir runs/riser_r8 --calibration runs/riser_r1 --cores 16 256 4096
   tools/scaling_model.py --run-dir runs/riser_r2 --calibration runs/riser_r1 --check
-prints CSV lines `cores,efficiency,limiting_term` after a header (--check: the model's time for
-the measured rank count against the measured loop_seconds, and its relative error).
+  tools/scaling_model.py --run-dir runs/riser_r{2,4,8,16,32,64} --counts
+prints CSV lines `cores,efficiency,limiting_term` after a header (--detail adds the rank count
+extrapolated from and each term's seconds; --check: the model's time for each run's rank count
+against its measured loop_seconds, and the relative error; --counts: the count table, per fluid
+step the mean and max over the ranks). tools/scaling_model_sweep.py does a whole sweep.
 """
 import argparse
 import json
@@ -77,10 +100,26 @@ def gas_cells(j):
     return math.prod(cells) if isinstance(cells, list) else 0
 
 
+def fluid_steps(run):
+    """Fluid steps of the run: the model's unit of time (per fluid step, so that runs of
+    different lengths compare); 1 for a run without a gas (then per run)."""
+    return max(int(run.get("fluid_steps") or run.get("gas_substeps") or 1), 1)
+
+
+def scene_key(j):
+    """What makes two runs the same scene for the model: scheme, particle count, gas cells (and
+    without a gas, whose unit is the whole run, the end time)."""
+    cells = gas_cells(j)
+    return (config_value(j, "dem.scheme") or j.get("scheme"), config_value(j, "particles.count"),
+            cells, None if cells else j.get("end_time", config_value(j, "run.end_time")))
+
+
 def calibrate(j):
     """Seconds per particle step, per pair evaluation and per gas cell update on one core, from
     a 1-rank run's phases: neighbor + integrate over particle steps, force over pair
-    evaluations, fluid over cells x gas sub-steps."""
+    evaluations, fluid over cells x gas sub-steps. Returns (t_ps, t_fe, t_cell, serial, key,
+    iterations): serial is the run's counted compute per fluid step, key its scene_key,
+    iterations its pressure iterations per fluid step."""
     if j.get("ranks", 1) != 1 or j.get("threads", 1) != 1:
         sys.exit("scaling_model.py: --calibration must be a run on 1 rank with 1 thread")
     ph = j["phase_seconds"]
@@ -89,8 +128,22 @@ def calibrate(j):
     t_ps = (ph.get("neighbor", 0.0) + ph.get("integrate", 0.0)) / ps
     t_fe = ph.get("force", 0.0) / fe
     t_cell = ph.get("fluid", 0.0) / cu if cu > 0 else 0.0
-    serial = ps * t_ps + fe * t_fe + cu * t_cell
-    return t_ps, t_fe, t_cell, serial
+    serial = (ps * t_ps + fe * t_fe + cu * t_cell) / fluid_steps(j)
+    iterations = j.get("projection_iterations", 0) / fluid_steps(j)
+    return t_ps, t_fe, t_cell, serial, scene_key(j), iterations
+
+
+def serial_seconds(run, cal):
+    """The one-core time of `run`'s scene: the calibration run's counted compute when it is the
+    same scene; otherwise the R-rank counts summed over the ranks (particle steps and cell
+    updates add up exactly; pairs with a ghost count on both ranks, so this is an upper bound
+    by the ghost pairs)."""
+    t_ps, t_fe, t_cell, serial, key = cal[:5]
+    if key == scene_key(run):
+        return serial
+    rc = run["rank_counts"]
+    return (sum(rc["particle_steps"]) * t_ps + sum(rc["force_evaluations"]) * t_fe +
+            sum(rc["cell_updates"]) * t_cell) / fluid_steps(run)
 
 
 def network(cores, name, per_node):
@@ -99,15 +152,28 @@ def network(cores, name, per_node):
     return NETWORKS["shm"] if cores <= per_node else NETWORKS["ib"]
 
 
-def predict(run, cal, cores, weak, net, per_node):
-    """Model time per run and its terms at `cores` ranks, from `run`'s counts at R ranks."""
-    rc = run.get("rank_counts")
-    if rc is None:
+T_ITER = 20e-9  # s per cell per pressure iteration: one V-cycle of the riser grid, 0.99 ms CPU
+#                 on 51,200 cells (docs/performance.md, "The gas step on one rank")
+
+
+def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
+    """Model time per fluid step (per run without a gas) and its terms at `cores` ranks, from
+    `run`'s counts at R ranks."""
+    if run.get("rank_counts") is None:
         sys.exit("scaling_model.py: the run has no rank_counts (an R-rank run of cfddem is needed)")
+    n = fluid_steps(run)
+    rc = {k: [x / n for x in v] for k, v in run["rank_counts"].items() if isinstance(v, list)}
     R = len(rc["particle_steps"])
-    t_ps, t_fe, t_cell, serial = cal
+    t_ps, t_fe, t_cell = cal[:3]
+    serial = serial_seconds(run, cal)
+    # The pressure solve on R ranks is not the one-rank solver (hypre there, cfddem's own
+    # multigrid on one rank) and takes other iteration counts (riser 1e5: 304 against 15 per
+    # fluid step): the iterations above the calibration's cost t_iter per cell each.
+    extra_it = max(0.0, run.get("projection_iterations", 0) / n - cal[5])
+    substeps = max(run.get("gas_substeps", 0) / n, 1.0)
     comp = [rc["particle_steps"][r] * t_ps + rc["force_evaluations"][r] * t_fe +
             rc["cell_updates"][r] * t_cell for r in range(R)]
+    solve = max(rc["cell_updates"]) / substeps * extra_it * t_iter
     alpha, beta = network(cores, net, per_node)
     halo = [rc["p2p_messages"][r] * alpha + rc["p2p_bytes"][r] / beta for r in range(R)]
     reductions = max(rc["reductions"])
@@ -121,7 +187,18 @@ def predict(run, cal, cores, weak, net, per_node):
     compute = mean_w * imbalance
     r_max = max(range(R), key=lambda r: halo[r])
     halo_t = rc["p2p_messages"][r_max] * alpha + rc["p2p_bytes"][r_max] * halo_bytes_scale / beta
-    red_t = reductions * alpha * max(1, math.ceil(math.log2(max(cores, 2))))
+    log_p = max(1, math.ceil(math.log2(max(cores, 2))))
+    red_t = reductions * alpha * log_p
+    # Collective payloads: the all-reduces are priced bandwidth-optimally (a reduce-scatter then
+    # an all-gather moves about 2 m bytes per rank for an m-byte vector, independent of P;
+    # Thakur, Rabenseifner & Gropp 2005, IJHPCA 19(1)), and the collectives that are not
+    # reductions (gathers, broadcasts, all-to-all of counts) pay log2 P latencies each. The
+    # large payload is the parallel ORB's histograms, one row of 257 buckets per tree node:
+    # fixed by the scene's orb_levels in strong scaling; in weak scaling the scaled scene keeps
+    # 100-200 particles per leaf, so the nodes, and these bytes, grow as P / R.
+    coll_bytes = max(rc["collective_bytes"]) * (cores / R if weak else 1.0)
+    coll_t = (2.0 * coll_bytes / beta +
+              (max(rc["collectives"]) - reductions) * alpha * log_p)
     coarse_t = 0.0
     if gas_cells(run) > 0 and run.get("projection_iterations"):
         # Levels whose grid has fewer cells than ranks are gathered: about log2(cores / cells
@@ -130,46 +207,158 @@ def predict(run, cal, cores, weak, net, per_node):
         per_rank = cells / cores if not weak else cells / R
         replicated_levels = max(0.0, math.log2(max(cores / max(per_rank, 1.0), 1.0)) / 3.0)
         levels = max(1.0, math.log2(max(per_rank, 2.0)) / 3.0) + replicated_levels
-        coarse_t = run["projection_iterations"] * alpha * (2 * levels +
-                                                           math.log2(max(cores, 2)))
-    total = compute + halo_t + red_t + coarse_t
+        coarse_t = run["projection_iterations"] / n * alpha * (2 * levels +
+                                                               math.log2(max(cores, 2)))
+    solve_t = solve * work_scale
+    total = compute + solve_t + halo_t + red_t + coll_t + coarse_t
     # Perfect scaling: the 1-core run's work spread evenly (strong), or the same work per rank
     # as measured, balanced and without communication (weak).
     ideal = mean_c if weak else serial / cores
     eff = ideal / total if total > 0 else 0.0
-    terms = {"load imbalance": compute - mean_w, "halo bytes": halo_t, "reductions": red_t,
+    terms = {"load imbalance": compute - mean_w, "pressure iterations": solve_t,
+             "halo bytes": halo_t, "reductions": red_t, "collective bytes": coll_t,
              "coarse grid": coarse_t}
     return total, eff, max(terms, key=terms.get), terms
+
+
+def ranks_of(run):
+    rc = run.get("rank_counts")
+    if rc is None:
+        sys.exit("scaling_model.py: the run has no rank_counts (an R-rank run of cfddem is needed)")
+    return len(rc["particle_steps"])
+
+
+def nearest_run(runs, cores):
+    """The measured run to extrapolate from: the largest rank count not above `cores` (the
+    least extrapolation in the direction the counts are known to move), else the smallest."""
+    below = [r for r in runs if ranks_of(r) <= cores]
+    if below:
+        return max(below, key=ranks_of)
+    return min(runs, key=ranks_of)
+
+
+COUNT_FIELDS = ("particle_steps", "force_evaluations", "cell_updates", "p2p_messages",
+                "p2p_bytes", "collectives", "collective_bytes", "reductions")
+
+
+def count_rows(run):
+    """Per fluid step: for each count, the mean and the max over the ranks (max/mean is the
+    count's imbalance). Set-up messages (the first ORB, the first ghost exchange) are in the
+    counts, spread over the steps."""
+    rc, n = run["rank_counts"], fluid_steps(run)
+    row = {"ranks": ranks_of(run), "fluid_steps": n}
+    for f in COUNT_FIELDS:
+        v = rc[f]
+        row[f"{f}_mean"] = sum(v) / len(v) / n
+        row[f"{f}_max"] = max(v) / n
+    return row
+
+
+def check_scheme(run, cal, where):
+    if cal[4][0] != scene_key(run)[0]:
+        print(f"scaling_model.py: {where} is a {scene_key(run)[0]} run but --calibration is a "
+              f"{cal[4][0]} run: calibrate each scheme with its own 1-rank run", file=sys.stderr)
+        sys.exit(2)
+
+
+def plot(path, curves, title=None):
+    """curves: [(label, [(cores, efficiency, limiting_term)])] -> a PNG of efficiency against
+    cores, each point annotated with the first letter(s) of its limiting term."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    short = {"load imbalance": "imb", "halo bytes": "halo", "reductions": "red",
+             "collective bytes": "coll", "coarse grid": "cg", "pressure iterations": "p-it"}
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for label, pts in curves:
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+        ax.plot(xs, ys, marker="o", label=label)
+        for x, y, lim in pts:
+            ax.annotate(short.get(lim, lim), (x, y), textcoords="offset points", xytext=(3, 3),
+                        fontsize=7)
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("cores (1 thread per rank)")
+    ax.set_ylabel("predicted parallel efficiency")
+    ax.set_ylim(0, 1.05)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp, dpi=120)
+    os.replace(tmp, path)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--run-dir", required=True, help="an R-rank run (its run.json has rank_counts)")
-    ap.add_argument("--calibration", required=True,
-                    help="a 1-rank, 1-thread run of the same scene (per-core speed)")
+    ap.add_argument("--run-dir", required=True, nargs="+",
+                    help="R-rank runs of one scene (run.json with rank_counts); several: each "
+                         "core count extrapolates from the largest R not above it")
+    ap.add_argument("--calibration", help="a 1-rank, 1-thread run of the same scheme "
+                                          "(per-core speed); not needed with --counts")
     ap.add_argument("--cores", type=int, nargs="+", default=[16, 256, 4096])
     ap.add_argument("--weak", action="store_true", help="weak scaling (work per rank held)")
     ap.add_argument("--network", choices=["auto", "shm", "ib"], default="auto")
     ap.add_argument("--cores-per-node", type=int, default=64)
+    ap.add_argument("--iteration-ns", type=float, default=T_ITER * 1e9,
+                    help="ns per cell per pressure iteration (default %(default)g)")
     ap.add_argument("--check", action="store_true",
-                    help="compare the model with the run's measured loop_seconds")
+                    help="compare the model with each run's measured loop_seconds")
+    ap.add_argument("--detail", action="store_true",
+                    help="add the run used and each term's seconds to the CSV")
+    ap.add_argument("--counts", action="store_true",
+                    help="print the count table (per fluid step, mean and max over the ranks)")
+    ap.add_argument("--label", default="", help="a label for --plot's curve")
+    ap.add_argument("--plot", help="write a PNG of the predicted efficiencies")
     a = ap.parse_args()
     for c in a.cores:
         if c < 1:
             sys.exit(f"scaling_model.py: --cores {c}: must be >= 1")
-    run, cal = load(a.run_dir), calibrate(load(a.calibration))
-    if a.check:
-        R = len(run["rank_counts"]["particle_steps"])
-        total, eff, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node)
-        meas = run["loop_seconds"]
-        print("ranks,model_seconds,measured_seconds,relative_error,limiting_term")
-        print(f"{R},{total:.6g},{meas:.6g},{(total - meas) / meas:.4g},{lim}")
+    runs = sorted((load(d) for d in a.run_dir), key=ranks_of)
+    if a.counts:
+        rows = [count_rows(r) for r in runs]
+        print(",".join(rows[0].keys()))
+        for row in rows:
+            print(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in row.values()))
         return
-    print("cores,efficiency,limiting_term")
+    if not a.calibration:
+        sys.exit("scaling_model.py: --calibration is required (except with --counts)")
+    cal = calibrate(load(a.calibration))
+    for d, r in zip(a.run_dir, runs):
+        check_scheme(r, cal, d)
+    if a.check:
+        print("ranks,model_seconds_per_fluid_step,measured_seconds_per_fluid_step,"
+              "relative_error,limiting_term")
+        for run in runs:
+            R = ranks_of(run)
+            total, _, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node,
+                                       a.iteration_ns * 1e-9)
+            meas = run["loop_seconds"] / fluid_steps(run)
+            print(f"{R},{total:.6g},{meas:.6g},{(total - meas) / meas:.4g},{lim}")
+        return
+    header = "cores,efficiency,limiting_term"
+    if a.detail:
+        header += (",from_ranks,model_seconds,imbalance_s,pressure_iterations_s,halo_s,"
+                   "reductions_s,collective_s,coarse_grid_s")
+    print(header)
+    pts = []
     for c in a.cores:
-        _, eff, lim, _ = predict(run, cal, c, a.weak, a.network, a.cores_per_node)
-        print(f"{c},{eff:.4f},{lim}")
+        run = nearest_run(runs, c)
+        total, eff, lim, terms = predict(run, cal, c, a.weak, a.network, a.cores_per_node,
+                                         a.iteration_ns * 1e-9)
+        pts.append((c, eff, lim))
+        line = f"{c},{eff:.4f},{lim}"
+        if a.detail:
+            line += (f",{ranks_of(run)},{total:.6g},{terms['load imbalance']:.4g},"
+                     f"{terms['pressure iterations']:.4g},"
+                     f"{terms['halo bytes']:.4g},{terms['reductions']:.4g},"
+                     f"{terms['collective bytes']:.4g},{terms['coarse grid']:.4g}")
+        print(line)
+    if a.plot:
+        plot(a.plot, [(a.label or ("weak" if a.weak else "strong"), pts)],
+             "scaling_model.py: " + ("weak" if a.weak else "strong") + " scaling, predicted")
 
 
 if __name__ == "__main__":

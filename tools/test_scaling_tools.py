@@ -225,6 +225,84 @@ class ScalingModel(unittest.TestCase):
         self.assertAlmostEqual(t8["halo bytes"], 8e6 / beta, places=15)
         self.assertAlmostEqual(t64["halo bytes"], 8e6 / beta / 4.0, places=15)  # (8/64)^(2/3)
 
+    def test_each_core_count_extrapolates_from_the_largest_run_not_above_it(self):
+        runs = [self.runs(r)[0] for r in (2, 8, 64)]
+        pick = scaling_model.nearest_run
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 1)), 2)  # none below: the smallest
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 16)), 8)
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 64)), 64)
+        self.assertEqual(scaling_model.ranks_of(pick(runs, 4096)), 64)
+
+    def test_count_rows_are_per_fluid_step_mean_and_max(self):
+        run, _ = self.runs(2, steps=(3000, 1000), msgs=6, bytes_=100)
+        run["fluid_steps"] = 2
+        row = scaling_model.count_rows(run)
+        self.assertEqual(row["ranks"], 2)
+        self.assertEqual(row["particle_steps_mean"], 1000.0)  # (3000 + 1000) / 2 ranks / 2
+        self.assertEqual(row["particle_steps_max"], 1500.0)
+        self.assertEqual(row["p2p_messages_max"], 3.0)
+
+    def test_a_calibration_of_another_scheme_is_refused(self):
+        run, cal = self.runs(2)
+        run["configuration"] = {"dem.scheme": "orb"}
+        with self.assertRaises(SystemExit) as e:
+            scaling_model.check_scheme(run, cal, "run")
+        self.assertEqual(e.exception.code, 2)
+
+    def test_serial_time_of_another_scene_is_the_summed_counts(self):
+        # Calibrated on a scene half the size: the serial time must be the R-rank run's own
+        # work (the sum over its ranks), not the smaller calibration run's.
+        run, cal = self.runs(4)
+        small = {"ranks": 1, "threads": 1, "particle_steps": 2000, "force_evaluations": 1000,
+                 "configuration": {"particles.count": 50},
+                 "phase_seconds": {"integrate": 2e-4, "force": 2e-4}}
+        cal_small = scaling_model.calibrate(small)
+        serial = scaling_model.serial_seconds(run, cal_small)
+        self.assertAlmostEqual(serial, 4 * (1000 * 1e-7 + 500 * 2e-7), places=15)
+        # Same scene: the calibration run's own counted compute.
+        self.assertAlmostEqual(scaling_model.serial_seconds(run, cal), cal[3], places=15)
+
+    def test_runs_of_different_lengths_compare_per_fluid_step(self):
+        # The calibration ran 4 fluid steps, the R-rank run 1: the same scene per fluid step,
+        # so balanced work without messages still scales perfectly (not 4x too well).
+        run, _ = self.runs(4)
+        cal = {"ranks": 1, "threads": 1, "particle_steps": 4 * 4000, "force_evaluations": 4 * 2000,
+               "fluid_steps": 4, "phase_seconds": {"integrate": 4 * 4000 * 1e-7,
+                                                   "force": 4 * 2000 * 2e-7}}
+        run["fluid_steps"] = 1
+        _, eff, _, _ = scaling_model.predict(run, scaling_model.calibrate(cal), 16, False, "shm",
+                                             64)
+        self.assertAlmostEqual(eff, 1.0, places=12)
+
+    def test_collective_bytes_cost_two_passes_held_strong_grown_weak(self):
+        run, cal = self.runs(4)
+        run["rank_counts"]["collective_bytes"] = [1_000_000] * 4
+        run["rank_counts"]["collectives"] = [10] * 4  # 10 gathers, no reductions
+        alpha, beta = scaling_model.NETWORKS["ib"]
+        for cores in (16, 4096):
+            _, _, _, t = scaling_model.predict(run, cal, cores, False, "ib", 64)
+            log_p = math.ceil(math.log2(cores))
+            self.assertAlmostEqual(t["collective bytes"], 2e6 / beta + 10 * alpha * log_p,
+                                   places=15)
+        _, _, lim, t = scaling_model.predict(run, cal, 4096, True, "ib", 64)
+        self.assertAlmostEqual(t["collective bytes"], 2e6 * 1024 / beta + 10 * alpha * 12,
+                               places=12)  # the ORB tree grows with the particles: x P/R
+        self.assertEqual(lim, "collective bytes")
+
+    def test_pressure_iterations_above_the_calibrations_are_priced(self):
+        run, _ = self.runs(2)
+        run["rank_counts"]["cell_updates"] = [2000, 1000]  # box cells x 2 gas sub-steps
+        run.update(fluid_steps=1, gas_substeps=2, projection_iterations=100)
+        cal = scaling_model.calibrate({"ranks": 1, "threads": 1, "particle_steps": 2000,
+                                       "force_evaluations": 1000, "fluid_steps": 1,
+                                       "gas_substeps": 2, "projection_iterations": 10,
+                                       "phase_seconds": {"integrate": 2e-4, "force": 2e-4}})
+        _, _, _, t = scaling_model.predict(run, cal, 2, True, "shm", 64, t_iter=1e-8)
+        self.assertAlmostEqual(t["pressure iterations"], 1000 * 90 * 1e-8, places=15)
+        run["projection_iterations"] = 10  # the calibration's: nothing extra
+        _, _, _, t = scaling_model.predict(run, cal, 2, True, "shm", 64, t_iter=1e-8)
+        self.assertEqual(t["pressure iterations"], 0.0)
+
     def test_calibration_must_be_one_rank_one_thread(self):
         with self.assertRaises(SystemExit):
             scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})

@@ -6,8 +6,8 @@
 //      another rank's box is copied there unshifted (separations take the minimum image); rows
 //      of the owned particles over owned + ghosts (OrbLocalRows) with every pair within
 //      r_i + r_j + skin, the skin the islands skin and at least 4 dt_sp x the largest bound;
-//   2. own speed bounds of the owned particles; the ghosts' x, v and bounds from their owners
-//      (one forward_columns);
+//   2. own speed bounds of the owned particles; the ghosts' x, v (and spins, with friction) and
+//      bounds from their owners (one forward_columns);
 //   3. link rounds over pairs with an owned end. An island with a ghost member SPANS ranks; a
 //      LOCAL one is raised to its s_max as on one rank; every spanning island's members on every
 //      rank to one s_span from sums over all spanning particles of all ranks (energy summed,
@@ -343,7 +343,7 @@ islands::ContactView IslandsScheme::contact_view_ranks() {
 }
 
 // The K fine steps of every spanning member (all: every owned particle, the dense mode), all
-// ranks together: the ghosts' x and v from their owners before every step but the first
+// ranks together: the ghosts' x and v (and spins) from their owners before every step but the first
 // (collective, also on a rank with no member). In the dense mode the displacement check is
 // against half the skin since the build (the rows may miss a pair: roll back).
 template <bool External, bool Friction> void IslandsScheme::fine_together(bool record, bool all) {
@@ -390,7 +390,8 @@ template <bool External, bool Friction> void IslandsScheme::fine_together(bool r
 }
 
 // A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations
-// have passed since the last), ghosts and rows with a skin for several sub-iterations.
+// have passed since the last), ghosts and rows with a skin for several sub-iterations; with
+// friction the rows' history follows its pairs by ids to the new rows (migrate()).
 void IslandsScheme::rebuild_ranks() {
   RankPart& r = *rank_;
   // With friction: the owned rows' history by ids (partners may be ghosts, about to go), with

@@ -270,6 +270,9 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
       w.put("/islands/history_y", o.hy);
       w.put("/islands/history_z", o.hz);
     }
+    // With a communicator (the canonical state, no list): the records by ids, as rows over the
+    // checkpoint's particles (history_offsets tells the two forms apart).
+    put_history(w, "/islands", o.history, p.id);
     w.put("/islands/half_step", o.hprev);
     w.put("/islands/fine_subiterations", o.fine_subits);
     w.put("/islands/size_histogram", o.size_hist);
@@ -475,11 +478,12 @@ Checkpoint read_contents(const h5::File& f) {
     o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
     o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
     o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
-    if (f.exists("/islands/history_x")) {
+    if (f.exists("/islands/history_x") && !f.exists("/islands/history_offsets")) {
       o.hx = r.doubles("/islands/history_x", o.neighbors.size());
       o.hy = r.doubles("/islands/history_y", o.neighbors.size());
       o.hz = r.doubles("/islands/history_z", o.neighbors.size());
     }
+    o.history = read_history(r, "/islands", p.id);
     o.hprev = r.doubles("/islands/half_step", n);
     o.fine_subits = r.int64s("/islands/fine_subiterations", n);
     o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);

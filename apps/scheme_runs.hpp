@@ -309,6 +309,14 @@ public:
   static ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
                                  const Communicator& comm, const std::string& path, Restart& r) {
     const std::size_t n_saved = ck ? ck->particles.size() : 0;
+    if constexpr (kRanks && !kOrb)
+      if (ck && ck->islands.history.size() == 0 && !ck->islands.hx.empty()) {
+        // A one-rank checkpoint's history per entry of its list: the records by ids the R-rank
+        // scheme routes (the list itself is not restored there).
+        const auto& o = ck->islands;
+        ck->islands.history = dem::history_from_rows(ck->particles.id, o.offsets, o.neighbors,
+                                                      o.hx, o.hy, o.hz);
+      }
     ParticleStore p = Ranks::particles(scene, ck, comm, r.taken);
     if constexpr (kRanks)
       if (ck)

@@ -253,8 +253,7 @@ std::vector<SceneKey> make_table() {
        .range = at_least(0),
        .fallback = number(0),
        .meaning = "Coulomb coefficient mu; 0 is frictionless and allocates no rotation fields. "
-                  "explicit and orb support friction on any rank count, islands on one rank "
-                  "(on R ranks it refuses mu > 0)"},
+                  "explicit, orb and islands support friction on any rank count"},
       {.name = "dem.tangential_stiffness_ratio",
        .type = T::Number,
        .section = S::Contacts,

@@ -10,6 +10,7 @@
 
 #include "core/communicator.hpp"
 #include "core/particle_exchange.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/islands_kernels.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/orb_local_rows.hpp"
@@ -44,6 +45,12 @@ struct IslandsScheme::RankPart {
   islands::IslandResult span_result;       // their fine steps (outran: bound_violations, dense)
   // Start of the sub-iteration in the dense mode (rollback): x, y, z, vx, vy, vz, h_prev.
   std::array<std::vector<double>, 7> start;
+  // Friction: the ids of the store's slots at the last build (the rows' history is read by
+  // them), the records a restore or a save left for the next build, and the spins and history
+  // at the start of a dense sub-iteration (rollback).
+  std::vector<std::int64_t> hist_ids;
+  ContactHistory pending;
+  std::array<std::vector<double>, 6> start_spin; // wx, wy, wz (owned), hx, hy, hz (rows)
   double max_ratio_local = 0.0;               // this rank's largest overlap ratio not yet reduced
   std::array<std::int64_t, 2> local_counts{}; // the last attempt's particle steps and pairs
 };

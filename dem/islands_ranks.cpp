@@ -6,8 +6,8 @@
 //      another rank's box is copied there unshifted (separations take the minimum image); rows
 //      of the owned particles over owned + ghosts (OrbLocalRows) with every pair within
 //      r_i + r_j + skin, the skin the islands skin and at least 4 dt_sp x the largest bound;
-//   2. own speed bounds of the owned particles; the ghosts' x, v and bounds from their owners
-//      (one forward_columns);
+//   2. own speed bounds of the owned particles; the ghosts' x, v (and spins, with friction) and
+//      bounds from their owners (one forward_columns);
 //   3. link rounds over pairs with an owned end. An island with a ghost member SPANS ranks; a
 //      LOCAL one is raised to its s_max as on one rank; every spanning island's members on every
 //      rank to one s_span from sums over all spanning particles of all ranks (energy summed,
@@ -32,12 +32,14 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
+#include <unordered_map>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/scheme_support.hpp"
@@ -95,8 +97,10 @@ void IslandsScheme::regrid() {
 }
 
 // Every owned particle to the rank owning its wrapped position, then the owned ones in id order
-// (an order that depends on the particles only, whatever the arrival order).
-void IslandsScheme::migrate() {
+// (an order that depends on the particles only, whatever the arrival order). With friction each
+// history record goes to the rank its owner particle goes to (records of particles this rank does
+// not hold, a restore's of other ranks' shares, are dropped: their holder routes them).
+ContactHistory IslandsScheme::migrate(ContactHistory held) {
   RankPart& r = *rank_;
   std::vector<int> dest(owned_);
   std::string outside;
@@ -114,6 +118,21 @@ void IslandsScheme::migrate() {
   }
   if (const std::string e = r.comm.agree_on_error(key, outside); !e.empty())
     throw RunError(e);
+  ContactHistory arrived;
+  if (model_.friction) {
+    std::unordered_map<std::int64_t, std::uint32_t> index;
+    index.reserve(owned_);
+    for (std::size_t i = 0; i < owned_; ++i)
+      index.emplace(p_.id[i], static_cast<std::uint32_t>(i));
+    ContactHistory mine;
+    std::vector<int> to;
+    for (std::size_t q = 0; q < held.size(); ++q)
+      if (const auto it = index.find(held.owner[q]); it != index.end()) {
+        mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
+        to.push_back(dest[it->second]);
+      }
+    arrived = ContactHistory::unpack(r.exchange.route(to, mine.pack(), ContactHistory::kStride));
+  }
   std::vector<std::vector<double>*> cols{&hprev_, &fine_};
   if (r.ext_on)
     cols.insert(cols.end(), {&ext_.x, &ext_.y, &ext_.z});
@@ -130,6 +149,7 @@ void IslandsScheme::migrate() {
       t[k] = (*c)[order[k]];
     c->swap(t);
   }
+  return arrived;
 }
 
 // The own speed bounds of the owned particles (the ghosts' come from their owners).
@@ -204,7 +224,8 @@ void IslandsScheme::make_links_ranks() {
   const auto nb = r.rows.nb();
   const DomainGeometry& g = geom_;
   const double* bnd = ln_.bound.data();
-  ln_.ea.clear(), ln_.eb.clear();
+  const bool friction = model_.friction;
+  ln_.ea.clear(), ln_.eb.clear(), ln_.ek.clear();
   for (std::uint32_t i = 0; i < owned_; ++i)
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
       const std::uint32_t j = nb[k];
@@ -213,8 +234,11 @@ void IslandsScheme::make_links_ranks() {
       const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
                    dz = g.image(p_.z[j] - p_.z[i], 2);
       if (islands::may_touch(dx * dx + dy * dy + dz * dz, bnd[i], bnd[j], p_.radius[i],
-                             p_.radius[j], dt_sp_, margin_))
+                             p_.radius[j], dt_sp_, margin_)) {
         ln_.ea.push_back(i), ln_.eb.push_back(j);
+        if (friction) // i's entry: its tangential spring enters the island's energy
+          ln_.ek.push_back(k);
+      }
     }
   ln_.tied.clear();
   for (int a = 0; a < 3; ++a) {
@@ -249,7 +273,10 @@ double IslandsScheme::link_rounds() {
     for (const std::uint32_t i : ln_.busy)
       if (ln_.own_stamp[i] != ln_.stamp)
         ln_.own_stamp[i] = ln_.stamp, ln_.own_bound[i] = ln_.bound[i];
-    ext ? island_sums<true>(owned_) : island_sums<false>(owned_);
+    if (model_.friction)
+      ext ? island_sums<true, true>(owned_) : island_sums<false, true>(owned_);
+    else
+      ext ? island_sums<true>(owned_) : island_sums<false>(owned_);
     // Spanning islands: one set of sums for all of them, over all ranks. A pair with a ghost end
     // is counted on both ranks (more energy: still conservative).
     const std::uint32_t nc = ln_.islands.count();
@@ -310,16 +337,16 @@ islands::ContactView IslandsScheme::contact_view_ranks() {
           ln_.island_of.data(),
           &geom_,
           &model_,
-          nullptr,
-          nullptr,
-          nullptr}; // frictionless on R ranks (the constructor refuses friction there)
+          model_.friction ? hx_.data() : nullptr,
+          model_.friction ? hy_.data() : nullptr,
+          model_.friction ? hz_.data() : nullptr};
 }
 
 // The K fine steps of every spanning member (all: every owned particle, the dense mode), all
-// ranks together: the ghosts' x and v from their owners before every step but the first
+// ranks together: the ghosts' x and v (and spins) from their owners before every step but the first
 // (collective, also on a rank with no member). In the dense mode the displacement check is
 // against half the skin since the build (the rows may miss a pair: roll back).
-template <bool External> void IslandsScheme::fine_together(bool record, bool all) {
+template <bool External, bool Friction> void IslandsScheme::fine_together(bool record, bool all) {
   RankPart& r = *rank_;
   if (all) {
     r.span_members.resize(owned_);
@@ -339,39 +366,50 @@ template <bool External> void IslandsScheme::fine_together(bool record, bool all
   const islands::ContactView view = contact_view_ranks();
   const auto* label = ln_.island_of.data();
   // Spanning members belong to different islands: one member at a time, each with its own.
-  auto forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
-                    std::int64_t& violations) {
+  auto forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
+                    auto... hk) {
     std::int64_t pairs = 0;
     for (std::uint32_t u = u0; u < u1; ++u)
-      pairs += islands::contact_forces<true, true, false, true>(
-          view, mb.mem, u, u + 1, label[mb.mem[u]], max_ratio, violations);
+      pairs += islands::contact_forces<true, true, false, true, Friction>(
+          view, mb.mem, u, u + 1, label[mb.mem[u]], max_ratio, violations, hk...);
     return pairs;
   };
   auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
-                        std::int64_t& violations) {
-    return islands::contact_forces<false, true, false, true>(view, mb.mem, u0, u1, 0, max_ratio,
-                                                             violations);
+                        std::int64_t& violations, auto... hk) {
+    return islands::contact_forces<false, true, false, true, Friction>(
+        view, mb.mem, u0, u1, 0, max_ratio, violations, hk...);
   };
   auto refresh = [&] { r.exchange.forward(p_); };
   double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
                    record ? rec_.vz.data() : nullptr};
   r.span_result =
-      all ? islands::step_island<External, false>(view.c, mb, steps_, model_.gravity, sv[0], sv[1],
-                                                  sv[2], all_forces, refresh)
-          : islands::step_island<External, true>(view.c, mb, steps_, model_.gravity, sv[0], sv[1],
-                                                 sv[2], forces, refresh);
+      all ? islands::step_island<External, false, Friction>(
+                view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh)
+          : islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
+                                                           sv[0], sv[1], sv[2], forces, refresh);
 }
 
 // A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations
-// have passed since the last), ghosts and rows with a skin for several sub-iterations.
+// have passed since the last), ghosts and rows with a skin for several sub-iterations; with
+// friction the rows' history follows its pairs by ids to the new rows (migrate()).
 void IslandsScheme::rebuild_ranks() {
   RankPart& r = *rank_;
+  // With friction: the owned rows' history by ids (partners may be ghosts, about to go), with
+  // any records a restore or a save left.
+  ContactHistory held;
+  if (model_.friction) {
+    held = std::move(r.pending);
+    r.pending = ContactHistory{};
+    const auto off = r.rows.off();
+    if (!off.empty() && hx_.size() == r.rows.nb().size())
+      held.append(collect_history(r.hist_ids, off, r.rows.nb(), off.size() - 1, hx_, hy_, hz_));
+  }
   p_.resize(owned_); // the ghosts go
   if (r.last_regrid < 0 || st_.subits - r.last_regrid >= nsubit_) {
     regrid();
     r.last_regrid = st_.subits;
   }
-  migrate();
+  ContactHistory arrived = migrate(std::move(held));
   own_bounds();
   double b = 0.0;
   for (std::size_t i = 0; i < owned_; ++i)
@@ -381,6 +419,10 @@ void IslandsScheme::rebuild_ranks() {
   // set), at least four sub-iterations of the largest bound, or what a failed build asked for.
   skin_ = std::max({r.base_skin, 4.0 * speed * dt_sp_ + 2.0 * margin_, r.grown_skin});
   build_ghosts_and_rows();
+  if (model_.friction) {
+    attach_history(std::move(arrived), p_.id, r.rows.off(), r.rows.nb(), owned_, hx_, hy_, hz_);
+    r.hist_ids = p_.id;
+  }
   r.need_rebuild = false;
 }
 
@@ -403,8 +445,15 @@ void IslandsScheme::subiterate_ranks(bool record) {
           // The ghosts' positions, velocities and own bounds from their owners: one message round.
           own_bounds();
           ln_.bound.resize(p_.size());
-          std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &ln_.bound};
-          r.exchange.forward_columns(cols);
+          std::vector<double>* cols[] = {&p_.x,  &p_.y,  &p_.z,  &p_.vx, &p_.vy,
+                                         &p_.vz, &p_.wx, &p_.wy, &p_.wz, &ln_.bound};
+          // The spins too with friction (a partner's spin enters the tangential force).
+          std::vector<double>* frictionless[] = {&p_.x,  &p_.y,  &p_.z,     &p_.vx,
+                                                 &p_.vy, &p_.vz, &ln_.bound};
+          if (model_.friction)
+            r.exchange.forward_columns(cols);
+          else
+            r.exchange.forward_columns(frictionless);
         }
         ln_.island_of.assign(p_.size(), kAlone);
         ln_.busy.clear();
@@ -421,9 +470,16 @@ void IslandsScheme::subiterate_ranks(bool record) {
       }
     }
     std::vector<double>* const live[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &hprev_};
-    if (global_) // the dense mode may roll back
+    std::vector<double>* const spin[] = {&p_.wx, &p_.wy, &p_.wz, &hx_, &hy_, &hz_};
+    if (global_) { // the dense mode may roll back
       for (std::size_t q = 0; q < r.start.size(); ++q)
         r.start[q].assign(live[q]->begin(), live[q]->begin() + static_cast<std::ptrdiff_t>(owned_));
+      if (model_.friction)
+        for (std::size_t q = 0; q < r.start_spin.size(); ++q)
+          r.start_spin[q].assign(spin[q]->begin(),
+                                 spin[q]->begin() +
+                                     static_cast<std::ptrdiff_t>(q < 3 ? owned_ : spin[q]->size()));
+    }
     PhaseTimer::Scope t(timer_, Phase::force);
     if (record)
       record_state();
@@ -432,8 +488,12 @@ void IslandsScheme::subiterate_ranks(bool record) {
     results_.clear();
     r.span_result = islands::IslandResult{};
     const bool ext = ext_.active();
+    const bool fr = model_.friction;
     if (global_) {
-      ext ? fine_together<true>(record, true) : fine_together<false>(record, true);
+      if (fr)
+        ext ? fine_together<true, true>(record, true) : fine_together<false, true>(record, true);
+      else
+        ext ? fine_together<true, false>(record, true) : fine_together<false, false>(record, true);
       members = static_cast<std::int64_t>(owned_);
     } else {
       const std::uint32_t nc = ln_.islands.count();
@@ -458,13 +518,25 @@ void IslandsScheme::subiterate_ranks(bool record) {
       const islands::ContactView view = contact_view_ranks();
       tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, nc, 1),
                         [&](const tbb::blocked_range<std::uint32_t>& b) {
-                          for (std::uint32_t q = b.begin(); q != b.end(); ++q)
-                            if (!r.spans[q])
+                          for (std::uint32_t q = b.begin(); q != b.end(); ++q) {
+                            if (r.spans[q])
+                              continue;
+                            if (fr)
+                              ext ? run_island<true, true, true>(q, record, view)
+                                  : run_island<false, true, true>(q, record, view);
+                            else
                               ext ? run_island<true, true>(q, record, view)
                                   : run_island<false, true>(q, record, view);
+                          }
                         });
-      if (r.spanning_global > 0) // some rank has a spanning island: every rank takes part
-        ext ? fine_together<true>(record, false) : fine_together<false>(record, false);
+      if (r.spanning_global > 0) { // some rank has a spanning island: every rank takes part
+        if (fr)
+          ext ? fine_together<true, true>(record, false)
+              : fine_together<false, true>(record, false);
+        else
+          ext ? fine_together<true, false>(record, false)
+              : fine_together<false, false>(record, false);
+      }
     }
     const islands::IslandResult& sr = r.span_result;
     c = {};
@@ -495,6 +567,9 @@ void IslandsScheme::subiterate_ranks(bool record) {
     // The dense mode outran its rows somewhere: every rank rolls back and widens the halo.
     for (std::size_t q = 0; q < r.start.size(); ++q)
       std::copy(r.start[q].begin(), r.start[q].end(), live[q]->begin());
+    if (model_.friction)
+      for (std::size_t q = 0; q < r.start_spin.size(); ++q)
+        std::copy(r.start_spin[q].begin(), r.start_spin[q].end(), spin[q]->begin());
     r.grown_skin = 2.0 * skin_;
     r.need_rebuild = true;
     ++st_.retries;
@@ -539,8 +614,17 @@ void IslandsScheme::subiterate_ranks(bool record) {
 // What a restart cannot know is reset on both sides: the decomposition and ownership (the next
 // build regrids and migrates), the skin grown by short builds, the last sub-iteration's largest
 // bound, and each rank's own unrecorded overlap ratio (the largest over the ranks instead).
+// With friction the rows' history becomes records by ids (the rows are rebuilt, and a checkpoint
+// saves the records).
 void IslandsScheme::canonicalize() {
   RankPart& r = *rank_;
+  if (model_.friction) {
+    const auto off = r.rows.off();
+    if (!off.empty() && hx_.size() == r.rows.nb().size())
+      r.pending.append(
+          collect_history(r.hist_ids, off, r.rows.nb(), off.size() - 1, hx_, hy_, hz_));
+    hx_.clear(), hy_.clear(), hz_.clear();
+  }
   r.need_rebuild = true;
   r.last_regrid = -1;
   r.grown_skin = 0.0;

@@ -26,10 +26,6 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, Phase
 IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                              const Communicator* comm, PhaseTimer& timer)
     : scene_(scene), p_(particles), timer_(timer), geom_(scene.domain), model_(model) {
-  if (model_.friction && comm != nullptr)
-    throw ConfigError("scene key 'dem.scheme'",
-                      "\"islands\" supports friction (dem.friction, dem.wall_friction) on one "
-                      "rank only; run it on one rank or use \"explicit\" or \"orb\"");
   if (model_.friction)
     p_.enable_rotation();
   nsubit_ = scene.dem.nsubit;
@@ -90,11 +86,20 @@ void IslandsScheme::subiterate(bool record) {
 }
 
 IslandsScheme::State IslandsScheme::save_state() {
-  if (rank_)
-    canonicalize();
-  else if (one_.with_comm) // an R-rank loop on one rank: no list, the canonical state
-    one_.canonical = true, one_.built = false;
   State s;
+  if (rank_) {
+    canonicalize();
+    if (model_.friction)
+      s.history = rank_->pending;
+  } else if (one_.with_comm) { // an R-rank loop on one rank: no list, the canonical state
+    if (model_.friction) {     // the history by ids, attached again at the next build
+      if (one_.built)
+        one_.pending.append(collect_history(p_, one_.list, p_.size(), hx_, hy_, hz_));
+      hx_.clear(), hy_.clear(), hz_.clear();
+      s.history = one_.pending;
+    }
+    one_.canonical = true, one_.built = false;
+  }
   if (!rank_ && one_.built) {
     const VerletList& l = one_.list;
     s.offsets.assign(l.offsets().begin(), l.offsets().end());
@@ -183,6 +188,8 @@ void IslandsScheme::restore_state(State s) {
     }
     rank_->max_ratio_local = s.rank_values.empty() ? st_.max_overlap_ratio : s.rank_values[0];
     canonicalize();
+    // Every rank may be handed every record: each routes those of the particles it holds.
+    rank_->pending = model_.friction ? std::move(s.history) : ContactHistory{};
     return;
   }
   one_.built = !s.offsets.empty();
@@ -191,6 +198,8 @@ void IslandsScheme::restore_state(State s) {
       hx_ = std::move(s.hx), hy_ = std::move(s.hy), hz_ = std::move(s.hz);
     else
       hx_.clear(), hy_.clear(), hz_.clear();
+    // A canonical state's records (by ids, no list): attached at the next build.
+    one_.pending = std::move(s.history);
   }
   if (one_.built)
     one_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
@@ -249,8 +258,12 @@ void IslandsScheme::rebuild() {
   // With friction the tangential history follows its pairs by particle ids (as the explicit
   // scheme carries it across a rebuild).
   ContactHistory held;
-  if (model_.friction && one_.built)
-    held = collect_history(p_, one_.list, p_.size(), hx_, hy_, hz_);
+  if (model_.friction) {
+    held = std::move(one_.pending);
+    one_.pending = ContactHistory{};
+    if (one_.built)
+      held.append(collect_history(p_, one_.list, p_.size(), hx_, hy_, hz_));
+  }
   one_.list.build(p_, geom_, skin_);
   if (model_.friction)
     attach_history(std::move(held), p_, one_.list, p_.size(), hx_, hy_, hz_);
@@ -886,6 +899,10 @@ template void IslandsScheme::run_island<true, true>(std::uint32_t, bool,
                                                     const islands::ContactView&);
 template void IslandsScheme::run_island<false, true>(std::uint32_t, bool,
                                                      const islands::ContactView&);
+template void IslandsScheme::run_island<true, true, true>(std::uint32_t, bool,
+                                                          const islands::ContactView&);
+template void IslandsScheme::run_island<false, true, true>(std::uint32_t, bool,
+                                                           const islands::ContactView&);
 
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each
 // particle's island (-1 alone, 0 for all in the global mode) and local step.

@@ -31,18 +31,19 @@
 // thread count. The Verlet list (dem/verlet_list) is rebuilt when some particle's displacement
 // since the build plus its bound over the next sub-iteration would exceed skin/2.
 //
-// Friction (one rank, without a communicator): the explicit scheme's tangential spring with
-// history and Coulomb limit and the spin kick (dem/friction_kernels.hpp), in islands and in the
-// global fine steps. The history is kept per entry of the Verlet list and carried across its
-// rebuilds by particle ids (dem/contact_history.hpp), as the explicit scheme carries it. The
+// Friction: the explicit scheme's tangential spring with history and Coulomb limit and the spin
+// kick (dem/friction_kernels.hpp), in islands and in the global fine steps. The history is kept
+// per entry of the Verlet list (R ranks: of the owned rows) and carried across its rebuilds by
+// particle ids (dem/contact_history.hpp), as the explicit scheme carries it; on R ranks each
+// record goes with its owner particle to its new rank (ParticleExchange::route), as the orb
+// scheme routes it, and the ghosts' spins are refreshed with their positions. The
 // island energy then includes what rotation and the tangential springs can release: every
 // member's rotational energy I |w|^2 / 2 and the stored tangential spring energy k_t |xi|^2 / 2
 // of every linked pair, so s_max stays a bound (a sliding contact only dissipates; the stored
 // spring energy is the most a contact can give back).
 //
-// Limits: friction on one rank only (the constructor refuses it with a communicator); an
-// overlap beyond dem.max_overlap is counted, NaN or a particle leaving through a wall stops the
-// run.
+// Limits: an overlap beyond dem.max_overlap is counted, NaN or a particle leaving through a wall
+// stops the run.
 //
 // One rank or R ranks. Without a communicator, or with one of size 1, the scheme runs the path
 // above (minimum image, the Verlet list reused over sub-iterations, no ghost). On R > 1 ranks
@@ -70,6 +71,7 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "dem/contact_history.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
@@ -90,8 +92,8 @@ public:
   // One rank: the model from these particles.
   IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
   // `comm` null or of size 1: one rank. Else `particles` is this rank's share (any split) and
-  // `model` make_step_model over all particles, the same on every rank. Throws ConfigError with
-  // friction and a communicator. With friction the store gets rotation.
+  // `model` make_step_model over all particles, the same on every rank. With friction the store
+  // gets rotation.
   IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                 const Communicator* comm, PhaseTimer& timer);
   // The R-rank loops' form (a communicator of any size).
@@ -236,8 +238,10 @@ public:
     // hist_avg; the choices' rows.
     std::vector<std::int64_t> length_counters;
     std::vector<double> length_values, length_log;
-    // Friction: the tangential history per entry of the list (neighbors' indexing).
+    // Friction: the tangential history per entry of the list (neighbors' indexing); with a
+    // communicator (the canonical state, no list) the records by particle ids instead.
     std::vector<double> hx, hy, hz;
+    ContactHistory history;
   };
   State save_state();
   // Throws RunError (on every rank) if the state does not fit the store.
@@ -279,6 +283,7 @@ private:
     // by id and builds.
     bool canonical = false;
     bool with_comm = false; // constructed with a communicator (of size 1)
+    ContactHistory pending; // friction: records the next build attaches (a restore, a save)
     // A bound on every particle's displacement since the build: the sum over the sub-iterations
     // since of the largest speed bound x dt_sp + margin (infinite when unknown: after a restore,
     // a dense sub-iteration or a bound violation); list_expires() skips its exact pass while
@@ -358,13 +363,14 @@ private:
   islands::ContactView contact_view_ranks();
   void subiterate_ranks(bool record);
   void regrid();
-  void migrate();
+  // Returns the history records `held` that arrive with their owner particles (friction).
+  ContactHistory migrate(ContactHistory held);
   void own_bounds();
   void rebuild_ranks();
   void build_ghosts_and_rows();
   double link_rounds();
   void make_links_ranks();
-  template <bool External> void fine_together(bool record, bool all);
+  template <bool External, bool Friction> void fine_together(bool record, bool all);
   void canonicalize();
 
   const Scene& scene_;
@@ -381,7 +387,7 @@ private:
   // Per owned particle (carried through migrations): half of its last step, and sub-iterations
   // in a fine island (a count, below 2^53).
   std::vector<double> hprev_, fine_;
-  // Friction (one rank): the tangential history per entry of one_.list.
+  // Friction: the tangential history per entry of one_.list (R ranks: of rank_->rows).
   std::vector<double> hx_, hy_, hz_;
   std::vector<double> x0_, y0_, z0_;           // island members' start positions (members order)
   std::vector<islands::IslandResult> results_; // per island, reduced in island order

@@ -12,6 +12,7 @@
 #include <functional>
 #include <map>
 #include <string>
+#include <utility>
 
 #include <tbb/global_control.h>
 
@@ -83,8 +84,11 @@ constexpr int kSubits = 40;
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
+using Spins = std::map<std::int64_t, std::array<double, 3>>;
+
 struct Outcome {
   State state;                        // one rank: all; R ranks: this rank's owned
+  Spins spin;                         // with friction: the angular velocities (the same)
   std::vector<double> kinetic_energy; // per sub-iteration, over all particles
   std::int64_t bound_violations = 0, spanning_subits = 0, global_subits = 0;
   double max_overlap_ratio = 0.0;
@@ -94,6 +98,14 @@ State state_of(const ParticleStore& p, std::size_t n) {
   State s;
   for (std::size_t i = 0; i < n; ++i)
     s[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
+  return s;
+}
+
+Spins spins_of(const ParticleStore& p, std::size_t n) {
+  Spins s;
+  if (p.rotation)
+    for (std::size_t i = 0; i < n; ++i)
+      s[p.id[i]] = {p.wx[i], p.wy[i], p.wz[i]};
   return s;
 }
 
@@ -115,6 +127,7 @@ Outcome one_rank(const Scene& scene, int subits, bool external = false) {
     }());
   }
   r.state = state_of(p, p.size());
+  r.spin = spins_of(p, p.size());
   r.bound_violations = s.bound_violations();
   return r;
 }
@@ -153,6 +166,7 @@ Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = fa
     r.kinetic_energy.push_back(sums[1]);
   }
   r.state = state_of(p, s.owned());
+  r.spin = spins_of(p, s.owned());
   r.bound_violations = s.bound_violations();
   r.spanning_subits = s.spanning_subiterations();
   r.global_subits = s.global_subiterations();
@@ -235,6 +249,71 @@ TEST(DistributedIslands, WalledBoxWithGravityMatchesOneRankToRoundOff) {
   EXPECT_EQ(d.bound_violations, 0);
 }
 
+// Friction (tangential springs with history, spins, wall friction): R ranks route each record
+// with its owner particle and refresh the ghosts' spins, so they agree with one rank to the same
+// round-off; a spin w ~ v / r carries the velocities' rounding over a radius (50 um), hence the
+// bound kVel / r on |dw|. The histories enter the islands' energies on every rank count alike
+// (no bound is violated), and a rerun on two threads is bitwise the one-thread run.
+TEST(DistributedIslands, FrictionMatchesOneRankToRoundOff) {
+  const Communicator c = Communicator::world();
+  // The dense gas and the bed run in the dense mode; the dilute gas (HcsSmallMatchesOneRank's)
+  // in islands, some of them spanning ranks on R > 1.
+  auto dilute = [](bool friction) {
+    return friction ? scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]",
+                                        "particles.count=100", "particles.temperature=0.01",
+                                        "particles.seed=3", "dem.regrid_interval=1.0e-4",
+                                        "dem.friction=0.3", "dem.wall_friction=0.2"})
+                    : scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]",
+                                        "particles.count=100", "particles.temperature=0.01",
+                                        "particles.seed=3", "dem.regrid_interval=1.0e-4"});
+  };
+  struct Case {
+    Scene with, without;
+    const char* what;
+  };
+  const Case cases[] = {{scene_from(kGas, {"dem.friction=0.3", "dem.wall_friction=0.2"}),
+                         scene_from(kGas), "frictional dense gas"},
+                        {scene_from(kWalls, {"dem.friction=0.3", "dem.wall_friction=0.2"}),
+                         scene_from(kWalls), "frictional walls and gravity"},
+                        {dilute(true), dilute(false), "frictional dilute gas"}};
+  for (const Case& cs : cases) {
+    const Scene& scene = cs.with;
+    const char* what = cs.what;
+    const Outcome d = on_ranks(scene, kSubits, 1);
+    const Outcome s = one_rank(scene, kSubits);
+    expect_close(scene, s, d, kPos, kVel, kEnergy, what);
+    EXPECT_EQ(d.bound_violations, 0) << what;
+    EXPECT_NE(s.state, one_rank(cs.without, kSubits).state) << what << ": friction acts";
+    std::array<double, 2> w{}; // worst |dw|, largest |w|
+    for (const auto& [id, q] : d.spin) {
+      const auto it = s.spin.find(id);
+      ASSERT_NE(it, s.spin.end()) << what << ": unknown id " << id;
+      for (int a = 0; a < 3; ++a)
+        w[0] = std::max(w[0], std::abs(q[a] - it->second[a])),
+        w[1] = std::max(w[1], std::abs(q[a]));
+    }
+    c.max(w);
+    EXPECT_EQ(static_cast<std::int64_t>(s.spin.size()),
+              c.sum(static_cast<std::int64_t>(d.spin.size())));
+    EXPECT_LE(w[0], kVel / 50e-6) << what << ": spins";
+    EXPECT_GT(w[1], 1.0) << what << ": friction spun the particles up";
+    if (c.rank() == 0)
+      std::printf("[ %s ] worst |dw| %.3g rad/s of max |w| %.3g rad/s; spanning sub-iterations "
+                  "%lld, dense %lld\n",
+                  what, w[0], w[1], static_cast<long long>(d.spanning_subits),
+                  static_cast<long long>(d.global_subits));
+    if (&cs == &cases[2]) { // islands, not the dense mode; some span ranks
+      EXPECT_LT(d.global_subits, kSubits);
+      if (c.size() > 1) {
+        EXPECT_GT(d.spanning_subits, 0);
+      }
+    }
+    const Outcome t = on_ranks(scene, kSubits, 2);
+    EXPECT_EQ(d.state, t.state) << what << ": two threads";
+    EXPECT_EQ(d.spin, t.spin) << what << ": two threads";
+  }
+}
+
 TEST(DistributedIslands, ExternalForceFollowsItsParticleAndMatchesOneRank) {
   // The force set once at the start travels with each particle through the migrations and
   // enters the speed bounds.
@@ -261,8 +340,14 @@ TEST(DistributedIslands, RerunAndThreadCountsAreBitwiseIdentical) {
 // a communicator (the store in id order, the list rebuilt) and on R ranks (ownership and rows
 // rebuilt).
 TEST(DistributedIslands, RestartFromSavedStateIsBitwiseTheRunThatWroteIt) {
-  for (const char* text : {kGas, kWalls}) {
-    const Scene scene = scene_from(text);
+  for (const Scene& scene :
+       {scene_from(kGas), scene_from(kWalls),
+        scene_from(kGas, {"dem.friction=0.3", "dem.wall_friction=0.2"}),
+        scene_from(kWalls, {"dem.friction=0.3", "dem.wall_friction=0.2"}),
+        // islands (spanning ranks on R > 1) with friction
+        scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]", "particles.count=100",
+                          "particles.temperature=0.01", "particles.seed=3",
+                          "dem.regrid_interval=1.0e-4", "dem.friction=0.3"})}) {
     const Communicator c = Communicator::world();
     const ParticleStore all = make_initial_particles(scene);
     const dem::StepModel model = dem::make_step_model(scene, all);
@@ -283,6 +368,7 @@ TEST(DistributedIslands, RestartFromSavedStateIsBitwiseTheRunThatWroteIt) {
       b.subiterate(k + 1 == kSubits / 2);
     }
     EXPECT_EQ(state_of(p, a.owned()), state_of(q, b.owned()));
+    EXPECT_EQ(spins_of(p, a.owned()), spins_of(q, b.owned()));
     EXPECT_EQ(a.particle_steps(), b.particle_steps());
     EXPECT_EQ(a.pair_evaluations(), b.pair_evaluations());
     EXPECT_EQ(a.max_overlap_ratio(), b.max_overlap_ratio());

@@ -20,7 +20,6 @@
 #include "core/initial_conditions.hpp"
 #include "core/particle_exchange.hpp"
 #include "core/phase_timer.hpp"
-#include "dem/islands_scheme.hpp"
 #include "dem/orb_scheme.hpp"
 #include "distributed_test_support.hpp"
 
@@ -317,24 +316,6 @@ TEST(DistributedOrb, FrictionMatchesOneRankBitwise) {
   EXPECT_NE(one, one_rank_orb(scene_from(kWalls), kSubits)) << "friction must act";
   expect_bitwise(one, distributed_orb(scene, kSubits, 1).owned, "friction");
   expect_bitwise(one, distributed_orb(scene, kSubits, 2).owned, "friction, 2 threads");
-}
-
-// The islands scheme has friction on one rank only: on R ranks it refuses it with a
-// configuration error naming dem.scheme.
-TEST(DistributedOrb, IslandsFrictionOnRanksIsAConfigurationError) {
-  const Scene scene = scene_from(kWalls, {"dem.friction=0.3", "dem.scheme=\"islands\""});
-  const Communicator c = Communicator::world();
-  ParticleStore all = make_initial_particles(scene);
-  ParticleStore p = share(all, c.rank(), c.size());
-  PhaseTimer timer;
-  const dem::StepModel model = dem::make_step_model(scene, all);
-  std::string message;
-  try {
-    dem::IslandsScheme s(scene, p, model, &c, timer);
-  } catch (const ConfigError& e) {
-    message = e.what();
-  }
-  EXPECT_NE(message.find("dem.scheme"), std::string::npos) << message;
 }
 
 // ParticleExchange::redistribute: each particle reaches its new owner once, each ghost copy the

@@ -22,6 +22,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/friction_kernels.hpp"
 #include "dem/kick_drift_range.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 #include "dem/pair_contacts.hpp"
@@ -222,24 +223,8 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
       if (delta > m.max_overlap * ri)
         flag(delta / ri);
       if constexpr (Friction) {
-        double nvec[3] = {0, 0, 0};
-        nvec[a] = s;
-        // Slip of the contact point: v_i + w_i x (r_i n) (the wall is at rest).
         const double w[3] = {p.wx[i], p.wy[i], p.wz[i]};
-        const double rv[3] = {vel[0] + ri * (w[1] * nvec[2] - w[2] * nvec[1]),
-                              vel[1] + ri * (w[2] * nvec[0] - w[0] * nvec[2]),
-                              vel[2] + ri * (w[0] * nvec[1] - w[1] * nvec[0])};
-        const double rvn = rv[a] * s;
-        const double vt[3] = {rv[0] - rvn * nvec[0], rv[1] - rvn * nvec[1], rv[2] - rvn * nvec[2]};
-        // Walls keep no tangential history: a dashpot capped by the Coulomb limit (MFIX-Exa's
-        // convention of sliding friction, docs/theory.md §2).
-        double xi3[3] = {0, 0, 0}, ft[3];
-        tangential_force(m.wall_t, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
-        for (int b = 0; b < 3; ++b)
-          f[b] += ft[b];
-        tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
-        tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
-        tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
+        add_wall_friction(m.wall_t, mi, ri, fn, a, s, vel, w, f, tq);
       }
     }
   }

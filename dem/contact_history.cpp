@@ -128,6 +128,26 @@ void attach_history(ContactHistory h, std::span<const std::int64_t> ids,
   }
 }
 
+ContactHistory route_history(const ContactHistory& held, const ParticleStore& p, std::size_t owned,
+                             std::span<const int> dest, ParticleExchange& exchange, int rank,
+                             std::int64_t& moved) {
+  std::unordered_map<std::int64_t, std::uint32_t> index;
+  index.reserve(owned);
+  for (std::size_t i = 0; i < owned; ++i)
+    index.emplace(p.id[i], static_cast<std::uint32_t>(i));
+  ContactHistory mine;
+  std::vector<int> to;
+  for (std::size_t q = 0; q < held.size(); ++q) {
+    const auto it = index.find(held.owner[q]);
+    if (it == index.end())
+      continue;
+    mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
+    to.push_back(dest[it->second]);
+    moved += to.back() != rank ? 1 : 0;
+  }
+  return ContactHistory::unpack(exchange.route(to, mine.pack(), ContactHistory::kStride));
+}
+
 HistoryRows history_rows(const ContactHistory& h, std::span<const std::int64_t> ids) {
   std::unordered_map<std::int64_t, std::uint32_t> index;
   index.reserve(ids.size());

@@ -8,6 +8,7 @@
 #include <span>
 #include <vector>
 
+#include "core/particle_exchange.hpp"
 #include "core/particle_store.hpp"
 #include "dem/verlet_list.hpp"
 
@@ -60,6 +61,14 @@ void attach_history(ContactHistory h, std::span<const std::int64_t> ids,
                     std::span<const std::uint32_t> off, std::span<const std::uint32_t> nb,
                     std::size_t rows, std::vector<double>& hx, std::vector<double>& hy,
                     std::vector<double>& hz);
+
+// Migration on R ranks: each record of `held` whose owner is one of the particles [0, owned) of
+// `p` goes to the rank that particle moves to (dest[i]); returns the records this rank receives.
+// Records of particles this rank does not hold (a restart's, of other ranks' shares) are dropped:
+// their holder routes them. `moved` gains the records that leave this rank. Collective.
+ContactHistory route_history(const ContactHistory& held, const ParticleStore& p, std::size_t owned,
+                             std::span<const int> dest, ParticleExchange& exchange, int rank,
+                             std::int64_t& moved);
 
 // A checkpoint's form: rows over the particles `ids` (the checkpoint's order), entries naming
 // the partner by its index there, one history value per entry: the layout of a serial

@@ -7,7 +7,6 @@
 #include <array>
 #include <cmath>
 #include <numeric>
-#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -146,25 +145,8 @@ void ExplicitScheme::rebuild_ranks() {
     throw RunError(e);
   ContactHistory arrived;
   std::int64_t moved_history = 0;
-  if (model_.friction) {
-    // Each record follows its owner particle; records of particles this rank does not hold
-    // (a restart's, of other ranks' shares) are dropped here: their holder routes them.
-    std::unordered_map<std::int64_t, std::uint32_t> index;
-    index.reserve(r.owned);
-    for (std::size_t i = 0; i < r.owned; ++i)
-      index.emplace(p_.id[i], static_cast<std::uint32_t>(i));
-    ContactHistory mine;
-    std::vector<int> to;
-    for (std::size_t q = 0; q < held.size(); ++q) {
-      const auto it = index.find(held.owner[q]);
-      if (it == index.end())
-        continue;
-      mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
-      to.push_back(dest[it->second]);
-      moved_history += to.back() != comm.rank() ? 1 : 0;
-    }
-    arrived = ContactHistory::unpack(r.exchange.route(to, mine.pack(), ContactHistory::kStride));
-  }
+  if (model_.friction)
+    arrived = route_history(held, p_, r.owned, dest, r.exchange, comm.rank(), moved_history);
   if (r.ext_on) {
     // Every rank alike (the record sizes must agree), a rank without particles included.
     std::vector<double>* force[3] = {&ext_.x, &ext_.y, &ext_.z};

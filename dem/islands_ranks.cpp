@@ -32,7 +32,6 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
-#include <unordered_map>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -120,18 +119,8 @@ ContactHistory IslandsScheme::migrate(ContactHistory held) {
     throw RunError(e);
   ContactHistory arrived;
   if (model_.friction) {
-    std::unordered_map<std::int64_t, std::uint32_t> index;
-    index.reserve(owned_);
-    for (std::size_t i = 0; i < owned_; ++i)
-      index.emplace(p_.id[i], static_cast<std::uint32_t>(i));
-    ContactHistory mine;
-    std::vector<int> to;
-    for (std::size_t q = 0; q < held.size(); ++q)
-      if (const auto it = index.find(held.owner[q]); it != index.end()) {
-        mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
-        to.push_back(dest[it->second]);
-      }
-    arrived = ContactHistory::unpack(r.exchange.route(to, mine.pack(), ContactHistory::kStride));
+    std::int64_t moved = 0;
+    arrived = route_history(held, p_, owned_, dest, r.exchange, r.comm.rank(), moved);
   }
   std::vector<std::vector<double>*> cols{&hprev_, &fine_};
   if (r.ext_on)

@@ -8,7 +8,6 @@
 #include <limits>
 #include <numeric>
 #include <string>
-#include <unordered_map>
 #include <utility>
 
 #include <fmt/format.h>
@@ -103,21 +102,9 @@ void OrbScheme::rank_exchange_and_rows() {
     if (off.size() >= 1 && hist_.hx.size() == rank_->rows.nb().size())
       held.append(collect_history(hist_.ids, off, rank_->rows.nb(), off.size() - 1, hist_.hx,
                                   hist_.hy, hist_.hz));
-    std::unordered_map<std::int64_t, std::uint32_t> index;
-    index.reserve(owned_);
-    for (std::size_t i = 0; i < owned_; ++i)
-      index.emplace(p_.id[i], static_cast<std::uint32_t>(i));
-    ContactHistory mine;
-    std::vector<int> to;
-    for (std::size_t q = 0; q < held.size(); ++q) {
-      const auto it = index.find(held.owner[q]);
-      if (it == index.end())
-        continue;
-      mine.add(held.owner[q], held.partner[q], held.hx[q], held.hy[q], held.hz[q]);
-      to.push_back(rank_->dest[it->second]);
-    }
+    std::int64_t moved = 0;
     arrived =
-        ContactHistory::unpack(rank_->exchange.route(to, mine.pack(), ContactHistory::kStride));
+        route_history(held, p_, owned_, rank_->dest, rank_->exchange, rank_->comm.rank(), moved);
   }
   const double prox = cfg_.prox;
   if (cfg_.time_to_contact)

@@ -93,7 +93,7 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin, R
   p.permute(order_);
   fill_rows<false>(p, g, grid, n, skin);
   ghost_entries_ = 0;
-  index_rows(n);
+  index_rows(n, n);
 }
 
 void VerletList::build_local(const ParticleStore& p, std::size_t rows, double skin) {
@@ -133,14 +133,11 @@ void VerletList::build_local(const ParticleStore& p, std::size_t rows, double sk
         std::lower_bound(first, last, static_cast<std::uint32_t>(rows)) - neighbors_.begin());
     ghost_entries_ += offsets_[i + 1] - wrap_begin_[i];
   }
-  index_rows(rows);
+  index_rows(rows, p.size());
 }
 
-void VerletList::index_rows(std::size_t n) {
+void VerletList::index_rows(std::size_t n, std::size_t store) {
   active_.clear(), tail_rows_.clear();
-  std::size_t store = n;
-  for (const std::uint32_t j : neighbors_)
-    store = std::max<std::size_t>(store, j + std::size_t{1});
   listed_.assign(store, 0);
   for (std::size_t i = 0; i < n; ++i) {
     if (offsets_[i + 1] == offsets_[i])
@@ -298,7 +295,7 @@ void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::ui
     }
     wrap_begin_[i] = k;
   }
-  index_rows(n);
+  index_rows(n, n);
 }
 
 void check_saved_list(std::size_t n, std::span<const std::uint32_t> offsets,

@@ -119,8 +119,9 @@ private:
   void fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
                  std::size_t rows, double skin);
 
-  // After the rows are in place: active_, tail_rows_, listed_.
-  void index_rows(std::size_t n);
+  // After the rows [0, n) are in place over a store of `store` particles: active_, tail_rows_,
+  // listed_, listed_index_.
+  void index_rows(std::size_t n, std::size_t store);
 
   std::vector<std::uint32_t> tail_rows_, listed_index_, sorted_, order_, offsets_, wrap_begin_,
       active_, neighbors_, cell_start_, cell_of_, fill_;

@@ -563,8 +563,9 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .choices = kPreconditioners,
        .fallback = word("pfmg"),
-       .meaning = "the projection's hypre preconditioner (SMG fails on periodic axes with an odd "
-                  "cell count in hypre 2.26)"},
+       .meaning = "the projection's hypre preconditioner (\"smg\" is refused on a periodic axis "
+                  "with an odd cell count, where hypre 2.26's SMG fails; there a PFMG solve that "
+                  "misses the tolerance stops the run instead of falling back to SMG)"},
       {.name = "fluid.solver",
        .type = T::String,
        .section = S::Fluid,

@@ -104,19 +104,25 @@ void ExplicitScheme::rebuild() {
   }
   ++stats_.builds;
   rows_.need_rebuild = false;
+  rows_.streams_ready = false;
 }
 
 template <bool Friction>
 void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep) {
   const VerletList& list = rows_.list;
   const HistoryColumns h{rows_.hx, rows_.hy, rows_.hz};
+  if (!rows_.streams_ready) {
+    rows_.head_pairs.build<false>(list, list.active(), kPairBlock, Friction);
+    rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, Friction);
+    rows_.streams_ready = true;
+  }
   // Pairs whose separation is ready first (in-box; on R ranks two owned particles), then, once a
   // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
   const std::size_t nh =
-      pair_pass<Friction, false>(p_, list, list.active(), h, frame, model_, dt, rows_.head, rep);
+      pair_pass<Friction, false>(p_, rows_.head_pairs, h, frame, model_, dt, rows_.head, rep);
   finish_forward();
   const std::size_t nt =
-      pair_pass<Friction, true>(p_, list, list.tail_rows(), h, frame, model_, dt, rows_.tail, rep);
+      pair_pass<Friction, true>(p_, rows_.tail_pairs, h, frame, model_, dt, rows_.tail, rep);
   scatter_contacts<Friction>(p_, list, std::span<const PairContacts>(rows_.head).first(nh),
                              std::span<const PairContacts>(rows_.tail).first(nt));
 }
@@ -360,6 +366,7 @@ void ExplicitScheme::restore_state(State s) {
                      std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   rows_.hx = std::move(s.hx), rows_.hy = std::move(s.hy), rows_.hz = std::move(s.hz);
   rows_.need_rebuild = s.need_rebuild || !listed;
+  rows_.streams_ready = false;
   stats_.steps = s.steps, stats_.particle_steps = s.particle_steps;
   stats_.pair_evaluations = s.pair_evaluations, stats_.builds = s.builds;
 }

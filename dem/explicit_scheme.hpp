@@ -42,6 +42,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/external_force.hpp"
 #include "dem/pair_contacts.hpp"
+#include "dem/pair_stream.hpp"
 #include "dem/step_model.hpp"
 #include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
@@ -181,7 +182,10 @@ private:
     std::vector<double> hx, hy, hz;
     ContactHistory pending;
     bool need_rebuild = true;
-    // The contacts of the last pair passes (buffers kept between steps).
+    // The list's pairs laid out flat for the pair passes (rebuilt with the list: stale when
+    // `streams_ready` is false), and the contacts of the last passes (buffers kept between steps).
+    PairStream head_pairs, tail_pairs;
+    bool streams_ready = false;
     std::vector<PairContacts> head, tail;
   };
   // x(n), v(n) of the owned particles at the last recorded step.

@@ -26,6 +26,7 @@
 #include "dem/kick_drift_range.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 #include "dem/pair_contacts.hpp"
+#include "dem/pair_stream.hpp"
 #include "dem/particle_views.hpp"
 #include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
@@ -36,17 +37,17 @@ namespace cfddem::dem {
 // and their order do not depend on the thread count.
 inline constexpr std::size_t kPairBlock = 256;
 
-// One part of each row of `rows` (Tail = false: the part before wrap_begin(), whose raw
-// separations are the minimum image; Tail = true: the part from wrap_begin(), through `geom`'s
-// periodic image): the contacts, into one PairContacts per block of kPairBlock rows. Overlaps
-// beyond the bound are flagged on i (the lower index, as a full list's first flag would be).
-// `history`: tangential history per list entry (friction only), zeroed for pairs apart. Returns
-// the number of blocks written (the first ones of `blocks`).
+// The pairs of one PairStream (Tail = false: the rows' parts before wrap_begin(), whose raw
+// separations are the minimum image; Tail = true: the parts from wrap_begin(), through `geom`'s
+// periodic image): the contacts, into one PairContacts per block of the stream. Overlaps beyond
+// the bound are flagged on i (the lower index, as a full list's first flag would be).
+// `history`: tangential history per list entry (friction only; the stream holds the entries),
+// zeroed for pairs apart. Returns the number of blocks written (the first ones of `blocks`).
 template <bool Friction, bool Tail>
-std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
-                      std::span<const std::uint32_t> rows, [[maybe_unused]] HistoryColumns history,
-                      const DomainGeometry& geom, const StepModel& model, double dt,
-                      std::vector<PairContacts>& blocks, StepReport& out) {
+std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
+                      [[maybe_unused]] HistoryColumns history, const DomainGeometry& geom,
+                      const StepModel& model, double dt, std::vector<PairContacts>& blocks,
+                      StepReport& out) {
   [[maybe_unused]] double* hx = history.x.data();
   [[maybe_unused]] double* hy = history.y.data();
   [[maybe_unused]] double* hz = history.z.data();
@@ -61,14 +62,13 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
   [[maybe_unused]] const double* __restrict wx = p.wx.data();
   [[maybe_unused]] const double* __restrict wy = p.wy.data();
   [[maybe_unused]] const double* __restrict wz = p.wz.data();
-  const std::uint32_t* __restrict off = list.offsets().data();
-  const std::uint32_t* __restrict nb = list.neighbors().data();
-  const std::uint32_t* __restrict wrap = list.wrap_begin().data();
-  const std::uint32_t* __restrict act = rows.data();
+  const std::uint32_t* __restrict si = stream.i.data();
+  const std::uint32_t* __restrict sj = stream.j.data();
+  [[maybe_unused]] const std::uint32_t* __restrict sk = stream.k.data();
+  const std::uint32_t* __restrict start = stream.block_start.data();
   const DomainGeometry g = geom;
   const StepModel m = model;
-  const std::size_t n = rows.size();
-  const std::size_t nblocks = (n + kPairBlock - 1) / kPairBlock;
+  const std::size_t nblocks = stream.blocks();
   if (blocks.size() < nblocks)
     blocks.resize(nblocks);
 
@@ -78,68 +78,65 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
     for (std::size_t b = r.begin(); b != r.end(); ++b) {
       PairContacts& c = blocks[b];
       c.size = 0;
-      const std::size_t q_begin = b * kPairBlock, q_end = std::min(n, (b + 1) * kPairBlock);
-      // Rows are increasing: the block's entries lie within these bounds (room for all).
-      c.reserve_more(off[act[q_end - 1] + 1] - off[act[q_begin]], Friction);
+      const std::uint32_t e0 = start[b], e1 = start[b + 1];
+      c.reserve_more(e1 - e0, Friction);
       std::uint32_t* __restrict ci = c.i.data();
       std::uint32_t* __restrict cj = c.j.data();
       double* __restrict cax = c.ax.data();
       double* __restrict cay = c.ay.data();
       double* __restrict caz = c.az.data();
       std::size_t s = 0;
-      for (std::size_t q = q_begin; q != q_end; ++q) {
-        const std::uint32_t i = act[q];
-        const std::uint32_t k0 = Tail ? wrap[i] : off[i], k1 = Tail ? off[i + 1] : wrap[i];
-        const double xi = x[i], yi = y[i], zi = z[i];
-        const double vxi = vx[i], vyi = vy[i], vzi = vz[i], ri = rad[i], mi = mass[i];
-        for (std::uint32_t k = k0; k < k1; ++k) {
-          const std::uint32_t j = nb[k];
-          double dx = x[j] - xi, dy = y[j] - yi, dz = z[j] - zi;
-          if constexpr (Tail)
-            dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
-          const double r2 = dx * dx + dy * dy + dz * dz;
-          const double rs = Uniform ? rs_uniform : ri + rad[j];
-          if (r2 >= rs * rs) {
-            if constexpr (Friction)
-              hx[k] = hy[k] = hz[k] = 0.0;
-            continue;
-          }
-          // The same operations as a full list's row of i: each value here is, bit for bit,
-          // the negative of what j's row computes (x_i - x_j == -(x_j - x_i) exactly).
-          const double dist = std::sqrt(r2);
-          const double inv = 1.0 / dist;
-          const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
-          const double delta = rs - dist;
-          const double dvx = vxi - vx[j], dvy = vyi - vy[j], dvz = vzi - vz[j];
-          const double vn = dvx * nx + dvy * ny + dvz * nz;
-          // Equal masses (the common case) skip the divide and square root of m_eff.
-          const double meff = contact_meff(m, mi, mass[j]);
-          const double fn = contact_normal_force(m, meff, delta, vn);
-          ci[s] = i, cj[s] = j;
-          cax[s] = fn * nx, cay[s] = fn * ny, caz[s] = fn * nz;
-          if (delta > m.max_overlap * std::min(ri, rad[j]))
-            rep.flag(i, StepFault::overlap, delta / std::min(ri, rad[j]), j);
-          if constexpr (Friction) {
-            // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n
-            // (docs/theory.md §2).
-            const double sx = ri * wx[i] + rad[j] * wx[j];
-            const double sy = ri * wy[i] + rad[j] * wy[j];
-            const double sz = ri * wz[i] + rad[j] * wz[j];
-            const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
-                         rvz = dvz + (sx * ny - sy * nx);
-            const double rvn = rvx * nx + rvy * ny + rvz * nz;
-            const double nvec[3] = {nx, ny, nz};
-            const double vt[3] = {rvx - rvn * nx, rvy - rvn * ny, rvz - rvn * nz};
-            double xi3[3] = {hx[k], hy[k], hz[k]}, ft[3];
-            tangential_force(m.pair_t, meff, dt, std::abs(fn), nvec, vt, xi3, ft);
-            hx[k] = xi3[0], hy[k] = xi3[1], hz[k] = xi3[2];
-            c.bx[s] = ft[0], c.by[s] = ft[1], c.bz[s] = ft[2];
-            c.cx[s] = ny * ft[2] - nz * ft[1];
-            c.cy[s] = nz * ft[0] - nx * ft[2];
-            c.cz[s] = nx * ft[1] - ny * ft[0];
-          }
-          ++s;
+      // One loop over the block's pairs (no loop per row: see dem/pair_stream.hpp).
+      for (std::uint32_t e = e0; e < e1; ++e) {
+        const std::uint32_t i = si[e], j = sj[e];
+        double dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
+        if constexpr (Tail)
+          dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+        const double r2 = dx * dx + dy * dy + dz * dz;
+        const double ri = Uniform ? m.r_min : rad[i];
+        const double rs = Uniform ? rs_uniform : ri + rad[j];
+        if (r2 >= rs * rs) {
+          if constexpr (Friction)
+            hx[sk[e]] = hy[sk[e]] = hz[sk[e]] = 0.0;
+          continue;
         }
+        // The same operations as a full list's row of i: each value here is, bit for bit,
+        // the negative of what j's row computes (x_i - x_j == -(x_j - x_i) exactly).
+        const double dist = std::sqrt(r2);
+        const double inv = 1.0 / dist;
+        const double nx = dx * inv, ny = dy * inv, nz = dz * inv;
+        const double delta = rs - dist;
+        const double dvx = vx[i] - vx[j], dvy = vy[i] - vy[j], dvz = vz[i] - vz[j];
+        const double vn = dvx * nx + dvy * ny + dvz * nz;
+        // Equal masses (the common case) skip the divide and square root of m_eff.
+        const double meff = contact_meff(m, mass[i], mass[j]);
+        const double fn = contact_normal_force(m, meff, delta, vn);
+        ci[s] = i, cj[s] = j;
+        cax[s] = fn * nx, cay[s] = fn * ny, caz[s] = fn * nz;
+        const double rmin = std::min(rad[i], rad[j]);
+        if (delta > m.max_overlap * rmin)
+          rep.flag(i, StepFault::overlap, delta / rmin, j);
+        if constexpr (Friction) {
+          const std::uint32_t k = sk[e];
+          // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n
+          // (docs/theory.md §2).
+          const double sx = rad[i] * wx[i] + rad[j] * wx[j];
+          const double sy = rad[i] * wy[i] + rad[j] * wy[j];
+          const double sz = rad[i] * wz[i] + rad[j] * wz[j];
+          const double rvx = dvx + (sy * nz - sz * ny), rvy = dvy + (sz * nx - sx * nz),
+                       rvz = dvz + (sx * ny - sy * nx);
+          const double rvn = rvx * nx + rvy * ny + rvz * nz;
+          const double nvec[3] = {nx, ny, nz};
+          const double vt[3] = {rvx - rvn * nx, rvy - rvn * ny, rvz - rvn * nz};
+          double xi3[3] = {hx[k], hy[k], hz[k]}, ft[3];
+          tangential_force(m.pair_t, meff, dt, std::abs(fn), nvec, vt, xi3, ft);
+          hx[k] = xi3[0], hy[k] = xi3[1], hz[k] = xi3[2];
+          c.bx[s] = ft[0], c.by[s] = ft[1], c.bz[s] = ft[2];
+          c.cx[s] = ny * ft[2] - nz * ft[1];
+          c.cy[s] = nz * ft[0] - nx * ft[2];
+          c.cz[s] = nx * ft[1] - ny * ft[0];
+        }
+        ++s;
       }
       c.size = s;
     }
@@ -150,7 +147,7 @@ std::size_t pair_pass(const ParticleStore& p, const VerletList& list,
                             : blocks_of.template operator()<false>(r, rep);
   };
   const tbb::blocked_range<std::size_t> all(0, nblocks, 1);
-  if (n <= 4 * kPairBlock) {
+  if (nblocks <= 4) {
     out.join(body(all, StepReport{})); // small work: no task overhead
   } else {
     out.join(tbb::parallel_reduce(

@@ -7,8 +7,9 @@
 //                     up, as in a run: the counter builds_per_step says how often)
 //   BM_DenseStep      the same step on 100k particles at phi 0.1, 0.3 and 0.5 (issue 21's dense
 //                     granular flow; force_s_per_step is the contact pass)
-//   BM_DenseContactPass  the contact pass alone on those gases (pair passes over the half list
-//                     and the scatter to both particles; the list built once)
+//   BM_DenseContactPass  the contact pass alone on those gases (pair passes over the half list's
+//                     flat pair streams and the scatter to both particles; list and streams
+//                     built once)
 // items_per_second = particles processed per second (particle-steps/s for the step).
 // Threads: CFDDEM_BENCH_THREADS (default 1, to compare with the single-core peer figures).
 #include <cmath>
@@ -140,10 +141,13 @@ void BM_DenseContactPass(benchmark::State& state) {
   list.build(p, geom, kSkin, dem::RowKind::half);
   std::vector<dem::PairContacts> head, tail;
   std::size_t nh = 0, nt = 0;
+  dem::PairStream sh, st;
+  sh.build<false>(list, list.active(), dem::kPairBlock, false);
+  st.build<true>(list, list.tail_rows(), dem::kPairBlock, false);
   for (auto _ : state) {
     dem::StepReport rep;
-    nh = dem::pair_pass<false, false>(p, list, list.active(), {}, geom, m, m.dt, head, rep);
-    nt = dem::pair_pass<false, true>(p, list, list.tail_rows(), {}, geom, m, m.dt, tail, rep);
+    nh = dem::pair_pass<false, false>(p, sh, {}, geom, m, m.dt, head, rep);
+    nt = dem::pair_pass<false, true>(p, st, {}, geom, m, m.dt, tail, rep);
     dem::scatter_contacts<false>(p, list, std::span<const dem::PairContacts>(head).first(nh),
                                  std::span<const dem::PairContacts>(tail).first(nt));
     benchmark::DoNotOptimize(p.fx.data());

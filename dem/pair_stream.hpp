@@ -1,0 +1,57 @@
+// One part of a half Verlet list's rows laid out flat, pair by pair: the row particle i, the
+// partner j and the list entry k of each pair, in row order, with the start of each fixed block
+// of rows. The explicit scheme's pair pass (dem/verlet_passes.hpp) walks it as one long loop:
+// with 2-3 partners per row in a dense gas, a loop per row ends at an unpredictable trip count,
+// and that branch miss (about one per row) cost as much as the row's arithmetic. Built once per
+// list build; the contacts found and their order are those of the rows, bit for bit.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "dem/verlet_list.hpp"
+
+namespace cfddem::dem {
+
+struct PairStream {
+  std::vector<std::uint32_t> i, j, k;
+  // Pairs of block b: [block_start[b], block_start[b + 1]).
+  std::vector<std::uint32_t> block_start;
+
+  std::size_t blocks() const { return block_start.empty() ? 0 : block_start.size() - 1; }
+
+  // The pairs of `rows` (increasing row indices of `list`), the part before wrap_begin() (Tail =
+  // false) or from it (Tail = true), in blocks of `block` rows. `with_entry`: keep k too (the
+  // tangential history is stored per list entry).
+  template <bool Tail>
+  void build(const VerletList& list, std::span<const std::uint32_t> rows, std::size_t block,
+             bool with_entry) {
+    const std::uint32_t* off = list.offsets().data();
+    const std::uint32_t* wrap = list.wrap_begin().data();
+    const std::uint32_t* nb = list.neighbors().data();
+    std::size_t total = 0;
+    for (const std::uint32_t r : rows)
+      total += Tail ? off[r + 1] - wrap[r] : wrap[r] - off[r];
+    i.resize(total), j.resize(total);
+    k.resize(with_entry ? total : 0);
+    const std::size_t n = rows.size();
+    block_start.assign((n + block - 1) / block + 1, 0);
+    std::size_t s = 0;
+    for (std::size_t q = 0; q < n; ++q) {
+      if (q % block == 0)
+        block_start[q / block] = static_cast<std::uint32_t>(s);
+      const std::uint32_t r = rows[q];
+      const std::uint32_t k0 = Tail ? wrap[r] : off[r], k1 = Tail ? off[r + 1] : wrap[r];
+      for (std::uint32_t e = k0; e < k1; ++e, ++s) {
+        i[s] = r, j[s] = nb[e];
+        if (with_entry)
+          k[s] = e;
+      }
+    }
+    block_start.back() = static_cast<std::uint32_t>(s);
+  }
+};
+
+} // namespace cfddem::dem

@@ -256,7 +256,9 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     const auto st = one ? dem::measure(p) : dem::measure(p, comm);
     const RowExtra x =
         one ? means.next(t, s.vx, s.vy, s.vz, fd) : means.next(t, st.mean_velocity, fd);
-    out.add_row(row(t, k, st, n_total, run.scheme, wall, ls, x));
+    const std::vector<double> census = census_row(
+        comm, {s.x, s.y, s.z, s.radius, s.mass, s.id}, geom, census_laws(scene));
+    out.add_row(row(t, k, st, n_total, run.scheme, wall, ls, x, census));
     if (profiles)
       out.add_profile_rows(profiles->rows(t, {s.x, s.y, s.z, s.vx, s.vy, s.vz, s.radius, s.mass},
                                           profile_gas, one ? nullptr : &comm));

@@ -28,6 +28,15 @@ it with a verdict ("indistinguishable from chaos" or "scheme error E above the f
 Writes <out>/trade_floor.csv and draws the perturbed runs' envelope as a band in
 trade_observable.png; trade.csv gains the whole-run floor of --observable.
 
+The contact census (diagnostics columns of dem/contact_census.hpp; tools/census_errors.py): each
+run's collision frequency, mean and largest overlap (and the wall ones, where the scene has walls)
+and coordination-number distribution, reduced over each of the --windows windows and over the
+whole run, against the reference's: relative errors, and the L1 distance of the coordination
+distributions. With --noise-floor the same errors of the perturbed runs give their floor and a
+verdict. Writes <out>/trade_census.csv (per quantity and window) and trade_census.png;
+trade.csv gains the whole-run errors (collision_frequency_error, overlap_mean_error,
+overlap_max_error, coordination_l1, and their *_floor with --noise-floor).
+
 Example:
   tools/trade.py scenes/hcs.toml --levels 6 --end-time 0.01 --out runs/trade_hcs1222
   tools/trade.py scenes/hcs.toml --schemes islands --nsubit 10 20 --noise-floor 4 \
@@ -44,6 +53,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import census_errors  # noqa: E402
 import noise_floor  # noqa: E402
 
 import matplotlib
@@ -101,6 +111,57 @@ def run(binary, scene, out, overrides, threads, repeat=1):
     return best, read_diag(out)
 
 
+def census_key(q):
+    """trade.csv's column of a census quantity's whole-run error."""
+    return "coordination_l1" if q == "coordination" else f"{q}_error"
+
+
+def census_value(d, q, w):
+    """A run's census quantity reduced over window w; the coordination distribution as its mean
+    coordination number (the last bin counted at its lower edge)."""
+    v = census_errors.window_values(d, w)
+    if v is None:
+        return float("nan")
+    if q == "coordination":
+        return float(np.dot(np.arange(len(v[q])), v[q]))
+    return v[q]
+
+
+def plot_census(path, title, ref, perturbed_runs, runs, wins):
+    """Left: the collision frequency per window (the perturbed runs' range as a band); right: the
+    coordination distribution over the whole run."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    edges = np.array([wins[0][0]] + [w[1] for w in wins]) * 1e3
+
+    def per_window(d):
+        return [census_value(d, "collision_frequency", w) for w in wins]
+
+    def step(ax, d, **kw):
+        v = per_window(d)
+        ax.stairs(v, edges, **kw)
+    if perturbed_runs:
+        env = np.array([per_window(d) for d in perturbed_runs] + [per_window(ref)])
+        ax1.stairs(env.max(axis=0), edges, baseline=env.min(axis=0), fill=True, color="0.8",
+                   label=f"chaos floor ({len(perturbed_runs) + 1} explicit runs)")
+    step(ax1, ref, color="k", lw=2, label="explicit")
+    whole = (0.0, ref["time"][-1])
+    k = np.arange(len(census_errors.coordination_columns(ref)))
+    ax2.semilogy(k, census_errors.window_values(ref, whole)["coordination"], "k-o", lw=2,
+                 label="explicit")
+    for label, d in runs:
+        step(ax1, d, ls="--", label=label)
+        ax2.semilogy(k, census_errors.window_values(d, whole)["coordination"], "--.", label=label)
+    ax1.set_xlabel("t [ms]")
+    ax1.set_ylabel("collision frequency per particle [1/s] (window mean)")
+    ax1.legend(fontsize=7)
+    ax2.set_xlabel("coordination number (last bin: 12 or more)")
+    ax2.set_ylabel("fraction of particle-rows")
+    ax2.legend(fontsize=7)
+    fig.suptitle(f"{title}: contact census")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene")
@@ -142,6 +203,11 @@ def main():
         if ob not in ref:
             sys.exit(f"trade.py: no column '{ob}' in diagnostics.csv (have: {', '.join(ref)})")
     wins = noise_floor.windows(t_ref[-1], a.windows)
+    # The contact census: its quantities, compared per window and over the whole run (last).
+    census = census_errors.quantities(ref) if census_errors.has_census(ref) else []
+    census_wins = wins + [(0.0, t_ref[-1])]
+    census_floor, census_rows = {}, []
+    whole = census_wins[-1]
     floor_rows, floor, floor_whole, perturbed_runs = [], {}, 0.0, []
     if a.noise_floor == 1 or a.noise_floor < 0:
         sys.exit("trade.py: --noise-floor needs K >= 2 (the reference and K-1 perturbed runs)")
@@ -169,6 +235,17 @@ def main():
                 floor_rows.append(dict(scheme="floor", nsubit=0, levels=0, observable=ob,
                                        window_start=w[0], window_end=w[1], error=max(errs),
                                        floor=max(errs), verdict=f"spread of {len(errs)} runs"))
+        if census:
+            for w in census_wins:
+                errs = [census_errors.errors(d, ref, w, census) for d in perturbed_runs]
+                for q in census:
+                    census_floor[(q, w)] = max(e[q] for e in errs)
+                    census_rows.append(dict(scheme="floor", nsubit=0, levels=0, quantity=q,
+                                            window_start=w[0], window_end=w[1], value=float("nan"),
+                                            ref_value=census_value(ref, q, w),
+                                            error=census_floor[(q, w)],
+                                            floor=census_floor[(q, w)],
+                                            verdict=f"spread of {len(errs)} runs"))
         print(f"chaos floor ({a.noise_floor - 1} perturbed explicit runs, relative "
               f"{a.perturbation:g}): {100 * floor_whole:.3g}% in {a.observable} over the run",
               flush=True)
@@ -178,7 +255,12 @@ def main():
                  cpu_seconds=ref_json["cpu_seconds"])]
     if a.noise_floor >= 2:
         rows[0]["floor"] = floor_whole
-    curves = {}
+    for q in census:
+        key = census_key(q)
+        rows[0][key] = 0.0
+        if a.noise_floor >= 2:
+            rows[0][key + "_floor"] = census_floor[(q, whole)]
+    curves, census_runs = {}, []
     # Series: (label, scheme, levels); the islands scheme has no ORB.
     series = []
     for sch in a.schemes:
@@ -222,6 +304,25 @@ def main():
                               f"{floor_rows[-1]['verdict']}" +
                               (f" (error {100 * e:.3g}%, floor {100 * floor[(ob, w)]:.3g}%)"
                                if e <= floor[(ob, w)] else ""), flush=True)
+            census_runs.append((f"{label} nsubit {ns}", d))
+            for w in census_wins:
+                errs = census_errors.errors(d, ref, w, census)
+                for q in census:
+                    fl = census_floor.get((q, w), float("nan"))
+                    census_rows.append(dict(
+                        scheme=sch, nsubit=ns, levels=L, quantity=q, window_start=w[0],
+                        window_end=w[1], value=census_value(d, q, w),
+                        ref_value=census_value(ref, q, w), error=errs[q], floor=fl,
+                        verdict=noise_floor.verdict(errs[q], fl) if a.noise_floor >= 2 else ""))
+                    if w == whole:
+                        rows[-1][census_key(q)] = errs[q]
+                        if a.noise_floor >= 2:
+                            rows[-1][census_key(q) + "_floor"] = fl
+            if census:
+                print("    census over the run: " + ", ".join(
+                    f"{q} {100 * rows[-1][census_key(q)]:.3g}%" +
+                    (f" (floor {100 * census_floor[(q, whole)]:.3g}%)" if a.noise_floor >= 2 else "")
+                    for q in census), flush=True)
             r = rows[-1]
             what = "fine leaves" if sch == "orb" else "fine particles"
             print(f"{label:>16} nsubit={ns!s:>4}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
@@ -238,7 +339,16 @@ def main():
             w.writeheader()
             w.writerows(floor_rows)
 
+    if census_rows:
+        with open(os.path.join(a.out, "trade_census.csv"), "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(census_rows[0]))
+            w.writeheader()
+            w.writerows(census_rows)
+
     title = a.label or os.path.basename(a.scene)
+    if census:
+        plot_census(os.path.join(a.out, "trade_census.png"), title, ref, perturbed_runs,
+                    census_runs, wins)
     fig, axes = plt.subplots(1, len(series), figsize=(6 * len(series), 4.5), squeeze=False)
     for ax, (label, sch, L) in zip(axes[0], series):
         ax.plot(t_ref * 1e3, o_ref, "k-", lw=2, label="explicit")

@@ -1,5 +1,8 @@
 #include "apps/census_columns.hpp"
 
+#include <chrono>
+#include <limits>
+
 #include <fmt/format.h>
 
 namespace cfddem::apps {
@@ -16,10 +19,10 @@ const std::vector<std::string>& census_columns() {
   return columns;
 }
 
-dem::CensusLaws census_laws(const Scene& scene) {
-  return {scene.dem.spring_constant, scene.dem.restitution, scene.dem.wall_spring_constant,
-          scene.dem.wall_restitution};
-}
+CensusColumns::CensusColumns(const Scene& scene)
+    : enabled_(scene.output.contact_census),
+      geometry_(scene.domain), laws_{scene.dem.spring_constant, scene.dem.restitution,
+                                     scene.dem.wall_spring_constant, scene.dem.wall_restitution} {}
 
 namespace {
 
@@ -39,34 +42,38 @@ std::vector<double> values(const dem::ContactCensus& c) {
 
 } // namespace
 
-std::vector<double> census_row(const Communicator& comm, const dem::CensusParticles& mine,
-                               const dem::DomainGeometry& g, const dem::CensusLaws& laws) {
-  if (comm.size() == 1)
-    return values(dem::take_census(mine, g, laws));
-  // Six numbers a particle, the id as a double (exact below 2^53).
-  constexpr std::size_t kFields = 6;
-  std::vector<double> packed(kFields * mine.x.size());
-  for (std::size_t i = 0; i < mine.x.size(); ++i) {
-    double* q = &packed[kFields * i];
-    q[0] = mine.x[i], q[1] = mine.y[i], q[2] = mine.z[i];
-    q[3] = mine.radius[i], q[4] = mine.mass[i], q[5] = static_cast<double>(mine.id[i]);
-  }
-  const std::vector<double> all = comm.gather(std::span<const double>(packed));
-  std::vector<double> row(census_columns().size(), 0.0);
-  if (comm.rank() == 0) {
-    const std::size_t n = all.size() / kFields;
-    std::vector<double> col[5];
-    std::vector<std::int64_t> id(n);
-    for (auto& c : col)
-      c.resize(n);
-    for (std::size_t i = 0; i < n; ++i) {
-      for (std::size_t f = 0; f < 5; ++f)
-        col[f][i] = all[kFields * i + f];
-      id[i] = static_cast<std::int64_t>(all[kFields * i + 5]);
+std::vector<double> CensusColumns::row(const Communicator& comm, const dem::CensusParticles& mine) {
+  if (!enabled_)
+    return std::vector<double>(census_columns().size(), std::numeric_limits<double>::quiet_NaN());
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<double> row;
+  if (comm.size() == 1) {
+    row = values(dem::take_census(mine, geometry_, laws_, work_));
+  } else {
+    // Five numbers a particle.
+    constexpr std::size_t kFields = 5;
+    std::vector<double> packed(kFields * mine.x.size());
+    for (std::size_t i = 0; i < mine.x.size(); ++i) {
+      double* q = &packed[kFields * i];
+      q[0] = mine.x[i], q[1] = mine.y[i], q[2] = mine.z[i], q[3] = mine.radius[i];
+      q[4] = mine.mass[i];
     }
-    row = values(dem::take_census({col[0], col[1], col[2], col[3], col[4], id}, g, laws));
+    const std::vector<double> all = comm.gather(std::span<const double>(packed));
+    row.assign(census_columns().size(), 0.0);
+    if (comm.rank() == 0) {
+      const std::size_t n = all.size() / kFields;
+      std::vector<double> col[kFields];
+      for (std::size_t f = 0; f < kFields; ++f) {
+        col[f].resize(n);
+        for (std::size_t i = 0; i < n; ++i)
+          col[f][i] = all[kFields * i + f];
+      }
+      row = values(
+          dem::take_census({col[0], col[1], col[2], col[3], col[4]}, geometry_, laws_, work_));
+    }
+    comm.sum(row); // the other ranks add zeros: every rank gets rank 0's values exactly
   }
-  comm.sum(row); // the other ranks add zeros: every rank gets rank 0's values exactly
+  seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return row;
 }
 

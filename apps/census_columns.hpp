@@ -1,11 +1,11 @@
 // The contact census (dem/contact_census.hpp) as diagnostics columns: taken at every row from
 // the synchronised particles, the same way for every scheme and rank count. On R ranks the
-// particles are gathered to rank 0 (positions, radius, mass and id: output only, O(N) there),
-// which takes the census in id order, so the columns equal the one-rank run's bit for bit for
-// the same state; the values are then shared with every rank (each keeps the rows).
+// particles are gathered to rank 0 (positions, radius and mass: output only, O(N) there), whose
+// census is that of the same state on one rank bit for bit (it does not depend on the
+// particles' order); the values are then shared with every rank (each keeps the rows).
+// With output.contact_census = false the columns are NaN and nothing is computed or sent.
 #pragma once
 
-#include <span>
 #include <string>
 #include <vector>
 
@@ -22,10 +22,22 @@ namespace cfddem::apps {
 // binary collisions, docs/schemes.md "The contact census").
 const std::vector<std::string>& census_columns();
 
-dem::CensusLaws census_laws(const Scene& scene);
+class CensusColumns {
+public:
+  explicit CensusColumns(const Scene& scene);
+  // The columns' values for this rank's particles and every other rank's (collective when the
+  // census is on).
+  std::vector<double> row(const Communicator& comm, const dem::CensusParticles& mine);
+  // Wall time spent in row() so far (run.json census_seconds).
+  double seconds() const { return seconds_; }
+  bool enabled() const { return enabled_; }
 
-// The columns' values for this rank's particles and every other rank's (collective).
-std::vector<double> census_row(const Communicator& comm, const dem::CensusParticles& mine,
-                               const dem::DomainGeometry& g, const dem::CensusLaws& laws);
+private:
+  bool enabled_;
+  dem::DomainGeometry geometry_;
+  dem::CensusLaws laws_;
+  dem::CensusWorkspace work_;
+  double seconds_ = 0.0;
+};
 
 } // namespace cfddem::apps

@@ -15,14 +15,16 @@
 // infinite) the estimate is 0. Walls likewise: f_wall = (1 / N) sum_wall_contacts 1 / t_c,w,
 // with m_eff = m_i and the wall's spring and restitution.
 //
-// Deterministic: the particles are taken in the order of their ids and every sum runs in a
-// fixed order, so the values depend on the state alone (not on the order of the spans, the
-// rank count or the thread count).
+// Deterministic: the overlaps and rates are summed in fixed point (2^-32 of the diameter, and of
+// the lightest pair's rate 1 / t_c), so the values depend on the state alone, not on the order
+// the particles come in (rank count, scheme, thread count); the means carry that quantisation
+// (below 1e-9 of the diameter).
 #pragma once
 
 #include <array>
 #include <cstdint>
 #include <span>
+#include <vector>
 
 #include "dem/domain_geometry.hpp"
 
@@ -34,7 +36,6 @@ inline constexpr int kCoordinationBins = 13;
 
 struct CensusParticles {
   std::span<const double> x, y, z, radius, mass;
-  std::span<const std::int64_t> id; // unique; sets the order of the sums
 };
 
 // Normal springs and restitution coefficients of the pair and wall contacts (scene keys
@@ -56,6 +57,17 @@ struct ContactCensus {
   std::array<std::int64_t, kCoordinationBins> coordination{}; // particles per pair-contact count
 };
 
+// Scratch arrays of a census, kept between calls so that a census taken at every output does not
+// allocate (and page-fault) afresh each time. Its contents between calls mean nothing.
+struct CensusWorkspace {
+  std::vector<double> x[3], r, m;               // the particles in cell order
+  std::vector<std::array<int, 3>> cell, coords; // their cells (in cell order; in input order)
+  std::vector<int> z;                           // their pair-contact counts
+  std::vector<std::uint32_t> cell_of, start, fill;
+};
+
+ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, const CensusLaws& l,
+                          CensusWorkspace& work);
 ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, const CensusLaws& l);
 
 } // namespace cfddem::dem

@@ -267,8 +267,7 @@ void BM_ContactCensus(benchmark::State& state) {
   const dem::CensusLaws laws{10.0, 0.8, 10.0, 0.8};
   std::int64_t contacts = 0;
   for (auto _ : state) {
-    const dem::ContactCensus c =
-        dem::take_census({p.x, p.y, p.z, p.radius, p.mass, p.id}, geom, laws);
+    const dem::ContactCensus c = dem::take_census({p.x, p.y, p.z, p.radius, p.mass}, geom, laws);
     contacts = c.pair_contacts;
     benchmark::DoNotOptimize(contacts);
   }

@@ -18,6 +18,15 @@ way in every run, and the reduced values are compared:
   error = sum_k |p_k - p_ref,k| (the L1 distance, 0 .. 2) for the coordination distribution.
 
 The wall quantities are left out when the reference has no wall contact at all (periodic boxes).
+
+Sampling noise. A row catches a contact only if the contact is open at the row's instant (a
+contact lasts t_c, rows are output.interval apart), so the window's census is a sample of K =
+sum(contacts) contact-instants. Two runs whose collisions happen at slightly different times
+(any two schemes, long before chaos separates their bulk observables) catch different contacts:
+their collision frequencies then differ by the Poisson noise of the samples, whose relative
+standard deviation is sqrt(1/K + 1/K_ref) (sampling(), for the collision frequencies; NaN for
+the other quantities). An error within twice that is not a measured difference; more rows
+(a smaller output.interval) shrink it.
 Uses numpy only.
 """
 import numpy as np
@@ -86,3 +95,28 @@ def errors(d, ref, w, names):
     if a is None or b is None:
         return {n: float("nan") for n in names}
     return {n: l1(a[n], b[n]) if n == "coordination" else relative(a[n], b[n]) for n in names}
+
+
+def sampling(d, ref, w, q):
+    """Relative standard deviation of the difference of quantity q between d and ref in window w
+    from the Poisson noise of their contact samples; NaN where it is not defined (quantities
+    other than the collision frequencies, or no contact sampled)."""
+    count = {"collision_frequency": "contacts", "wall_collision_frequency": "wall_contacts"}.get(q)
+    if count is None:
+        return float("nan")
+    k = [float(np.sum(x[count][_rows(x["time"], w)])) for x in (d, ref)]
+    if min(k) <= 0.0:
+        return float("nan")
+    return float(np.sqrt(1.0 / k[0] + 1.0 / k[1]))
+
+
+def verdict(error, floor, noise):
+    """The census error against the chaos floor and the sampling noise (2 standard deviations)."""
+    if not np.isfinite(error):
+        return "no rows in window"
+    if error <= floor:
+        return "indistinguishable from chaos"
+    if np.isfinite(noise) and error <= 2.0 * noise:
+        return f"within the sampling noise (2 x {100 * noise:.3g}%)"
+    return f"scheme error {100 * error:.3g}% above the floor {100 * floor:.3g}%" + (
+        f" and the sampling noise 2 x {100 * noise:.3g}%" if np.isfinite(noise) else "")

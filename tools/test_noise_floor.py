@@ -128,6 +128,13 @@ class CensusErrors(unittest.TestCase):
         self.assertEqual(census_errors.errors(ref, ref, (0.0, 1.0), names),
                          {n: 0.0 for n in names})
         self.assertEqual(census_errors.l1([1, 0], [0, 1]), 2.0)
+        # Sampling: 2 and 3 contacts caught: sqrt(1/3 + 1/2); undefined for the overlaps.
+        self.assertAlmostEqual(census_errors.sampling(d, ref, (0.0, 1.0), "collision_frequency"),
+                               np.sqrt(1 / 3 + 1 / 2))
+        self.assertTrue(np.isnan(census_errors.sampling(d, ref, (0.0, 1.0), "overlap_mean")))
+        self.assertIn("sampling noise", census_errors.verdict(0.5, 0.1, 0.3))
+        self.assertIn("above the floor", census_errors.verdict(0.7, 0.1, 0.3))
+        self.assertEqual(census_errors.verdict(0.05, 0.1, 0.3), "indistinguishable from chaos")
         walls = census([0.0, 1.0], [0, 2], [0.0, 0.1], coord, wall=[0, 1])
         self.assertIn("wall_collision_frequency", census_errors.quantities(walls))
 
@@ -212,7 +219,8 @@ class WithBinary(unittest.TestCase):
         self.assertEqual(len([r for r in census_table if r["scheme"] == "floor"]), 4 * 3)
         for r in census_rows:
             self.assertTrue(r["verdict"] == "indistinguishable from chaos"
-                            or "above the floor" in r["verdict"], r)
+                            or "above the floor" in r["verdict"]
+                            or "sampling noise" in r["verdict"], r)
         # 100 particles at 1% solids collide: the reference saw contacts.
         self.assertGreater(max(float(r["ref_value"]) for r in census_rows
                                if r["quantity"] == "collision_frequency"), 0.0)

@@ -33,8 +33,9 @@ The contact census (diagnostics columns of dem/contact_census.hpp; tools/census_
 run's collision frequency, mean and largest overlap (and the wall ones, where the scene has walls)
 and coordination-number distribution, reduced over each of the --windows windows and over the
 whole run, against the reference's: relative errors, and the L1 distance of the coordination
-distributions. With --noise-floor the same errors of the perturbed runs give their floor and a
-verdict. Writes <out>/trade_census.csv (per quantity and window) and trade_census.png;
+distributions. With --noise-floor the same errors of the perturbed runs give their floor. The
+collision frequencies also carry their sampling noise (the Poisson noise of the contacts the rows
+caught, column sampling); the verdict weighs the error against the floor and twice that noise. Writes <out>/trade_census.csv (per quantity and window) and trade_census.png;
 trade.csv gains the whole-run errors (collision_frequency_error, overlap_mean_error,
 overlap_max_error, coordination_l1, and their *_floor with --noise-floor).
 
@@ -251,6 +252,8 @@ def main():
                                             ref_value=census_value(ref, q, w),
                                             error=census_floor[(q, w)],
                                             floor=census_floor[(q, w)],
+                                            sampling=max(census_errors.sampling(x, ref, w, q)
+                                                         for x in perturbed_runs),
                                             verdict=f"spread of {len(errs)} runs"))
         print(f"chaos floor ({a.noise_floor - 1} perturbed explicit runs, relative "
               f"{a.perturbation:g}): {100 * floor_whole:.3g}% in {a.observable} over the run",
@@ -314,12 +317,14 @@ def main():
             for w in census_wins:
                 errs = census_errors.errors(d, ref, w, census)
                 for q in census:
-                    fl = census_floor.get((q, w), float("nan"))
+                    fl = census_floor.get((q, w), 0.0)
+                    noise = census_errors.sampling(d, ref, w, q)
                     census_rows.append(dict(
                         scheme=sch, nsubit=ns, levels=L, quantity=q, window_start=w[0],
                         window_end=w[1], value=census_value(d, q, w),
-                        ref_value=census_value(ref, q, w), error=errs[q], floor=fl,
-                        verdict=noise_floor.verdict(errs[q], fl) if a.noise_floor >= 2 else ""))
+                        ref_value=census_value(ref, q, w), error=errs[q],
+                        floor=fl if a.noise_floor >= 2 else float("nan"), sampling=noise,
+                        verdict=census_errors.verdict(errs[q], fl, noise)))
                     if w == whole:
                         rows[-1][census_key(q)] = errs[q]
                         if a.noise_floor >= 2:

@@ -20,12 +20,15 @@ way in every run, and the reduced values are compared:
 The wall quantities are left out when the reference has no wall contact at all (periodic boxes).
 
 Sampling noise. A row catches a contact only if the contact is open at the row's instant (a
-contact lasts t_c, rows are output.interval apart), so the window's census is a sample of K =
-sum(contacts) contact-instants. Two runs whose collisions happen at slightly different times
-(any two schemes, long before chaos separates their bulk observables) catch different contacts:
-their collision frequencies then differ by the Poisson noise of the samples, whose relative
-standard deviation is sqrt(1/K + 1/K_ref) (sampling(), for the collision frequencies; NaN for
-the other quantities). An error within twice that is not a measured difference; more rows
+contact lasts t_c, rows are output.interval apart), so the window's census is a sample of the
+contact-instants it caught. Two runs whose collisions happen at slightly different times (any
+two schemes, long before chaos separates their bulk observables) catch different contacts, and
+their window values differ by that sampling alone. sampling() estimates it from the rows
+themselves (rows further apart than t_c are independent samples): the standard error of the
+window mean of the collision frequency (the rows' standard deviation over sqrt(rows)), and of the
+contact-weighted overlap mean (the ratio estimator's, sqrt(sum n_i^2 (x_i - X)^2) / sum n_i),
+for both runs combined and relative to the reference's value; NaN for overlap_max and the
+coordination distribution. An error within twice that is not a measured difference; more rows
 (a smaller output.interval) shrink it.
 Uses numpy only.
 """
@@ -97,17 +100,31 @@ def errors(d, ref, w, names):
     return {n: l1(a[n], b[n]) if n == "coordination" else relative(a[n], b[n]) for n in names}
 
 
-def sampling(d, ref, w, q):
-    """Relative standard deviation of the difference of quantity q between d and ref in window w
-    from the Poisson noise of their contact samples; NaN where it is not defined (quantities
-    other than the collision frequencies, or no contact sampled)."""
-    count = {"collision_frequency": "contacts", "wall_collision_frequency": "wall_contacts"}.get(q)
+def _standard_error(d, w, q):
+    keep = _rows(d["time"], w)
+    if q in ("collision_frequency", "wall_collision_frequency"):
+        x = d[q][keep]
+        return float(np.std(x, ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
+    count = {"overlap_mean": "contacts", "wall_overlap_mean": "wall_contacts"}.get(q)
     if count is None:
         return float("nan")
-    k = [float(np.sum(x[count][_rows(x["time"], w)])) for x in (d, ref)]
-    if min(k) <= 0.0:
+    n, x = d[count][keep], d[q][keep]
+    total = np.sum(n)
+    if total <= 0 or np.count_nonzero(n) < 2:
         return float("nan")
-    return float(np.sqrt(1.0 / k[0] + 1.0 / k[1]))
+    mean = np.sum(n * x) / total
+    return float(np.sqrt(np.sum(n * n * (x - mean) ** 2)) / total)
+
+
+def sampling(d, ref, w, q):
+    """Relative standard error of the difference of quantity q between d and ref in window w from
+    the sampling of contacts by the rows (both runs combined, over |X_ref|); NaN where it is not
+    defined (overlap_max, the coordination distribution, too few rows or contacts)."""
+    v = window_values(ref, w)
+    if v is None or q not in v or not np.isscalar(v[q]) or v[q] == 0.0:
+        return float("nan")
+    se = [_standard_error(x, w, q) for x in (d, ref)]
+    return float(np.sqrt(se[0] ** 2 + se[1] ** 2) / abs(v[q]))
 
 
 def verdict(error, floor, noise):

@@ -128,10 +128,21 @@ class CensusErrors(unittest.TestCase):
         self.assertEqual(census_errors.errors(ref, ref, (0.0, 1.0), names),
                          {n: 0.0 for n in names})
         self.assertEqual(census_errors.l1([1, 0], [0, 1]), 2.0)
-        # Sampling: 2 and 3 contacts caught: sqrt(1/3 + 1/2); undefined for the overlaps.
-        self.assertAlmostEqual(census_errors.sampling(d, ref, (0.0, 1.0), "collision_frequency"),
-                               np.sqrt(1 / 3 + 1 / 2))
-        self.assertTrue(np.isnan(census_errors.sampling(d, ref, (0.0, 1.0), "overlap_mean")))
+        # Sampling: the standard errors of the two runs' window means, combined, over the
+        # reference's value; undefined for one row and for the largest overlap.
+        self.assertTrue(np.isnan(census_errors.sampling(d, ref, (0.0, 1.0), "collision_frequency")))
+        self.assertTrue(np.isnan(census_errors.sampling(d, ref, (0.0, 1.0), "overlap_max")))
+        c4 = np.zeros((5, 13))
+        a = census([0, 1, 2, 3, 4], [0, 1, 3, 1, 3], [0, 0.1, 0.2, 0.1, 0.2], c4)
+        b = census([0, 1, 2, 3, 4], [0, 2, 2, 2, 2], [0, 0.1, 0.1, 0.1, 0.1], c4)
+        f = np.array([10.0, 30, 10, 30])  # a's collision frequency rows (contacts x 10)
+        se_a = np.std(f, ddof=1) / 2  # b's rows are all 20: no spread
+        self.assertAlmostEqual(census_errors.sampling(a, b, (0.0, 4.0), "collision_frequency"),
+                               se_a / 20.0)
+        # Ratio estimator of a's overlap mean (b's overlaps do not vary): X = 1.4 / 8.
+        x = 1.4 / 8
+        se = np.sqrt(2 * (0.1 - x) ** 2 + 2 * (3 * (0.2 - x)) ** 2) / 8
+        self.assertAlmostEqual(census_errors.sampling(a, b, (0.0, 4.0), "overlap_mean"), se / 0.1)
         self.assertIn("sampling noise", census_errors.verdict(0.5, 0.1, 0.3))
         self.assertIn("above the floor", census_errors.verdict(0.7, 0.1, 0.3))
         self.assertEqual(census_errors.verdict(0.05, 0.1, 0.3), "indistinguishable from chaos")

@@ -89,6 +89,9 @@ def read_diag(path):
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
 
 
+REUSE = False  # --reuse: take a configuration's finished run from its directory
+
+
 def run(binary, scene, out, overrides, threads, repeat=1):
     """One configuration, `repeat` times in a row; loop_seconds is the minimum (the runs are
     deterministic, so only the wall time differs: the minimum is the least disturbed by load).
@@ -96,6 +99,15 @@ def run(binary, scene, out, overrides, threads, repeat=1):
     the returned run.json: with one thread it is what the run cost even when other work shares
     the cores and stretches its wall time."""
     cmd = [binary, "run", scene, *overrides, "--threads", str(threads), "--quiet", "--overwrite", "--out", out]
+    cpu_file = os.path.join(out, "trade_cpu_seconds")
+    if REUSE and all(os.path.exists(os.path.join(out, f))
+                     for f in ("run.json", "diagnostics.csv", "trade_cpu_seconds")):
+        with open(os.path.join(out, "run.json")) as f:
+            js = json.load(f)
+        js["loop_seconds"] -= js.get("census_seconds", 0.0)
+        with open(cpu_file) as f:
+            js["cpu_seconds"] = float(f.read())
+        return js, read_diag(out)
     best, best_cpu = None, None
     for _ in range(repeat):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -115,6 +127,8 @@ def run(binary, scene, out, overrides, threads, repeat=1):
         if best is None or js["loop_seconds"] < best["loop_seconds"]:
             best = js
     best["cpu_seconds"] = best_cpu
+    with open(cpu_file, "w") as f:
+        f.write(repr(best_cpu))
     return best, read_diag(out)
 
 
@@ -196,7 +210,13 @@ def main():
     ap.add_argument("--observables", nargs="+", default=None,
                     help="observables of the floor table (default: --observable)")
     ap.add_argument("--windows", type=int, default=4, help="time windows of the floor table")
+    ap.add_argument("--reuse", action="store_true",
+                    help="take each configuration's run from its directory under --out when a "
+                         "finished one is there (re-analysis of a sweep; the run.json of the last "
+                         "repeat, the CPU time its sweep recorded)")
     a = ap.parse_args()
+    global REUSE
+    REUSE = a.reuse
 
     os.makedirs(a.out, exist_ok=True)
     common = list(a.set) + ([f"run.end_time={a.end_time}"] if a.end_time else [])

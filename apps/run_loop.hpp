@@ -226,6 +226,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   if (ck && loop.row_pending)
     take_profile_gas(); // the restored gas is the gas of the pending row's time
   MeanTracker means;
+  CensusColumns census(scene);
   const dem::DomainGeometry geom(scene.domain);
   // A snapshot of every rank's particles (positions wrapped into the periodic box: the schemes
   // wrap only when they rebuild their lists or regrid), with the gas at its time.
@@ -256,7 +257,8 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     const auto st = one ? dem::measure(p) : dem::measure(p, comm);
     const RowExtra x =
         one ? means.next(t, s.vx, s.vy, s.vz, fd) : means.next(t, st.mean_velocity, fd);
-    out.add_row(row(t, k, st, n_total, run.scheme, wall, ls, x));
+    const std::vector<double> contacts = census.row(comm, {s.x, s.y, s.z, s.radius, s.mass});
+    out.add_row(row(t, k, st, n_total, run.scheme, wall, ls, x, contacts));
     if (profiles)
       out.add_profile_rows(profiles->rows(t, {s.x, s.y, s.z, s.vx, s.vy, s.vz, s.radius, s.mass},
                                           profile_gas, one ? nullptr : &comm));
@@ -432,6 +434,11 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     gas->describe(j, loop, loop_seconds, timer.seconds(Phase::fluid)); // collective
   j["end_time"] = gas_on ? t : static_cast<double>(n_end) * dt;
   j["loop_seconds"] = loop_seconds;
+  if (census.enabled()) {
+    j["census_seconds"] = census.seconds();
+    j["census_definition"] = "rank 0's wall time in the contact census of the diagnostics rows "
+                             "(output.contact_census; part of phase_seconds.io and loop_seconds)";
+  }
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
   nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
   const char* note = run.phase_note();

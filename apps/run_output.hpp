@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "apps/census_columns.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/derived_numbers.hpp"
 #include "core/communicator.hpp"
@@ -31,13 +32,18 @@ inline double seconds_since(clock::time_point t0) {
   return std::chrono::duration<double>(clock::now() - t0).count();
 }
 
-inline const std::vector<std::string> kColumns = {
+// The contact census's columns (apps/census_columns.hpp) come last, after these.
+inline const std::vector<std::string> kColumns = [] {
+  std::vector<std::string> c = {
     "time",       "step",       "granular_temperature", "kinetic_energy", "mean_speed",
     "mean_x",     "mean_y",     "mean_z",               "momentum_x",     "momentum_y",
     "momentum_z", "particles",  "particle_steps",       "force_evaluations", "neighbor_builds",
     "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction",
     "pressure_drop", "gas_momentum_x", "gas_momentum_y", "gas_momentum_z", "mean_vx", "mean_vy",
     "mean_vz", "mean_ax", "mean_ay", "mean_az", "gas_mass_residual"};
+  c.insert(c.end(), census_columns().begin(), census_columns().end());
+  return c;
+}();
 
 // Columns added by the gas issue: fluid diagnostics (0 without a fluid) and particle means.
 // mean_a is the change of the mean velocity over the output interval divided by its length (0
@@ -90,8 +96,8 @@ private:
 template <class Scheme>
 inline std::vector<double> row(double t, long long step, const dem::GranularState& s, std::size_t n,
                         const Scheme& scheme, double wall, const dem::LeafStepStats& ls,
-                        const RowExtra& x) {
-  return {t,
+                        const RowExtra& x, const std::vector<double>& census) {
+  std::vector<double> r = {t,
           static_cast<double>(step),
           s.granular_temperature,
           s.kinetic_energy,
@@ -122,6 +128,8 @@ inline std::vector<double> row(double t, long long step, const dem::GranularStat
           x.mean_a[1],
           x.mean_a[2],
           x.fluid.mass_residual};
+  r.insert(r.end(), census.begin(), census.end());
+  return r;
 }
 
 

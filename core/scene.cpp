@@ -258,6 +258,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   s.output.checkpoint_interval = k.number("output.checkpoint_interval");
   s.output.profile_axis = k.word("output.profile_axis");
   s.output.profile_bins = k.integer("output.profile_bins");
+  s.output.contact_census = k.flag("output.contact_census");
 
   // Gas (optional): docs/theory.md §4-§7.
   if (c.has("fluid")) {
@@ -396,6 +397,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("output.checkpoint_interval", num(s.output.checkpoint_interval));
   o.emplace_back("output.profile_axis", str(s.output.profile_axis));
   o.emplace_back("output.profile_bins", std::to_string(s.output.profile_bins));
+  o.emplace_back("output.contact_census", s.output.contact_census ? "true" : "false");
   const auto& f = s.fluid;
   if (f.enabled) {
     o.emplace_back("fluid.cells", fmt::format("[{}, {}, {}]", f.cells[0], f.cells[1], f.cells[2]));

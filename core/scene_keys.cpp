@@ -435,6 +435,13 @@ std::vector<SceneKey> make_table() {
        .range = at_least(1),
        .fallback = integer(20),
        .meaning = "number of equal slabs along `output.profile_axis`"},
+      {.name = "output.contact_census",
+       .type = T::Bool,
+       .section = S::RunOutput,
+       .fallback = flag(true),
+       .meaning = "take the contact census (contacts, overlaps, coordination numbers, collision "
+                  "frequency) at every row of `diagnostics.csv` ([outputs.md](outputs.md)); false: "
+                  "its columns are NaN and the run does not pay for it"},
 
       // Gas.
       {.name = "fluid.cells",

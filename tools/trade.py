@@ -8,7 +8,9 @@ sweep (--schemes orb islands: also the islands scheme per nsubit). Runs are sequ
                 --observable, a diagnostics.csv column; the orb row at t is matched to the
                 reference row at the same time, linear interpolation)
   speedup     = loop_seconds(explicit) / loop_seconds(orb)   (run.json, same sweep; with
-                --repeat N the minimum of N runs of each)
+                --repeat N the minimum of N runs of each; the contact census's census_seconds,
+                the same work in every run, is taken off loop_seconds, and its share of the
+                loop off the CPU time)
   cpu_speedup = the same with the process CPU time (user + system) of each run: with one thread
                 it is robust to other work on the machine, which stretches wall times
   force_ratio = force_evaluations(explicit) / force_evaluations(orb)   (noise-free; orb counts
@@ -28,6 +30,16 @@ it with a verdict ("indistinguishable from chaos" or "scheme error E above the f
 Writes <out>/trade_floor.csv and draws the perturbed runs' envelope as a band in
 trade_observable.png; trade.csv gains the whole-run floor of --observable.
 
+The contact census (diagnostics columns of dem/contact_census.hpp; tools/census_errors.py): each
+run's collision frequency, mean and largest overlap (and the wall ones, where the scene has walls)
+and coordination-number distribution, reduced over each of the --windows windows and over the
+whole run, against the reference's: relative errors, and the L1 distance of the coordination
+distributions. With --noise-floor the same errors of the perturbed runs give their floor. The
+collision frequencies also carry their sampling noise (the Poisson noise of the contacts the rows
+caught, column sampling); the verdict weighs the error against the floor and twice that noise. Writes <out>/trade_census.csv (per quantity and window) and trade_census.png;
+trade.csv gains the whole-run errors (collision_frequency_error, overlap_mean_error,
+overlap_max_error, coordination_l1, and their *_floor with --noise-floor).
+
 Example:
   tools/trade.py scenes/hcs.toml --levels 6 --end-time 0.01 --out runs/trade_hcs1222
   tools/trade.py scenes/hcs.toml --schemes islands --nsubit 10 20 --noise-floor 4 \
@@ -44,6 +56,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import census_errors  # noqa: E402
 import noise_floor  # noqa: E402
 
 import matplotlib
@@ -77,6 +90,9 @@ def read_diag(path):
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
 
 
+REUSE = False  # --reuse: take a configuration's finished run from its directory
+
+
 def run(binary, scene, out, overrides, threads, repeat=1):
     """One configuration, `repeat` times in a row; loop_seconds is the minimum (the runs are
     deterministic, so only the wall time differs: the minimum is the least disturbed by load).
@@ -84,6 +100,21 @@ def run(binary, scene, out, overrides, threads, repeat=1):
     the returned run.json: with one thread it is what the run cost even when other work shares
     the cores and stretches its wall time."""
     cmd = [binary, "run", scene, *overrides, "--threads", str(threads), "--quiet", "--overwrite", "--out", out]
+    cpu_file = os.path.join(out, "trade_cpu_seconds")
+    def without_census(js, cpu):
+        """The loop's wall and CPU time without the contact census, which is the same work in
+        every run: census_seconds off the wall time, its share of the loop off the CPU time."""
+        census = js.get("census_seconds", 0.0)
+        js["cpu_seconds"] = cpu * (1.0 - census / js["loop_seconds"])
+        js["loop_seconds"] -= census
+        return js
+
+    if REUSE and all(os.path.exists(os.path.join(out, f))
+                     for f in ("run.json", "diagnostics.csv", "trade_cpu_seconds")):
+        with open(os.path.join(out, "run.json")) as f:
+            js = json.load(f)
+        with open(cpu_file) as f:
+            return without_census(js, float(f.read())), read_diag(out)
     best, best_cpu = None, None
     for _ in range(repeat):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -92,13 +123,67 @@ def run(binary, scene, out, overrides, threads, repeat=1):
         if res.returncode != 0:
             sys.exit(f"trade.py: {' '.join(cmd)} failed:\n{res.stderr}")
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-        best_cpu = cpu if best_cpu is None else min(best_cpu, cpu)
         with open(os.path.join(out, "run.json")) as f:
-            js = json.load(f)
+            js = without_census(json.load(f), cpu)
+        if best_cpu is None or js["cpu_seconds"] < best_cpu[0]:
+            best_cpu = (js["cpu_seconds"], cpu)
         if best is None or js["loop_seconds"] < best["loop_seconds"]:
             best = js
-    best["cpu_seconds"] = best_cpu
+    best["cpu_seconds"] = best_cpu[0]
+    with open(cpu_file, "w") as f:
+        f.write(repr(best_cpu[1]))  # with the census: --reuse takes it off again
     return best, read_diag(out)
+
+
+def census_key(q):
+    """trade.csv's column of a census quantity's whole-run error."""
+    return "coordination_l1" if q == "coordination" else f"{q}_error"
+
+
+def census_value(d, q, w):
+    """A run's census quantity reduced over window w; the coordination distribution as its mean
+    coordination number (the last bin counted at its lower edge)."""
+    v = census_errors.window_values(d, w)
+    if v is None:
+        return float("nan")
+    if q == "coordination":
+        return float(np.dot(np.arange(len(v[q])), v[q]))
+    return v[q]
+
+
+def plot_census(path, title, ref, perturbed_runs, runs, wins):
+    """Left: the collision frequency per window (the perturbed runs' range as a band); right: the
+    coordination distribution over the whole run."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    edges = np.array([wins[0][0]] + [w[1] for w in wins]) * 1e3
+
+    def per_window(d):
+        return [census_value(d, "collision_frequency", w) for w in wins]
+
+    def step(ax, d, **kw):
+        v = per_window(d)
+        ax.stairs(v, edges, **kw)
+    if perturbed_runs:
+        env = np.array([per_window(d) for d in perturbed_runs] + [per_window(ref)])
+        ax1.stairs(env.max(axis=0), edges, baseline=env.min(axis=0), fill=True, color="0.8",
+                   label=f"chaos floor ({len(perturbed_runs) + 1} explicit runs)")
+    step(ax1, ref, color="k", lw=2, label="explicit")
+    whole = (0.0, ref["time"][-1])
+    k = np.arange(len(census_errors.coordination_columns(ref)))
+    ax2.semilogy(k, census_errors.window_values(ref, whole)["coordination"], "k-o", lw=2,
+                 label="explicit")
+    for label, d in runs:
+        step(ax1, d, ls="--", label=label)
+        ax2.semilogy(k, census_errors.window_values(d, whole)["coordination"], "--.", label=label)
+    ax1.set_xlabel("t [ms]")
+    ax1.set_ylabel("collision frequency per particle [1/s] (window mean)")
+    ax1.legend(fontsize=7)
+    ax2.set_xlabel("coordination number (last bin: 12 or more)")
+    ax2.set_ylabel("fraction of particle-rows")
+    ax2.legend(fontsize=7)
+    fig.suptitle(f"{title}: contact census")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 def main():
@@ -128,7 +213,13 @@ def main():
     ap.add_argument("--observables", nargs="+", default=None,
                     help="observables of the floor table (default: --observable)")
     ap.add_argument("--windows", type=int, default=4, help="time windows of the floor table")
+    ap.add_argument("--reuse", action="store_true",
+                    help="take each configuration's run from its directory under --out when a "
+                         "finished one is there (re-analysis of a sweep; the run.json of the last "
+                         "repeat, the CPU time its sweep recorded)")
     a = ap.parse_args()
+    global REUSE
+    REUSE = a.reuse
 
     os.makedirs(a.out, exist_ok=True)
     common = list(a.set) + ([f"run.end_time={a.end_time}"] if a.end_time else [])
@@ -142,6 +233,11 @@ def main():
         if ob not in ref:
             sys.exit(f"trade.py: no column '{ob}' in diagnostics.csv (have: {', '.join(ref)})")
     wins = noise_floor.windows(t_ref[-1], a.windows)
+    # The contact census: its quantities, compared per window and over the whole run (last).
+    census = census_errors.quantities(ref) if census_errors.has_census(ref) else []
+    census_wins = wins + [(0.0, t_ref[-1])]
+    census_floor, census_rows = {}, []
+    whole = census_wins[-1]
     floor_rows, floor, floor_whole, perturbed_runs = [], {}, 0.0, []
     if a.noise_floor == 1 or a.noise_floor < 0:
         sys.exit("trade.py: --noise-floor needs K >= 2 (the reference and K-1 perturbed runs)")
@@ -169,6 +265,19 @@ def main():
                 floor_rows.append(dict(scheme="floor", nsubit=0, levels=0, observable=ob,
                                        window_start=w[0], window_end=w[1], error=max(errs),
                                        floor=max(errs), verdict=f"spread of {len(errs)} runs"))
+        if census:
+            for w in census_wins:
+                errs = [census_errors.errors(d, ref, w, census) for d in perturbed_runs]
+                for q in census:
+                    census_floor[(q, w)] = max(e[q] for e in errs)
+                    census_rows.append(dict(scheme="floor", nsubit=0, levels=0, quantity=q,
+                                            window_start=w[0], window_end=w[1], value=float("nan"),
+                                            ref_value=census_value(ref, q, w),
+                                            error=census_floor[(q, w)],
+                                            floor=census_floor[(q, w)],
+                                            sampling=max(census_errors.sampling(x, ref, w, q)
+                                                         for x in perturbed_runs),
+                                            verdict=f"spread of {len(errs)} runs"))
         print(f"chaos floor ({a.noise_floor - 1} perturbed explicit runs, relative "
               f"{a.perturbation:g}): {100 * floor_whole:.3g}% in {a.observable} over the run",
               flush=True)
@@ -178,7 +287,12 @@ def main():
                  cpu_seconds=ref_json["cpu_seconds"])]
     if a.noise_floor >= 2:
         rows[0]["floor"] = floor_whole
-    curves = {}
+    for q in census:
+        key = census_key(q)
+        rows[0][key] = 0.0
+        if a.noise_floor >= 2:
+            rows[0][key + "_floor"] = census_floor[(q, whole)]
+    curves, census_runs = {}, []
     # Series: (label, scheme, levels); the islands scheme has no ORB.
     series = []
     for sch in a.schemes:
@@ -222,6 +336,27 @@ def main():
                               f"{floor_rows[-1]['verdict']}" +
                               (f" (error {100 * e:.3g}%, floor {100 * floor[(ob, w)]:.3g}%)"
                                if e <= floor[(ob, w)] else ""), flush=True)
+            census_runs.append((f"{label} nsubit {ns}", d))
+            for w in census_wins:
+                errs = census_errors.errors(d, ref, w, census)
+                for q in census:
+                    fl = census_floor.get((q, w), 0.0)
+                    noise = census_errors.sampling(d, ref, w, q)
+                    census_rows.append(dict(
+                        scheme=sch, nsubit=ns, levels=L, quantity=q, window_start=w[0],
+                        window_end=w[1], value=census_value(d, q, w),
+                        ref_value=census_value(ref, q, w), error=errs[q],
+                        floor=fl if a.noise_floor >= 2 else float("nan"), sampling=noise,
+                        verdict=census_errors.verdict(errs[q], fl, noise)))
+                    if w == whole:
+                        rows[-1][census_key(q)] = errs[q]
+                        if a.noise_floor >= 2:
+                            rows[-1][census_key(q) + "_floor"] = fl
+            if census:
+                print("    census over the run: " + ", ".join(
+                    f"{q} {100 * rows[-1][census_key(q)]:.3g}%" +
+                    (f" (floor {100 * census_floor[(q, whole)]:.3g}%)" if a.noise_floor >= 2 else "")
+                    for q in census), flush=True)
             r = rows[-1]
             what = "fine leaves" if sch == "orb" else "fine particles"
             print(f"{label:>16} nsubit={ns!s:>4}: error {100 * err:6.2f}%  speed-up {r['speedup']:.2f}  "
@@ -238,7 +373,16 @@ def main():
             w.writeheader()
             w.writerows(floor_rows)
 
+    if census_rows:
+        with open(os.path.join(a.out, "trade_census.csv"), "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(census_rows[0]))
+            w.writeheader()
+            w.writerows(census_rows)
+
     title = a.label or os.path.basename(a.scene)
+    if census:
+        plot_census(os.path.join(a.out, "trade_census.png"), title, ref, perturbed_runs,
+                    census_runs, wins)
     fig, axes = plt.subplots(1, len(series), figsize=(6 * len(series), 4.5), squeeze=False)
     for ax, (label, sch, L) in zip(axes[0], series):
         ax.plot(t_ref * 1e3, o_ref, "k-", lw=2, label="explicit")

@@ -10,6 +10,8 @@
 //   BM_DenseContactPass  the contact pass alone on those gases (pair passes over the half list's
 //                     flat pair streams and the scatter to both particles; list and streams
 //                     built once)
+//   BM_ContactCensus  dem::take_census, taken at each diagnostics row (its cost against
+//                     BM_ExplicitStep's: how many explicit steps one row's census costs)
 // items_per_second = particles processed per second (particle-steps/s for the step).
 // Threads: CFDDEM_BENCH_THREADS (default 1, to compare with the single-core peer figures).
 #include <cmath>
@@ -25,6 +27,7 @@
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "dem/contact_census.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/islands_scheme.hpp"
@@ -261,6 +264,21 @@ void BM_OrbGhostRefresh(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(p.size()));
 }
 
+void BM_ContactCensus(benchmark::State& state) {
+  const Gas& g = gas(static_cast<int>(state.range(0)), state.range(1));
+  const ParticleStore& p = g.particles;
+  const dem::DomainGeometry geom(g.scene.domain);
+  const dem::CensusLaws laws{10.0, 0.8, 10.0, 0.8};
+  std::int64_t contacts = 0;
+  for (auto _ : state) {
+    const dem::ContactCensus c = dem::take_census({p.x, p.y, p.z, p.radius, p.mass}, geom, laws);
+    contacts = c.pair_contacts;
+    benchmark::DoNotOptimize(contacts);
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(p.size()));
+  state.counters["contacts"] = static_cast<double>(contacts);
+}
+
 void gases(benchmark::internal::Benchmark* b) {
   for (int phi : {1, 30})
     for (std::int64_t n : {1000, 10000, 100000})
@@ -272,6 +290,7 @@ void gases(benchmark::internal::Benchmark* b) {
 
 BENCHMARK(BM_NeighborBuild)->Apply(gases)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStep)->Apply(gases)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ContactCensus)->Apply(gases)->Unit(benchmark::kMicrosecond);
 // Dense granular flow: the explicit step at solid fractions 10, 30, 50% on 100k particles.
 void BM_DenseStep(benchmark::State& state) {
   BM_ExplicitStep(state);

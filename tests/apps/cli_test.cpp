@@ -154,6 +154,51 @@ TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
     EXPECT_NE(json.find(k), std::string::npos) << k;
 }
 
+// The contact census columns (apps/census_columns.hpp) on a dense gas (2000 particles, phi = 0.3)
+// where contacts are many: identical for 1 and 2 threads, for each scheme.
+TEST(Cli, ContactCensusIdenticalForOneAndTwoThreads) {
+  const std::string src = CFDDEM_SOURCE_DIR;
+  const std::string common = src + "/scenes/hcs_small.toml particles.count=2000 "
+                                   "domain.hi=[1.52e-3,1.52e-3,1.52e-3] run.end_time=5e-4 --quiet";
+  for (const std::string scheme : {"explicit", "orb", "islands"}) {
+    std::string census[2];
+    for (int threads : {1, 2}) {
+      const fs::path out = fs::path(::testing::TempDir()) / fmt::format("census{}", threads);
+      fs::remove_all(out);
+      ASSERT_EQ(cfddem(fmt::format("run {} dem.scheme={} --threads {} --out {}", common, scheme,
+                                   threads, out.string()))
+                    .code,
+                0);
+      std::ifstream in(out / "diagnostics.csv");
+      std::string line;
+      std::getline(in, line);
+      std::vector<std::string> header;
+      for (std::stringstream ss(line); std::getline(ss, line, ',');)
+        header.push_back(line);
+      const auto from = std::find(header.begin(), header.end(), "contacts") - header.begin();
+      ASSERT_LT(from, static_cast<long>(header.size())) << "no census columns";
+      ASSERT_EQ(header.back(), "coordination_12");
+      int rows = 0;
+      double contacts_last = 0.0, coordinated = 0.0;
+      while (std::getline(in, line)) {
+        std::vector<std::string> cells;
+        for (std::stringstream ss(line); std::getline(ss, line, ',');)
+          cells.push_back(line);
+        for (auto c = cells.begin() + from; c != cells.end(); ++c)
+          census[threads - 1] += *c + ',';
+        census[threads - 1] += '\n';
+        ++rows;
+        contacts_last = std::stod(cells[from]);
+        coordinated = std::stod(cells[from + 8 + 2]); // coordination_2
+      }
+      EXPECT_EQ(rows, 6) << scheme; // t = 0 and 5 rows
+      EXPECT_GT(contacts_last, 50.0) << scheme << ": the dense gas has contacts";
+      EXPECT_GT(coordinated, 0.0) << scheme << ": and particles with two of them";
+    }
+    EXPECT_EQ(census[0], census[1]) << scheme;
+  }
+}
+
 // An impact faster than a radius per step would tunnel: the run stops with exit code 3 and a
 // message naming the particle, the time and the cause.
 TEST(Cli, ParticleFasterThanARadiusPerStepStopsWithCode3) {
@@ -257,7 +302,8 @@ TEST(Cli, DiagnosticsRowsSurviveARunThatStops) {
   int rows = -1;
   double last_t = -1;
   while (std::getline(csv, line)) {
-    EXPECT_EQ(std::count(line.begin(), line.end(), ','), 30) << "torn row: " << line;
+    // 52 columns: 31, and the contact census's 21.
+    EXPECT_EQ(std::count(line.begin(), line.end(), ','), 51) << "torn row: " << line;
     if (++rows > 0)
       last_t = std::stod(line.substr(0, line.find(',')));
   }

@@ -84,6 +84,10 @@ def matches_one_rank():
         scale[f"momentum_{a}"] = math.sqrt(2 * mass * ke0)
         scale[f"mean_v{a}"] = v_scale
         scale[f"mean_a{a}"] = v_scale / 2e-4
+    # An overlap is a difference of positions: its round-off is a position's (the scale of
+    # mean_x, about half the box) over the diameter.
+    for c in ("overlap_mean", "overlap_max", "wall_overlap_mean", "wall_overlap_max"):
+        scale[c] = scale["mean_x"] / 100e-6
     worst = {}
     for r1, rn in zip(one, many):
         for c in r1:

@@ -85,7 +85,7 @@ struct OutputSpec {
   double checkpoint_interval = 0.0; // simulated seconds between checkpoints (0: none)
   std::string profile_axis = "none"; // profiles.csv along "x" | "y" | "z"; "none": not written
   std::int64_t profile_bins = 20;    // slabs of profiles.csv
-  bool contact_census = true;        // census columns of diagnostics.csv (else NaN)
+  bool contact_census = false;       // census columns of diagnostics.csv (else NaN)
   // 0, 1, 2 for x, y, z; -1 without profiles.
   [[nodiscard]] int profile_axis_index() const {
     return profile_axis == "x" ? 0 : profile_axis == "y" ? 1 : profile_axis == "z" ? 2 : -1;

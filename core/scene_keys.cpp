@@ -438,10 +438,12 @@ std::vector<SceneKey> make_table() {
       {.name = "output.contact_census",
        .type = T::Bool,
        .section = S::RunOutput,
-       .fallback = flag(true),
+       .fallback = flag(false),
        .meaning = "take the contact census (contacts, overlaps, coordination numbers, collision "
-                  "frequency) at every row of `diagnostics.csv` ([outputs.md](outputs.md)); false: "
-                  "its columns are NaN and the run does not pay for it"},
+                  "frequency) at every row of `diagnostics.csv` ([outputs.md](outputs.md)); it "
+                  "costs a few explicit steps per row and on R ranks gathers the particles to "
+                  "rank 0, so it is off unless asked for (`tools/trade.py` turns it on); off: its "
+                  "columns are NaN"},
 
       // Gas.
       {.name = "fluid.cells",

@@ -222,7 +222,10 @@ def main():
     REUSE = a.reuse
 
     os.makedirs(a.out, exist_ok=True)
-    common = list(a.set) + ([f"run.end_time={a.end_time}"] if a.end_time else [])
+    # The census is off by default in cfddem (it costs a few explicit steps per row); the trade
+    # compares it, so every run takes it (a --set output.contact_census=false after it wins).
+    common = (["output.contact_census=true"] + list(a.set) +
+              ([f"run.end_time={a.end_time}"] if a.end_time else []))
     ref_json, ref = run(a.binary, a.scene, os.path.join(a.out, "explicit"),
                         ["dem.scheme=\"explicit\""] + common, a.threads, a.repeat)
     if a.observable not in ref:

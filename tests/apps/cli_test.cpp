@@ -159,7 +159,8 @@ TEST(Cli, DiagnosticsIdenticalForOneAndTwoThreads) {
 TEST(Cli, ContactCensusIdenticalForOneAndTwoThreads) {
   const std::string src = CFDDEM_SOURCE_DIR;
   const std::string common = src + "/scenes/hcs_small.toml particles.count=2000 "
-                                   "domain.hi=[1.52e-3,1.52e-3,1.52e-3] run.end_time=5e-4 --quiet";
+                                   "domain.hi=[1.52e-3,1.52e-3,1.52e-3] run.end_time=5e-4 "
+                                   "output.contact_census=true --quiet";
   for (const std::string scheme : {"explicit", "orb", "islands"}) {
     std::string census[2];
     for (int threads : {1, 2}) {

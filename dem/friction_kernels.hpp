@@ -1,14 +1,15 @@
-// The frictional contact of one pair and of one wall (docs/theory.md §2: the normal spring-dashpot
-// plus the tangential spring with history and the Coulomb limit), for the orb and islands
-// schemes' leaf and island kernels. The arithmetic is the explicit scheme's contact pass and
-// wall pass (dem/verlet_passes.hpp) step for step, in the same order, so that a sub-iterated
-// scheme stepping at the explicit dt takes the explicit floating-point path. Inline scalars: no
-// allocation, no threads.
+// The frictional contact of one pair and of one wall, and the planar walls' contact law
+// (docs/theory.md §2: the normal spring-dashpot plus the tangential spring with history and the
+// Coulomb limit), for the orb and islands schemes' leaf and island kernels. The arithmetic is the
+// explicit scheme's contact pass and wall pass (dem/verlet_passes.hpp) step for step, in the same
+// order, so that a sub-iterated scheme stepping at the explicit dt takes the explicit
+// floating-point path. Inline scalars: no allocation, no threads.
 #pragma once
 
 #include <cmath>
 
 #include "dem/contact_kernels.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 
 namespace cfddem::dem {
@@ -77,6 +78,42 @@ inline void add_wall_friction(const TangentialLaw& law, double mi, double ri, do
   tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
   tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
   tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
+}
+
+// The planar walls at lo and hi of every non-periodic axis acting on one particle at pos with
+// velocity vel and radius ri (docs/theory.md §2): each wall it overlaps by delta > 0 adds the
+// normal spring-dashpot force -s fn e_a (outward normal s e_a: s = -1 at lo, +1 at hi) to f, and
+// with Friction the wall's tangential force and torque (add_wall_friction) to f and tq. The
+// explicit update and the islands contact kernel call it; what differs between them is how a
+// particle's mass and spin are read and how an overlap is counted, so those come in as callables
+// (mass() -> double, spin(double w[3]), overlap(delta)), called only for a wall in contact and
+// inlined at compile time. (The orb leaf kernels keep their own loops: through this helper their
+// frictional wall pass measured 37% more instructions.)
+template <bool Friction, class Mass, class Spin, class Overlap>
+[[gnu::always_inline]] inline void
+add_wall_contacts(const DomainGeometry& g, const NormalLaw& wall,
+                  [[maybe_unused]] const TangentialLaw& wall_t, const double pos[3],
+                  const double vel[3], double ri, Mass&& mass, [[maybe_unused]] Spin&& spin,
+                  double f[3], [[maybe_unused]] double tq[3], Overlap&& overlap) {
+  for (int a = 0; a < 3; ++a) {
+    if (g.periodic[a])
+      continue;
+    for (int side = 0; side < 2; ++side) {
+      const double s = side ? 1.0 : -1.0;
+      const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
+      if (delta <= 0.0)
+        continue;
+      const double mi = mass();
+      const double fn = normal_force(wall, mi, delta, s * vel[a]);
+      f[a] -= s * fn;
+      overlap(delta);
+      if constexpr (Friction) {
+        double w[3];
+        spin(w);
+        add_wall_friction(wall_t, mi, ri, fn, a, s, vel, w, f, tq);
+      }
+    }
+  }
 }
 
 } // namespace cfddem::dem

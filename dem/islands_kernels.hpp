@@ -252,22 +252,13 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
     if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
       double f[3] = {ax, ay, az};
       const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
-      for (int a = 0; a < 3; ++a) {
-        if (g.periodic[a])
-          continue;
-        for (int side = 0; side < 2; ++side) {
-          const double sg = side ? 1.0 : -1.0;
-          const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
-          if (delta <= 0.0)
-            continue;
-          const double fn = normal_force(m.wall, mi, delta, sg * vel[a]);
-          f[a] -= sg * fn;
-          max_ratio = std::max(max_ratio, delta / ri);
-          violations += delta > m.max_overlap * ri;
-          if constexpr (Friction)
-            add_wall_friction(m.wall_t, mi, ri, fn, a, sg, vel, wi, f, tq);
-        }
-      }
+      add_wall_contacts<Friction>(
+          g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
+          [&](double s[3]) { s[0] = wi[0], s[1] = wi[1], s[2] = wi[2]; }, f, tq,
+          [&](double delta) {
+            max_ratio = std::max(max_ratio, delta / ri);
+            violations += delta > m.max_overlap * ri;
+          });
       ax = f[0], ay = f[1], az = f[2];
     }
     fxo[i] = ax, fyo[i] = ay, fzo[i] = az;

@@ -13,6 +13,7 @@
 #include <span>
 #include <vector>
 
+#include "dem/cell_list.hpp"
 #include "dem/domain_geometry.hpp"
 
 namespace cfddem::dem {
@@ -71,11 +72,11 @@ public:
   std::span<unsigned char> near() { return near_; }
 
 private:
-  void half_stencil(const Input& in, const std::array<int, 3>& nc);
+  void half_stencil(const Input& in);
 
-  std::vector<std::uint32_t> off_, mid_, nb_, active_, cell_start_, cell_items_, scratch_own_,
-      scratch_other_, pair_a_, pair_b_, fill_other_;
-  std::vector<std::array<int, 3>> cc_;                 // cell coordinates of each local particle
+  CellList cells_;
+  std::vector<std::uint32_t> off_, mid_, nb_, active_, scratch_own_, scratch_other_, pair_a_,
+      pair_b_, fill_other_;
   std::vector<std::vector<std::uint32_t>> slab_pairs_; // per z slab of cells: pairs (i, j)
   std::array<std::vector<double>, 5> sorted_;          // x, y, z, radius, speed in cell order
   std::vector<unsigned char> near_, cell_has_owned_;

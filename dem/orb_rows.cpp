@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "core/error.hpp"
+#include "dem/cell_list.hpp"
 #include "dem/contact_history.hpp"
 #include "dem/orb_local_rows.hpp"
 #include "dem/orb_rank_part.hpp"
@@ -17,11 +18,6 @@
 #include "dem/verlet_list.hpp"
 
 namespace cfddem::dem {
-
-namespace {
-
-constexpr std::uint32_t kNoCell = 0xffffffffu; // a forward neighbour beyond a wall
-} // namespace
 
 // New index k holds old index order[k]: every per-particle array and the pair lists follow.
 void OrbScheme::apply_permutation(std::span<const std::uint32_t> order) {
@@ -248,88 +244,18 @@ void OrbScheme::rebuild_pairs() {
     if (g.periodic[a] && 2.0 * prox_cut >= g.length[a])
       prox_cells = false;
   const double cutoff = prox_cells ? std::max(contact_cut, prox_cut) : contact_cut;
-  std::array<int, 3> nc{};
-  std::array<double, 3> inv{};
-  double cell = cutoff;
-  const double volume = g.length[0] * g.length[1] * g.length[2];
-  const double target = 8.0 * static_cast<double>(n) + 64.0;
-  if (volume / (cell * cell * cell) > target)
-    cell = std::cbrt(volume / target);
-  for (int a = 0; a < 3; ++a) {
-    nc[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
-    inv[a] = nc[a] / g.length[a];
-  }
-  const std::size_t ncell = static_cast<std::size_t>(nc[0]) * nc[1] * nc[2];
-  auto coord = [&](double v, int a) {
-    return std::clamp(static_cast<int>((g.wrap(v, a) - g.lo[a]) * inv[a]), 0, nc[a] - 1);
-  };
-  pairs_.cell_of.resize(n);
-  pairs_.cell_start.assign(ncell + 1, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    pairs_.cell_of[i] = static_cast<std::uint32_t>(
-        (static_cast<std::size_t>(coord(p_.z[i], 2)) * nc[1] + coord(p_.y[i], 1)) * nc[0] +
-        coord(p_.x[i], 0));
-    ++pairs_.cell_start[pairs_.cell_of[i] + 1];
-  }
-  for (std::size_t c = 0; c < ncell; ++c)
-    pairs_.cell_start[c + 1] += pairs_.cell_start[c];
-  scratch_.resize(n);
-  {
-    std::vector<std::uint32_t>& fill = fill_;
-    fill.assign(pairs_.cell_start.begin(), pairs_.cell_start.end() - 1);
-    for (std::size_t i = 0; i < n; ++i)
-      scratch_[fill[pairs_.cell_of[i]]++] = static_cast<std::uint32_t>(i);
-  }
+  CellList& cells = pairs_.cells;
+  cells.bin<true>(g, make_cell_grid(g, cutoff, n, 8.0), p_.x.data(), p_.y.data(), p_.z.data(), n);
+  const std::uint32_t* items = cells.items().data();
   pairs_.ca.clear(), pairs_.cb.clear(), pairs_.pa.clear(), pairs_.pb.clear();
-  const double* px = p_.x.data();
-  const double* py = p_.y.data();
-  const double* pz = p_.z.data();
-  const double* pr = p_.radius.data();
-  auto test = [&](std::uint32_t i, std::uint32_t j) {
-    const double dx = g.image(px[j] - px[i], 0), dy = g.image(py[j] - py[i], 1),
-                 dz = g.image(pz[j] - pz[i], 2);
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    const double rs = pr[i] + pr[j];
-    if (r2 < (rs + skin_) * (rs + skin_))
-      pairs_.ca.push_back(i), pairs_.cb.push_back(j);
-    if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
-      pairs_.pa.push_back(i), pairs_.pb.push_back(j);
-  };
-  if (nc[0] >= 3 && nc[1] >= 3 && nc[2] >= 3) {
-    // Half stencil: each cell against itself (later entries) and its 13 forward neighbours,
-    // so every pair is visited once and no cell twice. The binned particles' data are copied in
-    // cell order so that the inner loops read contiguous memory.
-    static constexpr int kFwd[13][3] = {{1, 0, 0},  {-1, 1, 0}, {0, 1, 0},  {1, 1, 0}, {-1, -1, 1},
-                                        {0, -1, 1}, {1, -1, 1}, {-1, 0, 1}, {0, 0, 1}, {1, 0, 1},
-                                        {-1, 1, 1}, {0, 1, 1},  {1, 1, 1}};
-    // Interior cells reach their forward neighbours by constant offsets; cells on the grid's
-    // faces wrap (periodic) or skip (wall) them.
-    std::ptrdiff_t fwd_off[13];
-    for (int o = 0; o < 13; ++o)
-      fwd_off[o] =
-          (static_cast<std::ptrdiff_t>(kFwd[o][2]) * nc[1] + kFwd[o][1]) * nc[0] + kFwd[o][0];
-    // Cell c at (cx, cy, cz) on the grid's faces: its forward neighbour o, or kNoCell.
-    auto boundary_forward_cell = [&](int cx, int cy, int cz, int o) -> std::uint32_t {
-      int q[3] = {cx + kFwd[o][0], cy + kFwd[o][1], cz + kFwd[o][2]};
-      for (int a = 0; a < 3; ++a)
-        if (q[a] < 0 || q[a] >= nc[a]) {
-          if (!g.periodic[a])
-            return kNoCell;
-          q[a] = (q[a] + nc[a]) % nc[a];
-        }
-      return static_cast<std::uint32_t>((static_cast<std::size_t>(q[2]) * nc[1] + q[1]) * nc[0] +
-                                        q[0]);
-    };
-    std::vector<double>& sx = pairs_.sorted[0];
-    std::vector<double>& sy = pairs_.sorted[1];
-    std::vector<double>& sz = pairs_.sorted[2];
-    std::vector<double>& sr = pairs_.sorted[3];
-    sx.resize(n), sy.resize(n), sz.resize(n), sr.resize(n);
-    for (std::size_t k = 0; k < n; ++k) {
-      const std::uint32_t i = scratch_[k];
-      sx[k] = px[i], sy[k] = py[i], sz[k] = pz[i], sr[k] = pr[i];
-    }
-    // Pair (a, b) of sorted slots: the test of `test` on the sorted copies.
+  if (cells.grid().half_stencil()) {
+    // Each pair once (a cell against itself and its forward neighbours), over the binned
+    // particles' data copied in cell order so that the inner loops read contiguous memory.
+    cells.gather<4>({p_.x.data(), p_.y.data(), p_.z.data(), p_.radius.data()}, pairs_.sorted);
+    const double* sx = pairs_.sorted[0].data();
+    const double* sy = pairs_.sorted[1].data();
+    const double* sz = pairs_.sorted[2].data();
+    const double* sr = pairs_.sorted[3].data();
     auto test_sorted = [&](std::uint32_t a, std::uint32_t b) {
       const double dx = g.image(sx[b] - sx[a], 0), dy = g.image(sy[b] - sy[a], 1),
                    dz = g.image(sz[b] - sz[a], 2);
@@ -337,54 +263,36 @@ void OrbScheme::rebuild_pairs() {
       const double rs = sr[a] + sr[b];
       const double pc = prox * rs + skin_;
       if (r2 < (rs + skin_) * (rs + skin_))
-        pairs_.ca.push_back(scratch_[a]), pairs_.cb.push_back(scratch_[b]);
+        pairs_.ca.push_back(items[a]), pairs_.cb.push_back(items[b]);
       if (prox_cells && r2 < pc * pc)
-        pairs_.pa.push_back(scratch_[a]), pairs_.pb.push_back(scratch_[b]);
+        pairs_.pa.push_back(items[a]), pairs_.pb.push_back(items[b]);
     };
-    for (int cz = 0; cz < nc[2]; ++cz)
-      for (int cy = 0; cy < nc[1]; ++cy)
-        for (int cx = 0; cx < nc[0]; ++cx) {
-          const std::size_t c = (static_cast<std::size_t>(cz) * nc[1] + cy) * nc[0] + cx;
-          const std::uint32_t c0 = pairs_.cell_start[c], c1 = pairs_.cell_start[c + 1];
-          if (c0 == c1)
-            continue;
-          for (std::uint32_t a = c0; a < c1; ++a)
-            for (std::uint32_t b = a + 1; b < c1; ++b)
-              test_sorted(a, b);
-          const bool interior =
-              cx >= 1 && cx + 1 < nc[0] && cy >= 1 && cy + 1 < nc[1] && cz + 1 < nc[2];
-          for (int o = 0; o < 13; ++o) {
-            const std::uint32_t d =
-                interior ? static_cast<std::uint32_t>(static_cast<std::ptrdiff_t>(c) + fwd_off[o])
-                         : boundary_forward_cell(cx, cy, cz, o);
-            if (d == kNoCell)
-              continue;
-            const std::uint32_t d0 = pairs_.cell_start[d], d1 = pairs_.cell_start[d + 1];
-            for (std::uint32_t a = c0; a < c1; ++a)
-              for (std::uint32_t b = d0; b < d1; ++b)
-                test_sorted(a, b);
-          }
-        }
+    for (int cz = 0; cz < cells.grid().n[2]; ++cz)
+      cells.for_each_forward_pair(
+          cz, [](std::size_t) { return true; }, test_sorted);
   } else {
-    // Fewer than three cells on an axis: full stencil with periodic images collapsed, j > i.
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t c = pairs_.cell_of[i];
-      const int cx = static_cast<int>(c % nc[0]), cy = static_cast<int>((c / nc[0]) % nc[1]),
-                cz = static_cast<int>(c / (static_cast<std::size_t>(nc[0]) * nc[1]));
-      int sx[3], sy[3], sz[3];
-      const int mx = stencil_axis(cx, nc[0], g.periodic[0], sx);
-      const int my = stencil_axis(cy, nc[1], g.periodic[1], sy);
-      const int mz = stencil_axis(cz, nc[2], g.periodic[2], sz);
-      for (int cc = 0; cc < mz; ++cc)
-        for (int bb = 0; bb < my; ++bb)
-          for (int aa = 0; aa < mx; ++aa) {
-            const std::size_t q =
-                (static_cast<std::size_t>(sz[cc]) * nc[1] + sy[bb]) * nc[0] + sx[aa];
-            for (std::uint32_t k = pairs_.cell_start[q]; k < pairs_.cell_start[q + 1]; ++k)
-              if (scratch_[k] > i)
-                test(static_cast<std::uint32_t>(i), scratch_[k]);
-          }
-    }
+    // Fewer than three cells on an axis: each particle against the cells around its own
+    // (periodic images collapsed), partners of higher index.
+    const double* px = p_.x.data();
+    const double* py = p_.y.data();
+    const double* pz = p_.z.data();
+    const double* pr = p_.radius.data();
+    for (std::uint32_t i = 0; i < n; ++i)
+      cells.for_each_around(cells.coord<true>(px[i], 0), cells.coord<true>(py[i], 1),
+                            cells.coord<true>(pz[i], 2), [&](std::uint32_t q) {
+                              const std::uint32_t j = items[q];
+                              if (j <= i)
+                                return;
+                              const double dx = g.image(px[j] - px[i], 0),
+                                           dy = g.image(py[j] - py[i], 1),
+                                           dz = g.image(pz[j] - pz[i], 2);
+                              const double r2 = dx * dx + dy * dy + dz * dz;
+                              const double rs = pr[i] + pr[j];
+                              if (r2 < (rs + skin_) * (rs + skin_))
+                                pairs_.ca.push_back(i), pairs_.cb.push_back(j);
+                              if (prox_cells && r2 < (prox * rs + skin_) * (prox * rs + skin_))
+                                pairs_.pa.push_back(i), pairs_.pb.push_back(j);
+                            });
   }
   pairs_.prox_from_pairs = prox_cells;
   pairs_.xr = p_.x, pairs_.yr = p_.y, pairs_.zr = p_.z;
@@ -450,7 +358,7 @@ void OrbScheme::derive_rows() {
     rows_.mid[i] = rows_.off[i] + own[i];
   rows_.nb.resize(rows_.off[n]);
   std::vector<std::uint32_t>& fo = own; // fill cursors: own segment, then ghost segment
-  std::vector<std::uint32_t>& fg = pairs_.cell_of;
+  std::vector<std::uint32_t>& fg = fill_;
   fg.resize(n);
   for (std::size_t i = 0; i < n; ++i)
     fo[i] = rows_.off[i], fg[i] = rows_.mid[i];

@@ -102,6 +102,7 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "dem/cell_list.hpp"
 #include "dem/contact_history.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
@@ -261,7 +262,7 @@ private:
     std::vector<std::uint32_t> ca, cb, pa, pb;
     std::vector<double> xr, yr, zr;
     bool valid = false, prox_from_pairs = true;
-    std::vector<std::uint32_t> cell_start, cell_of;
+    CellList cells;
     std::array<std::vector<double>, 4> sorted; // x, y, z, radius in cell order
   };
   // Rows (one rank: derived from the contact candidates; R ranks: OrbLocalRows'): particle i's

@@ -13,24 +13,6 @@ namespace cfddem::dem {
 
 namespace {
 
-using detail::CellGrid;
-
-// Cells at least as wide as the cutoff, but not many more cells than particles (a dilute box
-// would otherwise spend its build time visiting empty cells).
-CellGrid make_grid(const DomainGeometry& g, double cutoff, std::size_t particles) {
-  CellGrid c;
-  double cell = cutoff;
-  const double volume = g.length[0] * g.length[1] * g.length[2];
-  const double target = 32.0 * static_cast<double>(particles) + 64.0;
-  if (volume / (cell * cell * cell) > target)
-    cell = std::cbrt(volume / target);
-  for (int a = 0; a < 3; ++a) {
-    c.n[a] = std::max(1, static_cast<int>(std::floor(g.length[a] / cell)));
-    c.inv[a] = c.n[a] / g.length[a];
-  }
-  return c;
-}
-
 // Put a row in its canonical order: pairs that do not cross a periodic face first, then those
 // that do, each part by increasing index (so the force sum order does not depend on how cells
 // were visited). Returns the number of non-crossing pairs. Few pairs cross, so a small stack
@@ -88,10 +70,10 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin, R
   for (std::size_t i = 0; i < n; ++i) {
     p.x[i] = g.wrap(p.x[i], 0), p.y[i] = g.wrap(p.y[i], 1), p.z[i] = g.wrap(p.z[i], 2);
   }
-  const CellGrid grid = make_grid(g, cutoff, n);
-  bin(p, g, grid, order_);
-  p.permute(order_);
-  fill_rows<false>(p, g, grid, n, skin);
+  cells_.bin<false>(g, make_cell_grid(g, cutoff, n, 32.0), p.x.data(), p.y.data(), p.z.data(), n);
+  permuted_ = true;
+  p.permute(cells_.items());
+  fill_rows<false>(p, g, n, skin);
   ghost_entries_ = 0;
   index_rows(n, n);
 }
@@ -119,10 +101,9 @@ void VerletList::build_local(const ParticleStore& p, std::size_t rows, double sk
   for (int a = 0; a < 3; ++a)
     box.hi[a] = std::max(box.hi[a], box.lo[a] + cutoff);
   const DomainGeometry g(box);
-  const CellGrid grid = make_grid(g, cutoff, n);
-  order_.clear();
-  bin(p, g, grid, sorted_);
-  fill_rows<true>(p, g, grid, rows, skin);
+  cells_.bin<false>(g, make_cell_grid(g, cutoff, n, 32.0), p.x.data(), p.y.data(), p.z.data(), n);
+  permuted_ = false;
+  fill_rows<true>(p, g, rows, skin);
   // The frame is not periodic, so no pair crosses a face: the second part of each row is its
   // ghost partners (rows are sorted by index and ghosts follow the owned particles).
   ghost_entries_ = 0;
@@ -155,76 +136,28 @@ void VerletList::index_rows(std::size_t n, std::size_t store) {
       listed_index_.push_back(static_cast<std::uint32_t>(i));
 }
 
-void VerletList::bin(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
-                     std::vector<std::uint32_t>& sorted) {
-  const std::size_t n = p.size();
-  const std::size_t ncell = grid.count();
-  cell_of_.resize(n);
-  auto cell_coord = [&](double v, int a) {
-    return std::clamp(static_cast<int>((v - g.lo[a]) * grid.inv[a]), 0, grid.n[a] - 1);
-  };
-  for (std::size_t i = 0; i < n; ++i) {
-    const int cx = cell_coord(p.x[i], 0), cy = cell_coord(p.y[i], 1), cz = cell_coord(p.z[i], 2);
-    cell_of_[i] = static_cast<std::uint32_t>(
-        (static_cast<std::size_t>(cz) * grid.n[1] + cy) * grid.n[0] + cx);
-  }
-  // Counting sort by cell (stable: ties keep their previous order, so the result is a pure
-  // function of the previous state).
-  cell_start_.assign(ncell + 1, 0);
-  for (std::size_t i = 0; i < n; ++i)
-    ++cell_start_[cell_of_[i] + 1];
-  for (std::size_t c = 0; c < ncell; ++c)
-    cell_start_[c + 1] += cell_start_[c];
-  sorted.resize(n);
-  fill_.assign(cell_start_.begin(), cell_start_.end() - 1);
-  for (std::size_t i = 0; i < n; ++i)
-    sorted[fill_[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
-}
-
 template <bool Indirect>
-void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
-                           std::size_t n, double skin) {
-  auto cell_coord = [&](double v, int a) {
-    return std::clamp(static_cast<int>((v - g.lo[a]) * grid.inv[a]), 0, grid.n[a] - 1);
-  };
+void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, std::size_t n,
+                           double skin) {
   // Count, then fill, each particle's row; rows are independent so the parallel build is
   // deterministic.
   const bool half = kind_ == RowKind::half;
   offsets_.assign(n + 1, 0);
+  const std::uint32_t* items = cells_.items().data();
   auto visit_row = [&](std::size_t i, auto&& emit) {
-    const int cx = cell_coord(p.x[i], 0), cy = cell_coord(p.y[i], 1), cz = cell_coord(p.z[i], 2);
-    int sx[3], sy[3], sz[3];
-    const int mx = stencil_axis(cx, grid.n[0], g.periodic[0], sx);
-    const int my = stencil_axis(cy, grid.n[1], g.periodic[1], sy);
-    const int mz = stencil_axis(cz, grid.n[2], g.periodic[2], sz);
-    // Cells of the x stencil that follow each other in memory (all of them away from a periodic
-    // face) form one run of the binned particles: the same particles in the same order as cell
-    // by cell, with fewer loop starts (most cells of a dilute scene are empty).
-    int run_first[3], run_len[3], runs = 0;
-    for (int a = 0; a < mx; ++a) {
-      if (runs > 0 && sx[a] == run_first[runs - 1] + run_len[runs - 1])
-        ++run_len[runs - 1];
-      else
-        run_first[runs] = sx[a], run_len[runs] = 1, ++runs;
-    }
     const double xi = p.x[i], yi = p.y[i], zi = p.z[i], ri = p.radius[i];
-    for (int c = 0; c < mz; ++c)
-      for (int b = 0; b < my; ++b)
-        for (int a = 0; a < runs; ++a) {
-          const std::size_t cell =
-              (static_cast<std::size_t>(sz[c]) * grid.n[1] + sy[b]) * grid.n[0] + run_first[a];
-          const std::uint32_t q_end = cell_start_[cell + static_cast<std::size_t>(run_len[a])];
-          for (std::uint32_t q = cell_start_[cell]; q < q_end; ++q) {
-            const std::uint32_t j = Indirect ? sorted_[q] : q;
-            if (half ? j <= i : j == i)
-              continue;
-            const double dx = g.image(p.x[j] - xi, 0), dy = g.image(p.y[j] - yi, 1),
-                         dz = g.image(p.z[j] - zi, 2);
-            const double rc = ri + p.radius[j] + skin;
-            if (dx * dx + dy * dy + dz * dz < rc * rc)
-              emit(j);
-          }
-        }
+    cells_.for_each_around(cells_.coord<false>(xi, 0), cells_.coord<false>(yi, 1),
+                           cells_.coord<false>(zi, 2), [&](std::uint32_t q) {
+                             const std::uint32_t j = Indirect ? items[q] : q;
+                             if (half ? j <= i : j == i)
+                               return;
+                             const double dx = g.image(p.x[j] - xi, 0),
+                                          dy = g.image(p.y[j] - yi, 1),
+                                          dz = g.image(p.z[j] - zi, 2);
+                             const double rc = ri + p.radius[j] + skin;
+                             if (dx * dx + dy * dy + dz * dz < rc * rc)
+                               emit(j);
+                           });
   };
   // One pass: each chunk of 256 particles writes its rows (sorted, in-box pairs first) into its
   // own buffer, kept between builds; then the chunks are laid end to end. Chunks are fixed by
@@ -272,7 +205,7 @@ void VerletList::restore(std::vector<std::uint32_t> offsets, std::vector<std::ui
   offsets_ = std::move(offsets), neighbors_ = std::move(neighbors);
   xr_ = std::move(x_ref), yr_ = std::move(y_ref), zr_ = std::move(z_ref);
   skin_ = skin;
-  order_.clear();
+  permuted_ = false;
   const std::size_t n = offsets_.empty() ? 0 : offsets_.size() - 1;
   wrap_begin_.assign(n, 0);
   kind_ = RowKind::half;

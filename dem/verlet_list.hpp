@@ -13,41 +13,10 @@
 #include <vector>
 
 #include "core/particle_store.hpp"
+#include "dem/cell_list.hpp"
 #include "dem/domain_geometry.hpp"
 
 namespace cfddem::dem {
-
-namespace detail {
-struct CellGrid {
-  std::array<int, 3> n{};
-  std::array<double, 3> inv{};
-  std::size_t count() const { return static_cast<std::size_t>(n[0]) * n[1] * n[2]; }
-};
-} // namespace detail
-
-// The distinct cell indices along one axis around cell b (periodic images collapse when n < 3):
-// the stencil of a cell list (this list's build and the orb scheme's pair build).
-inline int stencil_axis(int b, int n, bool periodic, int out[3]) {
-  if (b > 0 && b + 1 < n) { // an inner cell (the common case): no wrap, no duplicate
-    out[0] = b - 1, out[1] = b, out[2] = b + 1;
-    return 3;
-  }
-  int m = 0;
-  for (int o = -1; o <= 1; ++o) {
-    int c = b + o;
-    if (c < 0 || c >= n) {
-      if (!periodic)
-        continue;
-      c = (c + n) % n;
-    }
-    bool seen = false;
-    for (int q = 0; q < m; ++q)
-      seen = seen || out[q] == c;
-    if (!seen)
-      out[m++] = c;
-  }
-  return m;
-}
 
 // Which pairs a row holds: every partner (full), or only partners of higher index (half).
 enum class RowKind { full, half };
@@ -60,7 +29,9 @@ public:
   void build(ParticleStore& p, const DomainGeometry& g, double skin, RowKind kind = RowKind::full);
 
   // Permutation applied to the store by the last build: new index k = old index order()[k].
-  std::span<const std::uint32_t> order() const { return order_; }
+  std::span<const std::uint32_t> order() const {
+    return permuted_ ? cells_.items() : std::span<const std::uint32_t>();
+  }
   std::span<const std::uint32_t> offsets() const { return offsets_; }
   // Each row lists first the pairs that do not cross a periodic face (their raw separation is
   // already the minimum image for the list's lifetime), then, from wrap_begin()[i], those that do.
@@ -105,26 +76,21 @@ public:
   // (from wrap_begin()).
   void build_local(const ParticleStore& p, std::size_t rows, double skin);
   // Cells of the last build's grid (the memory a build needs grows with it).
-  std::size_t cell_count() const { return cell_start_.empty() ? 0 : cell_start_.size() - 1; }
+  std::size_t cell_count() const { return cells_.grid().count(); }
 
 private:
-  using CellGrid = detail::CellGrid;
-  // Counting sort of the particles by cell of `grid` over g: cell_start_, and into `sorted` the
-  // particle indices cell by cell (stable).
-  void bin(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
-           std::vector<std::uint32_t>& sorted);
-  // Rows of particles [0, rows) from the binned cells (Indirect: cell members through sorted_;
-  // else the store is in cell order).
+  // Rows of particles [0, rows) from the binned cells (Indirect: cell members through the
+  // cell list's items; else the store is in cell order).
   template <bool Indirect>
-  void fill_rows(const ParticleStore& p, const DomainGeometry& g, const CellGrid& grid,
-                 std::size_t rows, double skin);
+  void fill_rows(const ParticleStore& p, const DomainGeometry& g, std::size_t rows, double skin);
 
   // After the rows [0, n) are in place over a store of `store` particles: active_, tail_rows_,
   // listed_, listed_index_.
   void index_rows(std::size_t n, std::size_t store);
 
-  std::vector<std::uint32_t> tail_rows_, listed_index_, sorted_, order_, offsets_, wrap_begin_,
-      active_, neighbors_, cell_start_, cell_of_, fill_;
+  CellList cells_;
+  bool permuted_ = false; // the last build sorted the store by cell (order() = cells_.items())
+  std::vector<std::uint32_t> tail_rows_, listed_index_, offsets_, wrap_begin_, active_, neighbors_;
   std::vector<std::uint8_t> listed_;
   RowKind kind_ = RowKind::full;
   std::size_t ghost_entries_ = 0;

@@ -207,24 +207,13 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
                      double f[3], double tq[3], auto&& flag) {
   const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
   const double ri = p.radius[i], mi = p.mass[i];
-  for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a])
-      continue;
-    for (int side = 0; side < 2; ++side) {
-      const double s = side ? 1.0 : -1.0;
-      const double delta = side ? ri - (g.hi[a] - pos[a]) : ri - (pos[a] - g.lo[a]);
-      if (delta <= 0.0)
-        continue;
-      const double fn = normal_force(m.wall, mi, delta, s * vel[a]);
-      f[a] -= s * fn;
-      if (delta > m.max_overlap * ri)
-        flag(delta / ri);
-      if constexpr (Friction) {
-        const double w[3] = {p.wx[i], p.wy[i], p.wz[i]};
-        add_wall_friction(m.wall_t, mi, ri, fn, a, s, vel, w, f, tq);
-      }
-    }
-  }
+  add_wall_contacts<Friction>(
+      g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
+      [&](double w[3]) { w[0] = p.wx[i], w[1] = p.wy[i], w[2] = p.wz[i]; }, f, tq,
+      [&](double delta) {
+        if (delta > m.max_overlap * ri)
+          flag(delta / ri);
+      });
 }
 
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves

@@ -24,6 +24,7 @@ namespace {
 
 using test::box_spec;
 using test::set_axis;
+using test::set_field;
 
 constexpr double kRho = 1.0;
 constexpr double kMu = 2e-5;
@@ -50,29 +51,6 @@ struct Split {
     halo = std::make_shared<GridHalo>(*grid, boxes, comm);
   }
 };
-
-using PointFunction = std::function<double(double, double, double)>;
-
-// f at the cells (centring kCellCentred) or faces of the grid's box, owned and ghost points of
-// the interior index range 0..n (the solver fills the ghosts).
-void set_field(const MacGrid& g, GridField& f, int centring, const PointFunction& fn) {
-  std::array<int, 3> hi = g.cells();
-  if (centring >= 0) {
-    hi[static_cast<std::size_t>(centring)] += 1;
-  }
-  for (int k = 0; k < hi[2]; ++k) {
-    for (int j = 0; j < hi[1]; ++j) {
-      for (int i = 0; i < hi[0]; ++i) {
-        const std::array<int, 3> l = {i, j, k};
-        std::array<double, 3> x{};
-        for (int a = 0; a < 3; ++a) {
-          x[a] = a == centring ? g.face_position(a, l[a]) : g.cell_centre(a, l[a]);
-        }
-        f(i, j, k) = fn(x[0], x[1], x[2]);
-      }
-    }
-  }
-}
 
 // max |local - global| over the box's cells (faces 0..n along a face field's axis), and the
 // largest |global| value, both over all ranks.
@@ -150,11 +128,12 @@ Agreement run_both(const MacGridSpec& spec, const GasSolverSettings& settings, i
   for (int s = 0; s < steps; ++s) {
     if (s == rebox_at) {
       const std::vector<CellBox> boxes = skewed_boxes(spec, split.comm.size());
-      auto grid = std::make_unique<MacGrid>(spec, boxes[static_cast<std::size_t>(split.comm.rank())]);
+      auto grid =
+          std::make_unique<MacGrid>(spec, boxes[static_cast<std::size_t>(split.comm.rank())]);
       auto halo = std::make_shared<const GridHalo>(*grid, boxes, split.comm);
       auto moved = std::make_unique<GasSolver>(*grid, settings, halo);
-      move_solver_state(*distributed, *moved, GridMove(*split.grid, *grid, split.boxes, boxes,
-                                                        split.comm));
+      move_solver_state(*distributed, *moved,
+                        GridMove(*split.grid, *grid, split.boxes, boxes, split.comm));
       if (split.comm.size() > 1) {
         EXPECT_NE(boxes, split.boxes) << "the rebox moves nothing";
       }

@@ -160,8 +160,7 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   rhs_.resize(cells);
   solution_.resize(cells);
   div_ = grid.make_field();
-  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
-                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
+  const bool multigrid = settings.solver != PoissonSolver::hypre;
   if (multigrid) {
     // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
     // (their set-up time and memory would be spent for nothing).

@@ -9,7 +9,9 @@
 // finest axis is markedly finer than the others relaxes whole lines along it; the coarsest level
 // is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop over a
 // level runs over z-planes (TBB) and every reduction is summed plane by plane in plane order, so
-// results are bitwise independent of the thread count.
+// results are bitwise independent of the thread count. Over MPI ranks (the second constructor)
+// each rank holds its box of the fine levels, exchanging face ghosts after every pass, and a
+// coarse level is gathered onto rank 0 (docs/multigrid.md, "On R ranks").
 #pragma once
 
 #include <array>

@@ -63,7 +63,8 @@ public:
   // relaxation and a face-ghost exchange after every pass; the first level that would need line
   // relaxation, cannot coarsen so, or has at most settings.gather_cells cells is gathered onto
   // rank 0, which runs one V-cycle of a one-grid hierarchy of it (the constructor above) and
-  // scatters the correction back. Every member function is then collective over comm.
+  // scatters the correction back. The constructor, set_coefficients and solve are then
+  // collective over comm.
   MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
                    std::array<std::array<PoissonSide, 2>, 3> sides, std::vector<CellBox> boxes,
                    const Communicator& comm, MultigridSettings settings = {});
@@ -87,6 +88,7 @@ public:
                         int max_iterations);
 
   [[nodiscard]] int levels() const;
+  // Distributed: this rank's box of the level (the last one is the gathered level).
   [[nodiscard]] std::array<int, 3> level_cells(int level) const;
   // The axis a level relaxes lines along (-1: point relaxation).
   [[nodiscard]] int line_axis(int level) const;

@@ -219,6 +219,25 @@ TEST(DistributedMultigrid, RiserLikePeriodicBoxWithFiftyCellAxisMatchesOneGrid) 
   check_case(c, Communicator::world().size() == 1);
 }
 
+TEST(DistributedMultigrid, RiserGridCoarsensWhileTheBoxesDivide) {
+  // The riser's 32 x 50 x 32 periodic grid. One box: as one grid, 32x50x32 and 16x25x16 relax
+  // points, and 8x25x8 (lines along y) is gathered. Cut at y = 25 (2 and 4 ranks): y cannot halve
+  // over the boxes, x and z do, and the 16x50x16 level (lines along y) is gathered.
+  const Communicator comm = Communicator::world();
+  const std::array<int, 3> cells = {32, 50, 32};
+  const std::vector<CellBox> boxes = orb_cell_boxes(cells, comm.size(), 2);
+  const MultigridPoisson mg(cells, {1.875e-4, 2e-4, 1.875e-4}, all_sides(PoissonSide::periodic),
+                            boxes, comm);
+  const std::array<int, 3> gathered =
+      comm.size() == 1 ? std::array<int, 3>{8, 25, 8} : std::array<int, 3>{16, 50, 16};
+  EXPECT_EQ(mg.gathered_cells(), gathered);
+  EXPECT_EQ(mg.levels(), comm.size() == 1 ? 3 : 2);
+  EXPECT_EQ(mg.gathered_levels() > 0, comm.rank() == 0);
+  for (int l = 0; l + 1 < mg.levels(); ++l) {
+    EXPECT_EQ(mg.line_axis(l), -1) << "level " << l << " relaxes points over the ranks";
+  }
+}
+
 TEST(DistributedMultigrid, SolveIsBitwiseTheSameOnOneAndTwoThreads) {
   // 32 x 32 x 16 cells: every box of up to 4 ranks has at least 4096 cells, so its finest level's
   // loops run as TBB tasks (smaller loops run on the calling thread).

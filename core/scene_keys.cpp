@@ -563,8 +563,9 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .choices = kPreconditioners,
        .fallback = word("pfmg"),
-       .meaning = "the projection's hypre preconditioner (SMG fails on periodic axes with an odd "
-                  "cell count in hypre 2.26)"},
+       .meaning = "the projection's hypre preconditioner (\"smg\" is refused on a periodic axis "
+                  "with an odd cell count, where hypre 2.26's SMG fails; there a PFMG solve that "
+                  "misses the tolerance stops the run instead of falling back to SMG)"},
       {.name = "fluid.solver",
        .type = T::String,
        .section = S::Fluid,
@@ -574,7 +575,7 @@ std::vector<SceneKey> make_table() {
                   "([multigrid.md](multigrid.md); on R ranks its fine levels relax over the "
                   "ranks and a coarse level is gathered onto rank 0), hypre's PCG with "
                   "`fluid.preconditioner`, or `\"auto\"`: the multigrid (fewer instructions than "
-                  "hypre on the riser on 1 and 2 ranks)"},
+                  "hypre on the riser on 1, 2 and 4 ranks)"},
   };
 }
 

@@ -45,6 +45,16 @@ struct PressureProjection::Hypre {
   }
 };
 
+int smg_blocking_axis(const MacGrid& grid) {
+  const std::array<int, 3> size = grid.global_cells();
+  for (int a = 0; a < 3; ++a) {
+    if (grid.periodic(a) && size[a] > 1 && size[a] % 2 == 1) {
+      return a;
+    }
+  }
+  return -1;
+}
+
 namespace {
 
 constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
@@ -152,6 +162,14 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   }
   const auto& n = grid.cells();
   const auto& global = grid.global_cells();
+  if (const int a = smg_blocking_axis(grid);
+      a >= 0 && settings.preconditioner == PoissonPreconditioner::smg &&
+      settings.solver == PoissonSolver::hypre) { // "auto" is the multigrid
+    throw std::invalid_argument(fmt::format(
+        "fluid.preconditioner = \"smg\" cannot run on this grid: periodic axis {} has {} cells, "
+        "an odd count, where hypre 2.26's SMG set-up fails; use \"pfmg\" or an even count",
+        "xyz"[a], global[a]));
+  }
   for (int a = 0; a < 3; ++a) {
     owns_first_cell_ = owns_first_cell_ && grid.box().lo[a] == 0;
   }
@@ -555,6 +573,19 @@ void PressureProjection::solve_with_hypre(const GridField& eps,
           "pressure projection: PCG/SMG reached relative residual {:g} after {} iterations "
           "(tolerance {:g})",
           report.relative_residual, report.iterations, settings_.tolerance));
+    }
+    if (const int a = smg_blocking_axis(grid_); a >= 0) {
+      // Calling SMG here would abort the whole run inside hypre: say what went wrong instead.
+      throw std::runtime_error(fmt::format(
+          "pressure projection: PCG/PFMG reached relative residual {:g} after {} iterations "
+          "(tolerance {:g}, fluid.max_iterations = {}). PFMG coarsens this {} x {} x {} grid to "
+          "{} level(s) only (it stops at the first odd periodic count), and the SMG fallback "
+          "cannot run: periodic axis {} has an odd cell count ({}). Give periodic axes cell "
+          "counts divisible by a power of two, raise fluid.max_iterations, or use "
+          "fluid.solver = \"multigrid\"",
+          report.relative_residual, report.iterations, settings_.tolerance,
+          settings_.max_iterations, grid_.global_cells()[0], grid_.global_cells()[1],
+          grid_.global_cells()[2], pfmg_max_levels(grid_), "xyz"[a], grid_.global_cells()[a]));
     }
     solution_ = guess_;
     report.used_fallback = true;

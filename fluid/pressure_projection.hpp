@@ -42,6 +42,11 @@ struct ProjectionReport {
 // The PFMG levels the hypre path uses on this grid (every periodic axis keeps >= 2 cells).
 [[nodiscard]] int pfmg_max_levels(const MacGrid& grid);
 
+// The first periodic axis (global count > 1) with an odd cell count, or -1. hypre 2.26's SMG
+// set-up fails there (on R ranks with MPI_ERR_TRUNCATE inside its interpolation assembly), so
+// SMG is neither offered nor used as the fallback on such a grid.
+[[nodiscard]] int smg_blocking_axis(const MacGrid& grid);
+
 // div(eps_f u) per interior cell [1/s]; eps ghosts must be filled. eps_f is the mean of the two
 // cells, except on a velocity-inflow face: kInflowVolumeFraction (the incoming gas's).
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,

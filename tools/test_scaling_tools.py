@@ -47,12 +47,20 @@ class ScaledScene(unittest.TestCase):
                             h = (s["domain"]["hi"][i] - s["domain"]["lo"][i]) / cells[i]
                             self.assertAlmostEqual(h / h0[i], 1.0, places=10)
                         rel = info["solid_fraction"] / info["solid_fraction_base"] - 1
-                        self.assertLess(abs(rel), 0.015 if n < 5e4 else 0.008)
+                        # the bounds of the module docstring (even periods cost the riser a
+                        # coarser choice of products)
+                        self.assertLess(abs(rel), 0.014 if n < 5e4 else 0.012 if n < 1e6
+                                        else 0.007)
                         if grow == "xz":
                             self.assertEqual(cells[1], b["fluid"]["cells"][1])
                             self.assertEqual(s["domain"]["hi"][1], b["domain"]["hi"][1])
-                        # lateral cells as even as integers allow
-                        self.assertLessEqual(abs(cells[0] - cells[2]), 2)
+                        # lateral cells as even as integers allow, within two steps when
+                        # periodic counts stay even
+                        step = max(scaled_scene.even_step(b, 0), scaled_scene.even_step(b, 2))
+                        self.assertLessEqual(abs(cells[0] - cells[2]), 2 * step)
+                        for i in range(3):
+                            if scaled_scene.even_step(b, i) == 2:
+                                self.assertEqual(cells[i] % 2, 0, (i, cells))
 
     def test_orb_levels_give_100_to_200_per_leaf(self):
         for n in self.COUNTS + [14000, 10000]:

@@ -161,11 +161,6 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
                          std::size_t owned)
     : scene_(scene), comm_(comm != nullptr && comm->size() > 1 ? comm : nullptr),
       boxes_(gas_boxes(scene, comm_)), grid_(gas_grid(scene, comm_, boxes_)) {
-  if (comm_ != nullptr && scene.fluid.solver == "multigrid") {
-    throw ConfigError("scene key 'fluid.solver'",
-                      "\"multigrid\" solves the projection on one rank only (no distributed "
-                      "V-cycle yet): on R ranks use \"hypre\" or \"auto\"");
-  }
   if (comm_ != nullptr)
     halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
   solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);

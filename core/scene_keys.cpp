@@ -581,9 +581,10 @@ std::vector<SceneKey> make_table() {
        .choices = kSolvers,
        .fallback = word("auto"),
        .meaning = "the projection's solver: our geometric multigrid inside CG "
-                  "([multigrid.md](multigrid.md); one rank only for now, `\"multigrid\"` on R "
-                  "ranks is refused), hypre's PCG with `fluid.preconditioner`, or `\"auto\"`: the "
-                  "multigrid on one rank, hypre on R ranks"},
+                  "([multigrid.md](multigrid.md); on R ranks its fine levels relax over the "
+                  "ranks and a coarse level is gathered onto rank 0), hypre's PCG with "
+                  "`fluid.preconditioner`, or `\"auto\"`: the multigrid (fewer instructions than "
+                  "hypre on the riser on 1, 2 and 4 ranks)"},
   };
 }
 

@@ -12,6 +12,8 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include "fluid/multigrid_exchange.hpp"
+
 namespace cfddem::fluid {
 
 // One level: n cells per axis padded by one ghost layer (periodic images; zero elsewhere). K[a] at
@@ -41,6 +43,13 @@ struct MultigridPoisson::Level {
   // of 2, the determinant). They depend on the coefficients only (factor_lines).
   std::vector<double> line_lo, line_pivot, line_mult, line_z, line_sm;
   std::vector<double> x, b; // a coarse level's correction and right-hand side
+  // Distributed: the level's exchange (nullptr on one grid, where periodic images are copied
+  // locally), which sides of the box are exchanged rather than boundary faces, the parity of
+  // the box's first cell (red-black colours follow the global indices) and the global cells.
+  const MultigridExchange* exchange = nullptr;
+  std::array<std::array<bool, 2>, 3> exchanged{};
+  int parity = 0;
+  double total = 0.0;
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
         const std::array<std::array<PoissonSide, 2>, 3>& sides)
@@ -65,6 +74,7 @@ struct MultigridPoisson::Level {
     inv_diag.assign(size, 0.0);
     x.assign(size, 0.0);
     b.assign(size, 0.0);
+    total = static_cast<double>(n[0]) * n[1] * n[2];
   }
   [[nodiscard]] std::size_t at(int i, int j, int k) const {
     return static_cast<std::size_t>((i + 1) * s[0] + (j + 1) * s[1] + (k + 1) * s[2]);
@@ -189,6 +199,10 @@ void fill_z_ghosts(const Level& L, double* v) {
 
 // Periodic images into the ghost layer (faces only: no kernel reads edges or corners).
 void fill_ghosts(const Level& L, double* v) {
+  if (L.exchange != nullptr) {
+    L.exchange->fill(std::span<double>(v, L.size)); // periodic images included
+    return;
+  }
   const auto& n = L.n;
   if ((L.periodic[0] && n[0] > 1) || (L.periodic[1] && n[1] > 1)) {
     for_planes(n[2], 2 * static_cast<std::size_t>((n[0] + n[1]) * n[2]),
@@ -245,7 +259,7 @@ inline void relax_plane(const Level& L, const double* b, double* x, int colour, 
   const double* kz = L.K[2].data();
   const double* id = L.inv_diag.data();
   for (int j = 0; j < L.n[1]; ++j) {
-    const int i0 = (colour + j + k) & 1;
+    const int i0 = (colour + j + k + L.parity) & 1;
     std::size_t c = L.at(i0, j, k);
     for (int i = i0; i < L.n[0]; i += 2, c += 2) {
       x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
@@ -497,7 +511,7 @@ void relax_points_from_zero(const Level& L, const double* b, double* x) {
   for_planes(L.n[2], L.cells(), [&](int k) {
     for (int j = 0; j < L.n[1]; ++j) {
       std::size_t c = L.at(0, j, k);
-      const int red = (j + k) & 1; // i parity of the red cells in this row
+      const int red = (j + k + L.parity) & 1; // i parity of the red cells in this row
       for (int i = 0; i < L.n[0]; ++i, ++c) {
         x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
       }
@@ -512,7 +526,7 @@ void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const do
   const double* id = L.inv_diag.data();
   for (int j = 0; j < L.n[1]; ++j) {
     std::size_t c = L.at(0, j, k);
-    const int red = (j + k) & 1;
+    const int red = (j + k + L.parity) & 1;
     if (shift != nullptr) {
       for (int i = 0; i < L.n[0]; ++i) {
         b[c + static_cast<std::size_t>(i)] -= *shift;
@@ -538,8 +552,9 @@ std::array<int, 2> plane_blocks(int nz) {
 
 // relax_pair needs a z-neighbour of the other colour on both sides: an odd period along z puts
 // cells of one colour next to each other across the seam.
+// A distributed level exchanges whole passes (its ghosts come from other ranks).
 bool pair_fusable(const Level& L) {
-  return L.line < 0 && !(L.periodic[2] && L.n[2] > 1 && L.n[2] % 2 == 1);
+  return L.line < 0 && L.exchange == nullptr && !(L.periodic[2] && L.n[2] > 1 && L.n[2] % 2 == 1);
 }
 
 // Two colour passes, `first` then 1 - first, in one sweep over the planes: the second colour's
@@ -632,6 +647,16 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
 // computed as by the two separate loops (summed in plane order): bitwise theirs.
 double update_and_apply(const Level& L, const double* z, double beta, bool first, double* p,
                         double* q) {
+  if (L.exchange != nullptr) {
+    // Distributed: p's ghosts come from the other ranks between the two loops (the same values
+    // as the fused sweep's). The sum is this box's, plane by plane.
+    for_cells(L, [&](std::size_t c) { p[c] = first ? z[c] : z[c] + beta * p[c]; });
+    fill_ghosts(L, p);
+    return sum_cells(L, [&](std::size_t c, double& s) {
+      q[c] = apply_at(L, p, c);
+      s += p[c] * q[c];
+    });
+  }
   const int nz = L.n[2];
   const auto [tasks, block] = plane_blocks(nz);
   std::vector<double> partial(static_cast<std::size_t>(nz), 0.0);
@@ -709,9 +734,13 @@ void prolong_add(const Level& F, const Level& C, const double* xc, double* xf) {
   fill_ghosts(F, xf);
 }
 
+// The mean over the level's cells (every rank's on a distributed level: collective).
 double mean_interior(const Level& L, const double* v) {
-  const double sum = sum_cells(L, [&](std::size_t c, double& s) { s += v[c]; });
-  return sum / static_cast<double>(L.cells());
+  double sum = sum_cells(L, [&](std::size_t c, double& s) { s += v[c]; });
+  if (L.exchange != nullptr) {
+    sum = L.exchange->sum(sum);
+  }
+  return sum / L.total;
 }
 
 void shift_interior(const Level& L, double* v, double shift) {
@@ -916,12 +945,36 @@ int choose_line_axis(const std::array<int, 3>& n, const std::array<double, 3>& h
   return best;
 }
 
-} // namespace
+// Cell c's entry in a vector of a box of n cells, i fastest.
+std::size_t packed_index(const std::array<int, 3>& n, const std::array<int, 3>& c) {
+  return static_cast<std::size_t>(c[0]) +
+         static_cast<std::size_t>(n[0]) *
+             (static_cast<std::size_t>(c[1]) +
+              static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(c[2]));
+}
 
-MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
-                                   std::array<std::array<PoissonSide, 2>, 3> sides,
-                                   MultigridSettings settings)
-    : settings_(settings), sides_(sides) {
+// A level's interior values to a vector of its cells (i fastest), and back.
+void pack(const Level& L, const double* v, double* out) {
+  for (int k = 0; k < L.n[2]; ++k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::copy_n(v + L.at(0, j, k), L.n[0], out + packed_index(L.n, {0, j, k}));
+    }
+  }
+}
+
+void unpack(const Level& L, const double* in, double* v) {
+  for (int k = 0; k < L.n[2]; ++k) {
+    for (int j = 0; j < L.n[1]; ++j) {
+      std::copy_n(in + packed_index(L.n, {0, j, k}), L.n[0], v + L.at(0, j, k));
+    }
+  }
+}
+
+// The constructors' argument checks; returns whether a side is Dirichlet.
+bool check_arguments(const std::array<int, 3>& cells, const std::array<double, 3>& spacing,
+                     const std::array<std::array<PoissonSide, 2>, 3>& sides,
+                     const MultigridSettings& settings) {
+  bool dirichlet = false;
   for (int a = 0; a < 3; ++a) {
     if (cells[a] < 1 || !(spacing[a] > 0.0)) {
       throw std::invalid_argument(
@@ -934,15 +987,25 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     for (int side = 0; side < 2; ++side) {
       if (sides[a][side] == PoissonSide::dirichlet ||
           sides[a][side] == PoissonSide::dirichlet_node) {
-        has_dirichlet_ = true;
+        dirichlet = true;
       }
     }
   }
-  singular_ = !has_dirichlet_;
   if (settings.pre_sweeps < 1 || settings.post_sweeps != settings.pre_sweeps) {
     throw std::invalid_argument("multigrid: pre_sweeps must be >= 1 and equal post_sweeps (a "
                                 "symmetric preconditioner for CG)");
   }
+  return dirichlet;
+}
+
+} // namespace
+
+MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
+                                   std::array<std::array<PoissonSide, 2>, 3> sides,
+                                   MultigridSettings settings)
+    : settings_(settings), sides_(sides),
+      has_dirichlet_(check_arguments(cells, spacing, sides, settings)) {
+  singular_ = !has_dirichlet_;
   levels_.emplace_back(cells, spacing, sides);
   for (;;) {
     Level& fine = levels_.back();
@@ -971,7 +1034,215 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
   }
 }
 
+MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
+                                   std::array<std::array<PoissonSide, 2>, 3> sides,
+                                   std::vector<CellBox> boxes, const Communicator& comm,
+                                   MultigridSettings settings)
+    : settings_(settings), sides_(sides),
+      has_dirichlet_(check_arguments(cells, spacing, sides, settings)) {
+  singular_ = !has_dirichlet_;
+  if (boxes.size() != static_cast<std::size_t>(comm.size())) {
+    throw std::invalid_argument(
+        fmt::format("multigrid: {} boxes for {} ranks", boxes.size(), comm.size()));
+  }
+  const auto me = static_cast<std::size_t>(comm.rank());
+  std::array<bool, 3> periodic{};
+  std::array<std::array<double, 2>, 3> bdist{};
+  for (int a = 0; a < 3; ++a) {
+    periodic[a] = sides[a][0] == PoissonSide::periodic;
+    for (int side = 0; side < 2; ++side) {
+      bdist[a][side] = sides[a][side] == PoissonSide::dirichlet_node ? 1.0 : 0.5;
+    }
+  }
+  std::array<int, 3> n = cells;
+  std::array<double, 3> h = spacing;
+  for (;;) {
+    const CellBox& box = boxes[me];
+    // A side of the box is exchanged when a box (or its periodic image) lies beyond it; else it
+    // is the domain's boundary condition. A one-cell period couples a cell to itself: no flux.
+    std::array<std::array<PoissonSide, 2>, 3> local{};
+    std::array<std::array<bool, 2>, 3> open{};
+    for (int a = 0; a < 3; ++a) {
+      for (int side = 0; side < 2; ++side) {
+        const bool touches = side == 0 ? box.lo[a] == 0 : box.hi[a] == n[a];
+        open[a][side] = n[a] > 1 && (periodic[a] || !touches);
+        local[a][side] = touches && !periodic[a] ? sides[a][side] : PoissonSide::neumann;
+      }
+    }
+    exchanges_.push_back(std::make_unique<MultigridExchange>(n, periodic, boxes, comm));
+    Level& L = levels_.emplace_back(box.cells(), h, local);
+    L.exchange = exchanges_.back().get();
+    L.exchanged = open;
+    L.parity = (box.lo[0] + box.lo[1] + box.lo[2]) & 1;
+    L.total = static_cast<double>(n[0]) * n[1] * n[2];
+    L.bdist = bdist;
+    // Coarsen as one grid would, along the axes every box divides; gather a level that would
+    // need line relaxation (its lines would cross the ranks) or is small.
+    bool gather = choose_line_axis(n, h) >= 0 || L.total <= settings.gather_cells;
+    std::array<int, 3> ratio{1, 1, 1};
+    if (!gather) {
+      ratio = coarsening(n, h);
+      for (int a = 0; a < 3; ++a) {
+        for (const CellBox& b : boxes) {
+          if (ratio[a] == 2 && (b.lo[a] % 2 != 0 || b.hi[a] % 2 != 0)) {
+            ratio[a] = 1;
+          }
+        }
+      }
+      gather = ratio == std::array<int, 3>{1, 1, 1};
+    }
+    if (gather) {
+      break;
+    }
+    L.ratio = ratio;
+    for (int a = 0; a < 3; ++a) {
+      n[a] /= ratio[a];
+      h[a] *= ratio[a];
+      for (int side = 0; side < 2; ++side) {
+        bdist[a][side] = (bdist[a][side] + 0.5 * (ratio[a] - 1)) / ratio[a];
+      }
+      for (CellBox& b : boxes) {
+        b.lo[a] /= ratio[a];
+        b.hi[a] /= ratio[a];
+      }
+    }
+  }
+  gathered_cells_ = n;
+  if (me == 0) {
+    gathered_ = std::make_unique<MultigridPoisson>(n, h, sides, settings);
+    gathered_->levels_.front().bdist = bdist;
+  }
+  const std::size_t size = levels_.front().size;
+  for (std::vector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
+    v->assign(size, 0.0);
+  }
+}
+
 MultigridPoisson::~MultigridPoisson() = default;
+
+int MultigridPoisson::gathered_levels() const {
+  return gathered_ ? gathered_->levels() : 0;
+}
+
+void MultigridPoisson::all_sum(std::span<double> v) const {
+  if (!exchanges_.empty()) {
+    exchanges_.front()->sum(v);
+  }
+}
+
+double MultigridPoisson::all_sum(double v) const {
+  return exchanges_.empty() ? v : exchanges_.front()->sum(v);
+}
+
+// The gathered level's face coefficients, mass and Dirichlet faces into rank 0's one-grid
+// hierarchy, laid out as its set_coefficients would (a periodic axis's face n is face 0), then
+// its set-up.
+void MultigridPoisson::gather_coefficients() {
+  const Level& G = levels_.back();
+  const MultigridExchange& ex = *G.exchange;
+  const bool root = gathered_ != nullptr;
+  Level* R = root ? &gathered_->levels_.front() : nullptr;
+  mine_.assign(G.cells(), 0.0);
+  all_.assign(root ? R->cells() : 0, 0.0);
+  const auto gather_field = [&](const std::vector<double>& local, std::vector<double>* global) {
+    pack(G, local.data(), mine_.data());
+    ex.gather(mine_, all_);
+    if (root) {
+      unpack(*R, all_.data(), global->data());
+    }
+  };
+  for (int a = 0; a < 3; ++a) {
+    gather_field(G.K[a], root ? &R->K[a] : nullptr);
+    if (!root) {
+      continue;
+    }
+    // Face n (the high ghost slot): face 0 on a periodic axis of two or more cells, else none.
+    const bool wraps = R->periodic[a] && R->n[a] > 1;
+    std::array<int, 3> hi = R->n;
+    hi[a] = 1;
+    for (int k = 0; k < hi[2]; ++k) {
+      for (int j = 0; j < hi[1]; ++j) {
+        for (int i = 0; i < hi[0]; ++i) {
+          std::array<int, 3> c = {i, j, k};
+          const std::size_t first = R->at(c[0], c[1], c[2]);
+          c[a] = R->n[a];
+          R->K[a][R->at(c[0], c[1], c[2])] = wraps ? R->K[a][first] : 0.0;
+        }
+      }
+    }
+  }
+  if (!G.mass.empty()) {
+    if (root) {
+      R->mass.assign(R->size, 0.0);
+    }
+    gather_field(G.mass, root ? &R->mass : nullptr);
+  } else if (root) {
+    R->mass.clear();
+  }
+  for (int a = 0; a < 3; ++a) {
+    const int p = a == 0 ? 1 : 0;
+    const int q = a == 2 ? 1 : 2;
+    for (int side = 0; side < 2; ++side) {
+      if (sides_[a][side] != PoissonSide::dirichlet &&
+          sides_[a][side] != PoissonSide::dirichlet_node) {
+        continue;
+      }
+      // Each face's coefficient at its cell's position in a gathered cell vector.
+      std::fill(mine_.begin(), mine_.end(), 0.0);
+      if (G.dirichlet[a][side]) {
+        for (int iq = 0; iq < G.n[q]; ++iq) {
+          for (int ip = 0; ip < G.n[p]; ++ip) {
+            std::array<int, 3> c{};
+            c[a] = side == 0 ? 0 : G.n[a] - 1;
+            c[p] = ip;
+            c[q] = iq;
+            mine_[packed_index(G.n, c)] = G.dface[a][side][G.plane_index(a, c)];
+          }
+        }
+      }
+      ex.gather(mine_, all_);
+      if (!root) {
+        continue;
+      }
+      for (int iq = 0; iq < R->n[q]; ++iq) {
+        for (int ip = 0; ip < R->n[p]; ++ip) {
+          std::array<int, 3> c{};
+          c[a] = side == 0 ? 0 : R->n[a] - 1;
+          c[p] = ip;
+          c[q] = iq;
+          R->dface[a][side][R->plane_index(a, c)] = all_[packed_index(R->n, c)];
+        }
+      }
+    }
+  }
+  if (root) {
+    gathered_->singular_ = singular_;
+    gathered_->finish_coefficients();
+  }
+}
+
+// The last level's right-hand side onto rank 0, one V-cycle of the one-grid hierarchy there
+// (a fixed symmetric operator: the V-cycle over the ranks stays an SPD preconditioner), the
+// correction back to every box, its ghosts exchanged.
+void MultigridPoisson::gathered_solve(const double* b, double* x) {
+  const Level& G = levels_.back();
+  const MultigridExchange& ex = *G.exchange;
+  const bool root = gathered_ != nullptr;
+  mine_.resize(G.cells());
+  all_.resize(root ? gathered_->levels_.front().cells() : 0);
+  pack(G, b, mine_.data());
+  ex.gather(mine_, all_);
+  if (root) {
+    MultigridPoisson& g = *gathered_;
+    const Level& R = g.levels_.front();
+    unpack(R, all_.data(), g.b_.data());
+    g.vcycle(0, g.b_.data(), g.x_.data(), nullptr);
+    pack(R, g.x_.data(), all_.data());
+  }
+  ex.scatter(all_, mine_);
+  unpack(G, mine_.data(), x);
+  fill_ghosts(G, x);
+}
 
 int MultigridPoisson::levels() const {
   return static_cast<int>(levels_.size());
@@ -1014,12 +1285,19 @@ void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef,
     hi[a] = L.n[a] + 1;
     const bool self = L.periodic[a] && L.n[a] == 1;
     // Row by row: interior faces copied; a boundary face takes face 0's value on a periodic axis
-    // (face n is face 0) and 0 otherwise (Neumann; Dirichlet faces go to dface below).
+    // (face n is face 0) and 0 otherwise (Neumann; Dirichlet faces go to dface below). On a
+    // distributed level a face on an exchanged side of the box is copied like an interior one
+    // (face n is then replaced by its owner's face 0 through the exchange below).
     const bool wraps = L.periodic[a] && !self;
+    const std::array<bool, 2> open = L.exchanged[a];
     for_planes(hi[2], L.cells(), [&](int k) {
       for (int j = 0; j < hi[1]; ++j) {
         std::array<int, 3> face = {0, j, k};
         double* __restrict out = L.K[a].data() + L.at(0, j, k);
+        if (a != 0 && (face[a] == 0 || face[a] == L.n[a]) && open[face[a] == 0 ? 0 : 1]) {
+          std::copy_n(in.values().data() + layout.index(face), hi[0], out);
+          continue;
+        }
         if (a != 0 && (face[a] == 0 || face[a] == L.n[a])) {
           face[a] = 0;
           if (wraps) {
@@ -1032,8 +1310,8 @@ void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef,
         const double* row = in.values().data() + layout.index(face);
         std::copy_n(row, hi[0], out);
         if (a == 0) {
-          out[0] = wraps ? row[0] : 0.0;
-          out[L.n[0]] = wraps ? row[0] : 0.0;
+          out[0] = open[0] || wraps ? row[0] : 0.0;
+          out[L.n[0]] = open[1] ? row[L.n[0]] : wraps ? row[0] : 0.0;
         }
       }
     });
@@ -1055,12 +1333,24 @@ void MultigridPoisson::set_coefficients(const std::array<GridField, 3>& coef,
         }
       }
     }
+    if (L.exchange != nullptr) {
+      // Face n of an exchanged side is the neighbour's face 0: one value per face, bitwise.
+      L.exchange->fill(L.K[a]);
+    }
   }
-  build_diagonal(L);
+  finish_coefficients();
+}
+
+void MultigridPoisson::finish_coefficients() {
+  build_diagonal(levels_.front());
   for (std::size_t l = 1; l < levels_.size(); ++l) {
     coarsen_coefficients(levels_[l - 1], levels_[l]);
   }
-  factor_coarsest();
+  if (exchanges_.empty()) {
+    factor_coarsest();
+  } else {
+    gather_coefficients();
+  }
 }
 
 // Dense Cholesky of the coarsest operator (a singular one with its first diagonal doubled: with a
@@ -1223,7 +1513,11 @@ void MultigridPoisson::vcycle(int level, double* b, double* x, const double* shi
     if (shift != nullptr) {
       shift_interior(L, b, *shift);
     }
-    coarsest_solve(b, x);
+    if (exchanges_.empty()) {
+      coarsest_solve(b, x);
+    } else {
+      gathered_solve(b, x);
+    }
     return;
   }
   Level& C = levels_[static_cast<std::size_t>(level) + 1];
@@ -1276,11 +1570,14 @@ double MultigridPoisson::precondition(double* r, double* z, double r_sum) {
   // of a tiny right-hand side) is not removed can give r.z <= 0 and break CG down. The constant
   // part is unreachable anyway (A's null space).
   const double r_mean =
-      (std::isnan(r_sum) ? sum_cells(L, [&](std::size_t c, double& s) { s += r[c]; }) : r_sum) /
-      static_cast<double>(L.cells());
+      (std::isnan(r_sum) ? all_sum(sum_cells(L, [&](std::size_t c, double& s) { s += r[c]; }))
+                         : r_sum) /
+      L.total;
   vcycle(0, r, z, &r_mean); // the shift rides on the first smoothing pass where it can
   // z's mean: the caller removes it in its next pass over z (z's ghosts are not read before).
-  return levels_.size() > 1 ? mean_interior(L, z) : 0.0;
+  // One grid of one level: the coarsest solve left it zero; gathered onto rank 0, the one-grid
+  // V-cycle there does not.
+  return levels_.size() > 1 || !exchanges_.empty() ? mean_interior(L, z) : 0.0;
 }
 
 // Flexible preconditioned CG (Notay, SIAM J. Sci. Comput. 22 (2000) 1444: beta from
@@ -1316,7 +1613,7 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     return sum_cells(L, [&](std::size_t c, double& s) { s += u[c] * v[c]; });
   };
   MultigridReport report;
-  const double bb = dot(b_, b_);
+  const double bb = all_sum(dot(b_, b_));
   // |b|^2 below the smallest normal double (a right-hand side of round-off from a field that is
   // already divergence-free): b is zero to working precision and so is x; relative residuals of
   // such a b are noise (a V-cycle of it underflows to zero).
@@ -1327,26 +1624,28 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
   }
   fill_ghosts(L, x_.data());
   std::array<double, 2> rr_sum = residual_and_sum(L, b_.data(), x_.data(), r_.data());
+  all_sum(rr_sum);
   double rel = std::sqrt(rr_sum[0] / bb);
   int it = 0;
   while (rel > tolerance && it < max_iterations) {
     const double z_mean = precondition(r_.data(), z_.data(), rr_sum[1]);
     // z -= its mean (singular; a shift by 0 otherwise), fused with r.z.
-    double rz = sum_cells(L, [&](std::size_t c, double& s) {
+    double rz = all_sum(sum_cells(L, [&](std::size_t c, double& s) {
       z_[c] -= z_mean;
       s += r_[c] * z_[c];
-    });
+    }));
     bool restart = true; // p = z
     double beta = 0.0;
     while (it < max_iterations) {
-      const double pq = update_and_apply(L, z_.data(), beta, restart, p_.data(), q_.data());
+      const double pq =
+          all_sum(update_and_apply(L, z_.data(), beta, restart, p_.data(), q_.data()));
       restart = false;
       if (!(pq > 0.0) || !(rz > 0.0)) {
         break;
       }
       const double alpha = rz / pq;
       // |r|^2 and the sum of r (the preconditioner's mean removal) in the update's pass.
-      const auto rr = sum_planes_n<2>(planes, L.cells(), [&](int k) {
+      auto rr = sum_planes_n<2>(planes, L.cells(), [&](int k) {
         std::array<double, 2> s{};
         for (int j = 0; j < L.n[1]; ++j) {
           std::size_t c = L.at(0, j, k);
@@ -1360,12 +1659,13 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
         }
         return s;
       });
+      all_sum(rr);
       ++it;
       if (std::sqrt(rr[0] / bb) <= tolerance) {
         break;
       }
       const double z_shift = precondition(r_.data(), z_.data(), rr[1]);
-      const auto sums = sum_planes_n<2>(planes, L.cells(), [&](int k) {
+      auto sums = sum_planes_n<2>(planes, L.cells(), [&](int k) {
         std::array<double, 2> s{};
         for (int j = 0; j < L.n[1]; ++j) {
           std::size_t c = L.at(0, j, k);
@@ -1377,12 +1677,14 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
         }
         return s;
       });
+      all_sum(sums);
       beta = (sums[0] - sums[1]) / rz;
       rz = sums[0];
     }
     // The recursive residual drifts from b - A x: judge (and restart from) the true one.
     fill_ghosts(L, x_.data());
     rr_sum = residual_and_sum(L, b_.data(), x_.data(), r_.data());
+    all_sum(rr_sum);
     const double rel_new = std::sqrt(rr_sum[0] / bb);
     if (!(rel_new < rel) && rel_new > tolerance) {
       rel = rel_new;

@@ -9,14 +9,19 @@
 // finest axis is markedly finer than the others relaxes whole lines along it; the coarsest level
 // is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop over a
 // level runs over z-planes (TBB) and every reduction is summed plane by plane in plane order, so
-// results are bitwise independent of the thread count.
+// results are bitwise independent of the thread count. Over MPI ranks (the second constructor)
+// each rank holds its box of the fine levels, exchanging face ghosts after every pass, and a
+// coarse level is gathered onto rank 0 (docs/multigrid.md, "On R ranks").
 #pragma once
 
 #include <array>
 #include <limits>
+#include <memory>
 #include <span>
 #include <vector>
 
+#include "core/cell_box.hpp"
+#include "core/communicator.hpp"
 #include "fluid/grid_field.hpp"
 
 namespace cfddem::fluid {
@@ -33,7 +38,12 @@ struct MultigridSettings {
   // Point-relaxed levels run each red-black (black-red) pair of passes as one sweep over the
   // planes (bitwise the same result, about half the memory traffic); false: pass by pass.
   bool fuse_colour_pairs = true;
+  // Distributed: a level of at most this many cells (all ranks together) is gathered onto rank 0
+  // rather than coarsened further over the ranks.
+  int gather_cells = 4096;
 };
+
+class MultigridExchange;
 
 struct MultigridReport {
   int iterations = 0;
@@ -47,6 +57,17 @@ public:
   MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
                    std::array<std::array<PoissonSide, 2>, 3> sides,
                    MultigridSettings settings = {});
+  // Distributed: this rank holds boxes[comm.rank()] of a grid of `cells` cells (every rank
+  // passes the same boxes, which tile the grid); vectors, coefficients and the levels' cells are
+  // the box's. Levels coarsen over the ranks while every box divides by the ratio, with point
+  // relaxation and a face-ghost exchange after every pass; the first level that would need line
+  // relaxation, cannot coarsen so, or has at most settings.gather_cells cells is gathered onto
+  // rank 0, which runs one V-cycle of a one-grid hierarchy of it (the constructor above) and
+  // scatters the correction back. The constructor, set_coefficients and solve are then
+  // collective over comm.
+  MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
+                   std::array<std::array<PoissonSide, 2>, 3> sides, std::vector<CellBox> boxes,
+                   const Communicator& comm, MultigridSettings settings = {});
   ~MultigridPoisson();
   MultigridPoisson(const MultigridPoisson&) = delete;
   MultigridPoisson& operator=(const MultigridPoisson&) = delete;
@@ -67,10 +88,15 @@ public:
                         int max_iterations);
 
   [[nodiscard]] int levels() const;
+  // Distributed: this rank's box of the level (the last one is the gathered level).
   [[nodiscard]] std::array<int, 3> level_cells(int level) const;
   // The axis a level relaxes lines along (-1: point relaxation).
   [[nodiscard]] int line_axis(int level) const;
   [[nodiscard]] bool singular() const { return singular_; }
+  // Distributed: the global cells of the level gathered onto rank 0 (the last level); its
+  // hierarchy's levels (0 except on rank 0). One grid: {0, 0, 0} and 0.
+  [[nodiscard]] std::array<int, 3> gathered_cells() const { return gathered_cells_; }
+  [[nodiscard]] int gathered_levels() const;
 
   // The finest level's kernels on the state the last solve left, for benchmarks: one V-cycle
   // (the preconditioner), one red-black sweep, one residual with its norm.
@@ -84,6 +110,15 @@ private:
   void vcycle(int level, double* b, double* x, const double* shift);
   void coarsest_solve(const double* b, double* x); // b: the coarsest level's own vector
   void factor_coarsest();
+  // After level 0's coefficients: the diagonal, the coarse levels and the coarsest solve's set-up.
+  void finish_coefficients();
+  // Distributed: the last level's b onto rank 0, one V-cycle of gathered_ there, x back.
+  void gathered_solve(const double* b, double* x);
+  // Distributed: the last level's coefficients onto rank 0 into gathered_'s finest level.
+  void gather_coefficients();
+  // Sums over the ranks (identity on one grid).
+  void all_sum(std::span<double> v) const;
+  double all_sum(double v) const;
   // z = V-cycle(r). Singular: r's mean is removed first (r_sum: r's interior sum if known, else
   // NaN), and z's mean is returned for the caller to remove (0 otherwise).
   double precondition(double* r, double* z,
@@ -100,6 +135,12 @@ private:
   std::vector<double> cholesky_;
   std::vector<double> dense_rhs_;
   std::vector<double> cg_r_, cg_p_, cg_q_, cg_z_;
+  // Distributed: one exchange per level (levels_[l].exchange points into it), the one-grid
+  // hierarchy of the gathered last level (rank 0 only) and the gather's buffers.
+  std::vector<std::unique_ptr<MultigridExchange>> exchanges_;
+  std::unique_ptr<MultigridPoisson> gathered_;
+  std::array<int, 3> gathered_cells_{};
+  std::vector<double> mine_, all_;
 };
 
 } // namespace cfddem::fluid

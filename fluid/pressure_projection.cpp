@@ -160,16 +160,11 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   if (!(settings.tolerance > 0.0) || settings.max_iterations < 1) {
     throw std::invalid_argument("projection tolerance must be > 0 and max_iterations >= 1");
   }
-  if (settings.solver == PoissonSolver::multigrid && halo != nullptr) {
-    throw std::invalid_argument(
-        "fluid.solver = \"multigrid\" solves on one grid only: a gas on several ranks needs "
-        "\"hypre\" (or the default)");
-  }
   const auto& n = grid.cells();
   const auto& global = grid.global_cells();
   if (const int a = smg_blocking_axis(grid);
       a >= 0 && settings.preconditioner == PoissonPreconditioner::smg &&
-      settings.solver != PoissonSolver::multigrid) {
+      settings.solver == PoissonSolver::hypre) { // "auto" is the multigrid
     throw std::invalid_argument(fmt::format(
         "fluid.preconditioner = \"smg\" cannot run on this grid: periodic axis {} has {} cells, "
         "an odd count, where hypre 2.26's SMG set-up fails; use \"pfmg\" or an even count",
@@ -183,8 +178,7 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   rhs_.resize(cells);
   solution_.resize(cells);
   div_ = grid.make_field();
-  const bool multigrid = settings.solver == PoissonSolver::multigrid ||
-                         (settings.solver == PoissonSolver::automatic && halo == nullptr);
+  const bool multigrid = settings.solver != PoissonSolver::hypre;
   if (multigrid) {
     // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
     // (their set-up time and memory would be spent for nothing).
@@ -199,7 +193,12 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
                                                          : PoissonSide::neumann;
       }
     }
-    mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
+    if (halo == nullptr) {
+      mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
+    } else {
+      // Each rank its box; halos at every level, the coarse level gathered onto rank 0.
+      mg_ = std::make_unique<MultigridPoisson>(global, spacing, sides, halo->boxes(), halo->comm());
+    }
     face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
     return;
   }
@@ -416,8 +415,12 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
       }
     });
   }
-  const bool changed = !mg_ready_ || std::find(changed_planes_.begin(), changed_planes_.end(), 1) !=
-                                         changed_planes_.end();
+  bool changed = !mg_ready_ || std::find(changed_planes_.begin(), changed_planes_.end(), 1) !=
+                                   changed_planes_.end();
+  if (halo_ != nullptr) {
+    // The set-up is collective: every rank rebuilds if any box's coefficients changed.
+    changed = halo_->max(changed ? 1.0 : 0.0) > 0.0;
+  }
   if (changed) {
     mg_->set_coefficients(face_coef_);
     mg_ready_ = true;
@@ -442,8 +445,8 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
         for (int a = 0; a < 3; ++a) {
           for (int side = 0; side < 2; ++side) {
             const BoundaryCondition& bc = grid_.bc(a, side);
-            if (bc.kind != BoundaryKind::outflow) {
-              continue;
+            if (bc.kind != BoundaryKind::outflow || grid_.exchanged(a, side)) {
+              continue; // a side shared with another box is no outflow face
             }
             const int edge = side == 0 ? 0 : n[a] - 1;
             const std::size_t up = side == 0 ? 0 : static_cast<std::size_t>(layout.stride(a));

@@ -16,8 +16,8 @@
 
 namespace cfddem::fluid {
 
-// automatic: the multigrid on one grid (faster on the riser grid: docs/multigrid.md), hypre on a
-// distributed grid (the multigrid has no distributed V-cycle yet).
+// automatic: the multigrid, on one grid and on R ranks (fewer instructions than hypre on the
+// riser grid on both: docs/multigrid.md, docs/performance.md).
 enum class PoissonSolver { automatic, multigrid, hypre };
 
 // PFMG (semicoarsening, pointwise relaxation) is the default. SMG (plane relaxation) is more
@@ -55,12 +55,12 @@ void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, con
 // With hypre: holds its grid, matrix and solver; the solver set-up is reused while the matrix
 // is unchanged. Undistributed (halo == nullptr): hypre objects on MPI_COMM_SELF. Distributed: on
 // the halo's communicator, each rank's box in global indices, the periodic axes by
-// HYPRE_StructGridSetPeriodic; collective. MPI must be initialised. The multigrid (one grid
-// only) keeps its own hierarchy: with it no hypre object is ever created.
+// HYPRE_StructGridSetPeriodic; collective. MPI must be initialised. The multigrid keeps its own
+// hierarchy (distributed: over the halo's boxes, collective): with it no hypre object is ever
+// created.
 class PressureProjection {
 public:
   // halo: the grid's halo when grid is one box of a distributed grid (kept by the caller).
-  // Throws std::invalid_argument for PoissonSolver::multigrid with a halo.
   PressureProjection(const MacGrid& grid, const ProjectionSettings& settings,
                      const GridHalo* halo = nullptr);
   ~PressureProjection();

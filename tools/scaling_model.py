@@ -10,8 +10,9 @@ on oversubscription. This script prices those counts:
   pressure    = max_r cells_r * (pressure iterations above the calibration's) * t_iter
                 (t_* measured on one core: --calibration, a 1-rank run.json of the same scene;
                 t_iter, --iteration-ns, default 20 ns per cell per iteration: one V-cycle of
-                the riser grid, 0.99 ms on 51,200 cells; the R-rank solve, hypre, takes far
-                more iterations than the one-rank multigrid: riser 1e5, 304 against 15)
+                the riser grid, 0.99 ms on 51,200 cells; runs that solved with hypre on R
+                ranks took far more iterations than the one-rank multigrid: riser 1e5, 304
+                against 15; the multigrid is now the R-rank default too)
   halo_r      = p2p_messages_r * alpha + p2p_bytes_r / beta
   reductions  = reductions * alpha * ceil(log2 P)       (a tree: log2 P latencies each)
   collective  = 2 * collective_bytes / beta + (collectives - reductions) * alpha * ceil(log2 P)
@@ -166,9 +167,9 @@ def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
     R = len(rc["particle_steps"])
     t_ps, t_fe, t_cell = cal[:3]
     serial = serial_seconds(run, cal)
-    # The pressure solve on R ranks is not the one-rank solver (hypre there, cfddem's own
-    # multigrid on one rank) and takes other iteration counts (riser 1e5: 304 against 15 per
-    # fluid step): the iterations above the calibration's cost t_iter per cell each.
+    # The pressure solve on R ranks may take other iteration counts than the one-rank solve
+    # (hypre there, before the multigrid ran over ranks: riser 1e5, 304 against 15 per fluid
+    # step): the iterations above the calibration's cost t_iter per cell each.
     extra_it = max(0.0, run.get("projection_iterations", 0) / n - cal[5])
     substeps = max(run.get("gas_substeps", 0) / n, 1.0)
     comp = [rc["particle_steps"][r] * t_ps + rc["force_evaluations"][r] * t_fe +

@@ -7,7 +7,9 @@ A small periodic riser (scenes/riser.toml shrunk to 2.4 x 4 x 2.4 mm, 12 x 20 x 
 particles with a little thermal motion so that they migrate between ranks, 20 fluid steps). On
 one rank the serial coupled loop runs; on R ranks the gas grid is cut into R boxes, each rank
 owns the particles in its box, deposits them (ghost cells added into their owners), solves the
-gas with hypre on all ranks and interpolates from exchanged ghosts. Round-off differs (sums in
+gas with the default projection solver (the multigrid: halos at every level, the coarse level
+gathered onto rank 0; on this grid the whole level is gathered) and interpolates from exchanged
+ghosts. Round-off differs (sums in
 another order) and the run is short, so every column agrees to 1e-9 of its scale (the axial
 column's largest value for the three momentum components, the column's largest value
 otherwise); counters agree exactly; the particle count is 800 in every row. The continuity

@@ -27,6 +27,28 @@ inline double constraint_residual_norm(const MacGrid& grid, const GridField& div
   return std::sqrt(s);
 }
 
+// f at the cells (centring < 0) or the faces normal to axis `centring` of the grid's box, from
+// a function of position: the interior index range 0..n (faces 0..n along their axis).
+template <class F> void set_field(const MacGrid& g, GridField& f, int centring, F&& fn) {
+  std::array<int, 3> hi = g.cells();
+  if (centring >= 0) {
+    hi[static_cast<std::size_t>(centring)] += 1;
+  }
+  for (int k = 0; k < hi[2]; ++k) {
+    for (int j = 0; j < hi[1]; ++j) {
+      for (int i = 0; i < hi[0]; ++i) {
+        const std::array<int, 3> l = {i, j, k};
+        std::array<double, 3> x{};
+        for (int a = 0; a < 3; ++a) {
+          const auto s = static_cast<std::size_t>(a);
+          x[s] = a == centring ? g.face_position(a, l[s]) : g.cell_centre(a, l[s]);
+        }
+        f(i, j, k) = fn(x[0], x[1], x[2]);
+      }
+    }
+  }
+}
+
 inline BoundaryCondition bc_of(BoundaryKind kind) {
   BoundaryCondition bc;
   bc.kind = kind;

@@ -3,7 +3,8 @@
 // particles are gathered to rank 0 (positions, radius and mass: output only, O(N) there), whose
 // census is that of the same state on one rank bit for bit (it does not depend on the
 // particles' order); the values are then shared with every rank (each keeps the rows).
-// With output.contact_census = false the columns are NaN and nothing is computed or sent.
+// With output.contact_census = false (the default) the columns are not written and nothing is
+// computed or sent.
 #pragma once
 
 #include <string>

@@ -619,8 +619,15 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
   if (ck.scheme != scene.dem.scheme)
     throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
                                         ck.scheme, scene.dem.scheme));
-  if (ck.columns != kColumns)
+  if (ck.columns != diagnostics_columns(scene.output.contact_census)) {
+    const bool census_then = ck.columns == diagnostics_columns(true);
+    if (census_then || ck.columns == diagnostics_columns(false))
+      throw ConfigError(path, fmt::format("the checkpoint was written with "
+                                          "output.contact_census = {}, this run has {}: set it "
+                                          "as the run that wrote it did",
+                                          census_then, !census_then));
     throw ConfigError(path, "checkpoint diagnostics columns differ from this version's");
+  }
   const std::string now = restart_fixed_lines(restart_configuration(scene));
   const std::string then = restart_fixed_lines(ck.configuration);
   if (then != now) {
@@ -662,7 +669,7 @@ Checkpoint checkpoint_header(const Scene& scene, const std::string& scheme, doub
   c.dt = dt;
   c.step = step;
   c.last_row_step = last_row_step;
-  c.columns = kColumns;
+  c.columns = diagnostics_columns(scene.output.contact_census);
   c.rows = rows;
   c.snapshots = snapshots;
   c.configuration = restart_configuration(scene);

@@ -210,7 +210,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
 
   // The run directory: diagnostics.csv, snapshots; profiles.csv when the scene asks for it,
   // with the gas part of a row's profiles taken when the row falls due (as its diagnostics).
-  RunOutputs out(comm, opt.out_dir, kColumns);
+  RunOutputs out(comm, opt.out_dir, diagnostics_columns(scene.output.contact_census));
   std::optional<ColumnProfiles> profiles;
   std::vector<double> profile_gas;
   if (const auto spec = profile_spec(scene)) {

@@ -32,18 +32,22 @@ inline double seconds_since(clock::time_point t0) {
   return std::chrono::duration<double>(clock::now() - t0).count();
 }
 
-// The contact census's columns (apps/census_columns.hpp) come last, after these.
-inline const std::vector<std::string> kColumns = [] {
-  std::vector<std::string> c = {
+// The columns of diagnostics.csv. With output.contact_census on, the census's columns
+// (apps/census_columns.hpp) follow these; off, they are not written at all.
+inline const std::vector<std::string> kBaseColumns = {
     "time",       "step",       "granular_temperature", "kinetic_energy", "mean_speed",
     "mean_x",     "mean_y",     "mean_z",               "momentum_x",     "momentum_y",
     "momentum_z", "particles",  "particle_steps",       "force_evaluations", "neighbor_builds",
     "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction",
     "pressure_drop", "gas_momentum_x", "gas_momentum_y", "gas_momentum_z", "mean_vx", "mean_vy",
     "mean_vz", "mean_ax", "mean_ay", "mean_az", "gas_mass_residual"};
-  c.insert(c.end(), census_columns().begin(), census_columns().end());
+
+inline std::vector<std::string> diagnostics_columns(bool census) {
+  std::vector<std::string> c = kBaseColumns;
+  if (census)
+    c.insert(c.end(), census_columns().begin(), census_columns().end());
   return c;
-}();
+}
 
 // Columns added by the gas issue: fluid diagnostics (0 without a fluid) and particle means.
 // mean_a is the change of the mean velocity over the output interval divided by its length (0
@@ -80,7 +84,7 @@ public:
   void resume(const std::vector<double>& last_row) {
     const auto col = [](const char* name) {
       return static_cast<std::size_t>(
-          std::find(kColumns.begin(), kColumns.end(), name) - kColumns.begin());
+          std::find(kBaseColumns.begin(), kBaseColumns.end(), name) - kBaseColumns.begin());
     };
     has_ = true;
     t_ = last_row[col("time")];

@@ -441,7 +441,8 @@ public:
       if constexpr (kRanks) {
         // The mean over the rows after the first (each closes an interval).
         const auto col = static_cast<std::size_t>(
-            std::find(kColumns.begin(), kColumns.end(), "fine_leaf_fraction") - kColumns.begin());
+            std::find(kBaseColumns.begin(), kBaseColumns.end(), "fine_leaf_fraction") -
+            kBaseColumns.begin());
         double fine = 0.0;
         for (std::size_t r = 1; r < rows.size(); ++r)
           fine += rows[r][col];

@@ -443,7 +443,7 @@ std::vector<SceneKey> make_table() {
                   "frequency) at every row of `diagnostics.csv` ([outputs.md](outputs.md)); it "
                   "costs a few explicit steps per row and on R ranks gathers the particles to "
                   "rank 0, so it is off unless asked for (`tools/trade.py` turns it on); off: its "
-                  "columns are NaN"},
+                  "columns are not written"},
 
       // Gas.
       {.name = "fluid.cells",

@@ -39,8 +39,8 @@ SCALARS = ("collision_frequency", "overlap_mean", "overlap_max", "wall_collision
 
 
 def has_census(d):
-    """True when the diagnostics columns d (name -> array) hold the census (its columns are NaN
-    in a run with output.contact_census = false)."""
+    """True when the diagnostics columns d (name -> array) hold the census (a run with
+    output.contact_census = false writes no census columns)."""
     return "contacts" in d and "coordination_0" in d and bool(np.all(np.isfinite(d["contacts"])))
 
 

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdint>
 #include <random>
+#include <string>
 #include <unordered_map>
 #include <vector>
 
@@ -24,22 +25,9 @@ namespace {
 
 constexpr double kBox = 1.2e-3;
 
-// The periodic box of the packings below (particles are added by hand).
-constexpr const char* kPackingScene = R"(
-[domain]
-lo = [0.0, 0.0, 0.0]
-hi = [1.2e-3, 1.2e-3, 1.2e-3]
-periodic = [true, true, true]
-[particles]
-count = 0
-diameter = 100.0e-6
-density = 1000.0
-[dem]
-spring_constant = 10.0
-restitution = 0.8
-[run]
-end_time = 1.0e-3
-)";
+// The periodic box of the packings below: the shared pair scene (particles added by hand) in a
+// box of side kBox.
+const std::string kBoxHi = "domain.hi=[1.2e-3,1.2e-3,1.2e-3]";
 
 // Particles of radius 40-60 um dropped into a periodic box up to phi ~ 0.33, most of them pressed
 // against an earlier one (a random direction, up to 2% of the smaller radius into it), each kept
@@ -147,7 +135,8 @@ Oracle full_rows(const ParticleStore& p, const std::vector<double> (&v)[3],
 }
 
 void expect_full_row_forces(double mu) {
-  const Scene scene = demtest::scene_from(kPackingScene, {"dem.friction=" + std::to_string(mu)});
+  const Scene scene =
+      demtest::scene_from(demtest::kPairScene, {kBoxHi, "dem.friction=" + std::to_string(mu)});
   ParticleStore p = overlapping_packing(11);
   ASSERT_GT(p.size(), 1000U);
   PhaseTimer timer;
@@ -187,7 +176,7 @@ void expect_full_row_forces(double mu) {
 // A checkpoint written before the half list holds full rows: each pair in both rows, the
 // partner's history negated. Restoring one continues bit for bit as the half-row state does.
 TEST(HalfList, AFullRowCheckpointContinuesBitForBit) {
-  const Scene scene = demtest::scene_from(kPackingScene, {"dem.friction=0.4"});
+  const Scene scene = demtest::scene_from(demtest::kPairScene, {kBoxHi, "dem.friction=0.4"});
   ParticleStore p = overlapping_packing(3);
   PhaseTimer timer;
   dem::ExplicitScheme a(scene, p, timer);

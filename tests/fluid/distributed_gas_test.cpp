@@ -200,6 +200,45 @@ GasSolverSettings tight_settings(bool implicit_viscosity) {
 
 class DistributedGas : public ::testing::TestWithParam<bool> {};
 
+// A solids blob moving up through the box (its volume fraction set at each step s).
+const FieldSetter kBlob = [](const MacGrid& g, GasSolver& solver, int s) {
+  set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
+    const double yc = 4e-4 + 2e-5 * s;
+    return 1.0 - 0.3 * std::exp(-std::pow((y - yc) / 1.5e-4, 2)) *
+                     (1.0 + 0.2 * std::sin(1e4 * x) * std::cos(8e3 * z));
+  });
+  if (s == 0) {
+    solver.reset_volume_fraction_history();
+  }
+};
+
+// A walled column, inflow of 1.5 cm/s at the bottom, outflow at pressure p_out on top.
+MacGridSpec outflow_column(double p_out) {
+  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
+  column.bc[2] = test::bc_of(BoundaryKind::inflow);
+  column.bc[2].velocity = {0.0, 0.015, 0.0};
+  column.bc[3] = test::bc_of(BoundaryKind::outflow);
+  column.bc[3].pressure = p_out;
+  return column;
+}
+
+// One cell along periodic z, walls along y, a pressure drop along periodic x; the disturbance
+// kChannelStart sets at the first step.
+MacGridSpec channel_2d() {
+  MacGridSpec spec = box_spec({9, 12, 1}, {9e-4, 1.2e-3, 1e-4}, BoundaryKind::periodic);
+  set_axis(spec, 1, BoundaryKind::wall);
+  spec.pressure_drop[0] = 1e-3;
+  return spec;
+}
+const FieldSetter kChannelStart = [](const MacGrid& g, GasSolver& solver, int s) {
+  if (s == 0) {
+    set_field(g, solver.velocity()[1], 1, [](double x, double y, double) {
+      return 1e-3 * std::sin(2.0 * std::numbers::pi * x / 9e-4) *
+             std::sin(std::numbers::pi * y / 1.2e-3);
+    });
+  }
+};
+
 TEST_P(DistributedGas, PlanePoiseuilleMatchesOneGrid) {
   // Channel between no-slip walls (y), pressure drop across periodic x, periodic z: the cuts
   // fall across the channel, so boxes meet both walls and internal faces.
@@ -274,28 +313,14 @@ TEST_P(DistributedGas, PeriodicNonUniformVolumeFractionWithDragMatchesOneGrid) {
 TEST_P(DistributedGas, ClosedBoxAndOutflowColumnMatchOneGrid) {
   // Every boundary kind: a closed box under gravity with a moving solids blob (the pinned,
   // singular Poisson problem), and an inflow/outflow column with walls.
-  const FieldSetter blob = [](const MacGrid& g, GasSolver& solver, int s) {
-    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
-      const double yc = 4e-4 + 2e-5 * s;
-      return 1.0 - 0.3 * std::exp(-std::pow((y - yc) / 1.5e-4, 2)) *
-                       (1.0 + 0.2 * std::sin(1e4 * x) * std::cos(8e3 * z));
-    });
-    if (s == 0) {
-      solver.reset_volume_fraction_history();
-    }
-  };
   GasSolverSettings settings = tight_settings(GetParam());
   settings.gas.gravity = {0.0, -9.80665, 0.0};
   const MacGridSpec closed = box_spec({7, 9, 6}, {7e-4, 9e-4, 6e-4}, BoundaryKind::wall);
-  expect_round_off(run_both(closed, settings, 6, 1e-5, 0.0, blob),
+  expect_round_off(run_both(closed, settings, 6, 1e-5, 0.0, kBlob),
                    GetParam() ? "closed_box_implicit" : "closed_box_explicit");
 
-  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
-  column.bc[2] = test::bc_of(BoundaryKind::inflow);
-  column.bc[2].velocity = {0.0, 0.015, 0.0};
-  column.bc[3] = test::bc_of(BoundaryKind::outflow);
-  column.bc[3].pressure = 0.5;
-  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, blob),
+  const MacGridSpec column = outflow_column(0.5);
+  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, kBlob),
                    GetParam() ? "column_implicit" : "column_explicit");
 }
 
@@ -322,49 +347,22 @@ TEST_P(DistributedGas, MovedToOtherBoxesMidRunMatchesOneGrid) {
   };
   expect_round_off(run_both(periodic, settings, 8, 0.0, 1e-4, particles, 4),
                    GetParam() ? "moved_periodic_implicit" : "moved_periodic_explicit");
-  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
-  column.bc[2] = test::bc_of(BoundaryKind::inflow);
-  column.bc[2].velocity = {0.0, 0.015, 0.0};
-  column.bc[3] = test::bc_of(BoundaryKind::outflow);
-  column.bc[3].pressure = 0.5;
-  const FieldSetter blob = [](const MacGrid& g, GasSolver& solver, int s) {
-    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
-      const double yc = 4e-4 + 2e-5 * s;
-      return 1.0 - 0.3 * std::exp(-std::pow((y - yc) / 1.5e-4, 2)) *
-                       (1.0 + 0.2 * std::sin(1e4 * x) * std::cos(8e3 * z));
-    });
-    if (s == 0) {
-      solver.reset_volume_fraction_history();
-    }
-  };
-  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, blob, 3),
+  const MacGridSpec column = outflow_column(0.5);
+  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, kBlob, 3),
                    GetParam() ? "moved_column_implicit" : "moved_column_explicit");
 }
 
 TEST_P(DistributedGas, TwoDimensionalChannelWithOneCellPeriodicAxisMatchesOneGrid) {
   // One cell along periodic z (no flux: hypre's axis is left non-periodic, the exchange copies
   // the cell onto itself), walls along y, pressure drop along periodic x, a disturbance.
-  MacGridSpec spec = box_spec({9, 12, 1}, {9e-4, 1.2e-3, 1e-4}, BoundaryKind::periodic);
-  set_axis(spec, 1, BoundaryKind::wall);
-  spec.pressure_drop[0] = 1e-3;
-  const FieldSetter start = [](const MacGrid& g, GasSolver& solver, int s) {
-    if (s == 0) {
-      set_field(g, solver.velocity()[1], 1, [](double x, double y, double) {
-        return 1e-3 * std::sin(2.0 * std::numbers::pi * x / 9e-4) *
-               std::sin(std::numbers::pi * y / 1.2e-3);
-      });
-    }
-  };
-  expect_round_off(run_both(spec, tight_settings(GetParam()), 10, 2e-5, 0.0, start),
+  const MacGridSpec spec = channel_2d();
+  expect_round_off(run_both(spec, tight_settings(GetParam()), 10, 2e-5, 0.0, kChannelStart),
                    GetParam() ? "channel_2d_implicit" : "channel_2d_explicit");
 }
 
 TEST_P(DistributedGas, SmgPreconditionedColumnMatchesOneGrid) {
   // hypre's SMG (the fallback preconditioner) on the communicator too.
-  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
-  column.bc[2] = test::bc_of(BoundaryKind::inflow);
-  column.bc[2].velocity = {0.0, 0.015, 0.0};
-  column.bc[3] = test::bc_of(BoundaryKind::outflow);
+  const MacGridSpec column = outflow_column(0.0);
   GasSolverSettings settings = tight_settings(GetParam());
   settings.projection.preconditioner = PoissonPreconditioner::smg;
   const FieldSetter none = [](const MacGrid&, GasSolver&, int) {};
@@ -386,37 +384,14 @@ TEST(DistributedGasMultigrid, ColumnClosedBoxAndChannelMatchOneGrid) {
   GasSolverSettings settings = tight_settings(false);
   settings.projection.solver = PoissonSolver::multigrid;
   settings.gas.gravity = {0.0, -9.80665, 0.0};
-  const FieldSetter blob = [](const MacGrid& g, GasSolver& solver, int s) {
-    set_field(g, solver.volume_fraction(), kCellCentred, [&](double x, double y, double z) {
-      const double yc = 4e-4 + 2e-5 * s;
-      return 1.0 - 0.3 * std::exp(-std::pow((y - yc) / 1.5e-4, 2)) *
-                       (1.0 + 0.2 * std::sin(1e4 * x) * std::cos(8e3 * z));
-    });
-    if (s == 0) {
-      solver.reset_volume_fraction_history();
-    }
-  };
-  MacGridSpec column = box_spec({6, 12, 5}, {6e-4, 1.2e-3, 5e-4}, BoundaryKind::wall);
-  column.bc[2] = test::bc_of(BoundaryKind::inflow);
-  column.bc[2].velocity = {0.0, 0.015, 0.0};
-  column.bc[3] = test::bc_of(BoundaryKind::outflow);
-  column.bc[3].pressure = 0.5;
-  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, blob), "column_multigrid");
+  const MacGridSpec column = outflow_column(0.5);
+  expect_round_off(run_both(column, settings, 6, 1e-5, 0.0, kBlob), "column_multigrid");
   const MacGridSpec closed = box_spec({7, 9, 6}, {7e-4, 9e-4, 6e-4}, BoundaryKind::wall);
-  expect_round_off(run_both(closed, settings, 6, 1e-5, 0.0, blob), "closed_box_multigrid");
-  MacGridSpec channel = box_spec({9, 12, 1}, {9e-4, 1.2e-3, 1e-4}, BoundaryKind::periodic);
-  set_axis(channel, 1, BoundaryKind::wall);
-  channel.pressure_drop[0] = 1e-3;
+  expect_round_off(run_both(closed, settings, 6, 1e-5, 0.0, kBlob), "closed_box_multigrid");
+  const MacGridSpec channel = channel_2d();
   settings.gas.gravity = {0.0, 0.0, 0.0};
-  const FieldSetter start = [](const MacGrid& g, GasSolver& solver, int s) {
-    if (s == 0) {
-      set_field(g, solver.velocity()[1], 1, [](double x, double y, double) {
-        return 1e-3 * std::sin(2.0 * std::numbers::pi * x / 9e-4) *
-               std::sin(std::numbers::pi * y / 1.2e-3);
-      });
-    }
-  };
-  expect_round_off(run_both(channel, settings, 10, 2e-5, 0.0, start), "channel_2d_multigrid");
+  expect_round_off(run_both(channel, settings, 10, 2e-5, 0.0, kChannelStart),
+                   "channel_2d_multigrid");
 }
 
 TEST(DistributedGasConstraint, VolumeFractionChangeDrivesDivergenceOnEveryBox) {

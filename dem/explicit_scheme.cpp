@@ -104,18 +104,19 @@ void ExplicitScheme::rebuild() {
   }
   ++stats_.builds;
   rows_.need_rebuild = false;
-  rows_.streams_ready = false;
+  lay_out_pairs();
+}
+
+void ExplicitScheme::lay_out_pairs() {
+  const VerletList& list = rows_.list;
+  rows_.head_pairs.build<false>(list, list.active(), kPairBlock, model_.friction);
+  rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, model_.friction);
 }
 
 template <bool Friction>
 void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep) {
   const VerletList& list = rows_.list;
   const HistoryColumns h{rows_.hx, rows_.hy, rows_.hz};
-  if (!rows_.streams_ready) {
-    rows_.head_pairs.build<false>(list, list.active(), kPairBlock, Friction);
-    rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, Friction);
-    rows_.streams_ready = true;
-  }
   // Pairs whose separation is ready first (in-box; on R ranks two owned particles), then, once a
   // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
   const std::size_t nh =
@@ -366,7 +367,7 @@ void ExplicitScheme::restore_state(State s) {
                      std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   rows_.hx = std::move(s.hx), rows_.hy = std::move(s.hy), rows_.hz = std::move(s.hz);
   rows_.need_rebuild = s.need_rebuild || !listed;
-  rows_.streams_ready = false;
+  lay_out_pairs();
   stats_.steps = s.steps, stats_.particle_steps = s.particle_steps;
   stats_.pair_evaluations = s.pair_evaluations, stats_.builds = s.builds;
 }

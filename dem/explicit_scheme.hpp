@@ -182,10 +182,9 @@ private:
     std::vector<double> hx, hy, hz;
     ContactHistory pending;
     bool need_rebuild = true;
-    // The list's pairs laid out flat for the pair passes (rebuilt with the list: stale when
-    // `streams_ready` is false), and the contacts of the last passes (buffers kept between steps).
+    // The list's pairs laid out flat for the pair passes (with every build or restore of the
+    // list: lay_out_pairs), and the contacts of the last passes (buffers kept between steps).
     PairStream head_pairs, tail_pairs;
-    bool streams_ready = false;
     std::vector<PairContacts> head, tail;
   };
   // x(n), v(n) of the owned particles at the last recorded step.
@@ -201,6 +200,7 @@ private:
 
   void rebuild();
   void rebuild_one_rank();
+  void lay_out_pairs();
   template <bool Friction>
   void contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep);
   // Forces on the owned particles; on R ranks a forward in flight completes after the pairs of

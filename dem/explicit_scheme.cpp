@@ -111,6 +111,7 @@ void ExplicitScheme::lay_out_pairs() {
   const VerletList& list = rows_.list;
   rows_.head_pairs.build<false>(list, list.active(), kPairBlock, model_.friction);
   rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, model_.friction);
+  near_walls(p_, owned(), list, geom_, model_.skin, rows_.near_wall);
 }
 
 template <bool Friction>
@@ -145,12 +146,12 @@ template <bool Walls> void ExplicitScheme::update(double dt, StepReport& rep) {
   const std::size_t n = owned();
   if (model_.friction) {
     ext_.active()
-        ? update_pass<Walls, true, true>(p_, n, rows_.list, ext_, geom_, model_, dt, rep)
-        : update_pass<Walls, true, false>(p_, n, rows_.list, ext_, geom_, model_, dt, rep);
+        ? update_pass<Walls, true, true>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep)
+        : update_pass<Walls, true, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep);
   } else {
     ext_.active()
-        ? update_pass<Walls, false, true>(p_, n, rows_.list, ext_, geom_, model_, dt, rep)
-        : update_pass<Walls, false, false>(p_, n, rows_.list, ext_, geom_, model_, dt, rep);
+        ? update_pass<Walls, false, true>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep)
+        : update_pass<Walls, false, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep);
   }
 }
 
@@ -247,8 +248,8 @@ void ExplicitScheme::step(bool record) {
     if (walls) {
       // Wall forces are added inside the update pass; record after a force-only wall pass would
       // double count, so record with the wall forces applied by a dt = 0 update (x, v unchanged).
-      fr ? update_pass<true, true, false>(p_, n, rows_.list, ext_, geom_, model_, 0.0, rep)
-         : update_pass<true, false, false>(p_, n, rows_.list, ext_, geom_, model_, 0.0, rep);
+      fr ? update_pass<true, true, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, 0.0, rep)
+         : update_pass<true, false, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, 0.0, rep);
     }
     record_synchronised();
     // F now includes the walls: finish with a pure update.

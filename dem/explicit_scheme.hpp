@@ -186,6 +186,9 @@ private:
     // list: lay_out_pairs), and the contacts of the last passes (buffers kept between steps).
     PairStream head_pairs, tail_pairs;
     std::vector<PairContacts> head, tail;
+    // Owned particles that can touch a wall before the next build (near_walls(), laid out with
+    // the pairs): the update pass evaluates wall forces for these only.
+    std::vector<std::uint32_t> near_wall;
   };
   // x(n), v(n) of the owned particles at the last recorded step.
   struct Recorded {

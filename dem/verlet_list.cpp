@@ -130,16 +130,10 @@ void VerletList::index_rows(std::size_t n, std::size_t store) {
   }
   for (const std::uint32_t j : neighbors_)
     listed_[j] = 1;
-  listed_runs_.clear();
-  for (std::size_t i = 0; i < store; ++i) {
-    if (!listed_[i])
-      continue;
-    const auto u = static_cast<std::uint32_t>(i);
-    if (listed_runs_.empty() || listed_runs_.back().end != u)
-      listed_runs_.push_back({u, u + 1});
-    else
-      listed_runs_.back().end = u + 1;
-  }
+  listed_index_.clear();
+  for (std::size_t i = 0; i < store; ++i)
+    if (listed_[i])
+      listed_index_.push_back(static_cast<std::uint32_t>(i));
 }
 
 template <bool Indirect>

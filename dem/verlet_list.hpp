@@ -44,12 +44,8 @@ public:
   // Per particle of the store: 1 when some row names it (its own or a partner's), so it can have
   // a contact force until the next build; 0 for particles alone within their cutoff.
   std::span<const std::uint8_t> listed() const { return listed_; }
-  // The listed particles as runs of consecutive indices [begin, end), increasing: in a dense
-  // packing nearly every particle is listed, and a run is cleared with one streaming fill.
-  struct IndexRun {
-    std::uint32_t begin, end;
-  };
-  std::span<const IndexRun> listed_runs() const { return listed_runs_; }
+  // The listed particles' indices, increasing.
+  std::span<const std::uint32_t> listed_index() const { return listed_index_; }
   RowKind kind() const { return kind_; }
   // Entries whose partner is a ghost copy (build_local only; 0 otherwise).
   std::size_t ghost_entries() const { return ghost_entries_; }
@@ -89,13 +85,12 @@ private:
   void fill_rows(const ParticleStore& p, const DomainGeometry& g, std::size_t rows, double skin);
 
   // After the rows [0, n) are in place over a store of `store` particles: active_, tail_rows_,
-  // listed_, listed_runs_.
+  // listed_, listed_index_.
   void index_rows(std::size_t n, std::size_t store);
 
   CellList cells_;
   bool permuted_ = false; // the last build sorted the store by cell (order() = cells_.items())
-  std::vector<IndexRun> listed_runs_;
-  std::vector<std::uint32_t> tail_rows_, offsets_, wrap_begin_, active_, neighbors_;
+  std::vector<std::uint32_t> tail_rows_, listed_index_, offsets_, wrap_begin_, active_, neighbors_;
   std::vector<std::uint8_t> listed_;
   RowKind kind_ = RowKind::full;
   std::size_t ghost_entries_ = 0;

@@ -36,6 +36,8 @@ namespace cfddem::dem {
 // Rows per block of the pair pass: blocks are fixed by position in the row list, so the contacts
 // and their order do not depend on the thread count.
 inline constexpr std::size_t kPairBlock = 256;
+// Blocks with at least this many pairs find their touching pairs in a pass of their own.
+inline constexpr std::uint32_t kTwoPassPairs = 128;
 
 // The pairs of one PairStream (Tail = false: the rows' parts before wrap_begin(), whose raw
 // separations are the minimum image; Tail = true: the parts from wrap_begin(), through `geom`'s
@@ -85,37 +87,23 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
       double* __restrict cax = c.ax.data();
       double* __restrict cay = c.ay.data();
       double* __restrict caz = c.az.data();
-      // Pass 1: which of the block's pairs touch. No branch: the stream positions of those that
-      // do are packed, in order, into cj (overwritten by pass 2), so a contact-or-not that the
-      // predictor cannot guess (in a dense gas about one pair in four touches) costs no pipeline
-      // flush, and pass 2 runs without one either.
-      std::size_t s = 0;
-      for (std::uint32_t e = e0; e < e1; ++e) {
+      // The separation of stream pair e (x_j - x_i, through the periodic image for the tail).
+      auto separation = [&](std::uint32_t e, double& dx, double& dy, double& dz) {
         const std::uint32_t i = si[e], j = sj[e];
-        double dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
+        dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
         if constexpr (Tail)
           dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
-        const double r2 = dx * dx + dy * dy + dz * dz;
-        const double rs = Uniform ? rs_uniform : rad[i] + rad[j];
-        const bool touch = !(r2 >= rs * rs); // a NaN separation counts as a contact
-        cj[s] = e;
-        s += touch ? 1 : 0;
-        if constexpr (Friction) {
-          const std::uint32_t k = sk[e];
-          hx[k] = touch ? hx[k] : 0.0, hy[k] = touch ? hy[k] : 0.0, hz[k] = touch ? hz[k] : 0.0;
-        }
-      }
-      // Pass 2: the force of each touching pair (the separation recomputed from the same loads
-      // by the same operations, so bit for bit that of pass 1).
-      for (std::size_t t = 0; t < s; ++t) {
-        const std::uint32_t e = cj[t];
+      };
+      auto contact_distance = [&](std::uint32_t e) {
+        return Uniform ? rs_uniform : rad[si[e]] + rad[sj[e]];
+      };
+      // Contact t of the block from stream pair e, which touches.
+      auto contact_at = [&](std::uint32_t e, std::size_t t) {
         const std::uint32_t i = si[e], j = sj[e];
-        double dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
-        if constexpr (Tail)
-          dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+        double dx, dy, dz;
+        separation(e, dx, dy, dz);
         const double r2 = dx * dx + dy * dy + dz * dz;
-        const double ri = Uniform ? m.r_min : rad[i];
-        const double rs = Uniform ? rs_uniform : ri + rad[j];
+        const double rs = contact_distance(e);
         // The same operations as a full list's row of i: each value here is, bit for bit,
         // the negative of what j's row computes (x_i - x_j == -(x_j - x_i) exactly).
         const double dist = std::sqrt(r2);
@@ -151,6 +139,42 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
           c.cx[t] = ny * ft[2] - nz * ft[1];
           c.cy[t] = nz * ft[0] - nx * ft[2];
           c.cz[t] = nx * ft[1] - ny * ft[0];
+        }
+      };
+      const std::uint32_t np = e1 - e0;
+      std::size_t s = 0;
+      if (np >= kTwoPassPairs) {
+        // Long blocks (a dense or large gas, whose coordinates stream from beyond L1): first
+        // which pairs touch, with no branch (their stream positions packed, in order, into cj,
+        // which the forces then overwrite), then the forces of those. The short loop without
+        // the contact arithmetic keeps more loads in flight: measured 8% off the dense 100k
+        // peer run, but slower on short blocks (HCS 1222), which take the one loop below.
+        for (std::uint32_t e = e0; e < e1; ++e) {
+          double dx, dy, dz;
+          separation(e, dx, dy, dz);
+          const double r2 = dx * dx + dy * dy + dz * dz, rs = contact_distance(e);
+          const bool touch = !(r2 >= rs * rs); // a NaN separation counts as a contact
+          cj[s] = e;
+          s += touch ? 1 : 0;
+          if constexpr (Friction) {
+            const std::uint32_t k = sk[e];
+            hx[k] = touch ? hx[k] : 0.0, hy[k] = touch ? hy[k] : 0.0,
+            hz[k] = touch ? hz[k] : 0.0;
+          }
+        }
+        for (std::size_t t = 0; t < s; ++t)
+          contact_at(cj[t], t);
+      } else {
+        for (std::uint32_t e = e0; e < e1; ++e) {
+          double dx, dy, dz;
+          separation(e, dx, dy, dz);
+          const double r2 = dx * dx + dy * dy + dz * dz, rs = contact_distance(e);
+          if (r2 >= rs * rs) {
+            if constexpr (Friction)
+              hx[sk[e]] = hy[sk[e]] = hz[sk[e]] = 0.0;
+            continue;
+          }
+          contact_at(e, s++);
         }
       }
       c.size = s;
@@ -191,12 +215,10 @@ void scatter_contacts(ParticleStore& p, const VerletList& list, std::span<const 
   [[maybe_unused]] double* __restrict ty = p.ty.data();
   [[maybe_unused]] double* __restrict tz = p.tz.data();
   [[maybe_unused]] const double* __restrict rad = p.radius.data();
-  for (const VerletList::IndexRun run : list.listed_runs()) {
-    for (double* f : {fx, fy, fz})
-      std::fill(f + run.begin, f + run.end, 0.0);
+  for (const std::uint32_t i : list.listed_index()) {
+    fx[i] = fy[i] = fz[i] = 0.0;
     if constexpr (Friction)
-      for (double* t : {tx, ty, tz})
-        std::fill(t + run.begin, t + run.end, 0.0);
+      tx[i] = ty[i] = tz[i] = 0.0;
   }
   auto add = [&](const PairContacts& c) {
     for (std::size_t s = 0; s < c.size; ++s) {
@@ -233,6 +255,26 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
       });
 }
 
+// The particles of [0, n), increasing, that can touch a wall (a face of a non-periodic axis)
+// before the list is next built: a particle moves at most skin/2 from its reference position
+// (list.x_ref...) between builds, and touches a wall only within its radius of it, so those
+// whose reference lies farther than radius + skin from every wall (a margin of a full skin, so
+// that no rounding can matter) cannot, and the update pass skips their wall test.
+inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& list,
+                       const DomainGeometry& g, double skin, std::vector<std::uint32_t>& out) {
+  out.clear();
+  const std::span<const double> ref[3] = {list.x_ref(), list.y_ref(), list.z_ref()};
+  for (std::size_t i = 0; i < n; ++i) {
+    const double reach = p.radius[i] + skin;
+    bool near = false;
+    for (int a = 0; a < 3; ++a)
+      near = near || (!g.periodic[a] && !(ref[a][i] - g.lo[a] >= reach &&
+                                          g.hi[a] - ref[a][i] >= reach));
+    if (near)
+      out.push_back(static_cast<std::uint32_t>(i));
+  }
+}
+
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves
 // more than r_min per step: vmax2 = (r_min/dt)^2) or outside a wall, into `out`.
 inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g, double vmax2,
@@ -260,7 +302,8 @@ inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeomet
 // walls the loop has no branch and vectorizes; the checks are folded into reductions and the
 // offending particle is searched for only when one fails.
 template <bool Walls, bool Friction, bool External>
-void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const ExternalForce& ext,
+void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
+                 std::span<const std::uint32_t> near_wall, const ExternalForce& ext,
                  const DomainGeometry& geom, const StepModel& model, double dt, StepReport& out) {
   const DomainGeometry g = geom;
   const StepModel m = model;
@@ -284,7 +327,12 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list, const 
       double* __restrict fy = p.fy.data();
       double* __restrict fz = p.fz.data();
       const std::uint8_t* __restrict listed = list.listed().data();
-      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      // Only particles near a wall (near_walls()); the others' f is the contact force already
+      // (or zero, as the build left it, when no row names them).
+      const auto first = std::lower_bound(near_wall.begin(), near_wall.end(), r.begin());
+      const auto last = std::lower_bound(first, near_wall.end(), r.end());
+      for (auto it = first; it != last; ++it) {
+        const std::size_t i = *it;
         const bool row = listed[i] != 0;
         double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
         double tq[3] = {0, 0, 0};

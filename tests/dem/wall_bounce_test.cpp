@@ -1,9 +1,13 @@
 // A ball bouncing on a floor under gravity: the MFIX DEM verification problem (Garg et al. 2012):
 // apex heights h_k = r + e^(2k) (h_0 - r).
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include <gtest/gtest.h>
 
+#include "dem/verlet_list.hpp"
+#include "dem/verlet_passes.hpp"
 #include "dem_test_support.hpp"
 
 using namespace cfddem;
@@ -47,4 +51,44 @@ end_time = 1.0
     // error is g dt^2, negligible.
     EXPECT_NEAR(apex[k - 1] - r, expected - r, 0.004 * k * (expected - r)) << "bounce " << k;
   }
+}
+
+// The update pass tests walls only for the particles near_walls() lists: exactly those whose
+// build position lies within radius + skin of a face of a non-periodic axis.
+TEST(WallBounce, NearWallsListsExactlyThoseWithinRadiusPlusSkin) {
+  const Scene s = demtest::scene_from(R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [1.0e-3, 1.0e-3, 1.0e-3]
+periodic = [true, false, false]
+[particles]
+count = 0
+diameter = 100.0e-6
+density = 1000.0
+[dem]
+spring_constant = 10.0
+restitution = 0.9
+[run]
+end_time = 1.0
+)");
+  const double r = 50e-6, skin = 20e-6;
+  ParticleStore p;
+  // y (or z) distance to the nearest wall, in units of r + skin: in, in, out, out (x is periodic:
+  // its "faces" do not count).
+  const double ys[] = {0.5e-3, 1.0e-3 - 0.99 * (r + skin), 0.5e-3, 0.5e-3, 1.01 * (r + skin)};
+  const double zs[] = {0.99 * (r + skin), 0.5e-3, 0.5e-3, 0.5e-3, 0.5e-3};
+  const double xs[] = {0.5e-3, 0.3e-3, 0.0, 0.2e-3, 0.7e-3};
+  for (int k = 0; k < 5; ++k)
+    p.add(xs[k], ys[k], zs[k], 0, 0, 0, r, 1000.0, k);
+  const dem::DomainGeometry g(s.domain);
+  dem::VerletList list;
+  list.build(p, g, skin, dem::RowKind::half);
+  std::vector<std::uint32_t> near;
+  dem::near_walls(p, p.size(), list, g, skin, near);
+  std::vector<std::int64_t> ids;
+  for (const std::uint32_t i : near)
+    ids.push_back(p.id[i]);
+  std::sort(ids.begin(), ids.end());
+  EXPECT_EQ(ids, (std::vector<std::int64_t>{0, 1}));
+  EXPECT_TRUE(std::is_sorted(near.begin(), near.end()));
 }

@@ -6,54 +6,12 @@
 #include <numeric>
 #include <vector>
 
+#include "dem/cell_list.hpp"
 #include "dem/contact_damping.hpp"
 
 namespace cfddem::dem {
 
 namespace {
-
-// The cells of the search: at least the largest contact distance 2 r_max wide on every axis (so a
-// contact is between neighbouring cells), and not many more cells than particles (a dilute box
-// of small particles would otherwise allocate a cell per particle volume).
-struct CellGrid {
-  std::array<int, 3> n{1, 1, 1};
-  std::array<double, 3> inv_width{};
-
-  CellGrid(const DomainGeometry& g, double reach, std::size_t particles) {
-    const double volume = g.length[0] * g.length[1] * g.length[2];
-    const double target = std::max(27.0, 4.0 * static_cast<double>(particles));
-    const double h = std::max(reach, std::cbrt(volume / target));
-    for (int a = 0; a < 3; ++a) {
-      const double cells = h > 0.0 ? std::floor(g.length[a] / h) : 1.0;
-      n[a] = static_cast<int>(std::clamp(cells, 1.0, 1024.0));
-      inv_width[a] = static_cast<double>(n[a]) / g.length[a];
-    }
-  }
-  int index(double x, int a, const DomainGeometry& g) const {
-    // Clamped: a particle a hair outside a wall, or exactly at a periodic face's hi, stays in the
-    // edge cell.
-    const double c = std::floor((x - g.lo[a]) * inv_width[a]);
-    return static_cast<int>(std::clamp(c, 0.0, static_cast<double>(n[a] - 1)));
-  }
-  std::size_t flat(int i, int j, int k) const {
-    return (static_cast<std::size_t>(i) * n[1] + j) * n[2] + k;
-  }
-  // The distinct cells next to c along axis a (itself included).
-  int neighbours(int c, int a, bool periodic, int out[3]) const {
-    int k = 0;
-    for (int d = -1; d <= 1; ++d) {
-      int m = c + d;
-      if (m < 0 || m >= n[a]) {
-        if (!periodic)
-          continue;
-        m += m < 0 ? n[a] : -n[a];
-      }
-      if (std::find(out, out + k, m) == out + k)
-        out[k++] = m;
-    }
-    return k;
-  }
-};
 
 // Sums of the pair pass. Overlaps and rates are added in fixed point (units of 2^-32 of the
 // diameter, and of the largest possible rate), so the sums do not depend on the order the pairs
@@ -98,26 +56,6 @@ struct Image {
   }
 };
 
-// Cell ranges [lo, hi] along the last axis around c (c - 1 .. c + 1), cut in two where a periodic
-// axis wraps, or the whole axis when it has fewer than 3 cells; returns how many.
-int z_ranges(int c, int cells, bool periodic, int lo[2], int hi[2]) {
-  lo[0] = c - 1, hi[0] = c + 1;
-  if (periodic && cells < 3) {
-    lo[0] = 0, hi[0] = cells - 1;
-    return 1;
-  }
-  if (periodic && lo[0] < 0) {
-    lo[0] = 0, lo[1] = hi[1] = cells - 1;
-    return 2;
-  }
-  if (periodic && hi[0] >= cells) {
-    hi[0] = cells - 1, lo[1] = hi[1] = 0;
-    return 2;
-  }
-  lo[0] = std::max(lo[0], 0), hi[0] = std::min(hi[0], cells - 1);
-  return 1;
-}
-
 } // namespace
 
 ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, const CensusLaws& l) {
@@ -136,97 +74,59 @@ ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, con
   for (std::size_t k = 0; k < n; ++k)
     r_max = std::max(r_max, p.radius[k]), m_min = std::min(m_min, p.mass[k]);
 
-  // Counting sort into cells (each cell's particles in input order).
-  const CellGrid grid(g, 2.0 * r_max, n);
-  const std::size_t cells = static_cast<std::size_t>(grid.n[0]) * grid.n[1] * grid.n[2];
-  const std::span<const double> in[3] = {p.x, p.y, p.z};
+  // The shared cell list (dem/cell_list.hpp), cells at least the largest contact distance 2 r_max
+  // wide and not many more than 4 per particle; the particles' values copied in slot order, the
+  // positions wrapped into the box.
+  const CellGrid grid = make_cell_grid(g, 2.0 * r_max, n, 4.0);
+  s.cells.bin<true>(g, grid, p.x.data(), p.y.data(), p.z.data(), n);
+  s.cells.gather<5>({p.x.data(), p.y.data(), p.z.data(), p.radius.data(), p.mass.data()}, s.slot);
   for (int a = 0; a < 3; ++a)
-    s.x[a].resize(n);
-  s.r.resize(n), s.m.resize(n), s.cell.resize(n), s.coords.resize(n), s.cell_of.resize(n);
+    for (double& v : s.slot[static_cast<std::size_t>(a)])
+      v = g.wrap(v, a);
   s.z.assign(n, 0);
-  s.start.assign(cells + 1, 0);
-  for (std::size_t k = 0; k < n; ++k) {
-    for (int a = 0; a < 3; ++a)
-      s.coords[k][a] = grid.index(g.wrap(in[a][k], a), a, g);
-    s.cell_of[k] =
-        static_cast<std::uint32_t>(grid.flat(s.coords[k][0], s.coords[k][1], s.coords[k][2]));
-    ++s.start[s.cell_of[k] + 1];
-  }
-  std::partial_sum(s.start.begin(), s.start.end(), s.start.begin());
-  s.fill.assign(s.start.begin(), s.start.end() - 1);
-  for (std::size_t k = 0; k < n; ++k) {
-    const std::uint32_t to = s.fill[s.cell_of[k]]++;
-    for (int a = 0; a < 3; ++a)
-      s.x[a][to] = g.wrap(in[a][k], a);
-    s.r[to] = p.radius[k], s.m[to] = p.mass[k], s.cell[to] = s.coords[k];
-  }
-  const std::vector<std::uint32_t>& start = s.start;
 
-  // Pairs, each once. The last axis runs fastest in the cell numbering, so the cells (j0, j1,
-  // i2 - 1 .. i2 + 1) of a column are one contiguous range of particles (cut in two where a
-  // periodic axis wraps). With at least 3 cells on every periodic axis, particle i meets the
-  // later particles of its own cell, the next cell of its column and the 4 forward columns
-  // (0, +1), (+1, -1), (+1, 0), (+1, +1): every pair once. With fewer, a cell's left and right
-  // neighbours coincide: i then meets every distinct cell around it and takes the particles
-  // after it in cell order.
-  bool half = true;
-  for (int a = 0; a < 3; ++a)
-    half = half && (!g.periodic[a] || grid.n[a] >= 3);
   const double pair_unit =
       m_min > 0.0 && l.k_pair > 0.0 ? 1.0 / contact_duration(l.k_pair, l.e_pair, 0.5 * m_min) : 0.0;
   RateCache pair_rate{l.k_pair, l.e_pair, pair_unit};
   Sums sums;
   const Image image(g);
-  const double *px = s.x[0].data(), *py = s.x[1].data(), *pz = s.x[2].data(), *pr = s.r.data();
-  const auto range = [&](std::size_t i, int j0, int j1, int lo, int hi, std::uint32_t from) {
-    const std::uint32_t e = start[grid.flat(j0, j1, hi) + 1];
-    const double xi = px[i], yi = py[i], zi = pz[i], ri = pr[i];
-    for (std::uint32_t j = std::max(start[grid.flat(j0, j1, lo)], from); j < e; ++j) {
-      const double dx = image(px[j] - xi, 0), dy = image(py[j] - yi, 1), dz = image(pz[j] - zi, 2);
-      const double reach = ri + pr[j];
-      const double d2 = dx * dx + dy * dy + dz * dz;
-      if (d2 >= reach * reach)
-        continue;
-      // A contact (rare): its overlap relative to the pair's mean diameter.
-      const double overlap = (reach - std::sqrt(d2)) / reach;
-      ++sums.contacts, ++s.z[i], ++s.z[j];
-      sums.overlap += std::llround(overlap * kFixed);
-      sums.overlap_max = std::max(sums.overlap_max, overlap);
-      sums.rate += pair_rate(s.m[i] * s.m[j] / (s.m[i] + s.m[j]));
-    }
+  const double *px = s.slot[0].data(), *py = s.slot[1].data(), *pz = s.slot[2].data(),
+               *pr = s.slot[3].data(), *pm = s.slot[4].data();
+  // Slots a and b, in either order: a pair's values are the same both ways (x_j - x_i =
+  // -(x_i - x_j) exactly), and the sums are order-free.
+  const auto pair = [&](std::uint32_t a, std::uint32_t b) {
+    const double dx = image(px[b] - px[a], 0), dy = image(py[b] - py[a], 1),
+                 dz = image(pz[b] - pz[a], 2);
+    const double reach = pr[a] + pr[b];
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    if (d2 >= reach * reach)
+      return;
+    // A contact (rare): its overlap relative to the pair's mean diameter.
+    const double overlap = (reach - std::sqrt(d2)) / reach;
+    ++sums.contacts, ++s.z[a], ++s.z[b];
+    sums.overlap += std::llround(overlap * kFixed);
+    sums.overlap_max = std::max(sums.overlap_max, overlap);
+    sums.rate += pair_rate(pm[a] * pm[b] / (pm[a] + pm[b]));
   };
-  for (std::size_t i = 0; i < n; ++i) {
-    const int c0 = s.cell[i][0], c1 = s.cell[i][1], c2 = s.cell[i][2];
-    int zlo[2], zhi[2];
-    const int nz = z_ranges(c2, grid.n[2], g.periodic[2], zlo, zhi);
-    const auto after_i = static_cast<std::uint32_t>(i + 1);
-    if (half) {
-      range(i, c0, c1, c2, c2, after_i);
-      const int up = c2 + 1 < grid.n[2] ? c2 + 1 : (g.periodic[2] ? 0 : -1);
-      if (up >= 0)
-        range(i, c0, c1, up, up, 0);
-      static constexpr int kForward[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
-      for (const auto& d : kForward) {
-        int j[2] = {c0 + d[0], c1 + d[1]};
-        bool inside = true;
-        for (int a = 0; a < 2; ++a)
-          if (j[a] < 0 || j[a] >= grid.n[a]) {
-            inside = inside && g.periodic[a];
-            j[a] += j[a] < 0 ? grid.n[a] : -grid.n[a];
-          }
-        if (!inside)
-          continue;
-        for (int w = 0; w < nz; ++w)
-          range(i, j[0], j[1], zlo[w], zhi[w], 0);
-      }
-    } else {
-      int cols[2][3];
-      const int n0 = grid.neighbours(c0, 0, g.periodic[0], cols[0]);
-      const int n1 = grid.neighbours(c1, 1, g.periodic[1], cols[1]);
-      for (int u = 0; u < n0; ++u)
-        for (int v = 0; v < n1; ++v)
-          for (int w = 0; w < nz; ++w)
-            range(i, cols[0][u], cols[1][v], zlo[w], zhi[w], after_i);
+  // Every pair once: a cell against itself and its 13 forward neighbours, or (fewer than 3 cells
+  // on some axis, where a cell's neighbours coincide) each slot against the later slots of the
+  // distinct cells around it.
+  if (grid.half_stencil()) {
+    for (int cz = 0; cz < grid.n[2]; ++cz)
+      s.cells.for_each_forward_pair(cz, [](std::size_t) { return true; }, pair);
+  } else {
+    const std::span<const std::uint32_t> cell_of = s.cells.cell_of();
+    const std::span<const std::uint32_t> items = s.cells.items();
+    for (std::uint32_t a = 0; a < n; ++a) {
+      const std::size_t cell = cell_of[items[a]];
+      const int cx = static_cast<int>(cell % static_cast<std::size_t>(grid.n[0]));
+      const int cy = static_cast<int>(cell / static_cast<std::size_t>(grid.n[0]) %
+                                      static_cast<std::size_t>(grid.n[1]));
+      const int cz = static_cast<int>(cell / (static_cast<std::size_t>(grid.n[0]) * grid.n[1]));
+      s.cells.for_each_around(cx, cy, cz, [&](std::uint32_t b) {
+        if (b > a)
+          pair(a, b);
+      });
     }
   }
 
@@ -239,14 +139,15 @@ ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, con
     for (int a = 0; a < 3; ++a) {
       if (g.periodic[a])
         continue;
-      for (const double gap : {s.x[a][i] - g.lo[a], g.hi[a] - s.x[a][i]}) {
-        if (s.r[i] - gap <= 0.0)
+      const double xa = s.slot[static_cast<std::size_t>(a)][i], ri = pr[i];
+      for (const double gap : {xa - g.lo[a], g.hi[a] - xa}) {
+        if (ri - gap <= 0.0)
           continue;
-        const double overlap = (s.r[i] - gap) / (2.0 * s.r[i]);
+        const double overlap = (ri - gap) / (2.0 * ri);
         ++walls.contacts;
         walls.overlap += std::llround(overlap * kFixed);
         walls.overlap_max = std::max(walls.overlap_max, overlap);
-        walls.rate += wall_rate(s.m[i]);
+        walls.rate += wall_rate(pm[i]);
       }
     }
 

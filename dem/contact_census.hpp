@@ -1,8 +1,9 @@
 // The contacts of a particle state, counted the same way whatever scheme produced the state: the
 // pairs and wall contacts with overlap > 0, their overlaps relative to the diameter, the
 // coordination-number histogram and a collision-frequency estimate. Taken at the diagnostics
-// outputs only, from the synchronised positions, with its own cell-list search: no scheme's
-// lists, leaves or islands are read, so explicit, orb and islands are measured alike.
+// outputs only, from the synchronised positions, with a search of its own over the shared cell
+// list (dem/cell_list.hpp): no scheme's lists, leaves or islands are read, so explicit, orb and
+// islands are measured alike.
 //
 // Collision frequency (docs/theory.md §3.1, docs/schemes.md "The contact census"): a contact
 // between i and j of the linear spring-dashpot lasts t_c,ij = pi / omega_d(m_eff,ij)
@@ -26,6 +27,7 @@
 #include <span>
 #include <vector>
 
+#include "dem/cell_list.hpp"
 #include "dem/domain_geometry.hpp"
 
 namespace cfddem::dem {
@@ -60,10 +62,9 @@ struct ContactCensus {
 // Scratch arrays of a census, kept between calls so that a census taken at every output does not
 // allocate (and page-fault) afresh each time. Its contents between calls mean nothing.
 struct CensusWorkspace {
-  std::vector<double> x[3], r, m;               // the particles in cell order
-  std::vector<std::array<int, 3>> cell, coords; // their cells (in cell order; in input order)
-  std::vector<int> z;                           // their pair-contact counts
-  std::vector<std::uint32_t> cell_of, start, fill;
+  CellList cells;
+  std::array<std::vector<double>, 5> slot; // x, y, z (wrapped), radius, mass in slot order
+  std::vector<int> z;                      // pair-contact counts per slot
 };
 
 ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, const CensusLaws& l,

@@ -56,21 +56,7 @@ end_time = 1.0
 // The update pass tests walls only for the particles near_walls() lists: exactly those whose
 // build position lies within radius + skin of a face of a non-periodic axis.
 TEST(WallBounce, NearWallsListsExactlyThoseWithinRadiusPlusSkin) {
-  const Scene s = demtest::scene_from(R"(
-[domain]
-lo = [0.0, 0.0, 0.0]
-hi = [1.0e-3, 1.0e-3, 1.0e-3]
-periodic = [true, false, false]
-[particles]
-count = 0
-diameter = 100.0e-6
-density = 1000.0
-[dem]
-spring_constant = 10.0
-restitution = 0.9
-[run]
-end_time = 1.0
-)");
+  const Scene s = demtest::scene_from(demtest::kPairScene, {"domain.periodic=[true,false,false]"});
   const double r = 50e-6, skin = 20e-6;
   ParticleStore p;
   // y (or z) distance to the nearest wall, in units of r + skin: in, in, out, out (x is periodic:

@@ -926,6 +926,16 @@ std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<doub
   return ratio;
 }
 
+// The ratio by which a one-grid hierarchy coarsens a level of n cells at spacing h: {1, 1, 1}
+// when the level is the coarsest (small enough for the direct solve, or no axis coarsens).
+std::array<int, 3> level_ratio(const std::array<int, 3>& n, const std::array<double, 3>& h,
+                               int max_direct_cells) {
+  if (static_cast<double>(n[0]) * n[1] * n[2] <= max_direct_cells) {
+    return {1, 1, 1};
+  }
+  return coarsening(n, h);
+}
+
 // Line relaxation along the finest axis when it is markedly finer than every other.
 int choose_line_axis(const std::array<int, 3>& n, const std::array<double, 3>& h) {
   int best = -1;
@@ -1000,6 +1010,21 @@ bool check_arguments(const std::array<int, 3>& cells, const std::array<double, 3
 
 } // namespace
 
+std::size_t MultigridPoisson::coarsest_cells(std::array<int, 3> cells,
+                                             std::array<double, 3> spacing,
+                                             MultigridSettings settings) {
+  for (;;) {
+    const std::array<int, 3> ratio = level_ratio(cells, spacing, settings.max_direct_cells);
+    if (ratio == std::array<int, 3>{1, 1, 1}) {
+      return static_cast<std::size_t>(cells[0]) * cells[1] * cells[2];
+    }
+    for (int a = 0; a < 3; ++a) {
+      cells[a] /= ratio[a];
+      spacing[a] *= ratio[a];
+    }
+  }
+}
+
 MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 3> spacing,
                                    std::array<std::array<PoissonSide, 2>, 3> sides,
                                    MultigridSettings settings)
@@ -1009,10 +1034,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
   levels_.emplace_back(cells, spacing, sides);
   for (;;) {
     Level& fine = levels_.back();
-    if (fine.cells() <= static_cast<std::size_t>(settings_.max_direct_cells)) {
-      break;
-    }
-    const std::array<int, 3> ratio = coarsening(fine.n, fine.h);
+    const std::array<int, 3> ratio = level_ratio(fine.n, fine.h, settings_.max_direct_cells);
     if (ratio == std::array<int, 3>{1, 1, 1}) {
       break;
     }

@@ -69,6 +69,11 @@ public:
                    std::array<std::array<PoissonSide, 2>, 3> sides, std::vector<CellBox> boxes,
                    const Communicator& comm, MultigridSettings settings = {});
   ~MultigridPoisson();
+  // Cells of the coarsest level the one-grid hierarchy of such a grid reaches (the grid's own
+  // count when no axis coarsens: odd or short axes keep their cells). Above max_direct_cells it
+  // is solved by conjugate gradients at every V-cycle.
+  static std::size_t coarsest_cells(std::array<int, 3> cells, std::array<double, 3> spacing,
+                                    MultigridSettings settings = {});
   MultigridPoisson(const MultigridPoisson&) = delete;
   MultigridPoisson& operator=(const MultigridPoisson&) = delete;
 

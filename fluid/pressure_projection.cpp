@@ -55,6 +55,17 @@ int smg_blocking_axis(const MacGrid& grid) {
   return -1;
 }
 
+PoissonSolver auto_solver(const MacGrid& grid) {
+  std::array<double, 3> spacing{};
+  for (int a = 0; a < 3; ++a) {
+    spacing[a] = grid.spacing(a);
+  }
+  const bool large_coarsest =
+      MultigridPoisson::coarsest_cells(grid.global_cells(), spacing) > kAutoCoarsestCells;
+  return large_coarsest && smg_blocking_axis(grid) < 0 ? PoissonSolver::hypre
+                                                       : PoissonSolver::multigrid;
+}
+
 namespace {
 
 constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
@@ -164,7 +175,7 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   const auto& global = grid.global_cells();
   if (const int a = smg_blocking_axis(grid);
       a >= 0 && settings.preconditioner == PoissonPreconditioner::smg &&
-      settings.solver == PoissonSolver::hypre) { // "auto" is the multigrid
+      settings.solver == PoissonSolver::hypre) { // "auto" never picks hypre on such a grid
     throw std::invalid_argument(fmt::format(
         "fluid.preconditioner = \"smg\" cannot run on this grid: periodic axis {} has {} cells, "
         "an odd count, where hypre 2.26's SMG set-up fails; use \"pfmg\" or an even count",
@@ -178,7 +189,9 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   rhs_.resize(cells);
   solution_.resize(cells);
   div_ = grid.make_field();
-  const bool multigrid = settings.solver != PoissonSolver::hypre;
+  const PoissonSolver solver =
+      settings.solver == PoissonSolver::automatic ? auto_solver(grid) : settings.solver;
+  const bool multigrid = solver == PoissonSolver::multigrid;
   if (multigrid) {
     // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
     // (their set-up time and memory would be spent for nothing).

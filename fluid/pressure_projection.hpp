@@ -16,8 +16,8 @@
 
 namespace cfddem::fluid {
 
-// automatic: the multigrid, on one grid and on R ranks (fewer instructions than hypre on the
-// riser grid on both: docs/multigrid.md, docs/performance.md).
+// automatic: auto_solver() below (the multigrid, unless its hierarchy ends on a large grid that
+// hypre's PFMG coarsens).
 enum class PoissonSolver { automatic, multigrid, hypre };
 
 // PFMG (semicoarsening, pointwise relaxation) is the default. SMG (plane relaxation) is more
@@ -46,6 +46,17 @@ struct ProjectionReport {
 // set-up fails there (on R ranks with MPI_ERR_TRUNCATE inside its interpolation assembly), so
 // SMG is neither offered nor used as the fallback on such a grid.
 [[nodiscard]] int smg_blocking_axis(const MacGrid& grid);
+
+// What fluid.solver = "auto" picks for this grid (global counts, on any rank count): the
+// multigrid (fewer instructions than hypre on the riser grid, on one grid and on R ranks:
+// docs/multigrid.md, docs/performance.md), except where its hierarchy cannot coarsen below
+// kAutoCoarsestCells (odd or short axes: its coarsest level is then solved by CG at every
+// V-cycle) and no periodic axis has an odd count (where PFMG stops coarsening too). Measured on
+// the bed at 1e5 particles, 101 x 50 x 101 cells, walls on x and z: coarsest level 255,025
+// cells, fluid phase 6.81 s with the multigrid against 1.70 s with hypre per fluid step;
+// the riser at 85 x 50 x 86, periodic: 1.21 s against 2.40 s (docs/performance.md).
+inline constexpr std::size_t kAutoCoarsestCells = 32768;
+[[nodiscard]] PoissonSolver auto_solver(const MacGrid& grid);
 
 // div(eps_f u) per interior cell [1/s]; eps ghosts must be filled. eps_f is the mean of the two
 // cells, except on a velocity-inflow face: kInflowVolumeFraction (the incoming gas's).

@@ -454,5 +454,29 @@ TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
   }
 }
 
+// "auto" takes hypre only where the multigrid's hierarchy ends on a large grid (odd or short
+// axes) and PFMG can coarsen (no odd periodic axis).
+TEST(MultigridProjection, AutoTakesHypreWhereTheHierarchyEndsLargeAndPfmgCoarsens) {
+  // 67 x 16 x 67 walls: x and z are odd, y halves once (then it is coarser than the stuck
+  // axes): the coarsest level holds 67 x 8 x 67 = 35,912 cells.
+  EXPECT_EQ(MultigridPoisson::coarsest_cells({67, 16, 67}, {1e-4, 1e-4, 1e-4}), 35912u);
+  // 64 x 16 x 64 halves three times on every axis, to 8 x 2 x 8 (at most 256 cells: Cholesky).
+  EXPECT_EQ(MultigridPoisson::coarsest_cells({64, 16, 64}, {1e-4, 1e-4, 1e-4}), 128u);
+  const MacGrid walled(box_spec({67, 16, 67}, {6.7e-3, 1.6e-3, 6.7e-3}, BoundaryKind::wall));
+  EXPECT_EQ(auto_solver(walled), PoissonSolver::hypre);
+  EXPECT_EQ(PressureProjection(walled, ProjectionSettings{}).solver(), PoissonSolver::hypre);
+  // The same counts periodic: PFMG would stop at the odd periods too, so the multigrid stays.
+  const MacGrid periodic(
+      box_spec({67, 16, 67}, {6.7e-3, 1.6e-3, 6.7e-3}, BoundaryKind::periodic));
+  EXPECT_EQ(auto_solver(periodic), PoissonSolver::multigrid);
+  // Even counts coarsen: the multigrid.
+  const MacGrid even(box_spec({64, 16, 64}, {6.4e-3, 1.6e-3, 6.4e-3}, BoundaryKind::wall));
+  EXPECT_EQ(auto_solver(even), PoissonSolver::multigrid);
+  // An explicit choice is kept.
+  ProjectionSettings mg;
+  mg.solver = PoissonSolver::multigrid;
+  EXPECT_EQ(PressureProjection(walled, mg).solver(), PoissonSolver::multigrid);
+}
+
 } // namespace
 } // namespace cfddem::fluid

@@ -136,7 +136,8 @@ def even_step(s, axis):
     return 2 if periodic[axis] and int(s["fluid"]["cells"][axis]) % 2 == 0 else 1
 
 
-def scale_scene(base_name, n, grow="xz", per_leaf=200.0, no_fluid=False, levels=None):
+def scale_scene(base_name, n, grow="xz", per_leaf=200.0, no_fluid=False, levels=None,
+                cell_multiple=0):
     path = os.path.join(SCENES, BASES[base_name])
     with open(path, "rb") as f:
         s = tomllib.load(f)
@@ -153,6 +154,11 @@ def scale_scene(base_name, n, grow="xz", per_leaf=200.0, no_fluid=False, levels=
     phi0 = n0 * vp / vol0
     f = n / n0  # volume factor: V = N V_p / phi0 = f V0
     step = [even_step(s, i) for i in range(3)]
+    if cell_multiple > 1:
+        # --cell-multiple M: the grown axes' counts are multiples of M, so the multigrid halves
+        # them log2(M) times before an odd count stops it (phi then moves further from the base).
+        for i in ((0, 2) if grow == "xz" else (0, 1, 2)):
+            step[i] = max(step[i], cell_multiple)
     if grow == "xz":
         nx, nz = closest_pair(cells0[0] * cells0[2] * f, cells0[0], cells0[2], step[0], step[2])
         cells = [nx, cells0[1], nz]
@@ -244,6 +250,11 @@ def main():
                     help="ORB leaves hold between this/2 and this many particles (default 200)")
     ap.add_argument("--levels", type=int, help="ORB levels (overrides --per-leaf)")
     ap.add_argument("--no-fluid", action="store_true", help="drop the gas: DEM only, same particles")
+    ap.add_argument("--cell-multiple", type=int, default=0, metavar="M",
+                    help="grown axes' cell counts are multiples of M (e.g. 8 or 16), so the "
+                         "multigrid coarsens them log2(M) times; phi moves further from the "
+                         "base (the generated grids' odd counts otherwise leave the multigrid a "
+                         "large coarsest level: docs/performance.md)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra override written into the scene (TOML value; bare word = string)")
     ap.add_argument("--out", help="scene file to write (default: print the scene to stdout)")
@@ -254,7 +265,10 @@ def main():
     n = int(round(a.particles))
     if n < 1:
         ap.error("--particles must be >= 1")
-    scene, over, info = scale_scene(a.base, n, a.grow, a.per_leaf, a.no_fluid, a.levels)
+    if a.cell_multiple < 0:
+        ap.error("--cell-multiple must be >= 0")
+    scene, over, info = scale_scene(a.base, n, a.grow, a.per_leaf, a.no_fluid, a.levels,
+                                    a.cell_multiple)
     for kv in a.set:
         if "=" not in kv:
             ap.error(f"--set {kv}: expected KEY=VALUE")

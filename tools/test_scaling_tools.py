@@ -62,6 +62,23 @@ class ScaledScene(unittest.TestCase):
                             if scaled_scene.even_step(b, i) == 2:
                                 self.assertEqual(cells[i] % 2, 0, (i, cells))
 
+    def test_cell_multiple_makes_the_grown_counts_multiples(self):
+        for name in scaled_scene.BASES:
+            b = self.base(name)
+            for n in (1e5, 1e6):
+                for m in (8, 16):
+                    with self.subTest(base=name, n=n, m=m):
+                        s, _, info = scaled_scene.scale_scene(name, int(n), "xz", cell_multiple=m)
+                        cells = s["fluid"]["cells"]
+                        self.assertEqual(cells[0] % m, 0, cells)
+                        self.assertEqual(cells[2] % m, 0, cells)
+                        self.assertEqual(cells[1], b["fluid"]["cells"][1])
+                        self.assertEqual(s["particles"]["count"], int(n))
+                        # the closest product of multiples of m is within half a step of one
+                        # factor, m / (2 n_lateral) of the volume; twice that as the bound
+                        rel = info["solid_fraction"] / info["solid_fraction_base"] - 1
+                        self.assertLess(abs(rel), m / min(cells[0], cells[2]), (rel, cells))
+
     def test_orb_levels_give_100_to_200_per_leaf(self):
         for n in self.COUNTS + [14000, 10000]:
             s, over, info = scaled_scene.scale_scene("riser", int(n))

@@ -112,21 +112,35 @@ void ExplicitScheme::lay_out_pairs() {
   rows_.head_pairs.build<false>(list, list.active(), kPairBlock, model_.friction);
   rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, model_.friction);
   near_walls(p_, owned(), list, geom_, model_.skin, rows_.near_wall);
+  // The last contacts' indices no longer name the same particles: clear every listed force next.
+  rows_.clear_all = true;
+  rows_.nh = rows_.nt = 0;
 }
 
 template <bool Friction>
 void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep) {
   const VerletList& list = rows_.list;
   const HistoryColumns h{rows_.hx, rows_.hy, rows_.hz};
+  // Clear the forces that are not zero: after a new layout of the list (a build, a restart)
+  // every listed particle's; else those of the last step's contacts (the blocks still hold
+  // them) and of the particles the update pass may have given a wall force.
+  if (rows_.clear_all) {
+    clear_forces<Friction>(p_, list.listed_index());
+    rows_.clear_all = false;
+  } else {
+    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh));
+    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(rows_.tail).first(rows_.nt));
+    clear_forces<Friction>(p_, rows_.near_wall);
+  }
   // Pairs whose separation is ready first (in-box; on R ranks two owned particles), then, once a
   // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
-  const std::size_t nh =
+  rows_.nh =
       pair_pass<Friction, false>(p_, rows_.head_pairs, h, frame, model_, dt, rows_.head, rep);
   finish_forward();
-  const std::size_t nt =
+  rows_.nt =
       pair_pass<Friction, true>(p_, rows_.tail_pairs, h, frame, model_, dt, rows_.tail, rep);
-  scatter_contacts<Friction>(p_, list, std::span<const PairContacts>(rows_.head).first(nh),
-                             std::span<const PairContacts>(rows_.tail).first(nt));
+  scatter_contacts<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh),
+                             std::span<const PairContacts>(rows_.tail).first(rows_.nt));
 }
 
 void ExplicitScheme::contact(double dt, StepReport& rep) {

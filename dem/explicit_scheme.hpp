@@ -186,6 +186,8 @@ private:
     // list: lay_out_pairs), and the contacts of the last passes (buffers kept between steps).
     PairStream head_pairs, tail_pairs;
     std::vector<PairContacts> head, tail;
+    std::size_t nh = 0, nt = 0; // blocks of head, tail written by the last pair passes
+    bool clear_all = true;      // the next contact pass clears every listed particle's force
     // Owned particles that can touch a wall before the next build (near_walls(), laid out with
     // the pairs): the update pass evaluates wall forces for these only.
     std::vector<std::uint32_t> near_wall;

@@ -149,9 +149,10 @@ void BM_DenseContactPass(benchmark::State& state) {
   st.build<true>(list, list.tail_rows(), dem::kPairBlock, false);
   for (auto _ : state) {
     dem::StepReport rep;
+    dem::clear_forces<false>(p, list.listed_index());
     nh = dem::pair_pass<false, false>(p, sh, {}, geom, m, m.dt, head, rep);
     nt = dem::pair_pass<false, true>(p, st, {}, geom, m, m.dt, tail, rep);
-    dem::scatter_contacts<false>(p, list, std::span<const dem::PairContacts>(head).first(nh),
+    dem::scatter_contacts<false>(p, std::span<const dem::PairContacts>(head).first(nh),
                                  std::span<const dem::PairContacts>(tail).first(nt));
     benchmark::DoNotOptimize(p.fx.data());
   }

@@ -113,16 +113,13 @@ ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, con
   // distinct cells around it.
   if (grid.half_stencil()) {
     for (int cz = 0; cz < grid.n[2]; ++cz)
-      s.cells.for_each_forward_pair(cz, [](std::size_t) { return true; }, pair);
+      s.cells.for_each_forward_pair(
+          cz, [](std::size_t) { return true; }, pair);
   } else {
-    const std::span<const std::uint32_t> cell_of = s.cells.cell_of();
-    const std::span<const std::uint32_t> items = s.cells.items();
     for (std::uint32_t a = 0; a < n; ++a) {
-      const std::size_t cell = cell_of[items[a]];
-      const int cx = static_cast<int>(cell % static_cast<std::size_t>(grid.n[0]));
-      const int cy = static_cast<int>(cell / static_cast<std::size_t>(grid.n[0]) %
-                                      static_cast<std::size_t>(grid.n[1]));
-      const int cz = static_cast<int>(cell / (static_cast<std::size_t>(grid.n[0]) * grid.n[1]));
+      // The slot's cell, from its wrapped position as the binning found it.
+      const int cx = s.cells.coord<false>(px[a], 0), cy = s.cells.coord<false>(py[a], 1),
+                cz = s.cells.coord<false>(pz[a], 2);
       s.cells.for_each_around(cx, cy, cz, [&](std::uint32_t b) {
         if (b > a)
           pair(a, b);

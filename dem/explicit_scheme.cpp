@@ -121,24 +121,23 @@ template <bool Friction>
 void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepReport& rep) {
   const VerletList& list = rows_.list;
   const HistoryColumns h{rows_.hx, rows_.hy, rows_.hz};
-  // Clear the forces that are not zero: after a new layout of the list (a build, a restart)
-  // every listed particle's; else those of the last step's contacts (the blocks still hold
-  // them) and of the particles the update pass may have given a wall force.
+  // Clear the forces that are not zero: those of the particles the update pass may have given a
+  // wall force, and after a new layout of the list (a build, a restart) every listed particle's,
+  // else those of the last step's contacts (the blocks still hold them).
+  clear_forces<Friction>(p_, rows_.near_wall);
   if (rows_.clear_all) {
     clear_forces<Friction>(p_, list.listed_index());
     rows_.clear_all = false;
   } else {
     clear_contact_forces<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh));
     clear_contact_forces<Friction>(p_, std::span<const PairContacts>(rows_.tail).first(rows_.nt));
-    clear_forces<Friction>(p_, rows_.near_wall);
   }
   // Pairs whose separation is ready first (in-box; on R ranks two owned particles), then, once a
   // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
   rows_.nh =
       pair_pass<Friction, false>(p_, rows_.head_pairs, h, frame, model_, dt, rows_.head, rep);
   finish_forward();
-  rows_.nt =
-      pair_pass<Friction, true>(p_, rows_.tail_pairs, h, frame, model_, dt, rows_.tail, rep);
+  rows_.nt = pair_pass<Friction, true>(p_, rows_.tail_pairs, h, frame, model_, dt, rows_.tail, rep);
   scatter_contacts<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh),
                              std::span<const PairContacts>(rows_.tail).first(rows_.nt));
 }
@@ -156,16 +155,19 @@ std::int64_t ExplicitScheme::local_pair_entries2() const {
          static_cast<std::int64_t>(rows_.list.ghost_entries());
 }
 
+template <bool Walls, bool Friction, bool External>
+void ExplicitScheme::update_owned(double dt, StepReport& rep) {
+  update_pass<Walls, Friction, External>(p_, owned(), rows_.list, rows_.near_wall, ext_, geom_,
+                                         model_, dt, rep);
+}
+
 template <bool Walls> void ExplicitScheme::update(double dt, StepReport& rep) {
-  const std::size_t n = owned();
   if (model_.friction) {
-    ext_.active()
-        ? update_pass<Walls, true, true>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep)
-        : update_pass<Walls, true, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep);
+    ext_.active() ? update_owned<Walls, true, true>(dt, rep)
+                  : update_owned<Walls, true, false>(dt, rep);
   } else {
-    ext_.active()
-        ? update_pass<Walls, false, true>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep)
-        : update_pass<Walls, false, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, dt, rep);
+    ext_.active() ? update_owned<Walls, false, true>(dt, rep)
+                  : update_owned<Walls, false, false>(dt, rep);
   }
 }
 
@@ -258,12 +260,10 @@ void ExplicitScheme::step(bool record) {
     const bool fr = model_.friction;
     contact(model_.dt, rep);
     PhaseTimer::Scope t(timer_, Phase::integrate);
-    const std::size_t n = owned();
     if (walls) {
       // Wall forces are added inside the update pass; record after a force-only wall pass would
       // double count, so record with the wall forces applied by a dt = 0 update (x, v unchanged).
-      fr ? update_pass<true, true, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, 0.0, rep)
-         : update_pass<true, false, false>(p_, n, rows_.list, rows_.near_wall, ext_, geom_, model_, 0.0, rep);
+      fr ? update_owned<true, true, false>(0.0, rep) : update_owned<true, false, false>(0.0, rep);
     }
     record_synchronised();
     // F now includes the walls: finish with a pure update.

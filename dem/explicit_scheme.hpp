@@ -215,6 +215,9 @@ private:
   // particles twice, a pair with a ghost once).
   std::int64_t local_pair_entries2() const;
   template <bool Walls> void update(double dt, StepReport& rep);
+  // update_pass over the owned particles with this scheme's list, near-wall list, external force,
+  // geometry and model.
+  template <bool Walls, bool Friction, bool External> void update_owned(double dt, StepReport& rep);
   void evaluate_and_update(double dt, StepReport& rep);
   void record_synchronised();
   // v(-dt/2) = v(0) - a(0) dt/2 of the owned particles, a(0) from the forces just evaluated.

@@ -41,10 +41,8 @@ public:
   std::span<const std::uint32_t> wrap_begin() const { return wrap_begin_; }
   // Rows whose second part (from wrap_begin) is not empty.
   std::span<const std::uint32_t> tail_rows() const { return tail_rows_; }
-  // Per particle of the store: 1 when some row names it (its own or a partner's), so it can have
-  // a contact force until the next build; 0 for particles alone within their cutoff.
-  std::span<const std::uint8_t> listed() const { return listed_; }
-  // The listed particles' indices, increasing.
+  // The listed particles' indices, increasing: those some row names (its own or a partner's),
+  // the only ones that can have a contact force until the next build.
   std::span<const std::uint32_t> listed_index() const { return listed_index_; }
   RowKind kind() const { return kind_; }
   // Entries whose partner is a ghost copy (build_local only; 0 otherwise).
@@ -91,7 +89,7 @@ private:
   CellList cells_;
   bool permuted_ = false; // the last build sorted the store by cell (order() = cells_.items())
   std::vector<std::uint32_t> tail_rows_, listed_index_, offsets_, wrap_begin_, active_, neighbors_;
-  std::vector<std::uint8_t> listed_;
+  std::vector<std::uint8_t> listed_; // index_rows()'s scratch: 1 per listed particle
   RowKind kind_ = RowKind::full;
   std::size_t ghost_entries_ = 0;
   std::vector<double> xr_, yr_, zr_;

@@ -158,8 +158,7 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
           s += touch ? 1 : 0;
           if constexpr (Friction) {
             const std::uint32_t k = sk[e];
-            hx[k] = touch ? hx[k] : 0.0, hy[k] = touch ? hy[k] : 0.0,
-            hz[k] = touch ? hz[k] : 0.0;
+            hx[k] = touch ? hx[k] : 0.0, hy[k] = touch ? hy[k] : 0.0, hz[k] = touch ? hz[k] : 0.0;
           }
         }
         for (std::size_t t = 0; t < s; ++t)
@@ -200,14 +199,17 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
   return nblocks;
 }
 
+// Zero the contact force (and torque, with friction) of particle i.
+template <bool Friction> inline void clear_force(ParticleStore& p, std::uint32_t i) {
+  p.fx[i] = p.fy[i] = p.fz[i] = 0.0;
+  if constexpr (Friction)
+    p.tx[i] = p.ty[i] = p.tz[i] = 0.0;
+}
+
 // Zero the contact forces (and torques, with friction) of particles `idx`.
-template <bool Friction>
-void clear_forces(ParticleStore& p, std::span<const std::uint32_t> idx) {
-  for (const std::uint32_t i : idx) {
-    p.fx[i] = p.fy[i] = p.fz[i] = 0.0;
-    if constexpr (Friction)
-      p.tx[i] = p.ty[i] = p.tz[i] = 0.0;
-  }
+template <bool Friction> void clear_forces(ParticleStore& p, std::span<const std::uint32_t> idx) {
+  for (const std::uint32_t i : idx)
+    clear_force<Friction>(p, i);
 }
 
 // Zero the forces (and torques) of both particles of every contact of `blocks`: after a scatter
@@ -217,15 +219,8 @@ void clear_forces(ParticleStore& p, std::span<const std::uint32_t> idx) {
 template <bool Friction>
 void clear_contact_forces(ParticleStore& p, std::span<const PairContacts> blocks) {
   for (const PairContacts& c : blocks)
-    for (std::size_t s = 0; s < c.size; ++s) {
-      const std::uint32_t i = c.i[s], j = c.j[s];
-      p.fx[i] = p.fy[i] = p.fz[i] = 0.0;
-      p.fx[j] = p.fy[j] = p.fz[j] = 0.0;
-      if constexpr (Friction) {
-        p.tx[i] = p.ty[i] = p.tz[i] = 0.0;
-        p.tx[j] = p.ty[j] = p.tz[j] = 0.0;
-      }
-    }
+    for (std::size_t s = 0; s < c.size; ++s)
+      clear_force<Friction>(p, c.i[s]), clear_force<Friction>(p, c.j[s]);
 }
 
 // Contact forces (and torques, with friction) from the contacts of the pair passes, added to f
@@ -292,8 +287,8 @@ inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& 
     const double reach = p.radius[i] + skin;
     bool near = false;
     for (int a = 0; a < 3; ++a)
-      near = near || (!g.periodic[a] && !(ref[a][i] - g.lo[a] >= reach &&
-                                          g.hi[a] - ref[a][i] >= reach));
+      near = near ||
+             (!g.periodic[a] && !(ref[a][i] - g.lo[a] >= reach && g.hi[a] - ref[a][i] >= reach));
     if (near)
       out.push_back(static_cast<std::uint32_t>(i));
   }
@@ -345,24 +340,20 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
   };
   auto body = [&](const tbb::blocked_range<std::size_t>& r, Partial acc) {
     if constexpr (Walls) {
-      // A particle that no row names keeps last step's total (contact + wall) in f: start it
-      // from zero. Rows are fixed between builds, so this is exact.
+      // Only particles near a wall (near_walls()). Their f (and t) holds this step's contact
+      // force alone: the contact pass cleared it, with the last step's wall force, before adding
+      // the contacts (ExplicitScheme::contact_pairs).
       double* __restrict fx = p.fx.data();
       double* __restrict fy = p.fy.data();
       double* __restrict fz = p.fz.data();
-      const std::uint8_t* __restrict listed = list.listed().data();
-      // Only particles near a wall (near_walls()); the others' f is the contact force already
-      // (or zero, as the build left it, when no row names them).
       const auto first = std::lower_bound(near_wall.begin(), near_wall.end(), r.begin());
       const auto last = std::lower_bound(first, near_wall.end(), r.end());
       for (auto it = first; it != last; ++it) {
         const std::size_t i = *it;
-        const bool row = listed[i] != 0;
-        double f[3] = {row ? fx[i] : 0.0, row ? fy[i] : 0.0, row ? fz[i] : 0.0};
+        double f[3] = {fx[i], fy[i], fz[i]};
         double tq[3] = {0, 0, 0};
         if constexpr (Friction)
-          if (row)
-            tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
+          tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
         add_wall_forces<Friction>(g, m, p, i, f, tq, [&](double v) {
           acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
         });

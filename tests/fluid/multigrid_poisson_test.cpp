@@ -466,8 +466,7 @@ TEST(MultigridProjection, AutoTakesHypreWhereTheHierarchyEndsLargeAndPfmgCoarsen
   EXPECT_EQ(auto_solver(walled), PoissonSolver::hypre);
   EXPECT_EQ(PressureProjection(walled, ProjectionSettings{}).solver(), PoissonSolver::hypre);
   // The same counts periodic: PFMG would stop at the odd periods too, so the multigrid stays.
-  const MacGrid periodic(
-      box_spec({67, 16, 67}, {6.7e-3, 1.6e-3, 6.7e-3}, BoundaryKind::periodic));
+  const MacGrid periodic(box_spec({67, 16, 67}, {6.7e-3, 1.6e-3, 6.7e-3}, BoundaryKind::periodic));
   EXPECT_EQ(auto_solver(periodic), PoissonSolver::multigrid);
   // Even counts coarsen: the multigrid.
   const MacGrid even(box_spec({64, 16, 64}, {6.4e-3, 1.6e-3, 6.4e-3}, BoundaryKind::wall));

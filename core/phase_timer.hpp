@@ -4,6 +4,7 @@
 
 #include <array>
 #include <chrono>
+#include <optional>
 #include <string_view>
 
 namespace cfddem {
@@ -16,25 +17,40 @@ inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> ph
 class PhaseTimer {
 public:
   using clock = std::chrono::steady_clock;
-  void add(Phase p, clock::duration d) { seconds_[static_cast<int>(p)] += std::chrono::duration<double>(d).count(); }
+  void add(Phase p, clock::duration d) {
+    seconds_[static_cast<int>(p)] += std::chrono::duration<double>(d).count();
+  }
   double seconds(Phase p) const { return seconds_[static_cast<int>(p)]; }
 
-  // RAII: time a scope into a phase.
+  // RAII: time a scope into a phase. Times are exclusive: a scope opened inside another (a list
+  // rebuild inside the link rounds, say) pauses the enclosing one until it closes, so the
+  // phases never count the same second twice and their sum stays within the loop's wall time.
+  // Scopes nest on the thread that owns the timer only (none is opened inside a task).
   class Scope {
   public:
-    Scope(PhaseTimer& t, Phase p) : t_(t), p_(p), start_(clock::now()) {}
-    ~Scope() { t_.add(p_, clock::now() - start_); }
+    Scope(PhaseTimer& t, Phase p) : t_(t), outer_(t.open_) {
+      const auto now = clock::now();
+      if (outer_)
+        t_.add(*outer_, now - t_.since_);
+      t_.open_ = p, t_.since_ = now;
+    }
+    ~Scope() {
+      const auto now = clock::now();
+      t_.add(*t_.open_, now - t_.since_);
+      t_.open_ = outer_, t_.since_ = now;
+    }
     Scope(const Scope&) = delete;
     Scope& operator=(const Scope&) = delete;
 
   private:
     PhaseTimer& t_;
-    Phase p_;
-    clock::time_point start_;
+    std::optional<Phase> outer_;
   };
 
 private:
   std::array<double, static_cast<int>(Phase::count)> seconds_{};
+  std::optional<Phase> open_; // the innermost open scope's phase
+  clock::time_point since_;   // when open_ last started or resumed
 };
 
 } // namespace cfddem

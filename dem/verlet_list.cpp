@@ -73,7 +73,10 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin, R
   cells_.bin<false>(g, make_cell_grid(g, cutoff, n, 32.0), p.x.data(), p.y.data(), p.z.data(), n);
   permuted_ = true;
   p.permute(cells_.items());
-  fill_rows<false>(p, g, n, skin);
+  if (cells_.grid().half_stencil())
+    fill_rows_by_pairs(p, g, n, skin);
+  else
+    fill_rows<false>(p, g, n, skin);
   ghost_entries_ = 0;
   index_rows(n, n);
 }
@@ -196,6 +199,78 @@ void VerletList::fill_rows(const ParticleStore& p, const DomainGeometry& g, std:
                           wrap_begin_[i] += offsets_[i];
                       }
                     });
+  xr_ = p.x, yr_ = p.y, zr_ = p.z;
+}
+
+void VerletList::fill_rows_by_pairs(const ParticleStore& p, const DomainGeometry& g, std::size_t n,
+                                    double skin) {
+  const bool half = kind_ == RowKind::half;
+  const double *x = p.x.data(), *y = p.y.data(), *z = p.z.data(), *rad = p.radius.data();
+  // The store is in cell order, so slots are particle indices. A pair's test is the same
+  // arithmetic from either end (the image of -d is -image(d) exactly, and r_i + r_j = r_j + r_i),
+  // so the pairs kept are exactly those fill_rows keeps.
+  // Fixed ranges of slots, each with its own pair buffer (kept between builds): the pairs do
+  // not depend on the thread count.
+  constexpr std::size_t kSlots = 1024;
+  const std::size_t ranges = (n + kSlots - 1) / kSlots;
+  if (range_pairs_.size() < ranges)
+    range_pairs_.resize(ranges);
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, ranges, 1), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t k = r.begin(); k != r.end(); ++k) {
+          std::vector<std::uint32_t>& buf = range_pairs_[k];
+          buf.clear();
+          cells_.for_each_forward_pair_in_slots(
+              k * kSlots, std::min(n, (k + 1) * kSlots), [&](std::uint32_t a, std::uint32_t b) {
+                const double dx = g.image(x[b] - x[a], 0), dy = g.image(y[b] - y[a], 1),
+                             dz = g.image(z[b] - z[a], 2);
+                const double rc = rad[a] + rad[b] + skin;
+                if (dx * dx + dy * dy + dz * dz < rc * rc) {
+                  buf.push_back(a);
+                  buf.push_back(b);
+                }
+              });
+        }
+      });
+  // Rows: a half list keeps each pair in its lower index's row, a full list in both; then each
+  // row takes its canonical order (order_row), so the list does not depend on the order the
+  // pairs were found in, nor on the thread count.
+  offsets_.assign(n + 1, 0);
+  for (std::size_t c = 0; c < ranges; ++c) {
+    const std::vector<std::uint32_t>& buf = range_pairs_[c];
+    for (std::size_t k = 0; k < buf.size(); k += 2) {
+      const std::uint32_t a = buf[k], b = buf[k + 1];
+      if (half)
+        ++offsets_[std::min(a, b) + 1];
+      else
+        ++offsets_[a + 1], ++offsets_[b + 1];
+    }
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    offsets_[i + 1] += offsets_[i];
+  neighbors_.resize(offsets_[n]);
+  cursor_.assign(offsets_.begin(), offsets_.end() - 1);
+  std::uint32_t* row = neighbors_.data();
+  for (std::size_t c = 0; c < ranges; ++c) {
+    const std::vector<std::uint32_t>& buf = range_pairs_[c];
+    for (std::size_t k = 0; k < buf.size(); k += 2) {
+      const std::uint32_t a = buf[k], b = buf[k + 1];
+      if (half) {
+        row[cursor_[std::min(a, b)]++] = std::max(a, b);
+      } else {
+        row[cursor_[a]++] = b;
+        row[cursor_[b]++] = a;
+      }
+    }
+  }
+  wrap_begin_.resize(n);
+  constexpr std::size_t kChunk = 256;
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, n, kChunk), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i != r.end(); ++i)
+          wrap_begin_[i] = offsets_[i] + static_cast<std::uint32_t>(order_row(
+                                             p, g, i, row + offsets_[i], row + offsets_[i + 1]));
+      });
   xr_ = p.x, yr_ = p.y, zr_ = p.z;
 }
 

@@ -81,6 +81,11 @@ private:
   // cell list's items; else the store is in cell order).
   template <bool Indirect>
   void fill_rows(const ParticleStore& p, const DomainGeometry& g, std::size_t rows, double skin);
+  // The same rows for the whole store in cell order (build()), from each close pair found once
+  // (a cell against itself and its 13 forward neighbours): half the candidate tests of
+  // fill_rows, which visits all 27 cells around every particle. Needs half_stencil().
+  void fill_rows_by_pairs(const ParticleStore& p, const DomainGeometry& g, std::size_t n,
+                          double skin);
 
   // After the rows [0, n) are in place over a store of `store` particles: active_, tail_rows_,
   // listed_, listed_index_.
@@ -94,6 +99,10 @@ private:
   std::size_t ghost_entries_ = 0;
   std::vector<double> xr_, yr_, zr_;
   std::vector<std::vector<std::uint32_t>> chunk_rows_; // per-chunk row buffers of the build
+  // fill_rows_by_pairs: per range of slots, the close pairs (a, b) of the cells that begin in
+  // it, as a, b, a, b, ...; and each row's next free entry while they are scattered into rows.
+  std::vector<std::vector<std::uint32_t>> range_pairs_;
+  std::vector<std::uint32_t> cursor_;
   double skin_ = 0.0;
 };
 

@@ -113,6 +113,24 @@ void expect_walks_find_every_pair(const dem::DomainGeometry& g, std::size_t n, d
         });
   EXPECT_EQ(visits, all_visited.size()) << "a pair was visited twice";
   EXPECT_EQ(forward, expected);
+  // for_each_forward_pair_in_slots over ranges of slots that split cells (the Verlet list's
+  // walk over occupied cells): the same pairs, each once, whatever the ranges.
+  for (const std::size_t range : {std::size_t{7}, std::size_t{64}, n}) {
+    Pairs in_slots, visited;
+    std::size_t count = 0;
+    for (std::size_t q = 0; q < n; q += range)
+      cells.for_each_forward_pair_in_slots(
+          q, std::min(n, q + range), [&](std::uint32_t a, std::uint32_t b) {
+            const std::uint32_t i = std::min(items[a], items[b]), j = std::max(items[a], items[b]);
+            ++count;
+            visited.insert({i, j});
+            if (separation2(g, c, i, j) < cutoff * cutoff)
+              in_slots.insert({i, j});
+          });
+    EXPECT_EQ(count, visited.size()) << "ranges of " << range << ": a pair was visited twice";
+    EXPECT_EQ(visited, all_visited) << "ranges of " << range;
+    EXPECT_EQ(in_slots, expected) << "ranges of " << range;
+  }
 }
 
 TEST(CellList, WalksFindEveryPairInAPeriodicBox) {

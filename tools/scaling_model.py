@@ -255,6 +255,42 @@ def count_rows(run):
     return row
 
 
+def count_maxima(run):
+    """Per count, its maximum over the ranks per fluid step (what the model's terms price)."""
+    n = fluid_steps(run)
+    return {f: max(run["rank_counts"][f]) / n for f in COUNT_FIELDS}
+
+
+def trend_exponents(small, big, n_small, n_big):
+    """Per count, the exponent e of max_r count ~ N^e between two scenes of one base and scheme
+    at the same rank count (`small` and `big`: count_maxima of runs with n_small and n_big
+    particles). A count that is zero in either keeps e = 1 (work is linear in N; a zero count
+    stays zero when grown)."""
+    out = {}
+    for f in COUNT_FIELDS:
+        a, b = small[f], big[f]
+        out[f] = math.log(b / a) / math.log(n_big / n_small) if a > 0 and b > 0 else 1.0
+    return out
+
+
+def grow(run, factor, exponents):
+    """`run`'s scene grown `factor` times in particles as tools/scaled_scene.py grows it (the two
+    lateral axes, cells with them), priced as counts, not run: every rank's count times
+    factor ** exponents[count], the measured trend of that count with N continued. The pressure
+    iterations per fluid step are held (the multigrid's count does not grow with the grid)."""
+    g = json.loads(json.dumps(run))
+    g["rank_counts"] = {k: ([x * factor ** exponents[k] for x in v] if k in exponents else v)
+                        for k, v in run["rank_counts"].items()}
+    g["particles"] = run["particles"] * factor
+    cfg = g.setdefault("configuration", {})
+    cells = config_value(run, "fluid.cells")
+    if isinstance(cells, list):
+        side = math.sqrt(factor)
+        cfg["fluid.cells"] = [round(cells[0] * side), cells[1], round(cells[2] * side)]
+    cfg["particles.count"] = run["particles"] * factor
+    return g
+
+
 def check_scheme(run, cal, where):
     if cal[4][0] != scene_key(run)[0]:
         print(f"scaling_model.py: {where} is a {scene_key(run)[0]} run but --calibration is a "

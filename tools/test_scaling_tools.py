@@ -267,6 +267,29 @@ class ScalingModel(unittest.TestCase):
         self.assertEqual(row["particle_steps_max"], 1500.0)
         self.assertEqual(row["p2p_messages_max"], 3.0)
 
+    def test_grow_continues_each_counts_trend(self):
+        # Work linear in N, halo bytes as sqrt(N) (a column grown in x and z, height fixed),
+        # messages flat, a zero count staying zero: a 1e5 and a 1e6 run give those exponents,
+        # and the 1e6 run grown 10x carries each count one more decade along its trend.
+        small, _ = self.runs(2, steps=(1000, 1000), pairs=(0, 0), msgs=26, bytes_=1e6)
+        big, cal = self.runs(2, steps=(10000, 10000), pairs=(0, 0), msgs=26, bytes_=1e6 * 10**0.5)
+        small["particles"], big["particles"] = 1e5, 1e6
+        big["configuration"] = {"fluid.cells": [270, 50, 270], "dem.scheme": None}
+        e = scaling_model.trend_exponents(scaling_model.count_maxima(small),
+                                          scaling_model.count_maxima(big), 1e5, 1e6)
+        self.assertAlmostEqual(e["particle_steps"], 1.0, places=12)
+        self.assertAlmostEqual(e["p2p_bytes"], 0.5, places=12)
+        self.assertAlmostEqual(e["p2p_messages"], 0.0, places=12)
+        self.assertEqual(e["force_evaluations"], 1.0)  # zero in both: stays zero when grown
+        g = scaling_model.grow(big, 10.0, e)
+        self.assertEqual(g["particles"], 1e7)
+        self.assertAlmostEqual(g["rank_counts"]["particle_steps"][0], 1e5, places=6)
+        self.assertAlmostEqual(g["rank_counts"]["p2p_bytes"][1], 1e7, places=3)
+        self.assertAlmostEqual(g["rank_counts"]["p2p_messages"][0], 26.0, places=12)
+        self.assertEqual(g["rank_counts"]["force_evaluations"], [0.0, 0.0])
+        self.assertEqual(scaling_model.gas_cells(g), 854 * 50 * 854)  # 270 sqrt(10), rounded
+        self.assertEqual(big["particles"], 1e6)  # the measured run is left as it was
+
     def test_a_calibration_of_another_scheme_is_refused(self):
         run, cal = self.runs(2)
         run["configuration"] = {"dem.scheme": "orb"}

@@ -54,8 +54,12 @@ template <class Run>
 RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
   const auto t_setup = clock::now();
   const bool gas_on = scene_in.fluid.enabled;
-  const Communicator comm = Run::kRanks ? Communicator::world() : Communicator::serial();
+  // One rank takes the serial communicator (no MPI calls at all), as it always has; R ranks the
+  // world. The rank count is known only here, at run time: every branch on it below and in the
+  // adapter is outside the schemes' per-particle work.
+  const Communicator comm = env.ranks() > 1 ? Communicator::world() : Communicator::serial();
   const bool one = comm.size() == 1, root = comm.rank() == 0;
+  const RankParts parts(comm);
 
   // The checkpoint (every rank reads it: the same error everywhere if it is bad) and this rank's
   // particles.
@@ -66,7 +70,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   typename Run::Restart share;
   ParticleStore particles = Run::particles(scene_in, ck, comm, opt.restart, share);
   dem::ParticleRange range;
-  const DerivedNumbers derived = Run::Ranks::derived(scene_in, particles, comm, range);
+  const DerivedNumbers derived = parts.derived(scene_in, particles, comm, range);
   const std::size_t n_total = one ? particles.size() : derived.particles;
 
   // With a gas the particle step divides the fluid step: explicit, n_fixed = ceil(dt_f /
@@ -76,7 +80,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   long long n_fixed = 0;
   const bool fixed = gas_on && scene.fluid.dt > 0.0;
   if (gas_on) {
-    const double dt_dem = Run::Ranks::dem_dt(scene_in, particles, range);
+    const double dt_dem = parts.step_model(scene_in, particles, range).dt;
     if (Run::kSub) {
       // dem.nsubit = "auto" (islands): one particle step of the schedule is the whole fluid step,
       // taken in the sub-iterations begin_interval() chose.
@@ -169,7 +173,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     k_last_row = ck->last_row_step;
     std::optional<std::array<std::vector<double>, 3>> held;
     if (gas_on)
-      held = Run::Ranks::held(*ck, share.taken);
+      held = parts.held(*ck, share.taken);
     try {
       run.restore(*ck, share, held ? &*held : nullptr);
     } catch (const std::invalid_argument& e) {
@@ -469,7 +473,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
                              "exchanges, forces, updates); their spread is the load imbalance in "
                              "time";
     }
-    const auto work = Run::Ranks::local_work(sch);
+    const auto work = parts.local_work(sch);
     j["rank_counts"] = rank_counts_json(comm, work[0], work[1], gas ? gas->cell_updates() : 0);
     if (!gas_on)
       run.describe_balance(j);

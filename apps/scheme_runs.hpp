@@ -1,9 +1,14 @@
-// What the one time loop (apps/run_loop.cpp) needs from each particle scheme, in one small
+// What the one time loop (apps/run_loop.hpp) needs from each particle scheme, in one small
 // adapter per algorithm: ExplicitRun (the explicit scheme, one step per particle step) and
-// SubiteratedRun (orb and islands, one sub-iteration of dt_sp per particle step). Each adapter
-// takes the one-rank class or its R-rank twin (kRanks); what differs with the rank count
-// (the share of a checkpoint's particles, gathering a checkpoint, reductions) sits here too, so
-// that the loop itself reads the same for every scheme and rank count.
+// SubiteratedRun (orb and islands, one sub-iteration of dt_sp per particle step). The rank count
+// is a runtime property (the communicator's size, RankParts::ranks), not a template parameter:
+// every scheme class serves one rank and R alike, so one instantiation per scheme is enough, and
+// the branches on it sit outside the schemes' kernels (set-up, checkpoints, run.json), where a
+// runtime test costs nothing. One rank takes the one-rank path alone: the serial communicator,
+// the scheme built without one (no ghosts, no reductions), the scene's particles as they are.
+// What differs with the rank count (the share of a checkpoint's particles, gathering a
+// checkpoint, reductions) sits here too, so that the loop itself reads the same for every scheme
+// and rank count.
 #pragma once
 
 #include <algorithm>
@@ -53,98 +58,88 @@ template <class State> struct RestartShare {
   std::optional<State> state;       // sub-iterated: this rank's share of the scheme state
 };
 
-// The parts every adapter does alike, by rank count.
-template <bool kRanks> struct RankParts {
+// The parts every adapter does alike, by rank count: `ranks` is true on R > 1 ranks (the
+// communicator's size), false on one rank, where the one-rank path is taken unchanged.
+struct RankParts {
+  explicit RankParts(const Communicator& comm) : ranks(comm.size() > 1) {}
+  bool ranks;
+
   // This rank's particles: all of them (the checkpoint's or the scene's) on one rank, every
   // R-th on R ranks (the scheme's start() or restore sends each to its owner).
-  static ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
-                                 const Communicator& comm, std::vector<std::uint32_t>& taken) {
-    if constexpr (kRanks)
+  ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
+                          const Communicator& comm, std::vector<std::uint32_t>& taken) const {
+    if (ranks)
       return rank_share(scene, ck, comm, &taken);
-    else
-      return ck ? std::move(ck->particles) : make_initial_particles(scene);
+    return ck ? std::move(ck->particles) : make_initial_particles(scene);
   }
-  static DerivedNumbers derived(const Scene& scene, const ParticleStore& p,
-                                const Communicator& comm, dem::ParticleRange& range) {
-    if constexpr (kRanks)
-      return derive(scene, p, comm, &range);
-    else
-      return derive(scene, p);
+  DerivedNumbers derived(const Scene& scene, const ParticleStore& p, const Communicator& comm,
+                         dem::ParticleRange& range) const {
+    return ranks ? derive(scene, p, comm, &range) : derive(scene, p);
   }
-  // The particle step the scene gives (the contact time over all particles).
-  static double dem_dt(const Scene& scene, const ParticleStore& p,
-                       const dem::ParticleRange& range) {
-    if constexpr (kRanks)
-      return dem::make_step_model(scene, range).dt;
-    else
-      return dem::make_step_model(scene, p).dt;
+  // The step model over all particles (the contact time), the same on every rank: from the
+  // store on one rank, which holds them all, else from the range derived() reduced.
+  dem::StepModel step_model(const Scene& scene, const ParticleStore& p,
+                            const dem::ParticleRange& range) const {
+    return ranks ? dem::make_step_model(scene, range) : dem::make_step_model(scene, p);
   }
-  // The scheme on this rank's particles (R ranks: with the step model over all of them).
+  // The scheme on this rank's particles. One rank: the one-rank constructor, no communicator at
+  // all (the islands scheme keeps its one-rank list and order only without one).
   template <class S>
-  static S make(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
-                const Communicator& comm, PhaseTimer& timer) {
-    if constexpr (kRanks)
-      return S(scene, p, dem::make_step_model(scene, range), comm, timer);
-    else
-      return S(scene, p, timer);
+  S make(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
+         const Communicator& comm, PhaseTimer& timer) const {
+    if (ranks)
+      return S(scene, p, dem::make_step_model(scene, range), &comm, timer);
+    return S(scene, p, timer);
   }
   // The particles this rank owns: the first owned() of the store (R ranks), else all.
-  template <class S> static std::size_t owned(const S& s, const ParticleStore& p) {
-    if constexpr (kRanks)
-      return s.owned();
-    else
-      return p.size();
+  template <class S> std::size_t owned(const S& s, const ParticleStore& p) const {
+    return ranks ? s.owned() : p.size();
   }
   // This rank's particle steps and pair evaluations (run.json's rank_counts).
-  template <class S> static std::array<std::int64_t, 2> local_work(const S& s) {
-    if constexpr (kRanks)
+  template <class S> std::array<std::int64_t, 2> local_work(const S& s) const {
+    if (ranks)
       return {s.local_particle_steps(), s.local_pair_evaluations()};
-    else
-      return {s.particle_steps(), s.pair_evaluations()};
+    return {s.particle_steps(), s.pair_evaluations()};
   }
   // The gas force held at a checkpoint, for this rank's particles.
-  static std::array<std::vector<double>, 3> held(const Checkpoint& ck,
-                                                 const std::vector<std::uint32_t>& taken) {
-    if constexpr (kRanks)
-      return held_share(ck, taken);
-    else
-      return ck.loop.held_force;
+  std::array<std::vector<double>, 3> held(const Checkpoint& ck,
+                                          const std::vector<std::uint32_t>& taken) const {
+    return ranks ? held_share(ck, taken) : ck.loop.held_force;
   }
 };
 
-template <class S, bool R = false> class ExplicitRun {
+template <class S> class ExplicitRun {
 public:
-  static constexpr bool kRanks = R;
   static constexpr bool kSub = false;
   static constexpr const char* kName = "explicit";
   using Restart = RestartShare<int>;
-  using Ranks = RankParts<kRanks>;
 
   static ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
                                  const Communicator& comm, const std::string&, Restart& r) {
     // The history rows of a checkpoint with friction become records by id before the
     // particles are handed out (restore() gives each to the particle's owner).
-    if (kRanks && ck)
+    const RankParts parts(comm);
+    if (parts.ranks && ck)
       r.history = saved_contact_history(*ck);
-    return Ranks::particles(scene, ck, comm, r.taken);
+    return parts.particles(scene, ck, comm, r.taken);
   }
 
   ExplicitRun(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
               const Communicator& comm, PhaseTimer& timer)
-      : scheme(Ranks::template make<S>(scene, p, range, comm, timer)), p_(p) {}
+      : scheme(RankParts(comm).make<S>(scene, p, range, comm, timer)), parts_(comm), p_(p) {}
 
   S scheme;
   double dt() const { return scheme.dt(); }
   double fine_dt() const { return scheme.dt(); }
   long long steps() const { return scheme.steps_taken(); }
-  std::size_t owned() const { return Ranks::owned(scheme, p_); }
+  std::size_t owned() const { return parts_.owned(scheme, p_); }
   long long checkpoint_every(long long every) const { return every; }
   bool auto_length() const { return false; }
   long long begin_interval() { return 1; }
   void start() { scheme.start(); }
   // In place of start(). held: the gas force held at the checkpoint (null without a gas).
   void restore(Checkpoint& ck, Restart& r, const std::array<std::vector<double>, 3>* held) {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       // The force travels with its particle to the owner restore() sends it to.
       if (held)
         scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
@@ -175,7 +170,7 @@ public:
   // R ranks with a gas: the particles owned by the gas boxes (`now`: moved at once, else at
   // start()).
   void own_by(partition::RankDecomposition d, bool now) {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       scheme.set_decomposition(std::move(d));
       if (now)
         scheme.redistribute_now();
@@ -214,14 +209,14 @@ public:
   std::vector<std::int64_t> boxes(std::span<const double> x, std::span<const double> y,
                                   std::span<const double> z) const {
     std::vector<std::int64_t> box;
-    if constexpr (kRanks)
+    if (parts_.ranks)
       for (std::size_t i = 0; i < x.size(); ++i)
         box.push_back(scheme.decomposition().tree.locate(x[i], y[i], z[i]));
     return box;
   }
   // The particles and the scheme state into rank 0's checkpoint. Collective.
   void save(Checkpoint& c, const Communicator& comm) {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       scheme.canonicalize();
       gather_rank_particles(scheme, p_, comm, c);
     } else {
@@ -234,7 +229,7 @@ public:
     return fmt::format("dt = {:.4e} s, {} steps", scheme.dt(), n_end);
   }
   std::string banner_tail() const {
-    if constexpr (kRanks)
+    if (parts_.ranks)
       return fmt::format(", {} boxes", 1 << scheme.levels());
     else
       return {};
@@ -251,17 +246,18 @@ public:
     j["steps"] = scheme.steps_taken();
   }
   const char* phase_note() const {
-    return kRanks ? "rank 0's phases; neighbor: regrid, migration, ghost exchange and the local "
-                    "list; force: includes waiting for the ghost forward (after the interior "
-                    "rows); other: mostly posting the forward and the per-step flag reduction"
-                  : nullptr;
+    return parts_.ranks
+               ? "rank 0's phases; neighbor: regrid, migration, ghost exchange and the local "
+                 "list; force: includes waiting for the ghost forward (after the interior "
+                 "rows); other: mostly posting the forward and the per-step flag reduction"
+               : nullptr;
   }
   const char* force_definition() const {
-    return kRanks ? "neighbor-list pairs evaluated (each pair once per step), over all ranks"
-                  : "neighbor-list pairs evaluated (each pair once per step)";
+    return parts_.ranks ? "neighbor-list pairs evaluated (each pair once per step), over all ranks"
+                        : "neighbor-list pairs evaluated (each pair once per step)";
   }
   void describe_balance(nlohmann::ordered_json& j) const {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       j["boxes"] = 1 << scheme.levels();
       j["regrid_policy"] = "ORB + Hilbert knapsack at the first neighbor rebuild after "
                            "dem.regrid_interval; migration and ghosts at every rebuild";
@@ -277,7 +273,7 @@ public:
     }
   }
   std::string performance(const PhaseTimer& t, double pss, double wait_max) const {
-    if constexpr (kRanks)
+    if (parts_.ranks)
       return fmt::format("Performance: {:.4g} particle-steps/s; rank 0: neighbor+exchange {:.3g} "
                          "s ({} builds, {} regrids), force {:.3g} s, integrate {:.3g} s; MPI "
                          "wait max {:.3g} s",
@@ -293,40 +289,39 @@ public:
   }
 
 private:
+  RankParts parts_;
   ParticleStore& p_;
 };
 
-template <class S, bool R = false> class SubiteratedRun {
+template <class S> class SubiteratedRun {
 public:
-  static constexpr bool kRanks = R;
   static constexpr bool kSub = true;
   static constexpr bool kOrb = std::is_same_v<S, dem::OrbScheme>;
   static constexpr const char* kName = kOrb ? "orb" : "islands";
   using State = std::conditional_t<kOrb, dem::OrbScheme::State, dem::IslandsScheme::State>;
   using Restart = RestartShare<State>;
-  using Ranks = RankParts<kRanks>;
 
   static ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
                                  const Communicator& comm, const std::string& path, Restart& r) {
     const std::size_t n_saved = ck ? ck->particles.size() : 0;
-    if constexpr (kRanks && !kOrb)
-      if (ck && ck->islands.history.size() == 0 && !ck->islands.hx.empty()) {
+    const RankParts parts(comm);
+    if constexpr (!kOrb)
+      if (parts.ranks && ck && ck->islands.history.size() == 0 && !ck->islands.hx.empty()) {
         // A one-rank checkpoint's history per entry of its list: the records by ids the R-rank
         // scheme routes (the list itself is not restored there).
         const auto& o = ck->islands;
-        ck->islands.history = dem::history_from_rows(ck->particles.id, o.offsets, o.neighbors,
-                                                      o.hx, o.hy, o.hz);
+        ck->islands.history =
+            dem::history_from_rows(ck->particles.id, o.offsets, o.neighbors, o.hx, o.hy, o.hz);
       }
-    ParticleStore p = Ranks::particles(scene, ck, comm, r.taken);
-    if constexpr (kRanks)
-      if (ck)
-        r.state = subiterated_share<S>(*ck, r.taken, n_saved, path);
+    ParticleStore p = parts.particles(scene, ck, comm, r.taken);
+    if (parts.ranks && ck)
+      r.state = subiterated_share<S>(*ck, r.taken, n_saved, path);
     return p;
   }
 
   SubiteratedRun(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
                  const Communicator& comm, PhaseTimer& timer)
-      : scheme(Ranks::template make<S>(scene, p, range, comm, timer)), p_(p),
+      : scheme(RankParts(comm).make<S>(scene, p, range, comm, timer)), parts_(comm), p_(p),
         levels_(scene.partition.orb_levels) {}
 
   S scheme;
@@ -352,7 +347,7 @@ public:
       return scheme.begin_interval();
   }
   long long steps() const { return scheme.subiterations(); }
-  std::size_t owned() const { return Ranks::owned(scheme, p_); }
+  std::size_t owned() const { return parts_.owned(scheme, p_); }
   // orb: checkpoints only at regrid points (multiples of dem.nsubit), where the ORB is rebuilt
   // from the store: the interval rounded up to whole regrid intervals. islands: any.
   long long checkpoint_every(long long every) const {
@@ -362,12 +357,14 @@ public:
   }
   void start() { scheme.start(); }
   void restore(Checkpoint& ck, Restart& r, const std::array<std::vector<double>, 3>* held) {
-    if constexpr (kRanks)
+    if (parts_.ranks) {
       scheme.restore_state(std::move(*r.state));
-    else if constexpr (kOrb)
-      scheme.restore_state(std::move(ck.orb));
-    else
-      scheme.restore_state(std::move(ck.islands));
+    } else {
+      if constexpr (kOrb)
+        scheme.restore_state(std::move(ck.orb));
+      else
+        scheme.restore_state(std::move(ck.islands));
+    }
     if (held)
       scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
   }
@@ -391,7 +388,7 @@ public:
     return {};
   }
   void save(Checkpoint& c, const Communicator& comm) {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       gather_subiterated(scheme, p_, comm, c);
     } else {
       c.particles = p_;
@@ -403,7 +400,7 @@ public:
   }
 
   std::string banner(long long n_end) const {
-    const int leaves = kRanks ? leaf_count() : 1 << levels_;
+    const int leaves = parts_.ranks ? leaf_count() : 1 << levels_;
     if (auto_length())
       return fmt::format("islands scheme, dem.nsubit = \"auto\": dt_sp chosen per control "
                          "interval of {:.4e} s (first {:.4e} s; fine dt = {:.4e} s), {} intervals",
@@ -430,7 +427,7 @@ public:
       j["leaves"] = leaf_count();
     j["steps"] = scheme.subiterations();
     j["steps_definition"] = "sub-iterations of dt_sp (one past the end, as the explicit loop)";
-    if constexpr (kOrb || kRanks) {
+    if (kOrb || parts_.ranks) {
       j["regrids"] = scheme.regrids();
       j["subiteration_retries"] = scheme.retries();
     }
@@ -438,7 +435,7 @@ public:
     j["max_overlap_ratio"] = scheme.max_overlap_ratio();
     j["overlap_violations"] = scheme.overlap_violations();
     if constexpr (kOrb) {
-      if constexpr (kRanks) {
+      if (parts_.ranks) {
         // The mean over the rows after the first (each closes an interval).
         const auto col = static_cast<std::size_t>(
             std::find(kBaseColumns.begin(), kBaseColumns.end(), "fine_leaf_fraction") -
@@ -457,7 +454,7 @@ public:
     }
   }
   const char* phase_note() const {
-    if (kRanks)
+    if (parts_.ranks)
       return kOrb ? "rank 0's phases; neighbor: regrid, migration, ghost exchange and the rows; "
                     "force: its leaves' local steps and the reductions that close a sub-iteration"
                   : "rank 0's phases; neighbor: regrid, migration, ghosts, rows, speed bounds, "
@@ -471,19 +468,21 @@ public:
   }
   const char* force_definition() const {
     if (kOrb)
-      return kRanks ? "candidate pairs evaluated per local step, over all ranks: pairs within a "
-                      "leaf once, pairs across a leaf boundary once per side (rows rebuilt at "
-                      "every sub-iteration)"
-                    : "candidate pairs evaluated per local step: pairs within a leaf once, pairs "
-                      "across a leaf boundary once per side (each leaf evaluates its side "
-                      "against the other's frozen copy)";
-    return kRanks ? "pairs inside a fine island evaluated per local step, over all ranks (a pair "
-                    "across ranks counted once)"
-                  : "neighbor-list pairs inside a fine island evaluated per local step (each "
-                    "pair once)";
+      return parts_.ranks
+                 ? "candidate pairs evaluated per local step, over all ranks: pairs within a "
+                   "leaf once, pairs across a leaf boundary once per side (rows rebuilt at "
+                   "every sub-iteration)"
+                 : "candidate pairs evaluated per local step: pairs within a leaf once, pairs "
+                   "across a leaf boundary once per side (each leaf evaluates its side "
+                   "against the other's frozen copy)";
+    return parts_.ranks
+               ? "pairs inside a fine island evaluated per local step, over all ranks (a pair "
+                 "across ranks counted once)"
+               : "neighbor-list pairs inside a fine island evaluated per local step (each "
+                 "pair once)";
   }
   void describe_balance(nlohmann::ordered_json& j) const {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       j["regrid_policy"] =
           kOrb ? "parallel ORB + Hilbert knapsack every dem.regrid_interval (weights: "
                  "partition.weights); migration and ghosts at every sub-iteration"
@@ -501,7 +500,7 @@ public:
     }
   }
   std::string performance(const PhaseTimer& t, double pss, double wait_max) const {
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       std::string islands;
       if constexpr (!kOrb)
         islands = fmt::format("; spanning sub-iterations {} of {}; bound violations {}",
@@ -541,7 +540,7 @@ private:
     j["global_subiterations_definition"] =
         "sub-iterations where more than a quarter of the particles were linked, so every particle "
         "took the fine steps together (a dense bed: the explicit scheme's work)";
-    if constexpr (kRanks) {
+    if (parts_.ranks) {
       const auto subits = static_cast<double>(std::max<std::int64_t>(1, scheme.subiterations()));
       j["spanning_subiterations"] = scheme.spanning_subiterations();
       j["spanning_subiteration_fraction"] =
@@ -617,6 +616,7 @@ private:
           "it within the bound unless dt_sp would fall below the fine step";
     }
   }
+  RankParts parts_;
   ParticleStore& p_;
   int levels_;
 };

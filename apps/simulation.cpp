@@ -14,13 +14,7 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
   const std::string& s = scene.dem.scheme;
   if (scene.fluid.enabled)
     validate_fluid(scene);
-  if (env.ranks() > 1) {
-    if (s == "orb")
-      return run_loop<SubiteratedRun<dem::OrbScheme, true>>(scene, opt, env);
-    if (s == "islands")
-      return run_loop<SubiteratedRun<dem::IslandsScheme, true>>(scene, opt, env);
-    return run_loop<ExplicitRun<dem::ExplicitScheme, true>>(scene, opt, env);
-  }
+  // One instantiation per scheme: the rank count is the run's (env.ranks()), read inside.
   if (s == "orb")
     return run_loop<SubiteratedRun<dem::OrbScheme>>(scene, opt, env);
   if (s == "islands")

@@ -60,9 +60,6 @@ public:
   // rank (make_step_model over all initial particles). With friction the store gets rotation.
   ExplicitScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                  const Communicator* comm, PhaseTimer& timer);
-  ExplicitScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
-                 const Communicator& comm, PhaseTimer& timer)
-      : ExplicitScheme(scene, particles, model, &comm, timer) {}
   // Completes a ghost forward still in flight (collective on R ranks, as every step).
   ~ExplicitScheme();
   ExplicitScheme(const ExplicitScheme&) = delete;

@@ -96,10 +96,6 @@ public:
   // gets rotation.
   IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
                 const Communicator* comm, PhaseTimer& timer);
-  // The R-rank loops' form (a communicator of any size).
-  IslandsScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
-                const Communicator& comm, PhaseTimer& timer)
-      : IslandsScheme(scene, particles, model, &comm, timer) {}
   IslandsScheme(const IslandsScheme&) = delete;
   IslandsScheme& operator=(const IslandsScheme&) = delete;
   ~IslandsScheme();

@@ -132,9 +132,6 @@ public:
   // `comm` nullptr or of one rank: the one-rank path. With friction the store gets rotation.
   OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
             const Communicator* comm, PhaseTimer& timer);
-  OrbScheme(const Scene& scene, ParticleStore& particles, const StepModel& model,
-            const Communicator& comm, PhaseTimer& timer)
-      : OrbScheme(scene, particles, model, &comm, timer) {}
   ~OrbScheme();
   OrbScheme(const OrbScheme&) = delete;
   OrbScheme& operator=(const OrbScheme&) = delete;

@@ -129,7 +129,7 @@ void expect_owners_and_ghosts(const char* toml) {
   const dem::StepModel model = dem::make_step_model(scene, all);
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::ExplicitScheme s(scene, p, model, c, timer);
+  dem::ExplicitScheme s(scene, p, model, &c, timer);
   s.start();
   const auto& d = s.decomposition();
   for (std::size_t i = 0; i < s.owned(); ++i)
@@ -202,7 +202,7 @@ Compared run_and_compare(const char* toml, int steps, ParticleStore* final_state
   PhaseTimer t1, t2;
   dem::ExplicitScheme ref(scene, serial, t1);
   ParticleStore p = share(all, c.rank(), c.size());
-  dem::ExplicitScheme s(scene, p, model, c, t2);
+  dem::ExplicitScheme s(scene, p, model, &c, t2);
   ref.start();
   s.start();
   for (int k = 0; k < steps; ++k) {
@@ -330,7 +330,7 @@ TEST(DistributedExplicit, ClusteredParticlesStayBalanced) {
   const dem::StepModel model = dem::make_step_model(scene, all);
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::ExplicitScheme s(scene, p, model, c, timer);
+  dem::ExplicitScheme s(scene, p, model, &c, timer);
   s.start();
   std::array<double, 2> owned{static_cast<double>(s.owned()), static_cast<double>(s.owned())};
   c.max(std::span<double>(owned.data(), 1));
@@ -374,7 +374,7 @@ TEST(DistributedExplicit, FluidBoxOwnershipWithExternalForceMatchesSerialScheme)
   const auto fs = force(serial, serial.size());
   ref.set_external_force(fs[0], fs[1], fs[2]);
   ParticleStore p = share(all, c.rank(), c.size());
-  dem::ExplicitScheme s(scene, p, model, c, t2);
+  dem::ExplicitScheme s(scene, p, model, &c, t2);
   const std::vector<CellBox> boxes = orb_cell_boxes({12, 8, 6}, c.size(), 3);
   s.set_decomposition(partition::decomposition_of_cell_boxes(
       boxes, scene.domain.lo, {1e-4, 1e-4, 1e-4}, {scene.domain.lo, scene.domain.hi}));

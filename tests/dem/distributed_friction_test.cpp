@@ -135,7 +135,7 @@ Compared run_and_compare(const char* toml, int steps) {
   PhaseTimer t1, t2;
   dem::ExplicitScheme ref(scene, serial, t1);
   ParticleStore p = share(all, c.rank(), c.size());
-  dem::ExplicitScheme s(scene, p, model, c, t2);
+  dem::ExplicitScheme s(scene, p, model, &c, t2);
   ref.start();
   s.start();
   auto momentum = [&] {
@@ -255,7 +255,7 @@ TEST(DistributedFriction, RestartWithContactHistoryIsBitwise) {
   const dem::StepModel model = dem::make_step_model(scene, all);
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::ExplicitScheme s(scene, p, model, c, timer);
+  dem::ExplicitScheme s(scene, p, model, &c, timer);
   s.start();
   for (int k = 0; k < 2500; ++k)
     s.step();
@@ -276,7 +276,7 @@ TEST(DistributedFriction, RestartWithContactHistoryIsBitwise) {
   auto resume = [&](const dem::ContactHistory& with) {
     ParticleStore q = share(saved, (c.rank() + 1) % c.size(), c.size()); // another split
     PhaseTimer t;
-    dem::ExplicitScheme r(scene, q, model, c, t);
+    dem::ExplicitScheme r(scene, q, model, &c, t);
     r.restore(counters, with);
     for (int k = 0; k < kMore; ++k)
       r.step();

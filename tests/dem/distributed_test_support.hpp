@@ -59,7 +59,7 @@ inline ParticleStore run_explicit_with_threads(const char* toml, int threads, in
   const dem::StepModel model = dem::make_step_model(scene, all);
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
-  dem::ExplicitScheme s(scene, p, model, c, timer);
+  dem::ExplicitScheme s(scene, p, model, &c, timer);
   s.start();
   for (int k = 0; k < steps; ++k)
     s.step(k == steps - 1);

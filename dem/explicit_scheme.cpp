@@ -111,7 +111,12 @@ void ExplicitScheme::lay_out_pairs() {
   const VerletList& list = rows_.list;
   rows_.head_pairs.build<false>(list, list.active(), kPairBlock, model_.friction);
   rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, model_.friction);
-  near_walls(p_, owned(), list, geom_, model_.skin, rows_.near_wall);
+  // A restored state without a list (an R-rank checkpoint's canonical state) has no build
+  // positions to judge the walls by: its first step builds, and lays the pairs out again.
+  if (list.x_ref().size() >= owned())
+    near_walls(p_, owned(), list, geom_, model_.skin, rows_.near_wall);
+  else
+    rows_.near_wall.clear();
   // The last contacts' indices no longer name the same particles: clear every listed force next.
   rows_.clear_all = true;
   rows_.nh = rows_.nt = 0;

@@ -281,6 +281,10 @@ class ScalingModel(unittest.TestCase):
         self.assertAlmostEqual(e["p2p_bytes"], 0.5, places=12)
         self.assertAlmostEqual(e["p2p_messages"], 0.0, places=12)
         self.assertEqual(e["force_evaluations"], 1.0)  # zero in both: stays zero when grown
+        fell = dict(scaling_model.count_maxima(big), collective_bytes=1.0)
+        rose = dict(scaling_model.count_maxima(small), collective_bytes=100.0)
+        self.assertEqual(scaling_model.trend_exponents(rose, fell, 1e5, 1e6)["collective_bytes"],
+                         0.0)  # a fall (another solver at the larger size) is held, not continued
         g = scaling_model.grow(big, 10.0, e)
         self.assertEqual(g["particles"], 1e7)
         self.assertAlmostEqual(g["rank_counts"]["particle_steps"][0], 1e5, places=6)

@@ -62,8 +62,9 @@ PoissonSolver auto_solver(const MacGrid& grid) {
   }
   const bool large_coarsest =
       MultigridPoisson::coarsest_cells(grid.global_cells(), spacing) > kAutoCoarsestCells;
-  return large_coarsest && smg_blocking_axis(grid) < 0 ? PoissonSolver::hypre
-                                                       : PoissonSolver::multigrid;
+  return large_coarsest && pfmg_coarsest_cells(grid) <= kAutoCoarsestCells
+             ? PoissonSolver::hypre
+             : PoissonSolver::multigrid;
 }
 
 namespace {
@@ -72,12 +73,19 @@ constexpr int kStencilSize = 7; // centre, -x, +x, -y, +y, -z, +z
 
 } // namespace
 
+namespace {
+
 // PFMG levels that keep every periodic axis at two or more cells. PFMG semicoarsens by 2 along
 // the axis of smallest dxyz (ties: lowest axis) and itself stops at an odd period; a period of
 // one cell couples a cell to itself, where red/black relaxation is wrong (PCG then stalls or
 // breaks down: seen on 4-cell periodic axes and on the riser grid). Mirrors the coarsening
 // loop of hypre 2.26's pfmg_setup.c with dxyz set explicitly.
-int pfmg_max_levels(const MacGrid& grid) {
+struct PfmgHierarchy {
+  int levels = 1;
+  std::size_t coarsest_cells = 0;
+};
+
+PfmgHierarchy pfmg_hierarchy(const MacGrid& grid) {
   std::array<int, 3> size = grid.global_cells();
   std::array<double, 3> dxyz = {grid.spacing(0), grid.spacing(1), grid.spacing(2)};
   int levels = 1;
@@ -98,7 +106,18 @@ int pfmg_max_levels(const MacGrid& grid) {
     dxyz[dir] *= 2.0;
     ++levels;
   }
-  return levels;
+  return {levels, static_cast<std::size_t>(size[0]) * static_cast<std::size_t>(size[1]) *
+                      static_cast<std::size_t>(size[2])};
+}
+
+} // namespace
+
+int pfmg_max_levels(const MacGrid& grid) {
+  return pfmg_hierarchy(grid).levels;
+}
+
+std::size_t pfmg_coarsest_cells(const MacGrid& grid) {
+  return pfmg_hierarchy(grid).coarsest_cells;
 }
 
 namespace {

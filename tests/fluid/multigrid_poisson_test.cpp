@@ -455,7 +455,7 @@ TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
 }
 
 // "auto" takes hypre only where the multigrid's hierarchy ends on a large grid (odd or short
-// axes) and PFMG can coarsen (no odd periodic axis).
+// axes) and PFMG's gets to a small one (it stops at an odd period on any level).
 TEST(MultigridProjection, AutoTakesHypreWhereTheHierarchyEndsLargeAndPfmgCoarsens) {
   // 67 x 16 x 67 walls: x and z are odd, y halves once (then it is coarser than the stuck
   // axes): the coarsest level holds 67 x 8 x 67 = 35,912 cells.
@@ -468,6 +468,14 @@ TEST(MultigridProjection, AutoTakesHypreWhereTheHierarchyEndsLargeAndPfmgCoarsen
   // The same counts periodic: PFMG would stop at the odd periods too, so the multigrid stays.
   const MacGrid periodic(box_spec({67, 16, 67}, {6.7e-3, 1.6e-3, 6.7e-3}, BoundaryKind::periodic));
   EXPECT_EQ(auto_solver(periodic), PoissonSolver::multigrid);
+  // Even periods that turn odd after one halving (the riser at 1e6 is 270 x 50 x 270): PFMG
+  // stops there as the multigrid does, both at 45 x 25 x 45 cells, so the multigrid stays.
+  const MacGrid halves_once(
+      box_spec({90, 50, 90}, {90 * 1.875e-4, 50 * 2e-4, 90 * 1.875e-4}, BoundaryKind::periodic));
+  EXPECT_EQ(MultigridPoisson::coarsest_cells({90, 50, 90}, {1.875e-4, 2e-4, 1.875e-4}), 50625u);
+  EXPECT_EQ(pfmg_coarsest_cells(halves_once), 50625u);
+  EXPECT_EQ(auto_solver(halves_once), PoissonSolver::multigrid);
+  EXPECT_LE(pfmg_coarsest_cells(walled), kAutoCoarsestCells); // walls: PFMG halves odd counts
   // Even counts coarsen: the multigrid.
   const MacGrid even(box_spec({64, 16, 64}, {6.4e-3, 1.6e-3, 6.4e-3}, BoundaryKind::wall));
   EXPECT_EQ(auto_solver(even), PoissonSolver::multigrid);

@@ -585,8 +585,9 @@ std::vector<SceneKey> make_table() {
                   "ranks and a coarse level is gathered onto rank 0), hypre's PCG with "
                   "`fluid.preconditioner`, or `\"auto\"`: the multigrid (fewer instructions than "
                   "hypre on the riser on 1, 2 and 4 ranks), except on a grid whose odd or "
-                  "short axes stop its coarsening above 32,768 cells and that has no odd "
-                  "periodic axis: there hypre"},
+                  "short axes stop its coarsening above 32,768 cells while hypre's PFMG "
+                  "coarsens it to at most 32,768 (PFMG stops at an odd period on any level): "
+                  "there hypre"},
   };
 }
 

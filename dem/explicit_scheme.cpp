@@ -111,12 +111,7 @@ void ExplicitScheme::lay_out_pairs() {
   const VerletList& list = rows_.list;
   rows_.head_pairs.build<false>(list, list.active(), kPairBlock, model_.friction);
   rows_.tail_pairs.build<true>(list, list.tail_rows(), kPairBlock, model_.friction);
-  // A restored state without a list (an R-rank checkpoint's canonical state) has no build
-  // positions to judge the walls by: its first step builds, and lays the pairs out again.
-  if (list.x_ref().size() >= owned())
-    near_walls(p_, owned(), list, geom_, model_.skin, rows_.near_wall);
-  else
-    rows_.near_wall.clear();
+  near_walls(p_, owned(), list, geom_, model_.skin, rows_.near_wall);
   // The last contacts' indices no longer name the same particles: clear every listed force next.
   rows_.clear_all = true;
   rows_.nh = rows_.nt = 0;
@@ -387,7 +382,10 @@ void ExplicitScheme::restore_state(State s) {
                      std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   rows_.hx = std::move(s.hx), rows_.hy = std::move(s.hy), rows_.hz = std::move(s.hz);
   rows_.need_rebuild = s.need_rebuild || !listed;
-  lay_out_pairs();
+  // A state without a list (an R-rank checkpoint's canonical state) has nothing to lay out, nor
+  // build positions to judge the walls by: its first step builds and lays the pairs out.
+  if (listed)
+    lay_out_pairs();
   stats_.steps = s.steps, stats_.particle_steps = s.particle_steps;
   stats_.pair_evaluations = s.pair_evaluations, stats_.builds = s.builds;
 }

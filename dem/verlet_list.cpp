@@ -234,35 +234,30 @@ void VerletList::fill_rows_by_pairs(const ParticleStore& p, const DomainGeometry
       });
   // Rows: a half list keeps each pair in its lower index's row, a full list in both; then each
   // row takes its canonical order (order_row), so the list does not depend on the order the
-  // pairs were found in, nor on the thread count.
-  offsets_.assign(n + 1, 0);
-  for (std::size_t c = 0; c < ranges; ++c) {
-    const std::vector<std::uint32_t>& buf = range_pairs_[c];
-    for (std::size_t k = 0; k < buf.size(); k += 2) {
-      const std::uint32_t a = buf[k], b = buf[k + 1];
-      if (half)
-        ++offsets_[std::min(a, b) + 1];
-      else
-        ++offsets_[a + 1], ++offsets_[b + 1];
+  // pairs were found in, nor on the thread count. file(row, partner) for every entry, in range
+  // order: once to count the rows, once to fill them.
+  auto each_entry = [&](auto&& file) {
+    for (std::size_t c = 0; c < ranges; ++c) {
+      const std::vector<std::uint32_t>& buf = range_pairs_[c];
+      for (std::size_t k = 0; k < buf.size(); k += 2) {
+        const std::uint32_t a = buf[k], b = buf[k + 1];
+        if (half) {
+          file(std::min(a, b), std::max(a, b));
+        } else {
+          file(a, b);
+          file(b, a);
+        }
+      }
     }
-  }
+  };
+  offsets_.assign(n + 1, 0);
+  each_entry([&](std::uint32_t i, std::uint32_t) { ++offsets_[i + 1]; });
   for (std::size_t i = 0; i < n; ++i)
     offsets_[i + 1] += offsets_[i];
   neighbors_.resize(offsets_[n]);
   cursor_.assign(offsets_.begin(), offsets_.end() - 1);
   std::uint32_t* row = neighbors_.data();
-  for (std::size_t c = 0; c < ranges; ++c) {
-    const std::vector<std::uint32_t>& buf = range_pairs_[c];
-    for (std::size_t k = 0; k < buf.size(); k += 2) {
-      const std::uint32_t a = buf[k], b = buf[k + 1];
-      if (half) {
-        row[cursor_[std::min(a, b)]++] = std::max(a, b);
-      } else {
-        row[cursor_[a]++] = b;
-        row[cursor_[b]++] = a;
-      }
-    }
-  }
+  each_entry([&](std::uint32_t i, std::uint32_t j) { row[cursor_[i]++] = j; });
   wrap_begin_.resize(n);
   constexpr std::size_t kChunk = 256;
   tbb::parallel_for(

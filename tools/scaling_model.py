@@ -68,6 +68,7 @@ against its measured loop_seconds, and the relative error; --counts: the count t
 step the mean and max over the ranks). tools/scaling_model_sweep.py does a whole sweep.
 """
 import argparse
+import copy
 import json
 import math
 import os
@@ -282,7 +283,7 @@ def grow(run, factor, exponents):
     lateral axes, cells with them), priced as counts, not run: every rank's count times
     factor ** exponents[count], the measured trend of that count with N continued. The pressure
     iterations per fluid step are held (the multigrid's count does not grow with the grid)."""
-    g = json.loads(json.dumps(run))
+    g = copy.deepcopy(run)
     g["rank_counts"] = {k: ([x * factor ** exponents[k] for x in v] if k in exponents else v)
                         for k, v in run["rank_counts"].items()}
     g["particles"] = run["particles"] * factor

@@ -24,8 +24,6 @@ the grown counts are priced as a run would be (rows of predicted.csv under the n
 --grow-check riser_1e6=riser_1e5:riser_1e4:10 tests that extrapolation where the answer is
 known: the trend from riser_1e4 to riser_1e5 grows the riser_1e5 runs to 1e6, and grow_check.csv
 sets each count and the predicted efficiencies beside those of the measured riser_1e6 runs.
-Trends may also come from an earlier sweep's counts.csv (--trend-counts), whose rows give each
-count's maximum per fluid step.
 
 A scene's calibration may come from a smaller scene of the same base (--calibrate-with
 riser_1e6=riser_1e5): the per-core speeds are per particle step, pair and cell, and the serial
@@ -91,42 +89,63 @@ def check_rows(scene, scheme, cal_runs, cal, network, per_node):
     return rows
 
 
-def maxima_table(counts, csv_paths):
-    """{(scene, scheme, ranks): (particles, count maxima per fluid step)} from the count runs and
-    from earlier counts.csv files (a run here wins over a table row)."""
-    table = {}
-    for path in csv_paths:
-        with open(path) as f:
-            for row in csv.DictReader(f):
-                maxima = {c: float(row[c + "_max"]) for c in scaling_model.COUNT_FIELDS}
-                table[(row["scene"], row["scheme"], int(row["ranks"]))] = (None, maxima)
+def calibration_runs(cals, alias, scene, scheme):
+    """(calibration scene, its runs by rank count): the scene's own 1-rank runs first,
+    --calibrate-with's scene only where it has none."""
+    cal_scene = scene if 1 in cals.get((scene, scheme), {}) else alias.get(scene, scene)
+    return cal_scene, cals.get((cal_scene, scheme), {})
+
+
+def grown(counts, big, small, factor):
+    """{scheme: {ranks: (grown run, trend rank count, exponents)}}: each R-rank run of scene `big`
+    grown `factor` times along the trend of its counts from scene `small` (count_maxima of the
+    median runs at the same rank count, or at the nearest in log R that both scenes have)."""
+    out = {}
     for (scene, scheme), by_r in counts.items():
-        for r, runs in by_r.items():
-            if r > 1:
-                run = median_run(runs)
-                table[(scene, scheme, r)] = (run["particles"], scaling_model.count_maxima(run))
-    return table
+        if scene != big:
+            continue
+        pairs = [r for r in counts.get((small, scheme), {}) if r > 1 and r in by_r]
+        for r in sorted(q for q in by_r if q > 1):
+            if not pairs:
+                break
+            q = min(pairs, key=lambda q: abs(math.log(q / r)))
+            s_run, b_run = median_run(counts[(small, scheme)][q]), median_run(by_r[q])
+            e = scaling_model.trend_exponents(scaling_model.count_maxima(s_run),
+                                              scaling_model.count_maxima(b_run),
+                                              s_run["particles"], b_run["particles"])
+            out.setdefault(scheme, {})[r] = (scaling_model.grow(median_run(by_r[r]), factor, e),
+                                             q, e)
+    return out
 
 
-def particles_of(scene):
-    """The particle count a scaled scene's name carries (riser_1e6 -> 1e6)."""
-    m = re.search(r"_(\d+(?:\.\d+)?e\d+)$", scene)
-    if not m:
-        sys.exit(f"scaling_model_sweep.py: {scene}: a grown scene's name must end in its "
-                 "particle count, e.g. riser_1e6")
-    return float(m.group(1))
-
-
-def exponents_at(table, small, big, scheme, r):
-    """The count trend from scene `small` to `big` at rank count r (the nearest rank count that
-    both have, in log R, where r itself is missing)."""
-    both = [q for (sc, s, q) in table if sc == big and s == scheme and (small, scheme, q) in table]
-    if not both:
-        return None, None
-    q = min(both, key=lambda q: abs(math.log(q / r)))
-    return q, scaling_model.trend_exponents(table[(small, scheme, q)][1],
-                                            table[(big, scheme, q)][1], particles_of(small),
-                                            particles_of(big))
+def grow_check(specs, counts, cals, alias, a):
+    """--grow-check BIG=MID:SMALL:F: MID's runs grown by F along the SMALL -> MID trend, against
+    BIG's measured runs at the same rank count: each count's maximum per fluid step, and the
+    model's strong efficiency at each of --cores from either."""
+    rows = []
+    for spec in specs:
+        big, rest = spec.split("=", 1)
+        mid, small, factor = rest.split(":")
+        for scheme, by_r in sorted(grown(counts, mid, small, float(factor)).items()):
+            measured_runs = counts.get((big, scheme), {})
+            cal_runs = calibration_runs(cals, alias, big, scheme)[1]
+            for r, (g, q, _) in sorted(by_r.items()):
+                if r not in measured_runs:
+                    continue
+                measured = median_run(measured_runs[r])
+                mm, gm = scaling_model.count_maxima(measured), scaling_model.count_maxima(g)
+                row = {"scene": big, "scheme": scheme, "ranks": r,
+                       "grown_from": f"{mid} along {small}->{mid} at {q} ranks"}
+                for f in scaling_model.COUNT_FIELDS:
+                    row[f"{f}_error"] = (gm[f] - mm[f]) / mm[f] if mm[f] > 0 else 0.0
+                if 1 in cal_runs:
+                    cal = scaling_model.calibrate(median_run(cal_runs[1]))
+                    for c in a.cores:
+                        for name, run in (("measured", measured), ("grown", g)):
+                            row[f"eff_{c}_{name}"] = scaling_model.predict(
+                                run, cal, c, False, a.network, a.cores_per_node)[1]
+                rows.append(row)
+    return rows
 
 
 def write_csv(path, rows):
@@ -137,46 +156,6 @@ def write_csv(path, rows):
         for r in rows:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
     os.replace(tmp, path)
-
-
-def grow_check(specs, counts, cals, table, alias, a):
-    """--grow-check BIG=MID:SMALL:F: MID's runs grown by F along the SMALL -> MID trend, against
-    BIG's measured runs at the same rank count: each count's maximum per fluid step, and the
-    model's strong efficiency at each of --cores from either."""
-    rows = []
-    for spec in specs:
-        big, rest = spec.split("=", 1)
-        mid, small, factor = rest.split(":")
-        for (scene, scheme), by_r in sorted(counts.items()):
-            if scene != big:
-                continue
-            cal_scene = scene if 1 in cals.get((scene, scheme), {}) else alias.get(scene, scene)
-            cal_runs = cals.get((cal_scene, scheme), {})
-            mid_runs = counts.get((mid, scheme), {})
-            for r in sorted(by_r):
-                if r == 1 or r not in mid_runs:
-                    continue
-                q, e = exponents_at(table, small, mid, scheme, r)
-                if e is None:
-                    continue
-                measured = median_run(by_r[r])
-                grown = scaling_model.grow(median_run(mid_runs[r]), float(factor), e)
-                mm, gm = scaling_model.count_maxima(measured), scaling_model.count_maxima(grown)
-                row = {"scene": big, "scheme": scheme, "ranks": r,
-                       "grown_from": f"{mid} along {small}->{mid} at {q} ranks"}
-                for f in scaling_model.COUNT_FIELDS:
-                    row[f"{f}_error"] = (gm[f] - mm[f]) / mm[f] if mm[f] > 0 else 0.0
-                if 1 in cal_runs:
-                    cal = scaling_model.calibrate(median_run(cal_runs[1]))
-                    for c in a.cores:
-                        em = scaling_model.predict(measured, cal, c, False, a.network,
-                                                   a.cores_per_node)[1]
-                        eg = scaling_model.predict(grown, cal, c, False, a.network,
-                                                   a.cores_per_node)[1]
-                        row[f"eff_{c}_measured"] = em
-                        row[f"eff_{c}_grown"] = eg
-                rows.append(row)
-    return rows
 
 
 def main():
@@ -199,25 +178,16 @@ def main():
     ap.add_argument("--grow-check", action="append", default=[], metavar="BIG=MID:SMALL:F",
                     help="grow MID's runs by F along the SMALL-to-MID trend and set them beside "
                          "BIG's measured runs (grow_check.csv)")
-    ap.add_argument("--trend-counts", action="append", default=[], metavar="CSV",
-                    help="an earlier sweep's counts.csv, for count trends")
     a = ap.parse_args()
     alias = dict(kv.split("=", 1) for kv in a.calibrate_with)
     counts, cals = collect(a.counts_dir), collect(a.calibration_dir)
-    table = maxima_table(counts, a.trend_counts)
     grown_runs = {}  # (scene, scheme) -> {ranks: [grown run]}, priced below like measured ones
     grow_notes = []
     for spec in a.grow:
         new, rest = spec.split("=", 1)
         big, small, factor = rest.split(":")
-        for (scene, scheme), by_r in counts.items():
-            if scene != big:
-                continue
-            for r in sorted(by_r):
-                q, e = exponents_at(table, small, big, scheme, r)
-                if e is None or r == 1:
-                    continue
-                g = scaling_model.grow(median_run(by_r[r]), float(factor), e)
+        for scheme, by_r in grown(counts, big, small, float(factor)).items():
+            for r, (g, q, e) in sorted(by_r.items()):
                 grown_runs.setdefault((new, scheme), {})[r] = [g]
                 grow_notes.append({"scene": new, "scheme": scheme, "from": big, "ranks": r,
                                    "trend": f"{small}->{big} at {q} ranks",
@@ -234,9 +204,7 @@ def main():
             for run in runs:
                 count_table.append({"scene": scene, "scheme": scheme,
                                     **scaling_model.count_rows(run)})
-        # The scene's own 1-rank runs first; --calibrate-with only where there are none.
-        cal_scene = scene if 1 in cals.get((scene, scheme), {}) else alias.get(scene, scene)
-        cal_runs = cals.get((cal_scene, scheme), {})
+        cal_scene, cal_runs = calibration_runs(cals, alias, scene, scheme)
         if 1 not in cal_runs:
             print(f"scaling_model_sweep.py: no calibration for {scene} {scheme}: counts only",
                   file=sys.stderr)
@@ -263,7 +231,7 @@ def main():
                                   "model_s_per_fluid_step": total,
                                   **{k.replace(" ", "_") + "_s": v for k, v in terms.items()}})
             curves[mode].append((f"{scene} {scheme}", pts))
-    checks_g = grow_check(a.grow_check, counts, cals, table, alias, a)
+    checks_g = grow_check(a.grow_check, counts, cals, alias, a)
     if checks_g:
         write_csv(os.path.join(a.out, "grow_check.csv"), checks_g)
     if grow_notes:

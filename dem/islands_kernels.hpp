@@ -280,13 +280,84 @@ struct IslandResult {
 // (member order). The displacement check after each step: farther than bound[i] x elapsed +
 // margin counts as a bound violation (step_island<.., Bounded = true>); else (the R-rank dense
 // mode) farther than sqrt(fixed2) (half the skin: the rows may miss a pair).
+// lead: the island's leading fine steps that see no contact (entry_lead()); when it is 2 or more
+// they are taken as one step. leads: one per member instead (members of several islands).
 struct Members {
   const std::uint32_t* mem;
   std::uint32_t count;
   const double *x0, *y0, *z0;
   const double* bound;
   double margin, fixed2;
+  std::int64_t lead = 0;
+  const std::int64_t* leads = nullptr; // per member, instead of `lead`
 };
+
+// The entry time of island member i: none of its pairs in the island, nor a wall, can close
+// before it while both ends fly free. Until a member's first contact nothing but gravity and its
+// held force acts on it, so it stays within its own speed bound own[i] t of its start (the bound
+// before the island raised it: the raise covers what contacts can pass on, which needs a contact
+// first); a pair's gap, less the link test's margin, thus stays positive while
+// t < (gap - margin) / (s_i + s_j), a wall gap while t < (gap - margin) / s_i (the link and tie
+// tests' margin). 0 when a gap is already within the margin (an overlap), infinite for members
+// at rest. The island's entry time is the least over its members: before it nothing in the
+// island touches anything, and no contact can speed a member up. A pair that could close within
+// the sub-iteration is linked, so every valid row set holds it: the time, capped at dt_sp, is the
+// same for every list and rank count.
+template <bool Wrap>
+double member_entry_time(const ContactView& v, const double* own, double margin,
+                         std::uint32_t island, std::uint32_t i) {
+  const DomainGeometry& g = *v.geom;
+  const double* __restrict x = v.c.x;
+  const double* __restrict y = v.c.y;
+  const double* __restrict z = v.c.z;
+  const double* __restrict rad = v.c.radius;
+  const std::uint32_t* __restrict off = v.rows.off;
+  const std::uint32_t* __restrict nb = v.rows.nb;
+  const double inf = std::numeric_limits<double>::infinity();
+  // Time to close a gap at a closing speed (a gap within the margin: now).
+  auto until = [&](double gap, double speed) {
+    return gap <= 0.0 ? 0.0 : speed > 0.0 ? gap / speed : inf;
+  };
+  const double xi = x[i], yi = y[i], zi = z[i], ri = rad[i], si = own[i];
+  double t = inf;
+  const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
+  for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+    const std::uint32_t j = nb[k];
+    if (v.label[j] != island)
+      continue;
+    double dx = x[j] - xi, dy = y[j] - yi, dz = z[j] - zi;
+    if (k >= kw)
+      dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+    const double gap = std::sqrt(dx * dx + dy * dy + dz * dz) - ri - rad[j] - margin;
+    t = std::min(t, until(gap, si + own[j]));
+  }
+  const double pos[3] = {xi, yi, zi};
+  for (int a = 0; a < 3; ++a)
+    if (!g.periodic[a])
+      t = std::min(t, until(std::min(pos[a] - g.lo[a], g.hi[a] - pos[a]) - ri - margin, si));
+  return t;
+}
+template <bool Wrap>
+double entry_time(const ContactView& v, const Members& mb, const double* own,
+                  std::uint32_t island) {
+  double t = std::numeric_limits<double>::infinity();
+  for (std::uint32_t u = 0; u < mb.count; ++u)
+    t = std::min(t, member_entry_time<Wrap>(v, own, mb.margin, island, mb.mem[u]));
+  return t;
+}
+
+// The leading fine steps taken as one step of lead x h (step_island): every force that step
+// reads must be free of contact, at its start (t = 0) and at its end (t = lead h, where the
+// velocity's closing half kick spans lead h / 2 instead of h / 2). So lead h < t_e:
+// ceil(t_e / h) - 1; the whole sub-iteration (K) when t_e >= dt_sp, as a lone particle's single
+// step of dt_sp.
+inline std::int64_t entry_lead(double t_e, double dt_sp, const FineSteps& fs) {
+  if (!(t_e > 0.0))
+    return 0;
+  if (t_e >= dt_sp)
+    return fs.K;
+  return std::min<std::int64_t>(fs.K, static_cast<std::int64_t>(std::ceil(t_e / fs.h)) - 1);
+}
 
 // Islands larger than this run each pass as a nested parallel_for over blocks of members.
 inline constexpr std::uint32_t kGiantIsland = 4096;
@@ -368,34 +439,66 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   auto block_end = [&](std::size_t b) {
     return std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * kMemberBlock));
   };
-  double h_before = 0.0, elapsed = 0.0;
-  for (std::int64_t k = 0; k < fs.K; ++k) {
-    const double hk = k + 1 == fs.K ? fs.h_last : fs.h;
-    if (k > 0)
+  // A member's first `lead` steps (lead >= 2) are one step of lead x h: it touches nothing before
+  // its island's entry time, so those steps see no contact force on it, and one variable-step
+  // leapfrog step under the constant acceleration is their free flight (the same positions and
+  // velocities up to rounding, as the free-flight kernel's single step of dt_sp for a lone
+  // particle). Its steps skip .. K - 1 remain, the first lengthened. One lead for all members
+  // (mb.leads null) keeps the passes over member ranges; leads per member (the R-rank spanning
+  // members: several islands in one call) evaluate each member from its own first step on. A
+  // member's kick reads its own last half step (hp), the common one's when all step together.
+  const std::int64_t K = fs.K;
+  auto skip_of = [&](std::uint32_t u) {
+    return std::clamp<std::int64_t>(mb.leads != nullptr ? mb.leads[u] : mb.lead, 1, K) - 1;
+  };
+  // Per-member leads run every step: between() is collective there (the R-rank ghost refresh),
+  // so every rank calls it K - 1 times whatever its members' leads.
+  const bool uniform = mb.leads == nullptr;
+  const std::int64_t k0 = uniform && count > 0 ? skip_of(0) : 0;
+  double elapsed = static_cast<double>(k0) * fs.h;
+  for (std::int64_t k = k0; k < K; ++k) {
+    const double base = k + 1 == K ? fs.h_last : fs.h;
+    // The length of this step for a member whose steps start at s (<= k).
+    auto length = [&](std::int64_t s) {
+      return base + (k == s ? static_cast<double>(s) * fs.h : 0.0);
+    };
+    if (k > k0)
       between();
     // With friction the springs advance over the step: the forces take its length.
     auto evaluate = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
-                        std::int64_t& violations) {
+                        std::int64_t& violations, [[maybe_unused]] double hk) {
       if constexpr (Friction)
         return forces(u0, u1, max_ratio, violations, hk);
       else
         return forces(u0, u1, max_ratio, violations);
     };
+    // The forces on members u0 .. u1 that step now.
+    auto evaluate_range = [&](std::uint32_t u0, std::uint32_t u1, IslandResult& r) {
+      if (uniform) {
+        r.pairs += evaluate(u0, u1, r.max_ratio, r.violations, length(k0));
+        return;
+      }
+      for (std::uint32_t u = u0; u < u1; ++u)
+        if (const std::int64_t s = skip_of(u); s <= k)
+          r.pairs += evaluate(u, u + 1, r.max_ratio, r.violations, length(s));
+    };
     if (!giant) {
-      res.pairs += evaluate(0u, count, res.max_ratio, res.violations);
+      evaluate_range(0u, count, res);
     } else {
       tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
         IslandResult& pt = parts[b];
         pt = IslandResult{};
-        pt.pairs = evaluate(static_cast<std::uint32_t>(b * kMemberBlock),
-                            static_cast<std::uint32_t>(block_end(b)), pt.max_ratio, pt.violations);
+        evaluate_range(static_cast<std::uint32_t>(b * kMemberBlock),
+                       static_cast<std::uint32_t>(block_end(b)), pt);
       });
       for (const IslandResult& pt : parts)
         res.pairs += pt.pairs, res.violations += pt.violations,
             res.max_ratio = std::max(res.max_ratio, pt.max_ratio);
     }
-    if (svx != nullptr && k == 0)
+    if (svx != nullptr)
       for (std::uint32_t u = 0; u < count; ++u) {
+        if (skip_of(u) != k)
+          continue;
         const std::uint32_t i = mem[u];
         double ex = 0.0, ey = 0.0, ez = 0.0;
         if constexpr (External)
@@ -404,23 +507,28 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
         svy[i] = vy[i] + ((fy[i] + ey) * im[i] + g1) * hp[i];
         svz[i] = vz[i] + ((fz[i] + ez) * im[i] + g2) * hp[i];
       }
-    const double half = 0.5 * hk;
-    elapsed += hk;
+    elapsed += base;
+    auto kick_range = [&](std::uint32_t u0, std::uint32_t u1, std::int64_t& bv) {
+      for (std::uint32_t u = u0; u < u1; ++u) {
+        const std::int64_t s = uniform ? k0 : skip_of(u);
+        if (s > k)
+          continue;
+        const double hk = length(s), half = 0.5 * hk;
+        kick(u, hp[mem[u]] + half, hk, half, elapsed, bv);
+      }
+    };
     if (!giant) {
-      for (std::uint32_t u = 0; u < count; ++u)
-        kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed,
-             res.bound_violations);
+      kick_range(0u, count, res.bound_violations);
     } else {
       tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
         std::int64_t& bv = parts[b].bound_violations;
         bv = 0;
-        for (std::uint32_t u = static_cast<std::uint32_t>(b * kMemberBlock); u < block_end(b); ++u)
-          kick(u, k == 0 ? hp[mem[u]] + half : 0.5 * h_before + half, hk, half, elapsed, bv);
+        kick_range(static_cast<std::uint32_t>(b * kMemberBlock),
+                   static_cast<std::uint32_t>(block_end(b)), bv);
       });
       for (const IslandResult& pt : parts)
         res.bound_violations += pt.bound_violations;
     }
-    h_before = hk;
   }
   return res;
 }

@@ -354,6 +354,8 @@ template <bool External, bool Friction> void IslandsScheme::fine_together(bool r
   }
   const islands::ContactView view = contact_view_ranks();
   const auto* label = ln_.island_of.data();
+  if (!all)
+    span_leads(view, mb);
   // Spanning members belong to different islands: one member at a time, each with its own.
   auto forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
                     auto... hk) {
@@ -376,6 +378,43 @@ template <bool External, bool Friction> void IslandsScheme::fine_together(bool r
                 view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh)
           : islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
                                                            sv[0], sv[1], sv[2], forces, refresh);
+}
+
+// The spanning members' leads (islands_kernels.hpp, member_entry_time): each island's entry
+// time is the least over its members, and its members lie on several ranks. Every rank takes its
+// owned members' times (the ghost partners' own bounds from their owners), then the least
+// spreads along the members' rows in the island, from ghosts to owners, until no rank lowers
+// one: every member ends with its island's time, the one-rank value. Collective.
+void IslandsScheme::span_leads(const islands::ContactView& view, islands::Members& mb) {
+  RankPart& r = *rank_;
+  const std::size_t n = p_.size();
+  const auto* label = ln_.island_of.data();
+  r.span_own.assign(ln_.own_bound.begin(), ln_.own_bound.begin() + static_cast<std::ptrdiff_t>(n));
+  std::vector<double>* own[] = {&r.span_own};
+  r.exchange.forward_columns(own);
+  r.span_entry.assign(n, std::numeric_limits<double>::infinity());
+  for (const std::uint32_t i : r.span_members)
+    r.span_entry[i] =
+        islands::member_entry_time<false>(view, r.span_own.data(), margin_, label[i], i);
+  const std::uint32_t* off = view.rows.off;
+  const std::uint32_t* nb = view.rows.nb;
+  std::vector<double>* entry[] = {&r.span_entry};
+  for (;;) {
+    r.exchange.forward_columns(entry);
+    double lowered = 0.0;
+    for (const std::uint32_t i : r.span_members)
+      for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+        const std::uint32_t j = nb[k];
+        if (label[j] == label[i] && r.span_entry[j] < r.span_entry[i])
+          r.span_entry[i] = r.span_entry[j], lowered = 1.0;
+      }
+    if (r.comm.max(lowered) == 0.0)
+      break;
+  }
+  r.span_lead.resize(r.span_members.size());
+  for (std::size_t u = 0; u < r.span_members.size(); ++u)
+    r.span_lead[u] = islands::entry_lead(r.span_entry[r.span_members[u]], dt_sp_, steps_);
+  mb.leads = r.span_lead.data();
 }
 
 // A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations

@@ -873,14 +873,17 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
 template <bool External, bool Ranks, bool Friction>
 void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::ContactView& view) {
   const std::uint32_t first = ln_.islands.first[c];
-  const islands::Members mb{ln_.members.data() + first,
-                            ln_.islands.size(c),
-                            x0_.data() + first,
-                            y0_.data() + first,
-                            z0_.data() + first,
-                            ln_.bound.data(),
-                            margin_,
-                            0.0};
+  islands::Members mb{ln_.members.data() + first,
+                      ln_.islands.size(c),
+                      x0_.data() + first,
+                      y0_.data() + first,
+                      z0_.data() + first,
+                      ln_.bound.data(),
+                      margin_,
+                      0.0};
+  // No member touches anything before the island's entry time: its leading steps are one.
+  mb.lead = islands::entry_lead(islands::entry_time<!Ranks>(view, mb, ln_.own_bound.data(), c),
+                                dt_sp_, steps_);
   results_[c] = islands::step_island<External, true, Friction>(
       view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
       record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,

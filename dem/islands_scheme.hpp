@@ -367,6 +367,7 @@ private:
   double link_rounds();
   void make_links_ranks();
   template <bool External, bool Friction> void fine_together(bool record, bool all);
+  void span_leads(const islands::ContactView& view, islands::Members& mb);
   void canonicalize();
 
   const Scene& scene_;

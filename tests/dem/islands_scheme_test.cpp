@@ -33,8 +33,9 @@ State state_of(const ParticleStore& p) {
 
 // Both schemes from the same particles for `time` seconds; returns the synchronised states at
 // `time` (positions and v(t), as the diagnostics see them).
-template <class Setup> std::pair<State, State> run_both(const Scene& s, double time, Setup setup,
-                                                         std::int64_t* bound_violations = nullptr) {
+template <class Setup>
+std::pair<State, State> run_both(const Scene& s, double time, Setup setup,
+                                 std::int64_t* bound_violations = nullptr) {
   ParticleStore pe = make_initial_particles(s);
   setup(pe);
   ParticleStore pi = pe;
@@ -42,7 +43,8 @@ template <class Setup> std::pair<State, State> run_both(const Scene& s, double t
   dem::ExplicitScheme e(s, pe, t);
   e.start();
   const auto steps = std::llround(time / e.dt());
-  for (long long k = 0; k < steps; ++k) e.step();
+  for (long long k = 0; k < steps; ++k)
+    e.step();
   e.step(true);
   State ref;
   {
@@ -53,9 +55,11 @@ template <class Setup> std::pair<State, State> run_both(const Scene& s, double t
   dem::IslandsScheme isl(s, pi, t);
   isl.start();
   const auto subits = std::llround(time / isl.dt_sub());
-  for (long long k = 0; k < subits; ++k) isl.subiterate();
+  for (long long k = 0; k < subits; ++k)
+    isl.subiterate();
   isl.subiterate(true);
-  if (bound_violations) *bound_violations = isl.bound_violations();
+  if (bound_violations)
+    *bound_violations = isl.bound_violations();
   State out;
   const auto r = isl.synchronised_previous();
   for (std::size_t i = 0; i < r.id.size(); ++i)
@@ -126,6 +130,33 @@ TEST(IslandsScheme, MissesNoCollisionOfFastBinaryEncounters) {
   EXPECT_NEAR(ref.at(0)[3], -0.4, 0.02);
 }
 
+// An island's fine steps before its entry time are one step (islands_kernels.hpp, entry_lead):
+// one pair closing at 1 m/s (own bounds 0.5 m/s each, no gravity) from a surface gap g takes,
+// in its first sub-iteration of K = 1000 steps of h = 1e-7 s, one step up to L h with
+// L = ceil(t_e / h) - 1, t_e = (g - margin) / 1 m/s (margin 1e-3 r), then the K - L steps of h:
+// K - L + 1 force evaluations of its one pair instead of K.
+TEST(IslandsScheme, FoldsTheFineStepsBeforeAnIslandsEntryTimeIntoOne) {
+  const Scene s = demtest::scene_from(kEncounters);
+  for (const double gap : {0.03e-3, 0.05e-3, 0.0701e-3}) {
+    ParticleStore p = make_initial_particles(s);
+    p.add(1.0e-3, 2e-3, 2e-3, 0.5, 0.0, 0.0, 50e-6, 1000.0, 0);
+    p.add(1.0e-3 + 100e-6 + gap, 2e-3, 2e-3, -0.5, 0.0, 0.0, 50e-6, 1000.0, 1);
+    // Particles at rest far from it: the pair is a small part of the scene (not the dense mode,
+    // where everyone steps finely).
+    for (int q = 0; q < 16; ++q)
+      p.add(0.25e-3 * (q % 4) + 0.5e-3, 0.5e-3 + 0.25e-3 * (q / 4), 0.5e-3, 0.0, 0.0, 0.0, 50e-6,
+            1000.0, 2 + q);
+    PhaseTimer t;
+    dem::IslandsScheme isl(s, p, t);
+    isl.start();
+    isl.subiterate();
+    const double h = 1e-7, t_e = (gap - 1e-3 * 50e-6) / 1.0;
+    const auto lead = static_cast<std::int64_t>(std::ceil(t_e / h)) - 1;
+    EXPECT_EQ(isl.pair_evaluations(), 1000 - lead + 1) << "gap " << gap;
+    EXPECT_EQ(isl.bound_violations(), 0);
+  }
+}
+
 namespace {
 // 100 particles of a 1% gas (periodic) and 60 in a closed box under gravity.
 const char* kGas = R"(
@@ -190,51 +221,55 @@ void expect_round_off(const State& ref, const State& isl, double length, double 
 // dt_sp instead of many of dt): round-off, amplified by a few collisions over 3 ms.
 TEST(IslandsScheme, EqualsExplicitToRoundOffInAGas) {
   std::int64_t violations = -1;
-  const auto [ref, isl] = run_both(demtest::scene_from(kGas), 3.0e-3, [](ParticleStore&) {},
-                                   &violations);
+  const auto [ref, isl] = run_both(
+      demtest::scene_from(kGas), 3.0e-3, [](ParticleStore&) {}, &violations);
   EXPECT_EQ(violations, 0);
   expect_round_off(ref, isl, 1.737e-3, 1e-9);
 }
 
 TEST(IslandsScheme, EqualsExplicitToRoundOffWithWallsAndGravity) {
   std::int64_t violations = -1;
-  const auto [ref, isl] = run_both(demtest::scene_from(kBox), 5.0e-3, [](ParticleStore&) {},
-                                   &violations);
+  const auto [ref, isl] = run_both(
+      demtest::scene_from(kBox), 5.0e-3, [](ParticleStore&) {}, &violations);
   EXPECT_EQ(violations, 0);
   // Walls are not periodic: plain differences (wrap_diff with a huge length).
   expect_round_off(ref, isl, 1.0, 1e-9);
 }
 
 TEST(IslandsScheme, BitwiseIndependentOfThreadCount) {
-  const Scene s = demtest::scene_from(kGas, {"particles.count=400", "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"});
+  const Scene s =
+      demtest::scene_from(kGas, {"particles.count=400", "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"});
   auto run = [&](int threads) {
-    tbb::global_control gc(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(threads));
+    tbb::global_control gc(tbb::global_control::max_allowed_parallelism,
+                           static_cast<std::size_t>(threads));
     ParticleStore p = make_initial_particles(s);
     PhaseTimer t;
     dem::IslandsScheme isl(s, p, t);
     isl.start();
-    for (int k = 0; k < 30; ++k) isl.subiterate();
+    for (int k = 0; k < 30; ++k)
+      isl.subiterate();
     return state_of(p);
   };
   const State one = run(1), two = run(2);
-  for (const auto& [id, a] : one) EXPECT_EQ(a, two.at(id)) << "particle " << id;
+  for (const auto& [id, a] : one)
+    EXPECT_EQ(a, two.at(id)) << "particle " << id;
 }
 
 // The link rounds after the first rescan only the rows of particles whose bound was raised
 // (IslandsScheme::make_links): the run must be bitwise the one that rescans every row in every
 // round, with walls and gravity and in a periodic gas.
 TEST(IslandsScheme, IncrementalLinksBitwiseEqualFullRescans) {
-  for (const Scene& s :
-       {demtest::scene_from(kBox, {"particles.count=150"}),
-        demtest::scene_from(kGas, {"particles.count=400",
-                                   "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"})}) {
+  for (const Scene& s : {demtest::scene_from(kBox, {"particles.count=150"}),
+                         demtest::scene_from(kGas, {"particles.count=400",
+                                                    "domain.hi=[2.757e-3,2.757e-3,2.757e-3]"})}) {
     auto run = [&](bool incremental) {
       ParticleStore p = make_initial_particles(s);
       PhaseTimer t;
       dem::IslandsScheme isl(s, p, t);
       isl.set_incremental_links(incremental);
       isl.start();
-      for (int k = 0; k < 40; ++k) isl.subiterate();
+      for (int k = 0; k < 40; ++k)
+        isl.subiterate();
       EXPECT_EQ(isl.bound_violations(), 0);
       const auto hist = isl.island_size_histogram();
       return std::tuple(state_of(p), isl.pair_evaluations(),
@@ -247,7 +282,8 @@ TEST(IslandsScheme, IncrementalLinksBitwiseEqualFullRescans) {
     ASSERT_GT(full_hist[1], 0);
     EXPECT_EQ(inc_pairs, full_pairs);
     EXPECT_EQ(inc_hist, full_hist);
-    for (const auto& [id, a] : full) EXPECT_EQ(a, inc.at(id)) << "particle " << id;
+    for (const auto& [id, a] : full)
+      EXPECT_EQ(a, inc.at(id)) << "particle " << id;
   }
 }
 
@@ -255,16 +291,19 @@ TEST(IslandsScheme, IncrementalLinksBitwiseEqualFullRescans) {
 // (the explicit scheme's work, no bounds); with dt dividing dt_sp it is the explicit scheme to
 // round-off (only the neighbor-list rebuilds, hence the summation order, differ).
 TEST(IslandsScheme, DenseGasStepsEveryoneFinelyAsExplicit) {
-  const Scene s = demtest::scene_from(kGas, {"particles.count=600", "domain.hi=[1.0e-3,1.0e-3,1.0e-3]"});
+  const Scene s =
+      demtest::scene_from(kGas, {"particles.count=600", "domain.hi=[1.0e-3,1.0e-3,1.0e-3]"});
   ParticleStore p = make_initial_particles(s);
   PhaseTimer t;
   dem::IslandsScheme isl(s, p, t);
   isl.start();
-  for (int k = 0; k < 3; ++k) isl.subiterate();
+  for (int k = 0; k < 3; ++k)
+    isl.subiterate();
   EXPECT_EQ(isl.global_subiterations(), 3);
   EXPECT_DOUBLE_EQ(isl.last_fine_fraction(), 1.0);
   std::int64_t violations = -1;
-  const auto [ref, out] = run_both(s, 3.0e-4, [](ParticleStore&) {}, &violations);
+  const auto [ref, out] = run_both(
+      s, 3.0e-4, [](ParticleStore&) {}, &violations);
   EXPECT_EQ(violations, 0);
   expect_round_off(ref, out, 1.0e-3, 1e-9);
 }
@@ -280,9 +319,11 @@ TEST(IslandsScheme, NonFiniteVelocityStopsTheRunNamingTheParticle) {
   const std::int64_t victim = p.id[7];
   p.vx[7] = std::numeric_limits<double>::quiet_NaN();
   try {
-    for (int k = 0; k < 5; ++k) isl.subiterate();
+    for (int k = 0; k < 5; ++k)
+      isl.subiterate();
     FAIL() << "no error";
   } catch (const RunError& e) {
-    EXPECT_NE(std::string(e.what()).find(fmt::format("particle {}", victim)), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(fmt::format("particle {}", victim)), std::string::npos)
+        << e.what();
   }
 }

@@ -273,6 +273,7 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
 // What one island's fine steps add to the scheme's counters.
 struct IslandResult {
   std::int64_t pairs = 0, violations = 0, bound_violations = 0;
+  std::int64_t steps = 0; // member steps taken (K each, less the leads folded)
   double max_ratio = 0.0;
 };
 
@@ -530,6 +531,11 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
         res.bound_violations += pt.bound_violations;
     }
   }
+  if (uniform)
+    res.steps = static_cast<std::int64_t>(count) * (K - k0);
+  else
+    for (std::uint32_t u = 0; u < count; ++u)
+      res.steps += K - skip_of(u);
   return res;
 }
 

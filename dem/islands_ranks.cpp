@@ -569,9 +569,10 @@ void IslandsScheme::subiterate_ranks(bool record) {
     const islands::IslandResult& sr = r.span_result;
     c = {};
     c[0] = static_cast<double>(owned_);
-    c[1] = static_cast<double>(static_cast<std::int64_t>(owned_) - members + members * K);
+    c[1] = static_cast<double>(static_cast<std::int64_t>(owned_) - members + sr.steps);
     ratio = sr.max_ratio;
     for (const islands::IslandResult& q : results_) {
+      c[1] += static_cast<double>(q.steps);
       c[2] += static_cast<double>(q.pairs), c[3] += static_cast<double>(q.violations);
       c[4] += static_cast<double>(q.bound_violations);
       ratio = std::max(ratio, q.max_ratio);
@@ -631,6 +632,11 @@ void IslandsScheme::subiterate_ranks(bool record) {
   const std::int64_t fine = count(6);
   st_.last_fine_fraction =
       n_global_ > 0 ? static_cast<double>(fine) / static_cast<double>(n_global_) : 0.0;
+  // The members' steps: all particle steps less one per free particle.
+  const auto member_steps = static_cast<double>(count(1) - (n_global_ - fine));
+  st_.last_fine_work =
+      n_global_ > 0 ? member_steps / (static_cast<double>(K) * static_cast<double>(n_global_))
+                    : 0.0;
   st_.add_interval(fine, n_global_, K);
   // The largest overlap is reduced only when the state is recorded (the orb scheme's budget).
   r.max_ratio_local = std::max(r.max_ratio_local, ratio);

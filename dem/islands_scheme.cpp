@@ -78,7 +78,7 @@ void IslandsScheme::subiterate(bool record) {
   steps_ = fine_steps(dt_sp_, model_.dt);
   rank_ ? subiterate_ranks(record) : subiterate_one(record);
   if (auto_.on) {
-    auto_.fine_sum += st_.last_fine_fraction;
+    auto_.fine_sum += st_.last_fine_work; // the fine work, in particles on all K steps
     ++auto_.fine_count;
     if (++auto_.q == nsubit_)
       choose_length(); // the interval's last sub-iteration
@@ -636,7 +636,7 @@ void IslandsScheme::subiterate_one(bool record) {
     raise_faults();
     const auto nn = static_cast<std::int64_t>(n);
     st_.particle_steps += nn * steps_.K;
-    st_.last_fine_fraction = 1.0;
+    st_.last_fine_fraction = st_.last_fine_work = 1.0;
     st_.add_interval(nn, nn, steps_.K);
     return;
   }
@@ -683,10 +683,11 @@ void IslandsScheme::subiterate_one(bool record) {
   }
   // Counters, in island order.
   const std::int64_t violations_before = st_.bound_violations;
-  std::int64_t members = 0;
+  std::int64_t members = 0, member_steps = 0;
   for (std::uint32_t q = 0; q < nc; ++q) {
     const islands::IslandResult& r = results_[q];
     members += ln_.islands.size(q);
+    member_steps += r.steps;
     st_.pair_evaluations += r.pairs;
     st_.overlap_violations += r.violations;
     st_.bound_violations += r.bound_violations;
@@ -718,8 +719,11 @@ void IslandsScheme::subiterate_one(bool record) {
     fault_flag_ = 0;
   }
   const std::int64_t free_count = static_cast<std::int64_t>(n) - members;
-  st_.particle_steps += free_count + members * steps_.K;
+  st_.particle_steps += free_count + member_steps;
   st_.last_fine_fraction = n > 0 ? static_cast<double>(members) / static_cast<double>(n) : 0.0;
+  st_.last_fine_work = n > 0 ? static_cast<double>(member_steps) /
+                                   (static_cast<double>(steps_.K) * static_cast<double>(n))
+                             : 0.0;
   st_.add_interval(members, static_cast<std::int64_t>(n), steps_.K);
 }
 

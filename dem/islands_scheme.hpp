@@ -24,7 +24,10 @@
 // Steps: a particle alone in its island and not tied to a wall takes one step of dt_sp (free
 // flight under gravity and its frozen external force); an island with a link or a wall takes
 // K = ceil(dt_sp / dt) steps of the explicit scheme's dt (the last one shortened to land on the
-// sub-iteration's end) with the explicit scheme's contact law, its members read live. The step
+// sub-iteration's end) with the explicit scheme's contact law, its members read live. Before its
+// entry time t_e (the least over its pairs and walls of gap / closing speed at the members' own
+// bounds: no contact can happen earlier, and without one no member outruns its own bound) its
+// steps see no contact force, so the first L of them with L dt < t_e are one step of L dt. The step
 // arithmetic is the orb scheme's variable-step leapfrog (h_prev per particle), so a constant
 // step is the explicit update exactly. Islands are TBB tasks (a giant island runs its passes
 // as nested parallel_for); every island's arithmetic is independent of the others and of the
@@ -322,6 +325,9 @@ private:
                  span_parts = 0;
     std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
     double max_overlap_ratio = 0.0, last_fine_fraction = 0.0;
+    // The last sub-iteration's fine member steps / (K x particles): what the fine particles cost,
+    // their leading steps folded (islands_kernels.hpp, entry_lead); "auto" measures with it.
+    double last_fine_work = 0.0;
     std::int64_t iv_fine = 0, iv_particles = 0, iv_steps = 0;
     std::int64_t iv_min = std::numeric_limits<std::int64_t>::max(), iv_max = 0;
     std::vector<std::int64_t> size_hist = std::vector<std::int64_t>(34, 0);

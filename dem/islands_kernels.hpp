@@ -68,11 +68,8 @@ inline Columns columns(ParticleStore& p, std::vector<double>& hprev, const Exter
 
 // Neighbor rows in CSR form. wrap[i]: where row i's pairs across a periodic face begin (the
 // Verlet list's order); without it (R ranks) every pair takes the minimum image.
-// Compact rows (IslandRows) are indexed by member position instead, and `at` gives each entry's
-// position in the full rows (the friction history's index).
 struct Rows {
   const std::uint32_t *off, *nb, *wrap;
-  const std::uint32_t* at = nullptr;
 };
 
 // What the contact pass of island members needs besides the columns: the rows, each particle's
@@ -173,9 +170,7 @@ Reaches largest_reaches(const double* __restrict x, const double* __restrict y,
 // that a pair with a ghost end counts on one rank only). With Friction the tangential springs of
 // the entries evaluated advance over the step hk and the torques are written too
 // (dem/friction_kernels.hpp: the explicit scheme's arithmetic).
-// With Compact the rows are an island's compact rows (IslandRows: indexed by u, members only).
-template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction = false,
-          bool Compact = false>
+template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction = false>
 std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
                             std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
                             std::int64_t& violations_out, [[maybe_unused]] double hk = 0.0) {
@@ -237,24 +232,22 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
       violations += delta > m.max_overlap * rmin;
     };
     // Pairs inside the box first (no periodic image needed), then those across a face.
-    const std::uint32_t row = Compact ? u : i;
-    const std::uint32_t kw = Wrap ? wrap[row] : off[row];
-    for (std::uint32_t k = off[row]; k < kw; ++k) {
+    const std::uint32_t kw = Wrap ? wrap[i] : off[i];
+    for (std::uint32_t k = off[i]; k < kw; ++k) {
       const std::uint32_t j = nb[k];
-      if constexpr (Label && !Compact) {
+      if constexpr (Label) {
         if (label[j] != island)
           continue;
       }
-      pair(Compact ? v.rows.at[k] : k, j, x[j] - xi, y[j] - yi, z[j] - zi);
+      pair(k, j, x[j] - xi, y[j] - yi, z[j] - zi);
     }
-    for (std::uint32_t k = kw; k < off[row + 1]; ++k) {
+    for (std::uint32_t k = kw; k < off[i + 1]; ++k) {
       const std::uint32_t j = nb[k];
-      if constexpr (Label && !Compact) {
+      if constexpr (Label) {
         if (label[j] != island)
           continue;
       }
-      pair(Compact ? v.rows.at[k] : k, j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1),
-           g.image(z[j] - zi, 2));
+      pair(k, j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
     }
     if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
       double f[3] = {ax, ay, az};
@@ -365,36 +358,6 @@ inline std::int64_t entry_lead(double t_e, double dt_sp, const FineSteps& fs) {
   if (t_e >= dt_sp)
     return fs.K;
   return std::min<std::int64_t>(fs.K, static_cast<std::int64_t>(std::ceil(t_e / fs.h)) - 1);
-}
-
-// An island's rows, compacted: for member u its partners in the island in row order (those
-// inside the box first, as in the list), with each entry's position in the full rows. Every
-// step's contact pass reads these instead of the members' whole rows (whose other entries are
-// particles of no island or of other islands): the same pairs in the same order, hence the same
-// sums, without the label test of every entry at every step.
-struct IslandRows {
-  std::vector<std::uint32_t> off, nb, wrap, at;
-};
-template <bool Wrap>
-void compact_rows(const ContactView& v, const Members& mb, std::uint32_t island, IslandRows& out) {
-  out.off.resize(mb.count + 1);
-  out.wrap.resize(mb.count);
-  out.nb.clear(), out.at.clear();
-  auto take = [&](std::uint32_t k0, std::uint32_t k1) {
-    for (std::uint32_t k = k0; k < k1; ++k)
-      if (v.label[v.rows.nb[k]] == island)
-        out.nb.push_back(v.rows.nb[k]), out.at.push_back(k);
-  };
-  for (std::uint32_t u = 0; u < mb.count; ++u) {
-    const std::uint32_t i = mb.mem[u];
-    const std::uint32_t k0 = v.rows.off[i], k1 = v.rows.off[i + 1];
-    const std::uint32_t kw = Wrap ? v.rows.wrap[i] : k0;
-    out.off[u] = static_cast<std::uint32_t>(out.nb.size());
-    take(k0, kw);
-    out.wrap[u] = static_cast<std::uint32_t>(out.nb.size());
-    take(kw, k1);
-  }
-  out.off[mb.count] = static_cast<std::uint32_t>(out.nb.size());
 }
 
 // Islands larger than this run each pass as a nested parallel_for over blocks of members.

@@ -888,19 +888,13 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
   // No member touches anything before the island's entry time: its leading steps are one.
   mb.lead = islands::entry_lead(islands::entry_time<!Ranks>(view, mb, ln_.own_bound.data(), c),
                                 dt_sp_, steps_);
-  // The members' partners in the island, once for all its steps (scratch per thread: islands
-  // are tasks).
-  thread_local islands::IslandRows rows;
-  islands::compact_rows<!Ranks>(view, mb, c, rows);
-  islands::ContactView cv = view;
-  cv.rows = {rows.off.data(), rows.nb.data(), rows.wrap.data(), rows.at.data()};
   results_[c] = islands::step_island<External, true, Friction>(
       view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
       record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
       [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
           auto... hk) {
-        return islands::contact_forces<true, true, !Ranks, Ranks, Friction, true>(
-            cv, mb.mem, u0, u1, c, max_ratio, violations, hk...);
+        return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
+            view, mb.mem, u0, u1, c, max_ratio, violations, hk...);
       },
       [] {});
 }

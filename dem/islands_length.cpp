@@ -100,9 +100,11 @@ void IslandsScheme::choose_length() {
   const double rho = std::clamp((auto_.fine_avg + 1.0) / (auto_.busy_avg + 1.0), 0.25, 4.0);
   const std::int64_t lo_skin = length::fewest_for_skin(D, s_max, skin_);
   const std::int64_t lo_gas = length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref);
+  const double volume = geom_.length[0] * geom_.length[1] * geom_.length[2];
+  const double entries = length::row_entries(N, volume, model_.r_min, one_.islands_skin);
   const length::Choice c =
       length::choose(auto_.hist_avg, N, D, model_.dt, rho, std::max(lo_skin, lo_gas), m_hi, nsubit_,
-                     lo_gas > lo_skin ? length::kGas : length::kSkin);
+                     lo_gas > lo_skin ? length::kGas : length::kSkin, entries);
   auto_.next = c.m;
   auto_.fine_sum = 0.0, auto_.fine_count = 0;
   const std::size_t last = auto_.log.size() - kRow;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
 
 #include "dem/islands_kernels.hpp"
 #include "dem/scheme_support.hpp"
@@ -79,7 +80,8 @@ const char* reason_text(int r) {
 }
 
 Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
-              std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason) {
+              std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason,
+              double entries) {
   m_lo = std::clamp<std::int64_t>(m_lo, 1, m_hi);
   // busy[m] = sum over c >= m of hist[c].
   std::vector<double> busy(static_cast<std::size_t>(m_hi) + 2, 0.0);
@@ -90,7 +92,8 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
     const double dt = D / static_cast<double>(m);
     const double fine = std::min(N, rho * busy[static_cast<std::size_t>(m)]);
     const auto K = static_cast<double>(fine_steps(dt, dt_fine).K);
-    return static_cast<double>(m) * (kPerParticle * N + kPerFineStep * fine * K);
+    return static_cast<double>(m) *
+           (kPerParticle * N + kPerEntry * entries + kPerFineStep * fine * K);
   };
   Choice c;
   c.m_lo = m_lo, c.m_hi = m_hi, c.rho = rho;
@@ -116,6 +119,13 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
   }
   c.busy_estimate = std::min(N, rho * busy[static_cast<std::size_t>(c.m)]);
   return c;
+}
+
+double row_entries(double N, double V, double r, double s) {
+  if (!(V > 0.0))
+    return 0.0;
+  const double c = 2.0 * r + s;
+  return N * N / V * (4.0 / 3.0) * std::numbers::pi * c * c * c;
 }
 
 std::int64_t most_subiterations(double D, double dt_fine) {

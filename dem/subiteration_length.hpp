@@ -36,6 +36,12 @@ namespace cfddem::dem::length {
 // 3 ms at nsubit 5, 20 and 80; docs/schemes.md): 89 and 270-310.
 inline constexpr double kPerParticle = 90.0;
 inline constexpr double kPerFineStep = 280.0;
+// Instructions per row entry per sub-iteration: the link rounds test every entry of the rows
+// (with the island sums and the incremental rounds). From callgrind on a phi 0.3 gas (600
+// particles, 12.5 entries per particle, islands auto, 3 ms): link() 1.38e9 instructions over
+// about 4,000 sub-iterations of 7,476 entries, 46 per entry; on HCS 1222 (0.36 entries per
+// particle) the term is small and kPerParticle holds the rest.
+inline constexpr double kPerEntry = 45.0;
 // With a gas: the held force's change over one sub-iteration, at the rate it changed over the
 // last fluid step, at most this fraction of the largest held acceleration (or |g|).
 inline constexpr double kGasChangeBound = 0.1;
@@ -81,9 +87,18 @@ const char* reason_text(int r);
 // The least-cost m in [m_lo, m_hi] (the smallest m among equals; m_prev kept unless the best
 // saves kMinGain of its cost) from hist (first_contact_
 // histogram over all particles, or a running mean of it), N particles, D, the fine step, rho, the
-// previous m and which bound set m_lo (kSkin or kGas).
+// previous m and which bound set m_lo (kSkin or kGas); entries: the rows' entries the link rounds
+// scan per sub-iteration (row_entries()). The cost of an interval in m sub-iterations:
+//   C(m) = m [kPerParticle N + kPerEntry entries + kPerFineStep rho B(D / m) K(D / m)].
 Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
-              std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason);
+              std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason,
+              double entries = 0.0);
+
+// The rows' entries of N equal spheres of radius r in a volume V with a list skin s: each row
+// holds the partners within 2 r + s, N / V (4/3) pi (2 r + s)^3 of them. An estimate from global
+// quantities, so that every rank count takes the same choice (the rows themselves differ: R
+// ranks grow their skin); with several sizes r is the smallest, and it undercounts.
+double row_entries(double N, double V, double r, double s);
 
 // m_hi: the most sub-iterations whose dt_sp = D / m is still at least the fine step (>= 1).
 std::int64_t most_subiterations(double D, double dt_fine);

@@ -511,7 +511,7 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     elapsed += base;
     auto kick_range = [&](std::uint32_t u0, std::uint32_t u1, std::int64_t& bv) {
       for (std::uint32_t u = u0; u < u1; ++u) {
-        const std::int64_t s = uniform ? k0 : skip_of(u);
+        const std::int64_t s = skip_of(u);
         if (s > k)
           continue;
         const double hk = length(s), half = 0.5 * hk;
@@ -531,11 +531,8 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
         res.bound_violations += pt.bound_violations;
     }
   }
-  if (uniform)
-    res.steps = static_cast<std::int64_t>(count) * (K - k0);
-  else
-    for (std::uint32_t u = 0; u < count; ++u)
-      res.steps += K - skip_of(u);
+  for (std::uint32_t u = 0; u < count; ++u)
+    res.steps += K - skip_of(u);
   return res;
 }
 

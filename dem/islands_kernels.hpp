@@ -113,6 +113,18 @@ inline void speed_bounds(const Columns& c, std::size_t n, const std::array<doubl
            acceleration<true>(c, g, i) * (hp[i] + dt_sp);
 }
 
+// The first-contact rule the link and tie tests solve for the time: a gap (its margin already
+// taken off) closes at a closing speed (the two bounds, or one against a wall) no earlier than
+// gap / speed; now when it is within the margin, never at rest. The length choice's histogram
+// (raised bounds, every partner) and an island's entry time (own bounds, its members) read it.
+inline double closing_time(double gap, double speed) {
+  return gap <= 0.0 ? 0.0 : speed > 0.0 ? gap / speed : std::numeric_limits<double>::infinity();
+}
+// A particle's gap to the nearer wall of axis a, less its radius.
+inline double wall_gap(double pos, double lo, double hi, double r) {
+  return std::min(pos - lo, hi - pos) - r;
+}
+
 // The link test: particles i and j (squared separation d2) could touch within dt_sp.
 inline bool may_touch(double d2, double bi, double bj, double ri, double rj, double dt_sp,
                       double margin) {
@@ -122,8 +134,7 @@ inline bool may_touch(double d2, double bi, double bj, double ri, double rj, dou
 // The wall tie: a particle at `pos` could reach the wall lo or hi of its axis within dt_sp.
 inline bool may_reach_wall(double pos, double lo, double hi, double r, double b, double dt_sp,
                            double margin) {
-  const double gap = std::min(pos - lo, hi - pos) - r;
-  return gap < b * dt_sp + margin;
+  return wall_gap(pos, lo, hi, r) < b * dt_sp + margin;
 }
 // An island's raised bound: the speed that takes its whole energy E on its lightest member, plus
 // what the external forces add over the sub-iteration: s_max = sqrt(2 E / m_min) + a_max
@@ -314,13 +325,8 @@ double member_entry_time(const ContactView& v, const double* own, double margin,
   const double* __restrict rad = v.c.radius;
   const std::uint32_t* __restrict off = v.rows.off;
   const std::uint32_t* __restrict nb = v.rows.nb;
-  const double inf = std::numeric_limits<double>::infinity();
-  // Time to close a gap at a closing speed (a gap within the margin: now).
-  auto until = [&](double gap, double speed) {
-    return gap <= 0.0 ? 0.0 : speed > 0.0 ? gap / speed : inf;
-  };
   const double xi = x[i], yi = y[i], zi = z[i], ri = rad[i], si = own[i];
-  double t = inf;
+  double t = std::numeric_limits<double>::infinity();
   const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
   for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
     const std::uint32_t j = nb[k];
@@ -330,12 +336,12 @@ double member_entry_time(const ContactView& v, const double* own, double margin,
     if (k >= kw)
       dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
     const double gap = std::sqrt(dx * dx + dy * dy + dz * dz) - ri - rad[j] - margin;
-    t = std::min(t, until(gap, si + own[j]));
+    t = std::min(t, closing_time(gap, si + own[j]));
   }
   const double pos[3] = {xi, yi, zi};
   for (int a = 0; a < 3; ++a)
     if (!g.periodic[a])
-      t = std::min(t, until(std::min(pos[a] - g.lo[a], g.hi[a] - pos[a]) - ri - margin, si));
+      t = std::min(t, closing_time(wall_gap(pos[a], g.lo[a], g.hi[a], ri) - margin, si));
   return t;
 }
 template <bool Wrap>

@@ -41,18 +41,14 @@ void first_contact_histogram(const RowsView& v, const DomainGeometry& g, double 
       if (!islands::may_touch(d2, si, v.bound[j], ri, v.radius[j], D, margin))
         continue;
       const double gap = std::sqrt(d2) - ri - v.radius[j] - margin;
-      const double s = si + v.bound[j];
-      tau = std::min(tau, gap <= 0.0 ? 0.0 : gap / s);
+      tau = std::min(tau, islands::closing_time(gap, si + v.bound[j]));
     }
     for (int a = 0; a < 3; ++a) {
       if (g.periodic[a])
         continue;
       const double pos = a == 0 ? v.x[i] : a == 1 ? v.y[i] : v.z[i];
-      const double gap = std::min(pos - g.lo[a], g.hi[a] - pos) - ri - margin;
-      if (gap <= 0.0)
-        tau = 0.0;
-      else if (si > 0.0)
-        tau = std::min(tau, gap / si);
+      tau = std::min(
+          tau, islands::closing_time(islands::wall_gap(pos, g.lo[a], g.hi[a], ri) - margin, si));
     }
     const std::int64_t c = fine_candidates(tau, D, m_hi);
     if (c > 0)

@@ -42,10 +42,10 @@ struct IslandsScheme::RankPart {
   std::vector<unsigned char> spans;        // per island: has a ghost member
   std::vector<std::uint32_t> span_members; // owned members of spanning islands (or all)
   std::vector<double> sx0, sy0, sz0;       // ... their start positions
-  // ... their leads (islands_ranks.cpp, span_leads), from entry times and own bounds per
-  // particle (owned and ghosts).
+  // ... their leads (islands_ranks.cpp, span_leads), from entry times per particle (owned and
+  // ghosts).
   std::vector<std::int64_t> span_lead;
-  std::vector<double> span_entry, span_own;
+  std::vector<double> span_entry;
   islands::IslandResult span_result; // their fine steps (outran: bound_violations, dense)
   // Start of the sub-iteration in the dense mode (rollback): x, y, z, vx, vy, vz, h_prev.
   std::array<std::vector<double>, 7> start;

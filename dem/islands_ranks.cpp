@@ -389,13 +389,14 @@ void IslandsScheme::span_leads(const islands::ContactView& view, islands::Member
   RankPart& r = *rank_;
   const std::size_t n = p_.size();
   const auto* label = ln_.island_of.data();
-  r.span_own.assign(ln_.own_bound.begin(), ln_.own_bound.begin() + static_cast<std::ptrdiff_t>(n));
-  std::vector<double>* own[] = {&r.span_own};
+  // The ghosts' own bounds from their owners (a ghost's saved one may have been raised already
+  // when it first turned busy here).
+  std::vector<double>* own[] = {&ln_.own_bound};
   r.exchange.forward_columns(own);
   r.span_entry.assign(n, std::numeric_limits<double>::infinity());
   for (const std::uint32_t i : r.span_members)
     r.span_entry[i] =
-        islands::member_entry_time<false>(view, r.span_own.data(), margin_, label[i], i);
+        islands::member_entry_time<false>(view, ln_.own_bound.data(), margin_, label[i], i);
   const std::uint32_t* off = view.rows.off;
   const std::uint32_t* nb = view.rows.nb;
   std::vector<double>* entry[] = {&r.span_entry};

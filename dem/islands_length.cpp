@@ -32,7 +32,10 @@ std::int64_t IslandsScheme::begin_interval() {
   // With a gas the force just computed for this fluid step: its change since the last one
   // bounds the length now (the choice at the last interval's end saw the change before).
   std::int64_t m = auto_.next;
-  if (auto_.gas_dA > 0.0) {
+  // The global mode holds the gas force over the whole interval, as the explicit scheme holds it
+  // over the fluid step: the change bound is the islands' (their free flights).
+  auto_.global_now = auto_.next_global;
+  if (auto_.gas_dA > 0.0 && !auto_.global_now) {
     const std::int64_t lo = std::min(m_hi, length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref));
     if (lo > m) {
       m = lo;
@@ -62,6 +65,8 @@ void IslandsScheme::choose_length() {
   const std::int64_t m_hi = length::most_subiterations(D, model_.dt);
   std::vector<std::int64_t> hist(static_cast<std::size_t>(m_hi) + 1, 0);
   double s_max = 0.0;
+  if (auto_.global_now && !rank_)
+    speed_bounds(); // the global mode's sub-iterations make none
   length::RowsView v{
       {}, {}, p_.x.data(), p_.y.data(), p_.z.data(), p_.radius.data(), ln_.bound.data(), owned_};
   if (rank_) {
@@ -102,13 +107,17 @@ void IslandsScheme::choose_length() {
   const std::int64_t lo_gas = length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref);
   const double volume = geom_.length[0] * geom_.length[1] * geom_.length[2];
   const double entries = length::row_entries(N, volume, model_.r_min, one_.islands_skin);
-  const length::Choice c =
-      length::choose(auto_.hist_avg, N, D, model_.dt, rho, std::max(lo_skin, lo_gas), m_hi, nsubit_,
-                     lo_gas > lo_skin ? length::kGas : length::kSkin, entries);
+  // The global mode's list holds the explicit scheme's pairs (its skin).
+  const double pairs =
+      N > 0.0 ? 0.5 * length::row_entries(N, volume, model_.r_min, model_.skin) / N : 0.0;
+  const length::Choice c = length::choose(
+      auto_.hist_avg, N, D, model_.dt, rho, std::max(lo_skin, lo_gas), m_hi, nsubit_,
+      lo_gas > lo_skin ? length::kGas : length::kSkin, entries, pairs, auto_.global_now);
   auto_.next = c.m;
+  auto_.next_global = c.global;
   auto_.fine_sum = 0.0, auto_.fine_count = 0;
   const std::size_t last = auto_.log.size() - kRow;
-  if (auto_.log[last + 1] != static_cast<double>(c.m))
+  if (auto_.log[last + 1] != static_cast<double>(c.m) || c.global != auto_.global_now)
     auto_.log.insert(auto_.log.end(),
                      {time(), static_cast<double>(c.m), D / static_cast<double>(c.m), 0.0,
                       static_cast<double>(c.m_lo), static_cast<double>(c.m_hi), c.busy_estimate,

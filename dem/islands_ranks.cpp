@@ -498,6 +498,10 @@ void IslandsScheme::subiterate_ranks(bool record) {
         ++st_.expired_builds;
       }
     }
+    // "auto" chose the global mode for this interval: every rank steps everyone, as one rank
+    // does (the links above still check the rows).
+    if (auto_.global_now)
+      global_ = true;
     std::vector<double>* const live[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &hprev_};
     std::vector<double>* const spin[] = {&p_.wx, &p_.wy, &p_.wz, &hx_, &hy_, &hz_};
     if (global_) { // the dense mode may roll back

@@ -17,6 +17,7 @@
 #include "dem/kick_drift_range.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/subiteration_length.hpp"
+#include "dem/verlet_passes.hpp"
 
 namespace cfddem::dem {
 
@@ -78,8 +79,10 @@ void IslandsScheme::subiterate(bool record) {
   steps_ = fine_steps(dt_sp_, model_.dt);
   rank_ ? subiterate_ranks(record) : subiterate_one(record);
   if (auto_.on) {
-    auto_.fine_sum += st_.last_fine_work; // the fine work, in particles on all K steps
-    ++auto_.fine_count;
+    if (!auto_.global_now) { // the islands' fine work, in particles on all K steps
+      auto_.fine_sum += st_.last_fine_work;
+      ++auto_.fine_count;
+    }
     if (++auto_.q == nsubit_)
       choose_length(); // the interval's last sub-iteration
   }
@@ -127,7 +130,8 @@ IslandsScheme::State IslandsScheme::save_state() {
   }
   if (auto_.on) {
     const AutoLength& a = auto_;
-    s.length_counters = {nsubit_, a.next, a.intervals, a.subits_base, a.q, a.fine_count};
+    s.length_counters = {nsubit_, a.next,       a.intervals,  a.subits_base,
+                         a.q,     a.fine_count, a.global_now, a.next_global};
     s.length_values = {a.t0,       a.fine_sum, a.gas_dA, a.gas_aref, a.gas_ratio_max,
                        a.fine_avg, a.busy_avg};
     s.length_values.insert(s.length_values.end(), a.hist_avg.begin(), a.hist_avg.end());
@@ -155,10 +159,10 @@ void IslandsScheme::restore_state(State s) {
   }
   // dem.nsubit = "auto" needs its choice (the sub-iteration length is state); an integer
   // nsubit ignores one.
-  fits = fits &&
-         (!auto_.on || (s.length_counters.size() == 6 && s.length_values.size() >= 7 &&
-                        !s.length_log.empty() && s.length_log.size() % kChoiceColumns.size() == 0 &&
-                        s.length_counters[0] >= 1 && s.length_counters[1] >= 1));
+  fits = fits && (!auto_.on || ((s.length_counters.size() == 6 || s.length_counters.size() == 8) &&
+                                s.length_values.size() >= 7 && !s.length_log.empty() &&
+                                s.length_log.size() % kChoiceColumns.size() == 0 &&
+                                s.length_counters[0] >= 1 && s.length_counters[1] >= 1));
   if (!fits)
     throw RunError(auto_.on && s.length_counters.empty()
                        ? "checkpoint: written without dem.nsubit = \"auto\" (no sub-iteration "
@@ -169,6 +173,8 @@ void IslandsScheme::restore_state(State s) {
     const auto& v = s.length_values;
     nsubit_ = k[0], auto_.next = k[1], auto_.intervals = k[2], auto_.subits_base = k[3];
     auto_.q = k[4], auto_.fine_count = k[5];
+    // Checkpoints written before the global mode was a choice hold 6 counters.
+    auto_.global_now = k.size() > 6 && k[6] != 0, auto_.next_global = k.size() > 7 && k[7] != 0;
     auto_.t0 = v[0], auto_.fine_sum = v[1], auto_.gas_dA = v[2], auto_.gas_aref = v[3];
     auto_.gas_ratio_max = v[4], auto_.fine_avg = v[5], auto_.busy_avg = v[6];
     auto_.hist_avg.assign(v.begin() + 7, v.end());
@@ -205,6 +211,7 @@ void IslandsScheme::restore_state(State s) {
     one_.list.restore(std::move(s.offsets), std::move(s.neighbors), std::move(s.x_ref),
                       std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   one_.canonical = one_.with_comm;
+  one_.half_stale = true;
   one_.moved = std::numeric_limits<double>::infinity(); // unknown until the next build
   skin_ = s.skin;
   st_.size_hist = std::move(s.size_hist);
@@ -265,6 +272,7 @@ void IslandsScheme::rebuild() {
       held.append(collect_history(p_, one_.list, p_.size(), hx_, hy_, hz_));
   }
   one_.list.build(p_, geom_, skin_);
+  one_.half_stale = true;
   if (model_.friction)
     attach_history(std::move(held), p_, one_.list, p_.size(), hx_, hy_, hz_);
   const auto order = one_.list.order();
@@ -586,6 +594,12 @@ void IslandsScheme::subiterate_one(bool record) {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     bool fresh = false;
     for (;;) {
+      if (auto_.global_now) { // "auto" chose the global mode for this interval: no links
+        global_ = true;
+        if (skin_ != one_.global_skin)
+          skin_ = one_.global_skin, rebuild();
+        break;
+      }
       speed_bounds();
       link();
       if (global_) {
@@ -809,6 +823,20 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
   std::vector<Part> parts(blocks);
   double h_before = 0.0;
   islands::ContactView view = contact_view();
+  one_.clear_all = true; // the islands' steps since the last global step left forces behind
+  {
+    // The check after each step below serves the next one: the last global sub-iteration's last
+    // step is checked here (an islands' sub-iteration before this one checked its own reaches).
+    const auto xr = one_.list.x_ref(), yr = one_.list.y_ref(), zr = one_.list.z_ref();
+    const double half_skin2 = 0.25 * skin_ * skin_;
+    bool expired = false;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double dx = p_.x[i] - xr[i], dy = p_.y[i] - yr[i], dz = p_.z[i] - zr[i];
+      expired = expired || !(dx * dx + dy * dy + dz * dz <= half_skin2);
+    }
+    if (expired)
+      rebuild(), view = contact_view();
+  }
   for (std::int64_t k = 0; k < steps_.K; ++k) {
     const double hk = k + 1 == steps_.K ? steps_.h_last : steps_.h;
     if (k > 0) {
@@ -818,14 +846,21 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
       if (moved >> 63)
         rebuild(), view = contact_view();
     }
-    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-      Part pt;
-      const std::size_t e = std::min(n, (b + 1) * kBlock);
-      pt.pairs += islands::contact_forces<false, false, true, false, Friction>(
-          view, nullptr, static_cast<std::uint32_t>(b * kBlock), static_cast<std::uint32_t>(e), 0,
-          pt.max_ratio, pt.violations, hk);
-      parts[b] = pt;
-    });
+    if constexpr (Friction) {
+      // Each pair from both its rows: the tangential history lives per row entry, which the
+      // islands' own steps read from either end.
+      tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+        Part pt;
+        const std::size_t e = std::min(n, (b + 1) * kBlock);
+        pt.pairs += islands::contact_forces<false, false, true, false, Friction>(
+            view, nullptr, static_cast<std::uint32_t>(b * kBlock), static_cast<std::uint32_t>(e), 0,
+            pt.max_ratio, pt.violations, hk);
+        parts[b] = pt;
+      });
+    } else {
+      global_contacts();
+      std::fill(parts.begin(), parts.end(), Part{});
+    }
     if (record && k == 0)
       for (std::size_t i = 0; i < n; ++i) {
         double ex = 0.0, ey = 0.0, ez = 0.0;
@@ -869,6 +904,63 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
         h = half;
     h_before = hk;
   }
+}
+
+// The global steps' contact and wall forces without friction, as the explicit scheme computes
+// them: each pair of the list once (the full rows' partners of higher index, laid out flat after
+// every build) through its pair passes (dem/verlet_passes.hpp), then the walls of the particles
+// that can reach one before the next build. Adds to the counters.
+void IslandsScheme::global_contacts() {
+  OneRank& o = one_;
+  const std::size_t n = p_.size();
+  if (o.half_stale) {
+    o.head_pairs.build<false, true>(o.list, o.list.active(), kPairBlock, false);
+    o.tail_pairs.build<true, true>(o.list, o.list.tail_rows(), kPairBlock, false);
+    near_walls(p_, n, o.list, geom_, o.list.skin(), o.near_wall);
+    o.half_stale = false;
+    o.clear_all = true;
+  }
+  // Clear the forces that are not zero, as the explicit scheme does: after a build or at a
+  // sub-iteration's first step (the islands' steps leave forces behind) every particle's, else
+  // those of the last step's contacts and of the particles near a wall.
+  if (o.clear_all) {
+    const auto nn = static_cast<std::ptrdiff_t>(n);
+    std::fill(p_.fx.begin(), p_.fx.begin() + nn, 0.0);
+    std::fill(p_.fy.begin(), p_.fy.begin() + nn, 0.0);
+    std::fill(p_.fz.begin(), p_.fz.begin() + nn, 0.0);
+    o.clear_all = false;
+  } else {
+    clear_contact_forces<false>(p_, std::span<const PairContacts>(o.head).first(o.nh));
+    clear_contact_forces<false>(p_, std::span<const PairContacts>(o.tail).first(o.nt));
+    clear_forces<false>(p_, o.near_wall);
+  }
+  StepReport rep;
+  const std::size_t nh =
+      pair_pass<false, false, true>(p_, o.head_pairs, {}, geom_, model_, 0.0, o.head, rep);
+  const std::size_t nt =
+      pair_pass<false, true, true>(p_, o.tail_pairs, {}, geom_, model_, 0.0, o.tail, rep);
+  scatter_contacts<false>(p_, std::span<const PairContacts>(o.head).first(nh),
+                          std::span<const PairContacts>(o.tail).first(nt));
+  o.nh = nh, o.nt = nt;
+  double max_ratio = rep.max_ratio;
+  std::int64_t violations = rep.overlaps;
+  const StepModel& m = model_;
+  for (const std::uint32_t i : o.near_wall) {
+    double f[3] = {p_.fx[i], p_.fy[i], p_.fz[i]}, tq[3] = {0.0, 0.0, 0.0};
+    const double pos[3] = {p_.x[i], p_.y[i], p_.z[i]}, vel[3] = {p_.vx[i], p_.vy[i], p_.vz[i]};
+    const double ri = p_.radius[i], mi = p_.mass[i];
+    add_wall_contacts<false>(
+        geom_, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
+        [](double w[3]) { w[0] = w[1] = w[2] = 0.0; }, f, tq,
+        [&](double delta) {
+          max_ratio = std::max(max_ratio, delta / ri);
+          violations += delta > m.max_overlap * ri;
+        });
+    p_.fx[i] = f[0], p_.fy[i] = f[1], p_.fz[i] = f[2];
+  }
+  st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
+  st_.overlap_violations += violations;
+  st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);
 }
 
 // The K fine steps of island c (every island has a link or a wall): contact forces from members

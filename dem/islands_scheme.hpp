@@ -80,6 +80,8 @@
 #include "dem/external_force.hpp"
 #include "dem/islands_kernels.hpp"
 #include "dem/orb_scheme.hpp"
+#include "dem/pair_contacts.hpp"
+#include "dem/pair_stream.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/verlet_list.hpp"
 #include "partition/contact_islands.hpp"
@@ -289,6 +291,14 @@ private:
     // twice this plus the largest reach of the sub-iteration stays below the skin.
     double moved = std::numeric_limits<double>::infinity();
     double bound_max = 0.0; // the largest speed bound of the current sub-iteration
+    // The global steps without friction (global_contacts): the list's pairs once each, laid out
+    // after a build (half_stale: not yet), their contacts and the particles near a wall.
+    PairStream head_pairs, tail_pairs;
+    std::vector<PairContacts> head, tail;
+    std::vector<std::uint32_t> near_wall;
+    std::size_t nh = 0, nt = 0; // blocks of head, tail written by the last step
+    bool half_stale = true;
+    bool clear_all = true; // the next step clears every listed particle's force
   };
   // dem.nsubit = "auto": the control interval and the choice for the next one.
   struct AutoLength {
@@ -307,6 +317,8 @@ private:
     std::vector<double> hist_avg;
     double fine_avg = -1.0, busy_avg = 0.0;
     std::vector<double> log; // kChoiceColumns rows
+    // The global mode (length::Choice::global) in this interval, and chosen for the next one.
+    bool global_now = false, next_global = false;
   };
   void choose_length();
   void note_gas_change(std::span<const double> fx, std::span<const double> fy,
@@ -357,6 +369,7 @@ private:
   template <bool External, bool Ranks, bool Friction = false>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External, bool Friction> void global_steps(bool record);
+  void global_contacts();
   islands::ContactView contact_view();
   // R ranks (islands_ranks.cpp).
   void init_ranks();

@@ -24,16 +24,25 @@ struct PairStream {
 
   // The pairs of `rows` (increasing row indices of `list`), the part before wrap_begin() (Tail =
   // false) or from it (Tail = true), in blocks of `block` rows. `with_entry`: keep k too (the
-  // tangential history is stored per list entry).
-  template <bool Tail>
+  // tangential history is stored per list entry). Upper: keep only partners of higher index, so
+  // that a full list's rows give each pair once, as a half list's do.
+  template <bool Tail, bool Upper = false>
   void build(const VerletList& list, std::span<const std::uint32_t> rows, std::size_t block,
              bool with_entry) {
     const std::uint32_t* off = list.offsets().data();
     const std::uint32_t* wrap = list.wrap_begin().data();
     const std::uint32_t* nb = list.neighbors().data();
+    auto first = [&](std::uint32_t r) { return Tail ? wrap[r] : off[r]; };
+    auto last = [&](std::uint32_t r) { return Tail ? off[r + 1] : wrap[r]; };
     std::size_t total = 0;
-    for (const std::uint32_t r : rows)
-      total += Tail ? off[r + 1] - wrap[r] : wrap[r] - off[r];
+    for (const std::uint32_t r : rows) {
+      if constexpr (Upper) {
+        for (std::uint32_t e = first(r); e < last(r); ++e)
+          total += nb[e] > r;
+      } else {
+        total += last(r) - first(r);
+      }
+    }
     i.resize(total), j.resize(total);
     k.resize(with_entry ? total : 0);
     const std::size_t n = rows.size();
@@ -43,11 +52,13 @@ struct PairStream {
       if (q % block == 0)
         block_start[q / block] = static_cast<std::uint32_t>(s);
       const std::uint32_t r = rows[q];
-      const std::uint32_t k0 = Tail ? wrap[r] : off[r], k1 = Tail ? off[r + 1] : wrap[r];
-      for (std::uint32_t e = k0; e < k1; ++e, ++s) {
+      for (std::uint32_t e = first(r), e1 = last(r); e < e1; ++e) {
+        if (Upper && nb[e] < r)
+          continue;
         i[s] = r, j[s] = nb[e];
         if (with_entry)
           k[s] = e;
+        ++s;
       }
     }
     block_start.back() = static_cast<std::uint32_t>(s);

@@ -17,12 +17,18 @@ struct StepReport {
   std::uint32_t partner = kNoParticle;
   StepFault fault = StepFault::none;
   double value = 0.0;
+  // Tallied only where a pass is asked to (pair_pass<.., Tally = true>): the largest overlap
+  // ratio delta / r_min of the contacts seen, and how many exceeded dem.max_overlap.
+  double max_ratio = 0.0;
+  std::int64_t overlaps = 0;
   void flag(std::uint32_t i, StepFault f, double v, std::uint32_t j = kNoParticle) {
     if (i < bad)
       bad = i, fault = f, value = v, partner = j;
   }
   void join(const StepReport& o) {
     moved += o.moved;
+    max_ratio = o.max_ratio > max_ratio ? o.max_ratio : max_ratio;
+    overlaps += o.overlaps;
     if (o.bad < bad)
       bad = o.bad, fault = o.fault, value = o.value, partner = o.partner;
   }

@@ -70,6 +70,8 @@ const char* reason_text(int r) {
     return "least cost at the fine step (dt_sp = fine dt)";
   case kKept:
     return "kept: no other count saves 10% of the modelled cost";
+  case kGlobal:
+    return "global mode: every particle on the fine step costs less than any islands' count";
   default:
     return "?";
   }
@@ -77,7 +79,7 @@ const char* reason_text(int r) {
 
 Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
               std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason,
-              double entries) {
+              double entries, double pairs, bool prev_global) {
   m_lo = std::clamp<std::int64_t>(m_lo, 1, m_hi);
   // busy[m] = sum over c >= m of hist[c].
   std::vector<double> busy(static_cast<std::size_t>(m_hi) + 2, 0.0);
@@ -106,14 +108,23 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
   c.reason = free_best < m_lo ? lo_reason : c.m == m_hi && m_hi > 1 ? kFine : kMinCost;
   // Hysteresis: the previous m is kept unless the best saves kMinGain of its modelled cost (the
   // fine count of a dilute scene is small and noisy; a change for less is not worth a row).
+  // The global mode: every particle on the fine step for the whole interval.
+  const double global_cost = pairs >= 0.0 ? static_cast<double>(fine_steps(D, dt_fine).K) * N *
+                                                (kGlobalPerStep + kGlobalPerPair * pairs)
+                                          : std::numeric_limits<double>::infinity();
+  if (global_cost < best) {
+    best = global_cost;
+    c.m = 1, c.global = true, c.reason = kGlobal;
+  }
   const std::int64_t prev = std::clamp<std::int64_t>(m_prev, m_lo, m_hi);
-  const double prev_cost = cost(prev);
+  const bool prev_kept = prev_global || prev == m_prev;
+  const double prev_cost = prev_global ? global_cost : cost(prev);
   c.cost_ratio = prev_cost > 0.0 ? best / prev_cost : 1.0; // no particles: nothing to gain
-  if (c.cost_ratio > 1.0 - kMinGain && prev == m_prev) {
-    c.m = prev, c.cost_ratio = 1.0;
+  if (c.cost_ratio > 1.0 - kMinGain && prev_kept) {
+    c.m = prev_global ? 1 : prev, c.global = prev_global, c.cost_ratio = 1.0;
     c.reason = kKept;
   }
-  c.busy_estimate = std::min(N, rho * busy[static_cast<std::size_t>(c.m)]);
+  c.busy_estimate = c.global ? N : std::min(N, rho * busy[static_cast<std::size_t>(c.m)]);
   return c;
 }
 

@@ -42,6 +42,13 @@ inline constexpr double kPerFineStep = 280.0;
 // about 4,000 sub-iterations of 7,476 entries, 46 per entry; on HCS 1222 (0.36 entries per
 // particle) the term is small and kPerParticle holds the rest.
 inline constexpr double kPerEntry = 45.0;
+// Instructions per particle step of the global mode (every particle on the fine step, through
+// the explicit scheme's passes: dem/verlet_passes.hpp), and per pair of its list (each pair
+// once), from callgrind on the explicit scheme, whose passes these are: HCS 1222 (0.078 pairs
+// per particle, 41 per particle step) and a phi 0.3 gas (600 particles, 2.45 pairs per
+// particle, 122 per particle step), list builds included.
+inline constexpr double kGlobalPerStep = 38.0;
+inline constexpr double kGlobalPerPair = 34.0;
 // With a gas: the held force's change over one sub-iteration, at the rate it changed over the
 // last fluid step, at most this fraction of the largest held acceleration (or |g|).
 inline constexpr double kGasChangeBound = 0.1;
@@ -67,6 +74,9 @@ struct Choice {
   double rho = 1.0;
   double cost_ratio = 1.0; // C(m) / C(m_previous): the gain predicted for the change
   int reason = 0;          // Reason
+  // The global mode for the next interval: one sub-iteration of D (m = 1) in which every
+  // particle takes the fine steps, with no speed bounds or links (reason kGlobal, or kKept).
+  bool global = false;
 };
 enum Reason : int {
   kStart = 0,   // the first interval: dem.nsubit's integer default
@@ -75,6 +85,7 @@ enum Reason : int {
   kGas = 3,     // ... set by the gas force's change bound
   kFine = 4,    // ... above m_hi: dt_sp is the fine step
   kKept = 5,    // the previous m: the best saves less than kMinGain
+  kGlobal = 6,  // the global mode costs less than any m
 };
 // The weight of the newest interval in the running means of the first-contact histogram and of
 // the fine counts (about the last 1 / kSmoothing intervals count: a dilute scene has ~10 fine
@@ -90,9 +101,13 @@ const char* reason_text(int r);
 // previous m and which bound set m_lo (kSkin or kGas); entries: the rows' entries the link rounds
 // scan per sub-iteration (row_entries()). The cost of an interval in m sub-iterations:
 //   C(m) = m [kPerParticle N + kPerEntry entries + kPerFineStep rho B(D / m) K(D / m)].
+// With pairs >= 0 (the global mode's list pairs per particle) the global mode is a candidate too:
+//   C_g = K(D) N (kGlobalPerStep + kGlobalPerPair pairs)
+// (a dense gas, where nearly everyone is in an island and the islands' bookkeeping costs more
+// than it saves); prev_global: the previous interval ran in it (it is then the one kept).
 Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
               std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason,
-              double entries = 0.0);
+              double entries = 0.0, double pairs = -1.0, bool prev_global = false);
 
 // The rows' entries of N equal spheres of radius r in a volume V with a list skin s: each row
 // holds the partners within 2 r + s, N / V (4/3) pi (2 r + s)^3 of them. An estimate from global

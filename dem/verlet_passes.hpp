@@ -45,7 +45,9 @@ inline constexpr std::uint32_t kTwoPassPairs = 128;
 // the bound are flagged on i (the lower index, as a full list's first flag would be).
 // `history`: tangential history per list entry (friction only; the stream holds the entries),
 // zeroed for pairs apart. Returns the number of blocks written (the first ones of `blocks`).
-template <bool Friction, bool Tail>
+// Tally: also count every overlap beyond the bound and the largest overlap ratio into `out`
+// (the islands scheme's global steps count overlaps where the explicit scheme stops).
+template <bool Friction, bool Tail, bool Tally = false>
 std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
                       [[maybe_unused]] HistoryColumns history, const DomainGeometry& geom,
                       const StepModel& model, double dt, std::vector<PairContacts>& blocks,
@@ -120,6 +122,11 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
         const double rmin = std::min(rad[i], rad[j]);
         if (delta > m.max_overlap * rmin)
           rep.flag(i, StepFault::overlap, delta / rmin, j);
+        if constexpr (Tally) {
+          if (delta > rep.max_ratio * rmin)
+            rep.max_ratio = delta / rmin;
+          rep.overlaps += delta > m.max_overlap * rmin;
+        }
         if constexpr (Friction) {
           const std::uint32_t k = sk[e];
           // Contact-point relative velocity: v_i - v_j + (r_i w_i + r_j w_j) x n

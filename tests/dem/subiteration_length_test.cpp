@@ -145,6 +145,54 @@ TEST(SubiterationLength, RowEntriesPriceEachSubiteration) {
   EXPECT_NEAR(length::row_entries(600, 1e-9, 50e-6, 75e-6) / 600.0, 13.5, 0.05);
 }
 
+// The global mode (every particle on the fine step through the explicit scheme's passes, no
+// bounds or links) is a candidate: it costs K(D) N (kGlobalPerStep + kGlobalPerPair pairs)
+// against the islands' m [kPerParticle N + kPerEntry entries + kPerFineStep B K]. A dense gas
+// where everyone is fine at every m takes it; a dilute one keeps its islands; once in it, it is
+// kept unless an islands' count saves kMinGain.
+TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
+  const double D = 1e-4, dt_f = 1e-7, N = 600;
+  const std::int64_t m_hi = length::most_subiterations(D, dt_f);
+  std::vector<double> dense(static_cast<std::size_t>(m_hi) + 1, 0.0);
+  dense[static_cast<std::size_t>(m_hi)] = N; // in contact: fine at every m
+  const double entries = length::row_entries(N, 1e-9, 50e-6, 75e-6);
+  const double pairs = 0.5 * length::row_entries(N, 1e-9, 50e-6, 25e-6) / N;
+  // Islands at their best, m = 1: one sub-iteration of 1000 fine steps for all 600, priced at
+  // kPerFineStep per particle step; the global mode prices the same steps at 38 + 34 x 2.45.
+  const length::Choice isl =
+      length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries);
+  EXPECT_FALSE(isl.global);
+  const length::Choice g =
+      length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries, pairs);
+  EXPECT_TRUE(g.global);
+  EXPECT_EQ(g.m, 1);
+  EXPECT_EQ(g.reason, length::kGlobal);
+  EXPECT_NEAR(g.cost_ratio,
+              (length::kGlobalPerStep + length::kGlobalPerPair * pairs) /
+                  (length::kPerFineStep +
+                   (length::kPerParticle + length::kPerEntry * entries / N) / 1000.0),
+              1e-9);
+  // Kept while in it: the islands' best at m = 1 is dearer.
+  const length::Choice kept =
+      length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries, pairs, true);
+  EXPECT_TRUE(kept.global);
+  EXPECT_EQ(kept.reason, length::kKept);
+  // A dilute gas (the spread of ChoiceFindsTheModelsOptimum, N = 1e5, T = 2e-3): the islands
+  // cost a fraction of the global mode, which it leaves.
+  std::vector<double> spread(static_cast<std::size_t>(m_hi) + 1, 0.0);
+  const double Nd = 1e5, T = 2e-3;
+  for (std::int64_t m = 1; m <= m_hi; ++m) {
+    const double b = std::min(Nd, Nd * D / (static_cast<double>(m) * T));
+    const double b_next = std::min(Nd, Nd * D / (static_cast<double>(m + 1) * T));
+    spread[static_cast<std::size_t>(m)] = m == m_hi ? b : b - b_next;
+  }
+  const length::Choice left =
+      length::choose(spread, Nd, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, 0.0, 0.078, true);
+  EXPECT_FALSE(left.global);
+  EXPECT_EQ(left.reason, length::kMinCost);
+  EXPECT_LT(left.cost_ratio, 0.2);
+}
+
 TEST(SubiterationLength, BoundsOnTheCount) {
   EXPECT_EQ(length::most_subiterations(1e-4, 1e-7), 1000);
   EXPECT_EQ(length::most_subiterations(1e-4, 3e-4), 1);
@@ -284,7 +332,7 @@ TEST(SubiterationLength, AutoRestoresBitwise) {
     saved = isl.save_state();
     at_save = p;
   }
-  ASSERT_EQ(saved.length_counters.size(), 6U);
+  ASSERT_EQ(saved.length_counters.size(), 8U);
   dem::IslandsScheme again(s, at_save, t);
   again.restore_state(saved);
   run_intervals(again, 8, r);
@@ -299,6 +347,50 @@ TEST(SubiterationLength, AutoRestoresBitwise) {
   ParticleStore q = make_initial_particles(s);
   dem::IslandsScheme other(s, q, t);
   EXPECT_THROW(other.restore_state(saved), RunError);
+}
+
+// A dense gas (phi 0.3): nearly every particle is in an island at any length, and "auto" takes
+// the global mode. Its runs stay bitwise independent of the thread count, and a state saved
+// inside a global interval goes on bit for bit.
+TEST(SubiterationLength, DenseGasTakesTheGlobalModeBitwise) {
+  const Scene s = demtest::scene_from(kAutoGas, {"domain.hi=[0.887e-3,0.887e-3,0.887e-3]"});
+  const int intervals = 6;
+  const AutoRun one = run_auto(s, intervals, 1), two = run_auto(s, intervals, 2);
+  const std::size_t row = dem::IslandsScheme::kChoiceColumns.size();
+  bool global = false;
+  for (std::size_t k = row - 1; k < one.choices.size(); k += row)
+    global = global || one.choices[k] == static_cast<double>(length::kGlobal);
+  EXPECT_TRUE(global);
+  EXPECT_EQ(one.counts.back(), 1);
+  EXPECT_EQ(one.violations, 0);
+  EXPECT_EQ(one.counts, two.counts);
+  EXPECT_EQ(one.choices, two.choices);
+  EXPECT_EQ(one.pairs, two.pairs);
+  for (const auto& [id, a] : one.state)
+    EXPECT_EQ(a, two.state.at(id)) << "particle " << id;
+  // Saved after the first global interval, in the middle of the run.
+  ParticleStore p = make_initial_particles(s);
+  PhaseTimer t;
+  AutoRun r;
+  dem::IslandsScheme::State saved;
+  ParticleStore at_save;
+  {
+    dem::IslandsScheme isl(s, p, t);
+    isl.start();
+    run_intervals(isl, intervals - 2, r);
+    saved = isl.save_state();
+    at_save = p;
+  }
+  ASSERT_EQ(saved.length_counters.size(), 8U);
+  EXPECT_EQ(saved.length_counters[7], 1); // the next interval is a global one
+  dem::IslandsScheme again(s, at_save, t);
+  again.restore_state(saved);
+  run_intervals(again, 2, r);
+  const AutoRun resumed = finish(again, at_save, std::move(r));
+  EXPECT_EQ(resumed.counts, one.counts);
+  EXPECT_EQ(resumed.pairs, one.pairs);
+  for (const auto& [id, a] : one.state)
+    EXPECT_EQ(a, resumed.state.at(id)) << "particle " << id;
 }
 
 // dem.nsubit = "auto" is the islands scheme's; orb refuses it, other words are refused.

@@ -420,9 +420,13 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
         fmt::print(stderr, "{}\n", run.progress(loop.fluid_steps, frac, wall, eta));
     }
   }
-  // One particle step past the end completes the last row.
-  if (loop.row_pending || loop.snapshot_pending)
+  // One particle step past the end completes the last row (with "auto" a short one: the state
+  // it records is at its start).
+  if (loop.row_pending || loop.snapshot_pending) {
+    if (run.auto_length())
+      run.begin_completion();
     particle_step(loop.row_pending, loop.snapshot_pending);
+  }
   const double loop_seconds = seconds_since(t_loop);
 
   // run.json (rank 0) and the summary. Collective: the per-rank figures are gathered first.

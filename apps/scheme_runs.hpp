@@ -136,6 +136,7 @@ public:
   long long checkpoint_every(long long every) const { return every; }
   bool auto_length() const { return false; }
   long long begin_interval() { return 1; }
+  void begin_completion() {}
   void start() { scheme.start(); }
   // In place of start(). held: the gas force held at the checkpoint (null without a gas).
   void restore(Checkpoint& ck, Restart& r, const std::array<std::vector<double>, 3>* held) {
@@ -346,6 +347,11 @@ public:
     else
       return scheme.begin_interval();
   }
+  // The step past the end that completes the last row ("auto" only: the shortest it allows).
+  void begin_completion() {
+    if constexpr (!kOrb)
+      scheme.begin_completion();
+  }
   long long steps() const { return scheme.subiterations(); }
   std::size_t owned() const { return parts_.owned(scheme, p_); }
   // orb: checkpoints only at regrid points (multiples of dem.nsubit), where the ORB is rebuilt
@@ -423,6 +429,9 @@ public:
   void describe(nlohmann::ordered_json& j, const std::vector<std::vector<double>>& rows) const {
     j["dt"] = scheme.dt_fine();
     j["dt_sp"] = scheme.dt_sub();
+    if constexpr (!kOrb)
+      if (scheme.auto_length()) // the last choice (the step past the end is a short one)
+        j["dt_sp"] = scheme.interval() / static_cast<double>(scheme.next_nsubit());
     if constexpr (kOrb)
       j["leaves"] = leaf_count();
     j["steps"] = scheme.subiterations();
@@ -538,8 +547,9 @@ private:
     j["bound_violations"] = scheme.bound_violations();
     j["global_subiterations"] = scheme.global_subiterations();
     j["global_subiterations_definition"] =
-        "sub-iterations where more than a quarter of the particles were linked, so every particle "
-        "took the fine steps together (a dense bed: the explicit scheme's work)";
+        "sub-iterations where every particle took the fine steps together (the explicit "
+        "scheme's work): more than a quarter of the particles were linked (a dense bed), or "
+        "dem.nsubit = \"auto\" chose the global mode for the interval";
     if (parts_.ranks) {
       const auto subits = static_cast<double>(std::max<std::int64_t>(1, scheme.subiterations()));
       j["spanning_subiterations"] = scheme.spanning_subiterations();

@@ -58,6 +58,18 @@ std::int64_t IslandsScheme::begin_interval() {
   return nsubit_;
 }
 
+void IslandsScheme::begin_completion() {
+  if (!auto_.on)
+    return;
+  const double D = auto_.interval;
+  nsubit_ = length::most_subiterations(D, model_.dt);
+  dt_sp_ = D / static_cast<double>(nsubit_);
+  auto_.global_now = auto_.next_global;
+  auto_.t0 = static_cast<double>(auto_.intervals) * D;
+  auto_.subits_base = st_.subits;
+  auto_.q = 0;
+}
+
 // At the end of an interval: the next interval's m (dem/subiteration_length.hpp), from this
 // sub-iteration's rows and bounds and the fine fractions measured since the last choice.
 void IslandsScheme::choose_length() {

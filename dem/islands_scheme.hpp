@@ -127,6 +127,14 @@ public:
   bool auto_length() const { return auto_.on; }
   double interval() const { return auto_.interval; }
   std::int64_t begin_interval();
+  // After the last interval, the sub-iteration that only completes the last row (the time
+  // loop's step past the end) is the shortest "auto" allows, dt_sp about the fine step, not a
+  // whole interval of work no output reads. Nothing without "auto".
+  void begin_completion();
+  // "auto": the count chosen for the next interval (the last choice), and whether it is the
+  // global mode.
+  std::int64_t next_nsubit() const { return auto_.next; }
+  bool next_global() const { return auto_.next_global; }
   // The choices so far: rows of kChoiceColumns (a row per change of nsubit; `intervals` counts
   // the intervals it was kept for).
   static constexpr std::array<const char*, 10> kChoiceColumns = {

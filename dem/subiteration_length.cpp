@@ -109,9 +109,10 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
   // Hysteresis: the previous m is kept unless the best saves kMinGain of its modelled cost (the
   // fine count of a dilute scene is small and noisy; a change for less is not worth a row).
   // The global mode: every particle on the fine step for the whole interval.
-  const double global_cost = pairs >= 0.0 ? static_cast<double>(fine_steps(D, dt_fine).K) * N *
-                                                (kGlobalPerStep + kGlobalPerPair * pairs)
-                                          : std::numeric_limits<double>::infinity();
+  const double global_cost = pairs >= 0.0
+                                 ? static_cast<double>(fine_steps(D, dt_fine).K) * N *
+                                       (kGlobalPerStep + kGlobalPerPair * pairs) / kGlobalRate
+                                 : std::numeric_limits<double>::infinity();
   if (global_cost < best) {
     best = global_cost;
     c.m = 1, c.global = true, c.reason = kGlobal;

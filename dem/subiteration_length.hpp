@@ -49,6 +49,13 @@ inline constexpr double kPerEntry = 45.0;
 // particle, 122 per particle step), list builds included.
 inline constexpr double kGlobalPerStep = 38.0;
 inline constexpr double kGlobalPerPair = 34.0;
+// The global mode's passes also retire more instructions per second than the islands' steps
+// (a stream over a half list and a vectorized update, against scattered rows in small tasks): on
+// a phi 0.3 gas (5000 particles, 3 ms, 1 thread) every sub-iteration global (nsubit 1) took
+// 11.49e9 instructions in 1.02-1.08 s, the islands at nsubit 33 12.41e9 in 1.50-2.16 s, 1.4-1.9x
+// fewer per second. The model counts in the islands' instructions: the global mode's count is
+// divided by this rate.
+inline constexpr double kGlobalRate = 1.5;
 // With a gas: the held force's change over one sub-iteration, at the rate it changed over the
 // last fluid step, at most this fraction of the largest held acceleration (or |g|).
 inline constexpr double kGasChangeBound = 0.1;
@@ -102,7 +109,7 @@ const char* reason_text(int r);
 // scan per sub-iteration (row_entries()). The cost of an interval in m sub-iterations:
 //   C(m) = m [kPerParticle N + kPerEntry entries + kPerFineStep rho B(D / m) K(D / m)].
 // With pairs >= 0 (the global mode's list pairs per particle) the global mode is a candidate too:
-//   C_g = K(D) N (kGlobalPerStep + kGlobalPerPair pairs)
+//   C_g = K(D) N (kGlobalPerStep + kGlobalPerPair pairs) / kGlobalRate
 // (a dense gas, where nearly everyone is in an island and the islands' bookkeeping costs more
 // than it saves); prev_global: the previous interval ran in it (it is then the one kept).
 Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,

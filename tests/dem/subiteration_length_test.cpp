@@ -146,10 +146,10 @@ TEST(SubiterationLength, RowEntriesPriceEachSubiteration) {
 }
 
 // The global mode (every particle on the fine step through the explicit scheme's passes, no
-// bounds or links) is a candidate: it costs K(D) N (kGlobalPerStep + kGlobalPerPair pairs)
-// against the islands' m [kPerParticle N + kPerEntry entries + kPerFineStep B K]. A dense gas
-// where everyone is fine at every m takes it; a dilute one keeps its islands; once in it, it is
-// kept unless an islands' count saves kMinGain.
+// bounds or links) is a candidate: it costs K(D) N (kGlobalPerStep + kGlobalPerPair pairs) /
+// kGlobalRate against the islands' m [kPerParticle N + kPerEntry entries + kPerFineStep B K]. A
+// dense gas where everyone is fine at every m takes it; a dilute one keeps its islands; once in it,
+// it is kept unless an islands' count saves kMinGain.
 TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
   const double D = 1e-4, dt_f = 1e-7, N = 600;
   const std::int64_t m_hi = length::most_subiterations(D, dt_f);
@@ -158,7 +158,8 @@ TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
   const double entries = length::row_entries(N, 1e-9, 50e-6, 75e-6);
   const double pairs = 0.5 * length::row_entries(N, 1e-9, 50e-6, 25e-6) / N;
   // Islands at their best, m = 1: one sub-iteration of 1000 fine steps for all 600, priced at
-  // kPerFineStep per particle step; the global mode prices the same steps at 38 + 34 x 2.45.
+  // kPerFineStep per particle step; the global mode prices the same steps at (38 + 34 x 2.45) /
+  // 1.5.
   const length::Choice isl =
       length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries);
   EXPECT_FALSE(isl.global);
@@ -168,7 +169,7 @@ TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
   EXPECT_EQ(g.m, 1);
   EXPECT_EQ(g.reason, length::kGlobal);
   EXPECT_NEAR(g.cost_ratio,
-              (length::kGlobalPerStep + length::kGlobalPerPair * pairs) /
+              (length::kGlobalPerStep + length::kGlobalPerPair * pairs) / length::kGlobalRate /
                   (length::kPerFineStep +
                    (length::kPerParticle + length::kPerEntry * entries / N) / 1000.0),
               1e-9);

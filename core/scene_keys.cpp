@@ -323,8 +323,9 @@ std::vector<SceneKey> make_table() {
        .meaning = "orb and islands: sub-iterations per regrid interval, dt_sp = "
                   "`dem.regrid_interval` / nsubit (with a gas: `fluid.dt` / nsubit); islands "
                   "also take \"auto\", their default: the scheme picks nsubit at the end of "
-                  "every interval from operation counts (starting at 10; docs/schemes.md), each "
-                  "choice in run.json"},
+                  "every interval from operation counts (starting at 10; docs/schemes.md), "
+                  "or the global mode (everyone on the fine step, the explicit scheme's passes) "
+                  "where that costs less, each choice in run.json"},
       {.name = "dem.proximity_radii",
        .type = T::Number,
        .section = S::Contacts,

@@ -815,14 +815,9 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
   const StepModel& m = model_;
   constexpr std::size_t kBlock = 1024;
   const std::size_t blocks = (n + kBlock - 1) / kBlock;
-  struct Part {
-    std::int64_t pairs = 0, violations = 0;
-    double max_ratio = 0.0;
-    std::uint64_t moved = 0;
-  };
-  std::vector<Part> parts(blocks);
+  // Per block of the update: the sign bit set when some particle moved beyond skin/2.
+  std::vector<std::uint64_t> moved_of(blocks, 0);
   double h_before = 0.0;
-  islands::ContactView view = contact_view();
   one_.clear_all = true; // the islands' steps since the last global step left forces behind
   {
     // The check after each step below serves the next one: the last global sub-iteration's last
@@ -835,32 +830,18 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
       expired = expired || !(dx * dx + dy * dy + dz * dz <= half_skin2);
     }
     if (expired)
-      rebuild(), view = contact_view();
+      rebuild();
   }
   for (std::int64_t k = 0; k < steps_.K; ++k) {
     const double hk = k + 1 == steps_.K ? steps_.h_last : steps_.h;
     if (k > 0) {
       std::uint64_t moved = 0;
-      for (const Part& pt : parts)
-        moved |= pt.moved;
+      for (const std::uint64_t b : moved_of)
+        moved |= b;
       if (moved >> 63)
-        rebuild(), view = contact_view();
+        rebuild();
     }
-    if constexpr (Friction) {
-      // Each pair from both its rows: the tangential history lives per row entry, which the
-      // islands' own steps read from either end.
-      tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-        Part pt;
-        const std::size_t e = std::min(n, (b + 1) * kBlock);
-        pt.pairs += islands::contact_forces<false, false, true, false, Friction>(
-            view, nullptr, static_cast<std::uint32_t>(b * kBlock), static_cast<std::uint32_t>(e), 0,
-            pt.max_ratio, pt.violations, hk);
-        parts[b] = pt;
-      });
-    } else {
-      global_contacts();
-      std::fill(parts.begin(), parts.end(), Part{});
-    }
+    global_contacts<Friction>(hk);
     if (record && k == 0)
       for (std::size_t i = 0; i < n; ++i) {
         double ex = 0.0, ey = 0.0, ez = 0.0;
@@ -870,11 +851,6 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
         rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
         rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
       }
-    for (const Part& pt : parts) {
-      st_.pair_evaluations += pt.pairs;
-      st_.overlap_violations += pt.violations;
-      st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, pt.max_ratio);
-    }
     const double half = 0.5 * hk;
     const double s_common = 0.5 * h_before + half;
     const auto xr = one_.list.x_ref(), yr = one_.list.y_ref(), zr = one_.list.z_ref();
@@ -896,7 +872,7 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
       else
         kick_drift_range<External>(columns.range(i0, i1), st, flags);
       const std::uint64_t still = flags.still;
-      parts[b].moved = ~still; // sign bit set: some particle beyond skin/2
+      moved_of[b] = ~still; // sign bit set: some particle beyond skin/2
     });
     // The orb kernel leaves h_prev alone after the first step: the last step's half step.
     if (k > 0 && k + 1 == steps_.K)
@@ -906,16 +882,24 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
   }
 }
 
-// The global steps' contact and wall forces without friction, as the explicit scheme computes
-// them: each pair of the list once (the full rows' partners of higher index, laid out flat after
-// every build) through its pair passes (dem/verlet_passes.hpp), then the walls of the particles
-// that can reach one before the next build. Adds to the counters.
-void IslandsScheme::global_contacts() {
+// The global steps' contact and wall forces, as the explicit scheme computes them: each pair of
+// the list once (the full rows' partners of higher index, laid out flat after every build)
+// through its pair passes (dem/verlet_passes.hpp), then the walls of the particles that can reach
+// one before the next build. The scatter sums each particle's contacts in its full row's order,
+// so the forces are those of a pass over full rows, bit for bit. With friction the tangential
+// spring of a pair lives in both its rows' entries (the islands' steps read it from either end):
+// the pass advances the upper entry, and the lower one takes its negative (the same arithmetic
+// from the other end gives exactly that: every term changes sign). Adds to the counters.
+template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   OneRank& o = one_;
   const std::size_t n = p_.size();
   if (o.half_stale) {
-    o.head_pairs.build<false, true>(o.list, o.list.active(), kPairBlock, false);
-    o.tail_pairs.build<true, true>(o.list, o.list.tail_rows(), kPairBlock, false);
+    o.head_pairs.build<false, true>(o.list, o.list.active(), kPairBlock, Friction);
+    o.tail_pairs.build<true, true>(o.list, o.list.tail_rows(), kPairBlock, Friction);
+    if constexpr (Friction) {
+      mirror_entries(o.list, o.head_pairs, o.head_mirror);
+      mirror_entries(o.list, o.tail_pairs, o.tail_mirror);
+    }
     near_walls(p_, n, o.list, geom_, o.list.skin(), o.near_wall);
     o.half_stale = false;
     o.clear_all = true;
@@ -925,42 +909,85 @@ void IslandsScheme::global_contacts() {
   // those of the last step's contacts and of the particles near a wall.
   if (o.clear_all) {
     const auto nn = static_cast<std::ptrdiff_t>(n);
-    std::fill(p_.fx.begin(), p_.fx.begin() + nn, 0.0);
-    std::fill(p_.fy.begin(), p_.fy.begin() + nn, 0.0);
-    std::fill(p_.fz.begin(), p_.fz.begin() + nn, 0.0);
+    for (std::vector<double>* c : {&p_.fx, &p_.fy, &p_.fz})
+      std::fill(c->begin(), c->begin() + nn, 0.0);
+    if constexpr (Friction)
+      for (std::vector<double>* c : {&p_.tx, &p_.ty, &p_.tz})
+        std::fill(c->begin(), c->begin() + nn, 0.0);
     o.clear_all = false;
   } else {
-    clear_contact_forces<false>(p_, std::span<const PairContacts>(o.head).first(o.nh));
-    clear_contact_forces<false>(p_, std::span<const PairContacts>(o.tail).first(o.nt));
-    clear_forces<false>(p_, o.near_wall);
+    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(o.head).first(o.nh));
+    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(o.tail).first(o.nt));
+    clear_forces<Friction>(p_, o.near_wall);
   }
   StepReport rep;
+  const HistoryColumns h{hx_, hy_, hz_};
   const std::size_t nh =
-      pair_pass<false, false, true>(p_, o.head_pairs, {}, geom_, model_, 0.0, o.head, rep);
+      pair_pass<Friction, false, true>(p_, o.head_pairs, h, geom_, model_, hk, o.head, rep);
   const std::size_t nt =
-      pair_pass<false, true, true>(p_, o.tail_pairs, {}, geom_, model_, 0.0, o.tail, rep);
-  scatter_contacts<false>(p_, std::span<const PairContacts>(o.head).first(nh),
-                          std::span<const PairContacts>(o.tail).first(nt));
+      pair_pass<Friction, true, true>(p_, o.tail_pairs, h, geom_, model_, hk, o.tail, rep);
+  scatter_contacts<Friction>(p_, std::span<const PairContacts>(o.head).first(nh),
+                             std::span<const PairContacts>(o.tail).first(nt));
   o.nh = nh, o.nt = nt;
+  if constexpr (Friction) {
+    const std::pair<const PairStream*, const std::vector<std::uint32_t>*> parts[] = {
+        {&o.head_pairs, &o.head_mirror}, {&o.tail_pairs, &o.tail_mirror}};
+    for (const auto& [stream, mirror] : parts)
+      for (std::size_t e = 0; e < mirror->size(); ++e) {
+        const std::uint32_t k = stream->k[e], q = (*mirror)[e];
+        hx_[q] = -hx_[k], hy_[q] = -hy_[k], hz_[q] = -hz_[k];
+      }
+  }
   double max_ratio = rep.max_ratio;
   std::int64_t violations = rep.overlaps;
   const StepModel& m = model_;
   for (const std::uint32_t i : o.near_wall) {
     double f[3] = {p_.fx[i], p_.fy[i], p_.fz[i]}, tq[3] = {0.0, 0.0, 0.0};
+    if constexpr (Friction)
+      tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
     const double pos[3] = {p_.x[i], p_.y[i], p_.z[i]}, vel[3] = {p_.vx[i], p_.vy[i], p_.vz[i]};
     const double ri = p_.radius[i], mi = p_.mass[i];
-    add_wall_contacts<false>(
+    add_wall_contacts<Friction>(
         geom_, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
-        [](double w[3]) { w[0] = w[1] = w[2] = 0.0; }, f, tq,
+        [&](double w[3]) {
+          if constexpr (Friction)
+            w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
+          else
+            w[0] = w[1] = w[2] = 0.0;
+        },
+        f, tq,
         [&](double delta) {
           max_ratio = std::max(max_ratio, delta / ri);
           violations += delta > m.max_overlap * ri;
         });
     p_.fx[i] = f[0], p_.fy[i] = f[1], p_.fz[i] = f[2];
+    if constexpr (Friction)
+      p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
   }
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
   st_.overlap_violations += violations;
   st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);
+}
+
+// For every pair of `stream` (a full list's upper entries), the list entry of the same pair in
+// its partner's row: rows list their partners in increasing index within each part (in-box,
+// then across a face), and a pair's two entries lie in the same part.
+void IslandsScheme::mirror_entries(const VerletList& list, const PairStream& stream,
+                                   std::vector<std::uint32_t>& mirror) {
+  const std::uint32_t* off = list.offsets().data();
+  const std::uint32_t* wrap = list.wrap_begin().data();
+  const std::uint32_t* nb = list.neighbors().data();
+  mirror.resize(stream.i.size());
+  for (std::size_t e = 0; e < mirror.size(); ++e) {
+    const std::uint32_t i = stream.i[e], j = stream.j[e], k = stream.k[e];
+    const bool tail = k >= wrap[i];
+    const std::uint32_t* b = nb + (tail ? wrap[j] : off[j]);
+    const std::uint32_t* end = nb + (tail ? off[j + 1] : wrap[j]);
+    const std::uint32_t* at = std::lower_bound(b, end, i);
+    if (at == end || *at != i)
+      throw std::logic_error("islands: a full list's pair is missing from its partner's row");
+    mirror[e] = static_cast<std::uint32_t>(at - nb);
+  }
 }
 
 // The K fine steps of island c (every island has a link or a wall): contact forces from members

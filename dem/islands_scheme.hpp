@@ -304,6 +304,8 @@ private:
     PairStream head_pairs, tail_pairs;
     std::vector<PairContacts> head, tail;
     std::vector<std::uint32_t> near_wall;
+    // Friction: per pair of head_pairs, tail_pairs the list entry of its lower end's row.
+    std::vector<std::uint32_t> head_mirror, tail_mirror;
     std::size_t nh = 0, nt = 0; // blocks of head, tail written by the last step
     bool half_stale = true;
     bool clear_all = true; // the next step clears every listed particle's force
@@ -377,7 +379,9 @@ private:
   template <bool External, bool Ranks, bool Friction = false>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External, bool Friction> void global_steps(bool record);
-  void global_contacts();
+  template <bool Friction> void global_contacts(double hk);
+  static void mirror_entries(const VerletList& list, const PairStream& stream,
+                             std::vector<std::uint32_t>& mirror);
   islands::ContactView contact_view();
   // R ranks (islands_ranks.cpp).
   void init_ranks();

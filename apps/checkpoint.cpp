@@ -495,7 +495,8 @@ Checkpoint read_contents(const h5::File& f) {
       o.rank_values = r.doubles("/islands/rank_values", 1);
     }
     if (f.exists("/islands/length_counters")) {
-      o.length_counters = r.int64s("/islands/length_counters", 6);
+      // 8 counters (6 before the global mode's two flags: still read; the scheme checks).
+      o.length_counters = r.int64s("/islands/length_counters", Reader::kAny);
       o.length_values = r.doubles("/islands/length_values", Reader::kAny);
       o.length_log = r.doubles("/islands/length_choices", Reader::kAny);
     }

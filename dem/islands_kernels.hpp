@@ -175,6 +175,26 @@ Reaches largest_reaches(const double* __restrict x, const double* __restrict y,
   return {top1, top2};
 }
 
+// The walls' force on member i (and torque, with friction; w its spin), added to (ax, ay, az)
+// after its pairs; overlaps into the island's tallies.
+template <bool Friction>
+inline void add_member_walls(const ContactView& v, std::uint32_t i, double& ax, double& ay,
+                             double& az, const double w[3], double tq[3], double& max_ratio,
+                             std::int64_t& violations) {
+  const StepModel& m = *v.model;
+  const double ri = v.c.radius[i], mi = v.c.mass[i];
+  double f[3] = {ax, ay, az};
+  const double pos[3] = {v.c.x[i], v.c.y[i], v.c.z[i]}, vel[3] = {v.c.vx[i], v.c.vy[i], v.c.vz[i]};
+  add_wall_contacts<Friction>(
+      *v.geom, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
+      [&](double s[3]) { s[0] = w[0], s[1] = w[1], s[2] = w[2]; }, f, tq,
+      [&](double delta) {
+        max_ratio = std::max(max_ratio, delta / ri);
+        violations += delta > m.max_overlap * ri;
+      });
+  ax = f[0], ay = f[1], az = f[2];
+}
+
 // Contact and wall forces on particles u0..u1 (idx[u] with Indexed, else u itself; the explicit
 // scheme's contact law), from their row partners in island `island` (with Label; all partners
 // without). Returns the pairs evaluated, each once: (i, j) with j > i (ById: id[j] > id[i], so
@@ -260,18 +280,8 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
       }
       pair(k, j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
     }
-    if (!(g.periodic[0] && g.periodic[1] && g.periodic[2])) {
-      double f[3] = {ax, ay, az};
-      const double pos[3] = {xi, yi, zi}, vel[3] = {vxi, vyi, vzi};
-      add_wall_contacts<Friction>(
-          g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
-          [&](double s[3]) { s[0] = wi[0], s[1] = wi[1], s[2] = wi[2]; }, f, tq,
-          [&](double delta) {
-            max_ratio = std::max(max_ratio, delta / ri);
-            violations += delta > m.max_overlap * ri;
-          });
-      ax = f[0], ay = f[1], az = f[2];
-    }
+    if (!(g.periodic[0] && g.periodic[1] && g.periodic[2]))
+      add_member_walls<Friction>(v, i, ax, ay, az, wi, tq, max_ratio, violations);
     fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
     if constexpr (Friction)
       v.c.tx[i] = tq[0], v.c.ty[i] = tq[1], v.c.tz[i] = tq[2];
@@ -279,6 +289,48 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
   max_ratio_out = max_ratio;
   violations_out += violations;
   return pairs;
+}
+
+// The contact and wall forces of an island of two members without friction, i < j (one rank):
+// its one pair, a link (an island is connected), evaluated once; `across`: j lies in the part of
+// i's row across a periodic face. The pass over both rows (contact_forces) evaluates it from each
+// end, and j's contribution is bit for bit the negative of i's (every term changes sign, as in
+// the explicit scheme's half list): this is that pass with half the pair work, and it tallies
+// the overlaps as that pass does (the pair's from each end). Returns the pairs evaluated (1).
+inline std::int64_t pair_island_forces(const ContactView& v, std::uint32_t i, std::uint32_t j,
+                                       bool across, double& max_ratio, std::int64_t& violations) {
+  const DomainGeometry& g = *v.geom;
+  const StepModel& m = *v.model;
+  const Columns& c = v.c;
+  double dx = c.x[j] - c.x[i], dy = c.y[j] - c.y[i], dz = c.z[j] - c.z[i];
+  if (across)
+    dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+  double ax = 0.0, ay = 0.0, az = 0.0;
+  const double delta =
+      add_normal_contact(m, dx, dy, dz, c.radius[i], c.radius[j], c.mass[i], c.mass[j],
+                         c.vx[i] - c.vx[j], c.vy[i] - c.vy[j], c.vz[i] - c.vz[j], ax, ay, az);
+  double bx = 0.0 - ax, by = 0.0 - ay, bz = 0.0 - az; // j's end: 0 + (-contribution)
+  // The tallies in the two rows' order: i's pair, i's walls, j's pair, j's walls.
+  const double rmin = std::min(c.radius[i], c.radius[j]);
+  auto tally_pair = [&] {
+    if (delta <= 0.0)
+      return;
+    if (delta > max_ratio * rmin)
+      max_ratio = delta / rmin;
+    violations += delta > m.max_overlap * rmin;
+  };
+  const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
+  const double w[3] = {0.0, 0.0, 0.0};
+  double tq[3] = {0.0, 0.0, 0.0};
+  tally_pair();
+  if (walls)
+    add_member_walls<false>(v, i, ax, ay, az, w, tq, max_ratio, violations);
+  tally_pair();
+  if (walls)
+    add_member_walls<false>(v, j, bx, by, bz, w, tq, max_ratio, violations);
+  c.fx[i] = ax, c.fy[i] = ay, c.fz[i] = az;
+  c.fx[j] = bx, c.fy[j] = by, c.fz[j] = bz;
+  return 1;
 }
 
 // What one island's fine steps add to the scheme's counters.

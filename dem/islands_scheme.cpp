@@ -1007,6 +1007,22 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
   // No member touches anything before the island's entry time: its leading steps are one.
   mb.lead = islands::entry_lead(islands::entry_time<!Ranks>(view, mb, ln_.own_bound.data(), c),
                                 dt_sp_, steps_);
+  if constexpr (!Ranks && !Friction) {
+    if (mb.count == 2) { // the common island of a dilute gas: its one pair, evaluated once
+      const std::uint32_t i = mb.mem[0], j = mb.mem[1];
+      bool across = false;
+      for (std::uint32_t k = view.rows.wrap[i]; k < view.rows.off[i + 1]; ++k)
+        across = across || view.rows.nb[k] == j;
+      results_[c] = islands::step_island<External, true>(
+          view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
+          record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
+          [&](std::uint32_t, std::uint32_t, double& max_ratio, std::int64_t& violations) {
+            return islands::pair_island_forces(view, i, j, across, max_ratio, violations);
+          },
+          [] {});
+      return;
+    }
+  }
   results_[c] = islands::step_island<External, true, Friction>(
       view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
       record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,

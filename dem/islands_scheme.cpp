@@ -930,12 +930,13 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
                              std::span<const PairContacts>(o.tail).first(nt));
   o.nh = nh, o.nt = nt;
   if constexpr (Friction) {
+    // 0 - h: a pair apart has +0 at both ends, as the rows' own pass leaves it.
     const std::pair<const PairStream*, const std::vector<std::uint32_t>*> parts[] = {
         {&o.head_pairs, &o.head_mirror}, {&o.tail_pairs, &o.tail_mirror}};
     for (const auto& [stream, mirror] : parts)
       for (std::size_t e = 0; e < mirror->size(); ++e) {
         const std::uint32_t k = stream->k[e], q = (*mirror)[e];
-        hx_[q] = -hx_[k], hy_[q] = -hy_[k], hz_[q] = -hz_[k];
+        hx_[q] = 0.0 - hx_[k], hy_[q] = 0.0 - hy_[k], hz_[q] = 0.0 - hz_[k];
       }
   }
   double max_ratio = rep.max_ratio;

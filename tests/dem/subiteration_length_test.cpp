@@ -276,6 +276,26 @@ AutoRun run_auto(const Scene& s, int intervals, int threads = 1) {
   return finish(isl, p, std::move(r));
 }
 
+// `before` intervals, a save, a restore into a fresh scheme on the store as saved (the one-rank
+// loops' path) and `after` more; `saved` gets the state.
+AutoRun run_restored(const Scene& s, int before, int after, dem::IslandsScheme::State& saved) {
+  ParticleStore p = make_initial_particles(s);
+  PhaseTimer t;
+  AutoRun r;
+  ParticleStore at_save;
+  {
+    dem::IslandsScheme isl(s, p, t);
+    isl.start();
+    run_intervals(isl, before, r);
+    saved = isl.save_state();
+    at_save = p;
+  }
+  dem::IslandsScheme again(s, at_save, t);
+  again.restore_state(saved);
+  run_intervals(again, after, r);
+  return finish(again, at_save, std::move(r));
+}
+
 double mean_tail(const std::vector<std::int64_t>& v, std::size_t from) {
   double s = 0.0;
   for (std::size_t k = from; k < v.size(); ++k)
@@ -321,23 +341,9 @@ TEST(SubiterationLength, AutoBitwiseIndependentOfThreadCount) {
 TEST(SubiterationLength, AutoRestoresBitwise) {
   const Scene s = demtest::scene_from(kAutoGas);
   const AutoRun whole = run_auto(s, 16);
-  ParticleStore p = make_initial_particles(s);
-  PhaseTimer t;
-  AutoRun r;
   dem::IslandsScheme::State saved;
-  ParticleStore at_save;
-  {
-    dem::IslandsScheme isl(s, p, t);
-    isl.start();
-    run_intervals(isl, 8, r);
-    saved = isl.save_state();
-    at_save = p;
-  }
-  ASSERT_EQ(saved.length_counters.size(), 8U);
-  dem::IslandsScheme again(s, at_save, t);
-  again.restore_state(saved);
-  run_intervals(again, 8, r);
-  const AutoRun resumed = finish(again, at_save, std::move(r));
+  const AutoRun resumed = run_restored(s, 8, 8, saved);
+  EXPECT_EQ(saved.length_counters.size(), 8U);
   EXPECT_EQ(resumed.counts, whole.counts);
   EXPECT_EQ(resumed.choices, whole.choices);
   EXPECT_EQ(resumed.pairs, whole.pairs);
@@ -346,6 +352,7 @@ TEST(SubiterationLength, AutoRestoresBitwise) {
   // A state without the length (written with an integer nsubit) is refused.
   saved.length_counters.clear();
   ParticleStore q = make_initial_particles(s);
+  PhaseTimer t;
   dem::IslandsScheme other(s, q, t);
   EXPECT_THROW(other.restore_state(saved), RunError);
 }
@@ -370,24 +377,10 @@ TEST(SubiterationLength, DenseGasTakesTheGlobalModeBitwise) {
   for (const auto& [id, a] : one.state)
     EXPECT_EQ(a, two.state.at(id)) << "particle " << id;
   // Saved after the first global interval, in the middle of the run.
-  ParticleStore p = make_initial_particles(s);
-  PhaseTimer t;
-  AutoRun r;
   dem::IslandsScheme::State saved;
-  ParticleStore at_save;
-  {
-    dem::IslandsScheme isl(s, p, t);
-    isl.start();
-    run_intervals(isl, intervals - 2, r);
-    saved = isl.save_state();
-    at_save = p;
-  }
+  const AutoRun resumed = run_restored(s, intervals - 2, 2, saved);
   ASSERT_EQ(saved.length_counters.size(), 8U);
   EXPECT_EQ(saved.length_counters[7], 1); // the next interval is a global one
-  dem::IslandsScheme again(s, at_save, t);
-  again.restore_state(saved);
-  run_intervals(again, 2, r);
-  const AutoRun resumed = finish(again, at_save, std::move(r));
   EXPECT_EQ(resumed.counts, one.counts);
   EXPECT_EQ(resumed.pairs, one.pairs);
   for (const auto& [id, a] : one.state)

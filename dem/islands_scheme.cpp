@@ -941,27 +941,15 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   }
   double max_ratio = rep.max_ratio;
   std::int64_t violations = rep.overlaps;
-  const StepModel& m = model_;
+  const islands::ContactView view = contact_view();
   for (const std::uint32_t i : o.near_wall) {
-    double f[3] = {p_.fx[i], p_.fy[i], p_.fz[i]}, tq[3] = {0.0, 0.0, 0.0};
-    if constexpr (Friction)
+    double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
+    if constexpr (Friction) {
+      w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
       tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
-    const double pos[3] = {p_.x[i], p_.y[i], p_.z[i]}, vel[3] = {p_.vx[i], p_.vy[i], p_.vz[i]};
-    const double ri = p_.radius[i], mi = p_.mass[i];
-    add_wall_contacts<Friction>(
-        geom_, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
-        [&](double w[3]) {
-          if constexpr (Friction)
-            w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
-          else
-            w[0] = w[1] = w[2] = 0.0;
-        },
-        f, tq,
-        [&](double delta) {
-          max_ratio = std::max(max_ratio, delta / ri);
-          violations += delta > m.max_overlap * ri;
-        });
-    p_.fx[i] = f[0], p_.fy[i] = f[1], p_.fz[i] = f[2];
+    }
+    islands::add_member_walls<Friction>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w, tq, max_ratio,
+                                        violations);
     if constexpr (Friction)
       p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
   }

@@ -838,8 +838,11 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
       std::uint64_t moved = 0;
       for (const std::uint64_t b : moved_of)
         moved |= b;
-      if (moved >> 63)
+      if (moved >> 63) {
+        if constexpr (Friction)
+          mirror_history();
         rebuild();
+      }
     }
     global_contacts<Friction>(hk);
     if (record && k == 0)
@@ -880,6 +883,8 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
         h = half;
     h_before = hk;
   }
+  if constexpr (Friction)
+    mirror_history();
 }
 
 // The global steps' contact and wall forces, as the explicit scheme computes them: each pair of
@@ -888,8 +893,9 @@ template <bool External, bool Friction> void IslandsScheme::global_steps(bool re
 // one before the next build. The scatter sums each particle's contacts in its full row's order,
 // so the forces are those of a pass over full rows, bit for bit. With friction the tangential
 // spring of a pair lives in both its rows' entries (the islands' steps read it from either end):
-// the pass advances the upper entry, and the lower one takes its negative (the same arithmetic
-// from the other end gives exactly that: every term changes sign). Adds to the counters.
+// the pass advances the upper entry, and the lower one later takes its negative (mirror_history:
+// the same arithmetic from the other end gives exactly that, every term changes sign). Adds to
+// the counters.
 template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   OneRank& o = one_;
   const std::size_t n = p_.size();
@@ -929,16 +935,6 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   scatter_contacts<Friction>(p_, std::span<const PairContacts>(o.head).first(nh),
                              std::span<const PairContacts>(o.tail).first(nt));
   o.nh = nh, o.nt = nt;
-  if constexpr (Friction) {
-    // 0 - h: a pair apart has +0 at both ends, as the rows' own pass leaves it.
-    const std::pair<const PairStream*, const std::vector<std::uint32_t>*> parts[] = {
-        {&o.head_pairs, &o.head_mirror}, {&o.tail_pairs, &o.tail_mirror}};
-    for (const auto& [stream, mirror] : parts)
-      for (std::size_t e = 0; e < mirror->size(); ++e) {
-        const std::uint32_t k = stream->k[e], q = (*mirror)[e];
-        hx_[q] = 0.0 - hx_[k], hy_[q] = 0.0 - hy_[k], hz_[q] = 0.0 - hz_[k];
-      }
-  }
   double max_ratio = rep.max_ratio;
   std::int64_t violations = rep.overlaps;
   const islands::ContactView view = contact_view();
@@ -956,6 +952,21 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
   st_.overlap_violations += violations;
   st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);
+}
+
+// Friction: the lower entry of every pair the global steps advanced takes 0 - h of the upper one
+// (a pair apart has +0 at both ends, as the rows' own pass leaves it). Only the islands' steps,
+// a rebuild's history collection and a checkpoint read the lower entries, so the global steps
+// mirror before a rebuild and at their end, not after every step.
+void IslandsScheme::mirror_history() {
+  const OneRank& o = one_;
+  const std::pair<const PairStream*, const std::vector<std::uint32_t>*> parts[] = {
+      {&o.head_pairs, &o.head_mirror}, {&o.tail_pairs, &o.tail_mirror}};
+  for (const auto& [stream, mirror] : parts)
+    for (std::size_t e = 0; e < mirror->size(); ++e) {
+      const std::uint32_t k = stream->k[e], q = (*mirror)[e];
+      hx_[q] = 0.0 - hx_[k], hy_[q] = 0.0 - hy_[k], hz_[q] = 0.0 - hz_[k];
+    }
 }
 
 // For every pair of `stream` (a full list's upper entries), the list entry of the same pair in

@@ -380,6 +380,7 @@ private:
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
   template <bool External, bool Friction> void global_steps(bool record);
   template <bool Friction> void global_contacts(double hk);
+  void mirror_history();
   static void mirror_entries(const VerletList& list, const PairStream& stream,
                              std::vector<std::uint32_t>& mirror);
   islands::ContactView contact_view();

@@ -291,12 +291,13 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
   return pairs;
 }
 
-// The contact and wall forces of an island of two members without friction, i < j (one rank):
-// its one pair, a link (an island is connected), evaluated once; `across`: j lies in the part of
-// i's row across a periodic face. The pass over both rows (contact_forces) evaluates it from each
-// end, and j's contribution is bit for bit the negative of i's (every term changes sign, as in
-// the explicit scheme's half list): this is that pass with half the pair work, and it tallies
-// the overlaps as that pass does (the pair's from each end). Returns the pairs evaluated (1).
+// The contact and wall forces of an island of two members i and j without friction (one rank;
+// i the first in the island's member order): its one pair, a link (an island is connected),
+// evaluated once; `across`: j lies in the part of i's row across a periodic face. The pass over
+// both rows (contact_forces) evaluates it from each end, and j's contribution is bit for bit the
+// negative of i's (every term changes sign, as in the explicit scheme's half list): this is that
+// pass with half the pair work, and it tallies the overlaps as that pass does (the pair's from each
+// end). Returns the pairs evaluated (1).
 inline std::int64_t pair_island_forces(const ContactView& v, std::uint32_t i, std::uint32_t j,
                                        bool across, double& max_ratio, std::int64_t& violations) {
   const DomainGeometry& g = *v.geom;

@@ -1008,7 +1008,9 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
   mb.lead = islands::entry_lead(islands::entry_time<!Ranks>(view, mb, ln_.own_bound.data(), c),
                                 dt_sp_, steps_);
   if constexpr (!Ranks && !Friction) {
-    if (mb.count == 2) { // the common island of a dilute gas: its one pair, evaluated once
+    // The common island of a dilute gas: its one pair, evaluated once. A step_island of its own
+    // (one forces callback with a branch on this case cost 11% more instructions on HCS 1222).
+    if (mb.count == 2) {
       const std::uint32_t i = mb.mem[0], j = mb.mem[1];
       bool across = false;
       for (std::uint32_t k = view.rows.wrap[i]; k < view.rows.off[i + 1]; ++k)

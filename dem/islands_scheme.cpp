@@ -594,14 +594,12 @@ void IslandsScheme::subiterate_one(bool record) {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     bool fresh = false;
     for (;;) {
-      if (auto_.global_now) { // "auto" chose the global mode for this interval: no links
-        global_ = true;
-        if (skin_ != one_.global_skin)
-          skin_ = one_.global_skin, rebuild();
-        break;
+      // "auto" chose the global mode for this interval: no bounds or links. Else link() says.
+      global_ = auto_.global_now;
+      if (!global_) {
+        speed_bounds();
+        link();
       }
-      speed_bounds();
-      link();
       if (global_) {
         // The explicit scheme's skin: the list then holds what the explicit list holds.
         if (skin_ != one_.global_skin)

@@ -423,8 +423,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   // One particle step past the end completes the last row (with "auto" a short one: the state
   // it records is at its start).
   if (loop.row_pending || loop.snapshot_pending) {
-    if (run.auto_length())
-      run.begin_completion();
+    run.begin_completion();
     particle_step(loop.row_pending, loop.snapshot_pending);
   }
   const double loop_seconds = seconds_since(t_loop);

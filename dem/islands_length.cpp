@@ -34,8 +34,7 @@ std::int64_t IslandsScheme::begin_interval() {
   std::int64_t m = auto_.next;
   // The global mode holds the gas force over the whole interval, as the explicit scheme holds it
   // over the fluid step: the change bound is the islands' (their free flights).
-  auto_.global_now = auto_.next_global;
-  if (auto_.gas_dA > 0.0 && !auto_.global_now) {
+  if (auto_.gas_dA > 0.0 && !auto_.next_global) {
     const std::int64_t lo = std::min(m_hi, length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref));
     if (lo > m) {
       m = lo;
@@ -49,22 +48,23 @@ std::int64_t IslandsScheme::begin_interval() {
           std::max(auto_.gas_ratio_max, auto_.gas_dA / (static_cast<double>(m) * auto_.gas_aref));
   }
   auto_.log[auto_.log.size() - kRow + 3] += 1.0; // the row in force counts this interval
-  nsubit_ = m;
-  dt_sp_ = D / static_cast<double>(m);
-  auto_.t0 = static_cast<double>(auto_.intervals) * D;
+  open_interval(m);
   ++auto_.intervals;
-  auto_.subits_base = st_.subits;
-  auto_.q = 0;
   return nsubit_;
 }
 
 void IslandsScheme::begin_completion() {
-  if (!auto_.on)
-    return;
+  if (auto_.on)
+    open_interval(length::most_subiterations(auto_.interval, model_.dt));
+}
+
+// The next sub-iterations are m of D / m from the end of the intervals begun so far, in the mode
+// the last choice took.
+void IslandsScheme::open_interval(std::int64_t m) {
   const double D = auto_.interval;
-  nsubit_ = length::most_subiterations(D, model_.dt);
-  dt_sp_ = D / static_cast<double>(nsubit_);
   auto_.global_now = auto_.next_global;
+  nsubit_ = m;
+  dt_sp_ = D / static_cast<double>(m);
   auto_.t0 = static_cast<double>(auto_.intervals) * D;
   auto_.subits_base = st_.subits;
   auto_.q = 0;

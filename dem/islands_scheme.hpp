@@ -131,10 +131,8 @@ public:
   // loop's step past the end) is the shortest "auto" allows, dt_sp about the fine step, not a
   // whole interval of work no output reads. Nothing without "auto".
   void begin_completion();
-  // "auto": the count chosen for the next interval (the last choice), and whether it is the
-  // global mode.
+  // "auto": the count chosen for the next interval (the last choice).
   std::int64_t next_nsubit() const { return auto_.next; }
-  bool next_global() const { return auto_.next_global; }
   // The choices so far: rows of kChoiceColumns (a row per change of nsubit; `intervals` counts
   // the intervals it was kept for).
   static constexpr std::array<const char*, 10> kChoiceColumns = {
@@ -331,6 +329,7 @@ private:
     bool global_now = false, next_global = false;
   };
   void choose_length();
+  void open_interval(std::int64_t m);
   void note_gas_change(std::span<const double> fx, std::span<const double> fy,
                        std::span<const double> fz);
   struct RankPart; // R ranks: ownership, ghosts, rows, reductions (islands_ranks.cpp)

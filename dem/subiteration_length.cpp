@@ -106,8 +106,6 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
       best = q, c.m = m;
   }
   c.reason = free_best < m_lo ? lo_reason : c.m == m_hi && m_hi > 1 ? kFine : kMinCost;
-  // Hysteresis: the previous m is kept unless the best saves kMinGain of its modelled cost (the
-  // fine count of a dilute scene is small and noisy; a change for less is not worth a row).
   // The global mode: every particle on the fine step for the whole interval.
   const double global_cost = pairs >= 0.0
                                  ? static_cast<double>(fine_steps(D, dt_fine).K) * N *
@@ -117,6 +115,9 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
     best = global_cost;
     c.m = 1, c.global = true, c.reason = kGlobal;
   }
+  // Hysteresis: the previous m (or mode) is kept unless the best saves kMinGain of its modelled
+  // cost (the fine count of a dilute scene is small and noisy; a change for less is not worth a
+  // row).
   const std::int64_t prev = std::clamp<std::int64_t>(m_prev, m_lo, m_hi);
   const bool prev_kept = prev_global || prev == m_prev;
   const double prev_cost = prev_global ? global_cost : cost(prev);

@@ -79,6 +79,9 @@ int Deposition::fold(int axis, int i) const {
     return fold_in_box(axis, i);
   }
   const int n = grid_.cells(axis);
+  if (i >= 0 && i < n) {
+    return i; // inside: the common case, without the divisions below
+  }
   if (grid_.periodic(axis)) {
     return ((i % n) + n) % n;
   }
@@ -93,7 +96,7 @@ int Deposition::fold(int axis, int i) const {
 int Deposition::box_index(int axis, int i) const {
   const int n = grid_.global_cells()[axis];
   int g = i;
-  if (!grid_.periodic(axis)) {
+  if (!grid_.periodic(axis) && (i < 0 || i >= n)) {
     const int period = 2 * n;
     const int m = ((i % period) + period) % period;
     g = m < n ? m : period - 1 - m;

@@ -152,8 +152,14 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
       // (beta v)_f)
       diag_[f] = face_mass_[a][f] * gain[f];
       vrhs_[f] = face_mass_[a][f] * (u_start_[a][f] + dt * rate + push[f]);
+      // First guess: the implicit part taken at u^n, theta dt L(u^n), where L(u^n) is at hand
+      // (time order 2); its residual is O(dt^2) where u^n's is O(dt).
+      const double lap =
+          settings_.time_order == 2 ? (order == 1 ? 1.0 : 0.5) * lap_start_[a][f] : 0.0;
+      u_[a][f] = (u_start_[a][f] + dt * (rate + lap) + push[f]) / gain[f];
     });
     if (viscosity_) {
+      fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
       const double theta = order == 1 ? 1.0 : 0.5;
       const ViscousSolveReport vr =
           viscosity_->solve(a, theta * dt * settings_.gas.viscosity, eps_, diag_, vrhs_, u_[a],

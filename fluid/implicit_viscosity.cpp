@@ -1,5 +1,6 @@
 #include "fluid/implicit_viscosity.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -66,9 +67,69 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
     : grid_(grid),
       homogeneous_(grid.distributed() ? MacGrid(homogeneous_spec(grid.spec()), grid.box())
                                       : MacGrid(homogeneous_spec(grid.spec()))),
-      halo_(halo), r_(grid.layout()), p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()) {
+      halo_(halo), r_(grid.layout()), p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()),
+      inv_diag_(grid.layout()), dir_(grid.layout()), dir_next_(grid.layout()) {
   for (int b = 0; b < 3; ++b) {
     inflow_[b] = {grid.inflow_face(b, 0), grid.inflow_face(b, 1)};
+    eps_seen_[static_cast<std::size_t>(b)] = GridField(grid.layout());
+    for (GridField& k : cv_k_[static_cast<std::size_t>(b)]) {
+      k = GridField(grid.layout());
+    }
+  }
+}
+
+void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
+  const GridLayout& layout = grid_.layout();
+  const auto c = static_cast<std::size_t>(comp);
+  const std::span<const double> now = eps.values();
+  const std::span<double> seen = eps_seen_[c].values();
+  if (cv_k_valid_[c] && std::equal(now.begin(), now.end(), seen.begin())) {
+    return;
+  }
+  std::copy(now.begin(), now.end(), seen.begin());
+  cv_k_valid_[c] = true;
+  const double* ep = eps.values().data();
+  const std::ptrdiff_t sa = layout.stride(comp);
+  const std::array<int, 3> lo = unknown_lo(comp);
+  for (int b = 0; b < 3; ++b) {
+    const std::ptrdiff_t sb = layout.stride(b);
+    const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
+    std::array<int, 3> top = unknown_hi(comp);
+    ++top[b]; // the high face of the last unknown along b
+    double* k = cv_k_[c][static_cast<std::size_t>(b)].values().data();
+    // The face is the low face of the unknown at idx and the high face of the one below it,
+    // either of which may lie on an inflow plane (as in solve_multigrid). Row by row: the
+    // inflow test varies along a row only for b = x, at the row's two ends.
+    const auto on_inflow = [&](const std::array<int, 3>& idx) {
+      std::array<int, 3> below = idx;
+      below[b] -= 1;
+      return inflow_plane(b, 0, idx) || inflow_plane(b, 1, below);
+    };
+    for_box_rows(layout, lo, top, [&](std::ptrdiff_t row, int j, int kk) {
+      const std::ptrdiff_t end = row + (top[0] - lo[0]);
+      if (b == comp) {
+        for (std::ptrdiff_t p = row; p <= end; ++p) {
+          k[p] = inv_dx2 * ep[p - sa];
+        }
+        return;
+      }
+      if (b != 0 && on_inflow({lo[0], j, kk})) {
+        for (std::ptrdiff_t p = row; p <= end; ++p) {
+          k[p] = inv_dx2 * kInflowVolumeFraction;
+        }
+        return;
+      }
+      for (std::ptrdiff_t p = row; p <= end; ++p) {
+        k[p] = inv_dx2 * (0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]));
+      }
+      if (b == 0) {
+        for (const int i : {lo[0], top[0]}) {
+          if (on_inflow({i, j, kk})) {
+            k[row + (i - lo[0])] = inv_dx2 * kInflowVolumeFraction;
+          }
+        }
+      }
+    });
   }
 }
 
@@ -96,24 +157,40 @@ bool ImplicitViscosity::inflow_plane(int b, int side, const std::array<int, 3>& 
   return inflow_[b][side] && idx[b] == (side == 0 ? 0 : grid_.cells(b) - 1);
 }
 
+namespace {
+
+// lap = mu div(eps grad q) / (rho eps_f) on the points p0 .. p0 + n - 1 of a row (k[b]: the low
+// control-volume face's eps / dx_b^2; sa: the component's stride). Not inlined: GCC keeps the
+// restrict parameters of a function it calls, and the loop vectorizes with them.
+[[gnu::noinline]] void laplacian_row(std::ptrdiff_t p0, std::ptrdiff_t n,
+                                     const double* __restrict k0, const double* __restrict k1,
+                                     const double* __restrict k2, const double* __restrict q,
+                                     const double* __restrict ep, double* __restrict lap,
+                                     std::ptrdiff_t sa, std::ptrdiff_t sy, std::ptrdiff_t sz,
+                                     double mu_over_rho) {
+  for (std::ptrdiff_t p = p0; p < p0 + n; ++p) {
+    const double qp = q[p];
+    const double sum = (k0[p + 1] * (q[p + 1] - qp) - k0[p] * (qp - q[p - 1])) +
+                       (k1[p + sy] * (q[p + sy] - qp) - k1[p] * (qp - q[p - sy])) +
+                       (k2[p + sz] * (q[p + sz] - qp) - k2[p] * (qp - q[p - sz]));
+    lap[p] = mu_over_rho * sum / (0.5 * (ep[p] + ep[p - sa]));
+  }
+}
+
+} // namespace
+
 void ImplicitViscosity::laplacian(int comp, double mu, double rho, const GridField& eps,
-                                  const GridField& u, GridField& lap) const {
+                                  const GridField& u, GridField& lap) {
+  face_coefficients(comp, eps);
   const GridLayout& layout = grid_.layout();
-  const double* ep = eps.values().data();
-  const double* q = u.values().data();
-  const std::ptrdiff_t sa = layout.stride(comp);
-  std::array<int, 3> hi = {grid_.cells(0) - 1, grid_.cells(1) - 1, grid_.cells(2) - 1};
-  hi[comp] = grid_.cells(comp);
-  for_box_indexed(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
-    double sum = 0.0;
-    for (int b = 0; b < 3; ++b) {
-      const std::ptrdiff_t sb = layout.stride(b);
-      const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
-      const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx));
-      const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx));
-      sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
-    }
-    lap[static_cast<std::size_t>(p)] = mu * sum / (rho * 0.5 * (ep[p] + ep[p - sa]));
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  const auto& k = cv_k_[static_cast<std::size_t>(comp)];
+  lap.fill(0.0);
+  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+    laplacian_row(row, hi[0] - lo[0] + 1, k[0].values().data(), k[1].values().data(),
+                  k[2].values().data(), u.values().data(), eps.values().data(), lap.values().data(),
+                  layout.stride(comp), layout.stride(1), layout.stride(2), mu / rho);
   });
 }
 
@@ -268,6 +345,24 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
 ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField& eps,
                                             const GridField& diag, const GridField& rhs,
                                             GridField& u, double tolerance, int max_iterations) {
+  ViscousSolveReport chebyshev;
+  if (chebyshev_) {
+    face_coefficients(comp, eps);
+    chebyshev = solve_chebyshev(comp, c, diag, rhs, u, tolerance, max_iterations);
+    if (chebyshev.chebyshev && chebyshev.converged) {
+      return chebyshev;
+    }
+    // Not dominant enough (u untouched), or not converged (u's ghosts refilled): CG goes on.
+  }
+  ViscousSolveReport report = solve_cg(comp, c, eps, diag, rhs, u, tolerance, max_iterations);
+  report.iterations += chebyshev.iterations;
+  report.dominance = chebyshev.dominance;
+  return report;
+}
+
+ViscousSolveReport ImplicitViscosity::solve_cg(int comp, double c, const GridField& eps,
+                                               const GridField& diag, const GridField& rhs,
+                                               GridField& u, double tolerance, int max_iterations) {
   int multigrid_iterations = 0;
   if (halo_ == nullptr && multigrid_) {
     const ViscousSolveReport mg =

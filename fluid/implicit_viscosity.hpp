@@ -1,9 +1,10 @@
 // Implicit treatment of the Laplacian part of the viscous stress, div(eps mu grad u_a), for one
 // face-velocity component (with the point-implicit drag on the diagonal):
 //   eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho b,
-// solved by conjugate gradients (the operator is SPD: it is weighted by eps_f rho), preconditioned
-// by the projection's geometric multigrid on one grid (fluid/multigrid_poisson.hpp: the same
-// face-coefficient form with a mass term), by Jacobi on a distributed grid.
+// solved by Chebyshev iteration where the mass term dominates (below), else by conjugate gradients
+// (the operator is SPD: it is weighted by eps_f rho), preconditioned by the projection's geometric
+// multigrid on one grid (fluid/multigrid_poisson.hpp: the same face-coefficient form with a mass
+// term), by Jacobi on a distributed grid.
 // Removes the explicit viscous limit 2 nu dt sum 1/dx^2 <= 1/2 (cells smaller than particles).
 #pragma once
 
@@ -19,10 +20,20 @@
 namespace cfddem::fluid {
 
 struct ViscousSolveReport {
-  int iterations = 0; // multigrid and CG iterations together
+  int iterations = 0; // Chebyshev, multigrid and CG iterations together
   double relative_residual = 0.0;
   bool converged = true;
+  // The largest off-diagonal sum over the diagonal of the operator's rows (< 1: the mass term
+  // makes every row strictly diagonally dominant); 0 when the solve did not compute it.
+  double dominance = 0.0;
+  bool chebyshev = false; // solved by the Chebyshev iteration
 };
+
+// Chebyshev iteration is used while the dominance ratio rho is at most this. Its contraction per
+// iteration is (sqrt(k) - 1) / (sqrt(k) + 1) with k = (1 + rho) / (1 - rho): 0.13 at the riser's
+// rho = 0.25, 0.41 at 0.7, where it still takes fewer passes over the grid than two multigrid-CG
+// iterations with their set-up (docs/gas_step.md, "Implicit viscosity by Chebyshev iteration").
+inline constexpr double kChebyshevMaxDominance = 0.7;
 
 class ImplicitViscosity {
 public:
@@ -36,10 +47,11 @@ public:
   // One grid: false solves with Jacobi CG as a distributed grid does (tests, benchmarks).
   void use_multigrid(bool on) { multigrid_ = on; }
 
-  // lap = div(eps mu grad u_comp) / (rho eps_f) on the faces the predictor updates; ghosts of
-  // u[comp] and eps filled.
+  // lap = div(eps mu grad u_comp) / (rho eps_f) on the unknown faces (solve's), 0 on the others
+  // (prescribed or periodic copies: the boundary fill replaces whatever the predictor writes
+  // there); ghosts of u[comp] and eps filled.
   void laplacian(int comp, double mu, double rho, const GridField& eps, const GridField& u,
-                 GridField& lap) const;
+                 GridField& lap);
 
   // Solves (diag - c div(eps grad)) u = rhs for u[comp] on its unknown faces (not the wall and
   // inflow faces, nor the periodic copy of face 0, nor face n of an exchanged side: the
@@ -50,7 +62,25 @@ public:
                            const GridField& rhs, GridField& u, double tolerance,
                            int max_iterations);
 
+  // Off: every solve goes to CG (tests of the CG paths).
+  void use_chebyshev(bool on) { chebyshev_ = on; }
+
 private:
+  // Chebyshev iteration with the Jacobi preconditioner, when the rows' dominance ratio is at
+  // most kChebyshevMaxDominance (report.chebyshev false otherwise, u untouched). Pointwise
+  // passes and one ghost fill per iteration; no inner products but the residual norm.
+  ViscousSolveReport solve_chebyshev(int comp, double c, const GridField& diag,
+                                     const GridField& rhs, GridField& u, double tolerance,
+                                     int max_iterations);
+  // cv_k_[comp][b] = eps on the low control-volume face along b / dx_b^2 of each unknown face
+  // of comp and of the one beyond the box's high end along b; recomputed only when eps (ghosts
+  // included) differs from the last one seen for comp (both stages of a gas step share it).
+  void face_coefficients(int comp, const GridField& eps);
+  // CG: preconditioned by the multigrid on one grid (with Jacobi CG to finish if it stalls), by
+  // Jacobi on a distributed grid.
+  ViscousSolveReport solve_cg(int comp, double c, const GridField& eps, const GridField& diag,
+                              const GridField& rhs, GridField& u, double tolerance,
+                              int max_iterations);
   // One grid: the correction of u from A e = rhs - A u by multigrid-preconditioned CG.
   ViscousSolveReport solve_multigrid(int comp, double c, const GridField& eps,
                                      const GridField& diag, const GridField& rhs, GridField& u,
@@ -82,6 +112,12 @@ private:
   };
   std::array<Multigrid, 3> mg_;
   bool multigrid_ = true;
+  bool chebyshev_ = true;
+  // Chebyshev: face coefficients, inverse diagonal and the two search directions.
+  std::array<std::array<GridField, 3>, 3> cv_k_;
+  std::array<GridField, 3> eps_seen_;
+  std::array<bool, 3> cv_k_valid_{};
+  GridField inv_diag_, dir_, dir_next_;
 };
 
 } // namespace cfddem::fluid

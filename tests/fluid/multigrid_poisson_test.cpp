@@ -435,6 +435,7 @@ TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
       for (int mg = 0; mg < 2; ++mg) {
         ImplicitViscosity viscosity(grid);
         viscosity.use_multigrid(mg == 1);
+        viscosity.use_chebyshev(false);
         iterations[static_cast<std::size_t>(mg)] =
             viscosity
                 .solve(comp, c, f.eps, diag, rhs, solved[static_cast<std::size_t>(mg)], 1e-12, 2000)
@@ -450,6 +451,68 @@ TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
       EXPECT_LE(diff, 1e-9 * scale)
           << "Jacobi " << iterations[0] << " it, multigrid " << iterations[1] << " it";
       EXPECT_LT(iterations[1], iterations[0]);
+    }
+  }
+}
+
+// Where the mass term dominates every row (rho = max off-diagonal sum / diagonal <= 0.7), the
+// Helmholtz solves take the Chebyshev iteration; its solution is the multigrid CG's (both at
+// 1e-12), on walls, inflow/outflow and periodic axes. With 50 um cells and the paper's dt the
+// viscous term dominates (rho ~ 0.86) and the solve stays with CG.
+TEST(MultigridViscosity, ChebyshevWhereTheMassDominatesMatchesMultigridCg) {
+  MacGridSpec bed = box_spec({8, 20, 6}, {4e-4, 1e-3, 3e-4}, BoundaryKind::wall);
+  set_axis(bed, 2, BoundaryKind::periodic);
+  bed.bc[2].kind = BoundaryKind::inflow;
+  bed.bc[2].velocity = {0.0, 0.015, 0.0};
+  bed.bc[3].kind = BoundaryKind::outflow;
+  const MacGridSpec closed = box_spec({6, 10, 8}, {3e-4, 5e-4, 4e-4}, BoundaryKind::wall);
+  const MacGridSpec riser = box_spec({8, 50, 6}, {4e-4, 2.5e-3, 3e-4}, BoundaryKind::periodic);
+  for (const MacGridSpec& spec : {bed, closed, riser}) {
+    const MacGrid grid(spec);
+    const Fields f = make_fields(grid, false, true, 23);
+    std::mt19937_64 rng(31);
+    std::uniform_real_distribution<double> uni(-1.0, 1.0);
+    for (int comp = 0; comp < 3; ++comp) {
+      SCOPED_TRACE(comp);
+      GridField diag = grid.make_field();
+      GridField rhs = grid.make_field();
+      for (std::size_t p = 0; p < diag.values().size(); ++p) {
+        diag[p] = 1.0 + 0.5 * uni(rng);
+        rhs[p] = uni(rng);
+      }
+      std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
+      fill_velocity_ghosts(grid, u);
+      // c / h^2 = 0.04: rho <= 6 * 0.04 / (0.5 + 6 * 0.04 * 0.4) ~ 0.41; c / h^2 = 1: rho > 0.8.
+      for (const double c : {0.04 * 2.5e-9, 2.5e-9}) {
+        std::array<GridField, 2> solved = {u[comp], u[comp]};
+        std::array<ViscousSolveReport, 2> report{};
+        for (int cheb = 0; cheb < 2; ++cheb) {
+          ImplicitViscosity viscosity(grid);
+          viscosity.use_chebyshev(cheb == 1);
+          report[static_cast<std::size_t>(cheb)] = viscosity.solve(
+              comp, c, f.eps, diag, rhs, solved[static_cast<std::size_t>(cheb)], 1e-12, 2000);
+        }
+        EXPECT_FALSE(report[0].chebyshev);
+        if (c < 1e-9) {
+          EXPECT_TRUE(report[1].chebyshev);
+          EXPECT_GT(report[1].dominance, 0.05);
+          EXPECT_LE(report[1].dominance, kChebyshevMaxDominance);
+          EXPECT_LE(report[1].relative_residual, 1e-12);
+          EXPECT_GT(report[1].iterations, 3);
+        } else {
+          EXPECT_FALSE(report[1].chebyshev);
+          EXPECT_GT(report[1].dominance, kChebyshevMaxDominance);
+        }
+        double scale = 0.0;
+        double diff = 0.0;
+        for (std::size_t p = 0; p < diag.values().size(); ++p) {
+          scale = std::max(scale, std::abs(solved[0][p]));
+          diff = std::max(diff, std::abs(solved[0][p] - solved[1][p]));
+        }
+        EXPECT_GT(scale, 0.0);
+        EXPECT_LE(diff, 1e-10 * scale) << "c " << c << ", Chebyshev " << report[1].iterations
+                                       << " it, multigrid CG " << report[0].iterations << " it";
+      }
     }
   }
 }

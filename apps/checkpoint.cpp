@@ -113,9 +113,10 @@ dem::ContactHistory read_history(Reader& r, const std::string& group,
 void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   const GasCoupling::State& g = c.gas_state;
   const CoupledLoopState& l = c.loop;
-  w.put("/gas/counters", std::vector<std::int64_t>{
-                             g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
-                             l.fluid_steps, l.row_pending ? 1 : 0, l.snapshot_pending ? 1 : 0});
+  w.put("/gas/counters",
+        std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
+                                  l.fluid_steps, l.row_pending ? 1 : 0, l.snapshot_pending ? 1 : 0,
+                                  g.implicit_viscosity_steps});
   const FluidDiagnostics& d = l.row_fluid;
   w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
                                          l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],
@@ -138,9 +139,15 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
 void read_gas(Reader& r, Checkpoint& c) {
   GasCoupling::State& g = c.gas_state;
   CoupledLoopState& l = c.loop;
-  const auto k = r.int64s("/gas/counters", 6);
+  // 7 counters; checkpoints before the implicit-viscosity count hold 6 (it restarts from 0).
+  const auto k = r.int64s("/gas/counters", Reader::kAny);
+  if (k.size() != 6 && k.size() != 7)
+    throw RunError(fmt::format("checkpoint: /gas/counters holds {} values, expected 7 (or 6 "
+                               "from an older checkpoint)",
+                               k.size()));
   g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
   l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
+  g.implicit_viscosity_steps = k.size() == 7 ? k[6] : 0;
   const auto q = r.doubles("/gas/loop", 11);
   g.last_dt = q[0], l.time = q[1], l.next_output = q[2], l.next_snapshot = q[3];
   l.dt_f_sum = q[4], l.row_time = q[5];

@@ -51,6 +51,7 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.gas.gravity = s.gravity;
   g.cfl = s.fluid.cfl;
   g.implicit_viscosity = s.fluid.implicit_viscosity;
+  g.implicit_viscosity_auto = s.fluid.implicit_viscosity_auto;
   g.time_order = s.fluid.time_order;
   g.projection.tolerance = s.fluid.tolerance;
   g.projection.preconditioner = s.fluid.preconditioner == "smg"
@@ -311,6 +312,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     throw RunError(fmt::format("gas step: {}", e.what()));
   }
   gas_substeps_ += substeps;
+  implicit_viscosity_steps_ += report.implicit_viscosity ? 1 : 0;
   projection_iterations_ += report.projection_iterations;
   projection_fallbacks_ += report.used_fallback ? 1 : 0;
   last_dt_ = dt_f;
@@ -482,6 +484,7 @@ GasCoupling::State GasCoupling::save_state() const {
   s.gas_substeps = gas_substeps_;
   s.projection_iterations = projection_iterations_;
   s.projection_fallbacks = projection_fallbacks_;
+  s.implicit_viscosity_steps = implicit_viscosity_steps_;
   return s;
 }
 
@@ -504,6 +507,7 @@ void GasCoupling::restore_state(const State& s) {
   gas_substeps_ = s.gas_substeps;
   projection_iterations_ = s.projection_iterations;
   projection_fallbacks_ = s.projection_fallbacks;
+  implicit_viscosity_steps_ = s.implicit_viscosity_steps;
 }
 
 } // namespace cfddem::apps

@@ -91,6 +91,7 @@ public:
   // else y.
   [[nodiscard]] int axis() const { return axis_; }
   [[nodiscard]] long long gas_substeps() const { return gas_substeps_; }
+  [[nodiscard]] long long implicit_viscosity_steps() const { return implicit_viscosity_steps_; }
   [[nodiscard]] long long projection_iterations() const { return projection_iterations_; }
   // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
@@ -106,6 +107,7 @@ public:
     std::vector<double> eps_prev; // eps_g before the last step (mass residual); empty: no step
     double last_dt = 0.0;
     std::int64_t gas_substeps = 0, projection_iterations = 0, projection_fallbacks = 0;
+    std::int64_t implicit_viscosity_steps = 0; // fluid steps with the Laplacian implicit
   };
   [[nodiscard]] State save_state() const;
   // Throws RunError if the state does not fit this grid.
@@ -124,6 +126,7 @@ private:
   int axis_ = 1;
   double last_dt_ = 0.0, r_max_ = 0.0;
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
+  long long implicit_viscosity_steps_ = 0;
   fluid::GridField eps_s_, eps_prev_;
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
   std::vector<double> eps_p_, beta_, ug_[3], bv_[3], gp_[3], force_[3];

@@ -158,6 +158,7 @@ void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, 
   j["fluid_steps"] = loop.fluid_steps;
   j["fluid_dt_mean"] = loop.fluid_steps > 0 ? loop.dt_f_sum / steps : 0.0;
   j["gas_substeps"] = gas_->gas_substeps();
+  j["implicit_viscosity_steps"] = gas_->implicit_viscosity_steps();
   j["projection_iterations"] = gas_->projection_iterations();
   j["projection_fallbacks"] = gas_->projection_fallbacks();
   j["wall_seconds_per_fluid_step"] = loop.fluid_steps > 0 ? loop_seconds / steps : 0.0;

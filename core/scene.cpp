@@ -66,6 +66,10 @@ public:
     const SceneKey& k = computed(entry(name, KeyType::Number));
     return checked(k, c_.get_double(key(k), fallback));
   }
+  bool flag(std::string_view name, bool fallback) {
+    const SceneKey& k = computed(entry(name, KeyType::Bool));
+    return c_.get_bool(key(k), fallback);
+  }
   std::string word(std::string_view name, const std::string& fallback) {
     const SceneKey& k = computed(entry(name, KeyType::String));
     return chosen(k, c_.get_string(key(k), fallback));
@@ -305,7 +309,18 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.outflow_pressure = k.number("fluid.outflow_pressure");
     f.pressure_drop = k.vec3("fluid.pressure_drop");
     f.velocity = k.vec3("fluid.velocity");
-    f.implicit_viscosity = k.flag("fluid.implicit_viscosity");
+    if (c.holds_string("fluid.implicit_viscosity")) {
+      const std::string w = c.get_string("fluid.implicit_viscosity", "");
+      if (w != "auto")
+        throw ConfigError(c.where("fluid.implicit_viscosity"),
+                          fmt::format("expected true, false or \"auto\", got \"{}\"", w));
+      f.implicit_viscosity = false;
+      f.implicit_viscosity_auto = true;
+    } else {
+      // Not given: "auto" (implicit_viscosity_auto, the member's default).
+      f.implicit_viscosity = k.flag("fluid.implicit_viscosity", false);
+      f.implicit_viscosity_auto = !c.has("fluid.implicit_viscosity");
+    }
     f.time_order = static_cast<int>(k.integer("fluid.time_order"));
     f.tolerance = k.number("fluid.tolerance");
     f.preconditioner = k.word("fluid.preconditioner");
@@ -417,7 +432,9 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.outflow_pressure", num(f.outflow_pressure));
     o.emplace_back("fluid.pressure_drop", vec3(f.pressure_drop));
     o.emplace_back("fluid.velocity", vec3(f.velocity));
-    o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity ? "true" : "false");
+    o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity_auto ? "\"auto\""
+                                               : f.implicit_viscosity    ? "true"
+                                                                         : "false");
     o.emplace_back("fluid.time_order", std::to_string(f.time_order));
     o.emplace_back("fluid.tolerance", num(f.tolerance));
     o.emplace_back("fluid.preconditioner", str(f.preconditioner));

@@ -112,6 +112,7 @@ struct FluidSpec {
   std::array<double, 3> pressure_drop{};   // MFIX's delp across periodic axes [Pa]
   std::array<double, 3> velocity{};        // initial gas velocity [m/s]
   bool implicit_viscosity = false;
+  bool implicit_viscosity_auto = true; // "auto" (the default): chosen per fluid step
   int time_order = 2;                  // 1: Euler, 2: predictor-corrector (Heun)
   double tolerance = 1e-10;            // projection PCG relative residual
   std::string preconditioner = "pfmg"; // projection PCG preconditioner

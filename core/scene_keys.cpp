@@ -550,10 +550,14 @@ std::vector<SceneKey> make_table() {
       {.name = "fluid.implicit_viscosity",
        .type = T::Bool,
        .section = S::Fluid,
-       .fallback = flag(false),
+       .fallback = derived("\"auto\": chosen per fluid step"),
        .meaning = "the viscous Laplacian implicit: removes the viscous term from the gas step's "
-                  "Courant limit (cells smaller than particles); solved by multigrid-"
-                  "preconditioned CG on one rank, Jacobi CG on R ranks"},
+                  "Courant limit (cells smaller than particles); solved by Chebyshev iteration "
+                  "where the mass term dominates every row, else by multigrid-preconditioned CG "
+                  "(one rank) or Jacobi CG (R ranks). Also takes \"auto\", the default: per "
+                  "fluid step, implicit when the explicit viscous limit would need more than 1.6 "
+                  "times the sub-steps (what the implicit solves cost; gas_step.md), the count "
+                  "in run.json"},
       {.name = "fluid.time_order",
        .type = T::Integer,
        .section = S::Fluid,

@@ -59,7 +59,8 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   beta_ = grid.make_field();
   source_ = grid.make_field();
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
-  if (settings.implicit_viscosity && gas.viscosity > 0.0) {
+  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
+    implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
     viscosity_->use_multigrid(settings.viscous_multigrid);
     for (GridField& l : lap_start_) {
@@ -85,7 +86,7 @@ std::array<double, 3> GasSolver::background_pressure_gradient() const {
   return gp0;
 }
 
-double GasSolver::courant_number(double dt) const {
+std::array<double, 2> GasSolver::courant_rates() const {
   const auto& n = grid_.cells();
   const double nu = settings_.gas.viscosity / settings_.gas.density;
   std::array<double, 3> umax{};
@@ -110,12 +111,34 @@ double GasSolver::courant_number(double dt) const {
   if (halo_) {
     halo_->comm().max(umax); // a max is exact: every rank takes the same dt
   }
-  double rate = 0.0;
+  // {explicit viscosity, implicit}: the axes' terms added in the same order as ever.
+  std::array<double, 2> rates{};
   for (int a = 0; a < 3; ++a) {
     const double dx = grid_.spacing(a);
-    rate += umax[a] / dx + (settings_.implicit_viscosity ? 0.0 : 2.0 * nu / (dx * dx));
+    rates[0] += umax[a] / dx + 2.0 * nu / (dx * dx);
+    rates[1] += umax[a] / dx;
   }
-  return dt * rate;
+  return rates;
+}
+
+double GasSolver::courant_number(double dt) const {
+  const std::array<double, 2> rates = courant_rates();
+  return dt * (implicit_now_ ? rates[1] : rates[0]);
+}
+
+int GasSolver::substeps_for(double interval, double rate) const {
+  const double step = rate > 0.0 ? settings_.cfl / rate : std::numeric_limits<double>::infinity();
+  double t = 0.0;
+  int count = 0;
+  while (interval - t > 1e-12 * interval) {
+    double dt = std::min(interval - t, step);
+    if (interval - t - dt < 1e-3 * dt) {
+      dt = interval - t;
+    }
+    t += dt;
+    ++count;
+  }
+  return count;
 }
 
 double GasSolver::dt_for_courant(double courant) const {
@@ -141,10 +164,10 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
     for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
       const auto f = static_cast<std::size_t>(p);
       double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
-      if (viscosity_ && order == 2) {
+      if (implicit_now_ && order == 2) {
         rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
       }
-      if (!viscosity_) {
+      if (!implicit_now_) {
         u_[a][f] = (u_start_[a][f] + dt * rate + push[f]) / gain[f];
         return;
       }
@@ -158,7 +181,7 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
           settings_.time_order == 2 ? (order == 1 ? 1.0 : 0.5) * lap_start_[a][f] : 0.0;
       u_[a][f] = (u_start_[a][f] + dt * (rate + lap) + push[f]) / gain[f];
     });
-    if (viscosity_) {
+    if (implicit_now_) {
       fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
       const double theta = order == 1 ? 1.0 : 0.5;
       const ViscousSolveReport vr =
@@ -212,7 +235,8 @@ GasStepReport GasSolver::step_with_ghosts(double dt) {
   // The same face averages give the stages' drag factors, 1 + k beta_f and k (beta v)_f with
   // k = dt/(rho eps_f), and with implicit viscosity the face mass eps_f rho: computed here once
   // for both stages (one pass over eps, beta and beta v per axis).
-  const bool implicit = static_cast<bool>(viscosity_);
+  const bool implicit = implicit_now_;
+  report.implicit_viscosity = implicit;
   for (int a = 0; a < 3; ++a) {
     const std::ptrdiff_t s = layout.stride(a);
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
@@ -273,6 +297,15 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
   GasStepReport total;
   double t = 0.0;
   int count = 0;
+  if (settings_.implicit_viscosity_auto && viscosity_) {
+    // The viscous treatment for this interval, from the Courant rates at its start.
+    fill_velocity_ghosts(grid_, halo_.get(), u_);
+    const std::array<double, 2> rates = courant_rates();
+    const int explicit_steps = substeps_for(interval, rates[0]);
+    const int implicit_steps = substeps_for(interval, rates[1]);
+    implicit_now_ = kImplicitSubstepCost * implicit_steps < explicit_steps;
+  }
+  total.implicit_viscosity = implicit_now_;
   while (interval - t > 1e-12 * interval) {
     fill_velocity_ghosts(grid_, halo_.get(), u_);
     double dt = std::min(interval - t, dt_for_courant(settings_.cfl));

@@ -25,6 +25,14 @@ namespace cfddem::fluid {
 // diffusion part alone would allow 1.
 inline constexpr double kMaxStableCourant = 0.5;
 
+// What a gas sub-step with the viscous Laplacian implicit costs against one without, for
+// implicit_viscosity_auto: its six Helmholtz solves (three components, two stages) by Chebyshev
+// iteration add 0.39x (hcs_gas, 20^3 cells) to 0.72x (riser, 32 x 50 x 32) of the rest of a
+// sub-step (callgrind, docs/gas_step.md "Implicit viscosity by Chebyshev iteration"). The
+// implicit treatment is taken for an interval when it needs n_i sub-steps and the explicit one
+// n_e > kImplicitSubstepCost n_i.
+inline constexpr double kImplicitSubstepCost = 1.6;
+
 struct GasSolverSettings {
   GasProperties gas;
   Limiter limiter = Limiter::van_leer;
@@ -34,6 +42,9 @@ struct GasSolverSettings {
   // Laplacian part of the viscous stress backward Euler (predictor) / trapezoidal (corrector),
   // by CG: removes the viscous term from the Courant number (cells smaller than particles).
   bool implicit_viscosity = false;
+  // Per advance() interval, the Laplacian implicit where that takes fewer sub-steps by enough to
+  // pay for its solves (kImplicitSubstepCost); implicit_viscosity is then ignored.
+  bool implicit_viscosity_auto = false;
   double viscous_tolerance = 1e-10;
   // One grid: the viscous solves preconditioned by the multigrid (false: Jacobi, as on R ranks).
   bool viscous_multigrid = true;
@@ -47,6 +58,7 @@ struct GasStepReport {
   int viscous_iterations = 0; // CG iterations of the implicit viscosity (all components)
   double relative_residual = 0.0;
   bool used_fallback = false;
+  bool implicit_viscosity = false; // the Laplacian was implicit in this step (interval)
 };
 
 class GasSolver {
@@ -82,7 +94,12 @@ public:
   // non-periodic axes (hydrostatic), 0 on other periodic axes (docs/theory.md §4).
   [[nodiscard]] std::array<double, 3> background_pressure_gradient() const;
 
+  // C = dt (sum_a max|u_a|/dx_a + 2 nu sum_a 1/dx_a^2), the viscous part only while the
+  // viscosity is explicit (implicit_viscosity_now()).
   [[nodiscard]] double courant_number(double dt) const;
+  // Whether the next step() takes the Laplacian implicit: the setting, or under
+  // implicit_viscosity_auto the choice advance() made for its interval.
+  [[nodiscard]] bool implicit_viscosity_now() const { return implicit_now_; }
   // Largest dt whose Courant number is `courant` (inf for a still inviscid gas).
   [[nodiscard]] double dt_for_courant(double courant) const;
 
@@ -118,6 +135,11 @@ public:
   void restore_state(const State& s);
 
 private:
+  // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {sum_a (max|u_a| /
+  // dx_a + 2 nu / dx_a^2), sum_a max|u_a| / dx_a} (u's ghosts filled).
+  [[nodiscard]] std::array<double, 2> courant_rates() const;
+  // The sub-steps advance() takes over `interval` at a Courant rate `rate` (its own rule).
+  [[nodiscard]] int substeps_for(double interval, double rate) const;
   void stage(double dt, int order, GasStepReport& report);
   // step(dt) once u's ghosts are filled (advance() fills them for its Courant number).
   GasStepReport step_with_ghosts(double dt);
@@ -131,7 +153,8 @@ private:
   std::array<GridField, 3> rhs_;
   std::array<GridField, 3> rhs_stage_;
   MomentumWorkspace work_;
-  std::unique_ptr<ImplicitViscosity> viscosity_;
+  std::unique_ptr<ImplicitViscosity> viscosity_; // implicit or auto viscosity only
+  bool implicit_now_ = false;
   std::array<GridField, 3> lap_start_; // L(u^n) for the trapezoidal corrector
   GridField diag_, vrhs_;
   std::array<GridField, 3> mobility_;

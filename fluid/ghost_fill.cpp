@@ -2,33 +2,9 @@
 
 #include <algorithm>
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-
 namespace cfddem::fluid {
 
 namespace {
-
-// Calls line(base) for every line of the padded index space along `axis`; base is the linear
-// index of the point with index 0 along axis. A line's ghosts are filled from points of the
-// same line only, so lines are independent TBB tasks (by blocks of the outer index): the
-// result does not depend on the thread count.
-template <class Line> void for_each_line(const GridLayout& layout, int axis, Line&& line) {
-  const int b = (axis + 1) % 3;
-  const int c = (axis + 2) % 3;
-  const auto& n = layout.cells();
-  tbb::parallel_for(tbb::blocked_range<int>(-kGhostLayers, n[c] + kGhostLayers + 1),
-                    [&](const tbb::blocked_range<int>& r) {
-                      for (int jc = r.begin(); jc != r.end(); ++jc) {
-                        for (int jb = -kGhostLayers; jb <= n[b] + kGhostLayers; ++jb) {
-                          std::array<int, 3> idx{};
-                          idx[b] = jb;
-                          idx[c] = jc;
-                          line(layout.index(idx));
-                        }
-                      }
-                    });
-}
 
 int wrap(int i, int n) {
   return ((i % n) + n) % n;
@@ -43,19 +19,27 @@ int mirror_hi(int g, int n) {
   return m >= 0 ? m : 0;
 }
 
-// f at index dst along axis a = f at index src, over the whole padded plane: every line along a,
-// the other axes' ghosts included, as for_each_line visits them. A periodic axis's ghosts are
-// such copies; whole planes are contiguous runs of memory (rows for the middle axis, single
-// values only for the first), where the line-by-line fill pays its loop for every value.
-void copy_plane(const GridLayout& layout, int a, int dst, int src, GridField& f) {
+// f at index dst along axis a = op(f at index src), over the whole padded plane: every line along
+// a, the other axes' ghosts included. A ghost (or boundary face) takes its value from a point of
+// its own line only, so a fill is a few such plane maps per axis, done in the order the
+// line-by-line rule would visit them. Planes are contiguous runs of memory (rows for the middle
+// axis; single values only for the first), and a map is exact in any order.
+template <class Op>
+void map_plane(const GridLayout& layout, int a, int dst, int src, GridField& f, Op&& op) {
   double* v = f.values().data();
   const std::ptrdiff_t s = layout.stride(a);
   const std::ptrdiff_t period = s * (layout.cells()[a] + 1 + 2 * kGhostLayers);
   const auto total = static_cast<std::ptrdiff_t>(layout.size());
   const std::ptrdiff_t shift = static_cast<std::ptrdiff_t>(dst - src) * s;
   for (std::ptrdiff_t run = (src + kGhostLayers) * s; run < total; run += period) {
-    std::copy_n(v + run, s, v + run + shift);
+    for (std::ptrdiff_t m = run; m < run + s; ++m) {
+      v[m + shift] = op(v[m]);
+    }
   }
+}
+
+void copy_plane(const GridLayout& layout, int a, int dst, int src, GridField& f) {
+  map_plane(layout, a, dst, src, f, [](double x) { return x; });
 }
 
 } // namespace
@@ -66,7 +50,6 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
   const GridLayout& layout = grid.layout();
   for (int a = 0; a < 3; ++a) {
     const int n = grid.cells(a);
-    const std::ptrdiff_t s = layout.stride(a);
     const BoundaryCondition& lo = grid.bc(a, 0);
     const BoundaryCondition& hi = grid.bc(a, 1);
     const bool periodic = grid.periodic(a);
@@ -94,17 +77,22 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
         !periodic && mode == CellGhosts::pressure && lo.kind == BoundaryKind::outflow;
     const bool hi_reflects =
         !periodic && mode == CellGhosts::pressure && hi.kind == BoundaryKind::outflow;
-    for_each_line(layout, a, [&](std::size_t base) {
-      const auto at = [&](int i) -> double& { return q[base + static_cast<std::size_t>(i * s)]; };
-      for (int g = 1; fill_lo && g <= kGhostLayers; ++g) {
-        const double inner = at(lo_src[g]);
-        at(-g) = lo_reflects ? 2.0 * lo.pressure - inner : inner;
+    for (int g = 1; fill_lo && g <= kGhostLayers; ++g) {
+      if (lo_reflects) {
+        map_plane(layout, a, -g, lo_src[g], q,
+                  [p = lo.pressure](double inner) { return 2.0 * p - inner; });
+      } else {
+        copy_plane(layout, a, -g, lo_src[g], q);
       }
-      for (int g = 0; fill_hi && g <= kGhostLayers; ++g) {
-        const double inner = at(hi_src[g]);
-        at(n + g) = hi_reflects ? 2.0 * hi.pressure - inner : inner;
+    }
+    for (int g = 0; fill_hi && g <= kGhostLayers; ++g) {
+      if (hi_reflects) {
+        map_plane(layout, a, n + g, hi_src[g], q,
+                  [p = hi.pressure](double inner) { return 2.0 * p - inner; });
+      } else {
+        copy_plane(layout, a, n + g, hi_src[g], q);
       }
-    });
+    }
   }
 }
 
@@ -112,7 +100,6 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
   const GridLayout& layout = grid.layout();
   for (int a = 0; a < 3; ++a) {
     const int n = grid.cells(a);
-    const std::ptrdiff_t s = layout.stride(a);
     const bool periodic = grid.periodic(a);
     const std::array<bool, 2> fill = {!grid.exchanged(a, 0), !grid.exchanged(a, 1)};
     if (!fill[0] && !fill[1]) {
@@ -129,48 +116,39 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
         }
         continue;
       }
-      if (periodic) {
-        std::array<int, kGhostLayers + 1> lo_src{}, hi_src{};
-        for (int g = 0; g <= kGhostLayers; ++g) {
-          lo_src[g] = wrap(-g, n);
-          hi_src[g] = wrap(n + g, n);
+      // Mixed exchanged/filled sides of a periodic axis take the same planes from their
+      // periodic images; a wall's or inflow's face holds its value and the ghosts reflect about
+      // it; an outflow's ghosts copy its face.
+      for (int side = 0; side < 2; ++side) {
+        if (periodic) {
+          for (int g = 1; side == 0 && g <= kGhostLayers; ++g) {
+            copy_plane(layout, a, -g, wrap(-g, n), f);
+          }
+          for (int g = 0; side == 1 && g <= kGhostLayers; ++g) {
+            copy_plane(layout, a, n + g, wrap(n + g, n), f);
+          }
+          continue;
         }
-        for_each_line(layout, a, [&](std::size_t base) {
-          const auto at = [&](int i) -> double& {
-            return f[base + static_cast<std::size_t>(i * s)];
-          };
+        if (!fill[side]) {
+          continue;
+        }
+        const BoundaryCondition& bc = grid.bc(a, side);
+        const int face = side == 0 ? 0 : n;
+        const int out = side == 0 ? -1 : 1;
+        if (bc.kind == BoundaryKind::outflow) {
           for (int g = 1; g <= kGhostLayers; ++g) {
-            at(-g) = at(lo_src[g]);
+            copy_plane(layout, a, face + out * g, face, f);
           }
-          for (int g = 0; g <= kGhostLayers; ++g) {
-            at(n + g) = at(hi_src[g]);
-          }
-        });
-        continue;
+          continue;
+        }
+        const double vb = bc.kind == BoundaryKind::inflow ? bc.velocity[comp] : 0.0;
+        map_plane(layout, a, face, face, f, [vb](double) { return vb; });
+        for (int g = 1; g <= kGhostLayers; ++g) {
+          const int inner = face - out * g;
+          map_plane(layout, a, face + out * g, inner >= 0 && inner <= n ? inner : face, f,
+                    [vb](double x) { return 2.0 * vb - x; });
+        }
       }
-      for_each_line(layout, a, [&](std::size_t base) {
-        const auto at = [&](int i) -> double& { return f[base + static_cast<std::size_t>(i * s)]; };
-        for (int side = 0; side < 2; ++side) {
-          if (!fill[side]) {
-            continue;
-          }
-          const BoundaryCondition& bc = grid.bc(a, side);
-          const int face = side == 0 ? 0 : n;
-          const int out = side == 0 ? -1 : 1;
-          if (bc.kind == BoundaryKind::outflow) {
-            for (int g = 1; g <= kGhostLayers; ++g) {
-              at(face + out * g) = at(face);
-            }
-            continue;
-          }
-          const double vb = bc.kind == BoundaryKind::inflow ? bc.velocity[comp] : 0.0;
-          at(face) = vb;
-          for (int g = 1; g <= kGhostLayers; ++g) {
-            const int inner = face - out * g;
-            at(face + out * g) = 2.0 * vb - at(inner >= 0 && inner <= n ? inner : face);
-          }
-        }
-      });
       continue;
     }
     // Tangential component: cells 0..n-1 along this axis; ghost g of a side and its source.
@@ -202,20 +180,21 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
         rule[side] = 1;
       }
     }
-    for_each_line(layout, a, [&](std::size_t base) {
-      const auto at = [&](int i) -> double& { return f[base + static_cast<std::size_t>(i * s)]; };
-      for (int side = 0; side < 2; ++side) {
-        if (!fill[side]) {
-          continue;
-        }
-        for (int g = 1; g <= kGhostLayers; ++g) {
-          const double inner = at(src[side][g]);
-          at(ghost[side][g]) = rule[side] == 0   ? inner
-                               : rule[side] == 1 ? -inner
-                                                 : twice_vb[side] - inner;
+    for (int side = 0; side < 2; ++side) {
+      if (!fill[side]) {
+        continue;
+      }
+      for (int g = 1; g <= kGhostLayers; ++g) {
+        if (rule[side] == 0) {
+          copy_plane(layout, a, ghost[side][g], src[side][g], f);
+        } else if (rule[side] == 1) {
+          map_plane(layout, a, ghost[side][g], src[side][g], f, [](double x) { return -x; });
+        } else {
+          map_plane(layout, a, ghost[side][g], src[side][g], f,
+                    [w = twice_vb[side]](double x) { return w - x; });
         }
       }
-    });
+    }
   }
 }
 

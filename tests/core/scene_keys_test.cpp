@@ -381,6 +381,26 @@ TEST(SceneKeys, ChoicesAreTheParsersChoices) {
   }
 }
 
+// fluid.implicit_viscosity: not given, "auto" (chosen per fluid step); true and false fix it;
+// any other word is refused naming the key and the choices.
+TEST(SceneKeys, ImplicitViscosityTakesAutoTrueOrFalse) {
+  const Scene plain = parse(kRequired).scene;
+  EXPECT_TRUE(plain.fluid.implicit_viscosity_auto);
+  EXPECT_FALSE(plain.fluid.implicit_viscosity);
+  const Scene given_auto = parse(kRequired, {"fluid.implicit_viscosity=\"auto\""}).scene;
+  EXPECT_TRUE(given_auto.fluid.implicit_viscosity_auto);
+  EXPECT_EQ(described(given_auto).at("fluid.implicit_viscosity"), "\"auto\"");
+  for (const bool on : {true, false}) {
+    const Scene fixed = parse(kRequired, {fmt::format("fluid.implicit_viscosity={}", on)}).scene;
+    EXPECT_FALSE(fixed.fluid.implicit_viscosity_auto);
+    EXPECT_EQ(fixed.fluid.implicit_viscosity, on);
+    EXPECT_EQ(described(fixed).at("fluid.implicit_viscosity"), on ? "true" : "false");
+  }
+  const std::string e = error_of(kRequired, {"fluid.implicit_viscosity=\"sometimes\""});
+  EXPECT_NE(e.find("'fluid.implicit_viscosity'"), std::string::npos) << e;
+  EXPECT_NE(e.find("\"auto\""), std::string::npos) << e;
+}
+
 TEST(SceneKeys, UnknownKeyNamedWithTheNearest) {
   const auto unknown = [](const std::string& override) { return error_of(kRequired, {override}); };
   const std::string swapped = unknown("dem.restitutoin=0.5");

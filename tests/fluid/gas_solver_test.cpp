@@ -1,10 +1,13 @@
 // Gas solver validations (docs/theory.md §5): plane Poiseuille flow with second-order convergence,
 // Taylor-Green viscous decay, point-implicit drag, and the time-step limits.
+#include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -280,6 +283,57 @@ TEST(GasSolverAdvance, SubstepsWhenCellsAreSmallerThanTheViscousLimitAllows) {
   EXPECT_GE(substeps, static_cast<int>(std::ceil(1e-4 * viscous_rate / settings.cfl)));
   EXPECT_LE(report.courant, settings.cfl * (1.0 + 1e-9));
   EXPECT_FALSE(report.used_fallback);
+}
+
+// "auto" viscosity: per advance() interval, implicit where the explicit viscous limit needs more
+// than kImplicitSubstepCost times the sub-steps. A shear wave in a periodic box, dt_f = 1e-4 s:
+// on 150 um cells the explicit viscous Courant number is 0.53 (two sub-steps at cfl 0.4, one
+// implicit), so auto goes implicit; on 250 um cells it is 0.19 (one sub-step either way), so auto
+// stays explicit. Either way auto's steps are bit for bit those of the treatment it chose.
+TEST(GasSolverImplicitViscosity, AutoTakesTheLaplacianImplicitWhereItSavesSubsteps) {
+  for (const double h : {150e-6, 250e-6}) {
+    SCOPED_TRACE(h);
+    const int n = 8;
+    const MacGrid grid(box_spec({n, n, n}, {n * h, n * h, n * h}, BoundaryKind::periodic));
+    std::array<GasSolverSettings, 3> settings{}; // explicit, implicit, auto
+    for (GasSolverSettings& s : settings) {
+      s.gas = {kRho, kMu, {0.0, 0.0, 0.0}};
+    }
+    settings[1].implicit_viscosity = true;
+    settings[2].implicit_viscosity_auto = true;
+    const bool fine = h < 200e-6;
+    std::vector<std::unique_ptr<GasSolver>> solvers;
+    for (const GasSolverSettings& s : settings) {
+      solvers.push_back(std::make_unique<GasSolver>(grid, s));
+      for (int k = 0; k < n; ++k) {
+        for (int j = 0; j < n; ++j) {
+          for (int i = 0; i <= n; ++i) {
+            solvers.back()->velocity()[0](i, j, k) =
+                0.01 * std::sin(2.0 * std::numbers::pi * (j + 0.5) / n);
+          }
+        }
+      }
+    }
+    std::array<int, 3> substeps{};
+    for (int step = 0; step < 3; ++step) {
+      for (std::size_t m = 0; m < 3; ++m) {
+        const GasStepReport r = solvers[m]->advance(1e-4, &substeps[m]);
+        EXPECT_EQ(r.implicit_viscosity, m == 1 || (m == 2 && fine)) << m;
+      }
+    }
+    EXPECT_EQ(substeps[0], fine ? 2 : 1);
+    EXPECT_EQ(substeps[1], 1);
+    EXPECT_EQ(substeps[2], 1);
+    const GridField& chosen = solvers[fine ? 1 : 0]->velocity()[0];
+    const GridField& other = solvers[fine ? 0 : 1]->velocity()[0];
+    const GridField& automatic = solvers[2]->velocity()[0];
+    double differs = 0.0;
+    for (std::size_t p = 0; p < chosen.values().size(); ++p) {
+      EXPECT_EQ(automatic[p], chosen[p]);
+      differs = std::max(differs, std::abs(automatic[p] - other[p]));
+    }
+    EXPECT_GT(differs, 0.0); // the two treatments are different schemes
+  }
 }
 
 TEST(GasSolverImplicitViscosity, TakesPaperStepOnFiftyMicronCells) {

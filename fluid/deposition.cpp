@@ -169,6 +169,35 @@ CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius,
 template <class Visit>
 void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
                                  std::vector<double>& buf, Visit&& visit) const {
+  if (settings_.kernel == DepositionKernel::trilinear && !grid_.distributed()) {
+    // The common kernel without the general loop: its 2 x 2 x 2 weights, each axis's two
+    // indices folded once, the cells in the same order (x fastest) with the same weights.
+    std::array<double, 8> w8{};
+    const CellStencil s = trilinear_weights(x, {grid_.origin(0), grid_.origin(1), grid_.origin(2)},
+                                            {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
+                                            std::span<double, 8>(w8));
+    std::array<std::array<int, 2>, 3> at{};
+    for (int a = 0; a < 3; ++a) {
+      at[a] = {fold(a, s.lo[a]), fold(a, s.lo[a] + 1)};
+    }
+    std::size_t m = 0;
+    for (int c = 0; c < 2; ++c) {
+      for (int b = 0; b < 2; ++b) {
+        for (int a = 0; a < 2; ++a) {
+          const double w = w8[m++];
+          if (w != 0.0) {
+            const std::size_t idx = grid_.layout().index(at[0][a], at[1][b], at[2][c]);
+            if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
+              visit(idx, w, at[2][c]);
+            } else {
+              visit(idx, w);
+            }
+          }
+        }
+      }
+    }
+    return;
+  }
   const CellStencil s = stencil(x, radius, buf);
   std::size_t m = 0; // weights are stored x fastest, as the loops run
   for (int c = 0; c < s.size[2]; ++c) {
@@ -199,8 +228,12 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
   if (threads <= 1) {
     // One thread: the serial loop itself (the same sums, no kernel computed twice).
     std::array<double, kMaxDepositFields> vq{};
+    std::array<double*, kMaxDepositFields> out{};
+    for (std::size_t f = 0; f < nf; ++f) {
+      out[f] = cells[f]->values().data();
+    }
     if (nf == 1) { // the solid fraction: one field, no loop over fields
-      GridField& cell = *cells[0];
+      double* cell = out[0];
       for (std::size_t q = 0; q < count; ++q) {
         const double vq0 = v[q];
         for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
@@ -212,7 +245,7 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
       for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
                       [&](std::size_t idx, double w) {
                         for (std::size_t f = 0; f < nf; ++f) {
-                          (*cells[f])[idx] += w * vq[f];
+                          out[f][idx] += w * vq[f];
                         }
                       });
     }
@@ -229,6 +262,10 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
 void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
                                    std::span<GridField* const> cells, std::size_t threads) {
   const double* v = values_.data();
+  std::array<double*, kMaxDepositFields> out{};
+  for (std::size_t f = 0; f < nf; ++f) {
+    out[f] = cells[f]->values().data();
+  }
   const double dz = grid_.spacing(2);
   const double z0 = grid_.origin(2);
   const int global_n = grid_.global_cells()[2];
@@ -281,7 +318,7 @@ void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count
                               return; // another task's plane
                             }
                             for (std::size_t f = 0; f < nf; ++f) {
-                              (*cells[f])[idx] += w * vq[f];
+                              out[f][idx] += w * vq[f];
                             }
                           });
         }
@@ -335,6 +372,11 @@ void Deposition::interpolate(const ParticlePositions& p, std::span<const GridFie
     throw std::invalid_argument("Deposition::interpolate: at most 8 fields at once");
   }
   const std::size_t n = nf ? outs[0].size() : 0;
+  // The fields' values, not their objects, in the inner loop (one load a term, not three).
+  std::array<const double*, kMaxFields> value{};
+  for (std::size_t f = 0; f < nf; ++f) {
+    value[f] = fields[f]->values().data();
+  }
   // Particles are independent (a gather): blocks of them are TBB tasks, each with its own
   // weight buffer; every particle's sums run in the same order whatever the thread count.
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
@@ -345,7 +387,7 @@ void Deposition::interpolate(const ParticlePositions& p, std::span<const GridFie
                         for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
                                         [&](std::size_t idx, double w) {
                                           for (std::size_t f = 0; f < nf; ++f) {
-                                            sum[f] += w * (*fields[f])[idx];
+                                            sum[f] += w * value[f][idx];
                                           }
                                         });
                         for (std::size_t f = 0; f < nf; ++f) {

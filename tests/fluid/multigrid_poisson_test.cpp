@@ -402,19 +402,24 @@ TEST(MultigridPoisson, FusedColourPairsEqualSeparatePasses) {
   }
 }
 
-// The implicit viscosity's Helmholtz solves (eps_f rho (1 + k beta) - c div(eps grad)) u = rhs
-// for every velocity component: the multigrid-preconditioned CG gives Jacobi CG's solution (both
-// at 1e-12; the operator is diagonally dominant, so the solutions agree to ~1e-12 relative) on
-// walls, inflow/outflow and periodic axes, with 50 um cells (c / (h^2 diag) ~ 1).
-TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
+// The viscous solves' grids: a walled bed with inflow and outflow (z periodic), a closed box and
+// a periodic riser slab, of 50 um cells.
+std::array<MacGridSpec, 3> viscous_test_grids() {
   MacGridSpec bed = box_spec({8, 20, 6}, {4e-4, 1e-3, 3e-4}, BoundaryKind::wall);
   set_axis(bed, 2, BoundaryKind::periodic);
   bed.bc[2].kind = BoundaryKind::inflow;
   bed.bc[2].velocity = {0.0, 0.015, 0.0};
   bed.bc[3].kind = BoundaryKind::outflow;
-  const MacGridSpec closed = box_spec({6, 10, 8}, {3e-4, 5e-4, 4e-4}, BoundaryKind::wall);
-  MacGridSpec riser = box_spec({8, 50, 6}, {4e-4, 2.5e-3, 3e-4}, BoundaryKind::periodic);
-  for (const MacGridSpec& spec : {bed, closed, riser}) {
+  return {bed, box_spec({6, 10, 8}, {3e-4, 5e-4, 4e-4}, BoundaryKind::wall),
+          box_spec({8, 50, 6}, {4e-4, 2.5e-3, 3e-4}, BoundaryKind::periodic)};
+}
+
+// The implicit viscosity's Helmholtz solves (eps_f rho (1 + k beta) - c div(eps grad)) u = rhs
+// for every velocity component: the multigrid-preconditioned CG gives Jacobi CG's solution (both
+// at 1e-12; the operator is diagonally dominant, so the solutions agree to ~1e-12 relative) on
+// walls, inflow/outflow and periodic axes, with 50 um cells (c / (h^2 diag) ~ 1).
+TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
+  for (const MacGridSpec& spec : viscous_test_grids()) {
     const MacGrid grid(spec);
     const Fields f = make_fields(grid, false, true, 23);
     std::mt19937_64 rng(29);
@@ -460,14 +465,7 @@ TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
 // 1e-12), on walls, inflow/outflow and periodic axes. With 50 um cells and the paper's dt the
 // viscous term dominates (rho ~ 0.86) and the solve stays with CG.
 TEST(MultigridViscosity, ChebyshevWhereTheMassDominatesMatchesMultigridCg) {
-  MacGridSpec bed = box_spec({8, 20, 6}, {4e-4, 1e-3, 3e-4}, BoundaryKind::wall);
-  set_axis(bed, 2, BoundaryKind::periodic);
-  bed.bc[2].kind = BoundaryKind::inflow;
-  bed.bc[2].velocity = {0.0, 0.015, 0.0};
-  bed.bc[3].kind = BoundaryKind::outflow;
-  const MacGridSpec closed = box_spec({6, 10, 8}, {3e-4, 5e-4, 4e-4}, BoundaryKind::wall);
-  const MacGridSpec riser = box_spec({8, 50, 6}, {4e-4, 2.5e-3, 3e-4}, BoundaryKind::periodic);
-  for (const MacGridSpec& spec : {bed, closed, riser}) {
+  for (const MacGridSpec& spec : viscous_test_grids()) {
     const MacGrid grid(spec);
     const Fields f = make_fields(grid, false, true, 23);
     std::mt19937_64 rng(31);

@@ -402,6 +402,16 @@ TEST(MultigridPoisson, FusedColourPairsEqualSeparatePasses) {
   }
 }
 
+// {max |a|, max |a - b|} over every point of two fields of one layout.
+std::array<double, 2> size_and_difference(const GridField& a, const GridField& b) {
+  std::array<double, 2> out{};
+  for (std::size_t p = 0; p < a.values().size(); ++p) {
+    out[0] = std::max(out[0], std::abs(a[p]));
+    out[1] = std::max(out[1], std::abs(a[p] - b[p]));
+  }
+  return out;
+}
+
 // The viscous solves' grids: a walled bed with inflow and outflow (z periodic), a closed box and
 // a periodic riser slab, of 50 um cells.
 std::array<MacGridSpec, 3> viscous_test_grids() {
@@ -446,12 +456,7 @@ TEST(MultigridViscosity, HelmholtzSolvesMatchJacobiCg) {
                 .solve(comp, c, f.eps, diag, rhs, solved[static_cast<std::size_t>(mg)], 1e-12, 2000)
                 .iterations;
       }
-      double scale = 0.0;
-      double diff = 0.0;
-      for (std::size_t p = 0; p < diag.values().size(); ++p) {
-        scale = std::max(scale, std::abs(solved[0][p]));
-        diff = std::max(diff, std::abs(solved[0][p] - solved[1][p]));
-      }
+      const auto [scale, diff] = size_and_difference(solved[0], solved[1]);
       EXPECT_GT(scale, 0.0);
       EXPECT_LE(diff, 1e-9 * scale)
           << "Jacobi " << iterations[0] << " it, multigrid " << iterations[1] << " it";
@@ -501,12 +506,7 @@ TEST(MultigridViscosity, ChebyshevWhereTheMassDominatesMatchesMultigridCg) {
           EXPECT_FALSE(report[1].chebyshev);
           EXPECT_GT(report[1].dominance, kChebyshevMaxDominance);
         }
-        double scale = 0.0;
-        double diff = 0.0;
-        for (std::size_t p = 0; p < diag.values().size(); ++p) {
-          scale = std::max(scale, std::abs(solved[0][p]));
-          diff = std::max(diff, std::abs(solved[0][p] - solved[1][p]));
-        }
+        const auto [scale, diff] = size_and_difference(solved[0], solved[1]);
         EXPECT_GT(scale, 0.0);
         EXPECT_LE(diff, 1e-10 * scale) << "c " << c << ", Chebyshev " << report[1].iterations
                                        << " it, multigrid CG " << report[0].iterations << " it";

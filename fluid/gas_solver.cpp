@@ -126,16 +126,21 @@ double GasSolver::courant_number(double dt) const {
   return dt * (implicit_now_ ? rates[1] : rates[0]);
 }
 
-int GasSolver::substeps_for(double interval, double rate) const {
+double GasSolver::next_substep(double interval, double t, double rate) const {
   const double step = rate > 0.0 ? settings_.cfl / rate : std::numeric_limits<double>::infinity();
+  double dt = std::min(interval - t, step);
+  // Do not leave a sliver of a step at the end.
+  if (interval - t - dt < 1e-3 * dt) {
+    dt = interval - t;
+  }
+  return dt;
+}
+
+int GasSolver::substeps_for(double interval, double rate) const {
   double t = 0.0;
   int count = 0;
   while (interval - t > 1e-12 * interval) {
-    double dt = std::min(interval - t, step);
-    if (interval - t - dt < 1e-3 * dt) {
-      dt = interval - t;
-    }
-    t += dt;
+    t += next_substep(interval, t, rate);
     ++count;
   }
   return count;
@@ -297,23 +302,16 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
   GasStepReport total;
   double t = 0.0;
   int count = 0;
-  if (settings_.implicit_viscosity_auto && viscosity_) {
-    // The viscous treatment for this interval, from the Courant rates at its start.
-    fill_velocity_ghosts(grid_, halo_.get(), u_);
-    const std::array<double, 2> rates = courant_rates();
-    const int explicit_steps = substeps_for(interval, rates[0]);
-    const int implicit_steps = substeps_for(interval, rates[1]);
-    implicit_now_ = kImplicitSubstepCost * implicit_steps < explicit_steps;
-  }
-  total.implicit_viscosity = implicit_now_;
   while (interval - t > 1e-12 * interval) {
     fill_velocity_ghosts(grid_, halo_.get(), u_);
-    double dt = std::min(interval - t, dt_for_courant(settings_.cfl));
-    // Do not leave a sliver of a step at the end.
-    const bool last = interval - t - dt < 1e-3 * dt;
-    if (last) {
-      dt = interval - t;
+    const std::array<double, 2> rates = courant_rates();
+    if (count == 0 && settings_.implicit_viscosity_auto && viscosity_) {
+      // The viscous treatment for this interval, from the Courant rates at its start.
+      implicit_now_ = kImplicitSubstepCost * substeps_for(interval, rates[1]) <
+                      substeps_for(interval, rates[0]);
     }
+    const double dt = next_substep(interval, t, implicit_now_ ? rates[1] : rates[0]);
+    const bool last = dt == interval - t;
     const double fraction = last ? 1.0 : (t + dt) / interval;
     std::span<double> e = eps_.values();
     std::span<const double> e0 = start.values();
@@ -334,6 +332,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps) {
     t += dt;
     ++count;
   }
+  total.implicit_viscosity = implicit_now_;
   copy_field(target, eps_);
   copy_field(target, eps_old_);
   if (substeps != nullptr) {

@@ -138,7 +138,11 @@ private:
   // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {sum_a (max|u_a| /
   // dx_a + 2 nu / dx_a^2), sum_a max|u_a| / dx_a} (u's ghosts filled).
   [[nodiscard]] std::array<double, 2> courant_rates() const;
-  // The sub-steps advance() takes over `interval` at a Courant rate `rate` (its own rule).
+  // The sub-step advance() takes at time t of `interval` at a Courant rate `rate` [1/s]: at
+  // most cfl / rate, and the rest of the interval where less than a thousandth of a step would
+  // be left.
+  [[nodiscard]] double next_substep(double interval, double t, double rate) const;
+  // How many sub-steps advance() takes over `interval` at a Courant rate `rate`.
   [[nodiscard]] int substeps_for(double interval, double rate) const;
   void stage(double dt, int order, GasStepReport& report);
   // step(dt) once u's ghosts are filled (advance() fills them for its Courant number).

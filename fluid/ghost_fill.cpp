@@ -58,15 +58,6 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
     if (!fill_lo && !fill_hi) {
       continue;
     }
-    if (periodic && fill_lo && fill_hi) {
-      for (int g = 1; g <= kGhostLayers; ++g) {
-        copy_plane(layout, a, -g, wrap(-g, n), q);
-      }
-      for (int g = 0; g <= kGhostLayers; ++g) {
-        copy_plane(layout, a, n + g, wrap(n + g, n), q);
-      }
-      continue;
-    }
     // Source of ghost -g (g = 1..G) and of ghost n + g (g = 0..G).
     std::array<int, kGhostLayers + 1> lo_src{}, hi_src{};
     for (int g = 0; g <= kGhostLayers; ++g) {
@@ -106,19 +97,9 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
       continue;
     }
     if (a == comp) {
-      // Normal component on its own axis: faces 0..n.
-      if (periodic && fill[0] && fill[1]) {
-        for (int g = 1; g <= kGhostLayers; ++g) {
-          copy_plane(layout, a, -g, wrap(-g, n), f);
-        }
-        for (int g = 0; g <= kGhostLayers; ++g) {
-          copy_plane(layout, a, n + g, wrap(n + g, n), f);
-        }
-        continue;
-      }
-      // Mixed exchanged/filled sides of a periodic axis take the same planes from their
-      // periodic images; a wall's or inflow's face holds its value and the ghosts reflect about
-      // it; an outflow's ghosts copy its face.
+      // Normal component on its own axis: faces 0..n. A periodic axis takes both sides' planes
+      // from their periodic images (also where one side is exchanged); a wall's or inflow's face
+      // holds its value and the ghosts reflect about it; an outflow's ghosts copy its face.
       for (int side = 0; side < 2; ++side) {
         if (periodic) {
           for (int g = 1; side == 0 && g <= kGhostLayers; ++g) {
@@ -151,47 +132,25 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
       }
       continue;
     }
-    // Tangential component: cells 0..n-1 along this axis; ghost g of a side and its source.
-    if (periodic && fill[0] && fill[1]) {
-      for (int side = 0; side < 2; ++side) {
-        for (int g = 1; g <= kGhostLayers; ++g) {
-          const int ghost = side == 0 ? -g : n - 1 + g;
-          copy_plane(layout, a, ghost, wrap(ghost, n), f);
-        }
-      }
-      continue;
-    }
-    std::array<std::array<int, kGhostLayers + 1>, 2> ghost{}, src{};
-    // 0: copy (periodic, outflow), 1: -inner (wall), 2: 2 v_b - inner (inflow).
-    std::array<int, 2> rule{0, 0};
-    std::array<double, 2> twice_vb{0.0, 0.0};
-    for (int side = 0; side < 2; ++side) {
-      const BoundaryCondition& bc = grid.bc(a, side);
-      for (int g = 1; g <= kGhostLayers; ++g) {
-        ghost[side][g] = side == 0 ? -g : n - 1 + g;
-        src[side][g] = periodic    ? wrap(ghost[side][g], n)
-                       : side == 0 ? mirror_lo(ghost[side][g], n)
-                                   : mirror_hi(ghost[side][g], n);
-      }
-      if (!periodic && bc.kind == BoundaryKind::inflow) {
-        rule[side] = 2;
-        twice_vb[side] = 2.0 * bc.velocity[comp];
-      } else if (!periodic && bc.kind != BoundaryKind::outflow) {
-        rule[side] = 1;
-      }
-    }
+    // Tangential component: cells 0..n-1 along this axis. Ghost g of a side is its periodic image
+    // or the mirrored cell: copied (periodic, outflow), negated (wall) or 2 v_b - x (inflow).
     for (int side = 0; side < 2; ++side) {
       if (!fill[side]) {
         continue;
       }
+      const BoundaryCondition& bc = grid.bc(a, side);
       for (int g = 1; g <= kGhostLayers; ++g) {
-        if (rule[side] == 0) {
-          copy_plane(layout, a, ghost[side][g], src[side][g], f);
-        } else if (rule[side] == 1) {
-          map_plane(layout, a, ghost[side][g], src[side][g], f, [](double x) { return -x; });
+        const int ghost = side == 0 ? -g : n - 1 + g;
+        const int src = periodic    ? wrap(ghost, n)
+                        : side == 0 ? mirror_lo(ghost, n)
+                                    : mirror_hi(ghost, n);
+        if (periodic || bc.kind == BoundaryKind::outflow) {
+          copy_plane(layout, a, ghost, src, f);
+        } else if (bc.kind == BoundaryKind::inflow) {
+          map_plane(layout, a, ghost, src, f,
+                    [w = 2.0 * bc.velocity[comp]](double x) { return w - x; });
         } else {
-          map_plane(layout, a, ghost[side][g], src[side][g], f,
-                    [w = twice_vb[side]](double x) { return w - x; });
+          map_plane(layout, a, ghost, src, f, [](double x) { return -x; });
         }
       }
     }

@@ -169,43 +169,22 @@ CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius,
 template <class Visit>
 void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
                                  std::vector<double>& buf, Visit&& visit) const {
-  if (settings_.kernel == DepositionKernel::trilinear && !grid_.distributed()) {
-    // The common kernel without the general loop: its 2 x 2 x 2 weights, each axis's two
-    // indices folded once, the cells in the same order (x fastest) with the same weights.
-    std::array<double, 8> w8{};
-    const CellStencil s = trilinear_weights(x, {grid_.origin(0), grid_.origin(1), grid_.origin(2)},
-                                            {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
-                                            std::span<double, 8>(w8));
-    std::array<std::array<int, 2>, 3> at{};
-    for (int a = 0; a < 3; ++a) {
-      at[a] = {fold(a, s.lo[a]), fold(a, s.lo[a] + 1)};
-    }
-    std::size_t m = 0;
-    for (int c = 0; c < 2; ++c) {
-      for (int b = 0; b < 2; ++b) {
-        for (int a = 0; a < 2; ++a) {
-          const double w = w8[m++];
-          if (w != 0.0) {
-            const std::size_t idx = grid_.layout().index(at[0][a], at[1][b], at[2][c]);
-            if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
-              visit(idx, w, at[2][c]);
-            } else {
-              visit(idx, w);
-            }
-          }
-        }
-      }
-    }
-    return;
-  }
-  const CellStencil s = stencil(x, radius, buf);
+  // The common trilinear kernel's 8 weights on the stack, the others' in buf.
+  std::array<double, 8> w8{};
+  const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
+  const CellStencil s =
+      trilinear ? trilinear_weights(x, {grid_.origin(0), grid_.origin(1), grid_.origin(2)},
+                                    {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
+                                    std::span<double, 8>(w8))
+                : stencil(x, radius, buf);
+  const double* weight = trilinear ? w8.data() : buf.data();
   std::size_t m = 0; // weights are stored x fastest, as the loops run
   for (int c = 0; c < s.size[2]; ++c) {
     const int k = fold(2, s.lo[2] + c);
     for (int b = 0; b < s.size[1]; ++b) {
       const int j = fold(1, s.lo[1] + b);
       for (int a = 0; a < s.size[0]; ++a) {
-        const double w = buf[m++];
+        const double w = weight[m++];
         if (w != 0.0) {
           const std::size_t idx = grid_.layout().index(fold(0, s.lo[0] + a), j, k);
           if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {

@@ -13,6 +13,7 @@
 #include <limits>
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include <tbb/parallel_for.h>
@@ -406,6 +407,80 @@ double entry_time(const ContactView& v, const Members& mb, const double* own,
   return t;
 }
 
+// The first time a gap can close, from now, when it closes no faster than `rate` (negative when
+// it closes) and its rate of closing grows by at most `accel` (>= 0): the positive root of
+// gap + rate t - accel t^2 / 2, each form taken where it does not cancel; 0 when the gap is
+// already closed, infinite when it never closes.
+inline double free_span(double gap, double rate, double accel) {
+  // Anything that is not a number gives 0: no step is taken on its word.
+  if (!(gap > 0.0) || !(accel >= 0.0) || std::isnan(rate))
+    return 0.0;
+  const double inf = std::numeric_limits<double>::infinity();
+  const double root = std::sqrt(rate * rate + 2.0 * accel * gap);
+  if (rate > 0.0)
+    return accel > 0.0 ? (rate + root) / accel : inf;
+  const double den = root - rate;
+  return den > 0.0 ? 2.0 * gap / den : inf; // den = 0: at rest, no acceleration
+}
+
+// How long the island's members keep flying free from the current fine step's node, at which no
+// contact force acts on any of them: until then no pair of members in the island, nor a member
+// and a wall, can touch. Free flight under gravity and the held force is a parabola, so the
+// separation of a pair is d(t) = d + w t + Da t^2 / 2 (w: the velocities' difference at the node,
+// the stored half-step ones brought to the node by hp; Da: the accelerations' difference), and
+// |d(t)| >= d.d(t) / |d| = |d| + w_n t + (Da.d / |d|) t^2 / 2 >= |d| + w_n t - |Da| t^2 / 2: the
+// gap, less the link test's margin, stays positive until free_span() of that. A wall gap is
+// x - lo - r (or hi - x - r) on the same parabola. The leapfrog's nodes lie on the parabola up to
+// rounding, which the margin covers. No particle outside the island can reach a member within the
+// sub-iteration (the link test), so this is every contact the members can meet.
+template <bool Wrap, bool External>
+double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
+                 const std::array<double, 3>& grav) {
+  const DomainGeometry& g = *v.geom;
+  const Columns& c = v.c;
+  const std::uint32_t* __restrict off = v.rows.off;
+  const std::uint32_t* __restrict nb = v.rows.nb;
+  // A particle's acceleration in free flight, and its velocity at the node.
+  auto motion = [&](std::uint32_t i, double(&a)[3], double(&u)[3]) {
+    a[0] = grav[0], a[1] = grav[1], a[2] = grav[2];
+    if constexpr (External) {
+      a[0] += c.ex[i] * c.im[i], a[1] += c.ey[i] * c.im[i], a[2] += c.ez[i] * c.im[i];
+    }
+    u[0] = c.vx[i] + a[0] * c.hp[i], u[1] = c.vy[i] + a[1] * c.hp[i];
+    u[2] = c.vz[i] + a[2] * c.hp[i];
+  };
+  double t = std::numeric_limits<double>::infinity();
+  for (std::uint32_t m = 0; m < mb.count; ++m) {
+    const std::uint32_t i = mb.mem[m];
+    double ai[3], ui[3];
+    motion(i, ai, ui);
+    const double xi = c.x[i], yi = c.y[i], zi = c.z[i], ri = c.radius[i];
+    const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if (v.label[j] != island)
+        continue;
+      double dx = c.x[j] - xi, dy = c.y[j] - yi, dz = c.z[j] - zi;
+      if (k >= kw)
+        dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+      double aj[3], uj[3];
+      motion(j, aj, uj);
+      const double dist = std::sqrt(dx * dx + dy * dy + dz * dz);
+      const double wn = ((uj[0] - ui[0]) * dx + (uj[1] - ui[1]) * dy + (uj[2] - ui[2]) * dz) / dist;
+      const double da[3] = {aj[0] - ai[0], aj[1] - ai[1], aj[2] - ai[2]};
+      const double accel = std::sqrt(da[0] * da[0] + da[1] * da[1] + da[2] * da[2]);
+      t = std::min(t, free_span(dist - ri - c.radius[j] - mb.margin, wn, accel));
+    }
+    const double pos[3] = {xi, yi, zi};
+    for (int a = 0; a < 3; ++a)
+      if (!g.periodic[a]) {
+        t = std::min(t, free_span(pos[a] - g.lo[a] - ri - mb.margin, ui[a], std::abs(ai[a])));
+        t = std::min(t, free_span(g.hi[a] - pos[a] - ri - mb.margin, -ui[a], std::abs(ai[a])));
+      }
+  }
+  return t;
+}
+
 // The leading fine steps taken as one step of lead x h (step_island): every force that step
 // reads must be free of contact, at its start (t = 0) and at its end (t = lead h, where the
 // velocity's closing half kick spans lead h / 2 instead of h / 2). So lead h < t_e:
@@ -419,6 +494,9 @@ inline std::int64_t entry_lead(double t_e, double dt_sp, const FineSteps& fs) {
   return std::min<std::int64_t>(fs.K, static_cast<std::int64_t>(std::ceil(t_e / fs.h)) - 1);
 }
 
+// step_island's free_time argument where no fold is taken after the leading steps.
+struct NoFold {};
+
 // Islands larger than this run each pass as a nested parallel_for over blocks of members.
 inline constexpr std::uint32_t kGiantIsland = 4096;
 inline constexpr std::uint32_t kMemberBlock = 1024;
@@ -429,11 +507,19 @@ inline constexpr std::uint32_t kMemberBlock = 1024;
 // `between()` before every step but the first (the R-rank ghost refresh). With svx non-null the
 // synchronised velocities at the start go there. Each member's force and update read only the
 // state before the pass: bitwise independent of the thread count.
-template <bool External, bool Bounded, bool Friction = false, class Forces, class Between>
+//
+// With free_time() (one lead for all members, between() doing nothing): at a node where no
+// contact force acts on any member, free_time() says how long the island flies free from it
+// (islands::free_time), and the fine steps that end before then are one step, as the leading
+// ones are. It is asked again once a contact has come and gone, or once its last answer has
+// passed without a contact (a pair that closed in on its line of centres and missed).
+template <bool External, bool Bounded, bool Friction = false, class Forces, class Between,
+          class FreeTime = NoFold>
 [[gnu::always_inline]] inline IslandResult
 step_island(const Columns& col, const Members& mb, const FineSteps& fs,
             const std::array<double, 3>& grav, double* svx, double* svy, double* svz,
-            Forces&& forces, Between&& between) {
+            Forces&& forces, Between&& between, FreeTime&& free_time = FreeTime{}) {
+  constexpr bool kFolds = !std::is_same_v<std::decay_t<FreeTime>, NoFold>;
   IslandResult res;
   const std::uint32_t* mem = mb.mem;
   const std::uint32_t count = mb.count;
@@ -516,8 +602,10 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   const bool uniform = mb.leads == nullptr;
   const std::int64_t k0 = uniform && count > 0 ? skip_of(0) : 0;
   double elapsed = static_cast<double>(k0) * fs.h;
+  std::int64_t taken = 0; // steps every member took (one lead)
+  double ask_at = 0.0;    // free_time() is asked at contact-free nodes from this time on
   for (std::int64_t k = k0; k < K; ++k) {
-    const double base = k + 1 == K ? fs.h_last : fs.h;
+    double base = k + 1 == K ? fs.h_last : fs.h;
     // The length of this step for a member whose steps start at s (<= k).
     auto length = [&](std::int64_t s) {
       return base + (k == s ? static_cast<double>(s) * fs.h : 0.0);
@@ -567,6 +655,39 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
         svy[i] = vy[i] + ((fy[i] + ey) * im[i] + g1) * hp[i];
         svz[i] = vz[i] + ((fz[i] + ez) * im[i] + g2) * hp[i];
       }
+    // Fold the steps k .. k + span - 1 into this one where the island flies free through them
+    // and at the node that ends them (its force closes the step's second half kick).
+    std::int64_t span = 1;
+    if constexpr (kFolds) {
+      bool flying = uniform;
+      for (std::uint32_t u = 0; flying && u < count; ++u) {
+        const std::uint32_t i = mem[u];
+        flying = fx[i] == 0.0 && fy[i] == 0.0 && fz[i] == 0.0;
+      }
+      // The node is at the sub-iteration's start when this step also takes the lead's steps.
+      const double lead = k == k0 ? static_cast<double>(k0) * fs.h : 0.0;
+      const double node = elapsed - lead;
+      if (!flying) {
+        ask_at = 0.0;
+      } else if (node >= ask_at) {
+        const double t_free = free_time();
+        ask_at = node + t_free;
+        // The step's length with the steps k .. k + L - 1 in it, from the node.
+        auto span_length = [&](std::int64_t L) {
+          return lead + static_cast<double>(L - 1) * fs.h + (k + L == K ? fs.h_last : fs.h);
+        };
+        std::int64_t L = K - k;
+        if (!(span_length(L) < t_free)) {
+          L = std::min<std::int64_t>(
+              L, static_cast<std::int64_t>(std::ceil((t_free - lead) / fs.h)) - 1);
+          while (L >= 2 && !(span_length(L) < t_free))
+            --L;
+        }
+        if (L >= 2)
+          span = L, base = span_length(L) - lead;
+      }
+    }
+    ++taken;
     elapsed += base;
     auto kick_range = [&](std::uint32_t u0, std::uint32_t u1, std::int64_t& bv) {
       for (std::uint32_t u = u0; u < u1; ++u) {
@@ -589,9 +710,13 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
       for (const IslandResult& pt : parts)
         res.bound_violations += pt.bound_violations;
     }
+    k += span - 1;
   }
-  for (std::uint32_t u = 0; u < count; ++u)
-    res.steps += K - skip_of(u);
+  if (uniform)
+    res.steps = static_cast<std::int64_t>(count) * taken;
+  else
+    for (std::uint32_t u = 0; u < count; ++u)
+      res.steps += K - skip_of(u);
   return res;
 }
 

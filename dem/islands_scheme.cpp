@@ -1005,6 +1005,10 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
   // No member touches anything before the island's entry time: its leading steps are one.
   mb.lead = islands::entry_lead(islands::entry_time<!Ranks>(view, mb, ln_.own_bound.data(), c),
                                 dt_sp_, steps_);
+  // After the lead, and between contacts, the steps the island flies free through are one.
+  auto free_time = [&] {
+    return islands::free_time<!Ranks, External>(view, mb, c, model_.gravity);
+  };
   if constexpr (!Ranks && !Friction) {
     // The common island of a dilute gas: its one pair, evaluated once. A step_island of its own
     // (one forces callback with a branch on this case cost 11% more instructions on HCS 1222).
@@ -1019,7 +1023,7 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
           [&](std::uint32_t, std::uint32_t, double& max_ratio, std::int64_t& violations) {
             return islands::pair_island_forces(view, i, j, across, max_ratio, violations);
           },
-          [] {});
+          [] {}, free_time);
       return;
     }
   }
@@ -1031,7 +1035,7 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
         return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
             view, mb.mem, u0, u1, c, max_ratio, violations, hk...);
       },
-      [] {});
+      [] {}, free_time);
 }
 
 // The R-rank path (islands_ranks.cpp) runs its local islands and free flight here too.

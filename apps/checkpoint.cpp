@@ -290,6 +290,8 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
       w.put("/islands/rank_counters", o.rank_counters);
       w.put("/islands/rank_values", o.rank_values);
     }
+    if (!o.skin_choice.empty())
+      w.put("/islands/skin_choice", o.skin_choice);
     if (!o.length_counters.empty()) { // dem.nsubit = "auto": the chosen length and its log
       w.put("/islands/length_counters", o.length_counters);
       w.put("/islands/length_values", o.length_values);
@@ -501,6 +503,8 @@ Checkpoint read_contents(const h5::File& f) {
       o.rank_counters = r.int64s("/islands/rank_counters", 6);
       o.rank_values = r.doubles("/islands/rank_values", 1);
     }
+    if (f.exists("/islands/skin_choice")) // one rank, since the islands skin is chosen
+      o.skin_choice = r.doubles("/islands/skin_choice", 4);
     if (f.exists("/islands/length_counters")) {
       // 8 counters (6 before the global mode's two flags: still read; the scheme checks).
       o.length_counters = r.int64s("/islands/length_counters", Reader::kAny);

@@ -338,7 +338,10 @@ inline std::int64_t pair_island_forces(const ContactView& v, std::uint32_t i, st
 // What one island's fine steps add to the scheme's counters.
 struct IslandResult {
   std::int64_t pairs = 0, violations = 0, bound_violations = 0;
-  std::int64_t steps = 0; // member steps taken (K each, less the leads folded)
+  std::int64_t steps = 0; // member steps taken (K each, less the folded ones)
+  // member steps less the leads' alone (what "auto" prices as fine work: the same on any rank
+  // count, where islands spanning ranks fold no step after their lead)
+  std::int64_t lead_steps = 0;
   double max_ratio = 0.0;
 };
 
@@ -469,7 +472,7 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
       const double wn = ((uj[0] - ui[0]) * dx + (uj[1] - ui[1]) * dy + (uj[2] - ui[2]) * dz) / dist;
       const double da[3] = {aj[0] - ai[0], aj[1] - ai[1], aj[2] - ai[2]};
       const double accel = std::sqrt(da[0] * da[0] + da[1] * da[1] + da[2] * da[2]);
-      t = std::min(t, free_span(dist - ri - c.radius[j] - mb.margin, wn, accel));
+      t = std::min(t, free_span(dist - (ri + c.radius[j]) - mb.margin, wn, accel));
     }
     const double pos[3] = {xi, yi, zi};
     for (int a = 0; a < 3; ++a)
@@ -511,7 +514,9 @@ inline constexpr std::uint32_t kMemberBlock = 1024;
 // With free_time() (one lead for all members, between() doing nothing): at a node where no
 // contact force acts on any member, free_time() says how long the island flies free from it
 // (islands::free_time), and the fine steps that end before then are one step, as the leading
-// ones are. It is asked again once a contact has come and gone, or once its last answer has
+// ones are, up to the sub-iteration's last step, which stays a fine one (so every member ends
+// with the fine half step, and the next sub-iteration's forces close it as they would without
+// the fold). It is asked again once a contact has come and gone, or once its last answer has
 // passed without a contact (a pair that closed in on its line of centres and missed).
 template <bool External, bool Bounded, bool Friction = false, class Forces, class Between,
           class FreeTime = NoFold>
@@ -672,19 +677,21 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
       } else if (node >= ask_at) {
         const double t_free = free_time();
         ask_at = node + t_free;
-        // The step's length with the steps k .. k + L - 1 in it, from the node.
-        auto span_length = [&](std::int64_t L) {
-          return lead + static_cast<double>(L - 1) * fs.h + (k + L == K ? fs.h_last : fs.h);
+        // The steps k .. k + L - 1 as one, and the step's length from the node (with the lead's
+        // steps when this is the first).
+        auto fold_length = [&](std::int64_t L) {
+          return static_cast<double>(L - 1) * fs.h + (k + L == K ? fs.h_last : fs.h);
         };
-        std::int64_t L = K - k;
-        if (!(span_length(L) < t_free)) {
+        auto span_length = [&](std::int64_t L) { return lead + fold_length(L); };
+        std::int64_t L = K - 1 - k;
+        if (L >= 2 && !(span_length(L) < t_free)) {
           L = std::min<std::int64_t>(
               L, static_cast<std::int64_t>(std::ceil((t_free - lead) / fs.h)) - 1);
           while (L >= 2 && !(span_length(L) < t_free))
             --L;
         }
         if (L >= 2)
-          span = L, base = span_length(L) - lead;
+          span = L, base = fold_length(L);
       }
     }
     ++taken;
@@ -712,11 +719,9 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     }
     k += span - 1;
   }
-  if (uniform)
-    res.steps = static_cast<std::int64_t>(count) * taken;
-  else
-    for (std::uint32_t u = 0; u < count; ++u)
-      res.steps += K - skip_of(u);
+  for (std::uint32_t u = 0; u < count; ++u)
+    res.lead_steps += K - skip_of(u);
+  res.steps = uniform ? static_cast<std::int64_t>(count) * taken : res.lead_steps;
   return res;
 }
 

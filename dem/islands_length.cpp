@@ -115,10 +115,13 @@ void IslandsScheme::choose_length() {
     auto_.busy_avg += w * (busy_now - auto_.busy_avg);
   }
   const double rho = std::clamp((auto_.fine_avg + 1.0) / (auto_.busy_avg + 1.0), 0.25, 4.0);
-  const std::int64_t lo_skin = length::fewest_for_skin(D, s_max, skin_);
+  // The starting islands skin, not the one chosen since on one rank (choose_skin): R ranks keep
+  // theirs, and every rank count must take the same length. A chosen skin shorter than a length
+  // needs grows at its first expiry.
+  const std::int64_t lo_skin = length::fewest_for_skin(D, s_max, one_.nominal_skin);
   const std::int64_t lo_gas = length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref);
   const double volume = geom_.length[0] * geom_.length[1] * geom_.length[2];
-  const double entries = length::row_entries(N, volume, model_.r_min, one_.islands_skin);
+  const double entries = length::row_entries(N, volume, model_.r_min, one_.nominal_skin);
   // The global mode's list holds the explicit scheme's pairs (its skin).
   const double pairs =
       N > 0.0 ? 0.5 * length::row_entries(N, volume, model_.r_min, model_.skin) / N : 0.0;

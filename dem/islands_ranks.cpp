@@ -460,7 +460,7 @@ void IslandsScheme::subiterate_ranks(bool record) {
   const std::int64_t K = steps_.K;
   // {owned, particle steps, pairs, overlaps beyond the bound, bound violations, faults, fine
   // members, spanning members, spanning island parts, outran, mass}
-  std::array<double, 11> c{};
+  std::array<double, 12> c{};
   std::optional<islands::Fault> fault;
   double ratio = 0.0;
   for (;;) {
@@ -576,8 +576,9 @@ void IslandsScheme::subiterate_ranks(bool record) {
     c[0] = static_cast<double>(owned_);
     c[1] = static_cast<double>(static_cast<std::int64_t>(owned_) - members + sr.steps);
     ratio = sr.max_ratio;
+    c[11] = static_cast<double>(sr.lead_steps);
     for (const islands::IslandResult& q : results_) {
-      c[1] += static_cast<double>(q.steps);
+      c[1] += static_cast<double>(q.steps), c[11] += static_cast<double>(q.lead_steps);
       c[2] += static_cast<double>(q.pairs), c[3] += static_cast<double>(q.violations);
       c[4] += static_cast<double>(q.bound_violations);
       ratio = std::max(ratio, q.max_ratio);
@@ -637,8 +638,8 @@ void IslandsScheme::subiterate_ranks(bool record) {
   const std::int64_t fine = count(6);
   st_.last_fine_fraction =
       n_global_ > 0 ? static_cast<double>(fine) / static_cast<double>(n_global_) : 0.0;
-  // The members' steps: all particle steps less one per free particle.
-  const auto member_steps = static_cast<double>(count(1) - (n_global_ - fine));
+  // The members' steps less the leads alone (as on one rank).
+  const auto member_steps = static_cast<double>(count(11));
   st_.last_fine_work =
       n_global_ > 0 ? member_steps / (static_cast<double>(K) * static_cast<double>(n_global_))
                     : 0.0;

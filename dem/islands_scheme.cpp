@@ -39,9 +39,12 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
   }
   dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
   // The list only finds links and island members (cheap per entry) while its builds are the
-  // scheme's largest cost: without dem.neighbor_skin, three times the explicit scheme's skin
-  // (measured on HCS 1222: 3.2x fewer builds, 30% less wall time than with the same skin).
+  // scheme's largest cost: without dem.neighbor_skin, three times the explicit scheme's skin to
+  // start with (measured on HCS 1222: 3.2x fewer builds, 30% less wall time than with the same
+  // skin), then on one rank the one choose_skin() prices lowest at each expiry.
   one_.islands_skin = scene.dem.neighbor_skin > 0.0 ? model_.skin : 3.0 * model_.skin;
+  one_.adapt_skin = !(scene.dem.neighbor_skin > 0.0);
+  one_.nominal_skin = one_.islands_skin;
   one_.global_skin = model_.skin;
   skin_ = one_.islands_skin;
   // A link margin far above rounding and far below any gap that matters.
@@ -58,6 +61,13 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
     for (double r : p_.radius)
       r_max = std::max(r_max, r);
     one_.skin_cap = periodic_skin_cap(geom_, r_max);
+    one_.d_max = 2.0 * r_max;
+    // A chosen skin also keeps the list's own bound (VerletList::build: a periodic length above
+    // twice the cutoff plus skin, 2 (2 r_max + 2 skin)).
+    one_.choice_cap = one_.skin_cap;
+    for (int a = 0; a < 3; ++a)
+      if (geom_.periodic[a])
+        one_.choice_cap = std::min(one_.choice_cap, 0.249 * geom_.length[a] - r_max);
     one_.with_comm = comm != nullptr;
   }
 }
@@ -114,6 +124,9 @@ IslandsScheme::State IslandsScheme::save_state() {
       s.hx = hx_, s.hy = hy_, s.hz = hz_;
   }
   s.skin = skin_;
+  if (!rank_)
+    s.skin_choice = {one_.islands_skin, static_cast<double>(one_.build_subits),
+                     static_cast<double>(one_.build_pairs), one_.measured ? 1.0 : 0.0};
   s.hprev.assign(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(owned_));
   s.fine_subits.resize(owned_);
   for (std::size_t i = 0; i < owned_; ++i)
@@ -214,6 +227,14 @@ void IslandsScheme::restore_state(State s) {
   one_.half_stale = true;
   one_.moved = std::numeric_limits<double>::infinity(); // unknown until the next build
   skin_ = s.skin;
+  if (s.skin_choice.size() == 4 && s.skin_choice[0] > 0.0) {
+    one_.islands_skin = s.skin_choice[0];
+    one_.build_subits = static_cast<std::int64_t>(s.skin_choice[1]);
+    one_.build_pairs = static_cast<std::int64_t>(s.skin_choice[2]);
+    one_.measured = s.skin_choice[3] != 0.0;
+  } else {
+    one_.measured = false; // an older checkpoint: the next list's life is measured afresh
+  }
   st_.size_hist = std::move(s.size_hist);
   ln_.island_of.assign(n, kAlone);
   ln_.busy.clear();
@@ -289,6 +310,57 @@ void IslandsScheme::rebuild() {
   one_.built = true;
   one_.moved = 0.0;
   ++st_.builds;
+  one_.measured = !global_;
+  one_.build_subits = st_.subits, one_.build_pairs = st_.pair_evaluations;
+}
+
+namespace {
+// The islands skin's cost model (choose_skin), in instructions (callgrind, HCS 1222 at skins of
+// 75 to 150 um, the phi 0.3 gas and the walled box): a build costs about 1000 per particle (the
+// binning, the store's sort, the cell pairs) and 370 per list entry; every sub-iteration scans
+// each entry (the link rounds, the length choice's histogram) for about 60, and a pair
+// evaluation inside an island costs about 30.
+constexpr double kBuildPerParticle = 1000.0, kBuildPerEntry = 370.0, kScanPerEntry = 60.0;
+constexpr double kPerPairEvaluation = 30.0;
+// A new skin must be priced this much below the current one (no flip-flop on noise).
+constexpr double kSkinSwitch = 0.95;
+} // namespace
+
+// At an islands list's expiry, the skin for the next list (dem.neighbor_skin = "auto", one
+// rank). The list lasted `life` sub-iterations at skin s: it expires when the two largest
+// reaches (displacement plus bound x dt_sp) add up to s, so at skin s' it lasts about
+// life (s' - r_b) / (s - r_b), r_b = 2 b_max dt_sp; its entries and the pair work in islands
+// grow as the volume within d_max + s', ((d_max + s') / (d_max + s))^3. Per sub-iteration a
+// skin costs (1000 n + 370 E) / life + 60 E + 30 P (E entries, P pair evaluations per
+// sub-iteration); the candidates are 1 to 8 explicit skins, each lasting a sub-iteration at
+// least and within the list's periodic bound. A dilute gas lengthens the list (builds dominate), a
+// dense one shortens it (its entries are evaluated at every fine step). Counts only: the same
+// choice on any thread count.
+void IslandsScheme::choose_skin() {
+  if (!one_.adapt_skin || !one_.measured || global_)
+    return;
+  const auto life = static_cast<double>(st_.subits - one_.build_subits);
+  const double s = skin_, r_b = 2.0 * one_.bound_max * dt_sp_;
+  if (!(life >= 1.0) || !(s > r_b))
+    return;
+  const auto n = static_cast<double>(p_.size());
+  const auto E = static_cast<double>(one_.list.neighbors().size());
+  const double P = static_cast<double>(st_.pair_evaluations - one_.build_pairs) / life;
+  auto cost = [&](double s2) {
+    const double g = std::pow((one_.d_max + s2) / (one_.d_max + s), 3.0);
+    const double lasts = std::max(1.0, life * (s2 - r_b) / (s - r_b));
+    return (kBuildPerParticle * n + kBuildPerEntry * E * g) / lasts + kScanPerEntry * E * g +
+           kPerPairEvaluation * P * g;
+  };
+  double best = s, c_best = kSkinSwitch * cost(s);
+  for (const double m : {1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0}) {
+    const double s2 = m * one_.global_skin;
+    if (!(s2 > 1.1 * r_b) || !(s2 < one_.choice_cap))
+      continue;
+    if (const double c = cost(s2); c < c_best)
+      best = s2, c_best = c;
+  }
+  one_.islands_skin = skin_ = best;
 }
 
 // The canonical state of a one-rank run with a communicator: the store in id order (the order
@@ -614,6 +686,8 @@ void IslandsScheme::subiterate_one(bool record) {
       }
       if (!list_expires())
         break;
+      if (!fresh)
+        choose_skin();
       if (fresh) {
         // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
         double need = 0.0;
@@ -695,11 +769,11 @@ void IslandsScheme::subiterate_one(bool record) {
   }
   // Counters, in island order.
   const std::int64_t violations_before = st_.bound_violations;
-  std::int64_t members = 0, member_steps = 0;
+  std::int64_t members = 0, member_steps = 0, lead_steps = 0;
   for (std::uint32_t q = 0; q < nc; ++q) {
     const islands::IslandResult& r = results_[q];
     members += ln_.islands.size(q);
-    member_steps += r.steps;
+    member_steps += r.steps, lead_steps += r.lead_steps;
     st_.pair_evaluations += r.pairs;
     st_.overlap_violations += r.violations;
     st_.bound_violations += r.bound_violations;
@@ -733,7 +807,7 @@ void IslandsScheme::subiterate_one(bool record) {
   const std::int64_t free_count = static_cast<std::int64_t>(n) - members;
   st_.particle_steps += free_count + member_steps;
   st_.last_fine_fraction = n > 0 ? static_cast<double>(members) / static_cast<double>(n) : 0.0;
-  st_.last_fine_work = n > 0 ? static_cast<double>(member_steps) /
+  st_.last_fine_work = n > 0 ? static_cast<double>(lead_steps) /
                                    (static_cast<double>(steps_.K) * static_cast<double>(n))
                              : 0.0;
   st_.add_interval(members, static_cast<std::int64_t>(n), steps_.K);

@@ -245,6 +245,9 @@ public:
     // hist_avg; the choices' rows.
     std::vector<std::int64_t> length_counters;
     std::vector<double> length_values, length_log;
+    // One rank: the islands skin and its choice's counters (islands_skin, build_subits,
+    // build_pairs, measured); empty in checkpoints written before the skin was chosen.
+    std::vector<double> skin_choice;
     // Friction: the tangential history per entry of the list (neighbors' indexing); with a
     // communicator (the canonical state, no list) the records by particle ids instead.
     std::vector<double> hx, hy, hz;
@@ -285,6 +288,15 @@ private:
     // Skins of the two modes: islands (a longer list: fewer builds) and global fine steps (the
     // explicit scheme's).
     double islands_skin = 0.0, global_skin = 0.0;
+    // The islands skin's choice at each expiry (choose_skin(); dem.neighbor_skin = "auto"): the
+    // sub-iterations and pair evaluations at the last build (the list's life and the pair work
+    // since), measured when that build began an islands list; the largest diameter.
+    // nominal_skin: the starting islands skin, which the length choice prices the rows with
+    // (the same on any rank count; R ranks do not choose their skin).
+    bool adapt_skin = false, measured = false;
+    double nominal_skin = 0.0;
+    std::int64_t build_subits = 0, build_pairs = 0;
+    double d_max = 0.0, choice_cap = 0.0;
     bool built = false, incremental = true;
     // Canonical state pending (a communicator of size 1): the next sub-iteration sorts the store
     // by id and builds.
@@ -371,6 +383,7 @@ private:
   // One rank.
   void subiterate_one(bool record);
   void rebuild();
+  void choose_skin();
   void canonical_order();
   void make_links(bool incremental);
   void link();

@@ -350,6 +350,33 @@ TEST(IslandsScheme, DenseGasStepsEveryoneFinelyAsExplicit) {
   expect_round_off(ref, out, 1.0e-3, 1e-9);
 }
 
+// Without dem.neighbor_skin the islands list starts at three explicit skins and each expiry
+// prices the next one (IslandsScheme::choose_skin): builds against the entries every
+// sub-iteration scans. A 1% gas has few entries per particle, so its builds dominate and the
+// skin grows; at 10% the entries (and the pair work in islands) dominate and it shrinks. Either
+// way no bound is violated (EqualsExplicitToRoundOffInAGas checks the outcome with the chosen
+// skins).
+TEST(IslandsScheme, SkinGrowsInADiluteGasAndShrinksInADenseOne) {
+  auto final_skin = [](const Scene& s, double& first) {
+    ParticleStore p = make_initial_particles(s);
+    PhaseTimer t;
+    dem::IslandsScheme isl(s, p, t);
+    isl.start();
+    first = isl.skin();
+    for (int k = 0; k < 500; ++k)
+      isl.subiterate();
+    EXPECT_EQ(isl.bound_violations(), 0);
+    EXPECT_EQ(isl.global_subiterations(), 0);
+    return isl.skin();
+  };
+  double first = 0.0;
+  const double dilute = final_skin(demtest::scene_from(kGas), first);
+  EXPECT_GT(dilute, 1.2 * first) << "1% gas";
+  const double dense =
+      final_skin(demtest::scene_from(kGas, {"domain.hi=[0.806e-3,0.806e-3,0.806e-3]"}), first);
+  EXPECT_LT(dense, 0.8 * first) << "10% gas";
+}
+
 // A particle whose velocity became NaN stops the run with a message naming it, not a hang.
 TEST(IslandsScheme, NonFiniteVelocityStopsTheRunNamingTheParticle) {
   const Scene s = demtest::scene_from(kGas);

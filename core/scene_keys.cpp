@@ -305,7 +305,8 @@ std::vector<SceneKey> make_table() {
        .section = S::Contacts,
        .unit = "m",
        .range = above(0),
-       .fallback = derived("a quarter of the largest diameter (islands: three times that)"),
+       .fallback = derived("a quarter of the largest diameter (islands: chosen at each list's "
+                           "expiry on one rank, from three times that)"),
        .meaning = "Verlet-list skin; lists are rebuilt when a particle has moved more than half "
                   "of it"},
       {.name = "dem.max_overlap",

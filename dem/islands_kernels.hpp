@@ -372,30 +372,42 @@ struct Members {
 // island touches anything, and no contact can speed a member up. A pair that could close within
 // the sub-iteration is linked, so every valid row set holds it: the time, capped at dt_sp, is the
 // same for every list and rank count.
-template <bool Wrap>
-double member_entry_time(const ContactView& v, const double* own, double margin,
-                         std::uint32_t island, std::uint32_t i) {
+// pair(j, dx, dy, dz) for every partner j of particle i in island `island`, in row order, with
+// the separation x_j - x_i (its image for the row's pairs across a periodic face; every pair's
+// without Wrap, as on R ranks).
+template <bool Wrap, class Pair>
+[[gnu::always_inline]] inline void island_partners(const ContactView& v, std::uint32_t i,
+                                                   std::uint32_t island, Pair&& pair) {
   const DomainGeometry& g = *v.geom;
   const double* __restrict x = v.c.x;
   const double* __restrict y = v.c.y;
   const double* __restrict z = v.c.z;
-  const double* __restrict rad = v.c.radius;
   const std::uint32_t* __restrict off = v.rows.off;
   const std::uint32_t* __restrict nb = v.rows.nb;
-  const double xi = x[i], yi = y[i], zi = z[i], ri = rad[i], si = own[i];
-  double t = std::numeric_limits<double>::infinity();
   const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
   for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
     const std::uint32_t j = nb[k];
     if (v.label[j] != island)
       continue;
-    double dx = x[j] - xi, dy = y[j] - yi, dz = z[j] - zi;
+    double dx = x[j] - x[i], dy = y[j] - y[i], dz = z[j] - z[i];
     if (k >= kw)
       dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+    pair(j, dx, dy, dz);
+  }
+}
+
+template <bool Wrap>
+double member_entry_time(const ContactView& v, const double* own, double margin,
+                         std::uint32_t island, std::uint32_t i) {
+  const DomainGeometry& g = *v.geom;
+  const double* __restrict rad = v.c.radius;
+  const double ri = rad[i], si = own[i];
+  double t = std::numeric_limits<double>::infinity();
+  island_partners<Wrap>(v, i, island, [&](std::uint32_t j, double dx, double dy, double dz) {
     const double gap = std::sqrt(dx * dx + dy * dy + dz * dz) - ri - rad[j] - margin;
     t = std::min(t, closing_time(gap, si + own[j]));
-  }
-  const double pos[3] = {xi, yi, zi};
+  });
+  const double pos[3] = {v.c.x[i], v.c.y[i], v.c.z[i]};
   for (int a = 0; a < 3; ++a)
     if (!g.periodic[a])
       t = std::min(t, closing_time(wall_gap(pos[a], g.lo[a], g.hi[a], ri) - margin, si));
@@ -441,8 +453,6 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
                  const std::array<double, 3>& grav) {
   const DomainGeometry& g = *v.geom;
   const Columns& c = v.c;
-  const std::uint32_t* __restrict off = v.rows.off;
-  const std::uint32_t* __restrict nb = v.rows.nb;
   // A particle's acceleration in free flight, and its velocity at the node.
   auto motion = [&](std::uint32_t i, double(&a)[3], double(&u)[3]) {
     a[0] = grav[0], a[1] = grav[1], a[2] = grav[2];
@@ -457,15 +467,8 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
     const std::uint32_t i = mb.mem[m];
     double ai[3], ui[3];
     motion(i, ai, ui);
-    const double xi = c.x[i], yi = c.y[i], zi = c.z[i], ri = c.radius[i];
-    const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
-    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-      const std::uint32_t j = nb[k];
-      if (v.label[j] != island)
-        continue;
-      double dx = c.x[j] - xi, dy = c.y[j] - yi, dz = c.z[j] - zi;
-      if (k >= kw)
-        dx = g.image(dx, 0), dy = g.image(dy, 1), dz = g.image(dz, 2);
+    const double ri = c.radius[i];
+    island_partners<Wrap>(v, i, island, [&](std::uint32_t j, double dx, double dy, double dz) {
       double aj[3], uj[3];
       motion(j, aj, uj);
       const double dist = std::sqrt(dx * dx + dy * dy + dz * dz);
@@ -473,8 +476,8 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
       const double da[3] = {aj[0] - ai[0], aj[1] - ai[1], aj[2] - ai[2]};
       const double accel = std::sqrt(da[0] * da[0] + da[1] * da[1] + da[2] * da[2]);
       t = std::min(t, free_span(dist - (ri + c.radius[j]) - mb.margin, wn, accel));
-    }
-    const double pos[3] = {xi, yi, zi};
+    });
+    const double pos[3] = {c.x[i], c.y[i], c.z[i]};
     for (int a = 0; a < 3; ++a)
       if (!g.periodic[a]) {
         t = std::min(t, free_span(pos[a] - g.lo[a] - ri - mb.margin, ui[a], std::abs(ai[a])));

@@ -62,12 +62,6 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
       r_max = std::max(r_max, r);
     one_.skin_cap = periodic_skin_cap(geom_, r_max);
     one_.d_max = 2.0 * r_max;
-    // A chosen skin also keeps the list's own bound (VerletList::build: a periodic length above
-    // twice the cutoff plus skin, 2 (2 r_max + 2 skin)).
-    one_.choice_cap = one_.skin_cap;
-    for (int a = 0; a < 3; ++a)
-      if (geom_.periodic[a])
-        one_.choice_cap = std::min(one_.choice_cap, 0.249 * geom_.length[a] - r_max);
     one_.with_comm = comm != nullptr;
   }
 }
@@ -355,7 +349,8 @@ void IslandsScheme::choose_skin() {
   double best = s, c_best = kSkinSwitch * cost(s);
   for (const double m : {1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0}) {
     const double s2 = m * one_.global_skin;
-    if (!(s2 > 1.1 * r_b) || !(s2 < one_.choice_cap))
+    if (!(s2 > 1.1 * r_b) || !(s2 < one_.skin_cap) ||
+        !VerletList::skin_fits(geom_, 0.5 * one_.d_max, s2))
       continue;
     if (const double c = cost(s2); c < c_best)
       best = s2, c_best = c;
@@ -686,9 +681,9 @@ void IslandsScheme::subiterate_one(bool record) {
       }
       if (!list_expires())
         break;
-      if (!fresh)
+      if (!fresh) {
         choose_skin();
-      if (fresh) {
+      } else {
         // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
         double need = 0.0;
         for (double b : ln_.bound)

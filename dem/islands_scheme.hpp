@@ -296,7 +296,7 @@ private:
     bool adapt_skin = false, measured = false;
     double nominal_skin = 0.0;
     std::int64_t build_subits = 0, build_pairs = 0;
-    double d_max = 0.0, choice_cap = 0.0;
+    double d_max = 0.0;
     bool built = false, incremental = true;
     // Canonical state pending (a communicator of size 1): the next sub-iteration sorts the store
     // by id and builds.

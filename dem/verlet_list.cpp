@@ -49,6 +49,19 @@ std::size_t order_row(const ParticleStore& p, const DomainGeometry& g, std::size
 
 } // namespace
 
+// Raw separations of non-crossing pairs stay below L/2 while particles move less than skin/2
+// each: needs L > 2 (cutoff + skin) on every periodic axis.
+bool VerletList::skin_fits(const DomainGeometry& g, double r_max, double skin, int* axis) {
+  const double cutoff = 2.0 * r_max + skin;
+  for (int a = 0; a < 3; ++a)
+    if (g.periodic[a] && g.length[a] <= 2.0 * (cutoff + skin)) {
+      if (axis != nullptr)
+        *axis = a;
+      return false;
+    }
+  return true;
+}
+
 void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin, RowKind kind) {
   skin_ = skin;
   kind_ = kind;
@@ -57,14 +70,11 @@ void VerletList::build(ParticleStore& p, const DomainGeometry& g, double skin, R
   for (double r : p.radius)
     rmax = std::max(rmax, r);
   const double cutoff = 2.0 * rmax + skin;
-  for (int a = 0; a < 3; ++a)
-    // Raw separations of non-crossing pairs stay below L/2 while particles move less than
-    // skin/2 each: needs L > 2 (cutoff + skin).
-    if (n > 0 && g.periodic[a] && g.length[a] <= 2.0 * (cutoff + skin)) // none: nothing to list
-      throw RunError(fmt::format(
-          "periodic axis {} is {:.6g} m long, not more than twice the neighbor cutoff plus skin "
-          "{:.6g} m (largest diameter + 2 skins): enlarge the domain or reduce dem.neighbor_skin",
-          a, g.length[a], cutoff + skin));
+  if (int a = 0; n > 0 && !skin_fits(g, rmax, skin, &a)) // none: nothing to list
+    throw RunError(fmt::format(
+        "periodic axis {} is {:.6g} m long, not more than twice the neighbor cutoff plus skin "
+        "{:.6g} m (largest diameter + 2 skins): enlarge the domain or reduce dem.neighbor_skin",
+        a, g.length[a], cutoff + skin));
 
   // Wrap into the periodic box; bin.
   for (std::size_t i = 0; i < n; ++i) {

@@ -27,6 +27,9 @@ public:
   // in memory; the store is permuted and `order()` says how), and build the list.
   // Throws RunError if a periodic length is shorter than twice the cutoff.
   void build(ParticleStore& p, const DomainGeometry& g, double skin, RowKind kind = RowKind::full);
+  // Whether build() takes `skin` for particles of radius up to r_max: every periodic length
+  // above twice the cutoff plus skin, 2 (2 r_max + 2 skin).
+  static bool skin_fits(const DomainGeometry& g, double r_max, double skin, int* axis = nullptr);
 
   // Permutation applied to the store by the last build: new index k = old index order()[k].
   std::span<const std::uint32_t> order() const {

@@ -85,6 +85,7 @@ void IslandsScheme::subiterate(bool record) {
   if (auto_.on) {
     if (!auto_.global_now) { // the islands' fine work, in particles on all K steps
       auto_.fine_sum += st_.last_fine_work;
+      auto_.members_sum += st_.last_fine_fraction;
       ++auto_.fine_count;
     }
     if (++auto_.q == nsubit_)
@@ -139,8 +140,8 @@ IslandsScheme::State IslandsScheme::save_state() {
     const AutoLength& a = auto_;
     s.length_counters = {nsubit_, a.next,       a.intervals,  a.subits_base,
                          a.q,     a.fine_count, a.global_now, a.next_global};
-    s.length_values = {a.t0,       a.fine_sum, a.gas_dA, a.gas_aref, a.gas_ratio_max,
-                       a.fine_avg, a.busy_avg};
+    s.length_values = {a.t0,       a.fine_sum, a.gas_dA,      a.gas_aref,   a.gas_ratio_max,
+                       a.fine_avg, a.busy_avg, a.members_sum, a.members_avg};
     s.length_values.insert(s.length_values.end(), a.hist_avg.begin(), a.hist_avg.end());
     s.length_log = a.log;
   }
@@ -184,7 +185,13 @@ void IslandsScheme::restore_state(State s) {
     auto_.global_now = k.size() > 6 && k[6] != 0, auto_.next_global = k.size() > 7 && k[7] != 0;
     auto_.t0 = v[0], auto_.fine_sum = v[1], auto_.gas_dA = v[2], auto_.gas_aref = v[3];
     auto_.gas_ratio_max = v[4], auto_.fine_avg = v[5], auto_.busy_avg = v[6];
-    auto_.hist_avg.assign(v.begin() + 7, v.end());
+    // The histogram has one entry per count 0 .. m_hi; before the members were measured two
+    // values fewer preceded it (their means start from the nominal ones).
+    const auto hist =
+        static_cast<std::size_t>(length::most_subiterations(auto_.interval, model_.dt) + 1);
+    const bool members = v.size() >= 9 + hist;
+    auto_.members_sum = members ? v[7] : v[1], auto_.members_avg = members ? v[8] : v[5];
+    auto_.hist_avg.assign(v.begin() + (members ? 9 : 7), v.end());
     auto_.log = std::move(s.length_log);
     dt_sp_ = auto_.interval / static_cast<double>(nsubit_);
   }

@@ -83,6 +83,7 @@
 #include "dem/pair_contacts.hpp"
 #include "dem/pair_stream.hpp"
 #include "dem/scheme_support.hpp"
+#include "dem/subiteration_length.hpp"
 #include "dem/verlet_list.hpp"
 #include "partition/contact_islands.hpp"
 
@@ -92,7 +93,7 @@ class IslandsScheme {
 public:
   // Above this fraction of particles linked or tied, a sub-iteration steps everyone finely (over
   // all ranks on R ranks).
-  static constexpr double kGlobalFraction = 0.25;
+  static constexpr double kGlobalFraction = length::kGlobalFraction;
 
   // One rank: the model from these particles.
   IslandsScheme(const Scene& scene, ParticleStore& particles, PhaseTimer& timer);
@@ -241,8 +242,9 @@ public:
     std::vector<std::int64_t> rank_counters;
     std::vector<double> rank_values;
     // dem.nsubit = "auto" (empty otherwise): nsubit, next, intervals, subits_base, q,
-    // fine_count; t0, fine_sum, gas_dA, gas_aref, gas_ratio_max, fine_avg, busy_avg and
-    // hist_avg; the choices' rows.
+    // fine_count; t0, fine_sum, gas_dA, gas_aref, gas_ratio_max, fine_avg, busy_avg,
+    // members_sum, members_avg (not in checkpoints written before the members were measured)
+    // and hist_avg; the choices' rows.
     std::vector<std::int64_t> length_counters;
     std::vector<double> length_values, length_log;
     // One rank: the islands skin and its choice's counters (islands_skin, build_subits,
@@ -329,14 +331,17 @@ private:
     double t0 = 0.0;                      // this interval's start time
     double fine_sum = 0.0;                // fine fractions of the sub-iterations since the
     std::int64_t fine_count = 0;          // last choice, and their number
+    double members_sum = 0.0;             // their fractions of particles in an island
     double gas_dA = 0.0, gas_aref = 0.0;  // the last fluid step's force change, reference
     double gas_ratio_max = 0.0;
     // Running means (length::kSmoothing) of the first-contact histogram, of the fine particles
-    // per sub-iteration and of the first-contact count at the length they were measured at
-    // (fine_avg < 0: none yet).
+    // per sub-iteration (nominal work: every member on every step after its lead), of the
+    // members per sub-iteration and of the first-contact count at the length they were measured
+    // at (fine_avg < 0: none yet).
     std::vector<double> hist_avg;
-    double fine_avg = -1.0, busy_avg = 0.0;
-    std::vector<double> log; // kChoiceColumns rows
+    double fine_avg = -1.0, busy_avg = 0.0, members_avg = 0.0;
+    std::vector<double> own_bound; // scratch: every particle's own bound at the choice
+    std::vector<double> log;       // kChoiceColumns rows
     // The global mode (length::Choice::global) in this interval, and chosen for the next one.
     bool global_now = false, next_global = false;
   };

@@ -77,7 +77,7 @@ const char* reason_text(int r) {
   }
 }
 
-Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
+Choice choose(std::span<const double> hist, double N, double D, double dt_fine, Rho rho,
               std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason,
               double entries, double pairs, bool prev_global) {
   m_lo = std::clamp<std::int64_t>(m_lo, 1, m_hi);
@@ -86,16 +86,34 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
   for (std::int64_t m = m_hi; m >= 1; --m)
     busy[static_cast<std::size_t>(m)] =
         busy[static_cast<std::size_t>(m) + 1] + hist[static_cast<std::size_t>(m)];
+  const double overhead = kPerParticle * N + kPerEntry * entries;
+  auto K_of = [&](std::int64_t m) {
+    return static_cast<double>(fine_steps(D / static_cast<double>(m), dt_fine).K);
+  };
+  // Every particle on the fine steps: through the explicit scheme's passes where the global mode
+  // is a candidate (pairs >= 0), else at the islands' price.
+  const double global_step =
+      pairs >= 0.0 ? (kGlobalPerStep + kGlobalPerPair * pairs) / kGlobalRate : kPerFineStep;
+  // The nominal model (every member on every step after its lead): an upper bound of the
+  // islands' work, against which the global mode is weighed.
+  auto nominal = [&](std::int64_t m) {
+    const double fine = std::min(N, rho.nominal * busy[static_cast<std::size_t>(m)]);
+    return static_cast<double>(m) * (overhead + kPerFineStep * fine * K_of(m));
+  };
+  // The folded model: kFreeSteps per member, the contact steps (the same at every length) left
+  // out; past kSwitchMargin kGlobalFraction of the particles a sub-iteration is priced as one
+  // that steps everyone.
   auto cost = [&](std::int64_t m) {
-    const double dt = D / static_cast<double>(m);
-    const double fine = std::min(N, rho * busy[static_cast<std::size_t>(m)]);
-    const auto K = static_cast<double>(fine_steps(dt, dt_fine).K);
-    return static_cast<double>(m) *
-           (kPerParticle * N + kPerEntry * entries + kPerFineStep * fine * K);
+    const double members = std::min(N, rho.members * busy[static_cast<std::size_t>(m)]);
+    const double mm = static_cast<double>(m);
+    if (members > kSwitchMargin * kGlobalFraction * N)
+      return mm * (overhead + global_step * N * K_of(m));
+    return mm * (overhead + kPerFineStep * kFreeSteps * members);
   };
   Choice c;
-  c.m_lo = m_lo, c.m_hi = m_hi, c.rho = rho;
+  c.m_lo = m_lo, c.m_hi = m_hi, c.rho = rho.members;
   double best = std::numeric_limits<double>::infinity();
+  double nominal_best = std::numeric_limits<double>::infinity();
   std::int64_t free_best = 1;
   double free_cost = std::numeric_limits<double>::infinity();
   for (std::int64_t m = 1; m <= m_hi; ++m) {
@@ -104,29 +122,34 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
       free_cost = q, free_best = m;
     if (m >= m_lo && q < best)
       best = q, c.m = m;
+    if (m >= m_lo)
+      nominal_best = std::min(nominal_best, nominal(m));
   }
   c.reason = free_best < m_lo ? lo_reason : c.m == m_hi && m_hi > 1 ? kFine : kMinCost;
-  // The global mode: every particle on the fine step for the whole interval.
-  const double global_cost = pairs >= 0.0
-                                 ? static_cast<double>(fine_steps(D, dt_fine).K) * N *
-                                       (kGlobalPerStep + kGlobalPerPair * pairs) / kGlobalRate
-                                 : std::numeric_limits<double>::infinity();
-  if (global_cost < best) {
-    best = global_cost;
-    c.m = 1, c.global = true, c.reason = kGlobal;
-  }
+  // The global mode: every particle on the fine step for the whole interval, taken where it
+  // costs less than the islands' nominal work at its best (the fold saves nothing in a dense
+  // gas, where some contact acts in every island at every step).
+  const double global_cost =
+      pairs >= 0.0 ? K_of(1) * N * global_step : std::numeric_limits<double>::infinity();
+  const bool global = global_cost < nominal_best;
   // Hysteresis: the previous m (or mode) is kept unless the best saves kMinGain of its modelled
   // cost (the fine count of a dilute scene is small and noisy; a change for less is not worth a
-  // row).
+  // row). Each comparison within one model.
   const std::int64_t prev = std::clamp<std::int64_t>(m_prev, m_lo, m_hi);
   const bool prev_kept = prev_global || prev == m_prev;
-  const double prev_cost = prev_global ? global_cost : cost(prev);
-  c.cost_ratio = prev_cost > 0.0 ? best / prev_cost : 1.0; // no particles: nothing to gain
+  if (prev_global)
+    c.cost_ratio = global ? 1.0 : nominal_best / global_cost;
+  else if (global)
+    c.cost_ratio = global_cost / nominal(prev);
+  else
+    c.cost_ratio = cost(prev) > 0.0 ? best / cost(prev) : 1.0; // no particles: nothing to gain
+  if (global)
+    c.m = 1, c.global = true, c.reason = kGlobal;
   if (c.cost_ratio > 1.0 - kMinGain && prev_kept) {
     c.m = prev_global ? 1 : prev, c.global = prev_global, c.cost_ratio = 1.0;
     c.reason = kKept;
   }
-  c.busy_estimate = c.global ? N : std::min(N, rho * busy[static_cast<std::size_t>(c.m)]);
+  c.busy_estimate = c.global ? N : std::min(N, rho.members * busy[static_cast<std::size_t>(c.m)]);
   return c;
 }
 

@@ -5,22 +5,34 @@
 // thread count).
 //
 // The cost of an interval in m sub-iterations is modelled in instructions:
-//   C(m) = m [c_o N + c_f rho B(D/m) K(D/m)],
-// N the particles, B(dt) those in an island over a sub-iteration of dt (fine), K(dt) =
-// ceil(dt / dt_fine) their steps, c_o the per-particle bookkeeping of a sub-iteration (speed
-// bound, list check, link scan, free flight), c_f one fine particle step with its pairs. B(dt)
-// is counted from the current state: a particle joins an island over dt when the link test
+//   C(m) = m [c_o N + c_f a rho B(D/m)] + c_f W,
+// N the particles, B(dt) those in an island over a sub-iteration of dt, c_o the per-particle
+// bookkeeping of a sub-iteration (speed bound, list check, link scan, free flight), c_f one fine
+// particle step with its pairs. An island folds the steps before its first contact and after its
+// last one into single steps (islands_kernels.hpp, step_island), so a member costs about a =
+// kFreeSteps steps besides the contact steps W, and W, the steps during which a contact acts in
+// an island, does not depend on the length (on HCS 1222 at m = 3 .. 20, and on a 10% gas at m =
+// 7 .. 25, the measured W changed by 1% and 10%, the nominal steps by 3.7x and 2x): the choice
+// needs only the first bracket. B(dt) is counted from the current state: a particle joins an
+// island over dt when the link test
 //   |x_j - x_i| - (r_i + r_j) < (s_i + s_j) dt + margin
 // holds for some row partner (or its wall gap is below s_i dt + margin), i.e. when dt exceeds
-// its first-contact time tau_i = min_j (gap_ij - margin) / (s_i + s_j); tau_i <= 0 for a
+// its first-contact time tau_i = min_j (gap_ij - margin) / (s_i + s_j) (own speed bounds: a
+// member's raised one differs between rank counts); tau_i <= 0 for a
 // particle in contact. So B(D/m) counts the particles with m < D / tau_i, one histogram over m
 // for every candidate at once (summed over ranks: every rank chooses alike). rho, the ratio of
-// the fine particles measured over the last interval to B at its length, carries what the
-// first-contact count misses (islands raised by their energy bound). The chosen m minimises
-// C(m) over [m_lo, m_hi]: m_hi keeps dt_sp at least the fine step (shorter gains nothing);
-// m_lo keeps the fastest particle's reach 2 s_max dt_sp within half the list's skin (longer
-// sub-iterations would rebuild the list every time, and rows beyond the skin are not counted),
-// and with a gas the held force's change bound (gas_force_floor).
+// the members measured over the last interval to B at its length, carries what the
+// first-contact count misses (islands raised by their energy bound). Where rho B passes
+// kGlobalFraction of the particles, the sub-iteration steps everyone finely: an m whose rho B
+// passes half of it (kSwitchMargin: the members fluctuate) is priced so. The chosen m minimises
+// C(m) over [m_lo, m_hi]: m_hi keeps dt_sp at least the fine step (shorter gains nothing); m_lo
+// keeps the fastest particle's reach 2 s_max dt_sp within half the list's skin (longer
+// sub-iterations would rebuild the list every time, and rows beyond the skin are not counted), and
+// with a gas the held force's change bound (gas_force_floor). The global mode (every particle on
+// the fine step for the whole interval) is weighed against the islands' nominal work, every member
+// on every step after its lead, which is what a dense gas pays, where some contact acts in every
+// island at every step. Every count here is the same on any rank count (members and nominal steps;
+// the steps an R-rank island spanning ranks takes are not).
 #pragma once
 
 #include <cstdint>
@@ -59,6 +71,19 @@ inline constexpr double kGlobalRate = 1.5;
 // With a gas: the held force's change over one sub-iteration, at the rate it changed over the
 // last fluid step, at most this fraction of the largest held acceleration (or |g|).
 inline constexpr double kGasChangeBound = 0.1;
+// Above this fraction of particles linked or tied, a sub-iteration steps everyone finely (the
+// islands scheme's switch, IslandsScheme::kGlobalFraction).
+inline constexpr double kGlobalFraction = 0.25;
+// The steps a member takes besides its island's contact steps: the lead folded into one, the
+// stretch after the last contact folded into one, and the sub-iteration's last fine step
+// (measured: 2.9 per member and sub-iteration on HCS 1222 at nsubit 3 .. 20 and on a 10% gas at
+// 7 .. 25).
+inline constexpr double kFreeSteps = 3.0;
+// The members fluctuate from one sub-iteration to the next, and one in which they pass
+// kGlobalFraction steps every particle finely (on a 10% gas chosen at an expected 23% of the
+// particles, 8 of 150 sub-iterations did, and tripled the force evaluations). The model keeps
+// the expected members below this fraction of the switch.
+inline constexpr double kSwitchMargin = 0.5;
 
 // The rows and columns the first-contact scan reads: rows of particles [0, n) (both directions:
 // each row holds every partner), positions, radii, speed bounds of rows' particles and partners.
@@ -77,10 +102,10 @@ void first_contact_histogram(const RowsView& v, const DomainGeometry& g, double 
 // What the choice saw and why it took its m (one row of run.json's nsubit_choices).
 struct Choice {
   std::int64_t m = 1, m_lo = 1, m_hi = 1;
-  double busy_estimate = 0.0; // rho B(D / m)
-  double rho = 1.0;
-  double cost_ratio = 1.0; // C(m) / C(m_previous): the gain predicted for the change
-  int reason = 0;          // Reason
+  double busy_estimate = 0.0; // rho B(D / m): the members
+  double rho = 1.0;           // Rho::members
+  double cost_ratio = 1.0;    // C(m) / C(m_previous): the gain predicted for the change
+  int reason = 0;             // Reason
   // The global mode for the next interval: one sub-iteration of D (m = 1) in which every
   // particle takes the fine steps, with no speed bounds or links (reason kGlobal, or kKept).
   bool global = false;
@@ -102,17 +127,28 @@ inline constexpr double kSmoothing = 0.125;
 inline constexpr double kMinGain = 0.1;
 const char* reason_text(int r);
 
+// The measured over the modelled fine count: members (particles in an island per
+// sub-iteration) and nominal (member steps after the leads, over K) against B at the length
+// they were measured at.
+struct Rho {
+  double members = 1.0, nominal = 1.0;
+};
 // The least-cost m in [m_lo, m_hi] (the smallest m among equals; m_prev kept unless the best
-// saves kMinGain of its cost) from hist (first_contact_
-// histogram over all particles, or a running mean of it), N particles, D, the fine step, rho, the
-// previous m and which bound set m_lo (kSkin or kGas); entries: the rows' entries the link rounds
-// scan per sub-iteration (row_entries()). The cost of an interval in m sub-iterations:
-//   C(m) = m [kPerParticle N + kPerEntry entries + kPerFineStep rho B(D / m) K(D / m)].
-// With pairs >= 0 (the global mode's list pairs per particle) the global mode is a candidate too:
-//   C_g = K(D) N (kGlobalPerStep + kGlobalPerPair pairs) / kGlobalRate
+// saves kMinGain of its cost) from hist (first_contact_histogram over all particles, or a running
+// mean of it), N particles, D, the fine step, rho, the previous m and which bound set m_lo (kSkin
+// or kGas); entries: the rows' entries the link rounds scan per sub-iteration (row_entries()).
+// The cost of an interval in m sub-iterations, its contact steps left out:
+//   C(m) = m [kPerParticle N + kPerEntry entries + kPerFineStep kFreeSteps rho.members B(D / m)],
+// or, where rho.members B(D / m) > kSwitchMargin kGlobalFraction N, m [kPerParticle N + kPerEntry
+// entries + c_g N K(D / m)] (everyone on the fine steps: c_g as below, or kPerFineStep without
+// pairs). With pairs >= 0 (the global mode's list pairs per particle) the global mode is a
+// candidate too:
+//   C_g = K(D) N c_g, c_g = (kGlobalPerStep + kGlobalPerPair pairs) / kGlobalRate,
+// taken where it costs less than the islands' nominal work at its best,
+//   m [kPerParticle N + kPerEntry entries + kPerFineStep rho.nominal B(D / m) K(D / m)]
 // (a dense gas, where nearly everyone is in an island and the islands' bookkeeping costs more
 // than it saves); prev_global: the previous interval ran in it (it is then the one kept).
-Choice choose(std::span<const double> hist, double N, double D, double dt_fine, double rho,
+Choice choose(std::span<const double> hist, double N, double D, double dt_fine, Rho rho,
               std::int64_t m_lo, std::int64_t m_hi, std::int64_t m_prev, int lo_reason,
               double entries = 0.0, double pairs = -1.0, bool prev_global = false);
 

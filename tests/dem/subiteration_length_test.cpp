@@ -80,11 +80,14 @@ TEST(SubiterationLength, FirstContactHistogramCountsTheLinkTest) {
   }
 }
 
-// First-contact times spread evenly, B(dt) = N dt / T: the cost per interval m (c_o N + c_f N
-// dt / T * dt / dt_f) with dt = D / m is least at m* = D sqrt(c_f / (c_o T dt_f)); the choice
-// must find it (within the rounding of K = ceil(dt / dt_f)), shorter sub-iterations for a shorter
-// T (a denser or hotter gas), and the longest allowed when nothing comes near.
-TEST(SubiterationLength, ChoiceFindsTheModelsOptimum) {
+// First-contact times spread evenly, B(dt) = N dt / T (capped at N). An island folds the steps
+// before and after its contacts, so its members cost kFreeSteps steps each besides the contact
+// steps, and an interval's members' work m B(D / m) kFreeSteps = N D / T kFreeSteps is the same
+// at every m: the least cost is the fewest sub-iterations, down to where the members pass half
+// the global switch (kSwitchMargin kGlobalFraction of the particles; every particle on the fine
+// steps there): m* = ceil(D / (T f)), f = kSwitchMargin kGlobalFraction, the skin's bound when
+// that is higher, and 1 when nothing comes near.
+TEST(SubiterationLength, ChoiceTakesTheFewestSubiterationsBelowTheGlobalSwitch) {
   const double D = 1e-4, dt_f = 1e-7, N = 1e5;
   const std::int64_t m_hi = length::most_subiterations(D, dt_f);
   ASSERT_EQ(m_hi, 1000);
@@ -98,47 +101,59 @@ TEST(SubiterationLength, ChoiceFindsTheModelsOptimum) {
     }
     return h;
   };
-  std::int64_t m_before = 0;
-  for (const double T : {2e-2, 2e-3, 2e-4}) { // m* = 3.9, 12.5, 39.4
-    const double m_star = D * std::sqrt(length::kPerFineStep / (length::kPerParticle * T * dt_f));
-    const length::Choice c = length::choose(spread(T), N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin);
-    EXPECT_NEAR(static_cast<double>(c.m), m_star, 0.1 * m_star + 1.0) << "T = " << T;
+  const length::Rho one{};
+  const double f = length::kSwitchMargin * length::kGlobalFraction;
+  for (const double T : {1e-3, 1.3e-4, 0.9e-5}) { // m* = 1, 7, 89
+    const auto m_star =
+        static_cast<std::int64_t>(std::max(1.0, std::ceil(D / (T * f) * (1.0 - 1e-12))));
+    const length::Choice c =
+        length::choose(spread(T), N, D, dt_f, one, 1, m_hi, m_hi, length::kSkin);
+    EXPECT_EQ(c.m, m_star) << "T = " << T;
     EXPECT_EQ(c.reason, length::kMinCost);
-    EXPECT_GT(c.m, m_before); // shorter T: shorter sub-iterations
-    m_before = c.m;
+    EXPECT_FALSE(c.global);
+    // The skin's bound above it sets the count.
+    const length::Choice skin =
+        length::choose(spread(T), N, D, dt_f, one, m_star + 2, m_hi, 1, length::kSkin);
+    EXPECT_EQ(skin.m, m_star + 2);
+    EXPECT_EQ(skin.reason, length::kSkin);
   }
   std::vector<double> none(static_cast<std::size_t>(m_hi) + 1, 0.0);
-  EXPECT_EQ(length::choose(none, N, D, dt_f, 1.0, 3, m_hi, 10, length::kSkin).m, 3);
+  EXPECT_EQ(length::choose(none, N, D, dt_f, one, 3, m_hi, 10, length::kSkin).m, 3);
+  EXPECT_EQ(length::choose(none, N, D, dt_f, one, 1, m_hi, 10, length::kSkin).m, 1);
   // Next to the optimum the previous count is kept (the best saves less than kMinGain); far
-  // from it the count changes.
-  const length::Choice kept = length::choose(spread(2e-3), N, D, dt_f, 1.0, 1, m_hi, 14, 0);
-  EXPECT_EQ(kept.m, 14);
+  // from it the count changes. T = 1.1e-4: m* = 8; per interval the members' work is kFreeSteps
+  // kPerFineStep N D / T against kPerParticle N per sub-iteration.
+  const double T = 1.1e-4, work = length::kFreeSteps * length::kPerFineStep * N * D / T;
+  auto C = [&](double m) { return m * length::kPerParticle * N + work; };
+  ASSERT_GT(C(8) / C(9), 1.0 - length::kMinGain);
+  const length::Choice kept = length::choose(spread(T), N, D, dt_f, one, 1, m_hi, 9, 0);
+  EXPECT_EQ(kept.m, 9);
   EXPECT_EQ(kept.reason, length::kKept);
-  const length::Choice moved = length::choose(spread(2e-3), N, D, dt_f, 1.0, 1, m_hi, 40, 0);
-  EXPECT_NEAR(static_cast<double>(moved.m), 12.5, 2.5);
-  EXPECT_LT(moved.cost_ratio, 1.0 - length::kMinGain);
-  // rho scales the fine count: 4x the fine particles move the optimum by sqrt(4).
-  const length::Choice more = length::choose(spread(2e-3), N, D, dt_f, 4.0, 1, m_hi, 1, 0);
-  EXPECT_NEAR(static_cast<double>(more.m), 25.0, 3.5);
+  const length::Choice moved = length::choose(spread(T), N, D, dt_f, one, 1, m_hi, 14, 0);
+  EXPECT_EQ(moved.m, 8);
+  EXPECT_NEAR(moved.cost_ratio, C(8) / C(14), 1e-9);
+  // rho scales the members: 4x the members pass the switch at 4x the count (29.1: 30).
+  const length::Choice more = length::choose(spread(T), N, D, dt_f, {4.0, 1.0}, 1, m_hi, 1, 0);
+  EXPECT_EQ(more.m, 30);
 }
 
-// The rows' entries price each sub-iteration too: with entries whose link cost is three times
-// the per-particle cost, the overhead per sub-iteration is 4x and the optimum
-// m* = D sqrt(c_f / (c_o T dt_f)) halves. row_entries is N^2 / V (4/3) pi (2 r + s)^3.
+// The rows' entries price each sub-iteration too. 12% of the particles turn members for m < 2
+// (first-contact time between D / 2 and D): one sub-iteration costs the overhead O plus their
+// kFreeSteps steps, 840 x 0.12 N = 100.8 N, two cost 2 O. Without entries (O = 90 N) the second
+// sub-iteration pays; with entries that make O four times as dear it does not.
+// row_entries is N^2 / V (4/3) pi (2 r + s)^3.
 TEST(SubiterationLength, RowEntriesPriceEachSubiteration) {
-  const double D = 1e-4, dt_f = 1e-7, N = 1e5, T = 2e-4;
+  const double D = 1e-4, dt_f = 1e-7, N = 1e5;
   const std::int64_t m_hi = length::most_subiterations(D, dt_f);
   std::vector<double> h(static_cast<std::size_t>(m_hi) + 1, 0.0);
-  for (std::int64_t m = 1; m <= m_hi; ++m) {
-    const double b = std::min(N, N * D / (static_cast<double>(m) * T));
-    const double b_next = std::min(N, N * D / (static_cast<double>(m + 1) * T));
-    h[static_cast<std::size_t>(m)] = m == m_hi ? b : b - b_next;
-  }
+  h[1] = 0.12 * N;
   const double entries = 3.0 * length::kPerParticle * N / length::kPerEntry;
-  const length::Choice plain = length::choose(h, N, D, dt_f, 1.0, 1, m_hi, 1, 0);
-  const length::Choice priced = length::choose(h, N, D, dt_f, 1.0, 1, m_hi, 1, 0, entries);
-  EXPECT_NEAR(static_cast<double>(priced.m), 0.5 * static_cast<double>(plain.m),
-              0.1 * static_cast<double>(plain.m) + 1.0);
+  ASSERT_LT(0.12, length::kSwitchMargin * length::kGlobalFraction);
+  const length::Choice plain = length::choose(h, N, D, dt_f, {}, 1, m_hi, 3, 0);
+  const length::Choice priced = length::choose(h, N, D, dt_f, {}, 1, m_hi, 3, 0, entries);
+  EXPECT_EQ(plain.m, 2);
+  EXPECT_NEAR(plain.cost_ratio, 2.0 / 3.0, 1e-9);
+  EXPECT_EQ(priced.m, 1);
   // 600 spheres of 50 um in a 1 mm box with a 75 um skin: 13.5 partners each (measured 12.5).
   EXPECT_NEAR(length::row_entries(600, 1e-9, 50e-6, 75e-6) / 600.0,
               600.0 / 1e-9 * 4.0 / 3.0 * std::numbers::pi * std::pow(175e-6, 3), 1e-9);
@@ -161,10 +176,10 @@ TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
   // kPerFineStep per particle step; the global mode prices the same steps at (38 + 34 x 2.45) /
   // 1.5.
   const length::Choice isl =
-      length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries);
+      length::choose(dense, N, D, dt_f, {}, 1, m_hi, 1, length::kSkin, entries);
   EXPECT_FALSE(isl.global);
   const length::Choice g =
-      length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries, pairs);
+      length::choose(dense, N, D, dt_f, {}, 1, m_hi, 1, length::kSkin, entries, pairs);
   EXPECT_TRUE(g.global);
   EXPECT_EQ(g.m, 1);
   EXPECT_EQ(g.reason, length::kGlobal);
@@ -175,7 +190,7 @@ TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
               1e-9);
   // Kept while in it: the islands' best at m = 1 is dearer.
   const length::Choice kept =
-      length::choose(dense, N, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, entries, pairs, true);
+      length::choose(dense, N, D, dt_f, {}, 1, m_hi, 1, length::kSkin, entries, pairs, true);
   EXPECT_TRUE(kept.global);
   EXPECT_EQ(kept.reason, length::kKept);
   // A dilute gas (the spread of ChoiceFindsTheModelsOptimum, N = 1e5, T = 2e-3): the islands
@@ -188,7 +203,7 @@ TEST(SubiterationLength, ChoiceTakesTheGlobalModeWhereIslandsCostMore) {
     spread[static_cast<std::size_t>(m)] = m == m_hi ? b : b - b_next;
   }
   const length::Choice left =
-      length::choose(spread, Nd, D, dt_f, 1.0, 1, m_hi, 1, length::kSkin, 0.0, 0.078, true);
+      length::choose(spread, Nd, D, dt_f, {}, 1, m_hi, 1, length::kSkin, 0.0, 0.078, true);
   EXPECT_FALSE(left.global);
   EXPECT_EQ(left.reason, length::kMinCost);
   EXPECT_LT(left.cost_ratio, 0.2);
@@ -305,10 +320,12 @@ double mean_tail(const std::vector<std::int64_t>& v, std::size_t from) {
 
 } // namespace
 
-// The same gas at 1% and 8% solids: collisions come eight times as often in the denser one, so
-// the count that balances the per-sub-iteration bookkeeping against the fine steps is about
-// sqrt(8) = 2.8 times larger (ChoiceFindsTheModelsOptimum); the choice must follow by at least
-// 1.5x, every run without a bound violation.
+// The same gas at 1% and 8% solids. In the dilute one the members' work per interval is the
+// same at every length (ChoiceTakesTheFewestSubiterationsBelowTheGlobalSwitch), so the choice
+// is the fewest sub-iterations the skin allows (2 here); in the denser one eight times as many
+// particles come within reach, and the longest sub-iteration whose members stay below half the
+// global switch is shorter (6-7 here). The choice must follow by at least 2x, every run without
+// a bound violation.
 TEST(SubiterationLength, DenserGasTakesShorterSubiterations) {
   const AutoRun dilute = run_auto(demtest::scene_from(kAutoGas), 30);
   const AutoRun dense =
@@ -316,11 +333,8 @@ TEST(SubiterationLength, DenserGasTakesShorterSubiterations) {
   EXPECT_EQ(dilute.violations, 0);
   EXPECT_EQ(dense.violations, 0);
   const double m_dilute = mean_tail(dilute.counts, 10), m_dense = mean_tail(dense.counts, 10);
-  // Denser: more particles within reach per sub-iteration, so shorter ones. The link rounds'
-  // cost per sub-iteration grows with the density too (kPerEntry: the rows' entries grow as
-  // N^2 / V), which pulls the optimum back: 14 against 11 sub-iterations per interval (1.27x;
-  // 1.5x before the model priced the rows).
-  EXPECT_GT(m_dense, 1.2 * m_dilute) << "dilute " << m_dilute << ", dense " << m_dense;
+  // Denser: more particles within reach per sub-iteration, so shorter ones.
+  EXPECT_GT(m_dense, 2.0 * m_dilute) << "dilute " << m_dilute << ", dense " << m_dense;
   // Each choice is logged: the start row and at least one change.
   const std::size_t row = dem::IslandsScheme::kChoiceColumns.size();
   EXPECT_GE(dense.choices.size(), 2 * row);

@@ -125,6 +125,16 @@ enum Reason : int {
 inline constexpr double kSmoothing = 0.125;
 // The modelled saving below which the previous m is kept.
 inline constexpr double kMinGain = 0.1;
+// The choice (its first-contact histogram walks every row: on HCS 1222 about 1.7 sub-iterations'
+// bookkeeping) is made at the end of an interval once about this many sub-iterations have passed
+// since the last: at every interval for m >= kChoiceSpacing (and in the global mode), else every
+// ceil(kChoiceSpacing / m) intervals. The running means then count about 8 choices.
+inline constexpr std::int64_t kChoiceSpacing = 8;
+// Whether the interval numbered `intervals` (from 1) in m sub-iterations ends with a choice.
+inline bool chooses_after(std::int64_t intervals, std::int64_t m, bool global) {
+  const std::int64_t every = global || m >= kChoiceSpacing ? 1 : (kChoiceSpacing + m - 1) / m;
+  return intervals % every == 0;
+}
 const char* reason_text(int r);
 
 // The measured over the modelled fine count: members (particles in an island per

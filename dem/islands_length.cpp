@@ -76,60 +76,74 @@ void IslandsScheme::choose_length() {
   const double D = auto_.interval;
   const std::int64_t m_hi = length::most_subiterations(D, model_.dt);
   std::vector<std::int64_t> hist(static_cast<std::size_t>(m_hi) + 1, 0);
+  // The histogram once about kChoiceSpacing sub-iterations have passed (and at the first choice);
+  // the same on every rank.
+  const bool count = length::counts_after(auto_.intervals, nsubit_, auto_.global_now) ||
+                     auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size();
   double s_max = 0.0;
   if (auto_.global_now && !rank_)
     speed_bounds(); // the global mode's sub-iterations make none
-  // Every particle's own bound: a member's raised one differs between rank counts (an island
-  // spanning ranks is raised to one bound for all spanning islands), and the choice must not.
-  std::vector<double>& own = auto_.own_bound;
-  own.assign(p_.size(), 0.0);
-  if (ln_.bound.size() >= p_.size())
+  // The skin's bound from every particle's own speed bound: a member's raised one differs
+  // between rank counts (an island spanning ranks is raised to one bound for all spanning
+  // islands), and the fewest sub-iterations the skin allows is where a dilute gas's choice lies.
+  // The histogram takes the bounds the links take (raised: in a settling bed they link 4-16x the
+  // particles own bounds would).
+  const bool bounds = ln_.bound.size() >= p_.size();
+  if (bounds)
     for (std::size_t i = 0; i < owned_; ++i)
-      own[i] = i < ln_.own_stamp.size() && ln_.own_stamp[i] == ln_.stamp ? ln_.own_bound[i]
-                                                                         : ln_.bound[i];
-  length::RowsView v{{},         {},    p_.x.data(), p_.y.data(), p_.z.data(), p_.radius.data(),
-                     own.data(), owned_};
-  if (rank_) {
-    // The ghosts at their owners' positions now, as one rank sees them, with their own bounds
-    // (one message round per interval; the next sub-iteration forwards them again).
-    std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z, &own};
-    rank_->exchange.forward_columns(cols);
-    v.x = p_.x.data(), v.y = p_.y.data(), v.z = p_.z.data(), v.bound = own.data();
-    v.offsets = rank_->rows.off(), v.neighbors = rank_->rows.nb();
-  } else if (one_.built)
-    v.offsets = one_.list.offsets(), v.neighbors = one_.list.neighbors();
-  if (ln_.bound.size() >= p_.size() && v.offsets.size() == owned_ + 1) {
-    length::first_contact_histogram(v, geom_, margin_, D, m_hi, hist);
-    for (std::size_t i = 0; i < owned_; ++i)
-      s_max = std::max(s_max, own[i]);
+      s_max = std::max(s_max, i < ln_.own_stamp.size() && ln_.own_stamp[i] == ln_.stamp
+                                  ? ln_.own_bound[i]
+                                  : ln_.bound[i]);
+  if (count) {
+    length::RowsView v{{},      {},    p_.x.data(), p_.y.data(), p_.z.data(), p_.radius.data(),
+                       nullptr, owned_};
+    if (rank_) {
+      // The ghosts at their owners' positions now, as one rank sees them (one message round; the
+      // next sub-iteration forwards them again).
+      std::vector<double>* cols[] = {&p_.x, &p_.y, &p_.z};
+      rank_->exchange.forward_columns(cols);
+      v.x = p_.x.data(), v.y = p_.y.data(), v.z = p_.z.data();
+      v.offsets = rank_->rows.off(), v.neighbors = rank_->rows.nb();
+    } else if (one_.built)
+      v.offsets = one_.list.offsets(), v.neighbors = one_.list.neighbors();
+    v.bound = ln_.bound.data();
+    if (bounds && v.offsets.size() == owned_ + 1)
+      length::first_contact_histogram(v, geom_, margin_, D, m_hi, hist);
+    if (rank_)
+      rank_->comm.sum(std::span<std::int64_t>(hist));
   }
-  if (rank_) {
-    rank_->comm.sum(std::span<std::int64_t>(hist));
+  if (rank_)
     s_max = rank_->comm.max(s_max);
-  }
   const double N = static_cast<double>(n_global_);
   double busy_now = 0.0;
   for (std::int64_t c = std::min(nsubit_, m_hi); c <= m_hi; ++c)
-    busy_now += static_cast<double>(hist[static_cast<std::size_t>(c)]);
+    busy_now += count ? static_cast<double>(hist[static_cast<std::size_t>(c)])
+                      : auto_.hist_avg[static_cast<std::size_t>(c)];
+  const bool measured = auto_.fine_count > 0;
   const auto per_subit = [&](double sum) {
-    return auto_.fine_count > 0 ? sum / static_cast<double>(auto_.fine_count) * N : busy_now;
+    return measured ? sum / static_cast<double>(auto_.fine_count) * N : busy_now;
   };
   const double fine_now = per_subit(auto_.fine_sum), members_now = per_subit(auto_.members_sum);
+  // Running means that follow a rise at once (a bed settling into contact within a few
+  // intervals) and a fall over about 1 / kSmoothing choices.
   const double w = length::kSmoothing;
+  auto follow = [&](double& avg, double now) { avg = std::max(now, avg + w * (now - avg)); };
   if (auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size()) {
     auto_.hist_avg.assign(hist.begin(), hist.end());
     auto_.fine_avg = fine_now, auto_.busy_avg = busy_now, auto_.members_avg = members_now;
   } else {
-    for (std::size_t c = 0; c < hist.size(); ++c)
-      auto_.hist_avg[c] += w * (static_cast<double>(hist[c]) - auto_.hist_avg[c]);
-    auto_.fine_avg += w * (fine_now - auto_.fine_avg);
-    auto_.busy_avg += w * (busy_now - auto_.busy_avg);
-    auto_.members_avg += w * (members_now - auto_.members_avg);
+    if (count)
+      for (std::size_t c = 0; c < hist.size(); ++c)
+        auto_.hist_avg[c] += w * (static_cast<double>(hist[c]) - auto_.hist_avg[c]);
+    follow(auto_.fine_avg, fine_now);
+    follow(auto_.busy_avg, busy_now);
+    follow(auto_.members_avg, members_now);
   }
-  const auto ratio = [&](double measured) {
-    return std::clamp((measured + 1.0) / (auto_.busy_avg + 1.0), 0.25, 4.0);
+  const auto ratio = [&](double q) {
+    return std::clamp((q + 1.0) / (auto_.busy_avg + 1.0), 1.0 / 64.0, 64.0);
   };
-  const length::Rho rho{ratio(auto_.members_avg), ratio(auto_.fine_avg)};
+  const length::Rho rho{ratio(auto_.members_avg), ratio(auto_.fine_avg),
+                        measured ? members_now : 0.0, measured ? nsubit_ : 0};
   // The starting islands skin, not the one chosen since on one rank (choose_skin): R ranks keep
   // theirs, and every rank count must take the same length. A chosen skin shorter than a length
   // needs grows at its first expiry.

@@ -88,7 +88,7 @@ void IslandsScheme::subiterate(bool record) {
       auto_.members_sum += st_.last_fine_fraction;
       ++auto_.fine_count;
     }
-    if (++auto_.q == nsubit_ && length::chooses_after(auto_.intervals, nsubit_, auto_.global_now))
+    if (++auto_.q == nsubit_)
       choose_length(); // the interval's last sub-iteration
   }
 }

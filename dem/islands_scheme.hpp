@@ -340,7 +340,6 @@ private:
     // at (fine_avg < 0: none yet).
     std::vector<double> hist_avg;
     double fine_avg = -1.0, busy_avg = 0.0, members_avg = 0.0;
-    std::vector<double> own_bound; // scratch: every particle's own bound at the choice
     std::vector<double> log;       // kChoiceColumns rows
     // The global mode (length::Choice::global) in this interval, and chosen for the next one.
     bool global_now = false, next_global = false;

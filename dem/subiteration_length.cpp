@@ -135,10 +135,20 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
   // The folded model: kFreeSteps per member, the contact steps (the same at every length) left
   // out; past kSwitchMargin kGlobalFraction of the particles a sub-iteration is priced as one
   // that steps everyone.
+  const double cliff = kSwitchMargin * kGlobalFraction * N;
+  const bool measured_past = rho.at > 0 && rho.measured > cliff;
+  auto members_of = [&](std::int64_t m) {
+    double b = rho.members * busy[static_cast<std::size_t>(m)];
+    if (measured_past)
+      b = m <= rho.at
+              ? N
+              : std::max(b, rho.measured * static_cast<double>(rho.at) / static_cast<double>(m));
+    return std::min(N, b);
+  };
   auto cost = [&](std::int64_t m) {
-    const double members = std::min(N, rho.members * busy[static_cast<std::size_t>(m)]);
+    const double members = members_of(m);
     const double mm = static_cast<double>(m);
-    if (members > kSwitchMargin * kGlobalFraction * N)
+    if (members > cliff)
       return mm * (overhead + global_step * N * K_of(m));
     return mm * (overhead + kPerFineStep * kFreeSteps * members);
   };
@@ -181,7 +191,7 @@ Choice choose(std::span<const double> hist, double N, double D, double dt_fine, 
     c.m = prev_global ? 1 : prev, c.global = prev_global, c.cost_ratio = 1.0;
     c.reason = kKept;
   }
-  c.busy_estimate = c.global ? N : std::min(N, rho.members * busy[static_cast<std::size_t>(c.m)]);
+  c.busy_estimate = c.global ? N : members_of(c.m);
   return c;
 }
 

@@ -17,22 +17,22 @@
 // island over dt when the link test
 //   |x_j - x_i| - (r_i + r_j) < (s_i + s_j) dt + margin
 // holds for some row partner (or its wall gap is below s_i dt + margin), i.e. when dt exceeds
-// its first-contact time tau_i = min_j (gap_ij - margin) / (s_i + s_j) (own speed bounds: a
-// member's raised one differs between rank counts); tau_i <= 0 for a
-// particle in contact. So B(D/m) counts the particles with m < D / tau_i, one histogram over m
-// for every candidate at once (summed over ranks: every rank chooses alike). rho, the ratio of
-// the members measured over the last interval to B at its length, carries what the
-// first-contact count misses (islands raised by their energy bound). Where rho B passes
-// kGlobalFraction of the particles, the sub-iteration steps everyone finely: an m whose rho B
-// passes half of it (kSwitchMargin: the members fluctuate) is priced so. The chosen m minimises
-// C(m) over [m_lo, m_hi]: m_hi keeps dt_sp at least the fine step (shorter gains nothing); m_lo
-// keeps the fastest particle's reach 2 s_max dt_sp within half the list's skin (longer
-// sub-iterations would rebuild the list every time, and rows beyond the skin are not counted), and
-// with a gas the held force's change bound (gas_force_floor). The global mode (every particle on
-// the fine step for the whole interval) is weighed against the islands' nominal work, every member
-// on every step after its lead, which is what a dense gas pays, where some contact acts in every
-// island at every step. Every count here is the same on any rank count (members and nominal steps;
-// the steps an R-rank island spanning ranks takes are not).
+// its first-contact time tau_i = min_j (gap_ij - margin) / (s_i + s_j) (the bounds the links
+// took); tau_i <= 0 for a particle in contact. So B(D/m) counts the particles with m < D / tau_i,
+// one histogram over m for every candidate at once (summed over ranks: every rank chooses alike).
+// rho, the ratio of the members measured over the last interval to B at its length (clamped to
+// [1/64, 64]), carries what the first-contact count misses (islands raised by their energy bound,
+// which grows with the length). Where rho B passes kGlobalFraction of the particles, the
+// sub-iteration steps everyone finely: an m whose rho B passes half of it (kSwitchMargin: the
+// members fluctuate) is priced so. The chosen m minimises C(m) over [m_lo, m_hi]: m_hi keeps dt_sp
+// at least the fine step (shorter gains nothing); m_lo keeps the fastest particle's reach 2 s_max
+// dt_sp within half the list's skin (longer sub-iterations would rebuild the list every time, and
+// rows beyond the skin are not counted), and with a gas the held force's change bound
+// (gas_force_floor). The global mode (every particle on the fine step for the whole interval) is
+// weighed against the islands' nominal work, every member on every step after its lead, which is
+// what a dense gas pays, where some contact acts in every island at every step. Every count here is
+// the same on any rank count (members and nominal steps; the steps an R-rank island spanning ranks
+// takes are not).
 #pragma once
 
 #include <cstdint>
@@ -125,13 +125,14 @@ enum Reason : int {
 inline constexpr double kSmoothing = 0.125;
 // The modelled saving below which the previous m is kept.
 inline constexpr double kMinGain = 0.1;
-// The choice (its first-contact histogram walks every row: on HCS 1222 about 1.7 sub-iterations'
-// bookkeeping) is made at the end of an interval once about this many sub-iterations have passed
-// since the last: at every interval for m >= kChoiceSpacing (and in the global mode), else every
-// ceil(kChoiceSpacing / m) intervals. The running means then count about 8 choices.
+// The first-contact histogram walks every row (on HCS 1222 about 1.7 sub-iterations'
+// bookkeeping): it is counted at the end of an interval once about this many sub-iterations have
+// passed since the last count: at every interval for m >= kChoiceSpacing (and in the global
+// mode), else every ceil(kChoiceSpacing / m) intervals; the choices in between use its running
+// mean and the members measured since.
 inline constexpr std::int64_t kChoiceSpacing = 8;
-// Whether the interval numbered `intervals` (from 1) in m sub-iterations ends with a choice.
-inline bool chooses_after(std::int64_t intervals, std::int64_t m, bool global) {
+// Whether the interval numbered `intervals` (from 1) in m sub-iterations ends with a count.
+inline bool counts_after(std::int64_t intervals, std::int64_t m, bool global) {
   const std::int64_t every = global || m >= kChoiceSpacing ? 1 : (kChoiceSpacing + m - 1) / m;
   return intervals % every == 0;
 }
@@ -142,6 +143,14 @@ const char* reason_text(int r);
 // they were measured at.
 struct Rho {
   double members = 1.0, nominal = 1.0;
+  // The members measured per sub-iteration over the last interval, at `at` sub-iterations per
+  // interval (0: none). Any m is expected to hold at least measured x at / m of them (in
+  // proportion to its length, as in a dilute gas), and where they passed the margin below the
+  // global switch every m <= at is priced as stepping everyone (members never fall with a longer
+  // sub-iteration, and the first-contact count can miss an island's growth by far: a settling
+  // bed whose particles were apart a moment ago).
+  double measured = 0.0;
+  std::int64_t at = 0;
 };
 // The least-cost m in [m_lo, m_hi] (the smallest m among equals; m_prev kept unless the best
 // saves kMinGain of its cost) from hist (first_contact_histogram over all particles, or a running

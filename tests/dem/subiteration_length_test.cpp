@@ -137,6 +137,26 @@ TEST(SubiterationLength, ChoiceTakesTheFewestSubiterationsBelowTheGlobalSwitch) 
   EXPECT_EQ(more.m, 30);
 }
 
+// The members measured over the last interval bound the estimate from below where the
+// first-contact count sees nobody (a settling bed: particles apart at the interval's end, linked
+// through their raised bounds during it): 30% of the particles at m = 1 put m = 1 past the
+// switch, and m holds at least 0.3 N / m, below the margin's eighth from m = 3 on.
+TEST(SubiterationLength, MeasuredMembersHoldTheLengthBack) {
+  const double D = 1e-4, dt_f = 1e-7, N = 1e4;
+  const std::int64_t m_hi = length::most_subiterations(D, dt_f);
+  std::vector<double> none(static_cast<std::size_t>(m_hi) + 1, 0.0);
+  const length::Choice blind = length::choose(none, N, D, dt_f, {}, 1, m_hi, 5, length::kSkin);
+  EXPECT_EQ(blind.m, 1);
+  length::Rho rho;
+  rho.measured = 0.3 * N, rho.at = 1;
+  const length::Choice held = length::choose(none, N, D, dt_f, rho, 1, m_hi, 5, length::kSkin);
+  EXPECT_EQ(held.m, 3);
+  EXPECT_NEAR(held.busy_estimate, 0.1 * N, 1e-9 * N);
+  // Below the margin the measured count only scales: 10% at m = 1 allows m = 1.
+  rho.measured = 0.1 * N;
+  EXPECT_EQ(length::choose(none, N, D, dt_f, rho, 1, m_hi, 5, length::kSkin).m, 1);
+}
+
 // The rows' entries price each sub-iteration too. 12% of the particles turn members for m < 2
 // (first-contact time between D / 2 and D): one sub-iteration costs the overhead O plus their
 // kFreeSteps steps, 840 x 0.12 N = 100.8 N, two cost 2 O. Without entries (O = 90 N) the second

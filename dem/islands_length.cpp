@@ -88,10 +88,13 @@ void IslandsScheme::choose_length() {
   // islands), and the fewest sub-iterations the skin allows is where a dilute gas's choice lies.
   // The histogram takes the bounds the links take (raised: in a settling bed they link 4-16x the
   // particles own bounds would).
+  // (In the global mode no link round ran: ln_.bound holds the own bounds just made, and the
+  // saved ones are stale.)
   const bool bounds = ln_.bound.size() >= p_.size();
+  const bool saved = !auto_.global_now;
   if (bounds)
     for (std::size_t i = 0; i < owned_; ++i)
-      s_max = std::max(s_max, i < ln_.own_stamp.size() && ln_.own_stamp[i] == ln_.stamp
+      s_max = std::max(s_max, saved && i < ln_.own_stamp.size() && ln_.own_stamp[i] == ln_.stamp
                                   ? ln_.own_bound[i]
                                   : ln_.bound[i]);
   if (count) {

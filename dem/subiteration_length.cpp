@@ -25,14 +25,8 @@ std::int64_t fine_candidates(double tau, double D, std::int64_t m_hi) {
 
 } // namespace
 
-namespace {
-
-// The histogram's pass over rows [0, v.n); Walls: some axis is not periodic. The geometry is read
-// into locals once (through the reference it would be reloaded for every entry: the stores to the
-// histogram could alias it).
-template <bool Walls>
-void histogram_pass(const RowsView& v, const DomainGeometry& g, double margin, double D,
-                    std::int64_t m_hi, std::span<std::int64_t> hist) {
+void first_contact_histogram(const RowsView& v, const DomainGeometry& g, double margin, double D,
+                             std::int64_t m_hi, std::span<std::int64_t> hist) {
   const std::uint32_t* off = v.offsets.data();
   const std::uint32_t* nb = v.neighbors.data();
   const double* x = v.x;
@@ -40,24 +34,17 @@ void histogram_pass(const RowsView& v, const DomainGeometry& g, double margin, d
   const double* z = v.z;
   const double* bound = v.bound;
   const double* radius = v.radius;
-  // Per axis: the length and half of a periodic one; zero length on a walled axis (no shift).
-  double L[3], H[3];
-  for (int a = 0; a < 3; ++a)
-    L[a] = g.periodic[a] ? g.length[a] : 0.0, H[a] = g.periodic[a] ? g.half[a] : 0.0;
-  // The nearest image along an axis (DomainGeometry::image; with L = 0 it returns dx: dx > 0 and
-  // dx < -0 cannot both hold, and 0 x 0 = 0).
-  auto image = [](double dx, double l, double h) {
-    return dx - (static_cast<double>(dx > h) - static_cast<double>(dx < -h)) * l;
-  };
-  const double lo[3] = {g.lo[0], g.lo[1], g.lo[2]}, hi[3] = {g.hi[0], g.hi[1], g.hi[2]};
-  const bool walled[3] = {!g.periodic[0], !g.periodic[1], !g.periodic[2]};
+  // A local copy of the geometry: through the reference it would be reloaded for every entry
+  // (the stores to the histogram could alias it).
+  const DomainGeometry geo = g;
+  const bool walls = !(geo.periodic[0] && geo.periodic[1] && geo.periodic[2]);
   for (std::size_t i = 0; i < v.n; ++i) {
     const double si = bound[i], ri = radius[i], xi = x[i], yi = y[i], zi = z[i];
     double tau = std::numeric_limits<double>::infinity();
     for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
       const std::uint32_t j = nb[k];
-      const double dx = image(x[j] - xi, L[0], H[0]), dy = image(y[j] - yi, L[1], H[1]),
-                   dz = image(z[j] - zi, L[2], H[2]);
+      const double dx = geo.image(x[j] - xi, 0), dy = geo.image(y[j] - yi, 1),
+                   dz = geo.image(z[j] - zi, 2);
       const double d2 = dx * dx + dy * dy + dz * dz;
       // Pairs that cannot link even over D: no sqrt.
       if (!islands::may_touch(d2, si, bound[j], ri, radius[j], D, margin))
@@ -65,27 +52,18 @@ void histogram_pass(const RowsView& v, const DomainGeometry& g, double margin, d
       const double gap = std::sqrt(d2) - ri - radius[j] - margin;
       tau = std::min(tau, islands::closing_time(gap, si + bound[j]));
     }
-    if constexpr (Walls) {
+    if (walls) {
       const double pos[3] = {xi, yi, zi};
       for (int a = 0; a < 3; ++a)
-        if (walled[a])
-          tau = std::min(
-              tau, islands::closing_time(islands::wall_gap(pos[a], lo[a], hi[a], ri) - margin, si));
+        if (!geo.periodic[a])
+          tau =
+              std::min(tau, islands::closing_time(
+                                islands::wall_gap(pos[a], geo.lo[a], geo.hi[a], ri) - margin, si));
     }
     const std::int64_t c = fine_candidates(tau, D, m_hi);
     if (c > 0)
       ++hist[static_cast<std::size_t>(c)];
   }
-}
-
-} // namespace
-
-void first_contact_histogram(const RowsView& v, const DomainGeometry& g, double margin, double D,
-                             std::int64_t m_hi, std::span<std::int64_t> hist) {
-  if (g.periodic[0] && g.periodic[1] && g.periodic[2])
-    histogram_pass<false>(v, g, margin, D, m_hi, hist);
-  else
-    histogram_pass<true>(v, g, margin, D, m_hi, hist);
 }
 
 const char* reason_text(int r) {

@@ -76,10 +76,11 @@ void IslandsScheme::choose_length() {
   const double D = auto_.interval;
   const std::int64_t m_hi = length::most_subiterations(D, model_.dt);
   std::vector<std::int64_t> hist(static_cast<std::size_t>(m_hi) + 1, 0);
+  // No running means yet: the first choice (or a histogram of another length).
+  const bool first = auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size();
   // The histogram once about kChoiceSpacing sub-iterations have passed (and at the first choice);
   // the same on every rank.
-  const bool count = length::counts_after(auto_.intervals, nsubit_, auto_.global_now) ||
-                     auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size();
+  const bool count = first || length::counts_after(auto_.intervals, nsubit_, auto_.global_now);
   double s_max = 0.0;
   if (auto_.global_now && !rank_)
     speed_bounds(); // the global mode's sub-iterations make none
@@ -131,7 +132,7 @@ void IslandsScheme::choose_length() {
   // intervals) and a fall over about 1 / kSmoothing choices.
   const double w = length::kSmoothing;
   auto follow = [&](double& avg, double now) { avg = std::max(now, avg + w * (now - avg)); };
-  if (auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size()) {
+  if (first) {
     auto_.hist_avg.assign(hist.begin(), hist.end());
     auto_.fine_avg = fine_now, auto_.busy_avg = busy_now, auto_.members_avg = members_now;
   } else {

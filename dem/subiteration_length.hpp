@@ -144,11 +144,11 @@ const char* reason_text(int r);
 struct Rho {
   double members = 1.0, nominal = 1.0;
   // The members measured per sub-iteration over the last interval, at `at` sub-iterations per
-  // interval (0: none). Any m is expected to hold at least measured x at / m of them (in
-  // proportion to its length, as in a dilute gas), and where they passed the margin below the
-  // global switch every m <= at is priced as stepping everyone (members never fall with a longer
-  // sub-iteration, and the first-contact count can miss an island's growth by far: a settling
-  // bed whose particles were apart a moment ago).
+  // interval (0: none). Where they passed the margin below the global switch, every m <= at is
+  // priced as stepping everyone (members never fall with a longer sub-iteration) and a shorter m
+  // holds at least measured x at / m of them (in proportion to its length, as in a dilute gas):
+  // the first-contact count can miss an island's growth by far (a settling bed whose particles
+  // were apart a moment ago).
   double measured = 0.0;
   std::int64_t at = 0;
 };

@@ -78,7 +78,7 @@ void IslandsScheme::choose_length() {
   std::vector<std::int64_t> hist(static_cast<std::size_t>(m_hi) + 1, 0);
   // No running means yet: the first choice (or a histogram of another length).
   const bool first = auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size();
-  // The histogram once about kChoiceSpacing sub-iterations have passed (and at the first choice);
+  // The histogram once about kCountSpacing sub-iterations have passed (and at the first choice);
   // the same on every rank.
   const bool count = first || length::counts_after(auto_.intervals, nsubit_, auto_.global_now);
   double s_max = 0.0;

@@ -127,13 +127,13 @@ inline constexpr double kSmoothing = 0.125;
 inline constexpr double kMinGain = 0.1;
 // The first-contact histogram walks every row (on HCS 1222 about 1.7 sub-iterations'
 // bookkeeping): it is counted at the end of an interval once about this many sub-iterations have
-// passed since the last count: at every interval for m >= kChoiceSpacing (and in the global
-// mode), else every ceil(kChoiceSpacing / m) intervals; the choices in between use its running
+// passed since the last count: at every interval for m >= kCountSpacing (and in the global
+// mode), else every ceil(kCountSpacing / m) intervals; the choices in between use its running
 // mean and the members measured since.
-inline constexpr std::int64_t kChoiceSpacing = 8;
+inline constexpr std::int64_t kCountSpacing = 8;
 // Whether the interval numbered `intervals` (from 1) in m sub-iterations ends with a count.
 inline bool counts_after(std::int64_t intervals, std::int64_t m, bool global) {
-  const std::int64_t every = global || m >= kChoiceSpacing ? 1 : (kChoiceSpacing + m - 1) / m;
+  const std::int64_t every = global || m >= kCountSpacing ? 1 : (kCountSpacing + m - 1) / m;
   return intervals % every == 0;
 }
 const char* reason_text(int r);

@@ -1,6 +1,11 @@
 #include "fluid/ghost_fill.hpp"
 
 #include <algorithm>
+#include <cstddef>
+#include <span>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 namespace cfddem::fluid {
 
@@ -19,35 +24,148 @@ int mirror_hi(int g, int n) {
   return m >= 0 ? m : 0;
 }
 
-// f at index dst along axis a = op(f at index src), over the whole padded plane: every line along
-// a, the other axes' ghosts included. A ghost (or boundary face) takes its value from a point of
-// its own line only, so a fill is a few such plane maps per axis, done in the order the
-// line-by-line rule would visit them. Planes are contiguous runs of memory (rows for the middle
-// axis; single values only for the first), and a map is exact in any order.
-template <class Op>
-void map_plane(const GridLayout& layout, int a, int dst, int src, GridField& f, Op&& op) {
-  double* v = f.values().data();
-  const std::ptrdiff_t s = layout.stride(a);
-  const std::ptrdiff_t period = s * (layout.cells()[a] + 1 + 2 * kGhostLayers);
-  const auto total = static_cast<std::ptrdiff_t>(layout.size());
-  const std::ptrdiff_t shift = static_cast<std::ptrdiff_t>(dst - src) * s;
-  for (std::ptrdiff_t run = (src + kGhostLayers) * s; run < total; run += period) {
-    for (std::ptrdiff_t m = run; m < run + s; ++m) {
-      v[m + shift] = op(v[m]);
+// What a plane map writes from the source value x.
+enum class MapKind {
+  copy,    // x
+  negate,  // -x (a wall's tangential ghost)
+  reflect, // c - x (c = 2 v_b or 2 p_out: the mean of ghost and image is the boundary value)
+  set      // c (a wall's or inflow's own face)
+};
+
+// f at index dst along `axis` = op(f at index src), over the whole padded plane: every line along
+// the axis, the other axes' ghosts included. A ghost (or boundary face) takes its value from a
+// point of its own line only.
+struct PlaneMap {
+  int axis = 0;
+  int dst = 0;
+  int src = 0;
+  MapKind kind = MapKind::copy;
+  double c = 0.0;
+};
+
+// A fill is a few plane maps per axis, in the order the line-by-line rule visits them. At most
+// 1 + kGhostLayers maps per side of an axis.
+struct FillPlan {
+  std::array<PlaneMap, 6 * (1 + kGhostLayers)> maps{};
+  int count = 0;
+  void add(int axis, int dst, int src, MapKind kind = MapKind::copy, double c = 0.0) {
+    maps[static_cast<std::size_t>(count++)] = {axis, dst, src, kind, c};
+  }
+  [[nodiscard]] std::span<const PlaneMap> all() const {
+    return {maps.data(), static_cast<std::size_t>(count)};
+  }
+};
+
+// Applies map m to the points [m0, m0 + len) of its source plane, each with its image in the
+// destination plane.
+inline void apply(const PlaneMap& m, double* v, std::ptrdiff_t first, std::ptrdiff_t len,
+                  std::ptrdiff_t shift) {
+  double* out = v + first + shift;
+  const double* in = v + first;
+  switch (m.kind) {
+  case MapKind::copy:
+    std::copy_n(in, len, out);
+    break;
+  case MapKind::negate:
+    for (std::ptrdiff_t q = 0; q < len; ++q) {
+      out[q] = -in[q];
+    }
+    break;
+  case MapKind::reflect:
+    for (std::ptrdiff_t q = 0; q < len; ++q) {
+      out[q] = m.c - in[q];
+    }
+    break;
+  case MapKind::set:
+    std::fill_n(out, len, m.c);
+    break;
+  }
+}
+
+// Padded extent of the layout along an axis.
+std::ptrdiff_t extent(const GridLayout& layout, int a) {
+  return layout.cells()[a] + 1 + 2 * kGhostLayers;
+}
+
+// The maps along x and y of the padded z-plane kp: a point's x and y maps read and write points
+// of its own z-plane only, so the planes are independent.
+void apply_xy(const GridLayout& layout, const FillPlan& plan, double* v, std::ptrdiff_t kp) {
+  const std::ptrdiff_t sy = layout.stride(1);
+  const std::ptrdiff_t sz = layout.stride(2);
+  const std::ptrdiff_t ny = extent(layout, 1);
+  for (const PlaneMap& m : plan.all()) {
+    const std::ptrdiff_t shift = static_cast<std::ptrdiff_t>(m.dst - m.src) * layout.stride(m.axis);
+    if (m.axis == 0) {
+      // One point per row of the plane.
+      const std::ptrdiff_t x = m.src + kGhostLayers;
+      for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
+        apply(m, v, kp * sz + jp * sy + x, 1, shift);
+      }
+    } else if (m.axis == 1) {
+      // One row of the plane.
+      apply(m, v, kp * sz + (m.src + kGhostLayers) * sy, sy, shift);
     }
   }
 }
 
-void copy_plane(const GridLayout& layout, int a, int dst, int src, GridField& f) {
-  map_plane(layout, a, dst, src, f, [](double x) { return x; });
+// The maps along z of the padded row jp (of every z-plane): likewise independent rows.
+void apply_z(const GridLayout& layout, const FillPlan& plan, double* v, std::ptrdiff_t jp) {
+  const std::ptrdiff_t sy = layout.stride(1);
+  const std::ptrdiff_t sz = layout.stride(2);
+  for (const PlaneMap& m : plan.all()) {
+    if (m.axis == 2) {
+      apply(m, v, (m.src + kGhostLayers) * sz + jp * sy, sy,
+            static_cast<std::ptrdiff_t>(m.dst - m.src) * sz);
+    }
+  }
 }
 
-} // namespace
+// Below this many points a fill runs on the calling thread (a task costs more than it does).
+constexpr std::size_t kParallelPoints = 32768;
+
+// Runs the plans on their fields: the x and y maps plane by plane, then the z maps row by row
+// (they read the x and y ghosts just made). Each point is written by one map of one task, from
+// values no other task writes meanwhile, so the result is the serial fill's on any thread count.
+void run_plans(const GridLayout& layout, std::span<const FillPlan> plans,
+               std::span<GridField* const> fields) {
+  const auto nf = static_cast<std::ptrdiff_t>(plans.size());
+  const std::ptrdiff_t nz = extent(layout, 2);
+  const std::ptrdiff_t ny = extent(layout, 1);
+  const auto xy = [&](std::ptrdiff_t t) {
+    apply_xy(layout, plans[static_cast<std::size_t>(t / nz)],
+             fields[static_cast<std::size_t>(t / nz)]->values().data(), t % nz);
+  };
+  const auto z = [&](std::ptrdiff_t t) {
+    apply_z(layout, plans[static_cast<std::size_t>(t / ny)],
+            fields[static_cast<std::size_t>(t / ny)]->values().data(), t % ny);
+  };
+  if (layout.size() * plans.size() < kParallelPoints) {
+    for (std::ptrdiff_t t = 0; t < nf * nz; ++t) {
+      xy(t);
+    }
+    for (std::ptrdiff_t t = 0; t < nf * ny; ++t) {
+      z(t);
+    }
+    return;
+  }
+  tbb::parallel_for(tbb::blocked_range<std::ptrdiff_t>(0, nf * nz),
+                    [&](const tbb::blocked_range<std::ptrdiff_t>& r) {
+                      for (std::ptrdiff_t t = r.begin(); t != r.end(); ++t) {
+                        xy(t);
+                      }
+                    });
+  tbb::parallel_for(tbb::blocked_range<std::ptrdiff_t>(0, nf * ny),
+                    [&](const tbb::blocked_range<std::ptrdiff_t>& r) {
+                      for (std::ptrdiff_t t = r.begin(); t != r.end(); ++t) {
+                        z(t);
+                      }
+                    });
+}
 
 // Every line along an axis takes its ghosts from the same positions, so the positions (the
 // wraps and mirrors, with their divisions) are found once per axis, not once per line.
-void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
-  const GridLayout& layout = grid.layout();
+FillPlan cell_plan(const MacGrid& grid, CellGhosts mode) {
+  FillPlan plan;
   for (int a = 0; a < 3; ++a) {
     const int n = grid.cells(a);
     const BoundaryCondition& lo = grid.bc(a, 0);
@@ -55,9 +173,6 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
     const bool periodic = grid.periodic(a);
     const bool fill_lo = !grid.exchanged(a, 0);
     const bool fill_hi = !grid.exchanged(a, 1);
-    if (!fill_lo && !fill_hi) {
-      continue;
-    }
     // Source of ghost -g (g = 1..G) and of ghost n + g (g = 0..G).
     std::array<int, kGhostLayers + 1> lo_src{}, hi_src{};
     for (int g = 0; g <= kGhostLayers; ++g) {
@@ -70,25 +185,24 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
         !periodic && mode == CellGhosts::pressure && hi.kind == BoundaryKind::outflow;
     for (int g = 1; fill_lo && g <= kGhostLayers; ++g) {
       if (lo_reflects) {
-        map_plane(layout, a, -g, lo_src[g], q,
-                  [p = lo.pressure](double inner) { return 2.0 * p - inner; });
+        plan.add(a, -g, lo_src[g], MapKind::reflect, 2.0 * lo.pressure);
       } else {
-        copy_plane(layout, a, -g, lo_src[g], q);
+        plan.add(a, -g, lo_src[g]);
       }
     }
     for (int g = 0; fill_hi && g <= kGhostLayers; ++g) {
       if (hi_reflects) {
-        map_plane(layout, a, n + g, hi_src[g], q,
-                  [p = hi.pressure](double inner) { return 2.0 * p - inner; });
+        plan.add(a, n + g, hi_src[g], MapKind::reflect, 2.0 * hi.pressure);
       } else {
-        copy_plane(layout, a, n + g, hi_src[g], q);
+        plan.add(a, n + g, hi_src[g]);
       }
     }
   }
+  return plan;
 }
 
-void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
-  const GridLayout& layout = grid.layout();
+FillPlan velocity_plan(const MacGrid& grid, int comp) {
+  FillPlan plan;
   for (int a = 0; a < 3; ++a) {
     const int n = grid.cells(a);
     const bool periodic = grid.periodic(a);
@@ -103,10 +217,10 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
       for (int side = 0; side < 2; ++side) {
         if (periodic) {
           for (int g = 1; side == 0 && g <= kGhostLayers; ++g) {
-            copy_plane(layout, a, -g, wrap(-g, n), f);
+            plan.add(a, -g, wrap(-g, n));
           }
           for (int g = 0; side == 1 && g <= kGhostLayers; ++g) {
-            copy_plane(layout, a, n + g, wrap(n + g, n), f);
+            plan.add(a, n + g, wrap(n + g, n));
           }
           continue;
         }
@@ -118,16 +232,16 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
         const int out = side == 0 ? -1 : 1;
         if (bc.kind == BoundaryKind::outflow) {
           for (int g = 1; g <= kGhostLayers; ++g) {
-            copy_plane(layout, a, face + out * g, face, f);
+            plan.add(a, face + out * g, face);
           }
           continue;
         }
         const double vb = bc.kind == BoundaryKind::inflow ? bc.velocity[comp] : 0.0;
-        map_plane(layout, a, face, face, f, [vb](double) { return vb; });
+        plan.add(a, face, face, MapKind::set, vb);
         for (int g = 1; g <= kGhostLayers; ++g) {
           const int inner = face - out * g;
-          map_plane(layout, a, face + out * g, inner >= 0 && inner <= n ? inner : face, f,
-                    [vb](double x) { return 2.0 * vb - x; });
+          plan.add(a, face + out * g, inner >= 0 && inner <= n ? inner : face, MapKind::reflect,
+                   2.0 * vb);
         }
       }
       continue;
@@ -145,22 +259,37 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
                         : side == 0 ? mirror_lo(ghost, n)
                                     : mirror_hi(ghost, n);
         if (periodic || bc.kind == BoundaryKind::outflow) {
-          copy_plane(layout, a, ghost, src, f);
+          plan.add(a, ghost, src);
         } else if (bc.kind == BoundaryKind::inflow) {
-          map_plane(layout, a, ghost, src, f,
-                    [w = 2.0 * bc.velocity[comp]](double x) { return w - x; });
+          plan.add(a, ghost, src, MapKind::reflect, 2.0 * bc.velocity[comp]);
         } else {
-          map_plane(layout, a, ghost, src, f, [](double x) { return -x; });
+          plan.add(a, ghost, src, MapKind::negate);
         }
       }
     }
   }
+  return plan;
+}
+
+} // namespace
+
+void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode) {
+  const FillPlan plans[1] = {cell_plan(grid, mode)};
+  GridField* const fields[1] = {&q};
+  run_plans(grid.layout(), plans, fields);
 }
 
 void fill_velocity_ghosts(const MacGrid& grid, std::array<GridField, 3>& u) {
-  for (int comp = 0; comp < 3; ++comp) {
-    fill_velocity_ghosts(grid, comp, u[comp]);
-  }
+  const FillPlan plans[3] = {velocity_plan(grid, 0), velocity_plan(grid, 1),
+                             velocity_plan(grid, 2)};
+  GridField* const fields[3] = {&u[0], &u[1], &u[2]};
+  run_plans(grid.layout(), plans, fields);
+}
+
+void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
+  const FillPlan plans[1] = {velocity_plan(grid, comp)};
+  GridField* const fields[1] = {&f};
+  run_plans(grid.layout(), plans, fields);
 }
 
 } // namespace cfddem::fluid

@@ -188,9 +188,11 @@ void fill_velocity_ghosts(const MacGrid& grid, const GridHalo* halo, int comp, G
 }
 
 void fill_velocity_ghosts(const MacGrid& grid, const GridHalo* halo, std::array<GridField, 3>& u) {
-  for (int comp = 0; comp < 3; ++comp) {
-    fill_velocity_ghosts(grid, halo, comp, u[comp]);
+  // The components are separate fields: all exchanges first, then one fill of all three.
+  for (int comp = 0; halo != nullptr && comp < 3; ++comp) {
+    halo->fill(u[comp], comp);
   }
+  fill_velocity_ghosts(grid, u);
 }
 
 } // namespace cfddem::fluid

@@ -10,6 +10,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include "fluid/grid_field.hpp"
 
@@ -60,6 +61,18 @@ inline void copy_field(const GridField& from, GridField& to) {
                                 in.begin() + static_cast<std::ptrdiff_t>(r.end()),
                                 out.begin() + static_cast<std::ptrdiff_t>(r.begin()));
                     });
+}
+
+// Whether a and b (of one size) hold the same values, blocks compared as TBB tasks.
+inline bool equal_values(std::span<const double> a, std::span<const double> b) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, a.size(), 16384), true,
+      [&](const tbb::blocked_range<std::size_t>& r, bool same) {
+        return same && std::equal(a.begin() + static_cast<std::ptrdiff_t>(r.begin()),
+                                  a.begin() + static_cast<std::ptrdiff_t>(r.end()),
+                                  b.begin() + static_cast<std::ptrdiff_t>(r.begin()));
+      },
+      [](bool x, bool y) { return x && y; });
 }
 
 } // namespace cfddem::fluid

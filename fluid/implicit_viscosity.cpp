@@ -81,12 +81,10 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
 void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
   const GridLayout& layout = grid_.layout();
   const auto c = static_cast<std::size_t>(comp);
-  const std::span<const double> now = eps.values();
-  const std::span<double> seen = eps_seen_[c].values();
-  if (cv_k_valid_[c] && std::equal(now.begin(), now.end(), seen.begin())) {
+  if (cv_k_valid_[c] && equal_values(eps.values(), eps_seen_[c].values())) {
     return;
   }
-  std::copy(now.begin(), now.end(), seen.begin());
+  copy_field(eps, eps_seen_[c]);
   cv_k_valid_[c] = true;
   const double* ep = eps.values().data();
   const std::ptrdiff_t sa = layout.stride(comp);

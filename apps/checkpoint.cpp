@@ -611,8 +611,10 @@ std::string restart_fixed_lines(const std::string& configuration) {
     if (end == std::string::npos)
       end = configuration.size();
     const std::string_view line(configuration.data() + pos, end - pos);
+    // fluid.coupling's default is what checkpoints from before the key ran: they do not name it.
     const bool free = line.rfind("fluid.inflow_velocity = ", 0) == 0 ||
-                      line.rfind("fluid.velocity = ", 0) == 0 || line.rfind("fluid.bc.", 0) == 0;
+                      line.rfind("fluid.velocity = ", 0) == 0 || line.rfind("fluid.bc.", 0) == 0 ||
+                      line == "fluid.coupling = \"two_way\"";
     if (!free)
       kept.append(line).push_back('\n');
     pos = end + 1;

@@ -249,10 +249,16 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     if (!agreed.empty())
       throw RunError(agreed);
   }
-  // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction).
+  // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction). One-way coupled,
+  // the gas's own fraction stays 1 and the particles' drag law reads this one.
   eps_s_.fill(0.0);
   deposition_->deposit_solid_fraction(pos, eps_s_);
-  fluid::GridField& eps = solver_->volume_fraction();
+  if (scene_.fluid.one_way) {
+    solver_->volume_fraction().fill(1.0);
+    if (eps_particles_.values().size() != eps_s_.values().size())
+      eps_particles_ = grid_.make_field();
+  }
+  fluid::GridField& eps = scene_.fluid.one_way ? eps_particles_ : solver_->volume_fraction();
   const auto& nc = grid_.cells();
   tbb::parallel_for(0, nc[2], [&](int k) { // planes as tasks (pointwise)
     for (int j = 0; j < nc[1]; ++j)
@@ -292,6 +298,8 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
                                &solver_->drag_velocity_sum(1), &solver_->drag_velocity_sum(2)};
   for (fluid::GridField* f : cells)
     f->fill(0.0);
+  if (scene_.fluid.one_way)
+    return; // no reaction on the gas
   const std::span<const double> values[] = {beta_, bv_[0], bv_[1], bv_[2]};
   deposition_->deposit(pos, values, cells);
 }

@@ -291,6 +291,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.cfl = k.number("fluid.cfl");
     f.max_dt = k.number("fluid.max_dt");
     f.drag = k.word("fluid.drag");
+    f.one_way = k.word("fluid.coupling") == "one_way";
     f.deposition = k.word("fluid.deposition");
     f.deposition_width = k.number("fluid.deposition_width");
     static const char* faces[6] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
@@ -423,6 +424,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.cfl", num(f.cfl));
     o.emplace_back("fluid.max_dt", num(f.max_dt));
     o.emplace_back("fluid.drag", str(f.drag));
+    o.emplace_back("fluid.coupling", str(f.one_way ? "one_way" : "two_way"));
     o.emplace_back("fluid.deposition", str(f.deposition));
     o.emplace_back("fluid.deposition_width", num(f.deposition_width));
     static const char* faces[6] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};

@@ -52,7 +52,7 @@ struct DemSpec {
   double neighbor_skin = 0.0; // Verlet skin [m]
   double max_overlap = 0.3;   // stop when overlap / smaller radius exceeds this
   // The `orb` scheme (Sitaraman & Grout, Algorithm 2).
-  std::int64_t nsubit = 10;     // sub-iterations per regrid interval
+  std::int64_t nsubit = 10; // sub-iterations per regrid interval
   // islands: dem.nsubit = "auto", the scheme picks nsubit per interval (dem/subiteration_length);
   // nsubit is then the first interval's count.
   bool nsubit_auto = false;
@@ -79,10 +79,10 @@ struct RunSpec {
 };
 
 struct OutputSpec {
-  double interval = 0.0;            // simulated seconds between diagnostics rows
-  double progress_seconds = 2.0;    // wall seconds between progress lines
-  double snapshot_interval = 0.0;   // simulated seconds between HDF5 snapshots (0: none)
-  double checkpoint_interval = 0.0; // simulated seconds between checkpoints (0: none)
+  double interval = 0.0;             // simulated seconds between diagnostics rows
+  double progress_seconds = 2.0;     // wall seconds between progress lines
+  double snapshot_interval = 0.0;    // simulated seconds between HDF5 snapshots (0: none)
+  double checkpoint_interval = 0.0;  // simulated seconds between checkpoints (0: none)
   std::string profile_axis = "none"; // profiles.csv along "x" | "y" | "z"; "none": not written
   std::int64_t profile_bins = 20;    // slabs of profiles.csv
   bool contact_census = false;       // census columns of diagnostics.csv (else NaN)
@@ -96,17 +96,18 @@ struct OutputSpec {
 // and boundary conditions by the coupling (apps/coupled_step), which knows the fluid library.
 struct FluidSpec {
   bool enabled = false;
-  std::array<std::int64_t, 3> cells{};  // fluid.cells [nx, ny, nz]
-  std::array<double, 3> cell_size{};    // fluid.cell_size [m]; 0 = extent / cells
-  double density = 0.0;                 // rho_g [kg/m^3]
-  double viscosity = 0.0;               // mu_g [Pa s]
-  double dt = 0.0;                      // fixed coupling step dt_f [s]; 0 = from cfl
-  double cfl = 0.4;                     // Courant number of the gas sub-steps / adaptive dt_f
-  double max_dt = 1e-3;                 // adaptive dt_f cap [s]
+  std::array<std::int64_t, 3> cells{}; // fluid.cells [nx, ny, nz]
+  std::array<double, 3> cell_size{};   // fluid.cell_size [m]; 0 = extent / cells
+  double density = 0.0;                // rho_g [kg/m^3]
+  double viscosity = 0.0;              // mu_g [Pa s]
+  double dt = 0.0;                     // fixed coupling step dt_f [s]; 0 = from cfl
+  double cfl = 0.4;                    // Courant number of the gas sub-steps / adaptive dt_f
+  double max_dt = 1e-3;                // adaptive dt_f cap [s]
   std::string drag = "bvk";
+  bool one_way = false; // fluid.coupling = "one_way": the gas does not feel the particles
   std::string deposition = "trilinear";
-  double deposition_width = 2.0;        // dpvm kernel width in particle diameters
-  std::array<std::string, 6> bc{}; // per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi
+  double deposition_width = 2.0;           // dpvm kernel width in particle diameters
+  std::array<std::string, 6> bc{};         // per face x_lo, x_hi, y_lo, y_hi, z_lo, z_hi
   std::array<double, 3> inflow_velocity{}; // gas velocity on inflow faces [m/s]
   double outflow_pressure = 0.0;           // p' on outflow faces [Pa]
   std::array<double, 3> pressure_drop{};   // MFIX's delp across periodic axes [Pa]

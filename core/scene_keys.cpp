@@ -59,6 +59,7 @@ constexpr std::string_view kProfileAxes[] = {"none", "x", "y", "z"};
 constexpr std::string_view kLocalDt[] = {"proximity", "time_to_contact"};
 constexpr std::string_view kWeights[] = {"count", "cost"};
 constexpr std::string_view kDrags[] = {"bvk", "bvk2", "koch_hill", "wen_yu", "none"};
+constexpr std::string_view kCouplings[] = {"two_way", "one_way"};
 constexpr std::string_view kKernels[] = {"trilinear", "dpvm", "dpvm_cube", "dpvm_sphere"};
 constexpr std::string_view kBoundaries[] = {"periodic", "wall", "inflow", "outflow"};
 constexpr std::string_view kPreconditioners[] = {"pfmg", "smg"};
@@ -505,6 +506,14 @@ std::vector<SceneKey> make_table() {
        .choices = kDrags,
        .fallback = word("bvk"),
        .meaning = "drag law (§4)"},
+      {.name = "fluid.coupling",
+       .type = T::String,
+       .section = S::Fluid,
+       .choices = kCouplings,
+       .fallback = word("two_way"),
+       .meaning = "`\"two_way\"`: the gas feels the particles (their volume and the drag's "
+                  "reaction); `\"one_way\"`: it does not (gas fraction 1, no reaction), while "
+                  "the particles still feel the gas's drag and pressure force (§9)"},
       {.name = "fluid.deposition",
        .type = T::String,
        .section = S::Fluid,

@@ -249,15 +249,20 @@ void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count
   const double z0 = grid_.origin(2);
   const int global_n = grid_.global_cells()[2];
   const int box_lo = grid_.box().lo[2];
-  // Each particle's global k range that holds its kernel, with a cell to spare: the trilinear
-  // kernel spans the cells within dz of the centre, a dpvm one those within its half-width.
+  // Each particle's global k range that holds its kernel: the trilinear kernel's two cells, found
+  // as trilinear_weights finds them (the same arithmetic, so exactly its cells); a dpvm kernel's
+  // cells within its half-width, with a cell to spare.
   reach_.resize(count);
+  const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t q = r.begin(); q != r.end(); ++q) {
-                        const double reach = settings_.kernel == DepositionKernel::trilinear
-                                                 ? dz
-                                                 : settings_.width * p.radius[q];
+                        if (trilinear) {
+                          const int i = static_cast<int>(trilinear_position(p.z[q], z0, dz)[1]);
+                          reach_[q] = {i - 1, i};
+                          continue;
+                        }
+                        const double reach = settings_.width * p.radius[q];
                         reach_[q] = {static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1,
                                      static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) + 1};
                       }

@@ -106,7 +106,7 @@ private:
   const GridHalo* halo_ = nullptr;
   std::vector<double> weights_;
   std::vector<double> values_;            // per particle and field, per unit cell volume
-  std::vector<std::array<int, 2>> reach_; // per particle: global k range of its kernel, +-1
+  std::vector<std::array<int, 2>> reach_; // per particle: global k range of its kernel
 };
 
 } // namespace cfddem::fluid

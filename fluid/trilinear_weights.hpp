@@ -10,6 +10,13 @@
 
 namespace cfddem::fluid {
 
+// Along one axis: xh = (x_p - x_lo)/dx + 1/2 and floor(xh); the stencil's cells are
+// floor(xh) - 1 and floor(xh).
+[[nodiscard]] inline std::array<double, 2> trilinear_position(double x, double origin, double dx) {
+  const double xh = (x - origin) / dx + 0.5;
+  return {xh, std::floor(xh)};
+}
+
 // xh = (x_p - x_lo)/dx + 1/2, i = floor(xh): cells i-1 and i, w_hi = xh - i (docs/theory.md §7).
 [[nodiscard]] inline CellStencil trilinear_weights(const std::array<double, 3>& x,
                                                    const std::array<double, 3>& origin,
@@ -18,8 +25,7 @@ namespace cfddem::fluid {
   CellStencil s;
   std::array<std::array<double, 2>, 3> w{};
   for (int a = 0; a < 3; ++a) {
-    const double xh = (x[a] - origin[a]) / dx[a] + 0.5;
-    const double i = std::floor(xh);
+    const auto [xh, i] = trilinear_position(x[a], origin[a], dx[a]);
     s.lo[a] = static_cast<int>(i) - 1;
     s.size[a] = 2;
     w[a][1] = xh - i;

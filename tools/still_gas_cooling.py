@@ -53,7 +53,8 @@ def drag_loss(law, phi, T):
     s = np.linspace(1e-9, 8 * math.sqrt(T), 800)
     pdf = math.sqrt(2 / math.pi) * s**2 / T**1.5 * np.exp(-s * s / (2 * T))
     beta = np.array([3 * math.pi * MU * D * eps * law(phi, eps * RHO_G * D * x / MU) for x in s])
-    return np.trapz(beta * s * s * pdf, s)
+    y = beta * s * s * pdf
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(s)))
 
 
 def cooling(law, phi_drag, times):

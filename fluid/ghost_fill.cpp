@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstddef>
 #include <span>
+#include <stdexcept>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -49,6 +50,9 @@ struct FillPlan {
   std::array<PlaneMap, 6 * (1 + kGhostLayers)> maps{};
   int count = 0;
   void add(int axis, int dst, int src, MapKind kind = MapKind::copy, double c = 0.0) {
+    if (static_cast<std::size_t>(count) == maps.size()) {
+      throw std::logic_error("ghost fill: more plane maps than a fill can have");
+    }
     maps[static_cast<std::size_t>(count++)] = {axis, dst, src, kind, c};
   }
   [[nodiscard]] std::span<const PlaneMap> all() const {

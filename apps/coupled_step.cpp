@@ -175,9 +175,7 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
   deposition_ =
       std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene), r_max_, halo_.get());
   law_ = fluid::parse_drag_law(scene.fluid.drag);
-  eps_s_ = grid_.make_field();
-  for (int a = 0; a < 3; ++a)
-    cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+  make_work_fields();
   // Axis of the pressure drop diagnostic.
   int axis = -1;
   double gmax = 0.0;
@@ -200,6 +198,14 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
 }
 
 GasCoupling::~GasCoupling() = default;
+
+void GasCoupling::make_work_fields() {
+  eps_s_ = grid_.make_field();
+  if (scene_.fluid.one_way)
+    eps_particles_ = grid_.make_field();
+  for (int a = 0; a < 3; ++a)
+    cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+}
 
 std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
   if (comm_ == nullptr)
@@ -231,9 +237,7 @@ std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
   solver_ = std::move(solver);
   deposition_ =
       std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene_), r_max_, halo_.get());
-  eps_s_ = grid_.make_field();
-  for (int a = 0; a < 3; ++a)
-    cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+  make_work_fields();
   return sent;
 }
 
@@ -250,14 +254,10 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
       throw RunError(agreed);
   }
   // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction). One-way coupled,
-  // the gas's own fraction stays 1 and the particles' drag law reads this one.
+  // the particles' drag law reads it from eps_particles_, and the gas keeps the fraction 1 it
+  // started with.
   eps_s_.fill(0.0);
   deposition_->deposit_solid_fraction(pos, eps_s_);
-  if (scene_.fluid.one_way) {
-    solver_->volume_fraction().fill(1.0);
-    if (eps_particles_.values().size() != eps_s_.values().size())
-      eps_particles_ = grid_.make_field();
-  }
   fluid::GridField& eps = scene_.fluid.one_way ? eps_particles_ : solver_->volume_fraction();
   const auto& nc = grid_.cells();
   tbb::parallel_for(0, nc[2], [&](int k) { // planes as tasks (pointwise)
@@ -293,13 +293,13 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     for (int a = 0; a < 3; ++a)
       bv_[a][i] = beta_[i] * (*v[a])[i];
   });
+  if (scene_.fluid.one_way)
+    return; // no reaction on the gas: its drag fields stay the zeros it started with
   // beta_i and beta_i v_i to the cells, in one pass.
   fluid::GridField* cells[] = {&solver_->drag_coefficient(), &solver_->drag_velocity_sum(0),
                                &solver_->drag_velocity_sum(1), &solver_->drag_velocity_sum(2)};
   for (fluid::GridField* f : cells)
     f->fill(0.0);
-  if (scene_.fluid.one_way)
-    return; // no reaction on the gas
   const std::span<const double> values[] = {beta_, bv_[0], bv_[1], bv_[2]};
   deposition_->deposit(pos, values, cells);
 }

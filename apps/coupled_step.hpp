@@ -114,6 +114,8 @@ public:
   void restore_state(const State& s);
 
 private:
+  // The coupling's own fields on grid_ (at construction and after a rebox).
+  void make_work_fields();
   void deposit(const ParticleStore& p, std::size_t n);
   const Scene& scene_;
   const Communicator* comm_ = nullptr; // distributed only

@@ -1,8 +1,10 @@
 #include "apps/checkpoint.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <iterator>
 #include <string_view>
 
 #include <fmt/format.h>
@@ -599,10 +601,16 @@ Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
 
 namespace {
 
-// The configuration lines that must match at a restart: all but the gas drive, which a restart
-// may change (docs/hostile_input.md): a bed settled with the gas at rest continues with the gas
-// turned on (fluid.inflow_velocity, the boundary kinds fluid.bc.*, and fluid.velocity, the
-// initial gas velocity, which the restored gas state replaces anyway).
+// Keys a restart may change: the gas drive (docs/hostile_input.md). A bed settled with the gas
+// at rest continues with the gas turned on (fluid.inflow_velocity, the boundary kinds fluid.bc.*,
+// and fluid.velocity, the initial gas velocity, which the restored gas state replaces anyway).
+constexpr std::string_view kFreeKeyPrefixes[] = {
+    "fluid.inflow_velocity = ", "fluid.velocity = ", "fluid.bc."};
+// Keys added after checkpoints of this format were written, at the value that older runs had
+// without naming it: such a line is left out, so those checkpoints still restart at it.
+constexpr std::string_view kImpliedLines[] = {"fluid.coupling = \"two_way\""};
+
+// The configuration lines that must match at a restart.
 std::string restart_fixed_lines(const std::string& configuration) {
   std::string kept;
   std::size_t pos = 0;
@@ -611,10 +619,9 @@ std::string restart_fixed_lines(const std::string& configuration) {
     if (end == std::string::npos)
       end = configuration.size();
     const std::string_view line(configuration.data() + pos, end - pos);
-    // fluid.coupling's default is what checkpoints from before the key ran: they do not name it.
-    const bool free = line.rfind("fluid.inflow_velocity = ", 0) == 0 ||
-                      line.rfind("fluid.velocity = ", 0) == 0 || line.rfind("fluid.bc.", 0) == 0 ||
-                      line == "fluid.coupling = \"two_way\"";
+    const bool free =
+        std::ranges::any_of(kFreeKeyPrefixes, [&](auto k) { return line.starts_with(k); }) ||
+        std::ranges::find(kImpliedLines, line) != std::end(kImpliedLines);
     if (!free)
       kept.append(line).push_back('\n');
     pos = end + 1;

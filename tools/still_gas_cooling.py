@@ -86,6 +86,15 @@ def dem07(t):
     return (math.exp(a * t / 2) + (b * math.sqrt(T0) / a) * (math.exp(a * t / 2) - 1)) ** -2
 
 
+def run_ratios(run_dir, times):
+    """T/T0 of a cfddem run (its diagnostics.csv) at the given times, linearly interpolated."""
+    with open(f"{run_dir}/diagnostics.csv") as f:
+        rows = list(csv.DictReader(f))
+    t = np.array([float(r["time"]) for r in rows])
+    T = np.array([float(r["granular_temperature"]) for r in rows])
+    return [float(np.interp(x, t, T) / T[0]) for x in times]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="*")
@@ -101,13 +110,11 @@ def main():
             print(f"{label:34s}" + "".join(f"{x:8.4f}" for x in cooling(law, phi, times)))
     for run in args.runs:
         try:
-            rows = list(csv.DictReader(open(f"{run}/diagnostics.csv")))
+            ratios = run_ratios(run, times)
         except OSError as e:
             print(f"still_gas_cooling: {e}", file=sys.stderr)
             return 2
-        t = np.array([float(r["time"]) for r in rows])
-        T = np.array([float(r["granular_temperature"]) for r in rows])
-        print(f"{run[-34:]:34s}" + "".join(f"{np.interp(x, t, T) / T[0]:8.4f}" for x in times))
+        print(f"{run[-34:]:34s}" + "".join(f"{x:8.4f}" for x in ratios))
     return 0
 
 

@@ -11,7 +11,6 @@ Reynolds correction must cool faster than BVK at every t*.
 
 Usage: still_gas_cooling_test.py CFDDEM SOURCE_DIR
 """
-import csv
 import math
 import os
 import subprocess
@@ -21,19 +20,6 @@ import tempfile
 CFDDEM, SOURCE = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SOURCE, "tools"))
 import still_gas_cooling as sgc  # noqa: E402
-
-
-def temperature_ratios(run_dir, times):
-    with open(os.path.join(run_dir, "diagnostics.csv")) as f:
-        rows = list(csv.DictReader(f))
-    t = [float(r["time"]) for r in rows]
-    T = [float(r["granular_temperature"]) for r in rows]
-    out = []
-    for x in times:
-        k = next(i for i in range(1, len(t)) if t[i] >= x)
-        w = (x - t[k - 1]) / (t[k] - t[k - 1])
-        out.append(((1 - w) * T[k - 1] + w * T[k]) / T[0])
-    return out
 
 
 def main():
@@ -47,7 +33,7 @@ def main():
                             f'fluid.drag="{law}"', 'fluid.coupling="one_way"',
                             "fluid.cells=[2,2,2]", "--threads", "2", "--quiet", "--out", out],
                            check=True, timeout=240)
-            run = temperature_ratios(out, times)
+            run = sgc.run_ratios(out, times)
             law_ratios = sgc.cooling(f, sgc.PHI, times)
             for ts, a, b in zip(tstar, run, law_ratios):
                 print(f"{law} t* {ts}: run {a:.4f}, still-gas equation {b:.4f} ({a / b - 1:+.2%})")

@@ -60,8 +60,8 @@ struct FillPlan {
   }
 };
 
-// Applies map m to the points [m0, m0 + len) of its source plane, each with its image in the
-// destination plane.
+// Applies map m to the points [first, first + len) of its source plane, each written to its image
+// `shift` further on, in the destination plane.
 inline void apply(const PlaneMap& m, double* v, std::ptrdiff_t first, std::ptrdiff_t len,
                   std::ptrdiff_t shift) {
   double* out = v + first + shift;
@@ -143,27 +143,24 @@ void run_plans(const GridLayout& layout, std::span<const FillPlan> plans,
     apply_z(layout, plans[static_cast<std::size_t>(t / ny)],
             fields[static_cast<std::size_t>(t / ny)]->values().data(), t % ny);
   };
-  if (layout.size() * plans.size() < kParallelPoints) {
-    for (std::ptrdiff_t t = 0; t < nf * nz; ++t) {
-      xy(t);
+  // Each loop's tasks on the calling thread alone below kParallelPoints.
+  const bool serial = layout.size() * plans.size() < kParallelPoints;
+  const auto each = [serial](std::ptrdiff_t n, const auto& task) {
+    if (serial) {
+      for (std::ptrdiff_t t = 0; t < n; ++t) {
+        task(t);
+      }
+      return;
     }
-    for (std::ptrdiff_t t = 0; t < nf * ny; ++t) {
-      z(t);
-    }
-    return;
-  }
-  tbb::parallel_for(tbb::blocked_range<std::ptrdiff_t>(0, nf * nz),
-                    [&](const tbb::blocked_range<std::ptrdiff_t>& r) {
-                      for (std::ptrdiff_t t = r.begin(); t != r.end(); ++t) {
-                        xy(t);
-                      }
-                    });
-  tbb::parallel_for(tbb::blocked_range<std::ptrdiff_t>(0, nf * ny),
-                    [&](const tbb::blocked_range<std::ptrdiff_t>& r) {
-                      for (std::ptrdiff_t t = r.begin(); t != r.end(); ++t) {
-                        z(t);
-                      }
-                    });
+    tbb::parallel_for(tbb::blocked_range<std::ptrdiff_t>(0, n),
+                      [&](const tbb::blocked_range<std::ptrdiff_t>& r) {
+                        for (std::ptrdiff_t t = r.begin(); t != r.end(); ++t) {
+                          task(t);
+                        }
+                      });
+  };
+  each(nf * nz, xy);
+  each(nf * ny, z);
 }
 
 // Every line along an axis takes its ghosts from the same positions, so the positions (the

@@ -201,8 +201,6 @@ GasCoupling::~GasCoupling() = default;
 
 void GasCoupling::make_work_fields() {
   eps_s_ = grid_.make_field();
-  if (scene_.fluid.one_way)
-    eps_particles_ = grid_.make_field();
   for (int a = 0; a < 3; ++a)
     cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
 }
@@ -254,11 +252,12 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
       throw RunError(agreed);
   }
   // Solid fraction -> eps_g (docs/theory.md §7), floored (kMinGasFraction). One-way coupled,
-  // the particles' drag law reads it from eps_particles_, and the gas keeps the fraction 1 it
+  // eps_g is for the particles' drag law alone: it replaces the solid fraction in eps_s_ (a
+  // scratch field, each value read before it is written), and the gas keeps the fraction 1 it
   // started with.
   eps_s_.fill(0.0);
   deposition_->deposit_solid_fraction(pos, eps_s_);
-  fluid::GridField& eps = scene_.fluid.one_way ? eps_particles_ : solver_->volume_fraction();
+  fluid::GridField& eps = scene_.fluid.one_way ? eps_s_ : solver_->volume_fraction();
   const auto& nc = grid_.cells();
   tbb::parallel_for(0, nc[2], [&](int k) { // planes as tasks (pointwise)
     for (int j = 0; j < nc[1]; ++j)

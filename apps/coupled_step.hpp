@@ -129,8 +129,7 @@ private:
   double last_dt_ = 0.0, r_max_ = 0.0;
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   long long implicit_viscosity_steps_ = 0;
-  fluid::GridField eps_s_, eps_prev_;
-  fluid::GridField eps_particles_; // the particles' eps_g when one-way coupled (fluid.coupling)
+  fluid::GridField eps_s_, eps_prev_; // eps_s_: the deposited solid fraction (scratch)
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
   std::vector<double> eps_p_, beta_, ug_[3], bv_[3], gp_[3], force_[3];
   std::vector<std::int64_t> force_ids_; // particle ids in force_'s order

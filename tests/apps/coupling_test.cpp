@@ -314,7 +314,6 @@ TEST(Riser, GravitySceneDropBalancesTheWeight) {
   EXPECT_NEAR(drop * area, weight, 1e-7 * weight) << r.output.substr(at, 80);
 }
 
-// The four gas scenes of scenes/ are valid (cfddem check: exit 0).
 // One particle of the paper's kind thrown at 1 mm/s through the gas of a 1 mm periodic box
 // (2^3 cells; rho_g = 1, so the box holds 1e-9 kg of gas against the particle's 5.24e-10 kg).
 // Re = 5e-3: BVK is its Stokes limit to 0.1%, beta / m = 18 mu F / (rho_p d^2) = 36 F /s with
@@ -374,6 +373,7 @@ TEST(Coupling, OneWayGasStaysAtRestWhileTheParticleStops) {
   EXPECT_LT(rate, 36.0 * 1.1);
 }
 
+// The gas scenes of scenes/ are valid (cfddem check: exit 0).
 TEST(FluidScenes, AllCheckClean) {
   for (const char* name : {"hcs_gas", "settling", "riser", "riser_gravity", "fluidized_bed"}) {
     const Result r = cfddem(fmt::format("check {}/scenes/{}.toml", CFDDEM_SOURCE_DIR, name));

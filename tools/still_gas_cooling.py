@@ -82,6 +82,7 @@ def cooling(law, phi_drag, times):
 
 
 def dem07(t):
+    # MFIX-Exa's DEM07 law and its constants for T0 = 0.1 (docs/theory.md §3.2).
     a, b = 91.382708, 222.511014
     return (math.exp(a * t / 2) + (b * math.sqrt(T0) / a) * (math.exp(a * t / 2) - 1)) ** -2
 

@@ -122,7 +122,8 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   const FluidDiagnostics& d = l.row_fluid;
   w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
                                          l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],
-                                         d.gas_momentum[1], d.gas_momentum[2], d.mass_residual});
+                                         d.gas_momentum[1], d.gas_momentum[2], d.mass_residual,
+                                         g.drag_time});
   w.put("/gas/held_force_x", l.held_force[0]);
   w.put("/gas/held_force_y", l.held_force[1]);
   w.put("/gas/held_force_z", l.held_force[2]);
@@ -150,7 +151,15 @@ void read_gas(Reader& r, Checkpoint& c) {
   g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
   l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
   g.implicit_viscosity_steps = k.size() == 7 ? k[6] : 0;
-  const auto q = r.doubles("/gas/loop", 11);
+  // 12 values; checkpoints before the adaptive step's drag time hold 11 (the restart then keeps
+  // the drag time of the particles' deposit at set-up; a fixed fluid.dt never reads it).
+  const auto q = r.doubles("/gas/loop", Reader::kAny);
+  if (q.size() != 11 && q.size() != 12)
+    throw RunError(fmt::format("checkpoint: /gas/loop holds {} values, expected 12 (or 11 from "
+                               "an older checkpoint)",
+                               q.size()));
+  if (q.size() == 12)
+    g.drag_time = q[11];
   g.last_dt = q[0], l.time = q[1], l.next_output = q[2], l.next_snapshot = q[3];
   l.dt_f_sum = q[4], l.row_time = q[5];
   l.row_fluid = {q[6], {q[7], q[8], q[9]}, q[10]};

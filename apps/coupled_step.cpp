@@ -292,6 +292,13 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     for (int a = 0; a < 3; ++a)
       bv_[a][i] = beta_[i] * (*v[a])[i];
   });
+  // The smallest relaxation time m_i / beta_i caps the adaptive dt_f (a min: exact in any order).
+  double inv_tau = 0.0;
+  for (std::size_t i = 0; i < n; ++i)
+    inv_tau = std::max(inv_tau, beta_[i] * p.inv_mass[i]);
+  if (comm_ != nullptr)
+    inv_tau = comm_->max(inv_tau);
+  drag_time_ = inv_tau > 0.0 ? 1.0 / inv_tau : std::numeric_limits<double>::infinity();
   if (scene_.fluid.one_way)
     return; // no reaction on the gas: its drag fields stay the zeros it started with
   // beta_i and beta_i v_i to the cells, in one pass.
@@ -303,8 +310,12 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   deposition_->deposit(pos, values, cells);
 }
 
-double GasCoupling::cfl_dt() const {
-  return solver_->dt_for_courant(scene_.fluid.cfl);
+double GasCoupling::adaptive_dt(double time_left) const {
+  fluid::FluidStepCaps caps;
+  caps.max_dt = scene_.fluid.max_dt;
+  caps.drag_time = drag_time_;
+  caps.previous = last_dt_;
+  return fluid::next_fluid_step(solver_->step_rates(), scene_.fluid.cfl, caps, time_left);
 }
 
 fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
@@ -314,7 +325,8 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   int substeps = 0;
   fluid::GasStepReport report;
   try {
-    report = solver_->advance(dt_f, &substeps);
+    // The eps_g change deposited now is the particles' move over the previous fluid step.
+    report = solver_->advance(dt_f, &substeps, last_dt_ > 0.0 ? last_dt_ : dt_f);
   } catch (const std::runtime_error& e) {
     throw RunError(fmt::format("gas step: {}", e.what()));
   }
@@ -322,6 +334,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   implicit_viscosity_steps_ += report.implicit_viscosity ? 1 : 0;
   projection_iterations_ += report.projection_iterations;
   projection_fallbacks_ += report.used_fallback ? 1 : 0;
+  source_dt_ = last_dt_ > 0.0 ? last_dt_ : dt_f;
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   force_ids_.assign(p.id.begin(), p.id.begin() + static_cast<std::ptrdiff_t>(n));
@@ -405,14 +418,15 @@ FluidDiagnostics GasCoupling::diagnostics() const {
     fluid::GridField e = eps, div = grid_.make_field();
     fluid::fill_cell_ghosts(grid_, halo_.get(), e, fluid::CellGhosts::zero_gradient);
     fluid::flux_divergence(grid_, solver_->velocity(), e, div);
-    // div(eps u) + (eps^{n+1} - eps^n)/dt_f (the gas sub-steps interpolate eps linearly in time,
-    // so the last one satisfied the same rate).
+    // div(eps u) + (eps^{n+1} - eps^n)/dt_s, dt_s the time the particles took for the change
+    // (the previous fluid step; every gas sub-step satisfied the same rate).
+    const double source_dt = source_dt_ > 0.0 ? source_dt_ : last_dt_;
     double worst = 0.0;
     for (int k = 0; k < nc[2]; ++k)
       for (int j = 0; j < nc[1]; ++j)
         for (int i = 0; i < nc[0]; ++i)
-          worst = std::max(worst,
-                           std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) / last_dt_));
+          worst = std::max(
+              worst, std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) / source_dt));
     if (comm_ != nullptr)
       worst = comm_->max(worst);
     d.mass_residual = worst * last_dt_;
@@ -488,6 +502,7 @@ GasCoupling::State GasCoupling::save_state() const {
   s.solver = solver_->save_state();
   s.eps_prev.assign(eps_prev_.values().begin(), eps_prev_.values().end());
   s.last_dt = last_dt_;
+  s.drag_time = drag_time_;
   s.gas_substeps = gas_substeps_;
   s.projection_iterations = projection_iterations_;
   s.projection_fallbacks = projection_fallbacks_;
@@ -511,6 +526,8 @@ void GasCoupling::restore_state(const State& s) {
     eps_prev_ = fluid::GridField();
   }
   last_dt_ = s.last_dt;
+  if (!std::isnan(s.drag_time))
+    drag_time_ = s.drag_time;
   gas_substeps_ = s.gas_substeps;
   projection_iterations_ = s.projection_iterations;
   projection_fallbacks_ = s.projection_fallbacks;

@@ -12,6 +12,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <span>
 #include <vector>
@@ -75,8 +76,13 @@ public:
   // caller moves the particles (step() deposits only particles within its box's reach).
   // Collective; throws ConfigError if a box is too narrow.
   std::size_t rebox(const std::vector<CellBox>& boxes);
-  // Largest dt_f the gas's CFL number allows (adaptive fluid step; inf for a gas at rest).
-  double cfl_dt() const;
+  // The next adaptive dt_f (fluid.dt = 0) with `time_left` to the end of the run: the gas's
+  // Courant step with its forcing at fluid.cfl, capped by fluid.max_dt, a fraction of the
+  // smallest particle relaxation time of the last deposit and 1.1x the last fluid step; no
+  // sliver at the end (fluid/fluid_step_rule.hpp). Collective on R ranks.
+  [[nodiscard]] double adaptive_dt(double time_left) const;
+  // min_i m_i / beta_i at the last deposit [s] (inf without particles).
+  [[nodiscard]] double drag_time() const { return drag_time_; }
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
   // The ids of the particles force(a) is for (the owned ones at the last step()).
   [[nodiscard]] std::span<const std::int64_t> force_ids() const { return force_ids_; }
@@ -106,6 +112,9 @@ public:
     fluid::GasSolver::State solver;
     std::vector<double> eps_prev; // eps_g before the last step (mass residual); empty: no step
     double last_dt = 0.0;
+    // min m_i / beta_i of the last deposit; NaN: not in the checkpoint (older ones), keep the
+    // constructor's
+    double drag_time = std::numeric_limits<double>::quiet_NaN();
     std::int64_t gas_substeps = 0, projection_iterations = 0, projection_fallbacks = 0;
     std::int64_t implicit_viscosity_steps = 0; // fluid steps with the Laplacian implicit
   };
@@ -127,6 +136,10 @@ private:
   fluid::DragLaw law_;
   int axis_ = 1;
   double last_dt_ = 0.0, r_max_ = 0.0;
+  // The eps_g change of the last step() was made over this time (the fluid step before it). Not
+  // checkpointed: only diagnostics() reads it, and only after a step() of the same process.
+  double source_dt_ = 0.0;
+  double drag_time_ = std::numeric_limits<double>::infinity();
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   long long implicit_viscosity_steps_ = 0;
   fluid::GridField eps_s_, eps_prev_; // eps_s_: the deposited solid fraction (scratch)

@@ -6,6 +6,8 @@
 
 #include <fmt/format.h>
 
+#include "fluid/fluid_step_rule.hpp"
+
 namespace cfddem::apps {
 
 namespace {
@@ -53,10 +55,36 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     fluid_steps = std::ceil(end / f.dt * (1 - 1e-12));
     t.emplace_back("fluid_steps", fmt::format("{:.0f} (fluid.dt = {:g} s)", fluid_steps, f.dt));
   } else {
-    fluid_steps = std::ceil(end / f.max_dt * (1 - 1e-12));
-    t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive, cfl {:g}, fluid.max_dt "
-                                              "= {:g} s)",
-                                              fluid_steps, f.cfl, f.max_dt));
+    // The adaptive dt_f's range (fluid/fluid_step_rule.hpp): its first step from the initial
+    // and inflow gas velocities and the body force, its cap from fluid.max_dt and the Stokes
+    // time of the lightest particle (a dense bed's drag time is shorter: the run takes it from
+    // the drag law at each fluid step).
+    fluid::FluidStepRates r;
+    const double nu = f.viscosity / f.density;
+    for (int a = 0; a < 3; ++a) {
+      const auto k = static_cast<std::size_t>(a);
+      const double u = std::max(std::abs(f.velocity[k]), std::abs(f.inflow_velocity[k]));
+      r.advection += u / dx[k];
+      if (!f.implicit_viscosity && !f.implicit_viscosity_auto)
+        r.viscous += 2.0 * nu / (dx[k] * dx[k]);
+      const double gp0 = s.domain.periodic[k] ? -f.pressure_drop[k] / s.domain.length(a)
+                                              : f.density * s.gravity[k];
+      r.forcing += std::abs(s.gravity[k] - gp0 / f.density) / dx[k];
+    }
+    fluid::FluidStepCaps caps;
+    caps.max_dt = f.max_dt;
+    if (derived.particles > 0 && d > 0 && f.viscosity > 0)
+      caps.drag_time = derived.min_mass / (3.0 * std::numbers::pi * f.viscosity * d);
+    const double first = fluid::next_fluid_step(r, f.cfl, {caps.max_dt, caps.drag_time, 0.0}, end);
+    const double cap = std::min(caps.max_dt, fluid::kDragStepFraction * caps.drag_time);
+    fluid_steps = std::ceil(end / cap * (1 - 1e-12));
+    t.emplace_back("fluid_dt_s (adaptive)",
+                   fmt::format("first {:.3g}, growing at most {:g}x per step up to {:.3g} (fluid.max_dt "
+                               "{:g} s; {:g} of the Stokes time {:.3g} s); below it where the gas's "
+                               "Courant number (cfl {:g}) asks",
+                               first, fluid::kMaxFluidStepGrowth, cap, f.max_dt,
+                               fluid::kDragStepFraction, caps.drag_time, f.cfl));
+    t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive)", fluid_steps));
   }
   // A bed: particles under gravity along a walled axis.
   int axis = 0;

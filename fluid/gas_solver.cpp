@@ -151,6 +151,21 @@ double GasSolver::dt_for_courant(double courant) const {
   return rate > 0.0 ? courant / rate : std::numeric_limits<double>::infinity();
 }
 
+FluidStepRates GasSolver::step_rates() const {
+  const std::array<double, 2> rates = courant_rates();
+  FluidStepRates r;
+  r.advection = rates[1];
+  const double nu = settings_.gas.viscosity / settings_.gas.density;
+  for (int a = 0; a < 3; ++a) {
+    const double dx = grid_.spacing(a);
+    if (!viscosity_) {
+      r.viscous += 2.0 * nu / (dx * dx);
+    }
+    r.forcing += std::abs(body_[a]) / dx;
+  }
+  return r;
+}
+
 GasStepReport GasSolver::step() {
   return step(settings_.fixed_dt > 0.0 ? settings_.fixed_dt : dt_for_courant(settings_.cfl));
 }
@@ -263,7 +278,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt) {
   }
   for_box(layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
     const auto c = static_cast<std::size_t>(p);
-    source_[c] = (eps_[c] - eps_old_[c]) / dt;
+    source_[c] = (eps_[c] - eps_old_[c]) / dt * source_scale_;
   });
   // Predictor: u1 = P(u^n + dt R(u^n)). Corrector (time_order 2, MFIX-Exa's predictor-
   // corrector, i.e. Heun): u^{n+1} = P(u^n + dt (R(u^n) + R(u1))/2). Each stage is projected,
@@ -290,10 +305,21 @@ GasStepReport GasSolver::step_with_ghosts(double dt) {
   return report;
 }
 
-GasStepReport GasSolver::advance(double interval, int* substeps) {
+GasStepReport GasSolver::advance(double interval, int* substeps, double eps_interval) {
   if (!(interval > 0.0)) {
     throw std::runtime_error(fmt::format("fluid advance: interval {} is not positive", interval));
   }
+  if (eps_interval < 0.0 || !std::isfinite(eps_interval)) {
+    throw std::runtime_error(
+        fmt::format("fluid advance: eps_g interval {} is not a positive time", eps_interval));
+  }
+  // Each sub-step's eps_g rises by its share of the change, so (eps - eps_old)/dt is the change
+  // over `interval`; the scale makes it the change over the time the particles took.
+  struct ScaleScope {
+    double& s;
+    ~ScaleScope() { s = 1.0; }
+  } scale_scope{source_scale_};
+  source_scale_ = eps_interval > 0.0 ? interval / eps_interval : 1.0;
   // eps_g of the fluid step's end and start (members: no allocation per fluid step).
   copy_field(eps_, eps_target_);
   copy_field(eps_old_, eps_start_);

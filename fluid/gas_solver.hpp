@@ -9,6 +9,7 @@
 #include <span>
 #include <vector>
 
+#include "fluid/fluid_step_rule.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/implicit_viscosity.hpp"
@@ -102,6 +103,12 @@ public:
   [[nodiscard]] bool implicit_viscosity_now() const { return implicit_now_; }
   // Largest dt whose Courant number is `courant` (inf for a still inviscid gas).
   [[nodiscard]] double dt_for_courant(double courant) const;
+  // The rates the adaptive coupling step is priced on (fluid/fluid_step_rule.hpp): advection as
+  // the sub-steps' Courant number counts it, the viscous rate only where the Laplacian would be
+  // explicit (not with implicit or "auto" viscosity: advance() takes it implicit where that
+  // saves sub-steps), and the forcing of the body force (gravity less the background gradient).
+  // Collective on R ranks.
+  [[nodiscard]] FluidStepRates step_rates() const;
 
   // One step with the fixed or adaptive dt.
   GasStepReport step();
@@ -110,9 +117,13 @@ public:
   GasStepReport step(double dt);
   // Advances by `interval` (e.g. the coupling step dt_f) in as many equal-CFL sub-steps as
   // stability needs (small cells make the explicit viscous limit shorter than dt_f); eps_g is
-  // interpolated linearly in time from its previous value to the current one, so d(eps)/dt is
-  // spread over the sub-steps. The report sums iterations and gives the last dt and the count.
-  GasStepReport advance(double interval, int* substeps = nullptr);
+  // interpolated linearly in time from its previous value to the current one over the sub-steps.
+  // The continuity source d(eps)/dt is the change of eps_g over `eps_interval`, the time the
+  // particles took to make it (the coupling's previous fluid step; 0: `interval`): in a loop
+  // whose dt_f varies, the change deposited at the start of a step happened over the step
+  // before, and dividing it by this step's length would drive a spurious flow (a short last step
+  // of the riser gave 5.8 m/s). The report sums iterations and gives the last dt and the count.
+  GasStepReport advance(double interval, int* substeps = nullptr, double eps_interval = 0.0);
 
   // Velocity component averaged to cell centres (for interpolation to particles).
   void cell_centred_velocity(int axis, GridField& out) const;
@@ -168,6 +179,9 @@ private:
   std::array<GridField, 3> beta_v_;
   GridField p_, eps_, eps_old_, beta_, source_;
   GridField eps_target_, eps_start_; // advance()'s end and start eps_g
+  // advance()'s sub-steps: interval / eps_interval, the factor from the sub-step's own rate
+  // (eps - eps_old)/dt to the particles' rate (exactly 1 for a fixed fluid step).
+  double source_scale_ = 1.0;
   std::unique_ptr<PressureProjection> projection_;
 };
 

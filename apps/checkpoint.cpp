@@ -617,7 +617,8 @@ constexpr std::string_view kFreeKeyPrefixes[] = {
     "fluid.inflow_velocity = ", "fluid.velocity = ", "fluid.bc."};
 // Keys added after checkpoints of this format were written, at the value that older runs had
 // without naming it: such a line is left out, so those checkpoints still restart at it.
-constexpr std::string_view kImpliedLines[] = {"fluid.coupling = \"two_way\""};
+constexpr std::string_view kImpliedLines[] = {"fluid.coupling = \"two_way\"",
+                                              "fluid.projections = 2"};
 
 // The configuration lines that must match at a restart.
 std::string restart_fixed_lines(const std::string& configuration) {

@@ -53,6 +53,7 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.implicit_viscosity = s.fluid.implicit_viscosity;
   g.implicit_viscosity_auto = s.fluid.implicit_viscosity_auto;
   g.time_order = s.fluid.time_order;
+  g.projections = s.fluid.projections;
   g.projection.tolerance = s.fluid.tolerance;
   g.projection.preconditioner = s.fluid.preconditioner == "smg"
                                     ? fluid::PoissonPreconditioner::smg

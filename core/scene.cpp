@@ -323,6 +323,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
       f.implicit_viscosity_auto = !c.has("fluid.implicit_viscosity");
     }
     f.time_order = static_cast<int>(k.integer("fluid.time_order"));
+    f.projections = static_cast<int>(k.integer("fluid.projections"));
     f.tolerance = k.number("fluid.tolerance");
     f.preconditioner = k.word("fluid.preconditioner");
     f.solver = k.word("fluid.solver");
@@ -438,6 +439,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
                                                : f.implicit_viscosity    ? "true"
                                                                          : "false");
     o.emplace_back("fluid.time_order", std::to_string(f.time_order));
+    o.emplace_back("fluid.projections", std::to_string(f.projections));
     o.emplace_back("fluid.tolerance", num(f.tolerance));
     o.emplace_back("fluid.preconditioner", str(f.preconditioner));
     o.emplace_back("fluid.solver", str(f.solver));

@@ -115,6 +115,7 @@ struct FluidSpec {
   bool implicit_viscosity = false;
   bool implicit_viscosity_auto = true; // "auto" (the default): chosen per fluid step
   int time_order = 2;                  // 1: Euler, 2: predictor-corrector (Heun)
+  int projections = 1; // time_order 2: 1 (the corrector only) or 2 (each stage projected)
   double tolerance = 1e-10;            // projection PCG relative residual
   std::string preconditioner = "pfmg"; // projection PCG preconditioner
   std::string solver = "auto";         // projection solver

@@ -576,6 +576,16 @@ std::vector<SceneKey> make_table() {
        .meaning = "the gas step in time: 2, predictor-corrector (Heun, two projections per gas "
                   "step); 1, Euler (one projection, first order; [gas_step.md](gas_step.md) has "
                   "its measured accuracy cost)"},
+      {.name = "fluid.projections",
+       .type = T::Integer,
+       .section = S::Fluid,
+       .range = closed(1, 2),
+       .fallback = integer(1),
+       .meaning = "pressure solves per gas step with `fluid.time_order` = 2: 1, the predictor "
+                  "takes the last step's pressure gradient and only the corrector is projected "
+                  "(Bell, Colella & Glaz 1989; second order); 2, each stage projected (Heun as "
+                  "before; a checkpoint written before this key restarts with 2). "
+                  "[gas_step.md](gas_step.md) has the accuracy and cost of each"},
       {.name = "fluid.tolerance",
        .type = T::Number,
        .section = S::Fluid,

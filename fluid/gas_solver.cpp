@@ -41,6 +41,10 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
     throw std::invalid_argument(
         fmt::format("fluid time_order = {} (choose 1 or 2)", settings.time_order));
   }
+  if (settings.projections != 1 && settings.projections != 2) {
+    throw std::invalid_argument(
+        fmt::format("fluid projections = {} (choose 1 or 2)", settings.projections));
+  }
   const std::array<double, 3> gp0 = background_pressure_gradient();
   for (int a = 0; a < 3; ++a) {
     body_[a] = gas.gravity[a] - gp0[a] / gas.density;
@@ -173,6 +177,10 @@ GasStepReport GasSolver::step() {
 void GasSolver::stage(double dt, int order, GasStepReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
+  // One projection per step: the predictor of time order 2 takes the pressure gradient of the
+  // last step, -dt/rho grad p per unit of the drag gain (the projection's mobility), and is not
+  // projected.
+  const bool lagged = order == 1 && settings_.time_order == 2 && settings_.projections == 1;
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
   // step() computed once for both stages.
@@ -181,20 +189,27 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
     hi[a] = n[a]; // faces 0..n along a
     const double* gain = drag_gain_[a].values().data();
     const double* push = drag_push_[a].values().data();
+    const auto below = static_cast<std::size_t>(layout.stride(a));
+    const double inv_dx = 1.0 / grid_.spacing(a);
+    const double dt_over_rho = dt / settings_.gas.density;
     for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
       const auto f = static_cast<std::size_t>(p);
       double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
       if (implicit_now_ && order == 2) {
         rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
       }
+      const double grad_p = lagged ? (p_[f] - p_[f - below]) * inv_dx : 0.0;
       if (!implicit_now_) {
         u_[a][f] = (u_start_[a][f] + dt * rate + push[f]) / gain[f];
+        if (lagged) {
+          u_[a][f] -= mobility_[a][f] * grad_p;
+        }
         return;
       }
       // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k
-      // (beta v)_f)
+      // (beta v)_f) [- eps_f dt grad p, lagged]
       diag_[f] = face_mass_[a][f] * gain[f];
-      vrhs_[f] = face_mass_[a][f] * (u_start_[a][f] + dt * rate + push[f]);
+      vrhs_[f] = face_mass_[a][f] * (u_start_[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
       // First guess: the implicit part taken at u^n, theta dt L(u^n), where L(u^n) is at hand
       // (time order 2); its residual is O(dt^2) where u^n's is O(dt).
       const double lap =
@@ -211,6 +226,9 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
     }
   }
   fill_velocity_ghosts(grid_, halo_.get(), u_);
+  if (lagged) {
+    return;
+  }
   const ProjectionReport pr = projection_->project(u_, eps_, mobility_, source_, p_);
   fill_velocity_ghosts(grid_, halo_.get(), u_);
   report.projection_iterations += pr.iterations;
@@ -241,6 +259,11 @@ GasStepReport GasSolver::step_with_ghosts(double dt) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
   const double rho = settings_.gas.density;
+  if (settings_.time_order == 2 && settings_.projections == 1) {
+    // The predictor reads the last pressure's gradient up to the box's faces (after a restore
+    // or a rebox the ghosts may predate the values).
+    fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
+  }
   fill_cell_ghosts(grid_, halo_.get(), eps_, CellGhosts::zero_gradient);
   fill_cell_ghosts(grid_, halo_.get(), eps_old_, CellGhosts::zero_gradient);
   fill_cell_ghosts(grid_, halo_.get(), beta_, CellGhosts::zero_gradient);

@@ -1,6 +1,7 @@
 // The gas phase of MFIX's model A on one MAC grid (docs/theory.md §5): explicit predictor (limited
 // MUSCL advection, viscous stress, body force; optionally the viscous Laplacian implicit),
-// point-implicit particle drag, and a hypre projection onto div(eps u) = -d(eps)/dt.
+// point-implicit particle drag, and a projection onto div(eps u) = -d(eps)/dt (the corrector's
+// alone by default; docs/gas_step.md).
 // On one grid, or on one box of a grid distributed over ranks (with the grid's GridHalo).
 #pragma once
 
@@ -49,7 +50,12 @@ struct GasSolverSettings {
   double viscous_tolerance = 1e-10;
   // One grid: the viscous solves preconditioned by the multigrid (false: Jacobi, as on R ranks).
   bool viscous_multigrid = true;
-  int time_order = 2; // 1: Euler; 2: predictor-corrector (Heun), one projection per stage
+  int time_order = 2; // 1: Euler; 2: predictor-corrector (Heun)
+  // Projections per step with time_order 2: 1, the predictor takes the last step's pressure
+  // gradient instead of a projection of its own (the lagged-pressure predictor of Bell, Colella
+  // & Glaz 1989, J. Comput. Phys. 85, 257: its divergence is O(dt^2), so the corrector, which
+  // alone is projected, stays second order), half the pressure solves; 2, each stage projected.
+  int projections = 1;
 };
 
 struct GasStepReport {

@@ -499,7 +499,8 @@ std::vector<SceneKey> make_table() {
        .unit = "s",
        .range = above(0),
        .fallback = number(1e-3, "1e-3"),
-       .meaning = "cap on the adaptive dt_f"},
+       .meaning = "cap on the adaptive dt_f (with 1.1x growth per step, 0.1 of the smallest "
+                  "drag time and the gas's Courant step with forcing; gas_step.md)"},
       {.name = "fluid.drag",
        .type = T::String,
        .section = S::Fluid,
@@ -573,8 +574,8 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .range = closed(1, 2),
        .fallback = integer(2),
-       .meaning = "the gas step in time: 2, predictor-corrector (Heun, two projections per gas "
-                  "step); 1, Euler (one projection, first order; [gas_step.md](gas_step.md) has "
+       .meaning = "the gas step in time: 2, predictor-corrector (Heun; `fluid.projections` says "
+                  "how many of its stages are projected); 1, Euler (one projection, first order; [gas_step.md](gas_step.md) has "
                   "its measured accuracy cost)"},
       {.name = "fluid.projections",
        .type = T::Integer,

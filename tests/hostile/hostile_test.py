@@ -327,6 +327,24 @@ def dem_dt_tiny_warns(ctx):
            r"warning: dem.dt = 1e-20 s makes 3e\+18 steps .* years")
 
 
+# ---- step counts a run cannot count (issue 38) ----
+@case
+def step_count_overflow_refused(ctx):
+    """A step count past 2^62 (the run's 64-bit counters) is refused by check and run, naming the
+    keys and the count it would need (it wrapped to INT64_MIN: 0 steps, exit 0, "done"; orb
+    stopped after one sub-iteration; a diameter of 1e-300 m gave a step of 0 s and a NaN row)."""
+    for args, needle in (
+            (["dem.dt=1e-300"], r"'run.end_time' and 'dem.dt'.* needs 3e\+298 steps"),
+            (["run.end_time=1e300"], r"'run.end_time' and 'dem.dt_factor'.* needs 6.91e\+306 "
+                                     r"steps"),
+            (["dem.scheme=orb", "dem.regrid_interval=1e-300"],
+             r"'run.end_time' and 'dem.regrid_interval'.* needs 3e\+299 steps")):
+        expect(ctx, ["check", SMALL, *args], 2, needle)
+        expect(ctx, ["run", SMALL, *args], 2, needle, fresh=True)
+    expect(ctx, ["run", SMALL, "particles.diameter=1e-300"], 2,
+           r"'particles.diameter' and 'particles.density'.*mass is 0 kg", fresh=True)
+
+
 @case
 def output_interval_below_dt_sp_warns(ctx):
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,

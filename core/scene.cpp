@@ -102,13 +102,22 @@ private:
     return *v;
   }
   // A value given in the scene outside the key's range is refused; defaults are trusted (the
-  // table's own test checks them).
+  // table's own test checks them). No key takes a NaN or an infinity (TOML reads nan and inf):
+  // one in a vector used to pass and stop the run at step 0 as "unstable".
   double checked(const SceneKey& k, double v) const {
+    if (c_.has(key(k)) && !std::isfinite(v))
+      throw ConfigError(c_.where(key(k)), fmt::format("must be a finite number, got {}", v));
     if (k.range.bounded() && c_.has(key(k)) && !k.range.contains(v))
       throw ConfigError(c_.where(key(k)), fmt::format("{}, got {}", must_be(k), v));
     return v;
   }
   std::array<double, 3> checked(const SceneKey& k, const std::array<double, 3>& v) const {
+    if (c_.has(key(k)))
+      for (std::size_t a = 0; a < 3; ++a)
+        if (!std::isfinite(v[a]))
+          throw ConfigError(c_.where(key(k)),
+                            fmt::format("element {} must be a finite number, got [{}, {}, {}]", a,
+                                        v[0], v[1], v[2]));
     if (k.range.bounded() && c_.has(key(k)))
       for (double x : v)
         if (!k.range.contains(x))

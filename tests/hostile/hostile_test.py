@@ -187,6 +187,20 @@ def domain_inverted(ctx):
 
 
 @case
+def nan_and_inf_refused_naming_the_key(ctx):
+    """NaN and inf (TOML reads both) in a vector key passed `check` and stopped the run at step 0
+    as "unstable"; a NaN in domain.lo was reported as domain.hi. Each is refused naming its key."""
+    for key, value in (("gravity", "[nan,0,0]"), ("particles.velocity", "[inf,0,0]"),
+                       ("domain.lo", "[nan,0,0]"), ("particles.region_hi", "[0,-inf,0]")):
+        expect(ctx, ["check", SMALL, f"{key}={value}"], 2,
+               rf"scene key '{re.escape(key)}'.*element \d must be a finite number")
+    expect(ctx, ["run", SETTLING, "fluid.velocity=[nan,0,0]"], 2,
+           r"scene key 'fluid.velocity'.*element 0 must be a finite number")
+    expect(ctx, ["check", SETTLING, "fluid.outflow_pressure=inf"], 2,
+           r"scene key 'fluid.outflow_pressure'.*must be a finite number, got inf")
+
+
+@case
 def override_without_equals(ctx):
     expect(ctx, ["check", SMALL, "dem.restitution"], 2, r"not of the form key=value")
 

@@ -191,12 +191,10 @@ void check_packing_feasible(const Scene& s) {
   if (phi > kRandomClosePacking)
     throw ConfigError(
         "scene key 'particles.count'",
-        fmt::format("{} particles of diameter up to {} m fill {:.3g} times the region "
-                    "(solid fraction {:.3g}); no packing holds more than random "
-                    "close packing, {} (about {} particles here): lower "
-                    "particles.count or enlarge the region",
-                    ps.count, ps.diameter, phi, kRandomClosePacking, phi, kRandomClosePacking,
-                    fits(kRandomClosePacking)));
+        fmt::format("{} particles of diameter up to {} m ask for a solid fraction of {:.3g} "
+                    "in the region; no packing holds more than random close packing, {} "
+                    "(about {} particles here): lower particles.count or enlarge the region",
+                    ps.count, ps.diameter, phi, kRandomClosePacking, fits(kRandomClosePacking)));
   const double bytes = static_cast<double>(ps.count) * kBytesPerParticle;
   const double memory = static_cast<double>(::sysconf(_SC_PHYS_PAGES)) *
                         static_cast<double>(::sysconf(_SC_PAGE_SIZE));

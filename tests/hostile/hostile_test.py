@@ -441,6 +441,19 @@ def count_beyond_close_packing(ctx):
 
 
 @case
+def close_packing_message_reads_right(ctx):
+    """The refusal says the solid fraction asked, the limit 0.64 and how many particles fit (its
+    format arguments were swapped: "fill 9.99e+03 times the region (solid fraction 0.64) ...
+    9990.77 (about 0.64 particles here)"). 1e8 particles of 100 um in a 1.737 mm box ask for
+    pi/6 1e-12 1e8 / 1.737e-3^3 = 9991; about 0.64 / 9991 x 1e8 = 6405 fit."""
+    out = expect(ctx, ["check", SMALL, "particles.count=100000000"], 2,
+                 r"'particles.count'.*ask for a solid fraction of 9.99e\+03 in the region; no "
+                 r"packing holds more than random close packing, 0.64 \(about 640\d particles "
+                 r"here\)", timeout=20)
+    assert "times the region" not in out, out
+
+
+@case
 def count_beyond_random_placement(ctx):
     expect(ctx, ["run", SMALL, "particles.count=4000"], 2,
            r"random placement .* jams near 0.38.*particles.placement = \"lattice\"", timeout=20)

@@ -157,6 +157,13 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
           fmt::format("must be a plain name (no '/', '\\', and not '.' or '..': the run goes to "
                       "runs/<name>), got \"{}\"; use --out DIR to write elsewhere",
                       s.name));
+  // A newline or other control character would make a directory name no listing shows as it is.
+  for (std::size_t i = 0; i < s.name.size(); ++i)
+    if (const auto ch = static_cast<unsigned char>(s.name[i]); ch < 0x20 || ch == 0x7f)
+      throw ConfigError("scene key 'name'",
+                        fmt::format("must be a plain name without control characters (a newline, "
+                                    "tab, ...), got character code {} at position {}",
+                                    static_cast<int>(ch), i));
 
   // Domain.
   s.domain.lo = k.vec3("domain.lo");

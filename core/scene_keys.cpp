@@ -87,7 +87,7 @@ std::vector<SceneKey> make_table() {
        .section = S::DomainParticles,
        .fallback = derived("the scene file's stem (`hcs` for the built-in scene)"),
        .meaning = "run name; outputs go to `runs/<name>` unless `--out` says otherwise; a plain "
-                  "name (no `/` or `\\`, not `.` or `..`)"},
+                  "name (no `/` or `\\`, no control characters, not `.` or `..`)"},
       {.name = "domain.lo",
        .type = T::Vec3,
        .section = S::DomainParticles,

@@ -433,6 +433,15 @@ def name_with_slash(ctx):
     expect(ctx, ["run", SMALL, *TINY, "name=a/../../b"], 2, r"scene key 'name'")
 
 
+@case
+def name_with_control_characters(ctx):
+    """A newline (or tab, escape, ...) in a name made a directory with a newline in its name."""
+    for name in ("a\nb", "a\tb", "run\x1b[31m"):
+        expect(ctx, ["run", SMALL, *TINY, f"name={name}"], 2,
+               r"scene key 'name'.*without control characters", cwd=ctx.tmp)
+        assert not os.path.exists(os.path.join(ctx.tmp, "runs")), os.listdir(ctx.tmp)
+
+
 # ---- set-up: refused before placement when it cannot fit, memory of the particles ----
 @case
 def count_beyond_close_packing(ctx):

@@ -304,6 +304,11 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.density = k.number("fluid.density");
     f.viscosity = k.number("fluid.viscosity");
     f.dt = k.number("fluid.dt");
+    // The run takes whole fluid steps: one longer than the run ran silently to t = fluid.dt.
+    require(!(f.dt > s.run.end_time), "fluid.dt",
+            fmt::format("{} s is longer than run.end_time = {} s: the run would take one fluid "
+                        "step and end at t = {} s; shorten fluid.dt or lengthen run.end_time",
+                        f.dt, s.run.end_time, f.dt));
     f.cfl = k.number("fluid.cfl");
     f.max_dt = k.number("fluid.max_dt");
     f.drag = k.word("fluid.drag");

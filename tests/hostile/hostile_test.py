@@ -305,6 +305,15 @@ def no_particles_with_every_scheme(ctx):
 
 
 @case
+def fluid_dt_longer_than_the_run(ctx):
+    """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
+    both keys."""
+    for cmd in ("check", "run"):
+        expect(ctx, [cmd, SETTLING, "fluid.dt=0.01", "run.end_time=0.002"], 2,
+               r"scene key 'fluid.dt'.*0.01 s is longer than run.end_time = 0.002 s")
+
+
+@case
 def check_tells_about_the_gas(ctx):
     """`cfddem check` of the fluidized bed: cells per particle diameter (0.5, with a warning once
     the deposition is trilinear), fluid steps, the minimum fluidization velocity (Wen & Yu; in

@@ -191,6 +191,8 @@ int main(int argc, char** argv) {
         if (env.rank() == 0) {
           const auto particles = cfddem::make_initial_particles(scene);
           const auto derived = cfddem::apps::derive(scene, particles);
+          for (const std::string& w : cfddem::apps::step_warnings(scene, derived))
+            fmt::print(stderr, "cfddem: warning: {}\n", w);
           fmt::print("# resolved configuration ({})\n", cfg.origin());
           for (const auto& [k, v] : cfddem::describe_scene(scene)) fmt::print("{} = {}\n", k, v);
           fmt::print("\n# derived numbers\n");

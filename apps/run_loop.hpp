@@ -35,6 +35,7 @@
 #include "apps/run_output.hpp"
 #include "apps/run_outputs.hpp"
 #include "apps/scheme_runs.hpp"
+#include "apps/setting_warnings.hpp"
 #include "apps/simulation.hpp"
 #include "core/communicator.hpp"
 #include "core/error.hpp"
@@ -72,6 +73,9 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   dem::ParticleRange range;
   const DerivedNumbers derived = parts.derived(scene_in, particles, comm, range);
   const std::size_t n_total = one ? particles.size() : derived.particles;
+  if (root) // as `cfddem check` warns (apps/main.cpp), now that the particles are known
+    for (const std::string& w : step_warnings(scene_in, derived))
+      fmt::print(stderr, "cfddem: warning: {}\n", w);
 
   // With a gas the particle step divides the fluid step: explicit, n_fixed = ceil(dt_f /
   // dt_dem) steps of a fixed fluid.dt (adaptive: the contact step dt_dem); orb and islands,

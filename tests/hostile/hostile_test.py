@@ -369,6 +369,25 @@ def step_count_overflow_refused(ctx):
 
 
 @case
+def dt_factor_warns_as_dem_dt(ctx):
+    """dem.dt_factor = 0.9 (2.5 steps per contact) and 1e-12 (4e15 steps) passed silently while
+    the same step through dem.dt warned: both warn, with the steps per contact, in check and
+    run. The default step warns of nothing."""
+    expect(ctx, ["check", SMALL, "dem.dt_factor=0.9"], 0,
+           r"warning: dem.dt_factor = 0.9 \(dt = 6.51\de-06 s\) resolves a contact of "
+           r"1.61e-05 s in 2.47 steps: below 10")
+    expect(ctx, ["check", SMALL, "dem.dt=6.5e-6"], 0,
+           r"warning: dem.dt = 6.5e-06 s resolves a contact of 1.61e-05 s in 2.4\d steps")
+    expect(ctx, ["run", SMALL, *TINY, "dem.dt_factor=0.9", "--quiet"], 0,
+           r"warning: dem.dt_factor = 0.9 .* in 2.47 steps", out_dir=ctx.fresh("coarse_step"))
+    expect(ctx, ["check", SMALL, "dem.dt_factor=1e-12"], 0,
+           r"warning: dem.dt_factor = 1e-12 \(dt = 7.23\de-18 s\) makes 4.15e\+15 steps to "
+           r"run.end_time = 0.03 s")
+    quiet = expect(ctx, ["check", SMALL], 0, None)
+    assert "warning" not in quiet, quiet
+
+
+@case
 def output_interval_below_dt_sp_warns(ctx):
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
            r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "

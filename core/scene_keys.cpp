@@ -23,6 +23,9 @@ constexpr KeyRange closed(double lo, double hi) {
 constexpr KeyRange open(double lo, double hi) {
   return {lo, hi, true, true};
 }
+constexpr KeyRange above_up_to(double lo, double hi) {
+  return {lo, hi, true, false};
+}
 
 KeyDefault required(std::string_view when = "") {
   return {KeyDefault::Kind::Required, {}, when};
@@ -435,9 +438,11 @@ std::vector<SceneKey> make_table() {
       {.name = "output.profile_bins",
        .type = T::Integer,
        .section = S::RunOutput,
-       .range = at_least(1),
+       .range = closed(1, 65536),
        .fallback = integer(20),
-       .meaning = "number of equal slabs along `output.profile_axis`"},
+       .meaning = "number of equal slabs along `output.profile_axis` (at most as many as a gas "
+                  "may have cells along an axis: 2e9 slabs failed to allocate, 1e8 wrote for "
+                  "minutes a row)"},
       {.name = "output.contact_census",
        .type = T::Bool,
        .section = S::RunOutput,
@@ -524,9 +529,10 @@ std::vector<SceneKey> make_table() {
       {.name = "fluid.deposition_width",
        .type = T::Number,
        .section = S::Fluid,
-       .range = above(0),
+       .range = above_up_to(0, 100),
        .fallback = number(2),
-       .meaning = "dpvm kernel width in particle diameters"},
+       .meaning = "dpvm kernel width in particle diameters (at most 100: a kernel that wide over "
+                  "cells of half a diameter already covers 8e6 cells per particle)"},
       gas_boundary("fluid.bc.x_lo"),
       gas_boundary("fluid.bc.x_hi"),
       gas_boundary("fluid.bc.y_lo"),

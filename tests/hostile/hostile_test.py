@@ -201,6 +201,19 @@ def nan_and_inf_refused_naming_the_key(ctx):
 
 
 @case
+def kernel_width_and_profile_bins_bounded(ctx):
+    """fluid.deposition_width = 1e300 and output.profile_bins = 2e9 stopped with exit 3 and a raw
+    C++ message (vector::_M_default_append, "cannot create std::vector larger than
+    max_size()"), and profile_bins = 1e8 still ran after 60 s: refused at set-up, naming the key
+    and its range."""
+    expect(ctx, ["run", SETTLING, "fluid.deposition=dpvm", "fluid.deposition_width=1e300"], 2,
+           r"scene key 'fluid.deposition_width'.*must be in \(0, 100\], got 1e\+300", timeout=20)
+    for bins in ("2000000000", "1e8"):
+        expect(ctx, ["run", SMALL, "output.profile_axis=x", f"output.profile_bins={bins}"], 2,
+               r"scene key 'output.profile_bins'.*must be in 1..65536", timeout=20)
+
+
+@case
 def override_without_equals(ctx):
     expect(ctx, ["check", SMALL, "dem.restitution"], 2, r"not of the form key=value")
 

@@ -516,6 +516,17 @@ def count_beyond_memory(ctx):
 
 
 @case
+def size_distribution_huge_count_refused_fast(ctx):
+    """A size distribution with 1e10 particles drew every diameter before refusing (more than
+    60 s): refused as fast as one size, whether the packing or the memory refuses it."""
+    dist = "particles.diameter={distribution='uniform', min=5e-5, max=1e-4}"
+    expect(ctx, ["check", SMALL, dist, "particles.count=10000000000"], 2,
+           r"'particles.count'.*random close packing", timeout=10)
+    expect(ctx, ["check", SMALL, dist, "particles.count=1000000000000", "domain.hi=[10,10,10]"],
+           2, r"'particles.count'.*GB, more than this machine", timeout=10)
+
+
+@case
 def long_set_up_shows_progress(ctx):
     # 2000 particles (solid fraction 0.2) with a progress line due at every report.
     expect(ctx, ["check", SMALL, "particles.count=2000", "output.progress_seconds=1e-9"], 0,

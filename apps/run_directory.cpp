@@ -1,7 +1,15 @@
 #include "apps/run_directory.hpp"
 
 #include <algorithm>
+#include <cerrno>
+#include <climits>
+#include <cstring>
+#include <map>
 #include <system_error>
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include <fmt/format.h>
 
@@ -82,6 +90,52 @@ std::size_t prepare_run_directory(const fs::path& dir, bool overwrite, const std
     ++removed;
   }
   return removed;
+}
+
+namespace {
+
+// Locks `dir` unless this process holds it; true when it took the lock now.
+bool take_lock(const fs::path& dir) {
+  // The descriptors stay open (and locked) until the process ends. A second flock from this
+  // process on a new descriptor would conflict with its own first one, so each directory once.
+  static std::map<fs::path, int> held;
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec))
+    return false;
+  const fs::path key = fs::weakly_canonical(dir, ec);
+  if (held.contains(key))
+    return false;
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0)
+    throw ConfigError(dir.string(), fmt::format("cannot open the output directory to lock it: {}",
+                                                std::strerror(errno)));
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int err = errno;
+    ::close(fd);
+    if (err == EWOULDBLOCK)
+      throw ConfigError(dir.string(),
+                        "another cfddem run is writing into this directory now (it holds the "
+                        "directory's lock); wait for it to finish, or give this run another "
+                        "directory (--out, or name=...)");
+    throw ConfigError(dir.string(),
+                      fmt::format("cannot lock the output directory: {}", std::strerror(err)));
+  }
+  held.emplace(key, fd);
+  return true;
+}
+
+} // namespace
+
+void lock_run_directory(const fs::path& dir) {
+  (void)take_lock(dir);
+}
+
+void create_run_directory(const fs::path& dir) {
+  fs::create_directories(dir);
+  if (take_lock(dir) && !run_outputs_in(dir).empty())
+    throw ConfigError(dir.string(),
+                      "another cfddem run wrote its outputs into this directory while this run "
+                      "was setting up; give this run another directory (--out, or name=...)");
 }
 
 } // namespace cfddem::apps

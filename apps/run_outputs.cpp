@@ -10,6 +10,7 @@
 #include <fmt/ranges.h>
 
 #include "apps/rank_setup.hpp"
+#include "apps/run_directory.hpp"
 #include "core/atomic_file.hpp"
 #include "core/error.hpp"
 
@@ -23,7 +24,7 @@ std::optional<DiagnosticsFile> open_diagnostics(const Communicator& comm, const 
                                                 const std::vector<std::string>& columns) {
   if (comm.size() > 1)
     return open_root_diagnostics(comm, dir, columns);
-  fs::create_directories(dir);
+  create_run_directory(dir); // locked before the first file (apps/run_directory.hpp)
   return DiagnosticsFile((fs::path(dir) / "diagnostics.csv").string(), columns);
 }
 

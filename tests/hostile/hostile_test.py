@@ -549,6 +549,48 @@ def rerun_into_a_run_directory(ctx):
 
 
 @case
+def two_runs_into_one_directory(ctx):
+    """Two runs into the same directory at once both exited 0, run.json from one and
+    diagnostics.csv from the other. The run directory is locked while a run writes it: the
+    second run exits 2 naming the directory, and the first finishes intact. Started together
+    (the race is lost at the directory's creation) and one after the other (the second finds
+    the lock; with --overwrite it would have removed the first run's files)."""
+    import json
+    import time
+    def start(d, seed, *extra):  # about 3 s of run
+        return subprocess.Popen([BIN, "run", SMALL, "run.end_time=0.5", f"particles.seed={seed}",
+                                 "--quiet", "--out", d, *extra], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+    def intact(d, seed):
+        with open(os.path.join(d, "run.json")) as f:
+            assert json.load(f)["configuration"]["particles.seed"] == seed
+        r = rows(d)
+        assert abs(float(r[-1][0]) - 0.5) < 1e-6 and all(len(x) == len(r[0]) for x in r), r[-1]
+    lock = r"concurrent\S*: another cfddem run is writing into this directory"
+    d = ctx.fresh("concurrent_together")
+    runs = {seed: start(d, seed) for seed in (3, 4)}
+    outs = {seed: p.communicate(timeout=TIMEOUT)[0] for seed, p in runs.items()}
+    codes = {seed: p.returncode for seed, p in runs.items()}
+    assert sorted(codes.values()) == [0, 2], (codes, outs)
+    winner = min(codes, key=codes.get)
+    loser = max(codes, key=codes.get)
+    assert re.search(lock, outs[loser]) or "holds the outputs of an earlier run" in outs[loser], \
+        outs[loser]
+    intact(d, winner)
+    d = ctx.fresh("concurrent_after")
+    first = start(d, 3)
+    while not os.path.exists(os.path.join(d, "diagnostics.csv")) and first.poll() is None:
+        time.sleep(0.01)
+    second = start(d, 4, "--overwrite")
+    out = second.communicate(timeout=TIMEOUT)[0]
+    running = first.poll() is None
+    assert first.wait(timeout=TIMEOUT) == 0, first.communicate()[0]
+    assert second.returncode == 2 and re.search(lock, out), (second.returncode, out)
+    assert running, "the first run ended before the second was refused: make it longer"
+    intact(d, 3)
+
+
+@case
 def overwrite_removes_the_old_run(ctx):
     d = ctx.fresh("overwritten")
     shutil.copytree(ctx.precious, d)

@@ -227,8 +227,9 @@ std::vector<SceneKey> make_table() {
        .type = T::Bool,
        .section = S::DomainParticles,
        .fallback = flag(false),
-       .meaning = "accept initial particles that overlap (otherwise the pair is named and the "
-                  "run refused)"},
+       .meaning = "accept initial particles that overlap each other or a wall (otherwise the "
+                  "pair, or the particle and the wall, is named and the run refused); two "
+                  "particles on the same centre are refused even so"},
 
       // Contacts and time step.
       {.name = "dem.scheme",

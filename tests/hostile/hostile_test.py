@@ -244,6 +244,25 @@ def particle_csv_overlap(ctx):
 
 
 @case
+def particle_file_cuts_a_wall(ctx):
+    """A particle cutting into a wall passed set-up, then stopped at step 0 as "too fast for the
+    spring (raise k or lower dt)"; two coincident centres with allow_overlap gave NaN positions.
+    Both are refused at set-up, naming the particle and the wall or the pair."""
+    head = "x,y,z,vx,vy,vz,diameter,density\n"
+    p = ctx.file("cuts_wall.csv", head + "1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n"
+                                         "1e-3,4.5e-5,1e-3,0,0,0,1e-4,1000\n")
+    wall = ["domain.periodic=[true,false,true]"]
+    expect(ctx, ["run", HCS, f"particles.file={p}", *wall], 2,
+           r"cuts_wall.csv: particle 1 at .* overlaps wall y_lo by 5e-06 m", fresh=True)
+    expect(ctx, ["run", HCS, f"particles.file={p}", *wall, "particles.allow_overlap=true",
+                 "run.end_time=1e-5", "--quiet"], 0, None, out_dir=ctx.fresh("cut_allowed"))
+    q = ctx.file("same_centre.csv", head + "1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n"
+                                           "1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n")
+    expect(ctx, ["run", HCS, f"particles.file={q}", "particles.allow_overlap=true"], 2,
+           r"particles 0 and 1 have the same centre", fresh=True)
+
+
+@case
 def fluid_cells_too_many(ctx):
     expect(ctx, ["check", SETTLING, "fluid.cells=[100000,100000,100000]"], 2,
            r"'fluid.cells': at most 65536 cells per axis")

@@ -221,6 +221,7 @@ int main(int argc, char** argv) {
         std::string refused;
         if (comm.rank() == 0) {
           try {
+            cfddem::apps::check_writable(opt.out_dir);
             // Locked first: --overwrite must not clear a directory another run is writing.
             cfddem::apps::lock_run_directory(opt.out_dir);
             cfddem::apps::prepare_run_directory(opt.out_dir, a.overwrite, a.restart);

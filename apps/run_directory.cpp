@@ -92,6 +92,34 @@ std::size_t prepare_run_directory(const fs::path& dir, bool overwrite, const std
   return removed;
 }
 
+void check_writable(const fs::path& dir) {
+  const auto refuse = [&](const std::string& why) {
+    throw ConfigError(fmt::format("output directory '{}' (--out, or runs/<name>)", dir.string()),
+                      why);
+  };
+  // Room for the longest file name a run writes in it (checkpoint_<step>.h5.tmp.<pid>).
+  constexpr std::size_t kLongestOutput = 48;
+  const long name_max = ::pathconf(".", _PC_NAME_MAX);
+  for (const fs::path& part : dir)
+    if (name_max > 0 && part.native().size() > static_cast<std::size_t>(name_max))
+      refuse(fmt::format("the name '{:.20}...' is {} characters long, more than the {} the file "
+                         "system allows",
+                         part.native(), part.native().size(), name_max));
+  if (fs::absolute(dir).native().size() + kLongestOutput >= PATH_MAX)
+    refuse(fmt::format("the path is {} characters long; with the run's file names it would pass "
+                       "the system's limit of {}",
+                       fs::absolute(dir).native().size(), PATH_MAX));
+  // The directory itself, or the nearest one above it that exists (where it will be created).
+  std::error_code ec;
+  fs::path at = fs::absolute(dir);
+  while (!fs::exists(at, ec) && at.has_relative_path())
+    at = at.parent_path();
+  if (!fs::is_directory(at, ec))
+    refuse(fmt::format("'{}' is a file, not a directory", at.string()));
+  if (::access(at.c_str(), W_OK | X_OK) != 0)
+    refuse(fmt::format("'{}' cannot be written: {}", at.string(), std::strerror(errno)));
+}
+
 namespace {
 
 // Locks `dir` unless this process holds it; true when it took the lock now.

@@ -23,6 +23,12 @@ std::vector<std::filesystem::path> run_outputs_in(const std::filesystem::path& d
 std::size_t prepare_run_directory(const std::filesystem::path& dir, bool overwrite,
                                   const std::string& restart);
 
+// Refuses (ConfigError naming --out) an output directory no run could write: a name longer than
+// the file system allows, a path through a file, or a directory (or the nearest existing one
+// above it) that cannot be written (read-only, no permission). Checked before a run starts, so
+// the run does not stop at its first file.
+void check_writable(const std::filesystem::path& dir);
+
 // Takes an advisory lock (flock(2), exclusive) on the directory `dir` and holds it for the rest of
 // the process; the kernel releases it when the process ends, by exit, signal or crash. Throws
 // ConfigError naming the directory when another process holds it. Does nothing when `dir` does

@@ -624,6 +624,35 @@ def overwrite_removes_the_old_run(ctx):
     assert rows(d)[-1][0] != rows(ctx.precious)[-1][0]
 
 
+@case
+def output_directory_that_cannot_be_written(ctx):
+    """An --out longer than the file system allows, through a file, or on a read-only file system
+    started the run and stopped it with exit 3 ("filesystem error ..."): refused with exit 2
+    before the run starts, naming the directory and why."""
+    expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(ctx.tmp, "x" * 300)], 2,
+           r"output directory .*: the name 'x{20}\.\.\.' is 300 characters long, more than the "
+           r"255 the file system allows")
+    deep = os.path.join(ctx.tmp, *(["d" * 200] * 25))
+    expect(ctx, ["run", SMALL, *TINY, "--out", deep], 2,
+           r"output directory .*: the path is \d+ characters long; with the run's file names it "
+           r"would pass the system's limit of 4096")
+    plain = ctx.file("plain_file", "not a directory\n")
+    expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(plain, "run")], 2,
+           r"plain_file' is a file, not a directory")
+    mnt = os.path.join(ctx.tmp, "read_only")
+    os.makedirs(mnt)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", mnt],
+                      capture_output=True).returncode != 0:
+        print("  output_directory_that_cannot_be_written: no read-only tmpfs mount here (not "
+              "root?): its read-only part not run")
+        return
+    try:
+        expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(mnt, "run")], 2,
+               r"read_only' cannot be written: Read-only file system")
+    finally:
+        subprocess.run(["umount", mnt])
+
+
 # ---- faults while running (exit 3, every earlier file intact) ----
 @case
 def rows_kept_when_a_run_stops(ctx):

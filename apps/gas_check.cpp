@@ -5,6 +5,9 @@
 #include <numbers>
 
 #include <fmt/format.h>
+#include <unistd.h>
+
+#include "core/error.hpp"
 
 namespace cfddem::apps {
 
@@ -16,6 +19,30 @@ namespace {
 constexpr double kParticleStepsPerSecond = 2.5e6;
 
 } // namespace
+
+double gas_memory_bytes(const Scene& s) {
+  const auto& c = s.fluid.cells;
+  return static_cast<double>(c[0]) * static_cast<double>(c[1]) * static_cast<double>(c[2]) *
+         kGasBytesPerCell;
+}
+
+void check_gas_memory(const Scene& s, int ranks) {
+  if (!s.fluid.enabled)
+    return;
+  const double memory = static_cast<double>(::sysconf(_SC_PHYS_PAGES)) *
+                        static_cast<double>(::sysconf(_SC_PAGE_SIZE));
+  const double share = gas_memory_bytes(s) / static_cast<double>(std::max(ranks, 1));
+  if (memory > 0 && share > memory)
+    throw ConfigError(
+        "scene key 'fluid.cells'",
+        fmt::format("[{}, {}, {}] cells need about {:.3g} GB for the gas ({:.3g} KB a cell){}, "
+                    "more than this machine's {:.3g} GB of memory: use fewer cells{}",
+                    s.fluid.cells[0], s.fluid.cells[1], s.fluid.cells[2],
+                    gas_memory_bytes(s) / 1e9, kGasBytesPerCell / 1e3,
+                    ranks > 1 ? fmt::format(", {:.3g} GB on each of {} ranks", share / 1e9, ranks)
+                              : std::string(),
+                    memory / 1e9, ranks > 1 ? "" : ", or more ranks on more machines"));
+}
 
 double minimum_fluidization_velocity(double d, double rho_p, double rho_g, double mu, double g) {
   const double ar = d * d * d * rho_g * (rho_p - rho_g) * g / (mu * mu);
@@ -35,6 +62,8 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
   t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
   t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));
+  t.emplace_back("gas_memory_gb (estimate, all ranks)",
+                 fmt::format("{:.3g}", gas_memory_bytes(s) / 1e9));
   const double d = derived.mean_diameter;
   if (d > 0) {
     const double ratio = *std::min_element(dx.begin(), dx.end()) / d;

@@ -184,6 +184,7 @@ int main(int argc, char** argv) {
     try {
       cfddem::SceneConfig cfg;
       const cfddem::Scene scene = load(a, cfg);
+      cfddem::apps::check_gas_memory(scene, env.ranks());
       if (env.rank() == 0)
         for (const std::string& w : cfddem::apps::setting_warnings(scene))
           fmt::print(stderr, "cfddem: warning: {}\n", w);

@@ -460,7 +460,8 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .range = closed(1, 65536),
        .fallback = required(),
-       .meaning = "cells of the MAC grid per axis (at most 4e9 in all: about 30 doubles each)"},
+       .meaning = "cells of the MAC grid per axis (at most 4e9 in all; a cell takes about 1.6 KB, and a "
+                  "grid beyond the machine's memory is refused)"},
       {.name = "fluid.cell_size",
        .type = T::Vec3,
        .section = S::Fluid,

@@ -337,6 +337,20 @@ def no_particles_with_every_scheme(ctx):
 
 
 @case
+def gas_grid_beyond_memory(ctx):
+    """fluid.cells = [1000, 1000, 1000] passed `check`, and the run grew to 24 GB until the kernel
+    killed it (rc 137, no message). check and run estimate the gas's memory (1.6 KB a cell:
+    1.6e3 GB here) and refuse what this machine cannot hold, naming the key and the estimate;
+    check shows the estimate of a grid that fits."""
+    for cmd in ("check", "run"):
+        expect(ctx, [cmd, SETTLING, "fluid.cells=[1000,1000,1000]"], 2,
+               r"scene key 'fluid.cells': \[1000, 1000, 1000\] cells need about 1.6e\+03 GB for "
+               r"the gas .* more than this machine's", timeout=20)
+    out = expect(ctx, ["check", SETTLING], 0, None)
+    assert re.search(r"gas_memory_gb \(estimate, all ranks\)\s+0.0016\b", out), out
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

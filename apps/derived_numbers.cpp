@@ -10,7 +10,9 @@
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
+#include "dem/verlet_list.hpp"
 
 namespace cfddem::apps {
 
@@ -84,6 +86,23 @@ void refuse_uncountable_steps(const Scene& s, double dt) {
                        "raise fluid.max_dt");
 }
 
+// A Verlet list holds one periodic image of a neighbour at most: a skin (dem.neighbor_skin = 10
+// m) reaching past half a periodic axis stopped the run at its first list (exit 3). Known here.
+void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double skin) {
+  int axis = 0;
+  if (r.count == 0 || dem::VerletList::skin_fits(dem::DomainGeometry(s.domain), r.r_max, skin, &axis))
+    return;
+  const bool given = s.dem.neighbor_skin > 0.0;
+  throw ConfigError(given ? "scene key 'dem.neighbor_skin'" : "scene key 'domain.hi'",
+                    fmt::format("periodic axis {} is {:.6g} m long, not more than twice the "
+                                "neighbor cutoff plus skin, {:.6g} m (the largest diameter {:.6g} m "
+                                "and two skins of {:.6g} m): {}",
+                                axis, s.domain.length(axis), 2 * r.r_max + 2 * skin, 2 * r.r_max,
+                                skin,
+                                given ? "lower dem.neighbor_skin or enlarge the domain"
+                                      : "enlarge the domain"));
+}
+
 // The numbers from the particles' count, range, sums and granular temperature.
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
                            std::array<double, 2> sums, double temperature) {
@@ -92,6 +111,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   const auto model = dem::make_step_model(s, range);
   refuse_zero_step(s, model.dt, range.count == 0 ? 1.0 : range.m_min);
   refuse_uncountable_steps(s, model.dt);
+  refuse_skin_beyond_box(s, range, model.skin);
   if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
     d.dt = model.dt;
     d.steps = std::llround(s.run.end_time / d.dt);

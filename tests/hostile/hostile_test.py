@@ -351,6 +351,20 @@ def gas_grid_beyond_memory(ctx):
 
 
 @case
+def skin_and_tolerance_refused_before_the_run(ctx):
+    """dem.neighbor_skin = 10 m passed `check` and stopped the run at its first neighbour list
+    (exit 3); fluid.tolerance = 1e-300 started the run and stopped it at the first projection
+    (exit 3). Both are refused before the run starts, naming the key."""
+    for cmd in ("check", "run"):
+        expect(ctx, [cmd, SMALL, "dem.neighbor_skin=10"], 2,
+               r"scene key 'dem.neighbor_skin': periodic axis 0 is 0.001737 m long, not more "
+               r"than twice the neighbor cutoff plus skin, 20.0001 m .*lower dem.neighbor_skin",
+               fresh=cmd == "run")
+        expect(ctx, [cmd, SETTLING, "fluid.tolerance=1e-300"], 2,
+               r"scene key 'fluid.tolerance'.*must be in \[1e-12, 1\), got 1e-300")
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

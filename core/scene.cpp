@@ -313,6 +313,15 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.cfl = k.number("fluid.cfl");
     f.max_dt = k.number("fluid.max_dt");
     f.drag = k.word("fluid.drag");
+    // BVK and Koch-Hill write the drag as 18 mu / d^2 times a function of Re = rho |u| d / mu:
+    // 0 x infinity for an inviscid gas (its NaN stopped the projection at the first step). Wen &
+    // Yu's tends to Newton's drag as mu -> 0 and runs.
+    require(f.viscosity > 0.0 || f.drag == "wen_yu" || f.drag == "none", "fluid.viscosity",
+            fmt::format("0 (an inviscid gas) cannot take fluid.drag = \"{}\": the law is 18 mu / "
+                        "d^2 times a function of Re = rho |u| d / mu, 0 x infinity at mu = 0; give "
+                        "mu > 0, or fluid.drag = \"wen_yu\" (Newton's drag as mu -> 0) or "
+                        "\"none\"",
+                        f.drag));
     f.one_way = k.word("fluid.coupling") == "one_way";
     f.deposition = k.word("fluid.deposition");
     f.deposition_width = k.number("fluid.deposition_width");

@@ -365,6 +365,21 @@ def skin_and_tolerance_refused_before_the_run(ctx):
 
 
 @case
+def inviscid_gas_with_a_viscous_drag_law(ctx):
+    """fluid.viscosity = 0 (allowed) with bvk, bvk2 or koch_hill drag stopped the first step with
+    exit 3 "multigrid: the coarsest operator is not positive definite" (the drag's 0 x inf):
+    refused at set-up naming the key and the drag law. An inviscid gas with wen_yu (Newton's
+    drag as mu -> 0) or no drag runs."""
+    for drag in ("bvk", "bvk2", "koch_hill"):
+        expect(ctx, ["run", SETTLING, "fluid.viscosity=0", f"fluid.drag={drag}"], 2,
+               rf"scene key 'fluid.viscosity': 0 \(an inviscid gas\) cannot take fluid.drag = "
+               rf"\"{drag}\"")
+    for drag in ("wen_yu", "none"):
+        expect(ctx, ["run", SETTLING, "fluid.viscosity=0", f"fluid.drag={drag}",
+                     "run.end_time=5e-4", "--quiet"], 0, None, out_dir=ctx.fresh(f"mu0_{drag}"))
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

@@ -357,6 +357,13 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.tolerance = k.number("fluid.tolerance");
     f.preconditioner = k.word("fluid.preconditioner");
     f.solver = k.word("fluid.solver");
+    // One cell has no coarser level: the multigrid's coarsest operator is the pinned 1 x 1
+    // system, which it cannot factor ("not positive definite" at the first step). hypre solves it.
+    require(f.cells[0] * f.cells[1] * f.cells[2] > 1 || f.solver == "hypre", "fluid.cells",
+            fmt::format("[1, 1, 1] (a single gas cell) cannot be solved by fluid.solver = \"{}\" "
+                        "(our multigrid needs at least 2 cells); give more cells, or fluid.solver "
+                        "= \"hypre\"",
+                        f.solver));
   }
 
   c.check_all_used();

@@ -380,6 +380,20 @@ def inviscid_gas_with_a_viscous_drag_law(ctx):
 
 
 @case
+def single_gas_cell(ctx):
+    """fluid.cells = [1, 1, 1] with the default solver stopped at the first step with exit 3
+    "multigrid ... not positive definite" (walls or periodic): refused at set-up, pointing at
+    hypre, which runs it."""
+    for scene in (SETTLING, os.path.join(SCENES, "hcs_gas.toml")):
+        for solver in ("auto", "multigrid"):
+            expect(ctx, ["run", scene, "fluid.cells=[1,1,1]", f"fluid.solver={solver}"], 2,
+                   rf"scene key 'fluid.cells': \[1, 1, 1\] \(a single gas cell\) cannot be "
+                   rf"solved by fluid.solver = \"{solver}\".*fluid.solver = \"hypre\"")
+    expect(ctx, ["run", SETTLING, "fluid.cells=[1,1,1]", "fluid.solver=hypre",
+                 "run.end_time=5e-4", "--quiet"], 0, None, out_dir=ctx.fresh("one_cell_hypre"))
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

@@ -44,6 +44,41 @@ void check_gas_memory(const Scene& s, int ranks) {
                     memory / 1e9, ranks > 1 ? "" : ", or more ranks on more machines"));
 }
 
+void check_gas_numbers(const Scene& s) {
+  const auto& f = s.fluid;
+  if (!f.enabled)
+    return;
+  double dx = INFINITY, speed = 0.0;
+  for (std::size_t a = 0; a < 3; ++a) {
+    dx = std::min(dx, f.cell_size[a] > 0
+                          ? f.cell_size[a]
+                          : s.domain.length(static_cast<int>(a)) / static_cast<double>(f.cells[a]));
+    speed = std::max({speed, std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a])});
+  }
+  const double dt_f = f.dt > 0.0 ? f.dt : f.max_dt;
+  const char* step = f.dt > 0.0 ? "fluid.dt" : "fluid.max_dt";
+  const double courant = speed * dt_f / dx;
+  if (courant > kMaxCourantPerFluidStep)
+    throw ConfigError(
+        "scene keys 'fluid.velocity' and 'fluid.inflow_velocity'",
+        fmt::format("a gas speed of {:.3g} m/s crosses {:.3g} cells of {:.3g} m in a fluid step "
+                    "of {:.3g} s ({}): the gas would take {:.3g} sub-steps (at fluid.cfl = {:g}) "
+                    "every fluid step, beyond the Courant number {:g} a run can take; lower the "
+                    "velocity or {}",
+                    speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl,
+                    kMaxCourantPerFluidStep, step));
+  const double nu = f.viscosity / f.density;
+  const double viscous = nu * dt_f / (dx * dx);
+  if (viscous > kMaxViscousNumber)
+    throw ConfigError(
+        "scene keys 'fluid.viscosity' and 'fluid.density'",
+        fmt::format("the kinematic viscosity mu / rho_g = {:.3g} m^2/s makes the viscous number "
+                    "nu dt_f / dx^2 = {:.3g} in a fluid step of {:.3g} s ({}) on cells of {:.3g} "
+                    "m, beyond the {:g} at which the gas's solves stop converging; raise "
+                    "fluid.density, lower fluid.viscosity or {}, or use coarser cells",
+                    nu, viscous, dt_f, step, dx, kMaxViscousNumber, step));
+}
+
 double minimum_fluidization_velocity(double d, double rho_p, double rho_g, double mu, double g) {
   const double ar = d * d * d * rho_g * (rho_p - rho_g) * g / (mu * mu);
   const double re = std::sqrt(33.7 * 33.7 + 0.0408 * ar) - 33.7;

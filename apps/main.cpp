@@ -103,6 +103,7 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
   for (const auto& o : a.overrides) cfg.apply_override(o);
   cfddem::Scene scene = cfddem::read_scene(cfg, default_name);
   cfddem::apps::validate_fluid(scene);
+  cfddem::apps::check_gas_numbers(scene);
   return scene;
 }
 

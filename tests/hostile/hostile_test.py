@@ -394,6 +394,25 @@ def single_gas_cell(ctx):
 
 
 @case
+def extreme_gas_values_refused(ctx):
+    """fluid.density = 1e-300, fluid.viscosity = 1e300 and fluid.velocity = [1e300, 0, 0] ran
+    the first fluid step for 20-60 s with no progress line. The viscous number nu dt_f / dx^2
+    (1e-4 s on cells of 1.5e-4 m) and the Courant number |u| dt_f / dx are refused beyond what
+    can run, naming the keys and the number; the scene's own values run."""
+    expect(ctx, ["check", SETTLING, "fluid.density=1e-300"], 2,
+           r"scene keys 'fluid.viscosity' and 'fluid.density': the kinematic viscosity mu / "
+           r"rho_g = 2e\+295 m\^2/s makes the viscous number nu dt_f / dx\^2 = 8.89e\+298",
+           timeout=10)
+    expect(ctx, ["run", SETTLING, "fluid.viscosity=1e300"], 2,
+           r"'fluid.viscosity' and 'fluid.density'.*nu dt_f / dx\^2 = 4.44e\+303", timeout=10)
+    expect(ctx, ["run", SETTLING, "fluid.velocity=[1e300,0,0]"], 2,
+           r"scene keys 'fluid.velocity' and 'fluid.inflow_velocity': a gas speed of 1e\+300 m/s "
+           r"crosses 6.67e\+299 cells", timeout=10)
+    expect(ctx, ["run", SETTLING, "fluid.dt=0", "fluid.inflow_velocity=[0,1e20,0]"], 2,
+           r"'fluid.inflow_velocity'.*\(fluid.max_dt\)", timeout=10)
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

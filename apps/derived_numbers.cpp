@@ -18,14 +18,15 @@ namespace cfddem::apps {
 
 namespace {
 
-// Sums over the particles: solid volume and diameters.
-std::array<double, 2> volume_and_diameters(const ParticleStore& p) {
-  double vol = 0, dsum = 0;
+// Sums over the particles: solid volume, diameters and mass.
+std::array<double, 3> volume_and_diameters(const ParticleStore& p) {
+  double vol = 0, dsum = 0, mass = 0;
   for (std::size_t i = 0; i < p.size(); ++i) {
     vol += (4.0 / 3.0) * std::numbers::pi * std::pow(p.radius[i], 3);
     dsum += 2 * p.radius[i];
+    mass += p.mass[i];
   }
-  return {vol, dsum};
+  return {vol, dsum, mass};
 }
 
 // The most steps of any kind a run may take: its step counters are 64-bit integers, and a count
@@ -105,7 +106,7 @@ void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double 
 
 // The numbers from the particles' count, range, sums and granular temperature.
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
-                           std::array<double, 2> sums, double temperature) {
+                           std::array<double, 3> sums, double temperature) {
   DerivedNumbers d;
   d.particles = static_cast<std::size_t>(range.count);
   const auto model = dem::make_step_model(s, range);
@@ -123,6 +124,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   d.dt = model.dt;
   d.tau_p = std::sqrt(mmin / std::max(s.dem.spring_constant, s.dem.wall_spring_constant));
   d.solid_fraction = vol / s.domain.volume();
+  d.solid_density = sums[2] / vol;
   const double phi = d.solid_fraction;
   d.g0 = (1 - phi / 2) / std::pow(1 - phi, 3);
   d.granular_temperature = temperature;
@@ -157,7 +159,7 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator
   std::array<double, 4> ext = {-r.m_min, r.m_max, -r.r_min, r.r_max};
   comm.max(ext);
   r.m_min = -ext[0], r.m_max = ext[1], r.r_min = -ext[2], r.r_max = ext[3];
-  std::array<double, 2> sums = volume_and_diameters(p);
+  std::array<double, 3> sums = volume_and_diameters(p);
   comm.sum(sums);
   const double t =
       dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}, comm).granular_temperature;

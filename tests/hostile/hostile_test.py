@@ -445,6 +445,27 @@ def check_tells_about_the_gas(ctx):
     assert "narrower than a particle" not in quiet  # dpvm spreads the particle: no warning
 
 
+@case
+def check_polydisperse_fluidization_velocity(ctx):
+    """`cfddem check` of a polydisperse bed gave U_mf about 5x low: it divided the lightest
+    particle's mass by the mean diameter's volume (a density of 222 kg/m3 for 2500). It now takes
+    the material's density and the Sauter mean d32: in the Stokes regime U_mf = d32^2 (rho_p -
+    rho_g) g / (1652 mu), to 0.1%."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    out = expect(ctx, ["check", bed, "particles.diameter={distribution='uniform', min=5e-5, "
+                                     "max=1e-4}"], 0, None)
+    m = re.search(r"minimum_fluidization_velocity_m_s \(Wen & Yu, d32\)\s+(\S+)",
+                  out)
+    assert m, out
+    umf = float(m.group(1))
+    d32 = float(re.search(r"sauter_mean_d32_m\s+(\S+)", out).group(1))
+    cfg = dict(re.findall(r"^(\S+) = (.*)$", out, re.M))
+    rho_p = float(cfg["particles.density"])
+    rho_g, mu = float(cfg["fluid.density"]), float(cfg["fluid.viscosity"])
+    stokes = d32 * d32 * (rho_p - rho_g) * 9.80665 / (2 * 33.7 / 0.0408 * mu)
+    assert abs(umf / stokes - 1) < 1e-3, (umf, stokes)
+
+
 # ---- legal but almost surely a mistake: a warning, and run.json as typed JSON ----
 @case
 def snapshot_interval_tiny_warns(ctx):

@@ -310,6 +310,33 @@ def settle_then_turn_the_gas_on(ctx):
 
 
 @case
+def restart_counts_its_own_work(ctx):
+    """After a restart the closing line said "74.96 s for 600 fluid steps (0.1249 s each)" when
+    400 were run, and run.json's particle_steps_per_second was inflated alike: the counters go
+    on from the checkpoint. A restart at t = 1 ms of a 2 ms run with a gas (fluid.dt = 1e-4 s)
+    reports its 10 fluid steps and the rate of the particle steps it took, while run.json's
+    fluid_steps and particle_steps still count the whole run."""
+    import json
+    base = [SETTLING, "particles.count=30", "output.interval=5e-4"]
+    first = ctx.fresh("restart_count_first")
+    expect(ctx, ["run", *base, "run.end_time=1e-3", "output.checkpoint_interval=1e-3",
+                 "--quiet"], 0, None, out_dir=first)
+    with open(os.path.join(first, "run.json")) as f:
+        before = json.load(f)
+    second = ctx.fresh("restart_count_second")
+    out = expect(ctx, ["run", *base, "run.end_time=2e-3", "--restart",
+                       os.path.join(first, "checkpoint_000000010.h5")], 0,
+                 r"Loop time of \S+ s for 10 fluid steps \(", out_dir=second)
+    with open(os.path.join(second, "run.json")) as f:
+        j = json.load(f)
+    assert j["fluid_steps"] == 20, j["fluid_steps"]
+    assert abs(j["wall_seconds_per_fluid_step"] * 10 / j["loop_seconds"] - 1) < 1e-9, j
+    this_run = j["particle_steps_per_second"] * j["loop_seconds"]
+    assert abs(this_run / (j["particle_steps"] - before["particle_steps"]) - 1) < 0.05, \
+        (this_run, j["particle_steps"], before["particle_steps"])
+
+
+@case
 def gas_alone_at_its_own_step(ctx):
     """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
     capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of

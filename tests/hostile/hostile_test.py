@@ -337,6 +337,27 @@ def restart_counts_its_own_work(ctx):
 
 
 @case
+def restart_profiles_start_at_zero(ctx):
+    """A restart into a new --out wrote profiles.csv from the restart time while diagnostics.csv
+    starts at t = 0. One rule: both start at t = 0, the rows before the restart taken from the
+    run it continues; the restart being bitwise, the file is the uninterrupted run's."""
+    prof = ["output.profile_axis=x", "output.profile_bins=4", "output.interval=5e-6"]
+    whole = ctx.fresh("profiles_whole")
+    expect(ctx, ["run", SMALL, *TINY, *prof, "output.checkpoint_interval=1e-5", "--quiet"], 0,
+           None, out_dir=whole)
+    ck = sorted(n for n in os.listdir(whole) if n.startswith("checkpoint_"))[0]
+    again = ctx.fresh("profiles_again")
+    expect(ctx, ["run", SMALL, *TINY, *prof, "--quiet", "--restart", os.path.join(whole, ck)], 0,
+           None, out_dir=again)
+    with open(os.path.join(whole, "profiles.csv")) as f:
+        want = f.read()
+    with open(os.path.join(again, "profiles.csv")) as f:
+        got = f.read()
+    assert got.splitlines()[1].startswith("0,"), got[:300]
+    assert got == want, (got[:500], want[:500])
+
+
+@case
 def gas_alone_at_its_own_step(ctx):
     """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
     capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of

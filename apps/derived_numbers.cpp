@@ -2,34 +2,117 @@
 
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 
 #include <fmt/format.h>
 
+#include "core/error.hpp"
 #include "dem/contact_damping.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/granular_diagnostics.hpp"
+#include "dem/verlet_list.hpp"
 
 namespace cfddem::apps {
 
 namespace {
 
-// Sums over the particles: solid volume and diameters.
-std::array<double, 2> volume_and_diameters(const ParticleStore& p) {
-  double vol = 0, dsum = 0;
+// Sums over the particles: solid volume, diameters and mass.
+std::array<double, 3> volume_and_diameters(const ParticleStore& p) {
+  double vol = 0, dsum = 0, mass = 0;
   for (std::size_t i = 0; i < p.size(); ++i) {
     vol += (4.0 / 3.0) * std::numbers::pi * std::pow(p.radius[i], 3);
     dsum += 2 * p.radius[i];
+    mass += p.mass[i];
   }
-  return {vol, dsum};
+  return {vol, dsum, mass};
+}
+
+// The most steps of any kind a run may take: its step counters are 64-bit integers, and a count
+// past 2^63 came out as INT64_MIN, so the run took 0 steps and said "done". 2^62 leaves room for
+// the counters' sums.
+constexpr double kMaxSteps = static_cast<double>(std::int64_t{1} << 62);
+
+// A step of 0 s (the lightest particle's mass, or dem.dt_factor, below what a double holds) can
+// take no run anywhere: refused, naming the keys that made it.
+void refuse_zero_step(const Scene& s, double dt, double m_min) {
+  if (dt > 0.0 && std::isfinite(dt))
+    return;
+  if (!(m_min > 0.0))
+    throw ConfigError(s.particles.file.empty()
+                          ? "scene keys 'particles.diameter' and 'particles.density'"
+                          : s.particles.file,
+                      fmt::format("the lightest particle's mass is {:.3g} kg, so the particle "
+                                  "step dt = dem.dt_factor x sqrt(m/k) is {:.3g} s: particles "
+                                  "this small cannot be stepped in double precision",
+                                  m_min, dt));
+  throw ConfigError("scene key 'dem.dt_factor'",
+                    fmt::format("{} makes the particle step dt = {:.3g} s: set dem.dt_factor "
+                                "(0.02 is the paper's) or dem.dt",
+                                s.dem.dt_factor, dt));
+}
+
+// Steps of `step` seconds to run.end_time, refused when a run cannot count them. `keys` names the
+// keys that set the step, `what` the step.
+void refuse_uncountable(const Scene& s, double step, const char* keys, const std::string& what,
+                        const char* advice) {
+  const double n = s.run.end_time / step;
+  if (n <= kMaxSteps)
+    return;
+  throw ConfigError(fmt::format("scene keys 'run.end_time' and {}", keys),
+                    fmt::format("run.end_time = {:g} s in {} of {:.4g} s needs {:.3g} steps, "
+                                "more than a run can count ({:.3g}); {} or shorten run.end_time",
+                                s.run.end_time, what, step, n, kMaxSteps, advice));
+}
+
+// Every step count of the run: particle steps of dt, sub-iterations of the adaptive schemes
+// without a gas, fluid steps with one.
+void refuse_uncountable_steps(const Scene& s, double dt) {
+  const bool by_dt = s.dem.dt > 0.0;
+  refuse_uncountable(s, dt, by_dt ? "'dem.dt'" : "'dem.dt_factor'",
+                     by_dt ? "particle steps (dem.dt)"
+                           : "particle steps (dt = dem.dt_factor x tau_p)",
+                     by_dt ? "raise dem.dt" : "raise dem.dt_factor");
+  const bool sub = s.dem.scheme == "orb" || s.dem.scheme == "islands";
+  if (sub && !s.fluid.enabled)
+    refuse_uncountable(s, s.dem.regrid_interval / static_cast<double>(s.dem.nsubit),
+                       "'dem.regrid_interval'",
+                       "sub-iterations (dt_sp = dem.regrid_interval / dem.nsubit)",
+                       "raise dem.regrid_interval");
+  if (s.fluid.enabled && s.fluid.dt > 0.0)
+    refuse_uncountable(s, s.fluid.dt, "'fluid.dt'", "fluid steps", "raise fluid.dt");
+  if (s.fluid.enabled && !(s.fluid.dt > 0.0))
+    refuse_uncountable(s, s.fluid.max_dt, "'fluid.max_dt'", "fluid steps of at most fluid.max_dt",
+                       "raise fluid.max_dt");
+}
+
+// A Verlet list holds one periodic image of a neighbour at most: a skin (dem.neighbor_skin = 10
+// m) reaching past half a periodic axis stopped the run at its first list (exit 3). Known here.
+void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double skin) {
+  int axis = 0;
+  if (r.count == 0 || dem::VerletList::skin_fits(dem::DomainGeometry(s.domain), r.r_max, skin, &axis))
+    return;
+  const bool given = s.dem.neighbor_skin > 0.0;
+  throw ConfigError(given ? "scene key 'dem.neighbor_skin'" : "scene key 'domain.hi'",
+                    fmt::format("periodic axis {} is {:.6g} m long, not more than twice the "
+                                "neighbor cutoff plus skin, {:.6g} m (the largest diameter {:.6g} m "
+                                "and two skins of {:.6g} m): {}",
+                                axis, s.domain.length(axis), 2 * r.r_max + 2 * skin, 2 * r.r_max,
+                                skin,
+                                given ? "lower dem.neighbor_skin or enlarge the domain"
+                                      : "enlarge the domain"));
 }
 
 // The numbers from the particles' count, range, sums and granular temperature.
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
-                           std::array<double, 2> sums, double temperature) {
+                           std::array<double, 3> sums, double temperature) {
   DerivedNumbers d;
   d.particles = static_cast<std::size_t>(range.count);
   const auto model = dem::make_step_model(s, range);
+  refuse_zero_step(s, model.dt, range.count == 0 ? 1.0 : range.m_min);
+  refuse_uncountable_steps(s, model.dt);
+  refuse_skin_beyond_box(s, range, model.skin);
   if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
     d.dt = model.dt;
     d.steps = std::llround(s.run.end_time / d.dt);
@@ -41,6 +124,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   d.dt = model.dt;
   d.tau_p = std::sqrt(mmin / std::max(s.dem.spring_constant, s.dem.wall_spring_constant));
   d.solid_fraction = vol / s.domain.volume();
+  d.solid_density = sums[2] / vol;
   const double phi = d.solid_fraction;
   d.g0 = (1 - phi / 2) / std::pow(1 - phi, 3);
   d.granular_temperature = temperature;
@@ -75,7 +159,7 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator
   std::array<double, 4> ext = {-r.m_min, r.m_max, -r.r_min, r.r_max};
   comm.max(ext);
   r.m_min = -ext[0], r.m_max = ext[1], r.r_min = -ext[2], r.r_max = ext[3];
-  std::array<double, 2> sums = volume_and_diameters(p);
+  std::array<double, 3> sums = volume_and_diameters(p);
   comm.sum(sums);
   const double t =
       dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}, comm).granular_temperature;

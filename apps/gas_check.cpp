@@ -5,6 +5,9 @@
 #include <numbers>
 
 #include <fmt/format.h>
+#include <unistd.h>
+
+#include "core/error.hpp"
 
 #include "fluid/fluid_step_rule.hpp"
 
@@ -18,6 +21,65 @@ namespace {
 constexpr double kParticleStepsPerSecond = 2.5e6;
 
 } // namespace
+
+double gas_memory_bytes(const Scene& s) {
+  const auto& c = s.fluid.cells;
+  return static_cast<double>(c[0]) * static_cast<double>(c[1]) * static_cast<double>(c[2]) *
+         kGasBytesPerCell;
+}
+
+void check_gas_memory(const Scene& s, int ranks) {
+  if (!s.fluid.enabled)
+    return;
+  const double memory = static_cast<double>(::sysconf(_SC_PHYS_PAGES)) *
+                        static_cast<double>(::sysconf(_SC_PAGE_SIZE));
+  const double share = gas_memory_bytes(s) / static_cast<double>(std::max(ranks, 1));
+  if (memory > 0 && share > memory)
+    throw ConfigError(
+        "scene key 'fluid.cells'",
+        fmt::format("[{}, {}, {}] cells need about {:.3g} GB for the gas ({:.3g} KB a cell){}, "
+                    "more than this machine's {:.3g} GB of memory: use fewer cells{}",
+                    s.fluid.cells[0], s.fluid.cells[1], s.fluid.cells[2],
+                    gas_memory_bytes(s) / 1e9, kGasBytesPerCell / 1e3,
+                    ranks > 1 ? fmt::format(", {:.3g} GB on each of {} ranks", share / 1e9, ranks)
+                              : std::string(),
+                    memory / 1e9, ranks > 1 ? "" : ", or more ranks on more machines"));
+}
+
+void check_gas_numbers(const Scene& s) {
+  const auto& f = s.fluid;
+  if (!f.enabled)
+    return;
+  double dx = INFINITY, speed = 0.0;
+  for (std::size_t a = 0; a < 3; ++a) {
+    dx = std::min(dx, f.cell_size[a] > 0
+                          ? f.cell_size[a]
+                          : s.domain.length(static_cast<int>(a)) / static_cast<double>(f.cells[a]));
+    speed = std::max({speed, std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a])});
+  }
+  const double dt_f = f.dt > 0.0 ? f.dt : f.max_dt;
+  const char* step = f.dt > 0.0 ? "fluid.dt" : "fluid.max_dt";
+  const double courant = speed * dt_f / dx;
+  if (courant > kMaxCourantPerFluidStep)
+    throw ConfigError(
+        "scene keys 'fluid.velocity' and 'fluid.inflow_velocity'",
+        fmt::format("a gas speed of {:.3g} m/s crosses {:.3g} cells of {:.3g} m in a fluid step "
+                    "of {:.3g} s ({}): the gas would take {:.3g} sub-steps (at fluid.cfl = {:g}) "
+                    "every fluid step, beyond the Courant number {:g} a run can take; lower the "
+                    "velocity or {}",
+                    speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl,
+                    kMaxCourantPerFluidStep, step));
+  const double nu = f.viscosity / f.density;
+  const double viscous = nu * dt_f / (dx * dx);
+  if (viscous > kMaxViscousNumber)
+    throw ConfigError(
+        "scene keys 'fluid.viscosity' and 'fluid.density'",
+        fmt::format("the kinematic viscosity mu / rho_g = {:.3g} m^2/s makes the viscous number "
+                    "nu dt_f / dx^2 = {:.3g} in a fluid step of {:.3g} s ({}) on cells of {:.3g} "
+                    "m, beyond the {:g} at which the gas's solves stop converging; raise "
+                    "fluid.density, lower fluid.viscosity or {}, or use coarser cells",
+                    nu, viscous, dt_f, step, dx, kMaxViscousNumber, step));
+}
 
 double minimum_fluidization_velocity(double d, double rho_p, double rho_g, double mu, double g) {
   const double ar = d * d * d * rho_g * (rho_p - rho_g) * g / (mu * mu);
@@ -37,6 +99,8 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
   t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
   t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));
+  t.emplace_back("gas_memory_gb (estimate, all ranks)",
+                 fmt::format("{:.3g}", gas_memory_bytes(s) / 1e9));
   const double d = derived.mean_diameter;
   if (d > 0) {
     const double ratio = *std::min_element(dx.begin(), dx.end()) / d;
@@ -95,9 +159,17 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   const double g = std::abs(s.gravity[static_cast<std::size_t>(axis)]);
   if (derived.particles > 0 && g > 0 && !s.domain.periodic[static_cast<std::size_t>(axis)] &&
       f.viscosity > 0) {
-    const double rho_p = derived.min_mass / (std::numbers::pi / 6 * d * d * d);
-    const double umf = minimum_fluidization_velocity(d, rho_p, f.density, f.viscosity, g);
-    t.emplace_back("minimum_fluidization_velocity_m_s (Wen & Yu)", fmt::format("{:.4g}", umf));
+    // The material's density and, for a size distribution, the Sauter mean d32: the diameter
+    // with the bed's volume-to-surface ratio, which sets its drag (Kunii & Levenspiel 1991,
+    // ch. 3). The lightest particle's mass over the mean diameter's volume put U_mf of a
+    // polydisperse bed 5x low (a density of 222 kg/m^3 for 2500).
+    const double d_mf = derived.sizes.d32 > 0 ? derived.sizes.d32 : d;
+    const double umf =
+        minimum_fluidization_velocity(d_mf, derived.solid_density, f.density, f.viscosity, g);
+    t.emplace_back(derived.sizes.d_max > derived.sizes.d_min
+                       ? "minimum_fluidization_velocity_m_s (Wen & Yu, d32)"
+                       : "minimum_fluidization_velocity_m_s (Wen & Yu)",
+                   fmt::format("{:.4g}", umf));
     const double u_in = std::abs(f.inflow_velocity[static_cast<std::size_t>(axis)]);
     if (u_in > 0)
       t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));

@@ -17,6 +17,32 @@ struct GasCheck {
   std::vector<std::string> warnings;
 };
 
+// The memory a gas cell costs in a run (its fields, the multigrid's levels, the solvers' work
+// arrays): 1.49 KB per cell measured on a 100^3 grid (one rank, the default solver, the peak
+// resident size less that of a 50^3 grid), rounded up.
+inline constexpr double kGasBytesPerCell = 1600;
+
+// The gas's memory estimate for the whole grid (scene.fluid.cells), in bytes.
+double gas_memory_bytes(const Scene& scene);
+
+// Throws ConfigError naming fluid.cells and the estimate when the gas cannot fit in this
+// machine's memory: the whole grid on one rank, one rank's share on `ranks` (which may run on
+// several machines). A grid of 1000^3 passed `check` and grew until the kernel killed the run.
+void check_gas_memory(const Scene& scene, int ranks);
+
+// The gas's derived numbers per fluid step dt_f (fluid.dt, or fluid.max_dt when adaptive) on the
+// smallest cell dx, and the most a run can take of each: the Courant number |u| dt_f / dx of the
+// initial and inflow velocities (the predictor's sub-steps are it over fluid.cfl), and the
+// viscous number nu dt_f / dx^2, nu = mu / rho_g (the conditioning of the implicit viscous and
+// the drag-coupled pressure solves grows with it: 8.9e5 on scenes/settling.toml stops the
+// projection short of its tolerance at once, 8.9e7 runs 10 s before stopping, 1e299 hung).
+inline constexpr double kMaxCourantPerFluidStep = 1e4;
+inline constexpr double kMaxViscousNumber = 1e8;
+
+// Throws ConfigError naming the key and the number when one is beyond what can run (extreme
+// gas values made the first fluid step run 20-60 s with no progress line).
+void check_gas_numbers(const Scene& scene);
+
 // A scene with a gas (scene.fluid.enabled); `derived` from the scene's initial particles.
 GasCheck check_gas(const Scene& scene, const DerivedNumbers& derived);
 

@@ -152,16 +152,17 @@ std::int64_t GasSide::cell_updates() const {
   return static_cast<std::int64_t>(box[0]) * box[1] * box[2] * gas_->gas_substeps();
 }
 
-void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, double loop_seconds,
-                       double fluid_seconds) const {
-  const auto steps = static_cast<double>(loop.fluid_steps);
+void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, long long steps_run,
+                       double loop_seconds, double fluid_seconds) const {
   j["fluid_steps"] = loop.fluid_steps;
-  j["fluid_dt_mean"] = loop.fluid_steps > 0 ? loop.dt_f_sum / steps : 0.0;
+  j["fluid_dt_mean"] =
+      loop.fluid_steps > 0 ? loop.dt_f_sum / static_cast<double>(loop.fluid_steps) : 0.0;
+  const auto steps = static_cast<double>(steps_run);
   j["gas_substeps"] = gas_->gas_substeps();
   j["implicit_viscosity_steps"] = gas_->implicit_viscosity_steps();
   j["projection_iterations"] = gas_->projection_iterations();
   j["projection_fallbacks"] = gas_->projection_fallbacks();
-  j["wall_seconds_per_fluid_step"] = loop.fluid_steps > 0 ? loop_seconds / steps : 0.0;
+  j["wall_seconds_per_fluid_step"] = steps_run > 0 ? loop_seconds / steps : 0.0;
   if (comm_.size() == 1)
     return;
   const std::vector<double> fluid = comm_.gather(fluid_seconds);
@@ -182,7 +183,7 @@ void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, 
     for (const double r : routing)
       worst = std::max(worst, r);
     j["gas_routing_seconds"] = routing;
-    j["gas_routing_seconds_per_fluid_step"] = loop.fluid_steps > 0 ? worst / steps : 0.0;
+    j["gas_routing_seconds_per_fluid_step"] = steps_run > 0 ? worst / steps : 0.0;
     j["gas_routing_copies_away_at_end"] = away;
     j["gas_routing_definition"] = "per rank: wall time packing, sending and unpacking the "
                                   "particle copies to the gas boxes and their forces back "

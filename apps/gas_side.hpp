@@ -50,9 +50,10 @@ public:
   // Fills the gas part of `c` (particles already in it, rank 0's on R ranks) and writes it.
   void write_checkpoint(const std::string& path, Checkpoint c, const ParticleStore& particles,
                         const CoupledLoopState& loop) const;
-  // run.json's gas entries; collective (the per-rank ones are gathered).
-  void describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, double loop_seconds,
-                double fluid_seconds) const;
+  // run.json's gas entries; collective (the per-rank ones are gathered). steps_run: the fluid
+  // steps this run took (a restart's loop counts on from its checkpoint), for the per-step times.
+  void describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, long long steps_run,
+                double loop_seconds, double fluid_seconds) const;
   // Gas cell updates of this rank (box cells x gas sub-steps), for rank_counts.
   [[nodiscard]] std::int64_t cell_updates() const;
 

@@ -103,6 +103,7 @@ cfddem::Scene load(Args& a, cfddem::SceneConfig& cfg) {
   for (const auto& o : a.overrides) cfg.apply_override(o);
   cfddem::Scene scene = cfddem::read_scene(cfg, default_name);
   cfddem::apps::validate_fluid(scene);
+  cfddem::apps::check_gas_numbers(scene);
   return scene;
 }
 
@@ -184,6 +185,7 @@ int main(int argc, char** argv) {
     try {
       cfddem::SceneConfig cfg;
       const cfddem::Scene scene = load(a, cfg);
+      cfddem::apps::check_gas_memory(scene, env.ranks());
       if (env.rank() == 0)
         for (const std::string& w : cfddem::apps::setting_warnings(scene))
           fmt::print(stderr, "cfddem: warning: {}\n", w);
@@ -191,6 +193,8 @@ int main(int argc, char** argv) {
         if (env.rank() == 0) {
           const auto particles = cfddem::make_initial_particles(scene);
           const auto derived = cfddem::apps::derive(scene, particles);
+          for (const std::string& w : cfddem::apps::step_warnings(scene, derived))
+            fmt::print(stderr, "cfddem: warning: {}\n", w);
           fmt::print("# resolved configuration ({})\n", cfg.origin());
           for (const auto& [k, v] : cfddem::describe_scene(scene)) fmt::print("{} = {}\n", k, v);
           fmt::print("\n# derived numbers\n");
@@ -219,6 +223,9 @@ int main(int argc, char** argv) {
         std::string refused;
         if (comm.rank() == 0) {
           try {
+            cfddem::apps::check_writable(opt.out_dir);
+            // Locked first: --overwrite must not clear a directory another run is writing.
+            cfddem::apps::lock_run_directory(opt.out_dir);
             cfddem::apps::prepare_run_directory(opt.out_dir, a.overwrite, a.restart);
           } catch (const cfddem::ConfigError& e) {
             refused = e.what();

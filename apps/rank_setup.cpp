@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "apps/run_directory.hpp"
 #include "core/error.hpp"
 #include "core/initial_conditions.hpp"
 
@@ -30,7 +31,7 @@ std::optional<DiagnosticsFile> open_root_diagnostics(const Communicator& comm,
   std::string error;
   if (comm.rank() == 0) {
     try {
-      fs::create_directories(out_dir);
+      create_run_directory(out_dir); // locked before the first file (apps/run_directory.hpp)
       diag.emplace((fs::path(out_dir) / "diagnostics.csv").string(), columns);
     } catch (const std::exception& e) {
       error = e.what();

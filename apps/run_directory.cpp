@@ -1,7 +1,15 @@
 #include "apps/run_directory.hpp"
 
 #include <algorithm>
+#include <cerrno>
+#include <climits>
+#include <cstring>
+#include <map>
 #include <system_error>
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include <fmt/format.h>
 
@@ -82,6 +90,80 @@ std::size_t prepare_run_directory(const fs::path& dir, bool overwrite, const std
     ++removed;
   }
   return removed;
+}
+
+void check_writable(const fs::path& dir) {
+  const auto refuse = [&](const std::string& why) {
+    throw ConfigError(fmt::format("output directory '{}' (--out, or runs/<name>)", dir.string()),
+                      why);
+  };
+  // Room for the longest file name a run writes in it (checkpoint_<step>.h5.tmp.<pid>).
+  constexpr std::size_t kLongestOutput = 48;
+  const long name_max = ::pathconf(".", _PC_NAME_MAX);
+  for (const fs::path& part : dir)
+    if (name_max > 0 && part.native().size() > static_cast<std::size_t>(name_max))
+      refuse(fmt::format("the name '{:.20}...' is {} characters long, more than the {} the file "
+                         "system allows",
+                         part.native(), part.native().size(), name_max));
+  if (fs::absolute(dir).native().size() + kLongestOutput >= PATH_MAX)
+    refuse(fmt::format("the path is {} characters long; with the run's file names it would pass "
+                       "the system's limit of {}",
+                       fs::absolute(dir).native().size(), PATH_MAX));
+  // The directory itself, or the nearest one above it that exists (where it will be created).
+  std::error_code ec;
+  fs::path at = fs::absolute(dir);
+  while (!fs::exists(at, ec) && at.has_relative_path())
+    at = at.parent_path();
+  if (!fs::is_directory(at, ec))
+    refuse(fmt::format("'{}' is a file, not a directory", at.string()));
+  if (::access(at.c_str(), W_OK | X_OK) != 0)
+    refuse(fmt::format("'{}' cannot be written: {}", at.string(), std::strerror(errno)));
+}
+
+namespace {
+
+// Locks `dir` unless this process holds it; true when it took the lock now.
+bool take_lock(const fs::path& dir) {
+  // The descriptors stay open (and locked) until the process ends. A second flock from this
+  // process on a new descriptor would conflict with its own first one, so each directory once.
+  static std::map<fs::path, int> held;
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec))
+    return false;
+  const fs::path key = fs::weakly_canonical(dir, ec);
+  if (held.contains(key))
+    return false;
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0)
+    throw ConfigError(dir.string(), fmt::format("cannot open the output directory to lock it: {}",
+                                                std::strerror(errno)));
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int err = errno;
+    ::close(fd);
+    if (err == EWOULDBLOCK)
+      throw ConfigError(dir.string(),
+                        "another cfddem run is writing into this directory now (it holds the "
+                        "directory's lock); wait for it to finish, or give this run another "
+                        "directory (--out, or name=...)");
+    throw ConfigError(dir.string(),
+                      fmt::format("cannot lock the output directory: {}", std::strerror(err)));
+  }
+  held.emplace(key, fd);
+  return true;
+}
+
+} // namespace
+
+void lock_run_directory(const fs::path& dir) {
+  (void)take_lock(dir);
+}
+
+void create_run_directory(const fs::path& dir) {
+  fs::create_directories(dir);
+  if (take_lock(dir) && !run_outputs_in(dir).empty())
+    throw ConfigError(dir.string(),
+                      "another cfddem run wrote its outputs into this directory while this run "
+                      "was setting up; give this run another directory (--out, or name=...)");
 }
 
 } // namespace cfddem::apps

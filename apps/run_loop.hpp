@@ -19,6 +19,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <optional>
 #include <string>
@@ -35,6 +36,7 @@
 #include "apps/run_output.hpp"
 #include "apps/run_outputs.hpp"
 #include "apps/scheme_runs.hpp"
+#include "apps/setting_warnings.hpp"
 #include "apps/simulation.hpp"
 #include "core/communicator.hpp"
 #include "core/error.hpp"
@@ -72,6 +74,9 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   dem::ParticleRange range;
   const DerivedNumbers derived = parts.derived(scene_in, particles, comm, range);
   const std::size_t n_total = one ? particles.size() : derived.particles;
+  if (root) // as `cfddem check` warns (apps/main.cpp), now that the particles are known
+    for (const std::string& w : step_warnings(scene_in, derived))
+      fmt::print(stderr, "cfddem: warning: {}\n", w);
 
   // With a gas the particle step divides the fluid step: explicit, n_fixed = ceil(dt_f /
   // dt_dem) steps of a fixed fluid.dt (adaptive: the contact step dt_dem); orb and islands,
@@ -219,9 +224,11 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   std::vector<double> profile_gas;
   if (const auto spec = profile_spec(scene)) {
     profiles.emplace(*spec, gas_on);
-    out.open_profiles(profiles->columns(), ck && !ck->rows.empty()
-                                               ? std::optional<double>(ck->rows.back()[0])
-                                               : std::nullopt);
+    out.open_profiles(profiles->columns(),
+                      ck && !ck->rows.empty() ? std::optional<double>(ck->rows.back()[0])
+                                              : std::nullopt,
+                      ck ? std::filesystem::path(opt.restart).parent_path().string()
+                         : std::string());
   }
   auto take_profile_gas = [&] {
     if (profiles && gas)
@@ -346,6 +353,10 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
       out.write_checkpoint(loop.fluid_steps, c);
   };
 
+  // A restart's counters continue those of the run it continues: the rates and the closing line
+  // count the work of this run (they said "600 fluid steps" when 400 were run).
+  const long long fluid_steps_before = gas_on ? loop.fluid_steps : 0;
+  const std::int64_t particle_steps_before = run.scheme.particle_steps();
   double& t = loop.time;
   const double tol = 1e-6 * dt;
   // With a gas: checkpoints at the fluid times that are multiples of the interval, after the
@@ -430,15 +441,17 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
 
   // run.json (rank 0) and the summary. Collective: the per-rank figures are gathered first.
   const auto& sch = run.scheme;
+  const std::int64_t particle_steps_run = sch.particle_steps() - particle_steps_before;
+  const long long fluid_steps_run = loop.fluid_steps - fluid_steps_before;
   const double pss =
-      loop_seconds > 0 ? static_cast<double>(sch.particle_steps()) / loop_seconds : 0.0;
+      loop_seconds > 0 ? static_cast<double>(particle_steps_run) / loop_seconds : 0.0;
   nlohmann::ordered_json j = run_json_header(scene_in, scene.name, derived, env, n_total);
   j["scheme"] = Run::kName;
   if (!one)
     j["distributed"] = true;
   run.describe(j, out.rows());
   if (gas)
-    gas->describe(j, loop, loop_seconds, timer.seconds(Phase::fluid)); // collective
+    gas->describe(j, loop, fluid_steps_run, loop_seconds, timer.seconds(Phase::fluid)); // coll.
   j["end_time"] = gas_on ? t : static_cast<double>(n_end) * dt;
   j["loop_seconds"] = loop_seconds;
   if (census.enabled()) {
@@ -459,7 +472,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   if (note)
     ph["note"] = note;
   j["phase_seconds"] = ph;
-  add_work_counters(j, sch, loop_seconds, run.force_definition());
+  add_work_counters(j, sch, loop_seconds, run.force_definition(), particle_steps_before);
   double wait_max = 0.0;
   if (!one) {
     const std::vector<double> waits = comm.gather(comm.wait_seconds());
@@ -497,8 +510,8 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
           stderr,
           "Loop time of {:.4g} s for {} fluid steps ({:.4g} s each) and {} particle "
           "steps with {} particles; fluid {:.3g} s ({:.0f}%), particles {:.3g} s\n",
-          loop_seconds, loop.fluid_steps, j["wall_seconds_per_fluid_step"].get<double>(),
-          static_cast<long long>(sch.particle_steps() /
+          loop_seconds, fluid_steps_run, j["wall_seconds_per_fluid_step"].get<double>(),
+          static_cast<long long>(particle_steps_run /
                                  std::max<std::int64_t>(1, static_cast<std::int64_t>(n_total))),
           n_total, fluid, 100 * fluid / std::max(loop_seconds, 1e-300),
           timer.seconds(Phase::neighbor) + timer.seconds(Phase::force));
@@ -506,7 +519,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
       fmt::print(stderr,
                  "Loop time of {:.4g} s for {} fluid steps on {} rank(s) x {} thread(s) "
                  "with {} particles; fluid {:.3g} s ({:.0f}%) on rank 0\n",
-                 loop_seconds, loop.fluid_steps, env.ranks(), env.threads(), n_total, fluid,
+                 loop_seconds, fluid_steps_run, env.ranks(), env.threads(), n_total, fluid,
                  100 * fluid / std::max(loop_seconds, 1e-300));
     }
   }

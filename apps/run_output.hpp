@@ -194,14 +194,18 @@ inline nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_se
 // The work counters of a loop in run.json: particle steps, force evaluations (and what they
 // count, when given), neighbor builds and the particle-step rate.
 template <class Scheme>
+// particle_steps_before: the count a restart took over from its checkpoint (the rate is this
+// run's).
 inline void add_work_counters(nlohmann::ordered_json& j, const Scheme& scheme, double loop_seconds,
-                       const char* definition = nullptr) {
+                       const char* definition = nullptr, std::int64_t particle_steps_before = 0) {
   j["particle_steps"] = scheme.particle_steps();
   j["force_evaluations"] = scheme.pair_evaluations();
   if (definition) j["force_evaluations_definition"] = definition;
   j["neighbor_builds"] = scheme.neighbor_builds();
   j["particle_steps_per_second"] =
-      loop_seconds > 0 ? static_cast<double>(scheme.particle_steps()) / loop_seconds : 0.0;
+      loop_seconds > 0
+          ? static_cast<double>(scheme.particle_steps() - particle_steps_before) / loop_seconds
+          : 0.0;
 }
 
 // run.json's rank_counts: per rank (arrays in rank order), the work it did and what it sent,

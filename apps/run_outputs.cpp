@@ -10,6 +10,7 @@
 #include <fmt/ranges.h>
 
 #include "apps/rank_setup.hpp"
+#include "apps/run_directory.hpp"
 #include "core/atomic_file.hpp"
 #include "core/error.hpp"
 
@@ -23,7 +24,7 @@ std::optional<DiagnosticsFile> open_diagnostics(const Communicator& comm, const 
                                                 const std::vector<std::string>& columns) {
   if (comm.size() > 1)
     return open_root_diagnostics(comm, dir, columns);
-  fs::create_directories(dir);
+  create_run_directory(dir); // locked before the first file (apps/run_directory.hpp)
   return DiagnosticsFile((fs::path(dir) / "diagnostics.csv").string(), columns);
 }
 
@@ -78,12 +79,15 @@ std::string rows_up_to(const fs::path& path, const std::string& header, double t
 } // namespace
 
 void RunOutputs::open_profiles(const std::vector<std::string>& columns,
-                               std::optional<double> resume_time) {
+                               std::optional<double> resume_time, const std::string& resumed_dir) {
   on_root([&] {
     const fs::path path = fs::path(dir_) / "profiles.csv";
-    const std::string kept =
-        resume_time ? rows_up_to(path, fmt::format("{}", fmt::join(columns, ",")), *resume_time)
-                    : std::string{};
+    const std::string header = fmt::format("{}", fmt::join(columns, ","));
+    std::string kept = resume_time ? rows_up_to(path, header, *resume_time) : std::string{};
+    // A restart into a new directory takes the rows from the run it continues, as
+    // diagnostics.csv takes them from the checkpoint: both files start at t = 0.
+    if (resume_time && kept.empty() && !resumed_dir.empty())
+      kept = rows_up_to(fs::path(resumed_dir) / "profiles.csv", header, *resume_time);
     profiles_.emplace(path.string(), columns, kept);
   });
 }

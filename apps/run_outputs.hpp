@@ -39,8 +39,10 @@ public:
   // Rank 0 writes `c` (the other ranks' are ignored); collective.
   void write_checkpoint(long long step, const Checkpoint& c);
   // profiles.csv with `columns` (rank 0). A restart at `resume_time` keeps the rows of an
-  // existing file up to that time (the rest is written again) when its header is the same.
-  void open_profiles(const std::vector<std::string>& columns, std::optional<double> resume_time);
+  // existing file up to that time (the rest is written again) when its header is the same; in a
+  // directory without one, those of `resumed_dir`'s (the checkpoint's directory), if it has one.
+  void open_profiles(const std::vector<std::string>& columns, std::optional<double> resume_time,
+                     const std::string& resumed_dir = {});
   // Appends the rows of one output time in one write (rank 0).
   void add_profile_rows(const std::vector<std::vector<double>>& rows);
   // Rank 0 writes run.json.

@@ -34,4 +34,24 @@ std::vector<std::string> setting_warnings(const Scene& s) {
   return w;
 }
 
+std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) {
+  std::vector<std::string> w;
+  const bool by_dt = s.dem.dt > 0.0;
+  const std::string step = by_dt ? fmt::format("dem.dt = {:g} s", s.dem.dt)
+                                 : fmt::format("dem.dt_factor = {:g} (dt = {:.4g} s)",
+                                               s.dem.dt_factor, d.dt);
+  if (d.particles > 0 && d.dt_per_contact < kFewStepsPerContact)
+    w.push_back(fmt::format("{} resolves a contact of {:.3g} s in {:.3g} steps: below {:g} a "
+                            "contact gains or loses energy it should not (the default "
+                            "dem.dt_factor = 0.02 gives about 110)",
+                            step, d.contact_duration, d.dt_per_contact, kFewStepsPerContact));
+  // dem.dt's step count is known from the scene alone (setting_warnings).
+  const double steps = s.run.end_time / d.dt;
+  if (!by_dt && steps > kManySteps)
+    w.push_back(fmt::format("{} makes {:.3g} steps to run.end_time = {:g} s: even at 1e8 "
+                            "particle-steps/s that is {:.3g} years for one particle",
+                            step, steps, s.run.end_time, steps / 1e8 / (365.25 * 24 * 3600)));
+  return w;
+}
+
 } // namespace cfddem::apps

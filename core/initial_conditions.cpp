@@ -166,6 +166,30 @@ void set_setup_progress(std::function<void(const std::string&)> sink) {
   setup_progress_sink() = std::move(sink);
 }
 
+namespace {
+
+// Diameters a distribution's mean volume is taken from: enough for the solid fraction to 1% or
+// better, few enough to take milliseconds (drawing all of 1e10 took minutes before a refusal).
+constexpr std::int64_t kVolumeSample = 100000;
+
+// The mean sphere volume of the generator's particles: exact for one size and for counts up to
+// kVolumeSample; beyond, the mean over the stream's first kVolumeSample diameters (the particles'
+// own, in id order: the stream is not sorted by size).
+double mean_particle_volume(const ParticleSpec& ps) {
+  if (ps.diameters.fixed())
+    return std::numbers::pi / 6.0 * ps.diameter * ps.diameter * ps.diameter;
+  DiameterStream d = diameter_stream(ps);
+  const std::int64_t n = std::min(ps.count, kVolumeSample);
+  double sum = 0.0;
+  for (std::int64_t k = 0; k < n; ++k) {
+    const double dk = d.next();
+    sum += std::numbers::pi / 6.0 * dk * dk * dk;
+  }
+  return sum / static_cast<double>(n);
+}
+
+} // namespace
+
 void check_packing_feasible(const Scene& s) {
   const auto& ps = s.particles;
   if (!ps.file.empty() || ps.count <= 0)
@@ -173,17 +197,7 @@ void check_packing_feasible(const Scene& s) {
   double region = 1.0;
   for (int a = 0; a < 3; ++a)
     region *= ps.region_hi[a] - ps.region_lo[a];
-  double solids = 0.0;
-  if (ps.diameters.fixed()) {
-    solids = static_cast<double>(ps.count) * std::numbers::pi / 6.0 * ps.diameter * ps.diameter *
-             ps.diameter;
-  } else {
-    DiameterStream d = diameter_stream(ps);
-    for (std::int64_t k = 0; k < ps.count; ++k) {
-      const double dk = d.next();
-      solids += std::numbers::pi / 6.0 * dk * dk * dk;
-    }
-  }
+  const double solids = static_cast<double>(ps.count) * mean_particle_volume(ps);
   const double phi = solids / region;
   const auto fits = [&](double limit) {
     return static_cast<std::int64_t>(limit * region / (solids / static_cast<double>(ps.count)));
@@ -191,12 +205,10 @@ void check_packing_feasible(const Scene& s) {
   if (phi > kRandomClosePacking)
     throw ConfigError(
         "scene key 'particles.count'",
-        fmt::format("{} particles of diameter up to {} m fill {:.3g} times the region "
-                    "(solid fraction {:.3g}); no packing holds more than random "
-                    "close packing, {} (about {} particles here): lower "
-                    "particles.count or enlarge the region",
-                    ps.count, ps.diameter, phi, kRandomClosePacking, phi, kRandomClosePacking,
-                    fits(kRandomClosePacking)));
+        fmt::format("{} particles of diameter up to {} m ask for a solid fraction of {:.3g} "
+                    "in the region; no packing holds more than random close packing, {} "
+                    "(about {} particles here): lower particles.count or enlarge the region",
+                    ps.count, ps.diameter, phi, kRandomClosePacking, fits(kRandomClosePacking)));
   const double bytes = static_cast<double>(ps.count) * kBytesPerParticle;
   const double memory = static_cast<double>(::sysconf(_SC_PHYS_PAGES)) *
                         static_cast<double>(::sysconf(_SC_PAGE_SIZE));
@@ -463,7 +475,10 @@ ParticleStore read_particle_csv_rows(const std::string& path,
   return p;
 }
 
-void check_no_overlap(const ParticleStore& p, const DomainSpec& domain) {
+namespace {
+
+// f(i, j, gap) for every pair i < j closer than the largest diameter (serial set-up work).
+template <class F> void for_close_pairs(const ParticleStore& p, const DomainSpec& domain, F&& f) {
   if (p.size() < 2)
     return;
   double dmax = 0;
@@ -474,18 +489,37 @@ void check_no_overlap(const ParticleStore& p, const DomainSpec& domain) {
     grid.insert(i, p.x[i], p.y[i], p.z[i]);
   for (std::size_t i = 0; i < p.size(); ++i) {
     grid.for_near(p.x[i], p.y[i], p.z[i], [&](std::size_t j) {
-      if (j <= i)
-        return;
-      const double g = gap(p, i, j, domain);
-      if (g < 0.0)
-        throw ConfigError(
-            "initial particles",
-            fmt::format("particles {} at ({:.6g}, {:.6g}, {:.6g}) and {} at ({:.6g}, {:.6g}, "
-                        "{:.6g}) overlap by {:.3g} m (set particles.allow_overlap = true to "
-                        "accept it)",
-                        p.id[i], p.x[i], p.y[i], p.z[i], p.id[j], p.x[j], p.y[j], p.z[j], -g));
+      if (j > i)
+        f(i, j, gap(p, i, j, domain));
     });
   }
+}
+
+// Two particles on the same centre have no contact normal: their force is 0/0 (NaN positions at
+// the first step), so even particles.allow_overlap cannot take them.
+void check_distinct_centres(const ParticleStore& p, const DomainSpec& domain) {
+  for_close_pairs(p, domain, [&](std::size_t i, std::size_t j, double g) {
+    if (g + p.radius[i] + p.radius[j] <= 0.0)
+      throw ConfigError("initial particles",
+                        fmt::format("particles {} and {} have the same centre ({:.6g}, {:.6g}, "
+                                    "{:.6g}): their contact has no direction, even with "
+                                    "particles.allow_overlap = true",
+                                    p.id[i], p.id[j], p.x[i], p.y[i], p.z[i]));
+  });
+}
+
+} // namespace
+
+void check_no_overlap(const ParticleStore& p, const DomainSpec& domain) {
+  for_close_pairs(p, domain, [&](std::size_t i, std::size_t j, double g) {
+    if (g < 0.0)
+      throw ConfigError(
+          "initial particles",
+          fmt::format("particles {} at ({:.6g}, {:.6g}, {:.6g}) and {} at ({:.6g}, {:.6g}, "
+                      "{:.6g}) overlap by {:.3g} m (set particles.allow_overlap = true to "
+                      "accept it)",
+                      p.id[i], p.x[i], p.y[i], p.z[i], p.id[j], p.x[j], p.y[j], p.z[j], -g));
+  });
 }
 
 namespace {
@@ -509,6 +543,31 @@ void check_inside(const ParticleStore& p, const Scene& s) {
   }
 }
 
+// A particle cutting into a wall starts with the wall's spring compressed by the cut: a deep cut
+// stopped the run at step 0 as "too fast for the spring", which is the wrong advice. Refused as a
+// pair overlap is, and accepted alike with particles.allow_overlap.
+void check_walls(const ParticleStore& p, const Scene& s) {
+  static const char* walls[3][2] = {{"x_lo", "x_hi"}, {"y_lo", "y_hi"}, {"z_lo", "z_hi"}};
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const double c[3] = {p.x[i], p.y[i], p.z[i]};
+    for (std::size_t a = 0; a < 3; ++a) {
+      if (s.domain.periodic[a])
+        continue;
+      const double cut[2] = {p.radius[i] - (c[a] - s.domain.lo[a]),
+                             p.radius[i] - (s.domain.hi[a] - c[a])};
+      // (A placed particle's centre may round to a hair inside its radius.)
+      for (int side = 0; side < 2; ++side)
+        if (cut[side] > 1e-9 * p.radius[i])
+          throw ConfigError(s.particles.file.empty() ? "particles" : s.particles.file,
+                            fmt::format("particle {} at ({:.6g}, {:.6g}, {:.6g}) of radius {:.6g} "
+                                        "m overlaps wall {} by {:.3g} m (set "
+                                        "particles.allow_overlap = true to accept it)",
+                                        p.id[i], c[0], c[1], c[2], p.radius[i], walls[a][side],
+                                        cut[side]));
+    }
+  }
+}
+
 } // namespace
 
 ParticleStore make_initial_particles(const Scene& s) {
@@ -525,8 +584,12 @@ ParticleStore make_initial_particles(const Scene& s) {
     assign_thermal_velocities(p, s.particles.temperature, s.particles.velocity, s.particles.seed);
   }
   check_inside(p, s);
-  if (!s.particles.allow_overlap)
+  if (!s.particles.allow_overlap) {
+    check_walls(p, s);
     check_no_overlap(p, s.domain);
+  } else {
+    check_distinct_centres(p, s.domain);
+  }
   return p;
 }
 

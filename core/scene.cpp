@@ -102,13 +102,22 @@ private:
     return *v;
   }
   // A value given in the scene outside the key's range is refused; defaults are trusted (the
-  // table's own test checks them).
+  // table's own test checks them). No key takes a NaN or an infinity (TOML reads nan and inf):
+  // one in a vector used to pass and stop the run at step 0 as "unstable".
   double checked(const SceneKey& k, double v) const {
+    if (c_.has(key(k)) && !std::isfinite(v))
+      throw ConfigError(c_.where(key(k)), fmt::format("must be a finite number, got {}", v));
     if (k.range.bounded() && c_.has(key(k)) && !k.range.contains(v))
       throw ConfigError(c_.where(key(k)), fmt::format("{}, got {}", must_be(k), v));
     return v;
   }
   std::array<double, 3> checked(const SceneKey& k, const std::array<double, 3>& v) const {
+    if (c_.has(key(k)))
+      for (std::size_t a = 0; a < 3; ++a)
+        if (!std::isfinite(v[a]))
+          throw ConfigError(c_.where(key(k)),
+                            fmt::format("element {} must be a finite number, got [{}, {}, {}]", a,
+                                        v[0], v[1], v[2]));
     if (k.range.bounded() && c_.has(key(k)))
       for (double x : v)
         if (!k.range.contains(x))
@@ -148,6 +157,13 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
           fmt::format("must be a plain name (no '/', '\\', and not '.' or '..': the run goes to "
                       "runs/<name>), got \"{}\"; use --out DIR to write elsewhere",
                       s.name));
+  // A newline or other control character would make a directory name no listing shows as it is.
+  for (std::size_t i = 0; i < s.name.size(); ++i)
+    if (const auto ch = static_cast<unsigned char>(s.name[i]); ch < 0x20 || ch == 0x7f)
+      throw ConfigError("scene key 'name'",
+                        fmt::format("must be a plain name without control characters (a newline, "
+                                    "tab, ...), got character code {} at position {}",
+                                    static_cast<int>(ch), i));
 
   // Domain.
   s.domain.lo = k.vec3("domain.lo");
@@ -279,18 +295,33 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
                           cells[1], cells[2]));
       f.cells[a] = static_cast<std::int64_t>(cells[a]);
     }
-    // Memory: about 30 doubles per cell (velocities, pressure, solver work arrays).
+    // Memory: about 1.6 KB per cell (fields, multigrid levels, solver work arrays; measured,
+    // apps/gas_check.hpp, which also refuses a grid beyond this machine's memory).
     const double total = cells[0] * cells[1] * cells[2];
     require(total <= 4.0e9, "fluid.cells",
             fmt::format("{:.3g} cells in all ([{}, {}, {}]) need about {:.3g} TB of memory", total,
-                        cells[0], cells[1], cells[2], total * 30 * 8 / 1e12));
+                        cells[0], cells[1], cells[2], total * 1600 / 1e12));
     f.cell_size = k.vec3("fluid.cell_size");
     f.density = k.number("fluid.density");
     f.viscosity = k.number("fluid.viscosity");
     f.dt = k.number("fluid.dt");
+    // The run takes whole fluid steps: one longer than the run ran silently to t = fluid.dt.
+    require(!(f.dt > s.run.end_time), "fluid.dt",
+            fmt::format("{} s is longer than run.end_time = {} s: the run would take one fluid "
+                        "step and end at t = {} s; shorten fluid.dt or lengthen run.end_time",
+                        f.dt, s.run.end_time, f.dt));
     f.cfl = k.number("fluid.cfl");
     f.max_dt = k.number("fluid.max_dt");
     f.drag = k.word("fluid.drag");
+    // BVK and Koch-Hill write the drag as 18 mu / d^2 times a function of Re = rho |u| d / mu:
+    // 0 x infinity for an inviscid gas (its NaN stopped the projection at the first step). Wen &
+    // Yu's tends to Newton's drag as mu -> 0 and runs.
+    require(f.viscosity > 0.0 || f.drag == "wen_yu" || f.drag == "none", "fluid.viscosity",
+            fmt::format("0 (an inviscid gas) cannot take fluid.drag = \"{}\": the law is 18 mu / "
+                        "d^2 times a function of Re = rho |u| d / mu, 0 x infinity at mu = 0; give "
+                        "mu > 0, or fluid.drag = \"wen_yu\" (Newton's drag as mu -> 0) or "
+                        "\"none\"",
+                        f.drag));
     f.one_way = k.word("fluid.coupling") == "one_way";
     f.deposition = k.word("fluid.deposition");
     f.deposition_width = k.number("fluid.deposition_width");
@@ -327,6 +358,13 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     f.tolerance = k.number("fluid.tolerance");
     f.preconditioner = k.word("fluid.preconditioner");
     f.solver = k.word("fluid.solver");
+    // One cell has no coarser level: the multigrid's coarsest operator is the pinned 1 x 1
+    // system, which it cannot factor ("not positive definite" at the first step). hypre solves it.
+    require(f.cells[0] * f.cells[1] * f.cells[2] > 1 || f.solver == "hypre", "fluid.cells",
+            fmt::format("[1, 1, 1] (a single gas cell) cannot be solved by fluid.solver = \"{}\" "
+                        "(our multigrid needs at least 2 cells); give more cells, or fluid.solver "
+                        "= \"hypre\"",
+                        f.solver));
   }
 
   c.check_all_used();

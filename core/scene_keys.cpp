@@ -23,6 +23,12 @@ constexpr KeyRange closed(double lo, double hi) {
 constexpr KeyRange open(double lo, double hi) {
   return {lo, hi, true, true};
 }
+constexpr KeyRange above_up_to(double lo, double hi) {
+  return {lo, hi, true, false};
+}
+constexpr KeyRange at_least_below(double lo, double hi) {
+  return {lo, hi, false, true};
+}
 
 KeyDefault required(std::string_view when = "") {
   return {KeyDefault::Kind::Required, {}, when};
@@ -87,7 +93,7 @@ std::vector<SceneKey> make_table() {
        .section = S::DomainParticles,
        .fallback = derived("the scene file's stem (`hcs` for the built-in scene)"),
        .meaning = "run name; outputs go to `runs/<name>` unless `--out` says otherwise; a plain "
-                  "name (no `/` or `\\`, not `.` or `..`)"},
+                  "name (no `/` or `\\`, no control characters, not `.` or `..`)"},
       {.name = "domain.lo",
        .type = T::Vec3,
        .section = S::DomainParticles,
@@ -224,8 +230,9 @@ std::vector<SceneKey> make_table() {
        .type = T::Bool,
        .section = S::DomainParticles,
        .fallback = flag(false),
-       .meaning = "accept initial particles that overlap (otherwise the pair is named and the "
-                  "run refused)"},
+       .meaning = "accept initial particles that overlap each other or a wall (otherwise the "
+                  "pair, or the particle and the wall, is named and the run refused); two "
+                  "particles on the same centre are refused even so"},
 
       // Contacts and time step.
       {.name = "dem.scheme",
@@ -435,9 +442,11 @@ std::vector<SceneKey> make_table() {
       {.name = "output.profile_bins",
        .type = T::Integer,
        .section = S::RunOutput,
-       .range = at_least(1),
+       .range = closed(1, 65536),
        .fallback = integer(20),
-       .meaning = "number of equal slabs along `output.profile_axis`"},
+       .meaning = "number of equal slabs along `output.profile_axis` (at most as many as a gas "
+                  "may have cells along an axis: 2e9 slabs failed to allocate, 1e8 wrote for "
+                  "minutes a row)"},
       {.name = "output.contact_census",
        .type = T::Bool,
        .section = S::RunOutput,
@@ -454,7 +463,8 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .range = closed(1, 65536),
        .fallback = required(),
-       .meaning = "cells of the MAC grid per axis (at most 4e9 in all: about 30 doubles each)"},
+       .meaning = "cells of the MAC grid per axis (at most 4e9 in all; a cell takes about 1.6 KB, and a "
+                  "grid beyond the machine's memory is refused)"},
       {.name = "fluid.cell_size",
        .type = T::Vec3,
        .section = S::Fluid,
@@ -525,9 +535,10 @@ std::vector<SceneKey> make_table() {
       {.name = "fluid.deposition_width",
        .type = T::Number,
        .section = S::Fluid,
-       .range = above(0),
+       .range = above_up_to(0, 100),
        .fallback = number(2),
-       .meaning = "dpvm kernel width in particle diameters"},
+       .meaning = "dpvm kernel width in particle diameters (at most 100: a kernel that wide over "
+                  "cells of half a diameter already covers 8e6 cells per particle)"},
       gas_boundary("fluid.bc.x_lo"),
       gas_boundary("fluid.bc.x_hi"),
       gas_boundary("fluid.bc.y_lo"),
@@ -590,9 +601,11 @@ std::vector<SceneKey> make_table() {
       {.name = "fluid.tolerance",
        .type = T::Number,
        .section = S::Fluid,
-       .range = open(0, 1),
+       .range = at_least_below(1e-12, 1),
        .fallback = number(1e-10, "1e-10"),
-       .meaning = "relative residual of the projection's PCG"},
+       .meaning = "relative residual of the projection's PCG (at least 1e-12: the residual's "
+                  "round-off floor is near it, 8e-13 on `scenes/fluidized_bed.toml`, and a "
+                  "solve that cannot reach its tolerance stops the run)"},
       {.name = "fluid.preconditioner",
        .type = T::String,
        .section = S::Fluid,

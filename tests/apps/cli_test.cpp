@@ -108,7 +108,7 @@ TEST(Cli, HelpListsSubcommandsAndKeys) {
 TEST(Cli, KeysListsTheKeysAndPrintsTheDocs) {
   const Result text = cfddem("keys");
   EXPECT_EQ(text.code, 0) << text.output;
-  EXPECT_NE(text.output.find("  fluid.tolerance  (number, (0, 1); default: 1e-10)\n"),
+  EXPECT_NE(text.output.find("  fluid.tolerance  (number, [1e-12, 1); default: 1e-10)\n"),
             std::string::npos)
       << text.output;
   const Result md = cfddem("keys --markdown");

@@ -58,8 +58,18 @@ Lines file_scene() {
   return lines;
 }
 
+// An inviscid gas (fluid.viscosity = 0, the key's bound) takes only a drag law that is finite at
+// mu = 0 (core/scene.cpp).
+const Lines kWenYu = [] {
+  Lines lines = kRequired;
+  lines.emplace_back("fluid.drag", "\"wen_yu\"");
+  return lines;
+}();
+
 // The scene a key's value is tried in: the distribution's keys need a distribution.
 const Lines& scene_for(const std::string& key, std::string_view value) {
+  if (key == "fluid.viscosity")
+    return kWenYu;
   if (key.rfind("particles.diameter.", 0) != 0)
     return kRequired;
   return value == "uniform" ? kUniform : kNormal;

@@ -187,6 +187,33 @@ def domain_inverted(ctx):
 
 
 @case
+def nan_and_inf_refused_naming_the_key(ctx):
+    """NaN and inf (TOML reads both) in a vector key passed `check` and stopped the run at step 0
+    as "unstable"; a NaN in domain.lo was reported as domain.hi. Each is refused naming its key."""
+    for key, value in (("gravity", "[nan,0,0]"), ("particles.velocity", "[inf,0,0]"),
+                       ("domain.lo", "[nan,0,0]"), ("particles.region_hi", "[0,-inf,0]")):
+        expect(ctx, ["check", SMALL, f"{key}={value}"], 2,
+               rf"scene key '{re.escape(key)}'.*element \d must be a finite number")
+    expect(ctx, ["run", SETTLING, "fluid.velocity=[nan,0,0]"], 2,
+           r"scene key 'fluid.velocity'.*element 0 must be a finite number")
+    expect(ctx, ["check", SETTLING, "fluid.outflow_pressure=inf"], 2,
+           r"scene key 'fluid.outflow_pressure'.*must be a finite number, got inf")
+
+
+@case
+def kernel_width_and_profile_bins_bounded(ctx):
+    """fluid.deposition_width = 1e300 and output.profile_bins = 2e9 stopped with exit 3 and a raw
+    C++ message (vector::_M_default_append, "cannot create std::vector larger than
+    max_size()"), and profile_bins = 1e8 still ran after 60 s: refused at set-up, naming the key
+    and its range."""
+    expect(ctx, ["run", SETTLING, "fluid.deposition=dpvm", "fluid.deposition_width=1e300"], 2,
+           r"scene key 'fluid.deposition_width'.*must be in \(0, 100\], got 1e\+300", timeout=20)
+    for bins in ("2000000000", "1e8"):
+        expect(ctx, ["run", SMALL, "output.profile_axis=x", f"output.profile_bins={bins}"], 2,
+               r"scene key 'output.profile_bins'.*must be in 1..65536", timeout=20)
+
+
+@case
 def override_without_equals(ctx):
     expect(ctx, ["check", SMALL, "dem.restitution"], 2, r"not of the form key=value")
 
@@ -214,6 +241,25 @@ def particle_csv_overlap(ctx):
     p = ctx.file("overlap.csv", "x,y,z,vx,vy,vz,diameter,density\n1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n"
                                 "1.05e-3,1e-3,1e-3,0,0,0,1e-4,1000\n")
     expect(ctx, ["run", HCS, f"particles.file={p}"], 2, r"particles 0 .* and 1 .* overlap", fresh=True)
+
+
+@case
+def particle_file_cuts_a_wall(ctx):
+    """A particle cutting into a wall passed set-up, then stopped at step 0 as "too fast for the
+    spring (raise k or lower dt)"; two coincident centres with allow_overlap gave NaN positions.
+    Both are refused at set-up, naming the particle and the wall or the pair."""
+    head = "x,y,z,vx,vy,vz,diameter,density\n"
+    p = ctx.file("cuts_wall.csv", head + "1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n"
+                                         "1e-3,4.5e-5,1e-3,0,0,0,1e-4,1000\n")
+    wall = ["domain.periodic=[true,false,true]"]
+    expect(ctx, ["run", HCS, f"particles.file={p}", *wall], 2,
+           r"cuts_wall.csv: particle 1 at .* overlaps wall y_lo by 5e-06 m", fresh=True)
+    expect(ctx, ["run", HCS, f"particles.file={p}", *wall, "particles.allow_overlap=true",
+                 "run.end_time=1e-5", "--quiet"], 0, None, out_dir=ctx.fresh("cut_allowed"))
+    q = ctx.file("same_centre.csv", head + "1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n"
+                                           "1e-3,1e-3,1e-3,0,0,0,1e-4,1000\n")
+    expect(ctx, ["run", HCS, f"particles.file={q}", "particles.allow_overlap=true"], 2,
+           r"particles 0 and 1 have the same centre", fresh=True)
 
 
 @case
@@ -264,6 +310,54 @@ def settle_then_turn_the_gas_on(ctx):
 
 
 @case
+def restart_counts_its_own_work(ctx):
+    """After a restart the closing line said "74.96 s for 600 fluid steps (0.1249 s each)" when
+    400 were run, and run.json's particle_steps_per_second was inflated alike: the counters go
+    on from the checkpoint. A restart at t = 1 ms of a 2 ms run with a gas (fluid.dt = 1e-4 s)
+    reports its 10 fluid steps and the rate of the particle steps it took, while run.json's
+    fluid_steps and particle_steps still count the whole run."""
+    import json
+    base = [SETTLING, "particles.count=30", "output.interval=5e-4"]
+    first = ctx.fresh("restart_count_first")
+    expect(ctx, ["run", *base, "run.end_time=1e-3", "output.checkpoint_interval=1e-3",
+                 "--quiet"], 0, None, out_dir=first)
+    with open(os.path.join(first, "run.json")) as f:
+        before = json.load(f)
+    second = ctx.fresh("restart_count_second")
+    out = expect(ctx, ["run", *base, "run.end_time=2e-3", "--restart",
+                       os.path.join(first, "checkpoint_000000010.h5")], 0,
+                 r"Loop time of \S+ s for 10 fluid steps \(", out_dir=second)
+    with open(os.path.join(second, "run.json")) as f:
+        j = json.load(f)
+    assert j["fluid_steps"] == 20, j["fluid_steps"]
+    assert abs(j["wall_seconds_per_fluid_step"] * 10 / j["loop_seconds"] - 1) < 1e-9, j
+    this_run = j["particle_steps_per_second"] * j["loop_seconds"]
+    assert abs(this_run / (j["particle_steps"] - before["particle_steps"]) - 1) < 0.05, \
+        (this_run, j["particle_steps"], before["particle_steps"])
+
+
+@case
+def restart_profiles_start_at_zero(ctx):
+    """A restart into a new --out wrote profiles.csv from the restart time while diagnostics.csv
+    starts at t = 0. One rule: both start at t = 0, the rows before the restart taken from the
+    run it continues; the restart being bitwise, the file is the uninterrupted run's."""
+    prof = ["output.profile_axis=x", "output.profile_bins=4", "output.interval=5e-6"]
+    whole = ctx.fresh("profiles_whole")
+    expect(ctx, ["run", SMALL, *TINY, *prof, "output.checkpoint_interval=1e-5", "--quiet"], 0,
+           None, out_dir=whole)
+    ck = sorted(n for n in os.listdir(whole) if n.startswith("checkpoint_"))[0]
+    again = ctx.fresh("profiles_again")
+    expect(ctx, ["run", SMALL, *TINY, *prof, "--quiet", "--restart", os.path.join(whole, ck)], 0,
+           None, out_dir=again)
+    with open(os.path.join(whole, "profiles.csv")) as f:
+        want = f.read()
+    with open(os.path.join(again, "profiles.csv")) as f:
+        got = f.read()
+    assert got.splitlines()[1].startswith("0,"), got[:300]
+    assert got == want, (got[:500], want[:500])
+
+
+@case
 def gas_alone_at_its_own_step(ctx):
     """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
     capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of
@@ -291,6 +385,91 @@ def no_particles_with_every_scheme(ctx):
 
 
 @case
+def gas_grid_beyond_memory(ctx):
+    """fluid.cells = [1000, 1000, 1000] passed `check`, and the run grew to 24 GB until the kernel
+    killed it (rc 137, no message). check and run estimate the gas's memory (1.6 KB a cell:
+    1.6e3 GB here) and refuse what this machine cannot hold, naming the key and the estimate;
+    check shows the estimate of a grid that fits."""
+    for cmd in ("check", "run"):
+        expect(ctx, [cmd, SETTLING, "fluid.cells=[1000,1000,1000]"], 2,
+               r"scene key 'fluid.cells': \[1000, 1000, 1000\] cells need about 1.6e\+03 GB for "
+               r"the gas .* more than this machine's", timeout=20)
+    out = expect(ctx, ["check", SETTLING], 0, None)
+    assert re.search(r"gas_memory_gb \(estimate, all ranks\)\s+0.0016\b", out), out
+
+
+@case
+def skin_and_tolerance_refused_before_the_run(ctx):
+    """dem.neighbor_skin = 10 m passed `check` and stopped the run at its first neighbour list
+    (exit 3); fluid.tolerance = 1e-300 started the run and stopped it at the first projection
+    (exit 3). Both are refused before the run starts, naming the key."""
+    for cmd in ("check", "run"):
+        expect(ctx, [cmd, SMALL, "dem.neighbor_skin=10"], 2,
+               r"scene key 'dem.neighbor_skin': periodic axis 0 is 0.001737 m long, not more "
+               r"than twice the neighbor cutoff plus skin, 20.0001 m .*lower dem.neighbor_skin",
+               fresh=cmd == "run")
+        expect(ctx, [cmd, SETTLING, "fluid.tolerance=1e-300"], 2,
+               r"scene key 'fluid.tolerance'.*must be in \[1e-12, 1\), got 1e-300")
+
+
+@case
+def inviscid_gas_with_a_viscous_drag_law(ctx):
+    """fluid.viscosity = 0 (allowed) with bvk, bvk2 or koch_hill drag stopped the first step with
+    exit 3 "multigrid: the coarsest operator is not positive definite" (the drag's 0 x inf):
+    refused at set-up naming the key and the drag law. An inviscid gas with wen_yu (Newton's
+    drag as mu -> 0) or no drag runs."""
+    for drag in ("bvk", "bvk2", "koch_hill"):
+        expect(ctx, ["run", SETTLING, "fluid.viscosity=0", f"fluid.drag={drag}"], 2,
+               rf"scene key 'fluid.viscosity': 0 \(an inviscid gas\) cannot take fluid.drag = "
+               rf"\"{drag}\"")
+    for drag in ("wen_yu", "none"):
+        expect(ctx, ["run", SETTLING, "fluid.viscosity=0", f"fluid.drag={drag}",
+                     "run.end_time=5e-4", "--quiet"], 0, None, out_dir=ctx.fresh(f"mu0_{drag}"))
+
+
+@case
+def single_gas_cell(ctx):
+    """fluid.cells = [1, 1, 1] with the default solver stopped at the first step with exit 3
+    "multigrid ... not positive definite" (walls or periodic): refused at set-up, pointing at
+    hypre, which runs it."""
+    for scene in (SETTLING, os.path.join(SCENES, "hcs_gas.toml")):
+        for solver in ("auto", "multigrid"):
+            expect(ctx, ["run", scene, "fluid.cells=[1,1,1]", f"fluid.solver={solver}"], 2,
+                   rf"scene key 'fluid.cells': \[1, 1, 1\] \(a single gas cell\) cannot be "
+                   rf"solved by fluid.solver = \"{solver}\".*fluid.solver = \"hypre\"")
+    expect(ctx, ["run", SETTLING, "fluid.cells=[1,1,1]", "fluid.solver=hypre",
+                 "run.end_time=5e-4", "--quiet"], 0, None, out_dir=ctx.fresh("one_cell_hypre"))
+
+
+@case
+def extreme_gas_values_refused(ctx):
+    """fluid.density = 1e-300, fluid.viscosity = 1e300 and fluid.velocity = [1e300, 0, 0] ran
+    the first fluid step for 20-60 s with no progress line. The viscous number nu dt_f / dx^2
+    (1e-4 s on cells of 1.5e-4 m) and the Courant number |u| dt_f / dx are refused beyond what
+    can run, naming the keys and the number; the scene's own values run."""
+    expect(ctx, ["check", SETTLING, "fluid.density=1e-300"], 2,
+           r"scene keys 'fluid.viscosity' and 'fluid.density': the kinematic viscosity mu / "
+           r"rho_g = 2e\+295 m\^2/s makes the viscous number nu dt_f / dx\^2 = 8.89e\+298",
+           timeout=10)
+    expect(ctx, ["run", SETTLING, "fluid.viscosity=1e300"], 2,
+           r"'fluid.viscosity' and 'fluid.density'.*nu dt_f / dx\^2 = 4.44e\+303", timeout=10)
+    expect(ctx, ["run", SETTLING, "fluid.velocity=[1e300,0,0]"], 2,
+           r"scene keys 'fluid.velocity' and 'fluid.inflow_velocity': a gas speed of 1e\+300 m/s "
+           r"crosses 6.67e\+299 cells", timeout=10)
+    expect(ctx, ["run", SETTLING, "fluid.dt=0", "fluid.inflow_velocity=[0,1e20,0]"], 2,
+           r"'fluid.inflow_velocity'.*\(fluid.max_dt\)", timeout=10)
+
+
+@case
+def fluid_dt_longer_than_the_run(ctx):
+    """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
+    both keys."""
+    for cmd in ("check", "run"):
+        expect(ctx, [cmd, SETTLING, "fluid.dt=0.01", "run.end_time=0.002"], 2,
+               r"scene key 'fluid.dt'.*0.01 s is longer than run.end_time = 0.002 s")
+
+
+@case
 def check_tells_about_the_gas(ctx):
     """`cfddem check` of the fluidized bed: cells per particle diameter (0.5, with a warning once
     the deposition is trilinear), fluid steps, the minimum fluidization velocity (Wen & Yu; in
@@ -314,6 +493,27 @@ def check_tells_about_the_gas(ctx):
     assert "narrower than a particle" not in quiet  # dpvm spreads the particle: no warning
 
 
+@case
+def check_polydisperse_fluidization_velocity(ctx):
+    """`cfddem check` of a polydisperse bed gave U_mf about 5x low: it divided the lightest
+    particle's mass by the mean diameter's volume (a density of 222 kg/m3 for 2500). It now takes
+    the material's density and the Sauter mean d32: in the Stokes regime U_mf = d32^2 (rho_p -
+    rho_g) g / (1652 mu), to 0.1%."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    out = expect(ctx, ["check", bed, "particles.diameter={distribution='uniform', min=5e-5, "
+                                     "max=1e-4}"], 0, None)
+    m = re.search(r"minimum_fluidization_velocity_m_s \(Wen & Yu, d32\)\s+(\S+)",
+                  out)
+    assert m, out
+    umf = float(m.group(1))
+    d32 = float(re.search(r"sauter_mean_d32_m\s+(\S+)", out).group(1))
+    cfg = dict(re.findall(r"^(\S+) = (.*)$", out, re.M))
+    rho_p = float(cfg["particles.density"])
+    rho_g, mu = float(cfg["fluid.density"]), float(cfg["fluid.viscosity"])
+    stokes = d32 * d32 * (rho_p - rho_g) * 9.80665 / (2 * 33.7 / 0.0408 * mu)
+    assert abs(umf / stokes - 1) < 1e-3, (umf, stokes)
+
+
 # ---- legal but almost surely a mistake: a warning, and run.json as typed JSON ----
 @case
 def snapshot_interval_tiny_warns(ctx):
@@ -325,6 +525,43 @@ def snapshot_interval_tiny_warns(ctx):
 def dem_dt_tiny_warns(ctx):
     expect(ctx, ["check", SMALL, "dem.dt=1e-20"], 0,
            r"warning: dem.dt = 1e-20 s makes 3e\+18 steps .* years")
+
+
+# ---- step counts a run cannot count (issue 38) ----
+@case
+def step_count_overflow_refused(ctx):
+    """A step count past 2^62 (the run's 64-bit counters) is refused by check and run, naming the
+    keys and the count it would need (it wrapped to INT64_MIN: 0 steps, exit 0, "done"; orb
+    stopped after one sub-iteration; a diameter of 1e-300 m gave a step of 0 s and a NaN row)."""
+    for args, needle in (
+            (["dem.dt=1e-300"], r"'run.end_time' and 'dem.dt'.* needs 3e\+298 steps"),
+            (["run.end_time=1e300"], r"'run.end_time' and 'dem.dt_factor'.* needs 6.91e\+306 "
+                                     r"steps"),
+            (["dem.scheme=orb", "dem.regrid_interval=1e-300"],
+             r"'run.end_time' and 'dem.regrid_interval'.* needs 3e\+299 steps")):
+        expect(ctx, ["check", SMALL, *args], 2, needle)
+        expect(ctx, ["run", SMALL, *args], 2, needle, fresh=True)
+    expect(ctx, ["run", SMALL, "particles.diameter=1e-300"], 2,
+           r"'particles.diameter' and 'particles.density'.*mass is 0 kg", fresh=True)
+
+
+@case
+def dt_factor_warns_as_dem_dt(ctx):
+    """dem.dt_factor = 0.9 (2.5 steps per contact) and 1e-12 (4e15 steps) passed silently while
+    the same step through dem.dt warned: both warn, with the steps per contact, in check and
+    run. The default step warns of nothing."""
+    expect(ctx, ["check", SMALL, "dem.dt_factor=0.9"], 0,
+           r"warning: dem.dt_factor = 0.9 \(dt = 6.51\de-06 s\) resolves a contact of "
+           r"1.61e-05 s in 2.47 steps: below 10")
+    expect(ctx, ["check", SMALL, "dem.dt=6.5e-6"], 0,
+           r"warning: dem.dt = 6.5e-06 s resolves a contact of 1.61e-05 s in 2.4\d steps")
+    expect(ctx, ["run", SMALL, *TINY, "dem.dt_factor=0.9", "--quiet"], 0,
+           r"warning: dem.dt_factor = 0.9 .* in 2.47 steps", out_dir=ctx.fresh("coarse_step"))
+    expect(ctx, ["check", SMALL, "dem.dt_factor=1e-12"], 0,
+           r"warning: dem.dt_factor = 1e-12 \(dt = 7.23\de-18 s\) makes 4.15e\+15 steps to "
+           r"run.end_time = 0.03 s")
+    quiet = expect(ctx, ["check", SMALL], 0, None)
+    assert "warning" not in quiet, quiet
 
 
 @case
@@ -401,11 +638,33 @@ def name_with_slash(ctx):
     expect(ctx, ["run", SMALL, *TINY, "name=a/../../b"], 2, r"scene key 'name'")
 
 
+@case
+def name_with_control_characters(ctx):
+    """A newline (or tab, escape, ...) in a name made a directory with a newline in its name."""
+    for name in ("a\nb", "a\tb", "run\x1b[31m"):
+        expect(ctx, ["run", SMALL, *TINY, f"name={name}"], 2,
+               r"scene key 'name'.*without control characters", cwd=ctx.tmp)
+        assert not os.path.exists(os.path.join(ctx.tmp, "runs")), os.listdir(ctx.tmp)
+
+
 # ---- set-up: refused before placement when it cannot fit, memory of the particles ----
 @case
 def count_beyond_close_packing(ctx):
     expect(ctx, ["run", SMALL, "particles.count=1000000", "domain.hi=[1e-3,1e-3,1e-3]"], 2,
            r"'particles.count'.*random close packing", timeout=20)
+
+
+@case
+def close_packing_message_reads_right(ctx):
+    """The refusal says the solid fraction asked, the limit 0.64 and how many particles fit (its
+    format arguments were swapped: "fill 9.99e+03 times the region (solid fraction 0.64) ...
+    9990.77 (about 0.64 particles here)"). 1e8 particles of 100 um in a 1.737 mm box ask for
+    pi/6 1e-12 1e8 / 1.737e-3^3 = 9991; about 0.64 / 9991 x 1e8 = 6405 fit."""
+    out = expect(ctx, ["check", SMALL, "particles.count=100000000"], 2,
+                 r"'particles.count'.*ask for a solid fraction of 9.99e\+03 in the region; no "
+                 r"packing holds more than random close packing, 0.64 \(about 640\d particles "
+                 r"here\)", timeout=20)
+    assert "times the region" not in out, out
 
 
 @case
@@ -418,6 +677,17 @@ def count_beyond_random_placement(ctx):
 def count_beyond_memory(ctx):
     expect(ctx, ["check", SMALL, "particles.count=1000000000000", "domain.hi=[10,10,10]"], 2,
            r"'particles.count'.*GB, more than this machine", timeout=20)
+
+
+@case
+def size_distribution_huge_count_refused_fast(ctx):
+    """A size distribution with 1e10 particles drew every diameter before refusing (more than
+    60 s): refused as fast as one size, whether the packing or the memory refuses it."""
+    dist = "particles.diameter={distribution='uniform', min=5e-5, max=1e-4}"
+    expect(ctx, ["check", SMALL, dist, "particles.count=10000000000"], 2,
+           r"'particles.count'.*random close packing", timeout=10)
+    expect(ctx, ["check", SMALL, dist, "particles.count=1000000000000", "domain.hi=[10,10,10]"],
+           2, r"'particles.count'.*GB, more than this machine", timeout=10)
 
 
 @case
@@ -443,6 +713,48 @@ def rerun_into_a_run_directory(ctx):
 
 
 @case
+def two_runs_into_one_directory(ctx):
+    """Two runs into the same directory at once both exited 0, run.json from one and
+    diagnostics.csv from the other. The run directory is locked while a run writes it: the
+    second run exits 2 naming the directory, and the first finishes intact. Started together
+    (the race is lost at the directory's creation) and one after the other (the second finds
+    the lock; with --overwrite it would have removed the first run's files)."""
+    import json
+    import time
+    def start(d, seed, *extra):  # about 3 s of run
+        return subprocess.Popen([BIN, "run", SMALL, "run.end_time=0.5", f"particles.seed={seed}",
+                                 "--quiet", "--out", d, *extra], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+    def intact(d, seed):
+        with open(os.path.join(d, "run.json")) as f:
+            assert json.load(f)["configuration"]["particles.seed"] == seed
+        r = rows(d)
+        assert abs(float(r[-1][0]) - 0.5) < 1e-6 and all(len(x) == len(r[0]) for x in r), r[-1]
+    lock = r"concurrent\S*: another cfddem run is writing into this directory"
+    d = ctx.fresh("concurrent_together")
+    runs = {seed: start(d, seed) for seed in (3, 4)}
+    outs = {seed: p.communicate(timeout=TIMEOUT)[0] for seed, p in runs.items()}
+    codes = {seed: p.returncode for seed, p in runs.items()}
+    assert sorted(codes.values()) == [0, 2], (codes, outs)
+    winner = min(codes, key=codes.get)
+    loser = max(codes, key=codes.get)
+    assert re.search(lock, outs[loser]) or "holds the outputs of an earlier run" in outs[loser], \
+        outs[loser]
+    intact(d, winner)
+    d = ctx.fresh("concurrent_after")
+    first = start(d, 3)
+    while not os.path.exists(os.path.join(d, "diagnostics.csv")) and first.poll() is None:
+        time.sleep(0.01)
+    second = start(d, 4, "--overwrite")
+    out = second.communicate(timeout=TIMEOUT)[0]
+    running = first.poll() is None
+    assert first.wait(timeout=TIMEOUT) == 0, first.communicate()[0]
+    assert second.returncode == 2 and re.search(lock, out), (second.returncode, out)
+    assert running, "the first run ended before the second was refused: make it longer"
+    intact(d, 3)
+
+
+@case
 def overwrite_removes_the_old_run(ctx):
     d = ctx.fresh("overwritten")
     shutil.copytree(ctx.precious, d)
@@ -455,6 +767,35 @@ def overwrite_removes_the_old_run(ctx):
     assert not any(n.startswith("checkpoint_") for n in names), names
     assert names.count("snapshots.xmf") == 0, names
     assert rows(d)[-1][0] != rows(ctx.precious)[-1][0]
+
+
+@case
+def output_directory_that_cannot_be_written(ctx):
+    """An --out longer than the file system allows, through a file, or on a read-only file system
+    started the run and stopped it with exit 3 ("filesystem error ..."): refused with exit 2
+    before the run starts, naming the directory and why."""
+    expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(ctx.tmp, "x" * 300)], 2,
+           r"output directory .*: the name 'x{20}\.\.\.' is 300 characters long, more than the "
+           r"255 the file system allows")
+    deep = os.path.join(ctx.tmp, *(["d" * 200] * 25))
+    expect(ctx, ["run", SMALL, *TINY, "--out", deep], 2,
+           r"output directory .*: the path is \d+ characters long; with the run's file names it "
+           r"would pass the system's limit of 4096")
+    plain = ctx.file("plain_file", "not a directory\n")
+    expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(plain, "run")], 2,
+           r"plain_file' is a file, not a directory")
+    mnt = os.path.join(ctx.tmp, "read_only")
+    os.makedirs(mnt)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", mnt],
+                      capture_output=True).returncode != 0:
+        print("  output_directory_that_cannot_be_written: no read-only tmpfs mount here (not "
+              "root?): its read-only part not run")
+        return
+    try:
+        expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(mnt, "run")], 2,
+               r"read_only' cannot be written: Read-only file system")
+    finally:
+        subprocess.run(["umount", mnt])
 
 
 # ---- faults while running (exit 3, every earlier file intact) ----

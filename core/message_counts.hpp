@@ -1,7 +1,7 @@
 // Counts of what this rank sends between ranks: point-to-point messages and their bytes,
 // collectives and their bytes, and how many of the collectives are reductions. They are a
 // function of the run's configuration alone (not of timing), so a scaling model can price a run
-// at R ranks from counts measured anywhere (docs/performance.md, tools/scaling_model.py).
+// at R ranks from counts measured anywhere (docs/performance_history.md, tools/scaling_model.py).
 // Counted where the MPI calls are made (core/ and partition/): halo and particle exchanges,
 // reductions, gathers. Not counted: snapshot and checkpoint I/O, and hypre's own messages.
 #pragma once

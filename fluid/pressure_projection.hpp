@@ -51,14 +51,14 @@ struct ProjectionReport {
 
 // What fluid.solver = "auto" picks for this grid (global counts, on any rank count): the
 // multigrid (fewer instructions than hypre on the riser grid, on one grid and on R ranks:
-// docs/multigrid.md, docs/performance.md), except where its hierarchy cannot coarsen below
+// docs/multigrid.md, docs/performance_history.md), except where its hierarchy cannot coarsen below
 // kAutoCoarsestCells (odd or short axes: its coarsest level is then solved by CG at every
 // V-cycle) while PFMG's own coarsening gets to at most kAutoCoarsestCells (it stops at an odd
 // period, on any level: the riser at 1e6, 270 x 50 x 270 periodic, halves x and z once to 135
 // in both, where PFMG needed 117 PCG iterations per fluid step on 16 ranks and the multigrid
 // 14). Measured on the bed at 1e5 particles, 101 x 50 x 101 cells, walls on x and z: coarsest
 // level 255,025 cells, fluid phase 6.81 s with the multigrid against 1.70 s with hypre per fluid
-// step; the riser at 85 x 50 x 86, periodic: 1.21 s against 2.40 s (docs/performance.md).
+// step; the riser at 85 x 50 x 86, periodic: 1.21 s against 2.40 s (docs/performance_history.md).
 inline constexpr std::size_t kAutoCoarsestCells = 32768;
 [[nodiscard]] PoissonSolver auto_solver(const MacGrid& grid);
 

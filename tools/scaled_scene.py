@@ -254,7 +254,7 @@ def main():
                     help="grown axes' cell counts are multiples of M (e.g. 8 or 16), so the "
                          "multigrid coarsens them log2(M) times; phi moves further from the "
                          "base (the generated grids' odd counts otherwise leave the multigrid a "
-                         "large coarsest level: docs/performance.md)")
+                         "large coarsest level: docs/performance_history.md)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra override written into the scene (TOML value; bare word = string)")
     ap.add_argument("--out", help="scene file to write (default: print the scene to stdout)")

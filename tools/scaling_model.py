@@ -155,7 +155,7 @@ def network(cores, name, per_node):
 
 
 T_ITER = 20e-9  # s per cell per pressure iteration: one V-cycle of the riser grid, 0.99 ms CPU
-#                 on 51,200 cells (docs/performance.md, "The gas step on one rank")
+#                 on 51,200 cells (docs/performance_history.md, "The gas step on one rank")
 
 
 def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):

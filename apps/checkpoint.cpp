@@ -118,7 +118,7 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   w.put("/gas/counters",
         std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
                                   l.fluid_steps, l.row_pending ? 1 : 0, l.snapshot_pending ? 1 : 0,
-                                  g.implicit_viscosity_steps});
+                                  g.implicit_viscosity_steps, g.viscous_iterations});
   const FluidDiagnostics& d = l.row_fluid;
   w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
                                          l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],
@@ -142,15 +142,17 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
 void read_gas(Reader& r, Checkpoint& c) {
   GasCoupling::State& g = c.gas_state;
   CoupledLoopState& l = c.loop;
-  // 7 counters; checkpoints before the implicit-viscosity count hold 6 (it restarts from 0).
+  // 8 counters; older checkpoints hold 6 (before the implicit-viscosity count) or 7 (before the
+  // viscous iterations): the missing counts restart from 0.
   const auto k = r.int64s("/gas/counters", Reader::kAny);
-  if (k.size() != 6 && k.size() != 7)
-    throw RunError(fmt::format("checkpoint: /gas/counters holds {} values, expected 7 (or 6 "
+  if (k.size() < 6 || k.size() > 8)
+    throw RunError(fmt::format("checkpoint: /gas/counters holds {} values, expected 8 (or 6 or 7 "
                                "from an older checkpoint)",
                                k.size()));
   g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
   l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
-  g.implicit_viscosity_steps = k.size() == 7 ? k[6] : 0;
+  g.implicit_viscosity_steps = k.size() >= 7 ? k[6] : 0;
+  g.viscous_iterations = k.size() == 8 ? k[7] : 0;
   // 12 values; checkpoints before the adaptive step's drag time hold 11 (the restart then keeps
   // the drag time of the particles' deposit at set-up; a fixed fluid.dt never reads it).
   const auto q = r.doubles("/gas/loop", Reader::kAny);

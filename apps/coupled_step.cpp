@@ -334,6 +334,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   gas_substeps_ += substeps;
   implicit_viscosity_steps_ += report.implicit_viscosity ? 1 : 0;
   projection_iterations_ += report.projection_iterations;
+  viscous_iterations_ += report.viscous_iterations;
   projection_fallbacks_ += report.used_fallback ? 1 : 0;
   source_dt_ = last_dt_ > 0.0 ? last_dt_ : dt_f;
   last_dt_ = dt_f;
@@ -508,6 +509,7 @@ GasCoupling::State GasCoupling::save_state() const {
   s.projection_iterations = projection_iterations_;
   s.projection_fallbacks = projection_fallbacks_;
   s.implicit_viscosity_steps = implicit_viscosity_steps_;
+  s.viscous_iterations = viscous_iterations_;
   return s;
 }
 
@@ -533,6 +535,7 @@ void GasCoupling::restore_state(const State& s) {
   projection_iterations_ = s.projection_iterations;
   projection_fallbacks_ = s.projection_fallbacks;
   implicit_viscosity_steps_ = s.implicit_viscosity_steps;
+  viscous_iterations_ = s.viscous_iterations;
 }
 
 } // namespace cfddem::apps

@@ -99,6 +99,8 @@ public:
   [[nodiscard]] long long gas_substeps() const { return gas_substeps_; }
   [[nodiscard]] long long implicit_viscosity_steps() const { return implicit_viscosity_steps_; }
   [[nodiscard]] long long projection_iterations() const { return projection_iterations_; }
+  // Iterations of the implicit viscous solves (all components and stages).
+  [[nodiscard]] long long viscous_iterations() const { return viscous_iterations_; }
   // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
 
@@ -117,6 +119,7 @@ public:
     double drag_time = std::numeric_limits<double>::quiet_NaN();
     std::int64_t gas_substeps = 0, projection_iterations = 0, projection_fallbacks = 0;
     std::int64_t implicit_viscosity_steps = 0; // fluid steps with the Laplacian implicit
+    std::int64_t viscous_iterations = 0;
   };
   [[nodiscard]] State save_state() const;
   // Throws RunError if the state does not fit this grid.
@@ -141,7 +144,7 @@ private:
   double source_dt_ = 0.0;
   double drag_time_ = std::numeric_limits<double>::infinity();
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
-  long long implicit_viscosity_steps_ = 0;
+  long long implicit_viscosity_steps_ = 0, viscous_iterations_ = 0;
   fluid::GridField eps_s_, eps_prev_; // eps_s_: the deposited solid fraction (scratch)
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
   std::vector<double> eps_p_, beta_, ug_[3], bv_[3], gp_[3], force_[3];

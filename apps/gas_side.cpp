@@ -161,6 +161,7 @@ void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, 
   j["gas_substeps"] = gas_->gas_substeps();
   j["implicit_viscosity_steps"] = gas_->implicit_viscosity_steps();
   j["projection_iterations"] = gas_->projection_iterations();
+  j["viscous_iterations"] = gas_->viscous_iterations();
   j["projection_fallbacks"] = gas_->projection_fallbacks();
   j["wall_seconds_per_fluid_step"] = steps_run > 0 ? loop_seconds / steps : 0.0;
   if (comm_.size() == 1)

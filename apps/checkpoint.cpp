@@ -636,7 +636,11 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
                                      "a [fluid] table) but this scene has no gas"
                                    : "the checkpoint holds no gas state (written by a scene "
                                      "without a [fluid] table) but this scene has a [fluid] "
-                                     "table");
+                                     "table: a gas cannot be added at a restart. To fluidize a "
+                                     "settled bed, settle it with the gas at rest (the same "
+                                     "[fluid] table, walls and no inflow), then restart it with "
+                                     "the gas drive changed (fluid.inflow_velocity, fluid.bc.*; "
+                                     "docs/hostile_input.md)");
   if (ck.scheme != scene.dem.scheme)
     throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
                                         ck.scheme, scene.dem.scheme));

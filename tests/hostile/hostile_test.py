@@ -358,6 +358,23 @@ def restart_profiles_start_at_zero(ctx):
 
 
 @case
+def gas_added_at_a_restart_says_how(ctx):
+    """A bed settled with no gas cannot be restarted with one (the checkpoint holds no gas
+    state): the refusal now says how to get there (settle with the gas at rest, then change the
+    drive)."""
+    box = os.path.join(SCENES, "box_gravity.toml")
+    settled = ctx.fresh("settled_dry")
+    expect(ctx, ["run", box, "run.end_time=2e-4", "output.checkpoint_interval=1e-4", "--quiet"],
+           0, None, out_dir=settled)
+    ck = sorted(n for n in os.listdir(settled) if n.startswith("checkpoint_"))[0]
+    expect(ctx, ["run", box, "run.end_time=4e-4", "fluid.cells=[4,4,4]", "fluid.density=1",
+                 "fluid.viscosity=2e-5", "fluid.dt=1e-4", "--restart",
+                 os.path.join(settled, ck)], 2,
+           r"holds no gas state .*a gas cannot be added at a restart\. To fluidize a settled "
+           r"bed, settle it with the gas at rest", out_dir=ctx.fresh("wet_restart"))
+
+
+@case
 def gas_alone_at_its_own_step(ctx):
     """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
     capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of

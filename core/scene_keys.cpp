@@ -723,6 +723,30 @@ std::string range_text(const SceneKey& key) {
   return "";
 }
 
+std::span<const std::string_view> restart_free_keys() {
+  static constexpr std::string_view keys[] = {"name",           "run.*",
+                                               "output.*",       "fluid.inflow_velocity",
+                                               "fluid.velocity", "fluid.bc.*"};
+  return keys;
+}
+
+bool restart_may_change(std::string_view key) {
+  for (const std::string_view k : restart_free_keys())
+    if (k.ends_with(".*") ? key.starts_with(k.substr(0, k.size() - 1)) : key == k)
+      return true;
+  return false;
+}
+
+std::string restart_free_keys_text(bool markdown) {
+  const auto keys = restart_free_keys();
+  std::string text;
+  const char* q = markdown ? "`" : "";
+  for (std::size_t i = 0; i < keys.size(); ++i)
+    text += fmt::format("{}{}{}{}", i == 0 ? "" : i + 1 == keys.size() ? " and " : ", ", q,
+                        keys[i], q);
+  return text;
+}
+
 std::string must_be(const SceneKey& key) {
   const bool two_sided = std::isfinite(key.range.lo) && std::isfinite(key.range.hi);
   return fmt::format("must be {}{}", two_sided ? "in " : "", range_text(key));

@@ -801,6 +801,10 @@ def output_directory_that_cannot_be_written(ctx):
     plain = ctx.file("plain_file", "not a directory\n")
     expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(plain, "run")], 2,
            r"plain_file' is a file, not a directory")
+    if os.path.isdir("/proc/self"):  # writable to root by its mode, yet no directory is made
+        expect(ctx, ["run", SMALL, *TINY, "--out", "/proc/no_such_dir/run"], 2,
+               r"output directory '/proc/no_such_dir/run' .*(cannot be created|cannot be "
+               r"written)")
     mnt = os.path.join(ctx.tmp, "read_only")
     os.makedirs(mnt)
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", mnt],

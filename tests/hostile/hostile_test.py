@@ -772,6 +772,21 @@ def two_runs_into_one_directory(ctx):
 
 
 @case
+def lock_released_when_a_run_is_killed(ctx):
+    """The run directory's lock is the kernel's (flock): a run killed with SIGKILL leaves no stale
+    lock behind, and the next run with --overwrite takes the directory."""
+    import time
+    d = ctx.fresh("killed_run")
+    first = subprocess.Popen([BIN, "run", SMALL, "run.end_time=0.5", "--quiet", "--out", d],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    while not os.path.exists(os.path.join(d, "diagnostics.csv")) and first.poll() is None:
+        time.sleep(0.01)
+    first.kill()
+    first.wait(timeout=TIMEOUT)
+    expect(ctx, ["run", SMALL, *TINY, "--quiet", "--overwrite"], 0, None, out_dir=d)
+
+
+@case
 def overwrite_removes_the_old_run(ctx):
     d = ctx.fresh("overwritten")
     shutil.copytree(ctx.precious, d)

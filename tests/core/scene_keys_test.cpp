@@ -496,8 +496,8 @@ TEST(SceneKeys, RestartMayChangeTheRunAndTheGasDriveOnly) {
   for (const std::string_view k : restart_free_keys()) {
     bool known = false;
     for (const SceneKey& key : scene_keys())
-      known = known || (k.ends_with(".*") ? key.name.starts_with(k.substr(0, k.size() - 1))
-                                          : key.name == k);
+      known = known ||
+              (k.ends_with(".*") ? key.name.starts_with(k.substr(0, k.size() - 1)) : key.name == k);
     EXPECT_TRUE(known) << k;
   }
   EXPECT_NE(keys_markdown().find("A restart may change only\n" + restart_free_keys_text(true)),

@@ -13,6 +13,7 @@
 #include "apps/run_output.hpp"
 #include "core/error.hpp"
 #include "core/hdf5_file.hpp"
+#include "core/scene_keys.hpp"
 #include "dem/contact_history.hpp"
 
 namespace cfddem::apps {
@@ -612,17 +613,14 @@ Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
 
 namespace {
 
-// Keys a restart may change: the gas drive (docs/hostile_input.md). A bed settled with the gas
-// at rest continues with the gas turned on (fluid.inflow_velocity, the boundary kinds fluid.bc.*,
-// and fluid.velocity, the initial gas velocity, which the restored gas state replaces anyway).
-constexpr std::string_view kFreeKeyPrefixes[] = {
-    "fluid.inflow_velocity = ", "fluid.velocity = ", "fluid.bc."};
 // Keys added after checkpoints of this format were written, at the value that older runs had
 // without naming it: such a line is left out, so those checkpoints still restart at it.
 constexpr std::string_view kImpliedLines[] = {"fluid.coupling = \"two_way\"",
                                               "fluid.projections = 2"};
 
-// The configuration lines that must match at a restart.
+// The configuration lines that must match at a restart: all but those of the keys a restart may
+// change (restart_free_keys(), core/scene_keys.hpp: the gas drive, so that a bed settled with
+// the gas at rest continues with the gas turned on) and the implied lines.
 std::string restart_fixed_lines(const std::string& configuration) {
   std::string kept;
   std::size_t pos = 0;
@@ -631,9 +629,8 @@ std::string restart_fixed_lines(const std::string& configuration) {
     if (end == std::string::npos)
       end = configuration.size();
     const std::string_view line(configuration.data() + pos, end - pos);
-    const bool free =
-        std::ranges::any_of(kFreeKeyPrefixes, [&](auto k) { return line.starts_with(k); }) ||
-        std::ranges::find(kImpliedLines, line) != std::end(kImpliedLines);
+    const bool free = restart_may_change(line.substr(0, line.find(" = "))) ||
+                      std::ranges::find(kImpliedLines, line) != std::end(kImpliedLines);
     if (!free)
       kept.append(line).push_back('\n');
     pos = end + 1;
@@ -648,7 +645,11 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
                                      "a [fluid] table) but this scene has no gas"
                                    : "the checkpoint holds no gas state (written by a scene "
                                      "without a [fluid] table) but this scene has a [fluid] "
-                                     "table");
+                                     "table: a gas cannot be added at a restart. To fluidize a "
+                                     "settled bed, settle it with the gas at rest (the same "
+                                     "[fluid] table, walls and no inflow), then restart it with "
+                                     "the gas drive changed (fluid.inflow_velocity, fluid.bc.*; "
+                                     "docs/hostile_input.md)");
   if (ck.scheme != scene.dem.scheme)
     throw ConfigError(path, fmt::format("checkpoint of scheme \"{}\", the scene runs \"{}\"",
                                         ck.scheme, scene.dem.scheme));
@@ -671,10 +672,10 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
     const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
     const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
     throw ConfigError(path, fmt::format("the checkpoint was written with a different "
-                                        "configuration; first difference at '{}' (only name, "
-                                        "run.*, output.*, fluid.inflow_velocity, fluid.velocity "
-                                        "and fluid.bc.* may change at a restart)",
-                                        now.substr(line, now.find('\n', line) - line)));
+                                        "configuration; first difference at '{}' (only {} may "
+                                        "change at a restart)",
+                                        now.substr(line, now.find('\n', line) - line),
+                                        restart_free_keys_text(false)));
   }
 }
 

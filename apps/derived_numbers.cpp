@@ -9,8 +9,8 @@
 
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
-#include "dem/explicit_scheme.hpp"
 #include "dem/domain_geometry.hpp"
+#include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/verlet_list.hpp"
 
@@ -76,10 +76,9 @@ void refuse_uncountable_steps(const Scene& s, double dt) {
                      by_dt ? "raise dem.dt" : "raise dem.dt_factor");
   const bool sub = s.dem.scheme == "orb" || s.dem.scheme == "islands";
   if (sub && !s.fluid.enabled)
-    refuse_uncountable(s, s.dem.regrid_interval / static_cast<double>(s.dem.nsubit),
-                       "'dem.regrid_interval'",
-                       "sub-iterations (dt_sp = dem.regrid_interval / dem.nsubit)",
-                       "raise dem.regrid_interval");
+    refuse_uncountable(
+        s, s.dem.regrid_interval / static_cast<double>(s.dem.nsubit), "'dem.regrid_interval'",
+        "sub-iterations (dt_sp = dem.regrid_interval / dem.nsubit)", "raise dem.regrid_interval");
   if (s.fluid.enabled && s.fluid.dt > 0.0)
     refuse_uncountable(s, s.fluid.dt, "'fluid.dt'", "fluid steps", "raise fluid.dt");
   if (s.fluid.enabled && !(s.fluid.dt > 0.0))
@@ -91,17 +90,17 @@ void refuse_uncountable_steps(const Scene& s, double dt) {
 // m) reaching past half a periodic axis stopped the run at its first list (exit 3). Known here.
 void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double skin) {
   int axis = 0;
-  if (r.count == 0 || dem::VerletList::skin_fits(dem::DomainGeometry(s.domain), r.r_max, skin, &axis))
+  if (r.count == 0 ||
+      dem::VerletList::skin_fits(dem::DomainGeometry(s.domain), r.r_max, skin, &axis))
     return;
   const bool given = s.dem.neighbor_skin > 0.0;
-  throw ConfigError(given ? "scene key 'dem.neighbor_skin'" : "scene key 'domain.hi'",
-                    fmt::format("periodic axis {} is {:.6g} m long, not more than twice the "
-                                "neighbor cutoff plus skin, {:.6g} m (the largest diameter {:.6g} m "
-                                "and two skins of {:.6g} m): {}",
-                                axis, s.domain.length(axis), 2 * r.r_max + 2 * skin, 2 * r.r_max,
-                                skin,
-                                given ? "lower dem.neighbor_skin or enlarge the domain"
-                                      : "enlarge the domain"));
+  throw ConfigError(
+      given ? "scene key 'dem.neighbor_skin'" : "scene key 'domain.hi'",
+      fmt::format("periodic axis {} is {:.6g} m long, not more than twice the "
+                  "neighbor cutoff plus skin, {:.6g} m (the largest diameter {:.6g} m "
+                  "and two skins of {:.6g} m): {}",
+                  axis, s.domain.length(axis), 2 * r.r_max + 2 * skin, 2 * r.r_max, skin,
+                  given ? "lower dem.neighbor_skin or enlarge the domain" : "enlarge the domain"));
 }
 
 // The numbers from the particles' count, range, sums and granular temperature.

@@ -19,7 +19,7 @@ struct DerivedNumbers {
   std::size_t particles = 0;
   double mean_diameter = 0, min_mass = 0, tau_p = 0, dt = 0, solid_fraction = 0;
   double solid_density = 0; // the particles' mass over their volume [kg/m^3]
-  double g0 = 0; // Carnahan-Starling contact value
+  double g0 = 0;            // Carnahan-Starling contact value
   double granular_temperature = 0;
   double collision_frequency = 0; // per particle, Enskog [1/s]
   double haff_time = 0;           // t_H [s] (no gas)

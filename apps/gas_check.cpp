@@ -39,8 +39,8 @@ void check_gas_memory(const Scene& s, int ranks) {
         "scene key 'fluid.cells'",
         fmt::format("[{}, {}, {}] cells need about {:.3g} GB for the gas ({:.3g} KB a cell){}, "
                     "more than this machine's {:.3g} GB of memory: use fewer cells{}",
-                    s.fluid.cells[0], s.fluid.cells[1], s.fluid.cells[2],
-                    gas_memory_bytes(s) / 1e9, kGasBytesPerCell / 1e3,
+                    s.fluid.cells[0], s.fluid.cells[1], s.fluid.cells[2], gas_memory_bytes(s) / 1e9,
+                    kGasBytesPerCell / 1e3,
                     ranks > 1 ? fmt::format(", {:.3g} GB on each of {} ranks", share / 1e9, ranks)
                               : std::string(),
                     memory / 1e9, ranks > 1 ? "" : ", or more ranks on more machines"));
@@ -67,8 +67,8 @@ void check_gas_numbers(const Scene& s) {
                     "of {:.3g} s ({}): the gas would take {:.3g} sub-steps (at fluid.cfl = {:g}) "
                     "every fluid step, beyond the Courant number {:g} a run can take; lower the "
                     "velocity or {}",
-                    speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl,
-                    kMaxCourantPerFluidStep, step));
+                    speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl, kMaxCourantPerFluidStep,
+                    step));
   const double nu = f.viscosity / f.density;
   const double viscous = nu * dt_f / (dx * dx);
   if (viscous > kMaxViscousNumber)

@@ -159,7 +159,13 @@ void lock_run_directory(const fs::path& dir) {
 }
 
 void create_run_directory(const fs::path& dir) {
-  fs::create_directories(dir);
+  // check_writable cannot foresee every refusal (a special file system such as /proc, a race):
+  // one here is still the directory's, before any step or file, so a configuration error.
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec)
+    throw ConfigError(fmt::format("output directory '{}' (--out, or runs/<name>)", dir.string()),
+                      fmt::format("cannot be created: {}", ec.message()));
   if (take_lock(dir) && !run_outputs_in(dir).empty())
     throw ConfigError(dir.string(),
                       "another cfddem run wrote its outputs into this directory while this run "

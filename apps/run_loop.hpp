@@ -224,11 +224,10 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   std::vector<double> profile_gas;
   if (const auto spec = profile_spec(scene)) {
     profiles.emplace(*spec, gas_on);
-    out.open_profiles(profiles->columns(),
-                      ck && !ck->rows.empty() ? std::optional<double>(ck->rows.back()[0])
-                                              : std::nullopt,
-                      ck ? std::filesystem::path(opt.restart).parent_path().string()
-                         : std::string());
+    out.open_profiles(
+        profiles->columns(),
+        ck && !ck->rows.empty() ? std::optional<double>(ck->rows.back()[0]) : std::nullopt,
+        ck ? std::filesystem::path(opt.restart).parent_path().string() : std::string());
   }
   auto take_profile_gas = [&] {
     if (profiles && gas)

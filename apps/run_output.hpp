@@ -197,7 +197,8 @@ template <class Scheme>
 // particle_steps_before: the count a restart took over from its checkpoint (the rate is this
 // run's).
 inline void add_work_counters(nlohmann::ordered_json& j, const Scheme& scheme, double loop_seconds,
-                       const char* definition = nullptr, std::int64_t particle_steps_before = 0) {
+                              const char* definition = nullptr,
+                              std::int64_t particle_steps_before = 0) {
   j["particle_steps"] = scheme.particle_steps();
   j["force_evaluations"] = scheme.pair_evaluations();
   if (definition) j["force_evaluations_definition"] = definition;

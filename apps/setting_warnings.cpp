@@ -37,9 +37,9 @@ std::vector<std::string> setting_warnings(const Scene& s) {
 std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) {
   std::vector<std::string> w;
   const bool by_dt = s.dem.dt > 0.0;
-  const std::string step = by_dt ? fmt::format("dem.dt = {:g} s", s.dem.dt)
-                                 : fmt::format("dem.dt_factor = {:g} (dt = {:.4g} s)",
-                                               s.dem.dt_factor, d.dt);
+  const std::string step =
+      by_dt ? fmt::format("dem.dt = {:g} s", s.dem.dt)
+            : fmt::format("dem.dt_factor = {:g} (dt = {:.4g} s)", s.dem.dt_factor, d.dt);
   if (d.particles > 0 && d.dt_per_contact < kFewStepsPerContact)
     w.push_back(fmt::format("{} resolves a contact of {:.3g} s in {:.3g} steps: below {:g} a "
                             "contact gains or loses energy it should not (the default "

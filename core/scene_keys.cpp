@@ -463,8 +463,9 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .range = closed(1, 65536),
        .fallback = required(),
-       .meaning = "cells of the MAC grid per axis (at most 4e9 in all; a cell takes about 1.6 KB, and a "
-                  "grid beyond the machine's memory is refused)"},
+       .meaning =
+           "cells of the MAC grid per axis (at most 4e9 in all; a cell takes about 1.6 KB, and a "
+           "grid beyond the machine's memory is refused)"},
       {.name = "fluid.cell_size",
        .type = T::Vec3,
        .section = S::Fluid,
@@ -732,6 +733,32 @@ std::string range_text(const SceneKey& key) {
   if (has_hi)
     return fmt::format("{} {}", r.hi_open ? "<" : "<=", number_text(r.hi));
   return "";
+}
+
+std::span<const std::string_view> restart_free_keys() {
+  static constexpr std::string_view keys[] = {
+      "name", "run.*", "output.*", "fluid.inflow_velocity", "fluid.velocity", "fluid.bc.*"};
+  return keys;
+}
+
+bool restart_may_change(std::string_view key) {
+  for (const std::string_view k : restart_free_keys())
+    if (k.ends_with(".*") ? key.starts_with(k.substr(0, k.size() - 1)) : key == k)
+      return true;
+  return false;
+}
+
+std::string restart_free_keys_text(bool markdown) {
+  const auto keys = restart_free_keys();
+  std::string text;
+  const char* q = markdown ? "`" : "";
+  for (std::size_t i = 0; i < keys.size(); ++i)
+    text += fmt::format("{}{}{}{}",
+                        i == 0                 ? ""
+                        : i + 1 == keys.size() ? " and "
+                                               : ", ",
+                        q, keys[i], q);
+  return text;
 }
 
 std::string must_be(const SceneKey& key) {

@@ -74,4 +74,13 @@ std::string range_text(const SceneKey& key);
 // "must be > 0", "must be in [0, 1]": what a value outside the key's range is told.
 std::string must_be(const SceneKey& key);
 
+// The keys a restart may change; every other key must be as the checkpoint's scene had it. An
+// entry ending in ".*" covers the keys it prefixes. The run's name, its end and outputs, and the
+// gas drive (so that a bed settled with the gas at rest can be fluidized from its checkpoint).
+// apps/checkpoint.cpp applies this rule and docs/keys.md prints it: the one list.
+std::span<const std::string_view> restart_free_keys();
+bool restart_may_change(std::string_view key);
+// "`name`, `run.*`, ... and `fluid.bc.*`" (markdown) or without the backquotes.
+std::string restart_free_keys_text(bool markdown);
+
 } // namespace cfddem

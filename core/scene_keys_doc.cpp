@@ -69,9 +69,10 @@ cfddem --version
 ```
 
 A run directory that holds another run's outputs is refused unless `--overwrite` is given, which
-removes those outputs first; `name` cannot leave `runs/`. A restart may change `name`, `run.*`,
-`output.*`, and the gas's `fluid.inflow_velocity`, `fluid.velocity` and `fluid.bc.*` (settle a
-bed, then turn the gas on from the checkpoint); any other changed key is refused by name. See
+removes those outputs first; `name` cannot leave `runs/`. A restart may change only
+@RESTART_KEYS@ (the run's name, end and outputs, and the gas drive: settle a bed with the gas at
+rest, then turn the gas on from the checkpoint); any other changed key is refused by name. This
+list is the rule the restart applies (core/scene_keys.cpp). See
 [hostile_input.md](hostile_input.md) for exit codes, warnings and faults.
 
 Without a scene file `cfddem run` runs the built-in HCS (1222 particles generated in place,
@@ -270,7 +271,11 @@ std::string keys_markdown() {
     if (!s.outro.empty())
       out += fmt::format("\n{}\n", s.outro);
   }
-  out += fmt::format("\n{}", kOutro);
+  // The restart's keys from its own rule, not a copy of it.
+  std::string outro(kOutro);
+  const std::string_view mark = "@RESTART_KEYS@";
+  outro.replace(outro.find(mark), mark.size(), restart_free_keys_text(true));
+  out += fmt::format("\n{}", outro);
   return out;
 }
 

@@ -482,3 +482,24 @@ TEST(SceneKeys, DocsKeysMdIsGeneratedFromTheTable) {
   ADD_FAILURE() << path << " differs from the key table at line " << line << ":\n  file:  " << la
                 << "\n  table: " << lb << "\nRegenerate it: cmake --build build --target docs_keys";
 }
+
+// The keys a restart may change are one list: the rule the restart applies (apps/checkpoint.cpp)
+// and what docs/keys.md prints. A ".*" entry covers its section's keys, any other one key.
+TEST(SceneKeys, RestartMayChangeTheRunAndTheGasDriveOnly) {
+  for (const std::string_view k : {"name", "run.end_time", "output.interval", "fluid.velocity",
+                                   "fluid.inflow_velocity", "fluid.bc.y_lo"})
+    EXPECT_TRUE(restart_may_change(k)) << k;
+  for (const std::string_view k : {"names", "runs.end_time", "fluid.density", "fluid.velocity_x",
+                                   "fluid.bc", "dem.restitution", "particles.count"})
+    EXPECT_FALSE(restart_may_change(k)) << k;
+  // Every entry is a key of the table or a section of them.
+  for (const std::string_view k : restart_free_keys()) {
+    bool known = false;
+    for (const SceneKey& key : scene_keys())
+      known = known ||
+              (k.ends_with(".*") ? key.name.starts_with(k.substr(0, k.size() - 1)) : key.name == k);
+    EXPECT_TRUE(known) << k;
+  }
+  EXPECT_NE(keys_markdown().find("A restart may change only\n" + restart_free_keys_text(true)),
+            std::string::npos);
+}

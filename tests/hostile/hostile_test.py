@@ -358,6 +358,23 @@ def restart_profiles_start_at_zero(ctx):
 
 
 @case
+def gas_added_at_a_restart_says_how(ctx):
+    """A bed settled with no gas cannot be restarted with one (the checkpoint holds no gas
+    state): the refusal now says how to get there (settle with the gas at rest, then change the
+    drive)."""
+    box = os.path.join(SCENES, "box_gravity.toml")
+    settled = ctx.fresh("settled_dry")
+    expect(ctx, ["run", box, "run.end_time=2e-4", "output.checkpoint_interval=1e-4", "--quiet"],
+           0, None, out_dir=settled)
+    ck = sorted(n for n in os.listdir(settled) if n.startswith("checkpoint_"))[0]
+    expect(ctx, ["run", box, "run.end_time=4e-4", "fluid.cells=[4,4,4]", "fluid.density=1",
+                 "fluid.viscosity=2e-5", "fluid.dt=1e-4", "--restart",
+                 os.path.join(settled, ck)], 2,
+           r"holds no gas state .*a gas cannot be added at a restart\. To fluidize a settled "
+           r"bed, settle it with the gas at rest", out_dir=ctx.fresh("wet_restart"))
+
+
+@case
 def gas_alone_at_its_own_step(ctx):
     """No particles and an adaptive gas (fluid.dt = 0): the gas runs alone at its own step,
     capped by fluid.max_dt = 1e-3 s, and ends at run.end_time (an empty scene's particle step of
@@ -755,6 +772,21 @@ def two_runs_into_one_directory(ctx):
 
 
 @case
+def lock_released_when_a_run_is_killed(ctx):
+    """The run directory's lock is the kernel's (flock): a run killed with SIGKILL leaves no stale
+    lock behind, and the next run with --overwrite takes the directory."""
+    import time
+    d = ctx.fresh("killed_run")
+    first = subprocess.Popen([BIN, "run", SMALL, "run.end_time=0.5", "--quiet", "--out", d],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    while not os.path.exists(os.path.join(d, "diagnostics.csv")) and first.poll() is None:
+        time.sleep(0.01)
+    first.kill()
+    first.wait(timeout=TIMEOUT)
+    expect(ctx, ["run", SMALL, *TINY, "--quiet", "--overwrite"], 0, None, out_dir=d)
+
+
+@case
 def overwrite_removes_the_old_run(ctx):
     d = ctx.fresh("overwritten")
     shutil.copytree(ctx.precious, d)
@@ -784,6 +816,10 @@ def output_directory_that_cannot_be_written(ctx):
     plain = ctx.file("plain_file", "not a directory\n")
     expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(plain, "run")], 2,
            r"plain_file' is a file, not a directory")
+    if os.path.isdir("/proc/self"):  # writable to root by its mode, yet no directory is made
+        expect(ctx, ["run", SMALL, *TINY, "--out", "/proc/no_such_dir/run"], 2,
+               r"output directory '/proc/no_such_dir/run' .*(cannot be created|cannot be "
+               r"written)")
     mnt = os.path.join(ctx.tmp, "read_only")
     os.makedirs(mnt)
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", mnt],

@@ -325,9 +325,11 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   deposit(p, n);
   int substeps = 0;
   fluid::GasStepReport report;
+  // The eps_g change deposited now is the particles' move over the previous fluid step (none
+  // before the first: the constructor's deposit is the history).
+  const double moved = last_dt_ > 0.0 ? last_dt_ : dt_f;
   try {
-    // The eps_g change deposited now is the particles' move over the previous fluid step.
-    report = solver_->advance(dt_f, &substeps, last_dt_ > 0.0 ? last_dt_ : dt_f);
+    report = solver_->advance(dt_f, &substeps, moved);
   } catch (const std::runtime_error& e) {
     throw RunError(fmt::format("gas step: {}", e.what()));
   }
@@ -336,7 +338,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   projection_iterations_ += report.projection_iterations;
   viscous_iterations_ += report.viscous_iterations;
   projection_fallbacks_ += report.used_fallback ? 1 : 0;
-  source_dt_ = last_dt_ > 0.0 ? last_dt_ : dt_f;
+  source_dt_ = moved;
   last_dt_ = dt_f;
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   force_ids_.assign(p.id.begin(), p.id.begin() + static_cast<std::ptrdiff_t>(n));

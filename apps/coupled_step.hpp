@@ -81,8 +81,6 @@ public:
   // smallest particle relaxation time of the last deposit and 1.1x the last fluid step; no
   // sliver at the end (fluid/fluid_step_rule.hpp). Collective on R ranks.
   [[nodiscard]] double adaptive_dt(double time_left) const;
-  // min_i m_i / beta_i at the last deposit [s] (inf without particles).
-  [[nodiscard]] double drag_time() const { return drag_time_; }
   [[nodiscard]] std::span<const double> force(int axis) const { return force_[axis]; }
   // The ids of the particles force(a) is for (the owned ones at the last step()).
   [[nodiscard]] std::span<const std::int64_t> force_ids() const { return force_ids_; }

@@ -241,7 +241,7 @@ GasStepReport GasSolver::step(double dt) {
   return step_with_ghosts(dt);
 }
 
-GasStepReport GasSolver::step_with_ghosts(double dt) {
+GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
   GasStepReport report;
   report.dt = dt;
   if (!(dt > 0.0) || !std::isfinite(dt)) {
@@ -301,7 +301,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt) {
   }
   for_box(layout, {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
     const auto c = static_cast<std::size_t>(p);
-    source_[c] = (eps_[c] - eps_old_[c]) / dt * source_scale_;
+    source_[c] = (eps_[c] - eps_old_[c]) / dt * source_scale;
   });
   // Predictor: u1 = P(u^n + dt R(u^n)). Corrector (time_order 2, MFIX-Exa's predictor-
   // corrector, i.e. Heun): u^{n+1} = P(u^n + dt (R(u^n) + R(u1))/2). Each stage is projected,
@@ -337,12 +337,9 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
         fmt::format("fluid advance: eps_g interval {} is not a positive time", eps_interval));
   }
   // Each sub-step's eps_g rises by its share of the change, so (eps - eps_old)/dt is the change
-  // over `interval`; the scale makes it the change over the time the particles took.
-  struct ScaleScope {
-    double& s;
-    ~ScaleScope() { s = 1.0; }
-  } scale_scope{source_scale_};
-  source_scale_ = eps_interval > 0.0 ? interval / eps_interval : 1.0;
+  // over `interval`; the scale makes it the change over the time the particles took (exactly 1
+  // for a fixed fluid step).
+  const double source_scale = eps_interval > 0.0 ? interval / eps_interval : 1.0;
   // eps_g of the fluid step's end and start (members: no allocation per fluid step).
   copy_field(eps_, eps_target_);
   copy_field(eps_old_, eps_start_);
@@ -371,7 +368,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
                       });
-    const GasStepReport r = step_with_ghosts(dt); // u's ghosts filled above
+    const GasStepReport r = step_with_ghosts(dt, source_scale); // u's ghosts filled above
     total.dt = r.dt;
     total.courant = std::max(total.courant, r.courant);
     total.projection_iterations += r.projection_iterations;

@@ -162,8 +162,10 @@ private:
   // How many sub-steps advance() takes over `interval` at a Courant rate `rate`.
   [[nodiscard]] int substeps_for(double interval, double rate) const;
   void stage(double dt, int order, GasStepReport& report);
-  // step(dt) once u's ghosts are filled (advance() fills them for its Courant number).
-  GasStepReport step_with_ghosts(double dt);
+  // step(dt) once u's ghosts are filled (advance() fills them for its Courant number). The
+  // continuity source is (eps - eps_old)/dt times source_scale (advance(): interval /
+  // eps_interval, from the sub-step's rate to the particles').
+  GasStepReport step_with_ghosts(double dt, double source_scale = 1.0);
 
   MacGrid grid_;
   GasSolverSettings settings_;
@@ -185,9 +187,6 @@ private:
   std::array<GridField, 3> beta_v_;
   GridField p_, eps_, eps_old_, beta_, source_;
   GridField eps_target_, eps_start_; // advance()'s end and start eps_g
-  // advance()'s sub-steps: interval / eps_interval, the factor from the sub-step's own rate
-  // (eps - eps_old)/dt to the particles' rate (exactly 1 for a fixed fluid step).
-  double source_scale_ = 1.0;
   std::unique_ptr<PressureProjection> projection_;
 };
 

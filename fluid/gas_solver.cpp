@@ -179,7 +179,8 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
   const auto& n = grid_.cells();
   // One projection per step: the predictor of time order 2 takes the pressure gradient of the
   // last step, -dt/rho grad p per unit of the drag gain (the projection's mobility), and is not
-  // projected.
+  // projected. It reads p's ghosts as every step leaves them (filled at its end; a restore
+  // brings them, a rebox fills them: fluid/grid_move.cpp).
   const bool lagged = order == 1 && settings_.time_order == 2 && settings_.projections == 1;
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
@@ -259,11 +260,6 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
   const double rho = settings_.gas.density;
-  if (settings_.time_order == 2 && settings_.projections == 1) {
-    // The predictor reads the last pressure's gradient up to the box's faces (after a restore
-    // or a rebox the ghosts may predate the values).
-    fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
-  }
   fill_cell_ghosts(grid_, halo_.get(), eps_, CellGhosts::zero_gradient);
   fill_cell_ghosts(grid_, halo_.get(), eps_old_, CellGhosts::zero_gradient);
   fill_cell_ghosts(grid_, halo_.get(), beta_, CellGhosts::zero_gradient);

@@ -293,13 +293,16 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     for (int a = 0; a < 3; ++a)
       bv_[a][i] = beta_[i] * (*v[a])[i];
   });
-  // The smallest relaxation time m_i / beta_i caps the adaptive dt_f (a min: exact in any order).
-  double inv_tau = 0.0;
-  for (std::size_t i = 0; i < n; ++i)
-    inv_tau = std::max(inv_tau, beta_[i] * p.inv_mass[i]);
-  if (comm_ != nullptr)
-    inv_tau = comm_->max(inv_tau);
-  drag_time_ = inv_tau > 0.0 ? 1.0 / inv_tau : std::numeric_limits<double>::infinity();
+  // The smallest relaxation time m_i / beta_i caps the adaptive dt_f (a min: exact in any order);
+  // a fixed fluid.dt never reads it, and is spared the pass and its reduction over the ranks.
+  if (!(scene_.fluid.dt > 0.0)) {
+    double inv_tau = 0.0;
+    for (std::size_t i = 0; i < n; ++i)
+      inv_tau = std::max(inv_tau, beta_[i] * p.inv_mass[i]);
+    if (comm_ != nullptr)
+      inv_tau = comm_->max(inv_tau);
+    drag_time_ = inv_tau > 0.0 ? 1.0 / inv_tau : std::numeric_limits<double>::infinity();
+  }
   if (scene_.fluid.one_way)
     return; // no reaction on the gas: its drag fields stay the zeros it started with
   // beta_i and beta_i v_i to the cells, in one pass.

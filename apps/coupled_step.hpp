@@ -112,8 +112,8 @@ public:
     fluid::GasSolver::State solver;
     std::vector<double> eps_prev; // eps_g before the last step (mass residual); empty: no step
     double last_dt = 0.0;
-    // min m_i / beta_i of the last deposit; NaN: not in the checkpoint (older ones), keep the
-    // constructor's
+    // min m_i / beta_i of the last deposit (adaptive fluid step only; else inf); NaN: not in the
+    // checkpoint (older ones), keep the constructor's
     double drag_time = std::numeric_limits<double>::quiet_NaN();
     std::int64_t gas_substeps = 0, projection_iterations = 0, projection_fallbacks = 0;
     std::int64_t implicit_viscosity_steps = 0; // fluid steps with the Laplacian implicit

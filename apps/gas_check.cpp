@@ -8,8 +8,8 @@
 #include <unistd.h>
 
 #include "core/error.hpp"
-
 #include "fluid/fluid_step_rule.hpp"
+#include "fluid/gas_solver.hpp"
 
 namespace cfddem::apps {
 
@@ -123,23 +123,23 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     // and inflow gas velocities and the body force, its cap from fluid.max_dt and the Stokes
     // time of the lightest particle (a dense bed's drag time is shorter: the run takes it from
     // the drag law at each fluid step).
-    fluid::FluidStepRates r;
-    const double nu = f.viscosity / f.density;
-    for (int a = 0; a < 3; ++a) {
-      const auto k = static_cast<std::size_t>(a);
-      const double u = std::max(std::abs(f.velocity[k]), std::abs(f.inflow_velocity[k]));
-      r.advection += u / dx[k];
-      if (!f.implicit_viscosity && !f.implicit_viscosity_auto)
-        r.viscous += 2.0 * nu / (dx[k] * dx[k]);
-      const double gp0 = s.domain.periodic[k] ? -f.pressure_drop[k] / s.domain.length(a)
-                                              : f.density * s.gravity[k];
-      r.forcing += std::abs(s.gravity[k] - gp0 / f.density) / dx[k];
+    std::array<double, 3> speed{}, length{}, body{};
+    for (std::size_t k = 0; k < 3; ++k) {
+      speed[k] = std::max(std::abs(f.velocity[k]), std::abs(f.inflow_velocity[k]));
+      length[k] = s.domain.length(static_cast<int>(k));
     }
-    fluid::FluidStepCaps caps;
+    const auto gp0 = fluid::background_pressure_gradient(s.domain.periodic, f.pressure_drop,
+                                                         length, f.density, s.gravity);
+    for (std::size_t k = 0; k < 3; ++k)
+      body[k] = s.gravity[k] - gp0[k] / f.density;
+    const fluid::FluidStepRates r =
+        fluid::fluid_step_rates(speed, dx, f.viscosity / f.density,
+                                !f.implicit_viscosity && !f.implicit_viscosity_auto, body);
+    fluid::FluidStepCaps caps; // no previous step
     caps.max_dt = f.max_dt;
     if (derived.particles > 0 && d > 0 && f.viscosity > 0)
       caps.drag_time = derived.min_mass / (3.0 * std::numbers::pi * f.viscosity * d);
-    const double first = fluid::next_fluid_step(r, f.cfl, {caps.max_dt, caps.drag_time, 0.0}, end);
+    const double first = fluid::next_fluid_step(r, f.cfl, caps, end);
     const double cap = std::min(caps.max_dt, fluid::kDragStepFraction * caps.drag_time);
     fluid_steps = std::ceil(end / cap * (1 - 1e-12));
     t.emplace_back("fluid_dt_s (adaptive)",

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -27,6 +28,25 @@ struct FluidStepRates {
   double viscous = 0.0;
   double forcing = 0.0;
 };
+
+// The rates of the largest face speed per axis, on cells of `spacing`, with kinematic viscosity
+// nu (counted only when the Laplacian is explicit) and the body force per unit mass `body`
+// (gravity less the background pressure gradient over rho_g). The axes are added in order x, y, z.
+[[nodiscard]] inline FluidStepRates fluid_step_rates(const std::array<double, 3>& max_speed,
+                                                     const std::array<double, 3>& spacing,
+                                                     double nu, bool viscous_explicit,
+                                                     const std::array<double, 3>& body) {
+  FluidStepRates r;
+  for (std::size_t a = 0; a < 3; ++a) {
+    const double dx = spacing[a];
+    r.advection += max_speed[a] / dx;
+    if (viscous_explicit) {
+      r.viscous += 2.0 * nu / (dx * dx);
+    }
+    r.forcing += std::abs(body[a]) / dx;
+  }
+  return r;
+}
 
 // The step at Courant number `cfl` with the forcing: 2 cfl / (C + V + sqrt((C + V)^2 + 4 F))
 // (MFIX-Exa); from rest it is cfl sqrt(dx / |f|), a fraction of the time a parcel takes to cross

@@ -78,21 +78,33 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   }
 }
 
-std::array<double, 3> GasSolver::background_pressure_gradient() const {
+std::array<double, 3> background_pressure_gradient(const std::array<bool, 3>& periodic,
+                                                   const std::array<double, 3>& pressure_drop,
+                                                   const std::array<double, 3>& length,
+                                                   double density,
+                                                   const std::array<double, 3>& gravity) {
   std::array<double, 3> gp0{};
-  for (int a = 0; a < 3; ++a) {
-    if (grid_.periodic(a)) {
-      gp0[a] = -grid_.pressure_drop(a) / grid_.length(a);
-    } else {
-      gp0[a] = settings_.gas.density * settings_.gas.gravity[a];
-    }
+  for (std::size_t a = 0; a < 3; ++a) {
+    gp0[a] = periodic[a] ? -pressure_drop[a] / length[a] : density * gravity[a];
   }
   return gp0;
 }
 
-std::array<double, 2> GasSolver::courant_rates() const {
+std::array<double, 3> GasSolver::background_pressure_gradient() const {
+  std::array<bool, 3> periodic{};
+  std::array<double, 3> drop{}, length{};
+  for (int a = 0; a < 3; ++a) {
+    const auto k = static_cast<std::size_t>(a);
+    periodic[k] = grid_.periodic(a);
+    drop[k] = grid_.pressure_drop(a);
+    length[k] = grid_.length(a);
+  }
+  return fluid::background_pressure_gradient(periodic, drop, length, settings_.gas.density,
+                                             settings_.gas.gravity);
+}
+
+std::array<double, 3> GasSolver::max_face_speeds() const {
   const auto& n = grid_.cells();
-  const double nu = settings_.gas.viscosity / settings_.gas.density;
   std::array<double, 3> umax{};
   for (int a = 0; a < 3; ++a) {
     std::array<int, 3> hi = n;
@@ -115,6 +127,12 @@ std::array<double, 2> GasSolver::courant_rates() const {
   if (halo_) {
     halo_->comm().max(umax); // a max is exact: every rank takes the same dt
   }
+  return umax;
+}
+
+std::array<double, 2> GasSolver::courant_rates() const {
+  const double nu = settings_.gas.viscosity / settings_.gas.density;
+  const std::array<double, 3> umax = max_face_speeds();
   // {explicit viscosity, implicit}: the axes' terms added in the same order as ever.
   std::array<double, 2> rates{};
   for (int a = 0; a < 3; ++a) {
@@ -156,18 +174,9 @@ double GasSolver::dt_for_courant(double courant) const {
 }
 
 FluidStepRates GasSolver::step_rates() const {
-  const std::array<double, 2> rates = courant_rates();
-  FluidStepRates r;
-  r.advection = rates[1];
-  const double nu = settings_.gas.viscosity / settings_.gas.density;
-  for (int a = 0; a < 3; ++a) {
-    const double dx = grid_.spacing(a);
-    if (!viscosity_) {
-      r.viscous += 2.0 * nu / (dx * dx);
-    }
-    r.forcing += std::abs(body_[a]) / dx;
-  }
-  return r;
+  return fluid_step_rates(max_face_speeds(),
+                          {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
+                          settings_.gas.viscosity / settings_.gas.density, !viscosity_, body_);
 }
 
 GasStepReport GasSolver::step() {

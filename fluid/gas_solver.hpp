@@ -68,6 +68,13 @@ struct GasStepReport {
   bool implicit_viscosity = false; // the Laplacian was implicit in this step (interval)
 };
 
+// MFIX-Exa's gp0: -delp/L along an axis with an imposed periodic drop, rho_g g along non-periodic
+// axes (hydrostatic), 0 on other periodic axes (docs/theory.md §4). The body force per unit mass
+// the gas's momentum sees is gravity - gp0 / rho_g.
+[[nodiscard]] std::array<double, 3> background_pressure_gradient(
+    const std::array<bool, 3>& periodic, const std::array<double, 3>& pressure_drop,
+    const std::array<double, 3>& length, double density, const std::array<double, 3>& gravity);
+
 class GasSolver {
 public:
   // Throws std::invalid_argument for impossible settings (cfl above the stable limit, ...).
@@ -155,6 +162,8 @@ private:
   // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {sum_a (max|u_a| /
   // dx_a + 2 nu / dx_a^2), sum_a max|u_a| / dx_a} (u's ghosts filled).
   [[nodiscard]] std::array<double, 2> courant_rates() const;
+  // max |u_a| over the faces of each axis (over the ranks: a max is exact).
+  [[nodiscard]] std::array<double, 3> max_face_speeds() const;
   // The sub-step advance() takes at time t of `interval` at a Courant rate `rate` [1/s]: at
   // most cfl / rate, and the rest of the interval where less than a thousandth of a step would
   // be left.

@@ -20,6 +20,16 @@ namespace {
 // is an order of magnitude, stated as such.
 constexpr double kParticleStepsPerSecond = 2.5e6;
 
+// The gas cells' spacing per axis: fluid.cell_size, or the domain's extent over fluid.cells.
+std::array<double, 3> cell_spacing(const Scene& s) {
+  std::array<double, 3> dx{};
+  for (std::size_t a = 0; a < 3; ++a)
+    dx[a] = s.fluid.cell_size[a] > 0
+                ? s.fluid.cell_size[a]
+                : s.domain.length(static_cast<int>(a)) / static_cast<double>(s.fluid.cells[a]);
+  return dx;
+}
+
 } // namespace
 
 double gas_memory_bytes(const Scene& s) {
@@ -50,13 +60,11 @@ void check_gas_numbers(const Scene& s) {
   const auto& f = s.fluid;
   if (!f.enabled)
     return;
-  double dx = INFINITY, speed = 0.0;
-  for (std::size_t a = 0; a < 3; ++a) {
-    dx = std::min(dx, f.cell_size[a] > 0
-                          ? f.cell_size[a]
-                          : s.domain.length(static_cast<int>(a)) / static_cast<double>(f.cells[a]));
+  const std::array<double, 3> spacing = cell_spacing(s);
+  const double dx = *std::min_element(spacing.begin(), spacing.end());
+  double speed = 0.0;
+  for (std::size_t a = 0; a < 3; ++a)
     speed = std::max({speed, std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a])});
-  }
   const double dt_f = f.dt > 0.0 ? f.dt : f.max_dt;
   const char* step = f.dt > 0.0 ? "fluid.dt" : "fluid.max_dt";
   const double courant = speed * dt_f / dx;
@@ -91,11 +99,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   GasCheck out;
   const auto& f = s.fluid;
   auto& t = out.table;
-  std::array<double, 3> dx{};
-  for (int a = 0; a < 3; ++a)
-    dx[a] = f.cell_size[static_cast<std::size_t>(a)] > 0
-                ? f.cell_size[static_cast<std::size_t>(a)]
-                : s.domain.length(a) / static_cast<double>(f.cells[static_cast<std::size_t>(a)]);
+  const std::array<double, 3> dx = cell_spacing(s);
   const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
   t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
   t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));

@@ -17,12 +17,8 @@ struct GasCheck {
   std::vector<std::string> warnings;
 };
 
-// The memory a gas cell costs in a run (its fields, the multigrid's levels, the solvers' work
-// arrays): 1.49 KB per cell measured on a 100^3 grid (one rank, the default solver, the peak
-// resident size less that of a 50^3 grid), rounded up.
-inline constexpr double kGasBytesPerCell = 1600;
-
-// The gas's memory estimate for the whole grid (scene.fluid.cells), in bytes.
+// The gas's memory estimate for the whole grid (scene.fluid.cells, kGasBytesPerCell each), in
+// bytes.
 double gas_memory_bytes(const Scene& scene);
 
 // Throws ConfigError naming fluid.cells and the estimate when the gas cannot fit in this

@@ -295,12 +295,11 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
                           cells[1], cells[2]));
       f.cells[a] = static_cast<std::int64_t>(cells[a]);
     }
-    // Memory: about 1.6 KB per cell (fields, multigrid levels, solver work arrays; measured,
-    // apps/gas_check.hpp, which also refuses a grid beyond this machine's memory).
+    // Memory: kGasBytesPerCell (apps/gas_check.hpp also refuses a grid beyond this machine's).
     const double total = cells[0] * cells[1] * cells[2];
     require(total <= 4.0e9, "fluid.cells",
             fmt::format("{:.3g} cells in all ([{}, {}, {}]) need about {:.3g} TB of memory", total,
-                        cells[0], cells[1], cells[2], total * 1600 / 1e12));
+                        cells[0], cells[1], cells[2], total * kGasBytesPerCell / 1e12));
     f.cell_size = k.vec3("fluid.cell_size");
     f.density = k.number("fluid.density");
     f.viscosity = k.number("fluid.viscosity");

@@ -8,6 +8,7 @@ Usage: hostile_test.py CFDDEM_BINARY SOURCE_DIR [-k PATTERN] [--list]
 A case that needs something this machine lacks (a tmpfs mount for a real full disk) says so and
 falls back to an unprivileged equivalent (a file-size limit) rather than passing silently.
 """
+import contextlib
 import csv
 import os
 import re
@@ -820,18 +821,13 @@ def output_directory_that_cannot_be_written(ctx):
         expect(ctx, ["run", SMALL, *TINY, "--out", "/proc/no_such_dir/run"], 2,
                r"output directory '/proc/no_such_dir/run' .*(cannot be created|cannot be "
                r"written)")
-    mnt = os.path.join(ctx.tmp, "read_only")
-    os.makedirs(mnt)
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", mnt],
-                      capture_output=True).returncode != 0:
-        print("  output_directory_that_cannot_be_written: no read-only tmpfs mount here (not "
-              "root?): its read-only part not run")
-        return
-    try:
+    with tmpfs(ctx, "read_only", "ro,size=64k") as mnt:
+        if mnt is None:
+            print("  output_directory_that_cannot_be_written: no read-only tmpfs mount here (not "
+                  "root?): its read-only part not run")
+            return
         expect(ctx, ["run", SMALL, *TINY, "--out", os.path.join(mnt, "run")], 2,
                r"read_only' cannot be written: Read-only file system")
-    finally:
-        subprocess.run(["umount", mnt])
 
 
 # ---- faults while running (exit 3, every earlier file intact) ----
@@ -845,6 +841,22 @@ def rows_kept_when_a_run_stops(ctx):
                  "--quiet"], 3, r"overlap with a wall", out_dir=d)
     r = rows(d)
     assert len(r) == 1 + 73 and all(len(x) == len(r[0]) for x in r), len(r)
+
+
+@contextlib.contextmanager
+def tmpfs(ctx, name, options):
+    """A tmpfs mounted with `options` at ctx.tmp/name for the block, unmounted after it; None
+    where it cannot be mounted (needs root)."""
+    mnt = os.path.join(ctx.tmp, name)
+    os.makedirs(mnt)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", mnt],
+                      capture_output=True).returncode != 0:
+        yield None
+        return
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", mnt])
 
 
 def full_disk_run(ctx, d, preexec=None):
@@ -871,19 +883,14 @@ def check_intact(d):
 @case
 def disk_full(ctx):
     """A real full disk: a 200 KiB tmpfs (needs root and mount); else says so and is skipped."""
-    mnt = os.path.join(ctx.tmp, "tmpfs")
-    os.makedirs(mnt)
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", mnt],
-                      capture_output=True).returncode != 0:
-        print("  disk_full: cannot mount a tmpfs here (not root?); the file-size case covers "
-              "the same error path")
-        return
-    try:
+    with tmpfs(ctx, "tmpfs", "size=200k") as mnt:
+        if mnt is None:
+            print("  disk_full: cannot mount a tmpfs here (not root?); the file-size case covers "
+                  "the same error path")
+            return
         out = full_disk_run(ctx, os.path.join(mnt, "run"))
         assert "No space left on device" in out, out
         check_intact(os.path.join(mnt, "run"))
-    finally:
-        subprocess.run(["umount", mnt])
 
 
 @case
@@ -891,14 +898,14 @@ def disk_full_two_ranks(ctx):
     """The same full tmpfs with 2 ranks (the snapshots written collectively with MPI-IO): exit 3
     naming the snapshot, no rank left waiting, earlier files intact."""
     mpirun = shutil.which("mpirun")
-    mnt = os.path.join(ctx.tmp, "tmpfs2")
-    os.makedirs(mnt)
-    if not mpirun or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", mnt],
-                                    capture_output=True).returncode != 0:
-        print("  disk_full_two_ranks: no mpirun or no tmpfs mount here: not run")
+    if not mpirun:
+        print("  disk_full_two_ranks: no mpirun here: not run")
         return
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    try:
+    with tmpfs(ctx, "tmpfs2", "size=200k") as mnt:
+        if mnt is None:
+            print("  disk_full_two_ranks: no tmpfs mount here: not run")
+            return
         d = os.path.join(mnt, "run")
         r = subprocess.run([mpirun, "-np", "2", "--oversubscribe", BIN, "run", SETTLING,
                             "run.end_time=0.01", "output.snapshot_interval=1e-3", "--quiet",
@@ -908,8 +915,6 @@ def disk_full_two_ranks(ctx):
         assert r.returncode == 3, (r.returncode, out[-1500:])
         assert re.search(r"run stopped: writing snapshot .* on 2 ranks failed", out), out[-1500:]
         check_intact(d)
-    finally:
-        subprocess.run(["umount", mnt])
 
 
 @case

@@ -19,7 +19,7 @@ namespace cfddem::apps {
 namespace {
 
 // Sums over the particles: solid volume, diameters and mass.
-std::array<double, 3> volume_and_diameters(const ParticleStore& p) {
+std::array<double, 3> particle_sums(const ParticleStore& p) {
   double vol = 0, dsum = 0, mass = 0;
   for (std::size_t i = 0; i < p.size(); ++i) {
     vol += (4.0 / 3.0) * std::numbers::pi * std::pow(p.radius[i], 3);
@@ -145,7 +145,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
 DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
   const double t =
       p.size() ? dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}).granular_temperature : 0.0;
-  DerivedNumbers d = derive_from(s, dem::particle_range(p), volume_and_diameters(p), t);
+  DerivedNumbers d = derive_from(s, dem::particle_range(p), particle_sums(p), t);
   d.sizes = size_statistics(p.radius);
   return d;
 }
@@ -158,7 +158,7 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator
   std::array<double, 4> ext = {-r.m_min, r.m_max, -r.r_min, r.r_max};
   comm.max(ext);
   r.m_min = -ext[0], r.m_max = ext[1], r.r_min = -ext[2], r.r_max = ext[3];
-  std::array<double, 3> sums = volume_and_diameters(p);
+  std::array<double, 3> sums = particle_sums(p);
   comm.sum(sums);
   const double t =
       dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}, comm).granular_temperature;

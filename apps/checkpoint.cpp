@@ -615,8 +615,8 @@ namespace {
 
 // Keys added after checkpoints of this format were written, at the value that older runs had
 // without naming it: such a line is left out, so those checkpoints still restart at it.
-constexpr std::string_view kImpliedLines[] = {"fluid.coupling = \"two_way\"",
-                                              "fluid.projections = 2"};
+constexpr std::string_view kImpliedLines[] = {
+    "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\""};
 
 // The configuration lines that must match at a restart: all but those of the keys a restart may
 // change (restart_free_keys(), core/scene_keys.hpp: the gas drive, so that a bed settled with

@@ -50,6 +50,7 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.gas.viscosity = s.fluid.viscosity;
   g.gas.gravity = s.gravity;
   g.cfl = s.fluid.cfl;
+  g.advection = s.fluid.advection == "mol" ? fluid::Advection::mol : fluid::Advection::godunov;
   g.implicit_viscosity = s.fluid.implicit_viscosity;
   g.implicit_viscosity_auto = s.fluid.implicit_viscosity_auto;
   g.time_order = s.fluid.time_order;
@@ -109,11 +110,16 @@ void validate_fluid(const Scene& s) {
   if (!s.fluid.enabled)
     return;
   (void)fluid_grid_spec(s);
-  if (!(s.fluid.cfl <= fluid::kMaxStableCourant))
+  const bool mol = s.fluid.advection == "mol";
+  const double max_courant =
+      fluid::max_stable_courant(mol ? fluid::Advection::mol : fluid::Advection::godunov);
+  if (!(s.fluid.cfl <= max_courant))
     throw ConfigError("scene key 'fluid.cfl'",
-                      fmt::format("{} is above the stable limit {} of the explicit gas predictor "
-                                  "(limited MUSCL advection with SSP Euler stages)",
-                                  s.fluid.cfl, fluid::kMaxStableCourant));
+                      fmt::format("{} is above the stable limit {} of the gas step with "
+                                  "fluid.advection = \"{}\" ({})",
+                                  s.fluid.cfl, max_courant, s.fluid.advection,
+                                  mol ? "limited MUSCL advection with SSP Euler stages"
+                                      : "Godunov edge states, von Neumann analysis in gas_step.md"));
   if ((s.dem.scheme == "orb" || s.dem.scheme == "islands") && !(s.fluid.dt > 0.0))
     throw ConfigError("scene key 'fluid.dt'",
                       fmt::format("dem.scheme = \"{}\" with a fluid needs a fixed fluid.dt (its "

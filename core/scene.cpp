@@ -309,7 +309,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
             fmt::format("{} s is longer than run.end_time = {} s: the run would take one fluid "
                         "step and end at t = {} s; shorten fluid.dt or lengthen run.end_time",
                         f.dt, s.run.end_time, f.dt));
-    f.cfl = k.number("fluid.cfl");
+    f.advection = k.word("fluid.advection");
+    f.cfl = k.number("fluid.cfl", f.advection == "godunov" ? 0.9 : 0.4);
     f.max_dt = k.number("fluid.max_dt");
     f.drag = k.word("fluid.drag");
     // BVK and Koch-Hill write the drag as 18 mu / d^2 times a function of Re = rho |u| d / mu:
@@ -354,6 +355,10 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     }
     f.time_order = static_cast<int>(k.integer("fluid.time_order"));
     f.projections = static_cast<int>(k.integer("fluid.projections"));
+    for (const char* key : {"fluid.time_order", "fluid.projections"})
+      require(!c.has(key) || f.advection == "mol", key,
+              "applies to fluid.advection = \"mol\" only: the Godunov step (the default) is one "
+              "stage with one projection; set fluid.advection = \"mol\" to choose Euler or Heun");
     f.tolerance = k.number("fluid.tolerance");
     f.preconditioner = k.word("fluid.preconditioner");
     f.solver = k.word("fluid.solver");
@@ -475,6 +480,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity_auto ? "\"auto\""
                                                : f.implicit_viscosity    ? "true"
                                                                          : "false");
+    o.emplace_back("fluid.advection", str(f.advection));
     o.emplace_back("fluid.time_order", std::to_string(f.time_order));
     o.emplace_back("fluid.projections", std::to_string(f.projections));
     o.emplace_back("fluid.tolerance", num(f.tolerance));

@@ -107,7 +107,7 @@ struct FluidSpec {
   double density = 0.0;                // rho_g [kg/m^3]
   double viscosity = 0.0;              // mu_g [Pa s]
   double dt = 0.0;                     // fixed coupling step dt_f [s]; 0 = from cfl
-  double cfl = 0.4;                    // Courant number of the gas sub-steps / adaptive dt_f
+  double cfl = 0.9;                    // Courant number of the gas sub-steps / adaptive dt_f
   double max_dt = 1e-3;                // adaptive dt_f cap [s]
   std::string drag = "bvk";
   bool one_way = false; // fluid.coupling = "one_way": the gas does not feel the particles
@@ -120,7 +120,8 @@ struct FluidSpec {
   std::array<double, 3> velocity{};        // initial gas velocity [m/s]
   bool implicit_viscosity = false;
   bool implicit_viscosity_auto = true; // "auto" (the default): chosen per fluid step
-  int time_order = 2;                  // 1: Euler, 2: predictor-corrector (Heun)
+  std::string advection = "godunov";   // "godunov" (one stage) or "mol" (time_order, projections)
+  int time_order = 2;                  // mol: 1, Euler; 2, predictor-corrector (Heun)
   int projections = 1; // time_order 2: 1 (the corrector only) or 2 (each stage projected)
   double tolerance = 1e-10;            // projection PCG relative residual
   std::string preconditioner = "pfmg"; // projection PCG preconditioner

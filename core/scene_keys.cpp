@@ -70,6 +70,7 @@ constexpr std::string_view kKernels[] = {"trilinear", "dpvm", "dpvm_cube", "dpvm
 constexpr std::string_view kBoundaries[] = {"periodic", "wall", "inflow", "outflow"};
 constexpr std::string_view kPreconditioners[] = {"pfmg", "smg"};
 constexpr std::string_view kSolvers[] = {"multigrid", "hypre", "auto"};
+constexpr std::string_view kAdvections[] = {"godunov", "mol"};
 
 using T = KeyType;
 using S = KeySection;
@@ -501,9 +502,11 @@ std::vector<SceneKey> make_table() {
        .type = T::Number,
        .section = S::Fluid,
        .range = above(0),
-       .fallback = number(0.4),
-       .meaning = "Courant number of the gas sub-steps, and of dt_f when adaptive; above 0.5 is "
-                  "refused when the run starts (the limit of the limited MUSCL scheme)"},
+       .fallback = derived("0.9 with `fluid.advection` = \"godunov\", 0.4 with \"mol\""),
+       .meaning = "Courant number of the gas sub-steps, and of dt_f when adaptive, as "
+                  "[gas_step.md](gas_step.md) measures it for each `fluid.advection`; above its "
+                  "stable limit (0.95 for Godunov, 0.5 for the method of lines) is refused when "
+                  "the run starts"},
       {.name = "fluid.max_dt",
        .type = T::Number,
        .section = S::Fluid,
@@ -581,12 +584,23 @@ std::vector<SceneKey> make_table() {
                   "fluid step, implicit when the explicit viscous limit would need more than 1.6 "
                   "times the sub-steps (what the implicit solves cost; gas_step.md), the count "
                   "in run.json"},
+      {.name = "fluid.advection",
+       .type = T::String,
+       .section = S::Fluid,
+       .choices = kAdvections,
+       .fallback = word("godunov"),
+       .meaning = "the gas step in time: \"godunov\", one stage whose advective fluxes come from "
+                  "upwind edge states centred in time (MFIX-Exa's default; one projection, "
+                  "second order, Courant number up to 0.95 on an axis); \"mol\", the method of "
+                  "lines, Euler or Heun by `fluid.time_order` (a checkpoint written before this "
+                  "key restarts with \"mol\"). [gas_step.md](gas_step.md) has the accuracy and "
+                  "cost of each"},
       {.name = "fluid.time_order",
        .type = T::Integer,
        .section = S::Fluid,
        .range = closed(1, 2),
        .fallback = integer(2),
-       .meaning = "the gas step in time: 2, predictor-corrector (Heun; `fluid.projections` says "
+       .meaning = "with `fluid.advection` = \"mol\": 2, predictor-corrector (Heun; `fluid.projections` says "
                   "how many of its stages are projected); 1, Euler (one projection, first order; [gas_step.md](gas_step.md) has "
                   "its measured accuracy cost)"},
       {.name = "fluid.projections",
@@ -594,7 +608,7 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .range = closed(1, 2),
        .fallback = integer(1),
-       .meaning = "pressure solves per gas step with `fluid.time_order` = 2: 1, the predictor "
+       .meaning = "pressure solves per gas step with `fluid.advection` = \"mol\" and `fluid.time_order` = 2: 1, the predictor "
                   "takes the last step's pressure gradient and only the corrector is projected "
                   "(Bell, Colella & Glaz 1989; second order); 2, each stage projected (Heun as "
                   "before; a checkpoint written before this key restarts with 2). "

@@ -20,7 +20,36 @@ inline constexpr double kMaxFluidStepGrowth = 1.1;
 // accumulate at a steady slip.
 inline constexpr double kDragStepFraction = 0.1;
 
-// What bounds the gas's step, per second: the advective rate C = sum_a max|u_a| / dx_a, the
+// The gas's advection in time (fluid.advection): the single-stage Godunov step with time-centred
+// edge states (fluid/momentum_rhs.hpp, godunov_momentum_rhs), or the method of lines, limited
+// MUSCL edge states at t^n in an Euler or Heun step (GasSolverSettings::time_order).
+enum class Advection { godunov, mol };
+
+// The largest stable Courant number of each (as advective_rate measures it): 0.5 is the TVD
+// limit of limited MUSCL with explicit (SSP) Euler stages on the sum of the axes' Courant
+// numbers c_a = max|u_a| dt / dx_a. The Godunov step is linearly stable (von Neumann analysis of
+// its unlimited form, docs/gas_step.md) where max(max_a c_a, sum_a c_a / 1.25) <= 0.95: the max
+// binds on flow along an axis (1 alone), the sum on diagonal flow in 3D (the sum alone allows
+// 1.5 there, but 1.29 where one axis's c_a is 0.93).
+inline constexpr double kMaxMolCourant = 0.5;
+inline constexpr double kMaxGodunovCourant = 0.95;
+inline constexpr double kGodunovCourantSum = 1.25;
+[[nodiscard]] constexpr double max_stable_courant(Advection advection) {
+  return advection == Advection::godunov ? kMaxGodunovCourant : kMaxMolCourant;
+}
+
+// The advective Courant rate [1/s] of per-axis rates r_a = max|u_a| / dx_a, whose product with
+// dt is held below max_stable_courant: sum_a r_a for the method of lines, max(max_a r_a,
+// sum_a r_a / 1.25) for Godunov (both of its bounds at once). The axes are added in order x, y, z.
+[[nodiscard]] inline double advective_rate(const std::array<double, 3>& rate, Advection advection) {
+  const double sum = rate[0] + rate[1] + rate[2];
+  if (advection == Advection::mol) {
+    return sum;
+  }
+  return std::max({rate[0], rate[1], rate[2], sum / kGodunovCourantSum});
+}
+
+// What bounds the gas's step, per second: the advective rate C (advective_rate), the
 // viscous rate V = 2 nu sum_a 1/dx_a^2 (0 when the Laplacian is implicit) and the forcing
 // F = sum_a |f_a| / dx_a [1/s^2] of the body force per unit mass f.
 struct FluidStepRates {
@@ -35,16 +64,19 @@ struct FluidStepRates {
 [[nodiscard]] inline FluidStepRates fluid_step_rates(const std::array<double, 3>& max_speed,
                                                      const std::array<double, 3>& spacing,
                                                      double nu, bool viscous_explicit,
-                                                     const std::array<double, 3>& body) {
+                                                     const std::array<double, 3>& body,
+                                                     Advection advection = Advection::mol) {
   FluidStepRates r;
+  std::array<double, 3> advective{};
   for (std::size_t a = 0; a < 3; ++a) {
     const double dx = spacing[a];
-    r.advection += max_speed[a] / dx;
+    advective[a] = max_speed[a] / dx;
     if (viscous_explicit) {
       r.viscous += 2.0 * nu / (dx * dx);
     }
     r.forcing += std::abs(body[a]) / dx;
   }
+  r.advection = advective_rate(advective, advection);
   return r;
 }
 

@@ -28,11 +28,11 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
         fmt::format("gas density must be > 0 and viscosity >= 0 (got {} kg/m^3, {} Pa s)",
                     gas.density, gas.viscosity));
   }
-  if (!(settings.cfl > 0.0 && settings.cfl <= kMaxStableCourant)) {
+  const double max_courant = max_stable_courant(settings.advection);
+  if (!(settings.cfl > 0.0 && settings.cfl <= max_courant)) {
     throw std::invalid_argument(
-        fmt::format("fluid cfl = {} is outside (0, {}]: the explicit predictor is unstable above "
-                    "{}",
-                    settings.cfl, kMaxStableCourant, kMaxStableCourant));
+        fmt::format("fluid cfl = {} is outside (0, {}]: the gas step is unstable above {}",
+                    settings.cfl, max_courant, max_courant));
   }
   if (settings.fixed_dt < 0.0) {
     throw std::invalid_argument("fluid fixed_dt must be >= 0 (0: adaptive)");
@@ -63,10 +63,17 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   beta_ = grid.make_field();
   source_ = grid.make_field();
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
-  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
-    implicit_now_ = !settings.implicit_viscosity_auto;
+  // The Godunov step takes the viscous Laplacian by Crank-Nicolson always (as MFIX-Exa's does):
+  // its single stage would take an explicit one at t^n, first order in time.
+  const bool godunov = settings.advection == Advection::godunov;
+  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto || godunov) &&
+      gas.viscosity > 0.0) {
+    implicit_now_ = godunov || !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
-    viscosity_->use_multigrid(settings.viscous_multigrid);
+    // A single cell has no coarser level for the multigrid (its coarsest operator cannot be
+    // factored: the run crashed); Jacobi CG solves it.
+    const auto& n = grid.cells();
+    viscosity_->use_multigrid(settings.viscous_multigrid && n[0] * n[1] * n[2] > 1);
     for (GridField& l : lap_start_) {
       l = grid.make_field();
     }
@@ -135,6 +142,18 @@ std::array<double, 2> GasSolver::courant_rates() const {
   const std::array<double, 3> umax = max_face_speeds();
   // {explicit viscosity, implicit}: the axes' terms added in the same order as ever.
   std::array<double, 2> rates{};
+  if (settings_.advection == Advection::godunov) {
+    std::array<double, 3> advective{};
+    double viscous = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      const double dx = grid_.spacing(a);
+      advective[static_cast<std::size_t>(a)] = umax[a] / dx;
+      viscous += 2.0 * nu / (dx * dx);
+    }
+    rates[1] = advective_rate(advective, Advection::godunov);
+    rates[0] = rates[1] + viscous;
+    return rates;
+  }
   for (int a = 0; a < 3; ++a) {
     const double dx = grid_.spacing(a);
     rates[0] += umax[a] / dx + 2.0 * nu / (dx * dx);
@@ -176,21 +195,27 @@ double GasSolver::dt_for_courant(double courant) const {
 FluidStepRates GasSolver::step_rates() const {
   return fluid_step_rates(max_face_speeds(),
                           {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
-                          settings_.gas.viscosity / settings_.gas.density, !viscosity_, body_);
+                          settings_.gas.viscosity / settings_.gas.density, !viscosity_, body_,
+                          settings_.advection);
 }
 
 GasStepReport GasSolver::step() {
   return step(settings_.fixed_dt > 0.0 ? settings_.fixed_dt : dt_for_courant(settings_.cfl));
 }
 
-void GasSolver::stage(double dt, int order, GasStepReport& report) {
+void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
   // One projection per step: the predictor of time order 2 takes the pressure gradient of the
   // last step, -dt/rho grad p per unit of the drag gain (the projection's mobility), and is not
   // projected. It reads p's ghosts as every step leaves them (filled at its end; a restore
   // brings them, a rebox fills them: fluid/grid_move.cpp).
-  const bool lagged = order == 1 && settings_.time_order == 2 && settings_.projections == 1;
+  const bool lagged =
+      kind == Stage::predictor && settings_.time_order == 2 && settings_.projections == 1;
+  // The Laplacian's implicit weight: backward Euler in the predictor, trapezoidal (Crank-
+  // Nicolson) in the corrector and the Godunov step, where L(u^n) is at hand.
+  const bool trapezoidal = kind != Stage::predictor;
+  const bool have_lap_start = settings_.time_order == 2 || kind == Stage::godunov;
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
   // step() computed once for both stages.
@@ -204,8 +229,9 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
     const double dt_over_rho = dt / settings_.gas.density;
     for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
       const auto f = static_cast<std::size_t>(p);
-      double rate = order == 1 ? rhs_[a][f] : 0.5 * (rhs_[a][f] + rhs_stage_[a][f]);
-      if (implicit_now_ && order == 2) {
+      double rate =
+          kind == Stage::corrector ? 0.5 * (rhs_[a][f] + rhs_stage_[a][f]) : rhs_[a][f];
+      if (implicit_now_ && trapezoidal) {
         rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
       }
       const double grad_p = lagged ? (p_[f] - p_[f - below]) * inv_dx : 0.0;
@@ -221,14 +247,13 @@ void GasSolver::stage(double dt, int order, GasStepReport& report) {
       diag_[f] = face_mass_[a][f] * gain[f];
       vrhs_[f] = face_mass_[a][f] * (u_start_[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
       // First guess: the implicit part taken at u^n, theta dt L(u^n), where L(u^n) is at hand
-      // (time order 2); its residual is O(dt^2) where u^n's is O(dt).
-      const double lap =
-          settings_.time_order == 2 ? (order == 1 ? 1.0 : 0.5) * lap_start_[a][f] : 0.0;
+      // (time order 2, Godunov); its residual is O(dt^2) where u^n's is O(dt).
+      const double lap = have_lap_start ? (trapezoidal ? 0.5 : 1.0) * lap_start_[a][f] : 0.0;
       u_[a][f] = (u_start_[a][f] + dt * (rate + lap) + push[f]) / gain[f];
     });
     if (implicit_now_) {
       fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
-      const double theta = order == 1 ? 1.0 : 0.5;
+      const double theta = trapezoidal ? 0.5 : 1.0;
       const ViscousSolveReport vr =
           viscosity_->solve(a, theta * dt * settings_.gas.viscosity, eps_, diag_, vrhs_, u_[a],
                             settings_.viscous_tolerance, 1000);
@@ -261,10 +286,11 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
         dt));
   }
   report.courant = courant_number(dt);
-  if (report.courant > kMaxStableCourant * (1.0 + 1e-12)) {
+  const double max_courant = max_stable_courant(settings_.advection);
+  if (report.courant > max_courant * (1.0 + 1e-12)) {
     throw std::runtime_error(fmt::format(
         "fluid step: dt = {:g} s gives Courant number {:.3g} > {} (stable dt <= {:g} s)", dt,
-        report.courant, kMaxStableCourant, dt_for_courant(kMaxStableCourant)));
+        report.courant, max_courant, dt_for_courant(max_courant)));
   }
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
@@ -316,17 +342,33 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
   for (int a = 0; a < 3; ++a) {
     copy_field(u_[a], u_start_[a]);
   }
-  momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
-  if (implicit && settings_.time_order == 2) {
+  const bool godunov = settings_.advection == Advection::godunov;
+  if (implicit && (settings_.time_order == 2 || godunov)) {
     for (int a = 0; a < 3; ++a) {
       viscosity_->laplacian(a, settings_.gas.viscosity, rho, eps_, u_start_[a], lap_start_[a]);
     }
   }
-  stage(dt, 1, report);
-  if (settings_.time_order == 2) {
-    momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_stage_, work_,
-                 implicit);
-    stage(dt, 2, report);
+  if (godunov) {
+    // One stage: the advective fluxes from edge states centred at t^n + dt/2, the viscous terms
+    // of u^n (the Laplacian's trapezoidal where implicit), one projection.
+    EdgePrediction prediction;
+    prediction.dt = dt;
+    prediction.halo = halo_.get();
+    prediction.pressure = &p_;
+    prediction.laplacian = implicit ? &lap_start_ : nullptr;
+    prediction.drag_gain = &drag_gain_;
+    prediction.drag_push = &drag_push_;
+    godunov_momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, prediction,
+                         rhs_, work_, implicit);
+    stage(dt, Stage::godunov, report);
+  } else {
+    momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
+    stage(dt, Stage::predictor, report);
+    if (settings_.time_order == 2) {
+      momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_stage_, work_,
+                   implicit);
+      stage(dt, Stage::corrector, report);
+    }
   }
   fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
   copy_field(eps_, eps_old_);
@@ -356,7 +398,8 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   while (interval - t > 1e-12 * interval) {
     fill_velocity_ghosts(grid_, halo_.get(), u_);
     const std::array<double, 2> rates = courant_rates();
-    if (count == 0 && settings_.implicit_viscosity_auto && viscosity_) {
+    if (count == 0 && settings_.implicit_viscosity_auto && viscosity_ &&
+        settings_.advection == Advection::mol) {
       // The viscous treatment for this interval, from the Courant rates at its start.
       implicit_now_ = kImplicitSubstepCost * substeps_for(interval, rates[1]) <
                       substeps_for(interval, rates[0]);

@@ -21,11 +21,10 @@
 
 namespace cfddem::fluid {
 
-// Stability bound on the Courant number C = dt (sum_a max|u_a|/dx_a + 2 nu sum_a 1/dx_a^2)
-// (the viscous part only when the viscosity is explicit):
-// 0.5 is the TVD limit of the limited MUSCL scheme with explicit (SSP) Euler stages; the
-// diffusion part alone would allow 1.
-inline constexpr double kMaxStableCourant = 0.5;
+// The Courant number of a gas sub-step is C = dt (advective_rate + 2 nu sum_a 1/dx_a^2), the
+// viscous part only when the viscosity is explicit; advective_rate (fluid/fluid_step_rule.hpp)
+// and its bound max_stable_courant depend on the advection scheme (the diffusion part alone
+// would allow 1 with explicit Euler stages).
 
 // What a gas sub-step with the viscous Laplacian implicit costs against one without, for
 // implicit_viscosity_auto: its six Helmholtz solves (three components, two stages) by Chebyshev
@@ -40,7 +39,10 @@ struct GasSolverSettings {
   Limiter limiter = Limiter::van_leer;
   ProjectionSettings projection;
   double fixed_dt = 0.0; // > 0: step() uses it; 0: adaptive from cfl
-  double cfl = 0.4;      // target Courant number for the adaptive step, in (0, 0.5]
+  double cfl = 0.4; // target Courant number, in (0, max_stable_courant(advection)]
+  // The single-stage Godunov step (one momentum right-hand side, one set of viscous solves, one
+  // projection; time_order and projections do not apply) or the method of lines below.
+  Advection advection = Advection::mol;
   // Laplacian part of the viscous stress backward Euler (predictor) / trapezoidal (corrector),
   // by CG: removes the viscous term from the Courant number (cells smaller than particles).
   bool implicit_viscosity = false;
@@ -50,7 +52,7 @@ struct GasSolverSettings {
   double viscous_tolerance = 1e-10;
   // One grid: the viscous solves preconditioned by the multigrid (false: Jacobi, as on R ranks).
   bool viscous_multigrid = true;
-  int time_order = 2; // 1: Euler; 2: predictor-corrector (Heun)
+  int time_order = 2; // method of lines: 1, Euler; 2, predictor-corrector (Heun)
   // Projections per step with time_order 2: 1, the predictor takes the last step's pressure
   // gradient instead of a projection of its own (the lagged-pressure predictor of Bell, Colella
   // & Glaz 1989, J. Comput. Phys. 85, 257: its divergence is O(dt^2), so the corrector, which
@@ -108,8 +110,8 @@ public:
   // non-periodic axes (hydrostatic), 0 on other periodic axes (docs/theory.md §4).
   [[nodiscard]] std::array<double, 3> background_pressure_gradient() const;
 
-  // C = dt (sum_a max|u_a|/dx_a + 2 nu sum_a 1/dx_a^2), the viscous part only while the
-  // viscosity is explicit (implicit_viscosity_now()).
+  // C = dt (advective_rate + 2 nu sum_a 1/dx_a^2), the viscous part only while the viscosity is
+  // explicit (implicit_viscosity_now()).
   [[nodiscard]] double courant_number(double dt) const;
   // Whether the next step() takes the Laplacian implicit: the setting, or under
   // implicit_viscosity_auto the choice advance() made for its interval.
@@ -126,7 +128,7 @@ public:
   // One step with the fixed or adaptive dt.
   GasStepReport step();
   // One step with a given dt; throws std::runtime_error if its Courant number exceeds
-  // kMaxStableCourant (message gives the largest stable dt).
+  // max_stable_courant (message gives the largest stable dt).
   GasStepReport step(double dt);
   // Advances by `interval` (e.g. the coupling step dt_f) in as many equal-CFL sub-steps as
   // stability needs (small cells make the explicit viscous limit shorter than dt_f); eps_g is
@@ -159,8 +161,8 @@ public:
   void restore_state(const State& s);
 
 private:
-  // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {sum_a (max|u_a| /
-  // dx_a + 2 nu / dx_a^2), sum_a max|u_a| / dx_a} (u's ghosts filled).
+  // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {advective_rate +
+  // 2 nu sum_a 1 / dx_a^2, advective_rate} (u's ghosts filled).
   [[nodiscard]] std::array<double, 2> courant_rates() const;
   // max |u_a| over the faces of each axis (over the ranks: a max is exact).
   [[nodiscard]] std::array<double, 3> max_face_speeds() const;
@@ -170,7 +172,10 @@ private:
   [[nodiscard]] double next_substep(double interval, double t, double rate) const;
   // How many sub-steps advance() takes over `interval` at a Courant rate `rate`.
   [[nodiscard]] int substeps_for(double interval, double rate) const;
-  void stage(double dt, int order, GasStepReport& report);
+  // The update of one stage from u_start_ with the rate of its kind, the drag point-implicit,
+  // the Laplacian implicit where it is, and the projection (none for a lagged predictor).
+  enum class Stage { predictor, corrector, godunov };
+  void stage(double dt, Stage kind, GasStepReport& report);
   // step(dt) once u's ghosts are filled (advance() fills them for its Courant number). The
   // continuity source is (eps - eps_old)/dt times source_scale (advance(): interval /
   // eps_interval, from the sub-step's rate to the particles').

@@ -343,6 +343,13 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
 ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField& eps,
                                             const GridField& diag, const GridField& rhs,
                                             GridField& u, double tolerance, int max_iterations) {
+  // One grid whose component has no unknown face (a single cell between walls): nothing to
+  // solve (the solvers' sums and plane tables assume at least one row).
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  if (halo_ == nullptr && (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2])) {
+    return {};
+  }
   ViscousSolveReport chebyshev;
   if (chebyshev_) {
     face_coefficients(comp, eps);

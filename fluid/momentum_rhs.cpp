@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 
 #include "fluid/box_loops.hpp"
+#include "fluid/grid_halo.hpp"
 
 namespace cfddem::fluid {
 
@@ -187,19 +188,11 @@ void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, 
   });
 }
 
-} // namespace
-
-void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
-                  const std::array<GridField, 3>& u, const GridField& eps,
-                  const std::array<double, 3>& body, std::array<GridField, 3>& rhs) {
-  MomentumWorkspace work;
-  momentum_rhs(grid, gas, limiter, u, eps, body, rhs, work);
-}
-
-void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
-                  const std::array<GridField, 3>& u, const GridField& eps,
-                  const std::array<double, 3>& body, std::array<GridField, 3>& rhs,
-                  MomentumWorkspace& work, bool exclude_laplacian) {
+// The workspace sized for the grid and the view of u and eps all components share; div u at
+// cells -1..n when the gas is viscous (the normal stress of faces 0..n needs cells -1..n).
+ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
+                      const std::array<GridField, 3>& u, const GridField& eps,
+                      MomentumWorkspace& work, bool exclude_laplacian) {
   const GridLayout& layout = grid.layout();
   for (int b = 0; b < 3; ++b) {
     ensure(work.flux[b], layout);
@@ -217,7 +210,6 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
   v.own = exclude_laplacian ? 0.0 : 1.0;
   const auto& n = grid.cells();
   if (v.mu != 0.0) {
-    // div u at cells -1..n (the normal stress of faces 0..n needs cells -1..n).
     double* div = work.divergence.values().data();
     for_box_rows(layout, {-1, -1, -1}, {n[0], n[1], n[2]}, [&](std::ptrdiff_t p0, int, int) {
       const double* __restrict ux = v.u[0];
@@ -232,6 +224,232 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
       }
     });
   }
+  return v;
+}
+
+// The viscous term and body force of u^n on a row of a component's faces: the rate the
+// Godunov step's edge states are extrapolated with, and the non-advective part of its update.
+template <bool Viscous>
+void viscous_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
+                 const MomentumWorkspace& work, double inv_rho, double body,
+                 double* __restrict out) {
+  const double* __restrict ep = v.ep;
+  const std::ptrdiff_t sa = v.st[v.a];
+  const double* __restrict t0 = work.stress[0].values().data();
+  const double* __restrict t1 = work.stress[1].values().data();
+  const double* __restrict t2 = work.stress[2].values().data();
+  const std::ptrdiff_t sy = v.st[1];
+  const std::ptrdiff_t sz = v.st[2];
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    double visc = 0.0;
+    if constexpr (Viscous) {
+      visc += (t0[p + 1] - t0[p]) * v.inv_dx[0];
+      visc += (t1[p + sy] - t1[p]) * v.inv_dx[1];
+      visc += (t2[p + sz] - t2[p]) * v.inv_dx[2];
+    }
+    const double eps_face = 0.5 * (ep[p] + ep[p - sa]);
+    out[p] = visc * inv_rho / eps_face + body;
+  }
+}
+
+// The base states of a row of component a's faces, one per direction b: the point's value
+// advanced by half a step with the transverse advection (all directions but b), and `half`,
+// with the advection along all three (u^{n+1/2} at the face, the advecting velocities' source);
+// the rate
+// `rate` (viscous and body, from viscous_row), the implicit Laplacian's L(u^n) and the last
+// step's pressure gradient, the drag point-implicit over the half step. The advection along c
+// is ubar_c times the difference of the limited MUSCL states on the point's two faces along c,
+// both upwinded by ubar_c: second order in space, so the prediction adds no dt dx error.
+template <Limiter L>
+void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t p0,
+              std::ptrdiff_t len, double inv_rho, const double* __restrict rate,
+              std::array<double*, 3> base, double* __restrict half) {
+  const int a = v.a;
+  const double* __restrict q = v.u[a];
+  const std::ptrdiff_t sa = v.st[a];
+  const double* __restrict pressure = pred.pressure->values().data();
+  const double* __restrict lap =
+      pred.laplacian != nullptr ? (*pred.laplacian)[a].values().data() : nullptr;
+  const double* __restrict gain = (*pred.drag_gain)[a].values().data();
+  const double* __restrict push = (*pred.drag_push)[a].values().data();
+  const double half_dt = 0.5 * pred.dt;
+  const double grad_scale = v.inv_dx[a] * inv_rho;
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    double force = rate[p] - (pressure[p] - pressure[p - sa]) * grad_scale;
+    if (lap != nullptr) {
+      force += lap[p];
+    }
+    std::array<double, 3> transverse{};
+    for (int c = 0; c < 3; ++c) {
+      const std::ptrdiff_t sc = v.st[c];
+      double ubar = q[p];
+      if (c != a) {
+        const double* __restrict uc = v.u[c];
+        ubar = 0.25 * (uc[p] + uc[p + sc] + uc[p - sa] + uc[p - sa + sc]);
+      }
+      const double dm = q[p] - q[p - sc];
+      const double dp = q[p + sc] - q[p];
+      const double slope = limited_slope<L>(dm, dp);
+      const double difference =
+          ubar > 0.0 ? dm + 0.5 * (slope - limited_slope<L>(q[p - sc] - q[p - 2 * sc], dm))
+                     : dp - 0.5 * (limited_slope<L>(dp, q[p + 2 * sc] - q[p + sc]) - slope);
+      transverse[c] = ubar * difference * v.inv_dx[c];
+    }
+    const double common =
+        q[p] + half_dt * (force - (transverse[0] + transverse[1] + transverse[2])) + 0.5 * push[p];
+    const double inv_gain = 2.0 / (1.0 + gain[p]); // 1 / (1 + k beta / 2)
+    half[p] = common * inv_gain;
+    for (int b = 0; b < 3; ++b) {
+      base[b][p] = (common + half_dt * transverse[b]) * inv_gain;
+    }
+  }
+}
+
+// One component's prediction: rhs = viscous term + body force of u^n, then its base states and
+// half-step values (ghosts filled as the component's velocity: walls, inflow and periodic faces
+// hold on the predicted values too).
+template <Limiter L>
+void predict_component(const MacGrid& grid, const ComponentView& v, double inv_rho, double body,
+                       const EdgePrediction& pred, MomentumWorkspace& work, GridField& rhs) {
+  const GridLayout& layout = grid.layout();
+  const auto& n = grid.cells();
+  const int a = v.a;
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[a] = n[a]; // faces 0..n along the component's axis
+  const bool viscous = v.mu != 0.0;
+  if (viscous) {
+    std::array<std::array<bool, 2>, 3> inflow{};
+    for (int b = 0; b < 3; ++b) {
+      inflow[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
+    }
+    tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
+      for (int k = r.begin(); k != r.end(); ++k) {
+        for (int b = 0; b < 3; ++b) {
+          std::array<int, 3> edge_hi = hi;
+          ++edge_hi[b];
+          if (k > edge_hi[2]) {
+            continue;
+          }
+          double* stress = work.stress[b].values().data();
+          const bool inflow_k =
+              (b == 2) && ((k == 0 && inflow[2][0]) || (k == n[2] && inflow[2][1]));
+          for (int j = 0; j <= edge_hi[1]; ++j) {
+            const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
+            const bool inflow_j =
+                (b == 1) && ((j == 0 && inflow[1][0]) || (j == n[1] && inflow[1][1]));
+            stress_row(v, b, p0, edge_hi[0], inflow_k || inflow_j,
+                       {b == 0 && inflow[0][0], b == 0 && inflow[0][1]}, stress);
+          }
+        }
+      }
+    });
+  }
+  double* out = rhs.values().data();
+  auto& base_a = work.base[static_cast<std::size_t>(a)];
+  const std::array<double*, 3> base = {base_a[0].values().data(), base_a[1].values().data(),
+                                       base_a[2].values().data()};
+  double* half = work.half[static_cast<std::size_t>(a)].values().data();
+  for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
+    if (viscous) {
+      viscous_row<true>(v, p0, hi[0], work, inv_rho, body, out);
+    } else {
+      viscous_row<false>(v, p0, hi[0], work, inv_rho, body, out);
+    }
+    base_row<L>(v, pred, p0, hi[0], inv_rho, out, base, half);
+  });
+  for (GridField& f : base_a) {
+    fill_velocity_ghosts(grid, pred.halo, a, f);
+  }
+  fill_velocity_ghosts(grid, pred.halo, a, work.half[static_cast<std::size_t>(a)]);
+}
+
+// The advecting velocity and upwind flux on component a's low control-volume faces along b,
+// p0 .. p0 + len of a row: the velocity is the mean of the two half-step values of u_b around
+// the face (as the method of lines takes u^n's), and the edge state is the upwind point's base
+// state plus its limited slope times (1 - A dt/dx_b)/2. Upwinding by the same velocity that
+// multiplies the state keeps the flux continuous where the velocity changes sign.
+template <Limiter L>
+void godunov_advective_row(const ComponentView& v, int b, double dt, std::ptrdiff_t p0,
+                           std::ptrdiff_t len, const double* __restrict base,
+                           const double* __restrict half_b, double* __restrict speed,
+                           double* __restrict flux) {
+  const double* __restrict q = v.u[v.a];
+  const std::ptrdiff_t sw = b == v.a ? v.st[b] : v.st[v.a];
+  const std::ptrdiff_t sb = v.st[b];
+  const double courant_per_speed = dt * v.inv_dx[b];
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    const double adv = 0.5 * (half_b[p] + half_b[p - sw]);
+    const double d0 = q[p] - q[p - sb];
+    const double slope_m = limited_slope<L>(q[p - sb] - q[p - 2 * sb], d0);
+    const double slope_p = limited_slope<L>(d0, q[p + sb] - q[p]);
+    const double courant = adv * courant_per_speed;
+    const double left = base[p - sb] + 0.5 * (1.0 - courant) * slope_m;
+    const double right = base[p] - 0.5 * (1.0 + courant) * slope_p;
+    speed[p] = adv;
+    flux[p] = adv * (adv > 0.0 ? left : (adv < 0.0 ? right : 0.5 * (left + right)));
+  }
+}
+
+// rhs_a -= u.grad u_a in convective form, div(A q_e) - q div(A), with the time-centred
+// advecting velocities and edge states (godunov_advective_row).
+template <Limiter L>
+void subtract_advection(const MacGrid& grid, const ComponentView& v, double dt,
+                        MomentumWorkspace& work, GridField& rhs) {
+  const GridLayout& layout = grid.layout();
+  const auto& n = grid.cells();
+  const int a = v.a;
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[a] = n[a];
+  const auto& base_a = work.base[static_cast<std::size_t>(a)];
+  tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
+    for (int k = r.begin(); k != r.end(); ++k) {
+      for (int b = 0; b < 3; ++b) {
+        std::array<int, 3> edge_hi = hi;
+        ++edge_hi[b];
+        if (k > edge_hi[2]) {
+          continue;
+        }
+        const double* base_b = base_a[static_cast<std::size_t>(b)].values().data();
+        const double* half_b = work.half[static_cast<std::size_t>(b)].values().data();
+        double* speed = work.speed[b].values().data();
+        double* flux = work.flux[b].values().data();
+        for (int j = 0; j <= edge_hi[1]; ++j) {
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
+          godunov_advective_row<L>(v, b, dt, p0, edge_hi[0], base_b, half_b, speed, flux);
+        }
+      }
+    }
+  });
+  const double* __restrict q = v.u[a];
+  double* __restrict out = rhs.values().data();
+  for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
+    for (std::ptrdiff_t p = p0; p <= p0 + hi[0]; ++p) {
+      double o = 0.0;
+      for (int b = 0; b < 3; ++b) {
+        const std::ptrdiff_t sb = v.st[b];
+        const double* __restrict s = work.speed[b].values().data();
+        const double* __restrict f = work.flux[b].values().data();
+        o -= ((f[p + sb] - f[p]) - q[p] * (s[p + sb] - s[p])) * v.inv_dx[b];
+      }
+      out[p] += o;
+    }
+  });
+}
+
+} // namespace
+
+void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
+                  const std::array<GridField, 3>& u, const GridField& eps,
+                  const std::array<double, 3>& body, std::array<GridField, 3>& rhs) {
+  MomentumWorkspace work;
+  momentum_rhs(grid, gas, limiter, u, eps, body, rhs, work);
+}
+
+void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
+                  const std::array<GridField, 3>& u, const GridField& eps,
+                  const std::array<double, 3>& body, std::array<GridField, 3>& rhs,
+                  MomentumWorkspace& work, bool exclude_laplacian) {
+  ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian);
   const double inv_rho = 1.0 / gas.density;
   for (int a = 0; a < 3; ++a) {
     v.a = a;
@@ -239,6 +457,40 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
       component_rhs<Limiter::minmod>(grid, v, inv_rho, body[a], work, rhs[a]);
     } else {
       component_rhs<Limiter::van_leer>(grid, v, inv_rho, body[a], work, rhs[a]);
+    }
+  }
+}
+
+void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
+                          const std::array<GridField, 3>& u, const GridField& eps,
+                          const std::array<double, 3>& body, const EdgePrediction& prediction,
+                          std::array<GridField, 3>& rhs, MomentumWorkspace& work,
+                          bool exclude_laplacian) {
+  ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian);
+  for (auto& row : work.base) {
+    for (GridField& f : row) {
+      ensure(f, grid.layout());
+    }
+  }
+  for (GridField& f : work.half) {
+    ensure(f, grid.layout());
+  }
+  const double inv_rho = 1.0 / gas.density;
+  // Every component's half-step values first: they give the others' advecting velocities.
+  for (int a = 0; a < 3; ++a) {
+    v.a = a;
+    if (limiter == Limiter::minmod) {
+      predict_component<Limiter::minmod>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
+    } else {
+      predict_component<Limiter::van_leer>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
+    }
+  }
+  for (int a = 0; a < 3; ++a) {
+    v.a = a;
+    if (limiter == Limiter::minmod) {
+      subtract_advection<Limiter::minmod>(grid, v, prediction.dt, work, rhs[a]);
+    } else {
+      subtract_advection<Limiter::van_leer>(grid, v, prediction.dt, work, rhs[a]);
     }
   }
 }

@@ -31,6 +31,11 @@ struct GasProperties {
 struct MomentumWorkspace {
   std::array<GridField, 3> flux, speed, stress; // on the low control-volume face along b
   GridField divergence;
+  // godunov_momentum_rhs, on component a's faces, ghosts filled as its velocity: base[a][b], the
+  // base state along b (the edge state without its normal slope term), and half[a], u_a
+  // advanced half a step (the advecting velocities are means of it).
+  std::array<std::array<GridField, 3>, 3> base;
+  std::array<GridField, 3> half;
 };
 
 void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
@@ -41,5 +46,41 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
 void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
                   const std::array<GridField, 3>& u, const GridField& eps,
                   const std::array<double, 3>& body, std::array<GridField, 3>& rhs);
+
+class GridHalo;
+
+// What the time-centred edge states of godunov_momentum_rhs are extrapolated with.
+struct EdgePrediction {
+  double dt = 0.0;                     // the step the edge states are centred in (at dt / 2)
+  const GridHalo* halo = nullptr;      // the grid's halo on R ranks (ghost fills are collective)
+  const GridField* pressure = nullptr; // p' of the last step, ghosts filled (its gradient)
+  // L(u^n) per unit mass, the Laplacian part of the viscous term where it is implicit (and
+  // left out of the right-hand side); nullptr where it is explicit.
+  const std::array<GridField, 3>* laplacian = nullptr;
+  // The point-implicit drag over dt on the faces (GasSolver): 1 + k beta_f and k (beta v)_f.
+  const std::array<GridField, 3>* drag_gain = nullptr;
+  const std::array<GridField, 3>* drag_push = nullptr;
+};
+
+// momentum_rhs with the advective fluxes taken from time-centred upwind edge states, the
+// single-stage Godunov step of Bell, Colella & Glaz (1989, J. Comput. Phys. 85, 257) as
+// MFIX-Exa takes it (docs/gas_step.md "The Godunov step"): the edge state on a control-volume
+// face along b is extrapolated from the upwind point m by half a cell and half a step,
+//   q_e = q_m + (1/2)(1 - a dt / dx_b) s_b(m) - (dt/2) sum_{c != b} T_c(m) + (dt/2) F_m,
+// with s_b the limited slope, T_c(m) = ubar_c dq/dx_c the transverse advection (the difference
+// of the upwinded MUSCL states on m's faces along c; corner transport upwind, Colella 1990,
+// J. Comput. Phys. 87, 171), a the advecting velocity, the mean of the two half-step values
+// u^n + (dt/2)(-u.grad u + F) of u_b around the face, by which the state is upwinded, and F
+// the rest of the momentum rate at t^n (viscous terms, body force, the last step's pressure
+// gradient); the drag is taken point-implicitly over dt/2, so a stiff drag cannot overshoot.
+// Linear stability (von Neumann, docs/gas_step.md): max(max_a c_a, sum_a c_a / 1.25) <= 0.95
+// for the Courant numbers c_a = |u_a| dt / dx_a (fluid_step_rule.hpp). The viscous terms in rhs
+// are those of u^n (the coupling takes the Laplacian implicit, Crank-Nicolson).
+// Collective on R ranks (the base states' ghost fills).
+void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
+                          const std::array<GridField, 3>& u, const GridField& eps,
+                          const std::array<double, 3>& body, const EdgePrediction& prediction,
+                          std::array<GridField, 3>& rhs, MomentumWorkspace& work,
+                          bool exclude_laplacian);
 
 } // namespace cfddem::fluid

@@ -400,10 +400,14 @@ TEST(FluidInput, BadInputsExitWithCode2AndNameTheKey) {
                       "domain.periodic=[false,false,false] fluid.bc.y_lo=inflow "
                       "fluid.inflow_velocity=[0,0.01,0]",
                       "fluid.bc");
-  // CFL above the stable limit of the explicit predictor (0.5).
-  expect_config_error(kRiser, "fluid.cfl=0.8", "fluid.cfl");
+  // CFL above the stable limit of the Godunov step (0.95) and of the method of lines (0.5).
+  expect_config_error(kRiser, "fluid.cfl=1.2", "fluid.cfl");
+  expect_config_error(kRiser, "fluid.advection=mol fluid.cfl=0.8", "fluid.cfl");
+  // The method of lines' settings with the Godunov step.
+  expect_config_error(kRiser, "fluid.time_order=1", "fluid.time_order");
+  expect_config_error(kRiser, "fluid.projections=2", "fluid.projections");
   // A time order other than 1 (Euler) or 2 (predictor-corrector).
-  expect_config_error(kRiser, "fluid.time_order=3", "fluid.time_order");
+  expect_config_error(kRiser, "fluid.advection=mol fluid.time_order=3", "fluid.time_order");
   // Cells that are not whole numbers, unknown laws and kernels, bc against domain periodicity.
   expect_config_error(kRiser, "fluid.cells=[4,8.5,4]", "fluid.cells");
   expect_config_error(kRiser, "fluid.drag=stokes", "fluid.drag");

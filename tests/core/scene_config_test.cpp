@@ -120,7 +120,8 @@ TEST(SceneConfig, FluidTimeOrder) {
   const Scene s = load({"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5"});
   EXPECT_EQ(s.fluid.time_order, 2);
   const Scene euler = load(
-      {"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", "fluid.time_order=1"});
+      {"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", "fluid.advection=\"mol\"",
+       "fluid.time_order=1"});
   EXPECT_EQ(euler.fluid.time_order, 1);
   bool listed = false;
   for (const auto& [key, value] : describe_scene(euler)) {
@@ -131,6 +132,29 @@ TEST(SceneConfig, FluidTimeOrder) {
   }
   EXPECT_TRUE(listed);
   const std::string e = error_of(
-      {"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", "fluid.time_order=3"});
+      {"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", "fluid.advection=\"mol\"",
+       "fluid.time_order=3"});
   EXPECT_NE(e.find("fluid.time_order"), std::string::npos) << e;
+}
+
+// fluid.advection: Godunov at cfl 0.9 unless set; the method of lines at 0.4; Euler and Heun's
+// settings refused with Godunov, naming the key.
+TEST(SceneConfig, FluidAdvection) {
+  const Scene s = load({"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5"});
+  EXPECT_EQ(s.fluid.advection, "godunov");
+  EXPECT_EQ(s.fluid.cfl, 0.9);
+  const Scene mol = load({"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5",
+                          "fluid.advection=\"mol\""});
+  EXPECT_EQ(mol.fluid.cfl, 0.4);
+  for (const char* key : {"fluid.time_order=1", "fluid.projections=2"}) {
+    const std::string e =
+        error_of({"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5", key});
+    EXPECT_NE(e.find(std::string(key).substr(0, std::string(key).find('='))), std::string::npos)
+        << e;
+    EXPECT_NE(e.find("mol"), std::string::npos) << e;
+  }
+  EXPECT_NE(error_of({"fluid.cells=[2,2,2]", "fluid.density=1.0", "fluid.viscosity=1e-5",
+                      "fluid.advection=\"rk4\""})
+                .find("fluid.advection"),
+            std::string::npos);
 }

@@ -67,9 +67,18 @@ const Lines kWenYu = [] {
 }();
 
 // The scene a key's value is tried in: the distribution's keys need a distribution.
+// The method of lines, whose keys the Godunov step (the default) refuses.
+const Lines kMethodOfLines = [] {
+  Lines lines = kRequired;
+  lines.emplace_back("fluid.advection", "\"mol\"");
+  return lines;
+}();
+
 const Lines& scene_for(const std::string& key, std::string_view value) {
   if (key == "fluid.viscosity")
     return kWenYu;
+  if (key == "fluid.time_order" || key == "fluid.projections")
+    return kMethodOfLines;
   if (key.rfind("particles.diameter.", 0) != 0)
     return kRequired;
   return value == "uniform" ? kUniform : kNormal;

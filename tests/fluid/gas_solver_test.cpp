@@ -351,7 +351,7 @@ TEST(GasSolverImplicitViscosity, TakesPaperStepOnFiftyMicronCells) {
   double max_u = 0.0;
   for (int s = 0; s < 20; ++s) {
     const GasStepReport r = solver.step(1e-4);
-    EXPECT_LT(r.courant, kMaxStableCourant);
+    EXPECT_LT(r.courant, kMaxMolCourant);
     EXPECT_GT(r.viscous_iterations, 0);
   }
   for (int j = 0; j <= 12; ++j) {

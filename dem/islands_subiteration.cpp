@@ -15,7 +15,6 @@
 #include <cmath>
 #include <limits>
 
-#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
@@ -71,7 +70,8 @@ islands::SubiterationCounts IslandsScheme::island_steps(bool record) {
     ln_.members[k] = i;
     x0_[k] = p_.x[i], y0_[k] = p_.y[i], z0_[k] = p_.z[i];
   }
-  // Free flight first, then the islands' tasks (they touch disjoint particles).
+  // Free flight first, then the islands' tasks (they touch disjoint particles). Recording runs
+  // always check walls (one kernel fewer; a periodic axis's bounds are infinite).
   const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
   with_flags([&](auto ext, auto rec, auto w) { free_flight<ext, rec, w>(); }, ext_.active(), record,
              record || walls);

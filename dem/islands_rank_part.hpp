@@ -46,7 +46,6 @@ struct IslandsScheme::RankPart {
   // ghosts).
   std::vector<std::int64_t> span_lead;
   std::vector<double> span_entry;
-  islands::IslandResult span_result; // their fine steps (outran: bound_violations, dense)
   // Start of the sub-iteration in the dense mode (rollback): x, y, z, vx, vy, vz, h_prev.
   std::array<std::vector<double>, 7> start;
   // Friction: the ids of the store's slots at the last build (the rows' history is read by
@@ -55,8 +54,7 @@ struct IslandsScheme::RankPart {
   std::vector<std::int64_t> hist_ids;
   ContactHistory pending;
   std::array<std::vector<double>, 6> start_spin; // wx, wy, wz (owned), hx, hy, hz (rows)
-  double max_ratio_local = 0.0;               // this rank's largest overlap ratio not yet reduced
-  std::array<std::int64_t, 2> local_counts{}; // the last attempt's particle steps and pairs
+  double max_ratio_local = 0.0; // this rank's largest overlap ratio not yet reduced
 };
 
 } // namespace cfddem::dem

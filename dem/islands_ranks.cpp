@@ -1,4 +1,7 @@
-// The islands scheme on R > 1 ranks (dem/islands_scheme.hpp). One sub-iteration t -> t + dt_sp:
+// The islands scheme on R > 1 ranks (dem/islands_scheme.hpp): what only R ranks do. The
+// sub-iteration's driver is the one of any rank count (dem/islands_subiteration.cpp); its steps
+// that differ here are find_islands_ranks() and the verbs at the end of this file, no-ops or the
+// identity on one rank. One sub-iteration t -> t + dt_sp on R ranks:
 //   1. at a build (the first sub-iteration, or when step 3 finds the rows too short): a new
 //      decomposition (parallel ORB + Hilbert knapsack) if dem.nsubit sub-iterations have passed
 //      since the last; every particle migrates to its owner (with its half step, fine count and
@@ -39,6 +42,7 @@
 
 #include "core/error.hpp"
 #include "dem/contact_history.hpp"
+#include "dem/flag_dispatch.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/scheme_support.hpp"
@@ -254,7 +258,6 @@ double IslandsScheme::link_rounds() {
   ln_.own_stamp.assign(n, 0);
   ln_.stamp = 1;
   global_ = false;
-  const bool ext = ext_.active();
   for (int round = 0;; ++round) {
     make_links_ranks();
     const bool changed =
@@ -262,10 +265,7 @@ double IslandsScheme::link_rounds() {
     for (const std::uint32_t i : ln_.busy)
       if (ln_.own_stamp[i] != ln_.stamp)
         ln_.own_stamp[i] = ln_.stamp, ln_.own_bound[i] = ln_.bound[i];
-    if (model_.friction)
-      ext ? island_sums<true, true>(owned_) : island_sums<false, true>(owned_);
-    else
-      ext ? island_sums<true>(owned_) : island_sums<false>(owned_);
+    island_sums(owned_);
     // Spanning islands: one set of sums for all of them, over all ranks. A pair with a ghost end
     // is counted on both ranks (more energy: still conservative).
     const std::uint32_t nc = ln_.islands.count();
@@ -319,23 +319,17 @@ double IslandsScheme::link_rounds() {
   }
 }
 
-islands::ContactView IslandsScheme::contact_view_ranks() {
-  const OrbLocalRows& rows = rank_->rows;
-  return {cols(),
-          {rows.off().data(), rows.nb().data(), nullptr},
-          ln_.island_of.data(),
-          &geom_,
-          &model_,
-          model_.friction ? hx_.data() : nullptr,
-          model_.friction ? hy_.data() : nullptr,
-          model_.friction ? hz_.data() : nullptr};
-}
-
 // The K fine steps of every spanning member (all: every owned particle, the dense mode), all
 // ranks together: the ghosts' x and v (and spins) from their owners before every step but the first
 // (collective, also on a rank with no member). In the dense mode the displacement check is
 // against half the skin since the build (the rows may miss a pair: roll back).
-template <bool External, bool Friction> void IslandsScheme::fine_together(bool record, bool all) {
+islands::IslandResult IslandsScheme::fine_together(bool record, bool all) {
+  return with_flags([&](auto ext, auto fr) { return step_together<ext, fr>(record, all); },
+                    ext_.active(), model_.friction);
+}
+
+template <bool External, bool Friction>
+islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
   RankPart& r = *rank_;
   if (all) {
     r.span_members.resize(owned_);
@@ -352,7 +346,7 @@ template <bool External, bool Friction> void IslandsScheme::fine_together(bool r
     }
     mb.x0 = r.sx0.data(), mb.y0 = r.sy0.data(), mb.z0 = r.sz0.data(), mb.bound = ln_.bound.data();
   }
-  const islands::ContactView view = contact_view_ranks();
+  const islands::ContactView view = contact_view();
   const auto* label = ln_.island_of.data();
   if (!all)
     span_leads(view, mb);
@@ -373,11 +367,10 @@ template <bool External, bool Friction> void IslandsScheme::fine_together(bool r
   auto refresh = [&] { r.exchange.forward(p_); };
   double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
                    record ? rec_.vz.data() : nullptr};
-  r.span_result =
-      all ? islands::step_island<External, false, Friction>(
-                view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh)
-          : islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
-                                                           sv[0], sv[1], sv[2], forces, refresh);
+  return all ? islands::step_island<External, false, Friction>(
+                   view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh)
+             : islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
+                                                              sv[0], sv[1], sv[2], forces, refresh);
 }
 
 // The spanning members' leads (islands_kernels.hpp, member_entry_time): each island's entry
@@ -455,200 +448,175 @@ void IslandsScheme::rebuild_ranks() {
   r.need_rebuild = false;
 }
 
-void IslandsScheme::subiterate_ranks(bool record) {
+// Step 2 of the header's sequence, with the link rounds of step 3: the rows and ghosts (built
+// when due), the ghosts' columns and bounds, the link rounds; rows too short for this
+// sub-iteration's reach build again, wider when even a fresh build was too short.
+void IslandsScheme::find_islands_ranks() {
   RankPart& r = *rank_;
-  const std::int64_t K = steps_.K;
-  // {owned, particle steps, pairs, overlaps beyond the bound, bound violations, faults, fine
-  // members, spanning members, spanning island parts, outran, mass}
-  std::array<double, 12> c{};
-  std::optional<islands::Fault> fault;
-  double ratio = 0.0;
-  for (;;) {
-    {
-      PhaseTimer::Scope t(timer_, Phase::neighbor);
-      for (bool fresh = false;;) {
-        if (r.need_rebuild) {
-          rebuild_ranks();
-          fresh = true;
-        } else {
-          // The ghosts' positions, velocities and own bounds from their owners: one message round.
-          own_bounds();
-          ln_.bound.resize(p_.size());
-          std::vector<double>* cols[] = {&p_.x,  &p_.y,  &p_.z,  &p_.vx, &p_.vy,
-                                         &p_.vz, &p_.wx, &p_.wy, &p_.wz, &ln_.bound};
-          // The spins too with friction (a partner's spin enters the tangential force).
-          std::vector<double>* frictionless[] = {&p_.x,  &p_.y,  &p_.z,     &p_.vx,
-                                                 &p_.vy, &p_.vz, &ln_.bound};
-          if (model_.friction)
-            r.exchange.forward_columns(cols);
-          else
-            r.exchange.forward_columns(frictionless);
-        }
-        ln_.island_of.assign(p_.size(), kAlone);
-        ln_.busy.clear();
-        ln_.mark.assign(p_.size(), 0);
-        const double reach = link_rounds();
-        if (2.0 * reach + margin_ < skin_)
-          break;
-        // Some pair could link that the rows (or the ghosts) miss: build again, wider when even
-        // a fresh build was too short.
-        if (fresh)
-          r.grown_skin = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
-        r.need_rebuild = true;
-        ++st_.expired_builds;
+  {
+    PhaseTimer::Scope t(timer_, Phase::neighbor);
+    for (bool fresh = false;;) {
+      if (r.need_rebuild) {
+        rebuild_ranks();
+        fresh = true;
+      } else {
+        refresh_ghosts();
       }
+      ln_.island_of.assign(p_.size(), kAlone);
+      ln_.busy.clear();
+      ln_.mark.assign(p_.size(), 0);
+      const double reach = link_rounds();
+      if (2.0 * reach + margin_ < skin_)
+        break;
+      if (fresh)
+        r.grown_skin = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
+      r.need_rebuild = true;
+      ++st_.expired_builds;
     }
-    // "auto" chose the global mode for this interval: every rank steps everyone, as one rank
-    // does (the links above still check the rows).
-    if (auto_.global_now)
-      global_ = true;
-    std::vector<double>* const live[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &hprev_};
-    std::vector<double>* const spin[] = {&p_.wx, &p_.wy, &p_.wz, &hx_, &hy_, &hz_};
-    if (global_) { // the dense mode may roll back
-      for (std::size_t q = 0; q < r.start.size(); ++q)
-        r.start[q].assign(live[q]->begin(), live[q]->begin() + static_cast<std::ptrdiff_t>(owned_));
-      if (model_.friction)
-        for (std::size_t q = 0; q < r.start_spin.size(); ++q)
-          r.start_spin[q].assign(spin[q]->begin(),
-                                 spin[q]->begin() +
-                                     static_cast<std::ptrdiff_t>(q < 3 ? owned_ : spin[q]->size()));
-    }
-    PhaseTimer::Scope t(timer_, Phase::force);
-    if (record)
-      record_state();
-    std::int64_t span_parts = 0, members = 0;
-    r.span_members.clear();
-    results_.clear();
-    r.span_result = islands::IslandResult{};
-    const bool ext = ext_.active();
-    const bool fr = model_.friction;
-    if (global_) {
-      if (fr)
-        ext ? fine_together<true, true>(record, true) : fine_together<false, true>(record, true);
-      else
-        ext ? fine_together<true, false>(record, true) : fine_together<false, false>(record, true);
-      members = static_cast<std::int64_t>(owned_);
-    } else {
-      const std::uint32_t nc = ln_.islands.count();
-      ln_.members.resize(ln_.busy.size());
-      x0_.resize(ln_.busy.size()), y0_.resize(ln_.busy.size()), z0_.resize(ln_.busy.size());
-      for (std::size_t k = 0; k < ln_.busy.size(); ++k) {
-        const std::uint32_t i = ln_.busy[ln_.islands.members[k]];
-        ln_.members[k] = i;
-        x0_[k] = p_.x[i], y0_[k] = p_.y[i], z0_[k] = p_.z[i];
-      }
-      for (std::uint32_t q = 0; q < nc; ++q)
-        span_parts += r.spans[q];
-      for (const std::uint32_t i : ln_.busy)
-        if (i < owned_) {
-          ++members;
-          if (r.spans[ln_.island_of[i]])
-            r.span_members.push_back(i);
-        }
-      ext ? free_flight<true>(record) : free_flight<false>(record);
-      fault_flag_ = 0; // every owned particle is checked below
-      results_.assign(nc, islands::IslandResult{});
-      const islands::ContactView view = contact_view_ranks();
-      tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, nc, 1),
-                        [&](const tbb::blocked_range<std::uint32_t>& b) {
-                          for (std::uint32_t q = b.begin(); q != b.end(); ++q) {
-                            if (r.spans[q])
-                              continue;
-                            if (fr)
-                              ext ? run_island<true, true, true>(q, record, view)
-                                  : run_island<false, true, true>(q, record, view);
-                            else
-                              ext ? run_island<true, true>(q, record, view)
-                                  : run_island<false, true>(q, record, view);
-                          }
-                        });
-      if (r.spanning_global > 0) { // some rank has a spanning island: every rank takes part
-        if (fr)
-          ext ? fine_together<true, true>(record, false)
-              : fine_together<false, true>(record, false);
-        else
-          ext ? fine_together<true, false>(record, false)
-              : fine_together<false, false>(record, false);
-      }
-    }
-    const islands::IslandResult& sr = r.span_result;
-    c = {};
-    c[0] = static_cast<double>(owned_);
-    c[1] = static_cast<double>(static_cast<std::int64_t>(owned_) - members + sr.steps);
-    ratio = sr.max_ratio;
-    c[11] = static_cast<double>(sr.lead_steps);
-    for (const islands::IslandResult& q : results_) {
-      c[1] += static_cast<double>(q.steps), c[11] += static_cast<double>(q.lead_steps);
-      c[2] += static_cast<double>(q.pairs), c[3] += static_cast<double>(q.violations);
-      c[4] += static_cast<double>(q.bound_violations);
-      ratio = std::max(ratio, q.max_ratio);
-    }
-    c[2] += static_cast<double>(sr.pairs);
-    c[3] += static_cast<double>(sr.violations);
-    // In the dense mode the displacement check counts particles that outran the rows.
-    c[global_ ? 9 : 4] += static_cast<double>(sr.bound_violations);
-    fault = islands::find_fault(p_, owned_, geom_);
-    c[5] = fault.has_value() ? 1.0 : 0.0;
-    c[6] = static_cast<double>(members);
-    c[7] = global_ ? 0.0 : static_cast<double>(r.span_members.size()); // dense: not "spanning"
-    c[8] = static_cast<double>(span_parts);
-    for (std::size_t i = 0; i < owned_; ++i)
-      c[10] += p_.mass[i];
-    r.local_counts = {static_cast<std::int64_t>(c[1]), static_cast<std::int64_t>(c[2])};
-    // One reduction closes the sub-iteration (the counts are exact in doubles below 2^53).
-    r.comm.sum(c);
-    if (c[9] == 0 || c[5] > 0)
+  }
+  // "auto" chose the global mode for this interval: every rank steps everyone, as one rank
+  // does (the links above still check the rows).
+  if (auto_.global_now)
+    global_ = true;
+}
+
+// The own speed bounds of the owned particles, then the ghosts' positions, velocities (spins,
+// with friction: a partner's spin enters the tangential force) and own bounds from their
+// owners, in one message round.
+void IslandsScheme::refresh_ghosts() {
+  RankPart& r = *rank_;
+  own_bounds();
+  ln_.bound.resize(p_.size());
+  std::vector<double>* with_spins[] = {&p_.x,  &p_.y,  &p_.z,  &p_.vx, &p_.vy,
+                                       &p_.vz, &p_.wx, &p_.wy, &p_.wz, &ln_.bound};
+  std::vector<double>* without[] = {&p_.x, &p_.y, &p_.z, &p_.vx, &p_.vy, &p_.vz, &ln_.bound};
+  if (model_.friction)
+    r.exchange.forward_columns(with_spins);
+  else
+    r.exchange.forward_columns(without);
+}
+
+namespace {
+// The columns a dense sub-iteration changes, in RankPart::start's order, and with friction in
+// RankPart::start_spin's (the spins of the owned particles, the rows' history).
+std::array<std::vector<double>*, 7> live_columns(ParticleStore& p, std::vector<double>& hprev) {
+  return {&p.x, &p.y, &p.z, &p.vx, &p.vy, &p.vz, &hprev};
+}
+std::array<std::vector<double>*, 6> spin_columns(ParticleStore& p, std::vector<double>& hx,
+                                                 std::vector<double>& hy, std::vector<double>& hz) {
+  return {&p.wx, &p.wy, &p.wz, &hx, &hy, &hz};
+}
+} // namespace
+
+// R ranks, dense mode: the start of the sub-iteration, which roll_back() returns to.
+void IslandsScheme::keep_start() {
+  if (!rank_ || !global_)
+    return;
+  RankPart& r = *rank_;
+  const auto owned = static_cast<std::ptrdiff_t>(owned_);
+  const auto live = live_columns(p_, hprev_);
+  for (std::size_t q = 0; q < r.start.size(); ++q)
+    r.start[q].assign(live[q]->begin(), live[q]->begin() + owned);
+  if (!model_.friction)
+    return;
+  const auto spin = spin_columns(p_, hx_, hy_, hz_);
+  for (std::size_t q = 0; q < r.start_spin.size(); ++q)
+    r.start_spin[q].assign(spin[q]->begin(), q < 3 ? spin[q]->begin() + owned : spin[q]->end());
+}
+
+// The dense mode outran its rows somewhere: every rank goes back to the start and builds with
+// twice the skin before redoing the sub-iteration (retries()).
+void IslandsScheme::roll_back() {
+  if (!rank_)
+    return;
+  RankPart& r = *rank_;
+  const auto live = live_columns(p_, hprev_);
+  for (std::size_t q = 0; q < r.start.size(); ++q)
+    std::copy(r.start[q].begin(), r.start[q].end(), live[q]->begin());
+  if (model_.friction) {
+    const auto spin = spin_columns(p_, hx_, hy_, hz_);
+    for (std::size_t q = 0; q < r.start_spin.size(); ++q)
+      std::copy(r.start_spin[q].begin(), r.start_spin[q].end(), spin[q]->begin());
+  }
+  r.grown_skin = 2.0 * skin_;
+  r.need_rebuild = true;
+  ++st_.retries;
+}
+
+// The islands with a member on another rank: their owned members (and the parts counted), and
+// when some rank has one, the K fine steps of all of them on every rank together (collective,
+// also on a rank with none).
+void IslandsScheme::step_spanning(bool record, islands::SubiterationCounts& t) {
+  if (!rank_)
+    return;
+  RankPart& r = *rank_;
+  r.span_members.clear();
+  const std::uint32_t nc = ln_.islands.count();
+  for (std::uint32_t q = 0; q < nc; ++q)
+    t.span_parts += r.spans[q];
+  for (const std::uint32_t i : ln_.busy) {
+    if (i >= owned_)
       break;
-    // The dense mode outran its rows somewhere: every rank rolls back and widens the halo.
-    for (std::size_t q = 0; q < r.start.size(); ++q)
-      std::copy(r.start[q].begin(), r.start[q].end(), live[q]->begin());
-    if (model_.friction)
-      for (std::size_t q = 0; q < r.start_spin.size(); ++q)
-        std::copy(r.start_spin[q].begin(), r.start_spin[q].end(), spin[q]->begin());
-    r.grown_skin = 2.0 * skin_;
-    r.need_rebuild = true;
-    ++st_.retries;
+    if (r.spans[ln_.island_of[i]])
+      r.span_members.push_back(i);
   }
-  if (c[5] > 0) {
-    std::string message;
-    std::int64_t key = std::numeric_limits<std::int64_t>::max();
-    if (fault) {
-      key = p_.id[fault->index];
-      message = islands::fault_message(p_, *fault, time() + dt_sp_, st_.subits) +
-                fmt::format(" (rank {})", r.comm.rank());
-    }
-    throw RunError(r.comm.agree_on_error(key, message));
-  }
-  if (c[0] != static_cast<double>(n_global_) ||
-      std::abs(c[10] - r.mass_global) > 1e-9 * r.mass_global)
+  t.span_members = static_cast<double>(r.span_members.size());
+  if (r.spanning_global > 0)
+    t.add(fine_together(record, false));
+}
+
+// This rank's share of the steps and pairs (run.json's rank_counts), then on R ranks one
+// reduction closes the sub-iteration, with the particle count and mass after migration.
+void IslandsScheme::reduce_counts(islands::SubiterationCounts& t) {
+  t.local_steps = static_cast<std::int64_t>(t.particle_steps);
+  t.local_pairs = static_cast<std::int64_t>(t.pairs);
+  if (!rank_)
+    return;
+  t.owned = static_cast<double>(owned_);
+  for (std::size_t i = 0; i < owned_; ++i)
+    t.mass += p_.mass[i];
+  std::array<double, islands::SubiterationCounts::kSummed> v = t.summed();
+  rank_->comm.sum(v);
+  t.set_summed(v);
+}
+
+// R ranks: migration lost no particle and no mass.
+void IslandsScheme::check_conservation(const islands::SubiterationCounts& t) const {
+  if (!rank_)
+    return;
+  const RankPart& r = *rank_;
+  if (t.owned != static_cast<double>(n_global_) ||
+      std::abs(t.mass - r.mass_global) > 1e-9 * r.mass_global)
     throw RunError(fmt::format("t = {:.9g} s: {} particles of total mass {:.17g} kg on the ranks "
                                "after migration, {} of {:.17g} kg expected",
-                               time(), c[0], c[10], n_global_, r.mass_global));
-  if (global_)
-    ++st_.global_subits;
-  for (std::size_t i = 0; i < owned_; ++i)
-    if (global_ || ln_.island_of[i] != kAlone)
-      fine_[i] += 1.0;
-  auto count = [&](int q) { return static_cast<std::int64_t>(c[static_cast<std::size_t>(q)]); };
-  st_.particle_steps += count(1), st_.pair_evaluations += count(2);
-  st_.overlap_violations += count(3);
-  st_.local_particle_steps += r.local_counts[0], st_.local_pair_evaluations += r.local_counts[1];
-  st_.bound_violations += count(4);
-  st_.span_subits += count(7) > 0, st_.span_particles += count(7), st_.span_parts += count(8);
-  const std::int64_t fine = count(6);
-  st_.last_fine_fraction =
-      n_global_ > 0 ? static_cast<double>(fine) / static_cast<double>(n_global_) : 0.0;
-  // The members' steps less the leads alone (as on one rank).
-  const auto member_steps = static_cast<double>(count(11));
-  st_.last_fine_work =
-      n_global_ > 0 ? member_steps / (static_cast<double>(K) * static_cast<double>(n_global_))
-                    : 0.0;
-  st_.add_interval(fine, n_global_, K);
-  // The largest overlap is reduced only when the state is recorded (the orb scheme's budget).
+                               time(), t.owned, t.mass, n_global_, r.mass_global));
+}
+
+// The largest overlap ratio. R ranks reduce it only when the state is recorded (the orb
+// scheme's budget); until then each rank keeps its own.
+void IslandsScheme::note_overlap_ratio(double ratio, bool record) {
+  if (!rank_) {
+    st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, ratio);
+    return;
+  }
+  RankPart& r = *rank_;
   r.max_ratio_local = std::max(r.max_ratio_local, ratio);
   if (record)
     st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, r.comm.max(r.max_ratio_local));
-  ++st_.subits;
+}
+
+// NaN or a particle outside a wall on some rank: every rank throws the same RunError, the one of
+// the lowest particle id over the ranks (one rank: its own).
+void IslandsScheme::raise_fault(const std::optional<islands::Fault>& fault) const {
+  std::string message;
+  std::int64_t key = std::numeric_limits<std::int64_t>::max();
+  if (fault) {
+    key = p_.id[fault->index];
+    message = islands::fault_message(p_, *fault, time() + dt_sp_, st_.subits);
+    if (rank_)
+      message += fmt::format(" (rank {})", rank_->comm.rank());
+  }
+  throw RunError(rank_ ? rank_->comm.agree_on_error(key, message) : message);
 }
 
 // What a restart cannot know is reset on both sides: the decomposition and ownership (the next

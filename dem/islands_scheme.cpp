@@ -13,6 +13,7 @@
 #include "core/error.hpp"
 #include "dem/contact_history.hpp"
 #include "dem/contact_kernels.hpp"
+#include "dem/flag_dispatch.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/kick_drift_range.hpp"
 #include "dem/scheme_support.hpp"
@@ -77,20 +78,6 @@ void IslandsScheme::start() {
   ln_.island_of.assign(p_.size(), kAlone);
   ln_.busy.clear();
   rebuild();
-}
-
-void IslandsScheme::subiterate(bool record) {
-  steps_ = fine_steps(dt_sp_, model_.dt);
-  rank_ ? subiterate_ranks(record) : subiterate_one(record);
-  if (auto_.on) {
-    if (!auto_.global_now) { // the islands' fine work, in particles on all K steps
-      auto_.fine_sum += st_.last_fine_work;
-      auto_.members_sum += st_.last_fine_fraction;
-      ++auto_.fine_count;
-    }
-    if (++auto_.q == nsubit_)
-      choose_length(); // the interval's last sub-iteration
-  }
 }
 
 IslandsScheme::State IslandsScheme::save_state() {
@@ -561,7 +548,12 @@ bool IslandsScheme::Links::form(std::size_t n, double limit) {
 // members' kinetic energy at their own bounds, the lightest mass, the largest external
 // acceleration and half step, over the owned members (busy particles below `owned`). Both paths
 // sum here.
-template <bool External, bool Friction> void IslandsScheme::island_sums(std::size_t owned) {
+void IslandsScheme::island_sums(std::size_t owned) {
+  with_flags([&](auto ext, auto fr) { island_sums_of<ext, fr>(owned); }, ext_.active(),
+             model_.friction);
+}
+
+template <bool External, bool Friction> void IslandsScheme::island_sums_of(std::size_t owned) {
   const DomainGeometry& g = geom_;
   const std::uint32_t nc = ln_.islands.count();
   ln_.energy.assign(nc, 0.0);
@@ -605,10 +597,6 @@ template <bool External, bool Friction> void IslandsScheme::island_sums(std::siz
     ln_.hp_max[q] = std::max(ln_.hp_max[q], hprev_[i]);
   }
 }
-template void IslandsScheme::island_sums<true>(std::size_t);
-template void IslandsScheme::island_sums<false>(std::size_t);
-template void IslandsScheme::island_sums<true, true>(std::size_t);
-template void IslandsScheme::island_sums<false, true>(std::size_t);
 
 // Islands whose bounds account for the energy contacts can move inside them: link with the
 // particles' own bounds, raise every member of an island to the island's s_max (from the
@@ -623,7 +611,6 @@ void IslandsScheme::link() {
   ln_.own_stamp.resize(n, 0);
   if (++ln_.stamp == 0)
     std::fill(ln_.own_stamp.begin(), ln_.own_stamp.end(), 0u), ln_.stamp = 1;
-  const bool ext = ext_.active();
   global_ = false;
   for (int round = 0;; ++round) {
     make_links(round > 0 && one_.incremental);
@@ -638,10 +625,7 @@ void IslandsScheme::link() {
     for (const std::uint32_t i : ln_.busy)
       if (ln_.own_stamp[i] != ln_.stamp)
         ln_.own_stamp[i] = ln_.stamp, ln_.own_bound[i] = ln_.bound[i];
-    if (model_.friction)
-      ext ? island_sums<true, true>(n) : island_sums<false, true>(n);
-    else
-      ext ? island_sums<true>(n) : island_sums<false>(n);
+    island_sums(n);
     ln_.changed.clear();
     for (const std::uint32_t i : ln_.busy) {
       const std::uint32_t c = ln_.island_of[i];
@@ -659,219 +643,64 @@ void IslandsScheme::link() {
   }
 }
 
-void IslandsScheme::subiterate_one(bool record) {
+// The Verlet list's part of a sub-iteration: speed bounds and link rounds over a list that
+// holds every pair that can link (else a build, with the skin chosen or grown), or the global
+// mode with the explicit scheme's skin.
+void IslandsScheme::find_islands_one() {
   if (one_.canonical)
     canonical_order();
   if (!one_.built)
     rebuild();
-  {
-    PhaseTimer::Scope t(timer_, Phase::neighbor);
-    bool fresh = false;
-    for (;;) {
-      // "auto" chose the global mode for this interval: no bounds or links. Else link() says.
-      global_ = auto_.global_now;
-      if (!global_) {
-        speed_bounds();
-        link();
-      }
-      if (global_) {
-        // The explicit scheme's skin: the list then holds what the explicit list holds.
-        if (skin_ != one_.global_skin)
-          skin_ = one_.global_skin, rebuild();
-        break;
-      }
-      if (skin_ < one_.islands_skin) {
-        skin_ = one_.islands_skin;
-        rebuild();
-        fresh = true;
-        continue;
-      }
-      if (!list_expires())
-        break;
-      if (!fresh) {
-        choose_skin();
-      } else {
-        // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
-        double need = 0.0;
-        for (double b : ln_.bound)
-          need = std::max(need, 2.2 * b * dt_sp_);
-        if (!(need < one_.skin_cap))
-          throw RunError(fmt::format(
-              "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
-              "periodic box allows for a neighbor skin ({:.4g} m): raise dem.nsubit",
-              time(), 0.5 * need, one_.skin_cap));
-        skin_ = std::max(need, 2.0 * skin_ < one_.skin_cap ? 2.0 * skin_ : need);
-      }
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  bool fresh = false;
+  for (;;) {
+    // "auto" chose the global mode for this interval: no bounds or links. Else link() says.
+    global_ = auto_.global_now;
+    if (!global_) {
+      speed_bounds();
+      link();
+    }
+    if (global_) {
+      // The explicit scheme's skin: the list then holds what the explicit list holds.
+      if (skin_ != one_.global_skin)
+        skin_ = one_.global_skin, rebuild();
+      break;
+    }
+    if (skin_ < one_.islands_skin) {
+      skin_ = one_.islands_skin;
       rebuild();
       fresh = true;
+      continue;
     }
-  }
-  PhaseTimer::Scope t(timer_, Phase::force);
-  const std::size_t n = p_.size();
-  if (global_) {
-    ++st_.global_subits;
-    if (record)
-      record_state();
-    for (auto& f : fine_)
-      ++f;
-    st_.size_hist[static_cast<std::size_t>(std::bit_width(static_cast<std::uint64_t>(n) - 1))] += 1;
-    if (model_.friction)
-      ext_.active() ? global_steps<true, true>(record) : global_steps<false, true>(record);
-    else
-      ext_.active() ? global_steps<true, false>(record) : global_steps<false, false>(record);
-    one_.moved = std::numeric_limits<double>::infinity(); // explicit steps: no bound
-    ++st_.subits;
-    raise_faults();
-    const auto nn = static_cast<std::int64_t>(n);
-    st_.particle_steps += nn * steps_.K;
-    st_.last_fine_fraction = st_.last_fine_work = 1.0;
-    st_.add_interval(nn, nn, steps_.K);
-    return;
-  }
-  // Every island of busy particles (a link or a wall) takes the fine steps; the rest fly free.
-  const std::uint32_t nc = ln_.islands.count();
-  for (std::uint32_t c = 0; c < nc; ++c)
-    ++st_.size_hist[static_cast<std::size_t>(std::bit_width(ln_.islands.size(c) - 1))];
-  st_.size_hist[0] += static_cast<std::int64_t>(n - ln_.busy.size());
-  // Island members in particle order (ln_.islands.members holds local indices).
-  ln_.members.resize(ln_.busy.size());
-  for (std::size_t k = 0; k < ln_.busy.size(); ++k)
-    ln_.members[k] = ln_.busy[ln_.islands.members[k]];
-  for (const std::uint32_t i : ln_.busy)
-    ++fine_[i];
-  if (record)
-    record_state();
-  // Start positions of the members (ln_.members order), for the bound check of their steps.
-  x0_.resize(ln_.members.size()), y0_.resize(ln_.members.size()), z0_.resize(ln_.members.size());
-  for (std::size_t k = 0; k < ln_.members.size(); ++k) {
-    const std::uint32_t i = ln_.members[k];
-    x0_[k] = p_.x[i], y0_[k] = p_.y[i], z0_[k] = p_.z[i];
-  }
-  // Free flight first, then the islands' tasks (they touch disjoint particles).
-  ext_.active() ? free_flight<true>(record) : free_flight<false>(record);
-  results_.assign(nc, islands::IslandResult{});
-  const islands::ContactView view = contact_view(); // the same for every island
-  auto islands_range = [&](std::size_t b, std::size_t e) {
-    for (std::size_t q = b; q != e; ++q) {
-      const auto c = static_cast<std::uint32_t>(q);
-      if (model_.friction)
-        ext_.active() ? run_island<true, false, true>(c, record, view)
-                      : run_island<false, false, true>(c, record, view);
-      else
-        ext_.active() ? run_island<true, false>(c, record, view)
-                      : run_island<false, false>(c, record, view);
+    if (!list_expires())
+      break;
+    if (!fresh) {
+      choose_skin();
+    } else {
+      // Even a fresh list is too short for these bounds: grow the skin (kept for the run).
+      double need = 0.0;
+      for (double b : ln_.bound)
+        need = std::max(need, 2.2 * b * dt_sp_);
+      if (!(need < one_.skin_cap))
+        throw RunError(fmt::format(
+            "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
+            "periodic box allows for a neighbor skin ({:.4g} m): raise dem.nsubit",
+            time(), 0.5 * need, one_.skin_cap));
+      skin_ = std::max(need, 2.0 * skin_ < one_.skin_cap ? 2.0 * skin_ : need);
     }
-  };
-  if (ln_.busy.size() < 256) {
-    islands_range(0, nc); // few fine particles: no task overhead
-  } else {
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, nc, 1),
-        [&](const tbb::blocked_range<std::size_t>& r) { islands_range(r.begin(), r.end()); });
+    rebuild();
+    fresh = true;
   }
-  // Counters, in island order.
-  const std::int64_t violations_before = st_.bound_violations;
-  std::int64_t members = 0, member_steps = 0, lead_steps = 0;
-  for (std::uint32_t q = 0; q < nc; ++q) {
-    const islands::IslandResult& r = results_[q];
-    members += ln_.islands.size(q);
-    member_steps += r.steps, lead_steps += r.lead_steps;
-    st_.pair_evaluations += r.pairs;
-    st_.overlap_violations += r.violations;
-    st_.bound_violations += r.bound_violations;
-    st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, r.max_ratio);
-  }
-  ++st_.subits;
-  // Every particle stayed within its bound (checked for the members; free flight by
-  // construction), each bound at most bound_max, up to the margin.
-  one_.moved = st_.bound_violations == violations_before
-                   ? one_.moved + (one_.bound_max * dt_sp_ + margin_)
-                   : std::numeric_limits<double>::infinity();
-  // Free particles were checked in free_flight(); the islands' members are few: check them here.
-  {
-    const double inf = std::numeric_limits<double>::infinity();
-    for (const std::uint32_t i : ln_.busy) {
-      const double q = p_.vx[i] * p_.vx[i] + p_.vy[i] * p_.vy[i] + p_.vz[i] * p_.vz[i] + p_.x[i] +
-                       p_.y[i] + p_.z[i];
-      bool ok = q > -inf && q < inf;
-      for (int a = 0; a < 3; ++a) {
-        const double c = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
-        ok = ok && (geom_.periodic[a] || (c >= geom_.lo[a] && c <= geom_.hi[a]));
-      }
-      if (!ok)
-        fault_flag_ |= std::uint64_t{1} << 63;
-    }
-  }
-  if (fault_flag_ >> 63) {
-    raise_faults(); // throws with the particle named (a NaN sum can flag falsely: no)
-    fault_flag_ = 0;
-  }
-  const std::int64_t free_count = static_cast<std::int64_t>(n) - members;
-  st_.particle_steps += free_count + member_steps;
-  st_.last_fine_fraction = n > 0 ? static_cast<double>(members) / static_cast<double>(n) : 0.0;
-  st_.last_fine_work = n > 0 ? static_cast<double>(lead_steps) /
-                                   (static_cast<double>(steps_.K) * static_cast<double>(n))
-                             : 0.0;
-  st_.add_interval(members, static_cast<std::int64_t>(n), steps_.K);
-}
-
-// One step of dt_sp for every owned particle not in a fine island: no contact can act on it. The
-// busy particles (ln_.busy, increasing) split the store into runs of free particles; each run
-// is one branch-free loop (no per-particle island test or select: the runs hold ~99% of a
-// dilute store).
-template <bool External> void IslandsScheme::free_flight(bool record) {
-  const std::size_t n = owned_;
-  const bool walls = !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]);
-  // Runs of free particles in [b, e): between the busy particles that fall in it.
-  auto range = [&](std::size_t b, std::size_t e) {
-    std::uint64_t bad = 0;
-    auto q = std::lower_bound(ln_.busy.begin(), ln_.busy.end(), static_cast<std::uint32_t>(b));
-    for (std::size_t i = b; i < e;) {
-      const std::size_t stop = q != ln_.busy.end() ? std::min<std::size_t>(e, *q) : e;
-      if (stop > i)
-        bad |= record  ? free_flight_run<External, true, true>(i, stop)
-               : walls ? free_flight_run<External, false, true>(i, stop)
-                       : free_flight_run<External, false, false>(i, stop);
-      i = stop + 1; // past the busy particle (or past e)
-      if (q != ln_.busy.end())
-        ++q;
-    }
-    return bad;
-  };
-  std::uint64_t bad = 0;
-  if (n <= 4096) {
-    bad = range(0, n); // small: no task overhead
-  } else {
-    constexpr std::size_t kBlock = 2048;
-    std::vector<std::uint64_t> flags((n + kBlock - 1) / kBlock, 0);
-    tbb::parallel_for(std::size_t{0}, flags.size(), [&](std::size_t k) {
-      flags[k] = range(k * kBlock, std::min(n, (k + 1) * kBlock));
-    });
-    for (std::uint64_t f : flags)
-      bad |= f;
-  }
-  fault_flag_ |= bad;
-}
-
-// Free flight of particles [b, e), all alone: the explicit scheme's kick-drift with no contact
-// force (contact_kernels.hpp). Faults (NaN, or a particle outside a wall) are flagged in the
-// same pass (sign bit of the result); raise_faults() names the particle only when one is flagged.
-template <bool External, bool Record, bool Walls>
-std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
-  const WallBounds wb(geom_);
-  return islands::free_flight_kernel<External, Record, Walls>(
-      p_.x.data() + b, p_.y.data() + b, p_.z.data() + b, p_.vx.data() + b, p_.vy.data() + b,
-      p_.vz.data() + b, hprev_.data() + b, p_.inv_mass.data() + b,
-      External ? ext_.x.data() + b : nullptr, External ? ext_.y.data() + b : nullptr,
-      External ? ext_.z.data() + b : nullptr, Record ? rec_.vx.data() + b : nullptr,
-      Record ? rec_.vy.data() + b : nullptr, Record ? rec_.vz.data() + b : nullptr, e - b,
-      model_.gravity.data(), dt_sp_, wb);
 }
 
 islands::ContactView IslandsScheme::contact_view() {
-  const VerletList& l = one_.list;
+  // R ranks: rows over owned + ghosts, separations by the minimum image (no wrap part).
+  const islands::Rows rows =
+      rank_ ? islands::Rows{rank_->rows.off().data(), rank_->rows.nb().data(), nullptr}
+            : islands::Rows{one_.list.offsets().data(), one_.list.neighbors().data(),
+                            one_.list.wrap_begin().data()};
   return {cols(),
-          {l.offsets().data(), l.neighbors().data(), l.wrap_begin().data()},
+          rows,
           ln_.island_of.data(),
           &geom_,
           &model_,
@@ -884,7 +713,12 @@ islands::ContactView IslandsScheme::contact_view() {
 // takes the K fine steps together, as the explicit scheme would, all partners read live (no
 // bound is needed: nothing flies free). The list is checked after every step, as the explicit
 // scheme checks it, and rebuilt when some particle moved more than skin/2.
-template <bool External, bool Friction> void IslandsScheme::global_steps(bool record) {
+void IslandsScheme::global_steps(bool record) {
+  with_flags([&](auto ext, auto fr) { run_global_steps<ext, fr>(record); }, ext_.active(),
+             model_.friction);
+}
+
+template <bool External, bool Friction> void IslandsScheme::run_global_steps(bool record) {
   const std::size_t n = p_.size();
   const StepModel& m = model_;
   constexpr std::size_t kBlock = 1024;
@@ -1064,6 +898,32 @@ void IslandsScheme::mirror_entries(const VerletList& list, const PairStream& str
   }
 }
 
+// The fine steps of every island that does not span ranks (`spans` null on one rank), one
+// result per island in results_: TBB tasks when they hold many particles. Here, beside the
+// contact kernels' other callers: compiled in a smaller unit, GCC inlines the pair kernel
+// differently and the dilute gas costs ~2% more instructions (callgrind, HCS 1222).
+void IslandsScheme::run_islands(bool record, const unsigned char* spans) {
+  const std::uint32_t nc = ln_.islands.count();
+  results_.assign(nc, islands::IslandResult{});
+  const islands::ContactView view = contact_view();
+  with_flags(
+      [&](auto ext, auto ranks, auto fr) {
+        auto range = [&](std::size_t b, std::size_t e) {
+          for (std::size_t q = b; q != e; ++q)
+            if (spans == nullptr || !spans[q])
+              run_island<ext, ranks, fr>(static_cast<std::uint32_t>(q), record, view);
+        };
+        if (ln_.busy.size() < 256) {
+          range(0, nc); // few fine particles: no task overhead
+        } else {
+          tbb::parallel_for(
+              tbb::blocked_range<std::size_t>(0, nc, 1),
+              [&](const tbb::blocked_range<std::size_t>& r) { range(r.begin(), r.end()); });
+        }
+      },
+      ext_.active(), rank_ != nullptr, model_.friction);
+}
+
 // The K fine steps of island c (every island has a link or a wall): contact forces from members
 // only (no other particle can reach them within dt_sp), walls, and the variable-step leapfrog.
 // On R ranks a local island's (all its members owned), over the rank's rows.
@@ -1114,18 +974,6 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
       [] {}, free_time);
 }
 
-// The R-rank path (islands_ranks.cpp) runs its local islands and free flight here too.
-template void IslandsScheme::free_flight<true>(bool);
-template void IslandsScheme::free_flight<false>(bool);
-template void IslandsScheme::run_island<true, true>(std::uint32_t, bool,
-                                                    const islands::ContactView&);
-template void IslandsScheme::run_island<false, true>(std::uint32_t, bool,
-                                                     const islands::ContactView&);
-template void IslandsScheme::run_island<true, true, true>(std::uint32_t, bool,
-                                                          const islands::ContactView&);
-template void IslandsScheme::run_island<false, true, true>(std::uint32_t, bool,
-                                                           const islands::ContactView&);
-
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each
 // particle's island (-1 alone, 0 for all in the global mode) and local step.
 void IslandsScheme::record_state() {
@@ -1143,12 +991,6 @@ void IslandsScheme::record_state() {
   rec_.mass.assign(p_.mass.begin(), p_.mass.begin() + end);
   rec_.radius.assign(p_.radius.begin(), p_.radius.begin() + end);
   rec_.id.assign(p_.id.begin(), p_.id.begin() + end);
-}
-
-// NaN anywhere, or a particle outside a wall: stop with the particle named (one rank).
-void IslandsScheme::raise_faults() const {
-  if (const auto f = islands::find_fault(p_, p_.size(), geom_))
-    throw RunError(islands::fault_message(p_, *f, time(), st_.subits - 1));
 }
 
 namespace islands {

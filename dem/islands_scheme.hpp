@@ -54,7 +54,8 @@
 // the distributed orb scheme, with ghosts and rows kept between builds; an island with a member
 // on another rank spans ranks and takes one bound from reductions over all ranks. The speed
 // bound, link test, island formation and sums, contact forces, fine steps, free flight and fault
-// report are one code for both (dem/islands_kernels.hpp). Results are bitwise independent of the
+// report are one code for both (dem/islands_kernels.hpp), and so is the sub-iteration's driver
+// (dem/islands_subiteration.cpp). Results are bitwise independent of the
 // thread count; R ranks agree with one rank to round-off.
 // Checkpoints: with a communicator save_state() puts the scheme in a canonical state that
 // restore_state() recreates from the particles and their saved values on any rank count (R
@@ -67,6 +68,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -78,6 +80,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/islands_counts.hpp"
 #include "dem/islands_kernels.hpp"
 #include "dem/orb_scheme.hpp"
 #include "dem/pair_contacts.hpp"
@@ -340,7 +343,7 @@ private:
     // at (fine_avg < 0: none yet).
     std::vector<double> hist_avg;
     double fine_avg = -1.0, busy_avg = 0.0, members_avg = 0.0;
-    std::vector<double> log;       // kChoiceColumns rows
+    std::vector<double> log; // kChoiceColumns rows
     // The global mode (length::Choice::global) in this interval, and chosen for the next one.
     bool global_now = false, next_global = false;
   };
@@ -376,47 +379,70 @@ private:
   static constexpr std::uint32_t kAlone = 0xffffffffu;
 
   islands::Columns cols() { return islands::columns(p_, hprev_, ext_); }
-  // Shared by both paths.
-  template <bool External, bool Friction = false> void island_sums(std::size_t owned);
-  template <bool External> void free_flight(bool record);
+  // The sub-iteration (islands_subiteration.cpp), on any rank count.
+  islands::SubiterationCounts island_steps(bool record);
+  islands::SubiterationCounts dense_steps(bool record);
+  template <bool External, bool Record, bool Walls> void free_flight();
   template <bool External, bool Record, bool Walls>
   std::uint64_t free_flight_run(std::size_t b, std::size_t e);
+  void run_islands(bool record, const unsigned char* spans);
+  template <bool External, bool Ranks, bool Friction>
+  void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
+  std::optional<islands::Fault> find_fault();
+  void count_subiteration(const islands::SubiterationCounts& t, bool record);
+  void count_island_sizes();
+  void age_list(bool violated);
+  // Shared by the link rounds of both rank counts and the steps.
+  void island_sums(std::size_t owned);
+  template <bool External, bool Friction> void island_sums_of(std::size_t owned);
   void record_state();
-  void raise_faults() const;
   void speed_bounds();
+  // The rows of the contact forces: the Verlet list's (one rank) or the rank's rows.
+  islands::ContactView contact_view();
+  // Speed bounds, links and islands: the one-rank list's or the R-rank rows' (find_islands_ranks).
+  void find_islands() { rank_ ? find_islands_ranks() : find_islands_one(); }
   // One rank.
-  void subiterate_one(bool record);
+  void find_islands_one();
   void rebuild();
   void choose_skin();
   void canonical_order();
   void make_links(bool incremental);
   void link();
   bool list_expires();
-  template <bool External, bool Ranks, bool Friction = false>
-  void run_island(std::uint32_t c, bool record, const islands::ContactView& view);
-  template <bool External, bool Friction> void global_steps(bool record);
+  void global_steps(bool record);
+  template <bool External, bool Friction> void run_global_steps(bool record);
   template <bool Friction> void global_contacts(double hk);
   void mirror_history();
   static void mirror_entries(const VerletList& list, const PairStream& stream,
                              std::vector<std::uint32_t>& mirror);
-  islands::ContactView contact_view();
   // R ranks (islands_ranks.cpp).
   void init_ranks();
   void set_external_force_ranks(std::span<const double> fx, std::span<const double> fy,
                                 std::span<const double> fz);
-  islands::ContactView contact_view_ranks();
-  void subiterate_ranks(bool record);
+  void find_islands_ranks();
   void regrid();
   // Returns the history records `held` that arrive with their owner particles (friction).
   ContactHistory migrate(ContactHistory held);
   void own_bounds();
+  void refresh_ghosts();
   void rebuild_ranks();
   void build_ghosts_and_rows();
   double link_rounds();
   void make_links_ranks();
-  template <bool External, bool Friction> void fine_together(bool record, bool all);
+  islands::IslandResult fine_together(bool record, bool all);
+  template <bool External, bool Friction>
+  islands::IslandResult step_together(bool record, bool all);
   void span_leads(const islands::ContactView& view, islands::Members& mb);
   void canonicalize();
+  // The verbs of the sub-iteration that differ on R ranks (islands_ranks.cpp): on one rank each
+  // is a no-op or the identity.
+  void keep_start(); // the dense mode's start, for a rollback
+  void roll_back();  // back to it, to redo the sub-iteration after a wider build
+  void step_spanning(bool record, islands::SubiterationCounts& t);     // islands spanning ranks
+  void reduce_counts(islands::SubiterationCounts& t);                  // sum over the ranks
+  void check_conservation(const islands::SubiterationCounts& t) const; // no particle lost
+  void note_overlap_ratio(double ratio, bool record);
+  [[noreturn]] void raise_fault(const std::optional<islands::Fault>& fault) const;
 
   const Scene& scene_;
   ParticleStore& p_;

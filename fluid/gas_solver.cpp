@@ -63,12 +63,8 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   beta_ = grid.make_field();
   source_ = grid.make_field();
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
-  // The Godunov step takes the viscous Laplacian by Crank-Nicolson always (as MFIX-Exa's does):
-  // its single stage would take an explicit one at t^n, first order in time.
-  const bool godunov = settings.advection == Advection::godunov;
-  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto || godunov) &&
-      gas.viscosity > 0.0) {
-    implicit_now_ = godunov || !settings.implicit_viscosity_auto;
+  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
+    implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
     // A single cell has no coarser level for the multigrid (its coarsest operator cannot be
     // factored: the run crashed); Jacobi CG solves it.
@@ -349,8 +345,9 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     }
   }
   if (godunov) {
-    // One stage: the advective fluxes from edge states centred at t^n + dt/2, the viscous terms
-    // of u^n (the Laplacian's trapezoidal where implicit), one projection.
+    // One stage: the advective fluxes from edge states centred at t^n + dt/2, the explicit
+    // viscous terms of the half-step velocities (the Laplacian's trapezoidal where implicit),
+    // one projection.
     EdgePrediction prediction;
     prediction.dt = dt;
     prediction.halo = halo_.get();
@@ -398,8 +395,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   while (interval - t > 1e-12 * interval) {
     fill_velocity_ghosts(grid_, halo_.get(), u_);
     const std::array<double, 2> rates = courant_rates();
-    if (count == 0 && settings_.implicit_viscosity_auto && viscosity_ &&
-        settings_.advection == Advection::mol) {
+    if (count == 0 && settings_.implicit_viscosity_auto && viscosity_) {
       // The viscous treatment for this interval, from the Courant rates at its start.
       implicit_now_ = kImplicitSubstepCost * substeps_for(interval, rates[1]) <
                       substeps_for(interval, rates[0]);

@@ -188,6 +188,24 @@ void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, 
   });
 }
 
+// div u of the view's velocities at cells -1..n, into the workspace.
+void velocity_divergence(const MacGrid& grid, const ComponentView& v, MomentumWorkspace& work) {
+  const auto& n = grid.cells();
+  double* div = work.divergence.values().data();
+  for_box_rows(grid.layout(), {-1, -1, -1}, {n[0], n[1], n[2]}, [&](std::ptrdiff_t p0, int, int) {
+    const double* __restrict ux = v.u[0];
+    const double* __restrict uy = v.u[1];
+    const double* __restrict uz = v.u[2];
+    for (std::ptrdiff_t c = p0; c <= p0 + n[0] + 1; ++c) {
+      double d = 0.0;
+      d += (ux[c + 1] - ux[c]) * v.inv_dx[0];
+      d += (uy[c + v.st[1]] - uy[c]) * v.inv_dx[1];
+      d += (uz[c + v.st[2]] - uz[c]) * v.inv_dx[2];
+      div[c] = d;
+    }
+  });
+}
+
 // The workspace sized for the grid and the view of u and eps all components share; div u at
 // cells -1..n when the gas is viscous (the normal stress of faces 0..n needs cells -1..n).
 ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
@@ -208,21 +226,8 @@ ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
   v.div = work.divergence.values().data();
   v.mu = gas.viscosity;
   v.own = exclude_laplacian ? 0.0 : 1.0;
-  const auto& n = grid.cells();
   if (v.mu != 0.0) {
-    double* div = work.divergence.values().data();
-    for_box_rows(layout, {-1, -1, -1}, {n[0], n[1], n[2]}, [&](std::ptrdiff_t p0, int, int) {
-      const double* __restrict ux = v.u[0];
-      const double* __restrict uy = v.u[1];
-      const double* __restrict uz = v.u[2];
-      for (std::ptrdiff_t c = p0; c <= p0 + n[0] + 1; ++c) {
-        double d = 0.0;
-        d += (ux[c + 1] - ux[c]) * v.inv_dx[0];
-        d += (uy[c + v.st[1]] - uy[c]) * v.inv_dx[1];
-        d += (uz[c + v.st[2]] - uz[c]) * v.inv_dx[2];
-        div[c] = d;
-      }
-    });
+    velocity_divergence(grid, v, work);
   }
   return v;
 }
@@ -305,6 +310,39 @@ void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t
   }
 }
 
+// eps tau on component v.a's control-volume faces of every direction, into the workspace.
+void stress_pass(const MacGrid& grid, const ComponentView& v, MomentumWorkspace& work) {
+  const GridLayout& layout = grid.layout();
+  const auto& n = grid.cells();
+  const int a = v.a;
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[a] = n[a];
+  std::array<std::array<bool, 2>, 3> inflow{};
+  for (int b = 0; b < 3; ++b) {
+    inflow[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
+  }
+  tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
+    for (int k = r.begin(); k != r.end(); ++k) {
+      for (int b = 0; b < 3; ++b) {
+        std::array<int, 3> edge_hi = hi;
+        ++edge_hi[b];
+        if (k > edge_hi[2]) {
+          continue;
+        }
+        double* stress = work.stress[b].values().data();
+        const bool inflow_k = (b == 2) && ((k == 0 && inflow[2][0]) || (k == n[2] && inflow[2][1]));
+        for (int j = 0; j <= edge_hi[1]; ++j) {
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
+          const bool inflow_j =
+              (b == 1) && ((j == 0 && inflow[1][0]) || (j == n[1] && inflow[1][1]));
+          stress_row(v, b, p0, edge_hi[0], inflow_k || inflow_j,
+                     {b == 0 && inflow[0][0], b == 0 && inflow[0][1]}, stress);
+        }
+      }
+    }
+  });
+}
+
 // One component's prediction: rhs = viscous term + body force of u^n, then its base states and
 // half-step values (ghosts filled as the component's velocity: walls, inflow and periodic faces
 // hold on the predicted values too).
@@ -318,31 +356,7 @@ void predict_component(const MacGrid& grid, const ComponentView& v, double inv_r
   hi[a] = n[a]; // faces 0..n along the component's axis
   const bool viscous = v.mu != 0.0;
   if (viscous) {
-    std::array<std::array<bool, 2>, 3> inflow{};
-    for (int b = 0; b < 3; ++b) {
-      inflow[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
-    }
-    tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
-      for (int k = r.begin(); k != r.end(); ++k) {
-        for (int b = 0; b < 3; ++b) {
-          std::array<int, 3> edge_hi = hi;
-          ++edge_hi[b];
-          if (k > edge_hi[2]) {
-            continue;
-          }
-          double* stress = work.stress[b].values().data();
-          const bool inflow_k =
-              (b == 2) && ((k == 0 && inflow[2][0]) || (k == n[2] && inflow[2][1]));
-          for (int j = 0; j <= edge_hi[1]; ++j) {
-            const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
-            const bool inflow_j =
-                (b == 1) && ((j == 0 && inflow[1][0]) || (j == n[1] && inflow[1][1]));
-            stress_row(v, b, p0, edge_hi[0], inflow_k || inflow_j,
-                       {b == 0 && inflow[0][0], b == 0 && inflow[0][1]}, stress);
-          }
-        }
-      }
-    });
+    stress_pass(grid, v, work);
   }
   double* out = rhs.values().data();
   auto& base_a = work.base[static_cast<std::size_t>(a)];
@@ -483,6 +497,25 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
       predict_component<Limiter::minmod>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
     } else {
       predict_component<Limiter::van_leer>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
+    }
+  }
+  // The explicit viscous terms of the half-step velocities (the midpoint rule: second order; those
+  // of u^n would be Euler's): rhs = viscous term + body force, at t^n + dt/2.
+  if (v.mu != 0.0) {
+    ComponentView h = v;
+    h.u = {work.half[0].values().data(), work.half[1].values().data(),
+           work.half[2].values().data()};
+    velocity_divergence(grid, h, work);
+    const auto& n = grid.cells();
+    for (int a = 0; a < 3; ++a) {
+      h.a = a;
+      stress_pass(grid, h, work);
+      std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+      hi[a] = n[a];
+      double* out = rhs[a].values().data();
+      for_box_rows(grid.layout(), {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
+        viscous_row<true>(h, p0, hi[0], work, inv_rho, body[a], out);
+      });
     }
   }
   for (int a = 0; a < 3; ++a) {

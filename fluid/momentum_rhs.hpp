@@ -74,8 +74,9 @@ struct EdgePrediction {
 // the rest of the momentum rate at t^n (viscous terms, body force, the last step's pressure
 // gradient); the drag is taken point-implicitly over dt/2, so a stiff drag cannot overshoot.
 // Linear stability (von Neumann, docs/gas_step.md): max(max_a c_a, sum_a c_a / 1.25) <= 0.95
-// for the Courant numbers c_a = |u_a| dt / dx_a (fluid_step_rule.hpp). The viscous terms in rhs
-// are those of u^n (the coupling takes the Laplacian implicit, Crank-Nicolson).
+// for the Courant numbers c_a = |u_a| dt / dx_a (fluid_step_rule.hpp). The explicit viscous
+// terms in rhs are those of the half-step velocities u^n + (dt/2)(-u.grad u + F) (the midpoint
+// rule, second order; exclude_laplacian leaves the Laplacian to a Crank-Nicolson solve).
 // Collective on R ranks (the base states' ghost fills).
 void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
                           const std::array<GridField, 3>& u, const GridField& eps,

@@ -137,21 +137,12 @@ void sum_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
   }
 }
 
-template <Limiter L>
-void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, double body,
-                   MomentumWorkspace& work, GridField& rhs) {
-  const GridLayout& layout = grid.layout();
-  const auto& n = grid.cells();
-  const int a = v.a;
-  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[a] = n[a]; // faces 0..n along the component's axis
-  std::array<std::array<bool, 2>, 3> inflow{};
-  for (int b = 0; b < 3; ++b) {
-    inflow[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
-  }
-  const bool viscous = v.mu != 0.0;
-  // Pass 1: the control-volume face quantities of every direction b on the box 0..hi, one more
-  // point along b (the high face of the last control volume).
+// Calls row(b, p0, len) for every row of component a's control-volume faces along every
+// direction b: the box 0..hi (hi: the component's faces) with one more point along b (the high
+// face of the last control volume); p0 is the row's first point, len its last offset. Planes of
+// constant k are TBB tasks, and each (b, row) is visited once.
+template <class Row>
+void for_control_volume_rows(const GridLayout& layout, const std::array<int, 3>& hi, Row&& row) {
   tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
     for (int k = r.begin(); k != r.end(); ++k) {
       for (int b = 0; b < 3; ++b) {
@@ -160,21 +151,51 @@ void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, 
         if (k > edge_hi[2]) {
           continue;
         }
-        double* speed = work.speed[b].values().data();
-        double* flux = work.flux[b].values().data();
-        double* stress = work.stress[b].values().data();
-        const bool inflow_k = (b == 2) && ((k == 0 && inflow[2][0]) || (k == n[2] && inflow[2][1]));
         for (int j = 0; j <= edge_hi[1]; ++j) {
-          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
-          advective_row<L>(v, b, p0, edge_hi[0], speed, flux);
-          if (viscous) {
-            const bool inflow_j =
-                (b == 1) && ((j == 0 && inflow[1][0]) || (j == n[1] && inflow[1][1]));
-            stress_row(v, b, p0, edge_hi[0], inflow_k || inflow_j,
-                       {b == 0 && inflow[0][0], b == 0 && inflow[0][1]}, stress);
-          }
+          row(b, static_cast<std::ptrdiff_t>(layout.index(0, j, k)), j, k, edge_hi[0]);
         }
       }
+    }
+  });
+}
+
+// Where component a's shear stresses lie in the plane of an inflow face (stress_row's flags).
+struct InflowPlanes {
+  std::array<std::array<bool, 2>, 3> face{};
+  std::array<int, 3> n{};
+  InflowPlanes(const MacGrid& grid, int a) : n(grid.cells()) {
+    for (int b = 0; b < 3; ++b) {
+      face[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
+    }
+  }
+  // The whole row (j, k) of direction b lies in an inflow plane (b = y or z).
+  [[nodiscard]] bool row(int b, int j, int k) const {
+    return (b == 2 && ((k == 0 && face[2][0]) || (k == n[2] && face[2][1]))) ||
+           (b == 1 && ((j == 0 && face[1][0]) || (j == n[1] && face[1][1])));
+  }
+  // The row's first and last point do (b = x).
+  [[nodiscard]] std::array<bool, 2> ends(int b) const {
+    return {b == 0 && face[0][0], b == 0 && face[0][1]};
+  }
+};
+
+template <Limiter L>
+void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, double body,
+                   MomentumWorkspace& work, GridField& rhs) {
+  const GridLayout& layout = grid.layout();
+  const auto& n = grid.cells();
+  const int a = v.a;
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[a] = n[a]; // faces 0..n along the component's axis
+  const InflowPlanes inflow(grid, a);
+  const bool viscous = v.mu != 0.0;
+  // Pass 1: the control-volume face quantities of every direction b on the box 0..hi, one more
+  // point along b (the high face of the last control volume).
+  for_control_volume_rows(layout, hi, [&](int b, std::ptrdiff_t p0, int j, int k, int len) {
+    advective_row<L>(v, b, p0, len, work.speed[b].values().data(), work.flux[b].values().data());
+    if (viscous) {
+      stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b),
+                 work.stress[b].values().data());
     }
   });
   // Pass 2: differences, viscous term and body force on the component's faces.
@@ -312,34 +333,13 @@ void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t
 
 // eps tau on component v.a's control-volume faces of every direction, into the workspace.
 void stress_pass(const MacGrid& grid, const ComponentView& v, MomentumWorkspace& work) {
-  const GridLayout& layout = grid.layout();
   const auto& n = grid.cells();
   const int a = v.a;
   std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
   hi[a] = n[a];
-  std::array<std::array<bool, 2>, 3> inflow{};
-  for (int b = 0; b < 3; ++b) {
-    inflow[b] = {b != a && grid.inflow_face(b, 0), b != a && grid.inflow_face(b, 1)};
-  }
-  tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
-    for (int k = r.begin(); k != r.end(); ++k) {
-      for (int b = 0; b < 3; ++b) {
-        std::array<int, 3> edge_hi = hi;
-        ++edge_hi[b];
-        if (k > edge_hi[2]) {
-          continue;
-        }
-        double* stress = work.stress[b].values().data();
-        const bool inflow_k = (b == 2) && ((k == 0 && inflow[2][0]) || (k == n[2] && inflow[2][1]));
-        for (int j = 0; j <= edge_hi[1]; ++j) {
-          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
-          const bool inflow_j =
-              (b == 1) && ((j == 0 && inflow[1][0]) || (j == n[1] && inflow[1][1]));
-          stress_row(v, b, p0, edge_hi[0], inflow_k || inflow_j,
-                     {b == 0 && inflow[0][0], b == 0 && inflow[0][1]}, stress);
-        }
-      }
-    }
+  const InflowPlanes inflow(grid, a);
+  for_control_volume_rows(grid.layout(), hi, [&](int b, std::ptrdiff_t p0, int j, int k, int len) {
+    stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b), work.stress[b].values().data());
   });
 }
 
@@ -415,24 +415,11 @@ void subtract_advection(const MacGrid& grid, const ComponentView& v, double dt,
   std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
   hi[a] = n[a];
   const auto& base_a = work.base[static_cast<std::size_t>(a)];
-  tbb::parallel_for(tbb::blocked_range<int>(0, hi[2] + 2), [&](const tbb::blocked_range<int>& r) {
-    for (int k = r.begin(); k != r.end(); ++k) {
-      for (int b = 0; b < 3; ++b) {
-        std::array<int, 3> edge_hi = hi;
-        ++edge_hi[b];
-        if (k > edge_hi[2]) {
-          continue;
-        }
-        const double* base_b = base_a[static_cast<std::size_t>(b)].values().data();
-        const double* half_b = work.half[static_cast<std::size_t>(b)].values().data();
-        double* speed = work.speed[b].values().data();
-        double* flux = work.flux[b].values().data();
-        for (int j = 0; j <= edge_hi[1]; ++j) {
-          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
-          godunov_advective_row<L>(v, b, dt, p0, edge_hi[0], base_b, half_b, speed, flux);
-        }
-      }
-    }
+  for_control_volume_rows(layout, hi, [&](int b, std::ptrdiff_t p0, int, int, int len) {
+    const auto k = static_cast<std::size_t>(b);
+    godunov_advective_row<L>(v, b, dt, p0, len, base_a[k].values().data(),
+                             work.half[k].values().data(), work.speed[b].values().data(),
+                             work.flux[b].values().data());
   });
   const double* __restrict q = v.u[a];
   double* __restrict out = rhs.values().data();

@@ -174,6 +174,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     initial = particles;
   CoupledLoopState loop;
   long long k_last_row = 0;
+  std::optional<PhaseTimer::Scope> starting(std::in_place, timer, Phase::start);
   if (ck) {
     k_last_row = ck->last_row_step;
     std::optional<std::array<std::vector<double>, 3>> held;
@@ -198,6 +199,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     if (ck)
       gas->restore(*ck, opt.restart, loop);
   }
+  starting.reset();
   // Without a gas the loop's position is the particle step k = loop.fluid_steps; a row or
   // snapshot is due at multiples of its interval and at the end.
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt));

@@ -9,10 +9,11 @@
 
 namespace cfddem {
 
-enum class Phase { neighbor = 0, force, integrate, io, other, fluid, count };
+// start: the scheme's start or restore and the gas's first deposition, once per run.
+enum class Phase { neighbor = 0, force, integrate, io, other, fluid, start, count };
 
 inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> phase_names = {
-    "neighbor", "force", "integrate", "io", "other", "fluid"};
+    "neighbor", "force", "integrate", "io", "other", "fluid", "start"};
 
 class PhaseTimer {
 public:

@@ -10,8 +10,8 @@
 #include <cstdint>
 
 #include "dem/domain_geometry.hpp"
-#include "dem/explicit_scheme.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/step_model.hpp"
 
 namespace cfddem::dem {
 

@@ -21,10 +21,10 @@
 #include "core/particle_store.hpp"
 #include "dem/contact_kernels.hpp"
 #include "dem/domain_geometry.hpp"
-#include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
 #include "dem/friction_kernels.hpp"
 #include "dem/scheme_support.hpp"
+#include "dem/step_model.hpp"
 
 namespace cfddem::dem::islands {
 

@@ -11,8 +11,8 @@
 #include <string>
 
 #include "core/error.hpp"
+#include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
-#include "dem/explicit_scheme.hpp"
 #include "partition/orb_tree.hpp"
 
 namespace cfddem::dem {

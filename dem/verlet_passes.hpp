@@ -20,7 +20,6 @@
 #include "core/particle_store.hpp"
 #include "dem/contact_kernels.hpp"
 #include "dem/domain_geometry.hpp"
-#include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
 #include "dem/friction_kernels.hpp"
 #include "dem/kick_drift_range.hpp"
@@ -28,6 +27,7 @@
 #include "dem/pair_contacts.hpp"
 #include "dem/pair_stream.hpp"
 #include "dem/particle_views.hpp"
+#include "dem/step_model.hpp"
 #include "dem/step_report.hpp"
 #include "dem/verlet_list.hpp"
 

@@ -1,6 +1,7 @@
 #include "apps/coupled_step.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -329,9 +330,17 @@ double GasCoupling::adaptive_dt(double time_left) const {
 }
 
 fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
+  using clock = std::chrono::steady_clock;
+  const auto seconds_since = [](clock::time_point t) {
+    return std::chrono::duration<double>(clock::now() - t).count();
+  };
+  auto start = clock::now();
   fluid::copy_field(solver_->volume_fraction(), eps_prev_);
   const std::size_t n = std::min(owned, p.size());
   deposit(p, n);
+  seconds_.deposition += seconds_since(start);
+  start = clock::now();
+  const fluid::GasStepSeconds before = solver_->seconds();
   int substeps = 0;
   fluid::GasStepReport report;
   // The eps_g change deposited now is the particles' move over the previous fluid step (none
@@ -342,6 +351,16 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   } catch (const std::runtime_error& e) {
     throw RunError(fmt::format("gas step: {}", e.what()));
   }
+  {
+    const fluid::GasStepSeconds& after = solver_->seconds();
+    const double momentum = after.momentum - before.momentum;
+    const double viscous = after.viscous - before.viscous;
+    const double projection = after.projection - before.projection;
+    seconds_.momentum += momentum, seconds_.viscous += viscous;
+    seconds_.projection += projection;
+    seconds_.gas_other += seconds_since(start) - (momentum + viscous + projection);
+  }
+  start = clock::now();
   gas_substeps_ += substeps;
   implicit_viscosity_steps_ += report.implicit_viscosity ? 1 : 0;
   projection_iterations_ += report.projection_iterations;
@@ -376,6 +395,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     for (int a = 0; a < 3; ++a)
       force_[a][i] = beta_[i] * (ug_[a][i] - (*v[a])[i]) - vp * gp_[a][i];
   });
+  seconds_.interpolation += seconds_since(start);
   return report;
 }
 

@@ -53,6 +53,17 @@ CellFields cell_fields(const fluid::GasSolver& gas);
 // boxes makes them); deposits in ghost cells go to their owners, interpolation reads exchanged
 // ghosts, and the diagnostics are reduced over the ranks (the same values on every rank).
 // Every call is then collective.
+// Wall seconds of the fluid steps by part, summed (this rank's): what run.json's
+// fluid_phase_seconds reports.
+struct FluidPhaseSeconds {
+  double deposition = 0.0;    // eps_s, beta and beta v to the cells
+  double momentum = 0.0;      // momentum right-hand sides (Godunov: with the edge prediction)
+  double viscous = 0.0;       // implicit viscous Laplacians and solves
+  double projection = 0.0;    // pressure projections
+  double gas_other = 0.0;     // the rest of the gas step: ghost fills, drag factors, updates
+  double interpolation = 0.0; // gas velocity and pressure gradient to the particles, forces
+};
+
 class GasCoupling {
 public:
   GasCoupling(const Scene& scene, const ParticleStore& particles,
@@ -101,6 +112,7 @@ public:
   [[nodiscard]] long long viscous_iterations() const { return viscous_iterations_; }
   // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
+  [[nodiscard]] const FluidPhaseSeconds& phase_seconds() const { return seconds_; }
 
   // The gas at cell centres for a snapshot (eps_g, full pressure, gas velocity).
   [[nodiscard]] CellFields cell_fields() const { return apps::cell_fields(*solver_); }
@@ -143,6 +155,7 @@ private:
   double drag_time_ = std::numeric_limits<double>::infinity();
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   long long implicit_viscosity_steps_ = 0, viscous_iterations_ = 0;
+  FluidPhaseSeconds seconds_;
   fluid::GridField eps_s_, eps_prev_; // eps_s_: the deposited solid fraction (scratch)
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
   std::vector<double> eps_p_, beta_, ug_[3], bv_[3], gp_[3], force_[3];

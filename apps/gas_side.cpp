@@ -164,6 +164,12 @@ void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, 
   j["viscous_iterations"] = gas_->viscous_iterations();
   j["projection_fallbacks"] = gas_->projection_fallbacks();
   j["wall_seconds_per_fluid_step"] = steps_run > 0 ? loop_seconds / steps : 0.0;
+  const FluidPhaseSeconds& f = gas_->phase_seconds();
+  j["fluid_phase_seconds"] = {{"deposition", f.deposition}, {"momentum", f.momentum},
+                              {"viscous", f.viscous},       {"projection", f.projection},
+                              {"gas_other", f.gas_other},   {"interpolation", f.interpolation}};
+  if (comm_.size() > 1)
+    j["fluid_phase_seconds"]["note"] = "rank 0's";
   if (comm_.size() == 1)
     return;
   const std::vector<double> fluid = comm_.gather(fluid_seconds);

@@ -60,6 +60,13 @@ struct GasSolverSettings {
   int projections = 1;
 };
 
+// Wall seconds a solver spent in each part of its steps, summed over them (this rank's).
+struct GasStepSeconds {
+  double momentum = 0.0;   // the momentum right-hand sides (and Godunov's edge-state prediction)
+  double viscous = 0.0;    // the implicit viscous Laplacians and solves
+  double projection = 0.0; // the pressure projections
+};
+
 struct GasStepReport {
   double dt = 0.0;
   double courant = 0.0;
@@ -146,6 +153,9 @@ public:
   // pressure force -V_p grad p (docs/theory.md §4).
   void cell_pressure_gradient(int axis, GridField& out) const;
 
+  // The wall time of the steps so far, by part (advance() and step() alike).
+  [[nodiscard]] const GasStepSeconds& seconds() const { return seconds_; }
+
   // Checkpoint/restart: everything a later step reads that it did not compute itself -- face
   // velocities (the predictor's u^n and the CG first guesses), p' (the projection's first guess;
   // its ghosts feed cell_pressure_gradient), eps_g and its previous value (the continuity source
@@ -202,6 +212,7 @@ private:
   GridField p_, eps_, eps_old_, beta_, source_;
   GridField eps_target_, eps_start_; // advance()'s end and start eps_g
   std::unique_ptr<PressureProjection> projection_;
+  GasStepSeconds seconds_;
 };
 
 } // namespace cfddem::fluid

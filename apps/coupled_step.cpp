@@ -1,7 +1,6 @@
 #include "apps/coupled_step.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -13,6 +12,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
+#include "core/stopwatch.hpp"
 #include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
@@ -330,23 +330,21 @@ double GasCoupling::adaptive_dt(double time_left) const {
 }
 
 fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std::size_t owned) {
-  using clock = std::chrono::steady_clock;
-  const auto seconds_since = [](clock::time_point t) {
-    return std::chrono::duration<double>(clock::now() - t).count();
-  };
-  auto start = clock::now();
-  fluid::copy_field(solver_->volume_fraction(), eps_prev_);
   const std::size_t n = std::min(owned, p.size());
-  deposit(p, n);
-  seconds_.deposition += seconds_since(start);
-  start = clock::now();
+  {
+    const Stopwatch timed(seconds_.deposition);
+    fluid::copy_field(solver_->volume_fraction(), eps_prev_);
+    deposit(p, n);
+  }
   const fluid::GasStepSeconds before = solver_->seconds();
+  double gas_seconds = 0.0;
   int substeps = 0;
   fluid::GasStepReport report;
   // The eps_g change deposited now is the particles' move over the previous fluid step (none
   // before the first: the constructor's deposit is the history).
   const double moved = last_dt_ > 0.0 ? last_dt_ : dt_f;
   try {
+    const Stopwatch timed(gas_seconds);
     report = solver_->advance(dt_f, &substeps, moved);
   } catch (const std::runtime_error& e) {
     throw RunError(fmt::format("gas step: {}", e.what()));
@@ -358,9 +356,8 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     const double projection = after.projection - before.projection;
     seconds_.momentum += momentum, seconds_.viscous += viscous;
     seconds_.projection += projection;
-    seconds_.gas_other += seconds_since(start) - (momentum + viscous + projection);
+    seconds_.gas_other += gas_seconds - (momentum + viscous + projection);
   }
-  start = clock::now();
   gas_substeps_ += substeps;
   implicit_viscosity_steps_ += report.implicit_viscosity ? 1 : 0;
   projection_iterations_ += report.projection_iterations;
@@ -368,6 +365,12 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   projection_fallbacks_ += report.used_fallback ? 1 : 0;
   source_dt_ = moved;
   last_dt_ = dt_f;
+  interpolate_forces(p, n);
+  return report;
+}
+
+void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {
+  const Stopwatch timed(seconds_.interpolation);
   // Force on each particle: drag with the new gas velocity and the frozen v_i, and -V_p grad p.
   force_ids_.assign(p.id.begin(), p.id.begin() + static_cast<std::ptrdiff_t>(n));
   const fluid::ParticlePositions pos{
@@ -395,8 +398,6 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     for (int a = 0; a < 3; ++a)
       force_[a][i] = beta_[i] * (ug_[a][i] - (*v[a])[i]) - vp * gp_[a][i];
   });
-  seconds_.interpolation += seconds_since(start);
-  return report;
 }
 
 FluidDiagnostics GasCoupling::diagnostics() const {

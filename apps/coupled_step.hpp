@@ -139,6 +139,9 @@ private:
   // The coupling's own fields on grid_ (at construction and after a rebox).
   void make_work_fields();
   void deposit(const ParticleStore& p, std::size_t n);
+  // Each particle's force from the new gas: drag with the gas velocity at it and frozen v_i,
+  // and -V_p grad p (the first n particles of p).
+  void interpolate_forces(const ParticleStore& p, std::size_t n);
   const Scene& scene_;
   const Communicator* comm_ = nullptr; // distributed only
   std::vector<CellBox> boxes_;

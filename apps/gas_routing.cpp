@@ -2,13 +2,13 @@
 
 #include <algorithm>
 #include <bit>
-#include <chrono>
 #include <numeric>
 
 #include <fmt/format.h>
 
 #include "core/error.hpp"
 #include "core/sparse_exchange.hpp"
+#include "core/stopwatch.hpp"
 
 namespace cfddem::apps {
 
@@ -16,20 +16,6 @@ namespace {
 
 constexpr int kOut = 8;  // x, y, z, vx, vy, vz, radius, id
 constexpr int kBack = 4; // fx, fy, fz, id
-
-class Stopwatch {
-public:
-  explicit Stopwatch(double& sum) : sum_(sum), t0_(std::chrono::steady_clock::now()) {}
-  ~Stopwatch() {
-    sum_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count();
-  }
-  Stopwatch(const Stopwatch&) = delete;
-  Stopwatch& operator=(const Stopwatch&) = delete;
-
-private:
-  double& sum_;
-  std::chrono::steady_clock::time_point t0_;
-};
 
 } // namespace
 

@@ -1,7 +1,6 @@
 #include "fluid/gas_solver.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -12,29 +11,11 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
+#include "core/stopwatch.hpp"
 #include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 
 namespace cfddem::fluid {
-
-namespace {
-
-// Adds the wall time of its scope to a counter.
-class ScopedSeconds {
-public:
-  explicit ScopedSeconds(double& total) : total_(total), start_(std::chrono::steady_clock::now()) {}
-  ~ScopedSeconds() {
-    total_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
-  }
-  ScopedSeconds(const ScopedSeconds&) = delete;
-  ScopedSeconds& operator=(const ScopedSeconds&) = delete;
-
-private:
-  double& total_;
-  std::chrono::steady_clock::time_point start_;
-};
-
-} // namespace
 
 GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
                      std::shared_ptr<const GridHalo> halo)
@@ -270,7 +251,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     if (implicit_now_) {
       fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
       const double theta = trapezoidal ? 0.5 : 1.0;
-      const ScopedSeconds timed(seconds_.viscous);
+      const Stopwatch timed(seconds_.viscous);
       const ViscousSolveReport vr =
           viscosity_->solve(a, theta * dt * settings_.gas.viscosity, eps_, diag_, vrhs_, u_[a],
                             settings_.viscous_tolerance, 1000);
@@ -283,7 +264,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   }
   ProjectionReport pr;
   {
-    const ScopedSeconds timed(seconds_.projection);
+    const Stopwatch timed(seconds_.projection);
     pr = projection_->project(u_, eps_, mobility_, source_, p_);
   }
   fill_velocity_ghosts(grid_, halo_.get(), u_);
@@ -365,7 +346,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
   }
   const bool godunov = settings_.advection == Advection::godunov;
   if (implicit && (settings_.time_order == 2 || godunov)) {
-    const ScopedSeconds timed(seconds_.viscous);
+    const Stopwatch timed(seconds_.viscous);
     for (int a = 0; a < 3; ++a) {
       viscosity_->laplacian(a, settings_.gas.viscosity, rho, eps_, u_start_[a], lap_start_[a]);
     }
@@ -382,21 +363,21 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     prediction.drag_gain = &drag_gain_;
     prediction.drag_push = &drag_push_;
     {
-      const ScopedSeconds timed(seconds_.momentum);
+      const Stopwatch timed(seconds_.momentum);
       godunov_momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, prediction,
                            rhs_, work_, implicit);
     }
     stage(dt, Stage::godunov, report);
   } else {
     {
-      const ScopedSeconds timed(seconds_.momentum);
+      const Stopwatch timed(seconds_.momentum);
       momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_,
                    implicit);
     }
     stage(dt, Stage::predictor, report);
     if (settings_.time_order == 2) {
       {
-        const ScopedSeconds timed(seconds_.momentum);
+        const Stopwatch timed(seconds_.momentum);
         momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_stage_, work_,
                      implicit);
       }

@@ -6,6 +6,7 @@
 #include <exception>
 #include <iterator>
 #include <string_view>
+#include <vector>
 
 #include <fmt/format.h>
 #include <unistd.h>
@@ -618,6 +619,53 @@ namespace {
 constexpr std::string_view kImpliedLines[] = {
     "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\""};
 
+// Every key whose line differs between this run's fixed lines and the checkpoint's, in this
+// run's order: both values, or the value an older checkpoint implies for a key it predates
+// (kImpliedLines), so that a user sees all that must change at once.
+std::string configuration_differences(const std::string& now, const std::string& then) {
+  const auto key_of = [](std::string_view line) { return line.substr(0, line.find(" = ")); };
+  const auto value_of = [](std::string_view line) {
+    const std::size_t eq = line.find(" = ");
+    return eq == std::string_view::npos ? std::string_view() : line.substr(eq + 3);
+  };
+  const auto lines_of = [](const std::string& text) {
+    std::vector<std::string_view> lines;
+    for (std::size_t pos = 0; pos < text.size();) {
+      const std::size_t end = std::min(text.find('\n', pos), text.size());
+      if (end > pos)
+        lines.emplace_back(text.data() + pos, end - pos);
+      pos = end + 1;
+    }
+    return lines;
+  };
+  const std::vector<std::string_view> here = lines_of(now), there = lines_of(then);
+  const auto find = [&](const std::vector<std::string_view>& in, std::string_view key) {
+    return std::ranges::find_if(in, [&](std::string_view l) { return key_of(l) == key; });
+  };
+  std::vector<std::string> out;
+  for (const std::string_view line : here) {
+    const std::string_view key = key_of(line);
+    const auto it = find(there, key);
+    if (it == there.end()) {
+      const auto implied = std::ranges::find_if(
+          kImpliedLines, [&](std::string_view l) { return key_of(l) == key; });
+      out.push_back(implied != std::end(kImpliedLines)
+                        ? fmt::format("{} here; the checkpoint predates the key and ran {}", line,
+                                      *implied)
+                        : fmt::format("{} here; the checkpoint has no {}", line, key));
+    } else if (*it != line) {
+      out.push_back(fmt::format("{} here, {} in the checkpoint", line, value_of(*it)));
+    }
+  }
+  for (const std::string_view line : there)
+    if (find(here, key_of(line)) == here.end())
+      out.push_back(fmt::format("{} in the checkpoint, unknown to this version", line));
+  std::string all;
+  for (const std::string& d : out)
+    all += (all.empty() ? "" : "; ") + d;
+  return all.empty() ? std::string("the lines' order") : all;
+}
+
 // The configuration lines that must match at a restart: all but those of the keys a restart may
 // change (restart_free_keys(), core/scene_keys.hpp: the gas drive, so that a bed settled with
 // the gas at rest continues with the gas turned on) and the implied lines.
@@ -664,19 +712,11 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
   }
   const std::string now = restart_fixed_lines(restart_configuration(scene));
   const std::string then = restart_fixed_lines(ck.configuration);
-  if (then != now) {
-    // Name the first key that differs.
-    std::size_t a = 0;
-    while (a < now.size() && a < then.size() && now[a] == then[a])
-      ++a;
-    const std::size_t b = now.rfind('\n', a == 0 ? 0 : a - 1);
-    const std::size_t line = b == std::string::npos || a == 0 ? 0 : b + 1;
+  if (then != now)
     throw ConfigError(path, fmt::format("the checkpoint was written with a different "
-                                        "configuration; first difference at '{}' (only {} may "
-                                        "change at a restart)",
-                                        now.substr(line, now.find('\n', line) - line),
+                                        "configuration: {} (only {} may change at a restart)",
+                                        configuration_differences(now, then),
                                         restart_free_keys_text(false)));
-  }
 }
 
 } // namespace

@@ -555,6 +555,24 @@ class BadCheckpoint(Tmp):
         good = self.make_checkpoint()
         self.expect_refused(good, needle="dem.restitution", extra=["dem.restitution=0.9"])
 
+    def test_gas_checkpoint_from_before_the_advection_key(self):
+        # A gas checkpoint written before fluid.advection existed has no line for it and ran
+        # the method of lines: it restarts with "mol", and the Godunov default is refused,
+        # naming the key (apps/checkpoint.cpp, kImpliedLines).
+        out = os.path.join(self.tmp, "old")
+        self.run_ok(*HCS_GAS, "fluid.advection=mol", "run.end_time=0.001",
+                    "output.checkpoint_interval=0.0005", "--out", out)
+        path = os.path.join(out, "checkpoint_000000005.h5")
+        with h5py.File(path, "r+") as f:
+            lines = f.attrs["configuration"].decode().split("\n")
+            kept = [line for line in lines if not line.startswith("fluid.advection")]
+            self.assertEqual(len(kept), len(lines) - 1)
+            f.attrs["configuration"] = np.bytes_("\n".join(kept))
+        self.expect_refused(path, needle="fluid.advection", scene=HCS_GAS)
+        code, msg = cfddem(*HCS_GAS, "fluid.advection=mol", "run.end_time=0.001", "--out",
+                           os.path.join(self.tmp, "continued"), "--restart", path)
+        self.assertEqual(code, 0, msg)
+
 
 if __name__ == "__main__":
     unittest.main(argv=[sys.argv[0], *sys.argv[3:]], verbosity=2)

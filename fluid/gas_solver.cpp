@@ -67,10 +67,7 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
     implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
-    // A single cell has no coarser level for the multigrid (its coarsest operator cannot be
-    // factored: the run crashed); Jacobi CG solves it.
-    const auto& n = grid.cells();
-    viscosity_->use_multigrid(settings.viscous_multigrid && n[0] * n[1] * n[2] > 1);
+    viscosity_->use_multigrid(settings.viscous_multigrid);
     for (GridField& l : lap_start_) {
       l = grid.make_field();
     }
@@ -140,16 +137,12 @@ std::array<double, 2> GasSolver::courant_rates() const {
   // {explicit viscosity, implicit}: the axes' terms added in the same order as ever.
   std::array<double, 2> rates{};
   if (settings_.advection == Advection::godunov) {
-    std::array<double, 3> advective{};
-    double viscous = 0.0;
-    for (int a = 0; a < 3; ++a) {
-      const double dx = grid_.spacing(a);
-      advective[static_cast<std::size_t>(a)] = umax[a] / dx;
-      viscous += 2.0 * nu / (dx * dx);
-    }
-    rates[1] = advective_rate(advective, Advection::godunov);
-    rates[0] = rates[1] + viscous;
-    return rates;
+    // The adaptive step's rates without forcing (fluid_step_rule.hpp). The method of lines keeps
+    // its interleaved sum below, bitwise as ever.
+    const FluidStepRates r =
+        fluid_step_rates(umax, {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)}, nu, true, {},
+                         Advection::godunov);
+    return {r.advection + r.viscous, r.advection};
   }
   for (int a = 0; a < 3; ++a) {
     const double dx = grid_.spacing(a);
@@ -190,8 +183,7 @@ double GasSolver::dt_for_courant(double courant) const {
 }
 
 FluidStepRates GasSolver::step_rates() const {
-  return fluid_step_rates(max_face_speeds(),
-                          {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
+  return fluid_step_rates(max_face_speeds(), {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
                           settings_.gas.viscosity / settings_.gas.density, !viscosity_, body_,
                           settings_.advection);
 }
@@ -212,7 +204,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   // The Laplacian's implicit weight: backward Euler in the predictor, trapezoidal (Crank-
   // Nicolson) in the corrector and the Godunov step, where L(u^n) is at hand.
   const bool trapezoidal = kind != Stage::predictor;
-  const bool have_lap_start = settings_.time_order == 2 || kind == Stage::godunov;
+  const bool have_lap_start = keeps_lap_start();
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
   // step() computed once for both stages.
@@ -226,8 +218,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     const double dt_over_rho = dt / settings_.gas.density;
     for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
       const auto f = static_cast<std::size_t>(p);
-      double rate =
-          kind == Stage::corrector ? 0.5 * (rhs_[a][f] + rhs_stage_[a][f]) : rhs_[a][f];
+      double rate = kind == Stage::corrector ? 0.5 * (rhs_[a][f] + rhs_stage_[a][f]) : rhs_[a][f];
       if (implicit_now_ && trapezoidal) {
         rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
       }
@@ -345,7 +336,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     copy_field(u_[a], u_start_[a]);
   }
   const bool godunov = settings_.advection == Advection::godunov;
-  if (implicit && (settings_.time_order == 2 || godunov)) {
+  if (implicit && keeps_lap_start()) {
     const Stopwatch timed(seconds_.viscous);
     for (int a = 0; a < 3; ++a) {
       viscosity_->laplacian(a, settings_.gas.viscosity, rho, eps_, u_start_[a], lap_start_[a]);
@@ -371,8 +362,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
   } else {
     {
       const Stopwatch timed(seconds_.momentum);
-      momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_,
-                   implicit);
+      momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
     }
     stage(dt, Stage::predictor, report);
     if (settings_.time_order == 2) {

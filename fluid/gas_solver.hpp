@@ -185,6 +185,11 @@ private:
   // The update of one stage from u_start_ with the rate of its kind, the drag point-implicit,
   // the Laplacian implicit where it is, and the projection (none for a lagged predictor).
   enum class Stage { predictor, corrector, godunov };
+  // Whether a step computes L(u^n) (with the Laplacian implicit): for the trapezoidal stages
+  // (the corrector, Godunov) and the predictor's first guess (time order 2).
+  [[nodiscard]] bool keeps_lap_start() const {
+    return settings_.time_order == 2 || settings_.advection == Advection::godunov;
+  }
   void stage(double dt, Stage kind, GasStepReport& report);
   // step(dt) once u's ghosts are filled (advance() fills them for its Courant number). The
   // continuity source is (eps - eps_old)/dt times source_scale (advance(): interval /

@@ -51,7 +51,7 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.gas.viscosity = s.fluid.viscosity;
   g.gas.gravity = s.gravity;
   g.cfl = s.fluid.cfl;
-  g.advection = s.fluid.advection == "mol" ? fluid::Advection::mol : fluid::Advection::godunov;
+  g.advection = fluid::advection_named(s.fluid.advection);
   g.implicit_viscosity = s.fluid.implicit_viscosity;
   g.implicit_viscosity_auto = s.fluid.implicit_viscosity_auto;
   g.time_order = s.fluid.time_order;
@@ -111,9 +111,9 @@ void validate_fluid(const Scene& s) {
   if (!s.fluid.enabled)
     return;
   (void)fluid_grid_spec(s);
-  const bool mol = s.fluid.advection == "mol";
-  const double max_courant =
-      fluid::max_stable_courant(mol ? fluid::Advection::mol : fluid::Advection::godunov);
+  const fluid::Advection advection = fluid::advection_named(s.fluid.advection);
+  const bool mol = advection == fluid::Advection::mol;
+  const double max_courant = fluid::max_stable_courant(advection);
   if (!(s.fluid.cfl <= max_courant))
     throw ConfigError("scene key 'fluid.cfl'",
                       fmt::format("{} is above the stable limit {} of the gas step with "

@@ -139,8 +139,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     const fluid::FluidStepRates r =
         fluid::fluid_step_rates(speed, dx, f.viscosity / f.density,
                                 !f.implicit_viscosity && !f.implicit_viscosity_auto, body,
-                                f.advection == "mol" ? fluid::Advection::mol
-                                                     : fluid::Advection::godunov);
+                                fluid::advection_named(f.advection));
     fluid::FluidStepCaps caps; // no previous step
     caps.max_dt = f.max_dt;
     if (derived.particles > 0 && d > 0 && f.viscosity > 0)

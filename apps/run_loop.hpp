@@ -174,32 +174,33 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     initial = particles;
   CoupledLoopState loop;
   long long k_last_row = 0;
-  std::optional<PhaseTimer::Scope> starting(std::in_place, timer, Phase::start);
-  if (ck) {
-    k_last_row = ck->last_row_step;
-    std::optional<std::array<std::vector<double>, 3>> held;
-    if (gas_on)
-      held = parts.held(*ck, share.taken);
-    try {
-      run.restore(*ck, share, held ? &*held : nullptr);
-    } catch (const std::invalid_argument& e) {
-      if (!gas_on || !one)
-        throw;
-      throw ConfigError(opt.restart, fmt::format("cannot restart: held gas force: {}", e.what()));
-    } catch (const RunError& e) {
-      if (!gas_on || !one)
-        throw;
-      throw ConfigError(opt.restart, fmt::format("cannot restart: {}", e.what()));
+  { // the start: the scheme's start or restore, the gas's first deposition
+    const PhaseTimer::Scope starting(timer, Phase::start);
+    if (ck) {
+      k_last_row = ck->last_row_step;
+      std::optional<std::array<std::vector<double>, 3>> held;
+      if (gas_on)
+        held = parts.held(*ck, share.taken);
+      try {
+        run.restore(*ck, share, held ? &*held : nullptr);
+      } catch (const std::invalid_argument& e) {
+        if (!gas_on || !one)
+          throw;
+        throw ConfigError(opt.restart, fmt::format("cannot restart: held gas force: {}", e.what()));
+      } catch (const RunError& e) {
+        if (!gas_on || !one)
+          throw;
+        throw ConfigError(opt.restart, fmt::format("cannot restart: {}", e.what()));
+      }
+    } else {
+      run.start();
     }
-  } else {
-    run.start();
+    if (gas) {
+      gas->attach(particles, run.owned());
+      if (ck)
+        gas->restore(*ck, opt.restart, loop);
+    }
   }
-  if (gas) {
-    gas->attach(particles, run.owned());
-    if (ck)
-      gas->restore(*ck, opt.restart, loop);
-  }
-  starting.reset();
   // Without a gas the loop's position is the particle step k = loop.fluid_steps; a row or
   // snapshot is due at multiples of its interval and at the end.
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt));

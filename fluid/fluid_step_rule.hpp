@@ -7,6 +7,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <string_view>
 
 namespace cfddem::fluid {
 
@@ -24,6 +25,12 @@ inline constexpr double kDragStepFraction = 0.1;
 // edge states (fluid/momentum_rhs.hpp, godunov_momentum_rhs), or the method of lines, limited
 // MUSCL edge states at t^n in an Euler or Heun step (GasSolverSettings::time_order).
 enum class Advection { godunov, mol };
+
+// The scheme a scene's fluid.advection names ("mol"; else, as the key's choices allow only the
+// two, "godunov").
+[[nodiscard]] constexpr Advection advection_named(std::string_view name) {
+  return name == "mol" ? Advection::mol : Advection::godunov;
+}
 
 // The largest stable Courant number of each (as advective_rate measures it): 0.5 is the TVD
 // limit of limited MUSCL with explicit (SSP) Euler stages on the sum of the axes' Courant

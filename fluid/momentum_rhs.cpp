@@ -1,5 +1,7 @@
 #include "fluid/momentum_rhs.hpp"
 
+#include <type_traits>
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -27,6 +29,23 @@ struct ComponentView {
   double mu = 0.0;
   double own = 1.0; // weight of the grad u_a (Laplacian) part of tau
 };
+
+// The last point of component a's faces: faces 0..n along a, cells 0..n-1 across.
+std::array<int, 3> faces_hi(const MacGrid& grid, int a) {
+  const auto& n = grid.cells();
+  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+  hi[a] = n[a];
+  return hi;
+}
+
+// Calls f with the limiter as a compile-time constant (the row kernels are templates on it).
+template <class F> void with_limiter(Limiter limiter, F&& f) {
+  if (limiter == Limiter::minmod) {
+    f(std::integral_constant<Limiter, Limiter::minmod>{});
+  } else {
+    f(std::integral_constant<Limiter, Limiter::van_leer>{});
+  }
+}
 
 // Advecting velocity and upwind MUSCL flux on the low control-volume face along b of the points
 // p0 .. p0 + len of a row (docs/theory.md §5: convective form, see the header).
@@ -183,10 +202,8 @@ template <Limiter L>
 void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, double body,
                    MomentumWorkspace& work, GridField& rhs) {
   const GridLayout& layout = grid.layout();
-  const auto& n = grid.cells();
   const int a = v.a;
-  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[a] = n[a]; // faces 0..n along the component's axis
+  const std::array<int, 3> hi = faces_hi(grid, a);
   const InflowPlanes inflow(grid, a);
   const bool viscous = v.mu != 0.0;
   // Pass 1: the control-volume face quantities of every direction b on the box 0..hi, one more
@@ -333,10 +350,8 @@ void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t
 
 // eps tau on component v.a's control-volume faces of every direction, into the workspace.
 void stress_pass(const MacGrid& grid, const ComponentView& v, MomentumWorkspace& work) {
-  const auto& n = grid.cells();
   const int a = v.a;
-  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[a] = n[a];
+  const std::array<int, 3> hi = faces_hi(grid, a);
   const InflowPlanes inflow(grid, a);
   for_control_volume_rows(grid.layout(), hi, [&](int b, std::ptrdiff_t p0, int j, int k, int len) {
     stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b), work.stress[b].values().data());
@@ -350,10 +365,8 @@ template <Limiter L>
 void predict_component(const MacGrid& grid, const ComponentView& v, double inv_rho, double body,
                        const EdgePrediction& pred, MomentumWorkspace& work, GridField& rhs) {
   const GridLayout& layout = grid.layout();
-  const auto& n = grid.cells();
   const int a = v.a;
-  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[a] = n[a]; // faces 0..n along the component's axis
+  const std::array<int, 3> hi = faces_hi(grid, a);
   const bool viscous = v.mu != 0.0;
   if (viscous) {
     stress_pass(grid, v, work);
@@ -410,10 +423,8 @@ template <Limiter L>
 void subtract_advection(const MacGrid& grid, const ComponentView& v, double dt,
                         MomentumWorkspace& work, GridField& rhs) {
   const GridLayout& layout = grid.layout();
-  const auto& n = grid.cells();
   const int a = v.a;
-  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[a] = n[a];
+  const std::array<int, 3> hi = faces_hi(grid, a);
   const auto& base_a = work.base[static_cast<std::size_t>(a)];
   for_control_volume_rows(layout, hi, [&](int b, std::ptrdiff_t p0, int, int, int len) {
     const auto k = static_cast<std::size_t>(b);
@@ -454,11 +465,8 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
   const double inv_rho = 1.0 / gas.density;
   for (int a = 0; a < 3; ++a) {
     v.a = a;
-    if (limiter == Limiter::minmod) {
-      component_rhs<Limiter::minmod>(grid, v, inv_rho, body[a], work, rhs[a]);
-    } else {
-      component_rhs<Limiter::van_leer>(grid, v, inv_rho, body[a], work, rhs[a]);
-    }
+    with_limiter(limiter,
+                 [&](auto L) { component_rhs<L()>(grid, v, inv_rho, body[a], work, rhs[a]); });
   }
 }
 
@@ -480,11 +488,9 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
   // Every component's half-step values first: they give the others' advecting velocities.
   for (int a = 0; a < 3; ++a) {
     v.a = a;
-    if (limiter == Limiter::minmod) {
-      predict_component<Limiter::minmod>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
-    } else {
-      predict_component<Limiter::van_leer>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
-    }
+    with_limiter(limiter, [&](auto L) {
+      predict_component<L()>(grid, v, inv_rho, body[a], prediction, work, rhs[a]);
+    });
   }
   // The explicit viscous terms of the half-step velocities (the midpoint rule: second order; those
   // of u^n would be Euler's): rhs = viscous term + body force, at t^n + dt/2.
@@ -493,12 +499,10 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
     h.u = {work.half[0].values().data(), work.half[1].values().data(),
            work.half[2].values().data()};
     velocity_divergence(grid, h, work);
-    const auto& n = grid.cells();
     for (int a = 0; a < 3; ++a) {
       h.a = a;
       stress_pass(grid, h, work);
-      std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-      hi[a] = n[a];
+      const std::array<int, 3> hi = faces_hi(grid, a);
       double* out = rhs[a].values().data();
       for_box_rows(grid.layout(), {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
         viscous_row<true>(h, p0, hi[0], work, inv_rho, body[a], out);
@@ -507,11 +511,8 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
   }
   for (int a = 0; a < 3; ++a) {
     v.a = a;
-    if (limiter == Limiter::minmod) {
-      subtract_advection<Limiter::minmod>(grid, v, prediction.dt, work, rhs[a]);
-    } else {
-      subtract_advection<Limiter::van_leer>(grid, v, prediction.dt, work, rhs[a]);
-    }
+    with_limiter(limiter,
+                 [&](auto L) { subtract_advection<L()>(grid, v, prediction.dt, work, rhs[a]); });
   }
 }
 

@@ -461,7 +461,11 @@ void relax(const Level& L, const double* b, double* x, int colour) {
 // Coarse right-hand side: the mean of the fine residual b - A x over each coarse cell's children
 // (the transpose of piecewise-constant prolongation, scaled by 1 / children), the residual
 // computed on the fly (ghosts of x filled).
-// Coarse plane k of the restriction; row, acc: F.n[0] and C.n[0] values of scratch.
+// On an odd axis (uneven coarsening) the last coarse cell has one child: its missing child adds
+// nothing, and the sum is still scaled by 1 / (full children), so the coarse equation stays the
+// fine equations' sum over the children scaled alike on every cell (R = P^T / children).
+// Coarse plane k of the restriction; row, acc: F.n[0] + 1 and C.n[0] values of scratch (row's
+// last value stays zero: the missing child along x).
 void restrict_plane(const Level& F, const Level& C, const double* b, const double* x, double* bc,
                     int k, double* row, double* acc) {
   const auto& q = F.ratio;
@@ -473,6 +477,9 @@ void restrict_plane(const Level& F, const Level& C, const double* b, const doubl
     std::fill_n(acc, nc, 0.0);
     for (int dk = 0; dk < q[2]; ++dk) {
       for (int dj = 0; dj < q[1]; ++dj) {
+        if (q[1] * j + dj >= F.n[1] || q[2] * k + dk >= F.n[2]) {
+          continue; // the missing child of a last coarse cell on an odd axis
+        }
         const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
         for (int i = 0; i < F.n[0]; ++i) {
           const std::size_t c = f0 + static_cast<std::size_t>(i);
@@ -499,7 +506,7 @@ void restrict_plane(const Level& F, const Level& C, const double* b, const doubl
 void restrict_residual(const Level& F, const Level& C, const double* b, const double* x,
                        double* bc) {
   for_planes(C.n[2], F.cells(), [&](int k) {
-    std::vector<double> row(static_cast<std::size_t>(F.n[0]));
+    std::vector<double> row(static_cast<std::size_t>(F.n[0]) + 1); // + the missing child: 0
     std::vector<double> acc(static_cast<std::size_t>(C.n[0]));
     restrict_plane(F, C, b, x, bc, k, row.data(), acc.data());
   });
@@ -595,7 +602,7 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
   for_planes(tasks, L.cells(), [&](int t) {
     const int k0 = std::min(nz, t * block);
     const int k1 = std::min(nz, k0 + block);
-    std::vector<double> row(coarse != nullptr ? static_cast<std::size_t>(L.n[0]) : 0);
+    std::vector<double> row(coarse != nullptr ? static_cast<std::size_t>(L.n[0]) + 1 : 0);
     std::vector<double> acc(coarse != nullptr ? static_cast<std::size_t>(coarse->n[0]) : 0);
     for (int k = k0; k < k1; ++k) {
       first_pass(k);
@@ -632,7 +639,7 @@ void relax_pair(const Level& L, double* b, double* x, int first, bool from_zero,
   if (coarse != nullptr) {
     for_planes(coarse->n[2], L.cells(), [&](int kc) {
       if (restricted[static_cast<std::size_t>(kc)] == 0) {
-        std::vector<double> row(static_cast<std::size_t>(L.n[0]));
+        std::vector<double> row(static_cast<std::size_t>(L.n[0]) + 1);
         std::vector<double> acc(static_cast<std::size_t>(coarse->n[0]));
         restrict_plane(L, *coarse, b, x, coarse->b.data(), kc, row.data(), acc.data());
       }
@@ -821,15 +828,29 @@ void coarsen_coefficients(const Level& F, Level& C) {
         }
         for (int dk = 0; dk < kids[2]; ++dk) {
           for (int dj = 0; dj < kids[1]; ++dj) {
-            const double* __restrict in = F.K[a].data() + F.at(0, q[1] * j + dj, q[2] * k + dk);
+            // A fine face index past the fine grid: the missing child of an odd axis's last
+            // coarse cell (transverse), or the high face of such an axis (normal; a Neumann
+            // side, so no flux).
+            const int fj = q[1] * j + dj;
+            const int fk = q[2] * k + dk;
+            if (fj > F.n[1] || fk > F.n[2] || (a != 1 && fj == F.n[1]) ||
+                (a != 2 && fk == F.n[2])) {
+              continue;
+            }
+            const double* __restrict in = F.K[a].data() + F.at(0, fj, fk);
             if (kids[0] == 2) {
-              for (int i = 0; i < hi[0]; ++i) {
+              const int pairs = F.n[0] / 2;
+              for (int i = 0; i < pairs; ++i) {
                 out[i] += in[2 * i];
                 out[i] += in[2 * i + 1];
               }
+              if (pairs < hi[0]) {
+                out[pairs] += in[2 * pairs]; // an odd x axis: the last coarse cell's one child
+              }
             } else {
               const int stride = q[0];
-              for (int i = 0; i < hi[0]; ++i) {
+              const int faces = std::min(hi[0], F.n[0] / stride + 1);
+              for (int i = 0; i < faces; ++i) {
                 out[i] += in[stride * i];
               }
             }
@@ -851,6 +872,9 @@ void coarsen_coefficients(const Level& F, Level& C) {
           double sum = 0.0;
           for (int dq = 0; dq < q[pq]; ++dq) {
             for (int dp = 0; dp < q[p]; ++dp) {
+              if (q[p] * ip + dp >= F.n[p] || q[pq] * iq + dq >= F.n[pq]) {
+                continue; // the missing child of an odd axis
+              }
               sum += F.dface[a][side][static_cast<std::size_t>(q[p] * ip + dp) +
                                       static_cast<std::size_t>(F.n[p]) *
                                           static_cast<std::size_t>(q[pq] * iq + dq)];
@@ -879,10 +903,15 @@ void coarsen_coefficients(const Level& F, Level& C) {
         std::fill_n(out, C.n[0], 0.0);
         for (int dk = 0; dk < q[2]; ++dk) {
           for (int dj = 0; dj < q[1]; ++dj) {
+            if (q[1] * j + dj >= F.n[1] || q[2] * k + dk >= F.n[2]) {
+              continue; // the missing child of an odd axis
+            }
             const double* __restrict in = F.mass.data() + F.at(0, q[1] * j + dj, q[2] * k + dk);
             for (int i = 0; i < C.n[0]; ++i) {
               for (int di = 0; di < q[0]; ++di) {
-                out[i] += in[q[0] * i + di];
+                if (q[0] * i + di < F.n[0]) {
+                  out[i] += in[q[0] * i + di];
+                }
               }
             }
           }
@@ -898,17 +927,19 @@ void coarsen_coefficients(const Level& F, Level& C) {
   build_diagonal(C);
 }
 
-// Which axes the next level halves: even axes of at least 4 cells among the finest of those
-// (semi-coarsening keeps the coarse level's couplings near isotropic). An axis that cannot
-// coarsen is left to line relaxation when it is the only one; with two or more such axes, the
-// others stop once they are as coarse as those (point relaxation would stall on the rest).
-std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<double, 3>& h) {
+// Which axes the next level halves: axes of at least 4 cells, even or `uneven` (an odd axis whose
+// last coarse cell keeps one child), among the finest of those (semi-coarsening keeps the coarse
+// level's couplings near isotropic). An axis that cannot coarsen is left to line relaxation when
+// it is the only one; with two or more such axes, the others stop once they are as coarse as
+// those (point relaxation would stall on the rest).
+std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<double, 3>& h,
+                              const std::array<bool, 3>& uneven) {
   std::array<bool, 3> can{};
   double hmin = 0.0;
   double hstuck = 0.0;
   int stuck = 0;
   for (int a = 0; a < 3; ++a) {
-    can[a] = n[a] % 2 == 0 && n[a] >= 4;
+    can[a] = (n[a] % 2 == 0 || uneven[a]) && n[a] >= 4;
     if (can[a] && (hmin == 0.0 || h[a] < hmin)) {
       hmin = h[a];
     }
@@ -929,11 +960,22 @@ std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<doub
 // The ratio by which a one-grid hierarchy coarsens a level of n cells at spacing h: {1, 1, 1}
 // when the level is the coarsest (small enough for the direct solve, or no axis coarsens).
 std::array<int, 3> level_ratio(const std::array<int, 3>& n, const std::array<double, 3>& h,
-                               int max_direct_cells) {
+                               const std::array<bool, 3>& uneven, int max_direct_cells) {
   if (static_cast<double>(n[0]) * n[1] * n[2] <= max_direct_cells) {
     return {1, 1, 1};
   }
-  return coarsening(n, h);
+  return coarsening(n, h, uneven);
+}
+
+// The axes a one-grid hierarchy may coarsen unevenly: those whose high side is Neumann (wall,
+// inflow), where the missing child of the last coarse cell leaves a coarse boundary face that
+// carries no flux either. A periodic or Dirichlet high side needs its last cell's face aligned.
+std::array<bool, 3> uneven_axes(const std::array<std::array<PoissonSide, 2>, 3>& sides) {
+  std::array<bool, 3> uneven{};
+  for (int a = 0; a < 3; ++a) {
+    uneven[a] = sides[a][1] == PoissonSide::neumann;
+  }
+  return uneven;
 }
 
 // Line relaxation along the finest axis when it is markedly finer than every other.
@@ -1012,14 +1054,17 @@ bool check_arguments(const std::array<int, 3>& cells, const std::array<double, 3
 
 std::size_t MultigridPoisson::coarsest_cells(std::array<int, 3> cells,
                                              std::array<double, 3> spacing,
+                                             std::array<std::array<PoissonSide, 2>, 3> sides,
                                              MultigridSettings settings) {
+  const std::array<bool, 3> uneven = uneven_axes(sides);
   for (;;) {
-    const std::array<int, 3> ratio = level_ratio(cells, spacing, settings.max_direct_cells);
+    const std::array<int, 3> ratio =
+        level_ratio(cells, spacing, uneven, settings.max_direct_cells);
     if (ratio == std::array<int, 3>{1, 1, 1}) {
       return static_cast<std::size_t>(cells[0]) * cells[1] * cells[2];
     }
     for (int a = 0; a < 3; ++a) {
-      cells[a] /= ratio[a];
+      cells[a] = (cells[a] + ratio[a] - 1) / ratio[a];
       spacing[a] *= ratio[a];
     }
   }
@@ -1032,9 +1077,11 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
       has_dirichlet_(check_arguments(cells, spacing, sides, settings)) {
   singular_ = !has_dirichlet_;
   levels_.emplace_back(cells, spacing, sides);
+  const std::array<bool, 3> uneven = uneven_axes(sides);
   for (;;) {
     Level& fine = levels_.back();
-    const std::array<int, 3> ratio = level_ratio(fine.n, fine.h, settings_.max_direct_cells);
+    const std::array<int, 3> ratio =
+        level_ratio(fine.n, fine.h, uneven, settings_.max_direct_cells);
     if (ratio == std::array<int, 3>{1, 1, 1}) {
       break;
     }
@@ -1042,7 +1089,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     std::array<int, 3> n{};
     std::array<double, 3> h{};
     for (int a = 0; a < 3; ++a) {
-      n[a] = fine.n[a] / ratio[a];
+      n[a] = (fine.n[a] + ratio[a] - 1) / ratio[a]; // an odd axis: the last cell has one child
       h[a] = fine.h[a] * ratio[a];
     }
     levels_.emplace_back(n, h, sides);
@@ -1103,7 +1150,8 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     bool gather = choose_line_axis(n, h) >= 0 || L.total <= settings.gather_cells;
     std::array<int, 3> ratio{1, 1, 1};
     if (!gather) {
-      ratio = coarsening(n, h);
+      // Even ends only: each coarse cell's children in one box (no uneven coarsening here).
+      ratio = coarsening(n, h, {false, false, false});
       for (int a = 0; a < 3; ++a) {
         for (const CellBox& b : boxes) {
           if (ratio[a] == 2 && (b.lo[a] % 2 != 0 || b.hi[a] % 2 != 0)) {

@@ -4,8 +4,9 @@
 // K_f / h^2 (no assembled stencil); each boundary side is Neumann (wall, inflow), homogeneous
 // Dirichlet on the face (outflow: the caller moves p_out into b) or periodic.
 //
-// Levels coarsen by 2 along every axis that is even, has at least 4 cells and is among the finest
-// of those that can coarsen (semi-coarsening: an odd or short axis keeps its cells). A level whose
+// Levels coarsen by 2 along every axis that has at least 4 cells and is among the finest of those
+// that can coarsen (semi-coarsening). An odd axis coarsens to (n + 1) / 2 cells, the last with
+// one child, where its high side is Neumann (one grid only); otherwise it keeps its cells. A level whose
 // finest axis is markedly finer than the others relaxes whole lines along it; the coarsest level
 // is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop over a
 // level runs over z-planes (TBB) and every reduction is summed plane by plane in plane order, so
@@ -73,6 +74,7 @@ public:
   // count when no axis coarsens: odd or short axes keep their cells). Above max_direct_cells it
   // is solved by conjugate gradients at every V-cycle.
   static std::size_t coarsest_cells(std::array<int, 3> cells, std::array<double, 3> spacing,
+                                    std::array<std::array<PoissonSide, 2>, 3> sides,
                                     MultigridSettings settings = {});
   MultigridPoisson(const MultigridPoisson&) = delete;
   MultigridPoisson& operator=(const MultigridPoisson&) = delete;

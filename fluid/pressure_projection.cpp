@@ -55,13 +55,42 @@ int smg_blocking_axis(const MacGrid& grid) {
   return -1;
 }
 
+namespace {
+
+// The projection's boundary kinds as the multigrid's sides: walls and inflow carry no correction
+// flux (Neumann), an outflow face holds phi (Dirichlet).
+std::array<std::array<PoissonSide, 2>, 3> poisson_sides(const MacGrid& grid) {
+  std::array<std::array<PoissonSide, 2>, 3> sides{};
+  for (int a = 0; a < 3; ++a) {
+    for (int side = 0; side < 2; ++side) {
+      const BoundaryKind kind = grid.bc(a, side).kind;
+      sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
+                       : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
+                                                       : PoissonSide::neumann;
+    }
+  }
+  return sides;
+}
+
+} // namespace
+
 PoissonSolver auto_solver(const MacGrid& grid) {
   std::array<double, 3> spacing{};
   for (int a = 0; a < 3; ++a) {
     spacing[a] = grid.spacing(a);
   }
+  // Over R ranks the levels coarsen only where every box's ends are even (no uneven coarsening):
+  // the hierarchy is judged without it, as one grid whose odd axes keep their cells.
+  std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid);
+  if (grid.distributed()) {
+    for (auto& axis : sides) {
+      for (PoissonSide& side : axis) {
+        side = side == PoissonSide::neumann ? PoissonSide::dirichlet : side;
+      }
+    }
+  }
   const bool large_coarsest =
-      MultigridPoisson::coarsest_cells(grid.global_cells(), spacing) > kAutoCoarsestCells;
+      MultigridPoisson::coarsest_cells(grid.global_cells(), spacing, sides) > kAutoCoarsestCells;
   return large_coarsest && pfmg_coarsest_cells(grid) <= kAutoCoarsestCells
              ? PoissonSolver::hypre
              : PoissonSolver::multigrid;
@@ -214,16 +243,10 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   if (multigrid) {
     // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
     // (their set-up time and memory would be spent for nothing).
-    std::array<std::array<PoissonSide, 2>, 3> sides{};
+    const std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid);
     std::array<double, 3> spacing{};
     for (int a = 0; a < 3; ++a) {
       spacing[a] = grid.spacing(a);
-      for (int side = 0; side < 2; ++side) {
-        const BoundaryKind kind = grid.bc(a, side).kind;
-        sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
-                         : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
-                                                         : PoissonSide::neumann;
-      }
     }
     if (halo == nullptr) {
       mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);

@@ -1058,8 +1058,7 @@ std::size_t MultigridPoisson::coarsest_cells(std::array<int, 3> cells,
                                              MultigridSettings settings) {
   const std::array<bool, 3> uneven = uneven_axes(sides);
   for (;;) {
-    const std::array<int, 3> ratio =
-        level_ratio(cells, spacing, uneven, settings.max_direct_cells);
+    const std::array<int, 3> ratio = level_ratio(cells, spacing, uneven, settings.max_direct_cells);
     if (ratio == std::array<int, 3>{1, 1, 1}) {
       return static_cast<std::size_t>(cells[0]) * cells[1] * cells[2];
     }

@@ -291,8 +291,8 @@ TEST(MultigridPoisson, OddWallAxesCoarsenUnevenly) {
   bed.bc[2] = test::bc_of(BoundaryKind::inflow);
   bed.bc[3] = test::bc_of(BoundaryKind::outflow);
   const MacGrid grid(bed);
-  EXPECT_LE(MultigridPoisson::coarsest_cells(
-                bed.cells, {5e-5, 2e-4, 5e-5}, {{{N, N}, {N, PoissonSide::dirichlet}, {N, N}}}),
+  EXPECT_LE(MultigridPoisson::coarsest_cells(bed.cells, {5e-5, 2e-4, 5e-5},
+                                             {{{N, N}, {N, PoissonSide::dirichlet}, {N, N}}}),
             256u);
   EXPECT_EQ(auto_solver(grid), PoissonSolver::multigrid);
   const Fields f = make_fields(grid, false, true, 5);

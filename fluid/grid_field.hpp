@@ -7,6 +7,8 @@
 #include <span>
 #include <vector>
 
+#include "core/huge_page_allocator.hpp"
+
 namespace cfddem::fluid {
 
 // Ghost layers: limited MUSCL reconstruction reads two neighbours on each side of an edge, so
@@ -63,7 +65,7 @@ public:
 
 private:
   GridLayout layout_;
-  std::vector<double> data_;
+  HugePageVector<double> data_; // large fields on huge pages (core/huge_page_allocator.hpp)
 };
 
 } // namespace cfddem::fluid

@@ -32,17 +32,18 @@ struct MultigridPoisson::Level {
   std::size_t size = 0;
   std::array<int, 3> ratio{1, 1, 1}; // coarsening factor to the next level
   int line = -1;
-  std::array<std::vector<double>, 3> K;
+  // Level arrays on huge pages where large (core/huge_page_allocator.hpp).
+  std::array<HugePageVector<double>, 3> K;
   // Dirichlet face coefficients per axis and side, on the transverse plane (lower axis fastest).
   std::array<std::array<std::vector<double>, 2>, 3> dface;
-  std::vector<double> diag, inv_diag;
-  std::vector<double> mass; // empty without a mass term
+  HugePageVector<double> diag, inv_diag;
+  HugePageVector<double> mass; // empty without a mass term
   // A line-relaxed level's tridiagonal factors, per line (index ip + n_p iq) and position along
   // it: the sub-diagonal, the Thomas pivots and multipliers, and for a periodic line the
   // Sherman-Morrison vector; sm: per line 2 values (lo[0] / g and the denominator; for a period
   // of 2, the determinant). They depend on the coefficients only (factor_lines).
   std::vector<double> line_lo, line_pivot, line_mult, line_z, line_sm;
-  std::vector<double> x, b; // a coarse level's correction and right-hand side
+  HugePageVector<double> x, b; // a coarse level's correction and right-hand side
   // Distributed: the level's exchange (nullptr on one grid, where periodic images are copied
   // locally), which sides of the box are exchanged rather than boundary faces, the parity of
   // the box's first cell (red-black colours follow the global indices) and the global cells.
@@ -1097,7 +1098,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     levels_[l].line = choose_line_axis(levels_[l].n, levels_[l].h);
   }
   const std::size_t size = levels_.front().size;
-  for (std::vector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
+  for (HugePageVector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
     v->assign(size, 0.0);
   }
 }
@@ -1182,7 +1183,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     gathered_->levels_.front().bdist = bdist;
   }
   const std::size_t size = levels_.front().size;
-  for (std::vector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
+  for (HugePageVector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
     v->assign(size, 0.0);
   }
 }
@@ -1213,7 +1214,8 @@ void MultigridPoisson::gather_coefficients() {
   Level* R = root ? &gathered_->levels_.front() : nullptr;
   mine_.assign(G.cells(), 0.0);
   all_.assign(root ? R->cells() : 0, 0.0);
-  const auto gather_field = [&](const std::vector<double>& local, std::vector<double>* global) {
+  const auto gather_field = [&](const HugePageVector<double>& local,
+                                HugePageVector<double>* global) {
     pack(G, local.data(), mine_.data());
     ex.gather(mine_, all_);
     if (root) {
@@ -1678,7 +1680,7 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
   if (singular_) {
     shift_interior(L, b_.data(), mean_interior(L, b_.data()));
   }
-  const auto dot = [&](const std::vector<double>& u, const std::vector<double>& v) {
+  const auto dot = [&](const HugePageVector<double>& u, const HugePageVector<double>& v) {
     return sum_cells(L, [&](std::size_t c, double& s) { s += u[c] * v[c]; });
   };
   MultigridReport report;

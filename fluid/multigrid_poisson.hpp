@@ -6,13 +6,13 @@
 //
 // Levels coarsen by 2 along every axis that has at least 4 cells and is among the finest of those
 // that can coarsen (semi-coarsening). An odd axis coarsens to (n + 1) / 2 cells, the last with
-// one child, where its high side is Neumann (one grid only); otherwise it keeps its cells. A level whose
-// finest axis is markedly finer than the others relaxes whole lines along it; the coarsest level
-// is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop over a
-// level runs over z-planes (TBB) and every reduction is summed plane by plane in plane order, so
-// results are bitwise independent of the thread count. Over MPI ranks (the second constructor)
-// each rank holds its box of the fine levels, exchanging face ghosts after every pass, and a
-// coarse level is gathered onto rank 0 (docs/multigrid.md, "On R ranks").
+// one child, where its high side is Neumann (one grid only); otherwise it keeps its cells. A level
+// whose finest axis is markedly finer than the others relaxes whole lines along it; the coarsest
+// level is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop
+// over a level runs over z-planes (TBB) and every reduction is summed plane by plane in plane
+// order, so results are bitwise independent of the thread count. Over MPI ranks (the second
+// constructor) each rank holds its box of the fine levels, exchanging face ghosts after every pass,
+// and a coarse level is gathered onto rank 0 (docs/multigrid.md, "On R ranks").
 #pragma once
 
 #include <array>
@@ -23,6 +23,7 @@
 
 #include "core/cell_box.hpp"
 #include "core/communicator.hpp"
+#include "core/huge_page_allocator.hpp"
 #include "fluid/grid_field.hpp"
 
 namespace cfddem::fluid {
@@ -137,7 +138,7 @@ private:
   bool singular_ = true;
   std::vector<Level> levels_;
   // Outer flexible CG's vectors on the finest level's padded layout.
-  std::vector<double> x_, b_, r_, r_old_, z_, p_, q_;
+  HugePageVector<double> x_, b_, r_, r_old_, z_, p_, q_;
   // Coarsest level: dense Cholesky factor (row-major lower triangle) or empty (CG).
   std::vector<double> cholesky_;
   std::vector<double> dense_rhs_;

@@ -47,18 +47,26 @@ namespace detail {
   assert(static_cast<std::size_t>(s.count()) <= weights.size());
   const std::span<double> w = weights.first(static_cast<std::size_t>(s.count()));
   if (shape == DpvmShape::cube) {
-    std::size_t m = 0; // x fastest
-    // Separable: the cube's overlap with a cell is a product of 1-D overlaps.
-    for (int c = 0; c < s.size[2]; ++c) {
+    // Separable: the cube's overlap with a cell is a product of 1-D overlaps, wx * wy * wz
+    // (x fastest). The x factors are computed once, into the first row, and every row is
+    // filled from them, the first row last (it holds them until then).
+    const auto n0 = static_cast<std::size_t>(s.size[0]);
+    for (std::size_t a = 0; a < n0; ++a) {
+      w[a] = detail::interval_overlap(x[0], r, origin[0] + (s.lo[0] + static_cast<int>(a)) * dx[0],
+                                      dx[0]) /
+             (2 * r);
+    }
+    for (int c = s.size[2] - 1; c >= 0; --c) {
       const double wz =
           detail::interval_overlap(x[2], r, origin[2] + (s.lo[2] + c) * dx[2], dx[2]) / (2 * r);
-      for (int b = 0; b < s.size[1]; ++b) {
+      for (int b = s.size[1] - 1; b >= 0; --b) {
         const double wy =
             detail::interval_overlap(x[1], r, origin[1] + (s.lo[1] + b) * dx[1], dx[1]) / (2 * r);
-        for (int a = 0; a < s.size[0]; ++a) {
-          const double wx =
-              detail::interval_overlap(x[0], r, origin[0] + (s.lo[0] + a) * dx[0], dx[0]) / (2 * r);
-          w[m++] = wx * wy * wz;
+        double* row =
+            w.data() + n0 * (static_cast<std::size_t>(b) +
+                             static_cast<std::size_t>(s.size[1]) * static_cast<std::size_t>(c));
+        for (std::size_t a = 0; a < n0; ++a) {
+          row[a] = w[a] * wy * wz;
         }
       }
     }

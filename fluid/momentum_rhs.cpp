@@ -1,6 +1,7 @@
 #include "fluid/momentum_rhs.hpp"
 
 #include <type_traits>
+#include <vector>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -295,6 +296,31 @@ void viscous_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
   }
 }
 
+// The half-step value and the three base states of a row's points (base_row's last loop; the
+// transverse terms t_c at the row's points).
+template <bool WithLaplacian>
+void half_step_row(std::ptrdiff_t p0, std::ptrdiff_t len, std::ptrdiff_t sa, double half_dt,
+                   double grad_scale, const double* __restrict q, const double* __restrict rate,
+                   const double* __restrict pressure, const double* __restrict lap,
+                   const double* __restrict push, const double* __restrict gain,
+                   const double* __restrict t0, const double* __restrict t1,
+                   const double* __restrict t2, double* __restrict b0, double* __restrict b1,
+                   double* __restrict b2, double* __restrict half) {
+  // GCC takes restrict from parameters, not from locals: every array is one.
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    double force = rate[p] - (pressure[p] - pressure[p - sa]) * grad_scale;
+    if constexpr (WithLaplacian) {
+      force += lap[p];
+    }
+    const double common = q[p] + half_dt * (force - (t0[p] + t1[p] + t2[p])) + 0.5 * push[p];
+    const double inv_gain = 2.0 / (1.0 + gain[p]); // 1 / (1 + k beta / 2)
+    half[p] = common * inv_gain;
+    b0[p] = (common + half_dt * t0[p]) * inv_gain;
+    b1[p] = (common + half_dt * t1[p]) * inv_gain;
+    b2[p] = (common + half_dt * t2[p]) * inv_gain;
+  }
+}
+
 // The base states of a row of component a's faces, one per direction b: the point's value
 // advanced by half a step with the transverse advection (all directions but b), and `half`,
 // with the advection along all three (u^{n+1/2} at the face, the advecting velocities' source);
@@ -317,34 +343,48 @@ void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t
   const double* __restrict push = (*pred.drag_push)[a].values().data();
   const double half_dt = 0.5 * pred.dt;
   const double grad_scale = v.inv_dx[a] * inv_rho;
-  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
-    double force = rate[p] - (pressure[p] - pressure[p - sa]) * grad_scale;
-    if (lap != nullptr) {
-      force += lap[p];
-    }
-    std::array<double, 3> transverse{};
-    for (int c = 0; c < 3; ++c) {
-      const std::ptrdiff_t sc = v.st[c];
-      double ubar = q[p];
-      if (c != a) {
-        const double* __restrict uc = v.u[c];
-        ubar = 0.25 * (uc[p] + uc[p + sc] + uc[p - sa] + uc[p - sa + sc]);
+  // The transverse terms direction by direction into row buffers, each a loop without branches
+  // (both upwind differences computed, one selected), so that the compiler vectorises them.
+  const auto n = static_cast<std::size_t>(len + 1);
+  thread_local std::vector<double> rows;
+  if (rows.size() < 3 * n) {
+    rows.resize(3 * n);
+  }
+  std::array<double*, 3> transverse = {rows.data(), rows.data() + n, rows.data() + 2 * n};
+  for (int c = 0; c < 3; ++c) {
+    const std::ptrdiff_t sc = v.st[c];
+    const double* __restrict uc = v.u[c];
+    const double inv_dx = v.inv_dx[c];
+    double* __restrict t = transverse[static_cast<std::size_t>(c)] - p0;
+    const auto fill = [&](auto along_a) {
+      for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+        double ubar = q[p];
+        if constexpr (!decltype(along_a)::value) {
+          ubar = 0.25 * (uc[p] + uc[p + sc] + uc[p - sa] + uc[p - sa + sc]);
+        }
+        const double dm = q[p] - q[p - sc];
+        const double dp = q[p + sc] - q[p];
+        const double slope = limited_slope<L>(dm, dp);
+        const double below = dm + 0.5 * (slope - limited_slope<L>(q[p - sc] - q[p - 2 * sc], dm));
+        const double above = dp - 0.5 * (limited_slope<L>(dp, q[p + 2 * sc] - q[p + sc]) - slope);
+        t[p] = ubar * (ubar > 0.0 ? below : above) * inv_dx;
       }
-      const double dm = q[p] - q[p - sc];
-      const double dp = q[p + sc] - q[p];
-      const double slope = limited_slope<L>(dm, dp);
-      const double difference =
-          ubar > 0.0 ? dm + 0.5 * (slope - limited_slope<L>(q[p - sc] - q[p - 2 * sc], dm))
-                     : dp - 0.5 * (limited_slope<L>(dp, q[p + 2 * sc] - q[p + sc]) - slope);
-      transverse[c] = ubar * difference * v.inv_dx[c];
+    };
+    if (c == a) {
+      fill(std::true_type{});
+    } else {
+      fill(std::false_type{});
     }
-    const double common =
-        q[p] + half_dt * (force - (transverse[0] + transverse[1] + transverse[2])) + 0.5 * push[p];
-    const double inv_gain = 2.0 / (1.0 + gain[p]); // 1 / (1 + k beta / 2)
-    half[p] = common * inv_gain;
-    for (int b = 0; b < 3; ++b) {
-      base[b][p] = (common + half_dt * transverse[b]) * inv_gain;
-    }
+  }
+  // The row buffers indexed by the points' own index.
+  const std::array<const double*, 3> t = {transverse[0] - p0, transverse[1] - p0,
+                                          transverse[2] - p0};
+  if (lap != nullptr) {
+    half_step_row<true>(p0, len, sa, half_dt, grad_scale, q, rate, pressure, lap, push, gain, t[0],
+                        t[1], t[2], base[0], base[1], base[2], half);
+  } else {
+    half_step_row<false>(p0, len, sa, half_dt, grad_scale, q, rate, pressure, lap, push, gain, t[0],
+                         t[1], t[2], base[0], base[1], base[2], half);
   }
 }
 
@@ -417,6 +457,30 @@ void godunov_advective_row(const ComponentView& v, int b, double dt, std::ptrdif
   }
 }
 
+// out -= div(A q_e) - q div(A) on the points of a row, the directions summed in the order x, y, z.
+void subtract_advection_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
+                            const double* __restrict q, std::array<const double*, 3> speed,
+                            std::array<const double*, 3> flux, double* __restrict out) {
+  const double* __restrict s0 = speed[0];
+  const double* __restrict s1 = speed[1];
+  const double* __restrict s2 = speed[2];
+  const double* __restrict f0 = flux[0];
+  const double* __restrict f1 = flux[1];
+  const double* __restrict f2 = flux[2];
+  const std::ptrdiff_t sy = v.st[1];
+  const std::ptrdiff_t sz = v.st[2];
+  const double ix = v.inv_dx[0];
+  const double iy = v.inv_dx[1];
+  const double iz = v.inv_dx[2];
+  for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
+    double o = 0.0;
+    o -= ((f0[p + 1] - f0[p]) - q[p] * (s0[p + 1] - s0[p])) * ix;
+    o -= ((f1[p + sy] - f1[p]) - q[p] * (s1[p + sy] - s1[p])) * iy;
+    o -= ((f2[p + sz] - f2[p]) - q[p] * (s2[p + sz] - s2[p])) * iz;
+    out[p] += o;
+  }
+}
+
 // rhs_a -= u.grad u_a in convective form, div(A q_e) - q div(A), with the time-centred
 // advecting velocities and edge states (godunov_advective_row).
 template <Limiter L>
@@ -432,19 +496,14 @@ void subtract_advection(const MacGrid& grid, const ComponentView& v, double dt,
                              work.half[k].values().data(), work.speed[b].values().data(),
                              work.flux[b].values().data());
   });
-  const double* __restrict q = v.u[a];
-  double* __restrict out = rhs.values().data();
+  const double* q = v.u[a];
+  double* out = rhs.values().data();
+  const std::array<const double*, 3> speed = {
+      work.speed[0].values().data(), work.speed[1].values().data(), work.speed[2].values().data()};
+  const std::array<const double*, 3> flux = {
+      work.flux[0].values().data(), work.flux[1].values().data(), work.flux[2].values().data()};
   for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
-    for (std::ptrdiff_t p = p0; p <= p0 + hi[0]; ++p) {
-      double o = 0.0;
-      for (int b = 0; b < 3; ++b) {
-        const std::ptrdiff_t sb = v.st[b];
-        const double* __restrict s = work.speed[b].values().data();
-        const double* __restrict f = work.flux[b].values().data();
-        o -= ((f[p + sb] - f[p]) - q[p] * (s[p + sb] - s[p])) * v.inv_dx[b];
-      }
-      out[p] += o;
-    }
+    subtract_advection_row(v, p0, hi[0], q, speed, flux, out);
   });
 }
 

@@ -166,19 +166,31 @@ fluid::DepositionSettings deposition_settings(const Scene& scene) {
 
 } // namespace
 
+namespace {
+
+// The largest radius of the first `owned` particles, over the ranks when comm is given.
+double largest_radius(const ParticleStore& p, const Communicator* comm, std::size_t owned) {
+  const std::size_t n = std::min(owned, p.size());
+  double r_max = 0.0;
+  for (std::size_t i = 0; i < n; ++i)
+    r_max = std::max(r_max, p.radius[i]);
+  return comm != nullptr && comm->size() > 1 ? comm->max(r_max) : r_max;
+}
+
+} // namespace
+
 GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Communicator* comm,
                          std::size_t owned)
+    : GasCoupling(scene, largest_radius(p, comm, owned), comm) {
+  attach(p, owned);
+}
+
+GasCoupling::GasCoupling(const Scene& scene, double r_max, const Communicator* comm)
     : scene_(scene), comm_(comm != nullptr && comm->size() > 1 ? comm : nullptr),
       boxes_(gas_boxes(scene, comm_)), grid_(gas_grid(scene, comm_, boxes_)) {
   if (comm_ != nullptr)
     halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
   solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);
-  const std::size_t n = std::min(owned, p.size());
-  double r_max = 0.0;
-  for (std::size_t i = 0; i < n; ++i)
-    r_max = std::max(r_max, p.radius[i]);
-  if (comm_ != nullptr)
-    r_max = comm_->max(r_max);
   r_max_ = std::max(r_max, 1e-300);
   deposition_ =
       std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene), r_max_, halo_.get());
@@ -200,8 +212,10 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
   // Initial gas velocity: uniform on faces (the first projection makes it admissible).
   for (int a = 0; a < 3; ++a)
     solver_->velocity()[a].fill(scene.fluid.velocity[a]);
-  // eps_g of the initial particles, so the first step sees no d(eps)/dt.
-  deposit(p, n);
+}
+
+void GasCoupling::attach(const ParticleStore& p, std::size_t owned) {
+  deposit(p, std::min(owned, p.size()));
   solver_->reset_volume_fraction_history();
 }
 

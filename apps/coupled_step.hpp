@@ -69,6 +69,13 @@ public:
   GasCoupling(const Scene& scene, const ParticleStore& particles,
               const Communicator* comm = nullptr, std::size_t owned = kAllParticles);
   static constexpr std::size_t kAllParticles = static_cast<std::size_t>(-1);
+  // In two parts, so that the run's set-up pays for the grid, the solver and their fields (the
+  // first touch of every page: most of a large gas's start) and the loop only for the first
+  // deposit: the coupling for particles of radius at most r_max (the same on every rank), ...
+  GasCoupling(const Scene& scene, double r_max, const Communicator* comm = nullptr);
+  // ... then eps_g of the initial particles (the first `owned` of the store), so the first step
+  // sees no d(eps)/dt. The one-call constructor above is the two in a row.
+  void attach(const ParticleStore& particles, std::size_t owned = kAllParticles);
   ~GasCoupling();
   GasCoupling(const GasCoupling&) = delete;
   GasCoupling& operator=(const GasCoupling&) = delete;

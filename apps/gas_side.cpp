@@ -1,5 +1,6 @@
 #include "apps/gas_side.hpp"
 
+#include <algorithm>
 #include <stdexcept>
 #include <utility>
 #include <vector>
@@ -50,11 +51,25 @@ partition::RankDecomposition GasSide::box_owners() const {
   return box_decomposition(scene_, boxes0_);
 }
 
+void GasSide::prepare(const ParticleStore& p) {
+  // The largest radius over every rank's particles: the deposition's reach. Before start() a
+  // store holds only its rank's own particles, so this is the maximum the first deposit's
+  // particles (owned or routed copies, after start()) would give.
+  double r_max = 0.0;
+  for (const double r : p.radius)
+    r_max = std::max(r_max, r);
+  if (comm_.size() > 1)
+    r_max = comm_.max(r_max);
+  gas_.emplace(scene_, r_max, &comm_);
+}
+
 void GasSide::attach(const ParticleStore& p, std::size_t owned) {
+  if (!gas_)
+    throw std::logic_error("GasSide::attach before prepare");
   if (routed_)
-    gas_.emplace(scene_, routing_->route(p, owned), &comm_, GasCoupling::kAllParticles);
+    gas_->attach(routing_->route(p, owned), GasCoupling::kAllParticles);
   else
-    gas_.emplace(scene_, p, &comm_, comm_.size() == 1 ? GasCoupling::kAllParticles : owned);
+    gas_->attach(p, comm_.size() == 1 ? GasCoupling::kAllParticles : owned);
 }
 
 void GasSide::restore(Checkpoint& ck, const std::string& path, CoupledLoopState& loop) {

@@ -35,7 +35,10 @@ public:
   GasSide(const Scene& scene, const Communicator& comm, bool routed);
   // The boxes as the owners of the particles (an unrouted scheme on R ranks).
   [[nodiscard]] partition::RankDecomposition box_owners() const;
-  // After start() or a restore: the gas on this rank's `owned` particles.
+  // In the set-up, with this rank's particles before start(): the grid, the solver and their
+  // fields (collective), so that their allocation and first touch are not the loop's.
+  void prepare(const ParticleStore& p);
+  // After start() or a restore: the gas on this rank's `owned` particles (their first deposit).
   void attach(const ParticleStore& p, std::size_t owned);
   // A restart: the gas state and the loop's position (ConfigError naming `path`).
   void restore(Checkpoint& ck, const std::string& path, CoupledLoopState& loop);

@@ -108,6 +108,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     gas.emplace(scene, comm, Run::kSub);
     if (!one && !Run::kSub)
       run.own_by(gas->box_owners(), false); // explicit: by the gas boxes
+    gas->prepare(particles); // the grid, solver and fields: set-up, not the loop's start
   }
 
   // dt checked against the checkpoint, and the end of the run: a number of particle steps

@@ -9,14 +9,13 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <optional>
 #include <string>
 #include <type_traits>
 #include <vector>
-
-#include <tbb/parallel_for.h>
 
 #include "core/particle_store.hpp"
 #include "dem/contact_kernels.hpp"
@@ -503,14 +502,26 @@ inline std::int64_t entry_lead(double t_e, double dt_sp, const FineSteps& fs) {
 // step_island's free_time argument where no fold is taken after the leading steps.
 struct NoFold {};
 
-// Islands larger than this run each pass as a nested parallel_for over blocks of members.
+// Islands larger than this run each pass over blocks of members, the blocks given to the
+// caller's `for_blocks(n, f)` (f(b) for every block b < n, in any order, on any thread: each
+// block writes only its own partial counts, summed afterwards in block order). The caller owns
+// the iteration: the schemes pass TBB tasks (dem/task_blocks.hpp), a test may pass SerialBlocks.
 inline constexpr std::uint32_t kGiantIsland = 4096;
 inline constexpr std::uint32_t kMemberBlock = 1024;
+
+// for_blocks for callers that run every block on the calling thread, in order.
+struct SerialBlocks {
+  template <class F> void operator()(std::size_t n, F&& f) const {
+    for (std::size_t b = 0; b < n; ++b)
+      f(b);
+  }
+};
 
 // The K fine steps of an island (fine_steps(): h, the last one h_last) with the orb scheme's
 // variable-step leapfrog (h_prev per particle): contact forces from `forces(u0, u1, max_ratio,
 // violations)` over members u0..u1 (returns the pairs), then every member's kick-drift, then
-// `between()` before every step but the first (the R-rank ghost refresh). With svx non-null the
+// `between()` before every step but the first (the R-rank ghost refresh); a giant island's
+// blocks of members through `for_blocks` (above). With svx non-null the
 // synchronised velocities at the start go there. Each member's force and update read only the
 // state before the pass: bitwise independent of the thread count.
 //
@@ -522,11 +533,12 @@ inline constexpr std::uint32_t kMemberBlock = 1024;
 // the fold). It is asked again once a contact has come and gone, or once its last answer has
 // passed without a contact (a pair that closed in on its line of centres and missed).
 template <bool External, bool Bounded, bool Friction = false, class Forces, class Between,
-          class FreeTime = NoFold>
+          class ForBlocks, class FreeTime = NoFold>
 [[gnu::always_inline]] inline IslandResult
 step_island(const Columns& col, const Members& mb, const FineSteps& fs,
             const std::array<double, 3>& grav, double* svx, double* svy, double* svz,
-            Forces&& forces, Between&& between, FreeTime&& free_time = FreeTime{}) {
+            Forces&& forces, Between&& between, ForBlocks&& for_blocks,
+            FreeTime&& free_time = FreeTime{}) {
   constexpr bool kFolds = !std::is_same_v<std::decay_t<FreeTime>, NoFold>;
   IslandResult res;
   const std::uint32_t* mem = mb.mem;
@@ -587,8 +599,8 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     }
   };
   const bool giant = count > kGiantIsland;
-  // A giant island's passes run as nested parallel loops over blocks of members; each block's
-  // partial counts go here (one allocation per sub-iteration, not per step).
+  // A giant island's passes run over blocks of members (for_blocks); each block's partial
+  // counts go here (one allocation per sub-iteration, not per step).
   std::vector<IslandResult> parts(giant ? (count + kMemberBlock - 1) / kMemberBlock : 0);
   auto block_end = [&](std::size_t b) {
     return std::min<std::uint32_t>(count, static_cast<std::uint32_t>((b + 1) * kMemberBlock));
@@ -641,7 +653,7 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     if (!giant) {
       evaluate_range(0u, count, res);
     } else {
-      tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
+      for_blocks(parts.size(), [&](std::size_t b) {
         IslandResult& pt = parts[b];
         pt = IslandResult{};
         evaluate_range(static_cast<std::uint32_t>(b * kMemberBlock),
@@ -711,7 +723,7 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
     if (!giant) {
       kick_range(0u, count, res.bound_violations);
     } else {
-      tbb::parallel_for(std::size_t{0}, parts.size(), [&](std::size_t b) {
+      for_blocks(parts.size(), [&](std::size_t b) {
         std::int64_t& bv = parts[b].bound_violations;
         bv = 0;
         kick_range(static_cast<std::uint32_t>(b * kMemberBlock),

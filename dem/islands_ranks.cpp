@@ -46,6 +46,7 @@
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/scheme_support.hpp"
+#include "dem/task_blocks.hpp"
 
 namespace cfddem::dem {
 
@@ -367,10 +368,12 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
   auto refresh = [&] { r.exchange.forward(p_); };
   double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
                    record ? rec_.vz.data() : nullptr};
-  return all ? islands::step_island<External, false, Friction>(
-                   view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh)
+  return all ? islands::step_island<External, false, Friction>(view.c, mb, steps_, model_.gravity,
+                                                               sv[0], sv[1], sv[2], all_forces,
+                                                               refresh, TaskBlocks{})
              : islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
-                                                              sv[0], sv[1], sv[2], forces, refresh);
+                                                              sv[0], sv[1], sv[2], forces, refresh,
+                                                              TaskBlocks{});
 }
 
 // The spanning members' leads (islands_kernels.hpp, member_entry_time): each island's entry

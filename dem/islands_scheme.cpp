@@ -18,6 +18,7 @@
 #include "dem/kick_drift_range.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/subiteration_length.hpp"
+#include "dem/task_blocks.hpp"
 #include "dem/verlet_passes.hpp"
 
 namespace cfddem::dem {
@@ -959,7 +960,7 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
           [&](std::uint32_t, std::uint32_t, double& max_ratio, std::int64_t& violations) {
             return islands::pair_island_forces(view, i, j, across, max_ratio, violations);
           },
-          [] {}, free_time);
+          [] {}, islands::SerialBlocks{}, free_time); // two members: never a giant island
       return;
     }
   }
@@ -971,7 +972,7 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
         return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
             view, mb.mem, u0, u1, c, max_ratio, violations, hk...);
       },
-      [] {}, free_time);
+      [] {}, TaskBlocks{}, free_time);
 }
 
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <limits>
 #include <optional>
+#include <span>
 #include <string>
 #include <type_traits>
 #include <vector>
@@ -27,43 +28,47 @@
 
 namespace cfddem::dem::islands {
 
-// The columns a fine step reads and writes: the store's, the scheme's half steps (hp) and the
-// held external force (null pointers without one); with friction the spins and torques, and
-// 1 / I (null pointers without rotation).
+// The columns a fine step reads and writes, as spans over the store's arrays (every one the
+// store's length): the store's, the scheme's half steps (hp) and the held external force (empty
+// without one); with friction the spins and torques, and 1 / I (empty without rotation).
 struct Columns {
-  double *x, *y, *z, *vx, *vy, *vz, *fx, *fy, *fz, *hp;
-  const double *im, *radius, *mass;
-  const std::int64_t* id;
-  const double *ex, *ey, *ez;
-  double *wx, *wy, *wz, *tx, *ty, *tz;
-  const double* ii;
+  std::span<double> x, y, z, vx, vy, vz, fx, fy, fz, hp;
+  std::span<const double> im, radius, mass;
+  std::span<const std::int64_t> id;
+  std::span<const double> ex, ey, ez;
+  std::span<double> wx, wy, wz, tx, ty, tz;
+  std::span<const double> ii;
 };
 inline Columns columns(ParticleStore& p, std::vector<double>& hprev, const ExternalForce& e) {
   const bool on = e.active();
-  return {p.x.data(),
-          p.y.data(),
-          p.z.data(),
-          p.vx.data(),
-          p.vy.data(),
-          p.vz.data(),
-          p.fx.data(),
-          p.fy.data(),
-          p.fz.data(),
-          hprev.data(),
-          p.inv_mass.data(),
-          p.radius.data(),
-          p.mass.data(),
-          p.id.data(),
-          on ? e.x.data() : nullptr,
-          on ? e.y.data() : nullptr,
-          on ? e.z.data() : nullptr,
-          p.rotation ? p.wx.data() : nullptr,
-          p.rotation ? p.wy.data() : nullptr,
-          p.rotation ? p.wz.data() : nullptr,
-          p.rotation ? p.tx.data() : nullptr,
-          p.rotation ? p.ty.data() : nullptr,
-          p.rotation ? p.tz.data() : nullptr,
-          p.rotation ? p.inv_inertia.data() : nullptr};
+  const bool spin = p.rotation;
+  auto opt = [](bool present, auto& v) {
+    return present ? std::span(v) : std::span<std::remove_reference_t<decltype(v[0])>>{};
+  };
+  return {p.x,
+          p.y,
+          p.z,
+          p.vx,
+          p.vy,
+          p.vz,
+          p.fx,
+          p.fy,
+          p.fz,
+          hprev,
+          p.inv_mass,
+          p.radius,
+          p.mass,
+          p.id,
+          opt(on, e.x),
+          opt(on, e.y),
+          opt(on, e.z),
+          opt(spin, p.wx),
+          opt(spin, p.wy),
+          opt(spin, p.wz),
+          opt(spin, p.tx),
+          opt(spin, p.ty),
+          opt(spin, p.tz),
+          opt(spin, p.inv_inertia)};
 }
 
 // Neighbor rows in CSR form. wrap[i]: where row i's pairs across a periodic face begin (the
@@ -97,11 +102,11 @@ inline double acceleration(const Columns& c, const std::array<double, 3>& g, std
 // islands_scheme.hpp): s_i = |v_i| + |F_ext,i / m_i + g| (h_prev,i + dt_sp).
 inline void speed_bounds(const Columns& c, std::size_t n, const std::array<double, 3>& g,
                          double dt_sp, double* __restrict b) {
-  const double* __restrict vx = c.vx;
-  const double* __restrict vy = c.vy;
-  const double* __restrict vz = c.vz;
-  const double* __restrict hp = c.hp;
-  if (c.ex == nullptr) {
+  const double* __restrict vx = c.vx.data();
+  const double* __restrict vy = c.vy.data();
+  const double* __restrict vz = c.vz.data();
+  const double* __restrict hp = c.hp.data();
+  if (c.ex.empty()) {
     // Gravity alone: one acceleration for all.
     const double a = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
     for (std::size_t i = 0; i < n; ++i)
@@ -213,18 +218,18 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
   // locals, so their fields stay in registers.
   const DomainGeometry& g = *v.geom;
   const StepModel& m = *v.model;
-  const double* __restrict x = v.c.x;
-  const double* __restrict y = v.c.y;
-  const double* __restrict z = v.c.z;
-  const double* __restrict vx = v.c.vx;
-  const double* __restrict vy = v.c.vy;
-  const double* __restrict vz = v.c.vz;
-  const double* __restrict rad = v.c.radius;
-  const double* __restrict mass = v.c.mass;
-  const std::int64_t* __restrict id = v.c.id;
-  double* __restrict fxo = v.c.fx;
-  double* __restrict fyo = v.c.fy;
-  double* __restrict fzo = v.c.fz;
+  const double* __restrict x = v.c.x.data();
+  const double* __restrict y = v.c.y.data();
+  const double* __restrict z = v.c.z.data();
+  const double* __restrict vx = v.c.vx.data();
+  const double* __restrict vy = v.c.vy.data();
+  const double* __restrict vz = v.c.vz.data();
+  const double* __restrict rad = v.c.radius.data();
+  const double* __restrict mass = v.c.mass.data();
+  const std::int64_t* __restrict id = v.c.id.data();
+  double* __restrict fxo = v.c.fx.data();
+  double* __restrict fyo = v.c.fy.data();
+  double* __restrict fzo = v.c.fz.data();
   double max_ratio = max_ratio_out;
   std::int64_t pairs = 0, violations = 0;
   for (std::uint32_t u = u0; u < u1; ++u) {
@@ -378,9 +383,9 @@ template <bool Wrap, class Pair>
 [[gnu::always_inline]] inline void island_partners(const ContactView& v, std::uint32_t i,
                                                    std::uint32_t island, Pair&& pair) {
   const DomainGeometry& g = *v.geom;
-  const double* __restrict x = v.c.x;
-  const double* __restrict y = v.c.y;
-  const double* __restrict z = v.c.z;
+  const double* __restrict x = v.c.x.data();
+  const double* __restrict y = v.c.y.data();
+  const double* __restrict z = v.c.z.data();
   const std::uint32_t* __restrict off = v.rows.off;
   const std::uint32_t* __restrict nb = v.rows.nb;
   const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
@@ -399,7 +404,7 @@ template <bool Wrap>
 double member_entry_time(const ContactView& v, const double* own, double margin,
                          std::uint32_t island, std::uint32_t i) {
   const DomainGeometry& g = *v.geom;
-  const double* __restrict rad = v.c.radius;
+  const double* __restrict rad = v.c.radius.data();
   const double ri = rad[i], si = own[i];
   double t = std::numeric_limits<double>::infinity();
   island_partners<Wrap>(v, i, island, [&](std::uint32_t j, double dx, double dy, double dz) {
@@ -543,17 +548,17 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   IslandResult res;
   const std::uint32_t* mem = mb.mem;
   const std::uint32_t count = mb.count;
-  double* x = col.x;
-  double* y = col.y;
-  double* z = col.z;
-  double* vx = col.vx;
-  double* vy = col.vy;
-  double* vz = col.vz;
-  double* fx = col.fx;
-  double* fy = col.fy;
-  double* fz = col.fz;
-  double* hp = col.hp;
-  const double* im = col.im;
+  double* x = col.x.data();
+  double* y = col.y.data();
+  double* z = col.z.data();
+  double* vx = col.vx.data();
+  double* vy = col.vy.data();
+  double* vz = col.vz.data();
+  double* fx = col.fx.data();
+  double* fy = col.fy.data();
+  double* fz = col.fz.data();
+  double* hp = col.hp.data();
+  const double* im = col.im.data();
   // Member u's update over one step. Everything it reads besides the particle's own state is
   // held in locals (the stores through x, v, hp could alias the views otherwise, and the
   // compiler would reload them for every member).
@@ -561,17 +566,17 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   const double* __restrict y0 = mb.y0;
   const double* __restrict z0 = mb.z0;
   const double* __restrict bnd = mb.bound;
-  const double* __restrict ex_x = col.ex;
-  const double* __restrict ex_y = col.ey;
-  const double* __restrict ex_z = col.ez;
+  const double* __restrict ex_x = col.ex.data();
+  const double* __restrict ex_y = col.ey.data();
+  const double* __restrict ex_z = col.ez.data();
   const double g0 = grav[0], g1 = grav[1], g2 = grav[2], margin = mb.margin, fixed2 = mb.fixed2;
-  [[maybe_unused]] double* wx = col.wx;
-  [[maybe_unused]] double* wy = col.wy;
-  [[maybe_unused]] double* wz = col.wz;
-  [[maybe_unused]] const double* tx = col.tx;
-  [[maybe_unused]] const double* ty = col.ty;
-  [[maybe_unused]] const double* tz = col.tz;
-  [[maybe_unused]] const double* ii = col.ii;
+  [[maybe_unused]] double* wx = col.wx.data();
+  [[maybe_unused]] double* wy = col.wy.data();
+  [[maybe_unused]] double* wz = col.wz.data();
+  [[maybe_unused]] const double* tx = col.tx.data();
+  [[maybe_unused]] const double* ty = col.ty.data();
+  [[maybe_unused]] const double* tz = col.tz.data();
+  [[maybe_unused]] const double* ii = col.ii.data();
   auto kick = [=](std::uint32_t u, double s, double hk, double half, double elapsed,
                   std::int64_t& bound_violations) {
     const std::uint32_t i = mem[u];

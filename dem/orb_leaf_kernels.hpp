@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <span>
 
 #include "dem/contact_kernels.hpp"
 #include "dem/friction_kernels.hpp"
@@ -14,35 +15,38 @@
 
 namespace cfddem::dem {
 
+// The views below are spans over the store's slots (and the rows' arrays), each with its length,
+// as dem/particle_views.hpp: a column that is absent is empty.
+//
 // The columns a batch advances, indexed by the store's slots: positions, velocities and the
 // contact force (written), the half step h_prev of each particle (written), and what is read.
 // fex/fey/fez: the external force, read only by the External instantiations.
 struct LeafLive {
-  double *x, *y, *z, *vx, *vy, *vz, *fx, *fy, *fz, *hp;
-  const double *rad, *mass, *im;
-  const double *fex, *fey, *fez;
+  std::span<double> x, y, z, vx, vy, vz, fx, fy, fz, hp;
+  std::span<const double> rad, mass, im;
+  std::span<const double> fex, fey, fez;
 };
 
 // Read-only positions and velocities at the start of the sub-iteration: what a particle reads of
 // its partners in other leaves (or on other ranks).
 struct LeafFrozen {
-  const double *x, *y, *z, *vx, *vy, *vz;
+  std::span<const double> x, y, z, vx, vy, vz;
 };
 
 // Rows: the particles act[a0, a1) with partners; particle i's own-leaf partners
 // nb[off[i], mid[i]) (read live), other partners nb[mid[i], off[i + 1]) (read frozen).
 struct LeafRows {
-  const std::uint32_t *act, *off, *mid, *nb;
+  std::span<const std::uint32_t> act, off, mid, nb;
 };
 
 // With friction: the spins (read live) and torques (written) of the store's slots, 1 / I, the
 // spins at the start of the sub-iteration (what a partner in another leaf is read at), and the
 // tangential history per row entry (nb's indexing: entry s is particle i's record of nb[s]).
 struct LeafSpin {
-  double *wx, *wy, *wz, *tx, *ty, *tz;
-  const double* ii;
-  const double *gwx, *gwy, *gwz;
-  double *hx, *hy, *hz;
+  std::span<double> wx, wy, wz, tx, ty, tz;
+  std::span<const double> ii;
+  std::span<const double> gwx, gwy, gwz;
+  std::span<double> hx, hy, hz;
 };
 
 // The largest overlap ratio seen and the overlaps beyond the bound (dem.max_overlap radii).
@@ -104,9 +108,11 @@ inline void leaf_contact_loop(
 inline void leaf_contact_pass(std::uint32_t a0, std::uint32_t a1, const LeafRows& r,
                               const LeafLive& p, const LeafFrozen& f, const DomainGeometry& g,
                               const StepModel& m, OverlapTally& tally) {
-  detail::leaf_contact_loop(a0, a1, r.act, r.off, r.mid, r.nb, p.x, p.y, p.z, p.vx, p.vy, p.vz, f.x,
-                            f.y, f.z, f.vx, f.vy, f.vz, p.rad, p.mass, p.fx, p.fy, p.fz, g, m,
-                            tally);
+  detail::leaf_contact_loop(a0, a1, r.act.data(), r.off.data(), r.mid.data(), r.nb.data(),
+                            p.x.data(), p.y.data(), p.z.data(), p.vx.data(), p.vy.data(),
+                            p.vz.data(), f.x.data(), f.y.data(), f.z.data(), f.vx.data(),
+                            f.vy.data(), f.vz.data(), p.rad.data(), p.mass.data(), p.fx.data(),
+                            p.fy.data(), p.fz.data(), g, m, tally);
 }
 
 // The frictional contact pass over the rows act[a0, a1): leaf_contact_pass's sums with the
@@ -257,25 +263,25 @@ inline void leaf_kick_drift(std::uint32_t b, std::uint32_t e, const LeafLive& p,
                             const LeafFrozen& ref, const LeafStep& st,
                             const std::array<double, 3>& gravity, std::uint64_t& still) {
   const std::size_t n = e - b;
-  KickDriftColumns c{{p.x + b, n},
-                     {p.y + b, n},
-                     {p.z + b, n},
-                     {p.vx + b, n},
-                     {p.vy + b, n},
-                     {p.vz + b, n},
-                     {p.fx + b, n},
-                     {p.fy + b, n},
-                     {p.fz + b, n},
+  KickDriftColumns c{p.x.subspan(b, n),
+                     p.y.subspan(b, n),
+                     p.z.subspan(b, n),
+                     p.vx.subspan(b, n),
+                     p.vy.subspan(b, n),
+                     p.vz.subspan(b, n),
+                     p.fx.subspan(b, n),
+                     p.fy.subspan(b, n),
+                     p.fz.subspan(b, n),
                      {},
                      {},
                      {},
-                     {p.im + b, n},
-                     {ref.x + b, n},
-                     {ref.y + b, n},
-                     {ref.z + b, n},
-                     {p.hp + b, n}};
+                     p.im.subspan(b, n),
+                     ref.x.subspan(b, n),
+                     ref.y.subspan(b, n),
+                     ref.z.subspan(b, n),
+                     p.hp.subspan(b, n)};
   if constexpr (External)
-    c.ex = {p.fex + b, n}, c.ey = {p.fey + b, n}, c.ez = {p.fez + b, n};
+    c.ex = p.fex.subspan(b, n), c.ey = p.fey.subspan(b, n), c.ez = p.fez.subspan(b, n);
   leaf_kick_drift<External>(st.k, st.K, c, st.h_before, st.hk, gravity, st.half_skin2, still);
 }
 

@@ -177,41 +177,26 @@ void OrbScheme::roll_back() {
 }
 
 LeafLive OrbScheme::live(bool external) {
-  return {p_.x.data(),
-          p_.y.data(),
-          p_.z.data(),
-          p_.vx.data(),
-          p_.vy.data(),
-          p_.vz.data(),
-          p_.fx.data(),
-          p_.fy.data(),
-          p_.fz.data(),
-          hprev_.data(),
-          p_.radius.data(),
-          p_.mass.data(),
-          p_.inv_mass.data(),
-          external ? ext_.x.data() : nullptr,
-          external ? ext_.y.data() : nullptr,
-          external ? ext_.z.data() : nullptr};
+  LeafLive v{p_.x,  p_.y,   p_.z,      p_.vx,   p_.vy,       p_.vz, p_.fx, p_.fy,
+             p_.fz, hprev_, p_.radius, p_.mass, p_.inv_mass, {},    {},    {}};
+  if (external)
+    v.fex = ext_.x, v.fey = ext_.y, v.fez = ext_.z;
+  return v;
 }
 
 LeafFrozen OrbScheme::frozen() const {
-  return {frozen_.x.data(),  frozen_.y.data(),  frozen_.z.data(),
-          frozen_.vx.data(), frozen_.vy.data(), frozen_.vz.data()};
+  return {frozen_.x, frozen_.y, frozen_.z, frozen_.vx, frozen_.vy, frozen_.vz};
 }
 
 LeafSpin OrbScheme::spin() {
-  return {p_.wx.data(),      p_.wy.data(),      p_.wz.data(),          p_.tx.data(),
-          p_.ty.data(),      p_.tz.data(),      p_.inv_inertia.data(), frozen_.wx.data(),
-          frozen_.wy.data(), frozen_.wz.data(), hist_.hx.data(),       hist_.hy.data(),
-          hist_.hz.data()};
+  return {p_.wx,      p_.wy,      p_.wz,      p_.tx,    p_.ty,    p_.tz,   p_.inv_inertia,
+          frozen_.wx, frozen_.wy, frozen_.wz, hist_.hx, hist_.hy, hist_.hz};
 }
 
 LeafRows OrbScheme::rows_view() const {
   if (rank_)
-    return {rank_->rows.active().data(), rank_->rows.off().data(), rank_->rows.mid().data(),
-            rank_->rows.nb().data()};
-  return {rows_.active.data(), rows_.off.data(), rows_.mid.data(), rows_.nb.data()};
+    return {rank_->rows.active(), rank_->rows.off(), rank_->rows.mid(), rank_->rows.nb()};
+  return {rows_.active, rows_.off, rows_.mid, rows_.nb};
 }
 
 // The step of each leaf (fine if one of its particles is near a partner or a wall), the batches
@@ -258,8 +243,7 @@ void OrbScheme::plan(bool record) {
     batches_.back().e = e;
   }
   const LeafRows rows = rows_view();
-  const std::span<const std::uint32_t> active(rows.act, rank_ ? rank_->rows.active().size()
-                                                              : rows_.active.size());
+  const std::span<const std::uint32_t> active = rows.act;
   for (Batch& bt : batches_) {
     bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.b) -
                                        active.begin());
@@ -315,8 +299,7 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
   // The reference of the skin test: one rank, the positions of the pair build; R ranks, those at
   // the sub-iteration start (the rows are built there).
   const LeafFrozen ref =
-      rank_ ? frozen_state : LeafFrozen{pairs_.xr.data(), pairs_.yr.data(), pairs_.zr.data(),
-                                        nullptr,          nullptr,          nullptr};
+      rank_ ? frozen_state : LeafFrozen{pairs_.xr, pairs_.yr, pairs_.zr, {}, {}, {}};
   const LeafRows rows = rows_view();
   [[maybe_unused]] const LeafSpin w = Friction ? spin() : LeafSpin{};
   const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
@@ -333,11 +316,11 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
     if constexpr (Friction) {
       leaf_frictional_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, w, st.hk, g, m, tally);
       if (walls)
-        add_frictional_wall_forces(b, e, rows.off, p, w, g, m, tally);
+        add_frictional_wall_forces(b, e, rows.off.data(), p, w, g, m, tally);
     } else {
       leaf_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, g, m, tally);
       if (walls)
-        add_wall_forces(b, e, rows.off, p, g, m.wall, m.max_overlap, tally);
+        add_wall_forces(b, e, rows.off.data(), p, g, m.wall, m.max_overlap, tally);
     }
     if (record && k == 0)
       synchronised_velocities<External>(b, e, p, m.gravity, rec_.vx.data(), rec_.vy.data(),

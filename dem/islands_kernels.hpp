@@ -790,6 +790,21 @@ free_flight_kernel(double* __restrict x, double* __restrict y, double* __restric
   return (nonfinite != 0 ? std::uint64_t{1} << 63 : 0) | (outside & (std::uint64_t{1} << 63));
 }
 
+// free_flight_kernel over the particles [b, e) of the columns c, the view the schemes hold; with
+// Record the synchronised velocities go to sv (the store's length). The kernel keeps its
+// positional restrict parameters: GCC vectorizes the loop only with them.
+template <bool External, bool Record, bool Walls>
+std::uint64_t free_flight(const Columns& c, std::size_t b, std::size_t e,
+                          const std::array<std::span<double>, 3>& sv,
+                          const std::array<double, 3>& g, double dt, const WallBounds& wb) {
+  return free_flight_kernel<External, Record, Walls>(
+      c.x.data() + b, c.y.data() + b, c.z.data() + b, c.vx.data() + b, c.vy.data() + b,
+      c.vz.data() + b, c.hp.data() + b, c.im.data() + b, External ? c.ex.data() + b : nullptr,
+      External ? c.ey.data() + b : nullptr, External ? c.ez.data() + b : nullptr,
+      Record ? sv[0].data() + b : nullptr, Record ? sv[1].data() + b : nullptr,
+      Record ? sv[2].data() + b : nullptr, e - b, g.data(), dt, wb);
+}
+
 // A particle whose position or velocity is not finite, or which is outside a wall.
 struct Fault {
   std::size_t index = 0;

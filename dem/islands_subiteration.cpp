@@ -235,13 +235,9 @@ template <bool External, bool Record, bool Walls> void IslandsScheme::free_fligh
 template <bool External, bool Record, bool Walls>
 std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
   const WallBounds wb(geom_);
-  return islands::free_flight_kernel<External, Record, Walls>(
-      p_.x.data() + b, p_.y.data() + b, p_.z.data() + b, p_.vx.data() + b, p_.vy.data() + b,
-      p_.vz.data() + b, hprev_.data() + b, p_.inv_mass.data() + b,
-      External ? ext_.x.data() + b : nullptr, External ? ext_.y.data() + b : nullptr,
-      External ? ext_.z.data() + b : nullptr, Record ? rec_.vx.data() + b : nullptr,
-      Record ? rec_.vy.data() + b : nullptr, Record ? rec_.vz.data() + b : nullptr, e - b,
-      model_.gravity.data(), dt_sp_, wb);
+  const std::array<std::span<double>, 3> sv = {rec_.vx, rec_.vy, rec_.vz};
+  return islands::free_flight<External, Record, Walls>(cols(), b, e, sv, model_.gravity, dt_sp_,
+                                                       wb);
 }
 
 } // namespace cfddem::dem

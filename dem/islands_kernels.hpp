@@ -74,7 +74,7 @@ inline Columns columns(ParticleStore& p, std::vector<double>& hprev, const Exter
 // Neighbor rows in CSR form. wrap[i]: where row i's pairs across a periodic face begin (the
 // Verlet list's order); without it (R ranks) every pair takes the minimum image.
 struct Rows {
-  const std::uint32_t *off, *nb, *wrap;
+  std::span<const std::uint32_t> off, nb, wrap; // wrap empty on R ranks
 };
 
 // What the contact pass of island members needs besides the columns: the rows, each particle's
@@ -82,10 +82,10 @@ struct Rows {
 struct ContactView {
   Columns c;
   Rows rows;
-  const std::uint32_t* label;
+  std::span<const std::uint32_t> label;
   const DomainGeometry* geom;
   const StepModel* model;
-  double *hx, *hy, *hz;
+  std::span<double> hx, hy, hz; // empty without friction
 };
 
 // |F_ext,i / m_i + g|.
@@ -210,10 +210,10 @@ template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction = false>
 std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
                             std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
                             std::int64_t& violations_out, [[maybe_unused]] double hk = 0.0) {
-  const std::uint32_t* __restrict off = v.rows.off;
-  const std::uint32_t* __restrict nb = v.rows.nb;
-  const std::uint32_t* __restrict wrap = v.rows.wrap;
-  const std::uint32_t* __restrict label = v.label;
+  const std::uint32_t* __restrict off = v.rows.off.data();
+  const std::uint32_t* __restrict nb = v.rows.nb.data();
+  const std::uint32_t* __restrict wrap = v.rows.wrap.data();
+  const std::uint32_t* __restrict label = v.label.data();
   // References (a copy per particle would cost more than it saves): the loop stores only to
   // locals, so their fields stay in registers.
   const DomainGeometry& g = *v.geom;
@@ -386,8 +386,8 @@ template <bool Wrap, class Pair>
   const double* __restrict x = v.c.x.data();
   const double* __restrict y = v.c.y.data();
   const double* __restrict z = v.c.z.data();
-  const std::uint32_t* __restrict off = v.rows.off;
-  const std::uint32_t* __restrict nb = v.rows.nb;
+  const std::uint32_t* __restrict off = v.rows.off.data();
+  const std::uint32_t* __restrict nb = v.rows.nb.data();
   const std::uint32_t kw = Wrap ? v.rows.wrap[i] : off[i];
   for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
     const std::uint32_t j = nb[k];

@@ -393,8 +393,8 @@ void IslandsScheme::span_leads(const islands::ContactView& view, islands::Member
   for (const std::uint32_t i : r.span_members)
     r.span_entry[i] =
         islands::member_entry_time<false>(view, ln_.own_bound.data(), margin_, label[i], i);
-  const std::uint32_t* off = view.rows.off;
-  const std::uint32_t* nb = view.rows.nb;
+  const std::uint32_t* off = view.rows.off.data();
+  const std::uint32_t* nb = view.rows.nb.data();
   std::vector<double>* entry[] = {&r.span_entry};
   for (;;) {
     r.exchange.forward_columns(entry);

@@ -697,17 +697,12 @@ void IslandsScheme::find_islands_one() {
 islands::ContactView IslandsScheme::contact_view() {
   // R ranks: rows over owned + ghosts, separations by the minimum image (no wrap part).
   const islands::Rows rows =
-      rank_ ? islands::Rows{rank_->rows.off().data(), rank_->rows.nb().data(), nullptr}
-            : islands::Rows{one_.list.offsets().data(), one_.list.neighbors().data(),
-                            one_.list.wrap_begin().data()};
-  return {cols(),
-          rows,
-          ln_.island_of.data(),
-          &geom_,
-          &model_,
-          model_.friction ? hx_.data() : nullptr,
-          model_.friction ? hy_.data() : nullptr,
-          model_.friction ? hz_.data() : nullptr};
+      rank_ ? islands::Rows{rank_->rows.off(), rank_->rows.nb(), {}}
+            : islands::Rows{one_.list.offsets(), one_.list.neighbors(), one_.list.wrap_begin()};
+  islands::ContactView v{cols(), rows, ln_.island_of, &geom_, &model_, {}, {}, {}};
+  if (model_.friction)
+    v.hx = hx_, v.hy = hy_, v.hz = hz_;
+  return v;
 }
 
 // A sub-iteration where a large part of the particles is linked (a dense bed): every particle

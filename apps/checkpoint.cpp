@@ -15,7 +15,8 @@
 #include "core/error.hpp"
 #include "core/hdf5_file.hpp"
 #include "core/scene_keys.hpp"
-#include "dem/contact_history.hpp"
+#include "core/state_io.hpp"
+#include "dem/scheme_checkpoint.hpp"
 
 namespace cfddem::apps {
 
@@ -36,31 +37,52 @@ struct Hash {
   }
 };
 
-struct Writer {
+// The checkpoint's side of a scheme's StateWriter and StateReader (core/state_io.hpp): arrays
+// checksummed in the order put or read.
+struct Writer final : StateWriter {
+  explicit Writer(h5::File& file) : f(file) {}
   h5::File& f;
   Hash hash;
-  template <class T> void put(const std::string& name, const std::vector<T>& v) {
+  template <class T> void put_array(const std::string& name, const std::vector<T>& v) {
     hash.add(v);
     f.write(name, std::span<const T>(v), {static_cast<hsize_t>(v.size())});
   }
+  void group(const std::string& name) override { f.create_group(name); }
+  void put(const std::string& name, const std::vector<double>& v) override { put_array(name, v); }
+  void put(const std::string& name, const std::vector<std::int64_t>& v) override {
+    put_array(name, v);
+  }
+  void put(const std::string& name, const std::vector<std::uint32_t>& v) override {
+    put_array(name, v);
+  }
+  void attribute(const std::string& name, double v) override { f.attribute(name, v); }
+  void attribute(const std::string& name, std::int64_t v) override { f.attribute(name, v); }
 };
 
-struct Reader {
+struct Reader final : StateReader {
+  explicit Reader(const h5::File& file) : f(file) {}
   const h5::File& f;
   Hash hash;
-  std::vector<double> doubles(const std::string& name, std::size_t n) {
+  bool exists(const std::string& name) const override { return f.exists(name); }
+  double attribute_double(const std::string& name) const override {
+    return f.read_attribute_double(name);
+  }
+  std::int64_t attribute_int64(const std::string& name) const override {
+    return f.read_attribute_int64(name);
+  }
+  std::vector<double> doubles(const std::string& name, std::size_t n) override {
     auto a = f.read_double(name);
     check(name, a.shape, n);
     hash.add(a.values);
     return std::move(a.values);
   }
-  std::vector<std::int64_t> int64s(const std::string& name, std::size_t n) {
+  std::vector<std::int64_t> int64s(const std::string& name, std::size_t n) override {
     auto a = f.read_int64(name);
     check(name, a.shape, n);
     hash.add(a.values);
     return std::move(a.values);
   }
-  std::vector<std::uint32_t> uint32s(const std::string& name, std::size_t n) {
+  std::vector<std::uint32_t> uint32s(const std::string& name, std::size_t n) override {
     auto a = f.read_uint32(name);
     check(name, a.shape, n);
     hash.add(a.values);
@@ -70,7 +92,6 @@ struct Reader {
     if (shape.size() != 1 || (n != kAny && shape[0] != n))
       throw RunError(fmt::format("dataset '{}' has the wrong shape", name));
   }
-  static constexpr std::size_t kAny = static_cast<std::size_t>(-1);
 };
 
 std::vector<double> flatten_rows(const std::vector<std::vector<double>>& rows) {
@@ -88,32 +109,6 @@ std::string join(const std::vector<std::string>& v) {
 }
 
 // The gas solver's arrays, the coupling counters and the coupled loop's position (/gas).
-// A sub-iterated scheme's tangential history (friction) under `group`, as rows over the
-// checkpoint's particles (dem/contact_history.hpp's checkpoint form); nothing without records.
-void put_history(Writer& w, const std::string& group, const dem::ContactHistory& h,
-                 const std::vector<std::int64_t>& ids) {
-  if (h.size() == 0)
-    return;
-  const dem::HistoryRows r = dem::history_rows(h, ids);
-  w.put(group + "/history_offsets", r.offsets);
-  w.put(group + "/history_neighbors", r.neighbors);
-  w.put(group + "/history_x", r.hx);
-  w.put(group + "/history_y", r.hy);
-  w.put(group + "/history_z", r.hz);
-}
-
-dem::ContactHistory read_history(Reader& r, const std::string& group,
-                                 const std::vector<std::int64_t>& ids) {
-  if (!r.f.exists(group + "/history_offsets"))
-    return {};
-  const auto off = r.uint32s(group + "/history_offsets", ids.size() + 1);
-  const auto nb = r.uint32s(group + "/history_neighbors", Reader::kAny);
-  const auto hx = r.doubles(group + "/history_x", nb.size());
-  const auto hy = r.doubles(group + "/history_y", nb.size());
-  const auto hz = r.doubles(group + "/history_z", nb.size());
-  return dem::history_from_rows(ids, off, nb, hx, hy, hz);
-}
-
 void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   const GasCoupling::State& g = c.gas_state;
   const CoupledLoopState& l = c.loop;
@@ -146,7 +141,7 @@ void read_gas(Reader& r, Checkpoint& c) {
   CoupledLoopState& l = c.loop;
   // 8 counters; older checkpoints hold 6 (before the implicit-viscosity count) or 7 (before the
   // viscous iterations): the missing counts restart from 0.
-  const auto k = r.int64s("/gas/counters", Reader::kAny);
+  const auto k = r.int64s("/gas/counters", StateReader::kAny);
   if (k.size() < 6 || k.size() > 8)
     throw RunError(fmt::format("checkpoint: /gas/counters holds {} values, expected 8 (or 6 or 7 "
                                "from an older checkpoint)",
@@ -157,7 +152,7 @@ void read_gas(Reader& r, Checkpoint& c) {
   g.viscous_iterations = k.size() == 8 ? k[7] : 0;
   // 12 values; checkpoints before the adaptive step's drag time hold 11 (the restart then keeps
   // the drag time of the particles' deposit at set-up; a fixed fluid.dt never reads it).
-  const auto q = r.doubles("/gas/loop", Reader::kAny);
+  const auto q = r.doubles("/gas/loop", StateReader::kAny);
   if (q.size() != 11 && q.size() != 12)
     throw RunError(fmt::format("checkpoint: /gas/loop holds {} values, expected 12 (or 11 from "
                                "an older checkpoint)",
@@ -173,10 +168,10 @@ void read_gas(Reader& r, Checkpoint& c) {
   CellFields& s = l.snapshot_cells;
   const auto n = r.int64s("/gas/snapshot/cells", 3);
   s.cells = {n[0], n[1], n[2]};
-  s.x_nodes = r.doubles("/gas/snapshot/x_nodes", Reader::kAny);
-  s.y_nodes = r.doubles("/gas/snapshot/y_nodes", Reader::kAny);
-  s.z_nodes = r.doubles("/gas/snapshot/z_nodes", Reader::kAny);
-  s.eps_g = r.doubles("/gas/snapshot/eps_g", Reader::kAny);
+  s.x_nodes = r.doubles("/gas/snapshot/x_nodes", StateReader::kAny);
+  s.y_nodes = r.doubles("/gas/snapshot/y_nodes", StateReader::kAny);
+  s.z_nodes = r.doubles("/gas/snapshot/z_nodes", StateReader::kAny);
+  s.eps_g = r.doubles("/gas/snapshot/eps_g", StateReader::kAny);
   s.pressure = r.doubles("/gas/snapshot/pressure", s.eps_g.size());
   s.gas_velocity = r.doubles("/gas/snapshot/gas_velocity", 3 * s.eps_g.size());
   // R ranks leave the pending snapshot's cells out: the restart takes them from the gas restored.
@@ -206,7 +201,7 @@ namespace {
 // Everything but the gas grids into an open file; gas_sum: the gas grids' checksum.
 void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
   const ParticleStore& p = c.particles;
-  Writer w{f, {}};
+  Writer w(f);
   f.attribute("format", kFormat);
   f.attribute("program", std::string("cfddem checkpoint"));
   f.attribute("scheme", c.scheme);
@@ -242,77 +237,13 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
                                   {"tz", &p.tz},
                                   {"inv_inertia", &p.inv_inertia}})
       w.put(std::string("/particles/") + name, *v);
-  const auto& s = c.state;
-  f.create_group("/neighbor_list");
-  w.put("/neighbor_list/offsets", s.offsets);
-  w.put("/neighbor_list/neighbors", s.neighbors);
-  w.put("/neighbor_list/x_ref", s.x_ref);
-  w.put("/neighbor_list/y_ref", s.y_ref);
-  w.put("/neighbor_list/z_ref", s.z_ref);
-  w.put("/neighbor_list/history_x", s.hx);
-  w.put("/neighbor_list/history_y", s.hy);
-  w.put("/neighbor_list/history_z", s.hz);
-  f.attribute("skin", s.skin);
-  f.attribute("need_rebuild", static_cast<std::int64_t>(s.need_rebuild));
-  f.attribute("steps_taken", s.steps);
-  f.attribute("particle_steps", s.particle_steps);
-  f.attribute("pair_evaluations", s.pair_evaluations);
-  f.attribute("neighbor_builds", s.builds);
-  if (c.scheme == "orb") {
-    const auto& o = c.orb;
-    f.create_group("/orb");
-    w.put("/orb/half_step", o.hprev);
-    w.put("/orb/cost", o.cost);
-    w.put("/orb/leaf_steps", o.leaf_steps);
-    w.put("/orb/counters",
-          std::vector<std::int64_t>{o.fine_count, o.leaf_subits, o.subits, o.particle_steps,
-                                    o.pair_evaluations, o.builds, o.regrids, o.overlap_violations,
-                                    o.retries, o.pairs_valid ? 1 : 0, o.prox_from_pairs ? 1 : 0});
-    w.put("/orb/ratios", std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
-    // Candidate pairs (store indices) and their reference positions.
-    w.put("/orb/contact_a", o.ca);
-    w.put("/orb/contact_b", o.cb);
-    w.put("/orb/proximity_a", o.pa);
-    w.put("/orb/proximity_b", o.pb);
-    w.put("/orb/x_ref", o.x_ref);
-    w.put("/orb/y_ref", o.y_ref);
-    w.put("/orb/z_ref", o.z_ref);
-    put_history(w, "/orb", o.history, p.id);
-  }
-  if (c.scheme == "islands") {
-    const auto& o = c.islands;
-    f.create_group("/islands");
-    w.put("/islands/offsets", o.offsets);
-    w.put("/islands/neighbors", o.neighbors);
-    w.put("/islands/x_ref", o.x_ref);
-    w.put("/islands/y_ref", o.y_ref);
-    w.put("/islands/z_ref", o.z_ref);
-    if (!o.hx.empty()) { // friction: the tangential history per entry of the list
-      w.put("/islands/history_x", o.hx);
-      w.put("/islands/history_y", o.hy);
-      w.put("/islands/history_z", o.hz);
-    }
-    // With a communicator (the canonical state, no list): the records by ids, as rows over the
-    // checkpoint's particles (history_offsets tells the two forms apart).
-    put_history(w, "/islands", o.history, p.id);
-    w.put("/islands/half_step", o.hprev);
-    w.put("/islands/fine_subiterations", o.fine_subits);
-    w.put("/islands/size_histogram", o.size_hist);
-    w.put("/islands/counters", o.counters);
-    w.put("/islands/ratios",
-          std::vector<double>{o.skin, o.max_overlap_ratio, o.last_fine_fraction});
-    if (!o.rank_counters.empty()) {
-      w.put("/islands/rank_counters", o.rank_counters);
-      w.put("/islands/rank_values", o.rank_values);
-    }
-    if (!o.skin_choice.empty())
-      w.put("/islands/skin_choice", o.skin_choice);
-    if (!o.length_counters.empty()) { // dem.nsubit = "auto": the chosen length and its log
-      w.put("/islands/length_counters", o.length_counters);
-      w.put("/islands/length_values", o.length_values);
-      w.put("/islands/length_choices", o.length_log);
-    }
-  }
+  // Each scheme writes its own state (dem/scheme_checkpoint.hpp); explicit's list and counters
+  // are in every checkpoint.
+  dem::save(w, c.state);
+  if (c.scheme == "orb")
+    dem::save(w, c.orb, p.id);
+  if (c.scheme == "islands")
+    dem::save(w, c.islands, p.id);
   if (c.gas) {
     write_gas(f, w, c);
     f.attribute("gas_checksum", gas_sum);
@@ -418,9 +349,12 @@ Checkpoint read_contents(const h5::File& f) {
   if (program == "cfddem")
     throw RunError("it is a particle snapshot (snapshot_<step>.h5), not a checkpoint: restart "
                    "from a checkpoint_<step>.h5, written when output.checkpoint_interval > 0");
-  if (f.read_attribute_int64("format") != kFormat)
-    throw RunError("unknown checkpoint format version");
-  Reader r{f, {}};
+  // A format this version cannot read is refused by number, so a user can tell an older or a
+  // newer writer apart from a damaged file.
+  if (const std::int64_t format = f.read_attribute_int64("format"); format != kFormat)
+    throw RunError(fmt::format("checkpoint format version {}, this version reads format {}",
+                               format, kFormat));
+  Reader r(f);
   c.scheme = f.read_attribute_string("scheme");
   c.dt = f.read_attribute_double("dt");
   c.step = f.read_attribute_int64("step");
@@ -461,71 +395,11 @@ Checkpoint read_contents(const h5::File& f) {
     p.tz = r.doubles("/particles/tz", n);
     p.inv_inertia = r.doubles("/particles/inv_inertia", n);
   }
-  auto& s = c.state;
-  s.offsets = r.uint32s("/neighbor_list/offsets", Reader::kAny);
-  s.neighbors = r.uint32s("/neighbor_list/neighbors", Reader::kAny);
-  s.x_ref = r.doubles("/neighbor_list/x_ref", Reader::kAny);
-  s.y_ref = r.doubles("/neighbor_list/y_ref", Reader::kAny);
-  s.z_ref = r.doubles("/neighbor_list/z_ref", Reader::kAny);
-  s.hx = r.doubles("/neighbor_list/history_x", Reader::kAny);
-  s.hy = r.doubles("/neighbor_list/history_y", Reader::kAny);
-  s.hz = r.doubles("/neighbor_list/history_z", Reader::kAny);
-  s.skin = f.read_attribute_double("skin");
-  s.need_rebuild = f.read_attribute_int64("need_rebuild") != 0;
-  s.steps = f.read_attribute_int64("steps_taken");
-  s.particle_steps = f.read_attribute_int64("particle_steps");
-  s.pair_evaluations = f.read_attribute_int64("pair_evaluations");
-  s.builds = f.read_attribute_int64("neighbor_builds");
+  dem::restore(r, c.state);
   if (c.scheme == "orb") {
-    auto& o = c.orb;
-    o.hprev = r.doubles("/orb/half_step", n);
-    o.cost = r.doubles("/orb/cost", n);
-    o.leaf_steps = r.int64s("/orb/leaf_steps", Reader::kAny);
-    const auto k = r.int64s("/orb/counters", 11);
-    o.fine_count = k[0], o.leaf_subits = k[1], o.subits = k[2], o.particle_steps = k[3];
-    o.pair_evaluations = k[4], o.builds = k[5], o.regrids = k[6], o.overlap_violations = k[7];
-    o.retries = k[8], o.pairs_valid = k[9] != 0, o.prox_from_pairs = k[10] != 0;
-    const auto q = r.doubles("/orb/ratios", 3);
-    o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1], o.skin = q[2];
-    o.ca = r.uint32s("/orb/contact_a", Reader::kAny);
-    o.cb = r.uint32s("/orb/contact_b", o.ca.size());
-    o.pa = r.uint32s("/orb/proximity_a", Reader::kAny);
-    o.pb = r.uint32s("/orb/proximity_b", o.pa.size());
-    o.x_ref = r.doubles("/orb/x_ref", Reader::kAny);
-    o.y_ref = r.doubles("/orb/y_ref", o.x_ref.size());
-    o.z_ref = r.doubles("/orb/z_ref", o.x_ref.size());
-    o.history = read_history(r, "/orb", p.id);
+    dem::restore(r, c.orb, p.id);
   } else if (c.scheme == "islands") {
-    auto& o = c.islands;
-    o.offsets = r.uint32s("/islands/offsets", Reader::kAny);
-    o.neighbors = r.uint32s("/islands/neighbors", Reader::kAny);
-    o.x_ref = r.doubles("/islands/x_ref", Reader::kAny);
-    o.y_ref = r.doubles("/islands/y_ref", o.x_ref.size());
-    o.z_ref = r.doubles("/islands/z_ref", o.x_ref.size());
-    if (f.exists("/islands/history_x") && !f.exists("/islands/history_offsets")) {
-      o.hx = r.doubles("/islands/history_x", o.neighbors.size());
-      o.hy = r.doubles("/islands/history_y", o.neighbors.size());
-      o.hz = r.doubles("/islands/history_z", o.neighbors.size());
-    }
-    o.history = read_history(r, "/islands", p.id);
-    o.hprev = r.doubles("/islands/half_step", n);
-    o.fine_subits = r.int64s("/islands/fine_subiterations", n);
-    o.size_hist = r.int64s("/islands/size_histogram", Reader::kAny);
-    o.counters = r.int64s("/islands/counters", 12);
-    const auto q = r.doubles("/islands/ratios", 3);
-    o.skin = q[0], o.max_overlap_ratio = q[1], o.last_fine_fraction = q[2];
-    if (f.exists("/islands/rank_counters")) {
-      o.rank_counters = r.int64s("/islands/rank_counters", 6);
-      o.rank_values = r.doubles("/islands/rank_values", 1);
-    }
-    if (f.exists("/islands/skin_choice")) // one rank, since the islands skin is chosen
-      o.skin_choice = r.doubles("/islands/skin_choice", 4);
-    if (f.exists("/islands/length_counters")) {
-      // 8 counters (6 before the global mode's two flags: still read; the scheme checks).
-      o.length_counters = r.int64s("/islands/length_counters", Reader::kAny);
-      o.length_values = r.doubles("/islands/length_values", Reader::kAny);
-      o.length_log = r.doubles("/islands/length_choices", Reader::kAny);
-    }
+    dem::restore(r, c.islands, p.id);
   } else if (c.scheme != "explicit") {
     throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
   }
@@ -537,7 +411,7 @@ Checkpoint read_contents(const h5::File& f) {
   for (std::size_t i = 0; i < static_cast<std::size_t>(nrows); ++i)
     c.rows.emplace_back(flat.begin() + static_cast<std::ptrdiff_t>(i * c.columns.size()),
                         flat.begin() + static_cast<std::ptrdiff_t>((i + 1) * c.columns.size()));
-  const auto ss = r.int64s("/snapshots/step", Reader::kAny);
+  const auto ss = r.int64s("/snapshots/step", StateReader::kAny);
   const auto st = r.doubles("/snapshots/time", ss.size());
   const auto sn = r.int64s("/snapshots/particles", ss.size());
   const auto sl = r.int64s("/snapshots/leaf", ss.size());

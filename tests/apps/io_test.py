@@ -523,6 +523,15 @@ class BadCheckpoint(Tmp):
         bad = self.flip_bit(self.make_checkpoint(), "particles/vx_half", 8 * 100 + 3, 0x10)
         self.expect_refused(bad, needle="checksum")
 
+    def test_other_format_version(self):
+        # A checkpoint of a format this version does not read is refused by number: the
+        # message names the version found and the one expected.
+        bad = os.path.join(self.tmp, "format2.h5")
+        shutil.copy(self.make_checkpoint(), bad)
+        with h5py.File(bad, "r+") as f:
+            f.attrs["format"] = np.int64(2)
+        self.expect_refused(bad, needle="format version 2, this version reads format 1")
+
     def test_not_hdf5(self):
         bad = os.path.join(self.tmp, "text.h5")
         with open(bad, "w") as f:

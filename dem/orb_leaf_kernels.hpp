@@ -263,25 +263,12 @@ inline void leaf_kick_drift(std::uint32_t b, std::uint32_t e, const LeafLive& p,
                             const LeafFrozen& ref, const LeafStep& st,
                             const std::array<double, 3>& gravity, std::uint64_t& still) {
   const std::size_t n = e - b;
-  KickDriftColumns c{p.x.subspan(b, n),
-                     p.y.subspan(b, n),
-                     p.z.subspan(b, n),
-                     p.vx.subspan(b, n),
-                     p.vy.subspan(b, n),
-                     p.vz.subspan(b, n),
-                     p.fx.subspan(b, n),
-                     p.fy.subspan(b, n),
-                     p.fz.subspan(b, n),
-                     {},
-                     {},
-                     {},
-                     p.im.subspan(b, n),
-                     ref.x.subspan(b, n),
-                     ref.y.subspan(b, n),
-                     ref.z.subspan(b, n),
-                     p.hp.subspan(b, n)};
+  const auto part = [b, n](auto column) { return column.subspan(b, n); };
+  KickDriftColumns c{part(p.x),  part(p.y),   part(p.z),   part(p.vx),  part(p.vy), part(p.vz),
+                     part(p.fx), part(p.fy),  part(p.fz),  {},          {},         {},
+                     part(p.im), part(ref.x), part(ref.y), part(ref.z), part(p.hp)};
   if constexpr (External)
-    c.ex = p.fex.subspan(b, n), c.ey = p.fey.subspan(b, n), c.ez = p.fez.subspan(b, n);
+    c.ex = part(p.fex), c.ey = part(p.fey), c.ez = part(p.fez);
   leaf_kick_drift<External>(st.k, st.K, c, st.h_before, st.hk, gravity, st.half_skin2, still);
 }
 

@@ -355,14 +355,15 @@ struct IslandResult {
 // mode) farther than sqrt(fixed2) (half the skin: the rows may miss a pair).
 // lead: the island's leading fine steps that see no contact (entry_lead()); when it is 2 or more
 // they are taken as one step. leads: one per member instead (members of several islands).
+// Spans with lengths: mem, x0..z0 and leads by member, bound by particle (empty unless Bounded).
 struct Members {
-  const std::uint32_t* mem;
-  std::uint32_t count;
-  const double *x0, *y0, *z0;
-  const double* bound;
+  std::span<const std::uint32_t> mem;
+  std::span<const double> x0, y0, z0;
+  std::span<const double> bound;
   double margin, fixed2;
   std::int64_t lead = 0;
-  const std::int64_t* leads = nullptr; // per member, instead of `lead`
+  std::span<const std::int64_t> leads = {}; // per member, instead of `lead` (empty: `lead`)
+  [[nodiscard]] std::uint32_t count() const { return static_cast<std::uint32_t>(mem.size()); }
 };
 
 // The entry time of island member i: none of its pairs in the island, nor a wall, can close
@@ -421,7 +422,7 @@ template <bool Wrap>
 double entry_time(const ContactView& v, const Members& mb, const double* own,
                   std::uint32_t island) {
   double t = std::numeric_limits<double>::infinity();
-  for (std::uint32_t u = 0; u < mb.count; ++u)
+  for (std::uint32_t u = 0; u < mb.count(); ++u)
     t = std::min(t, member_entry_time<Wrap>(v, own, mb.margin, island, mb.mem[u]));
   return t;
 }
@@ -467,7 +468,7 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
     u[2] = c.vz[i] + a[2] * c.hp[i];
   };
   double t = std::numeric_limits<double>::infinity();
-  for (std::uint32_t m = 0; m < mb.count; ++m) {
+  for (std::uint32_t m = 0; m < mb.count(); ++m) {
     const std::uint32_t i = mb.mem[m];
     double ai[3], ui[3];
     motion(i, ai, ui);
@@ -546,8 +547,8 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
             FreeTime&& free_time = FreeTime{}) {
   constexpr bool kFolds = !std::is_same_v<std::decay_t<FreeTime>, NoFold>;
   IslandResult res;
-  const std::uint32_t* mem = mb.mem;
-  const std::uint32_t count = mb.count;
+  const std::uint32_t* mem = mb.mem.data();
+  const std::uint32_t count = mb.count();
   double* x = col.x.data();
   double* y = col.y.data();
   double* z = col.z.data();
@@ -562,10 +563,10 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   // Member u's update over one step. Everything it reads besides the particle's own state is
   // held in locals (the stores through x, v, hp could alias the views otherwise, and the
   // compiler would reload them for every member).
-  const double* __restrict x0 = mb.x0;
-  const double* __restrict y0 = mb.y0;
-  const double* __restrict z0 = mb.z0;
-  const double* __restrict bnd = mb.bound;
+  const double* __restrict x0 = mb.x0.data();
+  const double* __restrict y0 = mb.y0.data();
+  const double* __restrict z0 = mb.z0.data();
+  const double* __restrict bnd = mb.bound.data();
   const double* __restrict ex_x = col.ex.data();
   const double* __restrict ex_y = col.ey.data();
   const double* __restrict ex_z = col.ez.data();
@@ -615,16 +616,16 @@ step_island(const Columns& col, const Members& mb, const FineSteps& fs,
   // leapfrog step under the constant acceleration is their free flight (the same positions and
   // velocities up to rounding, as the free-flight kernel's single step of dt_sp for a lone
   // particle). Its steps skip .. K - 1 remain, the first lengthened. One lead for all members
-  // (mb.leads null) keeps the passes over member ranges; leads per member (the R-rank spanning
+  // (mb.leads empty) keeps the passes over member ranges; leads per member (the R-rank spanning
   // members: several islands in one call) evaluate each member from its own first step on. A
   // member's kick reads its own last half step (hp), the common one's when all step together.
   const std::int64_t K = fs.K;
   auto skip_of = [&](std::uint32_t u) {
-    return std::clamp<std::int64_t>(mb.leads != nullptr ? mb.leads[u] : mb.lead, 1, K) - 1;
+    return std::clamp<std::int64_t>(!mb.leads.empty() ? mb.leads[u] : mb.lead, 1, K) - 1;
   };
   // Per-member leads run every step: between() is collective there (the R-rank ghost refresh),
   // so every rank calls it K - 1 times whatever its members' leads.
-  const bool uniform = mb.leads == nullptr;
+  const bool uniform = mb.leads.empty();
   const std::int64_t k0 = uniform && count > 0 ? skip_of(0) : 0;
   double elapsed = static_cast<double>(k0) * fs.h;
   std::int64_t taken = 0; // steps every member took (one lead)

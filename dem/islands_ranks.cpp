@@ -337,15 +337,14 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
     std::iota(r.span_members.begin(), r.span_members.end(), 0U);
   }
   const auto count = static_cast<std::uint32_t>(r.span_members.size());
-  islands::Members mb{r.span_members.data(), count,   r.x_ref.data(), r.y_ref.data(),
-                      r.z_ref.data(),        nullptr, margin_,        0.25 * skin_ * skin_};
+  islands::Members mb{r.span_members, r.x_ref, r.y_ref, r.z_ref, {}, margin_, 0.25 * skin_ * skin_};
   if (!all) {
     r.sx0.resize(count), r.sy0.resize(count), r.sz0.resize(count);
     for (std::uint32_t u = 0; u < count; ++u) {
       const std::uint32_t i = r.span_members[u];
       r.sx0[u] = p_.x[i], r.sy0[u] = p_.y[i], r.sz0[u] = p_.z[i];
     }
-    mb.x0 = r.sx0.data(), mb.y0 = r.sy0.data(), mb.z0 = r.sz0.data(), mb.bound = ln_.bound.data();
+    mb.x0 = r.sx0, mb.y0 = r.sy0, mb.z0 = r.sz0, mb.bound = ln_.bound;
   }
   const islands::ContactView view = contact_view();
   const auto* label = ln_.island_of.data();
@@ -357,13 +356,13 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
     std::int64_t pairs = 0;
     for (std::uint32_t u = u0; u < u1; ++u)
       pairs += islands::contact_forces<true, true, false, true, Friction>(
-          view, mb.mem, u, u + 1, label[mb.mem[u]], max_ratio, violations, hk...);
+          view, mb.mem.data(), u, u + 1, label[mb.mem[u]], max_ratio, violations, hk...);
     return pairs;
   };
   auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
                         std::int64_t& violations, auto... hk) {
     return islands::contact_forces<false, true, false, true, Friction>(
-        view, mb.mem, u0, u1, 0, max_ratio, violations, hk...);
+        view, mb.mem.data(), u0, u1, 0, max_ratio, violations, hk...);
   };
   auto refresh = [&] { r.exchange.forward(p_); };
   double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
@@ -411,7 +410,7 @@ void IslandsScheme::span_leads(const islands::ContactView& view, islands::Member
   r.span_lead.resize(r.span_members.size());
   for (std::size_t u = 0; u < r.span_members.size(); ++u)
     r.span_lead[u] = islands::entry_lead(r.span_entry[r.span_members[u]], dt_sp_, steps_);
-  mb.leads = r.span_lead.data();
+  mb.leads = r.span_lead;
 }
 
 // A fresh build: migration to the owners (a new decomposition once dem.nsubit sub-iterations

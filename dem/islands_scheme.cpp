@@ -926,14 +926,9 @@ void IslandsScheme::run_islands(bool record, const unsigned char* spans) {
 template <bool External, bool Ranks, bool Friction>
 void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::ContactView& view) {
   const std::uint32_t first = ln_.islands.first[c];
-  islands::Members mb{ln_.members.data() + first,
-                      ln_.islands.size(c),
-                      x0_.data() + first,
-                      y0_.data() + first,
-                      z0_.data() + first,
-                      ln_.bound.data(),
-                      margin_,
-                      0.0};
+  const std::uint32_t size = ln_.islands.size(c);
+  const auto part = [first, size](const auto& v) { return std::span(v).subspan(first, size); };
+  islands::Members mb{part(ln_.members), part(x0_), part(y0_), part(z0_), ln_.bound, margin_, 0.0};
   // No member touches anything before the island's entry time: its leading steps are one.
   mb.lead = islands::entry_lead(islands::entry_time<!Ranks>(view, mb, ln_.own_bound.data(), c),
                                 dt_sp_, steps_);
@@ -944,7 +939,7 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
   if constexpr (!Ranks && !Friction) {
     // The common island of a dilute gas: its one pair, evaluated once. A step_island of its own
     // (one forces callback with a branch on this case cost 11% more instructions on HCS 1222).
-    if (mb.count == 2) {
+    if (mb.count() == 2) {
       const std::uint32_t i = mb.mem[0], j = mb.mem[1];
       bool across = false;
       for (std::uint32_t k = view.rows.wrap[i]; k < view.rows.off[i + 1]; ++k)
@@ -965,7 +960,7 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
       [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
           auto... hk) {
         return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
-            view, mb.mem, u0, u1, c, max_ratio, violations, hk...);
+            view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
       },
       [] {}, TaskBlocks{}, free_time);
 }

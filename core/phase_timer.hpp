@@ -10,10 +10,12 @@
 namespace cfddem {
 
 // start: the scheme's start or restore and the gas's first deposition, once per run.
-enum class Phase { neighbor = 0, force, integrate, io, other, fluid, start, count };
+// regrid: a new decomposition (the ORB over the particles and the knapsack over ranks, the
+// orb scheme's leaves on one rank); the migration and rows that follow are neighbor's.
+enum class Phase { neighbor = 0, force, integrate, io, other, fluid, start, regrid, count };
 
 inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> phase_names = {
-    "neighbor", "force", "integrate", "io", "other", "fluid", "start"};
+    "neighbor", "force", "integrate", "io", "other", "fluid", "start", "regrid"};
 
 class PhaseTimer {
 public:

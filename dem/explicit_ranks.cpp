@@ -123,6 +123,7 @@ void ExplicitScheme::rebuild_ranks() {
   const bool regrid = r.last_regrid < 0 ||
                       (!r.fixed_decomposition && stats_.steps - r.last_regrid >= r.regrid_every);
   if (regrid && !r.fixed_decomposition) {
+    PhaseTimer::Scope t(timer_, Phase::regrid);
     const partition::Aabb domain{scene_.domain.lo, scene_.domain.hi};
     r.decomposition = partition::decompose(comm, p_.x, p_.y, p_.z, domain, r.levels);
     r.regrids.push_back({stats_.steps, r.decomposition.imbalance});

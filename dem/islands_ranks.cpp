@@ -91,6 +91,7 @@ void IslandsScheme::set_external_force_ranks(std::span<const double> fx, std::sp
 }
 
 void IslandsScheme::regrid() {
+  PhaseTimer::Scope t(timer_, Phase::regrid);
   RankPart& r = *rank_;
   for (std::size_t i = 0; i < owned_; ++i)
     p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),

@@ -22,6 +22,7 @@ namespace cfddem::dem {
 // A new ORB over all ranks' particles (regrid's: wrapped positions, weights = counts, or
 // the local steps since the last regrid once there are some), then the knapsack over ranks.
 void OrbScheme::rank_regrid() {
+  PhaseTimer::Scope t(timer_, Phase::regrid);
   for (std::size_t i = 0; i < owned_; ++i)
     p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
     p_.z[i] = geom_.wrap(p_.z[i], 2);

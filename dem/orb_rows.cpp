@@ -51,7 +51,7 @@ void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
 }
 
 void OrbScheme::regrid() {
-  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  PhaseTimer::Scope t(timer_, Phase::regrid);
   // A skin grown by a retry lasts until the regrid: rows built with it stay valid (they hold
   // more pairs), and the next build uses the scene's skin again.
   skin_ = model_.skin;

@@ -118,7 +118,7 @@ def scene_key(j):
 
 def calibrate(j):
     """Seconds per particle step, per pair evaluation and per gas cell update on one core, from
-    a 1-rank run's phases: neighbor + integrate over particle steps, force over pair
+    a 1-rank run's phases: neighbor + regrid + integrate over particle steps, force over pair
     evaluations, fluid over cells x gas sub-steps. Returns (t_ps, t_fe, t_cell, serial, key,
     iterations): serial is the run's counted compute per fluid step, key its scene_key,
     iterations its pressure iterations per fluid step."""
@@ -127,7 +127,7 @@ def calibrate(j):
     ph = j["phase_seconds"]
     ps, fe = max(j.get("particle_steps", 0), 1), max(j.get("force_evaluations", 0), 1)
     cu = gas_cells(j) * j.get("gas_substeps", 0)
-    t_ps = (ph.get("neighbor", 0.0) + ph.get("integrate", 0.0)) / ps
+    t_ps = (ph.get("neighbor", 0.0) + ph.get("regrid", 0.0) + ph.get("integrate", 0.0)) / ps
     t_fe = ph.get("force", 0.0) / fe
     t_cell = ph.get("fluid", 0.0) / cu if cu > 0 else 0.0
     serial = (ps * t_ps + fe * t_fe + cu * t_cell) / fluid_steps(j)

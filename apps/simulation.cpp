@@ -16,9 +16,9 @@ RunResult run_simulation(const Scene& scene, const RunOptions& opt, const Parall
     validate_fluid(scene);
   // One instantiation per scheme: the rank count is the run's (env.ranks()), read inside.
   if (s == "orb")
-    return run_loop<SubiteratedRun<dem::OrbScheme>>(scene, opt, env);
+    return run_loop<OrbRun>(scene, opt, env);
   if (s == "islands")
-    return run_loop<SubiteratedRun<dem::IslandsScheme>>(scene, opt, env);
+    return run_loop<IslandsRun>(scene, opt, env);
   return run_loop<ExplicitRun<dem::ExplicitScheme>>(scene, opt, env);
 }
 

@@ -383,8 +383,6 @@ private:
   islands::SubiterationCounts island_steps(bool record);
   islands::SubiterationCounts dense_steps(bool record);
   template <bool External, bool Record, bool Walls> void free_flight();
-  template <bool External, bool Record, bool Walls>
-  std::uint64_t free_flight_run(std::size_t b, std::size_t e);
   void run_islands(bool record, const unsigned char* spans);
   template <bool External, bool Ranks, bool Friction>
   void run_island(std::uint32_t c, bool record, const islands::ContactView& view);

@@ -11,9 +11,11 @@
 // and redo the sub-iteration), step_spanning, reduce_counts, check_conservation (migration lost
 // no particle) and the agreement on a fault in raise_fault.
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <limits>
+#include <span>
 
 #include <tbb/parallel_for.h>
 
@@ -197,9 +199,15 @@ void IslandsScheme::age_list(bool violated) {
 // One step of dt_sp for every owned particle not in a fine island: no contact can act on it. The
 // busy particles (ln_.busy, increasing) split the store into runs of free particles; each run
 // is one branch-free loop (no per-particle island test or select: the runs hold ~99% of a
-// dilute store).
+// dilute store): the explicit scheme's kick-drift with no contact force (islands::free_flight).
+// Faults (NaN, or a particle outside a wall) are flagged in the same pass (sign bit of the
+// result); find_fault() names the particle only when one is flagged.
 template <bool External, bool Record, bool Walls> void IslandsScheme::free_flight() {
   const std::size_t n = owned_;
+  // The view and the wall bounds once per pass: a store may hold many short runs.
+  const islands::Columns c = cols();
+  const std::array<std::span<double>, 3> sv = {rec_.vx, rec_.vy, rec_.vz};
+  const WallBounds wb(geom_);
   // Runs of free particles in [b, e): between the busy particles that fall in it.
   auto range = [&](std::size_t b, std::size_t e) {
     std::uint64_t bad = 0;
@@ -207,7 +215,8 @@ template <bool External, bool Record, bool Walls> void IslandsScheme::free_fligh
     for (std::size_t i = b; i < e;) {
       const std::size_t stop = q != ln_.busy.end() ? std::min<std::size_t>(e, *q) : e;
       if (stop > i)
-        bad |= free_flight_run<External, Record, Walls>(i, stop);
+        bad |= islands::free_flight<External, Record, Walls>(c, i, stop, sv, model_.gravity, dt_sp_,
+                                                             wb);
       i = stop + 1; // past the busy particle (or past e)
       if (q != ln_.busy.end())
         ++q;
@@ -227,17 +236,6 @@ template <bool External, bool Record, bool Walls> void IslandsScheme::free_fligh
       bad |= f;
   }
   fault_flag_ |= bad;
-}
-
-// Free flight of particles [b, e), all alone: the explicit scheme's kick-drift with no contact
-// force (contact_kernels.hpp). Faults (NaN, or a particle outside a wall) are flagged in the
-// same pass (sign bit of the result); find_fault() names the particle only when one is flagged.
-template <bool External, bool Record, bool Walls>
-std::uint64_t IslandsScheme::free_flight_run(std::size_t b, std::size_t e) {
-  const WallBounds wb(geom_);
-  const std::array<std::span<double>, 3> sv = {rec_.vx, rec_.vy, rec_.vz};
-  return islands::free_flight<External, Record, Walls>(cols(), b, e, sv, model_.gravity, dt_sp_,
-                                                       wb);
 }
 
 } // namespace cfddem::dem

@@ -165,8 +165,9 @@ public:
   }
   const char* phase_note() const {
     return parts_.ranks
-               ? "rank 0's phases; neighbor: regrid, migration, ghost exchange and the local "
-                 "list; force: includes waiting for the ghost forward (after the interior "
+               ? "rank 0's phases; regrid: the parallel ORB; neighbor: migration, ghost exchange "
+                 "and the local list; force: includes waiting for the ghost forward (after the "
+                 "interior "
                  "rows); other: mostly posting the forward and the per-step flag reduction"
                : nullptr;
   }
@@ -195,13 +196,13 @@ public:
       return fmt::format("Performance: {:.4g} particle-steps/s; rank 0: neighbor+exchange {:.3g} "
                          "s ({} builds, {} regrids), force {:.3g} s, integrate {:.3g} s; MPI "
                          "wait max {:.3g} s",
-                         pss, t.seconds(Phase::neighbor), scheme.neighbor_builds(),
+                         pss, t.rebuild_seconds(), scheme.neighbor_builds(),
                          scheme.regrids().size(), t.seconds(Phase::force),
                          t.seconds(Phase::integrate), wait_max);
     else
       return fmt::format("Performance: {:.4g} particle-steps/s; neighbor {:.3g} s ({} builds), "
                          "force {:.3g} s, integrate {:.3g} s, io {:.3g} s",
-                         pss, t.seconds(Phase::neighbor), scheme.neighbor_builds(),
+                         pss, t.rebuild_seconds(), scheme.neighbor_builds(),
                          t.seconds(Phase::force), t.seconds(Phase::integrate),
                          t.seconds(Phase::io));
   }

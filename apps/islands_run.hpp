@@ -79,7 +79,8 @@ public:
   }
   const char* phase_note() const {
     if (parts_.ranks)
-      return "rank 0's phases; neighbor: regrid, migration, ghosts, rows, speed bounds, "
+      return "rank 0's phases; regrid: the parallel ORB and knapsack; neighbor: migration, "
+             "ghosts, rows, speed bounds, "
              "links and islands (with their reductions); force: free flight, the local "
              "islands' tasks and the spanning islands' fine steps with their ghost "
              "refreshes";

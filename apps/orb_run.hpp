@@ -71,9 +71,11 @@ public:
   }
   const char* phase_note() const {
     if (parts_.ranks)
-      return "rank 0's phases; neighbor: regrid, migration, ghost exchange and the rows; "
+      return "rank 0's phases; regrid: the parallel ORB and knapsack; neighbor: migration, "
+             "ghost exchange and the rows; "
              "force: its leaves' local steps and the reductions that close a sub-iteration";
-    return "neighbor: ORB regrid and re-sort; force: the leaves' tasks (ghosts, local "
+    return "regrid: ORB regrid and re-sort; neighbor: the candidate pairs and rows; force: the "
+           "leaves' tasks (ghosts, local "
            "lists, force and update)";
   }
   const char* force_definition() const {

@@ -467,11 +467,11 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   const char* note = run.phase_note();
   if (gas_on)
     note = one ? "fluid: deposition, gas step (predictor, projection), interpolation and particle "
-                 "forces; neighbor + force: the particle sub-cycle"
+                 "forces; neighbor + regrid + force: the particle sub-cycle"
                : "rank 0's phases; fluid: deposition, gas step (predictor, projection over the "
                  "ranks), interpolation and particle forces (with orb: and the routing of the "
-                 "particles to the gas boxes and of their forces back); neighbor + force: the "
-                 "particle sub-cycle";
+                 "particles to the gas boxes and of their forces back); neighbor + regrid + force: "
+                 "the particle sub-cycle";
   if (note)
     ph["note"] = note;
   j["phase_seconds"] = ph;
@@ -486,11 +486,12 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
                                "ORB, particle and ghost exchanges), set-up included";
     j["owned_particles_at_end"] = comm.gather(static_cast<double>(run.owned()));
     if (!gas_on) {
-      j["busy_seconds"] = comm.gather(timer.seconds(Phase::neighbor) + timer.seconds(Phase::force) +
+      j["busy_seconds"] = comm.gather(timer.rebuild_seconds() + timer.seconds(Phase::force) +
                                       timer.seconds(Phase::integrate));
-      j["busy_definition"] = "per rank: neighbor + force + integrate phases (rebuilds with their "
-                             "exchanges, forces, updates); their spread is the load imbalance in "
-                             "time";
+      j["busy_definition"] =
+          "per rank: neighbor + regrid + force + integrate phases (rebuilds with their "
+          "exchanges, forces, updates); their spread is the load imbalance in "
+          "time";
     }
     const auto work = parts.local_work(sch);
     j["rank_counts"] = rank_counts_json(comm, work[0], work[1], gas ? gas->cell_updates() : 0);
@@ -517,7 +518,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
           static_cast<long long>(particle_steps_run /
                                  std::max<std::int64_t>(1, static_cast<std::int64_t>(n_total))),
           n_total, fluid, 100 * fluid / std::max(loop_seconds, 1e-300),
-          timer.seconds(Phase::neighbor) + timer.seconds(Phase::force));
+          timer.rebuild_seconds() + timer.seconds(Phase::force));
     } else {
       fmt::print(stderr,
                  "Loop time of {:.4g} s for {} fluid steps on {} rank(s) x {} thread(s) "

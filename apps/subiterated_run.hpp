@@ -24,7 +24,6 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
-#include "dem/orb_scheme.hpp"
 
 namespace cfddem::apps {
 
@@ -142,13 +141,13 @@ protected:
       return fmt::format("Performance: {:.4g} particle-steps/s; {} force evaluations; rank 0: "
                          "neighbor+exchange {:.3g} s, stepping {:.3g} s; MPI wait max {:.3g} s; "
                          "max overlap {:.3g} r ({} beyond dem.max_overlap){}",
-                         pss, scheme.pair_evaluations(), t.seconds(Phase::neighbor),
+                         pss, scheme.pair_evaluations(), t.rebuild_seconds(),
                          t.seconds(Phase::force), wait_max, scheme.max_overlap_ratio(),
                          scheme.overlap_violations(), tail);
     return fmt::format("Performance: {:.4g} particle-steps/s; {} force evaluations; {} {:.3g} "
                        "s, {} {:.3g} s, io {:.3g} s; max overlap {:.3g} r ({} beyond "
                        "dem.max_overlap)",
-                       pss, scheme.pair_evaluations(), neighbor, t.seconds(Phase::neighbor), force,
+                       pss, scheme.pair_evaluations(), neighbor, t.rebuild_seconds(), force,
                        t.seconds(Phase::force), t.seconds(Phase::io), scheme.max_overlap_ratio(),
                        scheme.overlap_violations());
   }

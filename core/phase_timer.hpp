@@ -24,6 +24,9 @@ public:
     seconds_[static_cast<int>(p)] += std::chrono::duration<double>(d).count();
   }
   double seconds(Phase p) const { return seconds_[static_cast<int>(p)]; }
+  // The particles' rebuilds: neighbor with the regrids it starts (what neighbor alone counted
+  // before regrid had a name of its own).
+  double rebuild_seconds() const { return seconds(Phase::neighbor) + seconds(Phase::regrid); }
 
   // RAII: time a scope into a phase. Times are exclusive: a scope opened inside another (a list
   // rebuild inside the link rounds, say) pauses the enclosing one until it closes, so the

@@ -115,12 +115,13 @@ void validate_fluid(const Scene& s) {
   const bool mol = advection == fluid::Advection::mol;
   const double max_courant = fluid::max_stable_courant(advection);
   if (!(s.fluid.cfl <= max_courant))
-    throw ConfigError("scene key 'fluid.cfl'",
-                      fmt::format("{} is above the stable limit {} of the gas step with "
-                                  "fluid.advection = \"{}\" ({})",
-                                  s.fluid.cfl, max_courant, s.fluid.advection,
-                                  mol ? "limited MUSCL advection with SSP Euler stages"
-                                      : "Godunov edge states, von Neumann analysis in gas_step.md"));
+    throw ConfigError(
+        "scene key 'fluid.cfl'",
+        fmt::format("{} is above the stable limit {} of the gas step with "
+                    "fluid.advection = \"{}\" ({})",
+                    s.fluid.cfl, max_courant, s.fluid.advection,
+                    mol ? "limited MUSCL advection with SSP Euler stages"
+                        : "Godunov edge states, von Neumann analysis in gas_step.md"));
   if ((s.dem.scheme == "orb" || s.dem.scheme == "islands") && !(s.fluid.dt > 0.0))
     throw ConfigError("scene key 'fluid.dt'",
                       fmt::format("dem.scheme = \"{}\" with a fluid needs a fixed fluid.dt (its "
@@ -166,18 +167,14 @@ fluid::DepositionSettings deposition_settings(const Scene& scene) {
 
 } // namespace
 
-namespace {
-
-// The largest radius of the first `owned` particles, over the ranks when comm is given.
-double largest_radius(const ParticleStore& p, const Communicator* comm, std::size_t owned) {
+double GasCoupling::largest_radius(const ParticleStore& p, const Communicator* comm,
+                                   std::size_t owned) {
   const std::size_t n = std::min(owned, p.size());
   double r_max = 0.0;
   for (std::size_t i = 0; i < n; ++i)
     r_max = std::max(r_max, p.radius[i]);
   return comm != nullptr && comm->size() > 1 ? comm->max(r_max) : r_max;
 }
-
-} // namespace
 
 GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Communicator* comm,
                          std::size_t owned)

@@ -76,6 +76,10 @@ public:
   // ... then eps_g of the initial particles (the first `owned` of the store), so the first step
   // sees no d(eps)/dt. The one-call constructor above is the two in a row.
   void attach(const ParticleStore& particles, std::size_t owned = kAllParticles);
+  // The r_max of the constructor above: the largest radius of the first `owned` particles, over
+  // the ranks when comm has more than one (collective then).
+  static double largest_radius(const ParticleStore& particles, const Communicator* comm,
+                               std::size_t owned = kAllParticles);
   ~GasCoupling();
   GasCoupling(const GasCoupling&) = delete;
   GasCoupling& operator=(const GasCoupling&) = delete;

@@ -1,6 +1,5 @@
 #include "apps/gas_side.hpp"
 
-#include <algorithm>
 #include <stdexcept>
 #include <utility>
 #include <vector>
@@ -55,12 +54,7 @@ void GasSide::prepare(const ParticleStore& p) {
   // The largest radius over every rank's particles: the deposition's reach. Before start() a
   // store holds only its rank's own particles, so this is the maximum the first deposit's
   // particles (owned or routed copies, after start()) would give.
-  double r_max = 0.0;
-  for (const double r : p.radius)
-    r_max = std::max(r_max, r);
-  if (comm_.size() > 1)
-    r_max = comm_.max(r_max);
-  gas_.emplace(scene_, r_max, &comm_);
+  gas_.emplace(scene_, GasCoupling::largest_radius(p, &comm_), &comm_);
 }
 
 void GasSide::attach(const ParticleStore& p, std::size_t owned) {

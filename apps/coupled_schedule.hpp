@@ -12,23 +12,26 @@
 
 namespace cfddem::apps {
 
-// A fixed fluid.dt: n_fixed. Adaptive: as many particle steps of dt as fit in the gas's next
-// adaptive step (GasCoupling::adaptive_dt: Courant step with forcing, fluid.max_dt, the drag
-// time, 1.1x growth, no end sliver), at least one.
+// A fixed fluid.dt, or a sub-iterated scheme (orb, islands: `subiterated`, whose sub-iterations
+// divide whatever step the gas takes): n_fixed. Adaptive: as many particle steps of dt as fit
+// in the gas's next adaptive step (GasCoupling::adaptive_dt: Courant step with forcing,
+// fluid.max_dt, the drag time, 1.1x growth, no end sliver), at least one.
 inline long long particle_steps_per_fluid_step(const Scene& scene, const GasCoupling& gas,
-                                               long long n_fixed, double dt, double time_left) {
-  if (scene.fluid.dt > 0.0) return n_fixed;
+                                               long long n_fixed, double dt, double time_left,
+                                               bool subiterated = false) {
+  if (scene.fluid.dt > 0.0 || subiterated) return n_fixed;
   const double want = gas.adaptive_dt(time_left);
   return std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
 }
 
-// The length of the next fluid step: n_sub particle steps of dt. With no particles at all and an
-// adaptive gas, the gas's own adaptive step, taken with one empty particle step: a particle
-// step (which an empty scene sets from no particle) must not set it. Collective on R ranks as
-// adaptive_dt() is.
+// The length of the next fluid step: n_sub particle steps of dt. With an adaptive gas and no
+// particles at all, or a sub-iterated scheme (`subiterated`), the gas's own adaptive step: an
+// empty scene's particle step (set from no particle) must not set it, and orb and islands take
+// any length in their sub-iterations (set_interval). Collective on R ranks as adaptive_dt() is.
 inline double fluid_step_length(const Scene& scene, const GasCoupling& gas, bool no_particles,
-                                long long n_sub, double dt, double time_left) {
-  if (no_particles && scene.fluid.dt <= 0.0)
+                                long long n_sub, double dt, double time_left,
+                                bool subiterated = false) {
+  if ((no_particles || subiterated) && scene.fluid.dt <= 0.0)
     return gas.adaptive_dt(time_left);
   return static_cast<double>(n_sub) * dt;
 }

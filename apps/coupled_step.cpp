@@ -122,11 +122,6 @@ void validate_fluid(const Scene& s) {
                     s.fluid.cfl, max_courant, s.fluid.advection,
                     mol ? "limited MUSCL advection with SSP Euler stages"
                         : "Godunov edge states, von Neumann analysis in gas_step.md"));
-  if ((s.dem.scheme == "orb" || s.dem.scheme == "islands") && !(s.fluid.dt > 0.0))
-    throw ConfigError("scene key 'fluid.dt'",
-                      fmt::format("dem.scheme = \"{}\" with a fluid needs a fixed fluid.dt (its "
-                                  "sub-iterations are fluid.dt / dem.nsubit)",
-                                  s.dem.scheme));
 }
 
 namespace {

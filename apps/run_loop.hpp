@@ -90,7 +90,11 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
       // dem.nsubit = "auto" (islands): one particle step of the schedule is the whole fluid step,
       // taken in the sub-iterations begin_interval() chose.
       n_fixed = scene.dem.nsubit_auto ? 1 : scene.dem.nsubit;
-      scene.dem.regrid_interval = scene.fluid.dt; // validate_fluid: a fixed fluid.dt
+      // An adaptive fluid.dt sets each fluid step's length before its sub-iterations
+      // (set_interval); the scheme is built for fluid.max_dt, or a fine step per sub-iteration.
+      scene.dem.regrid_interval = fixed                     ? scene.fluid.dt
+                                  : scene.fluid.max_dt > 0.0 ? scene.fluid.max_dt
+                                                             : static_cast<double>(n_fixed) * dt_dem;
     } else if (fixed) {
       n_fixed =
           std::max(1LL, static_cast<long long>(std::ceil(scene.fluid.dt / dt_dem * (1 - 1e-12))));
@@ -380,11 +384,15 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
           run.own_by(std::move(*owners), true);
       }
       const bool no_particles = n_total == 0 && !fixed;
-      n_sub = no_particles
-                  ? 1
-                  : particle_steps_per_fluid_step(scene, gas->coupling(), n_fixed, dt, end - t);
+      n_sub = no_particles ? 1
+                           : particle_steps_per_fluid_step(scene, gas->coupling(), n_fixed, dt,
+                                                           end - t, Run::kSub);
       last_n_sub = n_sub;
-      dt_f = fluid_step_length(scene, gas->coupling(), no_particles, n_sub, dt, end - t);
+      dt_f = fluid_step_length(scene, gas->coupling(), no_particles, n_sub, dt, end - t,
+                               Run::kSub);
+      if constexpr (Run::kSub)
+        if (!fixed)
+          run.set_interval(dt_f); // the sub-iterations divide this step
       PhaseTimer::Scope fl(timer, Phase::fluid);
       run.hold_gas_force(gas->step(particles, run.owned(), dt_f));
     }

@@ -68,6 +68,8 @@ public:
     k = scheme.subiterations() - 1;
     return ls;
   }
+  // An adaptive fluid.dt: the next fluid step's length, divided into the sub-iterations.
+  void set_interval(double interval) { scheme.set_interval(interval); }
   // The owed half kick is settled with the old force (replace_external_force).
   void hold_gas_force(const GasSide::Force& f) { scheme.replace_external_force(f[0], f[1], f[2]); }
   void own_by(const partition::RankDecomposition&, bool) {} // by the leaves, routed to the gas

@@ -331,7 +331,8 @@ std::vector<SceneKey> make_table() {
        .range = at_least(1),
        .fallback = integer(10, "10 (islands: \"auto\")"),
        .meaning = "orb and islands: sub-iterations per regrid interval, dt_sp = "
-                  "`dem.regrid_interval` / nsubit (with a gas: `fluid.dt` / nsubit); islands "
+                  "`dem.regrid_interval` / nsubit (with a gas: the fluid step / nsubit, fixed or "
+                  "adaptive); islands "
                   "also take \"auto\", their default: the scheme picks nsubit at the end of "
                   "every interval from operation counts (starting at 10; docs/schemes.md), "
                   "or the global mode (everyone on the fine step, the explicit scheme's passes) "
@@ -357,7 +358,7 @@ std::vector<SceneKey> make_table() {
        .range = above(0),
        .fallback = number(1e-4, "1e-4"),
        .meaning = "orb and islands: the paper's dt_f, simulated time between ORB rebuilds (with "
-                  "a gas it is set to `fluid.dt`); explicit on R > 1 ranks: the decomposition is "
+                  "a gas it is the fluid step); explicit on R > 1 ranks: the decomposition is "
                   "rebuilt at the first neighbour rebuild after this long"},
 
       // Partition (ORB, ranks).
@@ -496,8 +497,10 @@ std::vector<SceneKey> make_table() {
        .range = at_least(0),
        .fallback = number(0, "0 (adaptive)"),
        .meaning = "fixed coupling step dt_f (the paper: 1e-4); explicit particles take ceil(dt_f "
-                  "/ dt) equal steps in it; orb and islands require it (their sub-iterations are "
-                  "dt_f / `dem.nsubit`)"},
+                  "/ dt) equal steps in it, orb and islands `dem.nsubit` sub-iterations of dt_f "
+                  "/ nsubit; 0: the gas's adaptive step ([gas_step.md](gas_step.md)), which every "
+                  "scheme takes (islands \"auto\" keep the sub-iteration length chosen for the "
+                  "first fluid step)"},
       {.name = "fluid.cfl",
        .type = T::Number,
        .section = S::Fluid,

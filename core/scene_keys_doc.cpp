@@ -30,8 +30,8 @@ constexpr SectionText kSections[] = {
      "apply (models: [theory.md](theory.md) §4-§7, §9):",
      "Checked when the run starts (exit code 2, naming the key): cells that do not tile the "
      "domain,\ninflow without an outflow or pointing out of the domain, a pressure drop on a "
-     "non-periodic axis,\n`fluid.cfl` above 0.5, orb or islands without a fixed `fluid.dt`; on R "
-     "ranks, a gas box narrower\nthan 3 cells."},
+     "non-periodic axis,\n`fluid.cfl` above its stable limit; on R ranks, a gas box narrower "
+     "than 3 cells."},
 };
 
 constexpr std::string_view kIntro = R"(# Scene keys

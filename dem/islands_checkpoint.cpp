@@ -32,6 +32,8 @@ void save(StateWriter& w, const IslandsScheme::State& o, const std::vector<std::
     w.put("/islands/length_values", o.length_values);
     w.put("/islands/length_choices", o.length_log);
   }
+  if (!o.clock.empty()) // an adaptive fluid.dt: the intervals' time base or reference
+    w.put("/islands/interval_clock", o.clock);
 }
 
 void restore(StateReader& r, IslandsScheme::State& o, const std::vector<std::int64_t>& ids) {
@@ -60,6 +62,8 @@ void restore(StateReader& r, IslandsScheme::State& o, const std::vector<std::int
     o.length_values = r.doubles("/islands/length_values", StateReader::kAny);
     o.length_log = r.doubles("/islands/length_choices", StateReader::kAny);
   }
+  if (r.exists("/islands/interval_clock"))
+    o.clock = r.doubles("/islands/interval_clock", StateReader::kAny);
 }
 
 } // namespace cfddem::dem

@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 
+#include <fmt/format.h>
+
+#include "core/error.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/subiteration_length.hpp"
@@ -29,23 +32,34 @@ std::int64_t IslandsScheme::begin_interval() {
                  1.0,
                  1.0,
                  length::kStart};
+  // An adaptive fluid.dt: this interval A differs from the reference D the choice was made for.
+  // The choice is a sub-iteration length, D / next, kept over A; the gas force changed over the
+  // previous interval and changes at that rate over this one.
+  const bool variable = auto_.variable;
+  const double A = variable ? auto_.actual : D;
+  const std::int64_t a_hi = variable ? length::most_subiterations(A, model_.dt) : m_hi;
+  std::int64_t m =
+      variable ? length::subiterations_over(A, D / static_cast<double>(auto_.next), model_.dt)
+               : auto_.next;
+  const double dA = variable && auto_.previous > 0.0 ? auto_.gas_dA * (A / auto_.previous)
+                                                     : auto_.gas_dA;
+  const double t_now = variable ? time() : static_cast<double>(auto_.intervals) * D;
   // With a gas the force just computed for this fluid step: its change since the last one
   // bounds the length now (the choice at the last interval's end saw the change before).
-  std::int64_t m = auto_.next;
   // The global mode holds the gas force over the whole interval, as the explicit scheme holds it
   // over the fluid step: the change bound is the islands' (their free flights).
-  if (auto_.gas_dA > 0.0 && !auto_.next_global) {
-    const std::int64_t lo = std::min(m_hi, length::fewest_for_gas(auto_.gas_dA, auto_.gas_aref));
+  if (dA > 0.0 && !auto_.next_global) {
+    const std::int64_t lo = std::min(a_hi, length::fewest_for_gas(dA, auto_.gas_aref));
     if (lo > m) {
       m = lo;
       auto_.log.insert(auto_.log.end(),
-                       {static_cast<double>(auto_.intervals) * D, static_cast<double>(m),
-                        D / static_cast<double>(m), 0.0, static_cast<double>(lo),
-                        static_cast<double>(m_hi), 0.0, 1.0, 1.0, length::kGas});
+                       {t_now, static_cast<double>(m), A / static_cast<double>(m), 0.0,
+                        static_cast<double>(lo), static_cast<double>(a_hi), 0.0, 1.0, 1.0,
+                        length::kGas});
     }
     if (auto_.gas_aref > 0.0)
       auto_.gas_ratio_max =
-          std::max(auto_.gas_ratio_max, auto_.gas_dA / (static_cast<double>(m) * auto_.gas_aref));
+          std::max(auto_.gas_ratio_max, dA / (static_cast<double>(m) * auto_.gas_aref));
   }
   auto_.log[auto_.log.size() - kRow + 3] += 1.0; // the row in force counts this interval
   open_interval(m);
@@ -55,17 +69,46 @@ std::int64_t IslandsScheme::begin_interval() {
 
 void IslandsScheme::begin_completion() {
   if (auto_.on)
-    open_interval(length::most_subiterations(auto_.interval, model_.dt));
+    open_interval(
+        length::most_subiterations(auto_.variable ? auto_.actual : auto_.interval, model_.dt));
 }
 
-// The next sub-iterations are m of D / m from the end of the intervals begun so far, in the mode
-// the last choice took.
+void IslandsScheme::set_interval(double interval) {
+  if (!(interval > 0.0) || !std::isfinite(interval))
+    throw RunError(fmt::format("islands: fluid step {} s is not a positive length", interval));
+  if (!auto_.on) {
+    const double dt_sp = interval / static_cast<double>(nsubit_);
+    if (dt_sp == dt_sp_ && !clock_.variable)
+      return; // the length it was built with: nothing changes
+    clock_.change_at(st_.subits, dt_sp_);
+    dt_sp_ = dt_sp;
+    return;
+  }
+  if (!auto_.variable && auto_.intervals == 0) {
+    // The first fluid step is the reference of the choices (their first-contact histogram counts
+    // sub-iterations of it): the start's count at most its fine steps.
+    auto_.interval = interval;
+    auto_.next = std::min<std::int64_t>(scene_.dem.nsubit,
+                                        length::most_subiterations(interval, model_.dt));
+  }
+  auto_.previous = auto_.variable ? auto_.actual : interval;
+  auto_.actual = interval;
+  auto_.variable = true;
+}
+
+// The next sub-iterations are m of A / m (A: the interval, with an adaptive fluid.dt the one in
+// force) from the end of the intervals begun so far, in the mode the last choice took.
 void IslandsScheme::open_interval(std::int64_t m) {
   const double D = auto_.interval;
   auto_.global_now = auto_.next_global;
+  if (auto_.variable) {
+    auto_.t0 = time(); // the end of the last interval (before dt_sp and the base change)
+    dt_sp_ = auto_.actual / static_cast<double>(m);
+  } else {
+    dt_sp_ = D / static_cast<double>(m);
+    auto_.t0 = static_cast<double>(auto_.intervals) * D;
+  }
   nsubit_ = m;
-  dt_sp_ = D / static_cast<double>(m);
-  auto_.t0 = static_cast<double>(auto_.intervals) * D;
   auto_.subits_base = st_.subits;
   auto_.q = 0;
 }
@@ -75,12 +118,18 @@ void IslandsScheme::open_interval(std::int64_t m) {
 void IslandsScheme::choose_length() {
   const double D = auto_.interval;
   const std::int64_t m_hi = length::most_subiterations(D, model_.dt);
+  // The length in force as sub-iterations of D (an adaptive fluid.dt takes it over another
+  // interval, in another count).
+  const std::int64_t m_now =
+      auto_.variable
+          ? std::clamp<std::int64_t>(std::llround(D / dt_sp_), 1, std::max<std::int64_t>(1, m_hi))
+          : nsubit_;
   std::vector<std::int64_t> hist(static_cast<std::size_t>(m_hi) + 1, 0);
   // No running means yet: the first choice (or a histogram of another length).
   const bool first = auto_.fine_avg < 0.0 || auto_.hist_avg.size() != hist.size();
   // The histogram once about kCountSpacing sub-iterations have passed (and at the first choice);
   // the same on every rank.
-  const bool count = first || length::counts_after(auto_.intervals, nsubit_, auto_.global_now);
+  const bool count = first || length::counts_after(auto_.intervals, m_now, auto_.global_now);
   double s_max = 0.0;
   if (auto_.global_now && !rank_)
     speed_bounds(); // the global mode's sub-iterations make none
@@ -120,7 +169,7 @@ void IslandsScheme::choose_length() {
     s_max = rank_->comm.max(s_max);
   const double N = static_cast<double>(n_global_);
   double busy_now = 0.0;
-  for (std::int64_t c = std::min(nsubit_, m_hi); c <= m_hi; ++c)
+  for (std::int64_t c = std::min(m_now, m_hi); c <= m_hi; ++c)
     busy_now += count ? static_cast<double>(hist[static_cast<std::size_t>(c)])
                       : auto_.hist_avg[static_cast<std::size_t>(c)];
   const bool measured = auto_.fine_count > 0;
@@ -147,7 +196,7 @@ void IslandsScheme::choose_length() {
     return std::clamp((q + 1.0) / (auto_.busy_avg + 1.0), 1.0 / 64.0, 64.0);
   };
   const length::Rho rho{ratio(auto_.members_avg), ratio(auto_.fine_avg),
-                        measured ? members_now : 0.0, measured ? nsubit_ : 0};
+                        measured ? members_now : 0.0, measured ? m_now : 0};
   // The starting islands skin, not the one chosen since on one rank (choose_skin): R ranks keep
   // theirs, and every rank count must take the same length. A chosen skin shorter than a length
   // needs grows at its first expiry.
@@ -159,7 +208,7 @@ void IslandsScheme::choose_length() {
   const double pairs =
       N > 0.0 ? 0.5 * length::row_entries(N, volume, model_.r_min, model_.skin) / N : 0.0;
   const length::Choice c = length::choose(
-      auto_.hist_avg, N, D, model_.dt, rho, std::max(lo_skin, lo_gas), m_hi, nsubit_,
+      auto_.hist_avg, N, D, model_.dt, rho, std::max(lo_skin, lo_gas), m_hi, m_now,
       lo_gas > lo_skin ? length::kGas : length::kSkin, entries, pairs, auto_.global_now);
   auto_.next = c.m;
   auto_.next_global = c.global;

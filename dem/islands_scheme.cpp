@@ -132,6 +132,10 @@ IslandsScheme::State IslandsScheme::save_state() {
                        a.fine_avg, a.busy_avg, a.members_sum, a.members_avg};
     s.length_values.insert(s.length_values.end(), a.hist_avg.begin(), a.hist_avg.end());
     s.length_log = a.log;
+    if (a.variable)
+      s.clock = {a.interval, a.actual, a.previous};
+  } else {
+    s.clock = clock_.saved(st_.subits, dt_sp_);
   }
   return s;
 }
@@ -159,6 +163,16 @@ void IslandsScheme::restore_state(State s) {
                                 s.length_values.size() >= 7 && !s.length_log.empty() &&
                                 s.length_log.size() % kChoiceColumns.size() == 0 &&
                                 s.length_counters[0] >= 1 && s.length_counters[1] >= 1));
+  // An adaptive fluid.dt's intervals (none saved: one length).
+  if (auto_.on && !s.clock.empty()) {
+    const bool ok = s.clock.size() == 3 && s.clock[0] > 0.0 && s.clock[1] > 0.0 && s.clock[2] > 0.0;
+    fits = fits && ok;
+    if (ok)
+      auto_.interval = s.clock[0], auto_.actual = s.clock[1], auto_.previous = s.clock[2];
+    auto_.variable = ok;
+  } else if (!auto_.on) {
+    fits = clock_.restore(s.clock) && fits;
+  }
   if (!fits)
     throw RunError(auto_.on && s.length_counters.empty()
                        ? "checkpoint: written without dem.nsubit = \"auto\" (no sub-iteration "
@@ -181,7 +195,7 @@ void IslandsScheme::restore_state(State s) {
     auto_.members_sum = members ? v[7] : v[1], auto_.members_avg = members ? v[8] : v[5];
     auto_.hist_avg.assign(v.begin() + (members ? 9 : 7), v.end());
     auto_.log = std::move(s.length_log);
-    dt_sp_ = auto_.interval / static_cast<double>(nsubit_);
+    dt_sp_ = (auto_.variable ? auto_.actual : auto_.interval) / static_cast<double>(nsubit_);
   }
   hprev_ = std::move(s.hprev);
   fine_.assign(s.fine_subits.begin(), s.fine_subits.end());

@@ -80,6 +80,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/interval_clock.hpp"
 #include "dem/islands_counts.hpp"
 #include "dem/islands_kernels.hpp"
 #include "dem/orb_scheme.hpp"
@@ -121,8 +122,14 @@ public:
   std::int64_t subiterations() const { return st_.subits; }
   double time() const {
     return auto_.on ? auto_.t0 + static_cast<double>(st_.subits - auto_.subits_base) * dt_sp_
-                    : static_cast<double>(st_.subits) * dt_sp_;
+                    : clock_.time(st_.subits, dt_sp_);
   }
+  // An adaptive fluid.dt: the next fluid step's length, before its sub-iterations (and, with
+  // "auto", before begin_interval()). An integer dem.nsubit takes it in nsubit sub-iterations
+  // of interval / nsubit; "auto" keeps the length it chose for its reference interval (the first
+  // fluid step) and takes as many as cover this one (length::subiterations_over). Throws
+  // RunError if `interval` is not a positive finite length.
+  void set_interval(double interval);
 
   // dem.nsubit = "auto" (dem/subiteration_length.hpp): the caller runs the loop in control
   // intervals of interval() (dem.regrid_interval; with a gas fluid.dt), each opened by
@@ -257,6 +264,9 @@ public:
     // communicator (the canonical state, no list) the records by particle ids instead.
     std::vector<double> hx, hy, hz;
     ContactHistory history;
+    // An adaptive fluid.dt (empty otherwise): an integer dem.nsubit's IntervalClock::saved();
+    // "auto": its reference interval, the interval in force and the one before.
+    std::vector<double> clock;
   };
   State save_state();
   // Throws RunError (on every rank) if the state does not fit the store.
@@ -332,6 +342,11 @@ private:
     std::int64_t next = 1, intervals = 0; // next interval's nsubit; intervals begun
     std::int64_t subits_base = 0, q = 0;  // subits at this interval's start; taken in it
     double t0 = 0.0;                      // this interval's start time
+    // An adaptive fluid.dt: intervals differ. `interval` is then the reference the choices are
+    // made for (the first fluid step), `actual` the interval in force and `previous` the one
+    // before (over which the gas force changed).
+    bool variable = false;
+    double actual = 0.0, previous = 0.0;
     double fine_sum = 0.0;                // fine fractions of the sub-iterations since the
     std::int64_t fine_count = 0;          // last choice, and their number
     double members_sum = 0.0;             // their fractions of particles in an island
@@ -468,6 +483,7 @@ private:
   Recorded rec_;
   Stats st_;
   AutoLength auto_;
+  IntervalClock clock_; // an integer dem.nsubit's time base (adaptive fluid.dt)
 };
 
 } // namespace cfddem::dem

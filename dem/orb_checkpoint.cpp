@@ -23,6 +23,8 @@ void save(StateWriter& w, const OrbScheme::State& o, const std::vector<std::int6
   w.put("/orb/proximity_b", o.pb);
   put_xyz(w, "/orb/", "_ref", o.x_ref, o.y_ref, o.z_ref);
   save_history(w, "/orb", o.history, ids);
+  if (!o.clock.empty()) // an adaptive fluid.dt: the time base of the sub-iterations
+    w.put("/orb/interval_clock", o.clock);
 }
 
 void restore(StateReader& r, OrbScheme::State& o, const std::vector<std::int64_t>& ids) {
@@ -42,6 +44,8 @@ void restore(StateReader& r, OrbScheme::State& o, const std::vector<std::int64_t
   o.pb = r.uint32s("/orb/proximity_b", o.pa.size());
   read_xyz(r, "/orb/", "_ref", StateReader::kAny, o.x_ref, o.y_ref, o.z_ref);
   o.history = restore_history(r, "/orb", ids);
+  if (r.exists("/orb/interval_clock"))
+    o.clock = r.doubles("/orb/interval_clock", 2);
 }
 
 } // namespace cfddem::dem

@@ -566,6 +566,18 @@ void OrbScheme::replace_external_force(std::span<const double> fx, std::span<con
   set_external_force(fx, fy, fz);
 }
 
+void OrbScheme::set_interval(double interval) {
+  if (stats_.subits % cfg_.nsubit != 0)
+    throw RunError("orb: the sub-iteration length changed between regrid points (internal error)");
+  if (!(interval > 0.0) || !std::isfinite(interval))
+    throw RunError(fmt::format("orb: fluid step {} s is not a positive length", interval));
+  const double dt_sp = interval / static_cast<double>(cfg_.nsubit);
+  if (dt_sp == cfg_.dt_sp && !clock_.variable)
+    return; // the length it was built with: nothing changes
+  clock_.change_at(stats_.subits, cfg_.dt_sp);
+  cfg_.dt_sp = dt_sp;
+}
+
 OrbScheme::State OrbScheme::save_state() const {
   if (stats_.subits % cfg_.nsubit != 0)
     throw RunError("orb checkpoint requested between regrid points (internal error)");
@@ -588,6 +600,7 @@ OrbScheme::State OrbScheme::save_state() const {
   }
   if (model_.friction)
     s.history = current_history();
+  s.clock = clock_.saved(stats_.subits, cfg_.dt_sp);
   return s;
 }
 
@@ -608,6 +621,8 @@ void OrbScheme::restore_state(State s) {
     if (!ok)
       throw RunError("checkpoint: the orb candidate pairs do not fit the particles");
   }
+  if (!clock_.restore(s.clock))
+    throw RunError("checkpoint: the orb scheme's interval clock is not a time and a count");
   hprev_ = std::move(s.hprev), cost_ = std::move(s.cost);
   // The per-leaf steps of the interval are sums over the ranks: rank 0 holds them.
   std::fill(stats_.leaf_steps.begin(), stats_.leaf_steps.end(), 0);

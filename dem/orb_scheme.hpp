@@ -107,6 +107,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/interval_clock.hpp"
 #include "partition/orb_tree.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -147,7 +148,11 @@ public:
   double dt_sub() const { return cfg_.dt_sp; }
   std::int64_t nsubit() const { return cfg_.nsubit; }
   std::int64_t subiterations() const { return stats_.subits; }
-  double time() const { return static_cast<double>(stats_.subits) * cfg_.dt_sp; }
+  double time() const { return clock_.time(stats_.subits, cfg_.dt_sp); }
+  // An adaptive fluid.dt: the next fluid step's length, taken from here on in dem.nsubit
+  // sub-iterations of interval / nsubit. Only at a regrid point (subiterations() a multiple of
+  // nsubit); throws RunError if `interval` is not a positive finite length.
+  void set_interval(double interval);
   // Over all ranks (the same value on every rank).
   std::int64_t particle_steps() const { return stats_.particle_steps; }
   // Per local step, own-leaf pairs once plus other-leaf pairs once per side, over the rows (on R
@@ -229,6 +234,7 @@ public:
     std::vector<std::uint32_t> ca, cb, pa, pb;
     std::vector<double> x_ref, y_ref, z_ref;
     ContactHistory history; // friction: the tangential history by particle ids
+    std::vector<double> clock; // IntervalClock::saved(): empty unless dt_sp has changed
   };
   State save_state() const;    // collective
   void restore_state(State s); // throws RunError if it does not fit the store
@@ -354,6 +360,7 @@ private:
   History hist_;
   Record rec_;
   Stats stats_;
+  IntervalClock clock_;
   std::vector<Batch> batches_;
   std::vector<std::uint32_t> scratch_, fill_; // index scratch (one rank)
   std::vector<double> dscratch_;

@@ -187,6 +187,15 @@ std::int64_t most_subiterations(double D, double dt_fine) {
                                 static_cast<std::int64_t>(std::floor(D / dt_fine * (1 + 1e-12))));
 }
 
+std::int64_t subiterations_over(double A, double dt_sp, double dt_fine) {
+  const std::int64_t hi = most_subiterations(A, dt_fine);
+  if (!(dt_sp > 0.0))
+    return hi;
+  const double m = std::ceil(A / dt_sp * (1 - 1e-12));
+  return std::clamp<std::int64_t>(m < static_cast<double>(hi) ? static_cast<std::int64_t>(m) : hi,
+                                  1, hi);
+}
+
 std::int64_t fewest_for_skin(double D, double s_max, double skin) {
   if (!(s_max > 0.0) || !(skin > 0.0))
     return 1;

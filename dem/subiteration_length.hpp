@@ -179,6 +179,10 @@ double row_entries(double N, double V, double r, double s);
 
 // m_hi: the most sub-iterations whose dt_sp = D / m is still at least the fine step (>= 1).
 std::int64_t most_subiterations(double D, double dt_fine);
+// An adaptive fluid.dt: a length dt_sp chosen for one interval taken over another of length A,
+// as the fewest sub-iterations that keep dt_sp or shorter (A / m <= dt_sp), within
+// 1 .. most_subiterations(A, dt_fine).
+std::int64_t subiterations_over(double A, double dt_sp, double dt_fine);
 // The fewest sub-iterations with 2 s_max D / m <= skin / 2 (>= 1).
 std::int64_t fewest_for_skin(double D, double s_max, double skin);
 // The fewest with the gas force's change bound: dA D / m / D <= kGasChangeBound a_ref, i.e.

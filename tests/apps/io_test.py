@@ -435,21 +435,44 @@ class Restart(Tmp):
         self.check_restart(SETTLING, 0.002, 0.001, ["dem.scheme=islands", "dem.nsubit=10",
                                                     "output.interval=0.0005"])
 
-    def test_coupled_adaptive_fluid_step_bitwise(self):
+    def check_adaptive_restart(self, scene, extra):
         # fluid.dt = 0: each fluid step comes from the gas's CFL number (capped by fluid.max_dt)
         # and need not land on the checkpoint time, so the checkpoint comes from inside the full
         # run (the first fluid-step boundary at or after 1 ms) and the restart repeats its end.
         full = os.path.join(self.tmp, "full")
         second = os.path.join(self.tmp, "second")
-        common = [*HCS_GAS, "fluid.dt=0", "fluid.max_dt=2e-4", "run.end_time=0.002",
-                  "output.interval=0.0005"]
+        common = [*scene, "fluid.dt=0", "fluid.max_dt=2e-4", "run.end_time=0.002",
+                  "output.interval=0.0005", *extra]
         self.run_ok(*common, "output.checkpoint_interval=0.001", "--out", full)
         ckpts = sorted(x for x in os.listdir(full) if x.startswith("checkpoint_"))
         self.assertEqual(len(ckpts), 2, ckpts)  # at ~1 ms and at the end
         self.run_ok(*common, "--out", second, "--restart", os.path.join(full, ckpts[0]))
         self.assertEqual(diagnostics(full), diagnostics(second))
         with open(os.path.join(full, "run.json")) as f:
-            self.assertGreater(json.load(f)["fluid_steps"], 10)
+            j = json.load(f)
+        self.assertGreater(j["fluid_steps"], 10)
+        return j
+
+    def test_coupled_adaptive_fluid_step_bitwise(self):
+        self.check_adaptive_restart(HCS_GAS, [])
+
+    # orb and islands divide whatever step the gas takes into their sub-iterations: the time base
+    # of the sub-iterations (and "auto"'s reference interval) is in the checkpoint. A low
+    # fluid.cfl makes the gas's Courant step, not fluid.max_dt, set dt_f (it varies from step to
+    # step: more than 10 steps in 2 ms).
+    def test_coupled_adaptive_orb_bitwise(self):
+        j = self.check_adaptive_restart(HCS_GAS, ["dem.scheme=orb", "dem.nsubit=12", "fluid.cfl=0.01"])
+        # dem.nsubit sub-iterations per fluid step, of varying length (and the step past the end
+        # that completes the last row).
+        self.assertEqual(j["steps"], j["fluid_steps"] * 12 + 1)
+
+    def test_coupled_adaptive_islands_bitwise(self):
+        self.check_adaptive_restart(HCS_GAS, ["dem.scheme=islands", "dem.nsubit=10",
+                                              "fluid.cfl=0.01"])
+
+    def test_coupled_adaptive_islands_auto_bitwise(self):
+        self.check_adaptive_restart(HCS_GAS, ["dem.scheme=islands", "dem.nsubit=auto",
+                                              "fluid.cfl=0.01"])
 
     def test_scheme_mismatch_refused(self):
         first = os.path.join(self.tmp, "first")

@@ -1,5 +1,6 @@
 #include "apps/gas_side.hpp"
 
+#include <array>
 #include <stdexcept>
 #include <utility>
 #include <vector>
@@ -9,6 +10,8 @@
 #include "apps/coupled_checkpoint.hpp"
 #include "apps/gas_rebalance.hpp"
 #include "core/error.hpp"
+#include "fluid/multigrid_poisson.hpp"
+#include "fluid/pressure_projection.hpp"
 #include "partition/cell_box_decomposition.hpp"
 
 namespace cfddem::apps {
@@ -181,6 +184,16 @@ void GasSide::describe(nlohmann::ordered_json& j, const CoupledLoopState& loop, 
     j["fluid_phase_seconds"]["note"] = "rank 0's";
   if (comm_.size() == 1)
     return;
+  // The multigrid's coarse level gathered onto rank 0: one V-cycle of it per projection
+  // iteration while the other ranks wait (docs/multigrid.md, "Gathered coarse level").
+  if (const fluid::MultigridPoisson* mg = gas_->solver().projection().multigrid()) {
+    const std::array<int, 3> g = mg->gathered_cells();
+    j["projection_gathered_cells"] = g;
+    j["projection_gathered_definition"] =
+        "global cells of the multigrid level gathered onto rank 0 and solved there by one "
+        "V-cycle per projection iteration (the first level no axis of which halves over every "
+        "rank's box, or of at most 4096 cells); a large one is the projection's serial part";
+  }
   const std::vector<double> fluid = comm_.gather(fluid_seconds);
   const std::vector<double> routing = comm_.gather(routing_ ? routing_->seconds() : 0.0);
   const std::vector<double> away =

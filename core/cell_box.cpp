@@ -1,6 +1,8 @@
 #include "core/cell_box.hpp"
 
+#include <array>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
 #include <utility>
 
@@ -10,15 +12,38 @@ namespace cfddem {
 
 namespace {
 
+// Cut faces fall, where the balance allows, on multiples of a power of two of the global grid
+// (at most this one), so that every box divides down the distributed multigrid's levels: a
+// level halves an axis over the ranks only where every box's ends are even there, and the
+// first level that halves none is gathered onto rank 0 and solved there alone
+// (docs/multigrid.md). Cut at the share's nearest face instead, the 1e5 riser's 84 x 50 x 88
+// cells on 16 ranks gathered 42 x 50 x 44 cells, a quarter of the grid, onto one rank.
+constexpr int kMaxGranule = 16;
+// A cut moved onto a granule may put at most this fraction of the left part's exact share more
+// or fewer cells in it (an imbalance of the gas's fine-level work, against the serial coarse
+// level it removes).
+constexpr std::int64_t kGranuleSlack = 16; // 1/16
+
+// The largest power of two, at most kMaxGranule, that divides n.
+int granule_of(int n) {
+  int g = 1;
+  while (g < kMaxGranule && n % (2 * g) == 0) {
+    g *= 2;
+  }
+  return g;
+}
+
 // The face (cells of the left part) where the cut falls: the weighted rule of the header, or
-// the share of the cells in proportion to the parts when there are no weights. -1: the box is
-// too narrow along this axis.
-int cut_face(const CellBox& box, int axis, int parts, int left, int min_width,
+// the share of the cells in proportion to the parts when there are no weights, each on the
+// coarsest granule (a power of two up to `granule`, in global face indices) whose face stays
+// within 1/kGranuleSlack of the exact share. -1: the box is too narrow along this axis.
+int cut_face(const CellBox& box, int axis, int parts, int left, int min_width, int granule,
              const SlabWeights* slab_weights) {
   const int n = box.cells(axis);
   if (n < 2 * min_width) {
     return -1;
   }
+  const int lo = box.lo[axis];
   if (slab_weights != nullptr) {
     const std::vector<double> w = (*slab_weights)(box, axis);
     if (static_cast<int>(w.size()) != n) {
@@ -33,35 +58,50 @@ int cut_face(const CellBox& box, int axis, int parts, int left, int min_width,
       // Compare left * total with parts * (weight left of the face): exact for integer weights,
       // so equal weights tie exactly where the cell-count rule rounds half up.
       const double target = static_cast<double>(left) * total;
-      double prefix = 0.0;
-      int best = -1;
-      double best_gap = 0.0;
-      for (int s = 0; s < n - min_width; ++s) {
-        prefix += w[static_cast<std::size_t>(s)];
-        const int face = s + 1;
-        if (face < min_width) {
-          continue;
+      for (int g = granule; g >= 1; g /= 2) {
+        double prefix = 0.0;
+        int best = -1;
+        double best_gap = 0.0;
+        for (int s = 0; s < n - min_width; ++s) {
+          prefix += w[static_cast<std::size_t>(s)];
+          const int face = s + 1;
+          if (face < min_width || (lo + face) % g != 0) {
+            continue;
+          }
+          const double gap = std::abs(static_cast<double>(parts) * prefix - target);
+          if (best < 0 || gap <= best_gap) {
+            best = face, best_gap = gap;
+          }
         }
-        const double gap = std::abs(static_cast<double>(parts) * prefix - target);
-        if (best < 0 || gap <= best_gap) {
-          best = face, best_gap = gap;
+        if (best >= 0 && (g == 1 || static_cast<double>(kGranuleSlack) * best_gap <= target)) {
+          return best;
         }
       }
-      return best;
+      return -1;
     }
   }
-  // Cells of the left part in proportion to its share of the parts, rounded to nearest.
-  const auto share = static_cast<int>((static_cast<std::int64_t>(n) * left * 2 + parts) /
-                                      (2 * static_cast<std::int64_t>(parts)));
-  if (share < min_width || n - share < min_width) {
-    return -1;
+  // Cells of the left part in proportion to its share of the parts, rounded to nearest (half
+  // up) on the granule: exact share x = n left / parts, face on multiples of g of the global
+  // grid nearest to lo + x.
+  const auto P = static_cast<std::int64_t>(parts);
+  const std::int64_t exact = static_cast<std::int64_t>(n) * left; // x P
+  for (int g = granule; g >= 1; g /= 2) {
+    const std::int64_t G = g;
+    const std::int64_t at = 2 * (static_cast<std::int64_t>(lo) * P + exact) + G * P;
+    const auto share = static_cast<int>(at / (2 * G * P) * G - lo);
+    const std::int64_t miss = std::abs(static_cast<std::int64_t>(share) * P - exact);
+    if (share < min_width || n - share < min_width ||
+        (g > 1 && kGranuleSlack * miss > exact)) {
+      continue;
+    }
+    return share;
   }
-  return share;
+  return -1;
 }
 
 // Cuts `box` into `parts` boxes appended to `out` in recursion order.
-void bisect(const CellBox& box, int parts, int min_width, const SlabWeights* slab_weights,
-            std::vector<CellBox>& out) {
+void bisect(const CellBox& box, int parts, int min_width, const std::array<int, 3>& granule,
+            const SlabWeights* slab_weights, std::vector<CellBox>& out) {
   if (parts == 1) {
     out.push_back(box);
     return;
@@ -77,7 +117,8 @@ void bisect(const CellBox& box, int parts, int min_width, const SlabWeights* sla
     }
   }
   for (const int axis : order) {
-    const int share = cut_face(box, axis, parts, left, min_width, slab_weights);
+    const int share = cut_face(box, axis, parts, left, min_width, granule[static_cast<std::size_t>(axis)],
+                               slab_weights);
     if (share < 0) {
       continue;
     }
@@ -85,14 +126,18 @@ void bisect(const CellBox& box, int parts, int min_width, const SlabWeights* sla
     CellBox hi_box = box;
     lo_box.hi[axis] = box.lo[axis] + share;
     hi_box.lo[axis] = lo_box.hi[axis];
-    bisect(lo_box, left, min_width, slab_weights, out);
-    bisect(hi_box, parts - left, min_width, slab_weights, out);
+    bisect(lo_box, left, min_width, granule, slab_weights, out);
+    bisect(hi_box, parts - left, min_width, granule, slab_weights, out);
     return;
   }
   throw std::invalid_argument(fmt::format(
       "fluid grid: a box of {} x {} x {} cells cannot be cut into {} parts of at least {} "
       "cells along the cut (use fewer ranks or more fluid cells)",
       box.cells(0), box.cells(1), box.cells(2), parts, min_width));
+}
+
+std::array<int, 3> granules(const std::array<int, 3>& cells) {
+  return {granule_of(cells[0]), granule_of(cells[1]), granule_of(cells[2])};
 }
 
 } // namespace
@@ -103,7 +148,7 @@ std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts, 
   }
   std::vector<CellBox> boxes;
   boxes.reserve(static_cast<std::size_t>(parts));
-  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, nullptr, boxes);
+  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, granules(cells), nullptr, boxes);
   return boxes;
 }
 
@@ -114,7 +159,7 @@ std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts, 
   }
   std::vector<CellBox> boxes;
   boxes.reserve(static_cast<std::size_t>(parts));
-  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, &slab_weights, boxes);
+  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, granules(cells), &slab_weights, boxes);
   return boxes;
 }
 

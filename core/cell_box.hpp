@@ -24,7 +24,11 @@ struct CellBox {
 
 // One box per part, part p first in the recursion order (left before right): the longest axis
 // (in cells; ties: the lowest axis) is cut at the face that splits the cells in the ratio of the
-// parts on each side, so every part gets total/parts cells up to one slab. Every box is at
+// parts on each side, moved to the nearest multiple of the largest power of two (at most 16)
+// that divides the axis's global cells and keeps the left part within 1/16 of its exact share:
+// every box then divides down the distributed multigrid's levels (core/cell_box.cpp). Without
+// such a multiple the cut is the nearest face, so every part gets total/parts cells up to one
+// slab. Every box is at
 // least min_width cells wide along an axis it was cut on. Throws std::invalid_argument naming
 // the grid when it is too small for the parts.
 [[nodiscard]] std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts,
@@ -39,7 +43,8 @@ using SlabWeights = std::function<std::vector<double>(const CellBox& box, int ax
 // Weighted ORB (the fluid's share of a load-balancing regrid): as orb_cell_boxes, the same axes
 // in the same order, but each cut falls on the face where the weight to its left is closest to
 // the left parts' share of the box's weight (ties: the higher face, so that equal weights give
-// orb_cell_boxes's boxes), within min_width of the box's ends. One slab_weights call per cut,
+// orb_cell_boxes's boxes), within min_width of the box's ends, on the same granules (a face on
+// a multiple of g whose weight is within 1/16 of the share, else a finer g). One slab_weights call per cut,
 // in recursion order. A box of zero weight is cut by cell counts.
 [[nodiscard]] std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts,
                                                   int min_width, const SlabWeights& slab_weights);

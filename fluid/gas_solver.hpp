@@ -95,6 +95,8 @@ public:
             std::shared_ptr<const GridHalo> halo = nullptr);
 
   [[nodiscard]] const MacGrid& grid() const { return grid_; }
+  // The pressure projection (its solver, and on R ranks the multigrid's gathered level).
+  [[nodiscard]] const PressureProjection& projection() const { return *projection_; }
   [[nodiscard]] const GridHalo* halo() const { return halo_.get(); }
   [[nodiscard]] const GasSolverSettings& settings() const { return settings_; }
 

@@ -103,6 +103,7 @@ public:
   [[nodiscard]] bool holds_hypre_objects() const { return hypre_ != nullptr; }
   // The multigrid (nullptr when hypre solves), e.g. for benchmarks of its kernels.
   [[nodiscard]] MultigridPoisson* multigrid() { return mg_.get(); }
+  [[nodiscard]] const MultigridPoisson* multigrid() const { return mg_.get(); }
   // How many times the multigrid's hierarchy was built (once per new set of face coefficients).
   [[nodiscard]] long long multigrid_setups() const { return mg_setups_; }
 

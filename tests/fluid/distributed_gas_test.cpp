@@ -456,15 +456,18 @@ TEST(FluidBoxes, EveryRankOwnsAboutTotalOverRanksCells) {
       }
       EXPECT_EQ(total, static_cast<std::int64_t>(cells[0]) * cells[1] * cells[2]);
       const double mean = static_cast<double>(total) / parts;
-      // Each of the ceil(log2 R) cuts rounds to the nearest cell face: it moves a part's share
-      // by at most half a cross-section of the box it cuts, at most the grid's largest.
+      // Each of the ceil(log2 R) cuts rounds to the nearest cell face, moving a part's share by
+      // at most half a cross-section of the box it cuts (at most the grid's largest), or to a
+      // granule face within 1/16 of the share (core/cell_box.cpp): the part's share grows by at
+      // most a factor 17/16 per cut.
       const double section = std::max({static_cast<double>(cells[0]) * cells[1],
                                        static_cast<double>(cells[1]) * cells[2],
                                        static_cast<double>(cells[0]) * cells[2]});
       const double levels = std::ceil(std::log2(static_cast<double>(parts)));
+      const double bound = levels * 0.5 * section + mean * (std::pow(17.0 / 16.0, levels) - 1.0);
       std::int64_t largest = 0;
       for (const CellBox& b : boxes) {
-        EXPECT_LE(std::abs(static_cast<double>(b.count()) - mean), levels * 0.5 * section)
+        EXPECT_LE(std::abs(static_cast<double>(b.count()) - mean), bound)
             << b.count() << " cells against a mean of " << mean;
         largest = std::max(largest, b.count());
       }
@@ -476,6 +479,24 @@ TEST(FluidBoxes, EveryRankOwnsAboutTotalOverRanksCells) {
     }
   }
   EXPECT_THROW((void)orb_cell_boxes({4, 4, 4}, 3, kMinBoxWidth), std::invalid_argument);
+}
+
+// The cuts fall on multiples of the largest power of two (up to 16) dividing the axis where that
+// keeps the part within 1/16 of its share, so the boxes divide down the multigrid's levels. The
+// riser's 50-cell y axis is cut at 26, not 25 (1/25 off); the 1e5 riser's 88-cell z axis at 44
+// (a multiple of 4; 48, on 8, is 1/11 off); a 9-cell axis (granule 1) at its nearest face; and
+// every end of the 1e5 riser's boxes on 16 parts is even on every axis (on the nearest faces,
+// 25 and 21 were among them).
+TEST(FluidBoxes, CutsFallOnPowersOfTwoWithinASixteenthOfTheShare) {
+  EXPECT_EQ(orb_cell_boxes({32, 50, 32}, 2, kMinBoxWidth)[0].hi, (std::array<int, 3>{32, 26, 32}));
+  EXPECT_EQ(orb_cell_boxes({84, 50, 88}, 2, kMinBoxWidth)[0].hi, (std::array<int, 3>{84, 50, 44}));
+  EXPECT_EQ(orb_cell_boxes({9, 11, 7}, 2, kMinBoxWidth)[0].hi, (std::array<int, 3>{9, 6, 7}));
+  for (const CellBox& b : orb_cell_boxes({84, 50, 88}, 16, kMinBoxWidth)) {
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(b.lo[a] % 2, 0) << "axis " << a;
+      EXPECT_EQ(b.hi[a] % 2, 0) << "axis " << a;
+    }
+  }
 }
 
 // Global index of a local point, wrapped on periodic axes; false outside a non-periodic face.

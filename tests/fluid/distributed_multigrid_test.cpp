@@ -221,17 +221,17 @@ TEST(DistributedMultigrid, RiserLikePeriodicBoxWithFiftyCellAxisMatchesOneGrid) 
 
 TEST(DistributedMultigrid, RiserGridCoarsensWhileTheBoxesDivide) {
   // The riser's 32 x 50 x 32 periodic grid. One box: as one grid, 32x50x32 and 16x25x16 relax
-  // points, and 8x25x8 (lines along y) is gathered. Cut at y = 25 (2 and 4 ranks): y cannot halve
-  // over the boxes, x and z do, and the 16x50x16 level (lines along y) is gathered.
+  // points, and 8x25x8 (lines along y) is gathered. Cut at y = 26 (2 and 4 ranks; the nearest
+  // face 25 is odd, and orb_cell_boxes takes the even one within 1/16 of the share) every box
+  // divides as the grid does: the same levels, the same 8x25x8 level gathered. A cut at y = 25
+  // kept y from halving over the boxes and gathered the 16x50x16 level (8x the cells).
   const Communicator comm = Communicator::world();
   const std::array<int, 3> cells = {32, 50, 32};
   const std::vector<CellBox> boxes = orb_cell_boxes(cells, comm.size(), 2);
   const MultigridPoisson mg(cells, {1.875e-4, 2e-4, 1.875e-4}, all_sides(PoissonSide::periodic),
                             boxes, comm);
-  const std::array<int, 3> gathered =
-      comm.size() == 1 ? std::array<int, 3>{8, 25, 8} : std::array<int, 3>{16, 50, 16};
-  EXPECT_EQ(mg.gathered_cells(), gathered);
-  EXPECT_EQ(mg.levels(), comm.size() == 1 ? 3 : 2);
+  EXPECT_EQ(mg.gathered_cells(), (std::array<int, 3>{8, 25, 8}));
+  EXPECT_EQ(mg.levels(), 3);
   EXPECT_EQ(mg.gathered_levels() > 0, comm.rank() == 0);
   for (int l = 0; l + 1 < mg.levels(); ++l) {
     EXPECT_EQ(mg.line_axis(l), -1) << "level " << l << " relaxes points over the ranks";

@@ -27,8 +27,9 @@ public:
   static constexpr const char* kName = "orb";
 
   OrbRun(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
-         const Communicator& comm, PhaseTimer& timer)
-      : SubiteratedRunBase(scene, p, range, comm, timer), levels_(scene.partition.orb_levels) {}
+         const Communicator& comm, PhaseTimer& timer, const dem::StepClock& step_clock)
+      : SubiteratedRunBase(scene, p, range, comm, timer, step_clock),
+        levels_(scene.partition.orb_levels) {}
 
   double dt() const { return scheme.dt_sub(); }
   bool auto_length() const { return false; }

@@ -64,12 +64,13 @@ struct RankParts {
   }
   // The scheme on this rank's particles. One rank: the one-rank constructor, no communicator at
   // all (the islands scheme keeps its one-rank list and order only without one).
+  // `step_clock`: the particle step and control interval the time loop fixed (run_loop.hpp).
   template <class S>
   S make(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
-         const Communicator& comm, PhaseTimer& timer) const {
+         const Communicator& comm, PhaseTimer& timer, const dem::StepClock& step_clock) const {
     if (ranks)
-      return S(scene, p, dem::make_step_model(scene, range), &comm, timer);
-    return S(scene, p, timer);
+      return S(scene, p, dem::make_step_model(scene, range, step_clock), &comm, timer);
+    return S(scene, p, dem::make_step_model(scene, p, step_clock), nullptr, timer);
   }
   // The particles this rank owns: the first owned() of the store (R ranks), else all.
   template <class S> std::size_t owned(const S& s, const ParticleStore& p) const {

@@ -78,35 +78,18 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     for (const std::string& w : step_warnings(scene_in, derived))
       fmt::print(stderr, "cfddem: warning: {}\n", w);
 
-  // With a gas the particle step divides the fluid step: explicit, n_fixed = ceil(dt_f /
-  // dt_dem) steps of a fixed fluid.dt (adaptive: the contact step dt_dem); orb and islands,
-  // dem.nsubit sub-iterations, regridding at every fluid step.
-  Scene scene = scene_in;
-  long long n_fixed = 0;
+  // The particles' clock, a value the scheme is built with (the scene stays as read).
+  const Scene& scene = scene_in;
   const bool fixed = gas_on && scene.fluid.dt > 0.0;
+  long long n_fixed = 0;
+  const dem::StepClock step_clock =
+      particle_clock<Run::kSub>(scene, parts.step_model(scene, particles, range).dt, n_fixed);
   if (gas_on) {
-    const double dt_dem = parts.step_model(scene_in, particles, range).dt;
-    if (Run::kSub) {
-      // dem.nsubit = "auto" (islands): one particle step of the schedule is the whole fluid step,
-      // taken in the sub-iterations begin_interval() chose.
-      n_fixed = scene.dem.nsubit_auto ? 1 : scene.dem.nsubit;
-      // An adaptive fluid.dt sets each fluid step's length before its sub-iterations
-      // (set_interval); the scheme is built for fluid.max_dt, or a fine step per sub-iteration.
-      scene.dem.regrid_interval = fixed                     ? scene.fluid.dt
-                                  : scene.fluid.max_dt > 0.0 ? scene.fluid.max_dt
-                                                             : static_cast<double>(n_fixed) * dt_dem;
-    } else if (fixed) {
-      n_fixed =
-          std::max(1LL, static_cast<long long>(std::ceil(scene.fluid.dt / dt_dem * (1 - 1e-12))));
-      scene.dem.dt = scene.fluid.dt / static_cast<double>(n_fixed);
-    } else {
-      scene.dem.dt = dt_dem;
-    }
     static const bool hypre_ready = (HYPRE_Init(), true); // once per process; freed at exit
     (void)hypre_ready;
   }
   PhaseTimer timer;
-  Run run(scene, particles, range, comm, timer);
+  Run run(scene, particles, range, comm, timer, step_clock);
   std::optional<GasSide> gas;
   if (gas_on) {
     gas.emplace(scene, comm, Run::kSub);
@@ -388,8 +371,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
                            : particle_steps_per_fluid_step(scene, gas->coupling(), n_fixed, dt,
                                                            end - t, Run::kSub);
       last_n_sub = n_sub;
-      dt_f = fluid_step_length(scene, gas->coupling(), no_particles, n_sub, dt, end - t,
-                               Run::kSub);
+      dt_f = fluid_step_length(scene, gas->coupling(), no_particles, n_sub, dt, end - t, Run::kSub);
       if constexpr (Run::kSub)
         if (!fixed)
           run.set_interval(dt_f); // the sub-iterations divide this step

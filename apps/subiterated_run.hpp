@@ -45,8 +45,9 @@ public:
   }
 
   SubiteratedRunBase(const Scene& scene, ParticleStore& p, const dem::ParticleRange& range,
-                     const Communicator& comm, PhaseTimer& timer)
-      : scheme(RankParts(comm).make<S>(scene, p, range, comm, timer)), parts_(comm), p_(p) {}
+                     const Communicator& comm, PhaseTimer& timer, const dem::StepClock& step_clock)
+      : scheme(RankParts(comm).make<S>(scene, p, range, comm, timer, step_clock)), parts_(comm),
+        p_(p) {}
 
   S scheme;
   double fine_dt() const { return scheme.dt_fine(); }

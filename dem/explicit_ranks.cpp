@@ -78,8 +78,8 @@ ExplicitScheme::RankPart::RankPart(const Scene& scene, const ParticleStore& p,
           "{:.6g} m (largest diameter + 2 skins): enlarge the domain or reduce dem.neighbor_skin",
           a, geom.length[a], halo + model.skin));
   // Regrid at the first neighbor rebuild after dem.regrid_interval (simulated seconds).
-  regrid_every = std::max<std::int64_t>(
-      1, std::llround(scene.dem.regrid_interval / std::max(model.dt, 1e-300)));
+  regrid_every =
+      std::max<std::int64_t>(1, std::llround(model.interval / std::max(model.dt, 1e-300)));
   owned = p.size();
 }
 

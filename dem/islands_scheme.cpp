@@ -35,11 +35,11 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
   auto_.on = scene.dem.nsubit_auto;
   if (auto_.on) {
     // The first interval's count: dem.nsubit's integer, at most the fine step's.
-    auto_.interval = scene.dem.regrid_interval;
+    auto_.interval = model_.interval;
     nsubit_ = std::min(nsubit_, length::most_subiterations(auto_.interval, model_.dt));
     auto_.next = nsubit_;
   }
-  dt_sp_ = scene.dem.regrid_interval / static_cast<double>(nsubit_);
+  dt_sp_ = model_.interval / static_cast<double>(nsubit_);
   // The list only finds links and island members (cheap per entry) while its builds are the
   // scheme's largest cost: without dem.neighbor_skin, three times the explicit scheme's skin to
   // start with (measured on HCS 1222: 3.2x fewer builds, 30% less wall time than with the same

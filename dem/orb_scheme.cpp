@@ -63,7 +63,7 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepMod
     r_max = rank_->comm.max(r_max), cfg_.n_global = rank_->comm.sum(cfg_.n_global);
   cfg_.r_max = cfg_.n_global > 0 ? r_max : model_.r_min;
   cfg_.nsubit = scene.dem.nsubit;
-  cfg_.dt_sp = scene.dem.regrid_interval / static_cast<double>(cfg_.nsubit);
+  cfg_.dt_sp = model_.interval / static_cast<double>(cfg_.nsubit);
   cfg_.prox = 0.5 * scene.dem.proximity_radii;
   cfg_.cost_weights = scene.partition.weights == "cost";
   cfg_.time_to_contact = scene.dem.local_dt == "time_to_contact";

@@ -24,11 +24,11 @@ ParticleRange particle_range(const ParticleStore& p) {
   return r;
 }
 
-StepModel make_step_model(const Scene& s, const ParticleStore& p) {
-  return make_step_model(s, particle_range(p));
+StepModel make_step_model(const Scene& s, const ParticleStore& p, const StepClock& clock) {
+  return make_step_model(s, particle_range(p), clock);
 }
 
-StepModel make_step_model(const Scene& s, const ParticleRange& range) {
+StepModel make_step_model(const Scene& s, const ParticleRange& range, const StepClock& clock) {
   StepModel m;
   const auto& d = s.dem;
   m.gravity = s.gravity;
@@ -53,14 +53,16 @@ StepModel make_step_model(const Scene& s, const ParticleRange& range) {
   }
   const double k_max = std::max(d.spring_constant, d.wall_spring_constant);
   const double tau_p = std::sqrt(m_min / k_max);
-  m.dt = d.dt > 0.0 ? d.dt : tau_p * d.dt_factor;
+  const bool fixed = clock.dt > 0.0 || d.dt > 0.0;
+  m.dt = clock.dt > 0.0 ? clock.dt : d.dt > 0.0 ? d.dt : tau_p * d.dt_factor;
+  m.interval = clock.interval > 0.0 ? clock.interval : d.regrid_interval;
   // Stiffest oscillator: two of the lightest particles (m_eff = m/2) or one against a wall.
   const double omega = std::max(std::sqrt(2.0 * d.spring_constant / m_min),
                                 std::sqrt(d.wall_spring_constant / m_min));
   // Known before any step: a configuration error (exit 2), named by its keys.
   if (omega * m.dt >= 2.0)
     throw ConfigError(
-        d.dt > 0.0 ? "scene key 'dem.dt'" : "scene key 'dem.dt_factor'",
+        fixed ? "scene key 'dem.dt'" : "scene key 'dem.dt_factor'",
         fmt::format(
             "unstable time step: omega dt = {:.4g} >= 2 for the stiffest contact (dt = {:.4g} s, "
             "dem.dt_factor = {}, dem.dt = {}); velocity Verlet on a spring needs omega dt < 2, and "

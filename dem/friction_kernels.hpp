@@ -9,6 +9,7 @@
 #include <cmath>
 
 #include "dem/contact_kernels.hpp"
+#include "dem/cylinder_wall.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/linear_spring_dashpot.hpp"
 
@@ -88,15 +89,18 @@ inline void add_wall_friction(const TangentialLaw& law, double mi, double ri, do
 // particle's mass and spin are read and how an overlap is counted, so those come in as callables
 // (mass() -> double, spin(double w[3]), overlap(delta)), called only for a wall in contact and
 // inlined at compile time. (The orb leaf kernels keep their own loops: through this helper their
-// frictional wall pass measured 37% more instructions.)
-template <bool Friction, class Mass, class Spin, class Overlap>
+// frictional wall pass measured 37% more instructions.) With Cylinder the column's curved wall
+// replaces the planar walls across its axis (where the column touches the box, both would act
+// on one contact) and acts after the planar walls along it (add_cylinder_contact); callers
+// choose it once per pass, from DomainGeometry::cylinder, so the box's path is unchanged.
+template <bool Friction, bool Cylinder = false, class Mass, class Spin, class Overlap>
 [[gnu::always_inline]] inline void
 add_wall_contacts(const DomainGeometry& g, const NormalLaw& wall,
                   [[maybe_unused]] const TangentialLaw& wall_t, const double pos[3],
                   const double vel[3], double ri, Mass&& mass, [[maybe_unused]] Spin&& spin,
                   double f[3], [[maybe_unused]] double tq[3], Overlap&& overlap) {
   for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a])
+    if (g.periodic[a] || (Cylinder && a != g.axis))
       continue;
     for (int side = 0; side < 2; ++side) {
       const double s = side ? 1.0 : -1.0;
@@ -114,6 +118,8 @@ add_wall_contacts(const DomainGeometry& g, const NormalLaw& wall,
       }
     }
   }
+  if constexpr (Cylinder)
+    add_cylinder_contact<Friction>(g, wall, wall_t, pos, vel, ri, mass, spin, f, tq, overlap);
 }
 
 } // namespace cfddem::dem

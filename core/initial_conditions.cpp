@@ -591,10 +591,12 @@ void check_inside(const ParticleStore& p, const Scene& s) {
 // pair overlap is, and accepted alike with particles.allow_overlap.
 void check_walls(const ParticleStore& p, const Scene& s) {
   static const char* walls[3][2] = {{"x_lo", "x_hi"}, {"y_lo", "y_hi"}, {"z_lo", "z_hi"}};
+  const bool column = s.domain.cylinder();
   for (std::size_t i = 0; i < p.size(); ++i) {
     const double c[3] = {p.x[i], p.y[i], p.z[i]};
     for (std::size_t a = 0; a < 3; ++a) {
-      if (s.domain.periodic[a])
+      // A column's curved wall replaces the planar walls across it (checked below).
+      if (s.domain.periodic[a] || (column && static_cast<int>(a) != s.domain.cylinder_axis))
         continue;
       const double cut[2] = {p.radius[i] - (c[a] - s.domain.lo[a]),
                              p.radius[i] - (s.domain.hi[a] - c[a])};
@@ -608,7 +610,7 @@ void check_walls(const ParticleStore& p, const Scene& s) {
                                         p.id[i], c[0], c[1], c[2], p.radius[i], walls[a][side],
                                         cut[side]));
     }
-    if (!s.domain.cylinder())
+    if (!column)
       continue;
     const double cut = p.radius[i] + axis_distance(s.domain, c[0], c[1], c[2]) -
                        s.domain.cylinder_radius;

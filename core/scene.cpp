@@ -153,10 +153,6 @@ void read_cylinder(KeyReader& k, const SceneConfig& c, Scene& s) {
       require(!c.has(g), g, "applies to domain.shape = \"cylinder\" only (the shape is \"box\")");
     return;
   }
-  require(d.cylinder_radius <= fit, "domain.cylinder_radius",
-          fmt::format("{} m does not fit in the box: the column along {} must lie inside it, so "
-                      "R is at most half the smaller width across it, {} m",
-                      d.cylinder_radius, axis, fit));
   const char* names = "xyz";
   require(!d.periodic[static_cast<std::size_t>(u)] && !d.periodic[static_cast<std::size_t>(w)],
           "domain.periodic",
@@ -164,6 +160,10 @@ void read_cylinder(KeyReader& k, const SceneConfig& c, Scene& s) {
                       "\"cylinder\", domain.cylinder_axis = \"{}\"): the curved wall closes them; "
                       "got [{}, {}, {}]",
                       names[u], names[w], axis, d.periodic[0], d.periodic[1], d.periodic[2]));
+  require(d.cylinder_radius <= fit, "domain.cylinder_radius",
+          fmt::format("{} m does not fit in the box: the column along {} must lie inside it, so "
+                      "R is at most half the smaller width across it, {} m",
+                      d.cylinder_radius, axis, fit));
   require(!c.has("fluid"), "domain.shape",
           "\"cylinder\" is for particles only: the gas does not see the curved wall yet (remove "
           "the [fluid] table, or use domain.shape = \"box\")");
@@ -438,11 +438,14 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("domain.lo", vec3(s.domain.lo));
   o.emplace_back("domain.hi", vec3(s.domain.hi));
   o.emplace_back("domain.periodic", bool3(s.domain.periodic));
-  o.emplace_back("domain.shape", str(s.domain.shape));
-  o.emplace_back("domain.cylinder_axis",
-                 str(std::string(1, "xyz"[static_cast<std::size_t>(s.domain.cylinder_axis)])));
-  if (s.domain.cylinder())
+  // A box lists none of the shape's keys: its configuration (run.json, checkpoints) reads as
+  // before they existed, so older checkpoints restart and box runs stay byte for byte.
+  if (s.domain.cylinder()) {
+    o.emplace_back("domain.shape", str(s.domain.shape));
+    o.emplace_back("domain.cylinder_axis",
+                   str(std::string(1, "xyz"[static_cast<std::size_t>(s.domain.cylinder_axis)])));
     o.emplace_back("domain.cylinder_radius", num(s.domain.cylinder_radius));
+  }
   o.emplace_back("gravity", vec3(s.gravity));
   const auto& p = s.particles;
   if (!p.file.empty()) {

@@ -7,6 +7,7 @@
 
 #include "dem/domain_geometry.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/wall_friction.hpp"
 
 namespace cfddem::dem {
 
@@ -30,24 +31,16 @@ inline double cylinder_gap(const DomainGeometry& g, double x, double y, double z
 }
 
 // The tangential force of a wall with outward unit normal n pressing on a particle of radius ri,
-// mass mi, velocity vel and spin w with the normal force fn: added to f, its torque r_i n x F_t
-// to tq. No history, as every wall (docs/theory.md §2.3): the dashpot -eta_t v_t capped at
-// mu_w |F_n|, with v_t the slip of the contact point v + w x (r_i n) in the wall's tangent plane.
+// mass mi, velocity vel and spin w with the normal force fn: added to f, its torque to tq
+// (dem/wall_friction.hpp), for the slip v_t of the contact point in the tangent plane of n.
 inline void add_wall_friction_along(const TangentialLaw& law, double mi, double ri, double fn,
                                     const double n[3], const double vel[3], const double w[3],
                                     double f[3], double tq[3]) {
-  const double rv[3] = {vel[0] + ri * (w[1] * n[2] - w[2] * n[1]),
-                        vel[1] + ri * (w[2] * n[0] - w[0] * n[2]),
-                        vel[2] + ri * (w[0] * n[1] - w[1] * n[0])};
+  double rv[3];
+  wall_contact_velocity(ri, n, vel, w, rv);
   const double rvn = rv[0] * n[0] + rv[1] * n[1] + rv[2] * n[2];
   const double vt[3] = {rv[0] - rvn * n[0], rv[1] - rvn * n[1], rv[2] - rvn * n[2]};
-  double xi[3] = {0.0, 0.0, 0.0}, ft[3];
-  tangential_force(law, mi, 0.0, std::abs(fn), n, vt, xi, ft);
-  for (int b = 0; b < 3; ++b)
-    f[b] += ft[b];
-  tq[0] += ri * (n[1] * ft[2] - n[2] * ft[1]);
-  tq[1] += ri * (n[2] * ft[0] - n[0] * ft[2]);
-  tq[2] += ri * (n[0] * ft[1] - n[1] * ft[0]);
+  add_wall_tangential(law, mi, ri, fn, n, vt, f, tq);
 }
 
 // The curved wall acting on one particle at pos with velocity vel and radius ri (§11): when it

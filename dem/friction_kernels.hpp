@@ -12,6 +12,7 @@
 #include "dem/cylinder_wall.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/wall_friction.hpp"
 
 namespace cfddem::dem {
 
@@ -66,19 +67,12 @@ inline void add_wall_friction(const TangentialLaw& law, double mi, double ri, do
                               double tq[3]) {
   double nvec[3] = {0, 0, 0};
   nvec[a] = s;
-  // Slip of the contact point: v_i + w_i x (r_i n) (the wall is at rest).
-  const double rv[3] = {vel[0] + ri * (w[1] * nvec[2] - w[2] * nvec[1]),
-                        vel[1] + ri * (w[2] * nvec[0] - w[0] * nvec[2]),
-                        vel[2] + ri * (w[0] * nvec[1] - w[1] * nvec[0])};
+  // Slip of the contact point (the wall is at rest), its normal part read off axis a.
+  double rv[3];
+  wall_contact_velocity(ri, nvec, vel, w, rv);
   const double rvn = rv[a] * s;
   const double vt[3] = {rv[0] - rvn * nvec[0], rv[1] - rvn * nvec[1], rv[2] - rvn * nvec[2]};
-  double xi3[3] = {0, 0, 0}, ft[3];
-  tangential_force(law, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
-  for (int b = 0; b < 3; ++b)
-    f[b] += ft[b];
-  tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
-  tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
-  tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
+  add_wall_tangential(law, mi, ri, fn, nvec, vt, f, tq);
 }
 
 // The planar walls at lo and hi of every non-periodic axis acting on one particle at pos with

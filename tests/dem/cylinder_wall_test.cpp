@@ -25,24 +25,16 @@ using namespace cfddem;
 namespace {
 
 // One particle of the paper (d = 100 um, 1000 kg/m^3) in a 2 mm column along y (R = 1 mm, the
-// default: half the box's width), periodic along the axis; no gravity, no gas.
-const char* kColumn = R"(
-[domain]
-lo = [0.0, 0.0, 0.0]
-hi = [2.0e-3, 1.0e-3, 2.0e-3]
-periodic = [false, true, false]
-shape = "cylinder"
-[particles]
-count = 0
-diameter = 100.0e-6
-density = 1000.0
-[dem]
-spring_constant = 10.0
-restitution = 0.8
-wall_restitution = 0.7
-[run]
-end_time = 1.0
-)";
+// default: half the box's width), periodic along the axis; no gravity, no gas; e_w = 0.7.
+Scene column(std::initializer_list<std::string> overrides) {
+  auto cfg = SceneConfig::from_string(demtest::kPairScene, "column");
+  for (const char* o : {"domain.hi=[2.0e-3, 1.0e-3, 2.0e-3]", "domain.periodic=[false, true, false]",
+                        "domain.shape=\"cylinder\"", "dem.wall_restitution=0.7", "run.end_time=1.0"})
+    cfg.apply_override(o);
+  for (const auto& o : overrides)
+    cfg.apply_override(o);
+  return read_scene(cfg, "column");
+}
 
 constexpr double kR = 1e-3, kCentre = 1e-3, kRadius = 50e-6, kRho = 1000.0;
 
@@ -73,13 +65,13 @@ double rebound(const Scene& s, double ux, double uz) {
 // m_eff = m) about 2.3e-4; the bound is 1e-3. The radial normal is the planar wall's along x:
 // the same law gives the same e (to round-off), and any direction across the axis does too.
 TEST(CylinderWall, RadialReboundHasTheWallsRestitution) {
-  const Scene column = demtest::scene_from(kColumn, {"dem.dt_factor=0.002"});
-  const Scene box = demtest::scene_from(kColumn, {"dem.dt_factor=0.002", "domain.shape=\"box\""});
+  const Scene cyl = column({"dem.dt_factor=0.002"});
+  const Scene box = column({"dem.dt_factor=0.002", "domain.shape=\"box\""});
   const double e_w = 0.7;
-  const double e_cyl = rebound(column, 1.0, 0.0);
+  const double e_cyl = rebound(cyl, 1.0, 0.0);
   const double e_box = rebound(box, 1.0, 0.0); // the planar wall at x = 2 mm
   const double d = std::numbers::sqrt2 / 2.0;
-  const double e_diag = rebound(column, -d, d);
+  const double e_diag = rebound(cyl, -d, d);
   EXPECT_NEAR(e_cyl, e_w, 1e-3 * e_w);
   EXPECT_NEAR(e_cyl, e_box, 1e-9 * e_box);
   EXPECT_NEAR(e_diag, e_cyl, 1e-9 * e_cyl);
@@ -96,7 +88,7 @@ struct Slide {
 // A particle touching the wall (rho = R - r) moving along it at v0 across the axis, for `time`
 // seconds: the wall turns it round (docs/theory.md §11). Overrides: friction and restitution.
 Slide slide(std::initializer_list<std::string> overrides, double v0, double time) {
-  const Scene s = demtest::scene_from(kColumn, overrides);
+  const Scene s = column(overrides);
   ParticleStore p;
   p.add(kCentre + kR - kRadius, 0.5e-3, kCentre, 0.0, 0.0, v0, kRadius, kRho, 0);
   PhaseTimer timer;

@@ -216,7 +216,7 @@ inline void add_member_walls(const ContactView& v, std::uint32_t i, double& ax, 
 template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction, bool Cylinder>
 std::int64_t contact_forces_of(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
                                std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
-                               std::int64_t& violations_out, [[maybe_unused]] double hk) {
+                               std::int64_t& violations_out, [[maybe_unused]] double hk = 0.0) {
   const std::uint32_t* __restrict off = v.rows.off.data();
   const std::uint32_t* __restrict nb = v.rows.nb.data();
   const std::uint32_t* __restrict wrap = v.rows.wrap.data();
@@ -423,9 +423,10 @@ template <bool Wrap, class Pair>
   }
 }
 
-template <bool Wrap>
-double member_entry_time(const ContactView& v, const double* own, double margin,
-                         std::uint32_t island, std::uint32_t i) {
+// Cylinder: the curved wall's gap too (the callers choose once, outside their member loops).
+template <bool Wrap, bool Cylinder>
+double member_entry_time_of(const ContactView& v, const double* own, double margin,
+                            std::uint32_t island, std::uint32_t i) {
   const DomainGeometry& g = *v.geom;
   const double* __restrict rad = v.c.radius.data();
   const double ri = rad[i], si = own[i];
@@ -438,17 +439,27 @@ double member_entry_time(const ContactView& v, const double* own, double margin,
   for (int a = 0; a < 3; ++a)
     if (!g.periodic[a])
       t = std::min(t, closing_time(wall_gap(pos[a], g.lo[a], g.hi[a], ri) - margin, si));
-  if (g.cylinder) // the curved wall's gap closes at most as fast as the particle moves
+  if constexpr (Cylinder) // the curved wall's gap closes at most as fast as the particle moves
     t = std::min(t, closing_time(cylinder_gap(g, pos, ri) - margin, si));
   return t;
 }
 template <bool Wrap>
+double member_entry_time(const ContactView& v, const double* own, double margin,
+                         std::uint32_t island, std::uint32_t i) {
+  return v.geom->cylinder ? member_entry_time_of<Wrap, true>(v, own, margin, island, i)
+                          : member_entry_time_of<Wrap, false>(v, own, margin, island, i);
+}
+template <bool Wrap>
 double entry_time(const ContactView& v, const Members& mb, const double* own,
                   std::uint32_t island) {
-  double t = std::numeric_limits<double>::infinity();
-  for (std::uint32_t u = 0; u < mb.count(); ++u)
-    t = std::min(t, member_entry_time<Wrap>(v, own, mb.margin, island, mb.mem[u]));
-  return t;
+  auto least = [&]<bool Cylinder>() {
+    double t = std::numeric_limits<double>::infinity();
+    for (std::uint32_t u = 0; u < mb.count(); ++u)
+      t = std::min(t,
+                   member_entry_time_of<Wrap, Cylinder>(v, own, mb.margin, island, mb.mem[u]));
+    return t;
+  };
+  return v.geom->cylinder ? least.template operator()<true>() : least.template operator()<false>();
 }
 
 // The first time a gap can close, from now, when it closes no faster than `rate` (negative when
@@ -477,9 +488,9 @@ inline double free_span(double gap, double rate, double accel) {
 // x - lo - r (or hi - x - r) on the same parabola. The leapfrog's nodes lie on the parabola up to
 // rounding, which the margin covers. No particle outside the island can reach a member within the
 // sub-iteration (the link test), so this is every contact the members can meet.
-template <bool Wrap, bool External>
-double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
-                 const std::array<double, 3>& grav) {
+template <bool Wrap, bool External, bool Cylinder>
+double free_time_of(const ContactView& v, const Members& mb, std::uint32_t island,
+                    const std::array<double, 3>& grav) {
   const DomainGeometry& g = *v.geom;
   const Columns& c = v.c;
   // A particle's acceleration in free flight, and its velocity at the node.
@@ -512,7 +523,7 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
         t = std::min(t, free_span(pos[a] - g.lo[a] - ri - mb.margin, ui[a], std::abs(ai[a])));
         t = std::min(t, free_span(g.hi[a] - pos[a] - ri - mb.margin, -ui[a], std::abs(ai[a])));
       }
-    if (g.cylinder) {
+    if constexpr (Cylinder) {
       // On the parabola rho(t) <= rho + |u_perp| t + |a_perp| t^2 / 2 (u_perp, a_perp: across
       // the axis), so the curved wall's gap R - r - rho(t) closes no sooner than this.
       const double up = std::hypot(ui[g.u], ui[g.w]), ap = std::hypot(ai[g.u], ai[g.w]);
@@ -520,6 +531,13 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
     }
   }
   return t;
+}
+// free_time_of with or without a cylinder's curved wall, chosen once per call.
+template <bool Wrap, bool External>
+double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
+                 const std::array<double, 3>& grav) {
+  return v.geom->cylinder ? free_time_of<Wrap, External, true>(v, mb, island, grav)
+                          : free_time_of<Wrap, External, false>(v, mb, island, grav);
 }
 
 // The leading fine steps taken as one step of lead x h (step_island): every force that step

@@ -976,15 +976,22 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
       return;
     }
   }
-  results_[c] = islands::step_island<External, true, Friction>(
-      view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
-      record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
-      [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
-          auto... hk) {
-        return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
-            view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
-      },
-      [] {}, TaskBlocks{}, free_time);
+  // The curved wall of a cylinder (Cylinder) chosen once per island, outside its steps.
+  auto fine = [&]<bool Cylinder>() {
+    return islands::step_island<External, true, Friction>(
+        view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
+        record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
+        [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
+            auto... hk) {
+          return islands::contact_forces_of<true, true, !Ranks, Ranks, Friction, Cylinder>(
+              view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
+        },
+        [] {}, TaskBlocks{},
+        [&] {
+          return islands::free_time_of<!Ranks, External, Cylinder>(view, mb, c, model_.gravity);
+        });
+  };
+  results_[c] = geom_.cylinder ? fine.template operator()<true>() : fine.template operator()<false>();
 }
 
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each

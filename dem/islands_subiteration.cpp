@@ -130,10 +130,15 @@ std::optional<islands::Fault> IslandsScheme::find_fault() {
         const double c = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
         ok = ok && (geom_.periodic[a] || (c >= geom_.lo[a] && c <= geom_.hi[a]));
       }
-      // Only members can reach the curved wall (a free particle is not tied to it).
-      ok = ok && (!geom_.cylinder || cylinder_gap(geom_, p_.x[i], p_.y[i], p_.z[i], 0.0) >= 0.0);
       flagged = flagged || !ok;
     }
+    // Only members can reach the curved wall (a free particle is not tied to it).
+    if (geom_.cylinder)
+      for (const std::uint32_t i : ln_.busy) {
+        if (i >= owned_)
+          break;
+        flagged = flagged || !(cylinder_gap(geom_, p_.x[i], p_.y[i], p_.z[i], 0.0) >= 0.0);
+      }
   }
   return flagged ? islands::find_fault(p_, owned_, geom_) : std::nullopt;
 }

@@ -281,18 +281,23 @@ void OrbScheme::plan(bool record) {
 }
 
 void OrbScheme::run_batch(Batch& bt, bool record) {
-  if (model_.friction)
-    ext_.active() ? run_batch_impl<true, true>(bt, record)
-                  : run_batch_impl<false, true>(bt, record);
-  else
-    ext_.active() ? run_batch_impl<true, false>(bt, record)
-                  : run_batch_impl<false, false>(bt, record);
+  // Column: a cylinder's walls (add_column_wall_forces), chosen here so a box's loop is as it was.
+  auto run = [&]<bool Column>() {
+    if (model_.friction)
+      ext_.active() ? run_batch_impl<true, true, Column>(bt, record)
+                    : run_batch_impl<false, true, Column>(bt, record);
+    else
+      ext_.active() ? run_batch_impl<true, false, Column>(bt, record)
+                    : run_batch_impl<false, false, Column>(bt, record);
+  };
+  geom_.cylinder ? run.template operator()<true>() : run.template operator()<false>();
 }
 
 // The batch's K local steps. With External, the per-particle external force is added to the
 // contact force in every kick and in the synchronised velocity ((F + F_ext) / m + g, the
 // explicit scheme's arithmetic).
-template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt, bool record) {
+template <bool External, bool Friction, bool Column>
+void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   bt.violations = 0;
   bt.max_ratio = 0.0;
   bt.outran = false;
@@ -310,7 +315,6 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
   const LeafRows rows = rows_view();
   [[maybe_unused]] const LeafSpin w = Friction ? spin() : LeafSpin{};
   const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
-  const bool column = g.cylinder; // the column's walls replace the planar ones across it
   const std::uint32_t b = bt.b, e = bt.e;
   OverlapTally tally;
   LeafStep st;
@@ -323,14 +327,14 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
     // partners of other leaves read frozen at the start of the sub-iteration.
     if constexpr (Friction) {
       leaf_frictional_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, w, st.hk, g, m, tally);
-      if (walls && !column)
+      if (walls && !Column)
         add_frictional_wall_forces(b, e, rows.off.data(), p, w, g, m, tally);
     } else {
       leaf_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, g, m, tally);
-      if (walls && !column)
+      if (walls && !Column)
         add_wall_forces(b, e, rows.off.data(), p, g, m.wall, m.max_overlap, tally);
     }
-    if (column)
+    if constexpr (Column) // the column's walls replace the planar ones across it
       add_column_wall_forces<Friction>(b, e, rows.off.data(), p, w, g, m, tally);
     if (record && k == 0)
       synchronised_velocities<External>(b, e, p, m.gravity, rec_.vx.data(), rec_.vy.data(),
@@ -368,7 +372,7 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
              sign_unless(p.y[i] <= wb.hi[1]) | sign_unless(p.z[i] >= wb.lo[2]) |
              sign_unless(p.z[i] <= wb.hi[2]);
     }
-    if (g.cylinder) // a centre beyond the curved wall (or NaN)
+    if constexpr (Column) // a centre beyond the curved wall (or NaN)
       for (std::uint32_t i = b; i < e; ++i)
         bad |= sign_unless(cylinder_gap(g, p.x[i], p.y[i], p.z[i], 0.0) >= 0.0);
     if (!(bad >> 63))
@@ -386,7 +390,7 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
         bt.fault = Fault::left_domain, bt.fault_index = i, bt.fault_value = q[a];
         break;
       }
-    if (bt.fault == Fault::none && g.cylinder && !(cylinder_gap(g, q, 0.0) >= 0.0))
+    if (Column && bt.fault == Fault::none && !(cylinder_gap(g, q, 0.0) >= 0.0))
       bt.fault = Fault::left_domain, bt.fault_index = i, bt.fault_value = q[g.u];
   }
 }

@@ -108,6 +108,10 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
                            std::array<double, 3> sums, double temperature) {
   DerivedNumbers d;
   d.particles = static_cast<std::size_t>(range.count);
+  if (s.domain.cylinder())
+    d.shape = fmt::format("cylinder along {}, radius {:.6g} m, cross-section {:.6g} m^2",
+                          "xyz"[s.domain.cylinder_axis], s.domain.cylinder_radius,
+                          s.domain.cylinder_area());
   const auto model = dem::make_step_model(s, range);
   refuse_zero_step(s, model.dt, range.count == 0 ? 1.0 : range.m_min);
   refuse_uncountable_steps(s, model.dt);
@@ -122,7 +126,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   d.min_mass = mmin;
   d.dt = model.dt;
   d.tau_p = std::sqrt(mmin / std::max(s.dem.spring_constant, s.dem.wall_spring_constant));
-  d.solid_fraction = vol / s.domain.volume();
+  d.solid_fraction = vol / s.domain.particle_volume();
   d.solid_density = sums[2] / vol;
   const double phi = d.solid_fraction;
   d.g0 = (1 - phi / 2) / std::pow(1 - phi, 3);
@@ -183,6 +187,8 @@ std::vector<std::pair<std::string, std::string>> DerivedNumbers::table() const {
       {"contact_duration_s", fmt::format("{:.6e}", contact_duration)},
       {"steps_per_contact", fmt::format("{:.4g}", dt_per_contact)},
   };
+  if (!shape.empty())
+    rows.insert(rows.begin(), {"domain_shape", shape});
   if (sizes.d_max > sizes.d_min) {
     rows.insert(rows.begin() + 2,
                 {{"diameter_min_max_m", fmt::format("{:.6g} {:.6g}", sizes.d_min, sizes.d_max)},

@@ -19,6 +19,7 @@ struct DerivedNumbers {
   std::size_t particles = 0;
   double mean_diameter = 0, min_mass = 0, tau_p = 0, dt = 0, solid_fraction = 0;
   double solid_density = 0; // the particles' mass over their volume [kg/m^3]
+  std::string shape;        // domain.shape = "cylinder": its axis, radius and cross-section
   double g0 = 0;            // Carnahan-Starling contact value
   double granular_temperature = 0;
   double collision_frequency = 0; // per particle, Enskog [1/s]

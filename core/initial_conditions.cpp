@@ -20,6 +20,15 @@
 namespace cfddem {
 
 namespace {
+// A point's distance to the column's axis (domain.shape = "cylinder"), as the particle kernels
+// measure it (dem/cylinder_wall.hpp).
+double axis_distance(const DomainSpec& d, double x, double y, double z) {
+  const double c[3] = {x, y, z};
+  const auto [u, w] = d.cross_axes();
+  const double du = c[u] - d.centre(u), dw = c[w] - d.centre(w);
+  return std::sqrt(du * du + dw * dw);
+}
+
 // The diameter stream of a generator: a single size is particles.diameter (a Scene built in code
 // may set only that), a distribution its own (core/diameter_distribution.hpp).
 DiameterStream diameter_stream(const ParticleSpec& ps) {
@@ -197,6 +206,12 @@ void check_packing_feasible(const Scene& s) {
   double region = 1.0;
   for (int a = 0; a < 3; ++a)
     region *= ps.region_hi[a] - ps.region_lo[a];
+  if (s.domain.cylinder()) {
+    // Only the part of the region inside the column holds particles: at most its cross-section.
+    const auto [u, w] = s.domain.cross_axes();
+    const double across = (ps.region_hi[u] - ps.region_lo[u]) * (ps.region_hi[w] - ps.region_lo[w]);
+    region *= std::min(1.0, s.domain.cylinder_area() / across);
+  }
   const double solids = static_cast<double>(ps.count) * mean_particle_volume(ps);
   const double phi = solids / region;
   const auto fits = [&](double limit) {
@@ -261,6 +276,7 @@ void place_random(ParticleStore& p, const Scene& s) {
           fmt::format("region too thin for particles of diameter {} (axis {})", ps.diameter, a));
   }
   PointGrid grid(s.domain, ps.diameter);
+  const bool column = s.domain.cylinder();
   const std::int64_t max_attempts = 1000 * ps.count + 100000;
   std::int64_t attempts = 0;
   SetupProgress progress(s, "random placement");
@@ -283,6 +299,9 @@ void place_random(ParticleStore& p, const Scene& s) {
       c[a] = std::uniform_real_distribution<double>(ps.region_lo[a] + m, ps.region_hi[a] - m)(rng);
     }
     const double x = c[0], y = c[1], z = c[2];
+    // In a column the centre keeps its radius from the curved wall too (rho <= R - r).
+    if (column && !(axis_distance(s.domain, x, y, z) <= s.domain.cylinder_radius - r))
+      continue;
     bool free = true;
     const std::size_t cand = p.add(x, y, z, 0, 0, 0, r, ps.density, k);
     grid.for_near(x, y, z, [&](std::size_t q) {
@@ -315,14 +334,28 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
     if (n[a] < 1)
       n[a] = 0;
   }
-  const std::int64_t capacity = static_cast<std::int64_t>(n[0]) * n[1] * n[2];
+  for (int a = 0; a < 3; ++a)
+    spacing[a] = (ps.region_hi[a] - ps.region_lo[a]) / n[a];
+  auto site = [&](int a, int i) { return ps.region_lo[a] + (i + 0.5) * spacing[a]; };
+  // In a column only the sites whose particle stays inside it (rho <= R - d/2).
+  const bool column = s.domain.cylinder();
+  auto inside = [&](int ix, int iy, int iz) {
+    return !column || axis_distance(s.domain, site(0, ix), site(1, iy), site(2, iz)) <=
+                          s.domain.cylinder_radius - 0.5 * d;
+  };
+  std::int64_t capacity = static_cast<std::int64_t>(n[0]) * n[1] * n[2];
+  if (column) {
+    capacity = 0;
+    for (int iz = 0; iz < n[2]; ++iz)
+      for (int iy = 0; iy < n[1]; ++iy)
+        for (int ix = 0; ix < n[0]; ++ix)
+          capacity += inside(ix, iy, iz) ? 1 : 0;
+  }
   if (capacity < ps.count)
     throw ConfigError("scene key 'particles.count'",
                       fmt::format("a cubic lattice of spacing d fits {} particles in the region, "
                                   "{} were asked for",
                                   capacity, ps.count));
-  for (int a = 0; a < 3; ++a)
-    spacing[a] = (ps.region_hi[a] - ps.region_lo[a]) / n[a];
   // Sites are spaced by the largest diameter; each particle's own diameter comes from the
   // stream, drawn for every site in id order (kept or not) so a rank's share gets the whole
   // set's values.
@@ -330,11 +363,13 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
   std::int64_t k = 0;
   for (int iz = 0; iz < n[2] && k < ps.count; ++iz)
     for (int iy = 0; iy < n[1] && k < ps.count; ++iy)
-      for (int ix = 0; ix < n[0] && k < ps.count; ++ix, ++k)
+      for (int ix = 0; ix < n[0] && k < ps.count; ++ix) {
+        if (!inside(ix, iy, iz))
+          continue;
         if (const double dk = diameter.next(); keep(k))
-          p.add(ps.region_lo[0] + (ix + 0.5) * spacing[0],
-                ps.region_lo[1] + (iy + 0.5) * spacing[1],
-                ps.region_lo[2] + (iz + 0.5) * spacing[2], 0, 0, 0, 0.5 * dk, ps.density, k);
+          p.add(site(0, ix), site(1, iy), site(2, iz), 0, 0, 0, 0.5 * dk, ps.density, k);
+        ++k;
+      }
 }
 
 } // namespace
@@ -540,6 +575,14 @@ void check_inside(const ParticleStore& p, const Scene& s) {
                                       "(axis {} is {} m long: domain.lo, domain.hi)",
                                       p.id[i], 2 * p.radius[i], a, s.domain.length(a)));
     }
+    if (s.domain.cylinder() &&
+        !(axis_distance(s.domain, c[0], c[1], c[2]) <= s.domain.cylinder_radius &&
+          p.radius[i] < s.domain.cylinder_radius))
+      throw ConfigError(s.particles.file.empty() ? "particles" : s.particles.file,
+                        fmt::format("particle {} at ({}, {}, {}) of radius {} m does not lie "
+                                    "inside the cylinder (domain.cylinder_radius = {} m)",
+                                    p.id[i], c[0], c[1], c[2], p.radius[i],
+                                    s.domain.cylinder_radius));
   }
 }
 
@@ -548,10 +591,12 @@ void check_inside(const ParticleStore& p, const Scene& s) {
 // pair overlap is, and accepted alike with particles.allow_overlap.
 void check_walls(const ParticleStore& p, const Scene& s) {
   static const char* walls[3][2] = {{"x_lo", "x_hi"}, {"y_lo", "y_hi"}, {"z_lo", "z_hi"}};
+  const bool column = s.domain.cylinder();
   for (std::size_t i = 0; i < p.size(); ++i) {
     const double c[3] = {p.x[i], p.y[i], p.z[i]};
     for (std::size_t a = 0; a < 3; ++a) {
-      if (s.domain.periodic[a])
+      // A column's curved wall replaces the planar walls across it (checked below).
+      if (s.domain.periodic[a] || (column && static_cast<int>(a) != s.domain.cylinder_axis))
         continue;
       const double cut[2] = {p.radius[i] - (c[a] - s.domain.lo[a]),
                              p.radius[i] - (s.domain.hi[a] - c[a])};
@@ -565,6 +610,16 @@ void check_walls(const ParticleStore& p, const Scene& s) {
                                         p.id[i], c[0], c[1], c[2], p.radius[i], walls[a][side],
                                         cut[side]));
     }
+    if (!column)
+      continue;
+    const double cut = p.radius[i] + axis_distance(s.domain, c[0], c[1], c[2]) -
+                       s.domain.cylinder_radius;
+    if (cut > 1e-9 * p.radius[i])
+      throw ConfigError(s.particles.file.empty() ? "particles" : s.particles.file,
+                        fmt::format("particle {} at ({:.6g}, {:.6g}, {:.6g}) of radius {:.6g} m "
+                                    "overlaps the cylinder's wall by {:.3g} m (set "
+                                    "particles.allow_overlap = true to accept it)",
+                                    p.id[i], c[0], c[1], c[2], p.radius[i], cut));
   }
 }
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <numbers>
 #include <stdexcept>
 
 #include <fmt/format.h>
@@ -137,7 +138,42 @@ private:
   SceneConfig& c_;
 };
 
+// domain.shape and the cylinder's keys (read for a box too, where the cylinder's keys are
+// refused when given): a column that fits inside the box, across walled axes only.
+void read_cylinder(KeyReader& k, const SceneConfig& c, Scene& s) {
+  DomainSpec& d = s.domain;
+  d.shape = k.word("domain.shape");
+  const std::string axis = k.word("domain.cylinder_axis");
+  d.cylinder_axis = axis == "x" ? 0 : axis == "z" ? 2 : 1;
+  const auto [u, w] = d.cross_axes();
+  const double fit = 0.5 * std::min(d.length(u), d.length(w));
+  d.cylinder_radius = k.number("domain.cylinder_radius", fit);
+  if (!d.cylinder()) {
+    for (const char* g : {"domain.cylinder_axis", "domain.cylinder_radius"})
+      require(!c.has(g), g, "applies to domain.shape = \"cylinder\" only (the shape is \"box\")");
+    return;
+  }
+  const char* names = "xyz";
+  require(!d.periodic[static_cast<std::size_t>(u)] && !d.periodic[static_cast<std::size_t>(w)],
+          "domain.periodic",
+          fmt::format("must be false on axes {} and {}, across the cylinder (domain.shape = "
+                      "\"cylinder\", domain.cylinder_axis = \"{}\"): the curved wall closes them; "
+                      "got [{}, {}, {}]",
+                      names[u], names[w], axis, d.periodic[0], d.periodic[1], d.periodic[2]));
+  require(d.cylinder_radius <= fit, "domain.cylinder_radius",
+          fmt::format("{} m does not fit in the box: the column along {} must lie inside it, so "
+                      "R is at most half the smaller width across it, {} m",
+                      d.cylinder_radius, axis, fit));
+  require(!c.has("fluid"), "domain.shape",
+          "\"cylinder\" is for particles only: the gas does not see the curved wall yet (remove "
+          "the [fluid] table, or use domain.shape = \"box\")");
+}
+
 } // namespace
+
+double DomainSpec::cylinder_area() const {
+  return std::numbers::pi * cylinder_radius * cylinder_radius;
+}
 
 Scene read_scene(SceneConfig& c, const std::string& default_name) {
   // A key the table does not know is refused first, with the nearest key: a misspelt required
@@ -175,6 +211,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
             "domain.hi",
             fmt::format("must exceed domain.lo on every axis (axis {}: {} <= {})", a,
                         s.domain.hi[a], s.domain.lo[a]));
+  read_cylinder(k, c, s);
   s.gravity = k.vec3("gravity");
 
   // Particles: a CSV file or a generator.
@@ -401,6 +438,14 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("domain.lo", vec3(s.domain.lo));
   o.emplace_back("domain.hi", vec3(s.domain.hi));
   o.emplace_back("domain.periodic", bool3(s.domain.periodic));
+  // A box lists none of the shape's keys: its configuration (run.json, checkpoints) reads as
+  // before they existed, so older checkpoints restart and box runs stay byte for byte.
+  if (s.domain.cylinder()) {
+    o.emplace_back("domain.shape", str(s.domain.shape));
+    o.emplace_back("domain.cylinder_axis",
+                   str(std::string(1, "xyz"[static_cast<std::size_t>(s.domain.cylinder_axis)])));
+    o.emplace_back("domain.cylinder_radius", num(s.domain.cylinder_radius));
+  }
   o.emplace_back("gravity", vec3(s.gravity));
   const auto& p = s.particles;
   if (!p.file.empty()) {

@@ -19,8 +19,25 @@ namespace cfddem {
 struct DomainSpec {
   std::array<double, 3> lo{}, hi{};
   std::array<bool, 3> periodic{true, true, true};
+  // "box", or "cylinder": a circular column of radius cylinder_radius along cylinder_axis
+  // (0 x, 1 y, 2 z), centred on the box's other two axes (docs/theory.md §11).
+  std::string shape = "box";
+  int cylinder_axis = 1;
+  double cylinder_radius = 0.0; // [m]; the parser resolves its default
   double length(int a) const { return hi[a] - lo[a]; }
   double volume() const { return length(0) * length(1) * length(2); }
+  bool cylinder() const { return shape == "cylinder"; }
+  // The two axes across the cylinder, in increasing order.
+  std::array<int, 2> cross_axes() const {
+    return {cylinder_axis == 0 ? 1 : 0, cylinder_axis == 2 ? 1 : 2};
+  }
+  double centre(int a) const { return 0.5 * (lo[a] + hi[a]); }
+  // The column's cross-section pi R^2 [m^2].
+  double cylinder_area() const;
+  // The volume the particles move in: the box's, or the column's pi R^2 L.
+  double particle_volume() const {
+    return cylinder() ? cylinder_area() * length(cylinder_axis) : volume();
+  }
 };
 
 struct ParticleSpec {

@@ -62,6 +62,8 @@ constexpr std::string_view kPlacements[] = {"random", "lattice"};
 constexpr std::string_view kDistributions[] = {"uniform", "normal", "lognormal"};
 constexpr std::string_view kSchemes[] = {"explicit", "orb", "islands"};
 constexpr std::string_view kProfileAxes[] = {"none", "x", "y", "z"};
+constexpr std::string_view kShapes[] = {"box", "cylinder"};
+constexpr std::string_view kAxes[] = {"x", "y", "z"};
 constexpr std::string_view kLocalDt[] = {"proximity", "time_to_contact"};
 constexpr std::string_view kWeights[] = {"count", "cost"};
 constexpr std::string_view kDrags[] = {"bvk", "bvk2", "koch_hill", "wen_yu", "none"};
@@ -112,6 +114,32 @@ std::vector<SceneKey> make_table() {
        .section = S::DomainParticles,
        .fallback = flags(true, true, true),
        .meaning = "a non-periodic axis has flat walls at `lo` and `hi`"},
+      {.name = "domain.shape",
+       .type = T::String,
+       .section = S::DomainParticles,
+       .choices = kShapes,
+       .fallback = word("box"),
+       .meaning = "`\"box\"`: the walls of `domain.periodic` alone; `\"cylinder\"`: also a "
+                  "curved wall, an axis-aligned circular column inside the box that the particles "
+                  "feel with the planar walls' contact law ([theory.md](theory.md) §11); its two "
+                  "cross axes must be walled, its own axis may be periodic. Particles only (no "
+                  "gas)"},
+      {.name = "domain.cylinder_axis",
+       .type = T::String,
+       .section = S::DomainParticles,
+       .choices = kAxes,
+       .fallback = word("y"),
+       .meaning = "`domain.shape = \"cylinder\"`: the axis the column runs along (our scenes' "
+                  "flow and gravity axis is y); the column is centred on the box's other two "
+                  "axes"},
+      {.name = "domain.cylinder_radius",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .range = above(0),
+       .fallback = derived("half the smaller of the box's two widths across the axis"),
+       .meaning = "`domain.shape = \"cylinder\"`: the column's radius R; at most that default "
+                  "(the column lies inside the box)"},
       {.name = "gravity",
        .type = T::Vec3,
        .section = S::DomainParticles,

@@ -8,6 +8,7 @@
 
 #include "dem/cell_list.hpp"
 #include "dem/contact_damping.hpp"
+#include "dem/cylinder_wall.hpp"
 
 namespace cfddem::dem {
 
@@ -127,26 +128,34 @@ ContactCensus take_census(const CensusParticles& p, const DomainGeometry& g, con
     }
   }
 
-  // Walls: the planes lo and hi of every non-periodic axis (dem/verlet_passes.hpp's walls).
+  // Walls: the planes lo and hi of every non-periodic axis (dem/verlet_passes.hpp's walls); in
+  // a cylindrical column its curved wall instead of the planes across it (docs/theory.md §11).
   const double wall_unit =
       m_min > 0.0 && l.k_wall > 0.0 ? 1.0 / contact_duration(l.k_wall, l.e_wall, m_min) : 0.0;
   RateCache wall_rate{l.k_wall, l.e_wall, wall_unit};
   Sums walls;
-  for (std::size_t i = 0; i < n; ++i)
+  // A wall at distance `gap` from the centre of particle i.
+  auto wall = [&](std::size_t i, double gap) {
+    const double ri = pr[i];
+    if (ri - gap <= 0.0)
+      return;
+    const double overlap = (ri - gap) / (2.0 * ri);
+    ++walls.contacts;
+    walls.overlap += std::llround(overlap * kFixed);
+    walls.overlap_max = std::max(walls.overlap_max, overlap);
+    walls.rate += wall_rate(pm[i]);
+  };
+  for (std::size_t i = 0; i < n; ++i) {
     for (int a = 0; a < 3; ++a) {
-      if (g.periodic[a])
+      if (g.periodic[a] || (g.cylinder && a != g.axis))
         continue;
-      const double xa = s.slot[static_cast<std::size_t>(a)][i], ri = pr[i];
-      for (const double gap : {xa - g.lo[a], g.hi[a] - xa}) {
-        if (ri - gap <= 0.0)
-          continue;
-        const double overlap = (ri - gap) / (2.0 * ri);
-        ++walls.contacts;
-        walls.overlap += std::llround(overlap * kFixed);
-        walls.overlap_max = std::max(walls.overlap_max, overlap);
-        walls.rate += wall_rate(pm[i]);
-      }
+      const double xa = s.slot[static_cast<std::size_t>(a)][i];
+      for (const double gap : {xa - g.lo[a], g.hi[a] - xa})
+        wall(i, gap);
     }
+    if (g.cylinder)
+      wall(i, cylinder_gap(g, s.slot[0][i], s.slot[1][i], s.slot[2][i], 0.0));
+  }
 
   for (std::size_t i = 0; i < n; ++i)
     ++c.coordination[static_cast<std::size_t>(std::min(s.z[i], kCoordinationBins - 1))];

@@ -12,9 +12,21 @@ namespace cfddem::dem {
 struct DomainGeometry {
   std::array<double, 3> lo{}, hi{}, length{}, half{};
   std::array<bool, 3> periodic{};
+  // domain.shape = "cylinder": a curved wall of radius `radius` around the line through
+  // (centre_u, centre_w) on the cross axes u, w (dem/cylinder_wall.hpp; docs/theory.md §11).
+  // A bool known for the whole run: the kernels test it outside their particle loops.
+  bool cylinder = false;
+  int axis = 1, u = 0, w = 2;
+  double centre_u = 0.0, centre_w = 0.0, radius = 0.0;
 
   explicit DomainGeometry(const DomainSpec& d) : lo(d.lo), hi(d.hi), periodic(d.periodic) {
     for (int a = 0; a < 3; ++a) length[a] = hi[a] - lo[a], half[a] = 0.5 * length[a];
+    if (d.cylinder()) {
+      cylinder = true;
+      axis = d.cylinder_axis;
+      u = d.cross_axes()[0], w = d.cross_axes()[1];
+      centre_u = d.centre(u), centre_w = d.centre(w), radius = d.cylinder_radius;
+    }
   }
   DomainGeometry() = default;
 

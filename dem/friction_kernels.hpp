@@ -9,8 +9,10 @@
 #include <cmath>
 
 #include "dem/contact_kernels.hpp"
+#include "dem/cylinder_wall.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/linear_spring_dashpot.hpp"
+#include "dem/wall_friction.hpp"
 
 namespace cfddem::dem {
 
@@ -65,19 +67,12 @@ inline void add_wall_friction(const TangentialLaw& law, double mi, double ri, do
                               double tq[3]) {
   double nvec[3] = {0, 0, 0};
   nvec[a] = s;
-  // Slip of the contact point: v_i + w_i x (r_i n) (the wall is at rest).
-  const double rv[3] = {vel[0] + ri * (w[1] * nvec[2] - w[2] * nvec[1]),
-                        vel[1] + ri * (w[2] * nvec[0] - w[0] * nvec[2]),
-                        vel[2] + ri * (w[0] * nvec[1] - w[1] * nvec[0])};
+  // Slip of the contact point (the wall is at rest), its normal part read off axis a.
+  double rv[3];
+  wall_contact_velocity(ri, nvec, vel, w, rv);
   const double rvn = rv[a] * s;
   const double vt[3] = {rv[0] - rvn * nvec[0], rv[1] - rvn * nvec[1], rv[2] - rvn * nvec[2]};
-  double xi3[3] = {0, 0, 0}, ft[3];
-  tangential_force(law, mi, 0.0, std::abs(fn), nvec, vt, xi3, ft);
-  for (int b = 0; b < 3; ++b)
-    f[b] += ft[b];
-  tq[0] += ri * (nvec[1] * ft[2] - nvec[2] * ft[1]);
-  tq[1] += ri * (nvec[2] * ft[0] - nvec[0] * ft[2]);
-  tq[2] += ri * (nvec[0] * ft[1] - nvec[1] * ft[0]);
+  add_wall_tangential(law, mi, ri, fn, nvec, vt, f, tq);
 }
 
 // The planar walls at lo and hi of every non-periodic axis acting on one particle at pos with
@@ -88,15 +83,18 @@ inline void add_wall_friction(const TangentialLaw& law, double mi, double ri, do
 // particle's mass and spin are read and how an overlap is counted, so those come in as callables
 // (mass() -> double, spin(double w[3]), overlap(delta)), called only for a wall in contact and
 // inlined at compile time. (The orb leaf kernels keep their own loops: through this helper their
-// frictional wall pass measured 37% more instructions.)
-template <bool Friction, class Mass, class Spin, class Overlap>
+// frictional wall pass measured 37% more instructions.) With Cylinder the column's curved wall
+// replaces the planar walls across its axis (where the column touches the box, both would act
+// on one contact) and acts after the planar walls along it (add_cylinder_contact); callers
+// choose it once per pass, from DomainGeometry::cylinder, so the box's path is unchanged.
+template <bool Friction, bool Cylinder = false, class Mass, class Spin, class Overlap>
 [[gnu::always_inline]] inline void
 add_wall_contacts(const DomainGeometry& g, const NormalLaw& wall,
                   [[maybe_unused]] const TangentialLaw& wall_t, const double pos[3],
                   const double vel[3], double ri, Mass&& mass, [[maybe_unused]] Spin&& spin,
                   double f[3], [[maybe_unused]] double tq[3], Overlap&& overlap) {
   for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a])
+    if (g.periodic[a] || (Cylinder && a != g.axis))
       continue;
     for (int side = 0; side < 2; ++side) {
       const double s = side ? 1.0 : -1.0;
@@ -114,6 +112,8 @@ add_wall_contacts(const DomainGeometry& g, const NormalLaw& wall,
       }
     }
   }
+  if constexpr (Cylinder)
+    add_cylinder_contact<Friction>(g, wall, wall_t, pos, vel, ri, mass, spin, f, tq, overlap);
 }
 
 } // namespace cfddem::dem

@@ -141,6 +141,12 @@ inline bool may_reach_wall(double pos, double lo, double hi, double r, double b,
                            double margin) {
   return wall_gap(pos, lo, hi, r) < b * dt_sp + margin;
 }
+// The tie to the curved wall (domain.shape = "cylinder"): the particle at (x, y, z) could reach
+// it within dt_sp (its gap R - rho - r shrinks no faster than its speed bound b).
+inline bool may_reach_cylinder(const DomainGeometry& g, double x, double y, double z, double r,
+                               double b, double dt_sp, double margin) {
+  return cylinder_gap(g, x, y, z, r) < b * dt_sp + margin;
+}
 // An island's raised bound: the speed that takes its whole energy E on its lightest member, plus
 // what the external forces add over the sub-iteration: s_max = sqrt(2 E / m_min) + a_max
 // (h_prev,max + dt_sp).
@@ -181,8 +187,8 @@ Reaches largest_reaches(const double* __restrict x, const double* __restrict y,
 }
 
 // The walls' force on member i (and torque, with friction; w its spin), added to (ax, ay, az)
-// after its pairs; overlaps into the island's tallies.
-template <bool Friction>
+// after its pairs; overlaps into the island's tallies. With Cylinder the curved wall's too.
+template <bool Friction, bool Cylinder = false>
 inline void add_member_walls(const ContactView& v, std::uint32_t i, double& ax, double& ay,
                              double& az, const double w[3], double tq[3], double& max_ratio,
                              std::int64_t& violations) {
@@ -190,7 +196,7 @@ inline void add_member_walls(const ContactView& v, std::uint32_t i, double& ax, 
   const double ri = v.c.radius[i], mi = v.c.mass[i];
   double f[3] = {ax, ay, az};
   const double pos[3] = {v.c.x[i], v.c.y[i], v.c.z[i]}, vel[3] = {v.c.vx[i], v.c.vy[i], v.c.vz[i]};
-  add_wall_contacts<Friction>(
+  add_wall_contacts<Friction, Cylinder>(
       *v.geom, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
       [&](double s[3]) { s[0] = w[0], s[1] = w[1], s[2] = w[2]; }, f, tq,
       [&](double delta) {
@@ -205,11 +211,12 @@ inline void add_member_walls(const ContactView& v, std::uint32_t i, double& ax, 
 // without). Returns the pairs evaluated, each once: (i, j) with j > i (ById: id[j] > id[i], so
 // that a pair with a ghost end counts on one rank only). With Friction the tangential springs of
 // the entries evaluated advance over the step hk and the torques are written too
-// (dem/friction_kernels.hpp: the explicit scheme's arithmetic).
-template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction = false>
-std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
-                            std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
-                            std::int64_t& violations_out, [[maybe_unused]] double hk = 0.0) {
+// (dem/friction_kernels.hpp: the explicit scheme's arithmetic). Cylinder: the curved wall acts
+// too (contact_forces chooses once per call).
+template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction, bool Cylinder>
+std::int64_t contact_forces_of(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
+                               std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
+                               std::int64_t& violations_out, [[maybe_unused]] double hk = 0.0) {
   const std::uint32_t* __restrict off = v.rows.off.data();
   const std::uint32_t* __restrict nb = v.rows.nb.data();
   const std::uint32_t* __restrict wrap = v.rows.wrap.data();
@@ -286,7 +293,7 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
       pair(k, j, g.image(x[j] - xi, 0), g.image(y[j] - yi, 1), g.image(z[j] - zi, 2));
     }
     if (!(g.periodic[0] && g.periodic[1] && g.periodic[2]))
-      add_member_walls<Friction>(v, i, ax, ay, az, wi, tq, max_ratio, violations);
+      add_member_walls<Friction, Cylinder>(v, i, ax, ay, az, wi, tq, max_ratio, violations);
     fxo[i] = ax, fyo[i] = ay, fzo[i] = az;
     if constexpr (Friction)
       v.c.tx[i] = tq[0], v.c.ty[i] = tq[1], v.c.tz[i] = tq[2];
@@ -294,6 +301,15 @@ std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std:
   max_ratio_out = max_ratio;
   violations_out += violations;
   return pairs;
+}
+template <bool Label, bool Indexed, bool Wrap, bool ById, bool Friction = false>
+std::int64_t contact_forces(const ContactView& v, const std::uint32_t* idx, std::uint32_t u0,
+                            std::uint32_t u1, std::uint32_t island, double& max_ratio_out,
+                            std::int64_t& violations_out, double hk = 0.0) {
+  return v.geom->cylinder ? contact_forces_of<Label, Indexed, Wrap, ById, Friction, true>(
+                                v, idx, u0, u1, island, max_ratio_out, violations_out, hk)
+                          : contact_forces_of<Label, Indexed, Wrap, ById, Friction, false>(
+                                v, idx, u0, u1, island, max_ratio_out, violations_out, hk);
 }
 
 // The contact and wall forces of an island of two members i and j without friction (one rank;
@@ -328,12 +344,18 @@ inline std::int64_t pair_island_forces(const ContactView& v, std::uint32_t i, st
   const bool walls = !(g.periodic[0] && g.periodic[1] && g.periodic[2]);
   const double w[3] = {0.0, 0.0, 0.0};
   double tq[3] = {0.0, 0.0, 0.0};
+  auto member_walls = [&](std::uint32_t k, double& fx, double& fy, double& fz) {
+    if (!g.cylinder)
+      add_member_walls<false>(v, k, fx, fy, fz, w, tq, max_ratio, violations);
+    else
+      add_member_walls<false, true>(v, k, fx, fy, fz, w, tq, max_ratio, violations);
+  };
   tally_pair();
   if (walls)
-    add_member_walls<false>(v, i, ax, ay, az, w, tq, max_ratio, violations);
+    member_walls(i, ax, ay, az);
   tally_pair();
   if (walls)
-    add_member_walls<false>(v, j, bx, by, bz, w, tq, max_ratio, violations);
+    member_walls(j, bx, by, bz);
   c.fx[i] = ax, c.fy[i] = ay, c.fz[i] = az;
   c.fx[j] = bx, c.fy[j] = by, c.fz[j] = bz;
   return 1;
@@ -401,9 +423,10 @@ template <bool Wrap, class Pair>
   }
 }
 
-template <bool Wrap>
-double member_entry_time(const ContactView& v, const double* own, double margin,
-                         std::uint32_t island, std::uint32_t i) {
+// Cylinder: the curved wall's gap too (the callers choose once, outside their member loops).
+template <bool Wrap, bool Cylinder>
+double member_entry_time_of(const ContactView& v, const double* own, double margin,
+                            std::uint32_t island, std::uint32_t i) {
   const DomainGeometry& g = *v.geom;
   const double* __restrict rad = v.c.radius.data();
   const double ri = rad[i], si = own[i];
@@ -416,15 +439,27 @@ double member_entry_time(const ContactView& v, const double* own, double margin,
   for (int a = 0; a < 3; ++a)
     if (!g.periodic[a])
       t = std::min(t, closing_time(wall_gap(pos[a], g.lo[a], g.hi[a], ri) - margin, si));
+  if constexpr (Cylinder) // the curved wall's gap closes at most as fast as the particle moves
+    t = std::min(t, closing_time(cylinder_gap(g, pos, ri) - margin, si));
   return t;
+}
+template <bool Wrap>
+double member_entry_time(const ContactView& v, const double* own, double margin,
+                         std::uint32_t island, std::uint32_t i) {
+  return v.geom->cylinder ? member_entry_time_of<Wrap, true>(v, own, margin, island, i)
+                          : member_entry_time_of<Wrap, false>(v, own, margin, island, i);
 }
 template <bool Wrap>
 double entry_time(const ContactView& v, const Members& mb, const double* own,
                   std::uint32_t island) {
-  double t = std::numeric_limits<double>::infinity();
-  for (std::uint32_t u = 0; u < mb.count(); ++u)
-    t = std::min(t, member_entry_time<Wrap>(v, own, mb.margin, island, mb.mem[u]));
-  return t;
+  auto least = [&]<bool Cylinder>() {
+    double t = std::numeric_limits<double>::infinity();
+    for (std::uint32_t u = 0; u < mb.count(); ++u)
+      t = std::min(t,
+                   member_entry_time_of<Wrap, Cylinder>(v, own, mb.margin, island, mb.mem[u]));
+    return t;
+  };
+  return v.geom->cylinder ? least.template operator()<true>() : least.template operator()<false>();
 }
 
 // The first time a gap can close, from now, when it closes no faster than `rate` (negative when
@@ -453,9 +488,9 @@ inline double free_span(double gap, double rate, double accel) {
 // x - lo - r (or hi - x - r) on the same parabola. The leapfrog's nodes lie on the parabola up to
 // rounding, which the margin covers. No particle outside the island can reach a member within the
 // sub-iteration (the link test), so this is every contact the members can meet.
-template <bool Wrap, bool External>
-double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
-                 const std::array<double, 3>& grav) {
+template <bool Wrap, bool External, bool Cylinder>
+double free_time_of(const ContactView& v, const Members& mb, std::uint32_t island,
+                    const std::array<double, 3>& grav) {
   const DomainGeometry& g = *v.geom;
   const Columns& c = v.c;
   // A particle's acceleration in free flight, and its velocity at the node.
@@ -488,8 +523,21 @@ double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
         t = std::min(t, free_span(pos[a] - g.lo[a] - ri - mb.margin, ui[a], std::abs(ai[a])));
         t = std::min(t, free_span(g.hi[a] - pos[a] - ri - mb.margin, -ui[a], std::abs(ai[a])));
       }
+    if constexpr (Cylinder) {
+      // On the parabola rho(t) <= rho + |u_perp| t + |a_perp| t^2 / 2 (u_perp, a_perp: across
+      // the axis), so the curved wall's gap R - r - rho(t) closes no sooner than this.
+      const double up = std::hypot(ui[g.u], ui[g.w]), ap = std::hypot(ai[g.u], ai[g.w]);
+      t = std::min(t, free_span(cylinder_gap(g, pos, ri) - mb.margin, -up, ap));
+    }
   }
   return t;
+}
+// free_time_of with or without a cylinder's curved wall, chosen once per call.
+template <bool Wrap, bool External>
+double free_time(const ContactView& v, const Members& mb, std::uint32_t island,
+                 const std::array<double, 3>& grav) {
+  return v.geom->cylinder ? free_time_of<Wrap, External, true>(v, mb, island, grav)
+                          : free_time_of<Wrap, External, false>(v, mb, island, grav);
 }
 
 // The leading fine steps taken as one step of lead x h (step_island): every force that step

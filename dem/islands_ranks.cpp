@@ -244,6 +244,11 @@ void IslandsScheme::make_links_ranks() {
       if (islands::may_reach_wall(pos[i], g.lo[a], g.hi[a], p_.radius[i], bnd[i], dt_sp_, margin_))
         ln_.tied.push_back(i);
   }
+  if (g.cylinder)
+    for (std::uint32_t i = 0; i < owned_; ++i)
+      if (islands::may_reach_cylinder(g, p_.x[i], p_.y[i], p_.z[i], p_.radius[i], bnd[i], dt_sp_,
+                                      margin_))
+        ln_.tied.push_back(i);
   ln_.form(p_.size(), std::numeric_limits<double>::infinity());
   rank_->spans.assign(ln_.islands.count(), 0);
   for (const std::uint32_t v : ln_.busy)

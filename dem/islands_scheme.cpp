@@ -453,6 +453,9 @@ void IslandsScheme::make_links(bool incremental) {
     const double pos = a == 0 ? x[i] : a == 1 ? y[i] : z[i];
     return islands::may_reach_wall(pos, g.lo[a], g.hi[a], rad[i], bnd[i], dt, margin);
   };
+  auto tied_to_cylinder = [&](std::uint32_t i) {
+    return islands::may_reach_cylinder(g, x[i], y[i], z[i], rad[i], bnd[i], dt, margin);
+  };
   if (!incremental) {
     ln_.ea.clear(), ln_.eb.clear(), ln_.ek.clear();
     // Only particles with a non-empty row (increasing): most rows of a dilute scene are empty.
@@ -472,6 +475,10 @@ void IslandsScheme::make_links(bool incremental) {
         if (tied(i, a))
           ln_.tied.push_back(i);
     }
+    if (g.cylinder)
+      for (std::uint32_t i = 0; i < n; ++i)
+        if (tied_to_cylinder(i))
+          ln_.tied.push_back(i);
   } else {
     // New links from the rows of the raised particles, keyed by their position in the lower
     // particle's row; a pair both of whose particles were raised is found twice (unique).
@@ -527,6 +534,10 @@ void IslandsScheme::make_links(bool incremental) {
         if (tied(c, a))
           ln_.tied.push_back(c); // duplicates are harmless (ln_.busy is a set)
     }
+    if (g.cylinder)
+      for (const std::uint32_t c : ln_.changed)
+        if (tied_to_cylinder(c))
+          ln_.tied.push_back(c);
   }
   ln_.form(n, kGlobalFraction * static_cast<double>(n)); // false: link() goes global
 }
@@ -611,6 +622,14 @@ template <bool External, bool Friction> void IslandsScheme::island_sums_of(std::
     ln_.a_max[q] = std::max(ln_.a_max[q], islands::acceleration<External>(c, model_.gravity, i));
     ln_.hp_max[q] = std::max(ln_.hp_max[q], hprev_[i]);
   }
+  if (g.cylinder) // the curved wall's spring, as the planar walls' above
+    for (const std::uint32_t i : ln_.busy) {
+      if (i >= owned)
+        break;
+      const double delta = -cylinder_gap(g, p_.x[i], p_.y[i], p_.z[i], p_.radius[i]);
+      if (delta > 0.0)
+        ln_.energy[ln_.island_of[i]] += 0.5 * model_.wall.k * delta * delta;
+    }
 }
 
 // Islands whose bounds account for the energy contacts can move inside them: link with the
@@ -856,17 +875,20 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   double max_ratio = rep.max_ratio;
   std::int64_t violations = rep.overlaps;
   const islands::ContactView view = contact_view();
-  for (const std::uint32_t i : o.near_wall) {
-    double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
-    if constexpr (Friction) {
-      w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
-      tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
+  auto walls = [&]<bool Cylinder>() {
+    for (const std::uint32_t i : o.near_wall) {
+      double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
+      if constexpr (Friction) {
+        w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
+        tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
+      }
+      islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w, tq,
+                                                    max_ratio, violations);
+      if constexpr (Friction)
+        p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
     }
-    islands::add_member_walls<Friction>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w, tq, max_ratio,
-                                        violations);
-    if constexpr (Friction)
-      p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
-  }
+  };
+  geom_.cylinder ? walls.template operator()<true>() : walls.template operator()<false>();
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
   st_.overlap_violations += violations;
   st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);
@@ -968,15 +990,22 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
       return;
     }
   }
-  results_[c] = islands::step_island<External, true, Friction>(
-      view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
-      record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
-      [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
-          auto... hk) {
-        return islands::contact_forces<true, true, !Ranks, Ranks, Friction>(
-            view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
-      },
-      [] {}, TaskBlocks{}, free_time);
+  // The curved wall of a cylinder (Cylinder) chosen once per island, outside its steps.
+  auto fine = [&]<bool Cylinder>() {
+    return islands::step_island<External, true, Friction>(
+        view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
+        record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
+        [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
+            auto... hk) {
+          return islands::contact_forces_of<true, true, !Ranks, Ranks, Friction, Cylinder>(
+              view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
+        },
+        [] {}, TaskBlocks{},
+        [&] {
+          return islands::free_time_of<!Ranks, External, Cylinder>(view, mb, c, model_.gravity);
+        });
+  };
+  results_[c] = geom_.cylinder ? fine.template operator()<true>() : fine.template operator()<false>();
 }
 
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each
@@ -1019,6 +1048,9 @@ std::optional<Fault> find_fault(const ParticleStore& p, std::size_t n, const Dom
              sign_unless(x[i] <= hi[0]) | sign_unless(y[i] >= lo[1]) | sign_unless(y[i] <= hi[1]) |
              sign_unless(z[i] >= lo[2]) | sign_unless(z[i] <= hi[2]);
     }
+    if (g.cylinder) // a centre beyond the curved wall (or NaN)
+      for (std::size_t i = 0; i < n; ++i)
+        bad |= sign_unless(cylinder_gap(g, x[i], y[i], z[i], 0.0) >= 0.0);
     if (!(bad >> 63))
       return std::nullopt;
   }
@@ -1030,6 +1062,8 @@ std::optional<Fault> find_fault(const ParticleStore& p, std::size_t n, const Dom
     for (int a = 0; a < 3; ++a)
       if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]))
         return Fault{i, false};
+    if (g.cylinder && !(cylinder_gap(g, q, 0.0) >= 0.0))
+      return Fault{i, false};
   }
   return std::nullopt;
 }

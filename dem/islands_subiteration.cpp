@@ -132,6 +132,13 @@ std::optional<islands::Fault> IslandsScheme::find_fault() {
       }
       flagged = flagged || !ok;
     }
+    // Only members can reach the curved wall (a free particle is not tied to it).
+    if (geom_.cylinder)
+      for (const std::uint32_t i : ln_.busy) {
+        if (i >= owned_)
+          break;
+        flagged = flagged || !(cylinder_gap(geom_, p_.x[i], p_.y[i], p_.z[i], 0.0) >= 0.0);
+      }
   }
   return flagged ? islands::find_fault(p_, owned_, geom_) : std::nullopt;
 }

@@ -217,6 +217,36 @@ inline void add_frictional_wall_forces(std::uint32_t b, std::uint32_t e, const s
   }
 }
 
+// The walls of a cylindrical column (domain.shape = "cylinder") on the particles [b, e), in
+// place of add_wall_forces or add_frictional_wall_forces: the curved wall and the planar walls
+// along its axis, through the explicit scheme's helper (add_wall_contacts), added to the force
+// (and torque) the row summed; a particle without a row starts from zero.
+template <bool Friction>
+inline void add_column_wall_forces(std::uint32_t b, std::uint32_t e, const std::uint32_t* off,
+                                   const LeafLive& p, [[maybe_unused]] const LeafSpin& w,
+                                   const DomainGeometry& g, const StepModel& m,
+                                   OverlapTally& tally) {
+  for (std::uint32_t i = b; i < e; ++i) {
+    const bool row = off[i + 1] > off[i];
+    const double ri = p.rad[i], mi = p.mass[i];
+    double f[3] = {row ? p.fx[i] : 0.0, row ? p.fy[i] : 0.0, row ? p.fz[i] : 0.0};
+    double tq[3] = {0.0, 0.0, 0.0};
+    if constexpr (Friction)
+      tq[0] = row ? w.tx[i] : 0.0, tq[1] = row ? w.ty[i] : 0.0, tq[2] = row ? w.tz[i] : 0.0;
+    const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
+    add_wall_contacts<Friction, true>(
+        g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
+        [&](double s[3]) { s[0] = w.wx[i], s[1] = w.wy[i], s[2] = w.wz[i]; }, f, tq,
+        [&](double delta) {
+          tally.max_ratio = std::max(tally.max_ratio, delta / ri);
+          tally.violations += delta > m.max_overlap * ri;
+        });
+    p.fx[i] = f[0], p.fy[i] = f[1], p.fz[i] = f[2];
+    if constexpr (Friction)
+      w.tx[i] = tq[0], w.ty[i] = tq[1], w.tz[i] = tq[2];
+  }
+}
+
 // The spin kick of local step k of a batch [b, e), before leaf_kick_drift (which overwrites
 // h_prev): w += T / I s over the span s of the translational kick (h_prev + h/2 at k = 0, then
 // (h_before + h)/2), the explicit scheme's w += T (1/I) dt for a constant step.

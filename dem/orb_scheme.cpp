@@ -119,18 +119,25 @@ bool OrbScheme::time_to_contact_speeds() {
 
 // A wall is a partner too: an owned particle whose centre is closer than proximity_radii radii
 // to a wall (with time_to_contact: whose gap to it could close within dt_sp) is near (without
-// this, a leaf near a floor took coarse steps straight into it).
+// this, a leaf near a floor took coarse steps straight into it). The curved wall of a cylinder
+// too, by its centre's distance R - rho to it.
 void OrbScheme::mark_walls(std::span<unsigned char> near) const {
+  auto reach = [&](std::size_t i) {
+    return cfg_.time_to_contact ? p_.radius[i] + speed_[i] * cfg_.dt_sp
+                                : 2.0 * cfg_.prox * p_.radius[i];
+  };
   for (int a = 0; a < 3; ++a) {
     if (geom_.periodic[a])
       continue;
     const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
     for (std::size_t i = 0; i < owned_; ++i) {
-      const double d = cfg_.time_to_contact ? p_.radius[i] + speed_[i] * cfg_.dt_sp
-                                            : 2.0 * cfg_.prox * p_.radius[i];
+      const double d = reach(i);
       near[i] |= pos[i] - geom_.lo[a] < d || geom_.hi[a] - pos[i] < d;
     }
   }
+  if (geom_.cylinder)
+    for (std::size_t i = 0; i < owned_; ++i)
+      near[i] |= cylinder_gap(geom_, p_.x[i], p_.y[i], p_.z[i], 0.0) < reach(i);
 }
 
 // The rows of this sub-iteration; true if built now. One rank: the candidate pairs are rebuilt
@@ -274,18 +281,23 @@ void OrbScheme::plan(bool record) {
 }
 
 void OrbScheme::run_batch(Batch& bt, bool record) {
-  if (model_.friction)
-    ext_.active() ? run_batch_impl<true, true>(bt, record)
-                  : run_batch_impl<false, true>(bt, record);
-  else
-    ext_.active() ? run_batch_impl<true, false>(bt, record)
-                  : run_batch_impl<false, false>(bt, record);
+  // Column: a cylinder's walls (add_column_wall_forces), chosen here so a box's loop is as it was.
+  auto run = [&]<bool Column>() {
+    if (model_.friction)
+      ext_.active() ? run_batch_impl<true, true, Column>(bt, record)
+                    : run_batch_impl<false, true, Column>(bt, record);
+    else
+      ext_.active() ? run_batch_impl<true, false, Column>(bt, record)
+                    : run_batch_impl<false, false, Column>(bt, record);
+  };
+  geom_.cylinder ? run.template operator()<true>() : run.template operator()<false>();
 }
 
 // The batch's K local steps. With External, the per-particle external force is added to the
 // contact force in every kick and in the synchronised velocity ((F + F_ext) / m + g, the
 // explicit scheme's arithmetic).
-template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt, bool record) {
+template <bool External, bool Friction, bool Column>
+void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   bt.violations = 0;
   bt.max_ratio = 0.0;
   bt.outran = false;
@@ -315,13 +327,15 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
     // partners of other leaves read frozen at the start of the sub-iteration.
     if constexpr (Friction) {
       leaf_frictional_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, w, st.hk, g, m, tally);
-      if (walls)
+      if (walls && !Column)
         add_frictional_wall_forces(b, e, rows.off.data(), p, w, g, m, tally);
     } else {
       leaf_contact_pass(bt.a0, bt.a1, rows, p, frozen_state, g, m, tally);
-      if (walls)
+      if (walls && !Column)
         add_wall_forces(b, e, rows.off.data(), p, g, m.wall, m.max_overlap, tally);
     }
+    if constexpr (Column) // the column's walls replace the planar ones across it
+      add_column_wall_forces<Friction>(b, e, rows.off.data(), p, w, g, m, tally);
     if (record && k == 0)
       synchronised_velocities<External>(b, e, p, m.gravity, rec_.vx.data(), rec_.vy.data(),
                                         rec_.vz.data());
@@ -358,6 +372,9 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
              sign_unless(p.y[i] <= wb.hi[1]) | sign_unless(p.z[i] >= wb.lo[2]) |
              sign_unless(p.z[i] <= wb.hi[2]);
     }
+    if constexpr (Column) // a centre beyond the curved wall (or NaN)
+      for (std::uint32_t i = b; i < e; ++i)
+        bad |= sign_unless(cylinder_gap(g, p.x[i], p.y[i], p.z[i], 0.0) >= 0.0);
     if (!(bad >> 63))
       return;
   }
@@ -373,6 +390,8 @@ template <bool External, bool Friction> void OrbScheme::run_batch_impl(Batch& bt
         bt.fault = Fault::left_domain, bt.fault_index = i, bt.fault_value = q[a];
         break;
       }
+    if (Column && bt.fault == Fault::none && !(cylinder_gap(g, q, 0.0) >= 0.0))
+      bt.fault = Fault::left_domain, bt.fault_index = i, bt.fault_value = q[g.u];
   }
 }
 

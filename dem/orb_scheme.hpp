@@ -311,7 +311,7 @@ private:
   void plan(bool record);
   bool attempt(bool record);
   void run_batch(Batch& b, bool record);
-  template <bool External, bool Friction> void run_batch_impl(Batch& b, bool record);
+  template <bool External, bool Friction, bool Column> void run_batch_impl(Batch& b, bool record);
   void roll_back();
   [[noreturn]] void raise_fault();
   LeafLive live(bool external);

@@ -266,13 +266,14 @@ void scatter_contacts(ParticleStore& p, std::span<const PairContacts> head,
 }
 
 // Planar walls at lo and hi of every non-periodic axis: force (and torque, with friction) added
-// to particle i's contact force. Outward wall normal s = -1 at lo, +1 at hi.
-template <bool Friction>
+// to particle i's contact force. Outward wall normal s = -1 at lo, +1 at hi. With Cylinder also
+// the column's curved wall (dem/cylinder_wall.hpp).
+template <bool Friction, bool Cylinder = false>
 void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore& p, std::size_t i,
                      double f[3], double tq[3], auto&& flag) {
   const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
   const double ri = p.radius[i], mi = p.mass[i];
-  add_wall_contacts<Friction>(
+  add_wall_contacts<Friction, Cylinder>(
       g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
       [&](double w[3]) { w[0] = p.wx[i], w[1] = p.wy[i], w[2] = p.wz[i]; }, f, tq,
       [&](double delta) {
@@ -285,20 +286,27 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
 // before the list is next built: a particle moves at most skin/2 from its reference position
 // (list.x_ref...) between builds, and touches a wall only within its radius of it, so those
 // whose reference lies farther than radius + skin from every wall (a margin of a full skin, so
-// that no rounding can matter) cannot, and the update pass skips their wall test.
+// that no rounding can matter) cannot, and the update pass skips their wall test. With a
+// cylinder, those within radius + skin of the curved wall too (its gap R - rho - r shrinks by at
+// most the distance moved).
 inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& list,
                        const DomainGeometry& g, double skin, std::vector<std::uint32_t>& out) {
   out.clear();
   const std::span<const double> ref[3] = {list.x_ref(), list.y_ref(), list.z_ref()};
-  for (std::size_t i = 0; i < n; ++i) {
-    const double reach = p.radius[i] + skin;
-    bool near = false;
-    for (int a = 0; a < 3; ++a)
-      near = near ||
-             (!g.periodic[a] && !(ref[a][i] - g.lo[a] >= reach && g.hi[a] - ref[a][i] >= reach));
-    if (near)
-      out.push_back(static_cast<std::uint32_t>(i));
-  }
+  auto scan = [&]<bool Cylinder>() {
+    for (std::size_t i = 0; i < n; ++i) {
+      const double reach = p.radius[i] + skin;
+      bool near = false;
+      for (int a = 0; a < 3; ++a)
+        near = near ||
+               (!g.periodic[a] && !(ref[a][i] - g.lo[a] >= reach && g.hi[a] - ref[a][i] >= reach));
+      if constexpr (Cylinder)
+        near = near || !(cylinder_gap(g, ref[0][i], ref[1][i], ref[2][i], p.radius[i]) >= skin);
+      if (near)
+        out.push_back(static_cast<std::uint32_t>(i));
+    }
+  };
+  g.cylinder ? scan.template operator()<true>() : scan.template operator()<false>();
 }
 
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves
@@ -317,6 +325,9 @@ inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeomet
       for (int a = 0; a < 3; ++a)
         if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]))
           out.flag(ii, StepFault::left_domain, q[a]);
+      // Through the curved wall: the centre beyond R (the value names its axis coordinate u).
+      if (g.cylinder && out.bad == kNoParticle && !(cylinder_gap(g, q, 0.0) >= 0.0))
+        out.flag(ii, StepFault::left_domain, q[g.u]);
     }
     if (out.bad != kNoParticle)
       break;
@@ -355,19 +366,22 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
       double* __restrict fz = p.fz.data();
       const auto first = std::lower_bound(near_wall.begin(), near_wall.end(), r.begin());
       const auto last = std::lower_bound(first, near_wall.end(), r.end());
-      for (auto it = first; it != last; ++it) {
-        const std::size_t i = *it;
-        double f[3] = {fx[i], fy[i], fz[i]};
-        double tq[3] = {0, 0, 0};
-        if constexpr (Friction)
-          tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
-        add_wall_forces<Friction>(g, m, p, i, f, tq, [&](double v) {
-          acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
-        });
-        fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
-        if constexpr (Friction)
-          p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
-      }
+      auto walls = [&]<bool Cylinder>() {
+        for (auto it = first; it != last; ++it) {
+          const std::size_t i = *it;
+          double f[3] = {fx[i], fy[i], fz[i]};
+          double tq[3] = {0, 0, 0};
+          if constexpr (Friction)
+            tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
+          add_wall_forces<Friction, Cylinder>(g, m, p, i, f, tq, [&](double v) {
+            acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
+          });
+          fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+          if constexpr (Friction)
+            p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
+        }
+      };
+      g.cylinder ? walls.template operator()<true>() : walls.template operator()<false>();
     }
     KickDriftFlags flags;
     kick_drift_range<External, false, true>(columns.range(r.begin(), r.end()), step, flags);
@@ -388,6 +402,9 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
         for (int a = 0; a < 3; ++a)
           fails += !g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]);
       }
+      if (g.cylinder)
+        for (std::size_t i = r.begin(); i != r.end(); ++i)
+          fails += !(cylinder_gap(g, x[i], y[i], z[i], 0.0) >= 0.0);
     }
     acc.moved += flags.moved() ? 1 : 0;
     acc.failures += static_cast<std::int64_t>(fails);

@@ -66,6 +66,17 @@ const Lines kWenYu = [] {
   return lines;
 }();
 
+// A cylindrical column (domain.shape = "cylinder"): particles only, its cross axes walled.
+const Lines kCylinder = [] {
+  Lines lines;
+  for (const auto& line : kRequired)
+    if (line.first.rfind("fluid.", 0) != 0)
+      lines.push_back(line);
+  lines.emplace_back("domain.shape", "\"cylinder\"");
+  lines.emplace_back("domain.periodic", "[false, true, false]");
+  return lines;
+}();
+
 // The scene a key's value is tried in: the distribution's keys need a distribution.
 // The method of lines, whose keys the Godunov step (the default) refuses.
 const Lines kMethodOfLines = [] {
@@ -79,6 +90,8 @@ const Lines& scene_for(const std::string& key, std::string_view value) {
     return kWenYu;
   if (key == "fluid.time_order" || key == "fluid.projections")
     return kMethodOfLines;
+  if (key.rfind("domain.shape", 0) == 0 || key.rfind("domain.cylinder_", 0) == 0)
+    return kCylinder;
   if (key.rfind("particles.diameter.", 0) != 0)
     return kRequired;
   return value == "uniform" ? kUniform : kNormal;
@@ -249,9 +262,19 @@ TEST(SceneKeys, ParserReadsExactlyTheTable) {
 TEST(SceneKeys, DefaultsAreTheOnesTheParserApplies) {
   const auto resolved = described(parse(kRequired).scene);
   int compared = 0;
+  // domain.shape and the cylinder's keys are listed for a cylinder only (core/scene.cpp).
+  const auto cylinder = described(parse(kCylinder).scene);
   for (const SceneKey& k : scene_keys()) {
     if (k.fallback.kind != KeyDefault::Kind::Value || k.name == "particles.file")
       continue;
+    if (k.name == "domain.cylinder_axis") {
+      EXPECT_EQ(cylinder.at(std::string(k.name)), toml_text(k.fallback.value)) << k.name;
+      continue;
+    }
+    if (k.name == "domain.shape") {
+      EXPECT_FALSE(resolved.count(std::string(k.name))) << "a box lists " << k.name;
+      continue;
+    }
     ASSERT_TRUE(resolved.count(std::string(k.name))) << "cfddem check omits " << k.name;
     EXPECT_EQ(resolved.at(std::string(k.name)), toml_text(k.fallback.value)) << k.name;
     ++compared;
@@ -451,7 +474,7 @@ TEST(SceneKeys, CheckListsTheKeysInTableOrder) {
   for (const SceneKey& k : scene_keys())
     position[std::string(k.name)] = position.size();
   std::set<std::string> listed;
-  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene()}) {
+  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene(), kCylinder}) {
     std::vector<std::size_t> order;
     for (const auto& [k, v] : describe_scene(parse(scene).scene)) {
       ASSERT_TRUE(position.count(k)) << "cfddem check lists " << k << ", not in the table";

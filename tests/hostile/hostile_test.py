@@ -263,6 +263,50 @@ def particle_file_cuts_a_wall(ctx):
            r"particles 0 and 1 have the same centre", fresh=True)
 
 
+CYLINDER = os.path.join(SCENES, "cylinder_granular.toml")  # R = 1 mm column along y, 2 mm box
+
+
+@case
+def cylinder_keys_refused_naming_the_key(ctx):
+    """domain.shape = "cylinder" (issue 40): a radius that is not positive or does not fit in
+    the box, a periodic axis across the column, an unknown shape or axis, the cylinder's keys
+    with a box and a gas in a column: each refused before anything is written, naming the key."""
+    for scene, override, needle in (
+            (CYLINDER, "domain.cylinder_radius=-1e-3", r"'domain.cylinder_radius'.*must be > 0, "
+                                                       r"got -0.001"),
+            (CYLINDER, "domain.cylinder_radius=0", r"'domain.cylinder_radius'.*must be > 0"),
+            (CYLINDER, "domain.cylinder_radius=1.5e-3", r"'domain.cylinder_radius'.*0.0015 m does "
+                                                        r"not fit in the box.*at most .*0.001 m"),
+            (CYLINDER, "domain.periodic=[true,true,false]", r"'domain.periodic'.*must be false on "
+                                                            r"axes x and z, across the cylinder"),
+            (CYLINDER, "domain.cylinder_axis=x", r"'domain.periodic'.*must be false on axes y "
+                                                 r"and z"),
+            (CYLINDER, "domain.shape=sphere", r"'domain.shape'.*unknown value \"sphere\" "
+                                              r"\(available: \"box\", \"cylinder\"\)"),
+            (CYLINDER, "domain.cylinder_axis=w", r"'domain.cylinder_axis'.*unknown value \"w\""),
+            (SMALL, "domain.cylinder_radius=5e-4", r"'domain.cylinder_radius'.*applies to "
+                                                   r"domain.shape = \"cylinder\" only"),
+            (SETTLING, "domain.shape=cylinder", r"'domain.shape'.*particles only: the gas does "
+                                                r"not see the curved wall")):
+        expect(ctx, ["run", scene, override], 2, r"scene key " + needle)
+
+
+@case
+def cylinder_particles_placed_inside_and_checked(ctx):
+    """Generated particles are placed inside the column (rho <= R - r); one from a file outside
+    it, or cutting its wall, is refused at set-up naming the particle."""
+    expect(ctx, ["check", CYLINDER], 0, r"domain_shape +cylinder along y, radius 0.001 m, "
+                 r"cross-section 3.14159e-06 m\^2")
+    column = ["domain.shape=cylinder", "domain.periodic=[false,true,false]"]  # R = 2 mm in HCS
+    head = "x,y,z,vx,vy,vz,diameter,density\n2e-3,1e-3,2e-3,0,0,0,1e-4,1000\n"
+    for name, second, needle in (
+            ("outside.csv", "3.9e-3,1e-3,3.9e-3", r"does not lie inside the cylinder"),
+            ("cuts_cylinder.csv", "3.96e-3,1e-3,2e-3", r"overlaps the cylinder's wall by 1e-05 m")):
+        p = ctx.file(name, head + second + ",0,0,0,1e-4,1000\n")
+        expect(ctx, ["run", HCS, f"particles.file={p}", *column], 2, r"particle 1 at .* " + needle,
+               fresh=True)
+
+
 @case
 def fluid_cells_too_many(ctx):
     expect(ctx, ["check", SETTLING, "fluid.cells=[100000,100000,100000]"], 2,

@@ -10,7 +10,9 @@
 #   1. strong: tools/scaling_results/model/scenes/riser_1e5.toml, 10 fluid steps (1 ms), every
 #      scheme, 1-16 cores as ranks only, threads only and 4-thread hybrids;
 #   2. weak: the riser at 6.25e4 particles per core (1e6 at 16 cores), 10 fluid steps, ranks
-#      only and hybrids;
+#      only and hybrids, lateral cell counts multiples of 16 (--cell-multiple: counts such as
+#      270 = 2 x 135 stop the gas's multigrid after one level, and its coarse level, solved on
+#      rank 0 alone, then held the 2026-12-04 run at 0.07 efficiency on 16 ranks);
 #   3. strong: the 1e5 fluidized bed, 5 fluid steps, 1, 2, 4 and 16 cores, ranks and threads.
 set -u
 out=$1
@@ -32,7 +34,7 @@ stage strong riser 1e5
   --note "$note" --out "$out/strong_riser" "${common[@]}" 2>&1 | tail -5
 
 stage weak riser 6.25e4 per core
-"$py" "$here/scaling.py" weak --base riser --particles-per-core 6.25e4 \
+"$py" "$here/scaling.py" weak --base riser --particles-per-core 6.25e4 --cell-multiple 16 \
   --cores 1 2 4 8 16 --layouts ranks-only hybrid --end-time 1e-3 \
   --note "$note" --out "$out/weak_riser" "${common[@]}" 2>&1 | tail -5
 

@@ -366,6 +366,9 @@ def main():
     ap.add_argument("--particles-per-core", type=float, help="weak: particles per core")
     ap.add_argument("--grow", choices=["xz", "xyz"], default="xz", help="scaled_scene.py --grow")
     ap.add_argument("--no-fluid", action="store_true", help="scaled scenes without the gas")
+    ap.add_argument("--cell-multiple", type=int, default=0, metavar="M",
+                    help="scaled scenes: the grown axes' cell counts multiples of M "
+                         "(scaled_scene.py --cell-multiple), so the gas's multigrid coarsens them")
     ap.add_argument("--cores", type=int, nargs="+", default=[1, 2, 4, 8, 16])
     ap.add_argument("--layouts", nargs="+", default=["ranks-only", "threads-only", "hybrid"],
                     choices=["ranks-only", "threads-only", "hybrid"])
@@ -414,8 +417,11 @@ def main():
         """Write (once) and return the scaled scene file for n particles."""
         os.makedirs(scene_dir, exist_ok=True)
         name = f"{a.base}_{scaled_scene.fmt_count(n)}{'_dem' if a.no_fluid else ''}_{a.grow}"
+        if a.cell_multiple > 1:
+            name += f"_m{a.cell_multiple}"
         path = os.path.join(scene_dir, name + ".toml")
-        scene, over, info = scaled_scene.scale_scene(a.base, n, a.grow, no_fluid=a.no_fluid)
+        scene, over, info = scaled_scene.scale_scene(a.base, n, a.grow, no_fluid=a.no_fluid,
+                                                     cell_multiple=a.cell_multiple)
         text = scaled_scene.write_toml(scene, [
             f"{over['name']}: made by tools/scaling.py via scaled_scene.scale_scene",
             f"{n} particles, phi {info['solid_fraction']:.5f}, cells {info['cells']}, "

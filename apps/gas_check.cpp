@@ -30,6 +30,11 @@ std::array<double, 3> cell_spacing(const Scene& s) {
   return dx;
 }
 
+// orb and islands divide each fluid step into sub-iterations.
+bool sub_iterated(const Scene& s) {
+  return s.dem.scheme == "orb" || s.dem.scheme == "islands";
+}
+
 } // namespace
 
 double gas_memory_bytes(const Scene& s) {
@@ -122,6 +127,14 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (f.dt > 0) {
     fluid_steps = std::ceil(end / f.dt * (1 - 1e-12));
     t.emplace_back("fluid_steps", fmt::format("{:.0f} (fluid.dt = {:g} s)", fluid_steps, f.dt));
+    if (sub_iterated(s))
+      t.emplace_back("dt_sp_s", s.dem.nsubit_auto
+                                    ? fmt::format("fluid.dt / m, m chosen per fluid step "
+                                                  "(dem.nsubit = \"auto\", starting at {})",
+                                                  s.dem.nsubit)
+                                    : fmt::format("{:.4g} (fluid.dt / dem.nsubit = {})",
+                                                  f.dt / static_cast<double>(s.dem.nsubit),
+                                                  s.dem.nsubit));
   } else {
     // The adaptive dt_f's range (fluid/fluid_step_rule.hpp): its first step from the initial
     // and inflow gas velocities and the body force, its cap from fluid.max_dt and the Stokes
@@ -154,6 +167,16 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
                                first, fluid::kMaxFluidStepGrowth, cap, f.max_dt,
                                fluid::kDragStepFraction, caps.drag_time, f.cfl));
     t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive)", fluid_steps));
+    if (sub_iterated(s))
+      t.emplace_back("dt_sp_s (adaptive)",
+                     s.dem.nsubit_auto
+                         ? fmt::format("the length dem.nsubit = \"auto\" chooses for the first "
+                                       "fluid step (starting at 1/{} of it), kept over the others",
+                                       s.dem.nsubit)
+                         : fmt::format("each fluid step / dem.nsubit = {}: first {:.3g}, at most "
+                                       "{:.3g}",
+                                       s.dem.nsubit, first / static_cast<double>(s.dem.nsubit),
+                                       cap / static_cast<double>(s.dem.nsubit)));
   }
   // A bed: particles under gravity along a walled axis.
   int axis = 0;

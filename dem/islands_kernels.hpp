@@ -22,6 +22,7 @@
 #include "dem/contact_kernels.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/external_force.hpp"
+#include "dem/flag_dispatch.hpp"
 #include "dem/friction_kernels.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/step_model.hpp"
@@ -446,20 +447,23 @@ double member_entry_time_of(const ContactView& v, const double* own, double marg
 template <bool Wrap>
 double member_entry_time(const ContactView& v, const double* own, double margin,
                          std::uint32_t island, std::uint32_t i) {
-  return v.geom->cylinder ? member_entry_time_of<Wrap, true>(v, own, margin, island, i)
-                          : member_entry_time_of<Wrap, false>(v, own, margin, island, i);
+  return with_flags(
+      [&](auto cyl) { return member_entry_time_of<Wrap, cyl>(v, own, margin, island, i); },
+      v.geom->cylinder);
 }
 template <bool Wrap>
 double entry_time(const ContactView& v, const Members& mb, const double* own,
                   std::uint32_t island) {
-  auto least = [&]<bool Cylinder>() {
-    double t = std::numeric_limits<double>::infinity();
-    for (std::uint32_t u = 0; u < mb.count(); ++u)
-      t = std::min(t,
-                   member_entry_time_of<Wrap, Cylinder>(v, own, mb.margin, island, mb.mem[u]));
-    return t;
-  };
-  return v.geom->cylinder ? least.template operator()<true>() : least.template operator()<false>();
+  return with_flags(
+      [&](auto cyl) {
+        constexpr bool Cylinder = decltype(cyl)::value;
+        double t = std::numeric_limits<double>::infinity();
+        for (std::uint32_t u = 0; u < mb.count(); ++u)
+          t = std::min(t,
+                       member_entry_time_of<Wrap, Cylinder>(v, own, mb.margin, island, mb.mem[u]));
+        return t;
+      },
+      v.geom->cylinder);
 }
 
 // The first time a gap can close, from now, when it closes no faster than `rate` (negative when

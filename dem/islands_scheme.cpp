@@ -875,20 +875,22 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
   double max_ratio = rep.max_ratio;
   std::int64_t violations = rep.overlaps;
   const islands::ContactView view = contact_view();
-  auto walls = [&]<bool Cylinder>() {
-    for (const std::uint32_t i : o.near_wall) {
-      double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
-      if constexpr (Friction) {
-        w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
-        tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
-      }
-      islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w, tq,
-                                                    max_ratio, violations);
-      if constexpr (Friction)
-        p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
-    }
-  };
-  geom_.cylinder ? walls.template operator()<true>() : walls.template operator()<false>();
+  with_flags(
+      [&](auto cyl) {
+        constexpr bool Cylinder = decltype(cyl)::value;
+        for (const std::uint32_t i : o.near_wall) {
+          double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
+          if constexpr (Friction) {
+            w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
+            tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
+          }
+          islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w,
+                                                        tq, max_ratio, violations);
+          if constexpr (Friction)
+            p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
+        }
+      },
+      geom_.cylinder);
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
   st_.overlap_violations += violations;
   st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);
@@ -991,21 +993,23 @@ void IslandsScheme::run_island(std::uint32_t c, bool record, const islands::Cont
     }
   }
   // The curved wall of a cylinder (Cylinder) chosen once per island, outside its steps.
-  auto fine = [&]<bool Cylinder>() {
-    return islands::step_island<External, true, Friction>(
-        view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
-        record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
-        [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
-            auto... hk) {
-          return islands::contact_forces_of<true, true, !Ranks, Ranks, Friction, Cylinder>(
-              view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
-        },
-        [] {}, TaskBlocks{},
-        [&] {
-          return islands::free_time_of<!Ranks, External, Cylinder>(view, mb, c, model_.gravity);
-        });
-  };
-  results_[c] = geom_.cylinder ? fine.template operator()<true>() : fine.template operator()<false>();
+  results_[c] = with_flags(
+      [&](auto cyl) {
+        constexpr bool Cylinder = decltype(cyl)::value;
+        return islands::step_island<External, true, Friction>(
+            view.c, mb, steps_, model_.gravity, record ? rec_.vx.data() : nullptr,
+            record ? rec_.vy.data() : nullptr, record ? rec_.vz.data() : nullptr,
+            [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio, std::int64_t& violations,
+                auto... hk) {
+              return islands::contact_forces_of<true, true, !Ranks, Ranks, Friction, Cylinder>(
+                  view, mb.mem.data(), u0, u1, c, max_ratio, violations, hk...);
+            },
+            [] {}, TaskBlocks{},
+            [&] {
+              return islands::free_time_of<!Ranks, External, Cylinder>(view, mb, c, model_.gravity);
+            });
+      },
+      geom_.cylinder);
 }
 
 // The recorded state at the sub-iteration's start: positions wrapped into the box, each

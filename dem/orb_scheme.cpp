@@ -14,6 +14,7 @@
 #include <tbb/task_arena.h>
 
 #include "core/error.hpp"
+#include "dem/flag_dispatch.hpp"
 #include "dem/orb_leaf_kernels.hpp"
 #include "dem/orb_rank_part.hpp"
 #include "dem/scheme_support.hpp"
@@ -282,15 +283,8 @@ void OrbScheme::plan(bool record) {
 
 void OrbScheme::run_batch(Batch& bt, bool record) {
   // Column: a cylinder's walls (add_column_wall_forces), chosen here so a box's loop is as it was.
-  auto run = [&]<bool Column>() {
-    if (model_.friction)
-      ext_.active() ? run_batch_impl<true, true, Column>(bt, record)
-                    : run_batch_impl<false, true, Column>(bt, record);
-    else
-      ext_.active() ? run_batch_impl<true, false, Column>(bt, record)
-                    : run_batch_impl<false, false, Column>(bt, record);
-  };
-  geom_.cylinder ? run.template operator()<true>() : run.template operator()<false>();
+  with_flags([&](auto ext, auto fr, auto col) { run_batch_impl<ext, fr, col>(bt, record); },
+             ext_.active(), model_.friction, geom_.cylinder);
 }
 
 // The batch's K local steps. With External, the per-particle external force is added to the

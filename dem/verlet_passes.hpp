@@ -21,6 +21,7 @@
 #include "dem/contact_kernels.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/external_force.hpp"
+#include "dem/flag_dispatch.hpp"
 #include "dem/friction_kernels.hpp"
 #include "dem/kick_drift_range.hpp"
 #include "dem/linear_spring_dashpot.hpp"
@@ -293,20 +294,22 @@ inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& 
                        const DomainGeometry& g, double skin, std::vector<std::uint32_t>& out) {
   out.clear();
   const std::span<const double> ref[3] = {list.x_ref(), list.y_ref(), list.z_ref()};
-  auto scan = [&]<bool Cylinder>() {
-    for (std::size_t i = 0; i < n; ++i) {
-      const double reach = p.radius[i] + skin;
-      bool near = false;
-      for (int a = 0; a < 3; ++a)
-        near = near ||
-               (!g.periodic[a] && !(ref[a][i] - g.lo[a] >= reach && g.hi[a] - ref[a][i] >= reach));
-      if constexpr (Cylinder)
-        near = near || !(cylinder_gap(g, ref[0][i], ref[1][i], ref[2][i], p.radius[i]) >= skin);
-      if (near)
-        out.push_back(static_cast<std::uint32_t>(i));
-    }
-  };
-  g.cylinder ? scan.template operator()<true>() : scan.template operator()<false>();
+  with_flags(
+      [&](auto cyl) {
+        constexpr bool Cylinder = decltype(cyl)::value;
+        for (std::size_t i = 0; i < n; ++i) {
+          const double reach = p.radius[i] + skin;
+          bool near = false;
+          for (int a = 0; a < 3; ++a)
+            near = near || (!g.periodic[a] &&
+                            !(ref[a][i] - g.lo[a] >= reach && g.hi[a] - ref[a][i] >= reach));
+          if constexpr (Cylinder)
+            near = near || !(cylinder_gap(g, ref[0][i], ref[1][i], ref[2][i], p.radius[i]) >= skin);
+          if (near)
+            out.push_back(static_cast<std::uint32_t>(i));
+        }
+      },
+      g.cylinder);
 }
 
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves
@@ -366,22 +369,24 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
       double* __restrict fz = p.fz.data();
       const auto first = std::lower_bound(near_wall.begin(), near_wall.end(), r.begin());
       const auto last = std::lower_bound(first, near_wall.end(), r.end());
-      auto walls = [&]<bool Cylinder>() {
-        for (auto it = first; it != last; ++it) {
-          const std::size_t i = *it;
-          double f[3] = {fx[i], fy[i], fz[i]};
-          double tq[3] = {0, 0, 0};
-          if constexpr (Friction)
-            tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
-          add_wall_forces<Friction, Cylinder>(g, m, p, i, f, tq, [&](double v) {
-            acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
-          });
-          fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
-          if constexpr (Friction)
-            p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
-        }
-      };
-      g.cylinder ? walls.template operator()<true>() : walls.template operator()<false>();
+      with_flags(
+          [&](auto cyl) {
+            constexpr bool Cylinder = decltype(cyl)::value;
+            for (auto it = first; it != last; ++it) {
+              const std::size_t i = *it;
+              double f[3] = {fx[i], fy[i], fz[i]};
+              double tq[3] = {0, 0, 0};
+              if constexpr (Friction)
+                tq[0] = p.tx[i], tq[1] = p.ty[i], tq[2] = p.tz[i];
+              add_wall_forces<Friction, Cylinder>(g, m, p, i, f, tq, [&](double v) {
+                acc.walls.flag(static_cast<std::uint32_t>(i), StepFault::overlap, v);
+              });
+              fx[i] = f[0], fy[i] = f[1], fz[i] = f[2];
+              if constexpr (Friction)
+                p.tx[i] = tq[0], p.ty[i] = tq[1], p.tz[i] = tq[2];
+            }
+          },
+          g.cylinder);
     }
     KickDriftFlags flags;
     kick_drift_range<External, false, true>(columns.range(r.begin(), r.end()), step, flags);

@@ -74,8 +74,7 @@ void refuse_uncountable_steps(const Scene& s, double dt) {
                      by_dt ? "particle steps (dem.dt)"
                            : "particle steps (dt = dem.dt_factor x tau_p)",
                      by_dt ? "raise dem.dt" : "raise dem.dt_factor");
-  const bool sub = s.dem.scheme == "orb" || s.dem.scheme == "islands";
-  if (sub && !s.fluid.enabled)
+  if (s.dem.subiterated() && !s.fluid.enabled)
     refuse_uncountable(
         s, s.dem.regrid_interval / static_cast<double>(s.dem.nsubit), "'dem.regrid_interval'",
         "sub-iterations (dt_sp = dem.regrid_interval / dem.nsubit)", "raise dem.regrid_interval");

@@ -30,11 +30,6 @@ std::array<double, 3> cell_spacing(const Scene& s) {
   return dx;
 }
 
-// orb and islands divide each fluid step into sub-iterations.
-bool sub_iterated(const Scene& s) {
-  return s.dem.scheme == "orb" || s.dem.scheme == "islands";
-}
-
 } // namespace
 
 double gas_memory_bytes(const Scene& s) {
@@ -127,7 +122,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (f.dt > 0) {
     fluid_steps = std::ceil(end / f.dt * (1 - 1e-12));
     t.emplace_back("fluid_steps", fmt::format("{:.0f} (fluid.dt = {:g} s)", fluid_steps, f.dt));
-    if (sub_iterated(s))
+    if (s.dem.subiterated())
       t.emplace_back("dt_sp_s", s.dem.nsubit_auto
                                     ? fmt::format("fluid.dt / m, m chosen per fluid step "
                                                   "(dem.nsubit = \"auto\", starting at {})",
@@ -167,7 +162,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
                                first, fluid::kMaxFluidStepGrowth, cap, f.max_dt,
                                fluid::kDragStepFraction, caps.drag_time, f.cfl));
     t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive)", fluid_steps));
-    if (sub_iterated(s))
+    if (s.dem.subiterated())
       t.emplace_back("dt_sp_s (adaptive)",
                      s.dem.nsubit_auto
                          ? fmt::format("the length dem.nsubit = \"auto\" chooses for the first "

@@ -20,7 +20,7 @@ std::vector<std::string> setting_warnings(const Scene& s) {
                             "at 1e8 particle-steps/s that is {:.3g} years for one particle",
                             s.dem.dt, end / s.dem.dt, end,
                             end / s.dem.dt / 1e8 / (365.25 * 24 * 3600)));
-  if (s.dem.scheme == "orb" || s.dem.scheme == "islands") {
+  if (s.dem.subiterated()) {
     // Sub-iterated schemes write rows at whole sub-iterations of dt_sp (with a gas the fluid
     // step is the regrid interval).
     const double interval = s.fluid.enabled && s.fluid.dt > 0 ? s.fluid.dt : s.dem.regrid_interval;

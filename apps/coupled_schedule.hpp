@@ -41,29 +41,28 @@ dem::StepClock particle_clock(const Scene& scene, double dt_dem, long long& n_fi
   }
 }
 
-// A fixed fluid.dt, or a sub-iterated scheme (orb, islands: `subiterated`, whose sub-iterations
-// divide whatever step the gas takes): n_fixed. Adaptive: as many particle steps of dt as fit
-// in the gas's next adaptive step (GasCoupling::adaptive_dt: Courant step with forcing,
-// fluid.max_dt, the drag time, 1.1x growth, no end sliver), at least one.
-inline long long particle_steps_per_fluid_step(const Scene& scene, const GasCoupling& gas,
-                                               long long n_fixed, double dt, double time_left,
-                                               bool subiterated = false) {
-  if (scene.fluid.dt > 0.0 || subiterated)
-    return n_fixed;
+// The next fluid step: its particle steps n_sub of dt and its length dt_f.
+//  - A fixed fluid.dt: n_fixed steps, dt_f = n_fixed dt.
+//  - Adaptive (GasCoupling::adaptive_dt: Courant step with forcing, fluid.max_dt, the drag
+//    time, 1.1x growth, no end sliver), explicit: as many steps of dt as fit in the gas's step
+//    (at least one), dt_f their sum; orb and islands (`subiterated`): n_fixed, dt_f the gas's
+//    step itself (their sub-iterations divide any length, set_interval); no particles at all:
+//    one empty step, dt_f the gas's step (an empty scene's particle step must not set it).
+// Collective on R ranks when adaptive, as adaptive_dt() is.
+struct FluidStepPlan {
+  long long n_sub = 1;
+  double dt_f = 0.0;
+};
+inline FluidStepPlan plan_fluid_step(const Scene& scene, const GasCoupling& gas, bool no_particles,
+                                     bool subiterated, long long n_fixed, double dt,
+                                     double time_left) {
+  if (scene.fluid.dt > 0.0)
+    return {n_fixed, static_cast<double>(n_fixed) * dt};
+  if (no_particles || subiterated)
+    return {no_particles ? 1 : n_fixed, gas.adaptive_dt(time_left)};
   const double want = gas.adaptive_dt(time_left);
-  return std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
-}
-
-// The length of the next fluid step: n_sub particle steps of dt. With an adaptive gas and no
-// particles at all, or a sub-iterated scheme (`subiterated`), the gas's own adaptive step: an
-// empty scene's particle step (set from no particle) must not set it, and orb and islands take
-// any length in their sub-iterations (set_interval). Collective on R ranks as adaptive_dt() is.
-inline double fluid_step_length(const Scene& scene, const GasCoupling& gas, bool no_particles,
-                                long long n_sub, double dt, double time_left,
-                                bool subiterated = false) {
-  if ((no_particles || subiterated) && scene.fluid.dt <= 0.0)
-    return gas.adaptive_dt(time_left);
-  return static_cast<double>(n_sub) * dt;
+  const long long n = std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
+  return {n, static_cast<double>(n) * dt};
 }
 
 // At fluid time t (last: the run's end): a row or snapshot that is due takes the gas now

@@ -366,12 +366,10 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
         if (auto owners = gas->regrid(particles, run.owned(), t, tol, last_n_sub))
           run.own_by(std::move(*owners), true);
       }
-      const bool no_particles = n_total == 0 && !fixed;
-      n_sub = no_particles ? 1
-                           : particle_steps_per_fluid_step(scene, gas->coupling(), n_fixed, dt,
-                                                           end - t, Run::kSub);
-      last_n_sub = n_sub;
-      dt_f = fluid_step_length(scene, gas->coupling(), no_particles, n_sub, dt, end - t, Run::kSub);
+      const FluidStepPlan next =
+          plan_fluid_step(scene, gas->coupling(), n_total == 0, Run::kSub, n_fixed, dt, end - t);
+      n_sub = last_n_sub = next.n_sub;
+      dt_f = next.dt_f;
       if constexpr (Run::kSub)
         if (!fixed)
           run.set_interval(dt_f); // the sub-iterations divide this step

@@ -5,15 +5,20 @@
 // (0 s, 0) and the time is subits x dt_sp bit for bit, as it was before lengths could change.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
 
 namespace cfddem::dem {
 
 struct IntervalClock {
-  double t_base = 0.0;           // the time at the last change of dt_sp
-  std::int64_t subits_base = 0;  // the sub-iterations taken then
-  bool variable = false;         // a change happened (the base is state to checkpoint)
+  double t_base = 0.0;          // the time at the last change of dt_sp
+  std::int64_t subits_base = 0; // the sub-iterations taken then
+  bool variable = false;        // a change happened (the base is state to checkpoint)
 
   double time(std::int64_t subits, double dt_sp) const {
     return t_base + static_cast<double>(subits - subits_base) * dt_sp;
@@ -23,6 +28,20 @@ struct IntervalClock {
     t_base = time(subits, dt_sp_old);
     subits_base = subits;
     variable = true;
+  }
+  // dt_sp becomes `next` after `subits` sub-iterations (the base moves there). The length a
+  // scheme was built with, before any change, changes nothing: the clock stays a fixed one.
+  void set_length(std::int64_t subits, double& dt_sp, double next) {
+    if (next == dt_sp && !variable)
+      return;
+    change_at(subits, dt_sp);
+    dt_sp = next;
+  }
+  // The fluid step a scheme is handed (set_interval): a positive finite length, else RunError
+  // naming the scheme.
+  static void check_interval(double interval, const char* scheme) {
+    if (!(interval > 0.0) || !std::isfinite(interval))
+      throw RunError(fmt::format("{}: fluid step {} s is not a positive length", scheme, interval));
   }
   // The checkpoint's record after `subits` sub-iterations of `dt_sp`: the base moved to now, so
   // that a restored clock needs no dt_sp (the next change_at() computes the same base as a run

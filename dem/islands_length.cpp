@@ -3,9 +3,6 @@
 #include <algorithm>
 #include <cmath>
 
-#include <fmt/format.h>
-
-#include "core/error.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/subiteration_length.hpp"
@@ -41,8 +38,8 @@ std::int64_t IslandsScheme::begin_interval() {
   std::int64_t m =
       variable ? length::subiterations_over(A, D / static_cast<double>(auto_.next), model_.dt)
                : auto_.next;
-  const double dA = variable && auto_.previous > 0.0 ? auto_.gas_dA * (A / auto_.previous)
-                                                     : auto_.gas_dA;
+  const double dA =
+      variable && auto_.previous > 0.0 ? auto_.gas_dA * (A / auto_.previous) : auto_.gas_dA;
   const double t_now = variable ? time() : static_cast<double>(auto_.intervals) * D;
   // With a gas the force just computed for this fluid step: its change since the last one
   // bounds the length now (the choice at the last interval's end saw the change before).
@@ -52,10 +49,9 @@ std::int64_t IslandsScheme::begin_interval() {
     const std::int64_t lo = std::min(a_hi, length::fewest_for_gas(dA, auto_.gas_aref));
     if (lo > m) {
       m = lo;
-      auto_.log.insert(auto_.log.end(),
-                       {t_now, static_cast<double>(m), A / static_cast<double>(m), 0.0,
-                        static_cast<double>(lo), static_cast<double>(a_hi), 0.0, 1.0, 1.0,
-                        length::kGas});
+      auto_.log.insert(auto_.log.end(), {t_now, static_cast<double>(m), A / static_cast<double>(m),
+                                         0.0, static_cast<double>(lo), static_cast<double>(a_hi),
+                                         0.0, 1.0, 1.0, length::kGas});
     }
     if (auto_.gas_aref > 0.0)
       auto_.gas_ratio_max =
@@ -74,22 +70,17 @@ void IslandsScheme::begin_completion() {
 }
 
 void IslandsScheme::set_interval(double interval) {
-  if (!(interval > 0.0) || !std::isfinite(interval))
-    throw RunError(fmt::format("islands: fluid step {} s is not a positive length", interval));
+  IntervalClock::check_interval(interval, "islands");
   if (!auto_.on) {
-    const double dt_sp = interval / static_cast<double>(nsubit_);
-    if (dt_sp == dt_sp_ && !clock_.variable)
-      return; // the length it was built with: nothing changes
-    clock_.change_at(st_.subits, dt_sp_);
-    dt_sp_ = dt_sp;
+    clock_.set_length(st_.subits, dt_sp_, interval / static_cast<double>(nsubit_));
     return;
   }
   if (!auto_.variable && auto_.intervals == 0) {
     // The first fluid step is the reference of the choices (their first-contact histogram counts
     // sub-iterations of it): the start's count at most its fine steps.
     auto_.interval = interval;
-    auto_.next = std::min<std::int64_t>(scene_.dem.nsubit,
-                                        length::most_subiterations(interval, model_.dt));
+    auto_.next =
+        std::min<std::int64_t>(scene_.dem.nsubit, length::most_subiterations(interval, model_.dt));
   }
   auto_.previous = auto_.variable ? auto_.actual : interval;
   auto_.actual = interval;

@@ -582,13 +582,8 @@ void OrbScheme::replace_external_force(std::span<const double> fx, std::span<con
 void OrbScheme::set_interval(double interval) {
   if (stats_.subits % cfg_.nsubit != 0)
     throw RunError("orb: the sub-iteration length changed between regrid points (internal error)");
-  if (!(interval > 0.0) || !std::isfinite(interval))
-    throw RunError(fmt::format("orb: fluid step {} s is not a positive length", interval));
-  const double dt_sp = interval / static_cast<double>(cfg_.nsubit);
-  if (dt_sp == cfg_.dt_sp && !clock_.variable)
-    return; // the length it was built with: nothing changes
-  clock_.change_at(stats_.subits, cfg_.dt_sp);
-  cfg_.dt_sp = dt_sp;
+  IntervalClock::check_interval(interval, "orb");
+  clock_.set_length(stats_.subits, cfg_.dt_sp, interval / static_cast<double>(cfg_.nsubit));
 }
 
 OrbScheme::State OrbScheme::save_state() const {

@@ -53,9 +53,9 @@ inline long long steps_every(double interval, double dt) {
 }
 
 template <class Run>
-RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelEnv& env) {
+RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv& env) {
   const auto t_setup = clock::now();
-  const bool gas_on = scene_in.fluid.enabled;
+  const bool gas_on = scene.fluid.enabled;
   // One rank takes the serial communicator (no MPI calls at all), as it always has; R ranks the
   // world. The rank count is known only here, at run time: every branch on it below and in the
   // adapter is outside the schemes' per-particle work.
@@ -67,19 +67,18 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   // particles.
   std::optional<Checkpoint> ck;
   if (!opt.restart.empty())
-    ck = gas_on && !one ? load_checkpoint(scene_in, opt.restart, gas_block(scene_in, comm), comm)
-                        : load_checkpoint(scene_in, opt.restart);
+    ck = gas_on && !one ? load_checkpoint(scene, opt.restart, gas_block(scene, comm), comm)
+                        : load_checkpoint(scene, opt.restart);
   typename Run::Restart share;
-  ParticleStore particles = Run::particles(scene_in, ck, comm, opt.restart, share);
+  ParticleStore particles = Run::particles(scene, ck, comm, opt.restart, share);
   dem::ParticleRange range;
-  const DerivedNumbers derived = parts.derived(scene_in, particles, comm, range);
+  const DerivedNumbers derived = parts.derived(scene, particles, comm, range);
   const std::size_t n_total = one ? particles.size() : derived.particles;
   if (root) // as `cfddem check` warns (apps/main.cpp), now that the particles are known
-    for (const std::string& w : step_warnings(scene_in, derived))
+    for (const std::string& w : step_warnings(scene, derived))
       fmt::print(stderr, "cfddem: warning: {}\n", w);
 
   // The particles' clock, a value the scheme is built with (the scene stays as read).
-  const Scene& scene = scene_in;
   const bool fixed = gas_on && scene.fluid.dt > 0.0;
   long long n_fixed = 0;
   const dem::StepClock step_clock =
@@ -334,7 +333,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
     PhaseTimer::Scope io(timer, Phase::io);
     Checkpoint c;
     if (root)
-      c = checkpoint_header(scene_in, Run::kName, dt, loop.fluid_steps, k_last_row, out.rows(),
+      c = checkpoint_header(scene, Run::kName, dt, loop.fluid_steps, k_last_row, out.rows(),
                             out.snapshots());
     run.save(c, comm); // collective
     if (gas)
@@ -436,7 +435,7 @@ RunResult run_loop(const Scene& scene_in, const RunOptions& opt, const ParallelE
   const long long fluid_steps_run = loop.fluid_steps - fluid_steps_before;
   const double pss =
       loop_seconds > 0 ? static_cast<double>(particle_steps_run) / loop_seconds : 0.0;
-  nlohmann::ordered_json j = run_json_header(scene_in, scene.name, derived, env, n_total);
+  nlohmann::ordered_json j = run_json_header(scene, scene.name, derived, env, n_total);
   j["scheme"] = Run::kName;
   if (!one)
     j["distributed"] = true;

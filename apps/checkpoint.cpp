@@ -5,6 +5,7 @@
 #include <cstring>
 #include <exception>
 #include <iterator>
+#include <limits>
 #include <string_view>
 #include <vector>
 
@@ -121,6 +122,11 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
                                          l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],
                                          d.gas_momentum[1], d.gas_momentum[2], d.mass_residual,
                                          g.drag_time});
+  // Written once particles have entered or left (absent: none had, as in older checkpoints).
+  if (l.particles_in > 0 || l.particles_out > 0)
+    w.put("/gas/particle_flux",
+          std::vector<double>{l.mass_in, l.mass_out, static_cast<double>(l.particles_in),
+                              static_cast<double>(l.particles_out)});
   w.put("/gas/held_force_x", l.held_force[0]);
   w.put("/gas/held_force_y", l.held_force[1]);
   w.put("/gas/held_force_z", l.held_force[2]);
@@ -162,6 +168,11 @@ void read_gas(Reader& r, Checkpoint& c) {
   g.last_dt = q[0], l.time = q[1], l.next_output = q[2], l.next_snapshot = q[3];
   l.dt_f_sum = q[4], l.row_time = q[5];
   l.row_fluid = {q[6], {q[7], q[8], q[9]}, q[10]};
+  if (r.exists("/gas/particle_flux")) {
+    const auto m = r.doubles("/gas/particle_flux", 4);
+    l.mass_in = m[0], l.mass_out = m[1];
+    l.particles_in = static_cast<std::int64_t>(m[2]), l.particles_out = static_cast<std::int64_t>(m[3]);
+  }
   l.held_force[0] = r.doubles("/gas/held_force_x", c.particles.size());
   l.held_force[1] = r.doubles("/gas/held_force_y", c.particles.size());
   l.held_force[2] = r.doubles("/gas/held_force_z", c.particles.size());
@@ -491,7 +502,8 @@ namespace {
 // Keys added after checkpoints of this format were written, at the value that older runs had
 // without naming it: such a line is left out, so those checkpoints still restart at it.
 constexpr std::string_view kImpliedLines[] = {
-    "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\""};
+    "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\"",
+    "particles.outflow = \"remove\""};
 
 // Every key whose line differs between this run's fixed lines and the checkpoint's, in this
 // run's order: both values, or the value an older checkpoint implies for a key it predates
@@ -560,6 +572,21 @@ std::string restart_fixed_lines(const std::string& configuration) {
   return kept;
 }
 
+// A checkpoint written before the mass balance columns: its columns and rows gain particle_mass
+// (NaN: not recorded then), mass_in and mass_out (0: no particle could enter or leave then).
+void upgrade_columns(Checkpoint& ck) {
+  const std::size_t k = kColumnsBeforeMassBalance;
+  if (ck.columns.size() < k || !std::equal(kBaseColumns.begin(), kBaseColumns.begin() + k,
+                                           ck.columns.begin()) ||
+      (ck.columns.size() > k && ck.columns[k] == kBaseColumns[k]))
+    return;
+  const auto at = static_cast<std::ptrdiff_t>(k);
+  ck.columns.insert(ck.columns.begin() + at, kBaseColumns.begin() + at, kBaseColumns.begin() + at + 3);
+  for (auto& r : ck.rows)
+    if (r.size() >= k)
+      r.insert(r.begin() + at, {std::numeric_limits<double>::quiet_NaN(), 0.0, 0.0});
+}
+
 // The checks of a checkpoint against the scene it restarts; throws ConfigError naming the file.
 void check_fits(const Scene& scene, const std::string& path, const Checkpoint& ck) {
   if (ck.gas != scene.fluid.enabled)
@@ -597,6 +624,7 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
 
 Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
   Checkpoint ck = read_checkpoint(path);
+  upgrade_columns(ck);
   check_fits(scene, path, ck);
   return ck;
 }
@@ -604,6 +632,7 @@ Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
 Checkpoint load_checkpoint(const Scene& scene, const std::string& path, const GasBlock& block,
                            const Communicator& comm) {
   Checkpoint ck = read_checkpoint(path, block, comm);
+  upgrade_columns(ck);
   check_fits(scene, path, ck); // the same file on every rank: the same error
   return ck;
 }

@@ -48,6 +48,10 @@ struct CoupledLoopState {
   // replaces it before any use, except when the run resumes at its end (the one particle step
   // past the end, which records the last row, still reads it).
   std::array<std::vector<double>, 3> held_force;
+  // Particles through the faces since the start of the run (apps/particle_outflow.hpp): their
+  // mass [kg] and count, in and out.
+  double mass_in = 0.0, mass_out = 0.0;
+  std::int64_t particles_in = 0, particles_out = 0;
 };
 
 struct Checkpoint {

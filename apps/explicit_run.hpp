@@ -22,6 +22,7 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/explicit_scheme.hpp"
+#include "dem/particle_removal.hpp"
 
 namespace cfddem::apps {
 
@@ -77,6 +78,10 @@ public:
       if (held)
         scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
     }
+  }
+  // One rank: the saved state in `c` (save()) without the particles `k` removes.
+  static void erase_removed(Checkpoint& c, const dem::Compaction& k, std::span<const std::int64_t>) {
+    dem::erase_removed(c.state, k);
   }
   // One step; `k`: its index; the row's step statistics (every step a full one).
   dem::LeafStepStats advance(bool /*record*/, bool sync, long long k_last_row, long long& k) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <string>
 
 #include <fmt/format.h>
 #include <unistd.h>
@@ -196,6 +197,22 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     const double u_in = std::abs(f.inflow_velocity[static_cast<std::size_t>(axis)]);
     if (u_in > 0)
       t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));
+  }
+  // Particles at the outflow faces (apps/particle_outflow.hpp).
+  {
+    static constexpr const char* kFaces[] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
+    std::string faces;
+    for (std::size_t k = 0; k < 6; ++k)
+      if (f.bc[k] == "outflow")
+        faces += (faces.empty() ? "" : ", ") + std::string(kFaces[k]);
+    if (!faces.empty())
+      t.emplace_back("particles_at_outflow_faces",
+                     s.particles.outflow == "remove"
+                         ? fmt::format("removed at {} when they would reach the face within the "
+                                       "next fluid step (one rank; docs/theory.md §12)",
+                                       faces)
+                         : fmt::format("held back by a wall at {} (particles.outflow = \"wall\")",
+                                       faces));
   }
   // Cost: a cell step is partition.cell_weight particle steps (measured on hcs_gas).
   const double sub = derived.dt > 0 && f.dt > 0 ? std::max(1.0, std::ceil(f.dt / derived.dt))

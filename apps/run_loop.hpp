@@ -33,6 +33,7 @@
 #include "apps/column_profiles.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/gas_side.hpp"
+#include "apps/particle_outflow.hpp"
 #include "apps/run_output.hpp"
 #include "apps/run_outputs.hpp"
 #include "apps/scheme_runs.hpp"
@@ -73,7 +74,8 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   ParticleStore particles = Run::particles(scene, ck, comm, opt.restart, share);
   dem::ParticleRange range;
   const DerivedNumbers derived = parts.derived(scene, particles, comm, range);
-  const std::size_t n_total = one ? particles.size() : derived.particles;
+  // The particle count: it falls when particles leave through an outflow face.
+  std::size_t n_total = one ? particles.size() : derived.particles;
   if (root) // as `cfddem check` warns (apps/main.cpp), now that the particles are known
     for (const std::string& w : step_warnings(scene, derived))
       fmt::print(stderr, "cfddem: warning: {}\n", w);
@@ -88,18 +90,21 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     (void)hypre_ready;
   }
   PhaseTimer timer;
-  Run run(scene, particles, range, comm, timer, step_clock);
+  // Held in an optional: particles leaving through an outflow face rebuild it on the remaining
+  // particles (remove_leaving below).
+  std::optional<Run> run;
+  run.emplace(scene, particles, range, comm, timer, step_clock);
   std::optional<GasSide> gas;
   if (gas_on) {
     gas.emplace(scene, comm, Run::kSub);
     if (!one && !Run::kSub)
-      run.own_by(gas->box_owners(), false); // explicit: by the gas boxes
+      run->own_by(gas->box_owners(), false); // explicit: by the gas boxes
     gas->prepare(particles); // the grid, solver and fields: set-up, not the loop's start
   }
 
   // dt checked against the checkpoint, and the end of the run: a number of particle steps
   // without a gas, a time with one.
-  const double dt = run.dt();
+  const double dt = run->dt();
   if (ck && ck->dt != dt)
     throw ConfigError(opt.restart,
                       fmt::format("checkpoint {} {:.17g} s differs from the scene's {:.17g} s",
@@ -138,7 +143,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
                  scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
                  fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                        : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-                 Run::kSub ? fmt::format("dt_sp = {:.4e} s (fine dt = {:.4e} s)", dt, run.fine_dt())
+                 Run::kSub ? fmt::format("dt_sp = {:.4e} s (fine dt = {:.4e} s)", dt, run->fine_dt())
                            : fmt::format("particle dt = {:.4e} s", dt),
                  fixed ? fmt::format(" ({} {} per fluid step)", n_fixed,
                                      Run::kSub ? "sub-iterations" : "steps")
@@ -146,8 +151,8 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
                  env.ranks(), env.threads(), restarted);
     } else {
       fmt::print(stderr, "cfddem: scene '{}', {} particles, {}, {} rank(s) x {} thread(s){}{}\n",
-                 scene.name, n_total, run.banner(n_end), env.ranks(), env.threads(),
-                 run.banner_tail(), restarted);
+                 scene.name, n_total, run->banner(n_end), env.ranks(), env.threads(),
+                 run->banner_tail(), restarted);
     }
   }
 
@@ -169,7 +174,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
       if (gas_on)
         held = parts.held(*ck, share.taken);
       try {
-        run.restore(*ck, share, held ? &*held : nullptr);
+        run->restore(*ck, share, held ? &*held : nullptr);
       } catch (const std::invalid_argument& e) {
         if (!gas_on || !one)
           throw;
@@ -180,10 +185,10 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
         throw ConfigError(opt.restart, fmt::format("cannot restart: {}", e.what()));
       }
     } else {
-      run.start();
+      run->start();
     }
     if (gas) {
-      gas->attach(particles, run.owned());
+      gas->attach(particles, run->owned());
       if (ck)
         gas->restore(*ck, opt.restart, loop);
     }
@@ -193,7 +198,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   const long long out_every = std::max(1LL, std::llround(scene.output.interval / dt));
   const long long snap_every = steps_every(scene.output.snapshot_interval, dt);
   const long long ckpt_every =
-      run.checkpoint_every(steps_every(scene.output.checkpoint_interval, dt));
+      run->checkpoint_every(steps_every(scene.output.checkpoint_interval, dt));
   auto mark_due_steps = [&](long long k) {
     loop.fluid_steps = k;
     loop.row_pending = k > 0 && (k % out_every == 0 || k == n_end);
@@ -242,10 +247,10 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     f.x = w[0], f.y = w[1], f.z = w[2];
     std::vector<std::int64_t> box;
     if (f.leaf.empty() && !gas_on) {
-      box = run.boxes(w[0], w[1], w[2]); // R-rank explicit: its ORB box
+      box = run->boxes(w[0], w[1], w[2]); // R-rank explicit: its ORB box
       f.leaf = box;
     }
-    f.dt = run.fine_dt();
+    f.dt = run->fine_dt();
     f.cells = cells;
     out.add_snapshot(f);
   };
@@ -258,7 +263,13 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     const RowExtra x =
         one ? means.next(t, s.vx, s.vy, s.vz, fd) : means.next(t, st.mean_velocity, fd);
     const std::vector<double> contacts = census.row(comm, {s.x, s.y, s.z, s.radius, s.mass});
-    out.add_row(row(t, k, st, n_total, run.scheme, wall, ls, x, contacts));
+    double held = 0.0;
+    for (const double m : s.mass)
+      held += m;
+    if (!one)
+      held = comm.sum(held);
+    const ParticleMass mass{held, loop.mass_in, loop.mass_out};
+    out.add_row(row(t, k, st, n_total, run->scheme, wall, ls, x, mass, contacts));
     if (profiles)
       out.add_profile_rows(profiles->rows(t, {s.x, s.y, s.z, s.vx, s.vy, s.vz, s.radius, s.mass},
                                           profile_gas, one ? nullptr : &comm));
@@ -268,7 +279,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     if (!out.rows().empty())
       means.resume(out.rows().back());
   } else {
-    const std::size_t n = run.owned();
+    const std::size_t n = run->owned();
     auto own = [n](const std::vector<double>& v) { return std::span<const double>(v.data(), n); };
     if (gas_on && scene.output.snapshot_interval > 0) {
       const CellFields cells = gas->coupling().cell_fields();
@@ -281,7 +292,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     // Row at t = 0. Without a gas, explicit: from the initial velocities (before start()'s
     // half-step shift); with a gas (and orb, islands): the velocities start() left.
     std::vector<double> v0[3];
-    const bool shifted = !gas_on && run.initial_velocities(v0);
+    const bool shifted = !gas_on && run->initial_velocities(v0);
     SyncedParticles s{own(particles.x),
                       own(particles.y),
                       own(particles.z),
@@ -310,10 +321,10 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   // One particle step; it writes the row and snapshot pending at its start.
   auto particle_step = [&](bool record, bool snap) {
     long long k = 0;
-    const dem::LeafStepStats ls = run.advance(record, record || snap, k_last_row, k);
+    const dem::LeafStepStats ls = run->advance(record, record || snap, k_last_row, k);
     if (!record && !snap)
       return;
-    const SyncedParticles s = run.synced();
+    const SyncedParticles s = run->synced();
     if (snap) {
       SnapshotFields f;
       f.time = loop.row_time;
@@ -327,6 +338,56 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
       k_last_row = k;
     }
   };
+  // Particles leaving through an outflow face at the start of a fluid step of dt_f (the rule:
+  // apps/particle_outflow.hpp). One rank: the scheme's state is saved, the leaving particles go
+  // from the store, the state and the held gas force, and the scheme is rebuilt on the rest and
+  // restored, as at a restart (so that a run with removals restarts bit for bit). Nothing is done
+  // when none leaves. R ranks: not built yet; the run stops naming the particle.
+  const OutflowFaces outflow = outflow_faces(scene);
+  auto remove_leaving = [&](double dt_f) {
+    if (!outflow.any())
+      return;
+    const std::vector<std::uint32_t> leaving =
+        leaving_particles(particles, run->owned(), outflow, dt_f);
+    if (!one) {
+      const std::string why =
+          leaving.empty()
+              ? std::string()
+              : fmt::format("particle {} at ({:.6g}, {:.6g}, {:.6g}) m reached an outflow face: "
+                            "particles leaving the run are handled on one rank only so far; run "
+                            "on one rank, or set particles.outflow = \"wall\" to hold them back",
+                            particles.id[leaving[0]], particles.x[leaving[0]],
+                            particles.y[leaving[0]], particles.z[leaving[0]]);
+      const std::int64_t key = leaving.empty() ? std::numeric_limits<std::int64_t>::max()
+                                               : particles.id[leaving[0]];
+      if (const std::string m = comm.agree_on_error(key, why); !m.empty())
+        throw RunError(m);
+      return;
+    }
+    if (leaving.empty())
+      return;
+    const PhaseTimer::Scope removing(timer, Phase::regrid);
+    for (const std::uint32_t i : leaving)
+      loop.mass_out += particles.mass[i];
+    loop.particles_out += static_cast<std::int64_t>(leaving.size());
+    Checkpoint c;
+    run->save(c, comm);
+    // The force the scheme holds (at a restart the gas's own force is that of its attach).
+    const dem::ExternalForce& f = run->scheme.external_force();
+    std::array<std::vector<double>, 3> held = {f.x, f.y, f.z};
+    const std::vector<std::uint32_t> kept = staying_particles(particles.size(), leaving);
+    const dem::Compaction compaction(particles.size(), kept);
+    Run::erase_removed(c, compaction, particles.id);
+    for (auto& h : held)
+      compaction.apply(h);
+    run.reset();
+    particles.permute(kept);
+    run.emplace(scene, particles, range, comm, timer, step_clock);
+    typename Run::Restart none;
+    run->restore(c, none, &held);
+    n_total = particles.size();
+  };
+
   // A checkpoint between two outer steps: rank 0's header, the particles and scheme state
   // (gathered to rank 0 in id order on R ranks), and with a gas its state and the loop's.
   auto checkpoint = [&] {
@@ -335,7 +396,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     if (root)
       c = checkpoint_header(scene, Run::kName, dt, loop.fluid_steps, k_last_row, out.rows(),
                             out.snapshots());
-    run.save(c, comm); // collective
+    run->save(c, comm); // collective
     if (gas)
       gas->write_checkpoint(out.checkpoint_path(loop.fluid_steps), std::move(c), particles, loop);
     else
@@ -345,7 +406,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   // A restart's counters continue those of the run it continues: the rates and the closing line
   // count the work of this run (they said "600 fluid steps" when 400 were run).
   const long long fluid_steps_before = gas_on ? loop.fluid_steps : 0;
-  const std::int64_t particle_steps_before = run.scheme.particle_steps();
+  const std::int64_t particle_steps_before = run->scheme.particle_steps();
   double& t = loop.time;
   const double tol = 1e-6 * dt;
   // With a gas: checkpoints at the fluid times that are multiples of the interval, after the
@@ -362,23 +423,24 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     if (gas) {
       {
         PhaseTimer::Scope fl(timer, Phase::fluid);
-        if (auto owners = gas->regrid(particles, run.owned(), t, tol, last_n_sub))
-          run.own_by(std::move(*owners), true);
+        if (auto owners = gas->regrid(particles, run->owned(), t, tol, last_n_sub))
+          run->own_by(std::move(*owners), true);
       }
       const FluidStepPlan next =
           plan_fluid_step(scene, gas->coupling(), n_total == 0, Run::kSub, n_fixed, dt, end - t);
       n_sub = last_n_sub = next.n_sub;
       dt_f = next.dt_f;
+      remove_leaving(dt_f);
       if constexpr (Run::kSub)
         if (!fixed)
-          run.set_interval(dt_f); // the sub-iterations divide this step
+          run->set_interval(dt_f); // the sub-iterations divide this step
       PhaseTimer::Scope fl(timer, Phase::fluid);
-      run.hold_gas_force(gas->step(particles, run.owned(), dt_f));
+      run->hold_gas_force(gas->step(particles, run->owned(), dt_f));
     }
     // dem.nsubit = "auto": the outer step (dt, a control interval) in the chosen sub-iterations
     // (after the gas force: its change bounds them).
-    if (run.auto_length())
-      n_sub = run.begin_interval();
+    if (run->auto_length())
+      n_sub = run->begin_interval();
     for (long long q = 0; q < n_sub; ++q) {
       particle_step(q == 0 && loop.row_pending, q == 0 && loop.snapshot_pending);
       if (q == 0)
@@ -418,19 +480,19 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
                    "fluid step {:>8} t = {:.6e} s ({:5.1f}%)  fluid {:.0f}% of wall  ETA {}\n",
                    loop.fluid_steps, t, 100 * frac, 100 * timer.seconds(Phase::fluid) / wall, eta);
       else
-        fmt::print(stderr, "{}\n", run.progress(loop.fluid_steps, frac, wall, eta));
+        fmt::print(stderr, "{}\n", run->progress(loop.fluid_steps, frac, wall, eta));
     }
   }
   // One particle step past the end completes the last row (with "auto" a short one: the state
   // it records is at its start).
   if (loop.row_pending || loop.snapshot_pending) {
-    run.begin_completion();
+    run->begin_completion();
     particle_step(loop.row_pending, loop.snapshot_pending);
   }
   const double loop_seconds = seconds_since(t_loop);
 
   // run.json (rank 0) and the summary. Collective: the per-rank figures are gathered first.
-  const auto& sch = run.scheme;
+  const auto& sch = run->scheme;
   const std::int64_t particle_steps_run = sch.particle_steps() - particle_steps_before;
   const long long fluid_steps_run = loop.fluid_steps - fluid_steps_before;
   const double pss =
@@ -439,7 +501,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   j["scheme"] = Run::kName;
   if (!one)
     j["distributed"] = true;
-  run.describe(j, out.rows());
+  run->describe(j, out.rows());
   if (gas)
     gas->describe(j, loop, fluid_steps_run, loop_seconds, timer.seconds(Phase::fluid)); // coll.
   j["end_time"] = gas_on ? t : static_cast<double>(n_end) * dt;
@@ -451,7 +513,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   }
   j["setup_seconds"] = std::chrono::duration<double>(t_loop - t_setup).count();
   nlohmann::ordered_json ph = phase_json(timer, loop_seconds);
-  const char* note = run.phase_note();
+  const char* note = run->phase_note();
   if (gas_on)
     note = one ? "fluid: deposition, gas step (predictor, projection), interpolation and particle "
                  "forces; neighbor + regrid + force: the particle sub-cycle"
@@ -462,7 +524,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   if (note)
     ph["note"] = note;
   j["phase_seconds"] = ph;
-  add_work_counters(j, sch, loop_seconds, run.force_definition(), particle_steps_before);
+  add_work_counters(j, sch, loop_seconds, run->force_definition(), particle_steps_before);
   double wait_max = 0.0;
   if (!one) {
     const std::vector<double> waits = comm.gather(comm.wait_seconds());
@@ -471,7 +533,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     j["mpi_wait_seconds"] = waits;
     j["mpi_wait_definition"] = "per rank: wall time inside MPI calls (reductions, the parallel "
                                "ORB, particle and ghost exchanges), set-up included";
-    j["owned_particles_at_end"] = comm.gather(static_cast<double>(run.owned()));
+    j["owned_particles_at_end"] = comm.gather(static_cast<double>(run->owned()));
     if (!gas_on) {
       j["busy_seconds"] = comm.gather(timer.rebuild_seconds() + timer.seconds(Phase::force) +
                                       timer.seconds(Phase::integrate));
@@ -483,7 +545,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     const auto work = parts.local_work(sch);
     j["rank_counts"] = rank_counts_json(comm, work[0], work[1], gas ? gas->cell_updates() : 0);
     if (!gas_on)
-      run.describe_balance(j);
+      run->describe_balance(j);
   }
   out.write_run_json(j);
 
@@ -493,9 +555,9 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
       fmt::print(stderr,
                  "Loop time of {:.4g} s on {} rank(s) x {} thread(s) for {} {} with {} "
                  "particles ({} to run.end_time and one that completes the last row)\n",
-                 loop_seconds, env.ranks(), env.threads(), run.steps(), Run::kStepsWord, n_total,
+                 loop_seconds, env.ranks(), env.threads(), run->steps(), Run::kStepsWord, n_total,
                  n_end);
-      fmt::print(stderr, "{}\n", run.performance(timer, pss, wait_max));
+      fmt::print(stderr, "{}\n", run->performance(timer, pss, wait_max));
     } else if (one) {
       fmt::print(
           stderr,
@@ -514,7 +576,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
                  100 * fluid / std::max(loop_seconds, 1e-300));
     }
   }
-  return {opt.out_dir, loop_seconds, run.steps(), sch.particle_steps()};
+  return {opt.out_dir, loop_seconds, run->steps(), sch.particle_steps()};
 }
 
 } // namespace cfddem::apps

@@ -40,7 +40,11 @@ inline const std::vector<std::string> kBaseColumns = {
     "momentum_z", "particles",  "particle_steps",       "force_evaluations", "neighbor_builds",
     "wall_seconds", "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction",
     "pressure_drop", "gas_momentum_x", "gas_momentum_y", "gas_momentum_z", "mean_vx", "mean_vy",
-    "mean_vz", "mean_ax", "mean_ay", "mean_az", "gas_mass_residual"};
+    "mean_vz", "mean_ax", "mean_ay", "mean_az", "gas_mass_residual", "particle_mass", "mass_in",
+    "mass_out"};
+// The columns before particle_mass, mass_in and mass_out were added: a checkpoint that holds them
+// is read with those three appended (apps/checkpoint.cpp, upgrade_columns).
+inline constexpr std::size_t kColumnsBeforeMassBalance = 31;
 
 inline std::vector<std::string> diagnostics_columns(bool census) {
   std::vector<std::string> c = kBaseColumns;
@@ -55,6 +59,12 @@ inline std::vector<std::string> diagnostics_columns(bool census) {
 struct RowExtra {
   FluidDiagnostics fluid;
   std::array<double, 3> mean_v{}, mean_a{};
+};
+
+// The particles' mass balance of a row [kg]: held now, and in and out through the faces since the
+// start of the run: held(t) = held(0) + in - out.
+struct ParticleMass {
+  double held = 0.0, in = 0.0, out = 0.0;
 };
 
 class MeanTracker {
@@ -100,7 +110,7 @@ private:
 template <class Scheme>
 inline std::vector<double> row(double t, long long step, const dem::GranularState& s, std::size_t n,
                         const Scheme& scheme, double wall, const dem::LeafStepStats& ls,
-                        const RowExtra& x, const std::vector<double>& census) {
+                        const RowExtra& x, const ParticleMass& m, const std::vector<double>& census) {
   std::vector<double> r = {t,
           static_cast<double>(step),
           s.granular_temperature,
@@ -131,7 +141,10 @@ inline std::vector<double> row(double t, long long step, const dem::GranularStat
           x.mean_a[0],
           x.mean_a[1],
           x.mean_a[2],
-          x.fluid.mass_residual};
+          x.fluid.mass_residual,
+          m.held,
+          m.in,
+          m.out};
   r.insert(r.end(), census.begin(), census.end());
   return r;
 }

@@ -24,6 +24,7 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "dem/particle_removal.hpp"
 
 namespace cfddem::apps {
 
@@ -61,6 +62,12 @@ public:
       scheme.restore_state(std::move(ck.*kSlot));
     if (held)
       scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
+  }
+  // One rank: the saved state in `c` (save()) without the particles `k` removes (`ids`: the
+  // store's ids before).
+  static void erase_removed(Checkpoint& c, const dem::Compaction& k,
+                            std::span<const std::int64_t> ids) {
+    dem::erase_removed(c.*kSlot, k, ids);
   }
   // One sub-iteration; `k`: its index; the row's statistics of the interval it closes.
   dem::LeafStepStats advance(bool record, bool sync, long long /*k_last_row*/, long long& k) {

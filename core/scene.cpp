@@ -224,6 +224,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     p.file = (std::filesystem::path(c.base_dir()) / p.file).string();
   p.seed = static_cast<std::uint64_t>(k.integer("particles.seed"));
   p.allow_overlap = k.flag("particles.allow_overlap");
+  p.outflow = k.word("particles.outflow");
   if (p.file.empty()) {
     p.count = k.integer("particles.count");
     if (c.has("particles.diameter.distribution")) {
@@ -472,6 +473,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("particles.seed", std::to_string(p.seed));
   }
   o.emplace_back("particles.allow_overlap", p.allow_overlap ? "true" : "false");
+  o.emplace_back("particles.outflow", str(p.outflow));
   const auto& d = s.dem;
   o.emplace_back("dem.scheme", str(d.scheme));
   o.emplace_back("dem.spring_constant", num(d.spring_constant));

@@ -52,6 +52,9 @@ struct ParticleSpec {
   std::string placement = "random";
   std::array<double, 3> region_lo{}, region_hi{}; // where the generator places particles
   bool allow_overlap = false;
+  // Particles at the gas's outflow faces: "remove" (they leave the run, apps/particle_outflow.hpp)
+  // or "wall" (held back by the particle wall there).
+  std::string outflow = "remove";
 };
 
 struct DemSpec {

@@ -59,6 +59,7 @@ KeyDefault derived(std::string_view how) {
 }
 
 constexpr std::string_view kPlacements[] = {"random", "lattice"};
+constexpr std::string_view kParticleOutflow[] = {"remove", "wall"};
 constexpr std::string_view kDistributions[] = {"uniform", "normal", "lognormal"};
 constexpr std::string_view kSchemes[] = {"explicit", "orb", "islands"};
 constexpr std::string_view kProfileAxes[] = {"none", "x", "y", "z"};
@@ -262,6 +263,16 @@ std::vector<SceneKey> make_table() {
        .meaning = "accept initial particles that overlap each other or a wall (otherwise the "
                   "pair, or the particle and the wall, is named and the run refused); two "
                   "particles on the same centre are refused even so"},
+
+      {.name = "particles.outflow",
+       .type = T::String,
+       .section = S::DomainParticles,
+       .choices = kParticleOutflow,
+       .fallback = word("remove"),
+       .meaning = "particles at a face with fluid.bc = \"outflow\": taken out of the run at the "
+                  "start of the fluid step in which they would reach the face (diagnostics.csv "
+                  "counts their mass in mass_out; one rank), or held back by a wall as at any "
+                  "other face (see [theory.md](theory.md) §12)"},
 
       // Contacts and time step.
       {.name = "dem.scheme",

@@ -110,6 +110,8 @@ public:
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
   [[nodiscard]] bool has_external_force() const { return ext_.active(); }
+  // The force held now, in the store's order (empty: none).
+  [[nodiscard]] const ExternalForce& external_force() const { return ext_; }
 
   // Ownership fixed by the caller instead of the particle ORB (the fluid boxes of a coupled
   // run: partition/cell_box_decomposition.hpp); never regridded. Call before start(); the same

@@ -207,6 +207,8 @@ public:
   // set again and carried with its particle; empty spans (on every rank) remove it.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // The force held now, in the store's order (empty: none).
+  [[nodiscard]] const ExternalForce& external_force() const { return ext_; }
   // With false, every link round rescans all rows instead of the raised particles' rows only
   // (one rank; the reference the tests hold the incremental rounds to: the same links in the
   // same order, hence bitwise the same run).

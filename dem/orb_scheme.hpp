@@ -195,6 +195,8 @@ public:
   // particle through regrids, re-sorts and migrations; empty spans (on every rank) remove it.
   void set_external_force(std::span<const double> fx, std::span<const double> fy,
                           std::span<const double> fz);
+  // The force held now, in the store's order (empty: none).
+  [[nodiscard]] const ExternalForce& external_force() const { return ext_; }
   // At a fluid-step boundary (the coupled loops' gas step): the owed half kick settled with the
   // force held so far (settle_owed_half_kick, dem/external_force.hpp), then set_external_force.
   // set_external_force alone is for a restart (the held force as it was).

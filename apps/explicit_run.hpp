@@ -79,9 +79,28 @@ public:
         scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
     }
   }
-  // One rank: the saved state in `c` (save()) without the particles `k` removes.
-  static void erase_removed(Checkpoint& c, const dem::Compaction& k, std::span<const std::int64_t>) {
+  // Particles leaving the run (apps/particle_outflow.hpp): the state restore() takes, as a
+  // restart's `ck` and `r`. R ranks: the canonical state (canonicalize() reorders the store), the
+  // counters and this rank's contact history by id; `owners` keeps the decomposition (the gas
+  // boxes) for the scheme rebuilt on the particles that stay.
+  void save_for_removal(Checkpoint& c, Restart& r,
+                        std::optional<partition::RankDecomposition>& owners) {
+    if (parts_.ranks) {
+      scheme.canonicalize();
+      r.history = scheme.contact_history();
+      const auto k = scheme.counters();
+      c.state.steps = k.steps, c.state.particle_steps = k.particle_steps;
+      c.state.pair_evaluations = k.pair_evaluations, c.state.builds = k.builds;
+      owners = scheme.decomposition();
+    } else {
+      c.state = scheme.save_state();
+    }
+  }
+  // That state without the particles `k` removes (`ids`: this rank's owned ids before).
+  static void erase_removed(Checkpoint& c, Restart& r, const dem::Compaction& k,
+                            std::span<const std::int64_t> ids) {
     dem::erase_removed(c.state, k);
+    k.apply_history(r.history, ids);
   }
   // One step; `k`: its index; the row's step statistics (every step a full one).
   dem::LeafStepStats advance(bool /*record*/, bool sync, long long k_last_row, long long& k) {

@@ -209,7 +209,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
       t.emplace_back("particles_at_outflow_faces",
                      s.particles.outflow == "remove"
                          ? fmt::format("removed at {} when they would reach the face within the "
-                                       "next fluid step (one rank; docs/theory.md §12)",
+                                       "next fluid step (docs/theory.md §12)",
                                        faces)
                          : fmt::format("held back by a wall at {} (particles.outflow = \"wall\")",
                                        faces));

@@ -266,8 +266,11 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     double held = 0.0;
     for (const double m : s.mass)
       held += m;
-    if (!one)
-      held = comm.sum(held);
+    if (!one) {
+      double m[1] = {held};
+      comm.sum(m);
+      held = m[0];
+    }
     const ParticleMass mass{held, loop.mass_in, loop.mass_out};
     out.add_row(row(t, k, st, n_total, run->scheme, wall, ls, x, mass, contacts));
     if (profiles)
@@ -339,53 +342,56 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     }
   };
   // Particles leaving through an outflow face at the start of a fluid step of dt_f (the rule:
-  // apps/particle_outflow.hpp). One rank: the scheme's state is saved, the leaving particles go
-  // from the store, the state and the held gas force, and the scheme is rebuilt on the rest and
-  // restored, as at a restart (so that a run with removals restarts bit for bit). Nothing is done
-  // when none leaves. R ranks: not built yet; the run stops naming the particle.
+  // apps/particle_outflow.hpp). The scheme's state is saved as for a checkpoint (R ranks: each
+  // rank's canonical share), the leaving particles go from the store, the state and the held gas
+  // force, and the scheme is rebuilt on the rest and restored, as at a restart, so that a run
+  // with removals restarts bit for bit. Nothing is done when none leaves.
   const OutflowFaces outflow = outflow_faces(scene);
   auto remove_leaving = [&](double dt_f) {
     if (!outflow.any())
       return;
-    const std::vector<std::uint32_t> leaving =
-        leaving_particles(particles, run->owned(), outflow, dt_f);
-    if (!one) {
-      const std::string why =
-          leaving.empty()
-              ? std::string()
-              : fmt::format("particle {} at ({:.6g}, {:.6g}, {:.6g}) m reached an outflow face: "
-                            "particles leaving the run are handled on one rank only so far; run "
-                            "on one rank, or set particles.outflow = \"wall\" to hold them back",
-                            particles.id[leaving[0]], particles.x[leaving[0]],
-                            particles.y[leaving[0]], particles.z[leaving[0]]);
-      const std::int64_t key = leaving.empty() ? std::numeric_limits<std::int64_t>::max()
-                                               : particles.id[leaving[0]];
-      if (const std::string m = comm.agree_on_error(key, why); !m.empty())
-        throw RunError(m);
-      return;
-    }
-    if (leaving.empty())
+    std::size_t n_leaving = leaving_particles(particles, run->owned(), outflow, dt_f).size();
+    if (!one)
+      n_leaving = static_cast<std::size_t>(comm.sum(static_cast<std::int64_t>(n_leaving)));
+    if (n_leaving == 0)
       return;
     const PhaseTimer::Scope removing(timer, Phase::regrid);
-    for (const std::uint32_t i : leaving)
-      loop.mass_out += particles.mass[i];
-    loop.particles_out += static_cast<std::int64_t>(leaving.size());
     Checkpoint c;
-    run->save(c, comm);
-    // The force the scheme holds (at a restart the gas's own force is that of its attach).
+    typename Run::Restart share;
+    std::optional<partition::RankDecomposition> owners;
+    run->save_for_removal(c, share, owners); // R ranks: may reorder the store
+    const std::size_t owned = run->owned();
+    const std::vector<std::uint32_t> leaving =
+        leaving_particles(particles, owned, outflow, dt_f);
+    double mass = 0.0;
+    for (const std::uint32_t i : leaving)
+      mass += particles.mass[i];
+    // The force the scheme holds, in the store's order (at a restart the gas's own force is that
+    // of its attach, not the one held).
     const dem::ExternalForce& f = run->scheme.external_force();
     std::array<std::vector<double>, 3> held = {f.x, f.y, f.z};
-    const std::vector<std::uint32_t> kept = staying_particles(particles.size(), leaving);
-    const dem::Compaction compaction(particles.size(), kept);
-    Run::erase_removed(c, compaction, particles.id);
+    const std::vector<std::uint32_t> kept = staying_particles(owned, leaving);
+    const dem::Compaction compaction(owned, kept);
+    Run::erase_removed(c, share, compaction, std::span(particles.id.data(), owned));
     for (auto& h : held)
       compaction.apply(h);
     run.reset();
-    particles.permute(kept);
+    particles.permute(kept); // R ranks: the ghosts go too
     run.emplace(scene, particles, range, comm, timer, step_clock);
-    typename Run::Restart none;
-    run->restore(c, none, &held);
-    n_total = particles.size();
+    if (owners)
+      run->own_by(std::move(*owners), false);
+    run->restore(c, share, &held);
+    if (one) {
+      loop.mass_out += mass;
+      loop.particles_out += static_cast<std::int64_t>(leaving.size());
+      n_total = particles.size();
+    } else {
+      double m[1] = {mass};
+      comm.sum(m);
+      loop.mass_out += m[0];
+      loop.particles_out += static_cast<std::int64_t>(n_leaving);
+      n_total -= n_leaving;
+    }
   };
 
   // A checkpoint between two outer steps: rank 0's header, the particles and scheme state

@@ -63,11 +63,18 @@ public:
     if (held)
       scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
   }
-  // One rank: the saved state in `c` (save()) without the particles `k` removes (`ids`: the
-  // store's ids before).
-  static void erase_removed(Checkpoint& c, const dem::Compaction& k,
+  // Particles leaving the run (apps/particle_outflow.hpp): the state restore() takes, as a
+  // restart's `ck` and `r` (R ranks: the canonical state, in the store's order after it).
+  void save_for_removal(Checkpoint& c, Restart& r, std::optional<partition::RankDecomposition>&) {
+    if (parts_.ranks)
+      r.state = scheme.save_state();
+    else
+      c.*kSlot = scheme.save_state();
+  }
+  // That state without the particles `k` removes (`ids`: this rank's owned ids before).
+  static void erase_removed(Checkpoint& c, Restart& r, const dem::Compaction& k,
                             std::span<const std::int64_t> ids) {
-    dem::erase_removed(c.*kSlot, k, ids);
+    dem::erase_removed(r.state ? *r.state : c.*kSlot, k, ids);
   }
   // One sub-iteration; `k`: its index; the row's statistics of the interval it closes.
   dem::LeafStepStats advance(bool record, bool sync, long long /*k_last_row*/, long long& k) {

@@ -271,7 +271,7 @@ std::vector<SceneKey> make_table() {
        .fallback = word("remove"),
        .meaning = "particles at a face with fluid.bc = \"outflow\": taken out of the run at the "
                   "start of the fluid step in which they would reach the face (diagnostics.csv "
-                  "counts their mass in mass_out; one rank), or held back by a wall as at any "
+                  "counts their mass in mass_out), or held back by a wall as at any "
                   "other face (see [theory.md](theory.md) §12)"},
 
       // Contacts and time step.

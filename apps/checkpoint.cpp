@@ -127,6 +127,12 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
     w.put("/gas/particle_flux",
           std::vector<double>{l.mass_in, l.mass_out, static_cast<double>(l.particles_in),
                               static_cast<double>(l.particles_out)});
+  if (l.inlet.next_id >= 0) { // an inlet has started
+    w.put("/gas/inlet", std::vector<double>{l.inlet.owed, static_cast<double>(l.inlet.drawn),
+                                            static_cast<double>(l.inlet.next_id)});
+    w.put("/gas/inlet_queue_radius", l.inlet.queue_radius);
+    w.put("/gas/inlet_queue_mass", l.inlet.queue_mass);
+  }
   w.put("/gas/held_force_x", l.held_force[0]);
   w.put("/gas/held_force_y", l.held_force[1]);
   w.put("/gas/held_force_z", l.held_force[2]);
@@ -168,10 +174,18 @@ void read_gas(Reader& r, Checkpoint& c) {
   g.last_dt = q[0], l.time = q[1], l.next_output = q[2], l.next_snapshot = q[3];
   l.dt_f_sum = q[4], l.row_time = q[5];
   l.row_fluid = {q[6], {q[7], q[8], q[9]}, q[10]};
+  // In the order written (the checksum runs over the arrays in that order).
   if (r.exists("/gas/particle_flux")) {
     const auto m = r.doubles("/gas/particle_flux", 4);
     l.mass_in = m[0], l.mass_out = m[1];
     l.particles_in = static_cast<std::int64_t>(m[2]), l.particles_out = static_cast<std::int64_t>(m[3]);
+  }
+  if (r.exists("/gas/inlet")) {
+    const auto v = r.doubles("/gas/inlet", 3);
+    l.inlet.owed = v[0], l.inlet.drawn = static_cast<std::int64_t>(v[1]);
+    l.inlet.next_id = static_cast<std::int64_t>(v[2]);
+    l.inlet.queue_radius = r.doubles("/gas/inlet_queue_radius", StateReader::kAny);
+    l.inlet.queue_mass = r.doubles("/gas/inlet_queue_mass", l.inlet.queue_radius.size());
   }
   l.held_force[0] = r.doubles("/gas/held_force_x", c.particles.size());
   l.held_force[1] = r.doubles("/gas/held_force_y", c.particles.size());

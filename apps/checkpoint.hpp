@@ -23,6 +23,7 @@
 
 #include "apps/coupled_step.hpp"
 #include "apps/gas_grid_io.hpp"
+#include "apps/particle_inlet.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
@@ -52,6 +53,7 @@ struct CoupledLoopState {
   // mass [kg] and count, in and out.
   double mass_in = 0.0, mass_out = 0.0;
   std::int64_t particles_in = 0, particles_out = 0;
+  InletState inlet; // rank 0's (apps/particle_inlet.hpp)
 };
 
 struct Checkpoint {

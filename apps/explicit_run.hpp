@@ -22,7 +22,7 @@
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/explicit_scheme.hpp"
-#include "dem/particle_removal.hpp"
+#include "dem/state_edit.hpp"
 
 namespace cfddem::apps {
 
@@ -101,6 +101,12 @@ public:
                             std::span<const std::int64_t> ids) {
     dem::erase_removed(c.state, k);
     k.apply_history(r.history, ids);
+  }
+  // And with the particles (x, y, z) appended to the store after those.
+  static void admit(Checkpoint& c, Restart&, std::span<const std::int64_t>,
+                    std::span<const double> x, std::span<const double> y,
+                    std::span<const double> z) {
+    dem::admit(c.state, x, y, z);
   }
   // One step; `k`: its index; the row's step statistics (every step a full one).
   dem::LeafStepStats advance(bool /*record*/, bool sync, long long k_last_row, long long& k) {

@@ -7,7 +7,7 @@
 // so that it leaves before the wall could push it back. The rule takes a particle up to one fluid
 // step of flight and one radius early: a particle that would cross the face during the step, or
 // rests against it, leaves; one that turns back within the step might have stayed. The loop
-// (apps/run_loop.hpp) removes them through the scheme's saved state (dem/particle_removal.hpp),
+// (apps/run_loop.hpp) removes them through the scheme's saved state (dem/state_edit.hpp),
 // on each rank its own, and counts their mass in diagnostics.csv's mass_out.
 #pragma once
 

@@ -10,6 +10,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -24,7 +25,7 @@
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
-#include "dem/particle_removal.hpp"
+#include "dem/state_edit.hpp"
 
 namespace cfddem::apps {
 
@@ -75,6 +76,16 @@ public:
   static void erase_removed(Checkpoint& c, Restart& r, const dem::Compaction& k,
                             std::span<const std::int64_t> ids) {
     dem::erase_removed(r.state ? *r.state : c.*kSlot, k, ids);
+  }
+  // And with the particles (x, y, z) appended to the store after those (`ids`: the store's ids
+  // before them).
+  static void admit(Checkpoint& c, Restart& r, std::span<const std::int64_t> ids,
+                    std::span<const double> x, std::span<const double>, std::span<const double>) {
+    auto& s = r.state ? *r.state : c.*kSlot;
+    if constexpr (std::is_same_v<S, dem::OrbScheme>)
+      dem::admit(s, x.size());
+    else
+      dem::admit(s, x.size(), ids);
   }
   // One sub-iteration; `k`: its index; the row's statistics of the interval it closes.
   dem::LeafStepStats advance(bool record, bool sync, long long /*k_last_row*/, long long& k) {

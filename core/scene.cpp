@@ -409,6 +409,35 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
                         f.solver));
   }
 
+  // The inlet (apps/particle_inlet.hpp): particles enter at fluid-step boundaries.
+  auto& in = s.inlet;
+  in.mass_rate = k.number("inlet.mass_rate");
+  in.recycle = k.flag("inlet.recycle");
+  in.velocity = k.vec3("inlet.velocity");
+  in.seed = static_cast<std::uint64_t>(k.integer("inlet.seed"));
+  if (in.enabled()) {
+    const char* why = in.recycle ? "inlet.recycle" : "inlet.mass_rate";
+    require(s.fluid.enabled, why,
+            "particles enter at fluid-step boundaries: the scene needs a [fluid] table");
+    require(!in.recycle || s.particles.outflow == "remove", "inlet.recycle",
+            "feeds back the particles that leave: particles.outflow must be \"remove\"");
+    require(in.mass_rate == 0.0 || s.particles.file.empty(), "inlet.mass_rate",
+            "draws the new particles from particles.diameter and particles.density, which a "
+            "scene with particles.file does not give; use inlet.recycle");
+    for (const char* g : {"inlet.region_lo", "inlet.region_hi"})
+      require(c.has(g), g, "is required with an inlet");
+    in.region_lo = k.vec3("inlet.region_lo", s.domain.lo);
+    in.region_hi = k.vec3("inlet.region_hi", s.domain.hi);
+    for (int a = 0; a < 3; ++a)
+      require(in.region_lo[a] >= s.domain.lo[a] && in.region_hi[a] <= s.domain.hi[a] &&
+                  in.region_hi[a] > in.region_lo[a],
+              "inlet.region_hi",
+              fmt::format("the region must be non-empty and inside the domain (axis {})", a));
+  } else { // an inlet switched off (mass_rate 0, no recycle): its region is read, unused
+    in.region_lo = k.vec3("inlet.region_lo", s.domain.lo);
+    in.region_hi = k.vec3("inlet.region_hi", s.domain.hi);
+  }
+
   c.check_all_used();
   return s;
 }
@@ -474,6 +503,14 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   }
   o.emplace_back("particles.allow_overlap", p.allow_overlap ? "true" : "false");
   o.emplace_back("particles.outflow", str(p.outflow));
+  if (s.inlet.enabled()) { // absent otherwise: checkpoints of scenes without one still match
+    o.emplace_back("inlet.mass_rate", num(s.inlet.mass_rate));
+    o.emplace_back("inlet.recycle", s.inlet.recycle ? "true" : "false");
+    o.emplace_back("inlet.region_lo", vec3(s.inlet.region_lo));
+    o.emplace_back("inlet.region_hi", vec3(s.inlet.region_hi));
+    o.emplace_back("inlet.velocity", vec3(s.inlet.velocity));
+    o.emplace_back("inlet.seed", std::to_string(s.inlet.seed));
+  }
   const auto& d = s.dem;
   o.emplace_back("dem.scheme", str(d.scheme));
   o.emplace_back("dem.spring_constant", num(d.spring_constant));

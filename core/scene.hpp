@@ -57,6 +57,16 @@ struct ParticleSpec {
   std::string outflow = "remove";
 };
 
+// Particles entering the run (scene table [inlet], apps/particle_inlet.hpp).
+struct InletSpec {
+  double mass_rate = 0.0; // [kg/s] of new particles of the scene's size and density
+  bool recycle = false;   // particles leaving through an outflow face enter again
+  std::array<double, 3> region_lo{}, region_hi{}; // where entering centres are placed [m]
+  std::array<double, 3> velocity{};               // [m/s]
+  std::uint64_t seed = 1;
+  bool enabled() const { return mass_rate > 0.0 || recycle; }
+};
+
 struct DemSpec {
   std::string scheme = "explicit";
   double spring_constant = 0.0;                  // k_n [N/m]
@@ -155,6 +165,7 @@ struct Scene {
   DomainSpec domain;
   std::array<double, 3> gravity{0, 0, 0};
   ParticleSpec particles;
+  InletSpec inlet;
   DemSpec dem;
   PartitionSpec partition;
   RunSpec run;

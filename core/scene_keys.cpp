@@ -274,6 +274,50 @@ std::vector<SceneKey> make_table() {
                   "counts their mass in mass_out), or held back by a wall as at any "
                   "other face (see [theory.md](theory.md) §12)"},
 
+      {.name = "inlet.mass_rate",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "kg/s",
+       .range = at_least(0),
+       .fallback = number(0),
+       .meaning = "particles entering the run through the inlet region: new particles of "
+                  "`particles.diameter` (or its distribution) and `particles.density` at this "
+                  "mass rate, placed at random where they fit; needs a gas (they enter at "
+                  "fluid-step boundaries; see [theory.md](theory.md) §12)"},
+      {.name = "inlet.recycle",
+       .type = T::Bool,
+       .section = S::DomainParticles,
+       .fallback = flag(false),
+       .meaning = "the particles that leave through an outflow face enter again through the inlet "
+                  "region (same size and mass, a new id), as in a circulating bed; with "
+                  "`inlet.mass_rate` both feed the inlet"},
+      {.name = "inlet.region_lo",
+       .type = T::Vec3,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .fallback = derived("required with an inlet"),
+       .meaning = "the box the entering particles' centres are placed in (non-empty, inside the "
+                  "domain)"},
+      {.name = "inlet.region_hi",
+       .type = T::Vec3,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .fallback = derived("required with an inlet"),
+       .meaning = "the box the entering particles' centres are placed in (non-empty, inside the "
+                  "domain)"},
+      {.name = "inlet.velocity",
+       .type = T::Vec3,
+       .section = S::DomainParticles,
+       .unit = "m/s",
+       .fallback = vec(0, 0, 0),
+       .meaning = "velocity of an entering particle"},
+      {.name = "inlet.seed",
+       .type = T::Integer,
+       .section = S::DomainParticles,
+       .fallback = integer(1),
+       .meaning = "seed of the inlet's positions and diameters (a run is bitwise reproducible "
+                  "for a given seed, thread and rank count, and across restarts)"},
+
       // Contacts and time step.
       {.name = "dem.scheme",
        .type = T::String,

@@ -160,7 +160,10 @@ void IslandsScheme::restore_state(State s) {
   // dem.nsubit = "auto" needs its choice (the sub-iteration length is state); an integer
   // nsubit ignores one.
   fits = fits && (!auto_.on || ((s.length_counters.size() == 6 || s.length_counters.size() == 8) &&
-                                s.length_values.size() >= 7 && !s.length_log.empty() &&
+                                s.length_values.size() >= 7 &&
+                                // no choice logged yet only before the first interval (a state
+                                // saved at t = 0, as particles entering the run save it)
+                                (!s.length_log.empty() || s.length_counters[2] == 0) &&
                                 s.length_log.size() % kChoiceColumns.size() == 0 &&
                                 s.length_counters[0] >= 1 && s.length_counters[1] >= 1));
   // An adaptive fluid.dt's intervals (none saved: one length).

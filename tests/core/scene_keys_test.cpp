@@ -77,6 +77,15 @@ const Lines kCylinder = [] {
   return lines;
 }();
 
+// An inlet (its keys are refused without one).
+const Lines kInlet = [] {
+  Lines lines = kRequired;
+  lines.emplace_back("inlet.mass_rate", "1.0e-6");
+  lines.emplace_back("inlet.region_lo", "[0.0, 0.0, 0.0]");
+  lines.emplace_back("inlet.region_hi", "[1.0e-3, 2.0e-4, 1.0e-3]");
+  return lines;
+}();
+
 // The scene a key's value is tried in: the distribution's keys need a distribution.
 // The method of lines, whose keys the Godunov step (the default) refuses.
 const Lines kMethodOfLines = [] {
@@ -92,6 +101,8 @@ const Lines& scene_for(const std::string& key, std::string_view value) {
     return kMethodOfLines;
   if (key.rfind("domain.shape", 0) == 0 || key.rfind("domain.cylinder_", 0) == 0)
     return kCylinder;
+  if (key.rfind("inlet.", 0) == 0)
+    return kInlet;
   if (key.rfind("particles.diameter.", 0) != 0)
     return kRequired;
   return value == "uniform" ? kUniform : kNormal;
@@ -264,6 +275,7 @@ TEST(SceneKeys, DefaultsAreTheOnesTheParserApplies) {
   int compared = 0;
   // domain.shape and the cylinder's keys are listed for a cylinder only (core/scene.cpp).
   const auto cylinder = described(parse(kCylinder).scene);
+  const auto inlet = described(parse(kInlet).scene);
   for (const SceneKey& k : scene_keys()) {
     if (k.fallback.kind != KeyDefault::Kind::Value || k.name == "particles.file")
       continue;
@@ -273,6 +285,13 @@ TEST(SceneKeys, DefaultsAreTheOnesTheParserApplies) {
     }
     if (k.name == "domain.shape") {
       EXPECT_FALSE(resolved.count(std::string(k.name))) << "a box lists " << k.name;
+      continue;
+    }
+    // The inlet's keys are listed with an inlet only (kInlet sets its mass rate).
+    if (k.name.starts_with("inlet.")) {
+      EXPECT_FALSE(resolved.count(std::string(k.name))) << "no inlet, yet it lists " << k.name;
+      if (k.name != "inlet.mass_rate")
+        EXPECT_EQ(inlet.at(std::string(k.name)), toml_text(k.fallback.value)) << k.name;
       continue;
     }
     ASSERT_TRUE(resolved.count(std::string(k.name))) << "cfddem check omits " << k.name;
@@ -474,7 +493,7 @@ TEST(SceneKeys, CheckListsTheKeysInTableOrder) {
   for (const SceneKey& k : scene_keys())
     position[std::string(k.name)] = position.size();
   std::set<std::string> listed;
-  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene(), kCylinder}) {
+  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene(), kCylinder, kInlet}) {
     std::vector<std::size_t> order;
     for (const auto& [k, v] : describe_scene(parse(scene).scene)) {
       ASSERT_TRUE(position.count(k)) << "cfddem check lists " << k << ", not in the table";

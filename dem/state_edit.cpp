@@ -1,4 +1,4 @@
-#include "dem/particle_removal.hpp"
+#include "dem/state_edit.hpp"
 
 #include <algorithm>
 #include <unordered_set>
@@ -100,6 +100,38 @@ void erase_removed(IslandsScheme::State& s, const Compaction& c,
   c.apply(s.x_ref), c.apply(s.y_ref), c.apply(s.z_ref);
   c.apply(s.hprev), c.apply(s.fine_subits);
   c.apply_history(s.history, ids);
+}
+
+void admit(ExplicitScheme::State& s, std::span<const double> x, std::span<const double> y,
+           std::span<const double> z) {
+  if (s.offsets.empty()) // a canonical share: no list
+    return;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    s.offsets.push_back(s.offsets.back()); // an empty row until the rebuild
+    s.x_ref.push_back(x[k]), s.y_ref.push_back(y[k]), s.z_ref.push_back(z[k]);
+  }
+  s.need_rebuild = true; // the rebuild carries the history over by ids
+}
+
+void admit(OrbScheme::State& s, std::size_t n_new) {
+  s.hprev.insert(s.hprev.end(), n_new, 0.0);
+  s.cost.insert(s.cost.end(), n_new, 0.0);
+  s.pairs_valid = false;
+  s.ca.clear(), s.cb.clear(), s.pa.clear(), s.pb.clear();
+  s.x_ref.clear(), s.y_ref.clear(), s.z_ref.clear();
+}
+
+void admit(IslandsScheme::State& s, std::size_t n_new, std::span<const std::int64_t> ids) {
+  s.hprev.insert(s.hprev.end(), n_new, 0.0);
+  s.fine_subits.insert(s.fine_subits.end(), n_new, 0);
+  if (s.offsets.empty())
+    return;
+  // One rank: the list goes (the next sub-iteration builds one), its history by ids stays.
+  if (!s.hx.empty())
+    s.history.append(collect_history(ids, s.offsets, s.neighbors, ids.size(), s.hx, s.hy, s.hz));
+  s.offsets.clear(), s.neighbors.clear();
+  s.x_ref.clear(), s.y_ref.clear(), s.z_ref.clear();
+  s.hx.clear(), s.hy.clear(), s.hz.clear();
 }
 
 } // namespace cfddem::dem

@@ -1,4 +1,4 @@
-// dem/particle_removal.hpp: a saved state compacted to the particles that stay. The index maps
+// dem/state_edit.hpp: a saved state compacted to the particles that stay. The index maps
 // and lists are checked by hand; then the explicit scheme with friction, with a loner removed
 // halfway through a run, must step the rest bit for bit as the run that kept it (the loner never
 // touches them nor moves, so it changes no force, no sum order and no rebuild).
@@ -11,7 +11,7 @@
 
 #include <gtest/gtest.h>
 
-#include "dem/particle_removal.hpp"
+#include "dem/state_edit.hpp"
 #include "dem_test_support.hpp"
 
 using namespace cfddem;

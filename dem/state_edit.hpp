@@ -1,8 +1,13 @@
-// Particles leaving a one-rank run (an outflow face, apps/particle_outflow.hpp): a scheme's
-// saved state compacted to the particles that stay. A scheme rebuilt on the compacted store and
-// restored from the compacted state continues as if the removed particles had never been there:
-// the pairs that stay keep their neighbor-list entries and tangential history, the list keeps its
-// reference positions (no early rebuild), and every per-particle value moves with its particle.
+// Particles leaving or entering a run (an outflow face, apps/particle_outflow.hpp; an inlet,
+// apps/particle_inlet.hpp): a scheme's saved state (one rank's, or one rank's canonical share)
+// edited to the particles that stay and those that enter.
+// - Leaving: compacted. A scheme rebuilt on the compacted store and restored from the compacted
+//   state continues as if the removed particles had never been there: the pairs that stay keep
+//   their neighbor-list entries and tangential history, the list keeps its reference positions
+//   (no early rebuild), and every per-particle value moves with its particle.
+// - Entering (appended at the end of the store): synchronised at the boundary (no half step
+//   owed, no cost yet), and the neighbor list or candidate pairs are dropped for a rebuild at the
+//   next step, the tangential history carried over by ids.
 #pragma once
 
 #include <cstddef>
@@ -60,5 +65,12 @@ private:
 void erase_removed(ExplicitScheme::State& s, const Compaction& c);
 void erase_removed(OrbScheme::State& s, const Compaction& c, std::span<const std::int64_t> ids);
 void erase_removed(IslandsScheme::State& s, const Compaction& c, std::span<const std::int64_t> ids);
+
+// `n_new` particles appended to the store after the `ids.size()` there (`ids`: their ids, the
+// store's order); x, y, z: the new particles' positions.
+void admit(ExplicitScheme::State& s, std::span<const double> x, std::span<const double> y,
+           std::span<const double> z);
+void admit(OrbScheme::State& s, std::size_t n_new);
+void admit(IslandsScheme::State& s, std::size_t n_new, std::span<const std::int64_t> ids);
 
 } // namespace cfddem::dem

@@ -214,6 +214,25 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
                          : fmt::format("held back by a wall at {} (particles.outflow = \"wall\")",
                                        faces));
   }
+  // The inlet (apps/particle_inlet.hpp): what it adds.
+  if (s.inlet.enabled()) {
+    std::string what = s.inlet.recycle ? "the particles that leave enter again" : "";
+    if (s.inlet.mass_rate > 0.0) {
+      const double d = s.particles.diameters.fixed() ? s.particles.diameter
+                                                     : s.particles.diameters.mean;
+      const double m = s.particles.density * std::numbers::pi * d * d * d / 6.0;
+      what += fmt::format("{}{:.4g} kg/s of new particles ({:.4g} per second of {:.3g} m; {:.3g} "
+                          "per fluid step of {:.3g} s)",
+                          what.empty() ? "" : "; and ", s.inlet.mass_rate, s.inlet.mass_rate / m,
+                          d, s.inlet.mass_rate / m * f.dt, f.dt);
+    }
+    t.emplace_back("particles_entering (inlet)",
+                   fmt::format("{}, placed where they fit in [{:.4g}, {:.4g}] x [{:.4g}, {:.4g}] "
+                               "x [{:.4g}, {:.4g}] m (docs/theory.md §12)",
+                               what, s.inlet.region_lo[0], s.inlet.region_hi[0],
+                               s.inlet.region_lo[1], s.inlet.region_hi[1], s.inlet.region_lo[2],
+                               s.inlet.region_hi[2]));
+  }
   // Cost: a cell step is partition.cell_weight particle steps (measured on hcs_gas).
   const double sub = derived.dt > 0 && f.dt > 0 ? std::max(1.0, std::ceil(f.dt / derived.dt))
                                                 : 1.0;

@@ -291,6 +291,26 @@ def cylinder_keys_refused_naming_the_key(ctx):
         expect(ctx, ["run", scene, override], 2, r"scene key " + needle)
 
 
+CFB = os.path.join(SCENES, "cfb_riser.toml")  # a recycling inlet, an outflow top face
+
+
+@case
+def inlet_and_outflow_keys_refused_naming_the_key(ctx):
+    """Particles through open faces (issue 40): an inlet without a gas, a region outside the
+    domain or empty, a negative rate, recycling without removal, a mass rate drawn from a file
+    scene's sizes, an unknown outflow rule."""
+    for scene, override, needle in (
+            (SMALL, "inlet.mass_rate=1e-6", r"'inlet.mass_rate'.*needs a \[fluid\] table"),
+            (CFB, "inlet.region_hi=[2e-3,2e-3,3e-3]", r"'inlet.region_hi'.*inside the domain"),
+            (CFB, "inlet.region_lo=[0,2e-3,0]", r"'inlet.region_hi'.*non-empty"),
+            (CFB, "inlet.mass_rate=-1", r"'inlet.mass_rate'.*must be >= 0"),
+            (CFB, "particles.outflow=wall", r"'inlet.recycle'.*particles.outflow must be "
+                                            r"\"remove\""),
+            (CFB, "particles.outflow=vanish", r"'particles.outflow'"),
+            (CFB, "inlet.velocity=[0,inf,0]", r"'inlet.velocity'")):
+        expect(ctx, ["run", scene, override], 2, r"scene key " + needle)
+
+
 @case
 def cylinder_particles_placed_inside_and_checked(ctx):
     """Generated particles are placed inside the column (rho <= R - r); one from a file outside

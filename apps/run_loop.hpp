@@ -33,8 +33,8 @@
 #include "apps/column_profiles.hpp"
 #include "apps/coupled_schedule.hpp"
 #include "apps/gas_side.hpp"
+#include "apps/particle_flux.hpp"
 #include "apps/particle_inlet.hpp"
-#include "apps/particle_outflow.hpp"
 #include "apps/run_output.hpp"
 #include "apps/run_outputs.hpp"
 #include "apps/scheme_runs.hpp"
@@ -104,7 +104,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   }
   PhaseTimer timer;
   // Held in an optional: particles leaving or entering rebuild it on the new set
-  // (change_particles below).
+  // (change_particles, apps/particle_flux.hpp).
   std::optional<Run> run;
   run.emplace(scene, particles, range, comm, timer, step_clock);
   std::optional<GasSide> gas;
@@ -354,90 +354,8 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
       k_last_row = k;
     }
   };
-  // Particles leaving through an outflow face and entering through the inlet at the start of a
-  // fluid step of dt_f (the rules: apps/particle_outflow.hpp, apps/particle_inlet.hpp). The
-  // scheme's state is saved as for a checkpoint (R ranks: each rank's canonical share); the
-  // leaving particles go from the store, the state and the held gas force, the entering ones are
-  // appended (rank 0's store) with no force held yet; the scheme is rebuilt on them and restored,
-  // as at a restart, so that a run with removals and insertions restarts bit for bit. Nothing is
-  // done in a fluid step where none leaves or enters.
-  const OutflowFaces outflow = outflow_faces(scene);
-  const ParticleInlet inlet(scene);
-  auto change_particles = [&](double dt_f) {
-    if (!outflow.any() && !inlet.on())
-      return;
-    std::size_t n_leaving = 0;
-    if (outflow.any()) {
-      const std::vector<std::uint32_t> leaving =
-          leaving_particles(particles, run->owned(), outflow, dt_f);
-      n_leaving = leaving.size();
-      if (!one)
-        n_leaving = static_cast<std::size_t>(comm.sum(static_cast<std::int64_t>(n_leaving)));
-      if (n_leaving > 0)
-        inlet.queue(loop.inlet, particles, leaving, comm); // recycle: they enter again
-    }
-    EnteringParticles entering;
-    std::size_t n_entering = 0;
-    if (inlet.on()) {
-      inlet.start(loop.inlet, particles, run->owned(), comm);
-      entering = inlet.enter(loop.inlet, particles, run->owned(), dt_f, loop.fluid_steps, comm);
-      n_entering = entering.size();
-      if (!one)
-        n_entering = static_cast<std::size_t>(comm.sum(static_cast<std::int64_t>(n_entering)));
-    }
-    if (n_leaving == 0 && n_entering == 0)
-      return;
-    const PhaseTimer::Scope changing(timer, Phase::regrid);
-    Checkpoint c;
-    typename Run::Restart share;
-    std::optional<partition::RankDecomposition> owners;
-    run->save_for_removal(c, share, owners); // R ranks: may reorder the store
-    const std::size_t owned = run->owned();
-    const std::vector<std::uint32_t> leaving = leaving_particles(particles, owned, outflow, dt_f);
-    double flux[2] = {0.0, 0.0}; // mass out, mass in
-    for (const std::uint32_t i : leaving)
-      flux[0] += particles.mass[i];
-    for (const double m : entering.mass)
-      flux[1] += m;
-    // The force the scheme holds, in the store's order (at a restart the gas's own force is that
-    // of its attach, not the one held).
-    const dem::ExternalForce& f = run->scheme.external_force();
-    std::array<std::vector<double>, 3> held = {f.x, f.y, f.z};
-    const std::vector<std::uint32_t> kept = staying_particles(owned, leaving);
-    const dem::Compaction compaction(owned, kept);
-    Run::erase_removed(c, share, compaction, std::span(particles.id.data(), owned));
-    for (auto& h : held)
-      compaction.apply(h);
-    run.reset();
-    particles.permute(kept); // R ranks: the ghosts go too
-    if (entering.size() > 0) {
-      Run::admit(c, share, particles.id, entering.x, entering.y, entering.z);
-      const auto& v = scene.inlet.velocity;
-      for (std::size_t k = 0; k < entering.size(); ++k) {
-        const std::size_t i =
-            particles.add(entering.x[k], entering.y[k], entering.z[k], v[0], v[1], v[2],
-                          entering.radius[k], scene.particles.density, entering.id[k]);
-        // The mass as it left (recycled) or as drawn, exactly: the balance closes to round-off.
-        particles.mass[i] = entering.mass[k], particles.inv_mass[i] = 1.0 / entering.mass[k];
-        if (particles.rotation)
-          particles.inv_inertia[i] =
-              1.0 / (0.4 * entering.mass[k] * entering.radius[k] * entering.radius[k]);
-      }
-      for (auto& h : held)
-        if (!h.empty())
-          h.resize(particles.size(), 0.0); // the gas force comes with the next gas step
-    }
-    run.emplace(scene, particles, range, comm, timer, step_clock);
-    if (owners)
-      run->own_by(std::move(*owners), false);
-    run->restore(c, share, &held);
-    if (!one)
-      comm.sum(std::span<double>(flux));
-    loop.mass_out += flux[0], loop.mass_in += flux[1];
-    loop.particles_out += static_cast<std::int64_t>(n_leaving);
-    loop.particles_in += static_cast<std::int64_t>(n_entering);
-    n_total = n_total - n_leaving + n_entering;
-  };
+  const ParticleFlux flux(scene);
+
 
   // A checkpoint between two outer steps: rank 0's header, the particles and scheme state
   // (gathered to rank 0 in id order on R ranks), and with a gas its state and the loop's.
@@ -481,7 +399,10 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
           plan_fluid_step(scene, gas->coupling(), n_total == 0, Run::kSub, n_fixed, dt, end - t);
       n_sub = last_n_sub = next.n_sub;
       dt_f = next.dt_f;
-      change_particles(dt_f);
+      if (flux.on()) // particles through the open faces (apps/particle_flux.hpp)
+        n_total = static_cast<std::size_t>(
+            static_cast<std::int64_t>(n_total) +
+            change_particles(flux, run, scene, particles, range, comm, timer, step_clock, loop, dt_f));
       if constexpr (Run::kSub)
         if (!fixed)
           run->set_interval(dt_f); // the sub-iterations divide this step

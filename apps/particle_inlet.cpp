@@ -187,4 +187,17 @@ EnteringParticles ParticleInlet::enter(InletState& st, const ParticleStore& p, s
   return out;
 }
 
+void widen_for_inlet(const Scene& scene, dem::ParticleRange& range) {
+  const ParticleInlet in(scene);
+  if (in.largest_radius() <= 0.0)
+    return;
+  // A mass rate needs a generated scene (core/scene.cpp), whose particles lie within the same
+  // bounds: the range is the inlet's, on every rank count and at a restart alike.
+  const double r0 = in.smallest_radius(), r1 = in.largest_radius();
+  range.count = std::max<std::int64_t>(range.count, 1); // the step model reads a non-empty range
+  range.r_min = r0, range.r_max = r1;
+  range.m_min = ParticleStore::sphere_mass(scene.particles.density, r0);
+  range.m_max = ParticleStore::sphere_mass(scene.particles.density, r1);
+}
+
 } // namespace cfddem::apps

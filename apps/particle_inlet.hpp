@@ -22,6 +22,7 @@
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
 #include "dem/domain_geometry.hpp"
+#include "dem/step_model.hpp"
 
 namespace cfddem::apps {
 
@@ -70,5 +71,10 @@ private:
   // The k-th new particle's diameter (mass_rate).
   double diameter(std::int64_t k) const;
 };
+
+// New particles from an inlet (inlet.mass_rate) may be smaller or larger than those at t = 0, or
+// there may be none yet: `range` (the sizes the particle step is chosen for) becomes the scene's
+// size bounds, which hold both.
+void widen_for_inlet(const Scene& scene, dem::ParticleRange& range);
 
 } // namespace cfddem::apps

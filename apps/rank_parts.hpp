@@ -57,10 +57,13 @@ struct RankParts {
     return ranks ? derive(scene, p, comm, &range) : derive(scene, p);
   }
   // The step model over all particles (the contact time), the same on every rank: from the
-  // store on one rank, which holds them all, else from the range derived() reduced.
+  // store on one rank, which holds them all, else from the range derived() reduced (or, with an
+  // inlet, the sizes it may add).
   dem::StepModel step_model(const Scene& scene, const ParticleStore& p,
                             const dem::ParticleRange& range) const {
-    return ranks ? dem::make_step_model(scene, range) : dem::make_step_model(scene, p);
+    // One rank: range is set only for an inlet's sizes (widen_for_inlet).
+    return ranks || range.count > 0 ? dem::make_step_model(scene, range)
+                                    : dem::make_step_model(scene, p);
   }
   // The scheme on this rank's particles. One rank: the one-rank constructor, no communicator at
   // all (the islands scheme keeps its one-rank list and order only without one).
@@ -70,7 +73,12 @@ struct RankParts {
          const Communicator& comm, PhaseTimer& timer, const dem::StepClock& step_clock) const {
     if (ranks)
       return S(scene, p, dem::make_step_model(scene, range, step_clock), &comm, timer);
-    return S(scene, p, dem::make_step_model(scene, p, step_clock), nullptr, timer);
+    // One rank: the store's sizes, or an inlet's (widen_for_inlet), which the store may not hold
+    // yet.
+    return S(scene, p,
+             range.count > 0 ? dem::make_step_model(scene, range, step_clock)
+                             : dem::make_step_model(scene, p, step_clock),
+             nullptr, timer);
   }
   // The particles this rank owns: the first owned() of the store (R ranks), else all.
   template <class S> std::size_t owned(const S& s, const ParticleStore& p) const {

@@ -75,18 +75,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
   ParticleStore particles = Run::particles(scene, ck, comm, opt.restart, share);
   dem::ParticleRange range;
   const DerivedNumbers derived = parts.derived(scene, particles, comm, range);
-  // New particles from an inlet may be smaller or larger than those at t = 0: the particle step
-  // and the cut-offs are set for both.
-  if (const ParticleInlet in(scene); in.largest_radius() > 0.0) {
-    const double r0 = in.smallest_radius(), r1 = in.largest_radius();
-    const double m0 = ParticleStore::sphere_mass(scene.particles.density, r0);
-    const double m1 = ParticleStore::sphere_mass(scene.particles.density, r1);
-    const bool empty = range.r_max <= 0.0;
-    range.r_min = empty ? r0 : std::min(range.r_min, r0);
-    range.r_max = empty ? r1 : std::max(range.r_max, r1);
-    range.m_min = empty ? m0 : std::min(range.m_min, m0);
-    range.m_max = empty ? m1 : std::max(range.m_max, m1);
-  }
+  widen_for_inlet(scene, range); // the particle step and cut-offs fit what the inlet adds
   // The particle count: it falls when particles leave through an outflow face.
   std::size_t n_total = one ? particles.size() : derived.particles;
   if (root) // as `cfddem check` warns (apps/main.cpp), now that the particles are known

@@ -23,7 +23,8 @@ inlet.mass_rate:
 - a mass rate R places one particle of mass m as soon as R t covers it: mass_in lies within
   [R t - m, R (t + dt_f)] at every row (the row at t follows the edit at t);
 - a restart across insertions is bitwise for every scheme (and orb on 2 ranks), and 2 ranks keep
-  the same balance.
+  the same balance;
+- a column empty at t = 0 fills from the inlet (the particle step from the inlet's sizes).
 
 Usage: particle_flux_test.py CFDDEM SOURCE_DIR outflow|inlet [MPIEXEC]
 """
@@ -97,6 +98,19 @@ def check_mass_rate(scheme, tmp):
         assert abs(float(x["particle_mass"]) - in_ + float(x["mass_out"]) - m0) <= 1e-12 * m0
     print(f"{scheme}: mass rate {rate} kg/s, {float(r[-1]['mass_in']) / mp:.0f} particles in by "
           f"{r[-1]['time']} s")
+
+
+def check_empty_start(scheme, tmp):
+    # No particle at t = 0: the particle step and cut-offs come from the inlet's sizes.
+    out = os.path.join(tmp, f"empty_{scheme}")
+    run(out, f"dem.scheme={scheme}", "particles.count=0", "inlet.mass_rate=1e-5",
+        "inlet.region_lo=[0,0,0]", "inlet.region_hi=[0.8e-3,0.5e-3,0.8e-3]", "run.end_time=0.003")
+    r = rows(out)
+    assert int(float(r[0]["particles"])) == 0 and int(float(r[-1]["particles"])) > 40, r[-1]
+    for x in r:
+        held, in_ = float(x["particle_mass"]), float(x["mass_in"])
+        assert abs(held - in_ + float(x["mass_out"])) <= 1e-12 * max(in_, 1e-30), (scheme, x)
+    print(f"{scheme}: from an empty column, {r[-1]['particles']} particles by {r[-1]['time']} s")
 
 
 def check_balance(scheme, tmp, ranks=1, extra=()):
@@ -174,6 +188,7 @@ def inlet(tmp):
         check_restart(scheme, tmp, extra=RECYCLE)
     for scheme in ("explicit", "islands"):
         check_mass_rate(scheme, tmp)
+        check_empty_start(scheme, tmp)
     if MPIEXEC:
         close_counts(counts["explicit"], check_recycle("explicit", tmp, ranks=2), "explicit")
         check_restart("orb", tmp, ranks=2, extra=RECYCLE)

@@ -218,13 +218,13 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (s.inlet.enabled()) {
     std::string what = s.inlet.recycle ? "the particles that leave enter again" : "";
     if (s.inlet.mass_rate > 0.0) {
-      const double d = s.particles.diameters.fixed() ? s.particles.diameter
-                                                     : s.particles.diameters.mean;
-      const double m = s.particles.density * std::numbers::pi * d * d * d / 6.0;
+      const double d_in = s.particles.diameters.fixed() ? s.particles.diameter
+                                                        : s.particles.diameters.mean;
+      const double m = s.particles.density * std::numbers::pi * d_in * d_in * d_in / 6.0;
       what += fmt::format("{}{:.4g} kg/s of new particles ({:.4g} per second of {:.3g} m; {:.3g} "
                           "per fluid step of {:.3g} s)",
                           what.empty() ? "" : "; and ", s.inlet.mass_rate, s.inlet.mass_rate / m,
-                          d, s.inlet.mass_rate / m * f.dt, f.dt);
+                          d_in, s.inlet.mass_rate / m * f.dt, f.dt);
     }
     t.emplace_back("particles_entering (inlet)",
                    fmt::format("{}, placed where they fit in [{:.4g}, {:.4g}] x [{:.4g}, {:.4g}] "

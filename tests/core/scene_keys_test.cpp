@@ -290,8 +290,9 @@ TEST(SceneKeys, DefaultsAreTheOnesTheParserApplies) {
     // The inlet's keys are listed with an inlet only (kInlet sets its mass rate).
     if (k.name.starts_with("inlet.")) {
       EXPECT_FALSE(resolved.count(std::string(k.name))) << "no inlet, yet it lists " << k.name;
-      if (k.name != "inlet.mass_rate")
+      if (k.name != "inlet.mass_rate") {
         EXPECT_EQ(inlet.at(std::string(k.name)), toml_text(k.fallback.value)) << k.name;
+      }
       continue;
     }
     ASSERT_TRUE(resolved.count(std::string(k.name))) << "cfddem check omits " << k.name;

@@ -145,7 +145,8 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
                  scene.name, n_total, c[0], c[1], c[2], scene.fluid.drag, scene.fluid.deposition,
                  fixed ? fmt::format("{:.4e} s", scene.fluid.dt)
                        : fmt::format("adaptive (cfl {})", scene.fluid.cfl),
-                 Run::kSub ? fmt::format("dt_sp = {:.4e} s (fine dt = {:.4e} s)", dt, run->fine_dt())
+                 Run::kSub
+                     ? fmt::format("dt_sp = {:.4e} s (fine dt = {:.4e} s)", dt, run->fine_dt())
                            : fmt::format("particle dt = {:.4e} s", dt),
                  fixed ? fmt::format(" ({} {} per fluid step)", n_fixed,
                                      Run::kSub ? "sub-iterations" : "steps")
@@ -265,15 +266,7 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
     const RowExtra x =
         one ? means.next(t, s.vx, s.vy, s.vz, fd) : means.next(t, st.mean_velocity, fd);
     const std::vector<double> contacts = census.row(comm, {s.x, s.y, s.z, s.radius, s.mass});
-    double held = 0.0;
-    for (const double m : s.mass)
-      held += m;
-    if (!one) {
-      double m[1] = {held};
-      comm.sum(m);
-      held = m[0];
-    }
-    const ParticleMass mass{held, loop.mass_in, loop.mass_out};
+    const ParticleMass mass{st.mass, loop.mass_in, loop.mass_out};
     out.add_row(row(t, k, st, n_total, run->scheme, wall, ls, x, mass, contacts));
     if (profiles)
       out.add_profile_rows(profiles->rows(t, {s.x, s.y, s.z, s.vx, s.vy, s.vz, s.radius, s.mass},
@@ -388,10 +381,11 @@ RunResult run_loop(const Scene& scene, const RunOptions& opt, const ParallelEnv&
           plan_fluid_step(scene, gas->coupling(), n_total == 0, Run::kSub, n_fixed, dt, end - t);
       n_sub = last_n_sub = next.n_sub;
       dt_f = next.dt_f;
-      if (flux.on()) // particles through the open faces (apps/particle_flux.hpp)
-        n_total = static_cast<std::size_t>(
-            static_cast<std::int64_t>(n_total) +
-            change_particles(flux, run, scene, particles, range, comm, timer, step_clock, loop, dt_f));
+      if (flux.on()) { // particles through the open faces (apps/particle_flux.hpp)
+        const std::int64_t change = change_particles(flux, run, scene, particles, range, comm,
+                                                     timer, step_clock, loop, dt_f);
+        n_total = static_cast<std::size_t>(static_cast<std::int64_t>(n_total) + change);
+      }
       if constexpr (Run::kSub)
         if (!fixed)
           run->set_interval(dt_f); // the sub-iterations divide this step

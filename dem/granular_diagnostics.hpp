@@ -17,6 +17,7 @@ struct GranularState {
   std::array<double, 3> mean_position{};
   std::array<double, 3> momentum{};  // [kg m/s]
   std::array<double, 3> mean_velocity{};
+  double mass = 0.0;                 // total [kg]
 };
 
 struct ParticleSpans {

@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "core/error.hpp"
+#include "core/particle_store.hpp"
 #include "fluid/fluid_step_rule.hpp"
 #include "fluid/gas_solver.hpp"
 
@@ -220,7 +221,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     if (s.inlet.mass_rate > 0.0) {
       const double d_in = s.particles.diameters.fixed() ? s.particles.diameter
                                                         : s.particles.diameters.mean;
-      const double m = s.particles.density * std::numbers::pi * d_in * d_in * d_in / 6.0;
+      const double m = ParticleStore::sphere_mass(s.particles.density, 0.5 * d_in);
       what += fmt::format("{}{:.4g} kg/s of new particles ({:.4g} per second of {:.3g} m; {:.3g} "
                           "per fluid step of {:.3g} s)",
                           what.empty() ? "" : "; and ", s.inlet.mass_rate, s.inlet.mass_rate / m,

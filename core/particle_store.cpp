@@ -43,11 +43,15 @@ std::size_t ParticleStore::add(double px, double py, double pz, double pvx, doub
   x[i] = px, y[i] = py, z[i] = pz;
   vx[i] = pvx, vy[i] = pvy, vz[i] = pvz;
   radius[i] = r;
-  mass[i] = sphere_mass(density, r);
-  inv_mass[i] = 1.0 / mass[i];
   id[i] = pid;
-  if (rotation) inv_inertia[i] = 1.0 / (0.4 * mass[i] * r * r);
+  set_mass(i, sphere_mass(density, r));
   return i;
+}
+
+void ParticleStore::set_mass(std::size_t i, double m) {
+  mass[i] = m;
+  inv_mass[i] = 1.0 / m;
+  if (rotation) inv_inertia[i] = 1.0 / (0.4 * m * radius[i] * radius[i]);
 }
 
 void ParticleStore::swap(std::size_t a, std::size_t b) {

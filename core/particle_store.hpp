@@ -34,6 +34,9 @@ struct ParticleStore {
   }
   std::size_t add(double px, double py, double pz, double pvx, double pvy, double pvz, double r,
                   double density, std::int64_t pid);
+  // Particle i's mass [kg], exactly (a particle that re-enters keeps the mass it left with), and
+  // what follows from it: 1/m and the inverse moment of inertia.
+  void set_mass(std::size_t i, double m);
   // Reorder every field so that new index k holds old index order[k].
   void permute(std::span<const std::uint32_t> order);
   // Exchange particles a and b in every field (a few particles changing place: cheaper than a

@@ -29,7 +29,7 @@ double unit(std::mt19937_64& rng) {
 } // namespace
 
 ParticleInlet::ParticleInlet(const Scene& scene)
-    : spec_(scene.inlet), particles_(scene.particles), domain_(scene.domain), geom_(scene.domain) {}
+    : spec_(scene.inlet), particles_(scene.particles), geom_(scene.domain) {}
 
 double ParticleInlet::diameter(std::int64_t k) const {
   DiameterDistribution d = particles_.diameters;
@@ -132,7 +132,7 @@ EnteringParticles ParticleInlet::enter(InletState& st, const ParticleStore& p, s
     for (int a = 0; a < 3; ++a) {
       double lo = spec_.region_lo[a], hi = spec_.region_hi[a];
       if (!geom_.periodic[a])
-        lo = std::max(lo, domain_.lo[a] + r), hi = std::min(hi, domain_.hi[a] - r);
+        lo = std::max(lo, geom_.lo[a] + r), hi = std::min(hi, geom_.hi[a] - r);
       if (hi < lo)
         return false;
       q[a] = lo + (hi - lo) * unit(rng);

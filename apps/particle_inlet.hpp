@@ -66,7 +66,6 @@ public:
 private:
   InletSpec spec_;
   ParticleSpec particles_;
-  DomainSpec domain_;
   dem::DomainGeometry geom_;
   // The k-th new particle's diameter (mass_rate).
   double diameter(std::int64_t k) const;

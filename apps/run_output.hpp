@@ -44,7 +44,8 @@ inline const std::vector<std::string> kBaseColumns = {
     "mass_out"};
 // The columns before particle_mass, mass_in and mass_out were added: a checkpoint that holds them
 // is read with those three appended (apps/checkpoint.cpp, upgrade_columns).
-inline constexpr std::size_t kColumnsBeforeMassBalance = 31;
+inline const std::size_t kColumnsBeforeMassBalance = static_cast<std::size_t>(
+    std::find(kBaseColumns.begin(), kBaseColumns.end(), "particle_mass") - kBaseColumns.begin());
 
 inline std::vector<std::string> diagnostics_columns(bool census) {
   std::vector<std::string> c = kBaseColumns;
@@ -110,7 +111,8 @@ private:
 template <class Scheme>
 inline std::vector<double> row(double t, long long step, const dem::GranularState& s, std::size_t n,
                         const Scheme& scheme, double wall, const dem::LeafStepStats& ls,
-                        const RowExtra& x, const ParticleMass& m, const std::vector<double>& census) {
+                        const RowExtra& x, const ParticleMass& m,
+                        const std::vector<double>& census) {
   std::vector<double> r = {t,
           static_cast<double>(step),
           s.granular_temperature,

@@ -79,12 +79,12 @@ public:
         scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
     }
   }
-  // Particles leaving the run (apps/particle_outflow.hpp): the state restore() takes, as a
+  // Particles leaving or entering (apps/particle_flux.hpp): the state restore() takes, as a
   // restart's `ck` and `r`. R ranks: the canonical state (canonicalize() reorders the store), the
   // counters and this rank's contact history by id; `owners` keeps the decomposition (the gas
   // boxes) for the scheme rebuilt on the particles that stay.
-  void save_for_removal(Checkpoint& c, Restart& r,
-                        std::optional<partition::RankDecomposition>& owners) {
+  void save_for_change(Checkpoint& c, Restart& r,
+                       std::optional<partition::RankDecomposition>& owners) {
     if (parts_.ranks) {
       scheme.canonicalize();
       r.history = scheme.contact_history();
@@ -103,10 +103,10 @@ public:
     k.apply_history(r.history, ids);
   }
   // And with the particles (x, y, z) appended to the store after those.
-  static void admit(Checkpoint& c, Restart&, std::span<const std::int64_t>,
+  static void admit(Checkpoint& c, Restart&, std::span<const std::int64_t> ids,
                     std::span<const double> x, std::span<const double> y,
                     std::span<const double> z) {
-    dem::admit(c.state, x, y, z);
+    dem::admit(c.state, ids, x, y, z);
   }
   // One step; `k`: its index; the row's step statistics (every step a full one).
   dem::LeafStepStats advance(bool /*record*/, bool sync, long long k_last_row, long long& k) {

@@ -73,7 +73,7 @@ std::int64_t change_particles(const ParticleFlux& flux, std::optional<Run>& run,
   Checkpoint c;
   typename Run::Restart share;
   std::optional<partition::RankDecomposition> owners;
-  run->save_for_removal(c, share, owners); // R ranks: may reorder the store
+  run->save_for_change(c, share, owners); // R ranks: may reorder the store
   const std::size_t owned = run->owned();
   const std::vector<std::uint32_t> leaving =
       leaving_particles(particles, owned, flux.outflow, dt_f);
@@ -101,10 +101,7 @@ std::int64_t change_particles(const ParticleFlux& flux, std::optional<Run>& run,
           particles.add(entering.x[k], entering.y[k], entering.z[k], v[0], v[1], v[2],
                         entering.radius[k], scene.particles.density, entering.id[k]);
       // The mass as it left (recycled) or as drawn, exactly: the balance closes to round-off.
-      particles.mass[i] = entering.mass[k], particles.inv_mass[i] = 1.0 / entering.mass[k];
-      if (particles.rotation)
-        particles.inv_inertia[i] =
-            1.0 / (0.4 * entering.mass[k] * entering.radius[k] * entering.radius[k]);
+      particles.set_mass(i, entering.mass[k]);
     }
     for (auto& h : held)
       if (!h.empty())

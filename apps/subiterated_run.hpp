@@ -10,7 +10,6 @@
 #include <optional>
 #include <span>
 #include <string>
-#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -64,9 +63,9 @@ public:
     if (held)
       scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
   }
-  // Particles leaving the run (apps/particle_outflow.hpp): the state restore() takes, as a
+  // Particles leaving or entering (apps/particle_flux.hpp): the state restore() takes, as a
   // restart's `ck` and `r` (R ranks: the canonical state, in the store's order after it).
-  void save_for_removal(Checkpoint& c, Restart& r, std::optional<partition::RankDecomposition>&) {
+  void save_for_change(Checkpoint& c, Restart& r, std::optional<partition::RankDecomposition>&) {
     if (parts_.ranks)
       r.state = scheme.save_state();
     else
@@ -80,12 +79,9 @@ public:
   // And with the particles (x, y, z) appended to the store after those (`ids`: the store's ids
   // before them).
   static void admit(Checkpoint& c, Restart& r, std::span<const std::int64_t> ids,
-                    std::span<const double> x, std::span<const double>, std::span<const double>) {
-    auto& s = r.state ? *r.state : c.*kSlot;
-    if constexpr (std::is_same_v<S, dem::OrbScheme>)
-      dem::admit(s, x.size());
-    else
-      dem::admit(s, x.size(), ids);
+                    std::span<const double> x, std::span<const double> y,
+                    std::span<const double> z) {
+    dem::admit(r.state ? *r.state : c.*kSlot, ids, x, y, z);
   }
   // One sub-iteration; `k`: its index; the row's statistics of the interval it closes.
   dem::LeafStepStats advance(bool record, bool sync, long long /*k_last_row*/, long long& k) {

@@ -102,8 +102,8 @@ void erase_removed(IslandsScheme::State& s, const Compaction& c,
   c.apply_history(s.history, ids);
 }
 
-void admit(ExplicitScheme::State& s, std::span<const double> x, std::span<const double> y,
-           std::span<const double> z) {
+void admit(ExplicitScheme::State& s, std::span<const std::int64_t>, std::span<const double> x,
+           std::span<const double> y, std::span<const double> z) {
   if (s.offsets.empty()) // a canonical share: no list
     return;
   for (std::size_t k = 0; k < x.size(); ++k) {
@@ -113,7 +113,9 @@ void admit(ExplicitScheme::State& s, std::span<const double> x, std::span<const 
   s.need_rebuild = true; // the rebuild carries the history over by ids
 }
 
-void admit(OrbScheme::State& s, std::size_t n_new) {
+void admit(OrbScheme::State& s, std::span<const std::int64_t>, std::span<const double> x,
+           std::span<const double>, std::span<const double>) {
+  const std::size_t n_new = x.size();
   s.hprev.insert(s.hprev.end(), n_new, 0.0);
   s.cost.insert(s.cost.end(), n_new, 0.0);
   s.pairs_valid = false;
@@ -121,7 +123,9 @@ void admit(OrbScheme::State& s, std::size_t n_new) {
   s.x_ref.clear(), s.y_ref.clear(), s.z_ref.clear();
 }
 
-void admit(IslandsScheme::State& s, std::size_t n_new, std::span<const std::int64_t> ids) {
+void admit(IslandsScheme::State& s, std::span<const std::int64_t> ids, std::span<const double> x,
+           std::span<const double>, std::span<const double>) {
+  const std::size_t n_new = x.size();
   s.hprev.insert(s.hprev.end(), n_new, 0.0);
   s.fine_subits.insert(s.fine_subits.end(), n_new, 0);
   if (s.offsets.empty())

@@ -66,11 +66,14 @@ void erase_removed(ExplicitScheme::State& s, const Compaction& c);
 void erase_removed(OrbScheme::State& s, const Compaction& c, std::span<const std::int64_t> ids);
 void erase_removed(IslandsScheme::State& s, const Compaction& c, std::span<const std::int64_t> ids);
 
-// `n_new` particles appended to the store after the `ids.size()` there (`ids`: their ids, the
-// store's order); x, y, z: the new particles' positions.
-void admit(ExplicitScheme::State& s, std::span<const double> x, std::span<const double> y,
-           std::span<const double> z);
-void admit(OrbScheme::State& s, std::size_t n_new);
-void admit(IslandsScheme::State& s, std::size_t n_new, std::span<const std::int64_t> ids);
+// Particles appended to the store after the `ids.size()` there (`ids`: their ids, in the store's
+// order), at positions x, y, z (one per new particle). One signature for every scheme, each
+// reading what its state needs.
+void admit(ExplicitScheme::State& s, std::span<const std::int64_t> ids, std::span<const double> x,
+           std::span<const double> y, std::span<const double> z);
+void admit(OrbScheme::State& s, std::span<const std::int64_t> ids, std::span<const double> x,
+           std::span<const double> y, std::span<const double> z);
+void admit(IslandsScheme::State& s, std::span<const std::int64_t> ids, std::span<const double> x,
+           std::span<const double> y, std::span<const double> z);
 
 } // namespace cfddem::dem

@@ -19,7 +19,7 @@ namespace cfddem::fluid {
 
 GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
                      std::shared_ptr<const GridHalo> halo)
-    : grid_(grid), settings_(settings), halo_(std::move(halo)) {
+    : grid_(grid), settings_(settings), halo_(std::move(halo)), solid_(grid) {
   if (grid.distributed() != (halo_ != nullptr)) {
     throw std::invalid_argument("gas solver: a distributed grid needs its halo (and only it)");
   }
@@ -64,7 +64,15 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   beta_ = grid.make_field();
   source_ = grid.make_field();
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
-  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
+  if (grid.has_solid() && settings.implicit_viscosity && gas.viscosity > 0.0) {
+    throw std::invalid_argument(
+        "fluid implicit_viscosity = true does not take solid cells (domain.shape = \"cylinder\"): "
+        "its Helmholtz solves span the whole box; use false (\"auto\" keeps the viscosity "
+        "explicit in a column)");
+  }
+  // In a column the viscosity stays explicit (the wall's shear is point-implicit, with the drag).
+  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0 &&
+      !grid.has_solid()) {
     implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
     viscosity_->use_multigrid(settings.viscous_multigrid);
@@ -249,7 +257,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       report.viscous_iterations += vr.iterations;
     }
   }
-  fill_velocity_ghosts(grid_, halo_.get(), u_);
+  fill_ghosts_and_close();
   if (lagged) {
     return;
   }
@@ -258,14 +266,19 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     const Stopwatch timed(seconds_.projection);
     pr = projection_->project(u_, eps_, mobility_, source_, p_);
   }
-  fill_velocity_ghosts(grid_, halo_.get(), u_);
+  fill_ghosts_and_close();
   report.projection_iterations += pr.iterations;
   report.relative_residual = std::max(report.relative_residual, pr.relative_residual);
   report.used_fallback = report.used_fallback || pr.used_fallback;
 }
 
-GasStepReport GasSolver::step(double dt) {
+void GasSolver::fill_ghosts_and_close() {
   fill_velocity_ghosts(grid_, halo_.get(), u_);
+  solid_.close(u_); // a solid cell's faces (an inflow face under it too) carry no gas
+}
+
+GasStepReport GasSolver::step(double dt) {
+  fill_ghosts_and_close();
   return step_with_ghosts(dt);
 }
 
@@ -327,6 +340,9 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     const auto c = static_cast<std::size_t>(p);
     source_[c] = (eps_[c] - eps_old_[c]) / dt * source_scale;
   });
+  if (!solid_.empty()) {
+    close_solid_faces(dt);
+  }
   // Predictor: u1 = P(u^n + dt R(u^n)). Corrector (time_order 2, MFIX-Exa's predictor-
   // corrector, i.e. Heun): u^{n+1} = P(u^n + dt (R(u^n) + R(u1))/2). Each stage is projected,
   // so the returned field satisfies the constraint whatever u^n did.
@@ -400,7 +416,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   double t = 0.0;
   int count = 0;
   while (interval - t > 1e-12 * interval) {
-    fill_velocity_ghosts(grid_, halo_.get(), u_);
+    fill_ghosts_and_close();
     const std::array<double, 2> rates = courant_rates();
     if (count == 0 && settings_.implicit_viscosity_auto && viscosity_) {
       // The viscous treatment for this interval, from the Courant rates at its start.
@@ -438,11 +454,46 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   return total;
 }
 
+void GasSolver::close_solid_faces(double dt) {
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  const double nu = settings_.gas.viscosity / settings_.gas.density;
+  for (int a = 0; a < 3; ++a) {
+    std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
+    hi[a] = n[a];
+    const GridField& open = solid_.open_faces(a);
+    const GridField& wall = solid_.wall_rate(a);
+    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+      const auto f = static_cast<std::size_t>(p);
+      // No pressure coupling through a closed face; the wall's shear beside it point-implicit
+      // with the drag: (1 + k beta_f + dt nu wall_rate) u = ... (fluid/solid_mask.hpp).
+      mobility_[a][f] *= open[f];
+      drag_gain_[a][f] += dt * nu * wall[f];
+    });
+  }
+  solid_.clear_solid(source_); // the particles' volume beside the wall changes no solid cell
+}
+
 void GasSolver::cell_pressure_gradient(int axis, GridField& out) const {
   const std::ptrdiff_t s = grid_.layout().stride(axis);
   const double gp0 = background_pressure_gradient()[static_cast<std::size_t>(axis)];
   const double inv_2dx = 0.5 / grid_.spacing(axis);
   const auto& n = grid_.cells();
+  if (!solid_.empty()) {
+    // Beside the wall the difference is one-sided, across the open face only (a solid cell's
+    // p' is no gas pressure); inside the solid, the background gradient alone.
+    const GridField& open = solid_.open_faces(axis);
+    const double inv_dx = 1.0 / grid_.spacing(axis);
+    for_box(grid_.layout(), {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
+      const auto c = static_cast<std::size_t>(p);
+      const auto up = c + static_cast<std::size_t>(s);
+      const auto down = c - static_cast<std::size_t>(s);
+      const double faces = open[c] + open[up];
+      const double sum = open[up] * (p_[up] - p_[c]) + open[c] * (p_[c] - p_[down]);
+      out[c] = (faces > 0.0 ? sum / faces * inv_dx : 0.0) + gp0;
+    });
+    return;
+  }
   for_box(grid_.layout(), {0, 0, 0}, {n[0] - 1, n[1] - 1, n[2] - 1}, [&](std::ptrdiff_t p) {
     const auto c = static_cast<std::size_t>(p);
     out[c] =

@@ -18,6 +18,7 @@
 #include "fluid/momentum_rhs.hpp"
 #include "fluid/muscl_kernels.hpp"
 #include "fluid/pressure_projection.hpp"
+#include "fluid/solid_mask.hpp"
 
 namespace cfddem::fluid {
 
@@ -193,6 +194,11 @@ private:
     return settings_.time_order == 2 || settings_.advection == Advection::godunov;
   }
   void stage(double dt, Stage kind, GasStepReport& report);
+  // u's ghosts from the boundary conditions, then zero on every closed face (a column's wall).
+  void fill_ghosts_and_close();
+  // A column's faces for this step: no mobility through closed faces, the wall's shear added
+  // to the drag gain, no continuity source in solid cells.
+  void close_solid_faces(double dt);
   // step(dt) once u's ghosts are filled (advance() fills them for its Courant number). The
   // continuity source is (eps - eps_old)/dt times source_scale (advance(): interval /
   // eps_interval, from the sub-step's rate to the particles').
@@ -201,6 +207,7 @@ private:
   MacGrid grid_;
   GasSolverSettings settings_;
   std::shared_ptr<const GridHalo> halo_;
+  SolidMask solid_; // a column's solid cells (empty for a box)
   std::array<double, 3> body_{};
   std::array<GridField, 3> u_;
   std::array<GridField, 3> u_start_;

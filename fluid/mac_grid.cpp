@@ -84,6 +84,35 @@ std::vector<std::string> check_mac_grid(const MacGridSpec& spec) {
                                      face_name(f), bc.velocity[axis]));
     }
   }
+  if (spec.cylinder_axis >= 0) {
+    const int axis = spec.cylinder_axis;
+    if (axis > 2) {
+      problems.push_back(fmt::format("cylinder axis {} is not 0, 1 or 2", axis));
+    } else {
+      for (int a = 0; a < 3; ++a) {
+        if (a == axis || spec.cells[a] < 1 || !(spec.extent[a] > 0.0)) {
+          continue;
+        }
+        if (spec.bc[2 * static_cast<std::size_t>(a)].kind == BoundaryKind::periodic) {
+          problems.push_back(fmt::format(
+              "{}: periodic across the cylinder (its wall closes the axis)", axis_name[a]));
+        }
+        const double h = spec.spacing[a] > 0.0 ? spec.spacing[a] : spec.extent[a] / spec.cells[a];
+        // A staircase column needs cells across it: below 4 per diameter a fluid cell may have
+        // no gas neighbour across the axis, and the projection would see islands of gas.
+        if (!(spec.cylinder_radius > 0.0) ||
+            spec.cylinder_radius > 0.5 * spec.extent[a] * (1.0 + 1e-12)) {
+          problems.push_back(fmt::format(
+              "{}: cylinder radius {} m is not in (0, {} m], half the box's width", axis_name[a],
+              spec.cylinder_radius, 0.5 * spec.extent[a]));
+        } else if (2.0 * spec.cylinder_radius < 4.0 * h) {
+          problems.push_back(fmt::format("{}: the cylinder's diameter {} m spans fewer than 4 "
+                                         "cells of {} m (the gas needs at least 4 across it)",
+                                         axis_name[a], 2.0 * spec.cylinder_radius, h));
+        }
+      }
+    }
+  }
   if (!inflows.empty() && !outlet) {
     std::string others;
     for (int f = 0; f < kFaces; ++f) {
@@ -148,6 +177,24 @@ bool MacGrid::has_outflow() const {
     }
   }
   return false;
+}
+
+bool MacGrid::solid_cell(int i, int j, int k) const {
+  if (!has_solid()) {
+    return false;
+  }
+  const std::array<int, 3> cell = {i, j, k};
+  double r2 = 0.0;
+  for (int a = 0; a < 3; ++a) {
+    if (a == spec_.cylinder_axis) {
+      continue;
+    }
+    const double d = cell_centre(a, cell[static_cast<std::size_t>(a)]) -
+                     (spec_.origin[a] + 0.5 * spec_.extent[a]);
+    r2 += d * d;
+  }
+  // At or beyond the radius: a centre on the wall is solid, as the particles' wall holds it.
+  return !(r2 < spec_.cylinder_radius * spec_.cylinder_radius);
 }
 
 } // namespace cfddem::fluid

@@ -40,6 +40,12 @@ struct MacGridSpec {
   std::array<BoundaryCondition, kFaces> bc{};
   // MFIX's delp: p(x + L) = p(x) - delp across a periodic axis; drives flow towards +axis.
   std::array<double, 3> pressure_drop{};
+  // A round column (domain.shape = "cylinder"): along cylinder_axis through the centre of the
+  // box's cross-section, radius cylinder_radius [m]. A cell whose centre lies at or beyond the
+  // radius is solid: the gas does not enter it (a staircase wall, fluid/solid_mask.hpp).
+  // -1: no column, every cell is gas.
+  int cylinder_axis = -1;
+  double cylinder_radius = 0.0;
 };
 
 // Every problem with a spec, one message each (empty: valid).
@@ -94,6 +100,10 @@ public:
   }
   [[nodiscard]] double pressure_drop(int axis) const { return spec_.pressure_drop[axis]; }
   [[nodiscard]] bool has_outflow() const;
+  // Whether some cells are solid (a cylinder), and whether local cell (i, j, k) is one (by its
+  // centre's distance to the axis; any index).
+  [[nodiscard]] bool has_solid() const { return spec_.cylinder_axis >= 0; }
+  [[nodiscard]] bool solid_cell(int i, int j, int k) const;
   [[nodiscard]] const GridLayout& layout() const { return layout_; }
   [[nodiscard]] const MacGridSpec& spec() const { return spec_; }
 

@@ -51,6 +51,12 @@ struct MultigridPoisson::Level {
   std::array<std::array<bool, 2>, 3> exchanged{};
   int parity = 0;
   double total = 0.0;
+  // Cells whose row is not empty (diag > 0; every rank's), and whether some row is: a solid
+  // cell of a column has no open face, so its row and column are zero. Such cells keep x = 0:
+  // relaxation leaves them (inv_diag 0), the means and shifts of a singular problem skip them,
+  // line and direct solves give them an identity row.
+  double active = 0.0;
+  bool has_inactive = false;
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
         const std::array<std::array<PoissonSide, 2>, 3>& sides)
@@ -357,7 +363,7 @@ void factor_lines(Level& L) {
       double* mult = L.line_mult.data() + line * len;
       for (int m = 0; m < na; ++m) {
         const std::size_t c = base + static_cast<std::size_t>(m) * sa;
-        d[m] = L.diag[c];
+        d[m] = L.diag[c] > 0.0 ? L.diag[c] : 1.0; // an empty row: x = its right-hand side
         lo[m] = -L.K[a][c];
         up[m] = -L.K[a][c + sa];
       }
@@ -748,11 +754,33 @@ double mean_interior(const Level& L, const double* v) {
   if (L.exchange != nullptr) {
     sum = L.exchange->sum(sum);
   }
-  return sum / L.total;
+  return sum / L.active;
 }
 
 void shift_interior(const Level& L, double* v, double shift) {
+  if (L.has_inactive) {
+    for_cells(L, [&](std::size_t c) { v[c] -= L.diag[c] > 0.0 ? shift : 0.0; });
+    return;
+  }
   for_cells(L, [&](std::size_t c) { v[c] -= shift; });
+}
+
+// v = 0 on the cells with an empty row.
+void clear_inactive(const Level& L, double* v) {
+  if (L.has_inactive) {
+    for_cells(L, [&](std::size_t c) { v[c] = L.diag[c] > 0.0 ? v[c] : 0.0; });
+  }
+}
+
+// L.active and L.has_inactive from the diagonal (collective on a distributed level).
+void count_active(Level& L) {
+  double count = sum_cells(L, [&](std::size_t c, double& s) { s += L.diag[c] > 0.0 ? 1.0 : 0.0; });
+  if (L.exchange != nullptr) {
+    count = L.exchange->sum(count);
+  }
+  // A grid of one isolated cell has no non-empty row: its means stay over the cells.
+  L.active = count > 0.0 ? count : L.total;
+  L.has_inactive = L.active < L.total;
 }
 
 // The diagonal from the face coefficients and the Dirichlet faces. Row by row (the inner loops
@@ -800,6 +828,7 @@ void build_diagonal(Level& L) {
       }
     }
   });
+  count_active(L);
   factor_lines(L);
 }
 
@@ -1424,8 +1453,9 @@ void MultigridPoisson::finish_coefficients() {
   }
 }
 
-// Dense Cholesky of the coarsest operator (a singular one with its first diagonal doubled: with a
-// right-hand side of zero sum, the pinned system's solution solves the singular one).
+// Dense Cholesky of the coarsest operator (a singular one with its first non-empty diagonal
+// doubled: with a right-hand side of zero sum, the pinned system's solution solves the singular
+// one).
 void MultigridPoisson::factor_coarsest() {
   const Level& L = levels_.back();
   const std::size_t m = L.cells();
@@ -1441,13 +1471,17 @@ void MultigridPoisson::factor_coarsest() {
                (static_cast<std::size_t>(j) + static_cast<std::size_t>(L.n[1]) * k);
   };
   double* A = cholesky_.data();
+  std::size_t pin = m; // the pinned row of a singular operator
   for (int k = 0; k < L.n[2]; ++k) {
     for (int j = 0; j < L.n[1]; ++j) {
       for (int i = 0; i < L.n[0]; ++i) {
         const std::array<int, 3> cell = {i, j, k};
         const std::size_t row = id(i, j, k);
         const std::size_t c = L.at(i, j, k);
-        A[row * m + row] += L.diag[c];
+        A[row * m + row] += L.diag[c] > 0.0 ? L.diag[c] : 1.0; // an empty row: identity
+        if (L.diag[c] > 0.0 && pin == m) {
+          pin = row;
+        }
         for (int a = 0; a < 3; ++a) {
           for (int side = 0; side < 2; ++side) {
             const double coef = L.K[a][side == 0 ? c : c + static_cast<std::size_t>(L.s[a])];
@@ -1465,8 +1499,9 @@ void MultigridPoisson::factor_coarsest() {
       }
     }
   }
-  if (singular_) {
-    A[0] *= 2.0;
+  if (singular_ && pin < m) {
+    // The first cell with a non-empty row (cell 0 may be solid in a column).
+    A[pin * m + pin] *= 2.0;
   }
   for (std::size_t col = 0; col < m; ++col) {
     double d = A[col * m + col];
@@ -1499,7 +1534,8 @@ void MultigridPoisson::coarsest_solve(const double* b, double* x) {
     for (int k = 0; k < L.n[2]; ++k) {
       for (int j = 0; j < L.n[1]; ++j) {
         for (int i = 0; i < L.n[0]; ++i) {
-          y[row++] = b[L.at(i, j, k)] - mean;
+          const std::size_t c = L.at(i, j, k);
+          y[row++] = L.diag[c] > 0.0 ? b[c] - mean : 0.0;
         }
       }
     }
@@ -1643,7 +1679,7 @@ double MultigridPoisson::precondition(double* r, double* z, double r_sum) {
   const double r_mean =
       (std::isnan(r_sum) ? all_sum(sum_cells(L, [&](std::size_t c, double& s) { s += r[c]; }))
                          : r_sum) /
-      L.total;
+      L.active;
   vcycle(0, r, z, &r_mean); // the shift rides on the first smoothing pass where it can
   // z's mean: the caller removes it in its next pass over z (z's ghosts are not read before).
   // One grid of one level: the coarsest solve left it zero; gathered onto rank 0, the one-grid
@@ -1763,6 +1799,7 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     }
     rel = rel_new;
   }
+  clear_inactive(L, x_.data()); // junk a fused shift left on empty rows (their x is free)
   if (singular_) {
     shift_interior(L, x_.data(), mean_interior(L, x_.data()));
   }

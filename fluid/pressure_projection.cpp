@@ -237,8 +237,16 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   rhs_.resize(cells);
   solution_.resize(cells);
   div_ = grid.make_field();
-  const PoissonSolver solver =
-      settings.solver == PoissonSolver::automatic ? auto_solver(grid) : settings.solver;
+  if (grid.has_solid() && settings.solver == PoissonSolver::hypre) {
+    throw std::invalid_argument(
+        "fluid.solver = \"hypre\" does not take solid cells (domain.shape = \"cylinder\"): its "
+        "rows are assembled for a full box; use \"multigrid\" or \"auto\"");
+  }
+  // Solid cells leave empty rows, which the multigrid skips (multigrid_poisson.hpp): "auto"
+  // takes it for a grid with a column.
+  const PoissonSolver solver = grid.has_solid()                            ? PoissonSolver::multigrid
+                               : settings.solver == PoissonSolver::automatic ? auto_solver(grid)
+                                                                            : settings.solver;
   const bool multigrid = solver == PoissonSolver::multigrid;
   if (multigrid) {
     // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created

@@ -78,6 +78,10 @@ fluid::MacGridSpec fluid_grid_spec(const Scene& s) {
     spec.spacing[a] = f.cell_size[a];
     spec.pressure_drop[a] = f.pressure_drop[a];
   }
+  if (s.domain.cylinder()) {
+    spec.cylinder_axis = s.domain.cylinder_axis;
+    spec.cylinder_radius = s.domain.cylinder_radius;
+  }
   for (int k = 0; k < fluid::kFaces; ++k) {
     auto& bc = spec.bc[static_cast<std::size_t>(k)];
     bc.kind = boundary_kind(f.bc[static_cast<std::size_t>(k)]);
@@ -91,7 +95,9 @@ fluid::MacGridSpec fluid_grid_spec(const Scene& s) {
     // Name the key each problem comes from (the fluid library words them per axis or face).
     const std::string& p = problems.front();
     std::string key = "fluid.bc";
-    if (p.find("tile") != std::string::npos || p.find("cell size") != std::string::npos)
+    if (p.find("cylinder") != std::string::npos)
+      key = "domain.cylinder_radius";
+    else if (p.find("tile") != std::string::npos || p.find("cell size") != std::string::npos)
       key = "fluid.cell_size";
     else if (p.find(" cells") != std::string::npos)
       key = "fluid.cells";
@@ -111,6 +117,19 @@ void validate_fluid(const Scene& s) {
   if (!s.fluid.enabled)
     return;
   (void)fluid_grid_spec(s);
+  if (s.domain.cylinder()) {
+    // The column's solid cells (fluid/solid_mask.hpp) are the multigrid's empty rows, and the
+    // implicit viscous solves span the whole box.
+    if (s.fluid.solver == "hypre")
+      throw ConfigError("scene key 'fluid.solver'",
+                        "\"hypre\" does not take the solid cells of domain.shape = "
+                        "\"cylinder\"; use \"multigrid\" or \"auto\"");
+    if (s.fluid.implicit_viscosity && !s.fluid.implicit_viscosity_auto)
+      throw ConfigError("scene key 'fluid.implicit_viscosity'",
+                        "true does not take the solid cells of domain.shape = \"cylinder\" "
+                        "(its solves span the whole box); use false or \"auto\", which keeps "
+                        "the viscosity explicit in a column");
+  }
   const fluid::Advection advection = fluid::advection_named(s.fluid.advection);
   const bool mol = advection == fluid::Advection::mol;
   const double max_courant = fluid::max_stable_courant(advection);
@@ -429,16 +448,27 @@ FluidDiagnostics GasCoupling::diagnostics() const {
   const auto& global = grid_.global_cells();
   const int m = global[ax];
   const int lo = grid_.box().lo[ax];
+  // In a column the means are over the gas cells (a solid cell's p' is no gas pressure).
+  const bool column = grid_.has_solid();
   std::vector<double> plane(static_cast<std::size_t>(m), 0.0);
+  std::vector<double> gas_cells(column ? static_cast<std::size_t>(m) : 0, 0.0);
   for (int k = 0; k < nc[2]; ++k)
     for (int j = 0; j < nc[1]; ++j)
       for (int i = 0; i < nc[0]; ++i) {
         const int c[3] = {i, j, k};
-        plane[static_cast<std::size_t>(lo + c[ax])] += pp(i, j, k);
+        const auto at = static_cast<std::size_t>(lo + c[ax]);
+        if (column) {
+          if (grid_.solid_cell(i, j, k))
+            continue;
+          gas_cells[at] += 1.0;
+        }
+        plane[at] += pp(i, j, k);
       }
   if (comm_ != nullptr) {
     // Reductions over the ranks: O(cells along the axis) for the planes.
     comm_->sum(plane);
+    if (column)
+      comm_->sum(gas_cells);
     comm_->sum(d.gas_momentum);
   }
   const double per_plane = static_cast<double>(global[0]) * global[1] * global[2] / m;
@@ -446,7 +476,9 @@ FluidDiagnostics GasCoupling::diagnostics() const {
   const double dx = grid_.spacing(ax);
   for (int c = 0; c < m; ++c)
     plane[static_cast<std::size_t>(c)] =
-        plane[static_cast<std::size_t>(c)] / per_plane + gp0 * (c + 0.5) * dx;
+        plane[static_cast<std::size_t>(c)] /
+            (column ? gas_cells[static_cast<std::size_t>(c)] : per_plane) +
+        gp0 * (c + 0.5) * dx;
   const double p_lo = m > 1 ? 1.5 * plane[0] - 0.5 * plane[1] : plane[0] - 0.5 * gp0 * dx;
   const double p_hi = m > 1 ? 1.5 * plane[static_cast<std::size_t>(m - 1)] -
                                   0.5 * plane[static_cast<std::size_t>(m - 2)]
@@ -465,7 +497,8 @@ FluidDiagnostics GasCoupling::diagnostics() const {
     for (int k = 0; k < nc[2]; ++k)
       for (int j = 0; j < nc[1]; ++j)
         for (int i = 0; i < nc[0]; ++i)
-          worst = std::max(
+          if (!grid_.solid_cell(i, j, k)) // a solid cell's eps_g is not the gas's
+            worst = std::max(
               worst, std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) / source_dt));
     if (comm_ != nullptr)
       worst = comm_->max(worst);

@@ -164,9 +164,6 @@ void read_cylinder(KeyReader& k, const SceneConfig& c, Scene& s) {
           fmt::format("{} m does not fit in the box: the column along {} must lie inside it, so "
                       "R is at most half the smaller width across it, {} m",
                       d.cylinder_radius, axis, fit));
-  require(!c.has("fluid"), "domain.shape",
-          "\"cylinder\" is for particles only: the gas does not see the curved wall yet (remove "
-          "the [fluid] table, or use domain.shape = \"box\")");
 }
 
 } // namespace

@@ -15,9 +15,13 @@ namespace cfddem::fluid {
 
 enum class DpvmShape { cube, sphere };
 
-// Most cells a kernel of radius r covers along an axis of spacing dx.
+// Most cells a kernel of radius r covers along an axis of spacing dx: ceil(2r/dx) + 1 in exact
+// arithmetic, one more for rounding. dpvm_weights floors x/dx - r/dx and x/dx + r/dx apart, and
+// x/dx + r/dx may round up onto an integer while x/dx - r/dx stays below one: in
+// scenes/cylinder_bed.toml a particle on the column's axis, x = 0.8 mm less an ulp, with dx = r =
+// 0.1 mm, covered four cells, not three, and wrote past the buffer before this slot was added.
 [[nodiscard]] inline int dpvm_max_cells(double r, double dx) {
-  return static_cast<int>(std::ceil(2.0 * r / dx)) + 1;
+  return static_cast<int>(std::ceil(2.0 * r / dx)) + 2;
 }
 
 namespace detail {

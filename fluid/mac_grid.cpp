@@ -103,11 +103,11 @@ std::vector<std::string> check_mac_grid(const MacGridSpec& spec) {
         if (!(spec.cylinder_radius > 0.0) ||
             spec.cylinder_radius > 0.5 * spec.extent[a] * (1.0 + 1e-12)) {
           problems.push_back(fmt::format(
-              "{}: cylinder radius {} m is not in (0, {} m], half the box's width", axis_name[a],
+              "{}: cylinder radius {:g} m is not in (0, {:g} m], half the box's width", axis_name[a],
               spec.cylinder_radius, 0.5 * spec.extent[a]));
         } else if (2.0 * spec.cylinder_radius < 4.0 * h) {
-          problems.push_back(fmt::format("{}: the cylinder's diameter {} m spans fewer than 4 "
-                                         "cells of {} m (the gas needs at least 4 across it)",
+          problems.push_back(fmt::format("{}: the cylinder's diameter {:g} m spans fewer than 4 "
+                                         "cells of {:g} m (the gas needs at least 4 across it)",
                                          axis_name[a], 2.0 * spec.cylinder_radius, h));
         }
       }

@@ -1,6 +1,7 @@
 #!/usr/bin/python3
 """Fluidized-bed validation: the time-averaged pressure drop at steady state equals the bed's
-buoyant weight per unit area plus the gas head (docs/theory.md §6):
+buoyant weight per unit area (the box's cross-section, or a cylinder's pi R^2) plus the gas head
+(docs/theory.md §6):
 
     dp = N m g (1 - rho_g/rho_p) / A + rho_g g L          (20.04 + 0.10 Pa for the paper's bed)
 
@@ -80,6 +81,8 @@ def main():
     for k in range(3):
         if k != axis:
             area *= hi[k] - lo[k]
+    if cfg.get("domain.shape") == "cylinder":  # a round column: its cross-section pi R^2
+        area = math.pi * cfg["domain.cylinder_radius"] ** 2
     n, d, rho_p = cfg["particles.count"], cfg["particles.diameter"], cfg["particles.density"]
     rho_g = cfg["fluid.density"]
     m = rho_p * math.pi * d ** 3 / 6

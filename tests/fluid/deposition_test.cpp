@@ -112,6 +112,29 @@ TEST(DpvmWeights, SumToOneForCubeAndSphereSmallerAndLargerThanCells) {
   }
 }
 
+// A kernel centred within an ulp below a cell face, r = dx: x/dx + r/dx rounds up onto the
+// integer while x/dx - r/dx does not, so the stencil spans ceil(2 r/dx) + 2 cells. The buffer
+// dpvm_max_cells sizes must hold it (scenes/cylinder_bed.toml wrote past it before).
+TEST(DpvmWeights, StencilFitsTheBufferWhenRoundingWidensIt) {
+  const std::array<double, 3> origin = {0.0, 0.0, 0.0};
+  const std::array<double, 3> dx = {1e-4, 2e-4, 1e-4};
+  const double r = 1e-4;
+  const std::array<double, 3> x = {std::nextafter(8e-4, 0.0), 5.6e-4, 9.07e-4};
+  std::size_t capacity = 1;
+  for (int a = 0; a < 3; ++a) {
+    capacity *= static_cast<std::size_t>(dpvm_max_cells(r, dx[static_cast<std::size_t>(a)]));
+  }
+  std::vector<double> w(capacity);
+  const CellStencil s = dpvm_weights(x, r, origin, dx, DpvmShape::cube, w);
+  EXPECT_EQ(s.size[0], 4); // the case: one more cell than ceil(2 r/dx) + 1
+  ASSERT_LE(static_cast<std::size_t>(s.count()), capacity);
+  double sum = 0.0;
+  for (int m = 0; m < s.count(); ++m) {
+    sum += w[static_cast<std::size_t>(m)];
+  }
+  EXPECT_NEAR(sum, 1.0, 1e-14);
+}
+
 TEST(DpvmWeights, SphereFractionsApproachExactOctants) {
   // A sphere centred on a cell corner puts 1/8 of its volume in each of the 8 cells.
   const std::array<double, 3> origin = {0.0, 0.0, 0.0};

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 #include <string>
 
@@ -105,6 +106,30 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
   t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
   t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));
+  if (s.domain.cylinder()) {
+    // The gas's column is the staircase of cells whose centre lies inside R (docs/theory.md
+    // §13): its cross-section against pi R^2 is the wall's error at this resolution.
+    const auto [u, w] = s.domain.cross_axes();
+    const double r2 = s.domain.cylinder_radius * s.domain.cylinder_radius;
+    std::int64_t inside = 0;
+    for (std::int64_t i = 0; i < f.cells[static_cast<std::size_t>(u)]; ++i)
+      for (std::int64_t j = 0; j < f.cells[static_cast<std::size_t>(w)]; ++j) {
+        const double a = s.domain.lo[static_cast<std::size_t>(u)] +
+                         (static_cast<double>(i) + 0.5) * dx[static_cast<std::size_t>(u)] -
+                         s.domain.centre(u);
+        const double b = s.domain.lo[static_cast<std::size_t>(w)] +
+                         (static_cast<double>(j) + 0.5) * dx[static_cast<std::size_t>(w)] -
+                         s.domain.centre(w);
+        inside += a * a + b * b < r2 ? 1 : 0;
+      }
+    const double area = static_cast<double>(inside) * dx[static_cast<std::size_t>(u)] *
+                        dx[static_cast<std::size_t>(w)];
+    t.emplace_back("gas_column (staircase of whole cells)",
+                   fmt::format("{} of {} cells across, area {:.4f} pi R^2", inside,
+                               f.cells[static_cast<std::size_t>(u)] *
+                                   f.cells[static_cast<std::size_t>(w)],
+                               area / s.domain.cylinder_area()));
+  }
   t.emplace_back("gas_memory_gb (estimate, all ranks)",
                  fmt::format("{:.3g}", gas_memory_bytes(s) / 1e9));
   const double d = derived.mean_diameter;

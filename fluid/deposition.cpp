@@ -166,6 +166,36 @@ CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius,
   return s;
 }
 
+void Deposition::onto_gas_cells(const CellStencil& s, double* weight) const {
+  const auto& first = grid_.box().lo; // the stencil's indices are the grid's, not the box's
+  double gas = 0.0;
+  double solid = 0.0;
+  std::size_t m = 0;
+  for (int c = 0; c < s.size[2]; ++c) {
+    for (int b = 0; b < s.size[1]; ++b) {
+      for (int a = 0; a < s.size[0]; ++a, ++m) {
+        const bool in_solid = grid_.solid_cell(s.lo[0] + a - first[0], s.lo[1] + b - first[1],
+                                               s.lo[2] + c - first[2]);
+        (in_solid ? solid : gas) += weight[m];
+      }
+    }
+  }
+  if (!(solid > 0.0) || !(gas > 0.0)) {
+    return; // nothing in the wall, or nothing outside it (left as it is)
+  }
+  const double scale = (gas + solid) / gas;
+  m = 0;
+  for (int c = 0; c < s.size[2]; ++c) {
+    for (int b = 0; b < s.size[1]; ++b) {
+      for (int a = 0; a < s.size[0]; ++a, ++m) {
+        const bool in_solid = grid_.solid_cell(s.lo[0] + a - first[0], s.lo[1] + b - first[1],
+                                               s.lo[2] + c - first[2]);
+        weight[m] = in_solid ? 0.0 : weight[m] * scale;
+      }
+    }
+  }
+}
+
 template <class Visit>
 void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
                                  std::vector<double>& buf, Visit&& visit) const {
@@ -177,7 +207,10 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
                                     {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
                                     std::span<double, 8>(w8))
                 : stencil(x, radius, buf);
-  const double* weight = trilinear ? w8.data() : buf.data();
+  double* const weight = trilinear ? w8.data() : buf.data();
+  if (grid_.has_solid()) {
+    onto_gas_cells(s, weight);
+  }
   std::size_t m = 0; // weights are stored x fastest, as the loops run
   for (int c = 0; c < s.size[2]; ++c) {
     const int k = fold(2, s.lo[2] + c);

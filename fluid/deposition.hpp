@@ -87,6 +87,12 @@ private:
   template <class Visit>
   void for_each_weight(const std::array<double, 3>& x, double radius, std::vector<double>& buf,
                        Visit&& visit) const;
+  // In a round column (docs/theory.md §13): the weights of the kernel's solid cells moved onto
+  // its gas cells in proportion to theirs, so a particle beside the wall deposits all its volume
+  // and drag where the gas is, and interpolates from gas cells only. Cells beyond the domain's
+  // faces count as solid by their position (outside the column). A kernel without gas cells
+  // keeps its weights.
+  void onto_gas_cells(const CellStencil& s, double* weight) const;
   [[nodiscard]] int fold(int axis, int i) const;
   [[nodiscard]] int fold_in_box(int axis, int i) const;
   void reserve_weights(double kernel_radius, std::vector<double>& buf) const;

@@ -244,9 +244,10 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (s.inlet.enabled()) {
     std::string what = s.inlet.recycle ? "the particles that leave enter again" : "";
     if (s.inlet.mass_rate > 0.0) {
-      const double d_in = s.particles.diameters.fixed() ? s.particles.diameter
-                                                        : s.particles.diameters.mean;
-      const double m = ParticleStore::sphere_mass(s.particles.density, 0.5 * d_in);
+      const double d_in = s.inlet.diameter > 0.0          ? s.inlet.diameter
+                          : s.particles.diameters.fixed() ? s.particles.diameter
+                                                          : s.particles.diameters.mean;
+      const double m = ParticleStore::sphere_mass(s.inlet.density, 0.5 * d_in);
       what += fmt::format("{}{:.4g} kg/s of new particles ({:.4g} per second of {:.3g} m; {:.3g} "
                           "per fluid step of {:.3g} s)",
                           what.empty() ? "" : "; and ", s.inlet.mass_rate, s.inlet.mass_rate / m,

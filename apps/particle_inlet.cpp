@@ -32,6 +32,8 @@ ParticleInlet::ParticleInlet(const Scene& scene)
     : spec_(scene.inlet), particles_(scene.particles), geom_(scene.domain) {}
 
 double ParticleInlet::diameter(std::int64_t k) const {
+  if (spec_.diameter > 0.0)
+    return spec_.diameter; // the inlet's own size
   DiameterDistribution d = particles_.diameters;
   if (d.fixed())
     return particles_.diameter;
@@ -42,12 +44,16 @@ double ParticleInlet::diameter(std::int64_t k) const {
 double ParticleInlet::largest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return 0.0;
+  if (spec_.diameter > 0.0)
+    return 0.5 * spec_.diameter;
   return 0.5 * (particles_.diameters.fixed() ? particles_.diameter : particles_.diameters.max);
 }
 
 double ParticleInlet::smallest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return std::numeric_limits<double>::infinity();
+  if (spec_.diameter > 0.0)
+    return 0.5 * spec_.diameter;
   return 0.5 * (particles_.diameters.fixed() ? particles_.diameter : particles_.diameters.min);
 }
 
@@ -93,7 +99,7 @@ EnteringParticles ParticleInlet::enter(InletState& st, const ParticleStore& p, s
     st.owed += spec_.mass_rate * dt_f;
     const double next_mass =
         spec_.mass_rate > 0.0
-            ? ParticleStore::sphere_mass(particles_.density, 0.5 * diameter(st.drawn))
+            ? ParticleStore::sphere_mass(spec_.density, 0.5 * diameter(st.drawn))
             : std::numeric_limits<double>::infinity();
     due[0] = !st.queue_mass.empty() || st.owed >= next_mass ? 1 : 0;
   }
@@ -177,7 +183,7 @@ EnteringParticles ParticleInlet::enter(InletState& st, const ParticleStore& p, s
   if (queue_done && spec_.mass_rate > 0.0) {
     for (;;) {
       const double r = 0.5 * diameter(st.drawn);
-      const double m = ParticleStore::sphere_mass(particles_.density, r);
+      const double m = ParticleStore::sphere_mass(spec_.density, r);
       if (st.owed < m || !try_enter(r, m))
         break;
       st.owed -= m;
@@ -193,11 +199,17 @@ void widen_for_inlet(const Scene& scene, dem::ParticleRange& range) {
     return;
   // A mass rate needs a generated scene (core/scene.cpp), whose particles lie within the same
   // bounds: the range is the inlet's, on every rank count and at a restart alike.
+  // With inlet.diameter or inlet.density of its own, the bounds of both kinds.
+  const ParticleSpec& p = scene.particles;
+  const double p0 = 0.5 * (p.diameters.fixed() ? p.diameter : p.diameters.min);
+  const double p1 = 0.5 * (p.diameters.fixed() ? p.diameter : p.diameters.max);
   const double r0 = in.smallest_radius(), r1 = in.largest_radius();
   range.count = std::max<std::int64_t>(range.count, 1); // the step model reads a non-empty range
-  range.r_min = r0, range.r_max = r1;
-  range.m_min = ParticleStore::sphere_mass(scene.particles.density, r0);
-  range.m_max = ParticleStore::sphere_mass(scene.particles.density, r1);
+  range.r_min = std::min(p0, r0), range.r_max = std::max(p1, r1);
+  range.m_min = std::min(ParticleStore::sphere_mass(p.density, p0),
+                         ParticleStore::sphere_mass(scene.inlet.density, r0));
+  range.m_max = std::max(ParticleStore::sphere_mass(p.density, p1),
+                         ParticleStore::sphere_mass(scene.inlet.density, r1));
 }
 
 } // namespace cfddem::apps

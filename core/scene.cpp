@@ -421,6 +421,16 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     require(in.mass_rate == 0.0 || s.particles.file.empty(), "inlet.mass_rate",
             "draws the new particles from particles.diameter and particles.density, which a "
             "scene with particles.file does not give; use inlet.recycle");
+    for (const char* g : {"inlet.diameter", "inlet.density"})
+      require(!c.has(g) || in.mass_rate > 0.0, g,
+              "applies to inlet.mass_rate's new particles only (recycled ones keep their own)");
+    in.diameter = k.number("inlet.diameter", 0.0);
+    in.density = k.number("inlet.density", s.particles.density);
+    const double room = s.domain.cylinder()
+                            ? 2.0 * s.domain.cylinder_radius
+                            : std::min({s.domain.length(0), s.domain.length(1), s.domain.length(2)});
+    require(in.diameter < room, "inlet.diameter",
+            fmt::format("{} m does not fit in the domain (at most {} m across)", in.diameter, room));
     for (const char* g : {"inlet.region_lo", "inlet.region_hi"})
       require(c.has(g), g, "is required with an inlet");
     in.region_lo = k.vec3("inlet.region_lo", s.domain.lo);
@@ -431,6 +441,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
               "inlet.region_hi",
               fmt::format("the region must be non-empty and inside the domain (axis {})", a));
   } else { // an inlet switched off (mass_rate 0, no recycle): its region is read, unused
+    for (const char* g : {"inlet.diameter", "inlet.density"})
+      require(!c.has(g), g, "applies to inlet.mass_rate's new particles only (it is 0)");
     in.region_lo = k.vec3("inlet.region_lo", s.domain.lo);
     in.region_hi = k.vec3("inlet.region_hi", s.domain.hi);
   }
@@ -506,6 +518,11 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("inlet.region_lo", vec3(s.inlet.region_lo));
     o.emplace_back("inlet.region_hi", vec3(s.inlet.region_hi));
     o.emplace_back("inlet.velocity", vec3(s.inlet.velocity));
+    // Only where they differ from the particles' (a checkpoint's configuration stays as before).
+    if (s.inlet.diameter > 0.0)
+      o.emplace_back("inlet.diameter", num(s.inlet.diameter));
+    if (s.inlet.density != s.particles.density)
+      o.emplace_back("inlet.density", num(s.inlet.density));
     o.emplace_back("inlet.seed", std::to_string(s.inlet.seed));
   }
   const auto& d = s.dem;

@@ -59,7 +59,11 @@ struct ParticleSpec {
 
 // Particles entering the run (scene table [inlet], apps/particle_inlet.hpp).
 struct InletSpec {
-  double mass_rate = 0.0; // [kg/s] of new particles of the scene's size and density
+  double mass_rate = 0.0; // [kg/s] of new particles
+  // The new particles' diameter (0: drawn from the scene's particles.diameter or its
+  // distribution) and density (the parser resolves it: particles.density unless given).
+  double diameter = 0.0; // [m]
+  double density = 0.0;  // [kg/m^3]
   bool recycle = false;   // particles leaving through an outflow face enter again
   std::array<double, 3> region_lo{}, region_hi{}; // where entering centres are placed [m]
   std::array<double, 3> velocity{};               // [m/s]

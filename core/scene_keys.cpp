@@ -123,8 +123,10 @@ std::vector<SceneKey> make_table() {
        .meaning = "`\"box\"`: the walls of `domain.periodic` alone; `\"cylinder\"`: also a "
                   "curved wall, an axis-aligned circular column inside the box that the particles "
                   "feel with the planar walls' contact law ([theory.md](theory.md) §11); its two "
-                  "cross axes must be walled, its own axis may be periodic. Particles only (no "
-                  "gas)"},
+                  "cross axes must be walled, its own axis may be periodic. With a `[fluid]` "
+                  "table the gas sees the column as a staircase of solid cells (theory.md §13; "
+                  "at least 4 cells across the diameter, `fluid.solver` not `\"hypre\"`, "
+                  "`fluid.implicit_viscosity` not `true`)"},
       {.name = "domain.cylinder_axis",
        .type = T::String,
        .section = S::DomainParticles,
@@ -281,9 +283,10 @@ std::vector<SceneKey> make_table() {
        .range = at_least(0),
        .fallback = number(0),
        .meaning = "particles entering the run through the inlet region: new particles of "
-                  "`particles.diameter` (or its distribution) and `particles.density` at this "
-                  "mass rate, placed at random where they fit; needs a gas (they enter at "
-                  "fluid-step boundaries; see [theory.md](theory.md) §12)"},
+                  "`inlet.diameter` and `inlet.density` (by default `particles.diameter`, or its "
+                  "distribution, and `particles.density`) at this mass rate, placed at random "
+                  "where they fit; needs a gas (they enter at fluid-step boundaries; see "
+                  "[theory.md](theory.md) §12)"},
       {.name = "inlet.recycle",
        .type = T::Bool,
        .section = S::DomainParticles,
@@ -311,6 +314,21 @@ std::vector<SceneKey> make_table() {
        .unit = "m/s",
        .fallback = vec(0, 0, 0),
        .meaning = "velocity of an entering particle"},
+      {.name = "inlet.diameter",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "m",
+       .range = above(0),
+       .fallback = derived("the particles' size distribution"),
+       .meaning = "inlet.mass_rate: the new particles' diameter (one size); the scene's "
+                  "particles keep theirs"},
+      {.name = "inlet.density",
+       .type = T::Number,
+       .section = S::DomainParticles,
+       .unit = "kg/m^3",
+       .range = above(0),
+       .fallback = derived("particles.density"),
+       .meaning = "inlet.mass_rate: the new particles' density"},
       {.name = "inlet.seed",
        .type = T::Integer,
        .section = S::DomainParticles,

@@ -29,6 +29,8 @@ inlet.mass_rate:
 Usage: particle_flux_test.py CFDDEM SOURCE_DIR outflow|inlet [MPIEXEC]
 """
 import csv
+import json
+import math
 import os
 import shutil
 import subprocess
@@ -113,6 +115,36 @@ def check_empty_start(scheme, tmp):
     print(f"{scheme}: from an empty column, {r[-1]['particles']} particles by {r[-1]['time']} s")
 
 
+def check_own_kind(scheme, tmp):
+    # inlet.diameter and inlet.density of their own (60 um, 500 kg/m^3: 0.11 of the bed's
+    # particle mass): every entering particle has that mass, the rate holds as above, and the
+    # particle step is that of the lighter ones (the step model's range holds both kinds; a step
+    # of the bed's particles would let the light ones overlap past dem.max_overlap).
+    out = os.path.join(tmp, f"kind_{scheme}")
+    rate, dt_f = 2.0e-5, 1e-4
+    m_in = 500 * 4 / 3 * math.pi * 30e-6 ** 3
+    run(out, f"dem.scheme={scheme}", f"inlet.mass_rate={rate}", "inlet.region_lo=[0,0,0]",
+        "inlet.region_hi=[0.8e-3,0.5e-3,0.8e-3]", "inlet.diameter=60e-6", "inlet.density=500",
+        "run.end_time=0.003")
+    r = rows(out)
+    m0 = float(r[0]["particle_mass"])
+    for x in r:
+        t, in_ = float(x["time"]), float(x["mass_in"])
+        assert abs(in_ / m_in - round(in_ / m_in)) < 1e-9, (scheme, t, in_ / m_in)
+        assert rate * t - m_in * (1 + 1e-9) <= in_ <= rate * (t + dt_f) * (1 + 1e-9), (scheme, t, in_)
+        assert abs(float(x["particle_mass"]) - in_ + float(x["mass_out"]) - m0) <= 1e-12 * m0
+    with open(os.path.join(out, "run.json")) as f:
+        info = json.load(f)
+    cfg = info["configuration"]
+    # dt_factor sqrt(m / k) of the lighter kind (explicit shortens it to a whole number of steps
+    # per fluid step; the bed's own particles alone would give 3x more).
+    step = float(cfg["dem.dt_factor"]) * math.sqrt(m_in / float(cfg["dem.spring_constant"]))
+    shortest = dt_f / math.ceil(dt_f / step)
+    assert shortest * (1 - 1e-9) <= info["dt"] <= step * (1 + 1e-9), (scheme, info["dt"], step)
+    print(f"{scheme}: {float(r[-1]['mass_in']) / m_in:.0f} particles of the inlet's own kind in by "
+          f"{r[-1]['time']} s")
+
+
 def check_balance(scheme, tmp, ranks=1, extra=()):
     out = os.path.join(tmp, f"{scheme}_{ranks}")
     run(out, f"dem.scheme={scheme}", *extra, ranks=ranks)
@@ -189,6 +221,7 @@ def inlet(tmp):
     for scheme in ("explicit", "islands"):
         check_mass_rate(scheme, tmp)
         check_empty_start(scheme, tmp)
+        check_own_kind(scheme, tmp)
     if MPIEXEC:
         close_counts(counts["explicit"], check_recycle("explicit", tmp, ranks=2), "explicit")
         check_restart("orb", tmp, ranks=2, extra=RECYCLE)

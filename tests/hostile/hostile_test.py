@@ -313,8 +313,14 @@ def inlet_and_outflow_keys_refused_naming_the_key(ctx):
             (CFB, "particles.outflow=wall", r"'inlet.recycle'.*particles.outflow must be "
                                             r"\"remove\""),
             (CFB, "particles.outflow=vanish", r"'particles.outflow'"),
-            (CFB, "inlet.velocity=[0,inf,0]", r"'inlet.velocity'")):
+            (CFB, "inlet.velocity=[0,inf,0]", r"'inlet.velocity'"),
+            (CFB, "inlet.diameter=1e-4", r"'inlet.diameter'.*applies to inlet.mass_rate's new "
+                                         r"particles only")):
         expect(ctx, ["run", scene, override], 2, r"scene key " + needle)
+    # The inlet's own kind: a size that does not fit, a density out of range.
+    for override, needle in (("inlet.diameter=5e-3", r"'inlet.diameter'.*does not fit"),
+                             ("inlet.density=-2", r"'inlet.density'.*must be > 0")):
+        expect(ctx, ["run", CFB, "inlet.mass_rate=1e-6", override], 2, r"scene key " + needle)
 
 
 @case

@@ -412,6 +412,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   in.recycle = k.flag("inlet.recycle");
   in.velocity = k.vec3("inlet.velocity");
   in.seed = static_cast<std::uint64_t>(k.integer("inlet.seed"));
+  in.diameter = k.number("inlet.diameter", 0.0);
+  in.density = k.number("inlet.density", s.particles.density);
   if (in.enabled()) {
     const char* why = in.recycle ? "inlet.recycle" : "inlet.mass_rate";
     require(s.fluid.enabled, why,
@@ -424,8 +426,6 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     for (const char* g : {"inlet.diameter", "inlet.density"})
       require(!c.has(g) || in.mass_rate > 0.0, g,
               "applies to inlet.mass_rate's new particles only (recycled ones keep their own)");
-    in.diameter = k.number("inlet.diameter", 0.0);
-    in.density = k.number("inlet.density", s.particles.density);
     const double room = s.domain.cylinder()
                             ? 2.0 * s.domain.cylinder_radius
                             : std::min({s.domain.length(0), s.domain.length(1), s.domain.length(2)});
@@ -518,11 +518,15 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("inlet.region_lo", vec3(s.inlet.region_lo));
     o.emplace_back("inlet.region_hi", vec3(s.inlet.region_hi));
     o.emplace_back("inlet.velocity", vec3(s.inlet.velocity));
-    // Only where they differ from the particles' (a checkpoint's configuration stays as before).
-    if (s.inlet.diameter > 0.0)
-      o.emplace_back("inlet.diameter", num(s.inlet.diameter));
-    if (s.inlet.density != s.particles.density)
+    if (s.inlet.mass_rate > 0.0) { // a recycling inlet's configuration lines stay as before
+      // One size (the inlet's, or the particles' fixed one); a distribution is the particles'.
+      const double d = s.inlet.diameter > 0.0         ? s.inlet.diameter
+                       : s.particles.diameters.fixed() ? s.particles.diameter
+                                                       : 0.0;
+      if (d > 0.0)
+        o.emplace_back("inlet.diameter", num(d));
       o.emplace_back("inlet.density", num(s.inlet.density));
+    }
     o.emplace_back("inlet.seed", std::to_string(s.inlet.seed));
   }
   const auto& d = s.dem;

@@ -106,6 +106,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
   t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
   t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));
+  double column_area = 0.0; // a column's gas cross-section [m^2]
   if (s.domain.cylinder()) {
     // The gas's column is the staircase of cells whose centre lies inside R (docs/theory.md
     // §13): its cross-section against pi R^2 is the wall's error at this resolution.
@@ -124,6 +125,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
       }
     const double area = static_cast<double>(inside) * dx[static_cast<std::size_t>(u)] *
                         dx[static_cast<std::size_t>(w)];
+    column_area = area;
     t.emplace_back("gas_column (staircase of whole cells)",
                    fmt::format("{} of {} cells across, area {:.4f} pi R^2", inside,
                                f.cells[static_cast<std::size_t>(u)] *
@@ -223,6 +225,28 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     const double u_in = std::abs(f.inflow_velocity[static_cast<std::size_t>(axis)]);
     if (u_in > 0)
       t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));
+  }
+  // The gas entering through inflow faces: u_in over the face's open area (in a column, the
+  // gas cells' staircase: docs/theory.md §13).
+  {
+    static constexpr const char* kFaceNames[] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
+    std::string rates;
+    for (std::size_t k = 0; k < 6; ++k) {
+      if (f.bc[k] != "inflow")
+        continue;
+      const int a = static_cast<int>(k / 2);
+      double area = 1.0;
+      for (int b = 0; b < 3; ++b)
+        if (b != a)
+          area *= s.domain.length(b);
+      if (s.domain.cylinder() && a == s.domain.cylinder_axis)
+        area = column_area;
+      const double q = std::abs(f.inflow_velocity[static_cast<std::size_t>(a)]) * area;
+      rates += fmt::format("{}{}: {:.4g} m^3/s, {:.4g} kg/s", rates.empty() ? "" : "; ",
+                           kFaceNames[k], q, q * f.density);
+    }
+    if (!rates.empty())
+      t.emplace_back("gas_inflow (volume, mass per second)", rates);
   }
   // Particles at the outflow faces (apps/particle_outflow.hpp).
   {

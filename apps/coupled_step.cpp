@@ -117,19 +117,11 @@ void validate_fluid(const Scene& s) {
   if (!s.fluid.enabled)
     return;
   (void)fluid_grid_spec(s);
-  if (s.domain.cylinder()) {
-    // The column's solid cells (fluid/solid_mask.hpp) are the multigrid's empty rows, and the
-    // implicit viscous solves span the whole box.
-    if (s.fluid.solver == "hypre")
-      throw ConfigError("scene key 'fluid.solver'",
-                        "\"hypre\" does not take the solid cells of domain.shape = "
-                        "\"cylinder\"; use \"multigrid\" or \"auto\"");
-    if (s.fluid.implicit_viscosity && !s.fluid.implicit_viscosity_auto)
-      throw ConfigError("scene key 'fluid.implicit_viscosity'",
-                        "true does not take the solid cells of domain.shape = \"cylinder\" "
-                        "(its solves span the whole box); use false or \"auto\", which keeps "
-                        "the viscosity explicit in a column");
-  }
+  // The column's solid cells (fluid/solid_mask.hpp) are the multigrid's empty rows.
+  if (s.domain.cylinder() && s.fluid.solver == "hypre")
+    throw ConfigError("scene key 'fluid.solver'",
+                      "\"hypre\" does not take the solid cells of domain.shape = "
+                      "\"cylinder\"; use \"multigrid\" or \"auto\"");
   const fluid::Advection advection = fluid::advection_named(s.fluid.advection);
   const bool mol = advection == fluid::Advection::mol;
   const double max_courant = fluid::max_stable_courant(advection);

@@ -125,8 +125,7 @@ std::vector<SceneKey> make_table() {
                   "feel with the planar walls' contact law ([theory.md](theory.md) §11); its two "
                   "cross axes must be walled, its own axis may be periodic. With a `[fluid]` "
                   "table the gas sees the column as a staircase of solid cells (theory.md §13; "
-                  "at least 4 cells across the diameter, `fluid.solver` not `\"hypre\"`, "
-                  "`fluid.implicit_viscosity` not `true`)"},
+                  "at least 4 cells across the diameter, `fluid.solver` not `\"hypre\"`)"},
       {.name = "domain.cylinder_axis",
        .type = T::String,
        .section = S::DomainParticles,

@@ -64,15 +64,7 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   beta_ = grid.make_field();
   source_ = grid.make_field();
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
-  if (grid.has_solid() && settings.implicit_viscosity && gas.viscosity > 0.0) {
-    throw std::invalid_argument(
-        "fluid implicit_viscosity = true does not take solid cells (domain.shape = \"cylinder\"): "
-        "its Helmholtz solves span the whole box; use false (\"auto\" keeps the viscosity "
-        "explicit in a column)");
-  }
-  // In a column the viscosity stays explicit (the wall's shear is point-implicit, with the drag).
-  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0 &&
-      !grid.has_solid()) {
+  if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
     implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
     viscosity_->use_multigrid(settings.viscous_multigrid);
@@ -463,12 +455,17 @@ void GasSolver::close_solid_faces(double dt) {
     hi[a] = n[a];
     const GridField& open = solid_.open_faces(a);
     const GridField& wall = solid_.wall_rate(a);
+    const GridField& normal = solid_.normal_rate(a);
+    // The explicit Laplacian reads a closed neighbour as zero, so only the mirror's extra shear
+    // is added; the implicit one cuts the links to closed faces (fluid/implicit_viscosity.hpp),
+    // so the wall's whole shear, and the normal neighbour's zero, come back here.
+    const bool implicit = implicit_now_;
     for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
       const auto f = static_cast<std::size_t>(p);
       // No pressure coupling through a closed face; the wall's shear beside it point-implicit
       // with the drag: (1 + k beta_f + dt nu wall_rate) u = ... (fluid/solid_mask.hpp).
       mobility_[a][f] *= open[f];
-      drag_gain_[a][f] += dt * nu * wall[f];
+      drag_gain_[a][f] += dt * nu * (implicit ? 2.0 * wall[f] + normal[f] : wall[f]);
     });
   }
   solid_.clear_solid(source_); // the particles' volume beside the wall changes no solid cell

@@ -1,5 +1,7 @@
 #include "fluid/implicit_viscosity.hpp"
 
+#include "fluid/solid_mask.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -10,6 +12,7 @@
 #include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
+#include "fluid/solid_mask.hpp"
 
 namespace cfddem::fluid {
 
@@ -76,6 +79,33 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
       k = GridField(grid.layout());
     }
   }
+  if (grid.has_solid()) {
+    // A round column (fluid/solid_mask.hpp): the link between two unknowns of a component is
+    // open where both faces are; a closed face is cut from every neighbour (its row is the mass
+    // term alone, and the gas step zeroes it), and an open face beside one loses that link,
+    // the wall's no-slip coming back through the diagonal (GasSolver: the wall's shear).
+    const SolidMask mask(grid);
+    for (int comp = 0; comp < 3; ++comp) {
+      const std::span<const double> open = mask.open_faces(comp).values();
+      for (int b = 0; b < 3; ++b) {
+        GridField& l = links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(b)];
+        l = GridField(grid.layout(), 0.0);
+        const auto sb = static_cast<std::size_t>(grid.layout().stride(b));
+        for (std::size_t m = sb; m < open.size(); ++m) {
+          l[m] = open[m] * open[m - sb];
+        }
+      }
+    }
+  }
+}
+
+double ImplicitViscosity::link(int comp, int b, std::ptrdiff_t p) const {
+  return links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(b)]
+                  .values()
+                  .empty()
+             ? 1.0
+             : links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(b)]
+                     [static_cast<std::size_t>(p)];
 }
 
 void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
@@ -125,6 +155,11 @@ void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
           if (on_inflow({i, j, kk})) {
             k[row + (i - lo[0])] = inv_dx2 * kInflowVolumeFraction;
           }
+        }
+      }
+      if (grid_.has_solid()) {
+        for (std::ptrdiff_t p = row; p <= end; ++p) {
+          k[p] *= link(comp, b, p);
         }
       }
     });
@@ -205,8 +240,10 @@ void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const Gr
         for (int b = 0; b < 3; ++b) {
           const std::ptrdiff_t sb = layout.stride(b);
           const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
-          const double e_lo = cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx));
-          const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx));
+          const double e_lo =
+              cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx)) * link(comp, b, p);
+          const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx)) *
+                              link(comp, b, p + sb);
           sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
         }
         y[static_cast<std::size_t>(p)] = diag[static_cast<std::size_t>(p)] * q[p] - c * sum;
@@ -279,8 +316,10 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
           std::array<int, 3> dn = up;
           dn[b] -= 1;
           s.coef[static_cast<std::size_t>(b)][box.index(ii, jj, kk)] =
-              k * cv_face_eps(ep, p, sa, sb, b == comp,
-                              inflow_plane(b, 0, up) || inflow_plane(b, 1, dn));
+              k *
+              cv_face_eps(ep, p, sa, sb, b == comp,
+                          inflow_plane(b, 0, up) || inflow_plane(b, 1, dn)) *
+              link(comp, b, p);
         }
       }
     });
@@ -400,9 +439,11 @@ ViscousSolveReport ImplicitViscosity::solve_cg(int comp, double c, const GridFie
         const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
         centre += c * inv_dx2 *
                   (cv_face_eps(eps.values().data(), p, layout.stride(comp), sb, b == comp,
-                               inflow_plane(b, 0, idx)) +
+                               inflow_plane(b, 0, idx)) *
+                       link(comp, b, p) +
                    cv_face_eps(eps.values().data(), p + sb, layout.stride(comp), sb, b == comp,
-                               inflow_plane(b, 1, idx)));
+                               inflow_plane(b, 1, idx)) *
+                       link(comp, b, p + sb));
       }
       out[static_cast<std::size_t>(p)] = in[static_cast<std::size_t>(p)] / centre;
     });

@@ -96,6 +96,9 @@ private:
   // the plane of a velocity-inflow face (only meaningful for b != comp: cv_face_eps ignores it
   // otherwise).
   [[nodiscard]] bool inflow_plane(int b, int side, const std::array<int, 3>& idx) const;
+  // 1 where the link between the comp-face at p and the one below it along b is open (both
+  // faces open in a round column, fluid/solid_mask.hpp), 0 where it is cut; 1 without a column.
+  [[nodiscard]] double link(int comp, int b, std::ptrdiff_t p) const;
 
   MacGrid grid_;
   MacGrid homogeneous_; // same faces with zero inflow velocity: BCs of a correction
@@ -115,6 +118,8 @@ private:
   bool chebyshev_ = true;
   // Chebyshev: face coefficients, inverse diagonal and the two search directions.
   std::array<std::array<GridField, 3>, 3> cv_k_;
+  // A column's links per component and axis (empty without one; link()).
+  std::array<std::array<GridField, 3>, 3> links_;
   std::array<GridField, 3> eps_seen_;
   std::array<bool, 3> cv_k_valid_{};
   GridField inv_diag_, dir_, dir_next_;

@@ -48,8 +48,20 @@ SolidMask::SolidMask(const MacGrid& grid) : active_(grid.has_solid()) {
   for (int a = 0; a < 3; ++a) {
     std::array<int, 3> top = {n[0] - 1, n[1] - 1, n[2] - 1};
     top[a] = n[a];
+    normal_[a] = grid.make_field(0.0);
     for (int b = 0; b < 3; ++b) {
       if (b == a) {
+        // Along its own axis a closed neighbour lies in the domain whenever the face is open
+        // (the face between a gas and a solid cell).
+        const auto sa = static_cast<std::size_t>(layout.stride(a));
+        const double inv_h2 = 1.0 / (grid.spacing(a) * grid.spacing(a));
+        for_box(layout, {0, 0, 0}, top, [&](std::ptrdiff_t p) {
+          const auto f = static_cast<std::size_t>(p);
+          if (faces_[a][f] != 0.0) {
+            normal_[a][f] = inv_h2 * ((faces_[a][f - sa] == 0.0 ? 1.0 : 0.0) +
+                                      (faces_[a][f + sa] == 0.0 ? 1.0 : 0.0));
+          }
+        });
         continue;
       }
       const auto sb = static_cast<std::size_t>(layout.stride(b));

@@ -34,6 +34,11 @@ public:
   // Per open a-face: sum over the closed tangential neighbours inside the domain of 1 / h_b^2
   // [1/m^2]; the wall's shear on the face is -nu wall_rate u.
   [[nodiscard]] const GridField& wall_rate(int axis) const { return wall_[axis]; }
+  // Per open a-face: sum over its closed neighbours along a (a-faces on the wall, where u_a = 0
+  // is exact) of 1 / h_a^2. With the viscosity implicit the links to closed faces are cut
+  // (fluid/implicit_viscosity.hpp), and the wall comes back on the diagonal as
+  // nu (2 wall_rate + normal_rate).
+  [[nodiscard]] const GridField& normal_rate(int axis) const { return normal_[axis]; }
 
   // u_a = 0 on every closed face (all indices).
   void close(std::array<GridField, 3>& u) const;
@@ -43,7 +48,7 @@ public:
 private:
   bool active_ = false;
   GridField cells_;
-  std::array<GridField, 3> faces_, wall_;
+  std::array<GridField, 3> faces_, wall_, normal_;
 };
 
 } // namespace cfddem::fluid

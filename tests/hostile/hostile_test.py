@@ -287,11 +287,9 @@ def cylinder_keys_refused_naming_the_key(ctx):
             (SMALL, "domain.cylinder_radius=5e-4", r"'domain.cylinder_radius'.*applies to "
                                                    r"domain.shape = \"cylinder\" only")):
         expect(ctx, ["run", scene, override], 2, r"scene key " + needle)
-    # The gas in a column: the multigrid's empty rows and the explicit viscosity only.
+    # The gas in a column: the multigrid's empty rows, at least 4 cells across.
     for override, needle in (
             ("fluid.solver=hypre", r"'fluid.solver'.*does not take the solid cells"),
-            ("fluid.implicit_viscosity=true", r"'fluid.implicit_viscosity'.*does not take the "
-                                              r"solid cells"),
             ("domain.cylinder_radius=2e-4", r"'domain.cylinder_radius'.*spans fewer than 4 cells")):
         expect(ctx, ["run", SETTLING, "domain.shape=cylinder", override], 2,
                r"scene key " + needle)

@@ -126,6 +126,15 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     const double area = static_cast<double>(inside) * dx[static_cast<std::size_t>(u)] *
                         dx[static_cast<std::size_t>(w)];
     column_area = area;
+    // The gas's column and the particles' differ by the staircase: its area sets the gas's
+    // superficial velocity and the pressure drop a bed's weight makes.
+    if (std::abs(area / s.domain.cylinder_area() - 1.0) > 0.05)
+      out.warnings.push_back(fmt::format(
+          "the gas's column is a staircase of {} whole cells whose area is {:.3f} pi R^2: the gas "
+          "sees a column {:+.1f}% off in area (the particles see pi R^2); use more cells across "
+          "the diameter",
+          inside, area / s.domain.cylinder_area(),
+          100.0 * (area / s.domain.cylinder_area() - 1.0)));
     t.emplace_back("gas_column (staircase of whole cells)",
                    fmt::format("{} of {} cells across, area {:.4f} pi R^2", inside,
                                f.cells[static_cast<std::size_t>(u)] *

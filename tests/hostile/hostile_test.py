@@ -293,6 +293,10 @@ def cylinder_keys_refused_naming_the_key(ctx):
             ("domain.cylinder_radius=2e-4", r"'domain.cylinder_radius'.*spans fewer than 4 cells")):
         expect(ctx, ["run", SETTLING, "domain.shape=cylinder", override], 2,
                r"scene key " + needle)
+    # A column too coarse for its area: check warns with the staircase's area.
+    expect(ctx, ["check", SETTLING, "domain.shape=cylinder", "fluid.cells=[6,6,6]"], 0,
+           r"warning: the gas's column is a staircase of 32 whole cells whose area is 1\.132 pi "
+           r"R\^2")
 
 
 CFB = os.path.join(SCENES, "cfb_riser.toml")  # a recycling inlet, an outflow top face

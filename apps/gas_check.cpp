@@ -277,7 +277,8 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (s.inlet.enabled()) {
     std::string what = s.inlet.recycle ? "the particles that leave enter again" : "";
     if (s.inlet.mass_rate > 0.0) {
-      const double d_in = s.inlet.diameter > 0.0          ? s.inlet.diameter
+      const DiameterDistribution& own = s.inlet.diameters;
+      const double d_in = s.inlet.diameter > 0.0 ? (own.fixed() ? s.inlet.diameter : own.mean)
                           : s.particles.diameters.fixed() ? s.particles.diameter
                                                           : s.particles.diameters.mean;
       const double m = ParticleStore::sphere_mass(s.inlet.density, 0.5 * d_in);

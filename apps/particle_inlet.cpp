@@ -32,9 +32,9 @@ ParticleInlet::ParticleInlet(const Scene& scene)
     : spec_(scene.inlet), particles_(scene.particles), geom_(scene.domain) {}
 
 double ParticleInlet::diameter(std::int64_t k) const {
-  if (spec_.diameter > 0.0)
+  if (spec_.diameter > 0.0 && spec_.diameters.fixed())
     return spec_.diameter; // the inlet's own size
-  DiameterDistribution d = particles_.diameters;
+  DiameterDistribution d = spec_.diameter > 0.0 ? spec_.diameters : particles_.diameters;
   if (d.fixed())
     return particles_.diameter;
   DiameterStream s(d, mix(spec_.seed, static_cast<std::uint64_t>(k)));
@@ -45,7 +45,7 @@ double ParticleInlet::largest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return 0.0;
   if (spec_.diameter > 0.0)
-    return 0.5 * spec_.diameter;
+    return 0.5 * spec_.diameter; // one size, or its distribution's largest
   return 0.5 * (particles_.diameters.fixed() ? particles_.diameter : particles_.diameters.max);
 }
 
@@ -53,7 +53,7 @@ double ParticleInlet::smallest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return std::numeric_limits<double>::infinity();
   if (spec_.diameter > 0.0)
-    return 0.5 * spec_.diameter;
+    return 0.5 * (spec_.diameters.fixed() ? spec_.diameter : spec_.diameters.min);
   return 0.5 * (particles_.diameters.fixed() ? particles_.diameter : particles_.diameters.min);
 }
 

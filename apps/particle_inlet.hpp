@@ -1,8 +1,8 @@
 // Particles entering a run through an inlet region (scene table [inlet], docs/theory.md §12): at
 // each fluid-step boundary the inlet places the particles due, at random positions in its region
 // where they fit (no overlap with any particle or wall), with the inlet velocity.
-// - inlet.mass_rate: new particles of inlet.diameter and inlet.density (by default the scene's
-//   size distribution and density); the mass due
+// - inlet.mass_rate: new particles of inlet.diameter (one size or a distribution) and
+//   inlet.density (by default the scene's size distribution and density); the mass due
 //   grows by mass_rate x dt_f per fluid step, and a particle enters once the mass due covers it.
 // - inlet.recycle: the particles that left through an outflow face (apps/particle_outflow.hpp)
 //   enter again, in the order of their ids, each with its own radius and mass and a new id.

@@ -40,7 +40,7 @@ double DiameterStream::next() {
     if (d >= dist_.min && d <= dist_.max)
       return d;
   }
-  throw ConfigError("scene key 'particles.diameter'",
+  throw ConfigError(fmt::format("scene key '{}'", dist_.key),
                     fmt::format("1000 {} draws in a row (mean {} m, std {} m) fell outside "
                                 "[min, max] = [{}, {}] m: widen the range or move the mean into it",
                                 dist_.kind, dist_.mean, dist_.std, dist_.min, dist_.max));

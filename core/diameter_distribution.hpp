@@ -26,6 +26,7 @@ struct DiameterDistribution {
   double mean = 0.0;           // [m]
   double std = 0.0;            // normal, lognormal [m]
   double min = 0.0, max = 0.0; // truncation (uniform: the range) [m]
+  std::string key = "particles.diameter"; // the scene key it comes from (messages)
   [[nodiscard]] bool fixed() const { return kind == "fixed"; }
 };
 

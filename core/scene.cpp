@@ -138,6 +138,27 @@ private:
   SceneConfig& c_;
 };
 
+// A size distribution, the table `<key> = { distribution, mean, std, min, max }`
+// (core/diameter_distribution.hpp), for the particles or an inlet.
+DiameterDistribution read_diameters(KeyReader& k, const SceneConfig& c, const std::string& key) {
+  DiameterDistribution dd;
+  dd.key = key;
+  dd.kind = k.word(key + ".distribution", "");
+  dd.min = k.number(key + ".min");
+  dd.max = k.number(key + ".max");
+  require(dd.max > dd.min, key + ".max",
+          fmt::format("must be > {}.min ({} m), got {} m", key, dd.min, dd.max));
+  if (dd.kind == "uniform") {
+    for (const std::string& g : {key + ".mean", key + ".std"})
+      require(!c.has(g), g, "a uniform distribution takes only min and max");
+    dd.mean = 0.5 * (dd.min + dd.max);
+  } else {
+    dd.mean = k.number(key + ".mean");
+    dd.std = k.number(key + ".std");
+  }
+  return dd;
+}
+
 // domain.shape and the cylinder's keys (read for a box too, where the cylinder's keys are
 // refused when given): a column that fits inside the box, across walled axes only.
 void read_cylinder(KeyReader& k, const SceneConfig& c, Scene& s) {
@@ -225,22 +246,8 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   if (p.file.empty()) {
     p.count = k.integer("particles.count");
     if (c.has("particles.diameter.distribution")) {
-      // A table { distribution, mean, std, min, max } (core/diameter_distribution.hpp).
-      auto& dd = p.diameters;
-      dd.kind = k.word("particles.diameter.distribution", "");
-      dd.min = k.number("particles.diameter.min");
-      dd.max = k.number("particles.diameter.max");
-      require(dd.max > dd.min, "particles.diameter.max",
-              fmt::format("must be > particles.diameter.min ({} m), got {} m", dd.min, dd.max));
-      if (dd.kind == "uniform") {
-        for (const char* g : {"particles.diameter.mean", "particles.diameter.std"})
-          require(!c.has(g), g, "a uniform distribution takes only min and max");
-        dd.mean = 0.5 * (dd.min + dd.max);
-      } else {
-        dd.mean = k.number("particles.diameter.mean");
-        dd.std = k.number("particles.diameter.std");
-      }
-      p.diameter = dd.max;
+      p.diameters = read_diameters(k, c, "particles.diameter");
+      p.diameter = p.diameters.max;
     } else {
       p.diameter = k.number("particles.diameter"); // diameters stays "fixed"
     }
@@ -412,7 +419,12 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   in.recycle = k.flag("inlet.recycle");
   in.velocity = k.vec3("inlet.velocity");
   in.seed = static_cast<std::uint64_t>(k.integer("inlet.seed"));
-  in.diameter = k.number("inlet.diameter", 0.0);
+  if (c.has("inlet.diameter.distribution")) {
+    in.diameters = read_diameters(k, c, "inlet.diameter");
+    in.diameter = in.diameters.max;
+  } else {
+    in.diameter = k.number("inlet.diameter", 0.0);
+  }
   in.density = k.number("inlet.density", s.particles.density);
   if (in.enabled()) {
     const char* why = in.recycle ? "inlet.recycle" : "inlet.mass_rate";
@@ -423,7 +435,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
     require(in.mass_rate == 0.0 || s.particles.file.empty(), "inlet.mass_rate",
             "draws the new particles from particles.diameter and particles.density, which a "
             "scene with particles.file does not give; use inlet.recycle");
-    for (const char* g : {"inlet.diameter", "inlet.density"})
+    for (const char* g : {"inlet.diameter", "inlet.diameter.distribution", "inlet.density"})
       require(!c.has(g) || in.mass_rate > 0.0, g,
               "applies to inlet.mass_rate's new particles only (recycled ones keep their own)");
     const double room = s.domain.cylinder()
@@ -441,7 +453,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
               "inlet.region_hi",
               fmt::format("the region must be non-empty and inside the domain (axis {})", a));
   } else { // an inlet switched off (mass_rate 0, no recycle): its region is read, unused
-    for (const char* g : {"inlet.diameter", "inlet.density"})
+    for (const char* g : {"inlet.diameter", "inlet.diameter.distribution", "inlet.density"})
       require(!c.has(g), g, "applies to inlet.mass_rate's new particles only (it is 0)");
     in.region_lo = k.vec3("inlet.region_lo", s.domain.lo);
     in.region_hi = k.vec3("inlet.region_hi", s.domain.hi);
@@ -519,12 +531,24 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("inlet.region_hi", vec3(s.inlet.region_hi));
     o.emplace_back("inlet.velocity", vec3(s.inlet.velocity));
     if (s.inlet.mass_rate > 0.0) { // a recycling inlet's configuration lines stay as before
-      // One size (the inlet's, or the particles' fixed one); a distribution is the particles'.
-      const double d = s.inlet.diameter > 0.0         ? s.inlet.diameter
-                       : s.particles.diameters.fixed() ? s.particles.diameter
-                                                       : 0.0;
-      if (d > 0.0)
-        o.emplace_back("inlet.diameter", num(d));
+      // The inlet's size or distribution, or the particles' fixed size (a distribution of the
+      // particles' is theirs, listed above).
+      const DiameterDistribution& dd = s.inlet.diameters;
+      if (!dd.fixed()) {
+        o.emplace_back("inlet.diameter.distribution", str(dd.kind));
+        if (dd.kind != "uniform") {
+          o.emplace_back("inlet.diameter.mean", num(dd.mean));
+          o.emplace_back("inlet.diameter.std", num(dd.std));
+        }
+        o.emplace_back("inlet.diameter.min", num(dd.min));
+        o.emplace_back("inlet.diameter.max", num(dd.max));
+      } else {
+        const double d = s.inlet.diameter > 0.0         ? s.inlet.diameter
+                         : s.particles.diameters.fixed() ? s.particles.diameter
+                                                         : 0.0;
+        if (d > 0.0)
+          o.emplace_back("inlet.diameter", num(d));
+      }
       o.emplace_back("inlet.density", num(s.inlet.density));
     }
     o.emplace_back("inlet.seed", std::to_string(s.inlet.seed));

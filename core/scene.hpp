@@ -62,7 +62,8 @@ struct InletSpec {
   double mass_rate = 0.0; // [kg/s] of new particles
   // The new particles' diameter (0: drawn from the scene's particles.diameter or its
   // distribution) and density (the parser resolves it: particles.density unless given).
-  double diameter = 0.0; // [m]
+  double diameter = 0.0; // [m]; with a distribution, its largest value
+  DiameterDistribution diameters; // inlet.diameter = { distribution, ... }; "fixed" otherwise
   double density = 0.0;  // [kg/m^3]
   bool recycle = false;   // particles leaving through an outflow face enter again
   std::array<double, 3> region_lo{}, region_hi{}; // where entering centres are placed [m]

@@ -145,6 +145,36 @@ def check_own_kind(scheme, tmp):
           f"{r[-1]['time']} s")
 
 
+def check_own_distribution(scheme, tmp):
+    # inlet.diameter = { uniform, 60..80 um } and 500 kg/m^3: each entering particle draws its own
+    # size; the rate holds within one particle of the largest mass, the balance closes, and the
+    # step is that of the smallest entering particle.
+    out = os.path.join(tmp, f"dist_{scheme}")
+    rate, dt_f = 2.0e-5, 1e-4
+    m_lo = 500 * 4 / 3 * math.pi * 30e-6 ** 3
+    m_hi = 500 * 4 / 3 * math.pi * 40e-6 ** 3
+    run(out, f"dem.scheme={scheme}", f"inlet.mass_rate={rate}", "inlet.region_lo=[0,0,0]",
+        "inlet.region_hi=[0.8e-3,0.5e-3,0.8e-3]",
+        'inlet.diameter={distribution="uniform",min=60e-6,max=80e-6}', "inlet.density=500",
+        "run.end_time=0.002")
+    r = rows(out)
+    m0, n0 = float(r[0]["particle_mass"]), int(float(r[0]["particles"]))
+    for x in r:
+        t, in_ = float(x["time"]), float(x["mass_in"])
+        assert rate * t - m_hi * (1 + 1e-9) <= in_ <= rate * (t + dt_f) * (1 + 1e-9), (scheme, t, in_)
+        assert abs(float(x["particle_mass"]) - in_ + float(x["mass_out"]) - m0) <= 1e-12 * m0
+    entered = int(float(r[-1]["particles"])) - n0  # nothing leaves this early
+    in_ = float(r[-1]["mass_in"])
+    assert in_ / m_hi <= entered <= in_ / m_lo, (scheme, entered, in_ / m_hi, in_ / m_lo)
+    with open(os.path.join(out, "run.json")) as f:
+        info = json.load(f)
+    cfg = info["configuration"]
+    step = float(cfg["dem.dt_factor"]) * math.sqrt(m_lo / float(cfg["dem.spring_constant"]))
+    assert dt_f / math.ceil(dt_f / step) * (1 - 1e-9) <= info["dt"] <= step * (1 + 1e-9), info["dt"]
+    print(f"{scheme}: {entered} particles of the inlet's own distribution in by {r[-1]['time']} s "
+          f"(mean mass {in_ / entered:.3g} kg, between {m_lo:.3g} and {m_hi:.3g})")
+
+
 def check_balance(scheme, tmp, ranks=1, extra=()):
     out = os.path.join(tmp, f"{scheme}_{ranks}")
     run(out, f"dem.scheme={scheme}", *extra, ranks=ranks)
@@ -222,6 +252,7 @@ def inlet(tmp):
         check_mass_rate(scheme, tmp)
         check_empty_start(scheme, tmp)
         check_own_kind(scheme, tmp)
+        check_own_distribution(scheme, tmp)
     if MPIEXEC:
         close_counts(counts["explicit"], check_recycle("explicit", tmp, ranks=2), "explicit")
         check_restart("orb", tmp, ranks=2, extra=RECYCLE)

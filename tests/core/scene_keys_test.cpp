@@ -86,6 +86,19 @@ const Lines kInlet = [] {
   return lines;
 }();
 
+// An inlet with a size distribution of its own (the inlet.diameter.* keys).
+const Lines kInletNormal = [] {
+  Lines lines = kInlet;
+  lines.emplace_back("inlet.diameter", "{ distribution = \"normal\", mean = 1.0e-4, std = 1.0e-5, "
+                                       "min = 8.0e-5, max = 1.2e-4 }");
+  return lines;
+}();
+const Lines kInletUniform = [] {
+  Lines lines = kInlet;
+  lines.emplace_back("inlet.diameter", "{ distribution = \"uniform\", min = 8.0e-5, max = 1.2e-4 }");
+  return lines;
+}();
+
 // The scene a key's value is tried in: the distribution's keys need a distribution.
 // The method of lines, whose keys the Godunov step (the default) refuses.
 const Lines kMethodOfLines = [] {
@@ -101,6 +114,8 @@ const Lines& scene_for(const std::string& key, std::string_view value) {
     return kMethodOfLines;
   if (key.rfind("domain.shape", 0) == 0 || key.rfind("domain.cylinder_", 0) == 0)
     return kCylinder;
+  if (key.rfind("inlet.diameter.", 0) == 0)
+    return value == "uniform" ? kInletUniform : kInletNormal;
   if (key.rfind("inlet.", 0) == 0)
     return kInlet;
   if (key.rfind("particles.diameter.", 0) != 0)
@@ -252,7 +267,7 @@ TEST(SceneKeys, TableIsConsistent) {
 // in a third).
 TEST(SceneKeys, ParserReadsExactlyTheTable) {
   std::set<std::string> read;
-  for (const Lines& scene : {kRequired, kNormal, file_scene()}) {
+  for (const Lines& scene : {kRequired, kNormal, file_scene(), kInletNormal}) {
     const std::set<std::string> used = parse(scene).used;
     read.insert(used.begin(), used.end());
   }
@@ -494,7 +509,8 @@ TEST(SceneKeys, CheckListsTheKeysInTableOrder) {
   for (const SceneKey& k : scene_keys())
     position[std::string(k.name)] = position.size();
   std::set<std::string> listed;
-  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene(), kCylinder, kInlet}) {
+  for (const Lines& scene : {kRequired, kNormal, kUniform, file_scene(), kCylinder, kInlet,
+                             kInletNormal, kInletUniform}) {
     std::vector<std::size_t> order;
     for (const auto& [k, v] : describe_scene(parse(scene).scene)) {
       ASSERT_TRUE(position.count(k)) << "cfddem check lists " << k << ", not in the table";

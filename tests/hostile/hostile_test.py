@@ -321,7 +321,11 @@ def inlet_and_outflow_keys_refused_naming_the_key(ctx):
         expect(ctx, ["run", scene, override], 2, r"scene key " + needle)
     # The inlet's own kind: a size that does not fit, a density out of range.
     for override, needle in (("inlet.diameter=5e-3", r"'inlet.diameter'.*does not fit"),
-                             ("inlet.density=-2", r"'inlet.density'.*must be > 0")):
+                             ("inlet.density=-2", r"'inlet.density'.*must be > 0"),
+                             ('inlet.diameter={distribution="uniform",min=9e-5,max=8e-5}',
+                              r"'inlet.diameter.max'.*must be > inlet.diameter.min"),
+                             ('inlet.diameter={distribution="normal",min=6e-5,max=8e-5}',
+                              r"'inlet.diameter.mean'.*required")):
         expect(ctx, ["run", CFB, "inlet.mass_rate=1e-6", override], 2, r"scene key " + needle)
 
 

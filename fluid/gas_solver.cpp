@@ -66,7 +66,8 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
   if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
     implicit_now_ = !settings.implicit_viscosity_auto;
-    viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get());
+    viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get(),
+                                                     solid_.empty() ? nullptr : &solid_);
     viscosity_->use_multigrid(settings.viscous_multigrid);
     for (GridField& l : lap_start_) {
       l = grid.make_field();

@@ -1,7 +1,5 @@
 #include "fluid/implicit_viscosity.hpp"
 
-#include "fluid/solid_mask.hpp"
-
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -66,7 +64,8 @@ double cv_face_eps(const double* ep, std::ptrdiff_t p, std::ptrdiff_t sa, std::p
 
 } // namespace
 
-ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
+ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo,
+                                     const SolidMask* solid)
     : grid_(grid),
       homogeneous_(grid.distributed() ? MacGrid(homogeneous_spec(grid.spec()), grid.box())
                                       : MacGrid(homogeneous_spec(grid.spec()))),
@@ -79,33 +78,15 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo)
       k = GridField(grid.layout());
     }
   }
-  if (grid.has_solid()) {
-    // A round column (fluid/solid_mask.hpp): the link between two unknowns of a component is
-    // open where both faces are; a closed face is cut from every neighbour (its row is the mass
-    // term alone, and the gas step zeroes it), and an open face beside one loses that link,
-    // the wall's no-slip coming back through the diagonal (GasSolver: the wall's shear).
-    const SolidMask mask(grid);
+  if (grid.has_solid() != (solid != nullptr && !solid->empty())) {
+    throw std::invalid_argument("implicit viscosity: a grid with solid cells needs its mask (and "
+                                "only it)");
+  }
+  if (solid != nullptr && !solid->empty()) {
     for (int comp = 0; comp < 3; ++comp) {
-      const std::span<const double> open = mask.open_faces(comp).values();
-      for (int b = 0; b < 3; ++b) {
-        GridField& l = links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(b)];
-        l = GridField(grid.layout(), 0.0);
-        const auto sb = static_cast<std::size_t>(grid.layout().stride(b));
-        for (std::size_t m = sb; m < open.size(); ++m) {
-          l[m] = open[m] * open[m - sb];
-        }
-      }
+      open_[static_cast<std::size_t>(comp)] = solid->open_faces(comp).values().data();
     }
   }
-}
-
-double ImplicitViscosity::link(int comp, int b, std::ptrdiff_t p) const {
-  return links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(b)]
-                  .values()
-                  .empty()
-             ? 1.0
-             : links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(b)]
-                     [static_cast<std::size_t>(p)];
 }
 
 void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
@@ -157,9 +138,9 @@ void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
           }
         }
       }
-      if (grid_.has_solid()) {
+      if (const double* open = open_[c]; open != nullptr) {
         for (std::ptrdiff_t p = row; p <= end; ++p) {
-          k[p] *= link(comp, b, p);
+          k[p] *= link(open, p, sb);
         }
       }
     });
@@ -233,6 +214,7 @@ void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const Gr
   const double* ep = eps.values().data();
   const double* q = x.values().data();
   const std::ptrdiff_t sa = layout.stride(comp);
+  const double* open = open_[static_cast<std::size_t>(comp)];
   for_box_indexed(
       layout, unknown_lo(comp), unknown_hi(comp),
       [&](std::ptrdiff_t p, const std::array<int, 3>& idx) {
@@ -241,9 +223,9 @@ void ImplicitViscosity::apply(int comp, double c, const GridField& eps, const Gr
           const std::ptrdiff_t sb = layout.stride(b);
           const double inv_dx2 = 1.0 / (grid_.spacing(b) * grid_.spacing(b));
           const double e_lo =
-              cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx)) * link(comp, b, p);
+              cv_face_eps(ep, p, sa, sb, b == comp, inflow_plane(b, 0, idx)) * link(open, p, sb);
           const double e_hi = cv_face_eps(ep, p + sb, sa, sb, b == comp, inflow_plane(b, 1, idx)) *
-                              link(comp, b, p + sb);
+                              link(open, p + sb, sb);
           sum += (e_hi * (q[p + sb] - q[p]) - e_lo * (q[p] - q[p - sb])) * inv_dx2;
         }
         y[static_cast<std::size_t>(p)] = diag[static_cast<std::size_t>(p)] * q[p] - c * sum;
@@ -319,7 +301,7 @@ ViscousSolveReport ImplicitViscosity::solve_multigrid(int comp, double c, const 
               k *
               cv_face_eps(ep, p, sa, sb, b == comp,
                           inflow_plane(b, 0, up) || inflow_plane(b, 1, dn)) *
-              link(comp, b, p);
+              link(open_[static_cast<std::size_t>(comp)], p, sb);
         }
       }
     });
@@ -440,10 +422,10 @@ ViscousSolveReport ImplicitViscosity::solve_cg(int comp, double c, const GridFie
         centre += c * inv_dx2 *
                   (cv_face_eps(eps.values().data(), p, layout.stride(comp), sb, b == comp,
                                inflow_plane(b, 0, idx)) *
-                       link(comp, b, p) +
+                       link(open_[static_cast<std::size_t>(comp)], p, sb) +
                    cv_face_eps(eps.values().data(), p + sb, layout.stride(comp), sb, b == comp,
                                inflow_plane(b, 1, idx)) *
-                       link(comp, b, p + sb));
+                       link(open_[static_cast<std::size_t>(comp)], p + sb, sb));
       }
       out[static_cast<std::size_t>(p)] = in[static_cast<std::size_t>(p)] / centre;
     });

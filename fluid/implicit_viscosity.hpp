@@ -19,6 +19,8 @@
 
 namespace cfddem::fluid {
 
+class SolidMask;
+
 struct ViscousSolveReport {
   int iterations = 0; // Chebyshev, multigrid and CG iterations together
   double relative_residual = 0.0;
@@ -39,7 +41,12 @@ class ImplicitViscosity {
 public:
   // halo: the grid's halo when it is one box of a distributed grid (the CG's search directions
   // are exchanged, its dot products summed over the ranks).
-  explicit ImplicitViscosity(const MacGrid& grid, const GridHalo* halo = nullptr);
+  // solid: the grid's solid mask where it has a round column (fluid/solid_mask.hpp; kept by
+  // the caller): the links to closed faces are cut, so a closed face's row is its mass term
+  // alone and an open face beside one loses that link (the caller puts the wall's shear on
+  // the diagonal). Throws std::invalid_argument when the mask is missing or not wanted.
+  explicit ImplicitViscosity(const MacGrid& grid, const GridHalo* halo = nullptr,
+                             const SolidMask* solid = nullptr);
   ~ImplicitViscosity();
   ImplicitViscosity(const ImplicitViscosity&) = delete;
   ImplicitViscosity& operator=(const ImplicitViscosity&) = delete;
@@ -96,9 +103,12 @@ private:
   // the plane of a velocity-inflow face (only meaningful for b != comp: cv_face_eps ignores it
   // otherwise).
   [[nodiscard]] bool inflow_plane(int b, int side, const std::array<int, 3>& idx) const;
-  // 1 where the link between the comp-face at p and the one below it along b is open (both
-  // faces open in a round column, fluid/solid_mask.hpp), 0 where it is cut; 1 without a column.
-  [[nodiscard]] double link(int comp, int b, std::ptrdiff_t p) const;
+  // 1 where the link between a face at p and the one below it along an axis of stride sb is
+  // open (both faces open: `open`, a component's open faces), 0 where it is cut; 1 without a
+  // column (open == nullptr).
+  [[nodiscard]] static double link(const double* open, std::ptrdiff_t p, std::ptrdiff_t sb) {
+    return open == nullptr ? 1.0 : open[p] * open[p - sb];
+  }
 
   MacGrid grid_;
   MacGrid homogeneous_; // same faces with zero inflow velocity: BCs of a correction
@@ -118,8 +128,8 @@ private:
   bool chebyshev_ = true;
   // Chebyshev: face coefficients, inverse diagonal and the two search directions.
   std::array<std::array<GridField, 3>, 3> cv_k_;
-  // A column's links per component and axis (empty without one; link()).
-  std::array<std::array<GridField, 3>, 3> links_;
+  // A column's open faces per component (the caller's SolidMask; null without a column).
+  std::array<const double*, 3> open_{};
   std::array<GridField, 3> eps_seen_;
   std::array<bool, 3> cv_k_valid_{};
   GridField inv_diag_, dir_, dir_next_;

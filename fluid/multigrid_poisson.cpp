@@ -57,6 +57,7 @@ struct MultigridPoisson::Level {
   // line and direct solves give them an identity row.
   double active = 0.0;
   bool has_inactive = false;
+  bool empty_rows = false; // MultigridSettings::empty_rows
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
         const std::array<std::array<PoissonSide, 2>, 3>& sides)
@@ -772,8 +773,14 @@ void clear_inactive(const Level& L, double* v) {
   }
 }
 
-// L.active and L.has_inactive from the diagonal (collective on a distributed level).
+// L.active and L.has_inactive from the diagonal (collective on a distributed level); without
+// empty rows (settings: empty_rows false) every cell is active and nothing is counted.
 void count_active(Level& L) {
+  if (!L.empty_rows) {
+    L.active = L.total;
+    L.has_inactive = false;
+    return;
+  }
   double count = sum_cells(L, [&](std::size_t c, double& s) { s += L.diag[c] > 0.0 ? 1.0 : 0.0; });
   if (L.exchange != nullptr) {
     count = L.exchange->sum(count);
@@ -1126,6 +1133,9 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
   for (std::size_t l = 0; l + 1 < levels_.size(); ++l) {
     levels_[l].line = choose_line_axis(levels_[l].n, levels_[l].h);
   }
+  for (Level& L : levels_) {
+    L.empty_rows = settings_.empty_rows;
+  }
   const std::size_t size = levels_.front().size;
   for (HugePageVector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
     v->assign(size, 0.0);
@@ -1169,6 +1179,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     }
     exchanges_.push_back(std::make_unique<MultigridExchange>(n, periodic, boxes, comm));
     Level& L = levels_.emplace_back(box.cells(), h, local);
+    L.empty_rows = settings_.empty_rows;
     L.exchange = exchanges_.back().get();
     L.exchanged = open;
     L.parity = (box.lo[0] + box.lo[1] + box.lo[2]) & 1;

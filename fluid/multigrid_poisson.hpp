@@ -43,6 +43,11 @@ struct MultigridSettings {
   // Distributed: a level of at most this many cells (all ranks together) is gathered onto rank 0
   // rather than coarsened further over the ranks.
   int gather_cells = 4096;
+  // Rows may be empty (a round column's solid cells, fluid/solid_mask.hpp): the levels count
+  // their non-empty rows at every set-up (on R ranks one more sum per level) and the singular
+  // problem's means and shifts skip the empty ones. false: every row has a diagonal, nothing
+  // is counted.
+  bool empty_rows = false;
 };
 
 class MultigridExchange;

@@ -256,11 +256,14 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
     for (int a = 0; a < 3; ++a) {
       spacing[a] = grid.spacing(a);
     }
+    MultigridSettings mg_settings;
+    mg_settings.empty_rows = grid.has_solid(); // a column's solid cells
     if (halo == nullptr) {
-      mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides);
+      mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides, mg_settings);
     } else {
       // Each rank its box; halos at every level, the coarse level gathered onto rank 0.
-      mg_ = std::make_unique<MultigridPoisson>(global, spacing, sides, halo->boxes(), halo->comm());
+      mg_ = std::make_unique<MultigridPoisson>(global, spacing, sides, halo->boxes(), halo->comm(),
+                                               mg_settings);
     }
     face_coef_ = {grid.make_field(), grid.make_field(), grid.make_field()};
     return;

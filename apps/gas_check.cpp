@@ -10,6 +10,8 @@
 #include <unistd.h>
 
 #include "core/error.hpp"
+#include "apps/coupled_step.hpp"
+#include "apps/particle_inlet.hpp"
 #include "core/particle_store.hpp"
 #include "fluid/fluid_step_rule.hpp"
 #include "fluid/gas_solver.hpp"
@@ -106,26 +108,22 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   const double cells = static_cast<double>(f.cells[0] * f.cells[1] * f.cells[2]);
   t.emplace_back("gas_cells", fmt::format("{:.0f}", cells));
   t.emplace_back("cell_size_m", fmt::format("[{:.4g}, {:.4g}, {:.4g}]", dx[0], dx[1], dx[2]));
-  double column_area = 0.0; // a column's gas cross-section [m^2]
+  const fluid::MacGrid grid(fluid_grid_spec(s)); // its gas cells (a column's solid ones)
   if (s.domain.cylinder()) {
     // The gas's column is the staircase of cells whose centre lies inside R (docs/theory.md
-    // §13): its cross-section against pi R^2 is the wall's error at this resolution.
+    // §13): its cross-section against pi R^2 is the wall's error at this resolution. Counted on
+    // the first plane across the axis by the grid's own test (every plane is the same).
     const auto [u, w] = s.domain.cross_axes();
-    const double r2 = s.domain.cylinder_radius * s.domain.cylinder_radius;
     std::int64_t inside = 0;
-    for (std::int64_t i = 0; i < f.cells[static_cast<std::size_t>(u)]; ++i)
-      for (std::int64_t j = 0; j < f.cells[static_cast<std::size_t>(w)]; ++j) {
-        const double a = s.domain.lo[static_cast<std::size_t>(u)] +
-                         (static_cast<double>(i) + 0.5) * dx[static_cast<std::size_t>(u)] -
-                         s.domain.centre(u);
-        const double b = s.domain.lo[static_cast<std::size_t>(w)] +
-                         (static_cast<double>(j) + 0.5) * dx[static_cast<std::size_t>(w)] -
-                         s.domain.centre(w);
-        inside += a * a + b * b < r2 ? 1 : 0;
+    for (int i = 0; i < grid.cells(u); ++i)
+      for (int j = 0; j < grid.cells(w); ++j) {
+        std::array<int, 3> cell{};
+        cell[static_cast<std::size_t>(u)] = i;
+        cell[static_cast<std::size_t>(w)] = j;
+        inside += grid.solid_cell(cell[0], cell[1], cell[2]) ? 0 : 1;
       }
     const double area = static_cast<double>(inside) * dx[static_cast<std::size_t>(u)] *
                         dx[static_cast<std::size_t>(w)];
-    column_area = area;
     // The gas's column and the particles' differ by the staircase: its area sets the gas's
     // superficial velocity and the pressure drop a bed's weight makes.
     if (std::abs(area / s.domain.cylinder_area() - 1.0) > 0.05)
@@ -235,8 +233,8 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     if (u_in > 0)
       t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));
   }
-  // The gas entering through inflow faces: u_in over the face's open area (in a column, the
-  // gas cells' staircase: docs/theory.md §13).
+  // The gas entering through inflow faces: u_in over the face's open area, the faces of its gas
+  // cells (in a column, the staircase: docs/theory.md §13).
   {
     static constexpr const char* kFaceNames[] = {"x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi"};
     std::string rates;
@@ -244,12 +242,18 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
       if (f.bc[k] != "inflow")
         continue;
       const int a = static_cast<int>(k / 2);
-      double area = 1.0;
-      for (int b = 0; b < 3; ++b)
-        if (b != a)
-          area *= s.domain.length(b);
-      if (s.domain.cylinder() && a == s.domain.cylinder_axis)
-        area = column_area;
+      const int across_p = a == 0 ? 1 : 0, across_q = a == 2 ? 1 : 2; // the face's axes
+      std::int64_t open = 0;
+      for (int i = 0; i < grid.cells(across_p); ++i)
+        for (int j = 0; j < grid.cells(across_q); ++j) {
+          std::array<int, 3> cell{};
+          cell[static_cast<std::size_t>(a)] = k % 2 == 0 ? 0 : grid.cells(a) - 1;
+          cell[static_cast<std::size_t>(across_p)] = i;
+          cell[static_cast<std::size_t>(across_q)] = j;
+          open += grid.solid_cell(cell[0], cell[1], cell[2]) ? 0 : 1;
+        }
+      const double area =
+          static_cast<double>(open) * grid.spacing(across_p) * grid.spacing(across_q);
       const double q = std::abs(f.inflow_velocity[static_cast<std::size_t>(a)]) * area;
       rates += fmt::format("{}{}: {:.4g} m^3/s, {:.4g} kg/s", rates.empty() ? "" : "; ",
                            kFaceNames[k], q, q * f.density);
@@ -277,10 +281,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (s.inlet.enabled()) {
     std::string what = s.inlet.recycle ? "the particles that leave enter again" : "";
     if (s.inlet.mass_rate > 0.0) {
-      const DiameterDistribution& own = s.inlet.diameters;
-      const double d_in = s.inlet.diameter > 0.0 ? (own.fixed() ? s.inlet.diameter : own.mean)
-                          : s.particles.diameters.fixed() ? s.particles.diameter
-                                                          : s.particles.diameters.mean;
+      const double d_in = ParticleInlet(s).mean_diameter();
       const double m = ParticleStore::sphere_mass(s.inlet.density, 0.5 * d_in);
       what += fmt::format("{}{:.4g} kg/s of new particles ({:.4g} per second of {:.3g} m; {:.3g} "
                           "per fluid step of {:.3g} s)",

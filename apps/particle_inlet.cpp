@@ -41,6 +41,13 @@ double ParticleInlet::diameter(std::int64_t k) const {
   return s.next();
 }
 
+double ParticleInlet::mean_diameter() const {
+  const DiameterDistribution& d = spec_.diameter > 0.0 ? spec_.diameters : particles_.diameters;
+  if (d.fixed())
+    return spec_.diameter > 0.0 ? spec_.diameter : particles_.diameter;
+  return d.mean;
+}
+
 double ParticleInlet::largest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return 0.0;

@@ -63,6 +63,9 @@ public:
   // The largest radius that may enter (the step and cut-offs must allow it).
   double largest_radius() const;
   double smallest_radius() const;
+  // The new particles' mean diameter (inlet.diameter or its distribution's, else the
+  // particles').
+  double mean_diameter() const;
 
 private:
   InletSpec spec_;

@@ -1,4 +1,4 @@
-// The gas half of the paper's Algorithm 1 for the one time loop (apps/run_loop.cpp), on one rank
+// The gas half of the paper's Algorithm 1 for the one time loop (apps/run_loop.hpp), on one rank
 // or R: per fluid step, deposit + gas step + particle force (GasCoupling::step), handed to the
 // scheme for its particle sub-cycle. The loop holds none without a gas.
 //

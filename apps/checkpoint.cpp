@@ -264,11 +264,7 @@ void write_contents(h5::File& f, const Checkpoint& c, std::int64_t gas_sum) {
       w.put(std::string("/particles/") + name, *v);
   // Each scheme writes its own state (dem/scheme_checkpoint.hpp); explicit's list and counters
   // are in every checkpoint.
-  dem::save(w, c.state);
-  if (c.scheme == "orb")
-    dem::save(w, c.orb, p.id);
-  if (c.scheme == "islands")
-    dem::save(w, c.islands, p.id);
+  dem::save(w, c.scheme_state, p.id);
   if (c.gas) {
     write_gas(f, w, c);
     f.attribute("gas_checksum", gas_sum);
@@ -420,14 +416,7 @@ Checkpoint read_contents(const h5::File& f) {
     p.tz = r.doubles("/particles/tz", n);
     p.inv_inertia = r.doubles("/particles/inv_inertia", n);
   }
-  dem::restore(r, c.state);
-  if (c.scheme == "orb") {
-    dem::restore(r, c.orb, p.id);
-  } else if (c.scheme == "islands") {
-    dem::restore(r, c.islands, p.id);
-  } else if (c.scheme != "explicit") {
-    throw RunError(fmt::format("unknown scheme \"{}\"", c.scheme));
-  }
+  c.scheme_state = dem::restore_scheme(r, c.scheme, p.id);
   c.gas = f.exists("/gas");
   if (c.gas)
     read_gas(r, c);

@@ -27,9 +27,7 @@
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
-#include "dem/explicit_scheme.hpp"
-#include "dem/islands_scheme.hpp"
-#include "dem/orb_scheme.hpp"
+#include "dem/scheme_checkpoint.hpp"
 
 namespace cfddem::apps {
 
@@ -67,12 +65,10 @@ struct Checkpoint {
   std::vector<SnapshotEntry> snapshots;
   std::string configuration;             // describe_scene as "key = value" lines
   ParticleStore particles;
-  dem::ExplicitScheme::State state; // scheme == "explicit"
-  dem::OrbScheme::State orb;         // scheme == "orb"
-  dem::IslandsScheme::State islands; // scheme == "islands"
-  bool gas = false;                  // a coupled scene's checkpoint: the three below are set
-  std::array<int, 3> gas_cells{};    // the whole gas grid's cells
-  GasCoupling::State gas_state;      // one rank: the whole grid; R ranks: this rank's box
+  dem::SchemeState scheme_state; // the state of `scheme`, written and read by the scheme
+  bool gas = false;               // a coupled scene's checkpoint: the three below are set
+  std::array<int, 3> gas_cells{}; // the whole gas grid's cells
+  GasCoupling::State gas_state;   // one rank: the whole grid; R ranks: this rank's box
   CoupledLoopState loop;
 };
 

@@ -63,18 +63,19 @@ public:
       // The force travels with its particle to the owner restore() sends it to.
       if (held)
         scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
-      const auto& st = ck.state;
+      const auto& st = std::get<dem::ExplicitScheme::State>(ck.scheme_state);
       scheme.restore({held ? st.steps : ck.step, st.particle_steps, st.pair_evaluations, st.builds},
                      r.history);
     } else {
-      if (ck.state.x_ref.empty() && !ck.state.offsets.empty()) {
+      auto& st = std::get<dem::ExplicitScheme::State>(ck.scheme_state);
+      if (st.x_ref.empty() && !st.offsets.empty()) {
         // An R-rank checkpoint with friction: its rows hold only the contact history, over the
         // saved particles (the store's order here). Reinstated as a list due for a rebuild, they
         // are carried over by ids as any rebuild carries the history.
-        ck.state.x_ref = p_.x, ck.state.y_ref = p_.y, ck.state.z_ref = p_.z;
-        ck.state.need_rebuild = true;
+        st.x_ref = p_.x, st.y_ref = p_.y, st.z_ref = p_.z;
+        st.need_rebuild = true;
       }
-      scheme.restore_state(std::move(ck.state));
+      scheme.restore_state(std::move(st));
       if (held)
         scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
     }
@@ -89,24 +90,25 @@ public:
       scheme.canonicalize();
       r.history = scheme.contact_history();
       const auto k = scheme.counters();
-      c.state.steps = k.steps, c.state.particle_steps = k.particle_steps;
-      c.state.pair_evaluations = k.pair_evaluations, c.state.builds = k.builds;
+      auto& st = dem::state_of<dem::ExplicitScheme::State>(c.scheme_state);
+      st.steps = k.steps, st.particle_steps = k.particle_steps;
+      st.pair_evaluations = k.pair_evaluations, st.builds = k.builds;
       owners = scheme.decomposition();
     } else {
-      c.state = scheme.save_state();
+      c.scheme_state = scheme.save_state();
     }
   }
   // That state without the particles `k` removes (`ids`: this rank's owned ids before).
   static void erase_removed(Checkpoint& c, Restart& r, const dem::Compaction& k,
                             std::span<const std::int64_t> ids) {
-    dem::erase_removed(c.state, k);
+    dem::erase_removed(std::get<dem::ExplicitScheme::State>(c.scheme_state), k);
     k.apply_history(r.history, ids);
   }
   // And with the particles (x, y, z) appended to the store after those.
   static void admit(Checkpoint& c, Restart&, std::span<const std::int64_t> ids,
                     std::span<const double> x, std::span<const double> y,
                     std::span<const double> z) {
-    dem::admit(c.state, ids, x, y, z);
+    dem::admit(std::get<dem::ExplicitScheme::State>(c.scheme_state), ids, x, y, z);
   }
   // One step; `k`: its index; the row's step statistics (every step a full one).
   dem::LeafStepStats advance(bool /*record*/, bool sync, long long k_last_row, long long& k) {
@@ -170,7 +172,7 @@ public:
       gather_rank_particles(scheme, p_, comm, c);
     } else {
       c.particles = p_;
-      c.state = scheme.save_state();
+      c.scheme_state = scheme.save_state();
     }
   }
 

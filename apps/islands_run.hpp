@@ -27,18 +27,18 @@
 
 namespace cfddem::apps {
 
-class IslandsRun : public SubiteratedRunBase<dem::IslandsScheme, &Checkpoint::islands> {
+class IslandsRun : public SubiteratedRunBase<dem::IslandsScheme> {
 public:
   static constexpr const char* kName = "islands";
 
   static ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
                                  const Communicator& comm, const std::string& path, Restart& r) {
-    if (RankParts(comm).ranks && ck && ck->islands.history.size() == 0 && !ck->islands.hx.empty()) {
+    auto* o = ck ? std::get_if<dem::IslandsScheme::State>(&ck->scheme_state) : nullptr;
+    if (RankParts(comm).ranks && o && o->history.size() == 0 && !o->hx.empty()) {
       // A one-rank checkpoint's history per entry of its list: the records by ids the R-rank
       // scheme routes (the list itself is not restored there).
-      const auto& o = ck->islands;
-      ck->islands.history =
-          dem::history_from_rows(ck->particles.id, o.offsets, o.neighbors, o.hx, o.hy, o.hz);
+      o->history =
+          dem::history_from_rows(ck->particles.id, o->offsets, o->neighbors, o->hx, o->hy, o->hz);
     }
     return SubiteratedRunBase::particles(scene, ck, comm, path, r);
   }

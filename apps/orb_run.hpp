@@ -22,7 +22,7 @@
 
 namespace cfddem::apps {
 
-class OrbRun : public SubiteratedRunBase<dem::OrbScheme, &Checkpoint::orb> {
+class OrbRun : public SubiteratedRunBase<dem::OrbScheme> {
 public:
   static constexpr const char* kName = "orb";
 

@@ -44,6 +44,7 @@ void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStor
   std::string error;
   if (comm.rank() == 0) {
     try {
+      auto& st = dem::state_of<dem::ExplicitScheme::State>(c.scheme_state);
       std::vector<std::size_t> order(ids.size());
       std::iota(order.begin(), order.end(), std::size_t{0});
       std::sort(order.begin(), order.end(),
@@ -67,16 +68,16 @@ void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStor
             (*w[q])[i] = spin[q][order[i]];
         // No reference positions: the list itself is rebuilt at a restart.
         dem::HistoryRows rows = dem::history_rows(history, c.particles.id);
-        c.state.offsets = std::move(rows.offsets);
-        c.state.neighbors = std::move(rows.neighbors);
-        c.state.hx = std::move(rows.hx), c.state.hy = std::move(rows.hy);
-        c.state.hz = std::move(rows.hz);
+        st.offsets = std::move(rows.offsets);
+        st.neighbors = std::move(rows.neighbors);
+        st.hx = std::move(rows.hx), st.hy = std::move(rows.hy);
+        st.hz = std::move(rows.hz);
       }
       const auto cnt = scheme.counters();
-      c.state.steps = cnt.steps, c.state.particle_steps = cnt.particle_steps;
-      c.state.pair_evaluations = cnt.pair_evaluations, c.state.builds = cnt.builds;
-      c.state.need_rebuild = true;
-      c.state.skin = scheme.model().skin;
+      st.steps = cnt.steps, st.particle_steps = cnt.particle_steps;
+      st.pair_evaluations = cnt.pair_evaluations, st.builds = cnt.builds;
+      st.need_rebuild = true;
+      st.skin = scheme.model().skin;
     } catch (const std::exception& e) {
       error = e.what();
     }
@@ -86,7 +87,7 @@ void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStor
 }
 
 dem::ContactHistory saved_contact_history(const Checkpoint& ck) {
-  const auto& st = ck.state;
+  const auto& st = std::get<dem::ExplicitScheme::State>(ck.scheme_state);
   if (st.hx.empty())
     return {}; // no friction (the rows, if any, are a serial list without history) or no contact
   return dem::history_from_rows(ck.particles.id, st.offsets, st.neighbors, st.hx, st.hy, st.hz);
@@ -164,7 +165,7 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
       if constexpr (requires { state.history; })
         state.history = std::move(history);
       Sub::set_second(state, std::move(second_all));
-      Sub::in(c) = std::move(state);
+      c.scheme_state = std::move(state);
     } catch (const std::exception& e) {
       error = e.what();
     }
@@ -178,7 +179,7 @@ typename SubiteratedState<Scheme>::State
 subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::size_t particles,
                   const std::string& path) {
   using Sub = SubiteratedState<Scheme>;
-  typename Sub::State state = std::move(Sub::in(ck));
+  typename Sub::State state = std::move(std::get<typename Sub::State>(ck.scheme_state));
   if (state.hprev.size() != particles || Sub::second_size(state) != particles)
     throw ConfigError(
         path, fmt::format("the {} state does not fit the checkpoint's particles", Sub::kName));

@@ -24,7 +24,7 @@
 
 namespace cfddem::apps {
 
-// Collective, after scheme.canonicalize(). Fills c.particles and c.state on rank 0 (other ranks'
+// Collective, after scheme.canonicalize(). Fills c.particles and c.scheme_state on rank 0 (other ranks'
 // `c` is left as it is). Throws RunError on every rank when the history does not fit.
 void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStore& particles,
                            const Communicator& comm, Checkpoint& c);
@@ -34,14 +34,13 @@ void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStor
 // handed out (rank_share moves them).
 dem::ContactHistory saved_contact_history(const Checkpoint& ck);
 
-// What differs between the sub-iterated schemes' states: the type, where it sits in a
-// checkpoint, and its second per-particle value (orb: the cost; islands: the
+// What differs between the sub-iterated schemes' states: the type, its name, and its second
+// per-particle value (orb: the cost; islands: the
 // fine-sub-iteration count, below 2^53, carried as a double).
 template <class Scheme> struct SubiteratedState;
 template <> struct SubiteratedState<dem::OrbScheme> {
   using State = dem::OrbScheme::State;
   static constexpr const char* kName = "orb";
-  static State& in(Checkpoint& c) { return c.orb; }
   static std::vector<double> second(const State& s) { return s.cost; }
   static void set_second(State& s, std::vector<double> v) { s.cost = std::move(v); }
   static std::size_t second_size(const State& s) { return s.cost.size(); }
@@ -49,7 +48,6 @@ template <> struct SubiteratedState<dem::OrbScheme> {
 template <> struct SubiteratedState<dem::IslandsScheme> {
   using State = dem::IslandsScheme::State;
   static constexpr const char* kName = "islands";
-  static State& in(Checkpoint& c) { return c.islands; }
   static std::vector<double> second(const State& s) {
     return std::vector<double>(s.fine_subits.begin(), s.fine_subits.end());
   }
@@ -62,7 +60,7 @@ template <> struct SubiteratedState<dem::IslandsScheme> {
 };
 
 // Collective: scheme.save_state() (the canonical state) and the owned particles with its
-// per-particle values gathered into rank 0's `c` in id order (c.orb or c.islands). Throws
+// per-particle values gathered into rank 0's `c` in id order (c.scheme_state). Throws
 // RunError on every rank when rank 0 fails.
 template <class Scheme>
 void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Communicator& comm,

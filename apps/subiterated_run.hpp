@@ -28,12 +28,12 @@
 
 namespace cfddem::apps {
 
-// S: the scheme; kSlot: where a one-rank checkpoint holds its state (Checkpoint::orb or
-// Checkpoint::islands), so that saving and restoring it need no branch on the scheme.
-template <class S, typename S::State Checkpoint::*kSlot> class SubiteratedRunBase {
+// S: the scheme, whose state a one-rank checkpoint holds whole (Checkpoint::scheme_state).
+template <class S> class SubiteratedRunBase {
 public:
   static constexpr bool kSub = true;
-  using Restart = RestartShare<typename S::State>;
+  using State = typename S::State;
+  using Restart = RestartShare<State>;
 
   static ParticleStore particles(const Scene& scene, std::optional<Checkpoint>& ck,
                                  const Communicator& comm, const std::string& path, Restart& r) {
@@ -59,7 +59,7 @@ public:
     if (parts_.ranks)
       scheme.restore_state(std::move(*r.state));
     else
-      scheme.restore_state(std::move(ck.*kSlot));
+      scheme.restore_state(std::move(std::get<State>(ck.scheme_state)));
     if (held)
       scheme.set_external_force((*held)[0], (*held)[1], (*held)[2]);
   }
@@ -69,19 +69,19 @@ public:
     if (parts_.ranks)
       r.state = scheme.save_state();
     else
-      c.*kSlot = scheme.save_state();
+      c.scheme_state = scheme.save_state();
   }
   // That state without the particles `k` removes (`ids`: this rank's owned ids before).
   static void erase_removed(Checkpoint& c, Restart& r, const dem::Compaction& k,
                             std::span<const std::int64_t> ids) {
-    dem::erase_removed(r.state ? *r.state : c.*kSlot, k, ids);
+    dem::erase_removed(r.state ? *r.state : std::get<State>(c.scheme_state), k, ids);
   }
   // And with the particles (x, y, z) appended to the store after those (`ids`: the store's ids
   // before them).
   static void admit(Checkpoint& c, Restart& r, std::span<const std::int64_t> ids,
                     std::span<const double> x, std::span<const double> y,
                     std::span<const double> z) {
-    dem::admit(r.state ? *r.state : c.*kSlot, ids, x, y, z);
+    dem::admit(r.state ? *r.state : std::get<State>(c.scheme_state), ids, x, y, z);
   }
   // One sub-iteration; `k`: its index; the row's statistics of the interval it closes.
   dem::LeafStepStats advance(bool record, bool sync, long long /*k_last_row*/, long long& k) {
@@ -109,7 +109,7 @@ public:
       gather_subiterated(scheme, p_, comm, c);
     } else {
       c.particles = p_;
-      c.*kSlot = scheme.save_state();
+      c.scheme_state = scheme.save_state();
     }
   }
 

@@ -1,0 +1,49 @@
+// Which scheme's state a checkpoint holds, saved and restored by that scheme's own functions
+// (dem/{explicit,orb,islands}_checkpoint.cpp).
+#include "dem/scheme_checkpoint.hpp"
+
+#include <string>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+
+namespace cfddem::dem {
+
+const char* scheme_name(const SchemeState& s) {
+  constexpr const char* kNames[] = {"explicit", "orb", "islands"};
+  return kNames[s.index()];
+}
+
+void save(StateWriter& w, const SchemeState& s, const std::vector<std::int64_t>& ids) {
+  if (const auto* e = std::get_if<ExplicitScheme::State>(&s)) {
+    save(w, *e);
+    return;
+  }
+  save(w, ExplicitScheme::State{}); // format 1: explicit's group in every checkpoint
+  if (const auto* o = std::get_if<OrbScheme::State>(&s))
+    save(w, *o, ids);
+  else
+    save(w, std::get<IslandsScheme::State>(s), ids);
+}
+
+SchemeState restore_scheme(StateReader& r, std::string_view scheme,
+                           const std::vector<std::int64_t>& ids) {
+  ExplicitScheme::State e;
+  restore(r, e); // in every checkpoint; orb's and islands' hold only empty lists
+  if (scheme == "explicit")
+    return e;
+  if (scheme == "orb") {
+    OrbScheme::State o;
+    restore(r, o, ids);
+    return o;
+  }
+  if (scheme == "islands") {
+    IslandsScheme::State q;
+    restore(r, q, ids);
+    return q;
+  }
+  throw RunError(fmt::format("unknown scheme \"{}\"", scheme));
+}
+
+} // namespace cfddem::dem

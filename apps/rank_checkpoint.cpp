@@ -96,9 +96,8 @@ dem::ContactHistory saved_contact_history(const Checkpoint& ck) {
 template <class Scheme>
 void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Communicator& comm,
                         Checkpoint& c) {
-  using Sub = SubiteratedState<Scheme>;
-  typename Sub::State state = scheme.save_state();
-  const std::vector<double> own_second = Sub::second(state);
+  typename Scheme::State state = scheme.save_state();
+  const std::vector<double> own_second = dem::second_values(state);
   const std::size_t n = scheme.owned();
   const std::span<const double> own[] = {{particles.x.data(), n},
                                          {particles.y.data(), n},
@@ -164,7 +163,7 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
       }
       if constexpr (requires { state.history; })
         state.history = std::move(history);
-      Sub::set_second(state, std::move(second_all));
+      dem::set_second_values(state, std::move(second_all));
       c.scheme_state = std::move(state);
     } catch (const std::exception& e) {
       error = e.what();
@@ -175,20 +174,20 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
 }
 
 template <class Scheme>
-typename SubiteratedState<Scheme>::State
+typename Scheme::State
 subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::size_t particles,
                   const std::string& path) {
-  using Sub = SubiteratedState<Scheme>;
-  typename Sub::State state = std::move(std::get<typename Sub::State>(ck.scheme_state));
-  if (state.hprev.size() != particles || Sub::second_size(state) != particles)
-    throw ConfigError(
-        path, fmt::format("the {} state does not fit the checkpoint's particles", Sub::kName));
-  const std::vector<double> second = Sub::second(state);
+  using State = typename Scheme::State;
+  State state = std::move(std::get<State>(ck.scheme_state));
+  const std::vector<double> second = dem::second_values(state);
+  if (state.hprev.size() != particles || second.size() != particles)
+    throw ConfigError(path, fmt::format("the {} state does not fit the checkpoint's particles",
+                                        dem::scheme_name(dem::SchemeState(std::move(state)))));
   std::vector<double> h, q;
   for (const std::uint32_t i : mine)
     h.push_back(state.hprev[i]), q.push_back(second[i]);
   state.hprev = std::move(h);
-  Sub::set_second(state, std::move(q));
+  dem::set_second_values(state, std::move(q));
   return state;
 }
 
@@ -196,10 +195,10 @@ template void gather_subiterated(dem::OrbScheme&, const ParticleStore&, const Co
                                  Checkpoint&);
 template void gather_subiterated(dem::IslandsScheme&, const ParticleStore&, const Communicator&,
                                  Checkpoint&);
-template SubiteratedState<dem::OrbScheme>::State
+template dem::OrbScheme::State
 subiterated_share<dem::OrbScheme>(Checkpoint&, const std::vector<std::uint32_t>&, std::size_t,
                                   const std::string&);
-template SubiteratedState<dem::IslandsScheme>::State
+template dem::IslandsScheme::State
 subiterated_share<dem::IslandsScheme>(Checkpoint&, const std::vector<std::uint32_t>&, std::size_t,
                                       const std::string&);
 

@@ -34,31 +34,6 @@ void gather_rank_particles(const dem::ExplicitScheme& scheme, const ParticleStor
 // handed out (rank_share moves them).
 dem::ContactHistory saved_contact_history(const Checkpoint& ck);
 
-// What differs between the sub-iterated schemes' states: the type, its name, and its second
-// per-particle value (orb: the cost; islands: the
-// fine-sub-iteration count, below 2^53, carried as a double).
-template <class Scheme> struct SubiteratedState;
-template <> struct SubiteratedState<dem::OrbScheme> {
-  using State = dem::OrbScheme::State;
-  static constexpr const char* kName = "orb";
-  static std::vector<double> second(const State& s) { return s.cost; }
-  static void set_second(State& s, std::vector<double> v) { s.cost = std::move(v); }
-  static std::size_t second_size(const State& s) { return s.cost.size(); }
-};
-template <> struct SubiteratedState<dem::IslandsScheme> {
-  using State = dem::IslandsScheme::State;
-  static constexpr const char* kName = "islands";
-  static std::vector<double> second(const State& s) {
-    return std::vector<double>(s.fine_subits.begin(), s.fine_subits.end());
-  }
-  static void set_second(State& s, const std::vector<double>& v) {
-    s.fine_subits.assign(v.size(), 0);
-    for (std::size_t i = 0; i < v.size(); ++i)
-      s.fine_subits[i] = static_cast<std::int64_t>(v[i]);
-  }
-  static std::size_t second_size(const State& s) { return s.fine_subits.size(); }
-};
-
 // Collective: scheme.save_state() (the canonical state) and the owned particles with its
 // per-particle values gathered into rank 0's `c` in id order (c.scheme_state). Throws
 // RunError on every rank when rank 0 fails.
@@ -70,7 +45,7 @@ void gather_subiterated(Scheme& scheme, const ParticleStore& particles, const Co
 // (`mine`: the checkpoint's particles rank_share gave this rank, in that order), for
 // scheme.restore_state. Throws ConfigError naming `path` when they do not fit the particles.
 template <class Scheme>
-typename SubiteratedState<Scheme>::State
+typename Scheme::State
 subiterated_share(Checkpoint& ck, const std::vector<std::uint32_t>& mine, std::size_t particles,
                   const std::string& path);
 

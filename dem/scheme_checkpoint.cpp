@@ -27,6 +27,18 @@ void save(StateWriter& w, const SchemeState& s, const std::vector<std::int64_t>&
     save(w, std::get<IslandsScheme::State>(s), ids);
 }
 
+std::vector<double> second_values(const OrbScheme::State& s) { return s.cost; }
+void set_second_values(OrbScheme::State& s, std::vector<double> v) { s.cost = std::move(v); }
+
+std::vector<double> second_values(const IslandsScheme::State& s) {
+  return std::vector<double>(s.fine_subits.begin(), s.fine_subits.end());
+}
+void set_second_values(IslandsScheme::State& s, const std::vector<double>& v) {
+  s.fine_subits.assign(v.size(), 0);
+  for (std::size_t i = 0; i < v.size(); ++i)
+    s.fine_subits[i] = static_cast<std::int64_t>(v[i]);
+}
+
 SchemeState restore_scheme(StateReader& r, std::string_view scheme,
                            const std::vector<std::int64_t>& ids) {
   ExplicitScheme::State e;

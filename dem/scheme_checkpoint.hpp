@@ -29,6 +29,14 @@ void save(StateWriter& w, const SchemeState& s, const std::vector<std::int64_t>&
 SchemeState restore_scheme(StateReader& r, std::string_view scheme,
                            const std::vector<std::int64_t>& ids);
 
+// A sub-iterated scheme's per-particle value besides the half step (orb: the cost; islands: the
+// fine-sub-iteration count, below 2^53, carried as a double), which a checkpoint on R ranks
+// gathers in id order and shares out again at a restart.
+std::vector<double> second_values(const OrbScheme::State& s);
+void set_second_values(OrbScheme::State& s, std::vector<double> v);
+std::vector<double> second_values(const IslandsScheme::State& s);
+void set_second_values(IslandsScheme::State& s, const std::vector<double>& v);
+
 // The state of type `State` held in `s`, made (empty) when `s` holds another scheme's: for the
 // scheme's own adapter, which fills or reads it.
 template <class State> State& state_of(SchemeState& s) {

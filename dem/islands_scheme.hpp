@@ -1,67 +1,23 @@
-// The `islands` scheme (dem.scheme = "islands"): adaptive steps that miss no collision. The
-// seed paper's conclusions ask for a time step from the relative distance of particles and for a
-// clustering that "respects probable collision partners"; this is that scheme.
+// The `islands` scheme (dem.scheme = "islands"): adaptive steps that miss no collision. Time
+// advances in sub-iterations of dt_sp, as in `orb`. At the start of each one every particle gets
+// a speed bound over the sub-iteration; pairs whose gap could close within dt_sp are linked (and
+// particles tied to walls likewise), the connected components are the contact islands, and the
+// members' bounds are raised to what the island's energy allows until no island grows (the rule
+// and its energy argument: docs/theory.md §8; the implementation: docs/schemes.md, "islands").
+// Lone particles take one step of dt_sp; an island takes the explicit scheme's fine steps as a
+// TBB task, its leading contact-free steps folded into one; a dense sub-iteration steps everyone
+// together with the explicit scheme's passes (the global mode). The bound is checked at every
+// step (bound_violations(); the tests require none); NaN or a particle leaving through a wall
+// stops the run. The Verlet list is rebuilt when some particle's displacement since the build
+// plus its bound over the next sub-iteration would exceed skin/2.
 //
-// Time advances in sub-iterations of dt_sp = dem.regrid_interval / dem.nsubit, as in `orb`. At
-// the start of each one every particle gets a speed bound s_i over the sub-iteration:
-//   s_i = |v_i| + |F_ext,i / m_i + g| (h_prev,i + dt_sp)
-// (v_i is the half-step velocity, h_prev its half step). A pair (i, j) of the Verlet list is
-// linked when it could touch within dt_sp:
-//   |x_j - x_i| - (r_i + r_j) < (s_i + s_j) dt_sp + margin,
-// and a particle is tied to a wall when its gap to the wall is below s_i dt_sp + margin. The
-// connected components of the links are the contact islands (partition/contact_islands).
-// Contacts inside an island can speed a member up beyond its own s_i; no member can exceed the
-// speed that takes the island's whole energy (kinetic, from the s_i, plus the springs'
-// potential energy of current overlaps) on its lightest member, plus what the external forces
-// add over the sub-iteration:
-//   s_max = sqrt(2 E / m_min) + a_max (h_prev,max + dt_sp),
-// so every member's bound is raised to its island's s_max and the links are made again, until
-// no island grows. Then no particle of one island can touch a particle of another (or a wall,
-// unless tied to it) within dt_sp: nothing is frozen at an island's boundary, and no collision
-// is missed by construction. The bound is checked: a particle that moves farther than its bound
-// is counted (bound_violations(); the tests require none).
-//
-// Steps: a particle alone in its island and not tied to a wall takes one step of dt_sp (free
-// flight under gravity and its frozen external force); an island with a link or a wall takes
-// K = ceil(dt_sp / dt) steps of the explicit scheme's dt (the last one shortened to land on the
-// sub-iteration's end) with the explicit scheme's contact law, its members read live. Before its
-// entry time t_e (the least over its pairs and walls of gap / closing speed at the members' own
-// bounds: no contact can happen earlier, and without one no member outruns its own bound) its
-// steps see no contact force, so the first L of them with L dt < t_e are one step of L dt. The step
-// arithmetic is the orb scheme's variable-step leapfrog (h_prev per particle), so a constant
-// step is the explicit update exactly. Islands are TBB tasks (a giant island runs its passes
-// as nested parallel_for); every island's arithmetic is independent of the others and of the
-// thread count. The Verlet list (dem/verlet_list) is rebuilt when some particle's displacement
-// since the build plus its bound over the next sub-iteration would exceed skin/2.
-//
-// Friction: the explicit scheme's tangential spring with history and Coulomb limit and the spin
-// kick (dem/friction_kernels.hpp), in islands and in the global fine steps. The history is kept
-// per entry of the Verlet list (R ranks: of the owned rows) and carried across its rebuilds by
-// particle ids (dem/contact_history.hpp), as the explicit scheme carries it; on R ranks each
-// record goes with its owner particle to its new rank (ParticleExchange::route), as the orb
-// scheme routes it, and the ghosts' spins are refreshed with their positions. The
-// island energy then includes what rotation and the tangential springs can release: every
-// member's rotational energy I |w|^2 / 2 and the stored tangential spring energy k_t |xi|^2 / 2
-// of every linked pair, so s_max stays a bound (a sliding contact only dissipates; the stored
-// spring energy is the most a contact can give back).
-//
-// Limits: an overlap beyond dem.max_overlap is counted, NaN or a particle leaving through a wall
-// stops the run.
-//
-// One rank or R ranks. Without a communicator, or with one of size 1, the scheme runs the path
-// above (minimum image, the Verlet list reused over sub-iterations, no ghost). On R > 1 ranks
-// (dem/islands_ranks.cpp, whose header gives the sequence) particles are owned by ranks as in
-// the distributed orb scheme, with ghosts and rows kept between builds; an island with a member
-// on another rank spans ranks and takes one bound from reductions over all ranks. The speed
-// bound, link test, island formation and sums, contact forces, fine steps, free flight and fault
-// report are one code for both (dem/islands_kernels.hpp), and so is the sub-iteration's driver
-// (dem/islands_subiteration.cpp). Results are bitwise independent of the
-// thread count; R ranks agree with one rank to round-off.
-// Checkpoints: with a communicator save_state() puts the scheme in a canonical state that
-// restore_state() recreates from the particles and their saved values on any rank count (R
-// ranks: the next sub-iteration regrids, migrates and builds; one rank: the store in id order,
-// no list); the writing run goes on from it too. Without one the state holds the Verlet list as
-// built (the one-rank loops' checkpoints).
+// One class for one rank and R ranks: the bound, links, islands, forces, fine steps and free
+// flight are one code (dem/islands_kernels.hpp), and so is the sub-iteration's driver
+// (dem/islands_subiteration.cpp); what R ranks add (ghosts, rows, reductions, an island spanning
+// ranks) is dem/islands_ranks.cpp. Results are bitwise independent of the thread count; R ranks
+// agree with one rank to round-off. Checkpoints: with a communicator save_state() leaves a
+// canonical state that restore_state() recreates on any rank count; without one the state holds
+// the Verlet list as built.
 #pragma once
 
 #include <array>

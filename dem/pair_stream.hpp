@@ -63,6 +63,19 @@ struct PairStream {
     }
     block_start.back() = static_cast<std::uint32_t>(s);
   }
+
+  // The pairs (a[q], b[q]) in their order, in blocks of `block` pairs, without entries (the orb
+  // scheme's candidate pairs: its global steps walk them as the explicit scheme walks its list).
+  void build(std::span<const std::uint32_t> a, std::span<const std::uint32_t> b,
+             std::size_t block) {
+    i.assign(a.begin(), a.end()), j.assign(b.begin(), b.end());
+    k.clear();
+    const std::size_t n = a.size();
+    block_start.resize((n + block - 1) / block + 1);
+    for (std::size_t q = 0; q + 1 < block_start.size(); ++q)
+      block_start[q] = static_cast<std::uint32_t>(q * block);
+    block_start.back() = static_cast<std::uint32_t>(n);
+  }
 };
 
 } // namespace cfddem::dem

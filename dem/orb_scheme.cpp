@@ -426,13 +426,33 @@ bool OrbScheme::choose_global() {
   return static_cast<double>(fine) > kGlobalFraction * static_cast<double>(owned_);
 }
 
-// The candidate contact pairs as the pair pass's stream (in blocks of 2 kPairBlock pairs: the
+// The candidate contact pairs as the pair pass's streams (in blocks of 2 kPairBlock pairs: the
 // explicit scheme's blocks of 256 rows hold about as many in a dense gas), and the particles
-// that can reach a wall before the pairs expire.
+// that can reach a wall before the pairs expire. Until then each particle moves at most a skin
+// from here (up to skin/2 from its reference now, skin/2 more), so a pair whose raw separation
+// is at most half a periodic length less two skins on every periodic axis keeps its raw
+// separation as the minimum image (DomainGeometry::image returns it unchanged, bit for bit):
+// the head stream skips the image, the tail takes it.
 void OrbScheme::global_stream() {
-  global_.stream.build(pairs_.ca, pairs_.cb, 2 * kPairBlock);
-  near_walls(p_, owned_, {pairs_.xr, pairs_.yr, pairs_.zr}, geom_, skin_, global_.near_wall);
-  global_.nblocks = 0;
+  const DomainGeometry& g = geom_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  double lim[3];
+  for (int a = 0; a < 3; ++a)
+    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
+  const auto raw = [&](std::size_t q) {
+    const std::uint32_t i = pairs_.ca[q], j = pairs_.cb[q];
+    return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
+           std::abs(z[j] - z[i]) <= lim[2];
+  };
+  global_.head.build(pairs_.ca, pairs_.cb, raw, 2 * kPairBlock);
+  global_.tail.build(pairs_.ca, pairs_.cb, [&](std::size_t q) { return !raw(q); }, 2 * kPairBlock);
+  if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
+    near_walls(p_, owned_, {pairs_.xr, pairs_.yr, pairs_.zr}, geom_, skin_, global_.near_wall);
+  else
+    global_.near_wall.clear();
+  global_.nh = global_.nt = 0;
   global_.stale = false;
 }
 
@@ -471,8 +491,10 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
     st.k = k;
     st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
     if (k > 0) {
-      clear_contact_forces<false>(p_, std::span<const PairContacts>(global_.blocks)
-                                          .first(global_.nblocks));
+      clear_contact_forces<false>(
+          p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
+      clear_contact_forces<false>(
+          p_, std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
       clear_forces<false>(p_, global_.near_wall);
       std::uint64_t still = ~std::uint64_t{0};
       for (const std::uint64_t b : still_of)
@@ -483,14 +505,16 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
       }
     }
     StepReport rep;
-    global_.nblocks = pair_pass<false, true, true>(p_, global_.stream, HistoryColumns{}, geom_,
-                                                   model_, st.hk, global_.blocks, rep);
-    const auto contacts = std::span<const PairContacts>(global_.blocks).first(global_.nblocks);
-    scatter_contacts<false>(p_, contacts, {});
+    global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
+                                               st.hk, global_.head_blocks, rep);
+    global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
+                                              st.hk, global_.tail_blocks, rep);
+    scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
+                            std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
     tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
     tally.violations += rep.overlaps;
     add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
-    bt.evals += static_cast<std::int64_t>(global_.stream.i.size());
+    bt.evals += static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size());
     if (record && k == 0)
       synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
                                         rec_.vx.data(), rec_.vy.data(), rec_.vz.data());

@@ -330,13 +330,14 @@ private:
     std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
   };
 
-  // The global mode's state (one rank): the candidate contact pairs as one stream for the
-  // explicit scheme's pair pass (stale after a build or a re-sort), its contacts per block, and
+  // The global mode's state (one rank): the candidate contact pairs as streams for the explicit
+  // scheme's pair pass (stale after a build or a re-sort), those whose raw separation stays the
+  // minimum image (head) and those across a periodic face (tail), their contacts per block, and
   // the particles that can reach a wall before the next build; `on`: this sub-iteration is global.
   struct Global {
-    PairStream stream;
-    std::vector<PairContacts> blocks;
-    std::size_t nblocks = 0;
+    PairStream head, tail;
+    std::vector<PairContacts> head_blocks, tail_blocks;
+    std::size_t nh = 0, nt = 0;
     std::vector<std::uint32_t> near_wall;
     std::vector<std::uint64_t> still; // per block of the update: sign bit set while within skin/2
     bool stale = true, on = false;

@@ -76,6 +76,55 @@ Snapshot orb_at(const Scene& s, long long n) {
   return snap(ids, r.x, r.y, r.z, r.vx, r.vy, r.vz, r.mass);
 }
 
+// Orb from `p` and the explicit scheme from a copy, both to t = 200 r dt_sp for r = 1 .. 10
+// (explicit to the nearest step), recorded there: the largest |T_orb - T_explicit| /
+// T_explicit. `check(orb)` after every sub-iteration that records nothing.
+template <class Check>
+double worst_temperature_difference(const Scene& s, ParticleStore& p, Check&& check) {
+  ParticleStore q = p;
+  PhaseTimer t1, t2;
+  dem::OrbScheme o(s, p, t1);
+  dem::ExplicitScheme e(s, q, t2);
+  o.start();
+  e.start();
+  double worst = 0.0;
+  for (int row = 1; row <= 10; ++row) {
+    while (o.subiterations() < 200.0 * row) {
+      o.subiterate();
+      check(o);
+    }
+    o.subiterate(true);
+    const auto r = o.synchronised_previous();
+    const double To = dem::measure({r.x, r.y, r.z, r.vx, r.vy, r.vz, r.mass}).granular_temperature;
+    const auto target = std::llround(200.0 * row * o.dt_sub() / e.dt());
+    while (e.steps_taken() < target) e.step();
+    e.step(true);
+    const auto x = e.synchronised_previous();
+    const double Te = dem::measure({x.x, x.y, x.z, x.vx, x.vy, x.vz, q.mass}).granular_temperature;
+    worst = std::max(worst, std::abs(To - Te) / Te);
+  }
+  return worst;
+}
+
+std::array<double, 3> total_momentum(const ParticleStore& p) {
+  std::array<double, 3> m{0, 0, 0};
+  for (std::size_t i = 0; i < p.size(); ++i)
+    m[0] += p.mass[i] * p.vx[i], m[1] += p.mass[i] * p.vy[i], m[2] += p.mass[i] * p.vz[i];
+  return m;
+}
+
+// `subits` orb sub-iterations of `p` (recording every `record`-th from the first; 0: none); the
+// global ones among them.
+std::int64_t orb_global_run(const Scene& s, ParticleStore& p, int subits, int record = 0) {
+  PhaseTimer t;
+  dem::OrbScheme o(s, p, t);
+  o.start();
+  for (int k = 0; k < subits; ++k)
+    o.subiterate(record > 0 && k % record == 0);
+  EXPECT_EQ(o.subiterations(), subits);
+  return o.global_subiterations();
+}
+
 } // namespace
 
 // (a) L = 0: one leaf, no ghosts; proximity_radii huge so the leaf always takes the fine step;
@@ -118,30 +167,10 @@ TEST(OrbScheme, AllFineFollowsExplicit) {
                                              "dem.proximity_radii=40.0", "dem.orb_global=false"});
   ParticleStore p = make_initial_particles(s);
   const double mass0 = p.total_mass();
-  ParticleStore q = p;
-  PhaseTimer t1, t2;
-  dem::OrbScheme o(s, p, t1);
-  dem::ExplicitScheme e(s, q, t2);
-  o.start();
-  e.start();
-  const double dt_sp = o.dt_sub();
-  double worst = 0.0;
-  for (int row = 1; row <= 10; ++row) {
-    // Both schemes to t = 20 row dt_sp (explicit to the nearest step), then record.
-    while (o.subiterations() < 200.0 * row) {
-      o.subiterate();
-      EXPECT_EQ(o.last_fine_fraction(), 1.0);
-    }
-    o.subiterate(true);
-    const auto r = o.synchronised_previous();
-    const double To = dem::measure({r.x, r.y, r.z, r.vx, r.vy, r.vz, r.mass}).granular_temperature;
-    const auto target = std::llround(200.0 * row * dt_sp / e.dt());
-    while (e.steps_taken() < target) e.step();
-    e.step(true);
-    const auto x = e.synchronised_previous();
-    const double Te = dem::measure({x.x, x.y, x.z, x.vx, x.vy, x.vz, q.mass}).granular_temperature;
-    worst = std::max(worst, std::abs(To - Te) / Te);
-  }
+  const double worst = worst_temperature_difference(s, p, [](const dem::OrbScheme& o) {
+    EXPECT_EQ(o.last_fine_fraction(), 1.0);
+    EXPECT_EQ(o.global_subiterations(), 0);
+  });
   EXPECT_EQ(p.size(), 200u);
   EXPECT_DOUBLE_EQ(p.total_mass(), mass0);
   EXPECT_LT(worst, 0.02) << "max |T_orb - T_explicit| / T_explicit";
@@ -276,12 +305,7 @@ TEST(OrbScheme, MomentumDriftAcrossLeavesIsBounded) {
   PhaseTimer t;
   dem::OrbScheme o(s, p, t);
   o.start();
-  auto momentum = [&] {
-    std::array<double, 3> m{0, 0, 0};
-    for (std::size_t i = 0; i < p.size(); ++i)
-      m[0] += p.mass[i] * p.vx[i], m[1] += p.mass[i] * p.vy[i], m[2] += p.mass[i] * p.vz[i];
-    return m;
-  };
+  auto momentum = [&] { return total_momentum(p); };
   const double impulse = p.mass[0] * 2.0 * std::sqrt(3.0 * 0.01);
   double worst = 0.0;
   auto prev = momentum();
@@ -399,15 +423,8 @@ TEST(OrbScheme, GlobalModeTriggersWhereNearlyEveryLeafIsFine) {
     std::vector<std::string> k = {"dem.regrid_interval=1.0e-5", "dem.nsubit=2",
                                   "partition.orb_levels=3"};
     k.insert(k.end(), keys.begin(), keys.end());
-    const Scene s = demtest::scene_from(kPair, k);
     ParticleStore p = pairs_and_loners(pairs, loners);
-    PhaseTimer t;
-    dem::OrbScheme o(s, p, t);
-    o.start();
-    for (int q = 0; q < 4; ++q)
-      o.subiterate();
-    EXPECT_EQ(o.subiterations(), 4);
-    return o.global_subiterations();
+    return orb_global_run(demtest::scene_from(kPair, k), p, 4);
   };
   EXPECT_EQ(globals({}, 1, 1), 0) << "2/3 fine";
   EXPECT_EQ(globals({}, 2, 2), 0) << "4/6 fine";
@@ -494,34 +511,16 @@ TEST(OrbScheme, GlobalModeBouncesAPairAcrossLeavesAsTheExplicitSchemeDoes) {
 
 // Every leaf fine (proximity_radii huge), as AllFineFollowsExplicit but in the global mode: no
 // frozen partners, so T follows the explicit scheme as one leaf does (OneLeafMatchesExplicit's
-// difference is rounding; here the fine step is dt_sp / K, 0.6% shorter than dt, and chaos
-// amplifies the difference): measured 0.23% over 2 ms, bound 2.5x that.
+// difference is rounding; here each sub-iteration's last fine step is shortened to land on it,
+// and chaos amplifies the difference): measured 0.23% over 2 ms, bound 2.5x that.
 TEST(OrbScheme, GlobalModeFollowsExplicit) {
   const Scene s = demtest::scene_from(kGas, {"particles.count=200", "dem.scheme=\"orb\"",
                                              "partition.orb_levels=2", "dem.nsubit=100",
                                              "dem.proximity_radii=40.0"});
   ParticleStore p = make_initial_particles(s);
-  ParticleStore q = p;
-  PhaseTimer t1, t2;
-  dem::OrbScheme o(s, p, t1);
-  dem::ExplicitScheme e(s, q, t2);
-  o.start();
-  e.start();
-  double worst = 0.0;
-  for (int row = 1; row <= 10; ++row) {
-    while (o.subiterations() < 200.0 * row)
-      o.subiterate();
-    o.subiterate(true);
-    const auto r = o.synchronised_previous();
-    const double To = dem::measure({r.x, r.y, r.z, r.vx, r.vy, r.vz, r.mass}).granular_temperature;
-    const auto target = std::llround(200.0 * row * o.dt_sub() / e.dt());
-    while (e.steps_taken() < target) e.step();
-    e.step(true);
-    const auto x = e.synchronised_previous();
-    const double Te = dem::measure({x.x, x.y, x.z, x.vx, x.vy, x.vz, q.mass}).granular_temperature;
-    worst = std::max(worst, std::abs(To - Te) / Te);
-  }
-  EXPECT_EQ(o.global_subiterations(), o.subiterations());
+  const double worst = worst_temperature_difference(s, p, [](const dem::OrbScheme& o) {
+    EXPECT_EQ(o.global_subiterations(), o.subiterations());
+  });
   EXPECT_LT(worst, 0.006) << "max |T_orb - T_explicit| / T_explicit";
   fmt::print("global mode: max relative T difference {:.3e}\n", worst);
 }
@@ -532,21 +531,10 @@ TEST(OrbScheme, GlobalModeConservesMomentum) {
   const Scene s = demtest::scene_from(kGas, {"particles.count=200", "dem.scheme=\"orb\"",
                                              "partition.orb_levels=2", "dem.nsubit=10"});
   ParticleStore p = make_initial_particles(s);
-  PhaseTimer t;
-  dem::OrbScheme o(s, p, t);
-  o.start();
-  auto momentum = [&] {
-    std::array<double, 3> m{0, 0, 0};
-    for (std::size_t i = 0; i < p.size(); ++i)
-      m[0] += p.mass[i] * p.vx[i], m[1] += p.mass[i] * p.vy[i], m[2] += p.mass[i] * p.vz[i];
-    return m;
-  };
   const double impulse = p.mass[0] * 2.0 * std::sqrt(3.0 * 0.01);
-  const auto start = momentum();
-  for (int k = 0; k < 200; ++k)
-    o.subiterate();
-  const auto now = momentum();
-  EXPECT_GT(o.global_subiterations(), 100);
+  const auto start = total_momentum(p);
+  EXPECT_GT(orb_global_run(s, p, 200), 100);
+  const auto now = total_momentum(p);
   EXPECT_LT(std::hypot(now[0] - start[0], now[1] - start[1], now[2] - start[2]), 1e-9 * impulse);
 }
 
@@ -562,12 +550,7 @@ TEST(OrbScheme, GlobalModeBitwiseIdenticalForOneAndTwoThreads) {
                "domain.hi=[3.0e-3, 3.0e-3, 3.0e-3]", "particles.temperature=0.05",
                "dem.scheme=\"orb\"", "dem.nsubit=10", levels, prox});
     ParticleStore p = make_initial_particles(s);
-    PhaseTimer timer;
-    dem::OrbScheme o(s, p, timer);
-    o.start();
-    for (int k = 0; k < 14; ++k)
-      o.subiterate(k % 5 == 0);
-    global = o.global_subiterations();
+    global = orb_global_run(s, p, 14, 5);
     return p;
   };
   for (const auto& [levels, prox, lo, hi] :

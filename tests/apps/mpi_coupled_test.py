@@ -222,6 +222,8 @@ def settling_matches():
             "--threads", "1", "--quiet"]
     if SUB:
         args += [f"dem.scheme={SCHEME}", "dem.nsubit=10"]
+    if ORB:  # R ranks take the leaf steps: so does the one-rank run they must equal
+        args += ["dem.orb_global=false"]
     rows, _ = rows_on(scene, args, (1, RANKS))
     one, many = rows[1], rows[RANKS]
     assert len(one) == len(many) == 7, (len(one), len(many))

@@ -205,9 +205,10 @@ public:
   std::size_t owned() const { return owned_; }
   std::size_t ghosts() const { return p_.size() - owned_; }
 
-  // Benchmark hooks (perf/dem, one rank): after at least one subiterate(), run leaf `leaf`'s
-  // fine-step sub-iteration alone (the batch of that one leaf, from the current state), and
-  // refresh the ghosts (frozen copies and the rows' own/other-leaf split, as after a re-sort).
+  // Benchmark hooks (perf/dem, one rank, dem.orb_global = false: the leaf steps' rows): after
+  // at least one subiterate(), run leaf `leaf`'s fine-step sub-iteration alone (the batch of
+  // that one leaf, from the current state), and refresh the ghosts (frozen copies and the rows'
+  // own/other-leaf split, as after a re-sort).
   void benchmark_leaf_subiteration(int leaf);
   void benchmark_ghost_refresh();
 

@@ -503,10 +503,13 @@ Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
 namespace {
 
 // Keys added after checkpoints of this format were written, at the value that older runs had
-// without naming it: such a line is left out, so those checkpoints still restart at it.
+// without naming it: such a line is left out, so those checkpoints still restart at it. (Older
+// runs had no orb global mode: their checkpoints restart with its default, which changes no bit
+// where it never triggers, as a new version continues any run with its own arithmetic;
+// dem.orb_global = false continues the leaf steps but is refused with an older checkpoint.)
 constexpr std::string_view kImpliedLines[] = {
     "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\"",
-    "particles.outflow = \"remove\""};
+    "particles.outflow = \"remove\"", "dem.orb_global = true"};
 
 // Every key whose line differs between this run's fixed lines and the checkpoint's, in this
 // run's order: both values, or the value an older checkpoint implies for a key it predates

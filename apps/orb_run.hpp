@@ -55,6 +55,11 @@ public:
     j["dt_sp"] = scheme.dt_sub();
     j["leaves"] = scheme.leaf_count();
     describe_steps(j, true);
+    j["global_subiterations"] = scheme.global_subiterations();
+    j["global_subiterations_definition"] =
+        "sub-iterations where every particle took the fine steps together through the explicit "
+        "scheme's passes (one rank, no friction, dem.orb_global): the leaves that would step "
+        "finely held more than 3/4 of the particles";
     if (parts_.ranks) {
       // The mean over the rows after the first (each closes an interval).
       const auto col = static_cast<std::size_t>(

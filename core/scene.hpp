@@ -93,6 +93,8 @@ struct DemSpec {
   bool nsubit_auto = false;
   double proximity_radii = 3.0; // a pair is close if centre distance < this * (r_i + r_j) / 2
   std::string local_dt = "proximity";
+  // orb: global sub-iterations where nearly every leaf steps finely (one rank, no friction).
+  bool orb_global = true;
   double regrid_interval = 1e-4; // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
   // orb and islands advance in sub-iterations of a control interval (dem.nsubit per interval).
   bool subiterated() const { return scheme == "orb" || scheme == "islands"; }

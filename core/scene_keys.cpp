@@ -489,6 +489,15 @@ std::vector<SceneKey> make_table() {
        .fallback = word("proximity"),
        .meaning = "orb: how a leaf picks its step (§8): a partner or wall within "
                   "`dem.proximity_radii`, or a gap that could close within dt_sp"},
+      {.name = "dem.orb_global",
+       .type = T::Bool,
+       .section = S::Contacts,
+       .fallback = flag(true),
+       .meaning = "orb, one rank, no friction: a sub-iteration in which the leaves that would "
+                  "step finely hold more than 3/4 of the particles runs as global steps (every "
+                  "particle on the fine step through the explicit scheme's passes, no frozen "
+                  "partners; docs/schemes.md); false: always the paper's leaf steps, which R "
+                  "ranks take"},
       {.name = "dem.regrid_interval",
        .type = T::Number,
        .section = S::Contacts,

@@ -1,6 +1,7 @@
 // The orb scheme's checkpoint under /orb: per particle the half step and the cost, the leaves'
-// step counts, the counters, the candidate pairs with their reference positions, and with
-// friction the tangential history as rows over the checkpoint's particles.
+// step counts, the counters (the global sub-iterations apart), the candidate pairs with their
+// reference positions, and with friction the tangential history as rows over the checkpoint's
+// particles.
 #include "dem/history_checkpoint.hpp"
 #include "dem/scheme_checkpoint.hpp"
 
@@ -16,6 +17,8 @@ void save(StateWriter& w, const OrbScheme::State& o, const std::vector<std::int6
                                   o.pair_evaluations, o.builds, o.regrids, o.overlap_violations,
                                   o.retries, o.pairs_valid ? 1 : 0, o.prox_from_pairs ? 1 : 0});
   w.put("/orb/ratios", std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
+  // Its own entry, so that checkpoints written before the global mode still load (as 0).
+  w.put("/orb/global_subiterations", std::vector<std::int64_t>{o.global_subits});
   // Candidate pairs (store indices) and their reference positions.
   w.put("/orb/contact_a", o.ca);
   w.put("/orb/contact_b", o.cb);
@@ -38,6 +41,8 @@ void restore(StateReader& r, OrbScheme::State& o, const std::vector<std::int64_t
   o.retries = k[8], o.pairs_valid = k[9] != 0, o.prox_from_pairs = k[10] != 0;
   const auto q = r.doubles("/orb/ratios", 3);
   o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1], o.skin = q[2];
+  if (r.exists("/orb/global_subiterations"))
+    o.global_subits = r.int64s("/orb/global_subiterations", 1)[0];
   o.ca = r.uint32s("/orb/contact_a", StateReader::kAny);
   o.cb = r.uint32s("/orb/contact_b", o.ca.size());
   o.pa = r.uint32s("/orb/proximity_a", StateReader::kAny);

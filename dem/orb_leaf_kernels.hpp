@@ -219,6 +219,28 @@ inline void add_frictional_wall_forces(std::uint32_t b, std::uint32_t e, const s
   }
 }
 
+// The wall contacts of particle i (add_wall_contacts: the planar walls of the non-periodic axes,
+// and with Cylinder the curved wall of a column) added to f (and tq, with friction).
+template <bool Friction, bool Cylinder>
+inline void add_particle_walls(std::uint32_t i, const LeafLive& p,
+                               [[maybe_unused]] const LeafSpin& w, const DomainGeometry& g,
+                               const StepModel& m, double f[3], double tq[3],
+                               OverlapTally& tally) {
+  const double ri = p.rad[i], mi = p.mass[i];
+  const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
+  add_wall_contacts<Friction, Cylinder>(
+      g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
+      [&](double s[3]) {
+        if constexpr (Friction)
+          s[0] = w.wx[i], s[1] = w.wy[i], s[2] = w.wz[i];
+      },
+      f, tq,
+      [&](double delta) {
+        tally.max_ratio = std::max(tally.max_ratio, delta / ri);
+        tally.violations += delta > m.max_overlap * ri;
+      });
+}
+
 // The walls of a cylindrical column (domain.shape = "cylinder") on the particles [b, e), in
 // place of add_wall_forces or add_frictional_wall_forces: the curved wall and the planar walls
 // along its axis, through the explicit scheme's helper (add_wall_contacts), added to the force
@@ -230,22 +252,27 @@ inline void add_column_wall_forces(std::uint32_t b, std::uint32_t e, const std::
                                    OverlapTally& tally) {
   for (std::uint32_t i = b; i < e; ++i) {
     const bool row = off[i + 1] > off[i];
-    const double ri = p.rad[i], mi = p.mass[i];
     double f[3] = {row ? p.fx[i] : 0.0, row ? p.fy[i] : 0.0, row ? p.fz[i] : 0.0};
     double tq[3] = {0.0, 0.0, 0.0};
     if constexpr (Friction)
       tq[0] = row ? w.tx[i] : 0.0, tq[1] = row ? w.ty[i] : 0.0, tq[2] = row ? w.tz[i] : 0.0;
-    const double pos[3] = {p.x[i], p.y[i], p.z[i]}, vel[3] = {p.vx[i], p.vy[i], p.vz[i]};
-    add_wall_contacts<Friction, true>(
-        g, m.wall, m.wall_t, pos, vel, ri, [&] { return mi; },
-        [&](double s[3]) { s[0] = w.wx[i], s[1] = w.wy[i], s[2] = w.wz[i]; }, f, tq,
-        [&](double delta) {
-          tally.max_ratio = std::max(tally.max_ratio, delta / ri);
-          tally.violations += delta > m.max_overlap * ri;
-        });
+    add_particle_walls<Friction, true>(i, p, w, g, m, f, tq, tally);
     p.fx[i] = f[0], p.fy[i] = f[1], p.fz[i] = f[2];
     if constexpr (Friction)
       w.tx[i] = tq[0], w.ty[i] = tq[1], w.tz[i] = tq[2];
+  }
+}
+
+// The walls of the particles `idx` (planar, and a column's with Cylinder), added to the force
+// each holds (the global steps: the pair pass's scatter wrote it). No friction.
+template <bool Cylinder>
+inline void add_listed_wall_forces(std::span<const std::uint32_t> idx, const LeafLive& p,
+                                   const DomainGeometry& g, const StepModel& m,
+                                   OverlapTally& tally) {
+  for (const std::uint32_t i : idx) {
+    double f[3] = {p.fx[i], p.fy[i], p.fz[i]}, tq[3] = {0.0, 0.0, 0.0};
+    add_particle_walls<false, Cylinder>(i, p, LeafSpin{}, g, m, f, tq, tally);
+    p.fx[i] = f[0], p.fy[i] = f[1], p.fz[i] = f[2];
   }
 }
 

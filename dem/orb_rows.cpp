@@ -48,6 +48,7 @@ void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
     for (auto& i : *v)
       i = scratch_[i];
   drop_rows();
+  global_.stale = true;
 }
 
 void OrbScheme::regrid() {
@@ -298,6 +299,7 @@ void OrbScheme::rebuild_pairs() {
   pairs_.xr = p_.x, pairs_.yr = p_.y, pairs_.zr = p_.z;
   pairs_.valid = true;
   drop_rows();
+  global_.stale = true;
   ++stats_.builds;
 }
 

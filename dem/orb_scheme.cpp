@@ -18,6 +18,7 @@
 #include "dem/orb_leaf_kernels.hpp"
 #include "dem/orb_rank_part.hpp"
 #include "dem/scheme_support.hpp"
+#include "dem/verlet_passes.hpp"
 
 namespace cfddem::dem {
 
@@ -32,6 +33,7 @@ enum class Fault { none = 0, nan, left_domain };
 struct OrbScheme::Batch {
   std::uint32_t b = 0, e = 0, a0 = 0, a1 = 0;
   std::int64_t K = 1, evals_per_step = 0;
+  std::int64_t evals = 0; // force evaluations of the last attempt
   double h = 0.0, h_last = 0.0;
   // Results of the last attempt.
   std::int64_t violations = 0;
@@ -68,6 +70,7 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepMod
   cfg_.prox = 0.5 * scene.dem.proximity_radii;
   cfg_.cost_weights = scene.partition.weights == "cost";
   cfg_.time_to_contact = scene.dem.local_dt == "time_to_contact";
+  cfg_.global = scene.dem.orb_global && !rank_ && !model_.friction;
   skin_ = model_.skin;
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
@@ -154,7 +157,8 @@ bool OrbScheme::build_rows(bool force) {
     pairs_.valid = false;
   if (force || !pairs_.valid || rows_expire())
     rebuild_pairs(), fresh = true;
-  if (rows_.off.size() != p_.size() + 1) {
+  global_.on = choose_global();
+  if (!global_.on && rows_.off.size() != p_.size() + 1) {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     derive_rows();
   }
@@ -212,13 +216,8 @@ LeafRows OrbScheme::rows_view() const {
 // other-leaf entries one: see pair_evaluations()), and with `record` the state at t.
 void OrbScheme::plan(bool record) {
   const std::size_t n = owned_;
-  std::span<const unsigned char> near;
-  if (rank_) {
-    near = rank_->rows.near();
-  } else {
-    mark_near();
-    near = rows_.near;
-  }
+  // One rank: build_rows marked them (choose_global).
+  const std::span<const unsigned char> near = rank_ ? rank_->rows.near() : rows_.near;
   const std::size_t nl = leaves_.id.size();
   leaves_.fine.assign(nl, 0);
   for (std::size_t k = 0; k < nl; ++k) {
@@ -229,12 +228,21 @@ void OrbScheme::plan(bool record) {
   }
   const bool can_refine = model_.dt < cfg_.dt_sp;
   const FineSteps steps = fine_steps(cfg_.dt_sp, model_.dt);
+  if (global_.on) {
+    // Every particle on the fine steps (counted as every leaf fine): one batch of all.
+    std::fill(leaves_.fine.begin(), leaves_.fine.end(), 1);
+    Batch bt;
+    bt.b = 0, bt.e = static_cast<std::uint32_t>(n), bt.K = steps.K;
+    bt.h = steps.h, bt.h_last = steps.h_last;
+    batches_.assign(1, bt);
+  }
   // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so
   // that every thread gets several (the arithmetic does not depend on the cuts).
   const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
   const std::size_t grain = std::max<std::size_t>(256, n / (4 * std::max<std::size_t>(threads, 1)));
-  batches_.clear();
-  for (std::size_t k = 0; k < nl; ++k) {
+  if (!global_.on)
+    batches_.clear();
+  for (std::size_t k = 0; k < nl && !global_.on; ++k) {
     const bool fine = leaves_.fine[k] && can_refine;
     const std::uint32_t b = leaves_.range[k], e = leaves_.range[k + 1];
     if (b == e)
@@ -253,6 +261,8 @@ void OrbScheme::plan(bool record) {
   const LeafRows rows = rows_view();
   const std::span<const std::uint32_t> active = rows.act;
   for (Batch& bt : batches_) {
+    if (global_.on)
+      break; // no rows: the global steps count their pairs
     bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.b) -
                                        active.begin());
     bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.e) -
@@ -296,6 +306,7 @@ void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   bt.max_ratio = 0.0;
   bt.outran = false;
   bt.fault = Fault::none;
+  bt.evals = bt.evals_per_step * bt.K;
   if (bt.e == bt.b)
     return;
   const DomainGeometry g = geom_;
@@ -351,6 +362,13 @@ void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   }
   bt.max_ratio = tally.max_ratio;
   bt.violations = tally.violations;
+  find_batch_fault<Column>(bt, p);
+}
+
+// A NaN or a particle outside a wall among the batch's particles, into bt.fault.
+template <bool Column> void OrbScheme::find_batch_fault(Batch& bt, const LeafLive& p) const {
+  const DomainGeometry& g = geom_;
+  const std::uint32_t b = bt.b, e = bt.e;
   // Faults are rare: a branch-free pass (it vectorizes) says whether to look for one. The sum
   // v2 + x + y + z is NaN or inf if any term is; a coordinate outside a wall's closed interval,
   // or NaN, fails the comparison (periodic axes get an infinite interval).
@@ -389,9 +407,145 @@ void OrbScheme::run_batch_impl(Batch& bt, bool record) {
   }
 }
 
+// One rank, at the sub-iteration's start: which particles are near a partner or a wall
+// (mark_near), and whether the sub-iteration runs in the global mode: the leaves that would step
+// finely hold more than kGlobalFraction of the particles (orb_scheme.hpp gives the cost
+// argument). A decision from the state alone, so a rerun, a thread count and a restart take it
+// alike.
+bool OrbScheme::choose_global() {
+  mark_near();
+  if (!cfg_.global || !(model_.dt < cfg_.dt_sp))
+    return false;
+  std::size_t fine = 0;
+  for (std::size_t k = 0; k + 1 < leaves_.range.size(); ++k) {
+    unsigned char any = 0;
+    for (std::uint32_t i = leaves_.range[k]; i < leaves_.range[k + 1]; ++i)
+      any |= rows_.near[i];
+    fine += any ? leaves_.range[k + 1] - leaves_.range[k] : 0;
+  }
+  return static_cast<double>(fine) > kGlobalFraction * static_cast<double>(owned_);
+}
+
+// The candidate contact pairs as the pair pass's streams (in blocks of 2 kPairBlock pairs: the
+// explicit scheme's blocks of 256 rows hold about as many in a dense gas), and the particles
+// that can reach a wall before the pairs expire. Until then each particle moves at most a skin
+// from here (up to skin/2 from its reference now, skin/2 more), so a pair whose raw separation
+// is at most half a periodic length less two skins on every periodic axis keeps its raw
+// separation as the minimum image (DomainGeometry::image returns it unchanged, bit for bit):
+// the head stream skips the image, the tail takes it.
+void OrbScheme::global_stream() {
+  const DomainGeometry& g = geom_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  double lim[3];
+  for (int a = 0; a < 3; ++a)
+    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
+  const auto raw = [&](std::size_t q) {
+    const std::uint32_t i = pairs_.ca[q], j = pairs_.cb[q];
+    return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
+           std::abs(z[j] - z[i]) <= lim[2];
+  };
+  global_.head.build(pairs_.ca, pairs_.cb, raw, 2 * kPairBlock);
+  global_.tail.build(pairs_.ca, pairs_.cb, [&](std::size_t q) { return !raw(q); }, 2 * kPairBlock);
+  if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
+    near_walls(p_, owned_, {pairs_.xr, pairs_.yr, pairs_.zr}, geom_, skin_, global_.near_wall);
+  else
+    global_.near_wall.clear();
+  global_.nh = global_.nt = 0;
+  global_.stale = false;
+}
+
+void OrbScheme::run_global(Batch& bt, bool record) {
+  with_flags([&](auto ext, auto col) { run_global_impl<ext, col>(bt, record); }, ext_.active(),
+             geom_.cylinder);
+}
+
+// The global mode's K fine steps of every particle: the explicit scheme's passes (each
+// candidate pair once through pair_pass, through the minimum image, its contacts scattered to
+// both particles in the stream's order, so the sums do not depend on the thread count), the
+// walls of the particles near one, and the orb's variable-step leapfrog (leaf_kick_drift: the
+// first kick spans each particle's own h_prev + h/2). As the explicit scheme, the pairs are
+// checked after every step and rebuilt when some particle moved more than skin/2 since their
+// build (no partner is frozen, so nothing is rolled back).
+template <bool External, bool Column>
+void OrbScheme::run_global_impl(Batch& bt, bool record) {
+  bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
+  const std::size_t n = owned_;
+  const LeafLive p = live(External);
+  if (global_.stale)
+    global_stream();
+  // The leaf steps left forces behind: every particle's from zero at the first step, then those
+  // of the last step's contacts and of the particles near a wall (as the explicit scheme).
+  for (std::vector<double>* c : {&p_.fx, &p_.fy, &p_.fz})
+    std::fill(c->begin(), c->begin() + static_cast<std::ptrdiff_t>(n), 0.0);
+  OverlapTally tally;
+  LeafStep st;
+  st.K = bt.K;
+  st.half_skin2 = 0.25 * skin_ * skin_;
+  constexpr std::size_t kBlock = 4096;
+  const std::size_t nblocks = (n + kBlock - 1) / kBlock;
+  std::vector<std::uint64_t>& still_of = global_.still;
+  still_of.assign(nblocks, ~std::uint64_t{0});
+  for (std::int64_t k = 0; k < bt.K; ++k) {
+    st.k = k;
+    st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
+    if (k > 0) {
+      clear_contact_forces<false>(
+          p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
+      clear_contact_forces<false>(
+          p_, std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+      clear_forces<false>(p_, global_.near_wall);
+      std::uint64_t still = ~std::uint64_t{0};
+      for (const std::uint64_t b : still_of)
+        still &= b;
+      if (!(still >> 63)) { // some particle moved more than skin/2 since the build
+        rebuild_pairs();
+        global_stream();
+      }
+    }
+    StepReport rep;
+    global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
+                                               st.hk, global_.head_blocks, rep);
+    global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
+                                              st.hk, global_.tail_blocks, rep);
+    scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
+                            std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+    tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
+    tally.violations += rep.overlaps;
+    add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
+    bt.evals += static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size());
+    if (record && k == 0)
+      synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
+                                        rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
+    const LeafFrozen ref{pairs_.xr, pairs_.yr, pairs_.zr, {}, {}, {}};
+    auto kick_drift = [&](std::size_t q) {
+      std::uint64_t still = ~std::uint64_t{0};
+      leaf_kick_drift<External>(static_cast<std::uint32_t>(q * kBlock),
+                                static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock)), p,
+                                ref, st, model_.gravity, still);
+      still_of[q] = still;
+    };
+    if (nblocks <= 2) {
+      for (std::size_t q = 0; q < nblocks; ++q)
+        kick_drift(q);
+    } else {
+      tbb::parallel_for(std::size_t{0}, nblocks, kick_drift);
+    }
+    st.h_before = st.hk;
+  }
+  bt.max_ratio = tally.max_ratio;
+  bt.violations = tally.violations;
+  find_batch_fault<Column>(bt, p);
+}
+
 // One try at the sub-iteration with the current rows (one TBB task per batch); true if some
 // batch outran its rows.
 bool OrbScheme::attempt(bool record) {
+  if (global_.on) {
+    run_global(batches_.front(), record);
+    return false; // the global steps rebuild their pairs as they go: nothing to redo
+  }
   const int nb = static_cast<int>(batches_.size());
   tbb::parallel_for(
       tbb::blocked_range<int>(0, nb, 1),
@@ -449,7 +603,8 @@ void OrbScheme::subiterate(bool record) {
   std::int64_t local_steps = 0, local_evals = 0;
   while (true) {
     PhaseTimer::Scope t(timer_, Phase::force);
-    freeze();
+    if (!global_.on) // the global steps have no frozen partners and never roll back
+      freeze();
     plan(record);
     c = {};
     c[0] = attempt(record) ? 1 : 0;
@@ -458,7 +613,7 @@ void OrbScheme::subiterate(bool record) {
     for (const Batch& bt : batches_) {
       c[1] += bt.fault != Fault::none ? 1 : 0;
       c[4] += static_cast<std::int64_t>(bt.e - bt.b) * bt.K;
-      c[5] += bt.evals_per_step * bt.K;
+      c[5] += bt.evals;
       c[6] += bt.violations;
     }
     for (std::size_t k = 0; k < leaves_.id.size(); ++k)
@@ -520,6 +675,12 @@ void OrbScheme::subiterate(bool record) {
   if (!rank_ || record)
     stats_.max_overlap_ratio = std::max(stats_.max_overlap_ratio, all_max(stats_.ratio));
   ++stats_.subits;
+  if (global_.on) {
+    ++stats_.global_subits;
+    // The leaf steps rewrite the force of the particles with rows only: derive_rows clears the
+    // rest (the global steps left theirs behind).
+    drop_rows();
+  }
   if (!rank_)
     resort();
 }
@@ -597,6 +758,7 @@ OrbScheme::State OrbScheme::save_state() const {
   s.particle_steps = stats_.particle_steps, s.pair_evaluations = stats_.pair_evaluations;
   s.builds = stats_.builds, s.regrids = stats_.regrids;
   s.overlap_violations = stats_.overlap_violations, s.retries = stats_.retries;
+  s.global_subits = stats_.global_subits;
   s.last_fine_fraction = stats_.last_fine_fraction;
   s.max_overlap_ratio = std::max(stats_.max_overlap_ratio, all_max(stats_.ratio));
   s.skin = skin_;
@@ -640,6 +802,7 @@ void OrbScheme::restore_state(State s) {
   stats_.particle_steps = s.particle_steps, stats_.pair_evaluations = s.pair_evaluations;
   stats_.builds = s.builds, stats_.regrids = s.regrids;
   stats_.overlap_violations = s.overlap_violations, stats_.retries = s.retries;
+  stats_.global_subits = s.global_subits;
   stats_.last_fine_fraction = s.last_fine_fraction, stats_.max_overlap_ratio = s.max_overlap_ratio;
   stats_.ratio = 0.0;
   if (s.skin > 0.0)
@@ -652,6 +815,7 @@ void OrbScheme::restore_state(State s) {
     pairs_.ca.clear(), pairs_.cb.clear(), pairs_.pa.clear(), pairs_.pb.clear(), pairs_.xr.clear(),
         pairs_.yr.clear(), pairs_.zr.clear();
   rows_.off.clear(); // rows are derived again, the history attached to them by ids
+  global_.stale = true;
   hist_.hx.clear(), hist_.hy.clear(), hist_.hz.clear(), hist_.ids.clear();
   hist_.pending = std::move(s.history);
 }

@@ -63,6 +63,23 @@ struct PairStream {
     }
     block_start.back() = static_cast<std::uint32_t>(s);
   }
+
+  // The pairs (a[q], b[q]) with keep(q), in their order, in blocks of `block` pairs, without
+  // entries (the orb scheme's candidate pairs: its global steps walk them as the explicit scheme
+  // walks its list).
+  template <class Keep>
+  void build(std::span<const std::uint32_t> a, std::span<const std::uint32_t> b, Keep&& keep,
+             std::size_t block) {
+    i.clear(), j.clear(), k.clear();
+    for (std::size_t q = 0; q < a.size(); ++q)
+      if (keep(q))
+        i.push_back(a[q]), j.push_back(b[q]);
+    const std::size_t n = i.size();
+    block_start.resize((n + block - 1) / block + 1);
+    for (std::size_t q = 0; q + 1 < block_start.size(); ++q)
+      block_start[q] = static_cast<std::uint32_t>(q * block);
+    block_start.back() = static_cast<std::uint32_t>(n);
+  }
 };
 
 } // namespace cfddem::dem

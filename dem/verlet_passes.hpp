@@ -6,6 +6,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <span>
@@ -290,10 +291,11 @@ void add_wall_forces(const DomainGeometry& g, const StepModel& m, ParticleStore&
 // that no rounding can matter) cannot, and the update pass skips their wall test. With a
 // cylinder, those within radius + skin of the curved wall too (its gap R - rho - r shrinks by at
 // most the distance moved).
-inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& list,
-                       const DomainGeometry& g, double skin, std::vector<std::uint32_t>& out) {
+// `ref`: the reference positions (x, y, z) of the build.
+inline void near_walls(const ParticleStore& p, std::size_t n,
+                       const std::array<std::span<const double>, 3>& ref, const DomainGeometry& g,
+                       double skin, std::vector<std::uint32_t>& out) {
   out.clear();
-  const std::span<const double> ref[3] = {list.x_ref(), list.y_ref(), list.z_ref()};
   with_flags(
       [&](auto cyl) {
         constexpr bool Cylinder = decltype(cyl)::value;
@@ -310,6 +312,11 @@ inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& 
         }
       },
       g.cylinder);
+}
+
+inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& list,
+                       const DomainGeometry& g, double skin, std::vector<std::uint32_t>& out) {
+  near_walls(p, n, {list.x_ref(), list.y_ref(), list.z_ref()}, g, skin, out);
 }
 
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves

@@ -372,6 +372,21 @@ class Restart(Tmp):
         # Checkpoints fall on regrid points (every dem.nsubit sub-iterations).
         self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=orb", "output.interval=0.0005"])
 
+    def test_orb_global_mode_switching_bitwise(self):
+        # The global mode (every particle on the fine steps where nearly every leaf would be
+        # fine) and the leaf steps taking turns: proximity_radii 2.5 at 64 leaves puts the
+        # particles in fine leaves on both sides of 3/4.
+        self.check_restart(HCS, 0.004, 0.002, ["dem.scheme=orb", "dem.nsubit=15",
+                                               "partition.orb_levels=6",
+                                               "dem.proximity_radii=2.5",
+                                               "output.interval=0.0005"])
+        with open(os.path.join(self.tmp, "full", "run.json")) as f:
+            info = json.load(f)
+        self.assertGreater(info["global_subiterations"], 0)
+        self.assertLess(info["global_subiterations"], info["steps"] - 1)
+        with open(os.path.join(self.tmp, "second", "run.json")) as f:
+            self.assertEqual(json.load(f)["global_subiterations"], info["global_subiterations"])
+
     def test_islands_hcs_bitwise(self):
         # The list as built, half steps, counters and histograms; the checkpoint falls between
         # two sub-iterations that are not a multiple of dem.nsubit (islands have no regrid).

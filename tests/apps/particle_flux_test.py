@@ -10,8 +10,9 @@ For every scheme on one rank:
   by 10 ms (the inflow is four times the terminal velocity);
 - with particles.outflow = "wall" no particle leaves (the old behaviour, now a stated choice);
 - a restart from a checkpoint taken while particles leave repeats the run bit for bit.
+One rank's orb (its global mode through most of the blow-out) counts within 2% of explicit's.
 On 2 ranks (where mpirun is found) every scheme closes the same balance, its count within 2% of
-one rank's at every row (round-off between the rank counts grows in a colliding bed), and a
+one rank's at every row (orb: one rank's leaf steps, dem.orb_global = false) (round-off between the rank counts grows in a colliding bed), and a
 restart across removals is bitwise. The islands scheme runs a box twice as wide there: its halo
 grows with the particles' speed beyond half of the scene's 0.8 mm period.
 
@@ -232,9 +233,16 @@ def outflow(tmp):
     run(wall, 'particles.outflow="wall"', "run.end_time=0.006")
     assert all(int(float(x["particles"])) == 400 and float(x["mass_out"]) == 0.0
                for x in rows(wall))
+    # One rank's orb takes its global mode through most of the blow-out (every particle on the
+    # fine steps, no frozen partners) and follows the explicit scheme's counts (the leaf steps
+    # lag: 296 particles left at 5 ms against 217); R ranks take the leaf steps, as one rank does
+    # with dem.orb_global = false.
+    close_counts(counts["explicit"], counts["orb"], "orb's global mode and explicit")
     if MPIEXEC:
-        for scheme in ("explicit", "orb"):
-            close_counts(counts[scheme], check_balance(scheme, tmp, ranks=2), scheme)
+        leaf = ["dem.orb_global=false"]
+        close_counts(counts["explicit"], check_balance("explicit", tmp, ranks=2), "explicit")
+        close_counts(check_balance("orb", tmp, extra=leaf), check_balance("orb", tmp, ranks=2),
+                     "orb")
         check_restart("explicit", tmp, ranks=2)
         wide = [*WIDE, "run.end_time=0.006"]
         close_counts(check_balance("islands", tmp, extra=wide),

@@ -2,6 +2,7 @@
 // that steps the explicit scheme and returns synchronised states.
 #pragma once
 
+#include <span>
 #include <string>
 
 #include "core/initial_conditions.hpp"
@@ -14,10 +15,13 @@
 namespace cfddem::demtest {
 
 // Scene from TOML text (plus overrides); validates exactly as `cfddem run` does.
-inline Scene scene_from(const std::string& toml, std::initializer_list<std::string> overrides = {}) {
+inline Scene scene_from(const std::string& toml, std::span<const std::string> overrides) {
   auto cfg = SceneConfig::from_string(toml, "test scene");
   for (const auto& o : overrides) cfg.apply_override(o);
   return read_scene(cfg, "test");
+}
+inline Scene scene_from(const std::string& toml, std::initializer_list<std::string> overrides = {}) {
+  return scene_from(toml, std::span<const std::string>(overrides.begin(), overrides.size()));
 }
 
 // Two particles of the paper (d = 100 um, rho = 1000) in a periodic 1 mm box, no gravity.

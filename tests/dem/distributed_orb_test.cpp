@@ -112,7 +112,11 @@ constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
-State one_rank_orb(const Scene& scene, int subits, bool external = false) {
+// R ranks take the leaf steps: the one-rank run they must equal bit for bit does too
+// (dem.orb_global = false; OrbScheme::kGlobalFraction).
+State one_rank_orb(const Scene& leaf_scene, int subits, bool external = false) {
+  Scene scene = leaf_scene;
+  scene.dem.orb_global = false;
   ParticleStore p = make_initial_particles(scene);
   PhaseTimer timer;
   dem::OrbScheme s(scene, p, timer);

@@ -1,94 +1,22 @@
 // The `orb` scheme (dem.scheme = "orb"): the explicit adaptive time stepping of Sitaraman & Grout
-// (Algorithm 2). Every dem.regrid_interval (dt_f) of simulated time the particles are split by
-// an ORB into 2^partition.orb_levels leaves and the store is permuted so that each leaf is a
-// contiguous range (partition.weights = "cost": each particle weighs the local steps its leaf
-// took since the last regrid, so a leaf weighs particles x local steps). Time advances in
-// sub-iterations of dt_sp = dt_f / dem.nsubit; in each one every leaf picks its own step (leaves
-// with the same step run together as TBB tasks, below):
-//   dt_local = the explicit step (tau_p * dt_factor) if some own particle has a partner (own or
-//              ghost) closer than dem.proximity_radii * (r_i + r_j) / 2 centre to centre,
-//              or its centre is closer than dem.proximity_radii * r_i to a wall (with
-//              dem.local_dt = "time_to_contact": if some gap to a partner or a wall could close
-//              within dt_sp at the particles' speeds plus gravity and external forces),
-//            = dt_sp otherwise,
-// and takes K = ceil(dt_sp / dt_local) velocity-Verlet steps with the explicit scheme's contact
-// law, the last one shortened so that the leaf lands exactly on the end of the sub-iteration.
-// Particles of other leaves are read frozen at their state at the start of the sub-iteration
-// (ghosts). Afterwards particles that left their leaf are re-sorted into the leaf that now holds
-// them (OrbTree::locate), keeping every leaf contiguous.
+// (Algorithm 2). Every dem.regrid_interval (dt_f) the particles are split by an ORB into
+// 2^partition.orb_levels leaves and the store is permuted so that each leaf is a contiguous
+// range; time advances in sub-iterations of dt_sp = dt_f / dem.nsubit, in each of which every
+// leaf picks its own step (the fine step tau_p * dt_factor if one of its particles has a close
+// partner or wall, else one step of dt_sp) and takes K = ceil(dt_sp / dt_local) velocity-Verlet
+// steps with the explicit scheme's contact law, reading the particles of other leaves frozen at
+// the sub-iteration's start. Leaves with the same step run together as TBB tasks. Where nearly
+// every leaf would step finely, one rank without friction takes the sub-iteration as global
+// steps through the explicit scheme's passes instead (kGlobalFraction, the global mode).
+// Velocities are kept at half steps with the half step's length per particle (variable-step
+// leapfrog: a constant step is the explicit update exactly). An overlap beyond dem.max_overlap is
+// counted, not fatal; NaN or a particle leaving through a wall stops the run.
 //
-// Implementation (what makes it cheap when most leaves are fine-stepped):
-// - One cell list over the whole store gives candidate pairs: contact candidates (centres within
-//   r_i + r_j + skin) and proximity candidates (within proximity_radii (r_i + r_j)/2 + skin).
-//   They are rebuilt only when some particle's displacement since the build plus its free flight
-//   over one sub-iteration exceeds skin/2 (Verlet criterion, checked between sub-iterations), and
-//   are remapped, not rebuilt, when the store is re-sorted.
-// - Each particle's row is split into partners of its own leaf (read live) and of other leaves
-//   (read from the frozen copies): the ghost refresh is one copy of x and v per sub-iteration, and
-//   only particles that are actual partners are ever read as ghosts. Rows are summed in particle-id
-//   order, so results do not depend on the store's order, the batching or the thread count.
-// - Consecutive leaves with the same local step are advanced in lockstep as one TBB task (a
-//   batch, cut at ~max(256, n / 4 threads) particles): the contact pass over the rows, then the
-//   branch-free kick-drift over the batch's contiguous range (dem/contact_kernels.hpp, the
-//   explicit scheme's arithmetic). Leaves never read each other's live state, so the batching
-//   changes no result bit; it amortises the loop overhead of ~20-particle leaves.
-// - A fine leaf whose particle moves more than skin/2 during the sub-iteration (a collision sped
-//   it up) makes the whole sub-iteration roll back to the frozen copies and run again with rows
-//   rebuilt; if they were already fresh, with the skin doubled until the next regrid
-//   (retries() counts them).
-// Force evaluations (pair_evaluations) = per local step, own-leaf pairs once plus other-leaf
-// pairs once per side: a pair across a leaf boundary is evaluated by both leaves, against the
-// other's frozen copy, and counted twice. With one leaf it is the explicit scheme's count.
-//
-// Velocities are kept at half steps as in the explicit scheme, with the length of the half step
-// stored per particle (h_prev = dt_last / 2; 0 at the start, where v is the synchronised v(0)).
-// A step of length h evaluates F(n) with x(n), v(n-1/2), then
-//   v(n+1/2) = v(n-1/2) + a(n) (h_prev + h/2),  x(n+1) = x(n) + v(n+1/2) h,  h_prev = h/2,
-// which is v(n) = v(n-1/2) + a(n) h_prev (re-synchronise with the old step) followed by
-// v(n+1/2) = v(n) + a(n) h/2 (start the new one): variable-step leapfrog. With a constant h it is
-// the explicit scheme's update exactly (h/2 + h/2 == h in floating point).
-//
-// Friction (dem.friction or dem.wall_friction > 0; any rank count): the explicit scheme's
-// tangential spring with history and Coulomb limit (dem/friction_kernels.hpp) and the spin kick.
-// Each row entry (i, j) holds i's tangential history; a partner in another leaf is read with its
-// spin frozen too. The history lives with the pair, not with the entry: whenever the rows are
-// derived again (a re-sort, a rebuild, a regrid, a restore) it is collected by particle ids and
-// attached to the new rows (dem/contact_history.hpp, as the explicit scheme carries it across a
-// rebuild), and a retried sub-iteration rolls it back with the particles. A pair's spring advances
-// by h_k v_t at each local step of length h_k. On R ranks the rows are built at every
-// sub-iteration: the owned rows' history is collected by ids before the exchange and each record
-// routed to the rank its owner particle goes to (ParticleExchange::route), then attached to the new
-// rows; the ghosts carry their spins.
-//
-// Limits (documented, not hidden): an overlap beyond dem.max_overlap is counted (max_overlap_ratio)
-// rather than fatal, since a coarse step missing a collision is the trade this scheme makes; NaN or
-// a particle leaving through a wall stops the run.
-//
-// Over MPI ranks (a communicator of more than one rank; nullptr or one rank is the one-rank path
-// above, bit for bit and at its speed) the leaves of the parallel ORB are dealt to ranks by the
-// knapsack (partition/rank_decomposition.hpp) and each rank advances the leaves it owns. The
-// sub-iteration is the same sequence, with these rank steps (RankPart, dem/orb_rank_part.cpp):
-//   1. at a regrid point: wrap, parallel ORB with the same weights and cuts, knapsack over the
-//      same weights; otherwise only particles that left their leaf are located again (resort's
-//      rule);
-//   2. one round of messages (ParticleExchange::redistribute): every particle to the rank owning
-//      its leaf (with its half step and cost), and ghosts: every particle within the cutoff of
-//      one of a rank's leaves (periodic images included) is copied there UNSHIFTED, so that pair
-//      separations take the one-rank minimum-image arithmetic bit for bit; the owned particles
-//      are ordered by (leaf, id);
-//   3. rows of the owned particles from a cell list over owned + ghosts (OrbLocalRows, fresh at
-//      every sub-iteration), summed in the one-rank order (own-leaf partners by id, then the
-//      others by id), so with the same leaves the result is the one-rank result bit for bit,
-//      whatever the rank and thread counts;
-//   4. one reduction of the counters and flags, the particle count among them (none may be
-//      lost): an outrun fine leaf on any rank makes every rank roll back and redo the
-//      sub-iteration with twice the skin; a NaN or a particle through a wall stops every rank
-//      with the same RunError (the smallest particle id's).
-// So a sub-iteration costs one all-to-all of counts, one exchange of particles between
-// neighbouring ranks and one allreduce (with time_to_contact, one more for the largest reach).
-// With a gas, the gas force is computed on the gas boxes' ranks and routed back
-// (apps/gas_routing.hpp). With more ranks than leaves some ranks own none (they still take part
-// in every collective).
+// One class for one rank and R ranks (its rank steps: dem/orb_rank_part.cpp): the leaves of the
+// parallel ORB are dealt to ranks by the knapsack, and every particle's position and velocity
+// equal the one-rank leaf steps' bit for bit on any rank and thread count. The rule, the
+// implementation (candidate pairs, rows, batches, roll-back, friction's history, the rank steps)
+// and what each costs: docs/schemes.md, "orb"; the paper's rule: docs/theory.md §8.
 #pragma once
 
 #include <array>

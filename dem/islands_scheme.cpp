@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <span>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -459,16 +460,47 @@ void IslandsScheme::make_links(bool incremental) {
   auto tied_to_cylinder = [&](std::uint32_t i) {
     return islands::may_reach_cylinder(g, x[i], y[i], z[i], rad[i], bnd[i], dt, margin);
   };
+  unsigned char* __restrict is_link = nullptr;
   if (!incremental) {
-    ln_.ea.clear(), ln_.eb.clear(), ln_.ek.clear();
+    ln_.linked_entry.assign(off[n], 0);
+    is_link = ln_.linked_entry.data();
     // Only particles with a non-empty row (increasing): most rows of a dilute scene are empty.
-    for (const std::uint32_t i : one_.list.active()) {
-      const std::uint32_t kw = wrap[i], ke = off[i + 1];
-      for (std::uint32_t k = off[i]; k < ke; ++k) {
-        const std::uint32_t j = nb[k];
-        if (j > i && linked(i, j, k >= kw))
-          ln_.ea.push_back(i), ln_.eb.push_back(j), ln_.ek.push_back(k);
+    // Blocks of rows are scanned as tasks (each marks its own entries) and their links joined in
+    // block order: the list is the serial scan's for any thread count.
+    const std::span<const std::uint32_t> active = one_.list.active();
+    constexpr std::size_t kRows = 2048;
+    const std::size_t nblocks = (active.size() + kRows - 1) / kRows;
+    if (ln_.blocks.size() < nblocks)
+      ln_.blocks.resize(nblocks);
+    auto scan = [&](std::size_t q) {
+      Links::BlockLinks& bl = ln_.blocks[q];
+      bl.a.clear(), bl.b.clear(), bl.k.clear();
+      const std::size_t r1 = std::min(active.size(), (q + 1) * kRows);
+      for (std::size_t r = q * kRows; r < r1; ++r) {
+        const std::uint32_t i = active[r];
+        const std::uint32_t kw = wrap[i], ke = off[i + 1];
+        for (std::uint32_t k = off[i]; k < ke; ++k) {
+          const std::uint32_t j = nb[k];
+          if (j > i && linked(i, j, k >= kw))
+            bl.a.push_back(i), bl.b.push_back(j), bl.k.push_back(k), is_link[k] = 1;
+        }
       }
+    };
+    if (nblocks > 1)
+      tbb::parallel_for(std::size_t{0}, nblocks, scan);
+    else if (nblocks == 1)
+      scan(0);
+    std::size_t total = 0;
+    for (std::size_t q = 0; q < nblocks; ++q)
+      total += ln_.blocks[q].a.size();
+    ln_.ea.resize(total), ln_.eb.resize(total), ln_.ek.resize(total);
+    for (std::size_t q = 0, at = 0; q < nblocks; ++q) {
+      const Links::BlockLinks& bl = ln_.blocks[q];
+      const auto to = static_cast<std::ptrdiff_t>(at);
+      std::copy(bl.a.begin(), bl.a.end(), ln_.ea.begin() + to);
+      std::copy(bl.b.begin(), bl.b.end(), ln_.eb.begin() + to);
+      std::copy(bl.k.begin(), bl.k.end(), ln_.ek.begin() + to);
+      at += bl.a.size();
     }
     ln_.tied.clear();
     for (int a = 0; a < 3; ++a) {
@@ -484,26 +516,45 @@ void IslandsScheme::make_links(bool incremental) {
           ln_.tied.push_back(i);
   } else {
     // New links from the rows of the raised particles, keyed by their position in the lower
-    // particle's row; a pair both of whose particles were raised is found twice (unique).
+    // particle's row. A key already linked (before or earlier in this scan: a pair both of whose
+    // particles were raised is met twice) is skipped, so new_k holds each new link once and its
+    // sort is over the new links alone (in a dense bed the raised rows hold mostly old links).
+    // A pair of two raised particles is tested from the lower one's row only: the search for
+    // its position in the lower row is left to the pairs with an unraised lower particle.
+    is_link = ln_.linked_entry.data();
+    ln_.mark.resize(n, 0);
+    for (const std::uint32_t c : ln_.changed)
+      ln_.mark[c] = 1;
     ln_.new_k.clear();
     for (const std::uint32_t c : ln_.changed)
       for (std::uint32_t k = off[c]; k < off[c + 1]; ++k) {
         const std::uint32_t j = nb[k];
         if (j > c) {
-          if (linked(c, j, k >= wrap[c]))
-            ln_.new_k.push_back(k);
-        } else {
+          if (!is_link[k] && linked(c, j, k >= wrap[c]))
+            ln_.new_k.push_back(k), is_link[k] = 3; // 2: new in this round
+        } else if (!ln_.mark[j]) {
           // The pair's position in row j (rows hold both directions).
           std::uint32_t kj = off[j];
           while (nb[kj] != c)
             ++kj;
-          if (linked(j, c, kj >= wrap[j]))
-            ln_.new_k.push_back(kj);
+          if (!is_link[kj] && linked(j, c, kj >= wrap[j]))
+            ln_.new_k.push_back(kj), is_link[kj] = 3;
         }
       }
-    std::sort(ln_.new_k.begin(), ln_.new_k.end());
-    ln_.new_k.erase(std::unique(ln_.new_k.begin(), ln_.new_k.end()), ln_.new_k.end());
-    // Merge (ln_.ek increasing); a key already linked is kept once.
+    for (const std::uint32_t c : ln_.changed)
+      ln_.mark[c] = 0;
+    // Increasing: a sort when the new links are few, else one pass over the entries' marks.
+    if (ln_.new_k.size() * 8 > off[n]) {
+      ln_.new_k.clear();
+      for (std::uint32_t k = 0; k < off[n]; ++k)
+        if (is_link[k] & 2)
+          ln_.new_k.push_back(k), is_link[k] = 1;
+    } else {
+      std::sort(ln_.new_k.begin(), ln_.new_k.end());
+      for (const std::uint32_t k : ln_.new_k)
+        is_link[k] = 1;
+    }
+    // Merge (ln_.ek increasing); a key already linked is kept once (linked_entry leaves none).
     std::size_t q = ln_.ek.size(), r = ln_.new_k.size();
     std::size_t added = 0;
     for (std::size_t t = 0, u = 0; u < r; ++u) {

@@ -240,6 +240,15 @@ private:
     std::vector<std::uint32_t> ea, eb;         // links (one rank: ea < eb), in row-scan order
     std::vector<std::uint32_t> ek;             // one rank: each one's position in ea's row
     std::vector<std::uint32_t> changed, new_k; // one rank: particles raised by the last round
+    // One rank: per entry of the Verlet list, 1 when it is the key of a link (ek), so that a
+    // round's scan of the raised rows tests and collects only the pairs not yet linked.
+    std::vector<unsigned char> linked_entry;
+    // One rank's first link scan, per block of rows (tasks): the links each block found, joined
+    // in block order (the serial scan's order).
+    struct BlockLinks {
+      std::vector<std::uint32_t> a, b, k;
+    };
+    std::vector<BlockLinks> blocks;
     std::vector<std::uint32_t> tied;           // particles tied to a wall
     // Busy particles (linked or tied), increasing; the islands over them (local indices), each
     // island's members as particle indices, and per particle its island or kAlone.

@@ -182,6 +182,8 @@ void IslandsScheme::count_subiteration(const islands::SubiterationCounts& t, boo
 // lone particles; the dense mode is one island of everyone.
 void IslandsScheme::count_island_sizes() {
   const std::size_t n = p_.size();
+  if (n == 0)
+    return; // every particle left (an outflow face): no island, and bit_width(n - 1) is 64
   if (global_) {
     st_.size_hist[static_cast<std::size_t>(std::bit_width(static_cast<std::uint64_t>(n) - 1))] += 1;
     return;

@@ -211,13 +211,8 @@ LeafRows OrbScheme::rows_view() const {
   return {rows_.active, rows_.off, rows_.mid, rows_.nb};
 }
 
-// The step of each leaf (fine if one of its particles is near a partner or a wall), the batches
-// with their rows and force evaluations per local step (own-leaf entries count half a pair,
-// other-leaf entries one: see pair_evaluations()), and with `record` the state at t.
-void OrbScheme::plan(bool record) {
-  const std::size_t n = owned_;
-  // One rank: build_rows marked them (choose_global).
-  const std::span<const unsigned char> near = rank_ ? rank_->rows.near() : rows_.near;
+// leaves_.fine: 1 for a leaf one of whose particles is near a partner or a wall.
+void OrbScheme::mark_fine_leaves(std::span<const unsigned char> near) {
   const std::size_t nl = leaves_.id.size();
   leaves_.fine.assign(nl, 0);
   for (std::size_t k = 0; k < nl; ++k) {
@@ -226,23 +221,41 @@ void OrbScheme::plan(bool record) {
       any |= near[i];
     leaves_.fine[k] = any;
   }
-  const bool can_refine = model_.dt < cfg_.dt_sp;
+}
+
+// The step of each leaf (fine if one of its particles is near a partner or a wall), the batches
+// with their rows and force evaluations per local step (own-leaf entries count half a pair,
+// other-leaf entries one: see pair_evaluations()), and with `record` the state at t.
+void OrbScheme::plan(bool record) {
+  const std::size_t n = owned_;
+  if (rank_) // one rank: build_rows marked them (choose_global)
+    mark_fine_leaves(rank_->rows.near());
   const FineSteps steps = fine_steps(cfg_.dt_sp, model_.dt);
+  batches_.clear();
   if (global_.on) {
-    // Every particle on the fine steps (counted as every leaf fine): one batch of all.
+    // Every particle on the fine steps (counted as every leaf fine): one batch of all, no rows
+    // (the global steps count their pairs).
     std::fill(leaves_.fine.begin(), leaves_.fine.end(), 1);
     Batch bt;
     bt.b = 0, bt.e = static_cast<std::uint32_t>(n), bt.K = steps.K;
     bt.h = steps.h, bt.h_last = steps.h_last;
-    batches_.assign(1, bt);
+    batches_.push_back(bt);
+  } else {
+    plan_leaf_batches(steps);
   }
-  // Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so
-  // that every thread gets several (the arithmetic does not depend on the cuts).
+  if (record)
+    record_start();
+}
+
+// Batches: runs of consecutive leaves with the same step, cut at about `grain` particles so that
+// every thread gets several (the arithmetic does not depend on the cuts), with their rows and
+// force evaluations per local step.
+void OrbScheme::plan_leaf_batches(const FineSteps& steps) {
+  const std::size_t n = owned_, nl = leaves_.id.size();
+  const bool can_refine = model_.dt < cfg_.dt_sp;
   const auto threads = static_cast<std::size_t>(tbb::this_task_arena::max_concurrency());
   const std::size_t grain = std::max<std::size_t>(256, n / (4 * std::max<std::size_t>(threads, 1)));
-  if (!global_.on)
-    batches_.clear();
-  for (std::size_t k = 0; k < nl && !global_.on; ++k) {
+  for (std::size_t k = 0; k < nl; ++k) {
     const bool fine = leaves_.fine[k] && can_refine;
     const std::uint32_t b = leaves_.range[k], e = leaves_.range[k + 1];
     if (b == e)
@@ -261,8 +274,6 @@ void OrbScheme::plan(bool record) {
   const LeafRows rows = rows_view();
   const std::span<const std::uint32_t> active = rows.act;
   for (Batch& bt : batches_) {
-    if (global_.on)
-      break; // no rows: the global steps count their pairs
     bt.a0 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.b) -
                                        active.begin());
     bt.a1 = static_cast<std::uint32_t>(std::lower_bound(active.begin(), active.end(), bt.e) -
@@ -271,8 +282,11 @@ void OrbScheme::plan(bool record) {
     const auto all = static_cast<std::int64_t>(rows.off[bt.e] - rows.off[bt.b]);
     bt.evals_per_step = own / 2 + (all - own);
   }
-  if (!record)
-    return;
+}
+
+// With `record`: the state at t (wrapped positions, the leaf and local step of each particle).
+void OrbScheme::record_start() {
+  const std::size_t n = owned_, nl = leaves_.id.size();
   rec_.x.resize(n), rec_.y.resize(n), rec_.z.resize(n);
   for (std::size_t i = 0; i < n; ++i)
     rec_.x[i] = geom_.wrap(p_.x[i], 0), rec_.y[i] = geom_.wrap(p_.y[i], 1),
@@ -414,15 +428,12 @@ template <bool Column> void OrbScheme::find_batch_fault(Batch& bt, const LeafLiv
 // alike.
 bool OrbScheme::choose_global() {
   mark_near();
+  mark_fine_leaves(rows_.near);
   if (!cfg_.global || !(model_.dt < cfg_.dt_sp))
     return false;
   std::size_t fine = 0;
-  for (std::size_t k = 0; k + 1 < leaves_.range.size(); ++k) {
-    unsigned char any = 0;
-    for (std::uint32_t i = leaves_.range[k]; i < leaves_.range[k + 1]; ++i)
-      any |= rows_.near[i];
-    fine += any ? leaves_.range[k + 1] - leaves_.range[k] : 0;
-  }
+  for (std::size_t k = 0; k < leaves_.fine.size(); ++k)
+    fine += leaves_.fine[k] ? leaves_.range[k + 1] - leaves_.range[k] : 0;
   return static_cast<double>(fine) > kGlobalFraction * static_cast<double>(owned_);
 }
 

@@ -43,6 +43,8 @@
 
 namespace cfddem::dem {
 
+struct FineSteps; // dem/scheme_support.hpp
+
 // Local steps per leaf over an output interval (non-empty leaves only), and the fraction of
 // (leaf, sub-iteration) pairs that took the fine step.
 struct LeafStepStats {
@@ -282,6 +284,9 @@ private:
   void run_batch(Batch& b, bool record);
   template <bool Column> void find_batch_fault(Batch& bt, const LeafLive& p) const;
   bool choose_global();
+  void mark_fine_leaves(std::span<const unsigned char> near);
+  void plan_leaf_batches(const FineSteps& steps);
+  void record_start();
   void global_stream();
   void run_global(Batch& b, bool record);
   template <bool External, bool Column> void run_global_impl(Batch& b, bool record);

@@ -554,16 +554,9 @@ void IslandsScheme::make_links(bool incremental) {
       for (const std::uint32_t k : ln_.new_k)
         is_link[k] = 1;
     }
-    // Merge (ln_.ek increasing); a key already linked is kept once (linked_entry leaves none).
-    std::size_t q = ln_.ek.size(), r = ln_.new_k.size();
-    std::size_t added = 0;
-    for (std::size_t t = 0, u = 0; u < r; ++u) {
-      while (t < q && ln_.ek[t] < ln_.new_k[u])
-        ++t;
-      if (t == q || ln_.ek[t] != ln_.new_k[u])
-        ln_.new_k[added++] = ln_.new_k[u];
-    }
-    ln_.new_k.resize(added);
+    // Merge (ln_.ek increasing): new_k holds no key of ek (linked_entry kept them out).
+    std::size_t q = ln_.ek.size();
+    std::size_t added = ln_.new_k.size();
     if (added > 0) {
       ln_.ea.resize(q + added), ln_.eb.resize(q + added), ln_.ek.resize(q + added);
       // Back to front: the merged list in place.

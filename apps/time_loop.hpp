@@ -84,19 +84,13 @@ public:
   RunResult report();
 
 private:
-  // The length of one outer step: n_sub particle steps (or sub-iterations) in dt_f.
-  struct OuterStep {
-    long long n_sub = 1;
-    double dt_f = 0.0;
-  };
-
   void read_checkpoint_and_particles();
   void build_scheme_and_gas();
   void check_against_checkpoint() const;
   void start_or_restore();
   void schedule_outputs();
   void open_outputs(ParticleStore& initial);
-  OuterStep gas_step();
+  FluidStepPlan gas_step(); // the step's length: n_sub particle steps in dt_f
   bool advance_clock(double dt_f);
   void print_progress();
   void mark_due_steps(long long k);
@@ -393,7 +387,7 @@ template <class Run> void TimeLoop<Run>::take_profile_gas() {
 // rows and snapshots due at the step's end marked (the next particle step writes them with the
 // synchronised particles: the state at t needs the forces at t); a checkpoint at its interval.
 template <class Run> void TimeLoop<Run>::outer_step() {
-  OuterStep s;
+  FluidStepPlan s; // without a gas: one particle step
   if (gas_)
     s = gas_step();
   // dem.nsubit = "auto": the outer step (dt, a control interval) in the chosen sub-iterations
@@ -412,7 +406,7 @@ template <class Run> void TimeLoop<Run>::outer_step() {
 
 // The gas half: the gas boxes regridded when due, the step's length planned, particles through
 // the open faces, and the gas step with the force the scheme holds over the sub-cycle.
-template <class Run> typename TimeLoop<Run>::OuterStep TimeLoop<Run>::gas_step() {
+template <class Run> FluidStepPlan TimeLoop<Run>::gas_step() {
   {
     PhaseTimer::Scope fl(timer_, Phase::fluid);
     if (auto owners = gas_->regrid(particles_, run_->owned(), loop_.time, tol_, last_n_sub_))
@@ -431,7 +425,7 @@ template <class Run> typename TimeLoop<Run>::OuterStep TimeLoop<Run>::gas_step()
       run_->set_interval(next.dt_f); // the sub-iterations divide this step
   PhaseTimer::Scope fl(timer_, Phase::fluid);
   run_->hold_gas_force(gas_->step(particles_, run_->owned(), next.dt_f));
-  return {next.n_sub, next.dt_f};
+  return next;
 }
 
 // The loop's position after an outer step, and the outputs that fall due; true when a

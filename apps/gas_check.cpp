@@ -1,6 +1,7 @@
 #include "apps/gas_check.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <numbers>
@@ -9,9 +10,9 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
-#include "core/error.hpp"
 #include "apps/coupled_step.hpp"
 #include "apps/particle_inlet.hpp"
+#include "core/error.hpp"
 #include "core/particle_store.hpp"
 #include "fluid/fluid_step_rule.hpp"
 #include "fluid/gas_solver.hpp"
@@ -33,6 +34,22 @@ std::array<double, 3> cell_spacing(const Scene& s) {
                 ? s.fluid.cell_size[a]
                 : s.domain.length(static_cast<int>(a)) / static_cast<double>(s.fluid.cells[a]);
   return dx;
+}
+
+// The gas cells of the grid's plane normal to axis `a` at cell index `at` (a column's
+// staircase: its solid cells are left out).
+std::int64_t gas_cells_on_plane(const fluid::MacGrid& grid, int a, int at) {
+  const int p = a == 0 ? 1 : 0, q = a == 2 ? 1 : 2; // the plane's axes
+  std::int64_t open = 0;
+  for (int i = 0; i < grid.cells(p); ++i)
+    for (int j = 0; j < grid.cells(q); ++j) {
+      std::array<int, 3> cell{};
+      cell[static_cast<std::size_t>(a)] = at;
+      cell[static_cast<std::size_t>(p)] = i;
+      cell[static_cast<std::size_t>(q)] = j;
+      open += grid.solid_cell(cell[0], cell[1], cell[2]) ? 0 : 1;
+    }
+  return open;
 }
 
 } // namespace
@@ -114,14 +131,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     // §13): its cross-section against pi R^2 is the wall's error at this resolution. Counted on
     // the first plane across the axis by the grid's own test (every plane is the same).
     const auto [u, w] = s.domain.cross_axes();
-    std::int64_t inside = 0;
-    for (int i = 0; i < grid.cells(u); ++i)
-      for (int j = 0; j < grid.cells(w); ++j) {
-        std::array<int, 3> cell{};
-        cell[static_cast<std::size_t>(u)] = i;
-        cell[static_cast<std::size_t>(w)] = j;
-        inside += grid.solid_cell(cell[0], cell[1], cell[2]) ? 0 : 1;
-      }
+    const std::int64_t inside = gas_cells_on_plane(grid, s.domain.cylinder_axis, 0);
     const double area = static_cast<double>(inside) * dx[static_cast<std::size_t>(u)] *
                         dx[static_cast<std::size_t>(w)];
     // The gas's column and the particles' differ by the staircase: its area sets the gas's
@@ -242,18 +252,9 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
       if (f.bc[k] != "inflow")
         continue;
       const int a = static_cast<int>(k / 2);
-      const int across_p = a == 0 ? 1 : 0, across_q = a == 2 ? 1 : 2; // the face's axes
-      std::int64_t open = 0;
-      for (int i = 0; i < grid.cells(across_p); ++i)
-        for (int j = 0; j < grid.cells(across_q); ++j) {
-          std::array<int, 3> cell{};
-          cell[static_cast<std::size_t>(a)] = k % 2 == 0 ? 0 : grid.cells(a) - 1;
-          cell[static_cast<std::size_t>(across_p)] = i;
-          cell[static_cast<std::size_t>(across_q)] = j;
-          open += grid.solid_cell(cell[0], cell[1], cell[2]) ? 0 : 1;
-        }
-      const double area =
-          static_cast<double>(open) * grid.spacing(across_p) * grid.spacing(across_q);
+      const std::int64_t open = gas_cells_on_plane(grid, a, k % 2 == 0 ? 0 : grid.cells(a) - 1);
+      const double area = static_cast<double>(open) * grid.spacing(a == 0 ? 1 : 0) *
+                          grid.spacing(a == 2 ? 1 : 2);
       const double q = std::abs(f.inflow_velocity[static_cast<std::size_t>(a)]) * area;
       rates += fmt::format("{}{}: {:.4g} m^3/s, {:.4g} kg/s", rates.empty() ? "" : "; ",
                            kFaceNames[k], q, q * f.density);

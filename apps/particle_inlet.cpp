@@ -31,37 +31,37 @@ double unit(std::mt19937_64& rng) {
 ParticleInlet::ParticleInlet(const Scene& scene)
     : spec_(scene.inlet), particles_(scene.particles), geom_(scene.domain) {}
 
+ParticleInlet::Sizes ParticleInlet::sizes() const {
+  if (spec_.diameter > 0.0) // the inlet's own size or distribution
+    return {spec_.diameters, spec_.diameter};
+  return {particles_.diameters, particles_.diameter};
+}
+
 double ParticleInlet::diameter(std::int64_t k) const {
-  if (spec_.diameter > 0.0 && spec_.diameters.fixed())
-    return spec_.diameter; // the inlet's own size
-  DiameterDistribution d = spec_.diameter > 0.0 ? spec_.diameters : particles_.diameters;
-  if (d.fixed())
-    return particles_.diameter;
-  DiameterStream s(d, mix(spec_.seed, static_cast<std::uint64_t>(k)));
-  return s.next();
+  const Sizes s = sizes();
+  if (s.dist.fixed())
+    return s.fixed;
+  DiameterStream stream(s.dist, mix(spec_.seed, static_cast<std::uint64_t>(k)));
+  return stream.next();
 }
 
 double ParticleInlet::mean_diameter() const {
-  const DiameterDistribution& d = spec_.diameter > 0.0 ? spec_.diameters : particles_.diameters;
-  if (d.fixed())
-    return spec_.diameter > 0.0 ? spec_.diameter : particles_.diameter;
-  return d.mean;
+  const Sizes s = sizes();
+  return s.dist.fixed() ? s.fixed : s.dist.mean;
 }
 
 double ParticleInlet::largest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return 0.0;
-  if (spec_.diameter > 0.0)
-    return 0.5 * spec_.diameter; // one size, or its distribution's largest
-  return 0.5 * (particles_.diameters.fixed() ? particles_.diameter : particles_.diameters.max);
+  const Sizes s = sizes();
+  return 0.5 * (s.dist.fixed() ? s.fixed : s.dist.max);
 }
 
 double ParticleInlet::smallest_radius() const {
   if (spec_.mass_rate <= 0.0)
     return std::numeric_limits<double>::infinity();
-  if (spec_.diameter > 0.0)
-    return 0.5 * (spec_.diameters.fixed() ? spec_.diameter : spec_.diameters.min);
-  return 0.5 * (particles_.diameters.fixed() ? particles_.diameter : particles_.diameters.min);
+  const Sizes s = sizes();
+  return 0.5 * (s.dist.fixed() ? s.fixed : s.dist.min);
 }
 
 void ParticleInlet::start(InletState& st, const ParticleStore& p, std::size_t owned,

@@ -68,6 +68,14 @@ public:
   double mean_diameter() const;
 
 private:
+  // Where the new particles' sizes come from: the inlet's own (inlet.diameter, one size or a
+  // distribution) or the particles'; `fixed` is the one size when `dist` is fixed.
+  struct Sizes {
+    const DiameterDistribution& dist;
+    double fixed;
+  };
+  Sizes sizes() const;
+
   InletSpec spec_;
   ParticleSpec particles_;
   dem::DomainGeometry geom_;

@@ -482,6 +482,18 @@ std::string num(double v) {
 std::string str(const std::string& s) {
   return toml_text(std::string_view(s));
 }
+// A size distribution's lines under its own key (DiameterDistribution::key), as read_diameters
+// reads them.
+void describe_diameters(std::vector<std::pair<std::string, std::string>>& o,
+                        const DiameterDistribution& dd) {
+  o.emplace_back(dd.key + ".distribution", str(dd.kind));
+  if (dd.kind != "uniform") {
+    o.emplace_back(dd.key + ".mean", num(dd.mean));
+    o.emplace_back(dd.key + ".std", num(dd.std));
+  }
+  o.emplace_back(dd.key + ".min", num(dd.min));
+  o.emplace_back(dd.key + ".max", num(dd.max));
+}
 } // namespace
 
 std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) {
@@ -507,13 +519,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     if (p.diameters.fixed()) {
       o.emplace_back("particles.diameter", num(p.diameter));
     } else {
-      o.emplace_back("particles.diameter.distribution", str(p.diameters.kind));
-      if (p.diameters.kind != "uniform") {
-        o.emplace_back("particles.diameter.mean", num(p.diameters.mean));
-        o.emplace_back("particles.diameter.std", num(p.diameters.std));
-      }
-      o.emplace_back("particles.diameter.min", num(p.diameters.min));
-      o.emplace_back("particles.diameter.max", num(p.diameters.max));
+      describe_diameters(o, p.diameters);
     }
     o.emplace_back("particles.density", num(p.density));
     o.emplace_back("particles.temperature", num(p.temperature));
@@ -534,15 +540,8 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     if (s.inlet.mass_rate > 0.0) { // a recycling inlet's configuration lines stay as before
       // The inlet's size or distribution, or the particles' fixed size (a distribution of the
       // particles' is theirs, listed above).
-      const DiameterDistribution& dd = s.inlet.diameters;
-      if (!dd.fixed()) {
-        o.emplace_back("inlet.diameter.distribution", str(dd.kind));
-        if (dd.kind != "uniform") {
-          o.emplace_back("inlet.diameter.mean", num(dd.mean));
-          o.emplace_back("inlet.diameter.std", num(dd.std));
-        }
-        o.emplace_back("inlet.diameter.min", num(dd.min));
-        o.emplace_back("inlet.diameter.max", num(dd.max));
+      if (!s.inlet.diameters.fixed()) {
+        describe_diameters(o, s.inlet.diameters);
       } else {
         const double d = s.inlet.diameter > 0.0         ? s.inlet.diameter
                          : s.particles.diameters.fixed() ? s.particles.diameter

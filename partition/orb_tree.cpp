@@ -231,7 +231,59 @@ void collect_touching(const OrbTree& tree, const Aabb& q, int node, const Aabb& 
   }
 }
 
+// The levels below `root` (a node whose points are items[root.begin, root.end)), level by
+// level: each node's cut into `cuts` in heap order relative to the root (node k has children
+// 2k+1 and 2k+2). Returns the leaves' work ranges, lower child first.
+std::vector<NodeWork> cut_levels(std::span<Keyed> items, const PointSet& pts, const NodeWork& root,
+                                 int levels, const std::optional<Grid>& snap,
+                                 std::vector<OrbCut>& cuts) {
+  const std::size_t n_leaves = std::size_t{1} << levels;
+  cuts.resize(n_leaves - 1);
+  std::vector<NodeWork> level{root};
+  std::vector<NodeWork> next;
+  level.reserve(n_leaves);
+  next.reserve(n_leaves);
+  for (int l = 0; l < levels; ++l) {
+    next.resize(2 * level.size());
+    const std::size_t first = level.size() - 1; // heap index of the level's first node
+    for (std::size_t j = 0; j < level.size(); ++j) {
+      const NodeWork& node = level[j];
+      const Split s = split_node(items, node, pts, snap);
+      cuts[first + j] = s.cut;
+      NodeWork lower = node;
+      NodeWork upper = node;
+      lower.box.hi[s.cut.axis] = s.cut.position;
+      lower.end = s.mid;
+      upper.box.lo[s.cut.axis] = s.cut.position;
+      upper.begin = s.mid;
+      next[2 * j] = lower;
+      next[2 * j + 1] = upper;
+    }
+    level.swap(next);
+  }
+  return level;
+}
+
 } // namespace
+
+std::vector<OrbCut> orb_subtree_cuts(std::span<const double> x, std::span<const double> y,
+                                     std::span<const double> z, std::span<const double> weights,
+                                     const Aabb& box, const OrbOptions& options) {
+  const PointSet pts{{x, y, z}, weights};
+  const std::size_t n = x.size();
+  if (y.size() != n || z.size() != n || (!weights.empty() && weights.size() != n) ||
+      n >= std::numeric_limits<std::uint32_t>::max() || options.levels < 0 ||
+      options.levels > kMaxLevels)
+    throw std::invalid_argument("orb_subtree_cuts: sizes or levels out of range");
+  const auto n32 = static_cast<std::uint32_t>(n);
+  std::vector<Keyed> items(n);
+  for (std::uint32_t i = 0; i < n32; ++i) {
+    items[i] = {{x[i], y[i], z[i]}, i};
+  }
+  std::vector<OrbCut> cuts;
+  cut_levels(items, pts, {box, 0, n32}, options.levels, options.snap, cuts);
+  return cuts;
+}
 
 OrbTree OrbTree::build(std::span<const double> x, std::span<const double> y,
                        std::span<const double> z, std::span<const double> weights,
@@ -245,35 +297,14 @@ OrbTree OrbTree::build(std::span<const double> x, std::span<const double> y,
   tree.levels_ = options.levels;
   tree.domain_ = domain;
   const std::size_t n_leaves = std::size_t{1} << options.levels;
-  tree.cuts_.resize(n_leaves - 1);
 
   std::vector<Keyed> items(n);
   for (std::uint32_t i = 0; i < n32; ++i) {
     items[i] = {{x[i], y[i], z[i]}, i};
   }
 
-  std::vector<NodeWork> level{{domain, 0, n32}};
-  std::vector<NodeWork> next;
-  level.reserve(n_leaves);
-  next.reserve(n_leaves);
-  for (int l = 0; l < options.levels; ++l) {
-    next.resize(2 * level.size());
-    const std::size_t first = level.size() - 1; // heap index of the level's first node
-    for (std::size_t j = 0; j < level.size(); ++j) {
-      const NodeWork& node = level[j];
-      const Split s = split_node(items, node, pts, options.snap);
-      tree.cuts_[first + j] = s.cut;
-      NodeWork lower = node;
-      NodeWork upper = node;
-      lower.box.hi[s.cut.axis] = s.cut.position;
-      lower.end = s.mid;
-      upper.box.lo[s.cut.axis] = s.cut.position;
-      upper.begin = s.mid;
-      next[2 * j] = lower;
-      next[2 * j + 1] = upper;
-    }
-    level.swap(next);
-  }
+  const std::vector<NodeWork> level =
+      cut_levels(items, pts, {domain, 0, n32}, options.levels, options.snap, tree.cuts_);
 
   // The leaf sets are fixed by the cuts; listing each leaf's points by original index (a stable
   // counting sort) makes order() independent of how nth_element arranged them.

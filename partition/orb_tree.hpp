@@ -105,4 +105,15 @@ private:
   std::vector<std::uint32_t> order_;
 };
 
+// The cuts build() makes below a node, over that node's points alone (heap order relative to
+// the node: cut k has children 2k+1 and 2k+2): the cut rules depend only on a node's box and
+// points, so these are the serial tree's cuts of that subtree. What a rank cuts alone once a
+// subtree's points are all on it (parallel_orb.cpp). `box` may be thin (a zero-width sibling);
+// the points must lie in it (not checked).
+[[nodiscard]] std::vector<OrbCut> orb_subtree_cuts(std::span<const double> x,
+                                                   std::span<const double> y,
+                                                   std::span<const double> z,
+                                                   std::span<const double> weights,
+                                                   const Aabb& box, const OrbOptions& options);
+
 } // namespace cfddem::partition

@@ -1,13 +1,20 @@
 #include "partition/parallel_orb.hpp"
 
+#include <algorithm>
 #include <array>
 #include <bit>
 #include <cstdint>
 #include <limits>
 #include <stdexcept>
 
+#include <mpi.h>
+
+#include "core/communicator_mpi.hpp"
 #include "core/message_counts.hpp"
+#include "core/sparse_exchange.hpp"
+#include "partition/knapsack.hpp"
 #include "partition/orb_cut_rules.hpp"
+#include "partition/space_filling_curve.hpp"
 
 namespace cfddem::partition {
 
@@ -24,17 +31,122 @@ double value_of(std::uint64_t k) {
   return std::bit_cast<double>(u);
 }
 
-void allreduce(MPI_Comm comm, std::vector<double>& v, MPI_Op op) {
+void allreduce(const Communicator& comm, std::vector<double>& v, MPI_Op op) {
   count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(double)), true);
-  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op, comm);
+  MpiWait w(comm);
+  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op,
+                mpi_comm(comm));
 }
 
 } // namespace
 
-std::vector<OrbCut> parallel_orb_cuts(MPI_Comm comm, std::span<const double> x,
-                                      std::span<const double> y, std::span<const double> z,
-                                      std::span<const double> weights, const Aabb& domain,
-                                      const OrbOptions& options) {
+int shared_orb_levels(int ranks, int levels) {
+  const int log2_ranks = std::bit_width(static_cast<unsigned>(std::max(ranks, 1) - 1));
+  return std::min(levels, log2_ranks + 3);
+}
+
+namespace {
+
+// The subtrees below the shared levels (boxes, and the subtree of each local point): dealt to
+// ranks by the Hilbert knapsack over their weights, their points sent there, cut there by the
+// serial rules, and the cuts shared with every rank (one all-gather, 16 bytes per cut).
+void cut_subtrees(const Communicator& comm, const std::array<std::span<const double>, 3>& coord,
+                  std::span<const double> weights, const std::vector<Aabb>& boxes,
+                  const std::vector<std::uint32_t>& subtree_of, const Aabb& domain,
+                  const OrbOptions& options, ParallelOrb& out) {
+  const std::size_t n = subtree_of.size(), subtrees = boxes.size();
+  const int ranks = comm.size(), me = comm.rank();
+  const int below = options.levels - out.shared_levels;
+  // Weights per subtree (counts without weights: integers, exact in any order).
+  std::vector<double> weight(subtrees, 0.0);
+  for (std::size_t i = 0; i < n; ++i)
+    weight[subtree_of[i]] += weights.empty() ? 1.0 : weights[i];
+  allreduce(comm, weight, MPI_SUM);
+  std::vector<std::array<double, 3>> centres(subtrees);
+  for (std::size_t s = 0; s < subtrees; ++s) centres[s] = boxes[s].centre();
+  const KnapsackAssignment k =
+      knapsack_along_curve(weight, sfc_order(centres, domain, CurveKind::hilbert), ranks);
+  out.subtree_rank = k.owner;
+  out.subtree_weight = weight;
+
+  // Every point (x, y, z, weight, subtree) to the rank of its subtree, in local order.
+  constexpr int kStride = 5;
+  std::vector<std::int64_t> send_counts(static_cast<std::size_t>(ranks), 0), recv_counts;
+  for (std::size_t i = 0; i < n; ++i) ++send_counts[static_cast<std::size_t>(k.owner[subtree_of[i]])];
+  std::vector<std::size_t> cursor(static_cast<std::size_t>(ranks) + 1, 0);
+  for (int r = 0; r < ranks; ++r) cursor[r + 1] = cursor[r] + static_cast<std::size_t>(send_counts[r]);
+  std::vector<double> send(n * kStride), recv;
+  for (std::size_t i = 0; i < n; ++i) {
+    double* q = send.data() + kStride * cursor[static_cast<std::size_t>(k.owner[subtree_of[i]])]++;
+    q[0] = coord[0][i], q[1] = coord[1][i], q[2] = coord[2][i];
+    q[3] = weights.empty() ? 1.0 : weights[i], q[4] = static_cast<double>(subtree_of[i]);
+  }
+  sparse_exchange(comm, send_counts, send, recv_counts, recv, kStride, false);
+
+  // This rank's subtrees, in heap order: their points in arrival order, then their cuts.
+  const std::size_t arrived = recv.size() / kStride;
+  std::vector<std::size_t> first(subtrees + 1, 0);
+  for (std::size_t j = 0; j < arrived; ++j)
+    ++first[static_cast<std::size_t>(recv[kStride * j + 4]) + 1];
+  for (std::size_t s = 0; s < subtrees; ++s) first[s + 1] += first[s];
+  std::vector<double> px(arrived), py(arrived), pz(arrived), pw(weights.empty() ? 0 : arrived);
+  {
+    std::vector<std::size_t> at(first.begin(), first.end() - 1);
+    for (std::size_t j = 0; j < arrived; ++j) {
+      const double* q = recv.data() + kStride * j;
+      const std::size_t t = at[static_cast<std::size_t>(q[4])]++;
+      px[t] = q[0], py[t] = q[1], pz[t] = q[2];
+      if (!pw.empty()) pw[t] = q[3];
+    }
+  }
+  const std::size_t per_subtree = (std::size_t{1} << below) - 1; // cuts in one subtree
+  std::vector<double> mine;
+  for (std::size_t s = 0; s < subtrees; ++s) {
+    if (k.owner[s] != me) continue;
+    const std::size_t b = first[s], e = first[s + 1];
+    auto part = [&](const std::vector<double>& v) {
+      return v.empty() ? std::span<const double>() : std::span<const double>(v).subspan(b, e - b);
+    };
+    for (const OrbCut& c : orb_subtree_cuts(part(px), part(py), part(pz), part(pw), boxes[s],
+                                            OrbOptions{below, options.snap}))
+      mine.push_back(static_cast<double>(c.axis)), mine.push_back(c.position);
+  }
+
+  // Every rank's subtrees' cuts, in rank order (each rank's subtrees in heap order).
+  std::vector<int> counts(static_cast<std::size_t>(ranks), 0), displs(static_cast<std::size_t>(ranks), 0);
+  for (std::size_t s = 0; s < subtrees; ++s)
+    counts[static_cast<std::size_t>(k.owner[s])] += static_cast<int>(2 * per_subtree);
+  for (int r = 1; r < ranks; ++r) displs[r] = displs[r - 1] + counts[r - 1];
+  std::vector<double> all(static_cast<std::size_t>(displs[ranks - 1] + counts[ranks - 1]));
+  count_messages::collective(static_cast<std::int64_t>(all.size() * sizeof(double)), false);
+  {
+    MpiWait w(comm);
+    MPI_Allgatherv(mine.data(), static_cast<int>(mine.size()), MPI_DOUBLE, all.data(),
+                   counts.data(), displs.data(), MPI_DOUBLE, mpi_comm(comm));
+  }
+  // Cut j of subtree s's own heap, at depth d (j = 2^d - 1 + t), is node 2^(shared + d) - 1 +
+  // s 2^d + t of the whole tree.
+  std::vector<std::size_t> next(displs.begin(), displs.end());
+  for (std::size_t s = 0; s < subtrees; ++s) {
+    const double* c = all.data() + next[static_cast<std::size_t>(k.owner[s])];
+    next[static_cast<std::size_t>(k.owner[s])] += 2 * per_subtree;
+    for (int d = 0; d < below; ++d) {
+      const std::size_t width = std::size_t{1} << d;
+      for (std::size_t t = 0; t < width; ++t) {
+        const std::size_t j = width - 1 + t;
+        const std::size_t node = (std::size_t{1} << (out.shared_levels + d)) - 1 + s * width + t;
+        out.cuts[node] = {static_cast<int>(c[2 * j]), c[2 * j + 1]};
+      }
+    }
+  }
+}
+
+} // namespace
+
+ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> x,
+                              std::span<const double> y, std::span<const double> z,
+                              std::span<const double> weights, const Aabb& domain,
+                              const OrbOptions& options) {
   const std::size_t n = x.size();
   if (y.size() != n || z.size() != n || (!weights.empty() && weights.size() != n))
     throw std::invalid_argument("parallel_orb: x, y, z (and weights) must have the same size");
@@ -44,11 +156,14 @@ std::vector<OrbCut> parallel_orb_cuts(MPI_Comm comm, std::span<const double> x,
   auto w = [&](std::size_t i) { return weights.empty() ? 1.0 : weights[i]; };
 
   const std::size_t n_leaves = std::size_t{1} << options.levels;
-  std::vector<OrbCut> cuts(n_leaves - 1);
+  ParallelOrb out;
+  out.cuts.resize(n_leaves - 1);
+  out.shared_levels = shared_orb_levels(comm.size(), options.levels);
+  std::vector<OrbCut>& cuts = out.cuts;
   std::vector<Aabb> boxes{domain};
   std::vector<std::uint32_t> node_of(n, 0); // node of the current level holding each point
 
-  for (int level = 0; level < options.levels; ++level) {
+  for (int level = 0; level < out.shared_levels; ++level) {
     const std::size_t m = boxes.size();
     // Node weights (counts when unweighted: integers, exact in any summation order).
     std::vector<double> total(m, 0.0), count(m, 0.0);
@@ -188,14 +303,9 @@ std::vector<OrbCut> parallel_orb_cuts(MPI_Comm comm, std::span<const double> x,
     }
     boxes.swap(children);
   }
-  return cuts;
-}
-
-OrbTree parallel_orb(MPI_Comm comm, std::span<const double> x, std::span<const double> y,
-                     std::span<const double> z, std::span<const double> weights,
-                     const Aabb& domain, const OrbOptions& options) {
-  return OrbTree::from_cuts(x, y, z, domain, options.levels,
-                            parallel_orb_cuts(comm, x, y, z, weights, domain, options));
+  if (out.shared_levels < options.levels)
+    cut_subtrees(comm, coord, weights, boxes, node_of, domain, options, out);
+  return out;
 }
 
 } // namespace cfddem::partition

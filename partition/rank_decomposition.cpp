@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cstdint>
 
-#include "core/communicator_mpi.hpp"
 #include "partition/knapsack.hpp"
 #include "partition/parallel_orb.hpp"
 #include "partition/space_filling_curve.hpp"
@@ -29,16 +28,32 @@ RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
                             std::span<const double> weights, const Aabb& domain,
                             const OrbOptions& opt) {
   const int levels = opt.levels;
-  std::vector<OrbCut> cuts;
+  RankDecomposition d;
   if (comm.size() == 1) {
     const OrbTree serial = OrbTree::build(x, y, z, weights, domain, opt);
-    cuts.assign(serial.cuts().begin(), serial.cuts().end());
+    d.tree = OrbTree::from_cuts(x, y, z, domain, levels,
+                                std::vector<OrbCut>(serial.cuts().begin(), serial.cuts().end()));
   } else {
-    MpiWait w(comm); // the median search is a chain of allreduces: count it as MPI time
-    cuts = parallel_orb_cuts(mpi_comm(comm), x, y, z, weights, domain, opt);
+    ParallelOrb orb = parallel_orb_cuts(comm, x, y, z, weights, domain, opt);
+    d.tree = OrbTree::from_cuts(x, y, z, domain, levels, std::move(orb.cuts));
+    if (!orb.subtree_rank.empty()) {
+      // The subtrees were dealt to ranks by the knapsack already: each keeps its leaves (the
+      // rank that cut a subtree holds its points now, and owns them).
+      const int below = levels - orb.shared_levels;
+      d.owner.resize(d.tree.leaves().size());
+      for (std::size_t l = 0; l < d.owner.size(); ++l)
+        d.owner[l] = orb.subtree_rank[l >> below];
+      d.load.assign(static_cast<std::size_t>(comm.size()), 0.0);
+      double total = 0.0;
+      for (std::size_t s = 0; s < orb.subtree_rank.size(); ++s) {
+        d.load[static_cast<std::size_t>(orb.subtree_rank[s])] += orb.subtree_weight[s];
+        total += orb.subtree_weight[s];
+      }
+      const double mean = total / comm.size();
+      d.imbalance = mean > 0.0 ? *std::max_element(d.load.begin(), d.load.end()) / mean : 1.0;
+      return d;
+    }
   }
-  RankDecomposition d;
-  d.tree = OrbTree::from_cuts(x, y, z, domain, levels, std::move(cuts));
   const auto leaves = d.tree.leaves();
   // Knapsack weights: the particles' weights per box over all ranks (without weights, the
   // particle count: the explicit scheme's measured cost, every particle takes every step).

@@ -1,8 +1,10 @@
 // Which rank owns which part of the domain: the parallel ORB cuts the domain into 2^L boxes over
 // the particles of every rank (the same tree on all ranks), the boxes are listed along a Hilbert
 // curve over their centres, and the knapsack cuts that list into one contiguous chunk per rank,
-// balancing the particles per box (AMReX's SFC + knapsack distribution maps). O(2^L) data per
-// rank; the particles themselves stay where they are (ParticleExchange moves them).
+// balancing the particles per box (AMReX's SFC + knapsack distribution maps). Past the levels the
+// ranks cut together (parallel_orb.hpp) the knapsack deals whole subtrees of those levels, and
+// each rank owns the leaves of the subtrees it cut. The particles themselves stay where they are
+// (ParticleExchange moves them).
 #pragma once
 
 #include <array>

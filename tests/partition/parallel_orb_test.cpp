@@ -9,6 +9,7 @@
 #include <mpi.h>
 
 #include "core/communicator.hpp"
+#include "core/message_counts.hpp"
 #include "partition/parallel_orb.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -63,7 +64,8 @@ void expect_same_tree(std::size_t n, unsigned seed, bool clustered, bool weighte
   const Points g = global_points(n, seed, clustered, weighted);
   const Points l = local_share(g);
   const OrbTree serial = OrbTree::build(g.x, g.y, g.z, g.w, domain, opt);
-  const auto cuts = parallel_orb_cuts(MPI_COMM_WORLD, l.x, l.y, l.z, l.w, domain, opt);
+  const auto cuts =
+      parallel_orb_cuts(cfddem::Communicator::world(), l.x, l.y, l.z, l.w, domain, opt).cuts;
   ASSERT_EQ(cuts.size(), serial.cuts().size());
   for (std::size_t k = 0; k < cuts.size(); ++k) {
     EXPECT_EQ(cuts[k].axis, serial.cuts()[k].axis) << "cut " << k;
@@ -96,6 +98,36 @@ TEST(ParallelOrb, SameCutsAsSerialSnappedToCells) {
 
 TEST(ParallelOrb, SameCutsAsSerialWithIntegerWeights) {
   expect_same_tree(3000, 6, false, true, {4, {}});
+}
+
+// Levels past the shared ones (3 on 1 rank, 4 on 2, 5 on 3) are cut by the rank that holds a
+// subtree's points: still the serial tree, clustered, weighted, snapped, and with subtrees
+// holding no point or a zero-width box (the clustered spot and 20 points under 9 levels).
+TEST(ParallelOrb, SubtreesCutByOneRankGiveTheSerialTree) {
+  ASSERT_LT(shared_orb_levels(ranks(), 8), 8);
+  expect_same_tree(6000, 11, false, false, {8, {}});
+  expect_same_tree(6000, 12, true, false, {8, {}});
+  expect_same_tree(6000, 13, true, true, {8, {}});
+  expect_same_tree(20, 14, false, false, {9, {}});
+  expect_same_tree(5000, 15, false, true, {7, Grid{{0.0, 0.0, 0.0}, {0.1, 0.05, 0.05}}});
+}
+
+// What grows with the levels (the particles: a scene keeps some hundred per leaf) is only the
+// subtrees' cuts shared at the end, 16 bytes per cut: the reductions stop at the shared levels.
+TEST(ParallelOrb, CollectiveBytesGrowOnlyByTheSharedCuts) {
+  const Aabb domain{{0.0, 0.0, 0.0}, {2.0, 1.0, 0.5}};
+  const Points l = local_share(global_points(20000, 16, false, false));
+  const int shared = shared_orb_levels(ranks(), 24);
+  auto bytes = [&](int levels) {
+    const std::int64_t before = cfddem::message_counts().collective_bytes;
+    const ParallelOrb orb = parallel_orb_cuts(cfddem::Communicator::world(), l.x, l.y, l.z, {},
+                                              domain, {levels, {}});
+    EXPECT_EQ(orb.shared_levels, shared);
+    return cfddem::message_counts().collective_bytes - before;
+  };
+  const std::int64_t few = bytes(shared + 1), many = bytes(shared + 5);
+  const std::int64_t cuts_added = (std::int64_t{1} << (shared + 5)) - (std::int64_t{1} << (shared + 1));
+  EXPECT_EQ(many - few, 16 * cuts_added) << "few levels: " << few << " B, many: " << many << " B";
 }
 
 // decompose() with weights (the orb scheme's measured cost): the serial weighted tree on every
@@ -134,6 +166,35 @@ TEST(RankDecomposition, WeightsGiveTheSerialTreeAndAWeightedKnapsack) {
     return m;
   }();
   for (const double q : d.load) EXPECT_LE(q, total / comm.size() + leaf_max);
+}
+
+// decompose() past the shared levels: the knapsack deals whole subtrees, so every leaf of a
+// subtree has one owner, the loads are the ranks' subtrees' weights, and no rank holds more than
+// its share plus one subtree.
+TEST(RankDecomposition, SubtreesBelowTheSharedLevelsKeepOneOwner) {
+  const cfddem::Communicator comm = cfddem::Communicator::world();
+  if (comm.size() == 1) GTEST_SKIP() << "one rank takes the serial build";
+  const Aabb domain{{0.0, 0.0, 0.0}, {2.0, 1.0, 0.5}};
+  const Points g = global_points(8000, 17, true, true);
+  const Points l = local_share(g);
+  const int levels = 8, shared = shared_orb_levels(comm.size(), levels);
+  const RankDecomposition d = decompose(comm, l.x, l.y, l.z, l.w, domain, levels);
+  const OrbTree serial = OrbTree::build(g.x, g.y, g.z, g.w, domain, {levels, {}});
+  const std::size_t per = std::size_t{1} << (levels - shared);
+  std::vector<double> load(static_cast<std::size_t>(comm.size()), 0.0), subtree(std::size_t{1} << shared, 0.0);
+  double total = 0.0;
+  for (std::size_t j = 0; j < serial.leaves().size(); ++j) {
+    EXPECT_EQ(d.owner[j], d.owner[j / per * per]) << "leaf " << j;
+    load[static_cast<std::size_t>(d.owner[j])] += serial.leaves()[j].weight;
+    subtree[j / per] += serial.leaves()[j].weight;
+    total += serial.leaves()[j].weight;
+  }
+  const double heaviest = *std::max_element(subtree.begin(), subtree.end());
+  for (int r = 0; r < comm.size(); ++r) {
+    EXPECT_EQ(d.load[static_cast<std::size_t>(r)], load[static_cast<std::size_t>(r)]) << "rank " << r;
+    EXPECT_LE(load[static_cast<std::size_t>(r)], total / comm.size() + heaviest) << "rank " << r;
+  }
+  EXPECT_NEAR(d.imbalance, *std::max_element(load.begin(), load.end()) / (total / comm.size()), 1e-12);
 }
 
 // decompose() with a snapping grid (the distributed orb scheme with a gas): the serial OrbScheme's

@@ -5,18 +5,24 @@
 #include <bit>
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <stdexcept>
+#include <utility>
 
 #include <mpi.h>
 
 #include "core/communicator_mpi.hpp"
 #include "core/message_counts.hpp"
-#include "core/sparse_exchange.hpp"
 #include "partition/knapsack.hpp"
 #include "partition/orb_cut_rules.hpp"
 #include "partition/space_filling_curve.hpp"
 
 namespace cfddem::partition {
+
+int shared_orb_levels(int ranks, int levels) {
+  const int log2_ranks = std::bit_width(static_cast<unsigned>(std::max(ranks, 1) - 1));
+  return std::min(levels, log2_ranks + 3);
+}
 
 namespace {
 
@@ -31,153 +37,72 @@ double value_of(std::uint64_t k) {
   return std::bit_cast<double>(u);
 }
 
-void allreduce(const Communicator& comm, std::vector<double>& v, MPI_Op op) {
+// The ranks that cut one subtree together: the run's communicator (whose MPI wait the calls
+// add to) and the group's own.
+struct Group {
+  const Communicator* run;
+  MPI_Comm comm;
+  int rank, size;
+};
+
+void allreduce(const Group& g, std::vector<double>& v, MPI_Op op) {
+  if (g.size == 1) return;
   count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(double)), true);
-  MpiWait w(comm);
-  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op,
-                mpi_comm(comm));
+  MpiWait w(*g.run);
+  MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op, g.comm);
 }
 
-} // namespace
-
-int shared_orb_levels(int ranks, int levels) {
-  const int log2_ranks = std::bit_width(static_cast<unsigned>(std::max(ranks, 1) - 1));
-  return std::min(levels, log2_ranks + 3);
+// The half of `parent` that holds this rank (color 0: the lower ranks). The halves depend on the
+// communicator's size alone, so they are split once and kept for the run (a split is collective
+// and gathers every rank's color).
+MPI_Comm half_of(MPI_Comm parent, int color, int rank) {
+  static std::map<std::pair<MPI_Comm, int>, MPI_Comm> halves;
+  auto [at, fresh] = halves.try_emplace({parent, color}, MPI_COMM_NULL);
+  if (fresh) MPI_Comm_split(parent, color, rank, &at->second);
+  return at->second;
 }
 
-namespace {
+// This rank's points of the subtree being cut (copies: they move between ranks).
+struct Points {
+  std::vector<double> x, y, z, w; // w: 1 for each point without weights
+  std::vector<double> tag;        // the point's subtree in a group's stage (else empty)
+  bool weighted = false;
+  [[nodiscard]] std::size_t size() const { return x.size(); }
+  [[nodiscard]] std::array<std::span<const double>, 3> coord() const { return {x, y, z}; }
+};
 
-// The subtrees below the shared levels (boxes, and the subtree of each local point): dealt to
-// ranks by the Hilbert knapsack over their weights, their points sent there, cut there by the
-// serial rules, and the cuts shared with every rank (one all-gather, 16 bytes per cut).
-void cut_subtrees(const Communicator& comm, const std::array<std::span<const double>, 3>& coord,
-                  std::span<const double> weights, const std::vector<Aabb>& boxes,
-                  const std::vector<std::uint32_t>& subtree_of, const Aabb& domain,
-                  const OrbOptions& options, ParallelOrb& out) {
-  const std::size_t n = subtree_of.size(), subtrees = boxes.size();
-  const int ranks = comm.size(), me = comm.rank();
-  const int below = options.levels - out.shared_levels;
-  // Weights per subtree (counts without weights: integers, exact in any order).
-  std::vector<double> weight(subtrees, 0.0);
-  for (std::size_t i = 0; i < n; ++i)
-    weight[subtree_of[i]] += weights.empty() ? 1.0 : weights[i];
-  allreduce(comm, weight, MPI_SUM);
-  std::vector<std::array<double, 3>> centres(subtrees);
-  for (std::size_t s = 0; s < subtrees; ++s) centres[s] = boxes[s].centre();
-  const KnapsackAssignment k =
-      knapsack_along_curve(weight, sfc_order(centres, domain, CurveKind::hilbert), ranks);
-  out.subtree_rank = k.owner;
-  out.subtree_weight = weight;
-
-  // Every point (x, y, z, weight, subtree) to the rank of its subtree, in local order.
-  constexpr int kStride = 5;
-  std::vector<std::int64_t> send_counts(static_cast<std::size_t>(ranks), 0), recv_counts;
-  for (std::size_t i = 0; i < n; ++i) ++send_counts[static_cast<std::size_t>(k.owner[subtree_of[i]])];
-  std::vector<std::size_t> cursor(static_cast<std::size_t>(ranks) + 1, 0);
-  for (int r = 0; r < ranks; ++r) cursor[r + 1] = cursor[r] + static_cast<std::size_t>(send_counts[r]);
-  std::vector<double> send(n * kStride), recv;
-  for (std::size_t i = 0; i < n; ++i) {
-    double* q = send.data() + kStride * cursor[static_cast<std::size_t>(k.owner[subtree_of[i]])]++;
-    q[0] = coord[0][i], q[1] = coord[1][i], q[2] = coord[2][i];
-    q[3] = weights.empty() ? 1.0 : weights[i], q[4] = static_cast<double>(subtree_of[i]);
-  }
-  sparse_exchange(comm, send_counts, send, recv_counts, recv, kStride, false);
-
-  // This rank's subtrees, in heap order: their points in arrival order, then their cuts.
-  const std::size_t arrived = recv.size() / kStride;
-  std::vector<std::size_t> first(subtrees + 1, 0);
-  for (std::size_t j = 0; j < arrived; ++j)
-    ++first[static_cast<std::size_t>(recv[kStride * j + 4]) + 1];
-  for (std::size_t s = 0; s < subtrees; ++s) first[s + 1] += first[s];
-  std::vector<double> px(arrived), py(arrived), pz(arrived), pw(weights.empty() ? 0 : arrived);
-  {
-    std::vector<std::size_t> at(first.begin(), first.end() - 1);
-    for (std::size_t j = 0; j < arrived; ++j) {
-      const double* q = recv.data() + kStride * j;
-      const std::size_t t = at[static_cast<std::size_t>(q[4])]++;
-      px[t] = q[0], py[t] = q[1], pz[t] = q[2];
-      if (!pw.empty()) pw[t] = q[3];
-    }
-  }
-  const std::size_t per_subtree = (std::size_t{1} << below) - 1; // cuts in one subtree
-  std::vector<double> mine;
-  for (std::size_t s = 0; s < subtrees; ++s) {
-    if (k.owner[s] != me) continue;
-    const std::size_t b = first[s], e = first[s + 1];
-    auto part = [&](const std::vector<double>& v) {
-      return v.empty() ? std::span<const double>() : std::span<const double>(v).subspan(b, e - b);
-    };
-    for (const OrbCut& c : orb_subtree_cuts(part(px), part(py), part(pz), part(pw), boxes[s],
-                                            OrbOptions{below, options.snap}))
-      mine.push_back(static_cast<double>(c.axis)), mine.push_back(c.position);
-  }
-
-  // Every rank's subtrees' cuts, in rank order (each rank's subtrees in heap order).
-  std::vector<int> counts(static_cast<std::size_t>(ranks), 0), displs(static_cast<std::size_t>(ranks), 0);
-  for (std::size_t s = 0; s < subtrees; ++s)
-    counts[static_cast<std::size_t>(k.owner[s])] += static_cast<int>(2 * per_subtree);
-  for (int r = 1; r < ranks; ++r) displs[r] = displs[r - 1] + counts[r - 1];
-  std::vector<double> all(static_cast<std::size_t>(displs[ranks - 1] + counts[ranks - 1]));
-  count_messages::collective(static_cast<std::int64_t>(all.size() * sizeof(double)), false);
-  {
-    MpiWait w(comm);
-    MPI_Allgatherv(mine.data(), static_cast<int>(mine.size()), MPI_DOUBLE, all.data(),
-                   counts.data(), displs.data(), MPI_DOUBLE, mpi_comm(comm));
-  }
-  // Cut j of subtree s's own heap, at depth d (j = 2^d - 1 + t), is node 2^(shared + d) - 1 +
-  // s 2^d + t of the whole tree.
-  std::vector<std::size_t> next(displs.begin(), displs.end());
-  for (std::size_t s = 0; s < subtrees; ++s) {
-    const double* c = all.data() + next[static_cast<std::size_t>(k.owner[s])];
-    next[static_cast<std::size_t>(k.owner[s])] += 2 * per_subtree;
-    for (int d = 0; d < below; ++d) {
-      const std::size_t width = std::size_t{1} << d;
-      for (std::size_t t = 0; t < width; ++t) {
-        const std::size_t j = width - 1 + t;
-        const std::size_t node = (std::size_t{1} << (out.shared_levels + d)) - 1 + s * width + t;
-        out.cuts[node] = {static_cast<int>(c[2 * j]), c[2 * j + 1]};
-      }
-    }
-  }
+// Heap index of the t-th node `d` levels below node n (its depth's nodes in order).
+std::size_t descendant(std::size_t n, int d, std::size_t t) {
+  return ((n + 1) << d) - 1 + t;
 }
 
-} // namespace
-
-ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> x,
-                              std::span<const double> y, std::span<const double> z,
-                              std::span<const double> weights, const Aabb& domain,
-                              const OrbOptions& options) {
-  const std::size_t n = x.size();
-  if (y.size() != n || z.size() != n || (!weights.empty() && weights.size() != n))
-    throw std::invalid_argument("parallel_orb: x, y, z (and weights) must have the same size");
-  if (options.levels < 0 || options.levels > 24)
-    throw std::invalid_argument("parallel_orb: levels must be in [0, 24]");
-  const std::array<std::span<const double>, 3> coord{x, y, z};
-  auto w = [&](std::size_t i) { return weights.empty() ? 1.0 : weights[i]; };
-
-  const std::size_t n_leaves = std::size_t{1} << options.levels;
-  ParallelOrb out;
-  out.cuts.resize(n_leaves - 1);
-  out.shared_levels = shared_orb_levels(comm.size(), options.levels);
-  std::vector<OrbCut>& cuts = out.cuts;
-  std::vector<Aabb> boxes{domain};
-  std::vector<std::uint32_t> node_of(n, 0); // node of the current level holding each point
-
-  for (int level = 0; level < out.shared_levels; ++level) {
+// `levels` levels of the subtree with root box `root`, agreed over the group by reductions:
+// `cuts` in heap order relative to the root, `boxes` the 2^levels subtrees below them and
+// `node_of` each local point's subtree. Every cut is the serial build's (orb_cut_rules.hpp).
+void cut_collectively(const Group& g, const Points& p, const Aabb& root, int levels,
+                      const std::optional<Grid>& snap, std::vector<OrbCut>& cuts,
+                      std::vector<Aabb>& boxes, std::vector<std::uint32_t>& node_of) {
+  const std::size_t n = p.size();
+  const auto coord = p.coord();
+  auto w = [&](std::size_t i) { return p.w[i]; };
+  cuts.assign((std::size_t{1} << levels) - 1, OrbCut{});
+  boxes.assign(1, root);
+  node_of.assign(n, 0);
+  for (int level = 0; level < levels; ++level) {
     const std::size_t m = boxes.size();
     // Node weights (counts when unweighted: integers, exact in any summation order).
     std::vector<double> total(m, 0.0), count(m, 0.0);
     for (std::size_t i = 0; i < n; ++i) total[node_of[i]] += w(i), count[node_of[i]] += 1.0;
-    allreduce(comm, total, MPI_SUM);
-    allreduce(comm, count, MPI_SUM);
+    allreduce(g, total, MPI_SUM);
+    allreduce(g, count, MPI_SUM);
 
     std::vector<int> axis(m);
     std::vector<detail::FaceRange> faces(m, {0, -1});
     std::vector<bool> unit(m);
     for (std::size_t j = 0; j < m; ++j) {
-      axis[j] = detail::cut_axis(boxes[j], options.snap, faces[j]);
+      axis[j] = detail::cut_axis(boxes[j], snap, faces[j]);
       // All-zero measured cost carries no information: balance the counts (as the serial build).
-      unit[j] = weights.empty() || !(total[j] > 0.0);
+      unit[j] = !p.weighted || !(total[j] > 0.0);
       if (unit[j]) total[j] = count[j];
     }
     auto weight = [&](std::size_t i) { return unit[node_of[i]] ? 1.0 : w(i); };
@@ -214,7 +139,7 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
         if (k > hi[j]) continue;
         bucket[j * (kBuckets + 1) + (k < lo[j] ? 0 : 1 + (k - lo[j]) / step[j])] += weight(i);
       }
-      allreduce(comm, bucket, MPI_SUM);
+      allreduce(g, bucket, MPI_SUM);
       for (std::size_t j = 0; j < m; ++j) {
         if (lo[j] == hi[j]) continue;
         const double* b = bucket.data() + j * (kBuckets + 1);
@@ -238,11 +163,11 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
     std::vector<double> cm(m), f0(m), f1(m);
     for (std::size_t j = 0; j < m; ++j) {
       cm[j] = value_of(hi[j]);
-      if (options.snap && axis[j] >= 0) {
+      if (snap && axis[j] >= 0) {
         std::int64_t k0 = 0, k1 = 0;
-        detail::faces_around(*options.snap, axis[j], faces[j], cm[j], k0, k1);
-        f0[j] = options.snap->face(axis[j], k0);
-        f1[j] = options.snap->face(axis[j], k1);
+        detail::faces_around(*snap, axis[j], faces[j], cm[j], k0, k1);
+        f0[j] = snap->face(axis[j], k0);
+        f1[j] = snap->face(axis[j], k1);
       }
     }
     for (std::size_t i = 0; i < n; ++i) {
@@ -257,21 +182,21 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
       } else {
         next[j] = std::min(next[j], c);
       }
-      if (options.snap) {
+      if (snap) {
         if (c < f0[j]) w0[j] += weight(i);
         if (c < f1[j]) w1[j] += weight(i);
       }
     }
-    allreduce(comm, w_less, MPI_SUM);
-    allreduce(comm, w_eq, MPI_SUM);
-    allreduce(comm, w0, MPI_SUM);
-    allreduce(comm, w1, MPI_SUM);
-    allreduce(comm, prev, MPI_MAX);
-    allreduce(comm, next, MPI_MIN);
+    allreduce(g, w_less, MPI_SUM);
+    allreduce(g, w_eq, MPI_SUM);
+    allreduce(g, w0, MPI_SUM);
+    allreduce(g, w1, MPI_SUM);
+    allreduce(g, prev, MPI_MAX);
+    allreduce(g, next, MPI_MIN);
 
     // Cuts, identical on every rank, and the next level's boxes.
     std::vector<Aabb> children(2 * m);
-    const std::size_t first = m - 1; // heap index of the level's first node
+    const std::size_t first = m - 1; // heap index (relative to the root) of the level's first node
     for (std::size_t j = 0; j < m; ++j) {
       const Aabb& box = boxes[j];
       OrbCut cut;
@@ -280,10 +205,10 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
       } else if (count[j] == 0.0) {
         const int a = axis[j];
         const double mid_box = box.lo[a] + 0.5 * box.extent(a);
-        cut = {a, options.snap ? options.snap->face(a, detail::nearest_face(*options.snap, a,
+        cut = {a, snap ? snap->face(a, detail::nearest_face(*snap, a,
                                                                             faces[j], mid_box))
                                : mid_box};
-      } else if (!options.snap) {
+      } else if (!snap) {
         detail::MedianStats st;
         st.cm = cm[j], st.w_less = w_less[j], st.w_eq = w_eq[j], st.half = 0.5 * total[j];
         st.prev = prev[j], st.next = next[j];
@@ -303,8 +228,247 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
     }
     boxes.swap(children);
   }
-  if (out.shared_levels < options.levels)
-    cut_subtrees(comm, coord, weights, boxes, node_of, domain, options, out);
+}
+
+// Sends point i to group rank dest[i] (each rank's in local order) and returns what arrives, by
+// source rank. The counts go first: to the one partner when `partner` >= 0 (a halving's swap),
+// otherwise in an all-to-all over the group.
+Points send_points(const Group& g, const Points& p, std::span<const int> dest, int partner) {
+  const std::size_t ranks = static_cast<std::size_t>(g.size);
+  constexpr int kStride = 5;
+  std::vector<int> send_n(ranks, 0), recv_n(ranks, 0);
+  for (const int r : dest) ++send_n[static_cast<std::size_t>(r)];
+  std::vector<std::size_t> at(ranks + 1, 0);
+  for (std::size_t r = 0; r < ranks; ++r) at[r + 1] = at[r] + static_cast<std::size_t>(send_n[r]);
+  std::vector<double> send(kStride * p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    double* q = send.data() + kStride * at[static_cast<std::size_t>(dest[i])]++;
+    q[0] = p.x[i], q[1] = p.y[i], q[2] = p.z[i], q[3] = p.w[i];
+    q[4] = p.tag.empty() ? 0.0 : p.tag[i];
+  }
+  for (std::size_t r = ranks; r > 0; --r) at[r] = at[r - 1];
+  at[0] = 0;
+  {
+    MpiWait wait(*g.run);
+    if (partner >= 0) {
+      count_messages::point_to_point(sizeof(int));
+      MPI_Sendrecv(&send_n[static_cast<std::size_t>(partner)], 1, MPI_INT, partner, 7311,
+                   &recv_n[static_cast<std::size_t>(partner)], 1, MPI_INT, partner, 7311, g.comm,
+                   MPI_STATUS_IGNORE);
+    } else if (g.size > 1) {
+      count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(int)), false);
+      MPI_Alltoall(send_n.data(), 1, MPI_INT, recv_n.data(), 1, MPI_INT, g.comm);
+    }
+  }
+  recv_n[static_cast<std::size_t>(g.rank)] = send_n[static_cast<std::size_t>(g.rank)];
+  std::vector<std::size_t> from(ranks + 1, 0);
+  for (std::size_t r = 0; r < ranks; ++r) from[r + 1] = from[r] + static_cast<std::size_t>(recv_n[r]);
+  std::vector<double> recv(kStride * from[ranks]);
+  std::vector<MPI_Request> req;
+  for (std::size_t r = 0; r < ranks; ++r) {
+    const int c = kStride * recv_n[r];
+    if (static_cast<int>(r) == g.rank) {
+      std::copy_n(send.data() + kStride * at[r], c, recv.data() + kStride * from[r]);
+    } else if (c > 0) {
+      MPI_Irecv(recv.data() + kStride * from[r], c, MPI_DOUBLE, static_cast<int>(r), 7312, g.comm,
+                &req.emplace_back());
+    }
+  }
+  for (std::size_t r = 0; r < ranks; ++r) {
+    const int c = kStride * send_n[r];
+    if (static_cast<int>(r) != g.rank && c > 0) {
+      count_messages::point_to_point(static_cast<std::int64_t>(c * sizeof(double)));
+      MPI_Isend(send.data() + kStride * at[r], c, MPI_DOUBLE, static_cast<int>(r), 7312, g.comm,
+                &req.emplace_back());
+    }
+  }
+  {
+    MpiWait wait(*g.run);
+    MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
+  }
+  Points out;
+  out.weighted = p.weighted;
+  const std::size_t m = from[ranks];
+  out.x.resize(m), out.y.resize(m), out.z.resize(m), out.w.resize(m), out.tag.resize(m);
+  for (std::size_t j = 0; j < m; ++j) {
+    const double* q = recv.data() + kStride * j;
+    out.x[j] = q[0], out.y[j] = q[1], out.z[j] = q[2], out.w[j] = q[3], out.tag[j] = q[4];
+  }
+  return out;
+}
+
+// What one rank found: cuts (node, axis, position), the roots of the subtrees it owns, and
+// their weight.
+struct Found {
+  std::vector<double> cuts;
+  std::vector<double> roots;
+  double load = 0.0;
+  void cut(std::size_t node, const OrbCut& c) {
+    cuts.insert(cuts.end(), {static_cast<double>(node), static_cast<double>(c.axis), c.position});
+  }
+};
+
+// The group's stage below node `root` (box `box`, `left` levels to the leaves): the top
+// shared_orb_levels(group size) levels by reductions, then the subtrees below them dealt to the
+// group's ranks by the Hilbert knapsack over their weights, their points sent there, and each cut
+// there alone by the serial rules (orb_subtree_cuts).
+void cut_group(const Group& g, const Points& p, std::size_t root, const Aabb& box, int left,
+               const std::optional<Grid>& snap, Found& found) {
+  const int shared = g.size == 1 ? 0 : shared_orb_levels(g.size, left);
+  std::vector<OrbCut> top;
+  std::vector<Aabb> boxes;
+  std::vector<std::uint32_t> subtree_of;
+  cut_collectively(g, p, box, shared, snap, top, boxes, subtree_of);
+  if (g.rank == 0)
+    for (int d = 0; d < shared; ++d)
+      for (std::size_t t = 0; t < (std::size_t{1} << d); ++t)
+        found.cut(descendant(root, d, t), top[(std::size_t{1} << d) - 1 + t]);
+  const std::size_t subtrees = boxes.size();
+  std::vector<double> weight(subtrees, 0.0);
+  for (std::size_t i = 0; i < p.size(); ++i) weight[subtree_of[i]] += p.w[i];
+  allreduce(g, weight, MPI_SUM);
+  std::vector<std::array<double, 3>> centres(subtrees);
+  for (std::size_t s = 0; s < subtrees; ++s) centres[s] = boxes[s].centre();
+  const KnapsackAssignment k =
+      knapsack_along_curve(weight, sfc_order(centres, box, CurveKind::hilbert), g.size);
+  std::vector<int> dest(p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) dest[i] = k.owner[subtree_of[i]];
+  Points tagged = p;
+  tagged.tag.resize(p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) tagged.tag[i] = static_cast<double>(subtree_of[i]);
+  const Points mine = send_points(g, tagged, dest, -1);
+  // This rank's subtrees in heap order, each over its points in arrival order.
+  std::vector<std::size_t> first(subtrees + 1, 0);
+  for (const double s : mine.tag) ++first[static_cast<std::size_t>(s) + 1];
+  for (std::size_t s = 0; s < subtrees; ++s) first[s + 1] += first[s];
+  Points sorted;
+  const std::size_t m = mine.size();
+  sorted.x.resize(m), sorted.y.resize(m), sorted.z.resize(m), sorted.w.resize(m);
+  {
+    std::vector<std::size_t> at(first.begin(), first.end() - 1);
+    for (std::size_t j = 0; j < m; ++j) {
+      const std::size_t t = at[static_cast<std::size_t>(mine.tag[j])]++;
+      sorted.x[t] = mine.x[j], sorted.y[t] = mine.y[j], sorted.z[t] = mine.z[j];
+      sorted.w[t] = mine.w[j];
+    }
+  }
+  const int below = left - shared;
+  for (std::size_t s = 0; s < subtrees; ++s) {
+    if (k.owner[s] != g.rank) continue;
+    const std::size_t b = first[s], e = first[s + 1];
+    auto part = [&](const std::vector<double>& v) {
+      return std::span<const double>(v).subspan(b, e - b);
+    };
+    const std::vector<OrbCut> cuts =
+        orb_subtree_cuts(part(sorted.x), part(sorted.y), part(sorted.z),
+                         p.weighted ? part(sorted.w) : std::span<const double>(), boxes[s],
+                         OrbOptions{below, snap});
+    const std::size_t r = descendant(root, shared, s);
+    for (int d = 0; d < below; ++d)
+      for (std::size_t t = 0; t < (std::size_t{1} << d); ++t)
+        found.cut(descendant(r, d, t), cuts[(std::size_t{1} << d) - 1 + t]);
+    found.roots.push_back(static_cast<double>(r));
+    found.load += weight[s];
+  }
+}
+
+} // namespace
+
+ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> x,
+                              std::span<const double> y, std::span<const double> z,
+                              std::span<const double> weights, const Aabb& domain,
+                              const OrbOptions& options, int group_ranks) {
+  const std::size_t n = x.size();
+  if (y.size() != n || z.size() != n || (!weights.empty() && weights.size() != n))
+    throw std::invalid_argument("parallel_orb: x, y, z (and weights) must have the same size");
+  if (options.levels < 0 || options.levels > 24)
+    throw std::invalid_argument("parallel_orb: levels must be in [0, 24]");
+  if (group_ranks < 1) throw std::invalid_argument("parallel_orb: group_ranks must be >= 1");
+  Points p;
+  p.x.assign(x.begin(), x.end()), p.y.assign(y.begin(), y.end()), p.z.assign(z.begin(), z.end());
+  p.weighted = !weights.empty();
+  if (p.weighted) p.w.assign(weights.begin(), weights.end());
+  else p.w.assign(n, 1.0);
+
+  const int levels = options.levels;
+  Group g{&comm, mpi_comm(comm), comm.rank(), comm.size()};
+  ParallelOrb out;
+  out.shared_levels = shared_orb_levels(g.size, levels);
+  if (out.shared_levels == levels) {
+    // Few levels: all of them by reductions; decompose() deals the leaves.
+    std::vector<Aabb> boxes;
+    std::vector<std::uint32_t> node_of;
+    cut_collectively(g, p, domain, levels, options.snap, out.cuts, boxes, node_of);
+    return out;
+  }
+  // Halvings: a group of an even number of ranks above group_ranks agrees on its node's cut, and
+  // each rank swaps the other side's points with its partner in the other half.
+  Found found;
+  std::size_t node = 0;
+  int depth = 0;
+  Aabb box = domain;
+  while (g.size > group_ranks && g.size % 2 == 0 && depth < levels) {
+    std::vector<OrbCut> cut;
+    std::vector<Aabb> halves;
+    std::vector<std::uint32_t> side;
+    cut_collectively(g, p, box, 1, options.snap, cut, halves, side);
+    if (g.rank == 0) found.cut(node, cut[0]);
+    const int half = g.size / 2;
+    const int upper = g.rank >= half ? 1 : 0;
+    const int partner = upper ? g.rank - half : g.rank + half;
+    std::vector<int> dest(p.size());
+    for (std::size_t i = 0; i < p.size(); ++i)
+      dest[i] = static_cast<int>(side[i]) == upper ? g.rank : partner;
+    p = send_points(g, p, dest, partner);
+    p.tag.clear();
+    g = Group{&comm, half_of(g.comm, upper, g.rank), g.rank - upper * half, half};
+    node = 2 * node + 1 + static_cast<std::size_t>(upper);
+    box = halves[static_cast<std::size_t>(upper)];
+    ++depth;
+  }
+  out.shared_levels = depth + (g.size == 1 ? 0 : shared_orb_levels(g.size, levels - depth));
+  cut_group(g, p, node, box, levels - depth, options.snap, found);
+
+  // Every rank's findings to every rank: [load, cuts, roots, (node, axis, position)..., root...].
+  std::vector<double> mine{found.load, static_cast<double>(found.cuts.size() / 3),
+                           static_cast<double>(found.roots.size())};
+  mine.insert(mine.end(), found.cuts.begin(), found.cuts.end());
+  mine.insert(mine.end(), found.roots.begin(), found.roots.end());
+  const auto ranks = static_cast<std::size_t>(comm.size());
+  std::vector<int> counts(ranks), displs(ranks, 0);
+  const int size = static_cast<int>(mine.size());
+  count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(int)), false);
+  {
+    MpiWait wait(comm);
+    MPI_Allgather(&size, 1, MPI_INT, counts.data(), 1, MPI_INT, mpi_comm(comm));
+  }
+  for (std::size_t r = 1; r < ranks; ++r) displs[r] = displs[r - 1] + counts[r - 1];
+  std::vector<double> all(static_cast<std::size_t>(displs[ranks - 1] + counts[ranks - 1]));
+  count_messages::collective(static_cast<std::int64_t>(all.size() * sizeof(double)), false);
+  {
+    MpiWait wait(comm);
+    MPI_Allgatherv(mine.data(), size, MPI_DOUBLE, all.data(), counts.data(), displs.data(),
+                   MPI_DOUBLE, mpi_comm(comm));
+  }
+  out.cuts.assign((std::size_t{1} << levels) - 1, OrbCut{});
+  out.leaf_rank.assign(std::size_t{1} << levels, -1);
+  out.rank_load.assign(ranks, 0.0);
+  for (std::size_t r = 0; r < ranks; ++r) {
+    const double* q = all.data() + displs[r];
+    out.rank_load[r] = q[0];
+    const auto n_cuts = static_cast<std::size_t>(q[1]), n_roots = static_cast<std::size_t>(q[2]);
+    const double* c = q + 3;
+    for (std::size_t k = 0; k < n_cuts; ++k, c += 3)
+      out.cuts[static_cast<std::size_t>(c[0])] = {static_cast<int>(c[1]), c[2]};
+    for (std::size_t k = 0; k < n_roots; ++k) {
+      const auto root = static_cast<std::size_t>(c[k]);
+      const int d = std::bit_width(root + 1) - 1; // the root's depth
+      const std::size_t span = std::size_t{1} << (levels - d);
+      const std::size_t first = (root + 1 - (std::size_t{1} << d)) * span;
+      std::fill_n(out.leaf_rank.begin() + static_cast<std::ptrdiff_t>(first), span,
+                  static_cast<int>(r));
+    }
+  }
   return out;
 }
 

@@ -1,13 +1,17 @@
-// ORB over points spread across MPI ranks, in two parts. The top levels (shared_orb_levels: a
-// few subtrees per rank) are agreed collectively: every cut's weighted median is found with
-// reductions (a 256-way search on the coordinate's bit pattern, one allreduce per 8 bits) and
-// the cut made with the serial build's rules (orb_cut_rules.hpp). The subtrees below them are
-// dealt to ranks by the Hilbert knapsack, each subtree's points are sent to its rank, and that
-// rank cuts the levels below alone (orb_subtree_cuts); the cuts are then shared. A node's cut
-// depends only on its box and its points, so the result is the serial tree of the union of the
-// ranks' points: bit for bit with unit or integer weights, to the rounding of the weight sums
-// otherwise. The reductions' bytes grow with the rank count, not with the levels (the
-// particles): what grows with the levels is the shared cuts, 16 bytes per leaf.
+// ORB over points spread across MPI ranks, the serial tree of the union of their points (bit for
+// bit with unit or integer weights, to the rounding of the weight sums otherwise), built with
+// messages that grow with the rank count, not with the levels (the particles):
+//  - halvings: while a group of ranks is even and larger than `group_ranks`, it agrees on its
+//    node's cut by reductions (a 256-way search on the coordinate's bit pattern, one allreduce
+//    per 8 bits, and the serial build's rules, orb_cut_rules.hpp), and each rank swaps the other
+//    side's points with its partner in the other half of the group (recursive coordinate
+//    bisection's exchange, Berger & Bokhari 1987);
+//  - a group's stage: the group agrees on the next shared_orb_levels(group size) levels the same
+//    way, deals the subtrees below them to its ranks by the Hilbert knapsack over their weights,
+//    sends each subtree's points to its rank, and that rank cuts the subtree alone
+//    (orb_subtree_cuts): a node's cut depends only on its box and its points;
+//  - every rank's cuts and subtrees are then all-gathered: 24 bytes per cut, the one part that
+//    grows with the levels.
 #pragma once
 
 #include <span>
@@ -24,19 +28,21 @@ namespace cfddem::partition {
 
 struct ParallelOrb {
   std::vector<OrbCut> cuts; // heap order, the serial tree's
-  int shared_levels = 0;    // levels cut collectively
-  // When shared_levels < levels: per subtree below them (heap order, 2^shared_levels), the rank
-  // that cut it and its weight (the points' weights, or their count without weights). Every
-  // leaf of a subtree is that rank's (rank_decomposition.cpp). Empty otherwise.
-  std::vector<int> subtree_rank;
-  std::vector<double> subtree_weight;
+  int shared_levels = 0;    // the deepest level agreed by reductions (over all ranks or a group)
+  // When shared_levels < levels: the rank that cut each leaf's subtree (it holds the subtree's
+  // points now; rank_decomposition.cpp makes it the owner), and per rank the weight of its
+  // subtrees (the points' weights, or their count without weights). Empty otherwise.
+  std::vector<int> leaf_rank;
+  std::vector<double> rank_load;
 };
 
 // Collective over `comm`: same domain and options on every rank; each rank passes its own points
-// (weights empty = each weighs 1, or one per local point).
+// (weights empty = each weighs 1, or one per local point). group_ranks: the largest group that
+// takes the knapsack stage without halving first (more ranks per group balance snapped or uneven
+// subtrees better; fewer cost fewer reductions).
 [[nodiscard]] ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> x,
                                             std::span<const double> y, std::span<const double> z,
                                             std::span<const double> weights, const Aabb& domain,
-                                            const OrbOptions& options);
+                                            const OrbOptions& options, int group_ranks = 8);
 
 } // namespace cfddem::partition

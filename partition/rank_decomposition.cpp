@@ -36,19 +36,13 @@ RankDecomposition decompose(const Communicator& comm, std::span<const double> x,
   } else {
     ParallelOrb orb = parallel_orb_cuts(comm, x, y, z, weights, domain, opt);
     d.tree = OrbTree::from_cuts(x, y, z, domain, levels, std::move(orb.cuts));
-    if (!orb.subtree_rank.empty()) {
-      // The subtrees were dealt to ranks by the knapsack already: each keeps its leaves (the
-      // rank that cut a subtree holds its points now, and owns them).
-      const int below = levels - orb.shared_levels;
-      d.owner.resize(d.tree.leaves().size());
-      for (std::size_t l = 0; l < d.owner.size(); ++l)
-        d.owner[l] = orb.subtree_rank[l >> below];
-      d.load.assign(static_cast<std::size_t>(comm.size()), 0.0);
+    if (!orb.leaf_rank.empty()) {
+      // The subtrees were dealt to ranks already: each rank owns the leaves it cut (it holds
+      // their points now).
+      d.owner = std::move(orb.leaf_rank);
+      d.load = std::move(orb.rank_load);
       double total = 0.0;
-      for (std::size_t s = 0; s < orb.subtree_rank.size(); ++s) {
-        d.load[static_cast<std::size_t>(orb.subtree_rank[s])] += orb.subtree_weight[s];
-        total += orb.subtree_weight[s];
-      }
+      for (const double q : d.load) total += q;
       const double mean = total / comm.size();
       d.imbalance = mean > 0.0 ? *std::max_element(d.load.begin(), d.load.end()) / mean : 1.0;
       return d;

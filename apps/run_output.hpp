@@ -236,16 +236,18 @@ inline nlohmann::ordered_json rank_counts_json(const Communicator& comm,
                                                std::int64_t force_evaluations,
                                                std::int64_t cell_updates) {
   const MessageCounts m = message_counts(); // before the gather below adds to it
-  constexpr std::size_t kFields = 8;
-  const std::array<std::int64_t, kFields> mine{particle_steps, force_evaluations, cell_updates,
-                                               m.p2p_messages,  m.p2p_bytes, m.collectives,
-                                               m.collective_bytes, m.reductions};
+  constexpr std::size_t kFields = 9;
+  const std::array<std::int64_t, kFields> mine{particle_steps,     force_evaluations, cell_updates,
+                                               m.p2p_messages,     m.p2p_bytes,       m.collectives,
+                                               m.collective_bytes, m.reductions,
+                                               m.orb_search_bytes};
   const std::vector<std::int64_t> all = comm.gather(std::span<const std::int64_t>(mine));
   nlohmann::ordered_json j;
   if (comm.rank() != 0) return j;
   static constexpr std::array<const char*, kFields> names = {
       "particle_steps", "force_evaluations", "cell_updates", "p2p_messages",
-      "p2p_bytes",      "collectives",       "collective_bytes", "reductions"};
+      "p2p_bytes",      "collectives",       "collective_bytes", "reductions",
+      "orb_search_bytes"};
   for (std::size_t k = 0; k < kFields; ++k) {
     nlohmann::ordered_json v = nlohmann::ordered_json::array();
     for (std::size_t r = 0; r * kFields + k < all.size(); ++r) v.push_back(all[r * kFields + k]);
@@ -256,7 +258,8 @@ inline nlohmann::ordered_json rank_counts_json(const Communicator& comm,
       "particle steps; pair evaluations of its rows (a pair with a ghost counts on both ranks); "
       "gas cell updates (box cells x gas sub-steps); point-to-point sends and their bytes (halo, "
       "ghost and migration messages); collectives this rank took part in and its payload bytes; "
-      "of those, the reductions. Not counted: snapshot and checkpoint I/O, hypre's own messages";
+      "of those, the reductions, and the parallel ORB's median searches' bytes (its reductions' "
+      "payload, part of collective_bytes). Not counted: snapshot and checkpoint I/O, hypre's own messages";
   return j;
 }
 

@@ -8,7 +8,7 @@ namespace {
 // Relaxed atomics: MPI is called from one thread per rank today, but a count must never be
 // lost should a TBB task ever send; only the totals are read, after the loop.
 std::atomic<std::int64_t> p2p_messages{0}, p2p_bytes{0}, collectives{0}, collective_bytes{0},
-    reductions{0};
+    reductions{0}, orb_search_bytes{0};
 } // namespace
 
 MessageCounts message_counts() {
@@ -18,6 +18,7 @@ MessageCounts message_counts() {
   c.collectives = collectives.load(std::memory_order_relaxed);
   c.collective_bytes = collective_bytes.load(std::memory_order_relaxed);
   c.reductions = reductions.load(std::memory_order_relaxed);
+  c.orb_search_bytes = orb_search_bytes.load(std::memory_order_relaxed);
   return c;
 }
 
@@ -31,6 +32,9 @@ void collective(std::int64_t bytes, bool reduction) {
   collective_bytes.fetch_add(bytes, std::memory_order_relaxed);
   if (reduction)
     reductions.fetch_add(1, std::memory_order_relaxed);
+}
+void orb_search(std::int64_t bytes) {
+  orb_search_bytes.fetch_add(bytes, std::memory_order_relaxed);
 }
 } // namespace count_messages
 

@@ -48,6 +48,7 @@ struct Group {
 void allreduce(const Group& g, std::vector<double>& v, MPI_Op op) {
   if (g.size == 1) return;
   count_messages::collective(static_cast<std::int64_t>(v.size() * sizeof(double)), true);
+  count_messages::orb_search(static_cast<std::int64_t>(v.size() * sizeof(double)));
   MpiWait w(*g.run);
   MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op, g.comm);
 }

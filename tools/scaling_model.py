@@ -45,10 +45,15 @@ Extrapolation from the measured R ranks to P cores (strong scaling, the same sce
   halo bytes per rank x (R/P)^(2/3) (a box's surface), messages per rank held (<= 26 faces,
                         edges and corners of a box, as measured)
   reductions          held (the same steps), each costing log2 P latencies
-  collective bytes    held (the ORB tree is the scene's)
+  collective bytes    held (the ORB tree is the scene's), but the parallel ORB's median searches
+                      (rank_counts.orb_search_bytes) as the nodes a rank searches by reductions
+                      at P ranks against R (orb_search_nodes: all 2^L - 1 while L <= log2 R + 3;
+                      else one per halving of the ranks and a group's top levels)
 Weak scaling (--weak): work, messages and halo bytes per rank held as measured; the reductions'
-log2 P and the coarse grid grow, and the collective bytes as P / R (the scaled scene's ORB tree
-grows with the particles).
+log2 P and the coarse grid grow; the collective bytes grow as P / R (the scaled scene's ORB tree
+and gas grid grow with the particles: the all-gathered cuts, the gas's gathered level), except
+the ORB's searches, priced as above with the tree log2(P / R) levels deeper. Runs without
+orb_search_bytes (before the ORB searched in rank groups) grow all their collective bytes.
 
 Network defaults (--network):
   shm: one node's shared memory, alpha = 0.4 us, beta = 10 GB/s (Open MPI's vader/sm
@@ -158,6 +163,22 @@ T_ITER = 20e-9  # s per cell per pressure iteration: one V-cycle of the riser gr
 #                 on 51,200 cells (docs/performance_history.md, "The gas step on one rank")
 
 
+def orb_search_nodes(ranks, levels):
+    """Tree nodes whose weighted median a rank of the parallel ORB searches by reductions
+    (partition/parallel_orb.cpp): every node while the levels are few for the ranks
+    (L <= ceil(log2 R) + 3); otherwise one per halving (an even group of more than 8 ranks
+    halves) and the 2^T - 1 nodes of its group's top T = ceil(log2 G) + 3 levels."""
+    def shared(g, levels_left):
+        return min(levels_left, (g - 1).bit_length() + 3)
+    if levels <= shared(ranks, levels):
+        return 2 ** levels - 1
+    g, halvings = ranks, 0
+    while g > 8 and g % 2 == 0 and halvings < levels:
+        g, halvings = g // 2, halvings + 1
+    top = 0 if g == 1 else shared(g, levels - halvings)
+    return halvings + 2 ** top - 1
+
+
 def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
     """Model time per fluid step (per run without a gas) and its terms at `cores` ranks, from
     `run`'s counts at R ranks."""
@@ -195,10 +216,20 @@ def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
     # an all-gather moves about 2 m bytes per rank for an m-byte vector, independent of P;
     # Thakur, Rabenseifner & Gropp 2005, IJHPCA 19(1)), and the collectives that are not
     # reductions (gathers, broadcasts, all-to-all of counts) pay log2 P latencies each. The
-    # large payload is the parallel ORB's histograms, one row of 257 buckets per tree node:
-    # fixed by the scene's orb_levels in strong scaling; in weak scaling the scaled scene keeps
-    # 100-200 particles per leaf, so the nodes, and these bytes, grow as P / R.
-    coll_bytes = max(rc["collective_bytes"]) * (cores / R if weak else 1.0)
+    # parallel ORB's median searches (one row of 257 buckets per node and round) scale with the
+    # nodes a rank searches (orb_search_nodes); in weak scaling the scaled scene keeps 100-200
+    # particles per leaf, so its tree is log2(P / R) levels deeper. The rest grows as P / R in
+    # weak scaling (the all-gathered cuts, the gas's gathered level) and is held in strong.
+    search = rc.get("orb_search_bytes", [0.0] * R)
+    levels = config_value(run, "partition.orb_levels")
+    if isinstance(levels, int) and levels > 0 and max(search) > 0:
+        deeper = round(math.log2(cores / R)) if weak else 0
+        search_scale = orb_search_nodes(cores, levels + deeper) / orb_search_nodes(R, levels)
+    else:
+        search, search_scale = [0.0] * R, 1.0
+    rest_scale = cores / R if weak else 1.0
+    coll_bytes = max((rc["collective_bytes"][r] - search[r]) * rest_scale +
+                     search[r] * search_scale for r in range(R))
     coll_t = (2.0 * coll_bytes / beta +
               (max(rc["collectives"]) - reductions) * alpha * log_p)
     coarse_t = 0.0

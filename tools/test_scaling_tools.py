@@ -341,6 +341,29 @@ class ScalingModel(unittest.TestCase):
                                places=12)  # the ORB tree grows with the particles: x P/R
         self.assertEqual(lim, "collective bytes")
 
+    def test_orb_search_nodes_follow_the_parallel_orb(self):
+        nodes = scaling_model.orb_search_nodes
+        self.assertEqual(nodes(4, 5), 31)       # few levels: every node, by all ranks
+        self.assertEqual(nodes(4, 9), 31)       # 2 + 3 levels, then each subtree alone
+        self.assertEqual(nodes(16, 9), 1 + 63)  # one halving, then a group of 8: 6 levels
+        self.assertEqual(nodes(4096, 21), 9 + 63)
+        self.assertEqual(nodes(12, 12), 1 + 63)  # 12 -> 6 ranks: ceil(log2 6) + 3 levels
+        self.assertEqual(nodes(3, 12), 31)       # odd: no halving
+
+    def test_orb_search_bytes_scale_with_the_nodes_the_rest_as_before(self):
+        run, cal = self.runs(16)
+        run["configuration"] = {"partition.orb_levels": 13}
+        run["rank_counts"]["collective_bytes"] = [3_000_000] * 16
+        run["rank_counts"]["orb_search_bytes"] = [2_000_000] * 16
+        alpha, beta = scaling_model.NETWORKS["ib"]
+        nodes = scaling_model.orb_search_nodes
+        for cores, weak in ((16, False), (4096, False), (4096, True)):
+            _, _, _, t = scaling_model.predict(run, cal, cores, weak, "ib", 64)
+            rest = 1e6 * (cores / 16 if weak else 1.0)
+            search = 2e6 * nodes(cores, 13 + (8 if weak else 0)) / nodes(16, 13)
+            self.assertAlmostEqual(t["collective bytes"], 2.0 * (rest + search) / beta,
+                                   places=12)
+
     def test_pressure_iterations_above_the_calibrations_are_priced(self):
         run, _ = self.runs(2)
         run["rank_counts"]["cell_updates"] = [2000, 1000]  # box cells x 2 gas sub-steps

@@ -7,7 +7,8 @@ For explicit, orb and islands (DEM only) and a coupled settling run, the same R-
 with 1 and with 2 threads per rank: the per-rank counts (work and messages) must be identical,
 since they depend on the configuration and the rank count only, not on timing or threads. The
 owned particle steps of the ranks add up exactly to the run's particle_steps, and a coupled
-run's cell updates to the gas cells times the gas sub-steps. Arrays have one entry per rank.
+run's cell updates to the gas cells times the gas sub-steps. The parallel ORB's search bytes are
+counted (DEM-only runs regrid with it) and are part of the collective bytes. Arrays have one entry per rank.
 """
 import json
 import os
@@ -24,7 +25,7 @@ CASES = [
     ("settling.toml", ["run.end_time=0.002"]),
 ]
 FIELDS = ["particle_steps", "force_evaluations", "cell_updates", "p2p_messages", "p2p_bytes",
-          "collectives", "collective_bytes", "reductions"]
+          "collectives", "collective_bytes", "reductions", "orb_search_bytes"]
 
 
 def run(ranks, threads, scene, extra, out):
@@ -58,6 +59,12 @@ def main():
                                 f"the run's {a['particle_steps']}")
             if min(ca["p2p_messages"]) <= 0 or min(ca["reductions"]) <= 0:
                 failures.append(f"{name}: a rank sent nothing: {ca}")
+            # The ORB's searches are part of the collective payload; the DEM-only schemes regrid
+            # with the parallel ORB (the coupled explicit run owns by the gas boxes instead).
+            if any(s > c for s, c in zip(ca["orb_search_bytes"], ca["collective_bytes"])):
+                failures.append(f"{name}: orb_search_bytes above collective_bytes: {ca}")
+            if scene != "settling.toml" and min(ca["orb_search_bytes"]) <= 0:
+                failures.append(f"{name}: no parallel ORB search counted: {ca}")
             if "gas_substeps" in a:
                 with open(os.path.join(SOURCE, "scenes", scene), "rb") as f:
                     import tomllib

@@ -332,6 +332,15 @@ void cut_group(const Group& g, const Points& p, std::size_t root, const Aabb& bo
   for (std::size_t s = 0; s < subtrees; ++s) centres[s] = boxes[s].centre();
   const KnapsackAssignment k =
       knapsack_along_curve(weight, sfc_order(centres, box, CurveKind::hilbert), g.size);
+  const int below = left - shared;
+  if (below == 0) { // the subtrees are leaves: nothing to cut, no points to send
+    for (std::size_t s = 0; s < subtrees; ++s) {
+      if (k.owner[s] != g.rank) continue;
+      found.roots.push_back(static_cast<double>(descendant(root, shared, s)));
+      found.load += weight[s];
+    }
+    return;
+  }
   std::vector<int> dest(p.size());
   for (std::size_t i = 0; i < p.size(); ++i) dest[i] = k.owner[subtree_of[i]];
   Points tagged = p;
@@ -353,7 +362,6 @@ void cut_group(const Group& g, const Points& p, std::size_t root, const Aabb& bo
       sorted.w[t] = mine.w[j];
     }
   }
-  const int below = left - shared;
   for (std::size_t s = 0; s < subtrees; ++s) {
     if (k.owner[s] != g.rank) continue;
     const std::size_t b = first[s], e = first[s + 1];
@@ -395,8 +403,9 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
   Group g{&comm, mpi_comm(comm), comm.rank(), comm.size()};
   ParallelOrb out;
   out.shared_levels = shared_orb_levels(g.size, levels);
-  if (out.shared_levels == levels) {
-    // Few levels: all of them by reductions; decompose() deals the leaves.
+  const bool will_halve = g.size > group_ranks && g.size % 2 == 0;
+  if (out.shared_levels == levels && !will_halve) {
+    // Few levels and ranks: all of them by reductions; decompose() deals the leaves.
     std::vector<Aabb> boxes;
     std::vector<std::uint32_t> node_of;
     cut_collectively(g, p, domain, levels, options.snap, out.cuts, boxes, node_of);

@@ -47,8 +47,8 @@ Extrapolation from the measured R ranks to P cores (strong scaling, the same sce
   reductions          held (the same steps), each costing log2 P latencies
   collective bytes    held (the ORB tree is the scene's), but the parallel ORB's median searches
                       (rank_counts.orb_search_bytes) as the nodes a rank searches by reductions
-                      at P ranks against R (orb_search_nodes: all 2^L - 1 while L <= log2 R + 3;
-                      else one per halving of the ranks and a group's top levels)
+                      at P ranks against R (orb_search_nodes: one per halving of the ranks and
+                      a group's top levels)
 Weak scaling (--weak): work, messages and halo bytes per rank held as measured; the reductions'
 log2 P and the coarse grid grow; the collective bytes grow as P / R (the scaled scene's ORB tree
 and gas grid grow with the particles: the all-gathered cuts, the gas's gathered level), except
@@ -165,12 +165,12 @@ T_ITER = 20e-9  # s per cell per pressure iteration: one V-cycle of the riser gr
 
 def orb_search_nodes(ranks, levels):
     """Tree nodes whose weighted median a rank of the parallel ORB searches by reductions
-    (partition/parallel_orb.cpp): every node while the levels are few for the ranks
-    (L <= ceil(log2 R) + 3); otherwise one per halving (an even group of more than 8 ranks
-    halves) and the 2^T - 1 nodes of its group's top T = ceil(log2 G) + 3 levels."""
+    (partition/parallel_orb.cpp): one per halving (an even group of more than 8 ranks halves)
+    and the 2^T - 1 nodes of its group's top T = ceil(log2 G) + 3 levels (at most the levels
+    left); without a halving and with L <= T, every node."""
     def shared(g, levels_left):
         return min(levels_left, (g - 1).bit_length() + 3)
-    if levels <= shared(ranks, levels):
+    if levels <= shared(ranks, levels) and not (ranks > 8 and ranks % 2 == 0):
         return 2 ** levels - 1
     g, halvings = ranks, 0
     while g > 8 and g % 2 == 0 and halvings < levels:

@@ -349,6 +349,8 @@ class ScalingModel(unittest.TestCase):
         self.assertEqual(nodes(4096, 21), 9 + 63)
         self.assertEqual(nodes(12, 12), 1 + 63)  # 12 -> 6 ranks: ceil(log2 6) + 3 levels
         self.assertEqual(nodes(3, 12), 31)       # odd: no halving
+        self.assertEqual(nodes(1024, 13), 7 + 63)  # halvings even where the levels are few
+        self.assertEqual(nodes(64, 2), 2)        # the halvings reach the leaves
 
     def test_orb_search_bytes_scale_with_the_nodes_the_rest_as_before(self):
         run, cal = self.runs(16)

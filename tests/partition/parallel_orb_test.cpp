@@ -133,6 +133,8 @@ TEST(ParallelOrb, HalvingsGiveTheSerialTree) {
     expect_same_tree(6000, 22, true, true, {8, {}}, group);
     expect_same_tree(20, 23, false, false, {9, {}}, group);
     expect_same_tree(5000, 24, false, true, {7, Grid{{0.0, 0.0, 0.0}, {0.1, 0.05, 0.05}}}, group);
+    // Few levels: the halvings may reach the leaves (then a leaf's group deals it to one rank).
+    for (const int levels : {0, 1, 2, 3}) expect_same_tree(500, 25, false, false, {levels, {}}, group);
   }
 }
 

@@ -5,7 +5,6 @@
 #include <bit>
 #include <cstdint>
 #include <limits>
-#include <map>
 #include <stdexcept>
 #include <utility>
 
@@ -53,14 +52,36 @@ void allreduce(const Group& g, std::vector<double>& v, MPI_Op op) {
   MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_DOUBLE, op, g.comm);
 }
 
-// The half of `parent` that holds this rank (color 0: the lower ranks). The halves depend on the
-// communicator's size alone, so they are split once and kept for the run (a split is collective
-// and gathers every rank's color).
+// The halves of a communicator, cached on it as an MPI attribute (MPI 3.1 §6.7): they depend on
+// its size alone, so they are split once (a split is collective and gathers every rank's color)
+// and freed with it. Those of MPI_COMM_WORLD live until MPI_Finalize.
+int free_halves(MPI_Comm parent, int /*key*/, void* value, void* /*extra*/) {
+  auto* halves = static_cast<std::array<MPI_Comm, 2>*>(value);
+  if (parent != MPI_COMM_WORLD)
+    for (MPI_Comm& c : *halves)
+      if (c != MPI_COMM_NULL) MPI_Comm_free(&c);
+  delete halves;
+  return MPI_SUCCESS;
+}
+
+// The half of `parent` that holds this rank (color 0: the lower ranks).
 MPI_Comm half_of(MPI_Comm parent, int color, int rank) {
-  static std::map<std::pair<MPI_Comm, int>, MPI_Comm> halves;
-  auto [at, fresh] = halves.try_emplace({parent, color}, MPI_COMM_NULL);
-  if (fresh) MPI_Comm_split(parent, color, rank, &at->second);
-  return at->second;
+  static const int key = [] {
+    int k = MPI_KEYVAL_INVALID;
+    MPI_Comm_create_keyval(MPI_COMM_NULL_COPY_FN, free_halves, &k, nullptr);
+    return k;
+  }();
+  void* value = nullptr;
+  int found = 0;
+  MPI_Comm_get_attr(parent, key, &value, &found);
+  auto* halves = static_cast<std::array<MPI_Comm, 2>*>(value);
+  if (!found) {
+    halves = new std::array<MPI_Comm, 2>{MPI_COMM_NULL, MPI_COMM_NULL};
+    MPI_Comm_set_attr(parent, key, halves);
+  }
+  MPI_Comm& half = (*halves)[static_cast<std::size_t>(color)];
+  if (half == MPI_COMM_NULL) MPI_Comm_split(parent, color, rank, &half);
+  return half;
 }
 
 // This rank's points of the subtree being cut (copies: they move between ranks).

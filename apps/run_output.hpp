@@ -199,8 +199,8 @@ inline nlohmann::ordered_json phase_json(const PhaseTimer& timer, double loop_se
   nlohmann::ordered_json ph;
   double timed = 0.0;
   for (const Phase p :
-       {Phase::neighbor, Phase::regrid, Phase::force, Phase::integrate, Phase::io, Phase::fluid,
-        Phase::start}) {
+       {Phase::neighbor, Phase::regrid, Phase::force, Phase::integrate, Phase::comm, Phase::io,
+        Phase::fluid, Phase::start}) {
     ph[std::string(phase_names[static_cast<int>(p)])] = timer.seconds(p);
     timed += timer.seconds(p);
   }

@@ -12,10 +12,12 @@ namespace cfddem {
 // start: the scheme's start or restore and the gas's first deposition, once per run.
 // regrid: a new decomposition (the ORB over the particles and the knapsack over ranks, the
 // orb scheme's leaves on one rank); the migration and rows that follow are neighbor's.
-enum class Phase { neighbor = 0, force, integrate, io, other, fluid, start, regrid, count };
+// comm: a particle scheme's messages and waits outside its rebuilds (the explicit scheme's ghost
+// forward and skin reduction after every step, on R ranks).
+enum class Phase { neighbor = 0, force, integrate, io, other, fluid, start, regrid, comm, count };
 
 inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> phase_names = {
-    "neighbor", "force", "integrate", "io", "other", "fluid", "start", "regrid"};
+    "neighbor", "force", "integrate", "io", "other", "fluid", "start", "regrid", "comm"};
 
 class PhaseTimer {
 public:

@@ -136,7 +136,10 @@ void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepR
   // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
   rows_.nh =
       pair_pass<Friction, false>(p_, rows_.head_pairs, h, frame, model_, dt, rows_.head, rep);
-  finish_forward();
+  if (rank_ && rank_->forward_pending) {
+    PhaseTimer::Scope t(timer_, Phase::comm); // the ghosts' positions land
+    finish_forward();
+  }
   rows_.nt = pair_pass<Friction, true>(p_, rows_.tail_pairs, h, frame, model_, dt, rows_.tail, rep);
   scatter_contacts<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh),
                              std::span<const PairContacts>(rows_.tail).first(rows_.nt));
@@ -270,8 +273,10 @@ void ExplicitScheme::step(bool record) {
     update<false>(model_.dt, rep);
   }
   bool moved = rep.moved > 0, failed = rep.bad != kNoParticle;
-  if (rank_)
+  if (rank_) {
+    PhaseTimer::Scope t(timer_, Phase::comm);
     exchange_after_step(moved, failed);
+  }
   if (failed)
     report_fault(rep, time());
   ++stats_.steps;

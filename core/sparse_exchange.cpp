@@ -1,4 +1,5 @@
 #include "core/sparse_exchange.hpp"
+#include "core/sparse_exchange_mpi.hpp"
 
 #include <algorithm>
 
@@ -10,7 +11,14 @@ namespace cfddem {
 void sparse_exchange(const Communicator& c, std::span<const std::int64_t> send_counts,
                      std::span<const double> send, std::vector<std::int64_t>& recv_counts,
                      std::vector<double>& recv, int stride, bool counts_known) {
-  const int ranks = c.size(), me = c.rank();
+  sparse_exchange(c, c.size() > 1 ? mpi_comm(c) : MPI_COMM_NULL, c.rank(), c.size(), send_counts,
+                  send, recv_counts, recv, stride, counts_known);
+}
+
+void sparse_exchange(const Communicator& c, MPI_Comm comm, int me, int ranks,
+                     std::span<const std::int64_t> send_counts, std::span<const double> send,
+                     std::vector<std::int64_t>& recv_counts, std::vector<double>& recv, int stride,
+                     bool counts_known) {
   if (!counts_known) {
     recv_counts.assign(static_cast<std::size_t>(ranks), 0);
     if (ranks == 1) {
@@ -18,8 +26,7 @@ void sparse_exchange(const Communicator& c, std::span<const std::int64_t> send_c
     } else {
       count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(std::int64_t)), false);
       MpiWait w(c);
-      MPI_Alltoall(send_counts.data(), 1, MPI_INT64_T, recv_counts.data(), 1, MPI_INT64_T,
-                   mpi_comm(c));
+      MPI_Alltoall(send_counts.data(), 1, MPI_INT64_T, recv_counts.data(), 1, MPI_INT64_T, comm);
     }
   }
   std::vector<std::size_t> send_off(static_cast<std::size_t>(ranks) + 1, 0),
@@ -34,7 +41,6 @@ void sparse_exchange(const Communicator& c, std::span<const std::int64_t> send_c
             recv.begin() + static_cast<std::ptrdiff_t>(recv_off[me]));
   if (ranks == 1)
     return;
-  const MPI_Comm comm = mpi_comm(c);
   std::vector<MPI_Request> req;
   req.reserve(2 * static_cast<std::size_t>(ranks));
   constexpr int kTag = 7301;

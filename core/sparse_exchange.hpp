@@ -2,7 +2,8 @@
 // (one all-to-all, skipped when the receiver knows them already), then the payload point to
 // point, non-blocking, only between ranks that exchange something; a rank's own part is copied.
 // The particle exchange (core/particle_exchange.hpp) and the gas routing (apps/gas_routing.hpp)
-// send through it. Collective over the communicator.
+// send through it (and, over a group of ranks, the parallel ORB: core/sparse_exchange_mpi.hpp).
+// Collective over the communicator.
 #pragma once
 
 #include <cstdint>

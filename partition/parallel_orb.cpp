@@ -12,6 +12,7 @@
 
 #include "core/communicator_mpi.hpp"
 #include "core/message_counts.hpp"
+#include "core/sparse_exchange_mpi.hpp"
 #include "partition/knapsack.hpp"
 #include "partition/orb_cut_rules.hpp"
 #include "partition/space_filling_curve.hpp"
@@ -87,7 +88,7 @@ MPI_Comm half_of(MPI_Comm parent, int color, int rank) {
 // This rank's points of the subtree being cut (copies: they move between ranks).
 struct Points {
   std::vector<double> x, y, z, w; // w: 1 for each point without weights
-  std::vector<double> tag;        // the point's subtree in a group's stage (else empty)
+  std::vector<double> tag;        // what send_points received with each point
   bool weighted = false;
   [[nodiscard]] std::size_t size() const { return x.size(); }
   [[nodiscard]] std::array<std::span<const double>, 3> coord() const { return {x, y, z}; }
@@ -252,65 +253,36 @@ void cut_collectively(const Group& g, const Points& p, const Aabb& root, int lev
   }
 }
 
-// Sends point i to group rank dest[i] (each rank's in local order) and returns what arrives, by
-// source rank. The counts go first: to the one partner when `partner` >= 0 (a halving's swap),
-// otherwise in an all-to-all over the group.
-Points send_points(const Group& g, const Points& p, std::span<const int> dest, int partner) {
-  const std::size_t ranks = static_cast<std::size_t>(g.size);
+// Sends point i, with tag[i] (0 when empty), to group rank dest[i] (core's sparse exchange, each
+// rank's in local order) and returns what arrives, by source rank. The counts go first: to the one partner when
+// `partner` >= 0 (a halving's swap), otherwise in an all-to-all over the group.
+Points send_points(const Group& g, const Points& p, std::span<const int> dest,
+                   std::span<const double> tag, int partner) {
+  const auto ranks = static_cast<std::size_t>(g.size);
   constexpr int kStride = 5;
-  std::vector<int> send_n(ranks, 0), recv_n(ranks, 0);
+  std::vector<std::int64_t> send_n(ranks, 0), recv_n(ranks, 0);
   for (const int r : dest) ++send_n[static_cast<std::size_t>(r)];
-  std::vector<std::size_t> at(ranks + 1, 0);
-  for (std::size_t r = 0; r < ranks; ++r) at[r + 1] = at[r] + static_cast<std::size_t>(send_n[r]);
-  std::vector<double> send(kStride * p.size());
+  std::vector<std::size_t> at(ranks, 0);
+  for (std::size_t r = 1; r < ranks; ++r) at[r] = at[r - 1] + static_cast<std::size_t>(send_n[r - 1]);
+  std::vector<double> send(kStride * p.size()), recv;
   for (std::size_t i = 0; i < p.size(); ++i) {
     double* q = send.data() + kStride * at[static_cast<std::size_t>(dest[i])]++;
     q[0] = p.x[i], q[1] = p.y[i], q[2] = p.z[i], q[3] = p.w[i];
-    q[4] = p.tag.empty() ? 0.0 : p.tag[i];
+    q[4] = tag.empty() ? 0.0 : tag[i];
   }
-  for (std::size_t r = ranks; r > 0; --r) at[r] = at[r - 1];
-  at[0] = 0;
-  {
+  if (partner >= 0) {
+    count_messages::point_to_point(sizeof(std::int64_t));
     MpiWait wait(*g.run);
-    if (partner >= 0) {
-      count_messages::point_to_point(sizeof(int));
-      MPI_Sendrecv(&send_n[static_cast<std::size_t>(partner)], 1, MPI_INT, partner, 7311,
-                   &recv_n[static_cast<std::size_t>(partner)], 1, MPI_INT, partner, 7311, g.comm,
-                   MPI_STATUS_IGNORE);
-    } else if (g.size > 1) {
-      count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(int)), false);
-      MPI_Alltoall(send_n.data(), 1, MPI_INT, recv_n.data(), 1, MPI_INT, g.comm);
-    }
+    MPI_Sendrecv(&send_n[static_cast<std::size_t>(partner)], 1, MPI_INT64_T, partner, 7311,
+                 &recv_n[static_cast<std::size_t>(partner)], 1, MPI_INT64_T, partner, 7311, g.comm,
+                 MPI_STATUS_IGNORE);
+    recv_n[static_cast<std::size_t>(g.rank)] = send_n[static_cast<std::size_t>(g.rank)];
   }
-  recv_n[static_cast<std::size_t>(g.rank)] = send_n[static_cast<std::size_t>(g.rank)];
-  std::vector<std::size_t> from(ranks + 1, 0);
-  for (std::size_t r = 0; r < ranks; ++r) from[r + 1] = from[r] + static_cast<std::size_t>(recv_n[r]);
-  std::vector<double> recv(kStride * from[ranks]);
-  std::vector<MPI_Request> req;
-  for (std::size_t r = 0; r < ranks; ++r) {
-    const int c = kStride * recv_n[r];
-    if (static_cast<int>(r) == g.rank) {
-      std::copy_n(send.data() + kStride * at[r], c, recv.data() + kStride * from[r]);
-    } else if (c > 0) {
-      MPI_Irecv(recv.data() + kStride * from[r], c, MPI_DOUBLE, static_cast<int>(r), 7312, g.comm,
-                &req.emplace_back());
-    }
-  }
-  for (std::size_t r = 0; r < ranks; ++r) {
-    const int c = kStride * send_n[r];
-    if (static_cast<int>(r) != g.rank && c > 0) {
-      count_messages::point_to_point(static_cast<std::int64_t>(c * sizeof(double)));
-      MPI_Isend(send.data() + kStride * at[r], c, MPI_DOUBLE, static_cast<int>(r), 7312, g.comm,
-                &req.emplace_back());
-    }
-  }
-  {
-    MpiWait wait(*g.run);
-    MPI_Waitall(static_cast<int>(req.size()), req.data(), MPI_STATUSES_IGNORE);
-  }
+  sparse_exchange(*g.run, g.comm, g.rank, g.size, send_n, send, recv_n, recv, kStride,
+                  partner >= 0);
   Points out;
   out.weighted = p.weighted;
-  const std::size_t m = from[ranks];
+  const std::size_t m = recv.size() / kStride;
   out.x.resize(m), out.y.resize(m), out.z.resize(m), out.w.resize(m), out.tag.resize(m);
   for (std::size_t j = 0; j < m; ++j) {
     const double* q = recv.data() + kStride * j;
@@ -325,8 +297,14 @@ struct Found {
   std::vector<double> cuts;
   std::vector<double> roots;
   double load = 0.0;
-  void cut(std::size_t node, const OrbCut& c) {
-    cuts.insert(cuts.end(), {static_cast<double>(node), static_cast<double>(c.axis), c.position});
+  // Cuts in heap order relative to node `root` (cut k has children 2k+1 and 2k+2).
+  void cuts_below(std::size_t root, std::span<const OrbCut> relative) {
+    for (std::size_t k = 0; k < relative.size(); ++k) {
+      const int d = std::bit_width(k + 1) - 1; // k's depth below the root
+      const std::size_t node = descendant(root, d, k + 1 - (std::size_t{1} << d));
+      cuts.insert(cuts.end(), {static_cast<double>(node), static_cast<double>(relative[k].axis),
+                               relative[k].position});
+    }
   }
 };
 
@@ -341,10 +319,7 @@ void cut_group(const Group& g, const Points& p, std::size_t root, const Aabb& bo
   std::vector<Aabb> boxes;
   std::vector<std::uint32_t> subtree_of;
   cut_collectively(g, p, box, shared, snap, top, boxes, subtree_of);
-  if (g.rank == 0)
-    for (int d = 0; d < shared; ++d)
-      for (std::size_t t = 0; t < (std::size_t{1} << d); ++t)
-        found.cut(descendant(root, d, t), top[(std::size_t{1} << d) - 1 + t]);
+  if (g.rank == 0) found.cuts_below(root, top);
   const std::size_t subtrees = boxes.size();
   std::vector<double> weight(subtrees, 0.0);
   for (std::size_t i = 0; i < p.size(); ++i) weight[subtree_of[i]] += p.w[i];
@@ -353,29 +328,21 @@ void cut_group(const Group& g, const Points& p, std::size_t root, const Aabb& bo
   for (std::size_t s = 0; s < subtrees; ++s) centres[s] = boxes[s].centre();
   const KnapsackAssignment k =
       knapsack_along_curve(weight, sfc_order(centres, box, CurveKind::hilbert), g.size);
+  // Below the shared levels: this rank's subtrees in heap order, each over its points in arrival
+  // order (none to send when the subtrees are leaves).
   const int below = left - shared;
-  if (below == 0) { // the subtrees are leaves: nothing to cut, no points to send
-    for (std::size_t s = 0; s < subtrees; ++s) {
-      if (k.owner[s] != g.rank) continue;
-      found.roots.push_back(static_cast<double>(descendant(root, shared, s)));
-      found.load += weight[s];
-    }
-    return;
-  }
-  std::vector<int> dest(p.size());
-  for (std::size_t i = 0; i < p.size(); ++i) dest[i] = k.owner[subtree_of[i]];
-  Points tagged = p;
-  tagged.tag.resize(p.size());
-  for (std::size_t i = 0; i < p.size(); ++i) tagged.tag[i] = static_cast<double>(subtree_of[i]);
-  const Points mine = send_points(g, tagged, dest, -1);
-  // This rank's subtrees in heap order, each over its points in arrival order.
-  std::vector<std::size_t> first(subtrees + 1, 0);
-  for (const double s : mine.tag) ++first[static_cast<std::size_t>(s) + 1];
-  for (std::size_t s = 0; s < subtrees; ++s) first[s + 1] += first[s];
   Points sorted;
-  const std::size_t m = mine.size();
-  sorted.x.resize(m), sorted.y.resize(m), sorted.z.resize(m), sorted.w.resize(m);
-  {
+  std::vector<std::size_t> first(subtrees + 1, 0);
+  if (below > 0) {
+    std::vector<int> dest(p.size());
+    std::vector<double> tag(p.size());
+    for (std::size_t i = 0; i < p.size(); ++i)
+      dest[i] = k.owner[subtree_of[i]], tag[i] = static_cast<double>(subtree_of[i]);
+    const Points mine = send_points(g, p, dest, tag, -1);
+    for (const double s : mine.tag) ++first[static_cast<std::size_t>(s) + 1];
+    for (std::size_t s = 0; s < subtrees; ++s) first[s + 1] += first[s];
+    const std::size_t m = mine.size();
+    sorted.x.resize(m), sorted.y.resize(m), sorted.z.resize(m), sorted.w.resize(m);
     std::vector<std::size_t> at(first.begin(), first.end() - 1);
     for (std::size_t j = 0; j < m; ++j) {
       const std::size_t t = at[static_cast<std::size_t>(mine.tag[j])]++;
@@ -385,20 +352,62 @@ void cut_group(const Group& g, const Points& p, std::size_t root, const Aabb& bo
   }
   for (std::size_t s = 0; s < subtrees; ++s) {
     if (k.owner[s] != g.rank) continue;
-    const std::size_t b = first[s], e = first[s + 1];
-    auto part = [&](const std::vector<double>& v) {
-      return std::span<const double>(v).subspan(b, e - b);
-    };
-    const std::vector<OrbCut> cuts =
-        orb_subtree_cuts(part(sorted.x), part(sorted.y), part(sorted.z),
-                         p.weighted ? part(sorted.w) : std::span<const double>(), boxes[s],
-                         OrbOptions{below, snap});
     const std::size_t r = descendant(root, shared, s);
-    for (int d = 0; d < below; ++d)
-      for (std::size_t t = 0; t < (std::size_t{1} << d); ++t)
-        found.cut(descendant(r, d, t), cuts[(std::size_t{1} << d) - 1 + t]);
+    if (below > 0) {
+      const std::size_t b = first[s], e = first[s + 1];
+      auto part = [&](const std::vector<double>& v) {
+        return std::span<const double>(v).subspan(b, e - b);
+      };
+      found.cuts_below(r, orb_subtree_cuts(part(sorted.x), part(sorted.y), part(sorted.z),
+                                           p.weighted ? part(sorted.w) : std::span<const double>(),
+                                           boxes[s], OrbOptions{below, snap}));
+    }
     found.roots.push_back(static_cast<double>(r));
     found.load += weight[s];
+  }
+}
+
+// Every rank's findings to every rank, in one all-gather of [load, cuts, roots, (node, axis,
+// position)..., root...]: the whole tree, each leaf's rank and each rank's load.
+void share(const Communicator& comm, const Found& found, int levels, ParallelOrb& out) {
+  std::vector<double> mine{found.load, static_cast<double>(found.cuts.size() / 3),
+                           static_cast<double>(found.roots.size())};
+  mine.insert(mine.end(), found.cuts.begin(), found.cuts.end());
+  mine.insert(mine.end(), found.roots.begin(), found.roots.end());
+  const auto ranks = static_cast<std::size_t>(comm.size());
+  std::vector<int> counts(ranks), displs(ranks, 0);
+  const int size = static_cast<int>(mine.size());
+  count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(int)), false);
+  {
+    MpiWait wait(comm);
+    MPI_Allgather(&size, 1, MPI_INT, counts.data(), 1, MPI_INT, mpi_comm(comm));
+  }
+  for (std::size_t r = 1; r < ranks; ++r) displs[r] = displs[r - 1] + counts[r - 1];
+  std::vector<double> all(static_cast<std::size_t>(displs[ranks - 1] + counts[ranks - 1]));
+  count_messages::collective(static_cast<std::int64_t>(all.size() * sizeof(double)), false);
+  {
+    MpiWait wait(comm);
+    MPI_Allgatherv(mine.data(), size, MPI_DOUBLE, all.data(), counts.data(), displs.data(),
+                   MPI_DOUBLE, mpi_comm(comm));
+  }
+  out.cuts.assign((std::size_t{1} << levels) - 1, OrbCut{});
+  out.leaf_rank.assign(std::size_t{1} << levels, -1);
+  out.rank_load.assign(ranks, 0.0);
+  for (std::size_t r = 0; r < ranks; ++r) {
+    const double* q = all.data() + displs[r];
+    out.rank_load[r] = q[0];
+    const auto n_cuts = static_cast<std::size_t>(q[1]), n_roots = static_cast<std::size_t>(q[2]);
+    const double* c = q + 3;
+    for (std::size_t k = 0; k < n_cuts; ++k, c += 3)
+      out.cuts[static_cast<std::size_t>(c[0])] = {static_cast<int>(c[1]), c[2]};
+    for (std::size_t k = 0; k < n_roots; ++k) {
+      const auto root = static_cast<std::size_t>(c[k]);
+      const int below = levels - (std::bit_width(root + 1) - 1); // levels under the root
+      const std::size_t span = std::size_t{1} << below;
+      const std::size_t first = descendant(root, below, 0) - (out.leaf_rank.size() - 1);
+      std::fill_n(out.leaf_rank.begin() + static_cast<std::ptrdiff_t>(first), span,
+                  static_cast<int>(r));
+    }
   }
 }
 
@@ -443,15 +452,14 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
     std::vector<Aabb> halves;
     std::vector<std::uint32_t> side;
     cut_collectively(g, p, box, 1, options.snap, cut, halves, side);
-    if (g.rank == 0) found.cut(node, cut[0]);
+    if (g.rank == 0) found.cuts_below(node, cut);
     const int half = g.size / 2;
     const int upper = g.rank >= half ? 1 : 0;
     const int partner = upper ? g.rank - half : g.rank + half;
     std::vector<int> dest(p.size());
     for (std::size_t i = 0; i < p.size(); ++i)
       dest[i] = static_cast<int>(side[i]) == upper ? g.rank : partner;
-    p = send_points(g, p, dest, partner);
-    p.tag.clear();
+    p = send_points(g, p, dest, {}, partner);
     g = Group{&comm, half_of(g.comm, upper, g.rank), g.rank - upper * half, half};
     node = 2 * node + 1 + static_cast<std::size_t>(upper);
     box = halves[static_cast<std::size_t>(upper)];
@@ -460,46 +468,7 @@ ParallelOrb parallel_orb_cuts(const Communicator& comm, std::span<const double> 
   out.shared_levels = depth + (g.size == 1 ? 0 : shared_orb_levels(g.size, levels - depth));
   cut_group(g, p, node, box, levels - depth, options.snap, found);
 
-  // Every rank's findings to every rank: [load, cuts, roots, (node, axis, position)..., root...].
-  std::vector<double> mine{found.load, static_cast<double>(found.cuts.size() / 3),
-                           static_cast<double>(found.roots.size())};
-  mine.insert(mine.end(), found.cuts.begin(), found.cuts.end());
-  mine.insert(mine.end(), found.roots.begin(), found.roots.end());
-  const auto ranks = static_cast<std::size_t>(comm.size());
-  std::vector<int> counts(ranks), displs(ranks, 0);
-  const int size = static_cast<int>(mine.size());
-  count_messages::collective(static_cast<std::int64_t>(ranks * sizeof(int)), false);
-  {
-    MpiWait wait(comm);
-    MPI_Allgather(&size, 1, MPI_INT, counts.data(), 1, MPI_INT, mpi_comm(comm));
-  }
-  for (std::size_t r = 1; r < ranks; ++r) displs[r] = displs[r - 1] + counts[r - 1];
-  std::vector<double> all(static_cast<std::size_t>(displs[ranks - 1] + counts[ranks - 1]));
-  count_messages::collective(static_cast<std::int64_t>(all.size() * sizeof(double)), false);
-  {
-    MpiWait wait(comm);
-    MPI_Allgatherv(mine.data(), size, MPI_DOUBLE, all.data(), counts.data(), displs.data(),
-                   MPI_DOUBLE, mpi_comm(comm));
-  }
-  out.cuts.assign((std::size_t{1} << levels) - 1, OrbCut{});
-  out.leaf_rank.assign(std::size_t{1} << levels, -1);
-  out.rank_load.assign(ranks, 0.0);
-  for (std::size_t r = 0; r < ranks; ++r) {
-    const double* q = all.data() + displs[r];
-    out.rank_load[r] = q[0];
-    const auto n_cuts = static_cast<std::size_t>(q[1]), n_roots = static_cast<std::size_t>(q[2]);
-    const double* c = q + 3;
-    for (std::size_t k = 0; k < n_cuts; ++k, c += 3)
-      out.cuts[static_cast<std::size_t>(c[0])] = {static_cast<int>(c[1]), c[2]};
-    for (std::size_t k = 0; k < n_roots; ++k) {
-      const auto root = static_cast<std::size_t>(c[k]);
-      const int d = std::bit_width(root + 1) - 1; // the root's depth
-      const std::size_t span = std::size_t{1} << (levels - d);
-      const std::size_t first = (root + 1 - (std::size_t{1} << d)) * span;
-      std::fill_n(out.leaf_rank.begin() + static_cast<std::ptrdiff_t>(first), span,
-                  static_cast<int>(r));
-    }
-  }
+  share(comm, found, levels, out);
   return out;
 }
 

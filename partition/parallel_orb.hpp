@@ -29,9 +29,10 @@ namespace cfddem::partition {
 struct ParallelOrb {
   std::vector<OrbCut> cuts; // heap order, the serial tree's
   int shared_levels = 0;    // the deepest level agreed by reductions (over all ranks or a group)
-  // When shared_levels < levels: the rank that cut each leaf's subtree (it holds the subtree's
-  // points now; rank_decomposition.cpp makes it the owner), and per rank the weight of its
-  // subtrees (the points' weights, or their count without weights). Empty otherwise.
+  // Unless every level was agreed by all ranks together: the rank that was dealt each leaf's
+  // subtree (it holds the subtree's points now; rank_decomposition.cpp makes it the owner), and
+  // per rank the weight of its subtrees (the points' weights, or their count without weights).
+  // Empty in that case: decompose() deals the leaves.
   std::vector<int> leaf_rank;
   std::vector<double> rank_load;
 };

@@ -168,10 +168,8 @@ def orb_search_nodes(ranks, levels):
     (partition/parallel_orb.cpp): one per halving (an even group of more than 8 ranks halves)
     and the 2^T - 1 nodes of its group's top T = ceil(log2 G) + 3 levels (at most the levels
     left); without a halving and with L <= T, every node."""
-    def shared(g, levels_left):
+    def shared(g, levels_left):  # shared_orb_levels
         return min(levels_left, (g - 1).bit_length() + 3)
-    if levels <= shared(ranks, levels) and not (ranks > 8 and ranks % 2 == 0):
-        return 2 ** levels - 1
     g, halvings = ranks, 0
     while g > 8 and g % 2 == 0 and halvings < levels:
         g, halvings = g // 2, halvings + 1

@@ -12,33 +12,43 @@ namespace cfddem {
 
 namespace {
 
-// Cut faces fall, where the balance allows, on multiples of a power of two of the global grid
-// (at most this one), so that every box divides down the distributed multigrid's levels: a
-// level halves an axis over the ranks only where every box's ends are even there, and the
-// first level that halves none is gathered onto rank 0 and solved there alone
-// (docs/multigrid.md). Cut at the share's nearest face instead, the 1e5 riser's 84 x 50 x 88
-// cells on 16 ranks gathered 42 x 50 x 44 cells, a quarter of the grid, onto one rank.
-constexpr int kMaxGranule = 16;
+// Cut faces fall, where the balance allows, on multiples of a granule of the global grid, so
+// that every box divides down the distributed multigrid's levels: a level coarsens an axis over
+// the ranks only where its ratio divides every box's ends there, and the first level that
+// coarsens none is gathered onto rank 0 and solved there alone (docs/multigrid.md). Cut at the
+// share's nearest face instead, the 1e5 riser's 84 x 50 x 88 cells on 16 ranks gathered
+// 42 x 50 x 44 cells, a quarter of the grid, onto one rank. An axis's granules follow its
+// one-grid ratios (fluid/multigrid_poisson.cpp): halvings while its count is even, then thirds
+// while 3 divides it (270: 2, 6, 18, 54), the powers of two up to kMaxPowerOfTwo and the whole
+// granule up to kMaxGranule.
+constexpr int kMaxPowerOfTwo = 16;
+constexpr int kMaxGranule = 54;
 // A cut moved onto a granule may put at most this fraction of the left part's exact share more
 // or fewer cells in it (an imbalance of the gas's fine-level work, against the serial coarse
 // level it removes).
 constexpr std::int64_t kGranuleSlack = 16; // 1/16
 
-// The largest power of two, at most kMaxGranule, that divides n.
-int granule_of(int n) {
+// An axis of n cells' granules, coarsest first, ending with 1 (each divides the one before).
+std::vector<int> granules_of(int n) {
+  std::vector<int> chain = {1};
   int g = 1;
-  while (g < kMaxGranule && n % (2 * g) == 0) {
+  while (g < kMaxPowerOfTwo && n % (2 * g) == 0) {
     g *= 2;
+    chain.push_back(g);
   }
-  return g;
+  while ((n / g) % 2 != 0 && 3 * g <= kMaxGranule && n % (3 * g) == 0) {
+    g *= 3;
+    chain.push_back(g);
+  }
+  return {chain.rbegin(), chain.rend()};
 }
 
 // The face (cells of the left part) where the cut falls: the weighted rule of the header, or
 // the share of the cells in proportion to the parts when there are no weights, each on the
-// coarsest granule (a power of two up to `granule`, in global face indices) whose face stays
-// within 1/kGranuleSlack of the exact share. -1: the box is too narrow along this axis.
-int cut_face(const CellBox& box, int axis, int parts, int left, int min_width, int granule,
-             const SlabWeights* slab_weights) {
+// coarsest of the axis's granules (in global face indices) whose face stays within
+// 1/kGranuleSlack of the exact share. -1: the box is too narrow along this axis.
+int cut_face(const CellBox& box, int axis, int parts, int left, int min_width,
+             const std::vector<int>& granules, const SlabWeights* slab_weights) {
   const int n = box.cells(axis);
   if (n < 2 * min_width) {
     return -1;
@@ -58,7 +68,7 @@ int cut_face(const CellBox& box, int axis, int parts, int left, int min_width, i
       // Compare left * total with parts * (weight left of the face): exact for integer weights,
       // so equal weights tie exactly where the cell-count rule rounds half up.
       const double target = static_cast<double>(left) * total;
-      for (int g = granule; g >= 1; g /= 2) {
+      for (const int g : granules) {
         double prefix = 0.0;
         int best = -1;
         double best_gap = 0.0;
@@ -85,7 +95,7 @@ int cut_face(const CellBox& box, int axis, int parts, int left, int min_width, i
   // grid nearest to lo + x.
   const auto P = static_cast<std::int64_t>(parts);
   const std::int64_t exact = static_cast<std::int64_t>(n) * left; // x P
-  for (int g = granule; g >= 1; g /= 2) {
+  for (const int g : granules) {
     const std::int64_t G = g;
     const std::int64_t at = 2 * (static_cast<std::int64_t>(lo) * P + exact) + G * P;
     const auto share = static_cast<int>(at / (2 * G * P) * G - lo);
@@ -100,7 +110,8 @@ int cut_face(const CellBox& box, int axis, int parts, int left, int min_width, i
 }
 
 // Cuts `box` into `parts` boxes appended to `out` in recursion order.
-void bisect(const CellBox& box, int parts, int min_width, const std::array<int, 3>& granule,
+void bisect(const CellBox& box, int parts, int min_width,
+            const std::array<std::vector<int>, 3>& granules,
             const SlabWeights* slab_weights, std::vector<CellBox>& out) {
   if (parts == 1) {
     out.push_back(box);
@@ -117,8 +128,8 @@ void bisect(const CellBox& box, int parts, int min_width, const std::array<int, 
     }
   }
   for (const int axis : order) {
-    const int share = cut_face(box, axis, parts, left, min_width, granule[static_cast<std::size_t>(axis)],
-                               slab_weights);
+    const int share = cut_face(box, axis, parts, left, min_width,
+                               granules[static_cast<std::size_t>(axis)], slab_weights);
     if (share < 0) {
       continue;
     }
@@ -126,8 +137,8 @@ void bisect(const CellBox& box, int parts, int min_width, const std::array<int, 
     CellBox hi_box = box;
     lo_box.hi[axis] = box.lo[axis] + share;
     hi_box.lo[axis] = lo_box.hi[axis];
-    bisect(lo_box, left, min_width, granule, slab_weights, out);
-    bisect(hi_box, parts - left, min_width, granule, slab_weights, out);
+    bisect(lo_box, left, min_width, granules, slab_weights, out);
+    bisect(hi_box, parts - left, min_width, granules, slab_weights, out);
     return;
   }
   throw std::invalid_argument(fmt::format(
@@ -136,8 +147,8 @@ void bisect(const CellBox& box, int parts, int min_width, const std::array<int, 
       box.cells(0), box.cells(1), box.cells(2), parts, min_width));
 }
 
-std::array<int, 3> granules(const std::array<int, 3>& cells) {
-  return {granule_of(cells[0]), granule_of(cells[1]), granule_of(cells[2])};
+std::array<std::vector<int>, 3> granules(const std::array<int, 3>& cells) {
+  return {granules_of(cells[0]), granules_of(cells[1]), granules_of(cells[2])};
 }
 
 } // namespace

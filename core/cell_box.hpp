@@ -24,9 +24,10 @@ struct CellBox {
 
 // One box per part, part p first in the recursion order (left before right): the longest axis
 // (in cells; ties: the lowest axis) is cut at the face that splits the cells in the ratio of the
-// parts on each side, moved to the nearest multiple of the largest power of two (at most 16)
-// that divides the axis's global cells and keeps the left part within 1/16 of its exact share:
-// every box then divides down the distributed multigrid's levels (core/cell_box.cpp). Without
+// parts on each side, moved to the nearest multiple of the coarsest granule of the axis's global
+// cells (its multigrid ratios' products: 2, 4, 8, 16 while it halves, then x3 while 3 divides
+// it, up to 54) that keeps the left part within 1/16 of its exact share: every box then divides
+// down the distributed multigrid's levels (core/cell_box.cpp). Without
 // such a multiple the cut is the nearest face, so every part gets total/parts cells up to one
 // slab. Every box is at
 // least min_width cells wide along an axis it was cut on. Throws std::invalid_argument naming

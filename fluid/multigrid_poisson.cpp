@@ -497,6 +497,10 @@ void restrict_plane(const Level& F, const Level& C, const double* b, const doubl
           for (std::size_t i = 0; i < nc; ++i) {
             acc[i] += row[2 * i] + row[2 * i + 1];
           }
+        } else if (q[0] == 3) {
+          for (std::size_t i = 0; i < nc; ++i) {
+            acc[i] += row[3 * i] + row[3 * i + 1] + row[3 * i + 2];
+          }
         } else {
           for (std::size_t i = 0; i < nc; ++i) {
             acc[i] += row[i];
@@ -739,6 +743,10 @@ void prolong_add(const Level& F, const Level& C, const double* xc, double* xf) {
         for (int i = 0; i < F.n[0]; ++i, ++f) {
           xf[f] += xc[crow + static_cast<std::size_t>(i >> 1)];
         }
+      } else if (q[0] == 3) {
+        for (int i = 0; i < F.n[0]; ++i, ++f) {
+          xf[f] += xc[crow + static_cast<std::size_t>(i / 3)];
+        }
       } else {
         for (int i = 0; i < F.n[0]; ++i, ++f) {
           xf[f] += xc[crow + static_cast<std::size_t>(i)];
@@ -884,6 +892,13 @@ void coarsen_coefficients(const Level& F, Level& C) {
               if (pairs < hi[0]) {
                 out[pairs] += in[2 * pairs]; // an odd x axis: the last coarse cell's one child
               }
+            } else if (kids[0] == 3) {
+              // A third along x (an axis divisible by 3: every coarse cell has its 3 children).
+              for (int i = 0; i < hi[0]; ++i) {
+                out[i] += in[3 * i];
+                out[i] += in[3 * i + 1];
+                out[i] += in[3 * i + 2];
+              }
             } else {
               const int stride = q[0];
               const int faces = std::min(hi[0], F.n[0] / stride + 1);
@@ -964,11 +979,25 @@ void coarsen_coefficients(const Level& F, Level& C) {
   build_diagonal(C);
 }
 
-// Which axes the next level halves: axes of at least 4 cells, even or `uneven` (an odd axis whose
-// last coarse cell keeps one child), among the finest of those (semi-coarsening keeps the coarse
-// level's couplings near isotropic). An axis that cannot coarsen is left to line relaxation when
-// it is the only one; with two or more such axes, the others stop once they are as coarse as
-// those (point relaxation would stall on the rest).
+// The factor an axis of n cells may coarsen by, 1 if none: 2 when n is even or `uneven` (an odd
+// axis whose last coarse cell keeps one child), else 3 when 3 divides n (an odd periodic or
+// Dirichlet-ended axis such as 135 = 3^3 x 5, which would otherwise keep its cells on every
+// coarser level; coarsening by 3 is cell-centred multigrid's other aligned ratio, the coarse
+// faces falling on fine faces); at least 2 coarse cells either way.
+int axis_ratio(int n, bool uneven) {
+  if ((n % 2 == 0 || uneven) && n >= 4) {
+    return 2;
+  }
+  if (n % 3 == 0 && n >= 6) {
+    return 3;
+  }
+  return 1;
+}
+
+// Which axes the next level coarsens (axis_ratio), among the finest of those that can
+// (semi-coarsening keeps the coarse level's couplings near isotropic). An axis that cannot
+// coarsen is left to line relaxation when it is the only one; with two or more such axes, the
+// others stop once they are as coarse as those (point relaxation would stall on the rest).
 std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<double, 3>& h,
                               const std::array<bool, 3>& uneven) {
   std::array<bool, 3> can{};
@@ -976,7 +1005,7 @@ std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<doub
   double hstuck = 0.0;
   int stuck = 0;
   for (int a = 0; a < 3; ++a) {
-    can[a] = (n[a] % 2 == 0 || uneven[a]) && n[a] >= 4;
+    can[a] = axis_ratio(n[a], uneven[a]) > 1;
     if (can[a] && (hmin == 0.0 || h[a] < hmin)) {
       hmin = h[a];
     }
@@ -988,7 +1017,7 @@ std::array<int, 3> coarsening(const std::array<int, 3>& n, const std::array<doub
   std::array<int, 3> ratio{1, 1, 1};
   for (int a = 0; a < 3; ++a) {
     if (can[a] && h[a] <= 1.5 * hmin && (stuck < 2 || h[a] <= 1.01 * hstuck)) {
-      ratio[a] = 2;
+      ratio[a] = axis_ratio(n[a], uneven[a]);
     }
   }
   return ratio;
@@ -1190,11 +1219,12 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     bool gather = choose_line_axis(n, h) >= 0 || L.total <= settings.gather_cells;
     std::array<int, 3> ratio{1, 1, 1};
     if (!gather) {
-      // Even ends only: each coarse cell's children in one box (no uneven coarsening here).
+      // Ends that the ratio divides: each coarse cell's children in one box (no uneven
+      // coarsening here).
       ratio = coarsening(n, h, {false, false, false});
       for (int a = 0; a < 3; ++a) {
         for (const CellBox& b : boxes) {
-          if (ratio[a] == 2 && (b.lo[a] % 2 != 0 || b.hi[a] % 2 != 0)) {
+          if (b.lo[a] % ratio[a] != 0 || b.hi[a] % ratio[a] != 0) {
             ratio[a] = 1;
           }
         }

@@ -6,7 +6,8 @@
 //
 // Levels coarsen by 2 along every axis that has at least 4 cells and is among the finest of those
 // that can coarsen (semi-coarsening). An odd axis coarsens to (n + 1) / 2 cells, the last with
-// one child, where its high side is Neumann (one grid only); otherwise it keeps its cells. A level
+// one child, where its high side is Neumann (one grid only); otherwise by 3 where 3 divides it
+// (periodic 135 -> 45 -> 15 -> 5), else it keeps its cells. A level
 // whose finest axis is markedly finer than the others relaxes whole lines along it; the coarsest
 // level is solved directly (dense Cholesky) when small, else by conjugate gradients. Every loop
 // over a level runs over z-planes (TBB) and every reduction is summed plane by plane in plane

@@ -238,6 +238,54 @@ TEST(DistributedMultigrid, RiserGridCoarsensWhileTheBoxesDivide) {
   }
 }
 
+TEST(DistributedMultigrid, AxisOfThreesCoarsensByThirdsOverTheRanks) {
+  // 54 x 8 x 8 periodic: one grid halves every axis (27 x 4 x 4), then x by thirds and y, z by
+  // halves (9 x 2 x 2, gathered: at most 64 cells). Boxes cut along x on multiples of 18 (and
+  // along y on 4 ranks) divide by both ratios, so every level but the gathered one lies over the
+  // ranks and the preconditioner is the one grid's: round-off apart, the same answer.
+  const Communicator comm = Communicator::world();
+  Case c{"thirds", {54, 8, 8}, {1e-3, 1e-3, 1e-3}, all_sides(PoissonSide::periodic)};
+  c.gather_cells = 64;
+  std::vector<CellBox> boxes;
+  if (comm.size() == 1) {
+    boxes = {CellBox{{0, 0, 0}, {54, 8, 8}}};
+  } else if (comm.size() == 2) {
+    boxes = {CellBox{{0, 0, 0}, {18, 8, 8}}, CellBox{{18, 0, 0}, {54, 8, 8}}};
+  } else if (comm.size() == 4) {
+    boxes = {CellBox{{0, 0, 0}, {18, 8, 8}}, CellBox{{18, 0, 0}, {36, 8, 8}},
+             CellBox{{36, 0, 0}, {54, 4, 8}}, CellBox{{36, 4, 0}, {54, 8, 8}}};
+  } else {
+    GTEST_SKIP() << "boxes written for 1, 2 and 4 ranks";
+  }
+  const MultigridPoisson mg(c.cells, c.spacing, c.sides, boxes, comm, MultigridSettings{
+                                                                          .gather_cells = 64});
+  EXPECT_EQ(mg.levels(), 3); // 54 x 8 x 8 and 27 x 4 x 4 over the ranks, then the gathered one
+  EXPECT_EQ(mg.gathered_cells(), (std::array<int, 3>{9, 2, 2}));
+  const CellBox& box = boxes[static_cast<std::size_t>(comm.rank())];
+  const Solved ranks = solve_case(c, box, &boxes, comm);
+  const Solved one = solve_case(c, CellBox{{0, 0, 0}, c.cells}, nullptr, Communicator::serial());
+  ASSERT_TRUE(ranks.report.converged);
+  ASSERT_TRUE(one.report.converged);
+  const auto d = difference(c, box, ranks, one, comm);
+  EXPECT_LE(std::abs(ranks.report.iterations - one.report.iterations), 1);
+  EXPECT_LE(d[1], 10.0 * kTolerance);
+}
+
+TEST(DistributedMultigrid, FluidBoxesOfTheLargeRiserDivideByThirds) {
+  // The 1e6 riser's 270 x 50 x 270 periodic grid on 4 and 16 boxes: the cuts fall on multiples
+  // of 6 (its granules: 2, then 3 x 2), so every box divides down to 45 x 25 x 45, the first
+  // level that relaxes lines, which is gathered (before: the 135 x 25 x 135 level, 9x the cells,
+  // since 135 did not coarsen).
+  for (const int parts : {4, 16}) {
+    for (const CellBox& b : orb_cell_boxes({270, 50, 270}, parts, 2)) {
+      for (const int a : {0, 2}) {
+        EXPECT_EQ(b.lo[a] % 6, 0) << parts << " parts";
+        EXPECT_EQ(b.hi[a] % 6, 0) << parts << " parts";
+      }
+    }
+  }
+}
+
 TEST(DistributedMultigrid, SolveIsBitwiseTheSameOnOneAndTwoThreads) {
   // 32 x 32 x 16 cells: every box of up to 4 ranks has at least 4096 cells, so its finest level's
   // loops run as TBB tasks (smaller loops run on the calling thread).

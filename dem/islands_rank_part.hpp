@@ -13,6 +13,7 @@
 #include "dem/contact_history.hpp"
 #include "dem/islands_kernels.hpp"
 #include "dem/islands_scheme.hpp"
+#include "dem/near_rows.hpp"
 #include "dem/orb_local_rows.hpp"
 #include "partition/orb_tree.hpp"
 #include "partition/rank_decomposition.hpp"
@@ -55,6 +56,7 @@ struct IslandsScheme::RankPart {
   ContactHistory pending;
   std::array<std::vector<double>, 6> start_spin; // wx, wy, wz (owned), hx, hy, hz (rows)
   double max_ratio_local = 0.0; // this rank's largest overlap ratio not yet reduced
+  islands::NearRows near; // the dense mode's near rows (dem/near_rows.hpp)
 };
 
 } // namespace cfddem::dem

@@ -45,6 +45,7 @@
 #include "dem/flag_dispatch.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
+#include "dem/near_rows.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/task_blocks.hpp"
 
@@ -365,20 +366,45 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
           view, mb.mem.data(), u, u + 1, label[mb.mem[u]], max_ratio, violations, hk...);
     return pairs;
   };
-  auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
-                        std::int64_t& violations, auto... hk) {
-    return islands::contact_forces<false, true, false, true, Friction>(
-        view, mb.mem.data(), u0, u1, 0, max_ratio, violations, hk...);
-  };
   auto refresh = [&] { r.exchange.forward(p_); };
   double* sv[3] = {record ? rec_.vx.data() : nullptr, record ? rec_.vy.data() : nullptr,
                    record ? rec_.vz.data() : nullptr};
-  return all ? islands::step_island<External, false, Friction>(view.c, mb, steps_, model_.gravity,
-                                                               sv[0], sv[1], sv[2], all_forces,
-                                                               refresh, TaskBlocks{})
-             : islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
-                                                              sv[0], sv[1], sv[2], forces, refresh,
-                                                              TaskBlocks{});
+  if (!all)
+    return islands::step_island<External, true, Friction>(view.c, mb, steps_, model_.gravity,
+                                                          sv[0], sv[1], sv[2], forces, refresh,
+                                                          TaskBlocks{});
+  // The dense mode: every particle's K fine steps over the near rows (dem/near_rows.hpp), taken
+  // again from the wide rows whenever a particle of this rank has moved about half the explicit
+  // scheme's skin (a local test: ghosts' positions are refreshed before every step).
+  islands::NearRows& near = r.near;
+  islands::ContactView dense = view;
+  auto take_near = [&] {
+    if (Friction && near.filters > 0)
+      islands::return_near_springs(near, view.hx, view.hy, view.hz);
+    islands::filter_near_rows(view.rows, owned_, view.c, geom_, one_.global_skin, view.hx,
+                              view.hy, view.hz, near);
+    dense.rows = near.rows();
+    if (Friction)
+      dense.hx = near.hx, dense.hy = near.hy, dense.hz = near.hz;
+  };
+  near.filters = 0;
+  take_near();
+  auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
+                        std::int64_t& violations, auto... hk) {
+    return islands::contact_forces<false, true, false, true, Friction>(
+        dense, mb.mem.data(), u0, u1, 0, max_ratio, violations, hk...);
+  };
+  auto refresh_near = [&] {
+    r.exchange.forward(p_);
+    if (islands::near_rows_expired(near, view.c))
+      take_near();
+  };
+  islands::IslandResult result = islands::step_island<External, false, Friction>(
+      view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh_near,
+      TaskBlocks{});
+  if (Friction)
+    islands::return_near_springs(near, view.hx, view.hy, view.hz);
+  return result;
 }
 
 // The spanning members' leads (islands_kernels.hpp, member_entry_time): each island's entry

@@ -14,12 +14,14 @@
 namespace cfddem::apps {
 
 GasBlock gas_block(const Scene& scene, const Communicator& comm) {
-  const std::array<int, 3> cells = fluid_grid_spec(scene).cells;
+  const fluid::MacGridSpec spec = fluid_grid_spec(scene);
+  const std::array<int, 3> cells = spec.cells;
   if (comm.size() == 1)
     return {cells, CellBox{{0, 0, 0}, cells}};
   try {
-    return {cells, orb_cell_boxes(cells, comm.size(),
-                                  fluid::kMinBoxWidth)[static_cast<std::size_t>(comm.rank())]};
+    return {cells, orb_cell_boxes(cells, comm.size(), fluid::kMinBoxWidth,
+                                  fluid::halves_unevenly(spec))[static_cast<std::size_t>(
+                       comm.rank())]};
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }

@@ -151,7 +151,8 @@ std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
   if (comm == nullptr || comm->size() == 1)
     return {CellBox{{0, 0, 0}, spec.cells}};
   try {
-    return orb_cell_boxes(spec.cells, comm->size(), fluid::kMinBoxWidth);
+    return orb_cell_boxes(spec.cells, comm->size(), fluid::kMinBoxWidth,
+                          fluid::halves_unevenly(spec));
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }

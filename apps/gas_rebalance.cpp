@@ -73,7 +73,8 @@ GasBalance balance_gas_boxes(const GasCoupling& gas, std::span<const double> x,
     comm.sum(v);
     return v;
   };
-  out.boxes = orb_cell_boxes(grid.global_cells(), comm.size(), fluid::kMinBoxWidth, slabs);
+  out.boxes = orb_cell_boxes(grid.global_cells(), comm.size(), fluid::kMinBoxWidth, slabs,
+                             fluid::halves_unevenly(grid.spec()));
   out.imbalance_before = imbalance(own, w, gas.boxes(), comm);
   out.imbalance_after = imbalance(own, w, out.boxes, comm);
   return out;

@@ -41,7 +41,9 @@ GasSide::GasSide(const Scene& scene, const Communicator& comm, bool routed)
   if (comm_.size() == 1)
     return;
   try {
-    boxes0_ = orb_cell_boxes(fluid_grid_spec(scene).cells, comm_.size(), fluid::kMinBoxWidth);
+    const fluid::MacGridSpec spec = fluid_grid_spec(scene);
+    boxes0_ = orb_cell_boxes(spec.cells, comm_.size(), fluid::kMinBoxWidth,
+                             fluid::halves_unevenly(spec));
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }

@@ -29,10 +29,13 @@ constexpr int kMaxGranule = 54;
 constexpr std::int64_t kGranuleSlack = 16; // 1/16
 
 // An axis of n cells' granules, coarsest first, ending with 1 (each divides the one before).
-std::vector<int> granules_of(int n) {
+// An axis that halves unevenly (its high side a wall or inflow: an odd count halves to
+// (n + 1) / 2, the last coarse cell with one child) halves at every level, so its interior cuts
+// want powers of two whatever n is.
+std::vector<int> granules_of(int n, bool halves_unevenly) {
   std::vector<int> chain = {1};
   int g = 1;
-  while (g < kMaxPowerOfTwo && n % (2 * g) == 0) {
+  while (g < kMaxPowerOfTwo && (halves_unevenly || n % (2 * g) == 0)) {
     g *= 2;
     chain.push_back(g);
   }
@@ -147,30 +150,36 @@ void bisect(const CellBox& box, int parts, int min_width,
       box.cells(0), box.cells(1), box.cells(2), parts, min_width));
 }
 
-std::array<std::vector<int>, 3> granules(const std::array<int, 3>& cells) {
-  return {granules_of(cells[0]), granules_of(cells[1]), granules_of(cells[2])};
+std::array<std::vector<int>, 3> granules(const std::array<int, 3>& cells,
+                                         const std::array<bool, 3>& halves_unevenly) {
+  return {granules_of(cells[0], halves_unevenly[0]), granules_of(cells[1], halves_unevenly[1]),
+          granules_of(cells[2], halves_unevenly[2])};
 }
 
 } // namespace
 
-std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts, int min_width) {
+std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts, int min_width,
+                                    const std::array<bool, 3>& halves_unevenly) {
   if (parts < 1) {
     throw std::invalid_argument(fmt::format("fluid grid: {} parts (need at least 1)", parts));
   }
   std::vector<CellBox> boxes;
   boxes.reserve(static_cast<std::size_t>(parts));
-  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, granules(cells), nullptr, boxes);
+  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, granules(cells, halves_unevenly), nullptr,
+         boxes);
   return boxes;
 }
 
 std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts, int min_width,
-                                    const SlabWeights& slab_weights) {
+                                    const SlabWeights& slab_weights,
+                                    const std::array<bool, 3>& halves_unevenly) {
   if (parts < 1) {
     throw std::invalid_argument(fmt::format("fluid grid: {} parts (need at least 1)", parts));
   }
   std::vector<CellBox> boxes;
   boxes.reserve(static_cast<std::size_t>(parts));
-  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, granules(cells), &slab_weights, boxes);
+  bisect(CellBox{{0, 0, 0}, cells}, parts, min_width, granules(cells, halves_unevenly),
+         &slab_weights, boxes);
   return boxes;
 }
 

@@ -26,14 +26,16 @@ struct CellBox {
 // (in cells; ties: the lowest axis) is cut at the face that splits the cells in the ratio of the
 // parts on each side, moved to the nearest multiple of the coarsest granule of the axis's global
 // cells (its multigrid ratios' products: 2, 4, 8, 16 while it halves, then x3 while 3 divides
-// it, up to 54) that keeps the left part within 1/16 of its exact share: every box then divides
-// down the distributed multigrid's levels (core/cell_box.cpp). Without
+// it, up to 54; 2, 4, 8, 16 on an axis that `halves_unevenly`, whose wall or inflow at the high
+// side lets an odd count halve too) that keeps the left part within 1/16 of its exact share:
+// every box then divides down the distributed multigrid's levels (core/cell_box.cpp). Without
 // such a multiple the cut is the nearest face, so every part gets total/parts cells up to one
 // slab. Every box is at
 // least min_width cells wide along an axis it was cut on. Throws std::invalid_argument naming
 // the grid when it is too small for the parts.
 [[nodiscard]] std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts,
-                                                  int min_width);
+                                                  int min_width,
+                                                  const std::array<bool, 3>& halves_unevenly = {});
 
 // The cost of a box's slabs: slab_weights(box, axis)[s] is the weight of the cells of `box`
 // whose index along `axis` is box.lo[axis] + s (box.cells(axis) values, none negative). A
@@ -48,6 +50,7 @@ using SlabWeights = std::function<std::vector<double>(const CellBox& box, int ax
 // a multiple of g whose weight is within 1/16 of the share, else a finer g). One slab_weights call per cut,
 // in recursion order. A box of zero weight is cut by cell counts.
 [[nodiscard]] std::vector<CellBox> orb_cell_boxes(const std::array<int, 3>& cells, int parts,
-                                                  int min_width, const SlabWeights& slab_weights);
+                                                  int min_width, const SlabWeights& slab_weights,
+                                                  const std::array<bool, 3>& halves_unevenly = {});
 
 } // namespace cfddem

@@ -1193,6 +1193,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
   }
   std::array<int, 3> n = cells;
   std::array<double, 3> h = spacing;
+  const std::array<bool, 3> uneven = uneven_axes(sides);
   for (;;) {
     const CellBox& box = boxes[me];
     // A side of the box is exchanged when a box (or its periodic image) lies beyond it; else it
@@ -1219,12 +1220,15 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     bool gather = choose_line_axis(n, h) >= 0 || L.total <= settings.gather_cells;
     std::array<int, 3> ratio{1, 1, 1};
     if (!gather) {
-      // Ends that the ratio divides: each coarse cell's children in one box (no uneven
-      // coarsening here).
-      ratio = coarsening(n, h, {false, false, false});
+      // Ends that the ratio divides: each coarse cell's children in one box. An odd axis with a
+      // Neumann high side halves unevenly as on one grid: every box's ends even but the grid's
+      // odd high end, whose box keeps the last coarse cell with its one child.
+      ratio = coarsening(n, h, uneven);
       for (int a = 0; a < 3; ++a) {
         for (const CellBox& b : boxes) {
-          if (b.lo[a] % ratio[a] != 0 || b.hi[a] % ratio[a] != 0) {
+          const bool lo_ok = b.lo[a] % ratio[a] == 0;
+          const bool hi_ok = b.hi[a] % ratio[a] == 0 || (uneven[a] && b.hi[a] == n[a]);
+          if (!lo_ok || !hi_ok) {
             ratio[a] = 1;
           }
         }
@@ -1236,15 +1240,16 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     }
     L.ratio = ratio;
     for (int a = 0; a < 3; ++a) {
-      n[a] /= ratio[a];
+      const int coarse = (n[a] + ratio[a] - 1) / ratio[a]; // an odd uneven axis: (n + 1) / 2
       h[a] *= ratio[a];
       for (int side = 0; side < 2; ++side) {
         bdist[a][side] = (bdist[a][side] + 0.5 * (ratio[a] - 1)) / ratio[a];
       }
       for (CellBox& b : boxes) {
         b.lo[a] /= ratio[a];
-        b.hi[a] /= ratio[a];
+        b.hi[a] = b.hi[a] == n[a] ? coarse : b.hi[a] / ratio[a];
       }
+      n[a] = coarse;
     }
   }
   gathered_cells_ = n;

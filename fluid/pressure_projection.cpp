@@ -79,16 +79,10 @@ PoissonSolver auto_solver(const MacGrid& grid) {
   for (int a = 0; a < 3; ++a) {
     spacing[a] = grid.spacing(a);
   }
-  // Over R ranks the levels coarsen only where every box's ends are even (no uneven coarsening):
-  // the hierarchy is judged without it, as one grid whose odd axes keep their cells.
-  std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid);
-  if (grid.distributed()) {
-    for (auto& axis : sides) {
-      for (PoissonSide& side : axis) {
-        side = side == PoissonSide::neumann ? PoissonSide::dirichlet : side;
-      }
-    }
-  }
+  // Over R ranks the levels coarsen as one grid's while the boxes divide (their cuts fall on the
+  // granules of the grid's ratios, core/cell_box.hpp), and uneven halving included; a level
+  // that stops dividing is gathered and coarsened on as one grid: the one-grid hierarchy judges.
+  const std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid);
   const bool large_coarsest =
       MultigridPoisson::coarsest_cells(grid.global_cells(), spacing, sides) > kAutoCoarsestCells;
   return large_coarsest && pfmg_coarsest_cells(grid) <= kAutoCoarsestCells

@@ -43,6 +43,7 @@ struct Case {
   std::array<double, 3> spacing;
   Sides sides;
   int gather_cells = 64; // small: several levels over the ranks
+  std::array<bool, 3> halves_unevenly{}; // the boxes' cuts (orb_cell_boxes)
 };
 
 Sides all_sides(PoissonSide s) {
@@ -174,7 +175,7 @@ std::array<double, 2> difference(const Case& c, const CellBox& box, const Solved
 
 void check_case(const Case& c, bool same_preconditioner) {
   const Communicator comm = Communicator::world();
-  const std::vector<CellBox> boxes = orb_cell_boxes(c.cells, comm.size(), 2);
+  const std::vector<CellBox> boxes = orb_cell_boxes(c.cells, comm.size(), 2, c.halves_unevenly);
   const CellBox& box = boxes[static_cast<std::size_t>(comm.rank())];
   const Solved ranks = solve_case(c, box, &boxes, comm);
   const Solved one = solve_case(c, CellBox{{0, 0, 0}, c.cells}, nullptr, Communicator::serial());
@@ -202,6 +203,29 @@ TEST(DistributedMultigrid, ColumnWithOutflowMatchesOneGridToRoundOff) {
   // into 16 x 12 x 8 or 8 x 12 x 8 boxes, which divide twice (3 levels over the ranks).
   Case c{"column", {16, 24, 8}, {1e-3, 1e-3, 1e-3}, all_sides(PoissonSide::neumann)};
   c.sides[1][1] = PoissonSide::dirichlet;
+  check_case(c, true);
+}
+
+TEST(DistributedMultigrid, OddWalledAxesHalveUnevenlyOverTheRanks) {
+  // The 1e5 bed's shape in small: odd x and z between walls (53: 27, 14, 7, 4 cells), inflow
+  // below and an outflow above along y. Cut on even faces (granules of 2, 4, 8, 16 along x and
+  // z, whose walls let them halve unevenly), every box's ends stay even but the grid's odd high
+  // end, whose box keeps the last coarse cell with its one child: the levels over the ranks are
+  // one grid's, and so is the answer, to round-off.
+  Case c{"odd_walled", {53, 16, 53}, {1e-3, 1e-3, 1e-3}, all_sides(PoissonSide::neumann)};
+  c.sides[1][1] = PoissonSide::dirichlet;
+  c.halves_unevenly = {true, false, true};
+  const Communicator comm = Communicator::world();
+  const std::vector<CellBox> boxes = orb_cell_boxes(c.cells, comm.size(), 2, c.halves_unevenly);
+  for (const CellBox& b : boxes) {
+    for (const int a : {0, 2}) {
+      EXPECT_EQ(b.lo[a] % 2, 0);
+      EXPECT_TRUE(b.hi[a] % 2 == 0 || b.hi[a] == 53);
+    }
+  }
+  const MultigridPoisson mg(c.cells, c.spacing, c.sides, boxes, comm,
+                            MultigridSettings{.gather_cells = c.gather_cells});
+  EXPECT_GE(mg.levels(), 3) << "at least two levels over the ranks before the gathered one";
   check_case(c, true);
 }
 

@@ -452,13 +452,30 @@ void OrbScheme::global_stream() {
   double lim[3];
   for (int a = 0; a < 3; ++a)
     lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
+  // The pairs in the order of their lower particle index (a stable counting sort), as the
+  // explicit scheme's rows give them: a block of the stream then reads a compact range of the
+  // store. In the cell order they are found in, every block read particles from all over it,
+  // and on two threads each pair took about 1.5x the CPU time of one thread's (the 1e5 bed).
+  const std::size_t np = pairs_.ca.size();
+  std::vector<std::uint32_t>& start = global_.count;
+  start.assign(p_.size() + 1, 0);
+  for (std::size_t q = 0; q < np; ++q)
+    ++start[std::min(pairs_.ca[q], pairs_.cb[q]) + 1];
+  for (std::size_t i = 0; i + 1 < start.size(); ++i)
+    start[i + 1] += start[i];
+  global_.a.resize(np), global_.b.resize(np);
+  for (std::size_t q = 0; q < np; ++q) {
+    const std::uint32_t at = start[std::min(pairs_.ca[q], pairs_.cb[q])]++;
+    global_.a[at] = pairs_.ca[q], global_.b[at] = pairs_.cb[q];
+  }
   const auto raw = [&](std::size_t q) {
-    const std::uint32_t i = pairs_.ca[q], j = pairs_.cb[q];
+    const std::uint32_t i = global_.a[q], j = global_.b[q];
     return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
            std::abs(z[j] - z[i]) <= lim[2];
   };
-  global_.head.build(pairs_.ca, pairs_.cb, raw, 2 * kPairBlock);
-  global_.tail.build(pairs_.ca, pairs_.cb, [&](std::size_t q) { return !raw(q); }, 2 * kPairBlock);
+  global_.head.build(global_.a, global_.b, raw, 2 * kPairBlock);
+  global_.tail.build(global_.a, global_.b, [&](std::size_t q) { return !raw(q); },
+                     2 * kPairBlock);
   if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
     near_walls(p_, owned_, {pairs_.xr, pairs_.yr, pairs_.zr}, geom_, skin_, global_.near_wall);
   else

@@ -267,7 +267,9 @@ private:
   // scheme's pair pass (stale after a build or a re-sort), those whose raw separation stays the
   // minimum image (head) and those across a periodic face (tail), their contacts per block, and
   // the particles that can reach a wall before the next build; `on`: this sub-iteration is global.
+  // a, b: the candidate pairs ordered by their lower particle index (the streams' order).
   struct Global {
+    std::vector<std::uint32_t> a, b, count;
     PairStream head, tail;
     std::vector<PairContacts> head_blocks, tail_blocks;
     std::size_t nh = 0, nt = 0;

@@ -9,6 +9,7 @@
 
 #include "apps/rank_checkpoint.hpp"
 #include "core/error.hpp"
+#include "fluid/gas_boxes.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::apps {
@@ -19,9 +20,7 @@ GasBlock gas_block(const Scene& scene, const Communicator& comm) {
   if (comm.size() == 1)
     return {cells, CellBox{{0, 0, 0}, cells}};
   try {
-    return {cells, orb_cell_boxes(cells, comm.size(), fluid::kMinBoxWidth,
-                                  fluid::halves_unevenly(spec))[static_cast<std::size_t>(
-                       comm.rank())]};
+    return {cells, fluid::gas_cell_boxes(spec, comm.size())[static_cast<std::size_t>(comm.rank())]};
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }

@@ -14,6 +14,7 @@
 #include "core/error.hpp"
 #include "core/stopwatch.hpp"
 #include "fluid/box_loops.hpp"
+#include "fluid/gas_boxes.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/grid_move.hpp"
@@ -151,8 +152,7 @@ std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
   if (comm == nullptr || comm->size() == 1)
     return {CellBox{{0, 0, 0}, spec.cells}};
   try {
-    return orb_cell_boxes(spec.cells, comm->size(), fluid::kMinBoxWidth,
-                          fluid::halves_unevenly(spec));
+    return fluid::gas_cell_boxes(spec, comm->size());
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "fluid/gas_boxes.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::apps {
@@ -73,8 +74,7 @@ GasBalance balance_gas_boxes(const GasCoupling& gas, std::span<const double> x,
     comm.sum(v);
     return v;
   };
-  out.boxes = orb_cell_boxes(grid.global_cells(), comm.size(), fluid::kMinBoxWidth, slabs,
-                             fluid::halves_unevenly(grid.spec()));
+  out.boxes = fluid::gas_cell_boxes(grid.spec(), comm.size(), slabs);
   out.imbalance_before = imbalance(own, w, gas.boxes(), comm);
   out.imbalance_after = imbalance(own, w, out.boxes, comm);
   return out;

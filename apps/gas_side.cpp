@@ -10,6 +10,7 @@
 #include "apps/coupled_checkpoint.hpp"
 #include "apps/gas_rebalance.hpp"
 #include "core/error.hpp"
+#include "fluid/gas_boxes.hpp"
 #include "fluid/multigrid_poisson.hpp"
 #include "fluid/pressure_projection.hpp"
 #include "partition/cell_box_decomposition.hpp"
@@ -41,9 +42,7 @@ GasSide::GasSide(const Scene& scene, const Communicator& comm, bool routed)
   if (comm_.size() == 1)
     return;
   try {
-    const fluid::MacGridSpec spec = fluid_grid_spec(scene);
-    boxes0_ = orb_cell_boxes(spec.cells, comm_.size(), fluid::kMinBoxWidth,
-                             fluid::halves_unevenly(spec));
+    boxes0_ = fluid::gas_cell_boxes(fluid_grid_spec(scene), comm_.size());
   } catch (const std::invalid_argument& e) {
     throw ConfigError("scene key 'fluid.cells'", e.what());
   }

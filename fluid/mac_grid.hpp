@@ -51,18 +51,6 @@ struct MacGridSpec {
 // Every problem with a spec, one message each (empty: valid).
 [[nodiscard]] std::vector<std::string> check_mac_grid(const MacGridSpec& spec);
 
-// The axes whose pressure levels halve an odd count unevenly (a wall or inflow at the high side:
-// fluid/multigrid_poisson.hpp), for the gas boxes' cuts (orb_cell_boxes' halves_unevenly).
-[[nodiscard]] inline std::array<bool, 3> halves_unevenly(const MacGridSpec& spec) {
-  std::array<bool, 3> out{};
-  for (int a = 0; a < 3; ++a) {
-    const BoundaryKind high = spec.bc[static_cast<std::size_t>(2 * a + 1)].kind;
-    out[static_cast<std::size_t>(a)] =
-        high != BoundaryKind::periodic && high != BoundaryKind::outflow;
-  }
-  return out;
-}
-
 // Narrowest box along an axis it shares with another box: a box's physical ghost layers mirror
 // its own cells (ghost_fill.cpp), and a ghost near a prescribed face is then filled by the box
 // that also holds that face.

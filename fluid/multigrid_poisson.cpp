@@ -1033,17 +1033,6 @@ std::array<int, 3> level_ratio(const std::array<int, 3>& n, const std::array<dou
   return coarsening(n, h, uneven);
 }
 
-// The axes a one-grid hierarchy may coarsen unevenly: those whose high side is Neumann (wall,
-// inflow), where the missing child of the last coarse cell leaves a coarse boundary face that
-// carries no flux either. A periodic or Dirichlet high side needs its last cell's face aligned.
-std::array<bool, 3> uneven_axes(const std::array<std::array<PoissonSide, 2>, 3>& sides) {
-  std::array<bool, 3> uneven{};
-  for (int a = 0; a < 3; ++a) {
-    uneven[a] = sides[a][1] == PoissonSide::neumann;
-  }
-  return uneven;
-}
-
 // Line relaxation along the finest axis when it is markedly finer than every other.
 int choose_line_axis(const std::array<int, 3>& n, const std::array<double, 3>& h) {
   int best = -1;
@@ -1118,11 +1107,23 @@ bool check_arguments(const std::array<int, 3>& cells, const std::array<double, 3
 
 } // namespace
 
+// A Neumann high side: the missing child of the last coarse cell leaves a coarse boundary face
+// that carries no flux either. A periodic or Dirichlet high side needs its last cell's face
+// aligned.
+std::array<bool, 3>
+MultigridPoisson::halves_unevenly(std::array<std::array<PoissonSide, 2>, 3> sides) {
+  std::array<bool, 3> uneven{};
+  for (int a = 0; a < 3; ++a) {
+    uneven[a] = sides[a][1] == PoissonSide::neumann;
+  }
+  return uneven;
+}
+
 std::size_t MultigridPoisson::coarsest_cells(std::array<int, 3> cells,
                                              std::array<double, 3> spacing,
                                              std::array<std::array<PoissonSide, 2>, 3> sides,
                                              MultigridSettings settings) {
-  const std::array<bool, 3> uneven = uneven_axes(sides);
+  const std::array<bool, 3> uneven = halves_unevenly(sides);
   for (;;) {
     const std::array<int, 3> ratio = level_ratio(cells, spacing, uneven, settings.max_direct_cells);
     if (ratio == std::array<int, 3>{1, 1, 1}) {
@@ -1142,7 +1143,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
       has_dirichlet_(check_arguments(cells, spacing, sides, settings)) {
   singular_ = !has_dirichlet_;
   levels_.emplace_back(cells, spacing, sides);
-  const std::array<bool, 3> uneven = uneven_axes(sides);
+  const std::array<bool, 3> uneven = halves_unevenly(sides);
   for (;;) {
     Level& fine = levels_.back();
     const std::array<int, 3> ratio =
@@ -1193,7 +1194,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
   }
   std::array<int, 3> n = cells;
   std::array<double, 3> h = spacing;
-  const std::array<bool, 3> uneven = uneven_axes(sides);
+  const std::array<bool, 3> uneven = halves_unevenly(sides);
   for (;;) {
     const CellBox& box = boxes[me];
     // A side of the box is exchanged when a box (or its periodic image) lies beyond it; else it

@@ -83,6 +83,10 @@ public:
   static std::size_t coarsest_cells(std::array<int, 3> cells, std::array<double, 3> spacing,
                                     std::array<std::array<PoissonSide, 2>, 3> sides,
                                     MultigridSettings settings = {});
+  // The axes whose levels halve an odd count unevenly, (n + 1) / 2 with one child in the last
+  // coarse cell: those whose high side is Neumann (wall, inflow). A distributed grid's boxes
+  // should cut such an axis on powers of two (fluid/gas_boxes.hpp).
+  static std::array<bool, 3> halves_unevenly(std::array<std::array<PoissonSide, 2>, 3> sides);
   MultigridPoisson(const MultigridPoisson&) = delete;
   MultigridPoisson& operator=(const MultigridPoisson&) = delete;
 

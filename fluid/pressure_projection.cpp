@@ -55,15 +55,11 @@ int smg_blocking_axis(const MacGrid& grid) {
   return -1;
 }
 
-namespace {
-
-// The projection's boundary kinds as the multigrid's sides: walls and inflow carry no correction
-// flux (Neumann), an outflow face holds phi (Dirichlet).
-std::array<std::array<PoissonSide, 2>, 3> poisson_sides(const MacGrid& grid) {
+std::array<std::array<PoissonSide, 2>, 3> poisson_sides(const MacGridSpec& spec) {
   std::array<std::array<PoissonSide, 2>, 3> sides{};
   for (int a = 0; a < 3; ++a) {
     for (int side = 0; side < 2; ++side) {
-      const BoundaryKind kind = grid.bc(a, side).kind;
+      const BoundaryKind kind = spec.bc[static_cast<std::size_t>(2 * a + side)].kind;
       sides[a][side] = kind == BoundaryKind::periodic  ? PoissonSide::periodic
                        : kind == BoundaryKind::outflow ? PoissonSide::dirichlet
                                                        : PoissonSide::neumann;
@@ -71,8 +67,6 @@ std::array<std::array<PoissonSide, 2>, 3> poisson_sides(const MacGrid& grid) {
   }
   return sides;
 }
-
-} // namespace
 
 PoissonSolver auto_solver(const MacGrid& grid) {
   std::array<double, 3> spacing{};
@@ -82,7 +76,7 @@ PoissonSolver auto_solver(const MacGrid& grid) {
   // Over R ranks the levels coarsen as one grid's while the boxes divide (their cuts fall on the
   // granules of the grid's ratios, core/cell_box.hpp), and uneven halving included; a level
   // that stops dividing is gathered and coarsened on as one grid: the one-grid hierarchy judges.
-  const std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid);
+  const std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid.spec());
   const bool large_coarsest =
       MultigridPoisson::coarsest_cells(grid.global_cells(), spacing, sides) > kAutoCoarsestCells;
   return large_coarsest && pfmg_coarsest_cells(grid) <= kAutoCoarsestCells
@@ -245,7 +239,7 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
   if (multigrid) {
     // Only the multigrid's own hierarchy: no hypre grid, matrix, vectors or solver are created
     // (their set-up time and memory would be spent for nothing).
-    const std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid);
+    const std::array<std::array<PoissonSide, 2>, 3> sides = poisson_sides(grid.spec());
     std::array<double, 3> spacing{};
     for (int a = 0; a < 3; ++a) {
       spacing[a] = grid.spacing(a);

@@ -62,6 +62,10 @@ struct ProjectionReport {
 inline constexpr std::size_t kAutoCoarsestCells = 32768;
 [[nodiscard]] PoissonSolver auto_solver(const MacGrid& grid);
 
+// The grid's boundary kinds as the multigrid's sides: walls and inflow carry no correction flux
+// (Neumann), an outflow face holds phi (Dirichlet), periodic stays periodic.
+[[nodiscard]] std::array<std::array<PoissonSide, 2>, 3> poisson_sides(const MacGridSpec& spec);
+
 // div(eps_f u) per interior cell [1/s]; eps ghosts must be filled. eps_f is the mean of the two
 // cells, except on a velocity-inflow face: kInflowVolumeFraction (the incoming gas's).
 void flux_divergence(const MacGrid& grid, const std::array<GridField, 3>& u, const GridField& eps,

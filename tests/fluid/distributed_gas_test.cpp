@@ -13,6 +13,7 @@
 
 #include "core/cell_box.hpp"
 #include "core/communicator.hpp"
+#include "fluid/gas_boxes.hpp"
 #include "fluid/gas_solver.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/grid_move.hpp"
@@ -521,6 +522,33 @@ TEST(FluidBoxes, CutsFallOnPowersOfTwoWithinASixteenthOfTheShare) {
       EXPECT_EQ(b.lo[a] % 2, 0) << "axis " << a;
       EXPECT_EQ(b.hi[a] % 2, 0) << "axis " << a;
     }
+  }
+}
+
+// A run's gas boxes (fluid::gas_cell_boxes) follow the grid's boundaries: the 1e5 bed's odd
+// walled x and z (101 cells) are cut on powers of two (48 on 2 ranks; every interior end even, so
+// they halve unevenly over the ranks), where the same counts between periodic faces, which
+// cannot halve unevenly, are cut at the nearest face; the 1e6 riser's periodic 270 on multiples
+// of 6 (halves, then thirds).
+TEST(FluidBoxes, GasBoxesFollowTheMultigridsRatios) {
+  MacGridSpec bed = box_spec({101, 50, 101}, {5.05e-3, 1e-2, 5.05e-3}, BoundaryKind::wall);
+  bed.bc[2] = test::bc_of(BoundaryKind::inflow);
+  bed.bc[3] = test::bc_of(BoundaryKind::outflow);
+  EXPECT_EQ(gas_cell_boxes(bed, 2)[0].hi[0], 48);
+  for (const CellBox& b : gas_cell_boxes(bed, 4)) {
+    for (const int a : {0, 2}) {
+      EXPECT_EQ(b.lo[a] % 2, 0);
+      EXPECT_TRUE(b.hi[a] % 2 == 0 || b.hi[a] == 101);
+    }
+  }
+  const MacGridSpec periodic =
+      box_spec({101, 50, 101}, {5.05e-3, 1e-2, 5.05e-3}, BoundaryKind::periodic);
+  EXPECT_EQ(gas_cell_boxes(periodic, 2)[0].hi[0], 51);
+  const MacGridSpec riser =
+      box_spec({270, 50, 270}, {5.0625e-2, 1e-2, 5.0625e-2}, BoundaryKind::periodic);
+  for (const CellBox& b : gas_cell_boxes(riser, 16)) {
+    EXPECT_EQ(b.lo[0] % 6, 0);
+    EXPECT_EQ(b.hi[0] % 6, 0);
   }
 }
 

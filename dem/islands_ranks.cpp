@@ -379,15 +379,12 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
   islands::NearRows& near = r.near;
   islands::ContactView dense = view;
   auto take_near = [&] {
-    if (Friction && near.filters > 0)
-      islands::return_near_springs(near, view.hx, view.hy, view.hz);
     islands::filter_near_rows(view.rows, owned_, view.c, geom_, one_.global_skin, view.hx,
-                              view.hy, view.hz, near);
+                              view.hy, view.hz, near, TaskBlocks{});
     dense.rows = near.rows();
     if (Friction)
       dense.hx = near.hx, dense.hy = near.hy, dense.hz = near.hz;
   };
-  near.filters = 0;
   take_near();
   auto all_forces = [&](std::uint32_t u0, std::uint32_t u1, double& max_ratio,
                         std::int64_t& violations, auto... hk) {
@@ -396,8 +393,11 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
   };
   auto refresh_near = [&] {
     r.exchange.forward(p_);
-    if (islands::near_rows_expired(near, view.c))
-      take_near();
+    if (!islands::near_rows_expired(near, view.c, TaskBlocks{}))
+      return;
+    if (Friction) // the springs the near rows advanced, back before they are taken again
+      islands::return_near_springs(near, view.hx, view.hy, view.hz);
+    take_near();
   };
   islands::IslandResult result = islands::step_island<External, false, Friction>(
       view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], all_forces, refresh_near,

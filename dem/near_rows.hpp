@@ -15,14 +15,12 @@
 // are summed in the rows' order: the forces are bit for bit those of the wide rows.
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <span>
 #include <vector>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
 
 #include "dem/domain_geometry.hpp"
 #include "dem/islands_kernels.hpp"
@@ -30,18 +28,24 @@
 namespace cfddem::dem::islands {
 
 struct NearRows {
-  std::vector<std::uint32_t> off, nb; // CSR over the wide rows' particles
-  std::vector<std::uint32_t> from;    // each kept entry's index in the wide rows
+  std::vector<std::uint32_t> off, nb;      // CSR over the wide rows' particles
+  std::vector<std::uint32_t> from;         // each kept entry's index in the wide rows
   std::vector<double> x_ref, y_ref, z_ref; // every particle's position at the filter
   std::vector<double> hx, hy, hz;          // friction: the kept entries' springs
   double skin = 0.0;
-  std::int64_t filters = 0; // filters taken since the caller reset it
+  std::int64_t filters = 0;         // filters taken (a count for tests and reports)
+  std::vector<unsigned char> moved; // near_rows_expired's flag per block (scratch)
 
   [[nodiscard]] Rows rows() const { return Rows{off, nb, {}}; }
 };
 
 namespace detail {
-constexpr std::size_t kNearRowBlock = 1024; // rows per task of a filter pass
+constexpr std::size_t kNearRowBlock = 1024; // rows per block of a filter pass
+constexpr std::size_t kExpiryBlock = 4096;  // particles per block of the expiry test
+
+inline std::size_t blocks_of(std::size_t n, std::size_t block) {
+  return (n + block - 1) / block;
+}
 
 inline bool near(const Columns& c, const DomainGeometry& g, std::uint32_t i, std::uint32_t j,
                  double skin) {
@@ -56,17 +60,25 @@ inline bool near(const Columns& c, const DomainGeometry& g, std::uint32_t i, std
 // Filters rows [0, n_rows) of `wide` into `out` at the columns' present positions (minimum
 // image), and records every particle's position (all `c.x.size()` of them). With friction
 // (hx non-empty: the wide rows' springs) the kept entries' springs are copied into out.hx.. and
-// the left-out ones zeroed in hx.. (a pair that far apart is not in contact). Rows in parallel
-// blocks, the same result on any thread count.
-inline void filter_near_rows(const Rows& wide, std::size_t n_rows, const Columns& c,
-                             const DomainGeometry& g, double skin, std::span<double> hx,
-                             std::span<double> hy, std::span<double> hz, NearRows& out) {
+// the left-out ones zeroed in hx.. (a pair that far apart is not in contact). Blocks of rows
+// through for_blocks (the caller's TaskBlocks runs them as tasks), each writing its own rows:
+// the same result on any thread count.
+template <class ForBlocks = SerialBlocks>
+void filter_near_rows(const Rows& wide, std::size_t n_rows, const Columns& c,
+                      const DomainGeometry& g, double skin, std::span<double> hx,
+                      std::span<double> hy, std::span<double> hz, NearRows& out,
+                      ForBlocks&& for_blocks = {}) {
   out.skin = skin;
   ++out.filters;
   out.off.assign(n_rows + 1, 0);
-  const auto blocks = tbb::blocked_range<std::size_t>(0, n_rows, detail::kNearRowBlock);
-  tbb::parallel_for(blocks, [&](const tbb::blocked_range<std::size_t>& b) {
-    for (std::size_t i = b.begin(); i < b.end(); ++i) {
+  const std::size_t nblocks = detail::blocks_of(n_rows, detail::kNearRowBlock);
+  auto rows_of = [&](std::size_t b) {
+    return std::array<std::size_t, 2>{b * detail::kNearRowBlock,
+                                      std::min(n_rows, (b + 1) * detail::kNearRowBlock)};
+  };
+  for_blocks(nblocks, [&](std::size_t b) {
+    const auto [i0, i1] = rows_of(b);
+    for (std::size_t i = i0; i < i1; ++i) {
       std::uint32_t kept = 0;
       for (std::uint32_t k = wide.off[i]; k < wide.off[i + 1]; ++k)
         kept += detail::near(c, g, static_cast<std::uint32_t>(i), wide.nb[k], skin);
@@ -81,8 +93,9 @@ inline void filter_near_rows(const Rows& wide, std::size_t n_rows, const Columns
   const bool friction = !hx.empty();
   if (friction)
     out.hx.resize(total), out.hy.resize(total), out.hz.resize(total);
-  tbb::parallel_for(blocks, [&](const tbb::blocked_range<std::size_t>& b) {
-    for (std::size_t i = b.begin(); i < b.end(); ++i) {
+  for_blocks(nblocks, [&](std::size_t b) {
+    const auto [i0, i1] = rows_of(b);
+    for (std::size_t i = i0; i < i1; ++i) {
       std::uint32_t at = out.off[i];
       for (std::uint32_t k = wide.off[i]; k < wide.off[i + 1]; ++k) {
         const std::uint32_t j = wide.nb[k];
@@ -116,21 +129,24 @@ inline void return_near_springs(const NearRows& near, std::span<double> hx, std:
 // Whether some particle (owned or ghost) has moved more than 0.45 s since the filter (0.45, not
 // 0.5: a margin for the rounding of the separations, which the filter and the contact law
 // compute with the minimum image). A periodic wrap counts as a long move (a new filter).
-inline bool near_rows_expired(const NearRows& near, const Columns& c) {
+// Blocks of particles through for_blocks, a flag each.
+template <class ForBlocks = SerialBlocks>
+bool near_rows_expired(NearRows& near, const Columns& c, ForBlocks&& for_blocks = {}) {
   const double limit = 0.45 * near.skin;
   const double l2 = limit * limit;
   const std::size_t n = near.x_ref.size();
-  return tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, n, 4096), false,
-      [&](const tbb::blocked_range<std::size_t>& b, bool moved) {
-        for (std::size_t i = b.begin(); i < b.end() && !moved; ++i) {
-          const double dx = c.x[i] - near.x_ref[i], dy = c.y[i] - near.y_ref[i],
-                       dz = c.z[i] - near.z_ref[i];
-          moved = dx * dx + dy * dy + dz * dz > l2;
-        }
-        return moved;
-      },
-      [](bool a, bool b) { return a || b; });
+  near.moved.assign(detail::blocks_of(n, detail::kExpiryBlock), 0);
+  for_blocks(near.moved.size(), [&](std::size_t b) {
+    const std::size_t i1 = std::min(n, (b + 1) * detail::kExpiryBlock);
+    bool moved = false;
+    for (std::size_t i = b * detail::kExpiryBlock; i < i1 && !moved; ++i) {
+      const double dx = c.x[i] - near.x_ref[i], dy = c.y[i] - near.y_ref[i],
+                   dz = c.z[i] - near.z_ref[i];
+      moved = dx * dx + dy * dy + dz * dz > l2;
+    }
+    near.moved[b] = moved ? 1 : 0;
+  });
+  return std::find(near.moved.begin(), near.moved.end(), 1) != near.moved.end();
 }
 
 } // namespace cfddem::dem::islands

@@ -457,7 +457,7 @@ void OrbScheme::global_stream() {
   // store. In the cell order they are found in, every block read particles from all over it,
   // and on two threads each pair took about 1.5x the CPU time of one thread's (the 1e5 bed).
   const std::size_t np = pairs_.ca.size();
-  std::vector<std::uint32_t>& start = global_.count;
+  std::vector<std::uint32_t>& start = global_.first;
   start.assign(p_.size() + 1, 0);
   for (std::size_t q = 0; q < np; ++q)
     ++start[std::min(pairs_.ca[q], pairs_.cb[q]) + 1];

@@ -267,9 +267,10 @@ private:
   // scheme's pair pass (stale after a build or a re-sort), those whose raw separation stays the
   // minimum image (head) and those across a periodic face (tail), their contacts per block, and
   // the particles that can reach a wall before the next build; `on`: this sub-iteration is global.
-  // a, b: the candidate pairs ordered by their lower particle index (the streams' order).
+  // a, b: the candidate pairs ordered by their lower particle index (the streams' order);
+  // first: the counting sort's offsets per particle.
   struct Global {
-    std::vector<std::uint32_t> a, b, count;
+    std::vector<std::uint32_t> a, b, first;
     PairStream head, tail;
     std::vector<PairContacts> head_blocks, tail_blocks;
     std::size_t nh = 0, nt = 0;

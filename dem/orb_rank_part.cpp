@@ -85,9 +85,10 @@ std::int64_t OrbScheme::rank_locate(bool regridding, std::string& message, std::
 
 // One round of messages: every owned particle to the rank of its leaf (rank_->dest), and a ghost
 // copy of it, UNSHIFTED, to every other rank with a leaf within the cutoff (periodic images
-// included), each with its half step, cost, leaf and speed bound. Then the owned particles in
-// (leaf, id) order, the leaves' ranges, and the owned particles' rows and proximity flags from a
-// cell list over owned + ghosts.
+// included), each with its half step, cost, leaf and speed bound (where the global mode may be
+// taken: the migration, then the same ghosts from their owners, in two rounds). Then the owned
+// particles in (leaf, id) order, the leaves' ranges, and the owned particles' rows and proximity
+// flags from a cell list over owned + ghosts.
 void OrbScheme::rank_exchange_and_rows() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   p_.resize(owned_);
@@ -107,75 +108,28 @@ void OrbScheme::rank_exchange_and_rows() {
     arrived =
         route_history(held, p_, owned_, rank_->dest, rank_->exchange, rank_->comm.rank(), moved);
   }
-  const double prox = cfg_.prox;
   if (cfg_.time_to_contact)
     time_to_contact_speeds();
   else
     speed_.assign(owned_, 0.0);
-  // Every distance a test below compares: contact candidates, the proximity or reach test.
-  double cutoff = 2.0 * cfg_.r_max + skin_;
-  cutoff = std::max(cutoff, cfg_.time_to_contact ? 2.0 * cfg_.r_max + 2.0 * reach_
-                                                 : 2.0 * prox * cfg_.r_max);
-  for (int a = 0; a < 3; ++a)
-    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
-      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
-                                 "distributed orb scheme's cutoff {:.4g} m (contact, proximity "
-                                 "or reach): enlarge the domain or run on one rank",
-                                 a, geom_.length[a], cutoff));
+  const double cutoff = rank_cutoff();
+  // The global mode refreshes the ghosts along a forward plan, which only build_ghosts() makes:
+  // where it may be taken, the particles migrate first and the ghosts follow from their owners
+  // (two rounds of messages; the same ghosts, and rows ordered by id do not depend on theirs).
+  const bool plan = cfg_.global && model_.dt < cfg_.dt_sp;
   {
-    const partition::OrbTree& tree = decomp_.tree;
-    const auto leaves = tree.leaves();
-    std::vector<ParticleExchange::Copy> copies;
-    std::vector<int> ranks;
-    // Per leaf holding a particle here, the (leaf, periodic image) pairs of other ranks than its
-    // owner within the cutoff of its box: a particle's halo lies inside its leaf's, and it goes
-    // to the leaf's owner, so only those can need its ghost. Most leaves have none.
-    rank_->near_leaves.resize(leaves.size());
-    rank_->near_known.assign(leaves.size(), 0);
-    auto candidates = [&](std::uint32_t l) -> const std::vector<partition::LeafImage>& {
-      if (!rank_->near_known[l]) {
-        rank_->near_known[l] = 1;
-        rank_->near_leaves[l].clear();
-        partition::Aabb q = leaves[l].box;
-        for (int a = 0; a < 3; ++a)
-          q.lo[a] -= cutoff, q.hi[a] += cutoff;
-        for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic))
-          if (decomp_.owner[static_cast<std::size_t>(li.leaf)] != decomp_.owner[l])
-            rank_->near_leaves[l].push_back(li);
-      }
-      return rank_->near_leaves[l];
-    };
-    for (std::size_t i = 0; i < owned_; ++i) {
-      const std::vector<partition::LeafImage>& cand = candidates(leaves_.of[i]);
-      if (cand.empty())
-        continue;
-      const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2)};
-      ranks.clear();
-      for (const partition::LeafImage& li : cand) {
-        const int r = decomp_.owner[static_cast<std::size_t>(li.leaf)];
-        if (r == rank_->dest[i] || std::find(ranks.begin(), ranks.end(), r) != ranks.end())
-          continue;
-        // Closed overlap of the particle's halo, seen through the image, with the leaf's box
-        // (OrbTree's test: conservative, a ghost too many costs only its copy).
-        const partition::Aabb& b = leaves[static_cast<std::size_t>(li.leaf)].box;
-        bool touch = true;
-        for (int a = 0; a < 3; ++a) {
-          const double s = static_cast<double>(li.shift[a]) * geom_.length[a];
-          touch = touch && w[a] - cutoff + s <= b.hi[a] && w[a] + cutoff + s >= b.lo[a];
-        }
-        if (touch)
-          ranks.push_back(r);
-      }
-      for (const int r : ranks)
-        copies.push_back({r, static_cast<std::uint32_t>(i), {}});
-    }
     std::vector<double> leaf(owned_);
     for (std::size_t i = 0; i < owned_; ++i)
       leaf[i] = static_cast<double>(leaves_.of[i]);
     std::vector<std::vector<double>*> extra{&hprev_, &cost_, &leaf, &speed_};
     if (rank_->ext_on)
       extra.insert(extra.end(), {&ext_.x, &ext_.y, &ext_.z});
-    owned_ = rank_->exchange.redistribute(p_, rank_->dest, std::move(copies), extra);
+    if (plan) {
+      rank_->exchange.migrate(p_, rank_->dest, extra);
+      owned_ = p_.size();
+    } else {
+      owned_ = rank_->exchange.redistribute(p_, rank_->dest, rank_halo_copies(cutoff), extra);
+    }
     if (rank_->ext_on)
       ext_.x.resize(owned_), ext_.y.resize(owned_), ext_.z.resize(owned_);
     hprev_.resize(owned_), cost_.resize(owned_);
@@ -221,6 +175,97 @@ void OrbScheme::rank_exchange_and_rows() {
     }
   if (!leaves_.id.empty())
     leaves_.range.push_back(static_cast<std::uint32_t>(owned_));
+  if (plan) {
+    rank_->dest.assign(owned_, rank_->comm.rank());
+    rank_->exchange.build_ghosts(p_, owned_, rank_halo_copies(cutoff));
+    speed_.resize(p_.size(), 0.0);
+    if (cfg_.time_to_contact) {
+      std::vector<double>* col[] = {&speed_};
+      rank_->exchange.forward_columns(col);
+    }
+  }
+  rank_rows(cutoff);
+  if (model_.friction) {
+    attach_history(std::move(arrived), p_.id, rank_->rows.off(), rank_->rows.nb(), owned_, hist_.hx,
+                   hist_.hy, hist_.hz);
+    hist_.ids = p_.id;
+  }
+}
+
+// Every distance a test of the R-rank rows compares: contact candidates, the proximity or reach
+// test (at most half of a periodic length).
+double OrbScheme::rank_cutoff() const {
+  double cutoff = 2.0 * cfg_.r_max + skin_;
+  cutoff = std::max(cutoff, cfg_.time_to_contact ? 2.0 * cfg_.r_max + 2.0 * reach_
+                                                 : 2.0 * cfg_.prox * cfg_.r_max);
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
+      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                                 "distributed orb scheme's cutoff {:.4g} m (contact, proximity "
+                                 "or reach): enlarge the domain or run on one rank",
+                                 a, geom_.length[a], cutoff));
+  return cutoff;
+}
+
+// The ghost copies of the owned particles: each UNSHIFTED to every rank other than its
+// destination (rank_->dest) with a leaf within `cutoff` of it (periodic images included).
+std::vector<ParticleExchange::Copy> OrbScheme::rank_halo_copies(double cutoff) {
+  std::vector<ParticleExchange::Copy> copies;
+  {
+    const partition::OrbTree& tree = decomp_.tree;
+    const auto leaves = tree.leaves();
+    std::vector<int> ranks;
+    // Per leaf holding a particle here, the (leaf, periodic image) pairs of other ranks than its
+    // owner within the cutoff of its box: a particle's halo lies inside its leaf's, and it goes
+    // to the leaf's owner, so only those can need its ghost. Most leaves have none.
+    rank_->near_leaves.resize(leaves.size());
+    rank_->near_known.assign(leaves.size(), 0);
+    auto candidates = [&](std::uint32_t l) -> const std::vector<partition::LeafImage>& {
+      if (!rank_->near_known[l]) {
+        rank_->near_known[l] = 1;
+        rank_->near_leaves[l].clear();
+        partition::Aabb q = leaves[l].box;
+        for (int a = 0; a < 3; ++a)
+          q.lo[a] -= cutoff, q.hi[a] += cutoff;
+        for (const partition::LeafImage& li : tree.leaf_images_overlapping(q, geom_.periodic))
+          if (decomp_.owner[static_cast<std::size_t>(li.leaf)] != decomp_.owner[l])
+            rank_->near_leaves[l].push_back(li);
+      }
+      return rank_->near_leaves[l];
+    };
+    for (std::size_t i = 0; i < owned_; ++i) {
+      const std::vector<partition::LeafImage>& cand = candidates(leaves_.of[i]);
+      if (cand.empty())
+        continue;
+      const double w[3] = {geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2)};
+      ranks.clear();
+      for (const partition::LeafImage& li : cand) {
+        const int r = decomp_.owner[static_cast<std::size_t>(li.leaf)];
+        if (r == rank_->dest[i] || std::find(ranks.begin(), ranks.end(), r) != ranks.end())
+          continue;
+        // Closed overlap of the particle's halo, seen through the image, with the leaf's box
+        // (OrbTree's test: conservative, a ghost too many costs only its copy).
+        const partition::Aabb& b = leaves[static_cast<std::size_t>(li.leaf)].box;
+        bool touch = true;
+        for (int a = 0; a < 3; ++a) {
+          const double s = static_cast<double>(li.shift[a]) * geom_.length[a];
+          touch = touch && w[a] - cutoff + s <= b.hi[a] && w[a] + cutoff + s >= b.lo[a];
+        }
+        if (touch)
+          ranks.push_back(r);
+      }
+      for (const int r : ranks)
+        copies.push_back({r, static_cast<std::uint32_t>(i), {}});
+    }
+  }
+  return copies;
+}
+
+// The rows of the owned particles over owned + ghosts (with their proximity flags), cleared
+// forces, the own-leaf entries before each owned particle (the batches' force evaluations) and
+// the walls as partners.
+void OrbScheme::rank_rows(double cutoff) {
+  const std::size_t n = p_.size();
   rank_->rows.build({geom_,
                      {p_.x.data(), n},
                      {p_.y.data(), n},
@@ -232,7 +277,7 @@ void OrbScheme::rank_exchange_and_rows() {
                      owned_,
                      cutoff,
                      skin_,
-                     prox,
+                     cfg_.prox,
                      cfg_.dt_sp,
                      cfg_.time_to_contact});
   // Only particles with a row get their contact force rewritten at each step: clear the rest.
@@ -243,18 +288,27 @@ void OrbScheme::rank_exchange_and_rows() {
     std::fill(p_.tx.begin(), p_.tx.end(), 0.0);
     std::fill(p_.ty.begin(), p_.ty.end(), 0.0);
     std::fill(p_.tz.begin(), p_.tz.end(), 0.0);
-    attach_history(std::move(arrived), p_.id, rank_->rows.off(), rank_->rows.nb(), owned_, hist_.hx,
-                   hist_.hy, hist_.hz);
-    hist_.ids = p_.id;
   }
-  // The own-leaf entries before each owned particle (the batches' force evaluations), and the
-  // walls as partners.
   const auto off = rank_->rows.off(), mid = rank_->rows.mid();
   rows_.own_before.resize(owned_ + 1);
   rows_.own_before[0] = 0;
   for (std::size_t i = 0; i < owned_; ++i)
     rows_.own_before[i + 1] = rows_.own_before[i] + (mid[i] - off[i]);
   mark_walls(rank_->rows.near());
+}
+
+// The global mode over R ranks (OrbScheme::kGlobalFraction): the fine particles of every rank's
+// leaves (rows' proximity flags at the build) against all particles, one reduction, so that
+// every rank takes the choice one rank takes.
+bool OrbScheme::rank_choose_global() {
+  mark_fine_leaves(rank_->rows.near());
+  if (!cfg_.global || !(model_.dt < cfg_.dt_sp))
+    return false;
+  std::array<std::int64_t, 2> c{0, static_cast<std::int64_t>(owned_)};
+  for (std::size_t k = 0; k < leaves_.fine.size(); ++k)
+    c[0] += leaves_.fine[k] ? leaves_.range[k + 1] - leaves_.range[k] : 0;
+  rank_->comm.sum(c);
+  return static_cast<double>(c[0]) > kGlobalFraction * static_cast<double>(c[1]);
 }
 
 } // namespace cfddem::dem

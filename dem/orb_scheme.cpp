@@ -70,7 +70,7 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepMod
   cfg_.prox = 0.5 * scene.dem.proximity_radii;
   cfg_.cost_weights = scene.partition.weights == "cost";
   cfg_.time_to_contact = scene.dem.local_dt == "time_to_contact";
-  cfg_.global = scene.dem.orb_global && !rank_ && !model_.friction;
+  cfg_.global = scene.dem.orb_global && !model_.friction;
   skin_ = model_.skin;
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).
@@ -150,6 +150,7 @@ void OrbScheme::mark_walls(std::span<unsigned char> near) const {
 bool OrbScheme::build_rows(bool force) {
   if (rank_) {
     rank_exchange_and_rows();
+    global_.on = rank_choose_global();
     return true;
   }
   bool fresh = false;
@@ -228,8 +229,6 @@ void OrbScheme::mark_fine_leaves(std::span<const unsigned char> near) {
 // other-leaf entries one: see pair_evaluations()), and with `record` the state at t.
 void OrbScheme::plan(bool record) {
   const std::size_t n = owned_;
-  if (rank_) // one rank: build_rows marked them (choose_global)
-    mark_fine_leaves(rank_->rows.near());
   const FineSteps steps = fine_steps(cfg_.dt_sp, model_.dt);
   batches_.clear();
   if (global_.on) {
@@ -567,9 +566,133 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
   find_batch_fault<Column>(bt, p);
 }
 
+// R ranks: the rows' pairs as the pair pass's streams, each pair once (of two owned particles
+// the lower index's entry, with a ghost the owned one's: a pair across ranks is evaluated on
+// both, each rank keeping its own particle's force), ordered by their lower index as the rows
+// are; the pairs counted once over the ranks (with a ghost, on the rank of the lower id); the
+// owned particles near a wall. Rows and ghosts hold for the sub-iteration while no particle
+// moves skin/2 from here, so the raw separations split into head and tail as one rank's.
+void OrbScheme::rank_global_stream() {
+  const DomainGeometry& g = geom_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  double lim[3];
+  for (int a = 0; a < 3; ++a)
+    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
+  const auto off = rank_->rows.off();
+  const auto nb = rank_->rows.nb();
+  global_.a.clear(), global_.b.clear();
+  global_.once = 0;
+  for (std::uint32_t i = 0; i < owned_; ++i)
+    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+      const std::uint32_t j = nb[k];
+      if (j < owned_ && j <= i)
+        continue;
+      global_.a.push_back(i), global_.b.push_back(j);
+      global_.once += j < owned_ || p_.id[i] < p_.id[j];
+    }
+  const auto raw = [&](std::size_t q) {
+    const std::uint32_t i = global_.a[q], j = global_.b[q];
+    return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
+           std::abs(z[j] - z[i]) <= lim[2];
+  };
+  global_.head.build(global_.a, global_.b, raw, 2 * kPairBlock);
+  global_.tail.build(global_.a, global_.b, [&](std::size_t q) { return !raw(q); },
+                     2 * kPairBlock);
+  if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
+    near_walls(p_, owned_, {frozen_.x, frozen_.y, frozen_.z}, geom_, skin_, global_.near_wall);
+  else
+    global_.near_wall.clear();
+  global_.nh = global_.nt = 0;
+  global_.stale = true; // one rank's streams are another's
+}
+
+void OrbScheme::run_global_ranks(Batch& bt, bool record) {
+  with_flags([&](auto ext, auto col) { run_global_ranks_impl<ext, col>(bt, record); },
+             ext_.active(), geom_.cylinder);
+}
+
+// The global mode's K fine steps on R ranks: one rank's passes over the rows' pairs
+// (rank_global_stream), the ghosts' x and v from their owners before every step but the first.
+// A particle that moved more than skin/2 from the start with steps still to take sets outran:
+// this rank computes no more, but takes part in every refresh, and every rank redoes the
+// sub-iteration (subiterate's reduction).
+template <bool External, bool Column>
+void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
+  bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
+  const std::size_t n = owned_;
+  const LeafLive p = live(External);
+  rank_global_stream();
+  OverlapTally tally;
+  LeafStep st;
+  st.K = bt.K;
+  st.half_skin2 = 0.25 * skin_ * skin_;
+  constexpr std::size_t kBlock = 4096;
+  const std::size_t nblocks = (n + kBlock - 1) / kBlock;
+  std::vector<std::uint64_t>& still_of = global_.still;
+  still_of.assign(nblocks, ~std::uint64_t{0});
+  const LeafFrozen ref{frozen_.x, frozen_.y, frozen_.z, {}, {}, {}};
+  for (std::int64_t k = 0; k < bt.K; ++k) {
+    st.k = k;
+    st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
+    if (k > 0) {
+      rank_->exchange.forward(p_);
+      if (bt.outran)
+        continue;
+      clear_contact_forces<false>(
+          p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
+      clear_contact_forces<false>(
+          p_, std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+      clear_forces<false>(p_, global_.near_wall);
+    }
+    StepReport rep;
+    global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
+                                               st.hk, global_.head_blocks, rep);
+    global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
+                                              st.hk, global_.tail_blocks, rep);
+    scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
+                            std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+    tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
+    tally.violations += rep.overlaps;
+    add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
+    bt.evals += global_.once;
+    if (record && k == 0)
+      synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
+                                        rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
+    auto kick_drift = [&](std::size_t q) {
+      std::uint64_t still = ~std::uint64_t{0};
+      leaf_kick_drift<External>(static_cast<std::uint32_t>(q * kBlock),
+                                static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock)), p,
+                                ref, st, model_.gravity, still);
+      still_of[q] = still;
+    };
+    if (nblocks <= 2) {
+      for (std::size_t q = 0; q < nblocks; ++q)
+        kick_drift(q);
+    } else {
+      tbb::parallel_for(std::size_t{0}, nblocks, kick_drift);
+    }
+    st.h_before = st.hk;
+    std::uint64_t still = ~std::uint64_t{0};
+    for (const std::uint64_t b : still_of)
+      still &= b;
+    if (k + 1 < bt.K && !(still >> 63))
+      bt.outran = true; // the rows may miss a pair from the next step on
+  }
+  bt.max_ratio = tally.max_ratio;
+  bt.violations = tally.violations;
+  if (!bt.outran)
+    find_batch_fault<Column>(bt, p);
+}
+
 // One try at the sub-iteration with the current rows (one TBB task per batch); true if some
 // batch outran its rows.
 bool OrbScheme::attempt(bool record) {
+  if (global_.on && rank_) {
+    run_global_ranks(batches_.front(), record);
+    return batches_.front().outran && batches_.front().fault == Fault::none;
+  }
   if (global_.on) {
     run_global(batches_.front(), record);
     return false; // the global steps rebuild their pairs as they go: nothing to redo
@@ -631,7 +754,9 @@ void OrbScheme::subiterate(bool record) {
   std::int64_t local_steps = 0, local_evals = 0;
   while (true) {
     PhaseTimer::Scope t(timer_, Phase::force);
-    if (!global_.on) // the global steps have no frozen partners and never roll back
+    // One rank's global steps have no frozen partners and never roll back; on R ranks they are
+    // redone when a particle outruns the rows (the state at the start is the rollback point).
+    if (!global_.on || rank_)
       freeze();
     plan(record);
     c = {};

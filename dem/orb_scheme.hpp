@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "core/communicator.hpp"
+#include "core/particle_exchange.hpp"
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
@@ -99,7 +100,7 @@ public:
   std::int64_t retries() const { return stats_.retries; }
   // Sub-iterations run in the global mode (kGlobalFraction).
   std::int64_t global_subiterations() const { return stats_.global_subits; }
-  // The global mode (one rank, no friction, dem.orb_global): a sub-iteration at whose start the
+  // The global mode (no friction, dem.orb_global): a sub-iteration at whose start the
   // leaves that would take the fine step hold more than this fraction of the particles runs as
   // global steps: every particle takes the K fine steps together through the explicit scheme's
   // pair pass and scatter over the candidate pairs (each pair once, every partner live: no
@@ -116,7 +117,12 @@ public:
   // 0.71 and 0.75 the leaf steps cost at most 5% more than the global ones), and where the two
   // cost about the same the global mode is the more accurate (no frozen partners). Below it (a
   // bed whose leaves differ, a settling or wall-bounded flow) the sub-iteration is the paper's
-  // leaf steps, bit for bit.
+  // leaf steps, bit for bit. On R ranks every rank takes the choice one rank takes (the fine
+  // particles summed over the ranks); the global steps there run over the rank's rows (each
+  // owned pair once, a pair with a ghost on both its ranks, the ghosts' x and v refreshed before
+  // every step) and agree with one rank's to round-off (the sums run in another order); a
+  // particle that moves more than skin/2 redoes the sub-iteration with twice the skin, as a
+  // fine leaf that outruns its rows.
   static constexpr double kGlobalFraction = 0.75;
   double skin() const { return skin_; }
   // On R ranks: over all ranks as of the last recorded sub-iteration (subiterate(true)).
@@ -263,7 +269,7 @@ private:
     std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
   };
 
-  // The global mode's state (one rank): the candidate contact pairs as streams for the explicit
+  // The global mode's state: the candidate contact pairs (R ranks: the rows' pairs) as streams for the explicit
   // scheme's pair pass (stale after a build or a re-sort), those whose raw separation stays the
   // minimum image (head) and those across a periodic face (tail), their contacts per block, and
   // the particles that can reach a wall before the next build; `on`: this sub-iteration is global.
@@ -276,6 +282,7 @@ private:
     std::size_t nh = 0, nt = 0;
     std::vector<std::uint32_t> near_wall;
     std::vector<std::uint64_t> still; // per block of the update: sign bit set while within skin/2
+    std::int64_t once = 0; // R ranks: the pairs counted per step (a pair with a ghost on one rank)
     bool stale = true, on = false;
   };
 
@@ -318,6 +325,13 @@ private:
   void rank_regrid();
   std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);
   void rank_exchange_and_rows();
+  double rank_cutoff() const;
+  std::vector<ParticleExchange::Copy> rank_halo_copies(double cutoff);
+  void rank_rows(double cutoff);
+  bool rank_choose_global();
+  void rank_global_stream();
+  void run_global_ranks(Batch& b, bool record);
+  template <bool External, bool Column> void run_global_ranks_impl(Batch& b, bool record);
 
   const Scene& scene_;
   ParticleStore& p_;

@@ -8,8 +8,8 @@
 #include <gtest/gtest.h>
 
 #include <array>
-#include <cstdio>
 #include <cmath>
+#include <cstdio>
 #include <functional>
 #include <map>
 #include <random>
@@ -354,8 +354,8 @@ TEST(DistributedOrb, GlobalModeMatchesOneRankToRoundOff) {
 TEST(DistributedOrb, GlobalModeRetriesWithTwiceTheSkinAndMatchesOneRank) {
   // dt_sp = 50 us: a particle outruns the rows within a global sub-iteration; every rank redoes
   // it with twice the skin, where one rank rebuilds its pairs in the middle.
-  const Scene scene = scene_from(
-      kGas, {"dem.regrid_interval=2.0e-4", "dem.nsubit=4", "particles.temperature=0.1"});
+  const Scene scene =
+      scene_from(kGas, {"dem.regrid_interval=2.0e-4", "dem.nsubit=4", "particles.temperature=0.1"});
   const auto [one, one_global] = one_rank_global(scene, kSubits);
   const DistributedRun d = distributed_orb(scene, kSubits, 1, false, true);
   if (Communicator::world().size() > 1) { // one rank's global steps rebuild instead of redoing

@@ -63,9 +63,16 @@ Network defaults (--network):
        raw, ~1 us switch-to-switch latency; NVIDIA ConnectX-6 product brief, with MPI overhead)
 A node holds --cores-per-node cores (default 64): jobs within one node use shm, larger ones ib.
 
+Cores that differ (--check): the run's rank r is priced with the r-th of several --calibration
+runs, each a 1-rank run pinned to the core that rank was bound to (`taskset -c r` against
+`mpirun --bind-to core`). The shared 2-core VM of docs/performance.md had one core 21% slower
+than the other for a while (the same 1e5 riser step 0.787 s on core 0, 0.955 s on core 1, twice
+each), and a bulk-synchronous run goes at its slowest rank's pace.
+
 Usage:
   tools/scaling_model.py --run-dir runs/riser_r8 --calibration runs/riser_r1 --cores 16 256 4096
   tools/scaling_model.py --run-dir runs/riser_r2 --calibration runs/riser_r1 --check
+  tools/scaling_model.py --run-dir runs/riser_r2 --calibration runs/r1_core0 runs/r1_core1 --check
   tools/scaling_model.py --run-dir runs/riser_r{2,4,8,16,32,64} --counts
 prints CSV lines `cores,efficiency,limiting_term` after a header (--detail adds the rank count
 extrapolated from and each term's seconds; --check: the model's time for each run's rank count
@@ -177,9 +184,10 @@ def orb_search_nodes(ranks, levels):
     return halvings + 2 ** top - 1
 
 
-def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
+def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER, rank_cals=None):
     """Model time per fluid step (per run without a gas) and its terms at `cores` ranks, from
-    `run`'s counts at R ranks."""
+    `run`'s counts at R ranks. `rank_cals` (the check of a run on cores that differ): a
+    calibration per core, rank r's compute priced with rank_cals[r % len(rank_cals)]."""
     if run.get("rank_counts") is None:
         sys.exit("scaling_model.py: the run has no rank_counts (an R-rank run of cfddem is needed)")
     n = fluid_steps(run)
@@ -192,8 +200,14 @@ def predict(run, cal, cores, weak, net, per_node, t_iter=T_ITER):
     # step): the iterations above the calibration's cost t_iter per cell each.
     extra_it = max(0.0, run.get("projection_iterations", 0) / n - cal[5])
     substeps = max(run.get("gas_substeps", 0) / n, 1.0)
-    comp = [rc["particle_steps"][r] * t_ps + rc["force_evaluations"][r] * t_fe +
-            rc["cell_updates"][r] * t_cell for r in range(R)]
+    def unit_costs(r):
+        return rank_cals[r % len(rank_cals)][:3] if rank_cals else (t_ps, t_fe, t_cell)
+
+    comp = []
+    for r in range(R):
+        c_ps, c_fe, c_cell = unit_costs(r)
+        comp.append(rc["particle_steps"][r] * c_ps + rc["force_evaluations"][r] * c_fe +
+                    rc["cell_updates"][r] * c_cell)
     solve = max(rc["cell_updates"]) / substeps * extra_it * t_iter
     alpha, beta = network(cores, net, per_node)
     halo = [rc["p2p_messages"][r] * alpha + rc["p2p_bytes"][r] / beta for r in range(R)]
@@ -367,8 +381,10 @@ def main():
     ap.add_argument("--run-dir", required=True, nargs="+",
                     help="R-rank runs of one scene (run.json with rank_counts); several: each "
                          "core count extrapolates from the largest R not above it")
-    ap.add_argument("--calibration", help="a 1-rank, 1-thread run of the same scheme "
-                                          "(per-core speed); not needed with --counts")
+    ap.add_argument("--calibration", nargs="+",
+                    help="a 1-rank, 1-thread run of the same scheme (per-core speed); not "
+                         "needed with --counts. Several (--check only): one per core the "
+                         "checked ranks ran on, rank r priced by the r-th (cores that differ)")
     ap.add_argument("--cores", type=int, nargs="+", default=[16, 256, 4096])
     ap.add_argument("--weak", action="store_true", help="weak scaling (work per rank held)")
     ap.add_argument("--network", choices=["auto", "shm", "ib"], default="auto")
@@ -396,16 +412,21 @@ def main():
         return
     if not a.calibration:
         sys.exit("scaling_model.py: --calibration is required (except with --counts)")
-    cal = calibrate(load(a.calibration))
+    cals = [calibrate(load(c)) for c in a.calibration]
+    cal = cals[0]
+    if len(cals) > 1 and not a.check:
+        sys.exit("scaling_model.py: several --calibration runs are for --check (one per core "
+                 "of the checked run); a prediction takes one")
     for d, r in zip(a.run_dir, runs):
-        check_scheme(r, cal, d)
+        for c in cals:
+            check_scheme(r, c, d)
     if a.check:
         print("ranks,model_seconds_per_fluid_step,measured_seconds_per_fluid_step,"
               "relative_error,limiting_term")
         for run in runs:
             R = ranks_of(run)
             total, _, lim, _ = predict(run, cal, R, True, a.network, a.cores_per_node,
-                                       a.iteration_ns * 1e-9)
+                                       a.iteration_ns * 1e-9, cals if len(cals) > 1 else None)
             meas = run["loop_seconds"] / fluid_steps(run)
             print(f"{R},{total:.6g},{meas:.6g},{(total - meas) / meas:.4g},{lim}")
         return

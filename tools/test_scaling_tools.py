@@ -380,6 +380,20 @@ class ScalingModel(unittest.TestCase):
         _, _, _, t = scaling_model.predict(run, cal, 2, True, "shm", 64, t_iter=1e-8)
         self.assertEqual(t["pressure iterations"], 0.0)
 
+    def test_a_calibration_per_core_prices_each_rank_on_its_own_core(self):
+        # Balanced work on two cores, the second 1.25x slower: the ranks wait for it.
+        run, fast = self.runs(2)
+        slow_cal = {"ranks": 1, "threads": 1, "particle_steps": 2000, "force_evaluations": 1000,
+                    "phase_seconds": {"neighbor": 0.0, "integrate": 1.25e-7 * 2000,
+                                      "force": 1.25 * 2e-7 * 1000, "fluid": 0.0}}
+        slow = scaling_model.calibrate(slow_cal)
+        t_one, _, _, _ = scaling_model.predict(run, fast, 2, True, "shm", 64)
+        t_two, _, lim, terms = scaling_model.predict(run, fast, 2, True, "shm", 64,
+                                                     rank_cals=[fast, slow])
+        self.assertAlmostEqual(t_two / t_one, 1.25, places=12)
+        self.assertEqual(lim, "load imbalance")  # the slow core's share above the mean
+        self.assertAlmostEqual(terms["load imbalance"], t_two - 0.5 * (t_one + t_two), places=15)
+
     def test_calibration_must_be_one_rank_one_thread(self):
         with self.assertRaises(SystemExit):
             scaling_model.calibrate({"ranks": 2, "threads": 1, "phase_seconds": {}})

@@ -365,6 +365,20 @@ TEST(DistributedOrb, GlobalModeRetriesWithTwiceTheSkinAndMatchesOneRank) {
   expect_close(scene, one, d.owned, kPos, kVel, "dense gas, global mode, retries");
 }
 
+TEST(DistributedOrb, GlobalModeWithWallsGravityAndTimeToContactMatchesOneRank) {
+  // Walls on every side (near_walls from the rows' start), gravity, and with time_to_contact the
+  // ghosts' speed bounds forwarded after the two-round exchange (the box's small leaves all touch
+  // a wall or a partner: its sub-iterations are global on one rank and on R ranks alike).
+  for (const char* rule : {"proximity", "time_to_contact"}) {
+    const Scene scene = scene_from(kWalls, {std::string("dem.local_dt=\"") + rule + "\""});
+    const auto [one, one_global] = one_rank_global(scene, kSubits);
+    const DistributedRun d = distributed_orb(scene, kSubits, 1, false, true);
+    EXPECT_GT(one_global, 0) << rule;
+    EXPECT_EQ(d.global_subits, one_global) << rule;
+    expect_close(scene, one, d.owned, kPos, kVel, std::string("walls, global mode, ") + rule);
+  }
+}
+
 TEST(DistributedOrb, GlobalModeIsBitwiseTheSameOnAnyThreadCount) {
   const Scene scene = scene_from(kGas);
   const DistributedRun a = distributed_orb(scene, kSubits, 1, false, true);

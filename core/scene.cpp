@@ -307,6 +307,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
   d.proximity_radii = k.number("dem.proximity_radii");
   d.local_dt = k.word("dem.local_dt");
   d.orb_global = k.flag("dem.orb_global");
+  d.orb_global_min_per_rank = k.integer("dem.orb_global_min_per_rank");
   d.regrid_interval = k.number("dem.regrid_interval");
   s.partition.orb_levels = static_cast<int>(k.integer("partition.orb_levels"));
   s.partition.weights = k.word("partition.weights");
@@ -571,6 +572,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
   o.emplace_back("dem.proximity_radii", num(d.proximity_radii));
   o.emplace_back("dem.local_dt", str(d.local_dt));
   o.emplace_back("dem.orb_global", d.orb_global ? "true" : "false");
+  o.emplace_back("dem.orb_global_min_per_rank", std::to_string(d.orb_global_min_per_rank));
   o.emplace_back("dem.regrid_interval", num(d.regrid_interval));
   o.emplace_back("partition.orb_levels", std::to_string(s.partition.orb_levels));
   o.emplace_back("partition.weights", str(s.partition.weights));

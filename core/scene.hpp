@@ -95,6 +95,8 @@ struct DemSpec {
   std::string local_dt = "proximity";
   // orb: global sub-iterations where nearly every leaf steps finely (one rank, no friction).
   bool orb_global = true;
+  // orb on R ranks: the global mode only with at least this many particles per rank.
+  std::int64_t orb_global_min_per_rank = 10000;
   double regrid_interval = 1e-4; // dt_f [s]: ORB rebuilt this often; dt_sp = this / nsubit
   // orb and islands advance in sub-iterations of a control interval (dem.nsubit per interval).
   bool subiterated() const { return scheme == "orb" || scheme == "islands"; }

@@ -493,11 +493,22 @@ std::vector<SceneKey> make_table() {
        .type = T::Bool,
        .section = S::Contacts,
        .fallback = flag(true),
-       .meaning = "orb, one rank, no friction: a sub-iteration in which the leaves that would "
-                  "step finely hold more than 3/4 of the particles runs as global steps (every "
-                  "particle on the fine step through the explicit scheme's passes, no frozen "
-                  "partners; docs/schemes.md); false: always the paper's leaf steps, which R "
-                  "ranks take"},
+       .meaning = "orb, no friction: a sub-iteration in which the leaves that would step "
+                  "finely hold more than 3/4 of the particles (over all ranks) runs as global "
+                  "steps (every particle on the fine step through the explicit scheme's passes, "
+                  "no frozen partners; docs/schemes.md; on R ranks also "
+                  "`dem.orb_global_min_per_rank`); false: always the paper's leaf steps (bit for "
+                  "bit the same on any rank count)"},
+      {.name = "dem.orb_global_min_per_rank",
+       .type = T::Integer,
+       .section = S::Contacts,
+       .range = at_least(0),
+       .fallback = integer(10000),
+       .meaning = "orb on R > 1 ranks: the global mode also needs at least this many particles "
+                  "per rank (the total over R): its ghosts are refreshed before every fine "
+                  "step, a wait between the ranks that the leaf steps take once per "
+                  "sub-iteration, and that only enough particles per rank repay "
+                  "(docs/schemes.md); 0: as one rank"},
       {.name = "dem.regrid_interval",
        .type = T::Number,
        .section = S::Contacts,

@@ -71,6 +71,7 @@ OrbScheme::OrbScheme(const Scene& scene, ParticleStore& particles, const StepMod
   cfg_.cost_weights = scene.partition.weights == "cost";
   cfg_.time_to_contact = scene.dem.local_dt == "time_to_contact";
   cfg_.global = scene.dem.orb_global && !model_.friction;
+  cfg_.global_min_per_rank = scene.dem.orb_global_min_per_rank;
   skin_ = model_.skin;
   // The skin may grow (after a retry) while the contact cutoff stays below half of every
   // periodic length (minimum image).

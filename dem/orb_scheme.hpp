@@ -212,6 +212,7 @@ private:
     int levels = 0;
     bool cost_weights = false, time_to_contact = false;
     bool global = false; // the global mode may be taken (kGlobalFraction)
+    std::int64_t global_min_per_rank = 0; // R ranks: dem.orb_global_min_per_rank
   };
   // The leaves this rank advances: leaf id[k] owns [range[k], range[k+1]) of the store (one
   // rank: every leaf, empty ones included, id[k] = k; R ranks: the non-empty owned ones).

@@ -162,11 +162,14 @@ std::pair<State, std::int64_t> one_rank_global(const Scene& scene, int subits) {
 // The scheme over the world communicator on `threads` TBB threads; at every sub-iteration the
 // particles over all ranks are counted and identified (count, sum of ids, sum of squared ids: none
 // lost, none twice) and their total mass compared with the initial one.
-// `global`: dem.orb_global (false: the leaf steps, which equal one rank's bit for bit).
+// `global`: dem.orb_global (false: the leaf steps, which equal one rank's bit for bit), with
+// dem.orb_global_min_per_rank = `min_per_rank` (0: the global mode on any rank count).
 DistributedRun distributed_orb(const Scene& leaf_scene, int subits, int threads,
-                               bool external = false, bool global = false) {
+                               bool external = false, bool global = false,
+                               std::int64_t min_per_rank = 0) {
   Scene scene = leaf_scene;
   scene.dem.orb_global = global;
+  scene.dem.orb_global_min_per_rank = min_per_rank;
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   const Communicator c = Communicator::world();
@@ -376,6 +379,19 @@ TEST(DistributedOrb, GlobalModeWithWallsGravityAndTimeToContactMatchesOneRank) {
     EXPECT_GT(one_global, 0) << rule;
     EXPECT_EQ(d.global_subits, one_global) << rule;
     expect_close(scene, one, d.owned, kPos, kVel, std::string("walls, global mode, ") + rule);
+  }
+}
+
+TEST(DistributedOrb, FewParticlesPerRankKeepTheLeafSteps) {
+  // 300 particles, below dem.orb_global_min_per_rank's 10^4 per rank: R ranks keep the leaf steps
+  // (bit for bit one rank's with dem.orb_global = false); one rank takes the global mode.
+  const Scene scene = scene_from(kGas);
+  const DistributedRun d = distributed_orb(scene, kSubits, 1, false, true, 10000);
+  if (Communicator::world().size() > 1) {
+    EXPECT_EQ(d.global_subits, 0);
+    expect_bitwise(one_rank_orb(scene, kSubits), d.owned, "few particles per rank");
+  } else {
+    EXPECT_GT(d.global_subits, 0);
   }
 }
 

@@ -35,6 +35,12 @@ snapshot), and the snapshots also carry each particle's leaf, equal to the 1-ran
 With gas regrids (partition.gas_regrid_interval) the gas cells move to the recut boxes and the
 routing follows them while the particles stay with their leaves: the same bound.
 
+SCHEME = orb_global: orb with its global mode allowed on R ranks too (dem.orb_global_min_per_rank
+= 0; one rank takes it anyway): the sub-iterations in which nearly every leaf steps finely (the
+riser's dilute start) are global on both sides, with the ghosts refreshed before every fine step
+on R ranks; the same columns and bounds as orb (the global steps agree to round-off), and some
+sub-iterations must be global.
+
 SCHEME = islands: dem.scheme = "islands" (dem/islands_scheme.hpp on R ranks) in the same loop,
 routed as orb. Islands are the same on any rank count, so besides the orb's exact columns the
 force evaluations agree exactly too; run.json reports how often islands spanned ranks (some
@@ -50,7 +56,12 @@ import tempfile
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCHEME = sys.argv[5] if len(sys.argv) > 5 else "explicit"
-ORB = SCHEME == "orb"
+GLOBAL = SCHEME == "orb_global"
+SCHEME_KEY = "orb" if GLOBAL else SCHEME  # dem.scheme
+ORB = SCHEME_KEY == "orb"
+# R ranks take the leaf steps only with dem.orb_global = false: so must the one-rank run they
+# must equal; orb_global allows the global mode on R ranks at any particle count.
+ORB_ARGS = ["dem.orb_global_min_per_rank=0"] if GLOBAL else ["dem.orb_global=false"]
 ISLANDS = SCHEME == "islands"
 SUB = ORB or ISLANDS  # sub-iterated: particles owned by their own decomposition, routed to the gas
 SCENE = os.path.join(SOURCE, "scenes", "riser.toml")
@@ -59,9 +70,9 @@ ARGS = ["domain.hi=[2.4e-3,4.0e-3,2.4e-3]", "particles.count=800", "particles.te
         f"fluid.cells=[{CELLS[0]},{CELLS[1]},{CELLS[2]}]", "run.end_time=2e-3",
         "output.interval=2e-4", "output.snapshot_interval=1e-3", "--threads", "1", "--quiet"]
 if SUB:
-    ARGS += [f"dem.scheme={SCHEME}", "dem.nsubit=10"]
-if SCHEME == "orb":  # R ranks take the leaf steps: so does the one-rank run they must equal
-    ARGS += ["dem.orb_global=false"]
+    ARGS += [f"dem.scheme={SCHEME_KEY}", "dem.nsubit=10"]
+if ORB:
+    ARGS += ORB_ARGS
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles", "particle_steps", "force_evaluations", "neighbor_builds"]
 SKIP = ["wall_seconds", "gas_mass_residual"]
@@ -120,7 +131,9 @@ def main():
             worst[c] = max(worst.get(c, 0.0), err)
             assert err <= 1e-9, f"{c}: {x} vs {y} at t = {r1['time']} (scaled error {err:.3g})"
     if SUB:
-        assert info["scheme"] == SCHEME, info["scheme"]
+        assert info["scheme"] == SCHEME_KEY, info["scheme"]
+    if ORB:  # the global mode ran where it was allowed, and only there
+        assert (info["global_subiterations"] > 0) == GLOBAL, info["global_subiterations"]
         away = info["gas_routing_copies_away_at_end"]
         assert len(away) == RANKS and sum(away) > 0, f"no particle was routed: {away}"
         assert info["gas_routing_seconds_per_fluid_step"] > 0, info
@@ -221,9 +234,9 @@ def settling_matches():
     args = ["run.end_time=3e-3", "output.interval=5e-4", "output.snapshot_interval=0",
             "--threads", "1", "--quiet"]
     if SUB:
-        args += [f"dem.scheme={SCHEME}", "dem.nsubit=10"]
-    if ORB:  # R ranks take the leaf steps: so does the one-rank run they must equal
-        args += ["dem.orb_global=false"]
+        args += [f"dem.scheme={SCHEME_KEY}", "dem.nsubit=10"]
+    if ORB:
+        args += ORB_ARGS
     rows, _ = rows_on(scene, args, (1, RANKS))
     one, many = rows[1], rows[RANKS]
     assert len(one) == len(many) == 7, (len(one), len(many))

@@ -506,10 +506,14 @@ namespace {
 // without naming it: such a line is left out, so those checkpoints still restart at it. (Older
 // runs had no orb global mode: their checkpoints restart with its default, which changes no bit
 // where it never triggers, as a new version continues any run with its own arithmetic;
-// dem.orb_global = false continues the leaf steps but is refused with an older checkpoint.)
+// dem.orb_global = false continues the leaf steps but is refused with an older checkpoint. Orb
+// on R ranks had no global mode before dem.orb_global_min_per_rank: its R-rank checkpoints
+// restart at the default, global where nearly every leaf is fine and the ranks hold enough
+// particles, as a new run would be.)
 constexpr std::string_view kImpliedLines[] = {
     "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\"",
-    "particles.outflow = \"remove\"", "dem.orb_global = true"};
+    "particles.outflow = \"remove\"", "dem.orb_global = true",
+    "dem.orb_global_min_per_rank = 10000"};
 
 // Every key whose line differs between this run's fixed lines and the checkpoint's, in this
 // run's order: both values, or the value an older checkpoint implies for a key it predates

@@ -445,13 +445,6 @@ bool OrbScheme::choose_global() {
 // separation as the minimum image (DomainGeometry::image returns it unchanged, bit for bit):
 // the head stream skips the image, the tail takes it.
 void OrbScheme::global_stream() {
-  const DomainGeometry& g = geom_;
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
-  double lim[3];
-  for (int a = 0; a < 3; ++a)
-    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
   // The pairs in the order of their lower particle index (a stable counting sort), as the
   // explicit scheme's rows give them: a block of the stream then reads a compact range of the
   // store. In the cell order they are found in, every block read particles from all over it,
@@ -468,6 +461,20 @@ void OrbScheme::global_stream() {
     const std::uint32_t at = start[std::min(pairs_.ca[q], pairs_.cb[q])]++;
     global_.a[at] = pairs_.ca[q], global_.b[at] = pairs_.cb[q];
   }
+  split_global_streams({pairs_.xr, pairs_.yr, pairs_.zr});
+  global_.stale = false;
+}
+
+// global_.a and b as the head and tail streams (the raw separation, or through the periodic
+// image), and the owned particles that can reach a wall while within skin/2 of `ref`.
+void OrbScheme::split_global_streams(const std::array<std::span<const double>, 3>& ref) {
+  const DomainGeometry& g = geom_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  double lim[3];
+  for (int a = 0; a < 3; ++a)
+    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
   const auto raw = [&](std::size_t q) {
     const std::uint32_t i = global_.a[q], j = global_.b[q];
     return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
@@ -477,11 +484,67 @@ void OrbScheme::global_stream() {
   global_.tail.build(global_.a, global_.b, [&](std::size_t q) { return !raw(q); },
                      2 * kPairBlock);
   if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
-    near_walls(p_, owned_, {pairs_.xr, pairs_.yr, pairs_.zr}, geom_, skin_, global_.near_wall);
+    near_walls(p_, owned_, ref, geom_, skin_, global_.near_wall);
   else
     global_.near_wall.clear();
   global_.nh = global_.nt = 0;
-  global_.stale = false;
+}
+
+// The contact forces of the global steps' last pass, back to zero: those of its contacts and
+// of the particles near a wall (as the explicit scheme clears between steps).
+void OrbScheme::clear_global_forces() {
+  clear_contact_forces<false>(p_,
+                              std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
+  clear_contact_forces<false>(p_,
+                              std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+  clear_forces<false>(p_, global_.near_wall);
+}
+
+// One global step of every owned particle, on any rank count: each stream pair once through the
+// pair pass, its contacts scattered to both particles in the streams' order, the walls of the
+// particles near one, the synchronised velocities of a recorded first step, and orb's
+// variable-step leapfrog (leaf_kick_drift) in blocks. `evals`: the pairs this step counts.
+// Returns true while every particle is within skin/2 of `ref`.
+template <bool External, bool Column>
+bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const LeafFrozen& ref,
+                            OverlapTally& tally, std::int64_t evals, bool record) {
+  const std::size_t n = owned_;
+  StepReport rep;
+  global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
+                                             st.hk, global_.head_blocks, rep);
+  global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
+                                            st.hk, global_.tail_blocks, rep);
+  scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
+                          std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+  tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
+  tally.violations += rep.overlaps;
+  add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
+  bt.evals += evals;
+  if (record && st.k == 0)
+    synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
+                                      rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
+  constexpr std::size_t kBlock = 4096;
+  const std::size_t nblocks = (n + kBlock - 1) / kBlock;
+  std::vector<std::uint64_t>& still_of = global_.still;
+  still_of.assign(nblocks, ~std::uint64_t{0});
+  auto kick_drift = [&](std::size_t q) {
+    std::uint64_t still = ~std::uint64_t{0};
+    leaf_kick_drift<External>(static_cast<std::uint32_t>(q * kBlock),
+                              static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock)), p,
+                              ref, st, model_.gravity, still);
+    still_of[q] = still;
+  };
+  if (nblocks <= 2) {
+    for (std::size_t q = 0; q < nblocks; ++q)
+      kick_drift(q);
+  } else {
+    tbb::parallel_for(std::size_t{0}, nblocks, kick_drift);
+  }
+  st.h_before = st.hk;
+  std::uint64_t still = ~std::uint64_t{0};
+  for (const std::uint64_t b : still_of)
+    still &= b;
+  return (still >> 63) != 0;
 }
 
 void OrbScheme::run_global(Batch& bt, bool record) {
@@ -511,56 +574,21 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
   LeafStep st;
   st.K = bt.K;
   st.half_skin2 = 0.25 * skin_ * skin_;
-  constexpr std::size_t kBlock = 4096;
-  const std::size_t nblocks = (n + kBlock - 1) / kBlock;
-  std::vector<std::uint64_t>& still_of = global_.still;
-  still_of.assign(nblocks, ~std::uint64_t{0});
+  bool still = true;
   for (std::int64_t k = 0; k < bt.K; ++k) {
     st.k = k;
     st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
     if (k > 0) {
-      clear_contact_forces<false>(
-          p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
-      clear_contact_forces<false>(
-          p_, std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
-      clear_forces<false>(p_, global_.near_wall);
-      std::uint64_t still = ~std::uint64_t{0};
-      for (const std::uint64_t b : still_of)
-        still &= b;
-      if (!(still >> 63)) { // some particle moved more than skin/2 since the build
+      clear_global_forces();
+      if (!still) { // some particle moved more than skin/2 since the build
         rebuild_pairs();
         global_stream();
       }
     }
-    StepReport rep;
-    global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
-                                               st.hk, global_.head_blocks, rep);
-    global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
-                                              st.hk, global_.tail_blocks, rep);
-    scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
-                            std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
-    tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
-    tally.violations += rep.overlaps;
-    add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
-    bt.evals += static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size());
-    if (record && k == 0)
-      synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
-                                        rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
     const LeafFrozen ref{pairs_.xr, pairs_.yr, pairs_.zr, {}, {}, {}};
-    auto kick_drift = [&](std::size_t q) {
-      std::uint64_t still = ~std::uint64_t{0};
-      leaf_kick_drift<External>(static_cast<std::uint32_t>(q * kBlock),
-                                static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock)), p,
-                                ref, st, model_.gravity, still);
-      still_of[q] = still;
-    };
-    if (nblocks <= 2) {
-      for (std::size_t q = 0; q < nblocks; ++q)
-        kick_drift(q);
-    } else {
-      tbb::parallel_for(std::size_t{0}, nblocks, kick_drift);
-    }
-    st.h_before = st.hk;
+    still = global_step<External, Column>(
+        bt, st, p, ref, tally, static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size()),
+        record);
   }
   bt.max_ratio = tally.max_ratio;
   bt.violations = tally.violations;
@@ -574,13 +602,6 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
 // owned particles near a wall. Rows and ghosts hold for the sub-iteration while no particle
 // moves skin/2 from here, so the raw separations split into head and tail as one rank's.
 void OrbScheme::rank_global_stream() {
-  const DomainGeometry& g = geom_;
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
-  double lim[3];
-  for (int a = 0; a < 3; ++a)
-    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
   const auto off = rank_->rows.off();
   const auto nb = rank_->rows.nb();
   global_.a.clear(), global_.b.clear();
@@ -593,19 +614,7 @@ void OrbScheme::rank_global_stream() {
       global_.a.push_back(i), global_.b.push_back(j);
       global_.once += j < owned_ || p_.id[i] < p_.id[j];
     }
-  const auto raw = [&](std::size_t q) {
-    const std::uint32_t i = global_.a[q], j = global_.b[q];
-    return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
-           std::abs(z[j] - z[i]) <= lim[2];
-  };
-  global_.head.build(global_.a, global_.b, raw, 2 * kPairBlock);
-  global_.tail.build(global_.a, global_.b, [&](std::size_t q) { return !raw(q); },
-                     2 * kPairBlock);
-  if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
-    near_walls(p_, owned_, {frozen_.x, frozen_.y, frozen_.z}, geom_, skin_, global_.near_wall);
-  else
-    global_.near_wall.clear();
-  global_.nh = global_.nt = 0;
+  split_global_streams({frozen_.x, frozen_.y, frozen_.z});
   global_.stale = true; // one rank's streams are another's
 }
 
@@ -622,17 +631,12 @@ void OrbScheme::run_global_ranks(Batch& bt, bool record) {
 template <bool External, bool Column>
 void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
-  const std::size_t n = owned_;
   const LeafLive p = live(External);
   rank_global_stream();
   OverlapTally tally;
   LeafStep st;
   st.K = bt.K;
   st.half_skin2 = 0.25 * skin_ * skin_;
-  constexpr std::size_t kBlock = 4096;
-  const std::size_t nblocks = (n + kBlock - 1) / kBlock;
-  std::vector<std::uint64_t>& still_of = global_.still;
-  still_of.assign(nblocks, ~std::uint64_t{0});
   const LeafFrozen ref{frozen_.x, frozen_.y, frozen_.z, {}, {}, {}};
   for (std::int64_t k = 0; k < bt.K; ++k) {
     st.k = k;
@@ -641,44 +645,10 @@ void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
       rank_->exchange.forward(p_);
       if (bt.outran)
         continue;
-      clear_contact_forces<false>(
-          p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
-      clear_contact_forces<false>(
-          p_, std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
-      clear_forces<false>(p_, global_.near_wall);
+      clear_global_forces();
     }
-    StepReport rep;
-    global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
-                                               st.hk, global_.head_blocks, rep);
-    global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
-                                              st.hk, global_.tail_blocks, rep);
-    scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
-                            std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
-    tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
-    tally.violations += rep.overlaps;
-    add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
-    bt.evals += global_.once;
-    if (record && k == 0)
-      synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
-                                        rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
-    auto kick_drift = [&](std::size_t q) {
-      std::uint64_t still = ~std::uint64_t{0};
-      leaf_kick_drift<External>(static_cast<std::uint32_t>(q * kBlock),
-                                static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock)), p,
-                                ref, st, model_.gravity, still);
-      still_of[q] = still;
-    };
-    if (nblocks <= 2) {
-      for (std::size_t q = 0; q < nblocks; ++q)
-        kick_drift(q);
-    } else {
-      tbb::parallel_for(std::size_t{0}, nblocks, kick_drift);
-    }
-    st.h_before = st.hk;
-    std::uint64_t still = ~std::uint64_t{0};
-    for (const std::uint64_t b : still_of)
-      still &= b;
-    if (k + 1 < bt.K && !(still >> 63))
+    const bool still = global_step<External, Column>(bt, st, p, ref, tally, global_.once, record);
+    if (k + 1 < bt.K && !still)
       bt.outran = true; // the rows may miss a pair from the next step on
   }
   bt.max_ratio = tally.max_ratio;

@@ -56,6 +56,8 @@ struct LeafLive;
 struct LeafFrozen;
 struct LeafSpin;
 struct LeafRows;
+struct LeafStep;
+struct OverlapTally;
 
 class OrbScheme {
 public:
@@ -332,6 +334,11 @@ private:
   bool rank_choose_global();
   void rank_global_stream();
   void run_global_ranks(Batch& b, bool record);
+  void clear_global_forces();
+  void split_global_streams(const std::array<std::span<const double>, 3>& ref);
+  template <bool External, bool Column>
+  bool global_step(Batch& bt, LeafStep& st, const LeafLive& p, const LeafFrozen& ref,
+                   OverlapTally& tally, std::int64_t evals, bool record);
   template <bool External, bool Column> void run_global_ranks_impl(Batch& b, bool record);
 
   const Scene& scene_;

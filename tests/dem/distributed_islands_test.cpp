@@ -180,22 +180,9 @@ Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = fa
 void expect_close(const Scene& scene, const Outcome& one, const Outcome& mine, double pos,
                   double vel, double energy, const std::string& what) {
   const Communicator c = Communicator::world();
-  std::int64_t count = static_cast<std::int64_t>(mine.state.size());
-  std::array<double, 2> worst{};
-  const dem::DomainGeometry g(scene.domain);
-  for (const auto& [id, q] : mine.state) {
-    const auto it = one.state.find(id);
-    ASSERT_NE(it, one.state.end()) << what << ": unknown id " << id;
-    for (int a = 0; a < 6; ++a) {
-      double d = std::abs(q[a] - it->second[a]);
-      // A particle across a periodic face: the two runs may wrap it differently.
-      if (a < 3)
-        d = std::min(d, std::abs(d - g.length[a]));
-      worst[a < 3 ? 0 : 1] = std::max(worst[a < 3 ? 0 : 1], d);
-    }
-  }
-  count = c.sum(count);
-  c.max(worst);
+  std::int64_t count = 0;
+  const std::array<double, 2> worst =
+      demtest::worst_differences(scene, one.state, mine.state, count, what);
   EXPECT_EQ(count, static_cast<std::int64_t>(one.state.size())) << what;
   EXPECT_LE(worst[0], pos) << what << ": positions";
   EXPECT_LE(worst[1], vel) << what << ": velocities";

@@ -117,11 +117,13 @@ constexpr int kSubits = 40; // 8 regrids, a few hundred collisions in the gas
 
 using State = std::map<std::int64_t, std::array<double, 6>>;
 
-// R ranks take the leaf steps: the one-rank run they must equal bit for bit does too
-// (dem.orb_global = false; OrbScheme::kGlobalFraction).
-State one_rank_orb(const Scene& leaf_scene, int subits, bool external = false) {
+// The one-rank run. By default the leaf steps, which R ranks take bit for bit alike
+// (dem.orb_global = false; OrbScheme::kGlobalFraction); `global`: the global mode allowed, its
+// sub-iterations counted into `global_subits`.
+State one_rank_orb(const Scene& leaf_scene, int subits, bool external = false,
+                   bool global = false, std::int64_t* global_subits = nullptr) {
   Scene scene = leaf_scene;
-  scene.dem.orb_global = false;
+  scene.dem.orb_global = global;
   ParticleStore p = make_initial_particles(scene);
   PhaseTimer timer;
   dem::OrbScheme s(scene, p, timer);
@@ -130,6 +132,8 @@ State one_rank_orb(const Scene& leaf_scene, int subits, bool external = false) {
     apply_force(p, p.size(), s);
   for (int k = 0; k < subits; ++k)
     s.subiterate();
+  if (global_subits)
+    *global_subits = s.global_subiterations();
   State out;
   for (std::size_t i = 0; i < p.size(); ++i)
     out[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
@@ -142,21 +146,11 @@ struct DistributedRun {
   std::int64_t pair_evaluations = 0, particle_steps = 0, retries = 0, global_subits = 0;
 };
 
-// The one-rank run with the global mode allowed (dem.orb_global = true): its particles and
-// global sub-iterations.
+// The one-rank run with the global mode allowed: its particles and global sub-iterations.
 std::pair<State, std::int64_t> one_rank_global(const Scene& scene, int subits) {
-  Scene s1 = scene;
-  s1.dem.orb_global = true;
-  ParticleStore p = make_initial_particles(s1);
-  PhaseTimer timer;
-  dem::OrbScheme s(s1, p, timer);
-  s.start();
-  for (int k = 0; k < subits; ++k)
-    s.subiterate();
-  State out;
-  for (std::size_t i = 0; i < p.size(); ++i)
-    out[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
-  return {out, s.global_subiterations()};
+  std::int64_t global_subits = 0;
+  State out = one_rank_orb(scene, subits, false, true, &global_subits);
+  return {out, global_subits};
 }
 
 // The scheme over the world communicator on `threads` TBB threads; at every sub-iteration the
@@ -307,26 +301,12 @@ TEST(DistributedOrb, TimeToContactMatchesOneRankBitwise) {
 // `pos` (m, through a periodic face either way), velocities within `vel` (m/s).
 void expect_close(const Scene& scene, const State& one_rank, const State& mine, double pos,
                   double vel, const std::string& what) {
-  const Communicator c = Communicator::world();
-  const dem::DomainGeometry g(scene.domain);
-  std::int64_t count = static_cast<std::int64_t>(mine.size());
-  std::array<double, 2> worst{};
-  for (const auto& [id, q] : mine) {
-    const auto it = one_rank.find(id);
-    ASSERT_NE(it, one_rank.end()) << what << ": unknown id " << id;
-    for (int a = 0; a < 6; ++a) {
-      double d = std::abs(q[a] - it->second[a]);
-      if (a < 3)
-        d = std::min(d, std::abs(d - g.length[a]));
-      worst[a < 3 ? 0 : 1] = std::max(worst[a < 3 ? 0 : 1], d);
-    }
-  }
-  count = c.sum(count);
-  c.max(worst);
+  std::int64_t count = 0;
+  const std::array<double, 2> worst = demtest::worst_differences(scene, one_rank, mine, count, what);
   EXPECT_EQ(count, static_cast<std::int64_t>(one_rank.size())) << what;
   EXPECT_LE(worst[0], pos) << what << ": positions";
   EXPECT_LE(worst[1], vel) << what << ": velocities";
-  if (c.rank() == 0)
+  if (Communicator::world().rank() == 0)
     std::printf("[ %s ] worst |dx| %.3g m, |dv| %.3g m/s\n", what.c_str(), worst[0], worst[1]);
 }
 

@@ -1,23 +1,59 @@
 // Shared set-up for the distributed DEM tests (explicit, friction, orb, islands over MPI ranks):
-// a rank's share of a store as `cfddem run` deals it, the test-wide external force, and the
-// explicit run whose thread count must not change a bit.
+// a rank's share of a store as `cfddem run` deals it, the test-wide external force, the
+// explicit run whose thread count must not change a bit, and the worst differences of R ranks'
+// particles from one rank's (the round-off comparisons).
 #pragma once
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
+#include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
 #include "core/communicator.hpp"
 #include "core/initial_conditions.hpp"
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem_test_support.hpp"
 
 namespace cfddem::demtest {
+
+// Particle states by id: x, y, z, vx, vy, vz.
+using StateById = std::map<std::int64_t, std::array<double, 6>>;
+
+// The largest position difference (through a periodic face either way) and velocity difference
+// of this rank's particles `mine` from the same ids in `one`, over all ranks; `count`: the
+// particles of `mine` over all ranks (an id `one` lacks is a failure). Collective.
+inline std::array<double, 2> worst_differences(const Scene& scene, const StateById& one,
+                                               const StateById& mine, std::int64_t& count,
+                                               const std::string& what) {
+  const Communicator c = Communicator::world();
+  const dem::DomainGeometry g(scene.domain);
+  std::array<double, 2> worst{};
+  for (const auto& [id, q] : mine) {
+    const auto it = one.find(id);
+    if (it == one.end()) {
+      ADD_FAILURE() << what << ": unknown id " << id;
+      continue;
+    }
+    for (int a = 0; a < 6; ++a) {
+      double d = std::abs(q[a] - it->second[a]);
+      if (a < 3)
+        d = std::min(d, std::abs(d - g.length[a]));
+      worst[a < 3 ? 0 : 1] = std::max(worst[a < 3 ? 0 : 1], d);
+    }
+  }
+  count = c.sum(static_cast<std::int64_t>(mine.size()));
+  c.max(worst);
+  return worst;
+}
 
 // This rank's share of a store: every R-th particle (what `cfddem run` keeps before start()).
 inline ParticleStore share(const ParticleStore& all, int rank, int ranks) {

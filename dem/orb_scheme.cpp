@@ -653,8 +653,7 @@ void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
   }
   bt.max_ratio = tally.max_ratio;
   bt.violations = tally.violations;
-  if (!bt.outran)
-    find_batch_fault<Column>(bt, p);
+  find_batch_fault<Column>(bt, p); // a fault before the rows ran out stops the run, as a leaf's
 }
 
 // One try at the sub-iteration with the current rows (one TBB task per batch); true if some

@@ -365,28 +365,8 @@ TEST(DistributedIslands, RestartFromSavedStateIsBitwiseTheRunThatWroteIt) {
 }
 
 TEST(DistributedIslands, ParticleThroughAWallStopsEveryRankWithTheSameError) {
-  const Scene scene = scene_from(kWalls);
-  const Communicator c = Communicator::world();
-  ParticleStore all = make_initial_particles(scene);
-  all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
-  ParticleStore p = share(all, c.rank(), c.size());
-  PhaseTimer timer;
-  dem::IslandsScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
-  s.start();
-  std::string message;
-  try {
-    for (int k = 0; k < kSubits; ++k)
-      s.subiterate();
-  } catch (const RunError& e) {
-    message = e.what();
-  }
-  ASSERT_FALSE(message.empty()) << "no rank stopped";
-  EXPECT_NE(message.find("particle " + std::to_string(all.id[7])), std::string::npos) << message;
-  std::array<std::int64_t, 1> hi{static_cast<std::int64_t>(std::hash<std::string>{}(message))};
-  std::array<std::int64_t, 1> lo = hi;
-  c.max(hi);
-  c.min(lo);
-  EXPECT_EQ(hi[0], lo[0]) << message;
+  demtest::expect_shot_through_a_wall_stops_every_rank<dem::IslandsScheme>(scene_from(kWalls),
+                                                                          kSubits, 7, "islands");
 }
 
 } // namespace

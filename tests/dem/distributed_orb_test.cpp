@@ -400,30 +400,8 @@ TEST(DistributedOrb, ParticleThroughAWallStopsEveryRankWithTheSameError) {
   for (const std::int64_t min_per_rank : {std::int64_t{10000}, std::int64_t{0}}) {
     Scene scene = scene_from(kWalls);
     scene.dem.orb_global_min_per_rank = min_per_rank;
-    const Communicator c = Communicator::world();
-    ParticleStore all = make_initial_particles(scene);
-    all.vx[7] = 200.0; // 2 mm in one sub-iteration of 10 us: through the wall of a 1.2 mm box
-    ParticleStore p = share(all, c.rank(), c.size());
-    PhaseTimer timer;
-    dem::OrbScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
-    s.start();
-    std::string message;
-    try {
-      for (int k = 0; k < kSubits; ++k)
-        s.subiterate();
-    } catch (const RunError& e) {
-      message = e.what();
-    }
-    ASSERT_FALSE(message.empty()) << "no rank stopped";
-    EXPECT_NE(message.find("particle " + std::to_string(all.id[7])), std::string::npos)
-        << message;
-    EXPECT_NE(message.find("left the domain through a wall"), std::string::npos) << message;
-    // The same text on every rank (its hash, compared by a max and a min over the ranks).
-    std::array<std::int64_t, 1> hi{static_cast<std::int64_t>(std::hash<std::string>{}(message))};
-    std::array<std::int64_t, 1> lo = hi;
-    c.max(hi);
-    c.min(lo);
-    EXPECT_EQ(hi[0], lo[0]) << message;
+    demtest::expect_shot_through_a_wall_stops_every_rank<dem::OrbScheme>(
+        scene, kSubits, 7, "min_per_rank " + std::to_string(min_per_rank));
   }
 }
 

@@ -113,7 +113,7 @@ inline ParticleStore run_explicit_with_threads(const char* toml, int threads, in
 // which names the particle and the wall.
 template <class Scheme>
 void expect_shot_through_a_wall_stops_every_rank(const Scene& scene, int subits, std::size_t shot,
-                                                const std::string& what) {
+                                                 const std::string& what) {
   const Communicator c = Communicator::world();
   ParticleStore all = make_initial_particles(scene);
   all.vx[shot] = 200.0;

@@ -116,13 +116,7 @@ void OrbScheme::rank_exchange_and_rows() {
   // The global mode refreshes the ghosts along a forward plan, which only build_ghosts() makes:
   // where it may be taken, the particles migrate first and the ghosts follow from their owners
   // (two rounds of messages; the same ghosts, and rows ordered by id do not depend on theirs).
-  // Its ghost refresh before every fine step is a wait between the ranks that the leaf steps
-  // take once per sub-iteration: below dem.orb_global_min_per_rank particles per rank the
-  // leaf steps are kept (docs/schemes.md, "Global mode").
-  const bool plan =
-      cfg_.global && model_.dt < cfg_.dt_sp &&
-      cfg_.n_global >= cfg_.global_min_per_rank * static_cast<std::int64_t>(rank_->comm.size());
-  rank_->planned = plan;
+  const bool plan = global_allowed();
   {
     std::vector<double> leaf(owned_);
     for (std::size_t i = 0; i < owned_; ++i)
@@ -308,7 +302,7 @@ void OrbScheme::rank_rows(double cutoff) {
 // every rank takes the choice one rank takes.
 bool OrbScheme::rank_choose_global() {
   mark_fine_leaves(rank_->rows.near());
-  if (!rank_->planned)
+  if (!global_allowed())
     return false;
   std::array<std::int64_t, 2> c{0, static_cast<std::int64_t>(owned_)};
   for (std::size_t k = 0; k < leaves_.fine.size(); ++k)

@@ -25,9 +25,6 @@ struct OrbScheme::RankPart {
   std::vector<std::vector<partition::LeafImage>> near_leaves;
   std::vector<unsigned char> near_known;
   bool ext_on = false; // an external force is set: on for every rank alike
-  // This sub-iteration's exchange made a forward plan for the ghosts (the global mode may be
-  // taken: dem.orb_global, no friction, dem.dt < dt_sp, enough particles per rank).
-  bool planned = false;
 };
 
 } // namespace cfddem::dem

@@ -421,6 +421,18 @@ template <bool Column> void OrbScheme::find_batch_fault(Batch& bt, const LeafLiv
   }
 }
 
+// Whether a sub-iteration may be global at all: dem.orb_global without friction, and a fine step
+// shorter than the sub-iteration; on R ranks also dem.orb_global_min_per_rank particles per rank
+// on average (the global steps' ghost refresh before every fine step is a wait between the ranks
+// that the leaf steps take once per sub-iteration: docs/schemes.md, "Global mode"). The same on
+// every rank.
+bool OrbScheme::global_allowed() const {
+  if (!cfg_.global || !(model_.dt < cfg_.dt_sp))
+    return false;
+  return !rank_ ||
+         cfg_.n_global >= cfg_.global_min_per_rank * static_cast<std::int64_t>(rank_->comm.size());
+}
+
 // One rank, at the sub-iteration's start: which particles are near a partner or a wall
 // (mark_near), and whether the sub-iteration runs in the global mode: the leaves that would step
 // finely hold more than kGlobalFraction of the particles (orb_scheme.hpp gives the cost
@@ -429,7 +441,7 @@ template <bool Column> void OrbScheme::find_batch_fault(Batch& bt, const LeafLiv
 bool OrbScheme::choose_global() {
   mark_near();
   mark_fine_leaves(rows_.near);
-  if (!cfg_.global || !(model_.dt < cfg_.dt_sp))
+  if (!global_allowed())
     return false;
   std::size_t fine = 0;
   for (std::size_t k = 0; k < leaves_.fine.size(); ++k)
@@ -586,9 +598,8 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
       }
     }
     const LeafFrozen ref{pairs_.xr, pairs_.yr, pairs_.zr, {}, {}, {}};
-    still = global_step<External, Column>(
-        bt, st, p, ref, tally, static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size()),
-        record);
+    const auto evals = static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size());
+    still = global_step<External, Column>(bt, st, p, ref, tally, evals, record);
   }
   bt.max_ratio = tally.max_ratio;
   bt.violations = tally.violations;
@@ -615,7 +626,6 @@ void OrbScheme::rank_global_stream() {
       global_.once += j < owned_ || p_.id[i] < p_.id[j];
     }
   split_global_streams({frozen_.x, frozen_.y, frozen_.z});
-  global_.stale = true; // one rank's streams are another's
 }
 
 void OrbScheme::run_global_ranks(Batch& bt, bool record) {

@@ -272,10 +272,11 @@ private:
     std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
   };
 
-  // The global mode's state: the candidate contact pairs (R ranks: the rows' pairs) as streams for the explicit
-  // scheme's pair pass (stale after a build or a re-sort), those whose raw separation stays the
-  // minimum image (head) and those across a periodic face (tail), their contacts per block, and
-  // the particles that can reach a wall before the next build; `on`: this sub-iteration is global.
+  // The global mode's state: the candidate contact pairs (R ranks: the rows' pairs) as streams
+  // for the explicit scheme's pair pass (one rank: stale after a build or a re-sort), those whose
+  // raw separation stays the minimum image (head) and those across a periodic face (tail), their
+  // contacts per block, and the particles that can reach a wall before the next build; `on`:
+  // this sub-iteration is global.
   // a, b: the candidate pairs ordered by their lower particle index (the streams' order);
   // first: the counting sort's offsets per particle.
   struct Global {
@@ -297,6 +298,7 @@ private:
   void run_batch(Batch& b, bool record);
   template <bool Column> void find_batch_fault(Batch& bt, const LeafLive& p) const;
   bool choose_global();
+  bool global_allowed() const;
   void mark_fine_leaves(std::span<const unsigned char> near);
   void plan_leaf_batches(const FineSteps& steps);
   void record_start();

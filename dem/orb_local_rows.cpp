@@ -29,6 +29,8 @@ void OrbLocalRows::build(const Input& in) {
   mid_.assign(owned, 0);
   nb_.clear();
   near_.assign(owned, 0);
+  prox_.clear();
+  const bool keep_prox = in.proximity_pairs && !in.ttc;
   const double* px = in.x.data();
   const double* py = in.y.data();
   const double* pz = in.z.data();
@@ -66,6 +68,10 @@ void OrbLocalRows::build(const Input& in) {
                                const double rs = ri + pr[j];
                                if (r2 < (rs + skin) * (rs + skin))
                                  (j < n_own && leaf[j] == li ? own : other).push_back(j);
+                               const double pr_s = prox * rs + skin;
+                               if (keep_prox && (j >= n_own || j > i) && r2 < pr_s * pr_s)
+                                 prox_.push_back(static_cast<std::uint32_t>(i)),
+                                     prox_.push_back(j);
                                near = near || (ttc ? within_reach(r2, rs, si + sp[j], dt_sp)
                                                    : within_proximity(r2, rs, prox));
                              });
@@ -97,6 +103,7 @@ void OrbLocalRows::half_stencil(const Input& in) {
   const DomainGeometry g = in.geom;
   const double skin = in.skin, dt_sp = in.dt_sp;
   const bool ttc = in.ttc;
+  const bool keep_prox = in.proximity_pairs && !ttc;
   const std::uint32_t* items = cells_.items().data();
   const unsigned char* has_owned = cell_has_owned_.data();
   cells_.gather<5>({in.x.data(), in.y.data(), in.z.data(), in.radius.data(),
@@ -114,10 +121,11 @@ void OrbLocalRows::half_stencil(const Input& in) {
   const int nz = cells_.grid().n[2];
   const auto slabs = static_cast<std::size_t>(nz);
   if (slab_pairs_.size() < slabs)
-    slab_pairs_.resize(slabs);
+    slab_pairs_.resize(slabs), slab_prox_.resize(slabs);
   auto slab = [&](int cz) {
     std::vector<std::uint32_t>& out = slab_pairs_[static_cast<std::size_t>(cz)];
-    out.clear();
+    std::vector<std::uint32_t>& out_prox = slab_prox_[static_cast<std::size_t>(cz)];
+    out.clear(), out_prox.clear();
     auto test = [&](std::uint32_t a, std::uint32_t b) {
       const std::uint32_t i = items[a], j = items[b];
       if (i >= n_own && j >= n_own)
@@ -128,6 +136,9 @@ void OrbLocalRows::half_stencil(const Input& in) {
       const double rs = sr[a] + sr[b];
       if (r2 < (rs + skin) * (rs + skin))
         out.push_back(i), out.push_back(j);
+      const double pr_s = prox * rs + skin;
+      if (keep_prox && r2 < pr_s * pr_s)
+        out_prox.push_back(i), out_prox.push_back(j);
       const bool close =
           ttc ? within_reach(r2, rs, ss[a] + ss[b], dt_sp) : within_proximity(r2, rs, prox);
       if (close) {
@@ -152,6 +163,9 @@ void OrbLocalRows::half_stencil(const Input& in) {
   for (std::size_t z = 0; z < slabs; ++z)
     for (std::size_t k = 0; k < slab_pairs_[z].size(); k += 2)
       pair_a_.push_back(slab_pairs_[z][k]), pair_b_.push_back(slab_pairs_[z][k + 1]);
+  if (keep_prox)
+    for (std::size_t z = 0; z < slabs; ++z)
+      prox_.insert(prox_.end(), slab_prox_[z].begin(), slab_prox_[z].end());
   // Rows of the owned ends: own-leaf partners first, then the others.
   std::vector<std::uint32_t>& own_count = scratch_own_;
   own_count.assign(owned, 0);

@@ -58,6 +58,11 @@ public:
     double prox = 0.0;   // proximity: centres within prox (r_i + r_j) (not ttc)
     double dt_sp = 0.0;  // ttc: within r_i + r_j + (s_i + s_j) dt_sp
     bool ttc = false;    // dem.local_dt = "time_to_contact"
+    // Also list the proximity candidates: pairs (not two ghosts) within prox (r_i + r_j) + skin
+    // (not with ttc; the cutoff must cover 2 prox r_max + skin). While no particle has moved
+    // skin/2, every pair within the proximity distance is one of them, so the rows and the
+    // proximity flags can be kept over several sub-iterations (OrbScheme::rank_keep_rows).
+    bool proximity_pairs = false;
   };
   void build(const Input& in);
 
@@ -70,6 +75,9 @@ public:
   // Per owned particle: a partner within the proximity (or reach) distance. Writable: the
   // scheme adds the walls.
   std::span<unsigned char> near() { return near_; }
+  // With Input::proximity_pairs: the candidates (a, b) as pairs of local indices, flattened
+  // (a0, b0, a1, b1, ...), at least one end owned; empty otherwise.
+  std::span<const std::uint32_t> proximity_candidates() const { return prox_; }
 
 private:
   void half_stencil(const Input& in);
@@ -78,6 +86,8 @@ private:
   std::vector<std::uint32_t> off_, mid_, nb_, active_, scratch_own_, scratch_other_, pair_a_,
       pair_b_, fill_other_;
   std::vector<std::vector<std::uint32_t>> slab_pairs_; // per z slab of cells: pairs (i, j)
+  std::vector<std::vector<std::uint32_t>> slab_prox_;  // per z slab: proximity candidates
+  std::vector<std::uint32_t> prox_;
   std::array<std::vector<double>, 5> sorted_;          // x, y, z, radius, speed in cell order
   std::vector<unsigned char> near_, cell_has_owned_;
 };

@@ -112,7 +112,11 @@ void OrbScheme::rank_exchange_and_rows() {
     time_to_contact_speeds();
   else
     speed_.assign(owned_, 0.0);
-  const double cutoff = rank_cutoff();
+  // Rows that the global mode may keep over the next sub-iterations hold the proximity
+  // candidates too (rank_keep_rows), which takes a longer cutoff.
+  const bool keep = rank_rows_keepable();
+  const double cutoff = rank_cutoff(keep);
+  rank_->kept = false;
   // The global mode refreshes the ghosts along a forward plan, which only build_ghosts() makes:
   // where it may be taken, the particles migrate first and the ghosts follow from their owners
   // (two rounds of messages; the same ghosts, and rows ordered by id do not depend on theirs).
@@ -184,7 +188,7 @@ void OrbScheme::rank_exchange_and_rows() {
       rank_->exchange.forward_columns(col);
     }
   }
-  rank_rows(cutoff);
+  rank_rows(cutoff, keep);
   if (model_.friction) {
     attach_history(std::move(arrived), p_.id, rank_->rows.off(), rank_->rows.nb(), owned_, hist_.hx,
                    hist_.hy, hist_.hz);
@@ -193,11 +197,13 @@ void OrbScheme::rank_exchange_and_rows() {
 }
 
 // Every distance a test of the R-rank rows compares: contact candidates, the proximity or reach
-// test (at most half of a periodic length).
-double OrbScheme::rank_cutoff() const {
+// test, with `keep` the proximity candidates (at most half of a periodic length).
+double OrbScheme::rank_cutoff(bool keep) const {
   double cutoff = 2.0 * cfg_.r_max + skin_;
   cutoff = std::max(cutoff, cfg_.time_to_contact ? 2.0 * cfg_.r_max + 2.0 * reach_
                                                  : 2.0 * cfg_.prox * cfg_.r_max);
+  if (keep)
+    cutoff = std::max(cutoff, 2.0 * cfg_.prox * cfg_.r_max + skin_);
   for (int a = 0; a < 3; ++a)
     if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
       throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
@@ -205,6 +211,87 @@ double OrbScheme::rank_cutoff() const {
                                  "or reach): enlarge the domain or run on one rank",
                                  a, geom_.length[a], cutoff));
   return cutoff;
+}
+
+// Whether the rows built now may be kept over the next sub-iterations (rank_keep_rows): the
+// global mode may be taken, under the proximity rule (time_to_contact's reach follows speed bounds
+// that change at every sub-iteration), with the proximity candidates' cutoff below half of each
+// periodic length.
+bool OrbScheme::rank_rows_keepable() const {
+  if (!global_allowed() || cfg_.time_to_contact)
+    return false;
+  const double cutoff =
+      std::max(2.0 * cfg_.r_max + skin_, 2.0 * cfg_.prox * cfg_.r_max + skin_);
+  for (int a = 0; a < 3; ++a)
+    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
+      return false;
+  return true;
+}
+
+// R ranks, a sub-iteration after a global one of the same interval (not at a regrid, not
+// recorded): the global mode keeps the last build's rows and ghosts while no particle has moved
+// skin/2 from the build, instead of the exchange and rows of every sub-iteration (the neighbor
+// phase was 1.3 s of 4 s in the 2-rank 1e5 bed at dem.nsubit = 35; one rank keeps its pairs the
+// same way). The ghosts' x and v come from their owners; the proximity flags from the build's
+// proximity candidates, by the build's expressions, so the choice is one rank's. A particle stays
+// on its rank when it crosses into another rank's leaf, so the leaves' flags are or-ed over the
+// ranks: two bits per leaf (holds a particle, holds a fine one) and a word for an expiry
+// (rows_expire: a particle may move skin/2 from the build within this sub-iteration), then the
+// fine particles summed. False (every rank alike): rebuild, as the sub-iteration may not be
+// global or may outrun the rows.
+bool OrbScheme::rank_keep_rows() {
+  PhaseTimer::Scope t(timer_, Phase::neighbor);
+  rank_->kept = false;
+  if (!global_allowed())
+    return false;
+  rank_->exchange.forward(p_);
+  const std::span<unsigned char> near = rank_->rows.near();
+  std::fill(near.begin(), near.end(), 0);
+  const std::span<const std::uint32_t> cand = rank_->rows.proximity_candidates();
+  for (std::size_t q = 0; q < cand.size(); q += 2) {
+    const std::uint32_t a = cand[q], b = cand[q + 1];
+    const double dx = geom_.image(p_.x[b] - p_.x[a], 0), dy = geom_.image(p_.y[b] - p_.y[a], 1),
+                 dz = geom_.image(p_.z[b] - p_.z[a], 2);
+    if (within_proximity(dx * dx + dy * dy + dz * dz, p_.radius[a] + p_.radius[b], cfg_.prox)) {
+      if (a < owned_)
+        near[a] = 1;
+      if (b < owned_)
+        near[b] = 1;
+    }
+  }
+  mark_walls(near);
+  const std::size_t nl = decomp_.tree.leaves().size();
+  std::vector<std::uint64_t>& bits = rank_->leaf_bits;
+  bits.assign((2 * nl + 63) / 64 + 1, 0);
+  const auto set = [&](std::size_t b) { bits[b >> 6] |= std::uint64_t{1} << (b & 63); };
+  const auto has = [&](std::size_t b) { return (bits[b >> 6] >> (b & 63)) & 1U; };
+  for (std::size_t i = 0; i < owned_; ++i) {
+    set(2 * std::size_t{leaves_.of[i]});
+    if (near[i])
+      set(2 * std::size_t{leaves_.of[i]} + 1);
+  }
+  bits.back() = rows_expire(owned_, {rank_->ref[0].data(), rank_->ref[1].data(),
+                                     rank_->ref[2].data()})
+                    ? 1
+                    : 0;
+  rank_->comm.bit_or(bits);
+  if (bits.back() != 0)
+    return false;
+  std::array<std::int64_t, 2> c{0, static_cast<std::int64_t>(owned_)};
+  for (std::size_t i = 0; i < owned_; ++i)
+    c[0] += static_cast<std::int64_t>(has(2 * std::size_t{leaves_.of[i]} + 1));
+  rank_->comm.sum(c);
+  if (!(static_cast<double>(c[0]) > kGlobalFraction * static_cast<double>(c[1])))
+    return false;
+  rank_->kept_leaves.clear();
+  if (rank_->comm.rank() == 0)
+    for (std::size_t l = 0; l < nl; ++l)
+      if (has(2 * l))
+        rank_->kept_leaves.push_back(static_cast<int>(l));
+  global_.on = true;
+  rank_->kept = true;
+  clear_global_forces(); // the last sub-iteration's last pass
+  return true;
 }
 
 // The ghost copies of the owned particles: each UNSHIFTED to every rank other than its
@@ -264,8 +351,14 @@ std::vector<ParticleExchange::Copy> OrbScheme::rank_halo_copies(double cutoff) {
 // The rows of the owned particles over owned + ghosts (with their proximity flags), cleared
 // forces, the own-leaf entries before each owned particle (the batches' force evaluations) and
 // the walls as partners.
-void OrbScheme::rank_rows(double cutoff) {
+void OrbScheme::rank_rows(double cutoff, bool keep) {
   const std::size_t n = p_.size();
+  rank_->keepable = keep;
+  rank_->stream_stale = true;
+  for (int a = 0; a < 3; ++a) {
+    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
+    rank_->ref[static_cast<std::size_t>(a)].assign(pos.begin(), pos.end());
+  }
   rank_->rows.build({geom_,
                      {p_.x.data(), n},
                      {p_.y.data(), n},
@@ -279,7 +372,8 @@ void OrbScheme::rank_rows(double cutoff) {
                      skin_,
                      cfg_.prox,
                      cfg_.dt_sp,
-                     cfg_.time_to_contact});
+                     cfg_.time_to_contact,
+                     keep});
   // Only particles with a row get their contact force rewritten at each step: clear the rest.
   std::fill(p_.fx.begin(), p_.fx.end(), 0.0);
   std::fill(p_.fy.begin(), p_.fy.end(), 0.0);

@@ -3,6 +3,7 @@
 // and the leaves of other ranks near each leaf. Null on one rank.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -18,13 +19,22 @@ struct OrbScheme::RankPart {
   explicit RankPart(const Communicator& c) : comm(c), exchange(c) {}
   const Communicator& comm;
   ParticleExchange exchange;
-  OrbLocalRows rows;     // of the owned particles, rebuilt at every sub-iteration
+  OrbLocalRows rows;     // of the owned particles (rebuilt, or kept: rank_keep_rows)
   std::vector<int> dest; // per owned particle: the rank it goes to
   // Per leaf: leaves of other ranks than its owner (with the periodic image) within the cutoff
   // of its box, found when first needed in a sub-iteration.
   std::vector<std::vector<partition::LeafImage>> near_leaves;
   std::vector<unsigned char> near_known;
   bool ext_on = false; // an external force is set: on for every rank alike
+  // The global mode's rows kept over sub-iterations (OrbScheme::rank_keep_rows): the local
+  // positions at the build (owned + ghosts: the skin/2 tests and the head/tail split), whether
+  // the rows hold the proximity candidates, whether the next sub-iteration may keep them,
+  // whether this one does, and then the leaves holding particles on some rank (rank 0 only:
+  // the counters).
+  std::array<std::vector<double>, 3> ref;
+  bool keepable = false, may_keep = false, kept = false, stream_stale = true;
+  std::vector<int> kept_leaves;
+  std::vector<std::uint64_t> leaf_bits;
 };
 
 } // namespace cfddem::dem

@@ -196,8 +196,7 @@ void OrbScheme::resort() {
 // particle would likely outrun them. Positions and references are unwrapped alike (a regrid
 // shifts both), so plain differences. (d + v dt)^2 <= 2 (d^2 + v^2 dt^2): the square roots are
 // taken only for the few particles that fail that bound.
-bool OrbScheme::rows_expire() const {
-  const std::size_t n = p_.size();
+bool OrbScheme::rows_expire(std::size_t n, const std::array<const double*, 3>& ref) const {
   const double lim = 0.5 * skin_, lim2 = lim * lim, dt2 = cfg_.dt_sp * cfg_.dt_sp;
   const double* x = p_.x.data();
   const double* y = p_.y.data();
@@ -205,9 +204,9 @@ bool OrbScheme::rows_expire() const {
   const double* vx = p_.vx.data();
   const double* vy = p_.vy.data();
   const double* vz = p_.vz.data();
-  const double* xr = pairs_.xr.data();
-  const double* yr = pairs_.yr.data();
-  const double* zr = pairs_.zr.data();
+  const double* xr = ref[0];
+  const double* yr = ref[1];
+  const double* zr = ref[2];
   // Branch-free bound first (it vectorizes); the exact test only if the bound fails somewhere.
   std::uint64_t over = 0;
   for (std::size_t i = 0; i < n; ++i) {

@@ -147,7 +147,8 @@ void OrbScheme::mark_walls(std::span<unsigned char> near) const {
 
 // The rows of this sub-iteration; true if built now. One rank: the candidate pairs are rebuilt
 // when forced (a retry), invalid or about to be outrun, and the rows derived after a re-sort. R
-// ranks: the exchange of particles and ghosts and fresh rows, at every sub-iteration.
+// ranks: the exchange of particles and ghosts and fresh rows (at every sub-iteration but those
+// that keep the global mode's rows: rank_keep_rows).
 bool OrbScheme::build_rows(bool force) {
   if (rank_) {
     rank_exchange_and_rows();
@@ -157,7 +158,8 @@ bool OrbScheme::build_rows(bool force) {
   bool fresh = false;
   if (cfg_.time_to_contact && time_to_contact_speeds())
     pairs_.valid = false;
-  if (force || !pairs_.valid || rows_expire())
+  if (force || !pairs_.valid ||
+      rows_expire(p_.size(), {pairs_.xr.data(), pairs_.yr.data(), pairs_.zr.data()}))
     rebuild_pairs(), fresh = true;
   global_.on = choose_global();
   if (!global_.on && rows_.off.size() != p_.size() + 1) {
@@ -610,8 +612,8 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
 // the lower index's entry, with a ghost the owned one's: a pair across ranks is evaluated on
 // both, each rank keeping its own particle's force), ordered by their lower index as the rows
 // are; the pairs counted once over the ranks (with a ghost, on the rank of the lower id); the
-// owned particles near a wall. Rows and ghosts hold for the sub-iteration while no particle
-// moves skin/2 from here, so the raw separations split into head and tail as one rank's.
+// owned particles near a wall. Rows and ghosts hold while no particle moves skin/2 from the
+// build (rank_keep_rows), so the raw separations split into head and tail as one rank's.
 void OrbScheme::rank_global_stream() {
   const auto off = rank_->rows.off();
   const auto nb = rank_->rows.nb();
@@ -625,7 +627,7 @@ void OrbScheme::rank_global_stream() {
       global_.a.push_back(i), global_.b.push_back(j);
       global_.once += j < owned_ || p_.id[i] < p_.id[j];
     }
-  split_global_streams({frozen_.x, frozen_.y, frozen_.z});
+  split_global_streams({rank_->ref[0], rank_->ref[1], rank_->ref[2]});
 }
 
 void OrbScheme::run_global_ranks(Batch& bt, bool record) {
@@ -634,20 +636,22 @@ void OrbScheme::run_global_ranks(Batch& bt, bool record) {
 }
 
 // The global mode's K fine steps on R ranks: one rank's passes over the rows' pairs
-// (rank_global_stream), the ghosts' x and v from their owners before every step but the first.
-// A particle that moved more than skin/2 from the start with steps still to take sets outran:
+// (rank_global_stream, once per build of the rows), the ghosts' x and v from their owners before
+// every step but the first (before the first: at the build, or rank_keep_rows).
+// A particle that moved more than skin/2 from the build with steps still to take sets outran:
 // this rank computes no more, but takes part in every refresh, and every rank redoes the
 // sub-iteration (subiterate's reduction).
 template <bool External, bool Column>
 void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
   const LeafLive p = live(External);
-  rank_global_stream();
+  if (rank_->stream_stale)
+    rank_global_stream(), rank_->stream_stale = false;
   OverlapTally tally;
   LeafStep st;
   st.K = bt.K;
   st.half_skin2 = 0.25 * skin_ * skin_;
-  const LeafFrozen ref{frozen_.x, frozen_.y, frozen_.z, {}, {}, {}};
+  const LeafFrozen ref{rank_->ref[0], rank_->ref[1], rank_->ref[2], {}, {}, {}};
   for (std::int64_t k = 0; k < bt.K; ++k) {
     st.k = k;
     st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
@@ -718,8 +722,12 @@ void OrbScheme::subiterate(bool record) {
   std::string outside_message;
   std::int64_t outside_key = std::numeric_limits<std::int64_t>::max();
   std::int64_t outside = 0;
+  // R ranks: the global mode may keep the last sub-iteration's rows and ghosts (rank_keep_rows)
+  // within an interval; a regrid and a recorded sub-iteration rebuild them.
+  const bool keep = rank_ && rank_->may_keep && !regridding && !record;
   if (rank_) {
-    p_.resize(owned_); // the last sub-iteration's ghosts go
+    if (!keep)
+      p_.resize(owned_); // the last sub-iteration's ghosts go
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     if (regridding)
       rank_regrid();
@@ -727,7 +735,7 @@ void OrbScheme::subiterate(bool record) {
   } else if (regridding) {
     regrid();
   }
-  bool fresh = build_rows(false);
+  bool fresh = keep && rank_keep_rows() ? false : build_rows(false);
   // One reduction closes the sub-iteration (on R ranks): {outran, faults, outside, owned,
   // particle steps, force evaluations, overlaps beyond the bound, fine leaves, non-empty leaves}.
   std::array<std::int64_t, 9> c{};
@@ -749,9 +757,14 @@ void OrbScheme::subiterate(bool record) {
       c[5] += bt.evals;
       c[6] += bt.violations;
     }
-    for (std::size_t k = 0; k < leaves_.id.size(); ++k)
-      if (leaves_.range[k + 1] > leaves_.range[k])
-        c[7] += leaves_.fine[k], c[8] += 1;
+    if (rank_ && rank_->kept) { // the store is not in leaf order: the leaves over the ranks
+      c[7] += static_cast<std::int64_t>(rank_->kept_leaves.size());
+      c[8] += static_cast<std::int64_t>(rank_->kept_leaves.size());
+    } else {
+      for (std::size_t k = 0; k < leaves_.id.size(); ++k)
+        if (leaves_.range[k + 1] > leaves_.range[k])
+          c[7] += leaves_.fine[k], c[8] += 1;
+    }
     local_steps = c[4], local_evals = c[5];
     if (rank_) {
       rank_->comm.sum(c);
@@ -793,10 +806,15 @@ void OrbScheme::subiterate(bool record) {
   }
   const bool can_refine = model_.dt < cfg_.dt_sp;
   const std::int64_t K_fine = fine_steps(cfg_.dt_sp, model_.dt).K;
-  for (std::size_t k = 0; k < leaves_.id.size(); ++k)
-    if (leaves_.range[k + 1] > leaves_.range[k])
-      stats_.leaf_steps[static_cast<std::size_t>(leaves_.id[k])] +=
-          leaves_.fine[k] && can_refine ? K_fine : 1;
+  if (rank_ && rank_->kept) {
+    for (const int l : rank_->kept_leaves) // every leaf fine (the global mode), on rank 0
+      stats_.leaf_steps[static_cast<std::size_t>(l)] += K_fine;
+  } else {
+    for (std::size_t k = 0; k < leaves_.id.size(); ++k)
+      if (leaves_.range[k + 1] > leaves_.range[k])
+        stats_.leaf_steps[static_cast<std::size_t>(leaves_.id[k])] +=
+            leaves_.fine[k] && can_refine ? K_fine : 1;
+  }
   stats_.particle_steps += c[4], stats_.pair_evaluations += c[5];
   stats_.overlap_violations += c[6];
   stats_.local_particle_steps += local_steps, stats_.local_pair_evaluations += local_evals;
@@ -816,6 +834,8 @@ void OrbScheme::subiterate(bool record) {
   }
   if (!rank_)
     resort();
+  else
+    rank_->may_keep = global_.on && rank_->keepable;
 }
 
 void OrbScheme::benchmark_leaf_subiteration(int leaf) {

@@ -320,7 +320,9 @@ private:
   void resort();
   void apply_permutation(std::span<const std::uint32_t> order);
   void relabel_pairs(std::span<const std::uint32_t> old_slot);
-  bool rows_expire() const;
+  // Whether one of the first n particles may move more than skin/2 from `ref` (x, y, z) within
+  // this sub-iteration: |x - ref| + |v| dt_sp > skin/2 (or not finite).
+  bool rows_expire(std::size_t n, const std::array<const double*, 3>& ref) const;
   void rebuild_pairs();
   void derive_rows();
   void drop_rows();
@@ -330,9 +332,11 @@ private:
   void rank_regrid();
   std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);
   void rank_exchange_and_rows();
-  double rank_cutoff() const;
+  double rank_cutoff(bool keep) const;
+  bool rank_rows_keepable() const;
+  bool rank_keep_rows();
   std::vector<ParticleExchange::Copy> rank_halo_copies(double cutoff);
-  void rank_rows(double cutoff);
+  void rank_rows(double cutoff, bool keep);
   bool rank_choose_global();
   void rank_global_stream();
   void run_global_ranks(Batch& b, bool record);

@@ -6,6 +6,9 @@ Usage: mpi_coupled_restart_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS [SCHEME]
 SCHEME orb or islands (dem.nsubit = 10): the same checks but friction (they refuse it) and the
 bad-input ones (the scheme does not enter them); their file holds save_state()'s per-particle
 values, and the routed copies deposit in id order, so the restart is again bit for bit.
+orb_global: orb with its global mode on R ranks (dem.orb_global_min_per_rank = 0), which keeps
+its rows and ghosts over the global sub-iterations of a fluid step (OrbScheme::rank_keep_rows)
+and rebuilds them at the next: the restart is bit for bit on R ranks, and the run kept rows.
 
 The small periodic riser of mpi_coupled_test.py (800 particles that migrate between ranks,
 12 x 20 x 12 cells), 2N = 20 fluid steps with a checkpoint after N:
@@ -51,7 +54,9 @@ ARGS = ["domain.hi=[2.4e-3,4.0e-3,2.4e-3]", "particles.count=800", "particles.te
 # solver tolerance by which it and hypre differ); hypre on R ranks:
 # tests/fluid/distributed_gas_test.cpp.
 if SUB:
-    ARGS += [f"dem.scheme={SCHEME}", "dem.nsubit=10"]
+    ARGS += [f"dem.scheme={SCHEME.removesuffix('_global')}", "dem.nsubit=10"]
+if SCHEME == "orb_global":
+    ARGS += ["dem.orb_global_min_per_rank=0"]
 if SCHEME == "orb":  # R ranks take the leaf steps: so does the one-rank run they must equal
     ARGS += ["dem.orb_global=false"]
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
@@ -85,6 +90,11 @@ def snapshot(d):
         order = np.argsort(f["particles/id"][()])
         return {f"{g}/{k}": f[g][k][()][order] if g == "particles" else f[g][k][()]
                 for g in ("particles", "fluid") for k in f[g]}
+
+
+def run_json(d):
+    with open(os.path.join(d, "run.json")) as f:
+        return json.load(f)
 
 
 def regrids(d):
@@ -131,6 +141,10 @@ def main():
         mid = os.path.join(d["full"], cks[0])
         run(RANKS, d["half"], "run.end_time=2e-3", "--restart", mid)
         assert_bitwise(d["full"], d["half"], f"restart on {RANKS} ranks")
+        if SCHEME == "orb_global":  # 20 fluid steps of 10 sub-iterations, some global
+            info = run_json(d["full"])
+            assert info["global_subiterations"] > 0, info["global_subiterations"]
+            assert info["neighbor_builds"] < 200, ("no rows kept", info["neighbor_builds"])
         run(RANKS, d["end"], "run.end_time=2e-3", "--restart", os.path.join(d["full"], cks[1]))
         assert rows(d["end"]) == rows(d["full"]), "restart at the end time: last row differs"
         # Other rank counts read the same file.

@@ -119,9 +119,10 @@ using State = std::map<std::int64_t, std::array<double, 6>>;
 
 // The one-rank run. By default the leaf steps, which R ranks take bit for bit alike
 // (dem.orb_global = false; OrbScheme::kGlobalFraction); `global`: the global mode allowed, its
-// sub-iterations counted into `global_subits`.
+// sub-iterations counted into `global_subits`, the leaves' steps over the run into `leaf_steps`.
 State one_rank_orb(const Scene& leaf_scene, int subits, bool external = false,
-                   bool global = false, std::int64_t* global_subits = nullptr) {
+                   bool global = false, std::int64_t* global_subits = nullptr,
+                   dem::LeafStepStats* leaf_steps = nullptr) {
   Scene scene = leaf_scene;
   scene.dem.orb_global = global;
   ParticleStore p = make_initial_particles(scene);
@@ -134,6 +135,8 @@ State one_rank_orb(const Scene& leaf_scene, int subits, bool external = false,
     s.subiterate();
   if (global_subits)
     *global_subits = s.global_subiterations();
+  if (leaf_steps)
+    *leaf_steps = s.take_interval_stats();
   State out;
   for (std::size_t i = 0; i < p.size(); ++i)
     out[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
@@ -144,6 +147,8 @@ struct DistributedRun {
   State owned; // this rank's particles at the end
   double fine_fraction = 0.0, max_overlap_ratio = 0.0;
   std::int64_t pair_evaluations = 0, particle_steps = 0, retries = 0, global_subits = 0;
+  std::int64_t builds = 0; // exchanges and rows built (the global mode keeps some)
+  dem::LeafStepStats leaf_steps;
 };
 
 // The one-rank run with the global mode allowed: its particles and global sub-iterations.
@@ -198,7 +203,9 @@ DistributedRun distributed_orb(const Scene& leaf_scene, int subits, int threads,
   }
   for (std::size_t i = 0; i < s.owned(); ++i)
     r.owned[p.id[i]] = {p.x[i], p.y[i], p.z[i], p.vx[i], p.vy[i], p.vz[i]};
-  r.fine_fraction = s.take_interval_stats().fine_fraction;
+  r.leaf_steps = s.take_interval_stats();
+  r.fine_fraction = r.leaf_steps.fine_fraction;
+  r.builds = s.neighbor_builds();
   r.pair_evaluations = s.pair_evaluations();
   r.max_overlap_ratio = s.max_overlap_ratio();
   r.retries = s.retries();
@@ -320,11 +327,23 @@ constexpr double kPos = 1e-14, kVel = 1e-10;
 TEST(DistributedOrb, GlobalModeMatchesOneRankToRoundOff) {
   // The dense gas: every leaf fine, every sub-iteration global, on one rank and on R ranks alike.
   const Scene scene = scene_from(kGas);
-  const auto [one, one_global] = one_rank_global(scene, kSubits);
+  std::int64_t one_global = 0;
+  dem::LeafStepStats one_steps;
+  const State one = one_rank_orb(scene, kSubits, false, true, &one_global, &one_steps);
   const DistributedRun d = distributed_orb(scene, kSubits, 1, false, true);
   EXPECT_GT(one_global, 0);
   EXPECT_EQ(d.global_subits, one_global);
   EXPECT_GT(d.max_overlap_ratio, 0.0); // particles collided
+  // R ranks keep the rows and ghosts over the global sub-iterations of an interval
+  // (OrbScheme::rank_keep_rows), and the leaves' steps, summed over the ranks, are one rank's:
+  // none counted on two ranks when its particles stay on several.
+  if (Communicator::world().size() > 1) {
+    EXPECT_LT(d.builds, kSubits);
+  }
+  EXPECT_EQ(d.leaf_steps.steps_min, one_steps.steps_min);
+  EXPECT_EQ(d.leaf_steps.steps_max, one_steps.steps_max);
+  EXPECT_EQ(d.leaf_steps.steps_mean, one_steps.steps_mean);
+  EXPECT_EQ(d.leaf_steps.fine_fraction, one_steps.fine_fraction);
   expect_close(scene, one, d.owned, kPos, kVel, "dense gas, global mode");
   // And the global steps are not the leaf steps (no frozen partners): the test can tell them.
   const State leaf = one_rank_orb(scene, kSubits);

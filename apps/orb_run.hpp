@@ -58,8 +58,9 @@ public:
     j["global_subiterations"] = scheme.global_subiterations();
     j["global_subiterations_definition"] =
         "sub-iterations where every particle took the fine steps together through the explicit "
-        "scheme's passes (one rank, no friction, dem.orb_global): the leaves that would step "
-        "finely held more than 3/4 of the particles";
+        "scheme's passes (no friction, dem.orb_global; on R ranks from "
+        "dem.orb_global_min_per_rank particles per rank): the leaves that would step finely held "
+        "more than 3/4 of the particles over all ranks";
     if (parts_.ranks) {
       // The mean over the rows after the first (each closes an interval).
       const auto col = static_cast<std::size_t>(

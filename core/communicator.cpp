@@ -17,9 +17,6 @@ template <> MPI_Datatype mpi_type<double>() {
 template <> MPI_Datatype mpi_type<std::int64_t>() {
   return MPI_INT64_T;
 }
-template <> MPI_Datatype mpi_type<std::uint64_t>() {
-  return MPI_UINT64_T;
-}
 
 template <class T> void reduce(const Communicator& c, std::span<T> v, MPI_Op op) {
   if (c.size() == 1 || v.empty())
@@ -52,9 +49,6 @@ void Communicator::max(std::span<std::int64_t> v) const {
 }
 void Communicator::min(std::span<std::int64_t> v) const {
   reduce(*this, v, MPI_MIN);
-}
-void Communicator::bit_or(std::span<std::uint64_t> v) const {
-  reduce(*this, v, MPI_BOR);
 }
 
 namespace {

@@ -29,9 +29,6 @@ public:
   void max(std::span<double> v) const;
   void max(std::span<std::int64_t> v) const;
   void min(std::span<std::int64_t> v) const;
-  // Element-wise bitwise or (flags packed 64 to a word: one bit per tree leaf costs 1/64 of a
-  // word per leaf on the wire).
-  void bit_or(std::span<std::uint64_t> v) const;
   // Element-wise sum of `sums` and max of `maxes` in one reduction (one latency instead of two:
   // the islands scheme's link rounds).
   void sum_max(std::span<double> sums, std::span<double> maxes) const;

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -233,12 +234,17 @@ bool OrbScheme::rank_rows_keepable() const {
 // skin/2 from the build, instead of the exchange and rows of every sub-iteration (the neighbor
 // phase was 1.3 s of 4 s in the 2-rank 1e5 bed at dem.nsubit = 35; one rank keeps its pairs the
 // same way). The ghosts' x and v come from their owners; the proximity flags from the build's
-// proximity candidates, by the build's expressions, so the choice is one rank's. A particle stays
-// on its rank when it crosses into another rank's leaf, so the leaves' flags are or-ed over the
-// ranks: two bits per leaf (holds a particle, holds a fine one) and a word for an expiry
-// (rows_expire: a particle may move skin/2 from the build within this sub-iteration), then the
-// fine particles summed. False (every rank alike): rebuild, as the sub-iteration may not be
-// global or may outrun the rows.
+// proximity candidates, by the build's expressions, so the choice is one rank's.
+// A particle stays on its rank when it crosses into another rank's leaf (a stray). Its new leaf's
+// owner holds a ghost copy of it: the particle lies within skin/2 of where it was at the build,
+// inside this rank's leaf, so within the cutoff of its new leaf, and the build sent it to every
+// rank with a leaf that close. So each rank reports its strays to the ranks holding their ghosts
+// (2 leaf + near + 1, 0 for the others, one value per ghost along the plan), and each leaf's
+// owner knows whether it holds a particle and a fine one, with no message that grows with the
+// leaves. One sum then gives the fine particles, the particles counted (each once, by its leaf's
+// owner: all of them unless the rows expired) and the expiries (rows_expire: a particle may move
+// skin/2 from the build within this sub-iteration). False (every rank alike): rebuild, as the
+// sub-iteration may not be global or may outrun the rows.
 bool OrbScheme::rank_keep_rows() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   rank_->kept = false;
@@ -260,34 +266,52 @@ bool OrbScheme::rank_keep_rows() {
     }
   }
   mark_walls(near);
-  const std::size_t nl = decomp_.tree.leaves().size();
-  std::vector<std::uint64_t>& bits = rank_->leaf_bits;
-  bits.assign((2 * nl + 63) / 64 + 1, 0);
-  const auto set = [&](std::size_t b) { bits[b >> 6] |= std::uint64_t{1} << (b & 63); };
-  const auto has = [&](std::size_t b) { return (bits[b >> 6] >> (b & 63)) & 1U; };
-  for (std::size_t i = 0; i < owned_; ++i) {
-    set(2 * std::size_t{leaves_.of[i]});
-    if (near[i])
-      set(2 * std::size_t{leaves_.of[i]} + 1);
-  }
-  bits.back() = rows_expire(owned_, {rank_->ref[0].data(), rank_->ref[1].data(),
-                                     rank_->ref[2].data()})
-                    ? 1
-                    : 0;
-  rank_->comm.bit_or(bits);
-  if (bits.back() != 0)
-    return false;
-  std::array<std::int64_t, 2> c{0, static_cast<std::int64_t>(owned_)};
+  const int me = rank_->comm.rank();
+  const std::vector<int>& owner = decomp_.owner;
+  std::vector<double>& stray = rank_->stray;
+  stray.assign(p_.size(), 0.0);
   for (std::size_t i = 0; i < owned_; ++i)
-    c[0] += static_cast<std::int64_t>(has(2 * std::size_t{leaves_.of[i]} + 1));
+    if (owner[leaves_.of[i]] != me)
+      stray[i] = 2.0 * static_cast<double>(leaves_.of[i]) + (near[i] ? 2.0 : 1.0);
+  std::vector<double>* col[] = {&stray};
+  rank_->exchange.forward_columns(col);
+  // This rank's leaves: bit 0, it holds a particle; bit 1, a fine one. Then the particles in them.
+  std::vector<unsigned char>& st = rank_->leaf_state;
+  st.assign(decomp_.tree.leaves().size(), 0);
+  std::vector<int>& mine = rank_->kept_leaves;
+  mine.clear();
+  const auto visit = [&](std::size_t l, bool fine) {
+    if (st[l] == 0)
+      mine.push_back(static_cast<int>(l));
+    st[l] |= static_cast<unsigned char>(fine ? 3 : 1);
+  };
+  const auto arrived = [&](std::size_t g) { // a stray of another rank in a leaf of this one
+    const auto code = static_cast<std::int64_t>(stray[g]) - 1;
+    const auto l = static_cast<std::size_t>(code / 2);
+    return code >= 0 && owner[l] == me ? std::optional<std::pair<std::size_t, bool>>({l, code % 2})
+                                       : std::nullopt;
+  };
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (owner[leaves_.of[i]] == me)
+      visit(leaves_.of[i], near[i] != 0);
+  for (std::size_t g = owned_; g < p_.size(); ++g)
+    if (const auto a = arrived(g))
+      visit(a->first, a->second);
+  std::array<std::int64_t, 3> c{0, 0, 0};
+  for (std::size_t i = 0; i < owned_; ++i)
+    if (owner[leaves_.of[i]] == me)
+      c[0] += (st[leaves_.of[i]] >> 1) & 1, ++c[1];
+  for (std::size_t g = owned_; g < p_.size(); ++g)
+    if (const auto a = arrived(g))
+      c[0] += (st[a->first] >> 1) & 1, ++c[1];
+  c[2] = rows_expire(owned_, {rank_->ref[0].data(), rank_->ref[1].data(), rank_->ref[2].data()})
+             ? 1
+             : 0;
   rank_->comm.sum(c);
-  if (!(static_cast<double>(c[0]) > kGlobalFraction * static_cast<double>(c[1])))
+  if (c[2] > 0 || c[1] != cfg_.n_global) // an expiry (then a stray may have gone uncounted)
     return false;
-  rank_->kept_leaves.clear();
-  if (rank_->comm.rank() == 0)
-    for (std::size_t l = 0; l < nl; ++l)
-      if (has(2 * l))
-        rank_->kept_leaves.push_back(static_cast<int>(l));
+  if (!(static_cast<double>(c[0]) > kGlobalFraction * static_cast<double>(cfg_.n_global)))
+    return false;
   global_.on = true;
   rank_->kept = true;
   clear_global_forces(); // the last sub-iteration's last pass

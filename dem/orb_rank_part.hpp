@@ -29,12 +29,13 @@ struct OrbScheme::RankPart {
   // The global mode's rows kept over sub-iterations (OrbScheme::rank_keep_rows): the local
   // positions at the build (owned + ghosts: the skin/2 tests and the head/tail split), whether
   // the rows hold the proximity candidates, whether the next sub-iteration may keep them,
-  // whether this one does, and then the leaves holding particles on some rank (rank 0 only:
-  // the counters).
+  // whether this one does, and then this rank's leaves that hold a particle on some rank (the
+  // counters); scratch: the strays' reports along the ghost plan, the state of each leaf.
   std::array<std::vector<double>, 3> ref;
   bool keepable = false, may_keep = false, kept = false, stream_stale = true;
   std::vector<int> kept_leaves;
-  std::vector<std::uint64_t> leaf_bits;
+  std::vector<double> stray;
+  std::vector<unsigned char> leaf_state;
 };
 
 } // namespace cfddem::dem

@@ -757,7 +757,7 @@ void OrbScheme::subiterate(bool record) {
       c[5] += bt.evals;
       c[6] += bt.violations;
     }
-    if (rank_ && rank_->kept) { // the store is not in leaf order: the leaves over the ranks
+    if (rank_ && rank_->kept) { // the store is not in leaf order: this rank's leaves
       c[7] += static_cast<std::int64_t>(rank_->kept_leaves.size());
       c[8] += static_cast<std::int64_t>(rank_->kept_leaves.size());
     } else {
@@ -807,7 +807,7 @@ void OrbScheme::subiterate(bool record) {
   const bool can_refine = model_.dt < cfg_.dt_sp;
   const std::int64_t K_fine = fine_steps(cfg_.dt_sp, model_.dt).K;
   if (rank_ && rank_->kept) {
-    for (const int l : rank_->kept_leaves) // every leaf fine (the global mode), on rank 0
+    for (const int l : rank_->kept_leaves) // every leaf fine (the global mode), by its owner
       stats_.leaf_steps[static_cast<std::size_t>(l)] += K_fine;
   } else {
     for (std::size_t k = 0; k < leaves_.id.size(); ++k)

@@ -1,12 +1,14 @@
 // OrbLocalRows (the distributed orb scheme's rows): every owned particle's row and proximity flag
 // equal the brute-force ones over all local particles, in both the half-stencil (three or more
-// cells per axis) and the full-stencil (fewer) paths, with periodic and walled axes.
+// cells per axis) and the full-stencil (fewer) paths, with periodic and walled axes; and the
+// proximity candidates the global mode keeps.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include "core/scene.hpp"
@@ -90,6 +92,41 @@ void expect_brute_force(const dem::DomainGeometry& g, const Local& p, std::size_
   EXPECT_EQ(std::vector<std::uint32_t>(rows.active().begin(), rows.active().end()), active);
 }
 
+// With Input::proximity_pairs the rows and flags stay the same, and the proximity candidates are
+// every pair of local particles but two ghosts within prox (r_i + r_j) + skin, each once, none
+// beyond (what OrbScheme::rank_keep_rows tests the proximity on while it keeps the rows).
+void expect_proximity_candidates(const dem::DomainGeometry& g, const Local& p, std::size_t owned) {
+  const double skin = 20e-6, prox = 1.5, dt_sp = 1e-4, r_max = 60e-6;
+  const double cutoff = 2.0 * prox * r_max + skin;
+  dem::OrbLocalRows plain, with;
+  plain.build({g, p.x, p.y, p.z, p.r, p.id, p.speed, p.leaf, owned, cutoff, skin, prox, dt_sp,
+               false});
+  with.build({g, p.x, p.y, p.z, p.r, p.id, p.speed, p.leaf, owned, cutoff, skin, prox, dt_sp, false,
+              true});
+  EXPECT_TRUE(plain.proximity_candidates().empty());
+  EXPECT_TRUE(std::ranges::equal(plain.nb(), with.nb()));
+  EXPECT_TRUE(std::ranges::equal(plain.off(), with.off()));
+  EXPECT_TRUE(std::ranges::equal(plain.near(), with.near()));
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> want, got;
+  for (std::uint32_t i = 0; i < p.x.size(); ++i)
+    for (std::uint32_t j = i + 1; j < p.x.size(); ++j) {
+      if (i >= owned && j >= owned)
+        continue;
+      const double dx = g.image(p.x[j] - p.x[i], 0), dy = g.image(p.y[j] - p.y[i], 1),
+                   dz = g.image(p.z[j] - p.z[i], 2);
+      const double d = prox * (p.r[i] + p.r[j]) + skin;
+      if (dx * dx + dy * dy + dz * dz < d * d)
+        want.emplace_back(i, j);
+    }
+  const auto cand = with.proximity_candidates();
+  ASSERT_EQ(cand.size() % 2, 0U);
+  for (std::size_t q = 0; q < cand.size(); q += 2)
+    got.emplace_back(std::min(cand[q], cand[q + 1]), std::max(cand[q], cand[q + 1]));
+  std::sort(got.begin(), got.end());
+  EXPECT_EQ(got, want);
+  EXPECT_GT(want.size(), owned / 2); // not a trivial scene
+}
+
 dem::DomainGeometry box(double side) {
   DomainSpec d;
   d.lo = {0.0, 0.0, 0.0};
@@ -105,6 +142,7 @@ TEST(OrbLocalRows, HalfStencilRowsAndFlagsEqualBruteForce) {
   expect_brute_force(g, p, 250, false, &half);
   EXPECT_TRUE(half);
   expect_brute_force(g, p, 250, true, &half);
+  expect_proximity_candidates(g, p, 250);
 }
 
 TEST(OrbLocalRows, FullStencilRowsAndFlagsEqualBruteForceInABoxOfTwoCells) {
@@ -113,6 +151,7 @@ TEST(OrbLocalRows, FullStencilRowsAndFlagsEqualBruteForceInABoxOfTwoCells) {
   bool half = true;
   expect_brute_force(g, p, 25, false, &half);
   EXPECT_FALSE(half);
+  expect_proximity_candidates(g, p, 25);
 }
 
 } // namespace

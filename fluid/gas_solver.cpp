@@ -63,6 +63,7 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   eps_old_ = grid.make_field(1.0);
   beta_ = grid.make_field();
   source_ = grid.make_field();
+  size_workspace(work_, grid.layout(), settings.advection == Advection::godunov);
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
   if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
     implicit_now_ = !settings.implicit_viscosity_auto;

@@ -19,6 +19,30 @@ void ensure(GridField& f, const GridLayout& layout) {
   }
 }
 
+} // namespace
+
+void size_workspace(MomentumWorkspace& work, const GridLayout& layout, bool godunov) {
+  for (int b = 0; b < 3; ++b) {
+    ensure(work.flux[b], layout);
+    ensure(work.speed[b], layout);
+    ensure(work.stress[b], layout);
+  }
+  ensure(work.divergence, layout);
+  if (!godunov) {
+    return;
+  }
+  for (auto& row : work.base) {
+    for (GridField& f : row) {
+      ensure(f, layout);
+    }
+  }
+  for (GridField& f : work.half) {
+    ensure(f, layout);
+  }
+}
+
+namespace {
+
 // Everything one component's passes read, with the strides and spacings.
 struct ComponentView {
   int a = 0;

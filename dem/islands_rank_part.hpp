@@ -15,6 +15,8 @@
 #include "dem/islands_scheme.hpp"
 #include "dem/near_rows.hpp"
 #include "dem/orb_local_rows.hpp"
+#include "dem/pair_contacts.hpp"
+#include "dem/pair_stream.hpp"
 #include "partition/orb_tree.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -57,6 +59,17 @@ struct IslandsScheme::RankPart {
   std::array<std::vector<double>, 6> start_spin; // wx, wy, wz (owned), hx, hy, hz (rows)
   double max_ratio_local = 0.0; // this rank's largest overlap ratio not yet reduced
   islands::NearRows near; // the dense mode's near rows (dem/near_rows.hpp)
+  // The dense mode without friction: each pair of the near rows once, as the pair pass's head
+  // (raw separation) and tail (periodic image) streams, their contacts of the last pass, the
+  // owned particles near a wall, and the pairs counted per step over the ranks (a pair with a
+  // ghost on the rank of its lower id). IslandsScheme::dense_half_streams.
+  struct DenseHalf {
+    PairStream head, tail;
+    std::vector<PairContacts> head_blocks, tail_blocks;
+    std::size_t nh = 0, nt = 0;
+    std::vector<std::uint32_t> a, b, near_wall;
+    std::int64_t once = 0;
+  } half;
 };
 
 } // namespace cfddem::dem

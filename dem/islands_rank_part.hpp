@@ -59,6 +59,16 @@ struct IslandsScheme::RankPart {
   std::array<std::vector<double>, 6> start_spin; // wx, wy, wz (owned), hx, hy, hz (rows)
   double max_ratio_local = 0.0; // this rank's largest overlap ratio not yet reduced
   islands::NearRows near; // the dense mode's near rows (dem/near_rows.hpp)
+  // The link rounds after the first (make_links_ranks): per rows entry, whether it is a link;
+  // each link's entry (the key that orders the links: the owned row's, of two owned particles
+  // the lower index's); the particles whose bound changed in the last round; for each ghost, the
+  // owned rows' entries that hold it (rebuilt with the rows).
+  std::vector<unsigned char> linked_entry, mark;
+  std::vector<std::uint32_t> link_key, new_key, changed, ghost_off, ghost_entry;
+  std::vector<double> ghost_bound;
+  bool ghost_index_stale = true;
+  bool incremental_on = true;
+  std::int64_t incremental_rounds = 0;
   // The dense mode without friction: each pair of the near rows once, as the pair pass's head
   // (raw separation) and tail (periodic image) streams, their contacts of the last pass, the
   // owned particles near a wall, and the pairs counted per step over the ranks (a pair with a

@@ -207,6 +207,7 @@ void IslandsScheme::build_ghosts_and_rows() {
                 0.0,
                 dt_sp_,
                 false});
+  r.ghost_index_stale = true;
   r.x_ref.assign(p_.x.begin(), p_.x.begin() + static_cast<std::ptrdiff_t>(owned_));
   r.y_ref.assign(p_.y.begin(), p_.y.begin() + static_cast<std::ptrdiff_t>(owned_));
   r.z_ref.assign(p_.z.begin(), p_.z.begin() + static_cast<std::ptrdiff_t>(owned_));
@@ -216,47 +217,145 @@ void IslandsScheme::build_ghosts_and_rows() {
 // The one-rank link test and wall tie over pairs with an owned end (each owned pair once), walls
 // of owned particles; islands over the linked and tied particles (owned and ghosts); an island
 // with a ghost member spans ranks.
-void IslandsScheme::make_links_ranks() {
-  const RankPart& r = *rank_;
+void IslandsScheme::make_links_ranks(bool incremental) {
+  RankPart& r = *rank_;
   const auto off = r.rows.off();
   const auto nb = r.rows.nb();
   const DomainGeometry& g = geom_;
   const double* bnd = ln_.bound.data();
   const bool friction = model_.friction;
-  ln_.ea.clear(), ln_.eb.clear(), ln_.ek.clear();
-  for (std::uint32_t i = 0; i < owned_; ++i)
-    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-      const std::uint32_t j = nb[k];
-      if (j < owned_ && j <= i)
+  // The one-rank link test of the pair (i, j) from i's row.
+  auto linked = [&](std::uint32_t i, std::uint32_t j) {
+    const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
+                 dz = g.image(p_.z[j] - p_.z[i], 2);
+    return islands::may_touch(dx * dx + dy * dy + dz * dz, bnd[i], bnd[j], p_.radius[i],
+                              p_.radius[j], dt_sp_, margin_);
+  };
+  auto tie = [&](std::uint32_t i) {
+    bool t = false;
+    for (int a = 0; a < 3; ++a) {
+      const double pos = a == 0 ? p_.x[i] : a == 1 ? p_.y[i] : p_.z[i];
+      t = t || (!g.periodic[a] &&
+                islands::may_reach_wall(pos, g.lo[a], g.hi[a], p_.radius[i], bnd[i], dt_sp_,
+                                        margin_));
+    }
+    return t || (g.cylinder && islands::may_reach_cylinder(g, p_.x[i], p_.y[i], p_.z[i],
+                                                           p_.radius[i], bnd[i], dt_sp_, margin_));
+  };
+  if (!incremental) {
+    ln_.ea.clear(), ln_.eb.clear(), ln_.ek.clear(), r.link_key.clear();
+    r.linked_entry.assign(nb.size(), 0);
+    for (std::uint32_t i = 0; i < owned_; ++i)
+      for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
+        const std::uint32_t j = nb[k];
+        if (j < owned_ && j <= i)
+          continue;
+        if (linked(i, j)) {
+          ln_.ea.push_back(i), ln_.eb.push_back(j), r.link_key.push_back(k);
+          r.linked_entry[k] = 1;
+        }
+      }
+    ln_.tied.clear();
+    for (std::uint32_t i = 0; i < owned_; ++i)
+      if (tie(i))
+        ln_.tied.push_back(i);
+  } else {
+    // Bounds only grew since the last round (link_rounds checks), so a link stays a link and a
+    // pair neither of whose ends changed tests as before: the new links are among the pairs of
+    // the changed particles, each tested from the row the full scan tests it from, by the same
+    // expression, and merged by entry, which is the full scan's order. The same links, in the
+    // same order, as a full scan.
+    if (r.ghost_index_stale)
+      ghost_entries();
+    r.mark.assign(p_.size(), 0);
+    for (const std::uint32_t c : r.changed)
+      r.mark[c] = 1;
+    r.new_key.clear();
+    auto test = [&](std::uint32_t i, std::uint32_t j, std::uint32_t k) {
+      if (!r.linked_entry[k] && linked(i, j))
+        r.new_key.push_back(k), r.linked_entry[k] = 1;
+    };
+    for (const std::uint32_t c : r.changed) {
+      if (c >= owned_) { // a ghost: from the owned rows that hold it, unless they changed too
+        const std::uint32_t gq = c - static_cast<std::uint32_t>(owned_);
+        for (std::uint32_t e = r.ghost_off[gq]; e < r.ghost_off[gq + 1]; ++e) {
+          const std::uint32_t k = r.ghost_entry[e];
+          const auto i = static_cast<std::uint32_t>(
+              std::upper_bound(off.begin(), off.end(), k) - off.begin() - 1);
+          if (!r.mark[i])
+            test(i, c, k);
+        }
         continue;
-      const double dx = g.image(p_.x[j] - p_.x[i], 0), dy = g.image(p_.y[j] - p_.y[i], 1),
-                   dz = g.image(p_.z[j] - p_.z[i], 2);
-      if (islands::may_touch(dx * dx + dy * dy + dz * dz, bnd[i], bnd[j], p_.radius[i],
-                             p_.radius[j], dt_sp_, margin_)) {
-        ln_.ea.push_back(i), ln_.eb.push_back(j);
-        if (friction) // i's entry: its tangential spring enters the island's energy
-          ln_.ek.push_back(k);
+      }
+      for (std::uint32_t k = off[c]; k < off[c + 1]; ++k) {
+        const std::uint32_t j = nb[k];
+        if (j >= owned_ || j > c) {
+          test(c, j, k);
+        } else if (!r.mark[j]) { // from j's row: its entry of c
+          std::uint32_t kj = off[j];
+          while (nb[kj] != c)
+            ++kj;
+          test(j, c, kj);
+        }
+      }
+      if (tie(c))
+        ln_.tied.push_back(c); // a duplicate is harmless: form() takes each particle once
+    }
+    std::sort(r.new_key.begin(), r.new_key.end());
+    std::size_t q = r.link_key.size(), added = r.new_key.size();
+    if (added > 0) { // merge, back to front, by entry
+      ln_.ea.resize(q + added), ln_.eb.resize(q + added), r.link_key.resize(q + added);
+      std::size_t w = q + added;
+      while (added > 0) {
+        const std::uint32_t kn = r.new_key[added - 1];
+        --w;
+        if (q > 0 && r.link_key[q - 1] > kn) {
+          --q;
+          ln_.ea[w] = ln_.ea[q], ln_.eb[w] = ln_.eb[q], r.link_key[w] = r.link_key[q];
+        } else {
+          --added;
+          ln_.ea[w] = static_cast<std::uint32_t>(
+              std::upper_bound(off.begin(), off.end(), kn) - off.begin() - 1);
+          ln_.eb[w] = nb[kn], r.link_key[w] = kn;
+        }
       }
     }
-  ln_.tied.clear();
-  for (int a = 0; a < 3; ++a) {
-    if (g.periodic[a])
-      continue;
-    const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
-    for (std::uint32_t i = 0; i < owned_; ++i)
-      if (islands::may_reach_wall(pos[i], g.lo[a], g.hi[a], p_.radius[i], bnd[i], dt_sp_, margin_))
-        ln_.tied.push_back(i);
   }
-  if (g.cylinder)
-    for (std::uint32_t i = 0; i < owned_; ++i)
-      if (islands::may_reach_cylinder(g, p_.x[i], p_.y[i], p_.z[i], p_.radius[i], bnd[i], dt_sp_,
-                                      margin_))
-        ln_.tied.push_back(i);
+  if (friction) // each link's entry in its owned row: its tangential spring enters the energy
+    ln_.ek = r.link_key;
   ln_.form(p_.size(), std::numeric_limits<double>::infinity());
   rank_->spans.assign(ln_.islands.count(), 0);
   for (const std::uint32_t v : ln_.busy)
     if (v >= owned_)
       rank_->spans[ln_.island_of[v]] = 1;
+}
+
+std::int64_t IslandsScheme::incremental_link_rounds() const {
+  return rank_ ? rank_->incremental_rounds : 0;
+}
+
+void IslandsScheme::use_incremental_links(bool on) {
+  if (rank_)
+    rank_->incremental_on = on;
+}
+
+// For each ghost, the entries of the owned rows that hold it (in entry order).
+void IslandsScheme::ghost_entries() {
+  RankPart& r = *rank_;
+  const auto nb = r.rows.nb();
+  const std::size_t ghosts = p_.size() - owned_;
+  r.ghost_off.assign(ghosts + 1, 0);
+  for (const std::uint32_t j : nb)
+    if (j >= owned_)
+      ++r.ghost_off[j - owned_ + 1];
+  for (std::size_t q = 0; q < ghosts; ++q)
+    r.ghost_off[q + 1] += r.ghost_off[q];
+  r.ghost_entry.resize(r.ghost_off[ghosts]);
+  std::vector<std::uint32_t> at(r.ghost_off.begin(), r.ghost_off.end() - 1);
+  for (std::uint32_t k = 0; k < nb.size(); ++k)
+    if (nb[k] >= owned_)
+      r.ghost_entry[at[nb[k] - owned_]++] = k;
+  r.ghost_index_stale = false;
 }
 
 // Link rounds (step 3 of the header); returns the largest reach over all ranks.
@@ -268,8 +367,13 @@ double IslandsScheme::link_rounds() {
   ln_.own_stamp.assign(n, 0);
   ln_.stamp = 1;
   global_ = false;
+  // After the first round only the pairs of the particles whose bound changed are tested again,
+  // while no bound shrank (make_links_ranks); a shrunk bound (not expected: islands only merge)
+  // takes a full scan on that rank, which gives the same links.
+  bool incremental = false;
   for (int round = 0;; ++round) {
-    make_links_ranks();
+    make_links_ranks(incremental && r.incremental_on);
+    r.incremental_rounds += incremental && r.incremental_on ? 1 : 0;
     const bool changed =
         round == 0 || ln_.busy != ln_.busy_before || ln_.islands.label != ln_.label_before;
     for (const std::uint32_t i : ln_.busy)
@@ -313,6 +417,8 @@ double IslandsScheme::link_rounds() {
     const double m_all = -mx[3];
     const double s_span =
         std::isfinite(m_all) ? islands::island_speed(sm[0], m_all, mx[1], mx[2], dt_sp_) : 0.0;
+    r.changed.clear();
+    incremental = true;
     for (const std::uint32_t i : ln_.busy) {
       if (i >= owned_)
         break;
@@ -320,10 +426,20 @@ double IslandsScheme::link_rounds() {
       const double s = r.spans[c] ? s_span
                                   : islands::island_speed(ln_.energy[c], ln_.m_min[c], ln_.a_max[c],
                                                           ln_.hp_max[c], dt_sp_);
-      ln_.bound[i] = std::max(ln_.own_bound[i], s);
+      const double b = std::max(ln_.own_bound[i], s);
+      if (b != ln_.bound[i])
+        r.changed.push_back(i), incremental = incremental && b > ln_.bound[i];
+      ln_.bound[i] = b;
     }
+    r.ghost_bound.assign(ln_.bound.begin() + static_cast<std::ptrdiff_t>(owned_), ln_.bound.end());
     std::vector<double>* col[] = {&ln_.bound};
     r.exchange.forward_columns(col); // the ghosts' raised bounds from their owners
+    for (std::size_t q = 0; q < r.ghost_bound.size(); ++q) {
+      const double b = ln_.bound[owned_ + q];
+      if (b != r.ghost_bound[q])
+        r.changed.push_back(static_cast<std::uint32_t>(owned_ + q)),
+            incremental = incremental && b > r.ghost_bound[q];
+    }
     ln_.busy_before = ln_.busy;
     ln_.label_before = ln_.islands.label;
   }

@@ -140,6 +140,10 @@ public:
   // sub-iterations; spanning islands summed over ranks and sub-iterations (an island over two
   // ranks counts twice: each rank sees its part). 0 on one rank.
   std::int64_t spanning_subiterations() const { return st_.span_subits; }
+  // R ranks: the link rounds after the first that tested only the changed particles' pairs; off
+  // (tests): every round scans every row, which must give the same links.
+  std::int64_t incremental_link_rounds() const;
+  void use_incremental_links(bool on);
   std::int64_t spanning_particles() const { return st_.span_particles; }
   std::int64_t spanning_island_parts() const { return st_.span_parts; }
   std::int64_t global_count() const { return n_global_; }
@@ -408,7 +412,8 @@ private:
   void rebuild_ranks();
   void build_ghosts_and_rows();
   double link_rounds();
-  void make_links_ranks();
+  void make_links_ranks(bool incremental);
+  void ghost_entries();
   islands::IslandResult fine_together(bool record, bool all);
   template <bool External, bool Friction>
   islands::IslandResult step_together(bool record, bool all);

@@ -91,6 +91,7 @@ struct Outcome {
   Spins spin;                         // with friction: the angular velocities (the same)
   std::vector<double> kinetic_energy; // per sub-iteration, over all particles
   std::int64_t bound_violations = 0, spanning_subits = 0, global_subits = 0;
+  std::int64_t incremental_link_rounds = 0;
   double max_overlap_ratio = 0.0;
 };
 
@@ -135,7 +136,8 @@ Outcome one_rank(const Scene& scene, int subits, bool external = false) {
 // The scheme with the world communicator on `threads` threads; every sub-iteration the particles
 // over all ranks are counted and identified (count, sum of ids and of squared ids) and their mass
 // compared.
-Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = false) {
+Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = false,
+                 bool incremental_links = true) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   const Communicator c = Communicator::world();
@@ -143,6 +145,7 @@ Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = fa
   ParticleStore p = share(all, c.rank(), c.size());
   PhaseTimer timer;
   dem::IslandsScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
+  s.use_incremental_links(incremental_links);
   s.start();
   if (external)
     apply_force(p, s.owned(), s);
@@ -170,6 +173,7 @@ Outcome on_ranks(const Scene& scene, int subits, int threads, bool external = fa
   r.bound_violations = s.bound_violations();
   r.spanning_subits = s.spanning_subiterations();
   r.global_subits = s.global_subiterations();
+  r.incremental_link_rounds = c.sum(s.incremental_link_rounds());
   r.max_overlap_ratio = s.max_overlap_ratio();
   return r;
 }
@@ -310,6 +314,30 @@ TEST(DistributedIslands, ExternalForceFollowsItsParticleAndMatchesOneRank) {
   EXPECT_EQ(d.bound_violations, 0);
   // And it matters: without it the particles end elsewhere.
   EXPECT_NE(one_rank(scene, kSubits, true).state, one_rank(scene, kSubits).state);
+}
+
+// The link rounds after the first test only the pairs of the particles whose bound was raised
+// (IslandsScheme::make_links_ranks): the same links in the same order as a scan of every row, so
+// the runs are bit for bit the same, in a dilute gas whose islands grow over several rounds and
+// span the ranks, with and without friction.
+TEST(DistributedIslands, IncrementalLinkRoundsGiveTheFullScansRun) {
+  for (const bool friction : {false, true}) {
+    Scene scene = scene_from(kGas, {"domain.hi=[1.737e-3, 1.737e-3, 1.737e-3]",
+                                    "particles.count=100", "particles.temperature=0.01",
+                                    "particles.seed=3", "dem.regrid_interval=1.0e-4"});
+    if (friction)
+      scene.dem.friction = 0.3;
+    const int subits = 200; // 4 ms: new links across the ranks from raised ghost bounds too
+    const Outcome full = on_ranks(scene, subits, 1, false, false);
+    const Outcome fast = on_ranks(scene, subits, 1, false, true);
+    EXPECT_EQ(full.state, fast.state) << "friction " << friction;
+    EXPECT_EQ(full.kinetic_energy, fast.kinetic_energy) << "friction " << friction;
+    EXPECT_EQ(full.incremental_link_rounds, 0);
+    if (Communicator::world().size() > 1) {
+      EXPECT_GT(fast.incremental_link_rounds, 0) << "friction " << friction;
+      EXPECT_GT(fast.spanning_subits, 0) << "friction " << friction;
+    }
+  }
 }
 
 TEST(DistributedIslands, RerunAndThreadCountsAreBitwiseIdentical) {

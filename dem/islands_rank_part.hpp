@@ -11,12 +11,11 @@
 #include "core/communicator.hpp"
 #include "core/particle_exchange.hpp"
 #include "dem/contact_history.hpp"
+#include "dem/global_pairs.hpp"
 #include "dem/islands_kernels.hpp"
 #include "dem/islands_scheme.hpp"
 #include "dem/near_rows.hpp"
 #include "dem/orb_local_rows.hpp"
-#include "dem/pair_contacts.hpp"
-#include "dem/pair_stream.hpp"
 #include "partition/orb_tree.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -69,17 +68,10 @@ struct IslandsScheme::RankPart {
   bool ghost_index_stale = true;
   bool incremental_on = true;
   std::int64_t incremental_rounds = 0;
-  // The dense mode without friction: each pair of the near rows once, as the pair pass's head
-  // (raw separation) and tail (periodic image) streams, their contacts of the last pass, the
-  // owned particles near a wall, and the pairs counted per step over the ranks (a pair with a
-  // ghost on the rank of its lower id). IslandsScheme::dense_half_streams.
-  struct DenseHalf {
-    PairStream head, tail;
-    std::vector<PairContacts> head_blocks, tail_blocks;
-    std::size_t nh = 0, nt = 0;
-    std::vector<std::uint32_t> a, b, near_wall;
-    std::int64_t once = 0;
-  } half;
+  // The dense mode without friction: each pair of the near rows once through the explicit
+  // scheme's pair pass, and the pairs counted per step over the ranks (step_together).
+  GlobalPairs dense_pairs;
+  std::int64_t dense_once = 0;
 };
 
 } // namespace cfddem::dem

@@ -508,25 +508,22 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
     // Each pair once (the one-rank global mode's passes): the forces of a step are computed
     // before it, the first here and the others after the ghosts' refresh in between(), so the
     // members' force callback has nothing left to do.
-    RankPart::DenseHalf& d = r.half;
+    // The pairs from the near rows just taken: while no particle has moved half the explicit
+    // skin from the filter, as the head/tail split needs. Every force cleared after a filter
+    // (the islands' own steps and the last pass left some behind), else the last pass's.
+    GlobalPairs& d = r.dense_pairs;
     islands::IslandResult passes;
     auto pass = [&](double hk, bool fresh) {
       if (fresh) {
-        dense_half_streams();
+        r.dense_once = d.from_rows(near.off, near.nb, owned_, p_.id);
+        d.split(p_, owned_, {near.x_ref, near.y_ref, near.z_ref}, geom_, near.skin);
         for (std::vector<double>* c : {&p_.fx, &p_.fy, &p_.fz})
           std::fill(c->begin(), c->end(), 0.0);
       } else {
-        clear_contact_forces<false>(p_, std::span<const PairContacts>(d.head_blocks).first(d.nh));
-        clear_contact_forces<false>(p_, std::span<const PairContacts>(d.tail_blocks).first(d.nt));
-        clear_forces<false>(p_, d.near_wall);
+        d.clear_forces(p_);
       }
       StepReport rep;
-      d.nh = pair_pass<false, false, true>(p_, d.head, HistoryColumns{}, geom_, model_, hk,
-                                           d.head_blocks, rep);
-      d.nt = pair_pass<false, true, true>(p_, d.tail, HistoryColumns{}, geom_, model_, hk,
-                                          d.tail_blocks, rep);
-      scatter_contacts<false>(p_, std::span<const PairContacts>(d.head_blocks).first(d.nh),
-                              std::span<const PairContacts>(d.tail_blocks).first(d.nt));
+      d.pass(p_, geom_, model_, hk, rep);
       double max_ratio = rep.max_ratio;
       std::int64_t violations = rep.overlaps;
       with_flags(
@@ -534,12 +531,12 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
             constexpr bool Cylinder = decltype(cyl)::value;
             const double w[3] = {0.0, 0.0, 0.0};
             double tq[3] = {0.0, 0.0, 0.0};
-            for (const std::uint32_t i : d.near_wall)
+            for (const std::uint32_t i : d.near_wall())
               islands::add_member_walls<false, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w,
                                                          tq, max_ratio, violations);
           },
           geom_.cylinder);
-      passes.pairs += d.once;
+      passes.pairs += r.dense_once;
       passes.max_ratio = std::max(passes.max_ratio, max_ratio);
       passes.violations += violations;
     };
@@ -585,46 +582,6 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
   if (Friction)
     islands::return_near_springs(near, view.hx, view.hy, view.hz);
   return result;
-}
-
-// The dense mode's pairs without friction, from the near rows (just taken): each pair of two
-// owned particles once (from its lower index's row), a pair with a ghost from its owned end (both
-// ranks evaluate it, each keeping its own particle's force, as the explicit scheme does), in row
-// order, split into the raw-separation head and the periodic-image tail: while no particle has
-// moved skin/2 from the filter, a pair whose raw separation was at most half a periodic length
-// less two skins on every periodic axis keeps it as the minimum image (OrbScheme's rule). The
-// owned particles that can reach a wall before the next filter, and the pairs counted per step
-// (a pair with a ghost on the rank of its lower id, so that the ranks add up to one rank's).
-void IslandsScheme::dense_half_streams() {
-  RankPart& r = *rank_;
-  RankPart::DenseHalf& d = r.half;
-  const islands::NearRows& near = r.near;
-  d.a.clear(), d.b.clear();
-  d.once = 0;
-  for (std::uint32_t i = 0; i < owned_; ++i)
-    for (std::uint32_t e = near.off[i]; e < near.off[i + 1]; ++e) {
-      const std::uint32_t j = near.nb[e];
-      if (j < owned_ && j <= i)
-        continue;
-      d.a.push_back(i), d.b.push_back(j);
-      d.once += j < owned_ || p_.id[i] < p_.id[j];
-    }
-  double lim[3];
-  for (int a = 0; a < 3; ++a)
-    lim[a] = geom_.periodic[a] ? geom_.half[a] - 2.0 * near.skin
-                               : std::numeric_limits<double>::infinity();
-  const auto raw = [&](std::size_t q) {
-    const std::uint32_t i = d.a[q], j = d.b[q];
-    return std::abs(p_.x[j] - p_.x[i]) <= lim[0] && std::abs(p_.y[j] - p_.y[i]) <= lim[1] &&
-           std::abs(p_.z[j] - p_.z[i]) <= lim[2];
-  };
-  d.head.build(d.a, d.b, raw, 2 * kPairBlock);
-  d.tail.build(d.a, d.b, [&](std::size_t q) { return !raw(q); }, 2 * kPairBlock);
-  if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
-    near_walls(p_, owned_, {near.x_ref, near.y_ref, near.z_ref}, geom_, near.skin, d.near_wall);
-  else
-    d.near_wall.clear();
-  d.nh = d.nt = 0;
 }
 
 // The spanning members' leads (islands_kernels.hpp, member_entry_time): each island's entry

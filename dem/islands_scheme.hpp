@@ -417,7 +417,6 @@ private:
   islands::IslandResult fine_together(bool record, bool all);
   template <bool External, bool Friction>
   islands::IslandResult step_together(bool record, bool all);
-  void dense_half_streams();
   void span_leads(const islands::ContactView& view, islands::Members& mb);
   void canonicalize();
   // The verbs of the sub-iteration that differ on R ranks (islands_ranks.cpp): on one rank each

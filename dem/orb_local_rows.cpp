@@ -92,6 +92,24 @@ void OrbLocalRows::build(const Input& in) {
       active_.push_back(static_cast<std::uint32_t>(i));
 }
 
+void OrbLocalRows::proximity_flags(const DomainGeometry& g, std::span<const double> x,
+                                   std::span<const double> y, std::span<const double> z,
+                                   std::span<const double> radius, double prox) {
+  std::fill(near_.begin(), near_.end(), 0);
+  const std::size_t owned = near_.size();
+  for (std::size_t q = 0; q < prox_.size(); q += 2) {
+    const std::uint32_t a = prox_[q], b = prox_[q + 1];
+    const double dx = g.image(x[b] - x[a], 0), dy = g.image(y[b] - y[a], 1),
+                 dz = g.image(z[b] - z[a], 2);
+    if (within_proximity(dx * dx + dy * dy + dz * dz, radius[a] + radius[b], prox)) {
+      if (a < owned)
+        near_[a] = 1;
+      if (b < owned)
+        near_[b] = 1;
+    }
+  }
+}
+
 // Rows and proximity flags from each pair of local particles once (not two ghosts): a cell and
 // its 13 forward neighbours (OrbScheme::rebuild_pairs' half stencil, over copies in cell order),
 // then the rows of the owned ends, each segment by id. The tests are those of the full stencil

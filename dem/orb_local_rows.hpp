@@ -78,6 +78,12 @@ public:
   // With Input::proximity_pairs: the candidates (a, b) as pairs of local indices, flattened
   // (a0, b0, a1, b1, ...), at least one end owned; empty otherwise.
   std::span<const std::uint32_t> proximity_candidates() const { return prox_; }
+  // The proximity flags again at the present positions (the local particles of the build, owned
+  // then ghosts), from the proximity candidates, by the build's test (within_proximity): the
+  // build's flags wherever no particle has moved skin/2 since it. Walls are the caller's.
+  void proximity_flags(const DomainGeometry& g, std::span<const double> x,
+                       std::span<const double> y, std::span<const double> z,
+                       std::span<const double> radius, double prox);
 
 private:
   void half_stencil(const Input& in);

@@ -7,7 +7,6 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
-#include <optional>
 #include <string>
 #include <utility>
 
@@ -198,19 +197,33 @@ void OrbScheme::rank_exchange_and_rows() {
 }
 
 // Every distance a test of the R-rank rows compares: contact candidates, the proximity or reach
-// test, with `keep` the proximity candidates (at most half of a periodic length).
-double OrbScheme::rank_cutoff(bool keep) const {
+// test, with `keep` the proximity candidates.
+double OrbScheme::rank_reach(bool keep) const {
   double cutoff = 2.0 * cfg_.r_max + skin_;
   cutoff = std::max(cutoff, cfg_.time_to_contact ? 2.0 * cfg_.r_max + 2.0 * reach_
                                                  : 2.0 * cfg_.prox * cfg_.r_max);
   if (keep)
     cutoff = std::max(cutoff, 2.0 * cfg_.prox * cfg_.r_max + skin_);
+  return cutoff;
+}
+
+// The first periodic axis not longer than twice `cutoff` (where the minimum image within the
+// cutoff would not be unique), or -1.
+int OrbScheme::short_periodic_axis(double cutoff) const {
   for (int a = 0; a < 3; ++a)
     if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
-      throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
-                                 "distributed orb scheme's cutoff {:.4g} m (contact, proximity "
-                                 "or reach): enlarge the domain or run on one rank",
-                                 a, geom_.length[a], cutoff));
+      return a;
+  return -1;
+}
+
+// rank_reach(keep), which must fit the periodic box.
+double OrbScheme::rank_cutoff(bool keep) const {
+  const double cutoff = rank_reach(keep);
+  if (const int a = short_periodic_axis(cutoff); a >= 0)
+    throw RunError(fmt::format("periodic axis {} is {:.4g} m long, not more than twice the "
+                               "distributed orb scheme's cutoff {:.4g} m (contact, proximity "
+                               "or reach): enlarge the domain or run on one rank",
+                               a, geom_.length[a], cutoff));
   return cutoff;
 }
 
@@ -219,14 +232,7 @@ double OrbScheme::rank_cutoff(bool keep) const {
 // that change at every sub-iteration), with the proximity candidates' cutoff below half of each
 // periodic length.
 bool OrbScheme::rank_rows_keepable() const {
-  if (!global_allowed() || cfg_.time_to_contact)
-    return false;
-  const double cutoff =
-      std::max(2.0 * cfg_.r_max + skin_, 2.0 * cfg_.prox * cfg_.r_max + skin_);
-  for (int a = 0; a < 3; ++a)
-    if (geom_.periodic[a] && 2.0 * cutoff >= geom_.length[a])
-      return false;
-  return true;
+  return global_allowed() && !cfg_.time_to_contact && short_periodic_axis(rank_reach(true)) < 0;
 }
 
 // R ranks, a sub-iteration after a global one of the same interval (not at a regrid, not
@@ -244,66 +250,52 @@ bool OrbScheme::rank_rows_keepable() const {
 // leaves. One sum then gives the fine particles, the particles counted (each once, by its leaf's
 // owner: all of them unless the rows expired) and the expiries (rows_expire: a particle may move
 // skin/2 from the build within this sub-iteration). False (every rank alike): rebuild, as the
-// sub-iteration may not be global or may outrun the rows.
+// sub-iteration may not be global or may outrun the rows. Only while the rows are keepable (the
+// global mode may be taken: the same rule for the whole interval).
 bool OrbScheme::rank_keep_rows() {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   rank_->kept = false;
-  if (!global_allowed())
-    return false;
   rank_->exchange.forward(p_);
+  const std::size_t n = p_.size();
+  rank_->rows.proximity_flags(geom_, {p_.x.data(), n}, {p_.y.data(), n}, {p_.z.data(), n},
+                              {p_.radius.data(), n}, cfg_.prox);
   const std::span<unsigned char> near = rank_->rows.near();
-  std::fill(near.begin(), near.end(), 0);
-  const std::span<const std::uint32_t> cand = rank_->rows.proximity_candidates();
-  for (std::size_t q = 0; q < cand.size(); q += 2) {
-    const std::uint32_t a = cand[q], b = cand[q + 1];
-    const double dx = geom_.image(p_.x[b] - p_.x[a], 0), dy = geom_.image(p_.y[b] - p_.y[a], 1),
-                 dz = geom_.image(p_.z[b] - p_.z[a], 2);
-    if (within_proximity(dx * dx + dy * dy + dz * dz, p_.radius[a] + p_.radius[b], cfg_.prox)) {
-      if (a < owned_)
-        near[a] = 1;
-      if (b < owned_)
-        near[b] = 1;
-    }
-  }
   mark_walls(near);
   const int me = rank_->comm.rank();
   const std::vector<int>& owner = decomp_.owner;
   std::vector<double>& stray = rank_->stray;
-  stray.assign(p_.size(), 0.0);
+  stray.assign(n, 0.0);
   for (std::size_t i = 0; i < owned_; ++i)
     if (owner[leaves_.of[i]] != me)
       stray[i] = 2.0 * static_cast<double>(leaves_.of[i]) + (near[i] ? 2.0 : 1.0);
   std::vector<double>* col[] = {&stray};
   rank_->exchange.forward_columns(col);
-  // This rank's leaves: bit 0, it holds a particle; bit 1, a fine one. Then the particles in them.
-  std::vector<unsigned char>& st = rank_->leaf_state;
-  st.assign(decomp_.tree.leaves().size(), 0);
+  // This rank's leaves: the particles counted in each (its owned ones and the strays reported
+  // to it) and whether one of them is fine; the leaves touched, to be zeroed again after.
+  const std::size_t nl = decomp_.tree.leaves().size();
+  std::vector<std::uint32_t>& count = rank_->leaf_count;
+  std::vector<unsigned char>& fine = rank_->leaf_fine;
+  count.resize(nl, 0), fine.resize(nl, 0);
   std::vector<int>& mine = rank_->kept_leaves;
   mine.clear();
-  const auto visit = [&](std::size_t l, bool fine) {
-    if (st[l] == 0)
+  const auto add = [&](std::size_t l, bool f) {
+    if (count[l]++ == 0)
       mine.push_back(static_cast<int>(l));
-    st[l] |= static_cast<unsigned char>(fine ? 3 : 1);
-  };
-  const auto arrived = [&](std::size_t g) { // a stray of another rank in a leaf of this one
-    const auto code = static_cast<std::int64_t>(stray[g]) - 1;
-    const auto l = static_cast<std::size_t>(code / 2);
-    return code >= 0 && owner[l] == me ? std::optional<std::pair<std::size_t, bool>>({l, code % 2})
-                                       : std::nullopt;
+    fine[l] |= static_cast<unsigned char>(f);
   };
   for (std::size_t i = 0; i < owned_; ++i)
     if (owner[leaves_.of[i]] == me)
-      visit(leaves_.of[i], near[i] != 0);
-  for (std::size_t g = owned_; g < p_.size(); ++g)
-    if (const auto a = arrived(g))
-      visit(a->first, a->second);
+      add(leaves_.of[i], near[i] != 0);
+  for (std::size_t g = owned_; g < n; ++g) {
+    const auto code = static_cast<std::int64_t>(stray[g]) - 1; // 2 leaf + near, or -1
+    if (code >= 0 && owner[static_cast<std::size_t>(code / 2)] == me)
+      add(static_cast<std::size_t>(code / 2), code % 2 != 0);
+  }
   std::array<std::int64_t, 3> c{0, 0, 0};
-  for (std::size_t i = 0; i < owned_; ++i)
-    if (owner[leaves_.of[i]] == me)
-      c[0] += (st[leaves_.of[i]] >> 1) & 1, ++c[1];
-  for (std::size_t g = owned_; g < p_.size(); ++g)
-    if (const auto a = arrived(g))
-      c[0] += (st[a->first] >> 1) & 1, ++c[1];
+  for (const int l : mine) {
+    c[0] += fine[l] ? count[l] : 0, c[1] += count[l];
+    count[l] = 0, fine[l] = 0;
+  }
   c[2] = rows_expire(owned_, {rank_->ref[0].data(), rank_->ref[1].data(), rank_->ref[2].data()})
              ? 1
              : 0;
@@ -314,7 +306,7 @@ bool OrbScheme::rank_keep_rows() {
     return false;
   global_.on = true;
   rank_->kept = true;
-  clear_global_forces(); // the last sub-iteration's last pass
+  global_.pairs.clear_forces(p_); // the last sub-iteration's last pass
   return true;
 }
 
@@ -378,7 +370,7 @@ std::vector<ParticleExchange::Copy> OrbScheme::rank_halo_copies(double cutoff) {
 void OrbScheme::rank_rows(double cutoff, bool keep) {
   const std::size_t n = p_.size();
   rank_->keepable = keep;
-  rank_->stream_stale = true;
+  global_.stale = true;
   for (int a = 0; a < 3; ++a) {
     const std::vector<double>& pos = a == 0 ? p_.x : a == 1 ? p_.y : p_.z;
     rank_->ref[static_cast<std::size_t>(a)].assign(pos.begin(), pos.end());

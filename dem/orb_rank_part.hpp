@@ -28,14 +28,16 @@ struct OrbScheme::RankPart {
   bool ext_on = false; // an external force is set: on for every rank alike
   // The global mode's rows kept over sub-iterations (OrbScheme::rank_keep_rows): the local
   // positions at the build (owned + ghosts: the skin/2 tests and the head/tail split), whether
-  // the rows hold the proximity candidates, whether the next sub-iteration may keep them,
-  // whether this one does, and then this rank's leaves that hold a particle on some rank (the
-  // counters); scratch: the strays' reports along the ghost plan, the state of each leaf.
+  // the rows hold the proximity candidates, whether this sub-iteration kept them, and then this
+  // rank's leaves that hold a particle on some rank (the counters); scratch: the strays' reports
+  // along the ghost plan, and per leaf its particles counted here and whether one is fine (zero
+  // again between sub-iterations).
   std::array<std::vector<double>, 3> ref;
-  bool keepable = false, may_keep = false, kept = false, stream_stale = true;
+  bool keepable = false, kept = false;
   std::vector<int> kept_leaves;
   std::vector<double> stray;
-  std::vector<unsigned char> leaf_state;
+  std::vector<std::uint32_t> leaf_count;
+  std::vector<unsigned char> leaf_fine;
 };
 
 } // namespace cfddem::dem

@@ -451,13 +451,10 @@ bool OrbScheme::choose_global() {
   return static_cast<double>(fine) > kGlobalFraction * static_cast<double>(owned_);
 }
 
-// The candidate contact pairs as the pair pass's streams (in blocks of 2 kPairBlock pairs: the
-// explicit scheme's blocks of 256 rows hold about as many in a dense gas), and the particles
-// that can reach a wall before the pairs expire. Until then each particle moves at most a skin
-// from here (up to skin/2 from its reference now, skin/2 more), so a pair whose raw separation
-// is at most half a periodic length less two skins on every periodic axis keeps its raw
-// separation as the minimum image (DomainGeometry::image returns it unchanged, bit for bit):
-// the head stream skips the image, the tail takes it.
+// The candidate contact pairs as the pair pass's streams (GlobalPairs::split, in blocks of
+// 2 kPairBlock pairs: the explicit scheme's blocks of 256 rows hold about as many in a dense
+// gas), and the particles that can reach a wall before the pairs expire. Until then each
+// particle moves at most a skin from here (up to skin/2 from its reference now, skin/2 more).
 void OrbScheme::global_stream() {
   // The pairs in the order of their lower particle index (a stable counting sort), as the
   // explicit scheme's rows give them: a block of the stream then reads a compact range of the
@@ -470,48 +467,14 @@ void OrbScheme::global_stream() {
     ++start[std::min(pairs_.ca[q], pairs_.cb[q]) + 1];
   for (std::size_t i = 0; i + 1 < start.size(); ++i)
     start[i + 1] += start[i];
-  global_.a.resize(np), global_.b.resize(np);
+  GlobalPairs& gp = global_.pairs;
+  gp.a.resize(np), gp.b.resize(np);
   for (std::size_t q = 0; q < np; ++q) {
     const std::uint32_t at = start[std::min(pairs_.ca[q], pairs_.cb[q])]++;
-    global_.a[at] = pairs_.ca[q], global_.b[at] = pairs_.cb[q];
+    gp.a[at] = pairs_.ca[q], gp.b[at] = pairs_.cb[q];
   }
-  split_global_streams({pairs_.xr, pairs_.yr, pairs_.zr});
+  gp.split(p_, owned_, {pairs_.xr, pairs_.yr, pairs_.zr}, geom_, skin_);
   global_.stale = false;
-}
-
-// global_.a and b as the head and tail streams (the raw separation, or through the periodic
-// image), and the owned particles that can reach a wall while within skin/2 of `ref`.
-void OrbScheme::split_global_streams(const std::array<std::span<const double>, 3>& ref) {
-  const DomainGeometry& g = geom_;
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
-  double lim[3];
-  for (int a = 0; a < 3; ++a)
-    lim[a] = g.periodic[a] ? g.half[a] - 2.0 * skin_ : std::numeric_limits<double>::infinity();
-  const auto raw = [&](std::size_t q) {
-    const std::uint32_t i = global_.a[q], j = global_.b[q];
-    return std::abs(x[j] - x[i]) <= lim[0] && std::abs(y[j] - y[i]) <= lim[1] &&
-           std::abs(z[j] - z[i]) <= lim[2];
-  };
-  global_.head.build(global_.a, global_.b, raw, 2 * kPairBlock);
-  global_.tail.build(global_.a, global_.b, [&](std::size_t q) { return !raw(q); },
-                     2 * kPairBlock);
-  if (geom_.cylinder || !(geom_.periodic[0] && geom_.periodic[1] && geom_.periodic[2]))
-    near_walls(p_, owned_, ref, geom_, skin_, global_.near_wall);
-  else
-    global_.near_wall.clear();
-  global_.nh = global_.nt = 0;
-}
-
-// The contact forces of the global steps' last pass, back to zero: those of its contacts and
-// of the particles near a wall (as the explicit scheme clears between steps).
-void OrbScheme::clear_global_forces() {
-  clear_contact_forces<false>(p_,
-                              std::span<const PairContacts>(global_.head_blocks).first(global_.nh));
-  clear_contact_forces<false>(p_,
-                              std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
-  clear_forces<false>(p_, global_.near_wall);
 }
 
 // One global step of every owned particle, on any rank count: each stream pair once through the
@@ -524,15 +487,10 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
                             OverlapTally& tally, std::int64_t evals, bool record) {
   const std::size_t n = owned_;
   StepReport rep;
-  global_.nh = pair_pass<false, false, true>(p_, global_.head, HistoryColumns{}, geom_, model_,
-                                             st.hk, global_.head_blocks, rep);
-  global_.nt = pair_pass<false, true, true>(p_, global_.tail, HistoryColumns{}, geom_, model_,
-                                            st.hk, global_.tail_blocks, rep);
-  scatter_contacts<false>(p_, std::span<const PairContacts>(global_.head_blocks).first(global_.nh),
-                          std::span<const PairContacts>(global_.tail_blocks).first(global_.nt));
+  global_.pairs.pass(p_, geom_, model_, st.hk, rep);
   tally.max_ratio = std::max(tally.max_ratio, rep.max_ratio);
   tally.violations += rep.overlaps;
-  add_listed_wall_forces<Column>(global_.near_wall, p, geom_, model_, tally);
+  add_listed_wall_forces<Column>(global_.pairs.near_wall(), p, geom_, model_, tally);
   bt.evals += evals;
   if (record && st.k == 0)
     synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
@@ -593,14 +551,14 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
     st.k = k;
     st.hk = k + 1 == bt.K ? bt.h_last : bt.h;
     if (k > 0) {
-      clear_global_forces();
+      global_.pairs.clear_forces(p_);
       if (!still) { // some particle moved more than skin/2 since the build
         rebuild_pairs();
         global_stream();
       }
     }
     const LeafFrozen ref{pairs_.xr, pairs_.yr, pairs_.zr, {}, {}, {}};
-    const auto evals = static_cast<std::int64_t>(global_.head.i.size() + global_.tail.i.size());
+    const auto evals = static_cast<std::int64_t>(global_.pairs.size());
     still = global_step<External, Column>(bt, st, p, ref, tally, evals, record);
   }
   bt.max_ratio = tally.max_ratio;
@@ -615,19 +573,8 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
 // owned particles near a wall. Rows and ghosts hold while no particle moves skin/2 from the
 // build (rank_keep_rows), so the raw separations split into head and tail as one rank's.
 void OrbScheme::rank_global_stream() {
-  const auto off = rank_->rows.off();
-  const auto nb = rank_->rows.nb();
-  global_.a.clear(), global_.b.clear();
-  global_.once = 0;
-  for (std::uint32_t i = 0; i < owned_; ++i)
-    for (std::uint32_t k = off[i]; k < off[i + 1]; ++k) {
-      const std::uint32_t j = nb[k];
-      if (j < owned_ && j <= i)
-        continue;
-      global_.a.push_back(i), global_.b.push_back(j);
-      global_.once += j < owned_ || p_.id[i] < p_.id[j];
-    }
-  split_global_streams({rank_->ref[0], rank_->ref[1], rank_->ref[2]});
+  global_.once = global_.pairs.from_rows(rank_->rows.off(), rank_->rows.nb(), owned_, p_.id);
+  global_.pairs.split(p_, owned_, {rank_->ref[0], rank_->ref[1], rank_->ref[2]}, geom_, skin_);
 }
 
 void OrbScheme::run_global_ranks(Batch& bt, bool record) {
@@ -645,8 +592,8 @@ template <bool External, bool Column>
 void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
   const LeafLive p = live(External);
-  if (rank_->stream_stale)
-    rank_global_stream(), rank_->stream_stale = false;
+  if (global_.stale)
+    rank_global_stream(), global_.stale = false;
   OverlapTally tally;
   LeafStep st;
   st.K = bt.K;
@@ -659,7 +606,7 @@ void OrbScheme::run_global_ranks_impl(Batch& bt, bool record) {
       rank_->exchange.forward(p_);
       if (bt.outran)
         continue;
-      clear_global_forces();
+      global_.pairs.clear_forces(p_);
     }
     const bool still = global_step<External, Column>(bt, st, p, ref, tally, global_.once, record);
     if (k + 1 < bt.K && !still)
@@ -724,7 +671,7 @@ void OrbScheme::subiterate(bool record) {
   std::int64_t outside = 0;
   // R ranks: the global mode may keep the last sub-iteration's rows and ghosts (rank_keep_rows)
   // within an interval; a regrid and a recorded sub-iteration rebuild them.
-  const bool keep = rank_ && rank_->may_keep && !regridding && !record;
+  const bool keep = rank_ && global_.on && rank_->keepable && !regridding && !record;
   if (rank_) {
     if (!keep)
       p_.resize(owned_); // the last sub-iteration's ghosts go
@@ -834,8 +781,6 @@ void OrbScheme::subiterate(bool record) {
   }
   if (!rank_)
     resort();
-  else
-    rank_->may_keep = global_.on && rank_->keepable;
 }
 
 void OrbScheme::benchmark_leaf_subiteration(int leaf) {

@@ -36,6 +36,7 @@
 #include "dem/domain_geometry.hpp"
 #include "dem/explicit_scheme.hpp"
 #include "dem/external_force.hpp"
+#include "dem/global_pairs.hpp"
 #include "dem/interval_clock.hpp"
 #include "dem/pair_contacts.hpp"
 #include "dem/pair_stream.hpp"
@@ -272,19 +273,13 @@ private:
     std::int64_t local_particle_steps = 0, local_pair_evaluations = 0;
   };
 
-  // The global mode's state: the candidate contact pairs (R ranks: the rows' pairs) as streams
-  // for the explicit scheme's pair pass (one rank: stale after a build or a re-sort), those whose
-  // raw separation stays the minimum image (head) and those across a periodic face (tail), their
-  // contacts per block, and the particles that can reach a wall before the next build; `on`:
-  // this sub-iteration is global.
-  // a, b: the candidate pairs ordered by their lower particle index (the streams' order);
-  // first: the counting sort's offsets per particle.
+  // The global mode's state: the candidate contact pairs (R ranks: the rows' pairs) through the
+  // explicit scheme's pair pass (stale after a build, or on one rank a re-sort), ordered by their
+  // lower particle index; `on`: this sub-iteration is global.
+  // first: the counting sort's offsets per particle (one rank).
   struct Global {
-    std::vector<std::uint32_t> a, b, first;
-    PairStream head, tail;
-    std::vector<PairContacts> head_blocks, tail_blocks;
-    std::size_t nh = 0, nt = 0;
-    std::vector<std::uint32_t> near_wall;
+    GlobalPairs pairs;
+    std::vector<std::uint32_t> first;
     std::vector<std::uint64_t> still; // per block of the update: sign bit set while within skin/2
     std::int64_t once = 0; // R ranks: the pairs counted per step (a pair with a ghost on one rank)
     bool stale = true, on = false;
@@ -332,6 +327,8 @@ private:
   void rank_regrid();
   std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);
   void rank_exchange_and_rows();
+  double rank_reach(bool keep) const;
+  int short_periodic_axis(double cutoff) const;
   double rank_cutoff(bool keep) const;
   bool rank_rows_keepable() const;
   bool rank_keep_rows();
@@ -340,8 +337,6 @@ private:
   bool rank_choose_global();
   void rank_global_stream();
   void run_global_ranks(Batch& b, bool record);
-  void clear_global_forces();
-  void split_global_streams(const std::array<std::span<const double>, 3>& ref);
   template <bool External, bool Column>
   bool global_step(Batch& bt, LeafStep& st, const LeafLive& p, const LeafFrozen& ref,
                    OverlapTally& tally, std::int64_t evals, bool record);

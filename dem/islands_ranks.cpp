@@ -267,7 +267,7 @@ void IslandsScheme::make_links_ranks(bool incremental) {
     // same order, as a full scan.
     if (r.ghost_index_stale)
       ghost_entries();
-    r.mark.assign(p_.size(), 0);
+    r.mark.resize(p_.size(), 0); // zero but for this round's marks, cleared below
     for (const std::uint32_t c : r.changed)
       r.mark[c] = 1;
     r.new_key.clear();
@@ -301,6 +301,8 @@ void IslandsScheme::make_links_ranks(bool incremental) {
       if (tie(c))
         ln_.tied.push_back(c); // a duplicate is harmless: form() takes each particle once
     }
+    for (const std::uint32_t c : r.changed)
+      r.mark[c] = 0;
     std::sort(r.new_key.begin(), r.new_key.end());
     std::size_t q = r.link_key.size(), added = r.new_key.size();
     if (added > 0) { // merge, back to front, by entry

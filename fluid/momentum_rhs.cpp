@@ -275,12 +275,7 @@ ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
                       const std::array<GridField, 3>& u, const GridField& eps,
                       MomentumWorkspace& work, bool exclude_laplacian) {
   const GridLayout& layout = grid.layout();
-  for (int b = 0; b < 3; ++b) {
-    ensure(work.flux[b], layout);
-    ensure(work.speed[b], layout);
-    ensure(work.stress[b], layout);
-  }
-  ensure(work.divergence, layout);
+  size_workspace(work, layout, false);
   ComponentView v;
   v.st = {layout.stride(0), layout.stride(1), layout.stride(2)};
   v.inv_dx = {1.0 / grid.spacing(0), 1.0 / grid.spacing(1), 1.0 / grid.spacing(2)};
@@ -558,15 +553,8 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
                           const std::array<double, 3>& body, const EdgePrediction& prediction,
                           std::array<GridField, 3>& rhs, MomentumWorkspace& work,
                           bool exclude_laplacian) {
+  size_workspace(work, grid.layout(), true);
   ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian);
-  for (auto& row : work.base) {
-    for (GridField& f : row) {
-      ensure(f, grid.layout());
-    }
-  }
-  for (GridField& f : work.half) {
-    ensure(f, grid.layout());
-  }
   const double inv_rho = 1.0 / gas.density;
   // Every component's half-step values first: they give the others' advecting velocities.
   for (int a = 0; a < 3; ++a) {

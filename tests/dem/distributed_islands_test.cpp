@@ -11,9 +11,11 @@
 #include <cmath>
 #include <functional>
 #include <map>
+#include <random>
 #include <string>
 #include <utility>
 
+#include <fmt/format.h>
 #include <tbb/global_control.h>
 
 #include "core/communicator.hpp"
@@ -338,6 +340,68 @@ TEST(DistributedIslands, IncrementalLinkRoundsGiveTheFullScansRun) {
       EXPECT_GT(fast.spanning_subits, 0) << "friction " << friction;
     }
   }
+}
+
+// In the dense mode every particle steps finely and reads its partners live, so the islands'
+// raised bounds (an island's whole energy on its lightest member: about sqrt(N) x the members'
+// speeds for an island of N) bound nothing, and the rows' skin follows the particles' own reach.
+// A cubic lattice with gaps of 10% of a diameter, at rest but for its first plane (1/8 of the
+// particles, at 0.15 m/s): over dt_sp = 50 us the plane's pairs link and no other, the plane's
+// raised bound (8 x 0.15 m/s) links the planes beside it, and the second link round finds the
+// dense mode (3/8 of the particles linked). Every later build's skin
+// is at most the islands skin or four sub-iterations of the fastest particle (no gravity: its
+// own bound is its speed) plus the link margin (1e-3 r_min). With the raised bounds the first
+// sub-iteration built rows with four sub-iterations of the raised bound, 3.2 x the islands skin.
+TEST(DistributedIslands, DenseModeRowsFollowTheParticlesOwnReach) {
+  constexpr int kSide = 8;
+  constexpr double kD = 100.0e-6, kGap = 0.1 * kD, kA = kD + kGap, kL = kSide * kA;
+  Scene scene = scene_from(kGas, {fmt::format("domain.hi=[{0}, {0}, {0}]", kL),
+                                  fmt::format("particles.count={}", kSide * kSide * kSide),
+                                  "particles.temperature=0.0", "particles.placement=\"lattice\"",
+                                  "dem.regrid_interval=1.0e-4", "dem.nsubit=2"});
+  ParticleStore all = make_initial_particles(scene);
+  ASSERT_EQ(all.size(), static_cast<std::size_t>(kSide * kSide * kSide));
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> gauss;
+  for (std::size_t n = 0; n < all.size(); ++n) {
+    const auto i = static_cast<int>(n) % kSide, j = static_cast<int>(n) / kSide % kSide,
+               k = static_cast<int>(n) / (kSide * kSide);
+    all.x[n] = (i + 0.5) * kA, all.y[n] = (j + 0.5) * kA, all.z[n] = (k + 0.5) * kA;
+    all.vx[n] = all.vy[n] = all.vz[n] = 0.0;
+    if (i == 0) {
+      const double ux = gauss(rng), uy = gauss(rng), uz = gauss(rng);
+      const double u = 0.15 / std::sqrt(ux * ux + uy * uy + uz * uz);
+      all.vx[n] = u * ux, all.vy[n] = u * uy, all.vz[n] = u * uz;
+    }
+  }
+  const Communicator c = Communicator::world();
+  ParticleStore p = share(all, c.rank(), c.size());
+  PhaseTimer timer;
+  dem::IslandsScheme s(scene, p, dem::make_step_model(scene, all), &c, timer);
+  s.start();
+  const double dt_sp = scene.dem.regrid_interval / static_cast<double>(scene.dem.nsubit);
+  const double margin = 1e-3 * 0.5 * kD;
+  auto fastest = [&] {
+    double v = 0.0;
+    for (std::size_t i = 0; i < s.owned(); ++i)
+      v = std::max(v, std::sqrt(p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i]));
+    return c.max(v);
+  };
+  const double skin0 = s.skin(); // the islands skin
+  double v_max = fastest();
+  int checked = 0;
+  for (int k = 0; k < 20; ++k) {
+    const std::int64_t dense0 = s.global_subiterations();
+    s.subiterate();
+    if (s.global_subiterations() > dense0) {
+      EXPECT_LE(s.skin(), std::max(skin0, 4.0 * v_max * dt_sp + 2.0 * margin) * (1.0 + 1e-12))
+          << "sub-iteration " << k;
+      ++checked;
+    }
+    v_max = std::max(v_max, fastest());
+  }
+  EXPECT_GE(checked, 10); // the dense mode, mostly
+  EXPECT_EQ(s.retries(), 0);
 }
 
 TEST(DistributedIslands, RerunAndThreadCountsAreBitwiseIdentical) {

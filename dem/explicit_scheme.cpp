@@ -104,6 +104,7 @@ void ExplicitScheme::rebuild() {
   }
   ++stats_.builds;
   rows_.need_rebuild = false;
+  rows_.travel.reset(); // the build's reference positions are the particles' positions
   lay_out_pairs();
 }
 
@@ -161,7 +162,7 @@ std::int64_t ExplicitScheme::local_pair_entries2() const {
 template <bool Walls, bool Friction, bool External>
 void ExplicitScheme::update_owned(double dt, StepReport& rep) {
   update_pass<Walls, Friction, External>(p_, owned(), rows_.list, rows_.near_wall, ext_, geom_,
-                                         model_, dt, rep);
+                                         model_, dt, rep, rows_.travel);
 }
 
 template <bool Walls> void ExplicitScheme::update(double dt, StepReport& rep) {
@@ -387,6 +388,7 @@ void ExplicitScheme::restore_state(State s) {
                      std::move(s.y_ref), std::move(s.z_ref), s.skin, geom_);
   rows_.hx = std::move(s.hx), rows_.hy = std::move(s.hy), rows_.hz = std::move(s.hz);
   rows_.need_rebuild = s.need_rebuild || !listed;
+  rows_.travel.forget(); // the restored positions may lie anywhere within skin/2 of the build's
   // A state without a list (an R-rank checkpoint's canonical state) has nothing to lay out, nor
   // build positions to judge the walls by: its first step builds and lays the pairs out.
   if (listed)

@@ -45,6 +45,7 @@
 #include "dem/pair_stream.hpp"
 #include "dem/step_model.hpp"
 #include "dem/step_report.hpp"
+#include "dem/travel_bound.hpp"
 #include "dem/verlet_list.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -190,6 +191,9 @@ private:
     // Owned particles that can touch a wall before the next build (near_walls(), laid out with
     // the pairs): the update pass evaluates wall forces for these only.
     std::vector<std::uint32_t> near_wall;
+    // How far the owned particles can have moved since the build (reset by rebuild(), unknown
+    // after a restore): the update pass leaves out its displacement test while it cannot fire.
+    TravelBound travel;
   };
   // x(n), v(n) of the owned particles at the last recorded step.
   struct Recorded {

@@ -17,7 +17,7 @@ namespace detail {
 // The loop of kick_drift_range over n particles. Its pointers are restrict parameters because
 // GCC takes no-alias from parameters only (not from restrict locals), and without it the loop
 // does not vectorize; callers use kick_drift_range.
-template <bool External, bool First, bool CheckSpeed>
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
 inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y,
                             double* __restrict z, double* __restrict vx, double* __restrict vy,
                             double* __restrict vz, const double* __restrict fx,
@@ -32,6 +32,8 @@ inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restr
   const std::array<double, 3> g = k.g;
   double s = k.s, gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
   std::uint64_t still = flags.still, slow = flags.slow;
+  std::uint64_t capped = flags.capped;
+  [[maybe_unused]] const double cap2 = k.cap2;
   for (std::size_t i = 0; i < n; ++i) {
     if constexpr (First) {
       s = hp[i] + half;
@@ -50,25 +52,31 @@ inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restr
       kick_drift(pz, uz, fz[i], ims, gsz, h);
     }
     x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
-    const double dx = px - xr[i], dy = py - yr[i], dz = pz - zr[i];
-    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
+    const double u2 = ux * ux + uy * uy + uz * uz;
+    if constexpr (CheckMoved) {
+      const double dx = px - xr[i], dy = py - yr[i], dz = pz - zr[i];
+      still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
+    } else {
+      capped &= std::bit_cast<std::uint64_t>(u2 <= cap2 ? -1.0 : 1.0);
+    }
     if constexpr (CheckSpeed)
-      slow &= std::bit_cast<std::uint64_t>(ux * ux + uy * uy + uz * uz <= vmax2 ? -1.0 : 1.0);
+      slow &= std::bit_cast<std::uint64_t>(u2 <= vmax2 ? -1.0 : 1.0);
   }
-  flags.still = still, flags.slow = slow;
+  flags.still = still, flags.slow = slow, flags.capped = capped;
 }
 } // namespace detail
 
 // v += (F/m + g) s, x += v h over the columns `c` (KickDriftStep: s, h, g): the arithmetic of
 // kick_drift, in a loop that vectorizes. flags.still keeps its sign bit while no particle is
 // farther than skin/2 from its reference; with CheckSpeed, flags.slow while every |v|^2 <= vmax2
-// (a NaN compares false: it fails too).
+// (a NaN compares false: it fails too). Without CheckMoved the reference positions are not read
+// (flags.still is left as it is); flags.capped keeps its sign bit while every new |v|^2 <= cap2.
 // With First, the kick of particle i spans its own h_prev + h/2 (c.h_prev[i] + h/2, the first
 // step of a sub-iteration; h_prev[i] is set to h/2 afterwards) instead of the common s.
-template <bool External, bool First = false, bool CheckSpeed = false>
+template <bool External, bool First = false, bool CheckSpeed = false, bool CheckMoved = true>
 inline void kick_drift_range(const KickDriftColumns& c, const KickDriftStep& k,
                              KickDriftFlags& flags) {
-  detail::kick_drift_loop<External, First, CheckSpeed>(
+  detail::kick_drift_loop<External, First, CheckSpeed, CheckMoved>(
       c.size(), c.x.data(), c.y.data(), c.z.data(), c.vx.data(), c.vy.data(), c.vz.data(),
       c.fx.data(), c.fy.data(), c.fz.data(), c.ex.data(), c.ey.data(), c.ez.data(),
       c.inv_mass.data(), c.xr.data(), c.yr.data(), c.zr.data(), c.h_prev.data(), k, flags);

@@ -56,6 +56,7 @@ struct KickDriftStep {
   std::array<double, 3> g{};
   double half_skin2 = 0.0; // (skin/2)^2: a particle farther from its reference asks for a list
   double vmax2 = std::numeric_limits<double>::infinity(); // (r_min/h)^2: faster could tunnel
+  double cap2 = 0.0; // without the displacement test: the speed^2 no particle may pass
 };
 
 // What a kick-drift found, as sign-bit ANDs (the sign bit stays set while all is well): integer
@@ -64,6 +65,8 @@ struct KickDriftStep {
 struct KickDriftFlags {
   std::uint64_t still = ~std::uint64_t{0}; // every particle within skin/2 of its reference
   std::uint64_t slow = ~std::uint64_t{0};  // every speed^2 <= vmax2, none NaN (when checked)
+  std::uint64_t capped = ~std::uint64_t{0}; // every new speed^2 <= cap2 (without CheckMoved)
+  bool over_cap() const { return !(capped >> 63); }
   bool moved() const { return !(still >> 63); }
   bool too_fast() const { return !(slow >> 63); }
 };

@@ -9,6 +9,8 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <span>
 #include <string>
 #include <vector>
@@ -31,6 +33,7 @@
 #include "dem/particle_views.hpp"
 #include "dem/step_model.hpp"
 #include "dem/step_report.hpp"
+#include "dem/travel_bound.hpp"
 #include "dem/verlet_list.hpp"
 
 namespace cfddem::dem {
@@ -347,11 +350,13 @@ inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeomet
 // v(n+1/2) = v(n-1/2) + (F/m + g) dt, x(n+1) = x(n) + v(n+1/2) dt over particles [0, n) (the
 // store may hold more: ghost copies, which their owners update). Without
 // walls the loop has no branch and vectorizes; the checks are folded into reductions and the
-// offending particle is searched for only when one fails.
+// offending particle is searched for only when one fails. `travel` (TravelBound) says whether
+// the displacement test can be left out.
 template <bool Walls, bool Friction, bool External>
 void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
                  std::span<const std::uint32_t> near_wall, const ExternalForce& ext,
-                 const DomainGeometry& geom, const StepModel& model, double dt, StepReport& out) {
+                 const DomainGeometry& geom, const StepModel& model, double dt, StepReport& out,
+                 TravelBound& travel) {
   const DomainGeometry g = geom;
   const StepModel m = model;
   const double vmax2 = dt > 0 ? (m.r_min / dt) * (m.r_min / dt) : INFINITY;
@@ -360,10 +365,14 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
   step.half_skin2 = 0.25 * m.skin * m.skin, step.vmax2 = vmax2;
   const KickDriftColumns columns =
       kick_drift_columns(p, list.x_ref(), list.y_ref(), list.z_ref(), External ? &ext : nullptr);
+  // Leave the displacement test out while no particle can have moved skin/2 (TravelBound).
+  const bool exact = !travel.may_skip(g, m.skin, dt);
+  step.cap2 = travel.cap * travel.cap;
 
   struct Partial {
     std::int64_t moved = 0; // particles now farther than skin/2 from their build position
     std::int64_t failures = 0;
+    bool over_cap = false; // without the exact test: some new |v| passed the cap
     StepReport walls;
   };
   auto body = [&](const tbb::blocked_range<std::size_t>& r, Partial acc) {
@@ -396,7 +405,12 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
           g.cylinder);
     }
     KickDriftFlags flags;
-    kick_drift_range<External, false, true>(columns.range(r.begin(), r.end()), step, flags);
+    if (exact)
+      kick_drift_range<External, false, true>(columns.range(r.begin(), r.end()), step, flags);
+    else
+      kick_drift_range<External, false, true, false>(columns.range(r.begin(), r.end()), step,
+                                                     flags);
+    acc.over_cap = acc.over_cap || flags.over_cap();
     // A double: int64 counts of double compares do not vectorize on baseline x86-64.
     double fails = flags.too_fast() ? 1.0 : 0.0;
     if constexpr (Friction) {
@@ -427,6 +441,7 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
   auto join = [](Partial a, const Partial& b) {
     a.moved += b.moved;
     a.failures += b.failures;
+    a.over_cap = a.over_cap || b.over_cap;
     a.walls.join(b.walls);
     return a;
   };
@@ -434,6 +449,30 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
     total = body(all, Partial{});
   } else {
     total = tbb::parallel_reduce(all, Partial{}, body, join, tbb::static_partitioner{});
+  }
+  if (exact) {
+    travel.forget(); // exact until the next build
+  } else if (!total.over_cap) {
+    travel.travelled += dt * travel.cap;
+    ++travel.passes;
+  } else {
+    // Measured: this pass's exact test, the bound restarted at the largest displacement and the
+    // cap at twice the largest speed.
+    const double* xr = list.x_ref().data();
+    const double* yr = list.y_ref().data();
+    const double* zr = list.z_ref().data();
+    double d2 = 0.0, v2 = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double dx = p.x[i] - xr[i], dy = p.y[i] - yr[i], dz = p.z[i] - zr[i];
+      const double di = dx * dx + dy * dy + dz * dz;
+      total.moved += di > step.half_skin2 ? 1 : 0;
+      d2 = std::max(d2, di);
+      v2 = std::max(v2, p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i]);
+    }
+    travel.travelled = std::sqrt(d2) * (1.0 + 1e-15), travel.cap = 2.0 * std::sqrt(v2);
+    travel.passes = 0;
+    if (!std::isfinite(travel.travelled + travel.cap))
+      travel.forget();
   }
   out.moved = total.moved;
   out.join(total.walls);

@@ -1,0 +1,45 @@
+// A bound on how far the particles can have moved since their neighbor list was built, which
+// lets the explicit scheme's update pass leave out its displacement test (dem/verlet_passes.hpp).
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+
+#include "dem/domain_geometry.hpp"
+
+namespace cfddem::dem {
+
+// How far any particle can have moved since the list's build. A drift x += v dt moves no
+// particle farther than dt x the largest new |v|, so while every new |v| stays within a cap the
+// bound grows by dt x cap per update pass; while it stays below skin/2, less an allowance for
+// the rounding of the drifts, no particle can be farther than skin/2 from its reference
+// position, and the update pass need not read the reference positions (24 of its ~180 bytes per
+// particle). A pass where some |v| passed the cap (and the first after a build) measures the
+// displacements and speeds exactly instead (a separate pass, once), which restarts the bound at
+// the largest displacement with the cap at twice the largest speed; from the pass that could
+// cross the limit on, the exact test runs in the pass as before. Every step's `moved` count is
+// the exact test's: the run is bitwise the same.
+struct TravelBound {
+  double travelled = std::numeric_limits<double>::infinity(); // infinite: unknown, exact tests
+  double cap = 0.0;                                           // m/s; 0: not measured yet
+  std::int64_t passes = 0;                                    // drifts since the measurement
+  void reset() { travelled = 0.0, cap = 0.0, passes = 0; }
+  void forget() { travelled = std::numeric_limits<double>::infinity(); }
+  // skin/2 less the drifts' rounding: each x += v dt rounds by at most 2^-53 |x|, |x| no more
+  // than the farthest wall (or periodic face) plus the skin; a relative 1e-9 covers the
+  // rounding of the sums and of the squared test.
+  static double limit(const DomainGeometry& g, double skin, std::int64_t passes) {
+    double far = 0.0;
+    for (int a = 0; a < 3; ++a)
+      far = std::max({far, std::abs(g.lo[a]), std::abs(g.hi[a])});
+    return 0.5 * skin * (1.0 - 1e-9) - static_cast<double>(passes + 1) * 0x1p-52 * (far + skin);
+  }
+  // Whether the next pass of length dt can leave out the displacement test.
+  bool may_skip(const DomainGeometry& g, double skin, double dt) const {
+    return travelled + dt * cap < limit(g, skin, passes);
+  }
+};
+
+} // namespace cfddem::dem

@@ -47,6 +47,7 @@
 #include "dem/flag_dispatch.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
+#include "dem/kick_drift_range.hpp"
 #include "dem/near_rows.hpp"
 #include "dem/scheme_support.hpp"
 #include "dem/task_blocks.hpp"
@@ -458,6 +459,63 @@ double IslandsScheme::link_rounds() {
   }
 }
 
+// The dense mode's K fine steps of every owned particle without friction, the forces of step k
+// computed by between() before it (k > 0; the first before the call): the one-rank global
+// steps' vectorised kick-drift (dem/kick_drift_range.hpp) over blocks of the owned particles,
+// the same arithmetic as the islands' per-member kick (islands::step_island, which reads every
+// member through the member list, one at a time: 2x the time per particle step in the 2-rank
+// 1e5 bed). A particle farther than half the skin from the build counts as outrunning the rows
+// (bound_violations, one per block: the caller rolls back on any).
+template <bool External, class Between>
+islands::IslandResult IslandsScheme::dense_kicks(bool record, Between&& between) {
+  RankPart& r = *rank_;
+  const std::size_t n = owned_;
+  constexpr std::size_t kBlock = 1024;
+  const std::size_t blocks = (n + kBlock - 1) / kBlock;
+  r.dense_outran.assign(blocks, 0);
+  const StepModel& m = model_;
+  const KickDriftColumns columns = kick_drift_columns(
+      p_, std::span<const double>(r.x_ref).first(n), std::span<const double>(r.y_ref).first(n),
+      std::span<const double>(r.z_ref).first(n), External ? &ext_ : nullptr,
+      std::span<double>(hprev_).first(n));
+  double h_before = 0.0;
+  for (std::int64_t k = 0; k < steps_.K; ++k) {
+    const double hk = k + 1 == steps_.K ? steps_.h_last : steps_.h, half = 0.5 * hk;
+    if (k > 0)
+      between();
+    if (record && k == 0) // the velocities at the sub-iteration's start, synchronised
+      for (std::size_t i = 0; i < n; ++i) {
+        double ex = 0.0, ey = 0.0, ez = 0.0;
+        if constexpr (External)
+          ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+        rec_.vx[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
+        rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
+        rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
+      }
+    KickDriftStep st;
+    st.s = 0.5 * h_before + half, st.h = hk, st.g = m.gravity;
+    st.half_skin2 = 0.25 * skin_ * skin_;
+    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+      const std::size_t i0 = b * kBlock, i1 = std::min(n, (b + 1) * kBlock);
+      KickDriftFlags flags;
+      if (k == 0) // each particle's own first kick h_prev + h/2
+        kick_drift_range<External, true>(columns.range(i0, i1), st, flags);
+      else
+        kick_drift_range<External>(columns.range(i0, i1), st, flags);
+      r.dense_outran[b] += flags.moved() ? 1 : 0;
+    });
+    // The first step left h_prev = h/2 of its own; a later last step leaves its half step.
+    if (k > 0 && k + 1 == steps_.K)
+      std::fill(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(n), half);
+    h_before = hk;
+  }
+  islands::IslandResult res;
+  for (const std::int64_t v : r.dense_outran)
+    res.bound_violations += v;
+  res.steps = res.lead_steps = static_cast<std::int64_t>(n) * steps_.K;
+  return res;
+}
+
 // The K fine steps of every spanning member (all: every owned particle, the dense mode), all
 // ranks together: the ghosts' x and v (and spins) from their owners before every step but the first
 // (collective, also on a rank with no member). In the dense mode the displacement check is
@@ -557,9 +615,6 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
     auto step_length = [&] { return k + 1 == steps_.K ? steps_.h_last : steps_.h; };
     pass(step_length(), true);
     ++k;
-    auto none = [](std::uint32_t, std::uint32_t, double&, std::int64_t&) {
-      return std::int64_t{0};
-    };
     auto refresh_pass = [&] {
       r.exchange.forward(p_);
       const bool expired = islands::near_rows_expired(near, view.c, TaskBlocks{});
@@ -568,9 +623,7 @@ islands::IslandResult IslandsScheme::step_together(bool record, bool all) {
       pass(step_length(), expired);
       ++k;
     };
-    islands::IslandResult result = islands::step_island<External, false, false>(
-        view.c, mb, steps_, model_.gravity, sv[0], sv[1], sv[2], none, refresh_pass,
-        TaskBlocks{});
+    islands::IslandResult result = dense_kicks<External>(record, refresh_pass);
     result.pairs += passes.pairs;
     result.max_ratio = std::max(result.max_ratio, passes.max_ratio);
     result.violations += passes.violations;

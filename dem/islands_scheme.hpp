@@ -417,6 +417,8 @@ private:
   islands::IslandResult fine_together(bool record, bool all);
   template <bool External, bool Friction>
   islands::IslandResult step_together(bool record, bool all);
+  template <bool External, class Between>
+  islands::IslandResult dense_kicks(bool record, Between&& between);
   void span_leads(const islands::ContactView& view, islands::Members& mb);
   void canonicalize();
   // The verbs of the sub-iteration that differ on R ranks (islands_ranks.cpp): on one rank each

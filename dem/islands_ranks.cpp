@@ -483,15 +483,8 @@ islands::IslandResult IslandsScheme::dense_kicks(bool record, Between&& between)
     const double hk = k + 1 == steps_.K ? steps_.h_last : steps_.h, half = 0.5 * hk;
     if (k > 0)
       between();
-    if (record && k == 0) // the velocities at the sub-iteration's start, synchronised
-      for (std::size_t i = 0; i < n; ++i) {
-        double ex = 0.0, ey = 0.0, ez = 0.0;
-        if constexpr (External)
-          ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
-        rec_.vx[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
-        rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
-        rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
-      }
+    if (record && k == 0)
+      record_start_velocities<External>(n);
     KickDriftStep st;
     st.s = 0.5 * h_before + half, st.h = hk, st.g = m.gravity;
     st.half_skin2 = 0.25 * skin_ * skin_;

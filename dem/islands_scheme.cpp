@@ -794,6 +794,20 @@ void IslandsScheme::global_steps(bool record) {
              model_.friction);
 }
 
+template <bool External> void IslandsScheme::record_start_velocities(std::size_t n) {
+  const StepModel& m = model_;
+  for (std::size_t i = 0; i < n; ++i) {
+    double ex = 0.0, ey = 0.0, ez = 0.0;
+    if constexpr (External)
+      ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+    rec_.vx[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
+    rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
+    rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
+  }
+}
+template void IslandsScheme::record_start_velocities<false>(std::size_t);
+template void IslandsScheme::record_start_velocities<true>(std::size_t);
+
 template <bool External, bool Friction> void IslandsScheme::run_global_steps(bool record) {
   const std::size_t n = p_.size();
   const StepModel& m = model_;
@@ -830,14 +844,7 @@ template <bool External, bool Friction> void IslandsScheme::run_global_steps(boo
     }
     global_contacts<Friction>(hk);
     if (record && k == 0)
-      for (std::size_t i = 0; i < n; ++i) {
-        double ex = 0.0, ey = 0.0, ez = 0.0;
-        if constexpr (External)
-          ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
-        rec_.vx[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
-        rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
-        rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
-      }
+      record_start_velocities<External>(n);
     const double half = 0.5 * hk;
     const double s_common = 0.5 * h_before + half;
     const auto xr = one_.list.x_ref(), yr = one_.list.y_ref(), zr = one_.list.z_ref();

@@ -380,6 +380,9 @@ private:
   void island_sums(std::size_t owned);
   template <bool External, bool Friction> void island_sums_of(std::size_t owned);
   void record_state();
+  // A recorded sub-iteration: the velocities of particles [0, n) synchronised at its start,
+  // v + (F/m + g) h_prev (F: the forces of its first step), into rec_.
+  template <bool External> void record_start_velocities(std::size_t n);
   void speed_bounds();
   // The rows of the contact forces: the Verlet list's (one rank) or the rank's rows.
   islands::ContactView contact_view();

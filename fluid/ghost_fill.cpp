@@ -12,13 +12,9 @@ namespace cfddem::fluid {
 
 namespace {
 
-int wrap(int i, int n) {
-  return ((i % n) + n) % n;
-}
-
 // Even/odd mirror of a cell index about the low (high) face, clamped to the interior.
 int mirror_lo(int g, int n) {
-  return wrap(-1 - g, 2 * n) < n ? wrap(-1 - g, 2 * n) : n - 1;
+  return wrap_index(-1 - g, 2 * n) < n ? wrap_index(-1 - g, 2 * n) : n - 1;
 }
 int mirror_hi(int g, int n) {
   const int m = 2 * n - 1 - g;
@@ -177,8 +173,8 @@ FillPlan cell_plan(const MacGrid& grid, CellGhosts mode) {
     // Source of ghost -g (g = 1..G) and of ghost n + g (g = 0..G).
     std::array<int, kGhostLayers + 1> lo_src{}, hi_src{};
     for (int g = 0; g <= kGhostLayers; ++g) {
-      lo_src[g] = periodic ? wrap(-g, n) : mirror_lo(-g, n);
-      hi_src[g] = periodic ? wrap(n + g, n) : mirror_hi(n + g, n);
+      lo_src[g] = periodic ? wrap_index(-g, n) : mirror_lo(-g, n);
+      hi_src[g] = periodic ? wrap_index(n + g, n) : mirror_hi(n + g, n);
     }
     const bool lo_reflects =
         !periodic && mode == CellGhosts::pressure && lo.kind == BoundaryKind::outflow;
@@ -218,10 +214,10 @@ FillPlan velocity_plan(const MacGrid& grid, int comp) {
       for (int side = 0; side < 2; ++side) {
         if (periodic) {
           for (int g = 1; side == 0 && g <= kGhostLayers; ++g) {
-            plan.add(a, -g, wrap(-g, n));
+            plan.add(a, -g, wrap_index(-g, n));
           }
           for (int g = 0; side == 1 && g <= kGhostLayers; ++g) {
-            plan.add(a, n + g, wrap(n + g, n));
+            plan.add(a, n + g, wrap_index(n + g, n));
           }
           continue;
         }
@@ -256,7 +252,7 @@ FillPlan velocity_plan(const MacGrid& grid, int comp) {
       const BoundaryCondition& bc = grid.bc(a, side);
       for (int g = 1; g <= kGhostLayers; ++g) {
         const int ghost = side == 0 ? -g : n - 1 + g;
-        const int src = periodic    ? wrap(ghost, n)
+        const int src = periodic    ? wrap_index(ghost, n)
                         : side == 0 ? mirror_lo(ghost, n)
                                     : mirror_hi(ghost, n);
         if (periodic || bc.kind == BoundaryKind::outflow) {

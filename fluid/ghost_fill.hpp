@@ -9,6 +9,11 @@
 
 namespace cfddem::fluid {
 
+// Cell index i of an axis of n cells, taken periodically into [0, n).
+inline int wrap_index(int i, int n) {
+  return ((i % n) + n) % n;
+}
+
 enum class CellGhosts {
   zero_gradient, // eps_g, drag fields: even reflection at every non-periodic face
   pressure       // p': value p_out on outflow faces (odd reflection), zero gradient elsewhere

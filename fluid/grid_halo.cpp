@@ -9,10 +9,6 @@ namespace cfddem::fluid {
 
 namespace {
 
-int wrap(int i, int n) {
-  return ((i % n) + n) % n;
-}
-
 // The global index space a field lives on: cells, or faces normal to `centring`.
 struct FieldSpace {
   std::array<int, 3> cells{};
@@ -55,7 +51,7 @@ void for_each_exchanged_ghost(const FieldSpace& space, const std::vector<CellBox
         for (int a = 0; a < 3 && inside; ++a) {
           g[a] = box.lo[a] + l[a];
           if (space.periodic[a]) {
-            g[a] = wrap(g[a], space.cells[a]);
+            g[a] = wrap_index(g[a], space.cells[a]);
           } else {
             inside = g[a] >= 0 && g[a] <= space.last(a);
           }

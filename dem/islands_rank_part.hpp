@@ -48,7 +48,6 @@ struct IslandsScheme::RankPart {
   // ghosts).
   std::vector<std::int64_t> span_lead;
   std::vector<double> span_entry;
-  std::vector<std::int64_t> dense_outran; // dense_kicks: per block of 1024, particles that outran
   // Start of the sub-iteration in the dense mode (rollback): x, y, z, vx, vy, vz, h_prev.
   std::array<std::vector<double>, 7> start;
   // Friction: the ids of the store's slots at the last build (the rows' history is read by

@@ -460,51 +460,41 @@ double IslandsScheme::link_rounds() {
 }
 
 // The dense mode's K fine steps of every owned particle without friction, the forces of step k
-// computed by between() before it (k > 0; the first before the call): the one-rank global
-// steps' vectorised kick-drift (dem/kick_drift_range.hpp) over blocks of the owned particles,
-// the same arithmetic as the islands' per-member kick (islands::step_island, which reads every
-// member through the member list, one at a time: 2x the time per particle step in the 2-rank
-// 1e5 bed). A particle farther than half the skin from the build counts as outrunning the rows
-// (bound_violations, one per block: the caller rolls back on any).
+// computed by between() before it (k > 0; the first before the call): the variable-step
+// leapfrog of orb's global steps (leaf_kick_drift, dem/kick_drift_range.hpp), vectorised over
+// blocks of the owned particles, the same arithmetic as the islands' per-member kick
+// (islands::step_island, which reads every member through the member list, one at a time: 2x
+// the time per particle step in the 2-rank 1e5 bed). A particle farther than half the skin from
+// the build outruns the rows (bound_violations, one per block: the caller rolls back on any).
 template <bool External, class Between>
 islands::IslandResult IslandsScheme::dense_kicks(bool record, Between&& between) {
   RankPart& r = *rank_;
   const std::size_t n = owned_;
   constexpr std::size_t kBlock = 1024;
-  const std::size_t blocks = (n + kBlock - 1) / kBlock;
-  r.dense_outran.assign(blocks, 0);
-  const StepModel& m = model_;
+  // Per block: the sign bit stays set while every particle is within skin/2 of the build.
+  std::vector<std::uint64_t> still((n + kBlock - 1) / kBlock, ~std::uint64_t{0});
   const KickDriftColumns columns = kick_drift_columns(
       p_, std::span<const double>(r.x_ref).first(n), std::span<const double>(r.y_ref).first(n),
       std::span<const double>(r.z_ref).first(n), External ? &ext_ : nullptr,
       std::span<double>(hprev_).first(n));
+  const double half_skin2 = 0.25 * skin_ * skin_;
   double h_before = 0.0;
   for (std::int64_t k = 0; k < steps_.K; ++k) {
-    const double hk = k + 1 == steps_.K ? steps_.h_last : steps_.h, half = 0.5 * hk;
+    const double hk = k + 1 == steps_.K ? steps_.h_last : steps_.h;
     if (k > 0)
       between();
     if (record && k == 0)
       record_start_velocities<External>(n);
-    KickDriftStep st;
-    st.s = 0.5 * h_before + half, st.h = hk, st.g = m.gravity;
-    st.half_skin2 = 0.25 * skin_ * skin_;
-    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-      const std::size_t i0 = b * kBlock, i1 = std::min(n, (b + 1) * kBlock);
-      KickDriftFlags flags;
-      if (k == 0) // each particle's own first kick h_prev + h/2
-        kick_drift_range<External, true>(columns.range(i0, i1), st, flags);
-      else
-        kick_drift_range<External>(columns.range(i0, i1), st, flags);
-      r.dense_outran[b] += flags.moved() ? 1 : 0;
+    tbb::parallel_for(std::size_t{0}, still.size(), [&](std::size_t b) {
+      leaf_kick_drift<External>(k, steps_.K,
+                                columns.range(b * kBlock, std::min(n, (b + 1) * kBlock)), h_before,
+                                hk, model_.gravity, half_skin2, still[b]);
     });
-    // The first step left h_prev = h/2 of its own; a later last step leaves its half step.
-    if (k > 0 && k + 1 == steps_.K)
-      std::fill(hprev_.begin(), hprev_.begin() + static_cast<std::ptrdiff_t>(n), half);
     h_before = hk;
   }
   islands::IslandResult res;
-  for (const std::int64_t v : r.dense_outran)
-    res.bound_violations += v;
+  for (const std::uint64_t v : still)
+    res.bound_violations += (v >> 63) ? 0 : 1;
   res.steps = res.lead_steps = static_cast<std::int64_t>(n) * steps_.K;
   return res;
 }

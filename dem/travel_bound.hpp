@@ -4,10 +4,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 
 #include "dem/domain_geometry.hpp"
+#include "dem/particle_views.hpp"
 
 namespace cfddem::dem {
 
@@ -39,6 +41,30 @@ struct TravelBound {
   // Whether the next pass of length dt can leave out the displacement test.
   bool may_skip(const DomainGeometry& g, double skin, double dt) const {
     return travelled + dt * cap < limit(g, skin, passes);
+  }
+  // After a pass of length dt that left the test out, every new |v| within the cap.
+  void advance(double dt) {
+    travelled += dt * cap;
+    ++passes;
+  }
+  // After a pass that left the test out where some new |v| passed the cap: the exact test over
+  // particles [0, n) of `c` (returns how many are farther than sqrt(half_skin2) from their
+  // reference), the bound restarted at the largest displacement and the cap at twice the largest
+  // speed (unknown again when either is not finite).
+  std::int64_t measure(const KickDriftColumns& c, std::size_t n, double half_skin2) {
+    std::int64_t moved = 0;
+    double d2 = 0.0, v2 = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double dx = c.x[i] - c.xr[i], dy = c.y[i] - c.yr[i], dz = c.z[i] - c.zr[i];
+      const double di = dx * dx + dy * dy + dz * dz;
+      moved += di > half_skin2 ? 1 : 0;
+      d2 = std::max(d2, di);
+      v2 = std::max(v2, c.vx[i] * c.vx[i] + c.vy[i] * c.vy[i] + c.vz[i] * c.vz[i]);
+    }
+    travelled = std::sqrt(d2) * (1.0 + 1e-15), cap = 2.0 * std::sqrt(v2), passes = 0;
+    if (!std::isfinite(travelled + cap))
+      forget();
+    return moved;
   }
 };
 

@@ -10,7 +10,6 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
-#include <limits>
 #include <span>
 #include <string>
 #include <vector>
@@ -450,30 +449,12 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
   } else {
     total = tbb::parallel_reduce(all, Partial{}, body, join, tbb::static_partitioner{});
   }
-  if (exact) {
+  if (exact)
     travel.forget(); // exact until the next build
-  } else if (!total.over_cap) {
-    travel.travelled += dt * travel.cap;
-    ++travel.passes;
-  } else {
-    // Measured: this pass's exact test, the bound restarted at the largest displacement and the
-    // cap at twice the largest speed.
-    const double* xr = list.x_ref().data();
-    const double* yr = list.y_ref().data();
-    const double* zr = list.z_ref().data();
-    double d2 = 0.0, v2 = 0.0;
-    for (std::size_t i = 0; i < n; ++i) {
-      const double dx = p.x[i] - xr[i], dy = p.y[i] - yr[i], dz = p.z[i] - zr[i];
-      const double di = dx * dx + dy * dy + dz * dz;
-      total.moved += di > step.half_skin2 ? 1 : 0;
-      d2 = std::max(d2, di);
-      v2 = std::max(v2, p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i]);
-    }
-    travel.travelled = std::sqrt(d2) * (1.0 + 1e-15), travel.cap = 2.0 * std::sqrt(v2);
-    travel.passes = 0;
-    if (!std::isfinite(travel.travelled + travel.cap))
-      travel.forget();
-  }
+  else if (!total.over_cap)
+    travel.advance(dt);
+  else
+    total.moved += travel.measure(columns, n, step.half_skin2);
   out.moved = total.moved;
   out.join(total.walls);
   if (total.failures > 0) {

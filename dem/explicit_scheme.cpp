@@ -125,13 +125,14 @@ void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepR
   // Clear the forces that are not zero: those of the particles the update pass may have given a
   // wall force, and after a new layout of the list (a build, a restart) every listed particle's,
   // else those of the last step's contacts (the blocks still hold them).
-  clear_forces<Friction>(p_, rows_.near_wall);
   if (rows_.clear_all) {
+    clear_forces<Friction>(p_, rows_.near_wall);
     clear_forces<Friction>(p_, list.listed_index());
     rows_.clear_all = false;
   } else {
-    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh));
-    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(rows_.tail).first(rows_.nt));
+    clear_contact_forces<Friction>(
+        p_, p_.size(), std::span<const PairContacts>(rows_.head).first(rows_.nh),
+        std::span<const PairContacts>(rows_.tail).first(rows_.nt), rows_.near_wall);
   }
   // Pairs whose separation is ready first (in-box; on R ranks two owned particles), then, once a
   // ghost forward in flight has landed, the rest (across a periodic face; with a ghost).
@@ -142,7 +143,8 @@ void ExplicitScheme::contact_pairs(const DomainGeometry& frame, double dt, StepR
     finish_forward();
   }
   rows_.nt = pair_pass<Friction, true>(p_, rows_.tail_pairs, h, frame, model_, dt, rows_.tail, rep);
-  scatter_contacts<Friction>(p_, std::span<const PairContacts>(rows_.head).first(rows_.nh),
+  scatter_contacts<Friction>(p_, p_.size(),
+                             std::span<const PairContacts>(rows_.head).first(rows_.nh),
                              std::span<const PairContacts>(rows_.tail).first(rows_.nt));
 }
 

@@ -51,16 +51,15 @@ void GlobalPairs::split(const ParticleStore& p, std::size_t owned,
 }
 
 void GlobalPairs::clear_forces(ParticleStore& p) const {
-  clear_contact_forces<false>(p, std::span<const PairContacts>(head_blocks_).first(nh_));
-  clear_contact_forces<false>(p, std::span<const PairContacts>(tail_blocks_).first(nt_));
-  dem::clear_forces<false>(p, near_wall_);
+  clear_contact_forces<false>(p, p.size(), std::span<const PairContacts>(head_blocks_).first(nh_),
+                              std::span<const PairContacts>(tail_blocks_).first(nt_), near_wall_);
 }
 
 void GlobalPairs::pass(ParticleStore& p, const DomainGeometry& g, const StepModel& m, double hk,
                        StepReport& rep) {
   nh_ = pair_pass<false, false, true>(p, head_, HistoryColumns{}, g, m, hk, head_blocks_, rep);
   nt_ = pair_pass<false, true, true>(p, tail_, HistoryColumns{}, g, m, hk, tail_blocks_, rep);
-  scatter_contacts<false>(p, std::span<const PairContacts>(head_blocks_).first(nh_),
+  scatter_contacts<false>(p, p.size(), std::span<const PairContacts>(head_blocks_).first(nh_),
                           std::span<const PairContacts>(tail_blocks_).first(nt_));
 }
 

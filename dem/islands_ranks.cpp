@@ -40,7 +40,6 @@
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include "core/error.hpp"
 #include "dem/contact_history.hpp"
@@ -485,7 +484,7 @@ islands::IslandResult IslandsScheme::dense_kicks(bool record, Between&& between)
       between();
     if (record && k == 0)
       record_start_velocities<External>(n);
-    tbb::parallel_for(std::size_t{0}, still.size(), [&](std::size_t b) {
+    for_particle_blocks(still.size(), [&](std::size_t b) {
       leaf_kick_drift<External>(k, steps_.K,
                                 columns.range(b * kBlock, std::min(n, (b + 1) * kBlock)), h_before,
                                 hk, model_.gravity, half_skin2, still[b]);

@@ -853,7 +853,7 @@ template <bool External, bool Friction> void IslandsScheme::run_global_steps(boo
         kick_drift_columns(p_, xr, yr, zr, External ? &ext_ : nullptr, hprev_);
     KickDriftStep st;
     st.s = s_common, st.h = hk, st.g = m.gravity, st.half_skin2 = half_skin2;
-    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    for_particle_blocks(blocks, [&](std::size_t b) {
       const std::size_t i0 = b * kBlock, i1 = std::min(n, (b + 1) * kBlock);
       if constexpr (Friction) // the spin's kick over the same span (before h_prev changes)
         for (std::size_t i = i0; i < i1; ++i) {
@@ -913,9 +913,8 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
         std::fill(c->begin(), c->begin() + nn, 0.0);
     o.clear_all = false;
   } else {
-    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(o.head).first(o.nh));
-    clear_contact_forces<Friction>(p_, std::span<const PairContacts>(o.tail).first(o.nt));
-    clear_forces<Friction>(p_, o.near_wall);
+    clear_contact_forces<Friction>(p_, n, std::span<const PairContacts>(o.head).first(o.nh),
+                                   std::span<const PairContacts>(o.tail).first(o.nt), o.near_wall);
   }
   StepReport rep;
   const HistoryColumns h{hx_, hy_, hz_};
@@ -923,28 +922,46 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
       pair_pass<Friction, false, true>(p_, o.head_pairs, h, geom_, model_, hk, o.head, rep);
   const std::size_t nt =
       pair_pass<Friction, true, true>(p_, o.tail_pairs, h, geom_, model_, hk, o.tail, rep);
-  scatter_contacts<Friction>(p_, std::span<const PairContacts>(o.head).first(nh),
+  scatter_contacts<Friction>(p_, n, std::span<const PairContacts>(o.head).first(nh),
                              std::span<const PairContacts>(o.tail).first(nt));
   o.nh = nh, o.nt = nt;
-  double max_ratio = rep.max_ratio;
-  std::int64_t violations = rep.overlaps;
+  // The walls over the same particle ranges as the scatter (the particles' lines stay with the
+  // thread that summed their contacts); the tallies are a maximum and a count, whatever the order.
+  struct Tally {
+    double max_ratio = 0.0;
+    std::int64_t violations = 0;
+  };
   const islands::ContactView view = contact_view();
-  with_flags(
-      [&](auto cyl) {
-        constexpr bool Cylinder = decltype(cyl)::value;
-        for (const std::uint32_t i : o.near_wall) {
-          double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
-          if constexpr (Friction) {
-            w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
-            tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
-          }
-          islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w,
-                                                        tq, max_ratio, violations);
-          if constexpr (Friction)
-            p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
-        }
+  const std::span<const std::uint32_t> near(o.near_wall);
+  const Tally walls = reduce_particle_ranges(
+      n, Tally{},
+      [&](std::size_t a, std::size_t b) {
+        Tally t;
+        with_flags(
+            [&](auto cyl) {
+              constexpr bool Cylinder = decltype(cyl)::value;
+              const auto first = std::lower_bound(near.begin(), near.end(), a);
+              for (auto it = first; it != near.end() && *it < b; ++it) {
+                const std::uint32_t i = *it;
+                double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
+                if constexpr (Friction) {
+                  w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
+                  tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
+                }
+                islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i],
+                                                              w, tq, t.max_ratio, t.violations);
+                if constexpr (Friction)
+                  p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
+              }
+            },
+            geom_.cylinder);
+        return t;
       },
-      geom_.cylinder);
+      [](Tally x, const Tally& y) {
+        return Tally{std::max(x.max_ratio, y.max_ratio), x.violations + y.violations};
+      });
+  const double max_ratio = std::max(rep.max_ratio, walls.max_ratio);
+  const std::int64_t violations = rep.overlaps + walls.violations;
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
   st_.overlap_violations += violations;
   st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);

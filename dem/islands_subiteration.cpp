@@ -17,13 +17,12 @@
 #include <limits>
 #include <span>
 
-#include <tbb/parallel_for.h>
-
 #include "core/error.hpp"
 #include "dem/flag_dispatch.hpp"
 #include "dem/islands_counts.hpp"
 #include "dem/islands_rank_part.hpp"
 #include "dem/islands_scheme.hpp"
+#include "dem/task_blocks.hpp"
 
 namespace cfddem::dem {
 
@@ -238,7 +237,7 @@ template <bool External, bool Record, bool Walls> void IslandsScheme::free_fligh
   } else {
     constexpr std::size_t kBlock = 2048;
     std::vector<std::uint64_t> flags((n + kBlock - 1) / kBlock, 0);
-    tbb::parallel_for(std::size_t{0}, flags.size(), [&](std::size_t k) {
+    for_particle_blocks(flags.size(), [&](std::size_t k) {
       flags[k] = range(k * kBlock, std::min(n, (k + 1) * kBlock));
     });
     for (std::uint64_t f : flags)

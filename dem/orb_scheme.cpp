@@ -18,6 +18,7 @@
 #include "dem/orb_leaf_kernels.hpp"
 #include "dem/orb_rank_part.hpp"
 #include "dem/scheme_support.hpp"
+#include "dem/task_blocks.hpp"
 #include "dem/verlet_passes.hpp"
 
 namespace cfddem::dem {
@@ -510,7 +511,7 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
     for (std::size_t q = 0; q < nblocks; ++q)
       kick_drift(q);
   } else {
-    tbb::parallel_for(std::size_t{0}, nblocks, kick_drift);
+    for_particle_blocks(nblocks, kick_drift);
   }
   st.h_before = st.hk;
   std::uint64_t still = ~std::uint64_t{0};

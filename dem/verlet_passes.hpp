@@ -21,6 +21,7 @@
 
 #include "core/particle_store.hpp"
 #include "dem/contact_kernels.hpp"
+#include "dem/contact_scatter.hpp"
 #include "dem/domain_geometry.hpp"
 #include "dem/external_force.hpp"
 #include "dem/flag_dispatch.hpp"
@@ -188,6 +189,7 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
         }
       }
       c.size = s;
+      c.bound_indices();
     }
     return rep;
   };
@@ -208,65 +210,6 @@ std::size_t pair_pass(const ParticleStore& p, const PairStream& stream,
         tbb::simple_partitioner{}));
   }
   return nblocks;
-}
-
-// Zero the contact force (and torque, with friction) of particle i.
-template <bool Friction> inline void clear_force(ParticleStore& p, std::uint32_t i) {
-  p.fx[i] = p.fy[i] = p.fz[i] = 0.0;
-  if constexpr (Friction)
-    p.tx[i] = p.ty[i] = p.tz[i] = 0.0;
-}
-
-// Zero the contact forces (and torques, with friction) of particles `idx`.
-template <bool Friction> void clear_forces(ParticleStore& p, std::span<const std::uint32_t> idx) {
-  for (const std::uint32_t i : idx)
-    clear_force<Friction>(p, i);
-}
-
-// Zero the forces (and torques) of both particles of every contact of `blocks`: after a scatter
-// of these contacts, only those particles (and any the update pass gave a wall force) hold a
-// non-zero contact force. In a dense gas a few percent of the listed particles touch in a step,
-// so clearing these instead of every listed particle saves most of the stores (which miss).
-template <bool Friction>
-void clear_contact_forces(ParticleStore& p, std::span<const PairContacts> blocks) {
-  for (const PairContacts& c : blocks)
-    for (std::size_t s = 0; s < c.size; ++s)
-      clear_force<Friction>(p, c.i[s]), clear_force<Friction>(p, c.j[s]);
-}
-
-// Contact forces (and torques, with friction) from the contacts of the pair passes, added to f
-// (and t), which the caller has cleared where it was not zero (clear_forces,
-// clear_contact_forces): each contact is added to both its particles, the head blocks in order
-// and then the tail blocks. A particle thus sums its pairs in the order of a full list's row
-// (in-box partners by index, then partners across a face by index; on R ranks owned partners,
-// then ghosts), bit for bit what a full list gives, for any thread count.
-template <bool Friction>
-void scatter_contacts(ParticleStore& p, std::span<const PairContacts> head,
-                      std::span<const PairContacts> tail) {
-  double* __restrict fx = p.fx.data();
-  double* __restrict fy = p.fy.data();
-  double* __restrict fz = p.fz.data();
-  [[maybe_unused]] double* __restrict tx = p.tx.data();
-  [[maybe_unused]] double* __restrict ty = p.ty.data();
-  [[maybe_unused]] double* __restrict tz = p.tz.data();
-  [[maybe_unused]] const double* __restrict rad = p.radius.data();
-  auto add = [&](const PairContacts& c) {
-    for (std::size_t s = 0; s < c.size; ++s) {
-      const std::uint32_t i = c.i[s], j = c.j[s];
-      fx[i] -= c.ax[s], fy[i] -= c.ay[s], fz[i] -= c.az[s];
-      fx[j] += c.ax[s], fy[j] += c.ay[s], fz[j] += c.az[s];
-      if constexpr (Friction) {
-        fx[i] += c.bx[s], fy[i] += c.by[s], fz[i] += c.bz[s];
-        fx[j] -= c.bx[s], fy[j] -= c.by[s], fz[j] -= c.bz[s];
-        tx[i] += rad[i] * c.cx[s], ty[i] += rad[i] * c.cy[s], tz[i] += rad[i] * c.cz[s];
-        tx[j] += rad[j] * c.cx[s], ty[j] += rad[j] * c.cy[s], tz[j] += rad[j] * c.cz[s];
-      }
-    }
-  };
-  for (const PairContacts& c : head)
-    add(c);
-  for (const PairContacts& c : tail)
-    add(c);
 }
 
 // Planar walls at lo and hi of every non-periodic axis: force (and torque, with friction) added

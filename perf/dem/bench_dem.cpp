@@ -152,7 +152,7 @@ void BM_DenseContactPass(benchmark::State& state) {
     dem::clear_forces<false>(p, list.listed_index());
     nh = dem::pair_pass<false, false>(p, sh, {}, geom, m, m.dt, head, rep);
     nt = dem::pair_pass<false, true>(p, st, {}, geom, m, m.dt, tail, rep);
-    dem::scatter_contacts<false>(p, std::span<const dem::PairContacts>(head).first(nh),
+    dem::scatter_contacts<false>(p, p.size(), std::span<const dem::PairContacts>(head).first(nh),
                                  std::span<const dem::PairContacts>(tail).first(nt));
     benchmark::DoNotOptimize(p.fx.data());
   }

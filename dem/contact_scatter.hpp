@@ -1,0 +1,177 @@
+// The pair passes' contacts (PairContacts blocks) into per-particle sums: clearing the forces the
+// last step's contacts left, and adding this step's contacts to both particles of each pair. Both
+// run over ranges of particle indices as TBB tasks: a task walks the blocks in their order and
+// writes only its own particles, so each particle sums its contacts in exactly the order of one
+// serial walk, whatever the ranges and the thread count (bitwise the same results).
+#pragma once
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <span>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/partitioner.h>
+#include <tbb/task_arena.h>
+
+#include "core/particle_store.hpp"
+#include "dem/pair_contacts.hpp"
+
+namespace cfddem::dem {
+
+// Fewest particles per range task of the scatter and the clear: below 2x this (or on one thread)
+// one serial walk, which costs less than a second task's start.
+inline constexpr std::size_t kScatterRange = 16384;
+
+// body(a, b) over ranges covering [0, n): one call on one thread or for small n, else about one
+// range per thread (static: a task's particles are the same every step, so its cache lines stay
+// with its core). `min_range` is kScatterRange but for tests, which force many small ranges.
+template <class Body>
+void for_particle_ranges(std::size_t n, Body&& body, std::size_t min_range = kScatterRange) {
+  if (n < 2 * min_range || tbb::this_task_arena::max_concurrency() < 2) {
+    body(std::size_t{0}, n);
+    return;
+  }
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, n, min_range),
+      [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); },
+      tbb::static_partitioner{});
+}
+
+// The same ranges as for_particle_ranges, each returning a partial T that `join` combines (in an
+// order that may differ run to run: a join must not depend on it, as a sum of integers or a
+// maximum does not). `identity` starts every partial, so it must change nothing when joined.
+template <class T, class Body, class Join>
+T reduce_particle_ranges(std::size_t n, T identity, Body&& body, Join&& join,
+                         std::size_t min_range = kScatterRange) {
+  if (n < 2 * min_range || tbb::this_task_arena::max_concurrency() < 2)
+    return join(identity, body(std::size_t{0}, n));
+  return tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, n, min_range), identity,
+      [&](const tbb::blocked_range<std::size_t>& r, T acc) {
+        return join(acc, body(r.begin(), r.end()));
+      },
+      join, tbb::static_partitioner{});
+}
+
+namespace detail {
+// Whether block c can name a particle of [a, b): its index bounds (set by the pair pass) meet it.
+inline bool block_meets(const PairContacts& c, std::size_t a, std::size_t b) {
+  return c.size > 0 && c.hi >= a && c.lo < b;
+}
+inline bool block_within(const PairContacts& c, std::size_t a, std::size_t b) {
+  return c.lo >= a && c.hi < b;
+}
+} // namespace detail
+
+// Zero the contact force (and torque, with friction) of particle i.
+template <bool Friction> inline void clear_force(ParticleStore& p, std::uint32_t i) {
+  p.fx[i] = p.fy[i] = p.fz[i] = 0.0;
+  if constexpr (Friction)
+    p.tx[i] = p.ty[i] = p.tz[i] = 0.0;
+}
+
+// Zero the contact forces (and torques, with friction) of particles `idx`.
+template <bool Friction> void clear_forces(ParticleStore& p, std::span<const std::uint32_t> idx) {
+  for (const std::uint32_t i : idx)
+    clear_force<Friction>(p, i);
+}
+
+// Zero the forces (and torques) of both particles of every contact of `head` and `tail`, and of
+// the particles `also` (increasing: those that may hold a wall force), over particles [0, n)
+// (every index the blocks name is below n). After a scatter of these contacts only those particles
+// hold a non-zero contact force: in a dense gas a few percent of the listed particles touch in a
+// step, so clearing these instead of every listed particle saves most of the stores (which miss).
+template <bool Friction>
+void clear_contact_forces(ParticleStore& p, std::size_t n, std::span<const PairContacts> head,
+                          std::span<const PairContacts> tail, std::span<const std::uint32_t> also,
+                          std::size_t min_range = kScatterRange) {
+  for_particle_ranges(
+      n,
+      [&](std::size_t a, std::size_t b) {
+        auto clear_blocks = [&](std::span<const PairContacts> blocks) {
+          for (const PairContacts& c : blocks) {
+            if (!detail::block_meets(c, a, b))
+              continue;
+            if (detail::block_within(c, a, b)) {
+              for (std::size_t s = 0; s < c.size; ++s)
+                clear_force<Friction>(p, c.i[s]), clear_force<Friction>(p, c.j[s]);
+              continue;
+            }
+            for (std::size_t s = 0; s < c.size; ++s) {
+              if (c.i[s] >= a && c.i[s] < b)
+                clear_force<Friction>(p, c.i[s]);
+              if (c.j[s] >= a && c.j[s] < b)
+                clear_force<Friction>(p, c.j[s]);
+            }
+          }
+        };
+        clear_blocks(head);
+        clear_blocks(tail);
+        const auto first = std::lower_bound(also.begin(), also.end(), a);
+        const auto last = std::lower_bound(first, also.end(), b);
+        clear_forces<Friction>(p, std::span<const std::uint32_t>(first, last));
+      },
+      min_range);
+}
+
+// Contact forces (and torques, with friction) from the contacts of the pair passes, added to f
+// (and t) of particles [0, n), which the caller has cleared where it was not zero
+// (clear_contact_forces): each contact is added to both its particles, the head blocks in order
+// and then the tail blocks. A particle thus sums its pairs in the order of a full list's row
+// (in-box partners by index, then partners across a face by index; on R ranks owned partners,
+// then ghosts), bit for bit what a full list gives, for any thread count.
+template <bool Friction>
+void scatter_contacts(ParticleStore& p, std::size_t n, std::span<const PairContacts> head,
+                      std::span<const PairContacts> tail, std::size_t min_range = kScatterRange) {
+  double* __restrict fx = p.fx.data();
+  double* __restrict fy = p.fy.data();
+  double* __restrict fz = p.fz.data();
+  [[maybe_unused]] double* __restrict tx = p.tx.data();
+  [[maybe_unused]] double* __restrict ty = p.ty.data();
+  [[maybe_unused]] double* __restrict tz = p.tz.data();
+  [[maybe_unused]] const double* __restrict rad = p.radius.data();
+  auto to_i = [&](const PairContacts& c, std::size_t s, std::uint32_t i) {
+    fx[i] -= c.ax[s], fy[i] -= c.ay[s], fz[i] -= c.az[s];
+    if constexpr (Friction) {
+      fx[i] += c.bx[s], fy[i] += c.by[s], fz[i] += c.bz[s];
+      tx[i] += rad[i] * c.cx[s], ty[i] += rad[i] * c.cy[s], tz[i] += rad[i] * c.cz[s];
+    }
+  };
+  auto to_j = [&](const PairContacts& c, std::size_t s, std::uint32_t j) {
+    fx[j] += c.ax[s], fy[j] += c.ay[s], fz[j] += c.az[s];
+    if constexpr (Friction) {
+      fx[j] -= c.bx[s], fy[j] -= c.by[s], fz[j] -= c.bz[s];
+      tx[j] += rad[j] * c.cx[s], ty[j] += rad[j] * c.cy[s], tz[j] += rad[j] * c.cz[s];
+    }
+  };
+  for_particle_ranges(
+      n,
+      [&](std::size_t a, std::size_t b) {
+        auto add_blocks = [&](std::span<const PairContacts> blocks) {
+          for (const PairContacts& c : blocks) {
+            if (!detail::block_meets(c, a, b))
+              continue;
+            if (detail::block_within(c, a, b)) {
+              for (std::size_t s = 0; s < c.size; ++s)
+                to_i(c, s, c.i[s]), to_j(c, s, c.j[s]);
+              continue;
+            }
+            for (std::size_t s = 0; s < c.size; ++s) {
+              const std::uint32_t i = c.i[s], j = c.j[s];
+              if (i >= a && i < b)
+                to_i(c, s, i);
+              if (j >= a && j < b)
+                to_j(c, s, j);
+            }
+          }
+        };
+        add_blocks(head);
+        add_blocks(tail);
+      },
+      min_range);
+}
+
+} // namespace cfddem::dem

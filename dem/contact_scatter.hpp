@@ -64,6 +64,29 @@ inline bool block_meets(const PairContacts& c, std::size_t a, std::size_t b) {
 inline bool block_within(const PairContacts& c, std::size_t a, std::size_t b) {
   return c.lo >= a && c.hi < b;
 }
+
+// The contacts of `blocks`, in order, seen from the particles of [a, b): on_i(c, s, i) where
+// contact s of block c has its i in the range, then on_j(c, s, j) where its j is.
+template <class OnI, class OnJ>
+void walk_range(std::span<const PairContacts> blocks, std::size_t a, std::size_t b, OnI&& on_i,
+                OnJ&& on_j) {
+  for (const PairContacts& c : blocks) {
+    if (!block_meets(c, a, b))
+      continue;
+    if (block_within(c, a, b)) {
+      for (std::size_t s = 0; s < c.size; ++s)
+        on_i(c, s, c.i[s]), on_j(c, s, c.j[s]);
+      continue;
+    }
+    for (std::size_t s = 0; s < c.size; ++s) {
+      const std::uint32_t i = c.i[s], j = c.j[s];
+      if (i >= a && i < b)
+        on_i(c, s, i);
+      if (j >= a && j < b)
+        on_j(c, s, j);
+    }
+  }
+}
 } // namespace detail
 
 // Zero the contact force (and torque, with friction) of particle i.
@@ -91,25 +114,11 @@ void clear_contact_forces(ParticleStore& p, std::size_t n, std::span<const PairC
   for_particle_ranges(
       n,
       [&](std::size_t a, std::size_t b) {
-        auto clear_blocks = [&](std::span<const PairContacts> blocks) {
-          for (const PairContacts& c : blocks) {
-            if (!detail::block_meets(c, a, b))
-              continue;
-            if (detail::block_within(c, a, b)) {
-              for (std::size_t s = 0; s < c.size; ++s)
-                clear_force<Friction>(p, c.i[s]), clear_force<Friction>(p, c.j[s]);
-              continue;
-            }
-            for (std::size_t s = 0; s < c.size; ++s) {
-              if (c.i[s] >= a && c.i[s] < b)
-                clear_force<Friction>(p, c.i[s]);
-              if (c.j[s] >= a && c.j[s] < b)
-                clear_force<Friction>(p, c.j[s]);
-            }
-          }
+        auto clear = [&](const PairContacts&, std::size_t, std::uint32_t i) {
+          clear_force<Friction>(p, i);
         };
-        clear_blocks(head);
-        clear_blocks(tail);
+        detail::walk_range(head, a, b, clear, clear);
+        detail::walk_range(tail, a, b, clear, clear);
         const auto first = std::lower_bound(also.begin(), also.end(), a);
         const auto last = std::lower_bound(first, also.end(), b);
         clear_forces<Friction>(p, std::span<const std::uint32_t>(first, last));
@@ -150,26 +159,8 @@ void scatter_contacts(ParticleStore& p, std::size_t n, std::span<const PairConta
   for_particle_ranges(
       n,
       [&](std::size_t a, std::size_t b) {
-        auto add_blocks = [&](std::span<const PairContacts> blocks) {
-          for (const PairContacts& c : blocks) {
-            if (!detail::block_meets(c, a, b))
-              continue;
-            if (detail::block_within(c, a, b)) {
-              for (std::size_t s = 0; s < c.size; ++s)
-                to_i(c, s, c.i[s]), to_j(c, s, c.j[s]);
-              continue;
-            }
-            for (std::size_t s = 0; s < c.size; ++s) {
-              const std::uint32_t i = c.i[s], j = c.j[s];
-              if (i >= a && i < b)
-                to_i(c, s, i);
-              if (j >= a && j < b)
-                to_j(c, s, j);
-            }
-          }
-        };
-        add_blocks(head);
-        add_blocks(tail);
+        detail::walk_range(head, a, b, to_i, to_j);
+        detail::walk_range(tail, a, b, to_i, to_j);
       },
       min_range);
 }

@@ -1,9 +1,14 @@
 // Results must not depend on the thread count: bitwise identical states for 1 and 2 threads.
+#include <cstdint>
 #include <cstring>
+#include <string>
+#include <type_traits>
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include "dem/islands_scheme.hpp"
+#include "dem/orb_scheme.hpp"
 #include "dem_test_support.hpp"
 
 using namespace cfddem;
@@ -61,4 +66,88 @@ TEST(ThreadCount, FrictionlessPeriodicBitwiseIdentical) { expect_identical({}); 
 TEST(ThreadCount, FrictionAndWallsBitwiseIdentical) {
   expect_identical({"dem.friction=0.3", "domain.periodic=[false, false, true]",
                     "gravity=[0.0, -9.81, 0.0]"});
+}
+
+namespace {
+
+// 40,000 particles (solid fraction 0.24) in a slab six diameters thick between two walls on x
+// (and walls on y, gravity along -y), so that the per-particle passes split into ranges on two
+// threads: the contact scatter and its clear (dem/contact_scatter.hpp, from 2 x 16384 particles),
+// the walls of orb's and islands' global steps over the same ranges, and the kick-drifts' static
+// blocks. The gas is hot (T = 1 m^2/s^2, k = 100 N/m for overlaps below 0.3 r) so that particles
+// meet the walls within the few steps run: applying a range's walls twice then changes the state
+// (checked). The state after `steps` steps (explicit) or sub-iterations (orb, islands), and how
+// many of those sub-iterations ran as global steps (every particle on the fine steps).
+struct DenseRun {
+  ParticleStore p;
+  std::int64_t global = 0;
+};
+
+template <class Scheme>
+DenseRun dense_box_with_threads(int threads, const char* scheme, int steps) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+  auto cfg = SceneConfig::from_string(R"(
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.3e-3, 6.0e-3, 6.0e-3]
+periodic = [false, false, true]
+[particles]
+count = 40000
+diameter = 50.0e-6
+density = 1000.0
+temperature = 1.0
+seed = 5
+[dem]
+spring_constant = 100.0
+restitution = 0.7
+nsubit = 4
+regrid_interval = 2e-5
+[run]
+end_time = 1.0
+)",
+                                      "dense_threads");
+  cfg.apply_override(std::string("dem.scheme=\"") + scheme + "\"");
+  cfg.apply_override("gravity=[0.0, -9.81, 0.0]");
+  const Scene s = read_scene(cfg, "dense");
+  DenseRun r{make_initial_particles(s), 0};
+  PhaseTimer timer;
+  Scheme sch(s, r.p, timer);
+  sch.start();
+  for (int k = 0; k < steps; ++k) {
+    if constexpr (std::is_same_v<Scheme, dem::ExplicitScheme>)
+      sch.step(k % 50 == 0);
+    else
+      sch.subiterate();
+  }
+  if constexpr (!std::is_same_v<Scheme, dem::ExplicitScheme>)
+    r.global = sch.global_subiterations();
+  return r;
+}
+
+template <class Scheme> void expect_dense_identical(const char* scheme, int steps) {
+  const DenseRun a = dense_box_with_threads<Scheme>(1, scheme, steps);
+  const DenseRun b = dense_box_with_threads<Scheme>(2, scheme, steps);
+  EXPECT_EQ(a.p.id, b.p.id) << scheme;
+  EXPECT_TRUE(same_bits(a.p.x, b.p.x) && same_bits(a.p.y, b.p.y) && same_bits(a.p.z, b.p.z))
+      << scheme;
+  EXPECT_TRUE(same_bits(a.p.vx, b.p.vx) && same_bits(a.p.vy, b.p.vy) && same_bits(a.p.vz, b.p.vz))
+      << scheme;
+  EXPECT_EQ(a.global, b.global) << scheme;
+  if constexpr (!std::is_same_v<Scheme, dem::ExplicitScheme>) {
+    EXPECT_GT(a.global, 0) << scheme << ": no global sub-iteration, the ranged walls went untested";
+  }
+}
+
+} // namespace
+
+TEST(ThreadCount, DenseWalledBoxExplicitBitwiseIdentical) {
+  expect_dense_identical<dem::ExplicitScheme>("explicit", 200);
+}
+
+TEST(ThreadCount, DenseWalledBoxOrbBitwiseIdentical) {
+  expect_dense_identical<dem::OrbScheme>("orb", 4);
+}
+
+TEST(ThreadCount, DenseWalledBoxIslandsBitwiseIdentical) {
+  expect_dense_identical<dem::IslandsScheme>("islands", 4);
 }

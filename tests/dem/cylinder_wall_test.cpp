@@ -300,12 +300,7 @@ template <class Scheme> ParticleStore column_with_threads(int threads, const cha
   PhaseTimer timer;
   Scheme sch(s, p, timer);
   sch.start();
-  for (int k = 0; k < steps; ++k) {
-    if constexpr (std::is_same_v<Scheme, dem::ExplicitScheme>)
-      sch.step(k % 50 == 0);
-    else
-      sch.subiterate();
-  }
+  demtest::advance(sch, steps);
   return p;
 }
 

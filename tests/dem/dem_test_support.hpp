@@ -4,6 +4,7 @@
 
 #include <span>
 #include <string>
+#include <type_traits>
 
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
@@ -43,6 +44,17 @@ end_time = 1.0e-3
 
 inline dem::GranularState measure_now(const ParticleStore& p) {
   return dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass});
+}
+
+// `steps` steps of the explicit scheme (recording every 50th, as a run's output would) or
+// sub-iterations of orb and islands.
+template <class Scheme> void advance(Scheme& scheme, int steps) {
+  for (int k = 0; k < steps; ++k) {
+    if constexpr (std::is_same_v<Scheme, dem::ExplicitScheme>)
+      scheme.step(k % 50 == 0);
+    else
+      scheme.subiterate();
+  }
 }
 
 } // namespace cfddem::demtest

@@ -113,12 +113,7 @@ end_time = 1.0
   PhaseTimer timer;
   Scheme sch(s, r.p, timer);
   sch.start();
-  for (int k = 0; k < steps; ++k) {
-    if constexpr (std::is_same_v<Scheme, dem::ExplicitScheme>)
-      sch.step(k % 50 == 0);
-    else
-      sch.subiterate();
-  }
+  demtest::advance(sch, steps);
   if constexpr (!std::is_same_v<Scheme, dem::ExplicitScheme>)
     r.global = sch.global_subiterations();
   return r;

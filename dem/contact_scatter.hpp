@@ -5,56 +5,15 @@
 // serial walk, whatever the ranges and the thread count (bitwise the same results).
 #pragma once
 
-#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <span>
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
-#include <tbb/partitioner.h>
-#include <tbb/task_arena.h>
-
 #include "core/particle_store.hpp"
 #include "dem/pair_contacts.hpp"
+#include "dem/task_blocks.hpp"
 
 namespace cfddem::dem {
-
-// Fewest particles per range task of the scatter and the clear: below 2x this (or on one thread)
-// one serial walk, which costs less than a second task's start.
-inline constexpr std::size_t kScatterRange = 16384;
-
-// body(a, b) over ranges covering [0, n): one call on one thread or for small n, else about one
-// range per thread (static: a task's particles are the same every step, so its cache lines stay
-// with its core). `min_range` is kScatterRange but for tests, which force many small ranges.
-template <class Body>
-void for_particle_ranges(std::size_t n, Body&& body, std::size_t min_range = kScatterRange) {
-  if (n < 2 * min_range || tbb::this_task_arena::max_concurrency() < 2) {
-    body(std::size_t{0}, n);
-    return;
-  }
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, n, min_range),
-      [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); },
-      tbb::static_partitioner{});
-}
-
-// The same ranges as for_particle_ranges, each returning a partial T that `join` combines (in an
-// order that may differ run to run: a join must not depend on it, as a sum of integers or a
-// maximum does not). `identity` starts every partial, so it must change nothing when joined.
-template <class T, class Body, class Join>
-T reduce_particle_ranges(std::size_t n, T identity, Body&& body, Join&& join,
-                         std::size_t min_range = kScatterRange) {
-  if (n < 2 * min_range || tbb::this_task_arena::max_concurrency() < 2)
-    return join(identity, body(std::size_t{0}, n));
-  return tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, n, min_range), identity,
-      [&](const tbb::blocked_range<std::size_t>& r, T acc) {
-        return join(acc, body(r.begin(), r.end()));
-      },
-      join, tbb::static_partitioner{});
-}
 
 namespace detail {
 // Whether block c can name a particle of [a, b): its index bounds (set by the pair pass) meet it.
@@ -110,7 +69,7 @@ template <bool Friction> void clear_forces(ParticleStore& p, std::span<const std
 template <bool Friction>
 void clear_contact_forces(ParticleStore& p, std::size_t n, std::span<const PairContacts> head,
                           std::span<const PairContacts> tail, std::span<const std::uint32_t> also,
-                          std::size_t min_range = kScatterRange) {
+                          std::size_t min_range = kParticleRange) {
   for_particle_ranges(
       n,
       [&](std::size_t a, std::size_t b) {
@@ -119,9 +78,7 @@ void clear_contact_forces(ParticleStore& p, std::size_t n, std::span<const PairC
         };
         detail::walk_range(head, a, b, clear, clear);
         detail::walk_range(tail, a, b, clear, clear);
-        const auto first = std::lower_bound(also.begin(), also.end(), a);
-        const auto last = std::lower_bound(first, also.end(), b);
-        clear_forces<Friction>(p, std::span<const std::uint32_t>(first, last));
+        clear_forces<Friction>(p, listed_in(also, a, b));
       },
       min_range);
 }
@@ -134,7 +91,7 @@ void clear_contact_forces(ParticleStore& p, std::size_t n, std::span<const PairC
 // then ghosts), bit for bit what a full list gives, for any thread count.
 template <bool Friction>
 void scatter_contacts(ParticleStore& p, std::size_t n, std::span<const PairContacts> head,
-                      std::span<const PairContacts> tail, std::size_t min_range = kScatterRange) {
+                      std::span<const PairContacts> tail, std::size_t min_range = kParticleRange) {
   double* __restrict fx = p.fx.data();
   double* __restrict fy = p.fy.data();
   double* __restrict fz = p.fz.data();

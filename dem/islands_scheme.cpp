@@ -926,42 +926,31 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
                              std::span<const PairContacts>(o.tail).first(nt));
   o.nh = nh, o.nt = nt;
   // The walls over the same particle ranges as the scatter (the particles' lines stay with the
-  // thread that summed their contacts); the tallies are a maximum and a count, whatever the order.
-  struct Tally {
-    double max_ratio = 0.0;
-    std::int64_t violations = 0;
-  };
+  // thread that summed their contacts), tallied into the pair passes' report (a maximum and a
+  // count, whatever the order of the ranges).
   const islands::ContactView view = contact_view();
-  const std::span<const std::uint32_t> near(o.near_wall);
-  const Tally walls = reduce_particle_ranges(
-      n, Tally{},
-      [&](std::size_t a, std::size_t b) {
-        Tally t;
-        with_flags(
-            [&](auto cyl) {
-              constexpr bool Cylinder = decltype(cyl)::value;
-              const auto first = std::lower_bound(near.begin(), near.end(), a);
-              for (auto it = first; it != near.end() && *it < b; ++it) {
-                const std::uint32_t i = *it;
-                double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
-                if constexpr (Friction) {
-                  w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
-                  tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
-                }
-                islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i],
-                                                              w, tq, t.max_ratio, t.violations);
-                if constexpr (Friction)
-                  p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
-              }
-            },
-            geom_.cylinder);
-        return t;
-      },
-      [](Tally x, const Tally& y) {
-        return Tally{std::max(x.max_ratio, y.max_ratio), x.violations + y.violations};
-      });
-  const double max_ratio = std::max(rep.max_ratio, walls.max_ratio);
-  const std::int64_t violations = rep.overlaps + walls.violations;
+  rep.join(reduce_particle_ranges<StepReport>(n, [&](std::size_t a, std::size_t b) {
+    StepReport t;
+    with_flags(
+        [&](auto cyl) {
+          constexpr bool Cylinder = decltype(cyl)::value;
+          for (const std::uint32_t i : listed_in(o.near_wall, a, b)) {
+            double w[3] = {0.0, 0.0, 0.0}, tq[3] = {0.0, 0.0, 0.0};
+            if constexpr (Friction) {
+              w[0] = p_.wx[i], w[1] = p_.wy[i], w[2] = p_.wz[i];
+              tq[0] = p_.tx[i], tq[1] = p_.ty[i], tq[2] = p_.tz[i];
+            }
+            islands::add_member_walls<Friction, Cylinder>(view, i, p_.fx[i], p_.fy[i], p_.fz[i], w,
+                                                          tq, t.max_ratio, t.overlaps);
+            if constexpr (Friction)
+              p_.tx[i] = tq[0], p_.ty[i] = tq[1], p_.tz[i] = tq[2];
+          }
+        },
+        geom_.cylinder);
+    return t;
+  }));
+  const double max_ratio = rep.max_ratio;
+  const std::int64_t violations = rep.overlaps;
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
   st_.overlap_violations += violations;
   st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);

@@ -53,6 +53,10 @@ struct LeafSpin {
 struct OverlapTally {
   double max_ratio = 0.0;
   std::int64_t violations = 0;
+  void join(const OverlapTally& o) {
+    max_ratio = std::max(max_ratio, o.max_ratio);
+    violations += o.violations;
+  }
 };
 
 namespace detail {

@@ -493,22 +493,11 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
   tally.violations += rep.overlaps;
   // The walls over the scatter's particle ranges (each particle stays with one thread); the
   // tallies are a maximum and a count, whatever the order of the ranges.
-  const std::span<const std::uint32_t> near = global_.pairs.near_wall();
-  const OverlapTally walls = reduce_particle_ranges(
-      n, OverlapTally{},
-      [&](std::size_t a, std::size_t b) {
-        OverlapTally t;
-        const auto first = std::lower_bound(near.begin(), near.end(), a);
-        const auto last = std::lower_bound(first, near.end(), b);
-        add_listed_wall_forces<Column>(std::span<const std::uint32_t>(first, last), p, geom_,
-                                       model_, t);
-        return t;
-      },
-      [](OverlapTally x, const OverlapTally& y) {
-        return OverlapTally{std::max(x.max_ratio, y.max_ratio), x.violations + y.violations};
-      });
-  tally.max_ratio = std::max(tally.max_ratio, walls.max_ratio);
-  tally.violations += walls.violations;
+  tally.join(reduce_particle_ranges<OverlapTally>(n, [&](std::size_t a, std::size_t b) {
+    OverlapTally t;
+    add_listed_wall_forces<Column>(listed_in(global_.pairs.near_wall(), a, b), p, geom_, model_, t);
+    return t;
+  }));
   bt.evals += evals;
   if (record && st.k == 0)
     synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,

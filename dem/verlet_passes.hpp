@@ -325,13 +325,11 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
       double* __restrict fx = p.fx.data();
       double* __restrict fy = p.fy.data();
       double* __restrict fz = p.fz.data();
-      const auto first = std::lower_bound(near_wall.begin(), near_wall.end(), r.begin());
-      const auto last = std::lower_bound(first, near_wall.end(), r.end());
+      const std::span<const std::uint32_t> near = listed_in(near_wall, r.begin(), r.end());
       with_flags(
           [&](auto cyl) {
             constexpr bool Cylinder = decltype(cyl)::value;
-            for (auto it = first; it != last; ++it) {
-              const std::size_t i = *it;
+            for (const std::size_t i : near) {
               double f[3] = {fx[i], fy[i], fz[i]};
               double tq[3] = {0, 0, 0};
               if constexpr (Friction)

@@ -7,7 +7,6 @@
 
 #include <algorithm>
 #include <cstdint>
-#include <cstring>
 #include <random>
 #include <vector>
 
@@ -16,6 +15,7 @@
 #include "core/particle_store.hpp"
 #include "dem/contact_scatter.hpp"
 #include "dem/pair_contacts.hpp"
+#include "dem_test_support.hpp"
 
 namespace cfddem {
 namespace {
@@ -89,9 +89,7 @@ void serial_scatter(ParticleStore& p, const std::vector<dem::PairContacts>& head
       }
 }
 
-bool same_bits(const std::vector<double>& a, const std::vector<double>& b) {
-  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0;
-}
+using demtest::same_bits;
 
 TEST(ContactScatter, RangeTasksSumInTheSerialOrder) {
   for (const bool friction : {false, true}) {

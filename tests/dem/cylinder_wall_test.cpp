@@ -5,7 +5,6 @@
 // the results do not depend on the thread count.
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <numbers>
 #include <string>
 #include <type_traits>
@@ -282,11 +281,6 @@ TEST(CylinderGranularGas, DiluteGasMeetsTheWallOnTheFineStep) {
 
 namespace {
 
-bool same_bits(const std::vector<double>& a, const std::vector<double>& b) {
-  return a.size() == b.size() &&
-         (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
-}
-
 // 12000 particles of 50 um in a 4 mm column (so the passes run as TBB loops), with friction
 // (the wall's tangential force and torque): the state after `steps` steps (sub-iterations).
 template <class Scheme> ParticleStore column_with_threads(int threads, const char* scheme, int steps) {
@@ -307,10 +301,7 @@ template <class Scheme> ParticleStore column_with_threads(int threads, const cha
 template <class Scheme> void expect_thread_independent(const char* scheme, int steps) {
   const ParticleStore a = column_with_threads<Scheme>(1, scheme, steps);
   const ParticleStore b = column_with_threads<Scheme>(2, scheme, steps);
-  EXPECT_EQ(a.id, b.id) << scheme;
-  EXPECT_TRUE(same_bits(a.x, b.x) && same_bits(a.y, b.y) && same_bits(a.z, b.z)) << scheme;
-  EXPECT_TRUE(same_bits(a.vx, b.vx) && same_bits(a.vy, b.vy) && same_bits(a.vz, b.vz)) << scheme;
-  EXPECT_TRUE(same_bits(a.wx, b.wx) && same_bits(a.wy, b.wy) && same_bits(a.wz, b.wz)) << scheme;
+  demtest::expect_same_state(a, b, scheme);
 }
 
 } // namespace

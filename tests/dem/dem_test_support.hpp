@@ -2,9 +2,13 @@
 // that steps the explicit scheme and returns synchronised states.
 #pragma once
 
+#include <cstring>
 #include <span>
 #include <string>
 #include <type_traits>
+#include <vector>
+
+#include <gtest/gtest.h>
 
 #include "core/initial_conditions.hpp"
 #include "core/phase_timer.hpp"
@@ -44,6 +48,22 @@ end_time = 1.0e-3
 
 inline dem::GranularState measure_now(const ParticleStore& p) {
   return dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass});
+}
+
+// Two columns equal bit for bit. Empty columns (no rotation fields) have a null data(): memcmp
+// must not see them (UBSan).
+inline bool same_bits(const std::vector<double>& a, const std::vector<double>& b) {
+  return a.size() == b.size() &&
+         (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
+}
+
+// Two stores' ids, positions, velocities and spins, bit for bit (`label` names the case).
+inline void expect_same_state(const ParticleStore& a, const ParticleStore& b,
+                              const std::string& label) {
+  EXPECT_EQ(a.id, b.id) << label;
+  EXPECT_TRUE(same_bits(a.x, b.x) && same_bits(a.y, b.y) && same_bits(a.z, b.z)) << label;
+  EXPECT_TRUE(same_bits(a.vx, b.vx) && same_bits(a.vy, b.vy) && same_bits(a.vz, b.vz)) << label;
+  EXPECT_TRUE(same_bits(a.wx, b.wx) && same_bits(a.wy, b.wy) && same_bits(a.wz, b.wz)) << label;
 }
 
 // `steps` steps of the explicit scheme (recording every 50th, as a run's output would) or

@@ -1,7 +1,6 @@
 // The orb scheme (dem/orb_scheme.hpp): agreement with the explicit scheme where it must agree,
 // thread-count independence, the missed collision of a coarse step, and momentum drift.
 #include <cmath>
-#include <cstring>
 #include <tuple>
 #include <unordered_map>
 
@@ -192,9 +191,7 @@ ParticleStore orb_with_threads(int threads) {
   for (int k = 0; k < 25; ++k) o.subiterate(k % 10 == 0);
   return p;
 }
-bool same_bits(const std::vector<double>& a, const std::vector<double>& b) {
-  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0;
-}
+using demtest::same_bits;
 } // namespace
 
 TEST(OrbScheme, BitwiseIdenticalForOneAndTwoThreads) {

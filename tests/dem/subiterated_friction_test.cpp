@@ -3,7 +3,6 @@
 // follows Coulomb's law and spins the spheres by r J_t / I, and a restart from save_state()
 // continues bit for bit, with the tangential history carried by particle ids.
 #include <cmath>
-#include <cstring>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -96,9 +95,7 @@ template <class Scheme> State subiterated_after(const Scene& s, long long subits
   return state_of(p);
 }
 
-bool same_bits(const std::vector<double>& a, const std::vector<double>& b) {
-  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0;
-}
+using demtest::same_bits;
 
 bool same_store(const ParticleStore& a, const ParticleStore& b) {
   return a.id == b.id && same_bits(a.x, b.x) && same_bits(a.y, b.y) && same_bits(a.z, b.z) &&

@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include "core/error.hpp"
 #include "core/stopwatch.hpp"
@@ -227,6 +228,7 @@ GasCoupling::~GasCoupling() = default;
 
 void GasCoupling::make_work_fields() {
   eps_s_ = grid_.make_field();
+  diag_eps_ = grid_.make_field(), diag_div_ = grid_.make_field();
   for (int a = 0; a < 3; ++a)
     cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
 }
@@ -419,44 +421,75 @@ void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {
 }
 
 FluidDiagnostics GasCoupling::diagnostics() const {
+  // One pass over the cells for the sums, one for the continuity residual, both as TBB tasks
+  // over z-planes into per-plane partials summed in plane order: the values do not depend on
+  // the thread count. The scratch fields are kept (make_work_fields): a row at every fluid step
+  // of the 1e5 riser took 22 ms when it allocated four 3 MB fields and faulted them in.
   FluidDiagnostics d;
   const auto& nc = grid_.cells();
+  const fluid::GridLayout& layout = grid_.layout();
   const double rho = scene_.fluid.density, vol = grid_.cell_volume();
   const fluid::GridField& eps = solver_->volume_fraction();
-  fluid::GridField uc = grid_.make_field();
-  for (int a = 0; a < 3; ++a) {
-    solver_->cell_centred_velocity(a, uc);
-    double sum = 0.0;
-    for (int k = 0; k < nc[2]; ++k)
-      for (int j = 0; j < nc[1]; ++j)
-        for (int i = 0; i < nc[0]; ++i)
-          sum += eps(i, j, k) * uc(i, j, k);
-    d.gas_momentum[a] = rho * vol * sum;
-  }
+  const auto& u = solver_->velocity();
+  const fluid::GridField& pp = solver_->pressure();
   // Pressure drop along the axis between the boundary faces: plane means of the full pressure
   // p = p' + gp0 . x, extrapolated linearly from the two cell planes next to each face (so the
   // particles in the first and last half cells count, and a uniform gradient is exact).
   const int ax = axis_;
-  const fluid::GridField& pp = solver_->pressure();
   const auto& global = grid_.global_cells();
   const int m = global[ax];
   const int lo = grid_.box().lo[ax];
   // In a column the means are over the gas cells (a solid cell's p' is no gas pressure).
   const bool column = grid_.has_solid();
+  // Per z-plane: the momentum sums of the three components, then each pressure plane's sum (and
+  // gas cells) over the plane's cells.
+  const auto planes = static_cast<std::size_t>(nc[2]);
+  const auto width = static_cast<std::size_t>(3 + 2 * m);
+  diag_sums_.assign(planes * width, 0.0);
+  const std::array<std::ptrdiff_t, 3> stride = {layout.stride(0), layout.stride(1),
+                                                layout.stride(2)};
+  tbb::parallel_for(tbb::blocked_range<int>(0, nc[2]), [&](const tbb::blocked_range<int>& r) {
+    for (int k = r.begin(); k != r.end(); ++k) {
+      double* out = diag_sums_.data() + static_cast<std::size_t>(k) * width;
+      double* plane = out + 3;
+      double* gas = plane + m;
+      for (int j = 0; j < nc[1]; ++j) {
+        const auto row = static_cast<std::size_t>(layout.index(0, j, k));
+        for (int a = 0; a < 3; ++a) {
+          const double* ua = u[a].values().data();
+          const auto s = static_cast<std::size_t>(stride[a]);
+          double sum = 0.0;
+          for (std::size_t c = row; c < row + static_cast<std::size_t>(nc[0]); ++c)
+            sum += eps[c] * (0.5 * (ua[c] + ua[c + s])); // the cell-centred velocity
+          out[a] += sum;
+        }
+        for (int i = 0; i < nc[0]; ++i) {
+          const int at[3] = {i, j, k};
+          const auto q = static_cast<std::size_t>(lo + at[ax]);
+          if (column) {
+            if (grid_.solid_cell(i, j, k))
+              continue;
+            gas[q] += 1.0;
+          }
+          plane[q] += pp[row + static_cast<std::size_t>(i)];
+        }
+      }
+    }
+  });
   std::vector<double> plane(static_cast<std::size_t>(m), 0.0);
   std::vector<double> gas_cells(column ? static_cast<std::size_t>(m) : 0, 0.0);
-  for (int k = 0; k < nc[2]; ++k)
-    for (int j = 0; j < nc[1]; ++j)
-      for (int i = 0; i < nc[0]; ++i) {
-        const int c[3] = {i, j, k};
-        const auto at = static_cast<std::size_t>(lo + c[ax]);
-        if (column) {
-          if (grid_.solid_cell(i, j, k))
-            continue;
-          gas_cells[at] += 1.0;
-        }
-        plane[at] += pp(i, j, k);
-      }
+  std::array<double, 3> momentum{};
+  for (std::size_t k = 0; k < planes; ++k) {
+    const double* in = diag_sums_.data() + k * width;
+    for (int a = 0; a < 3; ++a)
+      momentum[static_cast<std::size_t>(a)] += in[a];
+    for (std::size_t c = 0; c < plane.size(); ++c)
+      plane[c] += in[3 + c];
+    for (std::size_t c = 0; c < gas_cells.size(); ++c)
+      gas_cells[c] += in[3 + plane.size() + c];
+  }
+  for (int a = 0; a < 3; ++a)
+    d.gas_momentum[a] = rho * vol * momentum[static_cast<std::size_t>(a)];
   if (comm_ != nullptr) {
     // Reductions over the ranks: O(cells along the axis) for the planes.
     comm_->sum(plane);
@@ -480,19 +513,25 @@ FluidDiagnostics GasCoupling::diagnostics() const {
   d.pressure_drop = grid_.periodic(ax) ? -gp0 * grid_.length(ax) : p_lo - p_hi;
   // Continuity residual of the last step.
   if (last_dt_ > 0.0) {
-    fluid::GridField e = eps, div = grid_.make_field();
-    fluid::fill_cell_ghosts(grid_, halo_.get(), e, fluid::CellGhosts::zero_gradient);
-    fluid::flux_divergence(grid_, solver_->velocity(), e, div);
+    fluid::copy_field(eps, diag_eps_);
+    fluid::fill_cell_ghosts(grid_, halo_.get(), diag_eps_, fluid::CellGhosts::zero_gradient);
+    fluid::flux_divergence(grid_, solver_->velocity(), diag_eps_, diag_div_);
     // div(eps u) + (eps^{n+1} - eps^n)/dt_s, dt_s the time the particles took for the change
-    // (the previous fluid step; every gas sub-step satisfied the same rate).
+    // (the previous fluid step; every gas sub-step satisfied the same rate). A maximum: the
+    // same in any order.
     const double source_dt = source_dt_ > 0.0 ? source_dt_ : last_dt_;
-    double worst = 0.0;
-    for (int k = 0; k < nc[2]; ++k)
-      for (int j = 0; j < nc[1]; ++j)
-        for (int i = 0; i < nc[0]; ++i)
-          if (!grid_.solid_cell(i, j, k)) // a solid cell's eps_g is not the gas's
-            worst = std::max(
-              worst, std::abs(div(i, j, k) + (eps(i, j, k) - eps_prev_(i, j, k)) / source_dt));
+    double worst = tbb::parallel_reduce(
+        tbb::blocked_range<int>(0, nc[2]), 0.0,
+        [&](const tbb::blocked_range<int>& r, double w) {
+          for (int k = r.begin(); k != r.end(); ++k)
+            for (int j = 0; j < nc[1]; ++j)
+              for (int i = 0; i < nc[0]; ++i)
+                if (!grid_.solid_cell(i, j, k)) // a solid cell's eps_g is not the gas's
+                  w = std::max(w, std::abs(diag_div_(i, j, k) +
+                                           (eps(i, j, k) - eps_prev_(i, j, k)) / source_dt));
+          return w;
+        },
+        [](double a, double b) { return std::max(a, b); });
     if (comm_ != nullptr)
       worst = comm_->max(worst);
     d.mass_residual = worst * last_dt_;

@@ -172,6 +172,9 @@ private:
   FluidPhaseSeconds seconds_;
   fluid::GridField eps_s_, eps_prev_; // eps_s_: the deposited solid fraction (scratch)
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
+  // diagnostics()'s scratch: eps_g with its ghosts, div(eps u), and per z-plane partial sums.
+  mutable fluid::GridField diag_eps_, diag_div_;
+  mutable std::vector<double> diag_sums_;
   std::vector<double> eps_p_, beta_, ug_[3], bv_[3], gp_[3], force_[3];
   std::vector<std::int64_t> force_ids_; // particle ids in force_'s order
 };

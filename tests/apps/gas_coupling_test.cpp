@@ -1,8 +1,13 @@
 // GasCoupling on its own (no run loop): the continuity source d(eps)/dt follows the particles.
+#include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include "apps/coupled_step.hpp"
 #include "core/initial_conditions.hpp"
@@ -102,6 +107,69 @@ TEST(GasCoupling, ContinuitySourceIsTheRateOverTheIntervalTheParticlesMoved) {
   EXPECT_NEAR(long_next, same, 1e-6 * std::abs(same));
   // The mass residual uses the same interval: the step satisfied continuity.
   EXPECT_LT(short_step.mass_residual, 1e-9);
+}
+
+// The row's sums, taken as per-plane partials over TBB tasks, are the cells' sums: the gas
+// momentum rho V sum eps u_cell and the pressure drop from the plane means next to the walls,
+// against serial sums written out here (within the rounding of n terms), and bitwise the same
+// on 1 and 4 threads.
+TEST(GasCoupling, DiagnosticsAreTheCellSumsOnAnyThreadCount) {
+  const Scene scene = slab_scene();
+  ParticleStore p = make_initial_particles(scene);
+  GasCoupling gas(scene, p);
+  gas.step(p, 1e-4);
+  for (double& y : p.y)
+    y += 5e-6; // the slab rises: the gas moves and the pressure varies along y
+  gas.step(p, 1e-4);
+  const auto at = [&](int threads) {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                              static_cast<std::size_t>(threads));
+    return gas.diagnostics();
+  };
+  const FluidDiagnostics one = at(1), four = at(4);
+  for (int a = 0; a < 3; ++a)
+    EXPECT_EQ(std::bit_cast<std::uint64_t>(one.gas_momentum[a]),
+              std::bit_cast<std::uint64_t>(four.gas_momentum[a]))
+        << a;
+  EXPECT_EQ(std::bit_cast<std::uint64_t>(one.pressure_drop),
+            std::bit_cast<std::uint64_t>(four.pressure_drop));
+  EXPECT_EQ(std::bit_cast<std::uint64_t>(one.mass_residual),
+            std::bit_cast<std::uint64_t>(four.mass_residual));
+
+  const fluid::GasSolver& s = gas.solver();
+  const fluid::MacGrid& g = s.grid();
+  const auto& n = g.cells();
+  const double rho = scene.fluid.density, vol = g.cell_volume();
+  for (int a = 0; a < 3; ++a) {
+    const int di = a == 0, dj = a == 1, dk = a == 2;
+    const fluid::GridField& u = s.velocity()[a];
+    double sum = 0.0, size = 0.0;
+    for (int k = 0; k < n[2]; ++k)
+      for (int j = 0; j < n[1]; ++j)
+        for (int i = 0; i < n[0]; ++i) {
+          const double term =
+              s.volume_fraction()(i, j, k) * 0.5 * (u(i, j, k) + u(i + di, j + dj, k + dk));
+          sum += term, size += std::abs(term);
+        }
+    const double cells = static_cast<double>(n[0]) * n[1] * n[2];
+    EXPECT_NEAR(one.gas_momentum[a], rho * vol * sum, 2 * cells * 1e-16 * rho * vol * size) << a;
+  }
+  EXPECT_GT(std::abs(one.gas_momentum[1]), 0.0); // the slab's move set the gas moving along y
+  // y has walls: the drop is the mean pressure extrapolated to the lower face less that at the
+  // upper one (no gravity, no imposed gradient: p' is the pressure).
+  std::vector<double> plane(static_cast<std::size_t>(n[1]), 0.0);
+  double p_size = 0.0;
+  for (int k = 0; k < n[2]; ++k)
+    for (int j = 0; j < n[1]; ++j)
+      for (int i = 0; i < n[0]; ++i) {
+        plane[static_cast<std::size_t>(j)] += s.pressure()(i, j, k) / (n[0] * n[2]);
+        p_size = std::max(p_size, std::abs(s.pressure()(i, j, k)));
+      }
+  const double drop =
+      (1.5 * plane[0] - 0.5 * plane[1]) - (1.5 * plane[static_cast<std::size_t>(n[1] - 1)] -
+                                           0.5 * plane[static_cast<std::size_t>(n[1] - 2)]);
+  EXPECT_GT(std::abs(drop), 0.0);
+  EXPECT_NEAR(one.pressure_drop, drop, 1e-12 * p_size);
 }
 
 } // namespace

@@ -796,14 +796,17 @@ void IslandsScheme::global_steps(bool record) {
 
 template <bool External> void IslandsScheme::record_start_velocities(std::size_t n) {
   const StepModel& m = model_;
-  for (std::size_t i = 0; i < n; ++i) {
-    double ex = 0.0, ey = 0.0, ez = 0.0;
-    if constexpr (External)
-      ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
-    rec_.vx[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
-    rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
-    rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
-  }
+  // Each particle on its own: ranges of the static partition (the same values on any threads).
+  for_particle_ranges(n, [&](std::size_t a, std::size_t b) {
+    for (std::size_t i = a; i < b; ++i) {
+      double ex = 0.0, ey = 0.0, ez = 0.0;
+      if constexpr (External)
+        ex = ext_.x[i], ey = ext_.y[i], ez = ext_.z[i];
+      rec_.vx[i] = p_.vx[i] + ((p_.fx[i] + ex) * p_.inv_mass[i] + m.gravity[0]) * hprev_[i];
+      rec_.vy[i] = p_.vy[i] + ((p_.fy[i] + ey) * p_.inv_mass[i] + m.gravity[1]) * hprev_[i];
+      rec_.vz[i] = p_.vz[i] + ((p_.fz[i] + ez) * p_.inv_mass[i] + m.gravity[2]) * hprev_[i];
+    }
+  });
 }
 template void IslandsScheme::record_start_velocities<false>(std::size_t);
 template void IslandsScheme::record_start_velocities<true>(std::size_t);
@@ -1078,13 +1081,15 @@ void IslandsScheme::record_state() {
   const std::size_t n = owned_;
   rec_.x.resize(n), rec_.y.resize(n), rec_.z.resize(n), rec_.vx.resize(n), rec_.vy.resize(n);
   rec_.vz.resize(n), rec_.dt.resize(n), rec_.island.resize(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    rec_.x[i] = geom_.wrap(p_.x[i], 0), rec_.y[i] = geom_.wrap(p_.y[i], 1),
-    rec_.z[i] = geom_.wrap(p_.z[i], 2);
-    const bool fine = global_ || ln_.island_of[i] != kAlone;
-    rec_.island[i] = global_ ? 0 : fine ? static_cast<std::int64_t>(ln_.island_of[i]) : -1;
-    rec_.dt[i] = fine ? dt_sp_ / static_cast<double>(steps_.K) : dt_sp_;
-  }
+  for_particle_ranges(n, [&](std::size_t a, std::size_t b) {
+    for (std::size_t i = a; i < b; ++i) {
+      rec_.x[i] = geom_.wrap(p_.x[i], 0), rec_.y[i] = geom_.wrap(p_.y[i], 1),
+      rec_.z[i] = geom_.wrap(p_.z[i], 2);
+      const bool fine = global_ || ln_.island_of[i] != kAlone;
+      rec_.island[i] = global_ ? 0 : fine ? static_cast<std::int64_t>(ln_.island_of[i]) : -1;
+      rec_.dt[i] = fine ? dt_sp_ / static_cast<double>(steps_.K) : dt_sp_;
+    }
+  });
   const auto end = static_cast<std::ptrdiff_t>(n);
   rec_.mass.assign(p_.mass.begin(), p_.mass.begin() + end);
   rec_.radius.assign(p_.radius.begin(), p_.radius.begin() + end);

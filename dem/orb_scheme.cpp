@@ -291,9 +291,11 @@ void OrbScheme::plan_leaf_batches(const FineSteps& steps) {
 void OrbScheme::record_start() {
   const std::size_t n = owned_, nl = leaves_.id.size();
   rec_.x.resize(n), rec_.y.resize(n), rec_.z.resize(n);
-  for (std::size_t i = 0; i < n; ++i)
-    rec_.x[i] = geom_.wrap(p_.x[i], 0), rec_.y[i] = geom_.wrap(p_.y[i], 1),
-    rec_.z[i] = geom_.wrap(p_.z[i], 2);
+  for_particle_ranges(n, [&](std::size_t a, std::size_t b) {
+    for (std::size_t i = a; i < b; ++i)
+      rec_.x[i] = geom_.wrap(p_.x[i], 0), rec_.y[i] = geom_.wrap(p_.y[i], 1),
+      rec_.z[i] = geom_.wrap(p_.z[i], 2);
+  });
   rec_.vx.resize(n), rec_.vy.resize(n), rec_.vz.resize(n);
   const auto first = [n](const auto& v) {
     return std::vector(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(n));
@@ -500,8 +502,11 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
   }));
   bt.evals += evals;
   if (record && st.k == 0)
-    synchronised_velocities<External>(0, static_cast<std::uint32_t>(n), p, model_.gravity,
-                                      rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
+    for_particle_ranges(n, [&](std::size_t a, std::size_t b) {
+      synchronised_velocities<External>(static_cast<std::uint32_t>(a),
+                                        static_cast<std::uint32_t>(b), p, model_.gravity,
+                                        rec_.vx.data(), rec_.vy.data(), rec_.vz.data());
+    });
   constexpr std::size_t kBlock = 4096;
   const std::size_t nblocks = (n + kBlock - 1) / kBlock;
   std::vector<std::uint64_t>& still_of = global_.still;

@@ -12,6 +12,7 @@
 #include <utility>
 
 #include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/partitioner.h>
@@ -41,6 +42,15 @@ template <class F> void for_particle_blocks(std::size_t n, F&& f) {
       tbb::static_partitioner{});
 }
 
+// The threads a pass can run on: the arena's, within --threads (tbb::global_control). The
+// arena alone counts the machine's cores: under a limit of one thread a range pass would still
+// cut its particles into one range per core, all run in turn by the one thread.
+inline int usable_threads() {
+  return static_cast<int>(std::min<std::size_t>(
+      static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+}
+
 // Fewest particles per range task of for_particle_ranges: below 2x this (or on one thread) one
 // serial call, which costs less than a second task's start.
 inline constexpr std::size_t kParticleRange = 16384;
@@ -50,7 +60,7 @@ inline constexpr std::size_t kParticleRange = 16384;
 // tests, which force many small ranges.
 template <class Body>
 void for_particle_ranges(std::size_t n, Body&& body, std::size_t min_range = kParticleRange) {
-  if (n < 2 * min_range || tbb::this_task_arena::max_concurrency() < 2) {
+  if (n < 2 * min_range || usable_threads() < 2) {
     body(std::size_t{0}, n);
     return;
   }
@@ -68,7 +78,7 @@ template <class T, class Body> T reduce_particle_ranges(std::size_t n, Body&& bo
     a.join(b);
     return a;
   };
-  if (n < 2 * kParticleRange || tbb::this_task_arena::max_concurrency() < 2)
+  if (n < 2 * kParticleRange || usable_threads() < 2)
     return body(std::size_t{0}, n);
   return tbb::parallel_reduce(
       tbb::blocked_range<std::size_t>(0, n, kParticleRange), T{},

@@ -524,11 +524,15 @@ FluidDiagnostics GasCoupling::diagnostics() const {
         tbb::blocked_range<int>(0, nc[2]), 0.0,
         [&](const tbb::blocked_range<int>& r, double w) {
           for (int k = r.begin(); k != r.end(); ++k)
-            for (int j = 0; j < nc[1]; ++j)
-              for (int i = 0; i < nc[0]; ++i)
-                if (!grid_.solid_cell(i, j, k)) // a solid cell's eps_g is not the gas's
-                  w = std::max(w, std::abs(diag_div_(i, j, k) +
-                                           (eps(i, j, k) - eps_prev_(i, j, k)) / source_dt));
+            for (int j = 0; j < nc[1]; ++j) {
+              const auto row = static_cast<std::size_t>(layout.index(0, j, k));
+              for (int i = 0; i < nc[0]; ++i) {
+                if (column && grid_.solid_cell(i, j, k))
+                  continue; // a solid cell's eps_g is not the gas's
+                const std::size_t c = row + static_cast<std::size_t>(i);
+                w = std::max(w, std::abs(diag_div_[c] + (eps[c] - eps_prev_[c]) / source_dt));
+              }
+            }
           return w;
         },
         [](double a, double b) { return std::max(a, b); });

@@ -12,11 +12,11 @@
 #include <utility>
 
 #include <tbb/blocked_range.h>
-#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/partitioner.h>
-#include <tbb/task_arena.h>
+
+#include "core/usable_threads.hpp"
 
 namespace cfddem::dem {
 
@@ -42,25 +42,23 @@ template <class F> void for_particle_blocks(std::size_t n, F&& f) {
       tbb::static_partitioner{});
 }
 
-// The threads a pass can run on: the arena's, within --threads (tbb::global_control). The
-// arena alone counts the machine's cores: under a limit of one thread a range pass would still
-// cut its particles into one range per core, all run in turn by the one thread.
-inline int usable_threads() {
-  return static_cast<int>(std::min<std::size_t>(
-      static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
-      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
-}
-
 // Fewest particles per range task of for_particle_ranges: below 2x this (or on one thread) one
 // serial call, which costs less than a second task's start.
 inline constexpr std::size_t kParticleRange = 16384;
+
+namespace detail {
+// Whether a range pass over n particles is one serial call (small n, or one usable thread).
+inline bool one_range(std::size_t n, std::size_t min_range) {
+  return n < 2 * min_range || usable_threads() < 2;
+}
+} // namespace detail
 
 // body(a, b) over ranges covering [0, n): one call on one thread or for small n, else about one
 // range per thread (static, as for_particle_blocks). `min_range` is kParticleRange but for
 // tests, which force many small ranges.
 template <class Body>
 void for_particle_ranges(std::size_t n, Body&& body, std::size_t min_range = kParticleRange) {
-  if (n < 2 * min_range || usable_threads() < 2) {
+  if (detail::one_range(n, min_range)) {
     body(std::size_t{0}, n);
     return;
   }
@@ -78,7 +76,7 @@ template <class T, class Body> T reduce_particle_ranges(std::size_t n, Body&& bo
     a.join(b);
     return a;
   };
-  if (n < 2 * kParticleRange || usable_threads() < 2)
+  if (detail::one_range(n, kParticleRange))
     return body(std::size_t{0}, n);
   return tbb::parallel_reduce(
       tbb::blocked_range<std::size_t>(0, n, kParticleRange), T{},

@@ -9,12 +9,11 @@
 #include <stdexcept>
 #include <string>
 #include <tbb/blocked_range.h>
-#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include <fmt/format.h>
 
+#include "core/usable_threads.hpp"
 #include "fluid/diffusion_smoothing.hpp"
 #include "fluid/trilinear_weights.hpp"
 
@@ -234,9 +233,7 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
 void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
                          std::span<GridField* const> cells) {
   const double* v = values_.data();
-  const std::size_t threads =
-      std::min(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
-               static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()));
+  const auto threads = static_cast<std::size_t>(usable_threads());
   if (threads <= 1) {
     // One thread: the serial loop itself (the same sums, no kernel computed twice).
     std::array<double, kMaxDepositFields> vq{};

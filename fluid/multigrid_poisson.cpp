@@ -8,10 +8,9 @@
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
-#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
+#include "core/usable_threads.hpp"
 #include "fluid/multigrid_exchange.hpp"
 
 namespace cfddem::fluid {
@@ -562,9 +561,7 @@ constexpr int kMinPairPlanes = 4;
 
 // {tasks, planes per task} of a fused sweep over nz planes: one block per thread.
 std::array<int, 2> plane_blocks(int nz) {
-  const int threads = static_cast<int>(
-      std::min(static_cast<std::size_t>(tbb::this_task_arena::max_concurrency()),
-               tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+  const int threads = usable_threads();
   const int tasks = std::max(1, std::min(threads, nz / kMinPairPlanes));
   return {tasks, (nz + tasks - 1) / tasks};
 }

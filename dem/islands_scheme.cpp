@@ -952,11 +952,9 @@ template <bool Friction> void IslandsScheme::global_contacts(double hk) {
         geom_.cylinder);
     return t;
   }));
-  const double max_ratio = rep.max_ratio;
-  const std::int64_t violations = rep.overlaps;
   st_.pair_evaluations += static_cast<std::int64_t>(o.head_pairs.i.size() + o.tail_pairs.i.size());
-  st_.overlap_violations += violations;
-  st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, max_ratio);
+  st_.overlap_violations += rep.overlaps;
+  st_.max_overlap_ratio = std::max(st_.max_overlap_ratio, rep.max_ratio);
 }
 
 // Friction: the lower entry of every pair the global steps advanced takes 0 - h of the upper one

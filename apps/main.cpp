@@ -26,6 +26,7 @@
 #include "core/scene.hpp"
 #include "core/scene_config.hpp"
 #include "core/scene_keys_doc.hpp"
+#include "core/simd_level.hpp"
 
 #include <tbb/info.h>
 
@@ -183,6 +184,8 @@ int main(int argc, char** argv) {
       cfddem::set_setup_progress(
           [](const std::string& line) { fmt::print(stderr, "cfddem: {}\n", line); });
     try {
+      // A bad CFDDEM_SIMD is refused here, before anything is read or written.
+      (void)cfddem::simd_level();
       cfddem::SceneConfig cfg;
       const cfddem::Scene scene = load(a, cfg);
       cfddem::apps::check_gas_memory(scene, env.ranks());

@@ -22,6 +22,7 @@
 #include "core/parallel_env.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
+#include "core/simd_level.hpp"
 #include "dem/granular_diagnostics.hpp"
 
 namespace cfddem::apps {
@@ -190,6 +191,7 @@ inline nlohmann::ordered_json run_json_header(const Scene& described, const std:
   j["derived"] = der;
   j["ranks"] = env.ranks();
   j["threads"] = env.threads();
+  j["simd_level"] = std::string(simd_level_name(simd_level()));
   j["particles"] = particles;
   return j;
 }

@@ -1,6 +1,8 @@
 // The leapfrog kick-drift over a contiguous range of particles, written so that it vectorizes:
 // the arithmetic of kick_drift (contact_kernels.hpp) for every particle scheme: the explicit
-// scheme's update pass, the orb scheme's batches and the islands scheme's global steps.
+// scheme's update pass, the orb scheme's batches and the islands scheme's global steps. Its
+// loop is compiled for baseline x86-64 and, where the compiler can, for x86-64-v3 and -v4
+// (kick_drift_range.cpp); simd_level() picks one at run time, with the same results from each.
 #pragma once
 
 #include <array>
@@ -8,6 +10,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "core/simd_level.hpp"
 #include "dem/contact_kernels.hpp"
 #include "dem/particle_views.hpp"
 
@@ -16,17 +19,18 @@ namespace cfddem::dem {
 namespace detail {
 // The loop of kick_drift_range over n particles. Its pointers are restrict parameters because
 // GCC takes no-alias from parameters only (not from restrict locals), and without it the loop
-// does not vectorize; callers use kick_drift_range.
+// does not vectorize; callers use kick_drift_range. Always inlined: kick_drift_range.cpp's
+// copies for wider vectors take it into functions compiled for their instruction set.
 template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
-inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y,
-                            double* __restrict z, double* __restrict vx, double* __restrict vy,
-                            double* __restrict vz, const double* __restrict fx,
-                            const double* __restrict fy, const double* __restrict fz,
-                            const double* __restrict ex, const double* __restrict ey,
-                            const double* __restrict ez, const double* __restrict im,
-                            const double* __restrict xr, const double* __restrict yr,
-                            const double* __restrict zr, double* __restrict hp,
-                            const KickDriftStep& k, KickDriftFlags& flags) {
+[[gnu::always_inline]] inline void
+kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, double* __restrict z,
+                double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                const double* __restrict fx, const double* __restrict fy,
+                const double* __restrict fz, const double* __restrict ex,
+                const double* __restrict ey, const double* __restrict ez,
+                const double* __restrict im, const double* __restrict xr,
+                const double* __restrict yr, const double* __restrict zr, double* __restrict hp,
+                const KickDriftStep& k, KickDriftFlags& flags) {
   const double h = k.h, half = 0.5 * k.h, half_skin2 = k.half_skin2;
   [[maybe_unused]] const double vmax2 = k.vmax2;
   const std::array<double, 3> g = k.g;
@@ -64,6 +68,12 @@ inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restr
   }
   flags.still = still, flags.slow = slow, flags.capped = capped;
 }
+
+// kick_drift_loop over the columns `c`, compiled for `level` (kick_drift_range.cpp; a level
+// without a copy runs the baseline one).
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
+void kick_drift_at(SimdLevel level, const KickDriftColumns& c, const KickDriftStep& k,
+                   KickDriftFlags& flags);
 } // namespace detail
 
 // v += (F/m + g) s, x += v h over the columns `c` (KickDriftStep: s, h, g): the arithmetic of
@@ -76,10 +86,7 @@ inline void kick_drift_loop(std::size_t n, double* __restrict x, double* __restr
 template <bool External, bool First = false, bool CheckSpeed = false, bool CheckMoved = true>
 inline void kick_drift_range(const KickDriftColumns& c, const KickDriftStep& k,
                              KickDriftFlags& flags) {
-  detail::kick_drift_loop<External, First, CheckSpeed, CheckMoved>(
-      c.size(), c.x.data(), c.y.data(), c.z.data(), c.vx.data(), c.vy.data(), c.vz.data(),
-      c.fx.data(), c.fy.data(), c.fz.data(), c.ex.data(), c.ey.data(), c.ez.data(),
-      c.inv_mass.data(), c.xr.data(), c.yr.data(), c.zr.data(), c.h_prev.data(), k, flags);
+  detail::kick_drift_at<External, First, CheckSpeed, CheckMoved>(simd_level(), c, k, flags);
 }
 
 // Local step k of K of an orb leaf batch `c` (variable-step leapfrog): the first step kicks

@@ -33,11 +33,13 @@ with open(os.path.join(SRC, "CMakeLists.txt")) as f:
     VERSION = re.search(r"project\(cfddem VERSION ([0-9.]+)", f.read()).group(1)
 
 
-def run(args, timeout=TIMEOUT, preexec=None, cwd=None):
-    """(exit code, stdout + stderr); a hang is a failure of its own."""
+def run(args, timeout=TIMEOUT, preexec=None, cwd=None, env=None):
+    """(exit code, stdout + stderr); a hang is a failure of its own. env: variables added to
+    this process's environment."""
     try:
         r = subprocess.run([BIN, *args], capture_output=True, text=True, timeout=timeout,
-                           preexec_fn=preexec, cwd=cwd)
+                           preexec_fn=preexec, cwd=cwd,
+                           env=None if env is None else {**os.environ, **env})
     except subprocess.TimeoutExpired:
         return "timeout", ""
     return r.returncode, r.stdout + r.stderr
@@ -121,6 +123,13 @@ def threads_negative(ctx):
 @case
 def threads_not_a_number(ctx):
     expect(ctx, ["run", SMALL, "--threads", "two"], 2, r"must be a whole number >= 1, got 'two'")
+
+
+@case
+def simd_level_not_a_level(ctx):
+    # The kernels' instruction set cap (core/simd_level.hpp): refused before anything is read.
+    expect(ctx, ["run", SMALL], 2, r"CFDDEM_SIMD: 'avx2' is not an instruction set level",
+           env={"CFDDEM_SIMD": "avx2"})
 
 
 @case

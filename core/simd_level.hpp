@@ -1,0 +1,30 @@
+// The instruction set the vectorised particle kernels run with (dem/kick_drift_range.cpp): the
+// portable build targets baseline x86-64 (SSE2, two doubles per instruction), and the kernels
+// whose time is instructions rather than memory also carry copies compiled for x86-64-v3 (AVX2)
+// and x86-64-v4 (AVX-512), picked once at run time from what the CPU supports. Every copy does
+// the same operations in the same order per particle (no contraction: -ffp-contract=off, no
+// reassociation), so the results are bitwise the same at every level; only the speed differs.
+#pragma once
+
+#include <string_view>
+
+namespace cfddem {
+
+// The x86-64 micro-architecture levels (the psABI's names).
+enum class SimdLevel : int { x86_64 = 0, x86_64_v3 = 1, x86_64_v4 = 2 };
+
+// The highest level this CPU supports; x86_64 on a compiler or a CPU without the copies.
+SimdLevel cpu_simd_level();
+
+// The level the kernels run at: the CPU's, capped by the environment variable CFDDEM_SIMD
+// ("x86-64", "x86-64-v3" or "x86-64-v4") for side-by-side measurements or to rule the copies
+// out. Read once; a value that is not one of the three is a ConfigError naming the variable.
+SimdLevel simd_level();
+
+// "x86-64", "x86-64-v3", "x86-64-v4".
+std::string_view simd_level_name(SimdLevel level);
+
+// The level named `text` (the three names above); a ConfigError naming CFDDEM_SIMD otherwise.
+SimdLevel parse_simd_level(std::string_view text);
+
+} // namespace cfddem

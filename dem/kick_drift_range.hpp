@@ -21,7 +21,7 @@ namespace detail {
 // GCC takes no-alias from parameters only (not from restrict locals), and without it the loop
 // does not vectorize; callers use kick_drift_range. Always inlined: kick_drift_range.cpp's
 // copies for wider vectors take it into functions compiled for their instruction set.
-template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox>
 [[gnu::always_inline]] inline void
 kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, double* __restrict z,
                 double* __restrict vx, double* __restrict vy, double* __restrict vz,
@@ -36,8 +36,10 @@ kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, doubl
   const std::array<double, 3> g = k.g;
   double s = k.s, gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
   std::uint64_t still = flags.still, slow = flags.slow;
-  std::uint64_t capped = flags.capped;
+  std::uint64_t capped = flags.capped, inside = flags.inside;
   [[maybe_unused]] const double cap2 = k.cap2;
+  [[maybe_unused]] const double lox = k.lo[0], loy = k.lo[1], loz = k.lo[2];
+  [[maybe_unused]] const double hix = k.hi[0], hiy = k.hi[1], hiz = k.hi[2];
   for (std::size_t i = 0; i < n; ++i) {
     if constexpr (First) {
       s = hp[i] + half;
@@ -65,13 +67,20 @@ kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, doubl
     }
     if constexpr (CheckSpeed)
       slow &= std::bit_cast<std::uint64_t>(u2 <= vmax2 ? -1.0 : 1.0);
+    if constexpr (CheckBox) {
+      // The six compares as sign-bit selects ANDed together (a NaN fails them): no branch, and
+      // it vectorizes at every width (a chain of bool ANDs does not with SSE2).
+      auto ok = [](bool c) { return std::bit_cast<std::uint64_t>(c ? -1.0 : 1.0); };
+      inside &= ok(px >= lox) & ok(px <= hix) & ok(py >= loy) & ok(py <= hiy) & ok(pz >= loz) &
+                ok(pz <= hiz);
+    }
   }
-  flags.still = still, flags.slow = slow, flags.capped = capped;
+  flags.still = still, flags.slow = slow, flags.capped = capped, flags.inside = inside;
 }
 
 // kick_drift_loop over the columns `c`, compiled for `level` (kick_drift_range.cpp; a level
 // without a copy runs the baseline one).
-template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox = false>
 void kick_drift_at(SimdLevel level, const KickDriftColumns& c, const KickDriftStep& k,
                    KickDriftFlags& flags);
 } // namespace detail
@@ -83,10 +92,15 @@ void kick_drift_at(SimdLevel level, const KickDriftColumns& c, const KickDriftSt
 // (flags.still is left as it is); flags.capped keeps its sign bit while every new |v|^2 <= cap2.
 // With First, the kick of particle i spans its own h_prev + h/2 (c.h_prev[i] + h/2, the first
 // step of a sub-iteration; h_prev[i] is set to h/2 afterwards) instead of the common s.
-template <bool External, bool First = false, bool CheckSpeed = false, bool CheckMoved = true>
+// With CheckBox, flags.inside keeps its sign bit while every new position lies in
+// [k.lo, k.hi] on every axis (a NaN fails; the explicit scheme's update with walls, whose
+// particles may not leave the domain): compiled for CheckSpeed without First only.
+template <bool External, bool First = false, bool CheckSpeed = false, bool CheckMoved = true,
+          bool CheckBox = false>
 inline void kick_drift_range(const KickDriftColumns& c, const KickDriftStep& k,
                              KickDriftFlags& flags) {
-  detail::kick_drift_at<External, First, CheckSpeed, CheckMoved>(simd_level(), c, k, flags);
+  detail::kick_drift_at<External, First, CheckSpeed, CheckMoved, CheckBox>(simd_level(), c, k,
+                                                                           flags);
 }
 
 // Local step k of K of an orb leaf batch `c` (variable-step leapfrog): the first step kicks

@@ -57,6 +57,13 @@ struct KickDriftStep {
   double half_skin2 = 0.0; // (skin/2)^2: a particle farther from its reference asks for a list
   double vmax2 = std::numeric_limits<double>::infinity(); // (r_min/h)^2: faster could tunnel
   double cap2 = 0.0; // without the displacement test: the speed^2 no particle may pass
+  // With CheckBox: the box every new position must lie in (walls; -inf/inf on periodic axes).
+  std::array<double, 3> lo{-std::numeric_limits<double>::infinity(),
+                           -std::numeric_limits<double>::infinity(),
+                           -std::numeric_limits<double>::infinity()};
+  std::array<double, 3> hi{std::numeric_limits<double>::infinity(),
+                           std::numeric_limits<double>::infinity(),
+                           std::numeric_limits<double>::infinity()};
 };
 
 // What a kick-drift found, as sign-bit ANDs (the sign bit stays set while all is well): integer
@@ -66,7 +73,9 @@ struct KickDriftFlags {
   std::uint64_t still = ~std::uint64_t{0}; // every particle within skin/2 of its reference
   std::uint64_t slow = ~std::uint64_t{0};  // every speed^2 <= vmax2, none NaN (when checked)
   std::uint64_t capped = ~std::uint64_t{0}; // every new speed^2 <= cap2 (without CheckMoved)
+  std::uint64_t inside = ~std::uint64_t{0}; // every new position in [lo, hi] (with CheckBox)
   bool over_cap() const { return !(capped >> 63); }
+  bool left_box() const { return !(inside >> 63); }
   bool moved() const { return !(still >> 63); }
   bool too_fast() const { return !(slow >> 63); }
 };

@@ -305,6 +305,10 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
   KickDriftStep step;
   step.s = dt, step.h = dt, step.g = m.gravity;
   step.half_skin2 = 0.25 * m.skin * m.skin, step.vmax2 = vmax2;
+  // With walls the kick-drift also checks that every particle stays inside the box's walls.
+  for (int a = 0; a < 3; ++a)
+    if (!g.periodic[a])
+      step.lo[a] = g.lo[a], step.hi[a] = g.hi[a];
   const KickDriftColumns columns =
       kick_drift_columns(p, list.x_ref(), list.y_ref(), list.z_ref(), External ? &ext : nullptr);
   // Leave the displacement test out while no particle can have moved skin/2 (TravelBound).
@@ -346,13 +350,14 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
     }
     KickDriftFlags flags;
     if (exact)
-      kick_drift_range<External, false, true>(columns.range(r.begin(), r.end()), step, flags);
+      kick_drift_range<External, false, true, true, Walls>(columns.range(r.begin(), r.end()), step,
+                                                           flags);
     else
-      kick_drift_range<External, false, true, false>(columns.range(r.begin(), r.end()), step,
-                                                     flags);
+      kick_drift_range<External, false, true, false, Walls>(columns.range(r.begin(), r.end()), step,
+                                                            flags);
     acc.over_cap = acc.over_cap || flags.over_cap();
     // A double: int64 counts of double compares do not vectorize on baseline x86-64.
-    double fails = flags.too_fast() ? 1.0 : 0.0;
+    double fails = flags.too_fast() || flags.left_box() ? 1.0 : 0.0;
     if constexpr (Friction) {
       for (std::size_t i = r.begin(); i != r.end(); ++i) {
         const double s = p.inv_inertia[i] * dt;
@@ -360,17 +365,13 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
       }
     }
     if constexpr (Walls) {
-      const double* __restrict x = p.x.data();
-      const double* __restrict y = p.y.data();
-      const double* __restrict z = p.z.data();
-      for (std::size_t i = r.begin(); i != r.end(); ++i) {
-        const double q[3] = {x[i], y[i], z[i]};
-        for (int a = 0; a < 3; ++a)
-          fails += !g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]);
-      }
-      if (g.cylinder)
+      if (g.cylinder) {
+        const double* __restrict x = p.x.data();
+        const double* __restrict y = p.y.data();
+        const double* __restrict z = p.z.data();
         for (std::size_t i = r.begin(); i != r.end(); ++i)
           fails += !(cylinder_gap(g, x[i], y[i], z[i], 0.0) >= 0.0);
+      }
     }
     acc.moved += flags.moved() ? 1 : 0;
     acc.failures += static_cast<std::int64_t>(fails);

@@ -14,6 +14,7 @@
 #include <limits>
 #include <random>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "core/simd_level.hpp"
@@ -51,11 +52,11 @@ struct Columns {
 };
 
 struct Flags {
-  bool moved = false, too_fast = false, over_cap = false;
+  bool moved = false, too_fast = false, over_cap = false, left_box = false;
 };
 
 // The scalar kernel, particle by particle, as kick_drift_range documents it.
-template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox>
 Flags reference(Columns& c, const KickDriftStep& k) {
   Flags f;
   double* pos[3] = {c.x.data(), c.y.data(), c.z.data()};
@@ -83,25 +84,32 @@ Flags reference(Columns& c, const KickDriftStep& k) {
       f.over_cap = f.over_cap || !(u2 <= k.cap2);
     if (CheckSpeed)
       f.too_fast = f.too_fast || !(u2 <= k.vmax2);
+    if (CheckBox)
+      for (int a = 0; a < 3; ++a)
+        f.left_box = f.left_box || !(pos[a][i] >= k.lo[a] && pos[a][i] <= k.hi[a]);
   }
   return f;
 }
 
-template <bool External, bool First, bool CheckSpeed, bool CheckMoved>
-void expect_copy_matches(SimdLevel level, std::size_t n, std::uint32_t seed, double vmax2) {
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox = false>
+void expect_copy_matches(SimdLevel level, std::size_t n, std::uint32_t seed, double vmax2,
+                         bool nan) {
   SCOPED_TRACE(::testing::Message()
-               << simd_level_name(level) << " n=" << n << " External=" << External << " First="
-               << First << " CheckSpeed=" << CheckSpeed << " CheckMoved=" << CheckMoved);
+               << simd_level_name(level) << " n=" << n << " vmax2=" << vmax2 << " NaN=" << nan
+               << " External=" << External << " First=" << First << " CheckSpeed=" << CheckSpeed
+               << " CheckMoved=" << CheckMoved << " CheckBox=" << CheckBox);
   KickDriftStep k;
   k.s = 1.3e-3, k.h = 1.1e-3, k.g = {0.3, -9.81, 0.1};
   k.half_skin2 = 0.25 * 0.02 * 0.02, k.vmax2 = vmax2, k.cap2 = 9.0;
+  // Walls on x and z that some particles (at +-3.1) lie beyond; y periodic.
+  k.lo[0] = k.lo[2] = -3.0, k.hi[0] = k.hi[2] = 3.0;
   Columns want(n, seed), got(n, seed);
-  if (n > 3)
+  if (nan)
     got.vy[n - 2] = want.vy[n - 2] = std::numeric_limits<double>::quiet_NaN();
-  const Flags f = reference<External, First, CheckSpeed, CheckMoved>(want, k);
+  const Flags f = reference<External, First, CheckSpeed, CheckMoved, CheckBox>(want, k);
   KickDriftFlags flags;
-  detail::kick_drift_at<External, First, CheckSpeed, CheckMoved>(level, got.view(External, First),
-                                                                 k, flags);
+  detail::kick_drift_at<External, First, CheckSpeed, CheckMoved, CheckBox>(
+      level, got.view(External, First), k, flags);
   auto same = [](const std::vector<double>& a, const std::vector<double>& b) {
     for (std::size_t i = 0; i < a.size(); ++i)
       if (std::bit_cast<std::uint64_t>(a[i]) != std::bit_cast<std::uint64_t>(b[i]))
@@ -123,14 +131,22 @@ void expect_copy_matches(SimdLevel level, std::size_t n, std::uint32_t seed, dou
   if (CheckSpeed) {
     EXPECT_EQ(flags.too_fast(), f.too_fast);
   }
+  if (CheckBox) {
+    EXPECT_EQ(flags.left_box(), f.left_box);
+  }
 }
 
 template <bool External, bool First>
-void expect_variants_match(SimdLevel level, std::size_t n, std::uint32_t seed, double vmax2) {
-  expect_copy_matches<External, First, false, false>(level, n, seed, vmax2);
-  expect_copy_matches<External, First, false, true>(level, n, seed, vmax2);
-  expect_copy_matches<External, First, true, false>(level, n, seed, vmax2);
-  expect_copy_matches<External, First, true, true>(level, n, seed, vmax2);
+void expect_variants_match(SimdLevel level, std::size_t n, std::uint32_t seed, double vmax2,
+                           bool nan) {
+  expect_copy_matches<External, First, false, false>(level, n, seed, vmax2, nan);
+  expect_copy_matches<External, First, false, true>(level, n, seed, vmax2, nan);
+  expect_copy_matches<External, First, true, false>(level, n, seed, vmax2, nan);
+  expect_copy_matches<External, First, true, true>(level, n, seed, vmax2, nan);
+  if constexpr (!First) { // the explicit update's walls
+    expect_copy_matches<External, First, true, false, true>(level, n, seed, vmax2, nan);
+    expect_copy_matches<External, First, true, true, true>(level, n, seed, vmax2, nan);
+  }
 }
 
 TEST(KickDriftRange, EveryInstructionSetCopyMatchesTheScalarKernelBitwise) {
@@ -138,14 +154,71 @@ TEST(KickDriftRange, EveryInstructionSetCopyMatchesTheScalarKernelBitwise) {
   std::printf("this CPU runs the copies up to %s\n", std::string(simd_level_name(cpu)).c_str());
   for (int l = 0; l <= static_cast<int>(cpu); ++l) {
     const auto level = static_cast<SimdLevel>(l);
-    // Lengths with a remainder at 2, 4 and 8 lanes; one seed finds a particle too fast (and
-    // the NaN), the infinite bound finds none when the NaN is absent (n <= 3).
+    // Lengths with a remainder at 2, 4 and 8 lanes. Speeds reach about 5.4 m/s: the bound 9
+    // (m/s)^2 flags some, the infinite one none; a NaN velocity (with the infinite bound)
+    // must fail the speed test and the box.
     for (const std::size_t n : {1, 3, 7, 13, 37, 1003}) {
-      const double vmax2 = n % 2 ? std::numeric_limits<double>::infinity() : 40.0;
-      expect_variants_match<false, false>(level, n, 11u + static_cast<unsigned>(n), vmax2);
-      expect_variants_match<false, true>(level, n, 12u + static_cast<unsigned>(n), vmax2);
-      expect_variants_match<true, false>(level, n, 13u + static_cast<unsigned>(n), vmax2);
-      expect_variants_match<true, true>(level, n, 14u + static_cast<unsigned>(n), vmax2);
+      for (const double vmax2 : {std::numeric_limits<double>::infinity(), 9.0}) {
+        const bool nan = n > 3 && vmax2 > 10.0;
+        const auto seed = static_cast<std::uint32_t>(n) + (nan ? 100u : 0u);
+        expect_variants_match<false, false>(level, n, seed + 11u, vmax2, nan);
+        expect_variants_match<false, true>(level, n, seed + 12u, vmax2, nan);
+        expect_variants_match<true, false>(level, n, seed + 13u, vmax2, nan);
+        expect_variants_match<true, true>(level, n, seed + 14u, vmax2, nan);
+      }
+    }
+  }
+}
+
+// One particle anywhere in the range (every lane and the remainder) that leaves the box on one
+// axis, moves too fast, passes the cap or moves beyond skin/2 must set its flag on every copy;
+// without it, none is set. A lane whose flag the reduction drops, or a remainder loop that
+// skips the test, fails here.
+TEST(KickDriftRange, EveryCopyFlagsASingleOffenderAnywhere) {
+  const SimdLevel cpu = cpu_simd_level();
+  for (int l = 0; l <= static_cast<int>(cpu); ++l) {
+    const auto level = static_cast<SimdLevel>(l);
+    for (const std::size_t n : {7, 13, 37}) {
+      for (std::size_t at = 0; at < n; ++at) {
+        for (int a = 0; a < 3; ++a) {
+          SCOPED_TRACE(::testing::Message() << simd_level_name(level) << " n=" << n << " particle "
+                                            << at << " axis " << a);
+          KickDriftStep k;
+          k.s = k.h = 1e-3;
+          k.half_skin2 = 1.0, k.vmax2 = 100.0, k.cap2 = 100.0;
+          k.lo = {-10.0, -10.0, -10.0}, k.hi = {10.0, 10.0, 10.0};
+          auto run = [&](auto checks, auto edit) {
+            Columns c(n, static_cast<std::uint32_t>(7 * n + at));
+            c.xr = c.x, c.yr = c.y, c.zr = c.z; // nobody has moved yet
+            edit(c);
+            KickDriftFlags f;
+            constexpr bool moved = decltype(checks)::value;
+            detail::kick_drift_at<false, false, true, moved, true>(level, c.view(false, false), k,
+                                                                   f);
+            return f;
+          };
+          const std::true_type exact;
+          const std::false_type capped;
+          auto none = [](Columns&) {};
+          const KickDriftFlags clean = run(exact, none);
+          EXPECT_FALSE(clean.left_box() || clean.too_fast() || clean.moved());
+          EXPECT_FALSE(run(capped, none).over_cap());
+          auto coord = [a](Columns& c) -> std::vector<double>& {
+            return a == 0 ? c.x : a == 1 ? c.y : c.z;
+          };
+          auto vel = [a](Columns& c) -> std::vector<double>& {
+            return a == 0 ? c.vx : a == 1 ? c.vy : c.vz;
+          };
+          auto ref = [a](Columns& c) -> std::vector<double>& {
+            return a == 0 ? c.xr : a == 1 ? c.yr : c.zr;
+          };
+          const double side = at % 2 ? -1.0 : 1.0;
+          EXPECT_TRUE(run(exact, [&](Columns& c) { coord(c)[at] = 10.5 * side; }).left_box());
+          EXPECT_TRUE(run(exact, [&](Columns& c) { vel(c)[at] = 30.0 * side; }).too_fast());
+          EXPECT_TRUE(run(capped, [&](Columns& c) { vel(c)[at] = 30.0 * side; }).over_cap());
+          EXPECT_TRUE(run(exact, [&](Columns& c) { ref(c)[at] += 2.0 * side; }).moved());
+        }
+      }
     }
   }
 }

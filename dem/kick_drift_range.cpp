@@ -10,11 +10,79 @@
 // give bitwise the same positions, velocities and flags.
 #include "dem/kick_drift_range.hpp"
 
+#include <bit>
+#include <cstddef>
+#include <cstdint>
+
+#include "dem/contact_kernels.hpp"
+
 namespace cfddem::dem::detail {
 
 namespace {
 
-// The loop over the columns `c`, inlined into each copy below (so compiled for its target).
+// The loop of kick_drift_range over n particles. Its pointers are restrict parameters because
+// GCC takes no-alias from parameters only (not from restrict locals), and without it the loop
+// does not vectorize. Always inlined: each copy below takes it into a function compiled for its
+// instruction set.
+template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox>
+[[gnu::always_inline]] inline void
+kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, double* __restrict z,
+                double* __restrict vx, double* __restrict vy, double* __restrict vz,
+                const double* __restrict fx, const double* __restrict fy,
+                const double* __restrict fz, const double* __restrict ex,
+                const double* __restrict ey, const double* __restrict ez,
+                const double* __restrict im, const double* __restrict xr,
+                const double* __restrict yr, const double* __restrict zr, double* __restrict hp,
+                const KickDriftStep& k, KickDriftFlags& flags) {
+  const double h = k.h, half = 0.5 * k.h, half_skin2 = k.half_skin2;
+  [[maybe_unused]] const double vmax2 = k.vmax2;
+  const std::array<double, 3> g = k.g;
+  double s = k.s, gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
+  std::uint64_t still = flags.still, slow = flags.slow;
+  std::uint64_t capped = flags.capped, inside = flags.inside;
+  [[maybe_unused]] const double cap2 = k.cap2;
+  [[maybe_unused]] const double lox = k.lo[0], loy = k.lo[1], loz = k.lo[2];
+  [[maybe_unused]] const double hix = k.hi[0], hiy = k.hi[1], hiz = k.hi[2];
+  for (std::size_t i = 0; i < n; ++i) {
+    if constexpr (First) {
+      s = hp[i] + half;
+      gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
+      hp[i] = half;
+    }
+    const double ims = im[i] * s;
+    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
+    if constexpr (External) {
+      kick_drift(px, ux, fx[i] + ex[i], ims, gsx, h);
+      kick_drift(py, uy, fy[i] + ey[i], ims, gsy, h);
+      kick_drift(pz, uz, fz[i] + ez[i], ims, gsz, h);
+    } else {
+      kick_drift(px, ux, fx[i], ims, gsx, h);
+      kick_drift(py, uy, fy[i], ims, gsy, h);
+      kick_drift(pz, uz, fz[i], ims, gsz, h);
+    }
+    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
+    const double u2 = ux * ux + uy * uy + uz * uz;
+    if constexpr (CheckMoved) {
+      const double dx = px - xr[i], dy = py - yr[i], dz = pz - zr[i];
+      still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
+    } else {
+      capped &= std::bit_cast<std::uint64_t>(u2 <= cap2 ? -1.0 : 1.0);
+    }
+    if constexpr (CheckSpeed)
+      slow &= std::bit_cast<std::uint64_t>(u2 <= vmax2 ? -1.0 : 1.0);
+    if constexpr (CheckBox) {
+      // The six compares as sign-bit selects ANDed together (a NaN fails them): no branch, and
+      // it vectorizes at every width (a chain of bool ANDs does not with SSE2).
+      auto ok = [](bool c) { return std::bit_cast<std::uint64_t>(c ? -1.0 : 1.0); };
+      inside &= ok(px >= lox) & ok(px <= hix) & ok(py >= loy) & ok(py <= hiy) & ok(pz >= loz) &
+                ok(pz <= hiz);
+    }
+  }
+  flags.still = still, flags.slow = slow, flags.capped = capped, flags.inside = inside;
+}
+
+// The loop over the columns `c`: the baseline copy as it stands, the others inlined into the
+// functions compiled for their target.
 template <bool E, bool F, bool S, bool M, bool B>
 [[gnu::always_inline]] inline void loop_over(const KickDriftColumns& c, const KickDriftStep& k,
                                              KickDriftFlags& flags) {
@@ -22,11 +90,6 @@ template <bool E, bool F, bool S, bool M, bool B>
                                  c.vy.data(), c.vz.data(), c.fx.data(), c.fy.data(), c.fz.data(),
                                  c.ex.data(), c.ey.data(), c.ez.data(), c.inv_mass.data(),
                                  c.xr.data(), c.yr.data(), c.zr.data(), c.h_prev.data(), k, flags);
-}
-
-template <bool E, bool F, bool S, bool M, bool B>
-void loop_baseline(const KickDriftColumns& c, const KickDriftStep& k, KickDriftFlags& flags) {
-  loop_over<E, F, S, M, B>(c, k, flags);
 }
 
 #if defined(CFDDEM_SIMD_COPIES)
@@ -54,7 +117,7 @@ void kick_drift_at([[maybe_unused]] SimdLevel level, const KickDriftColumns& c,
   if (level == SimdLevel::x86_64_v3)
     return loop_v3<E, F, S, M, B>(c, k, flags);
 #endif
-  loop_baseline<E, F, S, M, B>(c, k, flags);
+  loop_over<E, F, S, M, B>(c, k, flags);
 }
 
 // Every combination of External, First, CheckSpeed and CheckMoved without CheckBox; with it,

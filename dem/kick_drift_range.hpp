@@ -6,80 +6,17 @@
 #pragma once
 
 #include <array>
-#include <bit>
 #include <cstddef>
 #include <cstdint>
 
 #include "core/simd_level.hpp"
-#include "dem/contact_kernels.hpp"
 #include "dem/particle_views.hpp"
 
 namespace cfddem::dem {
 
 namespace detail {
-// The loop of kick_drift_range over n particles. Its pointers are restrict parameters because
-// GCC takes no-alias from parameters only (not from restrict locals), and without it the loop
-// does not vectorize; callers use kick_drift_range. Always inlined: kick_drift_range.cpp's
-// copies for wider vectors take it into functions compiled for their instruction set.
-template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox>
-[[gnu::always_inline]] inline void
-kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, double* __restrict z,
-                double* __restrict vx, double* __restrict vy, double* __restrict vz,
-                const double* __restrict fx, const double* __restrict fy,
-                const double* __restrict fz, const double* __restrict ex,
-                const double* __restrict ey, const double* __restrict ez,
-                const double* __restrict im, const double* __restrict xr,
-                const double* __restrict yr, const double* __restrict zr, double* __restrict hp,
-                const KickDriftStep& k, KickDriftFlags& flags) {
-  const double h = k.h, half = 0.5 * k.h, half_skin2 = k.half_skin2;
-  [[maybe_unused]] const double vmax2 = k.vmax2;
-  const std::array<double, 3> g = k.g;
-  double s = k.s, gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
-  std::uint64_t still = flags.still, slow = flags.slow;
-  std::uint64_t capped = flags.capped, inside = flags.inside;
-  [[maybe_unused]] const double cap2 = k.cap2;
-  [[maybe_unused]] const double lox = k.lo[0], loy = k.lo[1], loz = k.lo[2];
-  [[maybe_unused]] const double hix = k.hi[0], hiy = k.hi[1], hiz = k.hi[2];
-  for (std::size_t i = 0; i < n; ++i) {
-    if constexpr (First) {
-      s = hp[i] + half;
-      gsx = g[0] * s, gsy = g[1] * s, gsz = g[2] * s;
-      hp[i] = half;
-    }
-    const double ims = im[i] * s;
-    double px = x[i], py = y[i], pz = z[i], ux = vx[i], uy = vy[i], uz = vz[i];
-    if constexpr (External) {
-      kick_drift(px, ux, fx[i] + ex[i], ims, gsx, h);
-      kick_drift(py, uy, fy[i] + ey[i], ims, gsy, h);
-      kick_drift(pz, uz, fz[i] + ez[i], ims, gsz, h);
-    } else {
-      kick_drift(px, ux, fx[i], ims, gsx, h);
-      kick_drift(py, uy, fy[i], ims, gsy, h);
-      kick_drift(pz, uz, fz[i], ims, gsz, h);
-    }
-    x[i] = px, y[i] = py, z[i] = pz, vx[i] = ux, vy[i] = uy, vz[i] = uz;
-    const double u2 = ux * ux + uy * uy + uz * uz;
-    if constexpr (CheckMoved) {
-      const double dx = px - xr[i], dy = py - yr[i], dz = pz - zr[i];
-      still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
-    } else {
-      capped &= std::bit_cast<std::uint64_t>(u2 <= cap2 ? -1.0 : 1.0);
-    }
-    if constexpr (CheckSpeed)
-      slow &= std::bit_cast<std::uint64_t>(u2 <= vmax2 ? -1.0 : 1.0);
-    if constexpr (CheckBox) {
-      // The six compares as sign-bit selects ANDed together (a NaN fails them): no branch, and
-      // it vectorizes at every width (a chain of bool ANDs does not with SSE2).
-      auto ok = [](bool c) { return std::bit_cast<std::uint64_t>(c ? -1.0 : 1.0); };
-      inside &= ok(px >= lox) & ok(px <= hix) & ok(py >= loy) & ok(py <= hiy) & ok(pz >= loz) &
-                ok(pz <= hiz);
-    }
-  }
-  flags.still = still, flags.slow = slow, flags.capped = capped, flags.inside = inside;
-}
-
-// kick_drift_loop over the columns `c`, compiled for `level` (kick_drift_range.cpp; a level
-// without a copy runs the baseline one).
+// The kick-drift over the columns `c` with the loop compiled for `level` (kick_drift_range.cpp;
+// a level without a copy runs the baseline one).
 template <bool External, bool First, bool CheckSpeed, bool CheckMoved, bool CheckBox = false>
 void kick_drift_at(SimdLevel level, const KickDriftColumns& c, const KickDriftStep& k,
                    KickDriftFlags& flags);

@@ -70,14 +70,13 @@ Flags reference(Columns& c, const KickDriftStep& k) {
       s = c.hp[i] + 0.5 * k.h;
       c.hp[i] = 0.5 * k.h;
     }
-    double u2 = 0.0, d2 = 0.0;
     for (int a = 0; a < 3; ++a) {
       const double fa = External ? force[a][i] + ext[a][i] : force[a][i];
       kick_drift(pos[a][i], vel[a][i], fa, c.im[i] * s, k.g[a] * s, k.h);
     }
-    u2 = vel[0][i] * vel[0][i] + vel[1][i] * vel[1][i] + vel[2][i] * vel[2][i];
+    const double u2 = vel[0][i] * vel[0][i] + vel[1][i] * vel[1][i] + vel[2][i] * vel[2][i];
     const double dx = pos[0][i] - ref[0][i], dy = pos[1][i] - ref[1][i], dz = pos[2][i] - ref[2][i];
-    d2 = dx * dx + dy * dy + dz * dz;
+    const double d2 = dx * dx + dy * dy + dz * dz;
     if (CheckMoved)
       f.moved = f.moved || d2 > k.half_skin2;
     else

@@ -7,11 +7,13 @@
 // BM_ColumnPass/swapped:S/n:N: two columns of N doubles; each step core t updates its half of x,
 // then (after a barrier) its half of v from x, S = 0, or the other core's half, S = 1. The second
 // case is what a work-stealing partition does to a particle pass half the time.
-// BM_KickDriftStream/threads:T/n:N: the explicit update pass's memory traffic alone, its
-// kick-drift v += ((f + e) m^-1 + g) dt, x += v dt over N particles (13 columns read, 6 written),
-// on T = 1 or 2 pinned threads, each its own half at every step (a static partition), a barrier
-// between steps. Two threads at twice one's rate: the pass scales; less: the caches and memory
-// the cores share hold it, and no partition can do better.
+// BM_KickDriftStream/threads:T/n:N: the explicit update pass's kernel alone, its kick-drift
+// v += ((f + e) m^-1 + g) dt, x += v dt over N particles (13 columns read, 6 written), on T = 1
+// or 2 pinned threads, each its own half at every step (a static partition), a barrier between
+// steps. It runs the instruction set copy simd_level() picks (CFDDEM_SIMD=x86-64 for the
+// baseline one): with SSE2 one core is held by the loop's instructions, with AVX-512 by what its
+// caches deliver. Two threads at less than twice one's rate: the caches and memory the cores
+// share hold the pass, and no partition can do better.
 #include <benchmark/benchmark.h>
 
 #include <atomic>

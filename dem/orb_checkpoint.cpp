@@ -19,6 +19,8 @@ void save(StateWriter& w, const OrbScheme::State& o, const std::vector<std::int6
   w.put("/orb/ratios", std::vector<double>{o.last_fine_fraction, o.max_overlap_ratio, o.skin});
   // Its own entry, so that checkpoints written before the global mode still load (as 0).
   w.put("/orb/global_subiterations", std::vector<std::int64_t>{o.global_subits});
+  // The same for the held global interval's contact candidates (OrbScheme::Pairs::contact_only).
+  w.put("/orb/pairs_contact_only", std::vector<std::int64_t>{o.pairs_contact_only ? 1 : 0});
   // Candidate pairs (store indices) and their reference positions.
   w.put("/orb/contact_a", o.ca);
   w.put("/orb/contact_b", o.cb);
@@ -43,6 +45,8 @@ void restore(StateReader& r, OrbScheme::State& o, const std::vector<std::int64_t
   o.last_fine_fraction = q[0], o.max_overlap_ratio = q[1], o.skin = q[2];
   if (r.exists("/orb/global_subiterations"))
     o.global_subits = r.int64s("/orb/global_subiterations", 1)[0];
+  if (r.exists("/orb/pairs_contact_only"))
+    o.pairs_contact_only = r.int64s("/orb/pairs_contact_only", 1)[0] != 0;
   o.ca = r.uint32s("/orb/contact_a", StateReader::kAny);
   o.cb = r.uint32s("/orb/contact_b", o.ca.size());
   o.pa = r.uint32s("/orb/proximity_a", StateReader::kAny);

@@ -302,7 +302,8 @@ bool OrbScheme::rank_keep_rows() {
   rank_->comm.sum(c);
   if (c[2] > 0 || c[1] != cfg_.n_global) // an expiry (then a stray may have gone uncounted)
     return false;
-  if (!(static_cast<double>(c[0]) > kGlobalFraction * static_cast<double>(cfg_.n_global)))
+  if (!global_.hold &&
+      !(static_cast<double>(c[0]) > kGlobalFraction * static_cast<double>(cfg_.n_global)))
     return false;
   global_.on = true;
   rank_->kept = true;

@@ -3,6 +3,7 @@
 // when some particle may outrun them, remapped when the store is re-sorted) with the rows
 // derived from them.
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <numeric>
 
@@ -227,22 +228,44 @@ bool OrbScheme::rows_expire(std::size_t n, const std::array<const double*, 3>& r
   return false;
 }
 
+// The held global steps' test (leaf_kick_drift's `still`) on the state: a squared displacement
+// from the pairs' reference above (skin/2)^2, in one branch-free pass.
+bool OrbScheme::moved_half_skin() const {
+  const std::size_t n = p_.size();
+  const double half_skin2 = 0.25 * skin_ * skin_;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* xr = pairs_.xr.data();
+  const double* yr = pairs_.yr.data();
+  const double* zr = pairs_.zr.data();
+  std::uint64_t still = ~std::uint64_t{0};
+  for (std::size_t i = 0; i < n; ++i) {
+    const double dx = x[i] - xr[i], dy = y[i] - yr[i], dz = z[i] - zr[i];
+    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
+  }
+  return !(still >> 63);
+}
+
 // One cell list over the whole store (indices binned, the store is not moved): contact
 // candidates within r_a + r_b + skin and proximity candidates within prox (r_a + r_b)/2 + skin,
 // each pair once, in a deterministic order. Proximity candidates are skipped when every particle
 // is within the proximity distance of every other (prox_all) or the proximity distance reaches
 // half a periodic length (prox_brute: tested pair by pair at each sub-iteration instead).
-void OrbScheme::rebuild_pairs() {
+// With contact_only (a held global interval decides no mode) the contact candidates alone, over
+// cells of the contact cutoff.
+void OrbScheme::rebuild_pairs(bool contact_only) {
   PhaseTimer::Scope t(timer_, Phase::neighbor);
   const std::size_t n = p_.size();
   const DomainGeometry& g = geom_;
   const double prox = 0.5 * scene_.dem.proximity_radii;
   const double contact_cut = 2.0 * cfg_.r_max + skin_;
   const double prox_cut = 2.0 * prox * cfg_.r_max + skin_;
-  bool prox_cells = true;
+  bool prox_fits = true;
   for (int a = 0; a < 3; ++a)
     if (g.periodic[a] && 2.0 * prox_cut >= g.length[a])
-      prox_cells = false;
+      prox_fits = false;
+  const bool prox_cells = prox_fits && !contact_only;
   const double cutoff = prox_cells ? std::max(contact_cut, prox_cut) : contact_cut;
   CellList& cells = pairs_.cells;
   cells.bin<true>(g, make_cell_grid(g, cutoff, n, 8.0), p_.x.data(), p_.y.data(), p_.z.data(), n);
@@ -294,7 +317,7 @@ void OrbScheme::rebuild_pairs() {
                                 pairs_.pa.push_back(i), pairs_.pb.push_back(j);
                             });
   }
-  pairs_.prox_from_pairs = prox_cells;
+  pairs_.prox_from_pairs = prox_fits, pairs_.contact_only = contact_only;
   pairs_.xr = p_.x, pairs_.yr = p_.y, pairs_.zr = p_.z;
   pairs_.valid = true;
   drop_rows();
@@ -400,7 +423,9 @@ void OrbScheme::derive_rows() {
 // Per particle: whether some partner (another particle, or a wall: mark_walls) is within the
 // proximity distance, or with dem.local_dt = "time_to_contact" could touch it within dt_sp. The
 // candidate pairs hold every such pair (their skin covers the distance, or two reaches).
-void OrbScheme::mark_near() {
+// With contact_bound (the proximity rule over contact candidates alone, Pairs::contact_only) the
+// contact candidates are tested instead: some of the near particles, none that is not.
+void OrbScheme::mark_near(bool contact_bound) {
   const std::size_t n = p_.size();
   std::vector<unsigned char>& near = rows_.near;
   near.assign(n, 0);
@@ -424,7 +449,10 @@ void OrbScheme::mark_near() {
       if (within_proximity(separation2(a, c), r[a] + r[c], cfg_.prox))
         near[a] = near[c] = 1;
     };
-    if (pairs_.prox_from_pairs) {
+    if (contact_bound) {
+      for (std::size_t q = 0; q < pairs_.ca.size(); ++q)
+        test(pairs_.ca[q], pairs_.cb[q]);
+    } else if (pairs_.prox_from_pairs) {
       for (std::size_t q = 0; q < pairs_.pa.size(); ++q)
         test(pairs_.pa[q], pairs_.pb[q]);
     } else {

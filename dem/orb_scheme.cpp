@@ -153,13 +153,13 @@ void OrbScheme::mark_walls(std::span<unsigned char> near) const {
 bool OrbScheme::build_rows(bool force) {
   if (rank_) {
     rank_exchange_and_rows();
-    global_.on = rank_choose_global();
+    global_.on = global_.hold || rank_choose_global(); // hold: the same on every rank
     return true;
   }
   bool fresh = false;
   if (cfg_.time_to_contact && time_to_contact_speeds())
     pairs_.valid = false;
-  if (force || !pairs_.valid ||
+  if (force || !pairs_.valid || pairs_.contact_only ||
       rows_expire(p_.size(), {pairs_.xr.data(), pairs_.yr.data(), pairs_.zr.data()}))
     rebuild_pairs(), fresh = true;
   global_.on = choose_global();
@@ -443,8 +443,8 @@ bool OrbScheme::global_allowed() const {
 // finely hold more than kGlobalFraction of the particles (orb_scheme.hpp gives the cost
 // argument). A decision from the state alone, so a rerun, a thread count and a restart take it
 // alike.
-bool OrbScheme::choose_global() {
-  mark_near();
+bool OrbScheme::choose_global(bool contact_bound) {
+  mark_near(contact_bound);
   mark_fine_leaves(rows_.near);
   if (!global_allowed())
     return false;
@@ -548,6 +548,8 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
   const std::size_t n = owned_;
   const LeafLive p = live(External);
+  if (global_.hold && global_.moved) // the last step outran the pairs (a held interval)
+    rebuild_pairs(true);
   if (global_.stale)
     global_stream();
   // The leaf steps left forces behind: every particle's from zero at the first step, then those
@@ -565,7 +567,7 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
     if (k > 0) {
       global_.pairs.clear_forces(p_);
       if (!still) { // some particle moved more than skin/2 since the build
-        rebuild_pairs();
+        rebuild_pairs(global_.hold);
         global_stream();
       }
     }
@@ -573,6 +575,7 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
     const auto evals = static_cast<std::int64_t>(global_.pairs.size());
     still = global_step<External, Column>(bt, st, p, ref, tally, evals, record);
   }
+  global_.moved = !still;
   bt.max_ratio = tally.max_ratio;
   bt.violations = tally.violations;
   find_batch_fault<Column>(bt, p);
@@ -678,6 +681,8 @@ void OrbScheme::raise_fault() {
 
 void OrbScheme::subiterate(bool record) {
   const bool regridding = stats_.subits % cfg_.nsubit == 0;
+  if (regridding)
+    global_.hold = false; // the regrid's sub-iteration decides the interval's mode afresh
   std::string outside_message;
   std::int64_t outside_key = std::numeric_limits<std::int64_t>::max();
   std::int64_t outside = 0;
@@ -694,7 +699,31 @@ void OrbScheme::subiterate(bool record) {
   } else if (regridding) {
     regrid();
   }
-  bool fresh = keep && rank_keep_rows() ? false : build_rows(false);
+  bool fresh = false;
+  if (!rank_ && global_.hold) {
+    // One rank, a held global interval: no mode to decide, so neither the proximity candidates
+    // nor the leaves' membership are needed; the contact pairs are rebuilt as the explicit
+    // scheme's list, when the last step left a particle skin/2 from their build. A recorded
+    // sub-iteration re-sorts first: its state names each particle's leaf.
+    if (record)
+      resort();
+    global_.on = true;
+  } else if (!rank_ && regridding && pairs_.valid && pairs_.contact_only && !cfg_.time_to_contact &&
+             choose_global(true)) {
+    // One rank, the regrid after a held global interval, whose pairs are the contact candidates
+    // alone: those within the proximity distance are some of the near pairs, so the fine leaves
+    // they show are a lower bound. Above kGlobalFraction the full candidates would choose the
+    // global mode too, and they are not built. The pairs hold while no particle has moved
+    // skin/2 since their build (the held steps' rule; tested on the state, as a restart has it).
+    global_.on = true;
+    global_.moved = moved_half_skin();
+  } else {
+    global_.moved = false; // the build's expiry test (rows_expire) covers the last steps
+    fresh = keep && rank_keep_rows() ? false : build_rows(false);
+  }
+  // The regrid's choice of the global mode holds to the next regrid (kGlobalFraction).
+  if (regridding && global_.on)
+    global_.hold = true;
   // One reduction closes the sub-iteration (on R ranks): {outran, faults, outside, owned,
   // particle steps, force evaluations, overlaps beyond the bound, fine leaves, non-empty leaves}.
   std::array<std::int64_t, 9> c{};
@@ -791,8 +820,8 @@ void OrbScheme::subiterate(bool record) {
     // rest (the global steps left theirs behind).
     drop_rows();
   }
-  if (!rank_)
-    resort();
+  if (!rank_ && !global_.hold)
+    resort(); // a held interval's store is re-sorted by the next regrid
 }
 
 void OrbScheme::benchmark_leaf_subiteration(int leaf) {
@@ -872,8 +901,10 @@ OrbScheme::State OrbScheme::save_state() const {
   s.last_fine_fraction = stats_.last_fine_fraction;
   s.max_overlap_ratio = std::max(stats_.max_overlap_ratio, all_max(stats_.ratio));
   s.skin = skin_;
-  // One rank: the candidate pairs survive the regrid (R ranks rebuild rows every sub-iteration).
+  // One rank: the candidate pairs survive the regrid (R ranks rebuild rows every sub-iteration),
+  // a held global interval's contact candidates alone too.
   s.pairs_valid = !rank_ && pairs_.valid, s.prox_from_pairs = pairs_.prox_from_pairs;
+  s.pairs_contact_only = s.pairs_valid && pairs_.contact_only;
   if (s.pairs_valid) {
     s.ca = pairs_.ca, s.cb = pairs_.cb, s.pa = pairs_.pa, s.pb = pairs_.pb;
     s.x_ref = pairs_.xr, s.y_ref = pairs_.yr, s.z_ref = pairs_.zr;
@@ -918,6 +949,8 @@ void OrbScheme::restore_state(State s) {
   if (s.skin > 0.0)
     skin_ = s.skin;
   pairs_.valid = s.pairs_valid, pairs_.prox_from_pairs = s.prox_from_pairs;
+  pairs_.contact_only = s.pairs_valid && s.pairs_contact_only;
+  global_.hold = false, global_.moved = false;
   pairs_.ca = std::move(s.ca), pairs_.cb = std::move(s.cb);
   pairs_.pa = std::move(s.pa), pairs_.pb = std::move(s.pb);
   pairs_.xr = std::move(s.x_ref), pairs_.yr = std::move(s.y_ref), pairs_.zr = std::move(s.z_ref);

@@ -197,6 +197,7 @@ public:
     double last_fine_fraction = 0.0, max_overlap_ratio = 0.0, skin = 0.0;
     // Candidate pairs: contact (ca, cb) and proximity (pa, pb); references x_ref..z_ref.
     bool pairs_valid = false, prox_from_pairs = true;
+    bool pairs_contact_only = false; // absent from older checkpoints: false
     std::vector<std::uint32_t> ca, cb, pa, pb;
     std::vector<double> x_ref, y_ref, z_ref;
     ContactHistory history; // friction: the tangential history by particle ids
@@ -228,11 +229,12 @@ private:
   // One rank's persistent candidate pairs (a, b), global indices, valid while every particle
   // stays within skin/2 of its reference position: contact candidates (centres within
   // r_a + r_b + skin) and proximity candidates (within prox (r_a + r_b) + skin), and the cell
-  // list that builds them.
+  // list that builds them. contact_only: built in a held global interval (Global::hold), with
+  // no proximity candidates; the next sub-iteration that decides its mode builds them again.
   struct Pairs {
     std::vector<std::uint32_t> ca, cb, pa, pb;
     std::vector<double> xr, yr, zr;
-    bool valid = false, prox_from_pairs = true;
+    bool valid = false, prox_from_pairs = true, contact_only = false;
     CellList cells;
     std::array<std::vector<double>, 4> sorted; // x, y, z, radius in cell order
   };
@@ -275,14 +277,16 @@ private:
 
   // The global mode's state: the candidate contact pairs (R ranks: the rows' pairs) through the
   // explicit scheme's pair pass (stale after a build, or on one rank a re-sort), ordered by their
-  // lower particle index; `on`: this sub-iteration is global.
+  // lower particle index; `on`: this sub-iteration is global; `hold`: the regrid's sub-iteration
+  // chose the global mode, which then holds until the next regrid (kGlobalFraction); `moved`
+  // (one rank): the last global step left a particle more than skin/2 from the pairs' build.
   // first: the counting sort's offsets per particle (one rank).
   struct Global {
     GlobalPairs pairs;
     std::vector<std::uint32_t> first;
     std::vector<std::uint64_t> still; // per block of the update: sign bit set while within skin/2
     std::int64_t once = 0; // R ranks: the pairs counted per step (a pair with a ghost on one rank)
-    bool stale = true, on = false;
+    bool stale = true, on = false, hold = false, moved = false;
   };
 
   // The sub-iteration's steps (orb_scheme.cpp).
@@ -292,7 +296,7 @@ private:
   bool attempt(bool record);
   void run_batch(Batch& b, bool record);
   template <bool Column> void find_batch_fault(Batch& bt, const LeafLive& p) const;
-  bool choose_global();
+  bool choose_global(bool contact_bound = false);
   bool global_allowed() const;
   void mark_fine_leaves(std::span<const unsigned char> near);
   void plan_leaf_batches(const FineSteps& steps);
@@ -318,11 +322,14 @@ private:
   // Whether one of the first n particles may move more than skin/2 from `ref` (x, y, z) within
   // this sub-iteration: |x - ref| + |v| dt_sp > skin/2 (or not finite).
   bool rows_expire(std::size_t n, const std::array<const double*, 3>& ref) const;
-  void rebuild_pairs();
+  // contact_only: without the proximity candidates (a held global interval needs none).
+  void rebuild_pairs(bool contact_only = false);
   void derive_rows();
   void drop_rows();
   ContactHistory current_history() const;
-  void mark_near();
+  void mark_near(bool contact_bound = false);
+  // Whether some particle lies more than skin/2 from the candidate pairs' build.
+  bool moved_half_skin() const;
   // R ranks' steps (orb_rank_part.cpp).
   void rank_regrid();
   std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);

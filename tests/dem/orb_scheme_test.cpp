@@ -432,6 +432,32 @@ TEST(OrbScheme, GlobalModeTriggersWhereNearlyEveryLeafIsFine) {
   EXPECT_EQ(globals({"dem.nsubit=200"}, 1, 0), 0) << "dt_sp below the fine step";
 }
 
+// The regrid's choice of the global mode holds to the next regrid: a head-on pair 20 um apart
+// (near: centres within 1.5 (r_a + r_b) = 150 um) bounces within 30 us and is no longer near
+// from about 57 us on (at 1.6 m/s apart). With dt_sp = 5 us and a regrid every 100 us, the
+// first interval is global in all its 20 sub-iterations (deciding at each one would leave the
+// global mode after about 11), and the second, whose regrid finds the pair 170 um apart, takes
+// the leaf steps throughout.
+TEST(OrbScheme, GlobalModeHoldsFromOneRegridToTheNext) {
+  const Scene s = demtest::scene_from(
+      kPair, {"dem.regrid_interval=1.0e-4", "dem.nsubit=20", "partition.orb_levels=1"});
+  ParticleStore p = pairs_and_loners(1, 0);
+  PhaseTimer t;
+  dem::OrbScheme o(s, p, t);
+  o.start();
+  std::vector<std::int64_t> global;
+  for (int k = 0; k < 40; ++k) {
+    const std::int64_t before = o.global_subiterations();
+    o.subiterate(k % 20 == 19); // the last sub-iteration of each interval records, as the loop
+    global.push_back(o.global_subiterations() - before);
+  }
+  for (int k = 0; k < 40; ++k)
+    EXPECT_EQ(global[static_cast<std::size_t>(k)], k < 20 ? 1 : 0) << "sub-iteration " << k;
+  const std::size_t a = p.id[0] == 0 ? 0 : 1, b = 1 - a;
+  EXPECT_LT(p.vx[a], 0.0) << "they bounced";
+  EXPECT_GT(p.x[b] - p.x[a], 170e-6) << "and were no longer near at the second regrid";
+}
+
 // A head-on pair across the leaf cut of an L = 1 tree (a box long in x, so the cut is along x,
 // at a third particle's x, far from the pair and at rest), with dt_sp = 10 us (a contact lasts
 // ~16 us): the leaf steps see each partner frozen for a whole sub-iteration and bounce them

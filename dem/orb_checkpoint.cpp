@@ -21,6 +21,12 @@ void save(StateWriter& w, const OrbScheme::State& o, const std::vector<std::int6
   w.put("/orb/global_subiterations", std::vector<std::int64_t>{o.global_subits});
   // The same for the held global interval's contact candidates (OrbScheme::Pairs::contact_only).
   w.put("/orb/pairs_contact_only", std::vector<std::int64_t>{o.pairs_contact_only ? 1 : 0});
+  if (o.global_hold) { // the held global interval's ORB
+    w.put("/orb/held_cut_axis", o.cut_axis);
+    w.put("/orb/held_cut_position", o.cut_position);
+    w.put("/orb/held_leaf_owner", o.leaf_owner);
+    w.put("/orb/held_leaf_range", o.leaf_range);
+  }
   // Candidate pairs (store indices) and their reference positions.
   w.put("/orb/contact_a", o.ca);
   w.put("/orb/contact_b", o.cb);
@@ -47,6 +53,13 @@ void restore(StateReader& r, OrbScheme::State& o, const std::vector<std::int64_t
     o.global_subits = r.int64s("/orb/global_subiterations", 1)[0];
   if (r.exists("/orb/pairs_contact_only"))
     o.pairs_contact_only = r.int64s("/orb/pairs_contact_only", 1)[0] != 0;
+  o.global_hold = r.exists("/orb/held_cut_axis");
+  if (o.global_hold) {
+    o.cut_axis = r.int64s("/orb/held_cut_axis", StateReader::kAny);
+    o.cut_position = r.doubles("/orb/held_cut_position", o.cut_axis.size());
+    o.leaf_owner = r.int64s("/orb/held_leaf_owner", StateReader::kAny);
+    o.leaf_range = r.uint32s("/orb/held_leaf_range", StateReader::kAny);
+  }
   o.ca = r.uint32s("/orb/contact_a", StateReader::kAny);
   o.cb = r.uint32s("/orb/contact_b", o.ca.size());
   o.pa = r.uint32s("/orb/proximity_a", StateReader::kAny);

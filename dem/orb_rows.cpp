@@ -52,14 +52,14 @@ void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
   global_.stale = true;
 }
 
-void OrbScheme::regrid() {
-  PhaseTimer::Scope t(timer_, Phase::regrid);
-  // A skin grown by a retry lasts until the regrid: rows built with it stay valid (they hold
-  // more pairs), and the next build uses the scene's skin again.
+// At a regrid point: the particles wrapped into the box, the reference positions moved by the
+// same period (so the displacement since the last neighbor build is unchanged, and the pairs'
+// split into raw and imaged separations is redone: global_stream). A skin grown by a retry lasts
+// until here: rows built with it stay valid (they hold more pairs), and the next build uses the
+// scene's skin again.
+void OrbScheme::wrap_positions() {
   skin_ = model_.skin;
   const std::size_t n = p_.size();
-  // Wrap into the box; the reference positions move by the same period, so the displacement
-  // since the last neighbor build is unchanged.
   for (std::size_t i = 0; i < n; ++i) {
     const double wx = geom_.wrap(p_.x[i], 0), wy = geom_.wrap(p_.y[i], 1),
                  wz = geom_.wrap(p_.z[i], 2);
@@ -67,6 +67,13 @@ void OrbScheme::regrid() {
       pairs_.xr[i] += wx - p_.x[i], pairs_.yr[i] += wy - p_.y[i], pairs_.zr[i] += wz - p_.z[i];
     p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
   }
+  global_.stale = true;
+}
+
+void OrbScheme::regrid() {
+  PhaseTimer::Scope t(timer_, Phase::regrid);
+  wrap_positions();
+  const std::size_t n = p_.size();
   bool use_cost = cfg_.cost_weights;
   if (use_cost) {
     double total = 0.0;
@@ -226,6 +233,60 @@ bool OrbScheme::rows_expire(std::size_t n, const std::array<const double*, 3>& r
       return true; // NaN expires the rows too
   }
   return false;
+}
+
+// One rank, a regrid point after a held global interval (particles wrapped and re-sorted into
+// the leaves as they are): choose_global's decision under the proximity rule, without building
+// the proximity candidates. The contact candidates within the proximity distance mark some of
+// the fine leaves (mark_near's lower bound); only the particles of the other leaves are tested
+// against every particle (a cell list of the proximity distance, or pair by pair where it does
+// not fit the periodic box), each leaf until one of its particles is near, and the test stops
+// once more than kGlobalFraction of the particles are in fine leaves. The same decision as the
+// full candidates' (a leaf is fine if one of its particles is near a partner or a wall).
+bool OrbScheme::held_global_decision() {
+  if (!global_allowed())
+    return false;
+  mark_near(true);
+  mark_fine_leaves(rows_.near);
+  const std::size_t n = p_.size(), nl = leaves_.id.size();
+  const double bar = kGlobalFraction * static_cast<double>(owned_);
+  std::size_t fine = 0;
+  for (std::size_t k = 0; k < nl; ++k)
+    fine += leaves_.fine[k] ? leaves_.range[k + 1] - leaves_.range[k] : 0;
+  if (static_cast<double>(fine) > bar)
+    return true;
+  const double* x = p_.x.data();
+  const double* y = p_.y.data();
+  const double* z = p_.z.data();
+  const double* r = p_.radius.data();
+  const auto near = [&](std::uint32_t a, std::uint32_t c) {
+    const double dx = geom_.image(x[c] - x[a], 0), dy = geom_.image(y[c] - y[a], 1),
+                 dz = geom_.image(z[c] - z[a], 2);
+    return a != c && within_proximity(dx * dx + dy * dy + dz * dz, r[a] + r[c], cfg_.prox);
+  };
+  CellList& cells = pairs_.cells;
+  const bool binned = pairs_.prox_from_pairs;
+  if (binned)
+    cells.bin<true>(geom_, make_cell_grid(geom_, 2.0 * cfg_.prox * cfg_.r_max, n, 8.0), x, y, z, n);
+  const std::uint32_t* items = cells.items().data();
+  for (std::size_t k = 0; k < nl && !(static_cast<double>(fine) > bar); ++k) {
+    if (leaves_.fine[k])
+      continue;
+    for (std::uint32_t i = leaves_.range[k]; i < leaves_.range[k + 1] && !leaves_.fine[k]; ++i) {
+      bool found = false;
+      if (binned) {
+        cells.for_each_around(cells.coord<true>(x[i], 0), cells.coord<true>(y[i], 1),
+                              cells.coord<true>(z[i], 2),
+                              [&](std::uint32_t q) { found = found || near(i, items[q]); });
+      } else {
+        for (std::uint32_t c = 0; c < n && !found; ++c)
+          found = near(i, c);
+      }
+      if (found)
+        leaves_.fine[k] = 1, fine += leaves_.range[k + 1] - leaves_.range[k];
+    }
+  }
+  return static_cast<double>(fine) > bar;
 }
 
 // The held global steps' test (leaf_kick_drift's `still`) on the state: a squared displacement

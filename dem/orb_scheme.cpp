@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 
@@ -680,24 +681,42 @@ void OrbScheme::raise_fault() {
 }
 
 void OrbScheme::subiterate(bool record) {
+  // A regrid point decides the interval's mode afresh. After a held global interval (`held`) it
+  // decides on the leaves as they are, and the ORB is cut again only if the leaf steps follow:
+  // the global steps do not use the leaves, so the tree is the leaf steps' (kGlobalFraction).
   const bool regridding = stats_.subits % cfg_.nsubit == 0;
+  const bool held = regridding && global_.hold;
   if (regridding)
-    global_.hold = false; // the regrid's sub-iteration decides the interval's mode afresh
+    global_.hold = false;
   std::string outside_message;
   std::int64_t outside_key = std::numeric_limits<std::int64_t>::max();
   std::int64_t outside = 0;
   // R ranks: the global mode may keep the last sub-iteration's rows and ghosts (rank_keep_rows)
-  // within an interval; a regrid and a recorded sub-iteration rebuild them.
+  // within an interval; a regrid point and a recorded sub-iteration rebuild them.
   const bool keep = rank_ && global_.on && rank_->keepable && !regridding && !record;
-  if (rank_) {
-    if (!keep)
+  const auto cut_again = [&] {
+    if (rank_) {
+      PhaseTimer::Scope t(timer_, Phase::neighbor);
       p_.resize(owned_); // the last sub-iteration's ghosts go
-    PhaseTimer::Scope t(timer_, Phase::neighbor);
-    if (regridding)
       rank_regrid();
-    outside = rank_locate(regridding, outside_message, outside_key);
-  } else if (regridding) {
-    regrid();
+      outside = rank_locate(true, outside_message, outside_key);
+    } else {
+      regrid();
+    }
+  };
+  if (regridding && !held) {
+    cut_again();
+  } else if (rank_) {
+    if (!keep)
+      p_.resize(owned_);
+    PhaseTimer::Scope t(timer_, Phase::neighbor);
+    if (held)
+      rank_wrap();
+    outside = rank_locate(held, outside_message, outside_key); // held: leaves_.of may be unset
+  } else if (held) {
+    PhaseTimer::Scope t(timer_, Phase::regrid);
+    wrap_positions();
+    resort(); // into the leaves that hold them now
   }
   bool fresh = false;
   if (!rank_ && global_.hold) {
@@ -709,19 +728,25 @@ void OrbScheme::subiterate(bool record) {
       resort();
     global_.on = true;
   } else if (!rank_ && regridding && pairs_.valid && pairs_.contact_only && !cfg_.time_to_contact &&
-             choose_global(true)) {
-    // One rank, the regrid after a held global interval, whose pairs are the contact candidates
-    // alone: those within the proximity distance are some of the near pairs, so the fine leaves
-    // they show are a lower bound. Above kGlobalFraction the full candidates would choose the
-    // global mode too, and they are not built. The pairs hold while no particle has moved
-    // skin/2 since their build (the held steps' rule; tested on the state, as a restart has it).
+             [&] {
+               PhaseTimer::Scope t(timer_, Phase::regrid);
+               return held_global_decision();
+             }()) {
+    // One rank, the regrid point after a held global interval, whose pairs are the contact
+    // candidates alone: the mode is decided without the proximity candidates, and if it stays
+    // global those pairs hold while no particle has moved skin/2 since their build (the held
+    // steps' rule; tested on the state, as a restart has it).
     global_.on = true;
     global_.moved = moved_half_skin();
   } else {
     global_.moved = false; // the build's expiry test (rows_expire) covers the last steps
     fresh = keep && rank_keep_rows() ? false : build_rows(false);
   }
-  // The regrid's choice of the global mode holds to the next regrid (kGlobalFraction).
+  if (held && !global_.on) { // the leaf steps follow: on the leaves of a new ORB
+    cut_again();
+    fresh = build_rows(false) || fresh;
+  }
+  // The regrid point's choice of the global mode holds to the next one (kGlobalFraction).
   if (regridding && global_.on)
     global_.hold = true;
   // One reduction closes the sub-iteration (on R ranks): {outran, faults, outside, owned,
@@ -905,6 +930,14 @@ OrbScheme::State OrbScheme::save_state() const {
   // a held global interval's contact candidates alone too.
   s.pairs_valid = !rank_ && pairs_.valid, s.prox_from_pairs = pairs_.prox_from_pairs;
   s.pairs_contact_only = s.pairs_valid && pairs_.contact_only;
+  s.global_hold = global_.hold;
+  if (global_.hold) {
+    for (const partition::OrbCut& c : decomp_.tree.cuts())
+      s.cut_axis.push_back(c.axis), s.cut_position.push_back(c.position);
+    s.leaf_owner.assign(decomp_.owner.begin(), decomp_.owner.end());
+    if (!rank_)
+      s.leaf_range = leaves_.range;
+  }
   if (s.pairs_valid) {
     s.ca = pairs_.ca, s.cb = pairs_.cb, s.pa = pairs_.pa, s.pb = pairs_.pb;
     s.x_ref = pairs_.xr, s.y_ref = pairs_.yr, s.z_ref = pairs_.zr;
@@ -961,6 +994,56 @@ void OrbScheme::restore_state(State s) {
   global_.stale = true;
   hist_.hx.clear(), hist_.hy.clear(), hist_.hz.clear(), hist_.ids.clear();
   hist_.pending = std::move(s.history);
+  if (s.global_hold)
+    restore_held_tree(s);
+}
+
+// A held global interval's ORB (State::global_hold), which the next regrid point decides on
+// instead of a new one. The cuts are the tree on any rank count; the leaves' ranks are the saved
+// ones where they fit this rank count, else contiguous blocks of leaves (where the particles are
+// stepped, not how); one rank's store is in the saved order, whose leaf ranges are kept, unless
+// the checkpoint came from R ranks (no ranges): then the store is sorted into the leaves.
+void OrbScheme::restore_held_tree(State& s) {
+  const std::size_t nl = std::size_t{1} << cfg_.levels;
+  bool ok = s.cut_axis.size() == nl - 1 && s.cut_position.size() == nl - 1;
+  std::vector<partition::OrbCut> cuts(nl - 1);
+  for (std::size_t k = 0; ok && k + 1 < nl; ++k) {
+    ok = s.cut_axis[k] >= 0 && s.cut_axis[k] < 3 && std::isfinite(s.cut_position[k]);
+    cuts[k] = {static_cast<int>(s.cut_axis[k]), s.cut_position[k]};
+  }
+  if (!ok)
+    throw RunError("checkpoint: the orb scheme's held ORB does not fit partition.orb_levels");
+  decomp_.tree = partition::OrbTree::from_cuts({}, {}, {}, domain_, cfg_.levels, std::move(cuts));
+  const int ranks = rank_ ? rank_->comm.size() : 1;
+  bool owners_fit = s.leaf_owner.size() == nl;
+  for (const std::int64_t r : s.leaf_owner)
+    owners_fit = owners_fit && r >= 0 && r < ranks;
+  decomp_.owner.resize(nl);
+  for (std::size_t l = 0; l < nl; ++l)
+    decomp_.owner[l] = owners_fit ? static_cast<int>(s.leaf_owner[l])
+                                  : static_cast<int>(l * static_cast<std::size_t>(ranks) / nl);
+  global_.hold = true;
+  if (rank_)
+    return; // the regrid point locates every owned particle
+  const std::size_t n = p_.size();
+  bool ranges_fit =
+      s.leaf_range.size() == nl + 1 && s.leaf_range.front() == 0 && s.leaf_range.back() == n;
+  for (std::size_t l = 0; ranges_fit && l < nl; ++l)
+    ranges_fit = s.leaf_range[l] <= s.leaf_range[l + 1];
+  if (!ranges_fit) {
+    wrap_positions();
+    const std::span<const partition::OrbCut> c = decomp_.tree.cuts();
+    const partition::OrbTree sorted = partition::OrbTree::from_cuts(
+        p_.x, p_.y, p_.z, domain_, cfg_.levels, std::vector(c.begin(), c.end()));
+    apply_permutation(sorted.order());
+    s.leaf_range.assign(nl + 1, 0);
+    for (std::size_t l = 0; l < nl; ++l)
+      s.leaf_range[l + 1] = sorted.leaves()[l].end;
+  }
+  leaves_.range = std::move(s.leaf_range);
+  leaves_.id.resize(nl);
+  std::iota(leaves_.id.begin(), leaves_.id.end(), 0);
+  decomp_.load.assign(1, static_cast<double>(n));
 }
 
 LeafStepStats OrbScheme::take_interval_stats() {

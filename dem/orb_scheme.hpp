@@ -202,6 +202,13 @@ public:
     std::vector<double> x_ref, y_ref, z_ref;
     ContactHistory history; // friction: the tangential history by particle ids
     std::vector<double> clock; // IntervalClock::saved(): empty unless dt_sp has changed
+    // A held global interval (Global::hold; absent from older checkpoints: none): the ORB the
+    // next regrid point decides on (its cuts, in heap order), the leaves' ranks, and on one rank
+    // the leaves' ranges of the store.
+    bool global_hold = false;
+    std::vector<std::int64_t> cut_axis, leaf_owner;
+    std::vector<double> cut_position;
+    std::vector<std::uint32_t> leaf_range;
   };
   State save_state() const;    // collective
   void restore_state(State s); // throws RunError if it does not fit the store
@@ -297,6 +304,7 @@ private:
   void run_batch(Batch& b, bool record);
   template <bool Column> void find_batch_fault(Batch& bt, const LeafLive& p) const;
   bool choose_global(bool contact_bound = false);
+  bool held_global_decision();
   bool global_allowed() const;
   void mark_fine_leaves(std::span<const unsigned char> near);
   void plan_leaf_batches(const FineSteps& steps);
@@ -315,6 +323,8 @@ private:
   bool time_to_contact_speeds();
   void mark_walls(std::span<unsigned char> near) const;
   // One rank's steps (orb_rows.cpp).
+  void wrap_positions();
+  void restore_held_tree(State& s);
   void regrid();
   void resort();
   void apply_permutation(std::span<const std::uint32_t> order);
@@ -331,6 +341,7 @@ private:
   // Whether some particle lies more than skin/2 from the candidate pairs' build.
   bool moved_half_skin() const;
   // R ranks' steps (orb_rank_part.cpp).
+  void rank_wrap();
   void rank_regrid();
   std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);
   void rank_exchange_and_rows();

@@ -92,6 +92,7 @@ void erase_removed(OrbScheme::State& s, const Compaction& c, std::span<const std
   c.apply_pairs(s.ca, s.cb), c.apply_pairs(s.pa, s.pb);
   c.apply(s.x_ref), c.apply(s.y_ref), c.apply(s.z_ref);
   c.apply_history(s.history, ids);
+  s.global_hold = false; // the leaves' ranges change: the next regrid point cuts a new ORB
 }
 
 void erase_removed(IslandsScheme::State& s, const Compaction& c,
@@ -118,7 +119,7 @@ void admit(OrbScheme::State& s, std::span<const std::int64_t>, std::span<const d
   const std::size_t n_new = x.size();
   s.hprev.insert(s.hprev.end(), n_new, 0.0);
   s.cost.insert(s.cost.end(), n_new, 0.0);
-  s.pairs_valid = false;
+  s.pairs_valid = false, s.global_hold = false; // the next regrid point cuts a new ORB
   s.ca.clear(), s.cb.clear(), s.pa.clear(), s.pb.clear();
   s.x_ref.clear(), s.y_ref.clear(), s.z_ref.clear();
 }

@@ -387,6 +387,25 @@ class Restart(Tmp):
         with open(os.path.join(self.tmp, "second", "run.json")) as f:
             self.assertEqual(json.load(f)["global_subiterations"], info["global_subiterations"])
 
+    def test_orb_held_global_mode_bitwise(self):
+        # proximity_radii 2.8 at 64 leaves: the global mode holds over most regrid points, which
+        # then decide on the leaves as they are and cut no new ORB, and leaves them at some; the
+        # checkpoint falls in a held interval, so it carries the ORB the next point decides on.
+        extra = ["dem.scheme=orb", "dem.nsubit=15", "partition.orb_levels=6",
+                 "dem.proximity_radii=2.8", "output.interval=0.0005"]
+        self.check_restart(HCS, 0.004, 0.002, extra)
+        first = os.path.join(self.tmp, "first")
+        ckpt = sorted(x for x in os.listdir(first) if x.startswith("checkpoint_"))[0]
+        with h5py.File(os.path.join(first, ckpt), "r") as f:
+            self.assertIn("held_cut_axis", f["orb"])
+        with open(os.path.join(self.tmp, "full", "run.json")) as f:
+            info = json.load(f)
+        points = round(0.004 / 1e-4) + 1  # regrid points: every dem.nsubit sub-iterations
+        self.assertGreater(info["regrids"], 1)
+        self.assertLess(info["regrids"], points)
+        self.assertGreater(info["global_subiterations"], 0)
+        self.assertLess(info["global_subiterations"], info["steps"] - 1)
+
     def test_islands_hcs_bitwise(self):
         # The list as built, half steps, counters and histograms; the checkpoint falls between
         # two sub-iterations that are not a multiple of dem.nsubit (islands have no regrid).

@@ -125,7 +125,11 @@ public:
   // owned pair once, a pair with a ghost on both its ranks, the ghosts' x and v refreshed before
   // every step) and agree with one rank's to round-off (the sums run in another order); a
   // particle that moves more than skin/2 redoes the sub-iteration with twice the skin, as a
-  // fine leaf that outruns its rows.
+  // fine leaf that outruns its rows. A regrid point's choice of the global mode holds to the
+  // next regrid point (Global::hold: the global steps are never less accurate than the leaf
+  // steps, and choosing at every sub-iteration took the proximity candidates and a re-sort
+  // each time); that point decides on the leaves as they are and cuts a new ORB only when the
+  // leaf steps follow (docs/schemes.md, "Global mode").
   static constexpr double kGlobalFraction = 0.75;
   double skin() const { return skin_; }
   // On R ranks: over all ranks as of the last recorded sub-iteration (subiterate(true)).

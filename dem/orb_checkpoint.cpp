@@ -25,7 +25,6 @@ void save(StateWriter& w, const OrbScheme::State& o, const std::vector<std::int6
     w.put("/orb/held_cut_axis", o.cut_axis);
     w.put("/orb/held_cut_position", o.cut_position);
     w.put("/orb/held_leaf_owner", o.leaf_owner);
-    w.put("/orb/held_leaf_range", o.leaf_range);
   }
   // Candidate pairs (store indices) and their reference positions.
   w.put("/orb/contact_a", o.ca);
@@ -58,7 +57,6 @@ void restore(StateReader& r, OrbScheme::State& o, const std::vector<std::int64_t
     o.cut_axis = r.int64s("/orb/held_cut_axis", StateReader::kAny);
     o.cut_position = r.doubles("/orb/held_cut_position", o.cut_axis.size());
     o.leaf_owner = r.int64s("/orb/held_leaf_owner", StateReader::kAny);
-    o.leaf_range = r.uint32s("/orb/held_leaf_range", StateReader::kAny);
   }
   o.ca = r.uint32s("/orb/contact_a", StateReader::kAny);
   o.cb = r.uint32s("/orb/contact_b", o.ca.size());

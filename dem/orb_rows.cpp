@@ -199,6 +199,38 @@ void OrbScheme::resort() {
   relabel_pairs(origin); // old slot origin[k] is now slot k
 }
 
+// One rank, a regrid point after a held global interval (Global::hold), or its recorded
+// sub-iteration: the store sorted into the ORB's leaves as they are, each particle into the leaf
+// that holds it now (its wrapped position), stably: a function of the store's order and the
+// positions alone, so a restart (whose checkpoint keeps the store's order and the ORB, not the
+// leaves' ranges) sorts alike. Then the pair lists follow their particles.
+void OrbScheme::sort_into_leaves() {
+  const std::size_t n = p_.size(), nl = leaves_.id.size();
+  std::vector<std::uint32_t>& leaf = leaves_.of;
+  leaf.resize(n);
+  std::vector<std::uint32_t> start(nl + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const int k =
+        decomp_.tree.locate(geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2));
+    if (k < 0)
+      throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
+                                 "the domain",
+                                 time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
+    leaf[i] = static_cast<std::uint32_t>(k);
+    ++start[static_cast<std::size_t>(k) + 1];
+  }
+  for (std::size_t l = 0; l < nl; ++l)
+    start[l + 1] += start[l];
+  leaves_.range = start;
+  std::vector<std::uint32_t> order(n);
+  for (std::size_t i = 0; i < n; ++i)
+    order[start[leaf[i]]++] = static_cast<std::uint32_t>(i);
+  apply_permutation(order);
+  for (std::size_t l = 0; l < nl; ++l)
+    for (std::uint32_t i = leaves_.range[l]; i < leaves_.range[l + 1]; ++i)
+      leaf[i] = static_cast<std::uint32_t>(l);
+}
+
 // True when some particle's displacement since the build plus its free flight over one
 // sub-iteration exceeds skin/2: the rows are then rebuilt before the sub-iteration, in which the
 // particle would likely outrun them. Positions and references are unwrapped alike (a regrid

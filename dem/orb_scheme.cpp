@@ -549,8 +549,6 @@ void OrbScheme::run_global_impl(Batch& bt, bool record) {
   bt.violations = 0, bt.max_ratio = 0.0, bt.outran = false, bt.fault = Fault::none, bt.evals = 0;
   const std::size_t n = owned_;
   const LeafLive p = live(External);
-  if (global_.hold && global_.moved) // the last step outran the pairs (a held interval)
-    rebuild_pairs(true);
   if (global_.stale)
     global_stream();
   // The leaf steps left forces behind: every particle's from zero at the first step, then those
@@ -716,7 +714,7 @@ void OrbScheme::subiterate(bool record) {
   } else if (held) {
     PhaseTimer::Scope t(timer_, Phase::regrid);
     wrap_positions();
-    resort(); // into the leaves that hold them now
+    sort_into_leaves(); // into the leaves that hold them now
   }
   bool fresh = false;
   if (!rank_ && global_.hold) {
@@ -725,7 +723,7 @@ void OrbScheme::subiterate(bool record) {
     // scheme's list, when the last step left a particle skin/2 from their build. A recorded
     // sub-iteration re-sorts first: its state names each particle's leaf.
     if (record)
-      resort();
+      sort_into_leaves();
     global_.on = true;
   } else if (!rank_ && regridding && pairs_.valid && pairs_.contact_only && !cfg_.time_to_contact &&
              [&] {
@@ -749,6 +747,11 @@ void OrbScheme::subiterate(bool record) {
   // The regrid point's choice of the global mode holds to the next one (kGlobalFraction).
   if (regridding && global_.on)
     global_.hold = true;
+  // One rank, held: the last step outran the contact candidates, which are built again.
+  if (!rank_ && global_.hold && global_.moved) {
+    rebuild_pairs(true);
+    global_.moved = false;
+  }
   // One reduction closes the sub-iteration (on R ranks): {outran, faults, outside, owned,
   // particle steps, force evaluations, overlaps beyond the bound, fine leaves, non-empty leaves}.
   std::array<std::int64_t, 9> c{};
@@ -935,8 +938,6 @@ OrbScheme::State OrbScheme::save_state() const {
     for (const partition::OrbCut& c : decomp_.tree.cuts())
       s.cut_axis.push_back(c.axis), s.cut_position.push_back(c.position);
     s.leaf_owner.assign(decomp_.owner.begin(), decomp_.owner.end());
-    if (!rank_)
-      s.leaf_range = leaves_.range;
   }
   if (s.pairs_valid) {
     s.ca = pairs_.ca, s.cb = pairs_.cb, s.pa = pairs_.pa, s.pb = pairs_.pb;
@@ -999,10 +1000,9 @@ void OrbScheme::restore_state(State s) {
 }
 
 // A held global interval's ORB (State::global_hold), which the next regrid point decides on
-// instead of a new one. The cuts are the tree on any rank count; the leaves' ranks are the saved
-// ones where they fit this rank count, else contiguous blocks of leaves (where the particles are
-// stepped, not how); one rank's store is in the saved order, whose leaf ranges are kept, unless
-// the checkpoint came from R ranks (no ranges): then the store is sorted into the leaves.
+// instead of a new one, after sorting the store into its leaves (sort_into_leaves). The cuts are
+// the tree on any rank count; the leaves' ranks are the saved ones where they fit this rank
+// count, else contiguous blocks of leaves (where the particles are stepped, not how).
 void OrbScheme::restore_held_tree(State& s) {
   const std::size_t nl = std::size_t{1} << cfg_.levels;
   bool ok = s.cut_axis.size() == nl - 1 && s.cut_position.size() == nl - 1;
@@ -1023,27 +1023,12 @@ void OrbScheme::restore_held_tree(State& s) {
     decomp_.owner[l] = owners_fit ? static_cast<int>(s.leaf_owner[l])
                                   : static_cast<int>(l * static_cast<std::size_t>(ranks) / nl);
   global_.hold = true;
-  if (rank_)
-    return; // the regrid point locates every owned particle
-  const std::size_t n = p_.size();
-  bool ranges_fit =
-      s.leaf_range.size() == nl + 1 && s.leaf_range.front() == 0 && s.leaf_range.back() == n;
-  for (std::size_t l = 0; ranges_fit && l < nl; ++l)
-    ranges_fit = s.leaf_range[l] <= s.leaf_range[l + 1];
-  if (!ranges_fit) {
-    wrap_positions();
-    const std::span<const partition::OrbCut> c = decomp_.tree.cuts();
-    const partition::OrbTree sorted = partition::OrbTree::from_cuts(
-        p_.x, p_.y, p_.z, domain_, cfg_.levels, std::vector(c.begin(), c.end()));
-    apply_permutation(sorted.order());
-    s.leaf_range.assign(nl + 1, 0);
-    for (std::size_t l = 0; l < nl; ++l)
-      s.leaf_range[l + 1] = sorted.leaves()[l].end;
+  if (!rank_) {
+    leaves_.id.resize(nl);
+    std::iota(leaves_.id.begin(), leaves_.id.end(), 0);
+    leaves_.range.assign(nl + 1, 0);
+    decomp_.load.assign(1, static_cast<double>(p_.size()));
   }
-  leaves_.range = std::move(s.leaf_range);
-  leaves_.id.resize(nl);
-  std::iota(leaves_.id.begin(), leaves_.id.end(), 0);
-  decomp_.load.assign(1, static_cast<double>(n));
 }
 
 LeafStepStats OrbScheme::take_interval_stats() {

@@ -207,12 +207,10 @@ public:
     ContactHistory history; // friction: the tangential history by particle ids
     std::vector<double> clock; // IntervalClock::saved(): empty unless dt_sp has changed
     // A held global interval (Global::hold; absent from older checkpoints: none): the ORB the
-    // next regrid point decides on (its cuts, in heap order), the leaves' ranks, and on one rank
-    // the leaves' ranges of the store.
+    // next regrid point decides on (its cuts, in heap order) and the leaves' ranks.
     bool global_hold = false;
     std::vector<std::int64_t> cut_axis, leaf_owner;
     std::vector<double> cut_position;
-    std::vector<std::uint32_t> leaf_range;
   };
   State save_state() const;    // collective
   void restore_state(State s); // throws RunError if it does not fit the store
@@ -331,6 +329,7 @@ private:
   void restore_held_tree(State& s);
   void regrid();
   void resort();
+  void sort_into_leaves();
   void apply_permutation(std::span<const std::uint32_t> order);
   void relabel_pairs(std::span<const std::uint32_t> old_slot);
   // Whether one of the first n particles may move more than skin/2 from `ref` (x, y, z) within

@@ -44,25 +44,27 @@ inline void kick_drift_range(const KickDriftColumns& c, const KickDriftStep& k,
 // each particle over its own h_prev + h/2, later ones over (h_before + h)/2 (= h exactly for a
 // constant step: the explicit scheme's update); the last one leaves h_prev = h/2. `still`
 // keeps its sign bit while every particle stays within skin/2 of its reference (c.xr, yr, zr).
-template <bool External>
+// Without Moved the skin test is left out (a TravelBound covers it): `still` then keeps its sign
+// bit while every new |v|^2 <= cap2 (the flags' `capped`; a NaN fails it).
+template <bool External, bool Moved = true>
 inline void leaf_kick_drift(std::int64_t k, std::int64_t K, const KickDriftColumns& c,
                             double h_before, double hk, const std::array<double, 3>& gravity,
-                            double half_skin2, std::uint64_t& still) {
+                            double half_skin2, std::uint64_t& still, double cap2 = 0.0) {
   const double half = 0.5 * hk;
   KickDriftFlags flags;
-  flags.still = still;
+  (Moved ? flags.still : flags.capped) = still;
   KickDriftStep step;
-  step.h = hk, step.g = gravity, step.half_skin2 = half_skin2;
+  step.h = hk, step.g = gravity, step.half_skin2 = half_skin2, step.cap2 = cap2;
   if (k == 0) {
-    kick_drift_range<External, true>(c, step, flags);
+    kick_drift_range<External, true, false, Moved>(c, step, flags);
   } else {
     step.s = 0.5 * h_before + half;
-    kick_drift_range<External>(c, step, flags);
+    kick_drift_range<External, false, false, Moved>(c, step, flags);
     if (k + 1 == K)
       for (double& hp : c.h_prev)
         hp = half;
   }
-  still = flags.still;
+  still = Moved ? flags.still : flags.capped;
 }
 
 } // namespace cfddem::dem

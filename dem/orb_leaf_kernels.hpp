@@ -321,10 +321,11 @@ struct LeafStep {
 // Local step k of K of a batch [b, e): dem/kick_drift_range.hpp's leaf_kick_drift (the one
 // variable-step leapfrog) over the batch's columns, the reference positions `ref` for the skin
 // test.
-template <bool External>
+template <bool External, bool Moved = true>
 inline void leaf_kick_drift(std::uint32_t b, std::uint32_t e, const LeafLive& p,
                             const LeafFrozen& ref, const LeafStep& st,
-                            const std::array<double, 3>& gravity, std::uint64_t& still) {
+                            const std::array<double, 3>& gravity, std::uint64_t& still,
+                            double cap2 = 0.0) {
   const std::size_t n = e - b;
   const auto part = [b, n](auto column) { return column.subspan(b, n); };
   KickDriftColumns c{part(p.x),  part(p.y),   part(p.z),   part(p.vx),  part(p.vy), part(p.vz),
@@ -332,7 +333,8 @@ inline void leaf_kick_drift(std::uint32_t b, std::uint32_t e, const LeafLive& p,
                      part(p.im), part(ref.x), part(ref.y), part(ref.z), part(p.hp)};
   if constexpr (External)
     c.ex = part(p.fex), c.ey = part(p.fey), c.ez = part(p.fez);
-  leaf_kick_drift<External>(st.k, st.K, c, st.h_before, st.hk, gravity, st.half_skin2, still);
+  leaf_kick_drift<External, Moved>(st.k, st.K, c, st.h_before, st.hk, gravity, st.half_skin2, still,
+                                   cap2);
 }
 
 } // namespace cfddem::dem

@@ -68,6 +68,9 @@ void OrbScheme::wrap_positions() {
     p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
   }
   global_.stale = true;
+  // The shift may round the displacements: the travel bound starts again from a measurement.
+  if (pairs_.valid && !rank_)
+    measure_travel();
 }
 
 void OrbScheme::regrid() {
@@ -413,6 +416,7 @@ void OrbScheme::rebuild_pairs(bool contact_only) {
   pairs_.prox_from_pairs = prox_fits, pairs_.contact_only = contact_only;
   pairs_.xr = p_.x, pairs_.yr = p_.y, pairs_.zr = p_.z;
   pairs_.valid = true;
+  global_.travel.reset();
   drop_rows();
   global_.stale = true;
   ++stats_.builds;

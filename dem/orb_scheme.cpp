@@ -485,7 +485,9 @@ void OrbScheme::global_stream() {
 // pair pass, its contacts scattered to both particles in the streams' order, the walls of the
 // particles near one, the synchronised velocities of a recorded first step, and orb's
 // variable-step leapfrog (leaf_kick_drift) in blocks. `evals`: the pairs this step counts.
-// Returns true while every particle is within skin/2 of `ref`.
+// Returns true while every particle is within skin/2 of `ref`. One rank leaves the skin test out
+// while the travel bound (Global::travel, the explicit scheme's TravelBound) shows that no
+// particle can be that far, and measures exactly when a speed passed its cap: the same answer.
 template <bool External, bool Column>
 bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const LeafFrozen& ref,
                             OverlapTally& tally, std::int64_t evals, bool record) {
@@ -512,11 +514,17 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
   const std::size_t nblocks = (n + kBlock - 1) / kBlock;
   std::vector<std::uint64_t>& still_of = global_.still;
   still_of.assign(nblocks, ~std::uint64_t{0});
+  TravelBound& travel = global_.travel;
+  const bool exact = rank_ || !travel.may_skip(geom_, skin_, st.hk);
+  const double cap2 = travel.cap * travel.cap;
   auto kick_drift = [&](std::size_t q) {
     std::uint64_t still = ~std::uint64_t{0};
-    leaf_kick_drift<External>(static_cast<std::uint32_t>(q * kBlock),
-                              static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock)), p,
-                              ref, st, model_.gravity, still);
+    const auto b = static_cast<std::uint32_t>(q * kBlock);
+    const auto e = static_cast<std::uint32_t>(std::min(n, (q + 1) * kBlock));
+    if (exact)
+      leaf_kick_drift<External>(b, e, p, ref, st, model_.gravity, still);
+    else
+      leaf_kick_drift<External, false>(b, e, p, ref, st, model_.gravity, still, cap2);
     still_of[q] = still;
   };
   if (nblocks <= 2) {
@@ -529,7 +537,27 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
   std::uint64_t still = ~std::uint64_t{0};
   for (const std::uint64_t b : still_of)
     still &= b;
-  return (still >> 63) != 0;
+  if (rank_)
+    return (still >> 63) != 0;
+  if (exact) {
+    travel.forget(); // exact until the next build
+    return (still >> 63) != 0;
+  }
+  if ((still >> 63) != 0) { // every new speed within the cap
+    travel.advance(st.hk);
+    return true;
+  }
+  return measure_travel() == 0;
+}
+
+// One rank: the particles farther than skin/2 from the pairs' build, exactly, with the travel
+// bound restarted from the largest displacement and speed (TravelBound::measure).
+std::int64_t OrbScheme::measure_travel() {
+  const std::size_t n = owned_;
+  KickDriftColumns c;
+  c.x = p_.x, c.y = p_.y, c.z = p_.z, c.vx = p_.vx, c.vy = p_.vy, c.vz = p_.vz;
+  c.xr = pairs_.xr, c.yr = pairs_.yr, c.zr = pairs_.zr;
+  return global_.travel.measure(c, n, 0.25 * skin_ * skin_);
 }
 
 void OrbScheme::run_global(Batch& bt, bool record) {

@@ -40,6 +40,7 @@
 #include "dem/interval_clock.hpp"
 #include "dem/pair_contacts.hpp"
 #include "dem/pair_stream.hpp"
+#include "dem/travel_bound.hpp"
 #include "partition/orb_tree.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -296,6 +297,7 @@ private:
     std::vector<std::uint64_t> still; // per block of the update: sign bit set while within skin/2
     std::int64_t once = 0; // R ranks: the pairs counted per step (a pair with a ghost on one rank)
     bool stale = true, on = false, hold = false, moved = false;
+    TravelBound travel; // one rank: how far the particles can be from the pairs' build
   };
 
   // The sub-iteration's steps (orb_scheme.cpp).
@@ -307,6 +309,7 @@ private:
   template <bool Column> void find_batch_fault(Batch& bt, const LeafLive& p) const;
   bool choose_global(bool contact_bound = false);
   bool held_global_decision();
+  std::int64_t measure_travel();
   bool global_allowed() const;
   void mark_fine_leaves(std::span<const unsigned char> near);
   void plan_leaf_batches(const FineSteps& steps);

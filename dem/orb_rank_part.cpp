@@ -21,18 +21,9 @@ namespace cfddem::dem {
 
 // A new ORB over all ranks' particles (regrid's: wrapped positions, weights = counts, or
 // the local steps since the last regrid once there are some), then the knapsack over ranks.
-// The owned particles into the box (their rows are built again) and the scene's skin (a skin
-// grown by a retry or by time_to_contact lasts until a regrid point).
-void OrbScheme::rank_wrap() {
-  for (std::size_t i = 0; i < owned_; ++i)
-    p_.x[i] = geom_.wrap(p_.x[i], 0), p_.y[i] = geom_.wrap(p_.y[i], 1),
-    p_.z[i] = geom_.wrap(p_.z[i], 2);
-  skin_ = model_.skin;
-}
-
 void OrbScheme::rank_regrid() {
   PhaseTimer::Scope t(timer_, Phase::regrid);
-  rank_wrap();
+  wrap_positions(); // the owned particles (the ghosts are gone); their rows are built again
   bool use_cost = cfg_.cost_weights;
   if (use_cost) {
     double total = 0.0;

@@ -3,7 +3,6 @@
 // when some particle may outrun them, remapped when the store is re-sorted) with the rows
 // derived from them.
 #include <algorithm>
-#include <bit>
 #include <cmath>
 #include <numeric>
 
@@ -56,7 +55,8 @@ void OrbScheme::relabel_pairs(std::span<const std::uint32_t> old_slot) {
 // same period (so the displacement since the last neighbor build is unchanged, and the pairs'
 // split into raw and imaged separations is redone: global_stream). A skin grown by a retry lasts
 // until here: rows built with it stay valid (they hold more pairs), and the next build uses the
-// scene's skin again.
+// scene's skin again. On R ranks the owned particles alone (the ghosts are gone; the rows are
+// built again).
 void OrbScheme::wrap_positions() {
   skin_ = model_.skin;
   const std::size_t n = p_.size();
@@ -68,9 +68,11 @@ void OrbScheme::wrap_positions() {
     p_.x[i] = wx, p_.y[i] = wy, p_.z[i] = wz;
   }
   global_.stale = true;
-  // The shift may round the displacements: the travel bound starts again from a measurement.
+  // One rank: the shift may round the displacements, so the travel bound starts again from an
+  // exact measurement, which also says whether a particle is now skin/2 from the pairs' build
+  // (what the last step's test said, on the state alone: a restart measures alike).
   if (pairs_.valid && !rank_)
-    measure_travel();
+    global_.moved = measure_travel() > 0;
 }
 
 void OrbScheme::regrid() {
@@ -279,6 +281,7 @@ bool OrbScheme::rows_expire(std::size_t n, const std::array<const double*, 3>& r
 // once more than kGlobalFraction of the particles are in fine leaves. The same decision as the
 // full candidates' (a leaf is fine if one of its particles is near a partner or a wall).
 bool OrbScheme::held_global_decision() {
+  PhaseTimer::Scope t(timer_, Phase::regrid);
   if (!global_allowed())
     return false;
   mark_near(true);
@@ -322,25 +325,6 @@ bool OrbScheme::held_global_decision() {
     }
   }
   return static_cast<double>(fine) > bar;
-}
-
-// The held global steps' test (leaf_kick_drift's `still`) on the state: a squared displacement
-// from the pairs' reference above (skin/2)^2, in one branch-free pass.
-bool OrbScheme::moved_half_skin() const {
-  const std::size_t n = p_.size();
-  const double half_skin2 = 0.25 * skin_ * skin_;
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
-  const double* xr = pairs_.xr.data();
-  const double* yr = pairs_.yr.data();
-  const double* zr = pairs_.zr.data();
-  std::uint64_t still = ~std::uint64_t{0};
-  for (std::size_t i = 0; i < n; ++i) {
-    const double dx = x[i] - xr[i], dy = y[i] - yr[i], dz = z[i] - zr[i];
-    still &= std::bit_cast<std::uint64_t>(dx * dx + dy * dy + dz * dz > half_skin2 ? 1.0 : -1.0);
-  }
-  return !(still >> 63);
 }
 
 // One cell list over the whole store (indices binned, the store is not moved): contact

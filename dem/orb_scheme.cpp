@@ -444,8 +444,8 @@ bool OrbScheme::global_allowed() const {
 // finely hold more than kGlobalFraction of the particles (orb_scheme.hpp gives the cost
 // argument). A decision from the state alone, so a rerun, a thread count and a restart take it
 // alike.
-bool OrbScheme::choose_global(bool contact_bound) {
-  mark_near(contact_bound);
+bool OrbScheme::choose_global() {
+  mark_near();
   mark_fine_leaves(rows_.near);
   if (!global_allowed())
     return false;
@@ -737,7 +737,7 @@ void OrbScheme::subiterate(bool record) {
       p_.resize(owned_);
     PhaseTimer::Scope t(timer_, Phase::neighbor);
     if (held)
-      rank_wrap();
+      wrap_positions();
     outside = rank_locate(held, outside_message, outside_key); // held: leaves_.of may be unset
   } else if (held) {
     PhaseTimer::Scope t(timer_, Phase::regrid);
@@ -754,16 +754,12 @@ void OrbScheme::subiterate(bool record) {
       sort_into_leaves();
     global_.on = true;
   } else if (!rank_ && regridding && pairs_.valid && pairs_.contact_only && !cfg_.time_to_contact &&
-             [&] {
-               PhaseTimer::Scope t(timer_, Phase::regrid);
-               return held_global_decision();
-             }()) {
+             held_global_decision()) {
     // One rank, the regrid point after a held global interval, whose pairs are the contact
     // candidates alone: the mode is decided without the proximity candidates, and if it stays
     // global those pairs hold while no particle has moved skin/2 since their build (the held
-    // steps' rule; tested on the state, as a restart has it).
+    // steps' rule, measured on the state by wrap_positions, as a restart has it).
     global_.on = true;
-    global_.moved = moved_half_skin();
   } else {
     global_.moved = false; // the build's expiry test (rows_expire) covers the last steps
     fresh = keep && rank_keep_rows() ? false : build_rows(false);

@@ -307,7 +307,7 @@ private:
   bool attempt(bool record);
   void run_batch(Batch& b, bool record);
   template <bool Column> void find_batch_fault(Batch& bt, const LeafLive& p) const;
-  bool choose_global(bool contact_bound = false);
+  bool choose_global();
   bool held_global_decision();
   std::int64_t measure_travel();
   bool global_allowed() const;
@@ -344,10 +344,7 @@ private:
   void drop_rows();
   ContactHistory current_history() const;
   void mark_near(bool contact_bound = false);
-  // Whether some particle lies more than skin/2 from the candidate pairs' build.
-  bool moved_half_skin() const;
   // R ranks' steps (orb_rank_part.cpp).
-  void rank_wrap();
   void rank_regrid();
   std::int64_t rank_locate(bool regridding, std::string& message, std::int64_t& key);
   void rank_exchange_and_rows();

@@ -2,7 +2,7 @@
 """`mpirun -np R cfddem run` with dem.scheme = "orb" against the 1-rank (serial OrbScheme) run,
 and its checkpoint/restart on R ranks.
 
-Usage: mpi_orb_run_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS [friction]
+Usage: mpi_orb_run_test.py MPIEXEC CFDDEM SOURCE_DIR RANKS [friction|held]
 
 With `friction` the same comparisons with dem.friction = 0.5 in a denser gas (the box shrunk to
 0.64 mm, 20% solids, over 2 ms, so that contacts are alive at the checkpoint): tangential
@@ -21,6 +21,17 @@ not compared. Then 2N sub-iterations on R ranks vs N + checkpoint + restart + N 
 diagnostics (all but wall_seconds) and the final snapshot bitwise equal; the same checkpoint
 restarted on one rank ends with the same particles bit for bit. A failing run stops every rank
 with exit code 3 and one message.
+
+With `held`, orb's global mode held over regrid points instead: HCS 1222 at the paper's settings
+(dem.nsubit = 15, 64 leaves) with dem.proximity_radii = 2.8, where the share of particles in
+fine leaves lies near 3/4, so the global mode holds over most regrid points, which then decide
+on the leaves as they are and cut no new ORB, and is left at some (dem.orb_global_min_per_rank
+= 0: R ranks take it too). One rank decides a held regrid point without the proximity
+candidates (OrbScheme::held_global_decision), R ranks from their rows' proximity flags: the
+decisions must be the same, so the regrids, the global sub-iterations and every work counter
+that does not depend on the lists agree exactly, and the state columns to round-off (the global
+steps sum in another order on R ranks): 1e-10 of the column's scale over 4 ms, far below a
+physical difference. The restart, from a checkpoint inside a held interval, as above.
 """
 import csv
 import json
@@ -32,6 +43,7 @@ import tempfile
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 FRICTION = len(sys.argv) > 5 and sys.argv[5] == "friction"
+HELD = len(sys.argv) > 5 and sys.argv[5] == "held"
 SCENE = os.path.join(SOURCE, "scenes", "hcs_small.toml")
 # R ranks take the leaf steps; the one-rank run they must equal does too (dem.orb_global).
 ARGS = ["dem.scheme=orb", "dem.orb_global=false", "run.end_time=0.004", "output.interval=2e-4",
@@ -41,6 +53,11 @@ if FRICTION:
     ARGS += ["dem.friction=0.5", "domain.hi=[0.64e-3,0.64e-3,0.64e-3]", "run.end_time=0.002",
              "output.snapshot_interval=1e-3"]
     CHECKPOINT = "1e-3"
+if HELD:
+    SCENE = os.path.join(SOURCE, "scenes", "hcs.toml")
+    ARGS = ["dem.scheme=orb", "dem.nsubit=15", "partition.orb_levels=6",
+            "dem.proximity_radii=2.8", "dem.orb_global_min_per_rank=0", "run.end_time=0.004",
+            "output.interval=2e-4", "--threads", "1", "--quiet"]
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles", "particle_steps", "leaf_steps_min", "leaf_steps_mean",
          "leaf_steps_max", "fine_leaf_fraction"]
@@ -120,6 +137,33 @@ def matches_one_rank():
           f"{max(worst.values()):.3g} ({max(worst, key=worst.get)})")
 
 
+def held_matches_one_rank():
+    with tempfile.TemporaryDirectory() as tmp:
+        one, i1, _ = run(1, os.path.join(tmp, "np1"))
+        many, ir, _ = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
+    points = round(0.004 / 1e-4) + 1  # regrid points: one every dem.nsubit sub-iterations
+    for k in ("regrids", "global_subiterations", "steps", "particle_steps"):
+        assert i1[k] == ir[k], f"{k}: {i1[k]} (1 rank) != {ir[k]} ({RANKS} ranks)"
+    assert 1 < i1["regrids"] < points, i1["regrids"]  # some points kept the ORB, some cut one
+    assert 0 < i1["global_subiterations"] < i1["steps"] - 1, i1["global_subiterations"]
+    assert len(one) == len(many) > 10, (len(one), len(many))
+    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
+    worst = 0.0
+    for r1, rn in zip(one, many):
+        for c in r1:
+            if c in SKIP:
+                continue
+            x, y = float(r1[c]), float(rn[c])
+            if c in EXACT:
+                assert x == y, f"{c}: {x} (1 rank) != {y} ({RANKS} ranks) at t = {r1['time']}"
+            elif scale[c] > 0:
+                worst = max(worst, abs(x - y) / scale[c])
+                assert abs(x - y) <= 1e-10 * scale[c], f"{c}: {x} vs {y} at t = {r1['time']}"
+    print(f"orb held global mode, {RANKS} ranks vs 1: {i1['regrids']} regrids of {points} "
+          f"points, {i1['global_subiterations']} global sub-iterations on both; worst scaled "
+          f"diagnostics difference {worst:.3g}")
+
+
 def restart_is_exact():
     extra = [f"output.checkpoint_interval={CHECKPOINT}"]
     with tempfile.TemporaryDirectory() as tmp:
@@ -131,6 +175,10 @@ def restart_is_exact():
             import h5py
             with h5py.File(os.path.join(full, cks[0]), "r") as f:
                 assert f["orb/history_x"].shape[0] > 0 and f.attrs["rotation"] == 1
+        if HELD and a is not None:  # h5py is there: the checkpoint falls inside a held interval
+            import h5py
+            with h5py.File(os.path.join(full, cks[0]), "r") as f:
+                assert "held_cut_axis" in f["orb"], "the checkpoint is not inside a held interval"
         _, _, b = run(RANKS, half, extra + ["--restart", os.path.join(full, cks[0])])
         rows = []
         for d in (full, half):
@@ -138,7 +186,7 @@ def restart_is_exact():
                 rows.append([{k: v for k, v in r.items() if k != "wall_seconds"}
                              for r in csv.DictReader(f)])
         assert len(rows[0]) > 10 and rows[0] == rows[1], "restarted diagnostics differ"
-        if a is not None:
+        if a:  # snapshots, read where h5py is installed
             last = sorted(a)[-1]
             for k in ("id", "position", "velocity"):
                 assert (a[last][k] == b[last][k]).all(), (last, k)
@@ -147,8 +195,9 @@ def restart_is_exact():
             _, _, c = run(1, os.path.join(tmp, "one"), extra + ["--restart", os.path.join(full, cks[0])])
             for k in ("id", "position", "velocity"):
                 assert (a[last][k] == c[last][k]).all(), (last, k, "restarted on 1 rank")
-    print(f"orb, {RANKS} ranks: restart at {cks[0]} continues bit for bit ({len(rows[0])} rows; "
-          f"on 1 rank, the same final particles)")
+    also = "; on 1 rank, the same final particles" if a else ""
+    print(f"orb, {RANKS} ranks: restart at {cks[0]} continues bit for bit ({len(rows[0])} rows"
+          f"{also})")
 
 
 def failure_stops_every_rank():
@@ -166,7 +215,10 @@ def failure_stops_every_rank():
 
 
 if __name__ == "__main__":
-    matches_one_rank()
+    if HELD:
+        held_matches_one_rank()
+    else:
+        matches_one_rank()
     restart_is_exact()
-    if not FRICTION:
+    if not FRICTION and not HELD:
         failure_stops_every_rank()

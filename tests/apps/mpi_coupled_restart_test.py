@@ -34,7 +34,6 @@ The small periodic riser of mpi_coupled_test.py (800 particles that migrate betw
     field changed in the file (the checksum, summed over the ranks' boxes).
 """
 import csv
-import json
 import os
 import subprocess
 import sys
@@ -42,6 +41,7 @@ import tempfile
 
 import h5py
 import numpy as np
+from mpi_rows import mpirun, outputs
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCHEME = sys.argv[5] if len(sys.argv) > 5 else "explicit"
@@ -60,7 +60,6 @@ if SCHEME == "orb_global":
     ARGS += ["dem.orb_global_min_per_rank=0"]
 if SCHEME == "orb":  # R ranks take the leaf steps: so does the one-rank run they must equal
     ARGS += ["dem.orb_global=false"]
-ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 # Denser and hotter, so that contacts (and their tangential history) are open at the checkpoint.
 FRICTION_ARGS = ["dem.friction=0.3", "particles.temperature=1e-2",
                  "particles.region_hi=[2.4e-3,0.6e-3,2.4e-3]"]
@@ -75,9 +74,8 @@ if SCHEME == "islands":
 
 
 def run(ranks, out, *extra, check=True):
-    cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out", out]
-    return subprocess.run(cmd + ARGS + list(extra), check=check, env=ENV, timeout=120,
-                          capture_output=not check, text=True)
+    return mpirun(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + list(extra), check=check,
+                  capture=not check)
 
 
 def rows(d, skip=("wall_seconds",)):
@@ -93,14 +91,8 @@ def snapshot(d):
                 for g in ("particles", "fluid") for k in f[g]}
 
 
-def run_json(d):
-    with open(os.path.join(d, "run.json")) as f:
-        return json.load(f)
-
-
 def regrids(d):
-    with open(os.path.join(d, "run.json")) as f:
-        return json.load(f)["gas_regrids"]
+    return outputs(d)[1]["gas_regrids"]
 
 
 def assert_bitwise(a, b, what):
@@ -143,7 +135,7 @@ def main():
         run(RANKS, d["half"], "run.end_time=2e-3", "--restart", mid)
         assert_bitwise(d["full"], d["half"], f"restart on {RANKS} ranks")
         if SCHEME == "orb_global":  # 20 fluid steps of 10 sub-iterations, some global
-            info = run_json(d["full"])
+            info = outputs(d["full"])[1]
             assert info["global_subiterations"] > 0, info["global_subiterations"]
             assert info["neighbor_builds"] < 200, ("no rows kept", info["neighbor_builds"])
             # Other rank counts: MpiRun.CoupledOrbGlobalRiserMatchesOneRank (CI time kept short).

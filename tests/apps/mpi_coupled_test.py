@@ -46,13 +46,12 @@ routed as orb. Islands are the same on any rank count, so besides the orb's exac
 force evaluations agree exactly too; run.json reports how often islands spanned ranks (some
 must). Gas regrids as orb.
 """
-import csv
-import json
 import math
 import os
-import subprocess
 import sys
 import tempfile
+
+from mpi_rows import axial_scales, compare_rows, run_rows, without_wall_seconds, worst_of
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCHEME = sys.argv[5] if len(sys.argv) > 5 else "explicit"
@@ -73,7 +72,6 @@ if SUB:
     ARGS += [f"dem.scheme={SCHEME_KEY}", "dem.nsubit=10"]
 if ORB:
     ARGS += ORB_ARGS
-ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles", "particle_steps", "force_evaluations", "neighbor_builds"]
 SKIP = ["wall_seconds", "gas_mass_residual"]
 if SUB:
@@ -92,14 +90,8 @@ if ISLANDS:
     SKIP.remove("force_evaluations")
 
 
-def run(ranks, out):
-    cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out", out] + ARGS
-    subprocess.run(cmd, check=True, env=ENV, timeout=120)
-    with open(os.path.join(out, "diagnostics.csv")) as f:
-        rows = list(csv.DictReader(f))
-    with open(os.path.join(out, "run.json")) as f:
-        info = json.load(f)
-    return rows, info
+def run(ranks, out, args=None):
+    return run_rows(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS if args is None else args)
 
 
 def main():
@@ -108,28 +100,12 @@ def main():
         many, info = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
         snapshots_match(os.path.join(tmp, "np1"), os.path.join(tmp, f"np{RANKS}"))
     assert len(one) == len(many) == 11, (len(one), len(many))
-    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
-    for kind in ("momentum_", "gas_momentum_"):
-        for a in "xz":
-            scale[kind + a] = max(scale[kind + a], scale[kind + "y"])
-    worst = {}
     for r1, rn in zip(one, many):
         assert float(rn["particles"]) == 800, rn["particles"]
         for r in (r1, rn):
             assert float(r["gas_mass_residual"]) < 1e-8, r["gas_mass_residual"]
-        for c in r1:
-            if c in SKIP:
-                continue
-            x, y = float(r1[c]), float(rn[c])
-            if c in EXACT:
-                assert x == y, f"{c}: {x} (1 rank) != {y} ({RANKS} ranks) at t = {r1['time']}"
-                continue
-            if c in AT_LEAST:
-                assert y >= x, f"{c}: {x} (1 rank) > {y} ({RANKS} ranks) at t = {r1['time']}"
-                continue
-            err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
-            worst[c] = max(worst.get(c, 0.0), err)
-            assert err <= 1e-9, f"{c}: {x} vs {y} at t = {r1['time']} (scaled error {err:.3g})"
+    worst = compare_rows(one, many, axial_scales(one), 1e-9, exact=EXACT, skip=SKIP,
+                         at_least=AT_LEAST, label=f"{RANKS} ranks vs 1")
     if SUB:
         assert info["scheme"] == SCHEME_KEY, info["scheme"]
     if ORB:  # the global mode ran where it was allowed, and only there
@@ -173,20 +149,16 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         out = {}
         for threads in ("1", "2"):
-            d = os.path.join(tmp, f"t{threads}")
             args = [a for a in ARGS if a not in ("--threads", "1")] + ["--threads", threads]
-            cmd = [MPIEXEC, "-np", str(RANKS), "--oversubscribe", CFDDEM, "run", SCENE, "--out", d]
-            subprocess.run(cmd + args, check=True, env=ENV, timeout=120)
-            with open(os.path.join(d, "diagnostics.csv")) as f:
-                out[threads] = [{k: v for k, v in r.items() if k != "wall_seconds"}
-                                for r in csv.DictReader(f)]
+            rows, _ = run(RANKS, os.path.join(tmp, f"t{threads}"), args)
+            out[threads] = without_wall_seconds(rows)
         assert out["1"] == out["2"], "1 and 2 threads per rank differ"
     settling_matches()
     if SUB:
         orb_gas_regrid_matches()
         adaptive_matches()
-    print(f"{SCHEME}, {RANKS} ranks vs 1: worst scaled column error {max(worst.values()):.3g} "
-          f"({max(worst, key=worst.get)}); gas cells per rank {cells}; "
+    print(f"{SCHEME}, {RANKS} ranks vs 1: worst scaled column error {worst_of(worst)}; "
+          f"gas cells per rank {cells}; "
           f"neighbor builds {many[-1]['neighbor_builds']}")
 
 
@@ -243,7 +215,7 @@ def settling_matches():
     for r1, rn in zip(one, many):
         assert float(r1["gas_mass_residual"]) < 1e-8 and float(rn["gas_mass_residual"]) < 1e-8
     worst = rows_agree(one, many, "settling")
-    print(f"settling ({SCHEME}), {RANKS} ranks vs 1: worst scaled column error {worst:.3g}")
+    print(f"settling ({SCHEME}), {RANKS} ranks vs 1: worst scaled column error {worst}")
 
 
 def orb_gas_regrid_matches():
@@ -259,7 +231,7 @@ def orb_gas_regrid_matches():
     assert len(one) == len(many) == 11, (len(one), len(many))
     assert all(float(r["particles"]) == 800 for r in many)
     worst = rows_agree(one, many, "gas regrid")
-    print(f"{SCHEME} with gas regrids, {RANKS} ranks vs 1: worst scaled column error {worst:.3g}")
+    print(f"{SCHEME} with gas regrids, {RANKS} ranks vs 1: worst scaled column error {worst}")
 
 
 def adaptive_matches():
@@ -278,34 +250,16 @@ def adaptive_matches():
     assert all(float(r["particles"]) == 800 for r in many)
     worst = rows_agree(one, many, "adaptive", loose=("time",))
     print(f"{SCHEME} on an adaptive fluid step, {RANKS} ranks vs 1: "
-          f"{info[RANKS]['fluid_steps']} fluid steps, worst scaled column error {worst:.3g}")
+          f"{info[RANKS]['fluid_steps']} fluid steps, worst scaled column error {worst}")
 
 def rows_agree(one, many, label, loose=()):
     """Every column of the R-rank rows against the 1-rank rows: EXACT ones equal, AT_LEAST ones
     no smaller, the others within 1e-9 of their scale (a column's largest value; the x and z
     components of a vector at least its axial one's); `loose` columns within 1e-12 relative
-    instead. Returns the worst scaled error."""
-    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
-    for kind in ("momentum_", "gas_momentum_", "mean_v", "mean_a"):
-        for a in "xz":
-            scale[kind + a] = max(scale[kind + a], scale[kind + "y"])
-    worst = 0.0
-    for r1, rn in zip(one, many):
-        for c in r1:
-            if c in SKIP:
-                continue
-            x, y = float(r1[c]), float(rn[c])
-            if c in loose:
-                assert abs(x - y) <= 1e-12 * abs(x), f"{label} {c}: {x} vs {y}"
-            elif c in EXACT:
-                assert x == y, f"{label} {c}: {x} != {y} at t = {r1['time']}"
-            elif c in AT_LEAST:
-                assert y >= x, f"{label} {c}: {x} (1 rank) > {y} at t = {r1['time']}"
-            else:
-                err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
-                worst = max(worst, err)
-                assert err <= 1e-9, f"{label} {c}: {x} vs {y} at t = {r1['time']} ({err:.3g})"
-    return worst
+    instead. Returns the worst scaled difference and its column."""
+    scale = axial_scales(one, ("momentum_", "gas_momentum_", "mean_v", "mean_a"))
+    return worst_of(compare_rows(one, many, scale, 1e-9, exact=EXACT, skip=SKIP,
+                                 at_least=AT_LEAST, loose=loose, label=label))
 
 
 def rows_on(scene, args, ranks_list):
@@ -313,14 +267,8 @@ def rows_on(scene, args, ranks_list):
     rows, info = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         for ranks in ranks_list:
-            out = os.path.join(tmp, f"np{ranks}")
-            cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", scene, "--out",
-                   out] + args
-            subprocess.run(cmd, check=True, env=ENV, timeout=120)
-            with open(os.path.join(out, "diagnostics.csv")) as f:
-                rows[ranks] = list(csv.DictReader(f))
-            with open(os.path.join(out, "run.json")) as f:
-                info[ranks] = json.load(f)
+            rows[ranks], info[ranks] = run_rows(MPIEXEC, ranks, CFDDEM, scene,
+                                                os.path.join(tmp, f"np{ranks}"), args)
     return rows, info
 
 

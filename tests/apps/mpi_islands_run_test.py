@@ -21,13 +21,12 @@ particles agree exactly; work counters (particle steps, pairs, builds, fine frac
 another classification and are not compared. run.json says how often islands spanned ranks
 (some do on R > 1 ranks) and no bound was violated. Checkpoints: restarts(). 
 """
-import csv
-import json
-import math
 import os
-import subprocess
 import sys
 import tempfile
+
+from mpi_rows import (compare_rows, hcs_scales, outputs, run_rows, without_wall_seconds,
+                      worst_of)
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCENE = os.path.join(SOURCE, "scenes", "hcs_small.toml")
@@ -40,58 +39,27 @@ if FRICTION:
     ARGS[ARGS.index("run.end_time=0.01")] = f"run.end_time={END}"
     ARGS[ARGS.index("output.interval=5e-4")] = "output.interval=1e-4"
     ARGS += ["dem.friction=0.5", "domain.hi=[0.64e-3,0.64e-3,0.64e-3]"]
-ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles"]
 SKIP = ["wall_seconds", "particle_steps", "force_evaluations", "neighbor_builds",
         "leaf_steps_min", "leaf_steps_mean", "leaf_steps_max", "fine_leaf_fraction"]
 
 
 def run(ranks, out, extra=()):
-    cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out", out]
-    subprocess.run(cmd + ARGS + list(extra), check=True, env=ENV, timeout=120)
-    with open(os.path.join(out, "diagnostics.csv")) as f:
-        rows = list(csv.DictReader(f))
-    with open(os.path.join(out, "run.json")) as f:
-        info = json.load(f)
-    return rows, info
+    return run_rows(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + list(extra))
 
 
 def compare(one, many, what):
     """The rows' state columns within 1e-10 of each column's scale; returns the worst."""
     assert len(one) == len(many) > 10, (len(one), len(many))
-    ke0 = float(one[0]["kinetic_energy"])
-    mass = 100 * 1000.0 * math.pi / 6 * (100e-6) ** 3  # hcs_small: 100 particles, d, rho
-    v_scale = math.sqrt(2 * ke0 / mass)
-    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
-    for a in "xyz":
-        scale[f"momentum_{a}"] = math.sqrt(2 * mass * ke0)
-        scale[f"mean_v{a}"] = v_scale
-        scale[f"mean_a{a}"] = v_scale / 5e-4
-    # An overlap is a difference of positions: its round-off is a position's (the scale of
-    # mean_x, about half the box) over the diameter.
-    for c in ("overlap_mean", "overlap_max", "wall_overlap_mean", "wall_overlap_max"):
-        scale[c] = scale["mean_x"] / 100e-6
-    worst = {}
-    for r1, rn in zip(one, many):
-        for c in r1:
-            if c in SKIP:
-                continue
-            x, y = float(r1[c]), float(rn[c])
-            if c in EXACT:
-                assert x == y, f"{what}: {c}: {x} != {y} at t = {r1['time']}"
-                continue
-            err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
-            worst[c] = max(worst.get(c, 0.0), err)
-            assert err <= 1e-10, \
-                f"{what}: {c}: {x} vs {y} at t = {r1['time']} (scaled error {err:.3g})"
-    return max(worst.values())
+    return compare_rows(one, many, hcs_scales(one, 5e-4), 1e-10, exact=EXACT, skip=SKIP,
+                        label=what)
 
 
 def matches_one_rank():
     with tempfile.TemporaryDirectory() as tmp:
         one, info_one = run(1, os.path.join(tmp, "np1"))
         many, info = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
-    worst = compare(one, many, f"{RANKS} ranks vs 1")
+    worst = worst_of(compare(one, many, f"{RANKS} ranks vs 1"))
     ke0 = float(one[0]["kinetic_energy"])
     # The gas cools: collisions happened (a run without any would pass trivially).
     assert float(one[-1]["kinetic_energy"]) < 0.99 * ke0, (one[-1]["kinetic_energy"], ke0)
@@ -102,7 +70,7 @@ def matches_one_rank():
     assert info["bound_violations"] == 0 and info_one["bound_violations"] == 0, info
     if RANKS > 1:
         assert 0 < info["spanning_subiterations"] < info["steps"], info
-    print(f"islands, {RANKS} ranks vs 1: worst scaled diagnostics error {worst:.3g}; islands "
+    print(f"islands, {RANKS} ranks vs 1: worst scaled diagnostics error {worst}; islands "
           f"spanned ranks in "
           f"{info['spanning_subiterations']} of {info['steps']} sub-iterations")
 
@@ -131,23 +99,24 @@ def restarts():
         assert cks == [CK_NAME], cks  # dt_sp = 10 us
         mid = os.path.join(d["full"], cks[0])
         half, _ = run(RANKS, d["half"], extra + ["--restart", mid])
-        strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_seconds"} for r in rows]
-        assert len(full) > 10 and strip(full) == strip(half), "restarted diagnostics differ"
+        assert len(full) > 10 and without_wall_seconds(full) == without_wall_seconds(half), \
+            "restarted diagnostics differ"
         na, a = last_snapshot(d["full"])
         nb, b = last_snapshot(d["half"])
         assert na == nb, (na, nb)
         for k in a:
             assert (a[k] == b[k]).all(), (na, k, "restarted snapshot differs")
-        half_info = json.load(open(os.path.join(d["half"], "run.json")))
+        half_info = outputs(d["half"])[1]
         assert half_info["spanning_subiterations"] == info["spanning_subiterations"] or RANKS == 1
         # Across rank counts: one rank from the R-rank file, R ranks from a 1-rank file.
         one, _ = run(1, d["one"], extra + ["--restart", mid])
-        worst_one = compare(full, one, f"{RANKS}-rank checkpoint restarted on 1 rank")
+        worst_one = worst_of(compare(full, one, f"{RANKS}-rank checkpoint restarted on 1 rank"))
         full1, _ = run(1, d["full1"], extra)
         from1, _ = run(RANKS, d["from1"], extra + ["--restart", os.path.join(d["full1"], cks[0])])
-        worst_from1 = compare(full1, from1, f"1-rank checkpoint restarted on {RANKS} ranks")
+        worst_from1 = worst_of(
+            compare(full1, from1, f"1-rank checkpoint restarted on {RANKS} ranks"))
     print(f"islands, {RANKS} ranks: restart at {cks[0]} continues bit for bit; on 1 rank "
-          f"{worst_one:.3g}, a 1-rank checkpoint on {RANKS} ranks {worst_from1:.3g}")
+          f"{worst_one}, a 1-rank checkpoint on {RANKS} ranks {worst_from1}")
 
 
 def auto_length():
@@ -159,7 +128,7 @@ def auto_length():
     with tempfile.TemporaryDirectory() as tmp:
         one, info_one = run(1, os.path.join(tmp, "np1"), extra)
         many, info = run(RANKS, os.path.join(tmp, f"np{RANKS}"), extra)
-        worst = compare(one, many, f"auto: {RANKS} ranks vs 1")
+        worst = worst_of(compare(one, many, f"auto: {RANKS} ranks vs 1"))
         picks = lambda i: [(c["t"], c["nsubit"], c["intervals"]) for c in i["nsubit_choices"]]
         assert picks(info) == picks(info_one), (picks(info), picks(info_one))
         assert len(picks(info)) >= 2, picks(info)
@@ -168,11 +137,11 @@ def auto_length():
         full, _ = run(RANKS, os.path.join(tmp, "full"), extra + ck)
         mid = os.path.join(tmp, "full", "checkpoint_000000050.h5")
         half, info_half = run(RANKS, os.path.join(tmp, "half"), extra + ck + ["--restart", mid])
-        strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_seconds"} for r in rows]
-        assert strip(full) == strip(half), "auto: restarted diagnostics differ"
+        assert without_wall_seconds(full) == without_wall_seconds(half), \
+            "auto: restarted diagnostics differ"
         assert picks(info_half) == picks(info), "auto: restarted choices differ"
     print(f"islands auto, {RANKS} ranks vs 1: the same {len(picks(info))} choices, worst scaled "
-          f"diagnostics error {worst:.3g}; restart bit for bit")
+          f"diagnostics error {worst}; restart bit for bit")
 
 
 if __name__ == "__main__":

@@ -33,13 +33,12 @@ that does not depend on the lists agree exactly, and the state columns to round-
 steps sum in another order on R ranks): 1e-10 of the column's scale over 4 ms, far below a
 physical difference. The restart, from a checkpoint inside a held interval, as above.
 """
-import csv
-import json
-import math
 import os
-import subprocess
 import sys
 import tempfile
+
+from mpi_rows import (compare_rows, column_scales, hcs_scales, mpirun, outputs,
+                      particle_snapshots, without_wall_seconds, worst_of)
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 FRICTION = len(sys.argv) > 5 and sys.argv[5] == "friction"
@@ -58,53 +57,20 @@ if HELD:
     ARGS = ["dem.scheme=orb", "dem.nsubit=15", "partition.orb_levels=6",
             "dem.proximity_radii=2.8", "dem.orb_global_min_per_rank=0", "run.end_time=0.004",
             "output.interval=2e-4", "--threads", "1", "--quiet"]
-ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 EXACT = ["time", "step", "particles", "particle_steps", "leaf_steps_min", "leaf_steps_mean",
          "leaf_steps_max", "fine_leaf_fraction"]
 SKIP = ["wall_seconds", "force_evaluations", "neighbor_builds"]
 
 
-def snapshots(out):
-    try:
-        import h5py
-    except ImportError:
-        return None
-    found = {}
-    for name in sorted(os.listdir(out)):
-        if name.startswith("snapshot_") and name.endswith(".h5"):
-            with h5py.File(os.path.join(out, name), "r") as f:
-                p = f["particles"]
-                order = p["id"][()].argsort()
-                found[name] = {k: p[k][()][order] for k in ("id", "position", "velocity")}
-    return found
-
-
 def run(ranks, out, extra=()):
-    cmd = [MPIEXEC, "-np", str(ranks), "--oversubscribe", CFDDEM, "run", SCENE, "--out", out]
-    subprocess.run(cmd + ARGS + list(extra), check=True, env=ENV, timeout=120)
-    with open(os.path.join(out, "diagnostics.csv")) as f:
-        rows = list(csv.DictReader(f))
-    with open(os.path.join(out, "run.json")) as f:
-        info = json.load(f)
-    return rows, info, snapshots(out)
+    mpirun(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + list(extra))
+    rows, info = outputs(out)
+    return rows, info, particle_snapshots(out)
 
 
-def compare_rows(one, many, scale, tol):
-    """The EXACT columns equal, the others (SKIP aside) within tol of their scale (absolutely
-    where the scale is 0); returns the worst scaled difference per column."""
-    worst = {}
-    for r1, rn in zip(one, many):
-        for c in r1:
-            if c in SKIP:
-                continue
-            x, y = float(r1[c]), float(rn[c])
-            if c in EXACT:
-                assert x == y, f"{c}: {x} (1 rank) != {y} ({RANKS} ranks) at t = {r1['time']}"
-                continue
-            err = abs(x - y) / scale[c] if scale[c] > 0 else abs(x - y)
-            worst[c] = max(worst.get(c, 0.0), err)
-            assert err <= tol, f"{c}: {x} vs {y} at t = {r1['time']} (scaled error {err:.3g})"
-    return worst
+def compare(one, many, scale, tol):
+    return compare_rows(one, many, scale, tol, exact=EXACT, skip=SKIP,
+                        label=f"{RANKS} ranks vs 1")
 
 
 def matches_one_rank():
@@ -112,19 +78,8 @@ def matches_one_rank():
         one, _, snap_one = run(1, os.path.join(tmp, "np1"))
         many, info, snap_many = run(RANKS, os.path.join(tmp, f"np{RANKS}"))
     assert len(one) == len(many) > 10, (len(one), len(many))
-    ke0 = float(one[0]["kinetic_energy"])
-    mass = 100 * 1000.0 * math.pi / 6 * (100e-6) ** 3  # hcs_small: 100 particles, d, rho
-    v_scale = math.sqrt(2 * ke0 / mass)
-    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
-    for a in "xyz":
-        scale[f"momentum_{a}"] = math.sqrt(2 * mass * ke0)
-        scale[f"mean_v{a}"] = v_scale
-        scale[f"mean_a{a}"] = v_scale / 2e-4
-    # An overlap is a difference of positions: its round-off is a position's (the scale of
-    # mean_x, about half the box) over the diameter.
-    for c in ("overlap_mean", "overlap_max", "wall_overlap_mean", "wall_overlap_max"):
-        scale[c] = scale["mean_x"] / 100e-6
-    worst = compare_rows(one, many, scale, 1e-12)
+    scale = hcs_scales(one, 2e-4)
+    worst = compare(one, many, scale, 1e-12)
     fine = [float(r["fine_leaf_fraction"]) for r in one[1:]]
     # The run collides, not everywhere at once (the denser frictional gas: every leaf fine).
     assert 0 < max(fine) and (FRICTION or min(fine) < 1), fine
@@ -141,7 +96,7 @@ def matches_one_rank():
             for k in ("id", "position", "velocity"):
                 assert (a[k] == b[k]).all(), (name, k, abs(a[k] - b[k]).max())
     print(f"orb, {RANKS} ranks vs 1: snapshots bitwise equal; worst scaled diagnostics error "
-          f"{max(worst.values()):.3g} ({max(worst, key=worst.get)})")
+          f"{worst_of(worst)}")
 
 
 def held_matches_one_rank():
@@ -154,11 +109,10 @@ def held_matches_one_rank():
     assert 1 < i1["regrids"] < points, i1["regrids"]  # some points kept the ORB, some cut one
     assert 0 < i1["global_subiterations"] < i1["steps"] - 1, i1["global_subiterations"]
     assert len(one) == len(many) > 10, (len(one), len(many))
-    scale = {c: max(abs(float(r[c])) for r in one) for c in one[0]}
-    worst = max(compare_rows(one, many, scale, 1e-10).values())
+    worst = compare(one, many, column_scales(one), 1e-10)
     print(f"orb held global mode, {RANKS} ranks vs 1: {i1['regrids']} regrids of {points} "
           f"points, {i1['global_subiterations']} global sub-iterations on both; worst scaled "
-          f"diagnostics difference {worst:.3g}")
+          f"diagnostics difference {worst_of(worst)}")
 
 
 def restart_is_exact():
@@ -177,11 +131,7 @@ def restart_is_exact():
             with h5py.File(os.path.join(full, cks[0]), "r") as f:
                 assert "held_cut_axis" in f["orb"], "the checkpoint is not inside a held interval"
         _, _, b = run(RANKS, half, extra + ["--restart", os.path.join(full, cks[0])])
-        rows = []
-        for d in (full, half):
-            with open(os.path.join(d, "diagnostics.csv")) as f:
-                rows.append([{k: v for k, v in r.items() if k != "wall_seconds"}
-                             for r in csv.DictReader(f)])
+        rows = [without_wall_seconds(outputs(d)[0]) for d in (full, half)]
         assert len(rows[0]) > 10 and rows[0] == rows[1], "restarted diagnostics differ"
         if a:  # snapshots, read where h5py is installed
             last = sorted(a)[-1]
@@ -201,10 +151,10 @@ def failure_stops_every_rank():
     """A sub-iteration too long for the skin (a particle outruns even the largest skin) stops the
     R-rank run with exit code 3 and one message, well within the timeout (no rank left waiting)."""
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [MPIEXEC, "-np", str(RANKS), "--oversubscribe", CFDDEM, "run", SCENE, "--out", tmp,
-               "dem.scheme=orb", "dem.nsubit=1", "dem.regrid_interval=5e-4",
-               "particles.temperature=1.0", "run.end_time=0.01", "--threads", "1", "--quiet"]
-        r = subprocess.run(cmd, env=ENV, timeout=60, capture_output=True, text=True)
+        r = mpirun(MPIEXEC, RANKS, CFDDEM, SCENE, tmp,
+                   ["dem.scheme=orb", "dem.nsubit=1", "dem.regrid_interval=5e-4",
+                    "particles.temperature=1.0", "run.end_time=0.01", "--threads", "1",
+                    "--quiet"], check=False, capture=True, timeout=60)
     assert r.returncode == 3, (r.returncode, r.stderr[-2000:])
     assert r.stderr.count("cfddem: run stopped:") == 1, r.stderr[-2000:]
     assert "raise dem.nsubit" in r.stderr, r.stderr[-2000:]

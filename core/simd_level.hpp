@@ -24,6 +24,36 @@ SimdLevel simd_level();
 // "x86-64", "x86-64-v3", "x86-64-v4".
 std::string_view simd_level_name(SimdLevel level);
 
+// Marks a lambda passed to at_simd_level: its body is inlined into the copy compiled for the
+// level, and so are the functions it calls that are themselves always inlined (the kernels'
+// loops). A call it does not inline runs that function's own (baseline) code.
+#define CFDDEM_SIMD_BODY __attribute__((always_inline))
+
+namespace detail {
+#if defined(CFDDEM_SIMD_COPIES)
+template <class F> [[gnu::target("arch=x86-64-v3")]] void at_v3(F& f) {
+  f();
+}
+template <class F> [[gnu::target("arch=x86-64-v4")]] void at_v4(F& f) {
+  f();
+}
+#endif
+} // namespace detail
+
+// Runs f() compiled for `level` (f: a lambda marked CFDDEM_SIMD_BODY whose loops are always
+// inlined): the loops are vectorised for that instruction set, and a level without a copy runs
+// the baseline one. Every copy computes what the baseline does, in the same order (the flags
+// above), so only the speed depends on the level.
+template <class F> inline void at_simd_level([[maybe_unused]] SimdLevel level, F&& f) {
+#if defined(CFDDEM_SIMD_COPIES)
+  if (level == SimdLevel::x86_64_v4)
+    return detail::at_v4(f);
+  if (level == SimdLevel::x86_64_v3)
+    return detail::at_v3(f);
+#endif
+  f();
+}
+
 // The level named `text` (the three names above); a ConfigError naming CFDDEM_SIMD otherwise.
 SimdLevel parse_simd_level(std::string_view text);
 

@@ -81,8 +81,8 @@ kick_drift_loop(std::size_t n, double* __restrict x, double* __restrict y, doubl
   flags.still = still, flags.slow = slow, flags.capped = capped, flags.inside = inside;
 }
 
-// The loop over the columns `c`: the baseline copy as it stands, the others inlined into the
-// functions compiled for their target.
+// The loop over the columns `c`, inlined into each copy at_simd_level compiles
+// (core/simd_level.hpp).
 template <bool E, bool F, bool S, bool M, bool B>
 [[gnu::always_inline]] inline void loop_over(const KickDriftColumns& c, const KickDriftStep& k,
                                              KickDriftFlags& flags) {
@@ -92,32 +92,12 @@ template <bool E, bool F, bool S, bool M, bool B>
                                  c.xr.data(), c.yr.data(), c.zr.data(), c.h_prev.data(), k, flags);
 }
 
-#if defined(CFDDEM_SIMD_COPIES)
-template <bool E, bool F, bool S, bool M, bool B>
-[[gnu::target("arch=x86-64-v3")]] void loop_v3(const KickDriftColumns& c, const KickDriftStep& k,
-                                               KickDriftFlags& flags) {
-  loop_over<E, F, S, M, B>(c, k, flags);
-}
-
-template <bool E, bool F, bool S, bool M, bool B>
-[[gnu::target("arch=x86-64-v4")]] void loop_v4(const KickDriftColumns& c, const KickDriftStep& k,
-                                               KickDriftFlags& flags) {
-  loop_over<E, F, S, M, B>(c, k, flags);
-}
-#endif
-
 } // namespace
 
 template <bool E, bool F, bool S, bool M, bool B>
-void kick_drift_at([[maybe_unused]] SimdLevel level, const KickDriftColumns& c,
-                   const KickDriftStep& k, KickDriftFlags& flags) {
-#if defined(CFDDEM_SIMD_COPIES)
-  if (level == SimdLevel::x86_64_v4)
-    return loop_v4<E, F, S, M, B>(c, k, flags);
-  if (level == SimdLevel::x86_64_v3)
-    return loop_v3<E, F, S, M, B>(c, k, flags);
-#endif
-  loop_over<E, F, S, M, B>(c, k, flags);
+void kick_drift_at(SimdLevel level, const KickDriftColumns& c, const KickDriftStep& k,
+                   KickDriftFlags& flags) {
+  at_simd_level(level, [&]() CFDDEM_SIMD_BODY { loop_over<E, F, S, M, B>(c, k, flags); });
 }
 
 // Every combination of External, First, CheckSpeed and CheckMoved without CheckBox; with it,

@@ -6,6 +6,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "core/simd_level.hpp"
 #include "fluid/box_loops.hpp"
 #include "fluid/grid_halo.hpp"
 
@@ -53,6 +54,9 @@ struct ComponentView {
   const double* div = nullptr;
   double mu = 0.0;
   double own = 1.0; // weight of the grad u_a (Laplacian) part of tau
+  // The instruction set the row loops run with (at_simd_level, core/simd_level.hpp): every level
+  // gives bitwise the same fields.
+  SimdLevel level = SimdLevel::x86_64;
 };
 
 // The last point of component a's faces: faces 0..n along a, cells 0..n-1 across.
@@ -75,8 +79,9 @@ template <class F> void with_limiter(Limiter limiter, F&& f) {
 // Advecting velocity and upwind MUSCL flux on the low control-volume face along b of the points
 // p0 .. p0 + len of a row (docs/theory.md §5: convective form, see the header).
 template <Limiter L>
-void advective_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdiff_t len,
-                   double* __restrict speed, double* __restrict flux) {
+[[gnu::always_inline]] inline void advective_row(const ComponentView& v, int b, std::ptrdiff_t p0,
+                                                 std::ptrdiff_t len, double* __restrict speed,
+                                                 double* __restrict flux) {
   const double* __restrict q = v.u[v.a];
   // b == a: the mean of the two faces around the cell below; else the b-velocity on the edge.
   const double* __restrict w = b == v.a ? q : v.u[b];
@@ -93,8 +98,10 @@ void advective_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdif
 // b == a; else the shear stress on the (a, b) edge, eps averaged from the edge's four cells, or
 // eps = kInflowVolumeFraction on the plane of an inflow face (inflow_row: the whole row lies in
 // it; inflow_ends: its first and/or last point does, for b = x).
-void stress_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdiff_t len,
-                bool inflow_row, std::array<bool, 2> inflow_ends, double* __restrict stress) {
+[[gnu::always_inline]] inline void stress_row(const ComponentView& v, int b, std::ptrdiff_t p0,
+                                              std::ptrdiff_t len, bool inflow_row,
+                                              std::array<bool, 2> inflow_ends,
+                                              double* __restrict stress) {
   const int a = v.a;
   const double* __restrict q = v.u[a];
   const double* __restrict ep = v.ep;
@@ -139,8 +146,9 @@ void stress_row(const ComponentView& v, int b, std::ptrdiff_t p0, std::ptrdiff_t
 // rhs_a = -(u.grad u_a) + div(eps tau_a)/(eps_f rho) + body_a on the points of a row, the three
 // directions' differences summed in the order x, y, z.
 template <bool Viscous>
-void sum_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
-             const MomentumWorkspace& work, double inv_rho, double body, double* __restrict out) {
+[[gnu::always_inline]] inline void sum_row(const ComponentView& v, std::ptrdiff_t p0,
+                                           std::ptrdiff_t len, const MomentumWorkspace& work,
+                                           double inv_rho, double body, double* __restrict out) {
   const double* __restrict q = v.u[v.a];
   const double* __restrict ep = v.ep;
   const std::ptrdiff_t sa = v.st[v.a];
@@ -234,20 +242,24 @@ void component_rhs(const MacGrid& grid, const ComponentView& v, double inv_rho, 
   // Pass 1: the control-volume face quantities of every direction b on the box 0..hi, one more
   // point along b (the high face of the last control volume).
   for_control_volume_rows(layout, hi, [&](int b, std::ptrdiff_t p0, int j, int k, int len) {
-    advective_row<L>(v, b, p0, len, work.speed[b].values().data(), work.flux[b].values().data());
-    if (viscous) {
-      stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b),
-                 work.stress[b].values().data());
-    }
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      advective_row<L>(v, b, p0, len, work.speed[b].values().data(), work.flux[b].values().data());
+      if (viscous) {
+        stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b),
+                   work.stress[b].values().data());
+      }
+    });
   });
   // Pass 2: differences, viscous term and body force on the component's faces.
   double* out = rhs.values().data();
   for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
-    if (viscous) {
-      sum_row<true>(v, p0, hi[0], work, inv_rho, body, out);
-    } else {
-      sum_row<false>(v, p0, hi[0], work, inv_rho, body, out);
-    }
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      if (viscous) {
+        sum_row<true>(v, p0, hi[0], work, inv_rho, body, out);
+      } else {
+        sum_row<false>(v, p0, hi[0], work, inv_rho, body, out);
+      }
+    });
   });
 }
 
@@ -256,16 +268,18 @@ void velocity_divergence(const MacGrid& grid, const ComponentView& v, MomentumWo
   const auto& n = grid.cells();
   double* div = work.divergence.values().data();
   for_box_rows(grid.layout(), {-1, -1, -1}, {n[0], n[1], n[2]}, [&](std::ptrdiff_t p0, int, int) {
-    const double* __restrict ux = v.u[0];
-    const double* __restrict uy = v.u[1];
-    const double* __restrict uz = v.u[2];
-    for (std::ptrdiff_t c = p0; c <= p0 + n[0] + 1; ++c) {
-      double d = 0.0;
-      d += (ux[c + 1] - ux[c]) * v.inv_dx[0];
-      d += (uy[c + v.st[1]] - uy[c]) * v.inv_dx[1];
-      d += (uz[c + v.st[2]] - uz[c]) * v.inv_dx[2];
-      div[c] = d;
-    }
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      const double* __restrict ux = v.u[0];
+      const double* __restrict uy = v.u[1];
+      const double* __restrict uz = v.u[2];
+      for (std::ptrdiff_t c = p0; c <= p0 + n[0] + 1; ++c) {
+        double d = 0.0;
+        d += (ux[c + 1] - ux[c]) * v.inv_dx[0];
+        d += (uy[c + v.st[1]] - uy[c]) * v.inv_dx[1];
+        d += (uz[c + v.st[2]] - uz[c]) * v.inv_dx[2];
+        div[c] = d;
+      }
+    });
   });
 }
 
@@ -273,7 +287,7 @@ void velocity_divergence(const MacGrid& grid, const ComponentView& v, MomentumWo
 // cells -1..n when the gas is viscous (the normal stress of faces 0..n needs cells -1..n).
 ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
                       const std::array<GridField, 3>& u, const GridField& eps,
-                      MomentumWorkspace& work, bool exclude_laplacian) {
+                      MomentumWorkspace& work, bool exclude_laplacian, SimdLevel level) {
   const GridLayout& layout = grid.layout();
   size_workspace(work, layout, false);
   ComponentView v;
@@ -284,6 +298,7 @@ ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
   v.div = work.divergence.values().data();
   v.mu = gas.viscosity;
   v.own = exclude_laplacian ? 0.0 : 1.0;
+  v.level = level;
   if (v.mu != 0.0) {
     velocity_divergence(grid, v, work);
   }
@@ -293,9 +308,9 @@ ComponentView prepare(const MacGrid& grid, const GasProperties& gas,
 // The viscous term and body force of u^n on a row of a component's faces: the rate the
 // Godunov step's edge states are extrapolated with, and the non-advective part of its update.
 template <bool Viscous>
-void viscous_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
-                 const MomentumWorkspace& work, double inv_rho, double body,
-                 double* __restrict out) {
+[[gnu::always_inline]] inline void
+viscous_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
+            const MomentumWorkspace& work, double inv_rho, double body, double* __restrict out) {
   const double* __restrict ep = v.ep;
   const std::ptrdiff_t sa = v.st[v.a];
   const double* __restrict t0 = work.stress[0].values().data();
@@ -318,13 +333,12 @@ void viscous_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
 // The half-step value and the three base states of a row's points (base_row's last loop; the
 // transverse terms t_c at the row's points).
 template <bool WithLaplacian>
-void half_step_row(std::ptrdiff_t p0, std::ptrdiff_t len, std::ptrdiff_t sa, double half_dt,
-                   double grad_scale, const double* __restrict q, const double* __restrict rate,
-                   const double* __restrict pressure, const double* __restrict lap,
-                   const double* __restrict push, const double* __restrict gain,
-                   const double* __restrict t0, const double* __restrict t1,
-                   const double* __restrict t2, double* __restrict b0, double* __restrict b1,
-                   double* __restrict b2, double* __restrict half) {
+[[gnu::always_inline]] inline void half_step_row(
+    std::ptrdiff_t p0, std::ptrdiff_t len, std::ptrdiff_t sa, double half_dt, double grad_scale,
+    const double* __restrict q, const double* __restrict rate, const double* __restrict pressure,
+    const double* __restrict lap, const double* __restrict push, const double* __restrict gain,
+    const double* __restrict t0, const double* __restrict t1, const double* __restrict t2,
+    double* __restrict b0, double* __restrict b1, double* __restrict b2, double* __restrict half) {
   // GCC takes restrict from parameters, not from locals: every array is one.
   for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
     double force = rate[p] - (pressure[p] - pressure[p - sa]) * grad_scale;
@@ -349,9 +363,10 @@ void half_step_row(std::ptrdiff_t p0, std::ptrdiff_t len, std::ptrdiff_t sa, dou
 // is ubar_c times the difference of the limited MUSCL states on the point's two faces along c,
 // both upwinded by ubar_c: second order in space, so the prediction adds no dt dx error.
 template <Limiter L>
-void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t p0,
-              std::ptrdiff_t len, double inv_rho, const double* __restrict rate,
-              std::array<double*, 3> base, double* __restrict half) {
+[[gnu::always_inline]] inline void base_row(const ComponentView& v, const EdgePrediction& pred,
+                                            std::ptrdiff_t p0, std::ptrdiff_t len, double inv_rho,
+                                            const double* __restrict rate,
+                                            std::array<double*, 3> base, double* __restrict half) {
   const int a = v.a;
   const double* __restrict q = v.u[a];
   const std::ptrdiff_t sa = v.st[a];
@@ -375,7 +390,7 @@ void base_row(const ComponentView& v, const EdgePrediction& pred, std::ptrdiff_t
     const double* __restrict uc = v.u[c];
     const double inv_dx = v.inv_dx[c];
     double* __restrict t = transverse[static_cast<std::size_t>(c)] - p0;
-    const auto fill = [&](auto along_a) {
+    const auto fill = [&](auto along_a) CFDDEM_SIMD_BODY {
       for (std::ptrdiff_t p = p0; p <= p0 + len; ++p) {
         double ubar = q[p];
         if constexpr (!decltype(along_a)::value) {
@@ -413,7 +428,10 @@ void stress_pass(const MacGrid& grid, const ComponentView& v, MomentumWorkspace&
   const std::array<int, 3> hi = faces_hi(grid, a);
   const InflowPlanes inflow(grid, a);
   for_control_volume_rows(grid.layout(), hi, [&](int b, std::ptrdiff_t p0, int j, int k, int len) {
-    stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b), work.stress[b].values().data());
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      stress_row(v, b, p0, len, inflow.row(b, j, k), inflow.ends(b),
+                 work.stress[b].values().data());
+    });
   });
 }
 
@@ -436,12 +454,14 @@ void predict_component(const MacGrid& grid, const ComponentView& v, double inv_r
                                        base_a[2].values().data()};
   double* half = work.half[static_cast<std::size_t>(a)].values().data();
   for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
-    if (viscous) {
-      viscous_row<true>(v, p0, hi[0], work, inv_rho, body, out);
-    } else {
-      viscous_row<false>(v, p0, hi[0], work, inv_rho, body, out);
-    }
-    base_row<L>(v, pred, p0, hi[0], inv_rho, out, base, half);
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      if (viscous) {
+        viscous_row<true>(v, p0, hi[0], work, inv_rho, body, out);
+      } else {
+        viscous_row<false>(v, p0, hi[0], work, inv_rho, body, out);
+      }
+      base_row<L>(v, pred, p0, hi[0], inv_rho, out, base, half);
+    });
   });
   for (GridField& f : base_a) {
     fill_velocity_ghosts(grid, pred.halo, a, f);
@@ -455,10 +475,11 @@ void predict_component(const MacGrid& grid, const ComponentView& v, double inv_r
 // state plus its limited slope times (1 - A dt/dx_b)/2. Upwinding by the same velocity that
 // multiplies the state keeps the flux continuous where the velocity changes sign.
 template <Limiter L>
-void godunov_advective_row(const ComponentView& v, int b, double dt, std::ptrdiff_t p0,
-                           std::ptrdiff_t len, const double* __restrict base,
-                           const double* __restrict half_b, double* __restrict speed,
-                           double* __restrict flux) {
+[[gnu::always_inline]] inline void
+godunov_advective_row(const ComponentView& v, int b, double dt, std::ptrdiff_t p0,
+                      std::ptrdiff_t len, const double* __restrict base,
+                      const double* __restrict half_b, double* __restrict speed,
+                      double* __restrict flux) {
   const double* __restrict q = v.u[v.a];
   const std::ptrdiff_t sw = b == v.a ? v.st[b] : v.st[v.a];
   const std::ptrdiff_t sb = v.st[b];
@@ -477,9 +498,10 @@ void godunov_advective_row(const ComponentView& v, int b, double dt, std::ptrdif
 }
 
 // out -= div(A q_e) - q div(A) on the points of a row, the directions summed in the order x, y, z.
-void subtract_advection_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
-                            const double* __restrict q, std::array<const double*, 3> speed,
-                            std::array<const double*, 3> flux, double* __restrict out) {
+[[gnu::always_inline]] inline void
+subtract_advection_row(const ComponentView& v, std::ptrdiff_t p0, std::ptrdiff_t len,
+                       const double* __restrict q, std::array<const double*, 3> speed,
+                       std::array<const double*, 3> flux, double* __restrict out) {
   const double* __restrict s0 = speed[0];
   const double* __restrict s1 = speed[1];
   const double* __restrict s2 = speed[2];
@@ -511,9 +533,11 @@ void subtract_advection(const MacGrid& grid, const ComponentView& v, double dt,
   const auto& base_a = work.base[static_cast<std::size_t>(a)];
   for_control_volume_rows(layout, hi, [&](int b, std::ptrdiff_t p0, int, int, int len) {
     const auto k = static_cast<std::size_t>(b);
-    godunov_advective_row<L>(v, b, dt, p0, len, base_a[k].values().data(),
-                             work.half[k].values().data(), work.speed[b].values().data(),
-                             work.flux[b].values().data());
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      godunov_advective_row<L>(v, b, dt, p0, len, base_a[k].values().data(),
+                               work.half[k].values().data(), work.speed[b].values().data(),
+                               work.flux[b].values().data());
+    });
   });
   const double* q = v.u[a];
   double* out = rhs.values().data();
@@ -522,7 +546,9 @@ void subtract_advection(const MacGrid& grid, const ComponentView& v, double dt,
   const std::array<const double*, 3> flux = {
       work.flux[0].values().data(), work.flux[1].values().data(), work.flux[2].values().data()};
   for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
-    subtract_advection_row(v, p0, hi[0], q, speed, flux, out);
+    at_simd_level(v.level, [&]() CFDDEM_SIMD_BODY {
+      subtract_advection_row(v, p0, hi[0], q, speed, flux, out);
+    });
   });
 }
 
@@ -538,8 +564,8 @@ void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter
 void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
                   const std::array<GridField, 3>& u, const GridField& eps,
                   const std::array<double, 3>& body, std::array<GridField, 3>& rhs,
-                  MomentumWorkspace& work, bool exclude_laplacian) {
-  ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian);
+                  MomentumWorkspace& work, bool exclude_laplacian, SimdLevel level) {
+  ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian, level);
   const double inv_rho = 1.0 / gas.density;
   for (int a = 0; a < 3; ++a) {
     v.a = a;
@@ -552,9 +578,9 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
                           const std::array<GridField, 3>& u, const GridField& eps,
                           const std::array<double, 3>& body, const EdgePrediction& prediction,
                           std::array<GridField, 3>& rhs, MomentumWorkspace& work,
-                          bool exclude_laplacian) {
+                          bool exclude_laplacian, SimdLevel level) {
   size_workspace(work, grid.layout(), true);
-  ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian);
+  ComponentView v = prepare(grid, gas, u, eps, work, exclude_laplacian, level);
   const double inv_rho = 1.0 / gas.density;
   // Every component's half-step values first: they give the others' advecting velocities.
   for (int a = 0; a < 3; ++a) {
@@ -576,7 +602,9 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
       const std::array<int, 3> hi = faces_hi(grid, a);
       double* out = rhs[a].values().data();
       for_box_rows(grid.layout(), {0, 0, 0}, hi, [&](std::ptrdiff_t p0, int, int) {
-        viscous_row<true>(h, p0, hi[0], work, inv_rho, body[a], out);
+        at_simd_level(h.level, [&]() CFDDEM_SIMD_BODY {
+          viscous_row<true>(h, p0, hi[0], work, inv_rho, body[a], out);
+        });
       });
     }
   }

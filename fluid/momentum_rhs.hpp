@@ -5,6 +5,7 @@
 
 #include <array>
 
+#include "core/simd_level.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/mac_grid.hpp"
 #include "fluid/muscl_kernels.hpp"
@@ -43,10 +44,13 @@ struct MomentumWorkspace {
 // 4.4 MB on the 1e5 bed's grid). The passes size what is missing anyway.
 void size_workspace(MomentumWorkspace& work, const GridLayout& layout, bool godunov);
 
+// `level`: the instruction set of the row loops' copy (core/simd_level.hpp); every level gives
+// bitwise the same fields, so only tests and measurements name one.
 void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
                   const std::array<GridField, 3>& u, const GridField& eps,
                   const std::array<double, 3>& body, std::array<GridField, 3>& rhs,
-                  MomentumWorkspace& work, bool exclude_laplacian = false);
+                  MomentumWorkspace& work, bool exclude_laplacian = false,
+                  SimdLevel level = simd_level());
 // Same, with a workspace of its own (allocates).
 void momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter limiter,
                   const std::array<GridField, 3>& u, const GridField& eps,
@@ -87,6 +91,6 @@ void godunov_momentum_rhs(const MacGrid& grid, const GasProperties& gas, Limiter
                           const std::array<GridField, 3>& u, const GridField& eps,
                           const std::array<double, 3>& body, const EdgePrediction& prediction,
                           std::array<GridField, 3>& rhs, MomentumWorkspace& work,
-                          bool exclude_laplacian);
+                          bool exclude_laplacian, SimdLevel level = simd_level());
 
 } // namespace cfddem::fluid

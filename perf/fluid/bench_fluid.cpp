@@ -17,6 +17,7 @@
 #include <mpi.h>
 #include <tbb/global_control.h>
 
+#include "core/simd_level.hpp"
 #include "fluid/deposition.hpp"
 #include "fluid/gas_solver.hpp"
 #include "fluid/ghost_fill.hpp"
@@ -415,14 +416,25 @@ void BM_ViscousSolveBed(benchmark::State& state) {
 }
 BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
-// The explicit momentum right-hand side alone (advection + viscous stress, three components).
+// The momentum right-hand side alone (advection + viscous stress, three components): the method
+// of lines' (godunov 0) or the Godunov step's with its edge prediction (1), its row loops at the
+// instruction set level `simd` (0 x86-64, 1 x86-64-v3, 2 x86-64-v4; a level the CPU lacks is
+// skipped). --benchmark_enable_random_interleaving compares the levels on one machine state.
 void BM_MomentumRhsRiser(benchmark::State& state) {
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 0));
+  const auto level = static_cast<SimdLevel>(state.range(1));
+  if (level > cpu_simd_level()) {
+    state.SkipWithError("the CPU has no such instruction set");
+    return;
+  }
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 2));
   const MacGrid grid(riser_spec());
   const GasProperties gas{1.0, 2e-5, {0.0, -9.80665, 0.0}};
   std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
   std::array<GridField, 3> rhs = u;
+  std::array<GridField, 3> gain = u;
+  std::array<GridField, 3> push = u;
   GridField eps = grid.make_field();
+  GridField pressure = grid.make_field();
   fill_particle_fields(grid, eps, nullptr, 7);
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<double> uni(-0.05, 0.05);
@@ -431,10 +443,25 @@ void BM_MomentumRhsRiser(benchmark::State& state) {
       v = uni(rng);
     }
   }
+  for (auto& c : gain) {
+    std::fill(c.values().begin(), c.values().end(), 1.0); // no drag
+  }
   fill_velocity_ghosts(grid, u);
+  EdgePrediction pred;
+  pred.dt = 1e-4;
+  pred.pressure = &pressure;
+  pred.drag_gain = &gain;
+  pred.drag_push = &push;
   MomentumWorkspace work; // as the solver: allocated once
+  const bool godunov = state.range(0) == 1;
   for (auto _ : state) {
-    momentum_rhs(grid, gas, Limiter::van_leer, u, eps, {0.0, 0.0, 0.0}, rhs, work);
+    if (godunov) {
+      godunov_momentum_rhs(grid, gas, Limiter::van_leer, u, eps, {0.0, 0.0, 0.0}, pred, rhs, work,
+                           false, level);
+    } else {
+      momentum_rhs(grid, gas, Limiter::van_leer, u, eps, {0.0, 0.0, 0.0}, rhs, work, false,
+                   level);
+    }
     benchmark::DoNotOptimize(rhs[0].values().data());
   }
   state.counters["cells_per_s"] = benchmark::Counter(
@@ -442,9 +469,8 @@ void BM_MomentumRhsRiser(benchmark::State& state) {
   state.counters["ns_per_cell"] = ns_per(kRiserCells);
 }
 BENCHMARK(BM_MomentumRhsRiser)
-    ->ArgName("threads")
-    ->Arg(1)
-    ->Arg(2)
+    ->ArgNames({"godunov", "simd", "threads"})
+    ->ArgsProduct({{0, 1}, {0, 1, 2}, {1, 2}})
     ->UseRealTime()
     ->Unit(benchmark::kMillisecond);
 

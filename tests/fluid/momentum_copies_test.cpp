@@ -3,7 +3,6 @@
 // the baseline copy's fields, for both limiters, viscous or not, with the Laplacian left to the
 // implicit solve or not, on a walled column with inflow and outflow and on a periodic box.
 #include <array>
-#include <cstring>
 #include <random>
 #include <string>
 
@@ -16,10 +15,7 @@
 namespace cfddem::fluid {
 namespace {
 
-bool same_bits(const GridField& a, const GridField& b) {
-  return a.values().size() == b.values().size() &&
-         std::memcmp(a.values().data(), b.values().data(), a.values().size() * sizeof(double)) == 0;
-}
+using test::same_bits;
 
 // Rows of 19 and 21 points: two full AVX-512 vectors and a remainder.
 MacGridSpec spec_of(bool periodic) {

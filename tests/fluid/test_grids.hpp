@@ -4,12 +4,19 @@
 #include <array>
 #include <cmath>
 #include <cstddef>
+#include <cstring>
 #include <numbers>
 
 #include "fluid/grid_field.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::fluid::test {
+
+// The two fields hold the same doubles bit for bit, ghosts included.
+inline bool same_bits(const GridField& a, const GridField& b) {
+  return a.values().size() == b.values().size() &&
+         std::memcmp(a.values().data(), b.values().data(), a.values().size() * sizeof(double)) == 0;
+}
 
 // The 2-norm over the interior cells of div(eps u) + d(eps)/dt: what the projection drives to
 // zero.

@@ -2,7 +2,6 @@
 // threaded deposition and interpolation give bitwise the same fields on 1 and 2 TBB threads.
 #include <array>
 #include <cmath>
-#include <cstring>
 #include <random>
 #include <string>
 #include <vector>
@@ -17,10 +16,7 @@
 namespace cfddem::fluid {
 namespace {
 
-bool same_bits(const GridField& a, const GridField& b) {
-  return a.values().size() == b.values().size() &&
-         std::memcmp(a.values().data(), b.values().data(), a.values().size() * sizeof(double)) == 0;
-}
+using test::same_bits;
 
 // A packed column: no-slip sides, inflow with a tangential part, outflow, gravity, a non-uniform
 // bed with drag towards moving particles; or the riser's periodic box with a pressure drop.

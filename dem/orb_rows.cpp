@@ -106,6 +106,18 @@ void OrbScheme::regrid() {
   ++stats_.regrids;
 }
 
+// The ORB leaf that holds particle i at its wrapped position; a RunError naming the particle
+// where none does (it left the domain).
+std::uint32_t OrbScheme::leaf_holding(std::size_t i) const {
+  const int k =
+      decomp_.tree.locate(geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2));
+  if (k < 0)
+    throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
+                               "the domain",
+                               time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
+  return static_cast<std::uint32_t>(k);
+}
+
 // Particles that left their leaf are moved to the leaf that now holds them, keeping every leaf a
 // contiguous range. A few particles cross a boundary per sub-iteration, so instead of sorting the
 // whole store each one walks along the leaves between its old and new leaf by swaps with the
@@ -139,16 +151,12 @@ void OrbScheme::resort() {
       // Most particles are still inside their (half-open) box: skip the wrap and the tree
       // descent (a box lies inside the domain, so an unwrapped coordinate inside it is final).
       const double px = p_.x[i], py = p_.y[i], pz = p_.z[i];
-      int k = static_cast<int>(l);
+      std::uint32_t k = static_cast<std::uint32_t>(l);
       if (!(box.lo[0] <= px && px < box.hi[0] && box.lo[1] <= py && py < box.hi[1] &&
             box.lo[2] <= pz && pz < box.hi[2]))
-        k = decomp_.tree.locate(geom_.wrap(px, 0), geom_.wrap(py, 1), geom_.wrap(pz, 2));
-      if (k < 0)
-        throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
-                                   "the domain",
-                                   time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
-      target[i] = static_cast<std::uint32_t>(k);
-      moved |= static_cast<std::size_t>(k) != l;
+        k = leaf_holding(i);
+      target[i] = k;
+      moved |= k != l;
     }
   }
   if (!moved)
@@ -215,14 +223,8 @@ void OrbScheme::sort_into_leaves() {
   leaf.resize(n);
   std::vector<std::uint32_t> start(nl + 1, 0);
   for (std::size_t i = 0; i < n; ++i) {
-    const int k =
-        decomp_.tree.locate(geom_.wrap(p_.x[i], 0), geom_.wrap(p_.y[i], 1), geom_.wrap(p_.z[i], 2));
-    if (k < 0)
-      throw RunError(fmt::format("t = {:.9g} s: particle {} at ({:.6g}, {:.6g}, {:.6g}) m left "
-                                 "the domain",
-                                 time(), p_.id[i], p_.x[i], p_.y[i], p_.z[i]));
-    leaf[i] = static_cast<std::uint32_t>(k);
-    ++start[static_cast<std::size_t>(k) + 1];
+    leaf[i] = leaf_holding(i);
+    ++start[leaf[i] + 1];
   }
   for (std::size_t l = 0; l < nl; ++l)
     start[l + 1] += start[l];
@@ -298,9 +300,7 @@ bool OrbScheme::held_global_decision() {
   const double* z = p_.z.data();
   const double* r = p_.radius.data();
   const auto near = [&](std::uint32_t a, std::uint32_t c) {
-    const double dx = geom_.image(x[c] - x[a], 0), dy = geom_.image(y[c] - y[a], 1),
-                 dz = geom_.image(z[c] - z[a], 2);
-    return a != c && within_proximity(dx * dx + dy * dy + dz * dz, r[a] + r[c], cfg_.prox);
+    return a != c && within_proximity(separation2(a, c), r[a] + r[c], cfg_.prox);
   };
   CellList& cells = pairs_.cells;
   const bool binned = pairs_.prox_from_pairs;
@@ -325,6 +325,13 @@ bool OrbScheme::held_global_decision() {
     }
   }
   return static_cast<double>(fine) > bar;
+}
+
+// |x_c - x_a|^2 by the minimum image.
+double OrbScheme::separation2(std::uint32_t a, std::uint32_t c) const {
+  const double dx = geom_.image(p_.x[c] - p_.x[a], 0), dy = geom_.image(p_.y[c] - p_.y[a], 1),
+               dz = geom_.image(p_.z[c] - p_.z[a], 2);
+  return dx * dx + dy * dy + dz * dz;
 }
 
 // One cell list over the whole store (indices binned, the store is not moved): contact
@@ -510,15 +517,7 @@ void OrbScheme::mark_near(bool contact_bound) {
   const std::size_t n = p_.size();
   std::vector<unsigned char>& near = rows_.near;
   near.assign(n, 0);
-  const double* x = p_.x.data();
-  const double* y = p_.y.data();
-  const double* z = p_.z.data();
   const double* r = p_.radius.data();
-  auto separation2 = [&](std::uint32_t a, std::uint32_t c) {
-    const double dx = geom_.image(x[c] - x[a], 0), dy = geom_.image(y[c] - y[a], 1),
-                 dz = geom_.image(z[c] - z[a], 2);
-    return dx * dx + dy * dy + dz * dz;
-  };
   if (cfg_.time_to_contact) {
     for (std::size_t q = 0; q < pairs_.ca.size(); ++q) {
       const std::uint32_t a = pairs_.ca[q], c = pairs_.cb[q];

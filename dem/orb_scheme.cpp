@@ -537,17 +537,12 @@ bool OrbScheme::global_step(Batch& bt, LeafStep& st, const LeafLive& p, const Le
   std::uint64_t still = ~std::uint64_t{0};
   for (const std::uint64_t b : still_of)
     still &= b;
+  // `still`: within skin/2 (the exact test), or without it every new speed within the cap.
+  const bool within = (still >> 63) != 0;
   if (rank_)
-    return (still >> 63) != 0;
-  if (exact) {
-    travel.forget(); // exact until the next build
-    return (still >> 63) != 0;
-  }
-  if ((still >> 63) != 0) { // every new speed within the cap
-    travel.advance(st.hk);
-    return true;
-  }
-  return measure_travel() == 0;
+    return within;
+  const std::int64_t far = travel.close_pass(exact, within, st.hk, [&] { return measure_travel(); });
+  return exact ? within : far == 0;
 }
 
 // One rank: the particles farther than skin/2 from the pairs' build, exactly, with the travel

@@ -330,6 +330,8 @@ private:
   // One rank's steps (orb_rows.cpp).
   void wrap_positions();
   void restore_held_tree(State& s);
+  std::uint32_t leaf_holding(std::size_t i) const;
+  double separation2(std::uint32_t a, std::uint32_t c) const;
   void regrid();
   void resort();
   void sort_into_leaves();

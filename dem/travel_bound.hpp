@@ -47,6 +47,23 @@ struct TravelBound {
     travelled += dt * cap;
     ++passes;
   }
+  // The bound after a pass of length dt, by the rule above: a pass that ran the exact test
+  // (`exact`) leaves it unknown until the next build; one that left it out grows it while every
+  // new |v| stayed within the cap (`within_cap`), and otherwise calls `measure` (the exact test
+  // over the particles, restarting the bound: measure() below). Returns what `measure` counted
+  // (the particles farther than skin/2), 0 where it was not called.
+  template <class Measure>
+  std::int64_t close_pass(bool exact, bool within_cap, double dt, Measure&& measure) {
+    if (exact) {
+      forget();
+      return 0;
+    }
+    if (within_cap) {
+      advance(dt);
+      return 0;
+    }
+    return measure();
+  }
   // After a pass that left the test out where some new |v| passed the cap: the exact test over
   // particles [0, n) of `c` (returns how many are farther than sqrt(half_skin2) from their
   // reference), the bound restarted at the largest displacement and the cap at twice the largest

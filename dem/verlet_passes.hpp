@@ -391,12 +391,9 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
   } else {
     total = tbb::parallel_reduce(all, Partial{}, body, join, tbb::static_partitioner{});
   }
-  if (exact)
-    travel.forget(); // exact until the next build
-  else if (!total.over_cap)
-    travel.advance(dt);
-  else
-    total.moved += travel.measure(columns, n, step.half_skin2);
+  total.moved += travel.close_pass(exact, !total.over_cap, dt, [&] {
+    return travel.measure(columns, n, step.half_skin2);
+  });
   out.moved = total.moved;
   out.join(total.walls);
   if (total.failures > 0) {

@@ -38,7 +38,7 @@ import sys
 import tempfile
 
 from mpi_rows import (compare_rows, column_scales, hcs_scales, mpirun, outputs,
-                      particle_snapshots, without_wall_seconds, worst_of)
+                      run_with_snapshots, without_wall_seconds, worst_of)
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 FRICTION = len(sys.argv) > 5 and sys.argv[5] == "friction"
@@ -63,9 +63,7 @@ SKIP = ["wall_seconds", "force_evaluations", "neighbor_builds"]
 
 
 def run(ranks, out, extra=()):
-    mpirun(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + list(extra))
-    rows, info = outputs(out)
-    return rows, info, particle_snapshots(out)
+    return run_with_snapshots(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + list(extra))
 
 
 def compare(one, many, scale, tol):

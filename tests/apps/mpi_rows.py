@@ -35,6 +35,12 @@ def run_rows(mpiexec, ranks, cfddem, scene, out, args):
     return outputs(out)
 
 
+def run_with_snapshots(mpiexec, ranks, cfddem, scene, out, args):
+    """run_rows, and the particle_snapshots of the run (None without h5py)."""
+    rows, info = run_rows(mpiexec, ranks, cfddem, scene, out, args)
+    return rows, info, particle_snapshots(out)
+
+
 def without_wall_seconds(rows):
     """The rows with the one column that differs between two equal runs left out."""
     return [{k: v for k, v in r.items() if k != "wall_seconds"} for r in rows]

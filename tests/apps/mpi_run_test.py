@@ -21,7 +21,7 @@ import sys
 import tempfile
 
 from mpi_rows import (compare_rows, hcs_scales, mpirun, outputs, particle_snapshots,
-                      without_wall_seconds, worst_of)
+                      run_with_snapshots, without_wall_seconds, worst_of)
 
 MPIEXEC, CFDDEM, SOURCE, RANKS = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 SCENE = os.path.join(SOURCE, "scenes", "hcs_small.toml")
@@ -35,9 +35,7 @@ FRICTION = ["dem.friction=0.5", "domain.hi=[0.64e-3,0.64e-3,0.64e-3]", "run.end_
 
 
 def run(ranks, out, extra):
-    mpirun(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + extra)
-    rows, info = outputs(out)
-    return rows, info, particle_snapshots(out)
+    return run_with_snapshots(MPIEXEC, ranks, CFDDEM, SCENE, out, ARGS + extra)
 
 
 def main():

@@ -70,7 +70,7 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo,
       homogeneous_(grid.distributed() ? MacGrid(homogeneous_spec(grid.spec()), grid.box())
                                       : MacGrid(homogeneous_spec(grid.spec()))),
       halo_(halo), r_(grid.layout()), p_(grid.layout()), ap_(grid.layout()), z_(grid.layout()),
-      inv_diag_(grid.layout()), dir_(grid.layout()), dir_next_(grid.layout()) {
+      dir_(grid.layout()), dir_next_(grid.layout()) {
   for (int b = 0; b < 3; ++b) {
     inflow_[b] = {grid.inflow_face(b, 0), grid.inflow_face(b, 1)};
     eps_seen_[static_cast<std::size_t>(b)] = GridField(grid.layout());
@@ -145,6 +145,53 @@ void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
       }
     });
   }
+}
+
+const std::vector<char>& ImplicitViscosity::regular_rows(int comp) {
+  const auto c = static_cast<std::size_t>(comp);
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  const std::size_t rows = hi[1] < lo[1] || hi[2] < lo[2]
+                               ? 0
+                               : static_cast<std::size_t>(hi[1] - lo[1] + 1) *
+                                     static_cast<std::size_t>(hi[2] - lo[2] + 1);
+  std::vector<char>& regular = regular_[c];
+  if (regular.size() == rows) {
+    return regular;
+  }
+  regular.assign(rows, 0);
+  if (open_[c] != nullptr) {
+    return regular; // a closed face's cut links live in the stored coefficients only
+  }
+  // As face_coefficients: a face along b is the low face of the unknown at idx and the high face
+  // of the one below it, and either may lie on an inflow plane. A row's faces along x (b = 0)
+  // can do so only at its two ends, its faces along y or z all or none.
+  const auto on_inflow = [&](int b, std::array<int, 3> idx) {
+    std::array<int, 3> below = idx;
+    below[b] -= 1;
+    return inflow_plane(b, 0, idx) || inflow_plane(b, 1, below);
+  };
+  std::size_t n = 0;
+  for (int k = lo[2]; k <= hi[2]; ++k) {
+    for (int j = lo[1]; j <= hi[1]; ++j, ++n) {
+      bool plain = true;
+      for (int b = 0; b < 3 && plain; ++b) {
+        if (b == comp) {
+          continue; // eps of the cell below: never an inflow plane's
+        }
+        std::array<int, 3> low{lo[0], j, k};
+        std::array<int, 3> high = low;
+        if (b == 0) {
+          high[0] = hi[0] + 1;
+        } else {
+          high[b] += 1;
+        }
+        plain = !on_inflow(b, low) && !on_inflow(b, high);
+      }
+      regular[n] = plain ? 1 : 0;
+    }
+  }
+  return regular;
 }
 
 ImplicitViscosity::~ImplicitViscosity() = default;

@@ -12,6 +12,7 @@
 #include <memory>
 #include <vector>
 
+#include "core/simd_level.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
@@ -29,6 +30,9 @@ struct ViscousSolveReport {
   // makes every row strictly diagonally dominant); 0 when the solve did not compute it.
   double dominance = 0.0;
   bool chebyshev = false; // solved by the Chebyshev iteration
+  // Rows of unknowns whose face coefficients the Chebyshev iteration computed from eps rather
+  // than read (solve_chebyshev).
+  int rows_from_eps = 0;
 };
 
 // Chebyshev iteration is used while the dominance ratio rho is at most this. Its contraction per
@@ -72,6 +76,14 @@ public:
   // Off: every solve goes to CG (tests of the CG paths).
   void use_chebyshev(bool on) { chebyshev_ = on; }
 
+  // The instruction set of the Chebyshev rows (default simd_level(); tests and benchmarks
+  // compare the levels, which give the same bits).
+  void use_simd_level(SimdLevel level) { level_ = level; }
+
+  // On: every Chebyshev row reads the stored face coefficients, none computes them from eps
+  // (tests: both give the same bits).
+  void use_stored_coefficients(bool on) { stored_only_ = on; }
+
 private:
   // Chebyshev iteration with the Jacobi preconditioner, when the rows' dominance ratio is at
   // most kChebyshevMaxDominance (report.chebyshev false otherwise, u untouched). Pointwise
@@ -83,6 +95,11 @@ private:
   // of comp and of the one beyond the box's high end along b; recomputed only when eps (ghosts
   // included) differs from the last one seen for comp (both stages of a gas step share it).
   void face_coefficients(int comp, const GridField& eps);
+  // Per row of comp's unknowns (j fastest, then k), 1 where its face coefficients are
+  // face_coefficients' plain eps formulas (no face on an inflow plane, no solid mask), so the
+  // Chebyshev rows compute them from eps instead of reading the three stored arrays; 0 where
+  // they read them. Depends on the grid alone: made once per component.
+  const std::vector<char>& regular_rows(int comp);
   // CG: preconditioned by the multigrid on one grid (with Jacobi CG to finish if it stalls), by
   // Jacobi on a distributed grid.
   ViscousSolveReport solve_cg(int comp, double c, const GridField& eps, const GridField& diag,
@@ -126,13 +143,16 @@ private:
   std::array<Multigrid, 3> mg_;
   bool multigrid_ = true;
   bool chebyshev_ = true;
-  // Chebyshev: face coefficients, inverse diagonal and the two search directions.
+  // Chebyshev: face coefficients, regular rows and the two search directions.
   std::array<std::array<GridField, 3>, 3> cv_k_;
+  std::array<std::vector<char>, 3> regular_;
   // A column's open faces per component (the caller's SolidMask; null without a column).
   std::array<const double*, 3> open_{};
   std::array<GridField, 3> eps_seen_;
   std::array<bool, 3> cv_k_valid_{};
-  GridField inv_diag_, dir_, dir_next_;
+  GridField dir_, dir_next_;
+  SimdLevel level_ = simd_level();
+  bool stored_only_ = false;
 };
 
 } // namespace cfddem::fluid

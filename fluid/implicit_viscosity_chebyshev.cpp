@@ -5,10 +5,12 @@
 // products.
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 #include <tbb/parallel_for.h>
 
+#include "core/simd_level.hpp"
 #include "fluid/box_loops.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/implicit_viscosity.hpp"
@@ -24,52 +26,180 @@ struct Operator {
   const double* k1;
   const double* k2;
   const double* diag;
-  const double* inv; // 1 / A's diagonal
   std::ptrdiff_t sy, sz;
   double c;
 };
 
-// (A x)_p with x's ghosts filled. Restrict parameters: GCC takes no-alias from parameters only,
-// and the row loops below vectorize only with it.
-[[gnu::always_inline]] inline double
-apply_at(const double* __restrict k0, const double* __restrict k1, const double* __restrict k2,
-         const double* __restrict dg, const double* __restrict x, std::ptrdiff_t p,
-         std::ptrdiff_t sy, std::ptrdiff_t sz, double c) {
-  const double xp = x[p];
-  const double lap = (k0[p + 1] * (x[p + 1] - xp) - k0[p] * (xp - x[p - 1])) +
-                     (k1[p + sy] * (x[p + sy] - xp) - k1[p] * (xp - x[p - sy])) +
-                     (k2[p + sz] * (x[p + sz] - xp) - k2[p] * (xp - x[p - sz]));
-  return dg[p] * xp - c * lap;
-}
+// Where a row's face coefficients come from: the stored arrays k0, k1, k2 (A = -1), or eps, as
+// face_coefficients computes them where no face of the row lies on an inflow plane or beside a
+// closed face (a regular row; A = the component's axis): eps of the cell below along A, else the
+// (A, b) edge's four cells. The same operations in the same order give the same bits, without
+// reading three stored arrays at every iteration.
+struct FaceSource {
+  const double* k0;
+  const double* k1;
+  const double* k2;
+  const double* ep;
+};
 
-// r = b - A x and d = r / A's diagonal on the points p0 .. p0 + n - 1 of a row.
-[[gnu::noinline]] void residual_row(std::ptrdiff_t p0, std::ptrdiff_t n,
-                                    const double* __restrict k0, const double* __restrict k1,
-                                    const double* __restrict k2, const double* __restrict dg,
-                                    const double* __restrict inv, const double* __restrict x,
-                                    const double* __restrict b, double* __restrict r,
-                                    double* __restrict d, std::ptrdiff_t sy, std::ptrdiff_t sz,
-                                    double c) {
-  for (std::ptrdiff_t p = p0; p < p0 + n; ++p) {
-    r[p] = b[p] - apply_at(k0, k1, k2, dg, x, p, sy, sz, c);
-    d[p] = inv[p] * r[p];
+// The coefficients of unknown p into k (k[2b]: its low face along b, k[2b + 1]: its high face);
+// ix, iy, iz: 1 / dx_b^2.
+template <int A>
+[[gnu::always_inline]] inline void faces_at(const double* k0, const double* k1, const double* k2,
+                                            const double* ep, double ix, double iy, double iz,
+                                            std::ptrdiff_t p, std::ptrdiff_t sy, std::ptrdiff_t sz,
+                                            double (&k)[6]) {
+  if constexpr (A < 0) {
+    k[0] = k0[p], k[1] = k0[p + 1], k[2] = k1[p], k[3] = k1[p + sy], k[4] = k2[p],
+    k[5] = k2[p + sz];
+  } else {
+    const std::ptrdiff_t s[3] = {1, sy, sz};
+    const double inv_dx2[3] = {ix, iy, iz};
+    const std::ptrdiff_t sa = s[A];
+    for (int b = 0; b < 3; ++b) {
+      if (b == A) {
+        k[2 * b] = inv_dx2[b] * ep[p - sa];
+        k[2 * b + 1] = inv_dx2[b] * ep[p];
+        continue;
+      }
+      const std::ptrdiff_t sb = s[b];
+      const std::ptrdiff_t q = p + sb;
+      k[2 * b] = inv_dx2[b] * (0.25 * (ep[p] + ep[p - sa] + ep[p - sb] + ep[p - sa - sb]));
+      k[2 * b + 1] = inv_dx2[b] * (0.25 * (ep[q] + ep[q - sa] + ep[q - sb] + ep[q - sa - sb]));
+    }
   }
 }
 
-// (Not inlined: GCC keeps the restrict parameters of a function it calls, not of one it inlines.)
+// (A x)_p from the unknown's face coefficients; x's ghosts filled.
+[[gnu::always_inline]] inline double apply_at(const double (&k)[6], double dg, const double* x,
+                                              std::ptrdiff_t p, std::ptrdiff_t sy,
+                                              std::ptrdiff_t sz, double c) {
+  const double xp = x[p];
+  const double lap = (k[1] * (x[p + 1] - xp) - k[0] * (xp - x[p - 1])) +
+                     (k[3] * (x[p + sy] - xp) - k[2] * (xp - x[p - sy])) +
+                     (k[5] * (x[p + sz] - xp) - k[4] * (xp - x[p - sz]));
+  return dg * xp - c * lap;
+}
+
+[[gnu::always_inline]] inline double inverse_diagonal(const double (&k)[6], double dg, double c) {
+  const double off = c * ((k[0] + k[1]) + (k[2] + k[3]) + (k[4] + k[5]));
+  return 1.0 / (dg + off);
+}
+
+// A row's scalars: its first point and length, the strides, the operator's c and the
+// iteration's coefficients (keep, push; unused by the residual).
+struct RowScalars {
+  std::ptrdiff_t p0, n, sy, sz;
+  double c, keep, push;
+  double ix, iy, iz; // 1 / dx_b^2
+};
+
+// r = b - A x and d = r / A's diagonal on the points of a row.
+template <int A>
+[[gnu::always_inline]] inline void residual_body(const double* k0, const double* k1,
+                                                 const double* k2, const double* ep,
+                                                 const double* dg, const double* x, const double* b,
+                                                 double* r, double* d, const RowScalars& s) {
+  const std::ptrdiff_t sy = s.sy, sz = s.sz;
+  const double c = s.c, ix = s.ix, iy = s.iy, iz = s.iz;
+  for (std::ptrdiff_t p = s.p0; p < s.p0 + s.n; ++p) {
+    double k[6];
+    faces_at<A>(k0, k1, k2, ep, ix, iy, iz, p, sy, sz, k);
+    r[p] = b[p] - apply_at(k, dg[p], x, p, sy, sz, c);
+    d[p] = inverse_diagonal(k, dg[p], c) * r[p];
+  }
+}
+
 // One Chebyshev iteration on a row: x += d, r -= A d, d_next = keep d + push r / A's diagonal.
-[[gnu::noinline]] void chebyshev_row(std::ptrdiff_t p0, std::ptrdiff_t n,
-                                     const double* __restrict k0, const double* __restrict k1,
-                                     const double* __restrict k2, const double* __restrict dg,
-                                     const double* __restrict inv, const double* __restrict d,
-                                     double* __restrict x, double* __restrict r,
-                                     double* __restrict dn, std::ptrdiff_t sy, std::ptrdiff_t sz,
-                                     double c, double keep, double push) {
-  for (std::ptrdiff_t p = p0; p < p0 + n; ++p) {
-    const double q = apply_at(k0, k1, k2, dg, d, p, sy, sz, c);
+// The inverse diagonal is computed again at every iteration rather than read: a division costs
+// less than streaming one more array (the 1e5 bed's fields do not fit the caches).
+template <int A>
+[[gnu::always_inline]] inline void chebyshev_body(const double* k0, const double* k1,
+                                                  const double* k2, const double* ep,
+                                                  const double* dg, const double* d, double* x,
+                                                  double* r, double* dn, const RowScalars& s) {
+  const std::ptrdiff_t sy = s.sy, sz = s.sz;
+  const double c = s.c, keep = s.keep, push = s.push, ix = s.ix, iy = s.iy, iz = s.iz;
+  for (std::ptrdiff_t p = s.p0; p < s.p0 + s.n; ++p) {
+    double k[6];
+    faces_at<A>(k0, k1, k2, ep, ix, iy, iz, p, sy, sz, k);
+    const double q = apply_at(k, dg[p], d, p, sy, sz, c);
     x[p] += d[p];
     r[p] -= q;
-    dn[p] = keep * d[p] + push * inv[p] * r[p];
+    dn[p] = keep * d[p] + push * inverse_diagonal(k, dg[p], c) * r[p];
+  }
+}
+
+// The row kernels' copies, one per instruction set (core/simd_level.hpp; the same operations in
+// the same order at every level). Not inlined, with restrict parameters: GCC keeps the restrict
+// of the parameters of a function it calls, not of one it inlines or of a local pointer, and the
+// loops vectorize only with it.
+#define CFDDEM_CHEBYSHEV_ROWS(SUFFIX, ...)                                                         \
+  template <int A>                                                                                 \
+  [[gnu::noinline __VA_ARGS__]] void residual_##SUFFIX(                                            \
+      const double* __restrict k0, const double* __restrict k1, const double* __restrict k2,       \
+      const double* __restrict ep, const double* __restrict dg, const double* __restrict x,        \
+      const double* __restrict b, double* __restrict r, double* __restrict d,                      \
+      const RowScalars& s) {                                                                       \
+    residual_body<A>(k0, k1, k2, ep, dg, x, b, r, d, s);                                           \
+  }                                                                                                \
+  template <int A>                                                                                 \
+  [[gnu::noinline __VA_ARGS__]] void chebyshev_##SUFFIX(                                           \
+      const double* __restrict k0, const double* __restrict k1, const double* __restrict k2,       \
+      const double* __restrict ep, const double* __restrict dg, const double* __restrict d,        \
+      double* __restrict x, double* __restrict r, double* __restrict dn, const RowScalars& s) {    \
+    chebyshev_body<A>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                         \
+  }
+CFDDEM_CHEBYSHEV_ROWS(x86_64)
+#if defined(CFDDEM_SIMD_COPIES)
+CFDDEM_CHEBYSHEV_ROWS(v3, , gnu::target("arch=x86-64-v3"))
+CFDDEM_CHEBYSHEV_ROWS(v4, , gnu::target("arch=x86-64-v4"))
+#endif
+#undef CFDDEM_CHEBYSHEV_ROWS
+
+// The row kernels at `level`, coefficients from A (-1: stored; else eps, A the component).
+template <int A>
+void residual_row(SimdLevel level, const FaceSource& f, const double* dg, const double* x,
+                  const double* b, double* r, double* d, const RowScalars& s) {
+#if defined(CFDDEM_SIMD_COPIES)
+  if (level == SimdLevel::x86_64_v4) {
+    return residual_v4<A>(f.k0, f.k1, f.k2, f.ep, dg, x, b, r, d, s);
+  }
+  if (level == SimdLevel::x86_64_v3) {
+    return residual_v3<A>(f.k0, f.k1, f.k2, f.ep, dg, x, b, r, d, s);
+  }
+#endif
+  (void)level;
+  residual_x86_64<A>(f.k0, f.k1, f.k2, f.ep, dg, x, b, r, d, s);
+}
+
+template <int A>
+void chebyshev_row(SimdLevel level, const FaceSource& f, const double* dg, const double* d,
+                   double* x, double* r, double* dn, const RowScalars& s) {
+#if defined(CFDDEM_SIMD_COPIES)
+  if (level == SimdLevel::x86_64_v4) {
+    return chebyshev_v4<A>(f.k0, f.k1, f.k2, f.ep, dg, d, x, r, dn, s);
+  }
+  if (level == SimdLevel::x86_64_v3) {
+    return chebyshev_v3<A>(f.k0, f.k1, f.k2, f.ep, dg, d, x, r, dn, s);
+  }
+#endif
+  (void)level;
+  chebyshev_x86_64<A>(f.k0, f.k1, f.k2, f.ep, dg, d, x, r, dn, s);
+}
+
+// Calls f(axis) with the row's coefficient source as a compile-time integer: the component's
+// axis on a regular row (eps), -1 otherwise (the stored arrays).
+template <class F>
+[[gnu::always_inline]] inline void with_row_faces(int comp, bool regular, F&& f) {
+  if (!regular) {
+    f(std::integral_constant<int, -1>{});
+  } else if (comp == 0) {
+    f(std::integral_constant<int, 0>{});
+  } else if (comp == 1) {
+    f(std::integral_constant<int, 1>{});
+  } else {
+    f(std::integral_constant<int, 2>{});
   }
 }
 
@@ -111,22 +241,34 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
                     cv_k_[cs][1].values().data(),
                     cv_k_[cs][2].values().data(),
                     diag.values().data(),
-                    inv_diag_.values().data(),
                     layout.stride(1),
                     layout.stride(2),
                     c};
-  double* inv = inv_diag_.values().data();
+  // The rows whose coefficients come from eps (regular_rows), their source's arguments.
+  const std::vector<char>& regular = regular_rows(comp);
+  // Computing the coefficients costs about 20 more operations per unknown: with two doubles
+  // per instruction (baseline x86-64) they cost more than the bytes they save
+  // (BM_ViscousChebyshevBed).
+  const bool eps_rows = !stored_only_ && level_ != SimdLevel::x86_64;
+  const auto from_eps = [&](int j, int k) {
+    return eps_rows && regular[static_cast<std::size_t>(j - lo[1]) +
+                               static_cast<std::size_t>(hi[1] - lo[1] + 1) *
+                                   static_cast<std::size_t>(k - lo[2])] != 0;
+  };
+  // eps_seen_: the eps the stored coefficients were made from.
+  const FaceSource src{op.k0, op.k1, op.k2, eps_seen_[cs].values().data()};
+  const double ix = 1.0 / (grid_.spacing(0) * grid_.spacing(0));
+  const double iy = 1.0 / (grid_.spacing(1) * grid_.spacing(1));
+  const double iz = 1.0 / (grid_.spacing(2) * grid_.spacing(2));
   ViscousSolveReport report;
-  // Inverse diagonals and the dominance ratio (a max is exact in any order).
+  // The dominance ratio (a max is exact in any order).
   std::vector<double> plane_max(static_cast<std::size_t>(hi[2] - lo[2] + 1), 0.0);
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int k) {
     double m = 0.0;
     for (std::ptrdiff_t p = row; p <= row + len; ++p) {
       const double off = c * ((op.k0[p] + op.k0[p + 1]) + (op.k1[p] + op.k1[p + op.sy]) +
                               (op.k2[p] + op.k2[p + op.sz]));
-      const double d = op.diag[p] + off;
-      inv[p] = 1.0 / d;
-      m = std::max(m, off / d);
+      m = std::max(m, off / (op.diag[p] + off));
     }
     double& pm = plane_max[static_cast<std::size_t>(k - lo[2])];
     pm = std::max(pm, m);
@@ -140,6 +282,10 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     return report; // not chosen: u untouched
   }
   report.chebyshev = true;
+  if (eps_rows) {
+    report.rows_from_eps =
+        static_cast<int>(std::count(regular.begin(), regular.end(), static_cast<char>(1)));
+  }
   // Sums over the unknowns: per z-plane, rows in order, then the planes in order (the same
   // whatever the thread count).
   std::vector<std::array<double, 2>> partial(plane_max.size());
@@ -159,9 +305,11 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   double* r = r_.values().data();
   double* d = dir_.values().data();
   std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
-  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int k) {
-    residual_row(row, len + 1, op.k0, op.k1, op.k2, op.diag, op.inv, x, b, r, d, op.sy, op.sz,
-                 op.c);
+  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
+    const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
+    with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+      residual_row<decltype(axis)::value>(level_, src, op.diag, x, b, r, d, rs);
+    });
     auto& s = partial[static_cast<std::size_t>(k - lo[2])];
     s[0] += row_squares(b, row, len + 1);
     s[1] += row_squares(r, row, len + 1);
@@ -183,9 +331,11 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     d = dir_.values().data();
     double* dn = dir_next_.values().data();
     std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
-    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int k) {
-      chebyshev_row(row, len + 1, op.k0, op.k1, op.k2, op.diag, op.inv, d, xu, r, dn, op.sy, op.sz,
-                    op.c, keep, push);
+    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
+      const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
+      with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+        chebyshev_row<decltype(axis)::value>(level_, src, op.diag, d, xu, r, dn, rs);
+      });
       partial[static_cast<std::size_t>(k - lo[2])][0] += row_squares(r, row, len + 1);
     });
     rr = ordered()[0];

@@ -416,6 +416,73 @@ void BM_ViscousSolveBed(benchmark::State& state) {
 }
 BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
+// The implicit viscosity's Chebyshev solves of the three components on a fluidized bed's grid
+// (`cells` x 50 x `cells` cells of 50 x 200 x 50 um: 32 is scenes/fluidized_bed.toml's, 101 the
+// 1e5 bed's, whose fields no longer fit the caches; walls, inflow below, outflow above), eps in
+// [0.55, 0.6], c = theta dt mu at dt = 1e-4 s, tolerance 1e-10, from a zero first guess. Its rows
+// at the instruction set `simd`, their face coefficients from eps (stored 0) or read from the
+// stored arrays (stored 1). Counter ns_per_iteration: per unknown and iteration.
+void BM_ViscousChebyshevBed(benchmark::State& state) {
+  const tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 1);
+  const int n = static_cast<int>(state.range(0));
+  MacGridSpec spec;
+  spec.cells = {n, 50, n};
+  spec.extent = {n * 50e-6, 50 * 200e-6, n * 50e-6};
+  spec.bc[2].kind = BoundaryKind::inflow;
+  spec.bc[2].velocity = {0.0, 0.015, 0.0};
+  spec.bc[3].kind = BoundaryKind::outflow;
+  const MacGrid grid(spec);
+  GridField eps = grid.make_field();
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (double& e : eps.values()) {
+    e = 0.55 + 0.05 * uni(rng);
+  }
+  fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
+  const double rho = 1.2;
+  const double dt = 1e-4;
+  std::array<GridField, 3> diag = {grid.make_field(), grid.make_field(), grid.make_field()};
+  std::array<GridField, 3> rhs = {grid.make_field(), grid.make_field(), grid.make_field()};
+  for (int a = 0; a < 3; ++a) {
+    for (std::size_t p = 0; p < eps.values().size(); ++p) {
+      diag[a][p] = eps[p] * rho * (1.0 + dt * 3e4 * uni(rng)); // eps_f rho (1 + k beta_f)
+      rhs[a][p] = diag[a][p] * ((a == 1 ? 0.3 : 0.0) + 0.05 * (uni(rng) - 0.5));
+    }
+  }
+  std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
+  ImplicitViscosity viscosity(grid);
+  viscosity.use_simd_level(static_cast<SimdLevel>(state.range(1)));
+  viscosity.use_stored_coefficients(state.range(2) != 0);
+  const double c = 0.5 * dt * 1.8e-5;
+  double iterations = 0.0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    for (GridField& f : u) {
+      f.fill(0.0);
+    }
+    fill_velocity_ghosts(grid, u);
+    state.ResumeTiming();
+    for (int a = 0; a < 3; ++a) {
+      const ViscousSolveReport r = viscosity.solve(a, c, eps, diag[static_cast<std::size_t>(a)],
+                                                   rhs[static_cast<std::size_t>(a)],
+                                                   u[static_cast<std::size_t>(a)], 1e-10, 1000);
+      if (!r.chebyshev) {
+        state.SkipWithError("the solve did not take the Chebyshev iteration");
+        return;
+      }
+      iterations += r.iterations;
+    }
+  }
+  state.counters["iterations"] = benchmark::Counter(iterations, benchmark::Counter::kAvgIterations);
+  const double unknowns = static_cast<double>(n) * 50.0 * n;
+  state.counters["ns_per_iteration"] = benchmark::Counter(
+      iterations * unknowns * 1e-9, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+BENCHMARK(BM_ViscousChebyshevBed)
+    ->ArgNames({"cells", "simd", "stored"})
+    ->ArgsProduct({{32, 101}, {0, 1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond);
+
 // The momentum right-hand side alone (advection + viscous stress, three components): the method
 // of lines' (godunov 0) or the Godunov step's with its edge prediction (1), its row loops at the
 // instruction set level `simd` (0 x86-64, 1 x86-64-v3, 2 x86-64-v4; a level the CPU lacks is

@@ -39,7 +39,7 @@ DepositionKernel parse_deposition_kernel(std::string_view name) {
 
 Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius,
                        const GridHalo* halo)
-    : grid_(grid), settings_(settings), halo_(halo) {
+    : grid_(grid), settings_(settings), halo_(halo), max_radius_(max_radius) {
   if (grid.distributed() != (halo != nullptr)) {
     throw std::invalid_argument("deposition: a distributed grid needs its halo (and only it)");
   }
@@ -153,11 +153,15 @@ CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius,
     s = trilinear_weights(x, origin, dx, std::span<double, 8>(buf.data(), 8));
     break;
   case DepositionKernel::dpvm_cube:
-    reserve_weights(settings_.width * radius, buf);
+    if (!(radius <= max_radius_)) {
+      reserve_weights(settings_.width * radius, buf); // larger than the buffer was sized for
+    }
     s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::cube, buf);
     break;
   case DepositionKernel::dpvm_sphere:
-    reserve_weights(settings_.width * radius, buf);
+    if (!(radius <= max_radius_)) {
+      reserve_weights(settings_.width * radius, buf);
+    }
     s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::sphere, buf,
                      settings_.sphere_samples);
     break;
@@ -210,15 +214,29 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
   if (grid_.has_solid()) {
     onto_gas_cells(s, weight);
   }
+  // The row's x indices, folded once per particle rather than once per cell (every row of the
+  // kernel has the same ones); index(i, j, k) = index(0, j, k) + i.
+  constexpr int kShortRow = 16;
+  std::array<int, kShortRow> fx{};
+  const bool short_row = s.size[0] <= kShortRow;
+  if (short_row) {
+    for (int a = 0; a < s.size[0]; ++a) {
+      fx[static_cast<std::size_t>(a)] = fold(0, s.lo[0] + a);
+    }
+  }
+  const GridLayout& layout = grid_.layout();
   std::size_t m = 0; // weights are stored x fastest, as the loops run
   for (int c = 0; c < s.size[2]; ++c) {
     const int k = fold(2, s.lo[2] + c);
     for (int b = 0; b < s.size[1]; ++b) {
       const int j = fold(1, s.lo[1] + b);
+      const auto row = static_cast<std::ptrdiff_t>(layout.index(0, j, k));
       for (int a = 0; a < s.size[0]; ++a) {
         const double w = weight[m++];
         if (w != 0.0) {
-          const std::size_t idx = grid_.layout().index(fold(0, s.lo[0] + a), j, k);
+          const std::size_t idx =
+              short_row ? static_cast<std::size_t>(row + fx[static_cast<std::size_t>(a)])
+                        : layout.index(fold(0, s.lo[0] + a), j, k);
           if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
             visit(idx, w, k); // the cell's k index too (scatter_by_planes)
           } else {
@@ -229,6 +247,26 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
     }
   }
 }
+
+namespace {
+
+// Calls f(n) with the field count as a compile-time constant for the counts the coupling uses
+// (1: the solid fraction; 4: beta and beta v, or eps_g and u_g; 6: u_g and grad p), so the loops
+// over the fields unroll; as a plain size_t otherwise. The same additions in the same order.
+template <class F> void with_field_count(std::size_t nf, F&& f) {
+  switch (nf) {
+  case 1:
+    return f(std::integral_constant<std::size_t, 1>{});
+  case 4:
+    return f(std::integral_constant<std::size_t, 4>{});
+  case 6:
+    return f(std::integral_constant<std::size_t, 6>{});
+  default:
+    return f(nf);
+  }
+}
+
+} // namespace
 
 void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
                          std::span<GridField* const> cells) {
@@ -249,14 +287,19 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
                         [&](std::size_t idx, double w) { cell[idx] += w * vq0; });
       }
     }
-    for (std::size_t q = 0; nf > 1 && q < count; ++q) {
-      std::copy_n(v + q * nf, nf, vq.begin());
-      for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
-                      [&](std::size_t idx, double w) {
-                        for (std::size_t f = 0; f < nf; ++f) {
-                          out[f][idx] += w * vq[f];
-                        }
-                      });
+    if (nf > 1) {
+      with_field_count(nf, [&](auto count_of_fields) {
+        const std::size_t n_f = count_of_fields;
+        for (std::size_t q = 0; q < count; ++q) {
+          std::copy_n(v + q * n_f, n_f, vq.begin());
+          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
+                          [&](std::size_t idx, double w) {
+                            for (std::size_t f = 0; f < n_f; ++f) {
+                              out[f][idx] += w * vq[f];
+                            }
+                          });
+        }
+      });
     }
   } else {
     scatter_by_planes(p, count, nf, cells, threads);
@@ -393,22 +436,25 @@ void Deposition::interpolate(const ParticlePositions& p, std::span<const GridFie
   }
   // Particles are independent (a gather): blocks of them are TBB tasks, each with its own
   // weight buffer; every particle's sums run in the same order whatever the thread count.
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      std::vector<double> buf(weights_.size());
-                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
-                        std::array<double, kMaxFields> sum{};
-                        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
-                                        [&](std::size_t idx, double w) {
-                                          for (std::size_t f = 0; f < nf; ++f) {
-                                            sum[f] += w * value[f][idx];
-                                          }
-                                        });
-                        for (std::size_t f = 0; f < nf; ++f) {
-                          outs[f][q] = sum[f];
+  with_field_count(nf, [&](auto count_of_fields) {
+    const std::size_t n_f = count_of_fields;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        std::vector<double> buf(weights_.size());
+                        for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                          std::array<double, kMaxFields> sum{};
+                          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                                          [&](std::size_t idx, double w) {
+                                            for (std::size_t f = 0; f < n_f; ++f) {
+                                              sum[f] += w * value[f][idx];
+                                            }
+                                          });
+                          for (std::size_t f = 0; f < n_f; ++f) {
+                            outs[f][q] = sum[f];
+                          }
                         }
-                      }
-                    });
+                      });
+  });
 }
 
 void Deposition::deposit(const ParticlePositions& p,

@@ -110,6 +110,7 @@ private:
   MacGrid grid_;
   DepositionSettings settings_;
   const GridHalo* halo_ = nullptr;
+  double max_radius_ = 0.0; // weights_ (and every buffer stencil() sizes) fits its kernel
   std::vector<double> weights_;
   std::vector<double> values_;            // per particle and field, per unit cell volume
   std::vector<std::array<int, 2>> reach_; // per particle: global k range of its kernel

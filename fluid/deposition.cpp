@@ -217,7 +217,7 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
   // The row's x indices, folded once per particle rather than once per cell (every row of the
   // kernel has the same ones); index(i, j, k) = index(0, j, k) + i.
   constexpr int kShortRow = 16;
-  std::array<int, kShortRow> fx{};
+  std::array<int, kShortRow> fx; // the first size[0] are set below
   const bool short_row = s.size[0] <= kShortRow;
   if (short_row) {
     for (int a = 0; a < s.size[0]; ++a) {

@@ -60,12 +60,21 @@ namespace detail {
                                       dx[0]) /
              (2 * r);
     }
+    // The y factors once (a short kernel's, on the stack), not once per z layer.
+    const auto y_factor = [&](int b) {
+      return detail::interval_overlap(x[1], r, origin[1] + (s.lo[1] + b) * dx[1], dx[1]) / (2 * r);
+    };
+    constexpr int kShort = 16;
+    std::array<double, kShort> wys;
+    const bool short_y = s.size[1] <= kShort;
+    for (int b = 0; short_y && b < s.size[1]; ++b) {
+      wys[static_cast<std::size_t>(b)] = y_factor(b);
+    }
     for (int c = s.size[2] - 1; c >= 0; --c) {
       const double wz =
           detail::interval_overlap(x[2], r, origin[2] + (s.lo[2] + c) * dx[2], dx[2]) / (2 * r);
       for (int b = s.size[1] - 1; b >= 0; --b) {
-        const double wy =
-            detail::interval_overlap(x[1], r, origin[1] + (s.lo[1] + b) * dx[1], dx[1]) / (2 * r);
+        const double wy = short_y ? wys[static_cast<std::size_t>(b)] : y_factor(b);
         double* row =
             w.data() + n0 * (static_cast<std::size_t>(b) +
                              static_cast<std::size_t>(s.size[1]) * static_cast<std::size_t>(c));

@@ -130,62 +130,48 @@ template <int A>
   }
 }
 
-// The row kernels' copies, one per instruction set (core/simd_level.hpp; the same operations in
-// the same order at every level). Not inlined, with restrict parameters: GCC keeps the restrict
+// The row kernels' copies, one type per instruction set (core/simd_level.hpp; the same operations
+// in the same order at every level). Not inlined, with restrict parameters: GCC keeps the restrict
 // of the parameters of a function it calls, not of one it inlines or of a local pointer, and the
 // loops vectorize only with it.
-#define CFDDEM_CHEBYSHEV_ROWS(SUFFIX, ...)                                                         \
-  template <int A>                                                                                 \
-  [[gnu::noinline __VA_ARGS__]] void residual_##SUFFIX(                                            \
-      const double* __restrict k0, const double* __restrict k1, const double* __restrict k2,       \
-      const double* __restrict ep, const double* __restrict dg, const double* __restrict x,        \
-      const double* __restrict b, double* __restrict r, double* __restrict d,                      \
-      const RowScalars& s) {                                                                       \
-    residual_body<A>(k0, k1, k2, ep, dg, x, b, r, d, s);                                           \
-  }                                                                                                \
-  template <int A>                                                                                 \
-  [[gnu::noinline __VA_ARGS__]] void chebyshev_##SUFFIX(                                           \
-      const double* __restrict k0, const double* __restrict k1, const double* __restrict k2,       \
-      const double* __restrict ep, const double* __restrict dg, const double* __restrict d,        \
-      double* __restrict x, double* __restrict r, double* __restrict dn, const RowScalars& s) {    \
-    chebyshev_body<A>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                         \
-  }
-CFDDEM_CHEBYSHEV_ROWS(x86_64)
+#define CFDDEM_CHEBYSHEV_ROWS(NAME, ...)                                                           \
+  struct NAME {                                                                                    \
+    template <int A>                                                                               \
+    [[gnu::noinline __VA_ARGS__]] static void                                                      \
+    residual(const double* __restrict k0, const double* __restrict k1,                             \
+             const double* __restrict k2, const double* __restrict ep,                             \
+             const double* __restrict dg, const double* __restrict x, const double* __restrict b,  \
+             double* __restrict r, double* __restrict d, const RowScalars& s) {                    \
+      residual_body<A>(k0, k1, k2, ep, dg, x, b, r, d, s);                                         \
+    }                                                                                              \
+    template <int A>                                                                               \
+    [[gnu::noinline __VA_ARGS__]] static void                                                      \
+    iterate(const double* __restrict k0, const double* __restrict k1, const double* __restrict k2, \
+            const double* __restrict ep, const double* __restrict dg, const double* __restrict d,  \
+            double* __restrict x, double* __restrict r, double* __restrict dn,                     \
+            const RowScalars& s) {                                                                 \
+      chebyshev_body<A>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                       \
+    }                                                                                              \
+  };
+CFDDEM_CHEBYSHEV_ROWS(RowsX86_64)
 #if defined(CFDDEM_SIMD_COPIES)
-CFDDEM_CHEBYSHEV_ROWS(v3, , gnu::target("arch=x86-64-v3"))
-CFDDEM_CHEBYSHEV_ROWS(v4, , gnu::target("arch=x86-64-v4"))
+CFDDEM_CHEBYSHEV_ROWS(RowsV3, , gnu::target("arch=x86-64-v3"))
+CFDDEM_CHEBYSHEV_ROWS(RowsV4, , gnu::target("arch=x86-64-v4"))
 #endif
 #undef CFDDEM_CHEBYSHEV_ROWS
 
-// The row kernels at `level`, coefficients from A (-1: stored; else eps, A the component).
-template <int A>
-void residual_row(SimdLevel level, const FaceSource& f, const double* dg, const double* x,
-                  const double* b, double* r, double* d, const RowScalars& s) {
+// Calls f with the row kernels' copy for `level` (a type with static residual and iterate).
+template <class F> void with_rows_at(SimdLevel level, F&& f) {
 #if defined(CFDDEM_SIMD_COPIES)
   if (level == SimdLevel::x86_64_v4) {
-    return residual_v4<A>(f.k0, f.k1, f.k2, f.ep, dg, x, b, r, d, s);
+    return f(RowsV4{});
   }
   if (level == SimdLevel::x86_64_v3) {
-    return residual_v3<A>(f.k0, f.k1, f.k2, f.ep, dg, x, b, r, d, s);
+    return f(RowsV3{});
   }
 #endif
   (void)level;
-  residual_x86_64<A>(f.k0, f.k1, f.k2, f.ep, dg, x, b, r, d, s);
-}
-
-template <int A>
-void chebyshev_row(SimdLevel level, const FaceSource& f, const double* dg, const double* d,
-                   double* x, double* r, double* dn, const RowScalars& s) {
-#if defined(CFDDEM_SIMD_COPIES)
-  if (level == SimdLevel::x86_64_v4) {
-    return chebyshev_v4<A>(f.k0, f.k1, f.k2, f.ep, dg, d, x, r, dn, s);
-  }
-  if (level == SimdLevel::x86_64_v3) {
-    return chebyshev_v3<A>(f.k0, f.k1, f.k2, f.ep, dg, d, x, r, dn, s);
-  }
-#endif
-  (void)level;
-  chebyshev_x86_64<A>(f.k0, f.k1, f.k2, f.ep, dg, d, x, r, dn, s);
+  f(RowsX86_64{});
 }
 
 // Calls f(axis) with the row's coefficient source as a compile-time integer: the component's
@@ -308,7 +294,10 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
     const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
     with_row_faces(comp, from_eps(j, k), [&](auto axis) {
-      residual_row<decltype(axis)::value>(level_, src, op.diag, x, b, r, d, rs);
+      with_rows_at(level_, [&](auto rows) {
+        decltype(rows)::template residual<decltype(axis)::value>(src.k0, src.k1, src.k2, src.ep,
+                                                                 op.diag, x, b, r, d, rs);
+      });
     });
     auto& s = partial[static_cast<std::size_t>(k - lo[2])];
     s[0] += row_squares(b, row, len + 1);
@@ -334,7 +323,10 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
       const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
       with_row_faces(comp, from_eps(j, k), [&](auto axis) {
-        chebyshev_row<decltype(axis)::value>(level_, src, op.diag, d, xu, r, dn, rs);
+        with_rows_at(level_, [&](auto rows) {
+          decltype(rows)::template iterate<decltype(axis)::value>(src.k0, src.k1, src.k2, src.ep,
+                                                                  op.diag, d, xu, r, dn, rs);
+        });
       });
       partial[static_cast<std::size_t>(k - lo[2])][0] += row_squares(r, row, len + 1);
     });

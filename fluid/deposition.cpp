@@ -39,7 +39,8 @@ DepositionKernel parse_deposition_kernel(std::string_view name) {
 
 Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, double max_radius,
                        const GridHalo* halo)
-    : grid_(grid), settings_(settings), halo_(halo), max_radius_(max_radius) {
+    : grid_(grid), settings_(settings), halo_(halo),
+      sized_kernel_radius_(settings.width * max_radius) {
   if (grid.distributed() != (halo != nullptr)) {
     throw std::invalid_argument("deposition: a distributed grid needs its halo (and only it)");
   }
@@ -52,22 +53,23 @@ Deposition::Deposition(const MacGrid& grid, const DepositionSettings& settings, 
   if (settings.diffusion < 0.0) {
     throw std::invalid_argument("deposition diffusion D must be >= 0 [m^2]");
   }
-  std::size_t capacity = 8;
-  if (settings.kernel != DepositionKernel::trilinear) {
-    capacity = 1;
-    for (int a = 0; a < 3; ++a) {
-      capacity *=
-          static_cast<std::size_t>(dpvm_max_cells(settings.width * max_radius, grid.spacing(a)));
-    }
+  weights_.resize(
+      settings.kernel == DepositionKernel::trilinear ? 8 : kernel_cells(sized_kernel_radius_));
+}
+
+std::size_t Deposition::kernel_cells(double r) const {
+  std::size_t cells = 1;
+  for (int a = 0; a < 3; ++a) {
+    cells *= static_cast<std::size_t>(dpvm_max_cells(r, grid_.spacing(a)));
   }
-  weights_.resize(capacity);
+  return cells;
 }
 
 void Deposition::reserve_weights(double r, std::vector<double>& buf) const {
-  std::size_t needed = 1;
-  for (int a = 0; a < 3; ++a) {
-    needed *= static_cast<std::size_t>(dpvm_max_cells(r, grid_.spacing(a)));
+  if (r <= sized_kernel_radius_) {
+    return; // the constructor sized weights_, and stencil() every buffer, for this kernel
   }
+  const std::size_t needed = kernel_cells(r);
   if (needed > buf.size()) {
     buf.resize(needed); // a particle larger than max_radius: grow once
   }
@@ -153,15 +155,11 @@ CellStencil Deposition::stencil(const std::array<double, 3>& x, double radius,
     s = trilinear_weights(x, origin, dx, std::span<double, 8>(buf.data(), 8));
     break;
   case DepositionKernel::dpvm_cube:
-    if (!(radius <= max_radius_)) {
-      reserve_weights(settings_.width * radius, buf); // larger than the buffer was sized for
-    }
+    reserve_weights(settings_.width * radius, buf);
     s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::cube, buf);
     break;
   case DepositionKernel::dpvm_sphere:
-    if (!(radius <= max_radius_)) {
-      reserve_weights(settings_.width * radius, buf);
-    }
+    reserve_weights(settings_.width * radius, buf);
     s = dpvm_weights(x, settings_.width * radius, origin, dx, DpvmShape::sphere, buf,
                      settings_.sphere_samples);
     break;
@@ -234,9 +232,8 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
       for (int a = 0; a < s.size[0]; ++a) {
         const double w = weight[m++];
         if (w != 0.0) {
-          const std::size_t idx =
-              short_row ? static_cast<std::size_t>(row + fx[static_cast<std::size_t>(a)])
-                        : layout.index(fold(0, s.lo[0] + a), j, k);
+          const int i = short_row ? fx[static_cast<std::size_t>(a)] : fold(0, s.lo[0] + a);
+          const auto idx = static_cast<std::size_t>(row + i);
           if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
             visit(idx, w, k); // the cell's k index too (scatter_by_planes)
           } else {

@@ -95,7 +95,10 @@ private:
   void onto_gas_cells(const CellStencil& s, double* weight) const;
   [[nodiscard]] int fold(int axis, int i) const;
   [[nodiscard]] int fold_in_box(int axis, int i) const;
+  // Grows buf to a dpvm kernel of this radius (no-op up to the one weights_ was sized for).
   void reserve_weights(double kernel_radius, std::vector<double>& buf) const;
+  // Most cells a dpvm kernel of this radius covers (dpvm_max_cells along each axis).
+  [[nodiscard]] std::size_t kernel_cells(double kernel_radius) const;
   // cells[f][idx] += W_q(idx) values_[q nf + f] for every particle q, f < nf, in the serial
   // order (particles in turn, each one's kernel cells in turn) at every cell. With TBB threads
   // (scatter_by_planes) each task owns a range of k-planes and goes through the particles in
@@ -110,7 +113,8 @@ private:
   MacGrid grid_;
   DepositionSettings settings_;
   const GridHalo* halo_ = nullptr;
-  double max_radius_ = 0.0; // weights_ (and every buffer stencil() sizes) fits its kernel
+  // The kernel radius weights_ was sized for (width x max_radius): a kernel no larger fits it.
+  double sized_kernel_radius_ = 0.0;
   std::vector<double> weights_;
   std::vector<double> values_;            // per particle and field, per unit cell volume
   std::vector<std::array<int, 2>> reach_; // per particle: global k range of its kernel

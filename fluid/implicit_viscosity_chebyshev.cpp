@@ -20,11 +20,13 @@ namespace cfddem::fluid {
 namespace {
 
 // The operator's arrays: k[b][p] is the low control-volume face's eps / dx_b^2 along b of the
-// unknown p, k[b][p + s_b] its high one's; A x = diag x - c div(eps grad x).
+// unknown p, k[b][p + s_b] its high one's; A x = diag x - c div(eps grad x). ep: the eps they
+// were made from.
 struct Operator {
   const double* k0;
   const double* k1;
   const double* k2;
+  const double* ep;
   const double* diag;
   std::ptrdiff_t sy, sz;
   double c;
@@ -35,13 +37,6 @@ struct Operator {
 // closed face (a regular row; A = the component's axis): eps of the cell below along A, else the
 // (A, b) edge's four cells. The same operations in the same order give the same bits, without
 // reading three stored arrays at every iteration.
-struct FaceSource {
-  const double* k0;
-  const double* k1;
-  const double* k2;
-  const double* ep;
-};
-
 // The coefficients of unknown p into k (k[2b]: its low face along b, k[2b + 1]: its high face);
 // ix, iy, iz: 1 / dx_b^2.
 template <int A>
@@ -226,11 +221,12 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   const Operator op{cv_k_[cs][0].values().data(),
                     cv_k_[cs][1].values().data(),
                     cv_k_[cs][2].values().data(),
+                    eps_seen_[cs].values().data(), // what face_coefficients made them from
                     diag.values().data(),
                     layout.stride(1),
                     layout.stride(2),
                     c};
-  // The rows whose coefficients come from eps (regular_rows), their source's arguments.
+  // The rows whose coefficients come from eps (regular_rows).
   const std::vector<char>& regular = regular_rows(comp);
   // Computing the coefficients costs about 20 more operations per unknown: with two doubles
   // per instruction (baseline x86-64) they cost more than the bytes they save
@@ -241,8 +237,6 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
                                static_cast<std::size_t>(hi[1] - lo[1] + 1) *
                                    static_cast<std::size_t>(k - lo[2])] != 0;
   };
-  // eps_seen_: the eps the stored coefficients were made from.
-  const FaceSource src{op.k0, op.k1, op.k2, eps_seen_[cs].values().data()};
   const double ix = 1.0 / (grid_.spacing(0) * grid_.spacing(0));
   const double iy = 1.0 / (grid_.spacing(1) * grid_.spacing(1));
   const double iz = 1.0 / (grid_.spacing(2) * grid_.spacing(2));
@@ -295,7 +289,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
     with_row_faces(comp, from_eps(j, k), [&](auto axis) {
       with_rows_at(level_, [&](auto rows) {
-        decltype(rows)::template residual<decltype(axis)::value>(src.k0, src.k1, src.k2, src.ep,
+        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep,
                                                                  op.diag, x, b, r, d, rs);
       });
     });
@@ -324,7 +318,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
       const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
       with_row_faces(comp, from_eps(j, k), [&](auto axis) {
         with_rows_at(level_, [&](auto rows) {
-          decltype(rows)::template iterate<decltype(axis)::value>(src.k0, src.k1, src.k2, src.ep,
+          decltype(rows)::template iterate<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep,
                                                                   op.diag, d, xu, r, dn, rs);
         });
       });

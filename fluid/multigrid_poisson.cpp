@@ -12,6 +12,7 @@
 
 #include "core/usable_threads.hpp"
 #include "fluid/multigrid_exchange.hpp"
+#include "fluid/multigrid_rows.hpp"
 
 namespace cfddem::fluid {
 
@@ -57,6 +58,7 @@ struct MultigridPoisson::Level {
   double active = 0.0;
   bool has_inactive = false;
   bool empty_rows = false; // MultigridSettings::empty_rows
+  SimdLevel simd = simd_level(); // the row kernels' copy (fluid/multigrid_rows.hpp)
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
         const std::array<std::array<PoissonSide, 2>, 3>& sides)
@@ -105,6 +107,27 @@ struct MultigridPoisson::Level {
 namespace {
 
 using Level = MultigridPoisson::Level;
+
+using multigrid_rows::Row;
+
+// Calls f with the row kernels' copy for `level` (fluid/multigrid_rows.hpp).
+template <class F> void with_rows_at(SimdLevel level, F&& f) {
+#if defined(CFDDEM_SIMD_COPIES)
+  if (level == SimdLevel::x86_64_v4) {
+    return f(multigrid_rows::RowsV4{});
+  }
+  if (level == SimdLevel::x86_64_v3) {
+    return f(multigrid_rows::RowsV3{});
+  }
+#endif
+  (void)level;
+  f(multigrid_rows::RowsX86_64{});
+}
+
+// Row j of plane k of level L.
+Row row_of(const Level& L, int j, int k) {
+  return Row{static_cast<std::ptrdiff_t>(L.at(0, j, k)), L.n[0], L.s[1], L.s[2]};
+}
 
 // Loops over fewer cells than this run on the calling thread: on the coarse levels a task
 // launch costs more than the work.
@@ -478,8 +501,8 @@ void restrict_plane(const Level& F, const Level& C, const double* b, const doubl
   const auto& q = F.ratio;
   const double inv = 1.0 / (q[0] * q[1] * q[2]);
   const auto nc = static_cast<std::size_t>(C.n[0]);
-  // Row by row: the fine residual of a whole row (a loop the compiler vectorises), then its
-  // pairs (or cells) added into the coarse row.
+  // Row by row: the fine residual of a whole row (fluid/multigrid_rows.hpp), then its pairs (or
+  // cells) added into the coarse row.
   for (int j = 0; j < C.n[1]; ++j) {
     std::fill_n(acc, nc, 0.0);
     for (int dk = 0; dk < q[2]; ++dk) {
@@ -487,11 +510,10 @@ void restrict_plane(const Level& F, const Level& C, const double* b, const doubl
         if (q[1] * j + dj >= F.n[1] || q[2] * k + dk >= F.n[2]) {
           continue; // the missing child of a last coarse cell on an odd axis
         }
-        const std::size_t f0 = F.at(0, q[1] * j + dj, q[2] * k + dk);
-        for (int i = 0; i < F.n[0]; ++i) {
-          const std::size_t c = f0 + static_cast<std::size_t>(i);
-          row[static_cast<std::size_t>(i)] = b[c] - apply_at(F, x, c);
-        }
+        with_rows_at(F.simd, [&](auto rows) {
+          rows.residual_values(b, F.diag.data(), F.K[0].data(), F.K[1].data(), F.K[2].data(), x,
+                               row, row_of(F, q[1] * j + dj, q[2] * k + dk));
+        });
         if (q[0] == 2) {
           for (std::size_t i = 0; i < nc; ++i) {
             acc[i] += row[2 * i] + row[2 * i + 1];
@@ -689,15 +711,19 @@ double update_and_apply(const Level& L, const double* z, double beta, bool first
     }
     fill_plane_ghosts(L, p, k);
   };
+  // q's row by the row kernel (vectorized), then p.q in the cells' order.
   const auto apply = [&](int k) {
     double sum = 0.0;
-    for (int j = 0; j < L.n[1]; ++j) {
-      std::size_t c = L.at(0, j, k);
-      for (int i = 0; i < L.n[0]; ++i, ++c) {
-        q[c] = apply_at(L, p, c);
-        sum += p[c] * q[c];
+    with_rows_at(L.simd, [&](auto rows) {
+      for (int j = 0; j < L.n[1]; ++j) {
+        const Row row = row_of(L, j, k);
+        rows.apply_values(L.diag.data(), L.K[0].data(), L.K[1].data(), L.K[2].data(), p, q + row.c0,
+                          row);
+        for (std::ptrdiff_t c = row.c0; c < row.c0 + row.n; ++c) {
+          sum += p[c] * q[c];
+        }
       }
-    }
+    });
     partial[static_cast<std::size_t>(k)] = sum;
   };
   for_planes(tasks, L.cells(), [&](int t) {
@@ -1860,6 +1886,15 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
   report.relative_residual = rel;
   report.converged = rel <= tolerance;
   return report;
+}
+
+void MultigridPoisson::use_simd_level(SimdLevel level) {
+  for (Level& L : levels_) {
+    L.simd = level;
+  }
+  if (gathered_) {
+    gathered_->use_simd_level(level);
+  }
 }
 
 void MultigridPoisson::benchmark_vcycle() {

@@ -25,6 +25,7 @@
 #include "core/cell_box.hpp"
 #include "core/communicator.hpp"
 #include "core/huge_page_allocator.hpp"
+#include "core/simd_level.hpp"
 #include "fluid/grid_field.hpp"
 
 namespace cfddem::fluid {
@@ -121,6 +122,9 @@ public:
   void benchmark_vcycle();
   void benchmark_sweep();
   double benchmark_residual();
+  // The instruction set of the row kernels (fluid/multigrid_rows.hpp), simd_level() unless set:
+  // for tests and side-by-side measurements (every level gives the same bits).
+  void use_simd_level(SimdLevel level);
 
   struct Level; // one grid of the hierarchy (multigrid_poisson.cpp)
 

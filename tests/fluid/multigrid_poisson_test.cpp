@@ -448,7 +448,7 @@ TEST(MultigridProjection, KeepsItsHierarchyWhileTheOperatorIsUnchanged) {
 // odd periodic x and y (same-colour seams) over 20 planes with Dirichlet and Neumann z sides
 // (tasks of 8, 8 and 4 planes); 3 planes (one task); an odd periodic z (not fused: the fallback);
 // and a Helmholtz mass term.
-TEST(MultigridPoisson, FusedColourPairsEqualSeparatePasses) {
+TEST(MultigridPoisson, FusedColourPairsAndEveryRowKernelCopyEqualSeparateBaselinePasses) {
   using P = PoissonSide;
   struct System {
     std::array<int, 3> cells;
@@ -490,25 +490,45 @@ TEST(MultigridPoisson, FusedColourPairsEqualSeparatePasses) {
     for (double& v : b) {
       v -= mean / static_cast<double>(cells);
     }
-    std::array<std::vector<double>, 3> x;
-    std::array<int, 3> iterations{};
-    for (int run = 0; run < 3; ++run) { // separate passes; fused on 1 and on 2 threads
-      const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
-                                        run == 2 ? 2 : 1);
-      MultigridSettings settings;
-      settings.fuse_colour_pairs = run > 0;
-      MultigridPoisson mg(sys.cells, {1e-4, 1.1e-4, 0.9e-4}, sys.sides, settings);
-      mg.set_coefficients(coef, sys.mass ? &mass : nullptr);
-      x[static_cast<std::size_t>(run)].assign(cells, 0.0);
-      const MultigridReport report = mg.solve(b, x[static_cast<std::size_t>(run)], 1e-10, 100);
-      EXPECT_TRUE(report.converged);
-      iterations[static_cast<std::size_t>(run)] = report.iterations;
+    // The first run (separate passes, 1 thread, baseline x86-64 row kernels) is the reference;
+    // then fused pairs on 1 and 2 threads, and separate and fused at every instruction set this
+    // CPU runs (the row kernels of fluid/multigrid_rows.hpp).
+    struct Run {
+      bool fused;
+      int threads;
+      SimdLevel level;
+    };
+    std::vector<Run> runs = {
+        {false, 1, SimdLevel::x86_64}, {true, 1, SimdLevel::x86_64}, {true, 2, SimdLevel::x86_64}};
+    for (const SimdLevel level : {SimdLevel::x86_64_v3, SimdLevel::x86_64_v4}) {
+      if (level <= cpu_simd_level()) {
+        runs.push_back({false, 1, level});
+        runs.push_back({true, 1, level});
+        runs.push_back({true, 2, level});
+      }
     }
-    const std::string name = fmt::format("{}x{}x{}", sys.cells[0], sys.cells[1], sys.cells[2]);
-    EXPECT_EQ(iterations[0], iterations[1]) << name;
-    EXPECT_EQ(iterations[0], iterations[2]) << name;
-    EXPECT_EQ(std::memcmp(x[0].data(), x[1].data(), cells * sizeof(double)), 0) << name;
-    EXPECT_EQ(std::memcmp(x[0].data(), x[2].data(), cells * sizeof(double)), 0) << name;
+    std::vector<std::vector<double>> x(runs.size());
+    std::vector<int> iterations(runs.size());
+    for (std::size_t run = 0; run < runs.size(); ++run) {
+      const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                                        static_cast<std::size_t>(runs[run].threads));
+      MultigridSettings settings;
+      settings.fuse_colour_pairs = runs[run].fused;
+      MultigridPoisson mg(sys.cells, {1e-4, 1.1e-4, 0.9e-4}, sys.sides, settings);
+      mg.use_simd_level(runs[run].level);
+      mg.set_coefficients(coef, sys.mass ? &mass : nullptr);
+      x[run].assign(cells, 0.0);
+      const MultigridReport report = mg.solve(b, x[run], 1e-10, 100);
+      EXPECT_TRUE(report.converged);
+      iterations[run] = report.iterations;
+    }
+    for (std::size_t run = 1; run < runs.size(); ++run) {
+      const std::string name = fmt::format("{}x{}x{}, fused {}, {} threads, {}", sys.cells[0],
+                                           sys.cells[1], sys.cells[2], runs[run].fused,
+                                           runs[run].threads, simd_level_name(runs[run].level));
+      EXPECT_EQ(iterations[0], iterations[run]) << name;
+      EXPECT_EQ(std::memcmp(x[0].data(), x[run].data(), cells * sizeof(double)), 0) << name;
+    }
   }
 }
 

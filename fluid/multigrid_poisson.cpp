@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <limits>
 #include <stdexcept>
+#include <utility>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -1821,21 +1822,24 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
         break;
       }
       const double alpha = rz / pq;
-      // |r|^2 and the sum of r (the preconditioner's mean removal) in the update's pass.
+      // |r|^2 and the sum of r (the preconditioner's mean removal) in the update's pass. The new
+      // residual goes into r_old_'s storage and the two swap: r_ is then the new residual and
+      // r_old_ the old one without a copy of r (CG reads only their interiors).
       auto rr = sum_planes_n<2>(planes, L.cells(), [&](int k) {
         std::array<double, 2> s{};
         for (int j = 0; j < L.n[1]; ++j) {
           std::size_t c = L.at(0, j, k);
           for (int i = 0; i < L.n[0]; ++i, ++c) {
             x_[c] += alpha * p_[c];
-            r_old_[c] = r_[c];
-            r_[c] -= alpha * q_[c];
-            s[0] += r_[c] * r_[c];
-            s[1] += r_[c];
+            const double r_new = r_[c] - alpha * q_[c];
+            r_old_[c] = r_new;
+            s[0] += r_new * r_new;
+            s[1] += r_new;
           }
         }
         return s;
       });
+      std::swap(r_, r_old_);
       all_sum(rr);
       ++it;
       if (std::sqrt(rr[0] / bb) <= tolerance) {

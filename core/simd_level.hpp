@@ -54,6 +54,37 @@ template <class F> inline void at_simd_level([[maybe_unused]] SimdLevel level, F
   f();
 }
 
+// Kernels whose loops vectorize only from restrict parameters (GCC keeps the restrict of a called
+// function's parameters, not of an inlined one's or of local pointers) come as types with static
+// noinline member functions, one type per level. MAKE(NAME, ...) defines such a type, putting
+// __VA_ARGS__ after gnu::noinline in each member's attribute list;
+// CFDDEM_SIMD_COPY_TYPES(MAKE, Prefix) defines PrefixX86_64, PrefixV3 and PrefixV4, the last two
+// compiled for x86-64-v3 and -v4 where the build carries copies (else as the build targets).
+#if defined(CFDDEM_SIMD_COPIES)
+#define CFDDEM_SIMD_COPY_TYPES(MAKE, PREFIX)                                                       \
+  MAKE(PREFIX##X86_64)                                                                             \
+  MAKE(PREFIX##V3, , gnu::target("arch=x86-64-v3"))                                                \
+  MAKE(PREFIX##V4, , gnu::target("arch=x86-64-v4"))
+#else
+#define CFDDEM_SIMD_COPY_TYPES(MAKE, PREFIX)                                                       \
+  MAKE(PREFIX##X86_64)                                                                             \
+  MAKE(PREFIX##V3)                                                                                 \
+  MAKE(PREFIX##V4)
+#endif
+
+// Calls f with a value of the copy type for `level` (CFDDEM_SIMD_COPY_TYPES's three), the
+// baseline one where the build has no copies.
+template <class X86_64, class V3, class V4, class F>
+inline void with_copy_at([[maybe_unused]] SimdLevel level, F&& f) {
+#if defined(CFDDEM_SIMD_COPIES)
+  if (level == SimdLevel::x86_64_v4)
+    return f(V4{});
+  if (level == SimdLevel::x86_64_v3)
+    return f(V3{});
+#endif
+  f(X86_64{});
+}
+
 // The level named `text` (the three names above); a ConfigError naming CFDDEM_SIMD otherwise.
 SimdLevel parse_simd_level(std::string_view text);
 

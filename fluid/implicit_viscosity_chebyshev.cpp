@@ -148,25 +148,12 @@ template <int A>
       chebyshev_body<A>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                       \
     }                                                                                              \
   };
-CFDDEM_CHEBYSHEV_ROWS(RowsX86_64)
-#if defined(CFDDEM_SIMD_COPIES)
-CFDDEM_CHEBYSHEV_ROWS(RowsV3, , gnu::target("arch=x86-64-v3"))
-CFDDEM_CHEBYSHEV_ROWS(RowsV4, , gnu::target("arch=x86-64-v4"))
-#endif
+CFDDEM_SIMD_COPY_TYPES(CFDDEM_CHEBYSHEV_ROWS, Rows)
 #undef CFDDEM_CHEBYSHEV_ROWS
 
 // Calls f with the row kernels' copy for `level` (a type with static residual and iterate).
 template <class F> void with_rows_at(SimdLevel level, F&& f) {
-#if defined(CFDDEM_SIMD_COPIES)
-  if (level == SimdLevel::x86_64_v4) {
-    return f(RowsV4{});
-  }
-  if (level == SimdLevel::x86_64_v3) {
-    return f(RowsV3{});
-  }
-#endif
-  (void)level;
-  f(RowsX86_64{});
+  with_copy_at<RowsX86_64, RowsV3, RowsV4>(level, f);
 }
 
 // Calls f(axis) with the row's coefficient source as a compile-time integer: the component's

@@ -111,19 +111,7 @@ using Level = MultigridPoisson::Level;
 
 using multigrid_rows::Row;
 
-// Calls f with the row kernels' copy for `level` (fluid/multigrid_rows.hpp).
-template <class F> void with_rows_at(SimdLevel level, F&& f) {
-#if defined(CFDDEM_SIMD_COPIES)
-  if (level == SimdLevel::x86_64_v4) {
-    return f(multigrid_rows::RowsV4{});
-  }
-  if (level == SimdLevel::x86_64_v3) {
-    return f(multigrid_rows::RowsV3{});
-  }
-#endif
-  (void)level;
-  f(multigrid_rows::RowsX86_64{});
-}
+using multigrid_rows::with_rows_at;
 
 // Row j of plane k of level L.
 Row row_of(const Level& L, int j, int k) {

@@ -72,11 +72,12 @@ struct Row {
       residual_values_body(b, d, kx, ky, kz, x, t, r);                                             \
     }                                                                                              \
   };
-CFDDEM_MULTIGRID_ROWS(RowsX86_64)
-#if defined(CFDDEM_SIMD_COPIES)
-CFDDEM_MULTIGRID_ROWS(RowsV3, , gnu::target("arch=x86-64-v3"))
-CFDDEM_MULTIGRID_ROWS(RowsV4, , gnu::target("arch=x86-64-v4"))
-#endif
+CFDDEM_SIMD_COPY_TYPES(CFDDEM_MULTIGRID_ROWS, Rows)
 #undef CFDDEM_MULTIGRID_ROWS
+
+// Calls f with the row kernels' copy for `level`.
+template <class F> void with_rows_at(SimdLevel level, F&& f) {
+  with_copy_at<RowsX86_64, RowsV3, RowsV4>(level, f);
+}
 
 } // namespace cfddem::fluid::multigrid_rows

@@ -15,6 +15,7 @@
 #include "core/stopwatch.hpp"
 #include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
+#include "fluid/multigrid_poisson.hpp"
 
 namespace cfddem::fluid {
 
@@ -205,6 +206,16 @@ double GasSolver::courant_number(double dt) const {
   return dt * (implicit_now_ ? rates[1] : rates[0]);
 }
 
+void GasSolver::use_simd_level(SimdLevel level) {
+  level_ = level;
+  if (viscosity_) {
+    viscosity_->use_simd_level(level);
+  }
+  if (MultigridPoisson* mg = projection_->multigrid()) {
+    mg->use_simd_level(level);
+  }
+}
+
 double GasSolver::next_substep(double interval, double t, double rate) const {
   const double step = rate > 0.0 ? settings_.cfl / rate : std::numeric_limits<double>::infinity();
   double dt = std::min(interval - t, step);
@@ -390,7 +401,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     double* gain = drag_gain_[a].values().data();
     double* push = drag_push_[a].values().data();
     double* mass = face_mass_[a].values().data();
-    with_copy_at<FaceDragX86_64, FaceDragV3, FaceDragV4>(simd_level(), [&](auto rows) {
+    with_copy_at<FaceDragX86_64, FaceDragV3, FaceDragV4>(level_, [&](auto rows) {
       for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int) {
         rows.row(eps, beta, beta_v, mobility, gain, push, FaceRow{row, hi[0] + 1, s, dt, rho});
         if (implicit) {
@@ -446,20 +457,21 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     {
       const Stopwatch timed(seconds_.momentum);
       godunov_momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, prediction,
-                           rhs_, work_, implicit);
+                           rhs_, work_, implicit, level_);
     }
     stage(dt, Stage::godunov, report);
   } else {
     {
       const Stopwatch timed(seconds_.momentum);
-      momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit);
+      momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_, work_, implicit,
+                   level_);
     }
     stage(dt, Stage::predictor, report);
     if (settings_.time_order == 2) {
       {
         const Stopwatch timed(seconds_.momentum);
         momentum_rhs(grid_, settings_.gas, settings_.limiter, u_, eps_, body_, rhs_stage_, work_,
-                     implicit);
+                     implicit, level_);
       }
       stage(dt, Stage::corrector, report);
     }

@@ -100,6 +100,10 @@ public:
   [[nodiscard]] const PressureProjection& projection() const { return *projection_; }
   [[nodiscard]] const GridHalo* halo() const { return halo_.get(); }
   [[nodiscard]] const GasSolverSettings& settings() const { return settings_; }
+  // The instruction set of the step's row kernels (core/simd_level.hpp: the drag's face factors,
+  // the momentum rows, the Chebyshev rows, the multigrid's rows), simd_level() unless set: for
+  // tests and side-by-side measurements (every level gives the same bits).
+  void use_simd_level(SimdLevel level);
 
   // Face velocities u, v, w [m/s]; boundary faces are overwritten from the BCs on each step.
   [[nodiscard]] std::array<GridField, 3>& velocity() { return u_; }
@@ -227,6 +231,7 @@ private:
   GridField eps_target_, eps_start_; // advance()'s end and start eps_g
   std::unique_ptr<PressureProjection> projection_;
   GasStepSeconds seconds_;
+  SimdLevel level_ = simd_level();
 };
 
 } // namespace cfddem::fluid

@@ -148,12 +148,12 @@ template <int A>
       chebyshev_body<A>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                       \
     }                                                                                              \
   };
-CFDDEM_SIMD_COPY_TYPES(CFDDEM_CHEBYSHEV_ROWS, Rows)
+CFDDEM_SIMD_COPY_TYPES(CFDDEM_CHEBYSHEV_ROWS, ChebyshevRows)
 #undef CFDDEM_CHEBYSHEV_ROWS
 
 // Calls f with the row kernels' copy for `level` (a type with static residual and iterate).
-template <class F> void with_rows_at(SimdLevel level, F&& f) {
-  with_copy_at<RowsX86_64, RowsV3, RowsV4>(level, f);
+template <class F> void with_chebyshev_rows_at(SimdLevel level, F&& f) {
+  with_copy_at<ChebyshevRowsX86_64, ChebyshevRowsV3, ChebyshevRowsV4>(level, f);
 }
 
 // Calls f(axis) with the row's coefficient source as a compile-time integer: the component's
@@ -275,7 +275,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
     const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
     with_row_faces(comp, from_eps(j, k), [&](auto axis) {
-      with_rows_at(level_, [&](auto rows) {
+      with_chebyshev_rows_at(level_, [&](auto rows) {
         decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep,
                                                                  op.diag, x, b, r, d, rs);
       });
@@ -304,7 +304,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
       const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
       with_row_faces(comp, from_eps(j, k), [&](auto axis) {
-        with_rows_at(level_, [&](auto rows) {
+        with_chebyshev_rows_at(level_, [&](auto rows) {
           decltype(rows)::template iterate<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep,
                                                                   op.diag, d, xu, r, dn, rs);
         });

@@ -109,13 +109,11 @@ namespace {
 
 using Level = MultigridPoisson::Level;
 
-using multigrid_rows::Row;
 
-using multigrid_rows::with_rows_at;
 
 // Row j of plane k of level L.
-Row row_of(const Level& L, int j, int k) {
-  return Row{static_cast<std::ptrdiff_t>(L.at(0, j, k)), L.n[0], L.s[1], L.s[2]};
+multigrid_rows::Row row_of(const Level& L, int j, int k) {
+  return multigrid_rows::Row{static_cast<std::ptrdiff_t>(L.at(0, j, k)), L.n[0], L.s[1], L.s[2]};
 }
 
 // Loops over fewer cells than this run on the calling thread: on the coarse levels a task
@@ -499,7 +497,7 @@ void restrict_plane(const Level& F, const Level& C, const double* b, const doubl
         if (q[1] * j + dj >= F.n[1] || q[2] * k + dk >= F.n[2]) {
           continue; // the missing child of a last coarse cell on an odd axis
         }
-        with_rows_at(F.simd, [&](auto rows) {
+        multigrid_rows::with_rows_at(F.simd, [&](auto rows) {
           rows.residual_values(b, F.diag.data(), F.K[0].data(), F.K[1].data(), F.K[2].data(), x,
                                row, row_of(F, q[1] * j + dj, q[2] * k + dk));
         });
@@ -703,9 +701,9 @@ double update_and_apply(const Level& L, const double* z, double beta, bool first
   // q's row by the row kernel (vectorized), then p.q in the cells' order.
   const auto apply = [&](int k) {
     double sum = 0.0;
-    with_rows_at(L.simd, [&](auto rows) {
+    multigrid_rows::with_rows_at(L.simd, [&](auto rows) {
       for (int j = 0; j < L.n[1]; ++j) {
-        const Row row = row_of(L, j, k);
+        const multigrid_rows::Row row = row_of(L, j, k);
         rows.apply_values(L.diag.data(), L.K[0].data(), L.K[1].data(), L.K[2].data(), p, q + row.c0,
                           row);
         for (std::ptrdiff_t c = row.c0; c < row.c0 + row.n; ++c) {

@@ -267,6 +267,9 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
   // step() computed once for both stages.
+  // The stage's start u^n: u_ itself in the Godunov step (its one stage reads u^n at a face only
+  // to write that face, so u_ needs no copy), u_start_ in the method of lines' stages.
+  std::array<GridField, 3>& start = kind == Stage::godunov ? u_ : u_start_;
   for (int a = 0; a < 3; ++a) {
     std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
     hi[a] = n[a]; // faces 0..n along a
@@ -281,7 +284,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       // operations per face.
       const double* r0 = rhs_[a].values().data();
       const double* r1 = rhs_stage_[a].values().data(); // read by the corrector only
-      const double* us = u_start_[a].values().data();
+      const double* us = start[a].values().data();
       const double* pp = p_.values().data();
       const double* mobility = mobility_[a].values().data();
       double* u = u_[a].values().data();
@@ -289,7 +292,11 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       const bool corrector = kind == Stage::corrector;
       for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int) {
         const std::ptrdiff_t end = row + hi[0] + 1;
-        if (corrector) {
+        if (us == u) { // in place (written so: GCC would test u against us and not vectorize)
+          for (std::ptrdiff_t f = row; f < end; ++f) {
+            u[f] = (u[f] + dt * r0[f] + push[f]) / gain[f];
+          }
+        } else if (corrector) {
           for (std::ptrdiff_t f = row; f < end; ++f) {
             u[f] = (us[f] + dt * (0.5 * (r0[f] + r1[f])) + push[f]) / gain[f];
           }
@@ -316,11 +323,11 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k
       // (beta v)_f) [- eps_f dt grad p, lagged]
       diag_[f] = face_mass_[a][f] * gain[f];
-      vrhs_[f] = face_mass_[a][f] * (u_start_[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
+      vrhs_[f] = face_mass_[a][f] * (start[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
       // First guess: the implicit part taken at u^n, theta dt L(u^n), where L(u^n) is at hand
       // (time order 2, Godunov); its residual is O(dt^2) where u^n's is O(dt).
       const double lap = have_lap_start ? (trapezoidal ? 0.5 : 1.0) * lap_start_[a][f] : 0.0;
-      u_[a][f] = (u_start_[a][f] + dt * (rate + lap) + push[f]) / gain[f];
+      u_[a][f] = (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
     });
     fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
     const double theta = trapezoidal ? 0.5 : 1.0;
@@ -433,14 +440,16 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
   // so the returned field satisfies the constraint whatever u^n did.
   // With implicit viscosity the predictor is backward Euler and the corrector trapezoidal in
   // the Laplacian part div(eps mu grad u).
-  for (int a = 0; a < 3; ++a) {
-    copy_field(u_[a], u_start_[a]);
-  }
   const bool godunov = settings_.advection == Advection::godunov;
+  if (!godunov) { // the stages' start (stage(): the Godunov step starts from u_ itself)
+    for (int a = 0; a < 3; ++a) {
+      copy_field(u_[a], u_start_[a]);
+    }
+  }
   if (implicit && keeps_lap_start()) {
     const Stopwatch timed(seconds_.viscous);
-    for (int a = 0; a < 3; ++a) {
-      viscosity_->laplacian(a, settings_.gas.viscosity, rho, eps_, u_start_[a], lap_start_[a]);
+    for (int a = 0; a < 3; ++a) { // u_ is still u^n here
+      viscosity_->laplacian(a, settings_.gas.viscosity, rho, eps_, u_[a], lap_start_[a]);
     }
   }
   if (godunov) {

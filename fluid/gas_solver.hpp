@@ -189,7 +189,8 @@ private:
   [[nodiscard]] double next_substep(double interval, double t, double rate) const;
   // How many sub-steps advance() takes over `interval` at a Courant rate `rate`.
   [[nodiscard]] int substeps_for(double interval, double rate) const;
-  // The update of one stage from u_start_ with the rate of its kind, the drag point-implicit,
+  // The update of one stage from u^n (u_start_; the Godunov step's one stage from u_ itself) with
+  // the rate of its kind, the drag point-implicit,
   // the Laplacian implicit where it is, and the projection (none for a lagged predictor).
   enum class Stage { predictor, corrector, godunov };
   // Whether a step computes L(u^n) (with the Laplacian implicit): for the trapezoidal stages

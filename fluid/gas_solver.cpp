@@ -362,7 +362,7 @@ GasStepReport GasSolver::step(double dt) {
   return step_with_ghosts(dt);
 }
 
-GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
+GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale, bool keep_eps_old) {
   GasStepReport report;
   report.dt = dt;
   if (!(dt > 0.0) || !std::isfinite(dt)) {
@@ -486,7 +486,9 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale) {
     }
   }
   fill_cell_ghosts(grid_, halo_.get(), p_, CellGhosts::pressure);
-  copy_field(eps_, eps_old_);
+  if (keep_eps_old) {
+    copy_field(eps_, eps_old_);
+  }
   return report;
 }
 
@@ -502,11 +504,12 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   // over `interval`; the scale makes it the change over the time the particles took (exactly 1
   // for a fixed fluid step).
   const double source_scale = eps_interval > 0.0 ? interval / eps_interval : 1.0;
-  // eps_g of the fluid step's end and start (members: no allocation per fluid step).
+  // eps_g of the fluid step's end and start (members: no allocation per fluid step). The start
+  // is eps_old_ itself until a sub-step that is not the last would overwrite it: only then is it
+  // copied (most intervals take one sub-step).
   copy_field(eps_, eps_target_);
-  copy_field(eps_old_, eps_start_);
   const GridField& target = eps_target_;
-  const GridField& start = eps_start_;
+  bool start_copied = false;
   GasStepReport total;
   double t = 0.0;
   int count = 0;
@@ -522,7 +525,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     const bool last = dt == interval - t;
     const double fraction = last ? 1.0 : (t + dt) / interval;
     std::span<double> e = eps_.values();
-    std::span<const double> e0 = start.values();
+    std::span<const double> e0 = (start_copied ? eps_start_ : eps_old_).values();
     std::span<const double> e1 = target.values();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, e.size(), 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -530,7 +533,12 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
                       });
-    const GasStepReport r = step_with_ghosts(dt, source_scale); // u's ghosts filled above
+    if (!last && !start_copied) { // this sub-step's end sets eps_old_
+      copy_field(eps_old_, eps_start_);
+      start_copied = true;
+    }
+    // u's ghosts filled above; after the last sub-step eps_old_ becomes the target (below).
+    const GasStepReport r = step_with_ghosts(dt, source_scale, !last);
     total.dt = r.dt;
     total.courant = std::max(total.courant, r.courant);
     total.projection_iterations += r.projection_iterations;

@@ -207,7 +207,8 @@ private:
   // step(dt) once u's ghosts are filled (advance() fills them for its Courant number). The
   // continuity source is (eps - eps_old)/dt times source_scale (advance(): interval /
   // eps_interval, from the sub-step's rate to the particles').
-  GasStepReport step_with_ghosts(double dt, double source_scale = 1.0);
+  // keep_eps_old false: eps_old_ is left as it was (the caller overwrites it), not set to eps_.
+  GasStepReport step_with_ghosts(double dt, double source_scale = 1.0, bool keep_eps_old = true);
 
   MacGrid grid_;
   GasSolverSettings settings_;

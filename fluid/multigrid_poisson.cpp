@@ -109,8 +109,6 @@ namespace {
 
 using Level = MultigridPoisson::Level;
 
-
-
 // Row j of plane k of level L.
 multigrid_rows::Row row_of(const Level& L, int j, int k) {
   return multigrid_rows::Row{static_cast<std::ptrdiff_t>(L.at(0, j, k)), L.n[0], L.s[1], L.s[2]};
@@ -230,13 +228,9 @@ void fill_ghosts(const Level& L, double* v) {
 
 // (A x)_c = diag_c x_c - sum over faces K_f x_neighbour (ghosts of x filled).
 inline double apply_at(const Level& L, const double* x, std::size_t c) {
-  const std::size_t sy = static_cast<std::size_t>(L.s[1]);
-  const std::size_t sz = static_cast<std::size_t>(L.s[2]);
-  const double* kx = L.K[0].data();
-  const double* ky = L.K[1].data();
-  const double* kz = L.K[2].data();
-  return L.diag[c] * x[c] - (kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
-                             ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]);
+  const auto p = static_cast<std::ptrdiff_t>(c);
+  return L.diag[c] * x[c] - multigrid_rows::neighbours(L.K[0].data(), L.K[1].data(),
+                                                       L.K[2].data(), x, p, L.s[1], L.s[2]);
 }
 
 // r = b - A x on the interior; returns |r|^2.

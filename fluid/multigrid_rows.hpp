@@ -22,7 +22,8 @@ struct Row {
   std::ptrdiff_t c0, n, sy, sz;
 };
 
-// The sum over a cell's faces of K_f x_neighbour, in apply_at's order.
+// The sum over a cell's faces of K_f x_neighbour (low x face, high x face, then y and z): the
+// operator's off-diagonal part, which apply_at and the row kernels below share.
 [[gnu::always_inline]] inline double neighbours(const double* kx, const double* ky,
                                                 const double* kz, const double* x, std::ptrdiff_t c,
                                                 std::ptrdiff_t sy, std::ptrdiff_t sz) {

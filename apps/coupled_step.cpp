@@ -263,6 +263,7 @@ std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
   solver_ = std::move(solver);
   deposition_ =
       std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene_), r_max_, halo_.get());
+  plan_ = {}; // its cells were the old box's
   make_work_fields();
   return sent;
 }
@@ -283,8 +284,11 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   // eps_g is for the particles' drag law alone: it replaces the solid fraction in eps_s_ (a
   // scratch field, each value read before it is written), and the gas keeps the fraction 1 it
   // started with.
+  // The particles' kernels once for the three transfers here and interpolate_forces' (the
+  // particles stand still until then).
+  deposition_->plan(pos, plan_);
   eps_s_.fill(0.0);
-  deposition_->deposit_solid_fraction(pos, eps_s_);
+  deposition_->deposit_solid_fraction(plan_, eps_s_);
   fluid::GridField& eps = scene_.fluid.one_way ? eps_s_ : solver_->volume_fraction();
   const auto& nc = grid_.cells();
   tbb::parallel_for(0, nc[2], [&](int k) { // planes as tasks (pointwise)
@@ -306,7 +310,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   {
     const fluid::GridField* in[] = {&eps, &cell_u_[0], &cell_u_[1], &cell_u_[2]};
     const std::span<double> out[] = {eps_p_, ug_[0], ug_[1], ug_[2]};
-    deposition_->interpolate(pos, in, out);
+    deposition_->interpolate(plan_, in, out);
   }
   // beta_i from the drag law (docs/theory.md §4) with the slip |u_g - v_i|.
   // Particle blocks as TBB tasks (each particle's values written once: thread-count free).
@@ -338,7 +342,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   for (fluid::GridField* f : cells)
     f->fill(0.0);
   const std::span<const double> values[] = {beta_, bv_[0], bv_[1], bv_[2]};
-  deposition_->deposit(pos, values, cells);
+  deposition_->deposit(plan_, values, cells);
 }
 
 double GasCoupling::adaptive_dt(double time_left) const {
@@ -410,7 +414,10 @@ void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {
     const fluid::GridField* in[] = {&cell_u_[0],  &cell_u_[1],  &cell_u_[2],
                                     &cell_gp_[0], &cell_gp_[1], &cell_gp_[2]};
     const std::span<double> out[] = {ug_[0], ug_[1], ug_[2], gp_[0], gp_[1], gp_[2]};
-    deposition_->interpolate(pos, in, out);
+    // deposit()'s plan where it is of these particles (step() makes it just before the gas step).
+    if (plan_.count != n || plan_.positions.x.data() != p.x.data())
+      deposition_->plan(pos, plan_);
+    deposition_->interpolate(plan_, in, out);
   }
   for_particles(n, [&](std::size_t i) {
     const double r = p.radius[i];

@@ -160,6 +160,7 @@ private:
   std::shared_ptr<const fluid::GridHalo> halo_;
   std::unique_ptr<fluid::GasSolver> solver_;
   std::unique_ptr<fluid::Deposition> deposition_;
+  fluid::TransferPlan plan_; // the kernels of the particles deposit() saw (deposition_'s grid)
   fluid::DragLaw law_;
   int axis_ = 1;
   double last_dt_ = 0.0, r_max_ = 0.0;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 #include <type_traits>
 #include <vector>
@@ -245,6 +246,111 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
   }
 }
 
+template <class Visit>
+void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q,
+                                         Visit&& visit) const {
+  const std::size_t base = q * static_cast<std::size_t>(plan.stride);
+  const double* wx = plan.factor.data() + base;
+  const double* wy = wx + plan.slots[0];
+  const double* wz = wy + plan.slots[1];
+  const std::int32_t* ix = plan.index.data() + base;
+  const std::int32_t* iy = ix + plan.slots[0];
+  const std::int32_t* iz = iy + plan.slots[1];
+  const std::uint8_t* n = plan.cells.data() + 3 * q;
+  const GridLayout& layout = grid_.layout();
+  for (int c = 0; c < n[2]; ++c) {
+    const int k = iz[c];
+    for (int b = 0; b < n[1]; ++b) {
+      const auto row = static_cast<std::ptrdiff_t>(layout.index(0, iy[b], k));
+      for (int a = 0; a < n[0]; ++a) {
+        // The kernel functions' product, (w_x w_y) w_z: the same weight bit for bit.
+        const double w = wx[a] * wy[b] * wz[c];
+        if (w != 0.0) {
+          const auto idx = static_cast<std::size_t>(row + ix[a]);
+          if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
+            visit(idx, w, k);
+          } else {
+            visit(idx, w);
+          }
+        }
+      }
+    }
+  }
+}
+
+template <class Visit>
+void Deposition::visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
+                              std::vector<double>& buf, Visit&& visit) const {
+  if (plan != nullptr && plan->separable) {
+    for_each_planned_weight(*plan, q, visit);
+  } else {
+    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf, visit);
+  }
+}
+
+void Deposition::plan(const ParticlePositions& p, TransferPlan& out) const {
+  const std::size_t n = p.radius.size();
+  out.positions = p;
+  out.count = n;
+  // A round column moves the weights of solid cells onto gas cells (not a product of axis
+  // factors), and the sphere's chords are not separable: those passes compute their kernels.
+  out.separable = settings_.kernel != DepositionKernel::dpvm_sphere && !grid_.has_solid();
+  const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
+  if (out.separable) {
+    double r_max = 0.0;
+    for (std::size_t q = 0; !trilinear && q < n; ++q) {
+      r_max = std::max(r_max, p.radius[q]);
+    }
+    for (int a = 0; a < 3; ++a) {
+      out.slots[a] = trilinear ? 2 : dpvm_max_cells(settings_.width * r_max, grid_.spacing(a));
+      // A kernel hundreds of cells wide (a hostile input) is computed pass by pass, not stored.
+      out.separable = out.separable && out.slots[a] <= 255;
+    }
+  }
+  if (!out.separable) {
+    out.slots = {}, out.stride = 0;
+    out.cells.clear(), out.factor.clear(), out.index.clear();
+    return;
+  }
+  out.stride = out.slots[0] + out.slots[1] + out.slots[2];
+  out.cells.resize(3 * n);
+  out.factor.resize(n * static_cast<std::size_t>(out.stride));
+  out.index.resize(n * static_cast<std::size_t>(out.stride));
+  const std::array<double, 3> origin = {grid_.origin(0), grid_.origin(1), grid_.origin(2)};
+  const std::array<double, 3> dx = {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)};
+  // Particles are independent: blocks of them as tasks (each writes only its own slots).
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, n, 1024), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t q = r.begin(); q != r.end(); ++q) {
+          const double x[3] = {p.x[q], p.y[q], p.z[q]};
+          std::size_t slot = q * static_cast<std::size_t>(out.stride);
+          for (int a = 0; a < 3; ++a) {
+            double* w = out.factor.data() + slot;
+            std::int32_t* idx = out.index.data() + slot;
+            int lo = 0;
+            int cells = 2;
+            if (trilinear) {
+              double wt[2];
+              lo = trilinear_axis(x[a], origin[a], dx[a], wt);
+              w[0] = wt[0], w[1] = wt[1];
+            } else {
+              const double reach = settings_.width * p.radius[q];
+              const std::array<int, 2> span = dpvm_axis_cells(x[a], reach, origin[a], dx[a]);
+              lo = span[0], cells = span[1];
+              for (int c = 0; c < cells; ++c) {
+                w[c] = dpvm_cube_factor(x[a], reach, origin[a], dx[a], lo + c);
+              }
+            }
+            for (int c = 0; c < cells; ++c) {
+              idx[c] = fold(a, lo + c);
+            }
+            out.cells[3 * q + static_cast<std::size_t>(a)] = static_cast<std::uint8_t>(cells);
+            slot += static_cast<std::size_t>(out.slots[a]);
+          }
+        }
+      });
+}
+
 namespace {
 
 // Calls f(n) with the field count as a compile-time constant for the counts the coupling uses
@@ -265,8 +371,8 @@ template <class F> void with_field_count(std::size_t nf, F&& f) {
 
 } // namespace
 
-void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
-                         std::span<GridField* const> cells) {
+void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, std::size_t count,
+                         std::size_t nf, std::span<GridField* const> cells) {
   const double* v = values_.data();
   const auto threads = static_cast<std::size_t>(usable_threads());
   if (threads <= 1) {
@@ -280,8 +386,8 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
       double* cell = out[0];
       for (std::size_t q = 0; q < count; ++q) {
         const double vq0 = v[q];
-        for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
-                        [&](std::size_t idx, double w) { cell[idx] += w * vq0; });
+        visit_kernel(plan, p, q, weights_,
+                     [&](std::size_t idx, double w) { cell[idx] += w * vq0; });
       }
     }
     if (nf > 1) {
@@ -289,17 +395,16 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
         const std::size_t n_f = count_of_fields;
         for (std::size_t q = 0; q < count; ++q) {
           std::copy_n(v + q * n_f, n_f, vq.begin());
-          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_,
-                          [&](std::size_t idx, double w) {
-                            for (std::size_t f = 0; f < n_f; ++f) {
-                              out[f][idx] += w * vq[f];
-                            }
-                          });
+          visit_kernel(plan, p, q, weights_, [&](std::size_t idx, double w) {
+            for (std::size_t f = 0; f < n_f; ++f) {
+              out[f][idx] += w * vq[f];
+            }
+          });
         }
       });
     }
   } else {
-    scatter_by_planes(p, count, nf, cells, threads);
+    scatter_by_planes(plan, p, count, nf, cells, threads);
   }
   if (halo_ != nullptr) {
     for (std::size_t f = 0; f < nf; ++f) {
@@ -308,7 +413,8 @@ void Deposition::scatter(const ParticlePositions& p, std::size_t count, std::siz
   }
 }
 
-void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
+void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePositions& p,
+                                   std::size_t count, std::size_t nf,
                                    std::span<GridField* const> cells, std::size_t threads) {
   const double* v = values_.data();
   std::array<double*, kMaxDepositFields> out{};
@@ -319,12 +425,14 @@ void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count
   const double z0 = grid_.origin(2);
   const int global_n = grid_.global_cells()[2];
   const int box_lo = grid_.box().lo[2];
-  // Each particle's global k range that holds its kernel: the trilinear kernel's two cells, found
-  // as trilinear_weights finds them (the same arithmetic, so exactly its cells); a dpvm kernel's
+  // With a plan, a particle's planes are its kernel's folded z indices. Without: each particle's
+  // global k range that holds its kernel: the trilinear kernel's two cells, found as
+  // trilinear_weights finds them (the same arithmetic, so exactly its cells); a dpvm kernel's
   // cells within its half-width, with a cell to spare.
-  reach_.resize(count);
+  const bool planned = plan != nullptr && plan->separable;
+  reach_.resize(planned ? 0 : count);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, planned ? 0 : count, 4096),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t q = r.begin(); q != r.end(); ++q) {
                         if (trilinear) {
@@ -351,30 +459,44 @@ void Deposition::scatter_by_planes(const ParticlePositions& p, std::size_t count
         const int k1 = r.end();
         std::vector<double> buf(weights_.size());
         std::array<double, kMaxDepositFields> vq{};
-        for (std::size_t q = 0; q < count; ++q) {
+        // Whether particle q's kernel has a cell in this task's planes.
+        const auto touches = [&](std::size_t q) {
+          if (planned) {
+            const std::int32_t* kz = plan->index.data() +
+                                     q * static_cast<std::size_t>(plan->stride) +
+                                     static_cast<std::size_t>(plan->slots[0] + plan->slots[1]);
+            for (int c = 0; c < plan->cells[3 * q + 2]; ++c) {
+              if (kz[c] >= k0 && kz[c] < k1) {
+                return true;
+              }
+            }
+            return false;
+          }
           const auto [first, last] = reach_[q];
-          bool touches = false;
           if (first >= 0 && last < global_n) {
-            touches = first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
-          } else {
-            for (int i = first; i <= last && !touches; ++i) {
-              const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
-              touches = k >= k0 && k < k1;
+            return first - box_lo < k1 && last - box_lo >= k0; // no wrap or mirror
+          }
+          for (int i = first; i <= last; ++i) {
+            const int k = grid_.distributed() ? box_index(2, i) : fold(2, i);
+            if (k >= k0 && k < k1) {
+              return true;
             }
           }
-          if (!touches) {
+          return false;
+        };
+        for (std::size_t q = 0; q < count; ++q) {
+          if (!touches(q)) {
             continue;
           }
           std::copy_n(v + q * nf, nf, vq.begin());
-          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
-                          [&](std::size_t idx, double w, int k) {
-                            if (k < k0 || k >= k1) {
-                              return; // another task's plane
-                            }
-                            for (std::size_t f = 0; f < nf; ++f) {
-                              out[f][idx] += w * vq[f];
-                            }
-                          });
+          visit_kernel(plan, p, q, buf, [&](std::size_t idx, double w, int k) {
+            if (k < k0 || k >= k1) {
+              return; // another task's plane
+            }
+            for (std::size_t f = 0; f < nf; ++f) {
+              out[f][idx] += w * vq[f];
+            }
+          });
         }
       },
       tbb::simple_partitioner());
@@ -388,6 +510,15 @@ void Deposition::deposit(const ParticlePositions& p, std::span<const double> val
 }
 
 void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& eps_s) {
+  solid_fraction_with(nullptr, p, eps_s);
+}
+
+void Deposition::deposit_solid_fraction(const TransferPlan& plan, GridField& eps_s) {
+  solid_fraction_with(&plan, plan.positions, eps_s);
+}
+
+void Deposition::solid_fraction_with(const TransferPlan* plan, const ParticlePositions& p,
+                                     GridField& eps_s) {
   const double inv_volume = 1.0 / grid_.cell_volume();
   const std::size_t n = p.radius.size();
   values_.resize(n);
@@ -399,7 +530,7 @@ void Deposition::deposit_solid_fraction(const ParticlePositions& p, GridField& e
                       }
                     });
   GridField* const cells[1] = {&eps_s};
-  scatter(p, n, 1, cells);
+  scatter(plan, p, n, 1, cells);
 }
 
 void Deposition::smooth(GridField& cell) const {
@@ -417,6 +548,30 @@ void Deposition::interpolate(const ParticlePositions& p, const GridField& field,
 
 void Deposition::interpolate(const ParticlePositions& p, std::span<const GridField* const> fields,
                              std::span<const std::span<double>> outs) {
+  interpolate_with(nullptr, p, fields, outs);
+}
+
+namespace {
+// A plan's passes take as many values as it has particles.
+void check_plan_count(const TransferPlan& plan, std::size_t n, const char* pass) {
+  if (n != plan.count) {
+    throw std::invalid_argument(fmt::format(
+        "Deposition::{}: {} values per field for a plan of {} particles", pass, n, plan.count));
+  }
+}
+} // namespace
+
+void Deposition::interpolate(const TransferPlan& plan, std::span<const GridField* const> fields,
+                             std::span<const std::span<double>> outs) {
+  for (const std::span<double>& out : outs) {
+    check_plan_count(plan, out.size(), "interpolate");
+  }
+  interpolate_with(&plan, plan.positions, fields, outs);
+}
+
+void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositions& p,
+                                  std::span<const GridField* const> fields,
+                                  std::span<const std::span<double>> outs) {
   const std::size_t nf = fields.size();
   if (outs.size() != nf) {
     throw std::invalid_argument("Deposition::interpolate: one output per field");
@@ -440,12 +595,11 @@ void Deposition::interpolate(const ParticlePositions& p, std::span<const GridFie
                         std::vector<double> buf(weights_.size());
                         for (std::size_t q = r.begin(); q != r.end(); ++q) {
                           std::array<double, kMaxFields> sum{};
-                          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
-                                          [&](std::size_t idx, double w) {
-                                            for (std::size_t f = 0; f < n_f; ++f) {
-                                              sum[f] += w * value[f][idx];
-                                            }
-                                          });
+                          visit_kernel(plan, p, q, buf, [&](std::size_t idx, double w) {
+                            for (std::size_t f = 0; f < n_f; ++f) {
+                              sum[f] += w * value[f][idx];
+                            }
+                          });
                           for (std::size_t f = 0; f < n_f; ++f) {
                             outs[f][q] = sum[f];
                           }
@@ -457,6 +611,20 @@ void Deposition::interpolate(const ParticlePositions& p, std::span<const GridFie
 void Deposition::deposit(const ParticlePositions& p,
                          std::span<const std::span<const double>> values,
                          std::span<GridField* const> cells) {
+  deposit_with(nullptr, p, values, cells);
+}
+
+void Deposition::deposit(const TransferPlan& plan, std::span<const std::span<const double>> values,
+                         std::span<GridField* const> cells) {
+  for (const std::span<const double>& v : values) {
+    check_plan_count(plan, v.size(), "deposit");
+  }
+  deposit_with(&plan, plan.positions, values, cells);
+}
+
+void Deposition::deposit_with(const TransferPlan* plan, const ParticlePositions& p,
+                              std::span<const std::span<const double>> values,
+                              std::span<GridField* const> cells) {
   const std::size_t nf = values.size();
   if (cells.size() != nf) {
     throw std::invalid_argument("Deposition::deposit: one cell field per value array");
@@ -476,7 +644,7 @@ void Deposition::deposit(const ParticlePositions& p,
                         }
                       }
                     });
-  scatter(p, n, nf, cells);
+  scatter(plan, p, n, nf, cells);
 }
 
 } // namespace cfddem::fluid

@@ -13,6 +13,7 @@
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
+#include "fluid/transfer_plan.hpp"
 
 namespace cfddem::fluid {
 
@@ -28,11 +29,6 @@ struct DepositionSettings {
   int sphere_samples = 16;
   // Optional implicit smoothing (I - D lap) q_new = q_old of deposited fields; D [m^2], 0 = off.
   double diffusion = 0.0;
-};
-
-// Particle positions and radii as spans (structure of arrays).
-struct ParticlePositions {
-  std::span<const double> x, y, z, radius;
 };
 
 // Distributed (grid is one box, halo its grid's halo): each rank passes the particles it owns
@@ -70,6 +66,18 @@ public:
   void deposit(const ParticlePositions& p, std::span<const std::span<const double>> values,
                std::span<GridField* const> cells);
 
+  // The particles' kernels, once for several passes at the same positions (fluid/transfer_plan.hpp;
+  // `out`'s arrays are reused). The passes below that take the plan give bitwise what the ones
+  // taking the positions give. The plan holds spans of the positions, which must not change
+  // while it is used, and belongs to this Deposition (its grid). Distributed: the positions must
+  // have passed reach_problem.
+  void plan(const ParticlePositions& p, TransferPlan& out) const;
+  void deposit_solid_fraction(const TransferPlan& plan, GridField& eps_s);
+  void interpolate(const TransferPlan& plan, std::span<const GridField* const> fields,
+                   std::span<const std::span<double>> outs);
+  void deposit(const TransferPlan& plan, std::span<const std::span<const double>> values,
+               std::span<GridField* const> cells);
+
   // Distributed: the first of the particles whose stencil leaves the box's ghost layers, as a
   // message (empty: all fit; always empty on an undistributed grid). Not collective: a caller
   // agrees on it over the ranks before the collective deposit.
@@ -87,6 +95,22 @@ private:
   template <class Visit>
   void for_each_weight(const std::array<double, 3>& x, double radius, std::vector<double>& buf,
                        Visit&& visit) const;
+  // Visits the cells of particle q's kernel from the plan's axis factors (plan.separable), in
+  // for_each_weight's order with its weights.
+  template <class Visit>
+  void for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit) const;
+  // Particle q's kernel: from the plan where it has one (separable), else computed.
+  template <class Visit>
+  void visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
+                    std::vector<double>& buf, Visit&& visit) const;
+  // The passes, with the kernels from `plan` (null: computed from p).
+  void interpolate_with(const TransferPlan* plan, const ParticlePositions& p,
+                        std::span<const GridField* const> fields,
+                        std::span<const std::span<double>> outs);
+  void deposit_with(const TransferPlan* plan, const ParticlePositions& p,
+                    std::span<const std::span<const double>> values,
+                    std::span<GridField* const> cells);
+  void solid_fraction_with(const TransferPlan* plan, const ParticlePositions& p, GridField& eps_s);
   // In a round column (docs/theory.md §13): the weights of the kernel's solid cells moved onto
   // its gas cells in proportion to theirs, so a particle beside the wall deposits all its volume
   // and drag where the gas is, and interpolates from gas cells only. Cells beyond the domain's
@@ -105,10 +129,10 @@ private:
   // order, adding only into its planes (a particle whose kernel spans two tasks' planes has its
   // weights computed by both): every cell gets its additions in the serial order, so the sums
   // are the serial ones whatever the thread count. On one thread the serial loop runs itself.
-  void scatter(const ParticlePositions& p, std::size_t count, std::size_t nf,
-               std::span<GridField* const> cells);
-  void scatter_by_planes(const ParticlePositions& p, std::size_t count, std::size_t nf,
-                         std::span<GridField* const> cells, std::size_t threads);
+  void scatter(const TransferPlan* plan, const ParticlePositions& p, std::size_t count,
+               std::size_t nf, std::span<GridField* const> cells);
+  void scatter_by_planes(const TransferPlan* plan, const ParticlePositions& p, std::size_t count,
+                         std::size_t nf, std::span<GridField* const> cells, std::size_t threads);
 
   MacGrid grid_;
   DepositionSettings settings_;

@@ -31,6 +31,22 @@ namespace detail {
 }
 } // namespace detail
 
+// The cube kernel's factor along one axis for cell `cell` (origin + cell dx is its low face): the
+// kernel's share of its length in the cell, overlap / (2r). A cell's weight is w_x w_y w_z.
+[[nodiscard]] inline double dpvm_cube_factor(double x, double r, double origin, double dx,
+                                             int cell) {
+  return detail::interval_overlap(x, r, origin + cell * dx, dx) / (2 * r);
+}
+
+// The kernel's cells along one axis: lo and count, as dpvm_weights takes them.
+[[nodiscard]] inline std::array<int, 2> dpvm_axis_cells(double x, double r, double origin,
+                                                        double dx) {
+  const double rel = (x - origin) / dx;
+  const int first = static_cast<int>(std::floor(rel - r / dx));
+  const int last = static_cast<int>(std::floor(rel + r / dx));
+  return {first, last - first + 1};
+}
+
 // Stencil and weights (sum 1) of the kernel of radius r centred at x. weights must hold at least
 // prod_a dpvm_max_cells(r, dx[a]) values. Sphere: exact along x, midpoint rule with
 // `samples` x `samples` chords over (y, z); normalised by the sampled volume, so the weights
@@ -40,13 +56,10 @@ namespace detail {
                                               const std::array<double, 3>& dx, DpvmShape shape,
                                               std::span<double> weights, int samples = 16) {
   CellStencil s;
-  std::array<double, 3> rel{};
   for (int a = 0; a < 3; ++a) {
-    rel[a] = (x[a] - origin[a]) / dx[a];
-    const int first = static_cast<int>(std::floor(rel[a] - r / dx[a]));
-    const int last = static_cast<int>(std::floor(rel[a] + r / dx[a]));
-    s.lo[a] = first;
-    s.size[a] = last - first + 1;
+    const std::array<int, 2> cells = dpvm_axis_cells(x[a], r, origin[a], dx[a]);
+    s.lo[a] = cells[0];
+    s.size[a] = cells[1];
   }
   assert(static_cast<std::size_t>(s.count()) <= weights.size());
   const std::span<double> w = weights.first(static_cast<std::size_t>(s.count()));
@@ -56,13 +69,11 @@ namespace detail {
     // filled from them, the first row last (it holds them until then).
     const auto n0 = static_cast<std::size_t>(s.size[0]);
     for (std::size_t a = 0; a < n0; ++a) {
-      w[a] = detail::interval_overlap(x[0], r, origin[0] + (s.lo[0] + static_cast<int>(a)) * dx[0],
-                                      dx[0]) /
-             (2 * r);
+      w[a] = dpvm_cube_factor(x[0], r, origin[0], dx[0], s.lo[0] + static_cast<int>(a));
     }
     // The y factors once (a short kernel's, on the stack), not once per z layer.
     const auto y_factor = [&](int b) {
-      return detail::interval_overlap(x[1], r, origin[1] + (s.lo[1] + b) * dx[1], dx[1]) / (2 * r);
+      return dpvm_cube_factor(x[1], r, origin[1], dx[1], s.lo[1] + b);
     };
     constexpr int kShort = 16;
     std::array<double, kShort> wys;
@@ -71,8 +82,7 @@ namespace detail {
       wys[static_cast<std::size_t>(b)] = y_factor(b);
     }
     for (int c = s.size[2] - 1; c >= 0; --c) {
-      const double wz =
-          detail::interval_overlap(x[2], r, origin[2] + (s.lo[2] + c) * dx[2], dx[2]) / (2 * r);
+      const double wz = dpvm_cube_factor(x[2], r, origin[2], dx[2], s.lo[2] + c);
       for (int b = s.size[1] - 1; b >= 0; --b) {
         const double wy = short_y ? wys[static_cast<std::size_t>(b)] : y_factor(b);
         double* row =

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include "fluid/deposition.hpp"
 #include "fluid/diffusion_smoothing.hpp"
@@ -226,6 +227,93 @@ TEST_P(DepositionConservation, ColumnKeepsTheVolumeOnGasCells) {
     }
   }
   EXPECT_EQ(in_solid, 0.0);
+}
+
+// A plan's passes (Deposition::plan: the kernels stored as axis factors once, for several passes)
+// give bit for bit what the passes computing every kernel give: the solid fraction, a deposit of
+// four fields and an interpolation of six, on 1 and 2 threads, on a periodic and a walled grid
+// (kernels wrapping and folding), in a round column (no plan: kernels computed), with a particle
+// larger than the declared maximum and particles on cell faces (weights of 0 skipped).
+TEST_P(DepositionConservation, APlanGivesThePassesBitwise) {
+  std::vector<MacGridSpec> specs = {box_spec({6, 5, 4}, {6e-4, 5e-4, 4e-4}, BoundaryKind::periodic),
+                                    box_spec({6, 5, 4}, {6e-4, 5e-4, 4e-4}, BoundaryKind::wall),
+                                    box_spec({10, 4, 10}, {1e-3, 4e-4, 1e-3}, BoundaryKind::wall)};
+  specs[2].cylinder_axis = 1;
+  specs[2].cylinder_radius = 5e-4;
+  const char* names[3] = {"periodic", "walls", "column"};
+  for (std::size_t g = 0; g < specs.size(); ++g) {
+    const MacGrid grid(specs[g]);
+    SCOPED_TRACE(names[g]);
+    Cloud cloud = random_cloud(grid, 300, 4e-5, 17);
+    cloud.r[7] = 1.6e-4;                           // larger than the declared 5e-5
+    cloud.x[11] = grid.origin(0) + 2 * 1e-4;       // on a cell face
+    cloud.y[12] = grid.origin(1) + 2.5 * 1e-4;     // on a cell centre (trilinear: a 0 weight)
+    cloud.z[13] = grid.origin(2) + grid.length(2); // on the domain's high face
+    DepositionSettings settings;
+    settings.kernel = GetParam();
+    settings.width = 3.0;
+    std::mt19937_64 rng(29);
+    std::uniform_real_distribution<double> uni(-1.0, 1.0);
+    std::array<std::vector<double>, 4> value;
+    for (auto& v : value) {
+      for (std::size_t q = 0; q < cloud.r.size(); ++q) {
+        v.push_back(uni(rng));
+      }
+    }
+    std::array<GridField, 6> field;
+    for (GridField& f : field) {
+      f = grid.make_field();
+      for (double& v : f.values()) {
+        v = uni(rng);
+      }
+    }
+    for (const int threads : {1, 2}) {
+      SCOPED_TRACE(threads);
+      tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                                static_cast<std::size_t>(threads));
+      Deposition deposition(grid, settings, 5e-5);
+      TransferPlan plan;
+      deposition.plan(cloud.view(), plan);
+      EXPECT_EQ(plan.separable, GetParam() != DepositionKernel::dpvm_sphere && !grid.has_solid());
+      // Each pass twice: from the positions (a), from the plan (b).
+      std::array<GridField, 2> eps_s = {grid.make_field(), grid.make_field()};
+      deposition.deposit_solid_fraction(cloud.view(), eps_s[0]);
+      deposition.deposit_solid_fraction(plan, eps_s[1]);
+      EXPECT_TRUE(test::same_bits(eps_s[0], eps_s[1]));
+      std::array<std::array<GridField, 4>, 2> cells;
+      std::array<std::array<GridField*, 4>, 2> out{};
+      for (int m = 0; m < 2; ++m) {
+        for (int f = 0; f < 4; ++f) {
+          cells[m][f] = grid.make_field();
+          out[m][f] = &cells[m][f];
+        }
+      }
+      const std::span<const double> values[4] = {value[0], value[1], value[2], value[3]};
+      deposition.deposit(cloud.view(), values, out[0]);
+      deposition.deposit(plan, values, out[1]);
+      for (int f = 0; f < 4; ++f) {
+        EXPECT_TRUE(test::same_bits(cells[0][f], cells[1][f])) << "field " << f;
+      }
+      std::array<std::array<std::vector<double>, 6>, 2> gathered;
+      std::array<std::array<std::span<double>, 6>, 2> outs;
+      const GridField* in[6];
+      for (int f = 0; f < 6; ++f) {
+        in[f] = &field[f];
+        for (int m = 0; m < 2; ++m) {
+          gathered[m][f].assign(cloud.r.size(), 0.0);
+          outs[m][f] = gathered[m][f];
+        }
+      }
+      deposition.interpolate(cloud.view(), in, outs[0]);
+      deposition.interpolate(plan, in, outs[1]);
+      EXPECT_EQ(gathered[0], gathered[1]);
+      // A pass with more values than the plan has particles is refused.
+      std::vector<double> longer(cloud.r.size() + 1, 1.0);
+      const std::span<const double> wrong[1] = {longer};
+      GridField* one[1] = {out[1][0]};
+      EXPECT_THROW(deposition.deposit(plan, wrong, one), std::invalid_argument);
+    }
+  }
 }
 
 TEST(Deposition, ParticleLargerThanDeclaredMaxRadiusStillConserves) {

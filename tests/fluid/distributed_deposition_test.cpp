@@ -120,6 +120,15 @@ TEST_P(DistributedDeposition, EqualsOneGridToRoundOffAndConservesTheSum) {
   EXPECT_LE(sums[0] / sums[1], 1e-13);
   EXPECT_NEAR(total, expected, 1e-12 * expected) << "deposition conserves sum value";
   EXPECT_EQ(halo.sum(static_cast<double>(mine.x.size())), static_cast<double>(all.x.size()));
+  // The same two deposits from a plan of the rank's particles: bitwise b.
+  TransferPlan plan;
+  distributed.plan(mine.positions(), plan);
+  GridField c = local.make_field();
+  const std::span<const double> values[1] = {mine.value};
+  GridField* cells[1] = {&c};
+  distributed.deposit(plan, values, cells);
+  distributed.deposit(plan, values, cells);
+  EXPECT_TRUE(test::same_bits(b, c));
 
   // Interpolation of a smooth field from halo-filled ghosts: the same cells and weights in the
   // same order as on one grid, so bitwise equal.
@@ -142,6 +151,11 @@ TEST_P(DistributedDeposition, EqualsOneGridToRoundOffAndConservesTheSum) {
   std::vector<double> ib(mine.x.size());
   serial.interpolate(all.positions(), fa, ia);
   distributed.interpolate(mine.positions(), fb, ib);
+  std::vector<double> ic(mine.x.size());
+  const GridField* planned_in[1] = {&fb};
+  const std::span<double> planned_out[1] = {ic};
+  distributed.interpolate(plan, planned_in, planned_out);
+  EXPECT_EQ(ib, ic) << "a plan's interpolation is the computed kernels' bit for bit";
   const Particles serial_mine =
       in_box(global, Particles{all.x, all.y, all.z, all.r, ia}, local.box());
   ASSERT_EQ(serial_mine.value.size(), ib.size());

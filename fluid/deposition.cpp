@@ -22,6 +22,8 @@ namespace cfddem::fluid {
 
 namespace {
 constexpr std::size_t kMaxDepositFields = 8;
+// The widest kernel, in cells along an axis, that Deposition::plan stores.
+constexpr int kMaxPlannedCells = 16;
 } // namespace
 
 DepositionKernel parse_deposition_kernel(std::string_view name) {
@@ -303,8 +305,10 @@ void Deposition::plan(const ParticlePositions& p, TransferPlan& out) const {
     }
     for (int a = 0; a < 3; ++a) {
       out.slots[a] = trilinear ? 2 : dpvm_max_cells(settings_.width * r_max, grid_.spacing(a));
-      // A kernel hundreds of cells wide (a hostile input) is computed pass by pass, not stored.
-      out.separable = out.separable && out.slots[a] <= 255;
+      // A kernel more than 16 cells wide on an axis is computed pass by pass: its plan would
+      // take kilobytes per particle, while its thousands of cells' sums, not its factors,
+      // dominate each pass.
+      out.separable = out.separable && out.slots[a] <= kMaxPlannedCells;
     }
   }
   if (!out.separable) {

@@ -24,7 +24,8 @@ struct TransferPlan {
   ParticlePositions positions; // what the plan was made from (spans: the caller's arrays)
   std::size_t count = 0;
   // false: the kernels are not products of axis factors (dpvm sphere, a round column's solid
-  // cells): every pass computes them from `positions`, and the arrays below are empty.
+  // cells), or wider than 16 cells on an axis: every pass computes them from `positions`, and
+  // the arrays below are empty.
   bool separable = false;
   // Slots per particle along each axis (the most cells a kernel covers); a particle's factors
   // and indices start at q * stride, x's slots first, then y's, then z's.

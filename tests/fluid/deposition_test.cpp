@@ -314,6 +314,21 @@ TEST_P(DepositionConservation, APlanGivesThePassesBitwise) {
       EXPECT_THROW(deposition.deposit(plan, wrong, one), std::invalid_argument);
     }
   }
+  // A kernel wider than a plan keeps (16 cells along an axis) is computed by every pass.
+  const MacGrid grid(specs[0]);
+  Cloud wide = random_cloud(grid, 5, 4e-5, 31);
+  wide.r[2] = 3e-4; // r* = 9e-4 m: 19-20 cells along each axis
+  DepositionSettings settings;
+  settings.kernel = GetParam();
+  settings.width = 3.0;
+  Deposition deposition(grid, settings, 5e-5);
+  TransferPlan plan;
+  deposition.plan(wide.view(), plan);
+  EXPECT_EQ(plan.separable, GetParam() == DepositionKernel::trilinear);
+  std::array<GridField, 2> eps_s = {grid.make_field(), grid.make_field()};
+  deposition.deposit_solid_fraction(wide.view(), eps_s[0]);
+  deposition.deposit_solid_fraction(plan, eps_s[1]);
+  EXPECT_TRUE(test::same_bits(eps_s[0], eps_s[1]));
 }
 
 TEST(Deposition, ParticleLargerThanDeclaredMaxRadiusStillConserves) {

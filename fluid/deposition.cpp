@@ -341,6 +341,11 @@ void Deposition::plan(const ParticlePositions& p, TransferPlan& out) const {
               const double reach = settings_.width * p.radius[q];
               const std::array<int, 2> span = dpvm_axis_cells(x[a], reach, origin[a], dx[a]);
               lo = span[0], cells = span[1];
+              if (cells > out.slots[a]) { // dpvm_max_cells bounds it: a broken bound, not input
+                throw std::logic_error(fmt::format(
+                    "Deposition::plan: a kernel covers {} cells along axis {}, the plan has {}",
+                    cells, a, out.slots[a]));
+              }
               for (int c = 0; c < cells; ++c) {
                 w[c] = dpvm_cube_factor(x[a], reach, origin[a], dx[a], lo + c);
               }

@@ -24,6 +24,10 @@ namespace {
 constexpr std::size_t kMaxDepositFields = 8;
 // The widest kernel, in cells along an axis, that Deposition::plan stores.
 constexpr int kMaxPlannedCells = 16;
+// Whether a pass reads its kernels from `plan` (else it computes them).
+bool from_plan(const TransferPlan* plan) {
+  return plan != nullptr && plan->separable;
+}
 } // namespace
 
 DepositionKernel parse_deposition_kernel(std::string_view name) {
@@ -283,7 +287,7 @@ void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q
 template <class Visit>
 void Deposition::visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
                               std::vector<double>& buf, Visit&& visit) const {
-  if (plan != nullptr && plan->separable) {
+  if (from_plan(plan)) {
     for_each_planned_weight(*plan, q, visit);
   } else {
     for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf, visit);
@@ -438,22 +442,25 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
   // global k range that holds its kernel: the trilinear kernel's two cells, found as
   // trilinear_weights finds them (the same arithmetic, so exactly its cells); a dpvm kernel's
   // cells within its half-width, with a cell to spare.
-  const bool planned = plan != nullptr && plan->separable;
-  reach_.resize(planned ? 0 : count);
+  const bool planned = from_plan(plan);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, planned ? 0 : count, 4096),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t q = r.begin(); q != r.end(); ++q) {
-                        if (trilinear) {
-                          const int i = static_cast<int>(trilinear_position(p.z[q], z0, dz)[1]);
-                          reach_[q] = {i - 1, i};
-                          continue;
+  if (!planned) {
+    reach_.resize(count);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                          if (trilinear) {
+                            const int i = static_cast<int>(trilinear_position(p.z[q], z0, dz)[1]);
+                            reach_[q] = {i - 1, i};
+                            continue;
+                          }
+                          const double reach = settings_.width * p.radius[q];
+                          reach_[q] = {static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1,
+                                       static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) +
+                                           1};
                         }
-                        const double reach = settings_.width * p.radius[q];
-                        reach_[q] = {static_cast<int>(std::floor((p.z[q] - reach - z0) / dz)) - 1,
-                                     static_cast<int>(std::floor((p.z[q] + reach - z0) / dz)) + 1};
-                      }
-                    });
+                      });
+  }
   // The box's k-planes, ghosts included (a distributed box's deposits reach its ghost layers),
   // in one task a thread: a kernel spanning two tasks is computed by both (a dpvm kernel two
   // diameters wide spans about 7 planes), so fewer, larger tasks do less work twice.
@@ -466,7 +473,7 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
       [&](const tbb::blocked_range<int>& r) {
         const int k0 = r.begin();
         const int k1 = r.end();
-        std::vector<double> buf(weights_.size());
+        std::vector<double> buf(planned ? 0 : weights_.size()); // a plan needs no weight buffer
         std::array<double, kMaxDepositFields> vq{};
         // Whether particle q's kernel has a cell in this task's planes.
         const auto touches = [&](std::size_t q) {
@@ -601,7 +608,8 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
     const std::size_t n_f = count_of_fields;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
                       [&](const tbb::blocked_range<std::size_t>& r) {
-                        std::vector<double> buf(weights_.size());
+                        // A plan needs no weight buffer.
+                        std::vector<double> buf(from_plan(plan) ? 0 : weights_.size());
                         for (std::size_t q = r.begin(); q != r.end(); ++q) {
                           std::array<double, kMaxFields> sum{};
                           visit_kernel(plan, p, q, buf, [&](std::size_t idx, double w) {

@@ -30,10 +30,12 @@ struct FaceRow {
 
 // The drag's face factors on a row (docs/theory.md §5): the projection's mobility
 // dt/(rho + dt beta_f/eps_f), the gain 1 + k beta_f and the push k (beta v)_f with
-// k = dt/(rho eps_f), from the face means of eps_g, beta and beta v.
+// k = dt/(rho eps_f), from the face means of eps_g, beta and beta v; with implicit viscosity
+// (mass not null) also the face mass eps_f rho, from the same eps_f.
 [[gnu::always_inline]] inline void face_drag_body(const double* eps, const double* beta,
                                                   const double* beta_v, double* mobility,
-                                                  double* gain, double* push, const FaceRow& r) {
+                                                  double* gain, double* push, double* mass,
+                                                  const FaceRow& r) {
   const double dt = r.dt, rho = r.rho;
   for (std::ptrdiff_t f = r.f0; f < r.f0 + r.n; ++f) {
     const std::ptrdiff_t below = f - r.s;
@@ -44,6 +46,9 @@ struct FaceRow {
     mobility[f] = dt / (rho + dt * beta_f / eps_f);
     gain[f] = 1.0 + k_drag * beta_f;
     push[f] = k_drag * beta_v_f;
+    if (mass != nullptr) { // loop-invariant: GCC versions the loop on it
+      mass[f] = eps_f * rho;
+    }
   }
 }
 
@@ -55,8 +60,8 @@ struct FaceRow {
     [[gnu::noinline __VA_ARGS__]] static void                                                      \
     row(const double* __restrict eps, const double* __restrict beta,                               \
         const double* __restrict beta_v, double* __restrict mobility, double* __restrict gain,     \
-        double* __restrict push, const FaceRow& r) {                                               \
-      face_drag_body(eps, beta, beta_v, mobility, gain, push, r);                                  \
+        double* __restrict push, double* __restrict mass, const FaceRow& r) {                      \
+      face_drag_body(eps, beta, beta_v, mobility, gain, push, mass, r);                            \
     }                                                                                              \
   };
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_FACE_DRAG_ROWS, FaceDrag)
@@ -407,15 +412,11 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale, bool k
     double* mobility = mobility_[a].values().data();
     double* gain = drag_gain_[a].values().data();
     double* push = drag_push_[a].values().data();
-    double* mass = face_mass_[a].values().data();
+    double* mass = implicit ? face_mass_[a].values().data() : nullptr;
     with_copy_at<FaceDragX86_64, FaceDragV3, FaceDragV4>(level_, [&](auto rows) {
       for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int) {
-        rows.row(eps, beta, beta_v, mobility, gain, push, FaceRow{row, hi[0] + 1, s, dt, rho});
-        if (implicit) {
-          for (std::ptrdiff_t f = row; f <= row + hi[0]; ++f) {
-            mass[f] = 0.5 * (eps[f] + eps[f - s]) * rho;
-          }
-        }
+        rows.row(eps, beta, beta_v, mobility, gain, push, mass,
+                 FaceRow{row, hi[0] + 1, s, dt, rho});
       });
     });
   }

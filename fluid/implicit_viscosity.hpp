@@ -9,6 +9,7 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <memory>
 #include <vector>
 
@@ -40,6 +41,38 @@ struct ViscousSolveReport {
 // rho = 0.25, 0.41 at 0.7, where it still takes fewer passes over the grid than two multigrid-CG
 // iterations with their set-up (docs/gas_step.md, "Implicit viscosity by Chebyshev iteration").
 inline constexpr double kChebyshevMaxDominance = 0.7;
+
+// Where a regular Chebyshev row takes its six face coefficients from (solve_chebyshev).
+enum class CoefficientSource {
+  automatic, // by chebyshev_rows_from_eps below
+  stored,    // the three stored arrays, every row
+  from_eps,  // eps, on the regular rows, at every level that has the copies (not x86-64)
+};
+
+// A component's fields (values and ghosts) from this many bytes up are read by the x86-64-v4
+// rows from eps: computing the coefficients saves two of seven streamed arrays, which pays only
+// where the passes wait on memory and where 32 registers hold the extra operations. Measured
+// (docs/performance.md, "The implicit viscosity's Chebyshev rows"): at x86-64-v4 (Zen 5) the
+// stored rows took 0.87x the eps rows' time per unknown on the small bed's 0.6 MB fields, the
+// eps rows 0.85x the stored rows' on the 1e5 bed's 4.1 MB ones; at x86-64-v3 (Zen 3) the stored
+// rows were the faster on both (the coupled viscous phase 0.82x on the bed, 0.88-0.94x on the
+// 1e5 bed).
+inline constexpr std::size_t kEpsRowsMinFieldBytes = std::size_t{2} << 20;
+
+// Whether the regular rows of a component whose fields hold field_bytes compute their face
+// coefficients from eps. Either source gives the same bits; this picks the faster.
+[[nodiscard]] constexpr bool chebyshev_rows_from_eps(CoefficientSource source, SimdLevel level,
+                                                     std::size_t field_bytes) {
+  switch (source) {
+  case CoefficientSource::stored:
+    return false;
+  case CoefficientSource::from_eps:
+    return level != SimdLevel::x86_64;
+  case CoefficientSource::automatic:
+    break;
+  }
+  return level == SimdLevel::x86_64_v4 && field_bytes >= kEpsRowsMinFieldBytes;
+}
 
 class ImplicitViscosity {
 public:
@@ -80,9 +113,9 @@ public:
   // compare the levels, which give the same bits).
   void use_simd_level(SimdLevel level) { level_ = level; }
 
-  // On: every Chebyshev row reads the stored face coefficients, none computes them from eps
-  // (tests: both give the same bits).
-  void use_stored_coefficients(bool on) { stored_only_ = on; }
+  // Where the Chebyshev rows take their face coefficients from (default automatic; tests and
+  // benchmarks force either: both give the same bits).
+  void use_coefficient_source(CoefficientSource source) { source_ = source; }
 
 private:
   // Chebyshev iteration with the Jacobi preconditioner, when the rows' dominance ratio is at
@@ -152,7 +185,7 @@ private:
   std::array<bool, 3> cv_k_valid_{};
   GridField dir_, dir_next_;
   SimdLevel level_ = simd_level();
-  bool stored_only_ = false;
+  CoefficientSource source_ = CoefficientSource::automatic;
 };
 
 } // namespace cfddem::fluid

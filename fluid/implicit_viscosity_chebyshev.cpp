@@ -215,10 +215,10 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
                     c};
   // The rows whose coefficients come from eps (regular_rows).
   const std::vector<char>& regular = regular_rows(comp);
-  // Computing the coefficients costs about 20 more operations per unknown: with two doubles
-  // per instruction (baseline x86-64) they cost more than the bytes they save
-  // (BM_ViscousChebyshevBed).
-  const bool eps_rows = !stored_only_ && level_ != SimdLevel::x86_64;
+  // Computing the coefficients costs about 20 more operations per unknown for two fewer
+  // streamed arrays (chebyshev_rows_from_eps: where that pays).
+  const bool eps_rows =
+      chebyshev_rows_from_eps(source_, level_, eps_seen_[cs].values().size() * sizeof(double));
   const auto from_eps = [&](int j, int k) {
     return eps_rows && regular[static_cast<std::size_t>(j - lo[1]) +
                                static_cast<std::size_t>(hi[1] - lo[1] + 1) *

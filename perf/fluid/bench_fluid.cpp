@@ -458,7 +458,8 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
   std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
   ImplicitViscosity viscosity(grid);
   viscosity.use_simd_level(level);
-  viscosity.use_stored_coefficients(state.range(2) != 0);
+  viscosity.use_coefficient_source(state.range(2) != 0 ? CoefficientSource::stored
+                                                       : CoefficientSource::from_eps);
   const double c = 0.5 * dt * 1.8e-5;
   double iterations = 0.0;
   for (auto _ : state) {

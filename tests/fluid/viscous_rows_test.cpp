@@ -68,7 +68,8 @@ TEST(ViscousChebyshevRows, EveryCopyAndCoefficientSourceMatchesTheStoredBaseline
       const auto solve = [&](SimdLevel level, bool stored, GridField& u) {
         ImplicitViscosity viscosity(grid);
         viscosity.use_simd_level(level);
-        viscosity.use_stored_coefficients(stored);
+        viscosity.use_coefficient_source(stored ? CoefficientSource::stored
+                                                : CoefficientSource::from_eps);
         u = start[static_cast<std::size_t>(comp)];
         return viscosity.solve(comp, c, eps, diag, rhs, u, 1e-12, 500);
       };
@@ -103,6 +104,30 @@ TEST(ViscousChebyshevRows, EveryCopyAndCoefficientSourceMatchesTheStoredBaseline
       }
     }
   }
+}
+
+// The automatic source: eps only at x86-64-v4 and only from kEpsRowsMinFieldBytes up (where the
+// saved bytes pay); a forced source holds at every size, and baseline x86-64 has no eps rows.
+TEST(ViscousChebyshevRows, TheAutomaticSourceReadsEpsOnlyWhereItPays) {
+  constexpr std::size_t big = kEpsRowsMinFieldBytes;
+  constexpr std::size_t small = kEpsRowsMinFieldBytes - 1;
+  for (const std::size_t bytes : {small, big}) {
+    EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64, bytes));
+    EXPECT_FALSE(
+        chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64_v3, bytes));
+    EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::stored, SimdLevel::x86_64_v4, bytes));
+    EXPECT_TRUE(chebyshev_rows_from_eps(CoefficientSource::from_eps, SimdLevel::x86_64_v3, bytes));
+    EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::from_eps, SimdLevel::x86_64, bytes));
+  }
+  EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64_v4, small));
+  EXPECT_TRUE(chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64_v4, big));
+  // The small bed's fields (32 x 50 x 32 faces with ghosts) read the stored arrays, the 1e5
+  // bed's (101 x 50 x 101) compute from eps.
+  const auto field_bytes = [](std::array<int, 3> cells) {
+    return GridLayout(cells).size() * sizeof(double);
+  };
+  EXPECT_LT(field_bytes({32, 50, 32}), kEpsRowsMinFieldBytes);
+  EXPECT_GE(field_bytes({101, 50, 101}), kEpsRowsMinFieldBytes);
 }
 
 } // namespace

@@ -21,6 +21,8 @@ int mirror_hi(int g, int n) {
   return m >= 0 ? m : 0;
 }
 
+} // namespace
+
 // What a plane map writes from the source value x.
 enum class MapKind {
   copy,    // x
@@ -55,6 +57,8 @@ struct FillPlan {
     return {maps.data(), static_cast<std::size_t>(count)};
   }
 };
+
+namespace {
 
 // Applies map m to the points [first, first + len) of its source plane, each written to its image
 // `shift` further on, in the destination plane.
@@ -287,6 +291,22 @@ void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f) {
   const FillPlan plans[1] = {velocity_plan(grid, comp)};
   GridField* const fields[1] = {&f};
   run_plans(grid.layout(), plans, fields);
+}
+
+PlaneGhostFill::PlaneGhostFill(const MacGrid& grid, int comp)
+    : layout_(grid.layout()), plan_(std::make_unique<const FillPlan>(velocity_plan(grid, comp))) {}
+
+PlaneGhostFill::~PlaneGhostFill() = default;
+
+void PlaneGhostFill::fill_plane(GridField& f, int k) const {
+  apply_xy(layout_, *plan_, f.values().data(), static_cast<std::ptrdiff_t>(k) + kGhostLayers);
+}
+
+void PlaneGhostFill::fill_z(GridField& f) const {
+  const std::ptrdiff_t ny = extent(layout_, 1);
+  for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
+    apply_z(layout_, *plan_, f.values().data(), jp);
+  }
 }
 
 } // namespace cfddem::fluid

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <array>
+#include <memory>
 
 #include "fluid/grid_field.hpp"
 #include "fluid/mac_grid.hpp"
@@ -27,5 +28,28 @@ void fill_cell_ghosts(const MacGrid& grid, GridField& q, CellGhosts mode);
 void fill_velocity_ghosts(const MacGrid& grid, std::array<GridField, 3>& u);
 // The same for one component (comp = the axis of its faces).
 void fill_velocity_ghosts(const MacGrid& grid, int comp, GridField& f);
+
+struct FillPlan;
+
+// One component's velocity fill in two parts, for a sweep that finishes a z-plane at a time and
+// fills its ghosts while the plane is still in the caches: fill_plane(f, k) applies the maps
+// along x and y to z-plane k (any padded plane, -kGhostLayers .. n_z + kGhostLayers), which read
+// and write that plane only; fill_z(f) then applies the maps along z (whole planes from whole
+// planes). fill_plane on every padded plane, in any order, then fill_z is
+// fill_velocity_ghosts(grid, comp, f) bit for bit.
+class PlaneGhostFill {
+public:
+  PlaneGhostFill(const MacGrid& grid, int comp);
+  ~PlaneGhostFill();
+  PlaneGhostFill(const PlaneGhostFill&) = delete;
+  PlaneGhostFill& operator=(const PlaneGhostFill&) = delete;
+
+  void fill_plane(GridField& f, int k) const;
+  void fill_z(GridField& f) const;
+
+private:
+  GridLayout layout_;
+  std::unique_ptr<const FillPlan> plan_;
+};
 
 } // namespace cfddem::fluid

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "core/simd_level.hpp"
+#include "fluid/ghost_fill.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
@@ -41,6 +42,10 @@ struct ViscousSolveReport {
 // rho = 0.25, 0.41 at 0.7, where it still takes fewer passes over the grid than two multigrid-CG
 // iterations with their set-up (docs/gas_step.md, "Implicit viscosity by Chebyshev iteration").
 inline constexpr double kChebyshevMaxDominance = 0.7;
+
+// Fewest z-planes per task of the Chebyshev iteration's paired sweeps: a task's first and last
+// planes take their second iteration after the sweep, from memory again.
+inline constexpr int kPairedChunkPlanes = 8;
 
 // Where a regular Chebyshev row takes its six face coefficients from (solve_chebyshev).
 enum class CoefficientSource {
@@ -113,6 +118,10 @@ public:
   // compare the levels, which give the same bits).
   void use_simd_level(SimdLevel level) { level_ = level; }
 
+  // Off: the Chebyshev iteration takes one iteration per sweep over the grid, as a distributed
+  // grid does (tests: both give the same bits).
+  void use_paired_iterations(bool on) { pairs_ = on; }
+
   // Where the Chebyshev rows take their face coefficients from (default automatic; tests and
   // benchmarks force either: both give the same bits).
   void use_coefficient_source(CoefficientSource source) { source_ = source; }
@@ -184,6 +193,9 @@ private:
   std::array<GridField, 3> eps_seen_;
   std::array<bool, 3> cv_k_valid_{};
   GridField dir_, dir_next_;
+  // Per component: the homogeneous fill of a direction plane by plane (paired iterations).
+  std::array<std::unique_ptr<PlaneGhostFill>, 3> plane_fill_;
+  bool pairs_ = true;
   SimdLevel level_ = simd_level();
   CoefficientSource source_ = CoefficientSource::automatic;
 };

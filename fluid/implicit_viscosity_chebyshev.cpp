@@ -5,13 +5,17 @@
 // products.
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <type_traits>
 #include <vector>
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include "core/simd_level.hpp"
 #include "fluid/box_loops.hpp"
+#include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/implicit_viscosity.hpp"
 
@@ -105,10 +109,17 @@ template <int A>
   }
 }
 
+// How a Chebyshev row pass treats x (solve_chebyshev): `plain`, x += d; `pending`, the first
+// iteration of a pair after an earlier pair, x = (x + dn) + d, where dn still holds the direction
+// the earlier pair's second iteration did not add (the unfused iterations' two sums in their
+// order); `lagged`, the second iteration of a pair, x untouched (its direction joins x in the
+// next pair's first iteration or in the pass that ends the solve).
+enum class XUpdate { plain, pending, lagged };
+
 // One Chebyshev iteration on a row: x += d, r -= A d, d_next = keep d + push r / A's diagonal.
 // The inverse diagonal is computed again at every iteration rather than read: a division costs
 // less than streaming one more array (the 1e5 bed's fields do not fit the caches).
-template <int A>
+template <int A, XUpdate X>
 [[gnu::always_inline]] inline void chebyshev_body(const double* k0, const double* k1,
                                                   const double* k2, const double* ep,
                                                   const double* dg, const double* d, double* x,
@@ -119,7 +130,11 @@ template <int A>
     double k[6];
     faces_at<A>(k0, k1, k2, ep, ix, iy, iz, p, sy, sz, k);
     const double q = apply_at(k, dg[p], d, p, sy, sz, c);
-    x[p] += d[p];
+    if constexpr (X == XUpdate::plain) {
+      x[p] += d[p];
+    } else if constexpr (X == XUpdate::pending) {
+      x[p] = (x[p] + dn[p]) + d[p];
+    }
     r[p] -= q;
     dn[p] = keep * d[p] + push * inverse_diagonal(k, dg[p], c) * r[p];
   }
@@ -139,13 +154,13 @@ template <int A>
              double* __restrict r, double* __restrict d, const RowScalars& s) {                    \
       residual_body<A>(k0, k1, k2, ep, dg, x, b, r, d, s);                                         \
     }                                                                                              \
-    template <int A>                                                                               \
+    template <int A, XUpdate X = XUpdate::plain>                                                   \
     [[gnu::noinline __VA_ARGS__]] static void                                                      \
     iterate(const double* __restrict k0, const double* __restrict k1, const double* __restrict k2, \
             const double* __restrict ep, const double* __restrict dg, const double* __restrict d,  \
             double* __restrict x, double* __restrict r, double* __restrict dn,                     \
             const RowScalars& s) {                                                                 \
-      chebyshev_body<A>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                       \
+      chebyshev_body<A, X>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                    \
     }                                                                                              \
   };
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_CHEBYSHEV_ROWS, ChebyshevRows)
@@ -293,6 +308,138 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   const double sigma = 1.0 / delta;
   double omega = 1.0 / sigma;
   double* xu = u.values().data();
+  if (halo_ == nullptr && pairs_) {
+    // Two iterations per sweep over the planes (iterate_in_pairs); a distributed grid exchanges
+    // its ghosts between iterations and takes them one at a time.
+    // Iteration k reads d_k in dir_ (ghosts filled) and writes x_{k+1}, r_{k+1} and d_{k+1} into
+    // dir_next_; iteration k + 1 follows one plane behind, as soon as d_{k+1} is there on the
+    // planes around it, and writes d_{k+2} into dir_ over d_k, which iteration k no longer reads
+    // below its plane. So the pair reads the arrays once from memory, the second iteration
+    // finding them in the caches. Iteration k + 1 leaves x alone: x takes d_{k+1} in the next
+    // pair's first iteration, or after the loop. A chunk of planes per task; a chunk's first and
+    // last planes, whose neighbours another task makes, and the grid's end planes, whose ghosts
+    // come along z, wait for the whole of iteration k and the ghost fill of d_{k+1}. Every point
+    // takes the unfused iterations' operations in their order, and every residual sum the same
+    // terms in the same order: the same bits on any thread count.
+    if (!plane_fill_[cs]) {
+      plane_fill_[cs] = std::make_unique<PlaneGhostFill>(homogeneous_, comp);
+    }
+    const PlaneGhostFill& fill = *plane_fill_[cs];
+    double* d0 = dir_.values().data();
+    double* d1 = dir_next_.values().data();
+    const int planes = hi[2] - lo[2] + 1;
+    const int chunks =
+        std::clamp(planes / kPairedChunkPlanes, 1, tbb::this_task_arena::max_concurrency());
+    const auto chunk_first = [&](int t) { return lo[2] + planes * t / chunks; };
+    const auto chunk_last = [&](int t) { return lo[2] + planes * (t + 1) / chunks - 1; };
+    const auto sum_of = [&](std::size_t which) {
+      double sum = 0.0;
+      for (const auto& v : partial) {
+        sum += v[which];
+      }
+      return sum;
+    };
+    bool pending = false; // d_{k-1} in dir_next_ not yet added to x
+    while (rr > target && report.iterations < max_iterations) {
+      fill_velocity_ghosts(homogeneous_, halo_, comp, dir_);
+      const double omega1 = 1.0 / (2.0 * sigma - omega);
+      const double keep1 = omega1 * omega;
+      const double push1 = 2.0 * omega1 / delta;
+      const double omega2 = 1.0 / (2.0 * sigma - omega1);
+      const double keep2 = omega2 * omega1;
+      const double push2 = 2.0 * omega2 / delta;
+      const bool second = report.iterations + 1 < max_iterations;
+      std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
+      const auto first_plane = [&](int k) {
+        auto& sums = partial[static_cast<std::size_t>(k - lo[2])];
+        for (int j = lo[1]; j <= hi[1]; ++j) {
+          const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+          const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep1, push1, ix, iy, iz};
+          with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+            with_chebyshev_rows_at(level_, [&](auto rows) {
+              constexpr int A = decltype(axis)::value;
+              if (pending) {
+                decltype(rows)::template iterate<A, XUpdate::pending>(op.k0, op.k1, op.k2, op.ep,
+                                                                      op.diag, d0, xu, r, d1, rs);
+              } else {
+                decltype(rows)::template iterate<A>(op.k0, op.k1, op.k2, op.ep, op.diag, d0, xu, r,
+                                                    d1, rs);
+              }
+            });
+          });
+          sums[0] += row_squares(r, row, len + 1);
+        }
+        fill.fill_plane(dir_next_, k);
+      };
+      const auto second_plane = [&](int k) {
+        auto& sums = partial[static_cast<std::size_t>(k - lo[2])];
+        for (int j = lo[1]; j <= hi[1]; ++j) {
+          const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+          const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep2, push2, ix, iy, iz};
+          with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+            with_chebyshev_rows_at(level_, [&](auto rows) {
+              decltype(rows)::template iterate<decltype(axis)::value, XUpdate::lagged>(
+                  op.k0, op.k1, op.k2, op.ep, op.diag, d1, nullptr, r, d0, rs);
+            });
+          });
+          sums[1] += row_squares(r, row, len + 1);
+        }
+      };
+      tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
+                        [&](const tbb::blocked_range<int>& range) {
+                          for (int t = range.begin(); t != range.end(); ++t) {
+                            const int c0 = chunk_first(t);
+                            for (int k = c0; k <= chunk_last(t); ++k) {
+                              first_plane(k);
+                              if (second && k - 1 > c0) {
+                                second_plane(k - 1);
+                              }
+                            }
+                          }
+                        });
+      ++report.iterations;
+      omega = omega1;
+      rr = sum_of(0);
+      pending = false;
+      if (rr <= target || !second) {
+        break; // x is x_{k+1}; the second iteration's partial work is dropped
+      }
+      // d_{k+1}'s ghosts: the planes beyond the unknowns along x and y, then every plane along z.
+      for (int k = -kGhostLayers; k < lo[2]; ++k) {
+        fill.fill_plane(dir_next_, k);
+      }
+      for (int k = hi[2] + 1; k <= layout.cells()[2] + kGhostLayers; ++k) {
+        fill.fill_plane(dir_next_, k);
+      }
+      fill.fill_z(dir_next_);
+      tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
+                        [&](const tbb::blocked_range<int>& range) {
+                          for (int t = range.begin(); t != range.end(); ++t) {
+                            second_plane(chunk_first(t));
+                            if (chunk_last(t) != chunk_first(t)) {
+                              second_plane(chunk_last(t));
+                            }
+                          }
+                        });
+      ++report.iterations;
+      omega = omega2;
+      rr = sum_of(1);
+      pending = true;
+    }
+    if (pending) {
+      for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+        for (std::ptrdiff_t p = row; p <= row + len; ++p) {
+          xu[p] += d1[p];
+        }
+      });
+    }
+    report.relative_residual = first[0] > 0.0 ? std::sqrt(rr / first[0]) : 0.0;
+    report.converged = rr <= target;
+    if (!report.converged) {
+      fill_velocity_ghosts(grid_, halo_, comp, u); // the CG path goes on from u
+    }
+    return report;
+  }
   while (rr > target && report.iterations < max_iterations) {
     fill_velocity_ghosts(homogeneous_, halo_, comp, dir_);
     const double omega_next = 1.0 / (2.0 * sigma - omega);

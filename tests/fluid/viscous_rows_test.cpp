@@ -7,9 +7,13 @@
 #include <array>
 #include <cstdio>
 #include <random>
+#include <set>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include "core/simd_level.hpp"
 #include "fluid/ghost_fill.hpp"
@@ -102,6 +106,87 @@ TEST(ViscousChebyshevRows, EveryCopyAndCoefficientSourceMatchesTheStoredBaseline
           }
         }
       }
+    }
+  }
+}
+
+// Two iterations per sweep (the default on one grid) against one: the same iterations, residual
+// and solution bit for bit, whichever iteration of a pair the tolerance stops at, when the
+// iteration limit cuts the Chebyshev solve short (CG finishes), on 1 to 3 threads (one chunk of
+// planes per task, whose end planes take their second iteration after the sweep), on the row
+// grids and on a walled box with a periodic axis and a tall z (several chunks, z-walls).
+TEST(ViscousChebyshevRows, PairedIterationsGiveTheSingleIterationsBits) {
+  std::vector<MacGridSpec> specs;
+  for (const MacGridSpec& spec : row_test_grids()) {
+    specs.push_back(spec);
+  }
+  MacGridSpec tall = test::box_spec({8, 6, 29}, {4e-4, 3e-4, 1.45e-3}, BoundaryKind::wall);
+  test::set_axis(tall, 0, BoundaryKind::periodic);
+  specs.push_back(tall);
+  for (std::size_t g = 0; g < specs.size(); ++g) {
+    SCOPED_TRACE("grid " + std::to_string(g));
+    const MacGrid grid(specs[g]);
+    std::mt19937_64 rng(43);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    GridField eps = grid.make_field();
+    for (double& e : eps.values()) {
+      e = 0.4 + 0.6 * uni(rng);
+    }
+    fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
+    const double c = 0.15 * 2.5e-9; // dominance about 0.5: a dozen iterations and more
+    for (int comp = 0; comp < 3; ++comp) {
+      SCOPED_TRACE("component " + std::to_string(comp));
+      GridField diag = grid.make_field();
+      GridField rhs = grid.make_field();
+      GridField start = grid.make_field();
+      for (std::size_t p = 0; p < diag.values().size(); ++p) {
+        diag[p] = 0.5 + uni(rng);
+        rhs[p] = uni(rng) - 0.5;
+        start[p] = 0.1 * (uni(rng) - 0.5);
+      }
+      fill_velocity_ghosts(grid, comp, start);
+      const auto solve = [&](bool paired, double tolerance, int max_iterations, GridField& u) {
+        ImplicitViscosity viscosity(grid);
+        viscosity.use_paired_iterations(paired);
+        u = start;
+        return viscosity.solve(comp, c, eps, diag, rhs, u, tolerance, max_iterations);
+      };
+      std::set<int> parities;
+      // Tolerances a third of a decade apart stop at both iterations of a pair; the last two
+      // cut the Chebyshev solve after an odd and an even count, and CG (multigrid-preconditioned)
+      // finishes.
+      std::vector<std::pair<double, int>> cases;
+      for (double tolerance = 1e-4; tolerance > 1e-11; tolerance /= 2.0) {
+        cases.emplace_back(tolerance, 500);
+      }
+      cases.emplace_back(1e-12, 11);
+      cases.emplace_back(1e-12, 12);
+      for (const auto& [tolerance, max_iterations] : cases) {
+        SCOPED_TRACE("tolerance " + std::to_string(tolerance) + ", at most " +
+                     std::to_string(max_iterations));
+        GridField single;
+        const ViscousSolveReport reference = solve(false, tolerance, max_iterations, single);
+        ASSERT_GT(reference.dominance, 0.0);
+        ASSERT_LE(reference.dominance, kChebyshevMaxDominance);
+        if (max_iterations == 500) {
+          ASSERT_TRUE(reference.chebyshev && reference.converged);
+          parities.insert(reference.iterations % 2);
+        } else {
+          ASSERT_GT(reference.iterations, max_iterations); // Chebyshev's, then CG's
+        }
+        for (const int threads : {1, 2, 3}) {
+          SCOPED_TRACE(std::to_string(threads) + " threads");
+          const tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                                          static_cast<std::size_t>(threads));
+          GridField paired;
+          const ViscousSolveReport report = solve(true, tolerance, max_iterations, paired);
+          EXPECT_EQ(report.iterations, reference.iterations);
+          EXPECT_EQ(report.chebyshev, reference.chebyshev);
+          EXPECT_EQ(report.relative_residual, reference.relative_residual);
+          EXPECT_TRUE(test::same_bits(paired, single));
+        }
+      }
+      EXPECT_EQ(parities.size(), 2U) << "the tolerances should stop at both iterations of a pair";
     }
   }
 }

@@ -47,36 +47,45 @@ inline constexpr double kChebyshevMaxDominance = 0.7;
 // planes take their second iteration after the sweep, from memory again.
 inline constexpr int kPairedChunkPlanes = 8;
 
-// Where a regular Chebyshev row takes its six face coefficients from (solve_chebyshev).
+// What a Chebyshev row reads (solve_chebyshev). Every choice gives the same bits; they differ in
+// how many arrays a pass streams against how many operations it takes per unknown.
 enum class CoefficientSource {
-  automatic, // by chebyshev_rows_from_eps below
-  stored,    // the three stored arrays, every row
-  from_eps,  // eps, on the regular rows, at every level that has the copies (not x86-64)
+  automatic,      // by chebyshev_row_source below
+  stored,         // the three stored face-coefficient arrays; the inverse diagonal computed
+  stored_inverse, // the stored arrays and the inverse diagonal stored by the dominance pass
+  from_eps,       // a regular row's coefficients computed from eps, at every level that has the
+                  // copies (not x86-64); the rows beside an inflow plane or a column: stored
 };
 
-// A component's fields (values and ghosts) from this many bytes up are read by the x86-64-v4
-// rows from eps: computing the coefficients saves two of seven streamed arrays, which pays only
-// where the passes wait on memory and where 32 registers hold the extra operations. Measured
-// (docs/performance.md, "The implicit viscosity's Chebyshev rows"): at x86-64-v4 (Zen 5) the
-// stored rows took 0.87x the eps rows' time per unknown on the small bed's 0.6 MB fields, the
-// eps rows 0.85x the stored rows' on the 1e5 bed's 4.1 MB ones; at x86-64-v3 (Zen 3) the stored
-// rows were the faster on both (the coupled viscous phase 0.82x on the bed, 0.88-0.94x on the
-// 1e5 bed).
-inline constexpr std::size_t kEpsRowsMinFieldBytes = std::size_t{2} << 20;
+// A component's fields (values and ghosts) below this many bytes stay in the caches between the
+// passes, where an iteration is bound by its instructions (about 15 per unknown at x86-64-v3)
+// rather than by bytes: there the rows read a stored inverse diagonal (one array more, a
+// division and seven additions less). From this size up the passes wait on memory and the rows
+// stream fewer arrays: the stored ones with the inverse computed, or at x86-64-v4 (32 registers
+// for the extra operations) the coefficients computed from eps. Measured (docs/performance.md,
+// "The implicit viscosity's Chebyshev rows"): on the Zen 3 VM (x86-64-v3) the stored inverse
+// took 0.85-0.9x the time on the small bed's 0.6 MB fields and 1.1x on the 1e5 bed's 4.9 MB
+// ones, and the eps rows were slower than the stored ones on both; on a Zen 5 (x86-64-v4) the
+// stored rows took 0.87x the eps rows' time on the small bed's fields, the eps rows 0.85x the
+// stored rows' on the 1e5 bed's.
+inline constexpr std::size_t kChebyshevCachedFieldBytes = std::size_t{2} << 20;
 
-// Whether the regular rows of a component whose fields hold field_bytes compute their face
-// coefficients from eps. Either source gives the same bits; this picks the faster.
-[[nodiscard]] constexpr bool chebyshev_rows_from_eps(CoefficientSource source, SimdLevel level,
-                                                     std::size_t field_bytes) {
+// The source the rows of a component whose fields hold field_bytes use (never automatic).
+[[nodiscard]] constexpr CoefficientSource
+chebyshev_row_source(CoefficientSource source, SimdLevel level, std::size_t field_bytes) {
   switch (source) {
   case CoefficientSource::stored:
-    return false;
+  case CoefficientSource::stored_inverse:
+    return source;
   case CoefficientSource::from_eps:
-    return level != SimdLevel::x86_64;
+    return level != SimdLevel::x86_64 ? source : CoefficientSource::stored;
   case CoefficientSource::automatic:
     break;
   }
-  return level == SimdLevel::x86_64_v4 && field_bytes >= kEpsRowsMinFieldBytes;
+  if (field_bytes < kChebyshevCachedFieldBytes) {
+    return CoefficientSource::stored_inverse;
+  }
+  return level == SimdLevel::x86_64_v4 ? CoefficientSource::from_eps : CoefficientSource::stored;
 }
 
 class ImplicitViscosity {
@@ -193,6 +202,7 @@ private:
   std::array<GridField, 3> eps_seen_;
   std::array<bool, 3> cv_k_valid_{};
   GridField dir_, dir_next_;
+  GridField inverse_diagonal_; // CoefficientSource::stored_inverse
   // Per component: the homogeneous fill of a direction plane by plane (paired iterations).
   std::array<std::unique_ptr<PlaneGhostFill>, 3> plane_fill_;
   bool pairs_ = true;

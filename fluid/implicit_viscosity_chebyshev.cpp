@@ -36,7 +36,8 @@ struct Operator {
   double c;
 };
 
-// Where a row's face coefficients come from: the stored arrays k0, k1, k2 (A = -1), or eps, as
+// Where a row's face coefficients come from: the stored arrays k0, k1, k2 (A = -1, and A = -2,
+// whose rows read the inverse diagonal stored in the array passed as ep), or eps, as
 // face_coefficients computes them where no face of the row lies on an inflow plane or beside a
 // closed face (a regular row; A = the component's axis): eps of the cell below along A, else the
 // (A, b) edge's four cells. The same operations in the same order give the same bits, without
@@ -85,6 +86,19 @@ template <int A>
   return 1.0 / (dg + off);
 }
 
+// A row's inverse diagonal at p: read from the stored array (A = -2, passed as ep: the dominance
+// pass wrote inverse_diagonal's value there) or computed.
+template <int A>
+[[gnu::always_inline]] inline double inverse_diagonal_at(const double (&k)[6], const double* dg,
+                                                         const double* ep, std::ptrdiff_t p,
+                                                         double c) {
+  if constexpr (A == -2) {
+    return ep[p];
+  } else {
+    return inverse_diagonal(k, dg[p], c);
+  }
+}
+
 // A row's scalars: its first point and length, the strides, the operator's c and the
 // iteration's coefficients (keep, push; unused by the residual).
 struct RowScalars {
@@ -105,7 +119,7 @@ template <int A>
     double k[6];
     faces_at<A>(k0, k1, k2, ep, ix, iy, iz, p, sy, sz, k);
     r[p] = b[p] - apply_at(k, dg[p], x, p, sy, sz, c);
-    d[p] = inverse_diagonal(k, dg[p], c) * r[p];
+    d[p] = inverse_diagonal_at<A>(k, dg, ep, p, c) * r[p];
   }
 }
 
@@ -117,8 +131,8 @@ template <int A>
 enum class XUpdate { plain, pending, lagged };
 
 // One Chebyshev iteration on a row: x += d, r -= A d, d_next = keep d + push r / A's diagonal.
-// The inverse diagonal is computed again at every iteration rather than read: a division costs
-// less than streaming one more array (the 1e5 bed's fields do not fit the caches).
+// The inverse diagonal is read where the fields stay in the caches, and computed again where they
+// do not: there a division costs less than streaming one more array (kChebyshevCachedFieldBytes).
 template <int A, XUpdate X>
 [[gnu::always_inline]] inline void chebyshev_body(const double* k0, const double* k1,
                                                   const double* k2, const double* ep,
@@ -136,7 +150,7 @@ template <int A, XUpdate X>
       x[p] = (x[p] + dn[p]) + d[p];
     }
     r[p] -= q;
-    dn[p] = keep * d[p] + push * inverse_diagonal(k, dg[p], c) * r[p];
+    dn[p] = keep * d[p] + push * inverse_diagonal_at<A>(k, dg, ep, p, c) * r[p];
   }
 }
 
@@ -171,12 +185,14 @@ template <class F> void with_chebyshev_rows_at(SimdLevel level, F&& f) {
   with_copy_at<ChebyshevRowsX86_64, ChebyshevRowsV3, ChebyshevRowsV4>(level, f);
 }
 
-// Calls f(axis) with the row's coefficient source as a compile-time integer: the component's
-// axis on a regular row (eps), -1 otherwise (the stored arrays).
-template <class F>
-[[gnu::always_inline]] inline void with_row_faces(int comp, bool regular, F&& f) {
-  if (!regular) {
+// Calls f(axis) with the row's coefficient source as a compile-time integer (faces_at's A): the
+// component's axis on a regular row computed from eps, -2 with the stored inverse diagonal, -1
+// otherwise.
+template <class F> [[gnu::always_inline]] inline void with_row_faces(int comp, int source, F&& f) {
+  if (source == -1) {
     f(std::integral_constant<int, -1>{});
+  } else if (source == -2) {
+    f(std::integral_constant<int, -2>{});
   } else if (comp == 0) {
     f(std::integral_constant<int, 0>{});
   } else if (comp == 1) {
@@ -230,14 +246,29 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
                     c};
   // The rows whose coefficients come from eps (regular_rows).
   const std::vector<char>& regular = regular_rows(comp);
-  // Computing the coefficients costs about 20 more operations per unknown for two fewer
-  // streamed arrays (chebyshev_rows_from_eps: where that pays).
-  const bool eps_rows =
-      chebyshev_rows_from_eps(source_, level_, eps_seen_[cs].values().size() * sizeof(double));
-  const auto from_eps = [&](int j, int k) {
-    return eps_rows && regular[static_cast<std::size_t>(j - lo[1]) +
-                               static_cast<std::size_t>(hi[1] - lo[1] + 1) *
-                                   static_cast<std::size_t>(k - lo[2])] != 0;
+  // Fewer operations or fewer streamed arrays per unknown, by the fields' size
+  // (chebyshev_row_source).
+  const CoefficientSource source =
+      chebyshev_row_source(source_, level_, eps_seen_[cs].values().size() * sizeof(double));
+  const bool eps_rows = source == CoefficientSource::from_eps;
+  const bool stored_inverse = source == CoefficientSource::stored_inverse;
+  if (stored_inverse && inverse_diagonal_.values().size() != layout.size()) {
+    inverse_diagonal_ = GridField(layout);
+  }
+  double* inv = stored_inverse ? inverse_diagonal_.values().data() : nullptr;
+  // Row (j, k)'s source as with_row_faces takes it.
+  const auto row_source = [&](int j, int k) {
+    if (stored_inverse) {
+      return -2;
+    }
+    const bool regular_row =
+        regular[static_cast<std::size_t>(j - lo[1]) + static_cast<std::size_t>(hi[1] - lo[1] + 1) *
+                                                          static_cast<std::size_t>(k - lo[2])] != 0;
+    return eps_rows && regular_row ? comp : -1;
+  };
+  // What a row kernel takes as ep: the stored inverse diagonal for A = -2, eps otherwise.
+  const auto ep_for = [&](auto axis) -> const double* {
+    return decltype(axis)::value == -2 ? inv : op.ep;
   };
   const double ix = 1.0 / (grid_.spacing(0) * grid_.spacing(0));
   const double iy = 1.0 / (grid_.spacing(1) * grid_.spacing(1));
@@ -251,6 +282,9 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
       const double off = c * ((op.k0[p] + op.k0[p + 1]) + (op.k1[p] + op.k1[p + op.sy]) +
                               (op.k2[p] + op.k2[p + op.sz]));
       m = std::max(m, off / (op.diag[p] + off));
+      if (inv != nullptr) {
+        inv[p] = 1.0 / (op.diag[p] + off); // inverse_diagonal's operations, in its order
+      }
     }
     double& pm = plane_max[static_cast<std::size_t>(k - lo[2])];
     pm = std::max(pm, m);
@@ -289,9 +323,9 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
     const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
-    with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+    with_row_faces(comp, row_source(j, k), [&](auto axis) {
       with_chebyshev_rows_at(level_, [&](auto rows) {
-        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep,
+        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, ep_for(axis),
                                                                  op.diag, x, b, r, d, rs);
       });
     });
@@ -355,15 +389,15 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
         for (int j = lo[1]; j <= hi[1]; ++j) {
           const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
           const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep1, push1, ix, iy, iz};
-          with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+          with_row_faces(comp, row_source(j, k), [&](auto axis) {
             with_chebyshev_rows_at(level_, [&](auto rows) {
               constexpr int A = decltype(axis)::value;
               if (pending) {
-                decltype(rows)::template iterate<A, XUpdate::pending>(op.k0, op.k1, op.k2, op.ep,
-                                                                      op.diag, d0, xu, r, d1, rs);
+                decltype(rows)::template iterate<A, XUpdate::pending>(
+                    op.k0, op.k1, op.k2, ep_for(axis), op.diag, d0, xu, r, d1, rs);
               } else {
-                decltype(rows)::template iterate<A>(op.k0, op.k1, op.k2, op.ep, op.diag, d0, xu, r,
-                                                    d1, rs);
+                decltype(rows)::template iterate<A>(op.k0, op.k1, op.k2, ep_for(axis), op.diag, d0,
+                                                    xu, r, d1, rs);
               }
             });
           });
@@ -376,10 +410,10 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
         for (int j = lo[1]; j <= hi[1]; ++j) {
           const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
           const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep2, push2, ix, iy, iz};
-          with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+          with_row_faces(comp, row_source(j, k), [&](auto axis) {
             with_chebyshev_rows_at(level_, [&](auto rows) {
               decltype(rows)::template iterate<decltype(axis)::value, XUpdate::lagged>(
-                  op.k0, op.k1, op.k2, op.ep, op.diag, d1, nullptr, r, d0, rs);
+                  op.k0, op.k1, op.k2, ep_for(axis), op.diag, d1, nullptr, r, d0, rs);
             });
           });
           sums[1] += row_squares(r, row, len + 1);
@@ -450,9 +484,9 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
     for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
       const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
-      with_row_faces(comp, from_eps(j, k), [&](auto axis) {
+      with_row_faces(comp, row_source(j, k), [&](auto axis) {
         with_chebyshev_rows_at(level_, [&](auto rows) {
-          decltype(rows)::template iterate<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep,
+          decltype(rows)::template iterate<decltype(axis)::value>(op.k0, op.k1, op.k2, ep_for(axis),
                                                                   op.diag, d, xu, r, dn, rs);
         });
       });

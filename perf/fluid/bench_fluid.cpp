@@ -421,8 +421,9 @@ BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchm
 // 1e5 bed's, whose fields no longer fit the caches; walls, inflow below, outflow above), eps in
 // [0.55, 0.6], c = theta dt mu at dt = 1e-4 s, tolerance 1e-10, from a zero first guess. Its rows
 // at the instruction set `simd`, their face coefficients from eps (stored 0) or read from the
-// stored arrays (stored 1), one iteration per sweep (paired 0) or two (1); a level the CPU lacks
-// is skipped. Counter ns_per_iteration: per unknown and iteration.
+// stored arrays (stored 1; 2 also the stored inverse diagonal), one iteration per sweep (paired
+// 0) or two (1); a level the CPU lacks is skipped. Counter ns_per_iteration: per unknown and
+// iteration.
 void BM_ViscousChebyshevBed(benchmark::State& state) {
   const auto level = static_cast<SimdLevel>(state.range(1));
   if (level > cpu_simd_level()) {
@@ -458,8 +459,9 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
   std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
   ImplicitViscosity viscosity(grid);
   viscosity.use_simd_level(level);
-  viscosity.use_coefficient_source(state.range(2) != 0 ? CoefficientSource::stored
-                                                       : CoefficientSource::from_eps);
+  constexpr std::array<CoefficientSource, 3> sources = {
+      CoefficientSource::from_eps, CoefficientSource::stored, CoefficientSource::stored_inverse};
+  viscosity.use_coefficient_source(sources.at(static_cast<std::size_t>(state.range(2))));
   viscosity.use_paired_iterations(state.range(3) != 0);
   const double c = 0.5 * dt * 1.8e-5;
   double iterations = 0.0;
@@ -488,7 +490,7 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
 }
 BENCHMARK(BM_ViscousChebyshevBed)
     ->ArgNames({"cells", "simd", "stored", "paired"})
-    ->ArgsProduct({{32, 101}, {0, 1, 2}, {0, 1}, {0, 1}})
+    ->ArgsProduct({{32, 101}, {0, 1, 2}, {0, 1, 2}, {0, 1}})
     ->Unit(benchmark::kMillisecond);
 
 // The momentum right-hand side alone (advection + viscous stress, three components): the method

@@ -69,26 +69,30 @@ TEST(ViscousChebyshevRows, EveryCopyAndCoefficientSourceMatchesTheStoredBaseline
         }
       }
       fill_velocity_ghosts(grid, start);
-      const auto solve = [&](SimdLevel level, bool stored, GridField& u) {
+      const auto solve = [&](SimdLevel level, CoefficientSource source, GridField& u) {
         ImplicitViscosity viscosity(grid);
         viscosity.use_simd_level(level);
-        viscosity.use_coefficient_source(stored ? CoefficientSource::stored
-                                                : CoefficientSource::from_eps);
+        viscosity.use_coefficient_source(source);
         u = start[static_cast<std::size_t>(comp)];
         return viscosity.solve(comp, c, eps, diag, rhs, u, 1e-12, 500);
       };
       GridField base;
-      const ViscousSolveReport reference = solve(SimdLevel::x86_64, true, base);
+      const ViscousSolveReport reference =
+          solve(SimdLevel::x86_64, CoefficientSource::stored, base);
       ASSERT_TRUE(reference.chebyshev) << "dominance " << reference.dominance;
       ASSERT_TRUE(reference.converged);
       EXPECT_EQ(reference.rows_from_eps, 0);
       EXPECT_GT(reference.iterations, 5);
       for (int l = 0; l <= static_cast<int>(cpu); ++l) {
         const auto level = static_cast<SimdLevel>(l);
-        for (const bool stored : {false, true}) {
-          SCOPED_TRACE(std::string(simd_level_name(level)) + (stored ? ", stored" : ", from eps"));
+        for (const CoefficientSource source :
+             {CoefficientSource::from_eps, CoefficientSource::stored,
+              CoefficientSource::stored_inverse, CoefficientSource::automatic}) {
+          SCOPED_TRACE(std::string(simd_level_name(level)) + ", source " +
+                       std::to_string(static_cast<int>(source)));
+          const bool stored = source != CoefficientSource::from_eps;
           GridField u;
-          const ViscousSolveReport report = solve(level, stored, u);
+          const ViscousSolveReport report = solve(level, source, u);
           EXPECT_EQ(report.iterations, reference.iterations);
           EXPECT_EQ(report.relative_residual, reference.relative_residual);
           EXPECT_TRUE(test::same_bits(u, base));
@@ -191,28 +195,32 @@ TEST(ViscousChebyshevRows, PairedIterationsGiveTheSingleIterationsBits) {
   }
 }
 
-// The automatic source: eps only at x86-64-v4 and only from kEpsRowsMinFieldBytes up (where the
-// saved bytes pay); a forced source holds at every size, and baseline x86-64 has no eps rows.
-TEST(ViscousChebyshevRows, TheAutomaticSourceReadsEpsOnlyWhereItPays) {
-  constexpr std::size_t big = kEpsRowsMinFieldBytes;
-  constexpr std::size_t small = kEpsRowsMinFieldBytes - 1;
-  for (const std::size_t bytes : {small, big}) {
-    EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64, bytes));
-    EXPECT_FALSE(
-        chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64_v3, bytes));
-    EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::stored, SimdLevel::x86_64_v4, bytes));
-    EXPECT_TRUE(chebyshev_rows_from_eps(CoefficientSource::from_eps, SimdLevel::x86_64_v3, bytes));
-    EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::from_eps, SimdLevel::x86_64, bytes));
+// The automatic source: fields that stay in the caches read the stored inverse diagonal; larger
+// ones compute it, from eps at x86-64-v4 only; a forced source holds at every size (from eps
+// falls back to the stored arrays at baseline x86-64, which has no eps rows).
+TEST(ViscousChebyshevRows, TheAutomaticSourceFollowsTheFieldsSizeAndLevel) {
+  using enum CoefficientSource;
+  constexpr std::size_t big = kChebyshevCachedFieldBytes;
+  constexpr std::size_t small = kChebyshevCachedFieldBytes - 1;
+  for (const SimdLevel level : {SimdLevel::x86_64, SimdLevel::x86_64_v3, SimdLevel::x86_64_v4}) {
+    EXPECT_EQ(chebyshev_row_source(automatic, level, small), stored_inverse);
+    for (const std::size_t bytes : {small, big}) {
+      EXPECT_EQ(chebyshev_row_source(stored, level, bytes), stored);
+      EXPECT_EQ(chebyshev_row_source(stored_inverse, level, bytes), stored_inverse);
+      EXPECT_EQ(chebyshev_row_source(from_eps, level, bytes),
+                level == SimdLevel::x86_64 ? stored : from_eps);
+    }
   }
-  EXPECT_FALSE(chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64_v4, small));
-  EXPECT_TRUE(chebyshev_rows_from_eps(CoefficientSource::automatic, SimdLevel::x86_64_v4, big));
-  // The small bed's fields (32 x 50 x 32 faces with ghosts) read the stored arrays, the 1e5
-  // bed's (101 x 50 x 101) compute from eps.
+  EXPECT_EQ(chebyshev_row_source(automatic, SimdLevel::x86_64, big), stored);
+  EXPECT_EQ(chebyshev_row_source(automatic, SimdLevel::x86_64_v3, big), stored);
+  EXPECT_EQ(chebyshev_row_source(automatic, SimdLevel::x86_64_v4, big), from_eps);
+  // The small bed's fields (32 x 50 x 32 cells with ghosts) stay in the caches, the 1e5 bed's
+  // (101 x 50 x 101) do not.
   const auto field_bytes = [](std::array<int, 3> cells) {
     return GridLayout(cells).size() * sizeof(double);
   };
-  EXPECT_LT(field_bytes({32, 50, 32}), kEpsRowsMinFieldBytes);
-  EXPECT_GE(field_bytes({101, 50, 101}), kEpsRowsMinFieldBytes);
+  EXPECT_LT(field_bytes({32, 50, 32}), kChebyshevCachedFieldBytes);
+  EXPECT_GE(field_bytes({101, 50, 101}), kChebyshevCachedFieldBytes);
 }
 
 } // namespace

@@ -100,10 +100,30 @@ void apply_xy(const GridLayout& layout, const FillPlan& plan, double* v, std::pt
   for (const PlaneMap& m : plan.all()) {
     const std::ptrdiff_t shift = static_cast<std::ptrdiff_t>(m.dst - m.src) * layout.stride(m.axis);
     if (m.axis == 0) {
-      // One point per row of the plane.
-      const std::ptrdiff_t x = m.src + kGhostLayers;
-      for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
-        apply(m, v, kp * sz + jp * sy + x, 1, shift);
+      // One point per row of the plane: the map's kind chosen once for the plane, not per point.
+      double* in = v + kp * sz + (m.src + kGhostLayers);
+      double* out = in + shift;
+      switch (m.kind) {
+      case MapKind::copy:
+        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
+          out[jp * sy] = in[jp * sy];
+        }
+        break;
+      case MapKind::negate:
+        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
+          out[jp * sy] = -in[jp * sy];
+        }
+        break;
+      case MapKind::reflect:
+        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
+          out[jp * sy] = m.c - in[jp * sy];
+        }
+        break;
+      case MapKind::set:
+        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
+          out[jp * sy] = m.c;
+        }
+        break;
       }
     } else if (m.axis == 1) {
       // One row of the plane.

@@ -373,9 +373,26 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
       }
       return sum;
     };
-    bool pending = false; // d_{k-1} in dir_next_ not yet added to x
+    // The rest of a direction's ghost fill once its planes of unknowns have their x and y
+    // ghosts: the planes beyond the unknowns along x and y, then every plane along z.
+    const auto fill_rest = [&](GridField& f) {
+      for (int k = -kGhostLayers; k < lo[2]; ++k) {
+        fill.fill_plane(f, k);
+      }
+      for (int k = hi[2] + 1; k <= layout.cells()[2] + kGhostLayers; ++k) {
+        fill.fill_plane(f, k);
+      }
+      fill.fill_z(f);
+    };
+    // After a whole pair: d_{k-1} in dir_next_ is not yet added to x, and d_k in dir_ has the x
+    // and y ghosts of its planes of unknowns.
+    bool pending = false;
     while (rr > target && report.iterations < max_iterations) {
-      fill_velocity_ghosts(homogeneous_, halo_, comp, dir_);
+      if (pending) {
+        fill_rest(dir_); // its planes' x and y ghosts were filled as the last pair made them
+      } else {
+        fill_velocity_ghosts(homogeneous_, halo_, comp, dir_);
+      }
       const double omega1 = 1.0 / (2.0 * sigma - omega);
       const double keep1 = omega1 * omega;
       const double push1 = 2.0 * omega1 / delta;
@@ -418,6 +435,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
           });
           sums[1] += row_squares(r, row, len + 1);
         }
+        fill.fill_plane(dir_, k);
       };
       tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
                         [&](const tbb::blocked_range<int>& range) {
@@ -438,14 +456,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
       if (rr <= target || !second) {
         break; // x is x_{k+1}; the second iteration's partial work is dropped
       }
-      // d_{k+1}'s ghosts: the planes beyond the unknowns along x and y, then every plane along z.
-      for (int k = -kGhostLayers; k < lo[2]; ++k) {
-        fill.fill_plane(dir_next_, k);
-      }
-      for (int k = hi[2] + 1; k <= layout.cells()[2] + kGhostLayers; ++k) {
-        fill.fill_plane(dir_next_, k);
-      }
-      fill.fill_z(dir_next_);
+      fill_rest(dir_next_);
       tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
                         [&](const tbb::blocked_range<int>& range) {
                           for (int t = range.begin(); t != range.end(); ++t) {

@@ -343,18 +343,18 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   double omega = 1.0 / sigma;
   double* xu = u.values().data();
   if (halo_ == nullptr && pairs_) {
-    // Two iterations per sweep over the planes (iterate_in_pairs); a distributed grid exchanges
-    // its ghosts between iterations and takes them one at a time.
-    // Iteration k reads d_k in dir_ (ghosts filled) and writes x_{k+1}, r_{k+1} and d_{k+1} into
-    // dir_next_; iteration k + 1 follows one plane behind, as soon as d_{k+1} is there on the
-    // planes around it, and writes d_{k+2} into dir_ over d_k, which iteration k no longer reads
-    // below its plane. So the pair reads the arrays once from memory, the second iteration
-    // finding them in the caches. Iteration k + 1 leaves x alone: x takes d_{k+1} in the next
-    // pair's first iteration, or after the loop. A chunk of planes per task; a chunk's first and
-    // last planes, whose neighbours another task makes, and the grid's end planes, whose ghosts
-    // come along z, wait for the whole of iteration k and the ghost fill of d_{k+1}. Every point
-    // takes the unfused iterations' operations in their order, and every residual sum the same
-    // terms in the same order: the same bits on any thread count.
+    // Two iterations per sweep over the planes (a distributed grid exchanges its ghosts between
+    // iterations and takes them one at a time, below). Iteration k reads d_k in dir_ (ghosts
+    // filled) and writes x_{k+1}, r_{k+1} and d_{k+1} into dir_next_; iteration k + 1 follows one
+    // plane behind, as soon as d_{k+1} is there on the planes around it, and writes d_{k+2} into
+    // dir_ over d_k, which iteration k no longer reads below its plane. So the pair reads the
+    // arrays once from memory, the second iteration finding them in the caches. Iteration k + 1
+    // leaves x alone: x takes d_{k+1} in the next pair's first iteration, or after the loop. A
+    // chunk of planes per task; a chunk's first and last planes, whose neighbours another task
+    // makes, and the grid's end planes, whose ghosts come along z, wait for the whole of iteration
+    // k and the ghost fill of d_{k+1}. Every point takes the unfused iterations' operations in
+    // their order, and every residual sum the same terms in the same order: the same bits on any
+    // thread count.
     if (!plane_fill_[cs]) {
       plane_fill_[cs] = std::make_unique<PlaneGhostFill>(homogeneous_, comp);
     }

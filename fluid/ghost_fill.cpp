@@ -60,28 +60,36 @@ struct FillPlan {
 
 namespace {
 
-// Applies map m to the points [first, first + len) of its source plane, each written to its image
-// `shift` further on, in the destination plane.
+// Applies map m to len points of its source plane from `first`, `stride` apart, each written to
+// its image `shift` further on, in the destination plane. The kind is chosen once per call.
 inline void apply(const PlaneMap& m, double* v, std::ptrdiff_t first, std::ptrdiff_t len,
-                  std::ptrdiff_t shift) {
+                  std::ptrdiff_t shift, std::ptrdiff_t stride = 1) {
   double* out = v + first + shift;
   const double* in = v + first;
   switch (m.kind) {
   case MapKind::copy:
-    std::copy_n(in, len, out);
+    if (stride == 1) {
+      std::copy_n(in, len, out);
+      break;
+    }
+    for (std::ptrdiff_t q = 0; q < len; ++q) {
+      out[q * stride] = in[q * stride];
+    }
     break;
   case MapKind::negate:
     for (std::ptrdiff_t q = 0; q < len; ++q) {
-      out[q] = -in[q];
+      out[q * stride] = -in[q * stride];
     }
     break;
   case MapKind::reflect:
     for (std::ptrdiff_t q = 0; q < len; ++q) {
-      out[q] = m.c - in[q];
+      out[q * stride] = m.c - in[q * stride];
     }
     break;
   case MapKind::set:
-    std::fill_n(out, len, m.c);
+    for (std::ptrdiff_t q = 0; q < len; ++q) {
+      out[q * stride] = m.c;
+    }
     break;
   }
 }
@@ -100,31 +108,8 @@ void apply_xy(const GridLayout& layout, const FillPlan& plan, double* v, std::pt
   for (const PlaneMap& m : plan.all()) {
     const std::ptrdiff_t shift = static_cast<std::ptrdiff_t>(m.dst - m.src) * layout.stride(m.axis);
     if (m.axis == 0) {
-      // One point per row of the plane: the map's kind chosen once for the plane, not per point.
-      double* in = v + kp * sz + (m.src + kGhostLayers);
-      double* out = in + shift;
-      switch (m.kind) {
-      case MapKind::copy:
-        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
-          out[jp * sy] = in[jp * sy];
-        }
-        break;
-      case MapKind::negate:
-        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
-          out[jp * sy] = -in[jp * sy];
-        }
-        break;
-      case MapKind::reflect:
-        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
-          out[jp * sy] = m.c - in[jp * sy];
-        }
-        break;
-      case MapKind::set:
-        for (std::ptrdiff_t jp = 0; jp < ny; ++jp) {
-          out[jp * sy] = m.c;
-        }
-        break;
-      }
+      // One point per row of the plane.
+      apply(m, v, kp * sz + (m.src + kGhostLayers), ny, shift, sy);
     } else if (m.axis == 1) {
       // One row of the plane.
       apply(m, v, kp * sz + (m.src + kGhostLayers) * sy, sy, shift);

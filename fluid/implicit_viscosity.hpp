@@ -14,7 +14,6 @@
 #include <vector>
 
 #include "core/simd_level.hpp"
-#include "fluid/ghost_fill.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/mac_grid.hpp"
@@ -203,8 +202,6 @@ private:
   std::array<bool, 3> cv_k_valid_{};
   GridField dir_, dir_next_;
   GridField inverse_diagonal_; // CoefficientSource::stored_inverse
-  // Per component: the homogeneous fill of a direction plane by plane (paired iterations).
-  std::array<std::unique_ptr<PlaneGhostFill>, 3> plane_fill_;
   bool pairs_ = true;
   SimdLevel level_ = simd_level();
   CoefficientSource source_ = CoefficientSource::automatic;

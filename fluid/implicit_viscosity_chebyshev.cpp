@@ -5,7 +5,6 @@
 // products.
 #include <algorithm>
 #include <cmath>
-#include <memory>
 #include <type_traits>
 #include <vector>
 
@@ -37,7 +36,7 @@ struct Operator {
 };
 
 // Where a row's face coefficients come from: the stored arrays k0, k1, k2 (A = -1, and A = -2,
-// whose rows read the inverse diagonal stored in the array passed as ep), or eps, as
+// whose rows also read the stored inverse diagonal), or eps, as
 // face_coefficients computes them where no face of the row lies on an inflow plane or beside a
 // closed face (a regular row; A = the component's axis): eps of the cell below along A, else the
 // (A, b) edge's four cells. The same operations in the same order give the same bits, without
@@ -86,14 +85,14 @@ template <int A>
   return 1.0 / (dg + off);
 }
 
-// A row's inverse diagonal at p: read from the stored array (A = -2, passed as ep: the dominance
-// pass wrote inverse_diagonal's value there) or computed.
+// A row's inverse diagonal at p: read from iv (A = -2: the dominance pass wrote
+// inverse_diagonal's value there) or computed.
 template <int A>
 [[gnu::always_inline]] inline double inverse_diagonal_at(const double (&k)[6], const double* dg,
-                                                         const double* ep, std::ptrdiff_t p,
+                                                         const double* iv, std::ptrdiff_t p,
                                                          double c) {
   if constexpr (A == -2) {
-    return ep[p];
+    return iv[p];
   } else {
     return inverse_diagonal(k, dg[p], c);
   }
@@ -109,17 +108,17 @@ struct RowScalars {
 
 // r = b - A x and d = r / A's diagonal on the points of a row.
 template <int A>
-[[gnu::always_inline]] inline void residual_body(const double* k0, const double* k1,
-                                                 const double* k2, const double* ep,
-                                                 const double* dg, const double* x, const double* b,
-                                                 double* r, double* d, const RowScalars& s) {
+[[gnu::always_inline]] inline void
+residual_body(const double* k0, const double* k1, const double* k2, const double* ep,
+              const double* iv, const double* dg, const double* x, const double* b, double* r,
+              double* d, const RowScalars& s) {
   const std::ptrdiff_t sy = s.sy, sz = s.sz;
   const double c = s.c, ix = s.ix, iy = s.iy, iz = s.iz;
   for (std::ptrdiff_t p = s.p0; p < s.p0 + s.n; ++p) {
     double k[6];
     faces_at<A>(k0, k1, k2, ep, ix, iy, iz, p, sy, sz, k);
     r[p] = b[p] - apply_at(k, dg[p], x, p, sy, sz, c);
-    d[p] = inverse_diagonal_at<A>(k, dg, ep, p, c) * r[p];
+    d[p] = inverse_diagonal_at<A>(k, dg, iv, p, c) * r[p];
   }
 }
 
@@ -134,10 +133,10 @@ enum class XUpdate { plain, pending, lagged };
 // The inverse diagonal is read where the fields stay in the caches, and computed again where they
 // do not: there a division costs less than streaming one more array (kChebyshevCachedFieldBytes).
 template <int A, XUpdate X>
-[[gnu::always_inline]] inline void chebyshev_body(const double* k0, const double* k1,
-                                                  const double* k2, const double* ep,
-                                                  const double* dg, const double* d, double* x,
-                                                  double* r, double* dn, const RowScalars& s) {
+[[gnu::always_inline]] inline void
+chebyshev_body(const double* k0, const double* k1, const double* k2, const double* ep,
+               const double* iv, const double* dg, const double* d, double* x, double* r,
+               double* dn, const RowScalars& s) {
   const std::ptrdiff_t sy = s.sy, sz = s.sz;
   const double c = s.c, keep = s.keep, push = s.push, ix = s.ix, iy = s.iy, iz = s.iz;
   for (std::ptrdiff_t p = s.p0; p < s.p0 + s.n; ++p) {
@@ -150,7 +149,7 @@ template <int A, XUpdate X>
       x[p] = (x[p] + dn[p]) + d[p];
     }
     r[p] -= q;
-    dn[p] = keep * d[p] + push * inverse_diagonal_at<A>(k, dg, ep, p, c) * r[p];
+    dn[p] = keep * d[p] + push * inverse_diagonal_at<A>(k, dg, iv, p, c) * r[p];
   }
 }
 
@@ -164,17 +163,18 @@ template <int A, XUpdate X>
     [[gnu::noinline __VA_ARGS__]] static void                                                      \
     residual(const double* __restrict k0, const double* __restrict k1,                             \
              const double* __restrict k2, const double* __restrict ep,                             \
-             const double* __restrict dg, const double* __restrict x, const double* __restrict b,  \
-             double* __restrict r, double* __restrict d, const RowScalars& s) {                    \
-      residual_body<A>(k0, k1, k2, ep, dg, x, b, r, d, s);                                         \
+             const double* __restrict iv, const double* __restrict dg, const double* __restrict x, \
+             const double* __restrict b, double* __restrict r, double* __restrict d,               \
+             const RowScalars& s) {                                                                \
+      residual_body<A>(k0, k1, k2, ep, iv, dg, x, b, r, d, s);                                     \
     }                                                                                              \
-    template <int A, XUpdate X = XUpdate::plain>                                                   \
+    template <int A, XUpdate X>                                                                    \
     [[gnu::noinline __VA_ARGS__]] static void                                                      \
     iterate(const double* __restrict k0, const double* __restrict k1, const double* __restrict k2, \
-            const double* __restrict ep, const double* __restrict dg, const double* __restrict d,  \
-            double* __restrict x, double* __restrict r, double* __restrict dn,                     \
-            const RowScalars& s) {                                                                 \
-      chebyshev_body<A, X>(k0, k1, k2, ep, dg, d, x, r, dn, s);                                    \
+            const double* __restrict ep, const double* __restrict iv, const double* __restrict dg, \
+            const double* __restrict d, double* __restrict x, double* __restrict r,                \
+            double* __restrict dn, const RowScalars& s) {                                          \
+      chebyshev_body<A, X>(k0, k1, k2, ep, iv, dg, d, x, r, dn, s);                                \
     }                                                                                              \
   };
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_CHEBYSHEV_ROWS, ChebyshevRows)
@@ -266,10 +266,6 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
                                                           static_cast<std::size_t>(k - lo[2])] != 0;
     return eps_rows && regular_row ? comp : -1;
   };
-  // What a row kernel takes as ep: the stored inverse diagonal for A = -2, eps otherwise.
-  const auto ep_for = [&](auto axis) -> const double* {
-    return decltype(axis)::value == -2 ? inv : op.ep;
-  };
   const double ix = 1.0 / (grid_.spacing(0) * grid_.spacing(0));
   const double iy = 1.0 / (grid_.spacing(1) * grid_.spacing(1));
   const double iz = 1.0 / (grid_.spacing(2) * grid_.spacing(2));
@@ -325,7 +321,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
     with_row_faces(comp, row_source(j, k), [&](auto axis) {
       with_chebyshev_rows_at(level_, [&](auto rows) {
-        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, ep_for(axis),
+        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep, inv,
                                                                  op.diag, x, b, r, d, rs);
       });
     });
@@ -342,6 +338,23 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   const double sigma = 1.0 / delta;
   double omega = 1.0 / sigma;
   double* xu = u.values().data();
+  // One iteration on row (j, k): `update` says what it does to x (XUpdate), dir is the direction
+  // it reads, dir_next the one it writes; the row's |r|^2 goes into sum.
+  const auto iterate_row = [&](auto update, int j, int k, double keep, double push,
+                               const double* dir, double* x_out, double* dir_next, double& sum) {
+    const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+    const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
+    with_row_faces(comp, row_source(j, k), [&](auto axis) {
+      with_chebyshev_rows_at(level_, [&](auto rows) {
+        decltype(rows)::template iterate<decltype(axis)::value, decltype(update)::value>(
+            op.k0, op.k1, op.k2, op.ep, inv, op.diag, dir, x_out, r, dir_next, rs);
+      });
+    });
+    sum += row_squares(r, row, len + 1);
+  };
+  using Plain = std::integral_constant<XUpdate, XUpdate::plain>;
+  using Pending = std::integral_constant<XUpdate, XUpdate::pending>;
+  using Lagged = std::integral_constant<XUpdate, XUpdate::lagged>;
   if (halo_ == nullptr && pairs_) {
     // Two iterations per sweep over the planes (a distributed grid exchanges its ghosts between
     // iterations and takes them one at a time, below). Iteration k reads d_k in dir_ (ghosts
@@ -355,10 +368,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     // k and the ghost fill of d_{k+1}. Every point takes the unfused iterations' operations in
     // their order, and every residual sum the same terms in the same order: the same bits on any
     // thread count.
-    if (!plane_fill_[cs]) {
-      plane_fill_[cs] = std::make_unique<PlaneGhostFill>(homogeneous_, comp);
-    }
-    const PlaneGhostFill& fill = *plane_fill_[cs];
+    const PlaneGhostFill fill(homogeneous_, comp);
     double* d0 = dir_.values().data();
     double* d1 = dir_next_.values().data();
     const int planes = hi[2] - lo[2] + 1;
@@ -402,38 +412,20 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
       const bool second = report.iterations + 1 < max_iterations;
       std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
       const auto first_plane = [&](int k) {
-        auto& sums = partial[static_cast<std::size_t>(k - lo[2])];
+        double& sum = partial[static_cast<std::size_t>(k - lo[2])][0];
         for (int j = lo[1]; j <= hi[1]; ++j) {
-          const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-          const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep1, push1, ix, iy, iz};
-          with_row_faces(comp, row_source(j, k), [&](auto axis) {
-            with_chebyshev_rows_at(level_, [&](auto rows) {
-              constexpr int A = decltype(axis)::value;
-              if (pending) {
-                decltype(rows)::template iterate<A, XUpdate::pending>(
-                    op.k0, op.k1, op.k2, ep_for(axis), op.diag, d0, xu, r, d1, rs);
-              } else {
-                decltype(rows)::template iterate<A>(op.k0, op.k1, op.k2, ep_for(axis), op.diag, d0,
-                                                    xu, r, d1, rs);
-              }
-            });
-          });
-          sums[0] += row_squares(r, row, len + 1);
+          if (pending) {
+            iterate_row(Pending{}, j, k, keep1, push1, d0, xu, d1, sum);
+          } else {
+            iterate_row(Plain{}, j, k, keep1, push1, d0, xu, d1, sum);
+          }
         }
         fill.fill_plane(dir_next_, k);
       };
       const auto second_plane = [&](int k) {
-        auto& sums = partial[static_cast<std::size_t>(k - lo[2])];
+        double& sum = partial[static_cast<std::size_t>(k - lo[2])][1];
         for (int j = lo[1]; j <= hi[1]; ++j) {
-          const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-          const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep2, push2, ix, iy, iz};
-          with_row_faces(comp, row_source(j, k), [&](auto axis) {
-            with_chebyshev_rows_at(level_, [&](auto rows) {
-              decltype(rows)::template iterate<decltype(axis)::value, XUpdate::lagged>(
-                  op.k0, op.k1, op.k2, ep_for(axis), op.diag, d1, nullptr, r, d0, rs);
-            });
-          });
-          sums[1] += row_squares(r, row, len + 1);
+          iterate_row(Lagged{}, j, k, keep2, push2, d1, nullptr, d0, sum);
         }
         fill.fill_plane(dir_, k);
       };
@@ -493,15 +485,9 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     d = dir_.values().data();
     double* dn = dir_next_.values().data();
     std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
-    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
-      const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
-      with_row_faces(comp, row_source(j, k), [&](auto axis) {
-        with_chebyshev_rows_at(level_, [&](auto rows) {
-          decltype(rows)::template iterate<decltype(axis)::value>(op.k0, op.k1, op.k2, ep_for(axis),
-                                                                  op.diag, d, xu, r, dn, rs);
-        });
-      });
-      partial[static_cast<std::size_t>(k - lo[2])][0] += row_squares(r, row, len + 1);
+    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t, int j, int k) {
+      iterate_row(Plain{}, j, k, keep, push, d, xu, dn,
+                  partial[static_cast<std::size_t>(k - lo[2])][0]);
     });
     rr = ordered()[0];
     std::swap(dir_, dir_next_);

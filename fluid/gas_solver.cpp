@@ -269,6 +269,12 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   // Nicolson) in the corrector and the Godunov step, where L(u^n) is at hand.
   const bool trapezoidal = kind != Stage::predictor;
   const bool have_lap_start = keeps_lap_start();
+  const double theta = trapezoidal ? 0.5 : 1.0;
+  const bool guess_lap =
+      have_lap_start && implicit_now_ &&
+      explicit_guess_pays(theta * dt * settings_.gas.viscosity / settings_.gas.density,
+                          {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
+                          settings_.viscous_guess_limit);
   // Point-implicit drag (docs/theory.md §5) on u* = u^n + dt R (Euler) or u^n + dt (R^n + R^1)/2:
   // u <- (u* + dt (beta v)_f/(rho eps_f)) / (1 + dt beta_f/(rho eps_f)), with the face factors
   // step() computed once for both stages.
@@ -329,13 +335,12 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       // (beta v)_f) [- eps_f dt grad p, lagged]
       diag_[f] = face_mass_[a][f] * gain[f];
       vrhs_[f] = face_mass_[a][f] * (start[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
-      // First guess: the implicit part taken at u^n, theta dt L(u^n), where L(u^n) is at hand
-      // (time order 2, Godunov); its residual is O(dt^2) where u^n's is O(dt).
-      const double lap = have_lap_start ? (trapezoidal ? 0.5 : 1.0) * lap_start_[a][f] : 0.0;
+      // First guess: with guess_lap, the implicit part taken at u^n, theta dt L(u^n) (see
+      // explicit_guess_pays).
+      const double lap = guess_lap ? theta * lap_start_[a][f] : 0.0;
       u_[a][f] = (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
     });
     fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
-    const double theta = trapezoidal ? 0.5 : 1.0;
     const Stopwatch timed(seconds_.viscous);
     const ViscousSolveReport vr =
         viscosity_->solve(a, theta * dt * settings_.gas.viscosity, eps_, diag_, vrhs_, u_[a],

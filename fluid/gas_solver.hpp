@@ -35,6 +35,25 @@ namespace cfddem::fluid {
 // n_e > kImplicitSubstepCost n_i.
 inline constexpr double kImplicitSubstepCost = 1.6;
 
+// Whether the first guess of an implicit viscous solve, (M - w dt L) u = M b (M the face
+// mass with the drag gain, w the implicit weight), should take the implicit part at u^n, b + w dt
+// L(u^n), rather than b alone. In a mode of L whose eigenvalue times -w dt per unit mass is lam,
+// the exact solution is b / (1 + lam): b's error is lam / (1 + lam) of the mode, the guess with
+// the term (b ~ u^n to O(dt)) errs by lam^2 / (1 + lam), which is smaller only while lam < 1. So
+// the term pays while the largest lam, 4 w dt nu sum_a 1/dx_a^2 (Gershgorin, uniform eps; the drag
+// gain only lowers it), is at most `limit` (1); past it the term amplifies the grid-scale modes
+// the implicit step exists for, as an explicit viscous step past its monotone limit would. The
+// fluidized bed's grid (lam = 3.3) took 22.5 Chebyshev iterations per solve with the term and
+// 20.8 without (docs/gas_step.md, "The first guess"). w_dt_nu: w dt mu / rho.
+[[nodiscard]] inline bool explicit_guess_pays(double w_dt_nu, const std::array<double, 3>& dx,
+                                              double limit) {
+  double sum = 0.0;
+  for (const double h : dx) {
+    sum += 1.0 / (h * h);
+  }
+  return 4.0 * w_dt_nu * sum <= limit;
+}
+
 struct GasSolverSettings {
   GasProperties gas;
   Limiter limiter = Limiter::van_leer;
@@ -51,6 +70,8 @@ struct GasSolverSettings {
   // pay for its solves (kImplicitSubstepCost); implicit_viscosity is then ignored.
   bool implicit_viscosity_auto = false;
   double viscous_tolerance = 1e-10;
+  // explicit_guess_pays' limit on lam (tests: 0 never takes the term, infinity always does).
+  double viscous_guess_limit = 1.0;
   // One grid: the viscous solves preconditioned by the multigrid (false: Jacobi, as on R ranks).
   bool viscous_multigrid = true;
   int time_order = 2; // method of lines: 1, Euler; 2, predictor-corrector (Heun)

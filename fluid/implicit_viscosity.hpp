@@ -63,8 +63,9 @@ enum class CoefficientSource {
 // stream fewer arrays: the stored ones with the inverse computed, or at x86-64-v4 (32 registers
 // for the extra operations) the coefficients computed from eps. Measured (docs/performance.md,
 // "The implicit viscosity's Chebyshev rows"): on the Zen 3 VM (x86-64-v3) the stored inverse
-// took 0.85-0.9x the time on the small bed's 0.6 MB fields and 1.1x on the 1e5 bed's 4.9 MB
-// ones, and the eps rows were slower than the stored ones on both; on a Zen 5 (x86-64-v4) the
+// took 0.85-0.9x the time on the small bed's 0.6 MB fields, 0.93x on 1.2 MB, 0.98-1.03x on
+// 2.09 MB, 1.12x on 3.2 MB and 0.99-1.1x on the 1e5 bed's 4.9 MB ones, and the eps rows were
+// slower than the stored ones on both beds; on a Zen 5 (x86-64-v4) the
 // stored rows took 0.87x the eps rows' time on the small bed's fields, the eps rows 0.85x the
 // stored rows' on the 1e5 bed's.
 inline constexpr std::size_t kChebyshevCachedFieldBytes = std::size_t{2} << 20;

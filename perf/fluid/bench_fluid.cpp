@@ -418,7 +418,8 @@ BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchm
 
 // The implicit viscosity's Chebyshev solves of the three components on a fluidized bed's grid
 // (`cells` x 50 x `cells` cells of 50 x 200 x 50 um: 32 is scenes/fluidized_bed.toml's, 101 the
-// 1e5 bed's, whose fields no longer fit the caches; walls, inflow below, outflow above), eps in
+// 1e5 bed's, whose fields no longer fit the caches; 48, 64 and 80 frame chebyshev_row_source's
+// threshold, 64's fields just below it; walls, inflow below, outflow above), eps in
 // [0.55, 0.6], c = theta dt mu at dt = 1e-4 s, tolerance 1e-10, from a zero first guess. Its rows
 // at the instruction set `simd`, their face coefficients from eps (stored 0) or read from the
 // stored arrays (stored 1; 2 also the stored inverse diagonal), one iteration per sweep (paired
@@ -490,7 +491,7 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
 }
 BENCHMARK(BM_ViscousChebyshevBed)
     ->ArgNames({"cells", "simd", "stored", "paired"})
-    ->ArgsProduct({{32, 101}, {0, 1, 2}, {0, 1, 2}, {0, 1}})
+    ->ArgsProduct({{32, 48, 64, 80, 101}, {0, 1, 2}, {0, 1, 2}, {0, 1}})
     ->Unit(benchmark::kMillisecond);
 
 // The momentum right-hand side alone (advection + viscous stress, three components): the method

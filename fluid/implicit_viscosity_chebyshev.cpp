@@ -4,8 +4,11 @@
 // pointwise passes, without the multigrid's set-up, restriction and coarse levels or CG's inner
 // products.
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstddef>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 #include <tbb/blocked_range.h>
@@ -217,6 +220,251 @@ template <class F> [[gnu::always_inline]] inline void with_row_faces(int comp, i
   return (s0 + s1) + (s2 + s3);
 }
 
+// A Chebyshev solve's rows: the operator, the box of unknowns, what each row reads and the
+// instruction set of the row kernels.
+struct SolveRows {
+  const GridLayout* layout;
+  Operator op;
+  std::array<int, 3> lo, hi;
+  std::ptrdiff_t len; // a row's points less one
+  int comp;
+  const std::vector<char>* regular; // ImplicitViscosity::regular_rows
+  bool eps_rows;                    // regular rows compute their coefficients from eps
+  const double* inv; // the stored inverse diagonal (every row then reads it), or null
+  double ix, iy, iz; // 1 / dx_b^2
+  SimdLevel level;
+
+  [[nodiscard]] int planes() const { return hi[2] - lo[2] + 1; }
+
+  // Row (j, k)'s source as with_row_faces takes it.
+  [[nodiscard]] int source(int j, int k) const {
+    if (inv != nullptr) {
+      return -2;
+    }
+    const bool regular_row = (*regular)[static_cast<std::size_t>(j - lo[1]) +
+                                        static_cast<std::size_t>(hi[1] - lo[1] + 1) *
+                                            static_cast<std::size_t>(k - lo[2])] != 0;
+    return eps_rows && regular_row ? comp : -1;
+  }
+
+  // r = b - A x and d = r / A's diagonal on row (j, k), whose first point is `row`.
+  void residual(std::ptrdiff_t row, int j, int k, const double* x, const double* b, double* r,
+                double* d) const {
+    const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
+    with_row_faces(comp, source(j, k), [&](auto axis) {
+      with_chebyshev_rows_at(level, [&](auto rows) {
+        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep, inv,
+                                                                 op.diag, x, b, r, d, rs);
+      });
+    });
+  }
+
+  // One iteration on row (j, k): X says what it does to x, dir is the direction it reads,
+  // dir_next the one it writes; the row's |r|^2 goes into sum.
+  template <XUpdate X>
+  void iterate(int j, int k, double keep, double push, const double* dir, double* x, double* r,
+               double* dir_next, double& sum) const {
+    const auto row = static_cast<std::ptrdiff_t>(layout->index(lo[0], j, k));
+    const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
+    with_row_faces(comp, source(j, k), [&](auto axis) {
+      with_chebyshev_rows_at(level, [&](auto rows) {
+        decltype(rows)::template iterate<decltype(axis)::value, X>(
+            op.k0, op.k1, op.k2, op.ep, inv, op.diag, dir, x, r, dir_next, rs);
+      });
+    });
+    sum += row_squares(r, row, len + 1);
+  }
+};
+
+// The Chebyshev recurrence's coefficients for the interval [1 - delta, 1 + delta] (Saad,
+// Algorithm 12.1): each iteration's d_next = keep d + push D^-1 r.
+struct Recurrence {
+  double delta, sigma, omega;
+  // delta >= 0.01 keeps the recurrence finite for a vanishing viscous term (rho -> 0: one
+  // iteration is then exact); a wider interval than the spectrum only slows it slightly.
+  explicit Recurrence(double rho)
+      : delta(std::max(rho, 0.01)), sigma(1.0 / delta), omega(1.0 / sigma) {}
+  struct Step {
+    double keep, push;
+  };
+  // The next iteration's coefficients.
+  Step next() {
+    const double omega_next = 1.0 / (2.0 * sigma - omega);
+    const Step step{omega_next * omega, 2.0 * omega_next / delta};
+    omega = omega_next;
+    return step;
+  }
+};
+
+// Sums over the unknowns: per z-plane, rows in order, then the planes in order (the same
+// whatever the thread count).
+struct PlaneSums {
+  std::vector<std::array<double, 2>> partial;
+  explicit PlaneSums(int planes) : partial(static_cast<std::size_t>(planes)) {}
+  void clear() { std::fill(partial.begin(), partial.end(), std::array<double, 2>{}); }
+  [[nodiscard]] double& at(int plane, std::size_t which) {
+    return partial[static_cast<std::size_t>(plane)][which];
+  }
+  // Sum `which` of this box, in plane order.
+  [[nodiscard]] double total(std::size_t which) const {
+    double sum = 0.0;
+    for (const auto& v : partial) {
+      sum += v[which];
+    }
+    return sum;
+  }
+  // Both sums, over the ranks' boxes too where halo is given.
+  [[nodiscard]] std::array<double, 2> both(const GridHalo* halo) const {
+    std::array<double, 2> s{};
+    for (const auto& v : partial) {
+      s[0] += v[0], s[1] += v[1];
+    }
+    if (halo != nullptr) {
+      halo->sum(s);
+    }
+    return s;
+  }
+};
+
+using Plain = std::integral_constant<XUpdate, XUpdate::plain>;
+
+// Chebyshev iterations on one grid, two per sweep over the planes, from x, r and the first
+// direction in dir (ghosts not yet filled) while |r|^2 = rr > target and fewer than
+// max_iterations are done; returns the last |r|^2 and counts the iterations in `iterations`.
+// Iteration k reads d_k in dir (ghosts filled) and writes x_{k+1}, r_{k+1} and d_{k+1} into
+// dir_next; iteration k + 1 follows one plane behind, as soon as d_{k+1} is there on the planes
+// around it, and writes d_{k+2} into dir over d_k, which iteration k no longer reads below its
+// plane. So the pair reads the arrays once from memory, the second iteration finding them in the
+// caches. Iteration k + 1 leaves x alone: x takes d_{k+1} in the next pair's first iteration, or
+// after the loop. A chunk of planes per task; a chunk's first and last planes, whose neighbours
+// another task makes, and the grid's end planes, whose ghosts come along z, wait for the whole of
+// iteration k and the ghost fill of d_{k+1}. Every point takes the unfused iterations' operations
+// in their order, and every residual sum the same terms in the same order: the same bits on any
+// thread count.
+double iterate_in_pairs(const SolveRows& rows, const MacGrid& homogeneous, GridField& dir,
+                        GridField& dir_next, double* x, double* r, Recurrence& recurrence,
+                        PlaneSums& sums, double rr, double target, int max_iterations,
+                        int& iterations) {
+  using Pending = std::integral_constant<XUpdate, XUpdate::pending>;
+  using Lagged = std::integral_constant<XUpdate, XUpdate::lagged>;
+  const GridLayout& layout = *rows.layout;
+  const std::array<int, 3>& lo = rows.lo;
+  const std::array<int, 3>& hi = rows.hi;
+  const PlaneGhostFill fill(homogeneous, rows.comp);
+  double* d0 = dir.values().data();
+  double* d1 = dir_next.values().data();
+  const int planes = rows.planes();
+  const int chunks =
+      std::clamp(planes / kPairedChunkPlanes, 1, tbb::this_task_arena::max_concurrency());
+  const auto chunk_first = [&](int t) { return lo[2] + planes * t / chunks; };
+  const auto chunk_last = [&](int t) { return lo[2] + planes * (t + 1) / chunks - 1; };
+  // The rest of a direction's ghost fill once its planes of unknowns have their x and y ghosts:
+  // the planes beyond the unknowns along x and y, then every plane along z.
+  const auto fill_rest = [&](GridField& f) {
+    for (int k = -kGhostLayers; k < lo[2]; ++k) {
+      fill.fill_plane(f, k);
+    }
+    for (int k = hi[2] + 1; k <= layout.cells()[2] + kGhostLayers; ++k) {
+      fill.fill_plane(f, k);
+    }
+    fill.fill_z(f);
+  };
+  // After a whole pair: d_{k-1} in dir_next is not yet added to x, and d_k in dir has the x and
+  // y ghosts of its planes of unknowns.
+  bool pending = false;
+  while (rr > target && iterations < max_iterations) {
+    if (pending) {
+      fill_rest(dir); // its planes' x and y ghosts were filled as the last pair made them
+    } else {
+      fill_velocity_ghosts(homogeneous, nullptr, rows.comp, dir);
+    }
+    const Recurrence::Step step1 = recurrence.next();
+    const Recurrence::Step step2 = recurrence.next();
+    const bool second = iterations + 1 < max_iterations;
+    sums.clear();
+    const auto first_plane = [&](int k) {
+      double& sum = sums.at(k - lo[2], 0);
+      for (int j = lo[1]; j <= hi[1]; ++j) {
+        if (pending) {
+          rows.iterate<Pending::value>(j, k, step1.keep, step1.push, d0, x, r, d1, sum);
+        } else {
+          rows.iterate<Plain::value>(j, k, step1.keep, step1.push, d0, x, r, d1, sum);
+        }
+      }
+      fill.fill_plane(dir_next, k);
+    };
+    const auto second_plane = [&](int k) {
+      double& sum = sums.at(k - lo[2], 1);
+      for (int j = lo[1]; j <= hi[1]; ++j) {
+        rows.iterate<Lagged::value>(j, k, step2.keep, step2.push, d1, nullptr, r, d0, sum);
+      }
+      fill.fill_plane(dir, k);
+    };
+    tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
+                      [&](const tbb::blocked_range<int>& range) {
+                        for (int t = range.begin(); t != range.end(); ++t) {
+                          const int c0 = chunk_first(t);
+                          for (int k = c0; k <= chunk_last(t); ++k) {
+                            first_plane(k);
+                            if (second && k - 1 > c0) {
+                              second_plane(k - 1);
+                            }
+                          }
+                        }
+                      });
+    ++iterations;
+    rr = sums.total(0);
+    pending = false;
+    if (rr <= target || !second) {
+      break; // x is x_{k+1}; the second iteration's partial work is dropped
+    }
+    fill_rest(dir_next);
+    tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
+                      [&](const tbb::blocked_range<int>& range) {
+                        for (int t = range.begin(); t != range.end(); ++t) {
+                          second_plane(chunk_first(t));
+                          if (chunk_last(t) != chunk_first(t)) {
+                            second_plane(chunk_last(t));
+                          }
+                        }
+                      });
+    ++iterations;
+    rr = sums.total(1);
+    pending = true;
+  }
+  if (pending) {
+    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+      for (std::ptrdiff_t p = row; p <= row + rows.len; ++p) {
+        x[p] += d1[p];
+      }
+    });
+  }
+  return rr;
+}
+
+// The same iterations one per sweep, the direction's ghosts filled (and exchanged with the other
+// boxes where halo is given) between them, as a distributed grid takes them.
+double iterate_one_at_a_time(const SolveRows& rows, const MacGrid& homogeneous,
+                             const GridHalo* halo, GridField& dir, GridField& dir_next, double* x,
+                             double* r, Recurrence& recurrence, PlaneSums& sums, double rr,
+                             double target, int max_iterations, int& iterations) {
+  while (rr > target && iterations < max_iterations) {
+    fill_velocity_ghosts(homogeneous, halo, rows.comp, dir);
+    const Recurrence::Step step = recurrence.next();
+    const double* d = dir.values().data();
+    double* dn = dir_next.values().data();
+    sums.clear();
+    for_box_rows(*rows.layout, rows.lo, rows.hi, [&](std::ptrdiff_t, int j, int k) {
+      rows.iterate<Plain::value>(j, k, step.keep, step.push, d, x, r, dn,
+                                 sums.at(k - rows.lo[2], 0));
+    });
+    rr = sums.both(halo)[0];
+    std::swap(dir, dir_next);
+    ++iterations;
+  }
+  return rr;
+}
+
 } // namespace
 
 // Chebyshev iteration for A u = rhs preconditioned by D = diag(A) (Saad, "Iterative Methods for
@@ -232,53 +480,47 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
                                                       const GridField& rhs, GridField& u,
                                                       double tolerance, int max_iterations) {
   const GridLayout& layout = grid_.layout();
-  const std::array<int, 3> lo = unknown_lo(comp);
-  const std::array<int, 3> hi = unknown_hi(comp);
-  const std::ptrdiff_t len = hi[0] - lo[0];
   const std::size_t cs = static_cast<std::size_t>(comp);
-  const Operator op{cv_k_[cs][0].values().data(),
-                    cv_k_[cs][1].values().data(),
-                    cv_k_[cs][2].values().data(),
-                    eps_seen_[cs].values().data(), // what face_coefficients made them from
-                    diag.values().data(),
-                    layout.stride(1),
-                    layout.stride(2),
-                    c};
-  // The rows whose coefficients come from eps (regular_rows).
-  const std::vector<char>& regular = regular_rows(comp);
   // Fewer operations or fewer streamed arrays per unknown, by the fields' size
   // (chebyshev_row_source).
   const CoefficientSource source =
       chebyshev_row_source(source_, level_, eps_seen_[cs].values().size() * sizeof(double));
-  const bool eps_rows = source == CoefficientSource::from_eps;
   const bool stored_inverse = source == CoefficientSource::stored_inverse;
   if (stored_inverse && inverse_diagonal_.values().size() != layout.size()) {
     inverse_diagonal_ = GridField(layout);
   }
-  double* inv = stored_inverse ? inverse_diagonal_.values().data() : nullptr;
-  // Row (j, k)'s source as with_row_faces takes it.
-  const auto row_source = [&](int j, int k) {
-    if (stored_inverse) {
-      return -2;
-    }
-    const bool regular_row =
-        regular[static_cast<std::size_t>(j - lo[1]) + static_cast<std::size_t>(hi[1] - lo[1] + 1) *
-                                                          static_cast<std::size_t>(k - lo[2])] != 0;
-    return eps_rows && regular_row ? comp : -1;
-  };
-  const double ix = 1.0 / (grid_.spacing(0) * grid_.spacing(0));
-  const double iy = 1.0 / (grid_.spacing(1) * grid_.spacing(1));
-  const double iz = 1.0 / (grid_.spacing(2) * grid_.spacing(2));
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  const SolveRows rows{
+      &layout,
+      Operator{cv_k_[cs][0].values().data(), cv_k_[cs][1].values().data(),
+               cv_k_[cs][2].values().data(),
+               eps_seen_[cs].values().data(), // what face_coefficients made them from
+               diag.values().data(), layout.stride(1), layout.stride(2), c},
+      lo,
+      hi,
+      hi[0] - lo[0],
+      comp,
+      &regular_rows(comp),
+      source == CoefficientSource::from_eps,
+      stored_inverse ? inverse_diagonal_.values().data() : nullptr,
+      1.0 / (grid_.spacing(0) * grid_.spacing(0)),
+      1.0 / (grid_.spacing(1) * grid_.spacing(1)),
+      1.0 / (grid_.spacing(2) * grid_.spacing(2)),
+      level_};
+  const Operator& op = rows.op;
+  const std::ptrdiff_t len = rows.len;
   ViscousSolveReport report;
-  // The dominance ratio (a max is exact in any order).
-  std::vector<double> plane_max(static_cast<std::size_t>(hi[2] - lo[2] + 1), 0.0);
+  // The dominance ratio (a max is exact in any order); the stored inverse diagonal with it.
+  std::vector<double> plane_max(static_cast<std::size_t>(rows.planes()), 0.0);
+  double* inv = inverse_diagonal_.values().data();
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int k) {
     double m = 0.0;
     for (std::ptrdiff_t p = row; p <= row + len; ++p) {
       const double off = c * ((op.k0[p] + op.k0[p + 1]) + (op.k1[p] + op.k1[p + op.sy]) +
                               (op.k2[p] + op.k2[p + op.sz]));
       m = std::max(m, off / (op.diag[p] + off));
-      if (inv != nullptr) {
+      if (stored_inverse) {
         inv[p] = 1.0 / (op.diag[p] + off); // inverse_diagonal's operations, in its order
       }
     }
@@ -294,206 +536,30 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
     return report; // not chosen: u untouched
   }
   report.chebyshev = true;
-  if (eps_rows) {
-    report.rows_from_eps =
-        static_cast<int>(std::count(regular.begin(), regular.end(), static_cast<char>(1)));
+  if (rows.eps_rows) {
+    report.rows_from_eps = static_cast<int>(
+        std::count(rows.regular->begin(), rows.regular->end(), static_cast<char>(1)));
   }
-  // Sums over the unknowns: per z-plane, rows in order, then the planes in order (the same
-  // whatever the thread count).
-  std::vector<std::array<double, 2>> partial(plane_max.size());
-  const auto ordered = [&]() {
-    std::array<double, 2> s{};
-    for (const auto& v : partial) {
-      s[0] += v[0], s[1] += v[1];
-    }
-    if (halo_ != nullptr) {
-      halo_->sum(s);
-    }
-    return s;
-  };
   // r = rhs - A u with u's true boundary values; the first direction d = D^-1 r.
-  const double* x = u.values().data();
+  PlaneSums sums(rows.planes());
+  double* x = u.values().data();
   const double* b = rhs.values().data();
   double* r = r_.values().data();
   double* d = dir_.values().data();
-  std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int j, int k) {
-    const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, 0.0, 0.0, ix, iy, iz};
-    with_row_faces(comp, row_source(j, k), [&](auto axis) {
-      with_chebyshev_rows_at(level_, [&](auto rows) {
-        decltype(rows)::template residual<decltype(axis)::value>(op.k0, op.k1, op.k2, op.ep, inv,
-                                                                 op.diag, x, b, r, d, rs);
-      });
-    });
-    auto& s = partial[static_cast<std::size_t>(k - lo[2])];
-    s[0] += row_squares(b, row, len + 1);
-    s[1] += row_squares(r, row, len + 1);
+    rows.residual(row, j, k, x, b, r, d);
+    sums.at(k - lo[2], 0) += row_squares(b, row, len + 1);
+    sums.at(k - lo[2], 1) += row_squares(r, row, len + 1);
   });
-  const std::array<double, 2> first = ordered();
+  const std::array<double, 2> first = sums.both(halo_);
   const double target = tolerance * tolerance * first[0];
-  double rr = first[1];
-  // delta >= 0.01 keeps the recurrence finite for a vanishing viscous term (rho -> 0: one
-  // iteration is then exact); a wider interval than the spectrum only slows it slightly.
-  const double delta = std::max(rho, 0.01);
-  const double sigma = 1.0 / delta;
-  double omega = 1.0 / sigma;
-  double* xu = u.values().data();
-  // One iteration on row (j, k): `update` says what it does to x (XUpdate), dir is the direction
-  // it reads, dir_next the one it writes; the row's |r|^2 goes into sum.
-  const auto iterate_row = [&](auto update, int j, int k, double keep, double push,
-                               const double* dir, double* x_out, double* dir_next, double& sum) {
-    const auto row = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-    const RowScalars rs{row, len + 1, op.sy, op.sz, op.c, keep, push, ix, iy, iz};
-    with_row_faces(comp, row_source(j, k), [&](auto axis) {
-      with_chebyshev_rows_at(level_, [&](auto rows) {
-        decltype(rows)::template iterate<decltype(axis)::value, decltype(update)::value>(
-            op.k0, op.k1, op.k2, op.ep, inv, op.diag, dir, x_out, r, dir_next, rs);
-      });
-    });
-    sum += row_squares(r, row, len + 1);
-  };
-  using Plain = std::integral_constant<XUpdate, XUpdate::plain>;
-  using Pending = std::integral_constant<XUpdate, XUpdate::pending>;
-  using Lagged = std::integral_constant<XUpdate, XUpdate::lagged>;
-  if (halo_ == nullptr && pairs_) {
-    // Two iterations per sweep over the planes (a distributed grid exchanges its ghosts between
-    // iterations and takes them one at a time, below). Iteration k reads d_k in dir_ (ghosts
-    // filled) and writes x_{k+1}, r_{k+1} and d_{k+1} into dir_next_; iteration k + 1 follows one
-    // plane behind, as soon as d_{k+1} is there on the planes around it, and writes d_{k+2} into
-    // dir_ over d_k, which iteration k no longer reads below its plane. So the pair reads the
-    // arrays once from memory, the second iteration finding them in the caches. Iteration k + 1
-    // leaves x alone: x takes d_{k+1} in the next pair's first iteration, or after the loop. A
-    // chunk of planes per task; a chunk's first and last planes, whose neighbours another task
-    // makes, and the grid's end planes, whose ghosts come along z, wait for the whole of iteration
-    // k and the ghost fill of d_{k+1}. Every point takes the unfused iterations' operations in
-    // their order, and every residual sum the same terms in the same order: the same bits on any
-    // thread count.
-    const PlaneGhostFill fill(homogeneous_, comp);
-    double* d0 = dir_.values().data();
-    double* d1 = dir_next_.values().data();
-    const int planes = hi[2] - lo[2] + 1;
-    const int chunks =
-        std::clamp(planes / kPairedChunkPlanes, 1, tbb::this_task_arena::max_concurrency());
-    const auto chunk_first = [&](int t) { return lo[2] + planes * t / chunks; };
-    const auto chunk_last = [&](int t) { return lo[2] + planes * (t + 1) / chunks - 1; };
-    const auto sum_of = [&](std::size_t which) {
-      double sum = 0.0;
-      for (const auto& v : partial) {
-        sum += v[which];
-      }
-      return sum;
-    };
-    // The rest of a direction's ghost fill once its planes of unknowns have their x and y
-    // ghosts: the planes beyond the unknowns along x and y, then every plane along z.
-    const auto fill_rest = [&](GridField& f) {
-      for (int k = -kGhostLayers; k < lo[2]; ++k) {
-        fill.fill_plane(f, k);
-      }
-      for (int k = hi[2] + 1; k <= layout.cells()[2] + kGhostLayers; ++k) {
-        fill.fill_plane(f, k);
-      }
-      fill.fill_z(f);
-    };
-    // After a whole pair: d_{k-1} in dir_next_ is not yet added to x, and d_k in dir_ has the x
-    // and y ghosts of its planes of unknowns.
-    bool pending = false;
-    while (rr > target && report.iterations < max_iterations) {
-      if (pending) {
-        fill_rest(dir_); // its planes' x and y ghosts were filled as the last pair made them
-      } else {
-        fill_velocity_ghosts(homogeneous_, halo_, comp, dir_);
-      }
-      const double omega1 = 1.0 / (2.0 * sigma - omega);
-      const double keep1 = omega1 * omega;
-      const double push1 = 2.0 * omega1 / delta;
-      const double omega2 = 1.0 / (2.0 * sigma - omega1);
-      const double keep2 = omega2 * omega1;
-      const double push2 = 2.0 * omega2 / delta;
-      const bool second = report.iterations + 1 < max_iterations;
-      std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
-      const auto first_plane = [&](int k) {
-        double& sum = partial[static_cast<std::size_t>(k - lo[2])][0];
-        for (int j = lo[1]; j <= hi[1]; ++j) {
-          if (pending) {
-            iterate_row(Pending{}, j, k, keep1, push1, d0, xu, d1, sum);
-          } else {
-            iterate_row(Plain{}, j, k, keep1, push1, d0, xu, d1, sum);
-          }
-        }
-        fill.fill_plane(dir_next_, k);
-      };
-      const auto second_plane = [&](int k) {
-        double& sum = partial[static_cast<std::size_t>(k - lo[2])][1];
-        for (int j = lo[1]; j <= hi[1]; ++j) {
-          iterate_row(Lagged{}, j, k, keep2, push2, d1, nullptr, d0, sum);
-        }
-        fill.fill_plane(dir_, k);
-      };
-      tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
-                        [&](const tbb::blocked_range<int>& range) {
-                          for (int t = range.begin(); t != range.end(); ++t) {
-                            const int c0 = chunk_first(t);
-                            for (int k = c0; k <= chunk_last(t); ++k) {
-                              first_plane(k);
-                              if (second && k - 1 > c0) {
-                                second_plane(k - 1);
-                              }
-                            }
-                          }
-                        });
-      ++report.iterations;
-      omega = omega1;
-      rr = sum_of(0);
-      pending = false;
-      if (rr <= target || !second) {
-        break; // x is x_{k+1}; the second iteration's partial work is dropped
-      }
-      fill_rest(dir_next_);
-      tbb::parallel_for(tbb::blocked_range<int>(0, chunks, 1),
-                        [&](const tbb::blocked_range<int>& range) {
-                          for (int t = range.begin(); t != range.end(); ++t) {
-                            second_plane(chunk_first(t));
-                            if (chunk_last(t) != chunk_first(t)) {
-                              second_plane(chunk_last(t));
-                            }
-                          }
-                        });
-      ++report.iterations;
-      omega = omega2;
-      rr = sum_of(1);
-      pending = true;
-    }
-    if (pending) {
-      for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
-        for (std::ptrdiff_t p = row; p <= row + len; ++p) {
-          xu[p] += d1[p];
-        }
-      });
-    }
-    report.relative_residual = first[0] > 0.0 ? std::sqrt(rr / first[0]) : 0.0;
-    report.converged = rr <= target;
-    if (!report.converged) {
-      fill_velocity_ghosts(grid_, halo_, comp, u); // the CG path goes on from u
-    }
-    return report;
-  }
-  while (rr > target && report.iterations < max_iterations) {
-    fill_velocity_ghosts(homogeneous_, halo_, comp, dir_);
-    const double omega_next = 1.0 / (2.0 * sigma - omega);
-    const double keep = omega_next * omega;
-    const double push = 2.0 * omega_next / delta;
-    d = dir_.values().data();
-    double* dn = dir_next_.values().data();
-    std::fill(partial.begin(), partial.end(), std::array<double, 2>{});
-    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t, int j, int k) {
-      iterate_row(Plain{}, j, k, keep, push, d, xu, dn,
-                  partial[static_cast<std::size_t>(k - lo[2])][0]);
-    });
-    rr = ordered()[0];
-    std::swap(dir_, dir_next_);
-    omega = omega_next;
-    ++report.iterations;
-  }
+  Recurrence recurrence(rho);
+  const double rr =
+      halo_ == nullptr && pairs_
+          ? iterate_in_pairs(rows, homogeneous_, dir_, dir_next_, x, r, recurrence, sums, first[1],
+                             target, max_iterations, report.iterations)
+          : iterate_one_at_a_time(rows, homogeneous_, halo_, dir_, dir_next_, x, r, recurrence,
+                                  sums, first[1], target, max_iterations, report.iterations);
   report.relative_residual = first[0] > 0.0 ? std::sqrt(rr / first[0]) : 0.0;
   report.converged = rr <= target;
   if (!report.converged) {

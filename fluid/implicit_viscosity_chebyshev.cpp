@@ -83,9 +83,13 @@ template <int A>
   return dg * xp - c * lap;
 }
 
+// The off-diagonal part of the unknown's row, c times the sum of its face coefficients.
+[[gnu::always_inline]] inline double off_diagonal(const double (&k)[6], double c) {
+  return c * ((k[0] + k[1]) + (k[2] + k[3]) + (k[4] + k[5]));
+}
+
 [[gnu::always_inline]] inline double inverse_diagonal(const double (&k)[6], double dg, double c) {
-  const double off = c * ((k[0] + k[1]) + (k[2] + k[3]) + (k[4] + k[5]));
-  return 1.0 / (dg + off);
+  return 1.0 / (dg + off_diagonal(k, c));
 }
 
 // A row's inverse diagonal at p: read from iv (A = -2: the dominance pass wrote
@@ -305,14 +309,6 @@ struct PlaneSums {
   [[nodiscard]] double& at(int plane, std::size_t which) {
     return partial[static_cast<std::size_t>(plane)][which];
   }
-  // Sum `which` of this box, in plane order.
-  [[nodiscard]] double total(std::size_t which) const {
-    double sum = 0.0;
-    for (const auto& v : partial) {
-      sum += v[which];
-    }
-    return sum;
-  }
   // Both sums, over the ranks' boxes too where halo is given.
   [[nodiscard]] std::array<double, 2> both(const GridHalo* halo) const {
     std::array<double, 2> s{};
@@ -327,6 +323,8 @@ struct PlaneSums {
 };
 
 using Plain = std::integral_constant<XUpdate, XUpdate::plain>;
+using Pending = std::integral_constant<XUpdate, XUpdate::pending>;
+using Lagged = std::integral_constant<XUpdate, XUpdate::lagged>;
 
 // Chebyshev iterations on one grid, two per sweep over the planes, from x, r and the first
 // direction in dir (ghosts not yet filled) while |r|^2 = rr > target and fewer than
@@ -345,8 +343,6 @@ double iterate_in_pairs(const SolveRows& rows, const MacGrid& homogeneous, GridF
                         GridField& dir_next, double* x, double* r, Recurrence& recurrence,
                         PlaneSums& sums, double rr, double target, int max_iterations,
                         int& iterations) {
-  using Pending = std::integral_constant<XUpdate, XUpdate::pending>;
-  using Lagged = std::integral_constant<XUpdate, XUpdate::lagged>;
   const GridLayout& layout = *rows.layout;
   const std::array<int, 3>& lo = rows.lo;
   const std::array<int, 3>& hi = rows.hi;
@@ -413,7 +409,7 @@ double iterate_in_pairs(const SolveRows& rows, const MacGrid& homogeneous, GridF
                         }
                       });
     ++iterations;
-    rr = sums.total(0);
+    rr = sums.both(nullptr)[0];
     pending = false;
     if (rr <= target || !second) {
       break; // x is x_{k+1}; the second iteration's partial work is dropped
@@ -429,7 +425,7 @@ double iterate_in_pairs(const SolveRows& rows, const MacGrid& homogeneous, GridF
                         }
                       });
     ++iterations;
-    rr = sums.total(1);
+    rr = sums.both(nullptr)[1];
     pending = true;
   }
   if (pending) {
@@ -485,9 +481,13 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   // (chebyshev_row_source).
   const CoefficientSource source =
       chebyshev_row_source(source_, level_, eps_seen_[cs].values().size() * sizeof(double));
-  const bool stored_inverse = source == CoefficientSource::stored_inverse;
-  if (stored_inverse && inverse_diagonal_.values().size() != layout.size()) {
-    inverse_diagonal_ = GridField(layout);
+  // The stored inverse diagonal, which the dominance pass below writes (null: computed by rows).
+  double* inv = nullptr;
+  if (source == CoefficientSource::stored_inverse) {
+    if (inverse_diagonal_.values().size() != layout.size()) {
+      inverse_diagonal_ = GridField(layout);
+    }
+    inv = inverse_diagonal_.values().data();
   }
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
@@ -503,7 +503,7 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
       comp,
       &regular_rows(comp),
       source == CoefficientSource::from_eps,
-      stored_inverse ? inverse_diagonal_.values().data() : nullptr,
+      inv,
       1.0 / (grid_.spacing(0) * grid_.spacing(0)),
       1.0 / (grid_.spacing(1) * grid_.spacing(1)),
       1.0 / (grid_.spacing(2) * grid_.spacing(2)),
@@ -513,15 +513,16 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   ViscousSolveReport report;
   // The dominance ratio (a max is exact in any order); the stored inverse diagonal with it.
   std::vector<double> plane_max(static_cast<std::size_t>(rows.planes()), 0.0);
-  double* inv = inverse_diagonal_.values().data();
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int k) {
     double m = 0.0;
     for (std::ptrdiff_t p = row; p <= row + len; ++p) {
-      const double off = c * ((op.k0[p] + op.k0[p + 1]) + (op.k1[p] + op.k1[p + op.sy]) +
-                              (op.k2[p] + op.k2[p + op.sz]));
-      m = std::max(m, off / (op.diag[p] + off));
-      if (stored_inverse) {
-        inv[p] = 1.0 / (op.diag[p] + off); // inverse_diagonal's operations, in its order
+      double kf[6];
+      faces_at<-1>(op.k0, op.k1, op.k2, op.ep, rows.ix, rows.iy, rows.iz, p, op.sy, op.sz, kf);
+      const double off = off_diagonal(kf, c);
+      const double dg = op.diag[p] + off;
+      m = std::max(m, off / dg);
+      if (inv != nullptr) {
+        inv[p] = 1.0 / dg; // inverse_diagonal's value
       }
     }
     double& pm = plane_max[static_cast<std::size_t>(k - lo[2])];

@@ -270,8 +270,10 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   const bool trapezoidal = kind != Stage::predictor;
   const bool have_lap_start = keeps_lap_start();
   const double theta = trapezoidal ? 0.5 : 1.0;
+  // Whether the implicit solves' first guess takes theta dt L(u^n) (read by the implicit branch
+  // below only).
   const bool guess_lap =
-      have_lap_start && implicit_now_ &&
+      have_lap_start &&
       explicit_guess_pays(theta * dt * settings_.gas.viscosity / settings_.gas.density,
                           {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
                           settings_.viscous_guess_limit);

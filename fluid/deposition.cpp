@@ -253,8 +253,8 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
 }
 
 template <class Visit>
-void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q,
-                                         Visit&& visit) const {
+void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit,
+                                         int k0, int k1) const {
   const std::size_t base = q * static_cast<std::size_t>(plan.stride);
   const double* wx = plan.factor.data() + base;
   const double* wy = wx + plan.slots[0];
@@ -266,6 +266,9 @@ void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q
   const GridLayout& layout = grid_.layout();
   for (int c = 0; c < n[2]; ++c) {
     const int k = iz[c];
+    if (k < k0 || k >= k1) {
+      continue;
+    }
     for (int b = 0; b < n[1]; ++b) {
       const auto row = static_cast<std::ptrdiff_t>(layout.index(0, iy[b], k));
       for (int a = 0; a < n[0]; ++a) {
@@ -500,20 +503,31 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
           }
           return false;
         };
-        for (std::size_t q = 0; q < count; ++q) {
-          if (!touches(q)) {
-            continue;
+        with_field_count(nf, [&](auto count_of_fields) {
+          const std::size_t n_f = count_of_fields;
+          for (std::size_t q = 0; q < count; ++q) {
+            if (!touches(q)) {
+              continue;
+            }
+            std::copy_n(v + q * n_f, n_f, vq.begin());
+            const auto add = [&](std::size_t idx, double w) {
+              for (std::size_t f = 0; f < n_f; ++f) {
+                out[f][idx] += w * vq[f];
+              }
+            };
+            if (planned) {
+              // Only the kernel's planes in this task's range: no cell of the others visited.
+              for_each_planned_weight(*plan, q, add, k0, k1);
+              continue;
+            }
+            for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                            [&](std::size_t idx, double w, int k) {
+                              if (k >= k0 && k < k1) { // else another task's plane
+                                add(idx, w);
+                              }
+                            });
           }
-          std::copy_n(v + q * nf, nf, vq.begin());
-          visit_kernel(plan, p, q, buf, [&](std::size_t idx, double w, int k) {
-            if (k < k0 || k >= k1) {
-              return; // another task's plane
-            }
-            for (std::size_t f = 0; f < nf; ++f) {
-              out[f][idx] += w * vq[f];
-            }
-          });
-        }
+        });
       },
       tbb::simple_partitioner());
 }

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <span>
 #include <string>
 #include <string_view>
@@ -96,9 +97,11 @@ private:
   void for_each_weight(const std::array<double, 3>& x, double radius, std::vector<double>& buf,
                        Visit&& visit) const;
   // Visits the cells of particle q's kernel from the plan's axis factors (plan.separable), in
-  // for_each_weight's order with its weights.
+  // for_each_weight's order with its weights; only those on the k-planes [k0, k1).
   template <class Visit>
-  void for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit) const;
+  void for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit,
+                               int k0 = std::numeric_limits<int>::min(),
+                               int k1 = std::numeric_limits<int>::max()) const;
   // Particle q's kernel: from the plan where it has one (separable), else computed.
   template <class Visit>
   void visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,

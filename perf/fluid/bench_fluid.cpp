@@ -668,6 +668,66 @@ void BM_Interpolation(benchmark::State& state) {
 }
 BENCHMARK(BM_Interpolation)->Apply(particle_args);
 
+// The transfers of one coupled fluid step, from one plan (fluid/transfer_plan.hpp) as
+// GasCoupling makes them: pass 0 all of them; 1 the plan alone; 2 the solid fraction; 3 eps_g
+// and u_g at the particles (4 fields); 4 beta and beta v to the cells (4 fields); 5 u_g and
+// grad p at the particles (6 fields).
+void BM_PlannedTransfers(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads_of(state, 2));
+  const BenchParticles b = bench_particles(state.range(0) != 0);
+  const auto pass = state.range(1);
+  const MacGrid grid(b.spec);
+  Deposition deposition(grid, b.settings, 5e-5);
+  TransferPlan plan;
+  deposition.plan(b.view(), plan);
+  const std::size_t n = b.x.size();
+  GridField eps_s = grid.make_field();
+  std::array<GridField, 6> in = {grid.make_field(0.9), grid.make_field(0.1), grid.make_field(0.2),
+                                 grid.make_field(0.3), grid.make_field(0.4), grid.make_field(0.5)};
+  std::array<GridField, 4> drag = {grid.make_field(), grid.make_field(), grid.make_field(),
+                                   grid.make_field()};
+  std::array<std::vector<double>, 6> at;
+  for (auto& o : at) {
+    o.resize(n);
+  }
+  std::vector<double> beta(n, 1e-6);
+  const std::span<const double> values[4] = {beta, b.x, b.y, b.z};
+  GridField* const cells[4] = {&drag[0], &drag[1], &drag[2], &drag[3]};
+  const GridField* const four[4] = {&in[0], &in[1], &in[2], &in[3]};
+  const GridField* const six[6] = {&in[0], &in[1], &in[2], &in[3], &in[4], &in[5]};
+  const std::span<double> out4[4] = {at[0], at[1], at[2], at[3]};
+  const std::span<double> out6[6] = {at[0], at[1], at[2], at[3], at[4], at[5]};
+  for (auto _ : state) {
+    if (pass == 0 || pass == 1) {
+      deposition.plan(b.view(), plan);
+    }
+    if (pass == 0 || pass == 2) {
+      eps_s.fill(0.0);
+      deposition.deposit_solid_fraction(plan, eps_s);
+    }
+    if (pass == 0 || pass == 3) {
+      deposition.interpolate(plan, four, out4);
+    }
+    if (pass == 0 || pass == 4) {
+      for (GridField& c : drag) {
+        c.fill(0.0);
+      }
+      deposition.deposit(plan, values, cells);
+    }
+    if (pass == 0 || pass == 5) {
+      deposition.interpolate(plan, six, out6);
+    }
+    benchmark::DoNotOptimize(at[0].data());
+    benchmark::DoNotOptimize(drag[0].values().data());
+  }
+  set_particle_counters(state, b);
+}
+BENCHMARK(BM_PlannedTransfers)
+    ->ArgNames({"bed", "pass", "threads"})
+    ->ArgsProduct({{0, 1}, {0, 1, 2, 3, 4, 5}, {1, 2}})
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+
 // One full gas step (predictor-corrector: two momentum evaluations and two projections) at the
 // paper's dt_f = 1e-4 s, with drag fields; eps changes every step as it does when coupled.
 void gas_step_riser(benchmark::State& state, int time_order, double tolerance,

@@ -392,33 +392,30 @@ void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, s
   const double* v = values_.data();
   const auto threads = static_cast<std::size_t>(usable_threads());
   if (threads <= 1) {
-    // One thread: the serial loop itself (the same sums, no kernel computed twice).
-    std::array<double, kMaxDepositFields> vq{};
+    // One thread: the serial loop itself (the same sums, no kernel computed twice). With a plan
+    // the kernel loop is for_each_planned_weight's alone, inlined here (as in interpolate_with).
     std::array<double*, kMaxDepositFields> out{};
     for (std::size_t f = 0; f < nf; ++f) {
       out[f] = cells[f]->values().data();
     }
-    if (nf == 1) { // the solid fraction: one field, no loop over fields
-      double* cell = out[0];
+    const bool planned = from_plan(plan);
+    with_field_count(nf, [&](auto count_of_fields) {
+      const std::size_t n_f = count_of_fields;
       for (std::size_t q = 0; q < count; ++q) {
-        const double vq0 = v[q];
-        visit_kernel(plan, p, q, weights_,
-                     [&](std::size_t idx, double w) { cell[idx] += w * vq0; });
-      }
-    }
-    if (nf > 1) {
-      with_field_count(nf, [&](auto count_of_fields) {
-        const std::size_t n_f = count_of_fields;
-        for (std::size_t q = 0; q < count; ++q) {
-          std::copy_n(v + q * n_f, n_f, vq.begin());
-          visit_kernel(plan, p, q, weights_, [&](std::size_t idx, double w) {
-            for (std::size_t f = 0; f < n_f; ++f) {
-              out[f][idx] += w * vq[f];
-            }
-          });
+        std::array<double, kMaxDepositFields> vq{};
+        std::copy_n(v + q * n_f, n_f, vq.begin());
+        const auto add = [&](std::size_t idx, double w) {
+          for (std::size_t f = 0; f < n_f; ++f) {
+            out[f][idx] += w * vq[f];
+          }
+        };
+        if (planned) {
+          for_each_planned_weight(*plan, q, add);
+        } else {
+          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], weights_, add);
         }
-      });
-    }
+      }
+    });
   } else {
     scatter_by_planes(plan, p, count, nf, cells, threads);
   }
@@ -618,19 +615,38 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
   }
   // Particles are independent (a gather): blocks of them are TBB tasks, each with its own
   // weight buffer; every particle's sums run in the same order whatever the thread count.
+  // With a plan the kernel loop is for_each_planned_weight's alone, inlined here, so the sums
+  // and the fields' pointers stay in registers (through visit_kernel, whose other branch is not
+  // inlined, GCC kept the sums on the stack: a store and a reload per cell and field).
+  const bool planned = from_plan(plan);
   with_field_count(nf, [&](auto count_of_fields) {
     const std::size_t n_f = count_of_fields;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
                       [&](const tbb::blocked_range<std::size_t>& r) {
-                        // A plan needs no weight buffer.
-                        std::vector<double> buf(from_plan(plan) ? 0 : weights_.size());
+                        const std::array<const double*, kMaxFields> in = value;
+                        if (planned) {
+                          for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                            std::array<double, kMaxFields> sum{};
+                            for_each_planned_weight(*plan, q, [&](std::size_t idx, double w) {
+                              for (std::size_t f = 0; f < n_f; ++f) {
+                                sum[f] += w * in[f][idx];
+                              }
+                            });
+                            for (std::size_t f = 0; f < n_f; ++f) {
+                              outs[f][q] = sum[f];
+                            }
+                          }
+                          return;
+                        }
+                        std::vector<double> buf(weights_.size());
                         for (std::size_t q = r.begin(); q != r.end(); ++q) {
                           std::array<double, kMaxFields> sum{};
-                          visit_kernel(plan, p, q, buf, [&](std::size_t idx, double w) {
-                            for (std::size_t f = 0; f < n_f; ++f) {
-                              sum[f] += w * value[f][idx];
-                            }
-                          });
+                          for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                                          [&](std::size_t idx, double w) {
+                                            for (std::size_t f = 0; f < n_f; ++f) {
+                                              sum[f] += w * in[f][idx];
+                                            }
+                                          });
                           for (std::size_t f = 0; f < n_f; ++f) {
                             outs[f][q] = sum[f];
                           }

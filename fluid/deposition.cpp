@@ -287,16 +287,6 @@ void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q
   }
 }
 
-template <class Visit>
-void Deposition::visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
-                              std::vector<double>& buf, Visit&& visit) const {
-  if (from_plan(plan)) {
-    for_each_planned_weight(*plan, q, visit);
-  } else {
-    for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf, visit);
-  }
-}
-
 void Deposition::plan(const ParticlePositions& p, TransferPlan& out) const {
   const std::size_t n = p.radius.size();
   out.positions = p;
@@ -616,8 +606,9 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
   // Particles are independent (a gather): blocks of them are TBB tasks, each with its own
   // weight buffer; every particle's sums run in the same order whatever the thread count.
   // With a plan the kernel loop is for_each_planned_weight's alone, inlined here, so the sums
-  // and the fields' pointers stay in registers (through visit_kernel, whose other branch is not
-  // inlined, GCC kept the sums on the stack: a store and a reload per cell and field).
+  // and the fields' pointers stay in registers (through one helper that also held the computed
+  // kernels' branch, which GCC did not inline, the sums stayed on the stack: a store and a reload
+  // per cell and field).
   const bool planned = from_plan(plan);
   with_field_count(nf, [&](auto count_of_fields) {
     const std::size_t n_f = count_of_fields;

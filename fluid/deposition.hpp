@@ -102,10 +102,6 @@ private:
   void for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit,
                                int k0 = std::numeric_limits<int>::min(),
                                int k1 = std::numeric_limits<int>::max()) const;
-  // Particle q's kernel: from the plan where it has one (separable), else computed.
-  template <class Visit>
-  void visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
-                    std::vector<double>& buf, Visit&& visit) const;
   // The passes, with the kernels from `plan` (null: computed from p).
   void interpolate_with(const TransferPlan* plan, const ParticlePositions& p,
                         std::span<const GridField* const> fields,

@@ -59,6 +59,7 @@ struct MultigridPoisson::Level {
   double active = 0.0;
   bool has_inactive = false;
   bool empty_rows = false; // MultigridSettings::empty_rows
+  double omega = 1.0;      // MultigridSettings::relaxation_weight (point relaxation)
   SimdLevel simd = simd_level(); // the row kernels' copy (fluid/multigrid_rows.hpp)
 
   Level(std::array<int, 3> cells, std::array<double, 3> spacing,
@@ -269,13 +270,23 @@ inline void relax_plane(const Level& L, const double* b, double* x, int colour, 
   const double* ky = L.K[1].data();
   const double* kz = L.K[2].data();
   const double* id = L.inv_diag.data();
+  const double omega = L.omega;
   for (int j = 0; j < L.n[1]; ++j) {
     const int i0 = (colour + j + k + L.parity) & 1;
     std::size_t c = L.at(i0, j, k);
+    if (omega == 1.0) { // Gauss-Seidel: the value itself
+      for (int i = i0; i < L.n[0]; i += 2, c += 2) {
+        x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
+                ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
+               id[c];
+      }
+      continue;
+    }
     for (int i = i0; i < L.n[0]; i += 2, c += 2) {
-      x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
-              ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
-             id[c];
+      const double gs = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
+                         ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
+                        id[c];
+      x[c] += omega * (gs - x[c]);
     }
   }
 }
@@ -526,6 +537,28 @@ void restrict_residual(const Level& F, const Level& C, const double* b, const do
   });
 }
 
+// The weight of a point-relaxed level of n (global) cells: the settings' where red and black
+// are a true two-colouring. Across the seam of an odd periodic axis two cells of one colour are
+// neighbours and each colour step is a Jacobi step on those pairs, whose over-relaxation
+// converges only while omega < 2 / (1 + K / sqrt(diag_1 diag_2)) with K their link: a link that
+// carries most of both diagonals (a strong coefficient jump at the seam) would leave no room
+// above 1, so such a level keeps Gauss-Seidel.
+double relaxation_weight(const MultigridSettings& settings, const std::array<bool, 3>& periodic,
+                         const std::array<int, 3>& n) {
+  for (int a = 0; a < 3; ++a) {
+    if (periodic[a] && n[a] > 1 && n[a] % 2 == 1) {
+      return 1.0;
+    }
+  }
+  return settings.relaxation_weight;
+}
+
+// A red cell's value after the first pass from x = 0, given its Gauss-Seidel value b / diag:
+// omega times it (the correction from 0), the value itself for Gauss-Seidel.
+inline double from_zero_value(const Level& L, double gs) {
+  return L.omega == 1.0 ? gs : L.omega * gs;
+}
+
 // The first red pass from x = 0: red cells b / diag, black cells 0 (their neighbours are zero).
 void relax_points_from_zero(const Level& L, const double* b, double* x) {
   const double* id = L.inv_diag.data();
@@ -534,7 +567,7 @@ void relax_points_from_zero(const Level& L, const double* b, double* x) {
       std::size_t c = L.at(0, j, k);
       const int red = (j + k + L.parity) & 1; // i parity of the red cells in this row
       for (int i = 0; i < L.n[0]; ++i, ++c) {
-        x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+        x[c] = (i & 1) == red ? from_zero_value(L, b[c] * id[c]) : 0.0;
       }
     }
   });
@@ -554,7 +587,7 @@ void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const do
       }
     }
     for (int i = 0; i < L.n[0]; ++i, ++c) {
-      x[c] = (i & 1) == red ? b[c] * id[c] : 0.0;
+      x[c] = (i & 1) == red ? from_zero_value(L, b[c] * id[c]) : 0.0;
     }
   }
 }
@@ -1106,6 +1139,11 @@ bool check_arguments(const std::array<int, 3>& cells, const std::array<double, 3
     throw std::invalid_argument("multigrid: pre_sweeps must be >= 1 and equal post_sweeps (a "
                                 "symmetric preconditioner for CG)");
   }
+  if (!(settings.relaxation_weight > 0.0 && settings.relaxation_weight < 2.0)) {
+    throw std::invalid_argument(
+        fmt::format("multigrid: relaxation_weight {:g} is not in (0, 2) (the smoother diverges)",
+                    settings.relaxation_weight));
+  }
   return dirichlet;
 }
 
@@ -1169,6 +1207,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
   }
   for (Level& L : levels_) {
     L.empty_rows = settings_.empty_rows;
+    L.omega = relaxation_weight(settings_, L.periodic, L.n);
   }
   const std::size_t size = levels_.front().size;
   for (HugePageVector<double>* v : {&x_, &b_, &r_, &r_old_, &z_, &p_, &q_}) {
@@ -1215,6 +1254,7 @@ MultigridPoisson::MultigridPoisson(std::array<int, 3> cells, std::array<double, 
     exchanges_.push_back(std::make_unique<MultigridExchange>(n, periodic, boxes, comm));
     Level& L = levels_.emplace_back(box.cells(), h, local);
     L.empty_rows = settings_.empty_rows;
+    L.omega = relaxation_weight(settings_, periodic, n);
     L.exchange = exchanges_.back().get();
     L.exchanged = open;
     L.parity = (box.lo[0] + box.lo[1] + box.lo[2]) & 1;

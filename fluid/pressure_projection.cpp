@@ -246,6 +246,7 @@ PressureProjection::PressureProjection(const MacGrid& grid, const ProjectionSett
     }
     MultigridSettings mg_settings;
     mg_settings.empty_rows = grid.has_solid(); // a column's solid cells
+    mg_settings.relaxation_weight = kProjectionRelaxationWeight;
     if (halo == nullptr) {
       mg_ = std::make_unique<MultigridPoisson>(n, spacing, sides, mg_settings);
     } else {

@@ -507,29 +507,53 @@ TEST(MultigridPoisson, FusedColourPairsAndEveryRowKernelCopyEqualSeparateBaselin
         runs.push_back({true, 2, level});
       }
     }
-    std::vector<std::vector<double>> x(runs.size());
-    std::vector<int> iterations(runs.size());
-    for (std::size_t run = 0; run < runs.size(); ++run) {
-      const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
-                                        static_cast<std::size_t>(runs[run].threads));
-      MultigridSettings settings;
-      settings.fuse_colour_pairs = runs[run].fused;
-      MultigridPoisson mg(sys.cells, {1e-4, 1.1e-4, 0.9e-4}, sys.sides, settings);
-      mg.use_simd_level(runs[run].level);
-      mg.set_coefficients(coef, sys.mass ? &mass : nullptr);
-      x[run].assign(cells, 0.0);
-      const MultigridReport report = mg.solve(b, x[run], 1e-10, 100);
-      EXPECT_TRUE(report.converged);
-      iterations[run] = report.iterations;
-    }
-    for (std::size_t run = 1; run < runs.size(); ++run) {
-      const std::string name = fmt::format("{}x{}x{}, fused {}, {} threads, {}", sys.cells[0],
-                                           sys.cells[1], sys.cells[2], runs[run].fused,
-                                           runs[run].threads, simd_level_name(runs[run].level));
-      EXPECT_EQ(iterations[0], iterations[run]) << name;
-      EXPECT_EQ(std::memcmp(x[0].data(), x[run].data(), cells * sizeof(double)), 0) << name;
+    // Gauss-Seidel and the projection's over-relaxed smoothing alike.
+    for (const double weight : {1.0, kProjectionRelaxationWeight}) {
+      std::vector<std::vector<double>> x(runs.size());
+      std::vector<int> iterations(runs.size());
+      for (std::size_t run = 0; run < runs.size(); ++run) {
+        const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                                          static_cast<std::size_t>(runs[run].threads));
+        MultigridSettings settings;
+        settings.fuse_colour_pairs = runs[run].fused;
+        settings.relaxation_weight = weight;
+        MultigridPoisson mg(sys.cells, {1e-4, 1.1e-4, 0.9e-4}, sys.sides, settings);
+        mg.use_simd_level(runs[run].level);
+        mg.set_coefficients(coef, sys.mass ? &mass : nullptr);
+        x[run].assign(cells, 0.0);
+        const MultigridReport report = mg.solve(b, x[run], 1e-10, 100);
+        EXPECT_TRUE(report.converged);
+        iterations[run] = report.iterations;
+      }
+      for (std::size_t run = 1; run < runs.size(); ++run) {
+        const std::string name =
+            fmt::format("{}x{}x{}, weight {}, fused {}, {} threads, {}", sys.cells[0], sys.cells[1],
+                        sys.cells[2], weight, runs[run].fused, runs[run].threads,
+                        simd_level_name(runs[run].level));
+        EXPECT_EQ(iterations[0], iterations[run]) << name;
+        EXPECT_EQ(std::memcmp(x[0].data(), x[run].data(), cells * sizeof(double)), 0) << name;
+      }
     }
   }
+}
+
+// The smoother's weight must keep each colour step convergent: 0 < omega < 2.
+TEST(MultigridPoisson, RelaxationWeightOutsideZeroToTwoIsRefused) {
+  using P = PoissonSide;
+  const std::array<P, 2> per = {P::periodic, P::periodic};
+  for (const double weight : {0.0, -0.5, 2.0, 2.5, std::nan("")}) {
+    MultigridSettings settings;
+    settings.relaxation_weight = weight;
+    try {
+      MultigridPoisson mg({8, 8, 8}, {1e-4, 1e-4, 1e-4}, {per, per, per}, settings);
+      ADD_FAILURE() << "weight " << weight << " accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("relaxation_weight"), std::string::npos) << e.what();
+    }
+  }
+  MultigridSettings settings;
+  settings.relaxation_weight = 1.9;
+  EXPECT_NO_THROW(MultigridPoisson({8, 8, 8}, {1e-4, 1e-4, 1e-4}, {per, per, per}, settings));
 }
 
 // The viscous solves' grids: a walled bed with inflow and outflow (z periodic), a closed box and

@@ -92,16 +92,25 @@ private:
   CellStencil stencil(const std::array<double, 3>& x, double radius,
                       std::vector<double>& buf) const;
   [[nodiscard]] int box_index(int axis, int i) const;
-  // Visits the cells of a particle's kernel with their weights.
+  // Visits the cells of a particle's kernel with their weights; only those on the k-planes [k0,
+  // k1).
   template <class Visit>
   void for_each_weight(const std::array<double, 3>& x, double radius, std::vector<double>& buf,
-                       Visit&& visit) const;
+                       Visit&& visit, int k0 = std::numeric_limits<int>::min(),
+                       int k1 = std::numeric_limits<int>::max()) const;
   // Visits the cells of particle q's kernel from the plan's axis factors (plan.separable), in
   // for_each_weight's order with its weights; only those on the k-planes [k0, k1).
   template <class Visit>
   void for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit,
                                int k0 = std::numeric_limits<int>::min(),
                                int k1 = std::numeric_limits<int>::max()) const;
+  // Particle q's kernel on the k-planes [k0, k1): from the plan (Planned: plan->separable) or
+  // computed from p with buf. Planned is a compile-time choice (with_planned in the passes).
+  template <bool Planned, class Visit>
+  void visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
+                    std::vector<double>& buf, Visit&& visit,
+                    int k0 = std::numeric_limits<int>::min(),
+                    int k1 = std::numeric_limits<int>::max()) const;
   // The passes, with the kernels from `plan` (null: computed from p).
   void interpolate_with(const TransferPlan* plan, const ParticlePositions& p,
                         std::span<const GridField* const> fields,

@@ -271,22 +271,24 @@ inline void relax_plane(const Level& L, const double* b, double* x, int colour, 
   const double* kz = L.K[2].data();
   const double* id = L.inv_diag.data();
   const double omega = L.omega;
+  // The cell's Gauss-Seidel value from its neighbours.
+  const auto gauss_seidel = [&](std::size_t c) {
+    return (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
+            ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
+           id[c];
+  };
   for (int j = 0; j < L.n[1]; ++j) {
     const int i0 = (colour + j + k + L.parity) & 1;
     std::size_t c = L.at(i0, j, k);
-    if (omega == 1.0) { // Gauss-Seidel: the value itself
+    // Weight 1 takes the value itself (x + (gs - x) would round differently).
+    if (omega == 1.0) {
       for (int i = i0; i < L.n[0]; i += 2, c += 2) {
-        x[c] = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
-                ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
-               id[c];
+        x[c] = gauss_seidel(c);
       }
       continue;
     }
     for (int i = i0; i < L.n[0]; i += 2, c += 2) {
-      const double gs = (b[c] + kx[c] * x[c - 1] + kx[c + 1] * x[c + 1] + ky[c] * x[c - sy] +
-                         ky[c + sy] * x[c + sy] + kz[c] * x[c - sz] + kz[c + sz] * x[c + sz]) *
-                        id[c];
-      x[c] += omega * (gs - x[c]);
+      x[c] += omega * (gauss_seidel(c) - x[c]);
     }
   }
 }
@@ -553,13 +555,8 @@ double relaxation_weight(const MultigridSettings& settings, const std::array<boo
   return settings.relaxation_weight;
 }
 
-// A red cell's value after the first pass from x = 0, given its Gauss-Seidel value b / diag:
-// omega times it (the correction from 0), the value itself for Gauss-Seidel.
-inline double from_zero_value(const Level& L, double gs) {
-  return L.omega == 1.0 ? gs : L.omega * gs;
-}
-
-// The first red pass from x = 0: red cells b / diag, black cells 0 (their neighbours are zero).
+// The first red pass from x = 0: red cells omega b / diag (the weighted correction from 0; at
+// weight 1 the product is exact), black cells 0 (their neighbours are zero).
 void relax_points_from_zero(const Level& L, const double* b, double* x) {
   const double* id = L.inv_diag.data();
   for_planes(L.n[2], L.cells(), [&](int k) {
@@ -567,7 +564,7 @@ void relax_points_from_zero(const Level& L, const double* b, double* x) {
       std::size_t c = L.at(0, j, k);
       const int red = (j + k + L.parity) & 1; // i parity of the red cells in this row
       for (int i = 0; i < L.n[0]; ++i, ++c) {
-        x[c] = (i & 1) == red ? from_zero_value(L, b[c] * id[c]) : 0.0;
+        x[c] = (i & 1) == red ? L.omega * (b[c] * id[c]) : 0.0;
       }
     }
   });
@@ -587,7 +584,7 @@ void relax_plane_from_zero(const Level& L, double* b, double* x, int k, const do
       }
     }
     for (int i = 0; i < L.n[0]; ++i, ++c) {
-      x[c] = (i & 1) == red ? from_zero_value(L, b[c] * id[c]) : 0.0;
+      x[c] = (i & 1) == red ? L.omega * (b[c] * id[c]) : 0.0;
     }
   }
 }

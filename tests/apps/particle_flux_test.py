@@ -10,10 +10,12 @@ For every scheme on one rank:
   by 10 ms (the inflow is four times the terminal velocity);
 - with particles.outflow = "wall" no particle leaves (the old behaviour, now a stated choice);
 - a restart from a checkpoint taken while particles leave repeats the run bit for bit.
-One rank's orb (its global mode through most of the blow-out) counts within 2% of explicit's.
-On 2 ranks (where mpirun is found) every scheme closes the same balance, its count within 2% of
-one rank's at every row (orb: one rank's leaf steps, dem.orb_global = false) (round-off between the rank counts grows in a colliding bed), and a
-restart across removals is bitwise. The islands scheme runs a box twice as wide there: its halo
+One rank's orb (its global mode through most of the blow-out) blows out as explicit does. On 2
+ranks (where mpirun is found) every scheme closes the same balance and blows out as on one rank
+(orb: one rank's leaf steps, dem.orb_global = false), and a restart across removals is bitwise.
+"Blows out as" compares the two count curves as two samples of n0 exit times (same_blow_out):
+the colliding bed is chaotic, so a perturbation at the gas solver's tolerance gives another
+realization, and a bound on single rows below that spread fails on correct code. The islands scheme runs a box twice as wide there: its halo
 grows with the particles' speed beyond half of the scene's 0.8 mm period.
 
 Part "inlet": the same bed with inlet.recycle (what leaves enters again at the bottom) and with
@@ -194,7 +196,7 @@ def check_balance(scheme, tmp, ranks=1, extra=()):
         last = n
     assert last < n0 // 2, (scheme, ranks, "most of the bed should have left by then", last)
     print(f"{scheme} on {ranks} rank(s): {n0} -> {last} particles, balance closes at every row")
-    return [int(float(x["particles"])) for x in r]
+    return [float(x["time"]) for x in r], [int(float(x["particles"])) for x in r]
 
 
 def check_restart(scheme, tmp, ranks=1, extra=()):
@@ -218,6 +220,53 @@ def check_restart(scheme, tmp, ranks=1, extra=()):
     print(f"{scheme} on {ranks} rank(s): restart across removals is bitwise")
 
 
+def exit_moments(times, counts):
+    """The restricted mean and variance of a particle's exit time over [0, T] (T the last row):
+    with S(t) = n(t) / n0 the fraction still in, E[min(tau, T)] = int_0^T S dt and
+    E[min(tau, T)^2] = int_0^T 2 t S dt (trapezoid rule over the rows)."""
+    m1 = m2 = 0.0
+    n0 = counts[0]
+    for i in range(1, len(times)):
+        h = times[i] - times[i - 1]
+        s0, s1 = counts[i - 1] / n0, counts[i] / n0
+        m1 += 0.5 * h * (s0 + s1)
+        m2 += h * (times[i - 1] * s0 + times[i] * s1)
+    return m1, m2 - m1 * m1
+
+
+def same_blow_out(one, many, what):
+    """Two blow-outs of one bed agree as two samples of exit times (counts at the same rows).
+
+    The bed is chaotic: the one-rank orb's count curve at fluid.tolerance 1e-10, 1e-11, 1e-12 and
+    at 5e-11 .. 2e-12 (and two ranks' at those) differ by 3 to 16 particles of 400 at some row, so
+    a bound of 2% on every row (the test's former one) failed on unchanged code at a tighter
+    solver tolerance. Counted as samples of the n0 particles' exit times the differences are
+    those of statistics, with bounds that follow from the sample size:
+    - the largest difference of the fractions still in, at any row, within the two-sample
+      Kolmogorov-Smirnov bound at significance 1e-3, c sqrt(1/n_a + 1/n_b), c = sqrt(ln(2/1e-3)/2)
+      = 1.95 (55 particles of 400); the rows sample the curves, so this bounds the statistic from
+      below;
+    - the restricted mean exit times within 3 standard errors of a difference of two independent
+      samples (sqrt(var_a/n_a + var_b/n_b), each variance from its own curve).
+    Two realizations share the initial bed, so they differ less than independent samples do: the
+    13 pairs above differ by 0.02-0.86 standard errors. One rank's orb leaf steps, which lag the
+    explicit scheme (296 particles left at 5 ms against 217), differ from it by 10.6 standard
+    errors and by 105 particles at a row: both bounds catch that.
+    """
+    (ta, na), (tb, nb) = one, many
+    assert ta == tb, (what, "rows at different times", ta, tb)
+    ks = max(abs(a / na[0] - b / nb[0]) for a, b in zip(na, nb))
+    c = math.sqrt(math.log(2 / 1e-3) / 2)
+    ks_bound = c * math.sqrt(1 / na[0] + 1 / nb[0])
+    (ma, va), (mb, vb) = exit_moments(ta, na), exit_moments(tb, nb)
+    se = math.sqrt(va / na[0] + vb / nb[0])
+    print(f"{what}: largest difference of the fraction still in {ks:.4f} (bound {ks_bound:.4f}); "
+          f"mean exit time {ma * 1e3:.4f} against {mb * 1e3:.4f} ms, {(ma - mb) / se:+.2f} "
+          f"standard errors")
+    assert ks <= ks_bound, (what, ks, ks_bound, na, nb)
+    assert abs(ma - mb) <= 3 * se, (what, ma, mb, se, na, nb)
+
+
 def close_counts(one, many, what):
     assert len(one) == len(many), what
     for a, b in zip(one, many):
@@ -237,16 +286,16 @@ def outflow(tmp):
     # fine steps, no frozen partners) and follows the explicit scheme's counts (the leaf steps
     # lag: 296 particles left at 5 ms against 217); R ranks take the leaf steps, as one rank does
     # with dem.orb_global = false.
-    close_counts(counts["explicit"], counts["orb"], "orb's global mode and explicit")
+    same_blow_out(counts["explicit"], counts["orb"], "orb's global mode and explicit")
     if MPIEXEC:
         leaf = ["dem.orb_global=false"]
-        close_counts(counts["explicit"], check_balance("explicit", tmp, ranks=2), "explicit")
-        close_counts(check_balance("orb", tmp, extra=leaf), check_balance("orb", tmp, ranks=2),
-                     "orb")
+        same_blow_out(counts["explicit"], check_balance("explicit", tmp, ranks=2), "explicit")
+        same_blow_out(check_balance("orb", tmp, extra=leaf), check_balance("orb", tmp, ranks=2),
+                      "orb")
         check_restart("explicit", tmp, ranks=2)
         wide = [*WIDE, "run.end_time=0.006"]
-        close_counts(check_balance("islands", tmp, extra=wide),
-                     check_balance("islands", tmp, ranks=2, extra=wide), "islands")
+        same_blow_out(check_balance("islands", tmp, extra=wide),
+                      check_balance("islands", tmp, ranks=2, extra=wide), "islands")
     else:
         print("mpirun not found: the 2-rank cases were not run")
 

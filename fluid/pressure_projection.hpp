@@ -63,17 +63,13 @@ inline constexpr std::size_t kAutoCoarsestCells = 32768;
 [[nodiscard]] PoissonSolver auto_solver(const MacGrid& grid);
 
 // The weight of the projection's red-black smoothing (MultigridSettings::relaxation_weight):
-// Gauss-Seidel. Over-relaxing by kOverRelaxedProjectionWeight saves PCG iterations on the risers
-// (measured over the first 5 ms, PCG iterations at weight 1, 1.05, 1.08, 1.1, 1.12: the riser
-// 349, 309, 306, 305, 305; riser_gravity 313, 298, 288, 286, 286; hcs_gas 351 then 350; the
-// fluidized bed's first 2 ms 182 at 1, 181 at 1.1, 182 at 1.15, 183 at 1.2, 196 at 1.3; the
-// riser's 2 ms 143 at 1, 141 at 1.2, 164 at 1.3, 189 at 1.4: flat from 1.05 to 1.15, a loss from
-// 1.2), but it is not the default yet: it moves the chaotic runs' realizations, and the test
-// ParticleFlux.outflow compares one rank's orb with two ranks' within 8 particles, a bound
-// inside that comparison's own spread (the present code at fluid.tolerance = 1e-12 differs by
-// 14; docs/multigrid.md, "Over-relaxation").
-inline constexpr double kOverRelaxedProjectionWeight = 1.1;
-inline constexpr double kProjectionRelaxationWeight = 1.0;
+// over-relaxed Gauss-Seidel, which saves PCG iterations on the risers (measured over the first
+// 5 ms, PCG iterations at weight 1, 1.05, 1.08, 1.1, 1.12: the riser 349, 309, 306, 305, 305;
+// riser_gravity 313, 298, 288, 286, 286; hcs_gas 351 then 350; the fluidized bed's first 2 ms
+// 182 at 1, 181 at 1.1, 182 at 1.15, 183 at 1.2, 196 at 1.3; the riser's 2 ms 143 at 1, 141 at
+// 1.2, 164 at 1.3, 189 at 1.4): flat from 1.05 to 1.15, a loss from 1.2, so the middle of the
+// flat stretch (docs/multigrid.md, "Over-relaxation").
+inline constexpr double kProjectionRelaxationWeight = 1.1;
 
 // The grid's boundary kinds as the multigrid's sides: walls and inflow carry no correction flux
 // (Neumann), an outflow face holds phi (Dirichlet), periodic stays periodic.

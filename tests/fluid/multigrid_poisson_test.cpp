@@ -507,8 +507,8 @@ TEST(MultigridPoisson, FusedColourPairsAndEveryRowKernelCopyEqualSeparateBaselin
         runs.push_back({true, 2, level});
       }
     }
-    // Gauss-Seidel and the over-relaxed smoothing measured for the projection alike.
-    for (const double weight : {1.0, kOverRelaxedProjectionWeight}) {
+    // Gauss-Seidel and the projection's over-relaxed smoothing alike.
+    for (const double weight : {1.0, kProjectionRelaxationWeight}) {
       std::vector<std::vector<double>> x(runs.size());
       std::vector<int> iterations(runs.size());
       for (std::size_t run = 0; run < runs.size(); ++run) {

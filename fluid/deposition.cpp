@@ -252,7 +252,7 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
   }
 }
 
-template <class Visit>
+template <int Cells, class Visit>
 void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit,
                                          int k0, int k1) const {
   const std::size_t base = q * static_cast<std::size_t>(plan.stride);
@@ -263,15 +263,18 @@ void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q
   const std::int32_t* iy = ix + plan.slots[0];
   const std::int32_t* iz = iy + plan.slots[1];
   const std::uint8_t* n = plan.cells.data() + 3 * q;
+  const int nx = Cells > 0 ? Cells : n[0];
+  const int ny = Cells > 0 ? Cells : n[1];
+  const int nz = Cells > 0 ? Cells : n[2];
   const GridLayout& layout = grid_.layout();
-  for (int c = 0; c < n[2]; ++c) {
+  for (int c = 0; c < nz; ++c) {
     const int k = iz[c];
     if (k < k0 || k >= k1) {
       continue;
     }
-    for (int b = 0; b < n[1]; ++b) {
+    for (int b = 0; b < ny; ++b) {
       const auto row = static_cast<std::ptrdiff_t>(layout.index(0, iy[b], k));
-      for (int a = 0; a < n[0]; ++a) {
+      for (int a = 0; a < nx; ++a) {
         // The kernel functions' product, (w_x w_y) w_z: the same weight bit for bit.
         const double w = wx[a] * wy[b] * wz[c];
         if (w != 0.0) {
@@ -284,12 +287,12 @@ void Deposition::for_each_planned_weight(const TransferPlan& plan, std::size_t q
 
 // Always inlined: the planned walk must inline into the pass's particle loop (else the visit
 // lambda's captured sums leave the registers).
-template <bool Planned, class Visit>
+template <bool Planned, int Cells, class Visit>
 [[gnu::always_inline]] inline void
 Deposition::visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
                          std::vector<double>& buf, Visit&& visit, int k0, int k1) const {
   if constexpr (Planned) {
-    for_each_planned_weight(*plan, q, visit, k0, k1);
+    for_each_planned_weight<Cells>(*plan, q, visit, k0, k1);
   } else {
     for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf, visit, k0, k1);
   }
@@ -316,6 +319,7 @@ void Deposition::plan(const ParticlePositions& p, TransferPlan& out) const {
       out.separable = out.separable && out.slots[a] <= kMaxPlannedCells;
     }
   }
+  out.fixed_cells = out.separable && trilinear ? 2 : 0;
   if (!out.separable) {
     out.slots = {}, out.stride = 0;
     out.cells.clear(), out.factor.clear(), out.index.clear();
@@ -386,11 +390,16 @@ template <class F> void with_field_count(std::size_t nf, F&& f) {
 // Calls f with from_plan(plan) as a compile-time constant: each pass's particle loop is then
 // compiled once per kind of kernel, and the planned one inlines its kernel walk (a run-time
 // choice per particle kept GCC from inlining, and the gathers' sums lived on the stack).
+// With a plan of fixed_cells 2 (the trilinear kernel) f also gets the cell count 2 as a constant
+// (the walk's loops unroll); otherwise 0.
 template <class F> void with_planned(const TransferPlan* plan, F&& f) {
   if (from_plan(plan)) {
-    return f(std::true_type{});
+    if (plan->fixed_cells == 2) {
+      return f(std::true_type{}, std::integral_constant<int, 2>{});
+    }
+    return f(std::true_type{}, std::integral_constant<int, 0>{});
   }
-  return f(std::false_type{});
+  return f(std::false_type{}, std::integral_constant<int, 0>{});
 }
 
 } // namespace
@@ -405,13 +414,13 @@ void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, s
     for (std::size_t f = 0; f < nf; ++f) {
       out[f] = cells[f]->values().data();
     }
-    with_planned(plan, [&](auto planned) {
+    with_planned(plan, [&](auto planned, auto fixed_cells) {
       with_field_count(nf, [&](auto count_of_fields) {
         const std::size_t n_f = count_of_fields;
         std::array<double, kMaxDepositFields> vq{};
         for (std::size_t q = 0; q < count; ++q) {
           std::copy_n(v + q * n_f, n_f, vq.begin());
-          visit_kernel<decltype(planned)::value>(plan, p, q, weights_,
+          visit_kernel<decltype(planned)::value, decltype(fixed_cells)::value>(plan, p, q, weights_,
                                                  [&](std::size_t idx, double w) {
                                                    for (std::size_t f = 0; f < n_f; ++f) {
                                                      out[f][idx] += w * vq[f];
@@ -505,7 +514,7 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
           return false;
         };
         // Only the kernel's planes in this task's range [k0, k1) are visited.
-        with_planned(plan, [&](auto kernel_planned) {
+        with_planned(plan, [&](auto kernel_planned, auto fixed_cells) {
           with_field_count(nf, [&](auto count_of_fields) {
             const std::size_t n_f = count_of_fields;
             for (std::size_t q = 0; q < count; ++q) {
@@ -513,7 +522,7 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
                 continue;
               }
               std::copy_n(v + q * n_f, n_f, vq.begin());
-              visit_kernel<decltype(kernel_planned)::value>(
+              visit_kernel<decltype(kernel_planned)::value, decltype(fixed_cells)::value>(
                   plan, p, q, buf,
                   [&](std::size_t idx, double w) {
                     for (std::size_t f = 0; f < n_f; ++f) {
@@ -625,16 +634,24 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
                       [&](const tbb::blocked_range<std::size_t>& r) {
                         const std::array<const double*, kMaxFields> in = value;
                         if (planned) {
-                          for (std::size_t q = r.begin(); q != r.end(); ++q) {
-                            std::array<double, kMaxFields> sum{};
-                            for_each_planned_weight(*plan, q, [&](std::size_t idx, double w) {
+                          const auto gather = [&](auto fixed_cells) {
+                            for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                              std::array<double, kMaxFields> sum{};
+                              for_each_planned_weight<decltype(fixed_cells)::value>(
+                                  *plan, q, [&](std::size_t idx, double w) {
+                                    for (std::size_t f = 0; f < n_f; ++f) {
+                                      sum[f] += w * in[f][idx];
+                                    }
+                                  });
                               for (std::size_t f = 0; f < n_f; ++f) {
-                                sum[f] += w * in[f][idx];
+                                outs[f][q] = sum[f];
                               }
-                            });
-                            for (std::size_t f = 0; f < n_f; ++f) {
-                              outs[f][q] = sum[f];
                             }
+                          };
+                          if (plan->fixed_cells == 2) {
+                            gather(std::integral_constant<int, 2>{});
+                          } else {
+                            gather(std::integral_constant<int, 0>{});
                           }
                           return;
                         }

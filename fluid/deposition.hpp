@@ -99,14 +99,16 @@ private:
                        Visit&& visit, int k0 = std::numeric_limits<int>::min(),
                        int k1 = std::numeric_limits<int>::max()) const;
   // Visits the cells of particle q's kernel from the plan's axis factors (plan.separable), in
-  // for_each_weight's order with its weights; only those on the k-planes [k0, k1).
-  template <class Visit>
+  // for_each_weight's order with its weights; only those on the k-planes [k0, k1). Cells: the
+  // plan's fixed_cells (2: the loops' counts are constants, the walk unrolls), 0: per particle.
+  template <int Cells, class Visit>
   void for_each_planned_weight(const TransferPlan& plan, std::size_t q, Visit&& visit,
                                int k0 = std::numeric_limits<int>::min(),
                                int k1 = std::numeric_limits<int>::max()) const;
-  // Particle q's kernel on the k-planes [k0, k1): from the plan (Planned: plan->separable) or
-  // computed from p with buf. Planned is a compile-time choice (with_planned in the passes).
-  template <bool Planned, class Visit>
+  // Particle q's kernel on the k-planes [k0, k1): from the plan (Planned: plan->separable, with
+  // Cells its fixed_cells) or computed from p with buf. Planned and Cells are compile-time
+  // choices (with_planned in the passes).
+  template <bool Planned, int Cells, class Visit>
   void visit_kernel(const TransferPlan* plan, const ParticlePositions& p, std::size_t q,
                     std::vector<double>& buf, Visit&& visit,
                     int k0 = std::numeric_limits<int>::min(),

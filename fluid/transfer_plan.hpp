@@ -31,6 +31,9 @@ struct TransferPlan {
   // and indices start at q * stride, x's slots first, then y's, then z's.
   std::array<int, 3> slots{};
   int stride = 0;
+  // 2: every particle's kernel has two cells along every axis (the trilinear kernel), so the
+  // passes walk it with fixed loop counts; 0: the counts are per particle (`cells`).
+  int fixed_cells = 0;
   std::vector<std::uint8_t> cells; // 3 per particle: its kernel's cells along x, y, z
   std::vector<double> factor;      // per slot: the axis factor of the cell
   std::vector<std::int32_t> index; // per slot: the cell's folded index along its axis

@@ -420,12 +420,12 @@ void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, s
         std::array<double, kMaxDepositFields> vq{};
         for (std::size_t q = 0; q < count; ++q) {
           std::copy_n(v + q * n_f, n_f, vq.begin());
-          visit_kernel<decltype(planned)::value, decltype(fixed_cells)::value>(plan, p, q, weights_,
-                                                 [&](std::size_t idx, double w) {
-                                                   for (std::size_t f = 0; f < n_f; ++f) {
-                                                     out[f][idx] += w * vq[f];
-                                                   }
-                                                 });
+          visit_kernel<decltype(planned)::value, decltype(fixed_cells)::value>(
+              plan, p, q, weights_, [&](std::size_t idx, double w) {
+                for (std::size_t f = 0; f < n_f; ++f) {
+                  out[f][idx] += w * vq[f];
+                }
+              });
         }
       });
     });

@@ -275,6 +275,9 @@ TEST_P(DepositionConservation, APlanGivesThePassesBitwise) {
       TransferPlan plan;
       deposition.plan(cloud.view(), plan);
       EXPECT_EQ(plan.separable, GetParam() != DepositionKernel::dpvm_sphere && !grid.has_solid());
+      // The trilinear plan takes the walk with fixed loop counts (the passes below check its bits).
+      EXPECT_EQ(plan.fixed_cells,
+                plan.separable && GetParam() == DepositionKernel::trilinear ? 2 : 0);
       // Each pass twice: from the positions (a), from the plan (b).
       std::array<GridField, 2> eps_s = {grid.make_field(), grid.make_field()};
       deposition.deposit_solid_fraction(cloud.view(), eps_s[0]);

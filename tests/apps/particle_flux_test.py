@@ -248,8 +248,9 @@ def same_blow_out(one, many, what):
       below;
     - the restricted mean exit times within 3 standard errors of a difference of two independent
       samples (sqrt(var_a/n_a + var_b/n_b), each variance from its own curve).
-    Two realizations share the initial bed, so they differ less than independent samples do: the
-    13 pairs above differ by 0.02-0.86 standard errors. One rank's orb leaf steps, which lag the
+    Two realizations share the initial bed, so they differ less than independent samples do: 15
+    such pairs (one rank at 1e-10 against the others, and one rank against two at each of
+    5e-11 .. 2e-12) differ by 0.01-0.86 standard errors. One rank's orb leaf steps, which lag the
     explicit scheme (296 particles left at 5 ms against 217), differ from it by 10.6 standard
     errors and by 105 particles at a row: both bounds catch that.
     """

@@ -387,17 +387,22 @@ template <class F> void with_field_count(std::size_t nf, F&& f) {
   }
 }
 
+// Calls f with the plan's fixed_cells as a compile-time constant: 2 (the trilinear kernel: the
+// walk's loops unroll) or 0 (counts per particle).
+template <class F> void with_fixed_cells(const TransferPlan& plan, F&& f) {
+  if (plan.fixed_cells == 2) {
+    return f(std::integral_constant<int, 2>{});
+  }
+  return f(std::integral_constant<int, 0>{});
+}
+
 // Calls f with from_plan(plan) as a compile-time constant: each pass's particle loop is then
 // compiled once per kind of kernel, and the planned one inlines its kernel walk (a run-time
-// choice per particle kept GCC from inlining, and the gathers' sums lived on the stack).
-// With a plan of fixed_cells 2 (the trilinear kernel) f also gets the cell count 2 as a constant
-// (the walk's loops unroll); otherwise 0.
+// choice per particle kept GCC from inlining, and the gathers' sums lived on the stack). f's
+// second argument is the plan's fixed_cells as with_fixed_cells gives it (0 without a plan).
 template <class F> void with_planned(const TransferPlan* plan, F&& f) {
   if (from_plan(plan)) {
-    if (plan->fixed_cells == 2) {
-      return f(std::true_type{}, std::integral_constant<int, 2>{});
-    }
-    return f(std::true_type{}, std::integral_constant<int, 0>{});
+    return with_fixed_cells(*plan, [&](auto fixed_cells) { f(std::true_type{}, fixed_cells); });
   }
   return f(std::false_type{}, std::integral_constant<int, 0>{});
 }
@@ -648,11 +653,7 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
                               }
                             }
                           };
-                          if (plan->fixed_cells == 2) {
-                            gather(std::integral_constant<int, 2>{});
-                          } else {
-                            gather(std::integral_constant<int, 0>{});
-                          }
+                          with_fixed_cells(*plan, gather);
                           return;
                         }
                         std::vector<double> buf(weights_.size());

@@ -15,8 +15,9 @@ ranks (where mpirun is found) every scheme closes the same balance and blows out
 (orb: one rank's leaf steps, dem.orb_global = false), and a restart across removals is bitwise.
 "Blows out as" compares the two count curves as two samples of n0 exit times (same_blow_out):
 the colliding bed is chaotic, so a perturbation at the gas solver's tolerance gives another
-realization, and a bound on single rows below that spread fails on correct code. The islands scheme runs a box twice as wide there: its halo
-grows with the particles' speed beyond half of the scene's 0.8 mm period.
+realization, and a bound on single rows below that spread fails on correct code. The islands
+scheme runs a box twice as wide there: its halo grows with the particles' speed beyond half of
+the scene's 0.8 mm period.
 
 Part "inlet": the same bed with inlet.recycle (what leaves enters again at the bottom) and with
 inlet.mass_rate:

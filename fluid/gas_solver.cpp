@@ -371,10 +371,11 @@ void GasSolver::fill_ghosts_and_close() {
 
 GasStepReport GasSolver::step(double dt) {
   fill_ghosts_and_close();
-  return step_with_ghosts(dt);
+  return step_with_ghosts(dt, courant_rates());
 }
 
-GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale, bool keep_eps_old) {
+GasStepReport GasSolver::step_with_ghosts(double dt, const std::array<double, 2>& rates,
+                                          double source_scale, bool keep_eps_old) {
   GasStepReport report;
   report.dt = dt;
   if (!(dt > 0.0) || !std::isfinite(dt)) {
@@ -383,7 +384,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, double source_scale, bool k
         "CFL time step: set fixed_dt)",
         dt));
   }
-  report.courant = courant_number(dt);
+  report.courant = dt * (implicit_now_ ? rates[1] : rates[0]); // courant_number(dt)
   const double max_courant = max_stable_courant(settings_.advection);
   if (report.courant > max_courant * (1.0 + 1e-12)) {
     throw std::runtime_error(fmt::format(
@@ -546,7 +547,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
       start_copied = true;
     }
     // u's ghosts filled above; after the last sub-step eps_old_ becomes the target (below).
-    const GasStepReport r = step_with_ghosts(dt, source_scale, !last);
+    const GasStepReport r = step_with_ghosts(dt, rates, source_scale, !last);
     total.dt = r.dt;
     total.courant = std::max(total.courant, r.courant);
     total.projection_iterations += r.projection_iterations;

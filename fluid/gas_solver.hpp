@@ -229,7 +229,10 @@ private:
   // continuity source is (eps - eps_old)/dt times source_scale (advance(): interval /
   // eps_interval, from the sub-step's rate to the particles').
   // keep_eps_old false: eps_old_ is left as it was (the caller overwrites it), not set to eps_.
-  GasStepReport step_with_ghosts(double dt, double source_scale = 1.0, bool keep_eps_old = true);
+  // `rates` are courant_rates() of u as it stands (advance() has them; each is three passes over
+  // u and a reduction over the ranks).
+  GasStepReport step_with_ghosts(double dt, const std::array<double, 2>& rates,
+                                 double source_scale = 1.0, bool keep_eps_old = true);
 
   MacGrid grid_;
   GasSolverSettings settings_;

@@ -287,7 +287,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   // The particles' kernels once for the three transfers here and interpolate_forces' (the
   // particles stand still until then).
   deposition_->plan(pos, plan_);
-  eps_s_.fill(0.0);
+  fluid::fill_field(eps_s_, 0.0);
   deposition_->deposit_solid_fraction(plan_, eps_s_);
   fluid::GridField& eps = scene_.fluid.one_way ? eps_s_ : solver_->volume_fraction();
   const auto& nc = grid_.cells();
@@ -340,7 +340,7 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   fluid::GridField* cells[] = {&solver_->drag_coefficient(), &solver_->drag_velocity_sum(0),
                                &solver_->drag_velocity_sum(1), &solver_->drag_velocity_sum(2)};
   for (fluid::GridField* f : cells)
-    f->fill(0.0);
+    fluid::fill_field(*f, 0.0);
   const std::span<const double> values[] = {beta_, bv_[0], bv_[1], bv_[2]};
   deposition_->deposit(plan_, values, cells);
 }

@@ -63,6 +63,16 @@ inline void copy_field(const GridField& from, GridField& to) {
                     });
 }
 
+// Every value of f (ghosts included) set to v, blocks as TBB tasks.
+inline void fill_field(GridField& f, double v) {
+  const std::span<double> out = f.values();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, out.size(), 16384),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      std::fill(out.begin() + static_cast<std::ptrdiff_t>(r.begin()),
+                                out.begin() + static_cast<std::ptrdiff_t>(r.end()), v);
+                    });
+}
+
 // Whether a and b (of one size) hold the same values, blocks compared as TBB tasks.
 inline bool equal_values(std::span<const double> a, std::span<const double> b) {
   return tbb::parallel_reduce(

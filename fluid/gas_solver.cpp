@@ -515,9 +515,12 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   const double source_scale = eps_interval > 0.0 ? interval / eps_interval : 1.0;
   // eps_g of the fluid step's end and start (members: no allocation per fluid step). The start
   // is eps_old_ itself until a sub-step that is not the last would overwrite it: only then is it
-  // copied (most intervals take one sub-step).
-  copy_field(eps_, eps_target_);
+  // copied (most intervals take one sub-step). The end, eps_ as the caller left it, is copied
+  // to eps_target_ in the first sub-step's pass over eps_.
   const GridField& target = eps_target_;
+  if (eps_target_.values().size() != eps_.values().size()) {
+    eps_target_ = eps_;
+  }
   bool start_copied = false;
   GasStepReport total;
   double t = 0.0;
@@ -535,10 +538,14 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     const double fraction = last ? 1.0 : (t + dt) / interval;
     std::span<double> e = eps_.values();
     std::span<const double> e0 = (start_copied ? eps_start_ : eps_old_).values();
-    std::span<const double> e1 = target.values();
+    std::span<double> e1 = eps_target_.values();
+    const bool first = count == 0;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, e.size(), 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                         for (std::size_t m = r.begin(); m != r.end(); ++m) {
+                          if (first) {
+                            e1[m] = e[m]; // the end (its layout set when the sizes agree)
+                          }
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
                       });
@@ -558,8 +565,18 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     ++count;
   }
   total.implicit_viscosity = implicit_now_;
-  copy_field(target, eps_);
-  copy_field(target, eps_old_);
+  {
+    std::span<const double> e1 = target.values();
+    std::span<double> e = eps_.values();
+    std::span<double> old = eps_old_.values();
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, e.size(), 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t m = r.begin(); m != r.end(); ++m) {
+                          e[m] = e1[m];
+                          old[m] = e1[m];
+                        }
+                      });
+  }
   if (substeps != nullptr) {
     *substeps = count;
   }

@@ -544,7 +544,7 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
                       [&](const tbb::blocked_range<std::size_t>& r) {
                         for (std::size_t m = r.begin(); m != r.end(); ++m) {
                           if (first) {
-                            e1[m] = e[m]; // the end (its layout set when the sizes agree)
+                            e1[m] = e[m]; // the end (eps_target_ sized to eps_ above)
                           }
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
@@ -565,6 +565,9 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     ++count;
   }
   total.implicit_viscosity = implicit_now_;
+  if (eps_old_.values().size() != target.values().size()) {
+    eps_old_ = target; // as copy_field would (eps_old_ is moved with eps_, so not expected)
+  }
   {
     std::span<const double> e1 = target.values();
     std::span<double> e = eps_.values();

@@ -207,8 +207,7 @@ std::array<double, 2> GasSolver::courant_rates() const {
 }
 
 double GasSolver::courant_number(double dt) const {
-  const std::array<double, 2> rates = courant_rates();
-  return dt * (implicit_now_ ? rates[1] : rates[0]);
+  return courant_at(dt, courant_rates());
 }
 
 void GasSolver::use_simd_level(SimdLevel level) {
@@ -384,7 +383,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, const std::array<double, 2>
         "CFL time step: set fixed_dt)",
         dt));
   }
-  report.courant = dt * (implicit_now_ ? rates[1] : rates[0]); // courant_number(dt)
+  report.courant = courant_at(dt, rates);
   const double max_courant = max_stable_courant(settings_.advection);
   if (report.courant > max_courant * (1.0 + 1e-12)) {
     throw std::runtime_error(fmt::format(
@@ -513,14 +512,17 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   // over `interval`; the scale makes it the change over the time the particles took (exactly 1
   // for a fixed fluid step).
   const double source_scale = eps_interval > 0.0 ? interval / eps_interval : 1.0;
-  // eps_g of the fluid step's end and start (members: no allocation per fluid step). The start
+  // eps_g of the fluid step's end and start (members: no allocation per fluid step). The end,
+  // eps_ as the caller left it, is swapped into eps_target_ (copied only where its grid differs,
+  // as at the first step or after a rebox), and swapped back after the last sub-step. The start
   // is eps_old_ itself until a sub-step that is not the last would overwrite it: only then is it
-  // copied (most intervals take one sub-step). The end, eps_ as the caller left it, is copied
-  // to eps_target_ in the first sub-step's pass over eps_.
-  const GridField& target = eps_target_;
-  if (eps_target_.values().size() != eps_.values().size()) {
+  // copied (most intervals take one sub-step).
+  if (eps_target_.layout().cells() == eps_.layout().cells()) {
+    std::swap(eps_, eps_target_);
+  } else {
     eps_target_ = eps_;
   }
+  const GridField& target = eps_target_;
   bool start_copied = false;
   GasStepReport total;
   double t = 0.0;
@@ -538,14 +540,10 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     const double fraction = last ? 1.0 : (t + dt) / interval;
     std::span<double> e = eps_.values();
     std::span<const double> e0 = (start_copied ? eps_start_ : eps_old_).values();
-    std::span<double> e1 = eps_target_.values();
-    const bool first = count == 0;
+    std::span<const double> e1 = target.values();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, e.size(), 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                         for (std::size_t m = r.begin(); m != r.end(); ++m) {
-                          if (first) {
-                            e1[m] = e[m]; // the end (eps_target_ sized to eps_ above)
-                          }
                           e[m] = e0[m] + fraction * (e1[m] - e0[m]);
                         }
                       });
@@ -565,21 +563,8 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     ++count;
   }
   total.implicit_viscosity = implicit_now_;
-  if (eps_old_.values().size() != target.values().size()) {
-    eps_old_ = target; // as copy_field would (eps_old_ is moved with eps_, so not expected)
-  }
-  {
-    std::span<const double> e1 = target.values();
-    std::span<double> e = eps_.values();
-    std::span<double> old = eps_old_.values();
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, e.size(), 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                        for (std::size_t m = r.begin(); m != r.end(); ++m) {
-                          e[m] = e1[m];
-                          old[m] = e1[m];
-                        }
-                      });
-  }
+  std::swap(eps_, eps_target_); // eps_ is the end again, bit for bit
+  copy_field(eps_, eps_old_);
   if (substeps != nullptr) {
     *substeps = count;
   }

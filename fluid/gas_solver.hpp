@@ -202,6 +202,10 @@ private:
   // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {advective_rate +
   // 2 nu sum_a 1 / dx_a^2, advective_rate} (u's ghosts filled).
   [[nodiscard]] std::array<double, 2> courant_rates() const;
+  // C at dt from those rates: the viscous part only while the viscosity is explicit.
+  [[nodiscard]] double courant_at(double dt, const std::array<double, 2>& rates) const {
+    return dt * (implicit_now_ ? rates[1] : rates[0]);
+  }
   // max |u_a| over the faces of each axis (over the ranks: a max is exact).
   [[nodiscard]] std::array<double, 3> max_face_speeds() const;
   // The sub-step advance() takes at time t of `interval` at a Courant rate `rate` [1/s]: at

@@ -477,8 +477,8 @@ ViscousSolveReport ImplicitViscosity::solve_cg(int comp, double c, const GridFie
       out[static_cast<std::size_t>(p)] = in[static_cast<std::size_t>(p)] / centre;
     });
   };
-  z_.fill(0.0);
-  p_.fill(0.0);
+  fill_field(z_, 0.0);
+  fill_field(p_, 0.0);
   precondition(r_, z_);
   for_box(layout, lo, hi, [&](std::ptrdiff_t p) {
     p_[static_cast<std::size_t>(p)] = z_[static_cast<std::size_t>(p)];

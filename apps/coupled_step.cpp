@@ -56,6 +56,7 @@ fluid::GasSolverSettings solver_settings(const Scene& s) {
   g.advection = fluid::advection_named(s.fluid.advection);
   g.implicit_viscosity = s.fluid.implicit_viscosity;
   g.implicit_viscosity_auto = s.fluid.implicit_viscosity_auto;
+  g.factored_viscosity = s.fluid.viscous_step == "factored";
   g.time_order = s.fluid.time_order;
   g.projections = s.fluid.projections;
   g.projection.tolerance = s.fluid.tolerance;

@@ -397,6 +397,7 @@ Scene read_scene(SceneConfig& c, const std::string& default_name) {
       f.implicit_viscosity = k.flag("fluid.implicit_viscosity", false);
       f.implicit_viscosity_auto = !c.has("fluid.implicit_viscosity");
     }
+    f.viscous_step = k.word("fluid.viscous_step");
     f.time_order = static_cast<int>(k.integer("fluid.time_order"));
     f.projections = static_cast<int>(k.integer("fluid.projections"));
     for (const char* key : {"fluid.time_order", "fluid.projections"})
@@ -609,6 +610,7 @@ std::vector<std::pair<std::string, std::string>> describe_scene(const Scene& s) 
     o.emplace_back("fluid.implicit_viscosity", f.implicit_viscosity_auto ? "\"auto\""
                                                : f.implicit_viscosity    ? "true"
                                                                          : "false");
+    o.emplace_back("fluid.viscous_step", str(f.viscous_step));
     o.emplace_back("fluid.advection", str(f.advection));
     o.emplace_back("fluid.time_order", std::to_string(f.time_order));
     o.emplace_back("fluid.projections", std::to_string(f.projections));

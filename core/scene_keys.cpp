@@ -74,6 +74,7 @@ constexpr std::string_view kBoundaries[] = {"periodic", "wall", "inflow", "outfl
 constexpr std::string_view kPreconditioners[] = {"pfmg", "smg"};
 constexpr std::string_view kSolvers[] = {"multigrid", "hypre", "auto"};
 constexpr std::string_view kAdvections[] = {"godunov", "mol"};
+constexpr std::string_view kViscousSteps[] = {"solve", "factored"};
 
 using T = KeyType;
 using S = KeySection;
@@ -745,6 +746,17 @@ std::vector<SceneKey> make_table() {
                   "fluid step, implicit when the explicit viscous limit would need more than 1.6 "
                   "times the sub-steps (what the implicit solves cost; gas_step.md), the count "
                   "in run.json"},
+      {.name = "fluid.viscous_step",
+       .type = T::String,
+       .section = S::Fluid,
+       .choices = kViscousSteps,
+       .fallback = word("solve"),
+       .meaning = "how a step with the viscous Laplacian implicit takes it: \"solve\", the "
+                  "trapezoidal system solved to a relative residual of 1e-10; \"factored\", one "
+                  "step of its approximate factorization (three sweeps of line solves along x, y "
+                  "and z: second order in time as well, the viscous part of a gas step about "
+                  "2.5x cheaper on the fluidized bed; one rank only). "
+                  "[gas_step.md](gas_step.md) has the accuracy and cost of each"},
       {.name = "fluid.advection",
        .type = T::String,
        .section = S::Fluid,
@@ -761,15 +773,18 @@ std::vector<SceneKey> make_table() {
        .section = S::Fluid,
        .range = closed(1, 2),
        .fallback = integer(2),
-       .meaning = "with `fluid.advection` = \"mol\": 2, predictor-corrector (Heun; `fluid.projections` says "
-                  "how many of its stages are projected); 1, Euler (one projection, first order; [gas_step.md](gas_step.md) has "
+       .meaning = "with `fluid.advection` = \"mol\": 2, predictor-corrector (Heun; "
+                  "`fluid.projections` says "
+                  "how many of its stages are projected); 1, Euler (one projection, first order; "
+                  "[gas_step.md](gas_step.md) has "
                   "its measured accuracy cost)"},
       {.name = "fluid.projections",
        .type = T::Integer,
        .section = S::Fluid,
        .range = closed(1, 2),
        .fallback = integer(1),
-       .meaning = "pressure solves per gas step with `fluid.advection` = \"mol\" and `fluid.time_order` = 2: 1, the predictor "
+       .meaning = "pressure solves per gas step with `fluid.advection` = \"mol\" and "
+                  "`fluid.time_order` = 2: 1, the predictor "
                   "takes the last step's pressure gradient and only the corrector is projected "
                   "(Bell, Colella & Glaz 1989; second order); 2, each stage projected (Heun as "
                   "before; a checkpoint written before this key restarts with 2). "

@@ -118,6 +118,12 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   size_workspace(work_, grid.layout(), settings.advection == Advection::godunov);
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
   if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
+    if (settings.factored_viscosity && halo_ != nullptr) {
+      throw std::invalid_argument(
+          "fluid.viscous_step = \"factored\" needs the gas on one rank: its line solves do not "
+          "cross the ranks' boxes yet; run on one rank (threads share its lines) or use "
+          "fluid.viscous_step = \"solve\"");
+    }
     implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get(),
                                                      solid_.empty() ? nullptr : &solid_);
@@ -343,9 +349,11 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     });
     fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
     const Stopwatch timed(seconds_.viscous);
+    const double c = theta * dt * settings_.gas.viscosity;
     const ViscousSolveReport vr =
-        viscosity_->solve(a, theta * dt * settings_.gas.viscosity, eps_, diag_, vrhs_, u_[a],
-                          settings_.viscous_tolerance, 1000);
+        settings_.factored_viscosity
+            ? viscosity_->step_factored(a, c, eps_, diag_, vrhs_, u_[a])
+            : viscosity_->solve(a, c, eps_, diag_, vrhs_, u_[a], settings_.viscous_tolerance, 1000);
     report.viscous_iterations += vr.iterations;
   }
   fill_ghosts_and_close();

@@ -34,6 +34,7 @@ struct ViscousSolveReport {
   // Rows of unknowns whose face coefficients the Chebyshev iteration computed from eps rather
   // than read (solve_chebyshev).
   int rows_from_eps = 0;
+  bool factored = false; // one factored step (step_factored), not a solve: iterations = 1
 };
 
 // Chebyshev iteration is used while the dominance ratio rho is at most this. Its contraction per
@@ -120,6 +121,16 @@ public:
                            const GridField& rhs, GridField& u, double tolerance,
                            int max_iterations);
 
+  // Instead of solving the same system, one step of its approximate factorization in delta
+  // form from the first guess u (ghosts filled),
+  //   (diag + c N_x) diag^-1 (diag + c N_y) diag^-1 (diag + c N_z) (u_new - u) = rhs - A u,
+  // N_b = -d_b(eps d_b) along axis b: three sweeps of tridiagonal line solves (cyclic on a
+  // periodic axis) rather than iterations to a tolerance. Second order in time like the
+  // trapezoidal solve it replaces (docs/gas_step.md, "The factored viscous step"). One grid
+  // only: throws std::logic_error on a distributed one, whose lines cross boxes.
+  ViscousSolveReport step_factored(int comp, double c, const GridField& eps, const GridField& diag,
+                                   const GridField& rhs, GridField& u);
+
   // Off: every solve goes to CG (tests of the CG paths).
   void use_chebyshev(bool on) { chebyshev_ = on; }
 
@@ -203,6 +214,16 @@ private:
   std::array<bool, 3> cv_k_valid_{};
   GridField dir_, dir_next_;
   GridField inverse_diagonal_; // CoefficientSource::stored_inverse
+  // The factored step: per component, what the homogeneous ghost fill puts beyond each end of
+  // a non-periodic line, end[b][side] times the end unknown (found once: it depends on the grid
+  // alone); the line solves' scratch.
+  struct FactoredEnds {
+    std::array<std::array<double, 2>, 3> end{};
+    bool known = false;
+  };
+  const FactoredEnds& factored_ends(int comp);
+  std::array<FactoredEnds, 3> factored_ends_{};
+  GridField factored_cp_, factored_dp_, factored_zp_;
   bool pairs_ = true;
   SimdLevel level_ = simd_level();
   CoefficientSource source_ = CoefficientSource::automatic;

@@ -118,12 +118,6 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   size_workspace(work_, grid.layout(), settings.advection == Advection::godunov);
   projection_ = std::make_unique<PressureProjection>(grid, settings.projection, halo_.get());
   if ((settings.implicit_viscosity || settings.implicit_viscosity_auto) && gas.viscosity > 0.0) {
-    if (settings.factored_viscosity && halo_ != nullptr) {
-      throw std::invalid_argument(
-          "fluid.viscous_step = \"factored\" needs the gas on one rank: its line solves do not "
-          "cross the ranks' boxes yet; run on one rank (threads share its lines) or use "
-          "fluid.viscous_step = \"solve\"");
-    }
     implicit_now_ = !settings.implicit_viscosity_auto;
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get(),
                                                      solid_.empty() ? nullptr : &solid_);

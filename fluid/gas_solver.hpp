@@ -71,8 +71,7 @@ struct GasSolverSettings {
   bool implicit_viscosity_auto = false;
   double viscous_tolerance = 1e-10;
   // The implicit Laplacian's system by one approximately factored step (three sweeps of line
-  // solves, ImplicitViscosity::step_factored) instead of a solve to viscous_tolerance. One grid
-  // only: the constructor refuses it on a distributed grid.
+  // solves, ImplicitViscosity::step_factored) instead of a solve to viscous_tolerance.
   bool factored_viscosity = false;
   // explicit_guess_pays' limit on lam (tests: 0 never takes the term, infinity always does).
   double viscous_guess_limit = 1.0;

@@ -126,8 +126,9 @@ public:
   //   (diag + c N_x) diag^-1 (diag + c N_y) diag^-1 (diag + c N_z) (u_new - u) = rhs - A u,
   // N_b = -d_b(eps d_b) along axis b: three sweeps of tridiagonal line solves (cyclic on a
   // periodic axis) rather than iterations to a tolerance. Second order in time like the
-  // trapezoidal solve it replaces (docs/gas_step.md, "The factored viscous step"). One grid
-  // only: throws std::logic_error on a distributed one, whose lines cross boxes.
+  // trapezoidal solve it replaces (docs/gas_step.md, "The factored viscous step"). On a
+  // distributed grid the lines cross the boxes: each box solves its segments and one sum over
+  // the ranks per sweep carries their ends (the one grid's result up to round-off).
   ViscousSolveReport step_factored(int comp, double c, const GridField& eps, const GridField& diag,
                                    const GridField& rhs, GridField& u);
 
@@ -223,7 +224,7 @@ private:
   };
   const FactoredEnds& factored_ends(int comp);
   std::array<FactoredEnds, 3> factored_ends_{};
-  GridField factored_cp_, factored_dp_, factored_zp_;
+  GridField factored_cp_, factored_dp_, factored_zp_, factored_wp_;
   bool pairs_ = true;
   SimdLevel level_ = simd_level();
   CoefficientSource source_ = CoefficientSource::automatic;

@@ -11,8 +11,11 @@
 // amplification lies in [-1, 1] whatever c (docs/gas_step.md, "The factored viscous step").
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstddef>
+#include <span>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -20,6 +23,7 @@
 
 #include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
+#include "fluid/grid_halo.hpp"
 #include "fluid/implicit_viscosity.hpp"
 
 namespace cfddem::fluid {
@@ -174,6 +178,243 @@ void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t st
   }
 }
 
+// The unknowns of component comp in a box of the grid, in global indices (unknown_lo/hi's rule
+// for that box: a wall or inflow face of the domain is known, an outflow face is an unknown).
+struct UnknownRange {
+  std::array<int, 3> lo, hi;
+  [[nodiscard]] bool empty() const { return hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]; }
+};
+UnknownRange unknown_range(const MacGrid& grid, const CellBox& box, int comp) {
+  UnknownRange r{box.lo, {box.hi[0] - 1, box.hi[1] - 1, box.hi[2] - 1}};
+  const auto exchanged = [&](int a, int side) {
+    return grid.periodic(a) || (side == 0 ? box.lo[a] > 0 : box.hi[a] < grid.global_cells()[a]);
+  };
+  const BoundaryKind low = grid.bc(comp, 0).kind;
+  if (!exchanged(comp, 0) && (low == BoundaryKind::wall || low == BoundaryKind::inflow)) {
+    r.lo[comp] += 1;
+  }
+  if (!exchanged(comp, 1) && grid.bc(comp, 1).kind == BoundaryKind::outflow) {
+    r.hi[comp] += 1;
+  }
+  return r;
+}
+
+// Solves A z = rhs in place (dense, row-major n x n, partial pivoting): the interface system of
+// one line over the boxes, 2 unknowns per box it crosses.
+void solve_dense(std::vector<double>& a, std::vector<double>& rhs, int n) {
+  for (int col = 0; col < n; ++col) {
+    int pivot = col;
+    for (int r = col + 1; r < n; ++r) {
+      if (std::abs(a[static_cast<std::size_t>(r * n + col)]) >
+          std::abs(a[static_cast<std::size_t>(pivot * n + col)])) {
+        pivot = r;
+      }
+    }
+    if (pivot != col) {
+      for (int j = 0; j < n; ++j) {
+        std::swap(a[static_cast<std::size_t>(col * n + j)],
+                  a[static_cast<std::size_t>(pivot * n + j)]);
+      }
+      std::swap(rhs[static_cast<std::size_t>(col)], rhs[static_cast<std::size_t>(pivot)]);
+    }
+    const double inv = 1.0 / a[static_cast<std::size_t>(col * n + col)];
+    for (int r = col + 1; r < n; ++r) {
+      const double f = a[static_cast<std::size_t>(r * n + col)] * inv;
+      if (f == 0.0) {
+        continue;
+      }
+      for (int j = col; j < n; ++j) {
+        a[static_cast<std::size_t>(r * n + j)] -= f * a[static_cast<std::size_t>(col * n + j)];
+      }
+      rhs[static_cast<std::size_t>(r)] -= f * rhs[static_cast<std::size_t>(col)];
+    }
+  }
+  for (int r = n - 1; r >= 0; --r) {
+    double v = rhs[static_cast<std::size_t>(r)];
+    for (int j = r + 1; j < n; ++j) {
+      v -= a[static_cast<std::size_t>(r * n + j)] * rhs[static_cast<std::size_t>(j)];
+    }
+    rhs[static_cast<std::size_t>(r)] = v / a[static_cast<std::size_t>(r * n + r)];
+  }
+}
+
+// One sweep over a distributed grid's lines along axis b, which the boxes cut into segments
+// (the partition method: Wang, ACM Trans. Math. Softw. 7 (1981) 170). Each box solves its
+// segment with the couplings to its neighbours' end unknowns L (below) and R (above) taken out,
+// x = y - v L - w R, with T y = rhs, T v = sub_0 e_0, T w = sup_{n-1} e_{n-1}; the boxes' end
+// values (y, v, w at both ends) are summed into one array over the ranks, and every box that
+// holds a piece of a line solves the same small system for the line's end unknowns (two per
+// segment, in the segments' order along b, closed into a ring on a periodic axis), then its own
+// unknowns from them. The one-grid sweep's direct solve up to round-off.
+struct DistributedSweep {
+  const MacGrid& grid;
+  const GridLayout& layout;
+  const GridHalo& halo;
+  int comp;
+  int b;
+  std::array<int, 3> lo, hi; // this box's unknowns (local indices)
+  const double* k;
+  const double* dg;
+  double c;
+  double end_lo, end_hi; // closures of the domain's ends (unused on exchanged sides)
+  double* cp;
+  double* v;
+  double* w;
+
+  void operator()(const double* in, bool scale, double* out) const {
+    const int a1 = b == 0 ? 1 : 0;
+    const int a2 = b == 2 ? 1 : 2;
+    const std::ptrdiff_t s = layout.stride(b);
+    const int n = hi[b] - lo[b] + 1;
+    const int n1 = hi[a1] - lo[a1] + 1;
+    const int n2 = hi[a2] - lo[a2] + 1;
+    const bool low_open = grid.exchanged(b, 0);
+    const bool high_open = grid.exchanged(b, 1);
+    const std::vector<CellBox>& boxes = halo.boxes();
+    const int ranks = static_cast<int>(boxes.size());
+    const int me = halo.comm().rank();
+    std::vector<UnknownRange> ranges;
+    std::vector<std::size_t> offset(static_cast<std::size_t>(ranks) + 1, 0);
+    for (int r = 0; r < ranks; ++r) {
+      ranges.push_back(unknown_range(grid, boxes[static_cast<std::size_t>(r)], comp));
+      const UnknownRange& u = ranges.back();
+      const std::size_t lines = u.empty() ? 0
+                                          : static_cast<std::size_t>(u.hi[a1] - u.lo[a1] + 1) *
+                                                static_cast<std::size_t>(u.hi[a2] - u.lo[a2] + 1);
+      offset[static_cast<std::size_t>(r) + 1] = offset[static_cast<std::size_t>(r)] + 6 * lines;
+    }
+    std::vector<double> ends(offset.back(), 0.0);
+    double* mine = ends.data() + offset[static_cast<std::size_t>(me)];
+    // The segments: y into out, v and w beside it, their end values into `ends`.
+    tbb::parallel_for(0, n2, [&](int t2) {
+      for (int t1 = 0; t1 < n1; ++t1) {
+        std::array<int, 3> idx{};
+        idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
+        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));
+        double pd = 0.0, pv = 0.0, pw = 0.0, pc = 0.0;
+        for (int m = 0; m < n; ++m) {
+          const std::ptrdiff_t p = p0 + m * s;
+          const double klo = k[p], khi = k[p + s];
+          double sub = -c * klo, dia = dg[p] + c * (klo + khi), sup = -c * khi;
+          double ev = 0.0, ew = 0.0;
+          if (m == 0) {
+            if (low_open) {
+              ev = sub;
+            } else {
+              dia += sub * end_lo;
+            }
+            sub = 0.0;
+          }
+          if (m == n - 1) {
+            if (high_open) {
+              ew = sup;
+            } else {
+              dia += sup * end_hi;
+            }
+            sup = 0.0;
+          }
+          const double rhs = scale ? dg[p] * in[p] : in[p];
+          const double inv = 1.0 / (dia - sub * pc);
+          pc = sup * inv;
+          pd = (rhs - sub * pd) * inv;
+          pv = (ev - sub * pv) * inv;
+          pw = (ew - sub * pw) * inv;
+          cp[p] = pc, out[p] = pd, v[p] = pv, w[p] = pw;
+        }
+        for (int m = n - 2; m >= 0; --m) {
+          const std::ptrdiff_t p = p0 + m * s;
+          out[p] -= cp[p] * out[p + s];
+          v[p] -= cp[p] * v[p + s];
+          w[p] -= cp[p] * w[p + s];
+        }
+        double* e = mine + 6 * (static_cast<std::size_t>(t1) +
+                                static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2));
+        const std::ptrdiff_t last = p0 + (n - 1) * s;
+        e[0] = out[p0], e[1] = v[p0], e[2] = w[p0];
+        e[3] = out[last], e[4] = v[last], e[5] = w[last];
+      }
+    });
+    // Every box cut along b needs the others' ends; a box alone along b (not periodic) has none.
+    bool cut = grid.periodic(b);
+    for (const CellBox& box : boxes) {
+      cut = cut || box.lo[b] > 0 || box.hi[b] < grid.global_cells()[b];
+    }
+    if (!cut) {
+      return;
+    }
+    halo.comm().sum(std::span<double>(ends));
+    const bool periodic = grid.periodic(b);
+    const std::array<int, 3> origin = grid.box().lo;
+    tbb::parallel_for(0, n2, [&](int t2) {
+      struct Segment {
+        int start;
+        const double* e;
+      };
+      std::vector<Segment> segments;
+      std::vector<double> a, z;
+      for (int t1 = 0; t1 < n1; ++t1) {
+        const int g1 = origin[a1] + lo[a1] + t1;
+        const int g2 = origin[a2] + lo[a2] + t2;
+        segments.clear();
+        int own = -1;
+        for (int r = 0; r < ranks; ++r) {
+          const UnknownRange& u = ranges[static_cast<std::size_t>(r)];
+          if (u.empty() || g1 < u.lo[a1] || g1 > u.hi[a1] || g2 < u.lo[a2] || g2 > u.hi[a2]) {
+            continue;
+          }
+          const std::size_t line = static_cast<std::size_t>(g1 - u.lo[a1]) +
+                                   static_cast<std::size_t>(u.hi[a1] - u.lo[a1] + 1) *
+                                       static_cast<std::size_t>(g2 - u.lo[a2]);
+          segments.push_back(
+              {u.lo[b], ends.data() + offset[static_cast<std::size_t>(r)] + 6 * line});
+          if (r == me) {
+            own = u.lo[b];
+          }
+        }
+        std::sort(segments.begin(), segments.end(),
+                  [](const Segment& x, const Segment& y) { return x.start < y.start; });
+        const int S = static_cast<int>(segments.size());
+        const int N = 2 * S;
+        a.assign(static_cast<std::size_t>(N * N), 0.0);
+        z.assign(static_cast<std::size_t>(N), 0.0);
+        int mine_at = 0;
+        for (int q = 0; q < S; ++q) {
+          const double* e = segments[static_cast<std::size_t>(q)].e;
+          if (segments[static_cast<std::size_t>(q)].start == own) {
+            mine_at = q;
+          }
+          // first_q + v0 L_q + w0 R_q = y0; last_q + vN L_q + wN R_q = yN.
+          const int left = q > 0 ? 2 * (q - 1) + 1 : (periodic ? 2 * (S - 1) + 1 : -1);
+          const int right = q < S - 1 ? 2 * (q + 1) : (periodic ? 0 : -1);
+          for (int row = 0; row < 2; ++row) {
+            const int i = 2 * q + row;
+            a[static_cast<std::size_t>(i * N + i)] += 1.0;
+            if (left >= 0) {
+              a[static_cast<std::size_t>(i * N + left)] += e[3 * row + 1];
+            }
+            if (right >= 0) {
+              a[static_cast<std::size_t>(i * N + right)] += e[3 * row + 2];
+            }
+            z[static_cast<std::size_t>(i)] = e[3 * row];
+          }
+        }
+        solve_dense(a, z, N);
+        const int q = mine_at;
+        const double L = q > 0 ? z[static_cast<std::size_t>(2 * (q - 1) + 1)]
+                               : (periodic ? z[static_cast<std::size_t>(2 * (S - 1) + 1)] : 0.0);
+        const double R =
+            q < S - 1 ? z[static_cast<std::size_t>(2 * (q + 1))] : (periodic ? z[0] : 0.0);
+        std::array<int, 3> idx{};
+        idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
+        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));
+        for (int m = 0; m < n; ++m) {
+          const std::ptrdiff_t p = p0 + m * s;
+          out[p] = (out[p] - v[p] * L) - w[p] * R;
+        }
+      }
+    });
+  }
+};
 } // namespace
 
 const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp) {
@@ -192,8 +433,8 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
   for (int b = 0; b < 3; ++b) {
     for (int side = 0; side < 2; ++side) {
       double& end = ends.end[static_cast<std::size_t>(b)][static_cast<std::size_t>(side)];
-      if (grid_.bc(b, side).kind == BoundaryKind::periodic) {
-        end = 0.0;
+      if (grid_.bc(b, side).kind == BoundaryKind::periodic || grid_.exchanged(b, side)) {
+        end = 0.0; // the line goes on (periodic or into the next box): no closure
         continue;
       }
       const int plane = side == 0 ? lo[b] : hi[b];
@@ -247,10 +488,6 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
 ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const GridField& eps,
                                                     const GridField& diag, const GridField& rhs,
                                                     GridField& u) {
-  if (halo_ != nullptr) {
-    throw std::logic_error("factored viscous step: the lines of a distributed grid cross boxes "
-                           "(one grid only)");
-  }
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
   if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) {
@@ -304,27 +541,53 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   };
   double* y = dir_.values().data();
   double* z = dir_next_.values().data();
-  // (D + c N_x) y = r: lines along x, four rows side by side (independent recurrences the core
-  // overlaps); a z-plane per task.
-  const Sweep wx = sweep_for(0, k0);
-  tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
-    for (int j = lo[1]; j <= hi[1]; j += 4) {
-      const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-      solve_lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, r, false, y);
+  if (halo_ != nullptr) {
+    if (factored_wp_.values().size() != layout.size()) {
+      factored_wp_ = GridField(layout);
     }
-  });
-  // (D + c N_y) z = D y: lines along y, a row of them side by side; a z-plane per task.
-  const Sweep wy = sweep_for(1, k1);
-  tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
-    const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
-    solve_lines<true>(wy, p0, static_cast<int>(len), 1, y, true, z);
-  });
-  // (D + c N_z) delta = D z: lines along z, a row of them side by side; a y-row per task.
-  const Sweep wz = sweep_for(2, k2);
-  tbb::parallel_for(lo[1], hi[1] + 1, [&](int j) {
-    const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, lo[2]));
-    solve_lines<true>(wz, p0, static_cast<int>(len), 1, z, true, y);
-  });
+    for (int axis = 0; axis < 3; ++axis) {
+      const auto a = static_cast<std::size_t>(axis);
+      const DistributedSweep sweep{grid_,
+                                   layout,
+                                   *halo_,
+                                   comp,
+                                   axis,
+                                   lo,
+                                   hi,
+                                   cv_k_[cs][a].values().data(),
+                                   dg,
+                                   c,
+                                   ends.end[a][0],
+                                   ends.end[a][1],
+                                   factored_cp_.values().data(),
+                                   factored_zp_.values().data(),
+                                   factored_wp_.values().data()};
+      // x: r -> y; y: D y -> z; z: D z -> delta (in y).
+      sweep(axis == 0 ? r : axis == 1 ? y : z, axis != 0, axis == 1 ? z : y);
+    }
+  } else {
+    // (D + c N_x) y = r: lines along x, four rows side by side (independent recurrences the core
+    // overlaps); a z-plane per task.
+    const Sweep wx = sweep_for(0, k0);
+    tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
+      for (int j = lo[1]; j <= hi[1]; j += 4) {
+        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+        solve_lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, r, false, y);
+      }
+    });
+    // (D + c N_y) z = D y: lines along y, a row of them side by side; a z-plane per task.
+    const Sweep wy = sweep_for(1, k1);
+    tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
+      const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
+      solve_lines<true>(wy, p0, static_cast<int>(len), 1, y, true, z);
+    });
+    // (D + c N_z) delta = D z: lines along z, a row of them side by side; a y-row per task.
+    const Sweep wz = sweep_for(2, k2);
+    tbb::parallel_for(lo[1], hi[1] + 1, [&](int j) {
+      const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, lo[2]));
+      solve_lines<true>(wz, p0, static_cast<int>(len), 1, z, true, y);
+    });
+  }
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
     for (std::ptrdiff_t p = row; p < row + len; ++p) {
       x[p] += y[p];

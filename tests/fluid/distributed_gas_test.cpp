@@ -396,6 +396,38 @@ TEST_P(DistributedGas, SmgPreconditionedColumnMatchesOneGrid) {
                    GetParam() ? "column_smg_implicit" : "column_smg_explicit");
 }
 
+// fluid.viscous_step = "factored" over the ranks: the boxes cut the x, y and z lines into
+// segments, and the interface system each line's boxes solve (one sum over the ranks per sweep)
+// must give the one grid's direct line solves up to round-off: on walls, inflow and outflow
+// (the column), across periodic lines (the channel's x, the vortex's x and y) and with the
+// lines closed into a ring by a box alone along a periodic axis.
+TEST(DistributedGasFactored, ColumnChannelAndVortexMatchOneGrid) {
+  GasSolverSettings settings = tight_settings(true);
+  settings.factored_viscosity = true;
+  settings.gas.gravity = {0.0, -9.80665, 0.0};
+  expect_round_off(run_both(outflow_column(0.5), settings, 6, 1e-5, 0.0, kBlob), "column_factored");
+  settings.gas.gravity = {0.0, 0.0, 0.0};
+  expect_round_off(run_both(channel_2d(), settings, 8, 2e-5, 0.0, kChannelStart),
+                   "channel_factored");
+  const double length = 1e-3;
+  const double k = 2.0 * std::numbers::pi / length;
+  const double amplitude = 20.0 * kMu / (kRho * length);
+  const MacGridSpec spec =
+      box_spec({12, 12, 3}, {length, length, length / 4.0}, BoundaryKind::periodic);
+  const FieldSetter start = [&](const MacGrid& g, GasSolver& solver, int s) {
+    if (s != 0) {
+      return;
+    }
+    set_field(g, solver.velocity()[0], 0, [&](double x, double y, double) {
+      return amplitude * std::sin(k * x) * std::cos(k * y);
+    });
+    set_field(g, solver.velocity()[1], 1, [&](double x, double y, double) {
+      return -amplitude * std::cos(k * x) * std::sin(k * y);
+    });
+  };
+  expect_round_off(run_both(spec, settings, 10, 4e-5, 0.0, start), "taylor_green_factored");
+}
+
 INSTANTIATE_TEST_SUITE_P(Viscosity, DistributedGas, ::testing::Values(false, true),
                          [](const ::testing::TestParamInfo<bool>& param) {
                            return std::string(param.param ? "implicit" : "explicit");

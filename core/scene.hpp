@@ -161,7 +161,7 @@ struct FluidSpec {
   std::array<double, 3> velocity{};        // initial gas velocity [m/s]
   bool implicit_viscosity = false;
   bool implicit_viscosity_auto = true; // "auto" (the default): chosen per fluid step
-  std::string viscous_step = "solve";  // the implicit Laplacian: "solve" or "factored"
+  std::string viscous_step = "factored"; // the implicit Laplacian: "factored" or "solve"
   std::string advection = "godunov";   // "godunov" (one stage) or "mol" (time_order, projections)
   int time_order = 2;                  // mol: 1, Euler; 2, predictor-corrector (Heun)
   int projections = 1; // time_order 2: 1 (the corrector only) or 2 (each stage projected)

@@ -750,12 +750,13 @@ std::vector<SceneKey> make_table() {
        .type = T::String,
        .section = S::Fluid,
        .choices = kViscousSteps,
-       .fallback = word("solve"),
-       .meaning = "how a step with the viscous Laplacian implicit takes it: \"solve\", the "
-                  "trapezoidal system solved to a relative residual of 1e-10; \"factored\", one "
-                  "step of its approximate factorization (three sweeps of line solves along x, y "
-                  "and z: second order in time as well, the viscous part of a gas step about "
-                  "2.5x cheaper on the fluidized bed; one rank only). "
+       .fallback = word("factored"),
+       .meaning = "how a gas step with the viscous Laplacian implicit takes it: \"factored\" (the "
+                  "default), one step of the trapezoidal system's approximate factorization, "
+                  "three sweeps of tridiagonal line solves along x, y and z (second order in "
+                  "time; the viscous part of the fluidized bed's gas step about 2.3x cheaper; "
+                  "on R ranks one sum over the ranks per sweep); \"solve\", the system solved "
+                  "to a relative residual of 1e-10 by Chebyshev iteration or CG. "
                   "[gas_step.md](gas_step.md) has the accuracy and cost of each"},
       {.name = "fluid.advection",
        .type = T::String,

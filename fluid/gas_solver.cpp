@@ -271,6 +271,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   const double theta = trapezoidal ? 0.5 : 1.0;
   // Whether the implicit solves' first guess takes theta dt L(u^n) (read by the implicit branch
   // below only).
+  const bool factored = settings_.factored_viscosity;
   const bool guess_lap =
       have_lap_start &&
       explicit_guess_pays(theta * dt * settings_.gas.viscosity / settings_.gas.density,
@@ -337,9 +338,12 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       diag_[f] = face_mass_[a][f] * gain[f];
       vrhs_[f] = face_mass_[a][f] * (start[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
       // First guess: with guess_lap, the implicit part taken at u^n, theta dt L(u^n) (see
-      // explicit_guess_pays).
+      // explicit_guess_pays). The factored step starts from u^n itself: from a guess that holds
+      // the trapezoidal rule's explicit half it would keep that half's amplification, up to
+      // |1 - theta dt nu lambda| (lambda an eigenvalue of -L; 4.8 on the bed's cells), on the
+      // modes stiff along two or three axes (docs/gas_step.md, "The factored viscous step").
       const double lap = guess_lap ? theta * lap_start_[a][f] : 0.0;
-      u_[a][f] = (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
+      u_[a][f] = factored ? start[a][f] : (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
     });
     fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
     const Stopwatch timed(seconds_.viscous);

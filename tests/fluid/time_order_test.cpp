@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <numbers>
+#include <random>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -146,8 +147,9 @@ std::array<GridField, 3> taylor_green_implicit(int steps, bool factored) {
 
 // The factored viscous step keeps the predictor-corrector's second order in time where the
 // viscous term dominates (Re = 5; 16 steps is a viscous Courant number of 0.6, 64 of 0.15),
-// and its error stays within a few percent of the solved step's: the factorization's error,
-// c^2 N_x D^-1 N_y applied to the step's change, is itself O(dt^3) per step.
+// and its error is no larger than the solved step's (measured: 0.60x; the factorization's
+// error, c^2 N_x D^-1 N_y applied to the step's change, is itself O(dt^3) per step and here
+// partly offsets the time error).
 TEST(GasTimeOrder, FactoredViscousStepIsSecondOrderInTime) {
   const std::array<GridField, 3> reference = taylor_green_after(2, 1024);
   std::array<double, 3> factored{}, solved{};
@@ -168,7 +170,58 @@ TEST(GasTimeOrder, FactoredViscousStepIsSecondOrderInTime) {
   }
   RecordProperty("factored_over_solved_error_16_steps", text(factored[0] / solved[0]));
   EXPECT_LT(factored[0], 1.1 * solved[0]);
-  EXPECT_GT(factored[0], 0.9 * solved[0]);
+}
+
+// Kinetic energy of the face velocities (uniform cells: a sum of squares).
+double kinetic_energy(const MacGrid& grid, const std::array<GridField, 3>& u) {
+  double e = 0.0;
+  for (int a = 0; a < 3; ++a) {
+    const auto& n = grid.cells();
+    for (int k = 0; k < n[2] + (a == 2); ++k) {
+      for (int j = 0; j < n[1] + (a == 1); ++j) {
+        for (int i = 0; i < n[0] + (a == 0); ++i) {
+          const double v = u[static_cast<std::size_t>(a)](i, j, k);
+          e += v * v;
+        }
+      }
+    }
+  }
+  return 0.5 * e;
+}
+
+// A closed box of the fluidized bed's 50 um cells at its 1e-4 s step (dt nu / dx^2 = 0.8 per
+// axis: the trapezoidal rule's explicit half amplifies the grid-scale modes by up to 1 - 4.8):
+// from a random velocity, neither viscous step may let the kinetic energy grow. A factored step
+// that started from the explicit first guess instead of u^n grew the modes stiff along two or
+// three axes (a gas-only quarter bed reached 1.2 m/s at its corners in 30 ms against 0.03).
+TEST(GasTimeOrder, FactoredViscousStepDampsTheStiffModes) {
+  const MacGrid grid(test::box_spec({8, 12, 8}, {4e-4, 6e-4, 4e-4}, BoundaryKind::wall));
+  for (const bool factored : {true, false}) {
+    SCOPED_TRACE(factored ? "factored" : "solved");
+    GasSolverSettings settings = vortex_settings();
+    settings.advection = Advection::godunov;
+    settings.implicit_viscosity = true;
+    settings.factored_viscosity = factored;
+    GasSolver solver(grid, settings);
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> uni(-1.0, 1.0);
+    for (GridField& f : solver.velocity()) {
+      for (double& v : f.values()) {
+        v = 0.01 * uni(rng);
+      }
+    }
+    (void)solver.step(1e-4); // the projection makes it a flow of the box
+    double last = kinetic_energy(grid, solver.velocity());
+    const double first = last;
+    ASSERT_GT(first, 0.0);
+    for (int s = 0; s < 60; ++s) {
+      (void)solver.step(1e-4);
+      const double e = kinetic_energy(grid, solver.velocity());
+      ASSERT_LE(e, last) << "step " << s;
+      last = e;
+    }
+    EXPECT_LT(last, 0.5 * first); // and it does decay
+  }
 }
 
 // The Taylor-Green vortex at Re = U L / nu = 100 against its exact decay, u = U sin(k x)

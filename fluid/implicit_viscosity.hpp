@@ -224,7 +224,7 @@ private:
   };
   const FactoredEnds& factored_ends(int comp);
   std::array<FactoredEnds, 3> factored_ends_{};
-  GridField factored_cp_, factored_dp_, factored_zp_, factored_wp_;
+  GridField factored_cp_, factored_zp_, factored_wp_;
   bool pairs_ = true;
   SimdLevel level_ = simd_level();
   CoefficientSource source_ = CoefficientSource::automatic;

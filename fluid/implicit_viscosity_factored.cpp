@@ -54,7 +54,6 @@ struct Sweep {
   bool cyclic;      // periodic with at least three unknowns (shorter ones fold onto themselves)
   double end_lo, end_hi; // a non-periodic line's ghost = end * its end unknown
   double* cp;            // elimination: the super-diagonal over the pivot
-  double* dp;            // elimination: the right-hand side over the pivot
   double* zp;            // cyclic: the Sherman-Morrison vector's elimination, then the vector
 };
 
@@ -95,13 +94,15 @@ struct Row {
 
 // Solves the lines through `lanes` side-by-side points of a plane normal to the sweep's axis
 // (lane q of line point m at p0 + m s + q stride; stride 1: the lanes are a row, and the lane
-// loops vectorize): out = (D + c N) ^-1 (scale ? D in : in), by the Thomas algorithm, and on a
-// cyclic line by Sherman-Morrison around it (Numerical Recipes, 2nd ed., section 2.7: gamma =
-// -D_0, the corners alpha = row n-1's coupling to unknown 0 and beta = row 0's to unknown n-1).
-// Each point's operations are the same whatever the lanes: the same bits for any grouping.
-template <bool Unit>
-void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t stride,
-                 const double* in, bool scale, double* out) {
+// loops vectorize): out = (D + c N)^-1 rhs, rhs_at(p) the right-hand side at p, by the Thomas
+// algorithm (out holds the eliminated right-hand side until the back substitution overwrites
+// it), and on a cyclic line by Sherman-Morrison around it (Numerical Recipes, 2nd ed., section
+// 2.7: gamma = -D_0, the corners alpha = row n-1's coupling to unknown 0 and beta = row 0's to
+// unknown n-1). add_to (or null): the solution is also added into it, point by point, as it is
+// made. Each point's operations are the same whatever the lanes: the same bits for any grouping.
+template <bool Unit, class Rhs>
+void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t stride, Rhs&& rhs_at,
+                 double* out, double* add_to) {
   const std::ptrdiff_t st = Unit ? 1 : stride;
   const std::ptrdiff_t s = w.s;
   const int n = w.n;
@@ -126,11 +127,11 @@ void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t st
           r.sup = 0.0;
         }
       }
-      const double rhs = scale ? w.dg[p] * in[p] : in[p];
+      const double rhs = rhs_at(p);
       if (m == 0) {
         const double inv = 1.0 / r.dia;
         w.cp[p] = r.sup * inv;
-        w.dp[p] = rhs * inv;
+        out[p] = rhs * inv;
         if (w.cyclic) {
           w.zp[p] = u * inv;
         }
@@ -138,7 +139,7 @@ void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t st
         const std::ptrdiff_t b = p - s;
         const double inv = 1.0 / (r.dia - r.sub * w.cp[b]);
         w.cp[p] = r.sup * inv;
-        w.dp[p] = (rhs - r.sub * w.dp[b]) * inv;
+        out[p] = (rhs - r.sub * out[b]) * inv;
         if (w.cyclic) {
           w.zp[p] = (u - r.sub * w.zp[b]) * inv;
         }
@@ -146,17 +147,19 @@ void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t st
     }
   }
   // Back substitution.
+  const bool add_now = add_to != nullptr && !w.cyclic;
   for (int m = n - 1; m >= 0; --m) {
     const std::ptrdiff_t row = p0 + m * s;
     for (int q = 0; q < lanes; ++q) {
       const std::ptrdiff_t p = row + q * st;
-      if (m == n - 1) {
-        out[p] = w.dp[p];
-      } else {
-        out[p] = w.dp[p] - w.cp[p] * out[p + s];
+      if (m != n - 1) {
+        out[p] -= w.cp[p] * out[p + s];
         if (w.cyclic) {
           w.zp[p] -= w.cp[p] * w.zp[p + s];
         }
+      }
+      if (add_now) {
+        add_to[p] += out[p];
       }
     }
   }
@@ -174,6 +177,9 @@ void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t st
     for (int m = 0; m < n; ++m) {
       const std::ptrdiff_t p = first + m * s;
       out[p] -= f * w.zp[p];
+      if (add_to != nullptr) {
+        add_to[p] += out[p];
+      }
     }
   }
 }
@@ -497,7 +503,7 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const FactoredEnds& ends = factored_ends(comp);
   const GridLayout& layout = grid_.layout();
   const auto cs = static_cast<std::size_t>(comp);
-  for (GridField* f : {&factored_cp_, &factored_dp_, &factored_zp_}) {
+  for (GridField* f : {&factored_cp_, &factored_zp_}) {
     if (f->values().size() != layout.size()) {
       *f = GridField(layout);
     }
@@ -513,31 +519,12 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const std::ptrdiff_t sz = layout.stride(2);
   const std::ptrdiff_t len = hi[0] - lo[0] + 1;
   // r = rhs - A u_guess (u's ghosts filled by the caller), as the Chebyshev rows take it.
-  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
-    for (std::ptrdiff_t p = row; p < row + len; ++p) {
-      const double xp = x[p];
-      const double lap = (k0[p + 1] * (x[p + 1] - xp) - k0[p] * (xp - x[p - 1])) +
-                         (k1[p + sy] * (x[p + sy] - xp) - k1[p] * (xp - x[p - sy])) +
-                         (k2[p + sz] * (x[p + sz] - xp) - k2[p] * (xp - x[p - sz]));
-      r[p] = b[p] - (dg[p] * xp - c * lap);
-    }
-  });
-  const auto sweep_for = [&](int axis, const double* k) {
-    const auto a = static_cast<std::size_t>(axis);
-    const int n = hi[axis] - lo[axis] + 1;
-    const bool periodic = grid_.bc(axis, 0).kind == BoundaryKind::periodic;
-    return Sweep{k,
-                 dg,
-                 c,
-                 layout.stride(axis),
-                 n,
-                 periodic,
-                 periodic && n >= 3,
-                 ends.end[a][0],
-                 ends.end[a][1],
-                 factored_cp_.values().data(),
-                 factored_dp_.values().data(),
-                 factored_zp_.values().data()};
+  const auto residual_at = [=](std::ptrdiff_t p) {
+    const double xp = x[p];
+    const double lap = (k0[p + 1] * (x[p + 1] - xp) - k0[p] * (xp - x[p - 1])) +
+                       (k1[p + sy] * (x[p + sy] - xp) - k1[p] * (xp - x[p - sy])) +
+                       (k2[p + sz] * (x[p + sz] - xp) - k2[p] * (xp - x[p - sz]));
+    return b[p] - (dg[p] * xp - c * lap);
   };
   double* y = dir_.values().data();
   double* z = dir_next_.values().data();
@@ -545,6 +532,11 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
     if (factored_wp_.values().size() != layout.size()) {
       factored_wp_ = GridField(layout);
     }
+    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+      for (std::ptrdiff_t p = row; p < row + len; ++p) {
+        r[p] = residual_at(p);
+      }
+    });
     for (int axis = 0; axis < 3; ++axis) {
       const auto a = static_cast<std::size_t>(axis);
       const DistributedSweep sweep{grid_,
@@ -565,34 +557,52 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
       // x: r -> y; y: D y -> z; z: D z -> delta (in y).
       sweep(axis == 0 ? r : axis == 1 ? y : z, axis != 0, axis == 1 ? z : y);
     }
+    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+      for (std::ptrdiff_t p = row; p < row + len; ++p) {
+        x[p] += y[p];
+      }
+    });
   } else {
-    // (D + c N_x) y = r: lines along x, four rows side by side (independent recurrences the core
-    // overlaps); a z-plane per task.
+    const auto sweep_for = [&](int axis, const double* k) {
+      const auto a = static_cast<std::size_t>(axis);
+      const int n = hi[axis] - lo[axis] + 1;
+      const bool periodic = grid_.bc(axis, 0).kind == BoundaryKind::periodic;
+      return Sweep{k,
+                   dg,
+                   c,
+                   layout.stride(axis),
+                   n,
+                   periodic,
+                   periodic && n >= 3,
+                   ends.end[a][0],
+                   ends.end[a][1],
+                   factored_cp_.values().data(),
+                   factored_zp_.values().data()};
+    };
+    // Per z-plane (a task each), both sweeps whose lines lie in it, while the plane's arrays
+    // are in the caches: (D + c N_x) y = r, the residual made as the lines reach it (four rows
+    // side by side: independent recurrences the core overlaps; x is read here and only added
+    // to by the last sweep), then (D + c N_y) z = D y (a row of lines side by side).
     const Sweep wx = sweep_for(0, k0);
+    const Sweep wy = sweep_for(1, k1);
+    const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
     tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
       for (int j = lo[1]; j <= hi[1]; j += 4) {
         const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-        solve_lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, r, false, y);
+        solve_lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, residual_at, y, nullptr);
       }
-    });
-    // (D + c N_y) z = D y: lines along y, a row of them side by side; a z-plane per task.
-    const Sweep wy = sweep_for(1, k1);
-    tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
       const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
-      solve_lines<true>(wy, p0, static_cast<int>(len), 1, y, true, z);
+      solve_lines<true>(wy, p0, static_cast<int>(len), 1, scaled_y, z, nullptr);
     });
-    // (D + c N_z) delta = D z: lines along z, a row of them side by side; a y-row per task.
+    // (D + c N_z) delta = D z, delta added into x: lines along z, a row of them side by side; a
+    // y-row per task.
     const Sweep wz = sweep_for(2, k2);
+    const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
     tbb::parallel_for(lo[1], hi[1] + 1, [&](int j) {
       const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, lo[2]));
-      solve_lines<true>(wz, p0, static_cast<int>(len), 1, z, true, y);
+      solve_lines<true>(wz, p0, static_cast<int>(len), 1, scaled_z, y, x);
     });
   }
-  for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
-    for (std::ptrdiff_t p = row; p < row + len; ++p) {
-      x[p] += y[p];
-    }
-  });
   ViscousSolveReport report;
   report.iterations = 1;
   report.factored = true;

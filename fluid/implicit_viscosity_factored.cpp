@@ -21,6 +21,7 @@
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
 
+#include "core/simd_level.hpp"
 #include "fluid/box_loops.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
@@ -101,8 +102,9 @@ struct Row {
 // unknown n-1). add_to (or null): the solution is also added into it, point by point, as it is
 // made. Each point's operations are the same whatever the lanes: the same bits for any grouping.
 template <bool Unit, class Rhs>
-void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t stride, Rhs&& rhs_at,
-                 double* out, double* add_to) {
+[[gnu::always_inline]] inline void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes,
+                                               std::ptrdiff_t stride, const Rhs& rhs_at,
+                                               double* out, double* add_to) {
   const std::ptrdiff_t st = Unit ? 1 : stride;
   const std::ptrdiff_t s = w.s;
   const int n = w.n;
@@ -183,6 +185,21 @@ void solve_lines(const Sweep& w, std::ptrdiff_t p0, int lanes, std::ptrdiff_t st
     }
   }
 }
+
+// solve_lines' copies, one type per instruction set (core/simd_level.hpp; the same operations in
+// the same order at every level): the lane loops of the y and z sweeps take 32-byte vectors at
+// x86-64-v3, whose divisions are the recurrences' costliest step.
+#define CFDDEM_FACTORED_LINES(NAME, ...)                                                           \
+  struct NAME {                                                                                    \
+    template <bool Unit, class Rhs>                                                                \
+    [[gnu::noinline __VA_ARGS__]] static void lines(const Sweep& w, std::ptrdiff_t p0, int lanes,  \
+                                                    std::ptrdiff_t stride, const Rhs& rhs_at,      \
+                                                    double* out, double* add_to) {                 \
+      solve_lines<Unit>(w, p0, lanes, stride, rhs_at, out, add_to);                                \
+    }                                                                                              \
+  };
+CFDDEM_SIMD_COPY_TYPES(CFDDEM_FACTORED_LINES, FactoredLines)
+#undef CFDDEM_FACTORED_LINES
 
 // The unknowns of component comp in a box of the grid, in global indices (unknown_lo/hi's rule
 // for that box: a wall or inflow face of the domain is known, an outflow face is an unknown).
@@ -583,24 +600,28 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
     // are in the caches: (D + c N_x) y = r, the residual made as the lines reach it (four rows
     // side by side: independent recurrences the core overlaps; x is read here and only added
     // to by the last sweep), then (D + c N_y) z = D y (a row of lines side by side).
-    const Sweep wx = sweep_for(0, k0);
-    const Sweep wy = sweep_for(1, k1);
-    const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
-    tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
-      for (int j = lo[1]; j <= hi[1]; j += 4) {
-        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-        solve_lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, residual_at, y, nullptr);
-      }
-      const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
-      solve_lines<true>(wy, p0, static_cast<int>(len), 1, scaled_y, z, nullptr);
-    });
-    // (D + c N_z) delta = D z, delta added into x: lines along z, a row of them side by side; a
-    // y-row per task.
-    const Sweep wz = sweep_for(2, k2);
-    const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
-    tbb::parallel_for(lo[1], hi[1] + 1, [&](int j) {
-      const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, lo[2]));
-      solve_lines<true>(wz, p0, static_cast<int>(len), 1, scaled_z, y, x);
+    with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
+      const Sweep wx = sweep_for(0, k0);
+      const Sweep wy = sweep_for(1, k1);
+      const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
+      tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
+        for (int j = lo[1]; j <= hi[1]; j += 4) {
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+          decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, residual_at,
+                                                y, nullptr);
+        }
+        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
+        decltype(copy)::template lines<true>(wy, p0, static_cast<int>(len), 1, scaled_y, z,
+                                             nullptr);
+      });
+      // (D + c N_z) delta = D z, delta added into x: lines along z, a row of them side by side; a
+      // y-row per task.
+      const Sweep wz = sweep_for(2, k2);
+      const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
+      tbb::parallel_for(lo[1], hi[1] + 1, [&](int j) {
+        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, lo[2]));
+        decltype(copy)::template lines<true>(wz, p0, static_cast<int>(len), 1, scaled_z, y, x);
+      });
     });
   }
   ViscousSolveReport report;

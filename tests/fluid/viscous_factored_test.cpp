@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include "core/simd_level.hpp"
 #include "fluid/ghost_fill.hpp"
 #include "fluid/implicit_viscosity.hpp"
 #include "test_grids.hpp"
@@ -170,6 +171,43 @@ TEST(ViscousFactoredStep, ErrsNoMoreThanTheFactorizationBound) {
       // And the factorization does change the answer (the test could not pass by solving
       // exactly with the wrong operator's ends: the 1-D test pins those).
       EXPECT_GT(d[0], 0.0);
+    }
+  }
+}
+
+// The line solves' copies for x86-64-v3 and -v4 (the ones this CPU runs) give the baseline's bits
+// on a bed box (walls, inflow, outflow, a periodic axis) and a periodic box (every line cyclic).
+TEST(ViscousFactoredStep, EveryInstructionSetGivesTheBaselineBits) {
+  const SimdLevel cpu = cpu_simd_level();
+  MacGridSpec bed = test::box_spec({9, 14, 7}, {4.5e-4, 2.8e-3, 3.5e-4}, BoundaryKind::wall);
+  test::set_axis(bed, 2, BoundaryKind::periodic);
+  bed.bc[2].kind = BoundaryKind::inflow;
+  bed.bc[2].velocity = {0.0, 0.015, 0.0};
+  bed.bc[3].kind = BoundaryKind::outflow;
+  for (const MacGridSpec& spec :
+       {bed, test::box_spec({10, 12, 6}, {5e-4, 2.4e-3, 3e-4}, BoundaryKind::periodic)}) {
+    const MacGrid grid(spec);
+    std::mt19937_64 rng(17);
+    const GridField eps = gas_fraction(grid, rng);
+    const double c = 2.0 * 2.5e-9;
+    for (int comp = 0; comp < 3; ++comp) {
+      SCOPED_TRACE("component " + std::to_string(comp));
+      const System s = random_system(grid, comp, rng);
+      GridField base = s.guess;
+      {
+        ImplicitViscosity factored(grid);
+        factored.use_simd_level(SimdLevel::x86_64);
+        factored.step_factored(comp, c, eps, s.diag, s.rhs, base);
+      }
+      for (int l = 1; l <= static_cast<int>(cpu); ++l) {
+        const auto level = static_cast<SimdLevel>(l);
+        SCOPED_TRACE(std::string(simd_level_name(level)));
+        GridField u = s.guess;
+        ImplicitViscosity factored(grid);
+        factored.use_simd_level(level);
+        factored.step_factored(comp, c, eps, s.diag, s.rhs, u);
+        EXPECT_TRUE(test::same_bits(u, base));
+      }
     }
   }
 }

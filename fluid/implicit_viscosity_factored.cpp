@@ -308,53 +308,76 @@ struct DistributedSweep {
     }
     std::vector<double> ends(offset.back(), 0.0);
     double* mine = ends.data() + offset[static_cast<std::size_t>(me)];
-    // The segments: y into out, v and w beside it, their end values into `ends`.
-    tbb::parallel_for(0, n2, [&](int t2) {
-      for (int t1 = 0; t1 < n1; ++t1) {
-        std::array<int, 3> idx{};
-        idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
-        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));
-        double pd = 0.0, pv = 0.0, pw = 0.0, pc = 0.0;
-        for (int m = 0; m < n; ++m) {
-          const std::ptrdiff_t p = p0 + m * s;
+    // The segments: y into out, v and w beside it, their end values into `ends`. Lanes of
+    // lines advance together as in solve_lines: a row of them along x for the y and z sweeps
+    // (the lane loops vectorize), four rows for the x sweep.
+    const auto solve_segments = [&](std::ptrdiff_t p0, int lanes, std::ptrdiff_t st) {
+      for (int m = 0; m < n; ++m) {
+        const std::ptrdiff_t row = p0 + m * s;
+        const double fl = m == 0 && !low_open ? end_lo : 0.0;
+        const double fh = m == n - 1 && !high_open ? end_hi : 0.0;
+        const bool first = m == 0, last = m == n - 1;
+        for (int q = 0; q < lanes; ++q) {
+          const std::ptrdiff_t p = row + q * st;
           const double klo = k[p], khi = k[p + s];
-          double sub = -c * klo, dia = dg[p] + c * (klo + khi), sup = -c * khi;
-          double ev = 0.0, ew = 0.0;
-          if (m == 0) {
-            if (low_open) {
-              ev = sub;
-            } else {
-              dia += sub * end_lo;
-            }
+          double sub = -c * klo, sup = -c * khi;
+          const double dia =
+              dg[p] + c * (klo + khi) + (first ? sub * fl : 0.0) + (last ? sup * fh : 0.0);
+          const double ev = first && low_open ? sub : 0.0;
+          const double ew = last && high_open ? sup : 0.0;
+          if (first) {
             sub = 0.0;
           }
-          if (m == n - 1) {
-            if (high_open) {
-              ew = sup;
-            } else {
-              dia += sup * end_hi;
-            }
+          if (last) {
             sup = 0.0;
           }
           const double rhs = scale ? dg[p] * in[p] : in[p];
-          const double inv = 1.0 / (dia - sub * pc);
-          pc = sup * inv;
-          pd = (rhs - sub * pd) * inv;
-          pv = (ev - sub * pv) * inv;
-          pw = (ew - sub * pw) * inv;
-          cp[p] = pc, out[p] = pd, v[p] = pv, w[p] = pw;
+          if (first) {
+            const double inv = 1.0 / dia;
+            cp[p] = sup * inv, out[p] = rhs * inv, v[p] = ev * inv, w[p] = ew * inv;
+          } else {
+            const std::ptrdiff_t pb = p - s;
+            const double inv = 1.0 / (dia - sub * cp[pb]);
+            cp[p] = sup * inv;
+            out[p] = (rhs - sub * out[pb]) * inv;
+            v[p] = (ev - sub * v[pb]) * inv;
+            w[p] = (ew - sub * w[pb]) * inv;
+          }
         }
-        for (int m = n - 2; m >= 0; --m) {
-          const std::ptrdiff_t p = p0 + m * s;
+      }
+      for (int m = n - 2; m >= 0; --m) {
+        const std::ptrdiff_t row = p0 + m * s;
+        for (int q = 0; q < lanes; ++q) {
+          const std::ptrdiff_t p = row + q * st;
           out[p] -= cp[p] * out[p + s];
           v[p] -= cp[p] * v[p + s];
           w[p] -= cp[p] * w[p + s];
         }
-        double* e = mine + 6 * (static_cast<std::size_t>(t1) +
-                                static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2));
-        const std::ptrdiff_t last = p0 + (n - 1) * s;
-        e[0] = out[p0], e[1] = v[p0], e[2] = w[p0];
-        e[3] = out[last], e[4] = v[last], e[5] = w[last];
+      }
+    };
+    const auto pack = [&](int t1, int t2) {
+      std::array<int, 3> idx{};
+      idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
+      const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));
+      const std::ptrdiff_t last = p0 + (n - 1) * s;
+      double* e = mine + 6 * (static_cast<std::size_t>(t1) +
+                              static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2));
+      e[0] = out[p0], e[1] = v[p0], e[2] = w[p0];
+      e[3] = out[last], e[4] = v[last], e[5] = w[last];
+    };
+    tbb::parallel_for(0, n2, [&](int t2) {
+      if (b == 0) { // lines along x: rows j (a1 = y) side by side
+        for (int t1 = 0; t1 < n1; t1 += 4) {
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1] + t1, lo[2] + t2));
+          solve_segments(p0, std::min(4, n1 - t1), layout.stride(1));
+        }
+      } else { // a1 = x: the row of lines along x side by side
+        std::array<int, 3> idx{};
+        idx[a1] = lo[a1], idx[a2] = lo[a2] + t2, idx[b] = lo[b];
+        solve_segments(static_cast<std::ptrdiff_t>(layout.index(idx)), n1, 1);
+      }
+      for (int t1 = 0; t1 < n1; ++t1) {
+        pack(t1, t2);
       }
     });
     // Every box cut along b needs the others' ends; a box alone along b (not periodic) has none.

@@ -260,24 +260,29 @@ TEST_P(DistributedGas, PlanePoiseuilleMatchesOneGrid) {
                    GetParam() ? "poiseuille_implicit" : "poiseuille_explicit");
 }
 
+// The periodic 12 x 12 x 3 box of the Taylor-Green vortex and its start at Re = 20 (advection
+// matters).
+constexpr double kVortexLength = 1e-3;
+MacGridSpec vortex_box() {
+  return box_spec({12, 12, 3}, {kVortexLength, kVortexLength, kVortexLength / 4.0},
+                  BoundaryKind::periodic);
+}
+const FieldSetter kVortexStart = [](const MacGrid& g, GasSolver& solver, int s) {
+  if (s != 0) {
+    return;
+  }
+  const double k = 2.0 * std::numbers::pi / kVortexLength;
+  const double amplitude = 20.0 * kMu / (kRho * kVortexLength);
+  set_field(g, solver.velocity()[0], 0, [&](double x, double y, double) {
+    return amplitude * std::sin(k * x) * std::cos(k * y);
+  });
+  set_field(g, solver.velocity()[1], 1, [&](double x, double y, double) {
+    return -amplitude * std::cos(k * x) * std::sin(k * y);
+  });
+};
+
 TEST_P(DistributedGas, TaylorGreenMatchesOneGrid) {
-  const double length = 1e-3;
-  const double k = 2.0 * std::numbers::pi / length;
-  const double amplitude = 20.0 * kMu / (kRho * length); // Re = 20: advection matters
-  const MacGridSpec spec =
-      box_spec({12, 12, 3}, {length, length, length / 4.0}, BoundaryKind::periodic);
-  const FieldSetter start = [&](const MacGrid& g, GasSolver& solver, int s) {
-    if (s != 0) {
-      return;
-    }
-    set_field(g, solver.velocity()[0], 0, [&](double x, double y, double) {
-      return amplitude * std::sin(k * x) * std::cos(k * y);
-    });
-    set_field(g, solver.velocity()[1], 1, [&](double x, double y, double) {
-      return -amplitude * std::cos(k * x) * std::sin(k * y);
-    });
-  };
-  expect_round_off(run_both(spec, tight_settings(GetParam()), 20, 0.0, 0.0, start),
+  expect_round_off(run_both(vortex_box(), tight_settings(GetParam()), 20, 0.0, 0.0, kVortexStart),
                    GetParam() ? "taylor_green_implicit" : "taylor_green_explicit");
 }
 
@@ -409,23 +414,8 @@ TEST(DistributedGasFactored, ColumnChannelAndVortexMatchOneGrid) {
   settings.gas.gravity = {0.0, 0.0, 0.0};
   expect_round_off(run_both(channel_2d(), settings, 8, 2e-5, 0.0, kChannelStart),
                    "channel_factored");
-  const double length = 1e-3;
-  const double k = 2.0 * std::numbers::pi / length;
-  const double amplitude = 20.0 * kMu / (kRho * length);
-  const MacGridSpec spec =
-      box_spec({12, 12, 3}, {length, length, length / 4.0}, BoundaryKind::periodic);
-  const FieldSetter start = [&](const MacGrid& g, GasSolver& solver, int s) {
-    if (s != 0) {
-      return;
-    }
-    set_field(g, solver.velocity()[0], 0, [&](double x, double y, double) {
-      return amplitude * std::sin(k * x) * std::cos(k * y);
-    });
-    set_field(g, solver.velocity()[1], 1, [&](double x, double y, double) {
-      return -amplitude * std::cos(k * x) * std::sin(k * y);
-    });
-  };
-  expect_round_off(run_both(spec, settings, 10, 4e-5, 0.0, start), "taylor_green_factored");
+  expect_round_off(run_both(vortex_box(), settings, 10, 4e-5, 0.0, kVortexStart),
+                   "taylor_green_factored");
 }
 
 INSTANTIATE_TEST_SUITE_P(Viscosity, DistributedGas, ::testing::Values(false, true),

@@ -6,11 +6,25 @@
 #include <cstddef>
 #include <cstring>
 #include <numbers>
+#include <random>
 
+#include "fluid/ghost_fill.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::fluid::test {
+
+// A bed's range of gas fractions, uniform in [0.4, 1], every cell different, ghosts filled
+// (zero gradient).
+template <class Rng> GridField random_gas_fraction(const MacGrid& grid, Rng& rng) {
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  GridField eps = grid.make_field();
+  for (double& e : eps.values()) {
+    e = 0.4 + 0.6 * uni(rng);
+  }
+  fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
+  return eps;
+}
 
 // The two fields hold the same doubles bit for bit, ghosts included.
 inline bool same_bits(const GridField& a, const GridField& b) {

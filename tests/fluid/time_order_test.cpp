@@ -37,11 +37,9 @@ GasSolverSettings vortex_settings() {
   return settings;
 }
 
-std::array<GridField, 3> taylor_green_after(int order, int steps, int projections = 2) {
+// The vortex after `steps` steps with the given settings (vortex_settings with changes).
+std::array<GridField, 3> taylor_green_with(const GasSolverSettings& settings, int steps) {
   const MacGrid grid = vortex_grid(kCells);
-  GasSolverSettings settings = vortex_settings();
-  settings.time_order = order;
-  settings.projections = projections;
   GasSolver solver(grid, settings);
   const double nu = kMu / kRho;
   test::set_taylor_green(grid, solver.velocity(), 5.0 * nu / kLength);
@@ -51,6 +49,13 @@ std::array<GridField, 3> taylor_green_after(int order, int steps, int projection
     (void)solver.step(dt);
   }
   return solver.velocity();
+}
+
+std::array<GridField, 3> taylor_green_after(int order, int steps, int projections = 2) {
+  GasSolverSettings settings = vortex_settings();
+  settings.time_order = order;
+  settings.projections = projections;
+  return taylor_green_with(settings, steps);
 }
 
 double max_difference(const std::array<GridField, 3>& a, const std::array<GridField, 3>& b) {
@@ -128,21 +133,12 @@ TEST(GasTimeOrder, OneProjectionPredictorCorrectorIsSecondOrder) {
 // (fluid.viscous_step = "factored": ImplicitViscosity::step_factored; the 16 x 16 x 1 grid's x
 // and y lines).
 std::array<GridField, 3> taylor_green_implicit(int steps, bool factored) {
-  const MacGrid grid = vortex_grid(kCells);
   GasSolverSettings settings = vortex_settings();
   settings.time_order = 2;
   settings.implicit_viscosity = true;
   settings.viscous_tolerance = 1e-13;
   settings.factored_viscosity = factored;
-  GasSolver solver(grid, settings);
-  const double nu = kMu / kRho;
-  test::set_taylor_green(grid, solver.velocity(), 5.0 * nu / kLength);
-  const double k = 2.0 * std::numbers::pi / kLength;
-  const double dt = 1.0 / (4.0 * nu * k * k) / steps;
-  for (int s = 0; s < steps; ++s) {
-    (void)solver.step(dt);
-  }
-  return solver.velocity();
+  return taylor_green_with(settings, steps);
 }
 
 // The factored viscous step keeps the predictor-corrector's second order in time where the

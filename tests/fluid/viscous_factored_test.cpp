@@ -20,15 +20,14 @@
 namespace cfddem::fluid {
 namespace {
 
-// Gas fractions in [0.4, 1], every cell different, ghosts filled.
-GridField gas_fraction(const MacGrid& grid, std::mt19937_64& rng) {
-  std::uniform_real_distribution<double> uni(0.0, 1.0);
-  GridField eps = grid.make_field();
-  for (double& e : eps.values()) {
-    e = 0.4 + 0.6 * uni(rng);
-  }
-  fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
-  return eps;
+// A bed: walls along x, inflow below and outflow above, periodic along z.
+MacGridSpec bed_box() {
+  MacGridSpec bed = test::box_spec({9, 14, 7}, {4.5e-4, 2.8e-3, 3.5e-4}, BoundaryKind::wall);
+  test::set_axis(bed, 2, BoundaryKind::periodic);
+  bed.bc[2].kind = BoundaryKind::inflow;
+  bed.bc[2].velocity = {0.0, 0.015, 0.0};
+  bed.bc[3].kind = BoundaryKind::outflow;
+  return bed;
 }
 
 // A system for component comp: diag in [0.5, 1.5], rhs in [-0.5, 0.5], a first guess with its
@@ -96,7 +95,7 @@ TEST(ViscousFactoredStep, OnOneAxisItIsTheExactSolve) {
       SCOPED_TRACE("lines along " + std::to_string(axis) + ", ends " + std::to_string(g++));
       const MacGrid grid(spec);
       std::mt19937_64 rng(7 + static_cast<unsigned>(axis));
-      const GridField eps = gas_fraction(grid, rng);
+      const GridField eps = test::random_gas_fraction(grid, rng);
       // c / dx^2 = 4: far from dominant rows, where a factored step of a 3-D operator would err
       // most; here it must still be exact.
       const double c = 4.0 * 2.5e-9;
@@ -132,12 +131,7 @@ TEST(ViscousFactoredStep, OnOneAxisItIsTheExactSolve) {
 // 8 a_x a_y a_z.
 TEST(ViscousFactoredStep, ErrsNoMoreThanTheFactorizationBound) {
   std::vector<MacGridSpec> specs;
-  // A bed: walls along x, inflow below and outflow above, periodic along z.
-  MacGridSpec bed = test::box_spec({9, 14, 7}, {4.5e-4, 2.8e-3, 3.5e-4}, BoundaryKind::wall);
-  test::set_axis(bed, 2, BoundaryKind::periodic);
-  bed.bc[2].kind = BoundaryKind::inflow;
-  bed.bc[2].velocity = {0.0, 0.015, 0.0};
-  bed.bc[3].kind = BoundaryKind::outflow;
+  const MacGridSpec bed = bed_box();
   specs.push_back(bed);
   specs.push_back(
       test::box_spec({10, 12, 6}, {5e-4, 2.4e-3, 3e-4}, BoundaryKind::periodic)); // all cyclic
@@ -145,7 +139,7 @@ TEST(ViscousFactoredStep, ErrsNoMoreThanTheFactorizationBound) {
     SCOPED_TRACE("grid " + std::to_string(g));
     const MacGrid grid(specs[g]);
     std::mt19937_64 rng(11 + g);
-    const GridField eps = gas_fraction(grid, rng);
+    const GridField eps = test::random_gas_fraction(grid, rng);
     const double c = 0.02 * 2.5e-9;
     for (int comp = 0; comp < 3; ++comp) {
       SCOPED_TRACE("component " + std::to_string(comp));
@@ -179,16 +173,12 @@ TEST(ViscousFactoredStep, ErrsNoMoreThanTheFactorizationBound) {
 // on a bed box (walls, inflow, outflow, a periodic axis) and a periodic box (every line cyclic).
 TEST(ViscousFactoredStep, EveryInstructionSetGivesTheBaselineBits) {
   const SimdLevel cpu = cpu_simd_level();
-  MacGridSpec bed = test::box_spec({9, 14, 7}, {4.5e-4, 2.8e-3, 3.5e-4}, BoundaryKind::wall);
-  test::set_axis(bed, 2, BoundaryKind::periodic);
-  bed.bc[2].kind = BoundaryKind::inflow;
-  bed.bc[2].velocity = {0.0, 0.015, 0.0};
-  bed.bc[3].kind = BoundaryKind::outflow;
+  const MacGridSpec bed = bed_box();
   for (const MacGridSpec& spec :
        {bed, test::box_spec({10, 12, 6}, {5e-4, 2.4e-3, 3e-4}, BoundaryKind::periodic)}) {
     const MacGrid grid(spec);
     std::mt19937_64 rng(17);
-    const GridField eps = gas_fraction(grid, rng);
+    const GridField eps = test::random_gas_fraction(grid, rng);
     const double c = 2.0 * 2.5e-9;
     for (int comp = 0; comp < 3; ++comp) {
       SCOPED_TRACE("component " + std::to_string(comp));
@@ -217,7 +207,7 @@ TEST(ViscousFactoredStep, OneAndTwoThreadsGiveTheSameBits) {
   test::set_axis(spec, 0, BoundaryKind::periodic);
   const MacGrid grid(spec);
   std::mt19937_64 rng(5);
-  const GridField eps = gas_fraction(grid, rng);
+  const GridField eps = test::random_gas_fraction(grid, rng);
   const double c = 0.5 * 2.5e-9;
   for (int comp = 0; comp < 3; ++comp) {
     SCOPED_TRACE("component " + std::to_string(comp));

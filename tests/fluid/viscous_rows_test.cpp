@@ -38,17 +38,6 @@ std::array<MacGridSpec, 3> row_test_grids() {
   return {bed, along_x, test::box_spec({10, 12, 6}, {5e-4, 2.4e-3, 3e-4}, BoundaryKind::periodic)};
 }
 
-// A bed's range of gas fractions, every cell different, ghosts filled.
-GridField bed_gas_fraction(const MacGrid& grid, std::mt19937_64& rng) {
-  std::uniform_real_distribution<double> uni(0.0, 1.0);
-  GridField eps = grid.make_field();
-  for (double& e : eps.values()) {
-    e = 0.4 + 0.6 * uni(rng);
-  }
-  fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
-  return eps;
-}
-
 TEST(ViscousChebyshevRows, EveryCopyAndCoefficientSourceMatchesTheStoredBaselineBitwise) {
   const SimdLevel cpu = cpu_simd_level();
   std::printf("this CPU runs the copies up to %s\n", std::string(simd_level_name(cpu)).c_str());
@@ -58,7 +47,7 @@ TEST(ViscousChebyshevRows, EveryCopyAndCoefficientSourceMatchesTheStoredBaseline
     const MacGrid grid(specs[g]);
     std::mt19937_64 rng(41);
     std::uniform_real_distribution<double> uni(0.0, 1.0);
-    const GridField eps = bed_gas_fraction(grid, rng);
+    const GridField eps = test::random_gas_fraction(grid, rng);
     // c / dx^2 ~ 0.1 of the mass term: the rows are dominant, the solve is the Chebyshev one.
     const double c = 0.1 * 2.5e-9;
     for (int comp = 0; comp < 3; ++comp) {
@@ -139,7 +128,7 @@ TEST(ViscousChebyshevRows, PairedIterationsGiveTheSingleIterationsBits) {
     const MacGrid grid(specs[g]);
     std::mt19937_64 rng(43);
     std::uniform_real_distribution<double> uni(0.0, 1.0);
-    const GridField eps = bed_gas_fraction(grid, rng);
+    const GridField eps = test::random_gas_fraction(grid, rng);
     const double c = 0.15 * 2.5e-9; // dominance about 0.5: a dozen iterations and more
     for (int comp = 0; comp < 3; ++comp) {
       SCOPED_TRACE("component " + std::to_string(comp));

@@ -511,9 +511,10 @@ namespace {
 // restart at the default, global where nearly every leaf is fine and the ranks hold enough
 // particles, as a new run would be.)
 constexpr std::string_view kImpliedLines[] = {
-    "fluid.coupling = \"two_way\"", "fluid.projections = 2", "fluid.advection = \"mol\"",
-    "particles.outflow = \"remove\"", "dem.orb_global = true",
-    "dem.orb_global_min_per_rank = 10000"};
+    "fluid.coupling = \"two_way\"",  "fluid.projections = 2",
+    "fluid.advection = \"mol\"",     "particles.outflow = \"remove\"",
+    "dem.orb_global = true",         "dem.orb_global_min_per_rank = 10000",
+    "fluid.viscous_step = \"solve\""};
 
 // Every key whose line differs between this run's fixed lines and the checkpoint's, in this
 // run's order: both values, or the value an older checkpoint implies for a key it predates
@@ -554,8 +555,14 @@ std::string configuration_differences(const std::string& now, const std::string&
     }
   }
   for (const std::string_view line : there)
-    if (find(here, key_of(line)) == here.end())
-      out.push_back(fmt::format("{} in the checkpoint, unknown to this version", line));
+    if (find(here, key_of(line)) == here.end()) {
+      // A key this run left out because it is at its implied value, or one this version lacks.
+      const auto implied = std::ranges::find_if(
+          kImpliedLines, [&](std::string_view l) { return key_of(l) == key_of(line); });
+      out.push_back(implied != std::end(kImpliedLines)
+                        ? fmt::format("{} here, {} in the checkpoint", *implied, value_of(line))
+                        : fmt::format("{} in the checkpoint, unknown to this version", line));
+    }
   std::string all;
   for (const std::string& d : out)
     all += (all.empty() ? "" : "; ") + d;

@@ -640,5 +640,31 @@ class BadCheckpoint(Tmp):
         self.assertEqual(code, 0, msg)
 
 
+    def test_gas_checkpoint_from_before_the_viscous_step_key(self):
+        # A gas checkpoint written before fluid.viscous_step existed has no line for it and
+        # solved its implicit viscous systems: it restarts with "solve", and the factored
+        # default is refused, naming the key; a checkpoint of the factored step is refused
+        # with "solve" (apps/checkpoint.cpp, kImpliedLines).
+        out = os.path.join(self.tmp, "old_viscous")
+        self.run_ok(*HCS_GAS, "fluid.viscous_step=solve", "run.end_time=0.001",
+                    "output.checkpoint_interval=0.0005", "--out", out)
+        path = os.path.join(out, "checkpoint_000000005.h5")
+        with h5py.File(path, "r") as f:
+            lines = f.attrs["configuration"].decode().split("\n")
+            self.assertIn('fluid.viscous_step = "solve"', lines)
+            kept = [line for line in lines if not line.startswith("fluid.viscous_step")]
+        with h5py.File(path, "r+") as f:
+            f.attrs["configuration"] = np.bytes_("\n".join(kept))
+        self.expect_refused(path, needle="fluid.viscous_step", scene=HCS_GAS)
+        code, msg = cfddem(*HCS_GAS, "fluid.viscous_step=solve", "run.end_time=0.001", "--out",
+                           os.path.join(self.tmp, "continued_viscous"), "--restart", path)
+        self.assertEqual(code, 0, msg)
+        new = os.path.join(self.tmp, "new_viscous")
+        self.run_ok(*HCS_GAS, "run.end_time=0.001", "output.checkpoint_interval=0.0005",
+                    "--out", new)
+        self.expect_refused(os.path.join(new, "checkpoint_000000005.h5"),
+                            needle='fluid.viscous_step = "solve" here, "factored" in the checkpoint',
+                            scene=HCS_GAS, extra=["fluid.viscous_step=solve"])
+
 if __name__ == "__main__":
     unittest.main(argv=[sys.argv[0], *sys.argv[3:]], verbosity=2)

@@ -30,7 +30,9 @@ namespace cfddem::fluid {
 // What a gas sub-step with the viscous Laplacian implicit costs against one without, for
 // implicit_viscosity_auto: its six Helmholtz solves (three components, two stages) by Chebyshev
 // iteration add 0.39x (hcs_gas, 20^3 cells) to 0.72x (riser, 32 x 50 x 32) of the rest of a
-// sub-step (callgrind, docs/gas_step.md "Implicit viscosity by Chebyshev iteration"). The
+// sub-step (callgrind, docs/gas_step.md "Implicit viscosity by Chebyshev iteration"); the
+// factored step costs the riser about as much (0.166 against 0.161 s over its first 2 ms,
+// docs/performance.md), being cheaper only where the solve needs many iterations. The
 // implicit treatment is taken for an interval when it needs n_i sub-steps and the explicit one
 // n_e > kImplicitSubstepCost n_i.
 inline constexpr double kImplicitSubstepCost = 1.6;

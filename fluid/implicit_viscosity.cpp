@@ -196,22 +196,29 @@ const std::vector<char>& ImplicitViscosity::regular_rows(int comp) {
 
 ImplicitViscosity::~ImplicitViscosity() = default;
 
+UnknownFaces unknown_faces(const MacGrid& grid, const CellBox& box, int comp) {
+  UnknownFaces u{box.lo, {box.hi[0] - 1, box.hi[1] - 1, box.hi[2] - 1}};
+  // A wall, inflow or outflow side is never periodic, so "on the domain's face" is all it needs.
+  const BoundaryKind low = grid.bc(comp, 0).kind;
+  if (box.lo[comp] == 0 && (low == BoundaryKind::wall || low == BoundaryKind::inflow)) {
+    u.lo[comp] += 1;
+  }
+  if (box.hi[comp] == grid.global_cells()[comp] && grid.bc(comp, 1).kind == BoundaryKind::outflow) {
+    u.hi[comp] += 1;
+  }
+  return u;
+}
+
 std::array<int, 3> ImplicitViscosity::unknown_lo(int comp) const {
-  std::array<int, 3> lo = {0, 0, 0};
-  const BoundaryKind kind = grid_.bc(comp, 0).kind;
-  lo[comp] =
-      !grid_.exchanged(comp, 0) && (kind == BoundaryKind::wall || kind == BoundaryKind::inflow) ? 1
-                                                                                                : 0;
-  return lo;
+  const CellBox& box = grid_.box();
+  const std::array<int, 3> g = unknown_faces(grid_, box, comp).lo;
+  return {g[0] - box.lo[0], g[1] - box.lo[1], g[2] - box.lo[2]};
 }
 
 std::array<int, 3> ImplicitViscosity::unknown_hi(int comp) const {
-  const auto& n = grid_.cells();
-  std::array<int, 3> hi = {n[0] - 1, n[1] - 1, n[2] - 1};
-  hi[comp] = !grid_.exchanged(comp, 1) && grid_.bc(comp, 1).kind == BoundaryKind::outflow
-                 ? n[comp]
-                 : n[comp] - 1;
-  return hi;
+  const CellBox& box = grid_.box();
+  const std::array<int, 3> g = unknown_faces(grid_, box, comp).hi;
+  return {g[0] - box.lo[0], g[1] - box.lo[1], g[2] - box.lo[2]};
 }
 
 bool ImplicitViscosity::inflow_plane(int b, int side, const std::array<int, 3>& idx) const {

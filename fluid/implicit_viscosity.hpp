@@ -13,6 +13,7 @@
 #include <memory>
 #include <vector>
 
+#include "core/cell_box.hpp"
 #include "core/simd_level.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
@@ -88,6 +89,16 @@ chebyshev_row_source(CoefficientSource source, SimdLevel level, std::size_t fiel
   }
   return level == SimdLevel::x86_64_v4 ? CoefficientSource::from_eps : CoefficientSource::stored;
 }
+
+// The unknown faces of component comp in `box` of grid's global grid, in global indices: the
+// box's faces of comp but a wall or inflow face of the domain on the low side (known), and the
+// face beyond its last cell where that is an outflow face of the domain (an unknown); a box side
+// inside the domain or on a periodic axis owns its face 0, not its face n (the neighbour's 0).
+struct UnknownFaces {
+  std::array<int, 3> lo, hi;
+  [[nodiscard]] bool empty() const { return hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]; }
+};
+[[nodiscard]] UnknownFaces unknown_faces(const MacGrid& grid, const CellBox& box, int comp);
 
 class ImplicitViscosity {
 public:

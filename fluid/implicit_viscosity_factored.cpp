@@ -201,27 +201,6 @@ template <bool Unit, class Rhs>
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_FACTORED_LINES, FactoredLines)
 #undef CFDDEM_FACTORED_LINES
 
-// The unknowns of component comp in a box of the grid, in global indices (unknown_lo/hi's rule
-// for that box: a wall or inflow face of the domain is known, an outflow face is an unknown).
-struct UnknownRange {
-  std::array<int, 3> lo, hi;
-  [[nodiscard]] bool empty() const { return hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]; }
-};
-UnknownRange unknown_range(const MacGrid& grid, const CellBox& box, int comp) {
-  UnknownRange r{box.lo, {box.hi[0] - 1, box.hi[1] - 1, box.hi[2] - 1}};
-  const auto exchanged = [&](int a, int side) {
-    return grid.periodic(a) || (side == 0 ? box.lo[a] > 0 : box.hi[a] < grid.global_cells()[a]);
-  };
-  const BoundaryKind low = grid.bc(comp, 0).kind;
-  if (!exchanged(comp, 0) && (low == BoundaryKind::wall || low == BoundaryKind::inflow)) {
-    r.lo[comp] += 1;
-  }
-  if (!exchanged(comp, 1) && grid.bc(comp, 1).kind == BoundaryKind::outflow) {
-    r.hi[comp] += 1;
-  }
-  return r;
-}
-
 // Solves A z = rhs in place (dense, row-major n x n, partial pivoting): the interface system of
 // one line over the boxes, 2 unknowns per box it crosses.
 void solve_dense(std::vector<double>& a, std::vector<double>& rhs, int n) {
@@ -296,11 +275,11 @@ struct DistributedSweep {
     const std::vector<CellBox>& boxes = halo.boxes();
     const int ranks = static_cast<int>(boxes.size());
     const int me = halo.comm().rank();
-    std::vector<UnknownRange> ranges;
+    std::vector<UnknownFaces> ranges;
     std::vector<std::size_t> offset(static_cast<std::size_t>(ranks) + 1, 0);
     for (int r = 0; r < ranks; ++r) {
-      ranges.push_back(unknown_range(grid, boxes[static_cast<std::size_t>(r)], comp));
-      const UnknownRange& u = ranges.back();
+      ranges.push_back(unknown_faces(grid, boxes[static_cast<std::size_t>(r)], comp));
+      const UnknownFaces& u = ranges.back();
       const std::size_t lines = u.empty() ? 0
                                           : static_cast<std::size_t>(u.hi[a1] - u.lo[a1] + 1) *
                                                 static_cast<std::size_t>(u.hi[a2] - u.lo[a2] + 1);
@@ -404,7 +383,7 @@ struct DistributedSweep {
         segments.clear();
         int own = -1;
         for (int r = 0; r < ranks; ++r) {
-          const UnknownRange& u = ranges[static_cast<std::size_t>(r)];
+          const UnknownFaces& u = ranges[static_cast<std::size_t>(r)];
           if (u.empty() || g1 < u.lo[a1] || g1 > u.hi[a1] || g2 < u.lo[a2] || g2 > u.hi[a2]) {
             continue;
           }

@@ -263,7 +263,8 @@ struct DistributedSweep {
   double* v;
   double* w;
 
-  void operator()(const double* in, bool scale, double* out) const {
+  // out = the sweep's solution for the right-hand side rhs_at(p).
+  template <class Rhs> void operator()(const Rhs& rhs_at, double* out) const {
     const int a1 = b == 0 ? 1 : 0;
     const int a2 = b == 2 ? 1 : 2;
     const std::ptrdiff_t s = layout.stride(b);
@@ -272,6 +273,9 @@ struct DistributedSweep {
     const int n2 = hi[a2] - lo[a2] + 1;
     const bool low_open = grid.exchanged(b, 0);
     const bool high_open = grid.exchanged(b, 1);
+    // A segment's rows as solve_lines takes them, its open ends' couplings left out (an
+    // exchanged side's closure is 0: factored_ends).
+    const Sweep rows{k, dg, c, s, n, false, false, end_lo, end_hi, cp, nullptr};
     const std::vector<CellBox>& boxes = halo.boxes();
     const int ranks = static_cast<int>(boxes.size());
     const int me = halo.comm().rank();
@@ -293,34 +297,23 @@ struct DistributedSweep {
     const auto solve_segments = [&](std::ptrdiff_t p0, int lanes, std::ptrdiff_t st) {
       for (int m = 0; m < n; ++m) {
         const std::ptrdiff_t row = p0 + m * s;
-        const double fl = m == 0 && !low_open ? end_lo : 0.0;
-        const double fh = m == n - 1 && !high_open ? end_hi : 0.0;
         const bool first = m == 0, last = m == n - 1;
         for (int q = 0; q < lanes; ++q) {
           const std::ptrdiff_t p = row + q * st;
-          const double klo = k[p], khi = k[p + s];
-          double sub = -c * klo, sup = -c * khi;
-          const double dia =
-              dg[p] + c * (klo + khi) + (first ? sub * fl : 0.0) + (last ? sup * fh : 0.0);
-          const double ev = first && low_open ? sub : 0.0;
-          const double ew = last && high_open ? sup : 0.0;
+          const Row r = row_at(rows, p, m);
+          const double ev = first && low_open ? -c * k[p] : 0.0;
+          const double ew = last && high_open ? -c * k[p + s] : 0.0;
+          const double rhs = rhs_at(p);
           if (first) {
-            sub = 0.0;
-          }
-          if (last) {
-            sup = 0.0;
-          }
-          const double rhs = scale ? dg[p] * in[p] : in[p];
-          if (first) {
-            const double inv = 1.0 / dia;
-            cp[p] = sup * inv, out[p] = rhs * inv, v[p] = ev * inv, w[p] = ew * inv;
+            const double inv = 1.0 / r.dia;
+            cp[p] = r.sup * inv, out[p] = rhs * inv, v[p] = ev * inv, w[p] = ew * inv;
           } else {
             const std::ptrdiff_t pb = p - s;
-            const double inv = 1.0 / (dia - sub * cp[pb]);
-            cp[p] = sup * inv;
-            out[p] = (rhs - sub * out[pb]) * inv;
-            v[p] = (ev - sub * v[pb]) * inv;
-            w[p] = (ew - sub * w[pb]) * inv;
+            const double inv = 1.0 / (r.dia - r.sub * cp[pb]);
+            cp[p] = r.sup * inv;
+            out[p] = (rhs - r.sub * out[pb]) * inv;
+            v[p] = (ev - r.sub * v[pb]) * inv;
+            w[p] = (ew - r.sub * w[pb]) * inv;
           }
         }
       }
@@ -533,7 +526,6 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const double* dg = diag.values().data();
   const double* b = rhs.values().data();
   double* x = u.values().data();
-  double* r = r_.values().data();
   const std::ptrdiff_t sy = layout.stride(1);
   const std::ptrdiff_t sz = layout.stride(2);
   const std::ptrdiff_t len = hi[0] - lo[0] + 1;
@@ -547,15 +539,13 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   };
   double* y = dir_.values().data();
   double* z = dir_next_.values().data();
+  // The y and z sweeps' right-hand sides, D y and D z.
+  const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
+  const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
   if (halo_ != nullptr) {
     if (factored_wp_.values().size() != layout.size()) {
       factored_wp_ = GridField(layout);
     }
-    for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
-      for (std::ptrdiff_t p = row; p < row + len; ++p) {
-        r[p] = residual_at(p);
-      }
-    });
     for (int axis = 0; axis < 3; ++axis) {
       const auto a = static_cast<std::size_t>(axis);
       const DistributedSweep sweep{grid_,
@@ -573,8 +563,14 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
                                    factored_cp_.values().data(),
                                    factored_zp_.values().data(),
                                    factored_wp_.values().data()};
-      // x: r -> y; y: D y -> z; z: D z -> delta (in y).
-      sweep(axis == 0 ? r : axis == 1 ? y : z, axis != 0, axis == 1 ? z : y);
+      // x: the residual -> y; y: D y -> z; z: D z -> delta (in y).
+      if (axis == 0) {
+        sweep(residual_at, y);
+      } else if (axis == 1) {
+        sweep(scaled_y, z);
+      } else {
+        sweep(scaled_z, y);
+      }
     }
     for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
       for (std::ptrdiff_t p = row; p < row + len; ++p) {
@@ -605,7 +601,6 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
     with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
       const Sweep wx = sweep_for(0, k0);
       const Sweep wy = sweep_for(1, k1);
-      const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
       tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
         for (int j = lo[1]; j <= hi[1]; j += 4) {
           const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
@@ -619,7 +614,6 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
       // (D + c N_z) delta = D z, delta added into x: lines along z, a row of them side by side; a
       // y-row per task.
       const Sweep wz = sweep_for(2, k2);
-      const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
       tbb::parallel_for(lo[1], hi[1] + 1, [&](int j) {
         const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, lo[2]));
         decltype(copy)::template lines<true>(wz, p0, static_cast<int>(len), 1, scaled_z, y, x);

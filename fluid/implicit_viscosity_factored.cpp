@@ -93,6 +93,15 @@ struct Row {
   return r;
 }
 
+// A cyclic line's Sherman-Morrison scalars, from its row 0 at `first`: gamma = -D_0 (row 0's
+// diagonal) and beta, row 0's coupling to unknown n - 1.
+struct Corner {
+  double gamma, beta;
+};
+[[gnu::always_inline]] inline Corner corner_at(const Sweep& w, std::ptrdiff_t first) {
+  return {-w.dg[first] - w.c * (w.k[first] + w.k[first + w.s]), -w.c * w.k[first]};
+}
+
 // Solves the lines through `lanes` side-by-side points of a plane normal to the sweep's axis
 // (lane q of line point m at p0 + m s + q stride; stride 1: the lanes are a row, and the lane
 // loops vectorize): out = (D + c N)^-1 rhs, rhs_at(p) the right-hand side at p, by the Thomas
@@ -121,11 +130,9 @@ template <bool Unit, class Rhs>
           r.dia -= u;
           r.sub = 0.0;
         } else if (m == n - 1) {
-          const double gamma =
-              -w.dg[p0 + q * st] - w.c * (w.k[p0 + q * st] + w.k[p0 + q * st + s]); // -D_0
-          const double beta = -w.c * w.k[p0 + q * st]; // row 0's corner
-          u = r.sup;                                   // alpha
-          r.dia -= r.sup * beta / gamma;
+          const Corner corner = corner_at(w, p0 + q * st);
+          u = r.sup; // alpha
+          r.dia -= r.sup * corner.beta / corner.gamma;
           r.sup = 0.0;
         }
       }
@@ -172,8 +179,7 @@ template <bool Unit, class Rhs>
   const std::ptrdiff_t last = (n - 1) * s;
   for (int q = 0; q < lanes; ++q) {
     const std::ptrdiff_t first = p0 + q * st;
-    const double gamma = -w.dg[first] - w.c * (w.k[first] + w.k[first + s]);
-    const double beta = -w.c * w.k[first];
+    const auto [gamma, beta] = corner_at(w, first);
     const double f = (out[first] + beta * out[first + last] / gamma) /
                      (1.0 + w.zp[first] + beta * w.zp[first + last] / gamma);
     for (int m = 0; m < n; ++m) {

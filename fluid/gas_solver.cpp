@@ -269,11 +269,11 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
   const bool trapezoidal = kind != Stage::predictor;
   const bool have_lap_start = keeps_lap_start();
   const double theta = trapezoidal ? 0.5 : 1.0;
-  // Whether the implicit solves' first guess takes theta dt L(u^n) (read by the implicit branch
-  // below only).
+  // The implicit Laplacian by one factored step from u^n, or by a solve from a first guess,
+  // which takes theta dt L(u^n) where guess_lap (both read by the implicit branch below only).
   const bool factored = settings_.factored_viscosity;
   const bool guess_lap =
-      have_lap_start &&
+      !factored && have_lap_start &&
       explicit_guess_pays(theta * dt * settings_.gas.viscosity / settings_.gas.density,
                           {grid_.spacing(0), grid_.spacing(1), grid_.spacing(2)},
                           settings_.viscous_guess_limit);
@@ -349,7 +349,7 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     const Stopwatch timed(seconds_.viscous);
     const double c = theta * dt * settings_.gas.viscosity;
     const ViscousSolveReport vr =
-        settings_.factored_viscosity
+        factored
             ? viscosity_->step_factored(a, c, eps_, diag_, vrhs_, u_[a])
             : viscosity_->solve(a, c, eps_, diag_, vrhs_, u_[a], settings_.viscous_tolerance, 1000);
     report.viscous_iterations += vr.iterations;

@@ -539,13 +539,17 @@ std::string configuration_differences(const std::string& now, const std::string&
   const auto find = [&](const std::vector<std::string_view>& in, std::string_view key) {
     return std::ranges::find_if(in, [&](std::string_view l) { return key_of(l) == key; });
   };
+  // The implied line of a key (kImpliedLines), or its end.
+  const auto implied_line = [&](std::string_view key) {
+    return std::ranges::find_if(kImpliedLines,
+                                [&](std::string_view l) { return key_of(l) == key; });
+  };
   std::vector<std::string> out;
   for (const std::string_view line : here) {
     const std::string_view key = key_of(line);
     const auto it = find(there, key);
     if (it == there.end()) {
-      const auto implied = std::ranges::find_if(
-          kImpliedLines, [&](std::string_view l) { return key_of(l) == key; });
+      const auto implied = implied_line(key);
       out.push_back(implied != std::end(kImpliedLines)
                         ? fmt::format("{} here; the checkpoint predates the key and ran {}", line,
                                       *implied)
@@ -557,8 +561,7 @@ std::string configuration_differences(const std::string& now, const std::string&
   for (const std::string_view line : there)
     if (find(here, key_of(line)) == here.end()) {
       // A key this run left out because it is at its implied value, or one this version lacks.
-      const auto implied = std::ranges::find_if(
-          kImpliedLines, [&](std::string_view l) { return key_of(l) == key_of(line); });
+      const auto implied = implied_line(key_of(line));
       out.push_back(implied != std::end(kImpliedLines)
                         ? fmt::format("{} here, {} in the checkpoint", *implied, value_of(line))
                         : fmt::format("{} in the checkpoint, unknown to this version", line));

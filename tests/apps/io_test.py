@@ -621,6 +621,14 @@ class BadCheckpoint(Tmp):
         good = self.make_checkpoint()
         self.expect_refused(good, needle="dem.restitution", extra=["dem.restitution=0.9"])
 
+    def drop_configuration_line(self, path, key):
+        # A checkpoint as a version before `key` wrote it: its configuration without that line.
+        with h5py.File(path, "r+") as f:
+            lines = f.attrs["configuration"].decode().split("\n")
+            kept = [line for line in lines if not line.startswith(key)]
+            self.assertEqual(len(kept), len(lines) - 1)
+            f.attrs["configuration"] = np.bytes_("\n".join(kept))
+
     def test_gas_checkpoint_from_before_the_advection_key(self):
         # A gas checkpoint written before fluid.advection existed has no line for it and ran
         # the method of lines: it restarts with "mol", and the Godunov default is refused,
@@ -629,11 +637,7 @@ class BadCheckpoint(Tmp):
         self.run_ok(*HCS_GAS, "fluid.advection=mol", "run.end_time=0.001",
                     "output.checkpoint_interval=0.0005", "--out", out)
         path = os.path.join(out, "checkpoint_000000005.h5")
-        with h5py.File(path, "r+") as f:
-            lines = f.attrs["configuration"].decode().split("\n")
-            kept = [line for line in lines if not line.startswith("fluid.advection")]
-            self.assertEqual(len(kept), len(lines) - 1)
-            f.attrs["configuration"] = np.bytes_("\n".join(kept))
+        self.drop_configuration_line(path, "fluid.advection")
         self.expect_refused(path, needle="fluid.advection", scene=HCS_GAS)
         code, msg = cfddem(*HCS_GAS, "fluid.advection=mol", "run.end_time=0.001", "--out",
                            os.path.join(self.tmp, "continued"), "--restart", path)
@@ -650,11 +654,9 @@ class BadCheckpoint(Tmp):
                     "output.checkpoint_interval=0.0005", "--out", out)
         path = os.path.join(out, "checkpoint_000000005.h5")
         with h5py.File(path, "r") as f:
-            lines = f.attrs["configuration"].decode().split("\n")
-            self.assertIn('fluid.viscous_step = "solve"', lines)
-            kept = [line for line in lines if not line.startswith("fluid.viscous_step")]
-        with h5py.File(path, "r+") as f:
-            f.attrs["configuration"] = np.bytes_("\n".join(kept))
+            self.assertIn('fluid.viscous_step = "solve"',
+                          f.attrs["configuration"].decode().split("\n"))
+        self.drop_configuration_line(path, "fluid.viscous_step")
         self.expect_refused(path, needle="fluid.viscous_step", scene=HCS_GAS)
         code, msg = cfddem(*HCS_GAS, "fluid.viscous_step=solve", "run.end_time=0.001", "--out",
                            os.path.join(self.tmp, "continued_viscous"), "--restart", path)

@@ -53,6 +53,17 @@ System random_system(const MacGrid& grid, int comp, std::mt19937_64& rng) {
   return s;
 }
 
+// One factored step of component comp's system s from its first guess, the line solves' copy
+// for `level`.
+GridField factored_step(const MacGrid& grid, int comp, double c, const GridField& eps,
+                        const System& s, SimdLevel level = simd_level()) {
+  GridField u = s.guess;
+  ImplicitViscosity factored(grid);
+  factored.use_simd_level(level);
+  factored.step_factored(comp, c, eps, s.diag, s.rhs, u);
+  return u;
+}
+
 // max |a - b| and max |b - c| over the points where the solve's unknowns lie (everything the
 // step writes; the other points are equal in all three).
 std::array<double, 2> max_differences(const GridField& a, const GridField& b, const GridField& c) {
@@ -155,9 +166,7 @@ TEST(ViscousFactoredStep, ErrsNoMoreThanTheFactorizationBound) {
       ImplicitViscosity exact(grid);
       GridField u_exact = s.guess;
       ASSERT_TRUE(exact.solve(comp, c, eps, s.diag, s.rhs, u_exact, 1e-14, 2000).converged);
-      ImplicitViscosity factored(grid);
-      GridField u = s.guess;
-      factored.step_factored(comp, c, eps, s.diag, s.rhs, u);
+      const GridField u = factored_step(grid, comp, c, eps, s);
       // |u - u_exact| against |u_exact - guess| = |delta_exact|.
       const std::array<double, 2> d = max_differences(u, u_exact, s.guess);
       ASSERT_GT(d[1], 0.0);
@@ -183,20 +192,11 @@ TEST(ViscousFactoredStep, EveryInstructionSetGivesTheBaselineBits) {
     for (int comp = 0; comp < 3; ++comp) {
       SCOPED_TRACE("component " + std::to_string(comp));
       const System s = random_system(grid, comp, rng);
-      GridField base = s.guess;
-      {
-        ImplicitViscosity factored(grid);
-        factored.use_simd_level(SimdLevel::x86_64);
-        factored.step_factored(comp, c, eps, s.diag, s.rhs, base);
-      }
+      const GridField base = factored_step(grid, comp, c, eps, s, SimdLevel::x86_64);
       for (int l = 1; l <= static_cast<int>(cpu); ++l) {
         const auto level = static_cast<SimdLevel>(l);
         SCOPED_TRACE(std::string(simd_level_name(level)));
-        GridField u = s.guess;
-        ImplicitViscosity factored(grid);
-        factored.use_simd_level(level);
-        factored.step_factored(comp, c, eps, s.diag, s.rhs, u);
-        EXPECT_TRUE(test::same_bits(u, base));
+        EXPECT_TRUE(test::same_bits(factored_step(grid, comp, c, eps, s, level), base));
       }
     }
   }
@@ -212,12 +212,11 @@ TEST(ViscousFactoredStep, OneAndTwoThreadsGiveTheSameBits) {
   for (int comp = 0; comp < 3; ++comp) {
     SCOPED_TRACE("component " + std::to_string(comp));
     const System s = random_system(grid, comp, rng);
-    std::array<GridField, 2> u = {s.guess, s.guess};
+    std::array<GridField, 2> u;
     for (int t = 0; t < 2; ++t) {
       const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                                         static_cast<std::size_t>(t + 1));
-      ImplicitViscosity factored(grid);
-      factored.step_factored(comp, c, eps, s.diag, s.rhs, u[static_cast<std::size_t>(t)]);
+      u[static_cast<std::size_t>(t)] = factored_step(grid, comp, c, eps, s);
     }
     EXPECT_TRUE(test::same_bits(u[0], u[1]));
     EXPECT_FALSE(test::same_bits(u[0], s.guess));

@@ -192,6 +192,73 @@ template <bool Unit, class Rhs>
   }
 }
 
+// The delta form's right-hand side r = rhs - A u on the points p0 .. p0 + n - 1 of a row (u's
+// ghosts filled by the caller), as the Chebyshev rows take it: a pass of its own over a plane's
+// rows, unit-stride and vectorized, ahead of the x lines that read it (made as the lines reached
+// each point, four rows side by side, it kept the x sweep scalar).
+struct ResidualRow {
+  const double *k0, *k1, *k2, *dg, *b, *x;
+  double* out;
+  std::ptrdiff_t sy, sz;
+  double c;
+};
+[[gnu::always_inline]] inline void residual_row(const ResidualRow& r, std::ptrdiff_t p0,
+                                                std::ptrdiff_t n) {
+  const double* __restrict k0 = r.k0;
+  const double* __restrict k1 = r.k1;
+  const double* __restrict k2 = r.k2;
+  const double* __restrict dg = r.dg;
+  const double* __restrict b = r.b;
+  const double* __restrict x = r.x;
+  double* __restrict out = r.out;
+  const std::ptrdiff_t sy = r.sy;
+  const std::ptrdiff_t sz = r.sz;
+  const double c = r.c;
+  for (std::ptrdiff_t p = p0; p < p0 + n; ++p) {
+    const double xp = x[p];
+    const double lap = (k0[p + 1] * (x[p + 1] - xp) - k0[p] * (xp - x[p - 1])) +
+                       (k1[p + sy] * (x[p + sy] - xp) - k1[p] * (xp - x[p - sy])) +
+                       (k2[p + sz] * (x[p + sz] - xp) - k2[p] * (xp - x[p - sz]));
+    out[p] = b[p] - (dg[p] * xp - c * lap);
+  }
+}
+
+// solve_lines for four non-cyclic lines at p0 + q stride (q < 4), the same operations, with each
+// line's last pivot ratio and eliminated value carried in registers from point to point rather
+// than reloaded from the arrays just written (the x sweep's lines are strided: its recurrences'
+// latency, not their arithmetic, sets their speed).
+template <class Rhs>
+[[gnu::always_inline]] inline void solve_four_lines(const Sweep& w, std::ptrdiff_t p0,
+                                                    std::ptrdiff_t stride, const Rhs& rhs_at,
+                                                    double* out) {
+  constexpr int kFour = 4;
+  const std::ptrdiff_t s = w.s;
+  const int n = w.n;
+  double cp_last[kFour];
+  double out_last[kFour];
+  for (int m = 0; m < n; ++m) {
+    const std::ptrdiff_t row = p0 + m * s;
+    for (int q = 0; q < kFour; ++q) {
+      const std::ptrdiff_t p = row + q * stride;
+      const Row r = row_at(w, p, m);
+      const double rhs = rhs_at(p);
+      const double inv = m == 0 ? 1.0 / r.dia : 1.0 / (r.dia - r.sub * cp_last[q]);
+      cp_last[q] = r.sup * inv;
+      out_last[q] = m == 0 ? rhs * inv : (rhs - r.sub * out_last[q]) * inv;
+      w.cp[p] = cp_last[q];
+      out[p] = out_last[q];
+    }
+  }
+  for (int m = n - 2; m >= 0; --m) {
+    const std::ptrdiff_t row = p0 + m * s;
+    for (int q = 0; q < kFour; ++q) {
+      const std::ptrdiff_t p = row + q * stride;
+      out_last[q] = out[p] - w.cp[p] * out_last[q];
+      out[p] = out_last[q];
+    }
+  }
+}
+
 // solve_lines' copies, one type per instruction set (core/simd_level.hpp; the same operations in
 // the same order at every level): the lane loops of the y and z sweeps take 32-byte vectors at
 // x86-64-v3, whose divisions are the recurrences' costliest step.
@@ -201,7 +268,15 @@ template <bool Unit, class Rhs>
     [[gnu::noinline __VA_ARGS__]] static void lines(const Sweep& w, std::ptrdiff_t p0, int lanes,  \
                                                     std::ptrdiff_t stride, const Rhs& rhs_at,      \
                                                     double* out, double* add_to) {                 \
+      if (!Unit && lanes == 4 && !w.cyclic && add_to == nullptr) {                                 \
+        solve_four_lines(w, p0, stride, rhs_at, out);                                              \
+        return;                                                                                    \
+      }                                                                                            \
       solve_lines<Unit>(w, p0, lanes, stride, rhs_at, out, add_to);                                \
+    }                                                                                              \
+    [[gnu::noinline __VA_ARGS__]] static void residual(const ResidualRow& r, std::ptrdiff_t p0,    \
+                                                       std::ptrdiff_t n) {                         \
+      residual_row(r, p0, n);                                                                      \
     }                                                                                              \
   };
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_FACTORED_LINES, FactoredLines)
@@ -607,11 +682,17 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
     with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
       const Sweep wx = sweep_for(0, k0);
       const Sweep wy = sweep_for(1, k1);
+      const ResidualRow res{k0, k1, k2, dg, b, x, y, sy, sz, c};
+      const auto y_at = [=](std::ptrdiff_t p) { return y[p]; };
       tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
+        for (int j = lo[1]; j <= hi[1]; ++j) {
+          decltype(copy)::residual(res, static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)),
+                                   len);
+        }
         for (int j = lo[1]; j <= hi[1]; j += 4) {
           const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-          decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, residual_at,
-                                                y, nullptr);
+          decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, y_at, y,
+                                                nullptr);
         }
         const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
         decltype(copy)::template lines<true>(wy, p0, static_cast<int>(len), 1, scaled_y, z,

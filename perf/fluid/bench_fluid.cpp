@@ -416,6 +416,51 @@ void BM_ViscousSolveBed(benchmark::State& state) {
 }
 BENCHMARK(BM_ViscousSolveBed)->ArgName("multigrid")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
+// A fluidized bed's viscous system, as BM_ViscousChebyshevBed and BM_ViscousFactoredBed take it:
+// `cells` x 50 x `cells` cells of 50 x 200 x 50 um, walls, inflow below, outflow above, eps in
+// [0.55, 0.6], each component's diagonal eps_f rho (1 + k beta_f) and right-hand side.
+struct BedViscousSystem {
+  explicit BedViscousSystem(int n) : grid(spec_of(n)), eps(grid.make_field()) {
+    std::mt19937_64 rng(4);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    for (double& e : eps.values()) {
+      e = 0.55 + 0.05 * uni(rng);
+    }
+    fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
+    for (int a = 0; a < 3; ++a) {
+      diag[static_cast<std::size_t>(a)] = grid.make_field();
+      rhs[static_cast<std::size_t>(a)] = grid.make_field();
+      u[static_cast<std::size_t>(a)] = grid.make_field();
+      for (std::size_t p = 0; p < eps.values().size(); ++p) {
+        diag[a][p] = eps[p] * kRho * (1.0 + kDt * 3e4 * uni(rng));
+        rhs[a][p] = diag[a][p] * ((a == 1 ? 0.3 : 0.0) + 0.05 * (uni(rng) - 0.5));
+      }
+    }
+  }
+  static MacGridSpec spec_of(int n) {
+    MacGridSpec spec;
+    spec.cells = {n, 50, n};
+    spec.extent = {n * 50e-6, 50 * 200e-6, n * 50e-6};
+    spec.bc[2].kind = BoundaryKind::inflow;
+    spec.bc[2].velocity = {0.0, 0.015, 0.0};
+    spec.bc[3].kind = BoundaryKind::outflow;
+    return spec;
+  }
+  // Every component's velocity back to zero, its ghosts filled (outside the timing).
+  void reset_velocity() {
+    for (GridField& f : u) {
+      f.fill(0.0);
+    }
+    fill_velocity_ghosts(grid, u);
+  }
+  static constexpr double kRho = 1.2;
+  static constexpr double kDt = 1e-4;
+  static constexpr double kC = 0.5 * kDt * 1.8e-5; // theta dt mu
+  MacGrid grid;
+  GridField eps;
+  std::array<GridField, 3> diag, rhs, u;
+};
+
 // The implicit viscosity's Chebyshev solves of the three components on a fluidized bed's grid
 // (`cells` x 50 x `cells` cells of 50 x 200 x 50 um: 32 is scenes/fluidized_bed.toml's, 101 the
 // 1e5 bed's, whose fields no longer fit the caches; 48, 64 and 80 frame chebyshev_row_source's
@@ -432,51 +477,22 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
     return;
   }
   const tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 1);
-  const int n = static_cast<int>(state.range(0));
-  MacGridSpec spec;
-  spec.cells = {n, 50, n};
-  spec.extent = {n * 50e-6, 50 * 200e-6, n * 50e-6};
-  spec.bc[2].kind = BoundaryKind::inflow;
-  spec.bc[2].velocity = {0.0, 0.015, 0.0};
-  spec.bc[3].kind = BoundaryKind::outflow;
-  const MacGrid grid(spec);
-  GridField eps = grid.make_field();
-  std::mt19937_64 rng(4);
-  std::uniform_real_distribution<double> uni(0.0, 1.0);
-  for (double& e : eps.values()) {
-    e = 0.55 + 0.05 * uni(rng);
-  }
-  fill_cell_ghosts(grid, eps, CellGhosts::zero_gradient);
-  const double rho = 1.2;
-  const double dt = 1e-4;
-  std::array<GridField, 3> diag = {grid.make_field(), grid.make_field(), grid.make_field()};
-  std::array<GridField, 3> rhs = {grid.make_field(), grid.make_field(), grid.make_field()};
-  for (int a = 0; a < 3; ++a) {
-    for (std::size_t p = 0; p < eps.values().size(); ++p) {
-      diag[a][p] = eps[p] * rho * (1.0 + dt * 3e4 * uni(rng)); // eps_f rho (1 + k beta_f)
-      rhs[a][p] = diag[a][p] * ((a == 1 ? 0.3 : 0.0) + 0.05 * (uni(rng) - 0.5));
-    }
-  }
-  std::array<GridField, 3> u = {grid.make_field(), grid.make_field(), grid.make_field()};
-  ImplicitViscosity viscosity(grid);
+  BedViscousSystem bed(static_cast<int>(state.range(0)));
+  ImplicitViscosity viscosity(bed.grid);
   viscosity.use_simd_level(level);
   constexpr std::array<CoefficientSource, 3> sources = {
       CoefficientSource::from_eps, CoefficientSource::stored, CoefficientSource::stored_inverse};
   viscosity.use_coefficient_source(sources.at(static_cast<std::size_t>(state.range(2))));
   viscosity.use_paired_iterations(state.range(3) != 0);
-  const double c = 0.5 * dt * 1.8e-5;
   double iterations = 0.0;
   for (auto _ : state) {
     state.PauseTiming();
-    for (GridField& f : u) {
-      f.fill(0.0);
-    }
-    fill_velocity_ghosts(grid, u);
+    bed.reset_velocity();
     state.ResumeTiming();
-    for (int a = 0; a < 3; ++a) {
-      const ViscousSolveReport r = viscosity.solve(a, c, eps, diag[static_cast<std::size_t>(a)],
-                                                   rhs[static_cast<std::size_t>(a)],
-                                                   u[static_cast<std::size_t>(a)], 1e-10, 1000);
+    for (std::size_t a = 0; a < 3; ++a) {
+      const ViscousSolveReport r =
+          viscosity.solve(static_cast<int>(a), BedViscousSystem::kC, bed.eps, bed.diag[a],
+                          bed.rhs[a], bed.u[a], 1e-10, 1000);
       if (!r.chebyshev) {
         state.SkipWithError("the solve did not take the Chebyshev iteration");
         return;
@@ -484,6 +500,7 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
       iterations += r.iterations;
     }
   }
+  const int n = static_cast<int>(state.range(0));
   state.counters["iterations"] = benchmark::Counter(iterations, benchmark::Counter::kAvgIterations);
   const double unknowns = static_cast<double>(n) * 50.0 * n;
   state.counters["ns_per_iteration"] = benchmark::Counter(
@@ -492,6 +509,45 @@ void BM_ViscousChebyshevBed(benchmark::State& state) {
 BENCHMARK(BM_ViscousChebyshevBed)
     ->ArgNames({"cells", "simd", "stored", "paired"})
     ->ArgsProduct({{32, 48, 64, 80, 101}, {0, 1, 2}, {0, 1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond);
+
+// The factored viscous step (ImplicitViscosity::step_factored) of the three components on the
+// bed's system above (`cells` 32: scenes/fluidized_bed.toml's grid, 101: the 1e5 bed's), its
+// line solves at the instruction set `simd`, from u = 0 with the ghosts filled. The end closures
+// are found at the first step (outside the timing). Counter ns_per_unknown: per unknown of the
+// three components and step.
+void BM_ViscousFactoredBed(benchmark::State& state) {
+  const auto level = static_cast<SimdLevel>(state.range(1));
+  if (level > cpu_simd_level()) {
+    state.SkipWithError("the CPU has no such instruction set");
+    return;
+  }
+  const tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                                    static_cast<std::size_t>(state.range(2)));
+  BedViscousSystem bed(static_cast<int>(state.range(0)));
+  ImplicitViscosity viscosity(bed.grid);
+  viscosity.use_simd_level(level);
+  const auto step_all = [&] {
+    for (std::size_t a = 0; a < 3; ++a) {
+      (void)viscosity.step_factored(static_cast<int>(a), BedViscousSystem::kC, bed.eps, bed.diag[a],
+                                    bed.rhs[a], bed.u[a]);
+    }
+  };
+  bed.reset_velocity();
+  step_all();
+  for (auto _ : state) {
+    state.PauseTiming();
+    bed.reset_velocity();
+    state.ResumeTiming();
+    step_all();
+  }
+  const int n = static_cast<int>(state.range(0));
+  state.counters["ns_per_unknown"] = ns_per(3.0 * n * 50.0 * n);
+}
+BENCHMARK(BM_ViscousFactoredBed)
+    ->ArgNames({"cells", "simd", "threads"})
+    ->ArgsProduct({{32, 101}, {0, 1, 2}, {1, 2}})
+    ->UseRealTime()
     ->Unit(benchmark::kMillisecond);
 
 // The momentum right-hand side alone (advection + viscous stress, three components): the method

@@ -676,9 +676,10 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
                    factored_zp_.values().data()};
     };
     // Per z-plane (a task each), both sweeps whose lines lie in it, while the plane's arrays
-    // are in the caches: (D + c N_x) y = r, the residual made as the lines reach it (four rows
-    // side by side: independent recurrences the core overlaps; x is read here and only added
-    // to by the last sweep), then (D + c N_y) z = D y (a row of lines side by side).
+    // are in the caches: the residual r into y row by row (residual_row; x is read here and
+    // only added to by the last sweep), (D + c N_x) y = r in place (four rows side by side:
+    // independent recurrences the core overlaps, solve_four_lines), then (D + c N_y) z = D y
+    // (a row of lines side by side).
     with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
       const Sweep wx = sweep_for(0, k0);
       const Sweep wy = sweep_for(1, k1);

@@ -52,6 +52,38 @@ struct FaceRow {
   }
 }
 
+// The implicit viscous system of one stage on a row of a-faces (GasSolver::stage): the diagonal
+// eps_f rho (1 + k beta_f) and the right-hand side eps_f rho (u* + k (beta v)_f) [- eps_f dt grad
+// p, lagged], u* = u^n + dt rate, rate = R (the corrector: the stages' mean) [+ L(u^n) / 2,
+// trapezoidal]. Restrict parameters: the loop vectorizes (the cell-by-cell lambda it replaced,
+// through the fields' operator[], did not); the same operations per face.
+struct ImplicitRowInputs {
+  const double *rhs, *rhs_stage, *lap_start, *pressure, *mass, *gain, *push, *start;
+  bool corrector, half_lap, lagged;
+  double dt, inv_dx, dt_over_rho;
+};
+[[gnu::noinline]] void implicit_system_row(const ImplicitRowInputs& in, const FaceRow& r,
+                                           double* __restrict diag, double* __restrict vrhs) {
+  const double* __restrict rhs = in.rhs;
+  const double* __restrict rhs_stage = in.rhs_stage;
+  const double* __restrict lap = in.lap_start;
+  const double* __restrict pp = in.pressure;
+  const double* __restrict mass = in.mass;
+  const double* __restrict gain = in.gain;
+  const double* __restrict push = in.push;
+  const double* __restrict start = in.start;
+  const double dt = in.dt;
+  for (std::ptrdiff_t f = r.f0; f < r.f0 + r.n; ++f) {
+    double rate = in.corrector ? 0.5 * (rhs[f] + rhs_stage[f]) : rhs[f];
+    if (in.half_lap) {
+      rate += 0.5 * lap[f]; // trapezoidal: half of L(u^n) explicit
+    }
+    const double grad_p = in.lagged ? (pp[f] - pp[f - r.s]) * in.inv_dx : 0.0;
+    diag[f] = mass[f] * gain[f];
+    vrhs[f] = mass[f] * (start[f] + dt * rate + push[f] - in.dt_over_rho * grad_p);
+  }
+}
+
 // The row's copies, one type per instruction set (core/simd_level.hpp: the loop vectorizes only
 // from restrict parameters; every copy gives the same bits). Two divisions per face: the copies
 // take four (AVX2) or eight at a time.
@@ -326,25 +358,47 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       });
       continue;
     }
-    for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
-      const auto f = static_cast<std::size_t>(p);
-      double rate = kind == Stage::corrector ? 0.5 * (rhs_[a][f] + rhs_stage_[a][f]) : rhs_[a][f];
-      if (implicit_now_ && trapezoidal) {
-        rate += 0.5 * lap_start_[a][f]; // trapezoidal: half of L(u^n) explicit
-      }
-      const double grad_p = lagged ? (p_[f] - p_[f - below]) * inv_dx : 0.0;
-      // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k
-      // (beta v)_f) [- eps_f dt grad p, lagged]
-      diag_[f] = face_mass_[a][f] * gain[f];
-      vrhs_[f] = face_mass_[a][f] * (start[a][f] + dt * rate + push[f] - dt_over_rho * grad_p);
-      // First guess: with guess_lap, the implicit part taken at u^n, theta dt L(u^n) (see
-      // explicit_guess_pays). The factored step starts from u^n itself: from a guess that holds
-      // the trapezoidal rule's explicit half it would keep that half's amplification, up to
-      // |1 - theta dt nu lambda| (lambda an eigenvalue of -L; 4.8 on the bed's cells), on the
-      // modes stiff along two or three axes (docs/gas_step.md, "The factored viscous step").
-      const double lap = guess_lap ? theta * lap_start_[a][f] : 0.0;
-      u_[a][f] = factored ? start[a][f] : (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
+    // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k (beta v)_f)
+    // [- eps_f dt grad p, lagged], row by row (implicit_system_row).
+    const ImplicitRowInputs inputs{rhs_[a].values().data(),
+                                   rhs_stage_[a].values().data(),
+                                   lap_start_[a].values().data(),
+                                   p_.values().data(),
+                                   face_mass_[a].values().data(),
+                                   gain,
+                                   push,
+                                   start[a].values().data(),
+                                   kind == Stage::corrector,
+                                   trapezoidal,
+                                   lagged,
+                                   dt,
+                                   inv_dx,
+                                   dt_over_rho};
+    for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int) {
+      implicit_system_row(inputs, {row, hi[0] + 1, static_cast<std::ptrdiff_t>(below), dt, 0.0},
+                          diag_.values().data(), vrhs_.values().data());
     });
+    // First guess: with guess_lap, the implicit part taken at u^n, theta dt L(u^n) (see
+    // explicit_guess_pays). The factored step starts from u^n itself: from a guess that holds
+    // the trapezoidal rule's explicit half it would keep that half's amplification, up to
+    // |1 - theta dt nu lambda| (lambda an eigenvalue of -L; 4.8 on the bed's cells), on the
+    // modes stiff along two or three axes (docs/gas_step.md, "The factored viscous step"). In
+    // the Godunov step u^n is u_ itself: nothing to copy.
+    if (!factored || &start[a] != &u_[a]) {
+      for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+        const auto f = static_cast<std::size_t>(p);
+        if (factored) {
+          u_[a][f] = start[a][f];
+          return;
+        }
+        double rate = kind == Stage::corrector ? 0.5 * (rhs_[a][f] + rhs_stage_[a][f]) : rhs_[a][f];
+        if (trapezoidal) {
+          rate += 0.5 * lap_start_[a][f];
+        }
+        const double lap = guess_lap ? theta * lap_start_[a][f] : 0.0;
+        u_[a][f] = (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
+      });
+    }
     fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
     const Stopwatch timed(seconds_.viscous);
     const double c = theta * dt * settings_.gas.viscosity;

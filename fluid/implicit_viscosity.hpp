@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "core/cell_box.hpp"
+#include "core/halo_exchange.hpp"
 #include "core/simd_level.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
@@ -99,6 +100,23 @@ struct UnknownFaces {
   [[nodiscard]] bool empty() const { return hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]; }
 };
 [[nodiscard]] UnknownFaces unknown_faces(const MacGrid& grid, const CellBox& box, int comp);
+
+// A distributed factored sweep's segment ends (implicit_viscosity_factored.cpp), per component
+// and axis: the array holds this box's six values per line first, then, per rank whose box
+// shares lines along the axis with this one, its six per shared line, brought by `exchange`
+// (point to point, with those ranks only); per line of this box, where its segments' values
+// lie, in order along the axis, and the place of this box's own among them.
+// Made once for the boxes they were made for.
+struct FactoredSweepLinks {
+  std::vector<CellBox> boxes;
+  bool made = false;
+  bool cut = false; // some box is cut along the axis, or it is periodic
+  std::size_t size = 0;
+  HaloExchange exchange;
+  std::vector<std::size_t> line_first; // lines + 1: line l's segments are [first[l], first[l+1])
+  std::vector<std::size_t> segment_at;
+  std::vector<int> line_mine;
+};
 
 class ImplicitViscosity {
 public:
@@ -236,6 +254,9 @@ private:
   const FactoredEnds& factored_ends(int comp);
   std::array<FactoredEnds, 3> factored_ends_{};
   GridField factored_cp_, factored_zp_, factored_wp_;
+  const FactoredSweepLinks& sweep_links(int comp, int axis);
+  std::array<std::array<FactoredSweepLinks, 3>, 3> sweep_links_{};
+  std::vector<double> sweep_ends_;
   bool pairs_ = true;
   SimdLevel level_ = simd_level();
   CoefficientSource source_ = CoefficientSource::automatic;

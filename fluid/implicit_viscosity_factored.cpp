@@ -324,16 +324,15 @@ void solve_dense(std::vector<double>& a, std::vector<double>& rhs, int n) {
 // One sweep over a distributed grid's lines along axis b, which the boxes cut into segments
 // (the partition method: Wang, ACM Trans. Math. Softw. 7 (1981) 170). Each box solves its
 // segment with the couplings to its neighbours' end unknowns L (below) and R (above) taken out,
-// x = y - v L - w R, with T y = rhs, T v = sub_0 e_0, T w = sup_{n-1} e_{n-1}; the boxes' end
-// values (y, v, w at both ends) are summed into one array over the ranks, and every box that
-// holds a piece of a line solves the same small system for the line's end unknowns (two per
-// segment, in the segments' order along b, closed into a ring on a periodic axis), then its own
-// unknowns from them. The one-grid sweep's direct solve up to round-off.
+// x = y - v L - w R, with T y = rhs, T v = sub_0 e_0, T w = sup_{n-1} e_{n-1}; each box sends
+// the end values of its segments (y, v, w at both ends) to the boxes that share the lines
+// (FactoredSweepLinks: point to point, those ranks only), and every box that holds a
+// piece of a line solves the same small system for the line's end unknowns (two per segment, in
+// the segments' order along b, closed into a ring on a periodic axis), then its own unknowns
+// from them. The one-grid sweep's direct solve up to round-off.
 struct DistributedSweep {
   const MacGrid& grid;
   const GridLayout& layout;
-  const GridHalo& halo;
-  int comp;
   int b;
   std::array<int, 3> lo, hi; // this box's unknowns (local indices)
   const double* k;
@@ -343,6 +342,8 @@ struct DistributedSweep {
   double* cp;
   double* v;
   double* w;
+  const FactoredSweepLinks& links;
+  std::vector<double>& ends;
 
   // out = the sweep's solution for the right-hand side rhs_at(p).
   template <class Rhs> void operator()(const Rhs& rhs_at, double* out) const {
@@ -357,21 +358,8 @@ struct DistributedSweep {
     // A segment's rows as solve_lines takes them, its open ends' couplings left out (an
     // exchanged side's closure is 0: factored_ends).
     const Sweep rows{k, dg, c, s, n, false, false, end_lo, end_hi, cp, nullptr};
-    const std::vector<CellBox>& boxes = halo.boxes();
-    const int ranks = static_cast<int>(boxes.size());
-    const int me = halo.comm().rank();
-    std::vector<UnknownFaces> ranges;
-    std::vector<std::size_t> offset(static_cast<std::size_t>(ranks) + 1, 0);
-    for (int r = 0; r < ranks; ++r) {
-      ranges.push_back(unknown_faces(grid, boxes[static_cast<std::size_t>(r)], comp));
-      const UnknownFaces& u = ranges.back();
-      const std::size_t lines = u.empty() ? 0
-                                          : static_cast<std::size_t>(u.hi[a1] - u.lo[a1] + 1) *
-                                                static_cast<std::size_t>(u.hi[a2] - u.lo[a2] + 1);
-      offset[static_cast<std::size_t>(r) + 1] = offset[static_cast<std::size_t>(r)] + 6 * lines;
-    }
-    std::vector<double> ends(offset.back(), 0.0);
-    double* mine = ends.data() + offset[static_cast<std::size_t>(me)];
+    ends.resize(links.size);
+    double* mine = ends.data(); // this box's lines' values come first
     // The segments: y into out, v and w beside it, their end values into `ends`. Lanes of
     // lines advance together as in solve_lines: a row of them along x for the y and z sweeps
     // (the lane loops vectorize), four rows for the x sweep.
@@ -434,54 +422,23 @@ struct DistributedSweep {
       }
     });
     // Every box cut along b needs the others' ends; a box alone along b (not periodic) has none.
-    bool cut = grid.periodic(b);
-    for (const CellBox& box : boxes) {
-      cut = cut || box.lo[b] > 0 || box.hi[b] < grid.global_cells()[b];
-    }
-    if (!cut) {
+    if (!links.cut) {
       return;
     }
-    halo.comm().sum(std::span<double>(ends));
+    links.exchange.forward(std::span<double>(ends));
     const bool periodic = grid.periodic(b);
-    const std::array<int, 3> origin = grid.box().lo;
     tbb::parallel_for(0, n2, [&](int t2) {
-      struct Segment {
-        int start;
-        const double* e;
-      };
-      std::vector<Segment> segments;
       std::vector<double> a, z;
       for (int t1 = 0; t1 < n1; ++t1) {
-        const int g1 = origin[a1] + lo[a1] + t1;
-        const int g2 = origin[a2] + lo[a2] + t2;
-        segments.clear();
-        int own = -1;
-        for (int r = 0; r < ranks; ++r) {
-          const UnknownFaces& u = ranges[static_cast<std::size_t>(r)];
-          if (u.empty() || g1 < u.lo[a1] || g1 > u.hi[a1] || g2 < u.lo[a2] || g2 > u.hi[a2]) {
-            continue;
-          }
-          const std::size_t line = static_cast<std::size_t>(g1 - u.lo[a1]) +
-                                   static_cast<std::size_t>(u.hi[a1] - u.lo[a1] + 1) *
-                                       static_cast<std::size_t>(g2 - u.lo[a2]);
-          segments.push_back(
-              {u.lo[b], ends.data() + offset[static_cast<std::size_t>(r)] + 6 * line});
-          if (r == me) {
-            own = u.lo[b];
-          }
-        }
-        std::sort(segments.begin(), segments.end(),
-                  [](const Segment& x, const Segment& y) { return x.start < y.start; });
-        const int S = static_cast<int>(segments.size());
+        const std::size_t line = static_cast<std::size_t>(t1) +
+                                 static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2);
+        const std::size_t first = links.line_first[line];
+        const int S = static_cast<int>(links.line_first[line + 1] - first);
         const int N = 2 * S;
         a.assign(static_cast<std::size_t>(N * N), 0.0);
         z.assign(static_cast<std::size_t>(N), 0.0);
-        int mine_at = 0;
         for (int q = 0; q < S; ++q) {
-          const double* e = segments[static_cast<std::size_t>(q)].e;
-          if (segments[static_cast<std::size_t>(q)].start == own) {
-            mine_at = q;
-          }
+          const double* e = ends.data() + links.segment_at[first + static_cast<std::size_t>(q)];
           // first_q + v0 L_q + w0 R_q = y0; last_q + vN L_q + wN R_q = yN.
           const int left = q > 0 ? 2 * (q - 1) + 1 : (periodic ? 2 * (S - 1) + 1 : -1);
           const int right = q < S - 1 ? 2 * (q + 1) : (periodic ? 0 : -1);
@@ -498,7 +455,7 @@ struct DistributedSweep {
           }
         }
         solve_dense(a, z, N);
-        const int q = mine_at;
+        const int q = links.line_mine[line];
         const double L = q > 0 ? z[static_cast<std::size_t>(2 * (q - 1) + 1)]
                                : (periodic ? z[static_cast<std::size_t>(2 * (S - 1) + 1)] : 0.0);
         const double R =
@@ -515,6 +472,93 @@ struct DistributedSweep {
   }
 };
 } // namespace
+
+const FactoredSweepLinks& ImplicitViscosity::sweep_links(int comp, int axis) {
+  FactoredSweepLinks& links =
+      sweep_links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(axis)];
+  const std::vector<CellBox>& boxes = halo_->boxes();
+  if (links.made && links.boxes == boxes) {
+    return links;
+  }
+  links = FactoredSweepLinks{};
+  links.boxes = boxes;
+  links.made = true;
+  const int a1 = axis == 0 ? 1 : 0;
+  const int a2 = axis == 2 ? 1 : 2;
+  const int me = halo_->comm().rank();
+  std::vector<UnknownFaces> ranges;
+  for (const CellBox& box : boxes) {
+    ranges.push_back(unknown_faces(grid_, box, comp));
+  }
+  const UnknownFaces& own = ranges[static_cast<std::size_t>(me)];
+  const std::array<int, 3> lo = unknown_lo(comp);
+  const std::array<int, 3> hi = unknown_hi(comp);
+  for (int a = 0; a < 3; ++a) {
+    if (!own.empty() && own.hi[a] - own.lo[a] != hi[a] - lo[a]) {
+      throw std::logic_error("ImplicitViscosity::sweep_links: the box's unknowns do not match");
+    }
+  }
+  links.cut = grid_.periodic(axis);
+  for (const CellBox& box : boxes) {
+    links.cut = links.cut || box.lo[axis] > 0 || box.hi[axis] < grid_.global_cells()[axis];
+  }
+  const int n1 = own.empty() ? 0 : own.hi[a1] - own.lo[a1] + 1;
+  const int n2 = own.empty() ? 0 : own.hi[a2] - own.lo[a2] + 1;
+  const auto lines = static_cast<std::size_t>(n1) * static_cast<std::size_t>(n2);
+  const auto line_of = [&](int g1, int g2) {
+    return static_cast<std::size_t>(g1 - own.lo[a1]) +
+           static_cast<std::size_t>(n1) * static_cast<std::size_t>(g2 - own.lo[a2]);
+  };
+  // Each line's segments: this box's, then every other box's that crosses the line.
+  std::vector<std::vector<std::pair<int, std::size_t>>> segments(lines);
+  for (std::size_t l = 0; l < lines; ++l) {
+    segments[l].emplace_back(own.lo[axis], 6 * l);
+  }
+  links.size = 6 * lines;
+  std::vector<HaloExchange::Link> peers;
+  for (int r = 0; r < static_cast<int>(boxes.size()) && links.cut; ++r) {
+    const UnknownFaces& u = ranges[static_cast<std::size_t>(r)];
+    if (r == me || u.empty() || own.empty()) {
+      continue;
+    }
+    const int lo1 = std::max(own.lo[a1], u.lo[a1]), hi1 = std::min(own.hi[a1], u.hi[a1]);
+    const int lo2 = std::max(own.lo[a2], u.lo[a2]), hi2 = std::min(own.hi[a2], u.hi[a2]);
+    if (lo1 > hi1 || lo2 > hi2) {
+      continue; // no line in common
+    }
+    // The shared lines in one order on both sides (a2 slowest, then a1): this box's six values
+    // of each go to r, r's six arrive after everything before them.
+    HaloExchange::Link link;
+    link.rank = r;
+    for (int g2 = lo2; g2 <= hi2; ++g2) {
+      for (int g1 = lo1; g1 <= hi1; ++g1) {
+        const std::size_t l = line_of(g1, g2);
+        segments[l].emplace_back(u.lo[axis], links.size);
+        for (std::size_t e = 0; e < 6; ++e) {
+          link.send.push_back(6 * l + e);
+          link.recv.push_back(links.size + e);
+        }
+        links.size += 6;
+      }
+    }
+    peers.push_back(std::move(link));
+  }
+  links.exchange = HaloExchange(halo_->comm(), std::move(peers));
+  links.line_first.assign(lines + 1, 0);
+  links.line_mine.assign(lines, 0);
+  for (std::size_t l = 0; l < lines; ++l) {
+    std::vector<std::pair<int, std::size_t>>& line = segments[l];
+    std::sort(line.begin(), line.end()); // in order along the axis (starts differ)
+    links.line_first[l + 1] = links.line_first[l] + line.size();
+    for (std::size_t q = 0; q < line.size(); ++q) {
+      links.segment_at.push_back(line[q].second);
+      if (line[q].first == own.lo[axis]) {
+        links.line_mine[l] = static_cast<int>(q);
+      }
+    }
+  }
+  return links;
+}
 
 const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp) {
   const auto c = static_cast<std::size_t>(comp);
@@ -631,8 +675,6 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
       const auto a = static_cast<std::size_t>(axis);
       const DistributedSweep sweep{grid_,
                                    layout,
-                                   *halo_,
-                                   comp,
                                    axis,
                                    lo,
                                    hi,
@@ -643,7 +685,9 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
                                    ends.end[a][1],
                                    factored_cp_.values().data(),
                                    factored_zp_.values().data(),
-                                   factored_wp_.values().data()};
+                                   factored_wp_.values().data(),
+                                   sweep_links(comp, axis),
+                                   sweep_ends_};
       // x: the residual -> y; y: D y -> z; z: D z -> delta (in y).
       if (axis == 0) {
         sweep(residual_at, y);

@@ -145,6 +145,7 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
   p_ = grid.make_field();
   eps_ = grid.make_field(1.0);
   eps_old_ = grid.make_field(1.0);
+  eps_target_ = grid.make_field(1.0); // advance() swaps eps_ into it: no copy at the first step
   beta_ = grid.make_field();
   source_ = grid.make_field();
   size_workspace(work_, grid.layout(), settings.advection == Advection::godunov);
@@ -154,6 +155,9 @@ GasSolver::GasSolver(const MacGrid& grid, const GasSolverSettings& settings,
     viscosity_ = std::make_unique<ImplicitViscosity>(grid, halo_.get(),
                                                      solid_.empty() ? nullptr : &solid_);
     viscosity_->use_multigrid(settings.viscous_multigrid);
+    if (settings.factored_viscosity) {
+      viscosity_->prepare_factored();
+    }
     for (GridField& l : lap_start_) {
       l = grid.make_field();
     }

@@ -160,6 +160,10 @@ public:
   // the ranks per sweep carries their ends (the one grid's result up to round-off).
   ViscousSolveReport step_factored(int comp, double c, const GridField& eps, const GridField& diag,
                                    const GridField& rhs, GridField& u);
+  // The factored step's scratch fields and end closures made now (the gas solver's set-up),
+  // not at the first step_factored (each new field of the 1e5 bed's grid took about 11 ms to
+  // fault in there).
+  void prepare_factored();
 
   // Off: every solve goes to CG (tests of the CG paths).
   void use_chebyshev(bool on) { chebyshev_ = on; }
@@ -252,6 +256,7 @@ private:
     bool known = false;
   };
   const FactoredEnds& factored_ends(int comp);
+  void make_factored_scratch();
   std::array<FactoredEnds, 3> factored_ends_{};
   GridField factored_cp_, factored_zp_, factored_wp_;
   const FactoredSweepLinks& sweep_links(int comp, int axis);

@@ -560,6 +560,24 @@ const FactoredSweepLinks& ImplicitViscosity::sweep_links(int comp, int axis) {
   return links;
 }
 
+void ImplicitViscosity::make_factored_scratch() {
+  const GridLayout& layout = grid_.layout();
+  for (GridField* f : {&factored_cp_, &factored_zp_}) {
+    if (f->values().size() != layout.size()) {
+      *f = GridField(layout);
+    }
+  }
+  if (halo_ != nullptr && factored_wp_.values().size() != layout.size()) {
+    factored_wp_ = GridField(layout);
+  }
+}
+
+void ImplicitViscosity::prepare_factored() {
+  for (int comp = 0; comp < 3; ++comp) {
+    (void)factored_ends(comp); // makes the scratch first
+  }
+}
+
 const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp) {
   const auto c = static_cast<std::size_t>(comp);
   FactoredEnds& ends = factored_ends_[c];
@@ -573,10 +591,12 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
   const GridLayout& layout = grid_.layout();
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
-  // One probe field for all of them: between probes only its points outside the unknowns (what
-  // the fill wrote) and the probed plane are set back to 0, and the loops visit that plane only
-  // (allocating and walking a whole field per probe took 28 ms of the 1e5 bed's first step).
-  GridField f(layout);
+  // One probe field for all of them, the line solves' scratch (zero until their first sweep):
+  // between probes only its points outside the unknowns (what the fill wrote) and the probed
+  // plane are set back to 0, so it is zero again at the end, and the loops visit that plane only
+  // (a whole new field per probe, allocated and walked, took 28 ms of the 1e5 bed's first step).
+  make_factored_scratch();
+  GridField& f = factored_cp_;
   const std::array<int, 3>& n = layout.cells();
   const auto plane_box = [&](int b, int at) {
     std::array<int, 3> plo = lo, phi = hi;
@@ -659,11 +679,7 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const FactoredEnds& ends = factored_ends(comp);
   const GridLayout& layout = grid_.layout();
   const auto cs = static_cast<std::size_t>(comp);
-  for (GridField* f : {&factored_cp_, &factored_zp_}) {
-    if (f->values().size() != layout.size()) {
-      *f = GridField(layout);
-    }
-  }
+  make_factored_scratch();
   const double* k0 = cv_k_[cs][0].values().data();
   const double* k1 = cv_k_[cs][1].values().data();
   const double* k2 = cv_k_[cs][2].values().data();
@@ -687,9 +703,6 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
   const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
   if (halo_ != nullptr) {
-    if (factored_wp_.values().size() != layout.size()) {
-      factored_wp_ = GridField(layout);
-    }
     for (int axis = 0; axis < 3; ++axis) {
       const auto a = static_cast<std::size_t>(axis);
       const DistributedSweep sweep{grid_,

@@ -229,6 +229,7 @@ GasCoupling::~GasCoupling() = default;
 
 void GasCoupling::make_work_fields() {
   eps_s_ = grid_.make_field();
+  eps_prev_store_ = grid_.make_field();
   diag_eps_ = grid_.make_field(), diag_div_ = grid_.make_field();
   for (int a = 0; a < 3; ++a)
     cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
@@ -358,6 +359,8 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   const std::size_t n = std::min(owned, p.size());
   {
     const Stopwatch timed(seconds_.deposition);
+    if (eps_prev_.values().empty() && eps_prev_store_.values().size() == grid_.layout().size())
+      eps_prev_ = std::move(eps_prev_store_); // made at set-up: no field to fault in here
     fluid::copy_field(solver_->volume_fraction(), eps_prev_);
     deposit(p, n);
   }

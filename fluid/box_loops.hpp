@@ -73,6 +73,27 @@ inline void fill_field(GridField& f, double v) {
                     });
 }
 
+// Every value of f outside the box lo..hi (inclusive) set to 0: the rows outside it whole, the
+// rows through it before lo[0] and after hi[0]; the box's own points are left as they are (a
+// pass that writes them all then needs no fill_field of the whole field).
+inline void zero_outside(GridField& f, const std::array<int, 3>& lo, const std::array<int, 3>& hi) {
+  const GridLayout& layout = f.layout();
+  const std::array<int, 3>& n = layout.cells();
+  const int row_size = n[0] + 2 * kGhostLayers + 1;
+  for (int k = -kGhostLayers; k <= n[2] + kGhostLayers; ++k) {
+    for (int j = -kGhostLayers; j <= n[1] + kGhostLayers; ++j) {
+      double* row = f.values().data() + layout.index(-kGhostLayers, j, k);
+      const bool through = j >= lo[1] && j <= hi[1] && k >= lo[2] && k <= hi[2] && lo[0] <= hi[0];
+      if (!through) {
+        std::fill(row, row + row_size, 0.0);
+        continue;
+      }
+      std::fill(row, row + (lo[0] + kGhostLayers), 0.0);
+      std::fill(row + (hi[0] + 1 + kGhostLayers), row + row_size, 0.0);
+    }
+  }
+}
+
 // Whether a and b (of one size) hold the same values, blocks compared as TBB tasks.
 inline bool equal_values(std::span<const double> a, std::span<const double> b) {
   return tbb::parallel_reduce(

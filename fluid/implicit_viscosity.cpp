@@ -254,7 +254,7 @@ void ImplicitViscosity::laplacian(int comp, double mu, double rho, const GridFie
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
   const auto& k = cv_k_[static_cast<std::size_t>(comp)];
-  fill_field(lap, 0.0);
+  zero_outside(lap, lo, hi); // the rows below write every unknown
   for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
     laplacian_row(row, hi[0] - lo[0] + 1, k[0].values().data(), k[1].values().data(),
                   k[2].values().data(), u.values().data(), eps.values().data(), lap.values().data(),

@@ -588,7 +588,6 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
   // field that is 1 on one end plane of unknowns: ghost = end * the end unknown, the same at
   // every point of the plane and independent of the unknowns further in (as the boundary
   // conditions of fluid/ghost_fill.hpp are). A periodic axis's lines close on themselves.
-  const GridLayout& layout = grid_.layout();
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
   // One probe field for all of them, the line solves' scratch (zero until their first sweep):
@@ -597,7 +596,6 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
   // (a whole new field per probe, allocated and walked, took 28 ms of the 1e5 bed's first step).
   make_factored_scratch();
   GridField& f = factored_cp_;
-  const std::array<int, 3>& n = layout.cells();
   const auto plane_box = [&](int b, int at) {
     std::array<int, 3> plo = lo, phi = hi;
     plo[b] = phi[b] = at;
@@ -606,16 +604,7 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
   const auto clear = [&](int b, int at) {
     const auto [plo, phi] = plane_box(b, at);
     for_each_index(plo, phi, [&](std::array<int, 3> idx) { f(idx[0], idx[1], idx[2]) = 0.0; });
-    for (int k = -kGhostLayers; k <= n[2] + kGhostLayers; ++k) {
-      for (int j = -kGhostLayers; j <= n[1] + kGhostLayers; ++j) {
-        double* row = f.values().data() + layout.index(-kGhostLayers, j, k);
-        const bool inside = j >= lo[1] && j <= hi[1] && k >= lo[2] && k <= hi[2];
-        const int first = inside ? lo[0] : n[0] + kGhostLayers + 1;     // row's points before ...
-        const int after = inside ? hi[0] + 1 : n[0] + kGhostLayers + 1; // ... and from here
-        std::fill(row, row + (first + kGhostLayers), 0.0);
-        std::fill(row + (after + kGhostLayers), row + (n[0] + 2 * kGhostLayers + 1), 0.0);
-      }
-    }
+    zero_outside(f, lo, hi);
   };
   for (int b = 0; b < 3; ++b) {
     for (int side = 0; side < 2; ++side) {

@@ -755,7 +755,8 @@ std::vector<SceneKey> make_table() {
                   "default), one step of the trapezoidal system's approximate factorization, "
                   "three sweeps of tridiagonal line solves along x, y and z (second order in "
                   "time; the viscous part of the fluidized bed's gas step about 2.3x cheaper; "
-                  "on R ranks one sum over the ranks per sweep); \"solve\", the system solved "
+                  "on R ranks each box exchanges its lines' ends with the boxes that share "
+                  "them); \"solve\", the system solved "
                   "to a relative residual of 1e-10 by Chebyshev iteration or CG (a checkpoint "
                   "written before this key restarts with \"solve\"). "
                   "[gas_step.md](gas_step.md) has the accuracy and cost of each"},

@@ -92,10 +92,19 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo,
 void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
   const GridLayout& layout = grid_.layout();
   const auto c = static_cast<std::size_t>(comp);
-  if (cv_k_valid_[c] && equal_values(eps.values(), eps_seen_[c].values())) {
-    return;
+  if (&eps == declared_eps_) { // declare_eps: made once per declaration, nothing compared
+    if (cv_k_valid_[c] && cv_k_declaration_[c] == declaration_) {
+      return;
+    }
+    cv_k_declaration_[c] = declaration_;
+  } else {
+    if (cv_k_valid_[c] && cv_k_declaration_[c] == 0 &&
+        equal_values(eps.values(), eps_seen_[c].values())) {
+      return;
+    }
+    copy_field(eps, eps_seen_[c]);
+    cv_k_declaration_[c] = 0;
   }
-  copy_field(eps, eps_seen_[c]);
   cv_k_valid_[c] = true;
   const double* ep = eps.values().data();
   const std::ptrdiff_t sa = layout.stride(comp);
@@ -428,7 +437,7 @@ ViscousSolveReport ImplicitViscosity::solve(int comp, double c, const GridField&
   ViscousSolveReport chebyshev;
   if (chebyshev_) {
     face_coefficients(comp, eps);
-    chebyshev = solve_chebyshev(comp, c, diag, rhs, u, tolerance, max_iterations);
+    chebyshev = solve_chebyshev(comp, c, eps, diag, rhs, u, tolerance, max_iterations);
     if (chebyshev.chebyshev && chebyshev.converged) {
       return chebyshev;
     }

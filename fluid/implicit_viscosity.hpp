@@ -10,6 +10,7 @@
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -135,6 +136,16 @@ public:
   // One grid: false solves with Jacobi CG as a distributed grid does (tests, benchmarks).
   void use_multigrid(bool on) { multigrid_ = on; }
 
+  // The caller's word that `eps` keeps its values (ghosts included) until its next
+  // declare_eps: the face coefficients are then made once per component and declaration from
+  // it, with no copy of it kept to compare each call against (GasSolver declares its eps_g once
+  // a gas step, after filling its ghosts: three copies and three compares of the field a step
+  // saved). Calls with another field compare against the copy, as without a declaration.
+  void declare_eps(const GridField& eps) {
+    declared_eps_ = &eps;
+    ++declaration_;
+  }
+
   // lap = div(eps mu grad u_comp) / (rho eps_f) on the unknown faces (solve's), 0 on the others
   // (prescribed or periodic copies: the boundary fill replaces whatever the predictor writes
   // there); ghosts of u[comp] and eps filled.
@@ -184,12 +195,13 @@ private:
   // Chebyshev iteration with the Jacobi preconditioner, when the rows' dominance ratio is at
   // most kChebyshevMaxDominance (report.chebyshev false otherwise, u untouched). Pointwise
   // passes and one ghost fill per iteration; no inner products but the residual norm.
-  ViscousSolveReport solve_chebyshev(int comp, double c, const GridField& diag,
-                                     const GridField& rhs, GridField& u, double tolerance,
-                                     int max_iterations);
+  ViscousSolveReport solve_chebyshev(int comp, double c, const GridField& eps,
+                                     const GridField& diag, const GridField& rhs, GridField& u,
+                                     double tolerance, int max_iterations);
   // cv_k_[comp][b] = eps on the low control-volume face along b / dx_b^2 of each unknown face
   // of comp and of the one beyond the box's high end along b; recomputed only when eps (ghosts
-  // included) differs from the last one seen for comp (both stages of a gas step share it).
+  // included) differs from the last one seen for comp (both stages of a gas step share it), or,
+  // for the declared field (declare_eps), once per declaration.
   void face_coefficients(int comp, const GridField& eps);
   // Per row of comp's unknowns (j fastest, then k), 1 where its face coefficients are
   // face_coefficients' plain eps formulas (no face on an inflow plane, no solid mask), so the
@@ -246,6 +258,11 @@ private:
   std::array<const double*, 3> open_{};
   std::array<GridField, 3> eps_seen_;
   std::array<bool, 3> cv_k_valid_{};
+  // declare_eps: the field and its declaration's number; per component, the declaration its
+  // coefficients were made under (0: made from a compared copy, eps_seen_).
+  const GridField* declared_eps_ = nullptr;
+  std::uint64_t declaration_ = 0;
+  std::array<std::uint64_t, 3> cv_k_declaration_{};
   GridField dir_, dir_next_;
   GridField inverse_diagonal_; // CoefficientSource::stored_inverse
   // The factored step: per component, what the homogeneous ghost fill puts beyond each end of

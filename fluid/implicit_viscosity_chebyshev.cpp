@@ -472,15 +472,16 @@ double iterate_one_at_a_time(const SolveRows& rows, const MacGrid& homogeneous,
 // test is the CG path's: |rhs - A u| <= tolerance |rhs| over the unknowns, on the recursive
 // residual r_{k+1} = r_k - A d_k (a few passes of a well-conditioned operator: its drift stays
 // near round-off).
-ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const GridField& diag,
-                                                      const GridField& rhs, GridField& u,
-                                                      double tolerance, int max_iterations) {
+ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const GridField& eps,
+                                                      const GridField& diag, const GridField& rhs,
+                                                      GridField& u, double tolerance,
+                                                      int max_iterations) {
   const GridLayout& layout = grid_.layout();
   const std::size_t cs = static_cast<std::size_t>(comp);
   // Fewer operations or fewer streamed arrays per unknown, by the fields' size
   // (chebyshev_row_source).
   const CoefficientSource source =
-      chebyshev_row_source(source_, level_, eps_seen_[cs].values().size() * sizeof(double));
+      chebyshev_row_source(source_, level_, eps.values().size() * sizeof(double));
   // The stored inverse diagonal, which the dominance pass below writes (null: computed by rows).
   double* inv = nullptr;
   if (source == CoefficientSource::stored_inverse) {
@@ -491,23 +492,22 @@ ViscousSolveReport ImplicitViscosity::solve_chebyshev(int comp, double c, const 
   }
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
-  const SolveRows rows{
-      &layout,
-      Operator{cv_k_[cs][0].values().data(), cv_k_[cs][1].values().data(),
-               cv_k_[cs][2].values().data(),
-               eps_seen_[cs].values().data(), // what face_coefficients made them from
-               diag.values().data(), layout.stride(1), layout.stride(2), c},
-      lo,
-      hi,
-      hi[0] - lo[0],
-      comp,
-      &regular_rows(comp),
-      source == CoefficientSource::from_eps,
-      inv,
-      1.0 / (grid_.spacing(0) * grid_.spacing(0)),
-      1.0 / (grid_.spacing(1) * grid_.spacing(1)),
-      1.0 / (grid_.spacing(2) * grid_.spacing(2)),
-      level_};
+  const SolveRows rows{&layout,
+                       Operator{cv_k_[cs][0].values().data(), cv_k_[cs][1].values().data(),
+                                cv_k_[cs][2].values().data(),
+                                eps.values().data(), // what face_coefficients made them from
+                                diag.values().data(), layout.stride(1), layout.stride(2), c},
+                       lo,
+                       hi,
+                       hi[0] - lo[0],
+                       comp,
+                       &regular_rows(comp),
+                       source == CoefficientSource::from_eps,
+                       inv,
+                       1.0 / (grid_.spacing(0) * grid_.spacing(0)),
+                       1.0 / (grid_.spacing(1) * grid_.spacing(1)),
+                       1.0 / (grid_.spacing(2) * grid_.spacing(2)),
+                       level_};
   const Operator& op = rows.op;
   const std::ptrdiff_t len = rows.len;
   ViscousSolveReport report;

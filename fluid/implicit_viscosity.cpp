@@ -1,4 +1,5 @@
 #include "fluid/implicit_viscosity.hpp"
+#include "fluid/viscous_stencil.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -246,10 +247,9 @@ namespace {
                                      std::ptrdiff_t sa, std::ptrdiff_t sy, std::ptrdiff_t sz,
                                      double mu_over_rho) {
   for (std::ptrdiff_t p = p0; p < p0 + n; ++p) {
-    const double qp = q[p];
-    const double sum = (k0[p + 1] * (q[p + 1] - qp) - k0[p] * (qp - q[p - 1])) +
-                       (k1[p + sy] * (q[p + sy] - qp) - k1[p] * (qp - q[p - sy])) +
-                       (k2[p + sz] * (q[p + sz] - qp) - k2[p] * (qp - q[p - sz]));
+    double k[6];
+    viscous_stencil::faces_at<-1>(k0, k1, k2, nullptr, 0.0, 0.0, 0.0, p, sy, sz, k);
+    const double sum = viscous_stencil::laplacian_sum(k, q, p, sy, sz);
     lap[p] = mu_over_rho * sum / (0.5 * (ep[p] + ep[p - sa]));
   }
 }

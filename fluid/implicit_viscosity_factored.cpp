@@ -26,6 +26,7 @@
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/implicit_viscosity.hpp"
+#include "fluid/viscous_stencil.hpp"
 
 namespace cfddem::fluid {
 
@@ -192,34 +193,20 @@ template <bool Unit, class Rhs>
   }
 }
 
-// The delta form's right-hand side r = rhs - A u on the points p0 .. p0 + n - 1 of a row (u's
-// ghosts filled by the caller), as the Chebyshev rows take it: a pass of its own over a plane's
-// rows, unit-stride and vectorized, ahead of the x lines that read it (made as the lines reached
-// each point, four rows side by side, it kept the x sweep scalar).
-struct ResidualRow {
-  const double *k0, *k1, *k2, *dg, *b, *x;
-  double* out;
-  std::ptrdiff_t sy, sz;
-  double c;
-};
-[[gnu::always_inline]] inline void residual_row(const ResidualRow& r, std::ptrdiff_t p0,
-                                                std::ptrdiff_t n) {
-  const double* __restrict k0 = r.k0;
-  const double* __restrict k1 = r.k1;
-  const double* __restrict k2 = r.k2;
-  const double* __restrict dg = r.dg;
-  const double* __restrict b = r.b;
-  const double* __restrict x = r.x;
-  double* __restrict out = r.out;
-  const std::ptrdiff_t sy = r.sy;
-  const std::ptrdiff_t sz = r.sz;
-  const double c = r.c;
+// r = rhs - A u on the points p0 .. p0 + n - 1 of a row (u's ghosts filled by the caller), the
+// Chebyshev rows' stencil (viscous_stencil.hpp): a pass of its own over a plane's rows ahead of
+// the x lines that read it (made as the strided lines reached each point, it kept the x sweep
+// scalar). Inlined into the copies' residual (below), whose restrict parameters let GCC
+// vectorize the loop.
+[[gnu::always_inline]] inline void residual_row(const double* k0, const double* k1,
+                                                const double* k2, const double* dg, const double* b,
+                                                const double* x, double* out, std::ptrdiff_t p0,
+                                                std::ptrdiff_t n, std::ptrdiff_t sy,
+                                                std::ptrdiff_t sz, double c) {
   for (std::ptrdiff_t p = p0; p < p0 + n; ++p) {
-    const double xp = x[p];
-    const double lap = (k0[p + 1] * (x[p + 1] - xp) - k0[p] * (xp - x[p - 1])) +
-                       (k1[p + sy] * (x[p + sy] - xp) - k1[p] * (xp - x[p - sy])) +
-                       (k2[p + sz] * (x[p + sz] - xp) - k2[p] * (xp - x[p - sz]));
-    out[p] = b[p] - (dg[p] * xp - c * lap);
+    double k[6];
+    viscous_stencil::faces_at<-1>(k0, k1, k2, nullptr, 0.0, 0.0, 0.0, p, sy, sz, k);
+    out[p] = b[p] - viscous_stencil::apply_at(k, dg[p], x, p, sy, sz, c);
   }
 }
 
@@ -274,9 +261,12 @@ template <class Rhs>
       }                                                                                            \
       solve_lines<Unit>(w, p0, lanes, stride, rhs_at, out, add_to);                                \
     }                                                                                              \
-    [[gnu::noinline __VA_ARGS__]] static void residual(const ResidualRow& r, std::ptrdiff_t p0,    \
-                                                       std::ptrdiff_t n) {                         \
-      residual_row(r, p0, n);                                                                      \
+    [[gnu::noinline __VA_ARGS__]] static void                                                      \
+    residual(const double* __restrict k0, const double* __restrict k1,                             \
+             const double* __restrict k2, const double* __restrict dg, const double* __restrict b, \
+             const double* __restrict x, double* __restrict out, std::ptrdiff_t p0,                \
+             std::ptrdiff_t n, std::ptrdiff_t sy, std::ptrdiff_t sz, double c) {                   \
+      residual_row(k0, k1, k2, dg, b, x, out, p0, n, sy, sz, c);                                   \
     }                                                                                              \
   };
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_FACTORED_LINES, FactoredLines)
@@ -678,20 +668,21 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const std::ptrdiff_t sy = layout.stride(1);
   const std::ptrdiff_t sz = layout.stride(2);
   const std::ptrdiff_t len = hi[0] - lo[0] + 1;
-  // r = rhs - A u_guess (u's ghosts filled by the caller), as the Chebyshev rows take it.
-  const auto residual_at = [=](std::ptrdiff_t p) {
-    const double xp = x[p];
-    const double lap = (k0[p + 1] * (x[p + 1] - xp) - k0[p] * (xp - x[p - 1])) +
-                       (k1[p + sy] * (x[p + sy] - xp) - k1[p] * (xp - x[p - sy])) +
-                       (k2[p + sz] * (x[p + sz] - xp) - k2[p] * (xp - x[p - sz]));
-    return b[p] - (dg[p] * xp - c * lap);
-  };
   double* y = dir_.values().data();
   double* z = dir_next_.values().data();
-  // The y and z sweeps' right-hand sides, D y and D z.
+  // The x sweep's right-hand side, the residual r = rhs - A u_guess that a row pass
+  // (residual_row) leaves in y, which the sweep solves in place; the y and z sweeps', D y and
+  // D z.
+  const auto y_at = [=](std::ptrdiff_t p) { return y[p]; };
   const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
   const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
   if (halo_ != nullptr) {
+    // The residual over the box first (u's ghosts filled by the caller).
+    with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
+      for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+        decltype(copy)::residual(k0, k1, k2, dg, b, x, y, row, len, sy, sz, c);
+      });
+    });
     for (int axis = 0; axis < 3; ++axis) {
       const auto a = static_cast<std::size_t>(axis);
       const DistributedSweep sweep{grid_,
@@ -709,9 +700,9 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
                                    factored_wp_.values().data(),
                                    sweep_links(comp, axis),
                                    sweep_ends_};
-      // x: the residual -> y; y: D y -> z; z: D z -> delta (in y).
+      // x: the residual in y -> y; y: D y -> z; z: D z -> delta (in y).
       if (axis == 0) {
-        sweep(residual_at, y);
+        sweep(y_at, y);
       } else if (axis == 1) {
         sweep(scaled_y, z);
       } else {
@@ -748,12 +739,11 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
     with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
       const Sweep wx = sweep_for(0, k0);
       const Sweep wy = sweep_for(1, k1);
-      const ResidualRow res{k0, k1, k2, dg, b, x, y, sy, sz, c};
-      const auto y_at = [=](std::ptrdiff_t p) { return y[p]; };
       tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
         for (int j = lo[1]; j <= hi[1]; ++j) {
-          decltype(copy)::residual(res, static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)),
-                                   len);
+          decltype(copy)::residual(k0, k1, k2, dg, b, x, y,
+                                   static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)), len, sy,
+                                   sz, c);
         }
         for (int j = lo[1]; j <= hi[1]; j += 4) {
           const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));

@@ -18,6 +18,7 @@
 #include <utility>
 #include <vector>
 
+#include <Eigen/Dense>
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
 
@@ -272,45 +273,6 @@ template <class Rhs>
 CFDDEM_SIMD_COPY_TYPES(CFDDEM_FACTORED_LINES, FactoredLines)
 #undef CFDDEM_FACTORED_LINES
 
-// Solves A z = rhs in place (dense, row-major n x n, partial pivoting): the interface system of
-// one line over the boxes, 2 unknowns per box it crosses.
-void solve_dense(std::vector<double>& a, std::vector<double>& rhs, int n) {
-  for (int col = 0; col < n; ++col) {
-    int pivot = col;
-    for (int r = col + 1; r < n; ++r) {
-      if (std::abs(a[static_cast<std::size_t>(r * n + col)]) >
-          std::abs(a[static_cast<std::size_t>(pivot * n + col)])) {
-        pivot = r;
-      }
-    }
-    if (pivot != col) {
-      for (int j = 0; j < n; ++j) {
-        std::swap(a[static_cast<std::size_t>(col * n + j)],
-                  a[static_cast<std::size_t>(pivot * n + j)]);
-      }
-      std::swap(rhs[static_cast<std::size_t>(col)], rhs[static_cast<std::size_t>(pivot)]);
-    }
-    const double inv = 1.0 / a[static_cast<std::size_t>(col * n + col)];
-    for (int r = col + 1; r < n; ++r) {
-      const double f = a[static_cast<std::size_t>(r * n + col)] * inv;
-      if (f == 0.0) {
-        continue;
-      }
-      for (int j = col; j < n; ++j) {
-        a[static_cast<std::size_t>(r * n + j)] -= f * a[static_cast<std::size_t>(col * n + j)];
-      }
-      rhs[static_cast<std::size_t>(r)] -= f * rhs[static_cast<std::size_t>(col)];
-    }
-  }
-  for (int r = n - 1; r >= 0; --r) {
-    double v = rhs[static_cast<std::size_t>(r)];
-    for (int j = r + 1; j < n; ++j) {
-      v -= a[static_cast<std::size_t>(r * n + j)] * rhs[static_cast<std::size_t>(j)];
-    }
-    rhs[static_cast<std::size_t>(r)] = v / a[static_cast<std::size_t>(r * n + r)];
-  }
-}
-
 // One sweep over a distributed grid's lines along axis b, which the boxes cut into segments
 // (the partition method: Wang, ACM Trans. Math. Softw. 7 (1981) 170). Each box solves its
 // segment with the couplings to its neighbours' end unknowns L (below) and R (above) taken out,
@@ -418,15 +380,18 @@ struct DistributedSweep {
     links.exchange.forward(std::span<double>(ends));
     const bool periodic = grid.periodic(b);
     tbb::parallel_for(0, n2, [&](int t2) {
-      std::vector<double> a, z;
+      // A line's interface system (two unknowns per segment): LU with partial pivoting (Eigen).
+      Eigen::MatrixXd a;
+      Eigen::VectorXd z, sol;
+      Eigen::PartialPivLU<Eigen::MatrixXd> lu;
       for (int t1 = 0; t1 < n1; ++t1) {
         const std::size_t line = static_cast<std::size_t>(t1) +
                                  static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2);
         const std::size_t first = links.line_first[line];
         const int S = static_cast<int>(links.line_first[line + 1] - first);
         const int N = 2 * S;
-        a.assign(static_cast<std::size_t>(N * N), 0.0);
-        z.assign(static_cast<std::size_t>(N), 0.0);
+        a.setZero(N, N);
+        z.setZero(N);
         for (int q = 0; q < S; ++q) {
           const double* e = ends.data() + links.segment_at[first + static_cast<std::size_t>(q)];
           // first_q + v0 L_q + w0 R_q = y0; last_q + vN L_q + wN R_q = yN.
@@ -434,22 +399,21 @@ struct DistributedSweep {
           const int right = q < S - 1 ? 2 * (q + 1) : (periodic ? 0 : -1);
           for (int row = 0; row < 2; ++row) {
             const int i = 2 * q + row;
-            a[static_cast<std::size_t>(i * N + i)] += 1.0;
+            a(i, i) += 1.0;
             if (left >= 0) {
-              a[static_cast<std::size_t>(i * N + left)] += e[3 * row + 1];
+              a(i, left) += e[3 * row + 1];
             }
             if (right >= 0) {
-              a[static_cast<std::size_t>(i * N + right)] += e[3 * row + 2];
+              a(i, right) += e[3 * row + 2];
             }
-            z[static_cast<std::size_t>(i)] = e[3 * row];
+            z(i) = e[3 * row];
           }
         }
-        solve_dense(a, z, N);
+        lu.compute(a);
+        sol = lu.solve(z);
         const int q = links.line_mine[line];
-        const double L = q > 0 ? z[static_cast<std::size_t>(2 * (q - 1) + 1)]
-                               : (periodic ? z[static_cast<std::size_t>(2 * (S - 1) + 1)] : 0.0);
-        const double R =
-            q < S - 1 ? z[static_cast<std::size_t>(2 * (q + 1))] : (periodic ? z[0] : 0.0);
+        const double L = q > 0 ? sol(2 * (q - 1) + 1) : (periodic ? sol(2 * (S - 1) + 1) : 0.0);
+        const double R = q < S - 1 ? sol(2 * (q + 1)) : (periodic ? sol(0) : 0.0);
         std::array<int, 3> idx{};
         idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
         const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));

@@ -202,6 +202,7 @@ GasCoupling::GasCoupling(const Scene& scene, double r_max, const Communicator* c
       std::make_unique<fluid::Deposition>(grid_, deposition_settings(scene), r_max_, halo_.get());
   law_ = fluid::parse_drag_law(scene.fluid.drag);
   make_work_fields();
+  eps_prev_ = grid_.make_field(); // made here, not at the first step (a rebox moves it)
   // Axis of the pressure drop diagnostic.
   int axis = -1;
   double gmax = 0.0;
@@ -229,7 +230,6 @@ GasCoupling::~GasCoupling() = default;
 
 void GasCoupling::make_work_fields() {
   eps_s_ = grid_.make_field();
-  eps_prev_store_ = grid_.make_field();
   diag_eps_ = grid_.make_field(), diag_div_ = grid_.make_field();
   for (int a = 0; a < 3; ++a)
     cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
@@ -251,7 +251,7 @@ std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
   auto solver = std::make_unique<fluid::GasSolver>(grid, solver_settings(scene_), halo);
   const fluid::GridMove move(grid_, grid, boxes_, boxes, *comm_);
   fluid::move_solver_state(*solver_, *solver, move);
-  if (eps_prev_.values().size() == grid_.layout().size()) {
+  {
     // eps_g before the last step: the mass residual reads its owned cells only.
     fluid::GridField e = grid.make_field();
     move.move(eps_prev_, e, fluid::kCellCentred);
@@ -359,8 +359,6 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   const std::size_t n = std::min(owned, p.size());
   {
     const Stopwatch timed(seconds_.deposition);
-    if (eps_prev_.values().empty() && eps_prev_store_.values().size() == grid_.layout().size())
-      eps_prev_ = std::move(eps_prev_store_); // made at set-up: no field to fault in here
     fluid::copy_field(solver_->volume_fraction(), eps_prev_);
     deposit(p, n);
   }
@@ -620,7 +618,8 @@ CellFields cell_fields(const fluid::GasSolver& gas) {
 GasCoupling::State GasCoupling::save_state() const {
   State s;
   s.solver = solver_->save_state();
-  s.eps_prev.assign(eps_prev_.values().begin(), eps_prev_.values().end());
+  if (last_dt_ > 0.0) // eps_prev_ holds a step's start only once a step was taken
+    s.eps_prev.assign(eps_prev_.values().begin(), eps_prev_.values().end());
   s.last_dt = last_dt_;
   s.drag_time = drag_time_;
   s.gas_substeps = gas_substeps_;
@@ -641,10 +640,7 @@ void GasCoupling::restore_state(const State& s) {
     if (s.eps_prev.size() != grid_.layout().size())
       throw RunError(fmt::format("gas state 'eps_prev' has {} values, the grid {}",
                                  s.eps_prev.size(), grid_.layout().size()));
-    eps_prev_ = grid_.make_field();
     std::copy(s.eps_prev.begin(), s.eps_prev.end(), eps_prev_.values().begin());
-  } else {
-    eps_prev_ = fluid::GridField();
   }
   last_dt_ = s.last_dt;
   if (!std::isnan(s.drag_time))

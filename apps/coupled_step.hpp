@@ -171,11 +171,11 @@ private:
   long long gas_substeps_ = 0, projection_iterations_ = 0, projection_fallbacks_ = 0;
   long long implicit_viscosity_steps_ = 0, viscous_iterations_ = 0;
   FluidPhaseSeconds seconds_;
-  fluid::GridField eps_s_, eps_prev_; // eps_s_: the deposited solid fraction (scratch)
-  // eps_prev_'s storage, made at set-up and moved in at the first step (eps_prev_ stays empty
-  // until then: a checkpoint before the first step has none); a new field of the 1e5 bed's grid
-  // took about 11 ms to fault in inside the loop.
-  fluid::GridField eps_prev_store_;
+  // eps_s_: the deposited solid fraction (scratch); eps_prev_: eps_g at the last step's start,
+  // meaningful once a step was taken (last_dt_ > 0: the mass residual and the checkpoint read it
+  // only then), made at set-up (a new field of the 1e5 bed's grid took about 11 ms to fault in
+  // inside the loop's first step).
+  fluid::GridField eps_s_, eps_prev_;
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
   // diagnostics()'s scratch: eps_g with its ghosts, div(eps u), and per z-plane partial sums.
   mutable fluid::GridField diag_eps_, diag_div_;

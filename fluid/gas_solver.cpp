@@ -582,15 +582,11 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
   // for a fixed fluid step).
   const double source_scale = eps_interval > 0.0 ? interval / eps_interval : 1.0;
   // eps_g of the fluid step's end and start (members: no allocation per fluid step). The end,
-  // eps_ as the caller left it, is swapped into eps_target_ (copied only where its grid differs,
-  // as at the first step or after a rebox), and swapped back after the last sub-step. The start
+  // eps_ as the caller left it, is swapped into eps_target_ (made with the solver, on its grid),
+  // and swapped back after the last sub-step. The start
   // is eps_old_ itself until a sub-step that is not the last would overwrite it: only then is it
   // copied (most intervals take one sub-step).
-  if (eps_target_.layout().cells() == eps_.layout().cells()) {
-    std::swap(eps_, eps_target_);
-  } else {
-    eps_target_ = eps_;
-  }
+  std::swap(eps_, eps_target_);
   const GridField& target = eps_target_;
   bool start_copied = false;
   GasStepReport total;

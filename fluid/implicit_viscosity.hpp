@@ -107,9 +107,8 @@ struct UnknownFaces {
 // shares lines along the axis with this one, its six per shared line, brought by `exchange`
 // (point to point, with those ranks only); per line of this box, where its segments' values
 // lie, in order along the axis, and the place of this box's own among them.
-// Made once for the boxes they were made for.
+// Made once: the halo's boxes do not change under an ImplicitViscosity.
 struct FactoredSweepLinks {
-  std::vector<CellBox> boxes;
   bool made = false;
   bool cut = false; // some box is cut along the axis, or it is periodic
   std::size_t size = 0;

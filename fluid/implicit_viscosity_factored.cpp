@@ -430,13 +430,11 @@ struct DistributedSweep {
 const FactoredSweepLinks& ImplicitViscosity::sweep_links(int comp, int axis) {
   FactoredSweepLinks& links =
       sweep_links_[static_cast<std::size_t>(comp)][static_cast<std::size_t>(axis)];
-  const std::vector<CellBox>& boxes = halo_->boxes();
-  if (links.made && links.boxes == boxes) {
+  if (links.made) { // the halo's boxes are this object's for its life (a rebox makes a new one)
     return links;
   }
-  links = FactoredSweepLinks{};
-  links.boxes = boxes;
   links.made = true;
+  const std::vector<CellBox>& boxes = halo_->boxes();
   const int a1 = axis == 0 ? 1 : 0;
   const int a2 = axis == 2 ? 1 : 2;
   const int me = halo_->comm().rank();
@@ -619,10 +617,9 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
     return {};
   }
   face_coefficients(comp, eps);
-  const FactoredEnds& ends = factored_ends(comp);
+  const FactoredEnds& ends = factored_ends(comp); // made the scratch fields with them
   const GridLayout& layout = grid_.layout();
   const auto cs = static_cast<std::size_t>(comp);
-  make_factored_scratch();
   const double* k0 = cv_k_[cs][0].values().data();
   const double* k1 = cv_k_[cs][1].values().data();
   const double* k2 = cv_k_[cs][2].values().data();

@@ -62,6 +62,17 @@ struct ImplicitRowInputs {
   bool corrector, half_lap, lagged;
   double dt, inv_dx, dt_over_rho;
 };
+
+// The stage's rate at face f: R (the corrector: the stages' mean) [+ L(u^n) / 2, trapezoidal].
+[[gnu::always_inline]] inline double stage_rate(bool corrector, bool half_lap, const double* rhs,
+                                                const double* rhs_stage, const double* lap,
+                                                std::ptrdiff_t f) {
+  double rate = corrector ? 0.5 * (rhs[f] + rhs_stage[f]) : rhs[f];
+  if (half_lap) {
+    rate += 0.5 * lap[f]; // trapezoidal: half of L(u^n) explicit
+  }
+  return rate;
+}
 [[gnu::noinline]] void implicit_system_row(const ImplicitRowInputs& in, const FaceRow& r,
                                            double* __restrict diag, double* __restrict vrhs) {
   const double* __restrict rhs = in.rhs;
@@ -74,10 +85,7 @@ struct ImplicitRowInputs {
   const double* __restrict start = in.start;
   const double dt = in.dt;
   for (std::ptrdiff_t f = r.f0; f < r.f0 + r.n; ++f) {
-    double rate = in.corrector ? 0.5 * (rhs[f] + rhs_stage[f]) : rhs[f];
-    if (in.half_lap) {
-      rate += 0.5 * lap[f]; // trapezoidal: half of L(u^n) explicit
-    }
+    const double rate = stage_rate(in.corrector, in.half_lap, rhs, rhs_stage, lap, f);
     const double grad_p = in.lagged ? (pp[f] - pp[f - r.s]) * in.inv_dx : 0.0;
     diag[f] = mass[f] * gain[f];
     vrhs[f] = mass[f] * (start[f] + dt * rate + push[f] - in.dt_over_rho * grad_p);
@@ -395,10 +403,9 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
           u_[a][f] = start[a][f];
           return;
         }
-        double rate = kind == Stage::corrector ? 0.5 * (rhs_[a][f] + rhs_stage_[a][f]) : rhs_[a][f];
-        if (trapezoidal) {
-          rate += 0.5 * lap_start_[a][f];
-        }
+        const double rate =
+            stage_rate(inputs.corrector, inputs.half_lap, inputs.rhs, inputs.rhs_stage,
+                       inputs.lap_start, static_cast<std::ptrdiff_t>(f));
         const double lap = guess_lap ? theta * lap_start_[a][f] : 0.0;
         u_[a][f] = (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
       });

@@ -20,6 +20,7 @@
 
 #include <Eigen/Dense>
 #include <fmt/format.h>
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include "core/simd_level.hpp"
@@ -379,47 +380,50 @@ struct DistributedSweep {
     }
     links.exchange.forward(std::span<double>(ends));
     const bool periodic = grid.periodic(b);
-    tbb::parallel_for(0, n2, [&](int t2) {
-      // A line's interface system (two unknowns per segment): LU with partial pivoting (Eigen).
+    tbb::parallel_for(tbb::blocked_range<int>(0, n2), [&](const tbb::blocked_range<int>& planes) {
+      // A line's interface system (two unknowns per segment): LU with partial pivoting (Eigen),
+      // its arrays made once per task.
       Eigen::MatrixXd a;
       Eigen::VectorXd z, sol;
       Eigen::PartialPivLU<Eigen::MatrixXd> lu;
-      for (int t1 = 0; t1 < n1; ++t1) {
-        const std::size_t line = static_cast<std::size_t>(t1) +
-                                 static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2);
-        const std::size_t first = links.line_first[line];
-        const int S = static_cast<int>(links.line_first[line + 1] - first);
-        const int N = 2 * S;
-        a.setZero(N, N);
-        z.setZero(N);
-        for (int q = 0; q < S; ++q) {
-          const double* e = ends.data() + links.segment_at[first + static_cast<std::size_t>(q)];
-          // first_q + v0 L_q + w0 R_q = y0; last_q + vN L_q + wN R_q = yN.
-          const int left = q > 0 ? 2 * (q - 1) + 1 : (periodic ? 2 * (S - 1) + 1 : -1);
-          const int right = q < S - 1 ? 2 * (q + 1) : (periodic ? 0 : -1);
-          for (int row = 0; row < 2; ++row) {
-            const int i = 2 * q + row;
-            a(i, i) += 1.0;
-            if (left >= 0) {
-              a(i, left) += e[3 * row + 1];
+      for (int t2 = planes.begin(); t2 != planes.end(); ++t2) {
+        for (int t1 = 0; t1 < n1; ++t1) {
+          const std::size_t line = static_cast<std::size_t>(t1) +
+                                   static_cast<std::size_t>(n1) * static_cast<std::size_t>(t2);
+          const std::size_t first = links.line_first[line];
+          const int S = static_cast<int>(links.line_first[line + 1] - first);
+          const int N = 2 * S;
+          a.setZero(N, N);
+          z.setZero(N);
+          for (int q = 0; q < S; ++q) {
+            const double* e = ends.data() + links.segment_at[first + static_cast<std::size_t>(q)];
+            // first_q + v0 L_q + w0 R_q = y0; last_q + vN L_q + wN R_q = yN.
+            const int left = q > 0 ? 2 * (q - 1) + 1 : (periodic ? 2 * (S - 1) + 1 : -1);
+            const int right = q < S - 1 ? 2 * (q + 1) : (periodic ? 0 : -1);
+            for (int row = 0; row < 2; ++row) {
+              const int i = 2 * q + row;
+              a(i, i) += 1.0;
+              if (left >= 0) {
+                a(i, left) += e[3 * row + 1];
+              }
+              if (right >= 0) {
+                a(i, right) += e[3 * row + 2];
+              }
+              z(i) = e[3 * row];
             }
-            if (right >= 0) {
-              a(i, right) += e[3 * row + 2];
-            }
-            z(i) = e[3 * row];
           }
-        }
-        lu.compute(a);
-        sol = lu.solve(z);
-        const int q = links.line_mine[line];
-        const double L = q > 0 ? sol(2 * (q - 1) + 1) : (periodic ? sol(2 * (S - 1) + 1) : 0.0);
-        const double R = q < S - 1 ? sol(2 * (q + 1)) : (periodic ? sol(0) : 0.0);
-        std::array<int, 3> idx{};
-        idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
-        const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));
-        for (int m = 0; m < n; ++m) {
-          const std::ptrdiff_t p = p0 + m * s;
-          out[p] = (out[p] - v[p] * L) - w[p] * R;
+          lu.compute(a);
+          sol = lu.solve(z);
+          const int q = links.line_mine[line];
+          const double L = q > 0 ? sol(2 * (q - 1) + 1) : (periodic ? sol(2 * (S - 1) + 1) : 0.0);
+          const double R = q < S - 1 ? sol(2 * (q + 1)) : (periodic ? sol(0) : 0.0);
+          std::array<int, 3> idx{};
+          idx[a1] = lo[a1] + t1, idx[a2] = lo[a2] + t2, idx[b] = lo[b];
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(idx));
+          for (int m = 0; m < n; ++m) {
+            const std::ptrdiff_t p = p0 + m * s;
+            out[p] = (out[p] - v[p] * L) - w[p] * R;
+          }
         }
       }
     });

@@ -1,5 +1,4 @@
 #include "fluid/implicit_viscosity.hpp"
-#include "fluid/viscous_stencil.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -12,6 +11,7 @@
 #include "fluid/ghost_fill.hpp"
 #include "fluid/grid_halo.hpp"
 #include "fluid/solid_mask.hpp"
+#include "fluid/viscous_stencil.hpp"
 
 namespace cfddem::fluid {
 

@@ -233,6 +233,7 @@ void GasCoupling::make_work_fields() {
   diag_eps_ = grid_.make_field(), diag_div_ = grid_.make_field();
   for (int a = 0; a < 3; ++a)
     cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
+  cell_u_made_ = false; // new fields (a rebox: of a new solver)
 }
 
 std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
@@ -303,12 +304,9 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
   eps_p_.resize(n), beta_.resize(n);
   if (halo_)
     halo_->fill(eps, fluid::kCellCentred);
-  for (int a = 0; a < 3; ++a) {
+  for (int a = 0; a < 3; ++a)
     ug_[a].resize(n), bv_[a].resize(n);
-    solver_->cell_centred_velocity(a, cell_u_[a]);
-    if (halo_)
-      halo_->fill(cell_u_[a], fluid::kCellCentred);
-  }
+  make_cell_velocity();
   {
     const fluid::GridField* in[] = {&eps, &cell_u_[0], &cell_u_[1], &cell_u_[2]};
     const std::span<double> out[] = {eps_p_, ug_[0], ug_[1], ug_[2]};
@@ -403,14 +401,12 @@ void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {
       {p.x.data(), n}, {p.y.data(), n}, {p.z.data(), n}, {p.radius.data(), n}};
   const std::vector<double>* v[3] = {&p.vx, &p.vy, &p.vz};
   // The new gas velocity and the pressure gradient at the particles, in one pass.
+  make_cell_velocity();
   for (int a = 0; a < 3; ++a) {
     force_[a].resize(n), gp_[a].resize(n);
-    solver_->cell_centred_velocity(a, cell_u_[a]);
     solver_->cell_pressure_gradient(a, cell_gp_[a]);
-    if (halo_) {
-      halo_->fill(cell_u_[a], fluid::kCellCentred);
+    if (halo_)
       halo_->fill(cell_gp_[a], fluid::kCellCentred);
-    }
   }
   {
     const fluid::GridField* in[] = {&cell_u_[0],  &cell_u_[1],  &cell_u_[2],
@@ -427,6 +423,19 @@ void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {
     for (int a = 0; a < 3; ++a)
       force_[a][i] = beta_[i] * (ug_[a][i] - (*v[a])[i]) - vp * gp_[a][i];
   });
+}
+
+void GasCoupling::make_cell_velocity() {
+  const fluid::GasSolver& gas = *solver_;
+  if (cell_u_made_ && cell_u_version_ == gas.velocity_version())
+    return;
+  for (int a = 0; a < 3; ++a) {
+    gas.cell_centred_velocity(a, cell_u_[a]);
+    if (halo_)
+      halo_->fill(cell_u_[a], fluid::kCellCentred);
+  }
+  cell_u_made_ = true;
+  cell_u_version_ = gas.velocity_version();
 }
 
 FluidDiagnostics GasCoupling::diagnostics() const {

@@ -177,6 +177,13 @@ private:
   // inside the loop's first step).
   fluid::GridField eps_s_, eps_prev_;
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
+  // cell_u_ (ghosts filled) holds the solver's face velocities of this velocity_version() when
+  // cell_u_made_: interpolate_forces makes it after the gas step, and the next step's deposit,
+  // before which the gas does not move, reads it again (on R ranks: three halo fills a step).
+  bool cell_u_made_ = false;
+  std::uint64_t cell_u_version_ = 0;
+  // cell_u_ of the solver's velocity now, made unless it is already.
+  void make_cell_velocity();
   // diagnostics()'s scratch: eps_g with its ghosts, div(eps u), and per z-plane partial sums.
   mutable fluid::GridField diag_eps_, diag_div_;
   mutable std::vector<double> diag_sums_;

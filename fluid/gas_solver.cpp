@@ -440,6 +440,7 @@ void GasSolver::fill_ghosts_and_close() {
 }
 
 GasStepReport GasSolver::step(double dt) {
+  ++velocity_version_;
   fill_ghosts_and_close();
   return step_with_ghosts(dt, courant_rates());
 }
@@ -577,6 +578,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, const std::array<double, 2>
 }
 
 GasStepReport GasSolver::advance(double interval, int* substeps, double eps_interval) {
+  ++velocity_version_;
   if (!(interval > 0.0)) {
     throw std::runtime_error(fmt::format("fluid advance: interval {} is not positive", interval));
   }
@@ -723,6 +725,7 @@ GasSolver::State GasSolver::save_state() const {
 }
 
 void GasSolver::restore_state(const State& s) {
+  ++velocity_version_;
   const auto load = [](const std::vector<double>& from, GridField& to, const char* name) {
     if (from.size() != to.values().size()) {
       throw std::invalid_argument(fmt::format("gas state '{}' has {} values, the grid {}", name,

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <vector>
@@ -132,8 +133,16 @@ public:
   void use_simd_level(SimdLevel level);
 
   // Face velocities u, v, w [m/s]; boundary faces are overwritten from the BCs on each step.
-  [[nodiscard]] std::array<GridField, 3>& velocity() { return u_; }
+  // The mutable access counts as a change (velocity_version()).
+  [[nodiscard]] std::array<GridField, 3>& velocity() {
+    ++velocity_version_;
+    return u_;
+  }
   [[nodiscard]] const std::array<GridField, 3>& velocity() const { return u_; }
+  // Changes whenever the face velocities may have: each step() and advance(), restore_state()
+  // and each mutable velocity() access. A caller that keeps a field derived from them (the
+  // coupling's cell-centred velocity) reuses it while the version it was made at holds.
+  [[nodiscard]] std::uint64_t velocity_version() const { return velocity_version_; }
   // p' at cell centres [Pa]; the full gradient is grad p' + background_pressure_gradient().
   [[nodiscard]] GridField& pressure() { return p_; }
   [[nodiscard]] const GridField& pressure() const { return p_; }
@@ -249,6 +258,7 @@ private:
   SolidMask solid_; // a column's solid cells (empty for a box)
   std::array<double, 3> body_{};
   std::array<GridField, 3> u_;
+  std::uint64_t velocity_version_ = 0; // velocity_version()
   std::array<GridField, 3> u_start_;
   std::array<GridField, 3> rhs_;
   std::array<GridField, 3> rhs_stage_;

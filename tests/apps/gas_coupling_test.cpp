@@ -172,5 +172,41 @@ TEST(GasCoupling, DiagnosticsAreTheCellSumsOnAnyThreadCount) {
   EXPECT_NEAR(one.pressure_drop, drop, 1e-12 * p_size);
 }
 
+// The coupling keeps the cell-centred gas velocity it interpolated the forces from and deposits
+// the next step's drag from it while the gas has not moved. A change to the gas between steps
+// through the solver's mutable access must not be missed: the step after it gives the bits of a
+// coupling restarted from the changed state, which makes every field afresh, and they differ
+// from the step without the change.
+TEST(GasCoupling, NextDepositSeesAGasVelocityChangedBetweenSteps) {
+  const Scene scene = slab_scene();
+  ParticleStore p = make_initial_particles(scene);
+  for (double& vx : p.vx)
+    vx = 0.01; // a slip along x, so the drag law reads the gas velocity there
+  const auto forces = [](const GasCoupling& gas) {
+    std::vector<double> f;
+    for (int a = 0; a < 3; ++a)
+      f.insert(f.end(), gas.force(a).begin(), gas.force(a).end());
+    return f;
+  };
+  GasCoupling changed(scene, p), unchanged(scene, p);
+  changed.step(p, 1e-4);
+  unchanged.step(p, 1e-4);
+  for (double& u : changed.solver().velocity()[0].values())
+    u += 0.05;
+  const GasCoupling::State state = changed.save_state();
+  GasCoupling restarted(scene, p);
+  restarted.restore_state(state);
+  changed.step(p, 1e-4);
+  restarted.step(p, 1e-4);
+  unchanged.step(p, 1e-4);
+  const std::vector<double> f_changed = forces(changed), f_restarted = forces(restarted);
+  ASSERT_EQ(f_changed.size(), f_restarted.size());
+  for (std::size_t i = 0; i < f_changed.size(); ++i)
+    ASSERT_EQ(std::bit_cast<std::uint64_t>(f_changed[i]),
+              std::bit_cast<std::uint64_t>(f_restarted[i]))
+        << i;
+  EXPECT_NE(f_changed, forces(unchanged));
+}
+
 } // namespace
 } // namespace cfddem::apps

@@ -466,7 +466,7 @@ GasStepReport GasSolver::step_with_ghosts(double dt, const std::array<double, 2>
   const auto& n = grid_.cells();
   const double rho = settings_.gas.density;
   fill_cell_ghosts(grid_, halo_.get(), eps_, CellGhosts::zero_gradient);
-  if (viscosity_) {
+  if (viscosity_ && settings_.declare_eps) {
     // eps_ (ghosts included) stays as it is until this step's end: the viscous coefficients are
     // made from it once a step, not checked against a copy at every call.
     viscosity_->declare_eps(eps_);

@@ -80,6 +80,11 @@ struct GasSolverSettings {
   double viscous_guess_limit = 1.0;
   // One grid: the viscous solves preconditioned by the multigrid (false: Jacobi, as on R ranks).
   bool viscous_multigrid = true;
+  // The step declares its eps_g to the implicit viscosity once, after its ghost fill, and the
+  // viscous face coefficients are made once per step from it (ImplicitViscosity::declare_eps).
+  // false: every viscous call compares eps_g against a kept copy instead (tests: a write to eps_g
+  // between two viscous calls of a step would make the two paths differ).
+  bool declare_eps = true;
   int time_order = 2; // method of lines: 1, Euler; 2, predictor-corrector (Heun)
   // Projections per step with time_order 2: 1, the predictor takes the last step's pressure
   // gradient instead of a projection of its own (the lagged-pressure predictor of Bell, Colella

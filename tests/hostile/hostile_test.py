@@ -676,6 +676,26 @@ def dt_factor_warns_as_dem_dt(ctx):
 
 
 @case
+def nsubit_finer_than_the_particle_step_warns(ctx):
+    """dem.nsubit = 1e9 (a typo's size) made islands step every particle 1e9 times a fluid step
+    of 1e-4 s, each 1e-13 s long, with nothing said: the run never ended. check and run warn
+    when dt_sp falls below the particle step, naming the largest nsubit that does not; "auto"
+    and the scenes' own nsubit warn of nothing."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    expect(ctx, ["check", bed, "dem.scheme=islands", "dem.nsubit=1e9"], 0,
+           r"warning: dem.nsubit = 1000000000 makes the sub-iteration step dt_sp = 1e-13 s "
+           r"\(fluid.dt / nsubit\) shorter than the particle step dt = 1.45e-07 s: every particle "
+           r"steps 1.45e\+06x .* \(nsubit up to 690 keeps dt_sp >= dt\)")
+    expect(ctx, ["check", SMALL, "dem.scheme=orb", "dem.nsubit=1e6"], 0,
+           r"warning: dem.nsubit = 1000000 .* \(dem.regrid_interval / nsubit\)")
+    for args in (["dem.scheme=islands"], ["dem.scheme=orb", "dem.nsubit=35"]):
+        quiet = expect(ctx, ["check", bed, *args], 0, None)
+        assert "nsubit" not in "".join(l for l in quiet.splitlines() if "warning" in l), quiet
+    expect(ctx, ["run", SMALL, *TINY, "dem.scheme=orb", "dem.nsubit=1e6", "--quiet"], 0,
+           r"warning: dem.nsubit = 1000000 makes", out_dir=ctx.fresh("nsubit_fine"))
+
+
+@case
 def output_interval_below_dt_sp_warns(ctx):
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
            r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "

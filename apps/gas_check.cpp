@@ -99,6 +99,33 @@ void check_gas_numbers(const Scene& s) {
                     "velocity or {}",
                     speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl, kMaxCourantPerFluidStep,
                     step));
+  if (f.dt > 0.0) {
+    // The sub-steps advance() takes per fluid step at the scene's gas speeds, or the speed the
+    // body force gives a gas at rest in one fluid step where that is more (the riser starts at
+    // rest): the advective rate the sub-steps count (the viscous number is bounded below).
+    std::array<double, 3> axis_speed{}, length{};
+    for (std::size_t a = 0; a < 3; ++a)
+      length[a] = s.domain.length(static_cast<int>(a));
+    const auto gp0 = fluid::background_pressure_gradient(s.domain.periodic, f.pressure_drop, length,
+                                                         f.density, s.gravity);
+    for (std::size_t a = 0; a < 3; ++a)
+      axis_speed[a] = std::max({std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a]),
+                                std::abs(s.gravity[a] - gp0[a] / f.density) * f.dt});
+    const fluid::FluidStepRates rates = fluid::fluid_step_rates(
+        axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, fluid::advection_named(f.advection));
+    const double substeps = f.dt / fluid::courant_step(rates, f.cfl);
+    if (substeps > kMaxGasSubstepsPerFluidStep)
+      throw ConfigError(
+          "scene key 'fluid.cfl'",
+          fmt::format("{:g} makes the gas take {:.3g} sub-steps of {:.3g} s in every fluid step of "
+                      "{:g} s (fluid.dt) at the gas speed of {:.3g} m/s on cells of {:.3g} m, "
+                      "beyond the {:g} a run can take; raise fluid.cfl (the gas step is stable up "
+                      "to {:g})",
+                      f.cfl, substeps, fluid::courant_step(rates, f.cfl), f.dt,
+                      *std::max_element(axis_speed.begin(), axis_speed.end()), dx,
+                      kMaxGasSubstepsPerFluidStep,
+                      fluid::max_stable_courant(fluid::advection_named(f.advection))));
+  }
   const double nu = f.viscosity / f.density;
   const double viscous = nu * dt_f / (dx * dx);
   if (viscous > kMaxViscousNumber)

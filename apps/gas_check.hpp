@@ -33,6 +33,11 @@ void check_gas_memory(const Scene& scene, int ranks);
 // the drag-coupled pressure solves grows with it: 8.9e5 on scenes/settling.toml stops the
 // projection short of its tolerance at once, 8.9e7 runs 10 s before stopping, 1e299 hung).
 inline constexpr double kMaxCourantPerFluidStep = 1e4;
+// At most this many gas sub-steps per fixed fluid step from fluid.cfl: GasSolver::advance takes
+// dt_f in sub-steps of Courant number fluid.cfl, so a tiny cfl (1e-9 on the bed: 3e7 sub-steps)
+// makes the first fluid step never end, with no progress line. At cfl >= 0.1 the Courant bound
+// above is met first.
+inline constexpr double kMaxGasSubstepsPerFluidStep = 1e5;
 inline constexpr double kMaxViscousNumber = 1e8;
 
 // Throws ConfigError naming the key and the number when one is beyond what can run (extreme

@@ -572,6 +572,23 @@ def extreme_gas_values_refused(ctx):
 
 
 @case
+def tiny_cfl_refused(ctx):
+    """fluid.cfl = 1e-9 is inside the key's range (above 0) but makes the gas take its fixed
+    fluid step in millions of sub-steps: the first fluid step never ended, with no progress line
+    (the riser starts at rest, so its body force's speed after one fluid step counts). Refused,
+    naming the key and the sub-steps; cfl 1e-4 and the scenes' own values run."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    riser = os.path.join(SCENES, "riser.toml")
+    expect(ctx, ["check", bed, "fluid.cfl=1e-9"], 2,
+           r"scene key 'fluid.cfl': 1e-09 makes the gas take 7.5e\+06 sub-steps of 1.33e-11 s in "
+           r"every fluid step of 0.0001 s \(fluid.dt\)", timeout=10)
+    expect(ctx, ["run", riser, "fluid.cfl=1e-12"], 2,
+           r"scene key 'fluid.cfl': 1e-12 makes the gas take 1e\+10 sub-steps", timeout=10,
+           fresh=True)
+    expect(ctx, ["check", bed, "fluid.cfl=1e-4"], 0, None, timeout=30)
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

@@ -1,5 +1,6 @@
 #include "apps/derived_numbers.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -140,6 +141,11 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   d.contact_duration = dem::contact_duration(s.dem.spring_constant, e, mmin / 2);
   d.dt_per_contact = d.contact_duration / d.dt;
   d.steps = std::llround(s.run.end_time / d.dt);
+  d.list_cutoff = 2.0 * range.r_max + model.skin;
+  const double per_volume = static_cast<double>(range.count) / s.domain.particle_volume();
+  d.listed_neighbors =
+      std::min(static_cast<double>(range.count) - 1.0,
+               per_volume * 4.0 / 3.0 * std::numbers::pi * std::pow(d.list_cutoff, 3));
   return d;
 }
 

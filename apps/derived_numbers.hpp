@@ -27,6 +27,10 @@ struct DerivedNumbers {
   double contact_duration = 0;    // pi/omega_d for two of the lightest particles [s]
   double dt_per_contact = 0;      // contact duration / dt
   long long steps = 0;            // steps to run.end_time
+  // The Verlet list's neighbour cutoff plus skin (the largest diameter and the skin) and the
+  // neighbours it would list per particle at the domain's mean number density (at most every
+  // other particle): what a huge dem.neighbor_skin costs in every pair pass.
+  double list_cutoff = 0, listed_neighbors = 0;
   // d10/d50/d90 by volume and the Sauter mean (core/diameter_distribution.hpp), listed when the
   // sizes differ; from the whole set only (the one-rank derive(), as `cfddem check` calls it).
   SizeStatistics sizes;

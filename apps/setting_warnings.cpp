@@ -63,6 +63,12 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
           s.dem.nsubit, dt_sp, gas_sets ? "fluid.dt" : "dem.regrid_interval", d.dt, d.dt / dt_sp,
           std::floor(interval / d.dt * (1.0 + 1e-12))));
   }
+  if (s.dem.neighbor_skin > 0.0 && d.listed_neighbors > kManyListedNeighbors)
+    w.push_back(fmt::format(
+        "dem.neighbor_skin = {:g} m lists about {:.3g} neighbours per particle (those within "
+        "{:.3g} m, the largest diameter plus the skin, of {} particles in all), and every pair "
+        "pass evaluates each of them: the default, a quarter of the largest diameter, lists a few",
+        s.dem.neighbor_skin, d.listed_neighbors, d.list_cutoff, d.particles));
   // dem.dt's step count is known from the scene alone (setting_warnings).
   const double steps = s.run.end_time / d.dt;
   if (!by_dt && steps > kManySteps)

@@ -17,6 +17,9 @@ inline constexpr double kManySteps = 1e10;
 // omega dt < 2 stable, but a contact of 2.5 steps gains energy (an elastic gas heated 8% in 30
 // ms); the paper's tau_p/50 gives about 110.
 inline constexpr double kFewStepsPerContact = 10;
+// A skin that lists more neighbours than this per particle (the default lists about 9 in a packed
+// bed): each pair pass evaluates every listed pair.
+inline constexpr double kManyListedNeighbors = 1000;
 
 std::vector<std::string> setting_warnings(const Scene& scene);
 // The same for the particle step once the particles are known (dt from dem.dt_factor needs the

@@ -713,6 +713,25 @@ def nsubit_finer_than_the_particle_step_warns(ctx):
 
 
 @case
+def huge_neighbor_skin_warns(ctx):
+    """dem.neighbor_skin = 10 m on the bed's walled 1 cm column listed every particle as every
+    other's neighbour and ran for minutes a fluid step without a word (a periodic axis refuses
+    such a skin). check and run warn with the neighbours per particle; the default and a skin of
+    a few diameters do not."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    expect(ctx, ["check", bed, "dem.neighbor_skin=10"], 0,
+           r"warning: dem.neighbor_skin = 10 m lists about 1e\+04 neighbours per particle "
+           r"\(those within 10 m, the largest diameter plus the skin, of 10000 particles in all\)")
+    for args in ([], ["dem.neighbor_skin=3e-4"]):
+        quiet = expect(ctx, ["check", bed, *args], 0, None)
+        assert "neighbours" not in quiet, quiet
+    expect(ctx, ["run", SMALL, *TINY, "domain.periodic=[false,false,false]",
+                 "particles.count=2000", "dem.neighbor_skin=1", "--quiet"], 0,
+           r"warning: dem.neighbor_skin = 1 m lists about 2e\+03 neighbours",
+           out_dir=ctx.fresh("skin"))
+
+
+@case
 def output_interval_below_dt_sp_warns(ctx):
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
            r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "

@@ -74,7 +74,6 @@ ImplicitViscosity::ImplicitViscosity(const MacGrid& grid, const GridHalo* halo,
       dir_(grid.layout()), dir_next_(grid.layout()) {
   for (int b = 0; b < 3; ++b) {
     inflow_[b] = {grid.inflow_face(b, 0), grid.inflow_face(b, 1)};
-    eps_seen_[static_cast<std::size_t>(b)] = GridField(grid.layout());
     for (GridField& k : cv_k_[static_cast<std::size_t>(b)]) {
       k = GridField(grid.layout());
     }
@@ -102,6 +101,9 @@ void ImplicitViscosity::face_coefficients(int comp, const GridField& eps) {
     if (cv_k_valid_[c] && cv_k_declaration_[c] == 0 &&
         equal_values(eps.values(), eps_seen_[c].values())) {
       return;
+    }
+    if (eps_seen_[c].values().size() != layout.size()) {
+      eps_seen_[c] = GridField(layout); // only a caller that does not declare its eps needs it
     }
     copy_field(eps, eps_seen_[c]);
     cv_k_declaration_[c] = 0;

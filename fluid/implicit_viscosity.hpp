@@ -166,8 +166,9 @@ public:
   // N_b = -d_b(eps d_b) along axis b: three sweeps of tridiagonal line solves (cyclic on a
   // periodic axis) rather than iterations to a tolerance. Second order in time like the
   // trapezoidal solve it replaces (docs/gas_step.md, "The factored viscous step"). On a
-  // distributed grid the lines cross the boxes: each box solves its segments and one sum over
-  // the ranks per sweep carries their ends (the one grid's result up to round-off).
+  // distributed grid the lines cross the boxes: each box solves its segments and sends their
+  // ends to the boxes that share its lines (FactoredSweepLinks; the one grid's result up to
+  // round-off).
   ViscousSolveReport step_factored(int comp, double c, const GridField& eps, const GridField& diag,
                                    const GridField& rhs, GridField& u);
   // The factored step's scratch fields and end closures made now (the gas solver's set-up),
@@ -255,7 +256,7 @@ private:
   std::array<std::vector<char>, 3> regular_;
   // A column's open faces per component (the caller's SolidMask; null without a column).
   std::array<const double*, 3> open_{};
-  std::array<GridField, 3> eps_seen_;
+  std::array<GridField, 3> eps_seen_; // made at the first compared call (declare_eps: never)
   std::array<bool, 3> cv_k_valid_{};
   // declare_eps: the field and its declaration's number; per component, the declaration its
   // coefficients were made under (0: made from a compared copy, eps_seen_).

@@ -396,18 +396,19 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     // |1 - theta dt nu lambda| (lambda an eigenvalue of -L; 4.8 on the bed's cells), on the
     // modes stiff along two or three axes (docs/gas_step.md, "The factored viscous step"). In
     // the Godunov step u^n is u_ itself: nothing to copy.
-    if (!factored || &start[a] != &u_[a]) {
+    if (!factored) {
       for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
         const auto f = static_cast<std::size_t>(p);
-        if (factored) {
-          u_[a][f] = start[a][f];
-          return;
-        }
         const double rate =
             stage_rate(inputs.corrector, inputs.half_lap, inputs.rhs, inputs.rhs_stage,
                        inputs.lap_start, static_cast<std::ptrdiff_t>(f));
         const double lap = guess_lap ? theta * lap_start_[a][f] : 0.0;
         u_[a][f] = (start[a][f] + dt * (rate + lap) + push[f]) / gain[f];
+      });
+    } else if (&start[a] != &u_[a]) {
+      for_box(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t p) {
+        const auto f = static_cast<std::size_t>(p);
+        u_[a][f] = start[a][f];
       });
     }
     fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values

@@ -233,7 +233,7 @@ void GasCoupling::make_work_fields() {
   diag_eps_ = grid_.make_field(), diag_div_ = grid_.make_field();
   for (int a = 0; a < 3; ++a)
     cell_u_[a] = grid_.make_field(), cell_gp_[a] = grid_.make_field();
-  cell_u_made_ = false; // new fields (a rebox: of a new solver)
+  cell_u_version_.reset(); // new fields (a rebox: of a new solver)
 }
 
 std::size_t GasCoupling::rebox(const std::vector<CellBox>& boxes) {
@@ -427,14 +427,13 @@ void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {
 
 void GasCoupling::make_cell_velocity() {
   const fluid::GasSolver& gas = *solver_;
-  if (cell_u_made_ && cell_u_version_ == gas.velocity_version())
+  if (cell_u_version_ == gas.velocity_version())
     return;
   for (int a = 0; a < 3; ++a) {
     gas.cell_centred_velocity(a, cell_u_[a]);
     if (halo_)
       halo_->fill(cell_u_[a], fluid::kCellCentred);
   }
-  cell_u_made_ = true;
   cell_u_version_ = gas.velocity_version();
 }
 

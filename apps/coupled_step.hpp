@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -177,11 +178,10 @@ private:
   // inside the loop's first step).
   fluid::GridField eps_s_, eps_prev_;
   std::array<fluid::GridField, 3> cell_u_, cell_gp_; // cell-centred gas velocity, grad p
-  // cell_u_ (ghosts filled) holds the solver's face velocities of this velocity_version() when
-  // cell_u_made_: interpolate_forces makes it after the gas step, and the next step's deposit,
+  // The solver's velocity_version() cell_u_ (ghosts filled) was made at; none until made on
+  // these fields: interpolate_forces makes it after the gas step, and the next step's deposit,
   // before which the gas does not move, reads it again (on R ranks: three halo fills a step).
-  bool cell_u_made_ = false;
-  std::uint64_t cell_u_version_ = 0;
+  std::optional<std::uint64_t> cell_u_version_;
   // cell_u_ of the solver's velocity now, made unless it is already.
   void make_cell_velocity();
   // diagnostics()'s scratch: eps_g with its ghosts, div(eps u), and per z-plane partial sums.

@@ -52,6 +52,27 @@ std::int64_t gas_cells_on_plane(const fluid::MacGrid& grid, int a, int at) {
   return open;
 }
 
+// What drives the scene's gas: per axis its speed (the initial or the inflow velocity, whichever
+// is larger) and the body force per unit mass it sees (gravity less the background pressure
+// gradient over rho_g, fluid::background_pressure_gradient).
+struct GasDrive {
+  std::array<double, 3> speed{}, body{};
+};
+GasDrive gas_drive(const Scene& s) {
+  const auto& f = s.fluid;
+  GasDrive d;
+  std::array<double, 3> length{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    d.speed[a] = std::max(std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a]));
+    length[a] = s.domain.length(static_cast<int>(a));
+  }
+  const auto gp0 = fluid::background_pressure_gradient(s.domain.periodic, f.pressure_drop, length,
+                                                       f.density, s.gravity);
+  for (std::size_t a = 0; a < 3; ++a)
+    d.body[a] = s.gravity[a] - gp0[a] / f.density;
+  return d;
+}
+
 } // namespace
 
 double gas_memory_bytes(const Scene& s) {
@@ -84,9 +105,8 @@ void check_gas_numbers(const Scene& s) {
     return;
   const std::array<double, 3> spacing = cell_spacing(s);
   const double dx = *std::min_element(spacing.begin(), spacing.end());
-  double speed = 0.0;
-  for (std::size_t a = 0; a < 3; ++a)
-    speed = std::max({speed, std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a])});
+  const GasDrive drive = gas_drive(s);
+  const double speed = *std::max_element(drive.speed.begin(), drive.speed.end());
   const double dt_f = f.dt > 0.0 ? f.dt : f.max_dt;
   const char* step = f.dt > 0.0 ? "fluid.dt" : "fluid.max_dt";
   const double courant = speed * dt_f / dx;
@@ -103,17 +123,13 @@ void check_gas_numbers(const Scene& s) {
     // The sub-steps advance() takes per fluid step at the scene's gas speeds, or the speed the
     // body force gives a gas at rest in one fluid step where that is more (the riser starts at
     // rest): the advective rate the sub-steps count (the viscous number is bounded below).
-    std::array<double, 3> axis_speed{}, length{};
+    std::array<double, 3> axis_speed{};
     for (std::size_t a = 0; a < 3; ++a)
-      length[a] = s.domain.length(static_cast<int>(a));
-    const auto gp0 = fluid::background_pressure_gradient(s.domain.periodic, f.pressure_drop, length,
-                                                         f.density, s.gravity);
-    for (std::size_t a = 0; a < 3; ++a)
-      axis_speed[a] = std::max({std::abs(f.velocity[a]), std::abs(f.inflow_velocity[a]),
-                                std::abs(s.gravity[a] - gp0[a] / f.density) * f.dt});
+      axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
     const fluid::FluidStepRates rates = fluid::fluid_step_rates(
         axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, fluid::advection_named(f.advection));
-    const double substeps = f.dt / fluid::courant_step(rates, f.cfl);
+    const double substep = fluid::courant_step(rates, f.cfl);
+    const double substeps = f.dt / substep;
     if (substeps > kMaxGasSubstepsPerFluidStep)
       throw ConfigError(
           "scene key 'fluid.cfl'",
@@ -121,7 +137,7 @@ void check_gas_numbers(const Scene& s) {
                       "{:g} s (fluid.dt) at the gas speed of {:.3g} m/s on cells of {:.3g} m, "
                       "beyond the {:g} a run can take; raise fluid.cfl (the gas step is stable up "
                       "to {:g})",
-                      f.cfl, substeps, fluid::courant_step(rates, f.cfl), f.dt,
+                      f.cfl, substeps, substep, f.dt,
                       *std::max_element(axis_speed.begin(), axis_speed.end()), dx,
                       kMaxGasSubstepsPerFluidStep,
                       fluid::max_stable_courant(fluid::advection_named(f.advection))));
@@ -208,18 +224,10 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     // and inflow gas velocities and the body force, its cap from fluid.max_dt and the Stokes
     // time of the lightest particle (a dense bed's drag time is shorter: the run takes it from
     // the drag law at each fluid step).
-    std::array<double, 3> speed{}, length{}, body{};
-    for (std::size_t k = 0; k < 3; ++k) {
-      speed[k] = std::max(std::abs(f.velocity[k]), std::abs(f.inflow_velocity[k]));
-      length[k] = s.domain.length(static_cast<int>(k));
-    }
-    const auto gp0 = fluid::background_pressure_gradient(s.domain.periodic, f.pressure_drop,
-                                                         length, f.density, s.gravity);
-    for (std::size_t k = 0; k < 3; ++k)
-      body[k] = s.gravity[k] - gp0[k] / f.density;
+    const GasDrive drive = gas_drive(s);
     const fluid::FluidStepRates r =
-        fluid::fluid_step_rates(speed, dx, f.viscosity / f.density,
-                                !f.implicit_viscosity && !f.implicit_viscosity_auto, body,
+        fluid::fluid_step_rates(drive.speed, dx, f.viscosity / f.density,
+                                !f.implicit_viscosity && !f.implicit_viscosity_auto, drive.body,
                                 fluid::advection_named(f.advection));
     fluid::FluidStepCaps caps; // no previous step
     caps.max_dt = f.max_dt;

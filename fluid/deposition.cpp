@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <numbers>
 #include <type_traits>
 #include <vector>
@@ -14,6 +15,7 @@
 
 #include <fmt/format.h>
 
+#include "core/simd_level.hpp"
 #include "core/usable_threads.hpp"
 #include "fluid/diffusion_smoothing.hpp"
 #include "fluid/trilinear_weights.hpp"
@@ -245,7 +247,11 @@ void Deposition::for_each_weight(const std::array<double, 3>& x, double radius,
         const double w = weight[m++];
         if (w != 0.0) {
           const int i = short_row ? fx[static_cast<std::size_t>(a)] : fold(0, s.lo[0] + a);
-          visit(static_cast<std::size_t>(row + i), w);
+          if constexpr (std::is_invocable_v<Visit, std::size_t, double, int>) {
+            visit(static_cast<std::size_t>(row + i), w, a); // the cell's place in its row
+          } else {
+            visit(static_cast<std::size_t>(row + i), w);
+          }
         }
       }
     }
@@ -405,6 +411,97 @@ template <class F> void with_planned(const TransferPlan* plan, F&& f) {
     return with_fixed_cells(*plan, [&](auto fixed_cells) { f(std::true_type{}, fixed_cells); });
   }
   return f(std::false_type{}, std::integral_constant<int, 0>{});
+}
+
+// The wide kernels' gathers (dpvm: 4 to 6 cells along x) sum each field in five lanes, not in
+// one running sum: a row's first four cells go to lanes 0-3, its further cells to lane 4, and the
+// lanes are added in a fixed order at the end. One running sum is a chain of 125 dependent
+// additions per field, which bounded the bed's gathers (3 cycles each); the lanes are four
+// independent chains a row long, and the contiguous rows load as four-wide vectors. The
+// arithmetic is fixed per cell (w = (w_x w_y) w_z, then lane += w v, no contraction), so the
+// vector and scalar walks, the planned and computed kernels, every SIMD level and every rank
+// count give the same bits. The trilinear kernel (two cells a row) keeps its one running sum.
+constexpr int kGatherLanes = 5;
+constexpr int gather_lane(int a) {
+  return a < 4 ? a : 4;
+}
+inline double lanes_total(const std::array<double, kGatherLanes>& l) {
+  return ((l[0] + l[1]) + (l[2] + l[3])) + l[4];
+}
+// Four doubles: one AVX2 register, or two SSE2 ones in the baseline build (the same operations).
+using Lanes4 = double __attribute__((vector_size(32)));
+
+// Particle q's planned gather of n_f fields (fixed_cells 0) into sum[0, n_f), in lanes as above.
+template <class FieldCount>
+[[gnu::always_inline]] inline void
+gather_planned_lanes(const TransferPlan& plan, const GridLayout& layout, std::size_t q,
+                     const std::array<const double*, kMaxDepositFields>& in, FieldCount count,
+                     std::array<double, kMaxDepositFields>& sum) {
+  const std::size_t n_f = count;
+  const std::size_t base = q * static_cast<std::size_t>(plan.stride);
+  const double* wx = plan.factor.data() + base;
+  const double* wy = wx + plan.slots[0];
+  const double* wz = wy + plan.slots[1];
+  const std::int32_t* ix = plan.index.data() + base;
+  const std::int32_t* iy = ix + plan.slots[0];
+  const std::int32_t* iz = iy + plan.slots[1];
+  const std::uint8_t* n = plan.cells.data() + 3 * q;
+  const int nx = n[0];
+  const int ny = n[1];
+  const int nz = n[2];
+  // Rows of 4 or 5 cells in consecutive memory (no wall or periodic fold along x): vectors.
+  bool consecutive = nx == 4 || nx == 5;
+  for (int a = 1; consecutive && a < nx; ++a) {
+    consecutive = ix[a] == ix[0] + a;
+  }
+  if (consecutive) {
+    const auto rows = [&](auto fifth) {
+      const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};
+      const double wx5 = fifth ? wx[4] : 0.0;
+      std::array<Lanes4, kMaxDepositFields> acc{};
+      std::array<double, kMaxDepositFields> tail{};
+      for (int c = 0; c < nz; ++c) {
+        for (int b = 0; b < ny; ++b) {
+          const std::size_t row = layout.index(ix[0], iy[b], iz[c]);
+          const Lanes4 w = (wx4 * wy[b]) * wz[c];
+          const double w5 = (wx5 * wy[b]) * wz[c];
+          for (std::size_t f = 0; f < n_f; ++f) {
+            Lanes4 v;
+            std::memcpy(&v, in[f] + row, sizeof v);
+            acc[f] += w * v;
+            if constexpr (decltype(fifth)::value) {
+              tail[f] += w5 * in[f][row + 4];
+            }
+          }
+        }
+      }
+      for (std::size_t f = 0; f < n_f; ++f) {
+        sum[f] = ((acc[f][0] + acc[f][1]) + (acc[f][2] + acc[f][3])) + tail[f];
+      }
+    };
+    if (nx == 5) {
+      rows(std::true_type{});
+    } else {
+      rows(std::false_type{});
+    }
+    return;
+  }
+  std::array<std::array<double, kGatherLanes>, kMaxDepositFields> lanes{};
+  for (int c = 0; c < nz; ++c) {
+    for (int b = 0; b < ny; ++b) {
+      const std::size_t row = layout.index(0, iy[b], iz[c]);
+      for (int a = 0; a < nx; ++a) {
+        const double w = (wx[a] * wy[b]) * wz[c];
+        const auto idx = static_cast<std::size_t>(static_cast<std::ptrdiff_t>(row) + ix[a]);
+        for (std::size_t f = 0; f < n_f; ++f) {
+          lanes[f][static_cast<std::size_t>(gather_lane(a))] += w * in[f][idx];
+        }
+      }
+    }
+  }
+  for (std::size_t f = 0; f < n_f; ++f) {
+    sum[f] = lanes_total(lanes[f]);
+  }
 }
 
 } // namespace
@@ -633,11 +730,27 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
   // into TBB's task body) GCC keeps the sums and the fields' pointers in registers; the shared
   // forms measured 115 M -> 145 M instructions over the bed's first 3 fluid steps.
   const bool planned = from_plan(plan);
+  const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
+  const GridLayout& layout = grid_.layout();
+  const SimdLevel simd = simd_level();
   with_field_count(nf, [&](auto count_of_fields) {
     const std::size_t n_f = count_of_fields;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                         const std::array<const double*, kMaxFields> in = value;
+                        if (planned && plan->fixed_cells == 0) {
+                          // The wide kernels' lanes, compiled for the CPU's vectors.
+                          at_simd_level(simd, [&]() CFDDEM_SIMD_BODY {
+                            for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                              std::array<double, kMaxFields> sum;
+                              gather_planned_lanes(*plan, layout, q, in, count_of_fields, sum);
+                              for (std::size_t f = 0; f < n_f; ++f) {
+                                outs[f][q] = sum[f];
+                              }
+                            }
+                          });
+                          return;
+                        }
                         if (planned) {
                           const auto gather = [&](auto fixed_cells) {
                             for (std::size_t q = r.begin(); q != r.end(); ++q) {
@@ -657,6 +770,23 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
                           return;
                         }
                         std::vector<double> buf(weights_.size());
+                        if (!trilinear) { // the lanes of gather_planned_lanes, cell by cell
+                          for (std::size_t q = r.begin(); q != r.end(); ++q) {
+                            std::array<std::array<double, kGatherLanes>, kMaxFields> lanes{};
+                            for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,
+                                            [&](std::size_t idx, double w, int a) {
+                                              const auto l =
+                                                  static_cast<std::size_t>(gather_lane(a));
+                                              for (std::size_t f = 0; f < n_f; ++f) {
+                                                lanes[f][l] += w * in[f][idx];
+                                              }
+                                            });
+                            for (std::size_t f = 0; f < n_f; ++f) {
+                              outs[f][q] = lanes_total(lanes[f]);
+                            }
+                          }
+                          return;
+                        }
                         for (std::size_t q = r.begin(); q != r.end(); ++q) {
                           std::array<double, kMaxFields> sum{};
                           for_each_weight({p.x[q], p.y[q], p.z[q]}, p.radius[q], buf,

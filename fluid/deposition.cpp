@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <numbers>
 #include <type_traits>
 #include <vector>
@@ -431,6 +432,16 @@ inline double lanes_total(const std::array<double, kGatherLanes>& l) {
 // Four doubles: one AVX2 register, or two SSE2 ones in the baseline build (the same operations).
 using Lanes4 = double __attribute__((vector_size(32)));
 
+// Whether a kernel's rows are 4 or 5 cells in consecutive memory (no wall or periodic fold along
+// x): the planned passes take those as vectors.
+inline bool consecutive_row(const std::int32_t* ix, int nx) {
+  bool consecutive = nx == 4 || nx == 5;
+  for (int a = 1; consecutive && a < nx; ++a) {
+    consecutive = ix[a] == ix[0] + a;
+  }
+  return consecutive;
+}
+
 // Particle q's planned gather of n_f fields (fixed_cells 0) into sum[0, n_f), in lanes as above.
 template <class FieldCount>
 [[gnu::always_inline]] inline void
@@ -449,12 +460,7 @@ gather_planned_lanes(const TransferPlan& plan, const GridLayout& layout, std::si
   const int nx = n[0];
   const int ny = n[1];
   const int nz = n[2];
-  // Rows of 4 or 5 cells in consecutive memory (no wall or periodic fold along x): vectors.
-  bool consecutive = nx == 4 || nx == 5;
-  for (int a = 1; consecutive && a < nx; ++a) {
-    consecutive = ix[a] == ix[0] + a;
-  }
-  if (consecutive) {
+  if (consecutive_row(ix, nx)) {
     const auto rows = [&](auto fifth) {
       const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};
       const double wx5 = fifth ? wx[4] : 0.0;
@@ -504,6 +510,77 @@ gather_planned_lanes(const TransferPlan& plan, const GridLayout& layout, std::si
   }
 }
 
+// Particle q's planned deposit (fixed_cells 0) of vq[0, n_f) onto out, on the k-planes [k0, k1):
+// out += w v cell by cell, as for_each_planned_weight's walk adds them (each cell's sum the same
+// bits), with consecutive rows of 4 or 5 cells as four-wide vectors and a fifth cell.
+template <class FieldCount>
+[[gnu::always_inline]] inline void
+scatter_planned_rows(const TransferPlan& plan, const GridLayout& layout, std::size_t q,
+                     const std::array<double*, kMaxDepositFields>& out,
+                     const std::array<double, kMaxDepositFields>& vq, FieldCount count, int k0,
+                     int k1) {
+  const std::size_t n_f = count;
+  const std::size_t base = q * static_cast<std::size_t>(plan.stride);
+  const double* wx = plan.factor.data() + base;
+  const double* wy = wx + plan.slots[0];
+  const double* wz = wy + plan.slots[1];
+  const std::int32_t* ix = plan.index.data() + base;
+  const std::int32_t* iy = ix + plan.slots[0];
+  const std::int32_t* iz = iy + plan.slots[1];
+  const std::uint8_t* n = plan.cells.data() + 3 * q;
+  const int nx = n[0];
+  const int ny = n[1];
+  const int nz = n[2];
+  if (consecutive_row(ix, nx)) {
+    const auto rows = [&](auto fifth) {
+      const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};
+      const double wx5 = fifth ? wx[4] : 0.0;
+      for (int c = 0; c < nz; ++c) {
+        if (iz[c] < k0 || iz[c] >= k1) {
+          continue;
+        }
+        for (int b = 0; b < ny; ++b) {
+          const std::size_t row = layout.index(ix[0], iy[b], iz[c]);
+          const Lanes4 w = (wx4 * wy[b]) * wz[c];
+          const double w5 = (wx5 * wy[b]) * wz[c];
+          for (std::size_t f = 0; f < n_f; ++f) {
+            Lanes4 o;
+            std::memcpy(&o, out[f] + row, sizeof o);
+            o += w * vq[f];
+            std::memcpy(out[f] + row, &o, sizeof o);
+            if constexpr (decltype(fifth)::value) {
+              out[f][row + 4] += w5 * vq[f];
+            }
+          }
+        }
+      }
+    };
+    if (nx == 5) {
+      rows(std::true_type{});
+    } else {
+      rows(std::false_type{});
+    }
+    return;
+  }
+  for (int c = 0; c < nz; ++c) {
+    if (iz[c] < k0 || iz[c] >= k1) {
+      continue;
+    }
+    for (int b = 0; b < ny; ++b) {
+      const auto row = static_cast<std::ptrdiff_t>(layout.index(0, iy[b], iz[c]));
+      for (int a = 0; a < nx; ++a) {
+        const double w = (wx[a] * wy[b]) * wz[c];
+        if (w != 0.0) {
+          const auto idx = static_cast<std::size_t>(row + ix[a]);
+          for (std::size_t f = 0; f < n_f; ++f) {
+            out[f][idx] += w * vq[f];
+          }
+        }
+      }
+    }
+  }
+}
+
 } // namespace
 
 void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, std::size_t count,
@@ -520,6 +597,18 @@ void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, s
       with_field_count(nf, [&](auto count_of_fields) {
         const std::size_t n_f = count_of_fields;
         std::array<double, kMaxDepositFields> vq{};
+        if constexpr (decltype(planned)::value && decltype(fixed_cells)::value == 0) {
+          const GridLayout& layout = grid_.layout();
+          at_simd_level(simd_level(), [&]() CFDDEM_SIMD_BODY {
+            for (std::size_t q = 0; q < count; ++q) {
+              std::copy_n(v + q * n_f, n_f, vq.begin());
+              scatter_planned_rows(*plan, layout, q, out, vq, count_of_fields,
+                                   std::numeric_limits<int>::min(),
+                                   std::numeric_limits<int>::max());
+            }
+          });
+          return;
+        }
         for (std::size_t q = 0; q < count; ++q) {
           std::copy_n(v + q * n_f, n_f, vq.begin());
           visit_kernel<decltype(planned)::value, decltype(fixed_cells)::value>(
@@ -559,6 +648,7 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
   // cells within its half-width, with a cell to spare.
   const bool planned = from_plan(plan);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
+  const SimdLevel simd = simd_level();
   if (!planned) {
     reach_.resize(count);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
@@ -619,6 +709,19 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
         with_planned(plan, [&](auto kernel_planned, auto fixed_cells) {
           with_field_count(nf, [&](auto count_of_fields) {
             const std::size_t n_f = count_of_fields;
+            if constexpr (decltype(kernel_planned)::value && decltype(fixed_cells)::value == 0) {
+              const GridLayout& layout = grid_.layout();
+              at_simd_level(simd, [&]() CFDDEM_SIMD_BODY {
+                for (std::size_t q = 0; q < count; ++q) {
+                  if (!touches(q)) {
+                    continue;
+                  }
+                  std::copy_n(v + q * n_f, n_f, vq.begin());
+                  scatter_planned_rows(*plan, layout, q, out, vq, count_of_fields, k0, k1);
+                }
+              });
+              return;
+            }
             for (std::size_t q = 0; q < count; ++q) {
               if (!touches(q)) {
                 continue;

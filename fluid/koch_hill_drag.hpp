@@ -35,7 +35,11 @@ struct KochHillCoefficients {
   // MFIX leaves F1 undefined for phi <= 0.01, where it is never used.
   c.f1 = phi <= 0.1 ? (phi > 0.0 ? std::sqrt(2.0 / phi) / 40.0 : 0.0)
                     : 0.11 + 5.1e-4 * std::exp(11.6 * phi);
-  c.f3 = phi < 0.0953 ? 0.9351 * phi + 0.03667 : 0.0673 + 0.212 * phi + 0.0232 / std::pow(eps, 5);
+  // eps^5 by multiplication, as Fortran evaluates an integer power (MFIX's (ONE-PHIS)**5): std::pow
+  // cost each particle of the bed about 25 ns per fluid step (perf).
+  const double eps2 = eps * eps;
+  c.f3 =
+      phi < 0.0953 ? 0.9351 * phi + 0.03667 : 0.0673 + 0.212 * phi + 0.0232 / (eps2 * eps2 * eps);
   return c;
 }
 

@@ -599,7 +599,7 @@ void Deposition::scatter(const TransferPlan* plan, const ParticlePositions& p, s
         std::array<double, kMaxDepositFields> vq{};
         if constexpr (decltype(planned)::value && decltype(fixed_cells)::value == 0) {
           const GridLayout& layout = grid_.layout();
-          at_simd_level(simd_level(), [&]() CFDDEM_SIMD_BODY {
+          at_simd_level(level_, [&]() CFDDEM_SIMD_BODY {
             for (std::size_t q = 0; q < count; ++q) {
               std::copy_n(v + q * n_f, n_f, vq.begin());
               scatter_planned_rows(*plan, layout, q, out, vq, count_of_fields,
@@ -648,7 +648,7 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
   // cells within its half-width, with a cell to spare.
   const bool planned = from_plan(plan);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
-  const SimdLevel simd = simd_level();
+  const SimdLevel simd = level_;
   if (!planned) {
     reach_.resize(count);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
@@ -835,7 +835,7 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
   const bool planned = from_plan(plan);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
   const GridLayout& layout = grid_.layout();
-  const SimdLevel simd = simd_level();
+  const SimdLevel simd = level_;
   with_field_count(nf, [&](auto count_of_fields) {
     const std::size_t n_f = count_of_fields;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),

@@ -10,6 +10,7 @@
 #include <string_view>
 #include <vector>
 
+#include "core/simd_level.hpp"
 #include "fluid/dpvm_weights.hpp"
 #include "fluid/grid_field.hpp"
 #include "fluid/grid_halo.hpp"
@@ -86,6 +87,10 @@ public:
 
   [[nodiscard]] const DepositionSettings& settings() const { return settings_; }
 
+  // The instruction set of the wide kernels' row loops (core/simd_level.hpp), simd_level() unless
+  // set: every level gives the same bits, which a test checks against the baseline's.
+  void use_simd_level(SimdLevel level) { level_ = level; }
+
 private:
   // A particle's kernel: its cells, with the weights in `buf` (grown for large particles), so
   // concurrent callers pass their own buffers.
@@ -147,6 +152,7 @@ private:
   MacGrid grid_;
   DepositionSettings settings_;
   const GridHalo* halo_ = nullptr;
+  SimdLevel level_ = simd_level();
   // The kernel radius weights_ was sized for (width x max_radius): a kernel no larger fits it.
   double sized_kernel_radius_ = 0.0;
   std::vector<double> weights_;

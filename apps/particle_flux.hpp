@@ -4,20 +4,27 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <span>
+#include <string>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include "apps/checkpoint.hpp"
 #include "apps/particle_inlet.hpp"
 #include "apps/particle_outflow.hpp"
 #include "core/communicator.hpp"
+#include "core/error.hpp"
 #include "core/particle_store.hpp"
 #include "core/phase_timer.hpp"
 #include "core/scene.hpp"
 #include "dem/state_edit.hpp"
 #include "dem/step_model.hpp"
+#include "dem/step_report.hpp"
+#include "dem/verlet_passes.hpp"
 #include "partition/rank_decomposition.hpp"
 
 namespace cfddem::apps {
@@ -29,6 +36,30 @@ struct ParticleFlux {
   OutflowFaces outflow;
   ParticleInlet inlet;
 };
+
+// A leaving particle on a velocity the particle step cannot follow (not finite, or more than the
+// smallest radius per step: dem/verlet_passes.hpp's find_fault) is a failed step, not an outflow:
+// removed, it would end the run as if nothing were wrong. The first such among `leaving`, in the
+// words of the particle step's own stop, with its id; an empty message when none.
+struct LeavingFault {
+  std::int64_t id = 0;
+  std::string message;
+};
+inline LeavingFault leaving_fault(const ParticleStore& p, const std::vector<std::uint32_t>& leaving,
+                                  const dem::StepModel& m) {
+  const double vmax = m.r_min / m.dt;
+  dem::StepReport report;
+  for (const std::uint32_t i : leaving) {
+    const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+    if (!std::isfinite(u2) || !std::isfinite(p.x[i] + p.y[i] + p.z[i]))
+      report.flag(i, dem::StepFault::nan, u2);
+    else if (!(u2 <= vmax * vmax))
+      report.flag(i, dem::StepFault::speed, std::sqrt(u2));
+    if (report.bad != dem::kNoParticle)
+      return {static_cast<std::int64_t>(p.id[i]), dem::describe_fault(p, report, m)};
+  }
+  return {};
+}
 
 // Particles leaving through an outflow face and entering through the inlet at the start of a
 // fluid step of dt_f (the rules: apps/particle_outflow.hpp, apps/particle_inlet.hpp). The
@@ -52,6 +83,12 @@ std::int64_t change_particles(const ParticleFlux& flux, std::optional<Run>& run,
   if (flux.outflow.any()) {
     const std::vector<std::uint32_t> leaving =
         leaving_particles(particles, run->owned(), flux.outflow, dt_f);
+    // Every rank stops on the same fault (the smallest id's), before any particle is taken out.
+    const LeavingFault fault = leaving_fault(particles, leaving, run->scheme.model());
+    const std::string agreed = comm.agree_on_error(fault.id, fault.message);
+    if (!agreed.empty())
+      throw RunError(
+          fmt::format("t = {:.9g} s, leaving through an outflow face: {}", loop.time, agreed));
     n_leaving = leaving.size();
     if (comm.size() > 1)
       n_leaving = static_cast<std::size_t>(comm.sum(static_cast<std::int64_t>(n_leaving)));

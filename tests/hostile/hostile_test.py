@@ -745,6 +745,22 @@ def unstable_step_is_a_configuration_error(ctx):
 
 
 @case
+def particles_too_fast_at_an_outflow_face_stop(ctx):
+    """gravity = 1e10 m/s^2 gives the bed's particles 724 m/s in their first half kick, 5 mm per
+    particle step of 1.4e-7 s in a 5 mm column: the outflow face took all 10,000 of them out
+    before the particle step could see the speed, and the run ended with exit 0 and no particles.
+    A particle leaving faster than the particle step can follow stops the run, as the step's own
+    check does (exit 3), naming it."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    args = ["run", bed, "gravity=[0,-1e10,0]", "run.end_time=2e-4", "--quiet"]
+    expect(ctx, args, 3,
+           r"t = 0 s, leaving through an outflow face: particle 0 at \(5\.33333e-05, "
+           r"5\.10638e-05, 5\.33333e-05\) m: speed 723\.6 m/s moves it more than the smallest "
+           r"radius in one step \(dt = 1\.447e-07 s\): contacts could be missed \(tunnelling\)",
+           out_dir=ctx.fresh("outflow_too_fast"))
+
+
+@case
 def banner_and_summary_agree(ctx):
     """The orb banner's sub-iteration count is the summary's (which adds the one that completes
     the last row, and says so); a coupled orb banner names dt_sp and the fine dt."""

@@ -442,6 +442,28 @@ inline bool consecutive_row(const std::int32_t* ix, int nx) {
   return consecutive;
 }
 
+// Particle q's kernel in a plan: its factors and folded indices along x, y, z, and its cells.
+struct PlannedKernel {
+  const double *wx, *wy, *wz;
+  const std::int32_t *ix, *iy, *iz;
+  int nx, ny, nz;
+};
+inline PlannedKernel planned_kernel(const TransferPlan& plan, std::size_t q) {
+  const std::size_t base = q * static_cast<std::size_t>(plan.stride);
+  const double* wx = plan.factor.data() + base;
+  const std::int32_t* ix = plan.index.data() + base;
+  const std::uint8_t* n = plan.cells.data() + 3 * q;
+  return {wx,
+          wx + plan.slots[0],
+          wx + plan.slots[0] + plan.slots[1],
+          ix,
+          ix + plan.slots[0],
+          ix + plan.slots[0] + plan.slots[1],
+          n[0],
+          n[1],
+          n[2]};
+}
+
 // Particle q's planned gather of n_f fields (fixed_cells 0) into sum[0, n_f), in lanes as above.
 template <class FieldCount>
 [[gnu::always_inline]] inline void
@@ -449,17 +471,7 @@ gather_planned_lanes(const TransferPlan& plan, const GridLayout& layout, std::si
                      const std::array<const double*, kMaxDepositFields>& in, FieldCount count,
                      std::array<double, kMaxDepositFields>& sum) {
   const std::size_t n_f = count;
-  const std::size_t base = q * static_cast<std::size_t>(plan.stride);
-  const double* wx = plan.factor.data() + base;
-  const double* wy = wx + plan.slots[0];
-  const double* wz = wy + plan.slots[1];
-  const std::int32_t* ix = plan.index.data() + base;
-  const std::int32_t* iy = ix + plan.slots[0];
-  const std::int32_t* iz = iy + plan.slots[1];
-  const std::uint8_t* n = plan.cells.data() + 3 * q;
-  const int nx = n[0];
-  const int ny = n[1];
-  const int nz = n[2];
+  const auto [wx, wy, wz, ix, iy, iz, nx, ny, nz] = planned_kernel(plan, q);
   if (consecutive_row(ix, nx)) {
     const auto rows = [&](auto fifth) {
       const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};
@@ -511,8 +523,10 @@ gather_planned_lanes(const TransferPlan& plan, const GridLayout& layout, std::si
 }
 
 // Particle q's planned deposit (fixed_cells 0) of vq[0, n_f) onto out, on the k-planes [k0, k1):
-// out += w v cell by cell, as for_each_planned_weight's walk adds them (each cell's sum the same
-// bits), with consecutive rows of 4 or 5 cells as four-wide vectors and a fifth cell.
+// out += w v cell by cell, as for_each_planned_weight's walk adds them, with consecutive rows of
+// 4 or 5 cells as four-wide vectors and a fifth cell. Each cell's sum has the walk's bits: the
+// vectors also add the walk's skipped weights of 0, and x + (+-0) is x for a sum that starts at +0
+// (finite values).
 template <class FieldCount>
 [[gnu::always_inline]] inline void
 scatter_planned_rows(const TransferPlan& plan, const GridLayout& layout, std::size_t q,
@@ -520,17 +534,7 @@ scatter_planned_rows(const TransferPlan& plan, const GridLayout& layout, std::si
                      const std::array<double, kMaxDepositFields>& vq, FieldCount count, int k0,
                      int k1) {
   const std::size_t n_f = count;
-  const std::size_t base = q * static_cast<std::size_t>(plan.stride);
-  const double* wx = plan.factor.data() + base;
-  const double* wy = wx + plan.slots[0];
-  const double* wz = wy + plan.slots[1];
-  const std::int32_t* ix = plan.index.data() + base;
-  const std::int32_t* iy = ix + plan.slots[0];
-  const std::int32_t* iz = iy + plan.slots[1];
-  const std::uint8_t* n = plan.cells.data() + 3 * q;
-  const int nx = n[0];
-  const int ny = n[1];
-  const int nz = n[2];
+  const auto [wx, wy, wz, ix, iy, iz, nx, ny, nz] = planned_kernel(plan, q);
   if (consecutive_row(ix, nx)) {
     const auto rows = [&](auto fifth) {
       const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};

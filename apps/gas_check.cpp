@@ -141,6 +141,28 @@ void check_gas_numbers(const Scene& s) {
                       *std::max_element(axis_speed.begin(), axis_speed.end()), dx,
                       kMaxGasSubstepsPerFluidStep,
                       fluid::max_stable_courant(fluid::advection_named(f.advection))));
+  } else {
+    // An adaptive fluid step starts where the step rule puts it at the scene's gas speeds and
+    // body force (check's "first"), and a tiny cfl holds it there: refused as the fixed step's
+    // sub-steps are, counting its steps in fluid.max_dt, the longest it may take. The viscous
+    // rate is left out, as above.
+    const fluid::FluidStepRates rates = fluid::fluid_step_rates(
+        drive.speed, spacing, 0.0, false, drive.body, fluid::advection_named(f.advection));
+    fluid::FluidStepCaps caps;
+    caps.max_dt = f.max_dt;
+    const double first = fluid::next_fluid_step(rates, f.cfl, caps, f.max_dt);
+    const double steps = f.max_dt / first;
+    if (steps > kMaxGasSubstepsPerFluidStep)
+      throw ConfigError(
+          "scene key 'fluid.cfl'",
+          fmt::format("{:g} makes the adaptive fluid step {:.3g} s, {:.3g} steps in every {:g} s "
+                      "(fluid.max_dt), at the gas speed of {:.3g} m/s and a body force of {:.3g} "
+                      "m/s^2 on cells of {:.3g} m, beyond the {:g} a run can take; raise "
+                      "fluid.cfl (the gas step is stable up to {:g})",
+                      f.cfl, first, steps, f.max_dt, speed,
+                      std::hypot(drive.body[0], drive.body[1], drive.body[2]), dx,
+                      kMaxGasSubstepsPerFluidStep,
+                      fluid::max_stable_courant(fluid::advection_named(f.advection))));
   }
   const double nu = f.viscosity / f.density;
   const double viscous = nu * dt_f / (dx * dx);

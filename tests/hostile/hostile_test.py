@@ -576,7 +576,9 @@ def tiny_cfl_refused(ctx):
     """fluid.cfl = 1e-9 is inside the key's range (above 0) but makes the gas take its fixed
     fluid step in millions of sub-steps: the first fluid step never ended, with no progress line
     (the riser starts at rest, so its body force's speed after one fluid step counts). Refused,
-    naming the key and the sub-steps; cfl 1e-4 and the scenes' own values run."""
+    naming the key and the sub-steps; cfl 1e-4 and the scenes' own values run. An adaptive fluid
+    step (fluid.dt = 0) shrank to 1e-11 s and ran on for days: refused the same way, counting its
+    steps in fluid.max_dt."""
     bed = os.path.join(SCENES, "fluidized_bed.toml")
     riser = os.path.join(SCENES, "riser.toml")
     expect(ctx, ["check", bed, "fluid.cfl=1e-9"], 2,
@@ -586,6 +588,11 @@ def tiny_cfl_refused(ctx):
            r"scene key 'fluid.cfl': 1e-12 makes the gas take 1e\+10 sub-steps", timeout=10,
            fresh=True)
     expect(ctx, ["check", bed, "fluid.cfl=1e-4"], 0, None, timeout=30)
+    # The adaptive fluid step shrinks to the same Courant bound: fluid.max_dt stands for its span.
+    expect(ctx, ["check", bed, "fluid.dt=0", "fluid.cfl=1e-9"], 2,
+           r"scene key 'fluid.cfl': 1e-09 makes the adaptive fluid step 1.33e-11 s, 7.5e\+07 "
+           r"steps in every 0.001 s \(fluid.max_dt\)", timeout=10)
+    expect(ctx, ["check", bed, "fluid.dt=0", "fluid.cfl=1e-4"], 0, None, timeout=30)
 
 
 @case

@@ -464,6 +464,35 @@ inline PlannedKernel planned_kernel(const TransferPlan& plan, std::size_t q) {
           n[2]};
 }
 
+// Calls f with whether a consecutive row of nx (4 or 5) cells has a fifth, as a constant.
+template <class F> [[gnu::always_inline]] inline void with_fifth(int nx, F&& f) {
+  if (nx == 5) {
+    f(std::true_type{});
+  } else {
+    f(std::false_type{});
+  }
+}
+
+// Walks a kernel of consecutive rows (consecutive_row) on the k-planes [k0, k1) (every plane
+// with AllPlanes), z then y: visit(row, w, w5) with row the index of the row's first cell, w its
+// first four cells' weights and w5 its fifth's (Fifth), each (w_x w_y) w_z as the kernel
+// functions make it.
+template <bool Fifth, bool AllPlanes, class Visit>
+[[gnu::always_inline]] inline void
+walk_vector_rows(const PlannedKernel& k, const GridLayout& layout, int k0, int k1, Visit&& visit) {
+  const Lanes4 wx4 = {k.wx[0], k.wx[1], k.wx[2], k.wx[3]};
+  const double wx5 = Fifth ? k.wx[4] : 0.0;
+  for (int c = 0; c < k.nz; ++c) {
+    if (!AllPlanes && (k.iz[c] < k0 || k.iz[c] >= k1)) {
+      continue;
+    }
+    for (int b = 0; b < k.ny; ++b) {
+      const Lanes4 w = (wx4 * k.wy[b]) * k.wz[c];
+      visit(layout.index(k.ix[0], k.iy[b], k.iz[c]), w, (wx5 * k.wy[b]) * k.wz[c]);
+    }
+  }
+}
+
 // Particle q's planned gather of n_f fields (fixed_cells 0) into sum[0, n_f), in lanes as above.
 template <class FieldCount>
 [[gnu::always_inline]] inline void
@@ -471,37 +500,27 @@ gather_planned_lanes(const TransferPlan& plan, const GridLayout& layout, std::si
                      const std::array<const double*, kMaxDepositFields>& in, FieldCount count,
                      std::array<double, kMaxDepositFields>& sum) {
   const std::size_t n_f = count;
-  const auto [wx, wy, wz, ix, iy, iz, nx, ny, nz] = planned_kernel(plan, q);
+  const PlannedKernel kernel = planned_kernel(plan, q);
+  const auto [wx, wy, wz, ix, iy, iz, nx, ny, nz] = kernel;
   if (consecutive_row(ix, nx)) {
-    const auto rows = [&](auto fifth) {
-      const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};
-      const double wx5 = fifth ? wx[4] : 0.0;
+    with_fifth(nx, [&](auto fifth) CFDDEM_SIMD_BODY {
       std::array<Lanes4, kMaxDepositFields> acc{};
       std::array<double, kMaxDepositFields> tail{};
-      for (int c = 0; c < nz; ++c) {
-        for (int b = 0; b < ny; ++b) {
-          const std::size_t row = layout.index(ix[0], iy[b], iz[c]);
-          const Lanes4 w = (wx4 * wy[b]) * wz[c];
-          const double w5 = (wx5 * wy[b]) * wz[c];
-          for (std::size_t f = 0; f < n_f; ++f) {
-            Lanes4 v;
-            std::memcpy(&v, in[f] + row, sizeof v);
-            acc[f] += w * v;
-            if constexpr (decltype(fifth)::value) {
-              tail[f] += w5 * in[f][row + 4];
+      walk_vector_rows<decltype(fifth)::value, true>(
+          kernel, layout, 0, 0, [&](std::size_t row, const Lanes4& w, double w5) CFDDEM_SIMD_BODY {
+            for (std::size_t f = 0; f < n_f; ++f) {
+              Lanes4 v;
+              std::memcpy(&v, in[f] + row, sizeof v);
+              acc[f] += w * v;
+              if constexpr (decltype(fifth)::value) {
+                tail[f] += w5 * in[f][row + 4];
+              }
             }
-          }
-        }
-      }
+          });
       for (std::size_t f = 0; f < n_f; ++f) {
         sum[f] = ((acc[f][0] + acc[f][1]) + (acc[f][2] + acc[f][3])) + tail[f];
       }
-    };
-    if (nx == 5) {
-      rows(std::true_type{});
-    } else {
-      rows(std::false_type{});
-    }
+    });
     return;
   }
   std::array<std::array<double, kGatherLanes>, kMaxDepositFields> lanes{};
@@ -534,36 +553,24 @@ scatter_planned_rows(const TransferPlan& plan, const GridLayout& layout, std::si
                      const std::array<double, kMaxDepositFields>& vq, FieldCount count, int k0,
                      int k1) {
   const std::size_t n_f = count;
-  const auto [wx, wy, wz, ix, iy, iz, nx, ny, nz] = planned_kernel(plan, q);
+  const PlannedKernel kernel = planned_kernel(plan, q);
+  const auto [wx, wy, wz, ix, iy, iz, nx, ny, nz] = kernel;
   if (consecutive_row(ix, nx)) {
-    const auto rows = [&](auto fifth) {
-      const Lanes4 wx4 = {wx[0], wx[1], wx[2], wx[3]};
-      const double wx5 = fifth ? wx[4] : 0.0;
-      for (int c = 0; c < nz; ++c) {
-        if (iz[c] < k0 || iz[c] >= k1) {
-          continue;
-        }
-        for (int b = 0; b < ny; ++b) {
-          const std::size_t row = layout.index(ix[0], iy[b], iz[c]);
-          const Lanes4 w = (wx4 * wy[b]) * wz[c];
-          const double w5 = (wx5 * wy[b]) * wz[c];
-          for (std::size_t f = 0; f < n_f; ++f) {
-            Lanes4 o;
-            std::memcpy(&o, out[f] + row, sizeof o);
-            o += w * vq[f];
-            std::memcpy(out[f] + row, &o, sizeof o);
-            if constexpr (decltype(fifth)::value) {
-              out[f][row + 4] += w5 * vq[f];
+    with_fifth(nx, [&](auto fifth) CFDDEM_SIMD_BODY {
+      walk_vector_rows<decltype(fifth)::value, false>(
+          kernel, layout, k0, k1,
+          [&](std::size_t row, const Lanes4& w, double w5) CFDDEM_SIMD_BODY {
+            for (std::size_t f = 0; f < n_f; ++f) {
+              Lanes4 o;
+              std::memcpy(&o, out[f] + row, sizeof o);
+              o += w * vq[f];
+              std::memcpy(out[f] + row, &o, sizeof o);
+              if constexpr (decltype(fifth)::value) {
+                out[f][row + 4] += w5 * vq[f];
+              }
             }
-          }
-        }
-      }
-    };
-    if (nx == 5) {
-      rows(std::true_type{});
-    } else {
-      rows(std::false_type{});
-    }
+          });
+    });
     return;
   }
   for (int c = 0; c < nz; ++c) {

@@ -5,6 +5,7 @@
 #include <numbers>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -229,6 +230,27 @@ TEST_P(DepositionConservation, ColumnKeepsTheVolumeOnGasCells) {
   EXPECT_EQ(in_solid, 0.0);
 }
 
+// Random inputs in [-1, 1) for the passes of a step: four values per particle (a deposit of four
+// fields) and six cell fields (an interpolation of six), drawn in that order from `seed`.
+std::pair<std::array<std::vector<double>, 4>, std::array<GridField, 6>>
+random_passes_inputs(const MacGrid& grid, std::size_t particles, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uni(-1.0, 1.0);
+  std::pair<std::array<std::vector<double>, 4>, std::array<GridField, 6>> in;
+  for (auto& v : in.first) {
+    for (std::size_t q = 0; q < particles; ++q) {
+      v.push_back(uni(rng));
+    }
+  }
+  for (GridField& f : in.second) {
+    f = grid.make_field();
+    for (double& v : f.values()) {
+      v = uni(rng);
+    }
+  }
+  return in;
+}
+
 // A plan's passes (Deposition::plan: the kernels stored as axis factors once, for several passes)
 // give bit for bit what the passes computing every kernel give: the solid fraction, a deposit of
 // four fields and an interpolation of six, on 1 and 2 threads, on a periodic and a walled grid
@@ -252,21 +274,7 @@ TEST_P(DepositionConservation, APlanGivesThePassesBitwise) {
     DepositionSettings settings;
     settings.kernel = GetParam();
     settings.width = 3.0;
-    std::mt19937_64 rng(29);
-    std::uniform_real_distribution<double> uni(-1.0, 1.0);
-    std::array<std::vector<double>, 4> value;
-    for (auto& v : value) {
-      for (std::size_t q = 0; q < cloud.r.size(); ++q) {
-        v.push_back(uni(rng));
-      }
-    }
-    std::array<GridField, 6> field;
-    for (GridField& f : field) {
-      f = grid.make_field();
-      for (double& v : f.values()) {
-        v = uni(rng);
-      }
-    }
+    auto [value, field] = random_passes_inputs(grid, cloud.r.size(), 29);
     for (const int threads : {1, 2}) {
       SCOPED_TRACE(threads);
       tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
@@ -351,21 +359,9 @@ TEST(Deposition, EveryInstructionSetGivesTheWideKernelsTheBaselinesBits) {
     DepositionSettings settings;
     settings.kernel = DepositionKernel::dpvm_cube;
     settings.width = 2.0;
-    std::mt19937_64 rng(43);
-    std::uniform_real_distribution<double> uni(-1.0, 1.0);
-    std::array<std::vector<double>, 4> value;
-    for (auto& v : value) {
-      for (std::size_t q = 0; q < cloud.r.size(); ++q) {
-        v.push_back(uni(rng));
-      }
-    }
-    std::array<GridField, 6> field;
+    auto [value, field] = random_passes_inputs(grid, cloud.r.size(), 43);
     const GridField* in[6];
     for (std::size_t f = 0; f < field.size(); ++f) {
-      field[f] = grid.make_field();
-      for (double& v : field[f].values()) {
-        v = uni(rng);
-      }
       in[f] = &field[f];
     }
     struct Passes {

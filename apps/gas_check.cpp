@@ -119,50 +119,50 @@ void check_gas_numbers(const Scene& s) {
                     "velocity or {}",
                     speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl, kMaxCourantPerFluidStep,
                     step));
-  if (f.dt > 0.0) {
-    // The sub-steps advance() takes per fluid step at the scene's gas speeds, or the speed the
-    // body force gives a gas at rest in one fluid step where that is more (the riser starts at
-    // rest): the advective rate the sub-steps count (the viscous number is bounded below).
-    std::array<double, 3> axis_speed{};
-    for (std::size_t a = 0; a < 3; ++a)
-      axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
-    const fluid::FluidStepRates rates = fluid::fluid_step_rates(
-        axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, fluid::advection_named(f.advection));
-    const double substep = fluid::courant_step(rates, f.cfl);
-    const double substeps = f.dt / substep;
-    if (substeps > kMaxGasSubstepsPerFluidStep)
-      throw ConfigError(
-          "scene key 'fluid.cfl'",
-          fmt::format("{:g} makes the gas take {:.3g} sub-steps of {:.3g} s in every fluid step of "
-                      "{:g} s (fluid.dt) at the gas speed of {:.3g} m/s on cells of {:.3g} m, "
-                      "beyond the {:g} a run can take; raise fluid.cfl (the gas step is stable up "
-                      "to {:g})",
-                      f.cfl, substeps, substep, f.dt,
-                      *std::max_element(axis_speed.begin(), axis_speed.end()), dx,
-                      kMaxGasSubstepsPerFluidStep,
-                      fluid::max_stable_courant(fluid::advection_named(f.advection))));
-  } else {
-    // An adaptive fluid step starts where the step rule puts it at the scene's gas speeds and
-    // body force (check's "first"), and a tiny cfl holds it there: refused as the fixed step's
-    // sub-steps are, counting its steps in fluid.max_dt, the longest it may take. The viscous
-    // rate is left out, as above.
-    const fluid::FluidStepRates rates = fluid::fluid_step_rates(
-        drive.speed, spacing, 0.0, false, drive.body, fluid::advection_named(f.advection));
-    fluid::FluidStepCaps caps;
-    caps.max_dt = f.max_dt;
-    const double first = fluid::next_fluid_step(rates, f.cfl, caps, f.max_dt);
-    const double steps = f.max_dt / first;
+  {
+    // A fixed fluid step: the sub-steps advance() takes in it at the scene's gas speeds, or the
+    // speed the body force gives a gas at rest in one fluid step where that is more (the riser
+    // starts at rest). An adaptive one starts where the step rule puts it at the scene's gas
+    // speeds and body force (check's "first"), and a tiny cfl holds it there: its steps are
+    // counted in fluid.max_dt, the longest it may take. Both the advective rate alone (the
+    // viscous number is bounded below).
+    const bool fixed = f.dt > 0.0;
+    const auto advection = fluid::advection_named(f.advection);
+    double step_s = 0.0;
+    std::string drive_text;
+    if (fixed) {
+      std::array<double, 3> axis_speed{};
+      for (std::size_t a = 0; a < 3; ++a)
+        axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
+      step_s = fluid::courant_step(
+          fluid::fluid_step_rates(axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, advection),
+          f.cfl);
+      drive_text = fmt::format("the gas speed of {:.3g} m/s",
+                               *std::max_element(axis_speed.begin(), axis_speed.end()));
+    } else {
+      fluid::FluidStepCaps caps;
+      caps.max_dt = f.max_dt;
+      step_s = fluid::next_fluid_step(
+          fluid::fluid_step_rates(drive.speed, spacing, 0.0, false, drive.body, advection), f.cfl,
+          caps, f.max_dt);
+      drive_text = fmt::format("the gas speed of {:.3g} m/s and a body force of {:.3g} m/s^2",
+                               speed, std::hypot(drive.body[0], drive.body[1], drive.body[2]));
+    }
+    const double steps = dt_f / step_s;
     if (steps > kMaxGasSubstepsPerFluidStep)
       throw ConfigError(
           "scene key 'fluid.cfl'",
-          fmt::format("{:g} makes the adaptive fluid step {:.3g} s, {:.3g} steps in every {:g} s "
-                      "(fluid.max_dt), at the gas speed of {:.3g} m/s and a body force of {:.3g} "
-                      "m/s^2 on cells of {:.3g} m, beyond the {:g} a run can take; raise "
-                      "fluid.cfl (the gas step is stable up to {:g})",
-                      f.cfl, first, steps, f.max_dt, speed,
-                      std::hypot(drive.body[0], drive.body[1], drive.body[2]), dx,
-                      kMaxGasSubstepsPerFluidStep,
-                      fluid::max_stable_courant(fluid::advection_named(f.advection))));
+          fmt::format("{:g} makes {} at {} on cells of {:.3g} m, beyond the {:g} a run can take; "
+                      "raise fluid.cfl (the gas step is stable up to {:g})",
+                      f.cfl,
+                      fixed ? fmt::format("the gas take {:.3g} sub-steps of {:.3g} s in every "
+                                          "fluid step of {:g} s (fluid.dt)",
+                                          steps, step_s, f.dt)
+                            : fmt::format("the adaptive fluid step {:.3g} s, {:.3g} steps in "
+                                          "every {:g} s (fluid.max_dt),",
+                                          step_s, steps, f.max_dt),
+                      drive_text, dx, kMaxGasSubstepsPerFluidStep,
+                      fluid::max_stable_courant(advection)));
   }
   const double nu = f.viscosity / f.density;
   const double viscous = nu * dt_f / (dx * dx);

@@ -26,16 +26,6 @@ namespace {
 // is an order of magnitude, stated as such.
 constexpr double kParticleStepsPerSecond = 2.5e6;
 
-// The gas cells' spacing per axis: fluid.cell_size, or the domain's extent over fluid.cells.
-std::array<double, 3> cell_spacing(const Scene& s) {
-  std::array<double, 3> dx{};
-  for (std::size_t a = 0; a < 3; ++a)
-    dx[a] = s.fluid.cell_size[a] > 0
-                ? s.fluid.cell_size[a]
-                : s.domain.length(static_cast<int>(a)) / static_cast<double>(s.fluid.cells[a]);
-  return dx;
-}
-
 // The gas cells of the grid's plane normal to axis `a` at cell index `at` (a column's
 // staircase: its solid cells are left out).
 std::int64_t gas_cells_on_plane(const fluid::MacGrid& grid, int a, int at) {
@@ -74,6 +64,15 @@ GasDrive gas_drive(const Scene& s) {
 }
 
 } // namespace
+
+std::array<double, 3> cell_spacing(const Scene& s) {
+  std::array<double, 3> dx{};
+  for (std::size_t a = 0; a < 3; ++a)
+    dx[a] = s.fluid.cell_size[a] > 0
+                ? s.fluid.cell_size[a]
+                : s.domain.length(static_cast<int>(a)) / static_cast<double>(s.fluid.cells[a]);
+  return dx;
+}
 
 double gas_memory_bytes(const Scene& s) {
   const auto& c = s.fluid.cells;

@@ -3,6 +3,8 @@
 // fluid step and for the run; with warnings where a setting is almost surely a mistake.
 #pragma once
 
+#include <array>
+
 #include <string>
 #include <utility>
 #include <vector>
@@ -19,6 +21,9 @@ struct GasCheck {
 
 // The gas's memory estimate for the whole grid (scene.fluid.cells, kGasBytesPerCell each), in
 // bytes.
+// The gas cells' spacing per axis: fluid.cell_size, or the domain's extent over fluid.cells.
+std::array<double, 3> cell_spacing(const Scene& scene);
+
 double gas_memory_bytes(const Scene& scene);
 
 // Throws ConfigError naming fluid.cells and the estimate when the gas cannot fit in this

@@ -1,8 +1,12 @@
 #include "apps/setting_warnings.hpp"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 
 #include <fmt/format.h>
+
+#include "apps/gas_check.hpp"
 
 namespace cfddem::apps {
 
@@ -22,6 +26,17 @@ std::vector<std::string> setting_warnings(const Scene& s) {
                             "at 1e8 particle-steps/s that is {:.3g} years for one particle",
                             s.dem.dt, end / s.dem.dt, end,
                             end / s.dem.dt / 1e8 / (365.25 * 24 * 3600)));
+  if (s.fluid.enabled) {
+    const std::array<double, 3> dx = cell_spacing(s);
+    const auto [shortest, longest] = std::minmax({dx[0], dx[1], dx[2]});
+    if (longest > kElongatedCells * shortest)
+      w.push_back(
+          fmt::format("fluid.cells makes gas cells of [{:.3g}, {:.3g}, {:.3g}] m, the "
+                      "longest side {:.3g}x the shortest: the pressure solve may stop short "
+                      "of fluid.tolerance (the bed's column did from 1250:1 on); cells "
+                      "nearer cubes avoid it",
+                      dx[0], dx[1], dx[2], longest / shortest));
+  }
   if (s.dem.subiterated()) {
     // Sub-iterated schemes write rows at whole sub-iterations of dt_sp (with a gas the fluid
     // step is the regrid interval).

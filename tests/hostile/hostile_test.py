@@ -768,6 +768,24 @@ def particles_too_fast_at_an_outflow_face_stop(ctx):
 
 
 @case
+def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
+    """fluid.cells = [1000, 1, 1] on the bed's column makes cells 6250 times longer than wide:
+    check and run said nothing, and the run stopped with "reached relative residual 7.55e-10
+    after 3 iterations", which reads as an iteration cap. Cells over 500:1 warn; a projection
+    that stops making progress says so and names round-off and the cells' shape."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    cells = "fluid.cells=[1000,1,1]"
+    expect(ctx, ["check", bed, cells], 0,
+           r"warning: fluid.cells makes gas cells of \[1.6e-06, 0.01, 0.0016\] m, the longest "
+           r"side 6.25e\+03x the shortest", timeout=30)
+    expect(ctx, ["run", bed, cells, "run.end_time=3e-4", "--quiet"], 3,
+           r"multigrid-preconditioned CG stopped making progress at relative residual \S+ after "
+           r"\d+ iterations \(tolerance 1e-10\): round-off holds the residual above the "
+           r"tolerance \(the cells' longest side is 6.25e\+03x their shortest",
+           out_dir=ctx.fresh("elongated_cells"))
+
+
+@case
 def banner_and_summary_agree(ctx):
     """The orb banner's sub-iteration count is the summary's (which adds the one that completes
     the last row, and says so); a coupled orb banner names dt_sp and the fine dt."""

@@ -30,10 +30,10 @@ std::array<double, 3> particle_sums(const ParticleStore& p) {
   return {vol, dsum, mass};
 }
 
-// The most steps of any kind a run may take: its step counters are 64-bit integers, and a count
-// past 2^63 came out as INT64_MIN, so the run took 0 steps and said "done". 2^62 leaves room for
-// the counters' sums.
-constexpr double kMaxSteps = static_cast<double>(std::int64_t{1} << 62);
+// kMaxCountableSteps (apps/derived_numbers.hpp): a run's step counters are 64-bit integers, and
+// a count past 2^63 came out as INT64_MIN, so the run took 0 steps and said "done". 2^62 leaves
+// room for the counters' sums.
+constexpr double kMaxSteps = kMaxCountableSteps;
 
 // A step of 0 s (the lightest particle's mass, or dem.dt_factor, below what a double holds) can
 // take no run anywhere: refused, naming the keys that made it.

@@ -3,6 +3,7 @@
 // (docs/theory.md §1, §3).
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <utility>
 #include <vector>
@@ -14,6 +15,9 @@
 #include "dem/explicit_scheme.hpp"
 
 namespace cfddem::apps {
+
+// A run counts at most this many steps of any kind (a signed 64-bit count, with room).
+inline constexpr double kMaxCountableSteps = static_cast<double>(std::int64_t{1} << 62);
 
 struct DerivedNumbers {
   std::size_t particles = 0;

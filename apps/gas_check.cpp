@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <numbers>
+#include <optional>
 #include <string>
 
 #include <fmt/format.h>
@@ -74,6 +75,33 @@ std::array<double, 3> cell_spacing(const Scene& s) {
   return dx;
 }
 
+AdaptiveStart adaptive_start(const Scene& s) {
+  const auto& f = s.fluid;
+  const GasDrive drive = gas_drive(s);
+  fluid::FluidStepCaps caps;
+  caps.max_dt = f.max_dt;
+  AdaptiveStart out;
+  out.first = fluid::next_fluid_step(fluid::fluid_step_rates(drive.speed, cell_spacing(s), 0.0,
+                                                             false, drive.body,
+                                                             fluid::advection_named(f.advection)),
+                                     f.cfl, caps, s.run.end_time);
+  out.steps = s.run.end_time / out.first;
+  out.body = std::hypot(drive.body[0], drive.body[1], drive.body[2]);
+  return out;
+}
+
+std::optional<std::string> adaptive_step_warning(const Scene& s) {
+  if (!s.fluid.enabled || s.fluid.dt > 0.0)
+    return std::nullopt;
+  const AdaptiveStart start = adaptive_start(s);
+  if (!(start.steps > kManyFluidSteps) || start.steps > kMaxCountableSteps)
+    return std::nullopt; // the latter is refused (check_gas_numbers)
+  return fmt::format("fluid.cfl = {:g} starts the adaptive fluid step at {:.3g} s at the scene's "
+                     "gas speeds and body force: about {:.3g} fluid steps to run.end_time = {:g} s "
+                     "if the gas keeps them",
+                     s.fluid.cfl, start.first, start.steps, s.run.end_time);
+}
+
 double gas_memory_bytes(const Scene& s) {
   const auto& c = s.fluid.cells;
   return static_cast<double>(c[0]) * static_cast<double>(c[1]) * static_cast<double>(c[2]) *
@@ -108,60 +136,51 @@ void check_gas_numbers(const Scene& s) {
   const double speed = *std::max_element(drive.speed.begin(), drive.speed.end());
   const double dt_f = f.dt > 0.0 ? f.dt : f.max_dt;
   const char* step = f.dt > 0.0 ? "fluid.dt" : "fluid.max_dt";
-  const double courant = speed * dt_f / dx;
-  if (courant > kMaxCourantPerFluidStep)
-    throw ConfigError(
-        "scene keys 'fluid.velocity' and 'fluid.inflow_velocity'",
-        fmt::format("a gas speed of {:.3g} m/s crosses {:.3g} cells of {:.3g} m in a fluid step "
-                    "of {:.3g} s ({}): the gas would take {:.3g} sub-steps (at fluid.cfl = {:g}) "
-                    "every fluid step, beyond the Courant number {:g} a run can take; lower the "
-                    "velocity or {}",
-                    speed, courant, dx, dt_f, step, courant / f.cfl, f.cfl, kMaxCourantPerFluidStep,
-                    step));
-  {
-    // A fixed fluid step: the sub-steps advance() takes in it at the scene's gas speeds, or the
+  const auto advection = fluid::advection_named(f.advection);
+  if (f.dt > 0.0) {
+    // A fixed fluid step: the gas takes sub-steps in it at the scene's gas speeds, or at the
     // speed the body force gives a gas at rest in one fluid step where that is more (the riser
-    // starts at rest). An adaptive one starts where the step rule puts it at the scene's gas
-    // speeds and body force (check's "first"), and a tiny cfl holds it there: its steps are
-    // counted in fluid.max_dt, the longest it may take. Both the advective rate alone (the
-    // viscous number is bounded below).
-    const bool fixed = f.dt > 0.0;
-    const auto advection = fluid::advection_named(f.advection);
-    double step_s = 0.0;
-    std::string drive_text;
-    if (fixed) {
-      std::array<double, 3> axis_speed{};
-      for (std::size_t a = 0; a < 3; ++a)
-        axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
-      step_s = fluid::courant_step(
-          fluid::fluid_step_rates(axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, advection),
-          f.cfl);
-      drive_text = fmt::format("the gas speed of {:.3g} m/s",
-                               *std::max_element(axis_speed.begin(), axis_speed.end()));
-    } else {
-      fluid::FluidStepCaps caps;
-      caps.max_dt = f.max_dt;
-      step_s = fluid::next_fluid_step(
-          fluid::fluid_step_rates(drive.speed, spacing, 0.0, false, drive.body, advection), f.cfl,
-          caps, f.max_dt);
-      drive_text = fmt::format("the gas speed of {:.3g} m/s and a body force of {:.3g} m/s^2",
-                               speed, std::hypot(drive.body[0], drive.body[1], drive.body[2]));
-    }
-    const double steps = dt_f / step_s;
-    if (steps > kMaxGasSubstepsPerFluidStep)
+    // starts at rest); the advective rate alone (the viscous number is bounded below).
+    const double courant = speed * f.dt / dx;
+    if (courant > kMaxCourantPerFluidStep)
+      throw ConfigError(
+          "scene keys 'fluid.velocity' and 'fluid.inflow_velocity'",
+          fmt::format("a gas speed of {:.3g} m/s crosses {:.3g} cells of {:.3g} m in a fluid step "
+                      "of {:.3g} s (fluid.dt): the gas would take {:.3g} sub-steps (at fluid.cfl "
+                      "= {:g}) every fluid step, beyond the Courant number {:g} a run can take; "
+                      "lower the velocity or fluid.dt",
+                      speed, courant, dx, f.dt, courant / f.cfl, f.cfl, kMaxCourantPerFluidStep));
+    std::array<double, 3> axis_speed{};
+    for (std::size_t a = 0; a < 3; ++a)
+      axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
+    const double substep = fluid::courant_step(
+        fluid::fluid_step_rates(axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, advection),
+        f.cfl);
+    const double substeps = f.dt / substep;
+    if (substeps > kMaxGasSubstepsPerFluidStep)
       throw ConfigError(
           "scene key 'fluid.cfl'",
-          fmt::format("{:g} makes {} at {} on cells of {:.3g} m, beyond the {:g} a run can take; "
-                      "raise fluid.cfl (the gas step is stable up to {:g})",
-                      f.cfl,
-                      fixed ? fmt::format("the gas take {:.3g} sub-steps of {:.3g} s in every "
-                                          "fluid step of {:g} s (fluid.dt)",
-                                          steps, step_s, f.dt)
-                            : fmt::format("the adaptive fluid step {:.3g} s, {:.3g} steps in "
-                                          "every {:g} s (fluid.max_dt),",
-                                          step_s, steps, f.max_dt),
-                      drive_text, dx, kMaxGasSubstepsPerFluidStep,
-                      fluid::max_stable_courant(advection)));
+          fmt::format("{:g} makes the gas take {:.3g} sub-steps of {:.3g} s in every fluid step of "
+                      "{:g} s (fluid.dt) at the gas speed of {:.3g} m/s on cells of {:.3g} m, "
+                      "beyond the {:g} a run can take; raise fluid.cfl (the gas step is stable up "
+                      "to {:g})",
+                      f.cfl, substeps, substep, f.dt,
+                      *std::max_element(axis_speed.begin(), axis_speed.end()), dx,
+                      kMaxGasSubstepsPerFluidStep, fluid::max_stable_courant(advection)));
+  } else {
+    // An adaptive fluid step takes no sub-steps: the step rule shortens it to the gas's Courant
+    // number, however long fluid.max_dt is. Refused only where a run could not count its steps
+    // at its first length; a merely long run warns (adaptive_step_warning).
+    const AdaptiveStart start = adaptive_start(s);
+    if (start.steps > kMaxCountableSteps)
+      throw ConfigError(
+          "scene keys 'fluid.cfl', 'fluid.velocity' and 'fluid.inflow_velocity'",
+          fmt::format("the adaptive fluid step starts at {:.3g} s (fluid.cfl = {:g}, a gas speed "
+                      "of {:.3g} m/s and a body force of {:.3g} m/s^2 on cells of {:.3g} m): "
+                      "run.end_time = {:g} s needs {:.3g} such steps, more than a run can count "
+                      "({:.3g}); lower the velocity or raise fluid.cfl",
+                      start.first, f.cfl, speed, start.body, dx, s.run.end_time, start.steps,
+                      kMaxCountableSteps));
   }
   const double nu = f.viscosity / f.density;
   const double viscous = nu * dt_f / (dx * dx);
@@ -219,7 +238,8 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (d > 0) {
     const double ratio = *std::min_element(dx.begin(), dx.end()) / d;
     t.emplace_back("cell_size / particle diameter (smallest)", fmt::format("{:.3g}", ratio));
-    if (ratio < 1.0 && f.deposition == "trilinear")
+    // Below 1 by more than rounding: elutriation's 0.8 mm / 8 cells is its 0.1 mm particle.
+    if (ratio < 1.0 - 1e-9 && f.deposition == "trilinear")
       out.warnings.push_back(fmt::format(
           "a gas cell ({:.3g} m) is narrower than a particle ({:.3g} m) and fluid.deposition = "
           "\"trilinear\" puts each particle's volume in the 8 cells around its centre: the solid "

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <optional>
 
 #include <string>
 #include <utility>
@@ -23,6 +24,20 @@ struct GasCheck {
 // bytes.
 // The gas cells' spacing per axis: fluid.cell_size, or the domain's extent over fluid.cells.
 std::array<double, 3> cell_spacing(const Scene& scene);
+
+// An adaptive fluid step's first length at the scene's gas speeds and body force (the step rule
+// of fluid/fluid_step_rule.hpp, capped by fluid.max_dt), the steps to run.end_time at that length,
+// and the body force's magnitude [m/s^2].
+struct AdaptiveStart {
+  double first = 0.0, steps = 0.0, body = 0.0;
+};
+AdaptiveStart adaptive_start(const Scene& scene);
+// More adaptive fluid steps than this to run.end_time earns a warning: at a millisecond a fluid
+// step (the small grids) that is more than a day.
+inline constexpr double kManyFluidSteps = 1e8;
+// The warning for an adaptive fluid step whose first length makes more than kManyFluidSteps to
+// run.end_time (a tiny fluid.cfl); none for a fixed step, or one refused as uncountable.
+std::optional<std::string> adaptive_step_warning(const Scene& scene);
 
 double gas_memory_bytes(const Scene& scene);
 

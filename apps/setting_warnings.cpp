@@ -26,6 +26,8 @@ std::vector<std::string> setting_warnings(const Scene& s) {
                             "at 1e8 particle-steps/s that is {:.3g} years for one particle",
                             s.dem.dt, end / s.dem.dt, end,
                             end / s.dem.dt / 1e8 / (365.25 * 24 * 3600)));
+  if (const auto adaptive = adaptive_step_warning(s))
+    w.push_back(*adaptive);
   if (s.fluid.enabled) {
     const std::array<double, 3> dx = cell_spacing(s);
     const auto [shortest, longest] = std::minmax({dx[0], dx[1], dx[2]});

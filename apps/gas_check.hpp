@@ -5,7 +5,6 @@
 
 #include <array>
 #include <optional>
-
 #include <string>
 #include <utility>
 #include <vector>
@@ -20,8 +19,6 @@ struct GasCheck {
   std::vector<std::string> warnings;
 };
 
-// The gas's memory estimate for the whole grid (scene.fluid.cells, kGasBytesPerCell each), in
-// bytes.
 // The gas cells' spacing per axis: fluid.cell_size, or the domain's extent over fluid.cells.
 std::array<double, 3> cell_spacing(const Scene& scene);
 
@@ -39,6 +36,8 @@ inline constexpr double kManyFluidSteps = 1e8;
 // run.end_time (a tiny fluid.cfl); none for a fixed step, or one refused as uncountable.
 std::optional<std::string> adaptive_step_warning(const Scene& scene);
 
+// The gas's memory estimate for the whole grid (scene.fluid.cells, kGasBytesPerCell each), in
+// bytes.
 double gas_memory_bytes(const Scene& scene);
 
 // Throws ConfigError naming fluid.cells and the estimate when the gas cannot fit in this

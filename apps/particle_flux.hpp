@@ -4,7 +4,6 @@
 #pragma once
 
 #include <array>
-#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -23,7 +22,6 @@
 #include "core/scene.hpp"
 #include "dem/state_edit.hpp"
 #include "dem/step_model.hpp"
-#include "dem/step_report.hpp"
 #include "dem/verlet_passes.hpp"
 #include "partition/rank_decomposition.hpp"
 
@@ -37,10 +35,10 @@ struct ParticleFlux {
   ParticleInlet inlet;
 };
 
-// A leaving particle on a velocity the particle step cannot follow (not finite, or more than the
-// smallest radius per step: dem/verlet_passes.hpp's find_fault) is a failed step, not an outflow:
-// removed, it would end the run as if nothing were wrong. The first such among `leaving`, in the
-// words of the particle step's own stop, with its id; an empty message when none.
+// A leaving particle on a velocity the particle step cannot follow (dem::flag_unfollowable: not
+// finite, or more than the smallest radius per step) is a failed step, not an outflow: removed,
+// it would end the run as if nothing were wrong. The first such among `leaving`, in the words of
+// the particle step's own stop, with its id; an empty message when none.
 struct LeavingFault {
   std::int64_t id = 0;
   std::string message;
@@ -48,14 +46,9 @@ struct LeavingFault {
 inline LeavingFault leaving_fault(const ParticleStore& p, const std::vector<std::uint32_t>& leaving,
                                   const dem::StepModel& m) {
   const double vmax = m.r_min / m.dt;
-  dem::StepReport report;
   for (const std::uint32_t i : leaving) {
-    const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
-    if (!std::isfinite(u2) || !std::isfinite(p.x[i] + p.y[i] + p.z[i]))
-      report.flag(i, dem::StepFault::nan, u2);
-    else if (!(u2 <= vmax * vmax))
-      report.flag(i, dem::StepFault::speed, std::sqrt(u2));
-    if (report.bad != dem::kNoParticle)
+    dem::StepReport report;
+    if (dem::flag_unfollowable(p, i, vmax * vmax, report))
       return {static_cast<std::int64_t>(p.id[i]), dem::describe_fault(p, report, m)};
   }
   return {};

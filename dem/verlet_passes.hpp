@@ -264,19 +264,31 @@ inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& 
   near_walls(p, n, {list.x_ref(), list.y_ref(), list.z_ref()}, g, skin, out);
 }
 
-// Rare path of the update: the first particle of [0, n) that is not finite, too fast (moves
-// more than r_min per step: vmax2 = (r_min/dt)^2) or outside a wall, into `out`.
+// Flags particle i in `out` if its position or velocity is not finite, or it is too fast (moves
+// more than r_min per step: vmax2 = (r_min/dt)^2); whether it did.
+inline bool flag_unfollowable(const ParticleStore& p, std::size_t i, double vmax2,
+                              StepReport& out) {
+  const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+  const auto ii = static_cast<std::uint32_t>(i);
+  if (!std::isfinite(u2) || !std::isfinite(p.x[i] + p.y[i] + p.z[i])) {
+    out.flag(ii, StepFault::nan, u2);
+    return true;
+  }
+  if (!(u2 <= vmax2)) {
+    out.flag(ii, StepFault::speed, std::sqrt(u2));
+    return true;
+  }
+  return false;
+}
+
+// Rare path of the update: the first particle of [0, n) that is not finite, too fast
+// (flag_unfollowable) or outside a wall, into `out`.
 inline void find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g, double vmax2,
                        StepReport& out) {
   for (std::size_t i = 0; i < n; ++i) {
-    const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
     const double q[3] = {p.x[i], p.y[i], p.z[i]};
     const auto ii = static_cast<std::uint32_t>(i);
-    if (!std::isfinite(u2) || !std::isfinite(q[0] + q[1] + q[2])) {
-      out.flag(ii, StepFault::nan, u2);
-    } else if (!(u2 <= vmax2)) {
-      out.flag(ii, StepFault::speed, std::sqrt(u2));
-    } else {
+    if (!flag_unfollowable(p, i, vmax2, out)) {
       for (int a = 0; a < 3; ++a)
         if (!g.periodic[a] && !(q[a] >= g.lo[a] && q[a] <= g.hi[a]))
           out.flag(ii, StepFault::left_domain, q[a]);

@@ -1886,6 +1886,7 @@ MultigridReport MultigridPoisson::solve(std::span<const double> b, std::span<dou
     const double rel_new = std::sqrt(rr_sum[0] / bb);
     if (!(rel_new < rel) && rel_new > tolerance) {
       rel = rel_new;
+      report.stalled = true;
       break; // no progress (breakdown): report what was reached
     }
     rel = rel_new;

@@ -67,6 +67,9 @@ struct MultigridReport {
   int iterations = 0;
   double relative_residual = 0.0; // ||b - A x|| / ||b||, recomputed from x at the end
   bool converged = false;
+  // Stopped short of the tolerance before the iteration cap: a restart from the true residual
+  // made no progress (round-off holds the residual there).
+  bool stalled = false;
 };
 
 class MultigridPoisson {

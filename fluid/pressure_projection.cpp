@@ -524,27 +524,25 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
   report.iterations = mr.iterations;
   report.relative_residual = mr.relative_residual;
   if (!mr.converged) {
-    // Stopped before the iteration cap: a restart from the true residual made no progress, so
-    // round-off bounds the residual above the tolerance. Cells far from cubes raise that floor
-    // (the operator's rows mix 1/dx^2 of very different sizes): [1000, 1, 1] on the bed's column,
-    // 6250:1, stalled at 7.6e-10.
+    // Stalled (MultigridReport): round-off bounds the residual above the tolerance. Cells far
+    // from cubes raise that floor (the operator's rows mix 1/dx^2 of very different sizes):
+    // [1000, 1, 1] on the bed's column, 6250:1, stalled at 7.6e-10.
     double longest = 0.0;
     double shortest = std::numeric_limits<double>::infinity();
     for (int a = 0; a < 3; ++a) {
       longest = std::max(longest, grid_.spacing(a));
       shortest = std::min(shortest, grid_.spacing(a));
     }
-    const bool stalled = mr.iterations < settings_.max_iterations;
     throw std::runtime_error(fmt::format(
         "pressure projection: multigrid-preconditioned CG {} relative residual {:g} after {} "
         "iterations (tolerance {:g}){}",
-        stalled ? "stopped making progress at" : "reached", mr.relative_residual, mr.iterations,
+        mr.stalled ? "stopped making progress at" : "reached", mr.relative_residual, mr.iterations,
         settings_.tolerance,
-        stalled ? fmt::format(": round-off holds the residual above the tolerance (the cells' "
-                              "longest side is {:.3g}x their shortest; cells nearer cubes, or a "
-                              "looser fluid.tolerance, lower that floor)",
-                              longest / shortest)
-                : std::string()));
+        mr.stalled ? fmt::format(": round-off holds the residual above the tolerance (the cells' "
+                                 "longest side is {:.3g}x their shortest; cells nearer cubes, or a "
+                                 "looser fluid.tolerance, lower that floor)",
+                                 longest / shortest)
+                   : std::string()));
   }
 }
 

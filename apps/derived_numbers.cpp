@@ -30,11 +30,6 @@ std::array<double, 3> particle_sums(const ParticleStore& p) {
   return {vol, dsum, mass};
 }
 
-// kMaxCountableSteps (apps/derived_numbers.hpp): a run's step counters are 64-bit integers, and
-// a count past 2^63 came out as INT64_MIN, so the run took 0 steps and said "done". 2^62 leaves
-// room for the counters' sums.
-constexpr double kMaxSteps = kMaxCountableSteps;
-
 // A step of 0 s (the lightest particle's mass, or dem.dt_factor, below what a double holds) can
 // take no run anywhere: refused, naming the keys that made it.
 void refuse_zero_step(const Scene& s, double dt, double m_min) {
@@ -59,12 +54,12 @@ void refuse_zero_step(const Scene& s, double dt, double m_min) {
 void refuse_uncountable(const Scene& s, double step, const char* keys, const std::string& what,
                         const char* advice) {
   const double n = s.run.end_time / step;
-  if (n <= kMaxSteps)
+  if (n <= kMaxCountableSteps)
     return;
   throw ConfigError(fmt::format("scene keys 'run.end_time' and {}", keys),
                     fmt::format("run.end_time = {:g} s in {} of {:.4g} s needs {:.3g} steps, "
                                 "more than a run can count ({:.3g}); {} or shorten run.end_time",
-                                s.run.end_time, what, step, n, kMaxSteps, advice));
+                                s.run.end_time, what, step, n, kMaxCountableSteps, advice));
 }
 
 // Every step count of the run: particle steps of dt, sub-iterations of the adaptive schemes

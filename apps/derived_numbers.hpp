@@ -16,7 +16,9 @@
 
 namespace cfddem::apps {
 
-// A run counts at most this many steps of any kind (a signed 64-bit count, with room).
+// A run counts at most this many steps of any kind: its step counters are 64-bit integers, and a
+// count past 2^63 came out as INT64_MIN, so the run took 0 steps and said "done". 2^62 leaves
+// room for the counters' sums.
 inline constexpr double kMaxCountableSteps = static_cast<double>(std::int64_t{1} << 62);
 
 struct DerivedNumbers {

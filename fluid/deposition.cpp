@@ -659,7 +659,6 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
   // cells within its half-width, with a cell to spare.
   const bool planned = from_plan(plan);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
-  const SimdLevel simd = level_;
   if (!planned) {
     reach_.resize(count);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
@@ -722,7 +721,7 @@ void Deposition::scatter_by_planes(const TransferPlan* plan, const ParticlePosit
             const std::size_t n_f = count_of_fields;
             if constexpr (decltype(kernel_planned)::value && decltype(fixed_cells)::value == 0) {
               const GridLayout& layout = grid_.layout();
-              at_simd_level(simd, [&]() CFDDEM_SIMD_BODY {
+              at_simd_level(level_, [&]() CFDDEM_SIMD_BODY {
                 for (std::size_t q = 0; q < count; ++q) {
                   if (!touches(q)) {
                     continue;
@@ -846,7 +845,6 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
   const bool planned = from_plan(plan);
   const bool trilinear = settings_.kernel == DepositionKernel::trilinear;
   const GridLayout& layout = grid_.layout();
-  const SimdLevel simd = level_;
   with_field_count(nf, [&](auto count_of_fields) {
     const std::size_t n_f = count_of_fields;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
@@ -854,7 +852,7 @@ void Deposition::interpolate_with(const TransferPlan* plan, const ParticlePositi
                         const std::array<const double*, kMaxFields> in = value;
                         if (planned && plan->fixed_cells == 0) {
                           // The wide kernels' lanes, compiled for the CPU's vectors.
-                          at_simd_level(simd, [&]() CFDDEM_SIMD_BODY {
+                          at_simd_level(level_, [&]() CFDDEM_SIMD_BODY {
                             for (std::size_t q = r.begin(); q != r.end(); ++q) {
                               std::array<double, kMaxFields> sum;
                               gather_planned_lanes(*plan, layout, q, in, count_of_fields, sum);

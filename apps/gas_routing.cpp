@@ -14,7 +14,7 @@ namespace cfddem::apps {
 
 namespace {
 
-constexpr int kOut = 8;  // x, y, z, vx, vy, vz, radius, id
+constexpr int kOut = 9;  // x, y, z, vx, vy, vz, radius, id, mass
 constexpr int kBack = 4; // fx, fy, fz, id
 
 } // namespace
@@ -57,6 +57,7 @@ const ParticleStore& GasRouting::route(const ParticleStore& p, std::size_t owned
     o[0] = wrapped[i][0], o[1] = wrapped[i][1], o[2] = wrapped[i][2];
     o[3] = p.vx[i], o[4] = p.vy[i], o[5] = p.vz[i], o[6] = p.radius[i];
     o[7] = std::bit_cast<double>(p.id[i]);
+    o[8] = p.mass[i];
   }
   sparse_exchange(comm_, send_counts_, send_, recv_counts_, recv_, kOut, false);
   // The box store in id order: the deposit order then depends on the particles only, not on
@@ -73,6 +74,7 @@ const ParticleStore& GasRouting::route(const ParticleStore& p, std::size_t owned
     box_.x[k] = in[0], box_.y[k] = in[1], box_.z[k] = in[2];
     box_.vx[k] = in[3], box_.vy[k] = in[4], box_.vz[k] = in[5], box_.radius[k] = in[6];
     box_.id[k] = std::bit_cast<std::int64_t>(in[7]);
+    box_.set_mass(k, in[8]); // with 1/m: the adaptive fluid step's drag time reads it
   }
   return box_;
 }

@@ -30,8 +30,9 @@ public:
   // holds its wrapped centre; returns this rank's box store: the arrivals in id order (so the
   // deposit order depends on the particles only, not on threads, owners or their order). It
   // holds the wrapped x, y, z, the velocity (whatever the scheme
-  // holds: the deposit and the force use the same v_i), radius and id; mass and the rest are
-  // left zero (the gas coupling reads none of them).
+  // holds: the deposit and the force use the same v_i), radius, id and mass (with 1/m: the
+  // drag time m / beta caps an adaptive fluid step and bounds a fixed one); the rest is left
+  // zero (the gas coupling reads none of it).
   const ParticleStore& route(const ParticleStore& p, std::size_t owned);
   // Collective. f[a]: one value per particle of the box store, in its order (GasCoupling::force).
   // Sends each back to its owner; afterwards force(a) holds one value per owned particle of the

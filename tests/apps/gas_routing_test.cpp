@@ -44,7 +44,9 @@ ParticleStore share(const Communicator& comm) {
     if (i % comm.size() != comm.rank())
       continue;
     const double shift = i % 5 == 0 ? 1.0 : 0.0; // an unwrapped image
-    p.add(x + shift, y, z - shift, 0.1 * x, 0.2 * y, 0.3 * z, 0.01, 1000.0, i);
+    const std::size_t k =
+        p.add(x + shift, y, z - shift, 0.1 * x, 0.2 * y, 0.3 * z, 0.01, 1000.0, i);
+    p.set_mass(k, 1e-3 * static_cast<double>(i + 1)); // each its own: a copy carries its own
   }
   return p;
 }
@@ -80,12 +82,16 @@ TEST(GasRouting, EveryParticleReachesItsBoxAndItsForceComesBack) {
     for (std::int64_t i = 0; i < 500; ++i)
       EXPECT_EQ(sorted[static_cast<std::size_t>(i)], i);
   }
-  // Each copy is in this rank's box, wrapped, with its velocity and radius.
+  // Each copy is in this rank's box, wrapped, with its velocity, radius and mass (the drag time
+  // m / beta that caps an adaptive fluid step reads 1/m: left zero, it was infinite on R ranks).
   for (std::size_t q = 0; q < box.size(); ++q) {
     EXPECT_EQ(s.boxes.owner_of(box.x[q], box.y[q], box.z[q]), comm.rank());
     EXPECT_GE(box.x[q], 0.0);
     EXPECT_LT(box.x[q], 1.0);
     EXPECT_EQ(box.radius[q], 0.01);
+    const double m = 1e-3 * static_cast<double>(box.id[q] + 1);
+    EXPECT_EQ(box.mass[q], m);
+    EXPECT_EQ(box.inv_mass[q], 1.0 / m);
   }
   std::array<std::vector<double>, 3> f;
   for (int a = 0; a < 3; ++a)

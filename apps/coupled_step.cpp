@@ -390,7 +390,42 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   source_dt_ = moved;
   last_dt_ = dt_f;
   interpolate_forces(p, n);
+  refuse_unstable_drag(p, n, dt_f);
   return report;
+}
+
+// The drag on particle i is held over the fluid step with v_i frozen: forward Euler on the
+// relaxation dv/dt = (u_g - v) / tau_i, tau_i = m_i / beta_i, which scales the slip by
+// 1 - dt_f / tau_i each step. Beyond dt_f = 2 tau_i the slip grows geometrically, and the run
+// went on until a contact or a wall stopped it with words about the spring (a gas 5e4 times as
+// viscous in the bed: the overlap stop 26 particle steps in). At the set-up the still-gas drag
+// time refuses such a fixed fluid.dt (apps/derived_numbers.cpp); a dense bed's drag, or a
+// particle an inlet adds, can still shorten tau_i below it. The particle with the smallest id
+// over the ranks is named.
+void GasCoupling::refuse_unstable_drag(const ParticleStore& p, std::size_t n, double dt_f) const {
+  std::size_t at = n;
+  for (std::size_t i = 0; i < n; ++i)
+    if (beta_[i] * p.inv_mass[i] * dt_f >= 2.0 && (at == n || p.id[i] < p.id[at]))
+      at = i;
+  std::string message;
+  if (at < n) {
+    const double tau = p.mass[at] / beta_[at];
+    message = fmt::format(
+        "particle {} at ({:g}, {:g}, {:g}) m: its drag time m / beta = {:.3g} s (drag law \"{}\", "
+        "eps_g {:.3g}) is less than half the fluid step of {:.3g} s: the drag, held over a fluid "
+        "step with the particle's velocity frozen, reverses and grows its slip every step beyond "
+        "twice the drag time; {}",
+        p.id[at], p.x[at], p.y[at], p.z[at], tau, scene_.fluid.drag, eps_p_[at], dt_f,
+        scene_.fluid.dt > 0.0
+            ? fmt::format("lower fluid.dt below {:.3g} s (a tenth of the drag time keeps it "
+                          "accurate), or set fluid.dt = 0 (adaptive: it follows the drag time)",
+                          2.0 * tau)
+            : std::string("lower fluid.max_dt"));
+  }
+  const std::string agreed =
+      comm_ != nullptr ? comm_->agree_on_error(at < n ? p.id[at] : 0, message) : message;
+  if (!agreed.empty())
+    throw RunError(agreed);
 }
 
 void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {

@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <numbers>
 
 #include <fmt/format.h>
@@ -14,6 +15,7 @@
 #include "dem/explicit_scheme.hpp"
 #include "dem/granular_diagnostics.hpp"
 #include "dem/verlet_list.hpp"
+#include "fluid/drag_law.hpp"
 
 namespace cfddem::apps {
 
@@ -28,6 +30,43 @@ std::array<double, 3> particle_sums(const ParticleStore& p) {
     mass += p.mass[i];
   }
   return {vol, dsum, mass};
+}
+
+// The shortest m_i / beta_i over the particles at eps_g = 1 and no slip (DerivedNumbers); +inf
+// for none, or without a gas or a drag.
+double still_gas_drag_time(const Scene& s, const ParticleStore& p) {
+  double tau = std::numeric_limits<double>::infinity();
+  if (!s.fluid.enabled)
+    return tau;
+  const fluid::DragLaw law = fluid::parse_drag_law(s.fluid.drag);
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const double beta =
+        fluid::drag_beta(law, 1.0, 2.0 * p.radius[i], 0.0, s.fluid.density, s.fluid.viscosity);
+    if (beta > 0.0)
+      tau = std::min(tau, p.mass[i] / beta);
+  }
+  return tau;
+}
+
+// The gas's drag on a particle is held over a fluid step with the particle's velocity frozen
+// (forward Euler on its relaxation), which grows the slip every step once the step is twice the
+// drag time m / beta. A fixed fluid.dt that long for a particle in still gas, the longest drag
+// time it can have, can run no step right: refused, naming the keys. (A dense bed's drag times
+// are shorter; the run stops on those, apps/coupled_step.cpp.)
+void refuse_unstable_drag(const Scene& s, double tau) {
+  const double dt_f = s.fluid.dt;
+  if (!s.fluid.enabled || !(dt_f > 0.0) || dt_f < 2.0 * tau)
+    return;
+  throw ConfigError(
+      "scene key 'fluid.dt'",
+      fmt::format("{:g} s is {:.3g} times the shortest drag time m / beta of a particle in still "
+                  "gas, {:.3g} s (drag law \"{}\", fluid.viscosity = {:g} Pa s): the drag, held "
+                  "over a fluid step with the particle's velocity frozen, reverses and grows its "
+                  "slip every step beyond twice the drag time, and a bed's drag times are shorter "
+                  "still; lower fluid.dt below {:.3g} s (a tenth of the drag time keeps it "
+                  "accurate), set fluid.dt = 0 (adaptive: it follows the drag time), or check "
+                  "fluid.viscosity, particles.diameter and particles.density",
+                  dt_f, dt_f / tau, tau, s.fluid.drag, s.fluid.viscosity, 2.0 * tau));
 }
 
 // A step of 0 s (the lightest particle's mass, or dem.dt_factor, below what a double holds) can
@@ -100,8 +139,9 @@ void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double 
 
 // The numbers from the particles' count, range, sums and granular temperature.
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
-                           std::array<double, 3> sums, double temperature) {
+                           std::array<double, 3> sums, double temperature, double drag_time) {
   DerivedNumbers d;
+  d.still_gas_drag_time = drag_time;
   d.particles = static_cast<std::size_t>(range.count);
   if (s.domain.cylinder())
     d.shape = fmt::format("cylinder along {}, radius {:.6g} m, cross-section {:.6g} m^2",
@@ -111,6 +151,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   refuse_zero_step(s, model.dt, range.count == 0 ? 1.0 : range.m_min);
   refuse_uncountable_steps(s, model.dt);
   refuse_skin_beyond_box(s, range, model.skin);
+  refuse_unstable_drag(s, drag_time);
   if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
     d.dt = model.dt;
     d.steps = std::llround(s.run.end_time / d.dt);
@@ -149,7 +190,8 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
 DerivedNumbers derive(const Scene& s, const ParticleStore& p) {
   const double t =
       p.size() ? dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}).granular_temperature : 0.0;
-  DerivedNumbers d = derive_from(s, dem::particle_range(p), particle_sums(p), t);
+  DerivedNumbers d =
+      derive_from(s, dem::particle_range(p), particle_sums(p), t, still_gas_drag_time(s, p));
   d.sizes = size_statistics(p.radius);
   return d;
 }
@@ -159,7 +201,7 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator
   dem::ParticleRange r = dem::particle_range(p);
   r.count = comm.sum(r.count);
   // Minima as maxima of the negatives (an empty rank holds +inf minima and 0 maxima).
-  std::array<double, 4> ext = {-r.m_min, r.m_max, -r.r_min, r.r_max};
+  std::array<double, 5> ext = {-r.m_min, r.m_max, -r.r_min, r.r_max, -still_gas_drag_time(s, p)};
   comm.max(ext);
   r.m_min = -ext[0], r.m_max = ext[1], r.r_min = -ext[2], r.r_max = ext[3];
   std::array<double, 3> sums = particle_sums(p);
@@ -168,7 +210,7 @@ DerivedNumbers derive(const Scene& s, const ParticleStore& p, const Communicator
       dem::measure({p.x, p.y, p.z, p.vx, p.vy, p.vz, p.mass}, comm).granular_temperature;
   if (range_out)
     *range_out = r;
-  return derive_from(s, r, sums, t);
+  return derive_from(s, r, sums, t, -ext[4]);
 }
 
 std::vector<std::pair<std::string, std::string>> DerivedNumbers::table() const {

@@ -31,6 +31,11 @@ struct DerivedNumbers {
   double collision_frequency = 0; // per particle, Enskog [1/s]
   double haff_time = 0;           // t_H [s] (no gas)
   double contact_duration = 0;    // pi/omega_d for two of the lightest particles [s]
+  // With a gas: the shortest drag time m_i / beta_i of a particle alone in still gas (the drag
+  // law at eps_g = 1 and no slip: Stokes's 3 pi mu d), infinite without a gas or a drag. Denser
+  // suspensions and faster slips only shorten it: a fixed fluid.dt of twice it or more is
+  // refused (the held drag is unstable there; apps/coupled_step.cpp, refuse_unstable_drag).
+  double still_gas_drag_time = 0;
   double dt_per_contact = 0;      // contact duration / dt
   long long steps = 0;            // steps to run.end_time
   // The Verlet list's neighbour cutoff plus skin (the largest diameter and the skin) and the

@@ -252,6 +252,10 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
   if (f.dt > 0) {
     fluid_steps = std::ceil(end / f.dt * (1 - 1e-12));
     t.emplace_back("fluid_steps", fmt::format("{:.0f} (fluid.dt = {:g} s)", fluid_steps, f.dt));
+    if (derived.particles > 0 && std::isfinite(derived.still_gas_drag_time))
+      t.emplace_back("drag_time_s (shortest, still gas)",
+                     fmt::format("{:.4g} (fluid.dt is {:.3g} of it; stable below 2)",
+                                 derived.still_gas_drag_time, f.dt / derived.still_gas_drag_time));
     if (s.dem.subiterated())
       t.emplace_back("dt_sp_s", s.dem.nsubit_auto
                                     ? fmt::format("fluid.dt / m, m chosen per fluid step "
@@ -262,8 +266,8 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
                                                   s.dem.nsubit));
   } else {
     // The adaptive dt_f's range (fluid/fluid_step_rule.hpp): its first step from the initial
-    // and inflow gas velocities and the body force, its cap from fluid.max_dt and the Stokes
-    // time of the lightest particle (a dense bed's drag time is shorter: the run takes it from
+    // and inflow gas velocities and the body force, its cap from fluid.max_dt and the still-gas
+    // drag time of the lightest particle (a dense bed's drag time is shorter: the run takes it from
     // the drag law at each fluid step).
     const GasDrive drive = gas_drive(s);
     const fluid::FluidStepRates r =
@@ -272,17 +276,18 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
                                 fluid::advection_named(f.advection));
     fluid::FluidStepCaps caps; // no previous step
     caps.max_dt = f.max_dt;
-    if (derived.particles > 0 && d > 0 && f.viscosity > 0)
-      caps.drag_time = derived.min_mass / (3.0 * std::numbers::pi * f.viscosity * d);
+    if (derived.particles > 0)
+      caps.drag_time = derived.still_gas_drag_time;
     const double first = fluid::next_fluid_step(r, f.cfl, caps, end);
     const double cap = std::min(caps.max_dt, fluid::kDragStepFraction * caps.drag_time);
     fluid_steps = std::ceil(end / cap * (1 - 1e-12));
-    t.emplace_back("fluid_dt_s (adaptive)",
-                   fmt::format("first {:.3g}, growing at most {:g}x per step up to {:.3g} (fluid.max_dt "
-                               "{:g} s; {:g} of the Stokes time {:.3g} s); below it where the gas's "
-                               "Courant number (cfl {:g}) asks",
-                               first, fluid::kMaxFluidStepGrowth, cap, f.max_dt,
-                               fluid::kDragStepFraction, caps.drag_time, f.cfl));
+    t.emplace_back(
+        "fluid_dt_s (adaptive)",
+        fmt::format("first {:.3g}, growing at most {:g}x per step up to {:.3g} (fluid.max_dt "
+                    "{:g} s; {:g} of the still-gas drag time {:.3g} s); below it where the gas's "
+                    "Courant number (cfl {:g}) asks",
+                    first, fluid::kMaxFluidStepGrowth, cap, f.max_dt, fluid::kDragStepFraction,
+                    caps.drag_time, f.cfl));
     t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive)", fluid_steps));
     if (s.dem.subiterated())
       t.emplace_back("dt_sp_s (adaptive)",

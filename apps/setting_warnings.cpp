@@ -86,6 +86,15 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
         "{:.3g} m, the largest diameter plus the skin, of {} particles in all), and every pair "
         "pass evaluates each of them: the default, a quarter of the largest diameter, lists a few",
         s.dem.neighbor_skin, d.listed_neighbors, d.list_cutoff, d.particles));
+  // A fixed fluid step longer than a particle's drag time in still gas (twice it is refused,
+  // derived_numbers.cpp): the drag held over the step overshoots, reversing the slip each step.
+  if (s.fluid.enabled && s.fluid.dt > 0.0 && s.fluid.dt > d.still_gas_drag_time)
+    w.push_back(fmt::format(
+        "fluid.dt = {:g} s is {:.3g} times the shortest drag time m / beta of a particle in "
+        "still gas, {:.3g} s: the drag, held over a fluid step with the particle's velocity "
+        "frozen, overshoots (each step reverses the slip; beyond twice the drag time it would "
+        "grow); a tenth of the drag time keeps it accurate, or fluid.dt = 0 follows it",
+        s.fluid.dt, s.fluid.dt / d.still_gas_drag_time, d.still_gas_drag_time));
   // dem.dt's step count is known from the scene alone (setting_warnings).
   const double steps = s.run.end_time / d.dt;
   if (!by_dt && steps > kManySteps)

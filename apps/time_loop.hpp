@@ -424,7 +424,12 @@ template <class Run> FluidStepPlan TimeLoop<Run>::gas_step() {
     if (!fixed_)
       run_->set_interval(next.dt_f); // the sub-iterations divide this step
   PhaseTimer::Scope fl(timer_, Phase::fluid);
-  run_->hold_gas_force(gas_->step(particles_, run_->owned(), next.dt_f));
+  try {
+    run_->hold_gas_force(gas_->step(particles_, run_->owned(), next.dt_f));
+  } catch (const RunError& e) { // raised on every rank alike (the gas step is collective)
+    throw RunError(fmt::format("t = {:.9g} s, fluid step {}: {}", loop_.time, loop_.fluid_steps + 1,
+                               e.what()));
+  }
   return next;
 }
 

@@ -779,6 +779,37 @@ def particles_too_fast_at_an_outflow_face_stop(ctx):
 
 
 @case
+def drag_faster_than_the_fluid_step_refused_or_stopped(ctx):
+    """The gas's drag on a particle is held over a fluid step with its velocity frozen, which
+    reverses and grows the slip every step once dt_f is twice the drag time m / beta. A gas 5e4
+    times as viscous in the bed (m / beta = 5.6e-7 s in still gas against fluid.dt = 1e-4 s) ran
+    26 particle steps and stopped with words about the contact spring; particles of 0.5 kg/m^3
+    (lighter than the gas) ran to the wall overlap stop. A fixed fluid.dt of twice the still-gas
+    drag time is refused at set-up naming the key; one over it warns; the bed's dense drag
+    (shorter than in still gas) stops the run at its first fluid step naming a particle."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    expect(ctx, ["check", bed, "fluid.viscosity=1"], 2,
+           r"scene key 'fluid.dt': 0.0001 s is 180 times the shortest drag time m / beta of a "
+           r"particle in still gas, 5.56e-07 s \(drag law \"koch_hill\", fluid.viscosity = 1 Pa "
+           r"s\): the drag, held over a fluid step with the particle's velocity frozen, reverses "
+           r"and grows its slip every step beyond twice the drag time")
+    expect(ctx, ["run", bed, "particles.density=0.5", "run.end_time=2e-4", "--quiet"], 2,
+           r"scene key 'fluid.dt': 0.0001 s is 7.2 times the shortest drag time", fresh=True)
+    # 3 kg/m^3: 1.2 still-gas drag times (a warning), 10.6 of the lattice's dense drag.
+    expect(ctx, ["run", bed, "particles.density=3", "run.end_time=2e-4", "--quiet"], 3,
+           r"(?s)warning: fluid.dt = 0.0001 s is 1.2 times the shortest drag time m / beta of a "
+           r"particle in still gas, 8.33e-05 s: the drag, held over a fluid step with the "
+           r"particle's velocity frozen, overshoots.*"
+           r"run stopped: t = 0 s, fluid step 1: particle 0 at \(5.33333e-05, 5.10638e-05, "
+           r"5.33333e-05\) m: its drag time m / beta = 9.43e-06 s \(drag law \"koch_hill\", "
+           r"eps_g 0.531\) is less than half the fluid step of 0.0001 s",
+           out_dir=ctx.fresh("drag_stopped"))
+    # The adaptive fluid step follows the drag time: no warning, no refusal.
+    quiet = expect(ctx, ["check", bed, "particles.density=0.5", "fluid.dt=0"], 0, None)
+    assert "drag time" not in quiet.split("# resolved")[0], quiet
+
+
+@case
 def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
     """fluid.cells = [1000, 1, 1] on the bed's column makes cells 6250 times longer than wide:
     check and run said nothing, and the run stopped with "reached relative residual 7.55e-10

@@ -314,15 +314,23 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     // ch. 3). The lightest particle's mass over the mean diameter's volume put U_mf of a
     // polydisperse bed 5x low (a density of 222 kg/m^3 for 2500).
     const double d_mf = derived.sizes.d32 > 0 ? derived.sizes.d32 : d;
-    const double umf =
-        minimum_fluidization_velocity(d_mf, derived.solid_density, f.density, f.viscosity, g);
-    t.emplace_back(derived.sizes.d_max > derived.sizes.d_min
-                       ? "minimum_fluidization_velocity_m_s (Wen & Yu, d32)"
-                       : "minimum_fluidization_velocity_m_s (Wen & Yu)",
-                   fmt::format("{:.4g}", umf));
-    const double u_in = std::abs(f.inflow_velocity[static_cast<std::size_t>(axis)]);
-    if (u_in > 0)
-      t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));
+    const char* name = derived.sizes.d_max > derived.sizes.d_min
+                           ? "minimum_fluidization_velocity_m_s (Wen & Yu, d32)"
+                           : "minimum_fluidization_velocity_m_s (Wen & Yu)";
+    if (derived.solid_density <= f.density) {
+      // No bed to fluidize: Wen & Yu's Archimedes number is <= 0 (it gave a negative U_mf and
+      // an inflow of -1e4 U_mf for particles of 0.5 kg/m^3 in the bed's gas).
+      t.emplace_back(name, fmt::format("none: the particles ({:.4g} kg/m^3) are no denser than "
+                                       "the gas ({:.4g} kg/m^3)",
+                                       derived.solid_density, f.density));
+    } else {
+      const double umf =
+          minimum_fluidization_velocity(d_mf, derived.solid_density, f.density, f.viscosity, g);
+      t.emplace_back(name, fmt::format("{:.4g}", umf));
+      const double u_in = std::abs(f.inflow_velocity[static_cast<std::size_t>(axis)]);
+      if (u_in > 0)
+        t.emplace_back("inflow_velocity / U_mf", fmt::format("{:.3g}", u_in / umf));
+    }
   }
   // The gas entering through inflow faces: u_in over the face's open area, the faces of its gas
   // cells (in a column, the staircase: docs/theory.md §13).

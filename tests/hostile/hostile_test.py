@@ -804,9 +804,14 @@ def drag_faster_than_the_fluid_step_refused_or_stopped(ctx):
            r"5.33333e-05\) m: its drag time m / beta = 9.43e-06 s \(drag law \"koch_hill\", "
            r"eps_g 0.531\) is less than half the fluid step of 0.0001 s",
            out_dir=ctx.fresh("drag_stopped"))
-    # The adaptive fluid step follows the drag time: no warning, no refusal.
-    quiet = expect(ctx, ["check", bed, "particles.density=0.5", "fluid.dt=0"], 0, None)
+    # The adaptive fluid step follows the drag time: no warning, no refusal. Particles lighter
+    # than the gas have no minimum fluidization velocity (it was -1.5e-6 m/s, the inflow
+    # -1e4 times it).
+    quiet = expect(ctx, ["check", bed, "particles.density=0.5", "fluid.dt=0"], 0,
+                   r"minimum_fluidization_velocity_m_s \(Wen & Yu\)\s+none: the particles "
+                   r"\(0.5 kg/m\^3\) are no denser than the gas \(1 kg/m\^3\)")
     assert "drag time" not in quiet.split("# resolved")[0], quiet
+    assert "inflow_velocity / U_mf" not in quiet, quiet
 
 
 @case

@@ -9,6 +9,7 @@
 
 #include <fmt/format.h>
 
+#include "apps/particle_inlet.hpp"
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
 #include "dem/domain_geometry.hpp"
@@ -32,20 +33,32 @@ std::array<double, 3> particle_sums(const ParticleStore& p) {
   return {vol, dsum, mass};
 }
 
-// The shortest m_i / beta_i over the particles at eps_g = 1 and no slip (DerivedNumbers); +inf
-// for none, or without a gas or a drag.
+// m / beta of a particle of mass m and radius r at eps_g = 1 and no slip; +inf without a drag.
+double still_gas_drag_time(const Scene& s, fluid::DragLaw law, double m, double r) {
+  const double beta = fluid::drag_beta(law, 1.0, 2.0 * r, 0.0, s.fluid.density, s.fluid.viscosity);
+  return beta > 0.0 ? m / beta : std::numeric_limits<double>::infinity();
+}
+
+// The shortest of those over the particles (DerivedNumbers); +inf for none, or without a gas.
 double still_gas_drag_time(const Scene& s, const ParticleStore& p) {
   double tau = std::numeric_limits<double>::infinity();
   if (!s.fluid.enabled)
     return tau;
   const fluid::DragLaw law = fluid::parse_drag_law(s.fluid.drag);
-  for (std::size_t i = 0; i < p.size(); ++i) {
-    const double beta =
-        fluid::drag_beta(law, 1.0, 2.0 * p.radius[i], 0.0, s.fluid.density, s.fluid.viscosity);
-    if (beta > 0.0)
-      tau = std::min(tau, p.mass[i] / beta);
-  }
+  for (std::size_t i = 0; i < p.size(); ++i)
+    tau = std::min(tau, still_gas_drag_time(s, law, p.mass[i], p.radius[i]));
   return tau;
+}
+
+// The same for the smallest particle an inlet adds (inlet.mass_rate; its drag time is shortest:
+// m / beta grows as rho d^2 in still gas); +inf for none.
+double inlet_drag_time(const Scene& s) {
+  const ParticleInlet in(s);
+  const double r = in.smallest_radius();
+  if (!s.fluid.enabled || !(r > 0.0))
+    return std::numeric_limits<double>::infinity();
+  return still_gas_drag_time(s, fluid::parse_drag_law(s.fluid.drag),
+                             ParticleStore::sphere_mass(s.inlet.density, r), r);
 }
 
 // The gas's drag on a particle is held over a fluid step with the particle's velocity frozen
@@ -53,20 +66,24 @@ double still_gas_drag_time(const Scene& s, const ParticleStore& p) {
 // drag time m / beta. A fixed fluid.dt that long for a particle in still gas, the longest drag
 // time it can have, can run no step right: refused, naming the keys. (A dense bed's drag times
 // are shorter; the run stops on those, apps/coupled_step.cpp.)
-void refuse_unstable_drag(const Scene& s, double tau) {
+void refuse_unstable_drag(const Scene& s, double tau, bool inlet) {
   const double dt_f = s.fluid.dt;
   if (!s.fluid.enabled || !(dt_f > 0.0) || dt_f < 2.0 * tau)
     return;
   throw ConfigError(
       "scene key 'fluid.dt'",
       fmt::format("{:g} s is {:.3g} times the shortest drag time m / beta of a particle in still "
-                  "gas, {:.3g} s (drag law \"{}\", fluid.viscosity = {:g} Pa s): the drag, held "
-                  "over a fluid step with the particle's velocity frozen, reverses and grows its "
-                  "slip every step beyond twice the drag time, and a bed's drag times are shorter "
-                  "still; lower fluid.dt below {:.3g} s (a tenth of the drag time keeps it "
-                  "accurate), set fluid.dt = 0 (adaptive: it follows the drag time), or check "
-                  "fluid.viscosity, particles.diameter and particles.density",
-                  dt_f, dt_f / tau, tau, s.fluid.drag, s.fluid.viscosity, 2.0 * tau));
+                  "gas, {:.3g} s ({}; drag law \"{}\", fluid.viscosity = {:g} Pa s): the drag, "
+                  "held over a fluid step with the particle's velocity frozen, reverses and grows "
+                  "its slip every step beyond twice the drag time, and a bed's drag times are "
+                  "shorter still; lower fluid.dt below {:.3g} s (a tenth of the drag time keeps "
+                  "it accurate), set fluid.dt = 0 (adaptive: it follows the drag time), or check "
+                  "fluid.viscosity, {}.diameter and {}.density",
+                  dt_f, dt_f / tau, tau,
+                  inlet ? "the smallest particle inlet.mass_rate adds"
+                        : "the particles at the start",
+                  s.fluid.drag, s.fluid.viscosity, 2.0 * tau, inlet ? "inlet" : "particles",
+                  inlet ? "inlet" : "particles"));
 }
 
 // A step of 0 s (the lightest particle's mass, or dem.dt_factor, below what a double holds) can
@@ -141,7 +158,8 @@ void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double 
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
                            std::array<double, 3> sums, double temperature, double drag_time) {
   DerivedNumbers d;
-  d.still_gas_drag_time = drag_time;
+  const double inlet = inlet_drag_time(s);
+  d.still_gas_drag_time = std::min(drag_time, inlet);
   d.particles = static_cast<std::size_t>(range.count);
   if (s.domain.cylinder())
     d.shape = fmt::format("cylinder along {}, radius {:.6g} m, cross-section {:.6g} m^2",
@@ -151,7 +169,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   refuse_zero_step(s, model.dt, range.count == 0 ? 1.0 : range.m_min);
   refuse_uncountable_steps(s, model.dt);
   refuse_skin_beyond_box(s, range, model.skin);
-  refuse_unstable_drag(s, drag_time);
+  refuse_unstable_drag(s, d.still_gas_drag_time, inlet < drag_time);
   if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
     d.dt = model.dt;
     d.steps = std::llround(s.run.end_time / d.dt);

@@ -790,11 +790,18 @@ def drag_faster_than_the_fluid_step_refused_or_stopped(ctx):
     bed = os.path.join(SCENES, "fluidized_bed.toml")
     expect(ctx, ["check", bed, "fluid.viscosity=1"], 2,
            r"scene key 'fluid.dt': 0.0001 s is 180 times the shortest drag time m / beta of a "
-           r"particle in still gas, 5.56e-07 s \(drag law \"koch_hill\", fluid.viscosity = 1 Pa "
-           r"s\): the drag, held over a fluid step with the particle's velocity frozen, reverses "
+           r"particle in still gas, 5.56e-07 s \(the particles at the start; drag law \"koch_hill\", "
+           r"fluid.viscosity = 1 Pa s\): the drag, held over a fluid step with the particle's velocity frozen, reverses "
            r"and grows its slip every step beyond twice the drag time")
     expect(ctx, ["run", bed, "particles.density=0.5", "run.end_time=2e-4", "--quiet"], 2,
            r"scene key 'fluid.dt': 0.0001 s is 7.2 times the shortest drag time", fresh=True)
+    # The smallest particle an inlet adds counts too (it stopped the run at its first fluid step).
+    cfb = os.path.join(SCENES, "cfb_riser.toml")
+    expect(ctx, ["check", cfb, "inlet.mass_rate=1e-6", "inlet.recycle=false", "inlet.diameter=1e-6"],
+           2, r"scene key 'fluid.dt': 0.0001 s is 36 times the shortest drag time m / beta of a "
+           r"particle in still gas, 2.78e-06 s \(the smallest particle inlet.mass_rate adds; drag "
+           r"law \"koch_hill\", fluid.viscosity = 2e-05 Pa s\).*check fluid.viscosity, "
+           r"inlet.diameter and inlet.density")
     # 3 kg/m^3: 1.2 still-gas drag times (a warning), 10.6 of the lattice's dense drag.
     expect(ctx, ["run", bed, "particles.density=3", "run.end_time=2e-4", "--quiet"], 3,
            r"(?s)warning: fluid.dt = 0.0001 s is 1.2 times the shortest drag time m / beta of a "

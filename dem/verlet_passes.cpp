@@ -1,5 +1,7 @@
 #include "dem/verlet_passes.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <string>
 
 #include <fmt/format.h>
@@ -15,16 +17,41 @@ std::string describe_fault(const ParticleStore& p, const StepReport& r, const St
   case StepFault::nan:
     why = "position or velocity is not finite (NaN/inf): the step is unstable";
     break;
-  case StepFault::overlap:
-    why = r.partner == kNoParticle
-              ? fmt::format("overlap with a wall is {:.3g} of its radius (dem.max_overlap = {}): "
-                            "the impact is too fast for the spring (raise k or lower dt)",
-                            r.value, m.max_overlap)
-              : fmt::format("overlap with particle {} is {:.3g} of the smaller radius "
-                            "(dem.max_overlap = {}): the impact is too fast for the spring "
-                            "(raise k or lower dt)",
-                            p.id[r.partner], r.value, m.max_overlap);
+  case StepFault::overlap: {
+    // The speed a head-on impact may have for the spring alone to stop it within the bound:
+    // 1/2 m_eff v^2 = 1/2 k (max_overlap r)^2 (the dashpot only lowers the overlap), with the
+    // pair's m_eff and smaller radius, or the particle's own mass and radius at a wall.
+    const bool wall = r.partner == kNoParticle;
+    const std::uint32_t j = wall ? i : r.partner;
+    const double m_eff = wall ? p.mass[i] : p.mass[i] * p.mass[j] / (p.mass[i] + p.mass[j]);
+    const double radius = std::min(p.radius[i], p.radius[j]);
+    const double k = wall ? m.wall.k : m.pair.k;
+    const double held = m.max_overlap * radius * std::sqrt(k / m_eff);
+    const double dvx = p.vx[i] - (wall ? 0.0 : p.vx[j]), dvy = p.vy[i] - (wall ? 0.0 : p.vy[j]),
+                 dvz = p.vz[i] - (wall ? 0.0 : p.vz[j]);
+    const std::string what =
+        wall ? fmt::format("overlap with a wall is {:.3g} of its radius", r.value)
+             : fmt::format("overlap with particle {} is {:.3g} of the smaller radius",
+                           p.id[r.partner], r.value);
+    const double speed = std::sqrt(dvx * dvx + dvy * dvy + dvz * dvz);
+    const char* key = wall ? "dem.wall_spring_constant" : "dem.spring_constant";
+    // Slower than the spring holds: not an impact but a load pressing them together (a column
+    // under a strong body force), which the spring holds within the bound up to k delta_max.
+    const std::string cause =
+        speed >= held
+            ? fmt::format("the impact is too fast for the spring, which stops a head-on impact {} "
+                          "within that overlap only below about {:.3g} m/s ({} = {:g} N/m; the "
+                          "speed it holds grows as sqrt(k))",
+                          wall ? "on the wall" : "of the two", held, key, k)
+            : fmt::format("the spring is too soft for the load pressing {} together: it holds "
+                          "at most k x the bound = {:.3g} N within that overlap ({} = {:g} N/m)",
+                          wall ? "it and the wall" : "them", k * m.max_overlap * radius, key, k);
+    why = fmt::format("{} (dem.max_overlap = {}), at a relative speed of {:.3g} m/s: {}: raise {}, "
+                      "lower the speeds or loads that drive the contact, or, with dt near its "
+                      "stability limit, lower dem.dt_factor",
+                      what, m.max_overlap, speed, cause, key);
     break;
+  }
   case StepFault::speed:
     why = fmt::format("speed {:.4g} m/s moves it more than the smallest radius in one step "
                       "(dt = {:.4g} s): contacts could be missed (tunnelling)",

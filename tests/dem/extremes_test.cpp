@@ -9,6 +9,7 @@
 
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
+#include "dem/verlet_passes.hpp"
 #include "dem_test_support.hpp"
 
 using namespace cfddem;
@@ -225,4 +226,40 @@ TEST(Extremes, AllParticlesInOneCell) {
     EXPECT_TRUE(std::isfinite(p.x[a]) && std::isfinite(p.vx[a]));
     EXPECT_TRUE(p.x[a] > 0 && p.x[a] < 2.4e-4 && p.y[a] > 0 && p.y[a] < 2.4e-4);
   }
+}
+
+// An overlap past dem.max_overlap names what the spring can hold: a head-on impact stops within
+// the bound only below v = max_overlap r sqrt(k / m_eff) (1/2 m_eff v^2 = 1/2 k delta^2), a
+// steady load only below k max_overlap r. Faster than that speed the impact is named, slower the
+// load (a column pressed by a strong body force onto the wall at 0.7 m/s read "too fast").
+TEST(Extremes, OverlapFaultSaysWhatTheSpringHolds) {
+  ParticleStore p;
+  p.add(1e-3, 1e-3, 1e-3, 3.0, 0.0, 0.0, 50e-6, 1000.0, 7);  // m = kMass
+  p.add(1e-3, 1e-3, 1e-3, -3.0, 4.0, 0.0, 25e-6, 1000.0, 9); // m = kMass / 8
+  dem::StepModel m;
+  m.max_overlap = 0.3;
+  m.pair.k = 10.0, m.wall.k = 40.0;
+  dem::StepReport r;
+  r.flag(0, dem::StepFault::overlap, 0.31, 1);
+  // The pair: m_eff = kMass / 9, the smaller radius 25 um, relative speed |(6, -4, 0)|.
+  const double pair_holds = 0.3 * 25e-6 * std::sqrt(10.0 / (kMass / 9.0));
+  ASSERT_LT(pair_holds, std::sqrt(52.0)); // 3.11 m/s: the impact
+  std::string text = dem::describe_fault(p, r, m);
+  EXPECT_NE(text.find("overlap with particle 9 is 0.31 of the smaller radius (dem.max_overlap = "
+                      "0.3), at a relative speed of 7.21 m/s: the impact is too fast for the "
+                      "spring, which stops a head-on impact of the two within that overlap only "
+                      "below about 3.11 m/s (dem.spring_constant = 10 N/m"),
+            std::string::npos)
+      << text;
+  // The wall: the particle's own mass and radius, the wall's spring; 3 m/s is below the
+  // 0.3 x 50 um x sqrt(40 / kMass) = 4.15 m/s it holds: the load.
+  dem::StepReport w;
+  w.flag(0, dem::StepFault::overlap, 0.32);
+  text = dem::describe_fault(p, w, m);
+  EXPECT_NE(text.find("overlap with a wall is 0.32 of its radius (dem.max_overlap = 0.3), at a "
+                      "relative speed of 3 m/s: the spring is too soft for the load pressing it "
+                      "and the wall together: it holds at most k x the bound = 0.0006 N within "
+                      "that overlap (dem.wall_spring_constant = 40 N/m)"),
+            std::string::npos)
+      << text;
 }

@@ -170,6 +170,21 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   refuse_uncountable_steps(s, model.dt);
   refuse_skin_beyond_box(s, range, model.skin);
   refuse_unstable_drag(s, d.still_gas_drag_time, inlet < drag_time);
+  // The speeds the springs stop within dem.max_overlap: the largest particles hold the least
+  // (v = max_overlap r sqrt(k / m_eff) falls as 1 / sqrt(rho r)); those at the start and those
+  // an inlet adds.
+  const auto holds = [&](double r, double m) {
+    if (!(r > 0.0) || !(m > 0.0))
+      return;
+    d.impact_speed_held =
+        std::min(d.impact_speed_held, model.max_overlap * r * std::sqrt(2.0 * model.pair.k / m));
+    d.impact_speed_held_wall =
+        std::min(d.impact_speed_held_wall, model.max_overlap * r * std::sqrt(model.wall.k / m));
+  };
+  if (range.count > 0)
+    holds(range.r_max, range.m_max);
+  if (const ParticleInlet in(s); in.largest_radius() > 0.0)
+    holds(in.largest_radius(), ParticleStore::sphere_mass(s.inlet.density, in.largest_radius()));
   if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
     d.dt = model.dt;
     d.steps = std::llround(s.run.end_time / d.dt);
@@ -247,6 +262,12 @@ std::vector<std::pair<std::string, std::string>> DerivedNumbers::table() const {
       {"contact_duration_s", fmt::format("{:.6e}", contact_duration)},
       {"steps_per_contact", fmt::format("{:.4g}", dt_per_contact)},
   };
+  if (std::isfinite(impact_speed_held)) {
+    rows.emplace_back("impact_speed_held_m_s (pair, dem.max_overlap)",
+                      fmt::format("{:.4g}", impact_speed_held));
+    rows.emplace_back("impact_speed_held_m_s (wall, dem.max_overlap)",
+                      fmt::format("{:.4g}", impact_speed_held_wall));
+  }
   if (!shape.empty())
     rows.insert(rows.begin(), {"domain_shape", shape});
   if (sizes.d_max > sizes.d_min) {

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -36,6 +37,12 @@ struct DerivedNumbers {
   // suspensions and faster slips only shorten it: a fixed fluid.dt of twice it or more is
   // refused (the held drag is unstable there; apps/coupled_step.cpp, refuse_unstable_drag).
   double still_gas_drag_time = 0;
+  // The closing speed of a head-on impact that the spring stops within dem.max_overlap, for two
+  // of the largest particles (at the start or from an inlet) and for one on a wall:
+  // max_overlap r sqrt(k / m_eff) (1/2 m_eff v^2 = 1/2 k delta^2; the dashpot only lowers the
+  // overlap). A faster impact stops the run (exit 3); infinite without particles.
+  double impact_speed_held = std::numeric_limits<double>::infinity();
+  double impact_speed_held_wall = std::numeric_limits<double>::infinity();
   double dt_per_contact = 0;      // contact duration / dt
   long long steps = 0;            // steps to run.end_time
   // The Verlet list's neighbour cutoff plus skin (the largest diameter and the skin) and the

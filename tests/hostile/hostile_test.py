@@ -822,6 +822,30 @@ def drag_faster_than_the_fluid_step_refused_or_stopped(ctx):
 
 
 @case
+def speeds_the_springs_cannot_stop_warn(ctx):
+    """A spring stops a head-on impact within dem.max_overlap only below max_overlap r
+    sqrt(k / m_eff): 2.93 m/s for two of the paper's particles at k = 10 N/m, 2.07 m/s for one
+    on a wall. particles.velocity = [0, 0, 5] on the bed, or an inlet at 100 m/s, ran into the
+    overlap stop with no word before; check lists the speeds and both warn."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    cfb = os.path.join(SCENES, "cfb_riser.toml")
+    out = expect(ctx, ["check", bed, "particles.velocity=[0,0,5]"], 0,
+                 r"warning: particles.velocity moves the particles at 5 m/s toward a wall: the "
+                 r"wall's spring stops the largest of them within dem.max_overlap = 0.3 only below "
+                 r"2.07 m/s")
+    assert re.search(r"impact_speed_held_m_s \(pair, dem.max_overlap\)\s+2.932\n"
+                     r"impact_speed_held_m_s \(wall, dem.max_overlap\)\s+2.073\n", out), out
+    expect(ctx, ["check", cfb, "inlet.velocity=[0,-100,0]"], 0,
+           r"warning: inlet.velocity = 100 m/s: the spring stops a head-on impact of two of the "
+           r"largest particles within dem.max_overlap = 0.3 only below 2.93 m/s")
+    # Slower, or along periodic axes only (the riser's x): no warning.
+    riser = os.path.join(SCENES, "riser.toml")
+    for scene, arg in ((bed, "particles.velocity=[0,0,2]"), (riser, "particles.velocity=[5,0,0]")):
+        quiet = expect(ctx, ["check", scene, arg], 0, None)
+        assert "toward a wall" not in quiet, quiet
+
+
+@case
 def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
     """fluid.cells = [1000, 1, 1] on the bed's column makes cells 6250 times longer than wide:
     check and run said nothing, and the run stopped with "reached relative residual 7.55e-10

@@ -1,6 +1,7 @@
 #include "apps/checkpoint.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <cstdio>
 #include <cstring>
 #include <exception>
@@ -519,11 +520,40 @@ constexpr std::string_view kImpliedLines[] = {
 // Every key whose line differs between this run's fixed lines and the checkpoint's, in this
 // run's order: both values, or the value an older checkpoint implies for a key it predates
 // (kImpliedLines), so that a user sees all that must change at once.
+// A configuration value as a reader would write it: each number in the shortest form that reads
+// back the same. The lines hold 17 digits, so that a restart compares them exactly, and a
+// refusal showed "fluid.dt = 5.0000000000000002e-05 here" for a typed 5e-5.
+std::string shown(std::string_view value) {
+  std::string out;
+  std::size_t i = 0;
+  while (i < value.size()) {
+    std::size_t j = i;
+    while (j < value.size() && std::string_view("[], ").find(value[j]) == std::string_view::npos)
+      ++j;
+    if (j == i) {
+      out.push_back(value[i++]);
+      continue;
+    }
+    const std::string_view token = value.substr(i, j - i);
+    double x = 0.0;
+    const auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), x);
+    if (ec == std::errc() && end == token.data() + token.size())
+      out += fmt::format("{}", x);
+    else
+      out.append(token);
+    i = j;
+  }
+  return out;
+}
+
 std::string configuration_differences(const std::string& now, const std::string& then) {
   const auto key_of = [](std::string_view line) { return line.substr(0, line.find(" = ")); };
   const auto value_of = [](std::string_view line) {
     const std::size_t eq = line.find(" = ");
-    return eq == std::string_view::npos ? std::string_view() : line.substr(eq + 3);
+    return shown(eq == std::string_view::npos ? std::string_view() : line.substr(eq + 3));
+  };
+  const auto line_shown = [&](std::string_view line) {
+    return fmt::format("{} = {}", key_of(line), value_of(line));
   };
   const auto lines_of = [](const std::string& text) {
     std::vector<std::string_view> lines;
@@ -551,20 +581,21 @@ std::string configuration_differences(const std::string& now, const std::string&
     if (it == there.end()) {
       const auto implied = implied_line(key);
       out.push_back(implied != std::end(kImpliedLines)
-                        ? fmt::format("{} here; the checkpoint predates the key and ran {}", line,
-                                      *implied)
-                        : fmt::format("{} here; the checkpoint has no {}", line, key));
+                        ? fmt::format("{} here; the checkpoint predates the key and ran {}",
+                                      line_shown(line), line_shown(*implied))
+                        : fmt::format("{} here; the checkpoint has no {}", line_shown(line), key));
     } else if (*it != line) {
-      out.push_back(fmt::format("{} here, {} in the checkpoint", line, value_of(*it)));
+      out.push_back(fmt::format("{} here, {} in the checkpoint", line_shown(line), value_of(*it)));
     }
   }
   for (const std::string_view line : there)
     if (find(here, key_of(line)) == here.end()) {
       // A key this run left out because it is at its implied value, or one this version lacks.
       const auto implied = implied_line(key_of(line));
-      out.push_back(implied != std::end(kImpliedLines)
-                        ? fmt::format("{} here, {} in the checkpoint", *implied, value_of(line))
-                        : fmt::format("{} in the checkpoint, unknown to this version", line));
+      out.push_back(
+          implied != std::end(kImpliedLines)
+              ? fmt::format("{} here, {} in the checkpoint", line_shown(*implied), value_of(line))
+              : fmt::format("{} in the checkpoint, unknown to this version", line_shown(line)));
     }
   std::string all;
   for (const std::string& d : out)

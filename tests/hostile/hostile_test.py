@@ -754,9 +754,19 @@ def huge_neighbor_skin_warns(ctx):
 
 @case
 def output_interval_below_dt_sp_warns(ctx):
+    """dt_sp divides dem.regrid_interval without a gas, fluid.dt with one (the riser's 1e-4 s
+    over 20); an adaptive fluid step's length is not known before the run, so no warning (it
+    divided dem.regrid_interval, which a run with a gas never divides)."""
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
            r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "
            r"1e-05 s of dem.scheme = \"orb\"")
+    riser = os.path.join(SCENES, "riser.toml")
+    expect(ctx, ["check", riser, "dem.scheme=orb", "dem.nsubit=20", "output.interval=1e-6"], 0,
+           r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "
+           r"5e-06 s of dem.scheme = \"orb\"")
+    quiet = expect(ctx, ["check", riser, "dem.scheme=orb", "output.interval=1e-6", "fluid.dt=0"],
+                   0, None)
+    assert "sub-iteration step" not in quiet, quiet
 
 
 @case

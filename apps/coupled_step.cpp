@@ -25,6 +25,10 @@ namespace cfddem::apps {
 
 namespace {
 
+// refuse_unstable_drag's key for agree_on_error: a particle whose drag is not finite is named
+// before any other (ids are non-negative and below 2^62), then by the smallest id.
+constexpr std::int64_t kNotFiniteFirst = std::int64_t{1} << 62;
+
 // Floor on eps_g seen by the solver and the drag laws: a cell packed beyond random close packing
 // (eps_g ~ 0.36) by deposition noise would make 1/eps^3 terms blow up. Only dense beds reach it.
 constexpr double kMinGasFraction = 0.3;
@@ -360,6 +364,8 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     fluid::copy_field(solver_->volume_fraction(), eps_prev_);
     deposit(p, n);
   }
+  // beta_ is the drag held over this step (interpolate_forces): checked before the gas sees it.
+  refuse_unstable_drag(p, n, dt_f);
   const fluid::GasStepSeconds before = solver_->seconds();
   double gas_seconds = 0.0;
   int substeps = 0;
@@ -390,7 +396,6 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   source_dt_ = moved;
   last_dt_ = dt_f;
   interpolate_forces(p, n);
-  refuse_unstable_drag(p, n, dt_f);
   return report;
 }
 
@@ -403,12 +408,27 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
 // particle an inlet adds, can still shorten tau_i below it. The particle with the smallest id
 // over the ranks is named.
 void GasCoupling::refuse_unstable_drag(const ParticleStore& p, std::size_t n, double dt_f) const {
+  // A drag that is not finite (a speed of 1e300 m/s: the gas's solve then failed with "the
+  // coarsest operator is not positive definite") is named first, as that particle's.
   std::size_t at = n;
-  for (std::size_t i = 0; i < n; ++i)
-    if (beta_[i] * p.inv_mass[i] * dt_f >= 2.0 && (at == n || p.id[i] < p.id[at]))
+  bool finite = true;
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool bad = !std::isfinite(beta_[i] * p.inv_mass[i]) || !std::isfinite(bv_[0][i]) ||
+                     !std::isfinite(bv_[1][i]) || !std::isfinite(bv_[2][i]);
+    if (bad && (finite || p.id[i] < p.id[at]))
+      at = i, finite = false;
+    else if (finite && beta_[i] * p.inv_mass[i] * dt_f >= 2.0 && (at == n || p.id[i] < p.id[at]))
       at = i;
+  }
   std::string message;
-  if (at < n) {
+  if (at < n && !finite) {
+    const double sx = ug_[0][at] - p.vx[at], sy = ug_[1][at] - p.vy[at], sz = ug_[2][at] - p.vz[at];
+    message = fmt::format(
+        "particle {} at ({:g}, {:g}, {:g}) m: its drag is not finite (beta = {:g} kg/s at a slip "
+        "of {:.4g} m/s; velocity ({:.4g}, {:.4g}, {:.4g}) m/s): no step can follow such a speed",
+        p.id[at], p.x[at], p.y[at], p.z[at], beta_[at], std::sqrt(sx * sx + sy * sy + sz * sz),
+        p.vx[at], p.vy[at], p.vz[at]);
+  } else if (at < n) {
     const double tau = p.mass[at] / beta_[at];
     message = fmt::format(
         "particle {} at ({:g}, {:g}, {:g}) m: its drag time m / beta = {:.3g} s (drag law \"{}\", "
@@ -422,8 +442,9 @@ void GasCoupling::refuse_unstable_drag(const ParticleStore& p, std::size_t n, do
                           2.0 * tau)
             : std::string("lower fluid.max_dt"));
   }
-  const std::string agreed =
-      comm_ != nullptr ? comm_->agree_on_error(at < n ? p.id[at] : 0, message) : message;
+  // Over the ranks a non-finite drag comes first (its key below every id), then the smallest id.
+  const std::int64_t key = at == n ? 0 : finite ? p.id[at] : p.id[at] - kNotFiniteFirst;
+  const std::string agreed = comm_ != nullptr ? comm_->agree_on_error(key, message) : message;
   if (!agreed.empty())
     throw RunError(agreed);
 }

@@ -54,6 +54,25 @@ inline LeavingFault leaving_fault(const ParticleStore& p, const std::vector<std:
   return {};
 }
 
+// The same over the first `owned` particles of p: the fault with the smallest id. The time loop
+// asks it before each gas step, which deposits the particles' drag: a speed no particle step can
+// follow (thermal speeds of 5e4 m/s, a velocity of 1e300) is named as the step names it, rather
+// than as a drag the fluid step cannot hold or a gas solve that fails.
+inline LeavingFault unfollowable_fault(const ParticleStore& p, std::size_t owned,
+                                       const dem::StepModel& m) {
+  const double vmax = m.r_min / m.dt;
+  std::size_t at = owned;
+  dem::StepReport first;
+  for (std::size_t i = 0; i < owned; ++i) {
+    dem::StepReport report;
+    if (dem::flag_unfollowable(p, i, vmax * vmax, report) && (at == owned || p.id[i] < p.id[at]))
+      at = i, first = report;
+  }
+  if (at == owned)
+    return {};
+  return {static_cast<std::int64_t>(p.id[at]), dem::describe_fault(p, first, m)};
+}
+
 // Particles leaving through an outflow face and entering through the inlet at the start of a
 // fluid step of dt_f (the rules: apps/particle_outflow.hpp, apps/particle_inlet.hpp). The
 // scheme's state is saved as for a checkpoint (R ranks: each rank's canonical share); the

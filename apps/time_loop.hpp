@@ -424,6 +424,12 @@ template <class Run> FluidStepPlan TimeLoop<Run>::gas_step() {
     if (!fixed_)
       run_->set_interval(next.dt_f); // the sub-iterations divide this step
   PhaseTimer::Scope fl(timer_, Phase::fluid);
+  {
+    const LeavingFault fault = unfollowable_fault(particles_, run_->owned(), run_->scheme.model());
+    if (const std::string agreed = comm_.agree_on_error(fault.id, fault.message); !agreed.empty())
+      throw RunError(fmt::format("t = {:.9g} s, before fluid step {}: {}", loop_.time,
+                                 loop_.fluid_steps + 1, agreed));
+  }
   try {
     run_->hold_gas_force(gas_->step(particles_, run_->owned(), next.dt_f));
   } catch (const RunError& e) { // raised on every rank alike (the gas step is collective)

@@ -54,8 +54,10 @@ std::string describe_fault(const ParticleStore& p, const StepReport& r, const St
   }
   case StepFault::speed:
     why = fmt::format("speed {:.4g} m/s moves it more than the smallest radius in one step "
-                      "(dt = {:.4g} s): contacts could be missed (tunnelling)",
-                      r.value, m.dt);
+                      "(dt = {:.4g} s): contacts could be missed (tunnelling); a step that "
+                      "follows it is below {:.3g} s (dem.dt_factor, or dem.dt; a fixed fluid.dt "
+                      "bounds it too), or the speed comes from a setting to look at",
+                      r.value, m.dt, m.r_min / r.value);
     break;
   case StepFault::left_domain:
     why = fmt::format("left the domain through a wall (coordinate {:.6g} m)", r.value);

@@ -269,16 +269,16 @@ inline void near_walls(const ParticleStore& p, std::size_t n, const VerletList& 
 inline bool flag_unfollowable(const ParticleStore& p, std::size_t i, double vmax2,
                               StepReport& out) {
   const double u2 = p.vx[i] * p.vx[i] + p.vy[i] * p.vy[i] + p.vz[i] * p.vz[i];
+  if (u2 <= vmax2 && std::isfinite(p.x[i] + p.y[i] + p.z[i]))
+    return false; // the common case: one test
   const auto ii = static_cast<std::uint32_t>(i);
-  if (!std::isfinite(u2) || !std::isfinite(p.x[i] + p.y[i] + p.z[i])) {
+  // A finite velocity whose square overflows (1e300 m/s) is a speed, not a NaN.
+  const bool finite_v = std::isfinite(p.vx[i]) && std::isfinite(p.vy[i]) && std::isfinite(p.vz[i]);
+  if (!finite_v || !std::isfinite(p.x[i] + p.y[i] + p.z[i]))
     out.flag(ii, StepFault::nan, u2);
-    return true;
-  }
-  if (!(u2 <= vmax2)) {
-    out.flag(ii, StepFault::speed, std::sqrt(u2));
-    return true;
-  }
-  return false;
+  else
+    out.flag(ii, StepFault::speed, std::hypot(p.vx[i], p.vy[i], p.vz[i]));
+  return true;
 }
 
 // Rare path of the update: the first particle of [0, n) that is not finite, too fast

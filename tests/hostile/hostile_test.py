@@ -859,6 +859,24 @@ def speeds_the_springs_cannot_stop_warn(ctx):
 
 
 @case
+def speeds_no_step_follows_stop_before_the_gas_step(ctx):
+    """The gas step deposits the particles' drag before they take a step: a velocity of 1e300
+    m/s on the bed stopped the run with "multigrid: the coarsest operator is not positive
+    definite", a thermal speed of 5e4 m/s in hcs_gas with a drag time. A speed no particle step
+    follows is named before the gas step, in the particle step's words, with the step it needs."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    gas = os.path.join(SCENES, "hcs_gas.toml")
+    expect(ctx, ["run", bed, "particles.velocity=[1e300,0,0]", "run.end_time=2e-4", "--quiet"], 3,
+           r"run stopped: t = 0 s, before fluid step 1: particle 0 at \(5.33333e-05, 5.10638e-05, "
+           r"5.33333e-05\) m: speed 1e\+300 m/s moves it more than the smallest radius in one step "
+           r"\(dt = 1.447e-07 s\): contacts could be missed \(tunnelling\); a step that follows it "
+           r"is below 5e-305 s", out_dir=ctx.fresh("speed_1e300"))
+    expect(ctx, ["run", gas, "particles.temperature=1e9", "run.end_time=2e-4", "--quiet"], 3,
+           r"run stopped: t = 0 s, before fluid step 1: particle \d+ at .* m: speed \S+e\+04 m/s "
+           r"moves it more than the smallest radius in one step", out_dir=ctx.fresh("speed_T"))
+
+
+@case
 def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
     """fluid.cells = [1000, 1, 1] on the bed's column makes cells 6250 times longer than wide:
     check and run said nothing, and the run stopped with "reached relative residual 7.55e-10

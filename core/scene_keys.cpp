@@ -659,7 +659,9 @@ std::vector<SceneKey> make_table() {
                   "/ dt) equal steps in it, orb and islands `dem.nsubit` sub-iterations of dt_f "
                   "/ nsubit; 0: the gas's adaptive step ([gas_step.md](gas_step.md)), which every "
                   "scheme takes (islands \"auto\" keep the sub-iteration length chosen for the "
-                  "first fluid step)"},
+                  "first fluid step). The drag is held over dt_f: twice the particles' shortest "
+                  "drag time m / beta in still gas or more is refused, more than once warns "
+                  "([hostile_input.md](hostile_input.md))"},
       {.name = "fluid.cfl",
        .type = T::Number,
        .section = S::Fluid,

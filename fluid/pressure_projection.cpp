@@ -523,6 +523,8 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
       mg_->solve(rhs_, solution_, settings_.tolerance, settings_.max_iterations);
   report.iterations = mr.iterations;
   report.relative_residual = mr.relative_residual;
+  if (!std::isfinite(mr.relative_residual))
+    throw std::runtime_error(not_finite_input(eps, mobility, source));
   if (!mr.converged) {
     // Stalled (MultigridReport): round-off bounds the residual above the tolerance. Cells far
     // from cubes raise that floor (the operator's rows mix 1/dx^2 of very different sizes):
@@ -544,6 +546,53 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
                                  longest / shortest)
                    : std::string()));
   }
+}
+
+// Why the multigrid's residual is not finite: the first cell (x fastest) whose right-hand side,
+// or face coefficient, is not finite, with the terms that made it. A velocity of 1e300 m/s or an
+// outflow pressure of 1e300 Pa (whose squares overflow) read "reached relative residual -nan
+// after 0 iterations".
+std::string PressureProjection::not_finite_input(const GridField& eps,
+                                                 const std::array<GridField, 3>& mobility,
+                                                 const GridField& source) const {
+  const GridLayout& layout = grid_.layout();
+  const auto& n = grid_.cells();
+  for (int k = 0; k < n[2]; ++k)
+    for (int j = 0; j < n[1]; ++j)
+      for (int i = 0; i < n[0]; ++i) {
+        const std::size_t m = static_cast<std::size_t>(i) +
+                              static_cast<std::size_t>(n[0]) *
+                                  (static_cast<std::size_t>(j) +
+                                   static_cast<std::size_t>(n[1]) * static_cast<std::size_t>(k));
+        const auto c = static_cast<std::size_t>(layout.index(i, j, k));
+        // Finite squares: the solver's norms and dot products square its values.
+        const auto held = [](double x) { return std::isfinite(x * x); };
+        bool faces = true;
+        for (int a = 0; a < 3; ++a)
+          faces = faces && held(face_coef_[a][c]) &&
+                  held(face_coef_[a][c + static_cast<std::size_t>(layout.stride(a))]);
+        if (held(rhs_[m]) && faces)
+          continue;
+        std::string outflow;
+        for (int a = 0; a < 3; ++a)
+          for (int side = 0; side < 2; ++side) {
+            const BoundaryCondition& bc = grid_.bc(a, side);
+            const int at = a == 0 ? i : a == 1 ? j : k;
+            if (bc.kind == BoundaryKind::outflow && !grid_.exchanged(a, side) &&
+                at == (side == 0 ? 0 : n[a] - 1))
+              outflow = fmt::format(", next to an outflow face at {:g} Pa (fluid.outflow_pressure)",
+                                    bc.pressure);
+          }
+        return fmt::format(
+            "pressure projection: its equation overflows at gas cell ({}, {}, {}) (right-hand "
+            "side {:g}: velocity divergence {:g}, continuity source {:g}{}; eps_g {:g}, face "
+            "mobilities {:g} {:g} {:g}): a value not finite, or whose square double precision "
+            "cannot hold",
+            i, j, k, rhs_[m], div_[c], source[c], outflow, eps[c], mobility[0][c], mobility[1][c],
+            mobility[2][c]);
+      }
+  return "pressure projection: the multigrid's residual is not finite, though its equation's "
+         "values and their squares are";
 }
 
 void PressureProjection::solve_with_hypre(const GridField& eps,

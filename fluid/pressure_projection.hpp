@@ -7,6 +7,7 @@
 
 #include <array>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "fluid/grid_field.hpp"
@@ -122,6 +123,10 @@ public:
 
 private:
   struct Hypre;
+  // The message for a multigrid residual that is not finite (the .cpp).
+  [[nodiscard]] std::string not_finite_input(const GridField& eps,
+                                             const std::array<GridField, 3>& mobility,
+                                             const GridField& source) const;
   // The projection's right-hand side into rhs_ and the solve into solution_: hypre (stencil rows
   // assembled) or the multigrid (face coefficients).
   void solve_with_hypre(const GridField& eps, const std::array<GridField, 3>& mobility,

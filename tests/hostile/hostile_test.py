@@ -877,6 +877,18 @@ def speeds_no_step_follows_stop_before_the_gas_step(ctx):
 
 
 @case
+def overflowing_projection_names_the_cell(ctx):
+    """fluid.outflow_pressure = 1e300 Pa puts 5e303 into the pressure equation's right-hand side,
+    whose square overflows: the run stopped with "reached relative residual -nan after 0
+    iterations". It names the cell, the terms and the outflow pressure."""
+    bed = os.path.join(SCENES, "fluidized_bed.toml")
+    expect(ctx, ["run", bed, "fluid.outflow_pressure=1e300", "run.end_time=2e-4", "--quiet"], 3,
+           r"pressure projection: its equation overflows at gas cell \(0, 49, 0\) \(right-hand "
+           r"side 5e\+303: .* next to an outflow face at 1e\+300 Pa \(fluid.outflow_pressure\)",
+           out_dir=ctx.fresh("outflow_1e300"))
+
+
+@case
 def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
     """fluid.cells = [1000, 1, 1] on the bed's column makes cells 6250 times longer than wide:
     check and run said nothing, and the run stopped with "reached relative residual 7.55e-10

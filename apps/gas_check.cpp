@@ -102,6 +102,32 @@ std::optional<std::string> adaptive_step_warning(const Scene& s) {
                      s.fluid.cfl, start.first, start.steps, s.run.end_time);
 }
 
+std::optional<std::string> particle_driven_substeps_warning(const Scene& s) {
+  const auto& f = s.fluid;
+  if (!f.enabled || !(f.dt > 0.0) || s.particles.count == 0)
+    return std::nullopt;
+  // The particles drive the gas toward their velocities: their mean and, per axis, the thermal
+  // speed sqrt(T) bound what their drag gives a gas at rest (hcs_gas, at rest with particles at
+  // T = 0.1 m^2/s^2, took 10 s a fluid step at cfl 1e-6, and no fluid step ended at 1e-9).
+  const double thermal = std::sqrt(std::max(0.0, s.particles.temperature));
+  std::array<double, 3> speed{};
+  for (std::size_t a = 0; a < 3; ++a)
+    speed[a] = std::abs(s.particles.velocity[a]) + thermal;
+  const double substep = fluid::courant_step(
+      fluid::fluid_step_rates(speed, cell_spacing(s), 0.0, false, {0.0, 0.0, 0.0},
+                              fluid::advection_named(f.advection)),
+      f.cfl);
+  const double substeps = f.dt / substep;
+  if (!(substeps > kMaxGasSubstepsPerFluidStep))
+    return std::nullopt;
+  return fmt::format(
+      "fluid.cfl = {:g}: once the particles (up to {:.3g} m/s along an axis) set "
+      "the gas moving, it may take up to {:.3g} sub-steps in each fluid step of {:g} "
+      "s, for which a run shows no progress; the gas step is stable up to cfl {:g}",
+      f.cfl, *std::max_element(speed.begin(), speed.end()), substeps, f.dt,
+      fluid::max_stable_courant(fluid::advection_named(f.advection)));
+}
+
 double gas_memory_bytes(const Scene& s) {
   const auto& c = s.fluid.cells;
   return static_cast<double>(c[0]) * static_cast<double>(c[1]) * static_cast<double>(c[2]) *

@@ -36,6 +36,12 @@ inline constexpr double kManyFluidSteps = 1e8;
 // run.end_time (a tiny fluid.cfl); none for a fixed step, or one refused as uncountable.
 std::optional<std::string> adaptive_step_warning(const Scene& scene);
 
+// With a fixed fluid step: a warning when the particles' speeds (particles.velocity and the
+// thermal sqrt(T) per axis), to which their drag sets a gas at rest moving, would make the gas
+// take more than kMaxGasSubstepsPerFluidStep sub-steps at fluid.cfl. The speeds the gas is given
+// are refused by check_gas_numbers; those the particles give it are an estimate: a warning.
+std::optional<std::string> particle_driven_substeps_warning(const Scene& scene);
+
 // The gas's memory estimate for the whole grid (scene.fluid.cells, kGasBytesPerCell each), in
 // bytes.
 double gas_memory_bytes(const Scene& scene);

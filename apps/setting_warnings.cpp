@@ -28,6 +28,8 @@ std::vector<std::string> setting_warnings(const Scene& s) {
                             end / s.dem.dt / 1e8 / (365.25 * 24 * 3600)));
   if (const auto adaptive = adaptive_step_warning(s))
     w.push_back(*adaptive);
+  if (const auto driven = particle_driven_substeps_warning(s))
+    w.push_back(*driven);
   if (s.fluid.enabled) {
     const std::array<double, 3> dx = cell_spacing(s);
     const auto [shortest, longest] = std::minmax({dx[0], dx[1], dx[2]});

@@ -867,6 +867,7 @@ struct Fault {
 // vectorizes) says whether to look for one.
 std::optional<Fault> find_fault(const ParticleStore& p, std::size_t n, const DomainGeometry& g);
 // "t = .. s, sub-iteration ..: particle <id> at (..) m: <what>" (the run's stop message).
-std::string fault_message(const ParticleStore& p, const Fault& f, double t, std::int64_t subit);
+std::string fault_message(const ParticleStore& p, const Fault& f, double t, std::int64_t subit,
+                          const StepModel& m);
 
 } // namespace cfddem::dem::islands

@@ -871,7 +871,7 @@ void IslandsScheme::raise_fault(const std::optional<islands::Fault>& fault) cons
   std::int64_t key = std::numeric_limits<std::int64_t>::max();
   if (fault) {
     key = p_.id[fault->index];
-    message = islands::fault_message(p_, *fault, time() + dt_sp_, st_.subits);
+    message = islands::fault_message(p_, *fault, time() + dt_sp_, st_.subits, model_);
     if (rank_)
       message += fmt::format(" (rank {})", rank_->comm.rank());
   }

@@ -1135,13 +1135,14 @@ std::optional<Fault> find_fault(const ParticleStore& p, std::size_t n, const Dom
   return std::nullopt;
 }
 
-std::string fault_message(const ParticleStore& p, const Fault& f, double t, std::int64_t subit) {
+std::string fault_message(const ParticleStore& p, const Fault& f, double t, std::int64_t subit,
+                          const StepModel& m) {
   const std::size_t i = f.index;
   return fmt::format(
       "t = {:.9g} s, sub-iteration {}: particle {} at ({:.6g}, {:.6g}, {:.6g}) m: {}", t, subit,
       p.id[i], p.x[i], p.y[i], p.z[i],
       f.nonfinite ? "position or velocity is not finite (NaN/inf): the step is unstable"
-                  : "left the domain through a wall");
+                  : "left the domain through a wall" + wall_passage(p, i, m));
 }
 
 } // namespace islands

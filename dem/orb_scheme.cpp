@@ -695,7 +695,8 @@ void OrbScheme::raise_fault() {
         stats_.subits, p_.id[i], p_.x[i], p_.y[i], p_.z[i],
         bt.fault == Fault::nan
             ? "position or velocity is not finite (NaN/inf): the step is unstable"
-            : fmt::format("left the domain through a wall (coordinate {:.6g} m)", bt.fault_value),
+            : fmt::format("left the domain through a wall (coordinate {:.6g} m){}", bt.fault_value,
+                          wall_passage(p_, i, model_)),
         rank_ ? fmt::format(" (rank {})", rank_->comm.rank()) : std::string());
   }
   throw RunError(rank_ ? rank_->comm.agree_on_error(key, message) : message);

@@ -8,6 +8,18 @@
 
 namespace cfddem::dem {
 
+std::string wall_passage(const ParticleStore& p, std::size_t i, const StepModel& m) {
+  // As the overlap stop's words at a wall (describe_fault): the particle's own mass and radius.
+  const double held = m.max_overlap * p.radius[i] * std::sqrt(m.wall.k / p.mass[i]);
+  return fmt::format(
+      ", at a speed of {:.3g} m/s: the wall's spring (dem.wall_spring_constant = {:g} N/m) stops "
+      "an impact of this particle within dem.max_overlap = {:g} only below about {:.3g} m/s, and "
+      "holds a load there only up to {:.3g} N; raise it, or lower the speeds or loads that drive "
+      "the particle",
+      std::hypot(p.vx[i], p.vy[i], p.vz[i]), m.wall.k, m.max_overlap, held,
+      m.wall.k * m.max_overlap * p.radius[i]);
+}
+
 std::string describe_fault(const ParticleStore& p, const StepReport& r, const StepModel& m) {
   const std::uint32_t i = r.bad;
   const std::string who =
@@ -60,7 +72,8 @@ std::string describe_fault(const ParticleStore& p, const StepReport& r, const St
                       r.value, m.dt, m.r_min / r.value);
     break;
   case StepFault::left_domain:
-    why = fmt::format("left the domain through a wall (coordinate {:.6g} m)", r.value);
+    why = fmt::format("left the domain through a wall (coordinate {:.6g} m){}", r.value,
+                      wall_passage(p, i, m));
     break;
   case StepFault::none:
     break;

@@ -416,5 +416,9 @@ void update_pass(ParticleStore& p, std::size_t n, const VerletList& list,
 // "particle <id> at (...): <why>" for a report with a fault (ids of the store: a partner may be
 // a ghost copy).
 std::string describe_fault(const ParticleStore& p, const StepReport& r, const StepModel& m);
+// Why particle i could pass through a wall, for the words after "left the domain through a
+// wall": its speed, and the impact speed and the load the wall's spring stops within
+// dem.max_overlap (orb and islands count overlaps and stop only there).
+std::string wall_passage(const ParticleStore& p, std::size_t i, const StepModel& m);
 
 } // namespace cfddem::dem

@@ -262,4 +262,14 @@ TEST(Extremes, OverlapFaultSaysWhatTheSpringHolds) {
                       "that overlap (dem.wall_spring_constant = 40 N/m)"),
             std::string::npos)
       << text;
+  // orb and islands count overlaps: a particle through a wall says what the wall's spring holds.
+  dem::StepReport left;
+  left.flag(0, dem::StepFault::left_domain, -1e-6);
+  text = dem::describe_fault(p, left, m);
+  EXPECT_NE(text.find("left the domain through a wall (coordinate -1e-06 m), at a speed of 3 m/s: "
+                      "the wall's spring (dem.wall_spring_constant = 40 N/m) stops an impact of "
+                      "this particle within dem.max_overlap = 0.3 only below about 4.15 m/s, and "
+                      "holds a load there only up to 0.0006 N"),
+            std::string::npos)
+      << text;
 }

@@ -239,37 +239,33 @@ TEST(Extremes, OverlapFaultSaysWhatTheSpringHolds) {
   dem::StepModel m;
   m.max_overlap = 0.3;
   m.pair.k = 10.0, m.wall.k = 40.0;
-  dem::StepReport r;
-  r.flag(0, dem::StepFault::overlap, 0.31, 1);
   // The pair: m_eff = kMass / 9, the smaller radius 25 um, relative speed |(6, -4, 0)|.
   const double pair_holds = 0.3 * 25e-6 * std::sqrt(10.0 / (kMass / 9.0));
   ASSERT_LT(pair_holds, std::sqrt(52.0)); // 3.11 m/s: the impact
-  std::string text = dem::describe_fault(p, r, m);
-  EXPECT_NE(text.find("overlap with particle 9 is 0.31 of the smaller radius (dem.max_overlap = "
-                      "0.3), at a relative speed of 7.21 m/s: the impact is too fast for the "
-                      "spring, which stops a head-on impact of the two within that overlap only "
-                      "below about 3.11 m/s (dem.spring_constant = 10 N/m"),
-            std::string::npos)
-      << text;
+  // Each report's words hold `needle`.
+  const auto says = [&](dem::StepFault fault, double value, std::uint32_t partner,
+                        const std::string& needle) {
+    dem::StepReport report;
+    report.flag(0, fault, value, partner);
+    const std::string text = dem::describe_fault(p, report, m);
+    EXPECT_NE(text.find(needle), std::string::npos) << text;
+  };
+  says(dem::StepFault::overlap, 0.31, 1,
+       "overlap with particle 9 is 0.31 of the smaller radius (dem.max_overlap = 0.3), at a "
+       "relative speed of 7.21 m/s: the impact is too fast for the spring, which stops a "
+       "head-on impact of the two within that overlap only below about 3.11 m/s "
+       "(dem.spring_constant = 10 N/m");
   // The wall: the particle's own mass and radius, the wall's spring; 3 m/s is below the
   // 0.3 x 50 um x sqrt(40 / kMass) = 4.15 m/s it holds: the load.
-  dem::StepReport w;
-  w.flag(0, dem::StepFault::overlap, 0.32);
-  text = dem::describe_fault(p, w, m);
-  EXPECT_NE(text.find("overlap with a wall is 0.32 of its radius (dem.max_overlap = 0.3), at a "
-                      "relative speed of 3 m/s: the spring is too soft for the load pressing it "
-                      "and the wall together: it holds at most k x the bound = 0.0006 N within "
-                      "that overlap (dem.wall_spring_constant = 40 N/m)"),
-            std::string::npos)
-      << text;
+  says(dem::StepFault::overlap, 0.32, dem::kNoParticle,
+       "overlap with a wall is 0.32 of its radius (dem.max_overlap = 0.3), at a relative speed "
+       "of 3 m/s: the spring is too soft for the load pressing it and the wall together: it "
+       "holds at most k x the bound = 0.0006 N within that overlap (dem.wall_spring_constant = "
+       "40 N/m)");
   // orb and islands count overlaps: a particle through a wall says what the wall's spring holds.
-  dem::StepReport left;
-  left.flag(0, dem::StepFault::left_domain, -1e-6);
-  text = dem::describe_fault(p, left, m);
-  EXPECT_NE(text.find("left the domain through a wall (coordinate -1e-06 m), at a speed of 3 m/s: "
-                      "the wall's spring (dem.wall_spring_constant = 40 N/m) stops an impact of "
-                      "this particle within dem.max_overlap = 0.3 only below about 4.15 m/s, and "
-                      "holds a load there only up to 0.0006 N"),
-            std::string::npos)
-      << text;
+  says(dem::StepFault::left_domain, -1e-6, dem::kNoParticle,
+       "left the domain through a wall (coordinate -1e-06 m), at a speed of 3 m/s: the wall's "
+       "spring (dem.wall_spring_constant = 40 N/m) stops an impact of this particle within "
+       "dem.max_overlap = 0.3 only below about 4.15 m/s, and holds a load there only up to "
+       "0.0006 N");
 }

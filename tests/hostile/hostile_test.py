@@ -109,6 +109,13 @@ def expect(ctx, args, code, needle, out_dir=None, timeout=TIMEOUT, fresh=False, 
     return out
 
 
+def stops(ctx, scene, overrides, needle, name, end="2e-4"):
+    """A run of `scene` with `overrides` to run.end_time = `end` that stops (exit 3) with
+    `needle`, into a fresh directory `name`."""
+    return expect(ctx, ["run", scene, *overrides, f"run.end_time={end}", "--quiet"], 3, needle,
+                  out_dir=ctx.fresh(name))
+
+
 # ---- the command line (exit 2, plain message) ----
 @case
 def threads_zero(ctx):
@@ -873,14 +880,14 @@ def speeds_no_step_follows_stop_before_the_gas_step(ctx):
     follows is named before the gas step, in the particle step's words, with the step it needs."""
     bed = os.path.join(SCENES, "fluidized_bed.toml")
     gas = os.path.join(SCENES, "hcs_gas.toml")
-    expect(ctx, ["run", bed, "particles.velocity=[1e300,0,0]", "run.end_time=2e-4", "--quiet"], 3,
-           r"run stopped: t = 0 s, before fluid step 1: particle 0 at \(5.33333e-05, 5.10638e-05, "
-           r"5.33333e-05\) m: speed 1e\+300 m/s moves it more than the smallest radius in one step "
-           r"\(dt = 1.447e-07 s\): contacts could be missed \(tunnelling\); a step that follows it "
-           r"is below 5e-305 s", out_dir=ctx.fresh("speed_1e300"))
-    expect(ctx, ["run", gas, "particles.temperature=1e9", "run.end_time=2e-4", "--quiet"], 3,
-           r"run stopped: t = 0 s, before fluid step 1: particle \d+ at .* m: speed \S+e\+04 m/s "
-           r"moves it more than the smallest radius in one step", out_dir=ctx.fresh("speed_T"))
+    stops(ctx, bed, ["particles.velocity=[1e300,0,0]"],
+          r"run stopped: t = 0 s, before fluid step 1: particle 0 at \(5.33333e-05, 5.10638e-05, "
+          r"5.33333e-05\) m: speed 1e\+300 m/s moves it more than the smallest radius in one step "
+          r"\(dt = 1.447e-07 s\): contacts could be missed \(tunnelling\); a step that follows it "
+          r"is below 5e-305 s", "speed_1e300")
+    stops(ctx, gas, ["particles.temperature=1e9"],
+          r"run stopped: t = 0 s, before fluid step 1: particle \d+ at .* m: speed \S+e\+04 m/s "
+          r"moves it more than the smallest radius in one step", "speed_T")
 
 
 @case
@@ -889,10 +896,10 @@ def overflowing_projection_names_the_cell(ctx):
     whose square overflows: the run stopped with "reached relative residual -nan after 0
     iterations". It names the cell, the terms and the outflow pressure."""
     bed = os.path.join(SCENES, "fluidized_bed.toml")
-    expect(ctx, ["run", bed, "fluid.outflow_pressure=1e300", "run.end_time=2e-4", "--quiet"], 3,
-           r"pressure projection: its equation overflows at gas cell \(0, 49, 0\) \(right-hand "
-           r"side 5e\+303: .* next to an outflow face at 1e\+300 Pa \(fluid.outflow_pressure\)",
-           out_dir=ctx.fresh("outflow_1e300"))
+    stops(ctx, bed, ["fluid.outflow_pressure=1e300"],
+          r"pressure projection: its equation overflows at gas cell \(0, 49, 0\) \(right-hand "
+          r"side 5e\+303: .* next to an outflow face at 1e\+300 Pa \(fluid.outflow_pressure\)",
+          "outflow_1e300")
 
 
 @case
@@ -915,11 +922,11 @@ def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
     # On cubic cells the coefficients' span is the cause: a gas of 1e-9 kg/m^3 under the
     # particles' drag spreads them 7e8-fold (it named the cells' shape, 1:1, as the cause).
     gas = os.path.join(SCENES, "hcs_gas.toml")
-    expect(ctx, ["run", gas, "fluid.density=1e-9", "run.end_time=3e-4", "--quiet"], 3,
-           r"stopped making progress at relative residual \S+ after \d+ iterations \(tolerance "
-           r"1e-10\): round-off holds the residual above the tolerance \(the cells' longest side "
-           r"is 1x their shortest, the face coefficients eps_g x mobility / dx\^2 span 7.12e\+08x; "
-           r"a looser fluid.tolerance lowers that floor\)", out_dir=ctx.fresh("light_gas"))
+    stops(ctx, gas, ["fluid.density=1e-9"],
+          r"stopped making progress at relative residual \S+ after \d+ iterations \(tolerance "
+          r"1e-10\): round-off holds the residual above the tolerance \(the cells' longest side "
+          r"is 1x their shortest, the face coefficients eps_g x mobility / dx\^2 span 7.12e\+08x; "
+          r"a looser fluid.tolerance lowers that floor\)", "light_gas")
 
 
 @case

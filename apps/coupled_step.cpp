@@ -226,7 +226,9 @@ GasCoupling::GasCoupling(const Scene& scene, double r_max, const Communicator* c
 }
 
 void GasCoupling::attach(const ParticleStore& p, std::size_t owned) {
-  deposit(p, std::min(owned, p.size()));
+  const std::size_t n = std::min(owned, p.size());
+  deposit(p, n);
+  check_drag(p, n, 0.0); // the adaptive dt_f's first cap
   solver_->reset_volume_fraction_history();
 }
 
@@ -328,16 +330,6 @@ void GasCoupling::deposit(const ParticleStore& p, std::size_t n) {
     for (int a = 0; a < 3; ++a)
       bv_[a][i] = beta_[i] * (*v[a])[i];
   });
-  // The smallest relaxation time m_i / beta_i caps the adaptive dt_f (a min: exact in any order);
-  // a fixed fluid.dt never reads it, and is spared the pass and its reduction over the ranks.
-  if (!(scene_.fluid.dt > 0.0)) {
-    double inv_tau = 0.0;
-    for (std::size_t i = 0; i < n; ++i)
-      inv_tau = std::max(inv_tau, beta_[i] * p.inv_mass[i]);
-    if (comm_ != nullptr)
-      inv_tau = comm_->max(inv_tau);
-    drag_time_ = inv_tau > 0.0 ? 1.0 / inv_tau : std::numeric_limits<double>::infinity();
-  }
   if (scene_.fluid.one_way)
     return; // no reaction on the gas: its drag fields stay the zeros it started with
   // beta_i and beta_i v_i to the cells, in one pass.
@@ -365,7 +357,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
     deposit(p, n);
   }
   // beta_ is the drag held over this step (interpolate_forces): checked before the gas sees it.
-  refuse_unstable_drag(p, n, dt_f);
+  check_drag(p, n, dt_f);
   const fluid::GasStepSeconds before = solver_->seconds();
   double gas_seconds = 0.0;
   int substeps = 0;
@@ -399,27 +391,47 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   return report;
 }
 
-// The drag on particle i is held over the fluid step with v_i frozen: forward Euler on the
-// relaxation dv/dt = (u_g - v) / tau_i, tau_i = m_i / beta_i, which scales the slip by
-// 1 - dt_f / tau_i each step. Beyond dt_f = 2 tau_i the slip grows geometrically, and the run
-// went on until a contact or a wall stopped it with words about the spring (a gas 5e4 times as
-// viscous in the bed: the overlap stop 26 particle steps in). At the set-up the still-gas drag
-// time refuses such a fixed fluid.dt (apps/derived_numbers.cpp); a dense bed's drag, or a
-// particle an inlet adds, can still shorten tau_i below it. The particle with the smallest id
-// over the ranks is named.
-void GasCoupling::refuse_unstable_drag(const ParticleStore& p, std::size_t n, double dt_f) const {
-  // A drag that is not finite (a speed of 1e300 m/s: the gas's solve then failed with "the
-  // coarsest operator is not positive definite") is named first, as that particle's.
+// One pass over the drag rates beta_i / m_i of the last deposit, and one reduction over the
+// ranks (a max: exact in any order):
+// - the largest finite rate is the adaptive dt_f's cap, drag_time_ = 1 / rate (a fixed fluid.dt
+//   never reads it);
+// - with dt_f > 0, the drag on particle i is held over the fluid step with v_i frozen: forward
+//   Euler on the relaxation dv/dt = (u_g - v) / tau_i, tau_i = m_i / beta_i, which scales the
+//   slip by 1 - dt_f / tau_i each step. Beyond dt_f = 2 tau_i the slip grows geometrically, and
+//   the run went on until a contact or a wall stopped it with words about the spring (a gas 5e4
+//   times as viscous in the bed: the overlap stop 26 particle steps in). At the set-up the
+//   still-gas drag time refuses such a fixed fluid.dt (apps/derived_numbers.cpp); a dense bed's
+//   drag, or a particle an inlet adds, can still shorten tau_i below it. Such a step, or a drag
+//   that is not finite (named first: a speed of 1e300 m/s made the gas's solve fail with "the
+//   coarsest operator is not positive definite"), stops the run, naming the particle with the
+//   smallest id over the ranks.
+void GasCoupling::check_drag(const ParticleStore& p, std::size_t n, double dt_f) {
+  const bool adaptive = !(scene_.fluid.dt > 0.0);
+  if (!adaptive && !(dt_f > 0.0))
+    return; // nothing asked: a fixed fluid.dt at the set-up
   std::size_t at = n;
   bool finite = true;
+  double fastest = 0.0;
   for (std::size_t i = 0; i < n; ++i) {
-    const bool bad = !std::isfinite(beta_[i] * p.inv_mass[i]) || !std::isfinite(bv_[0][i]) ||
+    const double rate = beta_[i] * p.inv_mass[i];
+    const bool bad = !std::isfinite(rate) || !std::isfinite(bv_[0][i]) ||
                      !std::isfinite(bv_[1][i]) || !std::isfinite(bv_[2][i]);
+    if (!bad)
+      fastest = std::max(fastest, rate);
+    if (!(dt_f > 0.0))
+      continue; // the set-up's cap alone
     if (bad && (finite || p.id[i] < p.id[at]))
       at = i, finite = false;
-    else if (finite && beta_[i] * p.inv_mass[i] * dt_f >= 2.0 && (at == n || p.id[i] < p.id[at]))
+    else if (finite && rate * dt_f >= 2.0 && (at == n || p.id[i] < p.id[at]))
       at = i;
   }
+  std::array<double, 2> reduced = {fastest, at < n ? 1.0 : 0.0};
+  if (comm_ != nullptr)
+    comm_->max(reduced);
+  if (adaptive)
+    drag_time_ = reduced[0] > 0.0 ? 1.0 / reduced[0] : std::numeric_limits<double>::infinity();
+  if (reduced[1] == 0.0)
+    return; // no rank holds a fault
   std::string message;
   if (at < n && !finite) {
     const double sx = ug_[0][at] - p.vx[at], sy = ug_[1][at] - p.vy[at], sz = ug_[2][at] - p.vz[at];
@@ -436,17 +448,15 @@ void GasCoupling::refuse_unstable_drag(const ParticleStore& p, std::size_t n, do
         "step with the particle's velocity frozen, reverses and grows its slip every step beyond "
         "twice the drag time; {}",
         p.id[at], p.x[at], p.y[at], p.z[at], tau, scene_.fluid.drag, eps_p_[at], dt_f,
-        scene_.fluid.dt > 0.0
-            ? fmt::format("lower fluid.dt below {:.3g} s (a tenth of the drag time keeps it "
-                          "accurate), or set fluid.dt = 0 (adaptive: it follows the drag time)",
-                          2.0 * tau)
-            : std::string("lower fluid.max_dt"));
+        adaptive ? std::string("lower fluid.max_dt")
+                 : fmt::format("lower fluid.dt below {:.3g} s (a tenth of the drag time keeps it "
+                               "accurate), or set fluid.dt = 0 (adaptive: it follows the drag "
+                               "time)",
+                               2.0 * tau));
   }
   // Over the ranks a non-finite drag comes first (its key below every id), then the smallest id.
   const std::int64_t key = at == n ? 0 : finite ? p.id[at] : p.id[at] - kNotFiniteFirst;
-  const std::string agreed = comm_ != nullptr ? comm_->agree_on_error(key, message) : message;
-  if (!agreed.empty())
-    throw RunError(agreed);
+  throw RunError(comm_ != nullptr ? comm_->agree_on_error(key, message) : message);
 }
 
 void GasCoupling::interpolate_forces(const ParticleStore& p, std::size_t n) {

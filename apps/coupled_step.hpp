@@ -154,8 +154,10 @@ private:
   // Each particle's force from the new gas: drag with the gas velocity at it and frozen v_i,
   // and -V_p grad p (the first n particles of p).
   void interpolate_forces(const ParticleStore& p, std::size_t n);
-  // Throws RunError when a particle's drag, held over the fluid step dt_f, is unstable (below).
-  void refuse_unstable_drag(const ParticleStore& p, std::size_t n, double dt_f) const;
+  // The drag rates of the last deposit: the adaptive dt_f's cap (drag_time_), and with dt_f > 0
+  // a RunError when a particle's drag, held over the fluid step dt_f, is unstable or not finite
+  // (the .cpp). Collective.
+  void check_drag(const ParticleStore& p, std::size_t n, double dt_f);
   const Scene& scene_;
   const Communicator* comm_ = nullptr; // distributed only
   std::vector<CellBox> boxes_;

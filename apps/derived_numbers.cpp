@@ -170,16 +170,17 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   refuse_uncountable_steps(s, model.dt);
   refuse_skin_beyond_box(s, range, model.skin);
   refuse_unstable_drag(s, d.still_gas_drag_time, inlet < drag_time);
-  // The speeds the springs stop within dem.max_overlap: the largest particles hold the least
-  // (v = max_overlap r sqrt(k / m_eff) falls as 1 / sqrt(rho r)); those at the start and those
-  // an inlet adds.
+  // The speeds the springs stop within dem.max_overlap (dem::impact_speed_held): the largest
+  // particles hold the least (max_overlap r sqrt(k / m_eff) falls as 1 / sqrt(rho r)); those at
+  // the start and those an inlet adds. Two alike meet with m_eff = m / 2.
   const auto holds = [&](double r, double m) {
     if (!(r > 0.0) || !(m > 0.0))
       return;
+    const double delta = model.max_overlap * r;
     d.impact_speed_held =
-        std::min(d.impact_speed_held, model.max_overlap * r * std::sqrt(2.0 * model.pair.k / m));
+        std::min(d.impact_speed_held, dem::impact_speed_held(model.pair.k, 0.5 * m, delta));
     d.impact_speed_held_wall =
-        std::min(d.impact_speed_held_wall, model.max_overlap * r * std::sqrt(model.wall.k / m));
+        std::min(d.impact_speed_held_wall, dem::impact_speed_held(model.wall.k, m, delta));
   };
   if (range.count > 0)
     holds(range.r_max, range.m_max);

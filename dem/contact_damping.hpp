@@ -25,4 +25,11 @@ inline double contact_duration(double k, double e, double m_eff) {
   return z >= 1.0 ? INFINITY : std::numbers::pi / (w0 * std::sqrt(1.0 - z * z));
 }
 
+// The closing speed of a head-on impact that a spring of stiffness k stops within the overlap
+// delta, for reduced mass m_eff: 1/2 m_eff v^2 = 1/2 k delta^2 (the dashpot only lowers the
+// overlap). A steady load it holds there is k delta.
+inline double impact_speed_held(double k, double m_eff, double delta) {
+  return delta * std::sqrt(k / m_eff);
+}
+
 } // namespace cfddem::dem

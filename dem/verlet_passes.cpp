@@ -6,11 +6,13 @@
 
 #include <fmt/format.h>
 
+#include "dem/contact_damping.hpp"
+
 namespace cfddem::dem {
 
 std::string wall_passage(const ParticleStore& p, std::size_t i, const StepModel& m) {
   // As the overlap stop's words at a wall (describe_fault): the particle's own mass and radius.
-  const double held = m.max_overlap * p.radius[i] * std::sqrt(m.wall.k / p.mass[i]);
+  const double held = impact_speed_held(m.wall.k, p.mass[i], m.max_overlap * p.radius[i]);
   return fmt::format(
       ", at a speed of {:.3g} m/s: the wall's spring (dem.wall_spring_constant = {:g} N/m) stops "
       "an impact of this particle within dem.max_overlap = {:g} only below about {:.3g} m/s, and "
@@ -30,15 +32,14 @@ std::string describe_fault(const ParticleStore& p, const StepReport& r, const St
     why = "position or velocity is not finite (NaN/inf): the step is unstable";
     break;
   case StepFault::overlap: {
-    // The speed a head-on impact may have for the spring alone to stop it within the bound:
-    // 1/2 m_eff v^2 = 1/2 k (max_overlap r)^2 (the dashpot only lowers the overlap), with the
+    // The speed a head-on impact may have for the spring to stop it within the bound, with the
     // pair's m_eff and smaller radius, or the particle's own mass and radius at a wall.
     const bool wall = r.partner == kNoParticle;
     const std::uint32_t j = wall ? i : r.partner;
     const double m_eff = wall ? p.mass[i] : p.mass[i] * p.mass[j] / (p.mass[i] + p.mass[j]);
     const double radius = std::min(p.radius[i], p.radius[j]);
     const double k = wall ? m.wall.k : m.pair.k;
-    const double held = m.max_overlap * radius * std::sqrt(k / m_eff);
+    const double held = impact_speed_held(k, m_eff, m.max_overlap * radius);
     const double dvx = p.vx[i] - (wall ? 0.0 : p.vx[j]), dvy = p.vy[i] - (wall ? 0.0 : p.vy[j]),
                  dvz = p.vz[i] - (wall ? 0.0 : p.vz[j]);
     const std::string what =

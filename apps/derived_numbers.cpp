@@ -52,8 +52,7 @@ double still_gas_drag_time(const Scene& s, const ParticleStore& p) {
 
 // The same for the smallest particle an inlet adds (inlet.mass_rate; its drag time is shortest:
 // m / beta grows as rho d^2 in still gas); +inf for none.
-double inlet_drag_time(const Scene& s) {
-  const ParticleInlet in(s);
+double inlet_drag_time(const Scene& s, const ParticleInlet& in) {
   const double r = in.smallest_radius();
   if (!s.fluid.enabled || !(r > 0.0))
     return std::numeric_limits<double>::infinity();
@@ -158,7 +157,8 @@ void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double 
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
                            std::array<double, 3> sums, double temperature, double drag_time) {
   DerivedNumbers d;
-  const double inlet = inlet_drag_time(s);
+  const ParticleInlet in(s); // the sizes it adds bound the drag time and the impact speeds
+  const double inlet = inlet_drag_time(s, in);
   d.still_gas_drag_time = std::min(drag_time, inlet);
   d.particles = static_cast<std::size_t>(range.count);
   if (s.domain.cylinder())
@@ -184,7 +184,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   };
   if (range.count > 0)
     holds(range.r_max, range.m_max);
-  if (const ParticleInlet in(s); in.largest_radius() > 0.0)
+  if (in.largest_radius() > 0.0)
     holds(in.largest_radius(), ParticleStore::sphere_mass(s.inlet.density, in.largest_radius()));
   if (range.count == 0) { // an empty scene still runs to run.end_time (with the scene's dt)
     d.dt = model.dt;

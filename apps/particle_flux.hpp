@@ -35,40 +35,33 @@ struct ParticleFlux {
   ParticleInlet inlet;
 };
 
-// A leaving particle on a velocity the particle step cannot follow (dem::flag_unfollowable: not
-// finite, or more than the smallest radius per step) is a failed step, not an outflow: removed,
-// it would end the run as if nothing were wrong. The first such among `leaving`, in the words of
-// the particle step's own stop, with its id; an empty message when none.
-struct LeavingFault {
+// A particle on a velocity the particle step cannot follow (dem::flag_unfollowable: not finite,
+// or more than the smallest radius per step), in the words of the particle step's own stop, with
+// its id; an empty message when none. Two places ask it:
+// - the particles about to leave through an outflow face: such a one is a failed step, not an
+//   outflow; removed, it would end the run as if nothing were wrong;
+// - all of a rank's particles before each gas step, which deposits their drag: a speed no
+//   particle step can follow (thermal speeds of 5e4 m/s, a velocity of 1e300) is named as the
+//   step names it, rather than as a drag the fluid step cannot hold or a gas solve that fails.
+struct ParticleFault {
   std::int64_t id = 0;
   std::string message;
 };
-inline LeavingFault leaving_fault(const ParticleStore& p, const std::vector<std::uint32_t>& leaving,
-                                  const dem::StepModel& m) {
+// The fault with the smallest id among the particles `indices` of p (every rank then agrees on
+// the smallest over the ranks).
+template <class Indices>
+ParticleFault unfollowable_fault(const ParticleStore& p, const Indices& indices,
+                                 const dem::StepModel& m) {
   const double vmax = m.r_min / m.dt;
-  for (const std::uint32_t i : leaving) {
-    dem::StepReport report;
-    if (dem::flag_unfollowable(p, i, vmax * vmax, report))
-      return {static_cast<std::int64_t>(p.id[i]), dem::describe_fault(p, report, m)};
-  }
-  return {};
-}
-
-// The same over the first `owned` particles of p: the fault with the smallest id. The time loop
-// asks it before each gas step, which deposits the particles' drag: a speed no particle step can
-// follow (thermal speeds of 5e4 m/s, a velocity of 1e300) is named as the step names it, rather
-// than as a drag the fluid step cannot hold or a gas solve that fails.
-inline LeavingFault unfollowable_fault(const ParticleStore& p, std::size_t owned,
-                                       const dem::StepModel& m) {
-  const double vmax = m.r_min / m.dt;
-  std::size_t at = owned;
+  bool found = false;
+  std::size_t at = 0;
   dem::StepReport first;
-  for (std::size_t i = 0; i < owned; ++i) {
+  for (const std::size_t i : indices) {
     dem::StepReport report;
-    if (dem::flag_unfollowable(p, i, vmax * vmax, report) && (at == owned || p.id[i] < p.id[at]))
-      at = i, first = report;
+    if (dem::flag_unfollowable(p, i, vmax * vmax, report) && (!found || p.id[i] < p.id[at]))
+      found = true, at = i, first = report;
   }
-  if (at == owned)
+  if (!found)
     return {};
   return {static_cast<std::int64_t>(p.id[at]), dem::describe_fault(p, first, m)};
 }
@@ -96,7 +89,7 @@ std::int64_t change_particles(const ParticleFlux& flux, std::optional<Run>& run,
     const std::vector<std::uint32_t> leaving =
         leaving_particles(particles, run->owned(), flux.outflow, dt_f);
     // Every rank stops on the same fault (the smallest id's), before any particle is taken out.
-    const LeavingFault fault = leaving_fault(particles, leaving, run->scheme.model());
+    const ParticleFault fault = unfollowable_fault(particles, leaving, run->scheme.model());
     const std::string agreed = comm.agree_on_error(fault.id, fault.message);
     if (!agreed.empty())
       throw RunError(

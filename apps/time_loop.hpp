@@ -24,6 +24,7 @@
 #include <filesystem>
 #include <limits>
 #include <optional>
+#include <ranges>
 #include <string>
 #include <vector>
 
@@ -425,7 +426,8 @@ template <class Run> FluidStepPlan TimeLoop<Run>::gas_step() {
       run_->set_interval(next.dt_f); // the sub-iterations divide this step
   PhaseTimer::Scope fl(timer_, Phase::fluid);
   {
-    const LeavingFault fault = unfollowable_fault(particles_, run_->owned(), run_->scheme.model());
+    const ParticleFault fault = unfollowable_fault(
+        particles_, std::views::iota(std::size_t{0}, run_->owned()), run_->scheme.model());
     if (const std::string agreed = comm_.agree_on_error(fault.id, fault.message); !agreed.empty())
       throw RunError(fmt::format("t = {:.9g} s, before fluid step {}: {}", loop_.time,
                                  loop_.fluid_steps + 1, agreed));

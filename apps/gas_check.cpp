@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <numbers>
 #include <optional>
 #include <string>
@@ -75,16 +76,36 @@ std::array<double, 3> cell_spacing(const Scene& s) {
   return dx;
 }
 
-AdaptiveStart adaptive_start(const Scene& s) {
+namespace {
+
+// The gas sub-steps a fixed fluid step takes at per-axis gas speeds `speed` and fluid.cfl (the
+// advective rate alone: the viscous number is bounded apart), and each sub-step's length.
+struct GasSubsteps {
+  double count, length;
+};
+GasSubsteps gas_substeps(const Scene& s, const std::array<double, 3>& speed) {
+  const double length = fluid::courant_step(
+      fluid::fluid_step_rates(speed, cell_spacing(s), 0.0, false, {0.0, 0.0, 0.0},
+                              fluid::advection_named(s.fluid.advection)),
+      s.fluid.cfl);
+  return {s.fluid.dt / length, length};
+}
+
+} // namespace
+
+AdaptiveStart adaptive_start(const Scene& s, double drag_time) {
   const auto& f = s.fluid;
   const GasDrive drive = gas_drive(s);
-  fluid::FluidStepCaps caps;
+  fluid::FluidStepCaps caps; // no previous step
   caps.max_dt = f.max_dt;
+  caps.drag_time = drag_time;
+  // The viscous rate only where the Laplacian is explicit, as the run's step rule takes it.
+  const fluid::FluidStepRates rates =
+      fluid::fluid_step_rates(drive.speed, cell_spacing(s), f.viscosity / f.density,
+                              !f.implicit_viscosity && !f.implicit_viscosity_auto, drive.body,
+                              fluid::advection_named(f.advection));
   AdaptiveStart out;
-  out.first = fluid::next_fluid_step(fluid::fluid_step_rates(drive.speed, cell_spacing(s), 0.0,
-                                                             false, drive.body,
-                                                             fluid::advection_named(f.advection)),
-                                     f.cfl, caps, s.run.end_time);
+  out.first = fluid::next_fluid_step(rates, f.cfl, caps, s.run.end_time);
   out.steps = s.run.end_time / out.first;
   out.body = std::hypot(drive.body[0], drive.body[1], drive.body[2]);
   return out;
@@ -113,11 +134,7 @@ std::optional<std::string> particle_driven_substeps_warning(const Scene& s) {
   std::array<double, 3> speed{};
   for (std::size_t a = 0; a < 3; ++a)
     speed[a] = std::abs(s.particles.velocity[a]) + thermal;
-  const double substep = fluid::courant_step(
-      fluid::fluid_step_rates(speed, cell_spacing(s), 0.0, false, {0.0, 0.0, 0.0},
-                              fluid::advection_named(f.advection)),
-      f.cfl);
-  const double substeps = f.dt / substep;
+  const double substeps = gas_substeps(s, speed).count;
   if (!(substeps > kMaxGasSubstepsPerFluidStep))
     return std::nullopt;
   return fmt::format(
@@ -179,10 +196,7 @@ void check_gas_numbers(const Scene& s) {
     std::array<double, 3> axis_speed{};
     for (std::size_t a = 0; a < 3; ++a)
       axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
-    const double substep = fluid::courant_step(
-        fluid::fluid_step_rates(axis_speed, spacing, 0.0, false, {0.0, 0.0, 0.0}, advection),
-        f.cfl);
-    const double substeps = f.dt / substep;
+    const auto [substeps, substep] = gas_substeps(s, axis_speed);
     if (substeps > kMaxGasSubstepsPerFluidStep)
       throw ConfigError(
           "scene key 'fluid.cfl'",
@@ -295,17 +309,10 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
     // and inflow gas velocities and the body force, its cap from fluid.max_dt and the still-gas
     // drag time of the lightest particle (a dense bed's drag time is shorter: the run takes it from
     // the drag law at each fluid step).
-    const GasDrive drive = gas_drive(s);
-    const fluid::FluidStepRates r =
-        fluid::fluid_step_rates(drive.speed, dx, f.viscosity / f.density,
-                                !f.implicit_viscosity && !f.implicit_viscosity_auto, drive.body,
-                                fluid::advection_named(f.advection));
-    fluid::FluidStepCaps caps; // no previous step
-    caps.max_dt = f.max_dt;
-    if (derived.particles > 0)
-      caps.drag_time = derived.still_gas_drag_time;
-    const double first = fluid::next_fluid_step(r, f.cfl, caps, end);
-    const double cap = std::min(caps.max_dt, fluid::kDragStepFraction * caps.drag_time);
+    const double drag_time = derived.particles > 0 ? derived.still_gas_drag_time
+                                                   : std::numeric_limits<double>::infinity();
+    const double first = adaptive_start(s, drag_time).first;
+    const double cap = std::min(f.max_dt, fluid::kDragStepFraction * drag_time);
     fluid_steps = std::ceil(end / cap * (1 - 1e-12));
     t.emplace_back(
         "fluid_dt_s (adaptive)",
@@ -313,7 +320,7 @@ GasCheck check_gas(const Scene& s, const DerivedNumbers& derived) {
                     "{:g} s; {:g} of the still-gas drag time {:.3g} s); below it where the gas's "
                     "Courant number (cfl {:g}) asks",
                     first, fluid::kMaxFluidStepGrowth, cap, f.max_dt, fluid::kDragStepFraction,
-                    caps.drag_time, f.cfl));
+                    drag_time, f.cfl));
     t.emplace_back("fluid_steps", fmt::format("at least {:.0f} (adaptive)", fluid_steps));
     if (s.dem.subiterated())
       t.emplace_back("dt_sp_s (adaptive)",

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <optional>
 #include <string>
 #include <utility>
@@ -23,12 +24,14 @@ struct GasCheck {
 std::array<double, 3> cell_spacing(const Scene& scene);
 
 // An adaptive fluid step's first length at the scene's gas speeds and body force (the step rule
-// of fluid/fluid_step_rule.hpp, capped by fluid.max_dt), the steps to run.end_time at that length,
-// and the body force's magnitude [m/s^2].
+// of fluid/fluid_step_rule.hpp, capped by fluid.max_dt and a tenth of `drag_time`, the particles'
+// shortest drag time), the steps to run.end_time at that length, and the body force's magnitude
+// [m/s^2].
 struct AdaptiveStart {
   double first = 0.0, steps = 0.0, body = 0.0;
 };
-AdaptiveStart adaptive_start(const Scene& scene);
+AdaptiveStart adaptive_start(const Scene& scene,
+                             double drag_time = std::numeric_limits<double>::infinity());
 // More adaptive fluid steps than this to run.end_time earns a warning: at a millisecond a fluid
 // step (the small grids) that is more than a day.
 inline constexpr double kManyFluidSteps = 1e8;

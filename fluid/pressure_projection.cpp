@@ -529,8 +529,18 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
       mg_->solve(rhs_, solution_, settings_.tolerance, settings_.max_iterations);
   report.iterations = mr.iterations;
   report.relative_residual = mr.relative_residual;
-  if (!std::isfinite(mr.relative_residual))
-    throw std::runtime_error(not_finite_input(eps, mobility, source));
+  if (!std::isfinite(mr.relative_residual)) {
+    // Every box took the same norms: each looks at its own cells, and all name the first such
+    // cell of the whole grid.
+    std::int64_t key = 0;
+    std::string message = not_finite_input(eps, mobility, source, key);
+    if (halo_ != nullptr)
+      message = halo_->comm().agree_on_error(key, message);
+    throw std::runtime_error(
+        message.empty() ? "pressure projection: the multigrid's residual is not finite, though "
+                          "its equation's values and their squares are"
+                        : message);
+  }
   if (!mr.converged) {
     // Stalled (MultigridReport): round-off bounds the residual above the tolerance. Cells far
     // from cubes raise that floor (the operator's rows mix 1/dx^2 of very different sizes):
@@ -544,11 +554,15 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
     // So does a wide span of the face coefficients eps_f m_f / dx^2: the mobility m_f falls
     // where the drag is strong against the gas's inertia (hcs_gas with rho_g = 1e-9 stalled at
     // 1.8e-10 on cubic cells). Only cells far from cubes are named as the cause.
-    double kmin = std::numeric_limits<double>::infinity(), kmax = 0.0;
+    // Over every box (the solve, and so its stall, is collective).
+    std::array<double, 2> span = {-std::numeric_limits<double>::infinity(), 0.0}; // -min, max
     for (int a = 0; a < 3; ++a)
       for (const double k : face_coef_[a].values())
         if (k > 0.0 && std::isfinite(k))
-          kmin = std::min(kmin, k), kmax = std::max(kmax, k);
+          span = {std::max(span[0], -k), std::max(span[1], k)};
+    if (halo_ != nullptr)
+      halo_->comm().max(span);
+    const double kmin = -span[0], kmax = span[1];
     const double aspect = longest / shortest;
     throw std::runtime_error(fmt::format(
         "pressure projection: multigrid-preconditioned CG {} relative residual {:g} after {} "
@@ -567,15 +581,18 @@ void PressureProjection::solve_with_multigrid(const GridField& eps,
   }
 }
 
-// Why the multigrid's residual is not finite: the first cell (x fastest) whose right-hand side,
-// or face coefficient, is not finite, with the terms that made it. A velocity of 1e300 m/s or an
-// outflow pressure of 1e300 Pa (whose squares overflow) read "reached relative residual -nan
-// after 0 iterations".
+// Why the multigrid's residual is not finite: this box's first cell (x fastest) whose right-hand
+// side, or face coefficient, is not finite or squares beyond double precision, with the terms
+// that made it, in the whole grid's indices; `key` its index in the whole grid (x fastest). An
+// empty message when the box has none. A velocity of 1e300 m/s or an outflow pressure of 1e300
+// Pa read "reached relative residual -nan after 0 iterations".
 std::string PressureProjection::not_finite_input(const GridField& eps,
                                                  const std::array<GridField, 3>& mobility,
-                                                 const GridField& source) const {
+                                                 const GridField& source, std::int64_t& key) const {
   const GridLayout& layout = grid_.layout();
   const auto& n = grid_.cells();
+  const auto& lo = grid_.box().lo;
+  const auto& whole = grid_.global_cells();
   for (int k = 0; k < n[2]; ++k)
     for (int j = 0; j < n[1]; ++j)
       for (int i = 0; i < n[0]; ++i) {
@@ -602,16 +619,17 @@ std::string PressureProjection::not_finite_input(const GridField& eps,
               outflow = fmt::format(", next to an outflow face at {:g} Pa (fluid.outflow_pressure)",
                                     bc.pressure);
           }
+        const std::array<std::int64_t, 3> g = {lo[0] + i, lo[1] + j, lo[2] + k};
+        key = g[0] + whole[0] * (g[1] + static_cast<std::int64_t>(whole[1]) * g[2]);
         return fmt::format(
             "pressure projection: its equation overflows at gas cell ({}, {}, {}) (right-hand "
             "side {:g}: velocity divergence {:g}, continuity source {:g}{}; eps_g {:g}, face "
             "mobilities {:g} {:g} {:g}): a value not finite, or whose square double precision "
             "cannot hold",
-            i, j, k, rhs_[m], div_[c], source[c], outflow, eps[c], mobility[0][c], mobility[1][c],
-            mobility[2][c]);
+            g[0], g[1], g[2], rhs_[m], div_[c], source[c], outflow, eps[c], mobility[0][c],
+            mobility[1][c], mobility[2][c]);
       }
-  return "pressure projection: the multigrid's residual is not finite, though its equation's "
-         "values and their squares are";
+  return {};
 }
 
 void PressureProjection::solve_with_hypre(const GridField& eps,

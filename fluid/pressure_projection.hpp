@@ -6,6 +6,7 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -123,10 +124,10 @@ public:
 
 private:
   struct Hypre;
-  // The message for a multigrid residual that is not finite (the .cpp).
+  // The message for a multigrid residual that is not finite, and its cell's key (the .cpp).
   [[nodiscard]] std::string not_finite_input(const GridField& eps,
                                              const std::array<GridField, 3>& mobility,
-                                             const GridField& source) const;
+                                             const GridField& source, std::int64_t& key) const;
   // The projection's right-hand side into rhs_ and the solve into solution_: hypre (stencil rows
   // assembled) or the multigrid (face coefficients).
   void solve_with_hypre(const GridField& eps, const std::array<GridField, 3>& mobility,

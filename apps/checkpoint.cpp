@@ -517,9 +517,6 @@ constexpr std::string_view kImpliedLines[] = {
     "dem.orb_global = true",         "dem.orb_global_min_per_rank = 10000",
     "fluid.viscous_step = \"solve\""};
 
-// Every key whose line differs between this run's fixed lines and the checkpoint's, in this
-// run's order: both values, or the value an older checkpoint implies for a key it predates
-// (kImpliedLines), so that a user sees all that must change at once.
 // A configuration value as a reader would write it: each number in the shortest form that reads
 // back the same. The lines hold 17 digits, so that a restart compares them exactly, and a
 // refusal showed "fluid.dt = 5.0000000000000002e-05 here" for a typed 5e-5.
@@ -546,6 +543,9 @@ std::string shown(std::string_view value) {
   return out;
 }
 
+// Every key whose line differs between this run's fixed lines and the checkpoint's, in this
+// run's order: both values, or the value an older checkpoint implies for a key it predates
+// (kImpliedLines), so that a user sees all that must change at once.
 std::string configuration_differences(const std::string& now, const std::string& then) {
   const auto key_of = [](std::string_view line) { return line.substr(0, line.find(" = ")); };
   const auto value_of = [](std::string_view line) {

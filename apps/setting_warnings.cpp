@@ -95,7 +95,7 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
   // velocity toward a wall (every particle hits it at once: the run stops at the first impact),
   // and an inlet's into the particles already there.
   const auto& v0 = s.particles.velocity;
-  const double speed0 = std::sqrt(v0[0] * v0[0] + v0[1] * v0[1] + v0[2] * v0[2]);
+  const double speed0 = std::hypot(v0[0], v0[1], v0[2]);
   bool toward_wall = false;
   for (std::size_t a = 0; a < 3; ++a)
     toward_wall = toward_wall || (v0[a] != 0.0 && !s.domain.periodic[a]);
@@ -103,12 +103,11 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
     w.push_back(fmt::format(
         "particles.velocity moves the particles at {:.3g} m/s toward a wall: the wall's spring "
         "stops the largest of them within dem.max_overlap = {:g} only below {:.3g} m/s, and the "
-        "run "
-        "stops at the first faster impact (exit 3); raise dem.wall_spring_constant (the speed it "
-        "holds grows as sqrt(k)) or lower the velocity",
+        "run stops at the first faster impact (exit 3); raise dem.wall_spring_constant (the "
+        "speed it holds grows as sqrt(k)) or lower the velocity",
         speed0, s.dem.max_overlap, d.impact_speed_held_wall));
   const auto& vi = s.inlet.velocity;
-  const double speed_in = std::sqrt(vi[0] * vi[0] + vi[1] * vi[1] + vi[2] * vi[2]);
+  const double speed_in = std::hypot(vi[0], vi[1], vi[2]);
   if (s.inlet.enabled() && speed_in > d.impact_speed_held)
     w.push_back(fmt::format(
         "inlet.velocity = {:.3g} m/s: the spring stops a head-on impact of two of the largest "

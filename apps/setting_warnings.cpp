@@ -94,27 +94,31 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
   // Speeds the scene gives that the springs cannot stop within dem.max_overlap: the initial
   // velocity toward a wall (every particle hits it at once: the run stops at the first impact),
   // and an inlet's into the particles already there.
+  // head: what moves at what speed and which spring stops it; held: the speed it stops.
+  const auto too_fast = [&](const std::string& head, double held, const char* impact,
+                            const char* key) {
+    w.push_back(fmt::format("{} within dem.max_overlap = {:g} only below {:.3g} m/s, and the run "
+                            "stops at the first faster impact{} (exit 3); raise {} (the speed it "
+                            "holds grows as sqrt(k)) or lower the velocity",
+                            head, s.dem.max_overlap, held, impact, key));
+  };
   const auto& v0 = s.particles.velocity;
   const double speed0 = std::hypot(v0[0], v0[1], v0[2]);
   bool toward_wall = false;
   for (std::size_t a = 0; a < 3; ++a)
     toward_wall = toward_wall || (v0[a] != 0.0 && !s.domain.periodic[a]);
   if (d.particles > 0 && toward_wall && speed0 > d.impact_speed_held_wall)
-    w.push_back(fmt::format(
-        "particles.velocity moves the particles at {:.3g} m/s toward a wall: the wall's spring "
-        "stops the largest of them within dem.max_overlap = {:g} only below {:.3g} m/s, and the "
-        "run stops at the first faster impact (exit 3); raise dem.wall_spring_constant (the "
-        "speed it holds grows as sqrt(k)) or lower the velocity",
-        speed0, s.dem.max_overlap, d.impact_speed_held_wall));
+    too_fast(fmt::format("particles.velocity moves the particles at {:.3g} m/s toward a wall: the "
+                         "wall's spring stops the largest of them",
+                         speed0),
+             d.impact_speed_held_wall, "", "dem.wall_spring_constant");
   const auto& vi = s.inlet.velocity;
   const double speed_in = std::hypot(vi[0], vi[1], vi[2]);
   if (s.inlet.enabled() && speed_in > d.impact_speed_held)
-    w.push_back(fmt::format(
-        "inlet.velocity = {:.3g} m/s: the spring stops a head-on impact of two of the largest "
-        "particles within dem.max_overlap = {:g} only below {:.3g} m/s, and the run stops at the "
-        "first faster impact of an entering particle (exit 3); raise dem.spring_constant (the "
-        "speed it holds grows as sqrt(k)) or lower the velocity",
-        speed_in, s.dem.max_overlap, d.impact_speed_held));
+    too_fast(fmt::format("inlet.velocity = {:.3g} m/s: the spring stops a head-on impact of two "
+                         "of the largest particles",
+                         speed_in),
+             d.impact_speed_held, " of an entering particle", "dem.spring_constant");
   // A fixed fluid step longer than a particle's drag time in still gas (twice it is refused,
   // derived_numbers.cpp): the drag held over the step overshoots, reversing the slip each step.
   if (s.fluid.enabled && s.fluid.dt > 0.0 && s.fluid.dt > d.still_gas_drag_time)

@@ -26,6 +26,9 @@ SCENES = os.path.join(SRC, "scenes")
 SMALL = os.path.join(SCENES, "hcs_small.toml")  # 100 particles, 1.737 mm periodic box
 HCS = os.path.join(SCENES, "hcs.toml")
 SETTLING = os.path.join(SCENES, "settling.toml")  # walls, gravity, a gas at rest
+BED = os.path.join(SCENES, "fluidized_bed.toml")  # 10,000 particles, inflow, outflow
+RISER = os.path.join(SCENES, "riser.toml")  # periodic, a pressure drop
+HCS_GAS = os.path.join(SCENES, "hcs_gas.toml")  # periodic, gas at rest, T = 0.1 m^2/s^2
 TINY = ["run.end_time=2e-5"]  # 138 steps of hcs_small
 TIMEOUT = 60
 
@@ -553,7 +556,7 @@ def single_gas_cell(ctx):
     """fluid.cells = [1, 1, 1] with the default solver stopped at the first step with exit 3
     "multigrid ... not positive definite" (walls or periodic): refused at set-up, pointing at
     hypre, which runs it."""
-    for scene in (SETTLING, os.path.join(SCENES, "hcs_gas.toml")):
+    for scene in (SETTLING, HCS_GAS):
         for solver in ("auto", "multigrid"):
             expect(ctx, ["run", scene, "fluid.cells=[1,1,1]", f"fluid.solver={solver}"], 2,
                    rf"scene key 'fluid.cells': \[1, 1, 1\] \(a single gas cell\) cannot be "
@@ -592,29 +595,26 @@ def tiny_cfl_refused(ctx):
     naming the key and the sub-steps; cfl 1e-4 and the scenes' own values run. An adaptive fluid
     step (fluid.dt = 0) starts at 1.3e-11 s, some 1.5e10 steps for the bed's 0.2 s: it takes no
     sub-steps and shows its progress, so it warns."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    riser = os.path.join(SCENES, "riser.toml")
-    expect(ctx, ["check", bed, "fluid.cfl=1e-9"], 2,
+    expect(ctx, ["check", BED, "fluid.cfl=1e-9"], 2,
            r"scene key 'fluid.cfl': 1e-09 makes the gas take 7.5e\+06 sub-steps of 1.33e-11 s in "
            r"every fluid step of 0.0001 s \(fluid.dt\)", timeout=10)
-    expect(ctx, ["run", riser, "fluid.cfl=1e-12"], 2,
+    expect(ctx, ["run", RISER, "fluid.cfl=1e-12"], 2,
            r"scene key 'fluid.cfl': 1e-12 makes the gas take 1e\+10 sub-steps", timeout=10,
            fresh=True)
-    expect(ctx, ["check", bed, "fluid.cfl=1e-4"], 0, None, timeout=30)
+    expect(ctx, ["check", BED, "fluid.cfl=1e-4"], 0, None, timeout=30)
     # A gas at rest that the particles set moving (hcs_gas: no fluid step ended at cfl 1e-9):
     # their speeds are an estimate of the gas's, so a warning, not a refusal.
-    gas = os.path.join(SCENES, "hcs_gas.toml")
-    expect(ctx, ["check", gas, "fluid.cfl=1e-9"], 0,
+    expect(ctx, ["check", HCS_GAS, "fluid.cfl=1e-9"], 0,
            r"warning: fluid.cfl = 1e-09: once the particles \(up to 0.316 m/s along an axis\) set "
            r"the gas moving, it may take up to 3.79e\+08 sub-steps in each fluid step of 0.0001 s",
            timeout=10)
     # An adaptive fluid step takes no sub-steps, so it runs, showing its progress; the count of
     # steps its first length makes to run.end_time is a warning.
-    expect(ctx, ["check", bed, "fluid.dt=0", "fluid.cfl=1e-9"], 0,
+    expect(ctx, ["check", BED, "fluid.dt=0", "fluid.cfl=1e-9"], 0,
            r"warning: fluid.cfl = 1e-09 starts the adaptive fluid step at 1.33e-11 s at the "
            r"scene's gas speeds and body force: about 1.5e\+10 fluid steps to run.end_time = "
            r"0.2 s", timeout=10)
-    out = expect(ctx, ["check", bed, "fluid.dt=0", "fluid.cfl=1e-4"], 0, None, timeout=30)
+    out = expect(ctx, ["check", BED, "fluid.dt=0", "fluid.cfl=1e-4"], 0, None, timeout=30)
     assert "adaptive fluid step at" not in out, out
     # A long cap on the adaptive step is no reason to refuse it (it was refused as if the gas
     # took sub-steps of a 10 s fluid step).
@@ -638,8 +638,7 @@ def check_tells_about_the_gas(ctx):
     the deposition is trilinear), fluid steps, the minimum fluidization velocity (Wen & Yu; in
     the Stokes regime of these 100 um particles it is d^2 (rho_p - rho_g) g / (1652 mu), to
     0.1%) and a rough cost."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    out = expect(ctx, ["check", bed, "fluid.deposition=trilinear"], 0,
+    out = expect(ctx, ["check", BED, "fluid.deposition=trilinear"], 0,
                  r"warning: a gas cell .* is narrower than a particle")
     assert re.search(r"cell_size / particle diameter \(smallest\)\s+0.5\b", out), out
     assert re.search(r"fluid_steps\s+2000 \(fluid.dt = 0.0001 s\)", out), out
@@ -652,7 +651,7 @@ def check_tells_about_the_gas(ctx):
     g = max(abs(float(x)) for x in cfg["gravity"].strip("[]").split(","))
     stokes = d * d * (rho_p - rho_g) * g / (2 * 33.7 / 0.0408 * mu)  # Ar << 33.7^2 / 0.0408
     assert abs(umf / stokes - 1) < 1e-3, (umf, stokes)
-    quiet = expect(ctx, ["check", bed], 0, None)
+    quiet = expect(ctx, ["check", BED], 0, None)
     assert "narrower than a particle" not in quiet  # dpvm spreads the particle: no warning
 
 
@@ -662,8 +661,7 @@ def check_polydisperse_fluidization_velocity(ctx):
     particle's mass by the mean diameter's volume (a density of 222 kg/m3 for 2500). It now takes
     the material's density and the Sauter mean d32: in the Stokes regime U_mf = d32^2 (rho_p -
     rho_g) g / (1652 mu), to 0.1%."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    out = expect(ctx, ["check", bed, "particles.diameter={distribution='uniform', min=5e-5, "
+    out = expect(ctx, ["check", BED, "particles.diameter={distribution='uniform', min=5e-5, "
                                      "max=1e-4}"], 0, None)
     m = re.search(r"minimum_fluidization_velocity_m_s \(Wen & Yu, d32\)\s+(\S+)",
                   out)
@@ -733,15 +731,14 @@ def nsubit_finer_than_the_particle_step_warns(ctx):
     of 1e-4 s, each 1e-13 s long, with nothing said: the run never ended. check and run warn
     when dt_sp falls below the particle step, naming the largest nsubit that does not; "auto"
     and the scenes' own nsubit warn of nothing."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    expect(ctx, ["check", bed, "dem.scheme=islands", "dem.nsubit=1e9"], 0,
+    expect(ctx, ["check", BED, "dem.scheme=islands", "dem.nsubit=1e9"], 0,
            r"warning: dem.nsubit = 1000000000 makes the sub-iteration step dt_sp = 1e-13 s "
            r"\(fluid.dt / nsubit\) shorter than the particle step dt = 1.45e-07 s: every particle "
            r"steps 1.45e\+06x .* \(nsubit up to 690 keeps dt_sp >= dt\)")
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "dem.nsubit=1e6"], 0,
            r"warning: dem.nsubit = 1000000 .* \(dem.regrid_interval / nsubit\)")
     for args in (["dem.scheme=islands"], ["dem.scheme=orb", "dem.nsubit=35"]):
-        quiet = expect(ctx, ["check", bed, *args], 0, None)
+        quiet = expect(ctx, ["check", BED, *args], 0, None)
         assert "nsubit" not in "".join(l for l in quiet.splitlines() if "warning" in l), quiet
     expect(ctx, ["run", SMALL, *TINY, "dem.scheme=orb", "dem.nsubit=1e6", "--quiet"], 0,
            r"warning: dem.nsubit = 1000000 makes", out_dir=ctx.fresh("nsubit_fine"))
@@ -753,12 +750,11 @@ def huge_neighbor_skin_warns(ctx):
     other's neighbour and ran for minutes a fluid step without a word (a periodic axis refuses
     such a skin). check and run warn with the neighbours per particle; the default and a skin of
     a few diameters do not."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    expect(ctx, ["check", bed, "dem.neighbor_skin=10"], 0,
+    expect(ctx, ["check", BED, "dem.neighbor_skin=10"], 0,
            r"warning: dem.neighbor_skin = 10 m lists about 1e\+04 neighbours per particle "
            r"\(those within 10 m, the largest diameter plus the skin, of 10000 particles in all\)")
     for args in ([], ["dem.neighbor_skin=3e-4"]):
-        quiet = expect(ctx, ["check", bed, *args], 0, None)
+        quiet = expect(ctx, ["check", BED, *args], 0, None)
         assert "neighbours" not in quiet, quiet
     expect(ctx, ["run", SMALL, *TINY, "domain.periodic=[false,false,false]",
                  "particles.count=2000", "dem.neighbor_skin=1", "--quiet"], 0,
@@ -774,11 +770,10 @@ def output_interval_below_dt_sp_warns(ctx):
     expect(ctx, ["check", SMALL, "dem.scheme=orb", "output.interval=1e-6"], 0,
            r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "
            r"1e-05 s of dem.scheme = \"orb\"")
-    riser = os.path.join(SCENES, "riser.toml")
-    expect(ctx, ["check", riser, "dem.scheme=orb", "dem.nsubit=20", "output.interval=1e-6"], 0,
+    expect(ctx, ["check", RISER, "dem.scheme=orb", "dem.nsubit=20", "output.interval=1e-6"], 0,
            r"warning: output.interval = 1e-06 s is shorter than the sub-iteration step dt_sp = "
            r"5e-06 s of dem.scheme = \"orb\"")
-    quiet = expect(ctx, ["check", riser, "dem.scheme=orb", "output.interval=1e-6", "fluid.dt=0"],
+    quiet = expect(ctx, ["check", RISER, "dem.scheme=orb", "output.interval=1e-6", "fluid.dt=0"],
                    0, None)
     assert "sub-iteration step" not in quiet, quiet
 
@@ -796,8 +791,7 @@ def particles_too_fast_at_an_outflow_face_stop(ctx):
     before the particle step could see the speed, and the run ended with exit 0 and no particles.
     A particle leaving faster than the particle step can follow stops the run, as the step's own
     check does (exit 3), naming it."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    args = ["run", bed, "gravity=[0,-1e10,0]", "run.end_time=2e-4", "--quiet"]
+    args = ["run", BED, "gravity=[0,-1e10,0]", "run.end_time=2e-4", "--quiet"]
     expect(ctx, args, 3,
            r"t = 0 s, leaving through an outflow face: particle 0 at \(5\.33333e-05, "
            r"5\.10638e-05, 5\.33333e-05\) m: speed 723\.6 m/s moves it more than the smallest "
@@ -814,23 +808,21 @@ def drag_faster_than_the_fluid_step_refused_or_stopped(ctx):
     (lighter than the gas) ran to the wall overlap stop. A fixed fluid.dt of twice the still-gas
     drag time is refused at set-up naming the key; one over it warns; the bed's dense drag
     (shorter than in still gas) stops the run at its first fluid step naming a particle."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    expect(ctx, ["check", bed, "fluid.viscosity=1"], 2,
+    expect(ctx, ["check", BED, "fluid.viscosity=1"], 2,
            r"scene key 'fluid.dt': 0.0001 s is 180 times the shortest drag time m / beta of a "
            r"particle in still gas, 5.56e-07 s \(the particles at the start; drag law \"koch_hill\", "
            r"fluid.viscosity = 1 Pa s\): the drag, held over a fluid step with the particle's velocity frozen, reverses "
            r"and grows its slip every step beyond twice the drag time")
-    expect(ctx, ["run", bed, "particles.density=0.5", "run.end_time=2e-4", "--quiet"], 2,
+    expect(ctx, ["run", BED, "particles.density=0.5", "run.end_time=2e-4", "--quiet"], 2,
            r"scene key 'fluid.dt': 0.0001 s is 7.2 times the shortest drag time", fresh=True)
     # The smallest particle an inlet adds counts too (it stopped the run at its first fluid step).
-    cfb = os.path.join(SCENES, "cfb_riser.toml")
-    expect(ctx, ["check", cfb, "inlet.mass_rate=1e-6", "inlet.recycle=false", "inlet.diameter=1e-6"],
+    expect(ctx, ["check", CFB, "inlet.mass_rate=1e-6", "inlet.recycle=false", "inlet.diameter=1e-6"],
            2, r"scene key 'fluid.dt': 0.0001 s is 36 times the shortest drag time m / beta of a "
            r"particle in still gas, 2.78e-06 s \(the smallest particle inlet.mass_rate adds; drag "
            r"law \"koch_hill\", fluid.viscosity = 2e-05 Pa s\).*check fluid.viscosity, "
            r"inlet.diameter and inlet.density")
     # 3 kg/m^3: 1.2 still-gas drag times (a warning), 10.6 of the lattice's dense drag.
-    expect(ctx, ["run", bed, "particles.density=3", "run.end_time=2e-4", "--quiet"], 3,
+    expect(ctx, ["run", BED, "particles.density=3", "run.end_time=2e-4", "--quiet"], 3,
            r"(?s)warning: fluid.dt = 0.0001 s is 1.2 times the shortest drag time m / beta of a "
            r"particle in still gas, 8.33e-05 s: the drag, held over a fluid step with the "
            r"particle's velocity frozen, overshoots.*"
@@ -841,7 +833,7 @@ def drag_faster_than_the_fluid_step_refused_or_stopped(ctx):
     # The adaptive fluid step follows the drag time: no warning, no refusal. Particles lighter
     # than the gas have no minimum fluidization velocity (it was -1.5e-6 m/s, the inflow
     # -1e4 times it).
-    quiet = expect(ctx, ["check", bed, "particles.density=0.5", "fluid.dt=0"], 0,
+    quiet = expect(ctx, ["check", BED, "particles.density=0.5", "fluid.dt=0"], 0,
                    r"minimum_fluidization_velocity_m_s \(Wen & Yu\)\s+none: the particles "
                    r"\(0.5 kg/m\^3\) are no denser than the gas \(1 kg/m\^3\)")
     assert "drag time" not in quiet.split("# resolved")[0], quiet
@@ -854,20 +846,17 @@ def speeds_the_springs_cannot_stop_warn(ctx):
     sqrt(k / m_eff): 2.93 m/s for two of the paper's particles at k = 10 N/m, 2.07 m/s for one
     on a wall. particles.velocity = [0, 0, 5] on the bed, or an inlet at 100 m/s, ran into the
     overlap stop with no word before; check lists the speeds and both warn."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    cfb = os.path.join(SCENES, "cfb_riser.toml")
-    out = expect(ctx, ["check", bed, "particles.velocity=[0,0,5]"], 0,
+    out = expect(ctx, ["check", BED, "particles.velocity=[0,0,5]"], 0,
                  r"warning: particles.velocity moves the particles at 5 m/s toward a wall: the "
                  r"wall's spring stops the largest of them within dem.max_overlap = 0.3 only below "
                  r"2.07 m/s")
     assert re.search(r"impact_speed_held_m_s \(pair, dem.max_overlap\)\s+2.932\n"
                      r"impact_speed_held_m_s \(wall, dem.max_overlap\)\s+2.073\n", out), out
-    expect(ctx, ["check", cfb, "inlet.velocity=[0,-100,0]"], 0,
+    expect(ctx, ["check", CFB, "inlet.velocity=[0,-100,0]"], 0,
            r"warning: inlet.velocity = 100 m/s: the spring stops a head-on impact of two of the "
            r"largest particles within dem.max_overlap = 0.3 only below 2.93 m/s")
     # Slower, or along periodic axes only (the riser's x): no warning.
-    riser = os.path.join(SCENES, "riser.toml")
-    for scene, arg in ((bed, "particles.velocity=[0,0,2]"), (riser, "particles.velocity=[5,0,0]")):
+    for scene, arg in ((BED, "particles.velocity=[0,0,2]"), (RISER, "particles.velocity=[5,0,0]")):
         quiet = expect(ctx, ["check", scene, arg], 0, None)
         assert "toward a wall" not in quiet, quiet
 
@@ -878,14 +867,12 @@ def speeds_no_step_follows_stop_before_the_gas_step(ctx):
     m/s on the bed stopped the run with "multigrid: the coarsest operator is not positive
     definite", a thermal speed of 5e4 m/s in hcs_gas with a drag time. A speed no particle step
     follows is named before the gas step, in the particle step's words, with the step it needs."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    gas = os.path.join(SCENES, "hcs_gas.toml")
-    stops(ctx, bed, ["particles.velocity=[1e300,0,0]"],
+    stops(ctx, BED, ["particles.velocity=[1e300,0,0]"],
           r"run stopped: t = 0 s, before fluid step 1: particle 0 at \(5.33333e-05, 5.10638e-05, "
           r"5.33333e-05\) m: speed 1e\+300 m/s moves it more than the smallest radius in one step "
           r"\(dt = 1.447e-07 s\): contacts could be missed \(tunnelling\); a step that follows it "
           r"is below 5e-305 s", "speed_1e300")
-    stops(ctx, gas, ["particles.temperature=1e9"],
+    stops(ctx, HCS_GAS, ["particles.temperature=1e9"],
           r"run stopped: t = 0 s, before fluid step 1: particle \d+ at .* m: speed \S+e\+04 m/s "
           r"moves it more than the smallest radius in one step", "speed_T")
 
@@ -895,8 +882,7 @@ def overflowing_projection_names_the_cell(ctx):
     """fluid.outflow_pressure = 1e300 Pa puts 5e303 into the pressure equation's right-hand side,
     whose square overflows: the run stopped with "reached relative residual -nan after 0
     iterations". It names the cell, the terms and the outflow pressure."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
-    stops(ctx, bed, ["fluid.outflow_pressure=1e300"],
+    stops(ctx, BED, ["fluid.outflow_pressure=1e300"],
           r"pressure projection: its equation overflows at gas cell \(0, 49, 0\) \(right-hand "
           r"side 5e\+303: .* next to an outflow face at 1e\+300 Pa \(fluid.outflow_pressure\)",
           "outflow_1e300")
@@ -908,12 +894,11 @@ def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
     check and run said nothing, and the run stopped with "reached relative residual 7.55e-10
     after 3 iterations", which reads as an iteration cap. Cells over 500:1 warn; a projection
     that stops making progress says so and names round-off and the cells' shape."""
-    bed = os.path.join(SCENES, "fluidized_bed.toml")
     cells = "fluid.cells=[1000,1,1]"
-    expect(ctx, ["check", bed, cells], 0,
+    expect(ctx, ["check", BED, cells], 0,
            r"warning: fluid.cells makes gas cells of \[1.6e-06, 0.01, 0.0016\] m, the longest "
            r"side 6.25e\+03x the shortest", timeout=30)
-    expect(ctx, ["run", bed, cells, "run.end_time=3e-4", "--quiet"], 3,
+    expect(ctx, ["run", BED, cells, "run.end_time=3e-4", "--quiet"], 3,
            r"multigrid-preconditioned CG stopped making progress at relative residual \S+ after "
            r"\d+ iterations \(tolerance 1e-10\): round-off holds the residual above the "
            r"tolerance \(the cells' longest side is 6.25e\+03x their shortest, the face "
@@ -921,8 +906,7 @@ def elongated_cells_warn_and_a_stalled_projection_says_why(ctx):
            r"fluid.tolerance, lower that floor\)", out_dir=ctx.fresh("elongated_cells"))
     # On cubic cells the coefficients' span is the cause: a gas of 1e-9 kg/m^3 under the
     # particles' drag spreads them 7e8-fold (it named the cells' shape, 1:1, as the cause).
-    gas = os.path.join(SCENES, "hcs_gas.toml")
-    stops(ctx, gas, ["fluid.density=1e-9"],
+    stops(ctx, HCS_GAS, ["fluid.density=1e-9"],
           r"stopped making progress at relative residual \S+ after \d+ iterations \(tolerance "
           r"1e-10\): round-off holds the residual above the tolerance \(the cells' longest side "
           r"is 1x their shortest, the face coefficients eps_g x mobility / dx\^2 span 7.12e\+08x; "

@@ -241,26 +241,22 @@ def adaptive_matches():
     differ from the 1-rank run's by round-off, so the times are compared to 1e-12 and the rest to
     the 1e-9 bound; the fluid steps and the particle steps agree exactly (orb) and none is
     lost."""
-    args = ARGS + ["output.snapshot_interval=0", "fluid.dt=0", "fluid.cfl=0.05"]
-    rows, info = rows_on(SCENE, args, (1, RANKS))
-    assert info[1]["fluid_steps"] == info[RANKS]["fluid_steps"] > 20, (
-        info[1]["fluid_steps"], info[RANKS]["fluid_steps"])  # 20 at the fixed 1e-4 s
-    one, many = rows[1], rows[RANKS]
-    assert len(one) == len(many) == 11, (len(one), len(many))
-    assert all(float(r["particles"]) == 800 for r in many)
-    worst = rows_agree(one, many, "adaptive", loose=("time",))
-    print(f"{SCHEME} on an adaptive fluid step, {RANKS} ranks vs 1: "
-          f"{info[RANKS]['fluid_steps']} fluid steps, worst scaled column error {worst}")
-    # A 33x more viscous gas: the particles' drag time m / beta (about 0.4 ms) caps dt_f at a
+    # Second: a 33x more viscous gas, whose drag time m / beta (about 0.4 ms) caps dt_f at a
     # tenth of it, below the Courant step. The copies routed to the gas boxes carried no mass
     # once, so on R ranks that cap was infinite: 5 fluid steps of 0.4 ms against one rank's 51.
-    args = ARGS + ["output.snapshot_interval=0", "fluid.dt=0", "fluid.viscosity=6e-4"]
-    rows, info = rows_on(SCENE, args, (1, RANKS))
-    assert info[1]["fluid_steps"] == info[RANKS]["fluid_steps"] > 40, (
-        info[1]["fluid_steps"], info[RANKS]["fluid_steps"])
-    worst = rows_agree(rows[1], rows[RANKS], "adaptive, drag-capped", loose=("time",))
-    print(f"{SCHEME} on a drag-capped adaptive fluid step, {RANKS} ranks vs 1: "
-          f"{info[RANKS]['fluid_steps']} fluid steps, worst scaled column error {worst}")
+    for label, extra, fewest in (("an adaptive", "fluid.cfl=0.05", 20),  # 20 at the fixed 1e-4 s
+                                 ("a drag-capped adaptive", "fluid.viscosity=6e-4", 40)):
+        args = ARGS + ["output.snapshot_interval=0", "fluid.dt=0", extra]
+        rows, info = rows_on(SCENE, args, (1, RANKS))
+        assert info[1]["fluid_steps"] == info[RANKS]["fluid_steps"] > fewest, (
+            label, info[1]["fluid_steps"], info[RANKS]["fluid_steps"])
+        one, many = rows[1], rows[RANKS]
+        assert len(one) == len(many) == 11, (len(one), len(many))
+        assert all(float(r["particles"]) == 800 for r in many)
+        worst = rows_agree(one, many, label, loose=("time",))
+        print(f"{SCHEME} on {label} fluid step, {RANKS} ranks vs 1: "
+              f"{info[RANKS]['fluid_steps']} fluid steps, worst scaled column error {worst}")
+
 
 def rows_agree(one, many, label, loose=()):
     """Every column of the R-rank rows against the 1-rank rows: EXACT ones equal, AT_LEAST ones

@@ -456,6 +456,10 @@ ParticleStore read_particle_csv_rows(const std::string& path,
   std::string line;
   if (!std::getline(in, line))
     throw ConfigError(path, "empty file: expected a header row");
+  // Spreadsheets' "CSV UTF-8" export starts the file with a byte-order mark (EF BB BF); it is
+  // not part of the first column's name.
+  if (line.starts_with("\xEF\xBB\xBF"))
+    line.erase(0, 3);
   const std::vector<std::string> wanted = {"x", "y", "z", "vx", "vy", "vz", "diameter", "density"};
   std::vector<int> col(wanted.size(), -1);
   {

@@ -96,6 +96,22 @@ TEST(InitialConditions, CsvRoundTrip) {
   EXPECT_NEAR(p.mass[1], 2500 * 4.0 / 3.0 * M_PI * 1e-12, 1e-22);
 }
 
+TEST(InitialConditions, CsvFromASpreadsheetReadsTheSame) {
+  // A spreadsheet's "CSV UTF-8" export: a byte-order mark before the header, CRLF line ends.
+  const std::string rows[2] = {"x,y,z,vx,vy,vz,diameter,density",
+                               "1e-4,2e-4,3e-4,0.1,0,0,1e-4,1000"};
+  const ParticleStore plain =
+      read_particle_csv(temp_file("plain.csv", rows[0] + "\n" + rows[1] + "\n"));
+  const ParticleStore p =
+      read_particle_csv(temp_file("bom.csv", "\xEF\xBB\xBF" + rows[0] + "\r\n" + rows[1] + "\r\n"));
+  ASSERT_EQ(p.size(), 1u);
+  ASSERT_EQ(plain.size(), 1u);
+  EXPECT_EQ(p.x[0], 1e-4);
+  EXPECT_EQ(p.vx[0], 0.1);
+  EXPECT_EQ(p.radius[0], plain.radius[0]);
+  EXPECT_EQ(p.mass[0], plain.mass[0]);
+}
+
 TEST(InitialConditions, CsvErrorsNameFileAndLine) {
   auto message = [](const std::string& text) {
     try {

@@ -79,6 +79,7 @@ void IslandsScheme::init_ranks() {
   r.comm.sum(ms);
   r.mass_global = ms[0];
   r.base_skin = one_.islands_skin;
+  r.skin_cap = periodic_skin_cap(geom_, r.r_max);
 }
 
 void IslandsScheme::set_external_force_ranks(std::span<const double> fx, std::span<const double> fy,
@@ -697,8 +698,11 @@ void IslandsScheme::rebuild_ranks() {
     b = std::max(b, ln_.bound[i]);
   const double speed = std::max(r.comm.max(b), r.last_max_bound);
   // The one-rank islands skin (three times the explicit scheme's unless dem.neighbor_skin is
-  // set), at least four sub-iterations of the largest bound, or what a failed build asked for.
+  // set), at least four sub-iterations of the largest bound, or what a failed build asked for;
+  // at most what a periodic axis allows (the link rounds then check that it still suffices).
   skin_ = std::max({r.base_skin, 4.0 * speed * dt_sp_ + 2.0 * margin_, r.grown_skin});
+  if (r.skin_cap > 0.0)
+    skin_ = std::min(skin_, r.skin_cap);
   build_ghosts_and_rows();
   if (model_.friction) {
     attach_history(std::move(arrived), p_.id, r.rows.off(), r.rows.nb(), owned_, hx_, hy_, hz_);
@@ -714,7 +718,8 @@ void IslandsScheme::find_islands_ranks() {
   RankPart& r = *rank_;
   {
     PhaseTimer::Scope t(timer_, Phase::neighbor);
-    for (bool fresh = false;;) {
+    bool fresh = false;
+    for (;;) {
       if (r.need_rebuild) {
         rebuild_ranks();
         fresh = true;
@@ -727,11 +732,22 @@ void IslandsScheme::find_islands_ranks() {
       const double reach = link_rounds();
       if (2.0 * reach + margin_ < skin_)
         break;
-      if (fresh)
-        r.grown_skin = std::max(2.0 * skin_, 2.2 * reach + 2.0 * margin_);
+      if (fresh) {
+        // Even fresh rows are too short: a wider skin, up to the periodic cap (reach is the
+        // largest over the ranks, so every rank grows, or stops, alike).
+        const double need = 2.2 * reach + 2.0 * margin_;
+        if (!(need < r.skin_cap))
+          throw RunError(fmt::format(
+              "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
+              "periodic box allows for a neighbor skin ({:.4g} m): raise dem.nsubit or run on "
+              "one rank",
+              time(), 0.5 * need, r.skin_cap));
+        r.grown_skin = std::max(need, std::min(2.0 * skin_, r.skin_cap));
+      }
       r.need_rebuild = true;
       ++st_.expired_builds;
     }
+    r.fresh_rows = fresh;
   }
   // "auto" chose the global mode for this interval: every rank steps everyone, as one rank
   // does (the links above still check the rows).
@@ -797,7 +813,14 @@ void IslandsScheme::roll_back() {
     for (std::size_t q = 0; q < r.start_spin.size(); ++q)
       std::copy(r.start_spin[q].begin(), r.start_spin[q].end(), spin[q]->begin());
   }
-  r.grown_skin = 2.0 * skin_;
+  // Rows built for this very sub-iteration at the widest skin the periodic box allows cannot
+  // grow; every rank sees the same skin and rows, so every rank stops alike.
+  if (r.fresh_rows && !(skin_ < r.skin_cap))
+    throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor skin "
+                               "in one sub-iteration even with the largest skin the periodic box "
+                               "allows ({:.4g} m): raise dem.nsubit or run on one rank",
+                               time(), skin_));
+  r.grown_skin = std::min(2.0 * skin_, r.skin_cap);
   r.need_rebuild = true;
   ++st_.retries;
 }

@@ -352,6 +352,47 @@ TEST(DistributedIslands, IncrementalLinkRoundsGiveTheFullScansRun) {
 // is at most the islands skin or four sub-iterations of the fastest particle (no gravity: its
 // own bound is its speed) plus the link margin (1e-3 r_min). With the raised bounds the first
 // sub-iteration built rows with four sub-iterations of the raised bound, 3.2 x the islands skin.
+// Long sub-iterations in a box eight diameters wide: four sub-iterations of the fastest
+// particle's travel (the rows' first skin) reach past what the periodic box allows a halo. One
+// rank caps its skin there (periodic_skin_cap); R ranks stopped at their first rows ("not more
+// than twice the distributed islands scheme's halo"), and the elutriation scene on 2 ranks after
+// 4 ms. Capped too, they run as one rank does, and keep the skin under the cap.
+TEST(DistributedIslands, LongSubiterationsInASmallPeriodicBoxMatchOneRank) {
+  const Scene scene =
+      scene_from(kGas, {"particles.count=150", "dem.regrid_interval=1.0e-4", "dem.nsubit=1"});
+  const Communicator c = Communicator::world();
+  const double cap = 0.499 * 0.86e-3 - 100.0e-6;
+  {
+    const ParticleStore all = make_initial_particles(scene);
+    double v = 0.0;
+    for (std::size_t i = 0; i < all.size(); ++i)
+      v = std::max(
+          v, std::sqrt(all.vx[i] * all.vx[i] + all.vy[i] * all.vy[i] + all.vz[i] * all.vz[i]));
+    ASSERT_GT(4.0 * v * scene.dem.regrid_interval, cap); // the case this test is about
+  }
+  // 0.4 ms, as the dense gas above runs: the round-off bounds are for that horizon.
+  const int subits = 4;
+  const Outcome d = on_ranks(scene, subits, 1);
+  expect_close(scene, one_rank(scene, subits), d, kPos, kVel, kEnergy, "small periodic box");
+  EXPECT_EQ(d.bound_violations, 0);
+  // A hundred times the temperature: a sub-iteration's travel (up to the box's width) no longer
+  // fits under the cap. R ranks' dense mode steps a whole sub-iteration on rows built at its
+  // start, so every rank stops alike and says what to change; one rank's dense mode rebuilds its
+  // list inside the sub-iteration and runs on.
+  if (c.size() > 1) {
+    const Scene hot = scene_from(kGas, {"particles.count=150", "dem.regrid_interval=1.0e-4",
+                                        "dem.nsubit=1", "particles.temperature=5.0"});
+    std::string what = "no stop";
+    try {
+      on_ranks(hot, subits, 1);
+    } catch (const RunError& e) {
+      what = e.what();
+    }
+    EXPECT_NE(what.find("the periodic box allows"), std::string::npos) << what;
+    EXPECT_NE(what.find("raise dem.nsubit or run on one rank"), std::string::npos) << what;
+  }
+}
+
 TEST(DistributedIslands, DenseModeRowsFollowTheParticlesOwnReach) {
   constexpr int kSide = 8;
   constexpr double kD = 100.0e-6, kGap = 0.1 * kD, kA = kD + kGap, kL = kSide * kA;

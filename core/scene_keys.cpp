@@ -153,7 +153,8 @@ std::vector<SceneKey> make_table() {
        .type = T::String,
        .section = S::DomainParticles,
        .fallback = word("", "none (the generator)"),
-       .meaning = "CSV with the header `x,y,z,vx,vy,vz,diameter,density` (SI units); a path in "
+       .meaning = "CSV with the header `x,y,z,vx,vy,vz,diameter,density` (SI units; columns in "
+                  "any order, CRLF line ends and a UTF-8 byte-order mark accepted); a path in "
                   "the scene is relative to the scene file, one on the command line to the "
                   "working directory. Cannot be combined with the generator keys (those marked "
                   "\"generator\")"},

@@ -367,7 +367,7 @@ fluid::GasStepReport GasCoupling::step(const ParticleStore& p, double dt_f, std:
   const double moved = last_dt_ > 0.0 ? last_dt_ : dt_f;
   try {
     const Stopwatch timed(gas_seconds);
-    report = solver_->advance(dt_f, &substeps, moved);
+    report = solver_->advance(dt_f, &substeps, moved, observe_);
   } catch (const std::runtime_error& e) {
     throw RunError(fmt::format("gas step: {}", e.what()));
   }

@@ -125,6 +125,9 @@ public:
   // Fluid steps whose projection fell back from PFMG to SMG preconditioning.
   [[nodiscard]] long long projection_fallbacks() const { return projection_fallbacks_; }
   [[nodiscard]] const FluidPhaseSeconds& phase_seconds() const { return seconds_; }
+  // Called after each gas sub-step of step() (fluid::GasSolver::advance): the time loop's
+  // progress line inside a fluid step that takes many sub-steps.
+  void observe_substeps(fluid::GasSolver::SubstepObserver f) { observe_ = std::move(f); }
 
   // The gas at cell centres for a snapshot (eps_g, full pressure, gas velocity).
   [[nodiscard]] CellFields cell_fields() const { return apps::cell_fields(*solver_); }
@@ -164,6 +167,7 @@ private:
   fluid::MacGrid grid_;
   std::shared_ptr<const fluid::GridHalo> halo_;
   std::unique_ptr<fluid::GasSolver> solver_;
+  fluid::GasSolver::SubstepObserver observe_;
   std::unique_ptr<fluid::Deposition> deposition_;
   fluid::TransferPlan plan_; // the kernels of the particles deposit() saw (deposition_'s grid)
   fluid::DragLaw law_;

@@ -94,6 +94,7 @@ private:
   FluidStepPlan gas_step(); // the step's length: n_sub particle steps in dt_f
   bool advance_clock(double dt_f);
   void print_progress();
+  void print_substep_progress(int count, double t, double dt, double dt_f);
   void mark_due_steps(long long k);
   void take_profile_gas();
   void particle_step(bool record, bool snap);
@@ -181,6 +182,10 @@ template <class Run> void TimeLoop<Run>::build_scheme_and_gas() {
     if (!one_ && !Run::kSub)
       run_->own_by(gas_->box_owners(), false); // explicit: by the gas boxes
     gas_->prepare(particles_);
+    if (!opt_.quiet && root_) // a fluid step of many gas sub-steps shows its progress too
+      gas_->coupling().observe_substeps([this](int count, double t, double dt, double dt_f) {
+        print_substep_progress(count, t, dt, dt_f);
+      });
   }
   // The end of the run: a number of particle steps without a gas, a time with one.
   dt_ = run_->dt();
@@ -482,6 +487,21 @@ template <class Run> void TimeLoop<Run>::print_progress() {
                100 * timer_.seconds(Phase::fluid) / wall, eta);
   else
     fmt::print(stderr, "{}\n", run_->progress(loop_.fluid_steps, frac, wall, eta));
+}
+
+// Inside a fluid step: a fixed fluid.dt at a small fluid.cfl can take the gas 1e5 sub-steps
+// and more (setting_warnings), minutes without a line from print_progress, which runs between
+// fluid steps. Every rank takes the sub-steps; the root says where it is.
+template <class Run>
+void TimeLoop<Run>::print_substep_progress(int count, double t, double dt, double dt_f) {
+  if (std::chrono::duration<double>(clock::now() - last_progress_).count() <
+      scene_.output.progress_seconds)
+    return;
+  last_progress_ = clock::now();
+  fmt::print(stderr,
+             "fluid step {:>8} t = {:.6e} s: gas sub-step {} ({:.3g} s), {:.0f}% of the fluid "
+             "step\n",
+             loop_.fluid_steps + 1, loop_.time + t, count, dt, 100.0 * t / dt_f);
 }
 
 // One particle step past the end completes the last row (with "auto" a short one: the state it

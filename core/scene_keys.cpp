@@ -574,7 +574,8 @@ std::vector<SceneKey> make_table() {
        .unit = "s",
        .range = above(0),
        .fallback = number(2),
-       .meaning = "wall time between progress lines on stdout"},
+       .meaning = "wall time between progress lines (on stderr; set-up, between fluid steps, "
+                  "and within a fluid step of many gas sub-steps)"},
       {.name = "output.snapshot_interval",
        .type = T::Number,
        .section = S::RunOutput,

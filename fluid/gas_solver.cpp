@@ -578,7 +578,8 @@ GasStepReport GasSolver::step_with_ghosts(double dt, const std::array<double, 2>
   return report;
 }
 
-GasStepReport GasSolver::advance(double interval, int* substeps, double eps_interval) {
+GasStepReport GasSolver::advance(double interval, int* substeps, double eps_interval,
+                                 const SubstepObserver& observe) {
   ++velocity_version_;
   if (!(interval > 0.0)) {
     throw std::runtime_error(fmt::format("fluid advance: interval {} is not positive", interval));
@@ -636,6 +637,8 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
     total.used_fallback = total.used_fallback || r.used_fallback;
     t += dt;
     ++count;
+    if (observe)
+      observe(count, t, dt, interval);
   }
   total.implicit_viscosity = implicit_now_;
   std::swap(eps_, eps_target_); // eps_ is the end again, bit for bit

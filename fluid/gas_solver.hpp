@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <span>
 #include <vector>
@@ -192,7 +193,12 @@ public:
   // whose dt_f varies, the change deposited at the start of a step happened over the step
   // before, and dividing it by this step's length would drive a spurious flow (a short last step
   // of the riser gave 5.8 m/s). The report sums iterations and gives the last dt and the count.
-  GasStepReport advance(double interval, int* substeps = nullptr, double eps_interval = 0.0);
+  // `observe`, when set, is called after every sub-step with the sub-steps taken, the time
+  // reached within `interval`, the sub-step's length and `interval` (a progress line for an
+  // interval that takes many sub-steps); it changes nothing.
+  using SubstepObserver = std::function<void(int count, double t, double dt, double interval)>;
+  GasStepReport advance(double interval, int* substeps = nullptr, double eps_interval = 0.0,
+                        const SubstepObserver& observe = {});
 
   // Velocity component averaged to cell centres (for interpolation to particles).
   void cell_centred_velocity(int axis, GridField& out) const;

@@ -624,6 +624,18 @@ def tiny_cfl_refused(ctx):
 
 
 @case
+def many_gas_substeps_show_progress(ctx):
+    """A fixed fluid step at a small fluid.cfl (warned: tiny_cfl_refused) takes the gas hundreds
+    of sub-steps once the particles set it moving; hcs_gas at cfl 1e-6 ran 15 s without a line,
+    as the progress lines came only between fluid steps. The gas's sub-steps now say where they
+    are (about 3 fluid steps of up to 300 sub-steps here)."""
+    expect(ctx, ["run", HCS_GAS, "fluid.cfl=1e-3", "run.end_time=3e-4",
+                 "output.progress_seconds=0.02"], 0,
+           r"fluid step +\d+ t = [0-9.e+-]+ s: gas sub-step \d+ \([0-9.e+-]+ s\), \d+% of the "
+           r"fluid step", out_dir=ctx.fresh("many_substeps"), timeout=60)
+
+
+@case
 def fluid_dt_longer_than_the_run(ctx):
     """fluid.dt = 0.01 s with run.end_time = 0.002 s ran silently to t = 0.01 s: refused, naming
     both keys."""

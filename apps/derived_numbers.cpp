@@ -153,6 +153,21 @@ void refuse_skin_beyond_box(const Scene& s, const dem::ParticleRange& r, double 
                   given ? "lower dem.neighbor_skin or enlarge the domain" : "enlarge the domain"));
 }
 
+// A particle the inlet can never place waits at the head of its queue for the rest of the run,
+// and every particle behind it too: a region outside the cylinder (or thinner than a particle
+// beside a wall) entered nothing, silently. The largest particle that may enter must fit: the
+// inlet's largest, and with inlet.recycle the largest of the run's own.
+void refuse_inlet_without_room(const ParticleInlet& in, const dem::ParticleRange& r) {
+  if (!in.on())
+    return;
+  const double largest = std::max(in.largest_radius(), in.recycles() ? r.r_max : 0.0);
+  if (!(largest > 0.0))
+    return;
+  if (const std::string why = in.no_room(largest); !why.empty())
+    throw ConfigError("scene keys 'inlet.region_lo', 'inlet.region_hi'",
+                      fmt::format("no particle can enter: {}", why));
+}
+
 // The numbers from the particles' count, range, sums and granular temperature.
 DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
                            std::array<double, 3> sums, double temperature, double drag_time) {
@@ -170,6 +185,7 @@ DerivedNumbers derive_from(const Scene& s, const dem::ParticleRange& range,
   refuse_uncountable_steps(s, model.dt);
   refuse_skin_beyond_box(s, range, model.skin);
   refuse_unstable_drag(s, d.still_gas_drag_time, inlet < drag_time);
+  refuse_inlet_without_room(in, range);
   // The speeds the springs stop within dem.max_overlap (dem::impact_speed_held): the largest
   // particles hold the least (max_overlap r sqrt(k / m_eff) falls as 1 / sqrt(rho r)); those at
   // the start and those an inlet adds. Two alike meet with m_eff = m / 2.

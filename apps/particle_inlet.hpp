@@ -14,9 +14,11 @@
 // particles enter its store (the scheme's restore hands them to their owners).
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "core/communicator.hpp"
@@ -62,6 +64,10 @@ public:
                           std::int64_t step, const Communicator& comm) const;
   // The largest radius that may enter (the step and cut-offs must allow it).
   double largest_radius() const;
+  // Empty if a particle of radius r has a place for its centre in the region, inside the walls
+  // and a cylinder's; else why not (a particle that never fits would hold back every particle
+  // behind it for the rest of the run).
+  std::string no_room(double r) const;
   double smallest_radius() const;
   // The new particles' mean diameter (inlet.diameter or its distribution's, else the
   // particles').
@@ -75,6 +81,8 @@ private:
     double fixed;
   };
   Sizes sizes() const;
+  // The region's box of centres for radius r, cut to the planar walls; false if empty.
+  bool centres(double r, std::array<double, 3>& lo, std::array<double, 3>& hi) const;
 
   InletSpec spec_;
   ParticleSpec particles_;

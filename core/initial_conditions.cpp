@@ -277,6 +277,26 @@ void place_random(ParticleStore& p, const Scene& s) {
   }
   PointGrid grid(s.domain, ps.diameter);
   const bool column = s.domain.cylinder();
+  if (column && ps.count > 0) {
+    // A region whose centres all lie beyond the column's curved wall placed nothing in 1000
+    // tries per particle and was refused as if it were full (random placement's saturation).
+    const double r = 0.5 * *std::max_element(diameter.begin(), diameter.end());
+    const auto uw = s.domain.cross_axes();
+    double d2 = 0.0;
+    for (const int a : uw) {
+      const double lo = ps.region_lo[a] + (full_periodic[a] ? 0.0 : r);
+      const double hi = ps.region_hi[a] - (full_periodic[a] ? 0.0 : r);
+      const double d = std::clamp(s.domain.centre(a), lo, hi) - s.domain.centre(a);
+      d2 += d * d;
+    }
+    if (!(std::sqrt(d2) <= s.domain.cylinder_radius - r))
+      throw ConfigError(
+          "scene keys 'particles.region_lo', 'particles.region_hi'",
+          fmt::format("the region lies outside the cylinder: its nearest centre to the axis is "
+                      "{:.6g} m from it, and a particle of diameter {:.6g} m needs its centre "
+                      "within {:.6g} m (domain.cylinder_radius less its radius)",
+                      std::sqrt(d2), 2.0 * r, s.domain.cylinder_radius - r));
+  }
   const std::int64_t max_attempts = 1000 * ps.count + 100000;
   std::int64_t attempts = 0;
   SetupProgress progress(s, "random placement");

@@ -381,6 +381,12 @@ def cylinder_particles_placed_inside_and_checked(ctx):
         p = ctx.file(name, head + second + ",0,0,0,1e-4,1000\n")
         expect(ctx, ["run", HCS, f"particles.file={p}", *column], 2, r"particle 1 at .* " + needle,
                fresh=True)
+    # A generator region in the box's corner, beyond the curved wall, placed nothing in 11,000
+    # tries and was refused as if random placement had saturated it.
+    expect(ctx, ["check", CYLINDER, "particles.region_lo=[0,0,0]",
+                 "particles.region_hi=[3e-4,1.6e-3,3e-4]", "particles.count=10"], 2,
+           r"scene keys 'particles.region_lo', 'particles.region_hi': the region lies outside the "
+           r"cylinder: its nearest centre to the axis is 0.00106066 m from it")
 
 
 @case

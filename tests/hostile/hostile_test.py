@@ -671,6 +671,10 @@ def inlet_that_falls_behind_warns(ctx):
                  "inlet.region_hi=[1.6e-3,2e-3,1.6e-3]", "run.end_time=1e-3", "--quiet"], 0,
            r"warning: the inlet placed [0-9.e-]+ kg of the 2e-08 kg due \(\d+%\): [0-9.e-]+ kg "
            r"waits for room in its region", out_dir=out_dir, timeout=120)
+    # A rate the region cannot hold in one fluid step is known at set-up.
+    expect(ctx, ["check", CFB, "inlet.mass_rate=1e3"], 0,
+           r"warning: inlet.mass_rate = 1000 kg/s brings 0.1 kg in each fluid step of 0.0001 s, "
+           r"more than the inlet region holds at random packing \(3.04e-06 kg")
     with open(os.path.join(out_dir, "run.json")) as f:
         inlet = json.load(f)["inlet"]
     assert abs(inlet["mass_in_kg"] + inlet["mass_waiting_kg"] - 2e-8) < 1e-12, inlet

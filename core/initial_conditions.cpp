@@ -373,9 +373,14 @@ template <class Keep> void place_lattice(ParticleStore& p, const Scene& s, Keep 
   }
   if (capacity < ps.count)
     throw ConfigError("scene key 'particles.count'",
-                      fmt::format("a cubic lattice of spacing d fits {} particles in the region, "
+                      fmt::format("a cubic lattice of spacing d fits {} particles in the region{}, "
                                   "{} were asked for",
-                                  capacity, ps.count));
+                                  capacity,
+                                  column
+                                      ? fmt::format(" and inside the cylinder (of its {} sites)",
+                                                    static_cast<std::int64_t>(n[0]) * n[1] * n[2])
+                                      : std::string(),
+                                  ps.count));
   // Sites are spaced by the largest diameter; each particle's own diameter comes from the
   // stream, drawn for every site in id order (kept or not) so a rank's share gets the whole
   // set's values.

@@ -387,6 +387,11 @@ def cylinder_particles_placed_inside_and_checked(ctx):
                  "particles.region_hi=[3e-4,1.6e-3,3e-4]", "particles.count=10"], 2,
            r"scene keys 'particles.region_lo', 'particles.region_hi': the region lies outside the "
            r"cylinder: its nearest centre to the axis is 0.00106066 m from it")
+    # The lattice says where its sites went.
+    expect(ctx, ["check", CYLINDER, "particles.placement=lattice", "particles.region_lo=[0,0,0]",
+                 "particles.region_hi=[3e-4,1.6e-3,3e-4]", "particles.count=10"], 2,
+           r"a cubic lattice of spacing d fits 0 particles in the region and inside the cylinder "
+           r"\(of its \d+ sites\)")
 
 
 @case

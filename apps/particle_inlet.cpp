@@ -31,7 +31,7 @@ double unit(std::mt19937_64& rng) {
 } // namespace
 
 ParticleInlet::ParticleInlet(const Scene& scene)
-    : spec_(scene.inlet), particles_(scene.particles), geom_(scene.domain) {}
+    : spec_(scene.inlet), particles_(scene.particles), domain_(scene.domain), geom_(scene.domain) {}
 
 ParticleInlet::Sizes ParticleInlet::sizes() const {
   if (spec_.diameter > 0.0) // the inlet's own size or distribution
@@ -59,39 +59,32 @@ double ParticleInlet::largest_radius() const {
   return 0.5 * (s.dist.fixed() ? s.fixed : s.dist.max);
 }
 
-bool ParticleInlet::centres(double r, std::array<double, 3>& lo, std::array<double, 3>& hi) const {
+int ParticleInlet::centres(double r, std::array<double, 3>& lo, std::array<double, 3>& hi) const {
   for (int a = 0; a < 3; ++a) {
     lo[a] = spec_.region_lo[a], hi[a] = spec_.region_hi[a];
     if (!geom_.periodic[a])
       lo[a] = std::max(lo[a], geom_.lo[a] + r), hi[a] = std::min(hi[a], geom_.hi[a] - r);
     if (hi[a] < lo[a])
-      return false;
+      return a;
   }
-  return true;
+  return -1;
 }
 
 std::string ParticleInlet::no_room(double r) const {
   std::array<double, 3> lo{}, hi{};
-  if (!centres(r, lo, hi)) {
-    for (int a = 0; a < 3; ++a)
-      if (!geom_.periodic[a] && std::min(spec_.region_hi[a], geom_.hi[a] - r) <
-                                    std::max(spec_.region_lo[a], geom_.lo[a] + r))
-        return fmt::format(
-            "along axis {} no centre of a particle of diameter {:.6g} m lies both in "
-            "the region [{:.6g}, {:.6g}] m and a radius from the walls at {:.6g} "
-            "and {:.6g} m",
-            a, 2.0 * r, spec_.region_lo[a], spec_.region_hi[a], geom_.lo[a], geom_.hi[a]);
-  }
-  if (geom_.cylinder) {
-    // The point of the region's cross-section nearest the axis.
-    const double du = std::clamp(geom_.centre_u, lo[geom_.u], hi[geom_.u]) - geom_.centre_u;
-    const double dw = std::clamp(geom_.centre_w, lo[geom_.w], hi[geom_.w]) - geom_.centre_w;
-    const double d = std::sqrt(du * du + dw * dw);
-    if (!(d <= geom_.radius - r))
+  if (const int a = centres(r, lo, hi); a >= 0)
+    return fmt::format("along axis {} no centre of a particle of diameter {:.6g} m lies both in "
+                       "the region [{:.6g}, {:.6g}] m and a radius from the walls at {:.6g} "
+                       "and {:.6g} m",
+                       a, 2.0 * r, spec_.region_lo[a], spec_.region_hi[a], geom_.lo[a],
+                       geom_.hi[a]);
+  if (domain_.cylinder()) {
+    const double d = domain_.axis_distance_to_box(lo, hi);
+    if (!(d <= domain_.cylinder_radius - r))
       return fmt::format("the region's nearest point to the cylinder's axis is {:.6g} m from it, "
                          "and a particle of diameter {:.6g} m needs its centre within {:.6g} m "
                          "(domain.cylinder_radius less its radius)",
-                         d, 2.0 * r, geom_.radius - r);
+                         d, 2.0 * r, domain_.cylinder_radius - r);
   }
   return {};
 }
@@ -182,7 +175,7 @@ EnteringParticles ParticleInlet::enter(InletState& st, const ParticleStore& p, s
   // and a cylinder's), overlapping no particle near the region and none placed before it.
   auto place = [&](double r, double(&q)[3]) {
     std::array<double, 3> lo{}, hi{};
-    if (!centres(r, lo, hi))
+    if (centres(r, lo, hi) >= 0)
       return false;
     for (int a = 0; a < 3; ++a)
       q[a] = lo[a] + (hi[a] - lo[a]) * unit(rng);

@@ -81,12 +81,14 @@ private:
     double fixed;
   };
   Sizes sizes() const;
-  // The region's box of centres for radius r, cut to the planar walls; false if empty.
-  bool centres(double r, std::array<double, 3>& lo, std::array<double, 3>& hi) const;
+  // The region's box of centres for radius r, cut to the planar walls: -1, or the first axis
+  // on which it is empty.
+  int centres(double r, std::array<double, 3>& lo, std::array<double, 3>& hi) const;
 
   InletSpec spec_;
   ParticleSpec particles_;
-  dem::DomainGeometry geom_;
+  DomainSpec domain_;        // as the scene gives it (no_room's cylinder test)
+  dem::DomainGeometry geom_; // the same, as the particle kernels read it (placement)
   // The k-th new particle's diameter (mass_rate).
   double diameter(std::int64_t k) const;
 };

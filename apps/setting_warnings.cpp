@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 
 #include "apps/gas_check.hpp"
+#include "core/initial_conditions.hpp"
 
 namespace cfddem::apps {
 
@@ -120,21 +121,21 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
                          speed_in),
              d.impact_speed_held, " of an entering particle", "dem.spring_constant");
   // An inlet asked for more mass per fluid step than its region holds: random placement
-  // saturates near 38% solids (core/initial_conditions.cpp), so the rest waits, and the run
-  // falls further behind every step (a region in the bed's packing placed 21% of its due).
+  // saturates near 38% solids (kRandomSequentialLimit), so the rest waits, and the run falls
+  // further behind every step (a region in the bed's packing placed 21% of its due).
   if (s.inlet.mass_rate > 0.0 && s.fluid.enabled && s.fluid.dt > 0.0) {
     double volume = 1.0;
     for (int a = 0; a < 3; ++a)
       volume *= s.inlet.region_hi[a] - s.inlet.region_lo[a];
     const double density = s.inlet.density; // resolved by the parser
-    const double holds = 0.38 * volume * density;
+    const double holds = kRandomSequentialLimit * volume * density;
     const double due = s.inlet.mass_rate * s.fluid.dt;
     if (density > 0.0 && due > holds)
       w.push_back(fmt::format(
           "inlet.mass_rate = {:g} kg/s brings {:.3g} kg in each fluid step of {:g} s, more than "
-          "the inlet region holds at random packing ({:.3g} kg: 38% of its {:.3g} m^3): the "
+          "the inlet region holds at random packing ({:.3g} kg: {:.0f}% of its {:.3g} m^3): the "
           "rest waits, and the run reports what waits at its end (run.json \"inlet\")",
-          s.inlet.mass_rate, due, s.fluid.dt, holds, volume));
+          s.inlet.mass_rate, due, s.fluid.dt, holds, 100.0 * kRandomSequentialLimit, volume));
   }
   // A fixed fluid step longer than a particle's drag time in still gas (twice it is refused,
   // derived_numbers.cpp): the drag held over the step overshoots, reversing the slip each step.

@@ -129,11 +129,9 @@ double gap(const ParticleStore& p, std::size_t i, std::size_t j, const DomainSpe
 }
 
 // Random close packing of equal spheres (Scott & Kilgour 1969; Torquato, Truskett & Debenedetti,
-// PRL 84, 2064 (2000)): no placement fits more. Random sequential addition, what place_random
-// does, jams near 0.384 (Torquato, Uche & Stillinger, PRE 74, 061308 (2006)) and slows to a crawl
-// well before that.
+// PRL 84, 2064 (2000)): no placement fits more (kRandomSequentialLimit, the header: what random
+// placement reaches).
 constexpr double kRandomClosePacking = 0.64;
-constexpr double kRandomSequentialLimit = 0.38;
 // The memory a generated particle costs at set-up and in the run (store, lists, scheme state),
 // an upper estimate used only to refuse counts that cannot fit at all.
 constexpr double kBytesPerParticle = 1024;
@@ -281,21 +279,19 @@ void place_random(ParticleStore& p, const Scene& s) {
     // A region whose centres all lie beyond the column's curved wall placed nothing in 1000
     // tries per particle and was refused as if it were full (random placement's saturation).
     const double r = 0.5 * *std::max_element(diameter.begin(), diameter.end());
-    const auto uw = s.domain.cross_axes();
-    double d2 = 0.0;
-    for (const int a : uw) {
-      const double lo = ps.region_lo[a] + (full_periodic[a] ? 0.0 : r);
-      const double hi = ps.region_hi[a] - (full_periodic[a] ? 0.0 : r);
-      const double d = std::clamp(s.domain.centre(a), lo, hi) - s.domain.centre(a);
-      d2 += d * d;
+    std::array<double, 3> lo{}, hi{}; // the centres' box
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = ps.region_lo[a] + (full_periodic[a] ? 0.0 : r);
+      hi[a] = ps.region_hi[a] - (full_periodic[a] ? 0.0 : r);
     }
-    if (!(std::sqrt(d2) <= s.domain.cylinder_radius - r))
+    const double d = s.domain.axis_distance_to_box(lo, hi);
+    if (!(d <= s.domain.cylinder_radius - r))
       throw ConfigError(
           "scene keys 'particles.region_lo', 'particles.region_hi'",
           fmt::format("the region lies outside the cylinder: its nearest centre to the axis is "
                       "{:.6g} m from it, and a particle of diameter {:.6g} m needs its centre "
                       "within {:.6g} m (domain.cylinder_radius less its radius)",
-                      std::sqrt(d2), 2.0 * r, s.domain.cylinder_radius - r));
+                      d, 2.0 * r, s.domain.cylinder_radius - r));
   }
   const std::int64_t max_attempts = 1000 * ps.count + 100000;
   std::int64_t attempts = 0;

@@ -24,6 +24,11 @@ ParticleStore make_initial_particles(const Scene& scene);
 // rank alike.
 ParticleStore make_initial_share(const Scene& scene, int rank, int ranks);
 
+// Random sequential addition, what random placement (and an inlet) does, jams near 0.384
+// (Torquato, Uche & Stillinger, PRE 74, 061308 (2006)) and slows to a crawl well before that:
+// the most solids such a placement reaches.
+constexpr double kRandomSequentialLimit = 0.38;
+
 // Throw ConfigError (naming particles.count) when the generator's particles cannot fit: their
 // solid fraction in the region above random close packing (0.64), more memory than the machine
 // has, or, for random placement, above the jamming limit of random sequential addition (0.38,

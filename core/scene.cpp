@@ -193,6 +193,16 @@ double DomainSpec::cylinder_area() const {
   return std::numbers::pi * cylinder_radius * cylinder_radius;
 }
 
+double DomainSpec::axis_distance_to_box(const std::array<double, 3>& box_lo,
+                                        const std::array<double, 3>& box_hi) const {
+  double d2 = 0.0;
+  for (const int a : cross_axes()) {
+    const double d = std::clamp(centre(a), box_lo[a], box_hi[a]) - centre(a);
+    d2 += d * d;
+  }
+  return std::sqrt(d2);
+}
+
 Scene read_scene(SceneConfig& c, const std::string& default_name) {
   // A key the table does not know is refused first, with the nearest key: a misspelt required
   // key would otherwise be reported as missing.

@@ -32,6 +32,10 @@ struct DomainSpec {
     return {cylinder_axis == 0 ? 1 : 0, cylinder_axis == 2 ? 1 : 2};
   }
   double centre(int a) const { return 0.5 * (lo[a] + hi[a]); }
+  // The distance from the cylinder's axis to the nearest point of the box [lo, hi] across it
+  // (0 where the box spans the axis).
+  double axis_distance_to_box(const std::array<double, 3>& box_lo,
+                              const std::array<double, 3>& box_hi) const;
   // The column's cross-section pi R^2 [m^2].
   double cylinder_area() const;
   // The volume the particles move in: the box's, or the column's pi R^2 L.

@@ -33,9 +33,7 @@ struct IslandsScheme::RankPart {
   // The islands skin; the largest bound of the last link rounds (over all ranks); the skin a
   // short build asked for.
   double base_skin = 0.0, last_max_bound = 0.0, grown_skin = 0.0;
-  // The largest skin whose halo (2 r_max + skin) stays under half of every periodic axis, as on
-  // one rank (periodic_skin_cap); whether the rows were built in this sub-iteration's search.
-  double skin_cap = 0.0;
+  // Whether the rows were built in this sub-iteration's search (a retry at the skin cap stops).
   bool fresh_rows = false;
   std::int64_t last_regrid = -1;
   // Spanning particles over all ranks in the last link round.

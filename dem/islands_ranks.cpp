@@ -79,7 +79,7 @@ void IslandsScheme::init_ranks() {
   r.comm.sum(ms);
   r.mass_global = ms[0];
   r.base_skin = one_.islands_skin;
-  r.skin_cap = periodic_skin_cap(geom_, r.r_max);
+  skin_cap_ = periodic_skin_cap(geom_, r.r_max);
 }
 
 void IslandsScheme::set_external_force_ranks(std::span<const double> fx, std::span<const double> fy,
@@ -701,8 +701,8 @@ void IslandsScheme::rebuild_ranks() {
   // set), at least four sub-iterations of the largest bound, or what a failed build asked for;
   // at most what a periodic axis allows (the link rounds then check that it still suffices).
   skin_ = std::max({r.base_skin, 4.0 * speed * dt_sp_ + 2.0 * margin_, r.grown_skin});
-  if (r.skin_cap > 0.0)
-    skin_ = std::min(skin_, r.skin_cap);
+  if (skin_cap_ > 0.0)
+    skin_ = std::min(skin_, skin_cap_);
   build_ghosts_and_rows();
   if (model_.friction) {
     attach_history(std::move(arrived), p_.id, r.rows.off(), r.rows.nb(), owned_, hx_, hy_, hz_);
@@ -736,13 +736,10 @@ void IslandsScheme::find_islands_ranks() {
         // Even fresh rows are too short: a wider skin, up to the periodic cap (reach is the
         // largest over the ranks, so every rank grows, or stops, alike).
         const double need = 2.2 * reach + 2.0 * margin_;
-        if (!(need < r.skin_cap))
-          throw RunError(fmt::format(
-              "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
-              "periodic box allows for a neighbor skin ({:.4g} m): raise dem.nsubit or run on "
-              "one rank",
-              time(), 0.5 * need, r.skin_cap));
-        r.grown_skin = std::max(need, std::min(2.0 * skin_, r.skin_cap));
+        if (!(need < skin_cap_))
+          throw RunError(travel_beyond_skin_cap(time(), 0.5 * need, skin_cap_,
+                                                "raise dem.nsubit or run on one rank"));
+        r.grown_skin = std::max(need, std::min(2.0 * skin_, skin_cap_));
       }
       r.need_rebuild = true;
       ++st_.expired_builds;
@@ -815,12 +812,9 @@ void IslandsScheme::roll_back() {
   }
   // Rows built for this very sub-iteration at the widest skin the periodic box allows cannot
   // grow; every rank sees the same skin and rows, so every rank stops alike.
-  if (r.fresh_rows && !(skin_ < r.skin_cap))
-    throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor skin "
-                               "in one sub-iteration even with the largest skin the periodic box "
-                               "allows ({:.4g} m): raise dem.nsubit or run on one rank",
-                               time(), skin_));
-  r.grown_skin = std::min(2.0 * skin_, r.skin_cap);
+  if (r.fresh_rows && !(skin_ < skin_cap_))
+    throw RunError(outran_skin_cap(time(), skin_, "raise dem.nsubit or run on one rank"));
+  r.grown_skin = std::min(2.0 * skin_, skin_cap_);
   r.need_rebuild = true;
   ++st_.retries;
 }

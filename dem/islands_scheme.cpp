@@ -63,7 +63,7 @@ IslandsScheme::IslandsScheme(const Scene& scene, ParticleStore& particles, const
     double r_max = 0.0;
     for (double r : p_.radius)
       r_max = std::max(r_max, r);
-    one_.skin_cap = periodic_skin_cap(geom_, r_max);
+    skin_cap_ = periodic_skin_cap(geom_, r_max);
     one_.d_max = 2.0 * r_max;
     one_.with_comm = comm != nullptr;
   }
@@ -362,7 +362,7 @@ void IslandsScheme::choose_skin() {
   double best = s, c_best = kSkinSwitch * cost(s);
   for (const double m : {1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0}) {
     const double s2 = m * one_.global_skin;
-    if (!(s2 > 1.1 * r_b) || !(s2 < one_.skin_cap) ||
+    if (!(s2 > 1.1 * r_b) || !(s2 < skin_cap_) ||
         !VerletList::skin_fits(geom_, 0.5 * one_.d_max, s2))
       continue;
     if (const double c = cost(s2); c < c_best)
@@ -762,12 +762,9 @@ void IslandsScheme::find_islands_one() {
       double need = 0.0;
       for (double b : ln_.bound)
         need = std::max(need, 2.2 * b * dt_sp_);
-      if (!(need < one_.skin_cap))
-        throw RunError(fmt::format(
-            "t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than the "
-            "periodic box allows for a neighbor skin ({:.4g} m): raise dem.nsubit",
-            time(), 0.5 * need, one_.skin_cap));
-      skin_ = std::max(need, 2.0 * skin_ < one_.skin_cap ? 2.0 * skin_ : need);
+      if (!(need < skin_cap_))
+        throw RunError(travel_beyond_skin_cap(time(), 0.5 * need, skin_cap_, "raise dem.nsubit"));
+      skin_ = std::max(need, 2.0 * skin_ < skin_cap_ ? 2.0 * skin_ : need);
     }
     rebuild();
     fresh = true;

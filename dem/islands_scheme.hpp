@@ -270,7 +270,6 @@ private:
   // One rank: the Verlet list and its skins.
   struct OneRank {
     VerletList list;
-    double skin_cap = 0.0;
     // Skins of the two modes: islands (a longer list: fewer builds) and global fine steps (the
     // explicit scheme's).
     double islands_skin = 0.0, global_skin = 0.0;
@@ -441,6 +440,9 @@ private:
   StepModel model_;
   ExternalForce ext_; // per owned particle
   double dt_sp_ = 0.0, skin_ = 0.0, margin_ = 0.0;
+  // The largest skin whose cutoff 2 r_max + skin stays under half of every periodic axis
+  // (periodic_skin_cap; r_max over all ranks on R ranks), on any rank count.
+  double skin_cap_ = 0.0;
   std::int64_t nsubit_ = 1, n_global_ = 0;
   std::size_t owned_ = 0;
   bool global_ = false; // this sub-iteration: everyone on the fine steps

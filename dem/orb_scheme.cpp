@@ -819,10 +819,7 @@ void OrbScheme::subiterate(bool record) {
     // A fine leaf (on some rank) outran its rows (a collision sped a particle up): roll back,
     // rebuild, redo; if the rows were already fresh, with twice the skin (until the regrid).
     if (fresh && skin_ >= cfg_.skin_cap)
-      throw RunError(fmt::format("t = {:.9g} s: a particle moves more than half the neighbor "
-                                 "skin in one sub-iteration even with the largest skin the "
-                                 "periodic box allows ({:.4g} m): raise dem.nsubit",
-                                 time(), skin_));
+      throw RunError(outran_skin_cap(time(), skin_, "raise dem.nsubit"));
     roll_back();
     if (fresh)
       skin_ = std::min(2.0 * skin_, cfg_.skin_cap);

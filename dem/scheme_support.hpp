@@ -9,6 +9,9 @@
 #include <limits>
 #include <optional>
 #include <string>
+#include <string_view>
+
+#include <fmt/format.h>
 
 #include "core/error.hpp"
 #include "core/scene.hpp"
@@ -92,6 +95,22 @@ inline double periodic_skin_cap(const DomainGeometry& g, double r_max) {
     if (g.periodic[a])
       cap = std::min(cap, 0.499 * g.length[a] - 2.0 * r_max);
   return cap;
+}
+
+// The two stops at that cap (orb, islands on one and R ranks), at time t, ending in `advice`:
+// a fresh list would need the skin for a travel beyond it, or a particle outran half of the
+// largest skin it allows.
+inline std::string travel_beyond_skin_cap(double t, double travel, double cap,
+                                          std::string_view advice) {
+  return fmt::format("t = {:.9g} s: particles may move {:.4g} m in one sub-iteration, more than "
+                     "the periodic box allows for a neighbor skin ({:.4g} m): {}",
+                     t, travel, cap, advice);
+}
+inline std::string outran_skin_cap(double t, double skin, std::string_view advice) {
+  return fmt::format("t = {:.9g} s: a particle moves more than half the neighbor skin in one "
+                     "sub-iteration even with the largest skin the periodic box allows ({:.4g} "
+                     "m): {}",
+                     t, skin, advice);
 }
 
 } // namespace cfddem::dem

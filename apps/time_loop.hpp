@@ -93,6 +93,7 @@ private:
   void open_outputs(ParticleStore& initial);
   FluidStepPlan gas_step(); // the step's length: n_sub particle steps in dt_f
   bool advance_clock(double dt_f);
+  bool progress_due();
   void print_progress();
   void print_substep_progress(int count, double t, double dt, double dt_f);
   void mark_due_steps(long long k);
@@ -472,12 +473,20 @@ template <class Run> bool TimeLoop<Run>::advance_clock(double dt_f) {
   return due;
 }
 
+// Whether output.progress_seconds have passed since the last progress line (and the clock
+// restarts for the next one).
+template <class Run> bool TimeLoop<Run>::progress_due() {
+  const clock::time_point now = clock::now();
+  if (std::chrono::duration<double>(now - last_progress_).count() < scene_.output.progress_seconds)
+    return false;
+  last_progress_ = now;
+  return true;
+}
+
 template <class Run> void TimeLoop<Run>::print_progress() {
   if (opt_.quiet || !root_ || !(Run::kSub || gas_on_ || (loop_.fluid_steps & 63) == 0) ||
-      std::chrono::duration<double>(clock::now() - last_progress_).count() <
-          scene_.output.progress_seconds)
+      !progress_due())
     return;
-  last_progress_ = clock::now();
   const double wall = seconds_since(t_loop_);
   const double frac = gas_on_ ? loop_.time / end_
                               : static_cast<double>(loop_.fluid_steps) /
@@ -496,10 +505,8 @@ template <class Run> void TimeLoop<Run>::print_progress() {
 // fluid steps. Every rank takes the sub-steps; the root says where it is.
 template <class Run>
 void TimeLoop<Run>::print_substep_progress(int count, double t, double dt, double dt_f) {
-  if (std::chrono::duration<double>(clock::now() - last_progress_).count() <
-      scene_.output.progress_seconds)
+  if (!progress_due())
     return;
-  last_progress_ = clock::now();
   fmt::print(stderr,
              "fluid step {:>8} t = {:.6e} s: gas sub-step {} ({:.3g} s), {:.0f}% of the fluid "
              "step\n",

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_step.hpp"
@@ -65,6 +66,23 @@ inline FluidStepPlan plan_fluid_step(const Scene& scene, const GasCoupling& gas,
   return {n, static_cast<double>(n) * dt};
 }
 
+// The first of next, next + interval, next + 2 interval, ... beyond t, summed as the output times
+// always were while a few intervals are passed (the rows' times stay as they were). An interval
+// far below the step (1e-20 s against a fluid step of 1e-4 s: 1e16 additions, and at 1e-300 s
+// none that moves the sum) jumps to the interval's first multiple beyond t instead, or to the
+// double after t where that multiple rounds onto t: a row, snapshot or checkpoint every step.
+inline double next_time_after(double next, double interval, double t) {
+  constexpr int kSummed = 64;
+  for (int n = 0; next <= t; ++n) {
+    if (n == kSummed) {
+      const double multiple = (std::floor(t / interval) + 1.0) * interval;
+      return multiple > t ? multiple : std::nextafter(t, std::numeric_limits<double>::infinity());
+    }
+    next += interval;
+  }
+  return next;
+}
+
 // At fluid time t (last: the run's end): a row or snapshot that is due takes the gas now
 // (collective on R ranks: diagnostics are reduced) and is marked pending.
 inline void mark_due_outputs(CoupledLoopState& loop, const GasCoupling& gas, const Scene& scene,
@@ -73,15 +91,14 @@ inline void mark_due_outputs(CoupledLoopState& loop, const GasCoupling& gas, con
     loop.row_fluid = gas.diagnostics();
     loop.row_time = t;
     loop.row_pending = true;
-    while (loop.next_output <= t + tol)
-      loop.next_output += scene.output.interval;
+    loop.next_output = next_time_after(loop.next_output, scene.output.interval, t + tol);
   }
   if (scene.output.snapshot_interval > 0.0 && (t >= loop.next_snapshot - tol || last)) {
     loop.snapshot_cells = gas.cell_fields();
     loop.row_time = t;
     loop.snapshot_pending = true;
-    while (loop.next_snapshot <= t + tol)
-      loop.next_snapshot += scene.output.snapshot_interval;
+    loop.next_snapshot =
+        next_time_after(loop.next_snapshot, scene.output.snapshot_interval, t + tol);
   }
 }
 

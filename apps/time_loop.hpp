@@ -273,6 +273,8 @@ template <class Run> void TimeLoop<Run>::start() {
   ckpt_interval_ = scene_.output.checkpoint_interval;
   if (ckpt_interval_ > 0.0)
     next_ckpt_ = (std::floor(loop_.time / ckpt_interval_ + 1e-6) + 1.0) * ckpt_interval_;
+  if (ckpt_interval_ > 0.0 && !std::isfinite(next_ckpt_))
+    next_ckpt_ = loop_.time; // an interval so short that the count of them overflows: every step
   last_progress_ = clock::now();
 }
 
@@ -468,8 +470,8 @@ template <class Run> bool TimeLoop<Run>::advance_clock(double dt_f) {
       take_profile_gas();
   }
   const bool due = t >= next_ckpt_ - tol_;
-  while (due && next_ckpt_ <= t + tol_)
-    next_ckpt_ += ckpt_interval_;
+  if (due)
+    next_ckpt_ = next_time_after(next_ckpt_, ckpt_interval_, t + tol_);
   return due;
 }
 

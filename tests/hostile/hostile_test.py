@@ -666,6 +666,23 @@ def many_gas_substeps_show_progress(ctx):
 
 
 @case
+def intervals_far_below_the_step_write_every_step(ctx):
+    """An output, snapshot or checkpoint interval far below the fluid step: the next output time
+    was found by adding the interval until it passed the step, 1e16 additions at 1e-20 s, and at
+    1e-300 s additions that never moved the sum (a run that never ended). Now a row, snapshot and
+    checkpoint come at every fluid step."""
+    out_dir = ctx.fresh("tiny_intervals")
+    expect(ctx, ["run", HCS_GAS, "run.end_time=3e-4", "output.interval=1e-300",
+                 "output.snapshot_interval=1e-20", "output.checkpoint_interval=1e-300",
+                 "--quiet"], 0, None, out_dir=out_dir, timeout=60)
+    times = [float(r[0]) for r in rows(out_dir)[1:]]
+    assert len(times) == 4 and abs(times[-1] - 3e-4) < 1e-12, times
+    names = os.listdir(out_dir)
+    assert sum(n.startswith("checkpoint_") for n in names) == 3, sorted(names)
+    assert sum(n.startswith("snapshot_") for n in names) >= 3, sorted(names)
+
+
+@case
 def inlet_that_falls_behind_warns(ctx):
     """An inlet region inside the bed's packing finds room for few particles: 8 of the 38 due in
     1 ms entered, and only the rows' mass_in, summed against the rate by hand, showed it. The run

@@ -73,8 +73,9 @@ std::vector<std::string> step_warnings(const Scene& s, const DerivedNumbers& d) 
   // A fixed nsubit whose sub-iteration step dt_sp is shorter than the particle step: every
   // particle then steps at dt_sp, finer than any contact needs (a typed 1e9 made 1e9 passes a
   // fluid step of 1e-13 s each). The interval is the fixed fluid step or the regrid interval
-  // (an adaptive fluid step's length is not known before the run).
-  if (s.dem.subiterated() && !s.dem.nsubit_auto) {
+  // (an adaptive fluid step's length is not known before the run). A scene without particles at
+  // the start has no particle step to compare with (it read "nsubit up to 0").
+  if (s.dem.subiterated() && !s.dem.nsubit_auto && d.particles > 0) {
     const bool gas_sets = s.fluid.enabled;
     const double interval = gas_sets ? s.fluid.dt : s.dem.regrid_interval;
     const double dt_sp = interval / static_cast<double>(s.dem.nsubit);

@@ -536,6 +536,9 @@ def no_particles_with_every_scheme(ctx):
         d = ctx.fresh(f"empty_{scheme}")
         expect(ctx, ["run", SMALL, "particles.count=0", f"dem.scheme={scheme}",
                      "run.end_time=1e-3", "--quiet"], 0, None, out_dir=d)
+    # No particle step to compare dem.nsubit with: no warning (it read "nsubit up to 0").
+    out = expect(ctx, ["check", BED, "particles.count=0", "dem.scheme=orb"], 0, None)
+    assert "warning: dem.nsubit" not in out, out[-1500:]
 
 
 @case

@@ -266,6 +266,14 @@ template <class Run> void TimeLoop<Run>::start() {
   start_or_restore();
   schedule_outputs();
   open_outputs(initial);
+  // A restart at the end of a run with a gas: no fluid step comes to mark the row at the end,
+  // which every run writes (without a gas mark_due_steps marked it), so the diagnostics ended
+  // at the last row before the checkpoint.
+  if (ck_ && gas_on_ && at_end()) {
+    mark_due_outputs(loop_, gas_->coupling(), scene_, loop_.time, true, tol_);
+    if (loop_.row_pending)
+      take_profile_gas();
+  }
   fluid_steps_before_ = gas_on_ ? loop_.fluid_steps : 0;
   particle_steps_before_ = run_->scheme.particle_steps();
   // With a gas: checkpoints at the fluid times that are multiples of the interval, after the

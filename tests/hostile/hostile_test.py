@@ -686,6 +686,26 @@ def intervals_far_below_the_step_write_every_step(ctx):
 
 
 @case
+def restart_at_the_end_writes_the_last_row(ctx):
+    """A gas run restarted from a checkpoint at its end time ran no fluid step and so never
+    marked the row at the end: its diagnostics stopped at the last row before the checkpoint (a
+    run without a gas wrote it). The row at the end is the uninterrupted run's, bit for bit."""
+    whole = ctx.fresh("end_whole")
+    expect(ctx, ["run", BED, "run.end_time=2e-4", "--quiet"], 0, None, out_dir=whole, timeout=60)
+    longer = ctx.fresh("end_longer")  # its checkpoint at 2e-4 has no row due (interval 1e-3)
+    expect(ctx, ["run", BED, "run.end_time=3e-4", "output.checkpoint_interval=1e-4", "--quiet"],
+           0, None, out_dir=longer, timeout=60)
+    again = ctx.fresh("end_again")
+    expect(ctx, ["run", BED, "run.end_time=2e-4", "--restart",
+                 os.path.join(longer, "checkpoint_000000002.h5"), "--quiet"], 0, None,
+           out_dir=again, timeout=60)
+    a, b = rows(whole), rows(again)
+    wall = a[0].index("wall_seconds")
+    strip = lambda t: [[v for i, v in enumerate(r) if i != wall] for r in t]
+    assert len(b) == len(a) and float(b[-1][0]) == 2e-4 and strip(b) == strip(a), (a, b)
+
+
+@case
 def inlet_that_falls_behind_warns(ctx):
     """An inlet region inside the bed's packing finds room for few particles: 8 of the 38 due in
     1 ms entered, and only the rows' mass_in, summed against the rate by hand, showed it. The run

@@ -5,10 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 
 #include "apps/checkpoint.hpp"
 #include "apps/coupled_step.hpp"
+#include "core/next_time.hpp"
 #include "core/scene.hpp"
 #include "dem/step_model.hpp"
 
@@ -64,23 +64,6 @@ inline FluidStepPlan plan_fluid_step(const Scene& scene, const GasCoupling& gas,
   const double want = gas.adaptive_dt(time_left);
   const long long n = std::max(1LL, static_cast<long long>(std::floor(want / dt * (1 + 1e-12))));
   return {n, static_cast<double>(n) * dt};
-}
-
-// The first of next, next + interval, next + 2 interval, ... beyond t, summed as the output times
-// always were while a few intervals are passed (the rows' times stay as they were). An interval
-// far below the step (1e-20 s against a fluid step of 1e-4 s: 1e16 additions, and at 1e-300 s
-// none that moves the sum) jumps to the interval's first multiple beyond t instead, or to the
-// double after t where that multiple rounds onto t: a row, snapshot or checkpoint every step.
-inline double next_time_after(double next, double interval, double t) {
-  constexpr int kSummed = 64;
-  for (int n = 0; next <= t; ++n) {
-    if (n == kSummed) {
-      const double multiple = (std::floor(t / interval) + 1.0) * interval;
-      return multiple > t ? multiple : std::nextafter(t, std::numeric_limits<double>::infinity());
-    }
-    next += interval;
-  }
-  return next;
 }
 
 // At fluid time t (last: the run's end): a row or snapshot that is due takes the gas now

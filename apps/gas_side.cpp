@@ -10,6 +10,7 @@
 #include "apps/coupled_checkpoint.hpp"
 #include "apps/gas_rebalance.hpp"
 #include "core/error.hpp"
+#include "core/next_time.hpp"
 #include "fluid/gas_boxes.hpp"
 #include "fluid/multigrid_poisson.hpp"
 #include "fluid/pressure_projection.hpp"
@@ -91,14 +92,11 @@ std::optional<partition::RankDecomposition> GasSide::regrid(const ParticleStore&
     return std::nullopt;
   if (next_regrid_ < 0.0) {
     // From the start time on (after a restart the boxes restart from the count cut).
-    next_regrid_ = every;
-    while (next_regrid_ < t - tol)
-      next_regrid_ += every;
+    next_regrid_ = next_time_after(every, every, t - tol);
   }
   if (last_n_sub <= 0 || t < next_regrid_ - tol)
     return std::nullopt;
-  while (next_regrid_ <= t + tol)
-    next_regrid_ += every;
+  next_regrid_ = next_time_after(next_regrid_, every, t + tol);
   // The particles this rank's box deposits (routed: the copies of the last fluid step), each
   // weighing the particle steps of the last fluid step.
   const ParticleStore& dep = routed_ ? routing_->routed() : p;

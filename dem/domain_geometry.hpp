@@ -3,6 +3,8 @@
 // neighbor cutoff (DomainGeometry::check_fits).
 #pragma once
 
+#include <cmath>
+
 #include <array>
 
 #include "core/scene.hpp"
@@ -40,8 +42,13 @@ struct DomainGeometry {
     return dx - shift * length[a];
   }
   // Put a coordinate back into [lo, hi) on a periodic axis.
+  // A coordinate not finite is left as it is (the caller's checks name it), and one many periods
+  // out takes floor's image first: the loops alone would turn once per period (or forever at
+  // inf, where x - length is x).
   double wrap(double x, int a) const {
-    if (periodic[a]) {
+    if (periodic[a] && std::isfinite(x)) {
+      if (!(std::abs(x - lo[a]) < 4.0 * length[a]))
+        x -= std::floor((x - lo[a]) / length[a]) * length[a];
       while (x >= hi[a]) x -= length[a];
       while (x < lo[a]) x += length[a];
     }

@@ -9,6 +9,7 @@
 
 #include "core/error.hpp"
 #include "dem/contact_damping.hpp"
+#include "dem/domain_geometry.hpp"
 #include "dem/verlet_passes.hpp"
 #include "dem_test_support.hpp"
 
@@ -150,6 +151,27 @@ TEST(Extremes, SingleParticleDriftsThroughPeriodicFaces) {
 }
 
 // No particle at all: the scheme starts and steps (nothing to do, no error).
+// A coordinate many periods out takes its image in one step (the loops alone turned once per
+// period, and forever at inf); one within a period gives the loops' bits.
+TEST(Extremes, WrapFarAndNonFiniteCoordinates) {
+  cfddem::DomainSpec d;
+  d.lo = {0.0, 0.0, 0.0};
+  d.hi = {1e-3, 1e-3, 1e-3};
+  d.periodic = {true, true, false};
+  const cfddem::dem::DomainGeometry g(d);
+  EXPECT_EQ(g.wrap(1.25e-3, 0), 1.25e-3 - 1e-3);
+  EXPECT_EQ(g.wrap(-0.25e-3, 0), -0.25e-3 + 1e-3);
+  for (const double x : {1e3, -1e3, 1e12}) {
+    const double w = g.wrap(x, 1);
+    EXPECT_GE(w, 0.0) << x;
+    EXPECT_LT(w, 1e-3) << x;
+    EXPECT_NEAR(w, x - std::floor(x / 1e-3) * 1e-3, 1e-9 * std::abs(x)) << x;
+  }
+  EXPECT_EQ(g.wrap(INFINITY, 0), INFINITY);
+  EXPECT_TRUE(std::isnan(g.wrap(NAN, 0)));
+  EXPECT_EQ(g.wrap(5.0, 2), 5.0); // not periodic: as it is
+}
+
 TEST(Extremes, ZeroParticles) {
   const Scene s = scene_from(kPairScene);
   ParticleStore p;

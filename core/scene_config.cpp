@@ -98,12 +98,20 @@ SceneConfig SceneConfig::from_string(std::string_view text, const std::string& o
 }
 
 void SceneConfig::apply_override(const std::string& assignment) {
+  // Spaces around the '=' as a scene file allows them ("run.end_time = 0.1", quoted on the
+  // command line), not part of the key or of a bare word.
+  const auto trim = [](std::string_view v) {
+    const auto first = v.find_first_not_of(" \t");
+    return first == std::string_view::npos
+               ? std::string()
+               : std::string(v.substr(first, v.find_last_not_of(" \t") - first + 1));
+  };
   const auto eq = assignment.find('=');
-  if (eq == std::string::npos || eq == 0)
+  const std::string key = eq == std::string::npos ? std::string() : trim(assignment.substr(0, eq));
+  if (key.empty())
     throw ConfigError("command line",
                       fmt::format("override '{}' is not of the form key=value", assignment));
-  const std::string key = assignment.substr(0, eq);
-  const std::string value = assignment.substr(eq + 1);
+  const std::string value = trim(std::string_view(assignment).substr(eq + 1));
   auto parts = split_key(key);
   for (const auto& p : parts)
     if (p.empty())

@@ -43,7 +43,8 @@ core/scene_keys.cpp and the prose in core/scene_keys_doc.cpp. Edit those, then r
 A scene is a TOML file. Every key below can also be given on the command line as `key=value`
 after the scene file (`cfddem run scenes/hcs.toml dem.restitution=0.9`); the value is read as
 TOML, and a bare word that is not TOML is a string (`dem.scheme=islands` is
-`dem.scheme='"islands"'`). `cfddem check SCENE [key=value ...]` prints every key with its
+`dem.scheme='"islands"'`); spaces around the `=` of one quoted argument are dropped
+(`'run.end_time = 0.1'`). `cfddem check SCENE [key=value ...]` prints every key with its
 resolved value and the derived numbers (particle mass, tau_p, dt, solid fraction, Haff time...)
 without running anything.
 

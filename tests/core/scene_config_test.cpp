@@ -55,6 +55,16 @@ TEST(SceneConfig, BareWordIsString) {
   EXPECT_EQ(load({"name=myrun"}).name, "myrun");
 }
 
+// Spaces around '=' as a scene file writes them (one quoted argument on the command line): not
+// part of the key ("unknown key 'run.end_time '") nor of a bare word; a key of spaces alone is
+// no key.
+TEST(SceneConfig, SpacesAroundTheEqualsSignAreNotPartOfKeyOrValue) {
+  EXPECT_DOUBLE_EQ(load({"dem.restitution = 0.9"}).dem.restitution, 0.9);
+  EXPECT_EQ(load({" dem.scheme =\torb "}).dem.scheme, "orb");
+  EXPECT_EQ(load({"name = my run"}).name, "my run"); // inner spaces stay
+  EXPECT_NE(error_of({" =5"}).find("not of the form key=value"), std::string::npos);
+}
+
 TEST(SceneConfig, DefaultsApplied) {
   const Scene s = load({});
   EXPECT_DOUBLE_EQ(s.dem.dt_factor, 0.02);

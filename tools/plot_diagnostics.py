@@ -1,10 +1,11 @@
-#!/usr/bin/env python3
+#!/usr/bin/python3
 """Plot columns of a cfddem diagnostics.csv against time (one panel per column), optionally for
 several runs on the same axes.
 
   tools/plot_diagnostics.py runs/hcs/diagnostics.csv                     # T and E_kin
   tools/plot_diagnostics.py runs/*/diagnostics.csv -c granular_temperature --logy -o T.png
   tools/plot_diagnostics.py runs/hcs/diagnostics.csv --list               # column names
+  tools/plot_diagnostics.py runs/hcs runs/hcs_islands                    # run directories
 """
 import argparse
 import os
@@ -18,6 +19,10 @@ import numpy as np  # noqa: E402
 
 
 def load(path):
+    if os.path.isdir(path):  # a run directory: its diagnostics.csv
+        path = os.path.join(path, "diagnostics.csv")
+    if not os.path.isfile(path):
+        sys.exit(f"{path}: no such file")
     data = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
     if data.dtype.names is None or "time" not in data.dtype.names:
         sys.exit(f"{path}: no 'time' column; is this a cfddem diagnostics.csv?")
@@ -26,7 +31,7 @@ def load(path):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("csv", nargs="+", help="diagnostics.csv files")
+    ap.add_argument("csv", nargs="+", help="diagnostics.csv files or run directories")
     ap.add_argument("-c", "--columns", nargs="+",
                     default=["granular_temperature", "kinetic_energy"])
     ap.add_argument("-o", "--output", default="diagnostics.png")
@@ -45,7 +50,8 @@ def main():
                              figsize=(6.4, 2.4 * len(a.columns) + 0.6))
     for ax, c in zip(axes[:, 0], a.columns):
         for p, d in runs:
-            label = os.path.basename(os.path.dirname(os.path.abspath(p))) or p
+            run_dir = p if os.path.isdir(p) else os.path.dirname(os.path.abspath(p))
+            label = os.path.basename(os.path.abspath(run_dir)) or p
             ax.plot(d["time"], d[c], marker=".", label=label)
         ax.set_ylabel(c)
         if a.logy:

@@ -1,4 +1,4 @@
-#!/usr/bin/env python3
+#!/usr/bin/python3
 """Render a particle snapshot (snapshot_<step>.h5 written by cfddem) to a PNG, particles coloured
 by speed or kinetic energy, as the paper's figures: a 3-D scatter, or a slab projected on a plane.
 

@@ -190,6 +190,12 @@ int main(int argc, char** argv) {
       const cfddem::Scene scene = load(a, cfg);
       cfddem::apps::check_gas_memory(scene, env.ranks());
       if (env.rank() == 0)
+        for (const auto& [key, value] : cfg.repeated_overrides())
+          fmt::print(stderr,
+                     "cfddem: warning: scene key '{}' is set more than once on the command "
+                     "line; the last value, {}, is used\n",
+                     key, value);
+      if (env.rank() == 0)
         for (const std::string& w : cfddem::apps::setting_warnings(scene))
           fmt::print(stderr, "cfddem: warning: {}\n", w);
       if (check->parsed()) {

@@ -136,7 +136,14 @@ void SceneConfig::apply_override(const std::string& assignment) {
       throw ConfigError(key, fmt::format("override goes through '{}', which is not a table",
                                          parts[i]));
   }
-  overridden_.insert(key);
+  if (!overridden_.insert(key).second) {
+    const auto at = std::find_if(repeated_.begin(), repeated_.end(),
+                                 [&](const auto& kv) { return kv.first == key; });
+    if (at == repeated_.end())
+      repeated_.emplace_back(key, value);
+    else
+      at->second = value;
+  }
   if (is_toml) {
     t->insert_or_assign(parts.back(), *parsed.get("v"));
   } else {

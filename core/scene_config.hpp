@@ -47,6 +47,11 @@ public:
   // True when the key was set by a command-line override (paths then resolve against the working
   // directory, not the scene file's folder).
   bool overridden(const std::string& key) const { return overridden_.count(key) > 0; }
+  // Keys the command line set more than once, each once, in order, with the last value as typed
+  // (the one that holds): legal but likely a slip, which `check` and `run` warn about.
+  const std::vector<std::pair<std::string, std::string>>& repeated_overrides() const {
+    return repeated_;
+  }
   // The scene file's folder (empty for text scenes).
   std::string base_dir() const { return base_dir_; }
   const toml::table& table() const { return table_; }
@@ -61,6 +66,7 @@ private:
   std::string origin_;
   std::set<std::string> used_;
   std::set<std::string> overridden_;
+  std::vector<std::pair<std::string, std::string>> repeated_;
   std::string base_dir_;
 };
 

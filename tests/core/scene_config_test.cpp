@@ -65,6 +65,19 @@ TEST(SceneConfig, SpacesAroundTheEqualsSignAreNotPartOfKeyOrValue) {
   EXPECT_NE(error_of({" =5"}).find("not of the form key=value"), std::string::npos);
 }
 
+// A key set twice on the command line: the last value holds, and the key is listed once with it
+// for the warning.
+TEST(SceneConfig, RepeatedOverridesAreListedWithTheLastValue) {
+  auto c = SceneConfig::from_string(kMinimal, "test.toml");
+  for (const char* o :
+       {"run.end_time=2e-3", "dem.restitution=0.5", "run.end_time = 3e-3", "run.end_time=4e-3"})
+    c.apply_override(o);
+  ASSERT_EQ(c.repeated_overrides().size(), 1U);
+  EXPECT_EQ(c.repeated_overrides()[0].first, "run.end_time");
+  EXPECT_EQ(c.repeated_overrides()[0].second, "4e-3");
+  EXPECT_DOUBLE_EQ(read_scene(c, "test").run.end_time, 4e-3);
+}
+
 TEST(SceneConfig, DefaultsApplied) {
   const Scene s = load({});
   EXPECT_DOUBLE_EQ(s.dem.dt_factor, 0.02);

@@ -719,6 +719,15 @@ def restart_at_the_end_writes_the_last_row(ctx):
 
 
 @case
+def key_set_twice_on_the_command_line_warns(ctx):
+    """A key given twice among the overrides (a slip when a long command line is edited): the
+    last value holds, as before, and check and run say which one."""
+    expect(ctx, ["check", SMALL, "run.end_time=1e-3", "dem.restitution=0.5", "run.end_time=2e-3"],
+           0, r"warning: scene key 'run.end_time' is set more than once on the command line; "
+              r"the last value, 2e-3, is used", timeout=10)
+
+
+@case
 def inlet_that_falls_behind_warns(ctx):
     """An inlet region inside the bed's packing finds room for few particles: 8 of the 38 due in
     1 ms entered, and only the rows' mass_in, summed against the rate by hand, showed it. The run

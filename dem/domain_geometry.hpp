@@ -3,9 +3,8 @@
 // neighbor cutoff (DomainGeometry::check_fits).
 #pragma once
 
-#include <cmath>
-
 #include <array>
+#include <cmath>
 
 #include "core/scene.hpp"
 

@@ -45,6 +45,7 @@
 #include "apps/simulation.hpp"
 #include "core/communicator.hpp"
 #include "core/error.hpp"
+#include "core/next_time.hpp"
 #include "core/parallel_env.hpp"
 #include "core/phase_timer.hpp"
 #include "dem/domain_geometry.hpp"
@@ -280,9 +281,7 @@ template <class Run> void TimeLoop<Run>::start() {
   // restart time.
   ckpt_interval_ = scene_.output.checkpoint_interval;
   if (ckpt_interval_ > 0.0)
-    next_ckpt_ = (std::floor(loop_.time / ckpt_interval_ + 1e-6) + 1.0) * ckpt_interval_;
-  if (ckpt_interval_ > 0.0 && !std::isfinite(next_ckpt_))
-    next_ckpt_ = loop_.time; // an interval so short that the count of them overflows: every step
+    next_ckpt_ = multiple_after(loop_.time, ckpt_interval_, 1e-6);
   last_progress_ = clock::now();
 }
 

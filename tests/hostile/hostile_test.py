@@ -48,6 +48,22 @@ def run(args, timeout=TIMEOUT, preexec=None, cwd=None, env=None):
     return r.returncode, r.stdout + r.stderr
 
 
+def run_two_ranks(args, timeout=TIMEOUT):
+    """run() of `cfddem args` on 2 MPI ranks (one thread each), as root may; None where this
+    machine has no mpirun."""
+    mpirun = shutil.which("mpirun")
+    if not mpirun:
+        return None
+    try:
+        r = subprocess.run([mpirun, "-np", "2", "--oversubscribe", BIN, *args, "--threads", "1"],
+                           capture_output=True, text=True, timeout=timeout,
+                           env=dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1",
+                                    OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1"))
+    except subprocess.TimeoutExpired:
+        return "timeout", ""
+    return r.returncode, r.stdout + r.stderr
+
+
 def tree(d):
     """Every file under d with its bytes."""
     out = {}
@@ -684,18 +700,10 @@ def intervals_far_below_the_step_write_every_step(ctx):
     assert sum(n.startswith("checkpoint_") for n in names) == 3, sorted(names)
     assert sum(n.startswith("snapshot_") for n in names) >= 3, sorted(names)
     # The gas boxes' recut on R ranks had the same loop.
-    mpirun = shutil.which("mpirun")
-    if mpirun:
-        env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-        try:
-            r = subprocess.run([mpirun, "-np", "2", "--oversubscribe", BIN, "run", BED,
-                                "run.end_time=3e-4", "partition.gas_regrid_interval=1e-300",
-                                "--quiet", "--threads", "1", "--out",
-                                ctx.fresh("tiny_regrid")], capture_output=True, text=True,
-                               timeout=60, env=env)
-        except subprocess.TimeoutExpired:
-            raise AssertionError("partition.gas_regrid_interval = 1e-300 on 2 ranks: a hang")
-        assert r.returncode == 0, (r.returncode, (r.stdout + r.stderr)[-1500:])
+    r = run_two_ranks(["run", BED, "run.end_time=3e-4", "partition.gas_regrid_interval=1e-300",
+                       "--quiet", "--out", ctx.fresh("tiny_regrid")], timeout=60)
+    if r is not None:
+        assert r[0] == 0, (r[0], r[1][-1500:])  # "timeout": the recut's hang
 
 
 @case
@@ -1340,22 +1348,18 @@ def disk_full(ctx):
 def disk_full_two_ranks(ctx):
     """The same full tmpfs with 2 ranks (the snapshots written collectively with MPI-IO): exit 3
     naming the snapshot, no rank left waiting, earlier files intact."""
-    mpirun = shutil.which("mpirun")
-    if not mpirun:
+    if not shutil.which("mpirun"):
         print("  disk_full_two_ranks: no mpirun here: not run")
         return
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
     with tmpfs(ctx, "tmpfs2", "size=200k") as mnt:
         if mnt is None:
             print("  disk_full_two_ranks: no tmpfs mount here: not run")
             return
         d = os.path.join(mnt, "run")
-        r = subprocess.run([mpirun, "-np", "2", "--oversubscribe", BIN, "run", SETTLING,
-                            "run.end_time=0.01", "output.snapshot_interval=1e-3", "--quiet",
-                            "--threads", "1", "--out", d], capture_output=True, text=True,
-                           timeout=120, env=env)
-        out = r.stdout + r.stderr
-        assert r.returncode == 3, (r.returncode, out[-1500:])
+        code, out = run_two_ranks(["run", SETTLING, "run.end_time=0.01",
+                                   "output.snapshot_interval=1e-3", "--quiet", "--out", d],
+                                  timeout=120)
+        assert code == 3, (code, out[-1500:])
         assert re.search(r"run stopped: writing snapshot .* on 2 ranks failed", out), out[-1500:]
         check_intact(d)
 

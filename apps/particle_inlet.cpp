@@ -78,14 +78,9 @@ std::string ParticleInlet::no_room(double r) const {
                        "and {:.6g} m",
                        a, 2.0 * r, spec_.region_lo[a], spec_.region_hi[a], geom_.lo[a],
                        geom_.hi[a]);
-  if (domain_.cylinder()) {
-    const double d = domain_.axis_distance_to_box(lo, hi);
-    if (!(d <= domain_.cylinder_radius - r))
-      return fmt::format("the region's nearest point to the cylinder's axis is {:.6g} m from it, "
-                         "and a particle of diameter {:.6g} m needs its centre within {:.6g} m "
-                         "(domain.cylinder_radius less its radius)",
-                         d, 2.0 * r, domain_.cylinder_radius - r);
-  }
+  if (domain_.cylinder())
+    if (const std::string why = domain_.centres_beyond_cylinder(lo, hi, r); !why.empty())
+      return "the region's nearest point to the cylinder's axis is " + why;
   return {};
 }
 

@@ -284,14 +284,10 @@ void place_random(ParticleStore& p, const Scene& s) {
       lo[a] = ps.region_lo[a] + (full_periodic[a] ? 0.0 : r);
       hi[a] = ps.region_hi[a] - (full_periodic[a] ? 0.0 : r);
     }
-    const double d = s.domain.axis_distance_to_box(lo, hi);
-    if (!(d <= s.domain.cylinder_radius - r))
-      throw ConfigError(
-          "scene keys 'particles.region_lo', 'particles.region_hi'",
-          fmt::format("the region lies outside the cylinder: its nearest centre to the axis is "
-                      "{:.6g} m from it, and a particle of diameter {:.6g} m needs its centre "
-                      "within {:.6g} m (domain.cylinder_radius less its radius)",
-                      d, 2.0 * r, s.domain.cylinder_radius - r));
+    if (const std::string why = s.domain.centres_beyond_cylinder(lo, hi, r); !why.empty())
+      throw ConfigError("scene keys 'particles.region_lo', 'particles.region_hi'",
+                        "the region lies outside the cylinder: its nearest centre to the axis is " +
+                            why);
   }
   const std::int64_t max_attempts = 1000 * ps.count + 100000;
   std::int64_t attempts = 0;

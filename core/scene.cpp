@@ -203,6 +203,17 @@ double DomainSpec::axis_distance_to_box(const std::array<double, 3>& box_lo,
   return std::sqrt(d2);
 }
 
+std::string DomainSpec::centres_beyond_cylinder(const std::array<double, 3>& box_lo,
+                                                const std::array<double, 3>& box_hi,
+                                                double r) const {
+  const double d = axis_distance_to_box(box_lo, box_hi);
+  if (d <= cylinder_radius - r)
+    return {};
+  return fmt::format("{:.6g} m from it, and a particle of diameter {:.6g} m needs its centre "
+                     "within {:.6g} m (domain.cylinder_radius less its radius)",
+                     d, 2.0 * r, cylinder_radius - r);
+}
+
 Scene read_scene(SceneConfig& c, const std::string& default_name) {
   // A key the table does not know is refused first, with the nearest key: a misspelt required
   // key would otherwise be reported as missing.

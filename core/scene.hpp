@@ -36,6 +36,11 @@ struct DomainSpec {
   // (0 where the box spans the axis).
   double axis_distance_to_box(const std::array<double, 3>& box_lo,
                               const std::array<double, 3>& box_hi) const;
+  // Empty when a sphere of radius r can have its centre in the box [lo, hi] inside the column;
+  // else the end of the sentence that says why: "<distance> m from it, and a particle of
+  // diameter <2r> m needs its centre within <R - r> m (domain.cylinder_radius less its radius)".
+  std::string centres_beyond_cylinder(const std::array<double, 3>& box_lo,
+                                      const std::array<double, 3>& box_hi, double r) const;
   // The column's cross-section pi R^2 [m^2].
   double cylinder_area() const;
   // The volume the particles move in: the box's, or the column's pi R^2 L.

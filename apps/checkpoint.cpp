@@ -117,7 +117,8 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   w.put("/gas/counters",
         std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
                                   l.fluid_steps, l.row_pending ? 1 : 0, l.snapshot_pending ? 1 : 0,
-                                  g.implicit_viscosity_steps, g.viscous_iterations});
+                                  g.implicit_viscosity_steps, g.viscous_iterations,
+                                  l.last_n_sub});
   const FluidDiagnostics& d = l.row_fluid;
   w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
                                          l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],
@@ -147,22 +148,32 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   w.put("/gas/snapshot/eps_g", s.eps_g);
   w.put("/gas/snapshot/pressure", s.pressure);
   w.put("/gas/snapshot/gas_velocity", s.gas_velocity);
+  // R ranks: each rank's gas box, lo then hi (6 values a box).
+  if (!c.gas_boxes.empty()) {
+    std::vector<std::int64_t> boxes;
+    for (const CellBox& b : c.gas_boxes)
+      for (const auto& v : {b.lo, b.hi})
+        boxes.insert(boxes.end(), v.begin(), v.end());
+    w.put("/gas/boxes", boxes);
+  }
 }
 
 void read_gas(Reader& r, Checkpoint& c) {
   GasCoupling::State& g = c.gas_state;
   CoupledLoopState& l = c.loop;
-  // 8 counters; older checkpoints hold 6 (before the implicit-viscosity count) or 7 (before the
-  // viscous iterations): the missing counts restart from 0.
+  // 9 counters; older checkpoints hold 6 (before the implicit-viscosity count), 7 (before the
+  // viscous iterations) or 8 (before the last fluid step's particle steps): the missing counts
+  // restart from 0.
   const auto k = r.int64s("/gas/counters", StateReader::kAny);
-  if (k.size() < 6 || k.size() > 8)
-    throw RunError(fmt::format("checkpoint: /gas/counters holds {} values, expected 8 (or 6 or 7 "
+  if (k.size() < 6 || k.size() > 9)
+    throw RunError(fmt::format("checkpoint: /gas/counters holds {} values, expected 9 (or 6 to 8 "
                                "from an older checkpoint)",
                                k.size()));
   g.gas_substeps = k[0], g.projection_iterations = k[1], g.projection_fallbacks = k[2];
   l.fluid_steps = k[3], l.row_pending = k[4] != 0, l.snapshot_pending = k[5] != 0;
   g.implicit_viscosity_steps = k.size() >= 7 ? k[6] : 0;
-  g.viscous_iterations = k.size() == 8 ? k[7] : 0;
+  g.viscous_iterations = k.size() >= 8 ? k[7] : 0;
+  l.last_n_sub = k.size() == 9 ? k[8] : 0;
   // 12 values; checkpoints before the adaptive step's drag time hold 11 (the restart then keeps
   // the drag time of the particles' deposit at set-up; a fixed fluid.dt never reads it).
   const auto q = r.doubles("/gas/loop", StateReader::kAny);
@@ -208,6 +219,24 @@ void read_gas(Reader& r, Checkpoint& c) {
        s.y_nodes.size() != static_cast<std::size_t>(n[1] + 1) ||
        s.z_nodes.size() != static_cast<std::size_t>(n[2] + 1)))
     throw RunError("the pending snapshot's cell data has the wrong shape");
+  if (r.exists("/gas/boxes")) {
+    const auto b = r.int64s("/gas/boxes", StateReader::kAny);
+    if (b.size() % 6 != 0)
+      throw RunError(fmt::format("/gas/boxes holds {} values, not 6 per box", b.size()));
+    for (std::size_t i = 0; i < b.size(); i += 6) {
+      CellBox box;
+      for (std::size_t a = 0; a < 3; ++a) {
+        const auto in_int = [&](std::int64_t v) {
+          if (v < 0 || v > std::numeric_limits<int>::max())
+            throw RunError(fmt::format("/gas/boxes holds the index {}", v));
+          return static_cast<int>(v);
+        };
+        box.lo[a] = in_int(b[i + a]);
+        box.hi[a] = in_int(b[i + 3 + a]);
+      }
+      c.gas_boxes.push_back(box);
+    }
+  }
 }
 
 } // namespace
@@ -468,6 +497,32 @@ Checkpoint read_checkpoint(const std::string& path) {
   }
 }
 
+namespace {
+
+// Whether `boxes` are `parts` non-empty boxes that together cover the grid of `cells` once.
+bool tile(const std::vector<CellBox>& boxes, const std::array<int, 3>& cells, int parts) {
+  if (boxes.size() != static_cast<std::size_t>(parts))
+    return false;
+  std::int64_t covered = 0;
+  for (std::size_t i = 0; i < boxes.size(); ++i) {
+    const CellBox& b = boxes[i];
+    for (int a = 0; a < 3; ++a)
+      if (b.lo[a] < 0 || b.hi[a] > cells[a] || b.hi[a] <= b.lo[a])
+        return false;
+    for (std::size_t j = 0; j < i; ++j) {
+      bool apart = false;
+      for (int a = 0; a < 3; ++a)
+        apart = apart || b.hi[a] <= boxes[j].lo[a] || boxes[j].hi[a] <= b.lo[a];
+      if (!apart)
+        return false;
+    }
+    covered += b.count();
+  }
+  return covered == static_cast<std::int64_t>(cells[0]) * cells[1] * cells[2];
+}
+
+} // namespace
+
 Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
                            const Communicator& comm) {
   if (comm.size() == 1)
@@ -481,7 +536,15 @@ Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
     c = read_contents(f);
     if (c.gas) {
       c.gas_cells = block.cells;
-      read_gas_grids(f, block, c.gas_state, sums);
+      // The boxes the writing run's gas had, where they cut this grid into this many boxes: the
+      // restart goes on from them (bitwise), else from the count cut (`block`, to round-off).
+      if (!tile(c.gas_boxes, block.cells, comm.size()))
+        c.gas_boxes.clear();
+      const GasBlock from =
+          c.gas_boxes.empty()
+              ? block
+              : GasBlock{block.cells, c.gas_boxes[static_cast<std::size_t>(comm.rank())]};
+      read_gas_grids(f, from, c.gas_state, sums);
       stored = f.read_attribute_int64("gas_checksum");
     }
   } catch (const RunError& e) {
@@ -675,6 +738,7 @@ void check_fits(const Scene& scene, const std::string& path, const Checkpoint& c
 
 Checkpoint load_checkpoint(const Scene& scene, const std::string& path) {
   Checkpoint ck = read_checkpoint(path);
+  ck.gas_boxes.clear(); // one rank: one box, the whole grid
   upgrade_columns(ck);
   check_fits(scene, path, ck);
   return ck;

@@ -24,6 +24,7 @@
 #include "apps/coupled_step.hpp"
 #include "apps/gas_grid_io.hpp"
 #include "apps/particle_inlet.hpp"
+#include "core/cell_box.hpp"
 #include "core/particle_snapshot.hpp"
 #include "core/particle_store.hpp"
 #include "core/scene.hpp"
@@ -52,6 +53,9 @@ struct CoupledLoopState {
   double mass_in = 0.0, mass_out = 0.0;
   std::int64_t particles_in = 0, particles_out = 0;
   InletState inlet; // rank 0's (apps/particle_inlet.hpp)
+  // The particle steps (sub-iterations) of the last fluid step: what a gas regrid at the next
+  // fluid-step boundary weighs each particle by (0 before the first step).
+  std::int64_t last_n_sub = 0;
 };
 
 struct Checkpoint {
@@ -69,6 +73,10 @@ struct Checkpoint {
   bool gas = false;               // a coupled scene's checkpoint: the three below are set
   std::array<int, 3> gas_cells{}; // the whole gas grid's cells
   GasCoupling::State gas_state;   // one rank: the whole grid; R ranks: this rank's box
+  // R ranks: every rank's gas box when written (a gas regrid may have moved them from the count
+  // cut). Read back: the boxes the restart's gas takes, empty where it takes the count cut (a
+  // checkpoint of another rank count, or one written before the boxes were kept).
+  std::vector<CellBox> gas_boxes;
   CoupledLoopState loop;
 };
 
@@ -97,7 +105,8 @@ void write_checkpoint(const std::string& path, const Checkpoint& c, const GasBlo
 // Read and verify; throws ConfigError naming the file and what is wrong.
 Checkpoint read_checkpoint(const std::string& path);
 // On R ranks (collective): every rank reads the whole file but the gas grids, of which it reads
-// its box `block`; every rank throws the same ConfigError.
+// its box: its box in the file's gas_boxes where those cut the grid into R boxes, else `block`
+// (the count cut; gas_boxes comes back empty). Every rank throws the same ConfigError.
 Checkpoint read_checkpoint(const std::string& path, const GasBlock& block,
                            const Communicator& comm);
 

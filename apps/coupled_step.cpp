@@ -195,9 +195,11 @@ GasCoupling::GasCoupling(const Scene& scene, const ParticleStore& p, const Commu
   attach(p, owned);
 }
 
-GasCoupling::GasCoupling(const Scene& scene, double r_max, const Communicator* comm)
+GasCoupling::GasCoupling(const Scene& scene, double r_max, const Communicator* comm,
+                         const std::vector<CellBox>& boxes)
     : scene_(scene), comm_(comm != nullptr && comm->size() > 1 ? comm : nullptr),
-      boxes_(gas_boxes(scene, comm_)), grid_(gas_grid(scene, comm_, boxes_)) {
+      boxes_(comm_ != nullptr && !boxes.empty() ? boxes : gas_boxes(scene, comm_)),
+      grid_(gas_grid(scene, comm_, boxes_)) {
   if (comm_ != nullptr)
     halo_ = std::make_shared<fluid::GridHalo>(grid_, boxes_, *comm_);
   solver_ = std::make_unique<fluid::GasSolver>(grid_, solver_settings(scene), halo_);

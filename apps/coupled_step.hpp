@@ -72,8 +72,10 @@ public:
   static constexpr std::size_t kAllParticles = static_cast<std::size_t>(-1);
   // In two parts, so that the run's set-up pays for the grid, the solver and their fields (the
   // first touch of every page: most of a large gas's start) and the loop only for the first
-  // deposit: the coupling for particles of radius at most r_max (the same on every rank), ...
-  GasCoupling(const Scene& scene, double r_max, const Communicator* comm = nullptr);
+  // deposit: the coupling for particles of radius at most r_max (the same on every rank), on
+  // `boxes` (R ranks: one per rank, as a restart finds them; empty: the count cut), ...
+  GasCoupling(const Scene& scene, double r_max, const Communicator* comm = nullptr,
+              const std::vector<CellBox>& boxes = {});
   // ... then eps_g of the initial particles (the first `owned` of the store), so the first step
   // sees no d(eps)/dt. The one-call constructor above is the two in a row.
   void attach(const ParticleStore& particles, std::size_t owned = kAllParticles);

@@ -37,15 +37,19 @@ partition::RankDecomposition box_decomposition(const Scene& scene,
 
 } // namespace
 
-GasSide::GasSide(const Scene& scene, const Communicator& comm, bool routed)
+GasSide::GasSide(const Scene& scene, const Communicator& comm, bool routed,
+                 const std::vector<CellBox>& boxes)
     : scene_(scene), comm_(comm), routed_(routed && comm.size() > 1), geom_(scene.domain),
-      block0_(gas_block(scene, comm)) {
+      cells_(fluid_grid_spec(scene).cells) {
   if (comm_.size() == 1)
     return;
-  try {
-    boxes0_ = fluid::gas_cell_boxes(fluid_grid_spec(scene), comm_.size());
-  } catch (const std::invalid_argument& e) {
-    throw ConfigError("scene key 'fluid.cells'", e.what());
+  boxes0_ = boxes;
+  if (boxes0_.size() != static_cast<std::size_t>(comm_.size())) {
+    try {
+      boxes0_ = fluid::gas_cell_boxes(fluid_grid_spec(scene), comm_.size());
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError("scene key 'fluid.cells'", e.what());
+    }
   }
   if (routed_)
     routing_.emplace(comm_, box_decomposition(scene_, boxes0_), geom_);
@@ -59,7 +63,7 @@ void GasSide::prepare(const ParticleStore& p) {
   // The largest radius over every rank's particles: the deposition's reach. Before start() a
   // store holds only its rank's own particles, so this is the maximum the first deposit's
   // particles (owned or routed copies, after start()) would give.
-  gas_.emplace(scene_, GasCoupling::largest_radius(p, &comm_), &comm_);
+  gas_.emplace(scene_, GasCoupling::largest_radius(p, &comm_), &comm_, boxes0_);
 }
 
 void GasSide::attach(const ParticleStore& p, std::size_t owned) {
@@ -91,15 +95,18 @@ std::optional<partition::RankDecomposition> GasSide::regrid(const ParticleStore&
   if (comm_.size() == 1 || every <= 0.0)
     return std::nullopt;
   if (next_regrid_ < 0.0) {
-    // From the start time on (after a restart the boxes restart from the count cut).
+    // From the start time on: a restart, whose boxes are those its checkpoint was written from
+    // and whose last fluid step's particle steps the checkpoint keeps, regrids when and as the
+    // run that wrote it did.
     next_regrid_ = next_time_after(every, every, t - tol);
   }
   if (last_n_sub <= 0 || t < next_regrid_ - tol)
     return std::nullopt;
   next_regrid_ = next_time_after(next_regrid_, every, t + tol);
-  // The particles this rank's box deposits (routed: the copies of the last fluid step), each
-  // weighing the particle steps of the last fluid step.
-  const ParticleStore& dep = routed_ ? routing_->routed() : p;
+  // The particles this rank's box deposits now (routed: copies of the particles as they stand,
+  // sent to the boxes; those of the last fluid step stood where it began, which a restart at
+  // this time does not know), each weighing the particle steps of the last fluid step.
+  const ParticleStore& dep = routed_ ? routing_->route(p, owned) : p;
   const std::size_t n = routed_ ? dep.size() : owned;
   std::vector<double> w[3] = {std::vector<double>(n), std::vector<double>(n),
                               std::vector<double>(n)};
@@ -146,7 +153,8 @@ void GasSide::write_checkpoint(const std::string& path, Checkpoint c,
                                const ParticleStore& particles, const CoupledLoopState& loop) const {
   if (comm_.size() > 1) {
     // The gas box now (a gas regrid may have moved it from the count cut).
-    const GasBlock block{block0_.cells, gas_->boxes()[static_cast<std::size_t>(comm_.rank())]};
+    c.gas_boxes = gas_->boxes();
+    const GasBlock block{cells_, gas_->boxes()[static_cast<std::size_t>(comm_.rank())]};
     write_coupled_checkpoint(path, std::move(c), *gas_, loop, block, comm_);
     return;
   }

@@ -13,6 +13,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -31,8 +32,10 @@ class GasSide {
 public:
   using Force = std::array<std::span<const double>, 3>;
   // `scene`: with the particle step the coupling sets (outlives this object). Before the
-  // scheme starts: the count cut of the gas grid into boxes.
-  GasSide(const Scene& scene, const Communicator& comm, bool routed);
+  // scheme starts: the gas grid cut into `boxes` (a restart's, one per rank: the boxes its
+  // checkpoint was written from), or by cell count where that is empty.
+  GasSide(const Scene& scene, const Communicator& comm, bool routed,
+          const std::vector<CellBox>& boxes = {});
   // The boxes as the owners of the particles (an unrouted scheme on R ranks).
   [[nodiscard]] partition::RankDecomposition box_owners() const;
   // In the set-up, with this rank's particles before start(): the grid, the solver and their
@@ -68,7 +71,7 @@ private:
   const Communicator& comm_;
   bool routed_;
   dem::DomainGeometry geom_;
-  GasBlock block0_;
+  std::array<int, 3> cells_{}; // the whole gas grid's
   std::vector<CellBox> boxes0_;
   std::optional<GasRouting> routing_;
   std::optional<GasCoupling> gas_;

@@ -137,7 +137,7 @@ private:
 
   clock::time_point t_loop_, last_progress_;
   CoupledLoopState loop_;
-  long long k_last_row_ = 0, last_n_sub_ = 0;
+  long long k_last_row_ = 0;
   long long out_every_ = 1, snap_every_ = 0, ckpt_every_ = 0;
   double ckpt_interval_ = 0.0, next_ckpt_ = std::numeric_limits<double>::infinity();
   // A restart's counters continue those of the run it continues: the rates and the closing line
@@ -182,7 +182,8 @@ template <class Run> void TimeLoop<Run>::build_scheme_and_gas() {
   }
   run_.emplace(scene_, particles_, range_, comm_, timer_, step_clock_);
   if (gas_on_) {
-    gas_.emplace(scene_, comm_, Run::kSub);
+    // A restart on R ranks goes on from the gas boxes its checkpoint was written from.
+    gas_.emplace(scene_, comm_, Run::kSub, ck_ ? ck_->gas_boxes : std::vector<CellBox>{});
     if (!one_ && !Run::kSub)
       run_->own_by(gas_->box_owners(), false); // explicit: by the gas boxes
     gas_->prepare(particles_);
@@ -427,12 +428,12 @@ template <class Run> void TimeLoop<Run>::outer_step() {
 template <class Run> FluidStepPlan TimeLoop<Run>::gas_step() {
   {
     PhaseTimer::Scope fl(timer_, Phase::fluid);
-    if (auto owners = gas_->regrid(particles_, run_->owned(), loop_.time, tol_, last_n_sub_))
+    if (auto owners = gas_->regrid(particles_, run_->owned(), loop_.time, tol_, loop_.last_n_sub))
       run_->own_by(std::move(*owners), true);
   }
   const FluidStepPlan next = plan_fluid_step(scene_, gas_->coupling(), n_total_ == 0, Run::kSub,
                                              n_fixed_, dt_, end_ - loop_.time);
-  last_n_sub_ = next.n_sub;
+  loop_.last_n_sub = next.n_sub;
   if (flux_.on()) { // particles through the open faces (apps/particle_flux.hpp)
     const std::int64_t change = change_particles(flux_, run_, scene_, particles_, range_, comm_,
                                                  timer_, step_clock_, loop_, next.dt_f);

@@ -28,8 +28,10 @@ The small periodic riser of mpi_coupled_test.py (800 particles that migrate betw
     ranks is again bit for bit;
   - with gas regrids (partition.gas_regrid_interval, the particles in the lower 40 % so that the
     boxes are recut and moved before the checkpoint) the file holds the gas from the recut
-    boxes; the restart starts from the count cut and recuts after its first fluid step, so it
-    agrees to round-off (the gas's sums over other boxes), and it regrids again;
+    boxes and the boxes themselves; the restart goes on from those boxes and regrids when the
+    run did, from the checkpoint's time on (its last fluid step's particle steps are in the
+    file): bit for bit, and its regrids are the run's. Again where the first regrid falls on
+    the checkpoint's time and moves the boxes (the run wrote the checkpoint, then recut);
   - refused with exit code 2, naming the file and what differs: another gas grid, and a gas
     field changed in the file (the checksum, summed over the ranks' boxes).
 """
@@ -127,7 +129,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         d = {k: os.path.join(tmp, k) for k in ("full", "half", "end", "one", "more", "first",
                                                "from_one", "bad", "fric", "fric_half",
-                                               "regrid", "regrid_half")}
+                                               "regrid", "regrid_at")}
         run(RANKS, d["full"], "run.end_time=2e-3")
         cks = sorted(n for n in os.listdir(d["full"]) if n.startswith("checkpoint_"))
         assert cks == ["checkpoint_000000010.h5", "checkpoint_000000020.h5"], cks
@@ -159,21 +161,31 @@ def main():
             run(RANKS, d["fric"], *fric)
             run(RANKS, d["fric_half"], *fric, "--restart", os.path.join(d["fric"], cks[0]))
             assert_bitwise(d["fric"], d["fric_half"], f"frictional restart on {RANKS} ranks")
-        # Gas regrids: the checkpoint written from recut boxes.
-        regrid = ["run.end_time=2e-3", "particles.region_hi=[2.4e-3,1.6e-3,2.4e-3]",
-                  "partition.gas_regrid_interval=4e-4"]
-        if SUB:  # each particle weighs only its dem.nsubit sub-iterations: lighter cells
-            regrid += ["partition.cell_weight=0.5"]
-        run(RANKS, d["regrid"], *regrid)
-        moved = [g for g in regrids(d["regrid"]) if g["moved"]]
-        assert moved and moved[0]["time"] < 1e-3, moved
-        run(RANKS, d["regrid_half"], *regrid, "--restart", os.path.join(d["regrid"], cks[0]))
-        assert regrids(d["regrid_half"]), "no gas regrid after the restart"
-        assert_round_off(d["regrid"], d["regrid_half"], "restart with gas regrids")
+        # Gas regrids: the checkpoint written from recut boxes (every 5e-4 s: one regrid before
+        # the checkpoint, one at its time), then one whose first regrid comes at its time.
+        for every, name in (("5e-4", "regrid"), ("1e-3", "regrid_at")):
+            regrid = ["run.end_time=2e-3", "particles.region_hi=[2.4e-3,1.6e-3,2.4e-3]",
+                      f"partition.gas_regrid_interval={every}"]
+            if SUB:  # each particle weighs only its dem.nsubit sub-iterations: lighter cells
+                regrid += ["partition.cell_weight=0.5"]
+            run(RANKS, d[name], *regrid)
+            done = regrids(d[name])
+            moved = [g["time"] for g in done if g["moved"]]
+            if name == "regrid":
+                assert moved and moved[0] < 1e-3 - 1e-9, done
+            else:
+                assert moved and abs(moved[0] - 1e-3) < 1e-9, done
+            half = d[name] + "_half"
+            run(RANKS, half, *regrid, "--restart", os.path.join(d[name], cks[0]))
+            assert_bitwise(d[name], half, f"restart with gas regrids every {every} s")
+            later = [g for g in done if g["time"] > 1e-3 - 1e-9]
+            drop = ("imbalance_before", "imbalance_after", "moved", "gas_values_sent", "time")
+            assert [[g[k] for k in drop] for g in regrids(half)] == \
+                [[g[k] for k in drop] for g in later], (regrids(half), later)
         if SUB:
-            return print(f"{SCHEME}, {RANKS} ranks: restart at {cks[0]} continues bit for bit; "
-                         f"on 1 and {RANKS + 1} ranks, a 1-rank one on {RANKS}, and with gas "
-                         f"regrids to round-off")
+            return print(f"{SCHEME}, {RANKS} ranks: restart at {cks[0]} continues bit for bit, "
+                         f"with gas regrids too; on 1 and {RANKS + 1} ranks and a 1-rank one on "
+                         f"{RANKS} to round-off")
         # Bad input: another grid; a gas field changed after writing.
         r = run(RANKS, d["bad"], "run.end_time=2e-3", "fluid.cells=[12,20,6]", "--restart", mid,
                 check=False)
@@ -186,8 +198,8 @@ def main():
         assert r.returncode == 2 and bad in r.stderr and "gas fields are corrupt" in r.stderr, \
             r.stderr
     print(f"{RANKS} ranks: restart at {cks[0]} continues bit for bit; the checkpoint restarts on "
-          f"1 and {RANKS + 1} ranks, and a 1-rank one on {RANKS}, to round-off; with friction bit "
-          f"for bit; with gas regrids to round-off")
+          f"1 and {RANKS + 1} ranks, and a 1-rank one on {RANKS}, to round-off; with friction and "
+          f"with gas regrids bit for bit")
 
 
 if __name__ == "__main__":

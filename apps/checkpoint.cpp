@@ -117,8 +117,7 @@ void write_gas(h5::File& f, Writer& w, const Checkpoint& c) {
   w.put("/gas/counters",
         std::vector<std::int64_t>{g.gas_substeps, g.projection_iterations, g.projection_fallbacks,
                                   l.fluid_steps, l.row_pending ? 1 : 0, l.snapshot_pending ? 1 : 0,
-                                  g.implicit_viscosity_steps, g.viscous_iterations,
-                                  l.last_n_sub});
+                                  g.implicit_viscosity_steps, g.viscous_iterations, l.last_n_sub});
   const FluidDiagnostics& d = l.row_fluid;
   w.put("/gas/loop", std::vector<double>{g.last_dt, l.time, l.next_output, l.next_snapshot,
                                          l.dt_f_sum, l.row_time, d.pressure_drop, d.gas_momentum[0],

@@ -35,7 +35,7 @@ public:
   // scheme starts: the gas grid cut into `boxes` (a restart's, one per rank: the boxes its
   // checkpoint was written from), or by cell count where that is empty.
   GasSide(const Scene& scene, const Communicator& comm, bool routed,
-          const std::vector<CellBox>& boxes = {});
+          const std::vector<CellBox>& boxes);
   // The boxes as the owners of the particles (an unrouted scheme on R ranks).
   [[nodiscard]] partition::RankDecomposition box_owners() const;
   // In the set-up, with this rank's particles before start(): the grid, the solver and their

@@ -168,9 +168,12 @@ public:
   // trapezoidal solve it replaces (docs/gas_step.md, "The factored viscous step"). On a
   // distributed grid the lines cross the boxes: each box solves its segments and sends their
   // ends to the boxes that share its lines (FactoredSweepLinks; the one grid's result up to
-  // round-off).
+  // round-off). With `rhs_is_residual`, rhs already holds rhs - A u (the gas solver makes it
+  // from the L(u^n) its step keeps, so the stencil is not applied to u^n twice): the step
+  // solves for it directly and reads neither u's ghosts nor eps's.
   ViscousSolveReport step_factored(int comp, double c, const GridField& eps, const GridField& diag,
-                                   const GridField& rhs, GridField& u);
+                                   const GridField& rhs, GridField& u,
+                                   bool rhs_is_residual = false);
   // The factored step's scratch fields and end closures made now (the gas solver's set-up),
   // not at the first step_factored (each new field of the 1e5 bed's grid took about 11 ms to
   // fault in there).

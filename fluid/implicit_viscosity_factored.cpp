@@ -614,7 +614,7 @@ const ImplicitViscosity::FactoredEnds& ImplicitViscosity::factored_ends(int comp
 
 ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const GridField& eps,
                                                     const GridField& diag, const GridField& rhs,
-                                                    GridField& u) {
+                                                    GridField& u, bool rhs_is_residual) {
   const std::array<int, 3> lo = unknown_lo(comp);
   const std::array<int, 3> hi = unknown_hi(comp);
   if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) {
@@ -636,18 +636,21 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   double* y = dir_.values().data();
   double* z = dir_next_.values().data();
   // The x sweep's right-hand side, the residual r = rhs - A u_guess that a row pass
-  // (residual_row) leaves in y, which the sweep solves in place; the y and z sweeps', D y and
-  // D z.
+  // (residual_row) leaves in y, which the sweep solves in place (or rhs itself, where it is the
+  // residual); the y and z sweeps', D y and D z.
   const auto y_at = [=](std::ptrdiff_t p) { return y[p]; };
+  const auto b_at = [=](std::ptrdiff_t p) { return b[p]; };
   const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
   const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
   if (halo_ != nullptr) {
     // The residual over the box first (u's ghosts filled by the caller).
-    with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
-      for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
-        decltype(copy)::residual(k0, k1, k2, dg, b, x, y, row, len, sy, sz, c);
+    if (!rhs_is_residual) {
+      with_copy_at<FactoredLinesX86_64, FactoredLinesV3, FactoredLinesV4>(level_, [&](auto copy) {
+        for_box_rows(layout, lo, hi, [&](std::ptrdiff_t row, int, int) {
+          decltype(copy)::residual(k0, k1, k2, dg, b, x, y, row, len, sy, sz, c);
+        });
       });
-    });
+    }
     for (int axis = 0; axis < 3; ++axis) {
       const auto a = static_cast<std::size_t>(axis);
       const DistributedSweep sweep{grid_,
@@ -667,7 +670,11 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
                                    sweep_ends_};
       // x: the residual in y -> y; y: D y -> z; z: D z -> delta (in y).
       if (axis == 0) {
-        sweep(y_at, y);
+        if (rhs_is_residual) {
+          sweep(b_at, y);
+        } else {
+          sweep(y_at, y);
+        }
       } else if (axis == 1) {
         sweep(scaled_y, z);
       } else {
@@ -705,15 +712,23 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
       const Sweep wx = sweep_for(0, k0);
       const Sweep wy = sweep_for(1, k1);
       tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
-        for (int j = lo[1]; j <= hi[1]; ++j) {
-          decltype(copy)::residual(k0, k1, k2, dg, b, x, y,
-                                   static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)), len, sy,
-                                   sz, c);
-        }
-        for (int j = lo[1]; j <= hi[1]; j += 4) {
-          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-          decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, y_at, y,
-                                                nullptr);
+        if (rhs_is_residual) {
+          for (int j = lo[1]; j <= hi[1]; j += 4) {
+            const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+            decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, b_at, y,
+                                                  nullptr);
+          }
+        } else {
+          for (int j = lo[1]; j <= hi[1]; ++j) {
+            decltype(copy)::residual(k0, k1, k2, dg, b, x, y,
+                                     static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)), len,
+                                     sy, sz, c);
+          }
+          for (int j = lo[1]; j <= hi[1]; j += 4) {
+            const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+            decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, y_at, y,
+                                                  nullptr);
+          }
         }
         const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
         decltype(copy)::template lines<true>(wy, p0, static_cast<int>(len), 1, scaled_y, z,

@@ -223,6 +223,45 @@ TEST(ViscousFactoredStep, OneAndTwoThreadsGiveTheSameBits) {
   }
 }
 
+// Given rhs - A u itself (rhs_is_residual: the gas solver makes it from its L(u^n), as here),
+// the step is the one that makes the residual from rhs: on the bed box and a periodic box, each
+// component, to round-off of the step's change. Told that rhs is the residual while it is not,
+// the step moves u by rhs's solution instead, far from it.
+TEST(ViscousFactoredStep, TakesTheResidualGivenAsTheOneItWouldMake) {
+  MacGridSpec periodic = test::box_spec({8, 10, 9}, {4e-4, 5e-4, 4.5e-4}, BoundaryKind::periodic);
+  for (const MacGridSpec& spec : {bed_box(), periodic}) {
+    const MacGrid grid(spec);
+    std::mt19937_64 rng(31);
+    const GridField eps = test::random_gas_fraction(grid, rng);
+    const double c = 0.5 * 2.5e-9;
+    for (int comp = 0; comp < 3; ++comp) {
+      SCOPED_TRACE("component " + std::to_string(comp));
+      const System s = random_system(grid, comp, rng);
+      ImplicitViscosity viscosity(grid);
+      // rhs - A u = rhs - diag u + c div(eps grad u), the divergence from the Laplacian the gas
+      // solver keeps (mu = rho = 1: div(eps grad u) / eps_f, eps_f the face's mean) as it does.
+      GridField lap = grid.make_field();
+      viscosity.laplacian(comp, 1.0, 1.0, eps, s.guess, lap);
+      GridField residual = grid.make_field();
+      const std::ptrdiff_t sa = grid.layout().stride(comp);
+      for (std::size_t p = static_cast<std::size_t>(sa); p < lap.values().size(); ++p) {
+        const double eps_f = 0.5 * (eps[p] + eps[p - static_cast<std::size_t>(sa)]);
+        residual[p] = s.rhs[p] - s.diag[p] * s.guess[p] + c * (lap[p] * eps_f);
+      }
+      GridField made = s.guess;
+      GridField given = s.guess;
+      GridField misread = s.guess;
+      viscosity.step_factored(comp, c, eps, s.diag, s.rhs, made);
+      viscosity.step_factored(comp, c, eps, s.diag, residual, given, true);
+      viscosity.step_factored(comp, c, eps, s.diag, s.rhs, misread, true);
+      const auto [apart, change] = max_differences(given, made, s.guess);
+      EXPECT_GT(change, 0.0);
+      EXPECT_LE(apart, 1e-12 * change);
+      EXPECT_GT(max_differences(misread, made, s.guess)[0], 0.1 * change);
+    }
+  }
+}
+
 // declare_eps (the gas solver's word that eps_g stays put for a step) gives the bits of the
 // coefficients made from a compared copy, for the factored step and for the solve, and takes a
 // changed field at its next declaration: run against a declaration that did not remake the

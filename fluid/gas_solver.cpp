@@ -73,6 +73,14 @@ struct ImplicitRowInputs {
   }
   return rate;
 }
+// With FromResidual, the same system's residual at u^n instead of its right-hand side (the
+// factored step's, which starts from u^n): rhs - A u^n = eps_f rho (u^n + dt (R + L(u^n)) +
+// k (beta v)_f) [- eps_f dt grad p] - diag u^n, since A = diag - theta dt mu div(eps grad) and
+// eps_f rho dt L = dt mu div(eps grad u^n) (L = lap_start: mu div(eps grad u^n) / (rho eps_f),
+// the face's eps_f as the mass's): the implicit part theta dt L and the explicit part the
+// trapezoidal rule keeps, (1 - theta) dt L, add up to dt L whatever theta. The stencil is then
+// applied once, for L(u^n), not again for A u^n.
+template <bool FromResidual>
 [[gnu::noinline]] void implicit_system_row(const ImplicitRowInputs& in, const FaceRow& r,
                                            double* __restrict diag, double* __restrict vrhs) {
   const double* __restrict rhs = in.rhs;
@@ -85,37 +93,14 @@ struct ImplicitRowInputs {
   const double* __restrict start = in.start;
   const double dt = in.dt;
   for (std::ptrdiff_t f = r.f0; f < r.f0 + r.n; ++f) {
-    const double rate = stage_rate(in.corrector, in.half_lap, rhs, rhs_stage, lap, f);
-    const double grad_p = in.lagged ? (pp[f] - pp[f - r.s]) * in.inv_dx : 0.0;
-    diag[f] = mass[f] * gain[f];
-    vrhs[f] = mass[f] * (start[f] + dt * rate + push[f] - in.dt_over_rho * grad_p);
-  }
-}
-
-// The same system's residual at u^n (the factored step's right-hand side, which starts from
-// u^n): rhs - A u^n = eps_f rho (u^n + dt (R + L(u^n)) + k (beta v)_f) [- eps_f dt grad p] -
-// diag u^n, since A = diag - theta dt mu div(eps grad) and eps_f rho dt L = dt mu div(eps grad)
-// u^n (L = lap_start: mu div(eps grad u^n) / (rho eps_f), the face's eps_f as the mass's): the
-// implicit part theta dt L and the explicit part the trapezoidal rule keeps, (1 - theta) dt L,
-// add up to dt L whatever theta. The stencil is then applied once, for L(u^n), not again for
-// A u^n.
-[[gnu::noinline]] void implicit_residual_row(const ImplicitRowInputs& in, const FaceRow& r,
-                                             double* __restrict diag, double* __restrict vrhs) {
-  const double* __restrict rhs = in.rhs;
-  const double* __restrict rhs_stage = in.rhs_stage;
-  const double* __restrict lap = in.lap_start;
-  const double* __restrict pp = in.pressure;
-  const double* __restrict mass = in.mass;
-  const double* __restrict gain = in.gain;
-  const double* __restrict push = in.push;
-  const double* __restrict start = in.start;
-  const double dt = in.dt;
-  for (std::ptrdiff_t f = r.f0; f < r.f0 + r.n; ++f) {
-    const double rate = (in.corrector ? 0.5 * (rhs[f] + rhs_stage[f]) : rhs[f]) + lap[f];
+    const double rate = FromResidual
+                            ? (in.corrector ? 0.5 * (rhs[f] + rhs_stage[f]) : rhs[f]) + lap[f]
+                            : stage_rate(in.corrector, in.half_lap, rhs, rhs_stage, lap, f);
     const double grad_p = in.lagged ? (pp[f] - pp[f - r.s]) * in.inv_dx : 0.0;
     const double d = mass[f] * gain[f];
+    const double b = mass[f] * (start[f] + dt * rate + push[f] - in.dt_over_rho * grad_p);
     diag[f] = d;
-    vrhs[f] = mass[f] * (start[f] + dt * rate + push[f] - in.dt_over_rho * grad_p) - d * start[f];
+    vrhs[f] = FromResidual ? b - d * start[f] : b;
   }
 }
 
@@ -414,15 +399,14 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
                                    inv_dx,
                                    dt_over_rho};
     // The factored step starts from u^n: where the step keeps L(u^n), its right-hand side is
-    // the residual made from it (implicit_residual_row), and it needs neither the first guess's
-    // copy nor its ghosts.
+    // the residual made from it (implicit_system_row<true>), and the guess needs no ghosts.
     const bool from_residual = factored && have_lap_start;
     for_box_rows(layout, {0, 0, 0}, hi, [&](std::ptrdiff_t row, int, int) {
       const FaceRow face_row{row, hi[0] + 1, static_cast<std::ptrdiff_t>(below), dt, 0.0};
       if (from_residual) {
-        implicit_residual_row(inputs, face_row, diag_.values().data(), vrhs_.values().data());
+        implicit_system_row<true>(inputs, face_row, diag_.values().data(), vrhs_.values().data());
       } else {
-        implicit_system_row(inputs, face_row, diag_.values().data(), vrhs_.values().data());
+        implicit_system_row<false>(inputs, face_row, diag_.values().data(), vrhs_.values().data());
       }
     });
     // First guess: with guess_lap, the implicit part taken at u^n, theta dt L(u^n) (see

@@ -64,6 +64,21 @@ GridField factored_step(const MacGrid& grid, int comp, double c, const GridField
   return u;
 }
 
+// f(grid, eps, comp, system) for each component's random system (random_system, from `seed`) on
+// a bed box (walls, inflow, outflow, a periodic axis) and a periodic box (every line cyclic).
+template <class F> void for_bed_and_periodic_systems(std::uint64_t seed, F&& f) {
+  for (const MacGridSpec& spec :
+       {bed_box(), test::box_spec({10, 12, 6}, {5e-4, 2.4e-3, 3e-4}, BoundaryKind::periodic)}) {
+    const MacGrid grid(spec);
+    std::mt19937_64 rng(seed);
+    const GridField eps = test::random_gas_fraction(grid, rng);
+    for (int comp = 0; comp < 3; ++comp) {
+      SCOPED_TRACE("component " + std::to_string(comp));
+      f(grid, eps, comp, random_system(grid, comp, rng));
+    }
+  }
+}
+
 // max |a - b| and max |b - c| over the points where the solve's unknowns lie (everything the
 // step writes; the other points are equal in all three).
 std::array<double, 2> max_differences(const GridField& a, const GridField& b, const GridField& c) {
@@ -182,24 +197,16 @@ TEST(ViscousFactoredStep, ErrsNoMoreThanTheFactorizationBound) {
 // on a bed box (walls, inflow, outflow, a periodic axis) and a periodic box (every line cyclic).
 TEST(ViscousFactoredStep, EveryInstructionSetGivesTheBaselineBits) {
   const SimdLevel cpu = cpu_simd_level();
-  const MacGridSpec bed = bed_box();
-  for (const MacGridSpec& spec :
-       {bed, test::box_spec({10, 12, 6}, {5e-4, 2.4e-3, 3e-4}, BoundaryKind::periodic)}) {
-    const MacGrid grid(spec);
-    std::mt19937_64 rng(17);
-    const GridField eps = test::random_gas_fraction(grid, rng);
-    const double c = 2.0 * 2.5e-9;
-    for (int comp = 0; comp < 3; ++comp) {
-      SCOPED_TRACE("component " + std::to_string(comp));
-      const System s = random_system(grid, comp, rng);
-      const GridField base = factored_step(grid, comp, c, eps, s, SimdLevel::x86_64);
-      for (int l = 1; l <= static_cast<int>(cpu); ++l) {
-        const auto level = static_cast<SimdLevel>(l);
-        SCOPED_TRACE(std::string(simd_level_name(level)));
-        EXPECT_TRUE(test::same_bits(factored_step(grid, comp, c, eps, s, level), base));
-      }
-    }
-  }
+  const double c = 2.0 * 2.5e-9;
+  for_bed_and_periodic_systems(
+      17, [&](const MacGrid& grid, const GridField& eps, int comp, const System& s) {
+        const GridField base = factored_step(grid, comp, c, eps, s, SimdLevel::x86_64);
+        for (int l = 1; l <= static_cast<int>(cpu); ++l) {
+          const auto level = static_cast<SimdLevel>(l);
+          SCOPED_TRACE(std::string(simd_level_name(level)));
+          EXPECT_TRUE(test::same_bits(factored_step(grid, comp, c, eps, s, level), base));
+        }
+      });
 }
 
 TEST(ViscousFactoredStep, OneAndTwoThreadsGiveTheSameBits) {
@@ -228,38 +235,31 @@ TEST(ViscousFactoredStep, OneAndTwoThreadsGiveTheSameBits) {
 // component, to round-off of the step's change. Told that rhs is the residual while it is not,
 // the step moves u by rhs's solution instead, far from it.
 TEST(ViscousFactoredStep, TakesTheResidualGivenAsTheOneItWouldMake) {
-  MacGridSpec periodic = test::box_spec({8, 10, 9}, {4e-4, 5e-4, 4.5e-4}, BoundaryKind::periodic);
-  for (const MacGridSpec& spec : {bed_box(), periodic}) {
-    const MacGrid grid(spec);
-    std::mt19937_64 rng(31);
-    const GridField eps = test::random_gas_fraction(grid, rng);
-    const double c = 0.5 * 2.5e-9;
-    for (int comp = 0; comp < 3; ++comp) {
-      SCOPED_TRACE("component " + std::to_string(comp));
-      const System s = random_system(grid, comp, rng);
-      ImplicitViscosity viscosity(grid);
-      // rhs - A u = rhs - diag u + c div(eps grad u), the divergence from the Laplacian the gas
-      // solver keeps (mu = rho = 1: div(eps grad u) / eps_f, eps_f the face's mean) as it does.
-      GridField lap = grid.make_field();
-      viscosity.laplacian(comp, 1.0, 1.0, eps, s.guess, lap);
-      GridField residual = grid.make_field();
-      const std::ptrdiff_t sa = grid.layout().stride(comp);
-      for (std::size_t p = static_cast<std::size_t>(sa); p < lap.values().size(); ++p) {
-        const double eps_f = 0.5 * (eps[p] + eps[p - static_cast<std::size_t>(sa)]);
-        residual[p] = s.rhs[p] - s.diag[p] * s.guess[p] + c * (lap[p] * eps_f);
-      }
-      GridField made = s.guess;
-      GridField given = s.guess;
-      GridField misread = s.guess;
-      viscosity.step_factored(comp, c, eps, s.diag, s.rhs, made);
-      viscosity.step_factored(comp, c, eps, s.diag, residual, given, true);
-      viscosity.step_factored(comp, c, eps, s.diag, s.rhs, misread, true);
-      const auto [apart, change] = max_differences(given, made, s.guess);
-      EXPECT_GT(change, 0.0);
-      EXPECT_LE(apart, 1e-12 * change);
-      EXPECT_GT(max_differences(misread, made, s.guess)[0], 0.1 * change);
-    }
-  }
+  const double c = 0.5 * 2.5e-9;
+  for_bed_and_periodic_systems(
+      31, [&](const MacGrid& grid, const GridField& eps, int comp, const System& s) {
+        ImplicitViscosity viscosity(grid);
+        // rhs - A u = rhs - diag u + c div(eps grad u), the divergence from the Laplacian the gas
+        // solver keeps (mu = rho = 1: div(eps grad u) / eps_f, eps_f the face's mean) as it does.
+        GridField lap = grid.make_field();
+        viscosity.laplacian(comp, 1.0, 1.0, eps, s.guess, lap);
+        GridField residual = grid.make_field();
+        const auto sa = static_cast<std::size_t>(grid.layout().stride(comp));
+        for (std::size_t p = sa; p < lap.values().size(); ++p) {
+          const double eps_f = 0.5 * (eps[p] + eps[p - sa]);
+          residual[p] = s.rhs[p] - s.diag[p] * s.guess[p] + c * (lap[p] * eps_f);
+        }
+        GridField made = s.guess;
+        GridField given = s.guess;
+        GridField misread = s.guess;
+        viscosity.step_factored(comp, c, eps, s.diag, s.rhs, made);
+        viscosity.step_factored(comp, c, eps, s.diag, residual, given, true);
+        viscosity.step_factored(comp, c, eps, s.diag, s.rhs, misread, true);
+        const auto [apart, change] = max_differences(given, made, s.guess);
+        EXPECT_GT(change, 0.0);
+        EXPECT_LE(apart, 1e-12 * change);
+        EXPECT_GT(max_differences(misread, made, s.guess)[0], 0.1 * change);
+      });
 }
 
 // declare_eps (the gas solver's word that eps_g stays put for a step) gives the bits of the

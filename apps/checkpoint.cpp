@@ -222,14 +222,14 @@ void read_gas(Reader& r, Checkpoint& c) {
     const auto b = r.int64s("/gas/boxes", StateReader::kAny);
     if (b.size() % 6 != 0)
       throw RunError(fmt::format("/gas/boxes holds {} values, not 6 per box", b.size()));
+    const auto in_int = [](std::int64_t v) {
+      if (v < 0 || v > std::numeric_limits<int>::max())
+        throw RunError(fmt::format("/gas/boxes holds the index {}", v));
+      return static_cast<int>(v);
+    };
     for (std::size_t i = 0; i < b.size(); i += 6) {
       CellBox box;
       for (std::size_t a = 0; a < 3; ++a) {
-        const auto in_int = [&](std::int64_t v) {
-          if (v < 0 || v > std::numeric_limits<int>::max())
-            throw RunError(fmt::format("/gas/boxes holds the index {}", v));
-          return static_cast<int>(v);
-        };
         box.lo[a] = in_int(b[i + a]);
         box.hi[a] = in_int(b[i + 3 + a]);
       }

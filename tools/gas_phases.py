@@ -4,7 +4,8 @@
 Runs each scene with each binary and thread count, alternating within a round (the machines are
 shared: ratios are only worth quoting from runs taken side by side), and prints per run the gas
 per fluid step, per cell, its share of the loop, the PCG iterations per step and every part, then
-per part the ratio of the first thread count's seconds to each other's.
+per part the ratio of the first thread count's seconds to each other's; with more than one scene,
+each scene's gas per cell over the first scene's of the same round, binary and thread count.
 
     /usr/bin/python3 tools/gas_phases.py --bin build/bin/cfddem --threads 1 2 --rounds 2 \
         scenes/riser.toml scenes/fluidized_bed.toml -- run.end_time=0.002
@@ -62,6 +63,19 @@ def main():
                           f" ({rep['loop_seconds']:.3f} s), PCG"
                           f" {rep.get('projection_iterations', 0) / steps:.1f}/step; "
                           + ", ".join(f"{k} {v:.4f}" for k, v in parts.items()), flush=True)
+    if len(args.scenes) > 1:
+        # Issue 36's measure: each scene's gas per cell over the first scene's, both of one round,
+        # binary and thread count (runs minutes apart on a shared machine are not comparable).
+        first = os.path.splitext(os.path.basename(args.scenes[0]))[0]
+        print(f"\ngas per cell / {first}'s of the same round, binary and threads:")
+        for r, b, name, t, rep, parts, gas, steps in rows:
+            if name == first:
+                continue
+            ref = next(x for x in rows if x[0] == r and x[1] == b and x[2] == first and x[3] == t)
+            per_cell = gas / steps / cells(rep)
+            ref_cell = ref[6] / ref[7] / cells(ref[4])
+            print(f"round {r} bin {b} {name} threads {t}: {per_cell / ref_cell:.3f}x "
+                  f"({1e9 * per_cell:.1f} / {1e9 * ref_cell:.1f} ns)")
     if len(args.threads) > 1:
         base = args.threads[0]
         print(f"\nper part, seconds at {base} thread(s) / at each other count = ratio:")

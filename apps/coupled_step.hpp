@@ -59,7 +59,7 @@ CellFields cell_fields(const fluid::GasSolver& gas);
 struct FluidPhaseSeconds {
   double deposition = 0.0;    // eps_s, beta and beta v to the cells
   double momentum = 0.0;      // momentum right-hand sides (Godunov: with the edge prediction)
-  double viscous = 0.0;       // implicit viscous Laplacians and solves
+  double viscous = 0.0;       // implicit viscous Laplacians, systems and solves
   double projection = 0.0;    // pressure projections
   double gas_other = 0.0;     // the rest of the gas step: ghost fills, drag factors, updates
   double interpolation = 0.0; // gas velocity and pressure gradient to the particles, forces

@@ -382,6 +382,8 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
       });
       continue;
     }
+    // The implicit system's rows, first guess and solve are the viscous phase's time.
+    const Stopwatch timed(seconds_.viscous);
     // eps_f rho (1 + k beta_f) u - theta dt div(eps mu grad u) = eps_f rho (u* + k (beta v)_f)
     // [- eps_f dt grad p, lagged], row by row (implicit_system_row).
     const ImplicitRowInputs inputs{rhs_[a].values().data(),
@@ -432,7 +434,6 @@ void GasSolver::stage(double dt, Stage kind, GasStepReport& report) {
     }
     if (!from_residual)
       fill_velocity_ghosts(grid_, halo_.get(), a, u_[a]); // the guess's boundary values
-    const Stopwatch timed(seconds_.viscous);
     const double c = theta * dt * settings_.gas.viscosity;
     const ViscousSolveReport vr =
         factored

@@ -97,7 +97,7 @@ struct GasSolverSettings {
 // Wall seconds a solver spent in each part of its steps, summed over them (this rank's).
 struct GasStepSeconds {
   double momentum = 0.0;   // the momentum right-hand sides (and Godunov's edge-state prediction)
-  double viscous = 0.0;    // the implicit viscous Laplacians and solves
+  double viscous = 0.0;    // the implicit viscous Laplacians, systems and solves
   double projection = 0.0; // the pressure projections
 };
 

@@ -39,8 +39,7 @@ partition::RankDecomposition box_decomposition(const Scene& scene,
 
 GasSide::GasSide(const Scene& scene, const Communicator& comm, bool routed,
                  const std::vector<CellBox>& boxes)
-    : scene_(scene), comm_(comm), routed_(routed && comm.size() > 1), geom_(scene.domain),
-      cells_(fluid_grid_spec(scene).cells) {
+    : scene_(scene), comm_(comm), routed_(routed && comm.size() > 1), geom_(scene.domain) {
   if (comm_.size() == 1)
     return;
   boxes0_ = boxes;
@@ -154,7 +153,8 @@ void GasSide::write_checkpoint(const std::string& path, Checkpoint c,
   if (comm_.size() > 1) {
     // The gas box now (a gas regrid may have moved it from the count cut).
     c.gas_boxes = gas_->boxes();
-    const GasBlock block{cells_, gas_->boxes()[static_cast<std::size_t>(comm_.rank())]};
+    const GasBlock block{gas_->solver().grid().global_cells(),
+                         gas_->boxes()[static_cast<std::size_t>(comm_.rank())]};
     write_coupled_checkpoint(path, std::move(c), *gas_, loop, block, comm_);
     return;
   }

@@ -71,7 +71,6 @@ private:
   const Communicator& comm_;
   bool routed_;
   dem::DomainGeometry geom_;
-  std::array<int, 3> cells_{}; // the whole gas grid's
   std::vector<CellBox> boxes0_;
   std::optional<GasRouting> routing_;
   std::optional<GasCoupling> gas_;

@@ -94,7 +94,7 @@ template <bool FromResidual>
   const double dt = in.dt;
   for (std::ptrdiff_t f = r.f0; f < r.f0 + r.n; ++f) {
     const double rate = FromResidual
-                            ? (in.corrector ? 0.5 * (rhs[f] + rhs_stage[f]) : rhs[f]) + lap[f]
+                            ? stage_rate(in.corrector, false, rhs, rhs_stage, lap, f) + lap[f]
                             : stage_rate(in.corrector, in.half_lap, rhs, rhs_stage, lap, f);
     const double grad_p = in.lagged ? (pp[f] - pp[f - r.s]) * in.inv_dx : 0.0;
     const double d = mass[f] * gain[f];

@@ -170,7 +170,7 @@ public:
   // ends to the boxes that share its lines (FactoredSweepLinks; the one grid's result up to
   // round-off). With `rhs_is_residual`, rhs already holds rhs - A u (the gas solver makes it
   // from the L(u^n) its step keeps, so the stencil is not applied to u^n twice): the step
-  // solves for it directly and reads neither u's ghosts nor eps's.
+  // solves for it directly and does not read u's ghosts.
   ViscousSolveReport step_factored(int comp, double c, const GridField& eps, const GridField& diag,
                                    const GridField& rhs, GridField& u,
                                    bool rhs_is_residual = false);

@@ -635,11 +635,11 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
   const std::ptrdiff_t len = hi[0] - lo[0] + 1;
   double* y = dir_.values().data();
   double* z = dir_next_.values().data();
-  // The x sweep's right-hand side, the residual r = rhs - A u_guess that a row pass
-  // (residual_row) leaves in y, which the sweep solves in place (or rhs itself, where it is the
-  // residual); the y and z sweeps', D y and D z.
-  const auto y_at = [=](std::ptrdiff_t p) { return y[p]; };
-  const auto b_at = [=](std::ptrdiff_t p) { return b[p]; };
+  // The x sweep's right-hand side, the residual r = rhs - A u_guess: rhs itself where it is the
+  // residual, else what a row pass (residual_row) leaves in y, which the sweep solves in place;
+  // the y and z sweeps', D y and D z.
+  const double* r = rhs_is_residual ? b : y;
+  const auto r_at = [=](std::ptrdiff_t p) { return r[p]; };
   const auto scaled_y = [=](std::ptrdiff_t p) { return dg[p] * y[p]; };
   const auto scaled_z = [=](std::ptrdiff_t p) { return dg[p] * z[p]; };
   if (halo_ != nullptr) {
@@ -670,11 +670,7 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
                                    sweep_ends_};
       // x: the residual in y -> y; y: D y -> z; z: D z -> delta (in y).
       if (axis == 0) {
-        if (rhs_is_residual) {
-          sweep(b_at, y);
-        } else {
-          sweep(y_at, y);
-        }
+        sweep(r_at, y);
       } else if (axis == 1) {
         sweep(scaled_y, z);
       } else {
@@ -712,23 +708,17 @@ ViscousSolveReport ImplicitViscosity::step_factored(int comp, double c, const Gr
       const Sweep wx = sweep_for(0, k0);
       const Sweep wy = sweep_for(1, k1);
       tbb::parallel_for(lo[2], hi[2] + 1, [&](int k) {
-        if (rhs_is_residual) {
-          for (int j = lo[1]; j <= hi[1]; j += 4) {
-            const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-            decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, b_at, y,
-                                                  nullptr);
-          }
-        } else {
+        if (!rhs_is_residual) {
           for (int j = lo[1]; j <= hi[1]; ++j) {
             decltype(copy)::residual(k0, k1, k2, dg, b, x, y,
                                      static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k)), len,
                                      sy, sz, c);
           }
-          for (int j = lo[1]; j <= hi[1]; j += 4) {
-            const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
-            decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, y_at, y,
-                                                  nullptr);
-          }
+        }
+        for (int j = lo[1]; j <= hi[1]; j += 4) {
+          const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], j, k));
+          decltype(copy)::template lines<false>(wx, p0, std::min(4, hi[1] - j + 1), sy, r_at, y,
+                                                nullptr);
         }
         const auto p0 = static_cast<std::ptrdiff_t>(layout.index(lo[0], lo[1], k));
         decltype(copy)::template lines<true>(wy, p0, static_cast<int>(len), 1, scaled_y, z,

@@ -12,6 +12,7 @@
 
 #include "apps/derived_numbers.hpp"
 #include "core/scene.hpp"
+#include "fluid/fluid_step_rule.hpp"
 
 namespace cfddem::apps {
 
@@ -65,7 +66,7 @@ inline constexpr double kMaxCourantPerFluidStep = 1e4;
 // dt_f in sub-steps of Courant number fluid.cfl, so a tiny cfl (1e-9 on the bed: 3e7 sub-steps)
 // makes the first fluid step never end, with no progress line. At cfl >= 0.1 the Courant bound
 // above is met first.
-inline constexpr double kMaxGasSubstepsPerFluidStep = 1e5;
+inline constexpr double kMaxGasSubstepsPerFluidStep = fluid::kMaxSubstepsPerInterval;
 inline constexpr double kMaxViscousNumber = 1e8;
 
 // Throws ConfigError naming the key and the number when one is beyond what can run (extreme

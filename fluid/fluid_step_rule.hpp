@@ -21,6 +21,13 @@ inline constexpr double kMaxFluidStepGrowth = 1.1;
 // accumulate at a steady slip.
 inline constexpr double kDragStepFraction = 0.1;
 
+// The most gas sub-steps one interval (fluid step) may take. The Courant rule at fluid.cfl sets
+// their count; beyond this the interval would not end in any useful time: a tiny fluid.cfl
+// (1e-9 on hcs_gas once its particles set the gas moving: 3.8e8 a fluid step), or a gas whose
+// speed has run away. The set-up refuses what it can foresee from the scene's speeds
+// (apps/gas_check.hpp); GasSolver::advance stops on what it meets.
+inline constexpr double kMaxSubstepsPerInterval = 1e5;
+
 // The gas's advection in time (fluid.advection): the single-stage Godunov step with time-centred
 // edge states (fluid/momentum_rhs.hpp, godunov_momentum_rhs), or the method of lines, limited
 // MUSCL edge states at t^n in an Euler or Heun step (GasSolverSettings::time_order).

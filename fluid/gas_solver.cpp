@@ -286,7 +286,10 @@ double GasSolver::next_substep(double interval, double t, double rate) const {
   return dt;
 }
 
-int GasSolver::substeps_for(double interval, double rate) const {
+double GasSolver::substeps_for(double interval, double rate) const {
+  if (rate > 0.0 && interval * rate / settings_.cfl > kMaxSubstepsPerInterval) {
+    return interval * rate / settings_.cfl; // not counted one by one
+  }
   double t = 0.0;
   int count = 0;
   while (interval - t > 1e-12 * interval) {
@@ -294,6 +297,62 @@ int GasSolver::substeps_for(double interval, double rate) const {
     ++count;
   }
   return count;
+}
+
+void GasSolver::check_substep_count(double interval, double t, int count, double rate) const {
+  const double left = rate > 0.0 ? (interval - t) * rate / settings_.cfl : 0.0;
+  if (!(count + left > kMaxSubstepsPerInterval)) {
+    return;
+  }
+  // The fastest face of the axis whose speed adds most to the rate; every rank looks at its own
+  // faces and all name the first over the global grid.
+  const std::array<double, 3> umax = max_face_speeds();
+  int axis = 0;
+  for (int a = 1; a < 3; ++a) {
+    if (umax[a] / grid_.spacing(a) > umax[axis] / grid_.spacing(axis)) {
+      axis = a;
+    }
+  }
+  const auto& n = grid_.cells();
+  const auto& global = grid_.global_cells();
+  const CellBox& box = grid_.box();
+  std::int64_t key = std::numeric_limits<std::int64_t>::max();
+  std::string where;
+  std::array<int, 3> hi = n;
+  hi[axis] = n[axis] + 1;
+  for (int k = 0; k < hi[2] && where.empty(); ++k) {
+    for (int j = 0; j < hi[1] && where.empty(); ++j) {
+      for (int i = 0; i < hi[0] && where.empty(); ++i) {
+        if (umax[axis] > 0.0 && std::abs(u_[axis](i, j, k)) == umax[axis]) {
+          const std::array<int, 3> c = {i, j, k};
+          std::array<double, 3> x{};
+          for (int a = 0; a < 3; ++a) {
+            x[a] = a == axis ? grid_.face_position(a, c[a]) : grid_.cell_centre(a, c[a]);
+          }
+          key = (static_cast<std::int64_t>(box.lo[2] + k) * (global[1] + 1) + box.lo[1] + j) *
+                    (global[0] + 1) +
+                box.lo[0] + i;
+          where = fmt::format("{:.3g} m/s along {} at the face at ({:.4g}, {:.4g}, {:.4g}) m",
+                              u_[axis](i, j, k), "xyz"[axis], x[0], x[1], x[2]);
+        }
+      }
+    }
+  }
+  if (halo_) {
+    where = halo_->comm().agree_on_error(key, where);
+  }
+  const double advective = courant_rates()[1];
+  throw std::runtime_error(fmt::format(
+      "the gas would take {:.3g} sub-steps in this fluid step of {:.3g} s at fluid.cfl = {:g} "
+      "(a Courant rate of {:.3g} 1/s; the gas speeds' part {:.3g} 1/s, the fastest {}), beyond "
+      "the {:g} a fluid step may take: {}",
+      count + left, interval, settings_.cfl, rate, advective,
+      where.empty() ? std::string("gas at rest") : where, kMaxSubstepsPerInterval,
+      settings_.cfl < 0.1 * max_stable_courant(settings_.advection)
+          ? fmt::format("raise fluid.cfl (the gas step is stable up to {:g})",
+                        max_stable_courant(settings_.advection))
+          : std::string("the gas has run away (look at its boundary speeds, fluid.dt and the "
+                        "drag)")));
 }
 
 double GasSolver::dt_for_courant(double courant) const {
@@ -632,7 +691,9 @@ GasStepReport GasSolver::advance(double interval, int* substeps, double eps_inte
       implicit_now_ = kImplicitSubstepCost * substeps_for(interval, rates[1]) <
                       substeps_for(interval, rates[0]);
     }
-    const double dt = next_substep(interval, t, implicit_now_ ? rates[1] : rates[0]);
+    const double rate = implicit_now_ ? rates[1] : rates[0];
+    check_substep_count(interval, t, count, rate);
+    const double dt = next_substep(interval, t, rate);
     const bool last = dt == interval - t;
     const double fraction = last ? 1.0 : (t + dt) / interval;
     std::span<double> e = eps_.values();

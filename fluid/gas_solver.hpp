@@ -237,8 +237,13 @@ private:
   // most cfl / rate, and the rest of the interval where less than a thousandth of a step would
   // be left.
   [[nodiscard]] double next_substep(double interval, double t, double rate) const;
-  // How many sub-steps advance() takes over `interval` at a Courant rate `rate`.
-  [[nodiscard]] int substeps_for(double interval, double rate) const;
+  // How many sub-steps advance() takes over `interval` at a Courant rate `rate`: counted up to
+  // kMaxSubstepsPerInterval, beyond it interval * rate / cfl.
+  [[nodiscard]] double substeps_for(double interval, double rate) const;
+  // Throws std::runtime_error when `count` sub-steps taken plus those the Courant rate `rate`
+  // asks for the rest of `interval` (from t) exceed kMaxSubstepsPerInterval, naming fluid.cfl,
+  // the rate's parts and the fastest face (collective over the ranks, as the rate is).
+  void check_substep_count(double interval, double t, int count, double rate) const;
   // The update of one stage from u^n (u_start_; the Godunov step's one stage from u_ itself) with
   // the rate of its kind, the drag point-implicit,
   // the Laplacian implicit where it is, and the projection (none for a lagged predictor).

@@ -288,6 +288,59 @@ TEST(GasSolverAdvance, SubstepsWhenCellsAreSmallerThanTheViscousLimitAllows) {
   EXPECT_FALSE(report.used_fallback);
 }
 
+// A fluid step whose Courant rule asks for more than kMaxSubstepsPerInterval sub-steps (a tiny
+// fluid.cfl once the gas moves, or a gas that ran away) stops with an error naming fluid.cfl,
+// the count and the fastest face (of equals, the first in k, j, i order), rather than running
+// for ever.
+// With "auto" viscosity the choice between the treatments counts the sub-steps, which no longer
+// loops over 1e300 of them.
+TEST(GasSolverAdvance, StopsWhereTheCourantRuleAsksForMoreSubstepsThanAFluidStepMayTake) {
+  const int n = 4;
+  const double h = 4e-4;
+  const MacGrid grid(box_spec({n, n, n}, {n * h, n * h, n * h}, BoundaryKind::periodic));
+  const double speed = 0.2;
+  const double interval = 1e-4;
+  // The Courant rate at this speed along x (the viscosity implicit): speed / h.
+  const double rate = speed / h;
+  for (const bool automatic : {false, true}) {
+    SCOPED_TRACE(automatic);
+    // 1,000 sub-steps run (the bound's own 99,000 would take the unit suite half a minute);
+    // 101,000 and 1e300 stop.
+    for (const double cfl : {100.0 * interval * rate / kMaxSubstepsPerInterval,
+                             0.99 * interval * rate / kMaxSubstepsPerInterval, 1e-300}) {
+      SCOPED_TRACE(cfl);
+      GasSolverSettings settings;
+      settings.gas = {kRho, kMu, {0.0, 0.0, 0.0}};
+      settings.implicit_viscosity = !automatic;
+      settings.implicit_viscosity_auto = automatic;
+      settings.cfl = cfl;
+      GasSolver solver(grid, settings);
+      solver.velocity()[0].fill(speed); // uniform: it stays so, and its first face is named
+      const bool runs = cfl > interval * rate / kMaxSubstepsPerInterval;
+      if (runs) {
+        int substeps = 0;
+        (void)solver.advance(interval, &substeps);
+        EXPECT_NEAR(substeps, 1000, 1);
+        continue;
+      }
+      try {
+        (void)solver.advance(interval);
+        FAIL() << "expected std::runtime_error";
+      } catch (const std::runtime_error& e) {
+        const std::string what = e.what();
+        EXPECT_NE(what.find(fmt::format("at fluid.cfl = {:g}", cfl)), std::string::npos) << what;
+        EXPECT_NE(what.find(fmt::format("would take {:.3g} sub-steps", interval * rate / cfl)),
+                  std::string::npos)
+            << what;
+        EXPECT_NE(what.find("raise fluid.cfl"), std::string::npos) << what;
+        EXPECT_NE(what.find("0.2 m/s along x at the face at (0, 0.0002, 0.0002) m"),
+                  std::string::npos)
+            << what;
+      }
+    }
+  }
+}
+
 // "auto" viscosity: per advance() interval, implicit where the explicit viscous limit needs more
 // than kImplicitSubstepCost times the sub-steps. A shear wave in a periodic box, dt_f = 1e-4 s:
 // on 150 um cells the explicit viscous Courant number is 0.53 (two sub-steps at cfl 0.4, one

@@ -657,6 +657,14 @@ def tiny_cfl_refused(ctx):
            r"warning: fluid.cfl = 1e-09: once the particles \(up to 0.316 m/s along an axis\) set "
            r"the gas moving, it may take up to 3.79e\+08 sub-steps in each fluid step of 0.0001 s",
            timeout=10)
+    # Run, it stopped nowhere: the second fluid step, the gas now moving, ran for ever. It stops
+    # there (exit 3), naming the sub-steps, fluid.cfl and the fastest face.
+    expect(ctx, ["run", HCS_GAS, "fluid.cfl=1e-9", "run.end_time=3e-4"], 3,
+           r"run stopped: t = 0.0001 s, fluid step 2: gas step: the gas would take [0-9.]+e\+08 "
+           r"sub-steps in this fluid step of 0.0001 s at fluid.cfl = 1e-09 \(a Courant rate of "
+           r".*the fastest [0-9.e+-]+ m/s along [xyz] at the face at \(.*\) m\), beyond the "
+           r"100000 a fluid step may take: raise fluid.cfl", out_dir=ctx.fresh("tiny_cfl_run"),
+           timeout=30)
     # An adaptive fluid step takes no sub-steps, so it runs, showing its progress; the count of
     # steps its first length makes to run.end_time is a warning.
     expect(ctx, ["check", BED, "fluid.dt=0", "fluid.cfl=1e-9"], 0,

@@ -83,12 +83,20 @@ namespace {
 struct GasSubsteps {
   double count, length;
 };
+// The viscous term counts in the gas's Courant rate where it is explicit throughout
+// (fluid.implicit_viscosity = false; "auto" takes it implicit where that saves sub-steps).
+bool explicit_viscosity(const Scene& s) {
+  return !s.fluid.implicit_viscosity && !s.fluid.implicit_viscosity_auto;
+}
+
 GasSubsteps gas_substeps(const Scene& s, const std::array<double, 3>& speed) {
-  const double length = fluid::courant_step(
-      fluid::fluid_step_rates(speed, cell_spacing(s), 0.0, false, {0.0, 0.0, 0.0},
-                              fluid::advection_named(s.fluid.advection)),
-      s.fluid.cfl);
-  return {s.fluid.dt / length, length};
+  const auto& f = s.fluid;
+  const double length =
+      fluid::courant_step(fluid::fluid_step_rates(speed, cell_spacing(s), f.viscosity / f.density,
+                                                  explicit_viscosity(s), {0.0, 0.0, 0.0},
+                                                  fluid::advection_named(f.advection)),
+                          f.cfl);
+  return {f.dt / length, length};
 }
 
 } // namespace
@@ -100,10 +108,9 @@ AdaptiveStart adaptive_start(const Scene& s, double drag_time) {
   caps.max_dt = f.max_dt;
   caps.drag_time = drag_time;
   // The viscous rate only where the Laplacian is explicit, as the run's step rule takes it.
-  const fluid::FluidStepRates rates =
-      fluid::fluid_step_rates(drive.speed, cell_spacing(s), f.viscosity / f.density,
-                              !f.implicit_viscosity && !f.implicit_viscosity_auto, drive.body,
-                              fluid::advection_named(f.advection));
+  const fluid::FluidStepRates rates = fluid::fluid_step_rates(
+      drive.speed, cell_spacing(s), f.viscosity / f.density, explicit_viscosity(s), drive.body,
+      fluid::advection_named(f.advection));
   AdaptiveStart out;
   out.first = fluid::next_fluid_step(rates, f.cfl, caps, s.run.end_time);
   out.steps = s.run.end_time / out.first;
@@ -201,12 +208,16 @@ void check_gas_numbers(const Scene& s) {
       throw ConfigError(
           "scene key 'fluid.cfl'",
           fmt::format("{:g} makes the gas take {:.3g} sub-steps of {:.3g} s in every fluid step of "
-                      "{:g} s (fluid.dt) at the gas speed of {:.3g} m/s on cells of {:.3g} m, "
+                      "{:g} s (fluid.dt) at the gas speed of {:.3g} m/s{} on cells of {:.3g} m, "
                       "beyond the {:g} a run can take; raise fluid.cfl (the gas step is stable up "
                       "to {:g})",
                       f.cfl, substeps, substep, f.dt,
-                      *std::max_element(axis_speed.begin(), axis_speed.end()), dx,
-                      kMaxGasSubstepsPerFluidStep, fluid::max_stable_courant(advection)));
+                      *std::max_element(axis_speed.begin(), axis_speed.end()),
+                      explicit_viscosity(s)
+                          ? fmt::format(" with the viscous term explicit (nu = {:.3g} m^2/s)",
+                                        f.viscosity / f.density)
+                          : std::string(),
+                      dx, kMaxGasSubstepsPerFluidStep, fluid::max_stable_courant(advection)));
   } else {
     // An adaptive fluid step takes no sub-steps: the step rule shortens it to the gas's Courant
     // number, however long fluid.max_dt is. Refused only where a run could not count its steps

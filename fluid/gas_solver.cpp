@@ -344,10 +344,12 @@ void GasSolver::check_substep_count(double interval, double t, int count, double
   const double advective = courant_rates()[1];
   throw std::runtime_error(fmt::format(
       "the gas would take {:.3g} sub-steps in this fluid step of {:.3g} s at fluid.cfl = {:g} "
-      "(a Courant rate of {:.3g} 1/s; the gas speeds' part {:.3g} 1/s, the fastest {}), beyond "
-      "the {:g} a fluid step may take: {}",
-      count + left, interval, settings_.cfl, rate, advective,
-      where.empty() ? std::string("gas at rest") : where, kMaxSubstepsPerInterval,
+      "(a Courant rate of {:.3g} 1/s; {}), beyond the {:g} a fluid step may take: {}",
+      count + left, interval, settings_.cfl, rate,
+      where.empty()
+          ? std::string("the gas is at rest: the explicit viscous term sets it")
+          : fmt::format("the gas speeds' part {:.3g} 1/s, the fastest {}", advective, where),
+      kMaxSubstepsPerInterval,
       settings_.cfl < 0.1 * max_stable_courant(settings_.advection)
           ? fmt::format("raise fluid.cfl (the gas step is stable up to {:g})",
                         max_stable_courant(settings_.advection))

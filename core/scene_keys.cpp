@@ -238,7 +238,10 @@ std::vector<SceneKey> make_table() {
        .section = S::DomainParticles,
        .choices = kPlacements,
        .fallback = word("random"),
-       .meaning = "generator: random non-overlapping positions (seeded), or a regular lattice"},
+       .meaning = "generator: random non-overlapping positions (seeded), or a simple cubic "
+                  "lattice filling the region (spacing at least the largest diameter), whose "
+                  "sites are taken x fastest, then y, then z: fewer particles than sites leave "
+                  "the last z slab part-filled"},
       {.name = "particles.region_lo",
        .type = T::Vec3,
        .section = S::DomainParticles,

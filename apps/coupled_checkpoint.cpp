@@ -9,21 +9,13 @@
 
 #include "apps/rank_checkpoint.hpp"
 #include "core/error.hpp"
-#include "fluid/gas_boxes.hpp"
 #include "fluid/mac_grid.hpp"
 
 namespace cfddem::apps {
 
 GasBlock gas_block(const Scene& scene, const Communicator& comm) {
-  const fluid::MacGridSpec spec = fluid_grid_spec(scene);
-  const std::array<int, 3> cells = spec.cells;
-  if (comm.size() == 1)
-    return {cells, CellBox{{0, 0, 0}, cells}};
-  try {
-    return {cells, fluid::gas_cell_boxes(spec, comm.size())[static_cast<std::size_t>(comm.rank())]};
-  } catch (const std::invalid_argument& e) {
-    throw ConfigError("scene key 'fluid.cells'", e.what());
-  }
+  return {fluid_grid_spec(scene).cells,
+          gas_boxes(scene, &comm)[static_cast<std::size_t>(comm.rank())]};
 }
 
 void write_coupled_checkpoint(const std::string& path, Checkpoint c, const GasCoupling& gas,

@@ -153,17 +153,6 @@ template <class F> void for_particles(std::size_t n, F&& f) {
                     });
 }
 
-std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
-  const fluid::MacGridSpec spec = fluid_grid_spec(scene);
-  if (comm == nullptr || comm->size() == 1)
-    return {CellBox{{0, 0, 0}, spec.cells}};
-  try {
-    return fluid::gas_cell_boxes(spec, comm->size());
-  } catch (const std::invalid_argument& e) {
-    throw ConfigError("scene key 'fluid.cells'", e.what());
-  }
-}
-
 fluid::MacGrid gas_grid(const Scene& scene, const Communicator* comm,
                         const std::vector<CellBox>& boxes) {
   if (comm == nullptr || comm->size() == 1)
@@ -179,6 +168,17 @@ fluid::DepositionSettings deposition_settings(const Scene& scene) {
 }
 
 } // namespace
+
+std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm) {
+  const fluid::MacGridSpec spec = fluid_grid_spec(scene);
+  if (comm == nullptr || comm->size() == 1)
+    return {CellBox{{0, 0, 0}, spec.cells}};
+  try {
+    return fluid::gas_cell_boxes(spec, comm->size());
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError("scene key 'fluid.cells'", e.what());
+  }
+}
 
 double GasCoupling::largest_radius(const ParticleStore& p, const Communicator* comm,
                                    std::size_t owned) {

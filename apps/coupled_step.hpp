@@ -34,6 +34,9 @@ namespace cfddem::apps {
 // The fluid grid of a scene; throws ConfigError naming the key (cells that do not tile, a
 // boundary condition that cannot be satisfied, a CFL above the stable limit, ...).
 fluid::MacGridSpec fluid_grid_spec(const Scene& scene);
+// The gas grid's count cut into one box per rank (fluid/gas_boxes.hpp; the whole grid on one
+// rank). Throws ConfigError naming fluid.cells when the grid is too small for the ranks.
+std::vector<CellBox> gas_boxes(const Scene& scene, const Communicator* comm);
 // All fluid checks of a scene (a no-op without [fluid]); throws ConfigError naming the key.
 void validate_fluid(const Scene& scene);
 

@@ -11,7 +11,6 @@
 #include "apps/gas_rebalance.hpp"
 #include "core/error.hpp"
 #include "core/next_time.hpp"
-#include "fluid/gas_boxes.hpp"
 #include "fluid/multigrid_poisson.hpp"
 #include "fluid/pressure_projection.hpp"
 #include "partition/cell_box_decomposition.hpp"
@@ -42,14 +41,8 @@ GasSide::GasSide(const Scene& scene, const Communicator& comm, bool routed,
     : scene_(scene), comm_(comm), routed_(routed && comm.size() > 1), geom_(scene.domain) {
   if (comm_.size() == 1)
     return;
-  boxes0_ = boxes;
-  if (boxes0_.size() != static_cast<std::size_t>(comm_.size())) {
-    try {
-      boxes0_ = fluid::gas_cell_boxes(fluid_grid_spec(scene), comm_.size());
-    } catch (const std::invalid_argument& e) {
-      throw ConfigError("scene key 'fluid.cells'", e.what());
-    }
-  }
+  boxes0_ =
+      boxes.size() == static_cast<std::size_t>(comm_.size()) ? boxes : gas_boxes(scene, &comm_);
   if (routed_)
     routing_.emplace(comm_, box_decomposition(scene_, boxes0_), geom_);
 }

@@ -242,8 +242,11 @@ std::array<double, 3> GasSolver::max_face_speeds() const {
 }
 
 std::array<double, 2> GasSolver::courant_rates() const {
+  return courant_rates(max_face_speeds());
+}
+
+std::array<double, 2> GasSolver::courant_rates(const std::array<double, 3>& umax) const {
   const double nu = settings_.gas.viscosity / settings_.gas.density;
-  const std::array<double, 3> umax = max_face_speeds();
   // {explicit viscosity, implicit}: the axes' terms added in the same order as ever.
   std::array<double, 2> rates{};
   if (settings_.advection == Advection::godunov) {
@@ -341,7 +344,7 @@ void GasSolver::check_substep_count(double interval, double t, int count, double
   if (halo_) {
     where = halo_->comm().agree_on_error(key, where);
   }
-  const double advective = courant_rates()[1];
+  const double advective = courant_rates(umax)[1];
   throw std::runtime_error(fmt::format(
       "the gas would take {:.3g} sub-steps in this fluid step of {:.3g} s at fluid.cfl = {:g} "
       "(a Courant rate of {:.3g} 1/s; {}), beyond the {:g} a fluid step may take: {}",

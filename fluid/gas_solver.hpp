@@ -227,6 +227,8 @@ private:
   // The Courant rate C/dt [1/s] with the viscous term explicit and without it: {advective_rate +
   // 2 nu sum_a 1 / dx_a^2, advective_rate} (u's ghosts filled).
   [[nodiscard]] std::array<double, 2> courant_rates() const;
+  // The same from the faces' largest speeds umax (max_face_speeds).
+  [[nodiscard]] std::array<double, 2> courant_rates(const std::array<double, 3>& umax) const;
   // C at dt from those rates: the viscous part only while the viscosity is explicit.
   [[nodiscard]] double courant_at(double dt, const std::array<double, 2>& rates) const {
     return dt * (implicit_now_ ? rates[1] : rates[0]);

@@ -1,5 +1,7 @@
 #include "core/parallel_env.hpp"
 
+#include "core/mpi_start.hpp"
+
 #include <cstdlib>
 
 #include <mpi.h>
@@ -27,6 +29,7 @@ ParallelEnv::ParallelEnv(int* argc, char*** argv, int threads) {
   int initialised = 0;
   MPI_Initialized(&initialised);
   if (!initialised) {
+    prepare_mpi_init();
     int provided = 0;
     MPI_Init_thread(argc, argv, MPI_THREAD_FUNNELED, &provided);
     we_initialised_mpi_ = true;

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Install dependencies, build (Release) and run the tests. CI runs exactly this.
-#   1. the unit suite (ctest -L unit: a few seconds per test, about 3 min on 2 cores),
+#   1. the unit suite (ctest -L unit: a few seconds per test, about 1 min on 2 cores),
 #   2. the validation suite (ctest -L validation: end-to-end runs, MPI runs, Python tools),
 #   3. the unit suite again under AddressSanitizer + UndefinedBehaviorSanitizer (the asan-ubsan
 #      preset, its own build); CFDDEM_SANITIZE=0 skips it.

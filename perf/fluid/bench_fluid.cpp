@@ -15,6 +15,8 @@
 #include <_hypre_struct_ls.h> // hypre_RedBlackGS: PFMG's smoother, for kernel 1
 #include <benchmark/benchmark.h>
 #include <mpi.h>
+
+#include "core/mpi_start.hpp"
 #include <tbb/global_control.h>
 
 #include "core/simd_level.hpp"
@@ -888,6 +890,7 @@ BENCHMARK(BM_GasStepRiser)
 } // namespace cfddem::fluid
 
 int main(int argc, char** argv) {
+  cfddem::prepare_mpi_init();
   MPI_Init(&argc, &argv);
   HYPRE_Init();
   benchmark::Initialize(&argc, argv);

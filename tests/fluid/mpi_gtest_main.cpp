@@ -3,7 +3,10 @@
 #include <gtest/gtest.h>
 #include <mpi.h>
 
+#include "core/mpi_start.hpp"
+
 int main(int argc, char** argv) {
+  cfddem::prepare_mpi_init();
   MPI_Init(&argc, &argv);
   HYPRE_Init();
   ::testing::InitGoogleTest(&argc, argv);

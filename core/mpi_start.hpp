@@ -7,9 +7,12 @@
 namespace cfddem {
 
 // An MPI launcher (Open MPI's mpirun, Slurm's srun, MPICH's hydra) leaves one of these in each
-// rank's environment; a singleton has none of them.
+// rank's environment; a singleton has none of them. SLURM_PROCID is there in every task srun
+// starts, whatever its PMI plugin sets (and in a batch script too, where a run then simply keeps
+// Open MPI's defaults): a rank of a multi-node job must never be held to the ob1 PML.
 inline bool started_by_mpi_launcher() {
-  for (const char* key : {"OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE"}) {
+  for (const char* key :
+       {"OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE", "SLURM_PROCID"}) {
     if (std::getenv(key) != nullptr) {
       return true;
     }

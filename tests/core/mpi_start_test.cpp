@@ -20,6 +20,7 @@ protected:
                                           "PMIX_RANK",
                                           "PMI_RANK",
                                           "PMI_SIZE",
+                                          "SLURM_PROCID",
                                           "OMPI_MCA_ess_singleton_isolated",
                                           "OMPI_MCA_pml"};
   std::vector<std::optional<std::string>> saved_;
@@ -61,7 +62,8 @@ TEST_F(MpiStartEnv, TheUsersOwnSettingIsKept) {
 }
 
 TEST_F(MpiStartEnv, ALaunchedRankIsLeftAsItsLauncherSetItUp) {
-  for (const char* key : {"OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE"}) {
+  for (const char* key :
+       {"OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE", "SLURM_PROCID"}) {
     SCOPED_TRACE(key);
     setenv(key, "0", 1);
     EXPECT_TRUE(started_by_mpi_launcher());

@@ -142,7 +142,7 @@ std::optional<std::string> particle_driven_substeps_warning(const Scene& s) {
   for (std::size_t a = 0; a < 3; ++a)
     speed[a] = std::abs(s.particles.velocity[a]) + thermal;
   const double substeps = gas_substeps(s, speed).count;
-  if (!(substeps > kMaxGasSubstepsPerFluidStep))
+  if (!(substeps > fluid::kMaxSubstepsPerInterval))
     return std::nullopt;
   return fmt::format(
       "fluid.cfl = {:g}: once the particles (up to {:.3g} m/s along an axis) set "
@@ -204,7 +204,7 @@ void check_gas_numbers(const Scene& s) {
     for (std::size_t a = 0; a < 3; ++a)
       axis_speed[a] = std::max(drive.speed[a], std::abs(drive.body[a]) * f.dt);
     const auto [substeps, substep] = gas_substeps(s, axis_speed);
-    if (substeps > kMaxGasSubstepsPerFluidStep)
+    if (substeps > fluid::kMaxSubstepsPerInterval)
       throw ConfigError(
           "scene key 'fluid.cfl'",
           fmt::format("{:g} makes the gas take {:.3g} sub-steps of {:.3g} s in every fluid step of "
@@ -217,7 +217,7 @@ void check_gas_numbers(const Scene& s) {
                           ? fmt::format(" with the viscous term explicit (nu = {:.3g} m^2/s)",
                                         f.viscosity / f.density)
                           : std::string(),
-                      dx, kMaxGasSubstepsPerFluidStep, fluid::max_stable_courant(advection)));
+                      dx, fluid::kMaxSubstepsPerInterval, fluid::max_stable_courant(advection)));
   } else {
     // An adaptive fluid step takes no sub-steps: the step rule shortens it to the gas's Courant
     // number, however long fluid.max_dt is. Refused only where a run could not count its steps

@@ -42,7 +42,7 @@ std::optional<std::string> adaptive_step_warning(const Scene& scene);
 
 // With a fixed fluid step: a warning when the particles' speeds (particles.velocity and the
 // thermal sqrt(T) per axis), to which their drag sets a gas at rest moving, would make the gas
-// take more than kMaxGasSubstepsPerFluidStep sub-steps at fluid.cfl. The speeds the gas is given
+// take more than fluid::kMaxSubstepsPerInterval sub-steps at fluid.cfl. The speeds the gas is given
 // are refused by check_gas_numbers; those the particles give it are an estimate: a warning.
 std::optional<std::string> particle_driven_substeps_warning(const Scene& scene);
 
@@ -62,11 +62,11 @@ void check_gas_memory(const Scene& scene, int ranks);
 // the drag-coupled pressure solves grows with it: 8.9e5 on scenes/settling.toml stops the
 // projection short of its tolerance at once, 8.9e7 runs 10 s before stopping, 1e299 hung).
 inline constexpr double kMaxCourantPerFluidStep = 1e4;
-// At most this many gas sub-steps per fixed fluid step from fluid.cfl: GasSolver::advance takes
-// dt_f in sub-steps of Courant number fluid.cfl, so a tiny cfl (1e-9 on the bed: 3e7 sub-steps)
-// makes the first fluid step never end, with no progress line. At cfl >= 0.1 the Courant bound
+// The gas sub-steps of a fixed fluid step are bounded by fluid::kMaxSubstepsPerInterval, the
+// bound GasSolver::advance stops at: it takes dt_f in sub-steps of Courant number fluid.cfl, so
+// a tiny cfl (1e-9 on the bed: 3e7 sub-steps) would make the first fluid step never end, with
+// no progress line. The set-up refuses what it can foresee; at cfl >= 0.1 the Courant bound
 // above is met first.
-inline constexpr double kMaxGasSubstepsPerFluidStep = fluid::kMaxSubstepsPerInterval;
 inline constexpr double kMaxViscousNumber = 1e8;
 
 // Throws ConfigError naming the key and the number when one is beyond what can run (extreme

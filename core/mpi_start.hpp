@@ -4,6 +4,8 @@
 
 #include <cstdlib>
 
+#include <mpi.h>
+
 namespace cfddem {
 
 // An MPI launcher (Open MPI's mpirun, Slurm's srun, MPICH's hydra) leaves one of these in each
@@ -33,6 +35,16 @@ inline void prepare_mpi_init() {
   }
   setenv("OMPI_MCA_ess_singleton_isolated", "1", 0);
   setenv("OMPI_MCA_pml", "ob1", 0);
+}
+
+// MPI_Init_thread at `required` (MPI_THREAD_SINGLE is MPI_Init), after prepare_mpi_init: every
+// program of the project starts MPI here (ParallelEnv, the test and benchmark mains), so none
+// can start it without the singleton's settings. Returns the level provided.
+inline int init_mpi(int* argc, char*** argv, int required) {
+  prepare_mpi_init();
+  int provided = 0;
+  MPI_Init_thread(argc, argv, required, &provided);
+  return provided;
 }
 
 } // namespace cfddem

@@ -1,7 +1,5 @@
 #include "core/parallel_env.hpp"
 
-#include "core/mpi_start.hpp"
-
 #include <cstdlib>
 
 #include <mpi.h>
@@ -10,6 +8,8 @@
 #endif
 #include <tbb/global_control.h>
 #include <tbb/info.h>
+
+#include "core/mpi_start.hpp"
 
 namespace cfddem {
 
@@ -29,9 +29,7 @@ ParallelEnv::ParallelEnv(int* argc, char*** argv, int threads) {
   int initialised = 0;
   MPI_Initialized(&initialised);
   if (!initialised) {
-    prepare_mpi_init();
-    int provided = 0;
-    MPI_Init_thread(argc, argv, MPI_THREAD_FUNNELED, &provided);
+    init_mpi(argc, argv, MPI_THREAD_FUNNELED);
     we_initialised_mpi_ = true;
   }
   MPI_Comm_rank(MPI_COMM_WORLD, &rank_);

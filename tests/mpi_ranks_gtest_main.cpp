@@ -7,8 +7,7 @@
 #include "core/mpi_start.hpp"
 
 int main(int argc, char** argv) {
-  cfddem::prepare_mpi_init();
-  MPI_Init(&argc, &argv);
+  cfddem::init_mpi(&argc, &argv, MPI_THREAD_SINGLE);
   ::testing::InitGoogleTest(&argc, argv);
   int rank = 0;
   MPI_Comm_rank(MPI_COMM_WORLD, &rank);

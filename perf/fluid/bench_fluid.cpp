@@ -15,10 +15,9 @@
 #include <_hypre_struct_ls.h> // hypre_RedBlackGS: PFMG's smoother, for kernel 1
 #include <benchmark/benchmark.h>
 #include <mpi.h>
-
-#include "core/mpi_start.hpp"
 #include <tbb/global_control.h>
 
+#include "core/mpi_start.hpp"
 #include "core/simd_level.hpp"
 #include "fluid/deposition.hpp"
 #include "fluid/gas_solver.hpp"
@@ -890,8 +889,7 @@ BENCHMARK(BM_GasStepRiser)
 } // namespace cfddem::fluid
 
 int main(int argc, char** argv) {
-  cfddem::prepare_mpi_init();
-  MPI_Init(&argc, &argv);
+  cfddem::init_mpi(&argc, &argv, MPI_THREAD_SINGLE);
   HYPRE_Init();
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) {

@@ -8,8 +8,7 @@
 #include "core/mpi_start.hpp"
 
 int main(int argc, char** argv) {
-  cfddem::prepare_mpi_init();
-  MPI_Init(&argc, &argv);
+  cfddem::init_mpi(&argc, &argv, MPI_THREAD_SINGLE);
   HYPRE_Init();
   ::testing::InitGoogleTest(&argc, argv);
   int rank = 0;
